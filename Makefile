@@ -1,0 +1,43 @@
+# coopsumo: every target creates .venv and installs what it needs on first use.
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+QUICK   ?=
+SEEDS   ?=
+
+.PHONY: install test lint bench demo nets scenario1 scenario2 clean
+
+$(STAMP): pyproject.toml
+	test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check coopsumo tests experiments
+	$(BIN)/mypy coopsumo
+
+bench: $(STAMP)
+	$(BIN)/python -m coopsumo.bench
+
+demo: $(STAMP)
+	$(BIN)/python -m coopsumo.simulate --scenario free --lanes 3 --policy greedy --steps 3000 --seed 1 --out results/demo
+
+nets: $(STAMP)
+	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"
+
+scenario1: $(STAMP)
+	$(BIN)/python -m coopsumo.scenario1 $(if $(QUICK),--quick) $(if $(SEEDS),--seeds $(SEEDS))
+
+scenario2: $(STAMP)
+	$(BIN)/python -m coopsumo.scenario2 --profile quick
+
+clean:
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

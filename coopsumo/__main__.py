@@ -1,0 +1,3 @@
+"""`python -m coopsumo` lists the commands."""
+
+print("coopsumo commands: python -m coopsumo.simulate | coopsumo.train | coopsumo.scenario1 | coopsumo.scenario2")

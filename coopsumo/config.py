@@ -1,0 +1,218 @@
+"""Typed, frozen configuration. Built once at an entry point, passed down, saved beside results.
+
+Every field carries its unit in its name or docstring. Paper values are marked "paper";
+the project's own choices are listed in the README's "Deviations and choices" table.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from typing import Any
+
+MIN_LANES = 2
+MAX_LANES = 6
+
+
+class ConfigError(ValueError):
+    """A configuration value is outside what the model supports (a usage error)."""
+
+
+@dataclass(frozen=True)
+class RoadConfig:
+    """The straight highway."""
+
+    lanes: int = 3
+    """number of lanes, 2-6"""
+    length_m: float = 2000.0
+    """road length (m): the accident at 1300 m plus 700 m of recovery downstream"""
+    lane_width_m: float = 3.2
+    """lane width (m)"""
+    speed_limit_mps: float = 33.34
+    """SUMO lane speed limit (m/s); above the largest expected speed (110 km/h)"""
+    loop_spacing_m: float = 200.0
+    """distance between induction-loop cross-sections (m), paper: 200 m"""
+    loop_period_s: float = 60.0
+    """aggregation period of the loop XML output (s)"""
+
+    def loop_positions_m(self) -> list[float]:
+        """Positions of the loop cross-sections (m), every spacing, strictly inside the road."""
+        n = int((self.length_m - 1e-6) // self.loop_spacing_m)
+        return [self.loop_spacing_m * k for k in range(1, n + 1) if self.loop_spacing_m * k < self.length_m]
+
+
+@dataclass(frozen=True)
+class DemandConfig:
+    """Upstream inflow."""
+
+    t_up_s: float = 1.2
+    """upstream departure interval for the whole road (s): inflow = 3600 / t_up_s veh/h"""
+    v_exp_mean_kmh: float = 85.0
+    """mean of the normal distribution of expected speeds (km/h)"""
+    v_exp_std_kmh: float = 15.0
+    """standard deviation of expected speeds (km/h)"""
+    v_exp_min_kmh: float = 40.0
+    """lower clip of expected speeds (km/h), paper"""
+    v_exp_max_kmh: float = 110.0
+    """upper clip of expected speeds (km/h), paper"""
+
+
+@dataclass(frozen=True)
+class ControlConfig:
+    """Newell car-following, collision check and lane changes (paper section III)."""
+
+    dt_s: float = 0.1
+    """simulation step (s), paper: 90,000 steps = 2.5 h"""
+    car_length_m: float = 4.0
+    """L_car (m), paper"""
+    newell_c_per_s: float = 0.7
+    """c of eq. (9) (1/s): the slope of speed against gap near standstill"""
+    newell_d: float = -0.1
+    """d of eq. (9) (dimensionless); negative, so the standstill gap is -d * v_exp / c"""
+    v_acc_mps: float = 0.4
+    """speed-up increment per decision (m/s), paper"""
+    a1: float = 2.0
+    """collision check coefficient on L_car, eq. (11), paper"""
+    a2_s: float = 0.5
+    """collision check coefficient on speed (s), eq. (11), paper"""
+    v_cc_mps: float = 1.0
+    """collision check speed margin (m/s), eq. (11), paper"""
+    t_change_s: float = 4.0
+    """lane-change duration (s), paper"""
+    lc_min_gap_m: float = 2.0
+    """smallest gap (m) a lane change may leave ahead and behind, on top of the check below"""
+    lc_headway_s: float = 0.5
+    """time headway (s) a lane change must leave to the new leader and to the new follower"""
+    vehicle_width_m: float = 1.8
+    """vehicle width (m), decides which lanes a vehicle in a lane change touches"""
+
+
+@dataclass(frozen=True)
+class AccidentConfig:
+    """The scenario I bottleneck: vehicles reaching x_m are held with a probability decaying 1 -> 0."""
+
+    enabled: bool = False
+    x_m: float = 1300.0
+    """bottleneck position (m), paper"""
+    start_step: int = 20_000
+    """first step of the accident window"""
+    duration_steps: int = 50_000
+    """length of the window (steps), paper: about 50,000"""
+    redraw_s: float = 1.0
+    """a held vehicle is released with probability 1 - p every redraw_s seconds"""
+
+    def hold_probability(self, step: int) -> float:
+        """p(step): 1 at the window's start, decaying linearly to 0 at its end; 0 outside."""
+        if not self.enabled or step < self.start_step or step >= self.start_step + self.duration_steps:
+            return 0.0
+        return 1.0 - (step - self.start_step) / self.duration_steps
+
+
+@dataclass(frozen=True)
+class RewardConfig:
+    """Reward r = w_v * r_v + r_cl + w_q * q_t (eq. 5-7)."""
+
+    alpha: float = 0.0
+    """lane-change penalty, eq. (7)"""
+    v_min_mps: float = 0.0
+    """lower speed bound of eq. (6) (m/s)"""
+    v_max_mps: float = 110.0 / 3.6
+    """upper speed bound of eq. (6) (m/s): the largest expected speed"""
+    flow_window_s: float = 60.0
+    """window over which the loops' flow q_t is measured (s)"""
+    capacity_veh_h_per_lane: float = 2000.0
+    """q_t is the loops' flow divided by lanes * this capacity (veh/h per lane)"""
+    w_speed: float = 1.0
+    """weight of r_v (paper: 1)"""
+    w_flow: float = 1.0
+    """weight of q_t (paper: 1)"""
+
+
+@dataclass(frozen=True)
+class DQNConfig:
+    """The learner (paper section IV where given)."""
+
+    lr: float = 0.01
+    """learning rate, paper"""
+    gamma: float = 0.9
+    """discount, paper"""
+    replay_size: int = 2000
+    """replay memory (transitions), paper"""
+    batch_size: int = 64
+    """minibatch size (transitions)"""
+    target_sync_steps: int = 500
+    """environment steps between target-network syncs, paper"""
+    greedy_prob: float = 0.9
+    """probability of the greedy action (paper's epsilon-greedy threshold 0.9)"""
+    learn_every_steps: int = 1
+    """environment steps between gradient updates"""
+    learn_start_steps: int = 200
+    """no update before this many environment steps"""
+    optimizer: str = "adam"
+    """'adam' or 'sgd'"""
+    grad_clip_norm: float = 10.0
+    """gradient-norm clip"""
+    speed_scale_mps: float = 110.0 / 3.6
+    """speed errors are divided by this before entering the network (m/s)"""
+    store_per_step: int = 16
+    """at most this many vehicles' transitions are stored per step (random subset)"""
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """One simulation run."""
+
+    road: RoadConfig = field(default_factory=RoadConfig)
+    demand: DemandConfig = field(default_factory=DemandConfig)
+    control: ControlConfig = field(default_factory=ControlConfig)
+    accident: AccidentConfig = field(default_factory=AccidentConfig)
+    reward: RewardConfig = field(default_factory=RewardConfig)
+    steps: int = 9000
+    """simulation steps"""
+    seed: int = 0
+    """one seed for Python, NumPy, torch and SUMO"""
+    policy: str = "keep"
+    """policy spec: keep, random, greedy, dqn:PATH, mobil:p=P, sumo"""
+    time_to_teleport_s: float = 300.0
+    """SUMO's --time-to-teleport (s); SUMO's default"""
+
+    @property
+    def scenario(self) -> str:
+        return "accident" if self.accident.enabled else "free"
+
+    def validate(self) -> None:
+        """Raise ConfigError naming the first bad value."""
+        if not MIN_LANES <= self.road.lanes <= MAX_LANES:
+            raise ConfigError(f"lanes must be between {MIN_LANES} and {MAX_LANES}, got {self.road.lanes}")
+        if not self.demand.t_up_s > 0 or self.demand.t_up_s != self.demand.t_up_s:
+            raise ConfigError(f"t-up must be a positive number of seconds, got {self.demand.t_up_s}")
+        if self.steps <= 0:
+            raise ConfigError(f"steps must be positive, got {self.steps}")
+        alpha = self.reward.alpha
+        if not (alpha >= 0 and alpha < float("inf")):
+            raise ConfigError(f"alpha must be a finite number >= 0, got {alpha}")
+
+
+def to_dict(cfg: Any) -> dict[str, Any]:
+    """A JSON-ready dict of a config dataclass."""
+    return dataclasses.asdict(cfg)
+
+
+def to_json(cfg: Any) -> str:
+    return json.dumps(to_dict(cfg), indent=2, sort_keys=True)
+
+
+def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
+    """Inverse of to_dict for SimConfig."""
+    return SimConfig(
+        road=RoadConfig(**d["road"]),
+        demand=DemandConfig(**d["demand"]),
+        control=ControlConfig(**d["control"]),
+        accident=AccidentConfig(**d["accident"]),
+        reward=RewardConfig(**d["reward"]),
+        steps=d["steps"],
+        seed=d["seed"],
+        policy=d["policy"],
+        time_to_teleport_s=d["time_to_teleport_s"],
+    )

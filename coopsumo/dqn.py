@@ -1,0 +1,366 @@
+"""The lane-changing DQN (paper section II.B, Table II): network, replay memory, update, learner.
+
+Pure torch + numpy. Observations arrive as numpy arrays for a batch of vehicles:
+grids (N, 3, 3, 20) = 3 frames x 3 lanes x 20 cells of 1 m, 0/1 occupancy;
+speed_err (N, 3) = actual minus expected speed for the same 3 frames (m/s).
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from coopsumo.config import DQNConfig
+
+GRID_SHAPE = (3, 3, 20)
+"""(frames, lanes, cells) of one observation's occupancy grids"""
+N_ACTIONS = 4
+"""0 = left, 1 = right, 2 = speedup, 3 = none"""
+
+_CONV_OUT = 32 * 1 * 5
+"""features after the two convolutions: 32 filters x 1 row x 5 columns"""
+
+
+def seed_torch(seed: int) -> None:
+    """Seed torch's global RNG."""
+    torch.manual_seed(seed)
+
+
+class QNetwork(nn.Module):
+    """Table II: two 2x2 convolutions (stride (1, 2)), concat the 3 speed errors, FC 500, FC 100, 4 Q-values."""
+
+    def __init__(self, speed_scale_mps: float) -> None:
+        super().__init__()
+        if not speed_scale_mps > 0:
+            raise ValueError(f"speed_scale_mps must be positive, got {speed_scale_mps}")
+        self.speed_scale_mps = float(speed_scale_mps)  # m/s; speed errors are divided by this
+        self.conv1 = nn.Conv2d(GRID_SHAPE[0], 16, kernel_size=(2, 2), stride=(1, 2))
+        self.conv2 = nn.Conv2d(16, 32, kernel_size=(2, 2), stride=(1, 2))
+        self.fc1 = nn.Linear(_CONV_OUT + GRID_SHAPE[0], 500)
+        self.fc2 = nn.Linear(500, 100)
+        self.out = nn.Linear(100, N_ACTIONS)
+
+    def forward(self, grids: torch.Tensor, speed_err: torch.Tensor) -> torch.Tensor:
+        """Q-values (B, 4) from grids (B, 3, 3, 20) and speed errors (B, 3) in m/s."""
+        x = torch.relu(self.conv1(grids))
+        x = torch.relu(self.conv2(x))
+        x = torch.cat([x.flatten(start_dim=1), speed_err / self.speed_scale_mps], dim=1)
+        x = torch.relu(self.fc1(x))
+        x = torch.relu(self.fc2(x))
+        return self.out(x)
+
+
+@dataclass(frozen=True)
+class ReplayBatch:
+    """A minibatch of B transitions as float32 tensors (actions int64)."""
+
+    grids: torch.Tensor
+    """(B, 3, 3, 20) occupancy, 0/1"""
+    speed_err: torch.Tensor
+    """(B, 3) speed errors (m/s)"""
+    actions: torch.Tensor
+    """(B,) action indices, int64"""
+    rewards: torch.Tensor
+    """(B,) rewards"""
+    next_grids: torch.Tensor
+    """(B, 3, 3, 20) occupancy of the next state"""
+    next_speed_err: torch.Tensor
+    """(B, 3) speed errors of the next state (m/s)"""
+    dones: torch.Tensor
+    """(B,) 1.0 where the episode ended at this transition (no bootstrap), else 0.0"""
+
+
+_BUFFER_FIELDS: dict[str, tuple[tuple[int, ...], Any]] = {
+    "grids": (GRID_SHAPE, np.uint8),
+    "speed_err": ((GRID_SHAPE[0],), np.float32),
+    "actions": ((), np.int64),
+    "rewards": ((), np.float32),
+    "next_grids": (GRID_SHAPE, np.uint8),
+    "next_speed_err": ((GRID_SHAPE[0],), np.float32),
+    "dones": ((), np.float32),
+}
+"""name -> (shape of one transition, storage dtype)"""
+
+
+class ReplayBuffer:
+    """Fixed-capacity ring buffer of transitions; the oldest are overwritten first."""
+
+    def __init__(self, capacity: int) -> None:
+        if capacity <= 0:
+            raise ValueError(f"replay capacity must be positive, got {capacity}")
+        self.capacity = capacity
+        self._pos = 0  # index the next transition is written to
+        self._size = 0
+        self._data = {
+            name: np.zeros((capacity, *shape), dtype=dtype) for name, (shape, dtype) in _BUFFER_FIELDS.items()
+        }
+
+    def __len__(self) -> int:
+        return self._size
+
+    def add_batch(
+        self,
+        grids: np.ndarray,
+        speed_err: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_grids: np.ndarray,
+        next_speed_err: np.ndarray,
+        dones: np.ndarray,
+    ) -> None:
+        """Store N transitions (arrays with leading dimension N); only the newest capacity are kept."""
+        arrays = {
+            "grids": grids,
+            "speed_err": speed_err,
+            "actions": actions,
+            "rewards": rewards,
+            "next_grids": next_grids,
+            "next_speed_err": next_speed_err,
+            "dones": dones,
+        }
+        n = len(actions)
+        for name, arr in arrays.items():
+            shape = (n, *_BUFFER_FIELDS[name][0])
+            if np.shape(arr) != shape:
+                raise ValueError(f"replay {name} must have shape {shape}, got {np.shape(arr)}")
+        if n == 0:
+            return
+        skip = max(0, n - self.capacity)  # transitions overwritten within this same batch
+        idx = (self._pos + skip + np.arange(n - skip)) % self.capacity
+        for name, arr in arrays.items():
+            self._data[name][idx] = np.asarray(arr)[skip:]
+        self._pos = (self._pos + n) % self.capacity
+        self._size = min(self._size + n, self.capacity)
+
+    def sample(self, batch_size: int, rng: np.random.Generator) -> ReplayBatch:
+        """batch_size transitions drawn uniformly with replacement."""
+        if self._size == 0:
+            raise ValueError("cannot sample from an empty replay buffer")
+        idx = rng.integers(0, self._size, size=batch_size)
+        d = self._data
+        return ReplayBatch(
+            grids=torch.from_numpy(d["grids"][idx].astype(np.float32)),
+            speed_err=torch.from_numpy(d["speed_err"][idx]),
+            actions=torch.from_numpy(d["actions"][idx]),
+            rewards=torch.from_numpy(d["rewards"][idx]),
+            next_grids=torch.from_numpy(d["next_grids"][idx].astype(np.float32)),
+            next_speed_err=torch.from_numpy(d["next_speed_err"][idx]),
+            dones=torch.from_numpy(d["dones"][idx]),
+        )
+
+    def state_dict(self) -> dict[str, Any]:
+        """A snapshot (copies) of the buffer as plain types and tensors."""
+        return {
+            "capacity": self.capacity,
+            "pos": self._pos,
+            "size": self._size,
+            "data": {name: torch.from_numpy(arr.copy()) for name, arr in self._data.items()},
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a snapshot from state_dict(); the capacity must match."""
+        if state["capacity"] != self.capacity:
+            raise ValueError(f"replay capacity mismatch: buffer has {self.capacity}, state has {state['capacity']}")
+        for name, (_, dtype) in _BUFFER_FIELDS.items():
+            self._data[name] = state["data"][name].numpy().astype(dtype, copy=True)
+        self._pos = int(state["pos"])
+        self._size = int(state["size"])
+
+
+def epsilon_greedy(q_values: np.ndarray, greedy_prob: float, rng: np.random.Generator) -> np.ndarray:
+    """One int64 action per row of q_values (N, A): argmax with probability greedy_prob, else uniform."""
+    n, n_actions = q_values.shape
+    greedy = np.argmax(q_values, axis=1).astype(np.int64)
+    random_actions = rng.integers(0, n_actions, size=n, dtype=np.int64)
+    take_greedy = rng.random(n) < greedy_prob
+    return np.where(take_greedy, greedy, random_actions)
+
+
+def dqn_update(
+    online: QNetwork,
+    target: QNetwork,
+    optimizer: torch.optim.Optimizer,
+    batch: ReplayBatch,
+    gamma: float,
+    grad_clip_norm: float,
+) -> float:
+    """One gradient step on the mean squared TD error (paper eq. 8); returns the loss before the step."""
+    q = online(batch.grids, batch.speed_err).gather(1, batch.actions.unsqueeze(1)).squeeze(1)
+    with torch.no_grad():
+        next_q = target(batch.next_grids, batch.next_speed_err).max(dim=1).values
+        td_target = batch.rewards + gamma * (1.0 - batch.dones) * next_q
+    loss = ((td_target - q) ** 2).mean()
+    optimizer.zero_grad()
+    loss.backward()
+    nn.utils.clip_grad_norm_(online.parameters(), grad_clip_norm)
+    optimizer.step()
+    return float(loss.item())
+
+
+def sync_target(online: nn.Module, target: nn.Module) -> None:
+    """Copy the online network's weights into the target network."""
+    target.load_state_dict(online.state_dict())
+
+
+def make_optimizer(net: nn.Module, cfg: DQNConfig) -> torch.optim.Optimizer:
+    """Adam or SGD on net's parameters with cfg.lr."""
+    if cfg.optimizer == "adam":
+        return torch.optim.Adam(net.parameters(), lr=cfg.lr)
+    if cfg.optimizer == "sgd":
+        return torch.optim.SGD(net.parameters(), lr=cfg.lr)
+    raise ValueError(f"unknown optimizer {cfg.optimizer!r}, expected 'adam' or 'sgd'")
+
+
+class Learner:
+    """Online and target networks, optimizer, replay memory and RNG, advanced once per environment step."""
+
+    def __init__(self, cfg: DQNConfig, seed: int) -> None:
+        self.cfg = cfg
+        # The initial weights depend on the seed only; torch's global RNG is left as it was.
+        with torch.random.fork_rng(devices=[]):
+            seed_torch(seed)
+            self.online = QNetwork(cfg.speed_scale_mps)
+            self.target = QNetwork(cfg.speed_scale_mps)
+        sync_target(self.online, self.target)
+        self.optimizer = make_optimizer(self.online, cfg)
+        self.buffer = ReplayBuffer(cfg.replay_size)
+        # A stream distinct from np.random.default_rng(seed), which the caller may use elsewhere.
+        self.rng = np.random.default_rng([seed, 0x44514E])
+        self.env_steps = 0  # environment steps seen by step()
+        self.updates = 0  # gradient updates done
+
+    def act(self, grids: np.ndarray, speed_err: np.ndarray, explore: bool) -> np.ndarray:
+        """int64 actions (N,) for grids (N, 3, 3, 20) and speed errors (N, 3) in m/s; epsilon-greedy if explore."""
+        if len(grids) == 0:
+            return np.zeros(0, dtype=np.int64)
+        with torch.no_grad():
+            q = self.online(
+                torch.as_tensor(grids, dtype=torch.float32),
+                torch.as_tensor(speed_err, dtype=torch.float32),
+            ).numpy()
+        if explore:
+            return epsilon_greedy(q, self.cfg.greedy_prob, self.rng)
+        return np.argmax(q, axis=1).astype(np.int64)
+
+    def observe(
+        self,
+        grids: np.ndarray,
+        speed_err: np.ndarray,
+        actions: np.ndarray,
+        rewards: np.ndarray,
+        next_grids: np.ndarray,
+        next_speed_err: np.ndarray,
+        dones: np.ndarray,
+    ) -> None:
+        """Store N transitions in the replay memory."""
+        self.buffer.add_batch(grids, speed_err, actions, rewards, next_grids, next_speed_err, dones)
+
+    def step(self) -> float | None:
+        """Advance one environment step: maybe one update, maybe a target sync; returns the loss or None."""
+        cfg = self.cfg
+        self.env_steps += 1
+        loss = None
+        if (
+            len(self.buffer) >= cfg.batch_size
+            and self.env_steps >= cfg.learn_start_steps
+            and self.env_steps % cfg.learn_every_steps == 0
+        ):
+            batch = self.buffer.sample(cfg.batch_size, self.rng)
+            loss = dqn_update(self.online, self.target, self.optimizer, batch, cfg.gamma, cfg.grad_clip_norm)
+            self.updates += 1
+        if self.env_steps % cfg.target_sync_steps == 0:
+            sync_target(self.online, self.target)
+        return loss
+
+    def state_dict(self) -> dict[str, Any]:
+        """A snapshot (copies) of everything needed for an exact resume; loads with torch.load(weights_only=True)."""
+        return {
+            "online": copy.deepcopy(self.online.state_dict()),
+            "target": copy.deepcopy(self.target.state_dict()),
+            "optimizer": copy.deepcopy(self.optimizer.state_dict()),
+            "buffer": self.buffer.state_dict(),
+            "numpy_rng": copy.deepcopy(self.rng.bit_generator.state),
+            "torch_rng": torch.get_rng_state(),
+            "env_steps": self.env_steps,
+            "updates": self.updates,
+        }
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore a snapshot from state_dict(), including torch's global RNG state."""
+        self.online.load_state_dict(state["online"])
+        self.target.load_state_dict(state["target"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.buffer.load_state_dict(state["buffer"])
+        self.rng.bit_generator.state = copy.deepcopy(state["numpy_rng"])
+        torch.set_rng_state(state["torch_rng"])
+        self.env_steps = int(state["env_steps"])
+        self.updates = int(state["updates"])
+
+
+class ModelFileError(ValueError):
+    """A model file is missing, unreadable, not a coopsumo model, or has the wrong shape."""
+
+
+_MODEL_KEYS = ("state_dict", "grid_shape", "n_actions", "speed_scale_mps", "meta")
+
+
+def _first_line(exc: BaseException) -> str:
+    """The first line of an exception's message, or its type name if empty."""
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def save_model(path: str | os.PathLike[str], net: QNetwork, meta: dict[str, Any]) -> None:
+    """Write net and meta (plain types only) to path atomically (temp file in the same folder, then rename)."""
+    path = Path(path)
+    payload = {
+        "state_dict": {k: v.detach().clone() for k, v in net.state_dict().items()},
+        "grid_shape": list(GRID_SHAPE),
+        "n_actions": N_ACTIONS,
+        "speed_scale_mps": net.speed_scale_mps,
+        "meta": meta,
+    }
+    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp_name, path)
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+
+
+def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
+    """Read a model written by save_model; raise ModelFileError naming the problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise ModelFileError(f"model file not found: {path}")
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # torch raises many types for a corrupt or unsafe file
+        raise ModelFileError(f"cannot read model file {path}: {_first_line(exc)}") from exc
+    if not isinstance(payload, dict) or any(k not in payload for k in _MODEL_KEYS):
+        raise ModelFileError(f"not a coopsumo model file: {path}")
+    grid_shape = payload["grid_shape"]
+    if not isinstance(grid_shape, (list, tuple)) or tuple(grid_shape) != GRID_SHAPE:
+        raise ModelFileError(f"model {path} has grid shape {grid_shape}, expected {list(GRID_SHAPE)}")
+    if payload["n_actions"] != N_ACTIONS:
+        raise ModelFileError(f"model {path} has {payload['n_actions']} actions, expected {N_ACTIONS}")
+    try:
+        net = QNetwork(float(payload["speed_scale_mps"]))
+        net.load_state_dict(payload["state_dict"])
+    except (RuntimeError, ValueError, TypeError) as exc:
+        raise ModelFileError(f"model {path} has incompatible weights: {_first_line(exc)}") from exc
+    if not isinstance(payload["meta"], dict):
+        raise ModelFileError(f"model {path} has meta of type {type(payload['meta']).__name__}, expected a dict")
+    return net, payload["meta"]

@@ -1,0 +1,111 @@
+"""SUMO network and detector files: the straight highway built by netconvert, E1 loops every 200 m.
+
+Pure file generation plus one call of SUMO's `netconvert` binary; no libsumo here.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import tempfile
+from pathlib import Path
+
+from coopsumo.config import RoadConfig
+
+EDGE_ID = "road"
+ROUTE_ID = "r0"
+VTYPE_ID = "car"
+REPO_ROOT = Path(__file__).resolve().parent.parent
+NETS_DIR = REPO_ROOT / "sumo_nets"
+
+
+def netconvert_binary() -> str:
+    """Path of the netconvert binary shipped by the eclipse-sumo wheel."""
+    import sumo  # the eclipse-sumo wheel; only its path is used
+
+    path = Path(sumo.SUMO_HOME) / "bin" / "netconvert"
+    if not path.exists():
+        raise FileNotFoundError(f"netconvert not found at {path}; install eclipse-sumo")
+    return str(path)
+
+
+def net_name(road: RoadConfig) -> str:
+    """File stem of the network for this road (lanes, length, width, speed limit)."""
+    return f"highway_{road.lanes}lanes_{road.length_m:g}m_w{road.lane_width_m:g}_v{road.speed_limit_mps:g}"
+
+
+def plain_xml(road: RoadConfig) -> tuple[str, str]:
+    """The node and edge files of SUMO's plain XML format for the road."""
+    nodes = (
+        "<nodes>\n"
+        '    <node id="upstream" x="0.00" y="0.00" type="priority"/>\n'
+        f'    <node id="downstream" x="{road.length_m:.2f}" y="0.00" type="priority"/>\n'
+        "</nodes>\n"
+    )
+    edges = (
+        "<edges>\n"
+        f'    <edge id="{EDGE_ID}" from="upstream" to="downstream" numLanes="{road.lanes}" '
+        f'speed="{road.speed_limit_mps:.2f}" width="{road.lane_width_m:.2f}" spreadType="center"/>\n'
+        "</edges>\n"
+    )
+    return nodes, edges
+
+
+def build_net(road: RoadConfig, nets_dir: Path = NETS_DIR) -> Path:
+    """Build (once) the network for this road with netconvert; returns the .net.xml path.
+
+    Written atomically, so parallel runs asking for the same network do not clash.
+    """
+    nets_dir.mkdir(parents=True, exist_ok=True)
+    stem = net_name(road)
+    net_path = nets_dir / f"{stem}.net.xml"
+    if net_path.exists():
+        return net_path
+    nodes, edges = plain_xml(road)
+    (nets_dir / f"{stem}.nod.xml").write_text(nodes)
+    (nets_dir / f"{stem}.edg.xml").write_text(edges)
+    fd, tmp = tempfile.mkstemp(suffix=".net.xml", dir=nets_dir)
+    os.close(fd)
+    cmd = [
+        netconvert_binary(),
+        "--node-files", str(nets_dir / f"{stem}.nod.xml"),
+        "--edge-files", str(nets_dir / f"{stem}.edg.xml"),
+        "--output-file", tmp,
+        "--no-turnarounds", "true",
+        "--no-warnings", "true",
+    ]  # fmt: skip
+    result = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        Path(tmp).unlink(missing_ok=True)
+        raise RuntimeError(f"netconvert failed: {result.stderr.strip()}")
+    os.replace(tmp, net_path)
+    return net_path
+
+
+def loop_id(pos_m: float, lane: int) -> str:
+    """Detector id, e.g. e1_x1200_l2 (position in m, SUMO lane index)."""
+    return f"e1_x{int(round(pos_m)):05d}_l{lane}"
+
+
+def detectors_xml(road: RoadConfig, output_file: str) -> str:
+    """An additional file with one E1 induction loop per lane every loop_spacing_m."""
+    lines = ["<additional>"]
+    for pos in road.loop_positions_m():
+        for lane in range(road.lanes):
+            lines.append(
+                f'    <inductionLoop id="{loop_id(pos, lane)}" lane="{EDGE_ID}_{lane}" pos="{pos:.2f}" '
+                f'period="{road.loop_period_s:g}" file="{output_file}"/>'
+            )
+    lines.append("</additional>")
+    return "\n".join(lines) + "\n"
+
+
+def routes_xml(max_speed_mps: float, car_length_m: float) -> str:
+    """The route file: one route over the road and the vehicle type (SUMO's models only for `sumo`)."""
+    return (
+        "<routes>\n"
+        f'    <vType id="{VTYPE_ID}" length="{car_length_m:g}" minGap="2.5" maxSpeed="{max_speed_mps:.2f}" '
+        'accel="2.6" decel="4.5" emergencyDecel="9.0" sigma="0.5" speedFactor="1" speedDev="0"/>\n'
+        f'    <route id="{ROUTE_ID}" edges="{EDGE_ID}"/>\n'
+        "</routes>\n"
+    )

@@ -1,0 +1,135 @@
+"""Figures written as PNG files: time-space diagrams (paper Fig. 4) and flow-density (Fig. 5).
+
+Figures are drawn with matplotlib's object API on an explicit Agg canvas: no pyplot, no
+global backend switch, no display needed.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.axes import Axes
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.cm import ScalarMappable
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+
+SPEED_VMIN_MPS = 0.0
+SPEED_VMAX_MPS = 31.0
+SPEED_CMAP = "RdYlGn"
+DPI = 120
+
+
+def _new_figure(width_in: float, height_in: float) -> Figure:
+    """A Figure attached to an Agg canvas (size in inches)."""
+    fig = Figure(figsize=(width_in, height_in))
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, out_path: str | Path) -> Path:
+    """Write fig as PNG to out_path (creating its folder) and return the path."""
+    path = Path(out_path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=DPI, format="png")
+    return path
+
+
+def subsample_times(traj: pd.DataFrame, max_points: int) -> pd.DataFrame:
+    """Keep every k-th distinct time_s value, with the smallest k giving at most max_points rows."""
+    if len(traj) <= max_points:
+        return traj
+    times, rank = np.unique(traj["time_s"].to_numpy(dtype=float), return_inverse=True)
+    k = math.ceil(len(traj) / max_points)
+    kept = traj[rank % k == 0]
+    while len(kept) > max_points and k < len(times):
+        k += 1
+        kept = traj[rank % k == 0]
+    return kept
+
+
+def time_space_figure(
+    trajs: dict[str, pd.DataFrame],
+    lane: int,
+    out_path: str | Path,
+    accident_window_s: tuple[float, float] | None,
+    x_bottleneck_m: float | None,
+    title_lane: str,
+    max_points_per_panel: int = 400_000,
+) -> Path:
+    """Time-space diagram of one lane: one panel per label, position (m) against time (s).
+
+    Each panel shows the trajectory samples with lane == lane (SUMO index), coloured by
+    speed (m/s, fixed scale 0-31, one shared colorbar), thinned to at most
+    max_points_per_panel points by keeping every k-th time step. The accident window
+    (s) is shaded and the bottleneck position (m) drawn dashed, when given. title_lane
+    names the lane in the title (e.g. "lane 1"). Writes a PNG and returns its path.
+    """
+    if not trajs:
+        raise ValueError("time_space_figure needs at least one trajectory table")
+    norm = Normalize(vmin=SPEED_VMIN_MPS, vmax=SPEED_VMAX_MPS)
+    n = len(trajs)
+    fig = _new_figure(4.8 * n + 1.2, 4.8)
+    axes = fig.subplots(1, n, sharex=True, sharey=True, squeeze=False)[0]
+    for ax, (label, traj) in zip(axes, trajs.items(), strict=True):
+        on_lane = subsample_times(traj[traj["lane"] == lane], max_points_per_panel)
+        ax.scatter(
+            on_lane["time_s"],
+            on_lane["pos_m"],
+            c=on_lane["speed_mps"],
+            cmap=SPEED_CMAP,
+            norm=norm,
+            s=2.0,
+            marker=".",
+            linewidths=0,
+            rasterized=True,
+        )
+        _mark_accident(ax, accident_window_s, x_bottleneck_m)
+        ax.set_title(f"{label}: {title_lane}")
+        ax.set_xlabel("time (s)")
+    axes[0].set_ylabel("position (m)")
+    mappable = ScalarMappable(norm=norm, cmap=SPEED_CMAP)
+    fig.colorbar(mappable, ax=list(axes), label="speed (m/s)", fraction=0.04, pad=0.02)
+    return _save(fig, out_path)
+
+
+def _mark_accident(ax: Axes, window_s: tuple[float, float] | None, x_bottleneck_m: float | None) -> None:
+    """Shade the accident window (s) and draw the bottleneck position (m) dashed."""
+    if window_s is not None:
+        ax.axvspan(window_s[0], window_s[1], color="0.5", alpha=0.15, linewidth=0, zorder=0, label="accident")
+    if x_bottleneck_m is not None:
+        ax.axhline(x_bottleneck_m, color="k", linestyle="--", linewidth=0.8, label="bottleneck")
+
+
+def flow_density_figure(fd: dict[str, pd.DataFrame], out_path: str | Path) -> Path:
+    """Flow (veh/h/lane) against density (veh/km/lane), one colour per policy label.
+
+    fd maps a label to a flow_density table (columns density_veh_km, flow_veh_h); rows with
+    a NaN are skipped. Writes a PNG and returns its path.
+    """
+    if not fd:
+        raise ValueError("flow_density_figure needs at least one flow_density table")
+    fig = _new_figure(6.4, 4.8)
+    ax = fig.subplots()
+    for i, (label, table) in enumerate(fd.items()):
+        points = table[["density_veh_km", "flow_veh_h"]].dropna()
+        ax.scatter(
+            points["density_veh_km"],
+            points["flow_veh_h"],
+            s=8,
+            alpha=0.5,
+            color=f"C{i % 10}",
+            linewidths=0,
+            label=label,
+        )
+    ax.set_xlabel("density (veh/km/lane)")
+    ax.set_ylabel("flow (veh/h/lane)")
+    ax.set_xlim(left=0)
+    ax.set_ylim(bottom=0)
+    ax.grid(True, alpha=0.3)
+    ax.legend(markerscale=2)
+    fig.tight_layout()
+    return _save(fig, out_path)

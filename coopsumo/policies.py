@@ -1,0 +1,94 @@
+"""Decision-makers: a batch of observations in, one action per vehicle out.
+
+Every policy goes through the same controller (Newell + collision check + lane-change safety),
+so they are compared on equal terms. Actions: 0 left, 1 right, 2 speedup, 3 none.
+"""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from coopsumo.observation import Observation
+from coopsumo.physics import LEFT, RIGHT, SPEEDUP
+from coopsumo.runio import UsageError
+
+
+class PolicySpecError(UsageError):
+    """A policy name or its parameters are not understood (a usage error)."""
+
+
+class Policy(Protocol):
+    name: str
+
+    def act(self, obs: Observation) -> np.ndarray:
+        """One action (int64) per vehicle of the batch."""
+        ...
+
+
+class KeepPolicy:
+    """Never changes lane; always asks to speed up (the controller caps it)."""
+
+    name = "keep"
+
+    def act(self, obs: Observation) -> np.ndarray:
+        return np.full(len(obs), SPEEDUP, dtype=np.int64)
+
+
+class RandomPolicy:
+    """Uniformly random actions; the safety layer must still keep everyone apart."""
+
+    name = "random"
+
+    def __init__(self, rng: np.random.Generator):
+        self.rng = rng
+
+    def act(self, obs: Observation) -> np.ndarray:
+        return self.rng.integers(0, 4, size=len(obs)).astype(np.int64)
+
+
+class GreedyPolicy:
+    """Selfish rule: when the car ahead holds it back, move to the adjacent lane with clearly more room.
+
+    "Held back": own gap below `look_m` and speed below v_exp - `slack_mps`. "Clearly more room":
+    the adjacent lane's gap ahead exceeds the own gap by `margin_m`. Otherwise speed up.
+    """
+
+    name = "greedy"
+
+    def __init__(self, look_m: float = 60.0, margin_m: float = 20.0, slack_mps: float = 1.0):
+        self.look_m = look_m
+        self.margin_m = margin_m
+        self.slack_mps = slack_mps
+
+    def act(self, obs: Observation) -> np.ndarray:
+        gaps = np.where(obs.around.exists, obs.around.lead_gap, -np.inf)  # (n, 3): left, own, right
+        own = gaps[:, 1]
+        held = (own < self.look_m) & (obs.speed < obs.v_exp - self.slack_mps)
+        left_better = gaps[:, 0] > own + self.margin_m
+        right_better = gaps[:, 2] > own + self.margin_m
+        go_left = held & left_better & (~right_better | (gaps[:, 0] >= gaps[:, 2]))
+        go_right = held & right_better & ~go_left
+        actions = np.full(len(obs), SPEEDUP, dtype=np.int64)
+        actions[go_left] = LEFT
+        actions[go_right] = RIGHT
+        return actions
+
+
+BASIC_POLICIES = ("keep", "random", "greedy")
+
+
+def make_policy(spec: str, rng: np.random.Generator) -> Policy:
+    """Build a policy from its command-line spec: keep, random, greedy, dqn:PATH."""
+    if spec == "keep":
+        return KeepPolicy()
+    if spec == "random":
+        return RandomPolicy(rng)
+    if spec == "greedy":
+        return GreedyPolicy()
+    if spec.startswith("dqn:"):
+        from coopsumo.dqn_policy import DQNPolicy  # torch only when a DQN is asked for
+
+        return DQNPolicy.from_file(spec[len("dqn:") :])
+    raise PolicySpecError(f"unknown policy {spec!r}; expected one of keep, random, greedy, dqn:PATH")

@@ -1,0 +1,43 @@
+"""Reward of eq. (5)-(7) as named components: speed, lane-change penalty, flow."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from coopsumo.config import RewardConfig
+
+
+@dataclass(frozen=True)
+class RewardParts:
+    """Per-vehicle reward components for one step; total = speed + lane_change + flow."""
+
+    speed: np.ndarray
+    lane_change: np.ndarray
+    flow: np.ndarray
+
+    @property
+    def total(self) -> np.ndarray:
+        return self.speed + self.lane_change + self.flow
+
+
+def flow_term(vehicles_counted: int, window_s: float, n_sections: int, lanes: int, cfg: RewardConfig) -> float:
+    """q_t: vehicles counted by the loops over the window, as veh/h per cross-section, over the capacity.
+
+    1.0 means the road carries lanes * capacity_veh_h_per_lane.
+    """
+    if window_s <= 0 or n_sections <= 0:
+        return 0.0
+    flow_veh_h = vehicles_counted / n_sections / window_s * 3600.0
+    return flow_veh_h / (lanes * cfg.capacity_veh_h_per_lane)
+
+
+def reward_parts(
+    speed_mps: np.ndarray, v_exp_mps: np.ndarray, lane_change_started: np.ndarray, q_t: float, cfg: RewardConfig
+) -> RewardParts:
+    """r_v = w_v * (v - v_exp) / (v_max - v_min); r_cl = -alpha on a started change; w_q * q_t."""
+    r_v = cfg.w_speed * (speed_mps - v_exp_mps) / (cfg.v_max_mps - cfg.v_min_mps)
+    r_cl = np.where(lane_change_started, -cfg.alpha, 0.0)
+    r_q = np.full(len(speed_mps), cfg.w_flow * q_t)
+    return RewardParts(r_v.astype(np.float64), r_cl.astype(np.float64), r_q)

@@ -1,0 +1,284 @@
+"""The highway world: demand, the controller loop around SUMO, the accident, and run statistics.
+
+One step: observe every vehicle (grids, neighbours) -> a policy's actions -> lane-change safety
+-> Newell speed + collision check -> SUMO moves everyone -> rewards for the observed vehicles.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+from types import TracebackType
+
+import numpy as np
+
+from coopsumo import physics
+from coopsumo.config import SimConfig
+from coopsumo.observation import FrameHistory, Observation, snapshot
+from coopsumo.reward import RewardParts, flow_term, reward_parts
+from coopsumo.sumo_session import StepEvents, SumoSession, VehicleTable
+
+UNDECIDED, HELD, RELEASED = 0, 1, 2
+ACCIDENT_ZONE_M = 100.0  # vehicles within this distance upstream of the bottleneck are drawn
+
+
+@dataclass(frozen=True)
+class StepOutcome:
+    """What happened to the vehicles of the last observation."""
+
+    nums: np.ndarray
+    actions: np.ndarray
+    lane_change_started: np.ndarray  # bool
+    rejected: np.ndarray  # bool: a change was asked for and refused
+    arrived: np.ndarray  # bool: left the road during the step
+    reward: RewardParts
+    q_t: float
+
+
+@dataclass
+class Totals:
+    """Running counts for the summary."""
+
+    departed: int = 0
+    arrived: int = 0
+    insertion_blocked: int = 0
+    collisions: int = 0
+    teleports: int = 0
+    lane_changes: int = 0
+    lane_changes_rejected: int = 0
+    distance_m: float = 0.0
+    vehicle_time_s: float = 0.0
+    travel_time_sum_s: float = 0.0
+
+
+class _Growable:
+    """Per-vehicle arrays indexed by vehicle number."""
+
+    def __init__(self, capacity: int = 1024):
+        self.v_exp = np.zeros(capacity)
+        self.depart_s = np.full(capacity, np.nan)
+        self.scheduled_s = np.full(capacity, np.nan)
+        self.lc_left_s = np.zeros(capacity)
+        self.lc_from = np.full(capacity, -1, np.int64)
+        self.lc_to = np.full(capacity, -1, np.int64)
+        self.hold = np.zeros(capacity, np.int8)
+
+    def ensure(self, n: int) -> None:
+        cap = len(self.v_exp)
+        if n <= cap:
+            return
+        new = max(n, 2 * cap)
+        for name, fill in (("v_exp", 0.0), ("depart_s", np.nan), ("scheduled_s", np.nan), ("lc_left_s", 0.0),
+                           ("lc_from", -1), ("lc_to", -1), ("hold", 0)):  # fmt: skip
+            old = getattr(self, name)
+            setattr(self, name, np.concatenate([old, np.full(new - cap, fill, old.dtype)]))
+
+
+class World:
+    """A running simulation. Use as a context manager; call observe() then apply(actions) each step."""
+
+    def __init__(self, cfg: SimConfig, run_dir: Path, record_trajectories: bool = False):
+        cfg.validate()
+        self.cfg = cfg
+        self.run_dir = run_dir
+        self.session = SumoSession(cfg, run_dir)
+        self.demand_rng = np.random.default_rng([cfg.seed, 1])
+        self.accident_rng = np.random.default_rng([cfg.seed, 2])
+        self.veh = _Growable()
+        self.history = FrameHistory.empty()
+        self.totals = Totals()
+        self.step_count = 0
+        self.next_num = 0
+        self.table = VehicleTable(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+        window = max(1, round(cfg.reward.flow_window_s / cfg.control.dt_s))
+        self._loop_counts: deque[int] = deque(maxlen=window)
+        self._n_sections = len(cfg.road.loop_positions_m())
+        self._obs: Observation | None = None
+        self.record_trajectories = record_trajectories
+        self._traj: list[tuple[np.ndarray, ...]] = []
+
+    # -- lifecycle -------------------------------------------------------------------------
+    def __enter__(self) -> World:
+        self.session.__enter__()
+        self._insert_due()
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.session.close()
+
+    @property
+    def time_s(self) -> float:
+        return self.step_count * self.cfg.control.dt_s
+
+    # -- demand ----------------------------------------------------------------------------
+    def _insert_due(self) -> None:
+        """Hand SUMO every vehicle whose departure time (num * T_up) has come."""
+        d = self.cfg.demand
+        t_up = d.t_up_s
+        while self.next_num * t_up <= self.time_s + 1e-9:
+            num = self.next_num
+            self.veh.ensure(num + 1)
+            v_kmh = np.clip(self.demand_rng.normal(d.v_exp_mean_kmh, d.v_exp_std_kmh), d.v_exp_min_kmh, d.v_exp_max_kmh)
+            lane = int(self.demand_rng.integers(0, self.cfg.road.lanes))
+            self.veh.v_exp[num] = v_kmh / 3.6
+            self.veh.scheduled_s[num] = num * t_up
+            self.session.add_vehicle(num, lane, v_kmh / 3.6)
+            self.next_num += 1
+
+    # -- one step --------------------------------------------------------------------------
+    def _other_lane(self, nums: np.ndarray, lane: np.ndarray) -> np.ndarray:
+        """The second lane a vehicle touches during a lane change (-1 when not changing)."""
+        busy = self.veh.lc_left_s[nums] > 0
+        other = self.veh.lc_from[nums] + self.veh.lc_to[nums] - lane
+        return np.where(busy, other, -1)
+
+    def observe(self) -> Observation:
+        """Observation of every vehicle on the road now (call once per step, before apply)."""
+        t = self.table
+        c = self.cfg
+        v_exp = self.veh.v_exp[t.nums]
+        other = self._other_lane(t.nums, t.lane)
+        occ = physics.occupancy(t.lane, t.pos, other)
+        around = physics.neighbours(occ, t.pos, t.speed, physics.side_lanes(t.lane), c.road.lanes, c.control.car_length_m)
+        grid = snapshot(occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
+        grids, speed_err = self.history.push(t.nums, grid, (t.speed - v_exp).astype(np.float32))
+        self._obs = Observation(
+            nums=t.nums, grids=grids, speed_err=speed_err, lane=t.lane, pos=t.pos, speed=t.speed,
+            v_exp=v_exp, busy=other >= 0, around=around, n_lanes=c.road.lanes,
+        )  # fmt: skip
+        return self._obs
+
+    def apply(self, actions: np.ndarray) -> StepOutcome:
+        """Check and execute the actions of the last observation, step SUMO, return the outcome."""
+        obs = self._obs
+        if obs is None:
+            raise RuntimeError("apply() needs an observe() first")
+        self._obs = None
+        c = self.cfg.control
+        n = len(obs)
+        actions = np.asarray(actions, dtype=np.int64)
+        if actions.shape != (n,):
+            raise ValueError(f"expected {n} actions, got shape {actions.shape}")
+
+        # lane changes: ask, check safety, resolve same-step conflicts
+        wants = (actions == physics.LEFT) | (actions == physics.RIGHT)
+        side = np.where(actions == physics.LEFT, 0, 2)
+        target = obs.lane + np.where(actions == physics.LEFT, 1, -1)
+        rows = np.arange(n)
+        safe = physics.lane_change_safe(
+            obs.around.lead_gap[rows, side], obs.around.follow_gap[rows, side], obs.speed,
+            obs.around.follow_speed[rows, side], c,
+        )  # fmt: skip
+        ok = wants & ~obs.busy & obs.around.exists[rows, side] & safe
+        ok = physics.resolve_conflicts(target, obs.pos, obs.speed, ok, c)
+        rejected = wants & ~ok
+        movers = obs.nums[ok]
+        self.veh.lc_left_s[movers] = c.t_change_s
+        self.veh.lc_from[movers] = obs.lane[ok]
+        self.veh.lc_to[movers] = target[ok]
+
+        # speeds: nearest leader over every lane a vehicle occupies (movers: both lanes from now on)
+        other = self._other_lane(obs.nums, obs.lane)
+        occ = physics.occupancy(obs.lane, obs.pos, other)
+        query = np.stack([obs.lane, np.where(other >= 0, other, obs.lane)], axis=1)
+        nb = physics.neighbours(occ, obs.pos, obs.speed, query, self.cfg.road.lanes, c.car_length_m)
+        pick = np.argmin(nb.lead_gap, axis=1)
+        gap = nb.lead_gap[rows, pick]
+        v_lead = nb.lead_speed[rows, pick]
+        gap, v_lead = self._accident_obstacle(obs, gap, v_lead)
+        speeds = physics.next_speed(obs.speed, obs.v_exp, actions == physics.SPEEDUP, gap, v_lead, c)
+
+        self.session.set_speeds(obs.nums, speeds)
+        self.session.change_lanes(movers, target[ok])
+        events = self._advance()
+
+        self.totals.lane_changes += int(ok.sum())
+        self.totals.lane_changes_rejected += int(rejected.sum())
+        q_t = flow_term(sum(self._loop_counts), len(self._loop_counts) * c.dt_s, self._n_sections,
+                        self.cfg.road.lanes, self.cfg.reward)  # fmt: skip
+        arrived = np.isin(obs.nums, events.arrived)
+        new_speed = speeds.copy()
+        present = np.searchsorted(self.table.nums, obs.nums)
+        still = ~arrived & (present < len(self.table.nums))
+        new_speed[still] = self.table.speed[present[still]]
+        reward = reward_parts(new_speed, obs.v_exp, ok, q_t, self.cfg.reward)
+        return StepOutcome(obs.nums, actions, ok, rejected, arrived, reward, q_t)
+
+    def _accident_obstacle(self, obs: Observation, gap: np.ndarray, v_lead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Held vehicles see a standing obstacle at the bottleneck; draws happen every redraw_s."""
+        acc = self.cfg.accident
+        p = acc.hold_probability(self.step_count)
+        hold = self.veh.hold
+        if p <= 0.0:
+            hold[obs.nums[hold[obs.nums] == HELD]] = RELEASED
+            return gap, v_lead
+        in_zone = (obs.pos >= acc.x_m - ACCIDENT_ZONE_M) & (obs.pos < acc.x_m)
+        state = hold[obs.nums]
+        redraw_every = max(1, round(acc.redraw_s / self.cfg.control.dt_s))
+        draw = in_zone & ((state == UNDECIDED) | ((state == HELD) & (self.step_count % redraw_every == 0)))
+        u = self.accident_rng.random(len(obs))
+        hold[obs.nums[draw]] = np.where(u[draw] < p, HELD, RELEASED)
+        held = hold[obs.nums] == HELD
+        obstacle_gap = acc.x_m - obs.pos
+        closer = held & (obstacle_gap < gap)
+        return np.where(closer, obstacle_gap, gap), np.where(closer, 0.0, v_lead)
+
+    def _advance(self) -> StepEvents:
+        """SUMO step, then bookkeeping: table, lane-change clocks, counts, new departures."""
+        events = self.session.step()
+        self.step_count += 1
+        dt = self.cfg.control.dt_s
+        self.table = self.session.table()
+        t = self.table
+        tot = self.totals
+        busy = t.nums[self.veh.lc_left_s[t.nums] > 0]
+        self.veh.lc_left_s[busy] = np.maximum(self.veh.lc_left_s[busy] - dt, 0.0)
+        self.veh.depart_s[events.departed] = self.time_s - dt
+        tot.departed += len(events.departed)
+        late = self.time_s - dt - self.veh.scheduled_s[events.departed]
+        tot.insertion_blocked += int(np.sum(late >= dt - 1e-6))
+        tot.arrived += len(events.arrived)
+        tot.travel_time_sum_s += float(np.sum(self.time_s - self.veh.depart_s[events.arrived]))
+        tot.collisions += events.collisions
+        tot.teleports += events.teleports
+        tot.distance_m += float(t.speed.sum()) * dt
+        tot.vehicle_time_s += len(t.nums) * dt
+        self._loop_counts.append(events.loop_count)
+        if self.record_trajectories and len(t.nums):
+            self._traj.append((np.full(len(t.nums), self.time_s, np.float32), t.nums.copy(), t.lane.astype(np.int8),
+                               t.pos.astype(np.float32), t.speed.astype(np.float32)))  # fmt: skip
+        self._insert_due()
+        return events
+
+    # -- results ---------------------------------------------------------------------------
+    def summary(self) -> dict[str, float | int]:
+        """Run statistics (see README for definitions)."""
+        tot = self.totals
+        hours = self.time_s / 3600.0
+        pending = self.next_num - tot.departed
+        return {
+            "steps": self.step_count,
+            "sim_seconds": round(self.time_s, 3),
+            "departed": tot.departed,
+            "arrived": tot.arrived,
+            "insertion_blocked": tot.insertion_blocked + pending,
+            "insertion_pending_at_end": pending,
+            "collisions": tot.collisions,
+            "teleports": tot.teleports,
+            "lane_changes": tot.lane_changes,
+            "lane_changes_rejected": tot.lane_changes_rejected,
+            "lane_changes_per_vehicle": tot.lane_changes / max(tot.departed, 1),
+            "mean_speed_mps": tot.distance_m / tot.vehicle_time_s if tot.vehicle_time_s else 0.0,
+            "mean_travel_time_s": tot.travel_time_sum_s / tot.arrived if tot.arrived else float("nan"),
+            "throughput_veh_per_h": tot.arrived / hours if hours else 0.0,
+        }
+
+    def trajectories(self) -> dict[str, np.ndarray]:
+        """Recorded samples as columns: time_s, vid, lane, pos_m, speed_mps."""
+        names = ("time_s", "vid", "lane", "pos_m", "speed_mps")
+        if not self._traj:
+            return {k: np.zeros(0) for k in names}
+        return {k: np.concatenate([row[i] for row in self._traj]) for i, k in enumerate(names)}

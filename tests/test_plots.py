@@ -1,0 +1,73 @@
+"""Figures are written as real PNG files for small synthetic data."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from coopsumo.plots import flow_density_figure, subsample_times, time_space_figure
+
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def synthetic_traj(seed: int, n_veh: int = 30, lanes: tuple[int, ...] = (0, 1, 2)) -> pd.DataFrame:
+    """Vehicles entering every 4 s on the given lanes, slowed near 1300 m between 200 and 400 s."""
+    rng = np.random.default_rng(seed)
+    times = np.arange(0.0, 600.0, 1.0)
+    rows = []
+    for i in range(n_veh):
+        t0 = 4.0 * i
+        pos = 0.0
+        lane = lanes[i % len(lanes)]
+        for t in times[times >= t0]:
+            slow = 1100.0 < pos < 1300.0 and 200.0 < t < 400.0
+            speed = 2.0 if slow else 25.0 + rng.normal(0.0, 2.0)
+            pos += speed
+            if pos > 2000.0:
+                break
+            rows.append((t, f"v{i}", lane, pos, speed))
+    return pd.DataFrame(rows, columns=["time_s", "vid", "lane", "pos_m", "speed_mps"])
+
+
+def assert_png(path: Path, min_kb: float) -> None:
+    assert path.is_file()
+    data = path.read_bytes()
+    assert data[:8] == PNG_SIGNATURE
+    assert len(data) > min_kb * 1024
+
+
+def test_time_space_figure_written(tmp_path: Path) -> None:
+    trajs = {"alpha=0": synthetic_traj(0), "alpha=8": synthetic_traj(1)}
+    out = time_space_figure(trajs, 1, tmp_path / "figs" / "ts.png", (200.0, 400.0), 1300.0, "lane 1")
+    assert out == tmp_path / "figs" / "ts.png"
+    assert_png(out, 10)
+
+
+def test_time_space_figure_empty_lane(tmp_path: Path) -> None:
+    trajs = {"keep": synthetic_traj(0, lanes=(0, 1)), "empty": synthetic_traj(1, lanes=(0,))}
+    out = time_space_figure(trajs, 2, tmp_path / "ts_empty.png", None, None, "lane 3")
+    assert_png(out, 5)
+
+
+def test_subsample_times_bounds_points() -> None:
+    traj = synthetic_traj(0)
+    kept = subsample_times(traj, 1000)
+    assert 0 < len(kept) <= 1000
+    # whole time steps are kept or dropped together
+    per_time = traj.groupby("time_s").size()
+    assert (kept.groupby("time_s").size() == per_time.loc[kept["time_s"].unique()]).all()
+    assert subsample_times(traj, len(traj)) is traj
+
+
+def test_flow_density_figure_written(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    fd = {}
+    for label in ("alpha=0", "alpha=8"):
+        density = rng.uniform(0, 120, 200)
+        flow = np.minimum(80 * density, 2000 - 10 * (density - 25)).clip(0)
+        fd[label] = pd.DataFrame({"density_veh_km": density, "flow_veh_h": flow})
+    fd["alpha=8"].loc[3, "flow_veh_h"] = np.nan
+    out = flow_density_figure(fd, tmp_path / "fd.png")
+    assert_png(out, 10)
