@@ -66,7 +66,7 @@ class ControlConfig:
     """simulation step (s), paper: 90,000 steps = 2.5 h"""
     car_length_m: float = 4.0
     """L_car (m), paper"""
-    newell_c_per_s: float = 0.7
+    newell_c_per_s: float = 1.1
     """c of eq. (9) (1/s): the slope of speed against gap near standstill"""
     newell_d: float = -0.1
     """d of eq. (9) (dimensionless); negative, so the standstill gap is -d * v_exp / c"""

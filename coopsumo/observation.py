@@ -22,11 +22,8 @@ BEHIND_M = 5.0
 MAX_PER_WINDOW = 8  # vehicles of 4 m that can touch a 24 m window in one lane, plus room
 
 
-def snapshot(
-    occ: Occupancy, lane: np.ndarray, pos: np.ndarray, n_lanes: int, car_length_m: float
-) -> np.ndarray:
+def snapshot(occ: Occupancy, lane: np.ndarray, pos: np.ndarray, n_lanes: int, car_length_m: float) -> np.ndarray:
     """(n, 3, 20) uint8 grids of every vehicle from the sorted occupancy (see module doc)."""
-    n = len(lane)
     lanes = side_lanes(lane)  # (n, 3)
     centres = pos[:, None] - BEHIND_M + 0.5 + np.arange(N_CELLS)[None, :]  # (n, 20)
     # candidates: occupancy entries in the same lane with front in (window start, window end + L]
@@ -45,10 +42,10 @@ def snapshot(
     c = centres[:, None, None, :]
     f = front[:, :, :, None]
     inside = valid[:, :, :, None] & (c >= f - car_length_m) & (c < f)
-    grid = inside.any(axis=2)
+    grid: np.ndarray = np.asarray(inside.any(axis=2))
     off_road = (lanes < 0) | (lanes >= n_lanes)
     grid[off_road] = True
-    return grid.astype(np.uint8)
+    return np.asarray(grid, dtype=np.uint8)
 
 
 @dataclass

@@ -61,8 +61,14 @@ def config_from_args(args: Any) -> SimConfig:
     return cfg
 
 
-def run(cfg: SimConfig, policy: Policy, run_dir: Path, trajectories: bool = False, progress: bool = True,
-        label: str = "simulate") -> dict[str, Any]:
+def run(
+    cfg: SimConfig,
+    policy: Policy,
+    run_dir: Path,
+    trajectories: bool = False,
+    progress: bool = True,
+    label: str = "simulate",
+) -> dict[str, Any]:
     """Run cfg.steps steps with `policy` in run_dir; write its files; return the summary."""
     write_json(run_dir / "config.json", {"config": to_dict(cfg), "versions": versions()})
     start = time.perf_counter()
@@ -73,7 +79,9 @@ def run(cfg: SimConfig, policy: Policy, run_dir: Path, trajectories: bool = Fals
             world.apply(policy.act(obs))
             if world.step_count % 500 == 0:
                 bar.update(500)
-                bar.set_postfix(veh=len(world.table.nums), v=f"{world.table.speed.mean() if len(world.table.nums) else 0:.1f}")
+                bar.set_postfix(
+                    veh=len(world.table.nums), v=f"{world.table.speed.mean() if len(world.table.nums) else 0:.1f}"
+                )
         bar.close()
         summary: dict[str, Any] = world.summary()
         traj = world.trajectories() if trajectories else None

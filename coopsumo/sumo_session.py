@@ -60,7 +60,9 @@ class SumoSession:
     `sumo_models=True` leaves SUMO's own car-following and lane-changing in charge.
     """
 
-    def __init__(self, cfg: SimConfig, run_dir: Path, sumo_models: bool = False, lc_params: dict[str, float] | None = None):
+    def __init__(
+        self, cfg: SimConfig, run_dir: Path, sumo_models: bool = False, lc_params: dict[str, float] | None = None
+    ):
         self.cfg = cfg
         self.run_dir = run_dir
         self.sumo_models = sumo_models

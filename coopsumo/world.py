@@ -142,7 +142,9 @@ class World:
         v_exp = self.veh.v_exp[t.nums]
         other = self._other_lane(t.nums, t.lane)
         occ = physics.occupancy(t.lane, t.pos, other)
-        around = physics.neighbours(occ, t.pos, t.speed, physics.side_lanes(t.lane), c.road.lanes, c.control.car_length_m)
+        around = physics.neighbours(
+            occ, t.pos, t.speed, physics.side_lanes(t.lane), c.road.lanes, c.control.car_length_m
+        )
         grid = snapshot(occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
         grids, speed_err = self.history.push(t.nums, grid, (t.speed - v_exp).astype(np.float32))
         self._obs = Observation(
@@ -207,7 +209,9 @@ class World:
         reward = reward_parts(new_speed, obs.v_exp, ok, q_t, self.cfg.reward)
         return StepOutcome(obs.nums, actions, ok, rejected, arrived, reward, q_t)
 
-    def _accident_obstacle(self, obs: Observation, gap: np.ndarray, v_lead: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _accident_obstacle(
+        self, obs: Observation, gap: np.ndarray, v_lead: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
         """Held vehicles see a standing obstacle at the bottleneck; draws happen every redraw_s."""
         acc = self.cfg.accident
         p = acc.hold_probability(self.step_count)
