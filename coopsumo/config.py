@@ -46,7 +46,7 @@ class RoadConfig:
 class DemandConfig:
     """Upstream inflow."""
 
-    t_up_s: float = 1.2
+    t_up_s: float = 1.0
     """upstream departure interval for the whole road (s): inflow = 3600 / t_up_s veh/h"""
     v_exp_mean_kmh: float = 85.0
     """mean of the normal distribution of expected speeds (km/h)"""
@@ -145,7 +145,7 @@ class DQNConfig:
     """environment steps between target-network syncs, paper"""
     greedy_prob: float = 0.9
     """probability of the greedy action (paper's epsilon-greedy threshold 0.9)"""
-    learn_every_steps: int = 1
+    learn_every_steps: int = 4
     """environment steps between gradient updates"""
     learn_start_steps: int = 200
     """no update before this many environment steps"""
@@ -157,6 +157,8 @@ class DQNConfig:
     """speed errors are divided by this before entering the network (m/s)"""
     store_per_step: int = 16
     """at most this many vehicles' transitions are stored per step (random subset)"""
+    exit_transition: str = "drop"
+    """a vehicle's last transition when it leaves the road: 'drop' it, or store it as 'terminal'"""
 
 
 @dataclass(frozen=True)
@@ -192,6 +194,38 @@ class SimConfig:
         alpha = self.reward.alpha
         if not (alpha >= 0 and alpha < float("inf")):
             raise ConfigError(f"alpha must be a finite number >= 0, got {alpha}")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A training run: the free-flow world, the learner, and bookkeeping."""
+
+    sim: SimConfig = field(default_factory=lambda: SimConfig(steps=90_000, policy="dqn"))
+    dqn: DQNConfig = field(default_factory=DQNConfig)
+    log_every_steps: int = 1000
+    """environment steps per row of train_log.csv"""
+    checkpoint_every_steps: int = 10_000
+    """environment steps between periodic checkpoints (also written on Ctrl-C / SIGTERM)"""
+    eval_steps: int = 9000
+    """steps of the greedy evaluation run after training (0: none)"""
+
+    def validate(self) -> None:
+        self.sim.validate()
+        if self.dqn.exit_transition not in ("drop", "terminal"):
+            raise ConfigError(f"exit_transition must be 'drop' or 'terminal', got {self.dqn.exit_transition!r}")
+        if self.eval_steps < 0:
+            raise ConfigError(f"eval steps must be >= 0, got {self.eval_steps}")
+
+
+def train_config_from_dict(d: dict[str, Any]) -> TrainConfig:
+    """Inverse of to_dict for TrainConfig."""
+    return TrainConfig(
+        sim=sim_config_from_dict(d["sim"]),
+        dqn=DQNConfig(**d["dqn"]),
+        log_every_steps=d["log_every_steps"],
+        checkpoint_every_steps=d["checkpoint_every_steps"],
+        eval_steps=d["eval_steps"],
+    )
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:

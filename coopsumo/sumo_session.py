@@ -104,6 +104,7 @@ class SumoSession:
         _open_sessions += 1
         self._ls = ls
         self._loop_ids = list(ls.inductionloop.getIDList())
+        self._loop_counts = np.zeros(len(self._loop_ids), np.int64)
         self._collision_pairs: set[tuple[str, str]] = set()
         return self
 
@@ -155,7 +156,11 @@ class SumoSession:
         pairs = {(c.collider, c.victim) for c in ls.simulation.getCollisions()}
         new_collisions = len(pairs - self._collision_pairs)
         self._collision_pairs |= pairs
-        loop_count = sum(ls.inductionloop.getLastStepVehicleNumber(i) for i in self._loop_ids)
+        # vehicles that entered a loop this step: growth of the loops' running interval counts
+        counts = np.array([ls.inductionloop.getIntervalVehicleNumber(i) for i in self._loop_ids], np.int64)
+        grown = np.where(counts >= self._loop_counts, counts - self._loop_counts, counts)
+        self._loop_counts = counts
+        loop_count = int(grown.sum())
         return StepEvents(
             departed=np.array([int(v) for v in departed], dtype=np.int64),
             arrived=np.array([int(v) for v in arrived], dtype=np.int64),
