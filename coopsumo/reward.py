@@ -22,6 +22,25 @@ class RewardParts:
         return self.speed + self.lane_change + self.flow
 
 
+def section_crossings(
+    prev_nums: np.ndarray, prev_pos: np.ndarray, nums: np.ndarray, pos: np.ndarray, sections_m: np.ndarray
+) -> int:
+    """Vehicles whose front passed a loop cross-section between two vehicle tables (sorted by number).
+
+    A vehicle counts once per cross-section it passed (prev_pos < x <= pos), whatever lane it
+    is in: the number SUMO's loops report as nVehContrib, without counting vehicles that merely
+    change lanes onto a loop. Vehicles missing from either table are not counted.
+    """
+    if len(prev_nums) == 0 or len(nums) == 0 or len(sections_m) == 0:
+        return 0
+    idx = np.clip(np.searchsorted(prev_nums, nums), 0, len(prev_nums) - 1)
+    both = prev_nums[idx] == nums
+    before = prev_pos[idx][both][:, None]
+    after = pos[both][:, None]
+    x = np.asarray(sections_m, dtype=np.float64)[None, :]
+    return int(np.count_nonzero((before < x) & (x <= after)))
+
+
 def flow_term(vehicles_counted: int, window_s: float, n_sections: int, lanes: int, cfg: RewardConfig) -> float:
     """q_t: vehicles counted by the loops over the window, as veh/h per cross-section, over the capacity.
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -68,17 +69,26 @@ def run(
     trajectories: bool = False,
     progress: bool = True,
     label: str = "simulate",
+    trajectory_every: int = 1,
+    on_steps: Callable[[int], None] | None = None,
 ) -> dict[str, Any]:
-    """Run cfg.steps steps with `policy` in run_dir; write its files; return the summary."""
-    write_json(run_dir / "config.json", {"config": to_dict(cfg), "versions": versions()})
+    """Run cfg.steps steps with `policy` in run_dir; write its files; return the summary.
+
+    trajectory_every: record trajectories every k-th step; on_steps(n) is told of progress.
+    """
+    write_json(run_dir / "config.json", {"config": to_dict(cfg), "versions": versions(),
+                                         "trajectory_every_steps": trajectory_every if trajectories else None})
     start = time.perf_counter()
-    with World(cfg, run_dir, record_trajectories=trajectories) as world:
+    record_every = trajectory_every if trajectories else 0
+    with World(cfg, run_dir, record_trajectories_every=record_every) as world:
         bar = tqdm(total=cfg.steps, desc=label, unit="step", disable=not progress, mininterval=0.5, file=sys.stderr)
         for _ in range(cfg.steps):
             obs = world.observe()
             world.apply(policy.act(obs))
             if world.step_count % 500 == 0:
                 bar.update(500)
+                if on_steps is not None:
+                    on_steps(500)
                 bar.set_postfix(
                     veh=len(world.table.nums), v=f"{world.table.speed.mean() if len(world.table.nums) else 0:.1f}"
                 )
@@ -93,9 +103,7 @@ def run(
     if traj is not None:
         import pandas as pd
 
-        pd.DataFrame(traj).assign(vid=lambda df: df["vid"].astype(str)).to_parquet(
-            run_dir / "trajectories.parquet", index=False
-        )
+        pd.DataFrame(traj).to_parquet(run_dir / "trajectories.parquet", index=False)
     write_json(run_dir / "summary.json", summary)
     return summary
 

@@ -51,7 +51,6 @@ class StepEvents:
     arrived: np.ndarray  # vehicle numbers that left the road this step
     collisions: int  # new collisions SUMO detected this step
     teleports: int  # vehicles SUMO started teleporting this step
-    loop_count: int  # vehicles counted by all induction loops this step
 
 
 class SumoSession:
@@ -67,7 +66,6 @@ class SumoSession:
         self.run_dir = run_dir
         self.sumo_models = sumo_models
         self.lc_params = lc_params or {}
-        self._loop_ids: list[str] = []
         self._ls = None
 
     def args(self) -> list[str]:
@@ -103,8 +101,6 @@ class SumoSession:
         ls.start(self.args())
         _open_sessions += 1
         self._ls = ls
-        self._loop_ids = list(ls.inductionloop.getIDList())
-        self._loop_counts = np.zeros(len(self._loop_ids), np.int64)
         self._collision_pairs: set[tuple[str, str]] = set()
         return self
 
@@ -156,17 +152,11 @@ class SumoSession:
         pairs = {(c.collider, c.victim) for c in ls.simulation.getCollisions()}
         new_collisions = len(pairs - self._collision_pairs)
         self._collision_pairs |= pairs
-        # vehicles that entered a loop this step: growth of the loops' running interval counts
-        counts = np.array([ls.inductionloop.getIntervalVehicleNumber(i) for i in self._loop_ids], np.int64)
-        grown = np.where(counts >= self._loop_counts, counts - self._loop_counts, counts)
-        self._loop_counts = counts
-        loop_count = int(grown.sum())
         return StepEvents(
             departed=np.array([int(v) for v in departed], dtype=np.int64),
             arrived=np.array([int(v) for v in arrived], dtype=np.int64),
             collisions=new_collisions,
             teleports=ls.simulation.getStartingTeleportNumber(),
-            loop_count=int(loop_count),
         )
 
     def table(self) -> VehicleTable:

@@ -14,6 +14,7 @@ import os
 import signal
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import FrameType
@@ -105,8 +106,10 @@ def transitions(
 class Trainer:
     """The training loop, its log, checkpoints and resume."""
 
-    def __init__(self, cfg: TrainConfig, out: Path, progress: bool = True):
+    def __init__(self, cfg: TrainConfig, out: Path, progress: bool = True,
+                 on_steps: Callable[[int], None] | None = None):  # fmt: skip
         cfg.validate()
+        self.on_steps = on_steps
         self.cfg = cfg
         self.out = out
         self.progress = progress
@@ -216,6 +219,8 @@ class Trainer:
                     if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
                         self._write_row(log, world, time.perf_counter() - start)
                         log_file.flush()
+                        if self.on_steps is not None:
+                            self.on_steps(self.step - bar.n)
                         bar.update(self.step - bar.n)
                         bar.set_postfix(v=f"{w.speed_sum / max(w.vehicle_steps, 1):.1f}",
                                         r=f"{(w.r_speed + w.r_lane_change + w.r_flow) / max(w.samples, 1):.3f}",
@@ -245,19 +250,30 @@ def model_meta(cfg: TrainConfig) -> dict[str, Any]:
     return {"config": to_dict(cfg), "versions": versions()}
 
 
-def evaluate(cfg: TrainConfig, policy: DQNPolicy, out: Path, progress: bool) -> dict[str, Any]:
+def evaluate(
+    cfg: TrainConfig, policy: DQNPolicy, out: Path, progress: bool, on_steps: Callable[[int], None] | None = None
+) -> dict[str, Any]:
     """Greedy evaluation on the training condition (same demand seed) in out/eval."""
     from coopsumo.simulate import run
 
     eval_dir = out / "eval"
     eval_dir.mkdir(exist_ok=True)
     sim = replace(cfg.sim, steps=cfg.eval_steps, policy=f"dqn:{out / 'model.pt'}")
-    return run(sim, policy, eval_dir, progress=progress, label="evaluate")
+    return run(sim, policy, eval_dir, progress=progress, label="evaluate", on_steps=on_steps)
 
 
-def train(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = True) -> dict[str, Any]:
-    """Train (or resume) into `out`; returns the evaluation summary (or the training summary)."""
-    trainer = Trainer(cfg, out, progress)
+def train(
+    cfg: TrainConfig,
+    out: Path,
+    resume: bool = False,
+    progress: bool = True,
+    on_steps: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
+    """Train (or resume) into `out`; returns the evaluation summary (or the training summary).
+
+    on_steps(n) is told of progress (training and evaluation steps), for a caller's progress bar.
+    """
+    trainer = Trainer(cfg, out, progress, on_steps)
     if resume:
         trainer.restore(Trainer.load_checkpoint(out))
     else:
@@ -275,7 +291,7 @@ def train(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = Tr
     trainer.checkpoint_path().unlink(missing_ok=True)
     if cfg.eval_steps == 0:
         return train_summary
-    summary = evaluate(cfg, DQNPolicy(trainer.learner.online), out, progress)
+    summary = evaluate(cfg, DQNPolicy(trainer.learner.online), out, progress, on_steps)
     write_json(out / "summary.json", summary)
     return summary
 
@@ -298,6 +314,8 @@ def build_parser() -> Parser:
     p.add_argument("--batch-size", type=int, default=DQNConfig.batch_size)
     p.add_argument("--learn-every", type=int, default=DQNConfig.learn_every_steps, help="steps between updates")
     p.add_argument("--replay-size", type=int, default=DQNConfig.replay_size)
+    p.add_argument("--lr", type=float, default=DQNConfig.lr, help="learning rate")
+    p.add_argument("--optimizer", choices=("adam", "sgd"), default=DQNConfig.optimizer)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -318,7 +336,10 @@ def config_from_args(args: Any) -> TrainConfig:
         seed=args.seed,
         policy="dqn",
     )
-    dqn = DQNConfig(batch_size=args.batch_size, learn_every_steps=args.learn_every, replay_size=args.replay_size)
+    if not (math.isfinite(args.lr) and args.lr > 0):
+        raise UsageError(f"lr must be a positive number, got {args.lr}")
+    dqn = DQNConfig(batch_size=args.batch_size, learn_every_steps=args.learn_every, replay_size=args.replay_size,
+                    lr=args.lr, optimizer=args.optimizer)  # fmt: skip
     cfg = TrainConfig(sim=sim, dqn=dqn, eval_steps=args.eval_steps)
     cfg.validate()
     return cfg

@@ -16,7 +16,7 @@ import numpy as np
 from coopsumo import physics
 from coopsumo.config import SimConfig
 from coopsumo.observation import FrameHistory, Observation, snapshot
-from coopsumo.reward import RewardParts, flow_term, reward_parts
+from coopsumo.reward import RewardParts, flow_term, reward_parts, section_crossings
 from coopsumo.sumo_session import StepEvents, SumoSession, VehicleTable
 
 UNDECIDED, HELD, RELEASED = 0, 1, 2
@@ -78,7 +78,7 @@ class _Growable:
 class World:
     """A running simulation. Use as a context manager; call observe() then apply(actions) each step."""
 
-    def __init__(self, cfg: SimConfig, run_dir: Path, record_trajectories: bool = False):
+    def __init__(self, cfg: SimConfig, run_dir: Path, record_trajectories_every: int = 0):
         cfg.validate()
         self.cfg = cfg
         self.run_dir = run_dir
@@ -93,9 +93,10 @@ class World:
         self.table = VehicleTable(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
         window = max(1, round(cfg.reward.flow_window_s / cfg.control.dt_s))
         self._loop_counts: deque[int] = deque(maxlen=window)
-        self._n_sections = len(cfg.road.loop_positions_m())
+        self._sections_m = np.array(cfg.road.loop_positions_m())
+        self._n_sections = len(self._sections_m)
         self._obs: Observation | None = None
-        self.record_trajectories = record_trajectories
+        self.record_every = record_trajectories_every  # 0: no trajectories
         self._traj: list[tuple[np.ndarray, ...]] = []
 
     # -- lifecycle -------------------------------------------------------------------------
@@ -203,8 +204,9 @@ class World:
                         self.cfg.road.lanes, self.cfg.reward)  # fmt: skip
         arrived = np.isin(obs.nums, events.arrived)
         new_speed = speeds.copy()
-        present = np.searchsorted(self.table.nums, obs.nums)
-        still = ~arrived & (present < len(self.table.nums))
+        on_road = self.table.nums
+        present = np.clip(np.searchsorted(on_road, obs.nums), 0, max(len(on_road) - 1, 0))
+        still = ~arrived & (on_road[present] == obs.nums) if len(on_road) else np.zeros(n, bool)
         new_speed[still] = self.table.speed[present[still]]
         reward = reward_parts(new_speed, obs.v_exp, ok, q_t, self.cfg.reward)
         return StepOutcome(obs.nums, actions, ok, rejected, arrived, reward, q_t)
@@ -235,6 +237,7 @@ class World:
         events = self.session.step()
         self.step_count += 1
         dt = self.cfg.control.dt_s
+        prev = self.table
         self.table = self.session.table()
         t = self.table
         tot = self.totals
@@ -250,9 +253,9 @@ class World:
         tot.teleports += events.teleports
         tot.distance_m += float(t.speed.sum()) * dt
         tot.vehicle_time_s += len(t.nums) * dt
-        self._loop_counts.append(events.loop_count)
-        if self.record_trajectories and len(t.nums):
-            self._traj.append((np.full(len(t.nums), self.time_s, np.float32), t.nums.copy(), t.lane.astype(np.int8),
+        self._loop_counts.append(section_crossings(prev.nums, prev.pos, t.nums, t.pos, self._sections_m))
+        if self.record_every and self.step_count % self.record_every == 0 and len(t.nums):
+            self._traj.append((np.full(len(t.nums), self.time_s, np.float32), t.nums.astype(np.int32), t.lane.astype(np.int8),
                                t.pos.astype(np.float32), t.speed.astype(np.float32)))  # fmt: skip
         self._insert_due()
         return events

@@ -1,0 +1,80 @@
+"""`make bench`: speed figures (printed, not asserted).
+
+- simulation throughput (steps/s) of the world alone, per policy;
+- training throughput (environment steps/s with learning on);
+- observation and decision cost per vehicle per step (grids; one batched DQN forward pass).
+"""
+
+from __future__ import annotations
+
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from coopsumo.config import DemandConfig, RoadConfig, SimConfig, TrainConfig
+from coopsumo.dqn import Learner
+from coopsumo.physics import occupancy
+from coopsumo.observation import snapshot
+from coopsumo.policies import make_policy
+from coopsumo.simulate import run
+from coopsumo.train import Trainer
+
+
+def bench_simulation(policy: str, steps: int, lanes: int = 3, t_up: float = 1.0) -> float:
+    cfg = SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up), steps=steps, seed=1, policy=policy)
+    with tempfile.TemporaryDirectory() as tmp:
+        summary = run(cfg, make_policy(policy, np.random.default_rng(1)), Path(tmp), progress=False)
+    return float(summary["steps_per_second"])
+
+
+def bench_training(steps: int) -> float:
+    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), eval_steps=0)
+    with tempfile.TemporaryDirectory() as tmp:
+        trainer = Trainer(cfg, Path(tmp), progress=False)
+        start = time.perf_counter()
+        trainer.run()
+        return steps / (time.perf_counter() - start)
+
+
+def bench_decision(n_vehicles: int, repeats: int = 200) -> tuple[float, float]:
+    """(grid build, DQN forward) cost in microseconds per vehicle per step."""
+    rng = np.random.default_rng(0)
+    lane = rng.integers(0, 3, n_vehicles)
+    pos = np.sort(rng.uniform(0, 2000, n_vehicles))
+    occ = occupancy(lane, pos, np.full(n_vehicles, -1))
+    start = time.perf_counter()
+    for _ in range(repeats):
+        snapshot(occ, lane, pos, 3, 4.0)
+    grid_us = (time.perf_counter() - start) / repeats / n_vehicles * 1e6
+    from coopsumo.config import DQNConfig
+
+    learner = Learner(DQNConfig(), 0)
+    grids = rng.integers(0, 2, (n_vehicles, 3, 3, 20)).astype(np.uint8)
+    err = rng.normal(size=(n_vehicles, 3)).astype(np.float32)
+    start = time.perf_counter()
+    for _ in range(repeats):
+        learner.act(grids, err, explore=False)
+    act_us = (time.perf_counter() - start) / repeats / n_vehicles * 1e6
+    return grid_us, act_us
+
+
+def main() -> int:
+    torch.set_num_threads(1)
+    print("coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread)", flush=True)
+    for policy in ("keep", "random", "greedy"):
+        print(f"  simulate --policy {policy:7s}: {bench_simulation(policy, 6000):8.0f} steps/s", flush=True)
+    sps = bench_training(6000)
+    print(f"  train (learning on)         : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min",
+          flush=True)
+    for n in (50, 200):
+        grid_us, act_us = bench_decision(n)
+        print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

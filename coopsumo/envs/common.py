@@ -1,0 +1,120 @@
+"""What the Gymnasium and PettingZoo environments share: spaces, per-vehicle views, the World's lifetime.
+
+No physics here: everything comes from coopsumo.world (which uses physics, observation, reward).
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+
+from coopsumo.config import ControlConfig
+from coopsumo.observation import N_CELLS, N_FRAMES, N_SIDES, Observation
+from coopsumo.physics import ACTION_NAMES
+from coopsumo.policies import Policy, make_policy
+from coopsumo.world import StepOutcome, World
+
+GRID_SHAPE = (N_FRAMES, N_SIDES, N_CELLS)
+"""(frames, lanes, cells) of one vehicle's occupancy grids (the same as coopsumo.dqn.GRID_SHAPE)"""
+N_ACTIONS = len(ACTION_NAMES)
+SEED_LIMIT = 2**31 - 1
+"""seeds drawn for unseeded resets lie in [0, SEED_LIMIT) (SUMO's --seed is a C int)"""
+
+
+def observation_space() -> spaces.Dict:
+    """The paper's state (eq. 2): 3 frames x 3 lanes x 20 cells of 0/1 occupancy, and 3 speed errors (m/s)."""
+    return spaces.Dict(
+        {
+            "grids": spaces.Box(0, 1, GRID_SHAPE, np.uint8),
+            "speed_err": spaces.Box(-np.inf, np.inf, (GRID_SHAPE[0],), np.float32),
+        }
+    )
+
+
+def action_space() -> spaces.Discrete:
+    """0 left, 1 right, 2 speedup, 3 none (coopsumo.physics)."""
+    return spaces.Discrete(N_ACTIONS)
+
+
+def vehicle_observation(obs: Observation, row: int) -> dict[str, np.ndarray]:
+    """One vehicle's state as fresh arrays (never views of the batch)."""
+    return {
+        "grids": np.array(obs.grids[row], dtype=np.uint8),
+        "speed_err": np.array(obs.speed_err[row], dtype=np.float32),
+    }
+
+
+def step_info(out: StepOutcome, row: int) -> dict[str, Any]:
+    """Reward components and what happened to one vehicle during a step, as plain Python values."""
+    return {
+        "vehicle": int(out.nums[row]),
+        "reward_speed": float(out.reward.speed[row]),
+        "reward_lane_change": float(out.reward.lane_change[row]),
+        "reward_flow": float(out.reward.flow[row]),
+        "q_t": float(out.q_t),
+        "lane_change_started": bool(out.lane_change_started[row]),
+        "rejected": bool(out.rejected[row]),
+        "arrived": bool(out.arrived[row]),
+    }
+
+
+def background_policy(spec: str, seed: int, control: ControlConfig) -> Policy:
+    """A policy from its spec (coopsumo.policies.make_policy), MOBIL included; its RNG is derived from seed."""
+    if spec == "mobil" or spec.startswith("mobil:"):
+        from coopsumo.mobil import MobilPolicy
+
+        return MobilPolicy.from_spec(spec, control)
+    return make_policy(spec, np.random.default_rng([seed, 3]))
+
+
+def run_seed(seed: int | None, rng: np.random.Generator | None) -> int:
+    """The SimConfig seed of an episode: `seed` itself when given (checked), else the next draw of rng."""
+    if seed is None:
+        if rng is None:
+            raise ValueError("need a generator to draw a seed from")
+        return int(rng.integers(SEED_LIMIT))
+    if not (isinstance(seed, int | np.integer) and 0 <= seed <= SEED_LIMIT):
+        raise ValueError(f"seed must be an integer in [0, {SEED_LIMIT}], got {seed!r}")
+    return int(seed)
+
+
+class WorldSlot:
+    """At most one open World at a time, in a temporary run folder owned by the environment.
+
+    libsumo allows one SUMO per process, so open() closes the previous World first; close()
+    closes SUMO and removes the folder. Never closed from __del__: the owner calls close().
+    """
+
+    def __init__(self) -> None:
+        self.world: World | None = None
+        self._tmp: tempfile.TemporaryDirectory[str] | None = None
+
+    def open(self, cfg: Any) -> World:
+        self.close_world()
+        if self._tmp is None:
+            self._tmp = tempfile.TemporaryDirectory(prefix="coopsumo-env-")
+        world = World(cfg, Path(self._tmp.name))
+        try:
+            world.__enter__()
+        except BaseException:
+            world.__exit__(None, None, None)
+            raise
+        self.world = world
+        return world
+
+    def close_world(self) -> None:
+        world, self.world = self.world, None
+        if world is not None:
+            world.__exit__(None, None, None)
+
+    def close(self) -> None:
+        try:
+            self.close_world()
+        finally:
+            tmp, self._tmp = self._tmp, None
+            if tmp is not None:
+                tmp.cleanup()

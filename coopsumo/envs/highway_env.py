@@ -1,0 +1,175 @@
+"""Gymnasium environment `coopsumo/Highway-v0`: one studied vehicle in the SUMO highway.
+
+The episode (reset):
+  1. a new World (SUMO) with SimConfig.seed = the reset seed; the previous World is closed first;
+  2. `warmup_steps` steps with every vehicle driven by the background policy;
+  3. the agent is the first vehicle scheduled after the warm-up (number `world.next_num` at
+     that moment); the background keeps driving until it is on the road (it appears in
+     observe() the step after SUMO inserts it, later if its insertion is blocked).
+
+Each step: the background policy acts for every vehicle, the agent's action replaces its own,
+World.apply() runs one 0.1 s step, and the reward is coopsumo.reward's RewardParts.total for
+the agent (components in `info`). Terminated when the agent leaves the road (the last
+observation is repeated); truncated after `max_steps` agent steps.
+
+Spaces: observation Dict(grids: Box(0, 1, (3, 3, 20), uint8) = frames (oldest first) x lanes
+(left, own, right) x cells, speed_err: Box(-inf, inf, (3,), float32) = v - v_exp (m/s), oldest
+first); action Discrete(4): 0 left, 1 right, 2 speedup, 3 none. Stable-Baselines3's DQN takes
+this Dict with its "MultiInputPolicy" (see experiments/sb3_dqn.py).
+
+Seeding: reset(seed=s) runs SUMO and the demand with seed s; reset() without a seed draws the
+episode seed from the env's np_random (so a seeded reset followed by unseeded ones repeats).
+`info["seed"]` is the episode's seed. `options` is accepted and ignored.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+from coopsumo.config import SimConfig
+from coopsumo.envs.common import (
+    WorldSlot,
+    action_space,
+    background_policy,
+    observation_space,
+    run_seed,
+    step_info,
+    vehicle_observation,
+)
+from coopsumo.observation import Observation
+from coopsumo.policies import Policy
+from coopsumo.world import World
+
+DEFAULT_WARMUP_STEPS = 300
+"""30 s of traffic before the agent is chosen: a few dozen vehicles ahead of it on every lane"""
+DEFAULT_MAX_STEPS = 3000
+"""300 s: a vehicle at 40 km/h (the lowest expected speed) needs 180 s for the 2000 m road"""
+MAX_INSERTION_WAIT_S = 600.0
+"""reset() gives up if the agent vehicle is not on the road this long after its scheduled departure"""
+
+
+class HighwayEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+    """One agent vehicle among background traffic; see the module docstring.
+
+    cfg: the simulation (road, demand, control, reward, accident); its seed, steps and policy are
+    replaced per episode. background: a policy spec for the other vehicles (keep, random, greedy,
+    mobil[:...], dqn:PATH); model_path: shorthand for background="dqn:PATH". Default: keep.
+    """
+
+    metadata: dict[str, Any] = {"render_modes": []}
+
+    def __init__(
+        self,
+        cfg: SimConfig | None = None,
+        *,
+        warmup_steps: int = DEFAULT_WARMUP_STEPS,
+        max_steps: int = DEFAULT_MAX_STEPS,
+        background: str | None = None,
+        model_path: str | Path | None = None,
+        render_mode: str | None = None,
+    ) -> None:
+        if render_mode is not None:
+            raise ValueError(f"HighwayEnv does not render; got render_mode={render_mode!r}")
+        if background is not None and model_path is not None:
+            raise ValueError("give either background or model_path, not both")
+        if warmup_steps < 0 or max_steps < 1:
+            raise ValueError(f"need warmup_steps >= 0 and max_steps >= 1, got {warmup_steps} and {max_steps}")
+        self.background = background or (f"dqn:{model_path}" if model_path is not None else "keep")
+        base = cfg if cfg is not None else SimConfig()
+        self.cfg = dataclasses.replace(base, steps=warmup_steps + max_steps, policy=self.background)
+        self.cfg.validate()
+        self.warmup_steps = warmup_steps
+        self.max_steps = max_steps
+        self.render_mode = render_mode
+        self.observation_space = observation_space()
+        self.action_space = action_space()
+        background_policy(self.background, 0, self.cfg.control)  # a bad spec fails here, before SUMO starts
+        self._slot = WorldSlot()
+        self._policy: Policy | None = None
+        self._obs: Observation | None = None  # the World's last observation (all vehicles)
+        self._row = -1  # the agent's row in it
+        self._last: dict[str, np.ndarray] | None = None  # the agent's last observation
+        self._steps = 0
+        self._done = True
+        self.agent_num = -1
+        """vehicle number of the agent in the current episode"""
+
+    @property
+    def world(self) -> World | None:
+        """The running World (None before the first reset and after close)."""
+        return self._slot.world
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        episode_seed = run_seed(seed, self.np_random)
+        cfg = dataclasses.replace(self.cfg, seed=episode_seed)
+        world = self._slot.open(cfg)
+        self._policy = background_policy(self.background, episode_seed, cfg.control)
+        for _ in range(self.warmup_steps):
+            obs = world.observe()
+            world.apply(self._policy.act(obs))
+        self.agent_num = world.next_num
+        give_up = world.step_count + round(
+            (self.agent_num * cfg.demand.t_up_s - world.time_s + MAX_INSERTION_WAIT_S) / cfg.control.dt_s
+        )
+        obs = world.observe()
+        while not np.any(obs.nums == self.agent_num):
+            if world.step_count >= give_up:
+                self._slot.close_world()
+                raise RuntimeError(
+                    f"agent vehicle {self.agent_num} was not inserted within {MAX_INSERTION_WAIT_S:g} s; "
+                    "the demand is above what the road can take in"
+                )
+            world.apply(self._policy.act(obs))
+            obs = world.observe()
+        self._set_obs(obs)
+        self._steps = 0
+        self._done = False
+        info = {"vehicle": self.agent_num, "seed": episode_seed, "sim_step": world.step_count}
+        return self._copy_last(), info
+
+    def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        world, obs, policy = self._slot.world, self._obs, self._policy
+        if world is None or obs is None or policy is None or self._done:
+            raise RuntimeError("call reset() before step() (and after an episode ends)")
+        if not self.action_space.contains(action):
+            raise ValueError(f"action must be one of 0 (left), 1 (right), 2 (speedup), 3 (none); got {action!r}")
+        actions = policy.act(obs)
+        actions[self._row] = int(action)
+        out = world.apply(actions)
+        self._steps += 1
+        reward = float(out.reward.total[self._row])
+        info = step_info(out, self._row)
+        next_obs = world.observe()
+        terminated = not np.any(next_obs.nums == self.agent_num)
+        if terminated:
+            self._obs = None
+        else:
+            self._set_obs(next_obs)
+        truncated = not terminated and self._steps >= self.max_steps
+        self._done = terminated or truncated
+        return self._copy_last(), reward, terminated, truncated, info
+
+    def close(self) -> None:
+        """Close SUMO and remove the run folder; safe to call more than once."""
+        self._slot.close()
+        self._obs = None
+        self._policy = None
+        self._done = True
+        super().close()
+
+    def _set_obs(self, obs: Observation) -> None:
+        self._obs = obs
+        self._row = int(np.flatnonzero(obs.nums == self.agent_num)[0])
+        self._last = vehicle_observation(obs, self._row)
+
+    def _copy_last(self) -> dict[str, np.ndarray]:
+        assert self._last is not None
+        return {k: v.copy() for k, v in self._last.items()}

@@ -1,0 +1,196 @@
+"""PettingZoo ParallelEnv: every vehicle on the road is an agent.
+
+Agent names are "veh_<number>" (coopsumo's vehicle numbers, in order of scheduled departure).
+An agent appears in the step after SUMO inserts its vehicle and disappears (terminated) when the
+vehicle leaves the road; its last observation is repeated then. After `max_steps` simulation
+steps (counted from the World's start, the steps reset() takes included) every remaining agent
+is truncated. `possible_agents` is every vehicle scheduled to depart within max_steps:
+veh_0 ... veh_K with K = floor(max_steps * dt / T_up), a finite superset of the agents that can
+appear (vehicles whose insertion is delayed beyond the episode never become agents).
+
+Rewards: coopsumo.reward's RewardParts.total for the step the agent acted in (components in
+`infos`); an agent appearing in a step gets its first observation and reward 0.0.
+
+reset() starts a new World (closing the previous one) and steps the empty road until the first
+vehicle is on it, so `agents` is never empty after reset(). Seeding as in HighwayEnv: reset(seed=s)
+runs with SimConfig.seed = s; an unseeded reset draws the seed from the env's generator, which
+the last seeded reset re-seeded (or from fresh entropy if there was none).
+
+Spaces per agent are those of coopsumo/Highway-v0: Dict(grids (3, 3, 20) uint8, speed_err (3,)
+float32) and Discrete(4).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Any
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+
+from coopsumo.config import SimConfig
+from coopsumo.envs.common import WorldSlot, action_space, observation_space, run_seed, step_info, vehicle_observation
+from coopsumo.observation import Observation
+from coopsumo.physics import SPEEDUP
+from coopsumo.world import World
+
+DEFAULT_MAX_STEPS = 3000
+AGENT_PREFIX = "veh_"
+
+
+def agent_name(num: int) -> str:
+    return f"{AGENT_PREFIX}{num}"
+
+
+def agent_num(name: str) -> int:
+    if not name.startswith(AGENT_PREFIX) or not name[len(AGENT_PREFIX) :].isdigit():
+        raise ValueError(f"not an agent name: {name!r}; expected {AGENT_PREFIX}<number>")
+    return int(name[len(AGENT_PREFIX) :])
+
+
+class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
+    """All vehicles as agents; see the module docstring. cfg's seed, steps and policy are replaced."""
+
+    metadata: dict[str, Any] = {"name": "coopsumo_highway_v0", "render_modes": [], "is_parallelizable": True}
+
+    def __init__(self, cfg: SimConfig | None = None, *, max_steps: int = DEFAULT_MAX_STEPS) -> None:
+        if max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        base = cfg if cfg is not None else SimConfig()
+        self.cfg = dataclasses.replace(base, steps=max_steps, policy="agents")
+        self.cfg.validate()
+        self.max_steps = max_steps
+        last = math.floor(max_steps * self.cfg.control.dt_s / self.cfg.demand.t_up_s + 1e-9)
+        self.possible_agents: list[str] = [agent_name(k) for k in range(last + 1)]
+        self.agents: list[str] = []
+        self.render_mode = None
+        self._obs_space = observation_space()
+        self._act_space = action_space()
+        self.observation_spaces = dict.fromkeys(self.possible_agents, self._obs_space)
+        self.action_spaces = dict.fromkeys(self.possible_agents, self._act_space)
+        self._slot = WorldSlot()
+        self._seed_rng: np.random.Generator | None = None
+        self._obs: Observation | None = None
+        self._finished: set[int] = set()
+        self._last: dict[int, dict[str, np.ndarray]] = {}  # vehicle number -> its last observation
+        self.seed_used = -1
+        """SimConfig seed of the current episode"""
+
+    def observation_space(self, agent: str) -> spaces.Space[Any]:
+        return self._obs_space
+
+    def action_space(self, agent: str) -> spaces.Space[Any]:
+        return self._act_space
+
+    @property
+    def world(self) -> World | None:
+        return self._slot.world
+
+    def reset(
+        self, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, dict[str, np.ndarray]], dict[str, dict[str, Any]]]:
+        if seed is None:
+            if self._seed_rng is None:
+                self._seed_rng = np.random.default_rng()
+            self.seed_used = run_seed(None, self._seed_rng)
+        else:
+            self.seed_used = run_seed(seed, None)
+            self._seed_rng = np.random.default_rng(self.seed_used)
+        world = self._slot.open(dataclasses.replace(self.cfg, seed=self.seed_used))
+        obs = world.observe()
+        while len(obs) == 0 and world.step_count < self.max_steps - 1:
+            world.apply(np.zeros(0, np.int64))
+            obs = world.observe()
+        self._finished = set()
+        self._last = {}
+        self._set_obs(obs)
+        self.agents = [agent_name(n) for n in self._live(obs)]
+        observations = {a: self._copy(agent_num(a)) for a in self.agents}
+        infos: dict[str, dict[str, Any]] = {a: {"seed": self.seed_used} for a in self.agents}
+        return observations, infos
+
+    def step(
+        self, actions: dict[str, Any]
+    ) -> tuple[
+        dict[str, dict[str, np.ndarray]],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        world, obs = self._slot.world, self._obs
+        if world is None or obs is None:
+            raise RuntimeError("call reset() before step()")
+        live = set(self.agents)
+        unknown = set(actions) - live
+        missing = live - set(actions)
+        if unknown or missing:
+            raise ValueError(
+                f"actions must cover exactly the live agents; missing {sorted(missing)[:5]}, "
+                f"not live {sorted(unknown)[:5]}"
+            )
+        batch = np.full(len(obs), SPEEDUP, dtype=np.int64)  # vehicles that are not live agents speed up
+        for row, num in enumerate(obs.nums.tolist()):
+            name = agent_name(num)
+            if name in live:
+                action = actions[name]
+                if not self._act_space.contains(action):
+                    raise ValueError(f"action of {name} must be 0, 1, 2 or 3; got {action!r}")
+                batch[row] = int(action)
+        out = world.apply(batch)
+        next_obs = world.observe()
+        truncate = world.step_count >= self.max_steps
+        self._set_obs(next_obs)
+        present = set(self._live(next_obs))
+
+        observations: dict[str, dict[str, np.ndarray]] = {}
+        rewards: dict[str, float] = {}
+        terminations: dict[str, bool] = {}
+        truncations: dict[str, bool] = {}
+        infos: dict[str, dict[str, Any]] = {}
+        for row, num in enumerate(out.nums.tolist()):
+            name = agent_name(num)
+            if name not in live:
+                continue
+            gone = num not in present
+            observations[name] = self._copy(num)
+            rewards[name] = float(out.reward.total[row])
+            terminations[name] = gone
+            truncations[name] = truncate and not gone
+            infos[name] = step_info(out, row)
+            if gone or truncate:
+                self._finished.add(num)
+                del self._last[num]
+        if not truncate:
+            for num in sorted(present - {agent_num(a) for a in live}):
+                name = agent_name(num)
+                observations[name] = self._copy(num)
+                rewards[name] = 0.0
+                terminations[name] = truncations[name] = False
+                infos[name] = {"vehicle": num, "new": True}
+        self.agents = [] if truncate else [agent_name(n) for n in sorted(present)]
+        return observations, rewards, terminations, truncations, infos
+
+    def close(self) -> None:
+        """Close SUMO and remove the run folder; safe to call more than once."""
+        self._slot.close()
+        self._obs = None
+        self.agents = []
+
+    def _live(self, obs: Observation) -> list[int]:
+        """Vehicles of obs that are (or become) agents: on the road and not finished before."""
+        nums = [n for n in obs.nums.tolist() if n not in self._finished]
+        too_late = [n for n in nums if n >= len(self.possible_agents)]
+        if too_late:  # cannot happen: a vehicle on the road was scheduled before now
+            raise RuntimeError(f"vehicle {too_late[0]} is not among possible_agents")
+        return nums
+
+    def _set_obs(self, obs: Observation) -> None:
+        self._obs = obs
+        for row, num in enumerate(obs.nums.tolist()):
+            self._last[num] = vehicle_observation(obs, row)
+
+    def _copy(self, num: int) -> dict[str, np.ndarray]:
+        return {k: v.copy() for k, v in self._last[num].items()}

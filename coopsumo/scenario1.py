@@ -1,0 +1,404 @@
+"""`python -m coopsumo.scenario1` (`make scenario1`): the accident-bottleneck study of section IV.A.
+
+1. trains (or reuses) the alpha = 0 and alpha = 8 models in free flow, in parallel;
+2. runs every policy (the two DQNs and the baselines) in the accident scenario, per seed;
+3. writes results/scenario1/: run folders, fig4_time_space.png, fig5_flow_density.png,
+   summary.csv and report.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import multiprocessing as mp
+import sys
+import time
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from tqdm import tqdm
+
+from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+
+ALPHAS = (0.0, 8.0)
+BASELINES = ("keep", "greedy")
+FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
+SLOW_MPS = 5.0
+RECOVERY_MPS = 15.0
+STOP_GO_UPSTREAM_M = 1000.0
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Sizes of the study (paper scale by default; --quick shrinks every count)."""
+
+    lanes: int = 3
+    t_up_s: float = DemandConfig.t_up_s
+    train_steps: int = 90_000
+    steps: int = 90_000
+    accident_start: int = AccidentConfig.start_step
+    accident_steps: int = AccidentConfig.duration_steps
+    seeds: tuple[int, ...] = (1, 2, 3)
+    train_seed: int = 0
+    trajectory_every: int = 5
+    loop_period_s: float = 60.0
+    baselines: tuple[str, ...] = BASELINES
+
+    @staticmethod
+    def quick() -> Plan:
+        return Plan(train_steps=3000, steps=6000, accident_start=1000, accident_steps=3000, seeds=(1, 2),
+                    loop_period_s=30.0)  # fmt: skip
+
+
+def train_config(plan: Plan, alpha: float) -> TrainConfig:
+    """The free-flow training of one model."""
+    from coopsumo.config import RewardConfig
+
+    sim = SimConfig(
+        road=RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s),
+        demand=DemandConfig(t_up_s=plan.t_up_s),
+        reward=RewardConfig(alpha=alpha),
+        steps=plan.train_steps,
+        seed=plan.train_seed,
+        policy="dqn",
+    )
+    return TrainConfig(sim=sim, eval_steps=0)
+
+
+def accident_config(plan: Plan, policy: str, seed: int) -> SimConfig:
+    return SimConfig(
+        road=RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s),
+        demand=DemandConfig(t_up_s=plan.t_up_s),
+        accident=AccidentConfig(enabled=True, start_step=plan.accident_start, duration_steps=plan.accident_steps),
+        steps=plan.steps,
+        seed=seed,
+        policy=policy,
+    )
+
+
+# -- jobs run in worker processes (one SUMO per process) -------------------------------------
+_WORKER_COUNTER: Any = None  # shared step counter of the pool, set by _init_worker
+
+
+def _init_worker(counter: Any) -> None:
+    global _WORKER_COUNTER
+    _WORKER_COUNTER = counter
+
+
+def _bump(n: int) -> None:
+    if _WORKER_COUNTER is not None:
+        with _WORKER_COUNTER.get_lock():
+            _WORKER_COUNTER.value += n
+
+
+def train_job(cfg_dict: dict[str, Any], out: str) -> str:
+    """Train one model into `out`."""
+    import torch
+
+    from coopsumo.config import train_config_from_dict
+    from coopsumo.train import train
+
+    torch.set_num_threads(1)
+    train(train_config_from_dict(cfg_dict), Path(out), progress=False, on_steps=_bump)
+    return out
+
+
+def sim_job(cfg_dict: dict[str, Any], out: str, trajectory_every: int) -> str:
+    """Run one simulation into the run folder `out` (written atomically)."""
+    import torch
+
+    from coopsumo.config import sim_config_from_dict
+    from coopsumo.policies import make_policy
+    from coopsumo.runio import discard_run_dir, finish_run_dir, start_run_dir
+    from coopsumo.simulate import run
+
+    torch.set_num_threads(1)
+    cfg = sim_config_from_dict(cfg_dict)
+    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
+    tmp = start_run_dir(Path(out))
+    try:
+        run(cfg, policy, tmp, trajectories=True, progress=False, trajectory_every=trajectory_every, on_steps=_bump)
+    except BaseException:
+        discard_run_dir(tmp)
+        raise
+    finish_run_dir(tmp, Path(out))
+    return out
+
+
+def _same_config(path: Path, cfg: dict[str, Any]) -> bool:
+    """True when path (config.json) records exactly this configuration."""
+    try:
+        return bool(json.loads(path.read_text())["config"] == json.loads(json.dumps(cfg)))
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+def run_parallel(jobs: Sequence[tuple[Callable[..., str], tuple[Any, ...], int]], workers: int, desc: str) -> None:
+    """Run (function, args, steps) jobs in a process pool with one progress bar over all their steps."""
+    if not jobs:
+        return
+    ctx = mp.get_context("spawn")
+    counter = ctx.Value("q", 0)
+    total = sum(steps for _, _, steps in jobs)
+    with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
+                             initargs=(counter,)) as pool:  # fmt: skip
+        futures: list[Future[str]] = [pool.submit(fn, *args) for fn, args, _ in jobs]
+        with tqdm(total=total, desc=desc, unit="step", file=sys.stderr, mininterval=1.0) as bar:
+            while not all(f.done() for f in futures):
+                time.sleep(0.5)
+                bar.update(min(counter.value, total) - bar.n)
+            bar.update(total - bar.n)
+        for f in futures:
+            f.result()  # re-raise a worker's error
+
+
+# -- analysis ----------------------------------------------------------------------------------
+def run_metrics(run_dir: Path, cfg: SimConfig) -> dict[str, Any]:
+    """Summary plus recovery time and stop-and-go for one accident run."""
+    from coopsumo.analysis import recovery_time_s, stop_and_go
+
+    summary = json.loads((run_dir / "summary.json").read_text())
+    traj = pd.read_parquet(run_dir / "trajectories.parquet")
+    acc = cfg.accident
+    dt = cfg.control.dt_s
+    release_s = acc.start_step * dt
+    rec = recovery_time_s(traj, acc.x_m, release_s, threshold_mps=RECOVERY_MPS)
+    sg = stop_and_go(traj, acc.x_m - STOP_GO_UPSTREAM_M, acc.x_m, slow_mps=SLOW_MPS)
+    departed = max(summary["departed"], 1)
+    return {
+        "throughput_veh_per_h": summary["throughput_veh_per_h"],
+        "mean_speed_mps": summary["mean_speed_mps"],
+        "mean_travel_time_s": summary["mean_travel_time_s"],
+        "lane_changes_per_vehicle": summary["lane_changes"] / departed,
+        "recovery_time_s": rec,
+        "slow_share": sg["slow_share"],
+        "stops_per_vehicle": sg["stops_per_vehicle"],
+        "collisions": summary["collisions"],
+        "teleports": summary["teleports"],
+        "insertion_blocked": summary["insertion_blocked"],
+        "arrived": summary["arrived"],
+    }
+
+
+METRICS = (
+    ("throughput_veh_per_h", "throughput (veh/h)", "{:.0f}"),
+    ("mean_speed_mps", "mean speed (m/s)", "{:.2f}"),
+    ("mean_travel_time_s", "mean travel time (s)", "{:.1f}"),
+    ("lane_changes_per_vehicle", "lane changes / veh", "{:.2f}"),
+    ("recovery_time_s", "recovery > 15 m/s after release start (s)", "{:.0f}"),
+    ("slow_share", "share of veh-time < 5 m/s upstream", "{:.3f}"),
+    ("stops_per_vehicle", "stops / veh upstream", "{:.2f}"),
+    ("collisions", "collisions", "{:.0f}"),
+    ("teleports", "teleports", "{:.0f}"),
+)
+
+
+def aggregate(rows: pd.DataFrame) -> pd.DataFrame:
+    """Mean and standard deviation over seeds per policy (columns metric_mean, metric_std)."""
+    keys = [m for m, _, _ in METRICS]
+    grouped = rows.groupby("policy", sort=False)[keys]
+    mean = grouped.mean().add_suffix("_mean")
+    std = grouped.std(ddof=1).add_suffix("_std")
+    out = pd.concat([mean, std], axis=1)
+    out["seeds"] = grouped.size()
+    recovered = rows.assign(rec=rows["recovery_time_s"].notna()).groupby("policy", sort=False)["rec"].sum()
+    out["recovered_runs"] = recovered
+    return out.reset_index()
+
+
+def _fmt(fmt: str, mean: float, std: float) -> str:
+    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
+        return "never"
+    text = fmt.format(mean)
+    if std is not None and not (isinstance(std, float) and math.isnan(std)):
+        text += " ± " + fmt.format(std)
+    return text
+
+
+def report_table(agg: pd.DataFrame) -> str:
+    header = "| policy | " + " | ".join(label for _, label, _ in METRICS) + " |"
+    lines = [header, "|" + "---|" * (len(METRICS) + 1)]
+    for _, r in agg.iterrows():
+        cells = [_fmt(fmt, r[f"{m}_mean"], r[f"{m}_std"]) for m, _, fmt in METRICS]
+        lines.append(f"| {r['policy']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def verdict(agg: pd.DataFrame, coop: str, noncoop: str) -> str:
+    """A plain statement of whether the cooperative model beats the non-cooperative one."""
+    a = agg.set_index("policy")
+    if coop not in a.index or noncoop not in a.index:
+        return "The two DQN policies are not both present; no comparison."
+    c, n = a.loc[coop], a.loc[noncoop]
+    better_speed = c["mean_speed_mps_mean"] > n["mean_speed_mps_mean"]
+    better_tp = c["throughput_veh_per_h_mean"] > n["throughput_veh_per_h_mean"]
+    fewer_sg = c["slow_share_mean"] < n["slow_share_mean"]
+    parts = [
+        f"mean speed {c['mean_speed_mps_mean']:.2f} vs {n['mean_speed_mps_mean']:.2f} m/s",
+        f"throughput {c['throughput_veh_per_h_mean']:.0f} vs {n['throughput_veh_per_h_mean']:.0f} veh/h",
+        f"slow share upstream {c['slow_share_mean']:.3f} vs {n['slow_share_mean']:.3f}",
+        f"lane changes per vehicle {c['lane_changes_per_vehicle_mean']:.2f} vs {n['lane_changes_per_vehicle_mean']:.2f}",
+    ]
+    wins = sum([better_speed, better_tp, fewer_sg])
+    if wins == 3:
+        head = f"Yes: the cooperative model ({coop}) beats the non-cooperative one ({noncoop}) on all three measures"
+    elif wins == 0:
+        head = f"No: the cooperative model ({coop}) does not beat the non-cooperative one ({noncoop}) on any measure"
+    else:
+        head = (f"Mixed: the cooperative model ({coop}) beats the non-cooperative one ({noncoop}) on {wins} of 3 "
+                "measures (mean speed, throughput, slow share)")  # fmt: skip
+    return head + " — " + "; ".join(parts) + " (means over seeds)."
+
+
+DEVIATIONS = """| topic | paper | here |
+|---|---|---|
+| simulator | own simulator | Eclipse SUMO via libsumo; SUMO's car-following and lane-changing switched off (speed mode 0, lane-change mode 0) |
+| Newell c, d | not given | c = 1.1 1/s, d = -0.1, gap = bumper-to-bumper; about 1,970 veh/h per lane at saturation |
+| road | length not given | 2,000 m, lanes 3.2 m wide, speed limit 33.3 m/s; loops every 200 m (200-1,800 m) on every lane |
+| v_exp | "random", clipped 40-110 km/h | normal, mean 85 km/h, sd 15 km/h, clipped 40-110 km/h |
+| T_up | not given | interval for the whole road (all lanes), lane drawn uniformly |
+| accident | stuck ratio p decays 1 -> 0 over ~50,000 steps | vehicles within 100 m of x = 1,300 m are drawn held with probability p; held vehicles see a standing obstacle at 1,300 m and are re-drawn every 1 s; p linear from 1 to 0 over the window |
+| q_t | "current traffic flow rate" | vehicles counted by all loops in the last 60 s, as veh/h per cross-section, divided by lanes x 2,000 veh/h |
+| lane 1 (Fig. 4) | not defined | SUMO lane index 0 (rightmost) |
+| trajectories | - | recorded every 5 steps (0.5 s) in scenario I to keep files small |
+"""
+
+
+def write_report(root: Path, plan: Plan, agg: pd.DataFrame, wall_s: float, figures: dict[str, str]) -> None:
+    coop, noncoop = "dqn_alpha8", "dqn_alpha0"
+    acc = accident_config(plan, "keep", plan.seeds[0]).accident
+    dt = 0.1
+    text = f"""# Scenario I: accident bottleneck
+
+{plan.lanes} lanes, T_up = {plan.t_up_s:g} s ({3600 / plan.t_up_s:.0f} veh/h), {plan.steps} steps ({plan.steps * dt / 3600:.2f} h);
+accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps
+(t = {acc.start_step * dt:.0f}-{(acc.start_step + acc.duration_steps) * dt:.0f} s), stuck ratio decaying 1 -> 0.
+Models trained {plan.train_steps} steps in free flow (seed {plan.train_seed}); evaluated greedily here on seeds
+{", ".join(map(str, plan.seeds))} (same demand for every policy). Values: mean ± standard deviation over seeds.
+
+## Result
+
+{verdict(agg, coop, noncoop)}
+
+{report_table(agg)}
+
+Recovery: time from the start of the accident (when p starts to fall from 1, i.e. releasing begins) until the
+space-mean speed in the 200 m upstream of the bottleneck, in 30 s bins, rises above 15 m/s and stays there
+("never" when it does not before the end). Recovered runs per policy:
+{", ".join(f"{r['policy']} {int(r['recovered_runs'])}/{int(r['seeds'])}" for _, r in agg.iterrows())}.
+Stop-and-go: share of vehicle-time below 5 m/s and stops per vehicle (drops below 5 m/s) within the 1,000 m
+upstream of the bottleneck.
+
+## Figures
+
+![time-space]({figures["fig4"]})
+
+Fig. 4: trajectories on SUMO lane {FIG4_LANE} (the paper's "lane 1"), seed {plan.seeds[0]}, coloured by speed;
+the grey band is the accident window, the dashed line the bottleneck.
+
+![flow-density]({figures["fig5"]})
+
+Fig. 5: flow against density from every loop and 60 s interval, seed {plan.seeds[0]}.
+
+## Deviations and choices
+
+{DEVIATIONS}
+Total wall time of this run: {wall_s / 60:.1f} min. Versions: {json.dumps(versions())}.
+"""
+    (root / "report.md").write_text(text)
+
+
+def label_for(policy: str) -> str:
+    if policy.startswith("dqn:"):
+        return Path(policy[4:]).parent.name.replace("alpha", "dqn_alpha")
+    return policy.replace(":", "_").replace("=", "")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = Parser(prog="python -m coopsumo.scenario1", description="Scenario I: the accident bottleneck study.")
+    p.add_argument("--quick", action="store_true", help="small step counts for a first look (a few minutes)")
+    p.add_argument("--seeds", type=int, default=None, help="number of evaluation seeds (default 3; quick 2)")
+    p.add_argument("--out", type=Path, default=Path("results/scenario1"), help="results folder")
+    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+    args = p.parse_args(argv)
+
+    def body() -> int:
+        plan = Plan.quick() if args.quick else Plan()
+        if args.seeds is not None:
+            if args.seeds < 1:
+                raise UsageError(f"seeds must be >= 1, got {args.seeds}")
+            plan = replace(plan, seeds=tuple(range(1, args.seeds + 1)))
+        if args.workers < 1:
+            raise UsageError(f"workers must be >= 1, got {args.workers}")
+        return run_study(plan, args.out, args.workers)
+
+    return run_cli("scenario1", body)
+
+
+def run_study(plan: Plan, root: Path, workers: int = 2) -> int:
+    start = time.perf_counter()
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write {root}: {err.strerror}") from None
+    write_json(root / "plan.json", {"plan": to_dict(plan), "versions": versions()})
+
+    # 1. models
+    train_jobs = []
+    model_paths = {}
+    for alpha in ALPHAS:
+        cfg = train_config(plan, alpha)
+        out = root / "models" / f"alpha{alpha:g}"
+        model_paths[alpha] = out / "model.pt"
+        if (out / "model.pt").exists() and _same_config(out / "config.json", to_dict(cfg)):
+            print(f"scenario1: reusing {out / 'model.pt'} (same configuration)", file=sys.stderr)
+            continue
+        train_jobs.append((train_job, (to_dict(cfg), str(out)), plan.train_steps))
+    run_parallel(train_jobs, workers, "train alpha=0 and alpha=8")
+
+    # 2. accident runs
+    policies = [f"dqn:{model_paths[a]}" for a in ALPHAS] + list(plan.baselines)
+    runs: list[tuple[str, int, Path, SimConfig]] = []
+    sim_jobs = []
+    for seed in plan.seeds:
+        for policy in policies:
+            cfg = accident_config(plan, policy, seed)
+            out = root / "runs" / f"{label_for(policy)}_seed{seed}"
+            runs.append((label_for(policy), seed, out, cfg))
+            if (out / "summary.json").exists() and _same_config(out / "config.json", to_dict(cfg)):
+                continue
+            sim_jobs.append((sim_job, (to_dict(cfg), str(out), plan.trajectory_every), plan.steps))
+    run_parallel(sim_jobs, workers, f"accident runs ({len(sim_jobs)})")
+
+    # 3. tables, figures, report
+    from coopsumo.analysis import flow_density, read_detectors
+    from coopsumo.plots import flow_density_figure, time_space_figure
+
+    rows = pd.DataFrame([{"policy": lab, "seed": seed, **run_metrics(out, cfg)} for lab, seed, out, cfg in runs])
+    rows.to_csv(root / "runs.csv", index=False)
+    agg = aggregate(rows)
+    agg.to_csv(root / "summary.csv", index=False)
+    first = plan.seeds[0]
+    acc = runs[0][3].accident
+    window = (acc.start_step * 0.1, (acc.start_step + acc.duration_steps) * 0.1)
+    trajs = {lab: pd.read_parquet(out / "trajectories.parquet") for lab, seed, out, _ in runs
+             if seed == first and lab in ("dqn_alpha0", "dqn_alpha8")}  # fmt: skip
+    time_space_figure(trajs, FIG4_LANE, root / "fig4_time_space.png", window, acc.x_m,
+                      title_lane=f"SUMO lane {FIG4_LANE} (paper's lane 1)")  # fmt: skip
+    fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, seed, out, _ in runs if seed == first}
+    flow_density_figure(fd, root / "fig5_flow_density.png")
+    wall = time.perf_counter() - start
+    write_report(root, plan, agg, wall, {"fig4": "fig4_time_space.png", "fig5": "fig5_flow_density.png"})
+    print(report_table(agg))
+    print(f"scenario1: done in {wall / 60:.1f} min; report: {root / 'report.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

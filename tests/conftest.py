@@ -1,0 +1,138 @@
+"""Shared helpers for the highway-world tests (physics, observation, reward, policies, SUMO runs).
+
+Pure tests build hand-made vehicle layouts with `layout`; SUMO tests use `sim_config`.
+libsumo allows one SUMO per process: in-process SUMO tests open one World at a time
+(the context manager closes SUMO), longer sweeps run the CLI in subprocesses.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from coopsumo import physics
+from coopsumo.config import AccidentConfig, ControlConfig, DemandConfig, RoadConfig, SimConfig
+from coopsumo.observation import Observation
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture
+def ctrl() -> ControlConfig:
+    """The controller configuration with the paper's collision-check values (a1=2, a2=0.5, v_cc=1, L=4)."""
+    cfg = ControlConfig()
+    assert (cfg.a1, cfg.a2_s, cfg.v_cc_mps, cfg.car_length_m) == (2.0, 0.5, 1.0, 4.0)
+    return cfg
+
+
+def make_observation(
+    lane: list[int],
+    pos: list[float],
+    speed: list[float],
+    v_exp: list[float],
+    n_lanes: int = 3,
+    other_lane: list[int] | None = None,
+    car_length_m: float = 4.0,
+) -> Observation:
+    """An Observation of a hand-made layout, with neighbours computed by physics (grids left empty)."""
+    lane_a = np.asarray(lane, np.int64)
+    pos_a = np.asarray(pos, np.float64)
+    speed_a = np.asarray(speed, np.float64)
+    other = np.full(len(lane_a), -1, np.int64) if other_lane is None else np.asarray(other_lane, np.int64)
+    occ = physics.occupancy(lane_a, pos_a, other)
+    around = physics.neighbours(occ, pos_a, speed_a, physics.side_lanes(lane_a), n_lanes, car_length_m)
+    n = len(lane_a)
+    return Observation(
+        nums=np.arange(n, dtype=np.int64),
+        grids=np.zeros((n, 3, 3, 20), np.uint8),
+        speed_err=np.zeros((n, 3), np.float32),
+        lane=lane_a,
+        pos=pos_a,
+        speed=speed_a,
+        v_exp=np.asarray(v_exp, np.float64),
+        busy=other >= 0,
+        around=around,
+        n_lanes=n_lanes,
+    )
+
+
+@pytest.fixture
+def observation_of() -> Callable[..., Observation]:
+    return make_observation
+
+
+def sim_config(
+    lanes: int = 3,
+    t_up_s: float = 2.0,
+    steps: int = 1000,
+    seed: int = 0,
+    policy: str = "keep",
+    accident: AccidentConfig | None = None,
+) -> SimConfig:
+    return SimConfig(
+        road=RoadConfig(lanes=lanes),
+        demand=DemandConfig(t_up_s=t_up_s),
+        accident=accident or AccidentConfig(),
+        steps=steps,
+        seed=seed,
+        policy=policy,
+    )
+
+
+@pytest.fixture
+def make_sim_config() -> Callable[..., SimConfig]:
+    return sim_config
+
+
+def run_cli(args: list[str], timeout: float = 300.0) -> subprocess.CompletedProcess[str]:
+    """`python -m coopsumo.simulate ARGS` in a subprocess (its own SUMO)."""
+    return subprocess.run(
+        [sys.executable, "-m", "coopsumo.simulate", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=REPO,
+        check=False,
+    )
+
+
+@pytest.fixture
+def simulate_cli() -> Callable[..., subprocess.CompletedProcess[str]]:
+    return run_cli
+
+
+def start_cli(args: list[str]) -> subprocess.Popen[str]:
+    """Start `python -m coopsumo.simulate ARGS` without waiting (for runs in parallel)."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "coopsumo.simulate", *args],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
+
+
+@pytest.fixture(scope="session")
+def parallel_cli() -> Callable[[list[list[str]], int], list[tuple[int, str, str]]]:
+    """Run several CLI invocations, at most `workers` at a time; returns (returncode, stdout, stderr) each."""
+
+    def run_all(jobs: list[list[str]], workers: int = 2) -> list[tuple[int, str, str]]:
+        results: list[Any] = [None] * len(jobs)
+        running: list[tuple[int, subprocess.Popen[str]]] = []
+        queue = list(enumerate(jobs))
+        while queue or running:
+            while queue and len(running) < workers:
+                i, args = queue.pop(0)
+                running.append((i, start_cli(args)))
+            i, proc = running.pop(0)
+            out, err = proc.communicate(timeout=600)
+            results[i] = (proc.returncode, out, err)
+        return results
+
+    return run_all
