@@ -17,8 +17,8 @@ import torch
 
 from coopsumo.config import DemandConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.dqn import Learner
-from coopsumo.physics import occupancy
 from coopsumo.observation import snapshot
+from coopsumo.physics import occupancy
 from coopsumo.policies import make_policy
 from coopsumo.simulate import run
 from coopsumo.train import Trainer
@@ -68,8 +68,9 @@ def main() -> int:
     for policy in ("keep", "random", "greedy"):
         print(f"  simulate --policy {policy:7s}: {bench_simulation(policy, 6000):8.0f} steps/s", flush=True)
     sps = bench_training(6000)
-    print(f"  train (learning on)         : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min",
-          flush=True)
+    print(
+        f"  train (learning on)         : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min", flush=True
+    )
     for n in (50, 200):
         grid_us, act_us = bench_decision(n)
         print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)

@@ -7,10 +7,10 @@ follower it will have in the target lane:
     incentive:  (a~_c - a_c) + p * ((a~_n - a_n) + (a~_o - a_o))  >  threshold +/- bias
     safety:     a~_n >= -b_safe
 
-where a is an acceleration before and a~ after the change. The bias favours the right:
+where a is an acceleration before and a~ after the change. A positive bias favours the right:
 a change to the right needs `threshold - bias`, one to the left `threshold + bias`. When both
-sides qualify, the larger margin over its threshold wins. Without a change the action is
-speedup (the controller caps the speed at v_exp and at the Newell bound).
+sides qualify, the larger margin over its threshold wins (a tie goes right). Without a change
+the action is speedup (the controller caps the speed at v_exp and at the Newell bound).
 
 Accelerations come from the project's own controller, not from a second car-following model:
 
@@ -37,7 +37,7 @@ Defaults (spec `mobil` = `mobil:p=0.5`):
 
 | parameter | default | meaning |
 |---|---|---|
-| p | 0.5 | politeness; 0 selfish, 1 weighs the others' acceleration changes like its own (Kesting et al.: 0-0.5 realistic) |
+| p | 0.5 | politeness: 0 selfish, 1 weighs the others' changes like its own (Kesting et al.: 0-0.5) |
 | threshold | 0.1 m/s^2 | change threshold Delta a_th (Kesting et al.'s value) |
 | b_safe | 4.0 m/s^2 | largest deceleration imposed on the new follower (Kesting et al.'s value) |
 | bias | 0.0 m/s^2 | keep-right bias; 0 = symmetric, as the paper's simulator has no keep-right rule |
@@ -105,7 +105,9 @@ class MobilPolicy:
         """Parse `mobil` or `mobil:p=0.5,threshold=0.1,b_safe=4,bias=0` (any subset, any order)."""
         head, sep, rest = spec.partition(":")
         if head != "mobil":
-            raise PolicySpecError(f"not a mobil spec: {spec!r}; expected mobil or mobil:p=P[,threshold=T,b_safe=B,bias=R]")
+            raise PolicySpecError(
+                f"not a mobil spec: {spec!r}; expected mobil or mobil:p=P[,threshold=T,b_safe=B,bias=R]"
+            )
         values: dict[str, float] = {}
         if sep:
             for item in rest.split(","):

@@ -10,6 +10,7 @@ from typing import Protocol
 
 import numpy as np
 
+from coopsumo.config import ControlConfig
 from coopsumo.observation import Observation
 from coopsumo.physics import LEFT, RIGHT, SPEEDUP
 from coopsumo.runio import UsageError
@@ -76,11 +77,47 @@ class GreedyPolicy:
         return actions
 
 
+class SumoPolicy:
+    """SUMO's own models in charge: its car-following (Krauss) and LC2013 lane changing.
+
+    The Newell controller is NOT used for this policy: the world leaves speed and lane-change modes
+    at SUMO's defaults and only reads the vehicles. `lc_params` are LC2013 parameters
+    (lcCooperative, lcSpeedGain, ...) set on every vehicle.
+    """
+
+    name = "sumo"
+    LC_KEYS = ("lcCooperative", "lcSpeedGain", "lcStrategic", "lcKeepRight", "lcAssertive")
+
+    def __init__(self, lc_params: dict[str, float] | None = None):
+        self.lc_params = dict(lc_params or {})
+
+    @classmethod
+    def from_spec(cls, spec: str) -> SumoPolicy:
+        """Parse `sumo` or `sumo:lcCooperative=0.5,lcSpeedGain=1`."""
+        params: dict[str, float] = {}
+        body = spec[len("sumo:") :] if spec.startswith("sumo:") else ""
+        for item in filter(None, body.split(",")):
+            key, sep, value = item.partition("=")
+            if not sep or key not in cls.LC_KEYS:
+                raise PolicySpecError(f"bad sumo policy parameter {item!r}; expected KEY=VALUE, KEY in {cls.LC_KEYS}")
+            try:
+                params[key] = float(value)
+            except ValueError:
+                raise PolicySpecError(f"sumo policy parameter {key} needs a number, got {value!r}") from None
+        return cls(params)
+
+    def act(self, obs: Observation) -> np.ndarray:
+        return np.full(len(obs), SPEEDUP, dtype=np.int64)  # ignored: SUMO decides
+
+
 BASIC_POLICIES = ("keep", "random", "greedy")
 
 
-def make_policy(spec: str, rng: np.random.Generator) -> Policy:
-    """Build a policy from its command-line spec: keep, random, greedy, dqn:PATH."""
+def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | None = None) -> Policy:
+    """Build a policy from its command-line spec: keep, random, greedy, dqn:PATH, mobil[:p=P,...], sumo.
+
+    `control` is the run's controller configuration (MOBIL derives its accelerations from it).
+    """
     if spec == "keep":
         return KeepPolicy()
     if spec == "random":
@@ -91,4 +128,12 @@ def make_policy(spec: str, rng: np.random.Generator) -> Policy:
         from coopsumo.dqn_policy import DQNPolicy  # torch only when a DQN is asked for
 
         return DQNPolicy.from_file(spec[len("dqn:") :])
-    raise PolicySpecError(f"unknown policy {spec!r}; expected one of keep, random, greedy, dqn:PATH")
+    if spec == "mobil" or spec.startswith("mobil:"):
+        from coopsumo.mobil import MobilPolicy  # mobil imports this module
+
+        return MobilPolicy.from_spec(spec, control)
+    if spec == "sumo" or spec.startswith("sumo:"):
+        return SumoPolicy.from_spec(spec)
+    raise PolicySpecError(
+        f"unknown policy {spec!r}; expected one of keep, random, greedy, dqn:PATH, mobil[:p=P], sumo[:lcCooperative=X]"
+    )

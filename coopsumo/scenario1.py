@@ -27,7 +27,7 @@ from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig,
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 
 ALPHAS = (0.0, 8.0)
-BASELINES = ("keep", "greedy")
+BASELINES = ("keep", "greedy", "mobil:p=0.5", "sumo")
 FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
 SLOW_MPS = 5.0
 RECOVERY_MPS = 15.0
@@ -243,7 +243,8 @@ def verdict(agg: pd.DataFrame, coop: str, noncoop: str) -> str:
         f"mean speed {c['mean_speed_mps_mean']:.2f} vs {n['mean_speed_mps_mean']:.2f} m/s",
         f"throughput {c['throughput_veh_per_h_mean']:.0f} vs {n['throughput_veh_per_h_mean']:.0f} veh/h",
         f"slow share upstream {c['slow_share_mean']:.3f} vs {n['slow_share_mean']:.3f}",
-        f"lane changes per vehicle {c['lane_changes_per_vehicle_mean']:.2f} vs {n['lane_changes_per_vehicle_mean']:.2f}",
+        f"lane changes per vehicle {c['lane_changes_per_vehicle_mean']:.2f} vs "
+        f"{n['lane_changes_per_vehicle_mean']:.2f}",
     ]
     wins = sum([better_speed, better_tp, fewer_sg])
     if wins == 3:
@@ -256,18 +257,26 @@ def verdict(agg: pd.DataFrame, coop: str, noncoop: str) -> str:
     return head + " — " + "; ".join(parts) + " (means over seeds)."
 
 
-DEVIATIONS = """| topic | paper | here |
-|---|---|---|
-| simulator | own simulator | Eclipse SUMO via libsumo; SUMO's car-following and lane-changing switched off (speed mode 0, lane-change mode 0) |
-| Newell c, d | not given | c = 1.1 1/s, d = -0.1, gap = bumper-to-bumper; about 1,970 veh/h per lane at saturation |
-| road | length not given | 2,000 m, lanes 3.2 m wide, speed limit 33.3 m/s; loops every 200 m (200-1,800 m) on every lane |
-| v_exp | "random", clipped 40-110 km/h | normal, mean 85 km/h, sd 15 km/h, clipped 40-110 km/h |
-| T_up | not given | interval for the whole road (all lanes), lane drawn uniformly |
-| accident | stuck ratio p decays 1 -> 0 over ~50,000 steps | vehicles within 100 m of x = 1,300 m are drawn held with probability p; held vehicles see a standing obstacle at 1,300 m and are re-drawn every 1 s; p linear from 1 to 0 over the window |
-| q_t | "current traffic flow rate" | vehicles counted by all loops in the last 60 s, as veh/h per cross-section, divided by lanes x 2,000 veh/h |
-| lane 1 (Fig. 4) | not defined | SUMO lane index 0 (rightmost) |
-| trajectories | - | recorded every 5 steps (0.5 s) in scenario I to keep files small |
-"""
+DEVIATIONS = (
+    ("simulator", "own simulator", "Eclipse SUMO via libsumo; SUMO's car-following and lane changing off"),
+    ("Newell c, d", "not given", "c = 1.1 1/s, d = -0.1, bumper-to-bumper gap; ~1,970 veh/h per lane at saturation"),
+    ("road", "length not given", "2,000 m, 3.2 m lanes; loops at 200, 400, ..., 1,800 m on every lane"),
+    ("v_exp", "random, clipped 40-110 km/h", "normal, mean 85 km/h, sd 15 km/h, clipped 40-110 km/h"),
+    ("T_up", "not given", "interval between vehicles for the whole road; lane drawn uniformly"),
+    ("accident", "stuck ratio p decays 1 -> 0 over ~50,000 steps",
+     "a vehicle entering the 100 m before x = 1,300 m is held with probability p; a held vehicle stops at "
+     "the line and, standing at the head of its queue, is re-drawn every 1 s; p linear 1 -> 0"),
+    ("release start", "not defined", "the accident's first step: p starts to fall below 1 and releases begin"),
+    ("lane 1 (Fig. 4)", "not defined", f"SUMO lane index {FIG4_LANE} (the rightmost lane)"),
+    ("trajectories", "-", "recorded every 5 steps (0.5 s) to keep the files small"),
+    ("baselines", "-", "keep, greedy, MOBIL (p = 0.5) on the Newell controller; SUMO's own Krauss + LC2013"),
+)
+
+
+def deviations_table() -> str:
+    lines = ["| topic | paper | here |", "|---|---|---|"]
+    lines += [f"| {a} | {b} | {c} |" for a, b, c in DEVIATIONS]
+    return "\n".join(lines) + "\n"
 
 
 def write_report(root: Path, plan: Plan, agg: pd.DataFrame, wall_s: float, figures: dict[str, str]) -> None:
@@ -276,7 +285,8 @@ def write_report(root: Path, plan: Plan, agg: pd.DataFrame, wall_s: float, figur
     dt = 0.1
     text = f"""# Scenario I: accident bottleneck
 
-{plan.lanes} lanes, T_up = {plan.t_up_s:g} s ({3600 / plan.t_up_s:.0f} veh/h), {plan.steps} steps ({plan.steps * dt / 3600:.2f} h);
+{plan.lanes} lanes, T_up = {plan.t_up_s:g} s ({3600 / plan.t_up_s:.0f} veh/h), {plan.steps} steps \
+({plan.steps * dt / 3600:.2f} h);
 accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps
 (t = {acc.start_step * dt:.0f}-{(acc.start_step + acc.duration_steps) * dt:.0f} s), stuck ratio decaying 1 -> 0.
 Models trained {plan.train_steps} steps in free flow (seed {plan.train_seed}); evaluated greedily here on seeds
@@ -308,7 +318,7 @@ Fig. 5: flow against density from every loop and 60 s interval, seed {plan.seeds
 
 ## Deviations and choices
 
-{DEVIATIONS}
+{deviations_table()}
 Total wall time of this run: {wall_s / 60:.1f} min. Versions: {json.dumps(versions())}.
 """
     (root / "report.md").write_text(text)
@@ -326,6 +336,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=None, help="number of evaluation seeds (default 3; quick 2)")
     p.add_argument("--out", type=Path, default=Path("results/scenario1"), help="results folder")
     p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
+    p.add_argument("--train-steps", type=int, default=None, help="override the training steps")
+    p.add_argument("--steps", type=int, default=None,
+                   help="override the accident run's steps (the accident window scales with it)")  # fmt: skip
     args = p.parse_args(argv)
 
     def body() -> int:
@@ -336,6 +349,15 @@ def main(argv: list[str] | None = None) -> int:
             plan = replace(plan, seeds=tuple(range(1, args.seeds + 1)))
         if args.workers < 1:
             raise UsageError(f"workers must be >= 1, got {args.workers}")
+        if args.train_steps is not None:
+            if args.train_steps < 1:
+                raise UsageError(f"train-steps must be >= 1, got {args.train_steps}")
+            plan = replace(plan, train_steps=args.train_steps)
+        if args.steps is not None:
+            if args.steps < 10:
+                raise UsageError(f"steps must be >= 10, got {args.steps}")
+            plan = replace(plan, steps=args.steps, accident_start=args.steps * 2 // 9,
+                           accident_steps=args.steps * 5 // 9)  # fmt: skip
         return run_study(plan, args.out, args.workers)
 
     return run_cli("scenario1", body)
@@ -353,13 +375,13 @@ def run_study(plan: Plan, root: Path, workers: int = 2) -> int:
     train_jobs = []
     model_paths = {}
     for alpha in ALPHAS:
-        cfg = train_config(plan, alpha)
-        out = root / "models" / f"alpha{alpha:g}"
-        model_paths[alpha] = out / "model.pt"
-        if (out / "model.pt").exists() and _same_config(out / "config.json", to_dict(cfg)):
-            print(f"scenario1: reusing {out / 'model.pt'} (same configuration)", file=sys.stderr)
+        tcfg = train_config(plan, alpha)
+        model_dir = root / "models" / f"alpha{alpha:g}"
+        model_paths[alpha] = model_dir / "model.pt"
+        if model_paths[alpha].exists() and _same_config(model_dir / "config.json", to_dict(tcfg)):
+            print(f"scenario1: reusing {model_paths[alpha]} (same configuration)", file=sys.stderr)
             continue
-        train_jobs.append((train_job, (to_dict(cfg), str(out)), plan.train_steps))
+        train_jobs.append((train_job, (to_dict(tcfg), str(model_dir)), plan.train_steps))
     run_parallel(train_jobs, workers, "train alpha=0 and alpha=8")
 
     # 2. accident runs

@@ -76,8 +76,14 @@ def run(
 
     trajectory_every: record trajectories every k-th step; on_steps(n) is told of progress.
     """
-    write_json(run_dir / "config.json", {"config": to_dict(cfg), "versions": versions(),
-                                         "trajectory_every_steps": trajectory_every if trajectories else None})
+    write_json(
+        run_dir / "config.json",
+        {
+            "config": to_dict(cfg),
+            "versions": versions(),
+            "trajectory_every_steps": trajectory_every if trajectories else None,
+        },
+    )
     start = time.perf_counter()
     record_every = trajectory_every if trajectories else 0
     with World(cfg, run_dir, record_trajectories_every=record_every) as world:

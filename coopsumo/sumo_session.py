@@ -182,6 +182,12 @@ class SumoSession:
         for num, v in zip(nums.tolist(), speeds.tolist(), strict=True):
             set_speed(str(num), v)
 
+    def release_speeds(self, nums: np.ndarray) -> None:
+        """Hand speed control back to SUMO's car-following model."""
+        set_speed = self.ls.vehicle.setSpeed
+        for num in nums.tolist():
+            set_speed(str(num), -1.0)
+
     def change_lanes(self, nums: np.ndarray, target_lanes: np.ndarray) -> None:
         """Start lane changes; SUMO moves each vehicle sideways over --lanechange.duration."""
         change = self.ls.vehicle.changeLane

@@ -286,7 +286,7 @@ def train(
     wall = time.perf_counter() - start
     save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
     train_summary = dict(trainer.world_summary, wall_seconds=round(wall, 2),
-                         steps_per_second=round((cfg.sim.steps) / wall, 1), updates=trainer.learner.updates)  # fmt: skip
+                         steps_per_second=round(cfg.sim.steps / wall, 1), updates=trainer.learner.updates)  # fmt: skip
     write_json(out / "train_summary.json", train_summary)
     trainer.checkpoint_path().unlink(missing_ok=True)
     if cfg.eval_steps == 0:
@@ -298,7 +298,9 @@ def train(
 
 def default_out(cfg: TrainConfig) -> Path:
     s = cfg.sim
-    return Path("results") / "train" / f"lanes{s.road.lanes}_alpha{s.reward.alpha:g}_tup{s.demand.t_up_s:g}_seed{s.seed}"
+    return (
+        Path("results") / "train" / f"lanes{s.road.lanes}_alpha{s.reward.alpha:g}_tup{s.demand.t_up_s:g}_seed{s.seed}"
+    )
 
 
 def build_parser() -> Parser:

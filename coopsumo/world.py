@@ -16,11 +16,13 @@ import numpy as np
 from coopsumo import physics
 from coopsumo.config import SimConfig
 from coopsumo.observation import FrameHistory, Observation, snapshot
+from coopsumo.policies import SumoPolicy
 from coopsumo.reward import RewardParts, flow_term, reward_parts, section_crossings
 from coopsumo.sumo_session import StepEvents, SumoSession, VehicleTable
 
 UNDECIDED, HELD, RELEASED = 0, 1, 2
 ACCIDENT_ZONE_M = 100.0  # vehicles within this distance upstream of the bottleneck are drawn
+STANDING_MPS = 0.1  # a held vehicle slower than this (m/s) is standing at the bottleneck
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,7 @@ class _Growable:
         self.lc_from = np.full(capacity, -1, np.int64)
         self.lc_to = np.full(capacity, -1, np.int64)
         self.hold = np.zeros(capacity, np.int8)
+        self.commanded = np.zeros(capacity, bool)  # sumo mode: speed commanded by the accident
 
     def ensure(self, n: int) -> None:
         cap = len(self.v_exp)
@@ -70,7 +73,7 @@ class _Growable:
             return
         new = max(n, 2 * cap)
         for name, fill in (("v_exp", 0.0), ("depart_s", np.nan), ("scheduled_s", np.nan), ("lc_left_s", 0.0),
-                           ("lc_from", -1), ("lc_to", -1), ("hold", 0)):  # fmt: skip
+                           ("lc_from", -1), ("lc_to", -1), ("hold", 0), ("commanded", False)):  # fmt: skip
             old = getattr(self, name)
             setattr(self, name, np.concatenate([old, np.full(new - cap, fill, old.dtype)]))
 
@@ -82,7 +85,9 @@ class World:
         cfg.validate()
         self.cfg = cfg
         self.run_dir = run_dir
-        self.session = SumoSession(cfg, run_dir)
+        self.sumo_models = cfg.policy == "sumo" or cfg.policy.startswith("sumo:")
+        lc_params = SumoPolicy.from_spec(cfg.policy).lc_params if self.sumo_models else None
+        self.session = SumoSession(cfg, run_dir, sumo_models=self.sumo_models, lc_params=lc_params)
         self.demand_rng = np.random.default_rng([cfg.seed, 1])
         self.accident_rng = np.random.default_rng([cfg.seed, 2])
         self.veh = _Growable()
@@ -102,7 +107,11 @@ class World:
     # -- lifecycle -------------------------------------------------------------------------
     def __enter__(self) -> World:
         self.session.__enter__()
-        self._insert_due()
+        try:
+            self._insert_due()
+        except BaseException:
+            self.session.close()  # __exit__ is not called when __enter__ raises
+            raise
         return self
 
     def __exit__(
@@ -166,6 +175,9 @@ class World:
         if actions.shape != (n,):
             raise ValueError(f"expected {n} actions, got shape {actions.shape}")
 
+        if self.sumo_models:
+            return self._apply_sumo(obs, actions)
+
         # lane changes: ask, check safety, resolve same-step conflicts
         wants = (actions == physics.LEFT) | (actions == physics.RIGHT)
         side = np.where(actions == physics.LEFT, 0, 2)
@@ -198,6 +210,38 @@ class World:
         self.session.change_lanes(movers, target[ok])
         events = self._advance()
 
+        return self._outcome(obs, actions, events, speeds, ok, rejected)
+
+    def _apply_sumo(self, obs: Observation, actions: np.ndarray) -> StepOutcome:
+        """SUMO's own models drive; only vehicles held by the accident get a commanded speed."""
+        c = self.cfg.control
+        n = len(obs)
+        gap, _ = self._accident_obstacle(obs, np.full(n, np.inf), np.zeros(n))
+        held = np.isfinite(gap)
+        speeds = physics.next_speed(obs.speed, obs.v_exp, np.ones(n, bool), gap, np.zeros(n), c)
+        released = obs.nums[~held & self.veh.commanded[obs.nums]] if len(obs) else obs.nums
+        self.session.set_speeds(obs.nums[held], speeds[held])
+        self.session.release_speeds(released)
+        self.veh.commanded[obs.nums] = held
+        events = self._advance()
+        on_road = self.table.nums
+        present = np.clip(np.searchsorted(on_road, obs.nums), 0, max(len(on_road) - 1, 0))
+        still = (on_road[present] == obs.nums) if len(on_road) else np.zeros(n, bool)
+        changed = still & (self.table.lane[present] != obs.lane)
+        return self._outcome(obs, actions, events, obs.speed.copy(), changed, np.zeros(n, bool))
+
+    def _outcome(
+        self,
+        obs: Observation,
+        actions: np.ndarray,
+        events: StepEvents,
+        speeds: np.ndarray,
+        ok: np.ndarray,
+        rejected: np.ndarray,
+    ) -> StepOutcome:
+        """Count lane changes and build the rewards of the observed vehicles after the step."""
+        c = self.cfg.control
+        n = len(obs)
         self.totals.lane_changes += int(ok.sum())
         self.totals.lane_changes_rejected += int(rejected.sum())
         q_t = flow_term(sum(self._loop_counts), len(self._loop_counts) * c.dt_s, self._n_sections,
@@ -214,7 +258,13 @@ class World:
     def _accident_obstacle(
         self, obs: Observation, gap: np.ndarray, v_lead: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Held vehicles see a standing obstacle at the bottleneck; draws happen every redraw_s."""
+        """Held vehicles see a standing obstacle at the bottleneck.
+
+        A vehicle is drawn once on entering the zone (held with probability p). A held vehicle is
+        redrawn every redraw_s only once it stands at the head of its queue (no vehicle between it
+        and x_m), so a vehicle reaching the bottleneck is held with probability p, not p to the
+        power of the number of redraws during its approach.
+        """
         acc = self.cfg.accident
         p = acc.hold_probability(self.step_count)
         hold = self.veh.hold
@@ -223,12 +273,14 @@ class World:
             return gap, v_lead
         in_zone = (obs.pos >= acc.x_m - ACCIDENT_ZONE_M) & (obs.pos < acc.x_m)
         state = hold[obs.nums]
+        obstacle_gap = acc.x_m - obs.pos
+        at_head = (obstacle_gap < gap) & (obs.speed < STANDING_MPS)
         redraw_every = max(1, round(acc.redraw_s / self.cfg.control.dt_s))
-        draw = in_zone & ((state == UNDECIDED) | ((state == HELD) & (self.step_count % redraw_every == 0)))
+        redraw = (state == HELD) & at_head & (self.step_count % redraw_every == 0)
+        draw = in_zone & ((state == UNDECIDED) | redraw)
         u = self.accident_rng.random(len(obs))
         hold[obs.nums[draw]] = np.where(u[draw] < p, HELD, RELEASED)
         held = hold[obs.nums] == HELD
-        obstacle_gap = acc.x_m - obs.pos
         closer = held & (obstacle_gap < gap)
         return np.where(closer, obstacle_gap, gap), np.where(closer, 0.0, v_lead)
 
@@ -255,8 +307,9 @@ class World:
         tot.vehicle_time_s += len(t.nums) * dt
         self._loop_counts.append(section_crossings(prev.nums, prev.pos, t.nums, t.pos, self._sections_m))
         if self.record_every and self.step_count % self.record_every == 0 and len(t.nums):
-            self._traj.append((np.full(len(t.nums), self.time_s, np.float32), t.nums.astype(np.int32), t.lane.astype(np.int8),
-                               t.pos.astype(np.float32), t.speed.astype(np.float32)))  # fmt: skip
+            self._traj.append((np.full(len(t.nums), self.time_s, np.float32), t.nums.astype(np.int32),
+                               t.lane.astype(np.int8), t.pos.astype(np.float32),
+                               t.speed.astype(np.float32)))  # fmt: skip
         self._insert_due()
         return events
 
@@ -265,7 +318,10 @@ class World:
         """Run statistics (see README for definitions)."""
         tot = self.totals
         hours = self.time_s / 3600.0
-        pending = self.next_num - tot.departed
+        # vehicles that had a step to be inserted in (scheduled before the last step began) and were not;
+        # one scheduled at the very end of the run was handed to SUMO but never had a chance
+        last_step_start = self.time_s - self.cfg.control.dt_s + 1e-9
+        pending = int(np.count_nonzero(self.veh.scheduled_s[: self.next_num] <= last_step_start)) - tot.departed
         return {
             "steps": self.step_count,
             "sim_seconds": round(self.time_s, 3),

@@ -48,6 +48,7 @@ def build_parser() -> Parser:
     p.add_argument("--warmup", type=int, default=300, help="steps of background traffic before each episode")
     p.add_argument("--max-steps", type=int, default=3000, help="agent steps before an episode is truncated")
     p.add_argument("--background", default="keep", help="policy of the other vehicles: keep, greedy, mobil, ...")
+    p.add_argument("--threads", type=int, default=1, help="torch threads (the network is small: 1 is fastest)")
     return p
 
 
@@ -79,6 +80,7 @@ def table_ii_extractor_class() -> type:
 
 def train(args: Any, run_dir: Path | None) -> dict[str, Any]:
     import gymnasium as gym
+    import torch
     from stable_baselines3 import DQN
     from stable_baselines3.common.monitor import Monitor
 
@@ -92,8 +94,9 @@ def train(args: Any, run_dir: Path | None) -> dict[str, Any]:
         seed=args.seed,
     )
     cfg.validate()
-    if args.steps < 1 or args.warmup < 0 or args.max_steps < 1:
-        raise UsageError("need --steps >= 1, --warmup >= 0 and --max-steps >= 1")
+    if args.steps < 1 or args.warmup < 0 or args.max_steps < 1 or args.threads < 1:
+        raise UsageError("need --steps >= 1, --warmup >= 0, --max-steps >= 1 and --threads >= 1")
+    torch.set_num_threads(args.threads)
     dq = DQNConfig()
     try:
         env = Monitor(

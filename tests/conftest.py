@@ -85,7 +85,7 @@ def sim_config(
     )
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def make_sim_config() -> Callable[..., SimConfig]:
     return sim_config
 
@@ -102,7 +102,7 @@ def run_cli(args: list[str], timeout: float = 300.0) -> subprocess.CompletedProc
     )
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def simulate_cli() -> Callable[..., subprocess.CompletedProcess[str]]:
     return run_cli
 

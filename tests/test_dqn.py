@@ -222,7 +222,7 @@ def test_target_changes_only_at_sync() -> None:
 
 
 def test_no_update_before_learn_start_or_a_full_batch() -> None:
-    learner = Learner(DQNConfig(batch_size=8, learn_start_steps=3, replay_size=64), seed=0)
+    learner = Learner(DQNConfig(batch_size=8, learn_start_steps=3, replay_size=64, learn_every_steps=1), seed=0)
     assert learner.step() is None  # empty buffer
     learner.observe(**random_transitions(np.random.default_rng(0), 8))
     assert learner.step() is None  # step 2 < learn_start_steps

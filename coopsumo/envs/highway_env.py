@@ -3,9 +3,10 @@
 The episode (reset):
   1. a new World (SUMO) with SimConfig.seed = the reset seed; the previous World is closed first;
   2. `warmup_steps` steps with every vehicle driven by the background policy;
-  3. the agent is the first vehicle scheduled after the warm-up (number `world.next_num` at
-     that moment); the background keeps driving until it is on the road (it appears in
-     observe() the step after SUMO inserts it, later if its insertion is blocked).
+  3. the agent is the first vehicle scheduled to depart at or after the end of the warm-up
+     (the smallest number k with k * T_up >= warmup_steps * dt; vehicle 0 without warm-up); the
+     background keeps driving until it is on the road (it appears in observe() the step after
+     SUMO inserts it, later if its insertion is blocked).
 
 Each step: the background policy acts for every vehicle, the agent's action replaces its own,
 World.apply() runs one 0.1 s step, and the reward is coopsumo.reward's RewardParts.total for
@@ -25,6 +26,7 @@ episode seed from the env's np_random (so a seeded reset followed by unseeded on
 from __future__ import annotations
 
 import dataclasses
+import math
 from pathlib import Path
 from typing import Any
 
@@ -53,7 +55,7 @@ MAX_INSERTION_WAIT_S = 600.0
 """reset() gives up if the agent vehicle is not on the road this long after its scheduled departure"""
 
 
-class HighwayEnv(gym.Env[dict[str, np.ndarray], np.int64]):
+class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
     """One agent vehicle among background traffic; see the module docstring.
 
     cfg: the simulation (road, demand, control, reward, accident); its seed, steps and policy are
@@ -115,7 +117,8 @@ class HighwayEnv(gym.Env[dict[str, np.ndarray], np.int64]):
         for _ in range(self.warmup_steps):
             obs = world.observe()
             world.apply(self._policy.act(obs))
-        self.agent_num = world.next_num
+        # the first vehicle scheduled to depart at or after the end of the warm-up (num * T_up >= W * dt)
+        self.agent_num = max(0, math.ceil(world.time_s / cfg.demand.t_up_s - 1e-9))
         give_up = world.step_count + round(
             (self.agent_num * cfg.demand.t_up_s - world.time_s + MAX_INSERTION_WAIT_S) / cfg.control.dt_s
         )

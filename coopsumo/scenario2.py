@@ -1,0 +1,954 @@
+"""`python -m coopsumo.scenario2` (`make scenario2`): the alpha sweep of section IV.B (paper Fig. 6).
+
+For every condition (lane count, upstream departure interval T_up) and every lane-change
+penalty alpha, a model is trained in free flow and evaluated greedily on the same condition
+(`train.train` does both), repeated over seeds. alpha* is the alpha with the best mean
+travelling speed over seeds; its uncertainty is given by per-seed win shares and a bootstrap
+over seeds. A plane alpha* = b0 + b1 T_up + b2 lanes is fitted over the conditions.
+
+Every (lanes, T_up, alpha, seed) is one "cell", run in its own worker process (libsumo allows
+one SUMO per process), on a local process pool or on Ray. Each finished cell is written
+atomically to OUT/cells/<key>.json the moment it ends; a rerun skips finished cells and
+retries failed ones; a training interrupted by SIGTERM/SIGINT is resumed from its checkpoint.
+
+Outputs in OUT (default results/scenario2): sweep.json, cells/, train/<key>/, runs.csv,
+alpha_star.csv, fig6_alpha_star.png, fig6_speed_heatmap.png, report.md.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import multiprocessing as mp
+import os
+import signal
+import sys
+import threading
+import time
+import traceback
+from collections import Counter, deque
+from collections.abc import Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
+from concurrent.futures import wait as wait_futures
+from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike
+from tqdm import tqdm
+
+from coopsumo.config import (
+    MAX_LANES,
+    MIN_LANES,
+    DemandConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
+from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+
+PAPER_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0)
+"""eq. (12) of the paper"""
+NOMINAL_CAPACITY_VEH_H_PER_LANE = 1800.0
+"""capacity used to place the T_up grid: load 1 means T_up = 3600 / (lanes * 1800) s (near capacity)"""
+CRITERION = "mean_speed_mps"
+"""the paper's criterion for alpha*: mean travelling speed"""
+METRIC_COLUMNS = (
+    "steps", "sim_seconds", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end",
+    "collisions", "teleports", "lane_changes", "lane_changes_rejected", "lane_changes_per_vehicle",
+    "mean_speed_mps", "mean_travel_time_s", "throughput_veh_per_h",
+    "train_mean_speed_mps", "train_lane_changes", "train_collisions", "train_updates",
+)  # fmt: skip
+"""Deterministic columns of runs.csv (same seed -> same value on any backend)."""
+TRAIN_COLUMNS = {
+    "train_mean_speed_mps": "mean_speed_mps",
+    "train_lane_changes": "lane_changes",
+    "train_collisions": "collisions",
+    "train_updates": "updates",
+}
+"""runs.csv columns taken from the training run's train_summary.json"""
+COUNT_COLUMNS = frozenset(("steps", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end",
+                           "collisions", "teleports", "lane_changes", "lane_changes_rejected", "train_lane_changes",
+                           "train_collisions", "train_updates"))  # fmt: skip
+KEY_COLUMNS = ("key", "lanes", "t_up_s", "load", "alpha", "seed")
+MAX_CRASHES = 2
+"""a cell whose worker process died this many times is recorded as failed"""
+
+
+# -- the plan ----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Profile:
+    """Grid and step counts of one sweep."""
+
+    name: str
+    lanes: tuple[int, ...]
+    loads: tuple[float, ...]
+    """inflow as a share of lanes x 1,800 veh/h; T_up = 3600 / (load x lanes x 1800) s, 2 decimals"""
+    alphas: tuple[float, ...]
+    seeds: tuple[int, ...]
+    train_steps: int
+    """training steps (0.1 s) per cell"""
+    eval_steps: int
+    """greedy evaluation steps per cell"""
+    t_up_s: tuple[float, ...] = ()
+    """if set, this fixed T_up list (s) replaces the load grid for every lane count"""
+
+    def conditions(self) -> list[tuple[int, float, float]]:
+        """(lanes, T_up s, load) of every condition, by lanes then decreasing T_up."""
+        out = []
+        for n in self.lanes:
+            if self.t_up_s:
+                pairs = [(t, load_of(n, t)) for t in self.t_up_s]
+            else:
+                pairs = [(t_up_for(n, load), load) for load in self.loads]
+            out += [(n, t, load) for t, load in sorted(pairs, reverse=True)]
+        return out
+
+    def n_cells(self) -> int:
+        return len(self.conditions()) * len(self.alphas) * len(self.seeds)
+
+
+def t_up_for(lanes: int, load: float) -> float:
+    """T_up (s, 2 decimals) giving `load` x lanes x 1,800 veh/h."""
+    return round(3600.0 / (load * lanes * NOMINAL_CAPACITY_VEH_H_PER_LANE), 2)
+
+
+def load_of(lanes: int, t_up_s: float) -> float:
+    return round(3600.0 / (t_up_s * lanes * NOMINAL_CAPACITY_VEH_H_PER_LANE), 4)
+
+
+PROFILES = {
+    "tiny": Profile("tiny", lanes=(2,), loads=(0.25, 0.5), alphas=(0.0, 8.0), seeds=(1, 2),
+                    train_steps=300, eval_steps=300),
+    "quick": Profile("quick", lanes=(2, 3, 4), loads=(0.25, 0.5, 0.75, 1.0), alphas=(0.0, 0.5, 2.0, 8.0, 32.0),
+                     seeds=(1, 2), train_steps=1200, eval_steps=1200),
+    "paper": Profile("paper", lanes=(2, 3, 4, 5, 6), loads=(0.2, 0.4, 0.6, 0.8, 1.0), alphas=PAPER_ALPHAS,
+                     seeds=tuple(range(1, 11)), train_steps=90_000, eval_steps=9000),
+}  # fmt: skip
+
+
+def cell_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:
+    return f"L{lanes}_T{t_up_s:g}_a{alpha:g}_s{seed}"
+
+
+def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Profile) -> TrainConfig:
+    """Scenario II training (free flow) plus the greedy evaluation on the same condition."""
+    sim = SimConfig(
+        road=RoadConfig(lanes=lanes),
+        demand=DemandConfig(t_up_s=t_up_s),
+        reward=RewardConfig(alpha=alpha),
+        steps=profile.train_steps,
+        seed=seed,
+        policy="dqn",
+    )
+    return TrainConfig(sim=sim, eval_steps=profile.eval_steps)
+
+
+def cell_specs(profile: Profile) -> list[dict[str, Any]]:
+    """One JSON-ready spec per cell: key, coordinates and the full TrainConfig as a dict."""
+    specs = []
+    for lanes, t_up, load in profile.conditions():
+        for alpha in profile.alphas:
+            for seed in profile.seeds:
+                cfg = train_config(lanes, t_up, alpha, seed, profile)
+                cfg.validate()
+                specs.append({"key": cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
+                              "load": load, "alpha": alpha, "seed": seed,
+                              "config": json.loads(json.dumps(to_dict(cfg)))})  # fmt: skip
+    return specs
+
+
+# -- one cell (runs in a worker process) ------------------------------------------------------------
+def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
+    """Train and evaluate one cell into ROOT/train/<key>/; returns its record (never raises on failure).
+
+    status "ok" (with the evaluation summary), "failed" (with the error) or "interrupted"
+    (SIGTERM/SIGINT: a checkpoint was saved when training, the cell is to be run again).
+    A matching checkpoint in the training folder is resumed instead of starting afresh.
+    """
+    import torch
+
+    from coopsumo.config import train_config_from_dict
+    from coopsumo.train import Interrupted, Trainer, train
+
+    torch.set_num_threads(1)
+    start, cpu_start = time.perf_counter(), time.process_time()
+    out = Path(root) / "train" / spec["key"]
+    record: dict[str, Any] = {k: spec[k] for k in KEY_COLUMNS}
+    record.update(config=spec["config"], train_dir=f"train/{spec['key']}", resumed_from_step=None,
+                  error=None, traceback=None, summary=None, train_summary=None)  # fmt: skip
+    try:
+        cfg = train_config_from_dict(spec["config"])
+        out.mkdir(parents=True, exist_ok=True)
+        resume = False
+        if (out / "checkpoint.pt").exists():
+            try:
+                state = Trainer.load_checkpoint(out)
+                resume = json.loads(json.dumps(state["config"])) == spec["config"]
+                record["resumed_from_step"] = int(state["step"]) if resume else None
+            except Exception:  # a damaged checkpoint: start afresh
+                resume = False
+        summary = train(cfg, out, resume=resume, progress=False)
+        record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
+        record["train_summary"] = json.loads((out / "train_summary.json").read_text())
+        record["status"] = "ok"
+    except (Interrupted, KeyboardInterrupt) as err:
+        record.update(status="interrupted", error=f"{type(err).__name__}: {err}")
+    except Exception as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else ""
+        record.update(status="failed", error=f"{type(err).__name__}: {first}".rstrip(": "),
+                      traceback=traceback.format_exc(limit=8))  # fmt: skip
+    record["cell_wall_s"] = round(time.perf_counter() - start, 2)
+    record["cell_cpu_s"] = round(time.process_time() - cpu_start, 2)
+    record["versions"] = versions()
+    return record
+
+
+def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
+    """The record of a cell whose worker died or whose task could not run."""
+    record: dict[str, Any] = {k: spec[k] for k in KEY_COLUMNS}
+    record.update(config=spec["config"], train_dir=f"train/{spec['key']}", resumed_from_step=None,
+                  status="failed", error=error, traceback=None, summary=None, train_summary=None,
+                  cell_wall_s=None, cell_cpu_s=None, versions=versions())  # fmt: skip
+    return record
+
+
+def cell_path(root: Path, key: str) -> Path:
+    return root / "cells" / f"{key}.json"
+
+
+def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
+    """The stored record of this cell if it was made with exactly this configuration."""
+    try:
+        record: dict[str, Any] = json.loads(cell_path(root, spec["key"]).read_text())
+    except (OSError, ValueError):
+        return None
+    return record if record.get("config") == spec["config"] else None
+
+
+# -- backends ---------------------------------------------------------------------------------------
+def _watch_parent(parent_pid: int) -> None:
+    """Exit this worker when the sweep's main process is gone (no orphan keeps training)."""
+    while True:
+        time.sleep(1.0)
+        if os.getppid() != parent_pid:
+            os._exit(3)
+
+
+def _init_worker(parent_pid: int) -> None:
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
+
+
+class LocalBackend:
+    """A spawn-context process pool; one cell per worker at a time, at most `workers` in flight."""
+
+    name = "local"
+
+    def __init__(self, workers: int):
+        self.slots = workers
+        self._ctx = mp.get_context("spawn")
+        self._generation = 0
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=self.slots, mp_context=self._ctx, initializer=_init_worker,
+                                   initargs=(os.getpid(),))  # fmt: skip
+
+    def submit(self, spec: dict[str, Any], root: Path) -> Any:
+        return (self._generation, self._pool.submit(run_cell, spec, str(root)))
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
+        """Finished handles with their record, or the exception that stopped their worker."""
+        futures: dict[Future[dict[str, Any]], Any] = {h[1]: h for h in handles}
+        done, _ = wait_futures(list(futures), timeout=timeout, return_when=FIRST_COMPLETED)
+        results: list[tuple[Any, dict[str, Any] | BaseException]] = []
+        for fut in done:
+            err = fut.exception()
+            results.append((futures[fut], err if err is not None else fut.result()))
+            if isinstance(err, BrokenProcessPool) and futures[fut][0] == self._generation:
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._generation += 1
+                self._pool = self._new_pool()
+        return results
+
+    def abort(self) -> None:
+        """Stop the workers: SIGTERM (a training saves its checkpoint), then SIGKILL after 15 s."""
+        procs = list(getattr(self._pool, "_processes", {}).values())
+        for p in procs:
+            if p.is_alive():
+                p.terminate()
+        deadline = time.monotonic() + 15.0
+        for p in procs:
+            p.join(timeout=max(0.0, deadline - time.monotonic()))
+        for p in procs:
+            if p.is_alive():
+                p.kill()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True)
+
+
+class RayBackend:
+    """Cells as Ray tasks (num_cpus=1, a fresh worker process per task) on a local instance or a cluster."""
+
+    name = "ray"
+
+    def __init__(self, workers: int, address: str | None):
+        import ray
+
+        self._ray = ray
+        kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": False}
+        if address is None:
+            kwargs["num_cpus"] = workers
+        try:
+            ray.init(address=address, **kwargs)
+        except (ConnectionError, ValueError, RuntimeError) as err:
+            detail = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            where = f" at {address}" if address else ""
+            raise UsageError(f"cannot start or reach Ray{where}: {detail}") from None
+        self.slots = max(1, int(ray.cluster_resources().get("CPU", workers)))
+        self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=1)(run_cell)
+
+    def submit(self, spec: dict[str, Any], root: Path) -> Any:
+        return self._task.remote(spec, str(root))
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
+        ready, _ = self._ray.wait(list(handles), num_returns=1, timeout=timeout)
+        results: list[tuple[Any, dict[str, Any] | BaseException]] = []
+        for ref in ready:
+            try:
+                results.append((ref, self._ray.get(ref)))
+            except Exception as err:
+                results.append((ref, err))
+        return results
+
+    def abort(self) -> None:
+        pass  # close() shuts Ray down, which stops its workers
+
+    def close(self) -> None:
+        self._ray.shutdown()
+
+
+def make_backend(name: str, workers: int, address: str | None) -> LocalBackend | RayBackend:
+    if name == "local":
+        return LocalBackend(workers)
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        raise UsageError("--backend ray needs Ray: .venv/bin/pip install 'ray[default]'") from None
+    return RayBackend(workers, address)
+
+
+# -- running the sweep ----------------------------------------------------------------------------
+def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@contextmanager
+def _sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM in the main process becomes KeyboardInterrupt, so the workers are stopped cleanly."""
+    old = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+@contextmanager
+def _signals_ignored() -> Iterator[None]:
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend | RayBackend, total: int,
+            done_before: int, progress: bool) -> dict[str, int]:  # fmt: skip
+    """Run the cells; write each record the moment it arrives. Returns counts of ok/failed cells.
+
+    On KeyboardInterrupt (Ctrl-C or SIGTERM) the workers are stopped and the interrupt re-raised.
+    """
+    todo = deque(specs)
+    inflight: dict[Any, dict[str, Any]] = {}
+    crashes: Counter[str] = Counter()
+    counts = {"ok": 0, "failed": 0}
+    bar = tqdm(total=total, initial=done_before, desc="scenario2 cells", unit="cell", file=sys.stderr,
+               disable=not progress, mininterval=1.0, smoothing=0.1)  # fmt: skip
+    try:
+        while todo or inflight:
+            while todo and len(inflight) < backend.slots:
+                spec = todo.popleft()
+                inflight[backend.submit(spec, root)] = spec
+            for handle, outcome in backend.wait(list(inflight), timeout=1.0):
+                spec = inflight.pop(handle)
+                if isinstance(outcome, BrokenProcessPool):
+                    crashes[spec["key"]] += 1
+                    if crashes[spec["key"]] < MAX_CRASHES:
+                        todo.appendleft(spec)
+                        continue
+                    record = failed_record(spec, f"worker process died {MAX_CRASHES} times (BrokenProcessPool)")
+                elif isinstance(outcome, BaseException):
+                    record = failed_record(spec, f"{type(outcome).__name__}: {str(outcome).strip()[:300]}")
+                else:
+                    record = outcome
+                if record["status"] == "interrupted":
+                    raise KeyboardInterrupt(f"cell {spec['key']} interrupted")
+                write_json(cell_path(root, spec["key"]), record)
+                counts[record["status"]] += 1
+                bar.update(1)
+                running = len(inflight) + min(len(todo), backend.slots - len(inflight))
+                bar.set_postfix(failed=counts["failed"], running=running, refresh=False)
+    except KeyboardInterrupt:
+        bar.close()
+        with _signals_ignored():
+            backend.abort()
+        raise
+    bar.close()
+    return counts
+
+
+def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers: int = 1,
+              address: str | None = None, progress: bool = True, n_boot: int = 1000) -> dict[str, Any]:  # fmt: skip
+    """Run (or finish) the sweep in `root` and write every output; returns the sweep.json content."""
+    start = time.perf_counter()
+    root = root.resolve()
+    try:
+        (root / "cells").mkdir(parents=True, exist_ok=True)
+        (root / "train").mkdir(exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
+    specs = cell_specs(profile)
+    stored = {s["key"]: read_record(root, s) for s in specs}
+    done = [s for s in specs if (stored[s["key"]] or {}).get("status") == "ok"]
+    retry = [s for s in specs if (stored[s["key"]] or {}).get("status") == "failed"]
+    todo = [s for s in specs if (stored[s["key"]] or {}).get("status") != "ok"]
+    todo.sort(key=lambda s: -s["lanes"] * s["load"])  # the busiest roads first: a shorter tail
+    meta = {
+        "profile": asdict(profile),
+        "conditions": [
+            {"lanes": n, "t_up_s": t, "load": load, "inflow_veh_h": round(3600 / t, 1)}
+            for n, t, load in profile.conditions()
+        ],  # fmt: skip
+        "cells": len(specs),
+        "criterion": CRITERION,
+        "nominal_capacity_veh_h_per_lane": NOMINAL_CAPACITY_VEH_H_PER_LANE,
+        "backend": backend_name,
+        "address": address,
+        "workers": workers,
+        "bootstrap_replicates": n_boot,
+        "versions": versions(),
+    }
+    write_json(root / "sweep.json", meta)
+    print(f"scenario2: profile {profile.name}: {len(specs)} cells, {len(done)} already done, {len(retry)} "
+          f"failed before (retried), {len(todo)} to run on the {backend_name} backend", file=sys.stderr)  # fmt: skip
+    if todo:
+        from coopsumo.network import build_net
+
+        for lanes in sorted({s["lanes"] for s in todo}):
+            build_net(RoadConfig(lanes=lanes))  # once here, not concurrently in the workers
+        backend = make_backend(backend_name, workers, address)
+        try:
+            with _sigterm_interrupts():
+                execute(todo, root, backend, len(specs), len(done), progress)
+        finally:
+            backend.close()
+    records = [json.loads(cell_path(root, s["key"]).read_text()) for s in specs]
+    runs = runs_table(records)
+    runs.to_csv(root / "runs.csv", index=False)
+    wall = time.perf_counter() - start
+    meta.update(wall_seconds=round(wall, 1), cells_run=len(todo), cells_ok=int((runs["status"] == "ok").sum()),
+                cells_failed=int((runs["status"] == "failed").sum()),
+                cell_wall_seconds_sum=round(float(pd.to_numeric(runs["cell_wall_s"]).sum()), 1),
+                cell_cpu_seconds_sum=round(float(pd.to_numeric(runs["cell_cpu_s"]).sum()), 1))  # fmt: skip
+    write_outputs(root, runs, profile, meta, n_boot)
+    write_json(root / "sweep.json", meta)
+    return meta
+
+
+# -- tables -------------------------------------------------------------------------------------------
+def runs_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
+    """One tidy row per cell: coordinates, status, error, every evaluation summary metric, bookkeeping."""
+    rows = []
+    for r in records:
+        row: dict[str, Any] = {k: r[k] for k in KEY_COLUMNS}
+        row.update(status=r["status"], error=r.get("error"))
+        summary = r.get("summary") or {}
+        train = r.get("train_summary") or {}
+        for k in METRIC_COLUMNS:
+            row[k] = train.get(TRAIN_COLUMNS[k]) if k in TRAIN_COLUMNS else summary.get(k)
+        row.update({k: v for k, v in summary.items() if k not in row and k != "scenario"})
+        row.update(train_wall_seconds=train.get("wall_seconds"), cell_wall_s=r.get("cell_wall_s"),
+                   cell_cpu_s=r.get("cell_cpu_s"),
+                   resumed_from_step=r.get("resumed_from_step"), train_dir=r.get("train_dir"))  # fmt: skip
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    for k in METRIC_COLUMNS:
+        table[k] = pd.to_numeric(table[k], errors="coerce").astype("Int64" if k in COUNT_COLUMNS else float)
+    table["resumed_from_step"] = pd.to_numeric(table["resumed_from_step"], errors="coerce").astype("Int64")
+    return table
+
+
+def speed_matrix(group: pd.DataFrame, alphas: Sequence[float], seeds: Sequence[int],
+                 metric: str = CRITERION) -> np.ndarray:  # fmt: skip
+    """metric[alpha, seed] of one condition's successful cells; NaN where missing or failed."""
+    ok = group[group["status"] == "ok"]
+    table = ok.pivot_table(index="alpha", columns="seed", values=metric, aggfunc="mean")
+    return table.reindex(index=list(alphas), columns=list(seeds)).to_numpy(float)
+
+
+def _nanmean_rows(values: np.ndarray) -> np.ndarray:
+    """Mean over the last axis ignoring NaN; NaN where a row has no value (no warning)."""
+    finite = np.isfinite(values)
+    n = finite.sum(axis=-1)
+    total = np.where(finite, values, 0.0).sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def best_index(means: np.ndarray) -> int:
+    """Index of the largest finite mean; ties go to the smallest alpha (alphas sorted ascending). -1 if none."""
+    finite = np.isfinite(means)
+    if not finite.any():
+        return -1
+    return int(np.argmax(np.where(finite, means, -np.inf)))
+
+
+def win_shares(speeds: np.ndarray) -> np.ndarray:
+    """Per alpha, the share of seeds on which it gives the best speed (ties share the win equally).
+
+    speeds[alpha, seed]; seeds with no finite value are left out.
+    """
+    wins = np.zeros(speeds.shape[0])
+    seeds = 0
+    for col in speeds.T:
+        finite = np.isfinite(col)
+        if not finite.any():
+            continue
+        best = np.max(col[finite])
+        winners = finite & (col == best)
+        wins[winners] += 1.0 / winners.sum()
+        seeds += 1
+    return wins / seeds if seeds else np.full(speeds.shape[0], np.nan)
+
+
+def bootstrap_best(speeds: np.ndarray, n_boot: int, rng: np.random.Generator) -> np.ndarray:
+    """Index of the best alpha in each of n_boot resamples of the seeds (with replacement, paired over alphas)."""
+    n_seeds = speeds.shape[1]
+    idx = rng.integers(0, n_seeds, size=(n_boot, n_seeds))
+    resampled = speeds[:, idx]  # alpha x boot x seed
+    means = _nanmean_rows(resampled)  # alpha x boot
+    finite = np.isfinite(means)
+    best = np.argmax(np.where(finite, means, -np.inf), axis=0)
+    return np.where(finite.any(axis=0), best, -1)
+
+
+def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, seeds: Sequence[int] | None = None,
+                     n_boot: int = 1000, boot_seed: int = 0, metric: str = CRITERION
+                     ) -> tuple[pd.DataFrame, dict[tuple[int, float], np.ndarray]]:  # fmt: skip
+    """alpha* per condition with its win share and bootstrap support, plus the mean speed of every alpha.
+
+    Returns the table (one row per (lanes, t_up_s)) and, per condition, the alpha* of each bootstrap
+    replicate (NaN where a replicate had no data), for the plane's bootstrap.
+    """
+    alphas = sorted(set(runs["alpha"])) if alphas is None else sorted(alphas)
+    seeds = sorted(set(runs["seed"])) if seeds is None else list(seeds)
+    rng = np.random.default_rng(boot_seed)
+    rows = []
+    boots: dict[tuple[int, float], np.ndarray] = {}
+    alpha_arr = np.asarray(alphas, float)
+    for (lanes, t_up), group in runs.groupby(["lanes", "t_up_s"], sort=True):
+        speeds = speed_matrix(group, alphas, seeds, metric)
+        means = _nanmean_rows(speeds)
+        n_ok = np.isfinite(speeds).sum(axis=1)
+        best = best_index(means)
+        shares = win_shares(speeds)
+        boot = bootstrap_best(speeds, n_boot, rng) if n_boot > 0 else np.zeros(0, int)
+        boot_alpha = np.where(boot >= 0, alpha_arr[np.clip(boot, 0, None)], np.nan)
+        boots[(int(lanes), float(t_up))] = boot_alpha
+        finite_means = means[np.isfinite(means)]
+        var_of_mean = np.array([np.var(r[np.isfinite(r)], ddof=1) / np.isfinite(r).sum()
+                                if np.isfinite(r).sum() > 1 else np.nan for r in speeds])  # fmt: skip
+        se = float(np.sqrt(var_of_mean[np.isfinite(var_of_mean)].mean())) if np.isfinite(var_of_mean).any() else np.nan
+        load = group["load"].iloc[0] if "load" in group else np.nan
+        row: dict[str, Any] = {
+            "lanes": int(lanes), "t_up_s": float(t_up), "load": load, "inflow_veh_h": round(3600.0 / float(t_up), 1),
+            "alpha_star": float(alpha_arr[best]) if best >= 0 else np.nan,
+            "alpha_star_speed_mps": float(means[best]) if best >= 0 else np.nan,
+            "win_share": float(shares[best]) if best >= 0 else np.nan,
+            "boot_support": float(np.mean(boot == best)) if best >= 0 and n_boot > 0 else np.nan,
+            "boot_alpha_p05": float(np.nanquantile(boot_alpha, 0.05)) if np.isfinite(boot_alpha).any() else np.nan,
+            "boot_alpha_p95": float(np.nanquantile(boot_alpha, 0.95)) if np.isfinite(boot_alpha).any() else np.nan,
+            "spread_mps": float(finite_means.max() - finite_means.min()) if finite_means.size else np.nan,
+            "seed_se_mps": se,
+            "seeds_min": int(n_ok.min()) if len(n_ok) else 0,
+            "cells_failed": int((group["status"] != "ok").sum()),
+        }  # fmt: skip
+        for a, m in zip(alphas, means, strict=True):
+            row[f"speed_mps_alpha{a:g}"] = float(m)
+        for a, s in zip(alphas, shares, strict=True):
+            row[f"win_share_alpha{a:g}"] = float(s)
+        rows.append(row)
+    empty = ["lanes", "t_up_s", "load", "inflow_veh_h", "alpha_star"]
+    return pd.DataFrame(rows, columns=None if rows else empty), boots
+
+
+# -- the plane ------------------------------------------------------------------------------------------
+class PlaneFitError(ValueError):
+    """The plane alpha* = b0 + b1 T_up + b2 lanes cannot be fitted to these conditions."""
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    b0: float
+    b1: float
+    """per second of T_up"""
+    b2: float
+    """per lane"""
+    r2: float
+    """coefficient of determination (NaN when alpha* is the same everywhere)"""
+    n: int
+    """conditions used"""
+
+
+def fit_plane(t_up_s: ArrayLike, lanes: ArrayLike, alpha_star: ArrayLike) -> PlaneFit:
+    """Least-squares plane alpha* = b0 + b1 T_up + b2 lanes over the conditions with a finite alpha*.
+
+    Raises PlaneFitError with fewer than 3 distinct conditions or when T_up and lanes do not span a
+    plane (e.g. a single lane count).
+    """
+    t, n, a = (np.asarray(x, float) for x in (t_up_s, lanes, alpha_star))
+    keep = np.isfinite(t) & np.isfinite(n) & np.isfinite(a)
+    t, n, a = t[keep], n[keep], a[keep]
+    distinct = len(set(zip(t.tolist(), n.tolist(), strict=True)))
+    if distinct < 3:
+        raise PlaneFitError(f"a plane needs at least 3 distinct conditions (T_up, lanes), got {distinct}")
+    design = np.column_stack([np.ones_like(t), t, n])
+    if np.linalg.matrix_rank(design) < 3:
+        varying = "T_up" if len(set(t.tolist())) > 1 else "lanes" if len(set(n.tolist())) > 1 else "nothing"
+        raise PlaneFitError(f"the conditions lie on a line (only {varying} varies): T_up and lanes need "
+                            "at least 3 conditions not on one line")  # fmt: skip
+    coef, *_ = np.linalg.lstsq(design, a, rcond=None)
+    resid = a - design @ coef
+    ss_tot = float(((a - a.mean()) ** 2).sum())
+    r2 = 1.0 - float((resid**2).sum()) / ss_tot if ss_tot > 0 else float("nan")
+    return PlaneFit(float(coef[0]), float(coef[1]), float(coef[2]), r2, int(len(a)))
+
+
+def plane_bootstrap(table: pd.DataFrame, boots: dict[tuple[int, float], np.ndarray]) -> dict[str, float]:
+    """Refit the plane on each bootstrap replicate of alpha* (seeds resampled per condition).
+
+    Returns the share of replicates with b1 < 0 and with b2 < 0 and 90% intervals of b1 and b2.
+    """
+    keys = [(int(r.lanes), float(r.t_up_s)) for r in table.itertuples()]
+    if not keys:
+        return {}
+    reps = np.vstack([boots[k] for k in keys])  # condition x replicate
+    t = np.array([k[1] for k in keys])
+    n = np.array([k[0] for k in keys], float)
+    b1, b2 = [], []
+    for col in reps.T:
+        try:
+            fit = fit_plane(t, n, col)
+        except PlaneFitError:
+            continue
+        b1.append(fit.b1)
+        b2.append(fit.b2)
+    if not b1:
+        return {}
+    a1, a2 = np.array(b1), np.array(b2)
+    return {
+        "replicates": len(a1),
+        "b1_negative_share": float(np.mean(a1 < 0)),
+        "b2_negative_share": float(np.mean(a2 < 0)),
+        "b1_p05": float(np.quantile(a1, 0.05)), "b1_p95": float(np.quantile(a1, 0.95)),
+        "b2_p05": float(np.quantile(a2, 0.05)), "b2_p95": float(np.quantile(a2, 0.95)),
+    }  # fmt: skip
+
+
+def trend_statements(fit: PlaneFit, boot: dict[str, float]) -> list[str]:
+    """Plain statements of whether the paper's two trends hold (b1 < 0, b2 < 0)."""
+    out = []
+    for coef, name, trend, unit, key in (
+        (fit.b1, "b1", "alpha* grows as T_up shrinks (higher inflow)", "per s of T_up", "b1"),
+        (fit.b2, "b2", "alpha* grows as the lane count shrinks", "per lane", "b2"),
+    ):
+        holds = coef < 0
+        text = (f"**{'Holds' if holds else 'Does not hold'}**: the paper's trend \"{trend}\" needs {name} < 0; "
+                f"here {name} = {coef:+.3f} {unit}")  # fmt: skip
+        if boot:
+            text += (f" (bootstrap over seeds: {name} < 0 in {boot[f'{key}_negative_share']:.0%} of "
+                     f"{boot['replicates']} replicates, 90% interval [{boot[f'{key}_p05']:+.3f}, "
+                     f"{boot[f'{key}_p95']:+.3f}])")  # fmt: skip
+        out.append(text + ".")
+    return out
+
+
+# -- outputs -------------------------------------------------------------------------------------------
+def condition_label(lanes: int, t_up_s: float) -> str:
+    return f"{lanes} lanes, T_up {t_up_s:g} s"
+
+
+def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[str, Any], n_boot: int) -> None:
+    """alpha_star.csv, the two figures and report.md from the runs table."""
+    from coopsumo.plots_sweep import alpha_label, alpha_surface_figure, speed_heatmap_figure
+
+    table, boots = alpha_star_table(runs, profile.alphas, profile.seeds, n_boot=n_boot)
+    table.to_csv(root / "alpha_star.csv", index=False)
+    fit: PlaneFit | None = None
+    boot: dict[str, float] = {}
+    plane_note = ""
+    solved = table[np.isfinite(table["alpha_star"])]
+    try:
+        fit = fit_plane(solved["t_up_s"], solved["lanes"], solved["alpha_star"])
+        boot = plane_bootstrap(solved, boots)
+    except PlaneFitError as err:
+        plane_note = f"No plane fitted: {err}."
+    figures = {}
+    if len(solved):
+        alpha_surface_figure(solved["t_up_s"], solved["lanes"], solved["alpha_star"],
+                             (fit.b0, fit.b1, fit.b2) if fit else None, root / "fig6_alpha_star.png",
+                             note=plane_note)  # fmt: skip
+        figures["surface"] = "fig6_alpha_star.png"
+        speeds = table.set_index([pd.Index([condition_label(r.lanes, r.t_up_s) for r in table.itertuples()])])
+        speeds = speeds[[f"speed_mps_alpha{a:g}" for a in profile.alphas]]
+        speeds.columns = list(profile.alphas)
+        speed_heatmap_figure(speeds, table["alpha_star"].tolist(), root / "fig6_speed_heatmap.png")
+        figures["heatmap"] = "fig6_speed_heatmap.png"
+    meta["plane"] = asdict(fit) if fit else {"error": plane_note}
+    meta["plane_bootstrap"] = boot
+    (root / "report.md").write_text(report_text(runs, table, fit, boot, plane_note, profile, meta, figures,
+                                                alpha_label))  # fmt: skip
+
+
+def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines)
+
+
+def _num(x: Any, fmt: str = "{:.2f}") -> str:
+    return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
+
+
+def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, boot: dict[str, float],
+                plane_note: str, profile: Profile, meta: dict[str, Any], figures: dict[str, str],
+                alpha_label: Any) -> str:  # fmt: skip
+    """The Markdown report."""
+    alphas = list(profile.alphas)
+    header = ["lanes", "T_up (s)", "inflow (veh/h)", "load", "α*", "win share", "bootstrap support",
+              "α* 90% boot.", "spread (m/s)", "seed SE (m/s)"] + [f"v(α={alpha_label(a)})" for a in alphas]  # fmt: skip
+    rows = []
+    for r in table.to_dict("records"):
+        rows.append([str(r["lanes"]), f"{r['t_up_s']:g}", f"{r['inflow_veh_h']:.0f}", _num(r["load"]),
+                     "–" if not math.isfinite(r["alpha_star"]) else alpha_label(r["alpha_star"]),
+                     _num(r["win_share"], "{:.0%}"), _num(r["boot_support"], "{:.0%}"),
+                     f"{_num(r['boot_alpha_p05'], '{:g}')}–{_num(r['boot_alpha_p95'], '{:g}')}",
+                     _num(r["spread_mps"]), _num(r["seed_se_mps"])]
+                    + [_num(r[f"speed_mps_alpha{a:g}"]) for a in alphas])  # fmt: skip
+    if fit is not None:
+        plane = (f"Fitted plane over {fit.n} conditions (least squares on alpha*): "
+                 f"**alpha\\* = {fit.b0:.3f} {fit.b1:+.3f} T_up {fit.b2:+.3f} lanes**, "
+                 f"R² = {_num(fit.r2, '{:.3f}')}"
+                 + (" (undefined: alpha* is the same in every condition)" if not math.isfinite(fit.r2) else "")
+                 + ".\n\n" + "\n\n".join(f"- {s}" for s in trend_statements(fit, boot)))  # fmt: skip
+    else:
+        plane = f"{plane_note} The paper's trends (b1 < 0, b2 < 0) cannot be checked with this grid."
+    failed = runs[runs["status"] != "ok"]
+    failed_text = ("None." if failed.empty else
+                   _md_table(["cell", "error"], [[r.key, str(r.error).replace("|", "\\|")]
+                                                 for r in failed.itertuples()]))  # fmt: skip
+    grid = _md_table(["lanes", "T_up (s)", "loads (share of lanes × 1,800 veh/h)"],
+                     [[str(n), ", ".join(f"{c['t_up_s']:g}" for c in meta["conditions"] if c["lanes"] == n),
+                       ", ".join(f"{c['load']:g}" for c in meta["conditions"] if c["lanes"] == n)]
+                      for n in profile.lanes])  # fmt: skip
+    ok = runs[runs["status"] == "ok"]
+    safety = (f"Collisions in evaluation: {int(ok['collisions'].sum())}; teleports: {int(ok['teleports'].sum())} "
+              f"(over {len(ok)} successful cells).")  # fmt: skip
+    figs = "\n\n".join(
+        [f"![alpha* and plane]({figures['surface']})\n\nFig. 6: alpha* (red) against T_up and lane count; "
+         "the plane is the least-squares fit, grey lines are residuals." if "surface" in figures else "",
+         f"![speed heat map]({figures['heatmap']})\n\nMean evaluation speed over seeds for every alpha and "
+         "condition; colour is the gap to the condition's best, framed cells are alpha*." if "heatmap" in figures
+         else ""]).strip() or "No figure: no cell succeeded."  # fmt: skip
+    steps_note = (
+        "Step counts as in the paper (90,000 training steps)." if profile.train_steps >= 90_000 else
+        f"{profile.train_steps:,} training steps are far below the paper's 90,000: the models are barely trained, "
+        "so alpha* here mostly reflects differences between short trainings, not the paper's effect."
+    )  # fmt: skip
+    return f"""# Scenario II: choosing the cooperation coefficient alpha
+
+Profile **{profile.name}**: lanes {", ".join(map(str, profile.lanes))}; {len(meta["conditions"])} conditions;
+alphas {{{", ".join(alpha_label(a) for a in alphas)}}}; seeds {", ".join(map(str, profile.seeds))};
+{profile.train_steps:,} training steps ({profile.train_steps * 0.1 / 60:.1f} min simulated) and
+{profile.eval_steps:,} greedy evaluation steps per cell; {meta["cells"]} cells
+({meta["cells_ok"]} ok, {meta["cells_failed"]} failed). Backend {meta["backend"]}, {meta["workers"]} workers.
+Wall time of this invocation: {meta["wall_seconds"] / 60:.1f} min ({meta["cells_run"]} cells run now); the cells'
+own wall times sum to {meta["cell_wall_seconds_sum"] / 60:.1f} min and their CPU times to
+{meta["cell_cpu_seconds_sum"] / 60:.1f} core-minutes (CPU time does not grow when the machine is shared).
+
+Each cell trains the shared DQN in free flow (scenario II) on its condition with its alpha and seed, then
+evaluates the model greedily on the same condition and seed. Criterion (paper): mean travelling speed
+(space-mean speed of the evaluation run, `mean_speed_mps`). alpha* is the alpha with the best mean over seeds
+(ties go to the smaller alpha). Uncertainty: *win share* is the share of seeds on which alpha* is the best alpha
+(ties share the win); *bootstrap support* is the share of {meta["bootstrap_replicates"]} bootstrap resamples of
+the seeds (paired over alphas) whose best alpha is alpha*; the 90% bootstrap range is that of the resampled alpha*.
+*Spread* is the best minus the worst alpha's mean speed; *seed SE* the typical standard error of one alpha's mean.
+
+## alpha* per condition
+
+{_md_table(header, rows)}
+
+## The paper's trends
+
+{plane}
+
+{safety}
+
+## Figures
+
+{figs}
+
+## Grid
+
+T_up per lane count is placed by load (inflow as a share of lanes × 1,800 veh/h): T_up = 3600 / (load × lanes
+× 1800) s, rounded to 0.01 s; load 1 is near capacity (one lane carries about 1,970 veh/h in this model).
+T_up is the interval between vehicles for the whole road (inflow = 3600 / T_up veh/h).
+
+{grid}
+
+## Failed cells
+
+{failed_text}
+
+Rerunning the same command retries failed cells and keeps the finished ones.
+
+## Notes
+
+- Runs: `runs.csv` (one row per cell, every evaluation metric, status and error); per condition: `alpha_star.csv`;
+  each cell's record: `cells/<key>.json`; its training folder: `train/<key>/`.
+- {steps_note}
+- Versions: {json.dumps(meta["versions"])}.
+"""
+
+
+# -- command line ------------------------------------------------------------------------------------
+def _float_list(text: str, name: str) -> tuple[float, ...]:
+    try:
+        values = tuple(parse_number(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise UsageError(f"{name} must be a comma-separated list of numbers, got {text!r}") from None
+    if not values:
+        raise UsageError(f"{name} must not be empty")
+    return values
+
+
+def parse_number(text: str) -> float:
+    """'1/8' -> 0.125, '2.5' -> 2.5; ValueError otherwise."""
+    text = text.strip()
+    if "/" in text:
+        num, den = text.split("/", 1)
+        return float(num) / float(den)
+    return float(text)
+
+
+def profile_from_args(args: Any) -> Profile:
+    """The chosen profile with the command line's overrides applied and checked."""
+    profile = PROFILES[args.profile]
+    if args.steps is not None:
+        if args.steps <= 0:
+            raise UsageError(f"steps must be positive, got {args.steps}")
+        profile = replace(profile, train_steps=args.steps)
+    if args.eval_steps is not None:
+        if args.eval_steps <= 0:
+            raise UsageError(f"eval-steps must be positive, got {args.eval_steps}")
+        profile = replace(profile, eval_steps=args.eval_steps)
+    if args.seeds is not None:
+        if args.seeds < 1:
+            raise UsageError(f"seeds must be >= 1, got {args.seeds}")
+        profile = replace(profile, seeds=tuple(range(1, args.seeds + 1)))
+    if args.lanes is not None:
+        lanes = _float_list(args.lanes, "lanes")
+        if any(x != int(x) or not MIN_LANES <= x <= MAX_LANES for x in lanes):
+            raise UsageError(f"lanes must be whole numbers between {MIN_LANES} and {MAX_LANES}, got {args.lanes}")
+        profile = replace(profile, lanes=tuple(sorted({int(x) for x in lanes})))
+    if args.alphas is not None:
+        alphas = _float_list(args.alphas, "alphas")
+        if any(not (math.isfinite(a) and a >= 0) for a in alphas):
+            raise UsageError(f"alphas must be finite numbers >= 0, got {args.alphas}")
+        profile = replace(profile, alphas=tuple(sorted(set(alphas))))
+    if args.t_up is not None:
+        t_up = _float_list(args.t_up, "t-up")
+        if any(not (math.isfinite(t) and t > 0) for t in t_up):
+            raise UsageError(f"t-up values must be positive numbers of seconds, got {args.t_up}")
+        profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
+    return profile
+
+
+def build_parser() -> Parser:
+    p = Parser(prog="python -m coopsumo.scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
+    p.add_argument("--profile", choices=sorted(PROFILES), default="quick",
+                   help="grid and step counts: tiny (tests), quick (<= 30 min on 2 cores), paper")  # fmt: skip
+    p.add_argument("--out", type=Path, default=Path("results/scenario2"), help="results folder")
+    p.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
+    p.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray instance)")
+    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                   help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
+    p.add_argument("--steps", type=int, default=None, help="training steps per cell (overrides the profile)")
+    p.add_argument("--eval-steps", type=int, default=None, help="evaluation steps per cell (overrides the profile)")
+    p.add_argument("--seeds", type=int, default=None, help="number of seeds 1..N (overrides the profile)")
+    p.add_argument("--lanes", default=None, help="comma-separated lane counts (overrides the profile)")
+    p.add_argument("--alphas", default=None, help="comma-separated alphas, fractions allowed: 0,1/8,2")
+    p.add_argument("--t-up", default=None, help="fixed comma-separated T_up list (s) for every lane count, "
+                   "instead of the profile's load grid")  # fmt: skip
+    p.add_argument("--bootstrap", type=int, default=1000, help="bootstrap replicates over seeds (default 1000)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        profile = profile_from_args(args)
+        if args.workers < 1:
+            raise UsageError(f"workers must be >= 1, got {args.workers}")
+        if args.bootstrap < 0:
+            raise UsageError(f"bootstrap must be >= 0, got {args.bootstrap}")
+        if args.address is not None and args.backend != "ray":
+            raise UsageError("--address is for --backend ray")
+        if args.backend == "ray":
+            try:
+                import ray  # noqa: F401
+            except ImportError:
+                raise UsageError("--backend ray needs Ray: .venv/bin/pip install 'ray[default]'") from None
+        meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet, args.bootstrap)
+        table = pd.read_csv(args.out / "alpha_star.csv")
+        for r in table.itertuples():
+            print(f"{condition_label(r.lanes, r.t_up_s)}: alpha* = {r.alpha_star:g} "
+                  f"(win share {r.win_share:.0%}, bootstrap {r.boot_support:.0%})")  # fmt: skip
+        plane = meta.get("plane", {})
+        if "b0" in plane:
+            print(f"plane: alpha* = {plane['b0']:.3f} {plane['b1']:+.3f} T_up {plane['b2']:+.3f} lanes, "
+                  f"R2 = {plane['r2']:.3f}")  # fmt: skip
+        else:
+            print(plane.get("error", ""))
+        print(f"scenario2: {meta['cells_ok']} ok, {meta['cells_failed']} failed, "
+              f"{meta['wall_seconds'] / 60:.1f} min; report: {args.out / 'report.md'}")  # fmt: skip
+        return 0
+
+    return run_cli("scenario2", body)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

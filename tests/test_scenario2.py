@@ -1,0 +1,375 @@
+"""Scenario II alpha sweep: alpha* selection, win shares, bootstrap and plane on hand-made tables;
+the command's bad input; the tiny sweep end to end on both backends; a sweep killed and resumed."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from coopsumo import scenario2 as s2
+
+REPO = Path(__file__).resolve().parent.parent
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+OUTPUTS = ("sweep.json", "runs.csv", "alpha_star.csv", "fig6_alpha_star.png", "fig6_speed_heatmap.png", "report.md")
+COMPARED = [*s2.KEY_COLUMNS, "status", *s2.METRIC_COLUMNS]
+
+
+# -- hand-made tables ---------------------------------------------------------------------------------
+def runs_from(speeds: dict[tuple[int, float], dict[float, list[float]]]) -> pd.DataFrame:
+    """A runs table: {(lanes, t_up): {alpha: [speed of seed 1, seed 2, ...]}}; NaN marks a failed cell."""
+    rows = []
+    for (lanes, t_up), by_alpha in speeds.items():
+        for alpha, values in by_alpha.items():
+            for seed, v in enumerate(values, start=1):
+                failed = not np.isfinite(v)
+                rows.append({"key": s2.cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
+                             "load": s2.load_of(lanes, t_up), "alpha": alpha, "seed": seed,
+                             "status": "failed" if failed else "ok", "error": "boom" if failed else None,
+                             "mean_speed_mps": v, "collisions": 0, "teleports": 0})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_win_shares_split_ties_and_skip_empty_seeds() -> None:
+    speeds = np.array([
+        [10.0, 12.0, 11.0, np.nan],
+        [11.0, 12.0, 10.0, np.nan],
+        [9.0, 1.0, 11.0, np.nan],
+    ])  # fmt: skip
+    # seed 1: alpha 1 wins; seed 2: alphas 0 and 1 tie; seed 3: alphas 0 and 2 tie; seed 4: no data
+    np.testing.assert_allclose(s2.win_shares(speeds), [1 / 3, 1 / 2, 1 / 6])
+
+
+def test_alpha_star_known_answer() -> None:
+    runs = runs_from({
+        (3, 1.0): {0.0: [20.0, 21.0, 22.0], 2.0: [23.0, 20.0, 24.0], 8.0: [19.0, 19.5, 20.0]},
+        (3, 2.0): {0.0: [25.0, 25.0, 25.0], 2.0: [24.0, 24.0, 24.0], 8.0: [23.0, 23.0, 23.0]},
+    })  # fmt: skip
+    table, boots = s2.alpha_star_table(runs, n_boot=500)
+    a = table.set_index("t_up_s")
+    # T_up 1 s: means 21, 22.33, 19.5 -> alpha* = 2, winning seeds 1 and 3 of 3
+    assert a.loc[1.0, "alpha_star"] == 2.0
+    assert a.loc[1.0, "alpha_star_speed_mps"] == pytest.approx(67 / 3)
+    assert a.loc[1.0, "win_share"] == pytest.approx(2 / 3)
+    assert a.loc[1.0, "win_share_alpha0"] == pytest.approx(1 / 3)
+    assert a.loc[1.0, "speed_mps_alpha8"] == pytest.approx(19.5)
+    assert a.loc[1.0, "spread_mps"] == pytest.approx(67 / 3 - 19.5)
+    assert 0.3 < a.loc[1.0, "boot_support"] < 1.0  # alpha 0 wins resamples made mostly of seed 2
+    # T_up 2 s: alpha 0 best on every seed: certain
+    assert a.loc[2.0, "alpha_star"] == 0.0
+    assert a.loc[2.0, "win_share"] == 1.0 and a.loc[2.0, "boot_support"] == 1.0
+    assert a.loc[2.0, "boot_alpha_p05"] == a.loc[2.0, "boot_alpha_p95"] == 0.0
+    assert set(boots) == {(3, 1.0), (3, 2.0)} and boots[(3, 2.0)].shape == (500,)
+    # reproducible: the bootstrap has its own fixed seed
+    again, _ = s2.alpha_star_table(runs, n_boot=500)
+    pd.testing.assert_frame_equal(table, again)
+
+
+def test_alpha_star_ties_go_to_the_smaller_alpha() -> None:
+    table, _ = s2.alpha_star_table(runs_from({(2, 1.0): {4.0: [20.0, 21.0], 0.5: [20.0, 21.0]}}), n_boot=50)
+    assert table.loc[0, "alpha_star"] == 0.5
+    assert table.loc[0, "win_share"] == 0.5 and table.loc[0, "boot_support"] == 1.0
+
+
+def test_failed_cells_are_left_out() -> None:
+    runs = runs_from({(2, 1.0): {0.0: [20.0, np.nan], 8.0: [np.nan, np.nan], 32.0: [19.0, 18.0]}})
+    table, _ = s2.alpha_star_table(runs, n_boot=100)
+    row = table.iloc[0]
+    assert row["alpha_star"] == 0.0 and row["alpha_star_speed_mps"] == 20.0
+    assert np.isnan(row["speed_mps_alpha8"])
+    assert row["cells_failed"] == 3 and row["seeds_min"] == 0
+    assert row["win_share"] == 0.5  # seed 1: alpha 0 wins; seed 2: only alpha 32 ran
+
+
+def test_fit_plane_recovers_known_coefficients() -> None:
+    t = np.array([0.5, 1.0, 2.0, 0.5, 1.0, 2.0, 0.7])
+    n = np.array([2, 2, 2, 4, 4, 4, 6])
+    fit = s2.fit_plane(t, n, 30.0 - 6.0 * t - 2.5 * n)
+    assert (fit.b0, fit.b1, fit.b2) == pytest.approx((30.0, -6.0, -2.5))
+    assert fit.r2 == pytest.approx(1.0) and fit.n == 7
+    noisy = s2.fit_plane(t, n, 30.0 - 6.0 * t - 2.5 * n + np.array([1, -1, 0.5, -0.5, 1, -1, 0]))
+    assert 0.5 < noisy.r2 < 1.0
+
+
+def test_fit_plane_refuses_what_it_cannot_fit() -> None:
+    with pytest.raises(s2.PlaneFitError, match="at least 3 distinct conditions"):
+        s2.fit_plane([1.0, 2.0], [2, 2], [8.0, 4.0])
+    with pytest.raises(s2.PlaneFitError, match="at least 3 distinct conditions"):
+        s2.fit_plane([1.0, 1.0, 1.0, 2.0], [2, 2, 2, 3], [8.0, 4.0, 2.0, np.nan])  # NaN left out
+    with pytest.raises(s2.PlaneFitError, match="only T_up varies"):
+        s2.fit_plane([0.5, 1.0, 2.0], [3, 3, 3], [8.0, 4.0, 2.0])
+    flat = s2.fit_plane([0.5, 1.0, 2.0], [2, 3, 4], [8.0, 8.0, 8.0])
+    assert flat.b1 == pytest.approx(0.0, abs=1e-9) and np.isnan(flat.r2)
+
+
+def test_plane_bootstrap_and_trend_statements() -> None:
+    # alpha* falls with T_up and with lanes in every condition, on every seed: the trends hold for sure
+    speeds = {}
+    for lanes in (2, 3, 4):
+        for t_up in (0.5, 1.0, 2.0):
+            best = 32.0 if lanes == 2 and t_up == 0.5 else 8.0 if lanes + t_up < 5 else 0.0
+            speeds[(lanes, t_up)] = {a: [20.0 + (a == best)] * 3 for a in (0.0, 8.0, 32.0)}
+    table, boots = s2.alpha_star_table(runs_from(speeds), n_boot=200)
+    fit = s2.fit_plane(table["t_up_s"], table["lanes"], table["alpha_star"])
+    assert fit.b1 < 0 and fit.b2 < 0
+    boot = s2.plane_bootstrap(table, boots)
+    assert boot["b1_negative_share"] == 1.0 and boot["b2_negative_share"] == 1.0
+    assert boot["b1_p05"] == pytest.approx(fit.b1) and boot["replicates"] == 200
+    text = s2.trend_statements(fit, boot)
+    assert len(text) == 2 and all(s.startswith("**Holds**") for s in text)
+    opposite = s2.trend_statements(s2.PlaneFit(1.0, 2.0, 0.5, 0.3, 9), {})
+    assert all(s.startswith("**Does not hold**") and "b" in s for s in opposite)
+
+
+def test_outputs_from_a_hand_made_table(tmp_path: Path) -> None:
+    """write_outputs (no SUMO): alpha_star.csv, both figures and a report with the plane and failed cells."""
+    speeds = {(lanes, t): {a: [18.0 + a / (lanes * t) - a * a / 400, 19.0 - a / 100] for a in (0.0, 2.0, 8.0, 32.0)}
+              for lanes in (2, 3) for t in (0.7, 1.4)}  # fmt: skip
+    speeds[(2, 0.7)][8.0] = [np.nan, 18.0]
+    runs = runs_from(speeds)
+    profile = s2.Profile("hand", lanes=(2, 3), loads=(), alphas=(0.0, 2.0, 8.0, 32.0), seeds=(1, 2),
+                         train_steps=10, eval_steps=10, t_up_s=(0.7, 1.4))  # fmt: skip
+    meta = {"conditions": [{"lanes": n, "t_up_s": t, "load": ld} for n, t, ld in profile.conditions()],
+            "cells": len(runs), "cells_ok": 15, "cells_failed": 1, "backend": "local", "workers": 1,
+            "wall_seconds": 1.0, "cells_run": 0, "cell_wall_seconds_sum": 0.0, "cell_cpu_seconds_sum": 0.0,
+            "bootstrap_replicates": 100, "versions": {}}  # fmt: skip
+    s2.write_outputs(tmp_path, runs, profile, meta, n_boot=100)
+    for name in ("alpha_star.csv", "fig6_alpha_star.png", "fig6_speed_heatmap.png", "report.md"):
+        assert (tmp_path / name).is_file(), name
+    assert (tmp_path / "fig6_alpha_star.png").read_bytes()[:8] == PNG_SIGNATURE
+    table = pd.read_csv(tmp_path / "alpha_star.csv")
+    assert len(table) == 4 and {"alpha_star", "win_share", "boot_support", "speed_mps_alpha32"} <= set(table)
+    report = (tmp_path / "report.md").read_text()
+    assert "Fitted plane over 4 conditions" in report and "R² =" in report
+    assert "L2_T0.7_a8_s1" in report and "boom" in report
+    assert meta["plane"]["n"] == 4
+
+
+def test_grid_and_profiles() -> None:
+    for lanes in range(2, 7):
+        assert s2.t_up_for(lanes, 1.0) == round(2.0 / lanes, 2)  # near capacity: lanes x 1,800 veh/h
+    quick = s2.PROFILES["quick"]
+    assert quick.n_cells() == 3 * 4 * 5 * 2
+    assert [t for n, t, _ in quick.conditions() if n == 3] == [2.67, 1.33, 0.89, 0.67]
+    paper = s2.PROFILES["paper"]
+    assert paper.alphas == s2.PAPER_ALPHAS and len(paper.seeds) == 10 and paper.train_steps == 90_000
+    assert paper.lanes == (2, 3, 4, 5, 6) and len(paper.conditions()) >= 20
+    tiny = s2.PROFILES["tiny"]
+    assert len(tiny.conditions()) == 2 and len(tiny.alphas) == 2 and len(tiny.seeds) == 2
+    keys = [c["key"] for c in s2.cell_specs(quick)]
+    assert len(set(keys)) == len(keys)
+    fixed = s2.Profile("f", lanes=(2, 4), loads=(), alphas=(0.0,), seeds=(1,), train_steps=1, eval_steps=1,
+                       t_up_s=(1.0, 2.0))  # fmt: skip
+    assert fixed.conditions() == [(2, 2.0, 0.5), (2, 1.0, 1.0), (4, 2.0, 0.25), (4, 1.0, 0.5)]
+    assert s2.parse_number("1/8") == 0.125
+
+
+# -- bad input ------------------------------------------------------------------------------------------
+def run_main(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, list[str]]:
+    try:
+        code = s2.main(argv)
+    except SystemExit as stop:
+        code = int(stop.code or 0)
+    err = capsys.readouterr().err.strip().splitlines()
+    return code, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "words"),
+    [
+        (["--profile", "huge"], "huge"),
+        (["--backend", "dask"], "dask"),
+        (["--workers", "0"], "workers"),
+        (["--alphas", "0,x"], "alphas"),
+        (["--alphas", "-1"], "alphas"),
+        (["--lanes", "7"], "lanes"),
+        (["--t-up", "0"], "t-up"),
+        (["--seeds", "0"], "seeds"),
+        (["--steps", "-5"], "steps"),
+        (["--address", "auto"], "--address"),
+    ],
+)
+def test_bad_input_one_line_exit_2(argv: list[str], words: str, tmp_path: Path,
+                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    code, err = run_main([*argv, "--out", str(tmp_path / "out")], capsys)
+    assert code == 2
+    assert len(err) == 1 and "error" in err[0] and words in err[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_ray_backend_without_ray(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
+                                 capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    monkeypatch.setitem(sys.modules, "ray", None)  # import ray -> ImportError
+    code, err = run_main(["--profile", "tiny", "--backend", "ray", "--out", str(tmp_path / "out")], capsys)
+    assert code == 2 and len(err) == 1 and "needs Ray" in err[0]
+    assert not (tmp_path / "out").exists()
+
+
+# -- real sweeps ------------------------------------------------------------------------------------------
+def sweep_cmd(out: Path, *extra: str) -> list[str]:
+    return [sys.executable, "-m", "coopsumo.scenario2", "--profile", "tiny", "--out", str(out), "--quiet", *extra]
+
+
+def run_sweep_cli(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    result = subprocess.run(sweep_cmd(out, *extra), capture_output=True, text=True, cwd=REPO, timeout=600,
+                            check=False)  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    return result
+
+
+def assert_outputs(out: Path) -> pd.DataFrame:
+    for name in OUTPUTS:
+        assert (out / name).is_file(), name
+    for name in ("fig6_alpha_star.png", "fig6_speed_heatmap.png"):
+        assert (out / name).read_bytes()[:8] == PNG_SIGNATURE
+    runs = pd.read_csv(out / "runs.csv")
+    assert len(runs) == s2.PROFILES["tiny"].n_cells() == 8
+    assert (runs["status"] == "ok").all(), runs["error"].tolist()
+    assert set(s2.METRIC_COLUMNS) <= set(runs.columns) and "throughput_veh_per_h" in runs
+    assert runs["mean_speed_mps"].between(1, 35).all() and (runs["collisions"] == 0).all()
+    assert len(list((out / "cells").glob("*.json"))) == 8
+    assert all((out / "train" / k / "model.pt").is_file() for k in runs["key"])
+    table = pd.read_csv(out / "alpha_star.csv")
+    assert len(table) == 2 and table["alpha_star"].isin([0.0, 8.0]).all()
+    report = (out / "report.md").read_text()
+    assert "No plane fitted" in report and "Failed cells\n\nNone." in report and "tiny" in report
+    return runs
+
+
+@pytest.fixture(scope="module")
+def local_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("s2") / "local"
+    run_sweep_cli(out, "--workers", "2")
+    return out
+
+
+@pytest.mark.sumo
+def test_tiny_sweep_local(local_sweep: Path) -> None:
+    runs = assert_outputs(local_sweep)
+    assert runs["train_updates"].gt(0).all()
+    # a rerun finds every cell done and recomputes nothing
+    before = {p.name: p.stat().st_mtime_ns for p in (local_sweep / "cells").iterdir()}
+    result = run_sweep_cli(local_sweep, "--workers", "2")
+    assert "8 already done" in result.stderr and "0 to run" in result.stderr
+    assert before == {p.name: p.stat().st_mtime_ns for p in (local_sweep / "cells").iterdir()}
+
+
+@pytest.mark.sumo
+def test_tiny_sweep_ray_matches_local(local_sweep: Path, tmp_path: Path) -> None:
+    pytest.importorskip("ray", reason="ray is not installed: the ray backend cannot be tested")
+    out = tmp_path / "ray"
+    run_sweep_cli(out, "--backend", "ray", "--workers", "2")
+    runs = assert_outputs(out)
+    local = pd.read_csv(local_sweep / "runs.csv")
+    pd.testing.assert_frame_equal(runs[COMPARED], local[COMPARED])
+    assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
+
+
+def wait_for_cells(out: Path, n: int, proc: subprocess.Popen[str], timeout: float = 300.0) -> None:
+    end = time.monotonic() + timeout
+    while len(list((out / "cells").glob("*.json"))) < n:
+        assert proc.poll() is None, "the sweep ended before it could be interrupted"
+        assert time.monotonic() < end, "no cell finished in time"
+        time.sleep(0.1)
+
+
+def kill_group(proc: subprocess.Popen[str], sig: int) -> None:
+    os.killpg(proc.pid, sig)
+    proc.communicate(timeout=60)
+
+
+@pytest.mark.sumo
+def test_killed_sweep_resumes_without_recomputing(local_sweep: Path, tmp_path: Path) -> None:
+    out = tmp_path / "killed"
+    # 1. SIGTERM to the whole process group once a cell is done, while the next one trains
+    proc = subprocess.Popen(sweep_cmd(out, "--workers", "1"), cwd=REPO, start_new_session=True, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    wait_for_cells(out, 1, proc)
+    time.sleep(0.5)
+    kill_group(proc, signal.SIGTERM)
+    assert proc.returncode != 0
+    first = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
+    assert 1 <= len(first) < 8
+    # 2. SIGKILL, no chance to clean up, once one more cell is done
+    proc = subprocess.Popen(sweep_cmd(out, "--workers", "1"), cwd=REPO, start_new_session=True, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    wait_for_cells(out, len(first) + 1, proc)
+    kill_group(proc, signal.SIGKILL)
+    second = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
+    assert len(second) > len(first)
+    # 3. finish: the cells done before are neither recomputed nor rewritten
+    result = run_sweep_cli(out, "--workers", "1")
+    assert f"{len(second)} already done" in result.stderr
+    for name, (mtime, data) in second.items():
+        path = out / "cells" / name
+        assert path.stat().st_mtime_ns == mtime and path.read_bytes() == data, name
+    runs = assert_outputs(out)
+    local = pd.read_csv(local_sweep / "runs.csv")
+    pd.testing.assert_frame_equal(runs[COMPARED], local[COMPARED])
+    assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
+
+
+def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A cell that raises is written as failed with its error; the next run retries it (no SUMO: train is faked)."""
+    import coopsumo.train as train_module
+
+    calls: list[str] = []
+
+    def fake_train(cfg, out, resume=False, progress=True, on_steps=None):  # type: ignore[no-untyped-def]
+        calls.append(out.name)
+        if cfg.sim.reward.alpha == 8.0 and cfg.sim.seed == 2 and len(calls) <= 8:
+            raise RuntimeError("SUMO said no\nsecond line")
+        (out / "train_summary.json").write_text('{"mean_speed_mps": 20.0, "updates": 3}')
+        return {"mean_speed_mps": 20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed, "collisions": 0, "teleports": 0,
+                "policy": "dqn:somewhere"}  # fmt: skip
+
+    import torch
+
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: None)  # keep this test process's threads
+    monkeypatch.setattr(train_module, "train", fake_train)
+    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address: InlineBackend())
+    monkeypatch.setattr("coopsumo.network.build_net", lambda road: None)
+    meta = s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
+    assert meta["cells_failed"] == 2 and meta["cells_ok"] == 6
+    runs = pd.read_csv(tmp_path / "runs.csv")
+    failed = runs[runs["status"] == "failed"]
+    assert sorted(failed["key"]) == ["L2_T2_a8_s2", "L2_T4_a8_s2"]
+    assert (failed["error"] == "RuntimeError: SUMO said no").all()
+    assert "L2_T2_a8_s2" in (tmp_path / "report.md").read_text()
+    calls.clear()
+    calls.extend(["x"] * 8)  # the fake now succeeds
+    meta = s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
+    assert meta["cells_failed"] == 0 and meta["cells_run"] == 2
+    assert sorted(calls[8:]) == ["L2_T2_a8_s2", "L2_T4_a8_s2"]
+
+
+class InlineBackend:
+    """Runs cells in this process, one at a time (only with a faked train)."""
+
+    name = "inline"
+    slots = 1
+
+    def __init__(self) -> None:
+        self._done: list[tuple[object, dict[str, object]]] = []
+
+    def submit(self, spec: dict[str, object], root: Path) -> object:
+        handle = object()
+        self._done.append((handle, s2.run_cell(spec, str(root))))
+        return handle
+
+    def wait(self, handles: list[object], timeout: float) -> list[tuple[object, dict[str, object]]]:
+        done, self._done = self._done, []
+        return done
+
+    def abort(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

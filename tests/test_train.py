@@ -1,0 +1,124 @@
+"""The train command: a short real training run, reproducibility, interrupt and resume, bad input."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import torch
+
+from coopsumo.config import SimConfig, TrainConfig
+from coopsumo.dqn import load_model
+from coopsumo.train import train
+
+pytestmark = pytest.mark.sumo
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _cmd(*args: str) -> list[str]:
+    return [sys.executable, "-m", "coopsumo.train", *args]
+
+
+def _weights(path: Path) -> dict[str, torch.Tensor]:
+    net, _ = load_model(path)
+    return {k: v.clone() for k, v in net.state_dict().items()}
+
+
+def _same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
+def test_short_training_loads_and_drives_safely(tmp_path: Path) -> None:
+    cfg = TrainConfig(sim=SimConfig(steps=1500, seed=3, policy="dqn"), eval_steps=800, log_every_steps=500)
+    summary = train(cfg, tmp_path, progress=False)
+    assert (tmp_path / "model.pt").exists()
+    log = (tmp_path / "train_log.csv").read_text().splitlines()
+    assert log[0].startswith("step,sim_time_s,td_loss,r_speed,r_lane_change,r_flow")
+    assert len(log) == 1 + 3  # a row per 500 steps
+    net, meta = load_model(tmp_path / "model.pt")
+    assert meta["config"]["sim"]["seed"] == 3 and "torch" in meta["versions"]
+    # the greedy evaluation drove the trained model through SUMO
+    assert summary["steps"] == 800 and summary["departed"] > 0
+    assert summary["collisions"] == 0
+    # and the model drives a simulation from the command line
+    out = tmp_path / "drive"
+    res = subprocess.run(
+        [sys.executable, "-m", "coopsumo.simulate", "--policy", f"dqn:{tmp_path / 'model.pt'}", "--steps", "600",
+         "--lanes", "3", "--out", str(out), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, check=False,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    assert '"collisions": 0' in (out / "summary.json").read_text()
+
+
+def test_same_seed_same_weights(tmp_path: Path) -> None:
+    cfg = TrainConfig(sim=SimConfig(steps=700, seed=5, policy="dqn"), eval_steps=0)
+    train(cfg, tmp_path / "a", progress=False)
+    train(cfg, tmp_path / "b", progress=False)
+    assert _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "b" / "model.pt"))
+    other = TrainConfig(sim=SimConfig(steps=700, seed=6, policy="dqn"), eval_steps=0)
+    train(other, tmp_path / "c", progress=False)
+    assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "c" / "model.pt"))
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, sig: int) -> None:
+    args = ["--steps", "2500", "--eval-steps", "0", "--seed", "2", "--quiet"]
+    full = tmp_path / "full"
+    subprocess.run(_cmd(*args, "--out", str(full)), check=True, cwd=ROOT, capture_output=True)
+    cut = tmp_path / "cut"
+    proc = subprocess.Popen(_cmd(*args, "--out", str(cut)), cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    log = cut / "train_log.csv"
+    deadline = time.time() + 120
+    while time.time() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 2):
+        time.sleep(0.05)
+    os.kill(proc.pid, sig)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + sig, err
+    assert "Traceback" not in err and "--resume" in err
+    assert (cut / "checkpoint.pt").exists() and not (cut / "model.pt").exists()
+    res = subprocess.run(_cmd("--resume", "--out", str(cut), "--quiet"), cwd=ROOT, capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    assert not (cut / "checkpoint.pt").exists()
+    assert _same(_weights(full / "model.pt"), _weights(cut / "model.pt"))
+
+
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["--alpha", "-1"], "alpha"),
+        (["--alpha", "nan"], "alpha"),
+        (["--alpha", "inf"], "alpha"),
+        (["--steps", "0"], "steps"),
+        (["--lanes", "7"], "lanes"),
+        (["--t-up", "0"], "t-up"),
+        (["--resume"], "resume"),
+    ],
+)
+def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:
+    out = tmp_path / "out"
+    extra = [] if "--resume" in args else ["--out", str(out)]
+    res = subprocess.run(_cmd(*args, *extra), capture_output=True, text=True, cwd=ROOT, check=False)
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in res.stderr
+    assert not out.exists()
+
+
+def test_bad_model_files_are_usage_errors(tmp_path: Path) -> None:
+    garbage = tmp_path / "garbage.pt"
+    garbage.write_bytes(b"not a model")
+    for model in (tmp_path / "missing.pt", garbage):
+        out = tmp_path / f"out_{model.stem}"
+        res = subprocess.run(
+            [sys.executable, "-m", "coopsumo.simulate", "--policy", f"dqn:{model}", "--steps", "10", "--out", str(out)],
+            capture_output=True, text=True, cwd=ROOT, check=False,
+        )  # fmt: skip
+        assert res.returncode == 2, res.stderr
+        assert len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+        assert not out.exists()
