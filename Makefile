@@ -25,7 +25,7 @@ lint: $(STAMP)
 	$(BIN)/mypy coopsumo
 
 bench: $(STAMP)
-	$(BIN)/python -m coopsumo.bench
+	$(BIN)/python -m coopsumo.bench $(BENCH_ARGS)
 
 demo: $(STAMP)
 	$(BIN)/python -m coopsumo.simulate --scenario free --lanes 3 --policy greedy --steps 3000 --seed 1 --out results/demo

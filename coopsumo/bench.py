@@ -62,17 +62,19 @@ def bench_decision(n_vehicles: int, repeats: int = 200) -> tuple[float, float]:
     return grid_us, act_us
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    quick = "--quick" in (sys.argv[1:] if argv is None else argv)
+    steps = 600 if quick else 6000
     torch.set_num_threads(1)
-    print("coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread)", flush=True)
-    for policy in ("keep", "random", "greedy"):
-        print(f"  simulate --policy {policy:7s}: {bench_simulation(policy, 6000):8.0f} steps/s", flush=True)
-    sps = bench_training(6000)
+    print(f"coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread, {steps} steps a run)", flush=True)
+    for policy in ("keep", "random", "greedy", "mobil", "sumo"):
+        print(f"  simulate --policy {policy:7s}: {bench_simulation(policy, steps):8.0f} steps/s", flush=True)
+    sps = bench_training(steps)
     print(
         f"  train (learning on)         : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min", flush=True
     )
     for n in (50, 200):
-        grid_us, act_us = bench_decision(n)
+        grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
         print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)
     return 0
 

@@ -13,6 +13,9 @@ retries failed ones; a training interrupted by SIGTERM/SIGINT is resumed from it
 
 Outputs in OUT (default results/scenario2): sweep.json, cells/, train/<key>/, runs.csv,
 alpha_star.csv, fig6_alpha_star.png, fig6_speed_heatmap.png, report.md.
+
+On a Ray cluster (--address), every node needs this package (same versions) and OUT must be on a
+filesystem shared by all nodes: the workers write the training folders, the driver the cell records.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ import threading
 import time
 import traceback
 from collections import Counter, deque
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
@@ -129,7 +132,7 @@ PROFILES = {
     "tiny": Profile("tiny", lanes=(2,), loads=(0.25, 0.5), alphas=(0.0, 8.0), seeds=(1, 2),
                     train_steps=300, eval_steps=300),
     "quick": Profile("quick", lanes=(2, 3, 4), loads=(0.25, 0.5, 0.75, 1.0), alphas=(0.0, 0.5, 2.0, 8.0, 32.0),
-                     seeds=(1, 2), train_steps=1200, eval_steps=1200),
+                     seeds=(1, 2, 3), train_steps=1500, eval_steps=1500),
     "paper": Profile("paper", lanes=(2, 3, 4, 5, 6), loads=(0.2, 0.4, 0.6, 0.8, 1.0), alphas=PAPER_ALPHAS,
                      seeds=tuple(range(1, 11)), train_steps=90_000, eval_steps=9000),
 }  # fmt: skip
@@ -252,8 +255,9 @@ class LocalBackend:
 
     name = "local"
 
-    def __init__(self, workers: int):
+    def __init__(self, workers: int, cell_fn: Callable[[dict[str, Any], str], dict[str, Any]] = run_cell):
         self.slots = workers
+        self._cell_fn = cell_fn
         self._ctx = mp.get_context("spawn")
         self._generation = 0
         self._pool = self._new_pool()
@@ -263,7 +267,7 @@ class LocalBackend:
                                    initargs=(os.getpid(),))  # fmt: skip
 
     def submit(self, spec: dict[str, Any], root: Path) -> Any:
-        return (self._generation, self._pool.submit(run_cell, spec, str(root)))
+        return (self._generation, self._pool.submit(self._cell_fn, spec, str(root)))
 
     def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
         """Finished handles with their record, or the exception that stopped their worker."""
@@ -379,6 +383,7 @@ def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend |
 
     On KeyboardInterrupt (Ctrl-C or SIGTERM) the workers are stopped and the interrupt re-raised.
     """
+    (root / "cells").mkdir(parents=True, exist_ok=True)
     todo = deque(specs)
     inflight: dict[Any, dict[str, Any]] = {}
     crashes: Counter[str] = Counter()

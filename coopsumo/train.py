@@ -180,6 +180,7 @@ class Trainer:
         learner = self.learner
         dq = cfg.dqn
         start = time.perf_counter()
+        (self.out / "sumo").mkdir(parents=True, exist_ok=True)
         with World(cfg.sim, self.out / "sumo") as world:
             prev: Observation | None = None
             prev_actions = np.zeros(0, np.int64)
@@ -277,7 +278,6 @@ def train(
     if resume:
         trainer.restore(Trainer.load_checkpoint(out))
     else:
-        (out / "sumo").mkdir(parents=True, exist_ok=True)
         write_json(out / "config.json", model_meta(cfg))
         for stale in ("model.pt", "summary.json", "checkpoint.pt", "train_summary.json"):
             (out / stale).unlink(missing_ok=True)

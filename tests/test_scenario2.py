@@ -3,6 +3,7 @@ the command's bad input; the tiny sweep end to end on both backends; a sweep kil
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -156,7 +157,7 @@ def test_grid_and_profiles() -> None:
     for lanes in range(2, 7):
         assert s2.t_up_for(lanes, 1.0) == round(2.0 / lanes, 2)  # near capacity: lanes x 1,800 veh/h
     quick = s2.PROFILES["quick"]
-    assert quick.n_cells() == 3 * 4 * 5 * 2
+    assert quick.n_cells() == 3 * 4 * 5 * 3
     assert [t for n, t, _ in quick.conditions() if n == 3] == [2.67, 1.33, 0.89, 0.67]
     paper = s2.PROFILES["paper"]
     assert paper.alphas == s2.PAPER_ALPHAS and len(paper.seeds) == 10 and paper.train_steps == 90_000
@@ -373,3 +374,27 @@ class InlineBackend:
 
     def close(self) -> None:
         pass
+
+
+def fake_cell(spec: dict[str, object], root: str) -> dict[str, object]:
+    """A cell without SUMO (run in a spawned worker): the key L2_T4_a8_s2 kills its worker process."""
+    if spec["key"] == "L2_T4_a8_s2":
+        os._exit(7)
+    record = s2.failed_record(spec, "")
+    record.update(status="ok", error=None, summary={"mean_speed_mps": 20.0 + float(spec["seed"])})  # type: ignore[arg-type]
+    return record
+
+
+def test_dead_worker_is_retried_then_recorded_failed(tmp_path: Path) -> None:
+    """A cell whose worker process dies is retried in a fresh pool, then recorded as failed; the others finish."""
+    specs = s2.cell_specs(s2.PROFILES["tiny"])
+    backend = s2.LocalBackend(2, cell_fn=fake_cell)
+    try:
+        counts = s2.execute(specs, tmp_path, backend, len(specs), 0, progress=False)
+    finally:
+        backend.close()
+    assert counts == {"ok": 7, "failed": 1}
+    records = {p.stem: json.loads(p.read_text()) for p in (tmp_path / "cells").glob("*.json")}
+    assert len(records) == 8
+    assert records["L2_T4_a8_s2"]["status"] == "failed"
+    assert "worker process died 2 times" in records["L2_T4_a8_s2"]["error"]
