@@ -263,9 +263,12 @@ DEVIATIONS = (
     ("road", "length not given", "2,000 m, 3.2 m lanes; loops at 200, 400, ..., 1,800 m on every lane"),
     ("v_exp", "random, clipped 40-110 km/h", "normal, mean 85 km/h, sd 15 km/h, clipped 40-110 km/h"),
     ("T_up", "not given", "interval between vehicles for the whole road; lane drawn uniformly"),
-    ("accident", "stuck ratio p decays 1 -> 0 over ~50,000 steps",
-     "a vehicle entering the 100 m before x = 1,300 m is held with probability p; a held vehicle stops at "
-     "the line and, standing at the head of its queue, is re-drawn every 1 s; p linear 1 -> 0"),
+    (
+        "accident",
+        "stuck ratio p decays 1 -> 0 over ~50,000 steps",
+        "a vehicle entering the 100 m before x = 1,300 m is held with probability p; a held vehicle stops at "
+        "the line and, standing at the head of its queue, is re-drawn every 1 s; p linear 1 -> 0",
+    ),
     ("release start", "not defined", "the accident's first step: p starts to fall below 1 and releases begin"),
     ("lane 1 (Fig. 4)", "not defined", f"SUMO lane index {FIG4_LANE} (the rightmost lane)"),
     ("trajectories", "-", "recorded every 5 steps (0.5 s) to keep the files small"),

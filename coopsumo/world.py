@@ -95,6 +95,8 @@ class World:
         self.totals = Totals()
         self.step_count = 0
         self.next_num = 0
+        self._waiting: list[deque[int]] = [deque() for _ in range(cfg.road.lanes)]  # per lane, not yet in SUMO
+        self._handed = np.full(cfg.road.lanes, -1, np.int64)  # per lane: the vehicle SUMO is trying to insert
         self.table = VehicleTable(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
         window = max(1, round(cfg.reward.flow_window_s / cfg.control.dt_s))
         self._loop_counts: deque[int] = deque(maxlen=window)
@@ -125,7 +127,11 @@ class World:
 
     # -- demand ----------------------------------------------------------------------------
     def _insert_due(self) -> None:
-        """Hand SUMO every vehicle whose departure time (num * T_up) has come."""
+        """Queue every vehicle whose departure time (num * T_up) has come; hand SUMO each lane's next one.
+
+        SUMO holds at most one waiting vehicle per lane (it retries every waiting vehicle every
+        step, which gets slow behind a long queue); the rest wait here, in order, per lane.
+        """
         d = self.cfg.demand
         t_up = d.t_up_s
         while self.next_num * t_up <= self.time_s + 1e-9:
@@ -135,8 +141,13 @@ class World:
             lane = int(self.demand_rng.integers(0, self.cfg.road.lanes))
             self.veh.v_exp[num] = v_kmh / 3.6
             self.veh.scheduled_s[num] = num * t_up
-            self.session.add_vehicle(num, lane, v_kmh / 3.6)
+            self._waiting[lane].append(num)
             self.next_num += 1
+        for lane, queue in enumerate(self._waiting):
+            if self._handed[lane] < 0 and queue:
+                num = queue.popleft()
+                self.session.add_vehicle(num, lane, float(self.veh.v_exp[num]))
+                self._handed[lane] = num
 
     # -- one step --------------------------------------------------------------------------
     def _other_lane(self, nums: np.ndarray, lane: np.ndarray) -> np.ndarray:
@@ -296,6 +307,7 @@ class World:
         busy = t.nums[self.veh.lc_left_s[t.nums] > 0]
         self.veh.lc_left_s[busy] = np.maximum(self.veh.lc_left_s[busy] - dt, 0.0)
         self.veh.depart_s[events.departed] = self.time_s - dt
+        self._handed[np.isin(self._handed, events.departed)] = -1
         tot.departed += len(events.departed)
         late = self.time_s - dt - self.veh.scheduled_s[events.departed]
         tot.insertion_blocked += int(np.sum(late >= dt - 1e-6))
