@@ -149,8 +149,8 @@ class DQNConfig:
     """environment steps between gradient updates"""
     learn_start_steps: int = 200
     """no update before this many environment steps"""
-    optimizer: str = "adam"
-    """'adam' or 'sgd'"""
+    optimizer: str = "sgd"
+    """'sgd' (paper: stochastic gradient descent) or 'adam'"""
     grad_clip_norm: float = 10.0
     """gradient-norm clip"""
     speed_scale_mps: float = 110.0 / 3.6
