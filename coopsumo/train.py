@@ -275,6 +275,7 @@ def train(
     on_steps(n) is told of progress (training and evaluation steps), for a caller's progress bar.
     """
     trainer = Trainer(cfg, out, progress, on_steps)
+    out.mkdir(parents=True, exist_ok=True)
     if resume:
         trainer.restore(Trainer.load_checkpoint(out))
     else:
