@@ -193,6 +193,7 @@ class Trainer:
                 out = world.apply(recorded)
             bar = tqdm(total=cfg.sim.steps, initial=self.step, desc="train", unit="step",
                        disable=not self.progress, mininterval=0.5, file=sys.stderr)  # fmt: skip
+            reported = self.step  # steps already told to the bar and to on_steps
             with log_path.open("a", newline="") as log_file:
                 log = csv.writer(log_file)
                 while self.step < cfg.sim.steps:
@@ -221,8 +222,9 @@ class Trainer:
                         self._write_row(log, world, time.perf_counter() - start)
                         log_file.flush()
                         if self.on_steps is not None:
-                            self.on_steps(self.step - bar.n)
-                        bar.update(self.step - bar.n)
+                            self.on_steps(self.step - reported)
+                        bar.update(self.step - reported)
+                        reported = self.step
                         bar.set_postfix(v=f"{w.speed_sum / max(w.vehicle_steps, 1):.1f}",
                                         r=f"{(w.r_speed + w.r_lane_change + w.r_flow) / max(w.samples, 1):.3f}",
                                         lc=f"{w.lane_changes / max(w.samples, 1) * 10:.3f}/s")  # fmt: skip
