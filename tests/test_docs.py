@@ -28,7 +28,8 @@ def python_commands() -> list[str]:
     for block in blocks("bash"):
         for line in block.replace("\\\n", " ").splitlines():
             line = line.split("#")[0].strip()
-            if line.startswith(".venv/bin/python -m coopsumo"):
+            # the scenario studies run in tests/test_scenario1.py and test_scenario2.py with tiny profiles
+            if line.startswith(".venv/bin/python -m coopsumo") and "coopsumo.scenario" not in line:
                 cmds.append(line)
     return cmds
 
