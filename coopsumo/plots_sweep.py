@@ -2,7 +2,7 @@
 
 `alpha_surface_figure`: alpha* against T_up and lane count with the fitted plane
 alpha* = b0 + b1 T_up + b2 lanes (3D scatter + plane). `speed_heatmap_figure`: mean speed
-over (alpha, condition). matplotlib's object API on an explicit Agg canvas, as in plots.py.
+over (alpha, condition). Figures and PNG files come from plots.py's helpers (Agg canvas, same DPI).
 """
 
 from __future__ import annotations
@@ -13,25 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from matplotlib.backends.backend_agg import FigureCanvasAgg
-from matplotlib.figure import Figure
 from matplotlib.patches import Rectangle
 from numpy.typing import ArrayLike
 
-DPI = 120
-
-
-def _new_figure(width_in: float, height_in: float) -> Figure:
-    fig = Figure(figsize=(width_in, height_in))
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _save(fig: Figure, out_path: str | Path) -> Path:
-    path = Path(out_path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI, format="png")
-    return path
+from coopsumo.plots import _new_figure, _save
 
 
 def alpha_label(alpha: float) -> str:

@@ -6,13 +6,18 @@ penalty alpha, a model is trained in free flow and evaluated greedily on the sam
 travelling speed over seeds; its uncertainty is given by per-seed win shares and a bootstrap
 over seeds. A plane alpha* = b0 + b1 T_up + b2 lanes is fitted over the conditions.
 
+With `--policies dqn,mobil`, MOBIL cells (lanes, T_up, politeness p, seed) are added: no training,
+one run of `mobil:p=P` on the same condition, seed and step count as a DQN cell's evaluation. p* is
+the p with the best mean speed over seeds; the report puts alpha* and p* side by side.
+
 Every (lanes, T_up, alpha, seed) is one "cell", run in its own worker process (libsumo allows
 one SUMO per process), on a local process pool or on Ray. Each finished cell is written
 atomically to OUT/cells/<key>.json the moment it ends; a rerun skips finished cells and
 retries failed ones; a training interrupted by SIGTERM/SIGINT is resumed from its checkpoint.
 
 Outputs in OUT (default results/scenario2): sweep.json, cells/, train/<key>/, runs.csv,
-alpha_star.csv, fig6_alpha_star.png, fig6_speed_heatmap.png, report.md.
+alpha_star.csv, fig6_alpha_star.png, fig6_speed_heatmap.png, report.md; with MOBIL cells also
+mobil/<key>/ and mobil_p_star.csv.
 
 On a Ray cluster (--address), every node needs this package (same versions) and OUT must be on a
 filesystem shared by all nodes: the workers write the training folders, the driver the cell records.
@@ -82,6 +87,9 @@ COUNT_COLUMNS = frozenset(("steps", "departed", "arrived", "insertion_blocked", 
                            "collisions", "teleports", "lane_changes", "lane_changes_rejected", "train_lane_changes",
                            "train_collisions", "train_updates"))  # fmt: skip
 KEY_COLUMNS = ("key", "lanes", "t_up_s", "load", "alpha", "seed")
+RECORD_KEYS = (*KEY_COLUMNS, "policy", "p")
+"""coordinates copied from a cell's spec into its record: policy "dqn" (p None) or "mobil" (alpha None)"""
+POLICIES = ("dqn", "mobil")
 MAX_CRASHES = 2
 """a cell whose worker process died this many times is recorded as failed"""
 
@@ -103,6 +111,10 @@ class Profile:
     """greedy evaluation steps per cell"""
     t_up_s: tuple[float, ...] = ()
     """if set, this fixed T_up list (s) replaces the load grid for every lane count"""
+    policies: tuple[str, ...] = ("dqn",)
+    """"dqn" (train and evaluate per alpha) and/or "mobil" (evaluate MOBIL per politeness p, no training)"""
+    mobil_ps: tuple[float, ...] = (0.0, 0.25, 0.5, 1.0)
+    """MOBIL politeness grid, used when "mobil" is in policies"""
 
     def conditions(self) -> list[tuple[int, float, float]]:
         """(lanes, T_up s, load) of every condition, by lanes then decreasing T_up."""
@@ -116,7 +128,9 @@ class Profile:
         return out
 
     def n_cells(self) -> int:
-        return len(self.conditions()) * len(self.alphas) * len(self.seeds)
+        per_condition = len(self.alphas) if "dqn" in self.policies else 0
+        per_condition += len(self.mobil_ps) if "mobil" in self.policies else 0
+        return len(self.conditions()) * per_condition * len(self.seeds)
 
 
 def t_up_for(lanes: int, load: float) -> float:
@@ -130,7 +144,7 @@ def load_of(lanes: int, t_up_s: float) -> float:
 
 PROFILES = {
     "tiny": Profile("tiny", lanes=(2,), loads=(0.25, 0.5), alphas=(0.0, 8.0), seeds=(1, 2),
-                    train_steps=300, eval_steps=300),
+                    train_steps=300, eval_steps=300, mobil_ps=(0.0, 1.0)),
     "quick": Profile("quick", lanes=(2, 3, 4), loads=(0.25, 0.5, 0.75, 1.0), alphas=(0.0, 0.5, 2.0, 8.0, 32.0),
                      seeds=(1, 2, 3), train_steps=1500, eval_steps=1500),
     "paper": Profile("paper", lanes=(2, 3, 4, 5, 6), loads=(0.2, 0.4, 0.6, 0.8, 1.0), alphas=PAPER_ALPHAS,
@@ -140,6 +154,10 @@ PROFILES = {
 
 def cell_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:
     return f"L{lanes}_T{t_up_s:g}_a{alpha:g}_s{seed}"
+
+
+def mobil_key(lanes: int, t_up_s: float, p: float, seed: int) -> str:
+    return f"L{lanes}_T{t_up_s:g}_mobil_p{p:g}_s{seed}"
 
 
 def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Profile) -> TrainConfig:
@@ -155,55 +173,61 @@ def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Pr
     return TrainConfig(sim=sim, eval_steps=profile.eval_steps)
 
 
+def mobil_config(lanes: int, t_up_s: float, p: float, seed: int, profile: Profile) -> SimConfig:
+    """A MOBIL cell: one run of mobil:p=P in free flow, like a DQN cell's evaluation (condition, seed, steps)."""
+    return SimConfig(
+        road=RoadConfig(lanes=lanes),
+        demand=DemandConfig(t_up_s=t_up_s),
+        steps=profile.eval_steps,
+        seed=seed,
+        policy=f"mobil:p={p}",
+    )
+
+
 def cell_specs(profile: Profile) -> list[dict[str, Any]]:
-    """One JSON-ready spec per cell: key, coordinates and the full TrainConfig as a dict."""
+    """One JSON-ready spec per cell: key, coordinates and the full configuration as a dict.
+
+    A DQN cell's configuration is a TrainConfig, a MOBIL cell's a SimConfig.
+    """
     specs = []
     for lanes, t_up, load in profile.conditions():
-        for alpha in profile.alphas:
-            for seed in profile.seeds:
-                cfg = train_config(lanes, t_up, alpha, seed, profile)
-                cfg.validate()
-                specs.append({"key": cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
-                              "load": load, "alpha": alpha, "seed": seed,
-                              "config": json.loads(json.dumps(to_dict(cfg)))})  # fmt: skip
+        if "dqn" in profile.policies:
+            for alpha in profile.alphas:
+                for seed in profile.seeds:
+                    cfg = train_config(lanes, t_up, alpha, seed, profile)
+                    cfg.validate()
+                    specs.append({"key": cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
+                                  "load": load, "alpha": alpha, "seed": seed, "policy": "dqn", "p": None,
+                                  "config": json.loads(json.dumps(to_dict(cfg)))})  # fmt: skip
+        if "mobil" in profile.policies:
+            for p in profile.mobil_ps:
+                for seed in profile.seeds:
+                    sim = mobil_config(lanes, t_up, p, seed, profile)
+                    sim.validate()
+                    specs.append({"key": mobil_key(lanes, t_up, p, seed), "lanes": lanes, "t_up_s": t_up,
+                                  "load": load, "alpha": None, "seed": seed, "policy": "mobil", "p": p,
+                                  "config": json.loads(json.dumps(to_dict(sim)))})  # fmt: skip
     return specs
 
 
 # -- one cell (runs in a worker process) ------------------------------------------------------------
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Train and evaluate one cell into ROOT/train/<key>/; returns its record (never raises on failure).
+    """Run one cell and return its record (never raises on failure).
 
+    A DQN cell trains and evaluates into ROOT/train/<key>/ (a matching checkpoint there is resumed
+    instead of starting afresh); a MOBIL cell runs one simulation into ROOT/mobil/<key>/.
     status "ok" (with the evaluation summary), "failed" (with the error) or "interrupted"
     (SIGTERM/SIGINT: a checkpoint was saved when training, the cell is to be run again).
-    A matching checkpoint in the training folder is resumed instead of starting afresh.
     """
-    import torch
-
-    from coopsumo.config import train_config_from_dict
-    from coopsumo.train import Interrupted, Trainer, train
-
-    torch.set_num_threads(1)
     start, cpu_start = time.perf_counter(), time.process_time()
-    out = Path(root) / "train" / spec["key"]
-    record: dict[str, Any] = {k: spec[k] for k in KEY_COLUMNS}
-    record.update(config=spec["config"], train_dir=f"train/{spec['key']}", resumed_from_step=None,
-                  error=None, traceback=None, summary=None, train_summary=None)  # fmt: skip
+    record = new_record(spec)
     try:
-        cfg = train_config_from_dict(spec["config"])
-        out.mkdir(parents=True, exist_ok=True)
-        resume = False
-        if (out / "checkpoint.pt").exists():
-            try:
-                state = Trainer.load_checkpoint(out)
-                resume = json.loads(json.dumps(state["config"])) == spec["config"]
-                record["resumed_from_step"] = int(state["step"]) if resume else None
-            except Exception:  # a damaged checkpoint: start afresh
-                resume = False
-        summary = train(cfg, out, resume=resume, progress=False)
-        record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
-        record["train_summary"] = json.loads((out / "train_summary.json").read_text())
+        if spec.get("policy") == "mobil":
+            _run_mobil(spec, Path(root), record)
+        else:
+            _run_dqn(spec, Path(root), record)
         record["status"] = "ok"
-    except (Interrupted, KeyboardInterrupt) as err:
+    except KeyboardInterrupt as err:
         record.update(status="interrupted", error=f"{type(err).__name__}: {err}")
     except Exception as err:
         first = str(err).strip().splitlines()[0] if str(err).strip() else ""
@@ -215,12 +239,63 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
     return record
 
 
+def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    """Train and evaluate a DQN cell into ROOT/train/<key>/; fills `record`. A stop by signal -> KeyboardInterrupt."""
+    import torch
+
+    from coopsumo.config import train_config_from_dict
+    from coopsumo.train import Interrupted, Trainer, train
+
+    torch.set_num_threads(1)
+    out = root / "train" / spec["key"]
+    cfg = train_config_from_dict(spec["config"])
+    out.mkdir(parents=True, exist_ok=True)
+    resume = False
+    if (out / "checkpoint.pt").exists():
+        try:
+            state = Trainer.load_checkpoint(out)
+            resume = json.loads(json.dumps(state["config"])) == spec["config"]
+            record["resumed_from_step"] = int(state["step"]) if resume else None
+        except Exception:  # a damaged checkpoint: start afresh
+            resume = False
+    try:
+        summary = train(cfg, out, resume=resume, progress=False)
+    except Interrupted as err:
+        raise KeyboardInterrupt(str(err)) from err
+    record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
+    record["train_summary"] = json.loads((out / "train_summary.json").read_text())
+
+
+def _run_mobil(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    """Run a MOBIL cell (no training: one simulation) into ROOT/mobil/<key>/; fills `record`."""
+    from coopsumo.config import sim_config_from_dict
+    from coopsumo.policies import make_policy
+    from coopsumo.simulate import run
+
+    cfg = sim_config_from_dict(spec["config"])
+    out = root / "mobil" / spec["key"]
+    out.mkdir(parents=True, exist_ok=True)
+    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]), cfg.control)
+    summary = run(cfg, policy, out, progress=False, label=spec["key"])
+    record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
+
+
+def new_record(spec: dict[str, Any]) -> dict[str, Any]:
+    """A cell's record before it runs: coordinates, configuration and its folder; nothing measured yet."""
+    record: dict[str, Any] = {k: spec.get(k) for k in RECORD_KEYS}
+    record.update(config=spec["config"], train_dir=None, resumed_from_step=None, error=None, traceback=None,
+                  summary=None, train_summary=None)  # fmt: skip
+    if spec.get("policy") == "mobil":
+        record["run_dir"] = f"mobil/{spec['key']}"
+    else:
+        record["train_dir"] = f"train/{spec['key']}"
+    return record
+
+
 def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
     """The record of a cell whose worker died or whose task could not run."""
-    record: dict[str, Any] = {k: spec[k] for k in KEY_COLUMNS}
-    record.update(config=spec["config"], train_dir=f"train/{spec['key']}", resumed_from_step=None,
-                  status="failed", error=error, traceback=None, summary=None, train_summary=None,
-                  cell_wall_s=None, cell_cpu_s=None, versions=versions())  # fmt: skip
+    record = new_record(spec)
+    record.update(status="failed", error=error, cell_wall_s=None, cell_cpu_s=None, versions=versions())
     return record
 
 
@@ -438,7 +513,8 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     done = [s for s in specs if (stored[s["key"]] or {}).get("status") == "ok"]
     retry = [s for s in specs if (stored[s["key"]] or {}).get("status") == "failed"]
     todo = [s for s in specs if (stored[s["key"]] or {}).get("status") != "ok"]
-    todo.sort(key=lambda s: -s["lanes"] * s["load"])  # the busiest roads first: a shorter tail
+    # the busiest roads first and the short MOBIL runs last: a shorter tail
+    todo.sort(key=lambda s: (s.get("policy") == "mobil", -s["lanes"] * s["load"]))
     meta = {
         "profile": asdict(profile),
         "conditions": [
@@ -483,11 +559,14 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
 
 # -- tables -------------------------------------------------------------------------------------------
 def runs_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
-    """One tidy row per cell: coordinates, status, error, every evaluation summary metric, bookkeeping."""
+    """One tidy row per cell: coordinates, status, error, every evaluation summary metric, bookkeeping.
+
+    `policy` is "dqn" or "mobil"; `p` (MOBIL's politeness) is NaN for DQN rows, `alpha` NaN for MOBIL rows.
+    """
     rows = []
     for r in records:
         row: dict[str, Any] = {k: r[k] for k in KEY_COLUMNS}
-        row.update(status=r["status"], error=r.get("error"))
+        row.update(policy=r.get("policy") or "dqn", p=r.get("p"), status=r["status"], error=r.get("error"))
         summary = r.get("summary") or {}
         train = r.get("train_summary") or {}
         for k in METRIC_COLUMNS:
@@ -500,15 +579,20 @@ def runs_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
     table = pd.DataFrame(rows)
     for k in METRIC_COLUMNS:
         table[k] = pd.to_numeric(table[k], errors="coerce").astype("Int64" if k in COUNT_COLUMNS else float)
+    for k in ("alpha", "p"):
+        table[k] = pd.to_numeric(table[k], errors="coerce").astype(float)
     table["resumed_from_step"] = pd.to_numeric(table["resumed_from_step"], errors="coerce").astype("Int64")
     return table
 
 
 def speed_matrix(group: pd.DataFrame, alphas: Sequence[float], seeds: Sequence[int],
-                 metric: str = CRITERION) -> np.ndarray:  # fmt: skip
-    """metric[alpha, seed] of one condition's successful cells; NaN where missing or failed."""
+                 metric: str = CRITERION, by: str = "alpha") -> np.ndarray:  # fmt: skip
+    """metric[alpha, seed] of one condition's successful cells; NaN where missing or failed.
+
+    `by` names the column of the rows' parameter: "alpha", or "p" for MOBIL cells (then alphas are p values).
+    """
     ok = group[group["status"] == "ok"]
-    table = ok.pivot_table(index="alpha", columns="seed", values=metric, aggfunc="mean")
+    table = ok.pivot_table(index=by, columns="seed", values=metric, aggfunc="mean")
     return table.reindex(index=list(alphas), columns=list(seeds)).to_numpy(float)
 
 
@@ -608,6 +692,59 @@ def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, 
     return pd.DataFrame(rows, columns=None if rows else empty), boots
 
 
+def policy_rows(runs: pd.DataFrame, policy: str) -> pd.DataFrame:
+    """The rows of one policy ("dqn" or "mobil"); a table without a policy column holds DQN rows only."""
+    if "policy" not in runs:
+        return runs if policy == "dqn" else runs.iloc[0:0]
+    return runs[runs["policy"] == policy]
+
+
+def mobil_p_star_table(runs: pd.DataFrame, ps: Sequence[float] | None = None, seeds: Sequence[int] | None = None,
+                       metric: str = CRITERION) -> pd.DataFrame:  # fmt: skip
+    """p* per condition: the MOBIL politeness with the best mean speed over seeds (ties go to the smaller p),
+    its win share over seeds, and the mean speed of every p. `runs` holds MOBIL rows (column p)."""
+    ps = sorted(set(runs["p"])) if ps is None else sorted(ps)
+    seeds = sorted(set(runs["seed"])) if seeds is None else list(seeds)
+    rows = []
+    for (lanes, t_up), group in runs.groupby(["lanes", "t_up_s"], sort=True):
+        speeds = speed_matrix(group, ps, seeds, metric, by="p")
+        means = _nanmean_rows(speeds)
+        best = best_index(means)
+        shares = win_shares(speeds)
+        n_ok = np.isfinite(speeds).sum(axis=1)
+        row: dict[str, Any] = {
+            "lanes": int(lanes), "t_up_s": float(t_up), "load": group["load"].iloc[0],
+            "inflow_veh_h": round(3600.0 / float(t_up), 1),
+            "p_star": float(ps[best]) if best >= 0 else np.nan,
+            "p_star_speed_mps": float(means[best]) if best >= 0 else np.nan,
+            "win_share": float(shares[best]) if best >= 0 else np.nan,
+            "seeds_min": int(n_ok.min()) if len(n_ok) else 0,
+            "cells_failed": int((group["status"] != "ok").sum()),
+        }  # fmt: skip
+        for p, m in zip(ps, means, strict=True):
+            row[f"speed_mps_p{p:g}"] = float(m)
+        rows.append(row)
+    empty = ["lanes", "t_up_s", "load", "inflow_veh_h", "p_star", "p_star_speed_mps", "win_share"]
+    return pd.DataFrame(rows, columns=None if rows else empty)
+
+
+def side_by_side_table(alpha_table: pd.DataFrame, p_table: pd.DataFrame) -> pd.DataFrame:
+    """Per condition alpha* and p* with their mean speeds and difference_mps = v(alpha*) - v(p*)."""
+    alpha = {(int(r["lanes"]), float(r["t_up_s"])): r for r in alpha_table.to_dict("records")}
+    mobil = {(int(r["lanes"]), float(r["t_up_s"])): r for r in p_table.to_dict("records")}
+    rows = []
+    for lanes, t_up in sorted(set(alpha) | set(mobil)):
+        a, m = alpha.get((lanes, t_up), {}), mobil.get((lanes, t_up), {})
+        v_alpha = float(a.get("alpha_star_speed_mps", np.nan))
+        v_p = float(m.get("p_star_speed_mps", np.nan))
+        rows.append({"lanes": lanes, "t_up_s": t_up, "alpha_star": float(a.get("alpha_star", np.nan)),
+                     "alpha_star_speed_mps": v_alpha, "p_star": float(m.get("p_star", np.nan)),
+                     "p_star_speed_mps": v_p, "difference_mps": v_alpha - v_p})  # fmt: skip
+    columns = ["lanes", "t_up_s", "alpha_star", "alpha_star_speed_mps", "p_star", "p_star_speed_mps",
+               "difference_mps"]  # fmt: skip
+    return pd.DataFrame(rows, columns=columns)
+
+
 # -- the plane ------------------------------------------------------------------------------------------
 class PlaneFitError(ValueError):
     """The plane alpha* = b0 + b1 T_up + b2 lanes cannot be fitted to these conditions."""
@@ -705,15 +842,20 @@ def condition_label(lanes: int, t_up_s: float) -> str:
 
 
 def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[str, Any], n_boot: int) -> None:
-    """alpha_star.csv, the two figures and report.md from the runs table."""
+    """alpha_star.csv, the two figures, mobil_p_star.csv (with MOBIL cells) and report.md from the runs table."""
     from coopsumo.plots_sweep import alpha_label, alpha_surface_figure, speed_heatmap_figure
 
-    table, boots = alpha_star_table(runs, profile.alphas, profile.seeds, n_boot=n_boot)
+    table, boots = alpha_star_table(policy_rows(runs, "dqn"), profile.alphas, profile.seeds, n_boot=n_boot)
     table.to_csv(root / "alpha_star.csv", index=False)
+    side = None
+    if "mobil" in profile.policies:
+        p_table = mobil_p_star_table(policy_rows(runs, "mobil"), profile.mobil_ps, profile.seeds)
+        p_table.to_csv(root / "mobil_p_star.csv", index=False)
+        side = side_by_side_table(table, p_table)
     fit: PlaneFit | None = None
     boot: dict[str, float] = {}
     plane_note = ""
-    solved = table[np.isfinite(table["alpha_star"])]
+    solved = table[np.isfinite(table["alpha_star"].astype(float))]
     try:
         fit = fit_plane(solved["t_up_s"], solved["lanes"], solved["alpha_star"])
         boot = plane_bootstrap(solved, boots)
@@ -733,7 +875,7 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
     meta["plane"] = asdict(fit) if fit else {"error": plane_note}
     meta["plane_bootstrap"] = boot
     (root / "report.md").write_text(report_text(runs, table, fit, boot, plane_note, profile, meta, figures,
-                                                alpha_label))  # fmt: skip
+                                                alpha_label, side))  # fmt: skip
 
 
 def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -746,10 +888,27 @@ def _num(x: Any, fmt: str = "{:.2f}") -> str:
     return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
 
 
+def side_by_side_text(side: pd.DataFrame, alpha_label: Any) -> str:
+    """The table of alpha* beside p* and one sentence counting the conditions where alpha* is faster."""
+    header = ["lanes", "T_up (s)", "α*", "v(α*) (m/s)", "p*", "v(p*) (m/s)", "v(α*) − v(p*) (m/s)"]
+    rows = [[str(r["lanes"]), f"{r['t_up_s']:g}",
+             alpha_label(r["alpha_star"]) if math.isfinite(r["alpha_star"]) else "–",
+             _num(r["alpha_star_speed_mps"]), _num(r["p_star"], "{:g}"), _num(r["p_star_speed_mps"]),
+             _num(r["difference_mps"], "{:+.2f}")] for r in side.to_dict("records")]  # fmt: skip
+    compared = side[np.isfinite(side["difference_mps"])]
+    wins = int((compared["difference_mps"] > 0).sum())
+    if compared.empty:
+        sentence = "No condition has both an alpha* and a p*, so the two cannot be compared."
+    else:
+        sentence = (f"The best learned policy (alpha*) beats the best MOBIL politeness (p*) on {wins} of "
+                    f"{len(compared)} conditions (higher mean speed over the same seeds).")  # fmt: skip
+    return f"{_md_table(header, rows)}\n\n{sentence}"
+
+
 def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, boot: dict[str, float],
                 plane_note: str, profile: Profile, meta: dict[str, Any], figures: dict[str, str],
-                alpha_label: Any) -> str:  # fmt: skip
-    """The Markdown report."""
+                alpha_label: Any, side: pd.DataFrame | None = None) -> str:  # fmt: skip
+    """The Markdown report; `side` (alpha* beside p*) adds the MOBIL section."""
     alphas = list(profile.alphas)
     header = ["lanes", "T_up (s)", "inflow (veh/h)", "load", "α*", "win share", "bootstrap support",
               "α* 90% boot.", "spread (m/s)", "seed SE (m/s)"] + [f"v(α={alpha_label(a)})" for a in alphas]  # fmt: skip
@@ -786,6 +945,17 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
          f"![speed heat map]({figures['heatmap']})\n\nMean evaluation speed over seeds for every alpha and "
          "condition; colour is the gap to the condition's best, framed cells are alpha*." if "heatmap" in figures
          else ""]).strip() or "No figure: no cell succeeded."  # fmt: skip
+    mobil_intro, mobil_section, mobil_note = "", "", ""
+    if side is not None:
+        mobil_intro = (
+            "\nMOBIL cells need no training: each runs `mobil:p=P` once, for p in "
+            f"{{{', '.join(f'{x:g}' for x in profile.mobil_ps)}}}, on the same condition, seed and number of "
+            "steps as a DQN cell's greedy evaluation (free flow). p* is the p with the best mean speed over seeds "
+            "(ties go to the smaller p); its win share is counted as for alpha*.\n"
+        )  # fmt: skip
+        mobil_section = f"\n## alpha* beside the best MOBIL politeness\n\n{side_by_side_text(side, alpha_label)}\n"
+        mobil_note = ("\n- MOBIL: per condition `mobil_p_star.csv` (p*, its win share, the mean speed of every p); "
+                      "each MOBIL cell's run folder: `mobil/<key>/`.")  # fmt: skip
     steps_note = (
         "Step counts as in the paper (90,000 training steps)." if profile.train_steps >= 90_000 else
         f"{profile.train_steps:,} training steps are far below the paper's 90,000: the models are barely trained, "
@@ -809,11 +979,11 @@ evaluates the model greedily on the same condition and seed. Criterion (paper): 
 (ties share the win); *bootstrap support* is the share of {meta["bootstrap_replicates"]} bootstrap resamples of
 the seeds (paired over alphas) whose best alpha is alpha*; the 90% bootstrap range is that of the resampled alpha*.
 *Spread* is the best minus the worst alpha's mean speed; *seed SE* the typical standard error of one alpha's mean.
-
+{mobil_intro}
 ## alpha* per condition
 
 {_md_table(header, rows)}
-
+{mobil_section}
 ## The paper's trends
 
 {plane}
@@ -841,7 +1011,7 @@ Rerunning the same command retries failed cells and keeps the finished ones.
 ## Notes
 
 - Runs: `runs.csv` (one row per cell, every evaluation metric, status and error); per condition: `alpha_star.csv`;
-  each cell's record: `cells/<key>.json`; its training folder: `train/<key>/`.
+  each cell's record: `cells/<key>.json`; its training folder: `train/<key>/`.{mobil_note}
 - {steps_note}
 - Versions: {json.dumps(meta["versions"])}.
 """
@@ -897,6 +1067,17 @@ def profile_from_args(args: Any) -> Profile:
         if any(not (math.isfinite(t) and t > 0) for t in t_up):
             raise UsageError(f"t-up values must be positive numbers of seconds, got {args.t_up}")
         profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
+    policies = {x.strip() for x in args.policies.split(",") if x.strip()}
+    if not policies or not policies <= set(POLICIES):
+        raise UsageError(f"policies must be a comma-separated list of {' and '.join(POLICIES)}, got {args.policies!r}")
+    profile = replace(profile, policies=tuple(x for x in POLICIES if x in policies))
+    if args.mobil_p is not None:
+        if "mobil" not in profile.policies:
+            raise UsageError("--mobil-p is for --policies with mobil")
+        ps = _float_list(args.mobil_p, "mobil-p")
+        if any(not (math.isfinite(x) and x >= 0) for x in ps):
+            raise UsageError(f"mobil-p values must be finite numbers >= 0, got {args.mobil_p}")
+        profile = replace(profile, mobil_ps=tuple(sorted(set(ps))))
     return profile
 
 
@@ -916,6 +1097,10 @@ def build_parser() -> Parser:
     p.add_argument("--alphas", default=None, help="comma-separated alphas, fractions allowed: 0,1/8,2")
     p.add_argument("--t-up", default=None, help="fixed comma-separated T_up list (s) for every lane count, "
                    "instead of the profile's load grid")  # fmt: skip
+    p.add_argument("--policies", default="dqn", help="comma-separated: dqn (train per alpha) and/or mobil "
+                   "(one MOBIL run per politeness p, no training; default: dqn)")  # fmt: skip
+    p.add_argument("--mobil-p", default=None, help="comma-separated MOBIL politeness values (default: the "
+                   "profile's: 0,0.25,0.5,1; tiny 0,1)")  # fmt: skip
     p.add_argument("--bootstrap", type=int, default=1000, help="bootstrap replicates over seeds (default 1000)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
@@ -938,16 +1123,20 @@ def main(argv: list[str] | None = None) -> int:
             except ImportError:
                 raise UsageError("--backend ray needs Ray: .venv/bin/pip install 'ray[default]'") from None
         meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet, args.bootstrap)
-        table = pd.read_csv(args.out / "alpha_star.csv")
-        for r in table.itertuples():
-            print(f"{condition_label(r.lanes, r.t_up_s)}: alpha* = {r.alpha_star:g} "
-                  f"(win share {r.win_share:.0%}, bootstrap {r.boot_support:.0%})")  # fmt: skip
-        plane = meta.get("plane", {})
-        if "b0" in plane:
-            print(f"plane: alpha* = {plane['b0']:.3f} {plane['b1']:+.3f} T_up {plane['b2']:+.3f} lanes, "
-                  f"R2 = {plane['r2']:.3f}")  # fmt: skip
-        else:
-            print(plane.get("error", ""))
+        if "dqn" in profile.policies:
+            table = pd.read_csv(args.out / "alpha_star.csv")
+            for r in table.itertuples():
+                print(f"{condition_label(r.lanes, r.t_up_s)}: alpha* = {r.alpha_star:g} "
+                      f"(win share {r.win_share:.0%}, bootstrap {r.boot_support:.0%})")  # fmt: skip
+            plane = meta.get("plane", {})
+            if "b0" in plane:
+                print(f"plane: alpha* = {plane['b0']:.3f} {plane['b1']:+.3f} T_up {plane['b2']:+.3f} lanes, "
+                      f"R2 = {plane['r2']:.3f}")  # fmt: skip
+            else:
+                print(plane.get("error", ""))
+        if "mobil" in profile.policies:
+            for r in pd.read_csv(args.out / "mobil_p_star.csv").itertuples():
+                print(f"{condition_label(r.lanes, r.t_up_s)}: MOBIL p* = {r.p_star:g} (win share {r.win_share:.0%})")
         print(f"scenario2: {meta['cells_ok']} ok, {meta['cells_failed']} failed, "
               f"{meta['wall_seconds'] / 60:.1f} min; report: {args.out / 'report.md'}")  # fmt: skip
         return 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -34,6 +35,20 @@ def runs_from(speeds: dict[tuple[int, float], dict[float, list[float]]]) -> pd.D
                 rows.append({"key": s2.cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
                              "load": s2.load_of(lanes, t_up), "alpha": alpha, "seed": seed,
                              "status": "failed" if failed else "ok", "error": "boom" if failed else None,
+                             "mean_speed_mps": v, "collisions": 0, "teleports": 0})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def mobil_runs_from(speeds: dict[tuple[int, float], dict[float, list[float]]]) -> pd.DataFrame:
+    """Like runs_from, for MOBIL cells: {(lanes, t_up): {p: [speed of seed 1, ...]}}."""
+    rows = []
+    for (lanes, t_up), by_p in speeds.items():
+        for p, values in by_p.items():
+            for seed, v in enumerate(values, start=1):
+                failed = not np.isfinite(v)
+                rows.append({"key": s2.mobil_key(lanes, t_up, p, seed), "lanes": lanes, "t_up_s": t_up,
+                             "load": s2.load_of(lanes, t_up), "alpha": np.nan, "seed": seed, "policy": "mobil",
+                             "p": p, "status": "failed" if failed else "ok", "error": "boom" if failed else None,
                              "mean_speed_mps": v, "collisions": 0, "teleports": 0})  # fmt: skip
     return pd.DataFrame(rows)
 
@@ -153,6 +168,47 @@ def test_outputs_from_a_hand_made_table(tmp_path: Path) -> None:
     assert meta["plane"]["n"] == 4
 
 
+def test_mobil_p_star_and_side_by_side(tmp_path: Path) -> None:
+    """p* (best mean over seeds, ties to the smaller p) and the report's alpha*-beside-p* table (no SUMO)."""
+    mobil = mobil_runs_from({
+        (2, 1.0): {0.0: [20.0, 22.0], 0.5: [23.0, 21.0], 1.0: [19.0, 21.0]},
+        (2, 2.0): {0.0: [19.0, 20.0], 0.25: [20.0, 21.0], 1.0: [21.0, 20.0], 2.0: [np.nan, 30.0]},
+    })  # fmt: skip
+    table = s2.mobil_p_star_table(mobil, ps=(0.0, 0.25, 0.5, 1.0, 2.0), seeds=(1, 2)).set_index("t_up_s")
+    # T_up 1 s: means 21, 22, 20 -> p* = 0.5, best on seed 1 only
+    assert table.loc[1.0, "p_star"] == 0.5 and table.loc[1.0, "p_star_speed_mps"] == 22.0
+    assert table.loc[1.0, "win_share"] == 0.5 and np.isnan(table.loc[1.0, "speed_mps_p0.25"])
+    # T_up 2 s: p 0.25 and 1 tie at 20.5 -> the smaller p; p 2 ran on one seed only (30) and wins
+    assert table.loc[2.0, "p_star"] == 2.0 and table.loc[2.0, "cells_failed"] == 1
+    no_two = s2.mobil_p_star_table(mobil[mobil["p"] != 2.0]).set_index("t_up_s")
+    assert no_two.loc[2.0, "p_star"] == 0.25 and no_two.loc[2.0, "speed_mps_p1"] == 20.5
+    assert no_two.loc[2.0, "win_share"] == pytest.approx(0.5)  # seed 1: p 1 wins; seed 2: p 0.25 wins
+    # side by side: alpha* faster at T_up 1 s (23 > 22), slower at T_up 2 s (19 < 20.5)
+    dqn = runs_from({(2, 1.0): {0.0: [22.0, 24.0], 8.0: [20.0, 20.0]}, (2, 2.0): {0.0: [19.0, 19.0]}})
+    dqn["policy"], dqn["p"] = "dqn", np.nan
+    alpha_table, _ = s2.alpha_star_table(dqn, n_boot=0)
+    side = s2.side_by_side_table(alpha_table, no_two.reset_index()).set_index("t_up_s")
+    assert side.loc[1.0, ["alpha_star", "p_star"]].tolist() == [0.0, 0.5]
+    assert side["difference_mps"].tolist() == pytest.approx([1.0, -1.5])
+    # the same through write_outputs: mobil_p_star.csv and the report's section
+    profile = s2.Profile("hand", lanes=(2,), loads=(), alphas=(0.0, 8.0), seeds=(1, 2), train_steps=10,
+                         eval_steps=10, t_up_s=(1.0, 2.0), policies=("dqn", "mobil"),
+                         mobil_ps=(0.0, 0.5, 1.0))  # fmt: skip
+    assert profile.n_cells() == 2 * (2 + 3) * 2
+    meta = {"conditions": [{"lanes": n, "t_up_s": t, "load": ld} for n, t, ld in profile.conditions()],
+            "cells": 20, "cells_ok": 20, "cells_failed": 0, "backend": "local", "workers": 1, "wall_seconds": 1.0,
+            "cells_run": 0, "cell_wall_seconds_sum": 0.0, "cell_cpu_seconds_sum": 0.0, "bootstrap_replicates": 10,
+            "versions": {}}  # fmt: skip
+    s2.write_outputs(tmp_path, pd.concat([dqn, mobil[mobil["p"].isin([0.0, 0.5, 1.0])]]), profile, meta, n_boot=10)
+    written = pd.read_csv(tmp_path / "mobil_p_star.csv")
+    assert written["p_star"].tolist() == [0.5, 1.0] and "speed_mps_p0.25" not in written
+    report = (tmp_path / "report.md").read_text()
+    assert "## alpha* beside the best MOBIL politeness" in report
+    assert "| 2 | 1 | 0 | 23.00 | 0.5 | 22.00 | +1.00 |" in report
+    assert "beats the best MOBIL politeness (p*) on 1 of 2 conditions" in report
+    assert pd.read_csv(tmp_path / "alpha_star.csv")["alpha_star"].tolist() == [0.0, 0.0]
+
+
 def test_grid_and_profiles() -> None:
     for lanes in range(2, 7):
         assert s2.t_up_for(lanes, 1.0) == round(2.0 / lanes, 2)  # near capacity: lanes x 1,800 veh/h
@@ -195,6 +251,9 @@ def run_main(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, 
         (["--seeds", "0"], "seeds"),
         (["--steps", "-5"], "steps"),
         (["--address", "auto"], "--address"),
+        (["--policies", "dqn,ppo"], "policies"),
+        (["--policies", "mobil", "--mobil-p", "0,-1"], "mobil-p"),
+        (["--mobil-p", "0.5"], "--mobil-p"),
     ],
 )
 def test_bad_input_one_line_exit_2(argv: list[str], words: str, tmp_path: Path,
@@ -260,6 +319,38 @@ def test_tiny_sweep_local(local_sweep: Path) -> None:
     result = run_sweep_cli(local_sweep, "--workers", "2")
     assert "8 already done" in result.stderr and "0 to run" in result.stderr
     assert before == {p.name: p.stat().st_mtime_ns for p in (local_sweep / "cells").iterdir()}
+
+
+@pytest.mark.sumo
+def test_tiny_sweep_with_mobil(local_sweep: Path, tmp_path: Path) -> None:
+    """--policies dqn,mobil on the finished DQN cells: only the 8 MOBIL cells run; p* beside alpha* in the report."""
+    out = tmp_path / "mobil"
+    shutil.copytree(local_sweep / "cells", out / "cells")
+    result = run_sweep_cli(out, "--workers", "2", "--policies", "dqn,mobil")
+    assert "16 cells, 8 already done" in result.stderr and "8 to run" in result.stderr
+    runs = pd.read_csv(out / "runs.csv")
+    assert (runs["status"] == "ok").all(), runs["error"].tolist()
+    assert runs["policy"].value_counts().to_dict() == {"dqn": 8, "mobil": 8}
+    dqn, mobil = runs[runs["policy"] == "dqn"], runs[runs["policy"] == "mobil"]
+    assert dqn["p"].isna().all() and mobil["alpha"].isna().all() and set(mobil["p"]) == {0.0, 1.0}
+    assert mobil["mean_speed_mps"].between(1, 35).all() and (mobil["collisions"] == 0).all()
+    local = pd.read_csv(local_sweep / "runs.csv")
+    pd.testing.assert_frame_equal(dqn[COMPARED].reset_index(drop=True), local[COMPARED], check_dtype=False)
+    assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
+    # a MOBIL cell runs the DQN cell's evaluation world: same condition, seed and steps
+    cell = json.loads((out / "cells" / "L2_T4_mobil_p1_s2.json").read_text())
+    dqn_sim = json.loads((out / "cells" / "L2_T4_a0_s2.json").read_text())["config"]["sim"]
+    for k in ("road", "demand", "control", "accident", "seed", "time_to_teleport_s"):
+        assert cell["config"][k] == dqn_sim[k], k
+    assert cell["config"]["steps"] == s2.PROFILES["tiny"].eval_steps and cell["config"]["policy"] == "mobil:p=1.0"
+    assert (out / "mobil" / "L2_T4_mobil_p1_s2" / "summary.json").is_file()
+    table = pd.read_csv(out / "mobil_p_star.csv")
+    assert len(table) == 2 and table["p_star"].isin([0.0, 1.0]).all()
+    assert {"win_share", "speed_mps_p0", "speed_mps_p1"} <= set(table)
+    report = (out / "report.md").read_text()
+    assert "## alpha* beside the best MOBIL politeness" in report and "| v(α*) − v(p*) (m/s) |" in report
+    assert "beats the best MOBIL politeness (p*) on" in report and "of 2 conditions" in report
+    assert "MOBIL p* =" in result.stdout
 
 
 @pytest.mark.sumo
