@@ -37,7 +37,7 @@ scenario1: $(STAMP)
 	$(BIN)/python -m coopsumo.scenario1 $(if $(QUICK),--quick) $(if $(SEEDS),--seeds $(SEEDS))
 
 scenario2: $(STAMP)
-	$(BIN)/python -m coopsumo.scenario2 --profile quick
+	$(BIN)/python -m coopsumo.scenario2 --profile quick --policies dqn,mobil
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache
