@@ -157,6 +157,10 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
+        import importlib.util
+
+        if importlib.util.find_spec("stable_baselines3") is None:
+            raise UsageError("stable-baselines3 is not installed; install it with: pip install .[sb3]")
         tmp = start_run_dir(args.out) if args.out is not None else None
         try:
             summary = train(args, tmp)
