@@ -10,6 +10,8 @@ import platform
 import shutil
 import sys
 import tempfile
+import threading
+import time
 from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -94,6 +96,18 @@ class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: error: {message}", file=sys.stderr)
         raise SystemExit(USAGE_EXIT)
+
+
+def _watch_parent(parent_pid: int) -> None:
+    while True:
+        time.sleep(1.0)
+        if os.getppid() != parent_pid:
+            os._exit(3)
+
+
+def start_parent_watch(parent_pid: int) -> None:
+    """In a pool worker: exit when the main process `parent_pid` is gone (no orphan keeps working)."""
+    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
 
 
 def run_cli(prog: str, body: Callable[[], int]) -> int:

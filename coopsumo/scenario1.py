@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 import multiprocessing as mp
+import os
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -24,7 +25,7 @@ import pandas as pd
 from tqdm import tqdm
 
 from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig, to_dict
-from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.runio import Parser, UsageError, run_cli, start_parent_watch, versions, write_json
 
 ALPHAS = (0.0, 8.0)
 BASELINES = ("keep", "greedy", "mobil:p=0.5", "sumo")
@@ -86,9 +87,10 @@ def accident_config(plan: Plan, policy: str, seed: int) -> SimConfig:
 _WORKER_COUNTER: Any = None  # shared step counter of the pool, set by _init_worker
 
 
-def _init_worker(counter: Any) -> None:
+def _init_worker(counter: Any, parent_pid: int) -> None:
     global _WORKER_COUNTER
     _WORKER_COUNTER = counter
+    start_parent_watch(parent_pid)
 
 
 def _bump(n: int) -> None:
@@ -147,7 +149,7 @@ def run_parallel(jobs: Sequence[tuple[Callable[..., str], tuple[Any, ...], int]]
     counter = ctx.Value("q", 0)
     total = sum(steps for _, _, steps in jobs)
     with ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker,
-                             initargs=(counter,)) as pool:  # fmt: skip
+                             initargs=(counter, os.getpid())) as pool:  # fmt: skip
         futures: list[Future[str]] = [pool.submit(fn, *args) for fn, args, _ in jobs]
         with tqdm(total=total, desc=desc, unit="step", file=sys.stderr, mininterval=1.0) as bar:
             while not all(f.done() for f in futures):

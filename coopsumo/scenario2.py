@@ -32,7 +32,6 @@ import multiprocessing as mp
 import os
 import signal
 import sys
-import threading
 import time
 import traceback
 from collections import Counter, deque
@@ -61,7 +60,7 @@ from coopsumo.config import (
     TrainConfig,
     to_dict,
 )
-from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.runio import Parser, UsageError, run_cli, start_parent_watch, versions, write_json
 
 PAPER_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0)
 """eq. (12) of the paper"""
@@ -313,16 +312,8 @@ def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
 
 
 # -- backends ---------------------------------------------------------------------------------------
-def _watch_parent(parent_pid: int) -> None:
-    """Exit this worker when the sweep's main process is gone (no orphan keeps training)."""
-    while True:
-        time.sleep(1.0)
-        if os.getppid() != parent_pid:
-            os._exit(3)
-
-
 def _init_worker(parent_pid: int) -> None:
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
+    start_parent_watch(parent_pid)
 
 
 class LocalBackend:
