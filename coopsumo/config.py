@@ -7,7 +7,6 @@ the project's own choices are listed in the README's "Deviations and choices" ta
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -231,10 +230,6 @@ def train_config_from_dict(d: dict[str, Any]) -> TrainConfig:
 def to_dict(cfg: Any) -> dict[str, Any]:
     """A JSON-ready dict of a config dataclass."""
     return dataclasses.asdict(cfg)
-
-
-def to_json(cfg: Any) -> str:
-    return json.dumps(to_dict(cfg), indent=2, sort_keys=True)
 
 
 def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:

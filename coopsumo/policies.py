@@ -110,9 +110,6 @@ class SumoPolicy:
         return np.full(len(obs), SPEEDUP, dtype=np.int64)  # ignored: SUMO decides
 
 
-BASIC_POLICIES = ("keep", "random", "greedy")
-
-
 def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | None = None) -> Policy:
     """Build a policy from its command-line spec: keep, random, greedy, dqn:PATH, mobil[:p=P,...], sumo.
 

@@ -24,7 +24,16 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
-from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.config import (
+    AccidentConfig,
+    ControlConfig,
+    DemandConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
 from coopsumo.runio import Parser, UsageError, run_cli, start_parent_watch, versions, write_json
 
 ALPHAS = (0.0, 8.0)
@@ -59,8 +68,6 @@ class Plan:
 
 def train_config(plan: Plan, alpha: float) -> TrainConfig:
     """The free-flow training of one model."""
-    from coopsumo.config import RewardConfig
-
     sim = SimConfig(
         road=RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s),
         demand=DemandConfig(t_up_s=plan.t_up_s),
@@ -287,7 +294,7 @@ def deviations_table() -> str:
 def write_report(root: Path, plan: Plan, agg: pd.DataFrame, wall_s: float, figures: dict[str, str]) -> None:
     coop, noncoop = "dqn_alpha8", "dqn_alpha0"
     acc = accident_config(plan, "keep", plan.seeds[0]).accident
-    dt = 0.1
+    dt = ControlConfig().dt_s
     text = f"""# Scenario I: accident bottleneck
 
 {plan.lanes} lanes, T_up = {plan.t_up_s:g} s ({3600 / plan.t_up_s:.0f} veh/h), {plan.steps} steps \
@@ -413,7 +420,8 @@ def run_study(plan: Plan, root: Path, workers: int = 2) -> int:
     agg.to_csv(root / "summary.csv", index=False)
     first = plan.seeds[0]
     acc = runs[0][3].accident
-    window = (acc.start_step * 0.1, (acc.start_step + acc.duration_steps) * 0.1)
+    dt = runs[0][3].control.dt_s
+    window = (acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt)
     trajs = {lab: pd.read_parquet(out / "trajectories.parquet") for lab, seed, out, _ in runs
              if seed == first and lab in ("dqn_alpha0", "dqn_alpha8")}  # fmt: skip
     time_space_figure(trajs, FIG4_LANE, root / "fig4_time_space.png", window, acc.x_m,

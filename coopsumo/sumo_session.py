@@ -23,16 +23,6 @@ def _libsumo():  # type: ignore[no-untyped-def]
     return libsumo
 
 
-def sumo_version() -> str:
-    """SUMO's version string (from the installed wheel, without starting SUMO)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("eclipse-sumo")
-    except PackageNotFoundError:
-        return "unknown"
-
-
 @dataclass(frozen=True)
 class VehicleTable:
     """All vehicles on the road after a step; arrays share one order."""
@@ -193,7 +183,3 @@ class SumoSession:
         change = self.ls.vehicle.changeLane
         for num, lane in zip(nums.tolist(), target_lanes.tolist(), strict=True):
             change(str(num), lane, self.cfg.control.dt_s)
-
-    def pending(self) -> int:
-        """Vehicles waiting to be inserted."""
-        return len(self.ls.simulation.getPendingVehicles())

@@ -235,11 +235,17 @@ class World:
         self.session.release_speeds(released)
         self.veh.commanded[obs.nums] = held
         events = self._advance()
-        on_road = self.table.nums
-        present = np.clip(np.searchsorted(on_road, obs.nums), 0, max(len(on_road) - 1, 0))
-        still = (on_road[present] == obs.nums) if len(on_road) else np.zeros(n, bool)
-        changed = still & (self.table.lane[present] != obs.lane)
+        row, still = self._rows_now(obs.nums)
+        changed = still & (self.table.lane[row] != obs.lane)
         return self._outcome(obs, actions, events, obs.speed.copy(), changed, np.zeros(n, bool))
+
+    def _rows_now(self, nums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Rows of `nums` in the current table, and whether each is still on the road."""
+        on_road = self.table.nums
+        if len(on_road) == 0:
+            return np.zeros(len(nums), np.int64), np.zeros(len(nums), bool)
+        row = np.clip(np.searchsorted(on_road, nums), 0, len(on_road) - 1)
+        return row, on_road[row] == nums
 
     def _outcome(
         self,
@@ -252,17 +258,15 @@ class World:
     ) -> StepOutcome:
         """Count lane changes and build the rewards of the observed vehicles after the step."""
         c = self.cfg.control
-        n = len(obs)
         self.totals.lane_changes += int(ok.sum())
         self.totals.lane_changes_rejected += int(rejected.sum())
         q_t = flow_term(sum(self._loop_counts), len(self._loop_counts) * c.dt_s, self._n_sections,
                         self.cfg.road.lanes, self.cfg.reward)  # fmt: skip
         arrived = np.isin(obs.nums, events.arrived)
         new_speed = speeds.copy()
-        on_road = self.table.nums
-        present = np.clip(np.searchsorted(on_road, obs.nums), 0, max(len(on_road) - 1, 0))
-        still = ~arrived & (on_road[present] == obs.nums) if len(on_road) else np.zeros(n, bool)
-        new_speed[still] = self.table.speed[present[still]]
+        row, still = self._rows_now(obs.nums)
+        still &= ~arrived
+        new_speed[still] = self.table.speed[row[still]]
         reward = reward_parts(new_speed, obs.v_exp, ok, q_t, self.cfg.reward)
         return StepOutcome(obs.nums, actions, ok, rejected, arrived, reward, q_t)
 
