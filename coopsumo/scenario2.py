@@ -332,8 +332,19 @@ class LocalBackend:
         return ProcessPoolExecutor(max_workers=self.slots, mp_context=self._ctx, initializer=_init_worker,
                                    initargs=(os.getpid(),))  # fmt: skip
 
+    def _renew(self) -> None:
+        """Replace a broken pool (a worker died) by a fresh one; its other futures fail as BrokenProcessPool."""
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._generation += 1
+        self._pool = self._new_pool()
+
     def submit(self, spec: dict[str, Any], root: Path) -> Any:
-        return (self._generation, self._pool.submit(self._cell_fn, spec, str(root)))
+        try:
+            future = self._pool.submit(self._cell_fn, spec, str(root))
+        except BrokenProcessPool:  # the pool broke before wait() saw the dead worker's future
+            self._renew()
+            future = self._pool.submit(self._cell_fn, spec, str(root))
+        return (self._generation, future)
 
     def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
         """Finished handles with their record, or the exception that stopped their worker."""
@@ -344,9 +355,7 @@ class LocalBackend:
             err = fut.exception()
             results.append((futures[fut], err if err is not None else fut.result()))
             if isinstance(err, BrokenProcessPool) and futures[fut][0] == self._generation:
-                self._pool.shutdown(wait=False, cancel_futures=True)
-                self._generation += 1
-                self._pool = self._new_pool()
+                self._renew()
         return results
 
     def abort(self) -> None:
@@ -451,22 +460,31 @@ def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend |
     """
     (root / "cells").mkdir(parents=True, exist_ok=True)
     todo = deque(specs)
+    # A dead worker breaks the whole pool, so every cell in flight sees BrokenProcessPool; such cells
+    # are rerun alone ("solo"), where a crash can only be their own, before one is recorded as failed.
+    solo: deque[dict[str, Any]] = deque()
+    solo_running = False
     inflight: dict[Any, dict[str, Any]] = {}
     crashes: Counter[str] = Counter()
     counts = {"ok": 0, "failed": 0}
     bar = tqdm(total=total, initial=done_before, desc="scenario2 cells", unit="cell", file=sys.stderr,
                disable=not progress, mininterval=1.0, smoothing=0.1)  # fmt: skip
     try:
-        while todo or inflight:
-            while todo and len(inflight) < backend.slots:
+        while todo or solo or inflight:
+            if solo and not inflight:
+                spec = solo.popleft()
+                inflight[backend.submit(spec, root)] = spec
+                solo_running = True
+            while todo and not solo and not solo_running and len(inflight) < backend.slots:
                 spec = todo.popleft()
                 inflight[backend.submit(spec, root)] = spec
             for handle, outcome in backend.wait(list(inflight), timeout=1.0):
                 spec = inflight.pop(handle)
+                was_solo, solo_running = solo_running, solo_running and bool(inflight)
                 if isinstance(outcome, BrokenProcessPool):
                     crashes[spec["key"]] += 1
-                    if crashes[spec["key"]] < MAX_CRASHES:
-                        todo.appendleft(spec)
+                    if not (was_solo and crashes[spec["key"]] >= MAX_CRASHES):
+                        solo.append(spec)
                         continue
                     record = failed_record(spec, f"worker process died {MAX_CRASHES} times (BrokenProcessPool)")
                 elif isinstance(outcome, BaseException):
