@@ -77,6 +77,8 @@ def newell_accel(
 class MobilPolicy:
     """MOBIL on the Newell controller; see the module docstring for definitions and defaults."""
 
+    needs_grids = False
+
     def __init__(
         self,
         p: float = DEFAULT_P,

@@ -105,6 +105,45 @@ def neighbours(
     )
 
 
+def overlaps(occ: Occupancy, car_length_m: float) -> np.ndarray:
+    """(k, 2) row indices (follower, leader) of neighbours in one lane whose bodies overlap (a collision).
+
+    Overlap: the leader's front is less than one car length ahead of the follower's front (gap < 0,
+    the criterion of SUMO's collision check with a zero minimum gap). Neighbours in the sorted
+    occupancy suffice: any overlapping pair has an overlapping pair of neighbours between them.
+    """
+    same_lane = occ.lane[1:] == occ.lane[:-1]
+    close = occ.pos[1:] - occ.pos[:-1] < car_length_m - 1e-6
+    distinct = occ.veh[1:] != occ.veh[:-1]
+    i = np.flatnonzero(same_lane & close & distinct)
+    return np.stack([occ.veh[i], occ.veh[i + 1]], axis=1)
+
+
+def body_lanes(
+    lane: np.ndarray,
+    lc_from: np.ndarray,
+    lc_to: np.ndarray,
+    lc_left_s: np.ndarray,
+    t_change_s: float,
+    lane_width_m: float,
+    vehicle_width_m: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The lanes a vehicle's body physically touches: (first, second), second -1 when only one.
+
+    A lane changer moves sideways at constant speed over t_change_s; its body (vehicle_width_m wide)
+    leaves the origin lane once it has moved (lane_width + width) / 2 and enters the target lane
+    after (lane_width - width) / 2. Others are in `lane` only. (The controller is stricter: it
+    counts a changer in both lanes for the whole change.)
+    """
+    busy = lc_left_s > 0
+    moved = (1.0 - lc_left_s / t_change_s) * lane_width_m  # sideways from the origin lane's centre (m)
+    on_from = moved < (lane_width_m + vehicle_width_m) / 2
+    on_to = moved > (lane_width_m - vehicle_width_m) / 2
+    first = np.where(busy, np.where(on_from, lc_from, lc_to), lane)
+    second = np.where(busy & on_from & on_to, lc_to, -1)
+    return first, second
+
+
 def side_lanes(lane: np.ndarray) -> np.ndarray:
     """(n, 3) lanes to the left, own and to the right of each vehicle (may be off the road)."""
     return lane[:, None] + SIDE_OFFSETS[None, :]

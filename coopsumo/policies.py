@@ -22,6 +22,7 @@ class PolicySpecError(UsageError):
 
 class Policy(Protocol):
     name: str
+    needs_grids: bool  # False: the world may skip building occupancy grids (obs.grids are zeros)
 
     def act(self, obs: Observation) -> np.ndarray:
         """One action (int64) per vehicle of the batch."""
@@ -32,6 +33,7 @@ class KeepPolicy:
     """Never changes lane; always asks to speed up (the controller caps it)."""
 
     name = "keep"
+    needs_grids = False
 
     def act(self, obs: Observation) -> np.ndarray:
         return np.full(len(obs), SPEEDUP, dtype=np.int64)
@@ -41,6 +43,7 @@ class RandomPolicy:
     """Uniformly random actions; the safety layer must still keep everyone apart."""
 
     name = "random"
+    needs_grids = False
 
     def __init__(self, rng: np.random.Generator):
         self.rng = rng
@@ -57,6 +60,7 @@ class GreedyPolicy:
     """
 
     name = "greedy"
+    needs_grids = False
 
     def __init__(self, look_m: float = 60.0, margin_m: float = 20.0, slack_mps: float = 1.0):
         self.look_m = look_m
@@ -86,6 +90,7 @@ class SumoPolicy:
     """
 
     name = "sumo"
+    needs_grids = False
     LC_KEYS = ("lcCooperative", "lcSpeedGain", "lcStrategic", "lcKeepRight", "lcAssertive")
 
     def __init__(self, lc_params: dict[str, float] | None = None):

@@ -43,6 +43,8 @@ def build_parser() -> Parser:
     p.add_argument("--trajectories", action="store_true", help="also write every vehicle's trajectory")
     p.add_argument("--accident-start", type=int, default=AccidentConfig.start_step, help="first accident step")
     p.add_argument("--accident-steps", type=int, default=AccidentConfig.duration_steps, help="accident length (steps)")
+    p.add_argument("--sumo-collision-check", action="store_true",
+                   help="also count collisions with SUMO's own check (slower in jams)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -57,6 +59,7 @@ def config_from_args(args: Any) -> SimConfig:
         steps=args.steps,
         seed=args.seed,
         policy=args.policy,
+        sumo_collision_check=args.sumo_collision_check,
     )
     cfg.validate()
     return cfg
@@ -86,7 +89,7 @@ def run(
     )
     start = time.perf_counter()
     record_every = trajectory_every if trajectories else 0
-    with World(cfg, run_dir, record_trajectories_every=record_every) as world:
+    with World(cfg, run_dir, record_trajectories_every=record_every, observe_grids=policy.needs_grids) as world:
         bar = tqdm(total=cfg.steps, desc=label, unit="step", disable=not progress, mininterval=0.5, file=sys.stderr)
         for _ in range(cfg.steps):
             obs = world.observe()

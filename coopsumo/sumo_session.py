@@ -39,7 +39,7 @@ class StepEvents:
 
     departed: np.ndarray  # vehicle numbers inserted this step
     arrived: np.ndarray  # vehicle numbers that left the road this step
-    collisions: int  # new collisions SUMO detected this step
+    collisions: int  # new collisions SUMO detected this step (0 unless cfg.sumo_collision_check)
     teleports: int  # vehicles SUMO started teleporting this step
 
 
@@ -74,7 +74,7 @@ class SumoSession:
             "--additional-files", str(detectors),
             "--step-length", f"{cfg.control.dt_s:g}",
             "--lanechange.duration", f"{cfg.control.t_change_s:g}",
-            "--collision.action", "warn",
+            "--collision.action", "warn" if cfg.sumo_collision_check else "none",
             "--collision.mingap-factor", "0",
             "--time-to-teleport", f"{cfg.time_to_teleport_s:g}",
             "--seed", str(cfg.seed),

@@ -15,7 +15,7 @@ import numpy as np
 
 from coopsumo import physics
 from coopsumo.config import SimConfig
-from coopsumo.observation import FrameHistory, Observation, snapshot
+from coopsumo.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
 from coopsumo.policies import SumoPolicy
 from coopsumo.reward import RewardParts, flow_term, reward_parts, section_crossings
 from coopsumo.sumo_session import StepEvents, SumoSession, VehicleTable
@@ -46,6 +46,7 @@ class Totals:
     arrived: int = 0
     insertion_blocked: int = 0
     collisions: int = 0
+    sumo_collisions: int = 0
     teleports: int = 0
     lane_changes: int = 0
     lane_changes_rejected: int = 0
@@ -66,14 +67,16 @@ class _Growable:
         self.lc_to = np.full(capacity, -1, np.int64)
         self.hold = np.zeros(capacity, np.int8)
         self.commanded = np.zeros(capacity, bool)  # sumo mode: speed commanded by the accident
+        self.set_speed = np.full(capacity, np.nan)  # the speed last sent to SUMO (m/s), which SUMO keeps
 
     def ensure(self, n: int) -> None:
         cap = len(self.v_exp)
         if n <= cap:
             return
         new = max(n, 2 * cap)
-        for name, fill in (("v_exp", 0.0), ("depart_s", np.nan), ("scheduled_s", np.nan), ("lc_left_s", 0.0),
-                           ("lc_from", -1), ("lc_to", -1), ("hold", 0), ("commanded", False)):  # fmt: skip
+        fills = (("v_exp", 0.0), ("depart_s", np.nan), ("scheduled_s", np.nan), ("lc_left_s", 0.0), ("lc_from", -1),
+                 ("lc_to", -1), ("hold", 0), ("commanded", False), ("set_speed", np.nan))  # fmt: skip
+        for name, fill in fills:
             old = getattr(self, name)
             setattr(self, name, np.concatenate([old, np.full(new - cap, fill, old.dtype)]))
 
@@ -81,7 +84,9 @@ class _Growable:
 class World:
     """A running simulation. Use as a context manager; call observe() then apply(actions) each step."""
 
-    def __init__(self, cfg: SimConfig, run_dir: Path, record_trajectories_every: int = 0):
+    def __init__(self, cfg: SimConfig, run_dir: Path, record_trajectories_every: int = 0, observe_grids: bool = True):
+        """observe_grids=False skips the occupancy grids (obs.grids and obs.speed_err are then zeros),
+        for policies that do not read them; it saves about a sixth of a step."""
         cfg.validate()
         self.cfg = cfg
         self.run_dir = run_dir
@@ -103,6 +108,8 @@ class World:
         self._sections_m = np.array(cfg.road.loop_positions_m())
         self._n_sections = len(self._sections_m)
         self._obs: Observation | None = None
+        self._overlapping: set[tuple[int, int]] = set()  # (follower, leader) pairs already counted
+        self.observe_grids = observe_grids
         self.record_every = record_trajectories_every  # 0: no trajectories
         self._traj: list[tuple[np.ndarray, ...]] = []
 
@@ -166,8 +173,12 @@ class World:
         around = physics.neighbours(
             occ, t.pos, t.speed, physics.side_lanes(t.lane), c.road.lanes, c.control.car_length_m
         )
-        grid = snapshot(occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
-        grids, speed_err = self.history.push(t.nums, grid, (t.speed - v_exp).astype(np.float32))
+        if self.observe_grids:
+            grid = snapshot(occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
+            grids, speed_err = self.history.push(t.nums, grid, (t.speed - v_exp).astype(np.float32))
+        else:
+            grids = np.zeros((len(t.nums), N_FRAMES, N_SIDES, N_CELLS), np.uint8)
+            speed_err = np.zeros((len(t.nums), N_FRAMES), np.float32)
         self._obs = Observation(
             nums=t.nums, grids=grids, speed_err=speed_err, lane=t.lane, pos=t.pos, speed=t.speed,
             v_exp=v_exp, busy=other >= 0, around=around, n_lanes=c.road.lanes,
@@ -217,7 +228,10 @@ class World:
         gap, v_lead = self._accident_obstacle(obs, gap, v_lead)
         speeds = physics.next_speed(obs.speed, obs.v_exp, actions == physics.SPEEDUP, gap, v_lead, c)
 
-        self.session.set_speeds(obs.nums, speeds)
+        # SUMO keeps a set speed until told otherwise, so only changed speeds are sent
+        changed = speeds != self.veh.set_speed[obs.nums]
+        self.session.set_speeds(obs.nums[changed], speeds[changed])
+        self.veh.set_speed[obs.nums[changed]] = speeds[changed]
         self.session.change_lanes(movers, target[ok])
         events = self._advance()
 
@@ -317,7 +331,8 @@ class World:
         tot.insertion_blocked += int(np.sum(late >= dt - 1e-6))
         tot.arrived += len(events.arrived)
         tot.travel_time_sum_s += float(np.sum(self.time_s - self.veh.depart_s[events.arrived]))
-        tot.collisions += events.collisions
+        tot.collisions += self._count_collisions()
+        tot.sumo_collisions += events.collisions
         tot.teleports += events.teleports
         tot.distance_m += float(t.speed.sum()) * dt
         tot.vehicle_time_s += len(t.nums) * dt
@@ -328,6 +343,21 @@ class World:
                                t.speed.astype(np.float32)))  # fmt: skip
         self._insert_due()
         return events
+
+    def _count_collisions(self) -> int:
+        """New pairs of vehicles whose bodies overlap after the step (physics.body_lanes for lane changers)."""
+        t = self.table
+        c = self.cfg.control
+        v = self.veh
+        first, second = physics.body_lanes(t.lane, v.lc_from[t.nums], v.lc_to[t.nums], v.lc_left_s[t.nums],
+                                           c.t_change_s, self.cfg.road.lane_width_m, c.vehicle_width_m)  # fmt: skip
+        rows = physics.overlaps(physics.occupancy(first, t.pos, second), c.car_length_m)
+        if len(rows) == 0:
+            return 0
+        pairs = set(zip(t.nums[rows[:, 0]].tolist(), t.nums[rows[:, 1]].tolist(), strict=True))
+        new = pairs - self._overlapping
+        self._overlapping |= new
+        return len(new)
 
     # -- results ---------------------------------------------------------------------------
     def summary(self) -> dict[str, float | int]:
@@ -346,6 +376,7 @@ class World:
             "insertion_blocked": tot.insertion_blocked + pending,
             "insertion_pending_at_end": pending,
             "collisions": tot.collisions,
+            "sumo_collisions": tot.sumo_collisions if self.cfg.sumo_collision_check else -1,
             "teleports": tot.teleports,
             "lane_changes": tot.lane_changes,
             "lane_changes_rejected": tot.lane_changes_rejected,

@@ -249,8 +249,31 @@ def test_mobil_near_capacity_in_sumo(tmp_path: Path, lanes: int, p: float) -> No
         steps=steps,
         seed=1,
         policy=f"mobil:p={p:g}",
+        sumo_collision_check=True,
     )
     summary = run(cfg, MobilPolicy.from_spec(cfg.policy, cfg.control), tmp_path, progress=False)
-    assert summary["collisions"] == 0
+    assert summary["collisions"] == 0 and summary["sumo_collisions"] == 0
     assert summary["teleports"] == 0
     assert summary["lane_changes"] > 10
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("lanes", [2, 5])
+def test_sumo_models_near_capacity_in_sumo(tmp_path: Path, lanes: int) -> None:
+    """The `sumo` baseline (Krauss + LC2013, no Newell controller) is safe too, by both collision counts."""
+    from coopsumo.policies import make_policy
+    from coopsumo.simulate import run
+
+    cfg = SimConfig(
+        road=RoadConfig(lanes=lanes),
+        demand=DemandConfig(t_up_s=3600.0 / (lanes * 1800.0)),
+        steps=3000 if lanes == 2 else 2000,
+        seed=1,
+        policy="sumo:lcCooperative=0.5",
+        sumo_collision_check=True,
+    )
+    summary = run(cfg, make_policy(cfg.policy, np.random.default_rng(0)), tmp_path, progress=False)
+    assert summary["collisions"] == 0 and summary["sumo_collisions"] == 0
+    assert summary["teleports"] == 0
+    assert summary["lane_changes"] > 10
+    assert summary["arrived"] > 0

@@ -254,3 +254,33 @@ def test_resolve_conflicts_measures_against_the_last_kept_car_and_ignores_refuse
     accepted = np.array([True, True, True, False])
     keep = physics.resolve_conflicts(target, pos, v, accepted, ctrl)
     assert keep.tolist() == [True, False, True, False]
+
+
+# -- the collision counter: overlapping bodies -------------------------------------------------
+
+
+def test_overlaps_finds_exactly_the_pairs_closer_than_one_car_length() -> None:
+    # lane 0: fronts at 10, 13.9 (overlap: 3.9 < 4), 30, 34 (touching, gap 0: not a collision)
+    # lane 1: fronts at 50 and 52 (rows 4 and 5, overlap)
+    lane = np.array([0, 0, 0, 0, 1, 1])
+    pos = arr(10.0, 13.9, 30.0, 34.0, 50.0, 52.0)
+    occ = physics.occupancy(lane, pos, np.full(6, -1))
+    pairs = physics.overlaps(occ, 4.0)
+    assert sorted(map(tuple, pairs.tolist())) == [(0, 1), (4, 5)]
+
+
+def test_overlaps_sees_a_vehicle_in_its_second_lane_and_never_pairs_it_with_itself() -> None:
+    # row 0 changes from lane 0 to 1 at 20 m; row 1 is in lane 1 at 22 m; row 0 alone in lane 0
+    occ = physics.occupancy(np.array([0, 1]), arr(20.0, 22.0), np.array([1, -1]))
+    assert physics.overlaps(occ, 4.0).tolist() == [[0, 1]]
+    alone = physics.occupancy(np.array([0]), arr(20.0), np.array([1]))
+    assert physics.overlaps(alone, 4.0).shape == (0, 2)
+
+
+def test_body_lanes_follow_the_sideways_move_of_a_lane_change() -> None:
+    # W 3.2, width 1.8, 4 s: the body enters the target lane after 0.7 m (0.875 s) and leaves the
+    # origin lane after 2.5 m (3.125 s); the last vehicle is not changing lane.
+    lc_left = arr(3.9, 3.0, 2.0, 0.8, 0.0)
+    first, second = physics.body_lanes(np.array([0, 0, 1, 1, 2]), np.full(5, 0), np.full(5, 1), lc_left, 4.0, 3.2, 1.8)
+    assert first.tolist() == [0, 0, 0, 1, 2]
+    assert second.tolist() == [-1, 1, 1, -1, -1]

@@ -60,23 +60,18 @@ class Recording:
 @pytest.fixture(scope="module")
 def random_run(tmp_path_factory: pytest.TempPathFactory, make_sim_config: SimConfigOf) -> Recording:
     base = make_sim_config(lanes=3, t_up_s=capacity_t_up(3), steps=2400, seed=11, policy="random")
-    cfg = dataclasses.replace(base, reward=RewardConfig(alpha=2.0))
+    cfg = dataclasses.replace(base, reward=RewardConfig(alpha=2.0), sumo_collision_check=True)
     run_dir = tmp_path_factory.mktemp("random_run")
     policy = make_policy("random", np.random.default_rng([cfg.seed, 3]))
     rec = Recording(cfg, run_dir, {}, pd.DataFrame())
     with World(cfg, run_dir, record_trajectories_every=1) as world:
-        set_speeds = world.session.set_speeds
-
-        def recording_set_speeds(nums: np.ndarray, speeds: np.ndarray) -> None:
-            rec.commanded.append((nums.copy(), speeds.copy()))
-            set_speeds(nums, speeds)
-
-        world.session.set_speeds = recording_set_speeds  # type: ignore[method-assign]
         ls = world.session.ls
         for _ in range(cfg.steps):
             obs = world.observe()
             rec.obs.append({"nums": obs.nums, "lane": obs.lane, "pos": obs.pos, "speed": obs.speed, "busy": obs.busy})
             rec.out.append(world.apply(policy.act(obs)))
+            # the speed last sent to SUMO, which SUMO keeps (only changed speeds are sent)
+            rec.commanded.append((obs.nums, world.veh.set_speed[obs.nums].copy()))
             t = world.table
             rec.tables.append({"nums": t.nums, "lane": t.lane, "pos": t.pos, "speed": t.speed,
                                "other": world._other_lane(t.nums, t.lane),
@@ -96,7 +91,7 @@ def random_run(tmp_path_factory: pytest.TempPathFactory, make_sim_config: SimCon
 
 def test_random_near_capacity_has_lane_changes_and_no_collision_or_teleport(random_run: Recording) -> None:
     s = random_run.summary
-    assert s["collisions"] == 0 and s["teleports"] == 0
+    assert s["collisions"] == 0 and s["sumo_collisions"] == 0 and s["teleports"] == 0
     assert s["lane_changes"] > 100
     assert s["steps"] == 2400 and s["sim_seconds"] == pytest.approx(240.0)
 
@@ -108,7 +103,8 @@ def test_every_vehicle_on_the_road_is_controlled_and_in_the_table(random_run: Re
 
 
 def test_sumo_moves_vehicles_exactly_at_the_commanded_speed(random_run: Recording) -> None:
-    """Speed mode 0: the speed SUMO reports after a step is the controller's, and pos grows by v * dt."""
+    """Speed mode 0: the speed SUMO reports after a step is the controller's, and pos grows by v * dt,
+    also for vehicles whose unchanged speed was not sent again."""
     checked = 0
     for (nums, cmd), before, after in zip(random_run.commanded, random_run.obs, random_run.tables, strict=True):
         np.testing.assert_array_equal(nums, before["nums"])
@@ -404,9 +400,10 @@ def capacity_sweep(
     jobs: dict[str, list[str]] = {}
     for lanes in (2, 3, 4, 5, 6):
         jobs[f"random{lanes}"] = ["--lanes", str(lanes), "--t-up", f"{capacity_t_up(lanes):.6f}",
-                                  "--policy", "random", "--steps", "2500", "--seed", str(lanes)]  # fmt: skip
+                                  "--policy", "random", "--steps", "2500", "--seed", str(lanes),
+                                  "--sumo-collision-check"]  # fmt: skip
     jobs["greedy3"] = ["--lanes", "3", "--t-up", f"{capacity_t_up(3):.6f}", "--policy", "greedy",
-                       "--steps", "2500", "--seed", "1"]  # fmt: skip
+                       "--steps", "2500", "--seed", "1", "--sumo-collision-check"]  # fmt: skip
     names = list(jobs)
     results = parallel_cli([[*jobs[n], "--out", str(base / n), "--quiet"] for n in names], 2)
     summaries = {}
@@ -419,7 +416,7 @@ def capacity_sweep(
 @pytest.mark.parametrize("lanes", [2, 3, 4, 5, 6])
 def test_random_near_capacity_on_every_lane_count(capacity_sweep: dict[str, dict[str, Any]], lanes: int) -> None:
     s = capacity_sweep[f"random{lanes}"]
-    assert s["collisions"] == 0
+    assert s["collisions"] == 0 and s["sumo_collisions"] == 0
     assert s["teleports"] == 0
     assert s["lane_changes"] > 0
     assert s["departed"] > 0 and s["arrived"] > 0
@@ -427,11 +424,39 @@ def test_random_near_capacity_on_every_lane_count(capacity_sweep: dict[str, dict
 
 def test_greedy_near_capacity(capacity_sweep: dict[str, dict[str, Any]]) -> None:
     s = capacity_sweep["greedy3"]
-    assert s["collisions"] == 0 and s["teleports"] == 0
+    assert s["collisions"] == 0 and s["sumo_collisions"] == 0 and s["teleports"] == 0
     assert s["lane_changes"] > 0
     # greedy changes lanes far less often than random, and moves more traffic
     assert s["lane_changes"] < capacity_sweep["random3"]["lane_changes"] / 3
     assert s["arrived"] > capacity_sweep["random3"]["arrived"]
+
+
+def test_a_forced_crash_is_counted_by_the_world_and_by_sumo_in_the_same_step(
+    tmp_path: Path, make_sim_config: SimConfigOf
+) -> None:
+    """Bypass the controller: vehicles beyond 300 m stand, the rest drive at 30 m/s into them."""
+    cfg = dataclasses.replace(make_sim_config(lanes=2, t_up_s=1.0, seed=3), sumo_collision_check=True)
+    policy = make_policy("random", np.random.default_rng(0))
+    first: dict[str, int] = {}
+    with World(cfg, tmp_path) as world:
+        for _ in range(600):
+            world.apply(policy.act(world.observe()))
+        assert world.totals.collisions == world.totals.sumo_collisions == 0
+        send = world.session.set_speeds
+
+        def forced(nums: np.ndarray, speeds: np.ndarray) -> None:
+            t = world.table
+            send(t.nums, np.where(t.pos > 300.0, 0.0, 30.0))
+
+        world.session.set_speeds = forced  # type: ignore[method-assign]
+        for k in range(100):
+            world.apply(policy.act(world.observe()))
+            for name, count in (("world", world.totals.collisions), ("sumo", world.totals.sumo_collisions)):
+                if count and name not in first:
+                    first[name] = k
+        summary = world.summary()
+    assert summary["collisions"] > 0 and summary["sumo_collisions"] > 0
+    assert first["world"] == first["sumo"]
 
 
 # -- the SUMO session's lifecycle --------------------------------------------------------------
