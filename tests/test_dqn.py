@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +26,7 @@ from coopsumo.dqn import (
     save_model,
     sync_target,
 )
+from coopsumo.observation import Observation
 
 SMALL_CFG = DQNConfig(replay_size=64, batch_size=8, learn_start_steps=0, target_sync_steps=3, learn_every_steps=1)
 
@@ -346,3 +349,40 @@ def test_load_model_errors(tmp_path: Path, content: object, message: str) -> Non
         load_model(path)
     assert "\n" not in str(info.value)
     assert isinstance(info.value, ValueError)
+
+
+def test_dqn_policy_reuses_the_action_of_an_unchanged_input_and_recomputes_the_rest(
+    observation_of: Callable[..., Observation],
+) -> None:
+    """DQNPolicy skips the forward pass for a vehicle whose grids and speed errors did not change;
+    its actions always equal those of a plain forward pass over the whole batch."""
+    from coopsumo.dqn_policy import DQNPolicy
+
+    torch.manual_seed(0)
+    net = QNetwork(speed_scale_mps=10.0)
+    policy = DQNPolicy(net)
+    rng = np.random.default_rng(0)
+    base = observation_of([0, 1, 2, 0], [10.0, 30.0, 50.0, 70.0], [5.0] * 4, [20.0] * 4)
+    rows_seen: list[int] = []
+    forward = net.forward
+
+    def counting(grids: torch.Tensor, speed_err: torch.Tensor) -> torch.Tensor:
+        rows_seen.append(len(grids))
+        return forward(grids, speed_err)
+
+    net.forward = counting  # type: ignore[method-assign]
+
+    def with_input(grids: np.ndarray, speed_err: np.ndarray) -> Observation:
+        return dataclasses.replace(base, grids=grids, speed_err=speed_err)
+
+    grids = rng.integers(0, 2, size=(4, 3, 3, 20)).astype(np.uint8)
+    err = rng.normal(0, 5, size=(4, 3)).astype(np.float32)
+    plain = lambda g, e: forward(torch.from_numpy(g).float(), torch.from_numpy(e)).argmax(dim=1).numpy()  # noqa: E731
+    np.testing.assert_array_equal(policy.act(with_input(grids, err)), plain(grids, err))
+    np.testing.assert_array_equal(policy.act(with_input(grids, err)), plain(grids, err))
+    assert rows_seen == [4]  # the second call needed no forward pass
+    grids2, err2 = grids.copy(), err.copy()
+    grids2[1, 2, 0, 5] ^= 1
+    err2[3, 2] += 0.5
+    np.testing.assert_array_equal(policy.act(with_input(grids2, err2)), plain(grids2, err2))
+    assert rows_seen == [4, 2]  # only vehicles 1 and 3 changed
