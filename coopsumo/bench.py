@@ -1,6 +1,6 @@
 """`make bench`: speed figures (printed, not asserted).
 
-- simulation throughput (steps/s) of the world alone, per policy;
+- simulation throughput (steps/s) of the world alone, per policy, in free flow and in a jam;
 - training throughput (environment steps/s with learning on);
 - observation and decision cost per vehicle per step (grids; one batched DQN forward pass).
 """
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from coopsumo.config import DemandConfig, RoadConfig, SimConfig, TrainConfig
+from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.dqn import Learner
 from coopsumo.observation import snapshot
 from coopsumo.physics import occupancy
@@ -24,11 +24,22 @@ from coopsumo.simulate import run
 from coopsumo.train import Trainer
 
 
-def bench_simulation(policy: str, steps: int, lanes: int = 3, t_up: float = 1.0) -> float:
-    cfg = SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up), steps=steps, seed=1, policy=policy)
+def bench_simulation(
+    policy: str, steps: int, lanes: int = 3, t_up: float = 1.0, jam: bool = False, sumo_check: bool = False
+) -> tuple[float, float]:
+    """(steps/s, mean vehicles on the road); jam: the accident holds traffic from step 100 on."""
+    cfg = SimConfig(
+        road=RoadConfig(lanes=lanes),
+        demand=DemandConfig(t_up_s=t_up),
+        accident=AccidentConfig(enabled=jam, start_step=100, duration_steps=50_000),
+        steps=steps,
+        seed=1,
+        policy=policy,
+        sumo_collision_check=sumo_check,
+    )
     with tempfile.TemporaryDirectory() as tmp:
         summary = run(cfg, make_policy(policy, np.random.default_rng(1)), Path(tmp), progress=False)
-    return float(summary["steps_per_second"])
+    return float(summary["steps_per_second"]), float(summary["mean_vehicles_on_road"])
 
 
 def bench_training(steps: int) -> float:
@@ -68,7 +79,12 @@ def main(argv: list[str] | None = None) -> int:
     torch.set_num_threads(1)
     print(f"coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread, {steps} steps a run)", flush=True)
     for policy in ("keep", "random", "greedy", "mobil", "sumo"):
-        print(f"  simulate --policy {policy:7s}: {bench_simulation(policy, steps):8.0f} steps/s", flush=True)
+        sps, veh = bench_simulation(policy, steps)
+        print(f"  simulate --policy {policy:7s}: {sps:8.0f} steps/s  ({veh:.0f} vehicles on the road)", flush=True)
+    for policy, check in (("keep", False), ("keep", True), ("mobil", False)):
+        sps, veh = bench_simulation(policy, steps, jam=True, sumo_check=check)
+        label = f"{policy}{' + SUMO collision check' if check else ''}"
+        print(f"  jammed (accident) {label:30s}: {sps:8.0f} steps/s  ({veh:.0f} vehicles on the road)", flush=True)
     sps = bench_training(steps)
     print(
         f"  train (learning on)         : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min", flush=True

@@ -382,6 +382,7 @@ class World:
             "lane_changes_rejected": tot.lane_changes_rejected,
             "lane_changes_per_vehicle": tot.lane_changes / max(tot.departed, 1),
             "mean_speed_mps": tot.distance_m / tot.vehicle_time_s if tot.vehicle_time_s else 0.0,
+            "mean_vehicles_on_road": tot.vehicle_time_s / self.time_s if self.time_s else 0.0,
             "mean_travel_time_s": tot.travel_time_sum_s / tot.arrived if tot.arrived else float("nan"),
             "throughput_veh_per_h": tot.arrived / hours if hours else 0.0,
         }

@@ -251,6 +251,7 @@ def test_counts_of_the_summary_and_the_trajectories_agree(random_run: Recording)
     blocked = int(np.sum(first_step_end_s - DT - scheduled >= DT - 1e-6))  # inserted a step or more late
     assert s["insertion_blocked"] == blocked + s["insertion_pending_at_end"]
     assert s["lane_changes_per_vehicle"] == pytest.approx(s["lane_changes"] / s["departed"])
+    assert s["mean_vehicles_on_road"] == pytest.approx(per_step.sum() / len(random_run.tables))
 
 
 # -- a single lane change, step by step ---------------------------------------------------------
