@@ -321,6 +321,7 @@ def build_parser() -> Parser:
     p.add_argument("--replay-size", type=int, default=DQNConfig.replay_size)
     p.add_argument("--lr", type=float, default=DQNConfig.lr, help="learning rate")
     p.add_argument("--optimizer", choices=("adam", "sgd"), default=DQNConfig.optimizer)
+    p.add_argument("--gamma", type=float, default=DQNConfig.gamma, help="discount per 0.1 s step (paper: 0.9)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -343,8 +344,10 @@ def config_from_args(args: Any) -> TrainConfig:
     )
     if not (math.isfinite(args.lr) and args.lr > 0):
         raise UsageError(f"lr must be a positive number, got {args.lr}")
+    if not 0 <= args.gamma < 1:
+        raise UsageError(f"gamma must be in [0, 1), got {args.gamma}")
     dqn = DQNConfig(batch_size=args.batch_size, learn_every_steps=args.learn_every, replay_size=args.replay_size,
-                    lr=args.lr, optimizer=args.optimizer)  # fmt: skip
+                    lr=args.lr, optimizer=args.optimizer, gamma=args.gamma)  # fmt: skip
     cfg = TrainConfig(sim=sim, dqn=dqn, eval_steps=args.eval_steps)
     cfg.validate()
     return cfg

@@ -98,6 +98,8 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path) -> None:
         (["--lanes", "7"], "lanes"),
         (["--t-up", "0"], "t-up"),
         (["--resume"], "resume"),
+        (["--gamma", "1"], "gamma"),
+        (["--gamma", "nan"], "gamma"),
     ],
 )
 def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:
