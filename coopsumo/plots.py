@@ -105,31 +105,35 @@ def _mark_accident(ax: Axes, window_s: tuple[float, float] | None, x_bottleneck_
 
 
 def flow_density_figure(fd: dict[str, pd.DataFrame], out_path: str | Path) -> Path:
-    """Flow (veh/h/lane) against density (veh/km/lane), one colour per policy label.
+    """Flow (veh/h/lane) against density (veh/km/lane): one panel per policy label, in its colour,
+    over every other policy's points in grey (one shared cloud would hide all but the last policy).
 
     fd maps a label to a flow_density table (columns density_veh_km, flow_veh_h); rows with
     a NaN are skipped. Writes a PNG and returns its path.
     """
     if not fd:
         raise ValueError("flow_density_figure needs at least one flow_density table")
-    fig = _new_figure(6.4, 4.8)
-    ax = fig.subplots()
-    for i, (label, table) in enumerate(fd.items()):
-        points = table[["density_veh_km", "flow_veh_h"]].dropna()
-        ax.scatter(
-            points["density_veh_km"],
-            points["flow_veh_h"],
-            s=8,
-            alpha=0.5,
-            color=f"C{i % 10}",
-            linewidths=0,
-            label=label,
-        )
-    ax.set_xlabel("density (veh/km/lane)")
-    ax.set_ylabel("flow (veh/h/lane)")
-    ax.set_xlim(left=0)
-    ax.set_ylim(bottom=0)
-    ax.grid(True, alpha=0.3)
-    ax.legend(markerscale=2)
+    points = {label: table[["density_veh_km", "flow_veh_h"]].dropna() for label, table in fd.items()}
+    cols = min(3, len(points))
+    rows = math.ceil(len(points) / cols)
+    fig = _new_figure(3.4 * cols, 2.9 * rows)
+    axes = np.atleast_1d(fig.subplots(rows, cols, sharex=True, sharey=True, squeeze=False)).ravel()
+    x_max = max([float(p["density_veh_km"].max()) for p in points.values() if len(p)] + [1.0])
+    y_max = max([float(p["flow_veh_h"].max()) for p in points.values() if len(p)] + [1.0])
+    for i, (ax, (label, own)) in enumerate(zip(axes, points.items(), strict=False)):
+        for other_label, other in points.items():
+            if other_label != label:
+                ax.scatter(other["density_veh_km"], other["flow_veh_h"], s=4, color="0.85", linewidths=0)
+        ax.scatter(own["density_veh_km"], own["flow_veh_h"], s=6, alpha=0.6, color=f"C{i % 10}", linewidths=0)
+        ax.set_title(label, fontsize=10)
+        ax.set_xlim(0, x_max * 1.05)
+        ax.set_ylim(0, y_max * 1.05)
+        ax.grid(True, alpha=0.3)
+    for ax in axes[len(points) :]:
+        ax.set_visible(False)
+    for ax in axes[(rows - 1) * cols :]:
+        ax.set_xlabel("density (veh/km/lane)")
+    for ax in axes[::cols]:
+        ax.set_ylabel("flow (veh/h/lane)")
     fig.tight_layout()
     return _save(fig, out_path)

@@ -297,7 +297,29 @@ def deviations_table() -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_report(root: Path, plan: Plan, agg: pd.DataFrame, wall_s: float, figures: dict[str, str]) -> None:
+def timing_note(
+    wall_s: float,
+    models_reused: int,
+    models: int,
+    runs_reused: int,
+    runs: int,
+    train_files: list[Path],
+    run_files: list[Path],
+) -> str:
+    """Wall time of this invocation, what it reused, and the compute the reused parts recorded."""
+    train_s = [float(json.loads(f.read_text()).get("wall_seconds", 0.0)) for f in train_files if f.exists()]
+    run_s = sum(float(json.loads(f.read_text()).get("wall_seconds", 0.0)) for f in run_files if f.exists())
+    text = f"Wall time of this invocation: {wall_s / 60:.1f} min"
+    if models_reused or runs_reused:
+        text += f" (reused {models_reused} of {models} models and {runs_reused} of {runs} runs)"
+    text += (
+        f". Compute recorded by the parts: trainings {', '.join(f'{t / 60:.1f}' for t in train_s)} min"
+        f" (run in parallel); accident runs {run_s / 60:.1f} core-min."
+    )
+    return text
+
+
+def write_report(root: Path, plan: Plan, agg: pd.DataFrame, timing: str, figures: dict[str, str]) -> None:
     coop, noncoop = "dqn_alpha8", "dqn_alpha0"
     acc = accident_config(plan, "keep", plan.seeds[0]).accident
     dt = ControlConfig().dt_s
@@ -332,12 +354,15 @@ the grey band is the accident window, the dashed line the bottleneck.
 
 ![flow-density]({figures["fig5"]})
 
-Fig. 5: flow against density from every loop and 60 s interval, seed {plan.seeds[0]}.
+Fig. 5: flow against density from every loop and 60 s interval, seed {plan.seeds[0]}; one panel per policy,
+the other policies' points in grey behind.
 
 ## Deviations and choices
 
 {deviations_table()}
-Total wall time of this run: {wall_s / 60:.1f} min. Versions: {json.dumps(versions())}.
+{timing}
+
+Versions: {json.dumps(versions())}.
 """
     (root / "report.md").write_text(text)
 
@@ -435,7 +460,10 @@ def run_study(plan: Plan, root: Path, workers: int = 2) -> int:
     fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, seed, out, _ in runs if seed == first}
     flow_density_figure(fd, root / "fig5_flow_density.png")
     wall = time.perf_counter() - start
-    write_report(root, plan, agg, wall, {"fig4": "fig4_time_space.png", "fig5": "fig5_flow_density.png"})
+    timing = timing_note(wall, len(ALPHAS) - len(train_jobs), len(ALPHAS), len(runs) - len(sim_jobs), len(runs),
+                         [m.parent / "train_summary.json" for m in model_paths.values()],
+                         [out / "summary.json" for _, _, out, _ in runs])  # fmt: skip
+    write_report(root, plan, agg, timing, {"fig4": "fig4_time_space.png", "fig5": "fig5_flow_density.png"})
     print(report_table(agg))
     print(f"scenario1: done in {wall / 60:.1f} min; report: {root / 'report.md'}")
     return 0

@@ -64,7 +64,7 @@ def test_subsample_times_bounds_points() -> None:
 def test_flow_density_figure_written(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
     fd = {}
-    for label in ("alpha=0", "alpha=8"):
+    for label in ("alpha=0", "alpha=8", "keep", "mobil"):  # 4 panels on a 3-column grid: one hidden
         density = rng.uniform(0, 120, 200)
         flow = np.minimum(80 * density, 2000 - 10 * (density - 25)).clip(0)
         fd[label] = pd.DataFrame({"density_veh_km": density, "flow_veh_h": flow})
