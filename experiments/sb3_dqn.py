@@ -82,6 +82,7 @@ def train(args: Any, run_dir: Path | None) -> dict[str, Any]:
     import gymnasium as gym
     import torch
     from stable_baselines3 import DQN
+    from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.monitor import Monitor
 
     from coopsumo.envs import ENV_ID
@@ -128,6 +129,7 @@ def train(args: Any, run_dir: Path | None) -> dict[str, Any]:
             seed=args.seed,
             device="cpu",
         )
+        model.set_logger(Logger(folder=None, output_formats=[]))  # SB3's default makes an empty /tmp/SB3-* folder
         model.learn(total_timesteps=args.steps)
         if run_dir is not None:
             model.save(run_dir / "model.zip")

@@ -3,6 +3,7 @@ closing SUMO, episodes, and the SB3 training script (skipped without stable-base
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import warnings
@@ -234,12 +235,15 @@ def test_parallel_env_agents_come_and_go_reproducibly() -> None:
 def test_sb3_dqn_script(tmp_path: Path) -> None:
     pytest.importorskip("stable_baselines3")
     out = tmp_path / "sb3"
+    scratch = tmp_path / "tmpdir"  # the script's temporary folder: SB3 used to leave an empty SB3-* folder there
+    scratch.mkdir()
     result = subprocess.run(
         [sys.executable, "experiments/sb3_dqn.py", "--steps", "300", "--warmup", "20", "--max-steps", "100",
          "--out", str(out)],
-        capture_output=True, text=True, cwd=REPO, timeout=300, check=False,
+        capture_output=True, text=True, cwd=REPO, timeout=300, check=False, env={**os.environ, "TMPDIR": str(scratch)},
     )  # fmt: skip
     assert result.returncode == 0, result.stderr
+    assert list(scratch.glob("SB3-*")) == []
     fields = dict(item.split("=") for item in result.stdout.split())
     assert int(fields["episodes"]) >= 2
     assert np.isfinite(float(fields["mean_episode_reward"]))
