@@ -68,4 +68,4 @@ class DQNPolicy:
             self._grids[changed] = obs.grids[fresh]
             self._speed_err[changed] = obs.speed_err[fresh]
             self._action[changed] = actions[fresh]
-        return actions.astype(np.int64)
+        return actions

@@ -117,7 +117,7 @@ def flow_density_figure(fd: dict[str, pd.DataFrame], out_path: str | Path) -> Pa
     cols = min(3, len(points))
     rows = math.ceil(len(points) / cols)
     fig = _new_figure(3.4 * cols, 2.9 * rows)
-    axes = np.atleast_1d(fig.subplots(rows, cols, sharex=True, sharey=True, squeeze=False)).ravel()
+    axes = fig.subplots(rows, cols, sharex=True, sharey=True, squeeze=False).ravel()
     x_max = max([float(p["density_veh_km"].max()) for p in points.values() if len(p)] + [1.0])
     y_max = max([float(p["flow_veh_h"].max()) for p in points.values() if len(p)] + [1.0])
     for i, (ax, (label, own)) in enumerate(zip(axes, points.items(), strict=False)):

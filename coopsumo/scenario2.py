@@ -189,23 +189,24 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
     A DQN cell's configuration is a TrainConfig, a MOBIL cell's a SimConfig.
     """
     specs = []
+
+    def add(key: str, lanes: int, t_up: float, load: float, seed: int, policy: str,
+            alpha: float | None, p: float | None, cfg: TrainConfig | SimConfig) -> None:  # fmt: skip
+        cfg.validate()
+        specs.append({"key": key, "lanes": lanes, "t_up_s": t_up, "load": load, "alpha": alpha, "seed": seed,
+                      "policy": policy, "p": p, "config": json.loads(json.dumps(to_dict(cfg)))})  # fmt: skip
+
     for lanes, t_up, load in profile.conditions():
         if "dqn" in profile.policies:
             for alpha in profile.alphas:
                 for seed in profile.seeds:
-                    cfg = train_config(lanes, t_up, alpha, seed, profile)
-                    cfg.validate()
-                    specs.append({"key": cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
-                                  "load": load, "alpha": alpha, "seed": seed, "policy": "dqn", "p": None,
-                                  "config": json.loads(json.dumps(to_dict(cfg)))})  # fmt: skip
+                    add(cell_key(lanes, t_up, alpha, seed), lanes, t_up, load, seed, "dqn", alpha, None,
+                        train_config(lanes, t_up, alpha, seed, profile))  # fmt: skip
         if "mobil" in profile.policies:
             for p in profile.mobil_ps:
                 for seed in profile.seeds:
-                    sim = mobil_config(lanes, t_up, p, seed, profile)
-                    sim.validate()
-                    specs.append({"key": mobil_key(lanes, t_up, p, seed), "lanes": lanes, "t_up_s": t_up,
-                                  "load": load, "alpha": None, "seed": seed, "policy": "mobil", "p": p,
-                                  "config": json.loads(json.dumps(to_dict(sim)))})  # fmt: skip
+                    add(mobil_key(lanes, t_up, p, seed), lanes, t_up, load, seed, "mobil", None, p,
+                        mobil_config(lanes, t_up, p, seed, profile))  # fmt: skip
     return specs
 
 

@@ -139,9 +139,11 @@ class SumoSession:
         for vid in departed:
             self._take_control(vid)
         arrived = ls.simulation.getArrivedIDList()
-        pairs = {(c.collider, c.victim) for c in ls.simulation.getCollisions()}
-        new_collisions = len(pairs - self._collision_pairs)
-        self._collision_pairs |= pairs
+        new_collisions = 0
+        if self.cfg.sumo_collision_check:  # with --collision.action none SUMO reports none
+            pairs = {(c.collider, c.victim) for c in ls.simulation.getCollisions()}
+            new_collisions = len(pairs - self._collision_pairs)
+            self._collision_pairs |= pairs
         return StepEvents(
             departed=np.array([int(v) for v in departed], dtype=np.int64),
             arrived=np.array([int(v) for v in arrived], dtype=np.int64),
