@@ -7,6 +7,7 @@ the project's own choices are listed in the README's "Deviations and choices" ta
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -130,34 +131,102 @@ class RewardConfig:
 
 @dataclass(frozen=True)
 class DQNConfig:
-    """The learner (paper section IV where given)."""
+    """The learner. Field defaults are the project's default design; PAPER_DQN holds the paper's values.
 
-    lr: float = 0.01
-    """learning rate, paper"""
+    A "decision round" is one step on which vehicles decide: every decision_interval_steps steps.
+    """
+
+    preset: str = "default"
+    """name of the preset these values started from ('default' or 'paper'); flags may override fields"""
+    decision_interval_steps: int = 10
+    """steps of 0.1 s between two decisions of a vehicle (paper: 1, a decision every step)"""
+    action_mask: bool = True
+    """offer left/right only when the controller would accept them (choice, exploration, target max)"""
+    double_dqn: bool = True
+    """double DQN target: the online network picks the next action, the target network values it"""
+    loss: str = "huber"
+    """'mse' (paper eq. 8) or 'huber' (smooth L1, delta 1)"""
+    lr: float = 1e-3
+    """learning rate (paper: 0.01)"""
+    optimizer: str = "adam"
+    """'sgd' (paper: stochastic gradient descent) or 'adam'"""
     gamma: float = 0.9
-    """discount, paper"""
-    replay_size: int = 2000
-    """replay memory (transitions), paper"""
+    """discount per decision round (paper: 0.9 per 0.1 s step)"""
+    replay_size: int = 20_000
+    """replay memory (transitions; paper: 2,000)"""
     batch_size: int = 64
     """minibatch size (transitions)"""
+    learn_every: int = 1
+    """decision rounds between two learning phases (paper setup: 4)"""
+    updates_per_learn: int = 2
+    """gradient updates in one learning phase (paper setup: 1)"""
     target_sync_steps: int = 500
     """environment steps between target-network syncs, paper"""
-    greedy_prob: float = 0.9
-    """probability of the greedy action (paper's epsilon-greedy threshold 0.9)"""
-    learn_every_steps: int = 4
-    """environment steps between gradient updates"""
+    epsilon_start: float = 0.1
+    """exploration probability at the start (paper: 0.1, the greedy action with probability 0.9)"""
+    epsilon_end: float = 0.1
+    """exploration probability after epsilon_decay_steps"""
+    epsilon_decay_steps: int = 0
+    """environment steps of the linear decay from epsilon_start to epsilon_end (0: constant epsilon_start)"""
     learn_start_steps: int = 200
     """no update before this many environment steps"""
-    optimizer: str = "sgd"
-    """'sgd' (paper: stochastic gradient descent) or 'adam'"""
     grad_clip_norm: float = 10.0
     """gradient-norm clip"""
     speed_scale_mps: float = 110.0 / 3.6
     """speed errors are divided by this before entering the network (m/s)"""
-    store_per_step: int = 16
-    """at most this many vehicles' transitions are stored per step (random subset)"""
+    store_per_decision: int = 16
+    """at most this many vehicles' transitions are stored per decision round (random subset)"""
     exit_transition: str = "drop"
     """a vehicle's last transition when it leaves the road: 'drop' it, or store it as 'terminal'"""
+
+    def validate(self) -> None:
+        """Raise ConfigError naming the first bad value."""
+        positive_ints = ("decision_interval_steps", "replay_size", "batch_size", "learn_every", "updates_per_learn",
+                         "target_sync_steps", "store_per_decision")  # fmt: skip
+        for name in positive_ints:
+            if getattr(self, name) <= 0:
+                raise ConfigError(f"{name} must be positive, got {getattr(self, name)}")
+        for name in ("learn_start_steps", "epsilon_decay_steps"):
+            if getattr(self, name) < 0:
+                raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise ConfigError(f"lr must be a positive number, got {self.lr}")
+        if not 0 <= self.gamma < 1:
+            raise ConfigError(f"gamma must be in [0, 1), got {self.gamma}")
+        for name in ("epsilon_start", "epsilon_end"):
+            if not 0 <= getattr(self, name) <= 1:
+                raise ConfigError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if not (math.isfinite(self.grad_clip_norm) and self.grad_clip_norm > 0):
+            raise ConfigError(f"grad_clip_norm must be a positive number, got {self.grad_clip_norm}")
+        choices = {"loss": ("mse", "huber"), "optimizer": ("sgd", "adam"), "exit_transition": ("drop", "terminal"),
+                   "preset": tuple(DQN_PRESETS)}  # fmt: skip
+        for name, allowed in choices.items():
+            if getattr(self, name) not in allowed:
+                raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
+
+
+PAPER_DQN = DQNConfig(
+    preset="paper",
+    decision_interval_steps=1,
+    action_mask=False,
+    double_dqn=False,
+    loss="mse",
+    lr=0.01,
+    optimizer="sgd",
+    gamma=0.9,
+    replay_size=2000,
+    batch_size=64,
+    learn_every=4,
+    updates_per_learn=1,
+    epsilon_start=0.1,
+    epsilon_end=0.1,
+    epsilon_decay_steps=0,
+)
+"""The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
+constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""
+
+DQN_PRESETS: dict[str, DQNConfig] = {"default": DQNConfig(), "paper": PAPER_DQN}
+"""name -> learner configuration"""
 
 
 @dataclass(frozen=True)
@@ -212,8 +281,7 @@ class TrainConfig:
 
     def validate(self) -> None:
         self.sim.validate()
-        if self.dqn.exit_transition not in ("drop", "terminal"):
-            raise ConfigError(f"exit_transition must be 'drop' or 'terminal', got {self.dqn.exit_transition!r}")
+        self.dqn.validate()
         if self.eval_steps < 0:
             raise ConfigError(f"eval steps must be >= 0, got {self.eval_steps}")
 
@@ -222,11 +290,32 @@ def train_config_from_dict(d: dict[str, Any]) -> TrainConfig:
     """Inverse of to_dict for TrainConfig."""
     return TrainConfig(
         sim=sim_config_from_dict(d["sim"]),
-        dqn=DQNConfig(**d["dqn"]),
+        dqn=dqn_config_from_dict(d["dqn"]),
         log_every_steps=d["log_every_steps"],
         checkpoint_every_steps=d["checkpoint_every_steps"],
         eval_steps=d["eval_steps"],
     )
+
+
+def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
+    """Inverse of to_dict for DQNConfig; a field it does not know is a ConfigError naming it.
+
+    A dict written before presets existed (it has greedy_prob) describes the paper-literal learner.
+    """
+    d = dict(d)
+    if "greedy_prob" in d:  # written by a version before presets: the paper setup with its own values
+        legacy = {"greedy_prob", "learn_every_steps", "store_per_step"}
+        eps = 1.0 - float(d["greedy_prob"])
+        base = dataclasses.replace(PAPER_DQN, epsilon_start=eps, epsilon_end=eps,
+                                   learn_every=d.get("learn_every_steps", PAPER_DQN.learn_every),
+                                   store_per_decision=d.get("store_per_step", PAPER_DQN.store_per_decision))  # fmt: skip
+        d = {k: v for k, v in d.items() if k not in legacy}
+        return dataclasses.replace(base, **d)
+    known = {f.name for f in dataclasses.fields(DQNConfig)}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise ConfigError(f"unknown learner setting {unknown[0]!r} (written by a newer coopsumo?)")
+    return DQNConfig(**d)
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:

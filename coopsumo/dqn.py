@@ -76,6 +76,8 @@ class ReplayBatch:
     """(B, 3) speed errors of the next state (m/s)"""
     dones: torch.Tensor
     """(B,) 1.0 where the episode ended at this transition (no bootstrap), else 0.0"""
+    next_mask: torch.Tensor
+    """(B, 4) bool: actions feasible in the next state (all True when masking is off)"""
 
 
 _BUFFER_FIELDS: dict[str, tuple[tuple[int, ...], Any]] = {
@@ -86,6 +88,7 @@ _BUFFER_FIELDS: dict[str, tuple[tuple[int, ...], Any]] = {
     "next_grids": (GRID_SHAPE, np.uint8),
     "next_speed_err": ((GRID_SHAPE[0],), np.float32),
     "dones": ((), np.float32),
+    "next_mask": ((N_ACTIONS,), np.bool_),
 }
 """name -> (shape of one transition, storage dtype)"""
 
@@ -115,8 +118,14 @@ class ReplayBuffer:
         next_grids: np.ndarray,
         next_speed_err: np.ndarray,
         dones: np.ndarray,
+        next_mask: np.ndarray | None = None,
     ) -> None:
-        """Store N transitions (arrays with leading dimension N); only the newest capacity are kept."""
+        """Store N transitions (arrays with leading dimension N); only the newest capacity are kept.
+
+        next_mask (N, 4) bool: feasible actions of the next state; None means all feasible.
+        """
+        if next_mask is None:
+            next_mask = np.ones((len(actions), N_ACTIONS), dtype=bool)
         arrays = {
             "grids": grids,
             "speed_err": speed_err,
@@ -125,6 +134,7 @@ class ReplayBuffer:
             "next_grids": next_grids,
             "next_speed_err": next_speed_err,
             "dones": dones,
+            "next_mask": next_mask,
         }
         n = len(actions)
         for name, arr in arrays.items():
@@ -154,6 +164,7 @@ class ReplayBuffer:
             next_grids=torch.from_numpy(d["next_grids"][idx].astype(np.float32)),
             next_speed_err=torch.from_numpy(d["next_speed_err"][idx]),
             dones=torch.from_numpy(d["dones"][idx]),
+            next_mask=torch.from_numpy(d["next_mask"][idx]),
         )
 
     def state_dict(self) -> dict[str, Any]:
@@ -175,13 +186,47 @@ class ReplayBuffer:
         self._size = int(state["size"])
 
 
-def epsilon_greedy(q_values: np.ndarray, greedy_prob: float, rng: np.random.Generator) -> np.ndarray:
-    """One int64 action per row of q_values (N, A): argmax with probability greedy_prob, else uniform."""
+def epsilon_at(env_steps: int, cfg: DQNConfig) -> float:
+    """Exploration probability after env_steps: linear from epsilon_start to epsilon_end, then constant."""
+    if cfg.epsilon_decay_steps <= 0:
+        return cfg.epsilon_start
+    frac = min(env_steps / cfg.epsilon_decay_steps, 1.0)
+    return cfg.epsilon_start + frac * (cfg.epsilon_end - cfg.epsilon_start)
+
+
+def epsilon_greedy(
+    q_values: np.ndarray, epsilon: float, rng: np.random.Generator, mask: np.ndarray | None = None
+) -> np.ndarray:
+    """One int64 action per row of q_values (N, A): the best feasible action with probability 1 - epsilon,
+    else one drawn uniformly among the feasible ones. mask (N, A) bool: feasible actions (None: all)."""
     n, n_actions = q_values.shape
-    greedy = np.argmax(q_values, axis=1).astype(np.int64)
-    random_actions = rng.integers(0, n_actions, size=n, dtype=np.int64)
-    take_greedy = rng.random(n) < greedy_prob
+    if mask is None:
+        greedy = np.argmax(q_values, axis=1).astype(np.int64)
+        random_actions = rng.integers(0, n_actions, size=n, dtype=np.int64)
+    else:
+        greedy = np.argmax(np.where(mask, q_values, -np.inf), axis=1).astype(np.int64)
+        # the largest of uniform draws over the feasible entries is a uniform choice among them
+        random_actions = np.argmax(np.where(mask, rng.random((n, n_actions)), -1.0), axis=1).astype(np.int64)
+    take_greedy = rng.random(n) < 1.0 - epsilon
     return np.where(take_greedy, greedy, random_actions)
+
+
+def td_targets(
+    online: QNetwork, target: QNetwork, batch: ReplayBatch, gamma: float, double: bool
+) -> torch.Tensor:
+    """r + gamma (1 - done) Q_target(s', a*) with a* the best next action among the feasible ones.
+
+    Plain DQN: a* maximises the target network; double DQN: a* maximises the online network.
+    """
+    with torch.no_grad():
+        next_q = target(batch.next_grids, batch.next_speed_err).masked_fill(~batch.next_mask, -torch.inf)
+        if double:
+            chooser = online(batch.next_grids, batch.next_speed_err).masked_fill(~batch.next_mask, -torch.inf)
+            best = chooser.argmax(dim=1, keepdim=True)
+            next_v = next_q.gather(1, best).squeeze(1)
+        else:
+            next_v = next_q.max(dim=1).values
+        return batch.rewards + gamma * (1.0 - batch.dones) * next_v
 
 
 def dqn_update(
@@ -191,13 +236,16 @@ def dqn_update(
     batch: ReplayBatch,
     gamma: float,
     grad_clip_norm: float,
+    double: bool = False,
+    loss_name: str = "mse",
 ) -> float:
-    """One gradient step on the mean squared TD error (paper eq. 8); returns the loss before the step."""
+    """One gradient step on the TD error (paper eq. 8: mean squared; or Huber); returns the loss before the step."""
     q = online(batch.grids, batch.speed_err).gather(1, batch.actions.unsqueeze(1)).squeeze(1)
-    with torch.no_grad():
-        next_q = target(batch.next_grids, batch.next_speed_err).max(dim=1).values
-        td_target = batch.rewards + gamma * (1.0 - batch.dones) * next_q
-    loss = ((td_target - q) ** 2).mean()
+    td_target = td_targets(online, target, batch, gamma, double)
+    if loss_name == "huber":
+        loss = nn.functional.smooth_l1_loss(q, td_target)
+    else:
+        loss = ((td_target - q) ** 2).mean()
     optimizer.zero_grad()
     loss.backward()
     nn.utils.clip_grad_norm_(online.parameters(), grad_clip_norm)
@@ -235,10 +283,20 @@ class Learner:
         # A stream distinct from np.random.default_rng(seed), which the caller may use elsewhere.
         self.rng = np.random.default_rng([seed, 0x44514E])
         self.env_steps = 0  # environment steps seen by step()
+        self.decisions = 0  # decision rounds seen by step()
         self.updates = 0  # gradient updates done
 
-    def act(self, grids: np.ndarray, speed_err: np.ndarray, explore: bool) -> np.ndarray:
-        """int64 actions (N,) for grids (N, 3, 3, 20) and speed errors (N, 3) in m/s; epsilon-greedy if explore."""
+    @property
+    def epsilon(self) -> float:
+        return epsilon_at(self.env_steps, self.cfg)
+
+    def act(
+        self, grids: np.ndarray, speed_err: np.ndarray, explore: bool, mask: np.ndarray | None = None
+    ) -> np.ndarray:
+        """int64 actions (N,) for grids (N, 3, 3, 20) and speed errors (N, 3) in m/s; epsilon-greedy if explore.
+
+        mask (N, 4) bool: the feasible actions; only those are chosen (None: all actions).
+        """
         if len(grids) == 0:
             return np.zeros(0, dtype=np.int64)
         with torch.no_grad():
@@ -247,7 +305,9 @@ class Learner:
                 torch.as_tensor(speed_err, dtype=torch.float32),
             ).numpy()
         if explore:
-            return epsilon_greedy(q, self.cfg.greedy_prob, self.rng)
+            return epsilon_greedy(q, self.epsilon, self.rng, mask)
+        if mask is not None:
+            q = np.where(mask, q, -np.inf)
         return np.argmax(q, axis=1).astype(np.int64)
 
     def observe(
@@ -259,26 +319,35 @@ class Learner:
         next_grids: np.ndarray,
         next_speed_err: np.ndarray,
         dones: np.ndarray,
+        next_mask: np.ndarray | None = None,
     ) -> None:
-        """Store N transitions in the replay memory."""
-        self.buffer.add_batch(grids, speed_err, actions, rewards, next_grids, next_speed_err, dones)
+        """Store N transitions in the replay memory (next_mask: feasible next actions, None: all)."""
+        self.buffer.add_batch(grids, speed_err, actions, rewards, next_grids, next_speed_err, dones, next_mask)
 
-    def step(self) -> float | None:
-        """Advance one environment step: maybe one update, maybe a target sync; returns the loss or None."""
+    def step(self, decided: bool = True) -> float | None:
+        """Advance one environment step; on a decision round (decided) maybe learn; maybe sync the target.
+
+        Learning: updates_per_learn gradient updates every learn_every decision rounds, once the
+        buffer holds a batch and learn_start_steps have passed. Returns the mean loss or None.
+        """
         cfg = self.cfg
         self.env_steps += 1
-        loss = None
-        if (
-            len(self.buffer) >= cfg.batch_size
-            and self.env_steps >= cfg.learn_start_steps
-            and self.env_steps % cfg.learn_every_steps == 0
-        ):
-            batch = self.buffer.sample(cfg.batch_size, self.rng)
-            loss = dqn_update(self.online, self.target, self.optimizer, batch, cfg.gamma, cfg.grad_clip_norm)
-            self.updates += 1
+        losses = []
+        if decided:
+            self.decisions += 1
+            if (
+                len(self.buffer) >= cfg.batch_size
+                and self.env_steps >= cfg.learn_start_steps
+                and self.decisions % cfg.learn_every == 0
+            ):
+                for _ in range(cfg.updates_per_learn):
+                    batch = self.buffer.sample(cfg.batch_size, self.rng)
+                    losses.append(dqn_update(self.online, self.target, self.optimizer, batch, cfg.gamma,
+                                             cfg.grad_clip_norm, cfg.double_dqn, cfg.loss))  # fmt: skip
+                    self.updates += 1
         if self.env_steps % cfg.target_sync_steps == 0:
             sync_target(self.online, self.target)
-        return loss
+        return float(np.mean(losses)) if losses else None
 
     def state_dict(self) -> dict[str, Any]:
         """A snapshot (copies) of everything needed for an exact resume; loads with torch.load(weights_only=True)."""
@@ -290,6 +359,7 @@ class Learner:
             "numpy_rng": copy.deepcopy(self.rng.bit_generator.state),
             "torch_rng": torch.get_rng_state(),
             "env_steps": self.env_steps,
+            "decisions": self.decisions,
             "updates": self.updates,
         }
 
@@ -302,6 +372,7 @@ class Learner:
         self.rng.bit_generator.state = copy.deepcopy(state["numpy_rng"])
         torch.set_rng_state(state["torch_rng"])
         self.env_steps = int(state["env_steps"])
+        self.decisions = int(state["decisions"])
         self.updates = int(state["updates"])
 
 

@@ -7,7 +7,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from coopsumo.dqn import GRID_SHAPE, ModelFileError, QNetwork, load_model
+from coopsumo.config import ConfigError, dqn_config_from_dict
+from coopsumo.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.observation import Observation
 from coopsumo.runio import UsageError
 
@@ -15,28 +16,38 @@ from coopsumo.runio import UsageError
 class DQNPolicy:
     """Greedy actions of a Q-network (its weights must not change while the policy is in use).
 
-    A vehicle whose grids and speed errors are exactly those of its previous step (typically one
-    standing in a queue) gets its previous action again without a forward pass: the network is
-    deterministic, so the action is the same, and a jam costs far less.
+    A vehicle whose grids, speed errors and feasible actions are exactly those of its previous
+    decision (typically one standing in a queue) gets its previous action again without a forward
+    pass: the network is deterministic, so the action is the same, and a jam costs far less.
+
+    decision_interval: the runner asks for actions every this many steps (coopsumo.decisions);
+    action_mask: choose only among the feasible actions (obs.feasible). Both as in training.
     """
 
     needs_grids = True
 
-    def __init__(self, net: QNetwork, name: str = "dqn"):
+    def __init__(self, net: QNetwork, name: str = "dqn", decision_interval: int = 1, action_mask: bool = False):
         self.net = net.eval()
         self.name = name
+        self.decision_interval = decision_interval
+        self.action_mask = action_mask
         self._grids = np.zeros((0, *GRID_SHAPE), np.uint8)  # last input and action, by vehicle number
         self._speed_err = np.zeros((0, GRID_SHAPE[0]), np.float32)
+        self._mask = np.zeros((0, N_ACTIONS), bool)
         self._action = np.full(0, -1, np.int64)  # -1: no previous decision
 
     @classmethod
     def from_file(cls, path: str) -> DQNPolicy:
-        """Load model.pt; a missing, corrupt or mismatched file is a usage error."""
+        """Load model.pt and drive it as it was trained; a missing, corrupt or mismatched file is a usage error."""
         try:
-            net, _meta = load_model(path)
-        except ModelFileError as err:
+            net, meta = load_model(path)
+            dqn = dqn_config_from_dict(meta["config"]["dqn"])
+        except (ModelFileError, ConfigError) as err:
             raise UsageError(str(err)) from None
-        return cls(net, name=f"dqn:{Path(path).parent.name or path}")
+        except (KeyError, TypeError):
+            raise UsageError(f"model {path} records no learner configuration") from None
+        return cls(net, name=f"dqn:{Path(path).parent.name or path}",
+                   decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask)  # fmt: skip
 
     def _grow(self, needed: int) -> None:
         cap = len(self._action)
@@ -45,6 +56,7 @@ class DQNPolicy:
         extra = max(needed, 2 * cap, 1024) - cap
         self._grids = np.concatenate([self._grids, np.zeros((extra, *GRID_SHAPE), np.uint8)])
         self._speed_err = np.concatenate([self._speed_err, np.zeros((extra, GRID_SHAPE[0]), np.float32)])
+        self._mask = np.concatenate([self._mask, np.zeros((extra, N_ACTIONS), bool)])
         self._action = np.concatenate([self._action, np.full(extra, -1, np.int64)])
 
     def act(self, obs: Observation) -> np.ndarray:
@@ -53,19 +65,23 @@ class DQNPolicy:
             return np.zeros(0, dtype=np.int64)
         nums = obs.nums
         self._grow(int(nums.max()) + 1)
+        mask = obs.feasible if self.action_mask else np.ones((n, N_ACTIONS), bool)
         same = (
             (self._action[nums] >= 0)
             & (self._grids[nums] == obs.grids).reshape(n, -1).all(axis=1)
             & (self._speed_err[nums] == obs.speed_err).all(axis=1)
+            & (self._mask[nums] == mask).all(axis=1)
         )
         actions = self._action[nums]
         fresh = ~same
         if fresh.any():
             with torch.no_grad():
                 q = self.net(torch.from_numpy(obs.grids[fresh]).float(), torch.from_numpy(obs.speed_err[fresh]))
+            q = q.masked_fill(~torch.from_numpy(mask[fresh]), -torch.inf)
             actions[fresh] = q.argmax(dim=1).numpy()
             changed = nums[fresh]
             self._grids[changed] = obs.grids[fresh]
             self._speed_err[changed] = obs.speed_err[fresh]
+            self._mask[changed] = mask[fresh]
             self._action[changed] = actions[fresh]
         return actions

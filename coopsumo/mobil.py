@@ -78,6 +78,7 @@ class MobilPolicy:
     """MOBIL on the Newell controller; see the module docstring for definitions and defaults."""
 
     needs_grids = False
+    decision_interval = 1
 
     def __init__(
         self,

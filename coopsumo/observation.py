@@ -106,6 +106,7 @@ class Observation:
     busy: np.ndarray  # (n,) bool: a lane change is under way
     around: Neighbours  # (n, 3) leaders/followers to the left, own lane, right
     n_lanes: int
+    feasible: np.ndarray  # (n, 4) bool: actions the controller accepts now (physics.feasible_actions)
 
     def __len__(self) -> int:
         return len(self.nums)

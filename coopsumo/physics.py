@@ -192,6 +192,22 @@ def lane_change_safe(
     return ahead_ok & behind_ok
 
 
+def feasible_actions(around: Neighbours, busy: np.ndarray, v_mps: np.ndarray, cfg: ControlConfig) -> np.ndarray:
+    """(n, 4) bool: which of left, right, speedup, none the controller accepts for each vehicle now.
+
+    A lane change is accepted when the target lane exists, no change is under way, and the gaps
+    pass lane_change_safe. Speed-up and none are always accepted. A masked-in change can still be
+    refused by resolve_conflicts when another vehicle enters the same lane in the same step.
+    """
+    n = len(v_mps)
+    out = np.ones((n, 4), dtype=bool)
+    for action, side in ((LEFT, 0), (RIGHT, 2)):
+        safe = lane_change_safe(around.lead_gap[:, side], around.follow_gap[:, side], v_mps,
+                                around.follow_speed[:, side], cfg)  # fmt: skip
+        out[:, action] = ~busy & around.exists[:, side] & safe
+    return out
+
+
 def resolve_conflicts(
     target_lane: np.ndarray, pos: np.ndarray, v_mps: np.ndarray, accepted: np.ndarray, cfg: ControlConfig
 ) -> np.ndarray:

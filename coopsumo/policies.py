@@ -23,6 +23,7 @@ class PolicySpecError(UsageError):
 class Policy(Protocol):
     name: str
     needs_grids: bool  # False: the world may skip building occupancy grids (obs.grids are zeros)
+    decision_interval: int  # act() is called every this many steps; actions are held between (decisions.py)
 
     def act(self, obs: Observation) -> np.ndarray:
         """One action (int64) per vehicle of the batch."""
@@ -34,6 +35,7 @@ class KeepPolicy:
 
     name = "keep"
     needs_grids = False
+    decision_interval = 1
 
     def act(self, obs: Observation) -> np.ndarray:
         return np.full(len(obs), SPEEDUP, dtype=np.int64)
@@ -44,6 +46,7 @@ class RandomPolicy:
 
     name = "random"
     needs_grids = False
+    decision_interval = 1
 
     def __init__(self, rng: np.random.Generator):
         self.rng = rng
@@ -61,6 +64,7 @@ class GreedyPolicy:
 
     name = "greedy"
     needs_grids = False
+    decision_interval = 1
 
     def __init__(self, look_m: float = 60.0, margin_m: float = 20.0, slack_mps: float = 1.0):
         self.look_m = look_m
@@ -91,6 +95,7 @@ class SumoPolicy:
 
     name = "sumo"
     needs_grids = False
+    decision_interval = 1
     LC_KEYS = ("lcCooperative", "lcSpeedGain", "lcStrategic", "lcKeepRight", "lcAssertive")
 
     def __init__(self, lc_params: dict[str, float] | None = None):

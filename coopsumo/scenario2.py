@@ -382,7 +382,8 @@ class RayBackend:
 
     name = "ray"
 
-    def __init__(self, workers: int, address: str | None):
+    def __init__(self, workers: int, address: str | None,
+                 cell_fn: Callable[[dict[str, Any], str], dict[str, Any]] = run_cell):  # fmt: skip
         import ray
 
         self._ray = ray
@@ -396,7 +397,7 @@ class RayBackend:
             where = f" at {address}" if address else ""
             raise UsageError(f"cannot start or reach Ray{where}: {detail}") from None
         self.slots = max(1, int(ray.cluster_resources().get("CPU", workers)))
-        self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=1)(run_cell)
+        self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=1)(cell_fn)
 
     def submit(self, spec: dict[str, Any], root: Path) -> Any:
         return self._task.remote(spec, str(root))
@@ -418,14 +419,16 @@ class RayBackend:
         self._ray.shutdown()
 
 
-def make_backend(name: str, workers: int, address: str | None) -> LocalBackend | RayBackend:
+def make_backend(name: str, workers: int, address: str | None,
+                 cell_fn: Callable[[dict[str, Any], str], dict[str, Any]] = run_cell) -> LocalBackend | RayBackend:
+    """The execution backend; cell_fn(spec, root) -> record runs one cell (a module-level function)."""
     if name == "local":
-        return LocalBackend(workers)
+        return LocalBackend(workers, cell_fn)
     try:
         import ray  # noqa: F401
     except ImportError:
         raise UsageError("--backend ray needs Ray: .venv/bin/pip install 'ray[default]'") from None
-    return RayBackend(workers, address)
+    return RayBackend(workers, address, cell_fn)
 
 
 # -- running the sweep ----------------------------------------------------------------------------
@@ -454,7 +457,7 @@ def _signals_ignored() -> Iterator[None]:
 
 
 def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend | RayBackend, total: int,
-            done_before: int, progress: bool) -> dict[str, int]:  # fmt: skip
+            done_before: int, progress: bool, desc: str = "scenario2 cells") -> dict[str, int]:  # fmt: skip
     """Run the cells; write each record the moment it arrives. Returns counts of ok/failed cells.
 
     On KeyboardInterrupt (Ctrl-C or SIGTERM) the workers are stopped and the interrupt re-raised.
@@ -468,7 +471,7 @@ def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend |
     inflight: dict[Any, dict[str, Any]] = {}
     crashes: Counter[str] = Counter()
     counts = {"ok": 0, "failed": 0}
-    bar = tqdm(total=total, initial=done_before, desc="scenario2 cells", unit="cell", file=sys.stderr,
+    bar = tqdm(total=total, initial=done_before, desc=desc, unit="cell", file=sys.stderr,
                disable=not progress, mininterval=1.0, smoothing=0.1)  # fmt: skip
     try:
         while todo or solo or inflight:

@@ -16,6 +16,7 @@ import numpy as np
 from tqdm import tqdm
 
 from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.decisions import ActionHold
 from coopsumo.policies import Policy, make_policy
 from coopsumo.runio import (
     Parser,
@@ -91,9 +92,11 @@ def run(
     record_every = trajectory_every if trajectories else 0
     with World(cfg, run_dir, record_trajectories_every=record_every, observe_grids=policy.needs_grids) as world:
         bar = tqdm(total=cfg.steps, desc=label, unit="step", disable=not progress, mininterval=0.5, file=sys.stderr)
+        hold = ActionHold(policy.decision_interval)
         for _ in range(cfg.steps):
-            obs = world.observe()
-            world.apply(policy.act(obs))
+            decide = hold.is_decision_step(world.step_count)
+            obs = world.observe(grids=decide and policy.needs_grids)
+            world.apply(hold.actions(obs.nums, policy.act(obs) if decide else None))
             if world.step_count % 500 == 0:
                 bar.update(500)
                 if on_steps is not None:
@@ -108,6 +111,7 @@ def run(
     summary["wall_seconds"] = round(wall, 3)
     summary["steps_per_second"] = round(cfg.steps / wall, 1)
     summary["policy"] = cfg.policy
+    summary["decision_interval_steps"] = policy.decision_interval
     summary["scenario"] = cfg.scenario
     if traj is not None:
         import pandas as pd

@@ -9,7 +9,9 @@ the recorded actions, then the learner's saved state takes over).
 
 from __future__ import annotations
 
+import argparse
 import csv
+import math
 import os
 import signal
 import sys
@@ -25,6 +27,8 @@ import torch
 from tqdm import tqdm
 
 from coopsumo.config import (
+    DQN_PRESETS,
+    ConfigError,
     DemandConfig,
     DQNConfig,
     RewardConfig,
@@ -34,6 +38,7 @@ from coopsumo.config import (
     to_dict,
     train_config_from_dict,
 )
+from coopsumo.decisions import ActionHold
 from coopsumo.dqn import Learner, save_model
 from coopsumo.dqn_policy import DQNPolicy
 from coopsumo.observation import Observation
@@ -81,26 +86,65 @@ class Window:
 
 
 def transitions(
-    prev: Observation, actions: np.ndarray, out: StepOutcome, now: Observation, exit_transition: str
+    prev: Observation,
+    actions: np.ndarray,
+    reward_sum: np.ndarray,
+    arrived: np.ndarray,
+    now: Observation,
+    exit_transition: str,
 ) -> tuple[np.ndarray, ...]:
-    """(grids, speed_err, actions, rewards, next_grids, next_speed_err, dones) of the last step.
+    """(grids, speed_err, actions, rewards, next_grids, next_speed_err, dones, next_mask) of the last interval.
 
-    Vehicles present before and after give ordinary transitions; vehicles that left the road
-    are dropped or stored as terminal (next state = last state, masked by done).
+    prev: the last decision round's observation and its `actions`; now: this round's observation.
+    reward_sum: rewards summed over the interval, indexed by vehicle number; arrived: numbers of the
+    vehicles that left the road during it. Vehicles present in both rounds give ordinary transitions;
+    vehicles that left are dropped or stored as terminal (next state = last state, masked by done).
     """
     _, i_prev, i_now = np.intersect1d(prev.nums, now.nums, assume_unique=True, return_indices=True)
-    reward = out.reward.total
+    reward = reward_sum[prev.nums]
     g, e = prev.grids[i_prev], prev.speed_err[i_prev]
     ng, ne = now.grids[i_now], now.speed_err[i_now]
     a, r = actions[i_prev], reward[i_prev]
+    nm = now.feasible[i_now]
     done = np.zeros(len(i_prev), np.float32)
-    if exit_transition == "terminal" and out.arrived.any():
-        gone = np.flatnonzero(out.arrived)
+    gone_rows = np.isin(prev.nums, arrived)
+    if exit_transition == "terminal" and gone_rows.any():
+        gone = np.flatnonzero(gone_rows)
         g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev.speed_err[gone]])
         ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev.speed_err[gone]])
         a, r = np.concatenate([a, actions[gone]]), np.concatenate([r, reward[gone]])
+        nm = np.concatenate([nm, prev.feasible[gone]])
         done = np.concatenate([done, np.ones(len(gone), np.float32)])
-    return g, e, a, r.astype(np.float32), ng, ne, done
+    return g, e, a, r.astype(np.float32), ng, ne, done, nm
+
+
+@dataclass
+class Pending:
+    """What the trainer carries between decision rounds (rebuilt by replay on resume)."""
+
+    prev: Observation | None = None
+    """the last decision round's observation"""
+    prev_actions: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """the actions decided then"""
+    reward_sum: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    """rewards since each vehicle's last decision, by vehicle number"""
+    arrived: list[np.ndarray] = field(default_factory=list)
+    """numbers of vehicles that left the road since the last decision round"""
+
+    def _grow(self, nums: np.ndarray) -> None:
+        if len(nums) and int(nums.max()) >= len(self.reward_sum):
+            extra = max(int(nums.max()) + 1, 2 * len(self.reward_sum)) - len(self.reward_sum)
+            self.reward_sum = np.concatenate([self.reward_sum, np.zeros(extra)])
+
+    def start_interval(self, obs: Observation, actions: np.ndarray) -> None:
+        """A decision round: remember it and zero the reward sums of the vehicles that decided."""
+        self._grow(obs.nums)
+        self.reward_sum[obs.nums] = 0.0
+        self.prev, self.prev_actions, self.arrived = obs, actions, []
+
+    def add_rewards(self, nums: np.ndarray, rewards: np.ndarray) -> None:
+        self._grow(nums)
+        self.reward_sum[nums] += rewards
 
 
 class Trainer:
@@ -114,6 +158,8 @@ class Trainer:
         self.out = out
         self.progress = progress
         self.learner = Learner(cfg.dqn, cfg.sim.seed)
+        self.hold = ActionHold(cfg.dqn.decision_interval_steps)
+        self.pending = Pending()
         self.step = 0
         self.action_log: list[np.ndarray] = []
         self.window = Window()
@@ -171,6 +217,44 @@ class Trainer:
             for s, h in old.items():
                 signal.signal(s, h)
 
+    def _advance(self, world: World, recorded: np.ndarray | None = None) -> StepOutcome:
+        """One environment step; on a decision round, store the last interval's transitions and decide.
+
+        recorded: the actions this step took in the run being resumed (replay: no learning, same
+        bookkeeping). Returns the step's outcome.
+        """
+        dq = self.cfg.dqn
+        learner = self.learner
+        pend = self.pending
+        decide = self.hold.is_decision_step(world.step_count)
+        obs = world.observe(grids=decide)
+        decided = None
+        if decide:
+            if recorded is None and pend.prev is not None:
+                arrived = np.concatenate(pend.arrived) if pend.arrived else np.zeros(0, np.int64)
+                batch = transitions(pend.prev, pend.prev_actions, pend.reward_sum, arrived, obs, dq.exit_transition)
+                n = len(batch[0])
+                if n:
+                    keep = learner.rng.permutation(n)[: dq.store_per_decision]
+                    grids, err, acts, rews, ngrids, nerr, dones, nmask = (x[keep] for x in batch)
+                    learner.observe(grids, err, acts, rews, ngrids, nerr, dones, nmask if dq.action_mask else None)
+            if recorded is None:
+                mask = obs.feasible if dq.action_mask else None
+                decided = learner.act(obs.grids, obs.speed_err, explore=True, mask=mask)
+            else:
+                decided = recorded
+            pend.start_interval(obs, decided)
+        actions = self.hold.actions(obs.nums, decided)
+        if recorded is not None and not np.array_equal(actions, recorded):
+            raise RuntimeError(f"resume replay diverged at step {world.step_count}")
+        out = world.apply(actions)
+        pend.add_rewards(out.nums, out.reward.total)
+        if out.arrived.any():
+            pend.arrived.append(out.nums[out.arrived])
+        if recorded is None:
+            self.action_log.append(actions.astype(np.int8))
+        return out
+
     def _loop(self, cfg: TrainConfig) -> None:
         log_path = self.out / "train_log.csv"
         new_log = self.step == 0 or not log_path.exists()
@@ -178,19 +262,13 @@ class Trainer:
             with log_path.open("w", newline="") as f:
                 csv.writer(f).writerow(LOG_FIELDS)
         learner = self.learner
-        dq = cfg.dqn
         start = time.perf_counter()
         (self.out / "sumo").mkdir(parents=True, exist_ok=True)
         with World(cfg.sim, self.out / "sumo") as world:
-            prev: Observation | None = None
-            prev_actions = np.zeros(0, np.int64)
-            out: StepOutcome | None = None
             replay = self.action_log[: self.step]
             for recorded in tqdm(replay, desc="replaying to resume", disable=not self.progress or not replay,
                                  unit="step", mininterval=0.5, file=sys.stderr):  # fmt: skip
-                prev = world.observe()
-                prev_actions = recorded
-                out = world.apply(recorded)
+                self._advance(world, recorded.astype(np.int64))
             bar = tqdm(total=cfg.sim.steps, initial=self.step, desc="train", unit="step",
                        disable=not self.progress, mininterval=0.5, file=sys.stderr)  # fmt: skip
             reported = self.step  # steps already told to the bar and to on_steps
@@ -201,18 +279,9 @@ class Trainer:
                         self.save_checkpoint()
                         bar.close()
                         raise Interrupted(self._stop_signal, self.step)
-                    obs = world.observe()
-                    if prev is not None and out is not None:
-                        batch = transitions(prev, prev_actions, out, obs, dq.exit_transition)
-                        n = len(batch[0])
-                        if n:
-                            keep = learner.rng.permutation(n)[: dq.store_per_step]
-                            learner.observe(*(x[keep] for x in batch))
-                    actions = learner.act(obs.grids, obs.speed_err, explore=True)
-                    out = world.apply(actions)
-                    prev, prev_actions = obs, actions
-                    self.action_log.append(actions.astype(np.int8))
-                    loss = learner.step()
+                    decided = self.hold.is_decision_step(world.step_count)
+                    out = self._advance(world)
+                    loss = learner.step(decided)
                     self.step += 1
                     w = self.window
                     if loss is not None:
@@ -242,7 +311,7 @@ class Trainer:
             self.step, round(world.time_s, 1),
             float(np.mean(w.loss)) if w.loss else "",
             w.r_speed / n, w.r_lane_change / n, w.r_flow / n, (w.r_speed + w.r_lane_change + w.r_flow) / n,
-            1.0 - self.cfg.dqn.greedy_prob,
+            self.learner.epsilon,
             w.speed_sum / max(w.vehicle_steps, 1), len(world.table.nums),
             w.lane_changes, w.rejected, tot.collisions, tot.teleports, round(wall_s, 2),
         ]  # fmt: skip
@@ -294,7 +363,9 @@ def train(
     trainer.checkpoint_path().unlink(missing_ok=True)
     if cfg.eval_steps == 0:
         return train_summary
-    summary = evaluate(cfg, DQNPolicy(trainer.learner.online), out, progress, on_steps)
+    policy = DQNPolicy(trainer.learner.online, decision_interval=cfg.dqn.decision_interval_steps,
+                       action_mask=cfg.dqn.action_mask)  # fmt: skip
+    summary = evaluate(cfg, policy, out, progress, on_steps)
     write_json(out / "summary.json", summary)
     return summary
 
@@ -306,34 +377,80 @@ def default_out(cfg: TrainConfig) -> Path:
     )
 
 
+LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
+    ("--decision-interval", "decision_interval_steps", int,
+     "steps of 0.1 s between a vehicle's decisions (paper: 1); a lane change starts on the decision step, "
+     "then the vehicle asks to speed up; rewards of the interval are summed into one transition"),
+    ("--action-mask", "action_mask", bool, "offer left/right only when the controller would accept them"),
+    ("--double-dqn", "double_dqn", bool, "double DQN target"),
+    ("--loss", "loss", ("mse", "huber"), "TD loss (paper: mse)"),
+    ("--lr", "lr", float, "learning rate"),
+    ("--optimizer", "optimizer", ("sgd", "adam"), "optimizer (paper: sgd)"),
+    ("--gamma", "gamma", float, "discount per decision round (paper: 0.9 per 0.1 s step)"),
+    ("--replay-size", "replay_size", int, "replay memory (transitions)"),
+    ("--batch-size", "batch_size", int, "minibatch (transitions)"),
+    ("--learn-every", "learn_every", int, "decision rounds between learning phases"),
+    ("--updates-per-decision", "updates_per_learn", int, "gradient updates per learning phase"),
+    ("--store-per-decision", "store_per_decision", int, "transitions stored per decision round (random subset)"),
+    ("--target-sync", "target_sync_steps", int, "steps of 0.1 s between target-network syncs"),
+    ("--epsilon-start", "epsilon_start", float, "exploration probability at the start"),
+    ("--epsilon-end", "epsilon_end", float, "exploration probability after the decay"),
+    ("--epsilon-decay-steps", "epsilon_decay_steps", int, "steps of the linear epsilon decay (0: constant)"),
+)  # fmt: skip
+"""(flag, DQNConfig field, type or choices, help); every flag defaults to the chosen preset's value"""
+
+
+def add_learner_flags(p: Parser) -> None:
+    """--preset and one flag per learner setting (unset flags keep the preset's value)."""
+    p.add_argument("--preset", choices=tuple(DQN_PRESETS), default="default",
+                   help="learner preset: 'default' (the project's measured design) or 'paper' (literal)")  # fmt: skip
+    for flag, name, kind, text in LEARNER_FLAGS:
+        default = getattr(DQNConfig(), name)
+        help_text = f"{text} (default preset: {default})"
+        if kind is bool:
+            p.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+        elif isinstance(kind, tuple):
+            p.add_argument(flag, dest=name, choices=kind, default=None, help=help_text)
+        else:
+            p.add_argument(flag, dest=name, type=kind, default=None, help=help_text)
+
+
+def learner_from_args(args: Any) -> DQNConfig:
+    """The preset with every given learner flag applied; a bad value is a usage error naming the flag."""
+    cfg = DQN_PRESETS[args.preset]
+    for flag, name, kind, _ in LEARNER_FLAGS:
+        value = getattr(args, name)
+        if value is None:
+            continue
+        if kind is float and not math.isfinite(value):
+            raise UsageError(f"{flag} must be a finite number, got {value}")
+        cfg = replace(cfg, **{name: value})
+        try:
+            replace(DQN_PRESETS[args.preset], **{name: value}).validate()
+        except ConfigError as err:
+            raise UsageError(f"{flag}: {err}") from None
+    cfg.validate()
+    return cfg
+
+
 def build_parser() -> Parser:
     p = Parser(prog="python -m coopsumo.train", description="Train the cooperative lane-changing DQN.")
     p.add_argument("--lanes", type=int, default=3, help="number of lanes, 2-6")
-    p.add_argument("--alpha", type=float, default=0.0, help="lane-change penalty of eq. (7)")
+    p.add_argument("--alpha", type=float, default=0.0, help="lane-change penalty of eq. (7), per accepted change")
     p.add_argument("--t-up", type=float, default=DemandConfig.t_up_s, help="upstream departure interval (s)")
     p.add_argument("--steps", type=int, default=90_000, help="training steps of 0.1 s")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--out", type=Path, default=None, help="run folder (default results/train/...)")
     p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
     p.add_argument("--eval-steps", type=int, default=TrainConfig.eval_steps, help="greedy evaluation steps (0: none)")
-    p.add_argument("--batch-size", type=int, default=DQNConfig.batch_size)
-    p.add_argument("--learn-every", type=int, default=DQNConfig.learn_every_steps, help="steps between updates")
-    p.add_argument("--replay-size", type=int, default=DQNConfig.replay_size)
-    p.add_argument("--lr", type=float, default=DQNConfig.lr, help="learning rate")
-    p.add_argument("--optimizer", choices=("adam", "sgd"), default=DQNConfig.optimizer)
-    p.add_argument("--gamma", type=float, default=DQNConfig.gamma, help="discount per 0.1 s step (paper: 0.9)")
+    add_learner_flags(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
 
 def config_from_args(args: Any) -> TrainConfig:
-    import math
-
     if not math.isfinite(args.alpha) or args.alpha < 0:
         raise UsageError(f"alpha must be a finite number >= 0, got {args.alpha}")
-    for name in ("batch_size", "learn_every", "replay_size"):
-        if getattr(args, name) <= 0:
-            raise UsageError(f"{name.replace('_', '-')} must be positive, got {getattr(args, name)}")
     sim = SimConfig(
         road=RoadConfig(lanes=args.lanes),
         demand=DemandConfig(t_up_s=args.t_up),
@@ -342,13 +459,7 @@ def config_from_args(args: Any) -> TrainConfig:
         seed=args.seed,
         policy="dqn",
     )
-    if not (math.isfinite(args.lr) and args.lr > 0):
-        raise UsageError(f"lr must be a positive number, got {args.lr}")
-    if not 0 <= args.gamma < 1:
-        raise UsageError(f"gamma must be in [0, 1), got {args.gamma}")
-    dqn = DQNConfig(batch_size=args.batch_size, learn_every_steps=args.learn_every, replay_size=args.replay_size,
-                    lr=args.lr, optimizer=args.optimizer, gamma=args.gamma)  # fmt: skip
-    cfg = TrainConfig(sim=sim, dqn=dqn, eval_steps=args.eval_steps)
+    cfg = TrainConfig(sim=sim, dqn=learner_from_args(args), eval_steps=args.eval_steps)
     cfg.validate()
     return cfg
 

@@ -163,8 +163,13 @@ class World:
         other = self.veh.lc_from[nums] + self.veh.lc_to[nums] - lane
         return np.where(busy, other, -1)
 
-    def observe(self) -> Observation:
-        """Observation of every vehicle on the road now (call once per step, before apply)."""
+    def observe(self, grids: bool | None = None) -> Observation:
+        """Observation of every vehicle on the road now (call once per step, before apply).
+
+        grids: build the occupancy grids and push them into the frame history (default: the
+        world's observe_grids). Off, obs.grids and obs.speed_err are zeros and the history is
+        left alone, so the 3 frames are those of the steps on which grids were asked for.
+        """
         t = self.table
         c = self.cfg
         v_exp = self.veh.v_exp[t.nums]
@@ -173,15 +178,17 @@ class World:
         around = physics.neighbours(
             occ, t.pos, t.speed, physics.side_lanes(t.lane), c.road.lanes, c.control.car_length_m
         )
-        if self.observe_grids:
+        busy = other >= 0
+        if self.observe_grids if grids is None else grids:
             grid = snapshot(occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
-            grids, speed_err = self.history.push(t.nums, grid, (t.speed - v_exp).astype(np.float32))
+            frames, speed_err = self.history.push(t.nums, grid, (t.speed - v_exp).astype(np.float32))
         else:
-            grids = np.zeros((len(t.nums), N_FRAMES, N_SIDES, N_CELLS), np.uint8)
+            frames = np.zeros((len(t.nums), N_FRAMES, N_SIDES, N_CELLS), np.uint8)
             speed_err = np.zeros((len(t.nums), N_FRAMES), np.float32)
         self._obs = Observation(
-            nums=t.nums, grids=grids, speed_err=speed_err, lane=t.lane, pos=t.pos, speed=t.speed,
-            v_exp=v_exp, busy=other >= 0, around=around, n_lanes=c.road.lanes,
+            nums=t.nums, grids=frames, speed_err=speed_err, lane=t.lane, pos=t.pos, speed=t.speed,
+            v_exp=v_exp, busy=busy, around=around, n_lanes=c.road.lanes,
+            feasible=physics.feasible_actions(around, busy, t.speed, c.control),
         )  # fmt: skip
         return self._obs
 
@@ -202,14 +209,9 @@ class World:
 
         # lane changes: ask, check safety, resolve same-step conflicts
         wants = (actions == physics.LEFT) | (actions == physics.RIGHT)
-        side = np.where(actions == physics.LEFT, 0, 2)
         target = obs.lane + np.where(actions == physics.LEFT, 1, -1)
         rows = np.arange(n)
-        safe = physics.lane_change_safe(
-            obs.around.lead_gap[rows, side], obs.around.follow_gap[rows, side], obs.speed,
-            obs.around.follow_speed[rows, side], c,
-        )  # fmt: skip
-        ok = wants & ~obs.busy & obs.around.exists[rows, side] & safe
+        ok = wants & obs.feasible[rows, np.where(wants, actions, physics.SPEEDUP)]
         ok = physics.resolve_conflicts(target, obs.pos, obs.speed, ok, c)
         rejected = wants & ~ok
         movers = obs.nums[ok]

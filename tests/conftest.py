@@ -59,6 +59,7 @@ def make_observation(
         busy=other >= 0,
         around=around,
         n_lanes=n_lanes,
+        feasible=physics.feasible_actions(around, other >= 0, speed_a, ControlConfig()),
     )
 
 

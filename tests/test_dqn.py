@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from coopsumo.config import DQNConfig
+from coopsumo.config import PAPER_DQN, DQNConfig
 from coopsumo.dqn import (
     GRID_SHAPE,
     N_ACTIONS,
@@ -28,7 +28,8 @@ from coopsumo.dqn import (
 )
 from coopsumo.observation import Observation
 
-SMALL_CFG = DQNConfig(replay_size=64, batch_size=8, learn_start_steps=0, target_sync_steps=3, learn_every_steps=1)
+SMALL_CFG = dataclasses.replace(PAPER_DQN, replay_size=64, batch_size=8, learn_start_steps=0, target_sync_steps=3,
+                                learn_every=1)
 
 
 def random_transitions(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
@@ -164,7 +165,7 @@ def test_replay_sample_types() -> None:
 def test_epsilon_greedy_fully_greedy_is_argmax() -> None:
     rng = np.random.default_rng(0)
     q = rng.normal(size=(500, N_ACTIONS))
-    actions = epsilon_greedy(q, 1.0, rng)
+    actions = epsilon_greedy(q, 0.0, rng)
     assert actions.dtype == np.int64
     assert np.array_equal(actions, q.argmax(axis=1))
 
@@ -172,14 +173,14 @@ def test_epsilon_greedy_fully_greedy_is_argmax() -> None:
 def test_epsilon_greedy_never_greedy_is_uniform() -> None:
     rng = np.random.default_rng(0)
     q = np.tile([0.0, 0.0, 5.0, 0.0], (40_000, 1))
-    counts = np.bincount(epsilon_greedy(q, 0.0, rng), minlength=N_ACTIONS) / 40_000
+    counts = np.bincount(epsilon_greedy(q, 1.0, rng), minlength=N_ACTIONS) / 40_000
     assert np.all(np.abs(counts - 0.25) < 0.015)
 
 
 def test_epsilon_greedy_mixture() -> None:
     rng = np.random.default_rng(0)
     q = np.tile([0.0, 0.0, 5.0, 0.0], (40_000, 1))
-    share = np.mean(epsilon_greedy(q, 0.9, rng) == 2)
+    share = np.mean(epsilon_greedy(q, 0.1, rng) == 2)
     assert abs(share - (0.9 + 0.1 / N_ACTIONS)) < 0.01
 
 
@@ -230,7 +231,7 @@ def test_target_changes_only_at_sync() -> None:
 
 
 def test_no_update_before_learn_start_or_a_full_batch() -> None:
-    learner = Learner(DQNConfig(batch_size=8, learn_start_steps=3, replay_size=64, learn_every_steps=1), seed=0)
+    learner = Learner(dataclasses.replace(PAPER_DQN, batch_size=8, learn_start_steps=3, replay_size=64, learn_every=1), seed=0)
     assert learner.step() is None  # empty buffer
     learner.observe(**random_transitions(np.random.default_rng(0), 8))
     assert learner.step() is None  # step 2 < learn_start_steps
@@ -269,7 +270,7 @@ def test_learner_leaves_torch_global_rng_alone() -> None:
 
 @pytest.mark.parametrize("via_file", [False, True])
 def test_state_dict_resume_is_exact(tmp_path: Path, via_file: bool) -> None:
-    cfg = DQNConfig(replay_size=40, batch_size=8, learn_start_steps=4, target_sync_steps=5)
+    cfg = dataclasses.replace(PAPER_DQN, replay_size=40, batch_size=8, learn_start_steps=4, target_sync_steps=5)
     env_rng = np.random.default_rng(11)
     uninterrupted = Learner(cfg, seed=1)
     run_steps(uninterrupted, env_rng, 12)  # the buffer wraps around (60 transitions > 40)

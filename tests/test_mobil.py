@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from coopsumo import physics
 from coopsumo.config import ControlConfig, DemandConfig, RoadConfig, SimConfig
 from coopsumo.mobil import MobilPolicy, newell_accel
 from coopsumo.observation import Observation
@@ -158,6 +159,7 @@ def test_polite_driver_makes_way_for_a_faster_follower() -> None:
         nums=np.array([0, 1]), grids=np.zeros((2, 3, 3, 20), np.uint8), speed_err=np.zeros((2, 3), np.float32),
         lane=np.array([0, 0]), pos=np.array([500.0, 496.0 - g_o]), speed=np.array([20.0, 30.0]),
         v_exp=np.array([20.0, 30.0]), busy=np.array([False, False]), around=around, n_lanes=2,
+        feasible=physics.feasible_actions(around, np.array([False, False]), np.array([20.0, 30.0]), ControlConfig()),
     )  # fmt: skip
     incentive, _ = MobilPolicy(p=0.5).incentives(obs)
     assert incentive[0, 0] == pytest.approx(0.5 * 10.0, abs=1e-6)

@@ -1,0 +1,480 @@
+"""`python -m coopsumo.ablation` (`make learning`): what makes the shared DQN learn, one change at a time.
+
+Two parts, both trained in free flow (3 lanes, T_up 1 s by default) and evaluated greedily on
+evaluation seeds the models never trained on, beside baselines on the same evaluation seeds:
+
+- the ablation: learner variants from the paper-literal setup to the default design, each adding
+  one change to the one before (VARIANTS);
+- the alpha response: the default design trained for every alpha of the grid.
+
+A "cell" is one training seed of one variant and alpha (train, then one greedy evaluation on
+evaluation seed EVAL_SEED_OFFSET + training seed) or one baseline evaluation. Cells run on the
+scenario II runner (local processes or Ray), each finished cell is written atomically to
+OUT/cells/<key>.json, and a rerun skips finished cells. Outputs in OUT (default
+results/learning): cells/, train/<key>/, baselines/<key>/, runs.csv, summary.csv,
+alpha_response.csv, fig_training_curves.png, fig_alpha_response.png, report.md.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+import traceback
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from coopsumo.config import (
+    PAPER_DQN,
+    DemandConfig,
+    DQNConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
+from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+
+EVAL_SEED_OFFSET = 1000
+"""a model trained with seed s is evaluated on seed EVAL_SEED_OFFSET + s (a demand it never saw)"""
+BASELINES = ("keep", "greedy", "mobil:p=0", "mobil:p=0.5")
+ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 8.0)
+METRICS = ("mean_speed_mps", "lane_changes_per_vehicle", "lane_changes_rejected", "teleports", "collisions",
+           "throughput_veh_per_h", "mean_travel_time_s")  # fmt: skip
+
+
+def _variants() -> list[tuple[str, str, DQNConfig]]:
+    """(name, what it adds, learner): each variant is the previous one plus one change."""
+    steps: list[tuple[str, str, dict[str, Any]]] = [
+        ("paper", "the paper-literal learner (--preset paper)", {}),
+        ("interval", "+ a decision every 10 steps (1 s), rewards of the interval summed", {"decision_interval_steps": 10}),
+        ("mask", "+ feasible-action masking (choice, exploration, target max)", {"action_mask": True}),
+        ("double_huber", "+ double DQN target and Huber loss", {"double_dqn": True, "loss": "huber"}),
+        ("adam", "+ Adam at lr 1e-3 instead of SGD at 0.01", {"optimizer": "adam", "lr": 1e-3}),
+        ("replay", "+ replay 20,000 and 2 updates every decision round (not 1 every 4)",
+         {"replay_size": 20_000, "learn_every": 1, "updates_per_learn": 2}),
+        ("eps_decay", "+ epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
+         {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
+    ]  # fmt: skip
+    out = []
+    cfg = PAPER_DQN
+    for name, text, change in steps:
+        cfg = replace(cfg, **change)
+        out.append((name, text, replace(cfg, preset="paper" if name == "paper" else "default")))
+    return out
+
+
+VARIANTS = _variants()
+VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
+
+
+@dataclass(frozen=True)
+class Profile:
+    """How big the study is."""
+
+    name: str
+    train_steps: int
+    eval_steps: int
+    seeds: tuple[int, ...]
+    variants: tuple[str, ...]
+    alphas: tuple[float, ...]
+    lanes: int = 3
+    t_up_s: float = 1.0
+
+
+PROFILES = {
+    "full": Profile("full", 90_000, 9000, (0, 1, 2), VARIANT_NAMES, ALPHAS),
+    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "replay"), (0.0, 1.0)),
+    "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval"), (0.0, 1.0)),
+}
+
+
+def learner_of(variant: str) -> DQNConfig:
+    for name, _, cfg in VARIANTS:
+        if name == variant:
+            return cfg
+    raise UsageError(f"unknown variant {variant!r}; expected one of {', '.join(VARIANT_NAMES)}")
+
+
+def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> TrainConfig:
+    sim = SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=profile.t_up_s),
+                    reward=RewardConfig(alpha=alpha), steps=profile.train_steps, seed=seed, policy="dqn")  # fmt: skip
+    return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
+
+
+def eval_config(profile: Profile, policy: str, seed: int) -> SimConfig:
+    return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=profile.t_up_s),
+                     steps=profile.eval_steps, seed=seed, policy=policy)  # fmt: skip
+
+
+def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
+    """Every cell of the study: ablation trainings, alpha-response trainings, baselines."""
+    specs: list[dict[str, Any]] = []
+    seen: set[str] = set()
+
+    def add_train(part: str, variant: str, dqn: DQNConfig, alpha: float, seed: int) -> None:
+        key = f"{variant}_alpha{alpha:g}_seed{seed}"
+        if key in seen:
+            return
+        seen.add(key)
+        cfg = train_config(profile, dqn, alpha, seed)
+        cfg.validate()
+        ev = eval_config(profile, "dqn", EVAL_SEED_OFFSET + seed)
+        specs.append({"key": key, "kind": "train", "part": part, "variant": variant, "alpha": alpha, "seed": seed,
+                      "eval_seed": EVAL_SEED_OFFSET + seed, "policy": "dqn",
+                      "config": json.loads(json.dumps({"train": to_dict(cfg), "eval": to_dict(ev)}))})  # fmt: skip
+
+    for variant in profile.variants:
+        for seed in profile.seeds:
+            add_train("ablation", variant, learner_of(variant), 0.0, seed)
+    default_name = next((n for n, _, c in VARIANTS if c == default), "default")
+    for alpha in profile.alphas:
+        for seed in profile.seeds:
+            add_train("alpha", default_name, default, alpha, seed)
+    for policy in BASELINES:
+        for seed in profile.seeds:
+            ev = eval_config(profile, policy, EVAL_SEED_OFFSET + seed)
+            specs.append({"key": f"{policy.replace(':', '_').replace('=', '')}_seed{seed}", "kind": "baseline",
+                          "part": "baseline", "variant": policy, "alpha": None, "seed": seed,
+                          "eval_seed": EVAL_SEED_OFFSET + seed, "policy": policy,
+                          "config": json.loads(json.dumps({"eval": to_dict(ev)}))})  # fmt: skip
+    return specs
+
+
+# -- one cell (in a worker process) ----------------------------------------------------------------
+def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
+    """Run one cell and return its record (never raises on failure; see scenario2.run_cell)."""
+    start, cpu_start = time.perf_counter(), time.process_time()
+    record: dict[str, Any] = {k: spec.get(k) for k in ("key", "kind", "part", "variant", "alpha", "seed",
+                                                       "eval_seed", "policy")}  # fmt: skip
+    record.update(config=spec["config"], error=None, traceback=None, summary=None, train_summary=None)
+    try:
+        if spec["kind"] == "train":
+            _run_train(spec, Path(root), record)
+        else:
+            _run_baseline(spec, Path(root), record)
+        record["status"] = "ok"
+    except KeyboardInterrupt as err:
+        record.update(status="interrupted", error=f"{type(err).__name__}: {err}")
+    except Exception as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else ""
+        record.update(status="failed", error=f"{type(err).__name__}: {first}".rstrip(": "),
+                      traceback=traceback.format_exc(limit=8))  # fmt: skip
+    record["cell_wall_s"] = round(time.perf_counter() - start, 2)
+    record["cell_cpu_s"] = round(time.process_time() - cpu_start, 2)
+    record["versions"] = versions()
+    return record
+
+
+def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    import torch
+
+    from coopsumo.config import sim_config_from_dict, train_config_from_dict
+    from coopsumo.dqn_policy import DQNPolicy
+    from coopsumo.simulate import run
+    from coopsumo.train import Interrupted, Trainer, train
+
+    torch.set_num_threads(1)
+    out = root / "train" / spec["key"]
+    cfg = train_config_from_dict(spec["config"]["train"])
+    out.mkdir(parents=True, exist_ok=True)
+    resume = False
+    if (out / "checkpoint.pt").exists():
+        try:
+            state = Trainer.load_checkpoint(out)
+            resume = json.loads(json.dumps(state["config"])) == spec["config"]["train"]
+        except Exception:  # a damaged checkpoint: start afresh
+            resume = False
+    try:
+        record["train_summary"] = train(cfg, out, resume=resume, progress=False)
+    except Interrupted as err:
+        raise KeyboardInterrupt(str(err)) from err
+    ev = sim_config_from_dict(spec["config"]["eval"])
+    ev = replace(ev, policy=f"dqn:{out / 'model.pt'}")
+    eval_dir = out / f"eval_seed{ev.seed}"
+    eval_dir.mkdir(exist_ok=True)
+    summary = run(ev, DQNPolicy.from_file(str(out / "model.pt")), eval_dir, progress=False)
+    record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
+
+
+def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    from coopsumo.config import sim_config_from_dict
+    from coopsumo.policies import make_policy
+    from coopsumo.simulate import run
+
+    cfg = sim_config_from_dict(spec["config"]["eval"])
+    out = root / "baselines" / spec["key"]
+    out.mkdir(parents=True, exist_ok=True)
+    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]), cfg.control)
+    summary = run(cfg, policy, out, progress=False, label=spec["key"])
+    record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
+
+
+# -- tables ----------------------------------------------------------------------------------------
+def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:
+    """One tidy row per cell: coordinates, status, the evaluation metrics, training cost."""
+    rows = []
+    for r in records:
+        s = r.get("summary") or {}
+        t = r.get("train_summary") or {}
+        row = {k: r.get(k) for k in ("key", "kind", "part", "variant", "alpha", "seed", "eval_seed", "status")}
+        row.update({m: s.get(m) for m in METRICS})
+        row.update(train_mean_speed_mps=t.get("mean_speed_mps"), train_lane_changes=t.get("lane_changes"),
+                   train_wall_s=t.get("wall_seconds"), train_steps_per_s=t.get("steps_per_second"),
+                   train_updates=t.get("updates"), cell_wall_s=r.get("cell_wall_s"))  # fmt: skip
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    for m in (*METRICS, "alpha", "train_mean_speed_mps", "train_wall_s", "train_steps_per_s", "cell_wall_s"):
+        table[m] = pd.to_numeric(table[m], errors="coerce").astype(float)
+    return table
+
+
+def summarise(runs: pd.DataFrame, by: list[str]) -> pd.DataFrame:
+    """Mean, standard deviation and count over seeds of every metric, per group."""
+    ok = runs[runs["status"] == "ok"]
+    cols = [*METRICS, "train_wall_s"]
+    agg = ok.groupby(by, dropna=False, sort=False)[cols].agg(["mean", "std", "count"])
+    agg.columns = [f"{m}_{stat}" for m, stat in agg.columns]
+    return agg.reset_index()
+
+
+def is_monotone_decreasing(means: np.ndarray, sds: np.ndarray) -> bool:
+    """True when no step up of the means exceeds the larger of the two neighbours' standard deviations."""
+    for i in range(len(means) - 1):
+        rise = means[i + 1] - means[i]
+        if rise > max(np.nan_to_num(sds[i]), np.nan_to_num(sds[i + 1])):
+            return False
+    return True
+
+
+# -- figures ---------------------------------------------------------------------------------------
+def training_curves_figure(root: Path, runs: pd.DataFrame, out_path: Path) -> Path:
+    """Mean speed during training (exploring) per log window, mean over seeds, one line per variant."""
+    from coopsumo.plots import _new_figure, _save
+
+    fig = _new_figure(9.0, 4.5)
+    axes = fig.subplots(1, 2)
+    ok = runs[(runs["status"] == "ok") & (runs["part"] == "ablation")]
+    for variant, group in ok.groupby("variant", sort=False):
+        logs = []
+        for key in group["key"]:
+            path = root / "train" / key / "train_log.csv"
+            if path.exists():
+                logs.append(pd.read_csv(path).set_index("step"))
+        if not logs:
+            continue
+        speed = pd.concat([lg["mean_speed_mps"] for lg in logs], axis=1).mean(axis=1)
+        lc = pd.concat([lg["lane_changes"] / lg["vehicles"].clip(lower=1) for lg in logs], axis=1).mean(axis=1)
+        axes[0].plot(speed.index, speed.to_numpy(), label=str(variant))
+        axes[1].plot(lc.index, lc.to_numpy(), label=str(variant))
+    axes[0].set_xlabel("training step")
+    axes[0].set_ylabel("mean speed while training (m/s)")
+    axes[1].set_xlabel("training step")
+    axes[1].set_ylabel("lane changes per 1,000 steps / vehicles on road")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, out_path)
+
+
+def alpha_response_figure(alpha_tab: pd.DataFrame, base: pd.DataFrame, out_path: Path) -> Path:
+    """Lane changes per vehicle and mean speed against alpha (mean and sd over seeds), baselines as lines."""
+    from coopsumo.plots import _new_figure, _save
+
+    fig = _new_figure(9.0, 4.0)
+    axes = fig.subplots(1, 2)
+    x = np.arange(len(alpha_tab))
+    for ax, metric, label in ((axes[0], "lane_changes_per_vehicle", "lane changes per vehicle"),
+                              (axes[1], "mean_speed_mps", "mean speed (m/s)")):  # fmt: skip
+        ax.errorbar(x, alpha_tab[f"{metric}_mean"], yerr=alpha_tab[f"{metric}_std"].fillna(0), marker="o",
+                    capsize=3, label="DQN (default design)")  # fmt: skip
+        for _, row in base.iterrows():
+            ax.axhline(row[f"{metric}_mean"], lw=0.8, ls="--", color="grey")
+            ax.annotate(str(row["variant"]), (x[-1], row[f"{metric}_mean"]), fontsize=7, color="grey")
+        ax.set_xticks(x, [f"{a:g}" for a in alpha_tab["alpha"]])
+        ax.set_xlabel("alpha")
+        ax.set_ylabel(label)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, out_path)
+
+
+# -- report ----------------------------------------------------------------------------------------
+def _fmt(mean: float, sd: float, fmt: str = "{:.2f}") -> str:
+    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
+        return "-"
+    return fmt.format(mean) + ("" if sd is None or math.isnan(sd) else " ± " + fmt.format(sd))
+
+
+def _table_rows(tab: pd.DataFrame, label: str) -> list[str]:
+    rows = []
+    for _, r in tab.iterrows():
+        rows.append("| " + " | ".join([
+            str(r[label]) if label != "alpha" else f"{r[label]:g}",
+            _fmt(r["mean_speed_mps_mean"], r["mean_speed_mps_std"]),
+            _fmt(r["lane_changes_per_vehicle_mean"], r["lane_changes_per_vehicle_std"], "{:.3f}"),
+            _fmt(r["lane_changes_rejected_mean"], r["lane_changes_rejected_std"], "{:.0f}"),
+            _fmt(r["teleports_mean"], r["teleports_std"], "{:.1f}"),
+            _fmt(r["collisions_mean"], r["collisions_std"], "{:.1f}"),
+            _fmt(r["throughput_veh_per_h_mean"], r["throughput_veh_per_h_std"], "{:.0f}"),
+            _fmt(r["train_wall_s_mean"], r["train_wall_s_std"], "{:.0f}"),
+            str(int(r["mean_speed_mps_count"])),
+        ]) + " |")  # fmt: skip
+    return rows
+
+
+HEADER = ("| {} | mean speed (m/s) | lane changes / veh | refused requests | teleports | collisions | "
+          "throughput (veh/h) | training wall (s) | seeds |\n|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+
+
+def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_tab: pd.DataFrame,
+                base: pd.DataFrame, meta: dict[str, Any]) -> str:  # fmt: skip
+    lines = [
+        "# What makes the shared DQN learn: ablation and alpha response",
+        "",
+        f"Profile `{profile.name}`: {profile.lanes} lanes, T_up = {profile.t_up_s:g} s, free flow; each model trained "
+        f"{profile.train_steps:,} steps of 0.1 s on training seeds {list(profile.seeds)}, then evaluated greedily for "
+        f"{profile.eval_steps:,} steps on evaluation seed {EVAL_SEED_OFFSET} + training seed (a demand it never "
+        f"saw). Baselines run on the same evaluation seeds. Every figure is mean ± standard deviation over seeds.",
+        f"{meta['cells']} cells, {meta['cells_run']} run now; wall time {meta['wall_seconds']:.0f} s "
+        f"({meta['workers']} workers, {meta['backend']} backend).",
+        "",
+        "## Ablation: from the paper's learner to the default, one change at a time (alpha = 0)",
+        "",
+    ]
+    for name, text, _ in VARIANTS:
+        if name in profile.variants:
+            lines.append(f"- `{name}`: {text}")
+    lines += ["", HEADER.format("variant"), *_table_rows(abl, "variant"), *_table_rows(base, "variant"), ""]
+    lines += ["![training curves](fig_training_curves.png)", ""]
+    if len(alpha_tab):
+        lines += ["## Alpha response of the default design", "", HEADER.format("alpha"),
+                  *_table_rows(alpha_tab, "alpha"), ""]  # fmt: skip
+        mono = is_monotone_decreasing(alpha_tab["lane_changes_per_vehicle_mean"].to_numpy(float),
+                                      alpha_tab["lane_changes_per_vehicle_std"].to_numpy(float))  # fmt: skip
+        lines.append(f"Lane changes per vehicle {'fall' if mono else 'do NOT fall'} monotonically as alpha rises "
+                     "(a rise larger than the seed spread counts as a break).")  # fmt: skip
+        lines += ["", "![alpha response](fig_alpha_response.png)", ""]
+    ok = runs[runs["status"] == "ok"]
+    bad = ok[(ok["teleports"] > 0) | (ok["collisions"] > 0)]
+    lines.append(f"Safety: {len(bad)} of {len(ok)} evaluations had a teleport or a collision.")
+    failed = runs[runs["status"] != "ok"]
+    if len(failed):
+        lines.append(f"Failed cells: {', '.join(failed['key'])}.")
+    lines += ["", "Reproduce: `python -m coopsumo.ablation" + ("" if profile.name == "full" else
+              f" --profile {profile.name}") + "` (finished cells are reused)."]  # fmt: skip
+    return "\n".join(lines) + "\n"
+
+
+def write_outputs(root: Path, profile: Profile, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
+    runs = runs_table(records)
+    runs.to_csv(root / "runs.csv", index=False)
+    abl = summarise(runs[runs["part"] == "ablation"], ["variant"])
+    order = {n: i for i, n in enumerate(VARIANT_NAMES)}
+    abl = abl.sort_values("variant", key=lambda s: s.map(order)).reset_index(drop=True)
+    alpha_tab = summarise(runs[runs["part"] == "alpha"], ["alpha"]).sort_values("alpha").reset_index(drop=True)
+    # the alpha-response cells include the default design's alpha = 0 model, which may also be an ablation cell
+    base = summarise(runs[runs["part"] == "baseline"], ["variant"])
+    pd.concat([abl.assign(part="ablation"), alpha_tab.assign(part="alpha"), base.assign(part="baseline")]).to_csv(
+        root / "summary.csv", index=False
+    )
+    training_curves_figure(root, runs, root / "fig_training_curves.png")
+    if len(alpha_tab):
+        alpha_response_figure(alpha_tab, base, root / "fig_alpha_response.png")
+    (root / "report.md").write_text(report_text(profile, runs, abl, alpha_tab, base, meta))
+
+
+# -- the study -------------------------------------------------------------------------------------
+def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
+              address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
+    from coopsumo.network import build_net
+    from coopsumo.scenario2 import cell_path, execute, make_backend, read_record
+
+    start = time.perf_counter()
+    root = root.resolve()
+    try:
+        (root / "cells").mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
+    specs = cell_specs(profile, default)
+    stored = {s["key"]: read_record(root, s) for s in specs}
+    todo = [s for s in specs if (stored[s["key"]] or {}).get("status") != "ok"]
+    todo.sort(key=lambda s: (s["kind"] != "train", s["variant"] != "paper"))  # the slow paper trainings first
+    meta: dict[str, Any] = {"profile": asdict(profile), "default_learner": to_dict(default), "cells": len(specs),
+                            "backend": backend_name, "workers": workers, "versions": versions()}  # fmt: skip
+    print(f"ablation: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
+          f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
+    if todo:
+        build_net(RoadConfig(lanes=profile.lanes))
+        backend = make_backend(backend_name, workers, address, run_cell)
+        try:
+            execute(todo, root, backend, len(specs), len(specs) - len(todo), progress, desc="learning cells")
+        finally:
+            backend.close()
+    records = [json.loads(cell_path(root, s["key"]).read_text()) for s in specs]
+    meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1))
+    write_outputs(root, profile, records, meta)
+    write_json(root / "study.json", meta)
+    return meta
+
+
+def build_parser() -> Parser:
+    p = Parser(prog="python -m coopsumo.ablation",
+               description="Ablation of the DQN learner and its alpha response (results/learning).")  # fmt: skip
+    p.add_argument("--profile", choices=tuple(PROFILES), default="full", help="study size (full: paper scale)")
+    p.add_argument("--quick", action="store_true", help="the same as --profile quick")
+    p.add_argument("--variants", default=None, help=f"comma-separated subset of {','.join(VARIANT_NAMES)}")
+    p.add_argument("--alphas", default=None, help="comma-separated alpha grid of the alpha response")
+    p.add_argument("--seeds", type=int, default=None, help="training seeds 0..N-1 (default: the profile's)")
+    p.add_argument("--workers", type=int, default=2, help="parallel cells")
+    p.add_argument("--backend", choices=("local", "ray"), default="local")
+    p.add_argument("--address", default=None, help="Ray cluster address (with --backend ray)")
+    p.add_argument("--out", type=Path, default=Path("results/learning"))
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def profile_from_args(args: Any) -> Profile:
+    profile = PROFILES["quick" if args.quick else args.profile]
+    if args.variants is not None:
+        names = tuple(v.strip() for v in args.variants.split(",") if v.strip())
+        for n in names:
+            learner_of(n)
+        profile = replace(profile, variants=names)
+    if args.alphas is not None:
+        try:
+            alphas = tuple(float(a) for a in args.alphas.split(",") if a.strip())
+        except ValueError:
+            raise UsageError(f"--alphas needs comma-separated numbers, got {args.alphas!r}") from None
+        if any(not (math.isfinite(a) and a >= 0) for a in alphas):
+            raise UsageError(f"--alphas must be finite numbers >= 0, got {args.alphas!r}")
+        profile = replace(profile, alphas=alphas)
+    if args.seeds is not None:
+        if args.seeds <= 0:
+            raise UsageError(f"--seeds must be positive, got {args.seeds}")
+        profile = replace(profile, seeds=tuple(range(args.seeds)))
+    if args.workers <= 0:
+        raise UsageError(f"--workers must be positive, got {args.workers}")
+    return profile
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        profile = profile_from_args(args)
+        meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
+                         progress=not args.quiet)  # fmt: skip
+        print(f"ablation: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")
+        return 0
+
+    return run_cli("ablation", body)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,51 @@
+"""The decision interval: on which steps vehicles decide, and what a decision does until the next one.
+
+Vehicles decide together on every k-th step (step_count % k == 0); the controller still runs
+every 0.1 s step. A decision holds until the next decision round:
+- left/right: the lane change is requested on the decision step only (it starts then, if the
+  controller accepts it); on the k - 1 steps after it the vehicle asks to speed up;
+- speedup and none: repeated on every step of the interval.
+A vehicle that entered the road after the last decision round asks to speed up until it decides.
+With k = 1 every step is a decision round, as in the paper. Pure numpy, no SUMO.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from coopsumo.physics import LEFT, RIGHT, SPEEDUP
+
+
+def is_decision_step(step_count: int, interval_steps: int) -> bool:
+    """True when vehicles decide on this step (steps counted from 0)."""
+    return step_count % interval_steps == 0
+
+
+def follow_up(actions: np.ndarray) -> np.ndarray:
+    """The action held on the steps after a decision: speedup after a lane change, else the same."""
+    actions = np.asarray(actions, np.int64)
+    return np.where((actions == LEFT) | (actions == RIGHT), SPEEDUP, actions)
+
+
+class ActionHold:
+    """Per-vehicle held actions between decision rounds, indexed by vehicle number."""
+
+    def __init__(self, interval_steps: int) -> None:
+        if interval_steps <= 0:
+            raise ValueError(f"decision interval must be positive, got {interval_steps}")
+        self.interval_steps = interval_steps
+        self._held = np.full(1024, SPEEDUP, np.int64)
+
+    def is_decision_step(self, step_count: int) -> bool:
+        return is_decision_step(step_count, self.interval_steps)
+
+    def actions(self, nums: np.ndarray, decided: np.ndarray | None) -> np.ndarray:
+        """This step's actions of vehicles `nums`: `decided` on a decision step, else the held ones."""
+        if len(nums) and int(nums.max()) >= len(self._held):
+            extra = max(int(nums.max()) + 1, 2 * len(self._held)) - len(self._held)
+            self._held = np.concatenate([self._held, np.full(extra, SPEEDUP, np.int64)])
+        if decided is None:
+            return self._held[nums].copy()
+        decided = np.asarray(decided, np.int64)
+        self._held[nums] = follow_up(decided)
+        return decided
