@@ -53,7 +53,7 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
     """(name, what it adds, learner): each variant is the previous one plus one change."""
     steps: list[tuple[str, str, dict[str, Any]]] = [
         ("paper", "the paper-literal learner (--preset paper)", {}),
-        ("interval", "+ a decision every 10 steps (1 s), rewards of the interval summed", {"decision_interval_steps": 10}),
+        ("interval", "+ a decision every 10 steps (1 s), rewards summed over it", {"decision_interval_steps": 10}),
         ("mask", "+ feasible-action masking (choice, exploration, target max)", {"action_mask": True}),
         ("double_huber", "+ double DQN target and Huber loss", {"double_dqn": True, "loss": "huber"}),
         ("adam", "+ Adam at lr 1e-3 instead of SGD at 0.01", {"optimizer": "adam", "lr": 1e-3}),

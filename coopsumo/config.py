@@ -306,9 +306,13 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
     if "greedy_prob" in d:  # written by a version before presets: the paper setup with its own values
         legacy = {"greedy_prob", "learn_every_steps", "store_per_step"}
         eps = 1.0 - float(d["greedy_prob"])
-        base = dataclasses.replace(PAPER_DQN, epsilon_start=eps, epsilon_end=eps,
-                                   learn_every=d.get("learn_every_steps", PAPER_DQN.learn_every),
-                                   store_per_decision=d.get("store_per_step", PAPER_DQN.store_per_decision))  # fmt: skip
+        base = dataclasses.replace(
+            PAPER_DQN,
+            epsilon_start=eps,
+            epsilon_end=eps,
+            learn_every=d.get("learn_every_steps", PAPER_DQN.learn_every),
+            store_per_decision=d.get("store_per_step", PAPER_DQN.store_per_decision),
+        )
         d = {k: v for k, v in d.items() if k not in legacy}
         return dataclasses.replace(base, **d)
     known = {f.name for f in dataclasses.fields(DQNConfig)}

@@ -211,9 +211,7 @@ def epsilon_greedy(
     return np.where(take_greedy, greedy, random_actions)
 
 
-def td_targets(
-    online: QNetwork, target: QNetwork, batch: ReplayBatch, gamma: float, double: bool
-) -> torch.Tensor:
+def td_targets(online: QNetwork, target: QNetwork, batch: ReplayBatch, gamma: float, double: bool) -> torch.Tensor:
     """r + gamma (1 - done) Q_target(s', a*) with a* the best next action among the feasible ones.
 
     Plain DQN: a* maximises the target network; double DQN: a* maximises the online network.

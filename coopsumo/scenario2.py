@@ -419,8 +419,9 @@ class RayBackend:
         self._ray.shutdown()
 
 
-def make_backend(name: str, workers: int, address: str | None,
-                 cell_fn: Callable[[dict[str, Any], str], dict[str, Any]] = run_cell) -> LocalBackend | RayBackend:
+def make_backend(
+    name: str, workers: int, address: str | None, cell_fn: Callable[[dict[str, Any], str], dict[str, Any]] = run_cell
+) -> LocalBackend | RayBackend:
     """The execution backend; cell_fn(spec, root) -> record runs one cell (a module-level function)."""
     if name == "local":
         return LocalBackend(workers, cell_fn)

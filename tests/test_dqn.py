@@ -28,8 +28,9 @@ from coopsumo.dqn import (
 )
 from coopsumo.observation import Observation
 
-SMALL_CFG = dataclasses.replace(PAPER_DQN, replay_size=64, batch_size=8, learn_start_steps=0, target_sync_steps=3,
-                                learn_every=1)
+SMALL_CFG = dataclasses.replace(
+    PAPER_DQN, replay_size=64, batch_size=8, learn_start_steps=0, target_sync_steps=3, learn_every=1
+)
 
 
 def random_transitions(rng: np.random.Generator, n: int) -> dict[str, np.ndarray]:
@@ -231,7 +232,8 @@ def test_target_changes_only_at_sync() -> None:
 
 
 def test_no_update_before_learn_start_or_a_full_batch() -> None:
-    learner = Learner(dataclasses.replace(PAPER_DQN, batch_size=8, learn_start_steps=3, replay_size=64, learn_every=1), seed=0)
+    cfg = dataclasses.replace(PAPER_DQN, batch_size=8, learn_start_steps=3, replay_size=64, learn_every=1)
+    learner = Learner(cfg, seed=0)
     assert learner.step() is None  # empty buffer
     learner.observe(**random_transitions(np.random.default_rng(0), 8))
     assert learner.step() is None  # step 2 < learn_start_steps

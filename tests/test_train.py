@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -12,7 +13,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from coopsumo.config import SimConfig, TrainConfig
+from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig
 from coopsumo.dqn import load_model
 from coopsumo.train import train
 
@@ -53,22 +54,30 @@ def test_short_training_loads_and_drives_safely(tmp_path: Path) -> None:
         capture_output=True, text=True, cwd=ROOT, check=False,
     )  # fmt: skip
     assert res.returncode == 0, res.stderr
-    assert '"collisions": 0' in (out / "summary.json").read_text()
+    driven = json.loads((out / "summary.json").read_text())
+    assert driven["collisions"] == 0 and driven["teleports"] == 0
+    assert summary["teleports"] == 0
+    # a model is driven with the decision interval it was trained with
+    assert cfg.dqn.decision_interval_steps == 10
+    assert driven["decision_interval_steps"] == summary["decision_interval_steps"] == 10
 
 
-def test_same_seed_same_weights(tmp_path: Path) -> None:
-    cfg = TrainConfig(sim=SimConfig(steps=700, seed=5, policy="dqn"), eval_steps=0)
+@pytest.mark.parametrize("preset", ["default", "paper"])
+def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
+    dqn = DQN_PRESETS[preset]
+    cfg = TrainConfig(sim=SimConfig(steps=700, seed=5, policy="dqn"), dqn=dqn, eval_steps=0)
     train(cfg, tmp_path / "a", progress=False)
     train(cfg, tmp_path / "b", progress=False)
     assert _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "b" / "model.pt"))
-    other = TrainConfig(sim=SimConfig(steps=700, seed=6, policy="dqn"), eval_steps=0)
+    other = TrainConfig(sim=SimConfig(steps=700, seed=6, policy="dqn"), dqn=dqn, eval_steps=0)
     train(other, tmp_path / "c", progress=False)
     assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "c" / "model.pt"))
 
 
-def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path) -> None:
+@pytest.mark.parametrize("preset", ["default", "paper"])
+def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str) -> None:
     sig = signal.SIGTERM  # Ctrl-C (SIGINT) is exercised by tests/test_docs.py on the README's commands
-    args = ["--steps", "2500", "--eval-steps", "0", "--seed", "2", "--quiet"]
+    args = ["--steps", "2500", "--eval-steps", "0", "--seed", "2", "--quiet", "--preset", preset]
     full = tmp_path / "full"
     subprocess.run(_cmd(*args, "--out", str(full)), check=True, cwd=ROOT, capture_output=True)
     cut = tmp_path / "cut"
