@@ -6,7 +6,7 @@ STAMP   := $(VENV)/.installed
 QUICK   ?=
 SEEDS   ?=
 
-.PHONY: install test lint bench demo nets scenario1 scenario2 clean
+.PHONY: install test lint bench demo nets scenario1 scenario2 learning clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -38,6 +38,9 @@ scenario1: $(STAMP)
 
 scenario2: $(STAMP)
 	$(BIN)/python -m coopsumo.scenario2 --profile quick --policies dqn,mobil
+
+learning: $(STAMP)
+	$(BIN)/python -m coopsumo.ablation $(if $(QUICK),--quick)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
+from coopsumo.config import DQN_PRESETS, AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.dqn import Learner
 from coopsumo.observation import snapshot
 from coopsumo.physics import occupancy
@@ -42,8 +42,8 @@ def bench_simulation(
     return float(summary["steps_per_second"]), float(summary["mean_vehicles_on_road"])
 
 
-def bench_training(steps: int) -> float:
-    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), eval_steps=0)
+def bench_training(steps: int, preset: str = "default") -> float:
+    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), dqn=DQN_PRESETS[preset], eval_steps=0)
     with tempfile.TemporaryDirectory() as tmp:
         trainer = Trainer(cfg, Path(tmp), progress=False)
         start = time.perf_counter()
@@ -85,10 +85,10 @@ def main(argv: list[str] | None = None) -> int:
         sps, veh = bench_simulation(policy, steps, jam=True, sumo_check=check)
         label = f"{policy}{' + SUMO collision check' if check else ''}"
         print(f"  jammed (accident) {label:30s}: {sps:8.0f} steps/s  ({veh:.0f} vehicles on the road)", flush=True)
-    sps = bench_training(steps)
-    print(
-        f"  train (learning on)         : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min", flush=True
-    )
+    for preset in ("default", "paper"):
+        sps = bench_training(steps, preset)
+        print(f"  train --preset {preset:8s}     : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min",
+              flush=True)  # fmt: skip
     for n in (50, 200):
         grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
         print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)

@@ -28,8 +28,9 @@ def python_commands() -> list[str]:
     for block in blocks("bash"):
         for line in block.replace("\\\n", " ").splitlines():
             line = line.split("#")[0].strip()
-            # the scenario studies run in tests/test_scenario1.py and test_scenario2.py with tiny profiles
-            if line.startswith(".venv/bin/python -m coopsumo") and "coopsumo.scenario" not in line:
+            # the studies run in tests/test_scenario1.py, test_scenario2.py and test_ablation.py with tiny profiles
+            study = "coopsumo.scenario" in line or "coopsumo.ablation" in line
+            if line.startswith(".venv/bin/python -m coopsumo") and not study:
                 cmds.append(line)
     return cmds
 

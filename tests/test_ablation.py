@@ -1,0 +1,86 @@
+"""The ablation command on its tiny profile: every cell runs, the tables and report are written, reruns reuse."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from coopsumo.ablation import PROFILES, VARIANTS, cell_specs, is_monotone_decreasing, learner_of
+from coopsumo.config import PAPER_DQN, DQNConfig
+
+pytestmark = pytest.mark.sumo
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
+    assert VARIANTS[0][0] == "paper" and learner_of("paper") == PAPER_DQN
+    fields = DQNConfig.__dataclass_fields__
+    for (_, _, before), (name, _, after) in zip(VARIANTS, VARIANTS[1:], strict=False):
+        changed = [f for f in fields if f != "preset" and getattr(before, f) != getattr(after, f)]
+        assert 1 <= len(changed) <= 3, (name, changed)  # one idea (e.g. replay size + its update rate)
+    assert any(cfg == DQNConfig() for _, _, cfg in VARIANTS)  # the default design is one of the variants
+
+
+def test_evaluation_seeds_are_not_training_seeds() -> None:
+    specs = cell_specs(PROFILES["full"], DQNConfig())
+    train_seeds = {s["seed"] for s in specs}
+    assert all(s["eval_seed"] not in train_seeds for s in specs)
+    assert {s["config"]["eval"]["seed"] for s in specs} == {s["eval_seed"] for s in specs}
+
+
+def test_monotone_check() -> None:
+    assert is_monotone_decreasing([3.0, 2.0, 2.1, 1.0], [0.2, 0.2, 0.2, 0.1])
+    assert not is_monotone_decreasing([3.0, 2.0, 2.9, 1.0], [0.2, 0.2, 0.2, 0.1])
+
+
+def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
+    out = tmp_path / "learning"
+    cmd = [sys.executable, "-m", "coopsumo.ablation", "--profile", "tiny", "--workers", "2", "--out", str(out),
+           "--quiet"]  # fmt: skip
+    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    runs = pd.read_csv(out / "runs.csv")
+    profile = PROFILES["tiny"]
+    n_train = len(profile.seeds) * len(profile.variants)
+    assert (runs["status"] == "ok").all()
+    assert len(runs[runs["kind"] == "baseline"]) == 4 * len(profile.seeds)
+    assert len(runs[runs["kind"] == "train"]) >= n_train
+    assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
+    report = (out / "report.md").read_text()
+    assert "| paper |" in report and "| mobil:p=0.5 |" in report and "Alpha response" in report
+    for fig in ("fig_training_curves.png", "fig_alpha_response.png"):
+        assert (out / fig).stat().st_size > 1000
+    study = json.loads((out / "study.json").read_text())
+    assert study["cells_run"] == study["cells"]
+    again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert json.loads((out / "study.json").read_text())["cells_run"] == 0
+    assert pd.read_csv(out / "runs.csv").equals(runs)
+
+
+@pytest.mark.parametrize(
+    "args, fragment",
+    [(["--variants", "paper,warp"], "warp"), (["--alphas", "0,-1"], "alphas"), (["--seeds", "0"], "seeds"),
+     (["--workers", "0"], "workers"), (["--alphas", "a,b"], "alphas")],
+)  # fmt: skip
+def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:
+    out = tmp_path / "out"
+    res = subprocess.run([sys.executable, "-m", "coopsumo.ablation", "--profile", "tiny", "--out", str(out), *args],
+                         cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
+    assert res.returncode == 2
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in res.stderr
+    assert not out.exists()
+
+
+def test_default_alpha_zero_cells_are_shared_between_the_parts() -> None:
+    profile = replace(PROFILES["tiny"], variants=("paper", "replay"))
+    keys = [s["key"] for s in cell_specs(profile, DQNConfig())]
+    assert len(keys) == len(set(keys))
+    assert sum(k.startswith("replay_alpha0_") for k in keys) == len(profile.seeds)
