@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from coopsumo.config import ConfigError, dqn_config_from_dict
+from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
 from coopsumo.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.observation import Observation
 from coopsumo.runio import UsageError
@@ -41,11 +41,11 @@ class DQNPolicy:
         """Load model.pt and drive it as it was trained; a missing, corrupt or mismatched file is a usage error."""
         try:
             net, meta = load_model(path)
-            dqn = dqn_config_from_dict(meta["config"]["dqn"])
+            learner = meta.get("config", {}).get("dqn") if isinstance(meta.get("config"), dict) else None
+            # a model saved without its training configuration is driven as before presets: every step, no mask
+            dqn = dqn_config_from_dict(learner) if isinstance(learner, dict) else PAPER_DQN
         except (ModelFileError, ConfigError) as err:
             raise UsageError(str(err)) from None
-        except (KeyError, TypeError):
-            raise UsageError(f"model {path} records no learner configuration") from None
         return cls(net, name=f"dqn:{Path(path).parent.name or path}",
                    decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask)  # fmt: skip
 

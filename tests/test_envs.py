@@ -257,3 +257,37 @@ def test_sb3_dqn_script_rejects_bad_input(tmp_path: Path) -> None:
     )  # fmt: skip
     assert result.returncode == 2
     assert result.stderr.strip().count("\n") == 0 and "lanes" in result.stderr
+
+
+@pytest.mark.sumo
+def test_decision_interval_option_holds_the_action_and_sums_rewards() -> None:
+    k = 10
+    env = HighwayEnv(LIGHT, warmup_steps=25, max_steps=4, decision_interval=k)
+    try:
+        obs, info = env.reset(seed=3)
+        world = env.world
+        assert world is not None and world.step_count % k == 0 and info["sim_step"] == world.step_count
+        before = world.step_count
+        _, reward, terminated, truncated, step_info = env.step(2)
+        assert world.step_count == before + k and step_info["sim_steps"] == k
+        parts = step_info["reward_speed"] + step_info["reward_lane_change"] + step_info["reward_flow"]
+        assert reward == pytest.approx(parts)
+        for _ in range(3):
+            _, _, terminated, truncated, _ = env.step(0)  # left: one request per decision, then speed-up
+        assert truncated and not terminated
+        assert obs["grids"].shape == (3, 3, 20)
+    finally:
+        env.close()
+    # the same agent with speed-up held by hand in the plain env sums to the same reward
+    plain = HighwayEnv(LIGHT, warmup_steps=25, max_steps=4 * k)
+    try:
+        plain.reset(seed=3)
+        assert plain.world is not None
+        while plain.world.step_count < before:
+            plain.step(2)
+        total = sum(plain.step(2)[1] for _ in range(k))
+        assert total == pytest.approx(reward)
+    finally:
+        plain.close()
+    with pytest.raises(ValueError, match="decision_interval"):
+        HighwayEnv(LIGHT, decision_interval=0)

@@ -10,7 +10,11 @@ The episode (reset):
 
 Each step: the background policy acts for every vehicle, the agent's action replaces its own,
 World.apply() runs one 0.1 s step, and the reward is coopsumo.reward's RewardParts.total for
-the agent (components in `info`). Terminated when the agent leaves the road (the last
+the agent (components in `info`). With decision_interval=k (the learner's --decision-interval),
+one env step is k steps of 0.1 s: the action is held as coopsumo.decisions defines (a lane
+change is requested once, then speed-up), the rewards are summed, the occupancy frames are those
+of the decision steps, and the agent decides only on steps with step_count % k == 0.
+Terminated when the agent leaves the road (the last
 observation is repeated); truncated after `max_steps` agent steps.
 
 Spaces: observation Dict(grids: Box(0, 1, (3, 3, 20), uint8) = frames (oldest first) x lanes
@@ -34,6 +38,7 @@ import gymnasium as gym
 import numpy as np
 
 from coopsumo.config import SimConfig
+from coopsumo.decisions import ActionHold, follow_up
 from coopsumo.envs.common import (
     WorldSlot,
     action_space,
@@ -74,6 +79,7 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
         background: str | None = None,
         model_path: str | Path | None = None,
         render_mode: str | None = None,
+        decision_interval: int = 1,
     ) -> None:
         if render_mode is not None:
             raise ValueError(f"HighwayEnv does not render; got render_mode={render_mode!r}")
@@ -81,9 +87,12 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
             raise ValueError("give either background or model_path, not both")
         if warmup_steps < 0 or max_steps < 1:
             raise ValueError(f"need warmup_steps >= 0 and max_steps >= 1, got {warmup_steps} and {max_steps}")
+        if not (isinstance(decision_interval, int) and decision_interval >= 1):
+            raise ValueError(f"decision_interval must be an integer >= 1, got {decision_interval!r}")
+        self.decision_interval = decision_interval
         self.background = background or (f"dqn:{model_path}" if model_path is not None else "keep")
         base = cfg if cfg is not None else SimConfig()
-        self.cfg = dataclasses.replace(base, steps=warmup_steps + max_steps, policy=self.background)
+        self.cfg = dataclasses.replace(base, steps=warmup_steps + max_steps * decision_interval, policy=self.background)
         self.cfg.validate()
         self.warmup_steps = warmup_steps
         self.max_steps = max_steps
@@ -93,6 +102,7 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
         background_policy(self.background, 0, self.cfg.control)  # a bad spec fails here, before SUMO starts
         self._slot = WorldSlot()
         self._policy: Policy | None = None
+        self._bg_hold = ActionHold(1)
         self._obs: Observation | None = None  # the World's last observation (all vehicles)
         self._row = -1  # the agent's row in it
         self._last: dict[str, np.ndarray] | None = None  # the agent's last observation
@@ -114,24 +124,26 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
         cfg = dataclasses.replace(self.cfg, seed=episode_seed)
         world = self._slot.open(cfg)
         self._policy = background_policy(self.background, episode_seed, cfg.control)
+        self._bg_hold = ActionHold(self._policy.decision_interval)
         for _ in range(self.warmup_steps):
-            obs = world.observe()
-            world.apply(self._policy.act(obs))
+            obs = self._observe(world)
+            world.apply(self._background(world, obs))
         # the first vehicle scheduled to depart at or after the end of the warm-up (num * T_up >= W * dt)
         self.agent_num = max(0, math.ceil(world.time_s / cfg.demand.t_up_s - 1e-9))
         give_up = world.step_count + round(
             (self.agent_num * cfg.demand.t_up_s - world.time_s + MAX_INSERTION_WAIT_S) / cfg.control.dt_s
         )
-        obs = world.observe()
-        while not np.any(obs.nums == self.agent_num):
+        obs = self._observe(world)
+        # the agent's first decision comes on a decision step (step_count % decision_interval == 0)
+        while not (np.any(obs.nums == self.agent_num) and world.step_count % self.decision_interval == 0):
             if world.step_count >= give_up:
                 self._slot.close_world()
                 raise RuntimeError(
                     f"agent vehicle {self.agent_num} was not inserted within {MAX_INSERTION_WAIT_S:g} s; "
                     "the demand is above what the road can take in"
                 )
-            world.apply(self._policy.act(obs))
-            obs = world.observe()
+            world.apply(self._background(world, obs))
+            obs = self._observe(world)
         self._set_obs(obs)
         self._steps = 0
         self._done = False
@@ -144,21 +156,49 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
             raise RuntimeError("call reset() before step() (and after an episode ends)")
         if not self.action_space.contains(action):
             raise ValueError(f"action must be one of 0 (left), 1 (right), 2 (speedup), 3 (none); got {action!r}")
-        actions = policy.act(obs)
-        actions[self._row] = int(action)
-        out = world.apply(actions)
+        reward = 0.0
+        info: dict[str, Any] = {}
+        terminated = False
+        for i in range(self.decision_interval):
+            actions = self._background(world, obs)
+            actions[self._row] = int(action) if i == 0 else int(follow_up(np.array([action]))[0])
+            out = world.apply(actions)
+            reward += float(out.reward.total[self._row])
+            step = step_info(out, self._row)
+            if i == 0:
+                info = step
+            else:
+                for key in ("reward_speed", "reward_lane_change", "reward_flow"):
+                    info[key] += step[key]
+                info.update(q_t=step["q_t"], arrived=step["arrived"])
+            next_obs = self._observe(world)
+            terminated = not np.any(next_obs.nums == self.agent_num)
+            if terminated:
+                break
+            obs = next_obs
+            self._set_obs(next_obs)
         self._steps += 1
-        reward = float(out.reward.total[self._row])
-        info = step_info(out, self._row)
-        next_obs = world.observe()
-        terminated = not np.any(next_obs.nums == self.agent_num)
+        info["sim_steps"] = i + 1
         if terminated:
             self._obs = None
-        else:
-            self._set_obs(next_obs)
         truncated = not terminated and self._steps >= self.max_steps
         self._done = terminated or truncated
         return self._copy_last(), reward, terminated, truncated, info
+
+    def _observe(self, world: World) -> Observation:
+        """The world's observation; with a decision interval, grids only on decision steps (as in training)."""
+        if self.decision_interval == 1:
+            return world.observe()
+        step = world.step_count
+        policy = self._policy
+        bg_decides = policy is not None and policy.needs_grids and self._bg_hold.is_decision_step(step)
+        return world.observe(grids=step % self.decision_interval == 0 or bg_decides)
+
+    def _background(self, world: World, obs: Observation) -> np.ndarray:
+        """The background policy's actions, held over its own decision interval."""
+        assert self._policy is not None
+        decide = self._bg_hold.is_decision_step(world.step_count)
+        return self._bg_hold.actions(obs.nums, self._policy.act(obs) if decide else None)
 
     def close(self) -> None:
         """Close SUMO and remove the run folder; safe to call more than once."""
