@@ -6,8 +6,8 @@ Needs the optional extra `sb3` (stable-baselines3). The Q-network is the paper's
 a features extractor made of coopsumo.dqn.QNetwork's layers (two 2x2 convolutions, stride (1, 2),
 concat the 3 speed errors, FC 500, FC 100) and SB3's final linear layer to the 4 Q-values
 (net_arch=[]). SB3 receives the Dict observation through its "MultiInputPolicy". Learning
-hyper-parameters are coopsumo's DQNConfig (paper values where given): lr, gamma, replay size,
-batch, target sync every 500 steps, a constant epsilon of 1 - greedy_prob = 0.1.
+hyper-parameters are coopsumo's paper preset (PAPER_DQN: one decision per 0.1 s step): lr, gamma,
+replay size, batch, an update every 4 steps, target sync every 500 steps, a constant epsilon of 0.1.
 
 Prints `episodes=N mean_episode_reward=R ...` over the finished episodes (nan if none finished).
 With --out, writes model.zip (SB3's format), config.json and summary.json into that folder.
@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from coopsumo.config import DemandConfig, DQNConfig, RewardConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.config import PAPER_DQN, DemandConfig, RewardConfig, RoadConfig, SimConfig, to_dict
 from coopsumo.runio import (
     Parser,
     UsageError,
@@ -98,7 +98,7 @@ def train(args: Any, run_dir: Path | None) -> dict[str, Any]:
     if args.steps < 1 or args.warmup < 0 or args.max_steps < 1 or args.threads < 1:
         raise UsageError("need --steps >= 1, --warmup >= 0, --max-steps >= 1 and --threads >= 1")
     torch.set_num_threads(args.threads)
-    dq = DQNConfig()
+    dq = PAPER_DQN
     try:
         env = Monitor(
             gym.make(ENV_ID, cfg=cfg, warmup_steps=args.warmup, max_steps=args.max_steps, background=args.background)
@@ -115,11 +115,11 @@ def train(args: Any, run_dir: Path | None) -> dict[str, Any]:
             learning_starts=dq.learn_start_steps,
             batch_size=dq.batch_size,
             gamma=dq.gamma,
-            train_freq=dq.learn_every_steps,
+            train_freq=dq.learn_every,
             gradient_steps=1,
             target_update_interval=dq.target_sync_steps,
-            exploration_initial_eps=1.0 - dq.greedy_prob,
-            exploration_final_eps=1.0 - dq.greedy_prob,
+            exploration_initial_eps=dq.epsilon_start,
+            exploration_final_eps=dq.epsilon_end,
             max_grad_norm=dq.grad_clip_norm,
             policy_kwargs={
                 "features_extractor_class": table_ii_extractor_class(),
