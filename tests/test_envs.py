@@ -291,3 +291,39 @@ def test_decision_interval_option_holds_the_action_and_sums_rewards() -> None:
         plain.close()
     with pytest.raises(ValueError, match="decision_interval"):
         HighwayEnv(LIGHT, decision_interval=0)
+
+
+@pytest.mark.sumo
+def test_parallel_env_decision_interval_option() -> None:
+    from pettingzoo.test import parallel_api_test
+
+    k = 5
+    env = HighwayParallelEnv(LIGHT, max_steps=1100, decision_interval=k)
+    try:
+        parallel_api_test(env, num_cycles=300)
+        env.reset(seed=2)
+        assert env.world is not None
+        before = env.world.step_count
+        _, rewards, _, _, infos = env.step({a: 2 for a in env.agents})
+        assert env.world.step_count == before + k
+        some = next(iter(rewards))
+        parts = infos[some]["reward_speed"] + infos[some]["reward_lane_change"] + infos[some]["reward_flow"]
+        assert rewards[some] == pytest.approx(parts)
+    finally:
+        env.close()
+    # the same k steps one at a time: each agent's rewards sum to the held step's reward
+    plain = HighwayParallelEnv(LIGHT, max_steps=1100)
+    try:
+        plain.reset(seed=2)
+        first = set(plain.agents)
+        total = dict.fromkeys(first, 0.0)
+        for _ in range(k):
+            _, r, _, _, _ = plain.step({a: 2 for a in plain.agents})
+            for a in first:
+                total[a] += r.get(a, 0.0)
+        assert set(rewards) >= first
+        assert all(rewards[a] == pytest.approx(total[a]) for a in first)
+    finally:
+        plain.close()
+    with pytest.raises(ValueError, match="decision_interval"):
+        HighwayParallelEnv(LIGHT, decision_interval=0)

@@ -16,6 +16,11 @@ vehicle is on it, so `agents` is never empty after reset(). Seeding as in Highwa
 runs with SimConfig.seed = s; an unseeded reset draws the seed from the env's generator, which
 the last seeded reset re-seeded (or from fresh entropy if there was none).
 
+decision_interval=k (the learner's --decision-interval): one step() is k simulation steps; each
+agent's action is held as coopsumo.decisions defines (a lane change is requested on the first
+step only, then speed-up) and its rewards are summed over the steps it was on the road; the
+occupancy frames are those of the decision steps. Default 1: one 0.1 s step per step().
+
 Spaces per agent are those of coopsumo/Highway-v0: Dict(grids (3, 3, 20) uint8, speed_err (3,)
 float32) and Discrete(4).
 """
@@ -31,10 +36,12 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
 from coopsumo.config import SimConfig
+from coopsumo.decisions import ActionHold
 from coopsumo.envs.common import WorldSlot, action_space, observation_space, run_seed, step_info, vehicle_observation
 from coopsumo.observation import Observation
 from coopsumo.physics import SPEEDUP
-from coopsumo.world import World
+from coopsumo.reward import RewardParts
+from coopsumo.world import StepOutcome, World
 
 DEFAULT_MAX_STEPS = 3000
 AGENT_PREFIX = "veh_"
@@ -55,9 +62,14 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
 
     metadata: dict[str, Any] = {"name": "coopsumo_highway_v0", "render_modes": [], "is_parallelizable": True}
 
-    def __init__(self, cfg: SimConfig | None = None, *, max_steps: int = DEFAULT_MAX_STEPS) -> None:
+    def __init__(
+        self, cfg: SimConfig | None = None, *, max_steps: int = DEFAULT_MAX_STEPS, decision_interval: int = 1
+    ) -> None:
         if max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {max_steps}")
+        if not (isinstance(decision_interval, int) and decision_interval >= 1):
+            raise ValueError(f"decision_interval must be an integer >= 1, got {decision_interval!r}")
+        self.decision_interval = decision_interval
         base = cfg if cfg is not None else SimConfig()
         self.cfg = dataclasses.replace(base, steps=max_steps, policy="agents")
         self.cfg.validate()
@@ -140,6 +152,8 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
                     raise ValueError(f"action of {name} must be 0, 1, 2 or 3; got {action!r}")
                 batch[row] = int(action)
         out = world.apply(batch)
+        if self.decision_interval > 1:
+            out = self._hold(world, obs, batch, out)
         next_obs = world.observe()
         truncate = world.step_count >= self.max_steps
         self._set_obs(next_obs)
@@ -178,6 +192,34 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
         self._slot.close()
         self._obs = None
         self.agents = []
+
+    def _hold(self, world: World, obs: Observation, batch: np.ndarray, first: StepOutcome) -> StepOutcome:
+        """Run the rest of a decision interval with the held actions; the first step's outcome with rewards summed.
+
+        Vehicles of `obs` that leave during the interval are marked arrived; reward components are summed
+        over the steps each vehicle was on the road.
+        """
+        hold = ActionHold(self.decision_interval)
+        hold.actions(obs.nums, batch)
+        speed, lane_change, flow = (x.copy() for x in (first.reward.speed, first.reward.lane_change,
+                                                        first.reward.flow))  # fmt: skip
+        arrived = first.arrived.copy()
+        q_t = first.q_t
+        for _ in range(self.decision_interval - 1):
+            if world.step_count >= self.max_steps or arrived.all():
+                break
+            now = world.observe(grids=False)
+            out = world.apply(hold.actions(now.nums, None))
+            rows = np.searchsorted(obs.nums, out.nums)
+            rows_ok = (rows < len(obs.nums)) & (obs.nums[np.minimum(rows, len(obs.nums) - 1)] == out.nums)
+            mine, theirs = rows[rows_ok], np.flatnonzero(rows_ok)
+            speed[mine] += out.reward.speed[theirs]
+            lane_change[mine] += out.reward.lane_change[theirs]
+            flow[mine] += out.reward.flow[theirs]
+            arrived[mine] |= out.arrived[theirs]
+            q_t = out.q_t
+        reward = RewardParts(speed, lane_change, flow)
+        return dataclasses.replace(first, reward=reward, arrived=arrived, q_t=q_t)
 
     def _live(self, obs: Observation) -> list[int]:
         """Vehicles of obs that are (or become) agents: on the road and not finished before."""
