@@ -50,8 +50,9 @@ METRICS = ("mean_speed_mps", "lane_changes_per_vehicle", "lane_changes_rejected"
 
 
 def _variants() -> list[tuple[str, str, DQNConfig]]:
-    """(name, what it adds, learner): each variant is the previous one plus one change."""
-    steps: list[tuple[str, str, dict[str, Any]]] = [
+    """(name, what it adds, learner): a chain from the paper's learner to the default design, each
+    variant the previous one plus one change, then single changes on top of the default."""
+    chain: list[tuple[str, str, dict[str, Any]]] = [
         ("paper", "the paper-literal learner (--preset paper)", {}),
         ("interval", "+ a decision every 10 steps (1 s), rewards summed over it", {"decision_interval_steps": 10}),
         ("mask", "+ feasible-action masking (choice, exploration, target max)", {"action_mask": True}),
@@ -59,17 +60,26 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
         ("adam", "+ Adam at lr 1e-3 instead of SGD at 0.01", {"optimizer": "adam", "lr": 1e-3}),
         ("replay", "+ replay 20,000 and 2 updates every decision round (not 1 every 4)",
          {"replay_size": 20_000, "learn_every": 1, "updates_per_learn": 2}),
-        ("eps_decay", "+ epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
+    ]  # fmt: skip
+    extras: list[tuple[str, str, dict[str, Any]]] = [
+        ("eps_decay", "`replay` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
          {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
+        ("dueling", "`replay` + a dueling Q head (V + A - mean A)", {"dueling": True}),
+        ("store_all", "`replay` + every transition of a decision round stored (not 16 at random)",
+         {"store_per_decision": 1000}),
     ]  # fmt: skip
     out = []
     cfg = PAPER_DQN
-    for name, text, change in steps:
+    for name, text, change in chain:
         cfg = replace(cfg, **change)
         out.append((name, text, replace(cfg, preset="paper" if name == "paper" else "default")))
+    for name, text, change in extras:
+        out.append((name, text, replace(cfg, **change, preset="default")))
     return out
 
 
+CHAIN_LENGTH = 6
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> replay; the rest branch off its end"""
 VARIANTS = _variants()
 VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
 

@@ -144,6 +144,8 @@ class DQNConfig:
     """offer left/right only when the controller would accept them (choice, exploration, target max)"""
     double_dqn: bool = True
     """double DQN target: the online network picks the next action, the target network values it"""
+    dueling: bool = False
+    """dueling head: Q = V + A - mean(A) on top of Table II's FC 100 (paper: a plain 4-output layer)"""
     loss: str = "huber"
     """'mse' (paper eq. 8) or 'huber' (smooth L1, delta 1)"""
     lr: float = 1e-3
@@ -264,6 +266,48 @@ class SimConfig:
         alpha = self.reward.alpha
         if not (alpha >= 0 and alpha < float("inf")):
             raise ConfigError(f"alpha must be a finite number >= 0, got {alpha}")
+
+
+@dataclass(frozen=True)
+class OutputConfig:
+    """SUMO's own output files of a run, opt-in. They never change the simulation (tests check it)."""
+
+    fcd_period_s: float = 0.0
+    """period of SUMO's FCD output fcd.xml (s, a multiple of the step); 0: no fcd.xml"""
+    tripinfo: bool = False
+    """write SUMO's tripinfo.xml: one line per vehicle that left the road"""
+
+    def validate(self, dt_s: float) -> None:
+        """Raise ConfigError naming the first bad value; dt_s is the simulation step (s)."""
+        period = self.fcd_period_s
+        if not (math.isfinite(period) and period >= 0):
+            raise ConfigError(f"fcd period must be a number of seconds >= 0, got {period}")
+        steps = period / dt_s
+        if period > 0 and (steps < 1 - 1e-9 or abs(steps - round(steps)) > 1e-6):
+            raise ConfigError(f"fcd period must be a multiple of the {dt_s:g} s step, got {period:g}")
+
+
+@dataclass(frozen=True)
+class GuiConfig:
+    """A run shown live in sumo-gui (through TraCI). Nothing here changes the simulation."""
+
+    screenshot: str = ""
+    """PNG file sumo-gui saves of its view after screenshot_step ('' : no screenshot)"""
+    screenshot_step: int = 0
+    """the step (1..steps) whose end state the screenshot shows"""
+    delay_ms: float = 0.0
+    """sumo-gui's pause between two steps (ms); 0 runs as fast as it draws"""
+    window_px: tuple[int, int] = (1600, 600)
+    """sumo-gui window size (pixels), also the screenshot size"""
+
+    def validate(self, steps: int) -> None:
+        """Raise ConfigError naming the first bad value; steps is the run's length."""
+        if self.screenshot and not self.screenshot.lower().endswith(".png"):
+            raise ConfigError(f"gui screenshot must be a .png file, got {self.screenshot!r}")
+        if self.screenshot and not 1 <= self.screenshot_step <= steps:
+            raise ConfigError(f"gui screenshot step must be between 1 and steps ({steps}), got {self.screenshot_step}")
+        if not (math.isfinite(self.delay_ms) and self.delay_ms >= 0):
+            raise ConfigError(f"gui delay must be a number of ms >= 0, got {self.delay_ms}")
 
 
 @dataclass(frozen=True)

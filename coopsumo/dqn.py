@@ -35,18 +35,25 @@ def seed_torch(seed: int) -> None:
 
 
 class QNetwork(nn.Module):
-    """Table II: two 2x2 convolutions (stride (1, 2)), concat the 3 speed errors, FC 500, FC 100, 4 Q-values."""
+    """Table II: two 2x2 convolutions (stride (1, 2)), concat the 3 speed errors, FC 500, FC 100, 4 Q-values.
 
-    def __init__(self, speed_scale_mps: float) -> None:
+    dueling: the last layer is split into a state value and action advantages,
+    Q = V + A - mean(A) (Wang et al. 2016); not in the paper.
+    """
+
+    def __init__(self, speed_scale_mps: float, dueling: bool = False) -> None:
         super().__init__()
         if not speed_scale_mps > 0:
             raise ValueError(f"speed_scale_mps must be positive, got {speed_scale_mps}")
         self.speed_scale_mps = float(speed_scale_mps)  # m/s; speed errors are divided by this
+        self.dueling = bool(dueling)
         self.conv1 = nn.Conv2d(GRID_SHAPE[0], 16, kernel_size=(2, 2), stride=(1, 2))
         self.conv2 = nn.Conv2d(16, 32, kernel_size=(2, 2), stride=(1, 2))
         self.fc1 = nn.Linear(_CONV_OUT + GRID_SHAPE[0], 500)
         self.fc2 = nn.Linear(500, 100)
         self.out = nn.Linear(100, N_ACTIONS)
+        if self.dueling:
+            self.value = nn.Linear(100, 1)
 
     def forward(self, grids: torch.Tensor, speed_err: torch.Tensor) -> torch.Tensor:
         """Q-values (B, 4) from grids (B, 3, 3, 20) and speed errors (B, 3) in m/s."""
@@ -55,6 +62,9 @@ class QNetwork(nn.Module):
         x = torch.cat([x.flatten(start_dim=1), speed_err / self.speed_scale_mps], dim=1)
         x = torch.relu(self.fc1(x))
         x = torch.relu(self.fc2(x))
+        if self.dueling:
+            adv = self.out(x)
+            return self.value(x) + adv - adv.mean(dim=1, keepdim=True)
         return self.out(x)
 
 
@@ -273,8 +283,8 @@ class Learner:
         # The initial weights depend on the seed only; torch's global RNG is left as it was.
         with torch.random.fork_rng(devices=[]):
             seed_torch(seed)
-            self.online = QNetwork(cfg.speed_scale_mps)
-            self.target = QNetwork(cfg.speed_scale_mps)
+            self.online = QNetwork(cfg.speed_scale_mps, cfg.dueling)
+            self.target = QNetwork(cfg.speed_scale_mps, cfg.dueling)
         sync_target(self.online, self.target)
         self.optimizer = make_optimizer(self.online, cfg)
         self.buffer = ReplayBuffer(cfg.replay_size)
@@ -395,6 +405,7 @@ def save_model(path: str | os.PathLike[str], net: QNetwork, meta: dict[str, Any]
         "grid_shape": list(GRID_SHAPE),
         "n_actions": N_ACTIONS,
         "speed_scale_mps": net.speed_scale_mps,
+        "dueling": net.dueling,
         "meta": meta,
     }
     fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -426,7 +437,7 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
     if payload["n_actions"] != N_ACTIONS:
         raise ModelFileError(f"model {path} has {payload['n_actions']} actions, expected {N_ACTIONS}")
     try:
-        net = QNetwork(float(payload["speed_scale_mps"]))
+        net = QNetwork(float(payload["speed_scale_mps"]), bool(payload.get("dueling", False)))
         net.load_state_dict(payload["state_dict"])
     except (RuntimeError, ValueError, TypeError) as exc:
         raise ModelFileError(f"model {path} has incompatible weights: {_first_line(exc)}") from exc

@@ -383,6 +383,7 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
      "then the vehicle asks to speed up; rewards of the interval are summed into one transition"),
     ("--action-mask", "action_mask", bool, "offer left/right only when the controller would accept them"),
     ("--double-dqn", "double_dqn", bool, "double DQN target"),
+    ("--dueling", "dueling", bool, "dueling Q head (value + advantages)"),
     ("--loss", "loss", ("mse", "huber"), "TD loss (paper: mse)"),
     ("--lr", "lr", float, "learning rate"),
     ("--optimizer", "optimizer", ("sgd", "adam"), "optimizer (paper: sgd)"),

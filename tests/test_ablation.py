@@ -11,7 +11,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from coopsumo.ablation import PROFILES, VARIANTS, cell_specs, is_monotone_decreasing, learner_of
+from coopsumo.ablation import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, is_monotone_decreasing, learner_of
 from coopsumo.config import PAPER_DQN, DQNConfig
 
 pytestmark = pytest.mark.sumo
@@ -21,7 +21,9 @@ ROOT = Path(__file__).resolve().parent.parent
 def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
     assert VARIANTS[0][0] == "paper" and learner_of("paper") == PAPER_DQN
     fields = DQNConfig.__dataclass_fields__
-    for (_, _, before), (name, _, after) in zip(VARIANTS, VARIANTS[1:], strict=False):
+    chain = VARIANTS[:CHAIN_LENGTH]
+    pairs = list(zip(chain, chain[1:], strict=False)) + [(chain[-1], extra) for extra in VARIANTS[CHAIN_LENGTH:]]
+    for (_, _, before), (name, _, after) in pairs:
         changed = [f for f in fields if f != "preset" and getattr(before, f) != getattr(after, f)]
         assert 1 <= len(changed) <= 3, (name, changed)  # one idea (e.g. replay size + its update rate)
     assert any(cfg == DQNConfig() for _, _, cfg in VARIANTS)  # the default design is one of the variants

@@ -320,3 +320,24 @@ def test_in_sumo_a_held_lane_change_starts_exactly_one_change(
     assert requests_between == 0
     assert started_at and all(s % k == 0 for s in started_at)
     assert summary["collisions"] == 0 and summary["teleports"] == 0
+
+
+def test_dueling_head_and_its_model_file(tmp_path: Path) -> None:
+    from coopsumo.dqn import QNetwork, load_model, save_model
+
+    torch.manual_seed(0)
+    net = QNetwork(30.0, dueling=True)
+    grids, err = torch.rand(6, 3, 3, 20).round(), torch.randn(6, 3)
+    q = net(grids, err)
+    with torch.no_grad():
+        x = net.fc2(net.fc1(torch.cat([net.conv2(net.conv1(grids).relu()).relu().flatten(1), err / 30.0], 1))
+                    .relu()).relu()  # fmt: skip
+        adv = net.out(x)
+        expected = net.value(x) + adv - adv.mean(dim=1, keepdim=True)
+    torch.testing.assert_close(q, expected)
+    save_model(tmp_path / "m.pt", net, {})
+    loaded, _ = load_model(tmp_path / "m.pt")
+    assert loaded.dueling
+    torch.testing.assert_close(loaded(grids, err), q)
+    plain = QNetwork(30.0)
+    assert not plain.dueling and not hasattr(plain, "value")
