@@ -370,6 +370,7 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
         lines.append(f"Lane changes per vehicle {'fall' if mono else 'do NOT fall'} monotonically as alpha rises "
                      "(a rise larger than the seed spread counts as a break).")  # fmt: skip
         lines += ["", "![alpha response](fig_alpha_response.png)", ""]
+    lines += target_lines(runs, meta.get("default_variant", "replay"))
     ok = runs[runs["status"] == "ok"]
     bad = ok[(ok["teleports"] > 0) | (ok["collisions"] > 0)]
     lines.append(f"Safety: {len(bad)} of {len(ok)} evaluations had a teleport or a collision.")
@@ -379,6 +380,40 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
     lines += ["", "Reproduce: `python -m coopsumo.ablation" + ("" if profile.name == "full" else
               f" --profile {profile.name}") + "` (finished cells are reused)."]  # fmt: skip
     return "\n".join(lines) + "\n"
+
+
+def paired_gap(
+    runs: pd.DataFrame, variant: str, other: str, metric: str = "mean_speed_mps"
+) -> tuple[float, float, int]:
+    """Mean and sd over evaluation seeds of metric(variant, alpha 0) - metric(other), paired by seed."""
+    ok = runs[runs["status"] == "ok"]
+    mine = ok[(ok["variant"] == variant) & (ok["alpha"].fillna(0) == 0)].groupby("eval_seed")[metric].mean()
+    theirs = ok[ok["variant"] == other].groupby("eval_seed")[metric].mean()
+    diff = (mine - theirs).dropna()
+    sd = float(diff.std()) if len(diff) > 1 else float("nan")
+    return float(diff.mean()) if len(diff) else float("nan"), sd, len(diff)
+
+
+def target_lines(runs: pd.DataFrame, default_variant: str) -> list[str]:
+    """The issue's targets for the default design at alpha = 0, measured (paired by evaluation seed)."""
+    lines = [f"## Targets: the default design (`{default_variant}`) at alpha = 0", ""]
+    mobils = [b for b in BASELINES if b.startswith("mobil")]
+    ok = runs[runs["status"] == "ok"]
+    best_mobil = max(mobils, key=lambda b: ok[ok["variant"] == b]["mean_speed_mps"].mean(), default=None)
+    for other, goal in (("keep", 0.5), ("greedy", 0.5), (best_mobil, -0.3)):
+        if other is None:
+            continue
+        mean, sd, n = paired_gap(runs, default_variant, other)
+        if math.isnan(mean):
+            continue
+        verdict = "met" if mean >= goal else f"not met by {goal - mean:.2f} m/s"
+        lines.append(f"- mean speed minus `{other}`: {mean:+.2f} ± {sd:.2f} m/s over {n} evaluation seeds "
+                     f"(target {goal:+.1f}: {verdict})")  # fmt: skip
+    wall = ok[(ok["variant"] == default_variant) & (ok["kind"] == "train")]["train_wall_s"]
+    if len(wall):
+        lines.append(f"- training wall time of one model: {wall.mean():.0f} ± {wall.std():.0f} s "
+                     "(measured inside its cell, with the other workers busy beside it)")  # fmt: skip
+    return [*lines, ""]
 
 
 def write_outputs(root: Path, profile: Profile, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
@@ -415,7 +450,9 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     stored = {s["key"]: read_record(root, s) for s in specs}
     todo = [s for s in specs if (stored[s["key"]] or {}).get("status") != "ok"]
     todo.sort(key=lambda s: (s["kind"] != "train", s["variant"] != "paper"))  # the slow paper trainings first
+    default_variant = next((n for n, _, c in VARIANTS if c == default), "default")
     meta: dict[str, Any] = {"profile": asdict(profile), "default_learner": to_dict(default), "cells": len(specs),
+                            "default_variant": default_variant,
                             "backend": backend_name, "workers": workers, "versions": versions()}  # fmt: skip
     print(f"ablation: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
           f"{len(todo)} to run", file=sys.stderr)  # fmt: skip

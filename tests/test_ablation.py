@@ -56,6 +56,7 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
     report = (out / "report.md").read_text()
     assert "| paper |" in report and "| mobil:p=0.5 |" in report and "Alpha response" in report
+    assert "mean speed minus `keep`" in report
     for fig in ("fig_training_curves.png", "fig_alpha_response.png"):
         assert (out / fig).stat().st_size > 1000
     study = json.loads((out / "study.json").read_text())
