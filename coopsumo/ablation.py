@@ -60,12 +60,12 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
         ("adam", "+ Adam at lr 1e-3 instead of SGD at 0.01", {"optimizer": "adam", "lr": 1e-3}),
         ("replay", "+ replay 20,000 and 2 updates every decision round (not 1 every 4)",
          {"replay_size": 20_000, "learn_every": 1, "updates_per_learn": 2}),
+        ("dueling", "+ a dueling Q head (V + A - mean A): the default preset", {"dueling": True}),
     ]  # fmt: skip
     extras: list[tuple[str, str, dict[str, Any]]] = [
-        ("eps_decay", "`replay` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
+        ("eps_decay", "default + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
          {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
-        ("dueling", "`replay` + a dueling Q head (V + A - mean A)", {"dueling": True}),
-        ("store_all", "`replay` + every transition of a decision round stored (not 16 at random)",
+        ("store_all", "default + every transition of a decision round stored (not 16 at random)",
          {"store_per_decision": 1000}),
     ]  # fmt: skip
     out = []
@@ -78,8 +78,8 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
     return out
 
 
-CHAIN_LENGTH = 6
-"""the first CHAIN_LENGTH variants form the chain paper -> ... -> replay; the rest branch off its end"""
+CHAIN_LENGTH = 7
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> dueling (the default); the rest branch off its end"""
 VARIANTS = _variants()
 VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
 
@@ -449,7 +449,10 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     specs = cell_specs(profile, default)
     stored = {s["key"]: read_record(root, s) for s in specs}
     todo = [s for s in specs if (stored[s["key"]] or {}).get("status") != "ok"]
-    todo.sort(key=lambda s: (s["kind"] != "train", s["variant"] != "paper"))  # the slow paper trainings first
+    # the slow paper trainings first, the single changes on top of the default last
+    extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
+    todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
+                             s["variant"] != "paper"))  # fmt: skip
     default_variant = next((n for n, _, c in VARIANTS if c == default), "default")
     meta: dict[str, Any] = {"profile": asdict(profile), "default_learner": to_dict(default), "cells": len(specs),
                             "default_variant": default_variant,

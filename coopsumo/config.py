@@ -144,7 +144,7 @@ class DQNConfig:
     """offer left/right only when the controller would accept them (choice, exploration, target max)"""
     double_dqn: bool = True
     """double DQN target: the online network picks the next action, the target network values it"""
-    dueling: bool = False
+    dueling: bool = True
     """dueling head: Q = V + A - mean(A) on top of Table II's FC 100 (paper: a plain 4-output layer)"""
     loss: str = "huber"
     """'mse' (paper eq. 8) or 'huber' (smooth L1, delta 1)"""
@@ -212,6 +212,7 @@ PAPER_DQN = DQNConfig(
     decision_interval_steps=1,
     action_mask=False,
     double_dqn=False,
+    dueling=False,
     loss="mse",
     lr=0.01,
     optimizer="sgd",

@@ -83,7 +83,7 @@ def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: st
 
 
 def test_default_alpha_zero_cells_are_shared_between_the_parts() -> None:
-    profile = replace(PROFILES["tiny"], variants=("paper", "replay"))
+    profile = replace(PROFILES["tiny"], variants=("paper", "dueling"))
     keys = [s["key"] for s in cell_specs(profile, DQNConfig())]
     assert len(keys) == len(set(keys))
-    assert sum(k.startswith("replay_alpha0_") for k in keys) == len(profile.seeds)
+    assert sum(k.startswith("dueling_alpha0_") for k in keys) == len(profile.seeds)
