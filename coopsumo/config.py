@@ -299,7 +299,9 @@ class GuiConfig:
     delay_ms: float = 0.0
     """sumo-gui's pause between two steps (ms); 0 runs as fast as it draws"""
     window_px: tuple[int, int] = (1600, 600)
-    """sumo-gui window size (pixels), also the screenshot size"""
+    """sumo-gui window size (pixels)"""
+    screenshot_px: tuple[int, int] = (1600, 320)
+    """screenshot size (pixels): a strip along the road"""
 
     def validate(self, steps: int) -> None:
         """Raise ConfigError naming the first bad value; steps is the run's length."""

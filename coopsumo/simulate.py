@@ -1,11 +1,13 @@
 """`python -m coopsumo.simulate`: run one simulation and write its run folder.
 
 Writes config.json, detectors.xml (SUMO's loop output), summary.json and, with
---trajectories, trajectories.parquet. Bad input: one line on stderr, exit code 2.
+--trajectories, trajectories.parquet; with --fcd and --tripinfo SUMO's fcd.xml and tripinfo.xml.
+--gui runs the same simulation in sumo-gui. Bad input: one line on stderr, exit code 2.
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 from collections.abc import Callable
@@ -15,11 +17,13 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, to_dict
+from coopsumo import sumo_session
+from coopsumo.config import AccidentConfig, DemandConfig, GuiConfig, OutputConfig, RoadConfig, SimConfig, to_dict
 from coopsumo.decisions import ActionHold
 from coopsumo.policies import Policy, make_policy
 from coopsumo.runio import (
     Parser,
+    UsageError,
     discard_run_dir,
     finish_run_dir,
     run_cli,
@@ -46,8 +50,58 @@ def build_parser() -> Parser:
     p.add_argument("--accident-steps", type=int, default=AccidentConfig.duration_steps, help="accident length (steps)")
     p.add_argument("--sumo-collision-check", action="store_true",
                    help="also count collisions with SUMO's own check (slower in jams)")  # fmt: skip
+    p.add_argument("--fcd", action="store_true", help="also write SUMO's FCD output fcd.xml")
+    p.add_argument("--fcd-period", type=float, default=None, help="FCD period (s, a multiple of 0.1; default 1)")
+    p.add_argument("--tripinfo", action="store_true", help="also write SUMO's tripinfo.xml")
+    p.add_argument("--gui", action="store_true", help="run in sumo-gui (needs a display), vehicles coloured")
+    p.add_argument("--gui-screenshot", type=Path, default=None, help="PNG file for sumo-gui's screenshot")
+    p.add_argument("--gui-screenshot-step", type=int, default=None, help="step of the screenshot (default: last)")
+    p.add_argument("--gui-delay", type=float, default=0.0, help="sumo-gui's pause between steps (ms)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
+
+
+DEFAULT_FCD_PERIOD_S = 1.0
+
+
+def outputs_from_args(args: Any, cfg: SimConfig) -> OutputConfig:
+    """SUMO output files asked for on the command line (UsageError for a period without --fcd)."""
+    if args.fcd_period is not None and not args.fcd:
+        raise UsageError("--fcd-period needs --fcd")
+    period = (DEFAULT_FCD_PERIOD_S if args.fcd_period is None else args.fcd_period) if args.fcd else 0.0
+    if args.fcd and period == 0:
+        raise UsageError("fcd period must be positive, got 0")
+    outputs = OutputConfig(fcd_period_s=period, tripinfo=args.tripinfo)
+    outputs.validate(cfg.control.dt_s)
+    return outputs
+
+
+def gui_from_args(args: Any, cfg: SimConfig, environ: dict[str, str] | None = None) -> GuiConfig | None:
+    """The sumo-gui view asked for, or None; UsageError without a display or for options without --gui."""
+    env = os.environ if environ is None else environ
+    if not args.gui:
+        for flag, value in (("--gui-screenshot", args.gui_screenshot), ("--gui-screenshot-step",
+                            args.gui_screenshot_step), ("--gui-delay", args.gui_delay or None)):  # fmt: skip
+            if value is not None:
+                raise UsageError(f"{flag} needs --gui")
+        return None
+    if args.gui_screenshot_step is not None and args.gui_screenshot is None:
+        raise UsageError("--gui-screenshot-step needs --gui-screenshot")
+    shot = args.gui_screenshot
+    gui = GuiConfig(
+        screenshot=str(shot.resolve()) if shot is not None else "",
+        screenshot_step=cfg.steps if args.gui_screenshot_step is None else args.gui_screenshot_step,
+        delay_ms=args.gui_delay,
+    )
+    gui.validate(cfg.steps)
+    if not env.get("DISPLAY"):
+        raise UsageError("--gui needs a display and DISPLAY is not set (without a screen: xvfb-run, see README)")
+    if shot is not None:
+        try:
+            shot.resolve().parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise UsageError(f"cannot write the screenshot {shot}: {err.strerror}") from None
+    return gui
 
 
 def config_from_args(args: Any) -> SimConfig:
@@ -75,22 +129,29 @@ def run(
     label: str = "simulate",
     trajectory_every: int = 1,
     on_steps: Callable[[int], None] | None = None,
+    outputs: OutputConfig | None = None,
+    gui: GuiConfig | None = None,
 ) -> dict[str, Any]:
     """Run cfg.steps steps with `policy` in run_dir; write its files; return the summary.
 
-    trajectory_every: record trajectories every k-th step; on_steps(n) is told of progress.
+    trajectory_every: record trajectories every k-th step; on_steps(n) is told of progress;
+    outputs: SUMO's FCD and tripinfo files; gui: run in sumo-gui (the summary is the same).
     """
+    outputs = outputs or OutputConfig()
     write_json(
         run_dir / "config.json",
         {
             "config": to_dict(cfg),
             "versions": versions(),
             "trajectory_every_steps": trajectory_every if trajectories else None,
+            "sumo_outputs": to_dict(outputs),
+            "gui": to_dict(gui) if gui is not None else None,
         },
     )
     start = time.perf_counter()
     record_every = trajectory_every if trajectories else 0
-    with World(cfg, run_dir, record_trajectories_every=record_every, observe_grids=policy.needs_grids) as world:
+    with World(cfg, run_dir, record_trajectories_every=record_every, observe_grids=policy.needs_grids,
+               outputs=outputs, gui=gui) as world:  # fmt: skip
         bar = tqdm(total=cfg.steps, desc=label, unit="step", disable=not progress, mininterval=0.5, file=sys.stderr)
         hold = ActionHold(policy.decision_interval)
         for _ in range(cfg.steps):
@@ -113,6 +174,8 @@ def run(
     summary["policy"] = cfg.policy
     summary["decision_interval_steps"] = policy.decision_interval
     summary["scenario"] = cfg.scenario
+    if gui is not None and gui.screenshot and not Path(gui.screenshot).exists():
+        raise RuntimeError(f"sumo-gui did not write the screenshot {gui.screenshot}")
     if traj is not None:
         import pandas as pd
 
@@ -127,12 +190,18 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         cfg = config_from_args(args)
+        outputs = outputs_from_args(args, cfg)
+        gui = gui_from_args(args, cfg)
         policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
         tmp = start_run_dir(args.out)
         try:
-            summary = run(cfg, policy, tmp, trajectories=args.trajectories, progress=not args.quiet)
-        except BaseException:
+            summary = run(cfg, policy, tmp, trajectories=args.trajectories, progress=not args.quiet,
+                          outputs=outputs, gui=gui)  # fmt: skip
+        except BaseException as err:
             discard_run_dir(tmp)
+            if gui is not None and isinstance(err, sumo_session.gui_closed_errors()):
+                print("simulate: sumo-gui was closed before the run ended; nothing written", file=sys.stderr)
+                return 1
             raise
         finish_run_dir(tmp, args.out)
         keys = ("departed", "arrived", "mean_speed_mps", "lane_changes", "collisions", "teleports", "steps_per_second")

@@ -1,26 +1,53 @@
-"""The one module that talks to libsumo: start, step, read the vehicle table, set speeds, change lanes.
+"""The one module that talks to SUMO: start, step, read the vehicle table, set speeds, change lanes.
 
-libsumo runs SUMO inside this process, so only one session can be open per process.
+It chooses the binding: libsumo (SUMO inside this process) for ordinary runs, TraCI to a
+`sumo-gui` process for a live view; both have the same API, so the calls below serve both.
+Only one session can be open per process (libsumo allows one).
 """
 
 from __future__ import annotations
 
+import subprocess
+import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
+from typing import Any
 
 import numpy as np
 
 from coopsumo import network
-from coopsumo.config import SimConfig
+from coopsumo.config import GuiConfig, OutputConfig, SimConfig
+from coopsumo.runio import UsageError
 
 _open_sessions = 0
+GUI_VIEW = "View #0"  # sumo-gui's first (and only) view
+GUI_START_TIMEOUT_S = 60.0  # how long sumo-gui may take to open its TraCI port (s)
+FCD_ATTRIBUTES = "id,x,y,angle,speed,lane"  # what plot_trajectories.py reads; x is the position on the road
 
 
 def _libsumo():  # type: ignore[no-untyped-def]
     import libsumo  # imported lazily: importing coopsumo never starts or loads SUMO
 
     return libsumo
+
+
+def sumo_binary(name: str) -> str:
+    """Path of a SUMO binary (sumo, sumo-gui) shipped by the eclipse-sumo wheel."""
+    import sumo  # the eclipse-sumo wheel; only its path is used
+
+    path = Path(sumo.SUMO_HOME) / "bin" / name
+    if not path.exists():
+        raise FileNotFoundError(f"{name} not found at {path}; install eclipse-sumo")
+    return str(path)
+
+
+def gui_closed_errors() -> tuple[type[BaseException], ...]:
+    """The errors TraCI raises when sumo-gui went away during a run (its window was closed)."""
+    import traci
+
+    return (traci.exceptions.FatalTraCIError, ConnectionError)
 
 
 @dataclass(frozen=True)
@@ -46,17 +73,28 @@ class StepEvents:
 class SumoSession:
     """Owns the SUMO process for one run; use as a context manager (closed on every exit path).
 
-    `sumo_models=True` leaves SUMO's own car-following and lane-changing in charge.
+    `sumo_models=True` leaves SUMO's own car-following and lane-changing in charge. `outputs` adds
+    SUMO's FCD and tripinfo files to run_dir; `gui` runs the same simulation in sumo-gui via TraCI.
     """
 
     def __init__(
-        self, cfg: SimConfig, run_dir: Path, sumo_models: bool = False, lc_params: dict[str, float] | None = None
+        self,
+        cfg: SimConfig,
+        run_dir: Path,
+        sumo_models: bool = False,
+        lc_params: dict[str, float] | None = None,
+        outputs: OutputConfig | None = None,
+        gui: GuiConfig | None = None,
     ):
         self.cfg = cfg
         self.run_dir = run_dir
         self.sumo_models = sumo_models
         self.lc_params = lc_params or {}
-        self._ls = None
+        self.outputs = outputs or OutputConfig()
+        self.gui = gui
+        self._ls: Any = None
+        self._tc: Any = None  # the binding's constants module
+        self._gui_proc: subprocess.Popen[bytes] | None = None
 
     def args(self) -> list[str]:
         """SUMO's command line for this run; writes the route and detector files into run_dir."""
@@ -81,18 +119,66 @@ class SumoSession:
             "--no-step-log", "true",
             "--no-warnings", "true",
             "--duration-log.disable", "true",
+            *self._output_args(),
         ]  # fmt: skip
+
+    def _output_args(self) -> list[str]:
+        """SUMO's options for the FCD and tripinfo files (written into run_dir)."""
+        out = self.outputs
+        args = []
+        if out.fcd_period_s > 0:
+            args += ["--fcd-output", str(self.run_dir / "fcd.xml"), "--device.fcd.period", f"{out.fcd_period_s:g}",
+                     "--fcd-output.attributes", FCD_ATTRIBUTES]  # fmt: skip
+        if out.tripinfo:
+            args += ["--tripinfo-output", str(self.run_dir / "tripinfo.xml")]
+        return args
 
     def __enter__(self) -> SumoSession:
         global _open_sessions
         if _open_sessions:
             raise RuntimeError("a SUMO session is already open in this process (libsumo allows one)")
-        ls = _libsumo()
-        ls.start(self.args())
+        if self.gui is None:
+            ls = _libsumo()
+            ls.start(self.args())
+            self._ls, self._tc = ls, ls.constants
+        else:
+            self._ls, self._tc = self._start_gui(self.gui)
         _open_sessions += 1
-        self._ls = ls
         self._collision_pairs: set[tuple[str, str]] = set()
         return self
+
+    def _start_gui(self, gui: GuiConfig) -> tuple[Any, Any]:
+        """Start sumo-gui with this run's command line and connect to it through TraCI.
+
+        Raises UsageError with sumo-gui's first line of complaint when it cannot start (no display).
+        """
+        import traci
+        from sumolib.miscutils import getFreeSocketPort
+
+        port = getFreeSocketPort()
+        width, height = gui.window_px
+        cmd = [sumo_binary("sumo-gui"), *self.args()[1:], "--start", "true", "--quit-on-end", "true",
+               "--window-size", f"{width},{height}", "--delay", f"{gui.delay_ms:g}",
+               "--remote-port", str(port)]  # fmt: skip
+        with tempfile.TemporaryFile() as log:
+            proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=log)
+            deadline = time.monotonic() + GUI_START_TIMEOUT_S
+            while True:
+                try:  # one try per call: traci's own retry loop prints to stdout
+                    conn = traci.connect(port, numRetries=0, proc=proc)
+                    break
+                except (traci.exceptions.TraCIException, traci.exceptions.FatalTraCIError):
+                    if proc.poll() is None and time.monotonic() < deadline:
+                        time.sleep(0.1)
+                        continue
+                    proc.kill()
+                    proc.wait()
+                    log.seek(0)
+                    lines = [ln.strip() for ln in log.read().decode(errors="replace").splitlines() if ln.strip()]
+                    reason = lines[0] if lines else f"no TraCI connection within {GUI_START_TIMEOUT_S:g} s"
+                    raise UsageError(f"sumo-gui could not start: {reason}") from None
+        self._gui_proc = proc
+        return conn, traci.constants
 
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
@@ -101,10 +187,24 @@ class SumoSession:
 
     def close(self) -> None:
         global _open_sessions
-        if self._ls is not None:
-            self._ls.close()
-            self._ls = None
-            _open_sessions -= 1
+        if self._ls is None:
+            return
+        ls, self._ls = self._ls, None
+        _open_sessions -= 1
+        if self._gui_proc is None:
+            ls.close()
+            return
+        proc, self._gui_proc = self._gui_proc, None
+        try:
+            ls.close()  # sumo-gui ends the simulation, writes its files and quits (--quit-on-end)
+        except gui_closed_errors():
+            pass  # the window was closed already: nothing left to tell it
+        finally:
+            try:
+                proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
 
     @property
     def ls(self):  # type: ignore[no-untyped-def]
@@ -128,7 +228,7 @@ class SumoSession:
         else:
             ls.vehicle.setSpeedMode(vid, 0)  # no SUMO safety checks: the Newell controller rules
             ls.vehicle.setLaneChangeMode(vid, 0)  # no SUMO lane changes: only the controller's requests
-        tc = ls.constants
+        tc = self._tc
         ls.vehicle.subscribe(vid, [tc.VAR_LANE_INDEX, tc.VAR_LANEPOSITION, tc.VAR_SPEED])
 
     def step(self) -> StepEvents:
@@ -153,7 +253,7 @@ class SumoSession:
 
     def table(self) -> VehicleTable:
         """The vehicle table from the subscriptions (one read for all vehicles)."""
-        tc = self.ls.constants
+        tc = self._tc
         results = self.ls.vehicle.getAllSubscriptionResults()
         n = len(results)
         nums = np.empty(n, np.int64)
@@ -185,3 +285,31 @@ class SumoSession:
         change = self.ls.vehicle.changeLane
         for num, lane in zip(nums.tolist(), target_lanes.tolist(), strict=True):
             change(str(num), lane, self.cfg.control.dt_s)
+
+    # -- sumo-gui only: what the view shows; none of it changes the simulation --------------------
+    def show_region(self, x_min_m: float, x_max_m: float) -> None:
+        """Zoom sumo-gui's view on the road between x_min_m and x_max_m (m), the whole road width,
+        drawn with sumo-gui's "real world" scheme (car shapes, lane markings; vehicles keep set colours)."""
+        half = self.cfg.road.lanes * self.cfg.road.lane_width_m / 2 + 2.0
+        self.ls.gui.setSchema(GUI_VIEW, "real world")
+        self.ls.gui.setBoundary(GUI_VIEW, x_min_m, -half, x_max_m, half)
+
+    def mark_line(self, poly_id: str, x_m: float, rgba: tuple[int, int, int, int]) -> None:
+        """Draw (or recolour) a bar across every lane at x_m (m) in sumo-gui."""
+        ls = self.ls
+        if poly_id in ls.polygon.getIDList():
+            ls.polygon.setColor(poly_id, rgba)
+            return
+        half = self.cfg.road.lanes * self.cfg.road.lane_width_m / 2 + 1.0
+        shape = [(x_m, -half), (x_m + 1.5, -half), (x_m + 1.5, half), (x_m, half)]
+        ls.polygon.add(poly_id, shape, rgba, fill=True, polygonType="accident", layer=10)
+
+    def set_colors(self, nums: np.ndarray, rgba: np.ndarray) -> None:
+        """Vehicle colours in sumo-gui; rgba is (n, 4) of 0-255."""
+        set_color = self.ls.vehicle.setColor
+        for num, color in zip(nums.tolist(), rgba.tolist(), strict=True):
+            set_color(str(num), tuple(color))
+
+    def screenshot(self, path: Path, size_px: tuple[int, int]) -> None:
+        """sumo-gui saves its view, size_px (width, height) pixels, to path (PNG) when the next step is drawn."""
+        self.ls.gui.screenshot(GUI_VIEW, str(path), *size_px)

@@ -13,8 +13,8 @@ from types import TracebackType
 
 import numpy as np
 
-from coopsumo import physics
-from coopsumo.config import SimConfig
+from coopsumo import physics, view
+from coopsumo.config import GuiConfig, OutputConfig, SimConfig
 from coopsumo.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
 from coopsumo.policies import SumoPolicy
 from coopsumo.reward import RewardParts, flow_term, reward_parts, section_crossings
@@ -68,6 +68,7 @@ class _Growable:
         self.hold = np.zeros(capacity, np.int8)
         self.commanded = np.zeros(capacity, bool)  # sumo mode: speed commanded by the accident
         self.set_speed = np.full(capacity, np.nan)  # the speed last sent to SUMO (m/s), which SUMO keeps
+        self.shown = np.full(capacity, -1, np.int8)  # sumo-gui: the view state (view.vehicle_states) it is coloured by
 
     def ensure(self, n: int) -> None:
         cap = len(self.v_exp)
@@ -75,7 +76,7 @@ class _Growable:
             return
         new = max(n, 2 * cap)
         fills = (("v_exp", 0.0), ("depart_s", np.nan), ("scheduled_s", np.nan), ("lc_left_s", 0.0), ("lc_from", -1),
-                 ("lc_to", -1), ("hold", 0), ("commanded", False), ("set_speed", np.nan))  # fmt: skip
+                 ("lc_to", -1), ("hold", 0), ("commanded", False), ("set_speed", np.nan), ("shown", -1))  # fmt: skip
         for name, fill in fills:
             old = getattr(self, name)
             setattr(self, name, np.concatenate([old, np.full(new - cap, fill, old.dtype)]))
@@ -84,15 +85,31 @@ class _Growable:
 class World:
     """A running simulation. Use as a context manager; call observe() then apply(actions) each step."""
 
-    def __init__(self, cfg: SimConfig, run_dir: Path, record_trajectories_every: int = 0, observe_grids: bool = True):
+    def __init__(
+        self,
+        cfg: SimConfig,
+        run_dir: Path,
+        record_trajectories_every: int = 0,
+        observe_grids: bool = True,
+        outputs: OutputConfig | None = None,
+        gui: GuiConfig | None = None,
+    ):
         """observe_grids=False skips the occupancy grids (obs.grids and obs.speed_err are then zeros),
-        for policies that do not read them; it saves about a sixth of a step."""
+        for policies that do not read them; it saves about a sixth of a step.
+        outputs: SUMO's FCD and tripinfo files; gui: run in sumo-gui, vehicles coloured by view.vehicle_states."""
         cfg.validate()
+        outputs = outputs or OutputConfig()
+        outputs.validate(cfg.control.dt_s)
+        if gui is not None:
+            gui.validate(cfg.steps)
         self.cfg = cfg
         self.run_dir = run_dir
+        self.gui = gui
         self.sumo_models = cfg.policy == "sumo" or cfg.policy.startswith("sumo:")
         lc_params = SumoPolicy.from_spec(cfg.policy).lc_params if self.sumo_models else None
-        self.session = SumoSession(cfg, run_dir, sumo_models=self.sumo_models, lc_params=lc_params)
+        self.session = SumoSession(cfg, run_dir, sumo_models=self.sumo_models, lc_params=lc_params,
+                                   outputs=outputs, gui=gui)  # fmt: skip
+        self._accident_marked: bool | None = None  # sumo-gui: whether the marker shows an active accident
         self.demand_rng = np.random.default_rng([cfg.seed, 1])
         self.accident_rng = np.random.default_rng([cfg.seed, 2])
         self.veh = _Growable()
@@ -117,6 +134,8 @@ class World:
     def __enter__(self) -> World:
         self.session.__enter__()
         try:
+            if self.gui is not None:
+                self._set_up_view()
             self._insert_due()
         except BaseException:
             self.session.close()  # __exit__ is not called when __enter__ raises
@@ -127,6 +146,35 @@ class World:
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
         self.session.close()
+
+    # -- sumo-gui ----------------------------------------------------------------------------
+    def _set_up_view(self) -> None:
+        """Zoom on the bottleneck and mark it (accident scenario); the whole road otherwise."""
+        acc = self.cfg.accident
+        if acc.enabled:
+            self.session.show_region(acc.x_m - view.VIEW_UPSTREAM_M, acc.x_m + view.VIEW_DOWNSTREAM_M)
+            self._show_accident()
+        else:
+            self.session.show_region(0.0, self.cfg.road.length_m)
+
+    def _show_accident(self) -> None:
+        """Marker at the bottleneck: red while vehicles may be held there, grey otherwise."""
+        active = self.cfg.accident.hold_probability(self.step_count) > 0
+        if active != self._accident_marked:
+            rgba = view.ACCIDENT_ACTIVE_RGBA if active else view.ACCIDENT_IDLE_RGBA
+            self.session.mark_line("accident", self.cfg.accident.x_m, rgba)
+            self._accident_marked = active
+
+    def _show_states(self) -> None:
+        """Colour every vehicle by what the controller does with it; only changed colours are sent."""
+        t = self.table
+        v = self.veh
+        states = view.vehicle_states(t.speed, v.lc_left_s[t.nums] > 0, v.hold[t.nums] == HELD)
+        changed = states != v.shown[t.nums]
+        self.session.set_colors(t.nums[changed], view.STATE_RGBA[states[changed]])
+        v.shown[t.nums[changed]] = states[changed]
+        if self.cfg.accident.enabled:
+            self._show_accident()
 
     @property
     def time_s(self) -> float:
@@ -317,6 +365,9 @@ class World:
 
     def _advance(self) -> StepEvents:
         """SUMO step, then bookkeeping: table, lane-change clocks, counts, new departures."""
+        gui = self.gui
+        if gui is not None and gui.screenshot and self.step_count + 1 == gui.screenshot_step:
+            self.session.screenshot(Path(gui.screenshot), gui.screenshot_px)
         events = self.session.step()
         self.step_count += 1
         dt = self.cfg.control.dt_s
@@ -332,7 +383,8 @@ class World:
         late = self.time_s - dt - self.veh.scheduled_s[events.departed]
         tot.insertion_blocked += int(np.sum(late >= dt - 1e-6))
         tot.arrived += len(events.arrived)
-        tot.travel_time_sum_s += float(np.sum(self.time_s - self.veh.depart_s[events.arrived]))
+        # as SUMO's tripinfo counts it: from the start of the departure step to the start of the arrival step
+        tot.travel_time_sum_s += float(np.sum(self.time_s - dt - self.veh.depart_s[events.arrived]))
         tot.collisions += self._count_collisions()
         tot.sumo_collisions += events.collisions
         tot.teleports += events.teleports
@@ -343,6 +395,8 @@ class World:
             self._traj.append((np.full(len(t.nums), self.time_s, np.float32), t.nums.astype(np.int32),
                                t.lane.astype(np.int8), t.pos.astype(np.float32),
                                t.speed.astype(np.float32)))  # fmt: skip
+        if gui is not None:
+            self._show_states()
         self._insert_due()
         return events
 
