@@ -2,8 +2,9 @@
 
 1. trains (or reuses) the alpha = 0 and alpha = 8 models in free flow, in parallel;
 2. runs every policy (the two DQNs and the baselines) in the accident scenario, per seed;
-3. writes results/scenario1/: run folders, fig4_time_space.png, fig5_flow_density.png,
-   summary.csv and report.md.
+3. writes results/scenario1/: run folders (with SUMO's fcd.xml and tripinfo.xml), fig4_time_space.png,
+   fig5_flow_density.png, summary.csv and report.md; with a display, gui_jam.png: sumo-gui's view of
+   the jam at the bottleneck, replayed through TraCI.
 """
 
 from __future__ import annotations
@@ -24,10 +25,12 @@ import numpy as np
 import pandas as pd
 from tqdm import tqdm
 
+from coopsumo import view
 from coopsumo.config import (
     AccidentConfig,
     ControlConfig,
     DemandConfig,
+    OutputConfig,
     RewardConfig,
     RoadConfig,
     SimConfig,
@@ -42,6 +45,9 @@ FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
 SLOW_MPS = 5.0
 RECOVERY_MPS = 15.0
 STOP_GO_UPSTREAM_M = 1000.0
+GUI_RUN = "dqn_alpha8"  # the run sumo-gui shows: the cooperative model, first seed
+GUI_SHOT = "gui_jam.png"
+JAM_SHARE = 0.9  # the screenshot step: the first time the view holds this share of its most slow vehicles
 
 
 @dataclass(frozen=True)
@@ -59,6 +65,14 @@ class Plan:
     trajectory_every: int = 5
     loop_period_s: float = 60.0
     baselines: tuple[str, ...] = BASELINES
+    fcd_period_s: float = 5.0
+    """period of SUMO's fcd.xml in every run folder (s): about 40 MB per paper-scale run"""
+    tripinfo: bool = True
+    """write SUMO's tripinfo.xml in every run folder"""
+
+    def outputs(self) -> OutputConfig:
+        """SUMO's output files of every accident run."""
+        return OutputConfig(fcd_period_s=self.fcd_period_s, tripinfo=self.tripinfo)
 
     @staticmethod
     def quick() -> Plan:
@@ -118,8 +132,8 @@ def train_job(cfg_dict: dict[str, Any], out: str) -> str:
     return out
 
 
-def sim_job(cfg_dict: dict[str, Any], out: str, trajectory_every: int) -> str:
-    """Run one simulation into the run folder `out` (written atomically)."""
+def sim_job(cfg_dict: dict[str, Any], out: str, trajectory_every: int, outputs: dict[str, Any] | None = None) -> str:
+    """Run one simulation into the run folder `out` (written atomically); outputs: an OutputConfig as a dict."""
     import torch
 
     from coopsumo.config import sim_config_from_dict
@@ -132,12 +146,30 @@ def sim_job(cfg_dict: dict[str, Any], out: str, trajectory_every: int) -> str:
     policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
     tmp = start_run_dir(Path(out))
     try:
-        run(cfg, policy, tmp, trajectories=True, progress=False, trajectory_every=trajectory_every, on_steps=_bump)
+        run(cfg, policy, tmp, trajectories=True, progress=False, trajectory_every=trajectory_every, on_steps=_bump,
+            outputs=OutputConfig(**outputs) if outputs else None)  # fmt: skip
     except BaseException:
         discard_run_dir(tmp)
         raise
     finish_run_dir(tmp, Path(out))
     return out
+
+
+def gui_run(cfg: SimConfig, shot: Path) -> dict[str, list[Any]]:
+    """Run cfg's simulation in sumo-gui (through TraCI, so in this process) to its last step and save
+    sumo-gui's screenshot of that step to shot. Returns that step's vehicles (vid, lane, pos_m, speed_mps)."""
+    import tempfile
+
+    from coopsumo.config import GuiConfig
+    from coopsumo.policies import make_policy
+    from coopsumo.simulate import run
+
+    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
+    gui = GuiConfig(screenshot=str(shot.resolve()), screenshot_step=cfg.steps)
+    with tempfile.TemporaryDirectory(prefix="gui-run-") as tmp:
+        run(cfg, policy, Path(tmp), trajectories=True, label="sumo-gui screenshot", trajectory_every=cfg.steps, gui=gui)
+        last = pd.read_parquet(Path(tmp) / "trajectories.parquet")
+    return {k: last[k].tolist() for k in ("vid", "lane", "pos_m", "speed_mps")}
 
 
 def _same_config(path: Path, cfg: dict[str, Any]) -> bool:
@@ -146,6 +178,71 @@ def _same_config(path: Path, cfg: dict[str, Any]) -> bool:
         return bool(json.loads(path.read_text())["config"] == json.loads(json.dumps(cfg)))
     except (OSError, ValueError, KeyError):
         return False
+
+
+def _reusable_run(out: Path, cfg: SimConfig, outputs: OutputConfig) -> bool:
+    """True when out holds a finished run of cfg with the SUMO output files `outputs` asks for."""
+    if not ((out / "summary.json").exists() and _same_config(out / "config.json", to_dict(cfg))):
+        return False
+    try:
+        recorded = json.loads((out / "config.json").read_text()).get("sumo_outputs")
+    except (OSError, ValueError):
+        return False
+    files = (["fcd.xml"] if outputs.fcd_period_s > 0 else []) + (["tripinfo.xml"] if outputs.tripinfo else [])
+    return recorded == to_dict(outputs) and all((out / f).exists() for f in files)
+
+
+def jam_step(traj: pd.DataFrame, cfg: SimConfig) -> int | None:
+    """The step sumo-gui photographs: the first recorded step whose view (VIEW_UPSTREAM_M before the
+    bottleneck) holds JAM_SHARE of the most vehicles slower than SLOW_MPS it ever holds; None if never any."""
+    acc = cfg.accident
+    near = traj["pos_m"].between(acc.x_m - view.VIEW_UPSTREAM_M, acc.x_m) & (traj["speed_mps"] < SLOW_MPS)
+    counts = traj[near].groupby("time_s").size()
+    if counts.empty:
+        return None
+    t = float(counts.index[counts >= JAM_SHARE * counts.max()][0])
+    return int(round(t / cfg.control.dt_s))
+
+
+def gui_section(root: Path, run_dir: Path, label: str, cfg: SimConfig, environ: dict[str, str] | None = None) -> str:
+    """The report's sumo-gui screenshot of the jam (made, or reused when the same), or a note why there is none."""
+    env = os.environ if environ is None else environ
+    shot = root / GUI_SHOT
+    if not env.get("DISPLAY"):
+        shot.unlink(missing_ok=True)  # a picture from an earlier study would not match this one
+        return ("No sumo-gui screenshot: no display was available (DISPLAY is not set). Rerun the study under "
+                "`xvfb-run -a -s \"-screen 0 1600x900x24\"` to get one; finished runs are reused.")  # fmt: skip
+    traj = pd.read_parquet(run_dir / "trajectories.parquet")
+    step = jam_step(traj, cfg)
+    if step is None:
+        shot.unlink(missing_ok=True)
+        return f"No sumo-gui screenshot: no vehicle of {label} was slower than {SLOW_MPS:g} m/s near the bottleneck."
+    gui_cfg = replace(cfg, steps=step)
+    record = root / "gui_jam.json"
+    try:
+        done = json.loads(record.read_text())
+    except (OSError, ValueError):
+        done = {}
+    if not (shot.exists() and done.get("config") == json.loads(json.dumps(to_dict(gui_cfg)))):
+        shot.unlink(missing_ok=True)
+        try:
+            last = gui_run(gui_cfg, shot)
+        except UsageError as err:  # DISPLAY is set but sumo-gui cannot open it: the study's results stand
+            return f"No sumo-gui screenshot: {err}."
+        rows = traj[np.isclose(traj["time_s"], step * cfg.control.dt_s)].sort_values("vid")
+        same = last == {k: rows[k].tolist() for k in ("vid", "lane", "pos_m", "speed_mps")}
+        done = {"config": to_dict(gui_cfg), "run": label, "step": step, "identical_to_run": same}
+        write_json(record, done)
+    p = cfg.accident.hold_probability(step)
+    names = zip(view.STATE_NAMES, view.STATE_COLOUR_NAMES, strict=True)
+    colours = ", ".join(f"{name} {colour}" for name, colour in names)
+    same_text = "identical" if done["identical_to_run"] else "NOT identical (a bug: please report)"
+    return (
+        f"![sumo-gui]({GUI_SHOT})\n\nsumo-gui at step {step} (t = {step * cfg.control.dt_s:.1f} s, stuck ratio "
+        f"p = {p:.2f}) of run `runs/{label}/`, made by running it again in sumo-gui through TraCI "
+        f"(vehicle positions at that step {same_text} to the recorded run): the {view.VIEW_UPSTREAM_M:.0f} m "
+        f"upstream of the bottleneck (red bar), traffic from left to right. Vehicles: {colours}."
+    )
 
 
 def run_parallel(jobs: Sequence[tuple[Callable[..., str], tuple[Any, ...], int]], workers: int, desc: str) -> None:
@@ -280,7 +377,7 @@ DEVIATIONS = (
     ),
     ("release start", "not defined", "the accident's first step: p starts to fall below 1 and releases begin"),
     ("lane 1 (Fig. 4)", "not defined", f"SUMO lane index {FIG4_LANE} (the rightmost lane)"),
-    ("trajectories", "-", "recorded every 5 steps (0.5 s) to keep the files small"),
+    ("trajectories", "-", "recorded every 5 steps (0.5 s) to keep the files small; SUMO's FCD every 5 s"),
     ("baselines", "-", "keep, greedy, MOBIL (p = 0.5) on the Newell controller; SUMO's own Krauss + LC2013"),
     (
         "collisions",
@@ -319,7 +416,10 @@ def timing_note(
     return text
 
 
-def write_report(root: Path, plan: Plan, agg: pd.DataFrame, timing: str, figures: dict[str, str]) -> None:
+def write_report(
+    root: Path, plan: Plan, agg: pd.DataFrame, timing: str, figures: dict[str, str], gui_text: str = ""
+) -> None:
+    """report.md; gui_text: the sumo-gui screenshot paragraph (gui_section)."""
     coop, noncoop = "dqn_alpha8", "dqn_alpha0"
     acc = accident_config(plan, "keep", plan.seeds[0]).accident
     dt = ControlConfig().dt_s
@@ -356,6 +456,11 @@ the grey band is the accident window, the dashed line the bottleneck.
 
 Fig. 5: flow against density from every loop and 60 s interval, seed {plan.seeds[0]}; one panel per policy,
 the other policies' points in grey behind.
+
+{gui_text}
+
+Every run folder (`runs/<policy>_seed<k>/`) also holds SUMO's own `fcd.xml` (every {plan.fcd_period_s:g} s)
+and `tripinfo.xml`, for SUMO's tools (the README draws Fig. 4 from `fcd.xml` with `plot_trajectories.py`).
 
 ## Deviations and choices
 
@@ -436,9 +541,10 @@ def run_study(plan: Plan, root: Path, workers: int = 2) -> int:
             cfg = accident_config(plan, policy, seed)
             out = root / "runs" / f"{label_for(policy)}_seed{seed}"
             runs.append((label_for(policy), seed, out, cfg))
-            if (out / "summary.json").exists() and _same_config(out / "config.json", to_dict(cfg)):
+            if _reusable_run(out, cfg, plan.outputs()):
                 continue
-            sim_jobs.append((sim_job, (to_dict(cfg), str(out), plan.trajectory_every), plan.steps))
+            sim_jobs.append((sim_job, (to_dict(cfg), str(out), plan.trajectory_every, to_dict(plan.outputs())),
+                             plan.steps))  # fmt: skip
     run_parallel(sim_jobs, workers, f"accident runs ({len(sim_jobs)})")
 
     # 3. tables, figures, report
@@ -459,11 +565,14 @@ def run_study(plan: Plan, root: Path, workers: int = 2) -> int:
                       title_lane=f"SUMO lane {FIG4_LANE} (paper's lane 1)")  # fmt: skip
     fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, seed, out, _ in runs if seed == first}
     flow_density_figure(fd, root / "fig5_flow_density.png")
+    gui_label, gui_seed, gui_out, gui_cfg = next(r for r in runs if r[0] == GUI_RUN and r[1] == first)
+    gui_text = gui_section(root, gui_out, f"{gui_label}_seed{gui_seed}", gui_cfg)
     wall = time.perf_counter() - start
     timing = timing_note(wall, len(ALPHAS) - len(train_jobs), len(ALPHAS), len(runs) - len(sim_jobs), len(runs),
                          [m.parent / "train_summary.json" for m in model_paths.values()],
                          [out / "summary.json" for _, _, out, _ in runs])  # fmt: skip
-    write_report(root, plan, agg, timing, {"fig4": "fig4_time_space.png", "fig5": "fig5_flow_density.png"})
+    write_report(root, plan, agg, timing, {"fig4": "fig4_time_space.png", "fig5": "fig5_flow_density.png"},
+                 gui_text)  # fmt: skip
     print(report_table(agg))
     print(f"scenario1: done in {wall / 60:.1f} min; report: {root / 'report.md'}")
     return 0

@@ -7,9 +7,11 @@ libsumo allows one SUMO per process: in-process SUMO tests open one World at a t
 
 from __future__ import annotations
 
+import os
+import shutil
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -137,3 +139,42 @@ def parallel_cli() -> Callable[[list[list[str]], int], list[tuple[int, str, str]
         return results
 
     return run_all
+
+
+@pytest.fixture(scope="session")
+def display_or_none() -> Iterator[str | None]:
+    """An X display for sumo-gui: a private Xvfb server when Xvfb is installed (started once per session),
+    else the user's DISPLAY, else None."""
+    xvfb = shutil.which("Xvfb")
+    if xvfb is None:
+        yield os.environ.get("DISPLAY") or None
+        return
+    read_fd, write_fd = os.pipe()
+    proc = subprocess.Popen([xvfb, "-displayfd", str(write_fd), "-screen", "0", "1600x900x24", "-nolisten", "tcp"],
+                            pass_fds=(write_fd,), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    os.close(write_fd)
+    with os.fdopen(read_fd) as pipe:
+        number = pipe.readline().strip()  # Xvfb writes its display number once it accepts clients
+    try:
+        if not number:
+            pytest.fail(f"Xvfb ({xvfb}) did not start")
+        yield f":{number}"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+@pytest.fixture(scope="session")
+def gui_display(display_or_none: str | None) -> str:
+    """The display for sumo-gui tests; skips them, saying why, when there is none."""
+    if display_or_none is None:
+        pytest.skip("sumo-gui needs a display: DISPLAY is not set and Xvfb is not installed (apt-get install -y xvfb)")
+    return display_or_none
+
+
+def env_with_display(display: str | None) -> dict[str, str]:
+    """This process's environment with DISPLAY set to display (removed when None)."""
+    env = {k: v for k, v in os.environ.items() if k != "DISPLAY"}
+    if display is not None:
+        env["DISPLAY"] = display
+    return env

@@ -7,8 +7,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
+import sumolib
+from conftest import env_with_display
+from PIL import Image
+
+from coopsumo import scenario1
+from coopsumo.config import AccidentConfig, SimConfig
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
@@ -16,11 +23,13 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 
 @pytest.fixture(scope="module")
-def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
+def study(tmp_path_factory: pytest.TempPathFactory, display_or_none: str | None) -> Path:
+    """The quick study, on a (virtual) display when there is one, so that it makes its sumo-gui screenshot."""
     out = tmp_path_factory.mktemp("scenario1")
     cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "400", "--steps", "900",
            "--seeds", "2", "--out", str(out)]  # fmt: skip
-    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
+                         env=env_with_display(display_or_none))  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     return out
 
@@ -34,8 +43,12 @@ def test_every_output_is_written(study: Path) -> None:
     runs = sorted(p.name for p in (study / "runs").iterdir())
     assert len(runs) == 2 * 6  # 6 policies x 2 seeds
     for run in (study / "runs").iterdir():
-        for name in ("config.json", "summary.json", "detectors.xml", "trajectories.parquet"):
+        for name in ("config.json", "summary.json", "detectors.xml", "trajectories.parquet", "fcd.xml", "tripinfo.xml"):
             assert (run / name).exists(), f"{run.name}/{name}"
+        trips = list(sumolib.xml.parse(str(run / "tripinfo.xml"), "tripinfo"))
+        assert len(trips) == json.loads((run / "summary.json").read_text())["arrived"], run.name
+        times = {float(t.time) for t in sumolib.xml.parse(str(run / "fcd.xml"), "timestep")}
+        assert times == {5.0 * k for k in range(18)}, run.name  # every 5 s of the 90 s run
     for alpha in ("alpha0", "alpha8"):
         assert (study / "models" / alpha / "model.pt").exists()
 
@@ -59,17 +72,63 @@ def test_report_numbers_equal_the_summaries(study: Path) -> None:
     assert "Deviations and choices" in report and "fig4_time_space.png" in report
 
 
-def test_rerun_reuses_models_and_runs(study: Path) -> None:
+def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) -> None:
     model = study / "models" / "alpha8" / "model.pt"
     before = model.stat().st_mtime_ns
     run_summary = next((study / "runs").iterdir()) / "summary.json"
     run_before = run_summary.stat().st_mtime_ns
+    shot_before = (study / "gui_jam.png").stat().st_mtime_ns if (study / "gui_jam.png").exists() else None
     cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "400", "--steps", "900",
            "--seeds", "2", "--out", str(study)]  # fmt: skip
-    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
+                         env=env_with_display(display_or_none))  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
-    assert "reusing" in res.stderr
+    assert "reusing" in res.stderr and "sumo-gui screenshot" not in res.stderr
     assert model.stat().st_mtime_ns == before and run_summary.stat().st_mtime_ns == run_before
+    if shot_before is not None:  # the same sumo-gui screenshot is reused too
+        assert (study / "gui_jam.png").stat().st_mtime_ns == shot_before
+
+
+def test_report_shows_sumo_guis_screenshot_of_the_jam(study: Path, gui_display: str) -> None:
+    shot = study / "gui_jam.png"
+    assert shot.read_bytes().startswith(PNG)
+    pixels = np.asarray(Image.open(shot).convert("RGB")).reshape(-1, 3)
+    _, counts = np.unique(pixels, axis=0, return_counts=True)
+    assert len(counts) >= 4 and counts.max() < 0.9 * len(pixels)  # not one flat colour
+    assert (pixels == (255, 0, 0)).all(axis=1).any()  # the accident bar
+    record = json.loads((study / "gui_jam.json").read_text())
+    assert record["identical_to_run"] is True and record["run"] == "dqn_alpha8_seed1"
+    report = (study / "report.md").read_text()
+    assert "![sumo-gui](gui_jam.png)" in report and f"sumo-gui at step {record['step']} " in report
+    assert "identical to the recorded run" in report
+
+
+def test_without_a_display_the_report_says_why_there_is_no_screenshot(tmp_path: Path) -> None:
+    (tmp_path / "gui_jam.png").write_bytes(PNG)  # from an earlier study: must not stay beside the new report
+    cfg = SimConfig(accident=AccidentConfig(enabled=True), policy="keep")
+    text = scenario1.gui_section(tmp_path, tmp_path / "no_such_run", "keep_seed1", cfg, environ={})
+    assert text.startswith("No sumo-gui screenshot: no display") and "xvfb-run" in text
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_jam_step_is_the_first_time_the_view_is_nearly_full_of_slow_vehicles() -> None:
+    cfg = SimConfig(accident=AccidentConfig(enabled=True, x_m=1300.0))
+    rows = [
+        (10.0, 1, 1250.0, 2.0),  # 1 slow vehicle in view
+        (20.0, 1, 1290.0, 1.0),
+        (20.0, 2, 1200.0, 3.0),
+        (20.0, 3, 1000.0, 0.0),  # 2 (one is out of view)
+        (30.0, 1, 1299.0, 0.5),
+        (30.0, 2, 1250.0, 2.0),
+        (30.0, 4, 1150.0, 6.0),  # 2 (one is not slow)
+        (40.0, 1, 1299.0, 0.5),
+        (40.0, 2, 1280.0, 0.0),
+        (40.0, 4, 1200.0, 1.0),
+    ]  # 3: the most
+    traj = pd.DataFrame(rows, columns=["time_s", "vid", "pos_m", "speed_mps"])  # fmt: skip
+    assert scenario1.jam_step(traj, cfg) == 400  # 2 < 0.9 * 3
+    assert scenario1.jam_step(traj[traj["time_s"] < 35], cfg) == 200
+    assert scenario1.jam_step(traj[traj["speed_mps"] > 5], cfg) is None
 
 
 @pytest.mark.parametrize("args", [["--seeds", "0"], ["--workers", "0"], ["--steps", "5"], ["--bogus"]])
