@@ -3,6 +3,7 @@
 - simulation throughput (steps/s) of the world alone, per policy, in free flow and in a jam;
 - training throughput (environment steps/s with learning on);
 - observation and decision cost per vehicle per step (grids; one batched DQN forward pass).
+- what SUMO's FCD output (--fcd) at scenario I's period adds to a jammed run's wall time.
 """
 
 from __future__ import annotations
@@ -73,6 +74,27 @@ def bench_decision(n_vehicles: int, repeats: int = 200) -> tuple[float, float]:
     return grid_us, act_us
 
 
+def bench_fcd_cost(steps: int, period_s: float, repeats: int) -> tuple[float, float, float]:
+    """(extra wall time of --fcd in %, FCD MB per simulated hour, mean vehicles on the road) in a jammed
+    keep run (accident from step 100); runs with and without alternate, the best of `repeats` each counts."""
+    from coopsumo.config import OutputConfig
+
+    cfg = SimConfig(accident=AccidentConfig(enabled=True, start_step=100, duration_steps=50_000), steps=steps, seed=1)
+    best = {0.0: float("inf"), period_s: float("inf")}
+    size_mb = vehicles = 0.0
+    for _ in range(repeats):
+        for period in best:
+            with tempfile.TemporaryDirectory() as tmp:
+                summary = run(cfg, make_policy("keep", np.random.default_rng(1)), Path(tmp), progress=False,
+                              outputs=OutputConfig(fcd_period_s=period))  # fmt: skip
+                if period:
+                    size_mb = (Path(tmp) / "fcd.xml").stat().st_size / 1e6
+            best[period] = min(best[period], float(summary["wall_seconds"]))
+            vehicles = float(summary["mean_vehicles_on_road"])
+    hours = steps * cfg.control.dt_s / 3600
+    return 100 * (best[period_s] / best[0.0] - 1), size_mb / hours, vehicles
+
+
 def main(argv: list[str] | None = None) -> int:
     quick = "--quick" in (sys.argv[1:] if argv is None else argv)
     steps = 600 if quick else 6000
@@ -92,6 +114,12 @@ def main(argv: list[str] | None = None) -> int:
     for n in (50, 200):
         grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
         print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)
+    from coopsumo.scenario1 import Plan
+
+    period = Plan().fcd_period_s
+    extra, mb_per_h, veh = bench_fcd_cost(steps, period, repeats=1 if quick else 3)
+    print(f"  --fcd every {period:g} s (scenario I), jammed keep run ({veh:.0f} vehicles): {extra:+.1f}% wall time "
+          f"(limit 10%), {mb_per_h:.0f} MB of fcd.xml per simulated hour", flush=True)  # fmt: skip
     return 0
 
 
