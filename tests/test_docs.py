@@ -28,9 +28,11 @@ def python_commands() -> list[str]:
     for block in blocks("bash"):
         for line in block.replace("\\\n", " ").splitlines():
             line = line.split("#")[0].strip()
-            # the studies run in tests/test_scenario1.py, test_scenario2.py and test_ablation.py with tiny profiles
+            # the studies run in tests/test_scenario1.py, test_scenario2.py and test_ablation.py with tiny profiles;
+            # the --gui command needs a display: tests/test_sumo_tools.py runs it under Xvfb
             study = "coopsumo.scenario" in line or "coopsumo.ablation" in line
-            if line.startswith(".venv/bin/python -m coopsumo") and not study:
+            gui = re.search(r"--gui\b", line) is not None
+            if line.startswith(".venv/bin/python -m coopsumo") and not study and not gui:
                 cmds.append(line)
     return cmds
 
@@ -83,3 +85,4 @@ def test_make_bench_quick() -> None:
     res = subprocess.run(["make", "bench", "BENCH_ARGS=--quick"], cwd=ROOT, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-1500:]
     assert "steps/s" in res.stdout and "us/veh/step" in res.stdout
+    assert re.search(r"--fcd every 5 s \(scenario I\).*: [+-]\d+\.\d% wall time", res.stdout), res.stdout

@@ -1,0 +1,201 @@
+"""Runs seen and checked with SUMO's own tools: sumo-gui (live view, screenshot), FCD and tripinfo output,
+plot_trajectories.py. The README's commands for them are the ones run here."""
+
+from __future__ import annotations
+
+import json
+import re
+import shlex
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+import sumolib
+from conftest import env_with_display
+from PIL import Image
+
+from coopsumo import view
+
+pytestmark = pytest.mark.sumo
+ROOT = Path(__file__).resolve().parent.parent
+README = (ROOT / "README.md").read_text()
+PNG = b"\x89PNG\r\n\x1a\n"
+WALL_KEYS = {"wall_seconds", "steps_per_second"}
+
+
+def readme_lines(marker: str) -> list[str]:
+    """The README's bash lines containing marker, continuation lines joined, comments dropped."""
+    lines = []
+    for block in re.findall(r"```bash\n(.*?)```", README, flags=re.S):
+        for line in block.replace("\\\n", " ").splitlines():
+            line = re.sub(r"\s+", " ", line.split(" #")[0]).strip()
+            if marker in line and not line.startswith("#"):
+                lines.append(line)
+    return lines
+
+
+def simulate(args: list[str], env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "coopsumo.simulate", *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+
+
+def without_wall(summary_path: Path) -> dict[str, Any]:
+    return {k: v for k, v in json.loads(summary_path.read_text()).items() if k not in WALL_KEYS}
+
+
+def colours_of(png: Path) -> Counter[tuple[int, int, int]]:
+    pixels = np.asarray(Image.open(png).convert("RGB")).reshape(-1, 3)
+    return Counter(map(tuple, pixels.tolist()))
+
+
+def assert_one_line_usage_error(proc: subprocess.CompletedProcess[str], named: str) -> None:
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and named in lines[0] and "error" in lines[0], proc.stderr
+    assert "Traceback" not in proc.stderr and proc.stdout == ""
+
+
+# -- pure -----------------------------------------------------------------------------------
+def test_vehicle_states_follow_the_precedence_held_changing_slow_cruising() -> None:
+    speed = np.array([20.0, 4.9, 5.0, 1.0, 1.0, 0.0])
+    changing = np.array([False, False, False, True, True, False])
+    held = np.array([False, False, False, False, True, True])
+    states = view.vehicle_states(speed, changing, held)
+    assert states.tolist() == [view.CRUISING, view.SLOW, view.CRUISING, view.CHANGING, view.HELD, view.HELD]
+    assert len({tuple(c) for c in view.STATE_RGBA.tolist()}) == len(view.STATE_NAMES)  # distinguishable
+
+
+# -- sumo-gui ---------------------------------------------------------------------------------
+def test_readme_gui_command_shows_the_controlled_run_and_saves_a_screenshot(tmp_path: Path, gui_display: str) -> None:
+    """The README's --gui command under a (virtual) display: sumo-gui's PNG shows the colours of the
+    controller's states and the accident bar, and the run is the one libsumo makes without --gui."""
+    (cmd,) = [c for c in readme_lines("--gui ") if c.startswith(".venv/bin/python -m coopsumo.simulate")]
+    args = shlex.split(cmd.replace("results/", f"{tmp_path}/"))[3:] + ["--quiet", "--trajectories"]
+    proc = simulate(args, env_with_display(gui_display))
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    shot = Path(args[args.index("--gui-screenshot") + 1])
+    assert shot.read_bytes().startswith(PNG) and shot.stat().st_size > 1000
+    colours = colours_of(shot)
+    assert len(colours) >= 4 and max(colours.values()) < 0.9 * sum(colours.values())  # not one flat colour
+    seen = set(colours)
+    assert tuple(view.ACCIDENT_ACTIVE_RGBA[:3]) in seen  # the accident bar
+    assert tuple(view.STATE_RGBA[view.HELD][:3]) in seen and tuple(view.STATE_RGBA[view.SLOW][:3]) in seen
+
+    out = Path(args[args.index("--out") + 1])
+    gui_flags = ("--gui", "--gui-screenshot", "--gui-screenshot-step")
+    plain = [a for i, a in enumerate(args) if a not in gui_flags and args[i - 1] not in gui_flags[1:]]
+    plain[plain.index("--out") + 1] = str(tmp_path / "libsumo")
+    proc = simulate(plain)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert without_wall(out / "summary.json") == without_wall(tmp_path / "libsumo" / "summary.json")
+    gui_traj = pd.read_parquet(out / "trajectories.parquet")
+    assert gui_traj.equals(pd.read_parquet(tmp_path / "libsumo" / "trajectories.parquet"))
+    assert json.loads((out / "config.json").read_text())["gui"]["screenshot"] == str(shot)
+
+
+def test_gui_without_a_display_is_one_line_and_exit_2(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    proc = simulate(["--steps", "50", "--quiet", "--gui", "--out", str(out)], env_with_display(None))
+    assert_one_line_usage_error(proc, "display")
+    assert list(tmp_path.iterdir()) == []
+
+
+GUI_BAD_INPUTS = [
+    (["--gui-screenshot", "x.png"], "needs --gui"),
+    (["--gui", "--gui-screenshot", "x.jpg"], ".png"),
+    (["--gui", "--gui-screenshot", "x.png", "--gui-screenshot-step", "51"], "screenshot step"),
+    (["--fcd", "--fcd-period", "0.25"], "multiple"),
+    (["--fcd-period", "2"], "needs --fcd"),
+]
+
+
+@pytest.mark.parametrize(("extra", "named"), GUI_BAD_INPUTS, ids=[" ".join(a) for a, _ in GUI_BAD_INPUTS])
+def test_bad_gui_and_output_options_are_one_line_and_exit_2(tmp_path: Path, extra: list[str], named: str) -> None:
+    proc = simulate(["--steps", "50", "--quiet", "--out", str(tmp_path / "run"), *extra], env_with_display(":0"))
+    assert_one_line_usage_error(proc, named)
+    assert list(tmp_path.iterdir()) == []
+
+
+# -- FCD and tripinfo -------------------------------------------------------------------------------
+RUN_ARGS = ["--scenario", "accident", "--policy", "sumo", "--steps", "2000", "--accident-start", "300",
+            "--accident-steps", "600", "--seed", "3", "--quiet", "--trajectories"]  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """The same accident run with SUMO's own models (they draw from SUMO's random numbers every step)
+    with --fcd --tripinfo, and without."""
+    root = tmp_path_factory.mktemp("tools")
+    with_outputs, plain = root / "with", root / "plain"
+    for out, extra in ((with_outputs, ["--fcd", "--tripinfo"]), (plain, [])):
+        proc = simulate([*RUN_ARGS, "--out", str(out), *extra])
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    return with_outputs, plain
+
+
+def test_outputs_do_not_change_the_simulation(runs: tuple[Path, Path]) -> None:
+    with_outputs, plain = runs
+    assert {p.name for p in with_outputs.iterdir()} - {p.name for p in plain.iterdir()} == {"fcd.xml", "tripinfo.xml"}
+    assert without_wall(with_outputs / "summary.json") == without_wall(plain / "summary.json")
+    assert pd.read_parquet(with_outputs / "trajectories.parquet").equals(
+        pd.read_parquet(plain / "trajectories.parquet")
+    )
+
+
+def test_tripinfo_agrees_with_the_summary(runs: tuple[Path, Path]) -> None:
+    out = runs[0]
+    summary = json.loads((out / "summary.json").read_text())
+    trips = list(sumolib.xml.parse(str(out / "tripinfo.xml"), "tripinfo"))
+    assert summary["arrived"] > 50
+    assert len(trips) == summary["arrived"]
+    assert len(trips) / (summary["sim_seconds"] / 3600) == pytest.approx(summary["throughput_veh_per_h"], rel=1e-9)
+    mean_duration = np.mean([float(t.duration) for t in trips])
+    assert mean_duration == pytest.approx(summary["mean_travel_time_s"], abs=0.005)  # half SUMO's 0.01 s precision
+    traj = pd.read_parquet(out / "trajectories.parquet")
+    on_road_at_end = set(traj.loc[traj["time_s"] == traj["time_s"].max(), "vid"].tolist())
+    assert {int(t.id) for t in trips} == set(traj["vid"].tolist()) - on_road_at_end
+
+
+def test_fcd_is_the_controlled_traffic_of_the_trajectories(runs: tuple[Path, Path]) -> None:
+    """Every FCD record (SUMO time t) is a trajectory row at time_s = t + 0.1 s, and none is missing."""
+    out = runs[0]
+    rows = [(float(ts.time), int(v.id), v.lane, float(v.x), float(v.y), float(v.speed))
+            for ts in sumolib.xml.parse(str(out / "fcd.xml"), "timestep") for v in ts.getChild("vehicle")]  # fmt: skip
+    fcd = pd.DataFrame(rows, columns=["t", "vid", "lane_id", "x", "y", "speed"])
+    assert set(np.round(np.diff(np.unique(fcd["t"])), 6)) == {1.0}  # the default period
+    traj = pd.read_parquet(out / "trajectories.parquet")
+    traj["t"] = np.round(traj["time_s"].astype(float) - 0.1, 3)
+    sampled = traj[np.isclose(traj["t"] % 1.0, 0.0) | np.isclose(traj["t"] % 1.0, 1.0)]
+    merged = fcd.merge(sampled, on=["t", "vid"], how="outer", indicator=True)
+    assert (merged["_merge"] == "both").all(), merged[merged["_merge"] != "both"].head()
+    assert (merged["lane_id"] == "road_" + merged["lane"].astype(str)).all()
+    assert np.abs(merged["x"] - merged["pos_m"]).max() <= 0.011  # FCD prints 2 decimals; parquet is float32
+    assert np.abs(merged["speed"] - merged["speed_mps"]).max() <= 0.011
+    assert len(merged) > 1000
+
+
+def test_readme_tripinfo_snippet_runs(runs: tuple[Path, Path]) -> None:
+    (snippet,) = [b for b in re.findall(r"```python\n(.*?)```", README, flags=re.S) if '"tripinfo"' in b]
+    code = snippet.replace("results/tools/keep/", f"{runs[0]}/")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert res.returncode == 0, res.stderr
+    summary = json.loads((runs[0] / "summary.json").read_text())
+    assert res.stdout.split()[0] == str(summary["arrived"])
+
+
+def test_readme_plot_trajectories_command_draws_a_png(runs: tuple[Path, Path], tmp_path: Path) -> None:
+    (cmd,) = readme_lines("plot_trajectories.py")
+    fcd = "results/scenario1/runs/keep_seed1/fcd.xml"
+    assert fcd in cmd
+    cmd = cmd.replace(fcd, str(runs[0] / "fcd.xml")).replace("results/", f"{tmp_path}/")
+    png = Path(shlex.split(cmd)[shlex.split(cmd).index("-o") + 1])
+    png.parent.mkdir(parents=True)  # the study's folder, there in the README's use
+    res = subprocess.run(["bash", "-c", cmd], cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert png.read_bytes().startswith(PNG) and png.stat().st_size > 20_000
+    assert len(colours_of(png)) > 10
