@@ -351,8 +351,10 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
         f"{profile.train_steps:,} steps of 0.1 s on training seeds {list(profile.seeds)}, then evaluated greedily for "
         f"{profile.eval_steps:,} steps on evaluation seed {EVAL_SEED_OFFSET} + training seed (a demand it never "
         f"saw). Baselines run on the same evaluation seeds. Every figure is mean ± standard deviation over seeds.",
-        f"{meta['cells']} cells, {meta['cells_run']} run now; wall time {meta['wall_seconds']:.0f} s "
-        f"({meta['workers']} workers, {meta['backend']} backend).",
+        f"{meta['cells']} cells, {meta['cells_run']} run by the last command (wall time {meta['wall_seconds']:.0f} s, "
+        f"{meta['workers']} workers, {meta['backend']} backend); all cells together took "
+        f"{meta.get('cell_cpu_seconds_sum', 0) / 3600:.1f} CPU hours "
+        f"({meta.get('cell_wall_seconds_sum', 0) / 3600:.1f} h of cell wall time summed over cells).",
         "",
         "## Ablation: from the paper's learner to the default, one change at a time (alpha = 0)",
         "",
@@ -467,7 +469,9 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
         finally:
             backend.close()
     records = [json.loads(cell_path(root, s["key"]).read_text()) for s in specs]
-    meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1))
+    meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
+                cell_wall_seconds_sum=round(sum(r.get("cell_wall_s") or 0.0 for r in records), 1),
+                cell_cpu_seconds_sum=round(sum(r.get("cell_cpu_s") or 0.0 for r in records), 1))  # fmt: skip
     write_outputs(root, profile, records, meta)
     write_json(root / "study.json", meta)
     return meta
