@@ -424,8 +424,10 @@ def write_outputs(root: Path, profile: Profile, records: list[dict[str, Any]], m
     abl = summarise(runs[runs["part"] == "ablation"], ["variant"])
     order = {n: i for i, n in enumerate(VARIANT_NAMES)}
     abl = abl.sort_values("variant", key=lambda s: s.map(order)).reset_index(drop=True)
-    alpha_tab = summarise(runs[runs["part"] == "alpha"], ["alpha"]).sort_values("alpha").reset_index(drop=True)
-    # the alpha-response cells include the default design's alpha = 0 model, which may also be an ablation cell
+    # the default design's alpha = 0 models are ablation cells when the default is among the variants
+    default = meta.get("default_variant")
+    in_alpha = (runs["part"] == "alpha") | ((runs["variant"] == default) & (runs["alpha"] == 0))
+    alpha_tab = summarise(runs[in_alpha], ["alpha"]).sort_values("alpha").reset_index(drop=True)
     base = summarise(runs[runs["part"] == "baseline"], ["variant"])
     pd.concat([abl.assign(part="ablation"), alpha_tab.assign(part="alpha"), base.assign(part="baseline")]).to_csv(
         root / "summary.csv", index=False
