@@ -21,7 +21,6 @@ import json
 import math
 import sys
 import time
-import traceback
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -159,52 +158,25 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
 
 # -- one cell (in a worker process) ----------------------------------------------------------------
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Run one cell and return its record (never raises on failure; see scenario2.run_cell)."""
-    start, cpu_start = time.perf_counter(), time.process_time()
+    """Run one cell and return its record (never raises on failure; see scenario2.run_recorded)."""
+    from coopsumo.scenario2 import run_recorded
+
     record: dict[str, Any] = {k: spec.get(k) for k in ("key", "kind", "part", "variant", "alpha", "seed",
                                                        "eval_seed", "policy")}  # fmt: skip
     record.update(config=spec["config"], error=None, traceback=None, summary=None, train_summary=None)
-    try:
-        if spec["kind"] == "train":
-            _run_train(spec, Path(root), record)
-        else:
-            _run_baseline(spec, Path(root), record)
-        record["status"] = "ok"
-    except KeyboardInterrupt as err:
-        record.update(status="interrupted", error=f"{type(err).__name__}: {err}")
-    except Exception as err:
-        first = str(err).strip().splitlines()[0] if str(err).strip() else ""
-        record.update(status="failed", error=f"{type(err).__name__}: {first}".rstrip(": "),
-                      traceback=traceback.format_exc(limit=8))  # fmt: skip
-    record["cell_wall_s"] = round(time.perf_counter() - start, 2)
-    record["cell_cpu_s"] = round(time.process_time() - cpu_start, 2)
-    record["versions"] = versions()
-    return record
+    cell = _run_train if spec["kind"] == "train" else _run_baseline
+    return run_recorded(record, lambda: cell(spec, Path(root), record))
 
 
 def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    import torch
-
-    from coopsumo.config import sim_config_from_dict, train_config_from_dict
+    """Train into ROOT/train/<key>/ (resuming a matching checkpoint), then evaluate greedily on the eval seed."""
+    from coopsumo.config import sim_config_from_dict
     from coopsumo.dqn_policy import DQNPolicy
+    from coopsumo.scenario2 import train_resuming
     from coopsumo.simulate import run
-    from coopsumo.train import Interrupted, Trainer, train
 
-    torch.set_num_threads(1)
     out = root / "train" / spec["key"]
-    cfg = train_config_from_dict(spec["config"]["train"])
-    out.mkdir(parents=True, exist_ok=True)
-    resume = False
-    if (out / "checkpoint.pt").exists():
-        try:
-            state = Trainer.load_checkpoint(out)
-            resume = json.loads(json.dumps(state["config"])) == spec["config"]["train"]
-        except Exception:  # a damaged checkpoint: start afresh
-            resume = False
-    try:
-        record["train_summary"] = train(cfg, out, resume=resume, progress=False)
-    except Interrupted as err:
-        raise KeyboardInterrupt(str(err)) from err
+    record["train_summary"], _ = train_resuming(spec["config"]["train"], out)
     ev = sim_config_from_dict(spec["config"]["eval"])
     ev = replace(ev, policy=f"dqn:{out / 'model.pt'}")
     eval_dir = out / f"eval_seed{ev.seed}"
@@ -214,16 +186,10 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
 
 
 def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    from coopsumo.config import sim_config_from_dict
-    from coopsumo.policies import make_policy
-    from coopsumo.simulate import run
+    """One baseline evaluation into ROOT/baselines/<key>/."""
+    from coopsumo.scenario2 import simulate_into
 
-    cfg = sim_config_from_dict(spec["config"]["eval"])
-    out = root / "baselines" / spec["key"]
-    out.mkdir(parents=True, exist_ok=True)
-    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]), cfg.control)
-    summary = run(cfg, policy, out, progress=False, label=spec["key"])
-    record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
+    record["summary"] = simulate_into(spec["config"]["eval"], root / "baselines" / spec["key"], spec["key"])
 
 
 # -- tables ----------------------------------------------------------------------------------------

@@ -219,13 +219,20 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
     status "ok" (with the evaluation summary), "failed" (with the error) or "interrupted"
     (SIGTERM/SIGINT: a checkpoint was saved when training, the cell is to be run again).
     """
-    start, cpu_start = time.perf_counter(), time.process_time()
     record = new_record(spec)
+    cell = _run_mobil if spec.get("policy") == "mobil" else _run_dqn
+    return run_recorded(record, lambda: cell(spec, Path(root), record))
+
+
+def run_recorded(record: dict[str, Any], body: Callable[[], None]) -> dict[str, Any]:
+    """Run body (which fills record) and add status, error, wall and CPU time (s) and versions; never raises.
+
+    status "ok", "failed" (with the error's first line and a short traceback) or "interrupted"
+    (KeyboardInterrupt, also raised for SIGTERM/SIGINT while training).
+    """
+    start, cpu_start = time.perf_counter(), time.process_time()
     try:
-        if spec.get("policy") == "mobil":
-            _run_mobil(spec, Path(root), record)
-        else:
-            _run_dqn(spec, Path(root), record)
+        body()
         record["status"] = "ok"
     except KeyboardInterrupt as err:
         record.update(status="interrupted", error=f"{type(err).__name__}: {err}")
@@ -239,45 +246,59 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
     return record
 
 
-def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Train and evaluate a DQN cell into ROOT/train/<key>/; fills `record`. A stop by signal -> KeyboardInterrupt."""
+def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:
+    """Train the TrainConfig dict `config` into out, resuming a checkpoint there made with exactly this config.
+
+    Returns train()'s summary and the step resumed from (None: started afresh). A stop by signal
+    becomes KeyboardInterrupt.
+    """
     import torch
 
     from coopsumo.config import train_config_from_dict
     from coopsumo.train import Interrupted, Trainer, train
 
     torch.set_num_threads(1)
-    out = root / "train" / spec["key"]
-    cfg = train_config_from_dict(spec["config"])
+    cfg = train_config_from_dict(config)
     out.mkdir(parents=True, exist_ok=True)
-    resume = False
+    resumed_from = None
     if (out / "checkpoint.pt").exists():
         try:
             state = Trainer.load_checkpoint(out)
-            resume = json.loads(json.dumps(state["config"])) == spec["config"]
-            record["resumed_from_step"] = int(state["step"]) if resume else None
+            if json.loads(json.dumps(state["config"])) == config:
+                resumed_from = int(state["step"])
         except Exception:  # a damaged checkpoint: start afresh
-            resume = False
+            resumed_from = None
     try:
-        summary = train(cfg, out, resume=resume, progress=False)
+        summary = train(cfg, out, resume=resumed_from is not None, progress=False)
     except Interrupted as err:
         raise KeyboardInterrupt(str(err)) from err
+    return summary, resumed_from
+
+
+def simulate_into(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
+    """Run the SimConfig dict `config` with its own policy into out; the summary without its policy field."""
+    from coopsumo.config import sim_config_from_dict
+    from coopsumo.policies import make_policy
+    from coopsumo.simulate import run
+
+    cfg = sim_config_from_dict(config)
+    out.mkdir(parents=True, exist_ok=True)
+    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]), cfg.control)
+    summary = run(cfg, policy, out, progress=False, label=label)
+    return {k: v for k, v in summary.items() if k != "policy"}
+
+
+def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    """Train and evaluate a DQN cell into ROOT/train/<key>/; fills `record`. A stop by signal -> KeyboardInterrupt."""
+    out = root / "train" / spec["key"]
+    summary, record["resumed_from_step"] = train_resuming(spec["config"], out)
     record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
     record["train_summary"] = json.loads((out / "train_summary.json").read_text())
 
 
 def _run_mobil(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     """Run a MOBIL cell (no training: one simulation) into ROOT/mobil/<key>/; fills `record`."""
-    from coopsumo.config import sim_config_from_dict
-    from coopsumo.policies import make_policy
-    from coopsumo.simulate import run
-
-    cfg = sim_config_from_dict(spec["config"])
-    out = root / "mobil" / spec["key"]
-    out.mkdir(parents=True, exist_ok=True)
-    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]), cfg.control)
-    summary = run(cfg, policy, out, progress=False, label=spec["key"])
-    record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
+    record["summary"] = simulate_into(spec["config"], root / "mobil" / spec["key"], spec["key"])
 
 
 def new_record(spec: dict[str, Any]) -> dict[str, Any]:

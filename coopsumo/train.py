@@ -427,7 +427,7 @@ def learner_from_args(args: Any) -> DQNConfig:
             raise UsageError(f"{flag} must be a finite number, got {value}")
         cfg = replace(cfg, **{name: value})
         try:
-            replace(DQN_PRESETS[args.preset], **{name: value}).validate()
+            cfg.validate()  # the fields set before were valid: an error here is this flag's
         except ConfigError as err:
             raise UsageError(f"{flag}: {err}") from None
     cfg.validate()
