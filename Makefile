@@ -5,6 +5,8 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 QUICK   ?=
 SEEDS   ?=
+PRESET  ?=
+ALPHAS  ?=
 
 .PHONY: install test lint bench demo nets scenario1 scenario2 learning clean
 
@@ -34,7 +36,7 @@ nets: $(STAMP)
 	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"
 
 scenario1: $(STAMP)
-	$(BIN)/python -m coopsumo.scenario1 $(if $(QUICK),--quick) $(if $(SEEDS),--seeds $(SEEDS))
+	$(BIN)/python -m coopsumo.scenario1 $(if $(QUICK),--quick) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
 
 scenario2: $(STAMP)
 	$(BIN)/python -m coopsumo.scenario2 --profile quick --policies dqn,mobil

@@ -227,3 +227,82 @@ def stop_and_go(traj: pd.DataFrame, x_from_m: float, x_to_m: float, slow_mps: fl
         "n_vehicles": float(n_vehicles),
         "n_stops": float(n_stops),
     }
+
+
+def loop_interval_speeds(det: pd.DataFrame) -> pd.Series:
+    """Each loop interval's speed (m/s): SUMO's mean speed; 0 where no vehicle passed but the loop was
+    occupied (a vehicle standing on it); NaN where the loop saw nothing (an empty road)."""
+    speed = det["speed_mps"].to_numpy(dtype=float)
+    standing = ~np.isfinite(speed) & (det["occupancy_pct"].to_numpy(dtype=float) > 0)
+    return pd.Series(np.where(standing, 0.0, speed), index=det.index, name="speed_mps")
+
+
+def stop_and_go_waves(
+    det: pd.DataFrame, x_to_m: float, slow_mps: float = 5.0, fast_mps: float = 15.0, lookback_s: float = 120.0
+) -> dict[str, float]:
+    """Stop-and-go waves at the loops upstream of x_to_m (pos_m < x_to_m), from SUMO's E1 output.
+
+    A wave onset is a loop interval whose speed (loop_interval_speeds) is below slow_mps while the same
+    loop measured more than fast_mps in an interval that began within the previous lookback_s seconds:
+    traffic went from flowing to standing within two minutes. Returns
+    - wave_share: onsets over all loop intervals with a speed (empty intervals do not count);
+    - n_onsets, n_intervals: the counts behind it;
+    - onsets_per_loop_hour: onsets per loop and hour of data. NaN ratios when no interval has a speed.
+    """
+    up = det[det["pos_m"].to_numpy(dtype=float) < x_to_m].sort_values(["id", "begin_s"], kind="stable")
+    speed = loop_interval_speeds(up).to_numpy()
+    begin = up["begin_s"].to_numpy(dtype=float)
+    loop = up["id"].to_numpy()
+    valid = np.isfinite(speed)
+    onsets = 0
+    for start, stop in _runs(loop):
+        v, b = speed[start:stop], begin[start:stop]
+        fast_begins = b[v > fast_mps]
+        for k in np.flatnonzero(v < slow_mps):
+            recent = fast_begins[(fast_begins < b[k]) & (fast_begins >= b[k] - lookback_s)]
+            onsets += int(len(recent) > 0)
+    n = int(valid.sum())
+    hours = float((up["end_s"] - up["begin_s"]).sum()) / 3600.0
+    return {
+        "wave_share": onsets / n if n else float("nan"),
+        "n_onsets": float(onsets),
+        "n_intervals": float(n),
+        "onsets_per_loop_hour": onsets / hours if hours > 0 else float("nan"),
+    }
+
+
+def _runs(labels: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) of each run of equal consecutive labels."""
+    if len(labels) == 0:
+        return []
+    cuts = np.flatnonzero(labels[1:] != labels[:-1]) + 1
+    bounds = np.concatenate([[0], cuts, [len(labels)]])
+    return list(zip(bounds[:-1].tolist(), bounds[1:].tolist(), strict=True))
+
+
+def insertion_backlog(traj: pd.DataFrame, t_up_s: float) -> pd.Series:
+    """Vehicles waiting to enter the road at each trajectory sample time (veh), indexed by time_s.
+
+    Vehicle k is scheduled at k * t_up_s (k = 0, 1, ...); it has entered once it appears in the
+    trajectories. backlog(t) = scheduled by t - entered by t. With samples every s seconds an
+    entering vehicle is seen up to s late, so the backlog of a free road is about s / t_up_s.
+    """
+    if t_up_s <= 0:
+        raise ValueError(f"t_up_s must be positive, got {t_up_s}")
+    times = np.unique(traj["time_s"].to_numpy(dtype=float))
+    first_seen = np.sort(traj.groupby("vid")["time_s"].min().to_numpy(dtype=float))
+    entered = np.searchsorted(first_seen, times + 1e-9, side="right")
+    scheduled = np.floor(times / t_up_s + 1e-9).astype(np.int64) + 1
+    return pd.Series(scheduled - entered, index=pd.Index(times, name="time_s"), name="backlog_veh")
+
+
+def backlog_cleared_s(backlog: pd.Series, from_s: float, limit_veh: float) -> float:
+    """Time (s) after from_s at which the backlog is at or below limit_veh for good: the sample after the
+    last one above it (0 if none after from_s is above it); NaN if it is still above at the end."""
+    after = backlog[backlog.index >= from_s]
+    above = np.flatnonzero(after.to_numpy() > limit_veh)
+    if len(above) == 0:
+        return 0.0
+    if above[-1] == len(after) - 1:
+        return float("nan")
+    return float(after.index[above[-1] + 1] - from_s)

@@ -137,3 +137,34 @@ def flow_density_figure(fd: dict[str, pd.DataFrame], out_path: str | Path) -> Pa
         ax.set_ylabel("flow (veh/h/lane)")
     fig.tight_layout()
     return _save(fig, out_path)
+
+
+def recovery_figure(
+    speeds: dict[str, pd.Series],
+    backlogs: dict[str, pd.Series],
+    out_path: str | Path,
+    accident_window_s: tuple[float, float],
+    threshold_mps: float,
+) -> Path:
+    """Two panels over time (s), one line per policy label: the space-mean speed (m/s) before the bottleneck
+    (a Series indexed by bin start) with the recovery threshold dashed, and the insertion backlog (vehicles
+    waiting to enter, a Series indexed by time). The accident window is shaded. Writes a PNG, returns its path."""
+    if not speeds:
+        raise ValueError("recovery_figure needs at least one speed series")
+    fig = _new_figure(10.0, 6.4)
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    for i, (label, series) in enumerate(speeds.items()):
+        top.plot(series.index, series.to_numpy(), color=f"C{i % 10}", linewidth=1.2, label=label)
+        if label in backlogs:
+            b = backlogs[label]
+            bottom.plot(b.index, b.to_numpy(), color=f"C{i % 10}", linewidth=1.2, label=label)
+    for ax in (top, bottom):
+        ax.axvspan(*accident_window_s, color="0.5", alpha=0.15, linewidth=0, zorder=0)
+        ax.grid(True, alpha=0.3)
+    top.axhline(threshold_mps, color="k", linestyle="--", linewidth=0.8)
+    top.set_ylabel("speed before the bottleneck (m/s)")
+    top.legend(fontsize=8, ncol=3, loc="lower left")
+    bottom.set_ylabel("vehicles waiting to enter")
+    bottom.set_xlabel("time (s)")
+    fig.tight_layout()
+    return _save(fig, out_path)

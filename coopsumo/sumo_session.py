@@ -7,10 +7,12 @@ Only one session can be open per process (libsumo allows one).
 
 from __future__ import annotations
 
+import operator
 import subprocess
 import tempfile
 import time
 from dataclasses import dataclass
+from itertools import chain
 from pathlib import Path
 from types import TracebackType
 from typing import Any
@@ -145,6 +147,8 @@ class SumoSession:
             self._ls, self._tc = self._start_gui(self.gui)
         _open_sessions += 1
         self._collision_pairs: set[tuple[str, str]] = set()
+        tc = self._tc
+        self._row = operator.itemgetter(tc.VAR_LANE_INDEX, tc.VAR_LANEPOSITION, tc.VAR_SPEED)
         return self
 
     def _start_gui(self, gui: GuiConfig) -> tuple[Any, Any]:
@@ -252,27 +256,23 @@ class SumoSession:
         )
 
     def table(self) -> VehicleTable:
-        """The vehicle table from the subscriptions (one read for all vehicles)."""
-        tc = self._tc
+        """The vehicle table from the subscriptions (one read for all vehicles), sorted by number."""
         results = self.ls.vehicle.getAllSubscriptionResults()
+        if not results:
+            return VehicleTable(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
         n = len(results)
-        nums = np.empty(n, np.int64)
-        lane = np.empty(n, np.int64)
-        pos = np.empty(n)
-        speed = np.empty(n)
-        for i, (vid, values) in enumerate(results.items()):
-            nums[i] = int(vid)
-            lane[i] = values[tc.VAR_LANE_INDEX]
-            pos[i] = values[tc.VAR_LANEPOSITION]
-            speed[i] = values[tc.VAR_SPEED]
+        nums = np.fromiter(map(int, results), np.int64, count=n)
+        values = np.fromiter(chain.from_iterable(map(self._row, results.values())), np.float64, count=3 * n)
+        values = values.reshape(n, 3)
         order = np.argsort(nums)
-        return VehicleTable(nums[order], lane[order], pos[order], speed[order])
+        values = values[order]
+        return VehicleTable(nums[order], values[:, 0].astype(np.int64), values[:, 1], values[:, 2])
 
     def set_speeds(self, nums: np.ndarray, speeds: np.ndarray) -> None:
         """Speeds (m/s) for the next step."""
         set_speed = self.ls.vehicle.setSpeed
-        for num, v in zip(nums.tolist(), speeds.tolist(), strict=True):
-            set_speed(str(num), v)
+        for vid, v in zip(map(str, nums.tolist()), speeds.tolist(), strict=True):
+            set_speed(vid, v)
 
     def release_speeds(self, nums: np.ndarray) -> None:
         """Hand speed control back to SUMO's car-following model."""
@@ -313,3 +313,46 @@ class SumoSession:
     def screenshot(self, path: Path, size_px: tuple[int, int]) -> None:
         """sumo-gui saves its view, size_px (width, height) pixels, to path (PNG) when the next step is drawn."""
         self.ls.gui.screenshot(GUI_VIEW, str(path), *size_px)
+
+
+def plain_run(
+    cfg: SimConfig, run_dir: Path, departures: list[tuple[float, int, float]], block_from_s: float
+) -> tuple[float, float]:
+    """SUMO alone, for `make bench`: nothing is called per vehicle.
+
+    departures: (time s, lane, expected speed m/s) of every vehicle, sorted by time, driven by SUMO's own
+    models (the expected speed as the vehicle's speedFactor); from block_from_s on every lane is blocked at
+    the accident's position by a standing vehicle. Runs cfg.steps steps; returns (wall seconds of the
+    stepping loop, mean vehicles on the road).
+    """
+    session = SumoSession(cfg, run_dir, sumo_models=True)
+    args = session.args()
+    limit = cfg.road.speed_limit_mps
+    x = cfg.accident.x_m
+    rows = [f'    <vehicle id="{k}" type="{network.VTYPE_ID}" route="{network.ROUTE_ID}" depart="{t:.2f}" '
+            f'departLane="{lane}" departPos="base" departSpeed="max" speedFactor="{v / limit:.6f}"/>'
+            for k, (t, lane, v) in enumerate(departures)]  # fmt: skip
+    blocks = [(block_from_s, f'    <vehicle id="block{lane}" type="{network.VTYPE_ID}" route="{network.ROUTE_ID}" '
+               f'depart="{block_from_s:.2f}" departLane="{lane}" departPos="{x:.2f}" departSpeed="0">'
+               f'<stop lane="{network.EDGE_ID}_{lane}" startPos="{x:.2f}" endPos="{x + 5:.2f}" duration="1e7"/>'
+               "</vehicle>") for lane in range(cfg.road.lanes)]  # fmt: skip
+    merged = sorted([(t, row) for (t, _, _), row in zip(departures, rows, strict=True)] + blocks, key=lambda r: r[0])
+    extra = run_dir / "plain.rou.xml"
+    extra.write_text("<routes>\n" + "\n".join(row for _, row in merged) + "\n</routes>\n")
+    route_at = args.index("--route-files") + 1
+    args[route_at] += f",{extra}"
+    if _open_sessions:
+        raise RuntimeError("a SUMO session is already open in this process (libsumo allows one)")
+    ls = _libsumo()
+    ls.start(args)
+    try:
+        on_road = 0
+        block_step = round(block_from_s / cfg.control.dt_s)
+        start = time.perf_counter()
+        for step in range(cfg.steps):
+            ls.simulationStep()
+            on_road += ls.vehicle.getIDCount() - (cfg.road.lanes if step >= block_step else 0)  # not the blockers
+        wall = time.perf_counter() - start
+    finally:
+        ls.close()
+    return wall, on_road / max(cfg.steps, 1)

@@ -6,6 +6,7 @@ One step: observe every vehicle (grids, neighbours) -> a policy's actions -> lan
 
 from __future__ import annotations
 
+import dataclasses
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,7 +15,7 @@ from types import TracebackType
 import numpy as np
 
 from coopsumo import physics, view
-from coopsumo.config import GuiConfig, OutputConfig, SimConfig
+from coopsumo.config import DemandConfig, GuiConfig, OutputConfig, SimConfig
 from coopsumo.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
 from coopsumo.policies import SumoPolicy
 from coopsumo.reward import RewardParts, flow_term, reward_parts, section_crossings
@@ -82,6 +83,31 @@ class _Growable:
             setattr(self, name, np.concatenate([old, np.full(new - cap, fill, old.dtype)]))
 
 
+def draw_vehicle(rng: np.random.Generator, demand: DemandConfig, lanes: int) -> tuple[float, int]:
+    """The next upstream vehicle's expected speed (m/s, clipped normal) and entry lane (uniform)."""
+    v_kmh = np.clip(rng.normal(demand.v_exp_mean_kmh, demand.v_exp_std_kmh), demand.v_exp_min_kmh,
+                    demand.v_exp_max_kmh)  # fmt: skip
+    return float(v_kmh) / 3.6, int(rng.integers(0, lanes))
+
+
+def departures(cfg: SimConfig) -> list[tuple[float, int, float]]:
+    """(time s, lane, expected speed m/s) of every vehicle scheduled during cfg's run, as World draws them."""
+    rng = np.random.default_rng([cfg.seed, 1])
+    n = int(cfg.steps * cfg.control.dt_s / cfg.demand.t_up_s + 1e-9) + 1
+    out = []
+    for num in range(n):
+        v, lane = draw_vehicle(rng, cfg.demand, cfg.road.lanes)
+        out.append((num * cfg.demand.t_up_s, lane, v))
+    return out
+
+
+def _nearest_leader(lead_gap: np.ndarray, lead_speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gap (m) and speed (m/s) of the nearest of the leaders in the (n, k) columns."""
+    pick = np.argmin(lead_gap, axis=1)
+    rows = np.arange(len(lead_gap))
+    return lead_gap[rows, pick], lead_speed[rows, pick]
+
+
 class World:
     """A running simulation. Use as a context manager; call observe() then apply(actions) each step."""
 
@@ -125,6 +151,7 @@ class World:
         self._sections_m = np.array(cfg.road.loop_positions_m())
         self._n_sections = len(self._sections_m)
         self._obs: Observation | None = None
+        self._leader = (np.zeros(0), np.zeros(0))  # the observation's nearest leaders: gap (m), speed (m/s)
         self._overlapping: set[tuple[int, int]] = set()  # (follower, leader) pairs already counted
         self.observe_grids = observe_grids
         self.record_every = record_trajectories_every  # 0: no trajectories
@@ -192,9 +219,7 @@ class World:
         while self.next_num * t_up <= self.time_s + 1e-9:
             num = self.next_num
             self.veh.ensure(num + 1)
-            v_kmh = np.clip(self.demand_rng.normal(d.v_exp_mean_kmh, d.v_exp_std_kmh), d.v_exp_min_kmh, d.v_exp_max_kmh)
-            lane = int(self.demand_rng.integers(0, self.cfg.road.lanes))
-            self.veh.v_exp[num] = v_kmh / 3.6
+            self.veh.v_exp[num], lane = draw_vehicle(self.demand_rng, d, self.cfg.road.lanes)
             self.veh.scheduled_s[num] = num * t_up
             self._waiting[lane].append(num)
             self.next_num += 1
@@ -222,11 +247,13 @@ class World:
         c = self.cfg
         v_exp = self.veh.v_exp[t.nums]
         other = self._other_lane(t.nums, t.lane)
-        occ = physics.occupancy(t.lane, t.pos, other)
-        around = physics.neighbours(
-            occ, t.pos, t.speed, physics.side_lanes(t.lane), c.road.lanes, c.control.car_length_m
-        )
         busy = other >= 0
+        occ = physics.occupancy(t.lane, t.pos, other)
+        # one search for the three side lanes and the second lane a changer touches (its own when none)
+        query = np.concatenate([physics.side_lanes(t.lane), np.where(busy, other, t.lane)[:, None]], axis=1)
+        nb = physics.neighbours(occ, t.pos, t.speed, query, c.road.lanes, c.control.car_length_m)
+        around = physics.Neighbours(*(getattr(nb, f.name)[:, :3] for f in dataclasses.fields(nb)))
+        self._leader = _nearest_leader(nb.lead_gap[:, 1::2], nb.lead_speed[:, 1::2])
         if self.observe_grids if grids is None else grids:
             grid = snapshot(occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
             frames, speed_err = self.history.push(t.nums, grid, (t.speed - v_exp).astype(np.float32))
@@ -267,14 +294,16 @@ class World:
         self.veh.lc_from[movers] = obs.lane[ok]
         self.veh.lc_to[movers] = target[ok]
 
-        # speeds: nearest leader over every lane a vehicle occupies (movers: both lanes from now on)
-        other = self._other_lane(obs.nums, obs.lane)
-        occ = physics.occupancy(obs.lane, obs.pos, other)
-        query = np.stack([obs.lane, np.where(other >= 0, other, obs.lane)], axis=1)
-        nb = physics.neighbours(occ, obs.pos, obs.speed, query, self.cfg.road.lanes, c.car_length_m)
-        pick = np.argmin(nb.lead_gap, axis=1)
-        gap = nb.lead_gap[rows, pick]
-        v_lead = nb.lead_speed[rows, pick]
+        # speeds: nearest leader over every lane a vehicle occupies (movers: both lanes from now on);
+        # the observation's search holds unless a change started (then every vehicle's leader may change)
+        if len(movers):
+            other = self._other_lane(obs.nums, obs.lane)
+            occ = physics.occupancy(obs.lane, obs.pos, other)
+            query = np.stack([obs.lane, np.where(other >= 0, other, obs.lane)], axis=1)
+            nb = physics.neighbours(occ, obs.pos, obs.speed, query, self.cfg.road.lanes, c.car_length_m)
+            gap, v_lead = _nearest_leader(nb.lead_gap, nb.lead_speed)
+        else:
+            gap, v_lead = self._leader
         gap, v_lead = self._accident_obstacle(obs, gap, v_lead)
         speeds = physics.next_speed(obs.speed, obs.v_exp, actions == physics.SPEEDUP, gap, v_lead, c)
 

@@ -10,12 +10,16 @@ import pandas as pd
 import pytest
 
 from coopsumo.analysis import (
+    backlog_cleared_s,
     cross_section_flow,
     flow_density,
+    insertion_backlog,
+    loop_interval_speeds,
     read_detectors,
     recovery_time_s,
     section_speed_bins,
     stop_and_go,
+    stop_and_go_waves,
 )
 
 LOOP_XML = """<?xml version="1.0" encoding="UTF-8"?>
@@ -271,3 +275,87 @@ def test_stop_and_go_empty_section() -> None:
     out = stop_and_go(traj, 100.0, 200.0)
     assert math.isnan(out["slow_share"]) and math.isnan(out["stops_per_vehicle"])
     assert out["n_vehicles"] == 0.0
+
+
+# -- stop-and-go waves from loop series -------------------------------------------------------
+def _loops(series: dict[str, list[float]], period_s: float = 60.0, occupied: float = 30.0) -> pd.DataFrame:
+    """A detector table from speed series per loop id (NaN: nobody passed; occupancy `occupied` % then)."""
+    rows = []
+    for loop_id, speeds in series.items():
+        pos = float(loop_id.split("_x")[1].split("_")[0])
+        for k, v in enumerate(speeds):
+            occ = occupied if math.isnan(v) else 5.0
+            rows.append({"id": loop_id, "pos_m": pos, "lane": 0, "begin_s": k * period_s, "end_s": (k + 1) * period_s,
+                         "speed_mps": v, "occupancy_pct": occ})
+    return pd.DataFrame(rows)
+
+
+def test_wave_onset_needs_fast_within_lookback() -> None:
+    # 20 (fast), 10, 3 -> onset at k=2 (fast at k=0 began 120 s before); 3 again at k=3: fast was 180 s ago
+    det = _loops({"e1_x00800_l0": [20.0, 10.0, 3.0, 3.0]})
+    out = stop_and_go_waves(det, x_to_m=1300.0)
+    assert out["n_onsets"] == 1 and out["n_intervals"] == 4
+    assert out["wave_share"] == pytest.approx(0.25)
+    assert out["onsets_per_loop_hour"] == pytest.approx(1 / (4 * 60 / 3600))
+
+
+def test_wave_counts_each_oscillation_and_ignores_downstream_loops() -> None:
+    # two waves at 800 m; the loop downstream of the bottleneck (1400 m) oscillates too but is not counted
+    det = _loops({"e1_x00800_l0": [20.0, 2.0, 16.0, 1.0, 1.0], "e1_x01400_l0": [20.0, 2.0, 20.0, 2.0, 20.0]})
+    out = stop_and_go_waves(det, x_to_m=1300.0)
+    assert out["n_onsets"] == 3  # k=1 (fast at k=0), k=3 (fast at k=2), k=4 (fast at k=2, 120 s before)
+    assert out["n_intervals"] == 5
+
+
+def test_standing_loop_counts_as_zero_and_empty_loop_is_skipped() -> None:
+    det = _loops({"e1_x00600_l0": [18.0, math.nan]}, occupied=40.0)  # nobody passed, loop occupied: standing
+    assert loop_interval_speeds(det).tolist() == [18.0, 0.0]
+    assert stop_and_go_waves(det, x_to_m=1300.0)["n_onsets"] == 1
+    empty = _loops({"e1_x00600_l0": [18.0, math.nan]}, occupied=0.0)  # nobody there at all
+    out = stop_and_go_waves(empty, x_to_m=1300.0)
+    assert out["n_onsets"] == 0 and out["n_intervals"] == 1
+
+
+def test_slow_traffic_that_never_flowed_is_no_wave() -> None:
+    det = _loops({"e1_x00600_l0": [4.0, 3.0, 12.0, 4.0]})  # never above 15 m/s
+    assert stop_and_go_waves(det, x_to_m=1300.0)["wave_share"] == 0.0
+
+
+def test_waves_on_real_detector_file(loop_file: Path) -> None:
+    # the hand-written file: one interval per loop, so no loop can go from fast to slow
+    out = stop_and_go_waves(read_detectors(loop_file), x_to_m=1300.0)
+    assert out["n_onsets"] == 0 and out["n_intervals"] >= 1
+
+
+# -- insertion backlog -------------------------------------------------------------------------
+def _entries(first_seen: dict[int, float], until_s: float, every_s: float = 1.0) -> pd.DataFrame:
+    """Trajectory samples every every_s: vehicle vid on the road from first_seen[vid] on."""
+    rows = []
+    for t in np.arange(0.0, until_s + 1e-9, every_s):
+        rows += [{"time_s": t, "vid": v, "lane": 0, "pos_m": 0.0, "speed_mps": 10.0}
+                 for v, t0 in first_seen.items() if t0 <= t + 1e-9]
+    return pd.DataFrame(rows)
+
+
+def test_backlog_counts_scheduled_but_not_entered() -> None:
+    # T_up = 1 s: vehicle k is due at k s; vehicles 0, 1 enter on time, 2-4 wait until 6 s, then enter
+    traj = _entries({0: 0.0, 1: 1.0, 2: 6.0, 3: 6.0, 4: 6.0, 5: 6.0, 6: 6.0, 7: 7.0}, until_s=7.0)
+    backlog = insertion_backlog(traj, t_up_s=1.0)
+    assert backlog.loc[1.0] == 0
+    assert backlog.loc[4.0] == 3  # vehicles 2, 3, 4 due, none entered
+    assert backlog.loc[5.0] == 4
+    assert backlog.loc[6.0] == 0 and backlog.loc[7.0] == 0
+    assert backlog_cleared_s(backlog, from_s=0.0, limit_veh=1) == 6.0
+    assert backlog_cleared_s(backlog, from_s=6.5, limit_veh=1) == 0.0
+
+
+def test_backlog_never_cleared_is_nan() -> None:
+    traj = _entries({0: 0.0, 1: 1.0}, until_s=5.0)  # vehicles 2-5 never enter
+    backlog = insertion_backlog(traj, t_up_s=1.0)
+    assert backlog.iloc[-1] == 4
+    assert math.isnan(backlog_cleared_s(backlog, from_s=0.0, limit_veh=1))
+
+
+def test_backlog_bad_interval() -> None:
+    with pytest.raises(ValueError, match="t_up_s"):
+        insertion_backlog(_entries({0: 0.0}, until_s=1.0), t_up_s=0.0)

@@ -35,13 +35,13 @@ def study(tmp_path_factory: pytest.TempPathFactory, display_or_none: str | None)
 
 
 def test_every_output_is_written(study: Path) -> None:
-    for name in ("fig4_time_space.png", "fig5_flow_density.png"):
+    for name in ("fig4_time_space.png", "fig5_flow_density.png", "fig_recovery.png"):
         data = (study / name).read_bytes()
         assert data.startswith(PNG) and len(data) > 10_000
     for name in ("summary.csv", "runs.csv", "report.md", "plan.json"):
         assert (study / name).stat().st_size > 0
     runs = sorted(p.name for p in (study / "runs").iterdir())
-    assert len(runs) == 2 * 6  # 6 policies x 2 seeds
+    assert len(runs) == 2 * 7  # 7 policies (alphas 0, 2, 8 and 4 baselines) x 2 seeds
     for run in (study / "runs").iterdir():
         for name in ("config.json", "summary.json", "detectors.xml", "trajectories.parquet", "fcd.xml", "tripinfo.xml"):
             assert (run / name).exists(), f"{run.name}/{name}"
@@ -49,7 +49,7 @@ def test_every_output_is_written(study: Path) -> None:
         assert len(trips) == json.loads((run / "summary.json").read_text())["arrived"], run.name
         times = {float(t.time) for t in sumolib.xml.parse(str(run / "fcd.xml"), "timestep")}
         assert times == {5.0 * k for k in range(18)}, run.name  # every 5 s of the 90 s run
-    for alpha in ("alpha0", "alpha8"):
+    for alpha in ("alpha0", "alpha2", "alpha8"):
         assert (study / "models" / alpha / "model.pt").exists()
 
 
