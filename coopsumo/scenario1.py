@@ -200,9 +200,12 @@ def _same_config(path: Path, cfg: dict[str, Any]) -> bool:
         return False
 
 
-def _reusable_run(out: Path, cfg: SimConfig, outputs: OutputConfig) -> bool:
-    """True when out holds a finished run of cfg with the SUMO output files `outputs` asks for."""
+def _reusable_run(out: Path, cfg: SimConfig, outputs: OutputConfig, model: Path | None = None) -> bool:
+    """True when out holds a finished run of cfg with the SUMO output files `outputs` asks for and, for a
+    model's run, was made after the model file was written (a retrained model keeps its path)."""
     if not ((out / "summary.json").exists() and _same_config(out / "config.json", to_dict(cfg))):
+        return False
+    if model is not None and not (model.exists() and (out / "summary.json").stat().st_mtime >= model.stat().st_mtime):
         return False
     try:
         recorded = json.loads((out / "config.json").read_text()).get("sumo_outputs")
@@ -703,6 +706,7 @@ def run_study(plan: Plan, root: Path, workers: int = 2) -> int:
                 print(f"scenario1: reusing {model_paths[preset, alpha]} (same configuration)", file=sys.stderr)
                 continue
             train_jobs.append(Job(str(model_dir), train_job, (to_dict(tcfg), str(model_dir)), plan.train_steps))
+    retrained = {job.key for job in train_jobs}
     models = [(f"dqn:{path}", str(path.parent)) for path in model_paths.values()]
     policies = models + [(b, None) for b in plan.baselines]
     runs: list[tuple[str, int, Path, SimConfig]] = []
@@ -712,7 +716,8 @@ def run_study(plan: Plan, root: Path, workers: int = 2) -> int:
             cfg = accident_config(plan, policy, seed)
             out = root / "runs" / f"{label_for(policy)}_seed{seed}"
             runs.append((label_for(policy), seed, out, cfg))
-            if _reusable_run(out, cfg, plan.outputs()):
+            model = Path(policy[4:]) if policy.startswith("dqn:") else None
+            if after not in retrained and _reusable_run(out, cfg, plan.outputs(), model):
                 continue
             args = (to_dict(cfg), str(out), plan.trajectory_every, to_dict(plan.outputs()))
             sim_jobs.append(Job(str(out), sim_job, args, plan.steps, after=after))
