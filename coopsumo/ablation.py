@@ -39,6 +39,7 @@ from coopsumo.config import (
     to_dict,
 )
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.validation import check_ray_address, number_list, seed_count, workers
 
 EVAL_SEED_OFFSET = 1000
 """a model trained with seed s is evaluated on seed EVAL_SEED_OFFSET + s (a demand it never saw)"""
@@ -452,8 +453,8 @@ def build_parser() -> Parser:
     p.add_argument("--quick", action="store_true", help="the same as --profile quick")
     p.add_argument("--variants", default=None, help=f"comma-separated subset of {','.join(VARIANT_NAMES)}")
     p.add_argument("--alphas", default=None, help="comma-separated alpha grid of the alpha response")
-    p.add_argument("--seeds", type=int, default=None, help="training seeds 0..N-1 (default: the profile's)")
-    p.add_argument("--workers", type=int, default=2, help="parallel cells")
+    p.add_argument("--seeds", type=seed_count, default=None, help="training seeds 0..N-1 (default: the profile's)")
+    p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     p.add_argument("--backend", choices=("local", "ray"), default="local")
     p.add_argument("--address", default=None, help="Ray cluster address (with --backend ray)")
     p.add_argument("--out", type=Path, default=Path("results/learning"))
@@ -465,16 +466,12 @@ def profile_from_args(args: Any) -> Profile:
     profile = PROFILES["quick" if args.quick else args.profile]
     if args.variants is not None:
         names = tuple(v.strip() for v in args.variants.split(",") if v.strip())
-        for n in names:
-            learner_of(n)
+        if not names or any(n not in VARIANT_NAMES for n in names):
+            raise UsageError(f"--variants must be a comma-separated subset of {','.join(VARIANT_NAMES)}, got "
+                             f"{args.variants!r}")  # fmt: skip
         profile = replace(profile, variants=names)
     if args.alphas is not None:
-        try:
-            alphas = tuple(float(a) for a in args.alphas.split(",") if a.strip())
-        except ValueError:
-            raise UsageError(f"--alphas needs comma-separated numbers, got {args.alphas!r}") from None
-        if any(not (math.isfinite(a) and a >= 0) for a in alphas):
-            raise UsageError(f"--alphas must be finite numbers >= 0, got {args.alphas!r}")
+        alphas = number_list("--alphas", args.alphas, low=0)
         profile = replace(profile, alphas=alphas)
     if args.seeds is not None:
         if args.seeds <= 0:
@@ -490,6 +487,10 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         profile = profile_from_args(args)
+        if args.address is not None and args.backend != "ray":
+            raise UsageError("--address is for --backend ray")
+        if args.backend == "ray" and args.address is not None:
+            check_ray_address("--address", args.address)
         meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                          progress=not args.quiet)  # fmt: skip
         print(f"ablation: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")

@@ -11,6 +11,8 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from coopsumo.validation import MAX_REPLAY, MAX_STEPS, SEED_MAX, int_problem, min_t_up_s, number_problem
+
 MIN_LANES = 2
 MAX_LANES = 6
 
@@ -188,6 +190,11 @@ class DQNConfig:
         for name in positive_ints:
             if getattr(self, name) <= 0:
                 raise ConfigError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.replay_size > MAX_REPLAY:
+            raise ConfigError(f"replay_size must be at most {MAX_REPLAY:,} (about 0.4 GB), got {self.replay_size}")
+        if self.batch_size > self.replay_size:
+            raise ConfigError(f"batch_size {self.batch_size} must be at most replay_size {self.replay_size} "
+                              "(a larger batch never fills, so nothing would be learned)")  # fmt: skip
         for name in ("learn_start_steps", "epsilon_decay_steps"):
             if getattr(self, name) < 0:
                 raise ConfigError(f"{name} must be >= 0, got {getattr(self, name)}")
@@ -260,10 +267,18 @@ class SimConfig:
         """Raise ConfigError naming the first bad value."""
         if not MIN_LANES <= self.road.lanes <= MAX_LANES:
             raise ConfigError(f"lanes must be between {MIN_LANES} and {MAX_LANES}, got {self.road.lanes}")
-        if not self.demand.t_up_s > 0 or self.demand.t_up_s != self.demand.t_up_s:
-            raise ConfigError(f"t-up must be a positive number of seconds, got {self.demand.t_up_s}")
-        if self.steps <= 0:
-            raise ConfigError(f"steps must be positive, got {self.steps}")
+        limit = min_t_up_s(self.control.dt_s)
+        if number_problem(self.demand.t_up_s, low=limit):
+            raise ConfigError(f"t-up must be a finite number >= {limit:g} s (one vehicle per simulation step), "
+                              f"got {self.demand.t_up_s}")  # fmt: skip
+        if int_problem(self.steps, 1, MAX_STEPS):
+            raise ConfigError(f"steps must be an integer from 1 to {MAX_STEPS}, got {self.steps}")
+        if int_problem(self.seed, 0, SEED_MAX):
+            raise ConfigError(f"seed must be an integer from 0 to {SEED_MAX} (SUMO's seed range), got {self.seed}")
+        acc = self.accident
+        if acc.enabled and (acc.start_step < 0 or acc.duration_steps < 1):
+            raise ConfigError(f"the accident window must start at a step >= 0 and last >= 1 step, got start "
+                              f"{acc.start_step} and {acc.duration_steps} steps")  # fmt: skip
         alpha = self.reward.alpha
         if not (alpha >= 0 and alpha < float("inf")):
             raise ConfigError(f"alpha must be a finite number >= 0, got {alpha}")
@@ -329,19 +344,25 @@ class TrainConfig:
     def validate(self) -> None:
         self.sim.validate()
         self.dqn.validate()
-        if self.eval_steps < 0:
-            raise ConfigError(f"eval steps must be >= 0, got {self.eval_steps}")
+        if int_problem(self.eval_steps, 0, MAX_STEPS):
+            raise ConfigError(f"eval steps must be an integer from 0 to {MAX_STEPS}, got {self.eval_steps}")
+        if self.log_every_steps < 1 or self.checkpoint_every_steps < 0:
+            raise ConfigError(f"log every must be >= 1 and checkpoint every >= 0 steps, got {self.log_every_steps} "
+                              f"and {self.checkpoint_every_steps}")  # fmt: skip
 
 
 def train_config_from_dict(d: dict[str, Any]) -> TrainConfig:
-    """Inverse of to_dict for TrainConfig."""
-    return TrainConfig(
-        sim=sim_config_from_dict(d["sim"]),
-        dqn=dqn_config_from_dict(d["dqn"]),
-        log_every_steps=d["log_every_steps"],
-        checkpoint_every_steps=d["checkpoint_every_steps"],
-        eval_steps=d["eval_steps"],
-    )
+    """Inverse of to_dict for TrainConfig; a missing or unknown field is a ConfigError naming it."""
+    try:
+        return TrainConfig(
+            sim=sim_config_from_dict(d["sim"]),
+            dqn=dqn_config_from_dict(d["dqn"]),
+            log_every_steps=d["log_every_steps"],
+            checkpoint_every_steps=d["checkpoint_every_steps"],
+            eval_steps=d["eval_steps"],
+        )
+    except KeyError as err:
+        raise ConfigError(f"training configuration has no {err.args[0]!r} (written by another coopsumo?)") from None
 
 
 def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
@@ -362,11 +383,18 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
         )
         d = {k: v for k, v in d.items() if k not in legacy}
         return dataclasses.replace(base, **d)
-    known = {f.name for f in dataclasses.fields(DQNConfig)}
-    unknown = sorted(set(d) - known)
+    d.setdefault("dueling", False)  # written before the dueling head existed: the plain head
+    return _from_fields(DQNConfig, d, "learner")
+
+
+def _from_fields(cls: Any, d: dict[str, Any], what: str) -> Any:
+    """cls(**d); a field cls does not know is a ConfigError naming it (missing fields take their defaults)."""
+    if not isinstance(d, dict):
+        raise ConfigError(f"{what} settings are not a mapping: {d!r}")
+    unknown = sorted(set(d) - {f.name for f in dataclasses.fields(cls)})
     if unknown:
-        raise ConfigError(f"unknown learner setting {unknown[0]!r} (written by a newer coopsumo?)")
-    return DQNConfig(**d)
+        raise ConfigError(f"unknown {what} setting {unknown[0]!r} (written by a newer coopsumo?)")
+    return cls(**d)
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:
@@ -375,16 +403,19 @@ def to_dict(cfg: Any) -> dict[str, Any]:
 
 
 def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
-    """Inverse of to_dict for SimConfig."""
-    return SimConfig(
-        road=RoadConfig(**d["road"]),
-        demand=DemandConfig(**d["demand"]),
-        control=ControlConfig(**d["control"]),
-        accident=AccidentConfig(**d["accident"]),
-        reward=RewardConfig(**d["reward"]),
-        steps=d["steps"],
-        seed=d["seed"],
-        policy=d["policy"],
-        time_to_teleport_s=d["time_to_teleport_s"],
-        sumo_collision_check=d.get("sumo_collision_check", False),
-    )
+    """Inverse of to_dict for SimConfig; a missing or unknown field is a ConfigError naming it."""
+    try:
+        return SimConfig(
+            road=_from_fields(RoadConfig, d["road"], "road"),
+            demand=_from_fields(DemandConfig, d["demand"], "demand"),
+            control=_from_fields(ControlConfig, d["control"], "control"),
+            accident=_from_fields(AccidentConfig, d["accident"], "accident"),
+            reward=_from_fields(RewardConfig, d["reward"], "reward"),
+            steps=d["steps"],
+            seed=d["seed"],
+            policy=d["policy"],
+            time_to_teleport_s=d["time_to_teleport_s"],
+            sumo_collision_check=d.get("sumo_collision_check", False),
+        )
+    except KeyError as err:
+        raise ConfigError(f"simulation configuration has no {err.args[0]!r} (written by another coopsumo?)") from None

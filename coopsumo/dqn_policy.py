@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -11,6 +12,13 @@ from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
 from coopsumo.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.observation import Observation
 from coopsumo.runio import UsageError
+
+
+def _field(d: Any, *keys: str) -> Any:
+    """d[k1][k2]...; None where a level is missing or not a mapping."""
+    for k in keys:
+        d = d.get(k) if isinstance(d, dict) else None
+    return d
 
 
 class DQNPolicy:
@@ -31,6 +39,8 @@ class DQNPolicy:
         self.name = name
         self.decision_interval = decision_interval
         self.action_mask = action_mask
+        self.trained_on: dict[str, object] | None = None
+        """what a model file says it was trained on (preset, lanes, T_up, alpha, version); None when unknown"""
         self._grids = np.zeros((0, *GRID_SHAPE), np.uint8)  # last input and action, by vehicle number
         self._speed_err = np.zeros((0, GRID_SHAPE[0]), np.float32)
         self._mask = np.zeros((0, N_ACTIONS), bool)
@@ -38,16 +48,37 @@ class DQNPolicy:
 
     @classmethod
     def from_file(cls, path: str) -> DQNPolicy:
-        """Load model.pt and drive it as it was trained; a missing, corrupt or mismatched file is a usage error."""
+        """Load model.pt and drive it as it was trained; a missing, corrupt or mismatched file is a usage error.
+
+        The observation is the same on every road (left, own and right lane; lanes off the road are full),
+        so a model trained on another lane count or inflow is driven by the same rules; `trained_on` says
+        what it was trained on (simulate records it in config.json).
+        """
         try:
             net, meta = load_model(path)
-            learner = meta.get("config", {}).get("dqn") if isinstance(meta.get("config"), dict) else None
-            # a model saved without its training configuration is driven as before presets: every step, no mask
-            dqn = dqn_config_from_dict(learner) if isinstance(learner, dict) else PAPER_DQN
-        except (ModelFileError, ConfigError) as err:
+        except ModelFileError as err:
             raise UsageError(str(err)) from None
-        return cls(net, name=f"dqn:{Path(path).parent.name or path}",
-                   decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask)  # fmt: skip
+        config = meta.get("config")
+        try:
+            if config is None:  # saved without its training configuration: driven as before presets
+                dqn = PAPER_DQN
+            elif isinstance(_field(config, "dqn"), dict):
+                dqn = dqn_config_from_dict(config["dqn"])
+            else:
+                raise ConfigError("its training configuration has no learner settings")
+            if dqn.dueling != net.dueling:
+                raise ConfigError(f"its learner settings say dueling={dqn.dueling}, its weights have "
+                                  f"{'a dueling' if net.dueling else 'a plain'} head")  # fmt: skip
+        except ConfigError as err:
+            raise UsageError(f"model {path}: {err}") from None
+        policy = cls(net, name=f"dqn:{Path(path).parent.name or path}",
+                     decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask)  # fmt: skip
+        policy.trained_on = {"preset": dqn.preset, "decision_interval_steps": dqn.decision_interval_steps,
+                             "action_mask": dqn.action_mask, "lanes": _field(config, "sim", "road", "lanes"),
+                             "t_up_s": _field(config, "sim", "demand", "t_up_s"),
+                             "alpha": _field(config, "sim", "reward", "alpha"),
+                             "coopsumo": _field(meta, "versions", "coopsumo")}  # fmt: skip
+        return policy
 
     def _grow(self, needed: int) -> None:
         cap = len(self._action)

@@ -39,6 +39,7 @@ from coopsumo.config import (
     to_dict,
 )
 from coopsumo.runio import Parser, UsageError, run_cli, start_parent_watch, versions, write_json
+from coopsumo.validation import MAX_STEPS, integer, seed_count, steps, workers
 
 ALPHAS = (0.0, 2.0, 8.0)
 """alpha = 0 and 8 are the paper's; 2 is the largest alpha of the learning study's response whose model still
@@ -645,11 +646,11 @@ def _preset_list(text: str) -> tuple[str, ...]:
 def main(argv: list[str] | None = None) -> int:
     p = Parser(prog="python -m coopsumo.scenario1", description="Scenario I: the accident bottleneck study.")
     p.add_argument("--quick", action="store_true", help="small step counts for a first look (a few minutes)")
-    p.add_argument("--seeds", type=int, default=None, help="number of evaluation seeds (default 3; quick 2)")
+    p.add_argument("--seeds", type=seed_count, default=None, help="number of evaluation seeds (default 3; quick 2)")
     p.add_argument("--out", type=Path, default=Path("results/scenario1"), help="results folder")
-    p.add_argument("--workers", type=int, default=2, help="parallel processes (default 2)")
-    p.add_argument("--train-steps", type=int, default=None, help="override the training steps")
-    p.add_argument("--steps", type=int, default=None,
+    p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
+    p.add_argument("--train-steps", type=steps, default=None, help="override the training steps")
+    p.add_argument("--steps", type=integer(10, MAX_STEPS), default=None,
                    help="override the accident run's steps (the accident window scales with it)")  # fmt: skip
     p.add_argument("--alphas", default=None,
                    help=f"alphas to train and run, comma-separated (default {','.join(f'{a:g}' for a in ALPHAS)}; "

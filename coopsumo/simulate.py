@@ -18,7 +18,19 @@ import numpy as np
 from tqdm import tqdm
 
 from coopsumo import sumo_session
-from coopsumo.config import AccidentConfig, DemandConfig, GuiConfig, OutputConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.config import (
+    MAX_LANES,
+    MIN_LANES,
+    AccidentConfig,
+    ConfigError,
+    ControlConfig,
+    DemandConfig,
+    GuiConfig,
+    OutputConfig,
+    RoadConfig,
+    SimConfig,
+    to_dict,
+)
 from coopsumo.decisions import ActionHold
 from coopsumo.policies import Policy, make_policy
 from coopsumo.runio import (
@@ -31,6 +43,7 @@ from coopsumo.runio import (
     versions,
     write_json,
 )
+from coopsumo.validation import check_accident, check_int, check_t_up, integer, number, seed, steps
 from coopsumo.world import World
 
 SCENARIOS = ("free", "accident")
@@ -39,24 +52,25 @@ SCENARIOS = ("free", "accident")
 def build_parser() -> Parser:
     p = Parser(prog="python -m coopsumo.simulate", description="Run one SUMO highway simulation.")
     p.add_argument("--scenario", choices=SCENARIOS, default="free", help="free flow or the accident bottleneck")
-    p.add_argument("--lanes", type=int, default=3, help="number of lanes, 2-6")
-    p.add_argument("--t-up", type=float, default=DemandConfig.t_up_s, help="upstream departure interval (s)")
+    p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
+    p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
     p.add_argument("--policy", default="keep", help="keep, random, greedy, dqn:PATH/model.pt")
-    p.add_argument("--steps", type=int, default=9000, help="steps of 0.1 s")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--steps", type=steps, default=9000, help="steps of 0.1 s")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the policy and SUMO (0 to 2^31 - 1)")
     p.add_argument("--out", type=Path, required=True, help="run folder to write")
     p.add_argument("--trajectories", action="store_true", help="also write every vehicle's trajectory")
-    p.add_argument("--accident-start", type=int, default=AccidentConfig.start_step, help="first accident step")
-    p.add_argument("--accident-steps", type=int, default=AccidentConfig.duration_steps, help="accident length (steps)")
+    p.add_argument("--accident-start", type=integer(0), default=AccidentConfig.start_step, help="first accident step")
+    p.add_argument("--accident-steps", type=integer(1), default=AccidentConfig.duration_steps, help="length (steps)")
     p.add_argument("--sumo-collision-check", action="store_true",
                    help="also count collisions with SUMO's own check (slower in jams)")  # fmt: skip
     p.add_argument("--fcd", action="store_true", help="also write SUMO's FCD output fcd.xml")
-    p.add_argument("--fcd-period", type=float, default=None, help="FCD period (s, a multiple of 0.1; default 1)")
+    p.add_argument("--fcd-period", type=number(0, low_open=True), default=None,
+                   help="FCD period (s, a multiple of 0.1; default 1)")  # fmt: skip
     p.add_argument("--tripinfo", action="store_true", help="also write SUMO's tripinfo.xml")
     p.add_argument("--gui", action="store_true", help="run in sumo-gui (needs a display), vehicles coloured")
     p.add_argument("--gui-screenshot", type=Path, default=None, help="PNG file for sumo-gui's screenshot")
-    p.add_argument("--gui-screenshot-step", type=int, default=None, help="step of the screenshot (default: last)")
-    p.add_argument("--gui-delay", type=float, default=0.0, help="sumo-gui's pause between steps (ms)")
+    p.add_argument("--gui-screenshot-step", type=integer(1), default=None, help="its step (default: the last)")
+    p.add_argument("--gui-delay", type=number(0), default=0.0, help="sumo-gui's pause between steps (ms)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -69,10 +83,11 @@ def outputs_from_args(args: Any, cfg: SimConfig) -> OutputConfig:
     if args.fcd_period is not None and not args.fcd:
         raise UsageError("--fcd-period needs --fcd")
     period = (DEFAULT_FCD_PERIOD_S if args.fcd_period is None else args.fcd_period) if args.fcd else 0.0
-    if args.fcd and period == 0:
-        raise UsageError("fcd period must be positive, got 0")
     outputs = OutputConfig(fcd_period_s=period, tripinfo=args.tripinfo)
-    outputs.validate(cfg.control.dt_s)
+    try:
+        outputs.validate(cfg.control.dt_s)
+    except ConfigError as err:
+        raise UsageError(f"--fcd-period: {err}") from None
     return outputs
 
 
@@ -88,6 +103,10 @@ def gui_from_args(args: Any, cfg: SimConfig, environ: dict[str, str] | None = No
     if args.gui_screenshot_step is not None and args.gui_screenshot is None:
         raise UsageError("--gui-screenshot-step needs --gui-screenshot")
     shot = args.gui_screenshot
+    if shot is not None and shot.suffix.lower() != ".png":
+        raise UsageError(f"--gui-screenshot must be a .png file, got {str(shot)!r}")
+    if args.gui_screenshot_step is not None:
+        check_int("--gui-screenshot-step", args.gui_screenshot_step, 1, cfg.steps, " (a step of the run)")
     gui = GuiConfig(
         screenshot=str(shot.resolve()) if shot is not None else "",
         screenshot_step=cfg.steps if args.gui_screenshot_step is None else args.gui_screenshot_step,
@@ -105,6 +124,10 @@ def gui_from_args(args: Any, cfg: SimConfig, environ: dict[str, str] | None = No
 
 
 def config_from_args(args: Any) -> SimConfig:
+    """The run's configuration; UsageError naming the flag for values that depend on each other."""
+    check_t_up("--t-up", args.t_up, ControlConfig().dt_s)
+    if args.scenario == "accident":
+        check_accident(args.accident_start, args.accident_steps, args.steps)
     cfg = SimConfig(
         road=RoadConfig(lanes=args.lanes),
         demand=DemandConfig(t_up_s=args.t_up),
@@ -146,6 +169,7 @@ def run(
             "trajectory_every_steps": trajectory_every if trajectories else None,
             "sumo_outputs": to_dict(outputs),
             "gui": to_dict(gui) if gui is not None else None,
+            "model_trained_on": getattr(policy, "trained_on", None),
         },
     )
     start = time.perf_counter()
@@ -192,7 +216,10 @@ def main(argv: list[str] | None = None) -> int:
         cfg = config_from_args(args)
         outputs = outputs_from_args(args, cfg)
         gui = gui_from_args(args, cfg)
-        policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
+        try:
+            policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
+        except UsageError as err:
+            raise UsageError(f"--policy {cfg.policy}: {err}") from None
         tmp = start_run_dir(args.out)
         try:
             summary = run(cfg, policy, tmp, trajectories=args.trajectories, progress=not args.quiet,

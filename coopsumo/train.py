@@ -28,7 +28,10 @@ from tqdm import tqdm
 
 from coopsumo.config import (
     DQN_PRESETS,
+    MAX_LANES,
+    MIN_LANES,
     ConfigError,
+    ControlConfig,
     DemandConfig,
     DQNConfig,
     RewardConfig,
@@ -43,12 +46,21 @@ from coopsumo.dqn import Learner, save_model
 from coopsumo.dqn_policy import DQNPolicy
 from coopsumo.observation import Observation
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.validation import MAX_STEPS, check_t_up, integer, number, seed, steps
 from coopsumo.world import StepOutcome, World
 
 LOG_FIELDS = (
     "step", "sim_time_s", "td_loss", "r_speed", "r_lane_change", "r_flow", "reward", "epsilon",
     "mean_speed_mps", "vehicles", "lane_changes", "lane_changes_rejected", "collisions", "teleports", "wall_s",
 )  # fmt: skip
+
+
+CHECKPOINT_KEYS = ("config", "step", "learner", "action_counts", "actions", "window")
+"""what every checkpoint.pt holds"""
+
+
+class ResumeDiverged(RuntimeError):
+    """Replaying a checkpoint's recorded actions did not rebuild the same world."""
 
 
 class Interrupted(Exception):
@@ -193,7 +205,23 @@ class Trainer:
             state: dict[str, Any] = torch.load(path, weights_only=True)
         except Exception as err:  # a damaged file: report it in one line
             raise UsageError(f"cannot read checkpoint {path}: {str(err).splitlines()[0]}") from None
+        if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
+            raise UsageError(f"{path} is not a coopsumo training checkpoint")
+        learner = state["learner"] if isinstance(state["learner"], dict) else {}
+        if "greedy_prob" in state["config"].get("dqn", {}) or "decisions" not in learner:
+            raise UsageError(f"checkpoint {path} was written by a coopsumo before learner presets and cannot be "
+                             "resumed exactly; train again without --resume")  # fmt: skip
         return state
+
+    @staticmethod
+    def checkpoint_config(out: Path, state: dict[str, Any]) -> TrainConfig:
+        """The checkpoint's training configuration; UsageError naming what does not fit this version."""
+        try:
+            cfg = train_config_from_dict(state["config"])
+            cfg.validate()
+        except ConfigError as err:
+            raise UsageError(f"checkpoint {out / 'checkpoint.pt'}: {err}") from None
+        return cfg
 
     def restore(self, state: dict[str, Any]) -> None:
         self.learner.load_state_dict(state["learner"])
@@ -246,7 +274,7 @@ class Trainer:
             pend.start_interval(obs, decided)
         actions = self.hold.actions(obs.nums, decided)
         if recorded is not None and not np.array_equal(actions, recorded):
-            raise RuntimeError(f"resume replay diverged at step {world.step_count}")
+            raise ResumeDiverged(f"the replay of its recorded actions diverged at step {world.step_count}")
         out = world.apply(actions)
         pend.add_rewards(out.nums, out.reward.total)
         if out.arrived.any():
@@ -348,13 +376,21 @@ def train(
     trainer = Trainer(cfg, out, progress, on_steps)
     out.mkdir(parents=True, exist_ok=True)
     if resume:
-        trainer.restore(Trainer.load_checkpoint(out))
+        try:
+            trainer.restore(Trainer.load_checkpoint(out))
+        except (RuntimeError, KeyError, ValueError, TypeError) as err:  # weights, buffer or RNG of another shape
+            text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise UsageError(f"checkpoint {trainer.checkpoint_path()} does not fit its configuration: {text}") from None
     else:
         write_json(out / "config.json", model_meta(cfg))
         for stale in ("model.pt", "summary.json", "checkpoint.pt", "train_summary.json"):
             (out / stale).unlink(missing_ok=True)
     start = time.perf_counter()
-    trainer.run()
+    try:
+        trainer.run()
+    except ResumeDiverged as err:
+        raise UsageError(f"checkpoint {trainer.checkpoint_path()} (another coopsumo or SUMO version?): {err}; "
+                         "train again without --resume") from None  # fmt: skip
     wall = time.perf_counter() - start
     save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
     train_summary = dict(trainer.world_summary, wall_seconds=round(wall, 2),
@@ -436,14 +472,15 @@ def learner_from_args(args: Any) -> DQNConfig:
 
 def build_parser() -> Parser:
     p = Parser(prog="python -m coopsumo.train", description="Train the cooperative lane-changing DQN.")
-    p.add_argument("--lanes", type=int, default=3, help="number of lanes, 2-6")
-    p.add_argument("--alpha", type=float, default=0.0, help="lane-change penalty of eq. (7), per accepted change")
-    p.add_argument("--t-up", type=float, default=DemandConfig.t_up_s, help="upstream departure interval (s)")
-    p.add_argument("--steps", type=int, default=90_000, help="training steps of 0.1 s")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
+    p.add_argument("--alpha", type=number(0), default=0.0, help="lane-change penalty of eq. (7), per accepted change")
+    p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
+    p.add_argument("--steps", type=steps, default=90_000, help="training steps of 0.1 s")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the learner and SUMO (0 to 2^31 - 1)")
     p.add_argument("--out", type=Path, default=None, help="run folder (default results/train/...)")
     p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
-    p.add_argument("--eval-steps", type=int, default=TrainConfig.eval_steps, help="greedy evaluation steps (0: none)")
+    p.add_argument("--eval-steps", type=integer(0, MAX_STEPS), default=TrainConfig.eval_steps,
+                   help="greedy evaluation steps (0: none)")  # fmt: skip
     add_learner_flags(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
@@ -451,7 +488,8 @@ def build_parser() -> Parser:
 
 def config_from_args(args: Any) -> TrainConfig:
     if not math.isfinite(args.alpha) or args.alpha < 0:
-        raise UsageError(f"alpha must be a finite number >= 0, got {args.alpha}")
+        raise UsageError(f"--alpha must be a finite number >= 0, got {args.alpha}")
+    check_t_up("--t-up", args.t_up, ControlConfig().dt_s)
     sim = SimConfig(
         road=RoadConfig(lanes=args.lanes),
         demand=DemandConfig(t_up_s=args.t_up),
@@ -465,6 +503,31 @@ def config_from_args(args: Any) -> TrainConfig:
     return cfg
 
 
+RUN_FLAGS: tuple[tuple[str, str, Callable[[TrainConfig], Any]], ...] = (
+    ("--lanes", "lanes", lambda c: c.sim.road.lanes),
+    ("--alpha", "alpha", lambda c: c.sim.reward.alpha),
+    ("--t-up", "t_up", lambda c: c.sim.demand.t_up_s),
+    ("--steps", "steps", lambda c: c.sim.steps),
+    ("--seed", "seed", lambda c: c.sim.seed),
+    ("--eval-steps", "eval_steps", lambda c: c.eval_steps),
+    ("--preset", "preset", lambda c: c.dqn.preset),
+)
+"""(flag, argparse dest, its value in a TrainConfig) of the run's own flags (learner flags: LEARNER_FLAGS)"""
+
+
+def check_resume_flags(argv: list[str] | None, cfg: TrainConfig) -> None:
+    """--resume continues the checkpoint's run: a flag given beside it must repeat the checkpoint's value."""
+    p = build_parser()
+    p.set_defaults(**{dest: None for _, dest, _ in RUN_FLAGS})  # None now means "not on the command line"
+    given = p.parse_args(argv)
+    flags = [*RUN_FLAGS, *((flag, name, lambda c, n=name: getattr(c.dqn, n)) for flag, name, _, _ in LEARNER_FLAGS)]
+    for flag, dest, stored in flags:
+        value = getattr(given, dest)
+        if value is not None and value != stored(cfg):
+            raise UsageError(f"{flag} {value} differs from the checkpoint's {stored(cfg)}: --resume continues the "
+                             f"run as it was started (leave {flag} out)")  # fmt: skip
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
@@ -473,7 +536,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.resume:
             if args.out is None:
                 raise UsageError("--resume needs --out pointing at the interrupted run")
-            cfg = train_config_from_dict(Trainer.load_checkpoint(args.out)["config"])
+            cfg = Trainer.checkpoint_config(args.out, Trainer.load_checkpoint(args.out))
+            check_resume_flags(argv, cfg)
         else:
             cfg = config_from_args(args)
         out = args.out or default_out(cfg)

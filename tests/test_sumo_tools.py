@@ -108,7 +108,7 @@ def test_gui_without_a_display_is_one_line_and_exit_2(tmp_path: Path) -> None:
 GUI_BAD_INPUTS = [
     (["--gui-screenshot", "x.png"], "needs --gui"),
     (["--gui", "--gui-screenshot", "x.jpg"], ".png"),
-    (["--gui", "--gui-screenshot", "x.png", "--gui-screenshot-step", "51"], "screenshot step"),
+    (["--gui", "--gui-screenshot", "x.png", "--gui-screenshot-step", "51"], "--gui-screenshot-step"),
     (["--fcd", "--fcd-period", "0.25"], "multiple"),
     (["--fcd-period", "2"], "needs --fcd"),
 ]
