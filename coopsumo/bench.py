@@ -21,6 +21,7 @@ from coopsumo.dqn import Learner
 from coopsumo.observation import snapshot
 from coopsumo.physics import occupancy
 from coopsumo.policies import make_policy
+from coopsumo.runio import Parser
 from coopsumo.simulate import run
 from coopsumo.train import Trainer
 
@@ -103,7 +104,9 @@ def bench_fcd_cost(steps: int, period_s: float, repeats: int) -> tuple[float, fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    quick = "--quick" in (sys.argv[1:] if argv is None else argv)
+    parser = Parser(prog="python -m coopsumo.bench", description="Speed figures (printed, not asserted).")
+    parser.add_argument("--quick", action="store_true", help="short runs (600 steps), a first look")
+    quick = parser.parse_args(argv).quick
     steps = 600 if quick else 6000
     torch.set_num_threads(1)
     print(f"coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread, {steps} steps a run)", flush=True)

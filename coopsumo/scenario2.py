@@ -53,6 +53,7 @@ from tqdm import tqdm
 from coopsumo.config import (
     MAX_LANES,
     MIN_LANES,
+    ControlConfig,
     DemandConfig,
     RewardConfig,
     RoadConfig,
@@ -61,6 +62,16 @@ from coopsumo.config import (
     to_dict,
 )
 from coopsumo.runio import Parser, UsageError, run_cli, start_parent_watch, versions, write_json
+from coopsumo.validation import (
+    check_ray_address,
+    integer,
+    min_t_up_s,
+    number_list,
+    seed_count,
+    steps,
+    workers,
+)
+from coopsumo.validation import parse_number as parse_number  # '1/8' -> 0.125, kept in this module's interface
 
 PAPER_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0)
 """eq. (12) of the paper"""
@@ -1053,25 +1064,6 @@ Rerunning the same command retries failed cells and keeps the finished ones.
 
 
 # -- command line ------------------------------------------------------------------------------------
-def _float_list(text: str, name: str) -> tuple[float, ...]:
-    try:
-        values = tuple(parse_number(x) for x in text.split(",") if x.strip())
-    except ValueError:
-        raise UsageError(f"{name} must be a comma-separated list of numbers, got {text!r}") from None
-    if not values:
-        raise UsageError(f"{name} must not be empty")
-    return values
-
-
-def parse_number(text: str) -> float:
-    """'1/8' -> 0.125, '2.5' -> 2.5; ValueError otherwise."""
-    text = text.strip()
-    if "/" in text:
-        num, den = text.split("/", 1)
-        return float(num) / float(den)
-    return float(text)
-
-
 def profile_from_args(args: Any) -> Profile:
     """The chosen profile with the command line's overrides applied and checked."""
     profile = PROFILES[args.profile]
@@ -1088,19 +1080,13 @@ def profile_from_args(args: Any) -> Profile:
             raise UsageError(f"seeds must be >= 1, got {args.seeds}")
         profile = replace(profile, seeds=tuple(range(1, args.seeds + 1)))
     if args.lanes is not None:
-        lanes = _float_list(args.lanes, "lanes")
-        if any(x != int(x) or not MIN_LANES <= x <= MAX_LANES for x in lanes):
-            raise UsageError(f"lanes must be whole numbers between {MIN_LANES} and {MAX_LANES}, got {args.lanes}")
+        lanes = number_list("--lanes", args.lanes, MIN_LANES, MAX_LANES, whole=True)
         profile = replace(profile, lanes=tuple(sorted({int(x) for x in lanes})))
     if args.alphas is not None:
-        alphas = _float_list(args.alphas, "alphas")
-        if any(not (math.isfinite(a) and a >= 0) for a in alphas):
-            raise UsageError(f"alphas must be finite numbers >= 0, got {args.alphas}")
+        alphas = number_list("--alphas", args.alphas, low=0)
         profile = replace(profile, alphas=tuple(sorted(set(alphas))))
     if args.t_up is not None:
-        t_up = _float_list(args.t_up, "t-up")
-        if any(not (math.isfinite(t) and t > 0) for t in t_up):
-            raise UsageError(f"t-up values must be positive numbers of seconds, got {args.t_up}")
+        t_up = number_list("--t-up", args.t_up, low=min_t_up_s(ControlConfig().dt_s))
         profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
     policies = {x.strip() for x in args.policies.split(",") if x.strip()}
     if not policies or not policies <= set(POLICIES):
@@ -1109,9 +1095,7 @@ def profile_from_args(args: Any) -> Profile:
     if args.mobil_p is not None:
         if "mobil" not in profile.policies:
             raise UsageError("--mobil-p is for --policies with mobil")
-        ps = _float_list(args.mobil_p, "mobil-p")
-        if any(not (math.isfinite(x) and x >= 0) for x in ps):
-            raise UsageError(f"mobil-p values must be finite numbers >= 0, got {args.mobil_p}")
+        ps = number_list("--mobil-p", args.mobil_p, low=0)
         profile = replace(profile, mobil_ps=tuple(sorted(set(ps))))
     return profile
 
@@ -1123,11 +1107,11 @@ def build_parser() -> Parser:
     p.add_argument("--out", type=Path, default=Path("results/scenario2"), help="results folder")
     p.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
     p.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray instance)")
-    p.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+    p.add_argument("--workers", type=workers, default=os.cpu_count() or 1,
                    help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
-    p.add_argument("--steps", type=int, default=None, help="training steps per cell (overrides the profile)")
-    p.add_argument("--eval-steps", type=int, default=None, help="evaluation steps per cell (overrides the profile)")
-    p.add_argument("--seeds", type=int, default=None, help="number of seeds 1..N (overrides the profile)")
+    p.add_argument("--steps", type=steps, default=None, help="training steps per cell (overrides the profile)")
+    p.add_argument("--eval-steps", type=steps, default=None, help="evaluation steps per cell (overrides the profile)")
+    p.add_argument("--seeds", type=seed_count, default=None, help="number of seeds 1..N (overrides the profile)")
     p.add_argument("--lanes", default=None, help="comma-separated lane counts (overrides the profile)")
     p.add_argument("--alphas", default=None, help="comma-separated alphas, fractions allowed: 0,1/8,2")
     p.add_argument("--t-up", default=None, help="fixed comma-separated T_up list (s) for every lane count, "
@@ -1136,7 +1120,8 @@ def build_parser() -> Parser:
                    "(one MOBIL run per politeness p, no training; default: dqn)")  # fmt: skip
     p.add_argument("--mobil-p", default=None, help="comma-separated MOBIL politeness values (default: the "
                    "profile's: 0,0.25,0.5,1; tiny 0,1)")  # fmt: skip
-    p.add_argument("--bootstrap", type=int, default=1000, help="bootstrap replicates over seeds (default 1000)")
+    p.add_argument("--bootstrap", type=integer(0, 100_000), default=1000,
+                   help="bootstrap replicates over seeds (default 1000)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -1157,6 +1142,8 @@ def main(argv: list[str] | None = None) -> int:
                 import ray  # noqa: F401
             except ImportError:
                 raise UsageError("--backend ray needs Ray: .venv/bin/pip install 'ray[default]'") from None
+            if args.address is not None:
+                check_ray_address("--address", args.address)
         meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet, args.bootstrap)
         if "dqn" in profile.policies:
             table = pd.read_csv(args.out / "alpha_star.csv")
