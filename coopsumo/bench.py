@@ -1,6 +1,7 @@
 """`make bench`: speed figures (printed, not asserted).
 
 - simulation throughput (steps/s) of the world alone, per policy, in free flow and in a jam;
+- the controlled `keep` policy against SUMO alone on the same network, demand and seed ("ratio" lines);
 - training throughput (environment steps/s with learning on);
 - observation and decision cost per vehicle per step (grids; one batched DQN forward pass).
 - what SUMO's FCD output (--fcd) at scenario I's period adds to a jammed run's wall time.
@@ -42,6 +43,26 @@ def bench_simulation(
     with tempfile.TemporaryDirectory() as tmp:
         summary = run(cfg, make_policy(policy, np.random.default_rng(1)), Path(tmp), progress=False)
     return float(summary["steps_per_second"]), float(summary["mean_vehicles_on_road"])
+
+
+def bench_plain_vs_controlled(steps: int, jam: bool) -> dict[str, tuple[float, float]]:
+    """(steps/s, mean vehicles on the road) on one network, demand and seed: SUMO alone with its own models
+    ("plain"; in the jam every lane is blocked at the bottleneck from step 100), the same plus reading every
+    vehicle's lane, position and speed each step ("plain+read"), and the controlled `keep` policy ("keep";
+    the accident holds traffic from step 100)."""
+    from coopsumo.sumo_session import plain_run
+    from coopsumo.world import departures
+
+    cfg = SimConfig(accident=AccidentConfig(enabled=jam, start_step=100, duration_steps=50_000), steps=steps, seed=1,
+                    policy="sumo")  # fmt: skip
+    block = cfg.accident.start_step * cfg.control.dt_s if jam else None
+    out = {}
+    for name, read in (("plain", False), ("plain+read", True)):
+        with tempfile.TemporaryDirectory() as tmp:
+            wall, veh = plain_run(cfg, Path(tmp), departures(cfg), block, read_table=read)
+        out[name] = (steps / wall, veh)
+    out["keep"] = bench_simulation("keep", steps, jam=jam)
+    return out
 
 
 def bench_training(steps: int, preset: str = "default") -> float:
@@ -117,6 +138,13 @@ def main(argv: list[str] | None = None) -> int:
         sps, veh = bench_simulation(policy, steps, jam=True, sumo_check=check)
         label = f"{policy}{' + SUMO collision check' if check else ''}"
         print(f"  jammed (accident) {label:30s}: {sps:8.0f} steps/s  ({veh:.0f} vehicles on the road)", flush=True)
+    for jam in (True, False):
+        r = bench_plain_vs_controlled(steps, jam)
+        (p_sps, p_veh), (r_sps, r_veh), (k_sps, k_veh) = r["plain"], r["plain+read"], r["keep"]
+        where = "jam (accident)" if jam else "free flow     "
+        print(f"  {where}: plain SUMO {p_sps:6.0f} steps/s ({p_veh:.0f} veh), with the table read {r_sps:6.0f} "
+              f"({r_veh:.0f} veh), controlled keep {k_sps:6.0f} ({k_veh:.0f} veh): ratio {k_sps / p_sps:.2f} "
+              f"(to the table-reading SUMO {k_sps / r_sps:.2f}; target >= 0.7 in the jam)", flush=True)  # fmt: skip
     for preset in ("default", "paper"):
         sps = bench_training(steps, preset)
         print(f"  train --preset {preset:8s}     : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min",

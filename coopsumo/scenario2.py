@@ -51,6 +51,7 @@ from numpy.typing import ArrayLike
 from tqdm import tqdm
 
 from coopsumo.config import (
+    DQN_PRESETS,
     MAX_LANES,
     MIN_LANES,
     ControlConfig,
@@ -75,6 +76,8 @@ from coopsumo.validation import parse_number as parse_number  # '1/8' -> 0.125, 
 
 PAPER_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0)
 """eq. (12) of the paper"""
+QUICK_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 8.0)
+"""the paper's small values and where the default learner's lane changes fall to none (results/learning)"""
 NOMINAL_CAPACITY_VEH_H_PER_LANE = 1800.0
 """capacity used to place the T_up grid: load 1 means T_up = 3600 / (lanes * 1800) s (near capacity)"""
 CRITERION = "mean_speed_mps"
@@ -125,6 +128,8 @@ class Profile:
     """"dqn" (train and evaluate per alpha) and/or "mobil" (evaluate MOBIL per politeness p, no training)"""
     mobil_ps: tuple[float, ...] = (0.0, 0.25, 0.5, 1.0)
     """MOBIL politeness grid, used when "mobil" is in policies"""
+    preset: str = "default"
+    """the learner preset of every DQN cell (config.DQN_PRESETS)"""
 
     def conditions(self) -> list[tuple[int, float, float]]:
         """(lanes, T_up s, load) of every condition, by lanes then decreasing T_up."""
@@ -155,8 +160,8 @@ def load_of(lanes: int, t_up_s: float) -> float:
 PROFILES = {
     "tiny": Profile("tiny", lanes=(2,), loads=(0.25, 0.5), alphas=(0.0, 8.0), seeds=(1, 2),
                     train_steps=300, eval_steps=300, mobil_ps=(0.0, 1.0)),
-    "quick": Profile("quick", lanes=(2, 3, 4), loads=(0.25, 0.5, 0.75, 1.0), alphas=(0.0, 0.5, 2.0, 8.0, 32.0),
-                     seeds=(1, 2, 3), train_steps=1500, eval_steps=1500),
+    "quick": Profile("quick", lanes=(2, 3, 4), loads=(0.25, 0.5, 0.75, 1.0), alphas=QUICK_ALPHAS,
+                     seeds=(1, 2, 3), train_steps=8000, eval_steps=3000),
     "paper": Profile("paper", lanes=(2, 3, 4, 5, 6), loads=(0.2, 0.4, 0.6, 0.8, 1.0), alphas=PAPER_ALPHAS,
                      seeds=tuple(range(1, 11)), train_steps=90_000, eval_steps=9000),
 }  # fmt: skip
@@ -180,7 +185,7 @@ def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Pr
         seed=seed,
         policy="dqn",
     )
-    return TrainConfig(sim=sim, eval_steps=profile.eval_steps)
+    return TrainConfig(sim=sim, dqn=DQN_PRESETS[profile.preset], eval_steps=profile.eval_steps)
 
 
 def mobil_config(lanes: int, t_up_s: float, p: float, seed: int, profile: Profile) -> SimConfig:
@@ -688,6 +693,29 @@ def bootstrap_best(speeds: np.ndarray, n_boot: int, rng: np.random.Generator) ->
     return np.where(finite.any(axis=0), best, -1)
 
 
+def neighbour_separation(speeds: np.ndarray, best: int, n_boot: int, rng: np.random.Generator,
+                         level: float = 0.9) -> tuple[bool | None, bool | None]:  # fmt: skip
+    """Is alpha* (row `best` of speeds[alpha, seed]) distinguishable from its grid neighbours?
+
+    For the next smaller and the next larger alpha: True when the lower end of the `level` two-sided bootstrap
+    interval of the seed-paired mean difference v(alpha*) - v(neighbour) lies above 0 (seeds resampled with
+    replacement, n_boot times); False otherwise; None where alpha* has no neighbour on that side (or no pair).
+    """
+    out: list[bool | None] = []
+    for nb in (best - 1, best + 1):
+        if best < 0 or not 0 <= nb < speeds.shape[0]:
+            out.append(None)
+            continue
+        diff = speeds[best] - speeds[nb]
+        diff = diff[np.isfinite(diff)]
+        if len(diff) == 0:
+            out.append(None)
+            continue
+        means = diff[rng.integers(0, len(diff), size=(max(n_boot, 1), len(diff)))].mean(axis=1)
+        out.append(bool(np.quantile(means, (1 - level) / 2) > 0))
+    return out[0], out[1]
+
+
 def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, seeds: Sequence[int] | None = None,
                      n_boot: int = 1000, boot_seed: int = 0, metric: str = CRITERION
                      ) -> tuple[pd.DataFrame, dict[tuple[int, float], np.ndarray]]:  # fmt: skip
@@ -699,6 +727,7 @@ def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, 
     alphas = sorted(set(runs["alpha"])) if alphas is None else sorted(alphas)
     seeds = sorted(set(runs["seed"])) if seeds is None else list(seeds)
     rng = np.random.default_rng(boot_seed)
+    sep_rng = np.random.default_rng(boot_seed + 1)  # its own stream: the bootstrap above stays as it was
     rows = []
     boots: dict[tuple[int, float], np.ndarray] = {}
     alpha_arr = np.asarray(alphas, float)
@@ -716,6 +745,8 @@ def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, 
                                 if np.isfinite(r).sum() > 1 else np.nan for r in speeds])  # fmt: skip
         se = float(np.sqrt(var_of_mean[np.isfinite(var_of_mean)].mean())) if np.isfinite(var_of_mean).any() else np.nan
         load = group["load"].iloc[0] if "load" in group else np.nan
+        below, above = neighbour_separation(speeds, best, n_boot, sep_rng)
+        sides = [x for x in (below, above) if x is not None]
         row: dict[str, Any] = {
             "lanes": int(lanes), "t_up_s": float(t_up), "load": load, "inflow_veh_h": round(3600.0 / float(t_up), 1),
             "alpha_star": float(alpha_arr[best]) if best >= 0 else np.nan,
@@ -726,6 +757,9 @@ def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, 
             "boot_alpha_p95": float(np.nanquantile(boot_alpha, 0.95)) if np.isfinite(boot_alpha).any() else np.nan,
             "spread_mps": float(finite_means.max() - finite_means.min()) if finite_means.size else np.nan,
             "seed_se_mps": se,
+            "separated_below": below,
+            "separated_above": above,
+            "distinct": bool(sides) and all(sides),
             "seeds_min": int(n_ok.min()) if len(n_ok) else 0,
             "cells_failed": int((group["status"] != "ok").sum()),
         }  # fmt: skip
@@ -882,6 +916,45 @@ def trend_statements(fit: PlaneFit, boot: dict[str, float]) -> list[str]:
     return out
 
 
+def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
+                        cluster_cpus: int = 64) -> dict[str, float]:  # fmt: skip
+    """What the paper profile would cost, extrapolated from this sweep's DQN cells (labelled as such).
+
+    The wall seconds per training step (train_steps per cell) and per evaluation step of every successful
+    cell that was not resumed are fitted as a + b * inflow (veh/h) by least squares; each paper cell then
+    costs its train_steps and eval_steps at its inflow. Returns the fits, the sum in core-hours, and the wall
+    time on this machine's cores and on a Ray cluster of cluster_cpus CPUs (perfect scaling assumed).
+    Empty when fewer than 2 such cells exist.
+    """
+    needed = {"status", "t_up_s", "train_wall_seconds", "wall_seconds", "steps", "resumed_from_step"}
+    if not needed <= set(runs.columns):
+        return {}
+    dqn = policy_rows(runs, "dqn")
+    ok = dqn[(dqn["status"] == "ok") & dqn["resumed_from_step"].isna()].dropna(subset=["train_wall_seconds"])
+    if len(ok) < 2:
+        return {}
+    inflow = 3600.0 / ok["t_up_s"].to_numpy(float)
+    design = np.column_stack([np.ones_like(inflow), inflow])
+    train = ok["train_wall_seconds"].to_numpy(float) / train_steps
+    fit_train = np.linalg.lstsq(design, train, rcond=None)[0]
+    fit_eval = np.linalg.lstsq(design, ok["wall_seconds"].to_numpy(float) / ok["steps"].to_numpy(float), rcond=None)[0]
+    total = 0.0
+    for _, t_up, _ in paper.conditions():
+        q = 3600.0 / t_up
+        per_cell = paper.train_steps * (fit_train[0] + fit_train[1] * q)
+        total += (per_cell + paper.eval_steps * (fit_eval[0] + fit_eval[1] * q)) * len(paper.alphas) * len(paper.seeds)
+    cores = os.cpu_count() or 1
+    return {
+        "cells": float(len(paper.conditions()) * len(paper.alphas) * len(paper.seeds)),
+        "train_s_per_step_a": float(fit_train[0]), "train_s_per_step_b_per_veh_h": float(fit_train[1]),
+        "eval_s_per_step_a": float(fit_eval[0]), "eval_s_per_step_b_per_veh_h": float(fit_eval[1]),
+        "core_hours": total / 3600.0, "machine_cores": float(cores), "machine_days": total / cores / 86400.0,
+        "cluster_cpus": float(cluster_cpus), "cluster_hours": total / cluster_cpus / 3600.0,
+        "max_measured_inflow_veh_h": float(inflow.max()),
+        "max_paper_inflow_veh_h": max(3600.0 / t for _, t, _ in paper.conditions()),
+    }  # fmt: skip
+
+
 # -- outputs -------------------------------------------------------------------------------------------
 def condition_label(lanes: int, t_up_s: float) -> str:
     return f"{lanes} lanes, T_up {t_up_s:g} s"
@@ -918,6 +991,8 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
         speeds.columns = list(profile.alphas)
         speed_heatmap_figure(speeds, table["alpha_star"].tolist(), root / "fig6_speed_heatmap.png")
         figures["heatmap"] = "fig6_speed_heatmap.png"
+    if profile.name != "paper" and "dqn" in profile.policies:
+        meta["paper_cost_estimate"] = paper_cost_estimate(runs, profile.train_steps, PROFILES["paper"])
     meta["plane"] = asdict(fit) if fit else {"error": plane_note}
     meta["plane_bootstrap"] = boot
     (root / "report.md").write_text(report_text(runs, table, fit, boot, plane_note, profile, meta, figures,
@@ -951,21 +1026,66 @@ def side_by_side_text(side: pd.DataFrame, alpha_label: Any) -> str:
     return f"{_md_table(header, rows)}\n\n{sentence}"
 
 
+def _sep(value: Any) -> str:
+    """A neighbour separation flag for the report: yes, no, or – (no neighbour)."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return "yes" if bool(value) else "no"
+
+
+def noise_floor_text(table: pd.DataFrame) -> str:
+    """How many conditions have an alpha* that is distinguishable from its neighbours in the alpha grid."""
+    if table.empty or "distinct" not in table:
+        return ""
+    n = len(table)
+    both = int(table["distinct"].astype(bool).sum())
+    flags = table[["separated_below", "separated_above"]].map(lambda v: v is True or v == 1.0)
+    one = int(flags.any(axis=1).sum())
+    return (f"**Noise floor**: alpha* is distinguishable from both its neighbours in the alpha grid in {both} of {n} "
+            f"conditions, from at least one of them in {one} (yes: the 90% bootstrap interval over seeds of the "
+            "seed-paired speed difference to that neighbour lies above 0; –: alpha* is at the grid's edge). In the "
+            "other conditions the seeds cannot tell alpha* from the alphas next to it.")  # fmt: skip
+
+
+def cost_text(cost: dict[str, float]) -> str:
+    """The report's section on what the paper profile would cost (an extrapolation, said so)."""
+    if not cost:
+        return ""
+    paper = PROFILES["paper"]
+    return f"""
+## What the paper profile would cost (extrapolated)
+
+Measured here: wall seconds per training step = {cost["train_s_per_step_a"] * 1e3:.2f} ms
+{cost["train_s_per_step_b_per_veh_h"] * 1e6:+.3f} us per veh/h of inflow, per evaluation step
+{cost["eval_s_per_step_a"] * 1e3:.2f} ms {cost["eval_s_per_step_b_per_veh_h"] * 1e6:+.3f} us per veh/h
+(least squares over this sweep's cells, 2 cells at a time on this machine). Extrapolated to the paper
+profile ({cost["cells"]:,.0f} cells of
+{paper.train_steps:,} training and {paper.eval_steps:,} evaluation steps; inflows up to
+{cost["max_paper_inflow_veh_h"]:,.0f} veh/h, measured only up to {cost["max_measured_inflow_veh_h"]:,.0f}):
+**{cost["core_hours"]:,.0f} core-hours**, i.e. about {cost["machine_days"]:.1f} days on this machine's
+{cost["machine_cores"]:.0f} cores and about {cost["cluster_hours"]:.1f} h on a Ray cluster of
+{cost["cluster_cpus"]:.0f} CPUs (`--backend ray --address ...`; perfect scaling assumed, not measured).
+"""
+
+
 def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, boot: dict[str, float],
                 plane_note: str, profile: Profile, meta: dict[str, Any], figures: dict[str, str],
                 alpha_label: Any, side: pd.DataFrame | None = None) -> str:  # fmt: skip
     """The Markdown report; `side` (alpha* beside p*) adds the MOBIL section."""
     alphas = list(profile.alphas)
     header = ["lanes", "T_up (s)", "inflow (veh/h)", "load", "α*", "win share", "bootstrap support",
-              "α* 90% boot.", "spread (m/s)", "seed SE (m/s)"] + [f"v(α={alpha_label(a)})" for a in alphas]  # fmt: skip
+              "α* 90% boot.", "α* vs smaller / larger α", "spread (m/s)", "seed SE (m/s)"
+              ] + [f"v(α={alpha_label(a)})" for a in alphas]  # fmt: skip
     rows = []
     for r in table.to_dict("records"):
         rows.append([str(r["lanes"]), f"{r['t_up_s']:g}", f"{r['inflow_veh_h']:.0f}", _num(r["load"]),
                      "–" if not math.isfinite(r["alpha_star"]) else alpha_label(r["alpha_star"]),
                      _num(r["win_share"], "{:.0%}"), _num(r["boot_support"], "{:.0%}"),
                      f"{_num(r['boot_alpha_p05'], '{:g}')}–{_num(r['boot_alpha_p95'], '{:g}')}",
+                     f"{_sep(r.get('separated_below'))} / {_sep(r.get('separated_above'))}",
                      _num(r["spread_mps"]), _num(r["seed_se_mps"])]
                     + [_num(r[f"speed_mps_alpha{a:g}"]) for a in alphas])  # fmt: skip
+    noise = noise_floor_text(table)
     if fit is not None:
         plane = (f"Fitted plane over {fit.n} conditions (least squares on alpha*): "
                  f"**alpha\\* = {fit.b0:.3f} {fit.b1:+.3f} T_up {fit.b2:+.3f} lanes**, "
@@ -1029,6 +1149,8 @@ the seeds (paired over alphas) whose best alpha is alpha*; the 90% bootstrap ran
 ## alpha* per condition
 
 {_md_table(header, rows)}
+
+{noise}
 {mobil_section}
 ## The paper's trends
 
@@ -1039,7 +1161,7 @@ the seeds (paired over alphas) whose best alpha is alpha*; the 90% bootstrap ran
 ## Figures
 
 {figs}
-
+{cost_text(meta.get("paper_cost_estimate") or {})}
 ## Grid
 
 T_up per lane count is placed by load (inflow as a share of lanes × 1,800 veh/h): T_up = 3600 / (load × lanes

@@ -316,41 +316,50 @@ class SumoSession:
 
 
 def plain_run(
-    cfg: SimConfig, run_dir: Path, departures: list[tuple[float, int, float]], block_from_s: float
+    cfg: SimConfig,
+    run_dir: Path,
+    departures: list[tuple[float, int, float]],
+    block_from_s: float | None,
+    read_table: bool = False,
 ) -> tuple[float, float]:
-    """SUMO alone, for `make bench`: nothing is called per vehicle.
+    """SUMO alone, for `make bench`: SUMO's own models, nothing called per vehicle.
 
-    departures: (time s, lane, expected speed m/s) of every vehicle, sorted by time, driven by SUMO's own
-    models (the expected speed as the vehicle's speedFactor); from block_from_s on every lane is blocked at
-    the accident's position by a standing vehicle. Runs cfg.steps steps; returns (wall seconds of the
-    stepping loop, mean vehicles on the road).
+    departures: (time s, lane, expected speed m/s) of every vehicle, sorted by time, as a route file (the
+    expected speed as the vehicle's speedFactor). block_from_s: from then on every lane is blocked at the
+    accident's position by a standing vehicle (None: free flow). read_table: also subscribe every vehicle
+    to what the controller reads (lane, position, speed) and fetch it every step, as SumoSession.table does.
+    Runs cfg.steps steps; returns (wall seconds of the stepping loop, mean vehicles on the road).
     """
+    if _open_sessions:
+        raise RuntimeError("a SUMO session is already open in this process (libsumo allows one)")
     session = SumoSession(cfg, run_dir, sumo_models=True)
     args = session.args()
     limit = cfg.road.speed_limit_mps
     x = cfg.accident.x_m
-    rows = [f'    <vehicle id="{k}" type="{network.VTYPE_ID}" route="{network.ROUTE_ID}" depart="{t:.2f}" '
-            f'departLane="{lane}" departPos="base" departSpeed="max" speedFactor="{v / limit:.6f}"/>'
+    rows = [(t, f'    <vehicle id="{k}" type="{network.VTYPE_ID}" route="{network.ROUTE_ID}" depart="{t:.2f}" '
+                f'departLane="{lane}" departPos="base" departSpeed="max" speedFactor="{v / limit:.6f}"/>')
             for k, (t, lane, v) in enumerate(departures)]  # fmt: skip
-    blocks = [(block_from_s, f'    <vehicle id="block{lane}" type="{network.VTYPE_ID}" route="{network.ROUTE_ID}" '
-               f'depart="{block_from_s:.2f}" departLane="{lane}" departPos="{x:.2f}" departSpeed="0">'
-               f'<stop lane="{network.EDGE_ID}_{lane}" startPos="{x:.2f}" endPos="{x + 5:.2f}" duration="1e7"/>'
-               "</vehicle>") for lane in range(cfg.road.lanes)]  # fmt: skip
-    merged = sorted([(t, row) for (t, _, _), row in zip(departures, rows, strict=True)] + blocks, key=lambda r: r[0])
+    if block_from_s is not None:
+        rows += [(block_from_s, f'    <vehicle id="block{lane}" type="{network.VTYPE_ID}" route="{network.ROUTE_ID}" '
+                  f'depart="{block_from_s:.2f}" departLane="{lane}" departPos="{x:.2f}" departSpeed="0">'
+                  f'<stop lane="{network.EDGE_ID}_{lane}" startPos="{x:.2f}" endPos="{x + 5:.2f}" duration="1e7"/>'
+                  "</vehicle>") for lane in range(cfg.road.lanes)]  # fmt: skip
     extra = run_dir / "plain.rou.xml"
-    extra.write_text("<routes>\n" + "\n".join(row for _, row in merged) + "\n</routes>\n")
-    route_at = args.index("--route-files") + 1
-    args[route_at] += f",{extra}"
-    if _open_sessions:
-        raise RuntimeError("a SUMO session is already open in this process (libsumo allows one)")
+    extra.write_text("<routes>\n" + "\n".join(row for _, row in sorted(rows, key=lambda r: r[0])) + "\n</routes>\n")
+    args[args.index("--route-files") + 1] += f",{extra}"
     ls = _libsumo()
+    tc = ls.constants
     ls.start(args)
     try:
         on_road = 0
-        block_step = round(block_from_s / cfg.control.dt_s)
+        block_step = round(block_from_s / cfg.control.dt_s) if block_from_s is not None else cfg.steps + 1
         start = time.perf_counter()
         for step in range(cfg.steps):
             ls.simulationStep()
+            if read_table:
+                for vid in ls.simulation.getDepartedIDList():
+                    ls.vehicle.subscribe(vid, [tc.VAR_LANE_INDEX, tc.VAR_LANEPOSITION, tc.VAR_SPEED])
+                ls.vehicle.getAllSubscriptionResults()
             on_road += ls.vehicle.getIDCount() - (cfg.road.lanes if step >= block_step else 0)  # not the blockers
         wall = time.perf_counter() - start
     finally:

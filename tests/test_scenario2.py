@@ -213,7 +213,8 @@ def test_grid_and_profiles() -> None:
     for lanes in range(2, 7):
         assert s2.t_up_for(lanes, 1.0) == round(2.0 / lanes, 2)  # near capacity: lanes x 1,800 veh/h
     quick = s2.PROFILES["quick"]
-    assert quick.n_cells() == 3 * 4 * 5 * 3
+    assert quick.n_cells() == 3 * 4 * 7 * 3
+    assert {0.125, 0.25, 0.5} <= set(quick.alphas) and quick.preset == "default"
     assert [t for n, t, _ in quick.conditions() if n == 3] == [2.67, 1.33, 0.89, 0.67]
     paper = s2.PROFILES["paper"]
     assert paper.alphas == s2.PAPER_ALPHAS and len(paper.seeds) == 10 and paper.train_steps == 90_000
@@ -489,3 +490,37 @@ def test_dead_worker_is_retried_then_recorded_failed(tmp_path: Path) -> None:
     assert len(records) == 8
     assert records["L2_T4_a8_s2"]["status"] == "failed"
     assert "worker process died 2 times" in records["L2_T4_a8_s2"]["error"]
+
+
+def test_neighbour_separation_on_hand_made_speeds() -> None:
+    rng = np.random.default_rng(0)
+    speeds = np.array([[10.0, 10.5, 9.5],  # alpha 0
+                       [12.0, 12.5, 11.5],  # alpha* : 2 above alpha 0 on every seed
+                       [11.9, 12.6, 11.4]])  # within noise of alpha*  # fmt: skip
+    assert s2.neighbour_separation(speeds, 1, 500, rng) == (True, False)
+    assert s2.neighbour_separation(speeds, 0, 500, rng) == (None, False)  # no smaller alpha; alpha 1 is faster
+    assert s2.neighbour_separation(speeds, 2, 500, rng)[1] is None
+
+
+def test_noise_floor_counts_distinct_conditions() -> None:
+    table = pd.DataFrame({"separated_below": [True, None, False], "separated_above": [True, True, False],
+                          "distinct": [True, True, False]})  # fmt: skip
+    text = s2.noise_floor_text(table)
+    assert "in 2 of 3 conditions, from at least one of them in 2" in text
+
+
+def test_paper_cost_is_extrapolated_from_the_cells() -> None:
+    # per training step 1 ms + 1 us per veh/h; per evaluation step 0.5 ms flat (exact, so the fit recovers it)
+    rows = []
+    for t_up in (1.0, 2.0, 4.0):
+        q = 3600 / t_up
+        rows.append({"status": "ok", "policy": "dqn", "t_up_s": t_up, "resumed_from_step": None, "steps": 1000,
+                     "train_wall_seconds": 2000 * (1e-3 + 1e-6 * q), "wall_seconds": 1000 * 5e-4})  # fmt: skip
+    paper = s2.Profile("p", lanes=(2,), loads=(), t_up_s=(1.0,), alphas=(0.0, 1.0), seeds=(1, 2, 3),
+                       train_steps=10_000, eval_steps=100)  # fmt: skip
+    cost = s2.paper_cost_estimate(pd.DataFrame(rows), 2000, paper, cluster_cpus=6)
+    per_cell = 10_000 * (1e-3 + 1e-6 * 3600) + 100 * 5e-4
+    assert cost["cells"] == 6
+    assert cost["core_hours"] == pytest.approx(6 * per_cell / 3600)
+    assert cost["cluster_hours"] == pytest.approx(per_cell / 3600)
+    assert s2.paper_cost_estimate(pd.DataFrame(rows[:1]), 2000, paper) == {}
