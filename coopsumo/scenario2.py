@@ -1210,6 +1210,8 @@ def profile_from_args(args: Any) -> Profile:
     if args.t_up is not None:
         t_up = number_list("--t-up", args.t_up, low=min_t_up_s(ControlConfig().dt_s))
         profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
+    if args.preset is not None:
+        profile = replace(profile, preset=args.preset)
     policies = {x.strip() for x in args.policies.split(",") if x.strip()}
     if not policies or not policies <= set(POLICIES):
         raise UsageError(f"policies must be a comma-separated list of {' and '.join(POLICIES)}, got {args.policies!r}")
@@ -1225,7 +1227,7 @@ def profile_from_args(args: Any) -> Profile:
 def build_parser() -> Parser:
     p = Parser(prog="python -m coopsumo.scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
     p.add_argument("--profile", choices=sorted(PROFILES), default="quick",
-                   help="grid and step counts: tiny (tests), quick (<= 30 min on 2 cores), paper")  # fmt: skip
+                   help="grid and step counts: tiny (tests), quick (about 45 min on 2 cores), paper")  # fmt: skip
     p.add_argument("--out", type=Path, default=Path("results/scenario2"), help="results folder")
     p.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
     p.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray instance)")
@@ -1242,6 +1244,8 @@ def build_parser() -> Parser:
                    "(one MOBIL run per politeness p, no training; default: dqn)")  # fmt: skip
     p.add_argument("--mobil-p", default=None, help="comma-separated MOBIL politeness values (default: the "
                    "profile's: 0,0.25,0.5,1; tiny 0,1)")  # fmt: skip
+    p.add_argument("--preset", choices=sorted(DQN_PRESETS), default=None,
+                   help="learner preset of the DQN cells (default: the profile's, default)")  # fmt: skip
     p.add_argument("--bootstrap", type=integer(0, 100_000), default=1000,
                    help="bootstrap replicates over seeds (default 1000)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
