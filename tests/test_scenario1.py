@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -137,4 +138,66 @@ def test_bad_input(tmp_path: Path, args: list[str]) -> None:
     res = subprocess.run([sys.executable, "-m", "coopsumo.scenario1", *args, "--out", str(out)], cwd=ROOT,
                          capture_output=True, text=True, check=False)  # fmt: skip
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+    assert not out.exists()
+
+
+def _agg_rows(values: dict[str, dict[str, list[float]]]) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """runs rows and their aggregate from {policy: {metric: [value per seed]}} (other metrics 0)."""
+    rows = []
+    for policy, metrics in values.items():
+        n = len(next(iter(metrics.values())))
+        for k in range(n):
+            row = {"policy": policy, "seed": k + 1, **{m: 0.0 for m, _, _ in scenario1.METRICS}, "recovery_time_s": 0.0}
+            row.update({m: v[k] for m, v in metrics.items()})
+            rows.append(row)
+    runs = pd.DataFrame(rows)
+    return runs, scenario1.aggregate(runs)
+
+
+def test_cooperative_alpha_is_the_largest_that_still_changes_lanes() -> None:
+    _, agg = _agg_rows({"dqn_alpha0": {"lane_changes_per_vehicle": [2.0, 2.0]},
+                        "dqn_alpha2": {"lane_changes_per_vehicle": [0.5, 0.3]},
+                        "dqn_alpha8": {"lane_changes_per_vehicle": [0.0, 0.1]}})  # fmt: skip
+    assert scenario1.cooperative_alpha(agg, "default", (0.0, 2.0, 8.0)) == 2.0  # 0.05 < 10% of 2.0
+    _, keep_like = _agg_rows({"dqn_alpha0": {"lane_changes_per_vehicle": [2.0]},
+                              "dqn_alpha8": {"lane_changes_per_vehicle": [0.0]}})  # fmt: skip
+    assert scenario1.cooperative_alpha(keep_like, "default", (0.0, 8.0)) is None
+
+
+def test_verdict_on_recovery_and_waves() -> None:
+    nan = float("nan")
+    runs, agg = _agg_rows({"dqn_alpha8": {"recovery_step": [74_000.0, 76_000.0], "wave_share": [0.01, 0.02]},
+                           "dqn_alpha0": {"recovery_step": [nan, nan], "wave_share": [0.05, 0.04]}})  # fmt: skip
+    text = scenario1.verdict(runs, agg, "dqn_alpha8", "dqn_alpha0")
+    assert text.startswith("**The claim holds here**")
+    assert "recovers in 2 of 2 seeds, at step 75000 ± 1414" in text and "never recovers (0 of 2 seeds)" in text
+    assert "fewer with `dqn_alpha8` on 2 of 2 seeds" in text
+    runs, agg = _agg_rows({"dqn_alpha8": {"recovery_step": [nan, nan], "wave_share": [0.05, 0.05]},
+                           "dqn_alpha0": {"recovery_step": [7e4, 7e4], "wave_share": [0.01, 0.01]}})  # fmt: skip
+    assert scenario1.verdict(runs, agg, "dqn_alpha8", "dqn_alpha0").startswith("**The claim does not hold here**")
+
+
+def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
+    cfg = SimConfig(accident=AccidentConfig(enabled=True), policy="keep")
+    out = tmp_path / "run"
+    out.mkdir()
+    outputs = scenario1.OutputConfig()
+    (out / "config.json").write_text(json.dumps({"config": scenario1.to_dict(cfg),
+                                                 "sumo_outputs": scenario1.to_dict(outputs)}))  # fmt: skip
+    (out / "summary.json").write_text("{}")
+    model = tmp_path / "model.pt"
+    model.write_bytes(b"old")
+    old = out.stat().st_mtime_ns - 10**9
+    os.utime(model, ns=(old, old))
+    assert scenario1._reusable_run(out, cfg, outputs, model)
+    new = (out / "summary.json").stat().st_mtime_ns + 10**9
+    os.utime(model, ns=(new, new))  # retrained after the run
+    assert not scenario1._reusable_run(out, cfg, outputs, model)
+    assert not scenario1._reusable_run(out, cfg, outputs, tmp_path / "missing.pt")
+
+
+@pytest.mark.parametrize("args", [["--alphas", "-1"], ["--alphas", "x"], ["--preset", "bogus"]])
+def test_bad_study_lists(tmp_path: Path, args: list[str]) -> None:
+    out = tmp_path / "s1"
+    assert scenario1.main([*args, "--out", str(out)]) == 2
     assert not out.exists()
