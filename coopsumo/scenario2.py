@@ -70,6 +70,7 @@ from coopsumo.validation import (
     number_list,
     seed_count,
     steps,
+    t_up_note,
     workers,
 )
 from coopsumo.validation import parse_number as parse_number  # '1/8' -> 0.125, kept in this module's interface
@@ -1208,7 +1209,8 @@ def profile_from_args(args: Any) -> Profile:
         alphas = number_list("--alphas", args.alphas, low=0)
         profile = replace(profile, alphas=tuple(sorted(set(alphas))))
     if args.t_up is not None:
-        t_up = number_list("--t-up", args.t_up, low=min_t_up_s(ControlConfig().dt_s))
+        dt_s = ControlConfig().dt_s
+        t_up = number_list("--t-up", args.t_up, low=min_t_up_s(dt_s), note=t_up_note(dt_s))
         profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
     if args.preset is not None:
         profile = replace(profile, preset=args.preset)

@@ -219,7 +219,8 @@ def main(argv: list[str] | None = None) -> int:
         try:
             policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
         except UsageError as err:
-            raise UsageError(f"--policy {cfg.policy}: {err}") from None
+            flag = "--policy" if cfg.policy.startswith("dqn:") else f"--policy {cfg.policy}"  # a model's error names it
+            raise UsageError(f"{flag}: {err}") from None
         tmp = start_run_dir(args.out)
         try:
             summary = run(cfg, policy, tmp, trajectories=args.trajectories, progress=not args.quiet,

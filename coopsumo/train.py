@@ -455,12 +455,10 @@ def add_learner_flags(p: Parser) -> None:
 def learner_from_args(args: Any) -> DQNConfig:
     """The preset with every given learner flag applied; a bad value is a usage error naming the flag."""
     cfg = DQN_PRESETS[args.preset]
-    for flag, name, kind, _ in LEARNER_FLAGS:
+    for flag, name, _, _ in LEARNER_FLAGS:
         value = getattr(args, name)
         if value is None:
             continue
-        if kind is float and not math.isfinite(value):
-            raise UsageError(f"{flag} must be a finite number, got {value}")
         cfg = replace(cfg, **{name: value})
         try:
             cfg.validate()  # the fields set before were valid: an error here is this flag's

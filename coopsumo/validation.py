@@ -106,7 +106,7 @@ seed_count = integer(1, MAX_SEEDS)
 
 def workers(text: str) -> int:
     """`type=` of a --workers flag: 1 to four per core."""
-    return integer(1, max_workers(), f" (4 per core of this machine's {os.cpu_count() or 1})")(text)
+    return integer(1, max_workers(), f" (4 per core; this machine has {os.cpu_count() or 1})")(text)
 
 
 # -- checks after parsing (UsageError naming the flag) ---------------------------------------------
@@ -138,10 +138,10 @@ def parse_number(text: str) -> float:
 
 
 def number_list(flag: str, text: str, low: float | None = None, high: float | None = None,
-                low_open: bool = False, whole: bool = False) -> tuple[float, ...]:  # fmt: skip
+                low_open: bool = False, whole: bool = False, note: str = "") -> tuple[float, ...]:  # fmt: skip
     """A comma-separated list of finite numbers (fractions like 1/8 allowed) inside the bounds, not empty.
 
-    whole: every value must be a whole number.
+    whole: every value must be a whole number; note is added to the range in the message.
     """
     parts = [x for x in text.split(",") if x.strip()]
     kind = "whole numbers" if whole else "numbers"
@@ -152,7 +152,7 @@ def number_list(flag: str, text: str, low: float | None = None, high: float | No
     problem = next((p for v in values if (p := number_problem(v, low, high, low_open))), None)
     if not values or problem or (whole and any(v != int(v) for v in values)):
         rng = (problem or _number_range(low, high, low_open, False)).replace("a finite number", f"finite {kind}")
-        raise UsageError(f"{flag} must be a comma-separated list of {rng}, got {text!r}")
+        raise UsageError(f"{flag} must be a comma-separated list of {rng}{note}, got {text!r}")
     return values
 
 
@@ -162,11 +162,15 @@ def min_t_up_s(dt_s: float) -> float:
     return dt_s
 
 
+def t_up_note(dt_s: float) -> str:
+    """Why T_up has its lower limit, for messages."""
+    limit = min_t_up_s(dt_s)
+    return f" s (one vehicle per {limit:g} s simulation step, {3600 / limit:,.0f} veh/h)"
+
+
 def check_t_up(flag: str, value: float, dt_s: float) -> float:
     """T_up (s) finite and at least one simulation step."""
-    limit = min_t_up_s(dt_s)
-    return check_number(flag, value, low=limit,
-                        note=f" s (one vehicle per {limit:g} s simulation step, 36,000 veh/h)")  # fmt: skip
+    return check_number(flag, value, low=min_t_up_s(dt_s), note=t_up_note(dt_s))
 
 
 def check_accident(start: int, duration: int, steps: int, start_flag: str = "--accident-start",
