@@ -201,3 +201,19 @@ def test_bad_study_lists(tmp_path: Path, args: list[str]) -> None:
     out = tmp_path / "s1"
     assert scenario1.main([*args, "--out", str(out)]) == 2
     assert not out.exists()
+
+
+def test_the_paper_preset_stands_beside_the_default(tmp_path: Path) -> None:
+    """--preset default,paper --alphas 0: both learners' alpha = 0 models in one study and one report."""
+    out = tmp_path / "s1"
+    cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "300", "--steps", "450",
+           "--seeds", "1", "--alphas", "0", "--preset", "default,paper", "--out", str(out)]  # fmt: skip
+    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False, env=env_with_display(None))
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert (out / "models" / "alpha0" / "model.pt").exists() and (out / "models" / "paper_alpha0" / "model.pt").exists()
+    paper = json.loads((out / "models" / "paper_alpha0" / "config.json").read_text())
+    assert paper["config"]["dqn"]["preset"] == "paper"
+    summary = pd.read_csv(out / "summary.csv")
+    assert {"dqn_alpha0", "dqn_paper_alpha0", "keep"} <= set(summary["policy"])
+    report = (out / "report.md").read_text()
+    assert "### Learner preset `default`" in report and "### Learner preset `paper`" in report

@@ -524,3 +524,14 @@ def test_paper_cost_is_extrapolated_from_the_cells() -> None:
     assert cost["core_hours"] == pytest.approx(6 * per_cell / 3600)
     assert cost["cluster_hours"] == pytest.approx(per_cell / 3600)
     assert s2.paper_cost_estimate(pd.DataFrame(rows[:1]), 2000, paper) == {}
+
+
+@pytest.mark.sumo
+def test_tiny_sweep_with_the_paper_preset(tmp_path: Path) -> None:
+    """--preset paper: every cell trains the paper-literal learner (recorded in its configuration)."""
+    out = tmp_path / "paper"
+    run_sweep_cli(out, "--workers", "2", "--preset", "paper")
+    assert_outputs(out)
+    for cell in (out / "cells").glob("*.json"):
+        dqn = json.loads(cell.read_text())["config"]["dqn"]
+        assert dqn["preset"] == "paper" and dqn["decision_interval_steps"] == 1 and dqn["dueling"] is False
