@@ -13,6 +13,7 @@ import argparse
 import math
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -242,7 +243,7 @@ def check_ray_address(flag: str, address: str, timeout_s: float | None = None) -
     try:
         out, _ = proc.communicate(timeout=timeout)
     except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, 9)
+        os.killpg(proc.pid, signal.SIGKILL)  # the probe and anything it started
         proc.communicate()
         raise UsageError(f"{flag} {address}: no Ray cluster answered within {timeout:g} s") from None
     if proc.returncode != 0:
