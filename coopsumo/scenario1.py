@@ -319,6 +319,7 @@ def run_metrics(run_dir: Path, cfg: SimConfig) -> dict[str, Any]:
         insertion_backlog,
         read_detectors,
         recovery_time_s,
+        section_speed_bins,
         stop_and_go,
         stop_and_go_waves,
     )
@@ -333,6 +334,8 @@ def run_metrics(run_dir: Path, cfg: SimConfig) -> dict[str, Any]:
     waves = stop_and_go_waves(read_detectors(run_dir / "detectors.xml"), acc.x_m, slow_mps=SLOW_MPS,
                               fast_mps=RECOVERY_MPS, lookback_s=WAVE_LOOKBACK_S)  # fmt: skip
     backlog = insertion_backlog(traj, cfg.demand.t_up_s)
+    end_s = (acc.start_step + acc.duration_steps) * dt
+    after = section_speed_bins(traj, acc.x_m - 200.0, acc.x_m, end_s, 30.0) if traj["time_s"].max() > end_s else None
     departed = max(summary["departed"], 1)
     return {
         "throughput_veh_per_h": summary["throughput_veh_per_h"],
@@ -348,6 +351,8 @@ def run_metrics(run_dir: Path, cfg: SimConfig) -> dict[str, Any]:
         "backlog_max_veh": float(backlog.max()) if len(backlog) else 0.0,
         "backlog_cleared_s": backlog_cleared_s(backlog, release_s, cfg.road.lanes),
         "backlog_at_end_veh": summary["insertion_pending_at_end"],
+        "backlog_at_accident_end_veh": float(backlog[backlog.index <= end_s].iloc[-1]) if len(backlog) else 0.0,
+        "speed_after_accident_mps": float(after.median()) if after is not None and after.notna().any() else math.nan,
         "collisions": summary["collisions"],
         "teleports": summary["teleports"],
         "insertion_blocked": summary["insertion_blocked"],
@@ -372,7 +377,7 @@ METRICS = (
 
 def aggregate(rows: pd.DataFrame) -> pd.DataFrame:
     """Mean and standard deviation over seeds per policy (columns metric_mean, metric_std)."""
-    keys = [m for m, _, _ in METRICS] + ["recovery_time_s"]
+    keys = [m for m, _, _ in METRICS] + ["recovery_time_s", "backlog_at_accident_end_veh", "speed_after_accident_mps"]
     grouped = rows.groupby("policy", sort=False)[keys]
     mean = grouped.mean().add_suffix("_mean")
     std = grouped.std(ddof=1).add_suffix("_std")
@@ -447,9 +452,9 @@ def verdict(rows: pd.DataFrame, agg: pd.DataFrame, coop: str, noncoop: str) -> s
         f"{head}: with `{coop}` the traffic {rec(c)}; with `{noncoop}` it {rec(n)}. Stop-and-go onsets per "
         f"upstream loop interval: {_fmt('{:.3f}', c['wave_share_mean'], c['wave_share_std'])} against "
         f"{_fmt('{:.3f}', n['wave_share_mean'], n['wave_share_std'])} (seed-paired difference "
-        f"{_fmt('{:+.3f}', wave_mean, wave_sd)}; fewer with `{coop}` on {wave_fewer} of {pairs} seeds). Mean speed "
+        f"{wave_mean:+.3f} ± {wave_sd:.3f}; fewer with `{coop}` on {wave_fewer} of {pairs} seeds). Mean speed "
         f"{c['mean_speed_mps_mean']:.2f} against {n['mean_speed_mps_mean']:.2f} m/s (paired difference "
-        f"{_fmt('{:+.2f}', speed_mean, speed_sd)} m/s), throughput {c['throughput_veh_per_h_mean']:.0f} against "
+        f"{speed_mean:+.2f} ± {speed_sd:.2f} m/s), throughput {c['throughput_veh_per_h_mean']:.0f} against "
         f"{n['throughput_veh_per_h_mean']:.0f} veh/h, lane changes per vehicle "
         f"{c['lane_changes_per_vehicle_mean']:.2f} against {n['lane_changes_per_vehicle_mean']:.2f}."
     )
@@ -521,6 +526,33 @@ def timing_note(
     return text
 
 
+def why_text(agg: pd.DataFrame, plan: Plan) -> str:
+    """Why the road recovers or not: the backlog left when the accident ends and the speed while it drains."""
+    a = agg.set_index("policy")
+    end_step = plan.accident_start + plan.accident_steps
+    parts = [f"`{p}` {r['backlog_at_accident_end_veh_mean']:.0f} vehicles, {r['speed_after_accident_mps_mean']:.1f} m/s"
+             for p, r in a.iterrows() if math.isfinite(r["speed_after_accident_mps_mean"])]  # fmt: skip
+    if not parts:
+        return ""
+    text = (f"**Why.** When the accident ends (step {end_step}), vehicles that could not enter during the jam "
+            f"are still waiting (backlog then), and after it the speed in the 200 m before the bottleneck (median "
+            f"of 30 s bins) is: {'; '.join(parts)}.")  # fmt: skip
+    slow = [r for _, r in a.iterrows() if math.isfinite(r["speed_after_accident_mps_mean"])]
+    if all(r["speed_after_accident_mps_mean"] < RECOVERY_MPS for r in slow):
+        text += (
+            f" While the backlog drains, the road is fed at its capacity and holds the speed it has at capacity, "
+            f"below {RECOVERY_MPS:g} m/s; it rises above it only once the backlog is gone (the figure). So whether "
+            f"a run \"recovers\" before step {plan.steps} is decided by how large a backlog the jam left, i.e. by "
+            "the throughput during the accident: the backlog columns say more than the recovery step."
+        )
+    stalled = [str(p) for p, r in a.iterrows()
+               if r["teleports_mean"] >= 10 and r["lane_changes_per_vehicle_mean"] < 0.01]  # fmt: skip
+    if stalled:
+        text += (f" {', '.join(f'`{p}`' for p in stalled)} make no lane change and leave vehicles standing (teleports: "
+                 "SUMO removes a vehicle that stood 300 s at the head of its lane), so their backlog is the largest.")
+    return text
+
+
 def write_report(
     root: Path,
     plan: Plan,
@@ -569,6 +601,8 @@ traffic recovers above 15 m/s after about 74,000 steps; without it (alpha = 0) t
 {chr(10).join(sections)}
 
 {report_table(agg)}
+
+{why_text(agg, plan)}
 
 Definitions (chosen here; the paper gives none):
 - **On-road recovery**: the step at which the space-mean speed of the vehicles in the 200 m before the

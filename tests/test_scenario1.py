@@ -147,7 +147,8 @@ def _agg_rows(values: dict[str, dict[str, list[float]]]) -> tuple[pd.DataFrame, 
     for policy, metrics in values.items():
         n = len(next(iter(metrics.values())))
         for k in range(n):
-            row = {"policy": policy, "seed": k + 1, **{m: 0.0 for m, _, _ in scenario1.METRICS}, "recovery_time_s": 0.0}
+            row = {"policy": policy, "seed": k + 1, **{m: 0.0 for m, _, _ in scenario1.METRICS}, "recovery_time_s": 0.0,
+                   "backlog_at_accident_end_veh": 0.0, "speed_after_accident_mps": 0.0}  # fmt: skip
             row.update({m: v[k] for m, v in metrics.items()})
             rows.append(row)
     runs = pd.DataFrame(rows)
