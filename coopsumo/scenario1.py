@@ -537,11 +537,12 @@ def why_text(agg: pd.DataFrame, plan: Plan) -> str:
     text = (f"**Why.** When the accident ends (step {end_step}), vehicles that could not enter during the jam "
             f"are still waiting (backlog then), and after it the speed in the 200 m before the bottleneck (median "
             f"of 30 s bins) is: {'; '.join(parts)}.")  # fmt: skip
-    slow = [r for _, r in a.iterrows() if math.isfinite(r["speed_after_accident_mps_mean"])]
-    if all(r["speed_after_accident_mps_mean"] < RECOVERY_MPS for r in slow):
+    slow = [str(p) for p, r in a.iterrows() if r["speed_after_accident_mps_mean"] < RECOVERY_MPS]
+    if slow:
         text += (
-            f" While the backlog drains, the road is fed at its capacity and holds the speed it has at capacity, "
-            f"below {RECOVERY_MPS:g} m/s; it rises above it only once the backlog is gone (the figure). So whether "
+            f" For {', '.join(f'`{p}`' for p in slow)}: while the backlog drains, the road is fed at its capacity "
+            f"and holds the speed it has at capacity, below {RECOVERY_MPS:g} m/s; it rises above it only once the "
+            "backlog is gone (the figure). So whether "
             f"a run \"recovers\" before step {plan.steps} is decided by how large a backlog the jam left, i.e. by "
             "the throughput during the accident: the backlog columns say more than the recovery step."
         )
