@@ -31,7 +31,7 @@ def snapshot(occ: Occupancy, lane: np.ndarray, pos: np.ndarray, n_lanes: int, ca
     first = np.searchsorted(occ.keys, lo_key, side="right")  # (n, 3)
     cand = first[:, :, None] + np.arange(MAX_PER_WINDOW)[None, None, :]  # (n, 3, K)
     m = len(occ.keys)
-    safe = np.clip(cand, 0, max(m - 1, 0))
+    safe = np.minimum(np.maximum(cand, 0), max(m - 1, 0))
     if m == 0:
         valid = np.zeros(cand.shape, dtype=bool)
         front = np.zeros(cand.shape)

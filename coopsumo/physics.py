@@ -84,7 +84,7 @@ def neighbours(
     behind = np.where((behind >= 0) & (occ.veh[np.maximum(behind, 0)] == rows), behind - 1, behind)
 
     def pick(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        safe = np.clip(idx, 0, m - 1)
+        safe = np.minimum(np.maximum(idx, 0), m - 1)
         valid = (idx >= 0) & (idx < m) & (occ.lane[safe] == ql)
         return valid, np.where(valid, occ.veh[safe], 0)
 

@@ -33,7 +33,7 @@ def section_crossings(
     """
     if len(prev_nums) == 0 or len(nums) == 0 or len(sections_m) == 0:
         return 0
-    idx = np.clip(np.searchsorted(prev_nums, nums), 0, len(prev_nums) - 1)
+    idx = np.minimum(np.searchsorted(prev_nums, nums), len(prev_nums) - 1)
     both = prev_nums[idx] == nums
     before = prev_pos[idx][both][:, None]
     after = pos[both][:, None]

@@ -11,6 +11,7 @@ import operator
 import subprocess
 import tempfile
 import time
+from collections import deque
 from dataclasses import dataclass
 from itertools import chain
 from pathlib import Path
@@ -97,6 +98,7 @@ class SumoSession:
         self._ls: Any = None
         self._tc: Any = None  # the binding's constants module
         self._gui_proc: subprocess.Popen[bytes] | None = None
+        self._ids = np.zeros(1024, dtype=object)  # SUMO id (str) by vehicle number, made once per vehicle
 
     def args(self) -> list[str]:
         """SUMO's command line for this run; writes the route and detector files into run_dir."""
@@ -117,6 +119,9 @@ class SumoSession:
             "--collision.action", "warn" if cfg.sumo_collision_check else "none",
             "--collision.mingap-factor", "0",
             "--time-to-teleport", f"{cfg.time_to_teleport_s:g}",
+            # SUMO keeps each vehicle's waiting intervals of the last N s for junction impatience (this road has no
+            # junction; teleports and tripinfo use their own counts): 1 s instead of 100 s saves a standing queue's work
+            "--waiting-time-memory", "1",
             "--seed", str(cfg.seed),
             "--no-step-log", "true",
             "--no-warnings", "true",
@@ -219,10 +224,18 @@ class SumoSession:
     def add_vehicle(self, num: int, lane: int, v_exp_mps: float) -> None:
         """Ask SUMO to insert a vehicle now at the road's start, at its expected speed if safe."""
         ls = self.ls
-        vid = str(num)
+        vid = self._id(num)
         ls.vehicle.add(vid, network.ROUTE_ID, typeID=network.VTYPE_ID, depart="now", departLane=str(lane),
                        departPos="base", departSpeed="max")  # fmt: skip
         ls.vehicle.setMaxSpeed(vid, float(v_exp_mps))
+
+    def _id(self, num: int) -> str:
+        """SUMO's id of vehicle `num` (its number as text), remembered for the per-step calls."""
+        if num >= len(self._ids):
+            self._ids = np.concatenate([self._ids, np.zeros(max(num + 1, 2 * len(self._ids)) - len(self._ids), object)])
+        vid = str(num)
+        self._ids[num] = vid
+        return vid
 
     def _take_control(self, vid: str) -> None:
         ls = self.ls
@@ -269,22 +282,18 @@ class SumoSession:
         return VehicleTable(nums[order], values[:, 0].astype(np.int64), values[:, 1], values[:, 2])
 
     def set_speeds(self, nums: np.ndarray, speeds: np.ndarray) -> None:
-        """Speeds (m/s) for the next step."""
-        set_speed = self.ls.vehicle.setSpeed
-        for vid, v in zip(map(str, nums.tolist()), speeds.tolist(), strict=True):
-            set_speed(vid, v)
+        """Speeds (m/s) for the next step (one libsumo call per vehicle, without a Python loop)."""
+        deque(map(self.ls.vehicle.setSpeed, self._ids[nums], speeds.tolist()), maxlen=0)
 
     def release_speeds(self, nums: np.ndarray) -> None:
         """Hand speed control back to SUMO's car-following model."""
-        set_speed = self.ls.vehicle.setSpeed
-        for num in nums.tolist():
-            set_speed(str(num), -1.0)
+        deque(map(self.ls.vehicle.setSpeed, self._ids[nums], [-1.0] * len(nums)), maxlen=0)
 
     def change_lanes(self, nums: np.ndarray, target_lanes: np.ndarray) -> None:
         """Start lane changes; SUMO moves each vehicle sideways over --lanechange.duration."""
         change = self.ls.vehicle.changeLane
-        for num, lane in zip(nums.tolist(), target_lanes.tolist(), strict=True):
-            change(str(num), lane, self.cfg.control.dt_s)
+        for vid, lane in zip(self._ids[nums], target_lanes.tolist(), strict=True):
+            change(vid, lane, self.cfg.control.dt_s)
 
     # -- sumo-gui only: what the view shows; none of it changes the simulation --------------------
     def show_region(self, x_min_m: float, x_max_m: float) -> None:
@@ -307,8 +316,8 @@ class SumoSession:
     def set_colors(self, nums: np.ndarray, rgba: np.ndarray) -> None:
         """Vehicle colours in sumo-gui; rgba is (n, 4) of 0-255."""
         set_color = self.ls.vehicle.setColor
-        for num, color in zip(nums.tolist(), rgba.tolist(), strict=True):
-            set_color(str(num), tuple(color))
+        for vid, color in zip(self._ids[nums], rgba.tolist(), strict=True):
+            set_color(vid, tuple(color))
 
     def screenshot(self, path: Path, size_px: tuple[int, int]) -> None:
         """sumo-gui saves its view, size_px (width, height) pixels, to path (PNG) when the next step is drawn."""

@@ -337,7 +337,7 @@ class World:
         on_road = self.table.nums
         if len(on_road) == 0:
             return np.zeros(len(nums), np.int64), np.zeros(len(nums), bool)
-        row = np.clip(np.searchsorted(on_road, nums), 0, len(on_road) - 1)
+        row = np.minimum(np.searchsorted(on_road, nums), len(on_road) - 1)
         return row, on_road[row] == nums
 
     def _outcome(
@@ -355,7 +355,7 @@ class World:
         self.totals.lane_changes_rejected += int(rejected.sum())
         q_t = flow_term(sum(self._loop_counts), len(self._loop_counts) * c.dt_s, self._n_sections,
                         self.cfg.road.lanes, self.cfg.reward)  # fmt: skip
-        arrived = np.isin(obs.nums, events.arrived)
+        arrived = np.isin(obs.nums, events.arrived) if len(events.arrived) else np.zeros(len(obs.nums), bool)
         new_speed = speeds.copy()
         row, still = self._rows_now(obs.nums)
         still &= ~arrived
@@ -407,7 +407,8 @@ class World:
         busy = t.nums[self.veh.lc_left_s[t.nums] > 0]
         self.veh.lc_left_s[busy] = np.maximum(self.veh.lc_left_s[busy] - dt, 0.0)
         self.veh.depart_s[events.departed] = self.time_s - dt
-        self._handed[np.isin(self._handed, events.departed)] = -1
+        if len(events.departed):
+            self._handed[np.isin(self._handed, events.departed)] = -1
         tot.departed += len(events.departed)
         late = self.time_s - dt - self.veh.scheduled_s[events.departed]
         tot.insertion_blocked += int(np.sum(late >= dt - 1e-6))
