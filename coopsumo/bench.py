@@ -17,14 +17,14 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from coopsumo.agents.dqn import Learner
+from coopsumo.agents.policies import make_policy
+from coopsumo.agents.rollout import run
+from coopsumo.agents.train import Trainer
 from coopsumo.config import DQN_PRESETS, AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
-from coopsumo.dqn import Learner
-from coopsumo.observation import snapshot
-from coopsumo.physics import occupancy
-from coopsumo.policies import make_policy
 from coopsumo.runio import Parser
-from coopsumo.simulate import run
-from coopsumo.train import Trainer
+from coopsumo.sim.observation import snapshot
+from coopsumo.sim.physics import occupancy
 
 
 def bench_simulation(
@@ -50,8 +50,8 @@ def bench_plain_vs_controlled(steps: int, jam: bool) -> dict[str, tuple[float, f
     ("plain"; in the jam every lane is blocked at the bottleneck from step 100), the same plus reading every
     vehicle's lane, position and speed each step ("plain+read"), and the controlled `keep` policy ("keep";
     the accident holds traffic from step 100)."""
-    from coopsumo.sumo_session import plain_run
-    from coopsumo.world import departures
+    from coopsumo.sim.sumo_session import plain_run
+    from coopsumo.sim.world import departures
 
     cfg = SimConfig(accident=AccidentConfig(enabled=jam, start_step=100, duration_steps=50_000), steps=steps, seed=1,
                     policy="sumo")  # fmt: skip
@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in (50, 200):
         grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
         print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)
-    from coopsumo.scenario1 import Plan
+    from coopsumo.studies.scenario1 import Plan
 
     period = Plan().fcd_period_s
     extra, low, high, mb_per_h, veh = bench_fcd_cost(steps, period, repeats=1 if quick else 4)

@@ -11,13 +11,14 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from coopsumo.runio import UsageError
 from coopsumo.validation import MAX_REPLAY, MAX_STEPS, SEED_MAX, int_problem, min_t_up_s, number_problem
 
 MIN_LANES = 2
 MAX_LANES = 6
 
 
-class ConfigError(ValueError):
+class ConfigError(UsageError):
     """A configuration value is outside what the model supports (a usage error)."""
 
 

@@ -111,12 +111,10 @@ def start_parent_watch(parent_pid: int) -> None:
 
 
 def run_cli(prog: str, body: Callable[[], int]) -> int:
-    """Run a command's body; usage errors become one line on stderr and exit code 2."""
-    from coopsumo.config import ConfigError
-
+    """Run a command's body; usage errors (config.ConfigError among them) become one line on stderr and exit code 2."""
     try:
         return body()
-    except (UsageError, ConfigError) as err:
+    except UsageError as err:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return USAGE_EXIT
     except KeyboardInterrupt:

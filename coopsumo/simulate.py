@@ -9,15 +9,13 @@ from __future__ import annotations
 
 import os
 import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm import tqdm
 
-from coopsumo import sumo_session
+from coopsumo.agents.policies import make_policy
+from coopsumo.agents.rollout import run  # noqa: F401  (simulate.run: the rollout, re-exported for callers)
 from coopsumo.config import (
     MAX_LANES,
     MIN_LANES,
@@ -29,10 +27,7 @@ from coopsumo.config import (
     OutputConfig,
     RoadConfig,
     SimConfig,
-    to_dict,
 )
-from coopsumo.decisions import ActionHold
-from coopsumo.policies import Policy, make_policy
 from coopsumo.runio import (
     Parser,
     UsageError,
@@ -40,11 +35,9 @@ from coopsumo.runio import (
     finish_run_dir,
     run_cli,
     start_run_dir,
-    versions,
-    write_json,
 )
+from coopsumo.sim import sumo_session
 from coopsumo.validation import check_accident, check_int, check_t_up, integer, number, seed, steps
-from coopsumo.world import World
 
 SCENARIOS = ("free", "accident")
 
@@ -141,71 +134,6 @@ def config_from_args(args: Any) -> SimConfig:
     )
     cfg.validate()
     return cfg
-
-
-def run(
-    cfg: SimConfig,
-    policy: Policy,
-    run_dir: Path,
-    trajectories: bool = False,
-    progress: bool = True,
-    label: str = "simulate",
-    trajectory_every: int = 1,
-    on_steps: Callable[[int], None] | None = None,
-    outputs: OutputConfig | None = None,
-    gui: GuiConfig | None = None,
-) -> dict[str, Any]:
-    """Run cfg.steps steps with `policy` in run_dir; write its files; return the summary.
-
-    trajectory_every: record trajectories every k-th step; on_steps(n) is told of progress;
-    outputs: SUMO's FCD and tripinfo files; gui: run in sumo-gui (the summary is the same).
-    """
-    outputs = outputs or OutputConfig()
-    write_json(
-        run_dir / "config.json",
-        {
-            "config": to_dict(cfg),
-            "versions": versions(),
-            "trajectory_every_steps": trajectory_every if trajectories else None,
-            "sumo_outputs": to_dict(outputs),
-            "gui": to_dict(gui) if gui is not None else None,
-            "model_trained_on": getattr(policy, "trained_on", None),
-        },
-    )
-    start = time.perf_counter()
-    record_every = trajectory_every if trajectories else 0
-    with World(cfg, run_dir, record_trajectories_every=record_every, observe_grids=policy.needs_grids,
-               outputs=outputs, gui=gui) as world:  # fmt: skip
-        bar = tqdm(total=cfg.steps, desc=label, unit="step", disable=not progress, mininterval=0.5, file=sys.stderr)
-        hold = ActionHold(policy.decision_interval)
-        for _ in range(cfg.steps):
-            decide = hold.is_decision_step(world.step_count)
-            obs = world.observe(grids=decide and policy.needs_grids)
-            world.apply(hold.actions(obs.nums, policy.act(obs) if decide else None))
-            if world.step_count % 500 == 0:
-                bar.update(500)
-                if on_steps is not None:
-                    on_steps(500)
-                bar.set_postfix(
-                    veh=len(world.table.nums), v=f"{world.table.speed.mean() if len(world.table.nums) else 0:.1f}"
-                )
-        bar.close()
-        summary: dict[str, Any] = world.summary()
-        traj = world.trajectories() if trajectories else None
-    wall = time.perf_counter() - start
-    summary["wall_seconds"] = round(wall, 3)
-    summary["steps_per_second"] = round(cfg.steps / wall, 1)
-    summary["policy"] = cfg.policy
-    summary["decision_interval_steps"] = policy.decision_interval
-    summary["scenario"] = cfg.scenario
-    if gui is not None and gui.screenshot and not Path(gui.screenshot).exists():
-        raise RuntimeError(f"sumo-gui did not write the screenshot {gui.screenshot}")
-    if traj is not None:
-        import pandas as pd
-
-        pd.DataFrame(traj).to_parquet(run_dir / "trajectories.parquet", index=False)
-    write_json(run_dir / "summary.json", summary)
-    return summary
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -58,7 +58,7 @@ def table_ii_extractor_class() -> type:
     from gymnasium import spaces
     from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
-    from coopsumo.dqn import QNetwork
+    from coopsumo.agents.dqn import QNetwork
 
     class TableIIExtractor(BaseFeaturesExtractor):  # type: ignore[misc]
         """grids (B, 3, 3, 20) and speed errors (B, 3) m/s -> 100 features (QNetwork without its output layer)."""
@@ -85,8 +85,8 @@ def train(args: Any, run_dir: Path | None) -> dict[str, Any]:
     from stable_baselines3.common.logger import Logger
     from stable_baselines3.common.monitor import Monitor
 
+    from coopsumo.agents.policies import PolicySpecError
     from coopsumo.envs import ENV_ID
-    from coopsumo.policies import PolicySpecError
 
     cfg = SimConfig(
         road=RoadConfig(lanes=args.lanes),

@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from coopsumo import physics
 from coopsumo.config import AccidentConfig, ControlConfig, DemandConfig, RoadConfig, SimConfig
-from coopsumo.observation import Observation
+from coopsumo.sim import physics
+from coopsumo.sim.observation import Observation
 
 REPO = Path(__file__).resolve().parent.parent
 

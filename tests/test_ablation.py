@@ -11,8 +11,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from coopsumo.ablation import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, is_monotone_decreasing, learner_of
 from coopsumo.config import PAPER_DQN, DQNConfig
+from coopsumo.studies.ablation import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, is_monotone_decreasing, learner_of
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent

@@ -9,7 +9,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from coopsumo.analysis import (
+from coopsumo.report.analysis import (
     backlog_cleared_s,
     cross_section_flow,
     flow_density,

@@ -20,8 +20,8 @@ import pytest
 import torch
 
 from coopsumo import validation
+from coopsumo.agents.dqn import QNetwork, save_model
 from coopsumo.config import DQN_PRESETS, ConfigError, DemandConfig, SimConfig, TrainConfig, to_dict
-from coopsumo.dqn import QNetwork, save_model
 
 REPO = Path(__file__).resolve().parent.parent
 SIM = ["--steps", "20", "--quiet"]
@@ -180,7 +180,7 @@ import json, resource, sys, tempfile
 from pathlib import Path
 import numpy as np
 from coopsumo.config import DemandConfig, SimConfig
-from coopsumo.world import World
+from coopsumo.sim.world import World
 
 cfg = SimConfig(demand=DemandConfig(t_up_s=float(sys.argv[1])), steps=int(sys.argv[2]), seed=5, policy="keep")
 seen, entered = set(), []
@@ -264,7 +264,7 @@ def http2_server() -> Iterator[int]:
 
 
 def _scenario2_ray(address: str, out: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, str, float]:
-    from coopsumo import scenario2
+    from coopsumo.studies import scenario2
 
     start = time.monotonic()
     code = scenario2.main(["--profile", "tiny", "--backend", "ray", "--address", address, "--out", str(out)])
@@ -341,7 +341,7 @@ def test_model_from_before_the_dueling_head_on_another_lane_count_is_driven_as_t
 
 
 def _checkpoint(out: Path, preset: str) -> dict:
-    from coopsumo.train import Trainer
+    from coopsumo.agents.train import Trainer
 
     cfg = TrainConfig(sim=SimConfig(steps=20, seed=3, policy="dqn"), dqn=DQN_PRESETS[preset], eval_steps=0,
                       log_every_steps=10, checkpoint_every_steps=20)  # fmt: skip
@@ -352,7 +352,7 @@ def _checkpoint(out: Path, preset: str) -> dict:
 
 
 def _resume(out: Path, capsys: pytest.CaptureFixture[str], *flags: str) -> tuple[int, str]:
-    from coopsumo import train
+    from coopsumo.agents import train
 
     code = train.main(["--resume", "--out", str(out), "--quiet", *flags])
     return code, capsys.readouterr().err

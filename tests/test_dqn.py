@@ -10,8 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from coopsumo.config import PAPER_DQN, DQNConfig
-from coopsumo.dqn import (
+from coopsumo.agents.dqn import (
     GRID_SHAPE,
     N_ACTIONS,
     Learner,
@@ -26,7 +25,8 @@ from coopsumo.dqn import (
     save_model,
     sync_target,
 )
-from coopsumo.observation import Observation
+from coopsumo.config import PAPER_DQN, DQNConfig
+from coopsumo.sim.observation import Observation
 
 SMALL_CFG = dataclasses.replace(
     PAPER_DQN, replay_size=64, batch_size=8, learn_start_steps=0, target_sync_steps=3, learn_every=1
@@ -359,7 +359,7 @@ def test_dqn_policy_reuses_the_action_of_an_unchanged_input_and_recomputes_the_r
 ) -> None:
     """DQNPolicy skips the forward pass for a vehicle whose grids and speed errors did not change;
     its actions always equal those of a plain forward pass over the whole batch."""
-    from coopsumo.dqn_policy import DQNPolicy
+    from coopsumo.agents.dqn_policy import DQNPolicy
 
     torch.manual_seed(0)
     net = QNetwork(speed_scale_mps=10.0)

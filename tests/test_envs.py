@@ -14,10 +14,10 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
+from coopsumo.agents.policies import PolicySpecError
 from coopsumo.config import DemandConfig, RoadConfig, SimConfig
 from coopsumo.envs import ENV_ID, HighwayEnv, HighwayParallelEnv
 from coopsumo.envs.parallel_env import agent_name
-from coopsumo.policies import PolicySpecError
 
 REPO = Path(__file__).resolve().parent.parent
 LIGHT = SimConfig(road=RoadConfig(lanes=2), demand=DemandConfig(t_up_s=4.0))
@@ -133,7 +133,7 @@ def test_close_really_closes_sumo(tmp_path: Path) -> None:
         par.reset(seed=0)
     finally:
         par.close()
-    from coopsumo.world import World
+    from coopsumo.sim.world import World
 
     with World(SimConfig(steps=5), tmp_path) as world:
         world.apply(np.zeros(len(world.observe()), np.int64))
@@ -171,8 +171,8 @@ def test_episode_ends_when_the_agent_leaves_the_road() -> None:
 def test_trained_dqn_as_background(tmp_path: Path) -> None:
     import torch
 
+    from coopsumo.agents.dqn import QNetwork, save_model
     from coopsumo.config import DQNConfig
-    from coopsumo.dqn import QNetwork, save_model
 
     torch.manual_seed(0)
     save_model(tmp_path / "model.pt", QNetwork(DQNConfig().speed_scale_mps), {"note": "untrained"})

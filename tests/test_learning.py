@@ -13,12 +13,12 @@ import pytest
 import torch
 from torch import nn
 
-from coopsumo import physics
+from coopsumo.agents.decisions import ActionHold, follow_up, is_decision_step
+from coopsumo.agents.dqn import ReplayBatch, epsilon_at, epsilon_greedy, td_targets
 from coopsumo.config import DQN_PRESETS, PAPER_DQN, ConfigError, DQNConfig, SimConfig, TrainConfig
-from coopsumo.decisions import ActionHold, follow_up, is_decision_step
-from coopsumo.dqn import ReplayBatch, epsilon_at, epsilon_greedy, td_targets
-from coopsumo.observation import Observation
-from coopsumo.physics import LEFT, NONE, RIGHT, SPEEDUP
+from coopsumo.sim import physics
+from coopsumo.sim.observation import Observation
+from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
 
 ROOT = Path(__file__).resolve().parent.parent
 Layout = Callable[..., Observation]
@@ -192,7 +192,7 @@ def test_paper_preset_is_literal() -> None:
 
 
 def test_train_flags_resolve_the_preset_and_override_fields() -> None:
-    from coopsumo.train import build_parser, config_from_args
+    from coopsumo.agents.train import build_parser, config_from_args
 
     cfg = config_from_args(build_parser().parse_args(["--preset", "paper"]))
     assert cfg.dqn == PAPER_DQN
@@ -268,7 +268,7 @@ def _one_per_lane(obs: Observation, wanted: np.ndarray, rng: np.random.Generator
 def test_in_sumo_masked_in_changes_are_accepted_and_masked_out_ones_refused(
     tmp_path: Path, make_sim_config: Callable[..., SimConfig]
 ) -> None:
-    from coopsumo.world import World
+    from coopsumo.sim.world import World
 
     cfg = make_sim_config(lanes=3, t_up_s=0.6, steps=1500, seed=4)
     rng = np.random.default_rng(0)
@@ -299,7 +299,7 @@ def test_in_sumo_masked_in_changes_are_accepted_and_masked_out_ones_refused(
 def test_in_sumo_a_held_lane_change_starts_exactly_one_change(
     tmp_path: Path, make_sim_config: Callable[..., SimConfig]
 ) -> None:
-    from coopsumo.world import World
+    from coopsumo.sim.world import World
 
     k = 10
     cfg = make_sim_config(lanes=3, t_up_s=1.0, steps=1200, seed=2)
@@ -323,7 +323,7 @@ def test_in_sumo_a_held_lane_change_starts_exactly_one_change(
 
 
 def test_dueling_head_and_its_model_file(tmp_path: Path) -> None:
-    from coopsumo.dqn import QNetwork, load_model, save_model
+    from coopsumo.agents.dqn import QNetwork, load_model, save_model
 
     torch.manual_seed(0)
     net = QNetwork(30.0, dueling=True)

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coopsumo import physics
+from coopsumo.agents.mobil import MobilPolicy, newell_accel
+from coopsumo.agents.policies import PolicySpecError
 from coopsumo.config import ControlConfig, DemandConfig, RoadConfig, SimConfig
-from coopsumo.mobil import MobilPolicy, newell_accel
-from coopsumo.observation import Observation
-from coopsumo.physics import LEFT, RIGHT, SPEEDUP, Neighbours, newell_speed
-from coopsumo.policies import PolicySpecError
+from coopsumo.sim import physics
+from coopsumo.sim.observation import Observation
+from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP, Neighbours, newell_speed
 
 CTRL = ControlConfig()
 INF = np.inf
@@ -242,7 +242,7 @@ def test_bad_spec_is_a_one_line_policy_spec_error(spec: str) -> None:
 @pytest.mark.parametrize("lanes", [2, 5])
 @pytest.mark.parametrize("p", [0.0, 0.5, 1.0])
 def test_mobil_near_capacity_in_sumo(tmp_path: Path, lanes: int, p: float) -> None:
-    from coopsumo.simulate import run
+    from coopsumo.agents.rollout import run
 
     steps = 3000 if lanes == 2 else 2000  # 5 lanes: 2000 steps keep the suite short; the road fills in ~1500
     cfg = SimConfig(
@@ -263,8 +263,8 @@ def test_mobil_near_capacity_in_sumo(tmp_path: Path, lanes: int, p: float) -> No
 @pytest.mark.parametrize("lanes", [2, 5])
 def test_sumo_models_near_capacity_in_sumo(tmp_path: Path, lanes: int) -> None:
     """The `sumo` baseline (Krauss + LC2013, no Newell controller) is safe too, by both collision counts."""
-    from coopsumo.policies import make_policy
-    from coopsumo.simulate import run
+    from coopsumo.agents.policies import make_policy
+    from coopsumo.agents.rollout import run
 
     cfg = SimConfig(
         road=RoadConfig(lanes=lanes),

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from coopsumo import physics
-from coopsumo.observation import N_CELLS, FrameHistory, snapshot
+from coopsumo.sim import physics
+from coopsumo.sim.observation import N_CELLS, FrameHistory, snapshot
 
 L_CAR = 4.0
 LEFT, OWN, RIGHT = 0, 1, 2

@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from coopsumo import physics
 from coopsumo.config import ControlConfig
+from coopsumo.sim import physics
 
 INF = math.inf
 

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from coopsumo.plots import flow_density_figure, subsample_times, time_space_figure
+from coopsumo.report.plots import flow_density_figure, subsample_times, time_space_figure
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 

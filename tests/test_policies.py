@@ -7,10 +7,10 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from coopsumo.observation import Observation
-from coopsumo.physics import LEFT, NONE, RIGHT, SPEEDUP
-from coopsumo.policies import GreedyPolicy, KeepPolicy, PolicySpecError, RandomPolicy, make_policy
+from coopsumo.agents.policies import GreedyPolicy, KeepPolicy, PolicySpecError, RandomPolicy, make_policy
 from coopsumo.runio import UsageError
+from coopsumo.sim.observation import Observation
+from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
 
 ObsOf = Callable[..., Observation]
 

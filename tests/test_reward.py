@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from coopsumo.config import RewardConfig
-from coopsumo.reward import flow_term, reward_parts, section_crossings
+from coopsumo.sim.reward import flow_term, reward_parts, section_crossings
 
 
 def test_speed_term_is_the_speed_error_over_the_speed_range() -> None:

@@ -15,8 +15,8 @@ import sumolib
 from conftest import env_with_display
 from PIL import Image
 
-from coopsumo import scenario1
 from coopsumo.config import AccidentConfig, SimConfig
+from coopsumo.studies import scenario1
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent

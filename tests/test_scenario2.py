@@ -16,7 +16,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from coopsumo import scenario2 as s2
+from coopsumo.studies import runner, stats
+from coopsumo.studies import scenario2 as s2
 
 REPO = Path(__file__).resolve().parent.parent
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -60,7 +61,7 @@ def test_win_shares_split_ties_and_skip_empty_seeds() -> None:
         [9.0, 1.0, 11.0, np.nan],
     ])  # fmt: skip
     # seed 1: alpha 1 wins; seed 2: alphas 0 and 1 tie; seed 3: alphas 0 and 2 tie; seed 4: no data
-    np.testing.assert_allclose(s2.win_shares(speeds), [1 / 3, 1 / 2, 1 / 6])
+    np.testing.assert_allclose(stats.win_shares(speeds), [1 / 3, 1 / 2, 1 / 6])
 
 
 def test_alpha_star_known_answer() -> None:
@@ -68,7 +69,7 @@ def test_alpha_star_known_answer() -> None:
         (3, 1.0): {0.0: [20.0, 21.0, 22.0], 2.0: [23.0, 20.0, 24.0], 8.0: [19.0, 19.5, 20.0]},
         (3, 2.0): {0.0: [25.0, 25.0, 25.0], 2.0: [24.0, 24.0, 24.0], 8.0: [23.0, 23.0, 23.0]},
     })  # fmt: skip
-    table, boots = s2.alpha_star_table(runs, n_boot=500)
+    table, boots = stats.alpha_star_table(runs, n_boot=500)
     a = table.set_index("t_up_s")
     # T_up 1 s: means 21, 22.33, 19.5 -> alpha* = 2, winning seeds 1 and 3 of 3
     assert a.loc[1.0, "alpha_star"] == 2.0
@@ -84,19 +85,19 @@ def test_alpha_star_known_answer() -> None:
     assert a.loc[2.0, "boot_alpha_p05"] == a.loc[2.0, "boot_alpha_p95"] == 0.0
     assert set(boots) == {(3, 1.0), (3, 2.0)} and boots[(3, 2.0)].shape == (500,)
     # reproducible: the bootstrap has its own fixed seed
-    again, _ = s2.alpha_star_table(runs, n_boot=500)
+    again, _ = stats.alpha_star_table(runs, n_boot=500)
     pd.testing.assert_frame_equal(table, again)
 
 
 def test_alpha_star_ties_go_to_the_smaller_alpha() -> None:
-    table, _ = s2.alpha_star_table(runs_from({(2, 1.0): {4.0: [20.0, 21.0], 0.5: [20.0, 21.0]}}), n_boot=50)
+    table, _ = stats.alpha_star_table(runs_from({(2, 1.0): {4.0: [20.0, 21.0], 0.5: [20.0, 21.0]}}), n_boot=50)
     assert table.loc[0, "alpha_star"] == 0.5
     assert table.loc[0, "win_share"] == 0.5 and table.loc[0, "boot_support"] == 1.0
 
 
 def test_failed_cells_are_left_out() -> None:
     runs = runs_from({(2, 1.0): {0.0: [20.0, np.nan], 8.0: [np.nan, np.nan], 32.0: [19.0, 18.0]}})
-    table, _ = s2.alpha_star_table(runs, n_boot=100)
+    table, _ = stats.alpha_star_table(runs, n_boot=100)
     row = table.iloc[0]
     assert row["alpha_star"] == 0.0 and row["alpha_star_speed_mps"] == 20.0
     assert np.isnan(row["speed_mps_alpha8"])
@@ -107,21 +108,21 @@ def test_failed_cells_are_left_out() -> None:
 def test_fit_plane_recovers_known_coefficients() -> None:
     t = np.array([0.5, 1.0, 2.0, 0.5, 1.0, 2.0, 0.7])
     n = np.array([2, 2, 2, 4, 4, 4, 6])
-    fit = s2.fit_plane(t, n, 30.0 - 6.0 * t - 2.5 * n)
+    fit = stats.fit_plane(t, n, 30.0 - 6.0 * t - 2.5 * n)
     assert (fit.b0, fit.b1, fit.b2) == pytest.approx((30.0, -6.0, -2.5))
     assert fit.r2 == pytest.approx(1.0) and fit.n == 7
-    noisy = s2.fit_plane(t, n, 30.0 - 6.0 * t - 2.5 * n + np.array([1, -1, 0.5, -0.5, 1, -1, 0]))
+    noisy = stats.fit_plane(t, n, 30.0 - 6.0 * t - 2.5 * n + np.array([1, -1, 0.5, -0.5, 1, -1, 0]))
     assert 0.5 < noisy.r2 < 1.0
 
 
 def test_fit_plane_refuses_what_it_cannot_fit() -> None:
-    with pytest.raises(s2.PlaneFitError, match="at least 3 distinct conditions"):
-        s2.fit_plane([1.0, 2.0], [2, 2], [8.0, 4.0])
-    with pytest.raises(s2.PlaneFitError, match="at least 3 distinct conditions"):
-        s2.fit_plane([1.0, 1.0, 1.0, 2.0], [2, 2, 2, 3], [8.0, 4.0, 2.0, np.nan])  # NaN left out
-    with pytest.raises(s2.PlaneFitError, match="only T_up varies"):
-        s2.fit_plane([0.5, 1.0, 2.0], [3, 3, 3], [8.0, 4.0, 2.0])
-    flat = s2.fit_plane([0.5, 1.0, 2.0], [2, 3, 4], [8.0, 8.0, 8.0])
+    with pytest.raises(stats.PlaneFitError, match="at least 3 distinct conditions"):
+        stats.fit_plane([1.0, 2.0], [2, 2], [8.0, 4.0])
+    with pytest.raises(stats.PlaneFitError, match="at least 3 distinct conditions"):
+        stats.fit_plane([1.0, 1.0, 1.0, 2.0], [2, 2, 2, 3], [8.0, 4.0, 2.0, np.nan])  # NaN left out
+    with pytest.raises(stats.PlaneFitError, match="only T_up varies"):
+        stats.fit_plane([0.5, 1.0, 2.0], [3, 3, 3], [8.0, 4.0, 2.0])
+    flat = stats.fit_plane([0.5, 1.0, 2.0], [2, 3, 4], [8.0, 8.0, 8.0])
     assert flat.b1 == pytest.approx(0.0, abs=1e-9) and np.isnan(flat.r2)
 
 
@@ -132,15 +133,15 @@ def test_plane_bootstrap_and_trend_statements() -> None:
         for t_up in (0.5, 1.0, 2.0):
             best = 32.0 if lanes == 2 and t_up == 0.5 else 8.0 if lanes + t_up < 5 else 0.0
             speeds[(lanes, t_up)] = {a: [20.0 + (a == best)] * 3 for a in (0.0, 8.0, 32.0)}
-    table, boots = s2.alpha_star_table(runs_from(speeds), n_boot=200)
-    fit = s2.fit_plane(table["t_up_s"], table["lanes"], table["alpha_star"])
+    table, boots = stats.alpha_star_table(runs_from(speeds), n_boot=200)
+    fit = stats.fit_plane(table["t_up_s"], table["lanes"], table["alpha_star"])
     assert fit.b1 < 0 and fit.b2 < 0
-    boot = s2.plane_bootstrap(table, boots)
+    boot = stats.plane_bootstrap(table, boots)
     assert boot["b1_negative_share"] == 1.0 and boot["b2_negative_share"] == 1.0
     assert boot["b1_p05"] == pytest.approx(fit.b1) and boot["replicates"] == 200
     text = s2.trend_statements(fit, boot)
     assert len(text) == 2 and all(s.startswith("**Holds**") for s in text)
-    opposite = s2.trend_statements(s2.PlaneFit(1.0, 2.0, 0.5, 0.3, 9), {})
+    opposite = s2.trend_statements(stats.PlaneFit(1.0, 2.0, 0.5, 0.3, 9), {})
     assert all(s.startswith("**Does not hold**") and "b" in s for s in opposite)
 
 
@@ -174,20 +175,20 @@ def test_mobil_p_star_and_side_by_side(tmp_path: Path) -> None:
         (2, 1.0): {0.0: [20.0, 22.0], 0.5: [23.0, 21.0], 1.0: [19.0, 21.0]},
         (2, 2.0): {0.0: [19.0, 20.0], 0.25: [20.0, 21.0], 1.0: [21.0, 20.0], 2.0: [np.nan, 30.0]},
     })  # fmt: skip
-    table = s2.mobil_p_star_table(mobil, ps=(0.0, 0.25, 0.5, 1.0, 2.0), seeds=(1, 2)).set_index("t_up_s")
+    table = stats.mobil_p_star_table(mobil, ps=(0.0, 0.25, 0.5, 1.0, 2.0), seeds=(1, 2)).set_index("t_up_s")
     # T_up 1 s: means 21, 22, 20 -> p* = 0.5, best on seed 1 only
     assert table.loc[1.0, "p_star"] == 0.5 and table.loc[1.0, "p_star_speed_mps"] == 22.0
     assert table.loc[1.0, "win_share"] == 0.5 and np.isnan(table.loc[1.0, "speed_mps_p0.25"])
     # T_up 2 s: p 0.25 and 1 tie at 20.5 -> the smaller p; p 2 ran on one seed only (30) and wins
     assert table.loc[2.0, "p_star"] == 2.0 and table.loc[2.0, "cells_failed"] == 1
-    no_two = s2.mobil_p_star_table(mobil[mobil["p"] != 2.0]).set_index("t_up_s")
+    no_two = stats.mobil_p_star_table(mobil[mobil["p"] != 2.0]).set_index("t_up_s")
     assert no_two.loc[2.0, "p_star"] == 0.25 and no_two.loc[2.0, "speed_mps_p1"] == 20.5
     assert no_two.loc[2.0, "win_share"] == pytest.approx(0.5)  # seed 1: p 1 wins; seed 2: p 0.25 wins
     # side by side: alpha* faster at T_up 1 s (23 > 22), slower at T_up 2 s (19 < 20.5)
     dqn = runs_from({(2, 1.0): {0.0: [22.0, 24.0], 8.0: [20.0, 20.0]}, (2, 2.0): {0.0: [19.0, 19.0]}})
     dqn["policy"], dqn["p"] = "dqn", np.nan
-    alpha_table, _ = s2.alpha_star_table(dqn, n_boot=0)
-    side = s2.side_by_side_table(alpha_table, no_two.reset_index()).set_index("t_up_s")
+    alpha_table, _ = stats.alpha_star_table(dqn, n_boot=0)
+    side = stats.side_by_side_table(alpha_table, no_two.reset_index()).set_index("t_up_s")
     assert side.loc[1.0, ["alpha_star", "p_star"]].tolist() == [0.0, 0.5]
     assert side["difference_mps"].tolist() == pytest.approx([1.0, -1.5])
     # the same through write_outputs: mobil_p_star.csv and the report's section
@@ -411,7 +412,7 @@ def test_killed_sweep_resumes_without_recomputing(local_sweep: Path, tmp_path: P
 
 def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A cell that raises is written as failed with its error; the next run retries it (no SUMO: train is faked)."""
-    import coopsumo.train as train_module
+    import coopsumo.agents.train as train_module
 
     calls: list[str] = []
 
@@ -427,8 +428,8 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
 
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)  # keep this test process's threads
     monkeypatch.setattr(train_module, "train", fake_train)
-    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address: InlineBackend())
-    monkeypatch.setattr("coopsumo.network.build_net", lambda road: None)
+    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend())
+    monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     meta = s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
     assert meta["cells_failed"] == 2 and meta["cells_ok"] == 6
     runs = pd.read_csv(tmp_path / "runs.csv")
@@ -480,9 +481,9 @@ def fake_cell(spec: dict[str, object], root: str) -> dict[str, object]:
 def test_dead_worker_is_retried_then_recorded_failed(tmp_path: Path) -> None:
     """A cell whose worker process dies is retried in a fresh pool, then recorded as failed; the others finish."""
     specs = s2.cell_specs(s2.PROFILES["tiny"])
-    backend = s2.LocalBackend(2, cell_fn=fake_cell)
+    backend = runner.LocalBackend(2, cell_fn=fake_cell)
     try:
-        counts = s2.execute(specs, tmp_path, backend, len(specs), 0, progress=False)
+        counts = runner.execute(specs, tmp_path, backend, len(specs), 0, progress=False, failed_record=s2.failed_record)
     finally:
         backend.close()
     assert counts == {"ok": 7, "failed": 1}
@@ -497,9 +498,9 @@ def test_neighbour_separation_on_hand_made_speeds() -> None:
     speeds = np.array([[10.0, 10.5, 9.5],  # alpha 0
                        [12.0, 12.5, 11.5],  # alpha* : 2 above alpha 0 on every seed
                        [11.9, 12.6, 11.4]])  # within noise of alpha*  # fmt: skip
-    assert s2.neighbour_separation(speeds, 1, 500, rng) == (True, False)
-    assert s2.neighbour_separation(speeds, 0, 500, rng) == (None, False)  # no smaller alpha; alpha 1 is faster
-    assert s2.neighbour_separation(speeds, 2, 500, rng)[1] is None
+    assert stats.neighbour_separation(speeds, 1, 500, rng) == (True, False)
+    assert stats.neighbour_separation(speeds, 0, 500, rng) == (None, False)  # no smaller alpha; alpha 1 is faster
+    assert stats.neighbour_separation(speeds, 2, 500, rng)[1] is None
 
 
 def test_noise_floor_counts_distinct_conditions() -> None:

@@ -19,7 +19,7 @@ import sumolib
 from conftest import env_with_display
 from PIL import Image
 
-from coopsumo import view
+from coopsumo.sim import view
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent

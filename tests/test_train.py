@@ -13,9 +13,9 @@ from pathlib import Path
 import pytest
 import torch
 
+from coopsumo.agents.dqn import load_model
+from coopsumo.agents.train import train
 from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig
-from coopsumo.dqn import load_model
-from coopsumo.train import train
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent

@@ -19,12 +19,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from coopsumo import physics
-from coopsumo.analysis import cross_section_flow, read_detectors
+from coopsumo.agents.policies import make_policy
+from coopsumo.agents.rollout import run
 from coopsumo.config import AccidentConfig, RewardConfig, SimConfig
-from coopsumo.policies import make_policy
-from coopsumo.simulate import run
-from coopsumo.world import HELD, World
+from coopsumo.report.analysis import cross_section_flow, read_detectors
+from coopsumo.sim import physics
+from coopsumo.sim.world import HELD, World
 
 SimConfigOf = Callable[..., SimConfig]
 

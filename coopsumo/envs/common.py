@@ -12,11 +12,11 @@ from typing import Any
 import numpy as np
 from gymnasium import spaces
 
+from coopsumo.agents.policies import Policy, make_policy
 from coopsumo.config import ControlConfig
-from coopsumo.observation import N_CELLS, N_FRAMES, N_SIDES, Observation
-from coopsumo.physics import ACTION_NAMES
-from coopsumo.policies import Policy, make_policy
-from coopsumo.world import StepOutcome, World
+from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, Observation
+from coopsumo.sim.physics import ACTION_NAMES
+from coopsumo.sim.world import StepOutcome, World
 
 GRID_SHAPE = (N_FRAMES, N_SIDES, N_CELLS)
 """(frames, lanes, cells) of one vehicle's occupancy grids (the same as coopsumo.dqn.GRID_SHAPE)"""
@@ -65,7 +65,7 @@ def step_info(out: StepOutcome, row: int) -> dict[str, Any]:
 def background_policy(spec: str, seed: int, control: ControlConfig) -> Policy:
     """A policy from its spec (coopsumo.policies.make_policy), MOBIL included; its RNG is derived from seed."""
     if spec == "mobil" or spec.startswith("mobil:"):
-        from coopsumo.mobil import MobilPolicy
+        from coopsumo.agents.mobil import MobilPolicy
 
         return MobilPolicy.from_spec(spec, control)
     return make_policy(spec, np.random.default_rng([seed, 3]))

@@ -37,8 +37,9 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from coopsumo.agents.decisions import ActionHold, follow_up
+from coopsumo.agents.policies import Policy
 from coopsumo.config import SimConfig
-from coopsumo.decisions import ActionHold, follow_up
 from coopsumo.envs.common import (
     WorldSlot,
     action_space,
@@ -48,9 +49,8 @@ from coopsumo.envs.common import (
     step_info,
     vehicle_observation,
 )
-from coopsumo.observation import Observation
-from coopsumo.policies import Policy
-from coopsumo.world import World
+from coopsumo.sim.observation import Observation
+from coopsumo.sim.world import World
 
 DEFAULT_WARMUP_STEPS = 300
 """30 s of traffic before the agent is chosen: a few dozen vehicles ahead of it on every lane"""

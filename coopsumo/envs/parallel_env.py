@@ -35,13 +35,13 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
+from coopsumo.agents.decisions import ActionHold
 from coopsumo.config import SimConfig
-from coopsumo.decisions import ActionHold
 from coopsumo.envs.common import WorldSlot, action_space, observation_space, run_seed, step_info, vehicle_observation
-from coopsumo.observation import Observation
-from coopsumo.physics import SPEEDUP
-from coopsumo.reward import RewardParts
-from coopsumo.world import StepOutcome, World
+from coopsumo.sim.observation import Observation
+from coopsumo.sim.physics import SPEEDUP
+from coopsumo.sim.reward import RewardParts
+from coopsumo.sim.world import StepOutcome, World
 
 DEFAULT_MAX_STEPS = 3000
 AGENT_PREFIX = "veh_"

@@ -11,13 +11,11 @@ from typing import Protocol
 import numpy as np
 
 from coopsumo.config import ControlConfig
-from coopsumo.observation import Observation
-from coopsumo.physics import LEFT, RIGHT, SPEEDUP
-from coopsumo.runio import UsageError
+from coopsumo.sim.driver import LC_KEYS, PolicySpecError, sumo_lc_params, sumo_models
+from coopsumo.sim.observation import Observation
+from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP
 
-
-class PolicySpecError(UsageError):
-    """A policy name or its parameters are not understood (a usage error)."""
+__all__ = ["PolicySpecError", "Policy", "KeepPolicy", "RandomPolicy", "GreedyPolicy", "SumoPolicy", "make_policy"]
 
 
 class Policy(Protocol):
@@ -96,25 +94,15 @@ class SumoPolicy:
     name = "sumo"
     needs_grids = False
     decision_interval = 1
-    LC_KEYS = ("lcCooperative", "lcSpeedGain", "lcStrategic", "lcKeepRight", "lcAssertive")
+    LC_KEYS = LC_KEYS
 
     def __init__(self, lc_params: dict[str, float] | None = None):
         self.lc_params = dict(lc_params or {})
 
     @classmethod
     def from_spec(cls, spec: str) -> SumoPolicy:
-        """Parse `sumo` or `sumo:lcCooperative=0.5,lcSpeedGain=1`."""
-        params: dict[str, float] = {}
-        body = spec[len("sumo:") :] if spec.startswith("sumo:") else ""
-        for item in filter(None, body.split(",")):
-            key, sep, value = item.partition("=")
-            if not sep or key not in cls.LC_KEYS:
-                raise PolicySpecError(f"bad sumo policy parameter {item!r}; expected KEY=VALUE, KEY in {cls.LC_KEYS}")
-            try:
-                params[key] = float(value)
-            except ValueError:
-                raise PolicySpecError(f"sumo policy parameter {key} needs a number, got {value!r}") from None
-        return cls(params)
+        """Parse `sumo` or `sumo:lcCooperative=0.5,lcSpeedGain=1` (coopsumo.sim.driver)."""
+        return cls(sumo_lc_params(spec))
 
     def act(self, obs: Observation) -> np.ndarray:
         return np.full(len(obs), SPEEDUP, dtype=np.int64)  # ignored: SUMO decides
@@ -132,14 +120,14 @@ def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | No
     if spec == "greedy":
         return GreedyPolicy()
     if spec.startswith("dqn:"):
-        from coopsumo.dqn_policy import DQNPolicy  # torch only when a DQN is asked for
+        from coopsumo.agents.dqn_policy import DQNPolicy  # torch only when a DQN is asked for
 
         return DQNPolicy.from_file(spec[len("dqn:") :])
     if spec == "mobil" or spec.startswith("mobil:"):
-        from coopsumo.mobil import MobilPolicy  # mobil imports this module
+        from coopsumo.agents.mobil import MobilPolicy
 
         return MobilPolicy.from_spec(spec, control)
-    if spec == "sumo" or spec.startswith("sumo:"):
+    if sumo_models(spec):
         return SumoPolicy.from_spec(spec)
     raise PolicySpecError(
         f"unknown policy {spec!r}; expected one of keep, random, greedy, dqn:PATH, mobil[:p=P], sumo[:lcCooperative=X]"

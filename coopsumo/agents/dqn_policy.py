@@ -8,10 +8,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
-from coopsumo.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
-from coopsumo.observation import Observation
 from coopsumo.runio import UsageError
+from coopsumo.sim.observation import Observation
 
 
 def _field(d: Any, *keys: str) -> Any:

@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from coopsumo import network
 from coopsumo.config import GuiConfig, OutputConfig, SimConfig
 from coopsumo.runio import UsageError
+from coopsumo.sim import network
 
 _open_sessions = 0
 GUI_VIEW = "View #0"  # sumo-gui's first (and only) view

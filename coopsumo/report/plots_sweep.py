@@ -16,7 +16,7 @@ import pandas as pd
 from matplotlib.patches import Rectangle
 from numpy.typing import ArrayLike
 
-from coopsumo.plots import _new_figure, _save
+from coopsumo.report.plots import new_figure, save_figure
 
 
 def alpha_label(alpha: float) -> str:
@@ -42,7 +42,7 @@ def alpha_surface_figure(
     a = np.asarray(alpha_star, float)
     if not (len(t) == len(n) == len(a)) or len(t) == 0:
         raise ValueError("alpha_surface_figure needs equally long, non-empty t_up_s, lanes and alpha_star")
-    fig = _new_figure(7.0, 5.6)
+    fig = new_figure(7.0, 5.6)
     ax = fig.add_subplot(1, 1, 1, projection="3d")
     if plane is not None:
         b0, b1, b2 = plane
@@ -66,7 +66,7 @@ def alpha_surface_figure(
         title += "\n" + note
     ax.set_title(title, fontsize=9)
     fig.tight_layout()
-    return _save(fig, out_path)
+    return save_figure(fig, out_path)
 
 
 def speed_heatmap_figure(
@@ -86,7 +86,7 @@ def speed_heatmap_figure(
     best = np.nanmax(np.where(np.isnan(values), -np.inf, values), axis=1, keepdims=True)
     rel = values - np.where(np.isfinite(best), best, np.nan)
     rows, cols = values.shape
-    fig = _new_figure(max(6.0, 2.8 + 0.62 * cols), max(2.8, 1.3 + 0.34 * rows))
+    fig = new_figure(max(6.0, 2.8 + 0.62 * cols), max(2.8, 1.3 + 0.34 * rows))
     ax = fig.subplots()
     finite = rel[np.isfinite(rel)]
     low = float(finite.min()) if finite.size and finite.min() < 0 else -1.0
@@ -110,4 +110,4 @@ def speed_heatmap_figure(
             ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, edgecolor="black", linewidth=1.6))
     ax.set_title(r"mean speed by $\alpha$ (framed: $\alpha^*$, the best mean over seeds)", fontsize=9)
     fig.tight_layout()
-    return _save(fig, out_path)
+    return save_figure(fig, out_path)

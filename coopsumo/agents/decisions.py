@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from coopsumo.physics import LEFT, RIGHT, SPEEDUP
+from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP
 
 
 def is_decision_step(step_count: int, interval_steps: int) -> bool:

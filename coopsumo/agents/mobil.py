@@ -52,11 +52,11 @@ import math
 
 import numpy as np
 
-from coopsumo import physics
 from coopsumo.config import ControlConfig
-from coopsumo.observation import Observation
-from coopsumo.physics import LEFT, RIGHT, SPEEDUP
-from coopsumo.policies import PolicySpecError
+from coopsumo.sim import physics
+from coopsumo.sim.driver import PolicySpecError
+from coopsumo.sim.observation import Observation
+from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP
 
 DEFAULT_P = 0.5
 DEFAULT_THRESHOLD_MPS2 = 0.1

@@ -14,12 +14,12 @@ from types import TracebackType
 
 import numpy as np
 
-from coopsumo import physics, view
 from coopsumo.config import DemandConfig, GuiConfig, OutputConfig, SimConfig
-from coopsumo.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
-from coopsumo.policies import SumoPolicy
-from coopsumo.reward import RewardParts, flow_term, reward_parts, section_crossings
-from coopsumo.sumo_session import StepEvents, SumoSession, VehicleTable
+from coopsumo.sim import physics, view
+from coopsumo.sim.driver import sumo_lc_params, sumo_models
+from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
+from coopsumo.sim.reward import RewardParts, flow_term, reward_parts, section_crossings
+from coopsumo.sim.sumo_session import StepEvents, SumoSession, VehicleTable
 
 UNDECIDED, HELD, RELEASED = 0, 1, 2
 ACCIDENT_ZONE_M = 100.0  # vehicles within this distance upstream of the bottleneck are drawn
@@ -131,8 +131,8 @@ class World:
         self.cfg = cfg
         self.run_dir = run_dir
         self.gui = gui
-        self.sumo_models = cfg.policy == "sumo" or cfg.policy.startswith("sumo:")
-        lc_params = SumoPolicy.from_spec(cfg.policy).lc_params if self.sumo_models else None
+        self.sumo_models = sumo_models(cfg.policy)
+        lc_params = sumo_lc_params(cfg.policy) if self.sumo_models else None
         self.session = SumoSession(cfg, run_dir, sumo_models=self.sumo_models, lc_params=lc_params,
                                    outputs=outputs, gui=gui)  # fmt: skip
         self._accident_marked: bool | None = None  # sumo-gui: whether the marker shows an active accident

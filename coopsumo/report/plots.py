@@ -23,14 +23,14 @@ SPEED_CMAP = "RdYlGn"
 DPI = 120
 
 
-def _new_figure(width_in: float, height_in: float) -> Figure:
+def new_figure(width_in: float, height_in: float) -> Figure:
     """A Figure attached to an Agg canvas (size in inches)."""
     fig = Figure(figsize=(width_in, height_in))
     FigureCanvasAgg(fig)
     return fig
 
 
-def _save(fig: Figure, out_path: str | Path) -> Path:
+def save_figure(fig: Figure, out_path: str | Path) -> Path:
     """Write fig as PNG to out_path (creating its folder) and return the path."""
     path = Path(out_path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -72,7 +72,7 @@ def time_space_figure(
         raise ValueError("time_space_figure needs at least one trajectory table")
     norm = Normalize(vmin=SPEED_VMIN_MPS, vmax=SPEED_VMAX_MPS)
     n = len(trajs)
-    fig = _new_figure(4.8 * n + 1.2, 4.8)
+    fig = new_figure(4.8 * n + 1.2, 4.8)
     axes = fig.subplots(1, n, sharex=True, sharey=True, squeeze=False)[0]
     for ax, (label, traj) in zip(axes, trajs.items(), strict=True):
         on_lane = subsample_times(traj[traj["lane"] == lane], max_points_per_panel)
@@ -93,7 +93,7 @@ def time_space_figure(
     axes[0].set_ylabel("position (m)")
     mappable = ScalarMappable(norm=norm, cmap=SPEED_CMAP)
     fig.colorbar(mappable, ax=list(axes), label="speed (m/s)", fraction=0.04, pad=0.02)
-    return _save(fig, out_path)
+    return save_figure(fig, out_path)
 
 
 def _mark_accident(ax: Axes, window_s: tuple[float, float] | None, x_bottleneck_m: float | None) -> None:
@@ -116,7 +116,7 @@ def flow_density_figure(fd: dict[str, pd.DataFrame], out_path: str | Path) -> Pa
     points = {label: table[["density_veh_km", "flow_veh_h"]].dropna() for label, table in fd.items()}
     cols = min(3, len(points))
     rows = math.ceil(len(points) / cols)
-    fig = _new_figure(3.4 * cols, 2.9 * rows)
+    fig = new_figure(3.4 * cols, 2.9 * rows)
     axes = fig.subplots(rows, cols, sharex=True, sharey=True, squeeze=False).ravel()
     x_max = max([float(p["density_veh_km"].max()) for p in points.values() if len(p)] + [1.0])
     y_max = max([float(p["flow_veh_h"].max()) for p in points.values() if len(p)] + [1.0])
@@ -136,7 +136,7 @@ def flow_density_figure(fd: dict[str, pd.DataFrame], out_path: str | Path) -> Pa
     for ax in axes[::cols]:
         ax.set_ylabel("flow (veh/h/lane)")
     fig.tight_layout()
-    return _save(fig, out_path)
+    return save_figure(fig, out_path)
 
 
 def recovery_figure(
@@ -151,7 +151,7 @@ def recovery_figure(
     waiting to enter, a Series indexed by time). The accident window is shaded. Writes a PNG, returns its path."""
     if not speeds:
         raise ValueError("recovery_figure needs at least one speed series")
-    fig = _new_figure(10.0, 6.4)
+    fig = new_figure(10.0, 6.4)
     top, bottom = fig.subplots(2, 1, sharex=True)
     for i, (label, series) in enumerate(speeds.items()):
         top.plot(series.index, series.to_numpy(), color=f"C{i % 10}", linewidth=1.2, label=label)
@@ -167,4 +167,4 @@ def recovery_figure(
     bottom.set_ylabel("vehicles waiting to enter")
     bottom.set_xlabel("time (s)")
     fig.tight_layout()
-    return _save(fig, out_path)
+    return save_figure(fig, out_path)

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from coopsumo.physics import Neighbours, Occupancy, side_lanes
+from coopsumo.sim.physics import Neighbours, Occupancy, side_lanes
 
 N_FRAMES = 3
 N_SIDES = 3

@@ -1,0 +1,560 @@
+"""`python -m coopsumo.train`: train the shared lane-changing DQN in free flow (scenario II).
+
+Every vehicle is an agent; all share one network and one replay memory. Writes into --out:
+config.json, train_log.csv (one row per logging window), model.pt, and the greedy
+evaluation's summary.json (its SUMO files in eval/). Ctrl-C or SIGTERM saves
+checkpoint.pt and exits; --resume continues it exactly (the world is rebuilt by replaying
+the recorded actions, then the learner's saved state takes over).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import os
+import signal
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from coopsumo.agents.decisions import ActionHold
+from coopsumo.agents.dqn import Learner, save_model
+from coopsumo.agents.dqn_policy import DQNPolicy
+from coopsumo.config import (
+    DQN_PRESETS,
+    MAX_LANES,
+    MIN_LANES,
+    ConfigError,
+    ControlConfig,
+    DemandConfig,
+    DQNConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+    train_config_from_dict,
+)
+from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.sim.observation import Observation
+from coopsumo.sim.world import StepOutcome, World
+from coopsumo.validation import MAX_STEPS, check_t_up, integer, number, seed, steps
+
+LOG_FIELDS = (
+    "step", "sim_time_s", "td_loss", "r_speed", "r_lane_change", "r_flow", "reward", "epsilon",
+    "mean_speed_mps", "vehicles", "lane_changes", "lane_changes_rejected", "collisions", "teleports", "wall_s",
+)  # fmt: skip
+
+
+CHECKPOINT_KEYS = ("config", "step", "learner", "action_counts", "actions", "window")
+"""what every checkpoint.pt holds"""
+
+
+class ResumeDiverged(RuntimeError):
+    """Replaying a checkpoint's recorded actions did not rebuild the same world."""
+
+
+class Interrupted(Exception):
+    """Training stopped by a signal after saving a checkpoint."""
+
+    def __init__(self, signum: int, step: int):
+        super().__init__(f"interrupted at step {step}")
+        self.signum = signum
+        self.step = step
+
+
+@dataclass
+class Window:
+    """Sums over one logging window."""
+
+    loss: list[float] = field(default_factory=list)
+    r_speed: float = 0.0
+    r_lane_change: float = 0.0
+    r_flow: float = 0.0
+    samples: int = 0
+    speed_sum: float = 0.0
+    vehicle_steps: int = 0
+    lane_changes: int = 0
+    rejected: int = 0
+
+    def add(self, out: StepOutcome, speeds: np.ndarray) -> None:
+        self.r_speed += float(out.reward.speed.sum())
+        self.r_lane_change += float(out.reward.lane_change.sum())
+        self.r_flow += float(out.reward.flow.sum())
+        self.samples += len(out.nums)
+        self.speed_sum += float(speeds.sum())
+        self.vehicle_steps += len(speeds)
+        self.lane_changes += int(out.lane_change_started.sum())
+        self.rejected += int(out.rejected.sum())
+
+
+def transitions(
+    prev: Observation,
+    actions: np.ndarray,
+    reward_sum: np.ndarray,
+    arrived: np.ndarray,
+    now: Observation,
+    exit_transition: str,
+) -> tuple[np.ndarray, ...]:
+    """(grids, speed_err, actions, rewards, next_grids, next_speed_err, dones, next_mask) of the last interval.
+
+    prev: the last decision round's observation and its `actions`; now: this round's observation.
+    reward_sum: rewards summed over the interval, indexed by vehicle number; arrived: numbers of the
+    vehicles that left the road during it. Vehicles present in both rounds give ordinary transitions;
+    vehicles that left are dropped or stored as terminal (next state = last state, masked by done).
+    """
+    _, i_prev, i_now = np.intersect1d(prev.nums, now.nums, assume_unique=True, return_indices=True)
+    reward = reward_sum[prev.nums]
+    g, e = prev.grids[i_prev], prev.speed_err[i_prev]
+    ng, ne = now.grids[i_now], now.speed_err[i_now]
+    a, r = actions[i_prev], reward[i_prev]
+    nm = now.feasible[i_now]
+    done = np.zeros(len(i_prev), np.float32)
+    gone_rows = np.isin(prev.nums, arrived)
+    if exit_transition == "terminal" and gone_rows.any():
+        gone = np.flatnonzero(gone_rows)
+        g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev.speed_err[gone]])
+        ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev.speed_err[gone]])
+        a, r = np.concatenate([a, actions[gone]]), np.concatenate([r, reward[gone]])
+        nm = np.concatenate([nm, prev.feasible[gone]])
+        done = np.concatenate([done, np.ones(len(gone), np.float32)])
+    return g, e, a, r.astype(np.float32), ng, ne, done, nm
+
+
+@dataclass
+class Pending:
+    """What the trainer carries between decision rounds (rebuilt by replay on resume)."""
+
+    prev: Observation | None = None
+    """the last decision round's observation"""
+    prev_actions: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """the actions decided then"""
+    reward_sum: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    """rewards since each vehicle's last decision, by vehicle number"""
+    arrived: list[np.ndarray] = field(default_factory=list)
+    """numbers of vehicles that left the road since the last decision round"""
+
+    def _grow(self, nums: np.ndarray) -> None:
+        if len(nums) and int(nums.max()) >= len(self.reward_sum):
+            extra = max(int(nums.max()) + 1, 2 * len(self.reward_sum)) - len(self.reward_sum)
+            self.reward_sum = np.concatenate([self.reward_sum, np.zeros(extra)])
+
+    def start_interval(self, obs: Observation, actions: np.ndarray) -> None:
+        """A decision round: remember it and zero the reward sums of the vehicles that decided."""
+        self._grow(obs.nums)
+        self.reward_sum[obs.nums] = 0.0
+        self.prev, self.prev_actions, self.arrived = obs, actions, []
+
+    def add_rewards(self, nums: np.ndarray, rewards: np.ndarray) -> None:
+        self._grow(nums)
+        self.reward_sum[nums] += rewards
+
+
+class Trainer:
+    """The training loop, its log, checkpoints and resume."""
+
+    def __init__(self, cfg: TrainConfig, out: Path, progress: bool = True,
+                 on_steps: Callable[[int], None] | None = None):  # fmt: skip
+        cfg.validate()
+        self.on_steps = on_steps
+        self.cfg = cfg
+        self.out = out
+        self.progress = progress
+        self.learner = Learner(cfg.dqn, cfg.sim.seed)
+        self.hold = ActionHold(cfg.dqn.decision_interval_steps)
+        self.pending = Pending()
+        self.step = 0
+        self.action_log: list[np.ndarray] = []
+        self.window = Window()
+        self._stop_signal: int | None = None
+
+    # -- checkpoints -----------------------------------------------------------------------
+    def checkpoint_path(self) -> Path:
+        return self.out / "checkpoint.pt"
+
+    def save_checkpoint(self) -> None:
+        counts = np.array([len(a) for a in self.action_log], np.int64)
+        flat = np.concatenate(self.action_log) if self.action_log else np.zeros(0, np.int64)
+        state = {
+            "config": to_dict(self.cfg),
+            "step": self.step,
+            "learner": self.learner.state_dict(),
+            "action_counts": torch.from_numpy(counts),
+            "actions": torch.from_numpy(flat.astype(np.int8)),
+            "window": {k: v for k, v in vars(self.window).items()},
+        }
+        tmp = self.checkpoint_path().with_suffix(".pt.tmp")
+        torch.save(state, tmp)
+        os.replace(tmp, self.checkpoint_path())
+
+    @staticmethod
+    def load_checkpoint(out: Path) -> dict[str, Any]:
+        path = out / "checkpoint.pt"
+        if not path.exists():
+            raise UsageError(f"nothing to resume: {path} does not exist")
+        try:
+            state: dict[str, Any] = torch.load(path, weights_only=True)
+        except Exception as err:  # a damaged file: report it in one line
+            raise UsageError(f"cannot read checkpoint {path}: {str(err).splitlines()[0]}") from None
+        if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
+            raise UsageError(f"{path} is not a coopsumo training checkpoint")
+        learner = state["learner"] if isinstance(state["learner"], dict) else {}
+        if "greedy_prob" in state["config"].get("dqn", {}) or "decisions" not in learner:
+            raise UsageError(f"checkpoint {path} was written by a coopsumo before learner presets and cannot be "
+                             "resumed exactly; train again without --resume")  # fmt: skip
+        return state
+
+    @staticmethod
+    def checkpoint_config(out: Path, state: dict[str, Any]) -> TrainConfig:
+        """The checkpoint's training configuration; UsageError naming what does not fit this version."""
+        try:
+            cfg = train_config_from_dict(state["config"])
+            cfg.validate()
+        except ConfigError as err:
+            raise UsageError(f"checkpoint {out / 'checkpoint.pt'}: {err}") from None
+        return cfg
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.learner.load_state_dict(state["learner"])
+        self.step = int(state["step"])
+        counts = state["action_counts"].numpy()
+        flat = state["actions"].numpy().astype(np.int64)
+        self.action_log = list(np.split(flat, np.cumsum(counts)[:-1])) if len(counts) else []
+        self.window = Window(**state["window"])
+
+    # -- the loop ----------------------------------------------------------------------------
+    def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
+        self._stop_signal = signum
+
+    def run(self) -> None:
+        """Train up to cfg.sim.steps; raises Interrupted after checkpointing on SIGINT/SIGTERM."""
+        cfg = self.cfg
+        old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self._loop(cfg)
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
+
+    def _advance(self, world: World, recorded: np.ndarray | None = None) -> StepOutcome:
+        """One environment step; on a decision round, store the last interval's transitions and decide.
+
+        recorded: the actions this step took in the run being resumed (replay: no learning, same
+        bookkeeping). Returns the step's outcome.
+        """
+        dq = self.cfg.dqn
+        learner = self.learner
+        pend = self.pending
+        decide = self.hold.is_decision_step(world.step_count)
+        obs = world.observe(grids=decide)
+        decided = None
+        if decide:
+            if recorded is None and pend.prev is not None:
+                arrived = np.concatenate(pend.arrived) if pend.arrived else np.zeros(0, np.int64)
+                batch = transitions(pend.prev, pend.prev_actions, pend.reward_sum, arrived, obs, dq.exit_transition)
+                n = len(batch[0])
+                if n:
+                    keep = learner.rng.permutation(n)[: dq.store_per_decision]
+                    grids, err, acts, rews, ngrids, nerr, dones, nmask = (x[keep] for x in batch)
+                    learner.observe(grids, err, acts, rews, ngrids, nerr, dones, nmask if dq.action_mask else None)
+            if recorded is None:
+                mask = obs.feasible if dq.action_mask else None
+                decided = learner.act(obs.grids, obs.speed_err, explore=True, mask=mask)
+            else:
+                decided = recorded
+            pend.start_interval(obs, decided)
+        actions = self.hold.actions(obs.nums, decided)
+        if recorded is not None and not np.array_equal(actions, recorded):
+            raise ResumeDiverged(f"the replay of its recorded actions diverged at step {world.step_count}")
+        out = world.apply(actions)
+        pend.add_rewards(out.nums, out.reward.total)
+        if out.arrived.any():
+            pend.arrived.append(out.nums[out.arrived])
+        if recorded is None:
+            self.action_log.append(actions.astype(np.int8))
+        return out
+
+    def _loop(self, cfg: TrainConfig) -> None:
+        log_path = self.out / "train_log.csv"
+        new_log = self.step == 0 or not log_path.exists()
+        if new_log:
+            with log_path.open("w", newline="") as f:
+                csv.writer(f).writerow(LOG_FIELDS)
+        learner = self.learner
+        start = time.perf_counter()
+        (self.out / "sumo").mkdir(parents=True, exist_ok=True)
+        with World(cfg.sim, self.out / "sumo") as world:
+            replay = self.action_log[: self.step]
+            for recorded in tqdm(replay, desc="replaying to resume", disable=not self.progress or not replay,
+                                 unit="step", mininterval=0.5, file=sys.stderr):  # fmt: skip
+                self._advance(world, recorded.astype(np.int64))
+            bar = tqdm(total=cfg.sim.steps, initial=self.step, desc="train", unit="step",
+                       disable=not self.progress, mininterval=0.5, file=sys.stderr)  # fmt: skip
+            reported = self.step  # steps already told to the bar and to on_steps
+            with log_path.open("a", newline="") as log_file:
+                log = csv.writer(log_file)
+                while self.step < cfg.sim.steps:
+                    if self._stop_signal is not None:
+                        self.save_checkpoint()
+                        bar.close()
+                        raise Interrupted(self._stop_signal, self.step)
+                    decided = self.hold.is_decision_step(world.step_count)
+                    out = self._advance(world)
+                    loss = learner.step(decided)
+                    self.step += 1
+                    w = self.window
+                    if loss is not None:
+                        w.loss.append(loss)
+                    w.add(out, world.table.speed)
+                    if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
+                        self._write_row(log, world, time.perf_counter() - start)
+                        log_file.flush()
+                        if self.on_steps is not None:
+                            self.on_steps(self.step - reported)
+                        bar.update(self.step - reported)
+                        reported = self.step
+                        bar.set_postfix(v=f"{w.speed_sum / max(w.vehicle_steps, 1):.1f}",
+                                        r=f"{(w.r_speed + w.r_lane_change + w.r_flow) / max(w.samples, 1):.3f}",
+                                        lc=f"{w.lane_changes / max(w.samples, 1) * 10:.3f}/s")  # fmt: skip
+                        self.window = Window()
+                    if cfg.checkpoint_every_steps and self.step % cfg.checkpoint_every_steps == 0:
+                        self.save_checkpoint()
+            bar.close()
+            self.world_summary = world.summary()
+
+    def _write_row(self, log: Any, world: World, wall_s: float) -> None:
+        w = self.window
+        n = max(w.samples, 1)
+        tot = world.totals
+        row = [
+            self.step, round(world.time_s, 1),
+            float(np.mean(w.loss)) if w.loss else "",
+            w.r_speed / n, w.r_lane_change / n, w.r_flow / n, (w.r_speed + w.r_lane_change + w.r_flow) / n,
+            self.learner.epsilon,
+            w.speed_sum / max(w.vehicle_steps, 1), len(world.table.nums),
+            w.lane_changes, w.rejected, tot.collisions, tot.teleports, round(wall_s, 2),
+        ]  # fmt: skip
+        log.writerow([f"{x:.6g}" if isinstance(x, float) else x for x in row])
+
+
+def model_meta(cfg: TrainConfig) -> dict[str, Any]:
+    return {"config": to_dict(cfg), "versions": versions()}
+
+
+def evaluate(
+    cfg: TrainConfig, policy: DQNPolicy, out: Path, progress: bool, on_steps: Callable[[int], None] | None = None
+) -> dict[str, Any]:
+    """Greedy evaluation on the training condition (same demand seed) in out/eval."""
+    from coopsumo.agents.rollout import run
+
+    eval_dir = out / "eval"
+    eval_dir.mkdir(exist_ok=True)
+    sim = replace(cfg.sim, steps=cfg.eval_steps, policy=f"dqn:{out / 'model.pt'}")
+    return run(sim, policy, eval_dir, progress=progress, label="evaluate", on_steps=on_steps)
+
+
+def train(
+    cfg: TrainConfig,
+    out: Path,
+    resume: bool = False,
+    progress: bool = True,
+    on_steps: Callable[[int], None] | None = None,
+) -> dict[str, Any]:
+    """Train (or resume) into `out`; returns the evaluation summary (or the training summary).
+
+    on_steps(n) is told of progress (training and evaluation steps), for a caller's progress bar.
+    """
+    trainer = Trainer(cfg, out, progress, on_steps)
+    out.mkdir(parents=True, exist_ok=True)
+    if resume:
+        try:
+            trainer.restore(Trainer.load_checkpoint(out))
+        except (RuntimeError, KeyError, ValueError, TypeError) as err:  # weights, buffer or RNG of another shape
+            text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise UsageError(f"checkpoint {trainer.checkpoint_path()} does not fit its configuration: {text}") from None
+    else:
+        write_json(out / "config.json", model_meta(cfg))
+        for stale in ("model.pt", "summary.json", "checkpoint.pt", "train_summary.json"):
+            (out / stale).unlink(missing_ok=True)
+    start = time.perf_counter()
+    try:
+        trainer.run()
+    except ResumeDiverged as err:
+        raise UsageError(f"checkpoint {trainer.checkpoint_path()} (another coopsumo or SUMO version?): {err}; "
+                         "train again without --resume") from None  # fmt: skip
+    wall = time.perf_counter() - start
+    save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
+    train_summary = dict(trainer.world_summary, wall_seconds=round(wall, 2),
+                         steps_per_second=round(cfg.sim.steps / wall, 1), updates=trainer.learner.updates)  # fmt: skip
+    write_json(out / "train_summary.json", train_summary)
+    trainer.checkpoint_path().unlink(missing_ok=True)
+    if cfg.eval_steps == 0:
+        return train_summary
+    policy = DQNPolicy(trainer.learner.online, decision_interval=cfg.dqn.decision_interval_steps,
+                       action_mask=cfg.dqn.action_mask)  # fmt: skip
+    summary = evaluate(cfg, policy, out, progress, on_steps)
+    write_json(out / "summary.json", summary)
+    return summary
+
+
+def default_out(cfg: TrainConfig) -> Path:
+    s = cfg.sim
+    return (
+        Path("results") / "train" / f"lanes{s.road.lanes}_alpha{s.reward.alpha:g}_tup{s.demand.t_up_s:g}_seed{s.seed}"
+    )
+
+
+LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
+    ("--decision-interval", "decision_interval_steps", int,
+     "steps of 0.1 s between a vehicle's decisions (paper: 1); a lane change starts on the decision step, "
+     "then the vehicle asks to speed up; rewards of the interval are summed into one transition"),
+    ("--action-mask", "action_mask", bool, "offer left/right only when the controller would accept them"),
+    ("--double-dqn", "double_dqn", bool, "double DQN target"),
+    ("--dueling", "dueling", bool, "dueling Q head (value + advantages)"),
+    ("--loss", "loss", ("mse", "huber"), "TD loss (paper: mse)"),
+    ("--lr", "lr", float, "learning rate"),
+    ("--optimizer", "optimizer", ("sgd", "adam"), "optimizer (paper: sgd)"),
+    ("--gamma", "gamma", float, "discount per decision round (paper: 0.9 per 0.1 s step)"),
+    ("--replay-size", "replay_size", int, "replay memory (transitions)"),
+    ("--batch-size", "batch_size", int, "minibatch (transitions)"),
+    ("--learn-every", "learn_every", int, "decision rounds between learning phases"),
+    ("--updates-per-decision", "updates_per_learn", int, "gradient updates per learning phase"),
+    ("--store-per-decision", "store_per_decision", int, "transitions stored per decision round (random subset)"),
+    ("--target-sync", "target_sync_steps", int, "steps of 0.1 s between target-network syncs"),
+    ("--epsilon-start", "epsilon_start", float, "exploration probability at the start"),
+    ("--epsilon-end", "epsilon_end", float, "exploration probability after the decay"),
+    ("--epsilon-decay-steps", "epsilon_decay_steps", int, "steps of the linear epsilon decay (0: constant)"),
+)  # fmt: skip
+"""(flag, DQNConfig field, type or choices, help); every flag defaults to the chosen preset's value"""
+
+
+def add_learner_flags(p: Parser) -> None:
+    """--preset and one flag per learner setting (unset flags keep the preset's value)."""
+    p.add_argument("--preset", choices=tuple(DQN_PRESETS), default="default",
+                   help="learner preset: 'default' (the project's measured design) or 'paper' (literal)")  # fmt: skip
+    for flag, name, kind, text in LEARNER_FLAGS:
+        default = getattr(DQNConfig(), name)
+        help_text = f"{text} (default preset: {default})"
+        if kind is bool:
+            p.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction, default=None, help=help_text)
+        elif isinstance(kind, tuple):
+            p.add_argument(flag, dest=name, choices=kind, default=None, help=help_text)
+        else:
+            p.add_argument(flag, dest=name, type=kind, default=None, help=help_text)
+
+
+def learner_from_args(args: Any) -> DQNConfig:
+    """The preset with every given learner flag applied; a bad value is a usage error naming the flag."""
+    cfg = DQN_PRESETS[args.preset]
+    for flag, name, _, _ in LEARNER_FLAGS:
+        value = getattr(args, name)
+        if value is None:
+            continue
+        cfg = replace(cfg, **{name: value})
+        try:
+            cfg.validate()  # the fields set before were valid: an error here is this flag's
+        except ConfigError as err:
+            raise UsageError(f"{flag}: {err}") from None
+    cfg.validate()
+    return cfg
+
+
+def build_parser() -> Parser:
+    p = Parser(prog="python -m coopsumo.train", description="Train the cooperative lane-changing DQN.")
+    p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
+    p.add_argument("--alpha", type=number(0), default=0.0, help="lane-change penalty of eq. (7), per accepted change")
+    p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
+    p.add_argument("--steps", type=steps, default=90_000, help="training steps of 0.1 s")
+    p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the learner and SUMO (0 to 2^31 - 1)")
+    p.add_argument("--out", type=Path, default=None, help="run folder (default results/train/...)")
+    p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
+    p.add_argument("--eval-steps", type=integer(0, MAX_STEPS), default=TrainConfig.eval_steps,
+                   help="greedy evaluation steps (0: none)")  # fmt: skip
+    add_learner_flags(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def config_from_args(args: Any) -> TrainConfig:
+    if not math.isfinite(args.alpha) or args.alpha < 0:
+        raise UsageError(f"--alpha must be a finite number >= 0, got {args.alpha}")
+    check_t_up("--t-up", args.t_up, ControlConfig().dt_s)
+    sim = SimConfig(
+        road=RoadConfig(lanes=args.lanes),
+        demand=DemandConfig(t_up_s=args.t_up),
+        reward=RewardConfig(alpha=args.alpha),
+        steps=args.steps,
+        seed=args.seed,
+        policy="dqn",
+    )
+    cfg = TrainConfig(sim=sim, dqn=learner_from_args(args), eval_steps=args.eval_steps)
+    cfg.validate()
+    return cfg
+
+
+RUN_FLAGS: tuple[tuple[str, str, Callable[[TrainConfig], Any]], ...] = (
+    ("--lanes", "lanes", lambda c: c.sim.road.lanes),
+    ("--alpha", "alpha", lambda c: c.sim.reward.alpha),
+    ("--t-up", "t_up", lambda c: c.sim.demand.t_up_s),
+    ("--steps", "steps", lambda c: c.sim.steps),
+    ("--seed", "seed", lambda c: c.sim.seed),
+    ("--eval-steps", "eval_steps", lambda c: c.eval_steps),
+    ("--preset", "preset", lambda c: c.dqn.preset),
+)
+"""(flag, argparse dest, its value in a TrainConfig) of the run's own flags (learner flags: LEARNER_FLAGS)"""
+
+
+def check_resume_flags(argv: list[str] | None, cfg: TrainConfig) -> None:
+    """--resume continues the checkpoint's run: a flag given beside it must repeat the checkpoint's value."""
+    p = build_parser()
+    p.set_defaults(**{dest: None for _, dest, _ in RUN_FLAGS})  # None now means "not on the command line"
+    given = p.parse_args(argv)
+    flags = [*RUN_FLAGS, *((flag, name, lambda c, n=name: getattr(c.dqn, n)) for flag, name, _, _ in LEARNER_FLAGS)]
+    for flag, dest, stored in flags:
+        value = getattr(given, dest)
+        if value is not None and value != stored(cfg):
+            raise UsageError(f"{flag} {value} differs from the checkpoint's {stored(cfg)}: --resume continues the "
+                             f"run as it was started (leave {flag} out)")  # fmt: skip
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        torch.set_num_threads(1)
+        if args.resume:
+            if args.out is None:
+                raise UsageError("--resume needs --out pointing at the interrupted run")
+            cfg = Trainer.checkpoint_config(args.out, Trainer.load_checkpoint(args.out))
+            check_resume_flags(argv, cfg)
+        else:
+            cfg = config_from_args(args)
+        out = args.out or default_out(cfg)
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
+        try:
+            summary = train(cfg, out, resume=args.resume, progress=not args.quiet)
+        except Interrupted as stop:
+            print(f"train: interrupted at step {stop.step}; checkpoint saved in {out / 'checkpoint.pt'}; "
+                  f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
+            return 128 + stop.signum
+        keys = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
+        print(f"model: {out / 'model.pt'}  " + " ".join(f"{k}={summary.get(k)}" for k in keys))
+        return 0
+
+    return run_cli("train", body)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

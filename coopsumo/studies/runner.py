@@ -1,0 +1,382 @@
+"""The one study runner: cells on a local process pool or on Ray, each record written atomically, resume, failures.
+
+A cell is a JSON-ready spec (at least "key" and "config") and a module-level function cell_fn(spec, root) -> record
+that runs it in a worker process (libsumo allows one SUMO per process) and never raises: its record says
+status "ok", "failed" (with the error) or "interrupted". `execute` runs a list of cells on a backend, writes each
+finished cell's record to ROOT/cells/<key>.json the moment it arrives, shows one progress bar with an ETA, records
+a cell whose worker died (after a solo retry) as failed and goes on, and on SIGINT/SIGTERM stops the workers (a
+training saves its checkpoint) and re-raises. A cell may name another cell ("after": key) whose record must be
+"ok" before it starts (scenario I: a model's runs wait for its training). Scenario I, scenario II and the
+ablation are each a plan (which cells) plus an analysis on top of this module.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing as mp
+import os
+import queue
+import signal
+import sys
+import time
+import traceback
+from collections import Counter, deque
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
+from concurrent.futures import wait as wait_futures
+from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from coopsumo.runio import UsageError, start_parent_watch, versions, write_json
+
+MAX_CRASHES = 2
+"""a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
+CellFn = Callable[[dict[str, Any], str], dict[str, Any]]
+"""cell_fn(spec, root) -> record, a module-level function (it is pickled to the workers)"""
+FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
+"""failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
+
+
+def run_recorded(record: dict[str, Any], body: Callable[[], None]) -> dict[str, Any]:
+    """Run body (which fills record) and add status, error, wall and CPU time (s) and versions; never raises.
+
+    status "ok", "failed" (with the error's first line and a short traceback) or "interrupted"
+    (KeyboardInterrupt, also raised for SIGTERM/SIGINT while training).
+    """
+    start, cpu_start = time.perf_counter(), time.process_time()
+    try:
+        body()
+        record["status"] = "ok"
+    except KeyboardInterrupt as err:
+        record.update(status="interrupted", error=f"{type(err).__name__}: {err}")
+    except Exception as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else ""
+        record.update(status="failed", error=f"{type(err).__name__}: {first}".rstrip(": "),
+                      traceback=traceback.format_exc(limit=8))  # fmt: skip
+    record["cell_wall_s"] = round(time.perf_counter() - start, 2)
+    record["cell_cpu_s"] = round(time.process_time() - cpu_start, 2)
+    record["versions"] = versions()
+    return record
+
+
+def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:
+    """Train the TrainConfig dict `config` into out, resuming a checkpoint there made with exactly this config.
+
+    Returns train()'s summary and the step resumed from (None: started afresh). A stop by signal
+    becomes KeyboardInterrupt.
+    """
+    import torch
+
+    from coopsumo.agents.train import Interrupted, Trainer, train
+    from coopsumo.config import train_config_from_dict
+
+    torch.set_num_threads(1)
+    cfg = train_config_from_dict(config)
+    out.mkdir(parents=True, exist_ok=True)
+    resumed_from = None
+    if (out / "checkpoint.pt").exists():
+        try:
+            state = Trainer.load_checkpoint(out)
+            if json.loads(json.dumps(state["config"])) == config:
+                resumed_from = int(state["step"])
+        except Exception:  # a damaged checkpoint: start afresh
+            resumed_from = None
+    try:
+        summary = train(cfg, out, resume=resumed_from is not None, progress=False)
+    except Interrupted as err:
+        raise KeyboardInterrupt(str(err)) from err
+    return summary, resumed_from
+
+
+def simulate_into(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
+    """Run the SimConfig dict `config` with its own policy into out; the summary without its policy field."""
+    from coopsumo.agents.policies import make_policy
+    from coopsumo.agents.rollout import run
+    from coopsumo.config import sim_config_from_dict
+
+    cfg = sim_config_from_dict(config)
+    out.mkdir(parents=True, exist_ok=True)
+    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]), cfg.control)
+    summary = run(cfg, policy, out, progress=False, label=label)
+    return {k: v for k, v in summary.items() if k != "policy"}
+
+
+def cell_path(root: Path, key: str) -> Path:
+    return root / "cells" / f"{key}.json"
+
+
+def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
+    """The stored record of this cell if it was made with exactly this configuration."""
+    try:
+        record: dict[str, Any] = json.loads(cell_path(root, spec["key"]).read_text())
+    except (OSError, ValueError):
+        return None
+    return record if record.get("config") == spec["config"] else None
+
+
+def _init_worker(parent_pid: int, pids: Any) -> None:
+    """Pool initializer: exit with the main process, and tell it this worker's pid (for abort)."""
+    start_parent_watch(parent_pid)
+    pids.put(os.getpid())
+
+
+class LocalBackend:
+    """A spawn-context process pool; one cell per worker at a time, at most `workers` in flight."""
+
+    name = "local"
+
+    def __init__(self, workers: int, cell_fn: Callable[[dict[str, Any], str], dict[str, Any]]):
+        self.slots = workers
+        self._cell_fn = cell_fn
+        self._ctx = mp.get_context("spawn")
+        self._pids: Any = self._ctx.Queue()  # every worker's pid, put there by _init_worker
+        self._worker_pids: set[int] = set()
+        self._generation = 0
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=self.slots, mp_context=self._ctx, initializer=_init_worker,
+                                   initargs=(os.getpid(), self._pids))  # fmt: skip
+
+    def _renew(self) -> None:
+        """Replace a broken pool (a worker died) by a fresh one; its other futures fail as BrokenProcessPool."""
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._generation += 1
+        self._pool = self._new_pool()
+
+    def submit(self, spec: dict[str, Any], root: Path) -> Any:
+        try:
+            future = self._pool.submit(self._cell_fn, spec, str(root))
+        except BrokenProcessPool:  # the pool broke before wait() saw the dead worker's future
+            self._renew()
+            future = self._pool.submit(self._cell_fn, spec, str(root))
+        return (self._generation, future)
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
+        """Finished handles with their record, or the exception that stopped their worker."""
+        futures: dict[Future[dict[str, Any]], Any] = {h[1]: h for h in handles}
+        done, _ = wait_futures(list(futures), timeout=timeout, return_when=FIRST_COMPLETED)
+        results: list[tuple[Any, dict[str, Any] | BaseException]] = []
+        for fut in done:
+            err = fut.exception()
+            results.append((futures[fut], err if err is not None else fut.result()))
+            if isinstance(err, BrokenProcessPool) and futures[fut][0] == self._generation:
+                self._renew()
+        return results
+
+    def abort(self) -> None:
+        """Stop the workers: SIGTERM (a training saves its checkpoint), then SIGKILL after 15 s.
+
+        The workers are found among multiprocessing.active_children() by the pids they reported on start.
+        """
+        while True:
+            try:
+                self._worker_pids.add(self._pids.get(timeout=0.1))
+            except queue.Empty:
+                break
+        procs = [p for p in mp.active_children() if p.pid in self._worker_pids]
+        for p in procs:
+            p.terminate()
+        deadline = time.monotonic() + 15.0
+        for p in procs:
+            p.join(timeout=max(0.0, deadline - time.monotonic()))
+        for p in procs:
+            if p.is_alive():
+                p.kill()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True)
+
+
+class RayBackend:
+    """Cells as Ray tasks (num_cpus=1, a fresh worker process per task) on a local instance or a cluster."""
+
+    name = "ray"
+
+    def __init__(self, workers: int, address: str | None,
+                 cell_fn: Callable[[dict[str, Any], str], dict[str, Any]]):  # fmt: skip
+        import ray
+
+        self._ray = ray
+        kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": False}
+        if address is None:
+            kwargs["num_cpus"] = workers
+        try:
+            ray.init(address=address, **kwargs)
+        except (ConnectionError, ValueError, RuntimeError) as err:
+            detail = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            where = f" at {address}" if address else ""
+            raise UsageError(f"cannot start or reach Ray{where}: {detail}") from None
+        self.slots = max(1, int(ray.cluster_resources().get("CPU", workers)))
+        self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=1)(cell_fn)
+
+    def submit(self, spec: dict[str, Any], root: Path) -> Any:
+        return self._task.remote(spec, str(root))
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
+        ready, _ = self._ray.wait(list(handles), num_returns=1, timeout=timeout)
+        results: list[tuple[Any, dict[str, Any] | BaseException]] = []
+        for ref in ready:
+            try:
+                results.append((ref, self._ray.get(ref)))
+            except Exception as err:
+                results.append((ref, err))
+        return results
+
+    def abort(self) -> None:
+        pass  # close() shuts Ray down, which stops its workers
+
+    def close(self) -> None:
+        self._ray.shutdown()
+
+
+def add_backend_flags(parser: Any) -> None:
+    """--backend local|ray and --address, the same on every study."""
+    parser.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
+    parser.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray instance)")
+
+
+def check_backend(backend: str, address: str | None) -> None:
+    """Usage errors before anything is written: --address without Ray, Ray not installed, a cluster that does
+    not answer (validation.check_ray_address: within 30 s)."""
+    from coopsumo.validation import check_ray_address
+
+    if address is not None and backend != "ray":
+        raise UsageError("--address is for --backend ray")
+    if backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise UsageError("--backend ray needs Ray: .venv/bin/pip install 'ray[default]'") from None
+        if address is not None:
+            check_ray_address("--address", address)
+
+
+def make_backend(
+    name: str, workers: int, address: str | None, cell_fn: Callable[[dict[str, Any], str], dict[str, Any]]
+) -> LocalBackend | RayBackend:
+    """The execution backend; cell_fn(spec, root) -> record runs one cell (a module-level function)."""
+    if name == "local":
+        return LocalBackend(workers, cell_fn)
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        raise UsageError("--backend ray needs Ray: .venv/bin/pip install 'ray[default]'") from None
+    return RayBackend(workers, address, cell_fn)
+
+
+def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM in the main process becomes KeyboardInterrupt, so the workers are stopped cleanly."""
+    old = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+@contextmanager
+def _signals_ignored() -> Iterator[None]:
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend | RayBackend, total: int,
+            done_before: int, progress: bool, failed_record: FailedRecord, desc: str = "cells",
+            done_keys: Sequence[str] = ()) -> dict[str, int]:  # fmt: skip
+    """Run the cells in the given order (the order is the priority); write each record the moment it arrives.
+
+    total and done_before size the progress bar (cells of the whole study, cells finished before this call);
+    done_keys: cells finished ok before this call (a cell's "after" may name one). Returns counts of ok/failed
+    cells. On KeyboardInterrupt (Ctrl-C or SIGTERM) the workers are stopped and the interrupt re-raised.
+    """
+    (root / "cells").mkdir(parents=True, exist_ok=True)
+    todo = list(specs)
+    pending = {spec["key"] for spec in specs}  # not finished yet in this call
+    ok_keys: set[str] = set(done_keys)
+    failed_keys: set[str] = set()
+    # A dead worker breaks the whole pool, so every cell in flight sees BrokenProcessPool; such cells
+    # are rerun alone ("solo"), where a crash can only be their own, before one is recorded as failed.
+    solo: deque[dict[str, Any]] = deque()
+    solo_running = False
+    inflight: dict[Any, dict[str, Any]] = {}
+    crashes: Counter[str] = Counter()
+    counts = {"ok": 0, "failed": 0}
+    bar = tqdm(total=total, initial=done_before, desc=desc, unit="cell", file=sys.stderr,
+               disable=not progress, mininterval=1.0, smoothing=0.1)  # fmt: skip
+
+    def finish(spec: dict[str, Any], record: dict[str, Any]) -> None:
+        write_json(cell_path(root, spec["key"]), record)
+        pending.discard(spec["key"])
+        (ok_keys if record["status"] == "ok" else failed_keys).add(spec["key"])
+        counts[record["status"]] += 1
+        bar.update(1)
+
+    def startable() -> list[dict[str, Any]]:
+        """Cells of todo whose dependency is done (a failed dependency fails them at once)."""
+        ready = []
+        for spec in list(todo):
+            dep = spec.get("after")
+            if dep in failed_keys:
+                todo.remove(spec)
+                finish(spec, failed_record(spec, f"needs cell {dep}, which failed"))
+            elif dep is None or dep in ok_keys or dep not in pending:
+                ready.append(spec)
+        return ready
+
+    try:
+        while todo or solo or inflight:
+            if solo and not inflight:
+                spec = solo.popleft()
+                inflight[backend.submit(spec, root)] = spec
+                solo_running = True
+            if not solo and not solo_running:
+                ready = startable()
+                if not ready and not inflight and todo:  # only cells waiting on cells that will never run
+                    for spec in todo:
+                        finish(spec, failed_record(spec, f"needs cell {spec.get('after')}, which did not run"))
+                    todo.clear()
+                for spec in ready[: max(0, backend.slots - len(inflight))]:
+                    todo.remove(spec)
+                    inflight[backend.submit(spec, root)] = spec
+            for handle, outcome in backend.wait(list(inflight), timeout=1.0):
+                spec = inflight.pop(handle)
+                was_solo, solo_running = solo_running, solo_running and bool(inflight)
+                if isinstance(outcome, BrokenProcessPool):
+                    crashes[spec["key"]] += 1
+                    if not (was_solo and crashes[spec["key"]] >= MAX_CRASHES):
+                        solo.append(spec)
+                        continue
+                    record = failed_record(spec, f"worker process died {MAX_CRASHES} times (BrokenProcessPool)")
+                elif isinstance(outcome, BaseException):
+                    record = failed_record(spec, f"{type(outcome).__name__}: {str(outcome).strip()[:300]}")
+                else:
+                    record = outcome
+                if record["status"] == "interrupted":
+                    raise KeyboardInterrupt(f"cell {spec['key']} interrupted")
+                finish(spec, record)
+                running = len(inflight) + min(len(todo), backend.slots - len(inflight))
+                bar.set_postfix(failed=counts["failed"], running=running, refresh=False)
+    except KeyboardInterrupt:
+        bar.close()
+        with _signals_ignored():
+            backend.abort()
+        raise
+    bar.close()
+    return counts

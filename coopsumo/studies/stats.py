@@ -1,0 +1,280 @@
+"""Scenario II's statistics, pure functions on tables of runs (no SUMO, no report text).
+
+alpha* per condition (best mean speed over seeds, ties to the smaller alpha), its win share over seeds, a
+bootstrap over seeds, the separation of alpha* from its grid neighbours (the noise floor), the best MOBIL
+politeness p*, and the least-squares plane alpha* = b0 + b1 T_up + b2 lanes with its bootstrap.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from numpy.typing import ArrayLike
+
+CRITERION = "mean_speed_mps"
+"""the paper's criterion: mean travelling speed over the evaluation (m/s)"""
+
+
+def speed_matrix(group: pd.DataFrame, alphas: Sequence[float], seeds: Sequence[int],
+                 metric: str = CRITERION, by: str = "alpha") -> np.ndarray:  # fmt: skip
+    """metric[alpha, seed] of one condition's successful cells; NaN where missing or failed.
+
+    `by` names the column of the rows' parameter: "alpha", or "p" for MOBIL cells (then alphas are p values).
+    """
+    ok = group[group["status"] == "ok"]
+    table = ok.pivot_table(index=by, columns="seed", values=metric, aggfunc="mean")
+    return table.reindex(index=list(alphas), columns=list(seeds)).to_numpy(float)
+
+
+def _nanmean_rows(values: np.ndarray) -> np.ndarray:
+    """Mean over the last axis ignoring NaN; NaN where a row has no value (no warning)."""
+    finite = np.isfinite(values)
+    n = finite.sum(axis=-1)
+    total = np.where(finite, values, 0.0).sum(axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, total / np.maximum(n, 1), np.nan)
+
+
+def best_index(means: np.ndarray) -> int:
+    """Index of the largest finite mean; ties go to the smallest alpha (alphas sorted ascending). -1 if none."""
+    finite = np.isfinite(means)
+    if not finite.any():
+        return -1
+    return int(np.argmax(np.where(finite, means, -np.inf)))
+
+
+def win_shares(speeds: np.ndarray) -> np.ndarray:
+    """Per alpha, the share of seeds on which it gives the best speed (ties share the win equally).
+
+    speeds[alpha, seed]; seeds with no finite value are left out.
+    """
+    wins = np.zeros(speeds.shape[0])
+    seeds = 0
+    for col in speeds.T:
+        finite = np.isfinite(col)
+        if not finite.any():
+            continue
+        best = np.max(col[finite])
+        winners = finite & (col == best)
+        wins[winners] += 1.0 / winners.sum()
+        seeds += 1
+    return wins / seeds if seeds else np.full(speeds.shape[0], np.nan)
+
+
+def bootstrap_best(speeds: np.ndarray, n_boot: int, rng: np.random.Generator) -> np.ndarray:
+    """Index of the best alpha in each of n_boot resamples of the seeds (with replacement, paired over alphas)."""
+    n_seeds = speeds.shape[1]
+    idx = rng.integers(0, n_seeds, size=(n_boot, n_seeds))
+    resampled = speeds[:, idx]  # alpha x boot x seed
+    means = _nanmean_rows(resampled)  # alpha x boot
+    finite = np.isfinite(means)
+    best = np.argmax(np.where(finite, means, -np.inf), axis=0)
+    return np.where(finite.any(axis=0), best, -1)
+
+
+def neighbour_separation(speeds: np.ndarray, best: int, n_boot: int, rng: np.random.Generator,
+                         level: float = 0.9) -> tuple[bool | None, bool | None]:  # fmt: skip
+    """Is alpha* (row `best` of speeds[alpha, seed]) distinguishable from its grid neighbours?
+
+    For the next smaller and the next larger alpha: True when the lower end of the `level` two-sided bootstrap
+    interval of the seed-paired mean difference v(alpha*) - v(neighbour) lies above 0 (seeds resampled with
+    replacement, n_boot times); False otherwise; None where alpha* has no neighbour on that side (or no pair).
+    """
+    out: list[bool | None] = []
+    for nb in (best - 1, best + 1):
+        if best < 0 or not 0 <= nb < speeds.shape[0]:
+            out.append(None)
+            continue
+        diff = speeds[best] - speeds[nb]
+        diff = diff[np.isfinite(diff)]
+        if len(diff) == 0:
+            out.append(None)
+            continue
+        means = diff[rng.integers(0, len(diff), size=(max(n_boot, 1), len(diff)))].mean(axis=1)
+        out.append(bool(np.quantile(means, (1 - level) / 2) > 0))
+    return out[0], out[1]
+
+
+def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, seeds: Sequence[int] | None = None,
+                     n_boot: int = 1000, boot_seed: int = 0, metric: str = CRITERION
+                     ) -> tuple[pd.DataFrame, dict[tuple[int, float], np.ndarray]]:  # fmt: skip
+    """alpha* per condition with its win share and bootstrap support, plus the mean speed of every alpha.
+
+    Returns the table (one row per (lanes, t_up_s)) and, per condition, the alpha* of each bootstrap
+    replicate (NaN where a replicate had no data), for the plane's bootstrap.
+    """
+    alphas = sorted(set(runs["alpha"])) if alphas is None else sorted(alphas)
+    seeds = sorted(set(runs["seed"])) if seeds is None else list(seeds)
+    rng = np.random.default_rng(boot_seed)
+    sep_rng = np.random.default_rng(boot_seed + 1)  # its own stream: the bootstrap above stays as it was
+    rows = []
+    boots: dict[tuple[int, float], np.ndarray] = {}
+    alpha_arr = np.asarray(alphas, float)
+    for (lanes, t_up), group in runs.groupby(["lanes", "t_up_s"], sort=True):
+        speeds = speed_matrix(group, alphas, seeds, metric)
+        means = _nanmean_rows(speeds)
+        n_ok = np.isfinite(speeds).sum(axis=1)
+        best = best_index(means)
+        shares = win_shares(speeds)
+        boot = bootstrap_best(speeds, n_boot, rng) if n_boot > 0 else np.zeros(0, int)
+        boot_alpha = np.where(boot >= 0, alpha_arr[np.clip(boot, 0, None)], np.nan)
+        boots[(int(lanes), float(t_up))] = boot_alpha
+        finite_means = means[np.isfinite(means)]
+        var_of_mean = np.array([np.var(r[np.isfinite(r)], ddof=1) / np.isfinite(r).sum()
+                                if np.isfinite(r).sum() > 1 else np.nan for r in speeds])  # fmt: skip
+        se = float(np.sqrt(var_of_mean[np.isfinite(var_of_mean)].mean())) if np.isfinite(var_of_mean).any() else np.nan
+        load = group["load"].iloc[0] if "load" in group else np.nan
+        below, above = neighbour_separation(speeds, best, n_boot, sep_rng)
+        sides = [x for x in (below, above) if x is not None]
+        row: dict[str, Any] = {
+            "lanes": int(lanes), "t_up_s": float(t_up), "load": load, "inflow_veh_h": round(3600.0 / float(t_up), 1),
+            "alpha_star": float(alpha_arr[best]) if best >= 0 else np.nan,
+            "alpha_star_speed_mps": float(means[best]) if best >= 0 else np.nan,
+            "win_share": float(shares[best]) if best >= 0 else np.nan,
+            "boot_support": float(np.mean(boot == best)) if best >= 0 and n_boot > 0 else np.nan,
+            "boot_alpha_p05": float(np.nanquantile(boot_alpha, 0.05)) if np.isfinite(boot_alpha).any() else np.nan,
+            "boot_alpha_p95": float(np.nanquantile(boot_alpha, 0.95)) if np.isfinite(boot_alpha).any() else np.nan,
+            "spread_mps": float(finite_means.max() - finite_means.min()) if finite_means.size else np.nan,
+            "seed_se_mps": se,
+            "separated_below": below,
+            "separated_above": above,
+            "distinct": bool(sides) and all(sides),
+            "seeds_min": int(n_ok.min()) if len(n_ok) else 0,
+            "cells_failed": int((group["status"] != "ok").sum()),
+        }  # fmt: skip
+        for a, m in zip(alphas, means, strict=True):
+            row[f"speed_mps_alpha{a:g}"] = float(m)
+        for a, s in zip(alphas, shares, strict=True):
+            row[f"win_share_alpha{a:g}"] = float(s)
+        rows.append(row)
+    empty = ["lanes", "t_up_s", "load", "inflow_veh_h", "alpha_star"]
+    return pd.DataFrame(rows, columns=None if rows else empty), boots
+
+
+def policy_rows(runs: pd.DataFrame, policy: str) -> pd.DataFrame:
+    """The rows of one policy ("dqn" or "mobil"); a table without a policy column holds DQN rows only."""
+    if "policy" not in runs:
+        return runs if policy == "dqn" else runs.iloc[0:0]
+    return runs[runs["policy"] == policy]
+
+
+def mobil_p_star_table(runs: pd.DataFrame, ps: Sequence[float] | None = None, seeds: Sequence[int] | None = None,
+                       metric: str = CRITERION) -> pd.DataFrame:  # fmt: skip
+    """p* per condition: the MOBIL politeness with the best mean speed over seeds (ties go to the smaller p),
+    its win share over seeds, and the mean speed of every p. `runs` holds MOBIL rows (column p)."""
+    ps = sorted(set(runs["p"])) if ps is None else sorted(ps)
+    seeds = sorted(set(runs["seed"])) if seeds is None else list(seeds)
+    rows = []
+    for (lanes, t_up), group in runs.groupby(["lanes", "t_up_s"], sort=True):
+        speeds = speed_matrix(group, ps, seeds, metric, by="p")
+        means = _nanmean_rows(speeds)
+        best = best_index(means)
+        shares = win_shares(speeds)
+        n_ok = np.isfinite(speeds).sum(axis=1)
+        row: dict[str, Any] = {
+            "lanes": int(lanes), "t_up_s": float(t_up), "load": group["load"].iloc[0],
+            "inflow_veh_h": round(3600.0 / float(t_up), 1),
+            "p_star": float(ps[best]) if best >= 0 else np.nan,
+            "p_star_speed_mps": float(means[best]) if best >= 0 else np.nan,
+            "win_share": float(shares[best]) if best >= 0 else np.nan,
+            "seeds_min": int(n_ok.min()) if len(n_ok) else 0,
+            "cells_failed": int((group["status"] != "ok").sum()),
+        }  # fmt: skip
+        for p, m in zip(ps, means, strict=True):
+            row[f"speed_mps_p{p:g}"] = float(m)
+        rows.append(row)
+    empty = ["lanes", "t_up_s", "load", "inflow_veh_h", "p_star", "p_star_speed_mps", "win_share"]
+    return pd.DataFrame(rows, columns=None if rows else empty)
+
+
+def side_by_side_table(alpha_table: pd.DataFrame, p_table: pd.DataFrame) -> pd.DataFrame:
+    """Per condition alpha* and p* with their mean speeds and difference_mps = v(alpha*) - v(p*)."""
+    alpha = {(int(r["lanes"]), float(r["t_up_s"])): r for r in alpha_table.to_dict("records")}
+    mobil = {(int(r["lanes"]), float(r["t_up_s"])): r for r in p_table.to_dict("records")}
+    rows = []
+    for lanes, t_up in sorted(set(alpha) | set(mobil)):
+        a, m = alpha.get((lanes, t_up), {}), mobil.get((lanes, t_up), {})
+        v_alpha = float(a.get("alpha_star_speed_mps", np.nan))
+        v_p = float(m.get("p_star_speed_mps", np.nan))
+        rows.append({"lanes": lanes, "t_up_s": t_up, "alpha_star": float(a.get("alpha_star", np.nan)),
+                     "alpha_star_speed_mps": v_alpha, "p_star": float(m.get("p_star", np.nan)),
+                     "p_star_speed_mps": v_p, "difference_mps": v_alpha - v_p})  # fmt: skip
+    columns = ["lanes", "t_up_s", "alpha_star", "alpha_star_speed_mps", "p_star", "p_star_speed_mps",
+               "difference_mps"]  # fmt: skip
+    return pd.DataFrame(rows, columns=columns)
+
+
+class PlaneFitError(ValueError):
+    """The plane alpha* = b0 + b1 T_up + b2 lanes cannot be fitted to these conditions."""
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    b0: float
+    b1: float
+    """per second of T_up"""
+    b2: float
+    """per lane"""
+    r2: float
+    """coefficient of determination (NaN when alpha* is the same everywhere)"""
+    n: int
+    """conditions used"""
+
+
+def fit_plane(t_up_s: ArrayLike, lanes: ArrayLike, alpha_star: ArrayLike) -> PlaneFit:
+    """Least-squares plane alpha* = b0 + b1 T_up + b2 lanes over the conditions with a finite alpha*.
+
+    Raises PlaneFitError with fewer than 3 distinct conditions or when T_up and lanes do not span a
+    plane (e.g. a single lane count).
+    """
+    t, n, a = (np.asarray(x, float) for x in (t_up_s, lanes, alpha_star))
+    keep = np.isfinite(t) & np.isfinite(n) & np.isfinite(a)
+    t, n, a = t[keep], n[keep], a[keep]
+    distinct = len(set(zip(t.tolist(), n.tolist(), strict=True)))
+    if distinct < 3:
+        raise PlaneFitError(f"a plane needs at least 3 distinct conditions (T_up, lanes), got {distinct}")
+    design = np.column_stack([np.ones_like(t), t, n])
+    if np.linalg.matrix_rank(design) < 3:
+        varying = "T_up" if len(set(t.tolist())) > 1 else "lanes" if len(set(n.tolist())) > 1 else "nothing"
+        raise PlaneFitError(f"the conditions lie on a line (only {varying} varies): T_up and lanes need "
+                            "at least 3 conditions not on one line")  # fmt: skip
+    coef, *_ = np.linalg.lstsq(design, a, rcond=None)
+    resid = a - design @ coef
+    ss_tot = float(((a - a.mean()) ** 2).sum())
+    r2 = 1.0 - float((resid**2).sum()) / ss_tot if ss_tot > 0 else float("nan")
+    return PlaneFit(float(coef[0]), float(coef[1]), float(coef[2]), r2, int(len(a)))
+
+
+def plane_bootstrap(table: pd.DataFrame, boots: dict[tuple[int, float], np.ndarray]) -> dict[str, float]:
+    """Refit the plane on each bootstrap replicate of alpha* (seeds resampled per condition).
+
+    Returns the share of replicates with b1 < 0 and with b2 < 0 and 90% intervals of b1 and b2.
+    """
+    keys = [(int(r.lanes), float(r.t_up_s)) for r in table.itertuples()]
+    if not keys:
+        return {}
+    reps = np.vstack([boots[k] for k in keys])  # condition x replicate
+    t = np.array([k[1] for k in keys])
+    n = np.array([k[0] for k in keys], float)
+    b1, b2 = [], []
+    for col in reps.T:
+        try:
+            fit = fit_plane(t, n, col)
+        except PlaneFitError:
+            continue
+        b1.append(fit.b1)
+        b2.append(fit.b2)
+    if not b1:
+        return {}
+    a1, a2 = np.array(b1), np.array(b2)
+    return {
+        "replicates": len(a1),
+        "b1_negative_share": float(np.mean(a1 < 0)),
+        "b2_negative_share": float(np.mean(a2 < 0)),
+        "b1_p05": float(np.quantile(a1, 0.05)), "b1_p95": float(np.quantile(a1, 0.95)),
+        "b2_p05": float(np.quantile(a2, 0.05)), "b2_p95": float(np.quantile(a2, 0.95)),
+    }  # fmt: skip

@@ -1,0 +1,123 @@
+"""The package's shape: every module imports, imports inside coopsumo form no cycle, and the layers point
+one way (studies -> agents -> sim; report used by studies; envs on agents and sim; sim and report never
+import torch). No SUMO run."""
+
+from __future__ import annotations
+
+import ast
+import importlib
+import pkgutil
+from pathlib import Path
+
+import pytest
+
+import coopsumo
+
+PACKAGE_DIR = Path(coopsumo.__file__).parent
+# what each layer may import from the others (the top-level modules config, runio, validation are shared by all)
+SHARED = {"coopsumo", "coopsumo.config", "coopsumo.runio", "coopsumo.validation"}
+ALLOWED = {
+    "coopsumo.sim": {"coopsumo.sim"},
+    "coopsumo.agents": {"coopsumo.agents", "coopsumo.sim"},
+    "coopsumo.report": {"coopsumo.report"},
+    "coopsumo.studies": {"coopsumo.studies", "coopsumo.agents", "coopsumo.sim", "coopsumo.report"},
+    "coopsumo.envs": {"coopsumo.envs", "coopsumo.agents", "coopsumo.sim"},  # Gymnasium / PettingZoo interfaces
+}
+
+
+def module_files() -> dict[str, Path]:
+    """Every module of the package by its dotted name (packages by their own name)."""
+    out = {}
+    for path in PACKAGE_DIR.rglob("*.py"):
+        parts = ("coopsumo", *path.relative_to(PACKAGE_DIR).with_suffix("").parts)
+        name = ".".join(parts).removesuffix(".__init__")
+        out[name] = path
+    return out
+
+
+def import_graph(files: dict[str, Path]) -> dict[str, set[str]]:
+    """Static graph of every import of a coopsumo module, at module level or inside functions alike."""
+    graph: dict[str, set[str]] = {}
+    for name, path in files.items():
+        deps = set()
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").startswith("coopsumo"):
+                assert node.module is not None
+                for alias in node.names:  # `from coopsumo.sim import world` imports the module coopsumo.sim.world
+                    full = f"{node.module}.{alias.name}"
+                    deps.add(full if full in files else node.module)
+            elif isinstance(node, ast.Import):
+                deps |= {alias.name for alias in node.names if alias.name.startswith("coopsumo")}
+        graph[name] = {d for d in deps if d != name}
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import cycle as a list of modules (first == last), or None. Depth-first search with colours."""
+    state: dict[str, int] = {}  # 1: on the current path, 2: finished
+    path: list[str] = []
+
+    def visit(node: str) -> list[str] | None:
+        state[node] = 1
+        path.append(node)
+        for dep in sorted(graph.get(node, ())):
+            if state.get(dep) == 1:
+                return [*path[path.index(dep) :], dep]
+            if dep not in state and (cycle := visit(dep)) is not None:
+                return cycle
+        path.pop()
+        state[node] = 2
+        return None
+
+    for node in sorted(graph):
+        if node not in state and (cycle := visit(node)) is not None:
+            return cycle
+    return None
+
+
+def layer(name: str) -> str | None:
+    """The subpackage a module belongs to (coopsumo.sim, ...), None for the top-level and entry modules."""
+    parts = name.split(".")
+    return ".".join(parts[:2]) if len(parts) >= 3 or name in ALLOWED else None
+
+
+def test_find_cycle_sees_a_cycle_and_its_absence() -> None:
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b", "c"}, "b": {"c"}, "c": set()}) is None
+
+
+@pytest.mark.parametrize("name", sorted(n for n in module_files() if n != "coopsumo.__main__"))
+def test_every_module_imports(name: str) -> None:
+    importlib.import_module(name)
+
+
+def test_walk_packages_finds_the_same_modules() -> None:
+    walked = {m.name for m in pkgutil.walk_packages(coopsumo.__path__, "coopsumo.")} | {"coopsumo"}
+    assert walked == set(module_files())
+
+
+def test_no_import_cycle_inside_coopsumo() -> None:
+    cycle = find_cycle(import_graph(module_files()))
+    assert cycle is None, "import cycle: " + " -> ".join(cycle or [])
+
+
+def test_layers_import_one_way() -> None:
+    wrong = []
+    for name, deps in import_graph(module_files()).items():
+        own = layer(name)
+        if own is None:
+            continue
+        for dep in deps:
+            dep_layer = layer(dep)
+            if dep not in SHARED and (dep_layer is None or dep_layer not in ALLOWED[own]):
+                wrong.append(f"{name} imports {dep}")
+    assert not wrong, "; ".join(sorted(wrong))
+
+
+def test_sim_and_report_never_import_torch() -> None:
+    for name, path in module_files().items():
+        if layer(name) in ("coopsumo.sim", "coopsumo.report"):
+            tree = ast.parse(path.read_text())
+            names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
+            names |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+            assert not any(n == "torch" or n.startswith("torch.") for n in names), name

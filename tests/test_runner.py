@@ -1,0 +1,123 @@
+"""The shared study runner (coopsumo.studies.runner) with cells that need no SUMO: records written per cell,
+failures recorded while the rest finish, dependencies between cells, local against Ray; and scenario I on Ray."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pytest
+from conftest import env_with_display
+
+from coopsumo.studies import runner
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def cell_record(spec: dict[str, Any], status: str, **extra: Any) -> dict[str, Any]:
+    return {"key": spec["key"], "config": spec["config"], "status": status, **extra}
+
+
+def failed(spec: dict[str, Any], error: str) -> dict[str, Any]:
+    return cell_record(spec, "failed", error=error)
+
+
+def square_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
+    """A cell without SUMO (run in a worker process): squares its number, fails on x = 3, writes a marker file."""
+    (Path(root) / f"ran_{spec['key']}").write_text(str(os.getpid()))
+    x = spec["config"]["x"]
+    if x == 3:
+        return runner.run_recorded(cell_record(spec, "?"), lambda: (_ for _ in ()).throw(ValueError("three")))
+    return runner.run_recorded(cell_record(spec, "?", value=x * x), lambda: None)
+
+
+def specs_of(xs: list[int], after: dict[int, int] | None = None) -> list[dict[str, Any]]:
+    after = after or {}
+    return [{"key": f"c{x}", "config": {"x": x}, **({"after": f"c{after[x]}"} if x in after else {})} for x in xs]
+
+
+def run_local(specs: list[dict[str, Any]], root: Path, done_keys: tuple[str, ...] = ()) -> dict[str, int]:
+    backend = runner.make_backend("local", 2, None, square_cell)
+    try:
+        return runner.execute(specs, root, backend, len(specs), 0, progress=False, failed_record=failed,
+                              done_keys=done_keys)  # fmt: skip
+    finally:
+        backend.close()
+
+
+def records(root: Path) -> dict[str, dict[str, Any]]:
+    return {p.stem: json.loads(p.read_text()) for p in sorted((root / "cells").glob("*.json"))}
+
+
+def test_a_failing_cell_is_recorded_and_the_rest_finish(tmp_path: Path) -> None:
+    counts = run_local(specs_of([1, 2, 3, 4]), tmp_path)
+    assert counts == {"ok": 3, "failed": 1}
+    got = records(tmp_path)
+    assert [got[f"c{x}"]["value"] for x in (1, 2, 4)] == [1, 4, 16]
+    assert got["c3"]["status"] == "failed" and got["c3"]["error"] == "ValueError: three"
+    assert all(r["cell_wall_s"] is not None and r["versions"] for r in got.values())
+    assert runner.read_record(tmp_path, specs_of([2])[0])["value"] == 4  # type: ignore[index]
+    assert runner.read_record(tmp_path, {"key": "c2", "config": {"x": 5}}) is None  # another configuration
+
+
+def test_a_cell_waits_for_its_dependency_and_fails_with_it(tmp_path: Path) -> None:
+    counts = run_local(specs_of([1, 2, 3, 4], after={2: 1, 4: 3}), tmp_path)
+    assert counts == {"ok": 2, "failed": 2}
+    got = records(tmp_path)
+    assert got["c2"]["status"] == "ok" and got["c2"]["value"] == 4
+    assert got["c4"]["status"] == "failed" and got["c4"]["error"] == "needs cell c3, which failed"
+    assert not (tmp_path / "ran_c4").exists()  # never started
+    # a dependency finished before (done_keys) or not part of this call does not hold a cell back
+    counts = run_local(specs_of([5], after={5: 1}), tmp_path / "again", done_keys=("c1",))
+    assert counts == {"ok": 1, "failed": 0}
+
+
+def test_a_rerun_skips_finished_cells(tmp_path: Path) -> None:
+    """As the studies do: cells whose record is ok are not given to execute again."""
+    specs = specs_of([1, 2, 3])
+    run_local(specs, tmp_path)
+    for marker in tmp_path.glob("ran_*"):
+        marker.unlink()
+    todo = [s for s in specs if (runner.read_record(tmp_path, s) or {}).get("status") != "ok"]
+    assert [s["key"] for s in todo] == ["c3"]
+    run_local(todo, tmp_path)
+    assert sorted(p.name for p in tmp_path.glob("ran_*")) == ["ran_c3"]
+
+
+def test_local_and_ray_give_the_same_records(tmp_path: Path) -> None:
+    cloudpickle = pytest.importorskip("ray.cloudpickle")
+    cloudpickle.register_pickle_by_value(sys.modules[__name__])  # Ray's workers cannot import this test module
+    specs = specs_of([1, 2, 3, 4], after={4: 2})
+    run_local(specs, tmp_path / "local")
+    backend = runner.make_backend("ray", 2, None, square_cell)
+    try:
+        counts = runner.execute(specs, tmp_path / "ray", backend, len(specs), 0, progress=False, failed_record=failed)
+    finally:
+        backend.close()
+    assert counts == {"ok": 3, "failed": 1}
+
+    def comparable(r: dict[str, Any]) -> dict[str, Any]:
+        return {k: v for k, v in r.items() if k not in ("cell_wall_s", "cell_cpu_s", "traceback")}
+
+    local, ray = records(tmp_path / "local"), records(tmp_path / "ray")
+    assert {k: comparable(r) for k, r in local.items()} == {k: comparable(r) for k, r in ray.items()}
+
+
+@pytest.mark.sumo
+def test_scenario1_on_ray_gives_the_same_summary_as_local(tmp_path: Path) -> None:
+    pytest.importorskip("ray")
+    tables = {}
+    for backend in ("local", "ray"):
+        out = tmp_path / backend
+        cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "300", "--steps", "450",
+               "--seeds", "1", "--alphas", "0", "--backend", backend, "--out", str(out)]  # fmt: skip
+        res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False, env=env_with_display(None))
+        assert res.returncode == 0, res.stderr[-2000:]
+        assert len(list((out / "cells").glob("*.json"))) == 1 + 5  # the model and 5 policies x 1 seed
+        tables[backend] = pd.read_csv(out / "summary.csv")
+    pd.testing.assert_frame_equal(tables["local"], tables["ray"])
