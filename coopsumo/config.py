@@ -11,11 +11,23 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from coopsumo.runio import UsageError
 from coopsumo.validation import MAX_REPLAY, MAX_STEPS, SEED_MAX, int_problem, min_t_up_s, number_problem
 
 MIN_LANES = 2
 MAX_LANES = 6
+
+
+DEMAND_STREAM, ACCIDENT_STREAM, POLICY_STREAM = 1, 2, 3
+"""the independent random streams of one run's seed: the upstream demand, the accident's draws, the policy's"""
+
+
+def rng_stream(seed: int, stream: int) -> np.random.Generator:
+    """Random stream `stream` of the run seeded `seed` (numpy's SeedSequence of [seed, stream]): one seed feeds
+    the demand, the accident and the policy without one's draws shifting another's."""
+    return np.random.default_rng([seed, stream])
 
 
 class ConfigError(UsageError):

@@ -12,9 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from coopsumo.agents.policies import make_policy
+from coopsumo.agents.policies import policy_for_run
 from coopsumo.agents.rollout import run  # noqa: F401  (simulate.run: the rollout, re-exported for callers)
 from coopsumo.config import (
     MAX_LANES,
@@ -37,7 +35,7 @@ from coopsumo.runio import (
     start_run_dir,
 )
 from coopsumo.sim import sumo_session
-from coopsumo.validation import check_accident, check_int, check_t_up, integer, number, seed, steps
+from coopsumo.validation import check_accident, check_int, check_t_up, integer, number, out_dir, seed, steps
 
 SCENARIOS = ("free", "accident")
 
@@ -50,7 +48,7 @@ def build_parser() -> Parser:
     p.add_argument("--policy", default="keep", help="keep, random, greedy, dqn:PATH/model.pt")
     p.add_argument("--steps", type=steps, default=9000, help="steps of 0.1 s")
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the policy and SUMO (0 to 2^31 - 1)")
-    p.add_argument("--out", type=Path, required=True, help="run folder to write")
+    p.add_argument("--out", type=out_dir, required=True, help="run folder to write")
     p.add_argument("--trajectories", action="store_true", help="also write every vehicle's trajectory")
     p.add_argument("--accident-start", type=integer(0), default=AccidentConfig.start_step, help="first accident step")
     p.add_argument("--accident-steps", type=integer(1), default=AccidentConfig.duration_steps, help="length (steps)")
@@ -145,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
         outputs = outputs_from_args(args, cfg)
         gui = gui_from_args(args, cfg)
         try:
-            policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
+            policy = policy_for_run(cfg)
         except UsageError as err:
             flag = "--policy" if cfg.policy.startswith("dqn:") else f"--policy {cfg.policy}"  # a model's error names it
             raise UsageError(f"{flag}: {err}") from None

@@ -18,6 +18,7 @@ import socket
 import subprocess
 import sys
 from collections.abc import Callable
+from pathlib import Path
 
 from coopsumo.runio import UsageError
 
@@ -103,6 +104,16 @@ steps = integer(1, MAX_STEPS)
 """`type=` of a step-count flag"""
 seed_count = integer(1, MAX_SEEDS)
 """`type=` of a --seeds (how many) flag"""
+
+
+def out_dir(text: str) -> Path:
+    """A `type=` for --out: a folder path SUMO can write into. SUMO reads an output file name holding ':' as
+    host:port, so such a path (given, or the current folder's) is refused here instead of failing inside SUMO."""
+    path = Path(text)
+    if not text or ":" in str(path.absolute()):
+        raise argparse.ArgumentTypeError(f"must be a folder path without ':' (SUMO reads an output file name with ':' "
+                                         f"as host:port), got {str(path.absolute())!r}")  # fmt: skip
+    return path
 
 
 def workers(text: str) -> int:

@@ -399,3 +399,17 @@ def test_checkpoints_of_other_versions_and_runs_are_refused_or_resumed(
     del state["config"]["dqn"]["dueling"]
     torch.save(state, default / "checkpoint.pt")
     _one_line(*_resume(default, capsys), "does not fit its configuration")
+
+
+@pytest.mark.parametrize("command", ["simulate", "train", "scenario1", "scenario2", "ablation"])
+def test_an_output_folder_with_a_colon_is_refused(command: str, tmp_path: Path,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Regression: SUMO reads an output file name holding ':' as host:port and failed with a libsumo traceback."""
+    main = importlib.import_module(f"coopsumo.{command}").main
+    out = tmp_path / "run:1"
+    with pytest.raises(SystemExit) as stop:  # argparse
+        main(["--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and len(err) == 1
+    assert "--out" in err[0] and "':'" in err[0] and "run:1" in err[0]
+    assert list(tmp_path.iterdir()) == []

@@ -24,7 +24,8 @@ from coopsumo.agents.rollout import run
 from coopsumo.config import AccidentConfig, RewardConfig, SimConfig
 from coopsumo.report.analysis import cross_section_flow, read_detectors
 from coopsumo.sim import physics
-from coopsumo.sim.world import HELD, World
+from coopsumo.sim.accident import HELD
+from coopsumo.sim.world import World
 
 SimConfigOf = Callable[..., SimConfig]
 

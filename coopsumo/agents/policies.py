@@ -10,12 +10,13 @@ from typing import Protocol
 
 import numpy as np
 
-from coopsumo.config import ControlConfig
+from coopsumo.config import POLICY_STREAM, ControlConfig, SimConfig, rng_stream
 from coopsumo.sim.driver import LC_KEYS, PolicySpecError, sumo_lc_params, sumo_models
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP
 
-__all__ = ["PolicySpecError", "Policy", "KeepPolicy", "RandomPolicy", "GreedyPolicy", "SumoPolicy", "make_policy"]
+__all__ = ["PolicySpecError", "Policy", "KeepPolicy", "RandomPolicy", "GreedyPolicy", "SumoPolicy", "make_policy",
+           "policy_for_run"]
 
 
 class Policy(Protocol):
@@ -132,3 +133,9 @@ def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | No
     raise PolicySpecError(
         f"unknown policy {spec!r}; expected one of keep, random, greedy, dqn:PATH, mobil[:p=P], sumo[:lcCooperative=X]"
     )
+
+
+def policy_for_run(cfg: SimConfig) -> Policy:
+    """The policy of a run, built once from its configuration: cfg.policy's spec, the run's policy stream of its
+    seed (rng_stream(seed, POLICY_STREAM)) and the run's controller configuration (MOBIL's accelerations)."""
+    return make_policy(cfg.policy, rng_stream(cfg.seed, POLICY_STREAM), cfg.control)

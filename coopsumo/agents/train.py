@@ -47,7 +47,7 @@ from coopsumo.config import (
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.world import StepOutcome, World
-from coopsumo.validation import MAX_STEPS, check_t_up, integer, number, seed, steps
+from coopsumo.validation import MAX_STEPS, check_t_up, integer, number, out_dir, seed, steps
 
 LOG_FIELDS = (
     "step", "sim_time_s", "td_loss", "r_speed", "r_lane_change", "r_flow", "reward", "epsilon",
@@ -475,7 +475,7 @@ def build_parser() -> Parser:
     p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
     p.add_argument("--steps", type=steps, default=90_000, help="training steps of 0.1 s")
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the learner and SUMO (0 to 2^31 - 1)")
-    p.add_argument("--out", type=Path, default=None, help="run folder (default results/train/...)")
+    p.add_argument("--out", type=out_dir, default=None, help="run folder (default results/train/...)")
     p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
     p.add_argument("--eval-steps", type=integer(0, MAX_STEPS), default=TrainConfig.eval_steps,
                    help="greedy evaluation steps (0: none)")  # fmt: skip

@@ -13,7 +13,7 @@ import numpy as np
 from gymnasium import spaces
 
 from coopsumo.agents.policies import Policy, make_policy
-from coopsumo.config import ControlConfig
+from coopsumo.config import POLICY_STREAM, ControlConfig, rng_stream
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, Observation
 from coopsumo.sim.physics import ACTION_NAMES
 from coopsumo.sim.world import StepOutcome, World
@@ -68,7 +68,7 @@ def background_policy(spec: str, seed: int, control: ControlConfig) -> Policy:
         from coopsumo.agents.mobil import MobilPolicy
 
         return MobilPolicy.from_spec(spec, control)
-    return make_policy(spec, np.random.default_rng([seed, 3]))
+    return make_policy(spec, rng_stream(seed, POLICY_STREAM))
 
 
 def run_seed(seed: int | None, rng: np.random.Generator | None) -> int:

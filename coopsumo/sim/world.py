@@ -14,16 +14,13 @@ from types import TracebackType
 
 import numpy as np
 
-from coopsumo.config import DemandConfig, GuiConfig, OutputConfig, SimConfig
-from coopsumo.sim import physics, view
+from coopsumo.config import ACCIDENT_STREAM, DEMAND_STREAM, DemandConfig, GuiConfig, OutputConfig, SimConfig, rng_stream
+from coopsumo.sim import accident, controller, physics, view
+from coopsumo.sim.accident import HELD
 from coopsumo.sim.driver import sumo_lc_params, sumo_models
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
 from coopsumo.sim.reward import RewardParts, flow_term, reward_parts, section_crossings
 from coopsumo.sim.sumo_session import StepEvents, SumoSession, VehicleTable
-
-UNDECIDED, HELD, RELEASED = 0, 1, 2
-ACCIDENT_ZONE_M = 100.0  # vehicles within this distance upstream of the bottleneck are drawn
-STANDING_MPS = 0.1  # a held vehicle slower than this (m/s) is standing at the bottleneck
 
 
 @dataclass(frozen=True)
@@ -92,20 +89,13 @@ def draw_vehicle(rng: np.random.Generator, demand: DemandConfig, lanes: int) -> 
 
 def departures(cfg: SimConfig) -> list[tuple[float, int, float]]:
     """(time s, lane, expected speed m/s) of every vehicle scheduled during cfg's run, as World draws them."""
-    rng = np.random.default_rng([cfg.seed, 1])
+    rng = rng_stream(cfg.seed, DEMAND_STREAM)
     n = int(cfg.steps * cfg.control.dt_s / cfg.demand.t_up_s + 1e-9) + 1
     out = []
     for num in range(n):
         v, lane = draw_vehicle(rng, cfg.demand, cfg.road.lanes)
         out.append((num * cfg.demand.t_up_s, lane, v))
     return out
-
-
-def _nearest_leader(lead_gap: np.ndarray, lead_speed: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gap (m) and speed (m/s) of the nearest of the leaders in the (n, k) columns."""
-    pick = np.argmin(lead_gap, axis=1)
-    rows = np.arange(len(lead_gap))
-    return lead_gap[rows, pick], lead_speed[rows, pick]
 
 
 class World:
@@ -136,8 +126,8 @@ class World:
         self.session = SumoSession(cfg, run_dir, sumo_models=self.sumo_models, lc_params=lc_params,
                                    outputs=outputs, gui=gui)  # fmt: skip
         self._accident_marked: bool | None = None  # sumo-gui: whether the marker shows an active accident
-        self.demand_rng = np.random.default_rng([cfg.seed, 1])
-        self.accident_rng = np.random.default_rng([cfg.seed, 2])
+        self.demand_rng = rng_stream(cfg.seed, DEMAND_STREAM)
+        self.accident_rng = rng_stream(cfg.seed, ACCIDENT_STREAM)
         self.veh = _Growable()
         self.history = FrameHistory.empty()
         self.totals = Totals()
@@ -232,9 +222,8 @@ class World:
     # -- one step --------------------------------------------------------------------------
     def _other_lane(self, nums: np.ndarray, lane: np.ndarray) -> np.ndarray:
         """The second lane a vehicle touches during a lane change (-1 when not changing)."""
-        busy = self.veh.lc_left_s[nums] > 0
-        other = self.veh.lc_from[nums] + self.veh.lc_to[nums] - lane
-        return np.where(busy, other, -1)
+        v = self.veh
+        return controller.other_lane(lane, v.lc_from[nums], v.lc_to[nums], v.lc_left_s[nums])
 
     def observe(self, grids: bool | None = None) -> Observation:
         """Observation of every vehicle on the road now (call once per step, before apply).
@@ -253,7 +242,7 @@ class World:
         query = np.concatenate([physics.side_lanes(t.lane), np.where(busy, other, t.lane)[:, None]], axis=1)
         nb = physics.neighbours(occ, t.pos, t.speed, query, c.road.lanes, c.control.car_length_m)
         around = physics.Neighbours(*(getattr(nb, f.name)[:, :3] for f in dataclasses.fields(nb)))
-        self._leader = _nearest_leader(nb.lead_gap[:, 1::2], nb.lead_speed[:, 1::2])
+        self._leader = controller.nearest_leader(nb.lead_gap[:, 1::2], nb.lead_speed[:, 1::2])
         if self.observe_grids if grids is None else grids:
             grid = snapshot(occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
             frames, speed_err = self.history.push(t.nums, grid, (t.speed - v_exp).astype(np.float32))
@@ -283,12 +272,7 @@ class World:
             return self._apply_sumo(obs, actions)
 
         # lane changes: ask, check safety, resolve same-step conflicts
-        wants = (actions == physics.LEFT) | (actions == physics.RIGHT)
-        target = obs.lane + np.where(actions == physics.LEFT, 1, -1)
-        rows = np.arange(n)
-        ok = wants & obs.feasible[rows, np.where(wants, actions, physics.SPEEDUP)]
-        ok = physics.resolve_conflicts(target, obs.pos, obs.speed, ok, c)
-        rejected = wants & ~ok
+        ok, rejected, target = controller.lane_changes(actions, obs.lane, obs.pos, obs.speed, obs.feasible, c)
         movers = obs.nums[ok]
         self.veh.lc_left_s[movers] = c.t_change_s
         self.veh.lc_from[movers] = obs.lane[ok]
@@ -297,11 +281,9 @@ class World:
         # speeds: nearest leader over every lane a vehicle occupies (movers: both lanes from now on);
         # the observation's search holds unless a change started (then every vehicle's leader may change)
         if len(movers):
-            other = self._other_lane(obs.nums, obs.lane)
-            occ = physics.occupancy(obs.lane, obs.pos, other)
-            query = np.stack([obs.lane, np.where(other >= 0, other, obs.lane)], axis=1)
-            nb = physics.neighbours(occ, obs.pos, obs.speed, query, self.cfg.road.lanes, c.car_length_m)
-            gap, v_lead = _nearest_leader(nb.lead_gap, nb.lead_speed)
+            gap, v_lead = controller.leaders_in_occupied_lanes(obs.lane, self._other_lane(obs.nums, obs.lane),
+                                                               obs.pos, obs.speed, self.cfg.road.lanes,
+                                                               c.car_length_m)  # fmt: skip
         else:
             gap, v_lead = self._leader
         gap, v_lead = self._accident_obstacle(obs, gap, v_lead)
@@ -366,31 +348,13 @@ class World:
     def _accident_obstacle(
         self, obs: Observation, gap: np.ndarray, v_lead: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """Held vehicles see a standing obstacle at the bottleneck.
-
-        A vehicle is drawn once on entering the zone (held with probability p). A held vehicle is
-        redrawn every redraw_s only once it stands at the head of its queue (no vehicle between it
-        and x_m), so a vehicle reaching the bottleneck is held with probability p, not p to the
-        power of the number of redraws during its approach.
-        """
-        acc = self.cfg.accident
-        p = acc.hold_probability(self.step_count)
+        """Held vehicles see a standing obstacle at the bottleneck (coopsumo.sim.accident); updates their state."""
         hold = self.veh.hold
-        if p <= 0.0:
-            hold[obs.nums[hold[obs.nums] == HELD]] = RELEASED
-            return gap, v_lead
-        in_zone = (obs.pos >= acc.x_m - ACCIDENT_ZONE_M) & (obs.pos < acc.x_m)
-        state = hold[obs.nums]
-        obstacle_gap = acc.x_m - obs.pos
-        at_head = (obstacle_gap < gap) & (obs.speed < STANDING_MPS)
-        redraw_every = max(1, round(acc.redraw_s / self.cfg.control.dt_s))
-        redraw = (state == HELD) & at_head & (self.step_count % redraw_every == 0)
-        draw = in_zone & ((state == UNDECIDED) | redraw)
-        u = self.accident_rng.random(len(obs))
-        hold[obs.nums[draw]] = np.where(u[draw] < p, HELD, RELEASED)
-        held = hold[obs.nums] == HELD
-        closer = held & (obstacle_gap < gap)
-        return np.where(closer, obstacle_gap, gap), np.where(closer, 0.0, v_lead)
+        hold[obs.nums], gap, v_lead = accident.hold_and_obstacle(
+            hold[obs.nums], obs.pos, obs.speed, gap, v_lead, self.step_count, self.cfg.accident,
+            self.cfg.control.dt_s, self.accident_rng,
+        )  # fmt: skip
+        return gap, v_lead
 
     def _advance(self) -> StepEvents:
         """SUMO step, then bookkeeping: table, lane-change clocks, counts, new departures."""

@@ -40,7 +40,7 @@ from coopsumo.config import (
 )
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import number_list, seed_count, workers
+from coopsumo.validation import number_list, out_dir, seed_count, workers
 
 EVAL_SEED_OFFSET = 1000
 """a model trained with seed s is evaluated on seed EVAL_SEED_OFFSET + s (a demand it never saw)"""
@@ -472,7 +472,7 @@ def build_parser() -> Parser:
     p.add_argument("--seeds", type=seed_count, default=None, help="training seeds 0..N-1 (default: the profile's)")
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
-    p.add_argument("--out", type=Path, default=Path("results/learning"))
+    p.add_argument("--out", type=out_dir, default=Path("results/learning"))
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 

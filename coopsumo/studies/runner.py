@@ -31,7 +31,6 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-import numpy as np
 from tqdm import tqdm
 
 from coopsumo.runio import UsageError, start_parent_watch, versions, write_json
@@ -97,13 +96,13 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
 
 def simulate_into(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
     """Run the SimConfig dict `config` with its own policy into out; the summary without its policy field."""
-    from coopsumo.agents.policies import make_policy
+    from coopsumo.agents.policies import policy_for_run
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
 
     cfg = sim_config_from_dict(config)
     out.mkdir(parents=True, exist_ok=True)
-    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]), cfg.control)
+    policy = policy_for_run(cfg)
     summary = run(cfg, policy, out, progress=False, label=label)
     return {k: v for k, v in summary.items() if k != "policy"}
 

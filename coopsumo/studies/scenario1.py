@@ -37,7 +37,7 @@ from coopsumo.config import (
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.sim import view
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import MAX_STEPS, integer, seed_count, steps, workers
+from coopsumo.validation import MAX_STEPS, integer, out_dir, seed_count, steps, workers
 
 ALPHAS = (0.0, 2.0, 8.0)
 """alpha = 0 and 8 are the paper's; 2 is the largest alpha of the learning study's response whose model still
@@ -161,14 +161,14 @@ def _run_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
     """One accident run into its run folder, written atomically (a killed run leaves no half folder)."""
     import torch
 
-    from coopsumo.agents.policies import make_policy
+    from coopsumo.agents.policies import policy_for_run
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
     from coopsumo.runio import discard_run_dir, finish_run_dir, start_run_dir
 
     torch.set_num_threads(1)
     cfg = sim_config_from_dict(spec["config"])
-    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
+    policy = policy_for_run(cfg)
     tmp = start_run_dir(out)
     try:
         summary = run(cfg, policy, tmp, trajectories=True, progress=False, trajectory_every=spec["trajectory_every"],
@@ -185,11 +185,11 @@ def gui_run(cfg: SimConfig, shot: Path) -> dict[str, list[Any]]:
     sumo-gui's screenshot of that step to shot. Returns that step's vehicles (vid, lane, pos_m, speed_mps)."""
     import tempfile
 
-    from coopsumo.agents.policies import make_policy
+    from coopsumo.agents.policies import policy_for_run
     from coopsumo.agents.rollout import run
     from coopsumo.config import GuiConfig
 
-    policy = make_policy(cfg.policy, np.random.default_rng([cfg.seed, 3]))
+    policy = policy_for_run(cfg)
     gui = GuiConfig(screenshot=str(shot.resolve()), screenshot_step=cfg.steps)
     with tempfile.TemporaryDirectory(prefix="gui-run-") as tmp:
         run(cfg, policy, Path(tmp), trajectories=True, label="sumo-gui screenshot", trajectory_every=cfg.steps, gui=gui)
@@ -644,7 +644,7 @@ def main(argv: list[str] | None = None) -> int:
     p = Parser(prog="python -m coopsumo.scenario1", description="Scenario I: the accident bottleneck study.")
     p.add_argument("--quick", action="store_true", help="small step counts for a first look (a few minutes)")
     p.add_argument("--seeds", type=seed_count, default=None, help="number of evaluation seeds (default 3; quick 2)")
-    p.add_argument("--out", type=Path, default=Path("results/scenario1"), help="results folder")
+    p.add_argument("--out", type=out_dir, default=Path("results/scenario1"), help="results folder")
     p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
     add_backend_flags(p)
     p.add_argument("--train-steps", type=steps, default=None, help="override the training steps")

@@ -78,6 +78,7 @@ from coopsumo.validation import (
     integer,
     min_t_up_s,
     number_list,
+    out_dir,
     seed_count,
     steps,
     t_up_note,
@@ -708,7 +709,7 @@ def build_parser() -> Parser:
     p = Parser(prog="python -m coopsumo.scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
     p.add_argument("--profile", choices=sorted(PROFILES), default="quick",
                    help="grid and step counts: tiny (tests), quick (about 45 min on 2 cores), paper")  # fmt: skip
-    p.add_argument("--out", type=Path, default=Path("results/scenario2"), help="results folder")
+    p.add_argument("--out", type=out_dir, default=Path("results/scenario2"), help="results folder")
     add_backend_flags(p)
     p.add_argument("--workers", type=workers, default=os.cpu_count() or 1,
                    help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
