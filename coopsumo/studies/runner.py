@@ -354,6 +354,7 @@ def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend |
                 for spec in ready[: max(0, backend.slots - len(inflight))]:
                     todo.remove(spec)
                     inflight[backend.submit(spec, root)] = spec
+            bar.refresh()  # the elapsed time moves on while long cells run
             for handle, outcome in backend.wait(list(inflight), timeout=1.0):
                 spec = inflight.pop(handle)
                 was_solo, solo_running = solo_running, solo_running and bool(inflight)
