@@ -161,17 +161,17 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
 # -- one cell (in a worker process) ----------------------------------------------------------------
 def new_record(spec: dict[str, Any]) -> dict[str, Any]:
     """A cell's record before it runs: coordinates and configuration, nothing measured yet."""
-    record: dict[str, Any] = {k: spec.get(k) for k in ("key", "kind", "part", "variant", "alpha", "seed",
-                                                       "eval_seed", "policy")}  # fmt: skip
-    record.update(config=spec["config"], error=None, traceback=None, summary=None, train_summary=None)
-    return record
+    from coopsumo.studies.runner import blank_record
+
+    return blank_record(spec, ("key", "kind", "part", "variant", "alpha", "seed", "eval_seed", "policy"),
+                        train_summary=None)  # fmt: skip
 
 
 def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
     """The record of a cell whose worker died or whose task could not run."""
-    record = new_record(spec)
-    record.update(status="failed", error=error, cell_wall_s=None, cell_cpu_s=None, versions=versions())
-    return record
+    from coopsumo.studies.runner import as_failed
+
+    return as_failed(new_record(spec), error)
 
 
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:

@@ -43,6 +43,21 @@ FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
 """failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
 
 
+def blank_record(spec: dict[str, Any], fields: Sequence[str], **empty: Any) -> dict[str, Any]:
+    """A cell's record before it runs: the spec's `fields`, its configuration, then `empty` (the study's own
+    result fields) and no error or summary yet."""
+    record = {k: spec.get(k) for k in fields}
+    record.update(config=spec["config"], **empty)
+    record.update(error=None, traceback=None, summary=None)
+    return record
+
+
+def as_failed(record: dict[str, Any], error: str) -> dict[str, Any]:
+    """`record` (a blank one) as the record of a cell whose worker died or that could not run."""
+    record.update(status="failed", error=error, cell_wall_s=None, cell_cpu_s=None, versions=versions())
+    return record
+
+
 def run_recorded(record: dict[str, Any], body: Callable[[], None]) -> dict[str, Any]:
     """Run body (which fills record) and add status, error, wall and CPU time (s) and versions; never raises.
 

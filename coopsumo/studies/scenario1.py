@@ -126,16 +126,16 @@ def accident_config(plan: Plan, policy: str, seed: int) -> SimConfig:
 # -- cells run by the shared runner (coopsumo.studies.runner), one per worker process -----------------------
 def new_record(spec: dict[str, Any]) -> dict[str, Any]:
     """A cell's record before it runs: what it is and where it writes; nothing measured yet."""
-    record = {k: spec.get(k) for k in ("key", "kind", "label", "seed", "out", "after")}
-    record.update(config=spec["config"], error=None, traceback=None, summary=None)
-    return record
+    from coopsumo.studies.runner import blank_record
+
+    return blank_record(spec, ("key", "kind", "label", "seed", "out", "after"))
 
 
 def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
     """The record of a cell whose worker died or whose model could not be trained."""
-    record = new_record(spec)
-    record.update(status="failed", error=error, cell_wall_s=None, cell_cpu_s=None, versions=versions())
-    return record
+    from coopsumo.studies.runner import as_failed
+
+    return as_failed(new_record(spec), error)
 
 
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:

@@ -53,6 +53,8 @@ from coopsumo.config import (
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.runner import (
     add_backend_flags,
+    as_failed,
+    blank_record,
     cell_path,
     check_backend,
     execute,
@@ -265,9 +267,7 @@ def _run_mobil(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
 
 def new_record(spec: dict[str, Any]) -> dict[str, Any]:
     """A cell's record before it runs: coordinates, configuration and its folder; nothing measured yet."""
-    record: dict[str, Any] = {k: spec.get(k) for k in RECORD_KEYS}
-    record.update(config=spec["config"], train_dir=None, resumed_from_step=None, error=None, traceback=None,
-                  summary=None, train_summary=None)  # fmt: skip
+    record = blank_record(spec, RECORD_KEYS, train_dir=None, resumed_from_step=None, train_summary=None)
     if spec.get("policy") == "mobil":
         record["run_dir"] = f"mobil/{spec['key']}"
     else:
@@ -277,12 +277,7 @@ def new_record(spec: dict[str, Any]) -> dict[str, Any]:
 
 def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
     """The record of a cell whose worker died or whose task could not run."""
-    record = new_record(spec)
-    record.update(status="failed", error=error, cell_wall_s=None, cell_cpu_s=None, versions=versions())
-    return record
-
-
-# -- backends ---------------------------------------------------------------------------------------
+    return as_failed(new_record(spec), error)
 
 
 # -- running the sweep ----------------------------------------------------------------------------
