@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from coopsumo.runio import UsageError
-from coopsumo.validation import MAX_REPLAY, MAX_STEPS, SEED_MAX, int_problem, min_t_up_s, number_problem
+from coopsumo.validation import ALPHA_MIN, MAX_REPLAY, MAX_STEPS, SEED_MAX, int_problem, min_t_up_s, number_problem
 
 MIN_LANES = 2
 MAX_LANES = 6
@@ -293,8 +293,8 @@ class SimConfig:
             raise ConfigError(f"the accident window must start at a step >= 0 and last >= 1 step, got start "
                               f"{acc.start_step} and {acc.duration_steps} steps")  # fmt: skip
         alpha = self.reward.alpha
-        if not (alpha >= 0 and alpha < float("inf")):
-            raise ConfigError(f"alpha must be a finite number >= 0, got {alpha}")
+        if problem := number_problem(alpha, ALPHA_MIN):
+            raise ConfigError(f"alpha must be {problem}, got {alpha}")
 
 
 @dataclass(frozen=True)

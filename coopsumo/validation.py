@@ -30,6 +30,8 @@ MAX_SEEDS = 1000
 """largest number of seeds of a study"""
 MAX_REPLAY = 1_000_000
 """largest replay memory (transitions; about 0.4 GB)"""
+ALPHA_MIN = 0.0
+"""the lane-change penalty alpha of eq. (7) is a finite number >= this (the one place the rule lives)"""
 RAY_PROBE_TIMEOUT_S = 20.0
 """time a Ray cluster address gets to answer (s); with the socket check, failure comes within 30 s"""
 
@@ -104,6 +106,8 @@ steps = integer(1, MAX_STEPS)
 """`type=` of a step-count flag"""
 seed_count = integer(1, MAX_SEEDS)
 """`type=` of a --seeds (how many) flag"""
+alpha = number(ALPHA_MIN)
+"""`type=` of an --alpha flag"""
 
 
 def out_dir(text: str) -> Path:
@@ -166,6 +170,11 @@ def number_list(flag: str, text: str, low: float | None = None, high: float | No
         rng = (problem or _number_range(low, high, low_open, False)).replace("a finite number", f"finite {kind}")
         raise UsageError(f"{flag} must be a comma-separated list of {rng}{note}, got {text!r}")
     return values
+
+
+def alpha_list(flag: str, text: str) -> tuple[float, ...]:
+    """A comma-separated list of alphas (--alphas), each a finite number >= ALPHA_MIN."""
+    return number_list(flag, text, low=ALPHA_MIN)
 
 
 def min_t_up_s(dt_s: float) -> float:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import math
 import os
 import signal
 import sys
@@ -47,7 +46,7 @@ from coopsumo.config import (
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.world import StepOutcome, World
-from coopsumo.validation import MAX_STEPS, check_t_up, integer, number, out_dir, seed, steps
+from coopsumo.validation import MAX_STEPS, alpha, check_t_up, integer, number, out_dir, seed, steps
 
 LOG_FIELDS = (
     "step", "sim_time_s", "td_loss", "r_speed", "r_lane_change", "r_flow", "reward", "epsilon",
@@ -471,7 +470,7 @@ def learner_from_args(args: Any) -> DQNConfig:
 def build_parser() -> Parser:
     p = Parser(prog="python -m coopsumo.train", description="Train the cooperative lane-changing DQN.")
     p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
-    p.add_argument("--alpha", type=number(0), default=0.0, help="lane-change penalty of eq. (7), per accepted change")
+    p.add_argument("--alpha", type=alpha, default=0.0, help="lane-change penalty of eq. (7), per accepted change")
     p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
     p.add_argument("--steps", type=steps, default=90_000, help="training steps of 0.1 s")
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the learner and SUMO (0 to 2^31 - 1)")
@@ -485,8 +484,6 @@ def build_parser() -> Parser:
 
 
 def config_from_args(args: Any) -> TrainConfig:
-    if not math.isfinite(args.alpha) or args.alpha < 0:
-        raise UsageError(f"--alpha must be a finite number >= 0, got {args.alpha}")
     check_t_up("--t-up", args.t_up, ControlConfig().dt_s)
     sim = SimConfig(
         road=RoadConfig(lanes=args.lanes),

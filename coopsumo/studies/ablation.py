@@ -40,7 +40,7 @@ from coopsumo.config import (
 )
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import number_list, out_dir, seed_count, workers
+from coopsumo.validation import alpha_list, out_dir, seed_count, workers
 
 EVAL_SEED_OFFSET = 1000
 """a model trained with seed s is evaluated on seed EVAL_SEED_OFFSET + s (a demand it never saw)"""
@@ -486,7 +486,7 @@ def profile_from_args(args: Any) -> Profile:
                              f"{args.variants!r}")  # fmt: skip
         profile = replace(profile, variants=names)
     if args.alphas is not None:
-        alphas = number_list("--alphas", args.alphas, low=0)
+        alphas = alpha_list("--alphas", args.alphas)
         profile = replace(profile, alphas=alphas)
     if args.seeds is not None:
         if args.seeds <= 0:

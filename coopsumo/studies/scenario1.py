@@ -37,7 +37,7 @@ from coopsumo.config import (
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.sim import view
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import MAX_STEPS, integer, out_dir, seed_count, steps, workers
+from coopsumo.validation import MAX_STEPS, alpha_list, integer, out_dir, seed_count, steps, workers
 
 ALPHAS = (0.0, 2.0, 8.0)
 """alpha = 0 and 8 are the paper's; 2 is the largest alpha of the learning study's response whose model still
@@ -621,15 +621,8 @@ def label_for(policy: str) -> str:
 
 
 def _alpha_list(text: str) -> tuple[float, ...]:
-    """--alphas: comma-separated alphas >= 0 (UsageError otherwise); 0 is always part of the study."""
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise UsageError(f"--alphas must be comma-separated numbers, got {text!r}") from None
-    bad = [v for v in values if not (math.isfinite(v) and v >= 0)]
-    if not values or bad:
-        raise UsageError(f"--alphas must be finite numbers >= 0, got {text!r}")
-    return tuple(sorted({0.0, *values}))
+    """--alphas: comma-separated alphas (validation.alpha_list; UsageError otherwise); 0 is always part of the study."""
+    return tuple(sorted({0.0, *alpha_list("--alphas", text)}))
 
 
 def _preset_list(text: str) -> tuple[str, ...]:

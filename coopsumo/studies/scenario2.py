@@ -77,6 +77,7 @@ from coopsumo.studies.stats import (
     side_by_side_table,
 )
 from coopsumo.validation import (
+    alpha_list,
     integer,
     min_t_up_s,
     number_list,
@@ -680,7 +681,7 @@ def profile_from_args(args: Any) -> Profile:
         lanes = number_list("--lanes", args.lanes, MIN_LANES, MAX_LANES, whole=True)
         profile = replace(profile, lanes=tuple(sorted({int(x) for x in lanes})))
     if args.alphas is not None:
-        alphas = number_list("--alphas", args.alphas, low=0)
+        alphas = alpha_list("--alphas", args.alphas)
         profile = replace(profile, alphas=tuple(sorted(set(alphas))))
     if args.t_up is not None:
         dt_s = ControlConfig().dt_s
