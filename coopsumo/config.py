@@ -195,6 +195,9 @@ class DQNConfig:
     """at most this many vehicles' transitions are stored per decision round (random subset)"""
     exit_transition: str = "drop"
     """a vehicle's last transition when it leaves the road: 'drop' it, or store it as 'terminal'"""
+    restart_below_mps: float = 1.0
+    """'none' is not offered to a vehicle slower than this (m/s): a standing vehicle that keeps its speed
+    would stand for good and block its lane (0: off; paper: 'none' keeps any speed, zero included)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
@@ -218,6 +221,8 @@ class DQNConfig:
         for name in ("epsilon_start", "epsilon_end"):
             if not 0 <= getattr(self, name) <= 1:
                 raise ConfigError(f"{name} must be in [0, 1], got {getattr(self, name)}")
+        if not (math.isfinite(self.restart_below_mps) and self.restart_below_mps >= 0):
+            raise ConfigError(f"restart_below_mps must be a number >= 0, got {self.restart_below_mps}")
         if not (math.isfinite(self.grad_clip_norm) and self.grad_clip_norm > 0):
             raise ConfigError(f"grad_clip_norm must be a positive number, got {self.grad_clip_norm}")
         choices = {"loss": ("mse", "huber"), "optimizer": ("sgd", "adam"), "exit_transition": ("drop", "terminal"),
@@ -244,6 +249,7 @@ PAPER_DQN = DQNConfig(
     epsilon_start=0.1,
     epsilon_end=0.1,
     epsilon_decay_steps=0,
+    restart_below_mps=0.0,
 )
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""
@@ -397,6 +403,7 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
         d = {k: v for k, v in d.items() if k not in legacy}
         return dataclasses.replace(base, **d)
     d.setdefault("dueling", False)  # written before the dueling head existed: the plain head
+    d.setdefault("restart_below_mps", 0.0)  # written before the standing rule: 'none' offered at any speed
     return _from_fields(DQNConfig, d, "learner")
 
 

@@ -13,7 +13,7 @@ import pytest
 import torch
 from torch import nn
 
-from coopsumo.agents.decisions import ActionHold, follow_up, is_decision_step
+from coopsumo.agents.decisions import ActionHold, follow_up, is_decision_step, offered
 from coopsumo.agents.dqn import ReplayBatch, epsilon_at, epsilon_greedy, td_targets
 from coopsumo.config import DQN_PRESETS, PAPER_DQN, ConfigError, DQNConfig, SimConfig, TrainConfig
 from coopsumo.sim import physics
@@ -179,6 +179,42 @@ def test_a_vehicle_that_has_not_decided_speeds_up() -> None:
     np.testing.assert_array_equal(hold.actions(np.array([0, 5000]), None), [NONE, SPEEDUP])
 
 
+def test_none_is_withheld_below_the_restart_speed(observation_of: Layout) -> None:
+    obs = observation_of(lane=[0, 1, 2], pos=[100.0, 300.0, 500.0], speed=[0.0, 0.99, 1.0], v_exp=[25.0] * 3)
+    assert offered(obs.feasible, obs.speed, False, 0.0) is None  # the paper: every action at every speed
+    plain = offered(obs.feasible, obs.speed, False, 1.0)
+    assert plain is not None and plain.tolist() == [[True, True, True, False], [True, True, True, False],
+                                                    [True, True, True, True]]  # fmt: skip
+    masked = offered(obs.feasible, obs.speed, True, 1.0)
+    assert masked is not None
+    np.testing.assert_array_equal(masked[:, :3], obs.feasible[:, :3])  # lane changes as the controller says
+    assert masked[:, NONE].tolist() == [False, False, True] and masked[:, SPEEDUP].all()
+    np.testing.assert_array_equal(offered(obs.feasible, obs.speed, True, 0.0), obs.feasible)
+
+
+def _net_preferring(action: int, second: int) -> torch.nn.Module:
+    """A plain Q-network whose Q-values are 1 for `action`, 0.5 for `second`, 0 else, whatever it sees."""
+    from coopsumo.agents.dqn import QNetwork
+
+    net = QNetwork(30.0)
+    with torch.no_grad():
+        net.out.weight.zero_()
+        net.out.bias.zero_()
+        net.out.bias[action] = 1.0
+        net.out.bias[second] = 0.5
+    return net
+
+
+def test_a_standing_vehicle_of_a_model_that_prefers_none_speeds_up(observation_of: Layout) -> None:
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    obs = observation_of(lane=[0, 1], pos=[100.0, 300.0], speed=[0.0, 20.0], v_exp=[25.0] * 2)
+    literal = DQNPolicy(_net_preferring(NONE, SPEEDUP), action_mask=True, restart_below_mps=0.0)  # type: ignore[arg-type]
+    assert literal.act(obs).tolist() == [NONE, NONE]
+    guarded = DQNPolicy(_net_preferring(NONE, SPEEDUP), action_mask=True, restart_below_mps=1.0)  # type: ignore[arg-type]
+    assert guarded.act(obs).tolist() == [SPEEDUP, NONE]
+
+
 # --- presets and configuration ------------------------------------------------------------------
 
 
@@ -188,6 +224,7 @@ def test_paper_preset_is_literal() -> None:
     assert (p.optimizer, p.lr, p.gamma, p.replay_size) == ("sgd", 0.01, 0.9, 2000)
     assert (p.epsilon_start, p.epsilon_end, p.epsilon_decay_steps) == (0.1, 0.1, 0)
     assert (p.target_sync_steps, p.batch_size, p.learn_every, p.updates_per_learn) == (500, 64, 4, 1)
+    assert p.restart_below_mps == 0.0 and DQNConfig().restart_below_mps == 1.0  # paper: "none" keeps a zero speed
     assert DQN_PRESETS["default"] == DQNConfig() and DQNConfig().preset == "default"
 
 
@@ -213,6 +250,8 @@ def test_legacy_learner_dict_is_the_paper_setup() -> None:
     cfg = dqn_config_from_dict(old)
     assert cfg.decision_interval_steps == 1 and not cfg.action_mask
     assert cfg.epsilon_start == pytest.approx(0.1) and cfg.learn_every == 4
+    written_before_the_rule = {k: v for k, v in dataclasses.asdict(DQNConfig()).items() if k != "restart_below_mps"}
+    assert dqn_config_from_dict(written_before_the_rule).restart_below_mps == 0.0  # such models drove without it
     with pytest.raises(ConfigError, match="warp_drive"):
         dqn_config_from_dict({**dataclasses.asdict(DQNConfig()), "warp_drive": 1})
 
@@ -231,6 +270,7 @@ def test_legacy_learner_dict_is_the_paper_setup() -> None:
         (["--epsilon-decay-steps", "-5"], "epsilon-decay-steps"),
         (["--lr", "inf"], "lr"),
         (["--gamma", "-0.1"], "gamma"),
+        (["--restart-below", "-1"], "restart-below"),
         (["--preset", "fastest"], "preset"),
     ],
 )
@@ -320,6 +360,26 @@ def test_in_sumo_a_held_lane_change_starts_exactly_one_change(
     assert requests_between == 0
     assert started_at and all(s % k == 0 for s in started_at)
     assert summary["collisions"] == 0 and summary["teleports"] == 0
+
+
+def test_in_sumo_a_model_that_prefers_none_stands_for_good_only_without_the_restart_rule(tmp_path: Path) -> None:
+    """Behind the accident, vehicles of a 'none'-loving model stop; with the paper's rule they stay stopped
+    after their leader leaves (SUMO teleports them), with the default rule they move on."""
+    from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.agents.rollout import run
+    from coopsumo.config import AccidentConfig
+
+    cfg = SimConfig(accident=AccidentConfig(enabled=True, start_step=0, duration_steps=1500), steps=2500, seed=3,
+                    policy="dqn", time_to_teleport_s=30.0)  # fmt: skip
+    out = {}
+    for restart in (0.0, 1.0):
+        policy = DQNPolicy(_net_preferring(NONE, SPEEDUP), decision_interval=10, action_mask=True,  # type: ignore[arg-type]
+                           restart_below_mps=restart)  # fmt: skip
+        run_dir = tmp_path / f"restart{restart:g}"
+        run_dir.mkdir()
+        out[restart] = run(cfg, policy, run_dir, progress=False)
+    assert out[0.0]["teleports"] > 0
+    assert out[1.0]["teleports"] == 0 and out[1.0]["collisions"] == 0 and out[0.0]["collisions"] == 0
 
 
 def test_dueling_head_and_its_model_file(tmp_path: Path) -> None:

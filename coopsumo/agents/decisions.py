@@ -13,12 +13,29 @@ from __future__ import annotations
 
 import numpy as np
 
-from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP
+from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
 
 
 def is_decision_step(step_count: int, interval_steps: int) -> bool:
     """True when vehicles decide on this step (steps counted from 0)."""
     return step_count % interval_steps == 0
+
+
+def offered(
+    feasible: np.ndarray, speed_mps: np.ndarray, action_mask: bool, restart_below_mps: float
+) -> np.ndarray | None:
+    """(n, 4) bool: the actions a learned vehicle may choose; None when every action is offered.
+
+    feasible: the controller's feasible actions (physics.feasible_actions), used when action_mask;
+    'none' is withdrawn from vehicles slower than restart_below_mps (m/s; 0: never), so that a
+    standing vehicle cannot choose to stay standing (speed-up is always feasible).
+    """
+    if not action_mask and restart_below_mps <= 0:
+        return None
+    mask = feasible.copy() if action_mask else np.ones(feasible.shape, bool)
+    if restart_below_mps > 0:
+        mask[:, NONE] &= speed_mps >= restart_below_mps
+    return mask
 
 
 def follow_up(actions: np.ndarray) -> np.ndarray:

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from coopsumo.agents.decisions import offered
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
 from coopsumo.runio import UsageError
@@ -29,16 +30,25 @@ class DQNPolicy:
     pass: the network is deterministic, so the action is the same, and a jam costs far less.
 
     decision_interval: the runner asks for actions every this many steps (coopsumo.decisions);
-    action_mask: choose only among the feasible actions (obs.feasible). Both as in training.
+    action_mask: choose only among the feasible actions (obs.feasible); restart_below_mps: 'none' is not
+    chosen below this speed (m/s; 0: at any speed). All three as in training (decisions.offered).
     """
 
     needs_grids = True
 
-    def __init__(self, net: QNetwork, name: str = "dqn", decision_interval: int = 1, action_mask: bool = False):
+    def __init__(
+        self,
+        net: QNetwork,
+        name: str = "dqn",
+        decision_interval: int = 1,
+        action_mask: bool = False,
+        restart_below_mps: float = 0.0,
+    ):
         self.net = net.eval()
         self.name = name
         self.decision_interval = decision_interval
         self.action_mask = action_mask
+        self.restart_below_mps = restart_below_mps
         self.trained_on: dict[str, object] | None = None
         """what a model file says it was trained on (preset, lanes, T_up, alpha, version); None when unknown"""
         self._grids = np.zeros((0, *GRID_SHAPE), np.uint8)  # last input and action, by vehicle number
@@ -72,9 +82,11 @@ class DQNPolicy:
         except ConfigError as err:
             raise UsageError(f"model {path}: {err}") from None
         policy = cls(net, name=f"dqn:{Path(path).parent.name or path}",
-                     decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask)  # fmt: skip
+                     decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask,
+                     restart_below_mps=dqn.restart_below_mps)  # fmt: skip
         policy.trained_on = {"preset": dqn.preset, "decision_interval_steps": dqn.decision_interval_steps,
-                             "action_mask": dqn.action_mask, "lanes": _field(config, "sim", "road", "lanes"),
+                             "action_mask": dqn.action_mask, "restart_below_mps": dqn.restart_below_mps,
+                             "lanes": _field(config, "sim", "road", "lanes"),
                              "t_up_s": _field(config, "sim", "demand", "t_up_s"),
                              "alpha": _field(config, "sim", "reward", "alpha"),
                              "coopsumo": _field(meta, "versions", "coopsumo")}  # fmt: skip
@@ -96,7 +108,9 @@ class DQNPolicy:
             return np.zeros(0, dtype=np.int64)
         nums = obs.nums
         self._grow(int(nums.max()) + 1)
-        mask = obs.feasible if self.action_mask else np.ones((n, N_ACTIONS), bool)
+        mask = offered(obs.feasible, obs.speed, self.action_mask, self.restart_below_mps)
+        if mask is None:
+            mask = np.ones((n, N_ACTIONS), bool)
         same = (
             (self._action[nums] >= 0)
             & (self._grids[nums] == obs.grids).reshape(n, -1).all(axis=1)

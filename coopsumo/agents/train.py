@@ -25,8 +25,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from coopsumo.agents.decisions import ActionHold
-from coopsumo.agents.dqn import Learner, save_model
+from coopsumo.agents.decisions import ActionHold, offered
+from coopsumo.agents.dqn import N_ACTIONS, Learner, save_model
 from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.config import (
     DQN_PRESETS,
@@ -103,10 +103,13 @@ def transitions(
     arrived: np.ndarray,
     now: Observation,
     exit_transition: str,
+    prev_mask: np.ndarray,
+    now_mask: np.ndarray,
 ) -> tuple[np.ndarray, ...]:
     """(grids, speed_err, actions, rewards, next_grids, next_speed_err, dones, next_mask) of the last interval.
 
-    prev: the last decision round's observation and its `actions`; now: this round's observation.
+    prev: the last decision round's observation and its `actions`; now: this round's observation;
+    prev_mask, now_mask: the actions offered in them (decisions.offered; all True when nothing is withheld).
     reward_sum: rewards summed over the interval, indexed by vehicle number; arrived: numbers of the
     vehicles that left the road during it. Vehicles present in both rounds give ordinary transitions;
     vehicles that left are dropped or stored as terminal (next state = last state, masked by done).
@@ -116,7 +119,7 @@ def transitions(
     g, e = prev.grids[i_prev], prev.speed_err[i_prev]
     ng, ne = now.grids[i_now], now.speed_err[i_now]
     a, r = actions[i_prev], reward[i_prev]
-    nm = now.feasible[i_now]
+    nm = now_mask[i_now]
     done = np.zeros(len(i_prev), np.float32)
     gone_rows = np.isin(prev.nums, arrived)
     if exit_transition == "terminal" and gone_rows.any():
@@ -124,9 +127,14 @@ def transitions(
         g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev.speed_err[gone]])
         ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev.speed_err[gone]])
         a, r = np.concatenate([a, actions[gone]]), np.concatenate([r, reward[gone]])
-        nm = np.concatenate([nm, prev.feasible[gone]])
+        nm = np.concatenate([nm, prev_mask[gone]])
         done = np.concatenate([done, np.ones(len(gone), np.float32)])
     return g, e, a, r.astype(np.float32), ng, ne, done, nm
+
+
+def _all_if_none(mask: np.ndarray | None, obs: Observation) -> np.ndarray:
+    """mask, or every action offered to every vehicle of obs when it is None."""
+    return np.ones((len(obs), N_ACTIONS), bool) if mask is None else mask
 
 
 @dataclass
@@ -244,6 +252,11 @@ class Trainer:
             for s, h in old.items():
                 signal.signal(s, h)
 
+    def _offered(self, obs: Observation) -> np.ndarray | None:
+        """The actions offered to each vehicle of obs (decisions.offered); None: all of them."""
+        dq = self.cfg.dqn
+        return offered(obs.feasible, obs.speed, dq.action_mask, dq.restart_below_mps)
+
     def _advance(self, world: World, recorded: np.ndarray | None = None) -> StepOutcome:
         """One environment step; on a decision round, store the last interval's transitions and decide.
 
@@ -257,16 +270,18 @@ class Trainer:
         obs = world.observe(grids=decide)
         decided = None
         if decide:
+            mask = self._offered(obs)
             if recorded is None and pend.prev is not None:
                 arrived = np.concatenate(pend.arrived) if pend.arrived else np.zeros(0, np.int64)
-                batch = transitions(pend.prev, pend.prev_actions, pend.reward_sum, arrived, obs, dq.exit_transition)
+                prev_mask = self._offered(pend.prev)
+                batch = transitions(pend.prev, pend.prev_actions, pend.reward_sum, arrived, obs, dq.exit_transition,
+                                    _all_if_none(prev_mask, pend.prev), _all_if_none(mask, obs))  # fmt: skip
                 n = len(batch[0])
                 if n:
                     keep = learner.rng.permutation(n)[: dq.store_per_decision]
                     grids, err, acts, rews, ngrids, nerr, dones, nmask = (x[keep] for x in batch)
-                    learner.observe(grids, err, acts, rews, ngrids, nerr, dones, nmask if dq.action_mask else None)
+                    learner.observe(grids, err, acts, rews, ngrids, nerr, dones, None if mask is None else nmask)
             if recorded is None:
-                mask = obs.feasible if dq.action_mask else None
                 decided = learner.act(obs.grids, obs.speed_err, explore=True, mask=mask)
             else:
                 decided = recorded
@@ -399,7 +414,7 @@ def train(
     if cfg.eval_steps == 0:
         return train_summary
     policy = DQNPolicy(trainer.learner.online, decision_interval=cfg.dqn.decision_interval_steps,
-                       action_mask=cfg.dqn.action_mask)  # fmt: skip
+                       action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps)  # fmt: skip
     summary = evaluate(cfg, policy, out, progress, on_steps)
     write_json(out / "summary.json", summary)
     return summary
@@ -432,6 +447,7 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--epsilon-start", "epsilon_start", float, "exploration probability at the start"),
     ("--epsilon-end", "epsilon_end", float, "exploration probability after the decay"),
     ("--epsilon-decay-steps", "epsilon_decay_steps", int, "steps of the linear epsilon decay (0: constant)"),
+    ("--restart-below", "restart_below_mps", float, "'none' is not offered below this speed (m/s; 0: off)"),
 )  # fmt: skip
 """(flag, DQNConfig field, type or choices, help); every flag defaults to the chosen preset's value"""
 

@@ -61,7 +61,9 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
         ("adam", "+ Adam at lr 1e-3 instead of SGD at 0.01", {"optimizer": "adam", "lr": 1e-3}),
         ("replay", "+ replay 20,000 and 2 updates every decision round (not 1 every 4)",
          {"replay_size": 20_000, "learn_every": 1, "updates_per_learn": 2}),
-        ("dueling", "+ a dueling Q head (V + A - mean A): the default preset", {"dueling": True}),
+        ("dueling", "+ a dueling Q head (V + A - mean A)", {"dueling": True}),
+        ("restart", "+ 'none' withheld below 1 m/s (a standing vehicle must speed up): the default preset",
+         {"restart_below_mps": 1.0}),
     ]  # fmt: skip
     extras: list[tuple[str, str, dict[str, Any]]] = [
         ("eps_decay", "default + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
@@ -79,8 +81,8 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
     return out
 
 
-CHAIN_LENGTH = 7
-"""the first CHAIN_LENGTH variants form the chain paper -> ... -> dueling (the default); the rest branch off its end"""
+CHAIN_LENGTH = 8
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> restart (the default); the rest branch off its end"""
 VARIANTS = _variants()
 VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
 
@@ -101,7 +103,7 @@ class Profile:
 
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), VARIANT_NAMES, ALPHAS),
-    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "dueling"), (0.0, 1.0)),
+    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "restart"), (0.0, 1.0)),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval"), (0.0, 1.0)),
 }
 
