@@ -33,7 +33,7 @@ demo: $(STAMP)
 	$(BIN)/python -m coopsumo.simulate --scenario free --lanes 3 --policy greedy --steps 3000 --seed 1 --out results/demo
 
 nets: $(STAMP)
-	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"
+	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.sim.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"
 
 scenario1: $(STAMP)
 	$(BIN)/python -m coopsumo.scenario1 $(if $(QUICK),--quick) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))

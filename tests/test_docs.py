@@ -84,6 +84,14 @@ def test_make_demo_and_the_sumolib_snippet() -> None:
     assert all(float(r[1]) - float(r[0]) == pytest.approx(60.0) for r in rows)
 
 
+def test_make_nets_builds_every_lane_count() -> None:
+    res = subprocess.run(["make", "nets"], cwd=ROOT, capture_output=True, text=True, check=False)
+    assert res.returncode == 0, res.stderr[-1500:]
+    paths = [Path(line) for line in res.stdout.splitlines() if line.endswith(".net.xml")]
+    assert [p.name.split("_")[1] for p in paths] == [f"{n}lanes" for n in range(2, 7)]
+    assert all(p.exists() and "<net " in p.read_text() for p in paths)
+
+
 def test_make_bench_quick() -> None:
     res = subprocess.run(["make", "bench", "BENCH_ARGS=--quick"], cwd=ROOT, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr[-1500:]
