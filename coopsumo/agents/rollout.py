@@ -68,10 +68,12 @@ def run(
                 )
         bar.close()
         summary: dict[str, Any] = world.summary()
+        sumo_step_s = world.session.step_seconds
         traj = world.trajectories() if trajectories else None
     wall = time.perf_counter() - start
     summary["wall_seconds"] = round(wall, 3)
     summary["steps_per_second"] = round(cfg.steps / wall, 1)
+    summary["sumo_step_share"] = round(sumo_step_s / wall, 3)
     summary["policy"] = cfg.policy
     summary["decision_interval_steps"] = policy.decision_interval
     summary["scenario"] = cfg.scenario

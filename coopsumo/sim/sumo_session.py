@@ -99,6 +99,8 @@ class SumoSession:
         self._tc: Any = None  # the binding's constants module
         self._gui_proc: subprocess.Popen[bytes] | None = None
         self._ids = np.zeros(1024, dtype=object)  # SUMO id (str) by vehicle number, made once per vehicle
+        self.step_seconds = 0.0
+        """wall time spent inside SUMO's simulationStep so far (s): SUMO's own share of a run"""
 
     def args(self) -> list[str]:
         """SUMO's command line for this run; writes the route and detector files into run_dir."""
@@ -251,7 +253,9 @@ class SumoSession:
     def step(self) -> StepEvents:
         """Advance SUMO by one step."""
         ls = self.ls
+        start = time.perf_counter()
         ls.simulationStep()
+        self.step_seconds += time.perf_counter() - start
         departed = ls.simulation.getDepartedIDList()
         for vid in departed:
             self._take_control(vid)
