@@ -33,6 +33,7 @@ from typing import Any
 
 from tqdm import tqdm
 
+from coopsumo.config import OutputConfig
 from coopsumo.runio import UsageError, start_parent_watch, versions, write_json
 
 MAX_CRASHES = 2
@@ -109,16 +110,41 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
     return summary, resumed_from
 
 
-def simulate_into(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
-    """Run the SimConfig dict `config` with its own policy into out; the summary without its policy field."""
+def simulate_into(
+    config: dict[str, Any],
+    out: Path,
+    label: str,
+    trajectory_every: int = 0,
+    outputs: OutputConfig | None = None,
+    atomic: bool = False,
+) -> dict[str, Any]:
+    """Run the SimConfig dict `config` with its own policy into out; the summary without its policy field.
+
+    trajectory_every: also write trajectories, every this many steps (0: none); outputs: SUMO's FCD and
+    tripinfo files; atomic: build the folder aside and move it into place when the run has finished, so a
+    killed run leaves no half folder.
+    """
     from coopsumo.agents.policies import policy_for_run
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
+    from coopsumo.runio import discard_run_dir, finish_run_dir, start_run_dir
 
     cfg = sim_config_from_dict(config)
-    out.mkdir(parents=True, exist_ok=True)
     policy = policy_for_run(cfg)
-    summary = run(cfg, policy, out, progress=False, label=label)
+    if atomic:
+        run_dir = start_run_dir(out)
+    else:
+        out.mkdir(parents=True, exist_ok=True)
+        run_dir = out
+    try:
+        summary = run(cfg, policy, run_dir, trajectories=trajectory_every > 0, progress=False, label=label,
+                      trajectory_every=max(trajectory_every, 1), outputs=outputs)  # fmt: skip
+    except BaseException:
+        if atomic:
+            discard_run_dir(run_dir)
+        raise
+    if atomic:
+        finish_run_dir(run_dir, out)
     return {k: v for k, v in summary.items() if k != "policy"}
 
 

@@ -161,23 +161,11 @@ def _run_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
     """One accident run into its run folder, written atomically (a killed run leaves no half folder)."""
     import torch
 
-    from coopsumo.agents.policies import policy_for_run
-    from coopsumo.agents.rollout import run
-    from coopsumo.config import sim_config_from_dict
-    from coopsumo.runio import discard_run_dir, finish_run_dir, start_run_dir
+    from coopsumo.studies.runner import simulate_into
 
     torch.set_num_threads(1)
-    cfg = sim_config_from_dict(spec["config"])
-    policy = policy_for_run(cfg)
-    tmp = start_run_dir(out)
-    try:
-        summary = run(cfg, policy, tmp, trajectories=True, progress=False, trajectory_every=spec["trajectory_every"],
-                      outputs=OutputConfig(**spec["outputs"]))  # fmt: skip
-    except BaseException:
-        discard_run_dir(tmp)
-        raise
-    finish_run_dir(tmp, out)
-    record["summary"] = summary
+    record["summary"] = simulate_into(spec["config"], out, spec["out"], trajectory_every=spec["trajectory_every"],
+                                      outputs=OutputConfig(**spec["outputs"]), atomic=True)  # fmt: skip
 
 
 def gui_run(cfg: SimConfig, shot: Path) -> dict[str, list[Any]]:
