@@ -440,6 +440,11 @@ DEVIATIONS = (
     ("trajectories", "-", "recorded every 5 steps (0.5 s) to keep the files small; SUMO's FCD every 5 s"),
     ("baselines", "-", "keep, greedy, MOBIL (p = 0.5) on the Newell controller; SUMO's own Krauss + LC2013"),
     (
+        "\"none\" at a standstill",
+        "keeps the speed, zero included",
+        "default learner: not offered below 1 m/s (a learned vehicle cannot stand for good); --preset paper: offered",
+    ),
+    (
         "collisions",
         "-",
         "pairs of vehicle bodies overlapping in a lane after a step, checked every step in Python; SUMO's "
