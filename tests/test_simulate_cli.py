@@ -21,7 +21,7 @@ SUMMARY_KEYS = {
     "steps", "sim_seconds", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end",
     "collisions", "sumo_collisions", "teleports", "lane_changes", "lane_changes_rejected", "lane_changes_per_vehicle",
     "mean_speed_mps", "mean_vehicles_on_road", "mean_travel_time_s", "throughput_veh_per_h", "wall_seconds",
-    "steps_per_second", "policy", "scenario",
+    "steps_per_second", "sumo_step_share", "policy", "scenario",
 }  # fmt: skip
 
 

@@ -25,7 +25,7 @@ pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text()
 PNG = b"\x89PNG\r\n\x1a\n"
-WALL_KEYS = {"wall_seconds", "steps_per_second"}
+WALL_KEYS = {"wall_seconds", "steps_per_second", "sumo_step_share"}
 
 
 def readme_lines(marker: str) -> list[str]:
