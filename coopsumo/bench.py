@@ -48,7 +48,8 @@ def bench_simulation(
 
 
 def bench_plain_vs_controlled(steps: int, jam: bool) -> dict[str, tuple[float, ...]]:
-    """(steps/s, mean vehicles on the road) on one network, demand and seed: SUMO alone with its own models
+    """(steps/s, mean vehicles on the road) on one network, demand and seed (the controlled run adds the share
+    of its wall time inside SUMO's step, bench_simulation's third value): SUMO alone with its own models
     ("plain"; in the jam every lane is blocked at the bottleneck from step 100), the same plus reading every
     vehicle's lane, position and speed each step ("plain+read"), and the controlled `keep` policy ("keep";
     the accident holds traffic from step 100)."""

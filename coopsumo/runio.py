@@ -12,7 +12,8 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, NoReturn
@@ -88,6 +89,19 @@ def finish_run_dir(tmp: Path, out: Path) -> None:
 
 def discard_run_dir(tmp: Path) -> None:
     shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextmanager
+def atomic_run_dir(out: Path) -> Iterator[Path]:
+    """A temporary run folder (start_run_dir) moved into `out` when the block ends normally and removed when
+    it raises, so a failed or killed run never leaves a half-written `out`."""
+    tmp = start_run_dir(out)
+    try:
+        yield tmp
+    except BaseException:
+        discard_run_dir(tmp)
+        raise
+    finish_run_dir(tmp, out)
 
 
 class Parser(argparse.ArgumentParser):

@@ -26,14 +26,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
 )
-from coopsumo.runio import (
-    Parser,
-    UsageError,
-    discard_run_dir,
-    finish_run_dir,
-    run_cli,
-    start_run_dir,
-)
+from coopsumo.runio import Parser, UsageError, atomic_run_dir, run_cli
 from coopsumo.sim import sumo_session
 from coopsumo.validation import check_accident, check_int, check_t_up, integer, number, out_dir, seed, steps
 
@@ -147,17 +140,14 @@ def main(argv: list[str] | None = None) -> int:
         except UsageError as err:
             flag = "--policy" if cfg.policy.startswith("dqn:") else f"--policy {cfg.policy}"  # a model's error names it
             raise UsageError(f"{flag}: {err}") from None
-        tmp = start_run_dir(args.out)
+        closed = sumo_session.gui_closed_errors() if gui is not None else ()
         try:
-            summary = run(cfg, policy, tmp, trajectories=args.trajectories, progress=not args.quiet,
-                          outputs=outputs, gui=gui)  # fmt: skip
-        except BaseException as err:
-            discard_run_dir(tmp)
-            if gui is not None and isinstance(err, sumo_session.gui_closed_errors()):
-                print("simulate: sumo-gui was closed before the run ended; nothing written", file=sys.stderr)
-                return 1
-            raise
-        finish_run_dir(tmp, args.out)
+            with atomic_run_dir(args.out) as tmp:
+                summary = run(cfg, policy, tmp, trajectories=args.trajectories, progress=not args.quiet,
+                              outputs=outputs, gui=gui)  # fmt: skip
+        except closed:
+            print("simulate: sumo-gui was closed before the run ended; nothing written", file=sys.stderr)
+            return 1
         keys = ("departed", "arrived", "mean_speed_mps", "lane_changes", "collisions", "teleports", "steps_per_second")
         print(" ".join(f"{k}={summary[k]:.4g}" if isinstance(summary[k], float) else f"{k}={summary[k]}" for k in keys))
         return 0

@@ -26,7 +26,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -127,24 +127,15 @@ def simulate_into(
     from coopsumo.agents.policies import policy_for_run
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.runio import discard_run_dir, finish_run_dir, start_run_dir
+    from coopsumo.runio import atomic_run_dir
 
     cfg = sim_config_from_dict(config)
     policy = policy_for_run(cfg)
-    if atomic:
-        run_dir = start_run_dir(out)
-    else:
+    if not atomic:
         out.mkdir(parents=True, exist_ok=True)
-        run_dir = out
-    try:
+    with atomic_run_dir(out) if atomic else nullcontext(out) as run_dir:
         summary = run(cfg, policy, run_dir, trajectories=trajectory_every > 0, progress=False, label=label,
                       trajectory_every=max(trajectory_every, 1), outputs=outputs)  # fmt: skip
-    except BaseException:
-        if atomic:
-            discard_run_dir(run_dir)
-        raise
-    if atomic:
-        finish_run_dir(run_dir, out)
     return {k: v for k, v in summary.items() if k != "policy"}
 
 
