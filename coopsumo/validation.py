@@ -177,6 +177,21 @@ def alpha_list(flag: str, text: str) -> tuple[float, ...]:
     return number_list(flag, text, low=ALPHA_MIN)
 
 
+def distinct_list(flag: str, text: str, low: float | None = None, low_open: bool = False,
+                  note: str = "") -> tuple[float, ...]:  # fmt: skip
+    """A study axis: comma-separated finite numbers inside the bounds, no empty item and no value twice (also
+    not two values that print alike with :g, since they name run folders); UsageError otherwise."""
+    items = text.split(",")
+    if any(not x.strip() for x in items):
+        raise UsageError(f"{flag} has an empty item in {text!r}; give comma-separated numbers")
+    values = number_list(flag, text, low=low, low_open=low_open, note=note)
+    names = [f"{v:g}" for v in values]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise UsageError(f"{flag} lists {', '.join(twice)} more than once in {text!r}")
+    return values
+
+
 def min_t_up_s(dt_s: float) -> float:
     """Smallest accepted T_up (s): one vehicle per simulation step, so the demand never schedules more
     vehicles than the run has steps (its memory stays bounded whatever T_up is asked for)."""
@@ -192,6 +207,11 @@ def t_up_note(dt_s: float) -> str:
 def check_t_up(flag: str, value: float, dt_s: float) -> float:
     """T_up (s) finite and at least one simulation step."""
     return check_number(flag, value, low=min_t_up_s(dt_s), note=t_up_note(dt_s))
+
+
+def t_up_list(flag: str, text: str, dt_s: float) -> tuple[float, ...]:
+    """A list of distinct demands T_up (s), each at least one simulation step."""
+    return distinct_list(flag, text, low=min_t_up_s(dt_s), note=t_up_note(dt_s))
 
 
 def check_accident(start: int, duration: int, steps: int, start_flag: str = "--accident-start",

@@ -64,7 +64,7 @@ def test_selfish_changes_where_polite_does_not(observation_of: Layout, p: float,
     # own gain +4; the new follower goes from +4 to -1 m/s^2: d_n = -5
     assert incentive[0, 0] == pytest.approx(4.0 - 5.0 * p, abs=1e-6)
     assert admissible[0, 0]  # b_safe = 4 m/s^2 allows a~_n = -1 m/s^2
-    assert policy.act(obs)[0] == expected
+    assert policy.decide(obs)[0] == expected
 
 
 def test_followers_use_their_own_expected_speed(observation_of: Layout) -> None:
@@ -73,7 +73,7 @@ def test_followers_use_their_own_expected_speed(observation_of: Layout) -> None:
     obs = cut_in_layout(observation_of, follower_v_exp=26.0)
     policy = MobilPolicy(p=1.0)
     assert policy.incentives(obs)[0][0, 0] == pytest.approx(4.0 - 1.0, abs=1e-6)
-    assert policy.act(obs)[0] == LEFT
+    assert policy.decide(obs)[0] == LEFT
 
 
 def b_safe_layout(observation_of: Layout, follower_gap_m: float) -> Observation:
@@ -135,10 +135,10 @@ def test_threshold_and_right_bias(observation_of: Layout) -> None:
     )
     incentive, _ = MobilPolicy().incentives(obs)
     assert incentive[0] == pytest.approx([4.0, 3.7], abs=1e-6)
-    assert MobilPolicy().act(obs)[0] == LEFT
-    assert MobilPolicy(bias=0.5).act(obs)[0] == RIGHT  # right needs 3.7 > 0.1 - 0.5; left 4 - 0.6 < 3.7 + 0.4
-    assert MobilPolicy(threshold=4.5).act(obs)[0] == SPEEDUP
-    assert MobilPolicy(threshold=3.8).act(obs)[0] == LEFT
+    assert MobilPolicy().decide(obs)[0] == LEFT
+    assert MobilPolicy(bias=0.5).decide(obs)[0] == RIGHT  # right needs 3.7 > 0.1 - 0.5; left 4 - 0.6 < 3.7 + 0.4
+    assert MobilPolicy(threshold=4.5).decide(obs)[0] == SPEEDUP
+    assert MobilPolicy(threshold=3.8).decide(obs)[0] == LEFT
 
 
 def test_polite_driver_makes_way_for_a_faster_follower() -> None:
@@ -183,6 +183,51 @@ def test_only_changes_the_controller_would_accept(observation_of: Layout) -> Non
     leftmost = observation_of(lane=[1, 1], pos=[500.0, 504.0 + g_c], speed=[20.0, 20.0], v_exp=[30.0, 20.0],
                               n_lanes=2)  # fmt: skip
     assert MobilPolicy(p=0.0).act(leftmost)[0] == RIGHT
+
+
+def test_leader_and_follower_do_not_change_together(observation_of: Layout) -> None:
+    """Regression: vehicle 0 (at its v_exp) leaves to free vehicle 1, 73.5 m behind and bounded below its
+    v_exp by Newell; vehicle 1 leaves to escape vehicle 0. Each decision alone is MOBIL's, but taken
+    together both land in the other lane in the same order, and did it again every 4 s (ping-pong)."""
+    obs = observation_of(lane=[1, 1], pos=[600.0, 522.5], speed=[25.83, 24.37], v_exp=[25.83, 24.37], n_lanes=2)
+    policy = MobilPolicy(p=1.0)
+    assert policy.decide(obs).tolist() == [RIGHT, RIGHT]  # each alone would change
+    assert policy.act(obs).tolist() == [RIGHT, SPEEDUP]  # the front one goes; the follower is judged again
+    # next step: vehicle 0 is changing (in both lanes), vehicle 1 has nothing to gain
+    during = observation_of(lane=[1, 1], pos=[602.6, 524.9], speed=[25.83, 24.37], v_exp=[25.83, 24.37],
+                            n_lanes=2, other_lane=[0, -1])  # fmt: skip
+    assert policy.act(during).tolist() == [SPEEDUP, SPEEDUP]
+    # once the change is over, neither changes back
+    after = observation_of(lane=[0, 1], pos=[700.0, 622.5], speed=[25.83, 24.37], v_exp=[25.83, 24.37], n_lanes=2)
+    assert policy.act(after).tolist() == [SPEEDUP, SPEEDUP]
+
+
+def test_polite_leader_goes_first(observation_of: Layout) -> None:
+    # cut_in_layout at p = 0.5: the leader (at its v_exp) makes way for vehicle 0 (d_o = 0.5 * 4 > 0.1),
+    # vehicle 0 wants to overtake it; only the leader goes, vehicle 0 is then free in its own lane
+    obs = cut_in_layout(observation_of)
+    policy = MobilPolicy(p=0.5)
+    assert policy.decide(obs).tolist() == [LEFT, LEFT, SPEEDUP]
+    assert policy.act(obs).tolist() == [SPEEDUP, LEFT, SPEEDUP]
+    assert MobilPolicy(p=0.0).act(obs).tolist() == [LEFT, SPEEDUP, SPEEDUP]  # the selfish leader stays
+
+
+def test_changes_into_one_lane_from_both_sides(observation_of: Layout) -> None:
+    """Vehicles 0 (lane 0) and 2 (lane 2), each stuck behind a leader, both want the empty middle lane."""
+    g = gap_for_speed(20.0, 30.0)
+
+    def layout(x2: float) -> Observation:
+        return observation_of(lane=[0, 0, 2, 2], pos=[500.0, 504.0 + g, x2, x2 + 4.0 + g],
+                              speed=[20.0] * 4, v_exp=[30.0, 20.0, 30.0, 20.0], n_lanes=3)  # fmt: skip
+
+    policy = MobilPolicy(p=0.0)
+    near = layout(480.0)  # vehicle 2 would enter just behind vehicle 0: it waits a step
+    assert policy.decide(near).tolist() == [LEFT, SPEEDUP, RIGHT, SPEEDUP]
+    assert policy.act(near).tolist() == [LEFT, SPEEDUP, SPEEDUP, SPEEDUP]
+    # with a vehicle in the middle lane between them, they do not meet there: both go
+    apart = observation_of(lane=[0, 0, 2, 2, 1], pos=[500.0, 504.0 + g, 300.0, 304.0 + g, 400.0],
+                           speed=[20.0] * 5, v_exp=[30.0, 20.0, 30.0, 20.0, 20.0], n_lanes=3)  # fmt: skip
+    assert policy.act(apart).tolist() == [LEFT, SPEEDUP, RIGHT, SPEEDUP, SPEEDUP]
 
 
 def test_batch_equals_one_layout_at_a_time(observation_of: Layout) -> None:

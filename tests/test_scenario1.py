@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -17,18 +18,21 @@ from PIL import Image
 
 from coopsumo.config import AccidentConfig, SimConfig
 from coopsumo.studies import scenario1
+from coopsumo.studies import scenario1_report as rep
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
 PNG = b"\x89PNG\r\n\x1a\n"
+TINY = ["--quick", "--train-steps", "400", "--steps", "900", "--seeds", "3", "--mobil-p", "0,1"]
+"""the quick study's 2 demands (T_up 3 and 1 s), 3 seeds (the fewest a verdict needs), MOBIL p = 0 and 1"""
+POLICIES = ("dqn_alpha0", "dqn_alpha2", "dqn_alpha8", "keep", "greedy", "mobil_p0", "mobil_p1", "sumo")
 
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory: pytest.TempPathFactory, display_or_none: str | None) -> Path:
     """The quick study, on a (virtual) display when there is one, so that it makes its sumo-gui screenshot."""
     out = tmp_path_factory.mktemp("scenario1")
-    cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "400", "--steps", "900",
-           "--seeds", "2", "--out", str(out)]  # fmt: skip
+    cmd = [sys.executable, "-m", "coopsumo.scenario1", *TINY, "--out", str(out)]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
                          env=env_with_display(display_or_none))  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
@@ -36,14 +40,17 @@ def study(tmp_path_factory: pytest.TempPathFactory, display_or_none: str | None)
 
 
 def test_every_output_is_written(study: Path) -> None:
-    for name in ("fig4_time_space.png", "fig5_flow_density.png", "fig_recovery.png"):
+    names = ["fig4_trajectories.png", "fig_tts_demand.png"]
+    names += [f"{f}_t{t}.png" for f in ("fig5_flow_density", "fig_recovery") for t in (3, 1)]
+    for name in names:
         data = (study / name).read_bytes()
-        assert data.startswith(PNG) and len(data) > 10_000
+        assert data.startswith(PNG) and len(data) > 10_000, name
     for name in ("summary.csv", "runs.csv", "report.md", "plan.json"):
         assert (study / name).stat().st_size > 0
-    runs = sorted(p.name for p in (study / "runs").iterdir())
-    assert len(runs) == 2 * 7  # 7 policies (alphas 0, 2, 8 and 4 baselines) x 2 seeds
-    for run in (study / "runs").iterdir():
+    for t in (3, 1):
+        runs = sorted(p.name for p in (study / "runs" / f"t{t}").iterdir())
+        assert runs == sorted(f"{p}_seed{k}" for p in POLICIES for k in (1, 2, 3))
+    for run in (study / "runs").glob("t*/*"):
         for name in ("config.json", "summary.json", "detectors.xml", "trajectories.parquet", "fcd.xml", "tripinfo.xml"):
             assert (run / name).exists(), f"{run.name}/{name}"
         trips = list(sumolib.xml.parse(str(run / "tripinfo.xml"), "tripinfo"))
@@ -54,33 +61,41 @@ def test_every_output_is_written(study: Path) -> None:
         assert (study / "models" / alpha / "model.pt").exists()
 
 
-def test_report_numbers_equal_the_summaries(study: Path) -> None:
+def test_report_numbers_equal_the_summaries_per_demand(study: Path) -> None:
     runs = pd.read_csv(study / "runs.csv")
-    summary = pd.read_csv(study / "summary.csv").set_index("policy")
+    assert sorted(runs["t_up_s"].unique()) == [1.0, 3.0]
+    summary = pd.read_csv(study / "summary.csv").set_index(["t_up_s", "policy"])
     for _, row in runs.iterrows():
-        run_dir = study / "runs" / f"{row['policy']}_seed{row['seed']}"
+        run_dir = study / "runs" / f"t{row['t_up_s']:g}" / f"{row['policy']}_seed{row['seed']}"
         s = json.loads((run_dir / "summary.json").read_text())
+        cfg = json.loads((run_dir / "config.json").read_text())["config"]
+        assert cfg["demand"]["t_up_s"] == row["t_up_s"]
         assert row["mean_speed_mps"] == pytest.approx(s["mean_speed_mps"])
-        assert row["throughput_veh_per_h"] == pytest.approx(s["throughput_veh_per_h"])
-        assert row["collisions"] == s["collisions"] == 0
+        assert row["collisions"] == s["collisions"] == 0 and row["teleports"] == s["teleports"] == 0
         assert row["lane_changes_per_vehicle"] == pytest.approx(s["lane_changes"] / max(s["departed"], 1))
-    means = runs.groupby("policy")["mean_speed_mps"].mean()
+        assert row["tts_veh_h"] >= row["waiting_veh_h"] >= 0
+    means = runs.groupby(["t_up_s", "policy"])["tts_veh_h"].mean()
     report = (study / "report.md").read_text()
-    for policy, value in means.items():
-        assert summary.loc[policy, "mean_speed_mps_mean"] == pytest.approx(value)
-        assert f"| {policy} | " in report
-        assert f"{value:.2f}" in report
-    assert "Deviations and choices" in report and "fig4_time_space.png" in report
+    for key, value in means.items():
+        assert summary.loc[key, "tts_veh_h_mean"] == pytest.approx(value)
+    for t in (3, 1):
+        part = report.split(f"### T_up = {t} s")[1].split("### ")[0]
+        for policy in POLICIES:
+            assert f"| {policy} | " in part
+        # the verdicts of this demand: every alpha against 0, every MOBIL p against 0, each with its interval
+        for a, b in (("dqn_alpha2", "dqn_alpha0"), ("dqn_alpha8", "dqn_alpha0"), ("mobil_p1", "mobil_p0")):
+            assert f"- `{a}` against `{b}` " in part and "95% CI" in part
+    assert "Deviations and choices" in report and "fig4_trajectories.png" in report
+    assert "Where the queue goes" in report and "| T_up (s) |" in report
 
 
 def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) -> None:
     model = study / "models" / "alpha8" / "model.pt"
     before = model.stat().st_mtime_ns
-    run_summary = next((study / "runs").iterdir()) / "summary.json"
+    run_summary = next((study / "runs" / "t3").iterdir()) / "summary.json"
     run_before = run_summary.stat().st_mtime_ns
     shot_before = (study / "gui_jam.png").stat().st_mtime_ns if (study / "gui_jam.png").exists() else None
-    cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "400", "--steps", "900",
-           "--seeds", "2", "--out", str(study)]  # fmt: skip
+    cmd = [sys.executable, "-m", "coopsumo.scenario1", *TINY, "--out", str(study)]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
                          env=env_with_display(display_or_none))  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
@@ -98,7 +113,7 @@ def test_report_shows_sumo_guis_screenshot_of_the_jam(study: Path, gui_display: 
     assert len(counts) >= 4 and counts.max() < 0.9 * len(pixels)  # not one flat colour
     assert (pixels == (255, 0, 0)).all(axis=1).any()  # the accident bar
     record = json.loads((study / "gui_jam.json").read_text())
-    assert record["identical_to_run"] is True and record["run"] == "dqn_alpha8_seed1"
+    assert record["identical_to_run"] is True and record["run"] == "t1/dqn_alpha8_seed1"
     report = (study / "report.md").read_text()
     assert "![sumo-gui](gui_jam.png)" in report and f"sumo-gui at step {record['step']} " in report
     assert "identical to the recorded run" in report
@@ -132,7 +147,13 @@ def test_jam_step_is_the_first_time_the_view_is_nearly_full_of_slow_vehicles() -
     assert scenario1.jam_step(traj[traj["speed_mps"] > 5], cfg) is None
 
 
-@pytest.mark.parametrize("args", [["--seeds", "0"], ["--workers", "0"], ["--steps", "5"], ["--bogus"]])
+@pytest.mark.parametrize(
+    "args",
+    [["--seeds", "0"], ["--workers", "0"], ["--steps", "5"], ["--bogus"], ["--quick", "--full"],
+     ["--t-up", ""], ["--t-up", "3,,1"], ["--t-up", "0"], ["--t-up", "-1"], ["--t-up", "nan"], ["--t-up", "3,3"],
+     ["--t-up", "1,1.0"], ["--t-up", "0.01"], ["--t-up", "x"], ["--mobil-p", "-0.5"], ["--mobil-p", "0,0"],
+     ["--mobil-p", "0,"], ["--mobil-p", "inf"]],
+)  # fmt: skip
 def test_bad_input(tmp_path: Path, args: list[str]) -> None:
     out = tmp_path / "s1"
     res = subprocess.run([sys.executable, "-m", "coopsumo.scenario1", *args, "--out", str(out)], cwd=ROOT,
@@ -141,41 +162,58 @@ def test_bad_input(tmp_path: Path, args: list[str]) -> None:
     assert not out.exists()
 
 
-def _agg_rows(values: dict[str, dict[str, list[float]]]) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """runs rows and their aggregate from {policy: {metric: [value per seed]}} (other metrics 0)."""
+def _rows(values: dict[str, dict[str, list[float]]], t_up: float = 1.0) -> pd.DataFrame:
+    """Runs rows of one demand from {policy: {metric: [value per seed]}} (other measures 0)."""
     rows = []
     for policy, metrics in values.items():
         n = len(next(iter(metrics.values())))
         for k in range(n):
-            row = {"policy": policy, "seed": k + 1, **{m: 0.0 for m, _, _ in scenario1.METRICS}, "recovery_time_s": 0.0,
-                   "backlog_at_accident_end_veh": 0.0, "speed_after_accident_mps": 0.0}  # fmt: skip
+            row = {"t_up_s": t_up, "policy": policy, "seed": k + 1, **{m: 0.0 for m, _, _ in rep.METRICS},
+                   "horizon_after_start_s": 1000.0}  # fmt: skip
             row.update({m: v[k] for m, v in metrics.items()})
             rows.append(row)
-    runs = pd.DataFrame(rows)
-    return runs, scenario1.aggregate(runs)
+    return pd.DataFrame(rows)
 
 
 def test_cooperative_alpha_is_the_largest_that_still_changes_lanes() -> None:
-    _, agg = _agg_rows({"dqn_alpha0": {"lane_changes_per_vehicle": [2.0, 2.0]},
-                        "dqn_alpha2": {"lane_changes_per_vehicle": [0.5, 0.3]},
-                        "dqn_alpha8": {"lane_changes_per_vehicle": [0.0, 0.1]}})  # fmt: skip
-    assert scenario1.cooperative_alpha(agg, "default", (0.0, 2.0, 8.0)) == 2.0  # 0.05 < 10% of 2.0
-    _, keep_like = _agg_rows({"dqn_alpha0": {"lane_changes_per_vehicle": [2.0]},
-                              "dqn_alpha8": {"lane_changes_per_vehicle": [0.0]}})  # fmt: skip
-    assert scenario1.cooperative_alpha(keep_like, "default", (0.0, 8.0)) is None
+    rows = _rows({"dqn_alpha0": {"lane_changes_per_vehicle": [2.0, 2.0]},
+                  "dqn_alpha2": {"lane_changes_per_vehicle": [0.5, 0.3]},
+                  "dqn_alpha8": {"lane_changes_per_vehicle": [0.0, 0.1]}})  # fmt: skip
+    labels = {0.0: "dqn_alpha0", 2.0: "dqn_alpha2", 8.0: "dqn_alpha8"}
+    assert rep.cooperative_alpha(rows, labels) == 2.0  # 0.05 < 10% of 2.0
+    keep_like = _rows({"dqn_alpha0": {"lane_changes_per_vehicle": [2.0]},
+                       "dqn_alpha8": {"lane_changes_per_vehicle": [0.0]}})  # fmt: skip
+    assert rep.cooperative_alpha(keep_like, {0.0: "dqn_alpha0", 8.0: "dqn_alpha8"}) is None
 
 
-def test_verdict_on_recovery_and_waves() -> None:
+def test_paired_bootstrap_interval() -> None:
+    mean, lo, hi = rep.paired_bootstrap(np.array([-2.0, -1.0, -3.0, -2.0, np.nan]))
+    assert mean == pytest.approx(-2.0) and -3.0 <= lo < mean < hi <= -1.0
+    assert rep.paired_bootstrap(np.array([1.5])) == (1.5, 1.5, 1.5)
+    assert all(math.isnan(x) for x in rep.paired_bootstrap(np.array([np.nan])))
+
+
+def test_verdict_on_total_time_spent_with_recovery_counted_at_the_end_when_never() -> None:
     nan = float("nan")
-    runs, agg = _agg_rows({"dqn_alpha8": {"recovery_step": [74_000.0, 76_000.0], "wave_share": [0.01, 0.02]},
-                           "dqn_alpha0": {"recovery_step": [nan, nan], "wave_share": [0.05, 0.04]}})  # fmt: skip
-    text = scenario1.verdict(runs, agg, "dqn_alpha8", "dqn_alpha0")
-    assert text.startswith("**The claim holds here**")
-    assert "recovers in 2 of 2 seeds, at step 75000 ± 1414" in text and "never recovers (0 of 2 seeds)" in text
-    assert "fewer with `dqn_alpha8` on 2 of 2 seeds" in text
-    runs, agg = _agg_rows({"dqn_alpha8": {"recovery_step": [nan, nan], "wave_share": [0.05, 0.05]},
-                           "dqn_alpha0": {"recovery_step": [7e4, 7e4], "wave_share": [0.01, 0.01]}})  # fmt: skip
-    assert scenario1.verdict(runs, agg, "dqn_alpha8", "dqn_alpha0").startswith("**The claim does not hold here**")
+    rows = _rows({"dqn_alpha8": {"tts_veh_h": [90.0, 95.0, 92.0], "system_recovery_s": [500.0, 600.0, 550.0],
+                                 "waves": [1.0, 0.0, 1.0]},
+                  "dqn_alpha0": {"tts_veh_h": [100.0, 101.0, 99.0], "system_recovery_s": [nan, 700.0, 650.0],
+                                 "waves": [3.0, 2.0, 2.0]}})  # fmt: skip
+    c = rep.compare(rows, 1.0, "dqn_alpha8", "dqn_alpha0")
+    assert c is not None and c["pairs"] == 3 and c["tts_fewer"] == 3
+    assert c["tts_veh_h"][0] == pytest.approx(-23.0 / 3) and c["tts_veh_h"][2] < 0
+    assert c["system_recovery_s"][0] == pytest.approx((-500.0 - 100.0 - 100.0) / 3)  # never = the 1000 s horizon
+    assert c["never_b"] == 1 and c["never_a"] == 0
+    text = rep.verdict_line(c)
+    assert text.startswith("`dqn_alpha8` against `dqn_alpha0` **helps**: total time spent -7.7 veh-h")
+    assert "never recovered: 0 and 1 of 3 seeds" in text
+    worse = _rows({"a": {"tts_veh_h": [110.0, 112.0, 111.0]}, "b": {"tts_veh_h": [100.0, 101.0, 99.0]}})
+    assert "**hurts**" in rep.verdict_line(rep.compare(worse, 1.0, "a", "b"))
+    mixed = _rows({"a": {"tts_veh_h": [90.0, 112.0, 100.0]}, "b": {"tts_veh_h": [100.0, 101.0, 99.0]}})
+    assert "**makes no detectable difference**" in rep.verdict_line(rep.compare(mixed, 1.0, "a", "b"))
+    two = _rows({"a": {"tts_veh_h": [90.0, 91.0]}, "b": {"tts_veh_h": [100.0, 101.0]}})
+    assert "cannot be judged on 2 seed(s)" in rep.verdict_line(rep.compare(two, 1.0, "a", "b"))
+    assert rep.compare(rows, 3.0, "dqn_alpha8", "dqn_alpha0") is None  # no runs at that demand
 
 
 def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
@@ -197,7 +235,8 @@ def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
     assert not scenario1._reusable_run(out, cfg, outputs, tmp_path / "missing.pt")
 
 
-@pytest.mark.parametrize("args", [["--alphas", "-1"], ["--alphas", "x"], ["--preset", "bogus"]])
+@pytest.mark.parametrize("args", [["--alphas", "-1"], ["--alphas", "x"], ["--preset", "bogus"], ["--t-up", "2,2"],
+                                  ["--mobil-p", "-1"]])
 def test_bad_study_lists(tmp_path: Path, args: list[str]) -> None:
     out = tmp_path / "s1"
     assert scenario1.main([*args, "--out", str(out)]) == 2
@@ -208,7 +247,8 @@ def test_the_paper_preset_stands_beside_the_default(tmp_path: Path) -> None:
     """--preset default,paper --alphas 0: both learners' alpha = 0 models in one study and one report."""
     out = tmp_path / "s1"
     cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "300", "--steps", "450",
-           "--seeds", "1", "--alphas", "0", "--preset", "default,paper", "--out", str(out)]  # fmt: skip
+           "--seeds", "1", "--alphas", "0", "--preset", "default,paper", "--t-up", "2", "--mobil-p", "0",
+           "--out", str(out)]  # fmt: skip
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False, env=env_with_display(None))
     assert res.returncode == 0, res.stderr[-2000:]
     assert (out / "models" / "alpha0" / "model.pt").exists() and (out / "models" / "paper_alpha0" / "model.pt").exists()
@@ -217,4 +257,4 @@ def test_the_paper_preset_stands_beside_the_default(tmp_path: Path) -> None:
     summary = pd.read_csv(out / "summary.csv")
     assert {"dqn_alpha0", "dqn_paper_alpha0", "keep"} <= set(summary["policy"])
     report = (out / "report.md").read_text()
-    assert "### Learner preset `default`" in report and "### Learner preset `paper`" in report
+    assert "| dqn_alpha0 | " in report and "| dqn_paper_alpha0 | " in report

@@ -168,3 +168,76 @@ def recovery_figure(
     bottom.set_xlabel("time (s)")
     fig.tight_layout()
     return save_figure(fig, out_path)
+
+
+def trajectory_windows_figure(
+    trajs: dict[str, pd.DataFrame],
+    lane: int,
+    windows: dict[str, tuple[float, float]],
+    out_path: str | Path,
+    x_bottleneck_m: float | None,
+    title_lane: str,
+) -> Path:
+    """Partial trajectories as in the paper's Fig. 4: one row per label, one column per named time window (s).
+
+    Each vehicle's samples on `lane` (SUMO index) inside the window are drawn as one line, coloured by speed
+    (m/s, fixed scale 0-31, one shared colorbar); a line breaks where the vehicle leaves the lane. Writes a PNG.
+    """
+    from matplotlib.collections import LineCollection
+
+    if not trajs or not windows:
+        raise ValueError("trajectory_windows_figure needs at least one trajectory table and one window")
+    norm = Normalize(vmin=SPEED_VMIN_MPS, vmax=SPEED_VMAX_MPS)
+    fig = new_figure(5.2 * len(windows) + 1.2, 3.6 * len(trajs))
+    axes = fig.subplots(len(trajs), len(windows), squeeze=False)
+    for r, (label, traj) in enumerate(trajs.items()):
+        for c, (name, (t0, t1)) in enumerate(windows.items()):
+            ax = axes[r, c]
+            part = traj[(traj["time_s"] >= t0) & (traj["time_s"] <= t1)].sort_values(["vid", "time_s"], kind="stable")
+            t = part["time_s"].to_numpy(dtype=float)
+            x = part["pos_m"].to_numpy(dtype=float)
+            v = part["speed_mps"].to_numpy(dtype=float)
+            on = part["lane"].to_numpy() == lane
+            vid = part["vid"].astype(str).to_numpy()
+            step = np.diff(t).min(initial=1.0) if len(t) > 1 else 1.0
+            joined = (vid[1:] == vid[:-1]) & on[1:] & on[:-1] & (np.diff(t) <= 1.5 * max(step, 1e-9))
+            segments = np.stack([np.column_stack([t[:-1], x[:-1]]), np.column_stack([t[1:], x[1:]])], axis=1)[joined]
+            lines = LineCollection(list(segments), cmap=SPEED_CMAP, norm=norm, linewidths=0.7)
+            lines.set_array(v[:-1][joined])
+            ax.add_collection(lines)
+            ax.set_xlim(t0, t1)
+            ax.set_ylim(0.0, max(float(x.max()) if len(x) else 1.0, x_bottleneck_m or 0.0) * 1.02)
+            if x_bottleneck_m is not None:
+                ax.axhline(x_bottleneck_m, color="k", linestyle="--", linewidth=0.8)
+            ax.set_title(f"{label}, {name}: {title_lane}", fontsize=9)
+            ax.set_xlabel("time (s)")
+            ax.set_ylabel("position (m)")
+    fig.colorbar(ScalarMappable(norm=norm, cmap=SPEED_CMAP), ax=list(axes.ravel()), label="speed (m/s)",
+                 fraction=0.03, pad=0.02)  # fmt: skip
+    return save_figure(fig, out_path)
+
+
+def demand_figure(table: pd.DataFrame, value: str, ylabel: str, out_path: str | Path) -> Path:
+    """One line per policy of `value` against the inflow (veh/h), with its interval as error bars.
+
+    table: columns policy, t_up_s, value, value + "_lo", value + "_hi". Writes a PNG, returns its path.
+    """
+    if table.empty:
+        raise ValueError("demand_figure needs at least one row")
+    fig = new_figure(8.0, 5.0)
+    ax = fig.subplots()
+    for i, (policy, rows) in enumerate(table.groupby("policy", sort=False)):
+        rows = rows.sort_values("t_up_s", ascending=False)
+        q = 3600.0 / rows["t_up_s"].to_numpy(dtype=float)
+        mid = rows[value].to_numpy(dtype=float)
+        lo, hi = rows[value + "_lo"].to_numpy(dtype=float), rows[value + "_hi"].to_numpy(dtype=float)
+        err = np.vstack([mid - lo, hi - mid])
+        ax.errorbar(q + (i - len(table["policy"].unique()) / 2) * 8.0, mid, yerr=np.abs(err), marker="o", ms=4,
+                    capsize=3, linewidth=1.2, color=f"C{i % 10}", label=str(policy))  # fmt: skip
+    ax.set_xlabel("inflow (veh/h; points of one demand are spread a little to be seen)")
+    ax.set_ylabel(ylabel)
+    ax.set_yscale("log")
+    ax.grid(True, alpha=0.3, which="both")
+    ax.legend(fontsize=8, ncol=2)
+    fig.tight_layout()
+    return save_figure(fig, out_path)

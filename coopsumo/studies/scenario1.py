@@ -10,7 +10,6 @@
 from __future__ import annotations
 
 import json
-import math
 import os
 import sys
 import time
@@ -37,56 +36,84 @@ from coopsumo.config import (
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.sim import view
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import MAX_STEPS, alpha_list, integer, out_dir, seed_count, steps, workers
+from coopsumo.studies.scenario1_report import SLOW_MPS, write_report
+from coopsumo.validation import (
+    MAX_STEPS,
+    alpha_list,
+    distinct_list,
+    integer,
+    out_dir,
+    seed_count,
+    steps,
+    t_up_list,
+    workers,
+)
 
 ALPHAS = (0.0, 2.0, 8.0)
 """alpha = 0 and 8 are the paper's; 2 is the largest alpha of the learning study's response whose model still
 changes lanes in free flow (0.49 per vehicle; alpha = 8 makes none, i.e. it is `keep`)"""
 PRESETS = ("default",)
-BASELINES = ("keep", "greedy", "mobil:p=0.5", "sumo")
+BASELINES = ("keep", "greedy", "sumo")
+MOBIL_PS = (0.0, 0.25, 0.5, 1.0)
+"""MOBIL politeness values run beside the learned models: classical cooperation as the control"""
+DEMANDS = (2.0, 1.5, 1.0)
+"""T_up (s) of the default study: the queue stays on the road, reaches the entrance, still waits at the end"""
 FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
-SLOW_MPS = 5.0
-RECOVERY_MPS = 15.0
-STOP_GO_UPSTREAM_M = 1000.0
-GUI_ALPHA = 8.0  # sumo-gui shows the paper's cooperative model (first preset, first seed)
-COOPERATIVE_LC_SHARE = 0.1
-"""a model is "cooperative, not simply keep" when it makes at least this share of alpha = 0's lane changes"""
-WAVE_LOOKBACK_S = 120.0
+GUI_ALPHA = 8.0  # sumo-gui shows the paper's cooperative model (first preset, first seed, highest demand)
 GUI_SHOT = "gui_jam.png"
 JAM_SHARE = 0.9  # the screenshot step: the first time the view holds this share of its most slow vehicles
+WINDOW_S = 600.0
+"""length of each partial-trajectory window of Fig. 4 (s)"""
 
 
 @dataclass(frozen=True)
 class Plan:
-    """Sizes of the study (paper scale by default; --quick shrinks every count)."""
+    """Sizes of the study: the default profile; Plan.quick() and Plan.full() are the others."""
 
     lanes: int = 3
-    t_up_s: float = DemandConfig.t_up_s
+    t_ups: tuple[float, ...] = DEMANDS
+    """demands of the accident runs: upstream departure interval T_up (s)"""
+    train_t_up_s: float = DemandConfig.t_up_s
+    """demand of the free-flow trainings (s); the models are trained once and meet every demand"""
     train_steps: int = 90_000
-    steps: int = 90_000
-    accident_start: int = AccidentConfig.start_step
-    accident_steps: int = AccidentConfig.duration_steps
+    steps: int = 20_000
+    accident_start: int = 2_000
+    accident_steps: int = 10_000
     seeds: tuple[int, ...] = (1, 2, 3)
     train_seed: int = 0
     trajectory_every: int = 5
     loop_period_s: float = 60.0
     baselines: tuple[str, ...] = BASELINES
+    mobil_ps: tuple[float, ...] = MOBIL_PS
     alphas: tuple[float, ...] = ALPHAS
     presets: tuple[str, ...] = PRESETS
     """learner presets (config.DQN_PRESETS) whose models are trained and run, side by side"""
     fcd_period_s: float = 5.0
-    """period of SUMO's fcd.xml in every run folder (s): about 40 MB per paper-scale run"""
+    """period of SUMO's fcd.xml in every run folder (s)"""
     tripinfo: bool = True
     """write SUMO's tripinfo.xml in every run folder"""
+    profile: str = "default"
 
     def outputs(self) -> OutputConfig:
         """SUMO's output files of every accident run."""
         return OutputConfig(fcd_period_s=self.fcd_period_s, tripinfo=self.tripinfo)
 
+    def baseline_policies(self) -> tuple[str, ...]:
+        """keep and greedy, MOBIL at every politeness, then SUMO's own models."""
+        first = tuple(b for b in self.baselines if b != "sumo")
+        return first + tuple(f"mobil:p={p:g}" for p in self.mobil_ps) + tuple(b for b in self.baselines if b == "sumo")
+
     @staticmethod
     def quick() -> Plan:
-        return Plan(train_steps=3000, steps=6000, accident_start=1000, accident_steps=3000, seeds=(1, 2),
-                    loop_period_s=30.0)  # fmt: skip
+        return Plan(t_ups=(3.0, 1.0), train_steps=3000, steps=6000, accident_start=600, accident_steps=3000, seeds=(1,),
+                    loop_period_s=30.0, profile="quick")  # fmt: skip
+
+    @staticmethod
+    def full() -> Plan:
+        """The paper's accident: 90,000 steps, the stuck ratio decaying over 50,000 of them; 5 seeds."""
+        return Plan(steps=90_000, accident_start=AccidentConfig.start_step,
+                    accident_steps=AccidentConfig.duration_steps, t_ups=(3.0, 2.0, 1.5, 1.0), seeds=(1, 2, 3, 4, 5),
+                    profile="full")  # fmt: skip
 
 
 def model_name(preset: str, alpha: float) -> str:
@@ -103,7 +130,7 @@ def train_config(plan: Plan, alpha: float, preset: str = "default") -> TrainConf
     """The free-flow training of one model with the learner preset `preset`."""
     sim = SimConfig(
         road=RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s),
-        demand=DemandConfig(t_up_s=plan.t_up_s),
+        demand=DemandConfig(t_up_s=plan.train_t_up_s),
         reward=RewardConfig(alpha=alpha),
         steps=plan.train_steps,
         seed=plan.train_seed,
@@ -112,10 +139,11 @@ def train_config(plan: Plan, alpha: float, preset: str = "default") -> TrainConf
     return TrainConfig(sim=sim, dqn=DQN_PRESETS[preset], eval_steps=0)
 
 
-def accident_config(plan: Plan, policy: str, seed: int) -> SimConfig:
+def accident_config(plan: Plan, policy: str, seed: int, t_up_s: float) -> SimConfig:
+    """One policy through the accident at demand t_up_s (s) on seed `seed`."""
     return SimConfig(
         road=RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s),
-        demand=DemandConfig(t_up_s=plan.t_up_s),
+        demand=DemandConfig(t_up_s=t_up_s),
         accident=AccidentConfig(enabled=True, start_step=plan.accident_start, duration_steps=plan.accident_steps),
         steps=plan.steps,
         seed=seed,
@@ -128,7 +156,7 @@ def new_record(spec: dict[str, Any]) -> dict[str, Any]:
     """A cell's record before it runs: what it is and where it writes; nothing measured yet."""
     from coopsumo.studies.runner import blank_record
 
-    return blank_record(spec, ("key", "kind", "label", "seed", "out", "after"))
+    return blank_record(spec, ("key", "kind", "label", "seed", "t_up_s", "out", "after"))
 
 
 def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
@@ -261,351 +289,6 @@ def gui_section(root: Path, run_dir: Path, label: str, cfg: SimConfig, environ: 
     )
 
 
-# -- analysis ----------------------------------------------------------------------------------
-def run_metrics(run_dir: Path, cfg: SimConfig) -> dict[str, Any]:
-    """Summary plus on-road recovery, stop-and-go and the insertion backlog for one accident run."""
-    from coopsumo.report.analysis import (
-        backlog_cleared_s,
-        insertion_backlog,
-        read_detectors,
-        recovery_time_s,
-        section_speed_bins,
-        stop_and_go,
-        stop_and_go_waves,
-    )
-
-    summary = json.loads((run_dir / "summary.json").read_text())
-    traj = pd.read_parquet(run_dir / "trajectories.parquet")
-    acc = cfg.accident
-    dt = cfg.control.dt_s
-    release_s = acc.start_step * dt
-    rec = recovery_time_s(traj, acc.x_m, release_s, threshold_mps=RECOVERY_MPS)
-    sg = stop_and_go(traj, acc.x_m - STOP_GO_UPSTREAM_M, acc.x_m, slow_mps=SLOW_MPS)
-    waves = stop_and_go_waves(read_detectors(run_dir / "detectors.xml"), acc.x_m, slow_mps=SLOW_MPS,
-                              fast_mps=RECOVERY_MPS, lookback_s=WAVE_LOOKBACK_S)  # fmt: skip
-    backlog = insertion_backlog(traj, cfg.demand.t_up_s)
-    end_s = (acc.start_step + acc.duration_steps) * dt
-    after = section_speed_bins(traj, acc.x_m - 200.0, acc.x_m, end_s, 30.0) if traj["time_s"].max() > end_s else None
-    departed = max(summary["departed"], 1)
-    return {
-        "throughput_veh_per_h": summary["throughput_veh_per_h"],
-        "mean_speed_mps": summary["mean_speed_mps"],
-        "mean_travel_time_s": summary["mean_travel_time_s"],
-        "lane_changes_per_vehicle": summary["lane_changes"] / departed,
-        "recovery_time_s": rec,
-        "recovery_step": acc.start_step + rec / dt if math.isfinite(rec) else float("nan"),
-        "wave_share": waves["wave_share"],
-        "wave_onsets": waves["n_onsets"],
-        "slow_share": sg["slow_share"],
-        "stops_per_vehicle": sg["stops_per_vehicle"],
-        "backlog_max_veh": float(backlog.max()) if len(backlog) else 0.0,
-        "backlog_cleared_s": backlog_cleared_s(backlog, release_s, cfg.road.lanes),
-        "backlog_at_end_veh": summary["insertion_pending_at_end"],
-        "backlog_at_accident_end_veh": float(backlog[backlog.index <= end_s].iloc[-1]) if len(backlog) else 0.0,
-        "speed_after_accident_mps": float(after.median()) if after is not None and after.notna().any() else math.nan,
-        "collisions": summary["collisions"],
-        "teleports": summary["teleports"],
-        "insertion_blocked": summary["insertion_blocked"],
-        "arrived": summary["arrived"],
-    }
-
-
-METRICS = (
-    ("throughput_veh_per_h", "throughput (veh/h)", "{:.0f}"),
-    ("mean_speed_mps", "mean speed (m/s)", "{:.2f}"),
-    ("mean_travel_time_s", "mean travel time (s)", "{:.1f}"),
-    ("lane_changes_per_vehicle", "lane changes / veh", "{:.2f}"),
-    ("recovery_step", "on-road recovery > 15 m/s (step)", "{:.0f}"),
-    ("wave_share", "stop-and-go onsets / loop interval", "{:.3f}"),
-    ("slow_share", "share of veh-time < 5 m/s upstream", "{:.3f}"),
-    ("backlog_max_veh", "most vehicles waiting to enter", "{:.0f}"),
-    ("backlog_cleared_s", "backlog cleared after accident start (s)", "{:.0f}"),
-    ("collisions", "collisions", "{:.0f}"),
-    ("teleports", "teleports", "{:.0f}"),
-)
-
-
-def aggregate(rows: pd.DataFrame) -> pd.DataFrame:
-    """Mean and standard deviation over seeds per policy (columns metric_mean, metric_std)."""
-    keys = [m for m, _, _ in METRICS] + ["recovery_time_s", "backlog_at_accident_end_veh", "speed_after_accident_mps"]
-    grouped = rows.groupby("policy", sort=False)[keys]
-    mean = grouped.mean().add_suffix("_mean")
-    std = grouped.std(ddof=1).add_suffix("_std")
-    out = pd.concat([mean, std], axis=1)
-    out["seeds"] = grouped.size()
-    finite = rows[keys].notna().groupby(rows["policy"], sort=False).sum().add_suffix("_n")
-    out = pd.concat([out, finite], axis=1)
-    out["recovered_runs"] = out["recovery_time_s_n"] if "recovery_time_s_n" in out else out["recovery_step_n"]
-    return out.reset_index()
-
-
-COUNTED = ("recovery_step", "backlog_cleared_s")
-"""metrics that may never happen in a run: the table says in how many seeds they did"""
-
-
-def _fmt(fmt: str, mean: float, std: float) -> str:
-    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
-        return "never"
-    text = fmt.format(mean)
-    if std is not None and not (isinstance(std, float) and math.isnan(std)):
-        text += " ± " + fmt.format(std)
-    return text
-
-
-def report_table(agg: pd.DataFrame) -> str:
-    header = "| policy | " + " | ".join(label for _, label, _ in METRICS) + " |"
-    lines = [header, "|" + "---|" * (len(METRICS) + 1)]
-    for _, r in agg.iterrows():
-        cells = [_fmt(fmt, r[f"{m}_mean"], r[f"{m}_std"])
-                 + (f" ({int(r[f'{m}_n'])}/{int(r['seeds'])})" if m in COUNTED and 0 < r[f"{m}_n"] < r["seeds"] else "")
-                 for m, _, fmt in METRICS]  # fmt: skip
-        lines.append(f"| {r['policy']} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def _paired(rows: pd.DataFrame, a: str, b: str, metric: str) -> tuple[float, float, int, int]:
-    """Seed-paired difference a - b of a metric: (mean, sd, seeds where a < b, seeds compared)."""
-    wide = rows.pivot_table(index="seed", columns="policy", values=metric, aggfunc="first")
-    diff = (wide[a] - wide[b]).dropna() if a in wide and b in wide else pd.Series(dtype=float)
-    sd = float(diff.std(ddof=1)) if len(diff) > 1 else float("nan")
-    return float(diff.mean()) if len(diff) else float("nan"), sd, int((diff < 0).sum()), len(diff)
-
-
-def verdict(rows: pd.DataFrame, agg: pd.DataFrame, coop: str, noncoop: str) -> str:
-    """The paper's claim for Scenario I checked on coop against noncoop: on-road recovery, stop-and-go waves,
-    mean speed and throughput, each with its spread over seeds; one headline sentence first."""
-    a = agg.set_index("policy")
-    if coop not in a.index or noncoop not in a.index:
-        return f"`{coop}` and `{noncoop}` are not both in the study; no comparison."
-    c, n = a.loc[coop], a.loc[noncoop]
-    seeds = int(c["seeds"])
-    c_rec, n_rec = int(c["recovery_step_n"]), int(n["recovery_step_n"])
-    wave_mean, wave_sd, wave_fewer, pairs = _paired(rows, coop, noncoop, "wave_share")
-    speed_mean, speed_sd, _, _ = _paired(rows, coop, noncoop, "mean_speed_mps")
-    recovers = c_rec == seeds and n_rec < seeds
-    calmer = pairs > 0 and wave_fewer == pairs
-    if recovers and calmer:
-        head = "**The claim holds here**"
-    elif recovers or calmer:
-        head = "**The claim holds in part**"
-    else:
-        head = "**The claim does not hold here**"
-
-    def rec(row: pd.Series) -> str:
-        k = int(row["recovery_step_n"])
-        if k == 0:
-            return f"never recovers (0 of {seeds} seeds)"
-        step = _fmt("{:.0f}", row["recovery_step_mean"], row["recovery_step_std"])
-        return f"recovers in {k} of {seeds} seeds, at step {step}"
-
-    return (
-        f"{head}: with `{coop}` the traffic {rec(c)}; with `{noncoop}` it {rec(n)}. Stop-and-go onsets per "
-        f"upstream loop interval: {_fmt('{:.3f}', c['wave_share_mean'], c['wave_share_std'])} against "
-        f"{_fmt('{:.3f}', n['wave_share_mean'], n['wave_share_std'])} (seed-paired difference "
-        f"{wave_mean:+.3f} ± {wave_sd:.3f}; fewer with `{coop}` on {wave_fewer} of {pairs} seeds). Mean speed "
-        f"{c['mean_speed_mps_mean']:.2f} against {n['mean_speed_mps_mean']:.2f} m/s (paired difference "
-        f"{speed_mean:+.2f} ± {speed_sd:.2f} m/s), throughput {c['throughput_veh_per_h_mean']:.0f} against "
-        f"{n['throughput_veh_per_h_mean']:.0f} veh/h, lane changes per vehicle "
-        f"{c['lane_changes_per_vehicle_mean']:.2f} against {n['lane_changes_per_vehicle_mean']:.2f}."
-    )
-
-
-def cooperative_alpha(agg: pd.DataFrame, preset: str, alphas: Sequence[float]) -> float | None:
-    """The largest alpha > 0 whose model still makes at least COOPERATIVE_LC_SHARE of alpha = 0's lane changes
-    per vehicle in these runs: cooperative, but not simply `keep`. None if none does (or alpha = 0 is missing)."""
-    a = agg.set_index("policy")
-    base = model_label(preset, 0.0)
-    if base not in a.index:
-        return None
-    floor = max(COOPERATIVE_LC_SHARE * float(a.loc[base, "lane_changes_per_vehicle_mean"]), 1e-9)
-    found = [x for x in alphas if x > 0 and model_label(preset, x) in a.index
-             and float(a.loc[model_label(preset, x), "lane_changes_per_vehicle_mean"]) >= floor]  # fmt: skip
-    return max(found) if found else None
-
-
-DEVIATIONS = (
-    ("simulator", "own simulator", "Eclipse SUMO via libsumo; SUMO's car-following and lane changing off"),
-    ("Newell c, d", "not given", "c = 1.1 1/s, d = -0.1, bumper-to-bumper gap; ~1,970 veh/h per lane at saturation"),
-    ("road", "length not given", "2,000 m, 3.2 m lanes; loops at 200, 400, ..., 1,800 m on every lane"),
-    ("v_exp", "random, clipped 40-110 km/h", "normal, mean 85 km/h, sd 15 km/h, clipped 40-110 km/h"),
-    ("T_up", "not given", "interval between vehicles for the whole road; lane drawn uniformly"),
-    (
-        "accident",
-        "stuck ratio p decays 1 -> 0 over ~50,000 steps",
-        "a vehicle entering the 100 m before x = 1,300 m is held with probability p; a held vehicle stops at "
-        "the line and, standing at the head of its queue, is re-drawn every 1 s; p linear 1 -> 0",
-    ),
-    ("release start", "not defined", "the accident's first step: p starts to fall below 1 and releases begin"),
-    ("lane 1 (Fig. 4)", "not defined", f"SUMO lane index {FIG4_LANE} (the rightmost lane)"),
-    ("trajectories", "-", "recorded every 5 steps (0.5 s) to keep the files small; SUMO's FCD every 5 s"),
-    ("baselines", "-", "keep, greedy, MOBIL (p = 0.5) on the Newell controller; SUMO's own Krauss + LC2013"),
-    (
-        "\"none\" at a standstill",
-        "keeps the speed, zero included",
-        "default learner: not offered below 1 m/s (a learned vehicle cannot stand for good); --preset paper: offered",
-    ),
-    (
-        "collisions",
-        "-",
-        "pairs of vehicle bodies overlapping in a lane after a step, checked every step in Python; SUMO's "
-        "own check (--sumo-collision-check) agrees in the tests but is off here: it cost 45% of a jammed step",
-    ),
-)
-
-
-def deviations_table() -> str:
-    lines = ["| topic | paper | here |", "|---|---|---|"]
-    lines += [f"| {a} | {b} | {c} |" for a, b, c in DEVIATIONS]
-    return "\n".join(lines) + "\n"
-
-
-def timing_note(
-    wall_s: float,
-    models_reused: int,
-    models: int,
-    runs_reused: int,
-    runs: int,
-    train_files: list[Path],
-    run_files: list[Path],
-) -> str:
-    """Wall time of this invocation, what it reused, and the compute the reused parts recorded."""
-    train_s = [float(json.loads(f.read_text()).get("wall_seconds", 0.0)) for f in train_files if f.exists()]
-    run_s = sum(float(json.loads(f.read_text()).get("wall_seconds", 0.0)) for f in run_files if f.exists())
-    text = f"Wall time of this invocation: {wall_s / 60:.1f} min"
-    if models_reused or runs_reused:
-        text += f" (reused {models_reused} of {models} models and {runs_reused} of {runs} runs)"
-    text += (
-        f". Compute recorded by the parts: trainings {', '.join(f'{t / 60:.1f}' for t in train_s)} min"
-        f" (run in parallel); accident runs {run_s / 60:.1f} core-min."
-    )
-    return text
-
-
-def why_text(agg: pd.DataFrame, plan: Plan) -> str:
-    """Why the road recovers or not: the backlog left when the accident ends and the speed while it drains."""
-    a = agg.set_index("policy")
-    end_step = plan.accident_start + plan.accident_steps
-    parts = [f"`{p}` {r['backlog_at_accident_end_veh_mean']:.0f} vehicles, {r['speed_after_accident_mps_mean']:.1f} m/s"
-             for p, r in a.iterrows() if math.isfinite(r["speed_after_accident_mps_mean"])]  # fmt: skip
-    if not parts:
-        return ""
-    text = (f"**Why.** When the accident ends (step {end_step}), vehicles that could not enter during the jam "
-            f"are still waiting (backlog then), and after it the speed in the 200 m before the bottleneck (median "
-            f"of 30 s bins) is: {'; '.join(parts)}.")  # fmt: skip
-    slow = [str(p) for p, r in a.iterrows() if r["speed_after_accident_mps_mean"] < RECOVERY_MPS]
-    if slow:
-        text += (
-            f" For {', '.join(f'`{p}`' for p in slow)}: while the backlog drains, the road is fed at its capacity "
-            f"and holds the speed it has at capacity, below {RECOVERY_MPS:g} m/s; it rises above it only once the "
-            "backlog is gone (the figure). So whether "
-            f"a run \"recovers\" before step {plan.steps} is decided by how large a backlog the jam left, i.e. by "
-            "the throughput during the accident: the backlog columns say more than the recovery step."
-        )
-    stalled = [str(p) for p, r in a.iterrows()
-               if r["teleports_mean"] >= 10 and r["lane_changes_per_vehicle_mean"] < 0.01]  # fmt: skip
-    if stalled:
-        text += (f" {', '.join(f'`{p}`' for p in stalled)} make no lane change and leave vehicles standing (teleports: "
-                 "SUMO removes a vehicle that stood 300 s at the head of its lane), so their backlog is the largest.")
-    return text
-
-
-def write_report(
-    root: Path,
-    plan: Plan,
-    rows: pd.DataFrame,
-    agg: pd.DataFrame,
-    timing: str,
-    figures: dict[str, str],
-    gui_text: str = "",
-) -> None:
-    """report.md; gui_text: the sumo-gui screenshot paragraph (gui_section)."""
-    acc = accident_config(plan, "keep", plan.seeds[0]).accident
-    dt = ControlConfig().dt_s
-    sections = []
-    for preset in plan.presets:
-        noncoop = model_label(preset, 0.0)
-        coop_alpha = cooperative_alpha(agg, preset, plan.alphas)
-        lines = [f"### Learner preset `{preset}`\n"]
-        for x in (x for x in plan.alphas if x > 0):
-            lines.append(f"- alpha = {x:g} against alpha = 0: " + verdict(rows, agg, model_label(preset, x), noncoop))
-        if coop_alpha is None:
-            lines.append(f"\nNo model with alpha > 0 makes even {COOPERATIVE_LC_SHARE:.0%} of alpha = 0's lane "
-                         "changes here: every cooperative model of this preset behaves like `keep`.")  # fmt: skip
-        else:
-            label = model_label(preset, coop_alpha)
-            lc = agg.set_index("policy").loc[label, "lane_changes_per_vehicle_mean"]
-            lines.append(f"\nThe cooperative model that is not simply `keep`: **alpha = {coop_alpha:g}** "
-                         f"(`{label}`, {lc:.2f} lane changes per vehicle; the largest alpha whose "
-                         f"model makes at least {COOPERATIVE_LC_SHARE:.0%} of alpha = 0's lane changes).")  # fmt: skip
-        sections.append("\n".join(lines))
-    text = f"""# Scenario I: accident bottleneck
-
-{plan.lanes} lanes, T_up = {plan.t_up_s:g} s ({3600 / plan.t_up_s:.0f} veh/h), {plan.steps} steps \
-({plan.steps * dt / 3600:.2f} h);
-accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps
-(t = {acc.start_step * dt:.0f}-{(acc.start_step + acc.duration_steps) * dt:.0f} s), stuck ratio decaying 1 -> 0.
-Models (learner presets {", ".join(f"`{p}`" for p in plan.presets)};
-alpha in {{{", ".join(f"{x:g}" for x in plan.alphas)}}}) trained {plan.train_steps} steps in free flow
-(seed {plan.train_seed}); evaluated greedily here on seeds
-{", ".join(map(str, plan.seeds))} (same demand for every policy). Values: mean ± standard deviation over seeds.
-
-## The paper's claim and the answer
-
-The paper (section IV.A, Fig. 4-5): with cooperation (alpha = 8) the stop-and-go waves disappear and the
-traffic recovers above 15 m/s after about 74,000 steps; without it (alpha = 0) the bottleneck remains.
-
-{chr(10).join(sections)}
-
-{report_table(agg)}
-
-{why_text(agg, plan)}
-
-Definitions (chosen here; the paper gives none):
-- **On-road recovery**: the step at which the space-mean speed of the vehicles in the 200 m before the
-  bottleneck, in 30 s bins from the accident's start, rises above 15 m/s and stays above it to the end
-  (at least 2 bins; "never" when it does not; "(k/n)" when only k of n seeds recover, the mean is over those).
-  It is measured on the road only: vehicles that could not enter during the jam are not in it.
-- **Insertion backlog**: vehicles due to enter (vehicle k is due at k T_up) that are not yet on the road,
-  from the trajectories every {plan.trajectory_every * dt:g} s. Reported separately, as its largest value and the
-  time after the accident's start from which it stays at most one vehicle per lane ("cleared"), so that the
-  recovery above is not decided by how the queued vehicles are inserted afterwards. The figure shows both.
-- **Stop-and-go onsets**: the share of loop intervals ({plan.loop_period_s:g} s, every loop upstream of the
-  bottleneck) whose speed is below 5 m/s while the same loop measured above 15 m/s in an interval that began
-  within the previous {WAVE_LOOKBACK_S:.0f} s (an interval in which nobody passed an occupied loop counts as
-  0 m/s; an empty one is skipped). Slow share: vehicle-time below 5 m/s within 1,000 m upstream.
-
-## Figures
-
-![recovery]({figures["recovery"]})
-
-Recovery, seed {plan.seeds[0]}: space-mean speed in the 200 m before the bottleneck (30 s bins; dashed: 15 m/s)
-and the vehicles waiting to enter, per policy; grey: the accident window.
-
-![time-space]({figures["fig4"]})
-
-Fig. 4: trajectories on SUMO lane {FIG4_LANE} (the paper's "lane 1"), seed {plan.seeds[0]}, coloured by speed;
-the grey band is the accident window, the dashed line the bottleneck.
-
-![flow-density]({figures["fig5"]})
-
-Fig. 5: flow against density from every loop and {plan.loop_period_s:g} s interval, seed {plan.seeds[0]}; one
-panel per policy, the other policies' points in grey behind.
-
-{gui_text}
-
-Every run folder (`runs/<policy>_seed<k>/`) also holds SUMO's own `fcd.xml` (every {plan.fcd_period_s:g} s)
-and `tripinfo.xml`, for SUMO's tools (the README draws Fig. 4 from `fcd.xml` with `plot_trajectories.py`).
-
-## Deviations and choices
-
-{deviations_table()}
-{timing}
-
-Versions: {json.dumps(versions())}.
-"""
-    (root / "report.md").write_text(text)
-
-
 def label_for(policy: str) -> str:
     """Short name of a policy in tables and folders: dqn_<model folder> for a model, else the spec."""
     if policy.startswith("dqn:"):
@@ -628,8 +311,18 @@ def _preset_list(text: str) -> tuple[str, ...]:
 
 def main(argv: list[str] | None = None) -> int:
     p = Parser(prog="python -m coopsumo.scenario1", description="Scenario I: the accident bottleneck study.")
-    p.add_argument("--quick", action="store_true", help="small step counts for a first look (a few minutes)")
-    p.add_argument("--seeds", type=seed_count, default=None, help="number of evaluation seeds (default 3; quick 2)")
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="2 demands, 1 seed, small step counts: a few minutes")
+    size.add_argument("--full", action="store_true",
+                      help="the paper's accident (90,000 steps, 50,000 of them decaying), 4 demands, "
+                           "5 seeds")  # fmt: skip
+    p.add_argument("--seeds", type=seed_count, default=None,
+                   help="number of evaluation seeds, 1..N (default 3; quick 1; full 5)")  # fmt: skip
+    p.add_argument("--t-up", dest="t_ups", default=None,
+                   help="demands: T_up (s) of the accident runs, comma-separated, e.g. 3,1.5,1 "
+                        f"(default {','.join(f'{t:g}' for t in DEMANDS)})")  # fmt: skip
+    p.add_argument("--mobil-p", dest="mobil_ps", default=None,
+                   help=f"MOBIL politeness values, comma-separated (default {','.join(f'{x:g}' for x in MOBIL_PS)})")
     p.add_argument("--out", type=out_dir, default=Path("results/scenario1"), help="results folder")
     p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
     add_backend_flags(p)
@@ -645,13 +338,17 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
 
     def body() -> int:
-        plan = Plan.quick() if args.quick else Plan()
+        plan = Plan.quick() if args.quick else Plan.full() if args.full else Plan()
         if args.seeds is not None:
             if args.seeds < 1:
                 raise UsageError(f"seeds must be >= 1, got {args.seeds}")
             plan = replace(plan, seeds=tuple(range(1, args.seeds + 1)))
         if args.workers < 1:
             raise UsageError(f"workers must be >= 1, got {args.workers}")
+        if args.t_ups is not None:
+            plan = replace(plan, t_ups=t_up_list("--t-up", args.t_ups, ControlConfig().dt_s))
+        if args.mobil_ps is not None:
+            plan = replace(plan, mobil_ps=distinct_list("--mobil-p", args.mobil_ps, low=0.0))
         if args.train_steps is not None:
             if args.train_steps < 1:
                 raise UsageError(f"train-steps must be >= 1, got {args.train_steps}")
@@ -659,8 +356,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.steps is not None:
             if args.steps < 10:
                 raise UsageError(f"steps must be >= 10, got {args.steps}")
-            plan = replace(plan, steps=args.steps, accident_start=args.steps * 2 // 9,
-                           accident_steps=args.steps * 5 // 9)  # fmt: skip
+            scale = args.steps / plan.steps
+            plan = replace(plan, steps=args.steps, accident_start=max(int(plan.accident_start * scale), 1),
+                           accident_steps=max(int(plan.accident_steps * scale), 1))  # fmt: skip
         if args.alphas is not None:
             plan = replace(plan, alphas=_alpha_list(args.alphas))
         if args.presets is not None:
@@ -669,6 +367,11 @@ def main(argv: list[str] | None = None) -> int:
         return run_study(plan, args.out, args.workers, args.backend, args.address)
 
     return run_cli("scenario1", body)
+
+
+def run_folder(label: str, seed: int, t_up: float) -> str:
+    """A run's folder under the results folder: runs/t<T_up>/<label>_seed<k>."""
+    return f"runs/t{t_up:g}/{label}_seed{seed}"
 
 
 def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "local", address: str | None = None) -> int:
@@ -698,20 +401,24 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
                           "seed": plan.train_seed, "out": f"models/{name}", "config": to_dict(tcfg)})  # fmt: skip
     n_train = len(specs)
     retrained = {spec["key"] for spec in specs}
-    policies = [(f"dqn:{model_paths[k]}", train_keys[k]) for k in model_paths] + [(b, None) for b in plan.baselines]
-    runs: list[tuple[str, int, Path, SimConfig]] = []
+    policies: list[tuple[str, str | None]] = [(f"dqn:{model_paths[k]}", train_keys[k]) for k in model_paths]
+    policies += [(b, None) for b in plan.baseline_policies()]
+    runs: list[tuple[str, float, int, Path, SimConfig]] = []
     for policy, after in policies:
-        for seed in plan.seeds:
-            cfg = accident_config(plan, policy, seed)
-            label = label_for(policy)
-            out = root / "runs" / f"{label}_seed{seed}"
-            runs.append((label, seed, out, cfg))
-            model = Path(policy[4:]) if policy.startswith("dqn:") else None
-            if after not in retrained and _reusable_run(out, cfg, plan.outputs(), model):
-                continue
-            specs.append({"key": f"run_{label}_seed{seed}", "kind": "run", "label": label, "seed": seed,
-                          "out": f"runs/{label}_seed{seed}", "after": after, "config": to_dict(cfg),
-                          "trajectory_every": plan.trajectory_every, "outputs": to_dict(plan.outputs())})  # fmt: skip
+        for t_up in plan.t_ups:
+            for seed in plan.seeds:
+                cfg = accident_config(plan, policy, seed, t_up)
+                label = label_for(policy)
+                folder = run_folder(label, seed, t_up)
+                out = root / folder
+                runs.append((label, t_up, seed, out, cfg))
+                model = Path(policy[4:]) if policy.startswith("dqn:") else None
+                if after not in retrained and _reusable_run(out, cfg, plan.outputs(), model):
+                    continue
+                specs.append({"key": f"run_t{t_up:g}_{label}_seed{seed}", "kind": "run", "label": label,
+                              "seed": seed, "t_up_s": t_up, "out": folder, "after": after, "config": to_dict(cfg),
+                              "trajectory_every": plan.trajectory_every,
+                              "outputs": to_dict(plan.outputs())})  # fmt: skip
     n_cells = len(model_paths) + len(runs)
     if specs:
         from coopsumo.sim.network import build_net
@@ -734,45 +441,138 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
             return 1
 
     # 2. tables, figures, report
-    from coopsumo.report.analysis import flow_density, insertion_backlog, read_detectors, section_speed_bins
-    from coopsumo.report.plots import flow_density_figure, recovery_figure, time_space_figure
+    from coopsumo.studies.scenario1_report import run_metrics
 
-    order = {lab: i for i, (lab, _, _, _) in enumerate(runs)}
-    rows = pd.DataFrame([{"policy": lab, "seed": seed, **run_metrics(out, cfg)} for lab, seed, out, cfg in runs])
-    rows = rows.sort_values(["policy", "seed"], key=lambda c: c.map(order) if c.name == "policy" else c,
-                            kind="stable", ignore_index=True)  # fmt: skip
+    sample_s = plan.trajectory_every * ControlConfig().dt_s
+    order = {lab: i for i, lab in enumerate(dict.fromkeys(r[0] for r in runs))}
+    rows = pd.DataFrame([{"t_up_s": t_up, "policy": lab, "seed": seed, **run_metrics(out, cfg, sample_s)}
+                         for lab, t_up, seed, out, cfg in runs])  # fmt: skip
+    rows = rows.sort_values(["t_up_s", "policy", "seed"], ascending=[False, True, True],
+                            key=lambda c: c.map(order) if c.name == "policy" else c, kind="stable",
+                            ignore_index=True)  # fmt: skip
     rows.to_csv(root / "runs.csv", index=False)
-    agg = aggregate(rows)
-    agg.to_csv(root / "summary.csv", index=False)
-    first = plan.seeds[0]
-    cfg0 = runs[0][3]
-    acc, dt = cfg0.accident, cfg0.control.dt_s
-    window = (acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt)
-    firsts = [(lab, out) for lab, seed, out, _ in runs if seed == first]
-    shown = [model_label(plan.presets[0], x) for x in plan.alphas]
-    trajs = {lab: pd.read_parquet(out / "trajectories.parquet") for lab, out in firsts if lab in shown}
-    time_space_figure(trajs, FIG4_LANE, root / "fig4_time_space.png", window, acc.x_m,
-                      title_lane=f"SUMO lane {FIG4_LANE} (paper's lane 1)")  # fmt: skip
-    fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, out in firsts}
-    flow_density_figure(fd, root / "fig5_flow_density.png")
-    speeds, backlogs = {}, {}
-    for lab, out in firsts:
-        traj = pd.read_parquet(out / "trajectories.parquet", columns=["time_s", "vid", "pos_m", "speed_mps"])
-        speeds[lab] = section_speed_bins(traj, acc.x_m - 200.0, acc.x_m, 0.0, 30.0)
-        backlogs[lab] = insertion_backlog(traj, plan.t_up_s)
-    recovery_figure(speeds, backlogs, root / "fig_recovery.png", window, RECOVERY_MPS)
-    gui_label = model_label(plan.presets[0], GUI_ALPHA if GUI_ALPHA in plan.alphas else max(plan.alphas))
-    _, gui_seed, gui_out, gui_cfg = next(r for r in runs if r[0] == gui_label and r[1] == first)
-    gui_text = gui_section(root, gui_out, f"{gui_label}_seed{gui_seed}", gui_cfg)
     wall = time.perf_counter() - start
-    timing = timing_note(wall, len(model_paths) - n_train, len(model_paths), len(runs) - (len(specs) - n_train),
-                         len(runs), [m.parent / "train_summary.json" for m in model_paths.values()],
-                         [out / "summary.json" for _, _, out, _ in runs])  # fmt: skip
-    figures = {"fig4": "fig4_time_space.png", "fig5": "fig5_flow_density.png", "recovery": "fig_recovery.png"}
-    write_report(root, plan, rows, agg, timing, figures, gui_text)
-    print(report_table(agg))
-    print(f"scenario1: done in {wall / 60:.1f} min; report: {root / 'report.md'}")
+    timing = timing_text(plan, runs, model_paths, n_train, len(specs), wall)
+    write_outputs(root, plan, rows, runs, timing)
+    print(f"scenario1: done in {(time.perf_counter() - start) / 60:.1f} min; report: {root / 'report.md'}")
     return 0
+
+
+def comparison_pairs(plan: Plan, rows: pd.DataFrame) -> tuple[list[tuple[str, str]], float | None]:
+    """The verdict's pairs (cooperative, non-cooperative): every alpha > 0 against alpha = 0 per learner preset,
+    every MOBIL p > 0 against p = 0; and the first preset's cooperative alpha (the largest still changing lanes)."""
+    from coopsumo.studies.scenario1_report import cooperative_alpha
+
+    pairs = [(model_label(pr, x), model_label(pr, 0.0)) for pr in plan.presets for x in plan.alphas if x > 0]
+    if 0.0 in plan.mobil_ps:
+        pairs += [(label_for(f"mobil:p={x:g}"), label_for("mobil:p=0")) for x in plan.mobil_ps if x > 0]
+    coop = cooperative_alpha(rows, {x: model_label(plan.presets[0], x) for x in plan.alphas})
+    return pairs, coop
+
+
+def fig4_windows(rows: pd.DataFrame, t_up: float, labels: Sequence[str], seed: int, start_s: float,
+                 run_end_s: float) -> dict[str, tuple[float, float]]:  # fmt: skip
+    """Fig. 4's two windows (s) of WINDOW_S: the jam's onset (from a minute before the accident), and its
+    dissolution (centred on the mean on-road recovery of the shown runs; the run's last window if none recovers)."""
+    at = rows[(rows["t_up_s"] == t_up) & (rows["seed"] == seed) & rows["policy"].isin(list(labels))]
+    rec = at["recovery_time_s"].dropna()
+    onset = (max(start_s - 60.0, 0.0), max(start_s - 60.0, 0.0) + WINDOW_S)
+    if len(rec):
+        mid = start_s + float(rec.mean())
+        lo = min(max(mid - WINDOW_S / 2, 0.0), max(run_end_s - WINDOW_S, 0.0))
+    else:
+        lo = max(run_end_s - WINDOW_S, 0.0)
+    return {"onset": onset, "dissolution": (lo, lo + WINDOW_S)}
+
+
+def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[str, float, int, Path, SimConfig]],
+                  timing: str) -> None:  # fmt: skip
+    """summary.csv, the figures and report.md from the table of runs."""
+    from coopsumo.report.analysis import flow_density, insertion_backlog, read_detectors, section_speed_bins
+    from coopsumo.report.bottleneck import REGIMES
+    from coopsumo.report.plots import demand_figure, flow_density_figure, recovery_figure, trajectory_windows_figure
+    from coopsumo.studies import scenario1_report as rep
+
+    agg = rep.aggregate(rows)
+    agg.to_csv(root / "summary.csv", index=False)
+    pairs, coop = comparison_pairs(plan, rows)
+    first = plan.seeds[0]
+    cfg0 = runs[0][4]
+    acc, dt = cfg0.accident, cfg0.control.dt_s
+    start_s, end_s, run_end_s = acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt, plan.steps * dt
+    window = (start_s, end_s)
+    figures: dict[str, str] = {}
+    for name in [p.name for p in root.glob("fig*.png")]:
+        (root / name).unlink()  # figures of an earlier study with other demands must not stay beside this one
+    for t_up in plan.t_ups:
+        firsts = [(lab, out) for lab, t, seed, out, _ in runs if seed == first and t == t_up]
+        fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, out in firsts}
+        figures[f"fig5_t{t_up:g}"] = flow_density_figure(fd, root / f"fig5_flow_density_t{t_up:g}.png").name
+        speeds, backlogs = {}, {}
+        for lab, out in firsts:
+            traj = pd.read_parquet(out / "trajectories.parquet", columns=["time_s", "vid", "pos_m", "speed_mps"])
+            speeds[lab] = section_speed_bins(traj, acc.x_m - 200.0, acc.x_m, 0.0, 30.0)
+            backlogs[lab] = insertion_backlog(traj, t_up)
+        figures[f"recovery_t{t_up:g}"] = recovery_figure(speeds, backlogs, root / f"fig_recovery_t{t_up:g}.png",
+                                                         window, rep.RECOVERY_MPS).name  # fmt: skip
+    tts_table = rep.demand_table(rows, "tts_veh_h")
+    demand_figure(tts_table, "tts_veh_h", "total time spent (veh-h, log scale)", root / "fig_tts_demand.png")
+    noncoop = model_label(plan.presets[0], 0.0)
+    shown_alpha = coop if coop is not None else max(plan.alphas)
+    shown = [noncoop] + ([model_label(plan.presets[0], shown_alpha)] if shown_alpha > 0 else [])
+    fig4_t = rep.most_different_demand(rows, shown[-1], noncoop) if len(shown) > 1 else None
+    fig4_t = fig4_t if fig4_t is not None else plan.t_ups[0]
+    windows = fig4_windows(rows, fig4_t, shown, first, start_s, run_end_s)
+    trajs = {lab: pd.read_parquet(out / "trajectories.parquet") for lab, t, seed, out, _ in runs
+             if seed == first and t == fig4_t and lab in shown}  # fmt: skip
+    trajectory_windows_figure(trajs, FIG4_LANE, windows, root / "fig4_trajectories.png", acc.x_m,
+                              f"SUMO lane {FIG4_LANE}")  # fmt: skip
+    gui_label = model_label(plan.presets[0], GUI_ALPHA if GUI_ALPHA in plan.alphas else max(plan.alphas))
+    gui_t = min(plan.t_ups)
+    _, _, gui_seed, gui_out, gui_cfg = next(r for r in runs if r[0] == gui_label and r[2] == first and r[1] == gui_t)
+    gui_text = gui_section(root, gui_out, f"t{gui_t:g}/{gui_label}_seed{gui_seed}", gui_cfg)
+
+    header = (
+        f"Profile `{plan.profile}`: {plan.lanes} lanes; demands T_up = {', '.join(f'{t:g}' for t in plan.t_ups)} s "
+        f"({', '.join(f'{3600 / t:.0f}' for t in plan.t_ups)} veh/h); {plan.steps} steps ({plan.steps * dt:.0f} s) "
+        f"per run; the accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps "
+        f"(t = {start_s:.0f}-{end_s:.0f} s), stuck ratio decaying 1 -> 0. Models (learner presets "
+        f"{', '.join(f'`{p}`' for p in plan.presets)}; alpha in {{{', '.join(f'{x:g}' for x in plan.alphas)}}}) "
+        f"trained once, {plan.train_steps} steps in free flow at T_up = {plan.train_t_up_s:g} s (seed "
+        f"{plan.train_seed}); evaluated greedily on seeds {', '.join(map(str, plan.seeds))}, which no model saw; "
+        f"every policy meets the same demand on the same seeds. Values: mean ± standard deviation over seeds."
+    )
+    if coop is None:
+        claim = ("No model with alpha > 0 makes even 10% of alpha = 0's lane changes here: every cooperative model "
+                 "behaves like `keep`.")  # fmt: skip
+    else:
+        claim = (f"The cooperative model that is not simply `keep`: **alpha = {coop:g}** (the largest alpha whose "
+                 f"model makes at least 10% of alpha = 0's lane changes per vehicle over every accident run).")
+    sections = [rep.demand_section(rows, agg, t, pairs, figures) for t in plan.t_ups]
+    regimes = rep.regime_table(rows, REGIMES)
+    figures_text = (
+        f"![total time spent](fig_tts_demand.png)\n\nTotal time spent against the inflow, per policy: mean over "
+        f"seeds with its 95% bootstrap interval.\n\n![Fig. 4](fig4_trajectories.png)\n\nFig. 4 as in the paper: "
+        f"partial trajectories on SUMO lane {FIG4_LANE} (the paper's \"lane 1\"), one line per vehicle coloured by "
+        f"speed, at T_up = {fig4_t:g} s (the demand where `{shown[-1]}` and `{noncoop}` differ most in total time "
+        f"spent), seed {first}: {WINDOW_S / 60:.0f} minutes around the jam's onset "
+        f"({windows['onset'][0]:.0f}-{windows['onset'][1]:.0f} s) and around its dissolution "
+        f"({windows['dissolution'][0]:.0f}-{windows['dissolution'][1]:.0f} s); dashed: the bottleneck."
+    )
+    write_report(root, header, claim, sections, regimes, figures_text, gui_text, timing, json.dumps(versions()))
+    print(rep.report_table(agg[agg["t_up_s"] == plan.t_ups[-1]]))
+
+
+def timing_text(plan: Plan, runs: list[tuple[str, float, int, Path, SimConfig]],
+                model_paths: dict[tuple[str, float], Path], n_train: int, n_specs: int,
+                wall: float) -> str:  # fmt: skip
+    from coopsumo.studies.scenario1_report import timing_note
+
+    per: dict[float, list[Path]] = {t: [] for t in plan.t_ups}
+    for _, t_up, _, out, _ in runs:
+        per[t_up].append(out / "summary.json")
+    return timing_note(wall, len(model_paths) - n_train, len(model_paths), len(runs) - (n_specs - n_train), len(runs),
+                       [m.parent / "train_summary.json" for m in model_paths.values()], per)  # fmt: skip
 
 
 if __name__ == "__main__":
