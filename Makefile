@@ -7,6 +7,9 @@ QUICK   ?=
 SEEDS   ?=
 PRESET  ?=
 ALPHAS  ?=
+FULL    ?=
+T_UP    ?=
+MOBIL_P ?=
 
 .PHONY: install test lint bench demo nets scenario1 scenario2 learning clean
 
@@ -36,7 +39,7 @@ nets: $(STAMP)
 	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.sim.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"
 
 scenario1: $(STAMP)
-	$(BIN)/python -m coopsumo.scenario1 $(if $(QUICK),--quick) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
+	$(BIN)/python -m coopsumo.scenario1 $(if $(QUICK),--quick) $(if $(FULL),--full) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(T_UP),--t-up $(T_UP)) $(if $(MOBIL_P),--mobil-p $(MOBIL_P)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
 
 scenario2: $(STAMP)
 	$(BIN)/python -m coopsumo.scenario2 --profile quick --policies dqn,mobil

@@ -190,7 +190,7 @@ def test_readme_tripinfo_snippet_runs(runs: tuple[Path, Path]) -> None:
 
 def test_readme_plot_trajectories_command_draws_a_png(runs: tuple[Path, Path], tmp_path: Path) -> None:
     (cmd,) = readme_lines("plot_trajectories.py")
-    fcd = "results/scenario1/runs/keep_seed1/fcd.xml"
+    fcd = "results/scenario1/runs/t1/keep_seed1/fcd.xml"
     assert fcd in cmd
     cmd = cmd.replace(fcd, str(runs[0] / "fcd.xml")).replace("results/", f"{tmp_path}/")
     png = Path(shlex.split(cmd)[shlex.split(cmd).index("-o") + 1])

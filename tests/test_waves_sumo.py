@@ -19,8 +19,9 @@ from coopsumo.report import bottleneck as bn
 pytestmark = pytest.mark.sumo
 
 
-def _waves(tmp_path: Path, make_sim_config: Callable[..., SimConfig], accident: AccidentConfig) -> list[bn.Jam]:
-    cfg = make_sim_config(lanes=3, t_up_s=0.7, steps=3600, seed=3, policy="keep", accident=accident)
+def _waves(tmp_path: Path, make_sim_config: Callable[..., SimConfig], accident: AccidentConfig,
+           steps: int = 3600) -> list[bn.Jam]:  # fmt: skip
+    cfg = make_sim_config(lanes=3, t_up_s=0.7, steps=steps, seed=3, policy="keep", accident=accident)
     summary = run(cfg, make_policy("keep", np.random.default_rng(0)), tmp_path, trajectories=True, progress=False,
                   trajectory_every=5)  # fmt: skip
     assert summary["collisions"] == 0 and summary["teleports"] == 0
@@ -45,5 +46,5 @@ def test_a_forced_stop_in_dense_traffic_makes_waves_that_travel_upstream(
         assert -30.0 <= w.front_speed_kmh <= -5.0 and w.front_travel_m >= 100.0
         assert w.start_s >= 60.0  # not before the disturbance
     (tmp_path / "none").mkdir()
-    quiet = _waves(tmp_path / "none", make_sim_config, AccidentConfig(enabled=False))
+    quiet = _waves(tmp_path / "none", make_sim_config, AccidentConfig(enabled=False), steps=1800)
     assert [j for j in quiet if j.moving] == []

@@ -1,10 +1,11 @@
-"""`python -m coopsumo.scenario1` (`make scenario1`): the accident-bottleneck study of section IV.A.
+"""`python -m coopsumo.scenario1` (`make scenario1`): the accident-bottleneck study of section IV.A, across demands.
 
-1. trains (or reuses) the alpha = 0 and alpha = 8 models in free flow, in parallel;
-2. runs every policy (the two DQNs and the baselines) in the accident scenario, per seed;
-3. writes results/scenario1/: run folders (with SUMO's fcd.xml and tripinfo.xml), fig4_time_space.png,
-   fig5_flow_density.png, summary.csv and report.md; with a display, gui_jam.png: sumo-gui's view of
-   the jam at the bottleneck, replayed through TraCI.
+1. trains (or reuses) one model per learner preset and alpha in free flow, once;
+2. runs every model and every baseline (keep, greedy, MOBIL at every politeness, SUMO's own models) through the
+   accident at every demand T_up, on the same evaluation seeds;
+3. writes results/scenario1/: run folders runs/t<T_up>/<policy>_seed<k>/ (with SUMO's detectors.xml, fcd.xml and
+   tripinfo.xml), runs.csv, summary.csv, the figures and report.md (scenario1_report: measures, verdicts per
+   demand); with a display, gui_jam.png: sumo-gui's view of the jam at the bottleneck, replayed through TraCI.
 """
 
 from __future__ import annotations
