@@ -71,3 +71,21 @@ def test_flow_density_figure_written(tmp_path: Path) -> None:
     fd["alpha=8"].loc[3, "flow_veh_h"] = np.nan
     out = flow_density_figure(fd, tmp_path / "fd.png")
     assert_png(out, 10)
+
+
+def test_trajectory_windows_draw_one_line_per_vehicle_stint_on_the_lane(tmp_path: Path) -> None:
+    from coopsumo.report.plots import trajectory_windows_figure
+
+    trajs = {"a": synthetic_traj(1), "b": synthetic_traj(2)}
+    out = trajectory_windows_figure(trajs, 0, {"onset": (150.0, 350.0), "dissolution": (300.0, 500.0)},
+                                    tmp_path / "fig4.png", 1300.0, "lane 0")  # fmt: skip
+    assert_png(out, 20)
+
+
+def test_demand_figure_with_intervals(tmp_path: Path) -> None:
+    from coopsumo.report.plots import demand_figure
+
+    table = pd.DataFrame({"policy": ["keep", "keep", "greedy", "greedy"], "t_up_s": [2.0, 1.0, 2.0, 1.0],
+                          "tts": [40.0, 160.0, 42.0, 150.0], "tts_lo": [38.0, 150.0, 40.0, 140.0],
+                          "tts_hi": [43.0, 170.0, 44.0, 155.0]})  # fmt: skip
+    assert_png(demand_figure(table, "tts", "veh-h", tmp_path / "d.png"), 15)
