@@ -259,3 +259,43 @@ def test_the_paper_preset_stands_beside_the_default(tmp_path: Path) -> None:
     assert {"dqn_alpha0", "dqn_paper_alpha0", "keep"} <= set(summary["policy"])
     report = (out / "report.md").read_text()
     assert "| dqn_alpha0 | " in report and "| dqn_paper_alpha0 | " in report
+
+
+def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
+    """experiments/regime_map.py on shortened plans: a light demand keeps the queue on the road, a heavy one
+    (one vehicle every 0.2 s, beyond what 3 lanes can take in) fills the entrance and still waits at the end."""
+    sys.path.insert(0, str(ROOT / "experiments"))
+    try:
+        import regime_map
+    finally:
+        sys.path.remove(str(ROOT / "experiments"))
+    from dataclasses import replace
+
+    base = replace(scenario1.Plan.quick(), steps=1500, accident_start=300, accident_steps=900, seeds=(1,),
+                   t_ups=(4.0, 0.2))  # fmt: skip
+    plans = {"default": base, "paper": replace(base, accident_steps=1100)}
+    assert regime_map.run(plans, tmp_path, 1) == 0
+    table = pd.read_csv(tmp_path / "runs.csv").set_index(["accident", "t_up_s"])
+    assert len(table) == 4 and set(table["collisions"]) == {0} and set(table["teleports"]) == {0}
+    for length in plans:
+        assert table.loc[(length, 4.0), "regime"] == "on the road"
+        assert table.loc[(length, 0.2), "regime"] == "still waiting at the end"
+        assert table.loc[(length, 0.2), "tts_veh_h"] > table.loc[(length, 4.0), "tts_veh_h"]
+    report = (tmp_path / "report.md").read_text()
+    assert report.count("| still waiting at the end |") == 2 and report.count("| on the road |") == 2
+    # a rerun reuses every run
+    stamp = (tmp_path / "runs.csv").stat().st_mtime_ns
+    cells = {p: p.stat().st_mtime_ns for p in (tmp_path / "cells").glob("*.json")}
+    assert regime_map.run(plans, tmp_path, 1) == 0
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "cells").glob("*.json")} == cells
+    assert (tmp_path / "runs.csv").stat().st_mtime_ns >= stamp
+
+
+def test_regime_map_bad_demands_one_line_exit_2(tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    for bad in ("0", "1,,2", "nan", "2,2", "-1"):
+        res = subprocess.run([sys.executable, "experiments/regime_map.py", "--t-up", bad, "--out", str(out)],
+                             cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and len(lines) == 1 and "--t-up" in lines[0], (bad, res.stderr)
+        assert not out.exists()

@@ -108,8 +108,8 @@ class Plan:
     def quick() -> Plan:
         """2 demands, 1 seed, small step counts. The accident starts at 100 s, once the first vehicles have
         reached the bottleneck (1,300 m at about 23 m/s), so that even a shortened run holds a jam to show."""
-        return Plan(t_ups=(3.0, 1.0), train_steps=3000, steps=6000, accident_start=1000, accident_steps=3000, seeds=(1,),
-                    loop_period_s=30.0, profile="quick")  # fmt: skip
+        return Plan(t_ups=(3.0, 1.0), train_steps=3000, steps=6000, accident_start=1000, accident_steps=3000,
+                    seeds=(1,), loop_period_s=30.0, profile="quick")  # fmt: skip
 
     @staticmethod
     def full() -> Plan:
