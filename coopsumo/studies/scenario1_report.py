@@ -280,8 +280,10 @@ DEVIATIONS = (
     (
         "demand of scenario I",
         "not given",
-        "an axis of the study (--t-up); default 3, 1.5, 1 s: measured with `keep`, the queue stays on the road at "
-        "3 s, reaches the entrance at 1.5 s and ... at 1 s (the regime table below); one demand hid every difference",
+        "an axis of the study (--t-up); default 2, 1.5, 1 s. Measured with `keep` (results/regime_map): on the "
+        "default accident the queue stays on the road up to T_up = 2 s (about 560 m), reaches the entrance from "
+        "1.5 s (about 580 s after the accident's start; 270 s at 1 s) and has cleared by the run's end at every "
+        "demand; one demand (1 s, the earlier study) hid every difference",
     ),
     (
         "accident",
