@@ -82,6 +82,28 @@ def test_trajectory_windows_draw_one_line_per_vehicle_stint_on_the_lane(tmp_path
     assert_png(out, 20)
 
 
+def test_lane_segments_join_each_vehicles_samples_on_the_lane_and_break_where_it_leaves() -> None:
+    """Regression: sorted by vehicle, time steps back at every new vehicle; the sampling interval was then taken
+    as negative and no piece was drawn (the committed Fig. 4 was empty)."""
+    from coopsumo.report.plots import lane_segments
+
+    rows = [(t, 1, 0, 10.0 * t, 10.0) for t in (0.0, 0.5, 1.0, 1.5)]  # vehicle 1: 3 pieces on lane 0
+    rows += [(t, 2, 0 if t < 1.0 else 1, 5.0 * t, 5.0) for t in (0.0, 0.5, 1.0, 1.5)]  # 1 piece, then lane 1
+    rows += [(t, 3, 0, 8.0 * t, 8.0) for t in (0.0, 0.5, 2.0, 2.5)]  # a missing sample breaks the line: 2 pieces
+    traj = pd.DataFrame(rows, columns=["time_s", "vid", "lane", "pos_m", "speed_mps"]).sample(frac=1.0, random_state=1)
+    segments, speed = lane_segments(traj, 0)
+    assert segments.shape == (6, 2, 2) and len(speed) == 6
+    starts = sorted(map(tuple, segments[:, 0].tolist()))
+    assert starts == [(0.0, 0.0), (0.0, 0.0), (0.0, 0.0), (0.5, 5.0), (1.0, 10.0), (2.0, 16.0)]
+    assert sorted(speed.tolist()) == [5.0, 8.0, 8.0, 10.0, 10.0, 10.0]
+    assert lane_segments(traj, 1)[0].shape == (1, 2, 2)  # vehicle 2 from 1.0 s to 1.5 s
+    assert lane_segments(traj, 2)[0].shape == (0, 2, 2)
+    # the synthetic study: every vehicle on lane 0 inside the window is drawn
+    many = synthetic_traj(1)
+    window = many[(many["time_s"] >= 150.0) & (many["time_s"] <= 350.0)]
+    assert len(lane_segments(window, 0)[0]) == int((window["lane"] == 0).sum()) - window[window["lane"] == 0]["vid"].nunique()
+
+
 def test_demand_figure_with_intervals(tmp_path: Path) -> None:
     from coopsumo.report.plots import demand_figure
 

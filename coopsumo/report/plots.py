@@ -170,6 +170,26 @@ def recovery_figure(
     return save_figure(fig, out_path)
 
 
+def lane_segments(traj: pd.DataFrame, lane: int) -> tuple[np.ndarray, np.ndarray]:
+    """The line pieces of Fig. 4: ((n, 2, 2) array of [(t0, x0), (t1, x1)] in s and m, (n,) speed at the start in
+    m/s) joining each vehicle's consecutive samples while both are on `lane` (SUMO index). A vehicle's line breaks
+    where it leaves the lane or a sample is missing (a gap over 1.5 times the sampling interval, the smallest
+    time step within one vehicle)."""
+    part = traj.sort_values(["vid", "time_s"], kind="stable")
+    t = part["time_s"].to_numpy(dtype=float)
+    x = part["pos_m"].to_numpy(dtype=float)
+    vid = part["vid"].to_numpy()
+    on = part["lane"].to_numpy() == lane
+    same = vid[1:] == vid[:-1]
+    dt = np.diff(t)
+    steps = dt[same & (dt > 0)]
+    step = float(steps.min()) if len(steps) else 1.0
+    joined = same & on[1:] & on[:-1] & (dt > 0) & (dt <= 1.5 * step)
+    segments = np.stack([np.column_stack([t[:-1], x[:-1]]), np.column_stack([t[1:], x[1:]])], axis=1)[joined]
+    speed = part["speed_mps"].to_numpy(dtype=float)[:-1][joined]
+    return segments.reshape(-1, 2, 2), speed
+
+
 def trajectory_windows_figure(
     trajs: dict[str, pd.DataFrame],
     lane: int,
@@ -193,17 +213,11 @@ def trajectory_windows_figure(
     for r, (label, traj) in enumerate(trajs.items()):
         for c, (name, (t0, t1)) in enumerate(windows.items()):
             ax = axes[r, c]
-            part = traj[(traj["time_s"] >= t0) & (traj["time_s"] <= t1)].sort_values(["vid", "time_s"], kind="stable")
-            t = part["time_s"].to_numpy(dtype=float)
+            part = traj[(traj["time_s"] >= t0) & (traj["time_s"] <= t1)]
             x = part["pos_m"].to_numpy(dtype=float)
-            v = part["speed_mps"].to_numpy(dtype=float)
-            on = part["lane"].to_numpy() == lane
-            vid = part["vid"].astype(str).to_numpy()
-            step = np.diff(t).min(initial=1.0) if len(t) > 1 else 1.0
-            joined = (vid[1:] == vid[:-1]) & on[1:] & on[:-1] & (np.diff(t) <= 1.5 * max(step, 1e-9))
-            segments = np.stack([np.column_stack([t[:-1], x[:-1]]), np.column_stack([t[1:], x[1:]])], axis=1)[joined]
+            segments, seg_speed = lane_segments(part, lane)
             lines = LineCollection(list(segments), cmap=SPEED_CMAP, norm=norm, linewidths=0.7)
-            lines.set_array(v[:-1][joined])
+            lines.set_array(seg_speed)
             ax.add_collection(lines)
             ax.set_xlim(t0, t1)
             ax.set_ylim(0.0, max(float(x.max()) if len(x) else 1.0, x_bottleneck_m or 0.0) * 1.02)
