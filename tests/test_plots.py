@@ -101,7 +101,8 @@ def test_lane_segments_join_each_vehicles_samples_on_the_lane_and_break_where_it
     # the synthetic study: every vehicle on lane 0 inside the window is drawn
     many = synthetic_traj(1)
     window = many[(many["time_s"] >= 150.0) & (many["time_s"] <= 350.0)]
-    assert len(lane_segments(window, 0)[0]) == int((window["lane"] == 0).sum()) - window[window["lane"] == 0]["vid"].nunique()
+    on_lane = window[window["lane"] == 0]
+    assert len(lane_segments(window, 0)[0]) == len(on_lane) - on_lane["vid"].nunique()
 
 
 def test_demand_figure_with_intervals(tmp_path: Path) -> None:
