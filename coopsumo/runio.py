@@ -121,9 +121,12 @@ def check_run_dir(out: Path, kind: str) -> None:
 
 
 def check_apart(out: Path, model: Path) -> None:
-    """UsageError when `out` is the folder `model` is read from, lies inside it, or holds it."""
+    """UsageError when `out` is the folder `model` is read from or holds it (it would be replaced), or lies
+    inside it while that folder is a run folder (a training's: marker or config.json). A loose model file
+    in a plain folder (the current one, say) does not forbid run folders beneath it."""
     o, m = out.resolve(), model.resolve().parent
-    if o == m or o.is_relative_to(m) or m.is_relative_to(o):
+    run_folder = (m / RUN_MARKER).exists() or (m / "config.json").exists()
+    if o == m or m.is_relative_to(o) or (run_folder and o.is_relative_to(m)):
         raise UsageError(f"--out {out} would write into or replace {m}, the folder the model is read from; "
                          "pick another --out")  # fmt: skip
 
