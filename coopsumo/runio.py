@@ -62,16 +62,82 @@ def write_json(path: Path, data: Any) -> None:
     os.replace(tmp, path)
 
 
-def start_run_dir(out: Path) -> Path:
-    """A fresh temporary folder beside `out`; results appear in `out` only when finish_run_dir is called.
+RUN_MARKER = ".coopsumo-run.json"
+"""Written by a command into every folder it owns: {"kind": command, "version": coopsumo's, "files": the
+folder's entries when it finished (null while a training runs)}. A dot-file, so listings stay as they were;
+named after the package, so no user's file is taken for it; a separate file, because config.json is a
+common name that proves nothing about who wrote a folder."""
 
-    Raises UsageError if `out` cannot be written or holds something that is not a run folder.
+
+def _entries(folder: Path) -> list[str]:
+    """Every file and folder under `folder` (relative, '/'-separated), the marker left out."""
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p != folder / RUN_MARKER)
+
+
+def mark_run_dir(folder: Path, kind: str, finished: bool = True) -> None:
+    """Claim `folder` for the command `kind`; finished: also list what it holds (nothing else may be replaced)."""
+    write_json(folder / RUN_MARKER, {"kind": kind, "version": package_version("coopsumo"),
+                                     "files": _entries(folder) if finished else None})  # fmt: skip
+
+
+def _marker(folder: Path) -> dict[str, Any] | None:
+    try:
+        data = json.loads((folder / RUN_MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and isinstance(data.get("kind"), str) else None
+
+
+def check_run_dir(out: Path, kind: str) -> None:
+    """UsageError unless `out` is missing, empty, or a folder the command `kind` wrote and nobody added to.
+
+    The ownership rule: an existing non-empty folder is written into or replaced only when its marker names
+    the same command and every entry in it is one the marker lists (a training's marker lists none until
+    the training has finished: it only overwrites its own file names).
     """
     out = out.resolve()
-    if out.exists() and not out.is_dir():
+    if not out.exists():
+        return
+    if not out.is_dir():
         raise UsageError(f"output folder {out} exists and is not a folder")
-    if out.is_dir() and any(out.iterdir()) and not (out / "config.json").exists():
-        raise UsageError(f"output folder {out} is not empty and is not a coopsumo run folder")
+    if not any(out.iterdir()):
+        return
+    marker = _marker(out)
+    if marker is None:
+        if (out / "config.json").exists():
+            raise UsageError(f"output folder {out} has no {RUN_MARKER} (written before coopsumo marked its folders, "
+                             "or not by coopsumo) and is left alone: remove it yourself or pick another --out")
+        raise UsageError(f"output folder {out} is not empty and is not a coopsumo run folder; pick another --out")
+    if marker["kind"] != kind:
+        raise UsageError(f"output folder {out} holds a coopsumo {marker['kind']} run, not a {kind} run, and is "
+                         "left alone; pick another --out")  # fmt: skip
+    listed = marker.get("files")
+    if isinstance(listed, list):
+        extra = sorted(set(_entries(out)) - set(listed))
+        if extra:
+            more = f" and {len(extra) - 1} more" if len(extra) > 1 else ""
+            raise UsageError(f"output folder {out} holds {extra[0]}{more}, which coopsumo {kind} did not write, and "
+                             "is left alone; move it away or pick another --out")  # fmt: skip
+
+
+def check_apart(out: Path, model: Path) -> None:
+    """UsageError when `out` is the folder `model` is read from or holds it (it would be replaced), or lies
+    inside it while that folder is a run folder (a training's: marker or config.json). A loose model file
+    in a plain folder (the current one, say) does not forbid run folders beneath it."""
+    o, m = out.resolve(), model.resolve().parent
+    run_folder = (m / RUN_MARKER).exists() or (m / "config.json").exists()
+    if o == m or m.is_relative_to(o) or (run_folder and o.is_relative_to(m)):
+        raise UsageError(f"--out {out} would write into or replace {m}, the folder the model is read from; "
+                         "pick another --out")  # fmt: skip
+
+
+def start_run_dir(out: Path, kind: str = "simulate") -> Path:
+    """A fresh temporary folder beside `out`; results appear in `out` only when finish_run_dir is called.
+
+    Raises UsageError if `out` cannot be written or is not ours to replace (check_run_dir).
+    """
+    out = out.resolve()
+    check_run_dir(out, kind)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         return Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
@@ -79,10 +145,20 @@ def start_run_dir(out: Path) -> Path:
         raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
 
 
-def finish_run_dir(tmp: Path, out: Path) -> None:
-    """Move the finished run into place, replacing an earlier run in the same folder."""
+def finish_run_dir(tmp: Path, out: Path, kind: str = "simulate") -> None:
+    """Mark the finished run and move it into place, replacing an earlier run of `kind` in the same folder.
+
+    The earlier folder is removed only if it is still ours by check_run_dir (marker of `kind`, nothing
+    added); else the new run is discarded and UsageError raised.
+    """
     out = out.resolve()
+    mark_run_dir(tmp, kind)
     if out.exists():
+        try:
+            check_run_dir(out, kind)
+        except UsageError:
+            discard_run_dir(tmp)
+            raise
         shutil.rmtree(out)
     os.replace(tmp, out)
 
@@ -92,16 +168,16 @@ def discard_run_dir(tmp: Path) -> None:
 
 
 @contextmanager
-def atomic_run_dir(out: Path) -> Iterator[Path]:
+def atomic_run_dir(out: Path, kind: str = "simulate") -> Iterator[Path]:
     """A temporary run folder (start_run_dir) moved into `out` when the block ends normally and removed when
     it raises, so a failed or killed run never leaves a half-written `out`."""
-    tmp = start_run_dir(out)
+    tmp = start_run_dir(out, kind)
     try:
         yield tmp
     except BaseException:
         discard_run_dir(tmp)
         raise
-    finish_run_dir(tmp, out)
+    finish_run_dir(tmp, out, kind)
 
 
 class Parser(argparse.ArgumentParser):

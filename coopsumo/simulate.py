@@ -2,7 +2,8 @@
 
 Writes config.json, detectors.xml (SUMO's loop output), summary.json and, with
 --trajectories, trajectories.parquet; with --fcd and --tripinfo SUMO's fcd.xml and tripinfo.xml.
---gui runs the same simulation in sumo-gui. Bad input: one line on stderr, exit code 2.
+--gui runs the same simulation in sumo-gui. Bad input: one line on stderr, exit code 2. An existing --out
+is replaced only if simulate wrote it and nothing was added (runio.check_run_dir); never the model's folder.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
 )
-from coopsumo.runio import Parser, UsageError, atomic_run_dir, run_cli
+from coopsumo.runio import Parser, UsageError, atomic_run_dir, check_apart, check_run_dir, run_cli
 from coopsumo.sim import sumo_session
 from coopsumo.validation import check_accident, check_int, check_t_up, integer, number, out_dir, seed, steps
 
@@ -133,6 +134,9 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         cfg = config_from_args(args)
+        if cfg.policy.startswith("dqn:"):
+            check_apart(args.out, Path(cfg.policy[len("dqn:") :]))
+        check_run_dir(args.out, "simulate")  # before anything is written (the screenshot's folder, the run)
         outputs = outputs_from_args(args, cfg)
         gui = gui_from_args(args, cfg)
         try:

@@ -22,6 +22,7 @@ import torch
 from coopsumo import validation
 from coopsumo.agents.dqn import QNetwork, save_model
 from coopsumo.config import DQN_PRESETS, ConfigError, DemandConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.runio import mark_run_dir
 
 REPO = Path(__file__).resolve().parent.parent
 SIM = ["--steps", "20", "--quiet"]
@@ -346,6 +347,7 @@ def _checkpoint(out: Path, preset: str) -> dict:
     cfg = TrainConfig(sim=SimConfig(steps=20, seed=3, policy="dqn"), dqn=DQN_PRESETS[preset], eval_steps=0,
                       log_every_steps=10, checkpoint_every_steps=20)  # fmt: skip
     out.mkdir()
+    mark_run_dir(out, "train", finished=False)  # as train() does before its first step
     Trainer(cfg, out, progress=False).run()
     state: dict = torch.load(out / "checkpoint.pt", weights_only=True)
     return state

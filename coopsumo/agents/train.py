@@ -4,7 +4,8 @@ Every vehicle is an agent; all share one network and one replay memory. Writes i
 config.json, train_log.csv (one row per logging window), model.pt, and the greedy
 evaluation's summary.json (its SUMO files in eval/). Ctrl-C or SIGTERM saves
 checkpoint.pt and exits; --resume continues it exactly (the world is rebuilt by replaying
-the recorded actions, then the learner's saved state takes over).
+the recorded actions, then the learner's saved state takes over). An existing non-empty --out is used
+only if this command wrote it (its .coopsumo-run.json, runio.check_run_dir).
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ from coopsumo.config import (
     to_dict,
     train_config_from_dict,
 )
-from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.runio import Parser, UsageError, check_run_dir, mark_run_dir, run_cli, versions, write_json
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.world import StepOutcome, World
 from coopsumo.validation import MAX_STEPS, alpha, check_t_up, integer, number, out_dir, seed, steps
@@ -396,6 +397,7 @@ def train(
             text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
             raise UsageError(f"checkpoint {trainer.checkpoint_path()} does not fit its configuration: {text}") from None
     else:
+        mark_run_dir(out, "train", finished=False)
         write_json(out / "config.json", model_meta(cfg))
         for stale in ("model.pt", "summary.json", "checkpoint.pt", "train_summary.json"):
             (out / stale).unlink(missing_ok=True)
@@ -412,11 +414,13 @@ def train(
     write_json(out / "train_summary.json", train_summary)
     trainer.checkpoint_path().unlink(missing_ok=True)
     if cfg.eval_steps == 0:
+        mark_run_dir(out, "train")
         return train_summary
     policy = DQNPolicy(trainer.learner.online, decision_interval=cfg.dqn.decision_interval_steps,
                        action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps)  # fmt: skip
     summary = evaluate(cfg, policy, out, progress, on_steps)
     write_json(out / "summary.json", summary)
+    mark_run_dir(out, "train")
     return summary
 
 
@@ -544,6 +548,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         torch.set_num_threads(1)
+        if args.out is not None:
+            check_run_dir(args.out, "train")  # before anything is read, written or deleted
         if args.resume:
             if args.out is None:
                 raise UsageError("--resume needs --out pointing at the interrupted run")
@@ -552,6 +558,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             cfg = config_from_args(args)
         out = args.out or default_out(cfg)
+        check_run_dir(out, "train")
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as err:
