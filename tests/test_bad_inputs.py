@@ -177,7 +177,7 @@ def test_the_table_covers_every_command() -> None:
 
 # -- demand memory at the smallest accepted T_up ----------------------------------------------------
 DEMAND_RUN = """
-import json, resource, sys, tempfile
+import json, sys, tempfile
 from pathlib import Path
 import numpy as np
 from coopsumo.config import DemandConfig, SimConfig
@@ -195,8 +195,10 @@ with tempfile.TemporaryDirectory() as tmp, World(cfg, Path(tmp)) as world:
                                 float(obs.speed[i])])
         world.apply(np.full(len(obs), 2, np.int64))
     summary = world.summary()
-print(json.dumps({"maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "entered": entered,
-                  "departed": summary["departed"]}))
+# this process's own peak (VmHWM of its memory map): ru_maxrss would carry the parent's peak across fork and exec
+hwm_kb = next(int(line.split()[1]) for line in Path("/proc/self/status").read_text().splitlines()
+              if line.startswith("VmHWM:"))
+print(json.dumps({"maxrss_mb": hwm_kb / 1024, "entered": entered, "departed": summary["departed"]}))
 """
 
 
