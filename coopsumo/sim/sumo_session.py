@@ -109,7 +109,7 @@ class SumoSession:
         routes = self.run_dir / "routes.rou.xml"
         detectors = self.run_dir / "detectors.add.xml"
         max_speed = cfg.demand.v_exp_max_kmh / 3.6
-        routes.write_text(network.routes_xml(max_speed, cfg.control.car_length_m))
+        routes.write_text(network.routes_xml(max_speed, cfg.control.car_length_m, lc_motivations=self.sumo_models))
         detectors.write_text(network.detectors_xml(cfg.road, "detectors.xml"))
         return [
             "sumo",
