@@ -277,6 +277,10 @@ class SimConfig:
     """SUMO's --time-to-teleport (s); SUMO's default"""
     sumo_collision_check: bool = False
     """also let SUMO detect collisions (a second, independent count; costly in jams with 4 s lane changes)"""
+    full_read_every_steps: int = 10
+    """controlled runs read every vehicle's lane, position and speed from SUMO every this many steps (and on
+    teleports) and advance the table from the commanded speeds in between (exact, checked at each read);
+    1: every step (--read-every-step). SUMO's own models (policy sumo) and sumo-gui are read every step"""
 
     @property
     def scenario(self) -> str:
@@ -301,6 +305,9 @@ class SimConfig:
         alpha = self.reward.alpha
         if problem := number_problem(alpha, ALPHA_MIN):
             raise ConfigError(f"alpha must be {problem}, got {alpha}")
+        if int_problem(self.full_read_every_steps, 1, MAX_STEPS):
+            raise ConfigError(f"full_read_every_steps must be an integer from 1 to {MAX_STEPS}, "
+                              f"got {self.full_read_every_steps}")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -436,6 +443,7 @@ def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
             policy=d["policy"],
             time_to_teleport_s=d["time_to_teleport_s"],
             sumo_collision_check=d.get("sumo_collision_check", False),
+            full_read_every_steps=d.get("full_read_every_steps", SimConfig.full_read_every_steps),  # same results
         )
     except KeyError as err:
         raise ConfigError(f"simulation configuration has no {err.args[0]!r} (written by another coopsumo?)") from None
