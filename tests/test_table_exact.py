@@ -46,6 +46,11 @@ def test_advance_moves_each_vehicle_by_its_commanded_speed_and_switches_lanes() 
     np.testing.assert_array_equal(t.pos, [10.0, 50.0, 80.0])  # the input is left alone
 
 
+def test_lane_switches_land_on_the_rows_of_vehicles_still_on_the_road() -> None:
+    np.testing.assert_array_equal(vt.switch_rows(np.array([3, 5, 8]), [8, 4, 3], [1, 2, 0]), [0, -1, 1])
+    assert len(vt.switch_rows(np.zeros(0, np.int64), [1], [2])) == 0
+
+
 def test_drop_and_add_keep_the_table_sorted_by_number() -> None:
     t = table([1, 4, 7], [0, 1, 2], [1.0, 4.0, 7.0], [1.0, 4.0, 7.0])
     t = vt.add(vt.drop(t, np.array([4, 99])), table([5, 0], [2, 0], [0.5, 0.0], [10.0, 11.0]))

@@ -294,27 +294,28 @@ class SumoSession:
         if self.sumo_models:  # SUMO decides the speeds and lane changes: nothing to advance
             self._table = self._read_all()
             return True
-        prev = self._table
-        speed = self._speed_sent[prev.nums]
-        known = not np.isnan(speed).any()  # every vehicle has been sent a speed (World.apply sends each one)
+        advanced = self._advanced(departed, arrived, switch)
         every = 1 if self.gui is not None or self.check.mismatch_step >= 0 else self.cfg.full_read_every_steps
-        full = teleported or not known or self.steps % every == 0
-        if known:
-            switch_to = np.full(len(prev.nums), -1, np.int64)
-            if switch is not None:
-                nums, lanes = np.array(switch[0], np.int64), np.array(switch[1], np.int64)
-                rows = np.minimum(np.searchsorted(prev.nums, nums), max(len(prev.nums) - 1, 0))
-                there = prev.nums[rows] == nums if len(prev.nums) else np.zeros(len(nums), bool)
-                switch_to[rows[there]] = lanes[there]
-            advanced = vt.add(vt.drop(vt.advance(prev, speed, switch_to, self.cfg.control.dt_s), arrived),
-                              self._read(departed))  # fmt: skip
-        if not full:
+        if advanced is not None and not teleported and self.steps % every:
             self._table = advanced
             return False
         self._table = self._read_all()
-        if known:
+        if advanced is not None:
             self.check.record(vt.deviation(advanced, self._table), self.steps)
         return True
+
+    def _advanced(
+        self, departed: tuple[str, ...], arrived: np.ndarray, switch: tuple[list[int], list[int]] | None
+    ) -> VehicleTable | None:
+        """The last table advanced by one step from the speeds and lane changes sent, without the arrived
+        vehicles, with the departed ones as read; None when a vehicle on the road was never sent a speed."""
+        prev = self._table
+        speed = self._speed_sent[prev.nums]
+        if np.isnan(speed).any():  # World.apply sends every vehicle a speed; a caller that did not gets a full read
+            return None
+        switch_to = vt.switch_rows(prev.nums, *switch) if switch is not None else np.full(len(prev.nums), -1)
+        table = vt.drop(vt.advance(prev, speed, switch_to, self.cfg.control.dt_s), arrived)
+        return vt.add(table, self._read(departed)) if departed else table
 
     def _read(self, ids: tuple[str, ...]) -> VehicleTable:
         return read_vehicles(self.ls.vehicle, ids)

@@ -76,6 +76,19 @@ def advance(table: VehicleTable, speed_mps: np.ndarray, switch_to: np.ndarray, d
     return VehicleTable(table.nums, lane, table.pos + speed_mps * dt_s, speed_mps.astype(np.float64, copy=True))
 
 
+def switch_rows(on_road: np.ndarray, nums: list[int], lanes: list[int]) -> np.ndarray:
+    """Per row of a table of the vehicles `on_road` (sorted numbers): the lane it switches to, -1 for none;
+    switches of vehicles no longer on the road are ignored."""
+    switch_to = np.full(len(on_road), -1, np.int64)
+    if len(on_road) == 0:
+        return switch_to
+    nums_a, lanes_a = np.array(nums, np.int64), np.array(lanes, np.int64)
+    rows = np.minimum(np.searchsorted(on_road, nums_a), len(on_road) - 1)
+    there = on_road[rows] == nums_a
+    switch_to[rows[there]] = lanes_a[there]
+    return switch_to
+
+
 def drop(table: VehicleTable, nums: np.ndarray) -> VehicleTable:
     """The table without the vehicles `nums` (those not in it are ignored)."""
     if len(nums) == 0 or len(table.nums) == 0:
