@@ -429,6 +429,21 @@ def to_dict(cfg: Any) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
 
 
+SPEED_ONLY_FIELDS = frozenset({"full_read_every_steps"})
+"""configuration fields that change how fast a run goes, never what it gives (recorded, ignored when a study
+matches a stored run, cell or checkpoint to its configuration)"""
+
+
+def results_view(d: Any) -> Any:
+    """A configuration as to_dict or JSON gives it, without SPEED_ONLY_FIELDS at any depth: two runs whose views
+    are equal give the same results (a run stored before such a field existed matches too)."""
+    if isinstance(d, dict):
+        return {k: results_view(v) for k, v in d.items() if k not in SPEED_ONLY_FIELDS}
+    if isinstance(d, list):
+        return [results_view(v) for v in d]
+    return d
+
+
 def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
     """Inverse of to_dict for SimConfig; a missing or unknown field is a ConfigError naming it."""
     try:
