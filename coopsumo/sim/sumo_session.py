@@ -132,6 +132,9 @@ class SumoSession:
             # SUMO keeps each vehicle's waiting intervals of the last N s for junction impatience (this road has no
             # junction; teleports and tripinfo use their own counts): 1 s instead of 100 s saves a standing queue's work
             "--waiting-time-memory", "1",
+            # the controller brakes harder than the vehicle type's emergency deceleration whenever it must (tens of
+            # times a step in a jam); SUMO would format a warning for each, then drop it (--no-warnings)
+            "--emergencydecel.warning-threshold", "1e9",
             "--seed", str(cfg.seed),
             "--no-step-log", "true",
             "--no-warnings", "true",
