@@ -63,7 +63,6 @@ class StepEvents:
     arrived: np.ndarray  # vehicle numbers that left the road this step
     collisions: int  # new collisions SUMO detected this step (0 unless cfg.sumo_collision_check)
     teleports: int  # vehicles SUMO started teleporting this step
-    full_read: bool  # the table was read from SUMO for every vehicle this step (else advanced, see table())
 
 
 class SumoSession:
@@ -282,30 +281,28 @@ class SumoSession:
             self._collision_pairs |= pairs
         teleports = ls.simulation.getStartingTeleportNumber()
         arrived_nums = np.array([int(v) for v in arrived], dtype=np.int64)
-        full = self._update_table(departed, arrived_nums, teleports > 0 or ls.simulation.getEndingTeleportNumber() > 0)
+        self._update_table(departed, arrived_nums, teleports > 0 or ls.simulation.getEndingTeleportNumber() > 0)
         return StepEvents(
             departed=np.array([int(v) for v in departed], dtype=np.int64),
             arrived=arrived_nums,
             collisions=new_collisions,
             teleports=teleports,
-            full_read=full,
         )
 
-    def _update_table(self, departed: tuple[str, ...], arrived: np.ndarray, teleported: bool) -> bool:
-        """The table after this step: read whole, or advanced from what was sent (see the class). True: read whole."""
+    def _update_table(self, departed: tuple[str, ...], arrived: np.ndarray, teleported: bool) -> None:
+        """The table after this step: read whole, or advanced from what was sent (see the class)."""
         switch = self._switches.pop(self.steps, None)
         if self.sumo_models:  # SUMO decides the speeds and lane changes: nothing to advance
             self._table = self._read_all()
-            return True
+            return
         advanced = self._advanced(departed, arrived, switch)
         every = 1 if self.gui is not None or self.check.mismatch_step >= 0 else self.cfg.full_read_every_steps
         if advanced is not None and not teleported and self.steps % every:
             self._table = advanced
-            return False
+            return
         self._table = self._read_all()
         if advanced is not None:
             self.check.record(vt.deviation(advanced, self._table), self.steps)
-        return True
 
     def _advanced(
         self, departed: tuple[str, ...], arrived: np.ndarray, switch: tuple[list[int], list[int]] | None
