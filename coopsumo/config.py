@@ -277,6 +277,10 @@ class SimConfig:
     """SUMO's --time-to-teleport (s); SUMO's default"""
     sumo_collision_check: bool = False
     """also let SUMO detect collisions (a second, independent count; costly in jams with 4 s lane changes)"""
+    full_read_every_steps: int = 10
+    """controlled runs read every vehicle's lane, position and speed from SUMO every this many steps (and on
+    teleports) and advance the table from the commanded speeds in between (exact, checked at each read);
+    1: every step (--read-every-step). SUMO's own models (policy sumo) and sumo-gui are read every step"""
 
     @property
     def scenario(self) -> str:
@@ -301,6 +305,9 @@ class SimConfig:
         alpha = self.reward.alpha
         if problem := number_problem(alpha, ALPHA_MIN):
             raise ConfigError(f"alpha must be {problem}, got {alpha}")
+        if int_problem(self.full_read_every_steps, 1, MAX_STEPS):
+            raise ConfigError(f"full_read_every_steps must be an integer from 1 to {MAX_STEPS}, "
+                              f"got {self.full_read_every_steps}")  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -422,6 +429,21 @@ def to_dict(cfg: Any) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
 
 
+SPEED_ONLY_FIELDS = frozenset({"full_read_every_steps"})
+"""configuration fields that change how fast a run goes, never what it gives (recorded, ignored when a study
+matches a stored run, cell or checkpoint to its configuration)"""
+
+
+def results_view(d: Any) -> Any:
+    """A configuration as to_dict or JSON gives it, without SPEED_ONLY_FIELDS at any depth: two runs whose views
+    are equal give the same results (a run stored before such a field existed matches too)."""
+    if isinstance(d, dict):
+        return {k: results_view(v) for k, v in d.items() if k not in SPEED_ONLY_FIELDS}
+    if isinstance(d, list):
+        return [results_view(v) for v in d]
+    return d
+
+
 def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
     """Inverse of to_dict for SimConfig; a missing or unknown field is a ConfigError naming it."""
     try:
@@ -436,6 +458,7 @@ def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
             policy=d["policy"],
             time_to_teleport_s=d["time_to_teleport_s"],
             sumo_collision_check=d.get("sumo_collision_check", False),
+            full_read_every_steps=d.get("full_read_every_steps", SimConfig.full_read_every_steps),  # same results
         )
     except KeyError as err:
         raise ConfigError(f"simulation configuration has no {err.args[0]!r} (written by another coopsumo?)") from None

@@ -65,6 +65,17 @@ def test_a_failing_cell_is_recorded_and_the_rest_finish(tmp_path: Path) -> None:
     assert runner.read_record(tmp_path, {"key": "c2", "config": {"x": 5}}) is None  # another configuration
 
 
+def test_a_record_is_reused_whatever_its_table_read_interval(tmp_path: Path) -> None:
+    """full_read_every_steps changes speed, not results: a cell stored before the field existed (or with another
+    interval) is still this cell; any other difference is not."""
+    sim = {"seed": 1, "road": {"lanes": 3}}
+    (tmp_path / "cells").mkdir()
+    runner.cell_path(tmp_path, "s").write_text(json.dumps({"key": "s", "config": {"sim": sim}, "value": 7}))
+    spec = {"key": "s", "config": {"sim": {**sim, "full_read_every_steps": 10}}}
+    assert runner.read_record(tmp_path, spec)["value"] == 7  # type: ignore[index]
+    assert runner.read_record(tmp_path, {"key": "s", "config": {"sim": {**sim, "seed": 2}}}) is None
+
+
 def test_a_cell_waits_for_its_dependency_and_fails_with_it(tmp_path: Path) -> None:
     counts = run_local(specs_of([1, 2, 3, 4], after={2: 1, 4: 3}), tmp_path)
     assert counts == {"ok": 2, "failed": 2}

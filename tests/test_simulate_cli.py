@@ -21,7 +21,8 @@ SUMMARY_KEYS = {
     "steps", "sim_seconds", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end",
     "collisions", "sumo_collisions", "teleports", "lane_changes", "lane_changes_rejected", "lane_changes_per_vehicle",
     "mean_speed_mps", "mean_vehicles_on_road", "mean_travel_time_s", "throughput_veh_per_h", "wall_seconds",
-    "steps_per_second", "sumo_step_share", "policy", "scenario",
+    "steps_per_second", "sumo_step_share", "policy", "scenario", "table_max_dev_pos_m", "table_max_dev_speed_mps",
+    "table_mismatch_step",
 }  # fmt: skip
 
 
@@ -52,7 +53,7 @@ def test_config_json_holds_the_config_the_seed_and_versions(
     data = json.loads((out / "config.json").read_text())
     cfg = sim_config_from_dict(data["config"])
     assert (cfg.seed, cfg.steps, cfg.policy, cfg.road.lanes, cfg.demand.t_up_s) == (7, 600, "greedy", 2, 1.5)
-    assert cfg.scenario == "free"
+    assert cfg.scenario == "free" and cfg.full_read_every_steps == 10
     for package in ("coopsumo", "sumo", "libsumo", "numpy", "python"):
         assert data["versions"][package] not in ("", None, "not installed"), package
 
@@ -85,6 +86,24 @@ def test_summary_json_has_every_key_and_agrees_with_the_trajectories(
     assert traj["pos_m"].between(0.0, 2000.0).all() and (traj["speed_mps"] >= 0).all()
     last = traj[traj["time_s"] == traj["time_s"].max()]
     assert summary["arrived"] == summary["departed"] - len(last)
+
+
+def test_read_every_step_is_recorded_in_the_config_and_changes_nothing(
+    small_run: tuple[subprocess.CompletedProcess[str], Path], simulate_cli: Cli
+) -> None:
+    _, small = small_run
+    out = small.parent.parent / "every"  # beside runs/, which must hold only small
+    args = ["--lanes", "2", "--t-up", "1.5", "--policy", "greedy", "--steps", "600", "--seed", "7",
+            "--out", str(out), "--trajectories", "--quiet", "--read-every-step"]  # fmt: skip
+    proc = simulate_cli(args)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((out / "config.json").read_text())["config"]["full_read_every_steps"] == 1
+    wall = ("wall_seconds", "steps_per_second", "sumo_step_share")
+    summaries = [{k: v for k, v in json.loads((d / "summary.json").read_text()).items() if k not in wall}
+                 for d in (small, out)]  # fmt: skip
+    assert summaries[0] == summaries[1] and summaries[0]["table_max_dev_pos_m"] == 0.0
+    pd.testing.assert_frame_equal(pd.read_parquet(small / "trajectories.parquet"),
+                                  pd.read_parquet(out / "trajectories.parquet"))  # fmt: skip
 
 
 def test_trajectories_only_when_asked(tmp_path: Path, simulate_cli: Cli) -> None:

@@ -100,12 +100,17 @@ def detectors_xml(road: RoadConfig, output_file: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def routes_xml(max_speed_mps: float, car_length_m: float) -> str:
-    """The route file: one route over the road and the vehicle type (SUMO's models only for `sumo`)."""
+def routes_xml(max_speed_mps: float, car_length_m: float, lc_motivations: bool = True) -> str:
+    """The route file: one route over the road and the vehicle type (SUMO's models only for `sumo`).
+
+    lc_motivations=False (controlled runs, lane-change mode 0) switches off LC2013's reasons to change lane
+    (strategic, cooperative, speed gain, keep right): SUMO's lane changer still looks at every vehicle every
+    step, a little faster; outputs are byte-identical (README, "Deviations and choices")."""
+    lc = "" if lc_motivations else ' lcStrategic="-1" lcCooperative="0" lcSpeedGain="0" lcKeepRight="0"'
     return (
         "<routes>\n"
         f'    <vType id="{VTYPE_ID}" length="{car_length_m:g}" minGap="2.5" maxSpeed="{max_speed_mps:.2f}" '
-        'accel="2.6" decel="4.5" emergencyDecel="9.0" sigma="0.5" speedFactor="1" speedDev="0"/>\n'
+        f'accel="2.6" decel="4.5" emergencyDecel="9.0" sigma="0.5" speedFactor="1" speedDev="0"{lc}/>\n'
         f'    <route id="{ROUTE_ID}" edges="{EDGE_ID}"/>\n'
         "</routes>\n"
     )

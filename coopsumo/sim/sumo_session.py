@@ -23,6 +23,8 @@ import numpy as np
 from coopsumo.config import GuiConfig, OutputConfig, SimConfig
 from coopsumo.runio import UsageError
 from coopsumo.sim import network
+from coopsumo.sim import vehicle_table as vt
+from coopsumo.sim.vehicle_table import TableCheck, VehicleTable
 
 _open_sessions = 0
 GUI_VIEW = "View #0"  # sumo-gui's first (and only) view
@@ -54,16 +56,6 @@ def gui_closed_errors() -> tuple[type[BaseException], ...]:
 
 
 @dataclass(frozen=True)
-class VehicleTable:
-    """All vehicles on the road after a step; arrays share one order."""
-
-    nums: np.ndarray  # (n,) int64 vehicle numbers (SUMO id is str(num))
-    lane: np.ndarray  # (n,) int64 SUMO lane index, 0 = rightmost
-    pos: np.ndarray  # (n,) float64 front-bumper position along the road (m)
-    speed: np.ndarray  # (n,) float64 (m/s)
-
-
-@dataclass(frozen=True)
 class StepEvents:
     """What SUMO reports for one step."""
 
@@ -78,6 +70,13 @@ class SumoSession:
 
     `sumo_models=True` leaves SUMO's own car-following and lane-changing in charge. `outputs` adds
     SUMO's FCD and tripinfo files to run_dir; `gui` runs the same simulation in sumo-gui via TraCI.
+
+    The vehicle table (table()): with SUMO's models, and in sumo-gui, every vehicle is read every step.
+    Controlled vehicles move exactly as sent (coopsumo.sim.vehicle_table), so the table is read whole only
+    every cfg.full_read_every_steps steps and on steps with a teleport; in between it is advanced from the
+    speeds and lane changes sent, and only departures (their lane, position, speed) and arrivals are read.
+    Every full read is compared with the advanced table (self.check); after one that is not exact, every
+    step is read.
     """
 
     def __init__(
@@ -99,6 +98,14 @@ class SumoSession:
         self._tc: Any = None  # the binding's constants module
         self._gui_proc: subprocess.Popen[bytes] | None = None
         self._ids = np.zeros(1024, dtype=object)  # SUMO id (str) by vehicle number, made once per vehicle
+        self._speed_sent = np.full(1024, np.nan)  # by vehicle number: the speed last sent (m/s), which SUMO keeps
+        self._switches: dict[int, tuple[list[int], list[int]]] = {}  # step -> (vehicles, lanes) of its lane switches
+        self._switch_steps = vt.lane_switch_steps(cfg.control.t_change_s, cfg.control.dt_s)
+        self._table = VehicleTable.empty()
+        self.steps = 0
+        """simulation steps done"""
+        self.check = TableCheck()
+        """what the full reads found against the advanced table (controlled runs)"""
         self.step_seconds = 0.0
         """wall time spent inside SUMO's simulationStep so far (s): SUMO's own share of a run"""
 
@@ -109,7 +116,7 @@ class SumoSession:
         routes = self.run_dir / "routes.rou.xml"
         detectors = self.run_dir / "detectors.add.xml"
         max_speed = cfg.demand.v_exp_max_kmh / 3.6
-        routes.write_text(network.routes_xml(max_speed, cfg.control.car_length_m))
+        routes.write_text(network.routes_xml(max_speed, cfg.control.car_length_m, lc_motivations=self.sumo_models))
         detectors.write_text(network.detectors_xml(cfg.road, "detectors.xml"))
         return [
             "sumo",
@@ -124,6 +131,9 @@ class SumoSession:
             # SUMO keeps each vehicle's waiting intervals of the last N s for junction impatience (this road has no
             # junction; teleports and tripinfo use their own counts): 1 s instead of 100 s saves a standing queue's work
             "--waiting-time-memory", "1",
+            # the controller brakes harder than the vehicle type's emergency deceleration whenever it must (tens of
+            # times a step in a jam); SUMO would format a warning for each, then drop it (--no-warnings)
+            "--emergencydecel.warning-threshold", "1e9",
             "--seed", str(cfg.seed),
             "--no-step-log", "true",
             "--no-warnings", "true",
@@ -234,7 +244,9 @@ class SumoSession:
     def _id(self, num: int) -> str:
         """SUMO's id of vehicle `num` (its number as text), remembered for the per-step calls."""
         if num >= len(self._ids):
-            self._ids = np.concatenate([self._ids, np.zeros(max(num + 1, 2 * len(self._ids)) - len(self._ids), object)])
+            more = max(num + 1, 2 * len(self._ids)) - len(self._ids)
+            self._ids = np.concatenate([self._ids, np.zeros(more, object)])
+            self._speed_sent = np.concatenate([self._speed_sent, np.full(more, np.nan)])
         vid = str(num)
         self._ids[num] = vid
         return vid
@@ -247,15 +259,17 @@ class SumoSession:
         else:
             ls.vehicle.setSpeedMode(vid, 0)  # no SUMO safety checks: the Newell controller rules
             ls.vehicle.setLaneChangeMode(vid, 0)  # no SUMO lane changes: only the controller's requests
-        tc = self._tc
-        ls.vehicle.subscribe(vid, [tc.VAR_LANE_INDEX, tc.VAR_LANEPOSITION, tc.VAR_SPEED])
+        if self.gui is not None:  # over TraCI one subscription read beats three calls per vehicle
+            tc = self._tc
+            ls.vehicle.subscribe(vid, [tc.VAR_LANE_INDEX, tc.VAR_LANEPOSITION, tc.VAR_SPEED])
 
     def step(self) -> StepEvents:
-        """Advance SUMO by one step."""
+        """Advance SUMO by one step, then the vehicle table."""
         ls = self.ls
         start = time.perf_counter()
         ls.simulationStep()
         self.step_seconds += time.perf_counter() - start
+        self.steps += 1
         departed = ls.simulation.getDepartedIDList()
         for vid in departed:
             self._take_control(vid)
@@ -265,39 +279,85 @@ class SumoSession:
             pairs = {(c.collider, c.victim) for c in ls.simulation.getCollisions()}
             new_collisions = len(pairs - self._collision_pairs)
             self._collision_pairs |= pairs
+        teleports = ls.simulation.getStartingTeleportNumber()
+        arrived_nums = np.array([int(v) for v in arrived], dtype=np.int64)
+        self._update_table(departed, arrived_nums, teleports > 0 or ls.simulation.getEndingTeleportNumber() > 0)
         return StepEvents(
             departed=np.array([int(v) for v in departed], dtype=np.int64),
-            arrived=np.array([int(v) for v in arrived], dtype=np.int64),
+            arrived=arrived_nums,
             collisions=new_collisions,
-            teleports=ls.simulation.getStartingTeleportNumber(),
+            teleports=teleports,
         )
 
-    def table(self) -> VehicleTable:
-        """The vehicle table from the subscriptions (one read for all vehicles), sorted by number."""
+    def _update_table(self, departed: tuple[str, ...], arrived: np.ndarray, teleported: bool) -> None:
+        """The table after this step: read whole, or advanced from what was sent (see the class)."""
+        switch = self._switches.pop(self.steps, None)
+        if self.sumo_models:  # SUMO decides the speeds and lane changes: nothing to advance
+            self._table = self._read_all()
+            return
+        advanced = self._advanced(departed, arrived, switch)
+        every = 1 if self.gui is not None or self.check.mismatch_step >= 0 else self.cfg.full_read_every_steps
+        if advanced is not None and not teleported and self.steps % every:
+            self._table = advanced
+            return
+        self._table = self._read_all()
+        if advanced is not None:
+            self.check.record(vt.deviation(advanced, self._table), self.steps)
+
+    def _advanced(
+        self, departed: tuple[str, ...], arrived: np.ndarray, switch: tuple[list[int], list[int]] | None
+    ) -> VehicleTable | None:
+        """The last table advanced by one step from the speeds and lane changes sent, without the arrived
+        vehicles, with the departed ones as read; None when a vehicle on the road was never sent a speed."""
+        prev = self._table
+        speed = self._speed_sent[prev.nums]
+        if np.isnan(speed).any():  # World.apply sends every vehicle a speed; a caller that did not gets a full read
+            return None
+        switch_to = vt.switch_rows(prev.nums, *switch) if switch is not None else np.full(len(prev.nums), -1)
+        table = vt.drop(vt.advance(prev, speed, switch_to, self.cfg.control.dt_s), arrived)
+        return vt.add(table, self._read(departed)) if departed else table
+
+    def _read(self, ids: tuple[str, ...]) -> VehicleTable:
+        return read_vehicles(self.ls.vehicle, ids)
+
+    def _read_all(self) -> VehicleTable:
+        """Every vehicle's lane, position and speed from SUMO (sumo-gui: from the subscriptions)."""
+        if self.gui is None:
+            return self._read(self.ls.vehicle.getIDList())
         results = self.ls.vehicle.getAllSubscriptionResults()
         if not results:
-            return VehicleTable(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+            return VehicleTable.empty()
         n = len(results)
         nums = np.fromiter(map(int, results), np.int64, count=n)
         values = np.fromiter(chain.from_iterable(map(self._row, results.values())), np.float64, count=3 * n)
         values = values.reshape(n, 3)
-        order = np.argsort(nums)
-        values = values[order]
-        return VehicleTable(nums[order], values[:, 0].astype(np.int64), values[:, 1], values[:, 2])
+        return vt.sorted_table(nums, values[:, 0].astype(np.int64), values[:, 1], values[:, 2])
+
+    def table(self) -> VehicleTable:
+        """The vehicle table after the last step, sorted by number."""
+        return self._table
 
     def set_speeds(self, nums: np.ndarray, speeds: np.ndarray) -> None:
-        """Speeds (m/s) for the next step (one libsumo call per vehicle, without a Python loop)."""
+        """Speeds (m/s) for the next step (one libsumo call per vehicle, without a Python loop); SUMO keeps them."""
         deque(map(self.ls.vehicle.setSpeed, self._ids[nums], speeds.tolist()), maxlen=0)
+        self._speed_sent[nums] = speeds
 
     def release_speeds(self, nums: np.ndarray) -> None:
         """Hand speed control back to SUMO's car-following model."""
         deque(map(self.ls.vehicle.setSpeed, self._ids[nums], [-1.0] * len(nums)), maxlen=0)
+        self._speed_sent[nums] = np.nan
 
     def change_lanes(self, nums: np.ndarray, target_lanes: np.ndarray) -> None:
-        """Start lane changes; SUMO moves each vehicle sideways over --lanechange.duration."""
+        """Start lane changes; SUMO moves each vehicle sideways over --lanechange.duration (its lane index
+        switches half-way, vehicle_table.lane_switch_steps after the request)."""
         change = self.ls.vehicle.changeLane
-        for vid, lane in zip(self._ids[nums], target_lanes.tolist(), strict=True):
+        lanes = target_lanes.tolist()
+        for vid, lane in zip(self._ids[nums], lanes, strict=True):
             change(vid, lane, self.cfg.control.dt_s)
+        if lanes:
+            switch = self._switches.setdefault(self.steps + self._switch_steps, ([], []))
+            switch[0].extend(nums.tolist())
+            switch[1].extend(lanes)
 
     # -- sumo-gui only: what the view shows; none of it changes the simulation --------------------
     def show_region(self, x_min_m: float, x_max_m: float) -> None:
@@ -328,6 +388,16 @@ class SumoSession:
         self.ls.gui.screenshot(GUI_VIEW, str(path), *size_px)
 
 
+def read_vehicles(vehicle: Any, ids: tuple[str, ...]) -> VehicleTable:
+    """Lane, position and speed of the vehicles `ids` (three libsumo calls each; cheaper than subscriptions,
+    which SUMO fills every step), sorted by number. vehicle: the binding's vehicle module."""
+    n = len(ids)
+    return vt.sorted_table(np.fromiter(map(int, ids), np.int64, count=n),
+                           np.fromiter(map(vehicle.getLaneIndex, ids), np.int64, count=n),
+                           np.fromiter(map(vehicle.getLanePosition, ids), np.float64, count=n),
+                           np.fromiter(map(vehicle.getSpeed, ids), np.float64, count=n))  # fmt: skip
+
+
 def plain_run(
     cfg: SimConfig,
     run_dir: Path,
@@ -339,8 +409,8 @@ def plain_run(
 
     departures: (time s, lane, expected speed m/s) of every vehicle, sorted by time, as a route file (the
     expected speed as the vehicle's speedFactor). block_from_s: from then on every lane is blocked at the
-    accident's position by a standing vehicle (None: free flow). read_table: also subscribe every vehicle
-    to what the controller reads (lane, position, speed) and fetch it every step, as SumoSession.table does.
+    accident's position by a standing vehicle, numbered after the departures (None: free flow). read_table:
+    also read every vehicle's lane, position and speed every step, as a full read of SumoSession does.
     Runs cfg.steps steps; returns (wall seconds of the stepping loop, mean vehicles on the road).
     """
     if _open_sessions:
@@ -353,7 +423,8 @@ def plain_run(
                 f'departLane="{lane}" departPos="base" departSpeed="max" speedFactor="{v / limit:.6f}"/>')
             for k, (t, lane, v) in enumerate(departures)]  # fmt: skip
     if block_from_s is not None:
-        rows += [(block_from_s, f'    <vehicle id="block{lane}" type="{network.VTYPE_ID}" route="{network.ROUTE_ID}" '
+        rows += [(block_from_s, f'    <vehicle id="{len(departures) + lane}" type="{network.VTYPE_ID}" '
+                  f'route="{network.ROUTE_ID}" '
                   f'depart="{block_from_s:.2f}" departLane="{lane}" departPos="{x:.2f}" departSpeed="0">'
                   f'<stop lane="{network.EDGE_ID}_{lane}" startPos="{x:.2f}" endPos="{x + 5:.2f}" duration="1e7"/>'
                   "</vehicle>") for lane in range(cfg.road.lanes)]  # fmt: skip
@@ -361,7 +432,6 @@ def plain_run(
     extra.write_text("<routes>\n" + "\n".join(row for _, row in sorted(rows, key=lambda r: r[0])) + "\n</routes>\n")
     args[args.index("--route-files") + 1] += f",{extra}"
     ls = _libsumo()
-    tc = ls.constants
     ls.start(args)
     try:
         on_road = 0
@@ -370,9 +440,7 @@ def plain_run(
         for step in range(cfg.steps):
             ls.simulationStep()
             if read_table:
-                for vid in ls.simulation.getDepartedIDList():
-                    ls.vehicle.subscribe(vid, [tc.VAR_LANE_INDEX, tc.VAR_LANEPOSITION, tc.VAR_SPEED])
-                ls.vehicle.getAllSubscriptionResults()
+                read_vehicles(ls.vehicle, ls.vehicle.getIDList())
             on_road += ls.vehicle.getIDCount() - (cfg.road.lanes if step >= block_step else 0)  # not the blockers
         wall = time.perf_counter() - start
     finally:

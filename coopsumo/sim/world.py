@@ -20,7 +20,8 @@ from coopsumo.sim.accident import HELD
 from coopsumo.sim.driver import sumo_lc_params, sumo_models
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
 from coopsumo.sim.reward import RewardParts, flow_term, reward_parts, section_crossings
-from coopsumo.sim.sumo_session import StepEvents, SumoSession, VehicleTable
+from coopsumo.sim.sumo_session import StepEvents, SumoSession
+from coopsumo.sim.vehicle_table import VehicleTable
 
 
 @dataclass(frozen=True)
@@ -135,7 +136,7 @@ class World:
         self.next_num = 0
         self._waiting: list[deque[int]] = [deque() for _ in range(cfg.road.lanes)]  # per lane, not yet in SUMO
         self._handed = np.full(cfg.road.lanes, -1, np.int64)  # per lane: the vehicle SUMO is trying to insert
-        self.table = VehicleTable(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+        self.table = VehicleTable.empty()
         window = max(1, round(cfg.reward.flow_window_s / cfg.control.dt_s))
         self._loop_counts: deque[int] = deque(maxlen=window)
         self._sections_m = np.array(cfg.road.loop_positions_m())
@@ -435,7 +436,17 @@ class World:
             "mean_vehicles_on_road": tot.vehicle_time_s / self.time_s if self.time_s else 0.0,
             "mean_travel_time_s": tot.travel_time_sum_s / tot.arrived if tot.arrived else float("nan"),
             "throughput_veh_per_h": tot.arrived / hours if hours else 0.0,
+            **self._table_check(),
         }
+
+    def _table_check(self) -> dict[str, float | int]:
+        """The largest deviations the full reads found between the advanced table and SUMO's (m, m/s), and the
+        first step whose read was not exact; -1 each with SUMO's own models (nothing advanced)."""
+        if self.sumo_models:
+            return {"table_max_dev_pos_m": -1.0, "table_max_dev_speed_mps": -1.0, "table_mismatch_step": -1}
+        check = self.session.check
+        return {"table_max_dev_pos_m": check.max_dev_pos_m, "table_max_dev_speed_mps": check.max_dev_speed_mps,
+                "table_mismatch_step": check.mismatch_step}  # fmt: skip
 
     def trajectories(self) -> dict[str, np.ndarray]:
         """Recorded samples as columns: time_s, vid, lane, pos_m, speed_mps."""

@@ -33,7 +33,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from coopsumo.config import OutputConfig
+from coopsumo.config import OutputConfig, results_view
 from coopsumo.runio import UsageError, start_parent_watch, versions, write_json
 
 MAX_CRASHES = 2
@@ -99,7 +99,7 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
     if (out / "checkpoint.pt").exists():
         try:
             state = Trainer.load_checkpoint(out)
-            if json.loads(json.dumps(state["config"])) == config:
+            if results_view(json.loads(json.dumps(state["config"]))) == results_view(config):
                 resumed_from = int(state["step"])
         except Exception:  # a damaged checkpoint: start afresh
             resumed_from = None
@@ -144,12 +144,12 @@ def cell_path(root: Path, key: str) -> Path:
 
 
 def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
-    """The stored record of this cell if it was made with exactly this configuration."""
+    """The stored record of this cell if it was made with this configuration (config.results_view)."""
     try:
         record: dict[str, Any] = json.loads(cell_path(root, spec["key"]).read_text())
     except (OSError, ValueError):
         return None
-    return record if record.get("config") == spec["config"] else None
+    return record if results_view(record.get("config")) == results_view(spec["config"]) else None
 
 
 def _init_worker(parent_pid: int, pids: Any) -> None:

@@ -32,6 +32,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
     TrainConfig,
+    results_view,
     to_dict,
 )
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
@@ -217,9 +218,9 @@ def gui_run(cfg: SimConfig, shot: Path) -> dict[str, list[Any]]:
 
 
 def _same_config(path: Path, cfg: dict[str, Any]) -> bool:
-    """True when path (config.json) records exactly this configuration."""
+    """True when path (config.json) records this configuration (config.results_view)."""
     try:
-        return bool(json.loads(path.read_text())["config"] == json.loads(json.dumps(cfg)))
+        return bool(results_view(json.loads(path.read_text())["config"]) == results_view(json.loads(json.dumps(cfg))))
     except (OSError, ValueError, KeyError):
         return False
 
