@@ -36,12 +36,13 @@ def _same(a: dict[str, torch.Tensor], b: dict[str, torch.Tensor]) -> bool:
 
 def test_short_training_loads_and_drives_safely(tmp_path: Path) -> None:
     cfg = TrainConfig(sim=SimConfig(steps=1500, seed=3, policy="dqn"), eval_steps=800, log_every_steps=500)
-    summary = train(cfg, tmp_path, progress=False)
-    assert (tmp_path / "model.pt").exists()
-    log = (tmp_path / "train_log.csv").read_text().splitlines()
+    run = tmp_path / "train"  # the drive below may not write inside the model's folder
+    summary = train(cfg, run, progress=False)
+    assert (run / "model.pt").exists()
+    log = (run / "train_log.csv").read_text().splitlines()
     assert log[0].startswith("step,sim_time_s,td_loss,r_speed,r_lane_change,r_flow")
     assert len(log) == 1 + 3  # a row per 500 steps
-    net, meta = load_model(tmp_path / "model.pt")
+    net, meta = load_model(run / "model.pt")
     assert meta["config"]["sim"]["seed"] == 3 and "torch" in meta["versions"]
     # the greedy evaluation drove the trained model through SUMO
     assert summary["steps"] == 800 and summary["departed"] > 0
@@ -49,7 +50,7 @@ def test_short_training_loads_and_drives_safely(tmp_path: Path) -> None:
     # and the model drives a simulation from the command line
     out = tmp_path / "drive"
     res = subprocess.run(
-        [sys.executable, "-m", "coopsumo.simulate", "--policy", f"dqn:{tmp_path / 'model.pt'}", "--steps", "600",
+        [sys.executable, "-m", "coopsumo.simulate", "--policy", f"dqn:{run / 'model.pt'}", "--steps", "600",
          "--lanes", "3", "--out", str(out), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, check=False,
     )  # fmt: skip
