@@ -177,15 +177,22 @@ def alpha_list(flag: str, text: str) -> tuple[float, ...]:
     return number_list(flag, text, low=ALPHA_MIN)
 
 
+def number_name(x: float) -> str:
+    """x in a cell key, folder or column name: as :g prints it when that reads back as exactly x (8 -> "8",
+    0.125 -> "0.125"), else the shortest text that does (8.000001 -> "8.000001"); distinct values never share one."""
+    short = f"{x:g}"
+    return short if float(short) == x else repr(float(x))
+
+
 def distinct_list(flag: str, text: str, low: float | None = None, low_open: bool = False,
                   note: str = "") -> tuple[float, ...]:  # fmt: skip
-    """A study axis: comma-separated finite numbers inside the bounds, no empty item and no value twice (also
-    not two values that print alike with :g, since they name run folders); UsageError otherwise."""
+    """A study axis: comma-separated finite numbers inside the bounds, no empty item and no value twice (they
+    name run folders: number_name); UsageError otherwise."""
     items = text.split(",")
     if any(not x.strip() for x in items):
         raise UsageError(f"{flag} has an empty item in {text!r}; give comma-separated numbers")
     values = number_list(flag, text, low=low, low_open=low_open, note=note)
-    names = [f"{v:g}" for v in values]
+    names = [number_name(v) for v in values]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
         raise UsageError(f"{flag} lists {', '.join(twice)} more than once in {text!r}")

@@ -40,7 +40,7 @@ from coopsumo.config import (
 )
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import alpha_list, out_dir, seed_count, workers
+from coopsumo.validation import alpha_list, number_name, out_dir, seed_count, workers
 
 EVAL_SEED_OFFSET = 1000
 """a model trained with seed s is evaluated on seed EVAL_SEED_OFFSET + s (a demand it never saw)"""
@@ -132,7 +132,7 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
     seen: set[str] = set()
 
     def add_train(part: str, variant: str, dqn: DQNConfig, alpha: float, seed: int) -> None:
-        key = f"{variant}_alpha{alpha:g}_seed{seed}"
+        key = f"{variant}_alpha{number_name(alpha)}_seed{seed}"
         if key in seen:
             return
         seen.add(key)

@@ -44,6 +44,7 @@ from coopsumo.validation import (
     alpha_list,
     distinct_list,
     integer,
+    number_name,
     out_dir,
     seed_count,
     steps,
@@ -103,7 +104,8 @@ class Plan:
     def baseline_policies(self) -> tuple[str, ...]:
         """keep and greedy, MOBIL at every politeness, then SUMO's own models."""
         first = tuple(b for b in self.baselines if b != "sumo")
-        return first + tuple(f"mobil:p={p:g}" for p in self.mobil_ps) + tuple(b for b in self.baselines if b == "sumo")
+        mobils = tuple(f"mobil:p={number_name(p)}" for p in self.mobil_ps)
+        return first + mobils + tuple(b for b in self.baselines if b == "sumo")
 
     @staticmethod
     def quick() -> Plan:
@@ -122,7 +124,7 @@ class Plan:
 
 def model_name(preset: str, alpha: float) -> str:
     """Folder of a model under models/ (the default preset keeps the plain alpha<A> name)."""
-    return f"alpha{alpha:g}" if preset == "default" else f"{preset}_alpha{alpha:g}"
+    return f"alpha{number_name(alpha)}" if preset == "default" else f"{preset}_alpha{number_name(alpha)}"
 
 
 def model_label(preset: str, alpha: float) -> str:
@@ -375,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def run_folder(label: str, seed: int, t_up: float) -> str:
     """A run's folder under the results folder: runs/t<T_up>/<label>_seed<k>."""
-    return f"runs/t{t_up:g}/{label}_seed{seed}"
+    return f"runs/t{number_name(t_up)}/{label}_seed{seed}"
 
 
 def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "local", address: str | None = None) -> int:
@@ -419,7 +421,7 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
                 model = Path(policy[4:]) if policy.startswith("dqn:") else None
                 if after not in retrained and _reusable_run(out, cfg, plan.outputs(), model):
                     continue
-                specs.append({"key": f"run_t{t_up:g}_{label}_seed{seed}", "kind": "run", "label": label,
+                specs.append({"key": f"run_t{number_name(t_up)}_{label}_seed{seed}", "kind": "run", "label": label,
                               "seed": seed, "t_up_s": t_up, "out": folder, "after": after, "config": to_dict(cfg),
                               "trajectory_every": plan.trajectory_every,
                               "outputs": to_dict(plan.outputs())})  # fmt: skip
@@ -469,7 +471,7 @@ def comparison_pairs(plan: Plan, rows: pd.DataFrame) -> tuple[list[tuple[str, st
 
     pairs = [(model_label(pr, x), model_label(pr, 0.0)) for pr in plan.presets for x in plan.alphas if x > 0]
     if 0.0 in plan.mobil_ps:
-        pairs += [(label_for(f"mobil:p={x:g}"), label_for("mobil:p=0")) for x in plan.mobil_ps if x > 0]
+        pairs += [(label_for(f"mobil:p={number_name(x)}"), label_for("mobil:p=0")) for x in plan.mobil_ps if x > 0]
     coop = cooperative_alpha(rows, {x: model_label(plan.presets[0], x) for x in plan.alphas})
     return pairs, coop
 
@@ -511,13 +513,14 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[s
     for t_up in plan.t_ups:
         firsts = [(lab, out) for lab, t, seed, out, _ in runs if seed == first and t == t_up]
         fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, out in firsts}
-        figures[f"fig5_t{t_up:g}"] = flow_density_figure(fd, root / f"fig5_flow_density_t{t_up:g}.png").name
+        tname = number_name(t_up)
+        figures[f"fig5_t{tname}"] = flow_density_figure(fd, root / f"fig5_flow_density_t{tname}.png").name
         speeds, backlogs = {}, {}
         for lab, out in firsts:
             traj = pd.read_parquet(out / "trajectories.parquet", columns=["time_s", "vid", "pos_m", "speed_mps"])
             speeds[lab] = section_speed_bins(traj, acc.x_m - 200.0, acc.x_m, 0.0, 30.0)
             backlogs[lab] = insertion_backlog(traj, t_up)
-        figures[f"recovery_t{t_up:g}"] = recovery_figure(speeds, backlogs, root / f"fig_recovery_t{t_up:g}.png",
+        figures[f"recovery_t{tname}"] = recovery_figure(speeds, backlogs, root / f"fig_recovery_t{tname}.png",
                                                          window, rep.RECOVERY_MPS).name  # fmt: skip
     tts_table = rep.demand_table(rows, "tts_veh_h")
     demand_figure(tts_table, "tts_veh_h", "total time spent (veh-h, log scale)", root / "fig_tts_demand.png")
@@ -534,7 +537,7 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[s
     gui_label = model_label(plan.presets[0], GUI_ALPHA if GUI_ALPHA in plan.alphas else max(plan.alphas))
     gui_t = min(plan.t_ups)
     _, _, gui_seed, gui_out, gui_cfg = next(r for r in runs if r[0] == gui_label and r[2] == first and r[1] == gui_t)
-    gui_text = gui_section(root, gui_out, f"t{gui_t:g}/{gui_label}_seed{gui_seed}", gui_cfg)
+    gui_text = gui_section(root, gui_out, f"t{number_name(gui_t)}/{gui_label}_seed{gui_seed}", gui_cfg)
 
     header = (
         f"Profile `{plan.profile}`: {plan.lanes} lanes; demands T_up = {', '.join(f'{t:g}' for t in plan.t_ups)} s "

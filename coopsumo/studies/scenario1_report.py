@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.config import SimConfig
+from coopsumo.validation import number_name
 
 SLOW_MPS = 5.0
 RECOVERY_MPS = 15.0
@@ -381,7 +382,7 @@ def demand_section(rows: pd.DataFrame, agg: pd.DataFrame, t_up: float, pairs: Se
     lines.append(report_table(agg[agg["t_up_s"] == t_up]))
     for key, caption in (("fig5", "Fig. 5: flow against density from every loop and interval"),
                          ("recovery", "Speed before the bottleneck and vehicles waiting to enter")):  # fmt: skip
-        name = figures.get(f"{key}_t{t_up:g}")
+        name = figures.get(f"{key}_t{number_name(t_up)}")
         if name:
             lines.append(f"\n![{key}]({name})\n\n{caption}, T_up = {t_up:g} s, first seed (grey: the accident window).")
     return "\n".join(lines)

@@ -81,6 +81,7 @@ from coopsumo.validation import (
     integer,
     min_t_up_s,
     number_list,
+    number_name,
     out_dir,
     seed_count,
     steps,
@@ -181,11 +182,11 @@ PROFILES = {
 
 
 def cell_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:
-    return f"L{lanes}_T{t_up_s:g}_a{alpha:g}_s{seed}"
+    return f"L{lanes}_T{number_name(t_up_s)}_a{number_name(alpha)}_s{seed}"
 
 
 def mobil_key(lanes: int, t_up_s: float, p: float, seed: int) -> str:
-    return f"L{lanes}_T{t_up_s:g}_mobil_p{p:g}_s{seed}"
+    return f"L{lanes}_T{number_name(t_up_s)}_mobil_p{number_name(p)}_s{seed}"
 
 
 def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Profile) -> TrainConfig:
@@ -463,7 +464,7 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
                              note=plane_note)  # fmt: skip
         figures["surface"] = "fig6_alpha_star.png"
         speeds = table.set_index([pd.Index([condition_label(r.lanes, r.t_up_s) for r in table.itertuples()])])
-        speeds = speeds[[f"speed_mps_alpha{a:g}" for a in profile.alphas]]
+        speeds = speeds[[f"speed_mps_alpha{number_name(a)}" for a in profile.alphas]]
         speeds.columns = list(profile.alphas)
         speed_heatmap_figure(speeds, table["alpha_star"].tolist(), root / "fig6_speed_heatmap.png")
         figures["heatmap"] = "fig6_speed_heatmap.png"
@@ -560,7 +561,7 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
                      f"{_num(r['boot_alpha_p05'], '{:g}')}–{_num(r['boot_alpha_p95'], '{:g}')}",
                      f"{_sep(r.get('separated_below'))} / {_sep(r.get('separated_above'))}",
                      _num(r["spread_mps"]), _num(r["seed_se_mps"])]
-                    + [_num(r[f"speed_mps_alpha{a:g}"]) for a in alphas])  # fmt: skip
+                    + [_num(r[f"speed_mps_alpha{number_name(a)}"]) for a in alphas])  # fmt: skip
     noise = noise_floor_text(table)
     if fit is not None:
         plane = (f"Fitted plane over {fit.n} conditions (least squares on alpha*): "

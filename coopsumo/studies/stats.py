@@ -15,6 +15,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
+from coopsumo.validation import number_name
+
 CRITERION = "mean_speed_mps"
 """the paper's criterion: mean travelling speed over the evaluation (m/s)"""
 
@@ -147,9 +149,9 @@ def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, 
             "cells_failed": int((group["status"] != "ok").sum()),
         }  # fmt: skip
         for a, m in zip(alphas, means, strict=True):
-            row[f"speed_mps_alpha{a:g}"] = float(m)
+            row[f"speed_mps_alpha{number_name(a)}"] = float(m)
         for a, s in zip(alphas, shares, strict=True):
-            row[f"win_share_alpha{a:g}"] = float(s)
+            row[f"win_share_alpha{number_name(a)}"] = float(s)
         rows.append(row)
     empty = ["lanes", "t_up_s", "load", "inflow_veh_h", "alpha_star"]
     return pd.DataFrame(rows, columns=None if rows else empty), boots
@@ -185,7 +187,7 @@ def mobil_p_star_table(runs: pd.DataFrame, ps: Sequence[float] | None = None, se
             "cells_failed": int((group["status"] != "ok").sum()),
         }  # fmt: skip
         for p, m in zip(ps, means, strict=True):
-            row[f"speed_mps_p{p:g}"] = float(m)
+            row[f"speed_mps_p{number_name(p)}"] = float(m)
         rows.append(row)
     empty = ["lanes", "t_up_s", "load", "inflow_veh_h", "p_star", "p_star_speed_mps", "win_share"]
     return pd.DataFrame(rows, columns=None if rows else empty)
