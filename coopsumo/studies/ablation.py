@@ -39,7 +39,7 @@ from coopsumo.config import (
     to_dict,
 )
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
-from coopsumo.studies.runner import add_backend_flags, check_backend
+from coopsumo.studies.runner import add_backend_flags, check_backend, failed_exit
 from coopsumo.validation import alpha_list, number_name, out_dir, seed_count, workers
 
 EVAL_SEED_OFFSET = 1000
@@ -48,6 +48,8 @@ BASELINES = ("keep", "greedy", "mobil:p=0", "mobil:p=0.5")
 ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 8.0)
 METRICS = ("mean_speed_mps", "lane_changes_per_vehicle", "lane_changes_rejected", "teleports", "collisions",
            "throughput_veh_per_h", "mean_travel_time_s")  # fmt: skip
+REQUIRED_SUMMARY = ("mean_speed_mps", "lane_changes_per_vehicle", "teleports", "collisions")
+"""summary values a stored cell record must hold as finite numbers to be reused (runner.record_problem)"""
 
 
 def _variants() -> list[tuple[str, str, DQNConfig]]:
@@ -346,20 +348,25 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
         if name in profile.variants:
             lines.append(f"- `{name}`: {text}")
     lines += ["", HEADER.format("variant"), *_table_rows(abl, "variant"), *_table_rows(base, "variant"), ""]
+    failed = runs[runs["status"] != "ok"]
     lines += ["![training curves](fig_training_curves.png)", ""]
     if len(alpha_tab):
         lines += ["## Alpha response of the default design", "", HEADER.format("alpha"),
                   *_table_rows(alpha_tab, "alpha"), ""]  # fmt: skip
-        mono = is_monotone_decreasing(alpha_tab["lane_changes_per_vehicle_mean"].to_numpy(float),
-                                      alpha_tab["lane_changes_per_vehicle_std"].to_numpy(float))  # fmt: skip
-        lines.append(f"Lane changes per vehicle {'fall' if mono else 'do NOT fall'} monotonically as alpha rises "
-                     "(a rise larger than the seed spread counts as a break).")  # fmt: skip
+        if failed.empty:
+            mono = is_monotone_decreasing(alpha_tab["lane_changes_per_vehicle_mean"].to_numpy(float),
+                                          alpha_tab["lane_changes_per_vehicle_std"].to_numpy(float))  # fmt: skip
+            lines.append(f"Lane changes per vehicle {'fall' if mono else 'do NOT fall'} monotonically as alpha "
+                         "rises (a rise larger than the seed spread counts as a break).")  # fmt: skip
         lines += ["", "![alpha response](fig_alpha_response.png)", ""]
-    lines += target_lines(runs, meta.get("default_variant", "replay"))
+    if failed.empty:
+        lines += target_lines(runs, meta.get("default_variant", "replay"))
+    else:
+        lines += [f"**No verdict** (alpha response, targets): {len(failed)} of {len(runs)} cells failed, so the "
+                  "tables above rest on fewer seeds than asked for; rerun the same command to retry them.", ""]
     ok = runs[runs["status"] == "ok"]
     bad = ok[(ok["teleports"] > 0) | (ok["collisions"] > 0)]
     lines.append(f"Safety: {len(bad)} of {len(ok)} evaluations had a teleport or a collision.")
-    failed = runs[runs["status"] != "ok"]
     if len(failed):
         lines.append(f"Failed cells: {', '.join(failed['key'])}.")
     lines += ["", "Reproduce: `python -m coopsumo.ablation" + ("" if profile.name == "full" else
@@ -425,7 +432,7 @@ def write_outputs(root: Path, profile: Profile, records: list[dict[str, Any]], m
 def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.sim.network import build_net
-    from coopsumo.studies.runner import cell_path, execute, make_backend, read_record, sigterm_interrupts
+    from coopsumo.studies.runner import cell_path, execute, make_backend, reusable_keys, sigterm_interrupts
 
     start = time.perf_counter()
     root = root.resolve()
@@ -434,8 +441,8 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     except OSError as err:
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile, default)
-    stored = {s["key"]: read_record(root, s) for s in specs}
-    todo = [s for s in specs if (stored[s["key"]] or {}).get("status") != "ok"]
+    done_keys = reusable_keys(root, specs, "ablation", REQUIRED_SUMMARY)
+    todo = [s for s in specs if s["key"] not in done_keys]
     # the slow paper trainings first, the single changes on top of the default last
     extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
     todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
@@ -457,6 +464,7 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
             backend.close()
     records = [json.loads(cell_path(root, s["key"]).read_text()) for s in specs]
     meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
+                failed_cells=[r["key"] for r in records if r["status"] != "ok"],
                 cell_wall_seconds_sum=round(sum(r.get("cell_wall_s") or 0.0 for r in records), 1),
                 cell_cpu_seconds_sum=round(sum(r.get("cell_cpu_s") or 0.0 for r in records), 1))  # fmt: skip
     write_outputs(root, profile, records, meta)
@@ -508,7 +516,7 @@ def main(argv: list[str] | None = None) -> int:
         meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                          progress=not args.quiet)  # fmt: skip
         print(f"ablation: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")
-        return 0
+        return failed_exit("ablation", meta["failed_cells"], meta["cells"], args.out)
 
     return run_cli("ablation", body)
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import multiprocessing as mp
 import os
 import queue
@@ -144,12 +145,69 @@ def cell_path(root: Path, key: str) -> Path:
 
 
 def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
-    """The stored record of this cell if it was made with this configuration (config.results_view)."""
+    """The stored record of this cell if it is a JSON object made with this configuration (config.results_view)."""
     try:
-        record: dict[str, Any] = json.loads(cell_path(root, spec["key"]).read_text())
+        record = json.loads(cell_path(root, spec["key"]).read_text())
     except (OSError, ValueError):
         return None
-    return record if results_view(record.get("config")) == results_view(spec["config"]) else None
+    if not isinstance(record, dict) or results_view(record.get("config")) != results_view(spec["config"]):
+        return None
+    return record
+
+
+def record_problem(record: Any, required: Sequence[str]) -> str | None:
+    """Why a stored record cannot be trusted, or None: it must be a JSON object of status "ok" with a non-empty
+    summary object whose `required` values (the ones the study reads) are finite numbers."""
+    if not isinstance(record, dict):
+        return f"is a JSON {type(record).__name__}, not an object"
+    if "status" not in record:
+        return "has no status"
+    if record["status"] != "ok":
+        return f"has status {json.dumps(record['status'])[:40]}, not \"ok\""
+    summary = record.get("summary")
+    if not isinstance(summary, dict) or not summary:
+        return f"has status ok but its summary is {json.dumps(summary)[:40]}"
+    for key in required:
+        value = summary.get(key)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return f"has summary {key} = {json.dumps(value)[:40]}, not a number"
+        if not math.isfinite(value):
+            return f"has summary {key} = {value}, not a finite number"
+    return None
+
+
+def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> set[str]:
+    """The cells whose stored record can be reused: one record_problem accepts, made with the cell's
+    configuration. Every other cell is rerun; a record that is neither failed nor interrupted and yet not
+    accepted (unreadable, the wrong shape, a bad summary) gets one line on stderr saying why."""
+    done = set()
+    for spec in specs:
+        path = cell_path(root, spec["key"])
+        try:
+            record = json.loads(path.read_text())
+        except FileNotFoundError:
+            continue
+        except (OSError, ValueError) as err:
+            print(f"{prog}: cell {spec['key']}: record {path} is unreadable ({type(err).__name__}); rerunning it",
+                  file=sys.stderr)  # fmt: skip
+            continue
+        if isinstance(record, dict) and record.get("status") in ("failed", "interrupted"):
+            continue  # rerun without a word: the study counts these
+        problem = record_problem(record, required)
+        if problem:
+            print(f"{prog}: cell {spec['key']}: record {path} {problem}; rerunning it", file=sys.stderr)
+        elif results_view(record.get("config")) == results_view(spec["config"]):
+            done.add(spec["key"])
+    return done
+
+
+def failed_exit(prog: str, failed: Sequence[str], total: int, root: Path) -> int:
+    """A study's exit code: 0, or 1 with one line on stderr naming the failed cells."""
+    if not failed:
+        return 0
+    print(f"{prog}: error: {len(failed)} of {total} cells failed ({', '.join(failed)}); records in {root / 'cells'}; "
+          "rerun the same command to retry them", file=sys.stderr)  # fmt: skip
+    return 1
 
 
 def _init_worker(parent_pid: int, pids: Any) -> None:

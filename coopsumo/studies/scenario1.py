@@ -428,7 +428,7 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
     n_cells = len(model_paths) + len(runs)
     if specs:
         from coopsumo.sim.network import build_net
-        from coopsumo.studies.runner import execute, make_backend, sigterm_interrupts
+        from coopsumo.studies.runner import execute, failed_exit, make_backend, sigterm_interrupts
 
         build_net(RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s))  # once here, not in the workers
         backend = make_backend(backend_name, workers, address, run_cell)
@@ -442,9 +442,7 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
         if counts["failed"]:
             failed = [s["key"] for s in specs if json.loads((root / "cells" / f"{s['key']}.json").read_text())
                       ["status"] != "ok"]  # fmt: skip
-            print(f"scenario1: error: {len(failed)} of {len(specs)} cells failed ({', '.join(failed)}); records in "
-                  f"{root / 'cells'}; rerun the same command to retry them", file=sys.stderr)  # fmt: skip
-            return 1
+            return failed_exit("scenario1", failed, len(specs), root)
 
     # 2. tables, figures, report
     from coopsumo.studies.scenario1_report import run_metrics

@@ -58,8 +58,10 @@ from coopsumo.studies.runner import (
     cell_path,
     check_backend,
     execute,
+    failed_exit,
     make_backend,
     read_record,
+    reusable_keys,
     run_recorded,
     sigterm_interrupts,
     simulate_into,
@@ -104,6 +106,8 @@ METRIC_COLUMNS = (
     "train_mean_speed_mps", "train_lane_changes", "train_collisions", "train_updates",
 )  # fmt: skip
 """Deterministic columns of runs.csv (same seed -> same value on any backend)."""
+REQUIRED_SUMMARY = (CRITERION, "collisions", "teleports")
+"""summary values a stored cell record must hold as finite numbers to be reused (runner.record_problem)"""
 TRAIN_COLUMNS = {
     "train_mean_speed_mps": "mean_speed_mps",
     "train_lane_changes": "lane_changes",
@@ -296,10 +300,10 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     except OSError as err:
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile)
-    stored = {s["key"]: read_record(root, s) for s in specs}
-    done = [s for s in specs if (stored[s["key"]] or {}).get("status") == "ok"]
-    retry = [s for s in specs if (stored[s["key"]] or {}).get("status") == "failed"]
-    todo = [s for s in specs if (stored[s["key"]] or {}).get("status") != "ok"]
+    done_keys = reusable_keys(root, specs, "scenario2", REQUIRED_SUMMARY)
+    done = [s for s in specs if s["key"] in done_keys]
+    todo = [s for s in specs if s["key"] not in done_keys]
+    retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
     # the busiest roads first and the short MOBIL runs last: a shorter tail
     todo.sort(key=lambda s: (s.get("policy") == "mobil", -s["lanes"] * s["load"]))
     meta = {
@@ -336,7 +340,8 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     runs.to_csv(root / "runs.csv", index=False)
     wall = time.perf_counter() - start
     meta.update(wall_seconds=round(wall, 1), cells_run=len(todo), cells_ok=int((runs["status"] == "ok").sum()),
-                cells_failed=int((runs["status"] == "failed").sum()),
+                cells_failed=int((runs["status"] != "ok").sum()),
+                failed_cells=runs.loc[runs["status"] != "ok", "key"].tolist(),
                 cell_wall_seconds_sum=round(float(pd.to_numeric(runs["cell_wall_s"]).sum()), 1),
                 cell_cpu_seconds_sum=round(float(pd.to_numeric(runs["cell_cpu_s"]).sum()), 1))  # fmt: skip
     write_outputs(root, runs, profile, meta, n_boot)
@@ -437,15 +442,36 @@ def condition_label(lanes: int, t_up_s: float) -> str:
     return f"{lanes} lanes, T_up {t_up_s:g} s"
 
 
+def withhold_incomplete(table: pd.DataFrame, star: str) -> pd.DataFrame:
+    """`table` (alpha_star_table or mobil_p_star_table) with no winner (NaN, separation None) in a condition where a
+    cell failed: it would rest on fewer seeds than asked for."""
+    if table.empty or "cells_failed" not in table:
+        return table
+    bad = table["cells_failed"] > 0
+    table = table.copy()
+    for col in table.columns:
+        if col.startswith(star) or col in ("win_share", "boot_support", "boot_alpha_p05", "boot_alpha_p95"):
+            table.loc[bad, col] = np.nan
+        elif col in ("separated_below", "separated_above"):
+            table[col] = table[col].astype(object)
+            table.loc[bad, col] = None
+        elif col == "distinct":
+            table.loc[bad, col] = False
+    return table
+
+
 def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[str, Any], n_boot: int) -> None:
-    """alpha_star.csv, the two figures, mobil_p_star.csv (with MOBIL cells) and report.md from the runs table."""
+    """alpha_star.csv, the two figures, mobil_p_star.csv (with MOBIL cells) and report.md from the runs table; a
+    condition with a failed cell gets no alpha* (or p*): withhold_incomplete."""
     from coopsumo.report.plots_sweep import alpha_label, alpha_surface_figure, speed_heatmap_figure
 
     table, boots = alpha_star_table(policy_rows(runs, "dqn"), profile.alphas, profile.seeds, n_boot=n_boot)
+    table = withhold_incomplete(table, "alpha_star")
     table.to_csv(root / "alpha_star.csv", index=False)
     side = None
     if "mobil" in profile.policies:
         p_table = mobil_p_star_table(policy_rows(runs, "mobil"), profile.mobil_ps, profile.seeds)
+        p_table = withhold_incomplete(p_table, "p_star")
         p_table.to_csv(root / "mobil_p_star.csv", index=False)
         side = side_by_side_table(table, p_table)
     fit: PlaneFit | None = None
@@ -563,6 +589,10 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
                      _num(r["spread_mps"]), _num(r["seed_se_mps"])]
                     + [_num(r[f"speed_mps_alpha{number_name(a)}"]) for a in alphas])  # fmt: skip
     noise = noise_floor_text(table)
+    withheld = [condition_label(r["lanes"], r["t_up_s"]) for r in table.to_dict("records") if r["cells_failed"]]
+    if withheld:
+        noise = (f"**No alpha\\* (–) where a cell failed** ({'; '.join(withheld)}): it would rest on fewer seeds "
+                 f"than asked for; see Failed cells and rerun the same command.\n\n{noise}")  # fmt: skip
     if fit is not None:
         plane = (f"Fitted plane over {fit.n} conditions (least squares on alpha*): "
                  f"**alpha\\* = {fit.b0:.3f} {fit.b1:+.3f} T_up {fit.b2:+.3f} lanes**, "
@@ -743,6 +773,9 @@ def main(argv: list[str] | None = None) -> int:
         if "dqn" in profile.policies:
             table = pd.read_csv(args.out / "alpha_star.csv")
             for r in table.itertuples():
+                if r.cells_failed:
+                    print(f"{condition_label(r.lanes, r.t_up_s)}: no alpha* ({r.cells_failed} cells failed)")
+                    continue
                 print(f"{condition_label(r.lanes, r.t_up_s)}: alpha* = {r.alpha_star:g} "
                       f"(win share {r.win_share:.0%}, bootstrap {r.boot_support:.0%})")  # fmt: skip
             plane = meta.get("plane", {})
@@ -753,10 +786,13 @@ def main(argv: list[str] | None = None) -> int:
                 print(plane.get("error", ""))
         if "mobil" in profile.policies:
             for r in pd.read_csv(args.out / "mobil_p_star.csv").itertuples():
+                if r.cells_failed:
+                    print(f"{condition_label(r.lanes, r.t_up_s)}: no MOBIL p* ({r.cells_failed} cells failed)")
+                    continue
                 print(f"{condition_label(r.lanes, r.t_up_s)}: MOBIL p* = {r.p_star:g} (win share {r.win_share:.0%})")
         print(f"scenario2: {meta['cells_ok']} ok, {meta['cells_failed']} failed, "
               f"{meta['wall_seconds'] / 60:.1f} min; report: {args.out / 'report.md'}")  # fmt: skip
-        return 0
+        return failed_exit("scenario2", meta["failed_cells"], meta["cells"], args.out)
 
     return run_cli("scenario2", body)
 
