@@ -134,3 +134,97 @@ def test_scenario1_on_ray_gives_the_same_summary_as_local(tmp_path: Path) -> Non
         assert len(list((out / "cells").glob("*.json"))) == 1 + 5 * 2
         tables[backend] = pd.read_csv(out / "summary.csv")
     pd.testing.assert_frame_equal(tables["local"], tables["ray"])
+
+
+# -- stored records: trusted only when sound ----------------------------------------------------------------
+GOOD = {"key": "c1", "config": {"x": 1}, "status": "ok", "summary": {"v": 2.5, "n": 3, "note": "text"}}
+
+
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        (json.dumps({**GOOD, "summary": {}}), "summary is {}"),
+        (json.dumps({**GOOD, "summary": None}), "summary is null"),
+        (json.dumps({**GOOD, "summary": [2.5]}), "summary is [2.5]"),
+        (json.dumps({**GOOD, "summary": {"v": "fast", "n": 3}}), 'v = "fast", not a number'),
+        (json.dumps({**GOOD, "summary": {"v": None, "n": 3}}), "v = null, not a number"),
+        (json.dumps({**GOOD, "summary": {"v": True, "n": 3}}), "v = true, not a number"),
+        (json.dumps({**GOOD, "summary": {"v": float("nan"), "n": 3}}), "v = nan, not a finite number"),
+        (json.dumps({**GOOD, "summary": {"v": float("inf"), "n": 3}}), "v = inf, not a finite number"),
+        (json.dumps({**GOOD, "summary": {"n": 3}}), "v = null, not a number"),  # a required key missing
+        (json.dumps([GOOD]), "is a JSON list, not an object"),
+        (json.dumps("ok"), "is a JSON str, not an object"),
+        (json.dumps({k: v for k, v in GOOD.items() if k != "status"}), "has no status"),
+        (json.dumps({**GOOD, "status": None}), 'has status null, not "ok"'),
+        (json.dumps(GOOD)[:30], "is unreadable (JSONDecodeError)"),
+        (b"\xff\xfe".decode("latin-1"), "is unreadable"),
+    ],
+)  # fmt: skip
+def test_a_corrupt_record_is_rerun_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str,
+                                                  why: str) -> None:  # fmt: skip
+    (tmp_path / "cells").mkdir()
+    runner.cell_path(tmp_path, "c1").write_text(text, encoding="latin-1")
+    done = runner.reusable_keys(tmp_path, specs_of([1]), "study", ("v", "n"))
+    assert done == set()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("study: cell c1: record ") and why in err[0], err
+    assert err[0].endswith("; rerunning it") and "Traceback" not in err[0]
+
+
+def test_a_sound_record_is_reused_and_expected_reruns_are_silent(tmp_path: Path,
+                                                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    (tmp_path / "cells").mkdir()
+    runner.cell_path(tmp_path, "c1").write_text(json.dumps(GOOD))  # sound (a string beside the numbers is fine)
+    runner.cell_path(tmp_path, "c2").write_text(json.dumps({**GOOD, "key": "c2", "status": "failed"}))
+    runner.cell_path(tmp_path, "c3").write_text(json.dumps({**GOOD, "key": "c3"}))  # made with x = 1, not 3
+    # c4 has no record yet
+    assert runner.reusable_keys(tmp_path, specs_of([1, 2, 3, 4]), "study", ("v", "n")) == {"c1"}
+    assert capsys.readouterr().err == ""
+    # read_record never raises on a record of the wrong shape
+    runner.cell_path(tmp_path, "c2").write_text("[1, 2]")
+    assert runner.read_record(tmp_path, specs_of([2])[0]) is None
+
+
+def test_failed_exit_names_the_failed_cells(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert runner.failed_exit("study", [], 4, tmp_path) == 0 and capsys.readouterr().err == ""
+    assert runner.failed_exit("study", ["c3", "c4"], 4, tmp_path) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("study: error: 2 of 4 cells failed (c3, c4)")
+
+
+# -- distinct parameter values never share a key or folder --------------------------------------------------
+def test_number_names_are_exact_and_keep_the_short_form() -> None:
+    from coopsumo.validation import number_name
+
+    assert [number_name(x) for x in (8.0, 0.0, 0.125, 2.5, 1e-05, 0.1)] == ["8", "0", "0.125", "2.5", "1e-05", "0.1"]
+    assert number_name(8.000001) == "8.000001" and number_name(1 / 3) == repr(1 / 3)
+    values = [8.0, 8.000001, 8.0000001, 8 + 2**-40, 1 / 3, 0.3333333, 123456.0, 123456.5, 1e6, 1e6 + 1]
+    names = [number_name(v) for v in values]
+    assert len(set(names)) == len(values) and [float(n) for n in names] == values
+
+
+def test_close_alphas_give_distinct_cells_in_every_study() -> None:
+    from dataclasses import replace
+
+    from coopsumo.config import DQNConfig
+    from coopsumo.studies import ablation, scenario1, scenario2
+
+    profile = replace(scenario2.PROFILES["tiny"], alphas=(8.0, 8.000001), t_up_s=(2.0, 2.000001))
+    keys = [s["key"] for s in scenario2.cell_specs(profile)]
+    assert len(keys) == len(set(keys)) == profile.n_cells()
+    assert "L2_T2_a8_s1" in keys and "L2_T2.000001_a8.000001_s1" in keys
+    abl = replace(ablation.PROFILES["tiny"], alphas=(8.0, 8.000001))
+    specs = ablation.cell_specs(abl, DQNConfig())
+    alpha_keys = [s["key"] for s in specs if s["part"] == "alpha"]
+    assert len(alpha_keys) == 2 * len(abl.seeds) == len(set(alpha_keys))
+    assert scenario1.model_name("default", 8.0) == "alpha8" != scenario1.model_name("default", 8.000001)
+    assert scenario1.run_folder("keep", 1, 8.0) != scenario1.run_folder("keep", 1, 8.000001)
+
+
+def test_study_lists_refuse_only_equal_values() -> None:
+    from coopsumo.runio import UsageError
+    from coopsumo.validation import distinct_list
+
+    assert distinct_list("--t-up", "8,8.000001") == (8.0, 8.000001)
+    with pytest.raises(UsageError, match="lists 8 more than once"):
+        distinct_list("--t-up", "8,8.0")
