@@ -536,3 +536,82 @@ def test_tiny_sweep_with_the_paper_preset(tmp_path: Path) -> None:
     for cell in (out / "cells").glob("*.json"):
         dqn = json.loads(cell.read_text())["config"]["dqn"]
         assert dqn["preset"] == "paper" and dqn["decision_interval_steps"] == 1 and dqn["dueling"] is False
+
+
+# -- records that cannot be trusted, failures, close alphas (no SUMO: train is faked) ---------------------------
+@pytest.fixture
+def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
+    """train() faked in this process (cells run inline): it fails for every cell named in the returned list's
+    first item "fail:<keys>" (comma-separated; "fail:*": every cell), else returns a speed from alpha and seed."""
+    import torch
+
+    import coopsumo.agents.train as train_module
+
+    calls: list[str] = []
+
+    def fake_train(cfg, out, resume=False, progress=True, on_steps=None):  # type: ignore[no-untyped-def]
+        calls.append(out.name)
+        failing = calls[0].removeprefix("fail:").split(",") if calls[0].startswith("fail:") else []
+        if "*" in failing or out.name in failing:
+            raise RuntimeError("SUMO said no")
+        (out / "train_summary.json").write_text('{"mean_speed_mps": 20.0, "updates": 3}')
+        return {"mean_speed_mps": 20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed, "collisions": 0, "teleports": 0}
+
+    monkeypatch.setattr(torch, "set_num_threads", lambda n: None)
+    monkeypatch.setattr(train_module, "train", fake_train)
+    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend())
+    monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
+    calls.append("fail:")
+    return calls
+
+
+def test_a_corrupt_record_is_rerun_not_counted(tmp_path: Path, faked_train: list[str],
+                                               capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    assert s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=20)["cells_ok"] == 8
+    first = pd.read_csv(tmp_path / "alpha_star.csv")
+    cells = tmp_path / "cells"
+    bad = {"L2_T2_a8_s1": lambda r: {**r, "summary": {}}, "L2_T2_a8_s2": lambda r: {**r, "summary": None},
+           "L2_T2_a0_s1": lambda r: {**r, "summary": {**r["summary"], "mean_speed_mps": "fast"}},
+           "L2_T2_a0_s2": lambda r: {**r, "summary": {**r["summary"], "mean_speed_mps": float("nan")}},
+           "L2_T4_a0_s1": lambda r: [r], "L2_T4_a0_s2": lambda r: {k: v for k, v in r.items() if k != "status"}}
+    for key, spoil in bad.items():
+        path = cells / f"{key}.json"
+        path.write_text(json.dumps(spoil(json.loads(path.read_text()))))
+    (cells / "L2_T4_a8_s1.json").write_text((cells / "L2_T4_a8_s1.json").read_text()[:50])  # truncated
+    capsys.readouterr()
+    del faked_train[1:]
+    meta = s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=20)
+    err = capsys.readouterr().err
+    assert sorted(faked_train[1:]) == sorted([*bad, "L2_T4_a8_s1"])  # exactly the spoiled cells ran again
+    for key in [*bad, "L2_T4_a8_s1"]:
+        assert sum(f"cell {key}: record" in line and line.endswith("rerunning it") for line in err.splitlines()) == 1
+    assert "1 already done" in err and meta["cells_ok"] == 8 and meta["cells_run"] == 7
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "alpha_star.csv"), first)
+
+
+def test_a_failed_cell_withholds_its_alpha_star_and_an_all_failed_sweep_exits_1(
+        tmp_path: Path, faked_train: list[str], capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    faked_train[0] = "fail:L2_T2_a8_s2"
+    code, err = run_main(["--profile", "tiny", "--out", str(tmp_path / "one"), "--quiet", "--bootstrap", "20"], capsys)
+    assert code == 1 and err[-1].startswith("scenario2: error: 1 of 8 cells failed (L2_T2_a8_s2)")
+    table = pd.read_csv(tmp_path / "one" / "alpha_star.csv").set_index("t_up_s")
+    assert np.isnan(table.loc[2.0, "alpha_star"]) and table.loc[4.0, "alpha_star"] == 8.0
+    report = (tmp_path / "one" / "report.md").read_text()
+    assert "No alpha\\* (–) where a cell failed** (2 lanes, T_up 2 s)" in report and "| L2_T2_a8_s2 |" in report
+    faked_train[:] = ["fail:*"]
+    code, err = run_main(["--profile", "tiny", "--out", str(tmp_path / "all"), "--quiet", "--bootstrap", "20"], capsys)
+    assert code == 1 and len([e for e in err if "error" in e]) == 1 and "Traceback" not in "\n".join(err)
+    assert err[-1].startswith("scenario2: error: 8 of 8 cells failed (") and "L2_T2_a0_s1, " in err[-1]
+    assert pd.read_csv(tmp_path / "all" / "alpha_star.csv")["alpha_star"].isna().all()
+    assert "No figure: no cell succeeded." in (tmp_path / "all" / "report.md").read_text()
+
+
+def test_close_alphas_are_two_cells_on_the_command_line(tmp_path: Path, faked_train: list[str],
+                                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    argv = ["--profile", "tiny", "--alphas", "8,8.000001", "--seeds", "1", "--out", str(tmp_path), "--quiet"]
+    code, err = run_main([*argv, "--bootstrap", "0"], capsys)
+    assert code == 0, err
+    assert sorted(p.stem for p in (tmp_path / "cells").glob("*.json")) == [
+        "L2_T2_a8.000001_s1", "L2_T2_a8_s1", "L2_T4_a8.000001_s1", "L2_T4_a8_s1"]
+    assert sorted(faked_train[1:]) == ["L2_T2_a8.000001_s1", "L2_T2_a8_s1", "L2_T4_a8.000001_s1", "L2_T4_a8_s1"]
+    assert (pd.read_csv(tmp_path / "alpha_star.csv")["alpha_star"] == 8.000001).all()
