@@ -171,8 +171,8 @@ def test_a_corrupt_record_is_rerun_with_one_line(tmp_path: Path, capsys: pytest.
     assert err[0].endswith("; rerunning it") and "Traceback" not in err[0]
 
 
-def test_a_sound_record_is_reused_and_expected_reruns_are_silent(tmp_path: Path,
-                                                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+def test_a_sound_record_is_reused_and_expected_reruns_are_silent(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     (tmp_path / "cells").mkdir()
     runner.cell_path(tmp_path, "c1").write_text(json.dumps(GOOD))  # sound (a string beside the numbers is fine)
     runner.cell_path(tmp_path, "c2").write_text(json.dumps({**GOOD, "key": "c2", "status": "failed"}))

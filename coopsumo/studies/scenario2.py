@@ -537,8 +537,13 @@ def _sep(value: Any) -> str:
 
 
 def noise_floor_text(table: pd.DataFrame) -> str:
-    """How many conditions have an alpha* that is distinguishable from its neighbours in the alpha grid."""
+    """How many conditions have an alpha* that is distinguishable from its neighbours in the alpha grid (of the
+    conditions that have an alpha*)."""
     if table.empty or "distinct" not in table:
+        return ""
+    if "alpha_star" in table:
+        table = table[np.isfinite(table["alpha_star"].astype(float))]
+    if table.empty:
         return ""
     n = len(table)
     both = int(table["distinct"].astype(bool).sum())
