@@ -87,3 +87,49 @@ def test_default_alpha_zero_cells_are_shared_between_the_parts() -> None:
     keys = [s["key"] for s in cell_specs(profile, DQNConfig())]
     assert len(keys) == len(set(keys))
     assert sum(k.startswith("dueling_alpha0_") for k in keys) == len(profile.seeds)
+
+
+class FailingBackend:
+    """Runs no SUMO: every cell is recorded failed at once."""
+
+    name = "failing"
+    slots = 1
+
+    def __init__(self) -> None:
+        self._done: list[tuple[object, dict[str, object]]] = []
+
+    def submit(self, spec: dict[str, object], root: Path) -> object:
+        from coopsumo.studies.ablation import failed_record
+
+        handle = object()
+        self._done.append((handle, failed_record(spec, "RuntimeError: SUMO said no")))
+        return handle
+
+    def wait(self, handles: list[object], timeout: float) -> list[tuple[object, dict[str, object]]]:
+        done, self._done = self._done, []
+        return done
+
+    def abort(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    from coopsumo.studies import ablation, runner
+
+    monkeypatch.setattr(runner, "make_backend", lambda name, workers, address, cell_fn: FailingBackend())
+    monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
+    (tmp_path / "cells").mkdir()
+    (tmp_path / "cells" / "keep_seed0.json").write_text('{"status": "ok", "summary": {}}')  # never trusted
+    code = ablation.main(["--profile", "tiny", "--alphas", "8,8.000001", "--out", str(tmp_path), "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    n = len(ablation.cell_specs(replace(PROFILES["tiny"], alphas=(8.0, 8.000001)), DQNConfig()))
+    assert code == 1 and "Traceback" not in "\n".join(err)
+    assert any("cell keep_seed0: record" in e and "summary is {}" in e for e in err)
+    assert err[-1].startswith(f"ablation: error: {n} of {n} cells failed (") and "_alpha8.000001_seed0" in err[-1]
+    report = (tmp_path / "report.md").read_text()
+    assert "**No verdict**" in report and "Failed cells: " in report and "_alpha8_seed0" in report
+    assert "monotonically" not in report and "mean speed minus" not in report

@@ -272,7 +272,8 @@ def training_curves_figure(root: Path, runs: pd.DataFrame, out_path: Path) -> Pa
     axes[0].set_ylabel("mean speed while training (m/s)")
     axes[1].set_xlabel("training step")
     axes[1].set_ylabel("lane changes per 1,000 steps / vehicles on road")
-    axes[0].legend(fontsize=7)
+    if axes[0].get_lines():
+        axes[0].legend(fontsize=7)
     fig.tight_layout()
     return save_figure(fig, out_path)
 
@@ -294,7 +295,8 @@ def alpha_response_figure(alpha_tab: pd.DataFrame, base: pd.DataFrame, out_path:
         ax.set_xticks(x, [f"{a:g}" for a in alpha_tab["alpha"]])
         ax.set_xlabel("alpha")
         ax.set_ylabel(label)
-    axes[0].legend(fontsize=7)
+    if axes[0].get_lines():
+        axes[0].legend(fontsize=7)
     fig.tight_layout()
     return save_figure(fig, out_path)
 
