@@ -228,3 +228,11 @@ def test_study_lists_refuse_only_equal_values() -> None:
     assert distinct_list("--t-up", "8,8.000001") == (8.0, 8.000001)
     with pytest.raises(UsageError, match="lists 8 more than once"):
         distinct_list("--t-up", "8,8.0")
+
+
+def test_a_fresh_record_with_a_bad_summary_counts_as_failed() -> None:
+    bad = {**GOOD, "summary": {"v": None, "n": 3}}
+    assert runner.checked_record(GOOD, ("v", "n")) == GOOD
+    assert runner.checked_record(bad, ("v", "n"))["status"] == "failed"
+    assert runner.checked_record(bad, ("v", "n"))["error"] == "record has summary v = null, not a number"
+    assert runner.checked_record({**bad, "status": "failed"}, ("v",))["status"] == "failed"

@@ -434,7 +434,14 @@ def write_outputs(root: Path, profile: Profile, records: list[dict[str, Any]], m
 def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.sim.network import build_net
-    from coopsumo.studies.runner import cell_path, execute, make_backend, reusable_keys, sigterm_interrupts
+    from coopsumo.studies.runner import (
+        cell_path,
+        checked_record,
+        execute,
+        make_backend,
+        reusable_keys,
+        sigterm_interrupts,
+    )
 
     start = time.perf_counter()
     root = root.resolve()
@@ -464,7 +471,7 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
                         desc="learning cells")  # fmt: skip
         finally:
             backend.close()
-    records = [json.loads(cell_path(root, s["key"]).read_text()) for s in specs]
+    records = [checked_record(json.loads(cell_path(root, s["key"]).read_text()), REQUIRED_SUMMARY) for s in specs]
     meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
                 failed_cells=[r["key"] for r in records if r["status"] != "ok"],
                 cell_wall_seconds_sum=round(sum(r.get("cell_wall_s") or 0.0 for r in records), 1),

@@ -176,6 +176,12 @@ def record_problem(record: Any, required: Sequence[str]) -> str | None:
     return None
 
 
+def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str, Any]:
+    """A record just run, as the study may count it: one of status ok that record_problem faults counts as failed."""
+    problem = record_problem(record, required) if record.get("status") == "ok" else None
+    return {**record, "status": "failed", "error": f"record {problem}"} if problem else record
+
+
 def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> set[str]:
     """The cells whose stored record can be reused: one record_problem accepts, made with the cell's
     configuration. Every other cell is rerun; a record that is neither failed nor interrupted and yet not

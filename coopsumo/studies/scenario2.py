@@ -57,6 +57,7 @@ from coopsumo.studies.runner import (
     blank_record,
     cell_path,
     check_backend,
+    checked_record,
     execute,
     failed_exit,
     make_backend,
@@ -335,7 +336,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
                 execute(todo, root, backend, len(specs), len(done), progress, failed_record, desc="scenario2 cells")
         finally:
             backend.close()
-    records = [json.loads(cell_path(root, s["key"]).read_text()) for s in specs]
+    records = [checked_record(json.loads(cell_path(root, s["key"]).read_text()), REQUIRED_SUMMARY) for s in specs]
     runs = runs_table(records)
     runs.to_csv(root / "runs.csv", index=False)
     wall = time.perf_counter() - start
