@@ -440,7 +440,7 @@ def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
 
 # -- outputs -------------------------------------------------------------------------------------------
 def condition_label(lanes: int, t_up_s: float) -> str:
-    return f"{lanes} lanes, T_up {t_up_s:g} s"
+    return f"{lanes} lanes, T_up {number_name(t_up_s)} s"
 
 
 def withhold_incomplete(table: pd.DataFrame, star: str) -> pd.DataFrame:
