@@ -52,13 +52,13 @@ def main(argv: list[str] | None = None) -> int:
 
 def run(by_length: dict[str, s1.Plan], root: Path, n_workers: int) -> int:
     from coopsumo.sim.network import build_net
-    from coopsumo.studies.runner import execute, make_backend, read_record, sigterm_interrupts
+    from coopsumo.studies.runner import execute, make_backend, reusable_keys, sigterm_interrupts
     from coopsumo.studies.scenario1_report import run_metrics
 
     start = time.perf_counter()
     root.mkdir(parents=True, exist_ok=True)
     write_json(root / "plan.json", {"plans": {k: to_dict(v) for k, v in by_length.items()}, "versions": versions()})
-    cells: list[tuple[str, s1.Plan, float, int, dict[str, Any]]] = []
+    cells: list[tuple[str, s1.Plan, float, int, Any, dict[str, Any]]] = []
     for length, plan in by_length.items():
         for t_up in plan.t_ups:
             for seed in plan.seeds:
@@ -67,8 +67,9 @@ def run(by_length: dict[str, s1.Plan], root: Path, n_workers: int) -> int:
                 spec = {"key": f"{length}_t{t_up:g}_seed{seed}", "kind": "run", "label": POLICY, "seed": seed,
                         "t_up_s": t_up, "out": folder, "after": None, "config": to_dict(cfg),
                         "trajectory_every": plan.trajectory_every, "outputs": to_dict(plan.outputs())}  # fmt: skip
-                cells.append((length, plan, t_up, seed, spec))
-    todo = [c[4] for c in cells if (read_record(root, c[4]) or {}).get("status") != "ok"]
+                cells.append((length, plan, t_up, seed, cfg, spec))
+    done = reusable_keys(root, [c[5] for c in cells], "regime_map", ("mean_speed_mps", "collisions", "teleports"))
+    todo = [c[5] for c in cells if c[5]["key"] not in done]
     if todo:
         build_net(RoadConfig())
         backend = make_backend("local", n_workers, None, s1.run_cell)
@@ -82,8 +83,7 @@ def run(by_length: dict[str, s1.Plan], root: Path, n_workers: int) -> int:
             print(f"regime_map: error: {counts['failed']} runs failed; records in {root / 'cells'}", file=sys.stderr)
             return 1
     rows = []
-    for length, plan, t_up, seed, spec in cells:
-        cfg = s1.accident_config(plan, POLICY, seed, t_up)
+    for length, plan, t_up, seed, cfg, spec in cells:
         m = run_metrics(root / spec["out"], cfg, plan.trajectory_every * cfg.control.dt_s)
         acc = cfg.accident
         rows.append({"accident": length, "accident_steps": acc.duration_steps, "run_steps": cfg.steps,

@@ -178,3 +178,30 @@ def env_with_display(display: str | None) -> dict[str, str]:
     if display is not None:
         env["DISPLAY"] = display
     return env
+
+
+class InlineBackend:
+    """A study backend that runs each cell in this process, one at a time, with cell_fn(spec, root) -> record
+    (for tests whose cells run no SUMO: a faked training, or a cell recorded failed at once)."""
+
+    name = "inline"
+    slots = 1
+
+    def __init__(self, cell_fn: Callable[[dict[str, Any], str], dict[str, Any]]) -> None:
+        self._cell_fn = cell_fn
+        self._done: list[tuple[object, dict[str, Any]]] = []
+
+    def submit(self, spec: dict[str, Any], root: Path) -> object:
+        handle = object()
+        self._done.append((handle, self._cell_fn(spec, str(root))))
+        return handle
+
+    def wait(self, handles: list[object], timeout: float) -> list[tuple[object, dict[str, Any]]]:
+        done, self._done = self._done, []
+        return done
+
+    def abort(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass

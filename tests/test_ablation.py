@@ -10,6 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import InlineBackend
 
 from coopsumo.config import PAPER_DQN, DQNConfig
 from coopsumo.studies.ablation import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, is_monotone_decreasing, learner_of
@@ -89,38 +90,18 @@ def test_default_alpha_zero_cells_are_shared_between_the_parts() -> None:
     assert sum(k.startswith("dueling_alpha0_") for k in keys) == len(profile.seeds)
 
 
-class FailingBackend:
+def failing_cell(spec: dict[str, object], root: str) -> dict[str, object]:
     """Runs no SUMO: every cell is recorded failed at once."""
+    from coopsumo.studies.ablation import failed_record
 
-    name = "failing"
-    slots = 1
-
-    def __init__(self) -> None:
-        self._done: list[tuple[object, dict[str, object]]] = []
-
-    def submit(self, spec: dict[str, object], root: Path) -> object:
-        from coopsumo.studies.ablation import failed_record
-
-        handle = object()
-        self._done.append((handle, failed_record(spec, "RuntimeError: SUMO said no")))
-        return handle
-
-    def wait(self, handles: list[object], timeout: float) -> list[tuple[object, dict[str, object]]]:
-        done, self._done = self._done, []
-        return done
-
-    def abort(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
+    return failed_record(spec, "RuntimeError: SUMO said no")
 
 
 def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     from coopsumo.studies import ablation, runner
 
-    monkeypatch.setattr(runner, "make_backend", lambda name, workers, address, cell_fn: FailingBackend())
+    monkeypatch.setattr(runner, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(failing_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     (tmp_path / "cells").mkdir()
     (tmp_path / "cells" / "keep_seed0.json").write_text('{"status": "ok", "summary": {}}')  # never trusted

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import InlineBackend
 
 from coopsumo.studies import runner, stats
 from coopsumo.studies import scenario2 as s2
@@ -431,7 +432,7 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
 
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)  # keep this test process's threads
     monkeypatch.setattr(train_module, "train", fake_train)
-    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend())
+    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(s2.run_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     meta = s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
     assert meta["cells_failed"] == 2 and meta["cells_ok"] == 6
@@ -445,31 +446,6 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
     meta = s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
     assert meta["cells_failed"] == 0 and meta["cells_run"] == 2
     assert sorted(calls[8:]) == ["L2_T2_a8_s2", "L2_T4_a8_s2"]
-
-
-class InlineBackend:
-    """Runs cells in this process, one at a time (only with a faked train)."""
-
-    name = "inline"
-    slots = 1
-
-    def __init__(self) -> None:
-        self._done: list[tuple[object, dict[str, object]]] = []
-
-    def submit(self, spec: dict[str, object], root: Path) -> object:
-        handle = object()
-        self._done.append((handle, s2.run_cell(spec, str(root))))
-        return handle
-
-    def wait(self, handles: list[object], timeout: float) -> list[tuple[object, dict[str, object]]]:
-        done, self._done = self._done, []
-        return done
-
-    def abort(self) -> None:
-        pass
-
-    def close(self) -> None:
-        pass
 
 
 def fake_cell(spec: dict[str, object], root: str) -> dict[str, object]:
@@ -562,7 +538,7 @@ def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
 
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)
     monkeypatch.setattr(train_module, "train", fake_train)
-    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend())
+    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(s2.run_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     calls.append("fail:")
     return calls
