@@ -72,7 +72,7 @@ def random_run(tmp_path_factory: pytest.TempPathFactory, make_sim_config: SimCon
             rec.obs.append({"nums": obs.nums, "lane": obs.lane, "pos": obs.pos, "speed": obs.speed, "busy": obs.busy})
             rec.out.append(world.apply(policy.act(obs)))
             # the speed last sent to SUMO, which SUMO keeps (only changed speeds are sent)
-            rec.commanded.append((obs.nums, world.veh.set_speed[obs.nums].copy()))
+            rec.commanded.append((obs.nums, world.session.speeds_sent(obs.nums).copy()))
             t = world.table
             rec.tables.append({"nums": t.nums, "lane": t.lane, "pos": t.pos, "speed": t.speed,
                                "other": world._other_lane(t.nums, t.lane),

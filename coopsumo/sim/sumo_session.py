@@ -342,6 +342,10 @@ class SumoSession:
         deque(map(self.ls.vehicle.setSpeed, self._ids[nums], speeds.tolist()), maxlen=0)
         self._speed_sent[nums] = speeds
 
+    def speeds_sent(self, nums: np.ndarray) -> np.ndarray:
+        """The speed (m/s) last sent to each of `nums`, which SUMO keeps; NaN where none is in force."""
+        return self._speed_sent[nums]
+
     def release_speeds(self, nums: np.ndarray) -> None:
         """Hand speed control back to SUMO's car-following model."""
         deque(map(self.ls.vehicle.setSpeed, self._ids[nums], [-1.0] * len(nums)), maxlen=0)

@@ -66,7 +66,6 @@ class _Growable:
         self.lc_to = np.full(capacity, -1, np.int64)
         self.hold = np.zeros(capacity, np.int8)
         self.commanded = np.zeros(capacity, bool)  # sumo mode: speed commanded by the accident
-        self.set_speed = np.full(capacity, np.nan)  # the speed last sent to SUMO (m/s), which SUMO keeps
         self.shown = np.full(capacity, -1, np.int8)  # sumo-gui: the view state (view.vehicle_states) it is coloured by
 
     def ensure(self, n: int) -> None:
@@ -75,7 +74,7 @@ class _Growable:
             return
         new = max(n, 2 * cap)
         fills = (("v_exp", 0.0), ("depart_s", np.nan), ("scheduled_s", np.nan), ("lc_left_s", 0.0), ("lc_from", -1),
-                 ("lc_to", -1), ("hold", 0), ("commanded", False), ("set_speed", np.nan), ("shown", -1))  # fmt: skip
+                 ("lc_to", -1), ("hold", 0), ("commanded", False), ("shown", -1))  # fmt: skip
         for name, fill in fills:
             old = getattr(self, name)
             setattr(self, name, np.concatenate([old, np.full(new - cap, fill, old.dtype)]))
@@ -291,9 +290,8 @@ class World:
         speeds = physics.next_speed(obs.speed, obs.v_exp, actions == physics.SPEEDUP, gap, v_lead, c)
 
         # SUMO keeps a set speed until told otherwise, so only changed speeds are sent
-        changed = speeds != self.veh.set_speed[obs.nums]
+        changed = speeds != self.session.speeds_sent(obs.nums)
         self.session.set_speeds(obs.nums[changed], speeds[changed])
-        self.veh.set_speed[obs.nums[changed]] = speeds[changed]
         self.session.change_lanes(movers, target[ok])
         events = self._advance()
 
