@@ -380,11 +380,12 @@ def demand_section(rows: pd.DataFrame, agg: pd.DataFrame, t_up: float, pairs: Se
             lines.append("- " + verdict_line(c))
     lines.append("")
     lines.append(report_table(agg[agg["t_up_s"] == t_up]))
-    for key, caption in (("fig5", "Fig. 5: flow against density from every loop and interval"),
+    for key, caption in (("fig5", "Fig. 5: flow against density from every loop and interval, one panel per policy"),
                          ("recovery", "Speed before the bottleneck and vehicles waiting to enter")):  # fmt: skip
+        grey = "the other policies' points" if key == "fig5" else "the accident window"
         name = figures.get(f"{key}_t{number_name(t_up)}")
         if name:
-            lines.append(f"\n![{key}]({name})\n\n{caption}, T_up = {t_up:g} s, first seed (grey: the accident window).")
+            lines.append(f"\n![{key}]({name})\n\n{caption}, T_up = {t_up:g} s, first seed (grey: {grey}).")
     return "\n".join(lines)
 
 
