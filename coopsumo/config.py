@@ -18,6 +18,8 @@ from coopsumo.validation import ALPHA_MIN, MAX_REPLAY, MAX_STEPS, SEED_MAX, int_
 
 MIN_LANES = 2
 MAX_LANES = 6
+OBSERVATIONS = ("paper", "v2x")
+"""what a learner can read (DQNConfig.observation)"""
 
 
 DEMAND_STREAM, ACCIDENT_STREAM, POLICY_STREAM = 1, 2, 3
@@ -198,6 +200,9 @@ class DQNConfig:
     restart_below_mps: float = 1.0
     """'none' is not offered to a vehicle slower than this (m/s): a standing vehicle that keeps its speed
     would stand for good and block its lane (0: off; paper: 'none' keeps any speed, zero included)"""
+    observation: str = "paper"
+    """what the network reads: 'paper' (3 frames of the 3 x 20 m occupancy grid and the speed errors) or 'v2x'
+    (the same plus each side lane's nearest leader and follower within 200 m: gap and speed; observation.v2x_features)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
@@ -226,7 +231,7 @@ class DQNConfig:
         if not (math.isfinite(self.grad_clip_norm) and self.grad_clip_norm > 0):
             raise ConfigError(f"grad_clip_norm must be a positive number, got {self.grad_clip_norm}")
         choices = {"loss": ("mse", "huber"), "optimizer": ("sgd", "adam"), "exit_transition": ("drop", "terminal"),
-                   "preset": tuple(DQN_PRESETS)}  # fmt: skip
+                   "preset": tuple(DQN_PRESETS), "observation": OBSERVATIONS}  # fmt: skip
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
@@ -411,6 +416,7 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
         return dataclasses.replace(base, **d)
     d.setdefault("dueling", False)  # written before the dueling head existed: the plain head
     d.setdefault("restart_below_mps", 0.0)  # written before the standing rule: 'none' offered at any speed
+    d.setdefault("observation", ADDED_FIELDS["observation"])  # written before the v2x state: the paper's
     return _from_fields(DQNConfig, d, "learner")
 
 
@@ -434,11 +440,18 @@ SPEED_ONLY_FIELDS = frozenset({"full_read_every_steps"})
 matches a stored run, cell or checkpoint to its configuration)"""
 
 
+ADDED_FIELDS = {"observation": "paper"}
+"""fields added after results were stored, with the value a configuration without them means (dropped from
+results_view at that value, so a stored run still matches the configuration it was made with)"""
+
+
 def results_view(d: Any) -> Any:
-    """A configuration as to_dict or JSON gives it, without SPEED_ONLY_FIELDS at any depth: two runs whose views
-    are equal give the same results (a run stored before such a field existed matches too)."""
+    """A configuration as to_dict or JSON gives it, without SPEED_ONLY_FIELDS at any depth and without ADDED_FIELDS
+    at their implied value: two runs whose views are equal give the same results (a run stored before such a
+    field existed matches too)."""
     if isinstance(d, dict):
-        return {k: results_view(v) for k, v in d.items() if k not in SPEED_ONLY_FIELDS}
+        return {k: results_view(v) for k, v in d.items()
+                if k not in SPEED_ONLY_FIELDS and not (k in ADDED_FIELDS and v == ADDED_FIELDS[k])}  # fmt: skip
     if isinstance(d, list):
         return [results_view(v) for v in d]
     return d
