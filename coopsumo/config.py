@@ -202,7 +202,7 @@ class DQNConfig:
     would stand for good and block its lane (0: off; paper: 'none' keeps any speed, zero included)"""
     observation: str = "paper"
     """what the network reads: 'paper' (3 frames of the 3 x 20 m occupancy grid and the speed errors) or 'v2x'
-    (the same plus each side lane's nearest leader and follower within 200 m: gap and speed; observation.v2x_features)"""
+    (those plus each side lane's nearest leader and follower within 200 m: gap and speed; see v2x_features)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""

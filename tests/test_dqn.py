@@ -26,7 +26,7 @@ from coopsumo.agents.dqn import (
     sync_target,
 )
 from coopsumo.config import PAPER_DQN, DQNConfig
-from coopsumo.sim.observation import Observation
+from coopsumo.sim.observation import Observation, n_features
 
 SMALL_CFG = dataclasses.replace(
     PAPER_DQN, replay_size=64, batch_size=8, learn_start_steps=0, target_sync_steps=3, learn_every=1
@@ -37,11 +37,11 @@ def random_transitions(rng: np.random.Generator, n: int) -> dict[str, np.ndarray
     """n random transitions as the numpy arrays ReplayBuffer.add_batch takes."""
     return {
         "grids": (rng.random((n, *GRID_SHAPE)) < 0.2).astype(np.float32),
-        "speed_err": rng.normal(-3.0, 3.0, (n, 3)).astype(np.float32),
+        "features": rng.normal(-3.0, 3.0, (n, 3)).astype(np.float32),
         "actions": rng.integers(0, N_ACTIONS, n),
         "rewards": rng.normal(0.0, 1.0, n).astype(np.float32),
         "next_grids": (rng.random((n, *GRID_SHAPE)) < 0.2).astype(np.float32),
-        "next_speed_err": rng.normal(-3.0, 3.0, (n, 3)).astype(np.float32),
+        "next_features": rng.normal(-3.0, 3.0, (n, 3)).astype(np.float32),
         "dones": (rng.random(n) < 0.1).astype(np.float32),
     }
 
@@ -53,11 +53,11 @@ def tagged_transitions(first: int, n: int) -> dict[str, np.ndarray]:
     grids[:, 0, 0, 0] = ids % 2
     return {
         "grids": grids,
-        "speed_err": np.repeat(ids[:, None], 3, axis=1).astype(np.float32),
+        "features": np.repeat(ids[:, None], 3, axis=1).astype(np.float32),
         "actions": ids % N_ACTIONS,
         "rewards": ids.astype(np.float32),
         "next_grids": grids,
-        "next_speed_err": np.repeat(-ids[:, None], 3, axis=1).astype(np.float32),
+        "next_features": np.repeat(-ids[:, None], 3, axis=1).astype(np.float32),
         "dones": np.zeros(n, dtype=np.float32),
     }
 
@@ -75,7 +75,7 @@ def run_steps(learner: Learner, rng: np.random.Generator, steps: int) -> list[np
     taken = []
     for _ in range(steps):
         t = random_transitions(rng, 5)
-        actions = learner.act(t["grids"], t["speed_err"], explore=True)
+        actions = learner.act(t["grids"], t["features"], explore=True)
         taken.append(actions)
         t["actions"] = actions
         learner.observe(**t)
@@ -116,8 +116,8 @@ def stored_rewards(buf: ReplayBuffer) -> set[int]:
     # every field of a sampled row must belong to the same transition
     ids = batch.rewards.numpy().astype(int)
     assert np.array_equal(batch.actions.numpy(), ids % N_ACTIONS)
-    assert np.array_equal(batch.speed_err.numpy()[:, 2], ids)
-    assert np.array_equal(batch.next_speed_err.numpy()[:, 0], -ids)
+    assert np.array_equal(batch.features.numpy()[:, 2], ids)
+    assert np.array_equal(batch.next_features.numpy()[:, 0], -ids)
     assert np.array_equal(batch.grids.numpy()[:, 0, 0, 0], ids % 2)
     return set(ids.tolist())
 
@@ -244,11 +244,11 @@ def test_no_update_before_learn_start_or_a_full_batch() -> None:
 def test_act_shapes_and_greedy_matches_network() -> None:
     learner = Learner(SMALL_CFG, seed=0)
     t = random_transitions(np.random.default_rng(0), 9)
-    actions = learner.act(t["grids"], t["speed_err"], explore=False)
-    q = learner.online(torch.from_numpy(t["grids"]), torch.from_numpy(t["speed_err"]))
+    actions = learner.act(t["grids"], t["features"], explore=False)
+    q = learner.online(torch.from_numpy(t["grids"]), torch.from_numpy(t["features"]))
     assert actions.dtype == np.int64 and actions.shape == (9,)
     assert np.array_equal(actions, q.argmax(dim=1).numpy())
-    assert learner.act(t["grids"][:0], t["speed_err"][:0], explore=True).shape == (0,)
+    assert learner.act(t["grids"][:0], t["features"][:0], explore=True).shape == (0,)
 
 
 def test_same_seed_gives_identical_weights() -> None:
@@ -389,3 +389,46 @@ def test_dqn_policy_reuses_the_action_of_an_unchanged_input_and_recomputes_the_r
     err2[3, 2] += 0.5
     np.testing.assert_array_equal(policy.act(with_input(grids2, err2)), plain(grids2, err2))
     assert rows_seen == [4, 2]  # only vehicles 1 and 3 changed
+
+
+def test_a_v2x_model_records_its_observation_and_reads_its_wider_input(tmp_path: Path) -> None:
+    path = tmp_path / "model.pt"
+    net = QNetwork(30.0, dueling=True, observation="v2x")
+    assert net.n_features == n_features("v2x") > n_features("paper")
+    save_model(path, net, {})
+    loaded, _ = load_model(path)
+    assert loaded.observation == "v2x" and loaded.n_features == net.n_features
+    grids = torch.zeros(2, *GRID_SHAPE)
+    feats = torch.linspace(-1, 1, 2 * net.n_features).reshape(2, -1)
+    assert torch.equal(loaded(grids, feats), net(grids, feats))
+    with pytest.raises(RuntimeError):  # the paper's 3 speed errors alone do not fit its first layer
+        loaded(grids, feats[:, :3])
+
+
+def test_a_model_without_an_observation_reads_the_papers_and_an_unknown_one_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "model.pt"
+    torch.save(good_payload(), path)  # written before the v2x state: no "observation" entry
+    assert load_model(path)[0].observation == "paper"
+    torch.save({**good_payload(), "observation": "lidar"}, path)
+    with pytest.raises(ModelFileError, match="observation 'lidar'.*newer coopsumo") as info:
+        load_model(path)
+    assert "\n" not in str(info.value)
+
+
+def test_a_model_whose_settings_and_weights_disagree_on_the_observation_is_refused(tmp_path: Path) -> None:
+    from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.config import TrainConfig, to_dict
+    from coopsumo.runio import UsageError
+
+    paper_cfg = to_dict(TrainConfig())
+    v2x_cfg = to_dict(TrainConfig(dqn=dataclasses.replace(TrainConfig().dqn, observation="v2x")))
+    for weights, cfg, ok in (("v2x", v2x_cfg, True), ("paper", paper_cfg, True), ("v2x", paper_cfg, False),
+                             ("paper", v2x_cfg, False)):  # fmt: skip
+        path = tmp_path / f"{weights}_{cfg['dqn']['observation']}.pt"
+        save_model(path, QNetwork(30.0, dueling=True, observation=weights), {"config": cfg})
+        if ok:
+            assert DQNPolicy.from_file(str(path)).trained_on["observation"] == weights  # type: ignore[index]
+        else:
+            with pytest.raises(UsageError, match="observation") as info:
+                DQNPolicy.from_file(str(path))
+            assert "\n" not in str(info.value)

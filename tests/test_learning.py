@@ -119,9 +119,9 @@ class FixedQ(nn.Module):
 def _batch(next_mask: list[list[bool]], dones: list[float]) -> ReplayBatch:
     n = len(dones)
     return ReplayBatch(
-        grids=torch.zeros(n, 3, 3, 20), speed_err=torch.zeros(n, 3), actions=torch.zeros(n, dtype=torch.int64),
+        grids=torch.zeros(n, 3, 3, 20), features=torch.zeros(n, 3), actions=torch.zeros(n, dtype=torch.int64),
         rewards=torch.tensor([1.0] * n), next_grids=torch.zeros(n, 3, 3, 20),
-        next_speed_err=torch.tensor([[float(i)] * 3 for i in range(n)]),
+        next_features=torch.tensor([[float(i)] * 3 for i in range(n)]),
         dones=torch.tensor(dones), next_mask=torch.tensor(next_mask),
     )  # fmt: skip
 

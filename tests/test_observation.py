@@ -6,10 +6,23 @@ when its centre lies inside a vehicle [front_j - 4, front_j). Rows are (left, ow
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Callable
+
 import numpy as np
+import pytest
 
 from coopsumo.sim import physics
-from coopsumo.sim.observation import N_CELLS, FrameHistory, snapshot
+from coopsumo.sim.observation import (
+    N_CELLS,
+    N_V2X,
+    FrameHistory,
+    Observation,
+    n_features,
+    network_features,
+    snapshot,
+    v2x_features,
+)
 
 L_CAR = 4.0
 LEFT, OWN, RIGHT = 0, 1, 2
@@ -176,3 +189,82 @@ def test_history_keeps_whole_grids_not_just_one_cell() -> None:
     np.testing.assert_array_equal(g[0, 0], a)
     np.testing.assert_array_equal(g[0, 1], a)
     np.testing.assert_array_equal(g[0, 2], b)
+
+
+# --- the v2x state (observation.v2x_features) ----------------------------------------------------
+
+SCALE = 30.0  # speed scale (m/s) of the tests below
+
+
+def v2x(lane: list[int], pos: list[float], speed: list[float], n_lanes: int = 3,
+        other: list[int] | None = None) -> np.ndarray:  # fmt: skip
+    """(n, 3 sides, 5) per-side v2x features and (n, 3) own features of a hand-made layout."""
+    lane_a, pos_a, speed_a = np.array(lane, np.int64), np.array(pos, np.float64), np.array(speed, np.float64)
+    other_a = np.full(len(lane), -1, np.int64) if other is None else np.array(other, np.int64)
+    occ = physics.occupancy(lane_a, pos_a, other_a)
+    around = physics.neighbours(occ, pos_a, speed_a, physics.side_lanes(lane_a), n_lanes, L_CAR)
+    feats = v2x_features(around, speed_a, np.full(len(lane), 25.0), other_a >= 0, SCALE)
+    assert feats.shape == (len(lane), N_V2X) and feats.dtype == np.float32
+    return feats
+
+
+def side(feats: np.ndarray, row: int, which: int) -> list[float]:
+    """[exists, lead gap, lead dv, follow gap, follow dv] of vehicle row in side which (0 left, 1 own, 2 right)."""
+    return feats[row, which * 5 : which * 5 + 5].round(6).tolist()
+
+
+def test_v2x_gaps_and_speeds_of_leaders_and_followers_in_every_lane() -> None:
+    # observer on lane 1 at 500 m, 20 m/s; leader own lane at 540 (18 m/s), follower own lane at 470 (22 m/s);
+    # left lane: leader at 600 (30 m/s); right lane: follower at 495 (10 m/s)
+    f = v2x([1, 1, 1, 2, 0], [500, 540, 470, 600, 495], [20, 18, 22, 30, 10])
+    gap_own_lead, gap_own_follow = (540 - 4 - 500) / 200, (500 - 4 - 470) / 200
+    assert side(f, 0, OWN) == pytest.approx([1, gap_own_lead, -2 / SCALE, gap_own_follow, 2 / SCALE], abs=1e-6)
+    assert side(f, 0, LEFT) == pytest.approx([1, (600 - 4 - 500) / 200, 10 / SCALE, 1, 0], abs=1e-6)
+    assert side(f, 0, RIGHT) == pytest.approx([1, 1, 0, (500 - 4 - 495) / 200, -10 / SCALE], abs=1e-6)
+    assert f[0, 15:].tolist() == pytest.approx([20 / SCALE, 25 / SCALE, 0.0])
+
+
+def test_v2x_neighbours_beyond_range_are_absent_and_gaps_clip_at_one() -> None:
+    f = v2x([1, 1, 1], [500, 500 + 4 + 250, 500 - 4 - 201], [20, 5, 35])
+    assert side(f, 0, OWN) == [1, 1, 0, 1, 0]  # both farther than 200 m: told nothing
+    near = v2x([1, 1], [500, 500 + 4 + 199], [20, 5])
+    assert side(near, 0, OWN) == pytest.approx([1, 199 / 200, -15 / SCALE, 1, 0], abs=1e-6)
+
+
+def test_v2x_road_edges_are_zero_and_say_no_lane() -> None:
+    f = v2x([0, 2], [100, 300], [20, 20])
+    assert side(f, 0, RIGHT) == [0, 0, 0, 0, 0]  # right of lane 0: off the road
+    assert side(f, 0, LEFT)[0] == 1 and side(f, 1, LEFT) == [0, 0, 0, 0, 0]
+    assert side(f, 1, RIGHT)[0] == 1
+    two = v2x([0], [100], [20], n_lanes=2)
+    assert side(two, 0, LEFT)[0] == 1 and side(two, 0, RIGHT)[0] == 0
+
+
+def test_v2x_a_vehicle_changing_lanes_counts_in_both_lanes_and_says_so() -> None:
+    # vehicle 1 at 530 m goes from lane 2 to lane 1: the observer on lane 1 sees it as its own leader,
+    # and sees it in the left lane too; vehicle 1 itself says it is changing
+    f = v2x([1, 2], [500, 530], [20, 20], other=[-1, 1])
+    assert side(f, 0, OWN)[:2] == pytest.approx([1, (530 - 4 - 500) / 200])
+    assert side(f, 0, LEFT)[:2] == pytest.approx([1, (530 - 4 - 500) / 200])
+    assert f[0, -1] == 0.0 and f[1, -1] == 1.0
+
+
+def test_network_features_paper_is_the_speed_errors_and_v2x_appends(
+    observation_of: Callable[..., Observation],
+) -> None:
+    obs = observation_of([1, 1], [100.0, 150.0], [20.0, 10.0], [25.0, 30.0])
+    obs = dataclasses.replace(obs, speed_err=np.array([[1, 2, 3], [4, 5, 6]], np.float32))
+    assert network_features(obs, "paper", SCALE) is obs.speed_err
+    both = network_features(obs, "v2x", SCALE)
+    assert both.shape == (2, n_features("v2x")) and n_features("paper") == 3
+    assert both[:, :3].tolist() == obs.speed_err.tolist()
+    expected = v2x_features(obs.around, obs.speed, obs.v_exp, obs.busy, SCALE)
+    assert np.array_equal(both[:, 3:], expected)
+    with pytest.raises(ValueError, match="unknown observation"):
+        network_features(obs, "lidar", SCALE)
+
+
+def test_v2x_of_an_empty_road_has_its_shape() -> None:
+    empty = physics.neighbours(physics.occupancy(np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64)),
+                               np.zeros(0), np.zeros(0), np.zeros((0, 3), np.int64), 3, L_CAR)  # fmt: skip
+    assert v2x_features(empty, np.zeros(0), np.zeros(0), np.zeros(0, bool), SCALE).shape == (0, N_V2X)

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -15,7 +16,7 @@ import torch
 
 from coopsumo.agents.dqn import load_model
 from coopsumo.agents.train import train
-from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig
+from coopsumo.config import DQN_PRESETS, DQNConfig, SimConfig, TrainConfig
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
@@ -63,9 +64,9 @@ def test_short_training_loads_and_drives_safely(tmp_path: Path) -> None:
     assert driven["decision_interval_steps"] == summary["decision_interval_steps"] == 10
 
 
-@pytest.mark.parametrize("preset", ["default", "paper"])
+@pytest.mark.parametrize("preset", ["default", "paper", "v2x"])
 def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
-    dqn = DQN_PRESETS[preset]
+    dqn = replace(DQNConfig(), observation="v2x") if preset == "v2x" else DQN_PRESETS[preset]
     cfg = TrainConfig(sim=SimConfig(steps=700, seed=5, policy="dqn"), dqn=dqn, eval_steps=0)
     train(cfg, tmp_path / "a", progress=False)
     train(cfg, tmp_path / "b", progress=False)
@@ -75,10 +76,11 @@ def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
     assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "c" / "model.pt"))
 
 
-@pytest.mark.parametrize("preset", ["default", "paper"])
+@pytest.mark.parametrize("preset", ["default", "paper", "v2x"])
 def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str) -> None:
     sig = signal.SIGTERM  # Ctrl-C (SIGINT) is exercised by tests/test_docs.py on the README's commands
-    args = ["--steps", "2500", "--eval-steps", "0", "--seed", "2", "--quiet", "--preset", preset]
+    learner = ["--observation", "v2x"] if preset == "v2x" else ["--preset", preset]
+    args = ["--steps", "2500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
     full = tmp_path / "full"
     subprocess.run(_cmd(*args, "--out", str(full)), check=True, cwd=ROOT, capture_output=True)
     cut = tmp_path / "cut"
@@ -92,6 +94,11 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str)
     assert proc.returncode == 128 + sig, err
     assert "Traceback" not in err and "--resume" in err
     assert (cut / "checkpoint.pt").exists() and not (cut / "model.pt").exists()
+    if preset == "v2x":  # the checkpoint's observation is kept: another one beside --resume is refused
+        other = subprocess.run(_cmd("--resume", "--out", str(cut), "--observation", "paper"), cwd=ROOT,
+                               capture_output=True, text=True)  # fmt: skip
+        assert other.returncode == 2 and "--observation paper differs" in other.stderr
+        assert len(other.stderr.strip().splitlines()) == 1
     res = subprocess.run(_cmd("--resume", "--out", str(cut), "--quiet"), cwd=ROOT, capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     assert not (cut / "checkpoint.pt").exists()
@@ -110,6 +117,7 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str)
         (["--resume"], "resume"),
         (["--gamma", "1"], "gamma"),
         (["--gamma", "nan"], "gamma"),
+        (["--observation", "lidar"], "observation"),
     ],
 )
 def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:

@@ -2,7 +2,8 @@
 
 Pure torch + numpy. Observations arrive as numpy arrays for a batch of vehicles:
 grids (N, 3, 3, 20) = 3 frames x 3 lanes x 20 cells of 1 m, 0/1 occupancy;
-speed_err (N, 3) = actual minus expected speed for the same 3 frames (m/s).
+features (N, F) = actual minus expected speed for the same 3 frames (m/s), then, for the 'v2x'
+observation, the v2x features (sim/observation.network_features; F = observation.n_features).
 """
 
 from __future__ import annotations
@@ -18,7 +19,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from coopsumo.config import DQNConfig
+from coopsumo.config import OBSERVATIONS, DQNConfig
+from coopsumo.sim.observation import n_features
 
 GRID_SHAPE = (3, 3, 20)
 """(frames, lanes, cells) of one observation's occupancy grids"""
@@ -39,27 +41,31 @@ class QNetwork(nn.Module):
 
     dueling: the last layer is split into a state value and action advantages,
     Q = V + A - mean(A) (Wang et al. 2016); not in the paper.
+    observation 'v2x': the v2x features are concatenated beside the speed errors (not in the paper).
     """
 
-    def __init__(self, speed_scale_mps: float, dueling: bool = False) -> None:
+    def __init__(self, speed_scale_mps: float, dueling: bool = False, observation: str = "paper") -> None:
         super().__init__()
         if not speed_scale_mps > 0:
             raise ValueError(f"speed_scale_mps must be positive, got {speed_scale_mps}")
         self.speed_scale_mps = float(speed_scale_mps)  # m/s; speed errors are divided by this
         self.dueling = bool(dueling)
+        self.observation = observation
+        self.n_features = n_features(observation)
         self.conv1 = nn.Conv2d(GRID_SHAPE[0], 16, kernel_size=(2, 2), stride=(1, 2))
         self.conv2 = nn.Conv2d(16, 32, kernel_size=(2, 2), stride=(1, 2))
-        self.fc1 = nn.Linear(_CONV_OUT + GRID_SHAPE[0], 500)
+        self.fc1 = nn.Linear(_CONV_OUT + self.n_features, 500)
         self.fc2 = nn.Linear(500, 100)
         self.out = nn.Linear(100, N_ACTIONS)
         if self.dueling:
             self.value = nn.Linear(100, 1)
 
-    def forward(self, grids: torch.Tensor, speed_err: torch.Tensor) -> torch.Tensor:
-        """Q-values (B, 4) from grids (B, 3, 3, 20) and speed errors (B, 3) in m/s."""
+    def forward(self, grids: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+        """Q-values (B, 4) from grids (B, 3, 3, 20) and features (B, n_features): speed errors (m/s) first."""
         x = torch.relu(self.conv1(grids))
         x = torch.relu(self.conv2(x))
-        x = torch.cat([x.flatten(start_dim=1), speed_err / self.speed_scale_mps], dim=1)
+        speed_err = features[:, : GRID_SHAPE[0]] / self.speed_scale_mps
+        x = torch.cat([x.flatten(start_dim=1), speed_err, features[:, GRID_SHAPE[0] :]], dim=1)
         x = torch.relu(self.fc1(x))
         x = torch.relu(self.fc2(x))
         if self.dueling:
@@ -74,47 +80,54 @@ class ReplayBatch:
 
     grids: torch.Tensor
     """(B, 3, 3, 20) occupancy, 0/1"""
-    speed_err: torch.Tensor
-    """(B, 3) speed errors (m/s)"""
+    features: torch.Tensor
+    """(B, F) speed errors (m/s), then any v2x features"""
     actions: torch.Tensor
     """(B,) action indices, int64"""
     rewards: torch.Tensor
     """(B,) rewards"""
     next_grids: torch.Tensor
     """(B, 3, 3, 20) occupancy of the next state"""
-    next_speed_err: torch.Tensor
-    """(B, 3) speed errors of the next state (m/s)"""
+    next_features: torch.Tensor
+    """(B, F) features of the next state"""
     dones: torch.Tensor
     """(B,) 1.0 where the episode ended at this transition (no bootstrap), else 0.0"""
     next_mask: torch.Tensor
     """(B, 4) bool: actions feasible in the next state (all True when masking is off)"""
 
 
-_BUFFER_FIELDS: dict[str, tuple[tuple[int, ...], Any]] = {
-    "grids": (GRID_SHAPE, np.uint8),
-    "speed_err": ((GRID_SHAPE[0],), np.float32),
-    "actions": ((), np.int64),
-    "rewards": ((), np.float32),
-    "next_grids": (GRID_SHAPE, np.uint8),
-    "next_speed_err": ((GRID_SHAPE[0],), np.float32),
-    "dones": ((), np.float32),
-    "next_mask": ((N_ACTIONS,), np.bool_),
-}
-"""name -> (shape of one transition, storage dtype)"""
+def buffer_fields(width: int) -> dict[str, tuple[tuple[int, ...], Any]]:
+    """name -> (shape of one transition, storage dtype) of a replay memory whose feature vectors have `width`."""
+    return {
+        "grids": (GRID_SHAPE, np.uint8),
+        "features": ((width,), np.float32),
+        "actions": ((), np.int64),
+        "rewards": ((), np.float32),
+        "next_grids": (GRID_SHAPE, np.uint8),
+        "next_features": ((width,), np.float32),
+        "dones": ((), np.float32),
+        "next_mask": ((N_ACTIONS,), np.bool_),
+    }
+
+
+_OLD_NAMES = {"speed_err": "features", "next_speed_err": "next_features"}
+"""replay field names in checkpoints written before the v2x state -> their names now"""
 
 
 class ReplayBuffer:
-    """Fixed-capacity ring buffer of transitions; the oldest are overwritten first."""
+    """Fixed-capacity ring buffer of transitions; the oldest are overwritten first.
 
-    def __init__(self, capacity: int) -> None:
+    width: length of each state's feature vector (observation.n_features; 3 for the paper's state).
+    """
+
+    def __init__(self, capacity: int, width: int = GRID_SHAPE[0]) -> None:
         if capacity <= 0:
             raise ValueError(f"replay capacity must be positive, got {capacity}")
         self.capacity = capacity
+        self.fields = buffer_fields(width)
         self._pos = 0  # index the next transition is written to
         self._size = 0
-        self._data = {
-            name: np.zeros((capacity, *shape), dtype=dtype) for name, (shape, dtype) in _BUFFER_FIELDS.items()
-        }
+        self._data = {name: np.zeros((capacity, *shape), dtype=dtype) for name, (shape, dtype) in self.fields.items()}
 
     def __len__(self) -> int:
         return self._size
@@ -122,11 +135,11 @@ class ReplayBuffer:
     def add_batch(
         self,
         grids: np.ndarray,
-        speed_err: np.ndarray,
+        features: np.ndarray,
         actions: np.ndarray,
         rewards: np.ndarray,
         next_grids: np.ndarray,
-        next_speed_err: np.ndarray,
+        next_features: np.ndarray,
         dones: np.ndarray,
         next_mask: np.ndarray | None = None,
     ) -> None:
@@ -138,17 +151,17 @@ class ReplayBuffer:
             next_mask = np.ones((len(actions), N_ACTIONS), dtype=bool)
         arrays = {
             "grids": grids,
-            "speed_err": speed_err,
+            "features": features,
             "actions": actions,
             "rewards": rewards,
             "next_grids": next_grids,
-            "next_speed_err": next_speed_err,
+            "next_features": next_features,
             "dones": dones,
             "next_mask": next_mask,
         }
         n = len(actions)
         for name, arr in arrays.items():
-            shape = (n, *_BUFFER_FIELDS[name][0])
+            shape = (n, *self.fields[name][0])
             if np.shape(arr) != shape:
                 raise ValueError(f"replay {name} must have shape {shape}, got {np.shape(arr)}")
         if n == 0:
@@ -168,11 +181,11 @@ class ReplayBuffer:
         d = self._data
         return ReplayBatch(
             grids=torch.from_numpy(d["grids"][idx].astype(np.float32)),
-            speed_err=torch.from_numpy(d["speed_err"][idx]),
+            features=torch.from_numpy(d["features"][idx]),
             actions=torch.from_numpy(d["actions"][idx]),
             rewards=torch.from_numpy(d["rewards"][idx]),
             next_grids=torch.from_numpy(d["next_grids"][idx].astype(np.float32)),
-            next_speed_err=torch.from_numpy(d["next_speed_err"][idx]),
+            next_features=torch.from_numpy(d["next_features"][idx]),
             dones=torch.from_numpy(d["dones"][idx]),
             next_mask=torch.from_numpy(d["next_mask"][idx]),
         )
@@ -190,8 +203,12 @@ class ReplayBuffer:
         """Restore a snapshot from state_dict(); the capacity must match."""
         if state["capacity"] != self.capacity:
             raise ValueError(f"replay capacity mismatch: buffer has {self.capacity}, state has {state['capacity']}")
-        for name, (_, dtype) in _BUFFER_FIELDS.items():
-            self._data[name] = state["data"][name].numpy().astype(dtype, copy=True)
+        data = {_OLD_NAMES.get(name, name): arr for name, arr in state["data"].items()}
+        for name, (shape, dtype) in self.fields.items():
+            arr = data[name].numpy().astype(dtype, copy=True)
+            if arr.shape[1:] != shape:
+                raise ValueError(f"replay {name} has shape {tuple(arr.shape[1:])} per transition, expected {shape}")
+            self._data[name] = arr
         self._pos = int(state["pos"])
         self._size = int(state["size"])
 
@@ -227,9 +244,9 @@ def td_targets(online: QNetwork, target: QNetwork, batch: ReplayBatch, gamma: fl
     Plain DQN: a* maximises the target network; double DQN: a* maximises the online network.
     """
     with torch.no_grad():
-        next_q = target(batch.next_grids, batch.next_speed_err).masked_fill(~batch.next_mask, -torch.inf)
+        next_q = target(batch.next_grids, batch.next_features).masked_fill(~batch.next_mask, -torch.inf)
         if double:
-            chooser = online(batch.next_grids, batch.next_speed_err).masked_fill(~batch.next_mask, -torch.inf)
+            chooser = online(batch.next_grids, batch.next_features).masked_fill(~batch.next_mask, -torch.inf)
             best = chooser.argmax(dim=1, keepdim=True)
             next_v = next_q.gather(1, best).squeeze(1)
         else:
@@ -248,7 +265,7 @@ def dqn_update(
     loss_name: str = "mse",
 ) -> float:
     """One gradient step on the TD error (paper eq. 8: mean squared; or Huber); returns the loss before the step."""
-    q = online(batch.grids, batch.speed_err).gather(1, batch.actions.unsqueeze(1)).squeeze(1)
+    q = online(batch.grids, batch.features).gather(1, batch.actions.unsqueeze(1)).squeeze(1)
     td_target = td_targets(online, target, batch, gamma, double)
     if loss_name == "huber":
         loss = nn.functional.smooth_l1_loss(q, td_target)
@@ -283,11 +300,11 @@ class Learner:
         # The initial weights depend on the seed only; torch's global RNG is left as it was.
         with torch.random.fork_rng(devices=[]):
             seed_torch(seed)
-            self.online = QNetwork(cfg.speed_scale_mps, cfg.dueling)
-            self.target = QNetwork(cfg.speed_scale_mps, cfg.dueling)
+            self.online = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation)
+            self.target = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation)
         sync_target(self.online, self.target)
         self.optimizer = make_optimizer(self.online, cfg)
-        self.buffer = ReplayBuffer(cfg.replay_size)
+        self.buffer = ReplayBuffer(cfg.replay_size, self.online.n_features)
         # A stream distinct from np.random.default_rng(seed), which the caller may use elsewhere.
         self.rng = np.random.default_rng([seed, 0x44514E])
         self.env_steps = 0  # environment steps seen by step()
@@ -299,9 +316,9 @@ class Learner:
         return epsilon_at(self.env_steps, self.cfg)
 
     def act(
-        self, grids: np.ndarray, speed_err: np.ndarray, explore: bool, mask: np.ndarray | None = None
+        self, grids: np.ndarray, features: np.ndarray, explore: bool, mask: np.ndarray | None = None
     ) -> np.ndarray:
-        """int64 actions (N,) for grids (N, 3, 3, 20) and speed errors (N, 3) in m/s; epsilon-greedy if explore.
+        """int64 actions (N,) for grids (N, 3, 3, 20) and features (N, F); epsilon-greedy if explore.
 
         mask (N, 4) bool: the feasible actions; only those are chosen (None: all actions).
         """
@@ -310,7 +327,7 @@ class Learner:
         with torch.no_grad():
             q = self.online(
                 torch.as_tensor(grids, dtype=torch.float32),
-                torch.as_tensor(speed_err, dtype=torch.float32),
+                torch.as_tensor(features, dtype=torch.float32),
             ).numpy()
         if explore:
             return epsilon_greedy(q, self.epsilon, self.rng, mask)
@@ -321,16 +338,16 @@ class Learner:
     def observe(
         self,
         grids: np.ndarray,
-        speed_err: np.ndarray,
+        features: np.ndarray,
         actions: np.ndarray,
         rewards: np.ndarray,
         next_grids: np.ndarray,
-        next_speed_err: np.ndarray,
+        next_features: np.ndarray,
         dones: np.ndarray,
         next_mask: np.ndarray | None = None,
     ) -> None:
         """Store N transitions in the replay memory (next_mask: feasible next actions, None: all)."""
-        self.buffer.add_batch(grids, speed_err, actions, rewards, next_grids, next_speed_err, dones, next_mask)
+        self.buffer.add_batch(grids, features, actions, rewards, next_grids, next_features, dones, next_mask)
 
     def step(self, decided: bool = True) -> float | None:
         """Advance one environment step; on a decision round (decided) maybe learn; maybe sync the target.
@@ -406,6 +423,7 @@ def save_model(path: str | os.PathLike[str], net: QNetwork, meta: dict[str, Any]
         "n_actions": N_ACTIONS,
         "speed_scale_mps": net.speed_scale_mps,
         "dueling": net.dueling,
+        "observation": net.observation,
         "meta": meta,
     }
     fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -436,8 +454,12 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
         raise ModelFileError(f"model {path} has grid shape {grid_shape}, expected {list(GRID_SHAPE)}")
     if payload["n_actions"] != N_ACTIONS:
         raise ModelFileError(f"model {path} has {payload['n_actions']} actions, expected {N_ACTIONS}")
+    observation = payload.get("observation", "paper")  # written before the v2x state: the paper's
+    if observation not in OBSERVATIONS:
+        raise ModelFileError(f"model {path} reads observation {observation!r}, which this coopsumo does not know "
+                             f"(it knows {', '.join(OBSERVATIONS)}; written by a newer coopsumo?)")  # fmt: skip
     try:
-        net = QNetwork(float(payload["speed_scale_mps"]), bool(payload.get("dueling", False)))
+        net = QNetwork(float(payload["speed_scale_mps"]), bool(payload.get("dueling", False)), observation)
         net.load_state_dict(payload["state_dict"])
     except (RuntimeError, ValueError, TypeError) as exc:
         raise ModelFileError(f"model {path} has incompatible weights: {_first_line(exc)}") from exc

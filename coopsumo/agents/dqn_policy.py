@@ -12,7 +12,7 @@ from coopsumo.agents.decisions import offered
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
 from coopsumo.runio import UsageError
-from coopsumo.sim.observation import Observation
+from coopsumo.sim.observation import Observation, network_features
 
 
 def _field(d: Any, *keys: str) -> Any:
@@ -25,7 +25,10 @@ def _field(d: Any, *keys: str) -> Any:
 class DQNPolicy:
     """Greedy actions of a Q-network (its weights must not change while the policy is in use).
 
-    A vehicle whose grids, speed errors and feasible actions are exactly those of its previous
+    The network reads what it was trained on (net.observation: the paper's grids and speed errors, or those
+    and the v2x features; observation.network_features).
+
+    A vehicle whose grids, features and feasible actions are exactly those of its previous
     decision (typically one standing in a queue) gets its previous action again without a forward
     pass: the network is deterministic, so the action is the same, and a jam costs far less.
 
@@ -52,7 +55,7 @@ class DQNPolicy:
         self.trained_on: dict[str, object] | None = None
         """what a model file says it was trained on (preset, lanes, T_up, alpha, version); None when unknown"""
         self._grids = np.zeros((0, *GRID_SHAPE), np.uint8)  # last input and action, by vehicle number
-        self._speed_err = np.zeros((0, GRID_SHAPE[0]), np.float32)
+        self._features = np.zeros((0, net.n_features), np.float32)
         self._mask = np.zeros((0, N_ACTIONS), bool)
         self._action = np.full(0, -1, np.int64)  # -1: no previous decision
 
@@ -79,12 +82,16 @@ class DQNPolicy:
             if dqn.dueling != net.dueling:
                 raise ConfigError(f"its learner settings say dueling={dqn.dueling}, its weights have "
                                   f"{'a dueling' if net.dueling else 'a plain'} head")  # fmt: skip
+            if dqn.observation != net.observation:
+                raise ConfigError(f"its learner settings say observation {dqn.observation!r}, its weights read "
+                                  f"{net.observation!r}")  # fmt: skip
         except ConfigError as err:
             raise UsageError(f"model {path}: {err}") from None
         policy = cls(net, name=f"dqn:{Path(path).parent.name or path}",
                      decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask,
                      restart_below_mps=dqn.restart_below_mps)  # fmt: skip
-        policy.trained_on = {"preset": dqn.preset, "decision_interval_steps": dqn.decision_interval_steps,
+        policy.trained_on = {"preset": dqn.preset, "observation": dqn.observation,
+                             "decision_interval_steps": dqn.decision_interval_steps,
                              "action_mask": dqn.action_mask, "restart_below_mps": dqn.restart_below_mps,
                              "lanes": _field(config, "sim", "road", "lanes"),
                              "t_up_s": _field(config, "sim", "demand", "t_up_s"),
@@ -98,7 +105,7 @@ class DQNPolicy:
             return
         extra = max(needed, 2 * cap, 1024) - cap
         self._grids = np.concatenate([self._grids, np.zeros((extra, *GRID_SHAPE), np.uint8)])
-        self._speed_err = np.concatenate([self._speed_err, np.zeros((extra, GRID_SHAPE[0]), np.float32)])
+        self._features = np.concatenate([self._features, np.zeros((extra, self.net.n_features), np.float32)])
         self._mask = np.concatenate([self._mask, np.zeros((extra, N_ACTIONS), bool)])
         self._action = np.concatenate([self._action, np.full(extra, -1, np.int64)])
 
@@ -109,24 +116,25 @@ class DQNPolicy:
         nums = obs.nums
         self._grow(int(nums.max()) + 1)
         mask = offered(obs.feasible, obs.speed, self.action_mask, self.restart_below_mps)
+        feats = network_features(obs, self.net.observation, self.net.speed_scale_mps)
         if mask is None:
             mask = np.ones((n, N_ACTIONS), bool)
         same = (
             (self._action[nums] >= 0)
             & (self._grids[nums] == obs.grids).reshape(n, -1).all(axis=1)
-            & (self._speed_err[nums] == obs.speed_err).all(axis=1)
+            & (self._features[nums] == feats).all(axis=1)
             & (self._mask[nums] == mask).all(axis=1)
         )
         actions = self._action[nums]
         fresh = ~same
         if fresh.any():
             with torch.no_grad():
-                q = self.net(torch.from_numpy(obs.grids[fresh]).float(), torch.from_numpy(obs.speed_err[fresh]))
+                q = self.net(torch.from_numpy(obs.grids[fresh]).float(), torch.from_numpy(feats[fresh]))
             q = q.masked_fill(~torch.from_numpy(mask[fresh]), -torch.inf)
             actions[fresh] = q.argmax(dim=1).numpy()
             changed = nums[fresh]
             self._grids[changed] = obs.grids[fresh]
-            self._speed_err[changed] = obs.speed_err[fresh]
+            self._features[changed] = feats[fresh]
             self._mask[changed] = mask[fresh]
             self._action[changed] = actions[fresh]
         return actions

@@ -33,6 +33,7 @@ from coopsumo.config import (
     DQN_PRESETS,
     MAX_LANES,
     MIN_LANES,
+    OBSERVATIONS,
     ConfigError,
     ControlConfig,
     DemandConfig,
@@ -45,7 +46,7 @@ from coopsumo.config import (
     train_config_from_dict,
 )
 from coopsumo.runio import Parser, UsageError, check_run_dir, mark_run_dir, run_cli, versions, write_json
-from coopsumo.sim.observation import Observation
+from coopsumo.sim.observation import Observation, network_features
 from coopsumo.sim.world import StepOutcome, World
 from coopsumo.validation import MAX_STEPS, alpha, check_t_up, integer, number, out_dir, seed, steps
 
@@ -99,17 +100,20 @@ class Window:
 
 def transitions(
     prev: Observation,
+    prev_features: np.ndarray,
     actions: np.ndarray,
     reward_sum: np.ndarray,
     arrived: np.ndarray,
     now: Observation,
+    now_features: np.ndarray,
     exit_transition: str,
     prev_mask: np.ndarray,
     now_mask: np.ndarray,
 ) -> tuple[np.ndarray, ...]:
-    """(grids, speed_err, actions, rewards, next_grids, next_speed_err, dones, next_mask) of the last interval.
+    """(grids, features, actions, rewards, next_grids, next_features, dones, next_mask) of the last interval.
 
-    prev: the last decision round's observation and its `actions`; now: this round's observation;
+    prev: the last decision round's observation, its network features (observation.network_features) and its
+    `actions`; now: this round's observation and features;
     prev_mask, now_mask: the actions offered in them (decisions.offered; all True when nothing is withheld).
     reward_sum: rewards summed over the interval, indexed by vehicle number; arrived: numbers of the
     vehicles that left the road during it. Vehicles present in both rounds give ordinary transitions;
@@ -117,16 +121,16 @@ def transitions(
     """
     _, i_prev, i_now = np.intersect1d(prev.nums, now.nums, assume_unique=True, return_indices=True)
     reward = reward_sum[prev.nums]
-    g, e = prev.grids[i_prev], prev.speed_err[i_prev]
-    ng, ne = now.grids[i_now], now.speed_err[i_now]
+    g, e = prev.grids[i_prev], prev_features[i_prev]
+    ng, ne = now.grids[i_now], now_features[i_now]
     a, r = actions[i_prev], reward[i_prev]
     nm = now_mask[i_now]
     done = np.zeros(len(i_prev), np.float32)
     gone_rows = np.isin(prev.nums, arrived)
     if exit_transition == "terminal" and gone_rows.any():
         gone = np.flatnonzero(gone_rows)
-        g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev.speed_err[gone]])
-        ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev.speed_err[gone]])
+        g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev_features[gone]])
+        ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev_features[gone]])
         a, r = np.concatenate([a, actions[gone]]), np.concatenate([r, reward[gone]])
         nm = np.concatenate([nm, prev_mask[gone]])
         done = np.concatenate([done, np.ones(len(gone), np.float32)])
@@ -144,6 +148,8 @@ class Pending:
 
     prev: Observation | None = None
     """the last decision round's observation"""
+    prev_features: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
+    """its network features (observation.network_features)"""
     prev_actions: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     """the actions decided then"""
     reward_sum: np.ndarray = field(default_factory=lambda: np.zeros(1024))
@@ -156,11 +162,11 @@ class Pending:
             extra = max(int(nums.max()) + 1, 2 * len(self.reward_sum)) - len(self.reward_sum)
             self.reward_sum = np.concatenate([self.reward_sum, np.zeros(extra)])
 
-    def start_interval(self, obs: Observation, actions: np.ndarray) -> None:
+    def start_interval(self, obs: Observation, features: np.ndarray, actions: np.ndarray) -> None:
         """A decision round: remember it and zero the reward sums of the vehicles that decided."""
         self._grow(obs.nums)
         self.reward_sum[obs.nums] = 0.0
-        self.prev, self.prev_actions, self.arrived = obs, actions, []
+        self.prev, self.prev_features, self.prev_actions, self.arrived = obs, features, actions, []
 
     def add_rewards(self, nums: np.ndarray, rewards: np.ndarray) -> None:
         self._grow(nums)
@@ -271,22 +277,24 @@ class Trainer:
         obs = world.observe(grids=decide)
         decided = None
         if decide:
+            feats = network_features(obs, dq.observation, dq.speed_scale_mps)
             mask = self._offered(obs)
             if recorded is None and pend.prev is not None:
                 arrived = np.concatenate(pend.arrived) if pend.arrived else np.zeros(0, np.int64)
                 prev_mask = self._offered(pend.prev)
-                batch = transitions(pend.prev, pend.prev_actions, pend.reward_sum, arrived, obs, dq.exit_transition,
-                                    _all_if_none(prev_mask, pend.prev), _all_if_none(mask, obs))  # fmt: skip
+                batch = transitions(pend.prev, pend.prev_features, pend.prev_actions, pend.reward_sum, arrived, obs,
+                                    feats, dq.exit_transition, _all_if_none(prev_mask, pend.prev),
+                                    _all_if_none(mask, obs))  # fmt: skip
                 n = len(batch[0])
                 if n:
                     keep = learner.rng.permutation(n)[: dq.store_per_decision]
                     grids, err, acts, rews, ngrids, nerr, dones, nmask = (x[keep] for x in batch)
                     learner.observe(grids, err, acts, rews, ngrids, nerr, dones, None if mask is None else nmask)
             if recorded is None:
-                decided = learner.act(obs.grids, obs.speed_err, explore=True, mask=mask)
+                decided = learner.act(obs.grids, feats, explore=True, mask=mask)
             else:
                 decided = recorded
-            pend.start_interval(obs, decided)
+            pend.start_interval(obs, feats, decided)
         actions = self.hold.actions(obs.nums, decided)
         if recorded is not None and not np.array_equal(actions, recorded):
             raise ResumeDiverged(f"the replay of its recorded actions diverged at step {world.step_count}")
@@ -452,6 +460,9 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--epsilon-end", "epsilon_end", float, "exploration probability after the decay"),
     ("--epsilon-decay-steps", "epsilon_decay_steps", int, "steps of the linear epsilon decay (0: constant)"),
     ("--restart-below", "restart_below_mps", float, "'none' is not offered below this speed (m/s; 0: off)"),
+    ("--observation", "observation", OBSERVATIONS,
+     "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
+     "side lane's nearest leader and follower within 200 m: gap and speed)"),
 )  # fmt: skip
 """(flag, DQNConfig field, type or choices, help); every flag defaults to the chosen preset's value"""
 

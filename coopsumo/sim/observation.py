@@ -5,6 +5,10 @@ of the reference line at the vehicle's front bumper. Cell k covers [front - 5 + 
 it is 1 when its centre lies inside a vehicle ([front_j - L_car, front_j)), so a 4 m vehicle
 fills 4 cells, the observing vehicle included. Lanes off the road are all 1. A vehicle in a
 lane change counts in both lanes. The state stacks the last 3 snapshots and speed errors.
+
+The 'v2x' state (DQNConfig.observation) adds what a connected vehicle would be told about its
+neighbourhood, now: for the left, own and right lane, whether the lane exists and the gap to and
+speed of the nearest leader and follower within V2X_RANGE_M (v2x_features).
 """
 
 from __future__ import annotations
@@ -20,6 +24,12 @@ N_SIDES = 3
 N_CELLS = 20
 BEHIND_M = 5.0
 MAX_PER_WINDOW = 8  # vehicles of 4 m that can touch a 24 m window in one lane, plus room
+V2X_RANGE_M = 200.0
+"""how far a v2x vehicle is told about its neighbours (m): gaps are clipped to it, farther vehicles are absent"""
+V2X_PER_SIDE = ("lane exists", "leader gap", "leader speed - own", "follower gap", "follower speed - own")
+V2X_OWN = ("own speed", "expected speed", "lane change under way")
+N_V2X = len(V2X_PER_SIDE) * N_SIDES + len(V2X_OWN)
+"""v2x features per vehicle (beside the paper's 3 speed errors)"""
 
 
 def snapshot(occ: Occupancy, lane: np.ndarray, pos: np.ndarray, n_lanes: int, car_length_m: float) -> np.ndarray:
@@ -110,3 +120,47 @@ class Observation:
 
     def __len__(self) -> int:
         return len(self.nums)
+
+
+def v2x_features(
+    around: Neighbours, speed: np.ndarray, v_exp: np.ndarray, busy: np.ndarray, speed_scale_mps: float
+) -> np.ndarray:
+    """(n, N_V2X) float32: what a connected vehicle is told now, in the order of V2X_PER_SIDE for the left,
+    own and right lane, then V2X_OWN.
+
+    Gaps (bumper to bumper, m) are clipped to [-V2X_RANGE_M, V2X_RANGE_M] and divided by it, so 1 means
+    nobody within range; a neighbour's speed enters as (its speed - own speed) / speed_scale_mps, 0 when
+    there is none within range. A lane off the road has exists 0, gaps 0 and speeds 0. The own speed and
+    expected speed are divided by speed_scale_mps; the last feature is 1 during a lane change.
+    """
+    n = len(speed)
+    out = np.zeros((n, N_SIDES, len(V2X_PER_SIDE)), np.float64)
+    v = np.asarray(speed, np.float64)[:, None]
+    for col, gap, other in ((1, around.lead_gap, around.lead_speed), (3, around.follow_gap, around.follow_speed)):
+        near = gap <= V2X_RANGE_M
+        out[:, :, col] = np.clip(gap, -V2X_RANGE_M, V2X_RANGE_M) / V2X_RANGE_M
+        out[:, :, col + 1] = np.where(near, (other - v) / speed_scale_mps, 0.0)
+    out[:, :, 0] = around.exists
+    out[~around.exists] = 0.0
+    own = np.stack([np.asarray(speed) / speed_scale_mps, np.asarray(v_exp) / speed_scale_mps,
+                    np.asarray(busy, np.float64)], axis=1)  # fmt: skip
+    return np.concatenate([out.reshape(n, N_SIDES * len(V2X_PER_SIDE)), own], axis=1).astype(np.float32)
+
+
+def network_features(obs: Observation, observation: str, speed_scale_mps: float) -> np.ndarray:
+    """The network's vector input beside the grids: the 3 speed errors (m/s) for 'paper'; those then
+    v2x_features for 'v2x'. (n, n_features(observation)) float32."""
+    if observation == "paper":
+        return obs.speed_err
+    if observation == "v2x":
+        v2x = v2x_features(obs.around, obs.speed, obs.v_exp, obs.busy, speed_scale_mps)
+        return np.concatenate([obs.speed_err, v2x], axis=1)
+    raise ValueError(f"unknown observation {observation!r}, expected 'paper' or 'v2x'")
+
+
+def n_features(observation: str) -> int:
+    """Width of network_features for an observation kind ('paper' or 'v2x')."""
+    widths = {"paper": N_FRAMES, "v2x": N_FRAMES + N_V2X}
+    if observation not in widths:
+        raise ValueError(f"unknown observation {observation!r}, expected 'paper' or 'v2x'")
+    return widths[observation]

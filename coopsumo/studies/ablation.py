@@ -39,6 +39,7 @@ from coopsumo.config import (
     to_dict,
 )
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.studies import robustness
 from coopsumo.studies.runner import add_backend_flags, check_backend, failed_exit
 from coopsumo.validation import alpha_list, number_name, out_dir, seed_count, workers
 
@@ -72,6 +73,8 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
         ("store_all", "default + every transition of a decision round stored (not 16 at random)",
          {"store_per_decision": 1000}),
+        ("v2x", "default + the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed)",
+         {"observation": "v2x"}),
     ]  # fmt: skip
     out = []
     cfg = PAPER_DQN
@@ -99,6 +102,8 @@ class Profile:
     seeds: tuple[int, ...]
     variants: tuple[str, ...]
     alphas: tuple[float, ...]
+    alpha_variants: tuple[str, ...] = ()
+    """variants whose alpha response is measured (none given: the default learner)"""
     lanes: int = 3
     t_up_s: float = 1.0
 
@@ -149,9 +154,11 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
         for seed in profile.seeds:
             add_train("ablation", variant, learner_of(variant), 0.0, seed)
     default_name = next((n for n, _, c in VARIANTS if c == default), "default")
-    for alpha in profile.alphas:
-        for seed in profile.seeds:
-            add_train("alpha", default_name, default, alpha, seed)
+    responders = [(v, learner_of(v)) for v in profile.alpha_variants] or [(default_name, default)]
+    for variant, dqn in responders:
+        for alpha in profile.alphas:
+            for seed in profile.seeds:
+                add_train("alpha", variant, dqn, alpha, seed)
     for policy in BASELINES:
         for seed in profile.seeds:
             ev = eval_config(profile, policy, EVAL_SEED_OFFSET + seed)
@@ -284,15 +291,18 @@ def alpha_response_figure(alpha_tab: pd.DataFrame, base: pd.DataFrame, out_path:
 
     fig = new_figure(9.0, 4.0)
     axes = fig.subplots(1, 2)
-    x = np.arange(len(alpha_tab))
+    grid = sorted(alpha_tab["alpha"].unique())
+    x = np.arange(len(grid))
     for ax, metric, label in ((axes[0], "lane_changes_per_vehicle", "lane changes per vehicle"),
                               (axes[1], "mean_speed_mps", "mean speed (m/s)")):  # fmt: skip
-        ax.errorbar(x, alpha_tab[f"{metric}_mean"], yerr=alpha_tab[f"{metric}_std"].fillna(0), marker="o",
-                    capsize=3, label="DQN (default design)")  # fmt: skip
+        for variant, tab in alpha_tab.groupby("variant", sort=False):
+            ax.errorbar(x[np.searchsorted(grid, tab["alpha"])], tab[f"{metric}_mean"],
+                        yerr=tab[f"{metric}_std"].fillna(0), marker="o", capsize=3,
+                        label=f"DQN `{variant}`")  # fmt: skip
         for _, row in base.iterrows():
             ax.axhline(row[f"{metric}_mean"], lw=0.8, ls="--", color="grey")
             ax.annotate(str(row["variant"]), (x[-1], row[f"{metric}_mean"]), fontsize=7, color="grey")
-        ax.set_xticks(x, [f"{a:g}" for a in alpha_tab["alpha"]])
+        ax.set_xticks(x, [f"{a:g}" for a in grid])
         ax.set_xlabel("alpha")
         ax.set_ylabel(label)
     if axes[0].get_lines():
@@ -352,15 +362,17 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
     lines += ["", HEADER.format("variant"), *_table_rows(abl, "variant"), *_table_rows(base, "variant"), ""]
     failed = runs[runs["status"] != "ok"]
     lines += ["![training curves](fig_training_curves.png)", ""]
-    if len(alpha_tab):
-        lines += ["## Alpha response of the default design", "", HEADER.format("alpha"),
-                  *_table_rows(alpha_tab, "alpha"), ""]  # fmt: skip
+    lines += robustness_lines(runs, profile)
+    for variant, tab in alpha_tab.groupby("variant", sort=False):
+        lines += [f"## Alpha response of `{variant}`", "", HEADER.format("alpha"), *_table_rows(tab, "alpha"), ""]
         if failed.empty:
-            mono = is_monotone_decreasing(alpha_tab["lane_changes_per_vehicle_mean"].to_numpy(float),
-                                          alpha_tab["lane_changes_per_vehicle_std"].to_numpy(float))  # fmt: skip
+            mono = is_monotone_decreasing(tab["lane_changes_per_vehicle_mean"].to_numpy(float),
+                                          tab["lane_changes_per_vehicle_std"].to_numpy(float))  # fmt: skip
             lines.append(f"Lane changes per vehicle {'fall' if mono else 'do NOT fall'} monotonically as alpha "
                          "rises (a rise larger than the seed spread counts as a break).")  # fmt: skip
-        lines += ["", "![alpha response](fig_alpha_response.png)", ""]
+            lines.append("")
+    if len(alpha_tab):
+        lines += ["![alpha response](fig_alpha_response.png)", ""]
     if failed.empty:
         lines += target_lines(runs, meta.get("default_variant", "replay"))
     else:
@@ -374,6 +386,31 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
     lines += ["", "Reproduce: `python -m coopsumo.ablation" + ("" if profile.name == "full" else
               f" --profile {profile.name}") + "` (finished cells are reused)."]  # fmt: skip
     return "\n".join(lines) + "\n"
+
+
+def robustness_lines(runs: pd.DataFrame, profile: Profile) -> list[str]:
+    """The seed-robustness section: every alpha = 0 variant judged per training seed against the baselines."""
+    variants = list(profile.variants)
+    table = robustness.robustness_table(runs, variants, list(BASELINES))
+    if table.empty:
+        return []
+    per_seed = robustness.per_seed_table(runs, variants, list(BASELINES))
+    return [
+        "## Seed robustness at alpha = 0",
+        "",
+        "Each model is paired with the baselines on its own evaluation seed. Gap: model minus baseline (m/s); "
+        "worst: the seed with the smallest gap; seeds below: how many models lost to that baseline.",
+        "",
+        *robustness.markdown(table, list(BASELINES)),
+        "",
+        "Mean speed (m/s) and, in brackets, lane changes per vehicle of each model by training seed (baselines: "
+        "on that seed's evaluation demand):",
+        "",
+        *robustness.seed_matrix_markdown(per_seed),
+        "",
+        "![training curves per seed](fig_training_seeds.png)",
+        "",
+    ]
 
 
 def paired_gap(
@@ -417,14 +454,16 @@ def write_outputs(root: Path, profile: Profile, records: list[dict[str, Any]], m
     order = {n: i for i, n in enumerate(VARIANT_NAMES)}
     abl = abl.sort_values("variant", key=lambda s: s.map(order)).reset_index(drop=True)
     # the default design's alpha = 0 models are ablation cells when the default is among the variants
-    default = meta.get("default_variant")
-    in_alpha = (runs["part"] == "alpha") | ((runs["variant"] == default) & (runs["alpha"] == 0))
-    alpha_tab = summarise(runs[in_alpha], ["alpha"]).sort_values("alpha").reset_index(drop=True)
+    responders = list(profile.alpha_variants) or [str(meta.get("default_variant"))]
+    in_alpha = (runs["part"] == "alpha") | (runs["variant"].isin(responders) & (runs["alpha"] == 0))
+    alpha_tab = summarise(runs[in_alpha].drop_duplicates("key"), ["variant", "alpha"])
+    alpha_tab = alpha_tab.sort_values(["variant", "alpha"], kind="stable").reset_index(drop=True)
     base = summarise(runs[runs["part"] == "baseline"], ["variant"])
     pd.concat([abl.assign(part="ablation"), alpha_tab.assign(part="alpha"), base.assign(part="baseline")]).to_csv(
         root / "summary.csv", index=False
     )
     training_curves_figure(root, runs, root / "fig_training_curves.png")
+    robustness.training_seeds_figure(root, runs, list(profile.variants), root / "fig_training_seeds.png")
     if len(alpha_tab):
         alpha_response_figure(alpha_tab, base, root / "fig_alpha_response.png")
     (root / "report.md").write_text(report_text(profile, runs, abl, alpha_tab, base, meta))
@@ -488,6 +527,8 @@ def build_parser() -> Parser:
     p.add_argument("--quick", action="store_true", help="the same as --profile quick")
     p.add_argument("--variants", default=None, help=f"comma-separated subset of {','.join(VARIANT_NAMES)}")
     p.add_argument("--alphas", default=None, help="comma-separated alpha grid of the alpha response")
+    p.add_argument("--alpha-variants", default=None,
+                   help="comma-separated variants whose alpha response is measured (default: the default learner)")
     p.add_argument("--seeds", type=seed_count, default=None, help="training seeds 0..N-1 (default: the profile's)")
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
@@ -504,6 +545,12 @@ def profile_from_args(args: Any) -> Profile:
             raise UsageError(f"--variants must be a comma-separated subset of {','.join(VARIANT_NAMES)}, got "
                              f"{args.variants!r}")  # fmt: skip
         profile = replace(profile, variants=names)
+    if args.alpha_variants is not None:
+        names = tuple(v.strip() for v in args.alpha_variants.split(",") if v.strip())
+        if not names or any(n not in VARIANT_NAMES for n in names):
+            raise UsageError(f"--alpha-variants must be a comma-separated subset of {','.join(VARIANT_NAMES)}, got "
+                             f"{args.alpha_variants!r}")  # fmt: skip
+        profile = replace(profile, alpha_variants=names)
     if args.alphas is not None:
         alphas = alpha_list("--alphas", args.alphas)
         profile = replace(profile, alphas=alphas)

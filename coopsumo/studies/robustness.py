@@ -1,0 +1,123 @@
+"""Seed robustness of learned policies (the learning study's `make learning` report): pure tables on its runs.
+
+Every learner row is judged per training seed, not only on its mean: each model is paired with the
+baselines on its own evaluation seed, and the worst seed is shown beside the mean.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+
+def alpha0_runs(runs: pd.DataFrame, variant: str) -> pd.DataFrame:
+    """The finished alpha = 0 models of a variant, one row per evaluation seed."""
+    ok = runs[(runs["status"] == "ok") & (runs["kind"] == "train")]
+    mine = ok[(ok["variant"] == variant) & (ok["alpha"].fillna(0) == 0)]
+    return mine.drop_duplicates("eval_seed").sort_values("seed")
+
+
+def paired_gaps(runs: pd.DataFrame, variant: str, other: str, metric: str = "mean_speed_mps") -> pd.Series:
+    """metric(variant at alpha 0) - metric(other), by evaluation seed (seeds where both finished)."""
+    ok = runs[runs["status"] == "ok"]
+    mine = alpha0_runs(runs, variant).set_index("eval_seed")[metric]
+    theirs = ok[ok["variant"] == other].groupby("eval_seed")[metric].mean()
+    return (mine - theirs).dropna()
+
+
+def robustness_table(runs: pd.DataFrame, variants: list[str], baselines: list[str]) -> pd.DataFrame:
+    """One row per variant at alpha 0: mean, sd and worst seed of the mean speed (m/s), lane changes per vehicle,
+    and for each baseline the seed-paired gap (mean, worst) and the number of seeds below it."""
+    rows = []
+    for variant in variants:
+        mine = alpha0_runs(runs, variant)
+        if mine.empty:
+            continue
+        worst = mine.loc[mine["mean_speed_mps"].idxmin()]
+        row: dict[str, object] = {
+            "variant": variant, "seeds": len(mine),
+            "speed_mean": mine["mean_speed_mps"].mean(), "speed_sd": mine["mean_speed_mps"].std(),
+            "worst_speed": worst["mean_speed_mps"], "worst_seed": int(worst["seed"]),
+            "worst_lane_changes": worst["lane_changes_per_vehicle"],
+            "lane_changes_mean": mine["lane_changes_per_vehicle"].mean(),
+            "lane_changes_max": mine["lane_changes_per_vehicle"].max(),
+        }  # fmt: skip
+        for base in baselines:
+            gaps = paired_gaps(runs, variant, base)
+            row[f"{base}_gap_mean"] = gaps.mean() if len(gaps) else math.nan
+            row[f"{base}_gap_min"] = gaps.min() if len(gaps) else math.nan
+            row[f"{base}_below"] = int((gaps < 0).sum())
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def per_seed_table(runs: pd.DataFrame, variants: list[str], baselines: list[str]) -> pd.DataFrame:
+    """Mean speed (m/s) and lane changes per vehicle of every alpha = 0 model and baseline, by training seed."""
+    ok = runs[runs["status"] == "ok"]
+    rows = []
+    for variant in [*variants, *baselines]:
+        mine = alpha0_runs(runs, variant) if variant in variants else ok[ok["variant"] == variant]
+        for _, r in mine.iterrows():
+            rows.append({"variant": variant, "seed": int(r["seed"]), "eval_seed": int(r["eval_seed"]),
+                         "mean_speed_mps": r["mean_speed_mps"],
+                         "lane_changes_per_vehicle": r["lane_changes_per_vehicle"]})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def markdown(table: pd.DataFrame, baselines: list[str]) -> list[str]:
+    """The robustness table as markdown lines."""
+    head = ["variant", "seeds", "mean speed (m/s)", "worst seed: speed (lane changes / veh)",
+            "lane changes / veh (mean, max)"]  # fmt: skip
+    head += [f"vs `{b}`: gap mean, worst (seeds below)" for b in baselines]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for _, r in table.iterrows():
+        cells = [f"`{r['variant']}`", str(r["seeds"]), f"{r['speed_mean']:.2f} ± {r['speed_sd']:.2f}",
+                 f"{r['worst_speed']:.2f} ({r['worst_lane_changes']:.2f}), seed {r['worst_seed']}",
+                 f"{r['lane_changes_mean']:.2f}, {r['lane_changes_max']:.2f}"]  # fmt: skip
+        for b in baselines:
+            gap = r[f"{b}_gap_mean"]
+            cells.append("-" if math.isnan(gap) else f"{gap:+.2f}, {r[f'{b}_gap_min']:+.2f} ({r[f'{b}_below']})")
+        lines.append("| " + " | ".join(cells) + " |")
+    return lines
+
+
+def seed_matrix_markdown(per_seed: pd.DataFrame) -> list[str]:
+    """Speed (lane changes per vehicle) per training seed: one row per policy, one column per seed."""
+    if per_seed.empty:
+        return []
+    seeds = sorted(per_seed["seed"].unique())
+    lines = ["| policy | " + " | ".join(f"seed {s}" for s in seeds) + " |", "|" + "---|" * (len(seeds) + 1)]
+    for variant, group in per_seed.groupby("variant", sort=False):
+        by = group.set_index("seed")
+        cells = [f"{by.loc[s, 'mean_speed_mps']:.2f} ({by.loc[s, 'lane_changes_per_vehicle']:.2f})"
+                 if s in by.index else "-" for s in seeds]  # fmt: skip
+        lines.append(f"| `{variant}` | " + " | ".join(cells) + " |")
+    return lines
+
+
+def training_seeds_figure(root: Path, runs: pd.DataFrame, variants: list[str], out_path: Path) -> Path:
+    """Per variant at alpha 0, one line per training seed: mean speed and lane changes during training."""
+    from coopsumo.report.plots import new_figure, save_figure
+
+    shown = [v for v in variants if not alpha0_runs(runs, v).empty]
+    fig = new_figure(9.0, 2.6 * max(len(shown), 1))
+    axes = np.atleast_2d(fig.subplots(max(len(shown), 1), 2, squeeze=False))
+    for row, variant in zip(axes, shown, strict=False):
+        for _, r in alpha0_runs(runs, variant).iterrows():
+            path = root / "train" / str(r["key"]) / "train_log.csv"
+            if not path.exists():
+                continue
+            log = pd.read_csv(path)
+            label = f"seed {int(r['seed'])}: {r['mean_speed_mps']:.2f} m/s"
+            row[0].plot(log["step"], log["mean_speed_mps"], lw=0.9, label=label)
+            row[1].plot(log["step"], log["lane_changes"] / log["vehicles"].clip(lower=1), lw=0.9)
+        row[0].set_title(f"{variant}: speed while training (m/s)", fontsize=9)
+        row[1].set_title(f"{variant}: lane changes per 1,000 steps / vehicles", fontsize=9)
+        row[0].legend(fontsize=6, title="greedy evaluation", title_fontsize=6)
+    for ax in axes[-1]:
+        ax.set_xlabel("training step")
+    fig.tight_layout()
+    return save_figure(fig, out_path)
