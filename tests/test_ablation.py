@@ -58,7 +58,8 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     report = (out / "report.md").read_text()
     assert "| paper |" in report and "| mobil:p=0.5 |" in report and "Alpha response" in report
     assert "mean speed minus `keep`" in report
-    for fig in ("fig_training_curves.png", "fig_alpha_response.png"):
+    assert "## Seed robustness at alpha = 0" in report and "| `v2x` |" in report  # the v2x state end to end
+    for fig in ("fig_training_curves.png", "fig_alpha_response.png", "fig_training_seeds.png"):
         assert (out / fig).stat().st_size > 1000
     study = json.loads((out / "study.json").read_text())
     assert study["cells_run"] == study["cells"]
@@ -71,7 +72,7 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
 @pytest.mark.parametrize(
     "args, fragment",
     [(["--variants", "paper,warp"], "warp"), (["--alphas", "0,-1"], "alphas"), (["--seeds", "0"], "seeds"),
-     (["--workers", "0"], "workers"), (["--alphas", "a,b"], "alphas")],
+     (["--workers", "0"], "workers"), (["--alphas", "a,b"], "alphas"), (["--alpha-variants", "v2x,x"], "x")],
 )  # fmt: skip
 def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:
     out = tmp_path / "out"
@@ -114,3 +115,26 @@ def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkey
     report = (tmp_path / "report.md").read_text()
     assert "**No verdict**" in report and "Failed cells: " in report and "_alpha8_seed0" in report
     assert "monotonically" not in report and "mean speed minus" not in report
+
+
+def test_robustness_table_pairs_each_model_with_the_baselines_on_its_own_seed() -> None:
+    from coopsumo.studies import robustness
+
+    def row(variant: str, kind: str, seed: int, speed: float, lc: float) -> dict[str, object]:
+        return {"key": f"{variant}_{seed}", "kind": kind, "part": "ablation" if kind == "train" else "baseline",
+                "variant": variant, "alpha": 0.0 if kind == "train" else None, "seed": seed,
+                "eval_seed": 1000 + seed, "status": "ok", "mean_speed_mps": speed, "lane_changes_per_vehicle": lc}
+    runs = pd.DataFrame([
+        row("dqn", "train", 0, 17.0, 1.0), row("dqn", "train", 1, 15.0, 4.0), row("dqn", "train", 2, 16.6, 0.5),
+        row("keep", "baseline", 0, 16.5, 0.0), row("keep", "baseline", 1, 16.0, 0.0),
+        row("keep", "baseline", 2, 16.7, 0.0),
+    ])  # fmt: skip
+    table = robustness.robustness_table(runs, ["dqn"], ["keep"])
+    r = table.iloc[0]
+    assert r["seeds"] == 3 and r["worst_seed"] == 1 and r["worst_speed"] == 15.0 and r["worst_lane_changes"] == 4.0
+    assert r["keep_below"] == 2  # seed 1 (-1.0) and seed 2 (-0.1): a mean above keep hides neither
+    assert r["keep_gap_min"] == pytest.approx(-1.0) and r["keep_gap_mean"] == pytest.approx((0.5 - 1.0 - 0.1) / 3)
+    text = "\n".join(robustness.markdown(table, ["keep"]))
+    assert "15.00 (4.00), seed 1" in text and "(2)" in text
+    matrix = "\n".join(robustness.seed_matrix_markdown(robustness.per_seed_table(runs, ["dqn"], ["keep"])))
+    assert "| `dqn` | 17.00 (1.00) | 15.00 (4.00) | 16.60 (0.50) |" in matrix

@@ -111,7 +111,7 @@ class Profile:
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), VARIANT_NAMES, ALPHAS),
     "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "restart"), (0.0, 1.0)),
-    "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval"), (0.0, 1.0)),
+    "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x"), (0.0, 1.0)),
 }
 
 
