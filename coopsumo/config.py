@@ -200,6 +200,9 @@ class DQNConfig:
     restart_below_mps: float = 1.0
     """'none' is not offered to a vehicle slower than this (m/s): a standing vehicle that keeps its speed
     would stand for good and block its lane (0: off; paper: 'none' keeps any speed, zero included)"""
+    change_margin: float = 0.0
+    """a lane change is chosen (greedily) only when its Q-value beats the best of speed-up and none by more
+    than this (Q units; 0: plain argmax, paper); exploration's random actions and the learning target ignore it"""
     observation: str = "paper"
     """what the network reads: 'paper' (3 frames of the 3 x 20 m occupancy grid and the speed errors) or 'v2x'
     (those plus each side lane's nearest leader and follower within 200 m: gap and speed; see v2x_features)"""
@@ -228,6 +231,8 @@ class DQNConfig:
                 raise ConfigError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if not (math.isfinite(self.restart_below_mps) and self.restart_below_mps >= 0):
             raise ConfigError(f"restart_below_mps must be a number >= 0, got {self.restart_below_mps}")
+        if not (math.isfinite(self.change_margin) and 0 <= self.change_margin <= 1e6):
+            raise ConfigError(f"change_margin must be a number from 0 to 1e6, got {self.change_margin}")
         if not (math.isfinite(self.grad_clip_norm) and self.grad_clip_norm > 0):
             raise ConfigError(f"grad_clip_norm must be a positive number, got {self.grad_clip_norm}")
         choices = {"loss": ("mse", "huber"), "optimizer": ("sgd", "adam"), "exit_transition": ("drop", "terminal"),
@@ -416,7 +421,8 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
         return dataclasses.replace(base, **d)
     d.setdefault("dueling", False)  # written before the dueling head existed: the plain head
     d.setdefault("restart_below_mps", 0.0)  # written before the standing rule: 'none' offered at any speed
-    d.setdefault("observation", ADDED_FIELDS["observation"])  # written before the v2x state: the paper's
+    for name, implied in ADDED_FIELDS.items():  # written before the field existed: what it meant then
+        d.setdefault(name, implied)
     return _from_fields(DQNConfig, d, "learner")
 
 
@@ -440,7 +446,7 @@ SPEED_ONLY_FIELDS = frozenset({"full_read_every_steps"})
 matches a stored run, cell or checkpoint to its configuration)"""
 
 
-ADDED_FIELDS = {"observation": "paper"}
+ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

@@ -14,8 +14,18 @@ import torch
 from torch import nn
 
 from coopsumo.agents.decisions import ActionHold, follow_up, is_decision_step, offered
-from coopsumo.agents.dqn import ReplayBatch, epsilon_at, epsilon_greedy, td_targets
-from coopsumo.config import DQN_PRESETS, PAPER_DQN, ConfigError, DQNConfig, SimConfig, TrainConfig
+from coopsumo.agents.dqn import Learner, ReplayBatch, epsilon_at, epsilon_greedy, td_targets
+from coopsumo.config import (
+    DQN_PRESETS,
+    PAPER_DQN,
+    ConfigError,
+    DQNConfig,
+    SimConfig,
+    TrainConfig,
+    dqn_config_from_dict,
+    results_view,
+    to_dict,
+)
 from coopsumo.sim import physics
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
@@ -213,6 +223,43 @@ def test_a_standing_vehicle_of_a_model_that_prefers_none_speeds_up(observation_o
     assert literal.act(obs).tolist() == [NONE, NONE]
     guarded = DQNPolicy(_net_preferring(NONE, SPEEDUP), action_mask=True, restart_below_mps=1.0)  # type: ignore[arg-type]
     assert guarded.act(obs).tolist() == [SPEEDUP, NONE]
+
+
+def test_a_lane_change_must_beat_staying_by_the_change_margin(observation_of: Layout) -> None:
+    from coopsumo.agents.decisions import with_change_margin
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    q = np.array([[1.0, 0.2, 0.5, 0.0], [3.0, 0.0, 0.5, 0.0]])
+    assert with_change_margin(q, 0.0) is q
+    np.testing.assert_array_equal(with_change_margin(q, 1.0), [[0.0, -0.8, 0.5, 0.0], [2.0, -1.0, 0.5, 0.0]])
+    # on a free three-lane road (both changes feasible), Q(left) = 1 beats Q(speed-up) = 0.5 by 0.5
+    obs = observation_of(lane=[1], pos=[300.0], speed=[20.0], v_exp=[25.0])
+    assert obs.feasible[0].all()
+    plain = DQNPolicy(_net_preferring(LEFT, SPEEDUP), action_mask=True)  # type: ignore[arg-type]
+    assert plain.act(obs).tolist() == [LEFT]
+    below = DQNPolicy(_net_preferring(LEFT, SPEEDUP), action_mask=True, change_margin=0.6)  # type: ignore[arg-type]
+    assert below.act(obs).tolist() == [SPEEDUP]
+    above = DQNPolicy(_net_preferring(LEFT, SPEEDUP), action_mask=True, change_margin=0.4)  # type: ignore[arg-type]
+    assert above.act(obs).tolist() == [LEFT]
+    # the learner's greedy choice uses the same margin; its exploration still draws lane changes
+    learner = Learner(dataclasses.replace(DQNConfig(), change_margin=0.6, epsilon_start=0.0, epsilon_end=0.0), 0)
+    learner.online = _net_preferring(LEFT, SPEEDUP)  # type: ignore[assignment]
+    assert learner.act(obs.grids, obs.speed_err, explore=True).tolist() == [SPEEDUP]
+    assert learner.act(obs.grids, obs.speed_err, explore=False).tolist() == [SPEEDUP]
+
+
+@pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
+def test_a_bad_change_margin_is_refused(bad: float) -> None:
+    with pytest.raises(ConfigError, match="change_margin"):
+        dataclasses.replace(DQNConfig(), change_margin=bad).validate()
+
+
+def test_a_learner_stored_before_the_margin_and_the_v2x_state_loads_as_it_was() -> None:
+    stored = to_dict(DQNConfig())
+    del stored["change_margin"], stored["observation"]
+    loaded = dqn_config_from_dict(stored)
+    assert loaded.change_margin == 0.0 and loaded.observation == "paper"
+    assert results_view(stored) == results_view(to_dict(loaded))  # so stored runs still match
 
 
 # --- presets and configuration ------------------------------------------------------------------

@@ -118,6 +118,7 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str)
         (["--gamma", "1"], "gamma"),
         (["--gamma", "nan"], "gamma"),
         (["--observation", "lidar"], "observation"),
+        (["--change-margin", "-1"], "change-margin"),
     ],
 )
 def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:

@@ -38,6 +38,16 @@ def offered(
     return mask
 
 
+def with_change_margin(q_values: np.ndarray, change_margin: float) -> np.ndarray:
+    """Q-values (n, 4) as the choice sees them: left and right lowered by change_margin (Q units), so a lane
+    change is chosen only when it beats the best of speed-up and none by more than the margin (0: unchanged)."""
+    if change_margin == 0:
+        return q_values
+    out = np.array(q_values, dtype=np.float64)
+    out[:, [LEFT, RIGHT]] -= change_margin
+    return out
+
+
 def follow_up(actions: np.ndarray) -> np.ndarray:
     """The action held on the steps after a decision: speedup after a lane change, else the same."""
     actions = np.asarray(actions, np.int64)

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from coopsumo.agents.decisions import with_change_margin
 from coopsumo.config import OBSERVATIONS, DQNConfig
 from coopsumo.sim.observation import n_features
 
@@ -329,6 +330,7 @@ class Learner:
                 torch.as_tensor(grids, dtype=torch.float32),
                 torch.as_tensor(features, dtype=torch.float32),
             ).numpy()
+        q = with_change_margin(q, self.cfg.change_margin)
         if explore:
             return epsilon_greedy(q, self.epsilon, self.rng, mask)
         if mask is not None:

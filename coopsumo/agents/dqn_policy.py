@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from coopsumo.agents.decisions import offered
+from coopsumo.agents.decisions import offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
 from coopsumo.runio import UsageError
@@ -46,12 +46,14 @@ class DQNPolicy:
         decision_interval: int = 1,
         action_mask: bool = False,
         restart_below_mps: float = 0.0,
+        change_margin: float = 0.0,
     ):
         self.net = net.eval()
         self.name = name
         self.decision_interval = decision_interval
         self.action_mask = action_mask
         self.restart_below_mps = restart_below_mps
+        self.change_margin = change_margin
         self.trained_on: dict[str, object] | None = None
         """what a model file says it was trained on (preset, lanes, T_up, alpha, version); None when unknown"""
         self._grids = np.zeros((0, *GRID_SHAPE), np.uint8)  # last input and action, by vehicle number
@@ -89,10 +91,11 @@ class DQNPolicy:
             raise UsageError(f"model {path}: {err}") from None
         policy = cls(net, name=f"dqn:{Path(path).parent.name or path}",
                      decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask,
-                     restart_below_mps=dqn.restart_below_mps)  # fmt: skip
+                     restart_below_mps=dqn.restart_below_mps, change_margin=dqn.change_margin)  # fmt: skip
         policy.trained_on = {"preset": dqn.preset, "observation": dqn.observation,
                              "decision_interval_steps": dqn.decision_interval_steps,
                              "action_mask": dqn.action_mask, "restart_below_mps": dqn.restart_below_mps,
+                             "change_margin": dqn.change_margin,
                              "lanes": _field(config, "sim", "road", "lanes"),
                              "t_up_s": _field(config, "sim", "demand", "t_up_s"),
                              "alpha": _field(config, "sim", "reward", "alpha"),
@@ -130,8 +133,8 @@ class DQNPolicy:
         if fresh.any():
             with torch.no_grad():
                 q = self.net(torch.from_numpy(obs.grids[fresh]).float(), torch.from_numpy(feats[fresh]))
-            q = q.masked_fill(~torch.from_numpy(mask[fresh]), -torch.inf)
-            actions[fresh] = q.argmax(dim=1).numpy()
+            chosen = np.where(mask[fresh], with_change_margin(q.numpy(), self.change_margin), -np.inf)
+            actions[fresh] = chosen.argmax(axis=1)
             changed = nums[fresh]
             self._grids[changed] = obs.grids[fresh]
             self._features[changed] = feats[fresh]

@@ -425,7 +425,8 @@ def train(
         mark_run_dir(out, "train")
         return train_summary
     policy = DQNPolicy(trainer.learner.online, decision_interval=cfg.dqn.decision_interval_steps,
-                       action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps)  # fmt: skip
+                       action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps,
+                       change_margin=cfg.dqn.change_margin)  # fmt: skip
     summary = evaluate(cfg, policy, out, progress, on_steps)
     write_json(out / "summary.json", summary)
     mark_run_dir(out, "train")
@@ -460,6 +461,8 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--epsilon-end", "epsilon_end", float, "exploration probability after the decay"),
     ("--epsilon-decay-steps", "epsilon_decay_steps", int, "steps of the linear epsilon decay (0: constant)"),
     ("--restart-below", "restart_below_mps", float, "'none' is not offered below this speed (m/s; 0: off)"),
+    ("--change-margin", "change_margin", float,
+     "a lane change is chosen only when its Q-value beats staying by more than this (0: plain argmax)"),
     ("--observation", "observation", OBSERVATIONS,
      "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
      "side lane's nearest leader and follower within 200 m: gap and speed)"),

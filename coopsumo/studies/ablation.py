@@ -75,6 +75,10 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          {"store_per_decision": 1000}),
         ("v2x", "default + the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed)",
          {"observation": "v2x"}),
+        ("margin", "default + a lane change chosen only when its Q-value beats staying by more than 1",
+         {"change_margin": 1.0}),
+        ("v2x_margin", "default + the v2x state + the change margin of 1",
+         {"observation": "v2x", "change_margin": 1.0}),
     ]  # fmt: skip
     out = []
     cfg = PAPER_DQN
@@ -104,6 +108,8 @@ class Profile:
     alphas: tuple[float, ...]
     alpha_variants: tuple[str, ...] = ()
     """variants whose alpha response is measured (none given: the default learner)"""
+    alpha_seeds: tuple[int, ...] = ()
+    """training seeds of the alpha response at alpha > 0 (none given: seeds)"""
     lanes: int = 3
     t_up_s: float = 1.0
 
@@ -111,6 +117,8 @@ class Profile:
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), VARIANT_NAMES, ALPHAS),
     "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "restart"), (0.0, 1.0)),
+    "robust": Profile("robust", 90_000, 9000, tuple(range(9)), ("restart", "v2x", "margin", "v2x_margin"),
+                      (0.0, 8.0), alpha_variants=("margin", "v2x_margin"), alpha_seeds=(0, 1, 2)),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x"), (0.0, 1.0)),
 }
 
@@ -157,7 +165,7 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
     responders = [(v, learner_of(v)) for v in profile.alpha_variants] or [(default_name, default)]
     for variant, dqn in responders:
         for alpha in profile.alphas:
-            for seed in profile.seeds:
+            for seed in profile.seeds if alpha == 0 else profile.alpha_seeds or profile.seeds:
                 add_train("alpha", variant, dqn, alpha, seed)
     for policy in BASELINES:
         for seed in profile.seeds:
@@ -491,10 +499,14 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     specs = cell_specs(profile, default)
     done_keys = reusable_keys(root, specs, "ablation", REQUIRED_SUMMARY)
     todo = [s for s in specs if s["key"] not in done_keys]
-    # the slow paper trainings first, the single changes on top of the default last
+    # the slow paper trainings first, the single changes on top of the default last; the robust profile:
+    # alpha = 0 seed by seed (the tuning seeds before the held-out ones), then the alpha response
     extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
-    todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
-                             s["variant"] != "paper"))  # fmt: skip
+    if profile.name == "robust":
+        todo.sort(key=lambda s: (s["kind"] != "baseline", s["alpha"] != 0, s["seed"]))
+    else:
+        todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
+                                 s["variant"] != "paper"))  # fmt: skip
     default_variant = next((n for n, _, c in VARIANTS if c == default), "default")
     meta: dict[str, Any] = {"profile": asdict(profile), "default_learner": to_dict(default), "cells": len(specs),
                             "default_variant": default_variant,

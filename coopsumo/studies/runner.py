@@ -82,6 +82,24 @@ def run_recorded(record: dict[str, Any], body: Callable[[], None]) -> dict[str, 
     return record
 
 
+def finished_training(out: Path, config: dict[str, Any]) -> dict[str, Any] | None:
+    """The training summary of a training without evaluation that finished in out with exactly this config
+    (its run marker lists its files, its config.json holds config, model.pt and train_summary.json exist);
+    None otherwise. A cell killed after its training but before its record was written reuses it."""
+    from coopsumo.runio import RUN_MARKER
+
+    try:
+        marker = json.loads((out / RUN_MARKER).read_text())
+        stored = json.loads((out / "config.json").read_text())["config"]
+        summary = json.loads((out / "train_summary.json").read_text())
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    done = isinstance(marker, dict) and marker.get("kind") == "train" and isinstance(marker.get("files"), list)
+    if not (done and "model.pt" in marker["files"] and (out / "model.pt").is_file() and isinstance(summary, dict)):
+        return None
+    return summary if results_view(stored) == results_view(json.loads(json.dumps(config))) else None
+
+
 def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:
     """Train the TrainConfig dict `config` into out, resuming a checkpoint there made with exactly this config.
 
@@ -96,6 +114,8 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
     torch.set_num_threads(1)
     cfg = train_config_from_dict(config)
     out.mkdir(parents=True, exist_ok=True)
+    if cfg.eval_steps == 0 and (stored := finished_training(out, config)) is not None:
+        return stored, cfg.sim.steps
     resumed_from = None
     if (out / "checkpoint.pt").exists():
         try:
