@@ -1,8 +1,8 @@
-"""`python -m coopsumo.ablation`: the learner ablation and alpha response. The code is in coopsumo.studies.ablation."""
+"""`python -m coopsumo.ablation`: the same as `coopsumo learning` (coopsumo.cli)."""
 
 import sys
 
-from coopsumo.studies.ablation import main
+from coopsumo.cli import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("learning"))

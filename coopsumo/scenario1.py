@@ -1,8 +1,8 @@
-"""`python -m coopsumo.scenario1`: the accident study (section IV.A). The code is in coopsumo.studies.scenario1."""
+"""`python -m coopsumo.scenario1`: the same as `coopsumo scenario1` (coopsumo.cli)."""
 
 import sys
 
-from coopsumo.studies.scenario1 import main
+from coopsumo.cli import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("scenario1"))

@@ -1,8 +1,8 @@
-"""`python -m coopsumo.scenario2`: the alpha sweep (section IV.B). The code is in coopsumo.studies.scenario2."""
+"""`python -m coopsumo.scenario2`: the same as `coopsumo scenario2` (coopsumo.cli)."""
 
 import sys
 
-from coopsumo.studies.scenario2 import main
+from coopsumo.cli import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("scenario2"))

@@ -1,8 +1,8 @@
-"""`python -m coopsumo.train`: train the shared DQN in free flow. The code is in coopsumo.agents.train."""
+"""`python -m coopsumo.train`: the same as `coopsumo train` (coopsumo.cli)."""
 
 import sys
 
-from coopsumo.agents.train import main
+from coopsumo.cli import run
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(run("train"))

@@ -488,7 +488,7 @@ def learner_from_args(args: Any) -> DQNConfig:
 
 
 def build_parser() -> Parser:
-    p = Parser(prog="python -m coopsumo.train", description="Train the cooperative lane-changing DQN.")
+    p = Parser(prog="coopsumo train", description="Train the cooperative lane-changing DQN.")
     p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
     p.add_argument("--alpha", type=alpha, default=0.0, help="lane-change penalty of eq. (7), per accepted change")
     p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")

@@ -316,7 +316,7 @@ def _preset_list(text: str) -> tuple[str, ...]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = Parser(prog="python -m coopsumo.scenario1", description="Scenario I: the accident bottleneck study.")
+    p = Parser(prog="coopsumo scenario1", description="Scenario I: the accident bottleneck study.")
     size = p.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true", help="2 demands, 1 seed, small step counts: a few minutes")
     size.add_argument("--full", action="store_true",

@@ -739,20 +739,21 @@ def profile_from_args(args: Any) -> Profile:
 
 
 def build_parser() -> Parser:
-    p = Parser(prog="python -m coopsumo.scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
+    p = Parser(prog="coopsumo scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
     p.add_argument("--profile", choices=sorted(PROFILES), default="quick",
                    help="grid and step counts: tiny (tests), quick (about 45 min on 2 cores), paper")  # fmt: skip
     p.add_argument("--out", type=out_dir, default=Path("results/scenario2"), help="results folder")
     add_backend_flags(p)
     p.add_argument("--workers", type=workers, default=os.cpu_count() or 1,
                    help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
-    p.add_argument("--steps", type=steps, default=None, help="training steps per cell (overrides the profile)")
-    p.add_argument("--eval-steps", type=steps, default=None, help="evaluation steps per cell (overrides the profile)")
-    p.add_argument("--seeds", type=seed_count, default=None, help="number of seeds 1..N (overrides the profile)")
-    p.add_argument("--lanes", default=None, help="comma-separated lane counts (overrides the profile)")
-    p.add_argument("--alphas", default=None, help="comma-separated alphas, fractions allowed: 0,1/8,2")
+    p.add_argument("--steps", type=steps, default=None, help="training steps per cell (default: the profile's)")
+    p.add_argument("--eval-steps", type=steps, default=None, help="evaluation steps per cell (default: the profile's)")
+    p.add_argument("--seeds", type=seed_count, default=None, help="number of seeds 1..N (default: the profile's)")
+    p.add_argument("--lanes", default=None, help="comma-separated lane counts (default: the profile's)")
+    p.add_argument("--alphas", default=None,
+                   help="comma-separated alphas, fractions allowed: 0,1/8,2 (default: the profile's)")
     p.add_argument("--t-up", default=None, help="fixed comma-separated T_up list (s) for every lane count, "
-                   "instead of the profile's load grid")  # fmt: skip
+                   "instead of the profile's load grid (default: the load grid)")  # fmt: skip
     p.add_argument("--policies", default="dqn", help="comma-separated: dqn (train per alpha) and/or mobil "
                    "(one MOBIL run per politeness p, no training; default: dqn)")  # fmt: skip
     p.add_argument("--mobil-p", default=None, help="comma-separated MOBIL politeness values (default: the "
