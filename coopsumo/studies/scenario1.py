@@ -125,9 +125,13 @@ def build_parser() -> Parser:
     p.add_argument("--out", type=out_dir, default=Path("results/scenario1"), help="results folder")
     p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
     add_backend_flags(p)
-    p.add_argument("--train-steps", type=steps, default=None, help="override the training steps")
+    sizes = {"": Plan(), " --quick": Plan.quick(), " --full": Plan.full()}
+    p.add_argument("--train-steps", type=steps, default=None,
+                   help="training steps of each model (default: the profile's: "
+                        + ", ".join(f"{plan.train_steps:,}{name}" for name, plan in sizes.items()) + ")")  # fmt: skip
     p.add_argument("--steps", type=integer(10, MAX_STEPS), default=None,
-                   help="override the accident run's steps (the accident window scales with it)")  # fmt: skip
+                   help="steps of each accident run; the accident window scales with it (default: the profile's: "
+                        + ", ".join(f"{plan.steps:,}{name}" for name, plan in sizes.items()) + ")")  # fmt: skip
     p.add_argument("--alphas", default=None,
                    help=f"alphas to train and run, comma-separated (default {','.join(f'{a:g}' for a in ALPHAS)}; "
                         "0 is always included)")  # fmt: skip
