@@ -132,7 +132,7 @@ def routes_xml(max_speed_mps: float, car_length_m: float, lc_motivations: bool =
 
     lc_motivations=False (controlled runs, lane-change mode 0) switches off LC2013's reasons to change lane
     (strategic, cooperative, speed gain, keep right): SUMO's lane changer still looks at every vehicle every
-    step, a little faster; outputs are byte-identical (README, "Deviations and choices")."""
+    step, a little faster; outputs are byte-identical (docs/model.md, "Deviations and choices")."""
     lc = "" if lc_motivations else ' lcStrategic="-1" lcCooperative="0" lcSpeedGain="0" lcKeepRight="0"'
     return (
         "<routes>\n"
