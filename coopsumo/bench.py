@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in (50, 200):
         grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
         print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)
-    from coopsumo.studies.scenario1 import Plan
+    from coopsumo.studies.scenario1_plan import Plan
 
     period = Plan().fcd_period_s
     extra, low, high, mb_per_h, veh = bench_fcd_cost(steps, period, repeats=1 if quick else 4)

@@ -106,7 +106,8 @@ def gui_from_args(args: Any, cfg: SimConfig, environ: dict[str, str] | None = No
     )
     gui.validate(cfg.steps)
     if not env.get("DISPLAY"):
-        raise UsageError("--gui needs a display and DISPLAY is not set (without a screen: xvfb-run, see docs/sumo-tools.md)")
+        raise UsageError("--gui needs a display and DISPLAY is not set (without a screen: xvfb-run, see "
+                         "docs/sumo-tools.md)")
     if shot is not None:
         try:
             shot.resolve().parent.mkdir(parents=True, exist_ok=True)
