@@ -1,8 +1,8 @@
-"""`python -m coopsumo.ablation`: the same as `coopsumo learning` (coopsumo.cli)."""
+"""`python -m coopsumo.ablation`, the same as `coopsumo learning`: the code is in coopsumo.studies.ablation."""
 
 import sys
 
-from coopsumo.cli import run
+from coopsumo.studies.ablation import main
 
 if __name__ == "__main__":
-    sys.exit(run("learning"))
+    sys.exit(main())

@@ -71,10 +71,5 @@ def main(argv: Sequence[str] | None = None) -> int:
     return int(module.main(rest))
 
 
-def run(command: str) -> int:
-    """`python -m coopsumo.<command>` (the modules kept for the commands' older spelling)."""
-    return main([command, *sys.argv[1:]])
-
-
 if __name__ == "__main__":
     sys.exit(main())

@@ -1,8 +1,8 @@
-"""`python -m coopsumo.scenario1`: the same as `coopsumo scenario1` (coopsumo.cli)."""
+"""`python -m coopsumo.scenario1`, the same as `coopsumo scenario1`: the code is in coopsumo.studies.scenario1."""
 
 import sys
 
-from coopsumo.cli import run
+from coopsumo.studies.scenario1 import main
 
 if __name__ == "__main__":
-    sys.exit(run("scenario1"))
+    sys.exit(main())

@@ -1,8 +1,8 @@
-"""`python -m coopsumo.scenario2`: the same as `coopsumo scenario2` (coopsumo.cli)."""
+"""`python -m coopsumo.scenario2`, the same as `coopsumo scenario2`: the code is in coopsumo.studies.scenario2."""
 
 import sys
 
-from coopsumo.cli import run
+from coopsumo.studies.scenario2 import main
 
 if __name__ == "__main__":
-    sys.exit(run("scenario2"))
+    sys.exit(main())

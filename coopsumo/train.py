@@ -1,8 +1,8 @@
-"""`python -m coopsumo.train`: the same as `coopsumo train` (coopsumo.cli)."""
+"""`python -m coopsumo.train`, the same as `coopsumo train`: the code is in coopsumo.agents.train."""
 
 import sys
 
-from coopsumo.cli import run
+from coopsumo.agents.train import main
 
 if __name__ == "__main__":
-    sys.exit(run("train"))
+    sys.exit(main())
