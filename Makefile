@@ -15,9 +15,9 @@ MOBIL_P ?=
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet --upgrade pip "setuptools>=68"  # setuptools: the wheel test builds without isolation
 	$(BIN)/pip install --quiet torch==2.13.0
-	$(BIN)/pip install --quiet -e ".[dev,sb3,ray]"
+	$(BIN)/pip install --quiet -e ".[dev,sb3,ray,tensorboard]"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -30,22 +30,22 @@ lint: $(STAMP)
 	$(BIN)/mypy coopsumo
 
 bench: $(STAMP)
-	$(BIN)/python -m coopsumo.bench $(BENCH_ARGS)
+	$(BIN)/coopsumo bench $(BENCH_ARGS)
 
 demo: $(STAMP)
-	$(BIN)/python -m coopsumo.simulate --scenario free --lanes 3 --policy greedy --steps 3000 --seed 1 --out results/demo
+	$(BIN)/coopsumo simulate --scenario free --lanes 3 --policy greedy --steps 3000 --seed 1 --out results/demo
 
 nets: $(STAMP)
 	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.sim.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"
 
 scenario1: $(STAMP)
-	$(BIN)/python -m coopsumo.scenario1 $(if $(QUICK),--quick) $(if $(FULL),--full) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(T_UP),--t-up $(T_UP)) $(if $(MOBIL_P),--mobil-p $(MOBIL_P)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
+	$(BIN)/coopsumo scenario1 $(if $(QUICK),--quick) $(if $(FULL),--full) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(T_UP),--t-up $(T_UP)) $(if $(MOBIL_P),--mobil-p $(MOBIL_P)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
 
 scenario2: $(STAMP)
-	$(BIN)/python -m coopsumo.scenario2 --profile quick --policies dqn,mobil
+	$(BIN)/coopsumo scenario2 --profile quick --policies dqn,mobil
 
 learning: $(STAMP)
-	$(BIN)/python -m coopsumo.ablation $(if $(QUICK),--quick)
+	$(BIN)/coopsumo learning $(if $(QUICK),--quick)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

@@ -1,4 +1,7 @@
-"""`python -m coopsumo` lists the commands."""
+"""`python -m coopsumo COMMAND ...`: the same as the console command `coopsumo` (coopsumo.cli)."""
 
-print("coopsumo commands: python -m coopsumo.simulate | coopsumo.train | coopsumo.scenario1 | coopsumo.scenario2 | "
-      "coopsumo.ablation | coopsumo.bench (each with --help)")  # fmt: skip
+import sys
+
+from coopsumo.cli import main
+
+sys.exit(main())

@@ -1,4 +1,4 @@
-"""`python -m coopsumo.ablation`: the learner ablation and alpha response. The code is in coopsumo.studies.ablation."""
+"""`python -m coopsumo.ablation`, the same as `coopsumo learning`: the code is in coopsumo.studies.ablation."""
 
 import sys
 

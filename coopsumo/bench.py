@@ -145,10 +145,14 @@ def bench_fcd_cost(steps: int, period_s: float, repeats: int) -> tuple[float, fl
     return float(np.median(extra)), min(extra), max(extra), size_mb / hours, vehicles
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = Parser(prog="python -m coopsumo.bench", description="Speed figures (printed, not asserted).")
+def build_parser() -> Parser:
+    parser = Parser(prog="coopsumo bench", description="Speed figures (printed, not asserted).")
     parser.add_argument("--quick", action="store_true", help="short runs (600 steps), a first look")
-    quick = parser.parse_args(argv).quick
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    quick = build_parser().parse_args(argv).quick
     steps = 600 if quick else 6000
     torch.set_num_threads(1)
     print(f"coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread, {steps} steps a run)", flush=True)
@@ -184,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     for n in (50, 200):
         grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
         print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)
-    from coopsumo.studies.scenario1 import Plan
+    from coopsumo.studies.scenario1_plan import Plan
 
     period = Plan().fcd_period_s
     extra, low, high, mb_per_h, veh = bench_fcd_cost(steps, period, repeats=1 if quick else 4)

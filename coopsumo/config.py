@@ -1,7 +1,7 @@
 """Typed, frozen configuration. Built once at an entry point, passed down, saved beside results.
 
 Every field carries its unit in its name or docstring. Paper values are marked "paper";
-the project's own choices are listed in the README's "Deviations and choices" table.
+the project's own choices are listed in the "Deviations and choices" table of docs/model.md.
 """
 
 from __future__ import annotations

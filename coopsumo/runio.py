@@ -180,8 +180,23 @@ def atomic_run_dir(out: Path, kind: str = "simulate") -> Iterator[Path]:
     finish_run_dir(tmp, out, kind)
 
 
+class DefaultsHelpFormatter(argparse.HelpFormatter):
+    """--help gives every option's default: "(default: X)" is added unless the help text already says what the
+    default is (an option whose default is None must say so in its text) or the option is an on/off flag."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        if "default" in text.lower() or action.default in (None, argparse.SUPPRESS) or action.nargs == 0:
+            return text
+        return f"{text} (default: %(default)s)".lstrip()
+
+
 class Parser(argparse.ArgumentParser):
-    """argparse with one-line errors and exit code 2."""
+    """argparse with one-line errors, exit code 2, and every default in --help."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
+        super().__init__(*args, **kwargs)
 
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: error: {message}", file=sys.stderr)

@@ -1,4 +1,4 @@
-"""`python -m coopsumo.scenario1`: the accident study (section IV.A). The code is in coopsumo.studies.scenario1."""
+"""`python -m coopsumo.scenario1`, the same as `coopsumo scenario1`: the code is in coopsumo.studies.scenario1."""
 
 import sys
 

@@ -1,4 +1,4 @@
-"""`python -m coopsumo.scenario2`: the alpha sweep (section IV.B). The code is in coopsumo.studies.scenario2."""
+"""`python -m coopsumo.scenario2`, the same as `coopsumo scenario2`: the code is in coopsumo.studies.scenario2."""
 
 import sys
 

@@ -35,11 +35,14 @@ SCENARIOS = ("free", "accident")
 
 
 def build_parser() -> Parser:
-    p = Parser(prog="python -m coopsumo.simulate", description="Run one SUMO highway simulation.")
+    p = Parser(prog="coopsumo simulate", description="Run one SUMO highway simulation.")
     p.add_argument("--scenario", choices=SCENARIOS, default="free", help="free flow or the accident bottleneck")
     p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
     p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
-    p.add_argument("--policy", default="keep", help="keep, random, greedy, dqn:PATH/model.pt")
+    p.add_argument("--policy", default="keep",
+                   help="keep | random | greedy | mobil[:p=P,threshold=T,b_safe=B,bias=X] (MOBIL, p politeness) | "
+                        "sumo[:lcCooperative=X,lcSpeedGain=Y,...] (SUMO's own Krauss and LC2013 models) | "
+                        "dqn:PATH/model.pt (a trained model)")  # fmt: skip
     p.add_argument("--steps", type=steps, default=9000, help="steps of 0.1 s")
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the policy and SUMO (0 to 2^31 - 1)")
     p.add_argument("--out", type=out_dir, required=True, help="run folder to write")
@@ -56,7 +59,8 @@ def build_parser() -> Parser:
                    help="FCD period (s, a multiple of 0.1; default 1)")  # fmt: skip
     p.add_argument("--tripinfo", action="store_true", help="also write SUMO's tripinfo.xml")
     p.add_argument("--gui", action="store_true", help="run in sumo-gui (needs a display), vehicles coloured")
-    p.add_argument("--gui-screenshot", type=Path, default=None, help="PNG file for sumo-gui's screenshot")
+    p.add_argument("--gui-screenshot", type=Path, default=None,
+                   help="PNG file for sumo-gui's screenshot (default: none)")  # fmt: skip
     p.add_argument("--gui-screenshot-step", type=integer(1), default=None, help="its step (default: the last)")
     p.add_argument("--gui-delay", type=number(0), default=0.0, help="sumo-gui's pause between steps (ms)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -102,7 +106,8 @@ def gui_from_args(args: Any, cfg: SimConfig, environ: dict[str, str] | None = No
     )
     gui.validate(cfg.steps)
     if not env.get("DISPLAY"):
-        raise UsageError("--gui needs a display and DISPLAY is not set (without a screen: xvfb-run, see README)")
+        raise UsageError("--gui needs a display and DISPLAY is not set (without a screen: xvfb-run, see "
+                         "docs/sumo-tools.md)")
     if shot is not None:
         try:
             shot.resolve().parent.mkdir(parents=True, exist_ok=True)

@@ -1,4 +1,4 @@
-"""`python -m coopsumo.train`: train the shared DQN in free flow. The code is in coopsumo.agents.train."""
+"""`python -m coopsumo.train`, the same as `coopsumo train`: the code is in coopsumo.agents.train."""
 
 import sys
 

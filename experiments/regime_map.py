@@ -53,7 +53,7 @@ def main(argv: list[str] | None = None) -> int:
 def run(by_length: dict[str, s1.Plan], root: Path, n_workers: int) -> int:
     from coopsumo.sim.network import build_net
     from coopsumo.studies.runner import execute, make_backend, reusable_keys, sigterm_interrupts
-    from coopsumo.studies.scenario1_report import run_metrics
+    from coopsumo.studies.scenario1_measures import run_metrics
 
     start = time.perf_counter()
     root.mkdir(parents=True, exist_ok=True)

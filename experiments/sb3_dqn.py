@@ -3,7 +3,7 @@
     .venv/bin/python experiments/sb3_dqn.py --steps 20000 --out results/sb3_dqn
 
 Needs the optional extra `sb3` (stable-baselines3). The Q-network is the paper's (Table II):
-a features extractor made of coopsumo.dqn.QNetwork's layers (two 2x2 convolutions, stride (1, 2),
+a features extractor made of coopsumo.agents.dqn.QNetwork's layers (two 2x2 convolutions, stride (1, 2),
 concat the 3 speed errors, FC 500, FC 100) and SB3's final linear layer to the 4 Q-values
 (net_arch=[]). SB3 receives the Dict observation through its "MultiInputPolicy". Learning
 hyper-parameters are coopsumo's paper preset (PAPER_DQN: one decision per 0.1 s step): lr, gamma,
@@ -53,7 +53,7 @@ def build_parser() -> Parser:
 
 
 def table_ii_extractor_class() -> type:
-    """SB3 features extractor of Table II, built from coopsumo.dqn.QNetwork's layers (imports torch and SB3)."""
+    """SB3 features extractor of Table II, built from coopsumo.agents.dqn.QNetwork's layers (imports torch and SB3)."""
     import torch
     from gymnasium import spaces
     from stable_baselines3.common.torch_layers import BaseFeaturesExtractor

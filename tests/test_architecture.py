@@ -121,3 +121,26 @@ def test_sim_and_report_never_import_torch() -> None:
             names = {a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names}
             names |= {n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
             assert not any(n == "torch" or n.startswith("torch.") for n in names), name
+
+
+def test_text_names_only_modules_that_exist() -> None:
+    """Docstrings, comments and docs name modules by their current dotted paths, not by the top-level
+    paths they had before the subpackages (the world, the dqn, ...): every dotted name is a module or an
+    attribute of one."""
+    import re
+
+    names = set(module_files())
+    root = PACKAGE_DIR.parent
+    files = [*root.glob("coopsumo/**/*.py"), *root.glob("tests/*.py"), *root.glob("experiments/*.py"),
+             *root.glob("*.md"), *root.glob("docs/*.md")]  # fmt: skip
+    stale = []
+    for path in files:
+        for dotted in re.findall(r"\bcoopsumo(?:\.[a-z_][a-z0-9_]*)+", path.read_text()):
+            parts = dotted.split(".")
+            longest = max((".".join(parts[:i]) for i in range(1, len(parts) + 1) if ".".join(parts[:i]) in names),
+                          key=len)  # fmt: skip
+            rest = parts[len(longest.split(".")) :]
+            module = importlib.import_module(longest) if rest else None
+            if module is not None and not hasattr(module, rest[0]):
+                stale.append(f"{path.relative_to(root)}: {dotted}")
+    assert not stale, "; ".join(sorted(set(stale)))

@@ -1,4 +1,4 @@
-"""Tests of coopsumo.dqn: network shape, replay memory, exploration, update, learner, model files. No SUMO."""
+"""Tests of coopsumo.agents.dqn: network shape, replay memory, exploration, update, learner, model files. No SUMO."""
 
 from __future__ import annotations
 

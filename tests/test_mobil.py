@@ -1,4 +1,4 @@
-"""Tests of coopsumo.mobil: MOBIL's incentive and safety criteria on hand-made layouts, the spec
+"""Tests of coopsumo.agents.mobil: MOBIL's incentive and safety criteria on hand-made layouts, the spec
 parser, and real SUMO runs near capacity (no collisions, no teleports, some lane changes)."""
 
 from __future__ import annotations

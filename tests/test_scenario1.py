@@ -16,8 +16,9 @@ import sumolib
 from conftest import env_with_display
 from PIL import Image
 
-from coopsumo.config import AccidentConfig, SimConfig
-from coopsumo.studies import scenario1
+from coopsumo.config import AccidentConfig, OutputConfig, SimConfig, to_dict
+from coopsumo.studies import runner, scenario1
+from coopsumo.studies import scenario1_measures as measures
 from coopsumo.studies import scenario1_report as rep
 
 pytestmark = pytest.mark.sumo
@@ -123,7 +124,7 @@ def test_report_shows_sumo_guis_screenshot_of_the_jam(study: Path, gui_display: 
 def test_without_a_display_the_report_says_why_there_is_no_screenshot(tmp_path: Path) -> None:
     (tmp_path / "gui_jam.png").write_bytes(PNG)  # from an earlier study: must not stay beside the new report
     cfg = SimConfig(accident=AccidentConfig(enabled=True), policy="keep")
-    text = scenario1.gui_section(tmp_path, tmp_path / "no_such_run", "keep_seed1", cfg, environ={})
+    text = rep.gui_section(tmp_path, tmp_path / "no_such_run", "keep_seed1", cfg, environ={})
     assert text.startswith("No sumo-gui screenshot: no display") and "xvfb-run" in text
     assert list(tmp_path.iterdir()) == []
 
@@ -143,9 +144,9 @@ def test_jam_step_is_the_first_time_the_view_is_nearly_full_of_slow_vehicles() -
         (40.0, 4, 1200.0, 1.0),
     ]  # 3: the most
     traj = pd.DataFrame(rows, columns=["time_s", "vid", "pos_m", "speed_mps"])  # fmt: skip
-    assert scenario1.jam_step(traj, cfg) == 400  # 2 < 0.9 * 3
-    assert scenario1.jam_step(traj[traj["time_s"] < 35], cfg) == 200
-    assert scenario1.jam_step(traj[traj["speed_mps"] > 5], cfg) is None
+    assert measures.jam_step(traj, cfg) == 400  # 2 < 0.9 * 3
+    assert measures.jam_step(traj[traj["time_s"] < 35], cfg) == 200
+    assert measures.jam_step(traj[traj["speed_mps"] > 5], cfg) is None
 
 
 @pytest.mark.parametrize(
@@ -169,7 +170,7 @@ def _rows(values: dict[str, dict[str, list[float]]], t_up: float = 1.0) -> pd.Da
     for policy, metrics in values.items():
         n = len(next(iter(metrics.values())))
         for k in range(n):
-            row = {"t_up_s": t_up, "policy": policy, "seed": k + 1, **{m: 0.0 for m, _, _ in rep.METRICS},
+            row = {"t_up_s": t_up, "policy": policy, "seed": k + 1, **{m: 0.0 for m, _, _ in measures.METRICS},
                    "horizon_after_start_s": 1000.0}  # fmt: skip
             row.update({m: v[k] for m, v in metrics.items()})
             rows.append(row)
@@ -181,17 +182,17 @@ def test_cooperative_alpha_is_the_largest_that_still_changes_lanes() -> None:
                   "dqn_alpha2": {"lane_changes_per_vehicle": [0.5, 0.3]},
                   "dqn_alpha8": {"lane_changes_per_vehicle": [0.0, 0.1]}})  # fmt: skip
     labels = {0.0: "dqn_alpha0", 2.0: "dqn_alpha2", 8.0: "dqn_alpha8"}
-    assert rep.cooperative_alpha(rows, labels) == 2.0  # 0.05 < 10% of 2.0
+    assert measures.cooperative_alpha(rows, labels) == 2.0  # 0.05 < 10% of 2.0
     keep_like = _rows({"dqn_alpha0": {"lane_changes_per_vehicle": [2.0]},
                        "dqn_alpha8": {"lane_changes_per_vehicle": [0.0]}})  # fmt: skip
-    assert rep.cooperative_alpha(keep_like, {0.0: "dqn_alpha0", 8.0: "dqn_alpha8"}) is None
+    assert measures.cooperative_alpha(keep_like, {0.0: "dqn_alpha0", 8.0: "dqn_alpha8"}) is None
 
 
 def test_paired_bootstrap_interval() -> None:
-    mean, lo, hi = rep.paired_bootstrap(np.array([-2.0, -1.0, -3.0, -2.0, np.nan]))
+    mean, lo, hi = measures.paired_bootstrap(np.array([-2.0, -1.0, -3.0, -2.0, np.nan]))
     assert mean == pytest.approx(-2.0) and -3.0 <= lo < mean < hi <= -1.0
-    assert rep.paired_bootstrap(np.array([1.5])) == (1.5, 1.5, 1.5)
-    assert all(math.isnan(x) for x in rep.paired_bootstrap(np.array([np.nan])))
+    assert measures.paired_bootstrap(np.array([1.5])) == (1.5, 1.5, 1.5)
+    assert all(math.isnan(x) for x in measures.paired_bootstrap(np.array([np.nan])))
 
 
 def test_verdict_on_total_time_spent_with_recovery_counted_at_the_end_when_never() -> None:
@@ -200,7 +201,7 @@ def test_verdict_on_total_time_spent_with_recovery_counted_at_the_end_when_never
                                  "waves": [1.0, 0.0, 1.0]},
                   "dqn_alpha0": {"tts_veh_h": [100.0, 101.0, 99.0], "system_recovery_s": [nan, 700.0, 650.0],
                                  "waves": [3.0, 2.0, 2.0]}})  # fmt: skip
-    c = rep.compare(rows, 1.0, "dqn_alpha8", "dqn_alpha0")
+    c = measures.compare(rows, 1.0, "dqn_alpha8", "dqn_alpha0")
     assert c is not None and c["pairs"] == 3 and c["tts_fewer"] == 3
     assert c["tts_veh_h"][0] == pytest.approx(-23.0 / 3) and c["tts_veh_h"][2] < 0
     assert c["system_recovery_s"][0] == pytest.approx((-500.0 - 100.0 - 100.0) / 3)  # never = the 1000 s horizon
@@ -209,31 +210,31 @@ def test_verdict_on_total_time_spent_with_recovery_counted_at_the_end_when_never
     assert text.startswith("`dqn_alpha8` against `dqn_alpha0` **helps**: total time spent -7.7 veh-h")
     assert "never recovered: 0 and 1 of 3 seeds" in text
     worse = _rows({"a": {"tts_veh_h": [110.0, 112.0, 111.0]}, "b": {"tts_veh_h": [100.0, 101.0, 99.0]}})
-    assert "**hurts**" in rep.verdict_line(rep.compare(worse, 1.0, "a", "b"))
+    assert "**hurts**" in rep.verdict_line(measures.compare(worse, 1.0, "a", "b"))
     mixed = _rows({"a": {"tts_veh_h": [90.0, 112.0, 100.0]}, "b": {"tts_veh_h": [100.0, 101.0, 99.0]}})
-    assert "**makes no detectable difference**" in rep.verdict_line(rep.compare(mixed, 1.0, "a", "b"))
+    assert "**makes no detectable difference**" in rep.verdict_line(measures.compare(mixed, 1.0, "a", "b"))
     two = _rows({"a": {"tts_veh_h": [90.0, 91.0]}, "b": {"tts_veh_h": [100.0, 101.0]}})
-    assert "cannot be judged on 2 seed(s)" in rep.verdict_line(rep.compare(two, 1.0, "a", "b"))
-    assert rep.compare(rows, 3.0, "dqn_alpha8", "dqn_alpha0") is None  # no runs at that demand
+    assert "cannot be judged on 2 seed(s)" in rep.verdict_line(measures.compare(two, 1.0, "a", "b"))
+    assert measures.compare(rows, 3.0, "dqn_alpha8", "dqn_alpha0") is None  # no runs at that demand
 
 
 def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
     cfg = SimConfig(accident=AccidentConfig(enabled=True), policy="keep")
     out = tmp_path / "run"
     out.mkdir()
-    outputs = scenario1.OutputConfig()
-    (out / "config.json").write_text(json.dumps({"config": scenario1.to_dict(cfg),
-                                                 "sumo_outputs": scenario1.to_dict(outputs)}))  # fmt: skip
+    outputs = OutputConfig()
+    (out / "config.json").write_text(json.dumps({"config": to_dict(cfg),
+                                                 "sumo_outputs": to_dict(outputs)}))  # fmt: skip
     (out / "summary.json").write_text("{}")
     model = tmp_path / "model.pt"
     model.write_bytes(b"old")
     old = out.stat().st_mtime_ns - 10**9
     os.utime(model, ns=(old, old))
-    assert scenario1._reusable_run(out, cfg, outputs, model)
+    assert runner.reusable_run(out, to_dict(cfg), outputs, model)
     new = (out / "summary.json").stat().st_mtime_ns + 10**9
     os.utime(model, ns=(new, new))  # retrained after the run
-    assert not scenario1._reusable_run(out, cfg, outputs, model)
-    assert not scenario1._reusable_run(out, cfg, outputs, tmp_path / "missing.pt")
+    assert not runner.reusable_run(out, to_dict(cfg), outputs, model)
+    assert not runner.reusable_run(out, to_dict(cfg), outputs, tmp_path / "missing.pt")
 
 
 @pytest.mark.parametrize("args", [["--alphas", "-1"], ["--alphas", "x"], ["--preset", "bogus"], ["--t-up", "2,2"],

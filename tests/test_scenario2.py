@@ -17,13 +17,16 @@ import pandas as pd
 import pytest
 from conftest import InlineBackend
 
-from coopsumo.studies import runner, stats
+from coopsumo.studies import runner
 from coopsumo.studies import scenario2 as s2
+from coopsumo.studies import scenario2_measures as stats
+from coopsumo.studies import scenario2_plan as s2_plan
+from coopsumo.studies import scenario2_report as s2_report
 
 REPO = Path(__file__).resolve().parent.parent
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 OUTPUTS = ("sweep.json", "runs.csv", "alpha_star.csv", "fig6_alpha_star.png", "fig6_speed_heatmap.png", "report.md")
-COMPARED = [*s2.KEY_COLUMNS, "status", *s2.METRIC_COLUMNS]
+COMPARED = [*stats.KEY_COLUMNS, "status", *stats.METRIC_COLUMNS]
 
 
 # -- hand-made tables ---------------------------------------------------------------------------------
@@ -34,8 +37,8 @@ def runs_from(speeds: dict[tuple[int, float], dict[float, list[float]]]) -> pd.D
         for alpha, values in by_alpha.items():
             for seed, v in enumerate(values, start=1):
                 failed = not np.isfinite(v)
-                rows.append({"key": s2.cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
-                             "load": s2.load_of(lanes, t_up), "alpha": alpha, "seed": seed,
+                rows.append({"key": s2_plan.cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
+                             "load": s2_plan.load_of(lanes, t_up), "alpha": alpha, "seed": seed,
                              "status": "failed" if failed else "ok", "error": "boom" if failed else None,
                              "mean_speed_mps": v, "collisions": 0, "teleports": 0})  # fmt: skip
     return pd.DataFrame(rows)
@@ -48,8 +51,8 @@ def mobil_runs_from(speeds: dict[tuple[int, float], dict[float, list[float]]]) -
         for p, values in by_p.items():
             for seed, v in enumerate(values, start=1):
                 failed = not np.isfinite(v)
-                rows.append({"key": s2.mobil_key(lanes, t_up, p, seed), "lanes": lanes, "t_up_s": t_up,
-                             "load": s2.load_of(lanes, t_up), "alpha": np.nan, "seed": seed, "policy": "mobil",
+                rows.append({"key": s2_plan.mobil_key(lanes, t_up, p, seed), "lanes": lanes, "t_up_s": t_up,
+                             "load": s2_plan.load_of(lanes, t_up), "alpha": np.nan, "seed": seed, "policy": "mobil",
                              "p": p, "status": "failed" if failed else "ok", "error": "boom" if failed else None,
                              "mean_speed_mps": v, "collisions": 0, "teleports": 0})  # fmt: skip
     return pd.DataFrame(rows)
@@ -140,9 +143,9 @@ def test_plane_bootstrap_and_trend_statements() -> None:
     boot = stats.plane_bootstrap(table, boots)
     assert boot["b1_negative_share"] == 1.0 and boot["b2_negative_share"] == 1.0
     assert boot["b1_p05"] == pytest.approx(fit.b1) and boot["replicates"] == 200
-    text = s2.trend_statements(fit, boot)
+    text = s2_report.trend_statements(fit, boot)
     assert len(text) == 2 and all(s.startswith("**Holds**") for s in text)
-    opposite = s2.trend_statements(stats.PlaneFit(1.0, 2.0, 0.5, 0.3, 9), {})
+    opposite = s2_report.trend_statements(stats.PlaneFit(1.0, 2.0, 0.5, 0.3, 9), {})
     assert all(s.startswith("**Does not hold**") and "b" in s for s in opposite)
 
 
@@ -152,13 +155,13 @@ def test_outputs_from_a_hand_made_table(tmp_path: Path) -> None:
               for lanes in (2, 3) for t in (0.7, 1.4)}  # fmt: skip
     speeds[(2, 0.7)][8.0] = [np.nan, 18.0]
     runs = runs_from(speeds)
-    profile = s2.Profile("hand", lanes=(2, 3), loads=(), alphas=(0.0, 2.0, 8.0, 32.0), seeds=(1, 2),
+    profile = s2_plan.Profile("hand", lanes=(2, 3), loads=(), alphas=(0.0, 2.0, 8.0, 32.0), seeds=(1, 2),
                          train_steps=10, eval_steps=10, t_up_s=(0.7, 1.4))  # fmt: skip
     meta = {"conditions": [{"lanes": n, "t_up_s": t, "load": ld} for n, t, ld in profile.conditions()],
             "cells": len(runs), "cells_ok": 15, "cells_failed": 1, "backend": "local", "workers": 1,
             "wall_seconds": 1.0, "cells_run": 0, "cell_wall_seconds_sum": 0.0, "cell_cpu_seconds_sum": 0.0,
             "bootstrap_replicates": 100, "versions": {}}  # fmt: skip
-    s2.write_outputs(tmp_path, runs, profile, meta, n_boot=100)
+    s2_report.write_outputs(tmp_path, runs, profile, meta, n_boot=100)
     for name in ("alpha_star.csv", "fig6_alpha_star.png", "fig6_speed_heatmap.png", "report.md"):
         assert (tmp_path / name).is_file(), name
     assert (tmp_path / "fig6_alpha_star.png").read_bytes()[:8] == PNG_SIGNATURE
@@ -196,7 +199,7 @@ def test_mobil_p_star_and_side_by_side(tmp_path: Path) -> None:
     assert side.loc[1.0, ["alpha_star", "p_star"]].tolist() == [0.0, 0.5]
     assert side["difference_mps"].tolist() == pytest.approx([1.0, -1.5])
     # the same through write_outputs: mobil_p_star.csv and the report's section
-    profile = s2.Profile("hand", lanes=(2,), loads=(), alphas=(0.0, 8.0), seeds=(1, 2), train_steps=10,
+    profile = s2_plan.Profile("hand", lanes=(2,), loads=(), alphas=(0.0, 8.0), seeds=(1, 2), train_steps=10,
                          eval_steps=10, t_up_s=(1.0, 2.0), policies=("dqn", "mobil"),
                          mobil_ps=(0.0, 0.5, 1.0))  # fmt: skip
     assert profile.n_cells() == 2 * (2 + 3) * 2
@@ -204,7 +207,8 @@ def test_mobil_p_star_and_side_by_side(tmp_path: Path) -> None:
             "cells": 20, "cells_ok": 20, "cells_failed": 0, "backend": "local", "workers": 1, "wall_seconds": 1.0,
             "cells_run": 0, "cell_wall_seconds_sum": 0.0, "cell_cpu_seconds_sum": 0.0, "bootstrap_replicates": 10,
             "versions": {}}  # fmt: skip
-    s2.write_outputs(tmp_path, pd.concat([dqn, mobil[mobil["p"].isin([0.0, 0.5, 1.0])]]), profile, meta, n_boot=10)
+    runs = pd.concat([dqn, mobil[mobil["p"].isin([0.0, 0.5, 1.0])]])
+    s2_report.write_outputs(tmp_path, runs, profile, meta, n_boot=10)
     written = pd.read_csv(tmp_path / "mobil_p_star.csv")
     assert written["p_star"].tolist() == [0.5, 1.0] and "speed_mps_p0.25" not in written
     report = (tmp_path / "report.md").read_text()
@@ -216,19 +220,19 @@ def test_mobil_p_star_and_side_by_side(tmp_path: Path) -> None:
 
 def test_grid_and_profiles() -> None:
     for lanes in range(2, 7):
-        assert s2.t_up_for(lanes, 1.0) == round(2.0 / lanes, 2)  # near capacity: lanes x 1,800 veh/h
-    quick = s2.PROFILES["quick"]
+        assert s2_plan.t_up_for(lanes, 1.0) == round(2.0 / lanes, 2)  # near capacity: lanes x 1,800 veh/h
+    quick = s2_plan.PROFILES["quick"]
     assert quick.n_cells() == 3 * 4 * 7 * 3
     assert {0.125, 0.25, 0.5} <= set(quick.alphas) and quick.preset == "default"
     assert [t for n, t, _ in quick.conditions() if n == 3] == [2.67, 1.33, 0.89, 0.67]
-    paper = s2.PROFILES["paper"]
-    assert paper.alphas == s2.PAPER_ALPHAS and len(paper.seeds) == 10 and paper.train_steps == 90_000
+    paper = s2_plan.PROFILES["paper"]
+    assert paper.alphas == s2_plan.PAPER_ALPHAS and len(paper.seeds) == 10 and paper.train_steps == 90_000
     assert paper.lanes == (2, 3, 4, 5, 6) and len(paper.conditions()) >= 20
-    tiny = s2.PROFILES["tiny"]
+    tiny = s2_plan.PROFILES["tiny"]
     assert len(tiny.conditions()) == 2 and len(tiny.alphas) == 2 and len(tiny.seeds) == 2
-    keys = [c["key"] for c in s2.cell_specs(quick)]
+    keys = [c["key"] for c in s2_plan.cell_specs(quick)]
     assert len(set(keys)) == len(keys)
-    fixed = s2.Profile("f", lanes=(2, 4), loads=(), alphas=(0.0,), seeds=(1,), train_steps=1, eval_steps=1,
+    fixed = s2_plan.Profile("f", lanes=(2, 4), loads=(), alphas=(0.0,), seeds=(1,), train_steps=1, eval_steps=1,
                        t_up_s=(1.0, 2.0))  # fmt: skip
     assert fixed.conditions() == [(2, 2.0, 0.5), (2, 1.0, 1.0), (4, 2.0, 0.25), (4, 1.0, 0.5)]
     assert s2.parse_number("1/8") == 0.125
@@ -296,9 +300,9 @@ def assert_outputs(out: Path) -> pd.DataFrame:
     for name in ("fig6_alpha_star.png", "fig6_speed_heatmap.png"):
         assert (out / name).read_bytes()[:8] == PNG_SIGNATURE
     runs = pd.read_csv(out / "runs.csv")
-    assert len(runs) == s2.PROFILES["tiny"].n_cells() == 8
+    assert len(runs) == s2_plan.PROFILES["tiny"].n_cells() == 8
     assert (runs["status"] == "ok").all(), runs["error"].tolist()
-    assert set(s2.METRIC_COLUMNS) <= set(runs.columns) and "throughput_veh_per_h" in runs
+    assert set(stats.METRIC_COLUMNS) <= set(runs.columns) and "throughput_veh_per_h" in runs
     assert runs["mean_speed_mps"].between(1, 35).all() and (runs["collisions"] == 0).all()
     assert len(list((out / "cells").glob("*.json"))) == 8
     assert all((out / "train" / k / "model.pt").is_file() for k in runs["key"])
@@ -348,7 +352,7 @@ def test_tiny_sweep_with_mobil(local_sweep: Path, tmp_path: Path) -> None:
     dqn_sim = json.loads((out / "cells" / "L2_T4_a0_s2.json").read_text())["config"]["sim"]
     for k in ("road", "demand", "control", "accident", "seed", "time_to_teleport_s"):
         assert cell["config"][k] == dqn_sim[k], k
-    assert cell["config"]["steps"] == s2.PROFILES["tiny"].eval_steps and cell["config"]["policy"] == "mobil:p=1.0"
+    assert cell["config"]["steps"] == s2_plan.PROFILES["tiny"].eval_steps and cell["config"]["policy"] == "mobil:p=1.0"
     assert (out / "mobil" / "L2_T4_mobil_p1_s2" / "summary.json").is_file()
     table = pd.read_csv(out / "mobil_p_star.csv")
     assert len(table) == 2 and table["p_star"].isin([0.0, 1.0]).all()
@@ -434,7 +438,7 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
     monkeypatch.setattr(train_module, "train", fake_train)
     monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(s2.run_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
-    meta = s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
+    meta = s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
     assert meta["cells_failed"] == 2 and meta["cells_ok"] == 6
     runs = pd.read_csv(tmp_path / "runs.csv")
     failed = runs[runs["status"] == "failed"]
@@ -443,7 +447,7 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
     assert "L2_T2_a8_s2" in (tmp_path / "report.md").read_text()
     calls.clear()
     calls.extend(["x"] * 8)  # the fake now succeeds
-    meta = s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
+    meta = s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
     assert meta["cells_failed"] == 0 and meta["cells_run"] == 2
     assert sorted(calls[8:]) == ["L2_T2_a8_s2", "L2_T4_a8_s2"]
 
@@ -459,7 +463,7 @@ def fake_cell(spec: dict[str, object], root: str) -> dict[str, object]:
 
 def test_dead_worker_is_retried_then_recorded_failed(tmp_path: Path) -> None:
     """A cell whose worker process dies is retried in a fresh pool, then recorded as failed; the others finish."""
-    specs = s2.cell_specs(s2.PROFILES["tiny"])
+    specs = s2_plan.cell_specs(s2_plan.PROFILES["tiny"])
     backend = runner.LocalBackend(2, cell_fn=fake_cell)
     try:
         counts = runner.execute(specs, tmp_path, backend, len(specs), 0, progress=False, failed_record=s2.failed_record)
@@ -485,7 +489,7 @@ def test_neighbour_separation_on_hand_made_speeds() -> None:
 def test_noise_floor_counts_distinct_conditions() -> None:
     table = pd.DataFrame({"separated_below": [True, None, False], "separated_above": [True, True, False],
                           "distinct": [True, True, False]})  # fmt: skip
-    text = s2.noise_floor_text(table)
+    text = s2_report.noise_floor_text(table)
     assert "in 2 of 3 conditions, from at least one of them in 2" in text
 
 
@@ -496,14 +500,14 @@ def test_paper_cost_is_extrapolated_from_the_cells() -> None:
         q = 3600 / t_up
         rows.append({"status": "ok", "policy": "dqn", "t_up_s": t_up, "resumed_from_step": None, "steps": 1000,
                      "train_wall_seconds": 2000 * (1e-3 + 1e-6 * q), "wall_seconds": 1000 * 5e-4})  # fmt: skip
-    paper = s2.Profile("p", lanes=(2,), loads=(), t_up_s=(1.0,), alphas=(0.0, 1.0), seeds=(1, 2, 3),
+    paper = s2_plan.Profile("p", lanes=(2,), loads=(), t_up_s=(1.0,), alphas=(0.0, 1.0), seeds=(1, 2, 3),
                        train_steps=10_000, eval_steps=100)  # fmt: skip
-    cost = s2.paper_cost_estimate(pd.DataFrame(rows), 2000, paper, cluster_cpus=6)
+    cost = stats.paper_cost_estimate(pd.DataFrame(rows), 2000, paper, cluster_cpus=6)
     per_cell = 10_000 * (1e-3 + 1e-6 * 3600) + 100 * 5e-4
     assert cost["cells"] == 6
     assert cost["core_hours"] == pytest.approx(6 * per_cell / 3600)
     assert cost["cluster_hours"] == pytest.approx(per_cell / 3600)
-    assert s2.paper_cost_estimate(pd.DataFrame(rows[:1]), 2000, paper) == {}
+    assert stats.paper_cost_estimate(pd.DataFrame(rows[:1]), 2000, paper) == {}
 
 
 @pytest.mark.sumo
@@ -546,7 +550,7 @@ def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
 
 def test_a_corrupt_record_is_rerun_not_counted(tmp_path: Path, faked_train: list[str],
                                                capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    assert s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=20)["cells_ok"] == 8
+    assert s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=20)["cells_ok"] == 8
     first = pd.read_csv(tmp_path / "alpha_star.csv")
     cells = tmp_path / "cells"
     bad = {"L2_T2_a8_s1": lambda r: {**r, "summary": {}}, "L2_T2_a8_s2": lambda r: {**r, "summary": None},
@@ -559,7 +563,7 @@ def test_a_corrupt_record_is_rerun_not_counted(tmp_path: Path, faked_train: list
     (cells / "L2_T4_a8_s1.json").write_text((cells / "L2_T4_a8_s1.json").read_text()[:50])  # truncated
     capsys.readouterr()
     del faked_train[1:]
-    meta = s2.run_sweep(s2.PROFILES["tiny"], tmp_path, progress=False, n_boot=20)
+    meta = s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=20)
     err = capsys.readouterr().err
     assert sorted(faked_train[1:]) == sorted([*bad, "L2_T4_a8_s1"])  # exactly the spoiled cells ran again
     for key in [*bad, "L2_T4_a8_s1"]:

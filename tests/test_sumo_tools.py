@@ -1,5 +1,5 @@
 """Runs seen and checked with SUMO's own tools: sumo-gui (live view, screenshot), FCD and tripinfo output,
-plot_trajectories.py. The README's commands for them are the ones run here."""
+plot_trajectories.py. The commands of docs/sumo-tools.md for them are the ones run here."""
 
 from __future__ import annotations
 
@@ -23,15 +23,16 @@ from coopsumo.sim import view
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
-README = (ROOT / "README.md").read_text()
+PAGE = (ROOT / "docs" / "sumo-tools.md").read_text()
+"""the page that documents SUMO's tools on coopsumo's runs"""
 PNG = b"\x89PNG\r\n\x1a\n"
 WALL_KEYS = {"wall_seconds", "steps_per_second", "sumo_step_share"}
 
 
-def readme_lines(marker: str) -> list[str]:
-    """The README's bash lines containing marker, continuation lines joined, comments dropped."""
+def page_lines(marker: str) -> list[str]:
+    """The page's bash lines containing marker, continuation lines joined, comments dropped."""
     lines = []
-    for block in re.findall(r"```bash\n(.*?)```", README, flags=re.S):
+    for block in re.findall(r"```bash\n(.*?)```", PAGE, flags=re.S):
         for line in block.replace("\\\n", " ").splitlines():
             line = re.sub(r"\s+", " ", line.split(" #")[0]).strip()
             if marker in line and not line.startswith("#"):
@@ -71,11 +72,11 @@ def test_vehicle_states_follow_the_precedence_held_changing_slow_cruising() -> N
 
 
 # -- sumo-gui ---------------------------------------------------------------------------------
-def test_readme_gui_command_shows_the_controlled_run_and_saves_a_screenshot(tmp_path: Path, gui_display: str) -> None:
-    """The README's --gui command under a (virtual) display: sumo-gui's PNG shows the colours of the
+def test_documented_gui_command_shows_the_run_and_saves_a_screenshot(tmp_path: Path, gui_display: str) -> None:
+    """The page's --gui command under a (virtual) display: sumo-gui's PNG shows the colours of the
     controller's states and the accident bar, and the run is the one libsumo makes without --gui."""
-    (cmd,) = [c for c in readme_lines("--gui ") if c.startswith(".venv/bin/python -m coopsumo.simulate")]
-    args = shlex.split(cmd.replace("results/", f"{tmp_path}/"))[3:] + ["--quiet", "--trajectories"]
+    (cmd,) = [c for c in page_lines("--gui ") if c.startswith("coopsumo simulate")]
+    args = shlex.split(cmd.replace("results/", f"{tmp_path}/"))[2:] + ["--quiet", "--trajectories"]
     proc = simulate(args, env_with_display(gui_display))
     assert proc.returncode == 0, proc.stderr[-2000:]
     shot = Path(args[args.index("--gui-screenshot") + 1])
@@ -179,8 +180,8 @@ def test_fcd_is_the_controlled_traffic_of_the_trajectories(runs: tuple[Path, Pat
     assert len(merged) > 1000
 
 
-def test_readme_tripinfo_snippet_runs(runs: tuple[Path, Path]) -> None:
-    (snippet,) = [b for b in re.findall(r"```python\n(.*?)```", README, flags=re.S) if '"tripinfo"' in b]
+def test_documented_tripinfo_snippet_runs(runs: tuple[Path, Path]) -> None:
+    (snippet,) = [b for b in re.findall(r"```python\n(.*?)```", PAGE, flags=re.S) if '"tripinfo"' in b]
     code = snippet.replace("results/tools/keep/", f"{runs[0]}/")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
     assert res.returncode == 0, res.stderr
@@ -188,13 +189,14 @@ def test_readme_tripinfo_snippet_runs(runs: tuple[Path, Path]) -> None:
     assert res.stdout.split()[0] == str(summary["arrived"])
 
 
-def test_readme_plot_trajectories_command_draws_a_png(runs: tuple[Path, Path], tmp_path: Path) -> None:
-    (cmd,) = readme_lines("plot_trajectories.py")
+def test_documented_plot_trajectories_command_draws_a_png(runs: tuple[Path, Path], tmp_path: Path) -> None:
+    (cmd,) = page_lines("plot_trajectories.py")
     fcd = "results/scenario1/runs/t1/keep_seed1/fcd.xml"
     assert fcd in cmd
     cmd = cmd.replace(fcd, str(runs[0] / "fcd.xml")).replace("results/", f"{tmp_path}/")
+    cmd = re.sub(r"(^|\$\()python ", rf"\1{shlex.quote(sys.executable)} ", cmd)  # the page's activated venv
     png = Path(shlex.split(cmd)[shlex.split(cmd).index("-o") + 1])
-    png.parent.mkdir(parents=True)  # the study's folder, there in the README's use
+    png.parent.mkdir(parents=True)  # the study's folder, there in the page's use
     res = subprocess.run(["bash", "-c", cmd], cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
     assert res.returncode == 0, res.stderr[-2000:]
     assert png.read_bytes().startswith(PNG) and png.stat().st_size > 20_000

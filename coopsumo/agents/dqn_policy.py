@@ -32,7 +32,7 @@ class DQNPolicy:
     decision (typically one standing in a queue) gets its previous action again without a forward
     pass: the network is deterministic, so the action is the same, and a jam costs far less.
 
-    decision_interval: the runner asks for actions every this many steps (coopsumo.decisions);
+    decision_interval: the runner asks for actions every this many steps (coopsumo.agents.decisions);
     action_mask: choose only among the feasible actions (obs.feasible); restart_below_mps: 'none' is not
     chosen below this speed (m/s; 0: at any speed). All three as in training (decisions.offered).
     """

@@ -29,6 +29,7 @@ from tqdm import tqdm
 from coopsumo.agents.decisions import ActionHold, offered
 from coopsumo.agents.dqn import N_ACTIONS, Learner, save_model
 from coopsumo.agents.dqn_policy import DQNPolicy
+from coopsumo.agents.tb_log import TensorBoardFlag, open_log
 from coopsumo.config import (
     DQN_PRESETS,
     MAX_LANES,
@@ -190,6 +191,7 @@ class Trainer:
         self.action_log: list[np.ndarray] = []
         self.window = Window()
         self._stop_signal: int | None = None
+        self.on_row: Callable[[dict[str, Any]], None] | None = None  # each train_log.csv row, by column (tb_log)
 
     # -- checkpoints -----------------------------------------------------------------------
     def checkpoint_path(self) -> Path:
@@ -367,6 +369,8 @@ class Trainer:
             w.lane_changes, w.rejected, tot.collisions, tot.teleports, round(wall_s, 2),
         ]  # fmt: skip
         log.writerow([f"{x:.6g}" if isinstance(x, float) else x for x in row])
+        if self.on_row is not None:
+            self.on_row(dict(zip(LOG_FIELDS, row, strict=True)))
 
 
 def model_meta(cfg: TrainConfig) -> dict[str, Any]:
@@ -391,10 +395,12 @@ def train(
     resume: bool = False,
     progress: bool = True,
     on_steps: Callable[[int], None] | None = None,
+    tensorboard: bool = False,
 ) -> dict[str, Any]:
     """Train (or resume) into `out`; returns the evaluation summary (or the training summary).
 
-    on_steps(n) is told of progress (training and evaluation steps), for a caller's progress bar.
+    on_steps(n) is told of progress (training and evaluation steps), for a caller's progress bar;
+    tensorboard: also write the log's scalars to out/tensorboard/ (tb_log).
     """
     trainer = Trainer(cfg, out, progress, on_steps)
     out.mkdir(parents=True, exist_ok=True)
@@ -409,12 +415,17 @@ def train(
         write_json(out / "config.json", model_meta(cfg))
         for stale in ("model.pt", "summary.json", "checkpoint.pt", "train_summary.json"):
             (out / stale).unlink(missing_ok=True)
+    scalars = open_log(out, tensorboard, resume)
+    trainer.on_row = None if scalars is None else scalars.add_row
     start = time.perf_counter()
     try:
         trainer.run()
     except ResumeDiverged as err:
         raise UsageError(f"checkpoint {trainer.checkpoint_path()} (another coopsumo or SUMO version?): {err}; "
                          "train again without --resume") from None  # fmt: skip
+    finally:
+        if scalars is not None:
+            scalars.close()
     wall = time.perf_counter() - start
     save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
     train_summary = dict(trainer.world_summary, wall_seconds=round(wall, 2),
@@ -502,7 +513,7 @@ def learner_from_args(args: Any) -> DQNConfig:
 
 
 def build_parser() -> Parser:
-    p = Parser(prog="python -m coopsumo.train", description="Train the cooperative lane-changing DQN.")
+    p = Parser(prog="coopsumo train", description="Train the cooperative lane-changing DQN.")
     p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
     p.add_argument("--alpha", type=alpha, default=0.0, help="lane-change penalty of eq. (7), per accepted change")
     p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
@@ -513,6 +524,7 @@ def build_parser() -> Parser:
     p.add_argument("--eval-steps", type=integer(0, MAX_STEPS), default=TrainConfig.eval_steps,
                    help="greedy evaluation steps (0: none)")  # fmt: skip
     add_learner_flags(p)
+    p.add_argument("--tensorboard", action=TensorBoardFlag, help="also write TensorBoard scalars to OUT/tensorboard/")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -578,7 +590,7 @@ def main(argv: list[str] | None = None) -> int:
         except OSError as err:
             raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
         try:
-            summary = train(cfg, out, resume=args.resume, progress=not args.quiet)
+            summary = train(cfg, out, resume=args.resume, progress=not args.quiet, tensorboard=args.tensorboard)
         except Interrupted as stop:
             print(f"train: interrupted at step {stop.step}; checkpoint saved in {out / 'checkpoint.pt'}; "
                   f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip

@@ -1,6 +1,6 @@
 """What the Gymnasium and PettingZoo environments share: spaces, per-vehicle views, the World's lifetime.
 
-No physics here: everything comes from coopsumo.world (which uses physics, observation, reward).
+No physics here: everything comes from coopsumo.sim.world (which uses physics, observation, reward).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from coopsumo.sim.physics import ACTION_NAMES
 from coopsumo.sim.world import StepOutcome, World
 
 GRID_SHAPE = (N_FRAMES, N_SIDES, N_CELLS)
-"""(frames, lanes, cells) of one vehicle's occupancy grids (the same as coopsumo.dqn.GRID_SHAPE)"""
+"""(frames, lanes, cells) of one vehicle's occupancy grids (the same as coopsumo.agents.dqn.GRID_SHAPE)"""
 N_ACTIONS = len(ACTION_NAMES)
 SEED_LIMIT = 2**31 - 1
 """seeds drawn for unseeded resets lie in [0, SEED_LIMIT) (SUMO's --seed is a C int)"""
@@ -36,7 +36,7 @@ def observation_space() -> spaces.Dict:
 
 
 def action_space() -> spaces.Discrete:
-    """0 left, 1 right, 2 speedup, 3 none (coopsumo.physics)."""
+    """0 left, 1 right, 2 speedup, 3 none (coopsumo.sim.physics)."""
     return spaces.Discrete(N_ACTIONS)
 
 
@@ -63,7 +63,7 @@ def step_info(out: StepOutcome, row: int) -> dict[str, Any]:
 
 
 def background_policy(spec: str, seed: int, control: ControlConfig) -> Policy:
-    """A policy from its spec (coopsumo.policies.make_policy), MOBIL included; its RNG is derived from seed."""
+    """A policy from its spec (coopsumo.agents.policies.make_policy), MOBIL included; its RNG is derived from seed."""
     if spec == "mobil" or spec.startswith("mobil:"):
         from coopsumo.agents.mobil import MobilPolicy
 

@@ -9,9 +9,9 @@ The episode (reset):
      SUMO inserts it, later if its insertion is blocked).
 
 Each step: the background policy acts for every vehicle, the agent's action replaces its own,
-World.apply() runs one 0.1 s step, and the reward is coopsumo.reward's RewardParts.total for
+World.apply() runs one 0.1 s step, and the reward is coopsumo.sim.reward's RewardParts.total for
 the agent (components in `info`). With decision_interval=k (the learner's --decision-interval),
-one env step is k steps of 0.1 s: the action is held as coopsumo.decisions defines (a lane
+one env step is k steps of 0.1 s: the action is held as coopsumo.agents.decisions defines (a lane
 change is requested once, then speed-up), the rewards are summed, the occupancy frames are those
 of the decision steps, and the agent decides only on steps with step_count % k == 0.
 Terminated when the agent leaves the road (the last

@@ -8,7 +8,7 @@ is truncated. `possible_agents` is every vehicle scheduled to depart within max_
 veh_0 ... veh_K with K = floor(max_steps * dt / T_up), a finite superset of the agents that can
 appear (vehicles whose insertion is delayed beyond the episode never become agents).
 
-Rewards: coopsumo.reward's RewardParts.total for the step the agent acted in (components in
+Rewards: coopsumo.sim.reward's RewardParts.total for the step the agent acted in (components in
 `infos`); an agent appearing in a step gets its first observation and reward 0.0.
 
 reset() starts a new World (closing the previous one) and steps the empty road until the first
@@ -17,7 +17,7 @@ runs with SimConfig.seed = s; an unseeded reset draws the seed from the env's ge
 the last seeded reset re-seeded (or from fresh entropy if there was none).
 
 decision_interval=k (the learner's --decision-interval): one step() is k simulation steps; each
-agent's action is held as coopsumo.decisions defines (a lane change is requested on the first
+agent's action is held as coopsumo.agents.decisions defines (a lane change is requested on the first
 step only, then speed-up) and its rewards are summed over the steps it was on the road; the
 occupancy frames are those of the decision steps. Default 1: one 0.1 s step per step().
 

@@ -1,6 +1,9 @@
 """SUMO network and detector files: the straight highway built by netconvert, E1 loops every 200 m.
 
-Pure file generation plus one call of SUMO's `netconvert` binary; no libsumo here.
+Pure file generation plus one call of SUMO's `netconvert` binary; no libsumo here. Where the networks go
+(nets_dir): the folder COOPSUMO_NETS_DIR names (`coopsumo --nets-dir DIR` sets it), else the checkout's
+top-level sumo_nets/ when running from a source checkout, else the per-user cache
+$XDG_CACHE_HOME/coopsumo/sumo_nets (~/.cache/coopsumo/sumo_nets). Nothing is written inside the package.
 """
 
 from __future__ import annotations
@@ -8,6 +11,7 @@ from __future__ import annotations
 import os
 import subprocess
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 from coopsumo.config import RoadConfig
@@ -15,8 +19,31 @@ from coopsumo.config import RoadConfig
 EDGE_ID = "road"
 ROUTE_ID = "r0"
 VTYPE_ID = "car"
-REPO_ROOT = Path(__file__).resolve().parent.parent
-NETS_DIR = REPO_ROOT / "sumo_nets"
+NETS_ENV = "COOPSUMO_NETS_DIR"
+"""environment variable naming the folder the networks are built into"""
+SOURCE_ROOT = Path(__file__).resolve().parents[2]
+"""the folder holding the package: a source checkout's root, or site-packages' parent for an installed wheel"""
+
+
+def checkout_root() -> Path | None:
+    """The source checkout this package runs from (its pyproject.toml names coopsumo), or None when installed."""
+    try:
+        text = (SOURCE_ROOT / "pyproject.toml").read_text()
+    except OSError:
+        return None
+    return SOURCE_ROOT if 'name = "coopsumo"' in text else None
+
+
+def nets_dir(environ: Mapping[str, str] | None = None) -> Path:
+    """The folder networks are built into (see the module's docstring for the order)."""
+    env = os.environ if environ is None else environ
+    if env.get(NETS_ENV):
+        return Path(env[NETS_ENV]).expanduser()
+    root = checkout_root()
+    if root is not None:
+        return root / "sumo_nets"
+    cache = Path(env["XDG_CACHE_HOME"]) if env.get("XDG_CACHE_HOME") else Path.home() / ".cache"
+    return cache / "coopsumo" / "sumo_nets"
 
 
 def netconvert_binary() -> str:
@@ -51,25 +78,25 @@ def plain_xml(road: RoadConfig) -> tuple[str, str]:
     return nodes, edges
 
 
-def build_net(road: RoadConfig, nets_dir: Path = NETS_DIR) -> Path:
-    """Build (once) the network for this road with netconvert; returns the .net.xml path.
-
-    Written atomically, so parallel runs asking for the same network do not clash.
+def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
+    """Build (once) the network for this road with netconvert into folder (default: nets_dir()); returns the
+    .net.xml path. Written atomically, so parallel runs asking for the same network do not clash.
     """
-    nets_dir.mkdir(parents=True, exist_ok=True)
+    folder = folder if folder is not None else nets_dir()
+    folder.mkdir(parents=True, exist_ok=True)
     stem = net_name(road)
-    net_path = nets_dir / f"{stem}.net.xml"
+    net_path = folder / f"{stem}.net.xml"
     if net_path.exists():
         return net_path
     nodes, edges = plain_xml(road)
-    (nets_dir / f"{stem}.nod.xml").write_text(nodes)
-    (nets_dir / f"{stem}.edg.xml").write_text(edges)
-    fd, tmp = tempfile.mkstemp(suffix=".net.xml", dir=nets_dir)
+    (folder / f"{stem}.nod.xml").write_text(nodes)
+    (folder / f"{stem}.edg.xml").write_text(edges)
+    fd, tmp = tempfile.mkstemp(suffix=".net.xml", dir=folder)
     os.close(fd)
     cmd = [
         netconvert_binary(),
-        "--node-files", str(nets_dir / f"{stem}.nod.xml"),
-        "--edge-files", str(nets_dir / f"{stem}.edg.xml"),
+        "--node-files", str(folder / f"{stem}.nod.xml"),
+        "--edge-files", str(folder / f"{stem}.edg.xml"),
         "--output-file", tmp,
         "--no-turnarounds", "true",
         "--no-warnings", "true",
@@ -105,7 +132,7 @@ def routes_xml(max_speed_mps: float, car_length_m: float, lc_motivations: bool =
 
     lc_motivations=False (controlled runs, lane-change mode 0) switches off LC2013's reasons to change lane
     (strategic, cooperative, speed gain, keep right): SUMO's lane changer still looks at every vehicle every
-    step, a little faster; outputs are byte-identical (README, "Deviations and choices")."""
+    step, a little faster; outputs are byte-identical (docs/model.md, "Deviations and choices")."""
     lc = "" if lc_motivations else ' lcStrategic="-1" lcCooperative="0" lcSpeedGain="0" lcKeepRight="0"'
     return (
         "<routes>\n"

@@ -410,7 +410,7 @@ class World:
 
     # -- results ---------------------------------------------------------------------------
     def summary(self) -> dict[str, float | int]:
-        """Run statistics (see README for definitions)."""
+        """Run statistics (definitions: docs/run-folders.md)."""
         tot = self.totals
         hours = self.time_s / 3600.0
         # vehicles that had a step to be inserted in (scheduled before the last step began) and were not;

@@ -533,12 +533,14 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
 
 
 def build_parser() -> Parser:
-    p = Parser(prog="python -m coopsumo.ablation",
+    p = Parser(prog="coopsumo learning",
                description="Ablation of the DQN learner and its alpha response (results/learning).")  # fmt: skip
     p.add_argument("--profile", choices=tuple(PROFILES), default="full", help="study size (full: paper scale)")
     p.add_argument("--quick", action="store_true", help="the same as --profile quick")
-    p.add_argument("--variants", default=None, help=f"comma-separated subset of {','.join(VARIANT_NAMES)}")
-    p.add_argument("--alphas", default=None, help="comma-separated alpha grid of the alpha response")
+    p.add_argument("--variants", default=None,
+                   help=f"comma-separated subset of {','.join(VARIANT_NAMES)} (default: the profile's)")
+    p.add_argument("--alphas", default=None,
+                   help="comma-separated alpha grid of the alpha response (default: the profile's)")
     p.add_argument("--alpha-variants", default=None,
                    help="comma-separated variants whose alpha response is measured (default: the default learner)")
     p.add_argument("--seeds", type=seed_count, default=None, help="training seeds 0..N-1 (default: the profile's)")

@@ -28,13 +28,14 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager, nullcontext
+from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
 from tqdm import tqdm
 
-from coopsumo.config import OutputConfig, results_view
+from coopsumo.config import OutputConfig, results_view, to_dict
 from coopsumo.runio import UsageError, start_parent_watch, versions, write_json
 
 MAX_CRASHES = 2
@@ -98,6 +99,59 @@ def finished_training(out: Path, config: dict[str, Any]) -> dict[str, Any] | Non
     if not (done and "model.pt" in marker["files"] and (out / "model.pt").is_file() and isinstance(summary, dict)):
         return None
     return summary if results_view(stored) == results_view(json.loads(json.dumps(config))) else None
+
+
+@dataclass(frozen=True)
+class CellRecords:
+    """The record layout of one study's cells, and the three things every study does with it.
+
+    fields: copied from the cell's spec; empty: the study's own result fields, None until the cell has run;
+    extra(spec): fields that depend on the cell (its folder, say).
+    """
+
+    fields: tuple[str, ...]
+    empty: tuple[str, ...] = ()
+    extra: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+
+    def new(self, spec: dict[str, Any]) -> dict[str, Any]:
+        """A cell's record before it runs: what it is and where it writes; nothing measured yet."""
+        record = blank_record(spec, self.fields, **dict.fromkeys(self.empty))
+        if self.extra is not None:
+            record.update(self.extra(spec))
+        return record
+
+    def failed(self, spec: dict[str, Any], error: str) -> dict[str, Any]:
+        """The record of a cell whose worker died or that could not run (execute's failed_record)."""
+        return as_failed(self.new(spec), error)
+
+    def run(self, spec: dict[str, Any], body: Callable[[dict[str, Any]], None]) -> dict[str, Any]:
+        """Run one cell in this process: body(record) fills the new record (run_recorded); never raises."""
+        record = self.new(spec)
+        return run_recorded(record, lambda: body(record))
+
+
+def same_config(path: Path, cfg: dict[str, Any]) -> bool:
+    """True when path (a run or training folder's config.json) records this configuration (config.results_view)."""
+    try:
+        return bool(results_view(json.loads(path.read_text())["config"]) == results_view(json.loads(json.dumps(cfg))))
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None) -> bool:
+    """True when the run folder out holds a finished run of the SimConfig dict cfg with the SUMO output files
+    `outputs` asks for and, for a model's run, was made after the model file was written (a retrained model keeps
+    its path)."""
+    if not ((out / "summary.json").exists() and same_config(out / "config.json", cfg)):
+        return False
+    if model is not None and not (model.exists() and (out / "summary.json").stat().st_mtime >= model.stat().st_mtime):
+        return False
+    try:
+        recorded = json.loads((out / "config.json").read_text()).get("sumo_outputs")
+    except (OSError, ValueError):
+        return False
+    files = (["fcd.xml"] if outputs.fcd_period_s > 0 else []) + (["tripinfo.xml"] if outputs.tripinfo else [])
+    return recorded == to_dict(outputs) and all((out / f).exists() for f in files)
 
 
 def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:

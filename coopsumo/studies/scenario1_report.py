@@ -1,115 +1,49 @@
-"""Scenario I's measures per run, their tables per demand, the verdicts and report.md (no SUMO here).
-
-run_metrics reads one finished accident run folder; everything else works on the table of runs
-(one row per demand, policy and seed).
+"""Scenario I's report: the figures, sumo-gui's screenshot of the jam, the tables per demand, the verdicts in words
+and report.md, from the table of runs (scenario1_measures) and the run folders.
 """
 
 from __future__ import annotations
 
 import json
 import math
+import os
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from coopsumo.config import SimConfig
+from coopsumo.config import SimConfig, to_dict
+from coopsumo.runio import UsageError, versions, write_json
+from coopsumo.sim import view
+from coopsumo.studies.scenario1_measures import (
+    COUNTED,
+    FIELD_DT_S,
+    FIELD_DX_M,
+    METRICS,
+    MIN_PAIRS,
+    N_BOOT,
+    RECOVERY_MPS,
+    SLOW_MPS,
+    WINDOW_S,
+    aggregate,
+    compare,
+    cooperative_alpha,
+    demand_table,
+    fig4_windows,
+    jam_step,
+    most_different_demand,
+)
+from coopsumo.studies.scenario1_plan import Plan, label_for, model_label
 from coopsumo.validation import number_name
 
-SLOW_MPS = 5.0
-RECOVERY_MPS = 15.0
-STOP_GO_UPSTREAM_M = 1000.0
-WAVE_LOOKBACK_S = 120.0
-FIELD_DT_S = 5.0
-FIELD_DX_M = 25.0
-"""cells of the space-time speed field the wave measure reads (s, m)"""
-COOPERATIVE_LC_SHARE = 0.1
-"""a model is "cooperative, not simply keep" when it makes at least this share of alpha = 0's lane changes"""
-N_BOOT = 10_000
-BOOT_SEED = 12345
-MIN_PAIRS = 3
-"""fewer seed pairs than this give no verdict: a bootstrap over one or two seeds is no interval"""
-
-
-def run_metrics(run_dir: Path, cfg: SimConfig, sample_s: float) -> dict[str, Any]:
-    """Every scenario I measure of one accident run (trajectories sampled every sample_s seconds)."""
-    from coopsumo.report import bottleneck as bn
-    from coopsumo.report.analysis import read_detectors, recovery_time_s, section_speed_bins, stop_and_go_waves
-
-    summary = json.loads((run_dir / "summary.json").read_text())
-    traj = pd.read_parquet(run_dir / "trajectories.parquet")
-    det = read_detectors(run_dir / "detectors.xml")
-    acc, dt, lanes = cfg.accident, cfg.control.dt_s, cfg.road.lanes
-    start_s = acc.start_step * dt
-    end_s = (acc.start_step + acc.duration_steps) * dt
-    run_end_s = cfg.steps * dt
-    counts = bn.occupancy_counts(traj, cfg.demand.t_up_s)
-    waiting = counts["waiting"]
-    v_ref = cfg.demand.v_exp_mean_kmh / 3.6
-    tts = bn.run_time_spent(traj, cfg.demand.t_up_s, sample_s, v_ref)
-    section = section_speed_bins(traj, acc.x_m - 200.0, acc.x_m, start_s, 30.0)
-    on_road = recovery_time_s(traj, acc.x_m, start_s, threshold_mps=RECOVERY_MPS)
-    system = bn.system_recovery_s(section, waiting, start_s, RECOVERY_MPS, lanes)
-    reach = bn.queue_reach(traj, waiting, acc.x_m, start_s, SLOW_MPS, lanes)
-    waves = bn.wave_summary(bn.lane_jams(traj, acc.x_m, run_end_s, FIELD_DT_S, FIELD_DX_M, slow_mps=SLOW_MPS))
-    onsets = stop_and_go_waves(det, acc.x_m, slow_mps=SLOW_MPS, fast_mps=RECOVERY_MPS, lookback_s=WAVE_LOOKBACK_S)
-    departed = max(summary["departed"], 1)
-    return {
-        "tts_veh_h": tts["tts_veh_h"],
-        "delay_veh_h": tts["delay_veh_h"],
-        "waiting_veh_h": tts["waiting_veh_h"],
-        "discharge_veh_h": bn.discharge_veh_h(det, acc.x_m, start_s, end_s),
-        "system_recovery_s": system,
-        "recovery_time_s": on_road,
-        "waves": waves["waves"],
-        "wave_speed_kmh": waves["wave_speed_kmh"],
-        "slow_regions": waves["slow_regions"],
-        "wave_onset_share": onsets["wave_share"],
-        "queue_m": reach["queue_m"],
-        "spilled_s": reach["spilled_s"],
-        "regime": reach["regime"],
-        "waiting_at_end_veh": float(waiting.iloc[-1]) if len(waiting) else 0.0,
-        "mean_speed_mps": summary["mean_speed_mps"],
-        "mean_travel_time_s": summary["mean_travel_time_s"],
-        "throughput_veh_per_h": summary["throughput_veh_per_h"],
-        "lane_changes_per_vehicle": summary["lane_changes"] / departed,
-        "collisions": summary["collisions"],
-        "teleports": summary["teleports"],
-        "horizon_after_start_s": run_end_s - start_s,
-    }
-
-
-METRICS = (
-    ("tts_veh_h", "total time spent (veh-h)", "{:.1f}"),
-    ("delay_veh_h", "delay (veh-h)", "{:.1f}"),
-    ("waiting_veh_h", "of it waiting to enter (veh-h)", "{:.1f}"),
-    ("discharge_veh_h", "discharge during accident (veh/h)", "{:.0f}"),
-    ("system_recovery_s", "system recovery (s after start)", "{:.0f}"),
-    ("recovery_time_s", "on-road recovery (s after start)", "{:.0f}"),
-    ("waves", "stop-and-go waves", "{:.1f}"),
-    ("queue_m", "queue reach (m)", "{:.0f}"),
-    ("lane_changes_per_vehicle", "lane changes / veh", "{:.2f}"),
-    ("mean_speed_mps", "mean speed on road (m/s)", "{:.2f}"),
-    ("collisions", "collisions", "{:.0f}"),
-    ("teleports", "teleports", "{:.0f}"),
-)
-COUNTED = ("system_recovery_s", "recovery_time_s")
-"""measures that may never happen in a run: the table says in how many seeds they did"""
-EXTRA = ("wave_speed_kmh", "slow_regions", "wave_onset_share", "mean_travel_time_s", "throughput_veh_per_h",
-         "spilled_s", "waiting_at_end_veh")  # fmt: skip
-
-
-def aggregate(rows: pd.DataFrame) -> pd.DataFrame:
-    """Mean and standard deviation over seeds per demand and policy (metric_mean, metric_std, metric_n)."""
-    keys = [m for m, _, _ in METRICS] + [k for k in EXTRA if k in rows]
-    grouped = rows.groupby(["t_up_s", "policy"], sort=False)[keys]
-    out = pd.concat([grouped.mean().add_suffix("_mean"), grouped.std(ddof=1).add_suffix("_std"),
-                     rows[keys].notna().groupby([rows["t_up_s"], rows["policy"]], sort=False).sum().add_suffix("_n")],
-                    axis=1)  # fmt: skip
-    out["seeds"] = grouped.size()
-    return out.reset_index()
+FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
+GUI_ALPHA = 8.0  # sumo-gui shows the paper's cooperative model (first preset, first seed, highest demand)
+GUI_SHOT = "gui_jam.png"
+MODEL_DOC = "docs/model.md"
+"""the one table of the project's deviations from the paper and its choices, in the source checkout"""
 
 
 def _fmt(fmt: str, mean: float, std: float) -> str:
@@ -150,47 +84,6 @@ def regime_table(rows: pd.DataFrame, regimes: Sequence[str]) -> str:
     return "\n".join(lines)
 
 
-def paired_bootstrap(diff: np.ndarray, n_boot: int = N_BOOT, seed: int = BOOT_SEED) -> tuple[float, float, float]:
-    """Mean of seed-paired differences and its 95% percentile bootstrap interval over seeds (NaNs dropped).
-    (nan, nan, nan) without a difference; the interval is the mean itself with one seed."""
-    d = np.asarray(diff, dtype=float)
-    d = d[np.isfinite(d)]
-    if len(d) == 0:
-        return float("nan"), float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    means = d[rng.integers(0, len(d), size=(n_boot, len(d)))].mean(axis=1)
-    lo, hi = np.percentile(means, [2.5, 97.5])
-    return float(d.mean()), float(lo), float(hi)
-
-
-def censored(values: pd.Series, horizon: pd.Series) -> pd.Series:
-    """A time that may never happen (NaN) replaced by the run's horizon: a lower bound of the true time."""
-    return values.where(values.notna(), horizon)
-
-
-def compare(rows: pd.DataFrame, t_up: float, a: str, b: str) -> dict[str, Any] | None:
-    """Seed-paired comparison of policy a against b at one demand: TTS, system recovery (never = the run's
-    horizon) and waves, each as (mean a - b, 95% bootstrap interval); None if either is missing."""
-    at = rows[rows["t_up_s"] == t_up]
-    wide = {p: at[at["policy"] == p].set_index("seed") for p in (a, b)}
-    if any(w.empty for w in wide.values()):
-        return None
-    seeds = wide[a].index.intersection(wide[b].index)
-    out: dict[str, Any] = {"pairs": len(seeds), "a": a, "b": b}
-    for key in ("tts_veh_h", "system_recovery_s", "waves", "lane_changes_per_vehicle"):
-        va, vb = wide[a].loc[seeds, key], wide[b].loc[seeds, key]
-        if key == "system_recovery_s":
-            va = censored(va, wide[a].loc[seeds, "horizon_after_start_s"])
-            vb = censored(vb, wide[b].loc[seeds, "horizon_after_start_s"])
-        out[key] = paired_bootstrap((va - vb).to_numpy(dtype=float))
-        out[key + "_b"] = float(vb.mean())
-        out[key + "_a"] = float(va.mean())
-    out["never_a"] = int(wide[a].loc[seeds, "system_recovery_s"].isna().sum())
-    out["never_b"] = int(wide[b].loc[seeds, "system_recovery_s"].isna().sum())
-    out["tts_fewer"] = int((wide[a].loc[seeds, "tts_veh_h"] < wide[b].loc[seeds, "tts_veh_h"]).sum())
-    return out
-
-
 def _direction(ci: tuple[float, float, float], lower_is_better: bool = True) -> str:
     mean, lo, hi = ci
     if not math.isfinite(mean):
@@ -223,39 +116,6 @@ def verdict_line(c: dict[str, Any]) -> str:
     )
 
 
-def cooperative_alpha(rows: pd.DataFrame, labels: dict[float, str]) -> float | None:
-    """The largest alpha > 0 whose model makes at least COOPERATIVE_LC_SHARE of alpha = 0's lane changes per
-    vehicle over every accident run: cooperative, but not simply `keep`. None if none does. labels: alpha -> policy."""
-    lc = rows.groupby("policy")["lane_changes_per_vehicle"].mean()
-    if labels.get(0.0) not in lc.index:
-        return None
-    floor = max(COOPERATIVE_LC_SHARE * float(lc[labels[0.0]]), 1e-9)
-    found = [x for x, lab in labels.items() if x > 0 and lab in lc.index and float(lc[lab]) >= floor]
-    return max(found) if found else None
-
-
-def most_different_demand(rows: pd.DataFrame, a: str, b: str) -> float | None:
-    """The demand at which the seed-paired mean |TTS(a) - TTS(b)| relative to b's TTS is largest."""
-    best, best_t = -1.0, None
-    for t_up in rows["t_up_s"].unique():
-        c = compare(rows, float(t_up), a, b)
-        if c is None or not math.isfinite(c["tts_veh_h"][0]):
-            continue
-        rel = abs(c["tts_veh_h"][0]) / max(c["tts_veh_h_b"], 1e-9)
-        if rel > best:
-            best, best_t = rel, float(t_up)
-    return best_t
-
-
-def demand_table(rows: pd.DataFrame, value: str) -> pd.DataFrame:
-    """Per policy and demand: the mean of value over seeds and its 95% bootstrap interval (for demand_figure)."""
-    out = []
-    for (t_up, policy), g in rows.groupby(["t_up_s", "policy"], sort=False):
-        mean, lo, hi = paired_bootstrap(g[value].to_numpy(dtype=float))
-        out.append({"policy": policy, "t_up_s": t_up, value: mean, value + "_lo": lo, value + "_hi": hi})
-    return pd.DataFrame(out)
-
-
 def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int, runs: int,
                 train_files: list[Path], run_files: dict[float, list[Path]]) -> str:  # fmt: skip
     """Wall time of this invocation, what it reused, and the compute its parts recorded (per demand)."""
@@ -272,72 +132,18 @@ def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int
     return text
 
 
-DEVIATIONS = (
-    ("simulator", "own simulator", "Eclipse SUMO via libsumo; SUMO's car-following and lane changing off"),
-    ("Newell c, d", "not given", "c = 1.1 1/s, d = -0.1, bumper-to-bumper gap; ~1,970 veh/h per lane at saturation"),
-    ("road", "length not given", "2,000 m, 3.2 m lanes; loops at 200, 400, ..., 1,800 m on every lane"),
-    ("v_exp", "random, clipped 40-110 km/h", "normal, mean 85 km/h, sd 15 km/h, clipped 40-110 km/h"),
-    ("T_up", "not given", "interval between vehicles for the whole road; lane drawn uniformly"),
-    (
-        "demand of scenario I",
-        "not given",
-        "an axis of the study (--t-up); default 2, 1.5, 1 s. Measured with `keep` (results/regime_map): on the "
-        "default accident the queue stays on the road up to T_up = 2 s (about 560 m), reaches the entrance from "
-        "1.5 s (about 580 s after the accident's start; 270 s at 1 s) and has cleared by the run's end at every "
-        "demand; one demand (1 s, the earlier study) hid every difference",
-    ),
-    (
-        "accident",
-        "stuck ratio p decays 1 -> 0 over ~50,000 steps",
-        "a vehicle entering the 100 m before x = 1,300 m is held with probability p; a held vehicle stops at "
-        "the line and, standing at the head of its queue, is re-drawn every 1 s; p linear 1 -> 0",
-    ),
-    (
-        "accident length",
-        "~50,000 of 90,000 steps",
-        "default and committed study: 10,000 of 20,000 steps (200 s warm-up, 800 s after), so that 10 policies x "
-        "3 demands x 5 seeds fit a session on 2 cores; `--full` (make scenario1 FULL=1) is the paper's length",
-    ),
-    ("release start", "not defined", "the accident's first step: p starts to fall below 1 and releases begin"),
-    ("lane 1 (Fig. 4)", "not defined", "SUMO lane index 0 (the rightmost lane)"),
-    ("trajectories", "-", "recorded every 5 steps (0.5 s) to keep the files small; SUMO's FCD every 5 s"),
-    (
-        "baselines",
-        "-",
-        "keep, greedy, MOBIL with politeness p in {0, 0.25, 0.5, 1} on the Newell controller; SUMO's own "
-        "Krauss + LC2013",
-    ),
-    (
-        "headline measure",
-        "mean speed, recovery time (not defined)",
-        "total time spent on the road and waiting to enter (veh-h): mean speed on the road ignores the vehicles "
-        "a jam keeps off it",
-    ),
-    ("delay reference", "-", "the mean expected speed, 85 km/h, for every vehicle"),
-    (
-        "stop-and-go waves",
-        "seen in Fig. 4, not measured",
-        "moving jams: connected regions below 5 m/s of the 25 m x 5 s space-time speed field whose downstream "
-        "front travels at least 100 m upstream at 5 km/h or faster",
-    ),
-    (
-        "\"none\" at a standstill",
-        "keeps the speed, zero included",
-        "default learner: not offered below 1 m/s (a learned vehicle cannot stand for good); --preset paper: offered",
-    ),
-    (
-        "collisions",
-        "-",
-        "pairs of vehicle bodies overlapping in a lane after a step, checked every step in Python; SUMO's "
-        "own check (--sumo-collision-check) agrees in the tests but is off here: it cost 45% of a jammed step",
-    ),
-)
+def deviations_text(root: Path) -> str:
+    """The report's pointer to the deviations and choices: they are one table, in the checkout's docs/model.md,
+    linked relative to the report when the report is inside that checkout."""
+    from coopsumo.sim.network import checkout_root
 
-
-def deviations_table() -> str:
-    lines = ["| topic | paper | here |", "|---|---|---|"]
-    lines += [f"| {a} | {b} | {c} |" for a, b, c in DEVIATIONS]
-    return "\n".join(lines) + "\n"
+    where = f"`{MODEL_DOC}` of the coopsumo source (section \"Deviations and choices\")"
+    checkout = checkout_root()
+    if checkout is not None and root.resolve().is_relative_to(checkout):
+        target = os.path.relpath(checkout / MODEL_DOC, root.resolve())
+        where = f"[{MODEL_DOC}]({target}#deviations-and-choices)"
+    return (f"The paper's silences and this project's choices (simulator, Newell parameters, road, demand, accident, "
+            f"measures, learner) are listed once, in {where}.")
 
 
 DEFINITIONS = f"""- **Total time spent** (TTS, the headline): vehicle-hours on the road plus vehicle-hours waiting to
@@ -418,7 +224,7 @@ it is asked at every demand, of the learned models (alpha > 0 against alpha = 0)
 {gui_text}
 
 Every run folder (`runs/t<T_up>/<policy>_seed<k>/`) also holds SUMO's own `detectors.xml`, `fcd.xml` (every 5 s)
-and `tripinfo.xml`, for SUMO's tools (the README draws Fig. 4 from `fcd.xml` with `plot_trajectories.py`).
+and `tripinfo.xml`, for SUMO's tools (`docs/sumo-tools.md` draws Fig. 4 from `fcd.xml` with `plot_trajectories.py`).
 
 ## Definitions (chosen here; the paper gives none)
 
@@ -426,9 +232,164 @@ and `tripinfo.xml`, for SUMO's tools (the README draws Fig. 4 from `fcd.xml` wit
 
 ## Deviations and choices
 
-{deviations_table()}
+{deviations_text(root)}
 {timing}
 
 Versions: {versions_text}.
 """
     (root / "report.md").write_text(text)
+
+
+def comparison_pairs(plan: Plan, rows: pd.DataFrame) -> tuple[list[tuple[str, str]], float | None]:
+    """The verdict's pairs (cooperative, non-cooperative): every alpha > 0 against alpha = 0 per learner preset,
+    every MOBIL p > 0 against p = 0; and the first preset's cooperative alpha (the largest still changing lanes)."""
+    pairs = [(model_label(pr, x), model_label(pr, 0.0)) for pr in plan.presets for x in plan.alphas if x > 0]
+    if 0.0 in plan.mobil_ps:
+        pairs += [(label_for(f"mobil:p={number_name(x)}"), label_for("mobil:p=0")) for x in plan.mobil_ps if x > 0]
+    coop = cooperative_alpha(rows, {x: model_label(plan.presets[0], x) for x in plan.alphas})
+    return pairs, coop
+
+
+def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[str, float, int, Path, SimConfig]],
+                  timing: str) -> None:  # fmt: skip
+    """summary.csv, the figures and report.md from the table of runs."""
+    from coopsumo.report.analysis import flow_density, insertion_backlog, read_detectors, section_speed_bins
+    from coopsumo.report.bottleneck import REGIMES
+    from coopsumo.report.plots import demand_figure, flow_density_figure, recovery_figure, trajectory_windows_figure
+    agg = aggregate(rows)
+    agg.to_csv(root / "summary.csv", index=False)
+    pairs, coop = comparison_pairs(plan, rows)
+    first = plan.seeds[0]
+    cfg0 = runs[0][4]
+    acc, dt = cfg0.accident, cfg0.control.dt_s
+    start_s, end_s, run_end_s = acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt, plan.steps * dt
+    window = (start_s, end_s)
+    figures: dict[str, str] = {}
+    for name in [p.name for p in root.glob("fig*.png")]:
+        (root / name).unlink()  # figures of an earlier study with other demands must not stay beside this one
+    for t_up in plan.t_ups:
+        firsts = [(lab, out) for lab, t, seed, out, _ in runs if seed == first and t == t_up]
+        fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, out in firsts}
+        tname = number_name(t_up)
+        figures[f"fig5_t{tname}"] = flow_density_figure(fd, root / f"fig5_flow_density_t{tname}.png").name
+        speeds, backlogs = {}, {}
+        for lab, out in firsts:
+            traj = pd.read_parquet(out / "trajectories.parquet", columns=["time_s", "vid", "pos_m", "speed_mps"])
+            speeds[lab] = section_speed_bins(traj, acc.x_m - 200.0, acc.x_m, 0.0, 30.0)
+            backlogs[lab] = insertion_backlog(traj, t_up)
+        figures[f"recovery_t{tname}"] = recovery_figure(speeds, backlogs, root / f"fig_recovery_t{tname}.png",
+                                                         window, RECOVERY_MPS).name  # fmt: skip
+    tts_table = demand_table(rows, "tts_veh_h")
+    demand_figure(tts_table, "tts_veh_h", "total time spent (veh-h, log scale)", root / "fig_tts_demand.png")
+    noncoop = model_label(plan.presets[0], 0.0)
+    shown_alpha = coop if coop is not None else max(plan.alphas)
+    shown = [noncoop] + ([model_label(plan.presets[0], shown_alpha)] if shown_alpha > 0 else [])
+    fig4_t = most_different_demand(rows, shown[-1], noncoop) if len(shown) > 1 else None
+    fig4_t = fig4_t if fig4_t is not None else plan.t_ups[0]
+    windows = fig4_windows(rows, fig4_t, shown, first, start_s, run_end_s)
+    trajs = {lab: pd.read_parquet(out / "trajectories.parquet") for lab, t, seed, out, _ in runs
+             if seed == first and t == fig4_t and lab in shown}  # fmt: skip
+    trajectory_windows_figure(trajs, FIG4_LANE, windows, root / "fig4_trajectories.png", acc.x_m,
+                              f"SUMO lane {FIG4_LANE}")  # fmt: skip
+    gui_label = model_label(plan.presets[0], GUI_ALPHA if GUI_ALPHA in plan.alphas else max(plan.alphas))
+    gui_t = min(plan.t_ups)
+    _, _, gui_seed, gui_out, gui_cfg = next(r for r in runs if r[0] == gui_label and r[2] == first and r[1] == gui_t)
+    gui_text = gui_section(root, gui_out, f"t{number_name(gui_t)}/{gui_label}_seed{gui_seed}", gui_cfg)
+
+    header = (
+        f"Profile `{plan.profile}`: {plan.lanes} lanes; demands T_up = {', '.join(f'{t:g}' for t in plan.t_ups)} s "
+        f"({', '.join(f'{3600 / t:.0f}' for t in plan.t_ups)} veh/h); {plan.steps} steps ({plan.steps * dt:.0f} s) "
+        f"per run; the accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps "
+        f"(t = {start_s:.0f}-{end_s:.0f} s), stuck ratio decaying 1 -> 0. Models (learner presets "
+        f"{', '.join(f'`{p}`' for p in plan.presets)}; alpha in {{{', '.join(f'{x:g}' for x in plan.alphas)}}}) "
+        f"trained once, {plan.train_steps} steps in free flow at T_up = {plan.train_t_up_s:g} s (seed "
+        f"{plan.train_seed}); evaluated greedily on seeds {', '.join(map(str, plan.seeds))}, which no model saw; "
+        f"every policy meets the same demand on the same seeds. Values: mean ± standard deviation over seeds."
+    )
+    if coop is None:
+        claim = ("No model with alpha > 0 makes even 10% of alpha = 0's lane changes here: every cooperative model "
+                 "behaves like `keep`.")  # fmt: skip
+    else:
+        claim = (f"The cooperative model that is not simply `keep`: **alpha = {coop:g}** (the largest alpha whose "
+                 f"model makes at least 10% of alpha = 0's lane changes per vehicle over every accident run).")
+    sections = [demand_section(rows, agg, t, pairs, figures) for t in plan.t_ups]
+    regimes = regime_table(rows, REGIMES)
+    figures_text = (
+        f"![total time spent](fig_tts_demand.png)\n\nTotal time spent against the inflow, per policy: mean over "
+        f"seeds with its 95% bootstrap interval.\n\n![Fig. 4](fig4_trajectories.png)\n\nFig. 4 as in the paper: "
+        f"partial trajectories on SUMO lane {FIG4_LANE} (the paper's \"lane 1\"), one line per vehicle coloured by "
+        f"speed, at T_up = {fig4_t:g} s (the demand where `{shown[-1]}` and `{noncoop}` differ most in total time "
+        f"spent), seed {first}: {WINDOW_S / 60:.0f} minutes around the jam's onset "
+        f"({windows['onset'][0]:.0f}-{windows['onset'][1]:.0f} s) and around its dissolution "
+        f"({windows['dissolution'][0]:.0f}-{windows['dissolution'][1]:.0f} s); dashed: the bottleneck."
+    )
+    write_report(root, header, claim, sections, regimes, figures_text, gui_text, timing, json.dumps(versions()))
+    print(report_table(agg[agg["t_up_s"] == plan.t_ups[-1]]))
+
+
+def timing_text(plan: Plan, runs: list[tuple[str, float, int, Path, SimConfig]],
+                model_paths: dict[tuple[str, float], Path], n_train: int, n_specs: int,
+                wall: float) -> str:  # fmt: skip
+    per: dict[float, list[Path]] = {t: [] for t in plan.t_ups}
+    for _, t_up, _, out, _ in runs:
+        per[t_up].append(out / "summary.json")
+    return timing_note(wall, len(model_paths) - n_train, len(model_paths), len(runs) - (n_specs - n_train), len(runs),
+                       [m.parent / "train_summary.json" for m in model_paths.values()], per)  # fmt: skip
+
+
+def gui_run(cfg: SimConfig, shot: Path) -> dict[str, list[Any]]:
+    """Run cfg's simulation in sumo-gui (through TraCI, so in this process) to its last step and save
+    sumo-gui's screenshot of that step to shot. Returns that step's vehicles (vid, lane, pos_m, speed_mps)."""
+    import tempfile
+
+    from coopsumo.agents.policies import policy_for_run
+    from coopsumo.agents.rollout import run
+    from coopsumo.config import GuiConfig
+
+    policy = policy_for_run(cfg)
+    gui = GuiConfig(screenshot=str(shot.resolve()), screenshot_step=cfg.steps)
+    with tempfile.TemporaryDirectory(prefix="gui-run-") as tmp:
+        run(cfg, policy, Path(tmp), trajectories=True, label="sumo-gui screenshot", trajectory_every=cfg.steps, gui=gui)
+        last = pd.read_parquet(Path(tmp) / "trajectories.parquet")
+    return {k: last[k].tolist() for k in ("vid", "lane", "pos_m", "speed_mps")}
+
+
+def gui_section(root: Path, run_dir: Path, label: str, cfg: SimConfig, environ: dict[str, str] | None = None) -> str:
+    """The report's sumo-gui screenshot of the jam (made, or reused when the same), or a note why there is none."""
+    env = os.environ if environ is None else environ
+    shot = root / GUI_SHOT
+    if not env.get("DISPLAY"):
+        shot.unlink(missing_ok=True)  # a picture from an earlier study would not match this one
+        return ("No sumo-gui screenshot: no display was available (DISPLAY is not set). Rerun the study under "
+                "`xvfb-run -a -s \"-screen 0 1600x900x24\"` to get one; finished runs are reused.")  # fmt: skip
+    traj = pd.read_parquet(run_dir / "trajectories.parquet")
+    step = jam_step(traj, cfg)
+    if step is None:
+        shot.unlink(missing_ok=True)
+        return f"No sumo-gui screenshot: no vehicle of {label} was slower than {SLOW_MPS:g} m/s near the bottleneck."
+    gui_cfg = replace(cfg, steps=step)
+    record = root / "gui_jam.json"
+    try:
+        done = json.loads(record.read_text())
+    except (OSError, ValueError):
+        done = {}
+    if not (shot.exists() and done.get("config") == json.loads(json.dumps(to_dict(gui_cfg)))):
+        shot.unlink(missing_ok=True)
+        try:
+            last = gui_run(gui_cfg, shot)
+        except UsageError as err:  # DISPLAY is set but sumo-gui cannot open it: the study's results stand
+            return f"No sumo-gui screenshot: {err}."
+        rows = traj[np.isclose(traj["time_s"], step * cfg.control.dt_s)].sort_values("vid")
+        same = last == {k: rows[k].tolist() for k in ("vid", "lane", "pos_m", "speed_mps")}
+        done = {"config": to_dict(gui_cfg), "run": label, "step": step, "identical_to_run": same}
+        write_json(record, done)
+    p = cfg.accident.hold_probability(step)
+    names = zip(view.STATE_NAMES, view.STATE_COLOUR_NAMES, strict=True)
+    colours = ", ".join(f"{name} {colour}" for name, colour in names)
+    same_text = "identical" if done["identical_to_run"] else "NOT identical (a bug: please report)"
+    return (
+        f"![sumo-gui]({GUI_SHOT})\n\nsumo-gui at step {step} (t = {step * cfg.control.dt_s:.1f} s, stuck ratio "
+        f"p = {p:.2f}) of run `runs/{label}/`, made by running it again in sumo-gui through TraCI "
+        f"(vehicle positions at that step {same_text} to the recorded run): the {view.VIEW_UPSTREAM_M:.0f} m "
+        f"upstream of the bottleneck (red bar), traffic from left to right. Vehicles: {colours}."
+    )

@@ -1,12 +1,15 @@
-"""Scenario II's statistics, pure functions on tables of runs (no SUMO, no report text).
+"""Scenario II's measures, pure functions on tables of runs (no SUMO, no report text).
 
+The table of runs (one row per cell, from the cells' records), and on it:
 alpha* per condition (best mean speed over seeds, ties to the smaller alpha), its win share over seeds, a
 bootstrap over seeds, the separation of alpha* from its grid neighbours (the noise floor), the best MOBIL
-politeness p*, and the least-squares plane alpha* = b0 + b1 T_up + b2 lanes with its bootstrap.
+politeness p*, the least-squares plane alpha* = b0 + b1 T_up + b2 lanes with its bootstrap, and what the paper
+profile would cost, extrapolated from the cells' times.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -15,6 +18,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
+from coopsumo.studies.scenario2_plan import Profile
 from coopsumo.validation import number_name
 
 CRITERION = "mean_speed_mps"
@@ -279,4 +283,109 @@ def plane_bootstrap(table: pd.DataFrame, boots: dict[tuple[int, float], np.ndarr
         "b2_negative_share": float(np.mean(a2 < 0)),
         "b1_p05": float(np.quantile(a1, 0.05)), "b1_p95": float(np.quantile(a1, 0.95)),
         "b2_p05": float(np.quantile(a2, 0.05)), "b2_p95": float(np.quantile(a2, 0.95)),
+    }  # fmt: skip
+
+
+# -- the table of runs and what it costs ------------------------------------------------------------------
+METRIC_COLUMNS = (
+    "steps", "sim_seconds", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end",
+    "collisions", "teleports", "lane_changes", "lane_changes_rejected", "lane_changes_per_vehicle",
+    "mean_speed_mps", "mean_travel_time_s", "throughput_veh_per_h",
+    "train_mean_speed_mps", "train_lane_changes", "train_collisions", "train_updates",
+)  # fmt: skip
+"""Deterministic columns of runs.csv (same seed -> same value on any backend)."""
+TRAIN_COLUMNS = {
+    "train_mean_speed_mps": "mean_speed_mps",
+    "train_lane_changes": "lane_changes",
+    "train_collisions": "collisions",
+    "train_updates": "updates",
+}
+"""runs.csv columns taken from the training run's train_summary.json"""
+COUNT_COLUMNS = frozenset(("steps", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end",
+                           "collisions", "teleports", "lane_changes", "lane_changes_rejected", "train_lane_changes",
+                           "train_collisions", "train_updates"))  # fmt: skip
+KEY_COLUMNS = ("key", "lanes", "t_up_s", "load", "alpha", "seed")
+
+
+def runs_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
+    """One tidy row per cell: coordinates, status, error, every evaluation summary metric, bookkeeping.
+
+    `policy` is "dqn" or "mobil"; `p` (MOBIL's politeness) is NaN for DQN rows, `alpha` NaN for MOBIL rows.
+    """
+    rows = []
+    for r in records:
+        row: dict[str, Any] = {k: r[k] for k in KEY_COLUMNS}
+        row.update(policy=r.get("policy") or "dqn", p=r.get("p"), status=r["status"], error=r.get("error"))
+        summary = r.get("summary") or {}
+        train = r.get("train_summary") or {}
+        for k in METRIC_COLUMNS:
+            row[k] = train.get(TRAIN_COLUMNS[k]) if k in TRAIN_COLUMNS else summary.get(k)
+        row.update({k: v for k, v in summary.items() if k not in row and k != "scenario"})
+        row.update(train_wall_seconds=train.get("wall_seconds"), cell_wall_s=r.get("cell_wall_s"),
+                   cell_cpu_s=r.get("cell_cpu_s"),
+                   resumed_from_step=r.get("resumed_from_step"), train_dir=r.get("train_dir"))  # fmt: skip
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    for k in METRIC_COLUMNS:
+        table[k] = pd.to_numeric(table[k], errors="coerce").astype("Int64" if k in COUNT_COLUMNS else float)
+    for k in ("alpha", "p"):
+        table[k] = pd.to_numeric(table[k], errors="coerce").astype(float)
+    table["resumed_from_step"] = pd.to_numeric(table["resumed_from_step"], errors="coerce").astype("Int64")
+    return table
+
+
+def withhold_incomplete(table: pd.DataFrame, star: str) -> pd.DataFrame:
+    """`table` (alpha_star_table or mobil_p_star_table) with no winner (NaN, separation None) in a condition where a
+    cell failed: it would rest on fewer seeds than asked for."""
+    if table.empty or "cells_failed" not in table:
+        return table
+    bad = table["cells_failed"] > 0
+    table = table.copy()
+    for col in table.columns:
+        if col.startswith(star) or col in ("win_share", "boot_support", "boot_alpha_p05", "boot_alpha_p95"):
+            table.loc[bad, col] = np.nan
+        elif col in ("separated_below", "separated_above"):
+            table[col] = table[col].astype(object)
+            table.loc[bad, col] = None
+        elif col == "distinct":
+            table.loc[bad, col] = False
+    return table
+
+
+def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
+                        cluster_cpus: int = 64) -> dict[str, float]:  # fmt: skip
+    """What the paper profile would cost, extrapolated from this sweep's DQN cells (labelled as such).
+
+    The wall seconds per training step (train_steps per cell) and per evaluation step of every successful
+    cell that was not resumed are fitted as a + b * inflow (veh/h) by least squares; each paper cell then
+    costs its train_steps and eval_steps at its inflow. Returns the fits, the sum in core-hours, and the wall
+    time on this machine's cores and on a Ray cluster of cluster_cpus CPUs (perfect scaling assumed).
+    Empty when fewer than 2 such cells exist.
+    """
+    needed = {"status", "t_up_s", "train_wall_seconds", "wall_seconds", "steps", "resumed_from_step"}
+    if not needed <= set(runs.columns):
+        return {}
+    dqn = policy_rows(runs, "dqn")
+    ok = dqn[(dqn["status"] == "ok") & dqn["resumed_from_step"].isna()].dropna(subset=["train_wall_seconds"])
+    if len(ok) < 2:
+        return {}
+    inflow = 3600.0 / ok["t_up_s"].to_numpy(float)
+    design = np.column_stack([np.ones_like(inflow), inflow])
+    train = ok["train_wall_seconds"].to_numpy(float) / train_steps
+    fit_train = np.linalg.lstsq(design, train, rcond=None)[0]
+    fit_eval = np.linalg.lstsq(design, ok["wall_seconds"].to_numpy(float) / ok["steps"].to_numpy(float), rcond=None)[0]
+    total = 0.0
+    for _, t_up, _ in paper.conditions():
+        q = 3600.0 / t_up
+        per_cell = paper.train_steps * (fit_train[0] + fit_train[1] * q)
+        total += (per_cell + paper.eval_steps * (fit_eval[0] + fit_eval[1] * q)) * len(paper.alphas) * len(paper.seeds)
+    cores = os.cpu_count() or 1
+    return {
+        "cells": float(len(paper.conditions()) * len(paper.alphas) * len(paper.seeds)),
+        "train_s_per_step_a": float(fit_train[0]), "train_s_per_step_b_per_veh_h": float(fit_train[1]),
+        "eval_s_per_step_a": float(fit_eval[0]), "eval_s_per_step_b_per_veh_h": float(fit_eval[1]),
+        "core_hours": total / 3600.0, "machine_cores": float(cores), "machine_days": total / cores / 86400.0,
+        "cluster_cpus": float(cluster_cpus), "cluster_hours": total / cluster_cpus / 3600.0,
+        "max_measured_inflow_veh_h": float(inflow.max()),
+        "max_paper_inflow_veh_h": max(3600.0 / t for _, t, _ in paper.conditions()),
     }  # fmt: skip

@@ -1,0 +1,75 @@
+"""`coopsumo <command> [options]`: the console command (also `python -m coopsumo <command>`).
+
+Each command's options and `main(argv)` live in the command's own module (COMMANDS); this module only picks
+the command, applies the options shared by all (--nets-dir) and hands it the rest of the command line.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+from coopsumo import __version__
+from coopsumo.runio import Parser
+from coopsumo.sim.network import NETS_ENV
+
+COMMANDS: dict[str, tuple[str, str]] = {
+    "simulate": ("coopsumo.simulate", "run one simulation (free flow or the accident) with any policy"),
+    "train": ("coopsumo.agents.train", "train the shared DQN in free flow, then evaluate it greedily"),
+    "scenario1": ("coopsumo.studies.scenario1", "the accident study of section IV.A, across demands"),
+    "scenario2": ("coopsumo.studies.scenario2", "the alpha sweep of section IV.B (Fig. 6)"),
+    "learning": ("coopsumo.studies.ablation", "the learner ablation and the alpha response"),
+    "bench": ("coopsumo.bench", "speed figures (printed, not asserted)"),
+}
+"""command -> (module holding its parser and main(argv), one line of what it does)"""
+
+
+def build_parser() -> Parser:
+    table = "\n".join(f"  {name:10s} {text}" for name, (_, text) in COMMANDS.items())
+    p = Parser(
+        prog="coopsumo",
+        description="Cooperative lane changing via deep reinforcement learning, on Eclipse SUMO.",
+        epilog=f"commands:\n{table}\n\n`coopsumo COMMAND --help` lists a command's options with their defaults.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--version", action="version", version=f"coopsumo {__version__}")
+    p.add_argument("--nets-dir", type=Path, default=None, metavar="DIR",
+                   help=f"folder the SUMO networks are built into (default: ${NETS_ENV} if set, else sumo_nets/ "
+                        "of a source checkout, else $XDG_CACHE_HOME/coopsumo/sumo_nets)")  # fmt: skip
+    p.add_argument("command", choices=tuple(COMMANDS), nargs="?", metavar="COMMAND",
+                   help="one of: " + ", ".join(COMMANDS))  # fmt: skip
+    p.add_argument("args", nargs="*", metavar="OPTIONS", help="the command's own options (COMMAND --help)")
+    return p
+
+
+def split_argv(argv: Sequence[str]) -> tuple[list[str], list[str]]:
+    """(coopsumo's own options and the command, the command's options): the split is at the first word that is
+    not an option of coopsumo or the value of --nets-dir."""
+    i = 0
+    while i < len(argv) and argv[i].startswith("-"):
+        i += 2 if argv[i] == "--nets-dir" else 1
+    return list(argv[: i + 1]), list(argv[i + 1 :])
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run `coopsumo [--nets-dir DIR] COMMAND [options]`; returns the command's exit code."""
+    parser = build_parser()
+    own, rest = split_argv(sys.argv[1:] if argv is None else argv)
+    args = parser.parse_args(own)
+    if args.command is None:
+        parser.print_usage(sys.stderr)
+        print("coopsumo: error: name a command: " + ", ".join(COMMANDS), file=sys.stderr)
+        return 2
+    if args.nets_dir is not None:
+        # read by sim.network when a network is built, here and in the study's worker processes
+        os.environ[NETS_ENV] = str(args.nets_dir.expanduser().resolve())
+    module = importlib.import_module(COMMANDS[args.command][0])
+    return int(module.main(rest))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,130 @@
+"""Scenario I's plan: the study's sizes (Plan and its profiles), the configuration of every training and accident
+run, and the names of models, policies and run folders. No SUMO here; scenario1.py runs the plan.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from coopsumo.config import (
+    DQN_PRESETS,
+    AccidentConfig,
+    DemandConfig,
+    OutputConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+)
+from coopsumo.validation import number_name
+
+ALPHAS = (0.0, 2.0, 8.0)
+"""alpha = 0 and 8 are the paper's; 2 is the largest alpha of the learning study's response whose model still
+changes lanes in free flow (0.49 per vehicle; alpha = 8 makes none, i.e. it is `keep`)"""
+PRESETS = ("default",)
+BASELINES = ("keep", "greedy", "sumo")
+MOBIL_PS = (0.0, 0.25, 0.5, 1.0)
+"""MOBIL politeness values run beside the learned models: classical cooperation as the control"""
+DEMANDS = (2.0, 1.5, 1.0)
+"""T_up (s) of the default study: the queue stays on the road, reaches the entrance, still waits at the end"""
+
+
+@dataclass(frozen=True)
+class Plan:
+    """Sizes of the study: the default profile; Plan.quick() and Plan.full() are the others."""
+
+    lanes: int = 3
+    t_ups: tuple[float, ...] = DEMANDS
+    """demands of the accident runs: upstream departure interval T_up (s)"""
+    train_t_up_s: float = DemandConfig.t_up_s
+    """demand of the free-flow trainings (s); the models are trained once and meet every demand"""
+    train_steps: int = 90_000
+    steps: int = 20_000
+    accident_start: int = 2_000
+    accident_steps: int = 10_000
+    seeds: tuple[int, ...] = (1, 2, 3)
+    train_seed: int = 0
+    trajectory_every: int = 5
+    loop_period_s: float = 60.0
+    baselines: tuple[str, ...] = BASELINES
+    mobil_ps: tuple[float, ...] = MOBIL_PS
+    alphas: tuple[float, ...] = ALPHAS
+    presets: tuple[str, ...] = PRESETS
+    """learner presets (config.DQN_PRESETS) whose models are trained and run, side by side"""
+    fcd_period_s: float = 5.0
+    """period of SUMO's fcd.xml in every run folder (s)"""
+    tripinfo: bool = True
+    """write SUMO's tripinfo.xml in every run folder"""
+    profile: str = "default"
+
+    def outputs(self) -> OutputConfig:
+        """SUMO's output files of every accident run."""
+        return OutputConfig(fcd_period_s=self.fcd_period_s, tripinfo=self.tripinfo)
+
+    def baseline_policies(self) -> tuple[str, ...]:
+        """keep and greedy, MOBIL at every politeness, then SUMO's own models."""
+        first = tuple(b for b in self.baselines if b != "sumo")
+        mobils = tuple(f"mobil:p={number_name(p)}" for p in self.mobil_ps)
+        return first + mobils + tuple(b for b in self.baselines if b == "sumo")
+
+    @staticmethod
+    def quick() -> Plan:
+        """2 demands, 1 seed, small step counts. The accident starts at 100 s, once the first vehicles have
+        reached the bottleneck (1,300 m at about 23 m/s), so that even a shortened run holds a jam to show."""
+        return Plan(t_ups=(3.0, 1.0), train_steps=3000, steps=6000, accident_start=1000, accident_steps=3000,
+                    seeds=(1,), loop_period_s=30.0, profile="quick")  # fmt: skip
+
+    @staticmethod
+    def full() -> Plan:
+        """The paper's accident: 90,000 steps, the stuck ratio decaying over 50,000 of them; 5 seeds."""
+        return Plan(steps=90_000, accident_start=AccidentConfig.start_step,
+                    accident_steps=AccidentConfig.duration_steps, t_ups=(3.0, 2.0, 1.5, 1.0), seeds=(1, 2, 3, 4, 5),
+                    profile="full")  # fmt: skip
+
+
+def model_name(preset: str, alpha: float) -> str:
+    """Folder of a model under models/ (the default preset keeps the plain alpha<A> name)."""
+    return f"alpha{number_name(alpha)}" if preset == "default" else f"{preset}_alpha{number_name(alpha)}"
+
+
+def model_label(preset: str, alpha: float) -> str:
+    """A model's name in tables and run folders (label_for of its policy)."""
+    return "dqn_" + model_name(preset, alpha)
+
+
+def label_for(policy: str) -> str:
+    """Short name of a policy in tables and folders: dqn_<model folder> for a model, else the spec."""
+    if policy.startswith("dqn:"):
+        return "dqn_" + Path(policy[4:]).parent.name
+    return policy.replace(":", "_").replace("=", "")
+
+
+def run_folder(label: str, seed: int, t_up: float) -> str:
+    """A run's folder under the results folder: runs/t<T_up>/<label>_seed<k>."""
+    return f"runs/t{number_name(t_up)}/{label}_seed{seed}"
+
+
+def train_config(plan: Plan, alpha: float, preset: str = "default") -> TrainConfig:
+    """The free-flow training of one model with the learner preset `preset`."""
+    sim = SimConfig(
+        road=RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s),
+        demand=DemandConfig(t_up_s=plan.train_t_up_s),
+        reward=RewardConfig(alpha=alpha),
+        steps=plan.train_steps,
+        seed=plan.train_seed,
+        policy="dqn",
+    )
+    return TrainConfig(sim=sim, dqn=DQN_PRESETS[preset], eval_steps=0)
+
+
+def accident_config(plan: Plan, policy: str, seed: int, t_up_s: float) -> SimConfig:
+    """One policy through the accident at demand t_up_s (s) on seed `seed`."""
+    return SimConfig(
+        road=RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s),
+        demand=DemandConfig(t_up_s=t_up_s),
+        accident=AccidentConfig(enabled=True, start_step=plan.accident_start, duration_steps=plan.accident_steps),
+        steps=plan.steps,
+        seed=seed,
+        policy=policy,
+    )

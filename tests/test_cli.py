@@ -1,0 +1,131 @@
+"""The console command `coopsumo`: its subcommands, their --help (every default, every policy form), the older
+`python -m coopsumo.<command>` spellings, the Makefile's use of it, and where the networks are built."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import coopsumo
+from coopsumo import cli
+from coopsumo.runio import DefaultsHelpFormatter
+from coopsumo.sim import network
+
+ROOT = Path(__file__).resolve().parent.parent
+POLICY_FORMS = ("keep", "random", "greedy", "mobil[:", "sumo[:", "dqn:PATH")
+
+
+def parsers() -> dict[str, argparse.ArgumentParser]:
+    return {name: importlib.import_module(module).build_parser() for name, (module, _) in cli.COMMANDS.items()}
+
+
+def test_the_commands_are_the_issue_s_six() -> None:
+    assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "learning", "bench"]
+
+
+def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as stop:
+        cli.main(["--help"])
+    assert stop.value.code == 0
+    out = capsys.readouterr().out
+    assert all(re.search(rf"^  {name} ", out, flags=re.M) for name in cli.COMMANDS), out
+    assert "--nets-dir" in out
+
+
+@pytest.mark.parametrize("name", list(cli.COMMANDS))
+def test_every_option_that_takes_a_value_shows_its_default(name: str) -> None:
+    parser = parsers()[name]
+    formatter = DefaultsHelpFormatter(parser.prog)
+    missing = [a.option_strings[0] for a in parser._actions
+               if a.option_strings and a.nargs != 0 and not a.required and a.help != argparse.SUPPRESS
+               and "default" not in (formatter._get_help_string(a) or "").lower()]  # fmt: skip
+    assert not missing, f"coopsumo {name}: no default shown for {missing}"
+    assert parser.prog == f"coopsumo {name}"
+    text = parser.format_help()
+    for action in parser._actions:  # a value default is printed as the help says it
+        if action.option_strings and action.nargs != 0 and action.default not in (None, argparse.SUPPRESS):
+            assert "default" in text
+
+
+def test_simulate_help_lists_every_policy_form() -> None:
+    text = " ".join(parsers()["simulate"].format_help().split())
+    assert all(form in text for form in POLICY_FORMS), text
+    assert "(default: keep)" in text and "(default: 9000)" in text
+
+
+def test_dispatch_hands_the_rest_of_the_line_to_the_command(monkeypatch: pytest.MonkeyPatch) -> None:
+    seen: list[list[str]] = []
+    module = importlib.import_module(cli.COMMANDS["train"][0])
+    monkeypatch.setattr(module, "main", lambda argv: seen.append(argv) or 7)
+    monkeypatch.delenv(network.NETS_ENV, raising=False)
+    assert cli.main(["train", "--steps", "5", "--out", "x"]) == 7
+    assert seen == [["--steps", "5", "--out", "x"]]
+    assert cli.main(["--nets-dir", "some/where", "train", "--help"]) == 7
+    assert seen[-1] == ["--help"]
+    assert network.nets_dir() == (Path.cwd() / "some/where").resolve()  # --nets-dir sets COOPSUMO_NETS_DIR
+
+
+@pytest.mark.parametrize("argv", [[], ["bogus"], ["--nets-dir"]])
+def test_bad_command_lines_are_one_line_and_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    try:
+        code = cli.main(argv)
+    except SystemExit as stop:
+        code = stop.code
+    assert code == 2
+    err = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(err) == 1
+
+
+SPELLINGS = [["-m", "coopsumo", "train"], ["-m", "coopsumo.train"], ["-m", "coopsumo.simulate"],
+             ["-m", "coopsumo.scenario1"], ["-m", "coopsumo.scenario2"], ["-m", "coopsumo.ablation"],
+             ["-m", "coopsumo.bench"]]  # fmt: skip
+
+
+@pytest.mark.parametrize("spelling", SPELLINGS)
+def test_python_m_spellings_show_the_same_help(spelling: list[str]) -> None:
+    res = subprocess.run([sys.executable, *spelling, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr[-1500:]
+    name = spelling[-1].split(".")[-1].replace("ablation", "learning")
+    assert res.stdout.startswith(f"usage: coopsumo {name} ")
+
+
+def test_makefile_targets_call_the_console_command() -> None:
+    make = (ROOT / "Makefile").read_text()
+    for target, command in (("demo", "simulate"), ("bench", "bench"), ("scenario1", "scenario1"),
+                            ("scenario2", "scenario2"), ("learning", "learning")):  # fmt: skip
+        recipe = re.search(rf"^{target}: .*\n\t(.*)$", make, flags=re.M)
+        assert recipe is not None and recipe.group(1).startswith(f"$(BIN)/coopsumo {command}"), target
+    assert "python -m coopsumo." not in make
+    assert 'pip install --quiet torch==2.13.0' in make and "tensorboard" in make
+
+
+def test_pyproject_declares_the_console_command_and_finds_every_subpackage() -> None:
+    text = (ROOT / "pyproject.toml").read_text()
+    assert re.search(r'^\[project\.scripts\]\ncoopsumo = "coopsumo\.cli:main"$', text, flags=re.M)
+    assert 'include = ["coopsumo*"]' in text
+
+
+# -- where the networks are built ----------------------------------------------------------------------------
+def test_a_checkout_builds_into_its_top_level_sumo_nets() -> None:
+    assert network.checkout_root() == ROOT
+    assert network.nets_dir({}) == ROOT / "sumo_nets"
+    assert not (Path(coopsumo.__file__).parent / "sumo_nets").exists()  # nothing inside the package
+
+
+def test_the_environment_variable_comes_first(tmp_path: Path) -> None:
+    assert network.nets_dir({network.NETS_ENV: str(tmp_path)}) == tmp_path
+
+
+def test_an_installed_package_builds_into_the_per_user_cache(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
+    monkeypatch.setattr(network, "SOURCE_ROOT", tmp_path)  # site-packages' parent: no pyproject.toml of coopsumo
+    assert network.checkout_root() is None
+    assert network.nets_dir({"XDG_CACHE_HOME": str(tmp_path / "c")}) == tmp_path / "c" / "coopsumo" / "sumo_nets"
+    assert network.nets_dir({}) == Path.home() / ".cache" / "coopsumo" / "sumo_nets"
+    (tmp_path / "pyproject.toml").write_text('[project]\nname = "other"\n')
+    assert network.checkout_root() is None  # another project's checkout is not ours
