@@ -201,8 +201,9 @@ class DQNConfig:
     """'none' is not offered to a vehicle slower than this (m/s): a standing vehicle that keeps its speed
     would stand for good and block its lane (0: off; paper: 'none' keeps any speed, zero included)"""
     change_margin: float = 0.0
-    """a lane change is chosen (greedily) only when its Q-value beats the best of speed-up and none by more
-    than this (Q units; 0: plain argmax, paper); exploration's random actions and the learning target ignore it"""
+    """when the trained model drives (evaluation, simulate, studies), a lane change is chosen only when its Q-value
+    beats the best of speed-up and none by more than this (Q units; 0: plain argmax, paper). Training ignores it:
+    the same seed gives the same weights whatever the margin"""
     observation: str = "paper"
     """what the network reads: 'paper' (3 frames of the 3 x 20 m occupancy grid and the speed errors) or 'v2x'
     (those plus each side lane's nearest leader and follower within 200 m: gap and speed; see v2x_features)"""

@@ -59,6 +59,8 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert "| paper |" in report and "| mobil:p=0.5 |" in report and "Alpha response" in report
     assert "mean speed minus `keep`" in report
     assert "## Seed robustness at alpha = 0" in report and "| `v2x` |" in report  # the v2x state end to end
+    # the margin variant drove the v2x models: no training of its own, an evaluation folder beside v2x's
+    assert not list((out / "train").glob("v2x_margin_*")) and list((out / "train").glob("v2x_alpha0_seed0/eval_*_margin1"))
     for fig in ("fig_training_curves.png", "fig_alpha_response.png", "fig_training_seeds.png"):
         assert (out / fig).stat().st_size > 1000
     study = json.loads((out / "study.json").read_text())
@@ -138,3 +140,12 @@ def test_robustness_table_pairs_each_model_with_the_baselines_on_its_own_seed() 
     assert "15.00 (4.00), seed 1" in text and "(2)" in text
     matrix = "\n".join(robustness.seed_matrix_markdown(robustness.per_seed_table(runs, ["dqn"], ["keep"])))
     assert "| `dqn` | 17.00 (1.00) | 15.00 (4.00) | 16.60 (0.50) |" in matrix
+
+
+def test_a_margin_variant_drives_its_twins_training() -> None:
+    specs = {s["key"]: s for s in cell_specs(PROFILES["robust"], DQNConfig())}
+    twin, driven = specs["v2x_alpha0_seed4"], specs["v2x_margin_alpha0_seed4"]
+    assert driven["train_key"] == twin["key"] == twin["train_key"]
+    assert driven["config"]["train"] == twin["config"]["train"]  # one training, margin 0
+    assert driven["config"]["drive"] == {"change_margin": 1.0} and "drive" not in twin["config"]
+    assert specs["margin_alpha8_seed1"]["train_key"] == "restart_alpha8_seed1"

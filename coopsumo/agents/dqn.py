@@ -19,7 +19,6 @@ import numpy as np
 import torch
 from torch import nn
 
-from coopsumo.agents.decisions import with_change_margin
 from coopsumo.config import OBSERVATIONS, DQNConfig
 from coopsumo.sim.observation import n_features
 
@@ -330,7 +329,6 @@ class Learner:
                 torch.as_tensor(grids, dtype=torch.float32),
                 torch.as_tensor(features, dtype=torch.float32),
             ).numpy()
-        q = with_change_margin(q, self.cfg.change_margin)
         if explore:
             return epsilon_greedy(q, self.epsilon, self.rng, mask)
         if mask is not None:

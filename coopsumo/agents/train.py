@@ -473,7 +473,8 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--epsilon-decay-steps", "epsilon_decay_steps", int, "steps of the linear epsilon decay (0: constant)"),
     ("--restart-below", "restart_below_mps", float, "'none' is not offered below this speed (m/s; 0: off)"),
     ("--change-margin", "change_margin", float,
-     "a lane change is chosen only when its Q-value beats staying by more than this (0: plain argmax)"),
+     "when the model drives, a lane change is chosen only when its Q-value beats staying by more than this "
+     "(0: plain argmax); training ignores it"),
     ("--observation", "observation", OBSERVATIONS,
      "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
      "side lane's nearest leader and follower within 200 m: gap and speed)"),

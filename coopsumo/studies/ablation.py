@@ -17,6 +17,7 @@ alpha_response.csv, fig_training_curves.png, fig_alpha_response.png, report.md.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import math
 import sys
@@ -75,9 +76,9 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          {"store_per_decision": 1000}),
         ("v2x", "default + the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed)",
          {"observation": "v2x"}),
-        ("margin", "default + a lane change chosen only when its Q-value beats staying by more than 1",
-         {"change_margin": 1.0}),
-        ("v2x_margin", "default + the v2x state + the change margin of 1",
+        ("margin", "the `restart` models (the default) driven with a change margin of 1: a lane change only when its "
+         "Q-value beats staying by more than 1", {"change_margin": 1.0}),
+        ("v2x_margin", "the `v2x` models driven with the change margin of 1",
          {"observation": "v2x", "change_margin": 1.0}),
     ]  # fmt: skip
     out = []
@@ -119,7 +120,7 @@ PROFILES = {
     "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "restart"), (0.0, 1.0)),
     "robust": Profile("robust", 90_000, 9000, tuple(range(9)), ("restart", "v2x", "margin", "v2x_margin"),
                       (0.0, 8.0), alpha_variants=("margin", "v2x_margin"), alpha_seeds=(0, 1, 2)),
-    "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x"), (0.0, 1.0)),
+    "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "v2x_margin"), (0.0, 1.0)),
 }
 
 
@@ -151,12 +152,19 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
         if key in seen:
             return
         seen.add(key)
-        cfg = train_config(profile, dqn, alpha, seed)
+        # training ignores the change margin: a variant that differs only in it drives its twin's model
+        trained = replace(dqn, change_margin=0.0)
+        twin = next((n for n, _, c in VARIANTS if c == trained), variant)
+        cfg = train_config(profile, trained, alpha, seed)
         cfg.validate()
         ev = eval_config(profile, "dqn", EVAL_SEED_OFFSET + seed)
+        config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
+        if dqn.change_margin:
+            config["drive"] = {"change_margin": dqn.change_margin}
         specs.append({"key": key, "kind": "train", "part": part, "variant": variant, "alpha": alpha, "seed": seed,
                       "eval_seed": EVAL_SEED_OFFSET + seed, "policy": "dqn",
-                      "config": json.loads(json.dumps({"train": to_dict(cfg), "eval": to_dict(ev)}))})  # fmt: skip
+                      "train_key": f"{twin}_alpha{number_name(alpha)}_seed{seed}",
+                      "config": json.loads(json.dumps(config))})  # fmt: skip
 
     for variant in profile.variants:
         for seed in profile.seeds:
@@ -209,13 +217,19 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
     from coopsumo.config import sim_config_from_dict
     from coopsumo.studies.runner import train_resuming
 
-    out = root / "train" / spec["key"]
-    record["train_summary"], _ = train_resuming(spec["config"]["train"], out)
+    out = root / "train" / spec.get("train_key", spec["key"])
+    out.mkdir(parents=True, exist_ok=True)
+    with open(root / "train" / f".{out.name}.lock", "w") as lock:  # two cells may share one training
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        record["train_summary"], _ = train_resuming(spec["config"]["train"], out)
     ev = sim_config_from_dict(spec["config"]["eval"])
     ev = replace(ev, policy=f"dqn:{out / 'model.pt'}")
-    eval_dir = out / f"eval_seed{ev.seed}"
+    margin = float(spec["config"].get("drive", {}).get("change_margin", 0.0))
+    eval_dir = out / (f"eval_seed{ev.seed}" + (f"_margin{number_name(margin)}" if margin else ""))
     eval_dir.mkdir(exist_ok=True)
-    summary = run(ev, DQNPolicy.from_file(str(out / "model.pt")), eval_dir, progress=False)
+    policy = DQNPolicy.from_file(str(out / "model.pt"))
+    policy.change_margin = margin
+    summary = run(ev, policy, eval_dir, progress=False)
     record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
 
 
@@ -503,7 +517,8 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     # alpha = 0 seed by seed (the tuning seeds before the held-out ones), then the alpha response
     extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
     if profile.name == "robust":
-        todo.sort(key=lambda s: (s["kind"] != "baseline", s["alpha"] != 0, s["seed"]))
+        todo.sort(key=lambda s: (s["kind"] != "baseline", s["alpha"] != 0, s.get("train_key", s["key"]) != s["key"],
+                                 s["seed"]))  # fmt: skip
     else:
         todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
                                  s["variant"] != "paper"))  # fmt: skip
