@@ -10,6 +10,7 @@ ALPHAS  ?=
 FULL    ?=
 T_UP    ?=
 MOBIL_P ?=
+PROFILE ?=
 
 .PHONY: install test lint bench demo nets scenario1 scenario2 learning clean
 
@@ -45,7 +46,7 @@ scenario2: $(STAMP)
 	$(BIN)/coopsumo scenario2 --profile quick --policies dqn,mobil
 
 learning: $(STAMP)
-	$(BIN)/coopsumo learning $(if $(QUICK),--quick)
+	$(BIN)/coopsumo learning $(if $(QUICK),--quick) $(if $(PROFILE),--profile $(PROFILE) --out results/learning_$(PROFILE))
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

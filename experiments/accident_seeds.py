@@ -27,7 +27,7 @@ from coopsumo.validation import alpha_list, t_up_list, workers
 
 ACCIDENT_SEED_OFFSET = 2000
 """a model trained on seed s meets the accident on seed ACCIDENT_SEED_OFFSET + s (baselines too)"""
-BASELINES = ("keep", "greedy", "mobil:p=0", "mobil:p=0.5")
+BASELINES = ("keep", "greedy", "mobil:p=0")
 
 
 def models(root: Path, variants: list[str], alphas: tuple[float, ...]) -> list[dict[str, Any]]:
@@ -37,10 +37,38 @@ def models(root: Path, variants: list[str], alphas: tuple[float, ...]) -> list[d
         rec = json.loads(cell.read_text())
         if rec.get("kind") == "train" and rec.get("status") == "ok" and rec["variant"] in variants \
                 and float(rec["alpha"]) in alphas:  # fmt: skip
-            model = (root / "train" / rec["key"] / "model.pt").resolve()
+            margin = float(rec["config"].get("drive", {}).get("change_margin", 0.0))
+            train_key = rec["key"]
+            if margin:  # a margin variant drives its twin's training (ablation.cell_specs)
+                train_key = rec["key"].replace(rec["variant"], twin_of(rec["variant"]), 1)
+            model = (root / "train" / train_key / "model.pt").resolve()
             found.append({"variant": rec["variant"], "alpha": float(rec["alpha"]), "seed": int(rec["seed"]),
-                          "model": model})  # fmt: skip
+                          "model": model, "margin": margin})  # fmt: skip
     return found
+
+
+def twin_of(variant: str) -> str:
+    """The variant whose training a margin variant drives."""
+    from dataclasses import replace
+
+    from coopsumo.studies.ablation import VARIANTS, learner_of
+
+    trained = replace(learner_of(variant), change_margin=0.0)
+    return next(n for n, _, c in VARIANTS if c == trained)
+
+
+def driving_copy(model: Path, margin: float, folder: Path) -> Path:
+    """model.pt as it is, with change_margin set in its learner settings: the file a user would get from
+    `train --change-margin M` (training ignores the margin), driven with that margin by `dqn:PATH`."""
+    from coopsumo.agents.dqn import load_model, save_model
+
+    net, meta = load_model(model)
+    meta["config"]["dqn"]["change_margin"] = margin
+    out = folder / f"{model.parent.name}_margin{margin:g}.pt"
+    folder.mkdir(parents=True, exist_ok=True)
+    if not out.exists():
+        save_model(out, net, meta)
+    return out.resolve()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -49,28 +77,30 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--variants", default="restart,v2x", help="variants whose models run (comma-separated)")
     p.add_argument("--alphas", default="0", help="alphas whose models run (comma-separated)")
     p.add_argument("--t-up", dest="t_ups", default="1.5", help="demands T_up (s), comma-separated (default 1.5)")
+    p.add_argument("--seeds", type=int, default=6, help="models of training seeds 0..N-1 only (default 6)")
     p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
+    p.add_argument("--quick", action="store_true", help="scenario I's quick accident (6,000 steps): for tests")
     p.add_argument("--out", type=Path, required=True, help="results folder")
     args = p.parse_args(argv)
 
     def body() -> int:
         t_ups = t_up_list("--t-up", args.t_ups, ControlConfig().dt_s)
         variants = [v.strip() for v in args.variants.split(",") if v.strip()]
-        found = [m for r in args.roots for m in models(r, variants, alpha_list("--alphas", args.alphas))]
+        found = [m for r in args.roots for m in models(r, variants, alpha_list("--alphas", args.alphas))
+                 if m["seed"] < args.seeds]  # fmt: skip
         if not found:
             raise UsageError(f"no finished models of {variants} in {[str(r) for r in args.roots]}")
-        return run(found, t_ups, args.out, args.workers)
+        return run(found, t_ups, args.out, args.workers, s1.Plan.quick() if args.quick else s1.Plan())
 
     return run_cli("accident_seeds", body)
 
 
-def run(found: list[dict[str, Any]], t_ups: tuple[float, ...], root: Path, n_workers: int) -> int:
+def run(found: list[dict[str, Any]], t_ups: tuple[float, ...], root: Path, n_workers: int, plan: s1.Plan) -> int:
     from coopsumo.sim.network import build_net
     from coopsumo.studies.runner import execute, make_backend, reusable_keys, sigterm_interrupts
-    from coopsumo.studies.scenario1_report import run_metrics
+    from coopsumo.studies.scenario1_measures import run_metrics
 
     start = time.perf_counter()
-    plan = s1.Plan()
     root.mkdir(parents=True, exist_ok=True)
     write_json(root / "plan.json", {"plan": to_dict(plan), "models": [{**m, "model": str(m["model"])} for m in found],
                                     "versions": versions()})  # fmt: skip
@@ -79,6 +109,8 @@ def run(found: list[dict[str, Any]], t_ups: tuple[float, ...], root: Path, n_wor
     for t_up in t_ups:
         policies = [({"policy": b, "variant": b, "alpha": None}, b) for b in BASELINES]
         for m in found:
+            if m["margin"]:
+                m["model"] = driving_copy(m["model"], m["margin"], root / "models")
             label = f"{m['variant']}_alpha{m['alpha']:g}_train{m['seed']}"
             policies.append(({"policy": label, "variant": m["variant"], "alpha": m["alpha"], "only": m["seed"]},
                              f"dqn:{m['model']}"))  # fmt: skip

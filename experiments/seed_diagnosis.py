@@ -93,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("root", type=Path, help="a learning-study folder (with cells/ and train/)")
     p.add_argument("--steps", type=int, default=3000, help="greedy steps per model on its evaluation seed")
     p.add_argument("--alpha0-only", action="store_true", help="only the alpha = 0 models")
+    p.add_argument("--variants", default=None, help="only these variants (comma-separated)")
     args = p.parse_args(argv)
     torch.set_num_threads(1)
     rows = []
@@ -100,7 +101,9 @@ def main(argv: list[str] | None = None) -> int:
         rec = json.loads(cell.read_text())
         if rec.get("kind") != "train" or rec.get("status") != "ok" or (args.alpha0_only and rec["alpha"] != 0):
             continue
-        model_dir = args.root / "train" / rec["key"]
+        if args.variants and rec["variant"] not in args.variants.split(","):
+            continue
+        model_dir = args.root / "train" / rec.get("train_key", rec["key"])
         row = {"key": rec["key"], "variant": rec["variant"], "alpha": rec["alpha"], "seed": rec["seed"]}
         row.update(diagnose(model_dir, rec["config"]["eval"], args.steps))
         rows.append(row)

@@ -66,6 +66,20 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
         assert (out / fig).stat().st_size > 1000
     study = json.loads((out / "study.json").read_text())
     assert study["cells_run"] == study["cells"]
+    # the two experiments beside the study read its models (as docs/studies.md runs them)
+    diag = subprocess.run([sys.executable, "experiments/seed_diagnosis.py", str(out), "--steps", "200",
+                           "--alpha0-only", "--variants", "v2x"], cwd=ROOT, capture_output=True, text=True)  # fmt: skip
+    assert diag.returncode == 0, diag.stderr[-2000:]
+    table = pd.read_csv(out / "diagnosis.csv")
+    assert len(table) == len(profile.seeds) and table["decisions"].gt(0).all()
+    acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "v2x_margin",
+                          "--alphas", "0", "--seeds", "1", "--quick", "--t-up", "3", "--out", str(tmp_path / "acc")],
+                         cwd=ROOT, capture_output=True, text=True)  # fmt: skip
+    assert acc.returncode == 0, acc.stderr[-2000:]
+    acc_runs = pd.read_csv(tmp_path / "acc" / "runs.csv")
+    assert set(acc_runs["variant"]) == {"keep", "greedy", "mobil:p=0", "v2x_margin"}
+    assert (acc_runs["collisions"] == 0).all() and (acc_runs["teleports"] == 0).all()
+    assert "`v2x_margin` | 0 | 1 |" in (tmp_path / "acc" / "report.md").read_text()
     again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     assert again.returncode == 0, again.stderr[-2000:]
     assert json.loads((out / "study.json").read_text())["cells_run"] == 0
