@@ -109,7 +109,7 @@ def bench_decision(n_vehicles: int, repeats: int = 200) -> tuple[float, float]:
 
     learner = Learner(DQNConfig(), 0)
     grids = rng.integers(0, 2, (n_vehicles, 3, 3, 20)).astype(np.uint8)
-    err = rng.normal(size=(n_vehicles, 3)).astype(np.float32)
+    err = rng.normal(size=(n_vehicles, learner.online.n_features)).astype(np.float32)
     start = time.perf_counter()
     for _ in range(repeats):
         learner.act(grids, err, explore=False)

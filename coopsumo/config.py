@@ -200,11 +200,11 @@ class DQNConfig:
     restart_below_mps: float = 1.0
     """'none' is not offered to a vehicle slower than this (m/s): a standing vehicle that keeps its speed
     would stand for good and block its lane (0: off; paper: 'none' keeps any speed, zero included)"""
-    change_margin: float = 0.0
+    change_margin: float = 1.0
     """when the trained model drives (evaluation, simulate, studies), a lane change is chosen only when its Q-value
-    beats the best of speed-up and none by more than this (Q units; 0: plain argmax, paper). Training ignores it:
+    beats the best of speed-up and none by more than this (Q units; 0: plain argmax, the paper's). Training ignores it:
     the same seed gives the same weights whatever the margin"""
-    observation: str = "paper"
+    observation: str = "v2x"
     """what the network reads: 'paper' (3 frames of the 3 x 20 m occupancy grid and the speed errors) or 'v2x'
     (those plus each side lane's nearest leader and follower within 200 m: gap and speed; see v2x_features)"""
 
@@ -261,6 +261,8 @@ PAPER_DQN = DQNConfig(
     epsilon_end=0.1,
     epsilon_decay_steps=0,
     restart_below_mps=0.0,
+    change_margin=0.0,
+    observation="paper",
 )
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""

@@ -341,7 +341,8 @@ def test_model_from_before_the_dueling_head_on_another_lane_count_is_driven_as_t
 ) -> None:
     cfg = TrainConfig(sim=SimConfig(policy="dqn"), dqn=DQN_PRESETS["default"])
     meta = {"config": to_dict(cfg)}
-    del meta["config"]["dqn"]["dueling"]  # written by a version before the dueling head: the plain head
+    for added_later in ("dueling", "observation", "change_margin"):  # a version before them: the plain head,
+        del meta["config"]["dqn"][added_later]  # the paper's state, no change margin
     model = tmp_path / "model.pt"
     save_model(model, QNetwork(30.0), meta)
     out = tmp_path / "out"

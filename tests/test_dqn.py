@@ -420,7 +420,7 @@ def test_a_model_whose_settings_and_weights_disagree_on_the_observation_is_refus
     from coopsumo.config import TrainConfig, to_dict
     from coopsumo.runio import UsageError
 
-    paper_cfg = to_dict(TrainConfig())
+    paper_cfg = to_dict(TrainConfig(dqn=dataclasses.replace(TrainConfig().dqn, observation="paper")))
     v2x_cfg = to_dict(TrainConfig(dqn=dataclasses.replace(TrainConfig().dqn, observation="v2x")))
     for weights, cfg, ok in (("v2x", v2x_cfg, True), ("paper", paper_cfg, True), ("v2x", paper_cfg, False),
                              ("paper", v2x_cfg, False)):  # fmt: skip

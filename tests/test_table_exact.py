@@ -213,7 +213,9 @@ def dqn_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     torch.manual_seed(4)
     path = tmp_path_factory.mktemp("model") / "model.pt"
-    save_model(path, QNetwork(30.0, dueling=True), {"config": to_dict(TrainConfig())})  # untrained: changes lanes
+    # the paper's state, no margin: untrained, it changes lanes often
+    cfg = TrainConfig(dqn=dataclasses.replace(TrainConfig().dqn, change_margin=0.0, observation="paper"))
+    save_model(path, QNetwork(30.0, dueling=True, observation=cfg.dqn.observation), {"config": to_dict(cfg)})
     return path
 
 

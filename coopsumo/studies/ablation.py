@@ -66,7 +66,8 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
         ("replay", "+ replay 20,000 and 2 updates every decision round (not 1 every 4)",
          {"replay_size": 20_000, "learn_every": 1, "updates_per_learn": 2}),
         ("dueling", "+ a dueling Q head (V + A - mean A)", {"dueling": True}),
-        ("restart", "+ 'none' withheld below 1 m/s (a standing vehicle must speed up): the default preset",
+        ("restart", "+ 'none' withheld below 1 m/s (a standing vehicle must speed up): the default preset until "
+         "the v2x state and the change margin (`v2x_margin`)",
          {"restart_below_mps": 1.0}),
     ]  # fmt: skip
     extras: list[tuple[str, str, dict[str, Any]]] = [
@@ -76,7 +77,7 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          {"store_per_decision": 1000}),
         ("v2x", "default + the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed)",
          {"observation": "v2x"}),
-        ("margin", "the `restart` models (the default) driven with a change margin of 1: a lane change only when its "
+        ("margin", "the `restart` models driven with a change margin of 1: a lane change only when its "
          "Q-value beats staying by more than 1", {"change_margin": 1.0}),
         ("v2x_margin", "the `v2x` models driven with the change margin of 1",
          {"observation": "v2x", "change_margin": 1.0}),
@@ -92,7 +93,8 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
 
 
 CHAIN_LENGTH = 8
-"""the first CHAIN_LENGTH variants form the chain paper -> ... -> restart (the default); the rest branch off its end"""
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> restart; the rest branch off its end (v2x_margin: the
+default)"""
 VARIANTS = _variants()
 VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
 
@@ -117,7 +119,7 @@ class Profile:
 
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), VARIANT_NAMES, ALPHAS),
-    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "restart"), (0.0, 1.0)),
+    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "v2x_margin"), (0.0, 1.0)),
     "robust": Profile("robust", 90_000, 9000, tuple(range(9)), ("restart", "v2x", "margin", "v2x_margin"),
                       (0.0, 8.0), alpha_variants=("margin", "v2x_margin"), alpha_seeds=(0, 1, 2)),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "v2x_margin"), (0.0, 1.0)),
