@@ -138,13 +138,10 @@ def finished_run(folder: Path, kind: str) -> bool:
     return isinstance(listed, list) and all(isinstance(f, str) and (folder / f).exists() for f in listed)
 
 
-STUDY_KINDS = ("scenario1", "scenario2", "ablation", "regime_map")
-"""commands whose --out is a study root: written into cell by cell, never replaced as a whole"""
-
-
 def check_study_root(root: Path, kind: str, own: Sequence[str]) -> None:
     """UsageError unless `root` is missing, empty, marked by the study `kind`, or (a root written before the
-    marker) holds only entries whose names match the study's own patterns `own` (fnmatch: 'fig*.png')."""
+    marker) holds the study's plan file own[0] or only entries whose names match the study's own patterns `own`
+    (fnmatch: 'fig*.png'; a study writes only these names and never replaces the root as a whole)."""
     root = root.resolve()
     if not root.exists():
         return
@@ -155,6 +152,8 @@ def check_study_root(root: Path, kind: str, own: Sequence[str]) -> None:
         if marker["kind"] != kind:
             raise UsageError(f"output folder {root} holds a coopsumo {marker['kind']} run, not a {kind} study, and "
                              "is left alone; pick another --out")  # fmt: skip
+        return
+    if (root / own[0]).is_file():  # the study's own plan file: a root it wrote before markers existed
         return
     foreign = sorted(p.name for p in root.iterdir() if not any(fnmatch.fnmatchcase(p.name, pat) for pat in own))
     if foreign:
