@@ -46,7 +46,7 @@ MAX_FCD_PERIOD_S = 86_400.0
 MOBIL_LIMITS: dict[str, tuple[float, float, bool]] = {
     "p": (0.0, 10.0, False),
     "threshold": (0.0, 100.0, False),
-    "b_safe": (0.0, 1000.0, True),
+    "b_safe": (0.0, 1e6, True),
     "bias": (-100.0, 100.0, False),
 }
 """MOBIL's parameters: (lowest, highest, lowest excluded); m/s^2 but p (politeness, 1: others weigh as much as

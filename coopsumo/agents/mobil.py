@@ -52,7 +52,7 @@ Defaults (spec `mobil` = `mobil:p=0.5`):
 | bias | 0.0 m/s^2 | keep-right bias; 0 = symmetric, as the paper's simulator has no keep-right rule |
 
 Spec grammar: `mobil` or `mobil:KEY=VALUE[,KEY=VALUE...]` with keys p, threshold, b_safe, bias
-(each at most once); p from 0 to 10, threshold from 0 to 100, b_safe above 0 up to 1000, bias from -100 to 100
+(each at most once); p from 0 to 10, threshold from 0 to 100, b_safe above 0 up to 1e6, bias from -100 to 100
 (validation.MOBIL_LIMITS).
 """
 
