@@ -122,6 +122,9 @@ def check_run_dir(out: Path, kind: str) -> None:
         raise UsageError(f"output folder {out} holds a coopsumo {marker['kind']} run, not a {kind} run, and is "
                          "left alone; pick another --out")  # fmt: skip
     listed = marker.get("files")
+    if not isinstance(listed, list) and kind != "train":  # only a training marks its folder before it ends
+        raise UsageError(f"output folder {out} has a {RUN_MARKER} that lists no files (damaged?) and is left "
+                         "alone; remove it yourself or pick another --out")  # fmt: skip
     if isinstance(listed, list):
         extra = sorted(set(_entries(out)) - set(listed))
         if extra:
@@ -242,7 +245,7 @@ def out_path_problem(path: Path) -> str | None:
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     if folder != real and not folder.is_dir():
-        return f"{text!r} cannot be made: {folder} is a file, not a folder"
+        return f"output folder {text!r} cannot be made: {folder} is a file, not a folder"
     return None
 
 
