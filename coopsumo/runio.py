@@ -487,8 +487,22 @@ def start_parent_watch(parent_pid: int) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
 
 
+def working_folder_problem() -> str | None:
+    """Why no command can run in the current folder (it was deleted: torch cannot even be imported there, and the
+    studies' worker processes start in it), or None."""
+    try:
+        os.getcwd()
+    except OSError:
+        return "the current folder no longer exists (deleted?); change to an existing folder and run the command again"
+    return None
+
+
 def run_cli(prog: str, body: Callable[[], int]) -> int:
-    """Run a command's body; usage errors (config.ConfigError among them) become one line on stderr and exit code 2."""
+    """Run a command's body; usage errors (config.ConfigError among them) become one line on stderr and exit code 2,
+    and so does a working folder that was deleted (working_folder_problem)."""
+    if problem := working_folder_problem():
+        print(f"{prog}: error: {problem}", file=sys.stderr)
+        return USAGE_EXIT
     try:
         return body()
     except UsageError as err:
