@@ -104,7 +104,8 @@ def _in_deleted_folder(args: list[str], tmp_path: Path) -> subprocess.CompletedP
     ["coopsumo.scenario2", "--profile", "tiny", "--quiet"],  # the default --out, relative
     ["coopsumo.scenario1", "--quick", "--out", "ABS"],
     ["coopsumo.bench", "--quick"],
-], ids=["simulate", "simulate-absolute", "train", "train-absolute", "scenario2", "scenario1-absolute", "bench"])  # fmt: skip
+], ids=["simulate", "simulate-absolute", "train", "train-absolute", "scenario2", "scenario1-absolute",
+        "bench"])  # fmt: skip
 def test_a_deleted_working_folder_is_one_line(args: list[str], tmp_path: Path) -> None:
     """Before: a traceback (Path.absolute), or Intel oneMKL's fatal error importing torch (train), or workers that
     could not start. Now every command refuses to run there, an absolute --out too."""
