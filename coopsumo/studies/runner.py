@@ -316,7 +316,10 @@ def summary_problem(path: Path, required: Sequence[str]) -> str | None:
     except (OSError, ValueError) as err:
         return f"has an unreadable summary.json ({type(err).__name__})"
     problem = record_problem({"status": "ok", "summary": summary}, required)
-    return problem.replace("has status ok but its summary is", "has summary.json") if problem else None
+    if problem is None:
+        return None
+    return problem.replace("has status ok but its summary is", "has summary.json").replace("has summary ",
+                                                                                             "has summary.json ")
 
 
 def run_folder_problem(out: Path, required: Sequence[str]) -> str | None:
