@@ -152,7 +152,8 @@ def build_parser() -> Parser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    quick = build_parser().parse_args(argv).quick
+    parser = build_parser()
+    quick = parser.parse_args(argv).quick
     steps = 600 if quick else 6000
     if problem := working_folder_problem():  # torch cannot be loaded from a deleted folder
         parser.error(problem)
