@@ -99,6 +99,8 @@ def finished_training(out: Path, config: dict[str, Any]) -> dict[str, Any] | Non
     done = isinstance(marker, dict) and marker.get("kind") == "train" and isinstance(marker.get("files"), list)
     if not (done and "model.pt" in marker["files"] and (out / "model.pt").is_file() and isinstance(summary, dict)):
         return None
+    if model_folder_problem(out) is not None:  # a model file that does not load (empty, cut short) is trained again
+        return None
     return summary if results_view(stored) == results_view(json.loads(json.dumps(config))) else None
 
 
