@@ -40,7 +40,7 @@ sys.exit(t.main(sys.argv[1:]))
 """
 """`python -m coopsumo.train` with a log row every 250 steps and a periodic checkpoint every 500 (the command's
 own are 1,000 and 10,000 steps); --resume reads them back from the checkpoint"""
-TRAIN = ["--steps", "3000", "--eval-steps", "4000", "--seed", "2", "--quiet"]
+TRAIN = ["--steps", "3000", "--eval-steps", "4000", "--seed", "2", "--quiet", "--tensorboard"]
 
 
 def start(args: list[str]) -> subprocess.Popen[str]:
@@ -126,7 +126,7 @@ def train_run(out: Path, *extra: str) -> subprocess.Popen[str]:
 
 
 def resume(out: Path) -> subprocess.Popen[str]:
-    return start(["-m", "coopsumo.train", "--resume", "--quiet", "--out", str(out)])
+    return start(["-m", "coopsumo.train", "--resume", "--quiet", "--tensorboard", "--out", str(out)])
 
 
 def logged_steps(out: Path) -> list[int]:
@@ -140,6 +140,15 @@ def logged_steps(out: Path) -> list[int]:
 def log_rows(out: Path) -> list[dict[str, str]]:
     return [{k: v for k, v in r.items() if k not in TIMING}
             for r in csv.DictReader((out / "train_log.csv").read_text().splitlines())]  # fmt: skip
+
+
+def scalars(out: Path) -> dict[str, list[tuple[int, float]]]:
+    """Every TensorBoard scalar of the training, by tag: (step, value), read as TensorBoard reads them."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    acc = EventAccumulator(str(out / "tensorboard"))
+    acc.Reload()
+    return {tag: [(p.step, p.value) for p in acc.Scalars(tag)] for tag in sorted(acc.Tags()["scalars"])}
 
 
 def checkpoint_step(out: Path) -> int:
@@ -194,13 +203,14 @@ def test_train_interrupted_anywhere_resumes_to_the_uninterrupted_result(tmp_path
     code, _ = stop(proc, signal.SIGKILL)
     assert code == -signal.SIGKILL and (cut / "checkpoint.pt").exists()
     # 6. the last resume completes it
-    res = subprocess.run([sys.executable, "-m", "coopsumo.train", "--resume", "--quiet", "--out", str(cut)], cwd=REPO,
-                         capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
+    res = subprocess.run([sys.executable, "-m", "coopsumo.train", "--resume", "--quiet", "--tensorboard", "--out",
+                          str(cut)], cwd=REPO, capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-1500:]
     assert finished_run(cut, "train") and not (cut / "checkpoint.pt").exists() and leftovers(tmp_path) == []
     steps = logged_steps(cut)
     assert steps == sorted(set(steps)) == list(range(250, 3001, 250))  # every row once
     assert log_rows(cut) == log_rows(ref)
+    assert scalars(cut) == scalars(ref)  # TensorBoard's points too: each step once (purge_step on resume)
     ref_w, cut_w = weights(ref), weights(cut)
     assert ref_w.keys() == cut_w.keys() and all(torch.equal(ref_w[k], cut_w[k]) for k in ref_w)
     assert summary_of(cut) == {**summary_of(ref), "policy": f"dqn:{cut / 'model.pt'}"}
@@ -209,7 +219,9 @@ def test_train_interrupted_anywhere_resumes_to_the_uninterrupted_result(tmp_path
     train_summary = {k: v for k, v in json.loads((cut / "train_summary.json").read_text()).items() if k not in TIMING}
     assert train_summary == {k: v for k, v in json.loads((ref / "train_summary.json").read_text()).items()
                              if k not in TIMING}  # fmt: skip
-    assert json.loads((cut / RUN_MARKER).read_text())["files"] == json.loads((ref / RUN_MARKER).read_text())["files"]
+    listed = [[f for f in json.loads((run / RUN_MARKER).read_text())["files"] if not f.startswith("tensorboard/")]
+              for run in (cut, ref)]  # fmt: skip
+    assert listed[0] == listed[1]  # the same files (one event file per resume besides)
 
 
 def test_resume_without_a_checkpoint_says_why_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -438,7 +438,7 @@ def train(
             (out / stale).unlink(missing_ok=True)
         trainer.save_checkpoint()  # step 0: from here on, an interrupted run always has a checkpoint to resume
     ended = ended_training(out, trainer.step, cfg.sim.steps) if resume else None  # interrupted in its evaluation
-    scalars = open_log(out, tensorboard, resume)
+    scalars = open_log(out, tensorboard, resume, trainer.step)
     trainer.on_row = None if scalars is None else scalars.add_row
     start = time.perf_counter()
     try:
