@@ -16,14 +16,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from coopsumo.agents.dqn import Learner
 from coopsumo.agents.policies import make_policy
 from coopsumo.agents.rollout import run
-from coopsumo.agents.train import Trainer
 from coopsumo.config import DQN_PRESETS, AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
-from coopsumo.runio import Parser
+from coopsumo.runio import Parser, working_folder_problem
 from coopsumo.sim.observation import snapshot
 from coopsumo.sim.physics import occupancy
 
@@ -87,6 +84,8 @@ def bench_plain_vs_controlled(steps: int, jam: bool, rounds: int = 1) -> dict[st
 
 
 def bench_training(steps: int, preset: str = "default") -> float:
+    from coopsumo.agents.train import Trainer  # torch: imported once main has checked the working folder
+
     cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), dqn=DQN_PRESETS[preset], eval_steps=0)
     with tempfile.TemporaryDirectory() as tmp:
         trainer = Trainer(cfg, Path(tmp), progress=False)
@@ -105,6 +104,7 @@ def bench_decision(n_vehicles: int, repeats: int = 200) -> tuple[float, float]:
     for _ in range(repeats):
         snapshot(occ, lane, pos, 3, 4.0)
     grid_us = (time.perf_counter() - start) / repeats / n_vehicles * 1e6
+    from coopsumo.agents.dqn import Learner
     from coopsumo.config import DQNConfig
 
     learner = Learner(DQNConfig(), 0)
@@ -152,8 +152,13 @@ def build_parser() -> Parser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    quick = build_parser().parse_args(argv).quick
+    parser = build_parser()
+    quick = parser.parse_args(argv).quick
     steps = 600 if quick else 6000
+    if problem := working_folder_problem():  # torch cannot be loaded from a deleted folder
+        parser.error(problem)
+    import torch
+
     torch.set_num_threads(1)
     print(f"coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread, {steps} steps a run)", flush=True)
     for policy in ("keep", "random", "greedy", "mobil", "sumo"):

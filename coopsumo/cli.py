@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from coopsumo import __version__
-from coopsumo.runio import Parser
+from coopsumo.runio import Parser, out_path_problem, working_folder_problem
 from coopsumo.sim.network import NETS_ENV
 
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -64,6 +64,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_usage(sys.stderr)
         print("coopsumo: error: name a command: " + ", ".join(COMMANDS), file=sys.stderr)
         return 2
+    if problem := working_folder_problem():  # before a command is imported: torch cannot be loaded from there
+        parser.error(problem)
+    if args.nets_dir is not None and (problem := out_path_problem(args.nets_dir)):  # SUMO reads the networks there
+        parser.error(f"--nets-dir {problem.replace('folder path', 'path')}")
     if args.nets_dir is not None:
         # read by sim.network when a network is built, here and in the study's worker processes
         os.environ[NETS_ENV] = str(args.nets_dir.expanduser().resolve())

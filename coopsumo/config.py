@@ -14,7 +14,22 @@ from typing import Any
 import numpy as np
 
 from coopsumo.runio import UsageError
-from coopsumo.validation import ALPHA_MIN, MAX_REPLAY, MAX_STEPS, SEED_MAX, int_problem, min_t_up_s, number_problem
+from coopsumo.validation import (
+    ALPHA_MAX,
+    ALPHA_MIN,
+    LEARNER_LIMITS,
+    MAX_FCD_PERIOD_S,
+    MAX_GUI_DELAY_MS,
+    MAX_REPLAY,
+    MAX_STEPS,
+    MAX_T_UP_S,
+    SEED_MAX,
+    int_problem,
+    limits_problem,
+    min_t_up_s,
+    number_problem,
+    type_problem,
+)
 
 MIN_LANES = 2
 MAX_LANES = 6
@@ -210,6 +225,8 @@ class DQNConfig:
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
+        if problem := type_problem(self):  # read back from a file, a field may hold anything
+            raise ConfigError(problem)
         positive_ints = ("decision_interval_steps", "replay_size", "batch_size", "learn_every", "updates_per_learn",
                          "target_sync_steps", "store_per_decision")  # fmt: skip
         for name in positive_ints:
@@ -241,6 +258,8 @@ class DQNConfig:
         for name, allowed in choices.items():
             if getattr(self, name) not in allowed:
                 raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
+        if problem := limits_problem(self, LEARNER_LIMITS):  # every number finite and bounded
+            raise ConfigError(problem)
 
 
 PAPER_DQN = DQNConfig(
@@ -301,12 +320,14 @@ class SimConfig:
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
+        if problem := type_problem(self):
+            raise ConfigError(problem)
         if not MIN_LANES <= self.road.lanes <= MAX_LANES:
             raise ConfigError(f"lanes must be between {MIN_LANES} and {MAX_LANES}, got {self.road.lanes}")
         limit = min_t_up_s(self.control.dt_s)
-        if number_problem(self.demand.t_up_s, low=limit):
-            raise ConfigError(f"t-up must be a finite number >= {limit:g} s (one vehicle per simulation step), "
-                              f"got {self.demand.t_up_s}")  # fmt: skip
+        if number_problem(self.demand.t_up_s, low=limit, high=MAX_T_UP_S):
+            raise ConfigError(f"t-up must be a finite number >= {limit:g} s (one vehicle per simulation step) and "
+                              f"<= {MAX_T_UP_S:g} s, got {self.demand.t_up_s}")  # fmt: skip
         if int_problem(self.steps, 1, MAX_STEPS):
             raise ConfigError(f"steps must be an integer from 1 to {MAX_STEPS}, got {self.steps}")
         if int_problem(self.seed, 0, SEED_MAX):
@@ -316,7 +337,7 @@ class SimConfig:
             raise ConfigError(f"the accident window must start at a step >= 0 and last >= 1 step, got start "
                               f"{acc.start_step} and {acc.duration_steps} steps")  # fmt: skip
         alpha = self.reward.alpha
-        if problem := number_problem(alpha, ALPHA_MIN):
+        if problem := number_problem(alpha, ALPHA_MIN, ALPHA_MAX):
             raise ConfigError(f"alpha must be {problem}, got {alpha}")
         if int_problem(self.full_read_every_steps, 1, MAX_STEPS):
             raise ConfigError(f"full_read_every_steps must be an integer from 1 to {MAX_STEPS}, "
@@ -335,8 +356,8 @@ class OutputConfig:
     def validate(self, dt_s: float) -> None:
         """Raise ConfigError naming the first bad value; dt_s is the simulation step (s)."""
         period = self.fcd_period_s
-        if not (math.isfinite(period) and period >= 0):
-            raise ConfigError(f"fcd period must be a number of seconds >= 0, got {period}")
+        if not (math.isfinite(period) and 0 <= period <= MAX_FCD_PERIOD_S):
+            raise ConfigError(f"fcd period must be a number of seconds from 0 to {MAX_FCD_PERIOD_S:g}, got {period:g}")
         steps = period / dt_s
         if period > 0 and (steps < 1 - 1e-9 or abs(steps - round(steps)) > 1e-6):
             raise ConfigError(f"fcd period must be a multiple of the {dt_s:g} s step, got {period:g}")
@@ -363,8 +384,8 @@ class GuiConfig:
             raise ConfigError(f"gui screenshot must be a .png file, got {self.screenshot!r}")
         if self.screenshot and not 1 <= self.screenshot_step <= steps:
             raise ConfigError(f"gui screenshot step must be between 1 and steps ({steps}), got {self.screenshot_step}")
-        if not (math.isfinite(self.delay_ms) and self.delay_ms >= 0):
-            raise ConfigError(f"gui delay must be a number of ms >= 0, got {self.delay_ms}")
+        if not (math.isfinite(self.delay_ms) and 0 <= self.delay_ms <= MAX_GUI_DELAY_MS):
+            raise ConfigError(f"gui delay must be a number of ms from 0 to {MAX_GUI_DELAY_MS:g}, got {self.delay_ms:g}")
 
 
 @dataclass(frozen=True)
@@ -381,6 +402,8 @@ class TrainConfig:
     """steps of the greedy evaluation run after training (0: none)"""
 
     def validate(self) -> None:
+        if problem := type_problem(self):
+            raise ConfigError(problem)
         self.sim.validate()
         self.dqn.validate()
         if int_problem(self.eval_steps, 0, MAX_STEPS):

@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import argparse
+import fcntl
+import fnmatch
 import json
+import locale
 import math
 import os
 import platform
+import re
 import shutil
 import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
@@ -53,6 +57,12 @@ def _clean(obj: Any) -> Any:
     if isinstance(obj, list | tuple):
         return [_clean(v) for v in obj]
     return obj
+
+
+def first_line(err: BaseException) -> str:
+    """The first line of an exception's message, or its type's name when the message is empty."""
+    text = str(err).strip()
+    return text.splitlines()[0] if text else type(err).__name__
 
 
 def write_json(path: Path, data: Any) -> None:
@@ -112,12 +122,267 @@ def check_run_dir(out: Path, kind: str) -> None:
         raise UsageError(f"output folder {out} holds a coopsumo {marker['kind']} run, not a {kind} run, and is "
                          "left alone; pick another --out")  # fmt: skip
     listed = marker.get("files")
+    if not isinstance(listed, list) and kind != "train":  # only a training marks its folder before it ends
+        raise UsageError(f"output folder {out} has a {RUN_MARKER} that lists no files (damaged?) and is left "
+                         "alone; remove it yourself or pick another --out")  # fmt: skip
     if isinstance(listed, list):
         extra = sorted(set(_entries(out)) - set(listed))
         if extra:
             more = f" and {len(extra) - 1} more" if len(extra) > 1 else ""
             raise UsageError(f"output folder {out} holds {extra[0]}{more}, which coopsumo {kind} did not write, and "
                              "is left alone; move it away or pick another --out")  # fmt: skip
+
+
+def finished_run(folder: Path, kind: str) -> bool:
+    """True when `folder` is a finished output of the command `kind`: its marker names `kind` and lists its
+    entries (written when the command ended), and every listed entry is there."""
+    marker = _marker(folder)
+    listed = marker.get("files") if marker is not None and marker["kind"] == kind else None
+    return isinstance(listed, list) and all(isinstance(f, str) and (folder / f).exists() for f in listed)
+
+
+def check_study_root(root: Path, kind: str, own: Sequence[str]) -> None:
+    """UsageError unless `root` is missing, empty, marked by the study `kind`, or (a root written before the
+    marker) holds the study's plan file own[0] or only entries whose names match the study's own patterns `own`
+    (fnmatch: 'fig*.png'; a study writes only these names and never replaces the root as a whole)."""
+    root = root.resolve()
+    if not root.exists():
+        return
+    if not root.is_dir():
+        raise UsageError(f"output folder {root} exists and is not a folder")
+    marker = _marker(root)
+    if marker is not None:
+        if marker["kind"] != kind:
+            raise UsageError(f"output folder {root} holds a coopsumo {marker['kind']} run, not a {kind} study, and "
+                             "is left alone; pick another --out")  # fmt: skip
+        return
+    if (root / own[0]).is_file():  # the study's own plan file: a root it wrote before markers existed
+        return
+    foreign = sorted(p.name for p in root.iterdir() if not any(fnmatch.fnmatchcase(p.name, pat) for pat in own))
+    if foreign:
+        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+        raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, and "
+                         f"has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
+
+
+@contextmanager
+def study_root(root: Path, kind: str, own: Sequence[str]) -> Iterator[Path]:
+    """Claim the study root `root` for the block: its path checked (check_out_path), its lock held (out_lock),
+    ownership checked (check_study_root) and its marker written (unfinished: a study adds to it run by run)."""
+    check_out_path(root)
+    root = root.resolve()
+    check_study_root(root, kind, own)
+    with out_lock(root, kind):
+        check_study_root(root, kind, own)  # again, under the lock
+        try:
+            root.mkdir(exist_ok=True)
+            mark_run_dir(root, kind, finished=False)
+        except OSError as err:
+            raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
+        yield root
+
+
+# -- output paths ---------------------------------------------------------------------------------------
+NAME_ROOM = 18
+"""bytes a run adds to the last name of --out: its partial folder '.<name>.partial-XXXXXXXX' beside it"""
+PATH_ROOM = 256
+"""bytes left free under PATH_MAX for the files a command writes inside --out (the deepest: a study's run folders)"""
+
+
+def _fs_limits(path: Path) -> tuple[int, int]:
+    """(NAME_MAX, PATH_MAX) in bytes of the file system holding path's nearest existing folder."""
+    folder = path
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX"), os.pathconf(folder, "PC_PATH_MAX")
+    except (OSError, ValueError):
+        return 255, 4096
+
+
+def _utf8_locale() -> bool:
+    """True when the C library's character set is UTF-8 (SUMO opens files by names in it; LC_ALL=C is ASCII)."""
+    return locale.nl_langinfo(locale.CODESET).replace("-", "").lower() == "utf8"
+
+
+def out_path_problem(path: Path) -> str | None:
+    """Why SUMO or the file system cannot take `path` as an output folder (a phrase to follow the flag), or None.
+
+    Refused: a relative path when the current folder was deleted; ':' (SUMO reads it as host:port) or ','
+    (SUMO splits its file lists at commas) anywhere in the absolute path; non-ASCII characters under an
+    ASCII locale (LC_ALL=C: SUMO cannot open such names); a symbolic link loop; a file where a folder must be;
+    a name longer than NAME_MAX less NAME_ROOM, a path longer than PATH_MAX less PATH_ROOM.
+    """
+    try:
+        absolute = path.absolute()
+    except OSError:  # os.getcwd(): the current folder is gone
+        return (f"{str(path)!r} is relative, but the current folder no longer exists (deleted?); change to an "
+                "existing folder or give an absolute path")  # fmt: skip
+    text = str(absolute)
+    try:
+        real = absolute.resolve()
+    except (RuntimeError, OSError):  # Python 3.11: RuntimeError for a loop; later versions: OSError ELOOP
+        return f"{text!r} goes through a loop of symbolic links"
+    for shown in dict.fromkeys((text, str(real))):
+        if ":" in shown:
+            return (f"must be a folder path without ':' (SUMO reads an output file name with ':' as host:port), "
+                    f"got {shown!r}")  # fmt: skip
+        if "," in shown:
+            return f"must be a folder path without ',' (SUMO splits its lists of files at commas), got {shown!r}"
+        if not shown.isascii() and not _utf8_locale():
+            return (f"{shown!r} has non-ASCII characters, which SUMO cannot open under this ASCII locale "
+                    f"({locale.setlocale(locale.LC_CTYPE)}); set LC_ALL=C.UTF-8 or pick an ASCII path")  # fmt: skip
+    name_max, path_max = _fs_limits(real)
+    for part in real.parts[1:]:
+        if len(os.fsencode(part)) > name_max - (NAME_ROOM if part == real.name else 0):
+            limit = name_max - NAME_ROOM if part == real.name else name_max
+            return (f"has a name of {len(os.fsencode(part))} bytes ({part[:20]}...); at most {limit} are allowed "
+                    f"here (the file system's {name_max}, less room for the run's partial folder)")  # fmt: skip
+    if len(os.fsencode(str(real))) > path_max - PATH_ROOM:
+        return (f"is {len(os.fsencode(str(real)))} bytes long; at most {path_max - PATH_ROOM} are allowed (the file "
+                f"system's {path_max}, less room for the files written inside)")  # fmt: skip
+    folder = real
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if folder != real and not folder.is_dir():
+        return f"output folder {text!r} cannot be made: {folder} is a file, not a folder"
+    return None
+
+
+def check_out_path(out: Path, flag: str = "--out") -> None:
+    """UsageError naming `flag` when out_path_problem faults `out`."""
+    problem = out_path_problem(out)
+    if problem:
+        raise UsageError(f"{flag} {problem}")
+
+
+# -- locks and the partial folders of killed runs --------------------------------------------------------
+PARTIAL = ".partial-"
+"""infix of the temporary folder a run is built in beside its --out: '.<name>.partial-XXXXXXXX'"""
+_PARTIAL_NAME = re.compile(r"\.(.+)\.partial-[A-Za-z0-9_]{8}")
+_LOCK_NAME = re.compile(r"\.(.+)\.lock")
+
+
+def lock_path(out: Path) -> Path:
+    """The lock file of the output folder `out`: '.<name>.lock' beside it."""
+    return out.parent / f".{out.name}.lock"
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return False
+    own = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino)
+
+
+def try_lock(path: Path) -> int | None:
+    """An open descriptor holding an exclusive flock on the lock file `path` (made if missing), or None when
+    another process holds it. A file removed or replaced between opening and locking is opened again."""
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            held = _same_file(fd, path)
+            os.close(fd)
+            if held:
+                return None
+            continue
+        if _same_file(fd, path):
+            return fd
+        os.close(fd)  # its holder removed it after we opened it: lock the file now at the path
+
+
+def release_lock(fd: int, path: Path) -> None:
+    """Remove the lock file (while still holding it) and release it."""
+    path.unlink(missing_ok=True)
+    os.close(fd)
+
+
+def _holder(path: Path) -> str:
+    try:
+        text = path.read_text().strip()
+    except OSError:
+        return ""
+    return f" ({text})" if text else ""
+
+
+LOCK_WAIT_S = 1.0
+"""how long a command waits for a held lock before it is refused (s): clear_partials holds another run's lock
+only while it removes that run's partial folder; a command writing a folder holds it for the whole run"""
+
+
+@contextmanager
+def out_lock(out: Path, kind: str) -> Iterator[None]:
+    """Hold the lock of the output folder `out` for the block (fcntl.flock on lock_path(out), removed after);
+    UsageError in one line when another command holds it. Released by the kernel if the process is killed."""
+    out = out.resolve()
+    path = lock_path(out)
+    deadline = time.monotonic() + LOCK_WAIT_S
+    while True:
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            fd = try_lock(path)
+        except OSError as err:
+            raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
+        if fd is not None or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    if fd is None:
+        raise UsageError(f"another coopsumo command is writing {out}{_holder(path)}; wait for it to end or pick "
+                         "another --out")  # fmt: skip
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{kind}, pid {os.getpid()}\n".encode())
+        yield
+    finally:
+        release_lock(fd, path)
+
+
+def _remove_partial(entry: Path, prog: str) -> None:
+    shutil.rmtree(entry, ignore_errors=True)
+    print(f"{prog}: removed {entry}, the partial folder of an interrupted run", file=sys.stderr)
+
+
+def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Path]:
+    """Remove the partial folders and lock files that killed runs left in `parent` (one line on stderr per
+    folder); those of runs still going (their lock is held) are left alone. mine: the name of the output
+    folder whose lock the caller holds (its partial folders are removed, its lock file kept). Returns the
+    folders removed."""
+    removed: list[Path] = []
+    try:
+        entries = [p for p in parent.iterdir() if p.name.startswith(".")]
+    except OSError:
+        return removed
+    for entry in entries:
+        found = _PARTIAL_NAME.fullmatch(entry.name)
+        is_partial = found is not None and entry.is_dir() and not entry.is_symlink()
+        if not is_partial:
+            found = _LOCK_NAME.fullmatch(entry.name) if entry.is_file() else None
+        if found is None:
+            continue
+        name = found.group(1)
+        if name == mine:
+            if is_partial:
+                _remove_partial(entry, prog)
+                removed.append(entry)
+            continue
+        path = lock_path(parent / name)
+        try:
+            fd = try_lock(path)
+        except OSError:
+            continue
+        if fd is None:
+            continue  # its run is still going
+        try:
+            if is_partial and entry.exists():
+                _remove_partial(entry, prog)
+                removed.append(entry)
+        finally:
+            release_lock(fd, path)
+    return removed
 
 
 def check_apart(out: Path, model: Path) -> None:
@@ -134,13 +399,16 @@ def check_apart(out: Path, model: Path) -> None:
 def start_run_dir(out: Path, kind: str = "simulate") -> Path:
     """A fresh temporary folder beside `out`; results appear in `out` only when finish_run_dir is called.
 
-    Raises UsageError if `out` cannot be written or is not ours to replace (check_run_dir).
+    Raises UsageError if `out` cannot be written or is not ours to replace (check_run_dir). Partial folders
+    that killed runs left in the same parent are removed first (clear_partials).
     """
+    check_out_path(out)
     out = out.resolve()
     check_run_dir(out, kind)
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+        clear_partials(out.parent, kind, mine=out.name)
+        return Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
     except OSError as err:
         raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
 
@@ -170,14 +438,18 @@ def discard_run_dir(tmp: Path) -> None:
 @contextmanager
 def atomic_run_dir(out: Path, kind: str = "simulate") -> Iterator[Path]:
     """A temporary run folder (start_run_dir) moved into `out` when the block ends normally and removed when
-    it raises, so a failed or killed run never leaves a half-written `out`."""
-    tmp = start_run_dir(out, kind)
-    try:
-        yield tmp
-    except BaseException:
-        discard_run_dir(tmp)
-        raise
-    finish_run_dir(tmp, out, kind)
+    it raises, so a failed or killed run never leaves a half-written `out`; `out`'s lock is held throughout
+    (out_lock: a second command writing to the same folder is refused)."""
+    check_out_path(out)
+    check_run_dir(out.resolve(), kind)  # before the lock's parent folder is made
+    with out_lock(out, kind):
+        tmp = start_run_dir(out, kind)
+        try:
+            yield tmp
+        except BaseException:
+            discard_run_dir(tmp)
+            raise
+        finish_run_dir(tmp, out, kind)
 
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
@@ -215,8 +487,22 @@ def start_parent_watch(parent_pid: int) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
 
 
+def working_folder_problem() -> str | None:
+    """Why no command can run in the current folder (it was deleted: torch cannot even be imported there, and the
+    studies' worker processes start in it), or None."""
+    try:
+        os.getcwd()
+    except OSError:
+        return "the current folder no longer exists (deleted?); change to an existing folder and run the command again"
+    return None
+
+
 def run_cli(prog: str, body: Callable[[], int]) -> int:
-    """Run a command's body; usage errors (config.ConfigError among them) become one line on stderr and exit code 2."""
+    """Run a command's body; usage errors (config.ConfigError among them) become one line on stderr and exit code 2,
+    and so does a working folder that was deleted (working_folder_problem)."""
+    if problem := working_folder_problem():
+        print(f"{prog}: error: {problem}", file=sys.stderr)
+        return USAGE_EXIT
     try:
         return body()
     except UsageError as err:

@@ -29,7 +29,19 @@ from coopsumo.config import (
 )
 from coopsumo.runio import Parser, UsageError, atomic_run_dir, check_apart, check_run_dir, run_cli
 from coopsumo.sim import sumo_session
-from coopsumo.validation import check_accident, check_int, check_t_up, integer, number, out_dir, seed, steps
+from coopsumo.validation import (
+    MAX_FCD_PERIOD_S,
+    MAX_GUI_DELAY_MS,
+    MAX_STEPS,
+    check_accident,
+    check_int,
+    check_t_up,
+    integer,
+    number,
+    out_dir,
+    seed,
+    steps,
+)
 
 SCENARIOS = ("free", "accident")
 
@@ -47,22 +59,25 @@ def build_parser() -> Parser:
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the policy and SUMO (0 to 2^31 - 1)")
     p.add_argument("--out", type=out_dir, required=True, help="run folder to write")
     p.add_argument("--trajectories", action="store_true", help="also write every vehicle's trajectory")
-    p.add_argument("--accident-start", type=integer(0), default=AccidentConfig.start_step, help="first accident step")
-    p.add_argument("--accident-steps", type=integer(1), default=AccidentConfig.duration_steps, help="length (steps)")
+    p.add_argument("--accident-start", type=integer(0), default=None,
+                   help=f"first accident step (--scenario accident; default {AccidentConfig.start_step})")  # fmt: skip
+    p.add_argument("--accident-steps", type=integer(1, MAX_STEPS), default=None,
+                   help=f"length (steps; --scenario accident; default {AccidentConfig.duration_steps})")  # fmt: skip
     p.add_argument("--sumo-collision-check", action="store_true",
                    help="also count collisions with SUMO's own check (slower in jams)")  # fmt: skip
     p.add_argument("--read-every-step", action="store_true",
                    help="read every vehicle from SUMO every step (default: every 10 steps, the table advanced "
                         "exactly in between; same results)")  # fmt: skip
     p.add_argument("--fcd", action="store_true", help="also write SUMO's FCD output fcd.xml")
-    p.add_argument("--fcd-period", type=number(0, low_open=True), default=None,
+    p.add_argument("--fcd-period", type=number(0, MAX_FCD_PERIOD_S, low_open=True), default=None,
                    help="FCD period (s, a multiple of 0.1; default 1)")  # fmt: skip
     p.add_argument("--tripinfo", action="store_true", help="also write SUMO's tripinfo.xml")
     p.add_argument("--gui", action="store_true", help="run in sumo-gui (needs a display), vehicles coloured")
     p.add_argument("--gui-screenshot", type=Path, default=None,
                    help="PNG file for sumo-gui's screenshot (default: none)")  # fmt: skip
     p.add_argument("--gui-screenshot-step", type=integer(1), default=None, help="its step (default: the last)")
-    p.add_argument("--gui-delay", type=number(0), default=0.0, help="sumo-gui's pause between steps (ms)")
+    p.add_argument("--gui-delay", type=number(0, MAX_GUI_DELAY_MS), default=0.0,
+                   help="sumo-gui's pause between steps (ms, at most 10,000)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -119,13 +134,19 @@ def gui_from_args(args: Any, cfg: SimConfig, environ: dict[str, str] | None = No
 def config_from_args(args: Any) -> SimConfig:
     """The run's configuration; UsageError naming the flag for values that depend on each other."""
     check_t_up("--t-up", args.t_up, ControlConfig().dt_s)
+    if args.scenario != "accident":  # like --fcd-period without --fcd: a flag that would be ignored is refused
+        for flag, value in (("--accident-start", args.accident_start), ("--accident-steps", args.accident_steps)):
+            if value is not None:
+                raise UsageError(f"{flag} needs --scenario accident")
+    start = AccidentConfig.start_step if args.accident_start is None else args.accident_start
+    duration = AccidentConfig.duration_steps if args.accident_steps is None else args.accident_steps
     if args.scenario == "accident":
-        check_accident(args.accident_start, args.accident_steps, args.steps)
+        check_accident(start, duration, args.steps)
     cfg = SimConfig(
         road=RoadConfig(lanes=args.lanes),
         demand=DemandConfig(t_up_s=args.t_up),
         accident=AccidentConfig(
-            enabled=args.scenario == "accident", start_step=args.accident_start, duration_steps=args.accident_steps
+            enabled=args.scenario == "accident", start_step=start, duration_steps=duration
         ),
         steps=args.steps,
         seed=args.seed,

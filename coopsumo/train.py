@@ -2,7 +2,19 @@
 
 import sys
 
-from coopsumo.agents.train import main
+from coopsumo.runio import USAGE_EXIT, working_folder_problem
+
+
+def main(argv: list[str] | None = None) -> int:
+    """coopsumo.agents.train.main, imported only once the working folder is known to exist (from a deleted one,
+    torch cannot be loaded: Intel oneMKL ends the process)."""
+    if problem := working_folder_problem():
+        print(f"train: error: {problem}", file=sys.stderr)
+        return USAGE_EXIT
+    from coopsumo.agents.train import main as train_main
+
+    return train_main(argv)
+
 
 if __name__ == "__main__":
     sys.exit(main())

@@ -10,17 +10,20 @@ UsageError with the flag in the message.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
+import numbers
 import os
 import re
 import signal
 import socket
 import subprocess
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
-from coopsumo.runio import UsageError
+from coopsumo.runio import UsageError, out_path_problem
 
 SEED_MAX = 2**31 - 1
 """largest seed: SUMO's --seed is a C int"""
@@ -32,6 +35,51 @@ MAX_REPLAY = 1_000_000
 """largest replay memory (transitions; about 0.4 GB)"""
 ALPHA_MIN = 0.0
 """the lane-change penalty alpha of eq. (7) is a finite number >= this (the one place the rule lives)"""
+ALPHA_MAX = 1000.0
+"""... and <= this: far above the paper's largest (48); the reward's other terms are about 1 per step"""
+MAX_T_UP_S = 3600.0
+"""largest upstream departure interval T_up (s): one vehicle an hour"""
+MAX_GUI_DELAY_MS = 10_000.0
+"""largest pause of sumo-gui between two steps (ms): 10 s a step"""
+MAX_FCD_PERIOD_S = 86_400.0
+"""largest period of SUMO's FCD output (s): a day, longer than any run (SUMO's clock overflows near 1e16 s)"""
+MOBIL_LIMITS: dict[str, tuple[float, float, bool]] = {
+    "p": (0.0, 10.0, False),
+    "threshold": (0.0, 100.0, False),
+    "b_safe": (0.0, 1e6, True),
+    "bias": (-100.0, 100.0, False),
+}
+"""MOBIL's parameters: (lowest, highest, lowest excluded); m/s^2 but p (politeness, 1: others weigh as much as
+oneself). The controller's accelerations lie between about -400 m/s^2 (a stop in one 0.1 s step) and 4 m/s^2"""
+SUMO_LC_LIMITS: dict[str, tuple[float, float, bool]] = {
+    "lcCooperative": (0.0, 1.0, False),
+    "lcSpeedGain": (0.0, 100.0, False),
+    "lcStrategic": (-1.0, 100.0, False),
+    "lcKeepRight": (0.0, 100.0, False),
+    "lcAssertive": (0.0, 100.0, True),
+}
+"""SUMO's LC2013 factors a `sumo:` policy may set: (lowest, highest, lowest excluded); lcStrategic -1 turns
+strategic changes off; lcCooperative is a share"""
+LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
+    "decision_interval_steps": (1, 600, False, False),
+    "lr": (0.0, 1.0, True, False),
+    "gamma": (0.0, 1.0, False, True),
+    "replay_size": (1, MAX_REPLAY, False, False),
+    "batch_size": (1, MAX_REPLAY, False, False),
+    "learn_every": (1, MAX_STEPS, False, False),
+    "updates_per_learn": (1, 1000, False, False),
+    "target_sync_steps": (1, MAX_STEPS, False, False),
+    "epsilon_start": (0.0, 1.0, False, False),
+    "epsilon_end": (0.0, 1.0, False, False),
+    "epsilon_decay_steps": (0, MAX_STEPS, False, False),
+    "learn_start_steps": (0, MAX_STEPS, False, False),
+    "grad_clip_norm": (0.0, 1e6, True, False),
+    "speed_scale_mps": (0.0, 1000.0, True, False),
+    "store_per_decision": (1, MAX_REPLAY, False, False),
+    "restart_below_mps": (0.0, 100.0, False, False),
+}
+"""every number of the learner (config.DQNConfig): (lowest, highest, lowest excluded, highest excluded); a decision
+at most every 60 s, lr at most 1 (beyond, every loss diverges), a gradient clip at most 1e6"""
 RAY_PROBE_TIMEOUT_S = 20.0
 """time a Ray cluster address gets to answer (s); with the socket check, failure comes within 30 s"""
 
@@ -63,6 +111,68 @@ def number_problem(value: float, low: float | None = None, high: float | None = 
     ok = ok and (low is None or (value > low if low_open else value >= low))
     ok = ok and (high is None or (value < high if high_open else value <= high))
     return None if ok else _number_range(low, high, low_open, high_open)
+
+
+_KINDS = {"int": "an integer", "float": "a finite number", "bool": "true or false", "str": "a string"}
+
+
+def _kind_fits(kind: str, value: Any) -> bool:
+    if kind == "bool":
+        return isinstance(value, bool)
+    if isinstance(value, bool):
+        return False
+    if kind == "int":
+        return isinstance(value, numbers.Integral)
+    if kind == "float":
+        return isinstance(value, numbers.Real) and math.isfinite(value)
+    return isinstance(value, str)
+
+
+def type_problem(obj: Any, prefix: str = "") -> str | None:
+    """The first field of the dataclass `obj` (nested dataclasses too) whose value does not fit its annotation
+    (int, float, bool or str; an integer is a float, a bool is neither; floats finite), in words; None when every
+    one fits. Configurations read back from files (checkpoints, model files) may hold anything."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            if problem := type_problem(value, f"{prefix}{f.name}."):
+                return problem
+            continue
+        kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+        if kind in _KINDS and not _kind_fits(kind, value):
+            return f"{prefix}{f.name} must be {_KINDS[kind]}, got {value!r}"
+    return None
+
+
+def limits_problem(obj: Any, limits: Mapping[str, tuple[float, float, bool, bool]]) -> str | None:
+    """The first attribute of `obj` named in `limits` outside its (lowest, highest, lowest excluded, highest
+    excluded) range, in words; None when all are inside."""
+    for name, (low, high, low_open, high_open) in limits.items():
+        value = getattr(obj, name)
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            return f"{name} must be a number, got {value!r}"
+        if isinstance(low, int) and isinstance(high, int) and not (low_open or high_open):
+            whole = isinstance(value, numbers.Integral)
+            problem = int_problem(int(float(value)), low, high) if whole else _int_range(low, high)
+        else:
+            problem = number_problem(float(value), low, high, low_open, high_open)
+        if problem:
+            return f"{name} must be {problem}, got {value!r}"
+    return None
+
+
+def spec_number(owner: str, key: str, text: str, limits: Mapping[str, tuple[float, float, bool]]) -> float:
+    """A policy parameter `key`=`text` of the policy `owner` (mobil, sumo) as a float inside limits[key];
+    ValueError naming it and its range otherwise (the caller turns it into its usage error)."""
+    low, high, low_open = limits[key]
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    problem = number_problem(value, low, high, low_open)
+    if problem:
+        raise ValueError(f"{owner}: {key} must be {problem}, got {text!r}")
+    return value
 
 
 # -- argparse type= callables (argparse prefixes "argument --flag:") ------------------------------
@@ -106,17 +216,20 @@ steps = integer(1, MAX_STEPS)
 """`type=` of a step-count flag"""
 seed_count = integer(1, MAX_SEEDS)
 """`type=` of a --seeds (how many) flag"""
-alpha = number(ALPHA_MIN)
+alpha = number(ALPHA_MIN, ALPHA_MAX)
 """`type=` of an --alpha flag"""
 
 
 def out_dir(text: str) -> Path:
-    """A `type=` for --out: a folder path SUMO can write into. SUMO reads an output file name holding ':' as
-    host:port, so such a path (given, or the current folder's) is refused here instead of failing inside SUMO."""
+    """A `type=` for --out: a folder path SUMO and the file system can take (runio.out_path_problem: no ':' or ','
+    in it, not too long, no symlink loop, ASCII under an ASCII locale, a current folder that exists), checked
+    here instead of failing inside SUMO after a folder was made."""
+    if not text:
+        raise argparse.ArgumentTypeError("must be a folder path, got ''")
     path = Path(text)
-    if not text or ":" in str(path.absolute()):
-        raise argparse.ArgumentTypeError(f"must be a folder path without ':' (SUMO reads an output file name with ':' "
-                                         f"as host:port), got {str(path.absolute())!r}")  # fmt: skip
+    problem = out_path_problem(path)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
     return path
 
 
@@ -173,8 +286,8 @@ def number_list(flag: str, text: str, low: float | None = None, high: float | No
 
 
 def alpha_list(flag: str, text: str) -> tuple[float, ...]:
-    """A comma-separated list of alphas (--alphas), each a finite number >= ALPHA_MIN."""
-    return number_list(flag, text, low=ALPHA_MIN)
+    """A comma-separated list of alphas (--alphas), each a finite number from ALPHA_MIN to ALPHA_MAX."""
+    return number_list(flag, text, low=ALPHA_MIN, high=ALPHA_MAX)
 
 
 def number_name(x: float) -> str:
@@ -185,13 +298,13 @@ def number_name(x: float) -> str:
 
 
 def distinct_list(flag: str, text: str, low: float | None = None, low_open: bool = False,
-                  note: str = "") -> tuple[float, ...]:  # fmt: skip
+                  note: str = "", high: float | None = None) -> tuple[float, ...]:  # fmt: skip
     """A study axis: comma-separated finite numbers inside the bounds, no empty item and no value twice (they
     name run folders: number_name); UsageError otherwise."""
     items = text.split(",")
     if any(not x.strip() for x in items):
         raise UsageError(f"{flag} has an empty item in {text!r}; give comma-separated numbers")
-    values = number_list(flag, text, low=low, low_open=low_open, note=note)
+    values = number_list(flag, text, low=low, high=high, low_open=low_open, note=note)
     names = [number_name(v) for v in values]
     twice = sorted({n for n in names if names.count(n) > 1})
     if twice:
@@ -212,13 +325,13 @@ def t_up_note(dt_s: float) -> str:
 
 
 def check_t_up(flag: str, value: float, dt_s: float) -> float:
-    """T_up (s) finite and at least one simulation step."""
-    return check_number(flag, value, low=min_t_up_s(dt_s), note=t_up_note(dt_s))
+    """T_up (s) finite, at least one simulation step and at most MAX_T_UP_S."""
+    return check_number(flag, value, low=min_t_up_s(dt_s), high=MAX_T_UP_S, note=t_up_note(dt_s))
 
 
 def t_up_list(flag: str, text: str, dt_s: float) -> tuple[float, ...]:
-    """A list of distinct demands T_up (s), each at least one simulation step."""
-    return distinct_list(flag, text, low=min_t_up_s(dt_s), note=t_up_note(dt_s))
+    """A list of distinct demands T_up (s), each from one simulation step to MAX_T_UP_S."""
+    return distinct_list(flag, text, low=min_t_up_s(dt_s), high=MAX_T_UP_S, note=t_up_note(dt_s))
 
 
 def check_accident(start: int, duration: int, steps: int, start_flag: str = "--accident-start",

@@ -22,6 +22,7 @@ import pandas as pd
 from coopsumo.config import ControlConfig, RoadConfig, to_dict
 from coopsumo.runio import Parser, run_cli, versions, write_json
 from coopsumo.studies import scenario1 as s1
+from coopsumo.studies.runner import study_root
 from coopsumo.validation import out_dir, seed_count, t_up_list, workers
 
 DEMANDS = "4,3,2.5,2,1.5,1.25,1"
@@ -45,7 +46,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         t_ups = t_up_list("--t-up", args.t_ups, ControlConfig().dt_s)
-        return run(plans(args.seeds, t_ups), args.out, args.workers)
+        with study_root(args.out, "regime_map"):  # path, lock, ownership and marker of the results folder
+            return run(plans(args.seeds, t_ups), args.out, args.workers)
 
     return run_cli("regime_map", body)
 

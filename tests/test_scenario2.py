@@ -418,6 +418,76 @@ def test_killed_sweep_resumes_without_recomputing(local_sweep: Path, tmp_path: P
     assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
 
 
+def start_sweep(out: Path) -> subprocess.Popen[str]:
+    return subprocess.Popen(sweep_cmd(out, "--workers", "2"), cwd=REPO, start_new_session=True, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+
+
+def wait_group_gone(pgid: int, timeout: float = 60.0) -> None:
+    """Wait until no process of the group is left (the workers of a killed sweep exit on their own)."""
+    end = time.monotonic() + timeout
+    while True:
+        try:
+            os.killpg(pgid, 0)
+        except ProcessLookupError:
+            return
+        assert time.monotonic() < end, "the killed sweep's workers are still running"
+        time.sleep(0.1)
+
+
+def assert_records_trustworthy(out: Path) -> int:
+    """Every record a killed sweep left is whole: a JSON object, status ok with a sound summary, or failed."""
+    paths = list((out / "cells").glob("*.json"))
+    for path in paths:
+        record = json.loads(path.read_text())
+        assert record["status"] == "failed" or runner.record_problem(record, s2.REQUIRED_SUMMARY) is None, path
+    assert not list((out / "cells").glob("*.tmp"))
+    return len(paths)
+
+
+@pytest.mark.sumo
+def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_sweep: Path, tmp_path: Path) -> None:
+    """Issue 25: Ctrl-C (SIGINT to the process group) while cells run, SIGKILL of the main process alone (its workers
+    notice and exit), SIGKILL while the report is being written; the last rerun equals the uninterrupted sweep."""
+    out = tmp_path / "cut"
+    # 1. Ctrl-C once a cell is done: the trainings save their checkpoints, the sweep exits 130 in one line
+    proc = start_sweep(out)
+    wait_for_cells(out, 1, proc)
+    time.sleep(0.3)
+    kill_group(proc, signal.SIGINT)
+    wait_group_gone(proc.pid)
+    assert proc.returncode == 130
+    done = assert_records_trustworthy(out)
+    assert 1 <= done < 8
+    # 2. SIGKILL of the main process alone, once one more cell is done
+    proc = start_sweep(out)
+    wait_for_cells(out, done + 1, proc)
+    proc.kill()
+    proc.communicate(timeout=60)
+    wait_group_gone(proc.pid)
+    done = assert_records_trustworthy(out)
+    # 3. SIGKILL while the report is written (runs.csv comes first, then the figures and report.md); not Ctrl-C,
+    # which CPython may drop when it lands in a garbage collector's callback (test_faults_scenario1.py)
+    proc = start_sweep(out)
+    end = time.monotonic() + 300
+    while not (out / "runs.csv").exists():
+        assert proc.poll() is None and time.monotonic() < end, "the sweep ended before its report"
+        time.sleep(0.01)
+    kill_group(proc, signal.SIGKILL)
+    wait_group_gone(proc.pid)
+    assert proc.returncode == -signal.SIGKILL and not (out / "report.md").exists()
+    assert assert_records_trustworthy(out) == 8
+    # 4. the rerun reuses every cell and equals the uninterrupted sweep; nothing partial is left anywhere
+    result = run_sweep_cli(out, "--workers", "2")
+    assert "8 already done" in result.stderr and "0 to run" in result.stderr
+    runs = assert_outputs(out)
+    pd.testing.assert_frame_equal(runs[COMPARED], pd.read_csv(local_sweep / "runs.csv")[COMPARED])
+    assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
+    left = [p for p in tmp_path.rglob("*") if p.name.endswith((".tmp", ".lock")) or ".partial-" in p.name]
+    assert left == [] and not list(out.rglob("checkpoint.pt"))
+    assert all(runner.model_folder_problem(out / "train" / key) is None for key in runs["key"])
+
+
 def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A cell that raises is written as failed with its error; the next run retries it (no SUMO: train is faked)."""
     import coopsumo.agents.train as train_module

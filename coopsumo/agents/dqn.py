@@ -19,6 +19,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from coopsumo.agents.file_checks import model_problem
 from coopsumo.config import OBSERVATIONS, DQNConfig
 from coopsumo.sim.observation import n_features
 
@@ -449,6 +450,8 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
         raise ModelFileError(f"cannot read model file {path}: {_first_line(exc)}") from exc
     if not isinstance(payload, dict) or any(k not in payload for k in _MODEL_KEYS):
         raise ModelFileError(f"not a coopsumo model file: {path}")
+    if problem := model_problem(payload):  # types and ranges (file_checks)
+        raise ModelFileError(f"model {path} {problem}")
     grid_shape = payload["grid_shape"]
     if not isinstance(grid_shape, (list, tuple)) or tuple(grid_shape) != GRID_SHAPE:
         raise ModelFileError(f"model {path} has grid shape {grid_shape}, expected {list(GRID_SHAPE)}")

@@ -81,6 +81,7 @@ class DQNPolicy:
                 dqn = dqn_config_from_dict(config["dqn"])
             else:
                 raise ConfigError("its training configuration has no learner settings")
+            dqn.validate()  # the learner settings' types and ranges (a decision interval of 0, a string)
             if dqn.dueling != net.dueling:
                 raise ConfigError(f"its learner settings say dueling={dqn.dueling}, its weights have "
                                   f"{'a dueling' if net.dueling else 'a plain'} head")  # fmt: skip

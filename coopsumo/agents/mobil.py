@@ -52,7 +52,8 @@ Defaults (spec `mobil` = `mobil:p=0.5`):
 | bias | 0.0 m/s^2 | keep-right bias; 0 = symmetric, as the paper's simulator has no keep-right rule |
 
 Spec grammar: `mobil` or `mobil:KEY=VALUE[,KEY=VALUE...]` with keys p, threshold, b_safe, bias
-(each at most once); p >= 0, threshold >= 0, b_safe > 0, bias any finite number.
+(each at most once); p from 0 to 10, threshold from 0 to 100, b_safe above 0 up to 1e6, bias from -100 to 100
+(validation.MOBIL_LIMITS).
 """
 
 from __future__ import annotations
@@ -66,6 +67,7 @@ from coopsumo.sim import physics
 from coopsumo.sim.driver import PolicySpecError
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP
+from coopsumo.validation import MOBIL_LIMITS, number_problem
 
 DEFAULT_P = 0.5
 DEFAULT_THRESHOLD_MPS2 = 0.1
@@ -97,13 +99,9 @@ class MobilPolicy:
         bias: float = DEFAULT_BIAS_MPS2,
         control: ControlConfig | None = None,
     ):
-        for key, value, ok in (
-            ("p", p, p >= 0),
-            ("threshold", threshold, threshold >= 0),
-            ("b_safe", b_safe, b_safe > 0),
-            ("bias", bias, True),
-        ):
-            if not (math.isfinite(value) and ok):
+        for key, value in (("p", p), ("threshold", threshold), ("b_safe", b_safe), ("bias", bias)):
+            low, high, low_open = MOBIL_LIMITS[key]
+            if number_problem(float(value), low, high, low_open):
                 raise PolicySpecError(f"mobil: bad value {key}={value!r}; {_RULES[key]}")
         self.p = float(p)
         self.threshold = float(threshold)
@@ -228,8 +226,7 @@ class MobilPolicy:
 
 
 _RULES = {
-    "p": "p (politeness) must be a finite number >= 0",
-    "threshold": "threshold (m/s^2) must be a finite number >= 0",
-    "b_safe": "b_safe (m/s^2) must be a finite number > 0",
-    "bias": "bias (m/s^2) must be a finite number",
+    key: f"{key}{' (politeness)' if key == 'p' else ' (m/s^2)'} must be {number_problem(math.nan, lo, hi, lo_open)}"
+    for key, (lo, hi, lo_open) in MOBIL_LIMITS.items()
 }
+"""each parameter's range in words (validation.MOBIL_LIMITS)"""

@@ -58,10 +58,10 @@ class TensorBoardFlag(argparse.Action):
 class ScalarLog:
     """One SummaryWriter on folder; add_row(row) writes a train_log.csv row's numbers at its step."""
 
-    def __init__(self, folder: Path) -> None:
+    def __init__(self, folder: Path, purge_step: int | None = None) -> None:
         from torch.utils.tensorboard import SummaryWriter
 
-        self._writer = SummaryWriter(log_dir=str(folder))
+        self._writer = SummaryWriter(log_dir=str(folder), purge_step=purge_step)
 
     def add_row(self, row: Mapping[str, Any]) -> None:
         step = int(row["step"])
@@ -75,9 +75,11 @@ class ScalarLog:
         self._writer.close()
 
 
-def open_log(out: Path, enabled: bool, resume: bool) -> ScalarLog | None:
+def open_log(out: Path, enabled: bool, resume: bool, resumed_step: int = 0) -> ScalarLog | None:
     """The training's ScalarLog in out/TB_DIR, None when not enabled; a fresh (not resumed) training first removes
-    the event files an earlier training left in out, so that one folder never mixes two runs."""
+    the event files an earlier training left in out, so that one folder never mixes two runs. A training resumed
+    from its checkpoint at resumed_step hides the points a killed run wrote past it (TensorBoard's purge_step), as
+    train_log.csv drops those rows: each step's point is shown once."""
     if not resume:
         shutil.rmtree(out / TB_DIR, ignore_errors=True)
-    return ScalarLog(out / TB_DIR) if enabled else None
+    return ScalarLog(out / TB_DIR, resumed_step + 1 if resume else None) if enabled else None

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import csv
 import os
+import shutil
 import signal
 import sys
 import time
@@ -29,6 +30,7 @@ from tqdm import tqdm
 from coopsumo.agents.decisions import ActionHold, offered
 from coopsumo.agents.dqn import N_ACTIONS, Learner, save_model
 from coopsumo.agents.dqn_policy import DQNPolicy
+from coopsumo.agents.file_checks import checkpoint_problem, ended_training, prepare_resume
 from coopsumo.agents.tb_log import TensorBoardFlag, open_log
 from coopsumo.config import (
     DQN_PRESETS,
@@ -46,7 +48,19 @@ from coopsumo.config import (
     to_dict,
     train_config_from_dict,
 )
-from coopsumo.runio import Parser, UsageError, check_run_dir, mark_run_dir, run_cli, versions, write_json
+from coopsumo.runio import (
+    Parser,
+    UsageError,
+    check_out_path,
+    check_run_dir,
+    finished_run,
+    first_line,
+    mark_run_dir,
+    out_lock,
+    run_cli,
+    versions,
+    write_json,
+)
 from coopsumo.sim.observation import Observation, network_features
 from coopsumo.sim.world import StepOutcome, World
 from coopsumo.validation import MAX_STEPS, alpha, check_t_up, integer, number, out_dir, seed, steps
@@ -216,17 +230,21 @@ class Trainer:
     def load_checkpoint(out: Path) -> dict[str, Any]:
         path = out / "checkpoint.pt"
         if not path.exists():
-            raise UsageError(f"nothing to resume: {path} does not exist")
+            done = "; the training there has finished" if finished_run(out, "train") else ""
+            raise UsageError(f"nothing to resume: {path} does not exist{done}")
         try:
             state: dict[str, Any] = torch.load(path, weights_only=True)
-        except Exception as err:  # a damaged file: report it in one line
-            raise UsageError(f"cannot read checkpoint {path}: {str(err).splitlines()[0]}") from None
+        except Exception as err:  # a damaged file (empty, cut short, not torch's): report it in one line
+            raise UsageError(f"cannot read checkpoint {path}: {first_line(err)}") from None
         if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
             raise UsageError(f"{path} is not a coopsumo training checkpoint")
         learner = state["learner"] if isinstance(state["learner"], dict) else {}
-        if "greedy_prob" in state["config"].get("dqn", {}) or "decisions" not in learner:
+        dqn = state["config"].get("dqn") if isinstance(state["config"], dict) else None
+        if (isinstance(dqn, dict) and "greedy_prob" in dqn) or "decisions" not in learner:
             raise UsageError(f"checkpoint {path} was written by a coopsumo before learner presets and cannot be "
                              "resumed exactly; train again without --resume")  # fmt: skip
+        if problem := checkpoint_problem(state):  # types and ranges (file_checks)
+            raise UsageError(f"checkpoint {path} {problem}; train again without --resume")
         return state
 
     @staticmethod
@@ -235,6 +253,8 @@ class Trainer:
         try:
             cfg = train_config_from_dict(state["config"])
             cfg.validate()
+            if state["step"] > cfg.sim.steps:
+                raise ConfigError(f"step {state['step']} lies beyond the run's {cfg.sim.steps} steps")
         except ConfigError as err:
             raise UsageError(f"checkpoint {out / 'checkpoint.pt'}: {err}") from None
         return cfg
@@ -246,6 +266,7 @@ class Trainer:
         flat = state["actions"].numpy().astype(np.int64)
         self.action_log = list(np.split(flat, np.cumsum(counts)[:-1])) if len(counts) else []
         self.window = Window(**state["window"])
+        prepare_resume(self.out, self.step)  # log rows past the checkpoint dropped, cut-short writes removed
 
     # -- the loop ----------------------------------------------------------------------------
     def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
@@ -415,11 +436,14 @@ def train(
         write_json(out / "config.json", model_meta(cfg))
         for stale in ("model.pt", "summary.json", "checkpoint.pt", "train_summary.json"):
             (out / stale).unlink(missing_ok=True)
-    scalars = open_log(out, tensorboard, resume)
+        trainer.save_checkpoint()  # step 0: from here on, an interrupted run always has a checkpoint to resume
+    ended = ended_training(out, trainer.step, cfg.sim.steps) if resume else None  # interrupted in its evaluation
+    scalars = open_log(out, tensorboard, resume, trainer.step)
     trainer.on_row = None if scalars is None else scalars.add_row
     start = time.perf_counter()
     try:
-        trainer.run()
+        if ended is None:
+            trainer.run()
     except ResumeDiverged as err:
         raise UsageError(f"checkpoint {trainer.checkpoint_path()} (another coopsumo or SUMO version?): {err}; "
                          "train again without --resume") from None  # fmt: skip
@@ -427,19 +451,27 @@ def train(
         if scalars is not None:
             scalars.close()
     wall = time.perf_counter() - start
+    if ended is None:
+        trainer.save_checkpoint()  # the last step's, kept until the evaluation is written: a resume evaluates again
     save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
-    train_summary = dict(trainer.world_summary, wall_seconds=round(wall, 2),
-                         steps_per_second=round(cfg.sim.steps / wall, 1), updates=trainer.learner.updates)  # fmt: skip
+    train_summary = ended or dict(trainer.world_summary, wall_seconds=round(wall, 2),
+                                  steps_per_second=round(cfg.sim.steps / wall, 1),
+                                  updates=trainer.learner.updates)  # fmt: skip
     write_json(out / "train_summary.json", train_summary)
-    trainer.checkpoint_path().unlink(missing_ok=True)
     if cfg.eval_steps == 0:
+        trainer.checkpoint_path().unlink(missing_ok=True)
         mark_run_dir(out, "train")
         return train_summary
     policy = DQNPolicy(trainer.learner.online, decision_interval=cfg.dqn.decision_interval_steps,
                        action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps,
                        change_margin=cfg.dqn.change_margin)  # fmt: skip
-    summary = evaluate(cfg, policy, out, progress, on_steps)
+    shutil.rmtree(out / "eval", ignore_errors=True)  # what an interrupted evaluation had written
+    try:
+        summary = evaluate(cfg, policy, out, progress, on_steps)
+    except KeyboardInterrupt:
+        raise Interrupted(signal.SIGINT, trainer.step) from None
     write_json(out / "summary.json", summary)
+    trainer.checkpoint_path().unlink(missing_ok=True)
     mark_run_dir(out, "train")
     return summary
 
@@ -585,17 +617,22 @@ def main(argv: list[str] | None = None) -> int:
         else:
             cfg = config_from_args(args)
         out = args.out or default_out(cfg)
+        check_out_path(out)  # also the default folder (a relative path when the current folder was deleted)
         check_run_dir(out, "train")
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as err:
             raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
         try:
-            summary = train(cfg, out, resume=args.resume, progress=not args.quiet, tensorboard=args.tensorboard)
+            with out_lock(out, "train"):  # a second command writing to the same folder is refused
+                summary = train(cfg, out, resume=args.resume, progress=not args.quiet, tensorboard=args.tensorboard)
         except Interrupted as stop:
             print(f"train: interrupted at step {stop.step}; checkpoint saved in {out / 'checkpoint.pt'}; "
                   f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
             return 128 + stop.signum
+        except KeyboardInterrupt:  # outside the training loop (saving the model): the last checkpoint stands
+            print(f"train: interrupted; continue with --resume --out {out}", file=sys.stderr)
+            return 130
         keys = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
         print(f"model: {out / 'model.pt'}  " + " ".join(f"{k}={summary.get(k)}" for k in keys))
         return 0

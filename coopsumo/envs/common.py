@@ -40,6 +40,21 @@ def action_space() -> spaces.Discrete:
     return spaces.Discrete(N_ACTIONS)
 
 
+def check_action(action: Any, who: str = "action") -> int:
+    """`action` as an int 0-3 (0 left, 1 right, 2 speedup, 3 none). Anything that is not one integer is a
+    TypeError naming `who` and the value: a bool (True is not "right"), a float, None, a string, an array of
+    any shape but () (a 0-d integer array or numpy integer is accepted); an integer outside 0-3 a ValueError."""
+    value = action[()] if isinstance(action, np.ndarray) and action.shape == () else action
+    if isinstance(value, np.ndarray):
+        raise TypeError(f"{who} must be one integer 0-3, got an array of shape {value.shape}: {action!r}")
+    if isinstance(value, bool | np.bool_) or not isinstance(value, int | np.integer):
+        raise TypeError(f"{who} must be an integer 0-3 (0 left, 1 right, 2 speedup, 3 none), got "
+                        f"{type(value).__name__} {action!r}")  # fmt: skip
+    if not 0 <= int(value) < N_ACTIONS:
+        raise ValueError(f"{who} must be 0 (left), 1 (right), 2 (speedup) or 3 (none), got {action!r}")
+    return int(value)
+
+
 def vehicle_observation(obs: Observation, row: int) -> dict[str, np.ndarray]:
     """One vehicle's state as fresh arrays (never views of the batch)."""
     return {

@@ -44,6 +44,7 @@ from coopsumo.envs.common import (
     WorldSlot,
     action_space,
     background_policy,
+    check_action,
     observation_space,
     run_seed,
     step_info,
@@ -154,8 +155,7 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
         world, obs, policy = self._slot.world, self._obs, self._policy
         if world is None or obs is None or policy is None or self._done:
             raise RuntimeError("call reset() before step() (and after an episode ends)")
-        if not self.action_space.contains(action):
-            raise ValueError(f"action must be one of 0 (left), 1 (right), 2 (speedup), 3 (none); got {action!r}")
+        action = check_action(action)  # TypeError/ValueError naming it: True, 1.0, None, arrays are not actions
         reward = 0.0
         info: dict[str, Any] = {}
         terminated = False

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
@@ -37,7 +38,15 @@ from pettingzoo import ParallelEnv
 
 from coopsumo.agents.decisions import ActionHold
 from coopsumo.config import SimConfig
-from coopsumo.envs.common import WorldSlot, action_space, observation_space, run_seed, step_info, vehicle_observation
+from coopsumo.envs.common import (
+    WorldSlot,
+    action_space,
+    check_action,
+    observation_space,
+    run_seed,
+    step_info,
+    vehicle_observation,
+)
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import SPEEDUP
 from coopsumo.sim.reward import RewardParts
@@ -135,6 +144,9 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
         world, obs = self._slot.world, self._obs
         if world is None or obs is None:
             raise RuntimeError("call reset() before step()")
+        if not isinstance(actions, Mapping):
+            raise TypeError(f"actions must be a dict of live agent name -> action 0-3, got {type(actions).__name__} "
+                            f"{actions!r:.80}")  # fmt: skip
         live = set(self.agents)
         unknown = set(actions) - live
         missing = live - set(actions)
@@ -147,10 +159,7 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
         for row, num in enumerate(obs.nums.tolist()):
             name = agent_name(num)
             if name in live:
-                action = actions[name]
-                if not self._act_space.contains(action):
-                    raise ValueError(f"action of {name} must be 0, 1, 2 or 3; got {action!r}")
-                batch[row] = int(action)
+                batch[row] = check_action(actions[name], f"action of {name}")
         out = world.apply(batch)
         if self.decision_interval > 1:
             out = self._hold(world, obs, batch, out)

@@ -7,6 +7,7 @@ in charge; the World reads that driver mode from the spec here, so the simulatio
 from __future__ import annotations
 
 from coopsumo.runio import UsageError
+from coopsumo.validation import SUMO_LC_LIMITS, spec_number
 
 LC_KEYS = ("lcCooperative", "lcSpeedGain", "lcStrategic", "lcKeepRight", "lcAssertive")
 """LC2013 parameters a `sumo:` spec may set on every vehicle"""
@@ -30,7 +31,7 @@ def sumo_lc_params(spec: str) -> dict[str, float]:
         if not sep or key not in LC_KEYS:
             raise PolicySpecError(f"bad sumo policy parameter {item!r}; expected KEY=VALUE, KEY in {LC_KEYS}")
         try:
-            params[key] = float(value)
-        except ValueError:
-            raise PolicySpecError(f"sumo policy parameter {key} needs a number, got {value!r}") from None
+            params[key] = spec_number("sumo", key, value, SUMO_LC_LIMITS)  # finite and in range (nan refused)
+        except ValueError as err:
+            raise PolicySpecError(str(err)) from None
     return params

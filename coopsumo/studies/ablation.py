@@ -41,7 +41,7 @@ from coopsumo.config import (
 )
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies import robustness
-from coopsumo.studies.runner import add_backend_flags, check_backend, failed_exit
+from coopsumo.studies.runner import add_backend_flags, check_backend, failed_exit, study_root
 from coopsumo.validation import alpha_list, number_name, out_dir, seed_count, workers
 
 EVAL_SEED_OFFSET = 1000
@@ -600,8 +600,9 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         profile = profile_from_args(args)
         check_backend(args.backend, args.address)
-        meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
-                         progress=not args.quiet)  # fmt: skip
+        with study_root(args.out, "ablation"):  # path, lock, ownership and marker of the results folder
+            meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
+                             progress=not args.quiet)  # fmt: skip
         print(f"ablation: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")
         return failed_exit("ablation", meta["failed_cells"], meta["cells"], args.out)
 

@@ -27,7 +27,7 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
 from concurrent.futures import wait as wait_futures
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager, nullcontext
+from contextlib import AbstractContextManager, contextmanager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
@@ -37,6 +37,7 @@ from tqdm import tqdm
 
 from coopsumo.config import OutputConfig, results_view, to_dict
 from coopsumo.runio import UsageError, start_parent_watch, versions, write_json
+from coopsumo.runio import study_root as claim_study_root
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -98,6 +99,8 @@ def finished_training(out: Path, config: dict[str, Any]) -> dict[str, Any] | Non
     done = isinstance(marker, dict) and marker.get("kind") == "train" and isinstance(marker.get("files"), list)
     if not (done and "model.pt" in marker["files"] and (out / "model.pt").is_file() and isinstance(summary, dict)):
         return None
+    if model_folder_problem(out) is not None:  # a model file that does not load (empty, cut short) is trained again
+        return None
     return summary if results_view(stored) == results_view(json.loads(json.dumps(config))) else None
 
 
@@ -138,10 +141,15 @@ def same_config(path: Path, cfg: dict[str, Any]) -> bool:
         return False
 
 
-def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None) -> bool:
+RUN_SUMMARY = ("departed", "mean_speed_mps", "throughput_veh_per_h", "lane_changes", "collisions", "teleports")
+"""summary.json values a stored accident run must hold as finite numbers to be reused (scenario I's measures)"""
+
+
+def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None,
+                 prog: str = "scenario1") -> bool:  # fmt: skip
     """True when the run folder out holds a finished run of the SimConfig dict cfg with the SUMO output files
     `outputs` asks for and, for a model's run, was made after the model file was written (a retrained model keeps
-    its path)."""
+    its path), and its values and files can be trusted (run_folder_problem; else one line on stderr)."""
     if not ((out / "summary.json").exists() and same_config(out / "config.json", cfg)):
         return False
     if model is not None and not (model.exists() and (out / "summary.json").stat().st_mtime >= model.stat().st_mtime):
@@ -151,7 +159,12 @@ def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: P
     except (OSError, ValueError):
         return False
     files = (["fcd.xml"] if outputs.fcd_period_s > 0 else []) + (["tripinfo.xml"] if outputs.tripinfo else [])
-    return recorded == to_dict(outputs) and all((out / f).exists() for f in files)
+    if not (recorded == to_dict(outputs) and all((out / f).exists() for f in files)):
+        return False
+    if problem := run_folder_problem(out, RUN_SUMMARY):  # its values and files, not only its configuration
+        print(f"{prog}: run folder {out} {problem}; running it again", file=sys.stderr)
+        return False
+    return True
 
 
 def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:
@@ -212,6 +225,22 @@ def simulate_into(
         summary = run(cfg, policy, run_dir, trajectories=trajectory_every > 0, progress=False, label=label,
                       trajectory_every=max(trajectory_every, 1), outputs=outputs)  # fmt: skip
     return {k: v for k, v in summary.items() if k != "policy"}
+
+
+STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
+    "scenario1": ("plan.json", "cells", "models", "runs", "runs.csv", "summary.csv", "report.md", "fig*.png",
+                  "gui_jam.png", "gui_jam.json"),
+    "scenario2": ("sweep.json", "cells", "train", "mobil", "runs.csv", "alpha_star.csv", "mobil_p_star.csv",
+                  "fig6_*.png", "report.md"),
+    "ablation": ("study.json", "cells", "train", "baselines", "runs.csv", "summary.csv", "fig_*.png", "report.md"),
+    "regime_map": ("plan.json", "cells", "runs", "runs.csv", "report.md"),
+}  # fmt: skip
+"""the names each study writes at the top of its root, its plan file first (runio.check_study_root)"""
+
+
+def study_root(root: Path, kind: str) -> AbstractContextManager[Path]:
+    """Claim the study root for the block (runio.study_root: path checked, lock held, ownership checked, marked)."""
+    return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"))
 
 
 def cell_path(root: Path, key: str) -> Path:
@@ -279,6 +308,66 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
         elif results_view(record.get("config")) == results_view(spec["config"]):
             done.add(spec["key"])
     return done
+
+
+def summary_problem(path: Path, required: Sequence[str]) -> str | None:
+    """Why the summary.json at `path` cannot be trusted, or None: a readable JSON object whose `required` values
+    are finite numbers (as record_problem asks of a cell record's summary)."""
+    try:
+        summary = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        return f"has an unreadable summary.json ({type(err).__name__})"
+    problem = record_problem({"status": "ok", "summary": summary}, required)
+    if problem is None:
+        return None
+    return problem.replace("has status ok but its summary is", "has summary.json").replace("has summary ",
+                                                                                             "has summary.json ")
+
+
+def run_folder_problem(out: Path, required: Sequence[str]) -> str | None:
+    """Why a finished run folder (simulate's: config.json, summary.json, detectors.xml, maybe trajectories.parquet)
+    cannot be reused as it is, or None: marked finished by simulate (or written before markers: no marker at
+    all), its summary trusted (summary_problem), detectors.xml complete, trajectories.parquet readable."""
+    import pyarrow.parquet as pq
+
+    from coopsumo.runio import RUN_MARKER, finished_run
+
+    if (out / RUN_MARKER).exists() and not finished_run(out, "simulate"):
+        return f"has a {RUN_MARKER} that does not mark a finished simulate run"
+    if problem := summary_problem(out / "summary.json", required):
+        return problem
+    try:
+        with (out / "detectors.xml").open("rb") as f:
+            f.seek(max(0, f.seek(0, os.SEEK_END) - 64))
+            complete = f.read().rstrip().endswith(b"</detector>")
+    except OSError:
+        complete = False
+    if not complete:
+        return "has a missing or cut-short detectors.xml"
+    if (out / "trajectories.parquet").exists():
+        try:
+            pq.read_metadata(out / "trajectories.parquet")
+        except Exception:  # pyarrow raises several types for a damaged file
+            return "has an unreadable trajectories.parquet"
+    return None
+
+
+def model_folder_problem(folder: Path) -> str | None:
+    """Why the training folder's model.pt cannot be reused, or None: the training finished (train's marker lists
+    its files; written before markers: train_summary.json is there) and the model loads (dqn.load_model)."""
+    from coopsumo.agents.dqn import ModelFileError, load_model
+    from coopsumo.runio import RUN_MARKER, finished_run
+
+    if (folder / RUN_MARKER).exists():
+        if not finished_run(folder, "train"):
+            return "is from a training that has not finished"
+    elif not (folder / "train_summary.json").exists():
+        return "has no train_summary.json (its training has not finished)"
+    try:
+        load_model(folder / "model.pt")
+    except ModelFileError as err:
+        return f"cannot be used: {err}"
+    return None
 
 
 def failed_exit(prog: str, failed: Sequence[str], total: int, root: Path) -> int:

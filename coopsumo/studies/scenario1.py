@@ -31,9 +31,11 @@ from coopsumo.studies.runner import (
     execute,
     failed_exit,
     make_backend,
+    model_folder_problem,
     reusable_run,
     same_config,
     sigterm_interrupts,
+    study_root,
 )
 from coopsumo.studies.scenario1_measures import run_metrics
 from coopsumo.studies.scenario1_plan import (
@@ -51,6 +53,7 @@ from coopsumo.studies.scenario1_plan import (
 from coopsumo.studies.scenario1_report import timing_text, write_outputs
 from coopsumo.validation import (
     MAX_STEPS,
+    MOBIL_LIMITS,
     alpha_list,
     distinct_list,
     integer,
@@ -77,11 +80,10 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 def _train_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
     import torch
 
-    from coopsumo.agents.train import train
-    from coopsumo.config import train_config_from_dict
+    from coopsumo.studies.runner import train_resuming
 
     torch.set_num_threads(1)
-    record["summary"] = train(train_config_from_dict(spec["config"]), out, progress=False)
+    record["summary"] = train_resuming(spec["config"], out)[0]  # an interrupted training continues exactly
 
 
 def _run_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
@@ -155,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.t_ups is not None:
             plan = replace(plan, t_ups=t_up_list("--t-up", args.t_ups, ControlConfig().dt_s))
         if args.mobil_ps is not None:
-            plan = replace(plan, mobil_ps=distinct_list("--mobil-p", args.mobil_ps, low=0.0))
+            plan = replace(plan, mobil_ps=distinct_list("--mobil-p", args.mobil_ps, low=0.0, high=MOBIL_LIMITS["p"][1]))
         if args.train_steps is not None:
             if args.train_steps < 1:
                 raise UsageError(f"train-steps must be >= 1, got {args.train_steps}")
@@ -171,7 +173,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.presets is not None:
             plan = replace(plan, presets=_preset_list(args.presets))
         check_backend(args.backend, args.address)
-        return run_study(plan, args.out, args.workers, args.backend, args.address)
+        with study_root(args.out, "scenario1"):  # path, lock, ownership and marker of the results folder
+            return run_study(plan, args.out, args.workers, args.backend, args.address)
 
     return run_cli("scenario1", body)
 
@@ -196,8 +199,11 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
             model_paths[preset, alpha] = root / "models" / name / "model.pt"
             train_keys[preset, alpha] = f"train_{name}"
             if model_paths[preset, alpha].exists() and same_config(root / f"models/{name}/config.json", to_dict(tcfg)):
-                print(f"scenario1: reusing {model_paths[preset, alpha]} (same configuration)", file=sys.stderr)
-                continue
+                problem = model_folder_problem(root / "models" / name)  # finished, and the model loads
+                if problem is None:
+                    print(f"scenario1: reusing {model_paths[preset, alpha]} (same configuration)", file=sys.stderr)
+                    continue
+                print(f"scenario1: model {model_paths[preset, alpha]} {problem}; training it again", file=sys.stderr)
             specs.append({"key": train_keys[preset, alpha], "kind": "train", "label": model_label(preset, alpha),
                           "seed": plan.train_seed, "out": f"models/{name}", "config": to_dict(tcfg)})  # fmt: skip
     n_train = len(specs)

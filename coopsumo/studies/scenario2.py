@@ -53,6 +53,7 @@ from coopsumo.studies.runner import (
     reusable_keys,
     sigterm_interrupts,
     simulate_into,
+    study_root,
     train_resuming,
 )
 from coopsumo.studies.scenario2_measures import CRITERION, KEY_COLUMNS, runs_table
@@ -65,6 +66,8 @@ from coopsumo.studies.scenario2_plan import (
 )
 from coopsumo.studies.scenario2_report import condition_label, write_outputs
 from coopsumo.validation import (
+    MAX_T_UP_S,
+    MOBIL_LIMITS,
     alpha_list,
     integer,
     min_t_up_s,
@@ -204,7 +207,7 @@ def profile_from_args(args: Any) -> Profile:
         profile = replace(profile, alphas=tuple(sorted(set(alphas))))
     if args.t_up is not None:
         dt_s = ControlConfig().dt_s
-        t_up = number_list("--t-up", args.t_up, low=min_t_up_s(dt_s), note=t_up_note(dt_s))
+        t_up = number_list("--t-up", args.t_up, low=min_t_up_s(dt_s), high=MAX_T_UP_S, note=t_up_note(dt_s))
         profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
     if args.preset is not None:
         profile = replace(profile, preset=args.preset)
@@ -215,7 +218,7 @@ def profile_from_args(args: Any) -> Profile:
     if args.mobil_p is not None:
         if "mobil" not in profile.policies:
             raise UsageError("--mobil-p is for --policies with mobil")
-        ps = number_list("--mobil-p", args.mobil_p, low=0)
+        ps = number_list("--mobil-p", args.mobil_p, low=0, high=MOBIL_LIMITS["p"][1])
         profile = replace(profile, mobil_ps=tuple(sorted(set(ps))))
     return profile
 
@@ -258,7 +261,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.bootstrap < 0:
             raise UsageError(f"bootstrap must be >= 0, got {args.bootstrap}")
         check_backend(args.backend, args.address)
-        meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet, args.bootstrap)
+        with study_root(args.out, "scenario2"):  # path, lock, ownership and marker of the results folder
+            meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet,
+                             args.bootstrap)  # fmt: skip
         if "dqn" in profile.policies:
             table = pd.read_csv(args.out / "alpha_star.csv")
             for r in table.itertuples():

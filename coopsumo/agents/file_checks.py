@@ -1,0 +1,159 @@
+"""What the learner reads back from disk, checked by type and range before it is used, and the repairs a resume
+makes to a training folder.
+
+model_problem checks a model file's payload (dqn.save_model's dict), checkpoint_problem a training checkpoint
+(train.Trainer.save_checkpoint's dict): each says in words why the file cannot be trusted, or None. The learner
+settings inside either are checked by config.DQNConfig.validate (types and validation.LEARNER_LIMITS).
+prepare_resume makes a training folder ready to continue from its checkpoint's step; ended_training reads the
+summary of a training whose checkpoint holds its last step (it was interrupted during its evaluation).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import numbers
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+
+N_ACTIONS = 4
+"""actions a recorded action may take: 0 left, 1 right, 2 speedup, 3 none (dqn.N_ACTIONS)"""
+LEARNER_KEYS = ("online", "target", "optimizer", "buffer", "numpy_rng", "torch_rng", "env_steps", "decisions",
+                "updates")  # fmt: skip
+"""what a checkpoint's learner state holds (dqn.Learner.state_dict)"""
+
+
+def _is_count(x: Any) -> bool:
+    """A non-negative integer (not a bool)."""
+    return isinstance(x, numbers.Integral) and not isinstance(x, bool) and int(x) >= 0
+
+
+def _weights_problem(weights: Any, what: str) -> str | None:
+    """Why a state dict of weights is not one (a mapping of names to finite float tensors), or None."""
+    if not isinstance(weights, Mapping) or not weights:
+        return f"has {what} of type {type(weights).__name__}, not a mapping of tensors"
+    for name, tensor in weights.items():
+        if not isinstance(tensor, torch.Tensor):
+            return f"has {what} {name!r} of type {type(tensor).__name__}, not a tensor"
+        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+            return f"has non-finite values (nan or inf) in {what} {name!r}"
+    return None
+
+
+def model_problem(payload: Mapping[str, Any]) -> str | None:
+    """Why a model file's payload (keys checked by the caller) cannot be used, or None: grid shape a list of
+    positive integers, action count an integer, speed scale a finite positive number, dueling a bool, weights
+    finite tensors, meta a mapping."""
+    shape = payload["grid_shape"]
+    if not isinstance(shape, list | tuple) or not all(_is_count(n) and n > 0 for n in shape):
+        return f"has grid shape {shape!r}, not a list of positive integers"
+    if not _is_count(payload["n_actions"]):
+        return f"has action count {payload['n_actions']!r}, not an integer"
+    scale = payload["speed_scale_mps"]
+    number = isinstance(scale, numbers.Real) and not isinstance(scale, bool)
+    if not (number and math.isfinite(scale) and float(scale) > 0):
+        return f"has speed scale {scale!r}, not a finite number > 0 (m/s)"
+    if not isinstance(payload.get("dueling", False), bool):
+        return f"has dueling = {payload['dueling']!r}, not true or false"
+    if not isinstance(payload["meta"], Mapping):
+        return f"has meta of type {type(payload['meta']).__name__}, expected a dict"
+    return _weights_problem(payload["state_dict"], "weights")
+
+
+def _int_tensor(x: Any) -> bool:
+    return isinstance(x, torch.Tensor) and x.dim() == 1 and not x.is_floating_point() and x.dtype != torch.bool
+
+
+def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
+    """Why a training checkpoint (its keys checked by the caller) cannot be resumed, or None: its configuration
+    a mapping with sim and dqn mappings; step a count; one recorded action count per step, the actions 0-3 and
+    as many as counted; the log window a mapping of numbers; the learner's state complete, counts as counts,
+    weights finite."""
+    config = state["config"]
+    if not isinstance(config, Mapping) or not all(isinstance(config.get(k), Mapping) for k in ("sim", "dqn")):
+        return "has no training configuration (sim and dqn settings)"
+    step = state["step"]
+    if not _is_count(step):
+        return f"has step {step!r}, not an integer >= 0"
+    counts, actions = state["action_counts"], state["actions"]
+    if not (_int_tensor(counts) and _int_tensor(actions)):
+        return "has recorded actions that are not integer tensors"
+    if len(counts) != step or bool((counts < 0).any()):
+        return f"records actions for {len(counts)} steps, not its {step}"
+    in_range = not len(actions) or 0 <= int(actions.min()) <= int(actions.max()) < N_ACTIONS
+    if len(actions) != int(counts.sum()) or not in_range:
+        return "has recorded actions that do not match their counts or lie outside 0-3"
+    window = state["window"]
+    if not isinstance(window, Mapping) or not all(
+        isinstance(v, list) if k == "loss" else isinstance(v, numbers.Real) for k, v in window.items()
+    ):
+        return "has a log window that is not a mapping of numbers"
+    learner = state["learner"]
+    if not isinstance(learner, Mapping):
+        return f"has learner state of type {type(learner).__name__}, not a mapping"
+    missing = [k for k in LEARNER_KEYS if k not in learner]
+    if missing:
+        return f"has learner state without {missing[0]}"
+    bad = next((k for k in ("env_steps", "decisions", "updates") if not _is_count(learner[k])), None)
+    if bad:
+        return f"has learner {bad} = {learner[bad]!r}, not an integer >= 0"
+    for net in ("online", "target"):
+        if problem := _weights_problem(learner[net], f"{net} weights"):
+            return problem
+    if not isinstance(learner["buffer"], Mapping) or not isinstance(learner["optimizer"], Mapping):
+        return "has a replay memory or optimizer state that is not a mapping"
+    if not isinstance(learner["torch_rng"], torch.Tensor) or not isinstance(learner["numpy_rng"], Mapping):
+        return "has random-generator states of the wrong type"
+    return None
+
+
+def truncate_log(path: Path, step: int) -> int:
+    """Drop the rows of train_log.csv (at path) logged after `step`, and a last row cut short by a kill; keep the
+    header and every row up to `step`. A run killed after its last checkpoint had logged rows past it; its resume
+    logs them again. Returns how many rows were dropped (0 when the file is missing)."""
+    try:
+        lines = path.read_text().splitlines(keepends=True)
+    except FileNotFoundError:
+        return 0
+    if not lines:
+        return 0
+    width = len(next(csv.reader([lines[0]])))
+    kept = [lines[0]] if lines[0].endswith("\n") else []
+    for line in lines[1:]:
+        row = next(csv.reader([line]), [])
+        if not line.endswith("\n") or len(row) != width or not row[0].isdigit() or int(row[0]) > step:
+            break
+        kept.append(line)
+    dropped = len(lines) - len(kept)
+    if dropped:
+        tmp = path.with_suffix(path.suffix + ".tmp")
+        tmp.write_text("".join(kept))
+        os.replace(tmp, path)
+    return dropped
+
+
+def prepare_resume(out: Path, step: int) -> None:
+    """Make the training folder `out` ready to continue from a checkpoint at `step`: train_log.csv rows past it
+    dropped (truncate_log), and the temporary files of writes a kill cut short ('*.tmp') removed."""
+    truncate_log(out / "train_log.csv", step)
+    for tmp in out.glob("*.tmp"):
+        tmp.unlink(missing_ok=True)
+    for tmp in out.glob(".*.tmp"):
+        tmp.unlink(missing_ok=True)
+
+
+def ended_training(out: Path, step: int, steps: int) -> dict[str, Any] | None:
+    """train_summary.json of `out` when the checkpoint's `step` is the training's last (`steps`) and the file
+    was written (the training ended and was interrupted in its evaluation); else None (the training resumes)."""
+    if step != steps:
+        return None
+    try:
+        summary = json.loads((out / "train_summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return summary if isinstance(summary, dict) and summary.get("steps") == steps else None

@@ -1,0 +1,144 @@
+"""Issue 25, part 3: output paths that SUMO or the file system cannot take are refused before anything is written,
+in one line with exit code 2, by every command: a comma (SUMO splits its file lists at commas; ':' is in
+test_bad_inputs), a name or path too long for the file system, a loop of symbolic links, a file where a folder
+must be, a deleted working folder, non-ASCII characters under an ASCII locale (LC_ALL=C)."""
+
+from __future__ import annotations
+
+import importlib
+import os
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from coopsumo.runio import NAME_ROOM, PATH_ROOM, out_path_problem
+
+REPO = Path(__file__).resolve().parent.parent
+COMMANDS = ("simulate", "train", "scenario1", "scenario2", "ablation")
+NAME_MAX = os.pathconf("/tmp", "PC_NAME_MAX")
+PATH_MAX = os.pathconf("/tmp", "PC_PATH_MAX")
+
+
+def _comma(tmp: Path) -> Path:
+    return tmp / "run,1"
+
+
+def _long_name(tmp: Path) -> Path:
+    return tmp / ("x" * (NAME_MAX - NAME_ROOM + 1))  # the file system takes it, the run's partial folder would not
+
+
+def _long_path(tmp: Path) -> Path:
+    depth = (PATH_MAX - PATH_ROOM) // 200 + 1
+    return tmp.joinpath(*["y" * 199] * depth)
+
+
+def _loop(tmp: Path) -> Path:
+    (tmp / "loop_a").symlink_to(tmp / "loop_b")
+    (tmp / "loop_b").symlink_to(tmp / "loop_a")
+    return tmp / "loop_a" / "run"
+
+
+def _under_a_file(tmp: Path) -> Path:
+    (tmp / "a_file").write_text("not a folder\n")
+    return tmp / "a_file" / "run"
+
+
+CASES: dict[str, tuple[Callable[[Path], Path], str]] = {
+    "comma": (_comma, "without ','"),
+    "long name": (_long_name, f"at most {NAME_MAX - NAME_ROOM} are allowed"),
+    "long path": (_long_path, f"at most {PATH_MAX - PATH_ROOM} are allowed"),
+    "symlink loop": (_loop, "loop of symbolic links"),
+    "under a file": (_under_a_file, "a_file is a file, not a folder"),
+}
+
+
+def snapshot(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.iterdir())
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+@pytest.mark.parametrize("command", COMMANDS)
+def test_an_output_path_sumo_or_the_file_system_cannot_take_is_refused(
+    command: str, case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    make, fragment = CASES[case]
+    out = make(tmp_path)
+    before = snapshot(tmp_path)
+    main = importlib.import_module(f"coopsumo.{command}").main
+    with pytest.raises(SystemExit) as stop:  # argparse's type= check of --out
+        main(["--out", str(out)])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and len(lines) == 1, lines
+    assert "--out" in lines[0] and fragment in lines[0] and "Traceback" not in lines[0], lines[0]
+    assert snapshot(tmp_path) == before  # nothing written
+
+
+def test_out_path_problem_accepts_ordinary_paths(tmp_path: Path) -> None:
+    for ok in ("run", "a b/run", "a;b", "é/run", "x" * (NAME_MAX - NAME_ROOM)):
+        assert out_path_problem(tmp_path / ok) is None, ok
+    (tmp_path / "link").symlink_to(tmp_path / "target")  # a link to a folder yet to be made is fine
+    assert out_path_problem(tmp_path / "link" / "run") is None
+    (tmp_path / "odd,place").mkdir()
+    (tmp_path / "plain").symlink_to(tmp_path / "odd,place")
+    problem = out_path_problem(tmp_path / "plain" / "run")  # SUMO is given the resolved path
+    assert problem is not None and "odd,place" in problem
+
+
+def _in_deleted_folder(args: list[str], tmp_path: Path) -> subprocess.CompletedProcess[str]:
+    """`python -m coopsumo.<args>` started in a folder that is deleted just before."""
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    script = f'cd "{gone}" && rmdir "{gone}" && exec "$0" "$@"'
+    return subprocess.run(["bash", "-c", script, sys.executable, "-m", *args], capture_output=True, text=True,
+                          timeout=120, check=False)  # fmt: skip
+
+
+@pytest.mark.parametrize("args", [
+    ["coopsumo.simulate", "--steps", "20", "--quiet", "--out", "run"],
+    ["coopsumo.simulate", "--steps", "20", "--quiet", "--out", "ABS"],
+    ["coopsumo.train", "--steps", "20", "--eval-steps", "0", "--quiet"],  # the default --out, relative
+    ["coopsumo.train", "--steps", "20", "--eval-steps", "0", "--quiet", "--out", "ABS"],
+    ["coopsumo.scenario2", "--profile", "tiny", "--quiet"],  # the default --out, relative
+    ["coopsumo.scenario1", "--quick", "--out", "ABS"],
+    ["coopsumo.bench", "--quick"],
+], ids=["simulate", "simulate-absolute", "train", "train-absolute", "scenario2", "scenario1-absolute",
+        "bench"])  # fmt: skip
+def test_a_deleted_working_folder_is_one_line(args: list[str], tmp_path: Path) -> None:
+    """Before: a traceback (Path.absolute), or Intel oneMKL's fatal error importing torch (train), or workers that
+    could not start. Now every command refuses to run there, an absolute --out too."""
+    res = _in_deleted_folder([str(tmp_path / "kept") if a == "ABS" else a for a in args], tmp_path)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1 and "Traceback" not in res.stderr, res.stderr[-2000:]
+    assert "current folder no longer exists" in lines[0] and "error" in lines[0], lines[0]
+    assert snapshot(tmp_path) == []
+
+
+def _with_locale(lc_all: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("LC_") and k != "LANG"}
+    return {**env, "LC_ALL": lc_all, "PYTHONPATH": os.pathsep.join(sys.path)}
+
+
+@pytest.mark.parametrize("command", ["simulate", "train"])
+def test_a_non_ascii_out_under_an_ascii_locale_is_one_line(command: str, tmp_path: Path) -> None:
+    """Before: SUMO could not open the run's files ('The route file ... is not accessible'), a traceback."""
+    out = tmp_path / "über"
+    args = ["--steps", "20", "--quiet", "--out", str(out)] + (["--eval-steps", "0"] if command == "train" else [])
+    res = subprocess.run([sys.executable, "-m", f"coopsumo.{command}", *args], capture_output=True,
+                         env=_with_locale("C"), timeout=120, check=False)  # fmt: skip
+    err = res.stderr.decode("utf-8", "replace")
+    lines = err.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1 and "Traceback" not in err, err[-2000:]
+    assert "non-ASCII" in lines[0] and "LC_ALL=C.UTF-8" in lines[0]
+    assert snapshot(tmp_path) == []
+
+
+@pytest.mark.sumo
+def test_a_non_ascii_out_under_a_utf8_locale_runs(tmp_path: Path) -> None:
+    out = tmp_path / "über"
+    res = subprocess.run([sys.executable, "-m", "coopsumo.simulate", "--steps", "20", "--quiet", "--out", str(out)],
+                         capture_output=True, env=_with_locale("C.UTF-8"), timeout=120, check=False)  # fmt: skip
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert (out / "summary.json").is_file()
