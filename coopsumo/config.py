@@ -249,8 +249,6 @@ class DQNConfig:
                 raise ConfigError(f"{name} must be in [0, 1], got {getattr(self, name)}")
         if not (math.isfinite(self.restart_below_mps) and self.restart_below_mps >= 0):
             raise ConfigError(f"restart_below_mps must be a number >= 0, got {self.restart_below_mps}")
-        if not (math.isfinite(self.change_margin) and 0 <= self.change_margin <= 1e6):
-            raise ConfigError(f"change_margin must be a number from 0 to 1e6, got {self.change_margin}")
         if not (math.isfinite(self.grad_clip_norm) and self.grad_clip_norm > 0):
             raise ConfigError(f"grad_clip_norm must be a positive number, got {self.grad_clip_norm}")
         choices = {"loss": ("mse", "huber"), "optimizer": ("sgd", "adam"), "exit_transition": ("drop", "terminal"),

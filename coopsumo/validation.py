@@ -77,6 +77,7 @@ LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
     "speed_scale_mps": (0.0, 1000.0, True, False),
     "store_per_decision": (1, MAX_REPLAY, False, False),
     "restart_below_mps": (0.0, 100.0, False, False),
+    "change_margin": (0.0, 1e6, False, False),
 }
 """every number of the learner (config.DQNConfig): (lowest, highest, lowest excluded, highest excluded); a decision
 at most every 60 s, lr at most 1 (beyond, every loss diverges), a gradient clip at most 1e6"""
