@@ -219,7 +219,7 @@ class DQNConfig:
     """when the trained model drives (evaluation, simulate, studies), a lane change is chosen only when its Q-value
     beats the best of speed-up and none by more than this (Q units; 0: plain argmax, the paper's). Training ignores it:
     the same seed gives the same weights whatever the margin"""
-    observation: str = "v2x"
+    observation: str = "paper"
     """what the network reads: 'paper' (3 frames of the 3 x 20 m occupancy grid and the speed errors) or 'v2x'
     (those plus each side lane's nearest leader and follower within 200 m: gap and speed; see v2x_features)"""
 

@@ -67,7 +67,7 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          {"replay_size": 20_000, "learn_every": 1, "updates_per_learn": 2}),
         ("dueling", "+ a dueling Q head (V + A - mean A)", {"dueling": True}),
         ("restart", "+ 'none' withheld below 1 m/s (a standing vehicle must speed up): the default preset until "
-         "the v2x state and the change margin (`v2x_margin`)",
+         "the change margin (`margin`)",
          {"restart_below_mps": 1.0}),
     ]  # fmt: skip
     extras: list[tuple[str, str, dict[str, Any]]] = [
@@ -93,7 +93,7 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
 
 
 CHAIN_LENGTH = 8
-"""the first CHAIN_LENGTH variants form the chain paper -> ... -> restart; the rest branch off its end (v2x_margin: the
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> restart; the rest branch off its end (margin: the
 default)"""
 VARIANTS = _variants()
 VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
@@ -119,7 +119,7 @@ class Profile:
 
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), VARIANT_NAMES, ALPHAS),
-    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "v2x_margin"), (0.0, 1.0)),
+    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "margin"), (0.0, 1.0)),
     "robust": Profile("robust", 90_000, 9000, tuple(range(9)), ("restart", "v2x", "margin", "v2x_margin"),
                       (0.0, 8.0), alpha_variants=("margin", "v2x_margin"), alpha_seeds=(0, 1, 2)),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "v2x_margin"), (0.0, 1.0)),
