@@ -63,7 +63,8 @@ def test_dispatch_hands_the_rest_of_the_line_to_the_command(monkeypatch: pytest.
     seen: list[list[str]] = []
     module = importlib.import_module(cli.COMMANDS["train"][0])
     monkeypatch.setattr(module, "main", lambda argv: seen.append(argv) or 7)
-    monkeypatch.delenv(network.NETS_ENV, raising=False)
+    monkeypatch.setenv(network.NETS_ENV, "")  # so that teardown restores it: cli.main below sets it
+    monkeypatch.delenv(network.NETS_ENV)
     assert cli.main(["train", "--steps", "5", "--out", "x"]) == 7
     assert seen == [["--steps", "5", "--out", "x"]]
     assert cli.main(["--nets-dir", "some/where", "train", "--help"]) == 7

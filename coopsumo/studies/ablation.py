@@ -71,11 +71,11 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          {"restart_below_mps": 1.0}),
     ]  # fmt: skip
     extras: list[tuple[str, str, dict[str, Any]]] = [
-        ("eps_decay", "default + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
+        ("eps_decay", "`restart` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
          {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
-        ("store_all", "default + every transition of a decision round stored (not 16 at random)",
+        ("store_all", "`restart` + every transition of a decision round stored (not 16 at random)",
          {"store_per_decision": 1000}),
-        ("v2x", "default + the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed)",
+        ("v2x", "`restart` + the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed)",
          {"observation": "v2x"}),
         ("margin", "the `restart` models driven with a change margin of 1: a lane change only when its "
          "Q-value beats staying by more than 1", {"change_margin": 1.0}),

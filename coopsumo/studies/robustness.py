@@ -102,7 +102,11 @@ def training_seeds_figure(root: Path, runs: pd.DataFrame, variants: list[str], o
     """Per variant at alpha 0, one line per training seed: mean speed and lane changes during training."""
     from coopsumo.report.plots import new_figure, save_figure
 
-    shown = [v for v in variants if not alpha0_runs(runs, v).empty]
+    def logged(variant: str) -> bool:  # a variant that drives another's models has no training logs of its own
+        keys = alpha0_runs(runs, variant)["key"]
+        return any((root / "train" / str(k) / "train_log.csv").exists() for k in keys)
+
+    shown = [v for v in variants if logged(v)]
     fig = new_figure(9.0, 2.6 * max(len(shown), 1))
     axes = np.atleast_2d(fig.subplots(max(len(shown), 1), 2, squeeze=False))
     for row, variant in zip(axes, shown, strict=False):
