@@ -40,7 +40,8 @@ sys.exit(t.main(sys.argv[1:]))
 """
 """`python -m coopsumo.train` with a log row every 250 steps and a periodic checkpoint every 500 (the command's
 own are 1,000 and 10,000 steps); --resume reads them back from the checkpoint"""
-TRAIN = ["--steps", "3000", "--eval-steps", "4000", "--seed", "2", "--quiet", "--tensorboard"]
+TRAIN = ["--steps", "3000", "--eval-steps", "20000", "--seed", "2", "--quiet", "--tensorboard"]
+"""an evaluation long enough (several seconds on a quiet machine) that a signal 0.3 s into it lands in it"""
 
 
 def start(args: list[str]) -> subprocess.Popen[str]:
@@ -96,7 +97,8 @@ def test_simulate_killed_at_every_point_leaves_nothing_and_reruns_equal(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["ref"] and finished_run(ref, "simulate")
 
     left: list[str] = []  # the partial folder the last kill left, which the next run must remove and report
-    for sig, when_s in ((signal.SIGKILL, 0.0), (signal.SIGINT, 1.5), (signal.SIGTERM, 1.5), (signal.SIGKILL, 1.5)):
+    # mid-run: 0.3 s after the partial folder appeared (a quiet machine runs all 8,000 steps in about 2 s)
+    for sig, when_s in ((signal.SIGKILL, 0.0), (signal.SIGINT, 0.3), (signal.SIGTERM, 0.3), (signal.SIGKILL, 0.3)):
         proc = start(["-m", *SIM, "--out", str(cut)])
         wait_until("a new partial folder", lambda old=left: bool(set(partials(tmp_path)) - set(old)), proc)
         time.sleep(when_s)
