@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
@@ -63,6 +64,15 @@ def make_observation(
         n_lanes=n_lanes,
         feasible=physics.feasible_actions(around, other >= 0, speed_a, ControlConfig()),
     )
+
+
+@pytest.fixture(autouse=True)
+def _ctrl_c_reaches_commands() -> None:
+    """Commands a test starts get Ctrl-C as from a terminal. An ignored SIGINT stays ignored in every child (exec
+    keeps SIG_IGN, and Python then installs no KeyboardInterrupt handler), and the test worker can be left with it
+    ignored: in a full run, simulate and train started by later tests then ran through the tests' Ctrl-C."""
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 @pytest.fixture
