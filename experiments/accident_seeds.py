@@ -23,6 +23,7 @@ import pandas as pd
 from coopsumo.config import ControlConfig, RoadConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies import scenario1 as s1
+from coopsumo.studies.ablation import learner_of, training_key
 from coopsumo.validation import alpha_list, t_up_list, workers
 
 ACCIDENT_SEED_OFFSET = 2000
@@ -38,23 +39,11 @@ def models(root: Path, variants: list[str], alphas: tuple[float, ...]) -> list[d
         if rec.get("kind") == "train" and rec.get("status") == "ok" and rec["variant"] in variants \
                 and float(rec["alpha"]) in alphas:  # fmt: skip
             margin = float(rec["config"].get("drive", {}).get("change_margin", 0.0))
-            train_key = rec["key"]
-            if margin:  # a margin variant drives its twin's training (ablation.cell_specs)
-                train_key = rec["key"].replace(rec["variant"], twin_of(rec["variant"]), 1)
-            model = (root / "train" / train_key / "model.pt").resolve()
+            key = training_key(learner_of(rec["variant"]), rec["variant"], float(rec["alpha"]), int(rec["seed"]))
+            model = (root / "train" / key / "model.pt").resolve()
             found.append({"variant": rec["variant"], "alpha": float(rec["alpha"]), "seed": int(rec["seed"]),
                           "model": model, "margin": margin})  # fmt: skip
     return found
-
-
-def twin_of(variant: str) -> str:
-    """The variant whose training a margin variant drives."""
-    from dataclasses import replace
-
-    from coopsumo.studies.ablation import VARIANTS, learner_of
-
-    trained = replace(learner_of(variant), change_margin=0.0)
-    return next(n for n, _, c in VARIANTS if c == trained)
 
 
 def driving_copy(model: Path, margin: float, folder: Path) -> Path:

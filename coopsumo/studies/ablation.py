@@ -144,6 +144,22 @@ def eval_config(profile: Profile, policy: str, seed: int) -> SimConfig:
                      steps=profile.eval_steps, seed=seed, policy=policy)  # fmt: skip
 
 
+def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int) -> str:
+    """The folder under train/ of the model that `variant` (learner dqn) drives at alpha on seed. Training ignores
+    the change margin, so a variant differing from another only in it drives that one's training."""
+    trained = replace(dqn, change_margin=0.0)
+    twin = next((n for n, _, c in VARIANTS if c == trained), variant)
+    return f"{twin}_alpha{number_name(alpha)}_seed{seed}"
+
+
+def variant_list(flag: str, text: str) -> tuple[str, ...]:
+    """The variant names of a comma-separated flag value; UsageError naming the flag unless all are known."""
+    names = tuple(v.strip() for v in text.split(",") if v.strip())
+    if not names or any(n not in VARIANT_NAMES for n in names):
+        raise UsageError(f"{flag} must be a comma-separated subset of {','.join(VARIANT_NAMES)}, got {text!r}")
+    return names
+
+
 def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
     """Every cell of the study: ablation trainings, alpha-response trainings, baselines."""
     specs: list[dict[str, Any]] = []
@@ -154,10 +170,7 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
         if key in seen:
             return
         seen.add(key)
-        # training ignores the change margin: a variant that differs only in it drives its twin's model
-        trained = replace(dqn, change_margin=0.0)
-        twin = next((n for n, _, c in VARIANTS if c == trained), variant)
-        cfg = train_config(profile, trained, alpha, seed)
+        cfg = train_config(profile, replace(dqn, change_margin=0.0), alpha, seed)  # training ignores the margin
         cfg.validate()
         ev = eval_config(profile, "dqn", EVAL_SEED_OFFSET + seed)
         config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
@@ -165,7 +178,7 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
             config["drive"] = {"change_margin": dqn.change_margin}
         specs.append({"key": key, "kind": "train", "part": part, "variant": variant, "alpha": alpha, "seed": seed,
                       "eval_seed": EVAL_SEED_OFFSET + seed, "policy": "dqn",
-                      "train_key": f"{twin}_alpha{number_name(alpha)}_seed{seed}",
+                      "train_key": training_key(dqn, variant, alpha, seed),
                       "config": json.loads(json.dumps(config))})  # fmt: skip
 
     for variant in profile.variants:
@@ -441,10 +454,7 @@ def paired_gap(
     runs: pd.DataFrame, variant: str, other: str, metric: str = "mean_speed_mps"
 ) -> tuple[float, float, int]:
     """Mean and sd over evaluation seeds of metric(variant, alpha 0) - metric(other), paired by seed."""
-    ok = runs[runs["status"] == "ok"]
-    mine = ok[(ok["variant"] == variant) & (ok["alpha"].fillna(0) == 0)].groupby("eval_seed")[metric].mean()
-    theirs = ok[ok["variant"] == other].groupby("eval_seed")[metric].mean()
-    diff = (mine - theirs).dropna()
+    diff = robustness.paired_gaps(runs, variant, other, metric)
     sd = float(diff.std()) if len(diff) > 1 else float("nan")
     return float(diff.mean()) if len(diff) else float("nan"), sd, len(diff)
 
@@ -571,17 +581,9 @@ def build_parser() -> Parser:
 def profile_from_args(args: Any) -> Profile:
     profile = PROFILES["quick" if args.quick else args.profile]
     if args.variants is not None:
-        names = tuple(v.strip() for v in args.variants.split(",") if v.strip())
-        if not names or any(n not in VARIANT_NAMES for n in names):
-            raise UsageError(f"--variants must be a comma-separated subset of {','.join(VARIANT_NAMES)}, got "
-                             f"{args.variants!r}")  # fmt: skip
-        profile = replace(profile, variants=names)
+        profile = replace(profile, variants=variant_list("--variants", args.variants))
     if args.alpha_variants is not None:
-        names = tuple(v.strip() for v in args.alpha_variants.split(",") if v.strip())
-        if not names or any(n not in VARIANT_NAMES for n in names):
-            raise UsageError(f"--alpha-variants must be a comma-separated subset of {','.join(VARIANT_NAMES)}, got "
-                             f"{args.alpha_variants!r}")  # fmt: skip
-        profile = replace(profile, alpha_variants=names)
+        profile = replace(profile, alpha_variants=variant_list("--alpha-variants", args.alpha_variants))
     if args.alphas is not None:
         alphas = alpha_list("--alphas", args.alphas)
         profile = replace(profile, alphas=alphas)
