@@ -35,6 +35,8 @@ MIN_LANES = 2
 MAX_LANES = 6
 OBSERVATIONS = ("paper", "v2x")
 """what a learner can read (DQNConfig.observation)"""
+PAPER_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0)
+"""the paper's alpha grid, eq. (12); an alpha-conditioned training draws its alphas from it"""
 
 
 DEMAND_STREAM, ACCIDENT_STREAM, POLICY_STREAM = 1, 2, 3
@@ -222,6 +224,14 @@ class DQNConfig:
     observation: str = "paper"
     """what the network reads: 'paper' (3 frames of the 3 x 20 m occupancy grid and the speed errors) or 'v2x'
     (those plus each side lane's nearest leader and follower within 200 m: gap and speed; see v2x_features)"""
+    alpha_conditioned: bool = False
+    """one network for every alpha: alpha is an input (log(1 + alpha) beside the speed errors), training draws it
+    from PAPER_ALPHAS for all vehicles every alpha_period_steps, and the model drives at any alpha (not in the paper)"""
+    alpha_period_steps: int = 3000
+    """conditioned training: environment steps between two draws of the shared alpha (3,000 = 5 simulated minutes)"""
+    alpha_relabel: float = 0.5
+    """conditioned training: share of each minibatch given another alpha of PAPER_ALPHAS, its reward recomputed from
+    the stored lane changes (r = r_speed + r_flow - alpha x lane changes)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
@@ -404,6 +414,9 @@ class TrainConfig:
             raise ConfigError(problem)
         self.sim.validate()
         self.dqn.validate()
+        if self.dqn.alpha_conditioned and self.sim.reward.alpha != 0:
+            raise ConfigError(f"an alpha-conditioned training draws alpha itself; its reward alpha must be 0, got "
+                              f"{self.sim.reward.alpha:g}")  # fmt: skip
         if int_problem(self.eval_steps, 0, MAX_STEPS):
             raise ConfigError(f"eval steps must be an integer from 0 to {MAX_STEPS}, got {self.eval_steps}")
         if self.log_every_steps < 1 or self.checkpoint_every_steps < 0:
@@ -470,7 +483,8 @@ SPEED_ONLY_FIELDS = frozenset({"full_read_every_steps"})
 matches a stored run, cell or checkpoint to its configuration)"""
 
 
-ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0}
+ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "alpha_conditioned": False,
+                                 "alpha_period_steps": 3000, "alpha_relabel": 0.5}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

@@ -40,6 +40,7 @@ from coopsumo.validation import (
     number,
     out_dir,
     seed,
+    split_dqn_spec,
     steps,
 )
 
@@ -165,7 +166,7 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         cfg = config_from_args(args)
         if cfg.policy.startswith("dqn:"):
-            check_apart(args.out, Path(cfg.policy[len("dqn:") :]))
+            check_apart(args.out, Path(split_dqn_spec(cfg.policy)[0]))
         check_run_dir(args.out, "simulate")  # before anything is written (the screenshot's folder, the run)
         outputs = outputs_from_args(args, cfg)
         gui = gui_from_args(args, cfg)

@@ -3,7 +3,8 @@
 Pure torch + numpy. Observations arrive as numpy arrays for a batch of vehicles:
 grids (N, 3, 3, 20) = 3 frames x 3 lanes x 20 cells of 1 m, 0/1 occupancy;
 features (N, F) = actual minus expected speed for the same 3 frames (m/s), then, for the 'v2x'
-observation, the v2x features (sim/observation.network_features; F = observation.n_features).
+observation, the v2x features (sim/observation.network_features; F = observation.n_features);
+an alpha-conditioned network also reads each vehicle's alpha (N,), the lane-change penalty it drives with.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import torch
 from torch import nn
 
 from coopsumo.agents.file_checks import model_problem
-from coopsumo.config import OBSERVATIONS, DQNConfig
+from coopsumo.config import OBSERVATIONS, PAPER_ALPHAS, DQNConfig
 from coopsumo.sim.observation import n_features
 
 GRID_SHAPE = (3, 3, 20)
@@ -30,6 +31,21 @@ N_ACTIONS = 4
 
 _CONV_OUT = 32 * 1 * 5
 """features after the two convolutions: 32 filters x 1 row x 5 columns"""
+
+
+ALPHA_INPUT_SCALE = float(np.log1p(max(PAPER_ALPHAS)))
+"""log(1 + alpha) is divided by this (log 49) before entering a conditioned network: the paper's grid spans 0-1"""
+
+
+def alpha_input(alpha: torch.Tensor) -> torch.Tensor:
+    """The network's alpha input: log(1 + alpha) / log(49), 0 at alpha 0 and 1 at the paper's largest, 48."""
+    return torch.log1p(alpha) / ALPHA_INPUT_SCALE
+
+
+def relabelled(rewards: np.ndarray, alphas: np.ndarray, lane_changes: np.ndarray, new_alphas: np.ndarray) -> np.ndarray:
+    """Rewards of stored transitions as they would have been at new_alphas: the reward is linear in alpha
+    (r = r_speed + r_flow - alpha x lane changes started), so r' = r + (alpha - alpha') x lane changes."""
+    return (rewards + (alphas - new_alphas) * lane_changes).astype(np.float32)
 
 
 def seed_torch(seed: int) -> None:
@@ -43,9 +59,12 @@ class QNetwork(nn.Module):
     dueling: the last layer is split into a state value and action advantages,
     Q = V + A - mean(A) (Wang et al. 2016); not in the paper.
     observation 'v2x': the v2x features are concatenated beside the speed errors (not in the paper).
+    conditioned: alpha (alpha_input) is concatenated there too, and forward needs it (not in the paper).
     """
 
-    def __init__(self, speed_scale_mps: float, dueling: bool = False, observation: str = "paper") -> None:
+    def __init__(
+        self, speed_scale_mps: float, dueling: bool = False, observation: str = "paper", conditioned: bool = False
+    ) -> None:
         super().__init__()
         if not speed_scale_mps > 0:
             raise ValueError(f"speed_scale_mps must be positive, got {speed_scale_mps}")
@@ -53,20 +72,27 @@ class QNetwork(nn.Module):
         self.dueling = bool(dueling)
         self.observation = observation
         self.n_features = n_features(observation)
+        self.conditioned = bool(conditioned)
         self.conv1 = nn.Conv2d(GRID_SHAPE[0], 16, kernel_size=(2, 2), stride=(1, 2))
         self.conv2 = nn.Conv2d(16, 32, kernel_size=(2, 2), stride=(1, 2))
-        self.fc1 = nn.Linear(_CONV_OUT + self.n_features, 500)
+        self.fc1 = nn.Linear(_CONV_OUT + self.n_features + int(self.conditioned), 500)
         self.fc2 = nn.Linear(500, 100)
         self.out = nn.Linear(100, N_ACTIONS)
         if self.dueling:
             self.value = nn.Linear(100, 1)
 
-    def forward(self, grids: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
-        """Q-values (B, 4) from grids (B, 3, 3, 20) and features (B, n_features): speed errors (m/s) first."""
+    def forward(self, grids: torch.Tensor, features: torch.Tensor, alpha: torch.Tensor | None = None) -> torch.Tensor:
+        """Q-values (B, 4) from grids (B, 3, 3, 20) and features (B, n_features): speed errors (m/s) first;
+        alpha (B,): the lane-change penalty each row drives with, for a conditioned network only."""
+        if self.conditioned != (alpha is not None):
+            raise ValueError("an alpha-conditioned network needs alpha, another network takes none")
         x = torch.relu(self.conv1(grids))
         x = torch.relu(self.conv2(x))
         speed_err = features[:, : GRID_SHAPE[0]] / self.speed_scale_mps
-        x = torch.cat([x.flatten(start_dim=1), speed_err, features[:, GRID_SHAPE[0] :]], dim=1)
+        parts = [x.flatten(start_dim=1), speed_err, features[:, GRID_SHAPE[0] :]]
+        if alpha is not None:
+            parts.append(alpha_input(alpha.reshape(-1, 1).to(speed_err.dtype)))
+        x = torch.cat(parts, dim=1)
         x = torch.relu(self.fc1(x))
         x = torch.relu(self.fc2(x))
         if self.dueling:
@@ -95,11 +121,14 @@ class ReplayBatch:
     """(B,) 1.0 where the episode ended at this transition (no bootstrap), else 0.0"""
     next_mask: torch.Tensor
     """(B, 4) bool: actions feasible in the next state (all True when masking is off)"""
+    alphas: torch.Tensor | None = None
+    """(B,) the alpha each transition is learned at (conditioned replay only; reward already at that alpha)"""
 
 
-def buffer_fields(width: int) -> dict[str, tuple[tuple[int, ...], Any]]:
-    """name -> (shape of one transition, storage dtype) of a replay memory whose feature vectors have `width`."""
-    return {
+def buffer_fields(width: int, conditioned: bool = False) -> dict[str, tuple[tuple[int, ...], Any]]:
+    """name -> (shape of one transition, storage dtype) of a replay memory whose feature vectors have `width`;
+    a conditioned one also stores each transition's alpha and its lane changes started (for relabelling)."""
+    fields: dict[str, tuple[tuple[int, ...], Any]] = {
         "grids": (GRID_SHAPE, np.uint8),
         "features": ((width,), np.float32),
         "actions": ((), np.int64),
@@ -109,6 +138,9 @@ def buffer_fields(width: int) -> dict[str, tuple[tuple[int, ...], Any]]:
         "dones": ((), np.float32),
         "next_mask": ((N_ACTIONS,), np.bool_),
     }
+    if conditioned:
+        fields.update(alphas=((), np.float32), lane_changes=((), np.float32))
+    return fields
 
 
 _OLD_NAMES = {"speed_err": "features", "next_speed_err": "next_features"}
@@ -118,14 +150,17 @@ _OLD_NAMES = {"speed_err": "features", "next_speed_err": "next_features"}
 class ReplayBuffer:
     """Fixed-capacity ring buffer of transitions; the oldest are overwritten first.
 
-    width: length of each state's feature vector (observation.n_features; 3 for the paper's state).
+    width: length of each state's feature vector (observation.n_features; 3 for the paper's state);
+    conditioned: each transition also carries its alpha and its lane changes started (add_batch's alphas and
+    lane_changes), and sample may relabel a share of a minibatch with other alphas.
     """
 
-    def __init__(self, capacity: int, width: int = GRID_SHAPE[0]) -> None:
+    def __init__(self, capacity: int, width: int = GRID_SHAPE[0], conditioned: bool = False) -> None:
         if capacity <= 0:
             raise ValueError(f"replay capacity must be positive, got {capacity}")
         self.capacity = capacity
-        self.fields = buffer_fields(width)
+        self.conditioned = conditioned
+        self.fields = buffer_fields(width, conditioned)
         self._pos = 0  # index the next transition is written to
         self._size = 0
         self._data = {name: np.zeros((capacity, *shape), dtype=dtype) for name, (shape, dtype) in self.fields.items()}
@@ -143,13 +178,18 @@ class ReplayBuffer:
         next_features: np.ndarray,
         dones: np.ndarray,
         next_mask: np.ndarray | None = None,
+        alphas: np.ndarray | None = None,
+        lane_changes: np.ndarray | None = None,
     ) -> None:
         """Store N transitions (arrays with leading dimension N); only the newest capacity are kept.
 
         next_mask (N, 4) bool: feasible actions of the next state; None means all feasible.
+        alphas, lane_changes (N,): a conditioned buffer's alpha and lane changes started of each transition.
         """
         if next_mask is None:
             next_mask = np.ones((len(actions), N_ACTIONS), dtype=bool)
+        if self.conditioned != (alphas is not None and lane_changes is not None):
+            raise ValueError("a conditioned replay stores alphas and lane changes, another neither")
         arrays = {
             "grids": grids,
             "features": features,
@@ -160,6 +200,8 @@ class ReplayBuffer:
             "dones": dones,
             "next_mask": next_mask,
         }
+        if alphas is not None and lane_changes is not None:
+            arrays.update(alphas=alphas, lane_changes=lane_changes)
         n = len(actions)
         for name, arr in arrays.items():
             shape = (n, *self.fields[name][0])
@@ -174,21 +216,35 @@ class ReplayBuffer:
         self._pos = (self._pos + n) % self.capacity
         self._size = min(self._size + n, self.capacity)
 
-    def sample(self, batch_size: int, rng: np.random.Generator) -> ReplayBatch:
-        """batch_size transitions drawn uniformly with replacement."""
+    def sample(self, batch_size: int, rng: np.random.Generator, relabel: float = 0.0) -> ReplayBatch:
+        """batch_size transitions drawn uniformly with replacement.
+
+        relabel (conditioned buffer): each transition is, with this probability, learned at an alpha drawn from
+        PAPER_ALPHAS instead of its own, its reward recomputed (relabelled).
+        """
         if self._size == 0:
             raise ValueError("cannot sample from an empty replay buffer")
         idx = rng.integers(0, self._size, size=batch_size)
         d = self._data
+        rewards = d["rewards"][idx]
+        alphas = None
+        if self.conditioned:
+            alphas = d["alphas"][idx]
+            if relabel > 0:
+                new = np.where(rng.random(batch_size) < relabel,
+                               rng.choice(np.array(PAPER_ALPHAS, np.float32), size=batch_size), alphas)  # fmt: skip
+                rewards = relabelled(rewards, alphas, d["lane_changes"][idx], new)
+                alphas = new.astype(np.float32)
         return ReplayBatch(
             grids=torch.from_numpy(d["grids"][idx].astype(np.float32)),
             features=torch.from_numpy(d["features"][idx]),
             actions=torch.from_numpy(d["actions"][idx]),
-            rewards=torch.from_numpy(d["rewards"][idx]),
+            rewards=torch.from_numpy(rewards),
             next_grids=torch.from_numpy(d["next_grids"][idx].astype(np.float32)),
             next_features=torch.from_numpy(d["next_features"][idx]),
             dones=torch.from_numpy(d["dones"][idx]),
             next_mask=torch.from_numpy(d["next_mask"][idx]),
+            alphas=None if alphas is None else torch.from_numpy(alphas),
         )
 
     def state_dict(self) -> dict[str, Any]:
@@ -205,6 +261,8 @@ class ReplayBuffer:
         if state["capacity"] != self.capacity:
             raise ValueError(f"replay capacity mismatch: buffer has {self.capacity}, state has {state['capacity']}")
         data = {_OLD_NAMES.get(name, name): arr for name, arr in state["data"].items()}
+        if set(data) != set(self.fields):
+            raise ValueError(f"replay fields {sorted(data)} differ from this buffer's {sorted(self.fields)}")
         for name, (shape, dtype) in self.fields.items():
             arr = data[name].numpy().astype(dtype, copy=True)
             if arr.shape[1:] != shape:
@@ -245,9 +303,10 @@ def td_targets(online: QNetwork, target: QNetwork, batch: ReplayBatch, gamma: fl
     Plain DQN: a* maximises the target network; double DQN: a* maximises the online network.
     """
     with torch.no_grad():
-        next_q = target(batch.next_grids, batch.next_features).masked_fill(~batch.next_mask, -torch.inf)
+        next_q = target(batch.next_grids, batch.next_features, batch.alphas).masked_fill(~batch.next_mask, -torch.inf)
         if double:
-            chooser = online(batch.next_grids, batch.next_features).masked_fill(~batch.next_mask, -torch.inf)
+            chooser = online(batch.next_grids, batch.next_features, batch.alphas)
+            chooser = chooser.masked_fill(~batch.next_mask, -torch.inf)
             best = chooser.argmax(dim=1, keepdim=True)
             next_v = next_q.gather(1, best).squeeze(1)
         else:
@@ -266,7 +325,7 @@ def dqn_update(
     loss_name: str = "mse",
 ) -> float:
     """One gradient step on the TD error (paper eq. 8: mean squared; or Huber); returns the loss before the step."""
-    q = online(batch.grids, batch.features).gather(1, batch.actions.unsqueeze(1)).squeeze(1)
+    q = online(batch.grids, batch.features, batch.alphas).gather(1, batch.actions.unsqueeze(1)).squeeze(1)
     td_target = td_targets(online, target, batch, gamma, double)
     if loss_name == "huber":
         loss = nn.functional.smooth_l1_loss(q, td_target)
@@ -301,11 +360,11 @@ class Learner:
         # The initial weights depend on the seed only; torch's global RNG is left as it was.
         with torch.random.fork_rng(devices=[]):
             seed_torch(seed)
-            self.online = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation)
-            self.target = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation)
+            self.online = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation, cfg.alpha_conditioned)
+            self.target = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation, cfg.alpha_conditioned)
         sync_target(self.online, self.target)
         self.optimizer = make_optimizer(self.online, cfg)
-        self.buffer = ReplayBuffer(cfg.replay_size, self.online.n_features)
+        self.buffer = ReplayBuffer(cfg.replay_size, self.online.n_features, cfg.alpha_conditioned)
         # A stream distinct from np.random.default_rng(seed), which the caller may use elsewhere.
         self.rng = np.random.default_rng([seed, 0x44514E])
         self.env_steps = 0  # environment steps seen by step()
@@ -317,11 +376,17 @@ class Learner:
         return epsilon_at(self.env_steps, self.cfg)
 
     def act(
-        self, grids: np.ndarray, features: np.ndarray, explore: bool, mask: np.ndarray | None = None
+        self,
+        grids: np.ndarray,
+        features: np.ndarray,
+        explore: bool,
+        mask: np.ndarray | None = None,
+        alphas: np.ndarray | None = None,
     ) -> np.ndarray:
         """int64 actions (N,) for grids (N, 3, 3, 20) and features (N, F); epsilon-greedy if explore.
 
-        mask (N, 4) bool: the feasible actions; only those are chosen (None: all actions).
+        mask (N, 4) bool: the feasible actions; only those are chosen (None: all actions);
+        alphas (N,): each vehicle's alpha, for a conditioned network.
         """
         if len(grids) == 0:
             return np.zeros(0, dtype=np.int64)
@@ -329,6 +394,7 @@ class Learner:
             q = self.online(
                 torch.as_tensor(grids, dtype=torch.float32),
                 torch.as_tensor(features, dtype=torch.float32),
+                None if alphas is None else torch.as_tensor(alphas, dtype=torch.float32),
             ).numpy()
         if explore:
             return epsilon_greedy(q, self.epsilon, self.rng, mask)
@@ -346,9 +412,13 @@ class Learner:
         next_features: np.ndarray,
         dones: np.ndarray,
         next_mask: np.ndarray | None = None,
+        alphas: np.ndarray | None = None,
+        lane_changes: np.ndarray | None = None,
     ) -> None:
-        """Store N transitions in the replay memory (next_mask: feasible next actions, None: all)."""
-        self.buffer.add_batch(grids, features, actions, rewards, next_grids, next_features, dones, next_mask)
+        """Store N transitions in the replay memory (next_mask: feasible next actions, None: all; alphas and
+        lane changes started: a conditioned learner's)."""
+        self.buffer.add_batch(grids, features, actions, rewards, next_grids, next_features, dones, next_mask,
+                              alphas, lane_changes)  # fmt: skip
 
     def step(self, decided: bool = True) -> float | None:
         """Advance one environment step; on a decision round (decided) maybe learn; maybe sync the target.
@@ -367,7 +437,7 @@ class Learner:
                 and self.decisions % cfg.learn_every == 0
             ):
                 for _ in range(cfg.updates_per_learn):
-                    batch = self.buffer.sample(cfg.batch_size, self.rng)
+                    batch = self.buffer.sample(cfg.batch_size, self.rng, cfg.alpha_relabel)
                     losses.append(dqn_update(self.online, self.target, self.optimizer, batch, cfg.gamma,
                                              cfg.grad_clip_norm, cfg.double_dqn, cfg.loss))  # fmt: skip
                     self.updates += 1
@@ -425,6 +495,7 @@ def save_model(path: str | os.PathLike[str], net: QNetwork, meta: dict[str, Any]
         "speed_scale_mps": net.speed_scale_mps,
         "dueling": net.dueling,
         "observation": net.observation,
+        "alpha_conditioned": net.conditioned,
         "meta": meta,
     }
     fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
@@ -461,8 +532,12 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
     if observation not in OBSERVATIONS:
         raise ModelFileError(f"model {path} reads observation {observation!r}, which this coopsumo does not know "
                              f"(it knows {', '.join(OBSERVATIONS)}; written by a newer coopsumo?)")  # fmt: skip
+    conditioned = payload.get("alpha_conditioned", False)  # written before conditioned networks: not conditioned
+    if not isinstance(conditioned, bool):
+        raise ModelFileError(f"model {path} has alpha_conditioned = {conditioned!r}, not true or false")
     try:
-        net = QNetwork(float(payload["speed_scale_mps"]), bool(payload.get("dueling", False)), observation)
+        net = QNetwork(float(payload["speed_scale_mps"]), bool(payload.get("dueling", False)), observation,
+                       conditioned)  # fmt: skip
         net.load_state_dict(payload["state_dict"])
     except (RuntimeError, ValueError, TypeError) as exc:
         raise ModelFileError(f"model {path} has incompatible weights: {_first_line(exc)}") from exc

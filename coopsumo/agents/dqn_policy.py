@@ -8,11 +8,13 @@ from typing import Any
 import numpy as np
 import torch
 
+from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, choose_alpha
 from coopsumo.agents.decisions import offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
 from coopsumo.runio import UsageError
 from coopsumo.sim.observation import Observation, network_features
+from coopsumo.validation import ADAPTIVE, split_dqn_spec
 
 
 def _field(d: Any, *keys: str) -> Any:
@@ -35,6 +37,10 @@ class DQNPolicy:
     decision_interval: the runner asks for actions every this many steps (coopsumo.agents.decisions);
     action_mask: choose only among the feasible actions (obs.feasible); restart_below_mps: 'none' is not
     chosen below this speed (m/s; 0: at any speed). All three as in training (decisions.offered).
+
+    An alpha-conditioned network drives at `alpha` (the lane-change penalty it weighs, for every vehicle), or,
+    with an adaptive `rule`, at the alpha the rule chooses from each loop interval (loop_interval; the
+    choices are kept in alpha_log).
     """
 
     needs_grids = True
@@ -47,13 +53,24 @@ class DQNPolicy:
         action_mask: bool = False,
         restart_below_mps: float = 0.0,
         change_margin: float = 0.0,
+        alpha: float | None = None,
+        rule: AdaptiveRule | None = None,
+        lanes: int = 3,
     ):
+        if net.conditioned == (alpha is None and rule is None):
+            raise ValueError("an alpha-conditioned network drives at an alpha or by a rule, another at neither")
         self.net = net.eval()
         self.name = name
         self.decision_interval = decision_interval
         self.action_mask = action_mask
         self.restart_below_mps = restart_below_mps
         self.change_margin = change_margin
+        self.rule = rule
+        self.lanes = lanes
+        self.alpha = choose_alpha(rule, lanes, 0.0) if rule is not None else alpha
+        """the alpha the vehicles drive with now (None: the network is not conditioned)"""
+        self.alpha_log: list[dict[str, float]] = []
+        """adaptive: one row per loop interval: its measurements and the alpha chosen from them"""
         self.trained_on: dict[str, object] | None = None
         """what a model file says it was trained on (preset, lanes, T_up, alpha, version); None when unknown"""
         self._grids = np.zeros((0, *GRID_SHAPE), np.uint8)  # last input and action, by vehicle number
@@ -62,8 +79,33 @@ class DQNPolicy:
         self._action = np.full(0, -1, np.int64)  # -1: no previous decision
 
     @classmethod
+    def from_spec(cls, spec: str, lanes: int = 3) -> DQNPolicy:
+        """The policy of 'dqn:PATH[,alpha=A|adaptive]' on a road of `lanes` lanes (validation.split_dqn_spec).
+
+        alpha is for an alpha-conditioned model only, and such a model needs it: otherwise a usage error.
+        """
+        path, alpha = split_dqn_spec(spec)
+        policy = cls.from_file(path)
+        conditioned = policy.net.conditioned
+        if alpha is not None and not conditioned:
+            raise UsageError(f"model {path} is not alpha-conditioned (trained at one alpha): drive it as dqn:{path}, "
+                             "without alpha=")  # fmt: skip
+        if alpha is None and conditioned:
+            raise UsageError(f"model {path} is alpha-conditioned: say the alpha it drives with, dqn:{path},alpha=A "
+                             f"or dqn:{path},alpha={ADAPTIVE}")  # fmt: skip
+        if alpha is None:
+            return policy
+        rule = DEFAULT_RULE if alpha == ADAPTIVE else None
+        fixed = None if isinstance(alpha, str) else alpha
+        driven = cls(policy.net, policy.name, policy.decision_interval, policy.action_mask, policy.restart_below_mps,
+                     policy.change_margin, alpha=fixed, rule=rule, lanes=lanes)  # fmt: skip
+        driven.trained_on = dict(policy.trained_on or {}, driven_alpha=alpha)
+        return driven
+
+    @classmethod
     def from_file(cls, path: str) -> DQNPolicy:
         """Load model.pt and drive it as it was trained; a missing, corrupt or mismatched file is a usage error.
+        An alpha-conditioned model is driven at alpha 0 (from_spec chooses another).
 
         The observation is the same on every road (left, own and right lane; lanes off the road are full),
         so a model trained on another lane count or inflow is driven by the same rules; `trained_on` says
@@ -88,20 +130,36 @@ class DQNPolicy:
             if dqn.observation != net.observation:
                 raise ConfigError(f"its learner settings say observation {dqn.observation!r}, its weights read "
                                   f"{net.observation!r}")  # fmt: skip
+            if dqn.alpha_conditioned != net.conditioned:
+                raise ConfigError(f"its learner settings say alpha_conditioned={dqn.alpha_conditioned}, its weights "
+                                  f"are {'' if net.conditioned else 'not '}conditioned")  # fmt: skip
         except ConfigError as err:
             raise UsageError(f"model {path}: {err}") from None
         policy = cls(net, name=f"dqn:{Path(path).parent.name or path}",
                      decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask,
-                     restart_below_mps=dqn.restart_below_mps, change_margin=dqn.change_margin)  # fmt: skip
+                     restart_below_mps=dqn.restart_below_mps, change_margin=dqn.change_margin,
+                     alpha=0.0 if net.conditioned else None)  # fmt: skip
         policy.trained_on = {"preset": dqn.preset, "observation": dqn.observation,
                              "decision_interval_steps": dqn.decision_interval_steps,
                              "action_mask": dqn.action_mask, "restart_below_mps": dqn.restart_below_mps,
-                             "change_margin": dqn.change_margin,
+                             "change_margin": dqn.change_margin, "alpha_conditioned": dqn.alpha_conditioned,
                              "lanes": _field(config, "sim", "road", "lanes"),
                              "t_up_s": _field(config, "sim", "demand", "t_up_s"),
                              "alpha": _field(config, "sim", "reward", "alpha"),
                              "coopsumo": _field(meta, "versions", "coopsumo")}  # fmt: skip
         return policy
+
+    def loop_interval(self, interval: LoopInterval) -> None:
+        """An adaptive policy's alpha for the next interval, chosen from the one the loops just measured."""
+        if self.rule is None:
+            return
+        alpha = choose_alpha(self.rule, self.lanes, interval.occupancy_pct)
+        self.alpha_log.append({"time_s": round(interval.time_s, 3), "flow_veh_h_per_lane": interval.flow_veh_h_per_lane,
+                               "occupancy_pct": interval.occupancy_pct, "speed_mps": interval.speed_mps,
+                               "alpha": alpha})  # fmt: skip
+        if alpha != self.alpha:
+            self.alpha = alpha
+            self._action[:] = -1  # the remembered choices were made at another alpha
 
     def _grow(self, needed: int) -> None:
         cap = len(self._action)
@@ -132,8 +190,11 @@ class DQNPolicy:
         actions = self._action[nums]
         fresh = ~same
         if fresh.any():
+            inputs = [torch.from_numpy(obs.grids[fresh]).float(), torch.from_numpy(feats[fresh])]
+            if self.alpha is not None:
+                inputs.append(torch.full((int(fresh.sum()),), float(self.alpha)))
             with torch.no_grad():
-                q = self.net(torch.from_numpy(obs.grids[fresh]).float(), torch.from_numpy(feats[fresh]))
+                q = self.net(*inputs)
             chosen = np.where(mask[fresh], with_change_margin(q.numpy(), self.change_margin), -np.inf)
             actions[fresh] = chosen.argmax(axis=1)
             changed = nums[fresh]

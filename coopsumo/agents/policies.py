@@ -109,10 +109,12 @@ class SumoPolicy:
         return np.full(len(obs), SPEEDUP, dtype=np.int64)  # ignored: SUMO decides
 
 
-def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | None = None) -> Policy:
-    """Build a policy from its command-line spec: keep, random, greedy, dqn:PATH, mobil[:p=P,...], sumo.
+def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | None = None, lanes: int = 3) -> Policy:
+    """Build a policy from its command-line spec: keep, random, greedy, dqn:PATH[,alpha=A|adaptive],
+    mobil[:p=P,...], sumo.
 
-    `control` is the run's controller configuration (MOBIL derives its accelerations from it).
+    `control` is the run's controller configuration (MOBIL derives its accelerations from it); `lanes` the road's
+    lane count (an adaptive alpha's rule depends on it).
     """
     if spec == "keep":
         return KeepPolicy()
@@ -123,7 +125,7 @@ def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | No
     if spec.startswith("dqn:"):
         from coopsumo.agents.dqn_policy import DQNPolicy  # torch only when a DQN is asked for
 
-        return DQNPolicy.from_file(spec[len("dqn:") :])
+        return DQNPolicy.from_spec(spec, lanes)
     if spec == "mobil" or spec.startswith("mobil:"):
         from coopsumo.agents.mobil import MobilPolicy
 
@@ -131,11 +133,12 @@ def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | No
     if sumo_models(spec):
         return SumoPolicy.from_spec(spec)
     raise PolicySpecError(
-        f"unknown policy {spec!r}; expected one of keep, random, greedy, dqn:PATH, mobil[:p=P], sumo[:lcCooperative=X]"
+        f"unknown policy {spec!r}; expected one of keep, random, greedy, dqn:PATH[,alpha=A], mobil[:p=P], "
+        "sumo[:lcCooperative=X]"
     )
 
 
 def policy_for_run(cfg: SimConfig) -> Policy:
     """The policy of a run, built once from its configuration: cfg.policy's spec, the run's policy stream of its
     seed (rng_stream(seed, POLICY_STREAM)) and the run's controller configuration (MOBIL's accelerations)."""
-    return make_policy(cfg.policy, rng_stream(cfg.seed, POLICY_STREAM), cfg.control)
+    return make_policy(cfg.policy, rng_stream(cfg.seed, POLICY_STREAM), cfg.control, cfg.road.lanes)

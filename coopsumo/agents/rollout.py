@@ -11,13 +11,18 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from tqdm import tqdm
 
+from coopsumo.agents.adaptive import interval_measures
 from coopsumo.agents.decisions import ActionHold
 from coopsumo.agents.policies import Policy
 from coopsumo.config import GuiConfig, OutputConfig, SimConfig, to_dict
 from coopsumo.runio import versions, write_json
 from coopsumo.sim.world import World
+
+ADAPTIVE_ALPHA_FILE = "adaptive_alpha.csv"
+"""an adaptive policy's choices: per loop period, the road's loop measurements and the alpha chosen from them"""
 
 
 def run(
@@ -55,10 +60,14 @@ def run(
                outputs=outputs, gui=gui) as world:  # fmt: skip
         bar = tqdm(total=cfg.steps, desc=label, unit="step", disable=not progress, mininterval=0.5, file=sys.stderr)
         hold = ActionHold(policy.decision_interval)
+        listen = getattr(policy, "loop_interval", None)  # a policy that adapts to the loops' measurements
         for _ in range(cfg.steps):
             decide = hold.is_decision_step(world.step_count)
             obs = world.observe(grids=decide and policy.needs_grids)
             world.apply(hold.actions(obs.nums, policy.act(obs) if decide else None))
+            if listen is not None and world.step_count % world.loop_period_steps == 0:
+                counts, occupancy, speeds = world.loop_last_interval()
+                listen(interval_measures(world.time_s, counts, occupancy, speeds, cfg.road.loop_period_s))
             if world.step_count % 500 == 0:
                 bar.update(500)
                 if on_steps is not None:
@@ -79,6 +88,12 @@ def run(
     summary["scenario"] = cfg.scenario
     if gui is not None and gui.screenshot and not Path(gui.screenshot).exists():
         raise RuntimeError(f"sumo-gui did not write the screenshot {gui.screenshot}")
+    alpha_log = getattr(policy, "alpha_log", None)
+    if alpha_log:
+        import pandas as pd
+
+        pd.DataFrame(alpha_log).to_csv(run_dir / ADAPTIVE_ALPHA_FILE, index=False, float_format="%.6g")
+        summary["adaptive_alpha_mean"] = round(float(np.mean([r["alpha"] for r in alpha_log])), 4)
     if traj is not None:
         import pandas as pd
 

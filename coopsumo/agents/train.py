@@ -6,6 +6,10 @@ evaluation's summary.json (its SUMO files in eval/). Ctrl-C or SIGTERM saves
 checkpoint.pt and exits; --resume continues it exactly (the world is rebuilt by replaying
 the recorded actions, then the learner's saved state takes over). An existing non-empty --out is used
 only if this command wrote it (its .coopsumo-run.json, runio.check_run_dir).
+
+--alpha-conditioned trains one network for every alpha: alpha is an input, and all vehicles share one alpha
+drawn from the paper's grid every alpha_period_steps (training_alpha); the world's own reward alpha is 0 and
+the trainer charges the drawn alpha per lane change started.
 """
 
 from __future__ import annotations
@@ -37,6 +41,7 @@ from coopsumo.config import (
     MAX_LANES,
     MIN_LANES,
     OBSERVATIONS,
+    PAPER_ALPHAS,
     ConfigError,
     ControlConfig,
     DemandConfig,
@@ -68,7 +73,20 @@ from coopsumo.validation import MAX_STEPS, alpha, check_t_up, integer, number, o
 LOG_FIELDS = (
     "step", "sim_time_s", "td_loss", "r_speed", "r_lane_change", "r_flow", "reward", "epsilon",
     "mean_speed_mps", "vehicles", "lane_changes", "lane_changes_rejected", "collisions", "teleports", "wall_s",
+    "alpha",
 )  # fmt: skip
+"""train_log.csv's columns; alpha: the reward's alpha at the window's last step (drawn, when conditioned)"""
+
+ALPHA_STREAM = 0x414C5048
+"""random stream of a conditioned training's alpha draws (with the seed and the period's index)"""
+
+
+def training_alpha(seed: int, step: int, period_steps: int) -> float:
+    """The alpha all vehicles share at training step `step` of a conditioned training: one of PAPER_ALPHAS, drawn
+    uniformly and afresh every period_steps, a pure function of (seed, step // period_steps) so a resume
+    replays it exactly."""
+    k = step // period_steps
+    return float(PAPER_ALPHAS[np.random.default_rng([seed, ALPHA_STREAM, k]).integers(len(PAPER_ALPHAS))])
 
 
 CHECKPOINT_KEYS = ("config", "step", "learner", "action_counts", "actions", "window")
@@ -102,9 +120,10 @@ class Window:
     lane_changes: int = 0
     rejected: int = 0
 
-    def add(self, out: StepOutcome, speeds: np.ndarray) -> None:
+    def add(self, out: StepOutcome, speeds: np.ndarray, lane_change_penalty: np.ndarray) -> None:
+        """One step: its outcome, the speeds on the road (m/s), and the lane-change reward the learner got."""
         self.r_speed += float(out.reward.speed.sum())
-        self.r_lane_change += float(out.reward.lane_change.sum())
+        self.r_lane_change += float(lane_change_penalty.sum())
         self.r_flow += float(out.reward.flow.sum())
         self.samples += len(out.nums)
         self.speed_sum += float(speeds.sum())
@@ -124,21 +143,25 @@ def transitions(
     exit_transition: str,
     prev_mask: np.ndarray,
     now_mask: np.ndarray,
+    change_sum: np.ndarray,
 ) -> tuple[np.ndarray, ...]:
-    """(grids, features, actions, rewards, next_grids, next_features, dones, next_mask) of the last interval.
+    """(grids, features, actions, rewards, next_grids, next_features, dones, next_mask, lane_changes) of the last
+    interval.
 
     prev: the last decision round's observation, its network features (observation.network_features) and its
     `actions`; now: this round's observation and features;
     prev_mask, now_mask: the actions offered in them (decisions.offered; all True when nothing is withheld).
-    reward_sum: rewards summed over the interval, indexed by vehicle number; arrived: numbers of the
+    reward_sum, change_sum: rewards and lane changes started over the interval, indexed by vehicle number;
+    arrived: numbers of the
     vehicles that left the road during it. Vehicles present in both rounds give ordinary transitions;
     vehicles that left are dropped or stored as terminal (next state = last state, masked by done).
     """
     _, i_prev, i_now = np.intersect1d(prev.nums, now.nums, assume_unique=True, return_indices=True)
     reward = reward_sum[prev.nums]
+    changes = change_sum[prev.nums]
     g, e = prev.grids[i_prev], prev_features[i_prev]
     ng, ne = now.grids[i_now], now_features[i_now]
-    a, r = actions[i_prev], reward[i_prev]
+    a, r, c = actions[i_prev], reward[i_prev], changes[i_prev]
     nm = now_mask[i_now]
     done = np.zeros(len(i_prev), np.float32)
     gone_rows = np.isin(prev.nums, arrived)
@@ -147,9 +170,10 @@ def transitions(
         g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev_features[gone]])
         ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev_features[gone]])
         a, r = np.concatenate([a, actions[gone]]), np.concatenate([r, reward[gone]])
+        c = np.concatenate([c, changes[gone]])
         nm = np.concatenate([nm, prev_mask[gone]])
         done = np.concatenate([done, np.ones(len(gone), np.float32)])
-    return g, e, a, r.astype(np.float32), ng, ne, done, nm
+    return g, e, a, r.astype(np.float32), ng, ne, done, nm, c.astype(np.float32)
 
 
 def _all_if_none(mask: np.ndarray | None, obs: Observation) -> np.ndarray:
@@ -169,6 +193,10 @@ class Pending:
     """the actions decided then"""
     reward_sum: np.ndarray = field(default_factory=lambda: np.zeros(1024))
     """rewards since each vehicle's last decision, by vehicle number"""
+    change_sum: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    """lane changes started since each vehicle's last decision, by vehicle number"""
+    prev_alpha: float = 0.0
+    """the alpha of the last decision round (a conditioned training's draw)"""
     arrived: list[np.ndarray] = field(default_factory=list)
     """numbers of vehicles that left the road since the last decision round"""
 
@@ -176,16 +204,20 @@ class Pending:
         if len(nums) and int(nums.max()) >= len(self.reward_sum):
             extra = max(int(nums.max()) + 1, 2 * len(self.reward_sum)) - len(self.reward_sum)
             self.reward_sum = np.concatenate([self.reward_sum, np.zeros(extra)])
+            self.change_sum = np.concatenate([self.change_sum, np.zeros(extra)])
 
-    def start_interval(self, obs: Observation, features: np.ndarray, actions: np.ndarray) -> None:
-        """A decision round: remember it and zero the reward sums of the vehicles that decided."""
+    def start_interval(self, obs: Observation, features: np.ndarray, actions: np.ndarray, alpha: float) -> None:
+        """A decision round at `alpha`: remember it and zero the sums of the vehicles that decided."""
         self._grow(obs.nums)
         self.reward_sum[obs.nums] = 0.0
+        self.change_sum[obs.nums] = 0.0
         self.prev, self.prev_features, self.prev_actions, self.arrived = obs, features, actions, []
+        self.prev_alpha = alpha
 
-    def add_rewards(self, nums: np.ndarray, rewards: np.ndarray) -> None:
+    def add_rewards(self, nums: np.ndarray, rewards: np.ndarray, changes: np.ndarray) -> None:
         self._grow(nums)
         self.reward_sum[nums] += rewards
+        self.change_sum[nums] += changes
 
 
 class Trainer:
@@ -287,15 +319,23 @@ class Trainer:
         dq = self.cfg.dqn
         return offered(obs.feasible, obs.speed, dq.action_mask, dq.restart_below_mps)
 
-    def _advance(self, world: World, recorded: np.ndarray | None = None) -> StepOutcome:
+    def alpha_at(self, step: int) -> float:
+        """The reward's alpha at training step `step`: drawn (training_alpha) when conditioned, else the run's."""
+        if self.cfg.dqn.alpha_conditioned:
+            return training_alpha(self.cfg.sim.seed, step, self.cfg.dqn.alpha_period_steps)
+        return self.cfg.sim.reward.alpha
+
+    def _advance(self, world: World, recorded: np.ndarray | None = None) -> tuple[StepOutcome, np.ndarray]:
         """One environment step; on a decision round, store the last interval's transitions and decide.
 
         recorded: the actions this step took in the run being resumed (replay: no learning, same
-        bookkeeping). Returns the step's outcome.
+        bookkeeping). Returns the step's outcome and the lane-change reward each vehicle got (-alpha per change
+        started; a conditioned training charges its drawn alpha, the world's alpha being 0).
         """
         dq = self.cfg.dqn
         learner = self.learner
         pend = self.pending
+        alpha = self.alpha_at(world.step_count)
         decide = self.hold.is_decision_step(world.step_count)
         obs = world.observe(grids=decide)
         decided = None
@@ -307,27 +347,36 @@ class Trainer:
                 prev_mask = self._offered(pend.prev)
                 batch = transitions(pend.prev, pend.prev_features, pend.prev_actions, pend.reward_sum, arrived, obs,
                                     feats, dq.exit_transition, _all_if_none(prev_mask, pend.prev),
-                                    _all_if_none(mask, obs))  # fmt: skip
+                                    _all_if_none(mask, obs), pend.change_sum)  # fmt: skip
                 n = len(batch[0])
                 if n:
                     keep = learner.rng.permutation(n)[: dq.store_per_decision]
-                    grids, err, acts, rews, ngrids, nerr, dones, nmask = (x[keep] for x in batch)
-                    learner.observe(grids, err, acts, rews, ngrids, nerr, dones, None if mask is None else nmask)
+                    grids, err, acts, rews, ngrids, nerr, dones, nmask, changes = (x[keep] for x in batch)
+                    alphas = np.full(len(keep), pend.prev_alpha, np.float32) if dq.alpha_conditioned else None
+                    learner.observe(grids, err, acts, rews, ngrids, nerr, dones, None if mask is None else nmask,
+                                    alphas, changes if dq.alpha_conditioned else None)  # fmt: skip
             if recorded is None:
-                decided = learner.act(obs.grids, feats, explore=True, mask=mask)
+                own = np.full(len(obs), alpha, np.float32) if dq.alpha_conditioned else None
+                decided = learner.act(obs.grids, feats, explore=True, mask=mask, alphas=own)
             else:
                 decided = recorded
-            pend.start_interval(obs, feats, decided)
+            pend.start_interval(obs, feats, decided, alpha)
         actions = self.hold.actions(obs.nums, decided)
         if recorded is not None and not np.array_equal(actions, recorded):
             raise ResumeDiverged(f"the replay of its recorded actions diverged at step {world.step_count}")
         out = world.apply(actions)
-        pend.add_rewards(out.nums, out.reward.total)
+        started = out.lane_change_started.astype(np.float64)
+        if dq.alpha_conditioned:  # the world's alpha is 0 (TrainConfig.validate): charge the drawn one
+            penalty = -alpha * started
+            pend.add_rewards(out.nums, out.reward.total + penalty, started)
+        else:
+            penalty = out.reward.lane_change
+            pend.add_rewards(out.nums, out.reward.total, started)
         if out.arrived.any():
             pend.arrived.append(out.nums[out.arrived])
         if recorded is None:
             self.action_log.append(actions.astype(np.int8))
-        return out
+        return out, penalty
 
     def _loop(self, cfg: TrainConfig) -> None:
         log_path = self.out / "train_log.csv"
@@ -354,13 +403,13 @@ class Trainer:
                         bar.close()
                         raise Interrupted(self._stop_signal, self.step)
                     decided = self.hold.is_decision_step(world.step_count)
-                    out = self._advance(world)
+                    out, penalty = self._advance(world)
                     loss = learner.step(decided)
                     self.step += 1
                     w = self.window
                     if loss is not None:
                         w.loss.append(loss)
-                    w.add(out, world.table.speed)
+                    w.add(out, world.table.speed, penalty)
                     if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
                         self._write_row(log, world, time.perf_counter() - start)
                         log_file.flush()
@@ -388,6 +437,7 @@ class Trainer:
             self.learner.epsilon,
             w.speed_sum / max(w.vehicle_steps, 1), len(world.table.nums),
             w.lane_changes, w.rejected, tot.collisions, tot.teleports, round(wall_s, 2),
+            self.alpha_at(max(self.step - 1, 0)),
         ]  # fmt: skip
         log.writerow([f"{x:.6g}" if isinstance(x, float) else x for x in row])
         if self.on_row is not None:
@@ -401,12 +451,14 @@ def model_meta(cfg: TrainConfig) -> dict[str, Any]:
 def evaluate(
     cfg: TrainConfig, policy: DQNPolicy, out: Path, progress: bool, on_steps: Callable[[int], None] | None = None
 ) -> dict[str, Any]:
-    """Greedy evaluation on the training condition (same demand seed) in out/eval."""
+    """Greedy evaluation on the training condition (same demand seed) in out/eval; a conditioned model drives at
+    the policy's alpha (train: the run's reward alpha, 0)."""
     from coopsumo.agents.rollout import run
 
     eval_dir = out / "eval"
     eval_dir.mkdir(exist_ok=True)
-    sim = replace(cfg.sim, steps=cfg.eval_steps, policy=f"dqn:{out / 'model.pt'}")
+    spec = f"dqn:{out / 'model.pt'}" + (f",alpha={policy.alpha:g}" if policy.alpha is not None else "")
+    sim = replace(cfg.sim, steps=cfg.eval_steps, policy=spec)
     return run(sim, policy, eval_dir, progress=progress, label="evaluate", on_steps=on_steps)
 
 
@@ -464,7 +516,8 @@ def train(
         return train_summary
     policy = DQNPolicy(trainer.learner.online, decision_interval=cfg.dqn.decision_interval_steps,
                        action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps,
-                       change_margin=cfg.dqn.change_margin)  # fmt: skip
+                       change_margin=cfg.dqn.change_margin,
+                       alpha=cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None)  # fmt: skip
     shutil.rmtree(out / "eval", ignore_errors=True)  # what an interrupted evaluation had written
     try:
         summary = evaluate(cfg, policy, out, progress, on_steps)
@@ -478,9 +531,8 @@ def train(
 
 def default_out(cfg: TrainConfig) -> Path:
     s = cfg.sim
-    return (
-        Path("results") / "train" / f"lanes{s.road.lanes}_alpha{s.reward.alpha:g}_tup{s.demand.t_up_s:g}_seed{s.seed}"
-    )
+    alpha = "cond" if cfg.dqn.alpha_conditioned else f"{s.reward.alpha:g}"
+    return Path("results") / "train" / f"lanes{s.road.lanes}_alpha{alpha}_tup{s.demand.t_up_s:g}_seed{s.seed}"
 
 
 LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
@@ -507,6 +559,12 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--change-margin", "change_margin", float,
      "when the model drives, a lane change is chosen only when its Q-value beats staying by more than this "
      "(0: plain argmax); training ignores it"),
+    ("--alpha-conditioned", "alpha_conditioned", bool,
+     "one network for every alpha: alpha is an input, drawn from the paper's 12 values for all vehicles every "
+     "--alpha-period steps; drive it with --policy dqn:PATH,alpha=A (not with --alpha)"),
+    ("--alpha-period", "alpha_period_steps", int, "conditioned training: steps of 0.1 s between two alpha draws"),
+    ("--alpha-relabel", "alpha_relabel", float,
+     "conditioned training: share of each minibatch learned at another alpha (reward recomputed)"),
     ("--observation", "observation", OBSERVATIONS,
      "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
      "side lane's nearest leader and follower within 200 m: gap and speed)"),
@@ -548,7 +606,8 @@ def learner_from_args(args: Any) -> DQNConfig:
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo train", description="Train the cooperative lane-changing DQN.")
     p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
-    p.add_argument("--alpha", type=alpha, default=0.0, help="lane-change penalty of eq. (7), per accepted change")
+    p.add_argument("--alpha", type=alpha, default=None,
+                   help="lane-change penalty of eq. (7), per accepted change (default 0)")  # fmt: skip
     p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
     p.add_argument("--steps", type=steps, default=90_000, help="training steps of 0.1 s")
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the learner and SUMO (0 to 2^31 - 1)")
@@ -564,15 +623,19 @@ def build_parser() -> Parser:
 
 def config_from_args(args: Any) -> TrainConfig:
     check_t_up("--t-up", args.t_up, ControlConfig().dt_s)
+    dqn = learner_from_args(args)
+    if dqn.alpha_conditioned and args.alpha is not None:
+        raise UsageError("--alpha-conditioned trains one model for every alpha; leave --alpha out (drive the model "
+                         "at an alpha with --policy dqn:PATH,alpha=A)")  # fmt: skip
     sim = SimConfig(
         road=RoadConfig(lanes=args.lanes),
         demand=DemandConfig(t_up_s=args.t_up),
-        reward=RewardConfig(alpha=args.alpha),
+        reward=RewardConfig(alpha=args.alpha or 0.0),
         steps=args.steps,
         seed=args.seed,
         policy="dqn",
     )
-    cfg = TrainConfig(sim=sim, dqn=learner_from_args(args), eval_steps=args.eval_steps)
+    cfg = TrainConfig(sim=sim, dqn=dqn, eval_steps=args.eval_steps)
     cfg.validate()
     return cfg
 

@@ -233,6 +233,17 @@ class SumoSession:
             raise RuntimeError("SUMO session is not open")
         return self._ls
 
+    def loop_last_interval(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every E1 loop's last completed period (road.loop_period_s): vehicles counted, occupancy (%) and mean
+        speed (m/s; -1 where none was counted), as SUMO reports them (inductionloop.getLastInterval*)."""
+        il = self.ls.inductionloop
+        road = self.cfg.road
+        ids = [network.loop_id(pos, lane) for pos in road.loop_positions_m() for lane in range(road.lanes)]
+        counts = np.array([il.getLastIntervalVehicleNumber(i) for i in ids], np.float64)
+        occupancy = np.array([il.getLastIntervalOccupancy(i) for i in ids], np.float64)
+        speed = np.array([il.getLastIntervalMeanSpeed(i) for i in ids], np.float64)
+        return counts, occupancy, speed
+
     def add_vehicle(self, num: int, lane: int, v_exp_mps: float) -> None:
         """Ask SUMO to insert a vehicle now at the road's start, at its expected speed if safe."""
         ls = self.ls

@@ -197,6 +197,15 @@ class World:
     def time_s(self) -> float:
         return self.step_count * self.cfg.control.dt_s
 
+    @property
+    def loop_period_steps(self) -> int:
+        """Steps of one loop aggregation period (road.loop_period_s)."""
+        return max(1, round(self.cfg.road.loop_period_s / self.cfg.control.dt_s))
+
+    def loop_last_interval(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every E1 loop's last completed period: vehicles counted, occupancy (%), mean speed (m/s; -1: none)."""
+        return self.session.loop_last_interval()
+
     # -- demand ----------------------------------------------------------------------------
     def _insert_due(self) -> None:
         """Queue every vehicle whose departure time (num * T_up) has come; hand SUMO each lane's next one.

@@ -17,7 +17,7 @@ from coopsumo.config import (
     SimConfig,
     TrainConfig,
 )
-from coopsumo.validation import number_name
+from coopsumo.validation import number_name, split_dqn_spec
 
 ALPHAS = (0.0, 2.0, 8.0)
 """alpha = 0 and 8 are the paper's; 2 is the largest alpha of the learning study's response whose model still
@@ -94,9 +94,12 @@ def model_label(preset: str, alpha: float) -> str:
 
 
 def label_for(policy: str) -> str:
-    """Short name of a policy in tables and folders: dqn_<model folder> for a model, else the spec."""
+    """Short name of a policy in tables and folders: dqn_<model folder> for a model (then _a<alpha> or _adaptive
+    for an alpha-conditioned one's alpha), else the spec."""
     if policy.startswith("dqn:"):
-        return "dqn_" + Path(policy[4:]).parent.name
+        path, alpha = split_dqn_spec(policy)
+        tail = "" if alpha is None else "_" + (alpha if isinstance(alpha, str) else f"a{number_name(alpha)}")
+        return "dqn_" + Path(path).parent.name + tail
     return policy.replace(":", "_").replace("=", "")
 
 

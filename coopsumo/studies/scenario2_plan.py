@@ -8,11 +8,18 @@ import json
 from dataclasses import dataclass
 from typing import Any
 
-from coopsumo.config import DQN_PRESETS, DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.config import (
+    DQN_PRESETS,
+    PAPER_ALPHAS,
+    DemandConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
 from coopsumo.validation import number_name
 
-PAPER_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 24.0, 32.0, 48.0)
-"""eq. (12) of the paper"""
 QUICK_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 8.0)
 """the paper's small values and where the default learner's lane changes fall to none (results/learning)"""
 NOMINAL_CAPACITY_VEH_H_PER_LANE = 1800.0
