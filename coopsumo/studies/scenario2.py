@@ -38,7 +38,7 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig
+from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.runner import (
     CellRecords,
@@ -72,6 +72,7 @@ from coopsumo.validation import (
     integer,
     min_t_up_s,
     number_list,
+    number_name,
     out_dir,
     seed_count,
     steps,
@@ -87,10 +88,11 @@ RECORD_KEYS = (*KEY_COLUMNS, "policy", "p")
 
 
 def _cell_folder(spec: dict[str, Any]) -> dict[str, Any]:
-    """A cell's folder in its record: mobil/<key>/ (run_dir) for a MOBIL cell, train/<key>/ (train_dir) for a DQN's."""
+    """A cell's folder in its record: mobil/<key>/ (run_dir) for a MOBIL cell, train/<key>/ (train_dir) for a DQN's
+    (train/<train_key>/ for a conditioned one: the training its alphas share)."""
     if spec.get("policy") == "mobil":
         return {"run_dir": f"mobil/{spec['key']}"}
-    return {"train_dir": f"train/{spec['key']}"}
+    return {"train_dir": f"train/{spec.get('train_key', spec['key'])}"}
 
 
 RECORDS = CellRecords(RECORD_KEYS, ("train_dir", "resumed_from_step", "train_summary"), _cell_folder)
@@ -107,7 +109,10 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
     status "ok" (with the evaluation summary), "failed" (with the error) or "interrupted"
     (SIGTERM/SIGINT: a checkpoint was saved when training, the cell is to be run again).
     """
-    cell = _run_mobil if spec.get("policy") == "mobil" else _run_dqn
+    if spec.get("policy") == "mobil":
+        cell = _run_mobil
+    else:
+        cell = _run_conditioned if "train_key" in spec else _run_dqn
     return RECORDS.run(spec, lambda record: cell(spec, Path(root), record))
 
 
@@ -116,6 +121,31 @@ def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     out = root / "train" / spec["key"]
     summary, record["resumed_from_step"] = train_resuming(spec["config"], out)
     record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
+    record["train_summary"] = json.loads((out / "train_summary.json").read_text())
+
+
+def _run_conditioned(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    """Train (or reuse) the alpha-conditioned model of the cell's (condition, seed) in ROOT/train/<train_key>/ under
+    a lock (the cells of every alpha share it), then evaluate it at the cell's alpha in eval_a<alpha>/; the summary
+    also holds the evaluation's mean loop flow and occupancy (SUMO's detectors.xml)."""
+    import fcntl
+
+    from coopsumo.config import sim_config_from_dict
+    from coopsumo.report.analysis import read_detectors
+
+    out = root / "train" / spec["train_key"]
+    out.mkdir(parents=True, exist_ok=True)
+    with open(root / "train" / f".{out.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        _, record["resumed_from_step"] = train_resuming(spec["config"]["train"], out)
+    ev = sim_config_from_dict(spec["config"]["eval"])
+    config = to_dict(replace(ev, policy=f"dqn:{out / 'model.pt'},alpha={ev.reward.alpha:g}"))
+    eval_dir = out / f"eval_a{number_name(ev.reward.alpha)}"
+    summary = simulate_into(config, eval_dir, spec["key"])
+    det = read_detectors(eval_dir / "detectors.xml")
+    summary.update(loop_flow_veh_h_per_lane=round(float(det["flow_veh_h"].mean()), 2),
+                   loop_occupancy_pct=round(float(det["occupancy_pct"].mean()), 4))  # fmt: skip
+    record["summary"] = summary
     record["train_summary"] = json.loads((out / "train_summary.json").read_text())
 
 
@@ -139,8 +169,11 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     done = [s for s in specs if s["key"] in done_keys]
     todo = [s for s in specs if s["key"] not in done_keys]
     retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
-    # the busiest roads first and the short MOBIL runs last: a shorter tail
-    todo.sort(key=lambda s: (s.get("policy") == "mobil", -s["lanes"] * s["load"]))
+    # the busiest roads first and the short MOBIL runs last: a shorter tail; conditioned cells that start a
+    # training (their first alpha) before those that find it done, so that two workers train two models at once
+    first_alpha = profile.alphas[0]
+    todo.sort(key=lambda s: (s.get("policy") == "mobil", "train_key" in s and s["alpha"] != first_alpha,
+                             -s["lanes"] * s["load"]))  # fmt: skip
     meta = {
         "profile": asdict(profile),
         "conditions": [
@@ -211,10 +244,14 @@ def profile_from_args(args: Any) -> Profile:
         profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
     if args.preset is not None:
         profile = replace(profile, preset=args.preset)
+    if args.conditioned:
+        profile = replace(profile, conditioned=True)
     policies = {x.strip() for x in args.policies.split(",") if x.strip()}
     if not policies or not policies <= set(POLICIES):
         raise UsageError(f"policies must be a comma-separated list of {' and '.join(POLICIES)}, got {args.policies!r}")
     profile = replace(profile, policies=tuple(x for x in POLICIES if x in policies))
+    if profile.conditioned and "dqn" not in profile.policies:
+        raise UsageError("--conditioned trains the DQN cells once per condition and seed: --policies must hold dqn")
     if args.mobil_p is not None:
         if "mobil" not in profile.policies:
             raise UsageError("--mobil-p is for --policies with mobil")
@@ -227,7 +264,11 @@ def build_parser() -> Parser:
     p = Parser(prog="coopsumo scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
     p.add_argument("--profile", choices=sorted(PROFILES), default="quick",
                    help="grid and step counts: tiny (tests), quick (about 45 min on 2 cores), paper")  # fmt: skip
-    p.add_argument("--out", type=out_dir, default=Path("results/scenario2"), help="results folder")
+    p.add_argument("--out", type=out_dir, default=None,
+                   help="results folder (default results/scenario2, with --conditioned results/scenario2_conditioned)")
+    p.add_argument("--conditioned", action="store_true",
+                   help="one alpha-conditioned model per condition and seed (train --alpha-conditioned), evaluated at "
+                   "every alpha of the grid, instead of one training per alpha")  # fmt: skip
     add_backend_flags(p)
     p.add_argument("--workers", type=workers, default=os.cpu_count() or 1,
                    help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
@@ -261,6 +302,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.bootstrap < 0:
             raise UsageError(f"bootstrap must be >= 0, got {args.bootstrap}")
         check_backend(args.backend, args.address)
+        if args.out is None:
+            args.out = Path("results/scenario2_conditioned" if profile.conditioned else "results/scenario2")
         with study_root(args.out, "scenario2"):  # path, lock, ownership and marker of the results folder
             meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet,
                              args.bootstrap)  # fmt: skip

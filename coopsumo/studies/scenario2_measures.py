@@ -358,7 +358,8 @@ def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
 
     The wall seconds per training step (train_steps per cell) and per evaluation step of every successful
     cell that was not resumed are fitted as a + b * inflow (veh/h) by least squares; each paper cell then
-    costs its train_steps and eval_steps at its inflow. Returns the fits, the sum in core-hours, and the wall
+    costs its train_steps and eval_steps at its inflow (a conditioned paper profile trains once per condition and
+    seed, and evaluates at every alpha). Returns the fits, the sum in core-hours, and the wall
     time on this machine's cores and on a Ray cluster of cluster_cpus CPUs (perfect scaling assumed).
     Empty when fewer than 2 such cells exist.
     """
@@ -375,13 +376,16 @@ def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
     fit_train = np.linalg.lstsq(design, train, rcond=None)[0]
     fit_eval = np.linalg.lstsq(design, ok["wall_seconds"].to_numpy(float) / ok["steps"].to_numpy(float), rcond=None)[0]
     total = 0.0
+    trainings_per_condition = (1 if paper.conditioned else len(paper.alphas)) * len(paper.seeds)
     for _, t_up, _ in paper.conditions():
         q = 3600.0 / t_up
-        per_cell = paper.train_steps * (fit_train[0] + fit_train[1] * q)
-        total += (per_cell + paper.eval_steps * (fit_eval[0] + fit_eval[1] * q)) * len(paper.alphas) * len(paper.seeds)
+        training = paper.train_steps * (fit_train[0] + fit_train[1] * q)
+        evaluation = paper.eval_steps * (fit_eval[0] + fit_eval[1] * q)
+        total += training * trainings_per_condition + evaluation * len(paper.alphas) * len(paper.seeds)
     cores = os.cpu_count() or 1
     return {
         "cells": float(len(paper.conditions()) * len(paper.alphas) * len(paper.seeds)),
+        "trainings": float(len(paper.conditions()) * trainings_per_condition),
         "train_s_per_step_a": float(fit_train[0]), "train_s_per_step_b_per_veh_h": float(fit_train[1]),
         "eval_s_per_step_a": float(fit_eval[0]), "eval_s_per_step_b_per_veh_h": float(fit_eval[1]),
         "core_hours": total / 3600.0, "machine_cores": float(cores), "machine_days": total / cores / 86400.0,

@@ -5,7 +5,7 @@ configuration of every cell and their keys. No SUMO here; scenario2.py runs the 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from coopsumo.config import (
@@ -51,6 +51,8 @@ class Profile:
     """MOBIL politeness grid, used when "mobil" is in policies"""
     preset: str = "default"
     """the learner preset of every DQN cell (config.DQN_PRESETS)"""
+    conditioned: bool = False
+    """one alpha-conditioned training per condition and seed (not per alpha), evaluated at every alpha"""
 
     def conditions(self) -> list[tuple[int, float, float]]:
         """(lanes, T_up s, load) of every condition, by lanes then decreasing T_up."""
@@ -92,6 +94,11 @@ def cell_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:
     return f"L{lanes}_T{number_name(t_up_s)}_a{number_name(alpha)}_s{seed}"
 
 
+def conditioned_key(lanes: int, t_up_s: float, seed: int) -> str:
+    """The training folder of a conditioned sweep's (condition, seed), shared by its cells of every alpha."""
+    return f"L{lanes}_T{number_name(t_up_s)}_cond_s{seed}"
+
+
 def mobil_key(lanes: int, t_up_s: float, p: float, seed: int) -> str:
     return f"L{lanes}_T{number_name(t_up_s)}_mobil_p{number_name(p)}_s{seed}"
 
@@ -109,6 +116,17 @@ def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Pr
     return TrainConfig(sim=sim, dqn=DQN_PRESETS[profile.preset], eval_steps=profile.eval_steps)
 
 
+def conditioned_configs(lanes: int, t_up_s: float, alpha: float, seed: int,
+                        profile: Profile) -> tuple[TrainConfig, SimConfig]:  # fmt: skip
+    """A conditioned cell: the alpha-conditioned training of its (condition, seed) (no evaluation of its own) and
+    the greedy evaluation at `alpha` on the same condition and seed."""
+    dqn = replace(DQN_PRESETS[profile.preset], alpha_conditioned=True)
+    sim = SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up_s), steps=profile.train_steps,
+                    seed=seed, policy="dqn")  # fmt: skip
+    ev = replace(sim, reward=RewardConfig(alpha=alpha), steps=profile.eval_steps)
+    return TrainConfig(sim=sim, dqn=dqn, eval_steps=0), ev
+
+
 def mobil_config(lanes: int, t_up_s: float, p: float, seed: int, profile: Profile) -> SimConfig:
     """A MOBIL cell: one run of mobil:p=P in free flow, like a DQN cell's evaluation (condition, seed, steps)."""
     return SimConfig(
@@ -123,7 +141,8 @@ def mobil_config(lanes: int, t_up_s: float, p: float, seed: int, profile: Profil
 def cell_specs(profile: Profile) -> list[dict[str, Any]]:
     """One JSON-ready spec per cell: key, coordinates and the full configuration as a dict.
 
-    A DQN cell's configuration is a TrainConfig, a MOBIL cell's a SimConfig.
+    A DQN cell's configuration is a TrainConfig, a MOBIL cell's a SimConfig; a conditioned cell's is
+    {"train": TrainConfig, "eval": SimConfig} and its spec names the shared training folder (train_key).
     """
     specs = []
 
@@ -134,7 +153,18 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
                       "policy": policy, "p": p, "config": json.loads(json.dumps(to_dict(cfg)))})  # fmt: skip
 
     for lanes, t_up, load in profile.conditions():
-        if "dqn" in profile.policies:
+        if "dqn" in profile.policies and profile.conditioned:
+            for alpha in profile.alphas:
+                for seed in profile.seeds:
+                    train, ev = conditioned_configs(lanes, t_up, alpha, seed, profile)
+                    train.validate()
+                    ev.validate()
+                    config = {"train": to_dict(train), "eval": to_dict(ev)}
+                    specs.append({"key": cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
+                                  "load": load, "alpha": alpha, "seed": seed, "policy": "dqn", "p": None,
+                                  "train_key": conditioned_key(lanes, t_up, seed),
+                                  "config": json.loads(json.dumps(config))})  # fmt: skip
+        elif "dqn" in profile.policies:
             for alpha in profile.alphas:
                 for seed in profile.seeds:
                     add(cell_key(lanes, t_up, alpha, seed), lanes, t_up, load, seed, "dqn", alpha, None,

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -87,7 +87,8 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
         speed_heatmap_figure(speeds, table["alpha_star"].tolist(), root / "fig6_speed_heatmap.png")
         figures["heatmap"] = "fig6_speed_heatmap.png"
     if profile.name != "paper" and "dqn" in profile.policies:
-        meta["paper_cost_estimate"] = paper_cost_estimate(runs, profile.train_steps, PROFILES["paper"])
+        paper = replace(PROFILES["paper"], conditioned=profile.conditioned)
+        meta["paper_cost_estimate"] = paper_cost_estimate(runs, profile.train_steps, paper)
     meta["plane"] = asdict(fit) if fit else {"error": plane_note}
     meta["plane_bootstrap"] = boot
     (root / "report.md").write_text(report_text(runs, table, fit, boot, plane_note, profile, meta, figures,
@@ -159,8 +160,8 @@ Measured here: wall seconds per training step = {cost["train_s_per_step_a"] * 1e
 {cost["train_s_per_step_b_per_veh_h"] * 1e6:+.3f} us per veh/h of inflow, per evaluation step
 {cost["eval_s_per_step_a"] * 1e3:.2f} ms {cost["eval_s_per_step_b_per_veh_h"] * 1e6:+.3f} us per veh/h
 (least squares over this sweep's cells, 2 cells at a time on this machine). Extrapolated to the paper
-profile ({cost["cells"]:,.0f} cells of
-{paper.train_steps:,} training and {paper.eval_steps:,} evaluation steps; inflows up to
+profile ({cost["cells"]:,.0f} cells, {cost.get("trainings", cost["cells"]):,.0f} trainings of
+{paper.train_steps:,} steps and {cost["cells"]:,.0f} evaluations of {paper.eval_steps:,} steps; inflows up to
 {cost["max_paper_inflow_veh_h"]:,.0f} veh/h, measured only up to {cost["max_measured_inflow_veh_h"]:,.0f}):
 **{cost["core_hours"]:,.0f} core-hours**, i.e. about {cost["machine_days"]:.1f} days on this machine's
 {cost["machine_cores"]:.0f} cores and about {cost["cluster_hours"]:.1f} h on a Ray cluster of
@@ -231,6 +232,21 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
         f"{profile.train_steps:,} training steps are far below the paper's 90,000: the models are barely trained, "
         "so alpha* here mostly reflects differences between short trainings, not the paper's effect."
     )  # fmt: skip
+    if profile.conditioned:
+        training_text = (
+            "**Alpha-conditioned** (`--conditioned`): one model per condition and seed, trained in free flow with "
+            "`train --alpha-conditioned` (alpha an input, all vehicles sharing one alpha drawn from the paper's 12 "
+            "values every 3,000 steps), is evaluated greedily at every alpha of the grid (`dqn:PATH,alpha=A`) on the "
+            "same condition and seed: one training per condition and seed instead of one per alpha. The cells of "
+            "one (condition, seed) share that training, so their speeds differ only by the alpha the model is "
+            "told. Each cell's summary also holds its evaluation's mean loop flow and occupancy (`runs.csv`: "
+            "loop_flow_veh_h_per_lane, loop_occupancy_pct), from which `alpha=adaptive`'s rule is fitted."
+        )  # fmt: skip
+    cond_folders = ("(conditioned: `train/L<lanes>_T<T_up>_cond_s<seed>/`, its evaluation at alpha A in "
+                    "`eval_a<A>/`)") if profile.conditioned else ""  # fmt: skip
+    if not profile.conditioned:
+        training_text = ("Each cell trains the shared DQN in free flow (scenario II) on its condition with its alpha "
+                         "and seed, then evaluates the model greedily on the same condition and seed.")  # fmt: skip
     return f"""# Scenario II: choosing the cooperation coefficient alpha
 
 Profile **{profile.name}**: lanes {", ".join(map(str, profile.lanes))}; {len(meta["conditions"])} conditions;
@@ -242,8 +258,7 @@ Wall time of this invocation: {meta["wall_seconds"] / 60:.1f} min ({meta["cells_
 own wall times sum to {meta["cell_wall_seconds_sum"] / 60:.1f} min and their CPU times to
 {meta["cell_cpu_seconds_sum"] / 60:.1f} core-minutes (CPU time does not grow when the machine is shared).
 
-Each cell trains the shared DQN in free flow (scenario II) on its condition with its alpha and seed, then
-evaluates the model greedily on the same condition and seed. Criterion (paper): mean travelling speed
+{training_text} Criterion (paper): mean travelling speed
 (space-mean speed of the evaluation run, `mean_speed_mps`). alpha* is the alpha with the best mean over seeds
 (ties go to the smaller alpha). Uncertainty: *win share* is the share of seeds on which alpha* is the best alpha
 (ties share the win); *bootstrap support* is the share of {meta["bootstrap_replicates"]} bootstrap resamples of
@@ -283,7 +298,8 @@ Rerunning the same command retries failed cells and keeps the finished ones.
 ## Notes
 
 - Runs: `runs.csv` (one row per cell, every evaluation metric, status and error); per condition: `alpha_star.csv`;
-  each cell's record: `cells/<key>.json`; its training folder: `train/<key>/`.{mobil_note}
+  each cell's record: `cells/<key>.json`; its training folder: `train/<key>/`
+  {cond_folders}.{mobil_note}
 - {steps_note}
 - Versions: {json.dumps(meta["versions"])}.
 """
