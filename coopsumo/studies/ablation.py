@@ -81,6 +81,9 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          "Q-value beats staying by more than 1", {"change_margin": 1.0}),
         ("v2x_margin", "the `v2x` models driven with the change margin of 1",
          {"observation": "v2x", "change_margin": 1.0}),
+        ("conditioned", "`margin` with alpha an input: one alpha-conditioned model per seed (train "
+         "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A) with the change margin of 1",
+         {"alpha_conditioned": True, "change_margin": 1.0}),
     ]  # fmt: skip
     out = []
     cfg = PAPER_DQN
@@ -122,6 +125,8 @@ PROFILES = {
     "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "margin"), (0.0, 1.0)),
     "robust": Profile("robust", 90_000, 9000, tuple(range(9)), ("restart", "v2x", "margin", "v2x_margin"),
                       (0.0, 8.0), alpha_variants=("margin", "v2x_margin"), alpha_seeds=(0, 1, 2)),
+    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("margin", "conditioned"),
+                           (0.0, 0.25, 1.0, 2.0, 8.0), alpha_variants=("margin", "conditioned")),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "v2x_margin"), (0.0, 1.0)),
 }
 
@@ -148,6 +153,8 @@ def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int) -> str:
     """The folder under train/ of the model that `variant` (learner dqn) drives at alpha on seed. Training ignores
     the change margin, so a variant differing from another only in it drives that one's training."""
     trained = replace(dqn, change_margin=0.0)
+    if dqn.alpha_conditioned:  # one training for every alpha
+        return f"{variant}_seed{seed}"
     twin = next((n for n, _, c in VARIANTS if c == trained), variant)
     return f"{twin}_alpha{number_name(alpha)}_seed{seed}"
 
@@ -170,9 +177,12 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
         if key in seen:
             return
         seen.add(key)
-        cfg = train_config(profile, replace(dqn, change_margin=0.0), alpha, seed)  # training ignores the margin
+        # training ignores the margin; a conditioned one draws its own alphas (its world's alpha is 0)
+        cfg = train_config(profile, replace(dqn, change_margin=0.0), 0.0 if dqn.alpha_conditioned else alpha, seed)
         cfg.validate()
         ev = eval_config(profile, "dqn", EVAL_SEED_OFFSET + seed)
+        if dqn.alpha_conditioned:
+            ev = replace(ev, reward=RewardConfig(alpha=alpha))
         config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
         if dqn.change_margin:
             config["drive"] = {"change_margin": dqn.change_margin}
@@ -238,11 +248,16 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
         fcntl.flock(lock, fcntl.LOCK_EX)
         record["train_summary"], _ = train_resuming(spec["config"]["train"], out)
     ev = sim_config_from_dict(spec["config"]["eval"])
-    ev = replace(ev, policy=f"dqn:{out / 'model.pt'}")
     margin = float(spec["config"].get("drive", {}).get("change_margin", 0.0))
-    eval_dir = out / (f"eval_seed{ev.seed}" + (f"_margin{number_name(margin)}" if margin else ""))
+    name = f"eval_seed{ev.seed}" + (f"_margin{number_name(margin)}" if margin else "")
+    spec_text = f"dqn:{out / 'model.pt'}"
+    if DQNPolicy.from_file(spec_text[4:]).net.conditioned:  # driven at the cell's alpha (its evaluation's)
+        spec_text += f",alpha={ev.reward.alpha:g}"
+        name += f"_alpha{number_name(ev.reward.alpha)}"
+    ev = replace(ev, policy=spec_text)
+    eval_dir = out / name
     eval_dir.mkdir(exist_ok=True)
-    policy = DQNPolicy.from_file(str(out / "model.pt"))
+    policy = DQNPolicy.from_spec(spec_text, ev.road.lanes)
     policy.change_margin = margin
     summary = run(ev, policy, eval_dir, progress=False)
     record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
@@ -410,6 +425,12 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
             lines.append("")
     if len(alpha_tab):
         lines += ["![alpha response](fig_alpha_response.png)", ""]
+    conditioned = [v for v in profile.alpha_variants if learner_of(v).alpha_conditioned]
+    for variant in conditioned:
+        reference = replace(learner_of(variant), alpha_conditioned=False, preset="default")
+        ref = next((n for n, _, c in VARIANTS if c == reference and n in profile.alpha_variants), None)
+        if ref is not None:
+            lines += robustness.conditioned_markdown(robustness.conditioned_table(runs, variant, ref), variant, ref)
     if failed.empty:
         lines += target_lines(runs, meta.get("default_variant", "replay"))
     else:

@@ -125,3 +125,53 @@ def training_seeds_figure(root: Path, runs: pd.DataFrame, variants: list[str], o
         ax.set_xlabel("training step")
     fig.tight_layout()
     return save_figure(fig, out_path)
+
+
+def conditioned_table(runs: pd.DataFrame, variant: str, reference: str) -> pd.DataFrame:
+    """Per alpha: `variant` (one model per seed for every alpha) minus `reference` (one model per alpha and seed),
+    paired by training seed (same evaluation seed): mean, worst and best of the speed and lane-change differences,
+    and the reference's seed sd (the spread the target compares with). Only alphas both have on a common seed."""
+    ok = runs[runs["status"] == "ok"].drop_duplicates("key")
+    rows = []
+    for alpha in sorted(set(ok.loc[ok["variant"] == variant, "alpha"].dropna())):
+        a = ok[(ok["variant"] == variant) & (ok["alpha"] == alpha)].set_index("seed")
+        b = ok[(ok["variant"] == reference) & (ok["alpha"] == alpha)].set_index("seed")
+        seeds = a.index.intersection(b.index)
+        if len(seeds) == 0:
+            continue
+        dv = a.loc[seeds, "mean_speed_mps"] - b.loc[seeds, "mean_speed_mps"]
+        dl = a.loc[seeds, "lane_changes_per_vehicle"] - b.loc[seeds, "lane_changes_per_vehicle"]
+        sd_v = float(b["mean_speed_mps"].std()) if len(b) > 1 else float("nan")
+        sd_l = float(b["lane_changes_per_vehicle"].std()) if len(b) > 1 else float("nan")
+        rows.append({"alpha": float(alpha), "seeds": len(seeds),
+                     "speed_cond": float(a.loc[seeds, "mean_speed_mps"].mean()),
+                     "speed_ref": float(b.loc[seeds, "mean_speed_mps"].mean()),
+                     "d_speed_mean": float(dv.mean()), "d_speed_min": float(dv.min()), "d_speed_max": float(dv.max()),
+                     "ref_speed_sd": sd_v,
+                     "lc_cond": float(a.loc[seeds, "lane_changes_per_vehicle"].mean()),
+                     "lc_ref": float(b.loc[seeds, "lane_changes_per_vehicle"].mean()),
+                     "d_lc_mean": float(dl.mean()), "ref_lc_sd": sd_l,
+                     "within_spread": bool(abs(dv.mean()) <= sd_v) if math.isfinite(sd_v) else False})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def conditioned_markdown(table: pd.DataFrame, variant: str, reference: str) -> list[str]:
+    """The conditioned-against-per-alpha section of a report."""
+    if table.empty:
+        return []
+    lines = [f"## One network for every alpha: `{variant}` against per-alpha `{reference}` models", "",
+             f"`{variant}`: one model per training seed, driven at each alpha; `{reference}`: one model per alpha and "
+             "seed. Differences are paired by training seed (the same evaluation demand). Target: the mean speed "
+             f"difference within the per-alpha models' seed sd at every alpha.", "",
+             "| alpha | seeds | speed conditioned / per-alpha (m/s) | difference: mean [worst, best] | per-alpha seed "
+             "sd | lane changes / veh conditioned / per-alpha | difference | per-alpha seed sd | within spread |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    for r in table.to_dict("records"):
+        lines.append(f"| {r['alpha']:g} | {r['seeds']} | {r['speed_cond']:.2f} / {r['speed_ref']:.2f} | "
+                     f"{r['d_speed_mean']:+.2f} [{r['d_speed_min']:+.2f}, {r['d_speed_max']:+.2f}] | "
+                     f"{r['ref_speed_sd']:.2f} | {r['lc_cond']:.2f} / {r['lc_ref']:.2f} | {r['d_lc_mean']:+.2f} | "
+                     f"{r['ref_lc_sd']:.2f} | {'yes' if r['within_spread'] else 'no'} |")  # fmt: skip
+    met = int(table["within_spread"].sum())
+    lines += ["", f"Within the per-alpha seed spread at {met} of {len(table)} alphas, for one training per seed "
+              f"instead of {len(table)}.", ""]  # fmt: skip
+    return lines
