@@ -64,9 +64,11 @@ def test_short_training_loads_and_drives_safely(tmp_path: Path) -> None:
     assert driven["decision_interval_steps"] == summary["decision_interval_steps"] == 10
 
 
-@pytest.mark.parametrize("preset", ["default", "paper", "v2x"])
+@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned"])
 def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
-    dqn = replace(DQNConfig(), observation="v2x") if preset == "v2x" else DQN_PRESETS[preset]
+    dqn = replace(DQNConfig(), observation="v2x") if preset == "v2x" else DQN_PRESETS.get(preset, DQNConfig())
+    if preset == "conditioned":
+        dqn = replace(dqn, alpha_conditioned=True, alpha_period_steps=200)
     cfg = TrainConfig(sim=SimConfig(steps=700, seed=5, policy="dqn"), dqn=dqn, eval_steps=0)
     train(cfg, tmp_path / "a", progress=False)
     train(cfg, tmp_path / "b", progress=False)
@@ -76,10 +78,11 @@ def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
     assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "c" / "model.pt"))
 
 
-@pytest.mark.parametrize("preset", ["default", "paper", "v2x"])
+@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned"])
 def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str) -> None:
     sig = signal.SIGTERM  # Ctrl-C (SIGINT) is exercised by tests/test_docs.py on the README's commands
-    learner = ["--observation", "v2x"] if preset == "v2x" else ["--preset", preset]
+    learner = {"v2x": ["--observation", "v2x"], "conditioned": ["--alpha-conditioned", "--alpha-period", "700"]}.get(
+        preset, ["--preset", preset])
     args = ["--steps", "2500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
     full = tmp_path / "full"
     subprocess.run(_cmd(*args, "--out", str(full)), check=True, cwd=ROOT, capture_output=True)
