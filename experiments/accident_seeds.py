@@ -8,6 +8,10 @@ over steps 2,000-12,000 of 20,000) at every demand of --t-up, on accident seed A
 a demand the model never trained on. keep, greedy and MOBIL run on the same seeds. Every run is a cell of
 the shared study runner, reused on a rerun. Writes ROOT/accident/runs.csv (scenario I's measures per run)
 and ROOT/accident/report.md (per policy: mean, sd and worst seed; seed-paired differences to `keep`).
+
+An alpha-conditioned variant's model is driven at each alpha of --alphas (dqn:PATH,alpha=A), and with --adaptive
+also at alpha=adaptive (alpha chosen every loop period from the loops; agents/adaptive.py); the report then
+gives adaptive minus every fixed alpha, paired by seed.
 """
 
 from __future__ import annotations
@@ -42,7 +46,8 @@ def models(root: Path, variants: list[str], alphas: tuple[float, ...]) -> list[d
             key = training_key(learner_of(rec["variant"]), rec["variant"], float(rec["alpha"]), int(rec["seed"]))
             model = (root / "train" / key / "model.pt").resolve()
             found.append({"variant": rec["variant"], "alpha": float(rec["alpha"]), "seed": int(rec["seed"]),
-                          "model": model, "margin": margin})  # fmt: skip
+                          "model": model, "margin": margin,
+                          "conditioned": learner_of(rec["variant"]).alpha_conditioned})  # fmt: skip
     return found
 
 
@@ -69,6 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seeds", type=int, default=6, help="models of training seeds 0..N-1 only (default 6)")
     p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
     p.add_argument("--quick", action="store_true", help="scenario I's quick accident (6,000 steps): for tests")
+    p.add_argument("--adaptive", action="store_true",
+                   help="also drive every alpha-conditioned model at alpha=adaptive (chosen from the loops)")
     p.add_argument("--out", type=Path, required=True, help="results folder")
     args = p.parse_args(argv)
 
@@ -79,6 +86,8 @@ def main(argv: list[str] | None = None) -> int:
                  if m["seed"] < args.seeds]  # fmt: skip
         if not found:
             raise UsageError(f"no finished models of {variants} in {[str(r) for r in args.roots]}")
+        if args.adaptive:
+            found += [{**m, "alpha": None, "adaptive": True} for m in found if m["conditioned"] and m["alpha"] == 0]
         return run(found, t_ups, args.out, args.workers, s1.Plan.quick() if args.quick else s1.Plan())
 
     return run_cli("accident_seeds", body)
@@ -100,9 +109,14 @@ def run(found: list[dict[str, Any]], t_ups: tuple[float, ...], root: Path, n_wor
         for m in found:
             if m["margin"]:
                 m["model"] = driving_copy(m["model"], m["margin"], root / "models")
-            label = f"{m['variant']}_alpha{m['alpha']:g}_train{m['seed']}"
-            policies.append(({"policy": label, "variant": m["variant"], "alpha": m["alpha"], "only": m["seed"]},
-                             f"dqn:{m['model']}"))  # fmt: skip
+            spec = f"dqn:{m['model']}"
+            if m.get("adaptive"):
+                label, variant = f"{m['variant']}_adaptive_train{m['seed']}", f"{m['variant']}_adaptive"
+                spec += ",alpha=adaptive"
+            else:
+                label, variant = f"{m['variant']}_alpha{m['alpha']:g}_train{m['seed']}", m["variant"]
+                spec += f",alpha={m['alpha']:g}" if m["conditioned"] else ""
+            policies.append(({"policy": label, "variant": variant, "alpha": m["alpha"], "only": m["seed"]}, spec))
         for what, policy in policies:
             for seed in seeds:
                 if "only" in what and what["only"] != seed:
@@ -137,6 +151,7 @@ def run(found: list[dict[str, Any]], t_ups: tuple[float, ...], root: Path, n_wor
         m = run_metrics(root / spec["out"], cfg, plan.trajectory_every * cfg.control.dt_s)
         rows.append({"variant": what["variant"], "alpha": what["alpha"], "t_up_s": what["t_up_s"],
                      "seed": what["seed"], "mean_speed_mps": summary["mean_speed_mps"],
+                     "adaptive_alpha_mean": summary.get("adaptive_alpha_mean"),
                      "lane_changes_per_vehicle": summary["lane_changes_per_vehicle"],
                      "collisions": summary["collisions"], "teleports": summary["teleports"], **m})  # fmt: skip
     table = pd.DataFrame(rows)
@@ -171,8 +186,37 @@ def write_report(root: Path, table: pd.DataFrame, wall_s: float) -> None:
                 f"{g['mean_speed_mps'].std():.2f} | {g['lane_changes_per_vehicle'].mean():.2f} | "
                 f"{g['system_recovery_s'].mean():.0f} | {int(g['collisions'].sum())}, {int(g['teleports'].sum())} |"
             )
+    lines += adaptive_lines(table)
     lines += ["", f"Wall time of this invocation: {wall_s / 60:.1f} min. Versions: {versions()}.", ""]
     (root / "report.md").write_text("\n".join(lines))
+
+
+def adaptive_lines(table: pd.DataFrame) -> list[str]:
+    """Adaptive alpha minus every fixed alpha of the same conditioned models, paired by seed: TTS and mean speed,
+    mean with a 90% t-interval over seeds (empty without adaptive runs)."""
+    from coopsumo.studies.robustness import paired_interval
+
+    adaptive = table[table["variant"].str.endswith("_adaptive")]
+    if adaptive.empty:
+        return []
+    lines = ["", "## Adaptive alpha against every fixed alpha (the same conditioned models, paired by seed)", "",
+             "Difference adaptive minus fixed: mean [90% t-interval over seeds]; TTS lower is better, speed higher.",
+             "", "| T_up (s) | fixed alpha | seeds | TTS difference (veh-h) | speed difference (m/s) | adaptive's "
+             "mean alpha |", "|---|---|---|---|---|---|"]  # fmt: skip
+    for (t_up, variant), ad in adaptive.groupby(["t_up_s", "variant"], sort=False):
+        base = variant.removesuffix("_adaptive")
+        fixed = table[(table["t_up_s"] == t_up) & (table["variant"] == base)]
+        a = ad.set_index("seed")
+        for alpha, g in fixed.groupby("alpha"):
+            f = g.set_index("seed")
+            seeds = a.index.intersection(f.index)
+            cells = []
+            for col in ("tts_veh_h", "mean_speed_mps"):
+                mean, lo, hi = paired_interval((a.loc[seeds, col] - f.loc[seeds, col]).to_numpy(float))
+                cells.append(f"{mean:+.2f} [{lo:+.2f}, {hi:+.2f}]")
+            lines.append(f"| {t_up:g} | {alpha:g} | {len(seeds)} | {cells[0]} | {cells[1]} | "
+                         f"{a.loc[seeds, 'adaptive_alpha_mean'].astype(float).mean():.2f} |")  # fmt: skip
+    return lines
 
 
 if __name__ == "__main__":

@@ -175,3 +175,20 @@ def conditioned_markdown(table: pd.DataFrame, variant: str, reference: str) -> l
     lines += ["", f"Within the per-alpha seed spread at {met} of {len(table)} alphas, for one training per seed "
               f"instead of {len(table)}.", ""]  # fmt: skip
     return lines
+
+
+T95 = (6.314, 2.920, 2.353, 2.132, 2.015, 1.943, 1.895, 1.860, 1.833, 1.812, 1.796, 1.782, 1.771, 1.761, 1.753)
+"""Student's t 0.95 quantile for 1-15 degrees of freedom (a two-sided 90% interval); 1.645 beyond"""
+
+
+def paired_interval(diffs: np.ndarray) -> tuple[float, float, float]:
+    """Mean of seed-paired differences and its two-sided 90% t-interval (lo, hi); nan bounds for one seed."""
+    d = np.asarray(diffs, float)
+    d = d[np.isfinite(d)]
+    if len(d) == 0:
+        return math.nan, math.nan, math.nan
+    if len(d) == 1:
+        return float(d[0]), math.nan, math.nan
+    t = T95[len(d) - 2] if len(d) - 1 <= len(T95) else 1.645
+    half = t * float(d.std(ddof=1)) / math.sqrt(len(d))
+    return float(d.mean()), float(d.mean()) - half, float(d.mean()) + half
