@@ -344,3 +344,42 @@ def test_tiny_scenario2_conditioned_trains_once_per_condition_and_seed(tmp_path:
         assert sorted(p.name for p in (out / "train" / train).glob("eval_a*")) == ["eval_a0", "eval_a8"]
     assert "Alpha-conditioned" in (out / "report.md").read_text()
     assert len(pd.read_csv(out / "alpha_star.csv")) == 2
+    # the adaptive rule fitted on the sweep, and alpha=adaptive driven on its conditions (docs/studies.md)
+    fitted = subprocess.run([sys.executable, "experiments/adaptive_scenario2.py", str(out), "--fit"], cwd=ROOT,
+                            capture_output=True, text=True, check=False)  # fmt: skip
+    assert fitted.returncode == 0, fitted.stderr[-2000:]
+    assert "DEFAULT_RULE = AdaptiveRule(points=((2, " in fitted.stdout
+    assert len(json.loads((out / "adaptive_rule.json").read_text())["points"]) == 2
+    driven = subprocess.run([sys.executable, "experiments/adaptive_scenario2.py", str(out)], cwd=ROOT,
+                            capture_output=True, text=True, check=False)  # fmt: skip
+    assert driven.returncode == 0, driven.stderr[-2000:]
+    adaptive = pd.read_csv(out / "adaptive_runs.csv")
+    assert len(adaptive) == 4 and (adaptive["collisions"] == 0).all()
+    assert "| 2 | 4 | " in (out / "adaptive.md").read_text()
+
+
+@pytest.mark.sumo
+def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp_path: Path) -> None:
+    """The learning study's conditioned variant beside per-alpha models, then the accident at fixed and adaptive
+    alpha (experiments/accident_seeds.py --adaptive)."""
+    out = tmp_path / "learning"
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--variants",
+                          "margin,conditioned", "--alpha-variants", "margin,conditioned", "--alphas", "0,8",
+                          "--out", str(out), "--quiet"],
+                         cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert sorted(p.name for p in (out / "train").glob("conditioned*")) == ["conditioned_seed0", "conditioned_seed1"]
+    assert sorted(p.name for p in (out / "train" / "conditioned_seed0").glob("eval_*")) == [
+        "eval_seed1000_margin1_alpha0", "eval_seed1000_margin1_alpha8"]
+    report = (out / "report.md").read_text()
+    assert "## One network for every alpha: `conditioned` against per-alpha `margin` models" in report
+    assert "| 8 | 2 |" in report
+    acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "conditioned",
+                          "--alphas", "0,8", "--adaptive", "--seeds", "1", "--quick", "--t-up", "3", "--out",
+                          str(tmp_path / "acc")], cwd=ROOT, capture_output=True, text=True)  # fmt: skip
+    assert acc.returncode == 0, acc.stderr[-2000:]
+    runs = pd.read_csv(tmp_path / "acc" / "runs.csv")
+    assert set(runs["variant"]) == {"keep", "greedy", "mobil:p=0", "conditioned", "conditioned_adaptive"}
+    assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
+    assert list((tmp_path / "acc" / "runs").glob("t3/*adaptive*/adaptive_alpha.csv"))
+    assert "## Adaptive alpha against every fixed alpha" in (tmp_path / "acc" / "report.md").read_text()
