@@ -555,6 +555,12 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     else:
         todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
                                  s["variant"] != "paper"))  # fmt: skip
+    # a training shared by several cells (margin variants, a conditioned model's alphas) is started by one cell
+    # first: the others wait for it (a lock), so every training comes before every cell that would wait
+    first: dict[str, str] = {}
+    for s in todo:
+        first.setdefault(s.get("train_key", s["key"]), s["key"])
+    todo.sort(key=lambda s: first[s.get("train_key", s["key"])] != s["key"])
     default_variant = next((n for n, _, c in VARIANTS if c == default), "default")
     meta: dict[str, Any] = {"profile": asdict(profile), "default_learner": to_dict(default), "cells": len(specs),
                             "default_variant": default_variant,
