@@ -130,9 +130,11 @@ def main(argv: list[str] | None = None) -> int:
         if not (args.root / "alpha_star.csv").exists():
             raise UsageError(f"{args.root} holds no alpha_star.csv: run scenario2 --conditioned into it first")
         if args.fit:
-            rows = fit(args.root)
-            write_json(args.root / "adaptive_rule.json", {"points": rows, "source": str(args.root)})
-            print(f"DEFAULT_RULE = AdaptiveRule(points={tuple(rows)!r}, source={str(args.root)!r})")
+            from coopsumo.agents.adaptive import fit_rule
+
+            rule = fit_rule(fit(args.root), str(args.root))
+            write_json(args.root / "adaptive_rule.json", {"points": rule.points, "source": rule.source})
+            print(f"DEFAULT_RULE = AdaptiveRule(points={rule.points!r}, source={rule.source!r})")
             return 0
         table = compare(args.root, args.workers)
         table.to_csv(args.root / "adaptive_runs.csv", index=False)
