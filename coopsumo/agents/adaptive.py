@@ -87,9 +87,11 @@ def fit_rule(rows: list[tuple[int, float, float]], source: str) -> AdaptiveRule:
 
 
 DEFAULT_RULE = AdaptiveRule(
-    points=((3, 1.987, 0.25), (3, 4.405, 0.0), (3, 7.074, 0.125), (3, 10.255, 1.0)),
+    points=((2, 1.961, 2.0), (2, 4.329, 0.25), (2, 7.09, 8.0), (2, 10.749, 8.0),
+            (3, 1.987, 0.25), (3, 4.405, 0.0), (3, 7.074, 0.125), (3, 10.255, 1.0),
+            (4, 2.012, 0.0), (4, 4.32, 0.0), (4, 6.963, 0.125), (4, 9.892, 48.0)),
     source="results/scenario2_conditioned",
 )
 """the rule `alpha=adaptive` uses: printed by `experiments/adaptive_scenario2.py results/scenario2_conditioned --fit`
-(3 lanes, 90,000 training steps, 3 seeds; a road of another lane count uses these points until its own are
-measured)"""
+(2, 3 and 4 lanes, 90,000 training steps, 3 seeds; a road of another lane count uses the nearest lane count's
+points)"""
