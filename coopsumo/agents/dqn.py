@@ -272,6 +272,11 @@ class ReplayBuffer:
         self._size = int(state["size"])
 
 
+def q_values(net: nn.Module, grids: torch.Tensor, features: torch.Tensor, alphas: torch.Tensor | None) -> torch.Tensor:
+    """net's Q-values; alphas passed only to a conditioned network (None: a network of one alpha)."""
+    return net(grids, features) if alphas is None else net(grids, features, alphas)
+
+
 def epsilon_at(env_steps: int, cfg: DQNConfig) -> float:
     """Exploration probability after env_steps: linear from epsilon_start to epsilon_end, then constant."""
     if cfg.epsilon_decay_steps <= 0:
@@ -303,9 +308,10 @@ def td_targets(online: QNetwork, target: QNetwork, batch: ReplayBatch, gamma: fl
     Plain DQN: a* maximises the target network; double DQN: a* maximises the online network.
     """
     with torch.no_grad():
-        next_q = target(batch.next_grids, batch.next_features, batch.alphas).masked_fill(~batch.next_mask, -torch.inf)
+        next_q = q_values(target, batch.next_grids, batch.next_features, batch.alphas)
+        next_q = next_q.masked_fill(~batch.next_mask, -torch.inf)
         if double:
-            chooser = online(batch.next_grids, batch.next_features, batch.alphas)
+            chooser = q_values(online, batch.next_grids, batch.next_features, batch.alphas)
             chooser = chooser.masked_fill(~batch.next_mask, -torch.inf)
             best = chooser.argmax(dim=1, keepdim=True)
             next_v = next_q.gather(1, best).squeeze(1)
@@ -325,7 +331,7 @@ def dqn_update(
     loss_name: str = "mse",
 ) -> float:
     """One gradient step on the TD error (paper eq. 8: mean squared; or Huber); returns the loss before the step."""
-    q = online(batch.grids, batch.features, batch.alphas).gather(1, batch.actions.unsqueeze(1)).squeeze(1)
+    q = q_values(online, batch.grids, batch.features, batch.alphas).gather(1, batch.actions.unsqueeze(1)).squeeze(1)
     td_target = td_targets(online, target, batch, gamma, double)
     if loss_name == "huber":
         loss = nn.functional.smooth_l1_loss(q, td_target)
@@ -391,7 +397,8 @@ class Learner:
         if len(grids) == 0:
             return np.zeros(0, dtype=np.int64)
         with torch.no_grad():
-            q = self.online(
+            q = q_values(
+                self.online,
                 torch.as_tensor(grids, dtype=torch.float32),
                 torch.as_tensor(features, dtype=torch.float32),
                 None if alphas is None else torch.as_tensor(alphas, dtype=torch.float32),
