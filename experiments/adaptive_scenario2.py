@@ -42,12 +42,12 @@ def fit(root: Path) -> list[tuple[int, float, float]]:
 
 
 def _drive(job: dict[str, Any]) -> dict[str, Any]:
-    from coopsumo.studies.runner import simulate_into
+    from coopsumo.config import OutputConfig
+    from coopsumo.studies.runner import reusable_run, simulate_into
 
     out = Path(job["out"])
-    done = out / "summary.json"
-    if done.exists() and json.loads((out / "config.json").read_text())["config"] == job["config"]:
-        return json.loads(done.read_text())
+    if reusable_run(out, job["config"], OutputConfig(), prog="adaptive_scenario2"):
+        return json.loads((out / "summary.json").read_text())
     return simulate_into(job["config"], out, out.parent.name)
 
 

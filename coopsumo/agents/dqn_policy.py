@@ -93,14 +93,17 @@ class DQNPolicy:
         if alpha is None and conditioned:
             raise UsageError(f"model {path} is alpha-conditioned: say the alpha it drives with, dqn:{path},alpha=A "
                              f"or dqn:{path},alpha={ADAPTIVE}")  # fmt: skip
-        if alpha is None:
-            return policy
-        rule = DEFAULT_RULE if alpha == ADAPTIVE else None
-        fixed = None if isinstance(alpha, str) else alpha
-        driven = cls(policy.net, policy.name, policy.decision_interval, policy.action_mask, policy.restart_below_mps,
-                     policy.change_margin, alpha=fixed, rule=rule, lanes=lanes)  # fmt: skip
-        driven.trained_on = dict(policy.trained_on or {}, driven_alpha=alpha)
-        return driven
+        if alpha is not None:
+            policy.drive_at(alpha, lanes)
+            policy.trained_on = dict(policy.trained_on or {}, driven_alpha=alpha)
+        return policy
+
+    def drive_at(self, alpha: float | str, lanes: int) -> None:
+        """Drive a conditioned network at a fixed alpha, or at 'adaptive' by DEFAULT_RULE on a road of `lanes`."""
+        self.rule = DEFAULT_RULE if alpha == ADAPTIVE else None
+        self.lanes = lanes
+        self.alpha = choose_alpha(self.rule, lanes, 0.0) if self.rule is not None else float(alpha)
+        self._action[:] = -1  # choices remembered at another alpha
 
     @classmethod
     def from_file(cls, path: str) -> DQNPolicy:
@@ -159,7 +162,7 @@ class DQNPolicy:
                                "alpha": alpha})  # fmt: skip
         if alpha != self.alpha:
             self.alpha = alpha
-            self._action[:] = -1  # the remembered choices were made at another alpha
+            self._action[:] = -1  # choices remembered at another alpha
 
     def _grow(self, needed: int) -> None:
         cap = len(self._action)

@@ -60,7 +60,8 @@ def run(
                outputs=outputs, gui=gui) as world:  # fmt: skip
         bar = tqdm(total=cfg.steps, desc=label, unit="step", disable=not progress, mininterval=0.5, file=sys.stderr)
         hold = ActionHold(policy.decision_interval)
-        listen = getattr(policy, "loop_interval", None)  # a policy that adapts to the loops' measurements
+        # a policy that adapts to the loops' measurements (an adaptive rule): told of every loop period
+        listen = getattr(policy, "loop_interval", None) if getattr(policy, "rule", None) is not None else None
         for _ in range(cfg.steps):
             decide = hold.is_decision_step(world.step_count)
             obs = world.observe(grids=decide and policy.needs_grids)

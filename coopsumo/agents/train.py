@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import functools
 import os
 import shutil
 import signal
@@ -85,8 +86,13 @@ def training_alpha(seed: int, step: int, period_steps: int) -> float:
     """The alpha all vehicles share at training step `step` of a conditioned training: one of PAPER_ALPHAS, drawn
     uniformly and afresh every period_steps, a pure function of (seed, step // period_steps) so a resume
     replays it exactly."""
-    k = step // period_steps
-    return float(PAPER_ALPHAS[np.random.default_rng([seed, ALPHA_STREAM, k]).integers(len(PAPER_ALPHAS))])
+    return _alpha_draw(seed, step // period_steps)
+
+
+@functools.lru_cache(maxsize=256)
+def _alpha_draw(seed: int, period: int) -> float:
+    """The alpha of period `period` of a conditioned training seeded `seed` (training_alpha)."""
+    return float(PAPER_ALPHAS[np.random.default_rng([seed, ALPHA_STREAM, period]).integers(len(PAPER_ALPHAS))])
 
 
 CHECKPOINT_KEYS = ("config", "step", "learner", "action_counts", "actions", "window")

@@ -108,6 +108,8 @@ class SumoSession:
         """what the full reads found against the advanced table (controlled runs)"""
         self.step_seconds = 0.0
         """wall time spent inside SUMO's simulationStep so far (s): SUMO's own share of a run"""
+        road = cfg.road
+        self._loop_ids = [network.loop_id(pos, lane) for pos in road.loop_positions_m() for lane in range(road.lanes)]
 
     def args(self) -> list[str]:
         """SUMO's command line for this run; writes the route and detector files into run_dir."""
@@ -237,8 +239,7 @@ class SumoSession:
         """Every E1 loop's last completed period (road.loop_period_s): vehicles counted, occupancy (%) and mean
         speed (m/s; -1 where none was counted), as SUMO reports them (inductionloop.getLastInterval*)."""
         il = self.ls.inductionloop
-        road = self.cfg.road
-        ids = [network.loop_id(pos, lane) for pos in road.loop_positions_m() for lane in range(road.lanes)]
+        ids = self._loop_ids
         counts = np.array([il.getLastIntervalVehicleNumber(i) for i in ids], np.float64)
         occupancy = np.array([il.getLastIntervalOccupancy(i) for i in ids], np.float64)
         speed = np.array([il.getLastIntervalMeanSpeed(i) for i in ids], np.float64)

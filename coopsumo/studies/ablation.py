@@ -17,7 +17,6 @@ alpha_response.csv, fig_training_curves.png, fig_alpha_response.png, report.md.
 
 from __future__ import annotations
 
-import fcntl
 import json
 import math
 import sys
@@ -240,24 +239,22 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
     from coopsumo.agents.dqn_policy import DQNPolicy
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.runner import train_resuming
+    from coopsumo.studies.runner import train_shared
 
     out = root / "train" / spec.get("train_key", spec["key"])
-    out.mkdir(parents=True, exist_ok=True)
-    with open(root / "train" / f".{out.name}.lock", "w") as lock:  # two cells may share one training
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        record["train_summary"], _ = train_resuming(spec["config"]["train"], out)
+    record["train_summary"], _ = train_shared(spec["config"]["train"], out)  # two cells may share one training
     ev = sim_config_from_dict(spec["config"]["eval"])
     margin = float(spec["config"].get("drive", {}).get("change_margin", 0.0))
     name = f"eval_seed{ev.seed}" + (f"_margin{number_name(margin)}" if margin else "")
     spec_text = f"dqn:{out / 'model.pt'}"
-    if DQNPolicy.from_file(spec_text[4:]).net.conditioned:  # driven at the cell's alpha (its evaluation's)
+    policy = DQNPolicy.from_file(spec_text[4:])
+    if policy.net.conditioned:  # driven at the cell's alpha (its evaluation's)
+        policy.drive_at(ev.reward.alpha, ev.road.lanes)
         spec_text += f",alpha={ev.reward.alpha:g}"
         name += f"_alpha{number_name(ev.reward.alpha)}"
     ev = replace(ev, policy=spec_text)
     eval_dir = out / name
     eval_dir.mkdir(exist_ok=True)
-    policy = DQNPolicy.from_spec(spec_text, ev.road.lanes)
     policy.change_margin = margin
     summary = run(ev, policy, eval_dir, progress=False)
     record["summary"] = {k: v for k, v in summary.items() if k != "policy"}

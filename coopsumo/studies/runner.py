@@ -198,6 +198,17 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
     return summary, resumed_from
 
 
+def train_shared(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:
+    """train_resuming under a lock on out (a file beside it): cells that share one training (the margin variants,
+    a conditioned model's alphas) wait for the first to train it, then reuse it."""
+    import fcntl
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out.parent / f".{out.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        return train_resuming(config, out)
+
+
 def simulate_into(
     config: dict[str, Any],
     out: Path,

@@ -55,6 +55,7 @@ from coopsumo.studies.runner import (
     simulate_into,
     study_root,
     train_resuming,
+    train_shared,
 )
 from coopsumo.studies.scenario2_measures import CRITERION, KEY_COLUMNS, runs_table
 from coopsumo.studies.scenario2_plan import (
@@ -128,16 +129,11 @@ def _run_conditioned(spec: dict[str, Any], root: Path, record: dict[str, Any]) -
     """Train (or reuse) the alpha-conditioned model of the cell's (condition, seed) in ROOT/train/<train_key>/ under
     a lock (the cells of every alpha share it), then evaluate it at the cell's alpha in eval_a<alpha>/; the summary
     also holds the evaluation's mean loop flow and occupancy (SUMO's detectors.xml)."""
-    import fcntl
-
     from coopsumo.config import sim_config_from_dict
     from coopsumo.report.analysis import read_detectors
 
     out = root / "train" / spec["train_key"]
-    out.mkdir(parents=True, exist_ok=True)
-    with open(root / "train" / f".{out.name}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        _, record["resumed_from_step"] = train_resuming(spec["config"]["train"], out)
+    _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out)
     ev = sim_config_from_dict(spec["config"]["eval"])
     config = to_dict(replace(ev, policy=f"dqn:{out / 'model.pt'},alpha={ev.reward.alpha:g}"))
     eval_dir = out / f"eval_a{number_name(ev.reward.alpha)}"
