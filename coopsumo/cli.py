@@ -23,6 +23,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scenario1": ("coopsumo.studies.scenario1", "the accident study of section IV.A, across demands"),
     "scenario2": ("coopsumo.studies.scenario2", "the alpha sweep of section IV.B (Fig. 6)"),
     "learning": ("coopsumo.studies.ablation", "the learner ablation and the alpha response"),
+    "protocol": ("coopsumo.studies.protocol", "judge learners: 10 models each, free flow and accident, vs baselines"),
     "bench": ("coopsumo.bench", "speed figures (printed, not asserted)"),
 }
 """command -> (module holding its parser and main(argv), one line of what it does)"""

@@ -163,6 +163,10 @@ class RewardConfig:
     """weight of q_t (paper: 1)"""
 
 
+VALIDATION_SEED = 900_000
+"""first seed of the model-selection runs (DQNConfig.validation_seed): far above every study's evaluation seeds"""
+
+
 @dataclass(frozen=True)
 class DQNConfig:
     """The learner. Field defaults are the project's default design; PAPER_DQN holds the paper's values.
@@ -232,6 +236,15 @@ class DQNConfig:
     alpha_relabel: float = 0.5
     """conditioned training: share of each minibatch given another alpha of PAPER_ALPHAS, its reward recomputed from
     the stored lane changes (r = r_speed + r_flow - alpha x lane changes)"""
+    select_every_steps: int = 15_000
+    """model selection: every this many training steps (and at the last) the weights are validated greedily on
+    held-out demand and model.pt is the best of them (agents/selection.py); 0: model.pt is the last weights (paper)"""
+    validation_seed: int = VALIDATION_SEED
+    """model selection: validation run i uses seed validation_seed + i (disjoint from training and study seeds)"""
+    validation_t_ups: tuple[float, ...] = (2.0, 1.5, 1.0)
+    """model selection: the free-flow demands T_up (s) of the validation runs, one run each"""
+    validation_steps: int = 3000
+    """model selection: steps of 0.1 s of each validation run"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
@@ -268,6 +281,11 @@ class DQNConfig:
                 raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
         if problem := limits_problem(self, LEARNER_LIMITS):  # every number finite and bounded
             raise ConfigError(problem)
+        ts = self.validation_t_ups
+        if not isinstance(ts, tuple) or not ts or len(ts) > 10 or len(set(ts)) != len(ts) or any(
+                isinstance(t, bool) or not isinstance(t, (int, float)) or not 0.1 <= t <= MAX_T_UP_S for t in ts):
+            raise ConfigError(f"validation_t_ups must be 1 to 10 distinct demands T_up from 0.1 to {MAX_T_UP_S:g} s, "
+                              f"got {ts!r}")  # fmt: skip
 
 
 PAPER_DQN = DQNConfig(
@@ -290,6 +308,7 @@ PAPER_DQN = DQNConfig(
     restart_below_mps=0.0,
     change_margin=0.0,
     observation="paper",
+    select_every_steps=0,
 )
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""
@@ -422,6 +441,11 @@ class TrainConfig:
         if self.log_every_steps < 1 or self.checkpoint_every_steps < 0:
             raise ConfigError(f"log every must be >= 1 and checkpoint every >= 0 steps, got {self.log_every_steps} "
                               f"and {self.checkpoint_every_steps}")  # fmt: skip
+        dq = self.dqn
+        last = dq.validation_seed + len(dq.validation_t_ups) - 1
+        if dq.select_every_steps and dq.validation_seed <= self.sim.seed <= last:
+            raise ConfigError(f"validation seeds {dq.validation_seed}-{last} overlap the training seed "
+                              f"{self.sim.seed}: choose another validation seed")  # fmt: skip
 
 
 def train_config_from_dict(d: dict[str, Any]) -> TrainConfig:
@@ -460,6 +484,8 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
     d.setdefault("restart_below_mps", 0.0)  # written before the standing rule: 'none' offered at any speed
     for name, implied in ADDED_FIELDS.items():  # written before the field existed: what it meant then
         d.setdefault(name, implied)
+    if isinstance(d["validation_t_ups"], list):  # JSON has no tuples
+        d["validation_t_ups"] = tuple(d["validation_t_ups"])
     return _from_fields(DQNConfig, d, "learner")
 
 
@@ -484,7 +510,9 @@ matches a stored run, cell or checkpoint to its configuration)"""
 
 
 ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "alpha_conditioned": False,
-                                 "alpha_period_steps": 3000, "alpha_relabel": 0.5}
+                                 "alpha_period_steps": 3000, "alpha_relabel": 0.5, "select_every_steps": 0,
+                                 "validation_seed": VALIDATION_SEED, "validation_t_ups": [2.0, 1.5, 1.0],
+                                 "validation_steps": 3000}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

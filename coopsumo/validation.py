@@ -80,6 +80,9 @@ LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
     "change_margin": (0.0, 1e6, False, False),
     "alpha_period_steps": (1, MAX_STEPS, False, False),
     "alpha_relabel": (0.0, 1.0, False, False),
+    "select_every_steps": (0, MAX_STEPS, False, False),
+    "validation_seed": (0, SEED_MAX - 10, False, False),
+    "validation_steps": (100, MAX_STEPS, False, False),
 }
 """every number of the learner (config.DQNConfig): (lowest, highest, lowest excluded, highest excluded); a decision
 at most every 60 s, lr at most 1 (beyond, every loss diverges), a gradient clip at most 1e6"""

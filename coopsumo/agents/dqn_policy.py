@@ -77,6 +77,8 @@ class DQNPolicy:
         self._features = np.zeros((0, net.n_features), np.float32)
         self._mask = np.zeros((0, N_ACTIONS), bool)
         self._action = np.full(0, -1, np.int64)  # -1: no previous decision
+        self.q_log: list[np.ndarray] | None = None
+        """when a list: every fresh decision appends its rows [Q-values (4), offered (4), action] (diagnosis)"""
 
     @classmethod
     def from_spec(cls, spec: str, lanes: int = 3) -> DQNPolicy:
@@ -200,6 +202,8 @@ class DQNPolicy:
                 q = self.net(*inputs)
             chosen = np.where(mask[fresh], with_change_margin(q.numpy(), self.change_margin), -np.inf)
             actions[fresh] = chosen.argmax(axis=1)
+            if self.q_log is not None:
+                self.q_log.append(np.column_stack([q.numpy(), mask[fresh], actions[fresh]]).astype(np.float32))
             changed = nums[fresh]
             self._grids[changed] = obs.grids[fresh]
             self._features[changed] = feats[fresh]

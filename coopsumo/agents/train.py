@@ -32,6 +32,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from coopsumo.agents import selection
 from coopsumo.agents.decisions import ActionHold, offered
 from coopsumo.agents.dqn import N_ACTIONS, Learner, save_model
 from coopsumo.agents.dqn_policy import DQNPolicy
@@ -69,7 +70,7 @@ from coopsumo.runio import (
 )
 from coopsumo.sim.observation import Observation, network_features
 from coopsumo.sim.world import StepOutcome, World
-from coopsumo.validation import MAX_STEPS, alpha, check_t_up, integer, number, out_dir, seed, steps
+from coopsumo.validation import MAX_STEPS, alpha, check_t_up, integer, number, out_dir, seed, steps, t_up_list
 
 LOG_FIELDS = (
     "step", "sim_time_s", "td_loss", "r_speed", "r_lane_change", "r_flow", "reward", "epsilon",
@@ -244,6 +245,7 @@ class Trainer:
         self.window = Window()
         self._stop_signal: int | None = None
         self.on_row: Callable[[dict[str, Any]], None] | None = None  # each train_log.csv row, by column (tb_log)
+        self.validator: selection.Validator | None = None  # model selection (DQNConfig.select_every_steps)
 
     # -- checkpoints -----------------------------------------------------------------------
     def checkpoint_path(self) -> Path:
@@ -412,6 +414,8 @@ class Trainer:
                     out, penalty = self._advance(world)
                     loss = learner.step(decided)
                     self.step += 1
+                    if self.validator is not None:
+                        self.validator.after_step(self.step, learner.online)
                     w = self.window
                     if loss is not None:
                         w.loss.append(loss)
@@ -492,35 +496,59 @@ def train(
     else:
         mark_run_dir(out, "train", finished=False)
         write_json(out / "config.json", model_meta(cfg))
-        for stale in ("model.pt", "summary.json", "checkpoint.pt", "train_summary.json"):
+        for stale in ("model.pt", "summary.json", "checkpoint.pt", "train_summary.json", selection.LAST_MODEL,
+                      "validation.csv"):
             (out / stale).unlink(missing_ok=True)
+        shutil.rmtree(out / selection.SNAPSHOTS, ignore_errors=True)
         trainer.save_checkpoint()  # step 0: from here on, an interrupted run always has a checkpoint to resume
     ended = ended_training(out, trainer.step, cfg.sim.steps) if resume else None  # interrupted in its evaluation
     scalars = open_log(out, tensorboard, resume, trainer.step)
     trainer.on_row = None if scalars is None else scalars.add_row
+    if cfg.dqn.select_every_steps and ended is None:
+        trainer.validator = selection.Validator(out, cfg, trainer.step)
     start = time.perf_counter()
     try:
         if ended is None:
             trainer.run()
+            if trainer.validator is not None:
+                trainer.validator.finish()
     except ResumeDiverged as err:
         raise UsageError(f"checkpoint {trainer.checkpoint_path()} (another coopsumo or SUMO version?): {err}; "
                          "train again without --resume") from None  # fmt: skip
     finally:
         if scalars is not None:
             scalars.close()
+        if trainer.validator is not None:
+            trainer.validator.close()
     wall = time.perf_counter() - start
     if ended is None:
         trainer.save_checkpoint()  # the last step's, kept until the evaluation is written: a resume evaluates again
-    save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
+    chosen = None
+    if cfg.dqn.select_every_steps:  # model.pt: the best validated snapshot; the last weights beside it
+        save_model(out / selection.LAST_MODEL, trainer.learner.online, model_meta(cfg))
+        chosen = selection.install_best(out)
+        selection.write_table(out)
+    if chosen is None:
+        save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
     train_summary = ended or dict(trainer.world_summary, wall_seconds=round(wall, 2),
                                   steps_per_second=round(cfg.sim.steps / wall, 1),
                                   updates=trainer.learner.updates)  # fmt: skip
+    if chosen is not None:
+        train_summary = dict(train_summary, selected_step=chosen["step"], selected_score=chosen["score"],
+                             last_score=selection.results(out)[-1]["score"])  # fmt: skip
+        if trainer.progress:
+            print(f"train: model.pt is the weights of step {chosen['step']:,} (validation score "
+                  f"{chosen['score']:.4f}; last weights {train_summary['last_score']:.4f}, in {selection.LAST_MODEL})",
+                  file=sys.stderr)  # fmt: skip
     write_json(out / "train_summary.json", train_summary)
     if cfg.eval_steps == 0:
         trainer.checkpoint_path().unlink(missing_ok=True)
         mark_run_dir(out, "train")
         return train_summary
-    policy = DQNPolicy(trainer.learner.online, decision_interval=cfg.dqn.decision_interval_steps,
+    net = trainer.learner.online
+    if chosen is not None:
+        net = DQNPolicy.from_file(str(out / "model.pt")).net
+    policy = DQNPolicy(net, decision_interval=cfg.dqn.decision_interval_steps,
                        action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps,
                        change_margin=cfg.dqn.change_margin,
                        alpha=cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None)  # fmt: skip
@@ -571,6 +599,13 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--alpha-period", "alpha_period_steps", int, "conditioned training: steps of 0.1 s between two alpha draws"),
     ("--alpha-relabel", "alpha_relabel", float,
      "conditioned training: share of each minibatch learned at another alpha (reward recomputed)"),
+    ("--select-every", "select_every_steps", int,
+     "model selection: every this many steps (and at the last) validate the weights greedily on held-out free-flow "
+     "demand; model.pt is the best, model_last.pt the last weights (0: model.pt is the last weights, the paper's)"),
+    ("--validation-seed", "validation_seed", int,
+     "model selection: validation run i uses seed VALIDATION_SEED + i (must not meet the training seed)"),
+    ("--validation-t-up", "validation_t_ups", str, "model selection: comma-separated demands T_up (s), one run each"),
+    ("--validation-steps", "validation_steps", int, "model selection: steps of 0.1 s of each validation run"),
     ("--observation", "observation", OBSERVATIONS,
      "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
      "side lane's nearest leader and follower within 200 m: gap and speed)"),
@@ -593,11 +628,18 @@ def add_learner_flags(p: Parser) -> None:
             p.add_argument(flag, dest=name, type=kind, default=None, help=help_text)
 
 
+def flag_value(flag: str, name: str, value: Any) -> Any:
+    """A learner flag's value as DQNConfig holds it (a list flag's text parsed)."""
+    if name == "validation_t_ups" and isinstance(value, str):
+        return t_up_list(flag, value, ControlConfig().dt_s)
+    return value
+
+
 def learner_from_args(args: Any) -> DQNConfig:
     """The preset with every given learner flag applied; a bad value is a usage error naming the flag."""
     cfg = DQN_PRESETS[args.preset]
     for flag, name, _, _ in LEARNER_FLAGS:
-        value = getattr(args, name)
+        value = flag_value(flag, name, getattr(args, name))
         if value is None:
             continue
         cfg = replace(cfg, **{name: value})
@@ -665,7 +707,7 @@ def check_resume_flags(argv: list[str] | None, cfg: TrainConfig) -> None:
     given = p.parse_args(argv)
     flags = [*RUN_FLAGS, *((flag, name, lambda c, n=name: getattr(c.dqn, n)) for flag, name, _, _ in LEARNER_FLAGS)]
     for flag, dest, stored in flags:
-        value = getattr(given, dest)
+        value = flag_value(flag, dest, getattr(given, dest))
         if value is not None and value != stored(cfg):
             raise UsageError(f"{flag} {value} differs from the checkpoint's {stored(cfg)}: --resume continues the "
                              f"run as it was started (leave {flag} out)")  # fmt: skip

@@ -245,6 +245,8 @@ STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
                   "fig6_*.png", "report.md"),
     "ablation": ("study.json", "cells", "train", "baselines", "runs.csv", "summary.csv", "fig_*.png", "report.md"),
     "regime_map": ("plan.json", "cells", "runs", "runs.csv", "report.md"),
+    "protocol": ("study.json", "cells", "train", "runs", "runs.csv", "stats.csv", "diagnosis.csv", "fig_*.png",
+                 "report.md"),
 }  # fmt: skip
 """the names each study writes at the top of its root, its plan file first (runio.check_study_root)"""
 

@@ -1,0 +1,283 @@
+"""Model selection on held-out demand: the best training snapshot becomes model.pt.
+
+Every DQNConfig.select_every_steps training steps the trainer saves the online network as
+OUT/snapshots/step<N>/model.pt and validates it in a separate process (`python -m coopsumo.agents.selection DIR`;
+libsumo holds one simulation per process, and the training's is open): one greedy free-flow run per demand of
+DQNConfig.validation_t_ups, each DQNConfig.validation_steps long, on seeds validation_seed + i that no training
+and no study evaluation uses. The process writes DIR/validation.json. The score is the run's own objective,
+the mean reward per vehicle and step (speed + flow - alpha per lane change), averaged over the demands; ties go
+to the earlier snapshot. Validation never feeds back into training: the same seed trains the same weights
+whether or not it runs, and whatever the machine's load.
+
+The validation also records what the diagnosis of a training needs: the share of each action among the greedy
+decisions, and the Q-value gap between the best lane change and the best of staying where a change is offered.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from coopsumo.config import SimConfig, TrainConfig, sim_config_from_dict, to_dict
+
+SNAPSHOTS = "snapshots"
+"""folder of a training's snapshots (one subfolder step<N> each)"""
+RESULT = "validation.json"
+REQUEST = "request.json"
+LAST_MODEL = "model_last.pt"
+"""the last weights of a training that selects its model (model.pt is the best snapshot)"""
+NEAR_TIE = 0.05
+"""a lane change and staying are near-tied when their Q-values differ by less than this share of |Q(stay)|"""
+
+
+def validation_configs(cfg: TrainConfig, model: Path) -> list[SimConfig]:
+    """The greedy free-flow runs that judge a snapshot of the training cfg: one per validation demand."""
+    dq = cfg.dqn
+    base = replace(cfg.sim, steps=dq.validation_steps, policy=f"dqn:{model}")
+    return [replace(base, demand=replace(base.demand, t_up_s=t), seed=dq.validation_seed + i)
+            for i, t in enumerate(dq.validation_t_ups)]  # fmt: skip
+
+
+def snapshot_dir(out: Path, step: int) -> Path:
+    return out / SNAPSHOTS / f"step{step}"
+
+
+def request(out: Path, cfg: TrainConfig, step: int) -> Path:
+    """Write the validation request of the snapshot at `step` (its model.pt must exist); returns its folder."""
+    folder = snapshot_dir(out, step)
+    runs = [to_dict(c) for c in validation_configs(cfg, (folder / "model.pt").resolve())]
+    alpha = cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None
+    _write_json(folder / REQUEST, {"step": step, "runs": runs, "drive_alpha": alpha})
+    return folder
+
+
+def start(folder: Path) -> subprocess.Popen[bytes]:
+    """Validate the snapshot in `folder` in a new process (its result: folder/validation.json)."""
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    return subprocess.Popen([sys.executable, "-m", "coopsumo.agents.selection", str(folder)], env=env,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
+
+
+def result(folder: Path) -> dict[str, Any] | None:
+    """The finished validation of a snapshot folder, or None."""
+    try:
+        data = json.loads((folder / RESULT).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and isinstance(data.get("score"), float) else None
+
+
+def best(results: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The result with the highest score; the earliest step among equal scores; None for none."""
+    if not results:
+        return None
+    return max(sorted(results, key=lambda r: r["step"]), key=lambda r: r["score"])
+
+
+def results(out: Path) -> list[dict[str, Any]]:
+    """Every finished validation of the training in out, by step."""
+    found = [r for d in sorted((out / SNAPSHOTS).glob("step*")) if (r := result(d)) is not None]
+    return sorted(found, key=lambda r: r["step"])
+
+
+def pending(out: Path) -> list[Path]:
+    """Snapshot folders with a request and a model but no result (a resume validates them again)."""
+    return sorted((d for d in (out / SNAPSHOTS).glob("step*")
+                   if (d / REQUEST).exists() and (d / "model.pt").exists() and result(d) is None),
+                  key=lambda d: int(d.name[4:]))  # fmt: skip
+
+
+def install_best(out: Path) -> dict[str, Any] | None:
+    """Copy the best validated snapshot to out/model.pt (atomically: a kill leaves the old file or the new one)."""
+    chosen = best(results(out))
+    if chosen is None:
+        return None
+    fd, tmp = tempfile.mkstemp(dir=out, prefix=".model.pt.", suffix=".tmp")
+    os.close(fd)
+    try:
+        shutil.copyfile(snapshot_dir(out, chosen["step"]) / "model.pt", tmp)
+        os.replace(tmp, out / "model.pt")
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return chosen
+
+
+def write_table(out: Path) -> None:
+    """OUT/validation.csv: one row per validated snapshot (score, per-demand measures, diagnosis), `best` marked."""
+    import pandas as pd
+
+    rows = results(out)
+    if not rows:
+        return
+    chosen = best(rows)
+    flat = []
+    for r in rows:
+        row = {"step": r["step"], "score": r["score"], "best": chosen is not None and r["step"] == chosen["step"]}
+        row.update({k: v for k, v in r.items() if k not in ("step", "score", "runs")})
+        for run in r["runs"]:
+            tag = f"t{run['t_up_s']:g}"
+            for key in ("mean_speed_mps", "lane_changes_per_vehicle", "mean_reward"):
+                row[f"{key}_{tag}"] = run[key]
+        flat.append(row)
+    pd.DataFrame(flat).to_csv(out / "validation.csv", index=False, float_format="%.6g")
+
+
+def _write_json(path: Path, data: dict[str, Any]) -> None:
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(data, indent=1))
+    os.replace(tmp, path)
+
+
+# -- the validation process -------------------------------------------------------------------------
+def diagnosis(rows: list[np.ndarray]) -> dict[str, float]:
+    """Action shares and Q-gap measures of greedy decisions; rows: [Q (4), offered (4), action] per decision."""
+    from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
+
+    if not rows:
+        return {}
+    d = np.concatenate(rows)
+    q, mask, action = d[:, :4], d[:, 4:8].astype(bool), d[:, 8].astype(int)
+    out = {f"share_{name}": float((action == a).mean())
+           for name, a in (("left", LEFT), ("right", RIGHT), ("speedup", SPEEDUP), ("none", NONE))}  # fmt: skip
+    can_change = mask[:, LEFT] | mask[:, RIGHT]
+    out["change_offered_share"] = float(can_change.mean())
+    if can_change.any():
+        q_change = np.where(mask[:, [LEFT, RIGHT]], q[:, [LEFT, RIGHT]], -np.inf).max(axis=1)[can_change]
+        q_stay = np.where(mask[:, [SPEEDUP, NONE]], q[:, [SPEEDUP, NONE]], -np.inf).max(axis=1)[can_change]
+        gap = q_change - q_stay
+        out["q_gap_median"] = float(np.median(gap))
+        out["near_tie_share"] = float((np.abs(gap) < NEAR_TIE * np.abs(q_stay)).mean())
+        out["change_chosen_share"] = float(np.isin(action[can_change], [LEFT, RIGHT]).mean())
+    return out
+
+
+def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
+    """One greedy run of the snapshot: its measures and the recorded decisions (diagnosis)."""
+    from coopsumo.agents.decisions import ActionHold
+    from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.sim.world import World
+
+    policy = DQNPolicy.from_file(cfg.policy[4:])
+    if drive_alpha is not None:
+        policy.drive_at(drive_alpha, cfg.road.lanes)
+    policy.q_log = []
+    hold = ActionHold(policy.decision_interval)
+    reward = 0.0
+    samples = 0
+    with World(cfg, folder, observe_grids=True) as world:
+        for _ in range(cfg.steps):
+            decide = hold.is_decision_step(world.step_count)
+            obs = world.observe(grids=decide)
+            out = world.apply(hold.actions(obs.nums, policy.act(obs) if decide else None))
+            reward += float(out.reward.total.sum())
+            samples += len(out.nums)
+        summary = world.summary()
+    run = {"t_up_s": cfg.demand.t_up_s, "seed": cfg.seed, "mean_reward": reward / max(samples, 1),
+           **{k: summary[k] for k in ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")}}
+    return run, policy.q_log
+
+
+def validate(folder: Path) -> dict[str, Any]:
+    """Run the request in folder, write folder/validation.json, return it."""
+    import torch
+
+    torch.set_num_threads(1)
+    req = json.loads((folder / REQUEST).read_text())
+    runs, rows = [], []
+    for i, raw in enumerate(req["runs"]):
+        cfg = sim_config_from_dict(raw)
+        with tempfile.TemporaryDirectory(dir=folder, prefix=f".run{i}.") as tmp:
+            run, log = validate_run(cfg, req["drive_alpha"], Path(tmp))
+        runs.append(run)
+        rows += log
+    score = float(np.mean([r["mean_reward"] for r in runs]))
+    data = {"step": int(req["step"]), "score": score,
+            "mean_speed_mps": float(np.mean([r["mean_speed_mps"] for r in runs])),
+            "lane_changes_per_vehicle": float(np.mean([r["lane_changes_per_vehicle"] for r in runs])),
+            **diagnosis(rows), "runs": runs}  # fmt: skip
+    _write_json(folder / RESULT, data)
+    return data
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = sys.argv[1:] if argv is None else argv
+    if len(args) != 1 or not (Path(args[0]) / REQUEST).exists():
+        print("usage: python -m coopsumo.agents.selection SNAPSHOT_FOLDER (holding request.json)", file=sys.stderr)
+        return 2
+    validate(Path(args[0]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
+
+
+class Validator:
+    """The trainer's side of model selection: snapshots every select_every_steps (and at the last step),
+    validated one at a time in a background process while training goes on."""
+
+    def __init__(self, out: Path, cfg: TrainConfig, resumed_step: int = 0):
+        self.out = out
+        self.cfg = cfg
+        self.every = cfg.dqn.select_every_steps
+        self.queue: list[Path] = []
+        self.running: tuple[Path, subprocess.Popen[bytes]] | None = None
+        (out / SNAPSHOTS).mkdir(exist_ok=True)
+        for d in (out / SNAPSHOTS).glob("step*"):  # a resume re-trains the steps after its checkpoint
+            if not d.name[4:].isdigit() or int(d.name[4:]) > resumed_step:
+                shutil.rmtree(d, ignore_errors=True)
+        self.queue = pending(out)
+
+    def after_step(self, step: int, net: Any) -> None:
+        """Called after every training step with the online network."""
+        if step % self.every == 0 or step == self.cfg.sim.steps:
+            from coopsumo.agents.dqn import save_model
+            from coopsumo.runio import versions
+
+            folder = snapshot_dir(self.out, step)
+            folder.mkdir(parents=True, exist_ok=True)
+            save_model(folder / "model.pt", net, {"config": to_dict(self.cfg), "versions": versions()})
+            self.queue.append(request(self.out, self.cfg, step))
+            self.poll()
+        elif step % 1000 == 0:
+            self.poll()
+
+    def poll(self) -> None:
+        """Collect a finished validation and start the next one."""
+        if self.running is not None:
+            folder, proc = self.running
+            if proc.poll() is None:
+                return
+            self.running = None
+            if proc.returncode != 0 or result(folder) is None:
+                err = proc.stderr.read().decode(errors="replace").strip().splitlines() if proc.stderr else []
+                raise RuntimeError(f"validation of {folder} failed: {err[-1] if err else f'exit {proc.returncode}'}")
+        if self.queue:
+            folder = self.queue.pop(0)
+            self.running = (folder, start(folder))
+
+    def finish(self) -> None:
+        """Wait until every snapshot is validated."""
+        while self.running is not None or self.queue:
+            if self.running is not None:
+                self.running[1].wait()
+            self.poll()
+
+    def close(self) -> None:
+        """Stop a running validation (interrupted training: a resume validates its snapshot again)."""
+        if self.running is not None:
+            proc = self.running[1]
+            if proc.poll() is None:
+                proc.terminate()
+                proc.wait()
+            self.running = None

@@ -1,0 +1,263 @@
+"""The learner protocol's tables, figure and report (studies/protocol.py runs the cells).
+
+Per condition (free flow or accident at one demand) and variant: the interquartile mean over models with its
+stratified bootstrap interval, the worst model, and the probability of improvement against each baseline on the
+same evaluation seed; then the issue's targets, the alpha response, and the training diagnosis read from each
+training's validation.csv (agents/selection.py).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from coopsumo.studies import stats
+
+MEASURES = {"free": ("mean_speed_mps", "mean speed (m/s)", 1.0),
+            "accident": ("tts_veh_h", "total time spent (veh-h)", -1.0)}
+"""scenario -> (headline measure, its words, +1 when higher is better / -1 when lower is)"""
+COLUMNS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key",
+           "status", "mean_speed_mps", "tts_veh_h", "lane_changes_per_vehicle", "collisions", "teleports", "selected_step")  # fmt: skip
+
+
+def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:
+    rows = []
+    for r in records:
+        s = r.get("summary") or {}
+        t = r.get("train_summary") or {}
+        row = {k: r.get(k) for k in COLUMNS[:11]}
+        row.update({k: s.get(k) for k in COLUMNS[11:16]})
+        row["selected_step"] = t.get("selected_step") if r.get("weights") == "model.pt" else None
+        rows.append(row)
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    for c in ("alpha", "t_up", *COLUMNS[11:]):
+        table[c] = pd.to_numeric(table[c], errors="coerce").astype(float)
+    return table
+
+
+def condition_stats(runs: pd.DataFrame, variants: list[str], baselines: list[str]) -> pd.DataFrame:
+    """One row per (scenario, demand, variant): IQM and interval over models, worst model, mean, and against each
+    baseline the probability of improvement (with interval) and how many models lost to it."""
+    ok = runs[(runs["status"] == "ok") & (runs["alpha"] == 0)]
+    rows = []
+    for (scenario, t_up), cond in ok.groupby(["scenario", "t_up"], sort=False):
+        measure, _, sign = MEASURES[str(scenario)]
+        for variant in variants:
+            vals = cond[(cond["variant"] == variant)][measure].dropna().to_numpy(float)
+            if not len(vals):
+                continue
+            point, low, high = stats.iqm_interval(vals[:, None])
+            worst = float(vals.min() if sign > 0 else vals.max())
+            lcs = cond[cond["variant"] == variant]["lane_changes_per_vehicle"]
+            row = {"scenario": scenario, "t_up": t_up, "variant": variant, "models": len(vals), "iqm": point,
+                   "low": low, "high": high, "worst": worst, "mean": float(vals.mean()),
+                   "lane_changes_per_vehicle": float(lcs.mean())}
+            for b in baselines:
+                base = cond[cond["variant"] == b][measure].dropna().to_numpy(float)
+                if not len(base):
+                    continue
+                p, p_low, p_high = stats.improvement(sign * vals[:, None], sign * base[:1, None])
+                row[f"{b}_value"] = float(base[0])
+                row[f"{b}_poi"], row[f"{b}_poi_low"], row[f"{b}_poi_high"] = p, p_low, p_high
+                row[f"{b}_losses"] = int((sign * vals < sign * base[0]).sum())
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def pooled_stats(runs: pd.DataFrame, variant: str, baseline: str, scenario: str) -> tuple[float, float, float]:
+    """The probability of improvement of variant over baseline across the scenario's demands (rliable: averaged
+    over tasks), with its stratified bootstrap interval."""
+    ok = runs[(runs["status"] == "ok") & (runs["alpha"] == 0) & (runs["scenario"] == scenario)]
+    measure, _, sign = MEASURES[scenario]
+    mine = ok[ok["variant"] == variant].pivot_table(index="seed", columns="t_up", values=measure).dropna()
+    base = ok[ok["variant"] == baseline].pivot_table(index="eval_seed", columns="t_up", values=measure)
+    if mine.empty or base.empty:
+        return math.nan, math.nan, math.nan
+    base = base.max().to_frame().T[mine.columns]  # one evaluation seed per demand: one row
+    return stats.improvement(sign * mine.to_numpy(float), sign * base.to_numpy(float))
+
+
+def diagnosis_table(root: Path, runs: pd.DataFrame) -> pd.DataFrame:
+    """Per alpha-0 training: its validation course (agents/selection.py) and its models' free-flow results."""
+    rows = []
+    trainings = runs[(runs["kind"] == "model") & (runs["alpha"] == 0)].drop_duplicates("seed")
+    for _, r in trainings.iterrows():
+        train_dir = root / "train" / str(r["train_key"])
+        path = train_dir / "validation.csv"
+        if not path.exists():
+            continue
+        val = pd.read_csv(path)
+        best = val[val["best"]].iloc[0]
+        last = val.iloc[-1]
+        row = {"seed": int(r["seed"]), "selected_step": int(best["step"]), "best_score": best["score"],
+               "last_score": last["score"]}
+        for tag, src in (("best", best), ("last", last)):
+            for col in ("mean_speed_mps", "lane_changes_per_vehicle", "share_speedup", "share_none", "share_left",
+                        "share_right", "q_gap_median", "near_tie_share"):
+                row[f"{tag}_{col}"] = src.get(col, math.nan)
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def validation_curves_figure(root: Path, keys: list[str], out_path: Path) -> Path | None:
+    """Validation score and the share of 'none' among greedy decisions over training, one line per training."""
+    from coopsumo.report.plots import new_figure, save_figure
+
+    curves = [(k, pd.read_csv(p)) for k in keys if (p := root / "train" / k / "validation.csv").exists()]
+    if not curves:
+        return None
+    fig = new_figure(10.0, 3.6)
+    axes = fig.subplots(1, 3)
+    for key, val in curves:
+        seed = key.split("_")[1]
+        axes[0].plot(val["step"], val["mean_speed_mps"], marker="o", ms=3, lw=1, label=seed)
+        axes[1].plot(val["step"], val["share_none"], marker="o", ms=3, lw=1)
+        axes[2].plot(val["step"], val["lane_changes_per_vehicle"], marker="o", ms=3, lw=1)
+    for ax, label in zip(axes, ("validation mean speed (m/s)", "share of 'none' in greedy decisions",
+                                "lane changes per vehicle"), strict=True):  # fmt: skip
+        ax.set_xlabel("training step")
+        ax.set_ylabel(label)
+    axes[0].legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    return save_figure(fig, out_path)
+
+
+def _ci(point: float, low: float, high: float, fmt: str = "{:.2f}") -> str:
+    if math.isnan(point):
+        return "-"
+    return f"{fmt.format(point)} [{fmt.format(low)}, {fmt.format(high)}]"
+
+
+def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
+    from coopsumo.studies.protocol import BASELINES
+
+    runs = runs_table(records)
+    runs.to_csv(root / "runs.csv", index=False, float_format="%.6g")
+    variants = list(profile.variants)
+    table = condition_stats(runs, variants, list(BASELINES))
+    table.to_csv(root / "stats.csv", index=False, float_format="%.6g")
+    diag = diagnosis_table(root, runs)
+    if len(diag):
+        diag.to_csv(root / "diagnosis.csv", index=False, float_format="%.6g")
+    keys = sorted({k for k in runs[(runs["kind"] == "model") & (runs["alpha"] == 0)]["train_key"].dropna()})
+    validation_curves_figure(root, keys, root / "fig_validation.png")
+    (root / "report.md").write_text(report_text(profile, runs, table, diag, meta))
+
+
+def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.DataFrame,
+                meta: dict[str, Any]) -> str:  # fmt: skip
+    from coopsumo.studies.protocol import BASELINES, EVAL_SEED
+
+    ok = runs[runs["status"] == "ok"]
+    lines = [
+        "# The learner protocol: every training seed against the hand-made rules",
+        "",
+        f"Profile `{profile.name}`: {profile.lanes} lanes; each learner trained {profile.train_steps:,} steps in free "
+        f"flow (T_up 1 s) on training seeds {list(profile.seeds)}; every model driven greedily in free flow "
+        f"({profile.free_steps:,} steps) and through scenario I's accident ({profile.accident_steps:,} steps, closure "
+        f"decaying over steps {profile.accident_start:,}-{profile.accident_start + profile.accident_duration:,}) at "
+        f"T_up {', '.join(f'{t:g}' for t in profile.t_ups)} s, on evaluation seeds {EVAL_SEED}+i (free flow) and "
+        f"{EVAL_SEED + 100}+i (accident) that no training or validation saw; the baselines on the same seeds. "
+        "The trained model is the unit: each interval is a 95% stratified bootstrap over models (rliable's "
+        "procedure), IQM is the interquartile mean over models, P(>b) the probability that a model beats "
+        "baseline b (rliable's probability of improvement), 'lost' how many models did worse than b.",
+        f"{meta['cells']} cells, {meta['cells_run']} run by the last command ({meta['wall_seconds']:.0f} s wall, "
+        f"{meta['workers']} workers); {meta.get('cell_cpu_seconds_sum', 0) / 3600:.1f} CPU hours in all.",
+        "",
+        "Learners:",
+        "",
+    ]
+    for name in profile.variants:
+        info = meta["learners"][name]
+        lines.append(f"- `{name}`: {info['text']} (drives `{info['weights']}`)")
+    for scenario in ("free", "accident"):
+        measure, words, sign = MEASURES[scenario]
+        sub = table[table["scenario"] == scenario] if len(table) else table
+        if sub.empty:
+            continue
+        title = "Free flow" if scenario == "free" else "Through scenario I's accident"
+        better = "higher" if sign > 0 else "lower"
+        lines += ["", f"## {title}: {words}, {better} is better", ""]
+        head = ["T_up (s)", "learner", "models", "IQM [95% CI]", "worst model", "lane changes / veh"]
+        head += [f"`{b}`" for b in BASELINES] + [f"P(> `{b}`) [95% CI], lost" for b in BASELINES]
+        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for _, r in sub.iterrows():
+            cells = [f"{r['t_up']:g}", f"`{r['variant']}`", str(int(r["models"])), _ci(r["iqm"], r["low"], r["high"]),
+                     f"{r['worst']:.2f}", f"{r['lane_changes_per_vehicle']:.2f}"]
+            cells += [f"{r.get(f'{b}_value', math.nan):.2f}" for b in BASELINES]
+            for b in BASELINES:
+                poi = (r.get(f"{b}_poi", math.nan), r.get(f"{b}_poi_low", math.nan), r.get(f"{b}_poi_high", math.nan))
+                cells.append(f"{_ci(*poi)}, {int(r.get(f'{b}_losses', 0))}")
+            lines.append("| " + " | ".join(cells) + " |")
+        lines += ["", "Across the demands (probability of improvement averaged over demands, 95% CI):", ""]
+        for variant in profile.variants:
+            parts = [f"P(> `{b}`) = {_ci(*pooled_stats(runs, variant, b, scenario))}" for b in BASELINES]
+            lines.append(f"- `{variant}`: " + "; ".join(parts))
+    lines += ["", *target_lines(table, ok, profile), ""]
+    alpha = ok[(ok["kind"] == "model") & (ok["scenario"] == "free") & (ok["variant"] == profile.variants[0])]
+    if (alpha["alpha"] > 0).any():
+        lines += ["## Does alpha do something? (free flow, the first learner, lane changes per vehicle)", "",
+                  "| T_up (s) | alpha 0 (models) | alpha 8 (models) |", "|---|---|---|"]
+        for t_up, grp in alpha.groupby("t_up", sort=False):
+            a0 = grp[grp["alpha"] == 0]["lane_changes_per_vehicle"]
+            a8 = grp[grp["alpha"] == 8]["lane_changes_per_vehicle"]
+            lines.append(f"| {t_up:g} | {a0.mean():.3f} ({len(a0)}) | {a8.mean():.3f} ({len(a8)}) |")
+        lines.append("")
+    safety = ok[["collisions", "teleports"]].sum()
+    lines += [f"Safety: {int(safety['collisions'])} collisions and {int(safety['teleports'])} teleports in all "
+              f"{len(ok)} runs.", ""]  # fmt: skip
+    if len(diag):
+        lines += ["## Diagnosis: what each training's validation saw (alpha 0)", "",
+                  "Each training was validated every few thousand steps on held-out free-flow demand "
+                  "(agents/selection.py); `best` is the snapshot model.pt holds, `last` the last weights. Shares are "
+                  "of the greedy decisions; q gap: median Q(best change) - Q(best stay) where a change was offered; "
+                  "near ties: share of those decisions within 5% of each other.", "",
+                  "| seed | chosen step | speed best / last (m/s) | lane changes best / last | 'none' best / last | "
+                  "speed-up best / last | q gap best / last | near ties best / last |",
+                  "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for _, d in diag.iterrows():
+            lines.append(f"| {int(d['seed'])} | {int(d['selected_step']):,} | {d['best_mean_speed_mps']:.2f} / "
+                         f"{d['last_mean_speed_mps']:.2f} | {d['best_lane_changes_per_vehicle']:.2f} / "
+                         f"{d['last_lane_changes_per_vehicle']:.2f} | {d['best_share_none']:.2f} / "
+                         f"{d['last_share_none']:.2f} | {d['best_share_speedup']:.2f} / "
+                         f"{d['last_share_speedup']:.2f} | "
+                         f"{d['best_q_gap_median']:.2f} / {d['last_q_gap_median']:.2f} | "
+                         f"{d['best_near_tie_share']:.2f} / {d['last_near_tie_share']:.2f} |")  # fmt: skip
+        lines += ["", "![validation over training](fig_validation.png)", ""]
+    failed = runs[runs["status"] != "ok"]
+    if len(failed):
+        lines += [f"Failed cells ({len(failed)}): " + ", ".join(failed["key"]), ""]
+    return "\n".join(lines) + "\n"
+
+
+def target_lines(table: pd.DataFrame, ok: pd.DataFrame, profile: Any) -> list[str]:
+    """The learner issue's targets for the first learner, as measured."""
+    if table.empty:
+        return []
+    v = profile.variants[0]
+    mine = table[table["variant"] == v]
+    free = mine[mine["scenario"] == "free"]
+    acc = mine[mine["scenario"] == "accident"]
+    out = [f"## Targets for `{v}`", ""]
+    if len(free) and "keep_losses" in free:
+        out.append(f"- free flow, no model below `keep` at any demand: {int(free['keep_losses'].sum())} model-demand "
+                   f"pairs below ({'met' if free['keep_losses'].sum() == 0 else 'not met'})")  # fmt: skip
+        gaps = free["iqm"] - free["greedy_value"]
+        out.append("- free flow, IQM at least `greedy`'s: " + ", ".join(
+            f"T_up {t:g}: {g:+.2f} m/s" for t, g in zip(free["t_up"], gaps, strict=True))
+            + f" ({'met' if (gaps >= 0).all() else 'not met'})")  # fmt: skip
+    if len(acc) and "keep_losses" in acc:
+        out.append(f"- accident, no model above `keep`'s total time spent: {int(acc['keep_losses'].sum())} "
+                   f"model-demand pairs above ({'met' if acc['keep_losses'].sum() == 0 else 'not met'})")  # fmt: skip
+        gaps = acc["iqm"] - acc["mobil:p=0_value"]
+        out.append("- accident, IQM at most MOBIL p=0's: " + ", ".join(
+            f"T_up {t:g}: {g:+.2f} veh-h" for t, g in zip(acc["t_up"], gaps, strict=True))
+            + f" ({'met' if (gaps <= 0).all() else 'not met'})")  # fmt: skip
+    a0 = ok[(ok["variant"] == v) & (ok["alpha"] == 0) & (ok["scenario"] == "free")]["lane_changes_per_vehicle"]
+    if len(a0):
+        out.append(f"- no model above 3 lane changes per vehicle at alpha 0: highest {a0.max():.2f} "
+                   f"({'met' if a0.max() <= 3 else 'not met'})")  # fmt: skip
+    return out
