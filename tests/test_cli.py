@@ -25,8 +25,8 @@ def parsers() -> dict[str, argparse.ArgumentParser]:
     return {name: importlib.import_module(module).build_parser() for name, (module, _) in cli.COMMANDS.items()}
 
 
-def test_the_commands_are_the_issue_s_six() -> None:
-    assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "learning", "bench"]
+def test_the_commands_are_the_issue_s_six_and_the_protocol() -> None:
+    assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "learning", "protocol", "bench"]
 
 
 def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:

@@ -17,8 +17,8 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 TEXT = {page: page.read_text() for page in PAGES}
-STUDIES = ("scenario1", "scenario2", "learning")
-"""run in tests/test_scenario1.py, test_scenario2.py and test_ablation.py with tiny profiles"""
+STUDIES = ("scenario1", "scenario2", "learning", "protocol")
+"""run in tests/test_scenario1.py, test_scenario2.py, test_ablation.py and test_protocol.py with tiny profiles"""
 
 
 def blocks(lang: str, pages: list[Path] = PAGES) -> list[str]:

@@ -39,6 +39,12 @@ NEAR_TIE = 0.05
 """a lane change and staying are near-tied when their Q-values differ by less than this share of |Q(stay)|"""
 
 
+def selecting(cfg: TrainConfig) -> bool:
+    """True when the training chooses model.pt among snapshots: selection is on and there are at least two
+    (a training no longer than select_every_steps has one candidate, its last weights, and validates nothing)."""
+    return 0 < cfg.dqn.select_every_steps < cfg.sim.steps
+
+
 def validation_configs(cfg: TrainConfig, model: Path) -> list[SimConfig]:
     """The greedy free-flow runs that judge a snapshot of the training cfg: one per validation demand."""
     dq = cfg.dqn

@@ -504,7 +504,7 @@ def train(
     ended = ended_training(out, trainer.step, cfg.sim.steps) if resume else None  # interrupted in its evaluation
     scalars = open_log(out, tensorboard, resume, trainer.step)
     trainer.on_row = None if scalars is None else scalars.add_row
-    if cfg.dqn.select_every_steps and ended is None:
+    if selection.selecting(cfg) and ended is None:
         trainer.validator = selection.Validator(out, cfg, trainer.step)
     start = time.perf_counter()
     try:
@@ -524,7 +524,7 @@ def train(
     if ended is None:
         trainer.save_checkpoint()  # the last step's, kept until the evaluation is written: a resume evaluates again
     chosen = None
-    if cfg.dqn.select_every_steps:  # model.pt: the best validated snapshot; the last weights beside it
+    if selection.selecting(cfg):  # model.pt: the best validated snapshot; the last weights beside it
         save_model(out / selection.LAST_MODEL, trainer.learner.online, model_meta(cfg))
         chosen = selection.install_best(out)
         selection.write_table(out)

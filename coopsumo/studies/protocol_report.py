@@ -20,7 +20,8 @@ MEASURES = {"free": ("mean_speed_mps", "mean speed (m/s)", 1.0),
             "accident": ("tts_veh_h", "total time spent (veh-h)", -1.0)}
 """scenario -> (headline measure, its words, +1 when higher is better / -1 when lower is)"""
 COLUMNS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key",
-           "status", "mean_speed_mps", "tts_veh_h", "lane_changes_per_vehicle", "collisions", "teleports", "selected_step")  # fmt: skip
+           "status", "mean_speed_mps", "tts_veh_h", "lane_changes_per_vehicle", "collisions", "teleports",
+           "selected_step")  # fmt: skip
 
 
 def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:

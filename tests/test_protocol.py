@@ -1,0 +1,50 @@
+"""The learner protocol (`coopsumo protocol`): a tiny profile in SUMO end to end, and its bad input."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.mark.sumo
+def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path) -> None:
+    out = tmp_path / "proto"
+    cmd = [sys.executable, "-m", "coopsumo", "protocol", "--profile", "tiny", "--out", str(out), "--quiet"]
+    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    assert res.returncode == 0, res.stderr[-2000:]
+    runs = pd.read_csv(out / "runs.csv")
+    assert (runs["status"] == "ok").all() and len(runs) == 30
+    # both learners drive the models of one training per seed; each model met every condition on the same seeds
+    models = runs[runs["kind"] == "model"]
+    assert models.groupby(["scenario", "t_up"])["eval_seed"].nunique().eq(1).all()
+    assert set(models["weights"]) == {"model.pt", "model_last.pt"}
+    assert models[models["alpha"] == 0]["train_key"].nunique() == 2
+    acc = runs[runs["scenario"] == "accident"]
+    assert (acc["tts_veh_h"] > 0).all()
+    assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
+    table = pd.read_csv(out / "stats.csv")
+    assert len(table) == 2 * 2 * 2  # scenarios x demands x learners
+    assert ((table["low"] <= table["iqm"]) & (table["iqm"] <= table["high"])).all()
+    assert table["keep_poi"].between(0, 1).all()
+    report = (out / "report.md").read_text()
+    assert "## Free flow" in report and "## Targets for `select`" in report and "## Diagnosis" in report
+    assert (out / "fig_validation.png").exists() and (out / "diagnosis.csv").exists()
+    again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    assert again.returncode == 0 and "30 already done" in again.stderr
+
+
+@pytest.mark.parametrize("args, fragment", [(["--profile", "huge"], "--profile"), (["--workers", "0"], "--workers")])
+def test_bad_protocol_input_is_one_line(tmp_path: Path, args: list[str], fragment: str) -> None:
+    out = tmp_path / "proto"
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "protocol", "--out", str(out), *args], cwd=ROOT,
+                         capture_output=True, text=True, check=False)  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in res.stderr
+    assert not out.exists()

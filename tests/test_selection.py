@@ -1,0 +1,157 @@
+"""Model selection on held-out demand (agents/selection.py) and the learner protocol's statistics (studies/stats.py)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from coopsumo.agents import selection
+from coopsumo.agents.dqn import load_model
+from coopsumo.agents.train import train
+from coopsumo.config import PAPER_DQN, ConfigError, DQNConfig, SimConfig, TrainConfig, dqn_config_from_dict, to_dict
+from coopsumo.studies import stats
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _fake_result(out: Path, step: int, score: float) -> None:
+    folder = selection.snapshot_dir(out, step)
+    folder.mkdir(parents=True, exist_ok=True)
+    torch.save({"step": step}, folder / "model.pt")
+    (folder / selection.RESULT).write_text(json.dumps({"step": step, "score": score, "runs": []}))
+
+
+def test_the_best_validated_snapshot_becomes_model_pt(tmp_path: Path) -> None:
+    for step, score in ((100, -0.3), (200, -0.1), (300, -0.2), (400, -0.1)):  # a tie: the earlier wins
+        _fake_result(tmp_path, step, score)
+    chosen = selection.install_best(tmp_path)
+    assert chosen is not None and chosen["step"] == 200
+    assert torch.load(tmp_path / "model.pt")["step"] == 200
+    assert not list(tmp_path.glob(".model.pt.*"))  # no temporary file left
+
+
+def test_snapshots_without_a_result_are_pending_and_never_chosen(tmp_path: Path) -> None:
+    _fake_result(tmp_path, 100, -0.5)
+    unfinished = selection.snapshot_dir(tmp_path, 200)
+    unfinished.mkdir(parents=True)
+    torch.save({}, unfinished / "model.pt")
+    (unfinished / selection.REQUEST).write_text("{}")
+    assert selection.pending(tmp_path) == [unfinished]
+    assert [r["step"] for r in selection.results(tmp_path)] == [100]
+    assert selection.best([]) is None
+
+
+def test_selection_needs_two_candidates() -> None:
+    cfg = TrainConfig(sim=SimConfig(steps=1000, policy="dqn"))
+    assert not selection.selecting(cfg)  # 1,000 steps <= 15,000: the last weights are the only candidate
+    assert selection.selecting(dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=400)))
+    assert not selection.selecting(dataclasses.replace(cfg, dqn=PAPER_DQN))
+
+
+def test_diagnosis_counts_actions_and_near_ties() -> None:
+    # Q (left, right, speedup, none), offered, action
+    rows = [np.array([[1.0, 0.0, 0.99, 0.5, 1, 1, 1, 1, 2],   # change and stay within 5%: a near tie
+                      [0.0, 0.0, 2.0, 1.0, 1, 0, 1, 1, 2],    # stay clearly better
+                      [3.0, 0.0, 2.0, 1.0, 1, 1, 1, 1, 0],    # change clearly better, chosen
+                      [0.0, 0.0, 1.0, 2.0, 0, 0, 1, 1, 3]])]  # no change offered  # fmt: skip
+    d = selection.diagnosis(rows)
+    assert d["share_speedup"] == 0.5 and d["share_left"] == 0.25 and d["share_none"] == 0.25
+    assert d["change_offered_share"] == 0.75
+    assert d["near_tie_share"] == pytest.approx(1 / 3)
+    assert d["change_chosen_share"] == pytest.approx(1 / 3)
+
+
+def test_validation_demands_and_seeds_are_checked() -> None:
+    with pytest.raises(ConfigError, match="validation_t_ups"):
+        DQNConfig(validation_t_ups=()).validate()
+    with pytest.raises(ConfigError, match="validation_t_ups"):
+        DQNConfig(validation_t_ups=(1.0, 0.0)).validate()
+    overlap = TrainConfig(sim=SimConfig(seed=DQNConfig().validation_seed + 1, policy="dqn"))
+    with pytest.raises(ConfigError, match="overlap the training seed"):
+        overlap.validate()
+    # a learner written before selection existed keeps the last weights, and the tuple survives JSON
+    old = {k: v for k, v in json.loads(json.dumps(to_dict(DQNConfig()))).items()
+           if not k.startswith(("select", "validation"))}  # fmt: skip
+    assert dqn_config_from_dict(old).select_every_steps == 0
+    assert dqn_config_from_dict(json.loads(json.dumps(to_dict(DQNConfig())))) == DQNConfig()
+
+
+@pytest.mark.parametrize(
+    "args, fragment",
+    [
+        (["--validation-t-up", ""], "--validation-t-up"),
+        (["--validation-t-up", "1,,2"], "--validation-t-up"),
+        (["--validation-t-up", "0"], "--validation-t-up"),
+        (["--validation-t-up", "-1"], "--validation-t-up"),
+        (["--validation-t-up", "1,1"], "--validation-t-up"),
+        (["--select-every", "-1"], "--select-every"),
+        (["--validation-steps", "5"], "--validation-steps"),
+        (["--validation-seed", "-3"], "--validation-seed"),
+        (["--seed", "900001"], "overlap the training seed"),
+    ],
+)
+def test_bad_selection_flags_are_one_line_usage_errors(tmp_path: Path, args: list[str], fragment: str) -> None:
+    out = tmp_path / "run"
+    res = subprocess.run([sys.executable, "-m", "coopsumo.train", "--steps", "50", "--out", str(out), *args],
+                         capture_output=True, text=True, cwd=ROOT, check=False)  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in res.stderr
+    assert not out.exists()
+
+
+def _weights(path: Path) -> dict[str, torch.Tensor]:
+    return load_model(path)[0].state_dict()
+
+
+def test_selection_chooses_among_real_snapshots_without_changing_training(tmp_path: Path) -> None:
+    """In SUMO: 600 steps validated every 200; model.pt is the best-scoring snapshot, model_last.pt the last
+    weights, which equal the model.pt of the same training without selection (validation never feeds back)."""
+    base = TrainConfig(sim=SimConfig(steps=600, seed=3, policy="dqn"), eval_steps=0,
+                       dqn=dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=200,
+                                               validation_t_ups=(1.5, 1.0)))  # fmt: skip
+    summary = train(base, tmp_path / "sel", progress=False)
+    plain = dataclasses.replace(base, dqn=dataclasses.replace(base.dqn, select_every_steps=0))
+    train(plain, tmp_path / "plain", progress=False)
+    results = selection.results(tmp_path / "sel")
+    assert [r["step"] for r in results] == [200, 400, 600]
+    assert all(len(r["runs"]) == 2 and r["runs"][0]["t_up_s"] == 1.5 for r in results)
+    best = max(results, key=lambda r: r["score"])
+    assert summary["selected_step"] == best["step"]
+    chosen = _weights(tmp_path / "sel" / "model.pt")
+    snap = _weights(selection.snapshot_dir(tmp_path / "sel", best["step"]) / "model.pt")
+    assert all(torch.equal(chosen[k], snap[k]) for k in chosen)
+    last, without = _weights(tmp_path / "sel" / selection.LAST_MODEL), _weights(tmp_path / "plain" / "model.pt")
+    assert all(torch.equal(last[k], without[k]) for k in last)
+    assert (tmp_path / "sel" / "validation.csv").exists() and not (tmp_path / "plain" / selection.SNAPSHOTS).exists()
+
+
+def test_stats_match_rliable_on_a_fixed_table() -> None:
+    from rliable import metrics
+
+    rng = np.random.default_rng(7)
+    x, y = rng.normal(1.0, 1.0, (10, 3)), rng.normal(0.0, 1.0, (6, 3))
+    x[0, 0] = y[0, 0]  # a tie counts a half
+    assert stats.iqm(x) == pytest.approx(metrics.aggregate_iqm(x))
+    assert stats.probability_of_improvement(x, y) == pytest.approx(metrics.probability_of_improvement(x, y))
+    point, low, high = stats.improvement(x, y, reps=300)
+    assert low <= point <= high and 0.5 < point < 1
+    point, low, high = stats.iqm_interval(x, reps=300)
+    assert low < point < high
+
+
+def test_the_stratified_bootstrap_resamples_runs_within_tasks() -> None:
+    # task 0 always 0, task 1 always 10: any resample within tasks keeps the mean at exactly 5
+    table = np.column_stack([np.zeros(8), np.full(8, 10.0)])
+    assert stats.stratified_bootstrap((table,), lambda s: float(s.mean()), reps=50) == (5.0, 5.0, 5.0)
+    # a variable table gets a real interval
+    spread = np.arange(20.0)[:, None]
+    _, low, high = stats.stratified_bootstrap((spread,), lambda s: float(s.mean()), reps=400)
+    assert 5 < low < 9.5 < high < 14
