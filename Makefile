@@ -12,7 +12,7 @@ T_UP    ?=
 MOBIL_P ?=
 PROFILE ?=
 
-.PHONY: install test lint bench demo nets scenario1 scenario2 learning clean
+.PHONY: install test lint bench demo nets scenario1 scenario2 learning protocol clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -47,6 +47,9 @@ scenario2: $(STAMP)
 
 learning: $(STAMP)
 	$(BIN)/coopsumo learning $(if $(QUICK),--quick) $(if $(PROFILE),--profile $(PROFILE) --out results/learning_$(PROFILE))
+
+protocol: $(STAMP)
+	$(BIN)/coopsumo protocol $(if $(PROFILE),--profile $(PROFILE) --out results/learner_protocol_$(PROFILE))
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

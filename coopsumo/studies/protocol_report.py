@@ -15,6 +15,7 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.studies import stats
+from coopsumo.studies.protocol_plan import BASELINES, EVAL_SEED
 
 MEASURES = {"free": ("mean_speed_mps", "mean speed (m/s)", 1.0),
             "accident": ("tts_veh_h", "total time spent (veh-h)", -1.0)}
@@ -133,8 +134,6 @@ def _ci(point: float, low: float, high: float, fmt: str = "{:.2f}") -> str:
 
 
 def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
-    from coopsumo.studies.protocol import BASELINES
-
     runs = runs_table(records)
     runs.to_csv(root / "runs.csv", index=False, float_format="%.6g")
     variants = list(profile.variants)
@@ -150,8 +149,6 @@ def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta:
 
 def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.DataFrame,
                 meta: dict[str, Any]) -> str:  # fmt: skip
-    from coopsumo.studies.protocol import BASELINES, EVAL_SEED
-
     ok = runs[runs["status"] == "ok"]
     lines = [
         "# The learner protocol: every training seed against the hand-made rules",

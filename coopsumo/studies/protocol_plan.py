@@ -1,0 +1,142 @@
+"""The learner protocol's plan: its learners, profiles and cells (studies/protocol.py runs them).
+
+A variant is a training (its learner) plus which weights drive: `model.pt` (the validated best, when the learner
+selects) or `model_last.pt` (the last weights). Every model meets every condition on the same evaluation seeds.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from typing import Any
+
+from coopsumo.config import (
+    AccidentConfig,
+    DemandConfig,
+    DQNConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
+from coopsumo.validation import number_name
+
+EVAL_SEED = 5000
+"""evaluation run of condition i uses seed EVAL_SEED + i (free flow) or EVAL_SEED + 100 + i (accident)"""
+TRAIN_SEED = 100
+"""first training seed of the protocol (the committed learning studies used 0-8)"""
+BASELINES = ("keep", "greedy", "mobil:p=0")
+DEMANDS = (2.0, 1.5, 1.0)
+TRAJECTORY_EVERY = 5
+"""accident runs record trajectories every 5 steps (0.5 s) for total time spent"""
+REQUIRED = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A learner as judged: the training (its learner settings) and the weights that drive."""
+
+    name: str
+    text: str
+    learner: DQNConfig
+    weights: str = "model.pt"
+
+
+def variants() -> dict[str, Variant]:
+    """The variants the protocol knows; `select` is the default preset."""
+    default = DQNConfig()
+    return {v.name: v for v in (
+        Variant("select", "the default: the paper's state, change margin 1, model.pt chosen on held-out demand "
+                "(validated every 15,000 steps)", default),
+        Variant("margin", "the previous default: the same trainings' last weights (model_last.pt), change margin 1",
+                default, "model_last.pt"),
+    )}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Profile:
+    name: str
+    variants: tuple[str, ...] = ("select", "margin")
+    seeds: tuple[int, ...] = tuple(range(TRAIN_SEED, TRAIN_SEED + 10))
+    train_steps: int = 90_000
+    t_ups: tuple[float, ...] = DEMANDS
+    free_steps: int = 6000
+    accident_steps: int = 20_000
+    accident_start: int = 2000
+    accident_duration: int = 10_000
+    alpha_seeds: int = 3
+    """models at alpha 8 of the first variant (free flow only): does alpha do something?"""
+    lanes: int = 3
+
+
+PROFILES = {
+    "default": Profile("default"),
+    "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
+                    accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
+}  # fmt: skip
+
+
+def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> TrainConfig:
+    sim = SimConfig(road=RoadConfig(lanes=profile.lanes), reward=RewardConfig(alpha=alpha),
+                    steps=profile.train_steps, seed=seed, policy="dqn")  # fmt: skip
+    if profile.train_steps < dqn.select_every_steps:  # a short profile validates twice
+        dqn = replace(dqn, select_every_steps=max(profile.train_steps // 2, 1), validation_steps=min(
+            dqn.validation_steps, profile.free_steps))  # fmt: skip
+    return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
+
+
+def eval_config(profile: Profile, scenario: str, i: int, policy: str, alpha: float = 0.0) -> SimConfig:
+    """The evaluation run of condition i (its demand profile.t_ups[i]) in free flow or through the accident."""
+    t_up = profile.t_ups[i]
+    if scenario == "free":
+        return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=t_up),
+                         reward=RewardConfig(alpha=alpha), steps=profile.free_steps, seed=EVAL_SEED + i,
+                         policy=policy)  # fmt: skip
+    return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=t_up),
+                     accident=AccidentConfig(enabled=True, start_step=profile.accident_start,
+                                             duration_steps=profile.accident_duration),
+                     reward=RewardConfig(alpha=alpha), steps=profile.accident_steps, seed=EVAL_SEED + 100 + i,
+                     policy=policy)  # fmt: skip
+
+
+def cell_specs(profile: Profile) -> list[dict[str, Any]]:
+    """Every cell: one per (variant, alpha, training seed, scenario, demand) and per (baseline, scenario, demand)."""
+    known = variants()
+    specs: list[dict[str, Any]] = []
+    models: list[tuple[Variant, float, int, tuple[str, ...]]] = []
+    for name in profile.variants:
+        for seed in profile.seeds:
+            models.append((known[name], 0.0, seed, ("free", "accident")))
+    first = known[profile.variants[0]]
+    for seed in profile.seeds[: profile.alpha_seeds]:
+        models.append((first, 8.0, seed, ("free",)))
+    for variant, alpha, seed, scenarios in models:
+        cfg = train_config(profile, variant.learner, alpha, seed)
+        train_key = f"a{number_name(alpha)}_seed{seed}_{_learner_tag(variant.learner)}"
+        for scenario in scenarios:
+            for i, t_up in enumerate(profile.t_ups):
+                ev = eval_config(profile, scenario, i, "dqn", alpha)
+                key = f"{variant.name}_a{number_name(alpha)}_seed{seed}_{scenario}_t{number_name(t_up)}"
+                specs.append({"key": key, "kind": "model", "variant": variant.name, "alpha": alpha, "seed": seed,
+                              "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
+                              "train_key": train_key,
+                              "config": json.loads(json.dumps({"train": to_dict(cfg),
+                                                               "eval": to_dict(ev)}))})  # fmt: skip
+    for policy in BASELINES:
+        for scenario in ("free", "accident"):
+            for i, t_up in enumerate(profile.t_ups):
+                ev = eval_config(profile, scenario, i, policy)
+                specs.append({"key": f"{policy.replace(':', '_').replace('=', '')}_{scenario}_t{number_name(t_up)}",
+                              "kind": "baseline", "variant": policy, "alpha": 0.0, "seed": None, "scenario": scenario,
+                              "t_up": t_up, "eval_seed": ev.seed, "weights": None, "train_key": None,
+                              "config": json.loads(json.dumps({"eval": to_dict(ev)}))})  # fmt: skip
+    return specs
+
+
+def _learner_tag(dqn: DQNConfig) -> str:
+    """A short name of a learner for its training folder: the preset, and a digest of its settings."""
+    import hashlib
+
+    digest = hashlib.sha256(json.dumps(to_dict(dqn), sort_keys=True).encode()).hexdigest()[:8]
+    return f"{dqn.preset}_{digest}"
