@@ -245,6 +245,12 @@ class DQNConfig:
     """model selection: the free-flow demands T_up (s) of the validation runs, one run each"""
     validation_steps: int = 3000
     """model selection: steps of 0.1 s of each validation run"""
+    train_t_ups: tuple[float, ...] = ()
+    """training demand: each episode's T_up (s) drawn from these (agents/episodes.py); empty: the run's own T_up"""
+    accident_share: float = 0.0
+    """training demand: the share of episodes with an accident (position, start and length drawn)"""
+    episode_steps: int = 9000
+    """training demand: steps of one episode when train_t_ups or accident_share is set (a fresh world each)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
@@ -281,11 +287,13 @@ class DQNConfig:
                 raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
         if problem := limits_problem(self, LEARNER_LIMITS):  # every number finite and bounded
             raise ConfigError(problem)
-        ts = self.validation_t_ups
-        if not isinstance(ts, tuple) or not ts or len(ts) > 10 or len(set(ts)) != len(ts) or any(
-                isinstance(t, bool) or not isinstance(t, (int, float)) or not 0.1 <= t <= MAX_T_UP_S for t in ts):
-            raise ConfigError(f"validation_t_ups must be 1 to 10 distinct demands T_up from 0.1 to {MAX_T_UP_S:g} s, "
-                              f"got {ts!r}")  # fmt: skip
+        for name, may_be_empty in (("validation_t_ups", False), ("train_t_ups", True)):
+            ts = getattr(self, name)
+            if not isinstance(ts, tuple) or (not ts and not may_be_empty) or len(ts) > 10 or len(set(ts)) != len(ts) \
+                    or any(isinstance(t, bool) or not isinstance(t, (int, float)) or not 0.1 <= t <= MAX_T_UP_S
+                           for t in ts):  # fmt: skip
+                raise ConfigError(f"{name} must be {'0' if may_be_empty else '1'} to 10 distinct demands T_up from "
+                                  f"0.1 to {MAX_T_UP_S:g} s, got {ts!r}")  # fmt: skip
 
 
 PAPER_DQN = DQNConfig(
@@ -484,8 +492,9 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
     d.setdefault("restart_below_mps", 0.0)  # written before the standing rule: 'none' offered at any speed
     for name, implied in ADDED_FIELDS.items():  # written before the field existed: what it meant then
         d.setdefault(name, implied)
-    if isinstance(d["validation_t_ups"], list):  # JSON has no tuples
-        d["validation_t_ups"] = tuple(d["validation_t_ups"])
+    for name in ("validation_t_ups", "train_t_ups"):
+        if isinstance(d[name], list):  # JSON has no tuples
+            d[name] = tuple(d[name])
     return _from_fields(DQNConfig, d, "learner")
 
 
@@ -512,7 +521,8 @@ matches a stored run, cell or checkpoint to its configuration)"""
 ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "alpha_conditioned": False,
                                  "alpha_period_steps": 3000, "alpha_relabel": 0.5, "select_every_steps": 0,
                                  "validation_seed": VALIDATION_SEED, "validation_t_ups": [2.0, 1.5, 1.0],
-                                 "validation_steps": 3000}
+                                 "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
+                                 "episode_steps": 9000}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

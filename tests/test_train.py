@@ -78,11 +78,12 @@ def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
     assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "c" / "model.pt"))
 
 
-@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned"])
+@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned", "episodes"])
 def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str) -> None:
     sig = signal.SIGTERM  # Ctrl-C (SIGINT) is exercised by tests/test_docs.py on the README's commands
-    learner = {"v2x": ["--observation", "v2x"], "conditioned": ["--alpha-conditioned", "--alpha-period", "700"]}.get(
-        preset, ["--preset", preset])
+    learner = {"v2x": ["--observation", "v2x"], "conditioned": ["--alpha-conditioned", "--alpha-period", "700"],
+               "episodes": ["--train-t-up", "1.5,1", "--accident-share", "0.5", "--episode-steps", "1000"]}.get(
+        preset, ["--preset", preset])  # fmt: skip
     args = ["--steps", "2500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
     full = tmp_path / "full"
     subprocess.run(_cmd(*args, "--out", str(full)), check=True, cwd=ROOT, capture_output=True)

@@ -36,6 +36,7 @@ from coopsumo.agents import selection
 from coopsumo.agents.decisions import ActionHold, offered
 from coopsumo.agents.dqn import N_ACTIONS, Learner, save_model
 from coopsumo.agents.dqn_policy import DQNPolicy
+from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
 from coopsumo.agents.file_checks import checkpoint_problem, ended_training, prepare_resume
 from coopsumo.agents.tb_log import TensorBoardFlag, open_log
 from coopsumo.config import (
@@ -246,6 +247,8 @@ class Trainer:
         self._stop_signal: int | None = None
         self.on_row: Callable[[dict[str, Any]], None] | None = None  # each train_log.csv row, by column (tb_log)
         self.validator: selection.Validator | None = None  # model selection (DQNConfig.select_every_steps)
+        self.episode_start = 0  # training step of the current world's first step (agents/episodes.py)
+        self._reported = 0
 
     # -- checkpoints -----------------------------------------------------------------------
     def checkpoint_path(self) -> Path:
@@ -343,7 +346,7 @@ class Trainer:
         dq = self.cfg.dqn
         learner = self.learner
         pend = self.pending
-        alpha = self.alpha_at(world.step_count)
+        alpha = self.alpha_at(self.episode_start + world.step_count)
         decide = self.hold.is_decision_step(world.step_count)
         obs = world.observe(grids=decide)
         decided = None
@@ -392,49 +395,62 @@ class Trainer:
         if new_log:
             with log_path.open("w", newline="") as f:
                 csv.writer(f).writerow(LOG_FIELDS)
-        learner = self.learner
         start = time.perf_counter()
         (self.out / "sumo").mkdir(parents=True, exist_ok=True)
-        with World(cfg.sim, self.out / "sumo") as world:
-            replay = self.action_log[: self.step]
-            for recorded in tqdm(replay, desc="replaying to resume", disable=not self.progress or not replay,
-                                 unit="step", mininterval=0.5, file=sys.stderr):  # fmt: skip
-                self._advance(world, recorded.astype(np.int64))
-            bar = tqdm(total=cfg.sim.steps, initial=self.step, desc="train", unit="step",
-                       disable=not self.progress, mininterval=0.5, file=sys.stderr)  # fmt: skip
-            reported = self.step  # steps already told to the bar and to on_steps
-            with log_path.open("a", newline="") as log_file:
-                log = csv.writer(log_file)
-                while self.step < cfg.sim.steps:
-                    if self._stop_signal is not None:
-                        self.save_checkpoint()
-                        bar.close()
-                        raise Interrupted(self._stop_signal, self.step)
-                    decided = self.hold.is_decision_step(world.step_count)
-                    out, penalty = self._advance(world)
-                    loss = learner.step(decided)
-                    self.step += 1
-                    if self.validator is not None:
-                        self.validator.after_step(self.step, learner.online)
-                    w = self.window
-                    if loss is not None:
-                        w.loss.append(loss)
-                    w.add(out, world.table.speed, penalty)
-                    if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
-                        self._write_row(log, world, time.perf_counter() - start)
-                        log_file.flush()
-                        if self.on_steps is not None:
-                            self.on_steps(self.step - reported)
-                        bar.update(self.step - reported)
-                        reported = self.step
-                        bar.set_postfix(v=f"{w.speed_sum / max(w.vehicle_steps, 1):.1f}",
-                                        r=f"{(w.r_speed + w.r_lane_change + w.r_flow) / max(w.samples, 1):.3f}",
-                                        lc=f"{w.lane_changes / max(w.samples, 1) * 10:.3f}/s")  # fmt: skip
-                        self.window = Window()
-                    if cfg.checkpoint_every_steps and self.step % cfg.checkpoint_every_steps == 0:
-                        self.save_checkpoint()
-            bar.close()
-            self.world_summary = world.summary()
+        bar = tqdm(total=cfg.sim.steps, initial=self.step, desc="train", unit="step",
+                   disable=not self.progress, mininterval=0.5, file=sys.stderr)  # fmt: skip
+        self._reported = self.step  # steps already told to the bar and to on_steps
+        with log_path.open("a", newline="") as log_file:
+            log = csv.writer(log_file)
+            while True:  # one episode (agents/episodes.py), or one world for the whole run
+                index, first, end = episode_bounds(cfg.sim.steps, cfg.dqn, self.step)
+                sim = episode_config(cfg.sim, cfg.dqn, index) if episodic(cfg.dqn) else cfg.sim
+                with World(sim, self.out / "sumo") as world:
+                    if first > 0 or self.step > 0:  # a new world: nothing carries over from the last one
+                        self.pending, self.hold = Pending(), ActionHold(cfg.dqn.decision_interval_steps)
+                    self.episode_start = first
+                    replay = self.action_log[first : self.step]
+                    for recorded in tqdm(replay, desc="replaying to resume", disable=not self.progress or not replay,
+                                         unit="step", mininterval=0.5, file=sys.stderr):  # fmt: skip
+                        self._advance(world, recorded.astype(np.int64))
+                    self._episode(cfg, world, end, log, log_file, bar, start)
+                    self.world_summary = world.summary()
+                if self.step >= cfg.sim.steps:
+                    break
+        bar.close()
+
+    def _episode(self, cfg: TrainConfig, world: World, end: int, log: Any, log_file: Any, bar: Any,
+                 start: float) -> None:  # fmt: skip
+        """Train in `world` up to training step `end`."""
+        learner = self.learner
+        while self.step < end:
+            if self._stop_signal is not None:
+                self.save_checkpoint()
+                bar.close()
+                raise Interrupted(self._stop_signal, self.step)
+            decided = self.hold.is_decision_step(world.step_count)
+            out, penalty = self._advance(world)
+            loss = learner.step(decided)
+            self.step += 1
+            if self.validator is not None:
+                self.validator.after_step(self.step, learner.online)
+            w = self.window
+            if loss is not None:
+                w.loss.append(loss)
+            w.add(out, world.table.speed, penalty)
+            if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
+                self._write_row(log, world, time.perf_counter() - start)
+                log_file.flush()
+                if self.on_steps is not None:
+                    self.on_steps(self.step - self._reported)
+                bar.update(self.step - self._reported)
+                self._reported = self.step
+                bar.set_postfix(v=f"{w.speed_sum / max(w.vehicle_steps, 1):.1f}",
+                                r=f"{(w.r_speed + w.r_lane_change + w.r_flow) / max(w.samples, 1):.3f}",
+                                lc=f"{w.lane_changes / max(w.samples, 1) * 10:.3f}/s")  # fmt: skip
+                self.window = Window()
+            if cfg.checkpoint_every_steps and self.step % cfg.checkpoint_every_steps == 0:
+                self.save_checkpoint()
 
     def _write_row(self, log: Any, world: World, wall_s: float) -> None:
         w = self.window
@@ -606,6 +622,12 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
      "model selection: validation run i uses seed VALIDATION_SEED + i (must not meet the training seed)"),
     ("--validation-t-up", "validation_t_ups", str, "model selection: comma-separated demands T_up (s), one run each"),
     ("--validation-steps", "validation_steps", int, "model selection: steps of 0.1 s of each validation run"),
+    ("--train-t-up", "train_t_ups", str,
+     "training demand: comma-separated T_up (s); each episode of --episode-steps draws one (empty: --t-up "
+     "throughout)"),
+    ("--accident-share", "accident_share", float,
+     "training demand: share of episodes (0-1) with an accident whose position, start and length are drawn"),
+    ("--episode-steps", "episode_steps", int, "training demand: steps of one episode (a fresh world each)"),
     ("--observation", "observation", OBSERVATIONS,
      "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
      "side lane's nearest leader and follower within 200 m: gap and speed)"),
@@ -630,7 +652,7 @@ def add_learner_flags(p: Parser) -> None:
 
 def flag_value(flag: str, name: str, value: Any) -> Any:
     """A learner flag's value as DQNConfig holds it (a list flag's text parsed)."""
-    if name == "validation_t_ups" and isinstance(value, str):
+    if name in ("validation_t_ups", "train_t_ups") and isinstance(value, str):
         return t_up_list(flag, value, ControlConfig().dt_s)
     return value
 
