@@ -43,6 +43,10 @@ class Variant:
     weights: str = "model.pt"
 
 
+MIX = replace(DQNConfig(), train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)
+"""the learner trained on the mix of demands and accidents (agents/episodes.py)"""
+
+
 def variants() -> dict[str, Variant]:
     """The variants the protocol knows; `select` is the default preset."""
     default = DQNConfig()
@@ -51,6 +55,9 @@ def variants() -> dict[str, Variant]:
                 "(validated every 15,000 steps)", default),
         Variant("margin", "the previous default: the same trainings' last weights (model_last.pt), change margin 1",
                 default, "model_last.pt"),
+        Variant("mix", "`select` trained where it is used: episodes of 9,000 steps, each at a T_up drawn from 2, 1.5 "
+                "and 1 s, half of them with an accident (position, start and length drawn)", MIX),
+        Variant("mix_last", "the `mix` trainings' last weights", MIX, "model_last.pt"),
     )}  # fmt: skip
 
 
@@ -72,6 +79,7 @@ class Profile:
 
 PROFILES = {
     "default": Profile("default"),
+    "mix": Profile("mix", variants=("mix", "mix_last"), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
