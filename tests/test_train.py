@@ -78,11 +78,12 @@ def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
     assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "c" / "model.pt"))
 
 
-@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned", "episodes"])
+@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned", "episodes", "select"])
 def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str) -> None:
     sig = signal.SIGTERM  # Ctrl-C (SIGINT) is exercised by tests/test_docs.py on the README's commands
     learner = {"v2x": ["--observation", "v2x"], "conditioned": ["--alpha-conditioned", "--alpha-period", "700"],
-               "episodes": ["--train-t-up", "1.5,1", "--accident-share", "0.5", "--episode-steps", "1000"]}.get(
+               "episodes": ["--train-t-up", "1.5,1", "--accident-share", "0.5", "--episode-steps", "1000"],
+               "select": ["--select-every", "1000", "--validation-steps", "300", "--validation-t-up", "1.5"]}.get(
         preset, ["--preset", preset])  # fmt: skip
     args = ["--steps", "2500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
     full = tmp_path / "full"
@@ -107,6 +108,9 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str)
     assert res.returncode == 0, res.stderr
     assert not (cut / "checkpoint.pt").exists()
     assert _same(_weights(full / "model.pt"), _weights(cut / "model.pt"))
+    if preset == "select":  # the resumed training validated the same snapshots to the same scores and kept the best
+        assert (full / "validation.csv").read_text() == (cut / "validation.csv").read_text()
+        assert _same(_weights(full / "model_last.pt"), _weights(cut / "model_last.pt"))
 
 
 @pytest.mark.parametrize(
