@@ -421,14 +421,26 @@ def finish_run_dir(tmp: Path, out: Path, kind: str = "simulate") -> None:
     """
     out = out.resolve()
     mark_run_dir(tmp, kind)
-    if out.exists():
-        try:
-            check_run_dir(out, kind)
-        except UsageError:
-            discard_run_dir(tmp)
-            raise
-        shutil.rmtree(out)
+    if not out.exists():
+        os.replace(tmp, out)
+        return
+    try:
+        check_run_dir(out, kind)
+    except UsageError:
+        discard_run_dir(tmp)
+        raise
+    # the old folder steps aside under a partial name (clear_partials removes it if a kill comes now), the new
+    # one takes its place, then the old one goes: at every moment one whole result is on disk
+    aside = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
+    os.replace(out, aside / out.name)
     os.replace(tmp, out)
+    shutil.rmtree(aside, ignore_errors=True)
+
+
+def retrain_folder(out: Path) -> Path:
+    """Where a new training into `out` is built while `out` holds a finished one: '.<name>.retrain' beside it
+    (it replaces `out` when it has finished; `train --resume --out OUT` continues it after a kill)."""
+    return out.parent / f".{out.name}.retrain"
 
 
 def discard_run_dir(tmp: Path) -> None:

@@ -61,10 +61,13 @@ from coopsumo.runio import (
     UsageError,
     check_out_path,
     check_run_dir,
+    discard_run_dir,
+    finish_run_dir,
     finished_run,
     first_line,
     mark_run_dir,
     out_lock,
+    retrain_folder,
     run_cli,
     versions,
     write_json,
@@ -475,15 +478,20 @@ def model_meta(cfg: TrainConfig) -> dict[str, Any]:
 
 
 def evaluate(
-    cfg: TrainConfig, policy: DQNPolicy, out: Path, progress: bool, on_steps: Callable[[int], None] | None = None
+    cfg: TrainConfig,
+    policy: DQNPolicy,
+    out: Path,
+    progress: bool,
+    on_steps: Callable[[int], None] | None = None,
+    shown: Path | None = None,
 ) -> dict[str, Any]:
     """Greedy evaluation on the training condition (same demand seed) in out/eval; a conditioned model drives at
-    the policy's alpha (train: the run's reward alpha, 0)."""
+    the policy's alpha (train: the run's reward alpha, 0). shown: the run folder its records name (default out)."""
     from coopsumo.agents.rollout import run
 
     eval_dir = out / "eval"
     eval_dir.mkdir(exist_ok=True)
-    spec = f"dqn:{out / 'model.pt'}" + (f",alpha={policy.alpha:g}" if policy.alpha is not None else "")
+    spec = f"dqn:{(shown or out) / 'model.pt'}" + (f",alpha={policy.alpha:g}" if policy.alpha is not None else "")
     sim = replace(cfg.sim, steps=cfg.eval_steps, policy=spec)
     return run(sim, policy, eval_dir, progress=progress, label="evaluate", on_steps=on_steps)
 
@@ -495,8 +503,11 @@ def train(
     progress: bool = True,
     on_steps: Callable[[int], None] | None = None,
     tensorboard: bool = False,
+    final: Path | None = None,
 ) -> dict[str, Any]:
     """Train (or resume) into `out`; returns the evaluation summary (or the training summary).
+
+    final: the folder the results will be moved to, when `out` is a working folder (recorded paths name it).
 
     on_steps(n) is told of progress (training and evaluation steps), for a caller's progress bar;
     tensorboard: also write the log's scalars to out/tensorboard/ (tb_log).
@@ -570,13 +581,30 @@ def train(
                        alpha=cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None)  # fmt: skip
     shutil.rmtree(out / "eval", ignore_errors=True)  # what an interrupted evaluation had written
     try:
-        summary = evaluate(cfg, policy, out, progress, on_steps)
+        summary = evaluate(cfg, policy, out, progress, on_steps, shown=final)
     except KeyboardInterrupt:
         raise Interrupted(signal.SIGINT, trainer.step) from None
     write_json(out / "summary.json", summary)
     trainer.checkpoint_path().unlink(missing_ok=True)
     mark_run_dir(out, "train")
     return summary
+
+
+def training_folder(out: Path, resume: bool, progress: bool = True) -> Path:
+    """The folder a training into `out` works in: `out` itself, or, when `out` holds a finished training, a
+    folder beside it (retrain_folder) that replaces `out` only once the new training has finished, so that a
+    kill or a failure never loses the finished one. --resume continues whichever holds a checkpoint."""
+    work = retrain_folder(out.resolve())
+    if resume:
+        return work if (work / "checkpoint.pt").exists() else out
+    if work.exists():
+        discard_run_dir(work)  # an earlier new training, killed: this one starts afresh
+    if not finished_run(out, "train"):
+        return out
+    if progress:
+        print(f"train: {out} holds a finished training; the new one is built in {work} and replaces it when it "
+              "has finished", file=sys.stderr)  # fmt: skip
+    return work
 
 
 def default_out(cfg: TrainConfig) -> Path:
@@ -745,7 +773,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.resume:
             if args.out is None:
                 raise UsageError("--resume needs --out pointing at the interrupted run")
-            cfg = Trainer.checkpoint_config(args.out, Trainer.load_checkpoint(args.out))
+            work = retrain_folder(args.out.resolve())  # a new training of a finished folder, killed
+            source = work if (work / "checkpoint.pt").exists() else args.out
+            cfg = Trainer.checkpoint_config(source, Trainer.load_checkpoint(source))
             check_resume_flags(argv, cfg)
         else:
             cfg = config_from_args(args)
@@ -756,11 +786,16 @@ def main(argv: list[str] | None = None) -> int:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as err:
             raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
+        target = out
         try:
             with out_lock(out, "train"):  # a second command writing to the same folder is refused
-                summary = train(cfg, out, resume=args.resume, progress=not args.quiet, tensorboard=args.tensorboard)
+                target = training_folder(out, args.resume, progress=not args.quiet)
+                summary = train(cfg, target, resume=args.resume, progress=not args.quiet,
+                                tensorboard=args.tensorboard, final=out)  # fmt: skip
+                if target != out:
+                    finish_run_dir(target, out, "train")
         except Interrupted as stop:
-            print(f"train: interrupted at step {stop.step}; checkpoint saved in {out / 'checkpoint.pt'}; "
+            print(f"train: interrupted at step {stop.step}; checkpoint saved in {target / 'checkpoint.pt'}; "
                   f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
             return 128 + stop.signum
         except KeyboardInterrupt:  # outside the training loop (saving the model): the last checkpoint stands
