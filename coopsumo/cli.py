@@ -14,8 +14,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from coopsumo import __version__
-from coopsumo.runio import Parser, out_path_problem, working_folder_problem
-from coopsumo.sim.network import NETS_ENV
+from coopsumo.runio import NETS_ENV, Parser, nets_dir_problem, working_folder_problem
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("coopsumo.simulate", "run one simulation (free flow or the accident) with any policy"),
@@ -38,7 +37,7 @@ def build_parser() -> Parser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--version", action="version", version=f"coopsumo {__version__}")
-    p.add_argument("--nets-dir", type=Path, default=None, metavar="DIR",
+    p.add_argument("--nets-dir", default=None, metavar="DIR",
                    help=f"folder the SUMO networks are built into (default: ${NETS_ENV} if set, else sumo_nets/ "
                         "of a source checkout, else $XDG_CACHE_HOME/coopsumo/sumo_nets)")  # fmt: skip
     p.add_argument("command", choices=tuple(COMMANDS), nargs="?", metavar="COMMAND",
@@ -67,11 +66,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     if problem := working_folder_problem():  # before a command is imported: torch cannot be loaded from there
         parser.error(problem)
-    if args.nets_dir is not None and (problem := out_path_problem(args.nets_dir)):  # SUMO reads the networks there
-        parser.error(f"--nets-dir {problem.replace('folder path', 'path')}")
+    if args.nets_dir is not None and (problem := nets_dir_problem(args.nets_dir)):  # SUMO reads them there
+        parser.error(f"--nets-dir {problem}")
     if args.nets_dir is not None:
         # read by sim.network when a network is built, here and in the study's worker processes
-        os.environ[NETS_ENV] = str(args.nets_dir.expanduser().resolve())
+        os.environ[NETS_ENV] = str(Path(args.nets_dir).expanduser().resolve())
     module = importlib.import_module(COMMANDS[args.command][0])
     return int(module.main(rest))
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import errno
 import fcntl
 import fnmatch
 import json
@@ -23,6 +24,8 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 USAGE_EXIT = 2
+NETS_ENV = "COOPSUMO_NETS_DIR"
+"""environment variable naming the folder the SUMO networks are built into (read by sim.network)"""
 
 
 class UsageError(ValueError):
@@ -65,11 +68,22 @@ def first_line(err: BaseException) -> str:
     return text.splitlines()[0] if text else type(err).__name__
 
 
-def write_json(path: Path, data: Any) -> None:
-    """Write JSON atomically (temp file + rename)."""
+def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
+    """write(tmp) into 'PATH.tmp', then rename it to `path`: a reader sees the old file or the whole new one.
+    On any failure (a full disk, a kill by signal) the temporary file is removed and the error passed on."""
     tmp = path.with_suffix(path.suffix + ".tmp")
-    tmp.write_text(json.dumps(_clean(data), indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, path)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_json(path: Path, data: Any) -> None:
+    """Write JSON atomically (write_atomic)."""
+    text = json.dumps(_clean(data), indent=2, sort_keys=True) + "\n"
+    write_atomic(path, lambda tmp: tmp.write_text(text))
 
 
 RUN_MARKER = ".coopsumo-run.json"
@@ -189,11 +203,25 @@ PATH_ROOM = 256
 """bytes left free under PATH_MAX for the files a command writes inside --out (the deepest: a study's run folders)"""
 
 
+def _exists(path: Path) -> bool:
+    """Path.exists, False where the system cannot even look (a name too long, a loop, no permission)."""
+    try:
+        return path.exists()
+    except OSError:
+        return False
+
+
+def nearest_existing(path: Path) -> Path:
+    """`path` or its nearest ancestor that exists."""
+    folder = path
+    while not _exists(folder) and folder != folder.parent:
+        folder = folder.parent
+    return folder
+
+
 def _fs_limits(path: Path) -> tuple[int, int]:
     """(NAME_MAX, PATH_MAX) in bytes of the file system holding path's nearest existing folder."""
-    folder = path
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
+    folder = nearest_existing(path)
     try:
         return os.pathconf(folder, "PC_NAME_MAX"), os.pathconf(folder, "PC_PATH_MAX")
     except (OSError, ValueError):
@@ -241,11 +269,26 @@ def out_path_problem(path: Path) -> str | None:
     if len(os.fsencode(str(real))) > path_max - PATH_ROOM:
         return (f"is {len(os.fsencode(str(real)))} bytes long; at most {path_max - PATH_ROOM} are allowed (the file "
                 f"system's {path_max}, less room for the files written inside)")  # fmt: skip
-    folder = real
-    while not folder.exists() and folder != folder.parent:
-        folder = folder.parent
+    folder = nearest_existing(real)
     if folder != real and not folder.is_dir():
         return f"output folder {text!r} cannot be made: {folder} is a file, not a folder"
+    return None
+
+
+def nets_dir_problem(text: str) -> str | None:
+    """Why `text` cannot be the networks folder (a phrase to follow --nets-dir or $COOPSUMO_NETS_DIR), or None:
+    empty, a path SUMO or the file system cannot take (out_path_problem), a file, or a folder not writable."""
+    if not text.strip():
+        return "must name a folder, got an empty string"
+    path = Path(text).expanduser()
+    if problem := out_path_problem(path):
+        return problem.replace("folder path", "path")
+    real = path.resolve()
+    if _exists(real) and not real.is_dir():
+        return f"{text!r} is a file, not a folder"
+    folder = nearest_existing(real)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"{text!r} cannot be written: {folder} is not writable"
     return None
 
 
@@ -515,6 +558,9 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
     if problem := working_folder_problem():
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
+    if (nets := os.environ.get(NETS_ENV)) is not None and (problem := nets_dir_problem(nets)):
+        print(f"{prog}: error: ${NETS_ENV} {problem}", file=sys.stderr)
+        return USAGE_EXIT
     try:
         return body()
     except UsageError as err:
@@ -523,3 +569,24 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
     except KeyboardInterrupt:
         print(f"{prog}: interrupted", file=sys.stderr)
         return 130
+    except OSError as err:  # the system refused a file operation: one line naming the path and the problem
+        print(f"{prog}: error: {os_error_text(err)}", file=sys.stderr)
+        return USAGE_EXIT if err.errno in USER_ERRNOS else 1
+    except RuntimeError as err:  # Python 3.11's Path.resolve reports a loop of symbolic links so
+        if not str(err).startswith("Symlink loop from "):
+            raise
+        print(f"{prog}: error: {str(err)[len('Symlink loop from '):]} goes through a loop of symbolic links",
+              file=sys.stderr)  # fmt: skip
+        return USAGE_EXIT
+
+
+USER_ERRNOS = frozenset({errno.ENAMETOOLONG, errno.ELOOP, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOTDIR,
+                         errno.EISDIR, errno.EEXIST, errno.ENOENT})  # fmt: skip
+"""operating-system errors a path the user gave causes (exit code 2); the others (a full disk, an I/O error) 1"""
+
+
+def os_error_text(err: OSError) -> str:
+    """An OSError in one line: what the system said and the path(s) it concerns."""
+    text = err.strerror or first_line(err)
+    paths = [str(p) for p in (err.filename, err.filename2) if p is not None]
+    return f"{text}: {' -> '.join(paths)}" if paths else text

@@ -59,7 +59,7 @@ def test_simulate_help_lists_every_policy_form() -> None:
     assert "(default: keep)" in text and "(default: 9000)" in text
 
 
-def test_dispatch_hands_the_rest_of_the_line_to_the_command(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_dispatch_hands_the_rest_of_the_line_to_the_command(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
     seen: list[list[str]] = []
     module = importlib.import_module(cli.COMMANDS["train"][0])
     monkeypatch.setattr(module, "main", lambda argv: seen.append(argv) or 7)
@@ -67,9 +67,10 @@ def test_dispatch_hands_the_rest_of_the_line_to_the_command(monkeypatch: pytest.
     monkeypatch.delenv(network.NETS_ENV)
     assert cli.main(["train", "--steps", "5", "--out", "x"]) == 7
     assert seen == [["--steps", "5", "--out", "x"]]
+    monkeypatch.chdir(tmp_path)  # a relative --nets-dir is resolved against the current folder
     assert cli.main(["--nets-dir", "some/where", "train", "--help"]) == 7
     assert seen[-1] == ["--help"]
-    assert network.nets_dir() == (Path.cwd() / "some/where").resolve()  # --nets-dir sets COOPSUMO_NETS_DIR
+    assert network.nets_dir() == (tmp_path / "some/where").resolve()  # --nets-dir sets COOPSUMO_NETS_DIR
 
 
 @pytest.mark.parametrize("argv", [[], ["bogus"], ["--nets-dir"]])
@@ -121,6 +122,29 @@ def test_a_checkout_builds_into_its_top_level_sumo_nets() -> None:
 
 def test_the_environment_variable_comes_first(tmp_path: Path) -> None:
     assert network.nets_dir({network.NETS_ENV: str(tmp_path)}) == tmp_path
+
+
+@pytest.mark.parametrize("kind", ["file", "empty", "blank", "comma"])
+def test_a_bad_networks_folder_is_one_line_and_exit_2_by_flag_and_by_environment(
+    kind: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / "afile").write_text("x")
+    value = {"file": str(tmp_path / "afile"), "empty": "", "blank": " ", "comma": str(tmp_path / "a,b")}[kind]
+    out = tmp_path / "run"
+    monkeypatch.delenv(network.NETS_ENV, raising=False)
+    try:
+        code = cli.main(["--nets-dir", value, "simulate", "--steps", "5", "--out", str(out)])
+    except SystemExit as stop:
+        code = stop.code
+    flag = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    monkeypatch.setenv(network.NETS_ENV, value)
+    code_env = cli.main(["simulate", "--steps", "5", "--out", str(out)])
+    env = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == code_env == 2
+    assert len(flag) == 1 and "--nets-dir" in flag[0], flag
+    assert len(env) == 1 and "$COOPSUMO_NETS_DIR" in env[0], env
+    assert flag[0].split("--nets-dir", 1)[1] == env[0].split("$COOPSUMO_NETS_DIR", 1)[1]  # the same problem
+    assert not out.exists()
 
 
 def test_an_installed_package_builds_into_the_per_user_cache(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:

@@ -14,12 +14,13 @@ import csv
 import json
 import math
 import numbers
-import os
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import torch
+
+from coopsumo.runio import write_atomic
 
 N_ACTIONS = 4
 """actions a recorded action may take: 0 left, 1 right, 2 speedup, 3 none (dqn.N_ACTIONS)"""
@@ -131,9 +132,8 @@ def truncate_log(path: Path, step: int) -> int:
         kept.append(line)
     dropped = len(lines) - len(kept)
     if dropped:
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text("".join(kept))
-        os.replace(tmp, path)
+        text = "".join(kept)
+        write_atomic(path, lambda tmp: tmp.write_text(text))
     return dropped
 
 

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from coopsumo.config import SimConfig, TrainConfig, sim_config_from_dict, to_dict
+from coopsumo.runio import write_atomic
 
 SNAPSHOTS = "snapshots"
 """folder of a training's snapshots (one subfolder step<N> each)"""
@@ -139,9 +140,8 @@ def write_table(out: Path) -> None:
 
 
 def _write_json(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_suffix(".json.tmp")
-    tmp.write_text(json.dumps(data, indent=1))
-    os.replace(tmp, path)
+    text = json.dumps(data, indent=1)
+    write_atomic(path, lambda tmp: tmp.write_text(text))
 
 
 # -- the validation process -------------------------------------------------------------------------

@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import csv
 import functools
-import os
 import shutil
 import signal
 import sys
@@ -70,6 +69,7 @@ from coopsumo.runio import (
     retrain_folder,
     run_cli,
     versions,
+    write_atomic,
     write_json,
 )
 from coopsumo.sim.observation import Observation, network_features
@@ -268,9 +268,7 @@ class Trainer:
             "actions": torch.from_numpy(flat.astype(np.int8)),
             "window": {k: v for k, v in vars(self.window).items()},
         }
-        tmp = self.checkpoint_path().with_suffix(".pt.tmp")
-        torch.save(state, tmp)
-        os.replace(tmp, self.checkpoint_path())
+        write_atomic(self.checkpoint_path(), lambda tmp: torch.save(state, tmp))  # no checkpoint.pt.tmp left behind
 
     @staticmethod
     def load_checkpoint(out: Path) -> dict[str, Any]:

@@ -15,12 +15,11 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from coopsumo.config import RoadConfig
+from coopsumo.runio import NETS_ENV
 
 EDGE_ID = "road"
 ROUTE_ID = "r0"
 VTYPE_ID = "car"
-NETS_ENV = "COOPSUMO_NETS_DIR"
-"""environment variable naming the folder the networks are built into"""
 SOURCE_ROOT = Path(__file__).resolve().parents[2]
 """the folder holding the package: a source checkout's root, or site-packages' parent for an installed wheel"""
 
