@@ -58,6 +58,9 @@ def variants() -> dict[str, Variant]:
         Variant("mix", "`select` trained where it is used: episodes of 9,000 steps, each at a T_up drawn from 2, 1.5 "
                 "and 1 s, half of them with an accident (position, start and length drawn)", MIX),
         Variant("mix_last", "the `mix` trainings' last weights", MIX, "model_last.pt"),
+        Variant("v2x", "`select` reading the v2x state: the paper's state plus each side lane's nearest leader and "
+                "follower within 200 m (gap, speed)", replace(DQNConfig(), observation="v2x")),
+        Variant("v2x_mix", "`v2x` trained where it is used, as `mix`", replace(MIX, observation="v2x")),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(DQNConfig(), gamma=0.97)),
     )}  # fmt: skip
@@ -83,6 +86,7 @@ PROFILES = {
     "default": Profile("default"),
     "mix": Profile("mix", variants=("mix", "mix_last"), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "gamma": Profile("gamma", variants=("gamma",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
+    "v2x": Profile("v2x", variants=("v2x", "v2x_mix"), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
