@@ -27,6 +27,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
 )
+from coopsumo.policy_spec import PolicySpecError, model_file, parse_policy, split_dqn_spec
 from coopsumo.runio import Parser, UsageError, atomic_run_dir, check_apart, check_run_dir, run_cli
 from coopsumo.sim import sumo_session
 from coopsumo.validation import (
@@ -40,7 +41,6 @@ from coopsumo.validation import (
     number,
     out_dir,
     seed,
-    split_dqn_spec,
     steps,
 )
 
@@ -165,8 +165,12 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         cfg = config_from_args(args)
+        try:
+            parse_policy(cfg.policy)  # the grammar first, before any file is looked at
+        except PolicySpecError as err:
+            raise UsageError(f"--policy: {err}") from None
         if cfg.policy.startswith("dqn:"):
-            check_apart(args.out, Path(split_dqn_spec(cfg.policy)[0]))
+            check_apart(args.out, Path(model_file(split_dqn_spec(cfg.policy)[0])))
         check_run_dir(args.out, "simulate")  # before anything is written (the screenshot's folder, the run)
         outputs = outputs_from_args(args, cfg)
         gui = gui_from_args(args, cfg)

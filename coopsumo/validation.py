@@ -417,31 +417,3 @@ def check_ray_address(flag: str, address: str, timeout_s: float | None = None) -
     if proc.returncode != 0:
         detail = out.strip().splitlines()[-1] if out.strip() else f"exit code {proc.returncode}"
         raise UsageError(f"{flag} {address}: cannot connect to a Ray cluster there: {detail}")
-
-
-ADAPTIVE = "adaptive"
-"""the value of a dqn policy's alpha option that chooses alpha online from the loops (agents/adaptive.py)"""
-
-
-def split_dqn_spec(spec: str) -> tuple[str, float | str | None]:
-    """A policy spec 'dqn:PATH[,alpha=A|adaptive]' -> (PATH, A as a float, 'adaptive', or None when not given).
-
-    A tail ',name=...' after the path is an option; alpha is the only one. UsageError naming the problem for an
-    alpha that is not a number in [ALPHA_MIN, ALPHA_MAX] nor 'adaptive', and for an unknown option.
-    """
-    rest = spec[len("dqn:") :] if spec.startswith("dqn:") else spec
-    head, sep, tail = rest.rpartition(",")
-    if not sep or not re.fullmatch(r"[A-Za-z_]+=.*", tail):
-        return rest, None
-    name, value = tail.split("=", 1)
-    if name != "alpha":
-        raise UsageError(f"policy {spec!r}: unknown option {name!r}; a dqn policy takes alpha=A or alpha={ADAPTIVE}")
-    if value == ADAPTIVE:
-        return head, ADAPTIVE
-    try:
-        number = float(value)
-    except ValueError:
-        number = math.nan
-    if problem := number_problem(number, ALPHA_MIN, ALPHA_MAX):
-        raise UsageError(f"policy {spec!r}: alpha must be {problem} or {ADAPTIVE!r}, got {value!r}")
-    return head, number

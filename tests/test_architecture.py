@@ -15,7 +15,7 @@ import coopsumo
 
 PACKAGE_DIR = Path(coopsumo.__file__).parent
 # what each layer may import from the others (the top-level modules config, runio, validation are shared by all)
-SHARED = {"coopsumo", "coopsumo.config", "coopsumo.runio", "coopsumo.validation"}
+SHARED = {"coopsumo", "coopsumo.config", "coopsumo.policy_spec", "coopsumo.runio", "coopsumo.validation"}
 ALLOWED = {
     "coopsumo.sim": {"coopsumo.sim"},
     "coopsumo.agents": {"coopsumo.agents", "coopsumo.sim"},

@@ -261,7 +261,7 @@ def test_empty_observation(observation_of: Layout) -> None:
         ("mobil", (0.5, 0.1, 4.0, 0.0)),
         ("mobil:p=0", (0.0, 0.1, 4.0, 0.0)),
         ("mobil:p=1,threshold=0.2,b_safe=3,bias=0.05", (1.0, 0.2, 3.0, 0.05)),
-        ("mobil:b_safe=6, p=0.25", (0.25, 0.1, 6.0, 0.0)),
+        ("mobil:b_safe=6,p=0.25", (0.25, 0.1, 6.0, 0.0)),
         ("mobil:bias=-0.1", (0.5, 0.1, 4.0, -0.1)),
     ],
 )
@@ -275,7 +275,8 @@ def test_from_spec(spec: str, values: tuple[float, float, float, float]) -> None
 @pytest.mark.parametrize(
     "spec",
     ["mobile", "mobil:", "mobil:p", "mobil:=1", "mobil:q=1", "mobil:p=abc", "mobil:p=-1", "mobil:p=nan",
-     "mobil:p=inf", "mobil:p=1,p=2", "mobil:b_safe=0", "mobil:threshold=-0.1", "mobil:p=1,", "greedy"],
+     "mobil:p=inf", "mobil:p=1,p=2", "mobil:b_safe=0", "mobil:threshold=-0.1", "mobil:p=1,", "greedy",
+     "mobil:b_safe=6, p=0.25"],
 )  # fmt: skip
 def test_bad_spec_is_a_one_line_policy_spec_error(spec: str) -> None:
     with pytest.raises(PolicySpecError) as err:

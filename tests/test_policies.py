@@ -98,7 +98,7 @@ def test_greedy_never_leaves_the_road(observation_of: ObsOf) -> None:
 
 @pytest.mark.parametrize("spec", ["foo", "", "Keep", "random:3", "dqn"])
 def test_make_policy_rejects_unknown_names(spec: str) -> None:
-    with pytest.raises(PolicySpecError, match="unknown policy"):
+    with pytest.raises(PolicySpecError, match="unknown policy|policy must be|takes no parameters|needs a model"):
         make_policy(spec, np.random.default_rng(0))
     assert issubclass(PolicySpecError, UsageError)
 

@@ -12,9 +12,9 @@ from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, c
 from coopsumo.agents.decisions import offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
+from coopsumo.policy_spec import ADAPTIVE, model_file, split_dqn_spec
 from coopsumo.runio import UsageError
 from coopsumo.sim.observation import Observation, network_features
-from coopsumo.validation import ADAPTIVE, split_dqn_spec
 
 
 def _field(d: Any, *keys: str) -> Any:
@@ -82,7 +82,7 @@ class DQNPolicy:
 
     @classmethod
     def from_spec(cls, spec: str, lanes: int = 3) -> DQNPolicy:
-        """The policy of 'dqn:PATH[,alpha=A|adaptive]' on a road of `lanes` lanes (validation.split_dqn_spec).
+        """The policy of 'dqn:PATH[,alpha=A|adaptive]' on a road of `lanes` lanes (policy_spec: the one grammar).
 
         alpha is for an alpha-conditioned model only, and such a model needs it: otherwise a usage error.
         """
@@ -109,13 +109,15 @@ class DQNPolicy:
 
     @classmethod
     def from_file(cls, path: str) -> DQNPolicy:
-        """Load model.pt and drive it as it was trained; a missing, corrupt or mismatched file is a usage error.
+        """Load model.pt (or the model.pt of the folder `path`) and drive it as it was trained; a missing, corrupt or
+        mismatched file is a usage error.
         An alpha-conditioned model is driven at alpha 0 (from_spec chooses another).
 
         The observation is the same on every road (left, own and right lane; lanes off the road are full),
         so a model trained on another lane count or inflow is driven by the same rules; `trained_on` says
         what it was trained on (simulate records it in config.json).
         """
+        path = model_file(path)  # a training's folder stands for its model.pt
         try:
             net, meta = load_model(path)
         except ModelFileError as err:

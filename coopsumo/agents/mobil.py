@@ -63,8 +63,8 @@ import math
 import numpy as np
 
 from coopsumo.config import ControlConfig
+from coopsumo.policy_spec import PolicySpecError, parse_policy
 from coopsumo.sim import physics
-from coopsumo.sim.driver import PolicySpecError
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP
 from coopsumo.validation import MOBIL_LIMITS, number_problem
@@ -113,26 +113,10 @@ class MobilPolicy:
     @classmethod
     def from_spec(cls, spec: str, control: ControlConfig | None = None) -> MobilPolicy:
         """Parse `mobil` or `mobil:p=0.5,threshold=0.1,b_safe=4,bias=0` (any subset, any order)."""
-        head, sep, rest = spec.partition(":")
-        if head != "mobil":
-            raise PolicySpecError(
-                f"not a mobil spec: {spec!r}; expected mobil or mobil:p=P[,threshold=T,b_safe=B,bias=R]"
-            )
-        values: dict[str, float] = {}
-        if sep:
-            for item in rest.split(","):
-                key, eq, text = (s.strip() for s in item.partition("="))
-                if not eq or not key:
-                    raise PolicySpecError(f"mobil: expected KEY=VALUE, got {item!r} in {spec!r}")
-                if key not in _RULES:
-                    raise PolicySpecError(f"mobil: unknown parameter {key!r}; expected one of {', '.join(_RULES)}")
-                if key in values:
-                    raise PolicySpecError(f"mobil: parameter {key!r} given twice in {spec!r}")
-                try:
-                    values[key] = float(text)
-                except ValueError:
-                    raise PolicySpecError(f"mobil: {key} must be a number, got {text!r}") from None
-        return cls(control=control, **values)
+        parsed = parse_policy(spec)  # policy_spec: the one grammar, ranges included
+        if parsed.name != "mobil":
+            raise PolicySpecError(f"policy {spec!r} is not mobil; expected mobil or mobil:p=P[,threshold=T,...]")
+        return cls(control=control, **parsed.values())
 
     def incentives(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
         """(n, 2) MOBIL incentive (m/s^2) and (n, 2) bool admissibility for [left, right].

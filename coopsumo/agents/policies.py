@@ -11,7 +11,8 @@ from typing import Protocol
 import numpy as np
 
 from coopsumo.config import POLICY_STREAM, ControlConfig, SimConfig, rng_stream
-from coopsumo.sim.driver import LC_KEYS, PolicySpecError, sumo_lc_params, sumo_models
+from coopsumo.policy_spec import PolicySpecError, parse_policy
+from coopsumo.sim.driver import LC_KEYS, sumo_lc_params
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP
 
@@ -116,26 +117,22 @@ def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | No
     `control` is the run's controller configuration (MOBIL derives its accelerations from it); `lanes` the road's
     lane count (an adaptive alpha's rule depends on it).
     """
-    if spec == "keep":
+    name = parse_policy(spec).name  # policy_spec: a malformed string fails here, whatever the policy
+    if name == "keep":
         return KeepPolicy()
-    if spec == "random":
+    if name == "random":
         return RandomPolicy(rng)
-    if spec == "greedy":
+    if name == "greedy":
         return GreedyPolicy()
-    if spec.startswith("dqn:"):
+    if name == "dqn":
         from coopsumo.agents.dqn_policy import DQNPolicy  # torch only when a DQN is asked for
 
         return DQNPolicy.from_spec(spec, lanes)
-    if spec == "mobil" or spec.startswith("mobil:"):
+    if name == "mobil":
         from coopsumo.agents.mobil import MobilPolicy
 
         return MobilPolicy.from_spec(spec, control)
-    if sumo_models(spec):
-        return SumoPolicy.from_spec(spec)
-    raise PolicySpecError(
-        f"unknown policy {spec!r}; expected one of keep, random, greedy, dqn:PATH[,alpha=A], mobil[:p=P], "
-        "sumo[:lcCooperative=X]"
-    )
+    return SumoPolicy.from_spec(spec)
 
 
 def policy_for_run(cfg: SimConfig) -> Policy:

@@ -23,6 +23,7 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import DQN_PRESETS, ControlConfig, OutputConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.policy_spec import model_file, split_dqn_spec
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.runner import (
     CellRecords,
@@ -60,7 +61,6 @@ from coopsumo.validation import (
     number_name,
     out_dir,
     seed_count,
-    split_dqn_spec,
     steps,
     t_up_list,
     workers,
@@ -220,7 +220,7 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
                 folder = run_folder(label, seed, t_up)
                 out = root / folder
                 runs.append((label, t_up, seed, out, cfg))
-                model = Path(split_dqn_spec(policy)[0]) if policy.startswith("dqn:") else None
+                model = Path(model_file(split_dqn_spec(policy)[0])) if policy.startswith("dqn:") else None
                 if after not in retrained and reusable_run(out, to_dict(cfg), plan.outputs(), model):
                     continue
                 specs.append({"key": f"run_t{number_name(t_up)}_{label}_seed{seed}", "kind": "run", "label": label,

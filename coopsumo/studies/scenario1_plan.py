@@ -17,7 +17,8 @@ from coopsumo.config import (
     SimConfig,
     TrainConfig,
 )
-from coopsumo.validation import number_name, split_dqn_spec
+from coopsumo.policy_spec import model_file, split_dqn_spec
+from coopsumo.validation import number_name
 
 ALPHAS = (0.0, 2.0, 8.0)
 """alpha = 0 and 8 are the paper's; 2 is the largest alpha of the learning study's response whose model still
@@ -99,7 +100,7 @@ def label_for(policy: str) -> str:
     if policy.startswith("dqn:"):
         path, alpha = split_dqn_spec(policy)
         tail = "" if alpha is None else "_" + (alpha if isinstance(alpha, str) else f"a{number_name(alpha)}")
-        return "dqn_" + Path(path).parent.name + tail
+        return "dqn_" + Path(model_file(path)).parent.name + tail
     return policy.replace(":", "_").replace("=", "")
 
 

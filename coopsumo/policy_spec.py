@@ -1,0 +1,124 @@
+"""One grammar for policy strings, parsed once into a typed PolicySpec (every command, study and environment).
+
+    keep | random | greedy                          no parameters
+    mobil[:p=P,threshold=T,b_safe=B,bias=R]          any subset, any order (MOBIL_LIMITS)
+    sumo[:lcCooperative=X,lcSpeedGain=X,...]          SUMO's LC2013 factors (SUMO_LC_LIMITS)
+    dqn:PATH[,alpha=A|alpha=adaptive]                PATH: a model file, or a folder holding model.pt
+
+Parameters are KEY=VALUE separated by ','; each key at most once; each value a finite number in its key's range
+(alpha also 'adaptive'). No spaces anywhere, no empty parameter, and no ',' inside a model path (the grammar and
+SUMO's file lists split at commas). Pure text (model_file aside): whether a model exists or is alpha-conditioned
+is checked when it is loaded (agents/dqn_policy.py).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass
+
+from coopsumo.runio import UsageError
+from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MOBIL_LIMITS, SUMO_LC_LIMITS, number_problem
+
+ADAPTIVE = "adaptive"
+"""the value of a dqn policy's alpha that chooses alpha online from the loops (agents/adaptive.py)"""
+PLAIN = ("keep", "random", "greedy")
+"""policies without parameters"""
+KEYS: dict[str, dict[str, tuple[float, float, bool]]] = {
+    "mobil": MOBIL_LIMITS,
+    "sumo": SUMO_LC_LIMITS,
+    "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False)},
+}
+"""the parameters each policy takes: key -> (lowest, highest, lowest excluded)"""
+FORMS = "keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], dqn:PATH[,alpha=A|adaptive]"
+
+
+class PolicySpecError(UsageError):
+    """A policy string the grammar refuses (a usage error: one line, exit code 2)."""
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """A parsed policy string: its name, its numeric parameters in the order given, and for dqn the model path and
+    alpha (a number, 'adaptive', or None when not given)."""
+
+    name: str
+    params: tuple[tuple[str, float], ...] = ()
+    model: str | None = None
+    alpha: float | str | None = None
+
+    def values(self) -> dict[str, float]:
+        return dict(self.params)
+
+
+def split_dqn_spec(text: str) -> tuple[str, float | str | None]:
+    """'dqn:PATH[,alpha=A|adaptive]' -> (PATH, alpha: a number, 'adaptive' or None); PolicySpecError otherwise."""
+    spec = parse_policy(text)
+    if spec.model is None:
+        raise _fail(text, "is not a dqn policy; expected dqn:PATH[,alpha=A|adaptive]")
+    return spec.model, spec.alpha
+
+
+def model_file(path: str) -> str:
+    """The model file a dqn policy's PATH names: PATH, or PATH/model.pt when PATH is a folder (a training's)."""
+    return os.path.join(path, "model.pt") if os.path.isdir(path) else path
+
+
+def _fail(text: str, problem: str) -> PolicySpecError:
+    return PolicySpecError(f"policy {text!r}: {problem}")
+
+
+def _value(text: str, name: str, key: str, value: str) -> float | str:
+    if name == "dqn" and key == "alpha" and value == ADAPTIVE:
+        return ADAPTIVE
+    low, high, low_open = KEYS[name][key]
+    try:
+        number = float(value)
+    except ValueError:
+        number = math.nan
+    if problem := number_problem(number, low, high, low_open):
+        also = f" or {ADAPTIVE!r}" if name == "dqn" else ""
+        raise _fail(text, f"{key} must be {problem}{also}, got {value!r}")
+    return number
+
+
+def parse_policy(text: str) -> PolicySpec:
+    """The PolicySpec of a policy string; PolicySpecError naming the first problem (see the module's grammar)."""
+    if not isinstance(text, str) or not text:
+        raise PolicySpecError(f"policy must be one of {FORMS}; got {text!r}")
+    if any(ch.isspace() for ch in text):
+        raise _fail(text, "has a space; write it without spaces (KEY=VALUE,KEY=VALUE)")
+    name, colon, body = text.partition(":")
+    if name in PLAIN:
+        if colon:
+            raise _fail(text, f"{name} takes no parameters; write {name}")
+        return PolicySpec(name)
+    if name not in KEYS:
+        raise _fail(text, f"unknown policy {name!r}; expected one of {FORMS}")
+    items = body.split(",") if colon else []
+    model = None
+    if name == "dqn":
+        if not colon or not items[0]:
+            raise _fail(text, "dqn needs a model: dqn:PATH (a model file, or a folder holding model.pt)")
+        model, items = items[0], items[1:]
+    elif colon and not body:
+        raise _fail(text, f"nothing after ':'; write {name} for the defaults or {name}:KEY=VALUE")
+    seen: dict[str, float | str] = {}
+    for item in items:
+        key, eq, value = item.partition("=")
+        if not item:
+            raise _fail(text, "has an empty parameter (',' at the end, or ',,')")
+        if not eq:
+            if name == "dqn":
+                raise _fail(text, f"{item!r} is not KEY=VALUE; a model path cannot hold ',' (rename the folder)")
+            raise _fail(text, f"{item!r} is not KEY=VALUE")
+        if key not in KEYS[name]:
+            raise _fail(text, f"unknown parameter {key!r} of {name}; expected one of {', '.join(KEYS[name])}")
+        if key in seen:
+            raise _fail(text, f"parameter {key!r} is given twice")
+        if not value:
+            raise _fail(text, f"parameter {key!r} has no value")
+        seen[key] = _value(text, name, key, value)
+    if name == "dqn":
+        return PolicySpec(name, model=model, alpha=seen.get("alpha"))
+    return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))

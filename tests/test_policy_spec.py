@@ -1,0 +1,127 @@
+"""The one policy grammar (coopsumo/policy_spec.py): valid strings to typed specs, invalid strings to messages;
+the same message from the command line (one line, exit code 2, nothing written) and from the Gymnasium env."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from coopsumo.policy_spec import ADAPTIVE, PolicySpec, PolicySpecError, model_file, parse_policy
+from coopsumo.runio import USAGE_EXIT
+
+REPO = Path(__file__).resolve().parent.parent
+
+VALID: list[tuple[str, PolicySpec]] = [
+    ("keep", PolicySpec("keep")),
+    ("random", PolicySpec("random")),
+    ("greedy", PolicySpec("greedy")),
+    ("mobil", PolicySpec("mobil")),
+    ("mobil:p=0", PolicySpec("mobil", (("p", 0.0),))),
+    ("mobil:b_safe=6,p=0.25", PolicySpec("mobil", (("b_safe", 6.0), ("p", 0.25)))),
+    ("mobil:p=1,threshold=0.2,b_safe=3,bias=-0.1",
+     PolicySpec("mobil", (("p", 1.0), ("threshold", 0.2), ("b_safe", 3.0), ("bias", -0.1)))),
+    ("sumo", PolicySpec("sumo")),
+    ("sumo:lcCooperative=0.5,lcSpeedGain=1", PolicySpec("sumo", (("lcCooperative", 0.5), ("lcSpeedGain", 1.0)))),
+    ("dqn:m.pt", PolicySpec("dqn", model="m.pt")),
+    ("dqn:results/train/run", PolicySpec("dqn", model="results/train/run")),
+    ("dqn:a/model.pt,alpha=2", PolicySpec("dqn", model="a/model.pt", alpha=2.0)),
+    ("dqn:a/model.pt,alpha=1000", PolicySpec("dqn", model="a/model.pt", alpha=1000.0)),
+    ("dqn:a/model.pt,alpha=adaptive", PolicySpec("dqn", model="a/model.pt", alpha=ADAPTIVE)),
+]  # fmt: skip
+
+INVALID: list[tuple[str, str]] = [
+    ("", "policy must be one of"),
+    ("dqn:m.pt,alpha=2,alpha=3", "parameter 'alpha' is given twice"),
+    ("dqn:m.pt, alpha=2", "has a space"),
+    ("dqn:m.pt,", "has an empty parameter"),
+    ("dqn:", "dqn needs a model"),
+    ("dqn", "dqn needs a model"),
+    ("dqn:a,b/model.pt", "a model path cannot hold ','"),
+    ("dqn:m.pt,beta=1", "unknown parameter 'beta' of dqn"),
+    ("dqn:m.pt,alpha=", "parameter 'alpha' has no value"),
+    ("dqn:m.pt,alpha=-1", "alpha must be"),
+    ("dqn:m.pt,alpha=nan", "alpha must be"),
+    ("fast", "unknown policy 'fast'"),
+    ("Keep", "unknown policy 'Keep'"),
+    ("keep:", "keep takes no parameters"),
+    ("random:3", "random takes no parameters"),
+    ("mobil:", "nothing after ':'"),
+    ("mobil:p=", "parameter 'p' has no value"),
+    ("mobil:p=x", "p must be"),
+    ("mobil:p", "'p' is not KEY=VALUE"),
+    ("mobil:=1", "unknown parameter ''"),
+    ("mobil:p=1,,bias=0", "has an empty parameter"),
+    ("mobil:p=1,p=2", "parameter 'p' is given twice"),
+    ("mobil:p=11", "p must be"),
+    ("mobil:q=1", "unknown parameter 'q' of mobil"),
+    ("sumo:lcFoo=1", "unknown parameter 'lcFoo' of sumo"),
+    ("sumo:lcCooperative=2", "lcCooperative must be"),
+    (" keep", "has a space"),
+    ("mobil:p=0\t", "has a space"),
+]
+
+
+@pytest.mark.parametrize(("text", "spec"), VALID)
+def test_valid_strings_parse_to_their_spec(text: str, spec: PolicySpec) -> None:
+    assert parse_policy(text) == spec
+
+
+@pytest.mark.parametrize(("text", "fragment"), INVALID)
+def test_invalid_strings_give_one_line_naming_the_problem(text: str, fragment: str) -> None:
+    with pytest.raises(PolicySpecError) as err:
+        parse_policy(text)
+    message = str(err.value)
+    assert fragment in message and "\n" not in message, message
+    if text:
+        assert repr(text) in message  # the string as the user wrote it
+
+
+def test_a_folder_stands_for_its_model(tmp_path: Path) -> None:
+    (tmp_path / "run").mkdir()
+    assert model_file(str(tmp_path / "run")) == str(tmp_path / "run" / "model.pt")
+    assert model_file(str(tmp_path / "m.pt")) == str(tmp_path / "m.pt")
+
+
+CLI_CASES = ["dqn:m.pt,alpha=2,alpha=3", "dqn:m.pt, alpha=2", "dqn:m.pt,", "dqn:a,b/model.pt", "dqn:", "fast",
+             "mobil:p=", "mobil:p=x", "sumo:lcFoo=1", "keep:", "mobil:p=1,,bias=0", "dqn:m.pt,beta=1"]  # fmt: skip
+
+
+def test_the_command_line_and_the_gymnasium_env_give_the_same_line(tmp_path: Path) -> None:
+    """One process per command would cost seconds each: the commands run in one Python via runpy."""
+    from coopsumo.envs.highway_env import HighwayEnv
+
+    code = (
+        "import sys\nfrom coopsumo.simulate import main\n"
+        "for i, spec in enumerate(sys.argv[2:]):\n"
+        "    code = main(['--policy', spec, '--steps', '10', '--quiet', '--out', sys.argv[1] + f'/run{i}'])\n"
+        "    print(code, file=sys.stderr)\n"
+    )
+    res = subprocess.run([sys.executable, "-c", code, str(tmp_path), *CLI_CASES], capture_output=True, text=True,
+                         cwd=REPO, timeout=300)  # fmt: skip
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 2 * len(CLI_CASES), res.stderr  # one error line and the exit code per case
+    for i, spec in enumerate(CLI_CASES):
+        error, code = lines[2 * i], lines[2 * i + 1]
+        assert code == str(USAGE_EXIT), (spec, error)
+        with pytest.raises(ValueError) as err:
+            HighwayEnv(background=spec)
+        assert error.startswith("simulate: error: --policy") and error.endswith(str(err.value)), (spec, error)
+    assert list(tmp_path.iterdir()) == []  # nothing written
+
+
+def test_a_training_folder_drives_as_its_model(tmp_path: Path) -> None:
+    """`dqn:FOLDER` loads FOLDER/model.pt; a folder without one is named in the error."""
+    from coopsumo.agents.dqn import QNetwork, save_model
+    from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.config import DQN_PRESETS, to_dict
+
+    run = tmp_path / "run"
+    run.mkdir()
+    save_model(run / "model.pt", QNetwork(30.0, dueling=False), {"config": {"dqn": to_dict(DQN_PRESETS["paper"])}})
+    assert DQNPolicy.from_spec(f"dqn:{run}").net is not None
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(ValueError, match="model.pt"):
+        DQNPolicy.from_spec(f"dqn:{tmp_path / 'empty'}")
