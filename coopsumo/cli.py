@@ -55,6 +55,16 @@ def split_argv(argv: Sequence[str]) -> tuple[list[str], list[str]]:
     return list(argv[: i + 1]), list(argv[i + 1 :])
 
 
+def _out_of(argv: Sequence[str]) -> str | None:
+    """The value of --out in a command's options (--out X or --out=X), or None."""
+    for i, word in enumerate(argv):
+        if word == "--out" and i + 1 < len(argv):
+            return argv[i + 1]
+        if word.startswith("--out="):
+            return word[len("--out=") :]
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run `coopsumo [--nets-dir DIR] COMMAND [options]`; returns the command's exit code."""
     parser = build_parser()
@@ -68,6 +78,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error(problem)
     if args.nets_dir is not None and (problem := nets_dir_problem(args.nets_dir)):  # SUMO reads them there
         parser.error(f"--nets-dir {problem}")
+    if args.nets_dir is not None and (out := _out_of(rest)) is not None:
+        nets, target = Path(args.nets_dir).expanduser().resolve(), Path(out).expanduser().resolve()
+        if nets == target or nets.is_relative_to(target):
+            parser.error(f"--nets-dir {args.nets_dir} lies in --out {out}: the networks would fill the output folder; "
+                         "pick a networks folder outside it")  # fmt: skip
     if args.nets_dir is not None:
         # read by sim.network when a network is built, here and in the study's worker processes
         os.environ[NETS_ENV] = str(Path(args.nets_dir).expanduser().resolve())

@@ -19,7 +19,7 @@ import signal
 import socket
 import subprocess
 import sys
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -274,13 +274,37 @@ def parse_number(text: str) -> float:
     return float(text)
 
 
+def split_list(flag: str, text: str) -> list[str]:
+    """The items of a comma-separated flag value, spaces around them dropped; UsageError naming the flag for an
+    empty value or an empty item (',,' or a ',' at either end) and for an item given twice."""
+    items = [x.strip() for x in text.split(",")]
+    if not text.strip():
+        raise UsageError(f"{flag} is empty; give a comma-separated list")
+    if any(not x for x in items):
+        raise UsageError(f"{flag} has an empty item in {text!r} (',,' or a ',' at either end)")
+    twice = sorted({x for x in items if items.count(x) > 1})
+    if twice:
+        raise UsageError(f"{flag} lists {', '.join(twice)} more than once in {text!r}")
+    return items
+
+
+def name_list(flag: str, text: str, known: Sequence[str]) -> tuple[str, ...]:
+    """A comma-separated list of names out of `known` (split_list); UsageError naming an unknown one."""
+    items = split_list(flag, text)
+    unknown = [x for x in items if x not in known]
+    if unknown:
+        raise UsageError(f"{flag}: unknown {', '.join(map(repr, unknown))}; expected a comma-separated subset of "
+                         f"{','.join(known)}")  # fmt: skip
+    return tuple(items)
+
+
 def number_list(flag: str, text: str, low: float | None = None, high: float | None = None,
                 low_open: bool = False, whole: bool = False, note: str = "") -> tuple[float, ...]:  # fmt: skip
     """A comma-separated list of finite numbers (fractions like 1/8 allowed) inside the bounds, not empty.
 
     whole: every value must be a whole number; note is added to the range in the message.
     """
-    parts = [x for x in text.split(",") if x.strip()]
+    parts = split_list(flag, text)
     kind = "whole numbers" if whole else "numbers"
     try:
         values = tuple(parse_number(x) for x in parts)
@@ -309,9 +333,6 @@ def distinct_list(flag: str, text: str, low: float | None = None, low_open: bool
                   note: str = "", high: float | None = None) -> tuple[float, ...]:  # fmt: skip
     """A study axis: comma-separated finite numbers inside the bounds, no empty item and no value twice (they
     name run folders: number_name); UsageError otherwise."""
-    items = text.split(",")
-    if any(not x.strip() for x in items):
-        raise UsageError(f"{flag} has an empty item in {text!r}; give comma-separated numbers")
     values = number_list(flag, text, low=low, high=high, low_open=low_open, note=note)
     names = [number_name(v) for v in values]
     twice = sorted({n for n in names if names.count(n) > 1})

@@ -151,6 +151,21 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     # bench (no output folder)
     ("bench", ["--steps", "5"], ("--steps",)),
     ("bench", ["--quick", "--bogus"], ("--bogus",)),
+    # issue 35: list items and flag rules, declared once (validation.split_list, train.FLAG_NEEDS)
+    ("scenario2", ["--profile", "tiny", "--alphas", "0,,2"], ("--alphas", "empty item", "0,,2")),
+    ("scenario2", ["--profile", "tiny", "--alphas", "0,2,"], ("--alphas", "empty item")),
+    ("scenario2", ["--profile", "tiny", "--lanes", "3,3"], ("--lanes", "3 more than once")),
+    ("scenario2", ["--profile", "tiny", "--policies", "dqn,,mobil"], ("--policies", "empty item")),
+    ("scenario2", ["--profile", "tiny", "--policies", "dqn,fast"], ("--policies", "'fast'")),
+    ("ablation", ["--profile", "tiny", "--variants", "paper,,mask"], ("--variants", "empty item")),
+    ("ablation", ["--profile", "tiny", "--variants", "paper,paper"], ("--variants", "paper more than once")),
+    ("ablation", ["--profile", "tiny", "--quick"], ("--quick", "--profile")),
+    ("scenario1", ["--quick", "--alphas", "0,2,2"], ("--alphas", "2 more than once")),
+    ("scenario1", ["--quick", "--preset", "default,,paper"], ("--preset", "empty item")),
+    ("train", [*TRAIN, "--alpha-relabel", "0.3"], ("--alpha-relabel", "--alpha-conditioned")),
+    ("train", [*TRAIN, "--alpha-period", "300"], ("--alpha-period", "--alpha-conditioned")),
+    ("train", [*TRAIN, "--episode-steps", "3000"], ("--episode-steps", "--train-t-up")),
+    ("train", [*TRAIN, "--select-every", "0", "--validation-steps", "300"], ("--validation-steps", "--select-every")),
 ]  # fmt: skip
 
 SUBPROCESS = (

@@ -683,9 +683,22 @@ def flag_value(flag: str, name: str, value: Any) -> Any:
     return value
 
 
+FLAG_NEEDS: dict[str, tuple[str, Callable[[DQNConfig], bool]]] = {
+    "--alpha-period": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
+    "--alpha-relabel": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
+    "--validation-seed": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
+    "--validation-t-up": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
+    "--validation-steps": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
+    "--episode-steps": ("--train-t-up or --accident-share", lambda c: bool(c.train_t_ups) or c.accident_share > 0),
+}
+"""learner flags that act only beside another setting: given without it, they are refused (not silently ignored)"""
+
+
 def learner_from_args(args: Any) -> DQNConfig:
-    """The preset with every given learner flag applied; a bad value is a usage error naming the flag."""
+    """The preset with every given learner flag applied; a bad value is a usage error naming the flag, and so is a
+    flag that would do nothing without another (FLAG_NEEDS)."""
     cfg = DQN_PRESETS[args.preset]
+    given = [flag for flag, name, _, _ in LEARNER_FLAGS if getattr(args, name) is not None]
     for flag, name, _, _ in LEARNER_FLAGS:
         value = flag_value(flag, name, getattr(args, name))
         if value is None:
@@ -696,6 +709,9 @@ def learner_from_args(args: Any) -> DQNConfig:
         except ConfigError as err:
             raise UsageError(f"{flag}: {err}") from None
     cfg.validate()
+    for flag in given:
+        if flag in FLAG_NEEDS and not FLAG_NEEDS[flag][1](cfg):
+            raise UsageError(f"{flag} acts only with {FLAG_NEEDS[flag][0]}; without it, it would do nothing")
     return cfg
 
 

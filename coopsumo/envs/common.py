@@ -13,10 +13,11 @@ import numpy as np
 from gymnasium import spaces
 
 from coopsumo.agents.policies import Policy, make_policy
-from coopsumo.config import POLICY_STREAM, ControlConfig, rng_stream
+from coopsumo.config import POLICY_STREAM, ConfigError, ControlConfig, SimConfig, rng_stream
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, Observation
 from coopsumo.sim.physics import ACTION_NAMES
 from coopsumo.sim.world import StepOutcome, World
+from coopsumo.validation import MAX_STEPS
 
 GRID_SHAPE = (N_FRAMES, N_SIDES, N_CELLS)
 """(frames, lanes, cells) of one vehicle's occupancy grids (the same as coopsumo.agents.dqn.GRID_SHAPE)"""
@@ -38,6 +39,49 @@ def observation_space() -> spaces.Dict:
 def action_space() -> spaces.Discrete:
     """0 left, 1 right, 2 speedup, 3 none (coopsumo.sim.physics)."""
     return spaces.Discrete(N_ACTIONS)
+
+
+def shown(value: Any) -> str:
+    """repr(value) on one line, at most 80 characters (for messages)."""
+    text = repr(value).replace("\n", " ")
+    return text if len(text) <= 80 else f"{text[:77]}..."
+
+
+def int_param(name: str, value: Any, low: int, high: int = MAX_STEPS) -> int:
+    """The constructor parameter `name` as an int from low to high; a ConfigError (a ValueError) naming the
+    parameter and the value passed otherwise. A bool (True is not 1), a float (3.0 too), a string or None is not
+    an integer; a numpy integer is."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or not low <= value <= high:
+        raise ConfigError(f"{name} must be an integer from {low} to {high}, got {shown(value)}")
+    return int(value)
+
+
+def sim_config(cfg: Any) -> SimConfig:
+    """The constructor parameter `cfg`: a SimConfig, or the default one for None; ConfigError otherwise."""
+    if cfg is None:
+        return SimConfig()
+    if not isinstance(cfg, SimConfig):
+        raise ConfigError(f"cfg must be a coopsumo.config.SimConfig or None, got {type(cfg).__name__} {shown(cfg)}")
+    return cfg
+
+
+def path_param(name: str, value: Any) -> str | None:
+    """The constructor parameter `name` as a path string (from a non-empty str or a Path), or None; ConfigError
+    otherwise."""
+    if value is None:
+        return None
+    if not isinstance(value, str | Path) or value == "":
+        raise ConfigError(f"{name} must be a file path (str or pathlib.Path) or None, got {shown(value)}")
+    return str(value)
+
+
+def check_episode(started: bool, ended: bool) -> None:
+    """RuntimeError unless an episode is running: step() before reset() (or after close() or a failed reset()),
+    or after the episode ended (the agent, or every agent, terminated or truncated)."""
+    if not started:
+        raise RuntimeError("no episode is running: call reset() before step() (also after close() or a failed reset())")
+    if ended:
+        raise RuntimeError("the episode has ended: call reset() to start a new one")
 
 
 def check_action(action: Any, who: str = "action") -> int:
@@ -87,12 +131,13 @@ def background_policy(spec: str, seed: int, control: ControlConfig) -> Policy:
 
 
 def run_seed(seed: int | None, rng: np.random.Generator | None) -> int:
-    """The SimConfig seed of an episode: `seed` itself when given (checked), else the next draw of rng."""
+    """The SimConfig seed of an episode: `seed` itself when given (checked: an integer, not a bool, in range), else
+    the next draw of rng."""
     if seed is None:
         if rng is None:
             raise ValueError("need a generator to draw a seed from")
         return int(rng.integers(SEED_LIMIT))
-    if not (isinstance(seed, int | np.integer) and 0 <= seed <= SEED_LIMIT):
+    if isinstance(seed, bool) or not (isinstance(seed, int | np.integer) and 0 <= seed <= SEED_LIMIT):
         raise ValueError(f"seed must be an integer in [0, {SEED_LIMIT}], got {seed!r}")
     return int(seed)
 

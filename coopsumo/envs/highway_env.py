@@ -15,7 +15,8 @@ one env step is k steps of 0.1 s: the action is held as coopsumo.agents.decision
 change is requested once, then speed-up), the rewards are summed, the occupancy frames are those
 of the decision steps, and the agent decides only on steps with step_count % k == 0.
 Terminated when the agent leaves the road (the last
-observation is repeated); truncated after `max_steps` agent steps.
+observation is repeated); truncated after `max_steps` agent steps. step() after the end (or before
+reset(), after close() or a failed reset()) raises RuntimeError: call reset().
 
 Spaces: observation Dict(grids: Box(0, 1, (3, 3, 20), uint8) = frames (oldest first) x lanes
 (left, own, right) x cells, speed_err: Box(-inf, inf, (3,), float32) = v - v_exp (m/s), oldest
@@ -39,19 +40,26 @@ import numpy as np
 
 from coopsumo.agents.decisions import ActionHold, follow_up
 from coopsumo.agents.policies import Policy
-from coopsumo.config import SimConfig
+from coopsumo.config import ConfigError, SimConfig
 from coopsumo.envs.common import (
     WorldSlot,
     action_space,
     background_policy,
     check_action,
+    check_episode,
+    int_param,
     observation_space,
+    path_param,
     run_seed,
+    shown,
+    sim_config,
     step_info,
     vehicle_observation,
 )
+from coopsumo.sim.driver import sumo_models
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.world import World
+from coopsumo.validation import MAX_STEPS
 
 DEFAULT_WARMUP_STEPS = 300
 """30 s of traffic before the agent is chosen: a few dozen vehicles ahead of it on every lane"""
@@ -66,7 +74,9 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
 
     cfg: the simulation (road, demand, control, reward, accident); its seed, steps and policy are
     replaced per episode. background: a policy spec for the other vehicles (keep, random, greedy,
-    mobil[:...], dqn:PATH); model_path: shorthand for background="dqn:PATH". Default: keep.
+    mobil[:...], dqn:PATH; not sumo, whose models would ignore the agent); model_path: shorthand for
+    background="dqn:PATH". Default: keep. A bad parameter is a ConfigError (a ValueError) naming it and the value
+    passed; a bool, float, str or None is not an integer.
     """
 
     metadata: dict[str, Any] = {"render_modes": []}
@@ -82,18 +92,26 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
         render_mode: str | None = None,
         decision_interval: int = 1,
     ) -> None:
+        # every parameter checked as passed (ConfigError, a ValueError, naming it), before anything is derived from it
+        base = sim_config(cfg)
+        warmup_steps = int_param("warmup_steps", warmup_steps, 0)
+        max_steps = int_param("max_steps", max_steps, 1)
+        decision_interval = int_param("decision_interval", decision_interval, 1)
+        total = warmup_steps + max_steps * decision_interval
+        if total > MAX_STEPS:
+            raise ConfigError(f"warmup_steps + max_steps * decision_interval must be at most {MAX_STEPS} simulation "
+                              f"steps, got {warmup_steps} + {max_steps} * {decision_interval} = {total}")  # fmt: skip
         if render_mode is not None:
-            raise ValueError(f"HighwayEnv does not render; got render_mode={render_mode!r}")
-        if background is not None and model_path is not None:
-            raise ValueError("give either background or model_path, not both")
-        if warmup_steps < 0 or max_steps < 1:
-            raise ValueError(f"need warmup_steps >= 0 and max_steps >= 1, got {warmup_steps} and {max_steps}")
-        if not (isinstance(decision_interval, int) and decision_interval >= 1):
-            raise ValueError(f"decision_interval must be an integer >= 1, got {decision_interval!r}")
+            raise ConfigError(f"render_mode must be None (HighwayEnv does not render), got {shown(render_mode)}")
+        if background is not None and (not isinstance(background, str) or not background):
+            raise ConfigError(f"background must be a policy spec (keep, random, greedy, mobil[:...], dqn:PATH) or "
+                              f"None, got {shown(background)}")  # fmt: skip
+        model = path_param("model_path", model_path)
+        if background is not None and model is not None:
+            raise ConfigError("give either background or model_path, not both")
         self.decision_interval = decision_interval
-        self.background = background or (f"dqn:{model_path}" if model_path is not None else "keep")
-        base = cfg if cfg is not None else SimConfig()
-        self.cfg = dataclasses.replace(base, steps=warmup_steps + max_steps * decision_interval, policy=self.background)
+        self.background = background or (f"dqn:{model}" if model is not None else "keep")
+        self.cfg = dataclasses.replace(base, steps=total, policy=self.background)
         self.cfg.validate()
         self.warmup_steps = warmup_steps
         self.max_steps = max_steps
@@ -101,6 +119,9 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
         self.observation_space = observation_space()
         self.action_space = action_space()
         background_policy(self.background, 0, self.cfg.control)  # a bad spec fails here, before SUMO starts
+        if sumo_models(self.background):  # a valid spec, but SUMO's models would drive the agent too
+            raise ConfigError(f"background must be a coopsumo policy, got {self.background!r}: SUMO's own models "
+                              "would drive the agent's vehicle too and ignore its actions")  # fmt: skip
         self._slot = WorldSlot()
         self._policy: Policy | None = None
         self._bg_hold = ActionHold(1)
@@ -108,7 +129,8 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
         self._row = -1  # the agent's row in it
         self._last: dict[str, np.ndarray] | None = None  # the agent's last observation
         self._steps = 0
-        self._done = True
+        self._started = False  # an episode was reset (not closed since, its reset did not fail)
+        self._done = False  # ... and it ended
         self.agent_num = -1
         """vehicle number of the agent in the current episode"""
 
@@ -120,8 +142,11 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        if seed is not None:
+            seed = run_seed(seed, None)  # a bad seed changes nothing (ValueError); a numpy integer becomes an int
         super().reset(seed=seed)
         episode_seed = run_seed(seed, self.np_random)
+        self._started = False  # until this reset succeeds
         cfg = dataclasses.replace(self.cfg, seed=episode_seed)
         world = self._slot.open(cfg)
         self._policy = background_policy(self.background, episode_seed, cfg.control)
@@ -147,14 +172,14 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
             obs = self._observe(world)
         self._set_obs(obs)
         self._steps = 0
-        self._done = False
+        self._started, self._done = True, False
         info = {"vehicle": self.agent_num, "seed": episode_seed, "sim_step": world.step_count}
         return self._copy_last(), info
 
     def step(self, action: Any) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        check_episode(self._started, self._done)
         world, obs, policy = self._slot.world, self._obs, self._policy
-        if world is None or obs is None or policy is None or self._done:
-            raise RuntimeError("call reset() before step() (and after an episode ends)")
+        assert world is not None and obs is not None and policy is not None
         action = check_action(action)  # TypeError/ValueError naming it: True, 1.0, None, arrays are not actions
         reward = 0.0
         info: dict[str, Any] = {}
@@ -205,7 +230,7 @@ class HighwayEnv(gym.Env[dict[str, Any], np.int64]):
         self._slot.close()
         self._obs = None
         self._policy = None
-        self._done = True
+        self._started = False
         super().close()
 
     def _set_obs(self, obs: Observation) -> None:

@@ -11,8 +11,13 @@ appear (vehicles whose insertion is delayed beyond the episode never become agen
 Rewards: coopsumo.sim.reward's RewardParts.total for the step the agent acted in (components in
 `infos`); an agent appearing in a step gets its first observation and reward 0.0.
 
+The episode ends when `agents` is empty: after truncation, or when the last agents terminated and
+no new vehicle appeared in that step (sparse demand can empty the road before max_steps). step() after
+the end (or before reset(), after close() or a failed reset()) raises RuntimeError: call reset().
+
 reset() starts a new World (closing the previous one) and steps the empty road until the first
-vehicle is on it, so `agents` is never empty after reset(). Seeding as in HighwayEnv: reset(seed=s)
+vehicle is on it, so `agents` is empty after reset() only when no vehicle reaches the road within
+max_steps (then the episode has already ended). Seeding as in HighwayEnv: reset(seed=s)
 runs with SimConfig.seed = s; an unseeded reset draws the seed from the env's generator, which
 the last seeded reset re-seeded (or from fresh entropy if there was none).
 
@@ -42,8 +47,11 @@ from coopsumo.envs.common import (
     WorldSlot,
     action_space,
     check_action,
+    check_episode,
+    int_param,
     observation_space,
     run_seed,
+    sim_config,
     step_info,
     vehicle_observation,
 )
@@ -67,19 +75,19 @@ def agent_num(name: str) -> int:
 
 
 class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
-    """All vehicles as agents; see the module docstring. cfg's seed, steps and policy are replaced."""
+    """All vehicles as agents; see the module docstring. cfg's seed, steps and policy are replaced. A bad parameter
+    is a ConfigError (a ValueError) naming it and the value passed, as in HighwayEnv."""
 
     metadata: dict[str, Any] = {"name": "coopsumo_highway_v0", "render_modes": [], "is_parallelizable": True}
 
     def __init__(
         self, cfg: SimConfig | None = None, *, max_steps: int = DEFAULT_MAX_STEPS, decision_interval: int = 1
     ) -> None:
-        if max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {max_steps}")
-        if not (isinstance(decision_interval, int) and decision_interval >= 1):
-            raise ValueError(f"decision_interval must be an integer >= 1, got {decision_interval!r}")
+        # every parameter checked as passed (ConfigError, a ValueError, naming it), as in HighwayEnv
+        base = sim_config(cfg)
+        max_steps = int_param("max_steps", max_steps, 1)
+        decision_interval = int_param("decision_interval", decision_interval, 1)
         self.decision_interval = decision_interval
-        base = cfg if cfg is not None else SimConfig()
         self.cfg = dataclasses.replace(base, steps=max_steps, policy="agents")
         self.cfg.validate()
         self.max_steps = max_steps
@@ -96,6 +104,8 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
         self._obs: Observation | None = None
         self._finished: set[int] = set()
         self._last: dict[int, dict[str, np.ndarray]] = {}  # vehicle number -> its last observation
+        self._started = False  # an episode was reset (not closed since, its reset did not fail)
+        self._done = False  # ... and it ended: no agent left
         self.seed_used = -1
         """SimConfig seed of the current episode"""
 
@@ -117,8 +127,9 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
                 self._seed_rng = np.random.default_rng()
             self.seed_used = run_seed(None, self._seed_rng)
         else:
-            self.seed_used = run_seed(seed, None)
+            self.seed_used = run_seed(seed, None)  # a bad seed changes nothing (ValueError)
             self._seed_rng = np.random.default_rng(self.seed_used)
+        self._started, self._obs, self.agents = False, None, []  # until this reset succeeds
         world = self._slot.open(dataclasses.replace(self.cfg, seed=self.seed_used))
         obs = world.observe()
         while len(obs) == 0 and world.step_count < self.max_steps - 1:
@@ -130,6 +141,7 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
         self.agents = [agent_name(n) for n in self._live(obs)]
         observations = {a: self._copy(agent_num(a)) for a in self.agents}
         infos: dict[str, dict[str, Any]] = {a: {"seed": self.seed_used} for a in self.agents}
+        self._started, self._done = True, not self.agents
         return observations, infos
 
     def step(
@@ -141,9 +153,9 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
         dict[str, bool],
         dict[str, dict[str, Any]],
     ]:
+        check_episode(self._started, self._done)
         world, obs = self._slot.world, self._obs
-        if world is None or obs is None:
-            raise RuntimeError("call reset() before step()")
+        assert world is not None and obs is not None
         if not isinstance(actions, Mapping):
             raise TypeError(f"actions must be a dict of live agent name -> action 0-3, got {type(actions).__name__} "
                             f"{actions!r:.80}")  # fmt: skip
@@ -194,6 +206,7 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
                 terminations[name] = truncations[name] = False
                 infos[name] = {"vehicle": num, "new": True}
         self.agents = [] if truncate else [agent_name(n) for n in sorted(present)]
+        self._done = not self.agents
         return observations, rewards, terminations, truncations, infos
 
     def close(self) -> None:
@@ -201,6 +214,7 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
         self._slot.close()
         self._obs = None
         self.agents = []
+        self._started = False
 
     def _hold(self, world: World, obs: Observation, batch: np.ndarray, first: StepOutcome) -> StepOutcome:
         """Run the rest of a decision interval with the held actions; the first step's outcome with rewards summed.

@@ -41,7 +41,7 @@ from coopsumo.config import (
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies import robustness
 from coopsumo.studies.runner import add_backend_flags, check_backend, failed_exit, study_root
-from coopsumo.validation import alpha_list, number_name, out_dir, seed_count, workers
+from coopsumo.validation import alpha_list, name_list, number_name, out_dir, seed_count, workers
 
 EVAL_SEED_OFFSET = 1000
 """a model trained with seed s is evaluated on seed EVAL_SEED_OFFSET + s (a demand it never saw)"""
@@ -163,10 +163,7 @@ def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int) -> str:
 
 def variant_list(flag: str, text: str) -> tuple[str, ...]:
     """The variant names of a comma-separated flag value; UsageError naming the flag unless all are known."""
-    names = tuple(v.strip() for v in text.split(",") if v.strip())
-    if not names or any(n not in VARIANT_NAMES for n in names):
-        raise UsageError(f"{flag} must be a comma-separated subset of {','.join(VARIANT_NAMES)}, got {text!r}")
-    return names
+    return name_list(flag, text, VARIANT_NAMES)
 
 
 def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
@@ -589,8 +586,9 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo learning",
                description="Ablation of the DQN learner and its alpha response (results/learning).")  # fmt: skip
-    p.add_argument("--profile", choices=tuple(PROFILES), default="full", help="study size (full: paper scale)")
-    p.add_argument("--quick", action="store_true", help="the same as --profile quick")
+    size = p.add_mutually_exclusive_group()  # one way to say the study's size
+    size.add_argument("--profile", choices=tuple(PROFILES), default="full", help="study size (full: paper scale)")
+    size.add_argument("--quick", action="store_true", help="the same as --profile quick")
     p.add_argument("--variants", default=None,
                    help=f"comma-separated subset of {','.join(VARIANT_NAMES)} (default: the profile's)")
     p.add_argument("--alphas", default=None,

@@ -58,6 +58,7 @@ from coopsumo.validation import (
     alpha_list,
     distinct_list,
     integer,
+    name_list,
     number_name,
     out_dir,
     seed_count,
@@ -104,11 +105,7 @@ def _alpha_list(text: str) -> tuple[float, ...]:
 
 
 def _preset_list(text: str) -> tuple[str, ...]:
-    names = tuple(dict.fromkeys(v.strip() for v in text.split(",") if v.strip()))
-    unknown = [n for n in names if n not in DQN_PRESETS]
-    if not names or unknown:
-        raise UsageError(f"--preset must be one or more of {', '.join(DQN_PRESETS)} (comma-separated), got {text!r}")
-    return names
+    return name_list("--preset", text, tuple(DQN_PRESETS))
 
 
 def build_parser() -> Parser:

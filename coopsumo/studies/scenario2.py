@@ -72,6 +72,7 @@ from coopsumo.validation import (
     alpha_list,
     integer,
     min_t_up_s,
+    name_list,
     number_list,
     number_name,
     out_dir,
@@ -242,9 +243,7 @@ def profile_from_args(args: Any) -> Profile:
         profile = replace(profile, preset=args.preset)
     if args.conditioned:
         profile = replace(profile, conditioned=True)
-    policies = {x.strip() for x in args.policies.split(",") if x.strip()}
-    if not policies or not policies <= set(POLICIES):
-        raise UsageError(f"policies must be a comma-separated list of {' and '.join(POLICIES)}, got {args.policies!r}")
+    policies = set(name_list("--policies", args.policies, POLICIES))
     profile = replace(profile, policies=tuple(x for x in POLICIES if x in policies))
     if profile.conditioned and "dqn" not in profile.policies:
         raise UsageError("--conditioned trains the DQN cells once per condition and seed: --policies must hold dqn")
