@@ -10,6 +10,7 @@ an alpha-conditioned network also reads each vehicle's alpha (N,), the lane-chan
 from __future__ import annotations
 
 import copy
+import hashlib
 import os
 import tempfile
 from dataclasses import dataclass
@@ -492,11 +493,28 @@ def _first_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
+MAX_MODEL_BYTES = 512 * 2**20
+"""a model file larger than this is refused before it is read (a coopsumo model is a few MB)"""
+
+
+def weights_digest(state_dict: dict[str, torch.Tensor]) -> str:
+    """sha256 of a network's weights: every tensor's name, shape, dtype and bytes, in name order."""
+    h = hashlib.sha256()
+    for name in sorted(state_dict):
+        t = state_dict[name].detach().cpu().contiguous()
+        h.update(f"{name}:{tuple(t.shape)}:{t.dtype}".encode())
+        h.update(t.numpy().tobytes())
+    return h.hexdigest()
+
+
 def save_model(path: str | os.PathLike[str], net: QNetwork, meta: dict[str, Any]) -> None:
-    """Write net and meta (plain types only) to path atomically (temp file in the same folder, then rename)."""
+    """Write net and meta (plain types only) to path atomically (temp file in the same folder, then rename), with
+    the digest of its weights (weights_digest: load_model refuses weights changed after they were written)."""
     path = Path(path)
+    weights = {k: v.detach().clone() for k, v in net.state_dict().items()}
     payload = {
-        "state_dict": {k: v.detach().clone() for k, v in net.state_dict().items()},
+        "state_dict": weights,
+        "weights_sha256": weights_digest(weights),
         "grid_shape": list(GRID_SHAPE),
         "n_actions": N_ACTIONS,
         "speed_scale_mps": net.speed_scale_mps,
@@ -522,10 +540,16 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
     path = Path(path)
     if not path.is_file():
         raise ModelFileError(f"model file not found: {path}")
+    if (size := path.stat().st_size) > MAX_MODEL_BYTES:
+        raise ModelFileError(f"model file {path} is {size / 2**20:,.0f} MB; a coopsumo model is a few MB "
+                             "(not a model?)")  # fmt: skip
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a corrupt or unsafe file
-        raise ModelFileError(f"cannot read model file {path}: {_first_line(exc)}") from exc
+        text = _first_line(exc)
+        if "weights_only" in text:  # torch's advice to load with weights_only=False is unsafe and wrong here
+            text = "not a file of tensors torch can read safely"
+        raise ModelFileError(f"cannot read model file {path}: {text}") from exc
     if not isinstance(payload, dict) or any(k not in payload for k in _MODEL_KEYS):
         raise ModelFileError(f"not a coopsumo model file: {path}")
     if problem := model_problem(payload):  # types and ranges (file_checks)
@@ -550,4 +574,8 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
         raise ModelFileError(f"model {path} has incompatible weights: {_first_line(exc)}") from exc
     if not isinstance(payload["meta"], dict):
         raise ModelFileError(f"model {path} has meta of type {type(payload['meta']).__name__}, expected a dict")
+    stored = payload.get("weights_sha256")  # written since digests: the weights must be the ones saved
+    if stored is not None and stored != weights_digest(payload["state_dict"]):
+        raise ModelFileError(f"model {path} has weights that do not match the digest saved with them (changed after "
+                             "the model was written?); train it again")  # fmt: skip
     return net, payload["meta"]

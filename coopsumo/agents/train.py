@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import csv
 import functools
+import json
 import shutil
 import signal
 import sys
@@ -52,6 +53,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
     TrainConfig,
+    results_view,
     to_dict,
     train_config_from_dict,
 )
@@ -513,6 +515,7 @@ def train(
     trainer = Trainer(cfg, out, progress, on_steps)
     out.mkdir(parents=True, exist_ok=True)
     if resume:
+        check_recorded_config(out, cfg)
         try:
             trainer.restore(Trainer.load_checkpoint(out))
         except (RuntimeError, KeyError, ValueError, TypeError) as err:  # weights, buffer or RNG of another shape
@@ -603,6 +606,25 @@ def training_folder(out: Path, resume: bool, progress: bool = True) -> Path:
         print(f"train: {out} holds a finished training; the new one is built in {work} and replaces it when it "
               "has finished", file=sys.stderr)  # fmt: skip
     return work
+
+
+def check_recorded_config(out: Path, cfg: TrainConfig) -> None:
+    """Before a resume: the folder's config.json must record the checkpoint's configuration (a checkpoint copied in
+    from another training is refused in one line); a missing config.json is written again."""
+    path = out / "config.json"
+    try:
+        recorded = json.loads(path.read_text())["config"]
+    except FileNotFoundError:
+        write_json(path, model_meta(cfg))
+        return
+    except (OSError, ValueError, KeyError, TypeError):
+        raise UsageError(f"{path} is unreadable or not a training's configuration; train again without "
+                         "--resume") from None
+    view = results_view(json.loads(json.dumps(to_dict(cfg))))
+    if results_view(recorded) != view:
+        differ = sorted(k for k in set(view) | set(recorded) if results_view(recorded.get(k)) != view.get(k))
+        raise UsageError(f"checkpoint {out / 'checkpoint.pt'} is another training's than {path} records (they differ "
+                         f"in {', '.join(differ)}): copied in?; train again without --resume")  # fmt: skip
 
 
 def default_out(cfg: TrainConfig) -> Path:

@@ -18,6 +18,7 @@ import math
 import multiprocessing as mp
 import os
 import queue
+import re
 import signal
 import sys
 import time
@@ -99,7 +100,8 @@ def finished_training(out: Path, config: dict[str, Any]) -> dict[str, Any] | Non
     done = isinstance(marker, dict) and marker.get("kind") == "train" and isinstance(marker.get("files"), list)
     if not (done and "model.pt" in marker["files"] and (out / "model.pt").is_file() and isinstance(summary, dict)):
         return None
-    if model_folder_problem(out) is not None:  # a model file that does not load (empty, cut short) is trained again
+    if (problem := model_folder_problem(out)) is not None:  # a model that does not load or is not this training's
+        print(f"coopsumo: training folder {out} {problem}; training it again", file=sys.stderr)
         return None
     return summary if results_view(stored) == results_view(json.loads(json.dumps(config))) else None
 
@@ -271,6 +273,41 @@ def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
     return record
 
 
+COUNTS = ("departed", "arrived", "collisions", "teleports", "lane_changes", "lane_changes_rejected",
+          "insertion_blocked", "insertion_pending_at_end", "steps")  # fmt: skip
+"""summary values that count something: whole numbers >= 0"""
+MAX_SPEED_MPS = 50.0
+"""no run's speed is above this (1.5 x the road's 33.34 m/s limit, which no vehicle's expected speed exceeds)"""
+MAX_LANE_FLOW_VEH_H = 36_000.0
+"""no lane carries more than one vehicle per 0.1 s step"""
+MAX_LANES = 6
+
+
+def implausible(summary: dict[str, Any]) -> str | None:
+    """Why a summary's values cannot come from a run, or None: counts negative or fractional, a speed outside
+    0..MAX_SPEED_MPS, a negative rate, time or share, a throughput above MAX_LANES lanes at MAX_LANE_FLOW_VEH_H."""
+    for key, value in summary.items():
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            continue  # record_problem judges the values a study reads
+        if key in COUNTS and (value < 0 or value != int(value)):
+            return f"has summary {key} = {value}, not a count (a whole number >= 0)"
+        if key.endswith("_mps") and not key.startswith("table_") and not 0 <= value <= MAX_SPEED_MPS:
+            return f"has summary {key} = {value:g} m/s, outside 0 to {MAX_SPEED_MPS:g} (no run drives so)"
+        if key == "throughput_veh_per_h" and not 0 <= value <= MAX_LANES * MAX_LANE_FLOW_VEH_H:
+            return f"has summary {key} = {value:g}, more than {MAX_LANES} lanes can carry"
+        if key.endswith(("_per_vehicle", "_veh_h", "_time_s", "_share")) and value < 0:
+            return f"has summary {key} = {value:g}, below 0"
+    number = {k: float(v) for k, v in summary.items() if isinstance(v, int | float) and not isinstance(v, bool)}
+    if number.get("arrived", 0.0) > number.get("departed", math.inf):
+        return f"has summary arrived = {number['arrived']:g} above departed = {number['departed']:g}"
+    if {"lane_changes", "departed", "lane_changes_per_vehicle"} <= set(number) and number["departed"] > 0:
+        ratio = number["lane_changes"] / number["departed"]
+        if not math.isclose(ratio, number["lane_changes_per_vehicle"], rel_tol=1e-3, abs_tol=1e-3):
+            return (f"has summary lane_changes = {number['lane_changes']:g} for {number['departed']:g} vehicles, but "
+                    f"lane_changes_per_vehicle = {number['lane_changes_per_vehicle']:g}: edited?")  # fmt: skip
+    return None
+
+
 def record_problem(record: Any, required: Sequence[str]) -> str | None:
     """Why a stored record cannot be trusted, or None: it must be a JSON object of status "ok" with a non-empty
     summary object whose `required` values (the ones the study reads) are finite numbers."""
@@ -289,7 +326,7 @@ def record_problem(record: Any, required: Sequence[str]) -> str | None:
             return f"has summary {key} = {json.dumps(value)[:40]}, not a number"
         if not math.isfinite(value):
             return f"has summary {key} = {value}, not a finite number"
-    return None
+    return implausible(summary)
 
 
 def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str, Any]:
@@ -357,11 +394,34 @@ def run_folder_problem(out: Path, required: Sequence[str]) -> str | None:
         complete = False
     if not complete:
         return "has a missing or cut-short detectors.xml"
+    if problem := detector_flow_problem(out / "detectors.xml"):
+        return problem
     if (out / "trajectories.parquet").exists():
         try:
             pq.read_metadata(out / "trajectories.parquet")
         except Exception:  # pyarrow raises several types for a damaged file
             return "has an unreadable trajectories.parquet"
+    return None
+
+
+_FLOW = re.compile(rb'\sflow="([^"]*)"')
+
+
+def detector_flow_problem(path: Path) -> str | None:
+    """Why the loops' flows in an E1 detectors.xml cannot come from a run, or None: every flow="..." a number from
+    0 to MAX_LANE_FLOW_VEH_H (a loop lies on one lane)."""
+    try:
+        text = path.read_bytes()
+    except OSError:
+        return "has an unreadable detectors.xml"
+    for match in _FLOW.finditer(text):
+        try:
+            flow = float(match.group(1))
+        except ValueError:
+            flow = math.nan
+        if not 0 <= flow <= MAX_LANE_FLOW_VEH_H:
+            return (f"has detectors.xml with flow {match.group(1).decode(errors='replace')[:20]} veh/h, outside 0 to "
+                    f"{MAX_LANE_FLOW_VEH_H:,.0f} (one vehicle per 0.1 s step on a lane)")  # fmt: skip
     return None
 
 
@@ -377,10 +437,32 @@ def model_folder_problem(folder: Path) -> str | None:
     elif not (folder / "train_summary.json").exists():
         return "has no train_summary.json (its training has not finished)"
     try:
-        load_model(folder / "model.pt")
+        _, meta = load_model(folder / "model.pt")
     except ModelFileError as err:
         return f"cannot be used: {err}"
+    try:
+        recorded = json.loads((folder / "config.json").read_text())["config"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # nothing to compare with (the caller checked config.json against the study's configuration)
+    if (where := first_difference(meta.get("config"), recorded)) is not None:
+        return f"holds a model.pt made by another configuration than its config.json ({where}): swapped?"
     return None
+
+
+def first_difference(a: Any, b: Any, path: str = "config") -> str | None:
+    """Where two configurations (config.results_view of each) first differ, as 'config.sim.seed: 2 != 0'; None
+    when they are equal."""
+    a, b = results_view(json.loads(json.dumps(a))), results_view(json.loads(json.dumps(b)))
+
+    def walk(x: Any, y: Any, at: str) -> str | None:
+        if isinstance(x, dict) and isinstance(y, dict):
+            for key in sorted(set(x) | set(y)):
+                if (found := walk(x.get(key), y.get(key), f"{at}.{key}")) is not None:
+                    return found
+            return None
+        return None if x == y else f"{at}: {json.dumps(x)[:40]} != {json.dumps(y)[:40]}"
+
+    return walk(a, b, path)
 
 
 def failed_exit(prog: str, failed: Sequence[str], total: int, root: Path) -> int:
