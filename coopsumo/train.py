@@ -1,4 +1,4 @@
-"""`python -m coopsumo.train`, the same as `coopsumo train`: the code is in coopsumo.agents.train."""
+"""`python -m coopsumo.train`, the same as `coopsumo train`: the code is in coopsumo.agents.train_cli."""
 
 import sys
 
@@ -6,12 +6,12 @@ from coopsumo.runio import USAGE_EXIT, working_folder_problem
 
 
 def main(argv: list[str] | None = None) -> int:
-    """coopsumo.agents.train.main, imported only once the working folder is known to exist (from a deleted one,
+    """coopsumo.agents.train_cli.main, imported only once the working folder is known to exist (from a deleted one,
     torch cannot be loaded: Intel oneMKL ends the process)."""
     if problem := working_folder_problem():
         print(f"train: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
-    from coopsumo.agents.train import main as train_main
+    from coopsumo.agents.train_cli import main as train_main
 
     return train_main(argv)
 

@@ -418,7 +418,7 @@ def _checkpoint(out: Path, preset: str) -> dict:
 
 
 def _resume(out: Path, capsys: pytest.CaptureFixture[str], *flags: str) -> tuple[int, str]:
-    from coopsumo.agents import train
+    from coopsumo.agents import train_cli as train
 
     code = train.main(["--resume", "--out", str(out), "--quiet", *flags])
     return code, capsys.readouterr().err

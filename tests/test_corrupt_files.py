@@ -21,7 +21,7 @@ import pytest
 import torch
 
 from coopsumo import simulate
-from coopsumo.agents import train
+from coopsumo.agents import train_cli as train
 from coopsumo.agents.dqn import QNetwork, save_model
 from coopsumo.agents.file_checks import prepare_resume, truncate_log
 from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict

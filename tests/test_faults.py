@@ -33,7 +33,7 @@ TIMING = {"wall_seconds", "steps_per_second", "sumo_step_share", "wall_s"}
 SIM = ["coopsumo.simulate", "--steps", "8000", "--t-up", "1.2", "--seed", "4", "--policy", "greedy", "--quiet"]
 TRAIN_DRIVER = """
 import dataclasses, sys
-import coopsumo.agents.train as t
+import coopsumo.agents.train_cli as t
 base = t.config_from_args
 t.config_from_args = lambda args: dataclasses.replace(base(args), log_every_steps=250, checkpoint_every_steps=500)
 sys.exit(t.main(sys.argv[1:]))
@@ -227,7 +227,7 @@ def test_train_interrupted_anywhere_resumes_to_the_uninterrupted_result(tmp_path
 
 
 def test_resume_without_a_checkpoint_says_why_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from coopsumo.agents import train
+    from coopsumo.agents import train_cli as train
 
     out = tmp_path / "done"
     assert train.main(["--steps", "30", "--eval-steps", "0", "--quiet", "--out", str(out)]) == 0

@@ -275,7 +275,7 @@ def test_paper_preset_is_literal() -> None:
 
 
 def test_train_flags_resolve_the_preset_and_override_fields() -> None:
-    from coopsumo.agents.train import build_parser, config_from_args
+    from coopsumo.agents.train_cli import build_parser, config_from_args
 
     cfg = config_from_args(build_parser().parse_args(["--preset", "paper"]))
     assert cfg.dqn == PAPER_DQN

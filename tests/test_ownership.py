@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from coopsumo import simulate
-from coopsumo.agents import train
+from coopsumo.agents import train_cli as train
 from coopsumo.runio import RUN_MARKER, UsageError, atomic_run_dir
 
 SIM = ["--steps", "20", "--quiet"]

@@ -12,7 +12,8 @@ import pytest
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from coopsumo.agents import tb_log
-from coopsumo.agents.train import LOG_FIELDS, build_parser
+from coopsumo.agents.train import LOG_FIELDS
+from coopsumo.agents.train_cli import build_parser
 
 ROOT = Path(__file__).resolve().parent.parent
 

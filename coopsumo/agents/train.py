@@ -1,4 +1,4 @@
-"""`python -m coopsumo.train`: train the shared lane-changing DQN in free flow (scenario II).
+"""The training loop of the shared lane-changing DQN (`coopsumo train`: its command line in agents/train_cli.py).
 
 Every vehicle is an agent; all share one network and one replay memory. Writes into --out:
 config.json, train_log.csv (one row per logging window), model.pt, and the greedy
@@ -14,7 +14,6 @@ the trainer charges the drawn alpha per lane change started.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import functools
 import json
@@ -34,49 +33,31 @@ from tqdm import tqdm
 
 from coopsumo.agents import selection
 from coopsumo.agents.decisions import ActionHold, offered
-from coopsumo.agents.dqn import N_ACTIONS, Learner, save_model
+from coopsumo.agents.dqn import Learner, save_model
 from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
 from coopsumo.agents.file_checks import checkpoint_problem, ended_training, prepare_resume
-from coopsumo.agents.tb_log import TensorBoardFlag, open_log
+from coopsumo.agents.tb_log import open_log
+from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.config import (
-    DQN_PRESETS,
-    MAX_LANES,
-    MIN_LANES,
-    OBSERVATIONS,
     PAPER_ALPHAS,
     ConfigError,
-    ControlConfig,
-    DemandConfig,
-    DQNConfig,
-    RewardConfig,
-    RoadConfig,
-    SimConfig,
     TrainConfig,
     results_view,
     to_dict,
     train_config_from_dict,
 )
 from coopsumo.runio import (
-    Parser,
     UsageError,
-    check_out_path,
-    check_run_dir,
-    discard_run_dir,
-    finish_run_dir,
     finished_run,
     first_line,
     mark_run_dir,
-    out_lock,
-    retrain_folder,
-    run_cli,
     versions,
     write_atomic,
     write_json,
 )
 from coopsumo.sim.observation import Observation, network_features
 from coopsumo.sim.world import StepOutcome, World
-from coopsumo.validation import MAX_STEPS, alpha, check_t_up, integer, number, out_dir, seed, steps, t_up_list
 
 LOG_FIELDS = (
     "step", "sim_time_s", "td_loss", "r_speed", "r_lane_change", "r_flow", "reward", "epsilon",
@@ -145,92 +126,6 @@ class Window:
         self.rejected += int(out.rejected.sum())
 
 
-def transitions(
-    prev: Observation,
-    prev_features: np.ndarray,
-    actions: np.ndarray,
-    reward_sum: np.ndarray,
-    arrived: np.ndarray,
-    now: Observation,
-    now_features: np.ndarray,
-    exit_transition: str,
-    prev_mask: np.ndarray,
-    now_mask: np.ndarray,
-    change_sum: np.ndarray,
-) -> tuple[np.ndarray, ...]:
-    """(grids, features, actions, rewards, next_grids, next_features, dones, next_mask, lane_changes) of the last
-    interval.
-
-    prev: the last decision round's observation, its network features (observation.network_features) and its
-    `actions`; now: this round's observation and features;
-    prev_mask, now_mask: the actions offered in them (decisions.offered; all True when nothing is withheld).
-    reward_sum, change_sum: rewards and lane changes started over the interval, indexed by vehicle number;
-    arrived: numbers of the
-    vehicles that left the road during it. Vehicles present in both rounds give ordinary transitions;
-    vehicles that left are dropped or stored as terminal (next state = last state, masked by done).
-    """
-    _, i_prev, i_now = np.intersect1d(prev.nums, now.nums, assume_unique=True, return_indices=True)
-    reward = reward_sum[prev.nums]
-    changes = change_sum[prev.nums]
-    g, e = prev.grids[i_prev], prev_features[i_prev]
-    ng, ne = now.grids[i_now], now_features[i_now]
-    a, r, c = actions[i_prev], reward[i_prev], changes[i_prev]
-    nm = now_mask[i_now]
-    done = np.zeros(len(i_prev), np.float32)
-    gone_rows = np.isin(prev.nums, arrived)
-    if exit_transition == "terminal" and gone_rows.any():
-        gone = np.flatnonzero(gone_rows)
-        g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev_features[gone]])
-        ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev_features[gone]])
-        a, r = np.concatenate([a, actions[gone]]), np.concatenate([r, reward[gone]])
-        c = np.concatenate([c, changes[gone]])
-        nm = np.concatenate([nm, prev_mask[gone]])
-        done = np.concatenate([done, np.ones(len(gone), np.float32)])
-    return g, e, a, r.astype(np.float32), ng, ne, done, nm, c.astype(np.float32)
-
-
-def _all_if_none(mask: np.ndarray | None, obs: Observation) -> np.ndarray:
-    """mask, or every action offered to every vehicle of obs when it is None."""
-    return np.ones((len(obs), N_ACTIONS), bool) if mask is None else mask
-
-
-@dataclass
-class Pending:
-    """What the trainer carries between decision rounds (rebuilt by replay on resume)."""
-
-    prev: Observation | None = None
-    """the last decision round's observation"""
-    prev_features: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
-    """its network features (observation.network_features)"""
-    prev_actions: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    """the actions decided then"""
-    reward_sum: np.ndarray = field(default_factory=lambda: np.zeros(1024))
-    """rewards since each vehicle's last decision, by vehicle number"""
-    change_sum: np.ndarray = field(default_factory=lambda: np.zeros(1024))
-    """lane changes started since each vehicle's last decision, by vehicle number"""
-    prev_alpha: float = 0.0
-    """the alpha of the last decision round (a conditioned training's draw)"""
-    arrived: list[np.ndarray] = field(default_factory=list)
-    """numbers of vehicles that left the road since the last decision round"""
-
-    def _grow(self, nums: np.ndarray) -> None:
-        if len(nums) and int(nums.max()) >= len(self.reward_sum):
-            extra = max(int(nums.max()) + 1, 2 * len(self.reward_sum)) - len(self.reward_sum)
-            self.reward_sum = np.concatenate([self.reward_sum, np.zeros(extra)])
-            self.change_sum = np.concatenate([self.change_sum, np.zeros(extra)])
-
-    def start_interval(self, obs: Observation, features: np.ndarray, actions: np.ndarray, alpha: float) -> None:
-        """A decision round at `alpha`: remember it and zero the sums of the vehicles that decided."""
-        self._grow(obs.nums)
-        self.reward_sum[obs.nums] = 0.0
-        self.change_sum[obs.nums] = 0.0
-        self.prev, self.prev_features, self.prev_actions, self.arrived = obs, features, actions, []
-        self.prev_alpha = alpha
-
-    def add_rewards(self, nums: np.ndarray, rewards: np.ndarray, changes: np.ndarray) -> None:
-        self._grow(nums)
-        self.reward_sum[nums] += rewards
-        self.change_sum[nums] += changes
 
 
 class Trainer:
@@ -360,8 +255,8 @@ class Trainer:
                 arrived = np.concatenate(pend.arrived) if pend.arrived else np.zeros(0, np.int64)
                 prev_mask = self._offered(pend.prev)
                 batch = transitions(pend.prev, pend.prev_features, pend.prev_actions, pend.reward_sum, arrived, obs,
-                                    feats, dq.exit_transition, _all_if_none(prev_mask, pend.prev),
-                                    _all_if_none(mask, obs), pend.change_sum)  # fmt: skip
+                                    feats, dq.exit_transition, all_if_none(prev_mask, pend.prev),
+                                    all_if_none(mask, obs), pend.change_sum)  # fmt: skip
                 n = len(batch[0])
                 if n:
                     keep = learner.rng.permutation(n)[: dq.store_per_decision]
@@ -496,6 +391,25 @@ def evaluate(
     return run(sim, policy, eval_dir, progress=progress, label="evaluate", on_steps=on_steps)
 
 
+def check_recorded_config(out: Path, cfg: TrainConfig) -> None:
+    """Before a resume: the folder's config.json must record the checkpoint's configuration (a checkpoint copied in
+    from another training is refused in one line); a missing config.json is written again."""
+    path = out / "config.json"
+    try:
+        recorded = json.loads(path.read_text())["config"]
+    except FileNotFoundError:
+        write_json(path, model_meta(cfg))
+        return
+    except (OSError, ValueError, KeyError, TypeError):
+        raise UsageError(f"{path} is unreadable or not a training's configuration; train again without "
+                         "--resume") from None
+    view = results_view(json.loads(json.dumps(to_dict(cfg))))
+    if results_view(recorded) != view:
+        differ = sorted(k for k in set(view) | set(recorded) if results_view(recorded.get(k)) != view.get(k))
+        raise UsageError(f"checkpoint {out / 'checkpoint.pt'} is another training's than {path} records (they differ "
+                         f"in {', '.join(differ)}): copied in?; train again without --resume")  # fmt: skip
+
+
 def train(
     cfg: TrainConfig,
     out: Path,
@@ -589,260 +503,3 @@ def train(
     trainer.checkpoint_path().unlink(missing_ok=True)
     mark_run_dir(out, "train")
     return summary
-
-
-def training_folder(out: Path, resume: bool, progress: bool = True) -> Path:
-    """The folder a training into `out` works in: `out` itself, or, when `out` holds a finished training, a
-    folder beside it (retrain_folder) that replaces `out` only once the new training has finished, so that a
-    kill or a failure never loses the finished one. --resume continues whichever holds a checkpoint."""
-    work = retrain_folder(out.resolve())
-    if resume:
-        return work if (work / "checkpoint.pt").exists() else out
-    if work.exists():
-        discard_run_dir(work)  # an earlier new training, killed: this one starts afresh
-    if not finished_run(out, "train"):
-        return out
-    if progress:
-        print(f"train: {out} holds a finished training; the new one is built in {work} and replaces it when it "
-              "has finished", file=sys.stderr)  # fmt: skip
-    return work
-
-
-def check_recorded_config(out: Path, cfg: TrainConfig) -> None:
-    """Before a resume: the folder's config.json must record the checkpoint's configuration (a checkpoint copied in
-    from another training is refused in one line); a missing config.json is written again."""
-    path = out / "config.json"
-    try:
-        recorded = json.loads(path.read_text())["config"]
-    except FileNotFoundError:
-        write_json(path, model_meta(cfg))
-        return
-    except (OSError, ValueError, KeyError, TypeError):
-        raise UsageError(f"{path} is unreadable or not a training's configuration; train again without "
-                         "--resume") from None
-    view = results_view(json.loads(json.dumps(to_dict(cfg))))
-    if results_view(recorded) != view:
-        differ = sorted(k for k in set(view) | set(recorded) if results_view(recorded.get(k)) != view.get(k))
-        raise UsageError(f"checkpoint {out / 'checkpoint.pt'} is another training's than {path} records (they differ "
-                         f"in {', '.join(differ)}): copied in?; train again without --resume")  # fmt: skip
-
-
-def default_out(cfg: TrainConfig) -> Path:
-    s = cfg.sim
-    alpha = "cond" if cfg.dqn.alpha_conditioned else f"{s.reward.alpha:g}"
-    return Path("results") / "train" / f"lanes{s.road.lanes}_alpha{alpha}_tup{s.demand.t_up_s:g}_seed{s.seed}"
-
-
-LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
-    ("--decision-interval", "decision_interval_steps", int,
-     "steps of 0.1 s between a vehicle's decisions (paper: 1); a lane change starts on the decision step, "
-     "then the vehicle asks to speed up; rewards of the interval are summed into one transition"),
-    ("--action-mask", "action_mask", bool, "offer left/right only when the controller would accept them"),
-    ("--double-dqn", "double_dqn", bool, "double DQN target"),
-    ("--dueling", "dueling", bool, "dueling Q head (value + advantages)"),
-    ("--loss", "loss", ("mse", "huber"), "TD loss (paper: mse)"),
-    ("--lr", "lr", float, "learning rate"),
-    ("--optimizer", "optimizer", ("sgd", "adam"), "optimizer (paper: sgd)"),
-    ("--gamma", "gamma", float, "discount per decision round (paper: 0.9 per 0.1 s step)"),
-    ("--replay-size", "replay_size", int, "replay memory (transitions)"),
-    ("--batch-size", "batch_size", int, "minibatch (transitions)"),
-    ("--learn-every", "learn_every", int, "decision rounds between learning phases"),
-    ("--updates-per-decision", "updates_per_learn", int, "gradient updates per learning phase"),
-    ("--store-per-decision", "store_per_decision", int, "transitions stored per decision round (random subset)"),
-    ("--target-sync", "target_sync_steps", int, "steps of 0.1 s between target-network syncs"),
-    ("--epsilon-start", "epsilon_start", float, "exploration probability at the start"),
-    ("--epsilon-end", "epsilon_end", float, "exploration probability after the decay"),
-    ("--epsilon-decay-steps", "epsilon_decay_steps", int, "steps of the linear epsilon decay (0: constant)"),
-    ("--restart-below", "restart_below_mps", float, "'none' is not offered below this speed (m/s; 0: off)"),
-    ("--change-margin", "change_margin", float,
-     "when the model drives, a lane change is chosen only when its Q-value beats staying by more than this "
-     "(0: plain argmax); training ignores it"),
-    ("--alpha-conditioned", "alpha_conditioned", bool,
-     "one network for every alpha: alpha is an input, drawn from the paper's 12 values for all vehicles every "
-     "--alpha-period steps; drive it with --policy dqn:PATH,alpha=A (not with --alpha)"),
-    ("--alpha-period", "alpha_period_steps", int, "conditioned training: steps of 0.1 s between two alpha draws"),
-    ("--alpha-relabel", "alpha_relabel", float,
-     "conditioned training: share of each minibatch learned at another alpha (reward recomputed)"),
-    ("--select-every", "select_every_steps", int,
-     "model selection: every this many steps (and at the last) validate the weights greedily on held-out free-flow "
-     "demand; model.pt is the best, model_last.pt the last weights (0: model.pt is the last weights, the paper's)"),
-    ("--validation-seed", "validation_seed", int,
-     "model selection: validation run i uses seed VALIDATION_SEED + i (must not meet the training seed)"),
-    ("--validation-t-up", "validation_t_ups", str, "model selection: comma-separated demands T_up (s), one run each"),
-    ("--validation-steps", "validation_steps", int, "model selection: steps of 0.1 s of each validation run"),
-    ("--train-t-up", "train_t_ups", str,
-     "training demand: comma-separated T_up (s); each episode of --episode-steps draws one (empty: --t-up "
-     "throughout)"),
-    ("--accident-share", "accident_share", float,
-     "training demand: share of episodes (0-1) with an accident whose position, start and length are drawn"),
-    ("--episode-steps", "episode_steps", int, "training demand: steps of one episode (a fresh world each)"),
-    ("--observation", "observation", OBSERVATIONS,
-     "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
-     "side lane's nearest leader and follower within 200 m: gap and speed)"),
-)  # fmt: skip
-"""(flag, DQNConfig field, type or choices, help); every flag defaults to the chosen preset's value"""
-
-
-def add_learner_flags(p: Parser) -> None:
-    """--preset and one flag per learner setting (unset flags keep the preset's value)."""
-    p.add_argument("--preset", choices=tuple(DQN_PRESETS), default="default",
-                   help="learner preset: 'default' (the project's measured design) or 'paper' (literal)")  # fmt: skip
-    for flag, name, kind, text in LEARNER_FLAGS:
-        default = getattr(DQNConfig(), name)
-        help_text = f"{text} (default preset: {default})"
-        if kind is bool:
-            p.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction, default=None, help=help_text)
-        elif isinstance(kind, tuple):
-            p.add_argument(flag, dest=name, choices=kind, default=None, help=help_text)
-        else:
-            p.add_argument(flag, dest=name, type=kind, default=None, help=help_text)
-
-
-def flag_value(flag: str, name: str, value: Any) -> Any:
-    """A learner flag's value as DQNConfig holds it (a list flag's text parsed)."""
-    if name in ("validation_t_ups", "train_t_ups") and isinstance(value, str):
-        return t_up_list(flag, value, ControlConfig().dt_s)
-    return value
-
-
-FLAG_NEEDS: dict[str, tuple[str, Callable[[DQNConfig], bool]]] = {
-    "--alpha-period": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
-    "--alpha-relabel": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
-    "--validation-seed": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
-    "--validation-t-up": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
-    "--validation-steps": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
-    "--episode-steps": ("--train-t-up or --accident-share", lambda c: bool(c.train_t_ups) or c.accident_share > 0),
-}
-"""learner flags that act only beside another setting: given without it, they are refused (not silently ignored)"""
-
-
-def learner_from_args(args: Any) -> DQNConfig:
-    """The preset with every given learner flag applied; a bad value is a usage error naming the flag, and so is a
-    flag that would do nothing without another (FLAG_NEEDS)."""
-    cfg = DQN_PRESETS[args.preset]
-    given = [flag for flag, name, _, _ in LEARNER_FLAGS if getattr(args, name) is not None]
-    for flag, name, _, _ in LEARNER_FLAGS:
-        value = flag_value(flag, name, getattr(args, name))
-        if value is None:
-            continue
-        cfg = replace(cfg, **{name: value})
-        try:
-            cfg.validate()  # the fields set before were valid: an error here is this flag's
-        except ConfigError as err:
-            raise UsageError(f"{flag}: {err}") from None
-    cfg.validate()
-    for flag in given:
-        if flag in FLAG_NEEDS and not FLAG_NEEDS[flag][1](cfg):
-            raise UsageError(f"{flag} acts only with {FLAG_NEEDS[flag][0]}; without it, it would do nothing")
-    return cfg
-
-
-def build_parser() -> Parser:
-    p = Parser(prog="coopsumo train", description="Train the cooperative lane-changing DQN.")
-    p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
-    p.add_argument("--alpha", type=alpha, default=None,
-                   help="lane-change penalty of eq. (7), per accepted change (default 0)")  # fmt: skip
-    p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
-    p.add_argument("--steps", type=steps, default=90_000, help="training steps of 0.1 s")
-    p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the learner and SUMO (0 to 2^31 - 1)")
-    p.add_argument("--out", type=out_dir, default=None, help="run folder (default results/train/...)")
-    p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
-    p.add_argument("--eval-steps", type=integer(0, MAX_STEPS), default=TrainConfig.eval_steps,
-                   help="greedy evaluation steps (0: none)")  # fmt: skip
-    add_learner_flags(p)
-    p.add_argument("--tensorboard", action=TensorBoardFlag, help="also write TensorBoard scalars to OUT/tensorboard/")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    return p
-
-
-def config_from_args(args: Any) -> TrainConfig:
-    check_t_up("--t-up", args.t_up, ControlConfig().dt_s)
-    dqn = learner_from_args(args)
-    if dqn.alpha_conditioned and args.alpha is not None:
-        raise UsageError("--alpha-conditioned trains one model for every alpha; leave --alpha out (drive the model "
-                         "at an alpha with --policy dqn:PATH,alpha=A)")  # fmt: skip
-    sim = SimConfig(
-        road=RoadConfig(lanes=args.lanes),
-        demand=DemandConfig(t_up_s=args.t_up),
-        reward=RewardConfig(alpha=args.alpha or 0.0),
-        steps=args.steps,
-        seed=args.seed,
-        policy="dqn",
-    )
-    cfg = TrainConfig(sim=sim, dqn=dqn, eval_steps=args.eval_steps)
-    cfg.validate()
-    return cfg
-
-
-RUN_FLAGS: tuple[tuple[str, str, Callable[[TrainConfig], Any]], ...] = (
-    ("--lanes", "lanes", lambda c: c.sim.road.lanes),
-    ("--alpha", "alpha", lambda c: c.sim.reward.alpha),
-    ("--t-up", "t_up", lambda c: c.sim.demand.t_up_s),
-    ("--steps", "steps", lambda c: c.sim.steps),
-    ("--seed", "seed", lambda c: c.sim.seed),
-    ("--eval-steps", "eval_steps", lambda c: c.eval_steps),
-    ("--preset", "preset", lambda c: c.dqn.preset),
-)
-"""(flag, argparse dest, its value in a TrainConfig) of the run's own flags (learner flags: LEARNER_FLAGS)"""
-
-
-def check_resume_flags(argv: list[str] | None, cfg: TrainConfig) -> None:
-    """--resume continues the checkpoint's run: a flag given beside it must repeat the checkpoint's value."""
-    p = build_parser()
-    p.set_defaults(**{dest: None for _, dest, _ in RUN_FLAGS})  # None now means "not on the command line"
-    given = p.parse_args(argv)
-    flags = [*RUN_FLAGS, *((flag, name, lambda c, n=name: getattr(c.dqn, n)) for flag, name, _, _ in LEARNER_FLAGS)]
-    for flag, dest, stored in flags:
-        value = flag_value(flag, dest, getattr(given, dest))
-        if value is not None and value != stored(cfg):
-            raise UsageError(f"{flag} {value} differs from the checkpoint's {stored(cfg)}: --resume continues the "
-                             f"run as it was started (leave {flag} out)")  # fmt: skip
-
-
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-
-    def body() -> int:
-        torch.set_num_threads(1)
-        if args.out is not None:
-            check_run_dir(args.out, "train")  # before anything is read, written or deleted
-        if args.resume:
-            if args.out is None:
-                raise UsageError("--resume needs --out pointing at the interrupted run")
-            work = retrain_folder(args.out.resolve())  # a new training of a finished folder, killed
-            source = work if (work / "checkpoint.pt").exists() else args.out
-            cfg = Trainer.checkpoint_config(source, Trainer.load_checkpoint(source))
-            check_resume_flags(argv, cfg)
-        else:
-            cfg = config_from_args(args)
-        out = args.out or default_out(cfg)
-        check_out_path(out)  # also the default folder (a relative path when the current folder was deleted)
-        check_run_dir(out, "train")
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
-        target = out
-        try:
-            with out_lock(out, "train"):  # a second command writing to the same folder is refused
-                target = training_folder(out, args.resume, progress=not args.quiet)
-                summary = train(cfg, target, resume=args.resume, progress=not args.quiet,
-                                tensorboard=args.tensorboard, final=out)  # fmt: skip
-                if target != out:
-                    finish_run_dir(target, out, "train")
-        except Interrupted as stop:
-            print(f"train: interrupted at step {stop.step}; checkpoint saved in {target / 'checkpoint.pt'}; "
-                  f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
-            return 128 + stop.signum
-        except KeyboardInterrupt:  # outside the training loop (saving the model): the last checkpoint stands
-            print(f"train: interrupted; continue with --resume --out {out}", file=sys.stderr)
-            return 130
-        keys = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
-        print(f"model: {out / 'model.pt'}  " + " ".join(f"{k}={summary.get(k)}" for k in keys))
-        return 0
-
-    return run_cli("train", body)
-
-
-if __name__ == "__main__":
-    sys.exit(main())

@@ -1,0 +1,99 @@
+"""From decision rounds to replay transitions: what the trainer carries between two rounds of decisions (Pending)
+and the pure array function that turns an interval into transitions (transitions)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from coopsumo.agents.dqn import N_ACTIONS
+from coopsumo.sim.observation import Observation
+
+
+def transitions(
+    prev: Observation,
+    prev_features: np.ndarray,
+    actions: np.ndarray,
+    reward_sum: np.ndarray,
+    arrived: np.ndarray,
+    now: Observation,
+    now_features: np.ndarray,
+    exit_transition: str,
+    prev_mask: np.ndarray,
+    now_mask: np.ndarray,
+    change_sum: np.ndarray,
+) -> tuple[np.ndarray, ...]:
+    """(grids, features, actions, rewards, next_grids, next_features, dones, next_mask, lane_changes) of the last
+    interval.
+
+    prev: the last decision round's observation, its network features (observation.network_features) and its
+    `actions`; now: this round's observation and features;
+    prev_mask, now_mask: the actions offered in them (decisions.offered; all True when nothing is withheld).
+    reward_sum, change_sum: rewards and lane changes started over the interval, indexed by vehicle number;
+    arrived: numbers of the
+    vehicles that left the road during it. Vehicles present in both rounds give ordinary transitions;
+    vehicles that left are dropped or stored as terminal (next state = last state, masked by done).
+    """
+    _, i_prev, i_now = np.intersect1d(prev.nums, now.nums, assume_unique=True, return_indices=True)
+    reward = reward_sum[prev.nums]
+    changes = change_sum[prev.nums]
+    g, e = prev.grids[i_prev], prev_features[i_prev]
+    ng, ne = now.grids[i_now], now_features[i_now]
+    a, r, c = actions[i_prev], reward[i_prev], changes[i_prev]
+    nm = now_mask[i_now]
+    done = np.zeros(len(i_prev), np.float32)
+    gone_rows = np.isin(prev.nums, arrived)
+    if exit_transition == "terminal" and gone_rows.any():
+        gone = np.flatnonzero(gone_rows)
+        g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev_features[gone]])
+        ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev_features[gone]])
+        a, r = np.concatenate([a, actions[gone]]), np.concatenate([r, reward[gone]])
+        c = np.concatenate([c, changes[gone]])
+        nm = np.concatenate([nm, prev_mask[gone]])
+        done = np.concatenate([done, np.ones(len(gone), np.float32)])
+    return g, e, a, r.astype(np.float32), ng, ne, done, nm, c.astype(np.float32)
+
+
+def all_if_none(mask: np.ndarray | None, obs: Observation) -> np.ndarray:
+    """mask, or every action offered to every vehicle of obs when it is None."""
+    return np.ones((len(obs), N_ACTIONS), bool) if mask is None else mask
+
+
+@dataclass
+class Pending:
+    """What the trainer carries between decision rounds (rebuilt by replay on resume)."""
+
+    prev: Observation | None = None
+    """the last decision round's observation"""
+    prev_features: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), np.float32))
+    """its network features (observation.network_features)"""
+    prev_actions: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    """the actions decided then"""
+    reward_sum: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    """rewards since each vehicle's last decision, by vehicle number"""
+    change_sum: np.ndarray = field(default_factory=lambda: np.zeros(1024))
+    """lane changes started since each vehicle's last decision, by vehicle number"""
+    prev_alpha: float = 0.0
+    """the alpha of the last decision round (a conditioned training's draw)"""
+    arrived: list[np.ndarray] = field(default_factory=list)
+    """numbers of vehicles that left the road since the last decision round"""
+
+    def _grow(self, nums: np.ndarray) -> None:
+        if len(nums) and int(nums.max()) >= len(self.reward_sum):
+            extra = max(int(nums.max()) + 1, 2 * len(self.reward_sum)) - len(self.reward_sum)
+            self.reward_sum = np.concatenate([self.reward_sum, np.zeros(extra)])
+            self.change_sum = np.concatenate([self.change_sum, np.zeros(extra)])
+
+    def start_interval(self, obs: Observation, features: np.ndarray, actions: np.ndarray, alpha: float) -> None:
+        """A decision round at `alpha`: remember it and zero the sums of the vehicles that decided."""
+        self._grow(obs.nums)
+        self.reward_sum[obs.nums] = 0.0
+        self.change_sum[obs.nums] = 0.0
+        self.prev, self.prev_features, self.prev_actions, self.arrived = obs, features, actions, []
+        self.prev_alpha = alpha
+
+    def add_rewards(self, nums: np.ndarray, rewards: np.ndarray, changes: np.ndarray) -> None:
+        self._grow(nums)
+        self.reward_sum[nums] += rewards
+        self.change_sum[nums] += changes
