@@ -12,7 +12,7 @@ T_UP    ?=
 MOBIL_P ?=
 PROFILE ?=
 
-.PHONY: install test lint bench demo nets scenario1 scenario2 learning protocol clean
+.PHONY: install test lint bench demo nets scenario1 scenario2 learning protocol regime-map clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -50,6 +50,9 @@ learning: $(STAMP)
 
 protocol: $(STAMP)
 	$(BIN)/coopsumo protocol $(if $(PROFILE),--profile $(PROFILE) --out results/learner_protocol_$(PROFILE))
+
+regime-map: $(STAMP)
+	$(BIN)/coopsumo regime-map $(if $(SEEDS),--seeds $(SEEDS))
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

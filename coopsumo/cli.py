@@ -23,6 +23,11 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scenario2": ("coopsumo.studies.scenario2", "the alpha sweep of section IV.B (Fig. 6)"),
     "learning": ("coopsumo.studies.ablation", "the learner ablation and the alpha response"),
     "protocol": ("coopsumo.studies.protocol", "judge learners: 10 models each, free flow and accident, vs baselines"),
+    "regime-map": ("coopsumo.studies.regime_map", "where the accident's queue goes: keep at every demand, two lengths"),
+    "accident-seeds": ("coopsumo.studies.accident_seeds", "a learning study's models through the accident, by seed"),
+    "diagnose": ("coopsumo.studies.diagnosis", "the Q-value margins behind a learning study's models' choices"),
+    "adaptive-fit": ("coopsumo.studies.adaptive_fit", "fit the adaptive-alpha rule on a scenario2 --conditioned sweep"),
+    "adaptive": ("coopsumo.studies.adaptive_alpha", "alpha=adaptive against the best fixed alpha, conditioned sweep"),
     "bench": ("coopsumo.bench", "speed figures (printed, not asserted)"),
 }
 """command -> (module holding its parser and main(argv), one line of what it does)"""

@@ -11,7 +11,12 @@ replay size, batch, an update every 4 steps, target sync every 500 steps, a cons
 
 Prints `episodes=N mean_episode_reward=R ...` over the finished episodes (nan if none finished).
 With --out, writes model.zip (SB3's format), config.json and summary.json into that folder.
-Bad input: one line on stderr, exit code 2.
+Bad input (every value checked as the commands check it, coopsumo.validation): one line on stderr, exit code 2,
+nothing written; without stable-baselines3 installed, one line saying how to install it.
+
+An example, not a `coopsumo` command: it uses the package from outside, as a user of the Gymnasium interface would
+(a third-party learner on `coopsumo/Highway-v0`), and it is no study (one training, no cells). The commands live in
+the layers below the interfaces (studies -> agents -> sim), which never import coopsumo.envs.
 """
 
 from __future__ import annotations
@@ -23,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from coopsumo.config import PAPER_DQN, DemandConfig, RewardConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.config import PAPER_DQN, ControlConfig, DemandConfig, RewardConfig, RoadConfig, SimConfig, to_dict
 from coopsumo.runio import (
     Parser,
     UsageError,
@@ -35,20 +40,37 @@ from coopsumo.runio import (
     versions,
     write_json,
 )
+from coopsumo.validation import (
+    MAX_STEPS,
+    MAX_T_UP_S,
+    alpha,
+    integer,
+    min_t_up_s,
+    number,
+    out_dir,
+    seed,
+    steps,
+    t_up_note,
+)
 
 
 def build_parser() -> Parser:
+    dt_s = ControlConfig().dt_s
     p = Parser(prog="experiments/sb3_dqn.py", description="Train SB3's DQN on coopsumo/Highway-v0.")
-    p.add_argument("--steps", type=int, default=20_000, help="agent steps of 0.1 s to train for")
-    p.add_argument("--out", type=Path, default=None, help="folder for model.zip, config.json, summary.json")
-    p.add_argument("--seed", type=int, default=0, help="seed of SB3 and of the first episode")
-    p.add_argument("--lanes", type=int, default=3, help="number of lanes, 2-6")
-    p.add_argument("--t-up", type=float, default=DemandConfig.t_up_s, help="upstream departure interval (s)")
-    p.add_argument("--alpha", type=float, default=RewardConfig.alpha, help="lane-change penalty of eq. (7)")
-    p.add_argument("--warmup", type=int, default=300, help="steps of background traffic before each episode")
-    p.add_argument("--max-steps", type=int, default=3000, help="agent steps before an episode is truncated")
+    p.add_argument("--steps", type=steps, default=20_000, help="agent steps of 0.1 s to train for")
+    p.add_argument("--out", type=out_dir, default=None,
+                   help="folder for model.zip, config.json, summary.json (default: none, nothing written)")
+    p.add_argument("--seed", type=seed, default=0, help="seed of SB3 and of the first episode")
+    p.add_argument("--lanes", type=integer(2, 6), default=3, help="number of lanes")
+    p.add_argument("--t-up", type=number(min_t_up_s(dt_s), MAX_T_UP_S, note=t_up_note(dt_s)),
+                   default=DemandConfig.t_up_s, help="upstream departure interval (s)")
+    p.add_argument("--alpha", type=alpha, default=RewardConfig.alpha, help="lane-change penalty of eq. (7)")
+    p.add_argument("--warmup", type=integer(0, MAX_STEPS), default=300,
+                   help="steps of background traffic before each episode")
+    p.add_argument("--max-steps", type=steps, default=3000, help="agent steps before an episode is truncated")
     p.add_argument("--background", default="keep", help="policy of the other vehicles: keep, greedy, mobil, ...")
-    p.add_argument("--threads", type=int, default=1, help="torch threads (the network is small: 1 is fastest)")
+    p.add_argument("--threads", type=integer(1, 256), default=1,
+                   help="torch threads (the network is small: 1 is fastest)")
     return p
 
 
@@ -95,8 +117,6 @@ def train(args: Any, run_dir: Path | None) -> dict[str, Any]:
         seed=args.seed,
     )
     cfg.validate()
-    if args.steps < 1 or args.warmup < 0 or args.max_steps < 1 or args.threads < 1:
-        raise UsageError("need --steps >= 1, --warmup >= 0, --max-steps >= 1 and --threads >= 1")
     torch.set_num_threads(args.threads)
     dq = PAPER_DQN
     try:

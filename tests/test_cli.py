@@ -25,8 +25,9 @@ def parsers() -> dict[str, argparse.ArgumentParser]:
     return {name: importlib.import_module(module).build_parser() for name, (module, _) in cli.COMMANDS.items()}
 
 
-def test_the_commands_are_the_issue_s_six_and_the_protocol() -> None:
-    assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "learning", "protocol", "bench"]
+def test_the_commands_are_the_issue_s_six_the_protocol_and_the_studies_beside_them() -> None:
+    assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "learning", "protocol", "regime-map",
+                                  "accident-seeds", "diagnose", "adaptive-fit", "adaptive", "bench"]
 
 
 def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
@@ -100,7 +101,8 @@ def test_python_m_spellings_show_the_same_help(spelling: list[str]) -> None:
 def test_makefile_targets_call_the_console_command() -> None:
     make = (ROOT / "Makefile").read_text()
     for target, command in (("demo", "simulate"), ("bench", "bench"), ("scenario1", "scenario1"),
-                            ("scenario2", "scenario2"), ("learning", "learning")):  # fmt: skip
+                            ("scenario2", "scenario2"), ("learning", "learning"), ("protocol", "protocol"),
+                            ("regime-map", "regime-map")):  # fmt: skip
         recipe = re.search(rf"^{target}: .*\n\t(.*)$", make, flags=re.M)
         assert recipe is not None and recipe.group(1).startswith(f"$(BIN)/coopsumo {command}"), target
     assert "python -m coopsumo." not in make

@@ -153,8 +153,9 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
     lines = [
         "# The learner protocol: every training seed against the hand-made rules",
         "",
-        f"Profile `{profile.name}`: {profile.lanes} lanes; each learner trained {profile.train_steps:,} steps in free "
-        f"flow (T_up 1 s) on training seeds {list(profile.seeds)}; every model driven greedily in free flow "
+        f"Profile `{profile.name}`: {profile.lanes} lanes; each learner trained {profile.train_steps:,} steps (in "
+        f"free flow at T_up 1 s unless its line below says otherwise) on training seeds {list(profile.seeds)}; "
+        "every model driven greedily in free flow "
         f"({profile.free_steps:,} steps) and through scenario I's accident ({profile.accident_steps:,} steps, closure "
         f"decaying over steps {profile.accident_start:,}-{profile.accident_start + profile.accident_duration:,}) at "
         f"T_up {', '.join(f'{t:g}' for t in profile.t_ups)} s, on evaluation seeds {EVAL_SEED}+i (free flow) and "

@@ -1,0 +1,348 @@
+"""The commands that read or extend what the other studies made (regime-map, accident-seeds, diagnose, adaptive-fit,
+adaptive): --help, bad input (one line, exit 2, nothing written), tiny real runs on hand-made study folders (models
+with untrained weights, so each run takes seconds), a rerun that reuses every cell, and the old spellings under
+experiments/. The measures of `diagnose` on hand-made decisions."""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from coopsumo import cli
+from coopsumo.config import DemandConfig, DQNConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.studies import ablation
+from coopsumo.studies.diagnosis_measures import COLUMNS, decision_measures, training_course
+
+ROOT = Path(__file__).resolve().parent.parent
+COMMANDS = ("regime-map", "accident-seeds", "diagnose", "adaptive-fit", "adaptive")
+OLD_SPELLINGS = {"regime_map.py": "regime-map", "accident_seeds.py": "accident-seeds", "seed_diagnosis.py": "diagnose",
+                 "adaptive_scenario2.py": "adaptive"}  # fmt: skip
+
+
+def command_main(name: str, argv: list[str]) -> int:
+    module = importlib.import_module(cli.COMMANDS[name][0])
+    try:
+        return int(module.main(argv))
+    except SystemExit as stop:
+        return int(stop.code or 0)
+
+
+def listing(folder: Path) -> dict[str, int]:
+    """Every file and folder under folder with its modification time: equal before and after means nothing written."""
+    return {p.relative_to(folder).as_posix(): p.stat().st_mtime_ns for p in folder.rglob("*")}
+
+
+def save_untrained(folder: Path, train_config: dict[str, Any]) -> None:
+    """folder/model.pt: a network of the training's learner with untrained weights, and its train_log.csv."""
+    import torch
+
+    from coopsumo.agents.dqn import QNetwork, save_model
+
+    torch.manual_seed(0)
+    dqn = train_config["dqn"]
+    net = QNetwork(dqn["speed_scale_mps"], dueling=dqn["dueling"], observation=dqn["observation"],
+                   conditioned=dqn["alpha_conditioned"])  # fmt: skip
+    folder.mkdir(parents=True, exist_ok=True)
+    save_model(folder / "model.pt", net, {"config": train_config})
+    pd.DataFrame({"step": [100, 200], "vehicles": [10, 12], "lane_changes": [3, 1], "mean_speed_mps": [20.0, 21.0],
+                  "td_loss": ["", 0.5]}).to_csv(folder / "train_log.csv", index=False)  # fmt: skip
+
+
+def learning_folder(root: Path, variants: tuple[str, ...] = ("margin", "conditioned")) -> Path:
+    """A learning study's folder as `coopsumo learning` leaves it, for training seed 0 at alpha 0: study.json, each
+    training's record in cells/ and its model in train/<train_key>/ (untrained weights)."""
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "study.json").write_text("{}")
+    profile = replace(ablation.PROFILES["tiny"], variants=variants, alphas=(0.0,), seeds=(0,), alpha_variants=variants)
+    for spec in ablation.cell_specs(profile, DQNConfig()):
+        if spec["kind"] != "train":
+            continue
+        record = {**ablation.new_record(spec), "status": "ok",
+                  "summary": {"mean_speed_mps": 20.0, "lane_changes_per_vehicle": 0.5, "collisions": 0,
+                              "teleports": 0}}  # fmt: skip
+        (root / "cells").mkdir(parents=True, exist_ok=True)
+        (root / "cells" / f"{spec['key']}.json").write_text(json.dumps(record))
+        save_untrained(root / "train" / spec["train_key"], spec["config"]["train"])
+    return root
+
+
+def conditioned_sweep(root: Path, fitted_only: bool = False) -> Path:
+    """A `scenario2 --conditioned` folder on one condition (2 lanes, T_up 4 s) and 2 seeds, alphas 0 and 8: runs.csv
+    and alpha_star.csv beside its sweep.json; unless fitted_only, each seed's record and model (untrained weights)."""
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "sweep.json").write_text("{}")
+    rows = []
+    for seed in (1, 2):
+        for alpha, speed in ((0.0, 20.0 + seed), (8.0, 20.5 + seed)):
+            key = f"L2_T4_a{alpha:g}_s{seed}"
+            rows.append({"key": key, "status": "ok", "lanes": 2, "t_up_s": 4.0, "seed": seed, "alpha": alpha,
+                         "mean_speed_mps": speed, "lane_changes_per_vehicle": 0.1, "loop_occupancy_pct": 2.0 + alpha})
+            if fitted_only:
+                continue
+            ev = SimConfig(road=RoadConfig(lanes=2), demand=DemandConfig(t_up_s=4.0), reward=RewardConfig(alpha=alpha),
+                           steps=700, seed=seed, policy="dqn")  # fmt: skip
+            (root / "cells").mkdir(parents=True, exist_ok=True)
+            (root / "cells" / f"{key}.json").write_text(json.dumps({"key": key, "config": {"eval": to_dict(ev)}}))
+        if not fitted_only:
+            train = TrainConfig(sim=SimConfig(road=RoadConfig(lanes=2), seed=seed),
+                                dqn=replace(DQNConfig(), alpha_conditioned=True), eval_steps=0)  # fmt: skip
+            save_untrained(root / "train" / f"L2_T4_cond_s{seed}", to_dict(train))
+    pd.DataFrame(rows).to_csv(root / "runs.csv", index=False)
+    pd.DataFrame([{"lanes": 2, "t_up_s": 4.0, "alpha_star": 8.0}]).to_csv(root / "alpha_star.csv", index=False)
+    return root
+
+
+# -- --help and the command table -------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", COMMANDS)
+def test_help_names_the_command(name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert command_main(name, ["--help"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith(f"usage: coopsumo {name} ") and ("(default" in out or name == "adaptive-fit")  # no options
+
+
+@pytest.mark.parametrize("script", sorted(OLD_SPELLINGS))
+def test_the_old_experiment_scripts_are_the_commands(script: str) -> None:
+    res = subprocess.run([sys.executable, f"experiments/{script}", "--help"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120, check=False)  # fmt: skip
+    assert res.returncode == 0, res.stderr[-1500:]
+    assert res.stdout.startswith(f"usage: coopsumo {OLD_SPELLINGS[script]} ")
+
+
+def test_the_old_fit_spelling_is_adaptive_fit() -> None:
+    res = subprocess.run([sys.executable, "experiments/adaptive_scenario2.py", "--fit", "--help"], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
+    assert res.returncode == 0 and res.stdout.startswith("usage: coopsumo adaptive-fit "), res.stderr[-1500:]
+
+
+# -- bad input ----------------------------------------------------------------------------------------------------
+BAD = [
+    ("regime-map", None, ["--t-up", "0"], "--t-up"),
+    ("regime-map", None, ["--t-up", "2,,1"], "--t-up"),
+    ("regime-map", None, ["--seeds", "0"], "--seeds"),
+    ("regime-map", None, ["--steps", "5"], "--steps"),
+    ("regime-map", None, ["--workers", "0"], "--workers"),
+    ("regime-map", None, ["--address", "127.0.0.1:1"], "--address"),
+    ("regime-map", "foreign", [], "does not write"),
+    ("accident-seeds", "none", [], "not a learning-study folder"),
+    ("accident-seeds", "empty", [], "no finished models"),
+    ("accident-seeds", "learning", ["--variants", "margin,warp"], "warp"),
+    ("accident-seeds", "learning", ["--variants", "margin", "--alphas", "-1"], "--alphas"),
+    ("accident-seeds", "learning", ["--variants", "margin", "--t-up", "nan"], "--t-up"),
+    ("accident-seeds", "learning", ["--variants", "margin", "--seeds", "0"], "--seeds"),
+    ("accident-seeds", "learning", ["--variants", "margin", "--quick", "--steps", "600"], "--steps"),
+    ("accident-seeds", "learning", ["--variants", "margin", "--adaptive"], "--adaptive"),
+    ("accident-seeds", "learning", ["--variants", "margin", "--alphas", "8"], "no finished models"),
+    ("accident-seeds", "no model", ["--variants", "margin"], "is missing"),
+    ("accident-seeds", "learning", ["--variants", "margin", "--out", "a,b"], "--out"),
+    ("diagnose", "none", [], "not a learning-study folder"),
+    ("diagnose", "empty", [], "no finished trainings"),
+    ("diagnose", "learning", ["--steps", "50"], "--steps"),
+    ("diagnose", "learning", ["--variants", "warp"], "warp"),
+    ("diagnose", "learning", ["--backend", "local", "--address", "127.0.0.1:1"], "--address"),
+    ("diagnose", "no model", [], "is missing"),
+    ("adaptive-fit", "none", [], "is not a folder"),
+    ("adaptive-fit", "empty", [], "holds no runs.csv"),
+    ("adaptive-fit", "sweep", ["--workers", "2"], "unrecognized arguments"),
+    ("adaptive-fit", "not conditioned", [], "loop_occupancy_pct"),
+    ("adaptive-fit", "cut runs.csv", [], "cannot be read"),
+    ("adaptive", "empty", [], "holds no runs.csv"),
+    ("adaptive", "sweep", [], "cannot be read"),  # the tables without the sweep's cell records
+    ("adaptive", "sweep", ["--workers", "0"], "--workers"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("name, setup, args, fragment", BAD)
+def test_bad_input_is_one_line_exit_2_and_writes_nothing(name: str, setup: str | None, args: list[str],
+                                                         fragment: str, tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    root = tmp_path / "study"
+    if setup in ("empty", "learning", "no model", "foreign", "sweep", "not conditioned", "cut runs.csv"):
+        (root / "cells").mkdir(parents=True)
+    if setup in ("learning", "no model"):
+        learning_folder(root, ("margin",))
+    if setup == "no model":
+        next(root.rglob("model.pt")).unlink()
+    if setup == "foreign":
+        (root / "notes.txt").write_text("mine")
+    if setup in ("sweep", "not conditioned", "cut runs.csv"):
+        conditioned_sweep(root, fitted_only=True)
+    if setup == "not conditioned":
+        pd.read_csv(root / "runs.csv").drop(columns="loop_occupancy_pct").to_csv(root / "runs.csv", index=False)
+    if setup == "cut runs.csv":
+        (root / "runs.csv").write_text("")
+    before = listing(tmp_path)
+    capsys.readouterr()
+    argv = ([] if name == "regime-map" else [str(root)]) + args
+    if name == "regime-map" and "--out" not in args:
+        argv += ["--out", str(root)]
+    code = command_main(name, argv)
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == 2, lines
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in lines[0], lines
+    assert listing(tmp_path) == before
+
+
+# -- tiny real runs -----------------------------------------------------------------------------------------------
+def coopsumo(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "coopsumo", *args, "--quiet"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=600, check=False)  # fmt: skip
+
+
+def cell_times(root: Path, pattern: str = "*.json") -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in (root / "cells").glob(pattern)}
+
+
+@pytest.mark.sumo
+def test_regime_map_runs_both_lengths_and_reuses_every_cell(tmp_path: Path) -> None:
+    out = tmp_path / "rm"
+    res = coopsumo("regime-map", "--t-up", "4", "--steps", "600", "--out", str(out))
+    assert res.returncode == 0, res.stderr[-2000:]
+    runs = pd.read_csv(out / "runs.csv")
+    assert list(runs["accident"]) == ["default", "paper"] and list(runs["run_steps"]) == [600, 2700]
+    assert set(runs["collisions"]) == {0} and set(runs["teleports"]) == {0}
+    # the cells and run folders keep the names experiments/regime_map.py gave them: its folders are reused
+    assert sorted(cell_times(out)) == ["default_t4_seed1.json", "paper_t4_seed1.json"]
+    assert (out / "runs/default/t4/keep_seed1/summary.json").exists()
+    report = (out / "report.md").read_text()
+    assert "Made by `coopsumo regime-map`" in report and "steps 60-360 of a 600-step run" in report
+    cells = cell_times(out)
+    again = coopsumo("regime-map", "--t-up", "4", "--steps", "600", "--out", str(out))
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert cell_times(out) == cells and pd.read_csv(out / "runs.csv").equals(runs)
+
+
+@pytest.mark.sumo
+def test_accident_seeds_drives_every_model_beside_the_baselines(tmp_path: Path) -> None:
+    root = learning_folder(tmp_path / "learning")
+    out = tmp_path / "acc"
+    args = [str(root), "--variants", "margin,conditioned", "--alphas", "0", "--adaptive", "--seeds", "1", "--t-up",
+            "3", "--steps", "600", "--out", str(out)]  # fmt: skip
+    res = coopsumo("accident-seeds", *args)
+    assert res.returncode == 0, res.stderr[-2000:]
+    runs = pd.read_csv(out / "runs.csv")
+    assert list(runs["variant"]) == ["keep", "greedy", "mobil:p=0", "conditioned", "margin", "conditioned_adaptive"]
+    assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
+    assert list(runs["seed"]) == [0] * 6
+    # the margin variant drove a copy of its model carrying the margin; the conditioned one at alpha 0 and adaptive
+    from coopsumo.agents.dqn import load_model
+
+    copies = sorted((out / "models").glob("*.pt"))  # both variants drive with the change margin of 1
+    assert len(copies) == 2 and all(load_model(c)[1]["config"]["dqn"]["change_margin"] == 1.0 for c in copies)
+    config = json.loads((out / "runs/t3/t3_conditioned_adaptive_train0_seed0/config.json").read_text())["config"]
+    assert config["policy"].endswith(",alpha=adaptive") and config["seed"] == 2000
+    report = (out / "report.md").read_text()
+    assert "| 3 | `margin` | 0 | 1 |" in report and "## Adaptive alpha against every fixed alpha" in report
+    cells = cell_times(out)
+    assert len(cells) == 6
+    again = coopsumo("accident-seeds", *args)
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert cell_times(out) == cells
+
+
+@pytest.mark.sumo
+def test_diagnose_measures_each_model_and_reuses_its_cell(tmp_path: Path) -> None:
+    root = learning_folder(tmp_path / "learning")
+    res = coopsumo("diagnose", str(root), "--steps", "200")
+    assert res.returncode == 0, res.stderr[-2000:]
+    table = pd.read_csv(root / "diagnosis.csv")
+    # an alpha-conditioned model is diagnosed at its evaluation's alpha
+    assert list(table["variant"]) == ["conditioned", "margin"] and table["decisions"].gt(0).all()
+    assert list(table.columns[:5]) == ["key", "variant", "alpha", "seed", "eval_speed_mps"]
+    assert table.loc[0, "train_lc_rate_first10pct"] == pytest.approx(0.3)
+    assert "margin_median" in res.stdout
+    cells = cell_times(root, "diagnosis_*.json")
+    assert len(cells) == 2
+    again = coopsumo("diagnose", str(root), "--steps", "200")
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert cell_times(root, "diagnosis_*.json") == cells and pd.read_csv(root / "diagnosis.csv").equals(table)
+
+
+def test_adaptive_fit_writes_and_prints_the_rule(tmp_path: Path) -> None:
+    root = conditioned_sweep(tmp_path / "sweep", fitted_only=True)
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "adaptive-fit", str(root)], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120, check=False)  # fmt: skip
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.stdout.startswith("DEFAULT_RULE = AdaptiveRule(points=((2, 6.0, 8.0),)")
+    assert json.loads((root / "adaptive_rule.json").read_text())["points"] == [[2, 6.0, 8.0]]
+
+
+@pytest.mark.sumo
+def test_adaptive_drives_every_model_of_the_sweep(tmp_path: Path) -> None:
+    root = conditioned_sweep(tmp_path / "sweep")
+    res = coopsumo("adaptive", str(root))
+    assert res.returncode == 0, res.stderr[-2000:]
+    table = pd.read_csv(root / "adaptive_runs.csv")
+    assert list(table["seed"]) == [1, 2] and (table["collisions"] == 0).all()
+    assert sorted(cell_times(root, "adaptive_*")) == ["adaptive_L2_T4_cond_s1.json", "adaptive_L2_T4_cond_s2.json"]
+    assert (root / "train/L2_T4_cond_s1/eval_adaptive/adaptive_alpha.csv").exists()
+    assert table["adaptive_alpha_mean"].notna().all()  # one 60 s loop period: the rule chose once
+    assert "| 2 | 4 | 8 |" in (root / "adaptive.md").read_text()
+    cells = cell_times(root, "adaptive_*.json")
+    again = coopsumo("adaptive", str(root))
+    assert again.returncode == 0, again.stderr[-2000:]
+    assert cell_times(root, "adaptive_*.json") == cells
+
+
+# -- the diagnosis measures, on hand-made decisions ---------------------------------------------------------------
+def test_decision_measures_on_known_margins() -> None:
+    from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
+
+    def row(q: list[float], offered: list[bool], action: int) -> list[float]:
+        return [*q, *map(float, offered), float(action), 0.0]
+
+    q = [0.0] * 4
+    q1, q2, q3 = list(q), list(q), list(q)
+    q1[LEFT], q1[NONE] = 10.2, 10.0  # a change by a near tie (margin 0.2 < 5% of 10)
+    q2[RIGHT], q2[SPEEDUP] = 8.0, 10.0  # staying, by a clear margin of 2
+    q3[SPEEDUP] = 10.0  # no change offered
+    rows = np.array([row(q1, [True] * 4, LEFT), row(q2, [True] * 4, SPEEDUP),
+                     row(q3, [False, False, True, True], SPEEDUP)])  # fmt: skip
+    m = decision_measures(rows)
+    assert set(m) <= set(COLUMNS)  # diagnosis.csv has a column for every measure
+    assert m["decisions"] == 3 and m["change_offered_share"] == pytest.approx(2 / 3)
+    assert m["change_chosen_share_of_offered"] == pytest.approx(0.5)
+    assert m["margin_median"] == pytest.approx((0.2 - 2.0) / 2) and m["margin_abs_median"] == pytest.approx(1.1)
+    assert m["chosen_change_margin_median"] == pytest.approx(0.2) and m["near_tie_share"] == pytest.approx(0.5)
+    assert m["speedup_share"] == pytest.approx(2 / 3)
+
+
+def test_training_course_reads_the_first_and_last_tenth() -> None:
+    log = pd.DataFrame({"vehicles": [10] * 20, "lane_changes": [5] * 2 + [1] * 16 + [0] * 2,
+                        "mean_speed_mps": [15.0] * 18 + [20.0] * 2, "td_loss": [""] * 18 + ["1", "3"]})  # fmt: skip
+    c = training_course(log)
+    assert c["train_lc_rate_first10pct"] == pytest.approx(0.5) and c["train_lc_rate_last10pct"] == 0
+    assert c["train_speed_last10pct"] == 20.0 and c["td_loss_last10pct"] == 2.0
+
+
+# -- the SB3 example (experiments/sb3_dqn.py: an example of the Gymnasium interface, not a command) ---------------
+def test_sb3_example_help_shows_every_default() -> None:
+    res = subprocess.run([sys.executable, "experiments/sb3_dqn.py", "--help"], cwd=ROOT, capture_output=True,
+                         text=True, timeout=120, check=False)  # fmt: skip
+    assert res.returncode == 0
+    text = " ".join(res.stdout.split())
+    assert text.count("(default") == 10  # every option but --help
+
+
+@pytest.mark.parametrize("args, fragment", [(["--steps", "0"], "--steps"), (["--seed", "-1"], "--seed"),
+                                            (["--t-up", "nan"], "--t-up"), (["--threads", "0"], "--threads"),
+                                            (["--background", "warp"], "warp")])  # fmt: skip
+def test_sb3_example_bad_input_is_one_line_exit_2_and_writes_nothing(args: list[str], fragment: str,
+                                                                     tmp_path: Path) -> None:  # fmt: skip
+    if args[0] == "--background":
+        pytest.importorskip("stable_baselines3")  # checked where the env is made, after the extra's check
+    res = subprocess.run([sys.executable, "experiments/sb3_dqn.py", *args, "--out", str(tmp_path / "x")], cwd=ROOT,
+                         capture_output=True, text=True, timeout=120, check=False,
+                         env={**os.environ, "TMPDIR": str(tmp_path)})  # fmt: skip
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1 and fragment in lines[0], res.stderr[-1500:]
+    assert list(tmp_path.iterdir()) == []
