@@ -13,7 +13,8 @@ import pytest
 from conftest import InlineBackend
 
 from coopsumo.config import PAPER_DQN, DQNConfig
-from coopsumo.studies.ablation import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, is_monotone_decreasing, learner_of
+from coopsumo.studies.ablation_plan import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, learner_of
+from coopsumo.studies.ablation_report import is_monotone_decreasing
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
@@ -125,7 +126,7 @@ def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkey
     (tmp_path / "cells" / "keep_seed0.json").write_text('{"status": "ok", "summary": {}}')  # never trusted
     code = ablation.main(["--profile", "tiny", "--alphas", "8,8.000001", "--out", str(tmp_path), "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
-    n = len(ablation.cell_specs(replace(PROFILES["tiny"], alphas=(8.0, 8.000001)), DQNConfig()))
+    n = len(cell_specs(replace(PROFILES["tiny"], alphas=(8.0, 8.000001)), DQNConfig()))
     assert code == 1 and "Traceback" not in "\n".join(err)
     assert any("cell keep_seed0: record" in e and "summary is {}" in e for e in err)
     assert err[-1].startswith(f"ablation: error: {n} of {n} cells failed (") and "_alpha8.000001_seed0" in err[-1]

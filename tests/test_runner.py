@@ -207,7 +207,8 @@ def test_close_alphas_give_distinct_cells_in_every_study() -> None:
     from dataclasses import replace
 
     from coopsumo.config import DQNConfig
-    from coopsumo.studies import ablation, scenario1, scenario2
+    from coopsumo.studies import ablation_plan as ablation
+    from coopsumo.studies import scenario1, scenario2
 
     profile = replace(scenario2.PROFILES["tiny"], alphas=(8.0, 8.000001), t_up_s=(2.0, 2.000001))
     keys = [s["key"] for s in scenario2.cell_specs(profile)]

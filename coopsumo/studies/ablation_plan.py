@@ -1,0 +1,188 @@
+"""The learning study's plan: its learner variants, profiles, configurations and cells (studies/ablation.py runs
+them, studies/ablation_report.py reports them)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, replace
+from typing import Any
+
+from coopsumo.config import (
+    PAPER_DQN,
+    DemandConfig,
+    DQNConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
+from coopsumo.runio import UsageError
+from coopsumo.validation import name_list, number_name
+
+EVAL_SEED_OFFSET = 1000
+"""a model trained with seed s is evaluated on seed EVAL_SEED_OFFSET + s (a demand it never saw)"""
+BASELINES = ("keep", "greedy", "mobil:p=0", "mobil:p=0.5")
+ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 8.0)
+METRICS = ("mean_speed_mps", "lane_changes_per_vehicle", "lane_changes_rejected", "teleports", "collisions",
+           "throughput_veh_per_h", "mean_travel_time_s")  # fmt: skip
+REQUIRED_SUMMARY = ("mean_speed_mps", "lane_changes_per_vehicle", "teleports", "collisions")
+"""summary values a stored cell record must hold as finite numbers to be reused (runner.record_problem)"""
+
+
+def _variants() -> list[tuple[str, str, DQNConfig]]:
+    """(name, what it adds, learner): a chain from the paper's learner to the default design, each
+    variant the previous one plus one change, then single changes on top of the default."""
+    chain: list[tuple[str, str, dict[str, Any]]] = [
+        ("paper", "the paper-literal learner (--preset paper)", {}),
+        ("interval", "+ a decision every 10 steps (1 s), rewards summed over it", {"decision_interval_steps": 10}),
+        ("mask", "+ feasible-action masking (choice, exploration, target max)", {"action_mask": True}),
+        ("double_huber", "+ double DQN target and Huber loss", {"double_dqn": True, "loss": "huber"}),
+        ("adam", "+ Adam at lr 1e-3 instead of SGD at 0.01", {"optimizer": "adam", "lr": 1e-3}),
+        ("replay", "+ replay 20,000 and 2 updates every decision round (not 1 every 4)",
+         {"replay_size": 20_000, "learn_every": 1, "updates_per_learn": 2}),
+        ("dueling", "+ a dueling Q head (V + A - mean A)", {"dueling": True}),
+        ("restart", "+ 'none' withheld below 1 m/s (a standing vehicle must speed up): the default preset until "
+         "the change margin (`margin`)",
+         {"restart_below_mps": 1.0}),
+    ]  # fmt: skip
+    extras: list[tuple[str, str, dict[str, Any]]] = [
+        ("eps_decay", "`restart` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
+         {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
+        ("store_all", "`restart` + every transition of a decision round stored (not 16 at random)",
+         {"store_per_decision": 1000}),
+        ("v2x", "`restart` + the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed)",
+         {"observation": "v2x"}),
+        ("margin", "the `restart` models driven with a change margin of 1: a lane change only when its "
+         "Q-value beats staying by more than 1", {"change_margin": 1.0}),
+        ("v2x_margin", "the `v2x` models driven with the change margin of 1",
+         {"observation": "v2x", "change_margin": 1.0}),
+        ("select", "`margin` with model.pt chosen on held-out demand: validated greedily every 15,000 steps, the best "
+         "kept (the default preset; coopsumo protocol judges it)",
+         {"change_margin": 1.0, "select_every_steps": 15_000}),
+        ("conditioned", "`margin` with alpha an input: one alpha-conditioned model per seed (train "
+         "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A) with the change margin of 1",
+         {"alpha_conditioned": True, "change_margin": 1.0}),
+    ]  # fmt: skip
+    out = []
+    cfg = PAPER_DQN
+    for name, text, change in chain:
+        cfg = replace(cfg, **change)
+        out.append((name, text, replace(cfg, preset="paper" if name == "paper" else "default")))
+    for name, text, change in extras:
+        out.append((name, text, replace(cfg, **change, preset="default")))
+    return out
+
+
+CHAIN_LENGTH = 8
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> restart; the rest branch off its end (margin: the
+default)"""
+VARIANTS = _variants()
+VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
+
+
+@dataclass(frozen=True)
+class Profile:
+    """How big the study is."""
+
+    name: str
+    train_steps: int
+    eval_steps: int
+    seeds: tuple[int, ...]
+    variants: tuple[str, ...]
+    alphas: tuple[float, ...]
+    alpha_variants: tuple[str, ...] = ()
+    """variants whose alpha response is measured (none given: the default learner)"""
+    alpha_seeds: tuple[int, ...] = ()
+    """training seeds of the alpha response at alpha > 0 (none given: seeds)"""
+    lanes: int = 3
+    t_up_s: float = 1.0
+
+
+PROFILES = {
+    "full": Profile("full", 90_000, 9000, (0, 1, 2), VARIANT_NAMES, ALPHAS),
+    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "margin"), (0.0, 1.0)),
+    "robust": Profile("robust", 90_000, 9000, tuple(range(9)), ("restart", "v2x", "margin", "v2x_margin"),
+                      (0.0, 8.0), alpha_variants=("margin", "v2x_margin"), alpha_seeds=(0, 1, 2)),
+    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("margin", "conditioned"),
+                           (0.0, 0.25, 1.0, 2.0, 8.0), alpha_variants=("margin", "conditioned")),
+    "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "v2x_margin"), (0.0, 1.0)),
+}
+
+
+def learner_of(variant: str) -> DQNConfig:
+    for name, _, cfg in VARIANTS:
+        if name == variant:
+            return cfg
+    raise UsageError(f"unknown variant {variant!r}; expected one of {', '.join(VARIANT_NAMES)}")
+
+
+def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> TrainConfig:
+    sim = SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=profile.t_up_s),
+                    reward=RewardConfig(alpha=alpha), steps=profile.train_steps, seed=seed, policy="dqn")  # fmt: skip
+    return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
+
+
+def eval_config(profile: Profile, policy: str, seed: int) -> SimConfig:
+    return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=profile.t_up_s),
+                     steps=profile.eval_steps, seed=seed, policy=policy)  # fmt: skip
+
+
+def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int) -> str:
+    """The folder under train/ of the model that `variant` (learner dqn) drives at alpha on seed. Training ignores
+    the change margin, so a variant differing from another only in it drives that one's training."""
+    trained = replace(dqn, change_margin=0.0)
+    if dqn.alpha_conditioned:  # one training for every alpha
+        return f"{variant}_seed{seed}"
+    twin = next((n for n, _, c in VARIANTS if c == trained), variant)
+    return f"{twin}_alpha{number_name(alpha)}_seed{seed}"
+
+
+def variant_list(flag: str, text: str) -> tuple[str, ...]:
+    """The variant names of a comma-separated flag value; UsageError naming the flag unless all are known."""
+    return name_list(flag, text, VARIANT_NAMES)
+
+
+def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
+    """Every cell of the study: ablation trainings, alpha-response trainings, baselines."""
+    specs: list[dict[str, Any]] = []
+    seen: set[str] = set()
+
+    def add_train(part: str, variant: str, dqn: DQNConfig, alpha: float, seed: int) -> None:
+        key = f"{variant}_alpha{number_name(alpha)}_seed{seed}"
+        if key in seen:
+            return
+        seen.add(key)
+        # training ignores the margin; a conditioned one draws its own alphas (its world's alpha is 0)
+        cfg = train_config(profile, replace(dqn, change_margin=0.0), 0.0 if dqn.alpha_conditioned else alpha, seed)
+        cfg.validate()
+        ev = eval_config(profile, "dqn", EVAL_SEED_OFFSET + seed)
+        if dqn.alpha_conditioned:
+            ev = replace(ev, reward=RewardConfig(alpha=alpha))
+        config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
+        if dqn.change_margin:
+            config["drive"] = {"change_margin": dqn.change_margin}
+        specs.append({"key": key, "kind": "train", "part": part, "variant": variant, "alpha": alpha, "seed": seed,
+                      "eval_seed": EVAL_SEED_OFFSET + seed, "policy": "dqn",
+                      "train_key": training_key(dqn, variant, alpha, seed),
+                      "config": json.loads(json.dumps(config))})  # fmt: skip
+
+    for variant in profile.variants:
+        for seed in profile.seeds:
+            add_train("ablation", variant, learner_of(variant), 0.0, seed)
+    default_name = next((n for n, _, c in VARIANTS if c == default), "default")
+    responders = [(v, learner_of(v)) for v in profile.alpha_variants] or [(default_name, default)]
+    for variant, dqn in responders:
+        for alpha in profile.alphas:
+            for seed in profile.seeds if alpha == 0 else profile.alpha_seeds or profile.seeds:
+                add_train("alpha", variant, dqn, alpha, seed)
+    for policy in BASELINES:
+        for seed in profile.seeds:
+            ev = eval_config(profile, policy, EVAL_SEED_OFFSET + seed)
+            specs.append({"key": f"{policy.replace(':', '_').replace('=', '')}_seed{seed}", "kind": "baseline",
+                          "part": "baseline", "variant": policy, "alpha": None, "seed": seed,
+                          "eval_seed": EVAL_SEED_OFFSET + seed, "policy": policy,
+                          "config": json.loads(json.dumps({"eval": to_dict(ev)}))})  # fmt: skip
+    return specs
+
+
