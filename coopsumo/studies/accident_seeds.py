@@ -26,7 +26,7 @@ from coopsumo.config import ControlConfig, SimConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.runio import study_root as claim_study_root
 from coopsumo.studies import accident_runs
-from coopsumo.studies.ablation import variant_list
+from coopsumo.studies.ablation_plan import variant_list
 from coopsumo.studies.accident_seeds_report import report
 from coopsumo.studies.cells import add_cell_flags
 from coopsumo.studies.learning_models import finished_trainings

@@ -25,7 +25,7 @@ from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.config import sim_config_from_dict
 from coopsumo.runio import Parser, UsageError, run_cli
 from coopsumo.sim.observation import Observation, network_features
-from coopsumo.studies.ablation import variant_list
+from coopsumo.studies.ablation_plan import variant_list
 from coopsumo.studies.cells import add_cell_flags, failed_keys, run_cells
 from coopsumo.studies.diagnosis_measures import COLUMNS, decision_measures, training_course
 from coopsumo.studies.learning_models import finished_trainings

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.runio import UsageError
-from coopsumo.studies.ablation import learner_of, training_key
+from coopsumo.studies.ablation_plan import learner_of, training_key
 
 
 def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None = None,
