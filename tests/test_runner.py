@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 from conftest import env_with_display
 
+from coopsumo.studies import records as cell_records
 from coopsumo.studies import runner
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -32,8 +33,8 @@ def square_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
     (Path(root) / f"ran_{spec['key']}").write_text(str(os.getpid()))
     x = spec["config"]["x"]
     if x == 3:
-        return runner.run_recorded(cell_record(spec, "?"), lambda: (_ for _ in ()).throw(ValueError("three")))
-    return runner.run_recorded(cell_record(spec, "?", value=x * x), lambda: None)
+        return cell_records.run_recorded(cell_record(spec, "?"), lambda: (_ for _ in ()).throw(ValueError("three")))
+    return cell_records.run_recorded(cell_record(spec, "?", value=x * x), lambda: None)
 
 
 def specs_of(xs: list[int], after: dict[int, int] | None = None) -> list[dict[str, Any]]:
@@ -61,8 +62,8 @@ def test_a_failing_cell_is_recorded_and_the_rest_finish(tmp_path: Path) -> None:
     assert [got[f"c{x}"]["value"] for x in (1, 2, 4)] == [1, 4, 16]
     assert got["c3"]["status"] == "failed" and got["c3"]["error"] == "ValueError: three"
     assert all(r["cell_wall_s"] is not None and r["versions"] for r in got.values())
-    assert runner.read_record(tmp_path, specs_of([2])[0])["value"] == 4  # type: ignore[index]
-    assert runner.read_record(tmp_path, {"key": "c2", "config": {"x": 5}}) is None  # another configuration
+    assert cell_records.read_record(tmp_path, specs_of([2])[0])["value"] == 4  # type: ignore[index]
+    assert cell_records.read_record(tmp_path, {"key": "c2", "config": {"x": 5}}) is None  # another configuration
 
 
 def test_a_record_is_reused_whatever_its_table_read_interval(tmp_path: Path) -> None:
@@ -70,10 +71,10 @@ def test_a_record_is_reused_whatever_its_table_read_interval(tmp_path: Path) -> 
     interval) is still this cell; any other difference is not."""
     sim = {"seed": 1, "road": {"lanes": 3}}
     (tmp_path / "cells").mkdir()
-    runner.cell_path(tmp_path, "s").write_text(json.dumps({"key": "s", "config": {"sim": sim}, "value": 7}))
+    cell_records.cell_path(tmp_path, "s").write_text(json.dumps({"key": "s", "config": {"sim": sim}, "value": 7}))
     spec = {"key": "s", "config": {"sim": {**sim, "full_read_every_steps": 10}}}
-    assert runner.read_record(tmp_path, spec)["value"] == 7  # type: ignore[index]
-    assert runner.read_record(tmp_path, {"key": "s", "config": {"sim": {**sim, "seed": 2}}}) is None
+    assert cell_records.read_record(tmp_path, spec)["value"] == 7  # type: ignore[index]
+    assert cell_records.read_record(tmp_path, {"key": "s", "config": {"sim": {**sim, "seed": 2}}}) is None
 
 
 def test_a_cell_waits_for_its_dependency_and_fails_with_it(tmp_path: Path) -> None:
@@ -94,7 +95,7 @@ def test_a_rerun_skips_finished_cells(tmp_path: Path) -> None:
     run_local(specs, tmp_path)
     for marker in tmp_path.glob("ran_*"):
         marker.unlink()
-    todo = [s for s in specs if (runner.read_record(tmp_path, s) or {}).get("status") != "ok"]
+    todo = [s for s in specs if (cell_records.read_record(tmp_path, s) or {}).get("status") != "ok"]
     assert [s["key"] for s in todo] == ["c3"]
     run_local(todo, tmp_path)
     assert sorted(p.name for p in tmp_path.glob("ran_*")) == ["ran_c3"]
@@ -163,8 +164,8 @@ GOOD = {"key": "c1", "config": {"x": 1}, "status": "ok", "summary": {"v": 2.5, "
 def test_a_corrupt_record_is_rerun_with_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str], text: str,
                                                   why: str) -> None:  # fmt: skip
     (tmp_path / "cells").mkdir()
-    runner.cell_path(tmp_path, "c1").write_text(text, encoding="latin-1")
-    done = runner.reusable_keys(tmp_path, specs_of([1]), "study", ("v", "n"))
+    cell_records.cell_path(tmp_path, "c1").write_text(text, encoding="latin-1")
+    done = cell_records.reusable_keys(tmp_path, specs_of([1]), "study", ("v", "n"))
     assert done == set()
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("study: cell c1: record ") and why in err[0], err
@@ -174,20 +175,20 @@ def test_a_corrupt_record_is_rerun_with_one_line(tmp_path: Path, capsys: pytest.
 def test_a_sound_record_is_reused_and_expected_reruns_are_silent(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     (tmp_path / "cells").mkdir()
-    runner.cell_path(tmp_path, "c1").write_text(json.dumps(GOOD))  # sound (a string beside the numbers is fine)
-    runner.cell_path(tmp_path, "c2").write_text(json.dumps({**GOOD, "key": "c2", "status": "failed"}))
-    runner.cell_path(tmp_path, "c3").write_text(json.dumps({**GOOD, "key": "c3"}))  # made with x = 1, not 3
+    cell_records.cell_path(tmp_path, "c1").write_text(json.dumps(GOOD))  # sound (a string beside the numbers is fine)
+    cell_records.cell_path(tmp_path, "c2").write_text(json.dumps({**GOOD, "key": "c2", "status": "failed"}))
+    cell_records.cell_path(tmp_path, "c3").write_text(json.dumps({**GOOD, "key": "c3"}))  # made with x = 1, not 3
     # c4 has no record yet
-    assert runner.reusable_keys(tmp_path, specs_of([1, 2, 3, 4]), "study", ("v", "n")) == {"c1"}
+    assert cell_records.reusable_keys(tmp_path, specs_of([1, 2, 3, 4]), "study", ("v", "n")) == {"c1"}
     assert capsys.readouterr().err == ""
     # read_record never raises on a record of the wrong shape
-    runner.cell_path(tmp_path, "c2").write_text("[1, 2]")
-    assert runner.read_record(tmp_path, specs_of([2])[0]) is None
+    cell_records.cell_path(tmp_path, "c2").write_text("[1, 2]")
+    assert cell_records.read_record(tmp_path, specs_of([2])[0]) is None
 
 
 def test_failed_exit_names_the_failed_cells(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    assert runner.failed_exit("study", [], 4, tmp_path) == 0 and capsys.readouterr().err == ""
-    assert runner.failed_exit("study", ["c3", "c4"], 4, tmp_path) == 1
+    assert cell_records.failed_exit("study", [], 4, tmp_path) == 0 and capsys.readouterr().err == ""
+    assert cell_records.failed_exit("study", ["c3", "c4"], 4, tmp_path) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("study: error: 2 of 4 cells failed (c3, c4)")
 
@@ -233,7 +234,7 @@ def test_study_lists_refuse_only_equal_values() -> None:
 
 def test_a_fresh_record_with_a_bad_summary_counts_as_failed() -> None:
     bad = {**GOOD, "summary": {"v": None, "n": 3}}
-    assert runner.checked_record(GOOD, ("v", "n")) == GOOD
-    assert runner.checked_record(bad, ("v", "n"))["status"] == "failed"
-    assert runner.checked_record(bad, ("v", "n"))["error"] == "record has summary v = null, not a number"
-    assert runner.checked_record({**bad, "status": "failed"}, ("v",))["status"] == "failed"
+    assert cell_records.checked_record(GOOD, ("v", "n")) == GOOD
+    assert cell_records.checked_record(bad, ("v", "n"))["status"] == "failed"
+    assert cell_records.checked_record(bad, ("v", "n"))["error"] == "record has summary v = null, not a number"
+    assert cell_records.checked_record({**bad, "status": "failed"}, ("v",))["status"] == "failed"

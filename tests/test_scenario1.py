@@ -17,7 +17,7 @@ from conftest import env_with_display
 from PIL import Image
 
 from coopsumo.config import AccidentConfig, OutputConfig, SimConfig, to_dict
-from coopsumo.studies import runner, scenario1
+from coopsumo.studies import run_folders, scenario1
 from coopsumo.studies import scenario1_measures as measures
 from coopsumo.studies import scenario1_report as rep
 
@@ -227,22 +227,22 @@ def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
     outputs = OutputConfig()
     (out / "config.json").write_text(json.dumps({"config": to_dict(cfg),
                                                  "sumo_outputs": to_dict(outputs)}))  # fmt: skip
-    summary = dict.fromkeys(runner.RUN_SUMMARY, 1.0)
+    summary = dict.fromkeys(run_folders.RUN_SUMMARY, 1.0)
     (out / "summary.json").write_text(json.dumps(summary))
     (out / "detectors.xml").write_text("<detector>\n</detector>\n")
     model = tmp_path / "model.pt"
     model.write_bytes(b"old")
     old = out.stat().st_mtime_ns - 10**9
     os.utime(model, ns=(old, old))
-    assert runner.reusable_run(out, to_dict(cfg), outputs, model)
+    assert run_folders.reusable_run(out, to_dict(cfg), outputs, model)
     new = (out / "summary.json").stat().st_mtime_ns + 10**9
     os.utime(model, ns=(new, new))  # retrained after the run
-    assert not runner.reusable_run(out, to_dict(cfg), outputs, model)
-    assert not runner.reusable_run(out, to_dict(cfg), outputs, tmp_path / "missing.pt")
+    assert not run_folders.reusable_run(out, to_dict(cfg), outputs, model)
+    assert not run_folders.reusable_run(out, to_dict(cfg), outputs, tmp_path / "missing.pt")
     # issue 25: a finished run's values are checked too, not only its configuration
     os.utime(model, ns=(old, old))
     (out / "summary.json").write_text(json.dumps({**summary, "mean_speed_mps": None}))
-    assert not runner.reusable_run(out, to_dict(cfg), outputs, model)
+    assert not run_folders.reusable_run(out, to_dict(cfg), outputs, model)
 
 
 @pytest.mark.parametrize("args", [["--alphas", "-1"], ["--alphas", "x"], ["--preset", "bogus"], ["--t-up", "2,2"],

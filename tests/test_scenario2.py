@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 from conftest import InlineBackend
 
-from coopsumo.studies import runner
+from coopsumo.studies import records, runner, trainings
 from coopsumo.studies import scenario2 as s2
 from coopsumo.studies import scenario2_measures as stats
 from coopsumo.studies import scenario2_plan as s2_plan
@@ -440,7 +440,7 @@ def assert_records_trustworthy(out: Path) -> int:
     paths = list((out / "cells").glob("*.json"))
     for path in paths:
         record = json.loads(path.read_text())
-        assert record["status"] == "failed" or runner.record_problem(record, s2.REQUIRED_SUMMARY) is None, path
+        assert record["status"] == "failed" or records.record_problem(record, s2.REQUIRED_SUMMARY) is None, path
     assert not list((out / "cells").glob("*.tmp"))
     return len(paths)
 
@@ -485,7 +485,7 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_
     assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
     left = [p for p in tmp_path.rglob("*") if p.name.endswith((".tmp", ".lock")) or ".partial-" in p.name]
     assert left == [] and not list(out.rglob("checkpoint.pt"))
-    assert all(runner.model_folder_problem(out / "train" / key) is None for key in runs["key"])
+    assert all(trainings.model_folder_problem(out / "train" / key) is None for key in runs["key"])
 
 
 def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

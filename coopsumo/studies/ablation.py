@@ -41,14 +41,16 @@ from coopsumo.studies.ablation_plan import (
     variant_list,
 )
 from coopsumo.studies.ablation_report import write_outputs
-from coopsumo.studies.runner import add_backend_flags, check_backend, failed_exit, study_root
+from coopsumo.studies.records import failed_exit
+from coopsumo.studies.run_folders import study_root
+from coopsumo.studies.runner import add_backend_flags, check_backend
 from coopsumo.validation import alpha_list, number_name, out_dir, seed_count, workers
 
 
 # -- one cell (in a worker process) ----------------------------------------------------------------
 def new_record(spec: dict[str, Any]) -> dict[str, Any]:
     """A cell's record before it runs: coordinates and configuration, nothing measured yet."""
-    from coopsumo.studies.runner import blank_record
+    from coopsumo.studies.records import blank_record
 
     return blank_record(spec, ("key", "kind", "part", "variant", "alpha", "seed", "eval_seed", "policy"),
                         train_summary=None)  # fmt: skip
@@ -56,14 +58,14 @@ def new_record(spec: dict[str, Any]) -> dict[str, Any]:
 
 def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
     """The record of a cell whose worker died or whose task could not run."""
-    from coopsumo.studies.runner import as_failed
+    from coopsumo.studies.records import as_failed
 
     return as_failed(new_record(spec), error)
 
 
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Run one cell and return its record (never raises on failure; see runner.run_recorded)."""
-    from coopsumo.studies.runner import run_recorded
+    """Run one cell and return its record (never raises on failure; see records.run_recorded)."""
+    from coopsumo.studies.records import run_recorded
 
     record = new_record(spec)
     cell = _run_train if spec["kind"] == "train" else _run_baseline
@@ -75,7 +77,7 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
     from coopsumo.agents.dqn_policy import DQNPolicy
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.runner import train_shared
+    from coopsumo.studies.trainings import train_shared
 
     out = root / "train" / spec.get("train_key", spec["key"])
     record["train_summary"], _ = train_shared(spec["config"]["train"], out)  # two cells may share one training
@@ -98,7 +100,7 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
 
 def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     """One baseline evaluation into ROOT/baselines/<key>/."""
-    from coopsumo.studies.runner import simulate_into
+    from coopsumo.studies.run_folders import simulate_into
 
     record["summary"] = simulate_into(spec["config"]["eval"], root / "baselines" / spec["key"], spec["key"])
 
@@ -107,14 +109,8 @@ def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> N
 def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.sim.network import build_net
-    from coopsumo.studies.runner import (
-        cell_path,
-        checked_record,
-        execute,
-        make_backend,
-        reusable_keys,
-        sigterm_interrupts,
-    )
+    from coopsumo.studies.records import cell_path, checked_record, reusable_keys
+    from coopsumo.studies.runner import execute, make_backend, sigterm_interrupts
 
     start = time.perf_counter()
     root = root.resolve()

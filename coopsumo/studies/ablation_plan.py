@@ -27,7 +27,7 @@ ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 8.0)
 METRICS = ("mean_speed_mps", "lane_changes_per_vehicle", "lane_changes_rejected", "teleports", "collisions",
            "throughput_veh_per_h", "mean_travel_time_s")  # fmt: skip
 REQUIRED_SUMMARY = ("mean_speed_mps", "lane_changes_per_vehicle", "teleports", "collisions")
-"""summary values a stored cell record must hold as finite numbers to be reused (runner.record_problem)"""
+"""summary values a stored cell record must hold as finite numbers to be reused (records.record_problem)"""
 
 
 def _variants() -> list[tuple[str, str, DQNConfig]]:

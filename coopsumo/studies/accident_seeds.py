@@ -30,7 +30,8 @@ from coopsumo.studies.ablation_plan import variant_list
 from coopsumo.studies.accident_seeds_report import report
 from coopsumo.studies.cells import add_cell_flags
 from coopsumo.studies.learning_models import finished_trainings
-from coopsumo.studies.runner import check_backend, failed_exit
+from coopsumo.studies.records import failed_exit
+from coopsumo.studies.runner import check_backend
 from coopsumo.studies.scenario1_plan import Plan, accident_config
 from coopsumo.validation import MAX_STEPS, alpha_list, integer, number_name, out_dir, seed_count, t_up_list
 

@@ -24,7 +24,9 @@ from coopsumo.runio import Parser, UsageError, run_cli
 from coopsumo.studies.adaptive_alpha_report import report
 from coopsumo.studies.adaptive_fit import read_sweep
 from coopsumo.studies.cells import add_cell_flags, failed_keys, run_cells
-from coopsumo.studies.runner import CellRecords, check_backend, failed_exit, study_root
+from coopsumo.studies.records import CellRecords, failed_exit
+from coopsumo.studies.run_folders import study_root
+from coopsumo.studies.runner import check_backend
 from coopsumo.studies.scenario2_plan import conditioned_key
 
 PROG = "adaptive"
@@ -58,7 +60,7 @@ def cell_specs(root: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
 
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
     """Drive one model at alpha=adaptive into ROOT/<out> (a finished run of the same configuration, made after the
-    model, is reused); never raises (runner.run_recorded)."""
+    model, is reused); never raises (records.run_recorded)."""
     return RECORDS.run(spec, lambda record: record.update(summary=_drive(spec, Path(root) / spec["out"])))
 
 
@@ -66,7 +68,7 @@ def _drive(spec: dict[str, Any], out: Path) -> dict[str, Any]:
     import torch
 
     from coopsumo.policy_spec import model_file, split_dqn_spec
-    from coopsumo.studies.runner import reusable_run, simulate_into
+    from coopsumo.studies.run_folders import reusable_run, simulate_into
 
     torch.set_num_threads(1)
     model = Path(model_file(split_dqn_spec(spec["config"]["policy"])[0]))

@@ -14,7 +14,7 @@ from pathlib import Path
 import pandas as pd
 
 from coopsumo.runio import Parser, UsageError, first_line, run_cli, write_json
-from coopsumo.studies.runner import study_root
+from coopsumo.studies.run_folders import study_root
 
 COLUMNS = {"runs.csv": ("key", "status", "lanes", "t_up_s", "seed", "alpha", "mean_speed_mps",
                         "lane_changes_per_vehicle", "loop_occupancy_pct"),

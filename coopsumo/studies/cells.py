@@ -1,8 +1,8 @@
 """A study's cells through the shared runner (coopsumo.studies.runner) in one call, and the options that choose where.
 
-run_cells reuses every cell whose stored record can be trusted (runner.reusable_keys), builds the road networks once
+run_cells reuses every cell whose stored record can be trusted (records.reusable_keys), builds the road networks once
 in this process (not in every worker), runs the other cells on local processes or Ray (runner.execute, one progress
-bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (runner.checked_record).
+bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
 The studies that only drive or measure (regime_map, accident_seeds, adaptive_alpha, diagnosis) call it instead of
 repeating those steps.
 """
@@ -16,17 +16,8 @@ from typing import Any
 
 from coopsumo.config import RoadConfig
 from coopsumo.runio import Parser
-from coopsumo.studies.runner import (
-    CellFn,
-    FailedRecord,
-    add_backend_flags,
-    cell_path,
-    checked_record,
-    execute,
-    make_backend,
-    reusable_keys,
-    sigterm_interrupts,
-)
+from coopsumo.studies.records import cell_path, checked_record, reusable_keys
+from coopsumo.studies.runner import CellFn, FailedRecord, add_backend_flags, execute, make_backend, sigterm_interrupts
 from coopsumo.validation import workers as workers_flag
 
 

@@ -29,7 +29,9 @@ from coopsumo.studies.ablation_plan import variant_list
 from coopsumo.studies.cells import add_cell_flags, failed_keys, run_cells
 from coopsumo.studies.diagnosis_measures import COLUMNS, decision_measures, training_course
 from coopsumo.studies.learning_models import finished_trainings
-from coopsumo.studies.runner import CellRecords, check_backend, failed_exit, study_root
+from coopsumo.studies.records import CellRecords, failed_exit
+from coopsumo.studies.run_folders import study_root
+from coopsumo.studies.runner import check_backend
 from coopsumo.validation import MAX_STEPS, integer
 
 PROG = "diagnose"
@@ -86,7 +88,7 @@ def diagnose(model_dir: Path, eval_cfg: dict[str, Any], steps: int) -> dict[str,
 
 
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Diagnose one model; never raises (runner.run_recorded)."""
+    """Diagnose one model; never raises (records.run_recorded)."""
     model_dir = Path(root) / "train" / spec["train_key"]
     return RECORDS.run(
         spec, lambda record: record.update(summary=diagnose(model_dir, spec["config"]["eval"], spec["config"]["steps"]))

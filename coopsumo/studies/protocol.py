@@ -26,7 +26,9 @@ from typing import Any
 from coopsumo.config import RoadConfig, SimConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.protocol_plan import PROFILES, REQUIRED, TRAJECTORY_EVERY, Profile, cell_specs, variants
-from coopsumo.studies.runner import add_backend_flags, check_backend, failed_exit, study_root
+from coopsumo.studies.records import failed_exit
+from coopsumo.studies.run_folders import study_root
+from coopsumo.studies.runner import add_backend_flags, check_backend
 from coopsumo.validation import out_dir, workers
 
 # -- one cell (in a worker process) ----------------------------------------------------------------
@@ -34,20 +36,20 @@ FIELDS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_s
 
 
 def new_record(spec: dict[str, Any]) -> dict[str, Any]:
-    from coopsumo.studies.runner import blank_record
+    from coopsumo.studies.records import blank_record
 
     return blank_record(spec, FIELDS, train_summary=None)
 
 
 def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
-    from coopsumo.studies.runner import as_failed
+    from coopsumo.studies.records import as_failed
 
     return as_failed(new_record(spec), error)
 
 
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Train (or reuse) the model, then drive it; or run a baseline. Never raises (runner.run_recorded)."""
-    from coopsumo.studies.runner import run_recorded
+    """Train (or reuse) the model, then drive it; or run a baseline. Never raises (records.run_recorded)."""
+    from coopsumo.studies.records import run_recorded
 
     record = new_record(spec)
     return run_recorded(record, lambda: _run(spec, Path(root), record))
@@ -55,7 +57,8 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.runner import simulate_into, train_shared
+    from coopsumo.studies.run_folders import simulate_into
+    from coopsumo.studies.trainings import train_shared
 
     ev = sim_config_from_dict(spec["config"]["eval"])
     if spec["kind"] == "model":
@@ -88,14 +91,8 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.sim.network import build_net
     from coopsumo.studies import protocol_report
-    from coopsumo.studies.runner import (
-        cell_path,
-        checked_record,
-        execute,
-        make_backend,
-        reusable_keys,
-        sigterm_interrupts,
-    )
+    from coopsumo.studies.records import cell_path, checked_record, reusable_keys
+    from coopsumo.studies.runner import execute, make_backend, sigterm_interrupts
 
     start = time.perf_counter()
     root = root.resolve()

@@ -22,7 +22,9 @@ from coopsumo.config import ControlConfig, SimConfig, to_dict
 from coopsumo.runio import Parser, run_cli, versions, write_json
 from coopsumo.studies import accident_runs
 from coopsumo.studies.cells import add_cell_flags
-from coopsumo.studies.runner import check_backend, failed_exit, study_root
+from coopsumo.studies.records import failed_exit
+from coopsumo.studies.run_folders import study_root
+from coopsumo.studies.runner import check_backend
 from coopsumo.studies.scenario1_plan import Plan, accident_config
 from coopsumo.validation import MAX_STEPS, integer, number_name, out_dir, seed_count, t_up_list
 

@@ -25,19 +25,9 @@ import pandas as pd
 from coopsumo.config import DQN_PRESETS, ControlConfig, OutputConfig, RoadConfig, SimConfig, to_dict
 from coopsumo.policy_spec import model_file, split_dqn_spec
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
-from coopsumo.studies.runner import (
-    CellRecords,
-    add_backend_flags,
-    check_backend,
-    execute,
-    failed_exit,
-    make_backend,
-    model_folder_problem,
-    reusable_run,
-    same_config,
-    sigterm_interrupts,
-    study_root,
-)
+from coopsumo.studies.records import CellRecords, failed_exit
+from coopsumo.studies.run_folders import reusable_run, same_config, study_root
+from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
 from coopsumo.studies.scenario1_measures import run_metrics
 from coopsumo.studies.scenario1_plan import (
     ALPHAS,
@@ -52,6 +42,7 @@ from coopsumo.studies.scenario1_plan import (
     train_config,
 )
 from coopsumo.studies.scenario1_report import timing_text, write_outputs
+from coopsumo.studies.trainings import model_folder_problem
 from coopsumo.validation import (
     MAX_STEPS,
     MOBIL_LIMITS,
@@ -82,7 +73,7 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 def _train_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
     import torch
 
-    from coopsumo.studies.runner import train_resuming
+    from coopsumo.studies.trainings import train_resuming
 
     torch.set_num_threads(1)
     record["summary"] = train_resuming(spec["config"], out)[0]  # an interrupted training continues exactly
@@ -92,7 +83,7 @@ def _run_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
     """One accident run into its run folder, written atomically (a killed run leaves no half folder)."""
     import torch
 
-    from coopsumo.studies.runner import simulate_into
+    from coopsumo.studies.run_folders import simulate_into
 
     torch.set_num_threads(1)
     record["summary"] = simulate_into(spec["config"], out, spec["out"], trajectory_every=spec["trajectory_every"],

@@ -40,23 +40,9 @@ import pandas as pd
 
 from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
-from coopsumo.studies.runner import (
-    CellRecords,
-    add_backend_flags,
-    cell_path,
-    check_backend,
-    checked_record,
-    execute,
-    failed_exit,
-    make_backend,
-    read_record,
-    reusable_keys,
-    sigterm_interrupts,
-    simulate_into,
-    study_root,
-    train_resuming,
-    train_shared,
-)
+from coopsumo.studies.records import CellRecords, cell_path, checked_record, failed_exit, read_record, reusable_keys
+from coopsumo.studies.run_folders import simulate_into, study_root
+from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
 from coopsumo.studies.scenario2_measures import CRITERION, KEY_COLUMNS, runs_table
 from coopsumo.studies.scenario2_plan import (
     NOMINAL_CAPACITY_VEH_H_PER_LANE,
@@ -66,6 +52,7 @@ from coopsumo.studies.scenario2_plan import (
     cell_specs,
 )
 from coopsumo.studies.scenario2_report import condition_label, write_outputs
+from coopsumo.studies.trainings import train_resuming, train_shared
 from coopsumo.validation import (
     MAX_T_UP_S,
     MOBIL_LIMITS,
@@ -84,7 +71,7 @@ from coopsumo.validation import (
 from coopsumo.validation import parse_number as parse_number  # '1/8' -> 0.125, kept in this module's interface
 
 REQUIRED_SUMMARY = (CRITERION, "collisions", "teleports")
-"""summary values a stored cell record must hold as finite numbers to be reused (runner.record_problem)"""
+"""summary values a stored cell record must hold as finite numbers to be reused (records.record_problem)"""
 RECORD_KEYS = (*KEY_COLUMNS, "policy", "p")
 """coordinates copied from a cell's spec into its record: policy "dqn" (p None) or "mobil" (alpha None)"""
 

@@ -1,0 +1,221 @@
+"""A study's cell records: what a cell is before and after it runs, and which stored records can be trusted
+(their shape, their values, their plausibility)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+import time
+import traceback
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from coopsumo.config import results_view
+from coopsumo.runio import versions
+
+MAX_CRASHES = 2
+"""a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
+CellFn = Callable[[dict[str, Any], str], dict[str, Any]]
+"""cell_fn(spec, root) -> record, a module-level function (it is pickled to the workers)"""
+FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
+"""failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
+
+
+def blank_record(spec: dict[str, Any], fields: Sequence[str], **empty: Any) -> dict[str, Any]:
+    """A cell's record before it runs: the spec's `fields`, its configuration, then `empty` (the study's own
+    result fields) and no error or summary yet."""
+    record = {k: spec.get(k) for k in fields}
+    record.update(config=spec["config"], **empty)
+    record.update(error=None, traceback=None, summary=None)
+    return record
+
+
+def as_failed(record: dict[str, Any], error: str) -> dict[str, Any]:
+    """`record` (a blank one) as the record of a cell whose worker died or that could not run."""
+    record.update(status="failed", error=error, cell_wall_s=None, cell_cpu_s=None, versions=versions())
+    return record
+
+
+def run_recorded(record: dict[str, Any], body: Callable[[], None]) -> dict[str, Any]:
+    """Run body (which fills record) and add status, error, wall and CPU time (s) and versions; never raises.
+
+    status "ok", "failed" (with the error's first line and a short traceback) or "interrupted"
+    (KeyboardInterrupt, also raised for SIGTERM/SIGINT while training).
+    """
+    start, cpu_start = time.perf_counter(), time.process_time()
+    try:
+        body()
+        record["status"] = "ok"
+    except KeyboardInterrupt as err:
+        record.update(status="interrupted", error=f"{type(err).__name__}: {err}")
+    except Exception as err:
+        first = str(err).strip().splitlines()[0] if str(err).strip() else ""
+        record.update(status="failed", error=f"{type(err).__name__}: {first}".rstrip(": "),
+                      traceback=traceback.format_exc(limit=8))  # fmt: skip
+    record["cell_wall_s"] = round(time.perf_counter() - start, 2)
+    record["cell_cpu_s"] = round(time.process_time() - cpu_start, 2)
+    record["versions"] = versions()
+    return record
+
+
+@dataclass(frozen=True)
+class CellRecords:
+    """The record layout of one study's cells, and the three things every study does with it.
+
+    fields: copied from the cell's spec; empty: the study's own result fields, None until the cell has run;
+    extra(spec): fields that depend on the cell (its folder, say).
+    """
+
+    fields: tuple[str, ...]
+    empty: tuple[str, ...] = ()
+    extra: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+
+    def new(self, spec: dict[str, Any]) -> dict[str, Any]:
+        """A cell's record before it runs: what it is and where it writes; nothing measured yet."""
+        record = blank_record(spec, self.fields, **dict.fromkeys(self.empty))
+        if self.extra is not None:
+            record.update(self.extra(spec))
+        return record
+
+    def failed(self, spec: dict[str, Any], error: str) -> dict[str, Any]:
+        """The record of a cell whose worker died or that could not run (execute's failed_record)."""
+        return as_failed(self.new(spec), error)
+
+    def run(self, spec: dict[str, Any], body: Callable[[dict[str, Any]], None]) -> dict[str, Any]:
+        """Run one cell in this process: body(record) fills the new record (run_recorded); never raises."""
+        record = self.new(spec)
+        return run_recorded(record, lambda: body(record))
+
+
+def cell_path(root: Path, key: str) -> Path:
+    return root / "cells" / f"{key}.json"
+
+
+def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
+    """The stored record of this cell if it is a JSON object made with this configuration (config.results_view)."""
+    try:
+        record = json.loads(cell_path(root, spec["key"]).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(record, dict) or results_view(record.get("config")) != results_view(spec["config"]):
+        return None
+    return record
+
+
+COUNTS = ("departed", "arrived", "collisions", "teleports", "lane_changes", "lane_changes_rejected",
+          "insertion_blocked", "insertion_pending_at_end", "steps")  # fmt: skip
+"""summary values that count something: whole numbers >= 0"""
+
+
+MAX_SPEED_MPS = 50.0
+"""no run's speed is above this (1.5 x the road's 33.34 m/s limit, which no vehicle's expected speed exceeds)"""
+
+
+MAX_LANE_FLOW_VEH_H = 36_000.0
+"""no lane carries more than one vehicle per 0.1 s step"""
+
+
+MAX_LANES = 6
+
+
+def implausible(summary: dict[str, Any]) -> str | None:
+    """Why a summary's values cannot come from a run, or None: counts negative or fractional, a speed outside
+    0..MAX_SPEED_MPS, a negative rate, time or share, a throughput above MAX_LANES lanes at MAX_LANE_FLOW_VEH_H."""
+    for key, value in summary.items():
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            continue  # record_problem judges the values a study reads
+        if key in COUNTS and (value < 0 or value != int(value)):
+            return f"has summary {key} = {value}, not a count (a whole number >= 0)"
+        if key.endswith("_mps") and not key.startswith("table_") and not 0 <= value <= MAX_SPEED_MPS:
+            return f"has summary {key} = {value:g} m/s, outside 0 to {MAX_SPEED_MPS:g} (no run drives so)"
+        if key == "throughput_veh_per_h" and not 0 <= value <= MAX_LANES * MAX_LANE_FLOW_VEH_H:
+            return f"has summary {key} = {value:g}, more than {MAX_LANES} lanes can carry"
+        if key.endswith(("_per_vehicle", "_veh_h", "_time_s", "_share")) and value < 0:
+            return f"has summary {key} = {value:g}, below 0"
+    number = {k: float(v) for k, v in summary.items() if isinstance(v, int | float) and not isinstance(v, bool)}
+    if number.get("arrived", 0.0) > number.get("departed", math.inf):
+        return f"has summary arrived = {number['arrived']:g} above departed = {number['departed']:g}"
+    if {"lane_changes", "departed", "lane_changes_per_vehicle"} <= set(number) and number["departed"] > 0:
+        ratio = number["lane_changes"] / number["departed"]
+        if not math.isclose(ratio, number["lane_changes_per_vehicle"], rel_tol=1e-3, abs_tol=1e-3):
+            return (f"has summary lane_changes = {number['lane_changes']:g} for {number['departed']:g} vehicles, but "
+                    f"lane_changes_per_vehicle = {number['lane_changes_per_vehicle']:g}: edited?")  # fmt: skip
+    return None
+
+
+def record_problem(record: Any, required: Sequence[str]) -> str | None:
+    """Why a stored record cannot be trusted, or None: it must be a JSON object of status "ok" with a non-empty
+    summary object whose `required` values (the ones the study reads) are finite numbers."""
+    if not isinstance(record, dict):
+        return f"is a JSON {type(record).__name__}, not an object"
+    if "status" not in record:
+        return "has no status"
+    if record["status"] != "ok":
+        return f"has status {json.dumps(record['status'])[:40]}, not \"ok\""
+    summary = record.get("summary")
+    if not isinstance(summary, dict) or not summary:
+        return f"has status ok but its summary is {json.dumps(summary)[:40]}"
+    for key in required:
+        value = summary.get(key)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return f"has summary {key} = {json.dumps(value)[:40]}, not a number"
+        if not math.isfinite(value):
+            return f"has summary {key} = {value}, not a finite number"
+    return implausible(summary)
+
+
+def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str, Any]:
+    """A record just run, as the study may count it: one of status ok that record_problem faults counts as failed."""
+    problem = record_problem(record, required) if record.get("status") == "ok" else None
+    return {**record, "status": "failed", "error": f"record {problem}"} if problem else record
+
+
+def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> set[str]:
+    """The cells whose stored record can be reused: one record_problem accepts, made with the cell's
+    configuration. Every other cell is rerun; a record that is neither failed nor interrupted and yet not
+    accepted (unreadable, the wrong shape, a bad summary) gets one line on stderr saying why."""
+    done = set()
+    for spec in specs:
+        path = cell_path(root, spec["key"])
+        try:
+            record = json.loads(path.read_text())
+        except FileNotFoundError:
+            continue
+        except (OSError, ValueError) as err:
+            print(f"{prog}: cell {spec['key']}: record {path} is unreadable ({type(err).__name__}); rerunning it",
+                  file=sys.stderr)  # fmt: skip
+            continue
+        if isinstance(record, dict) and record.get("status") in ("failed", "interrupted"):
+            continue  # rerun without a word: the study counts these
+        problem = record_problem(record, required)
+        if problem:
+            print(f"{prog}: cell {spec['key']}: record {path} {problem}; rerunning it", file=sys.stderr)
+        elif results_view(record.get("config")) == results_view(spec["config"]):
+            done.add(spec["key"])
+    return done
+
+
+def summary_problem(path: Path, required: Sequence[str]) -> str | None:
+    """Why the summary.json at `path` cannot be trusted, or None: a readable JSON object whose `required` values
+    are finite numbers (as record_problem asks of a cell record's summary)."""
+    try:
+        summary = json.loads(path.read_text())
+    except (OSError, ValueError) as err:
+        return f"has an unreadable summary.json ({type(err).__name__})"
+    problem = record_problem({"status": "ok", "summary": summary}, required)
+    if problem is None:
+        return None
+    return problem.replace("has status ok but its summary is", "has summary.json").replace("has summary ",
+                                                                                             "has summary.json ")
+
+
+def failed_exit(prog: str, failed: Sequence[str], total: int, root: Path) -> int:
+    """A study's exit code: 0, or 1 with one line on stderr naming the failed cells."""
+    if not failed:
+        return 0
+    print(f"{prog}: error: {len(failed)} of {total} cells failed ({', '.join(failed)}); records in {root / 'cells'}; "
+          "rerun the same command to retry them", file=sys.stderr)  # fmt: skip
+    return 1

@@ -1,0 +1,122 @@
+"""The trainings a study runs: resumed exactly, shared between cells under a lock, reused only when the model
+is whole and is the training's own."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from coopsumo.config import results_view
+
+MAX_CRASHES = 2
+"""a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
+CellFn = Callable[[dict[str, Any], str], dict[str, Any]]
+"""cell_fn(spec, root) -> record, a module-level function (it is pickled to the workers)"""
+FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
+"""failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
+
+
+def finished_training(out: Path, config: dict[str, Any]) -> dict[str, Any] | None:
+    """The training summary of a training without evaluation that finished in out with exactly this config
+    (its run marker lists its files, its config.json holds config, model.pt and train_summary.json exist);
+    None otherwise. A cell killed after its training but before its record was written reuses it."""
+    from coopsumo.runio import RUN_MARKER
+
+    try:
+        marker = json.loads((out / RUN_MARKER).read_text())
+        stored = json.loads((out / "config.json").read_text())["config"]
+        summary = json.loads((out / "train_summary.json").read_text())
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    done = isinstance(marker, dict) and marker.get("kind") == "train" and isinstance(marker.get("files"), list)
+    if not (done and "model.pt" in marker["files"] and (out / "model.pt").is_file() and isinstance(summary, dict)):
+        return None
+    if (problem := model_folder_problem(out)) is not None:  # a model that does not load or is not this training's
+        print(f"coopsumo: training folder {out} {problem}; training it again", file=sys.stderr)
+        return None
+    return summary if results_view(stored) == results_view(json.loads(json.dumps(config))) else None
+
+
+def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:
+    """Train the TrainConfig dict `config` into out, resuming a checkpoint there made with exactly this config.
+
+    Returns train()'s summary and the step resumed from (None: started afresh). A stop by signal
+    becomes KeyboardInterrupt.
+    """
+    import torch
+
+    from coopsumo.agents.train import Interrupted, Trainer, train
+    from coopsumo.config import train_config_from_dict
+
+    torch.set_num_threads(1)
+    cfg = train_config_from_dict(config)
+    out.mkdir(parents=True, exist_ok=True)
+    if cfg.eval_steps == 0 and (stored := finished_training(out, config)) is not None:
+        return stored, cfg.sim.steps
+    resumed_from = None
+    if (out / "checkpoint.pt").exists():
+        try:
+            state = Trainer.load_checkpoint(out)
+            if results_view(json.loads(json.dumps(state["config"]))) == results_view(config):
+                resumed_from = int(state["step"])
+        except Exception:  # a damaged checkpoint: start afresh
+            resumed_from = None
+    try:
+        summary = train(cfg, out, resume=resumed_from is not None, progress=False)
+    except Interrupted as err:
+        raise KeyboardInterrupt(str(err)) from err
+    return summary, resumed_from
+
+
+def train_shared(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:
+    """train_resuming under a lock on out (a file beside it): cells that share one training (the margin variants,
+    a conditioned model's alphas) wait for the first to train it, then reuse it."""
+    import fcntl
+
+    out.parent.mkdir(parents=True, exist_ok=True)
+    with open(out.parent / f".{out.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        return train_resuming(config, out)
+
+
+def model_folder_problem(folder: Path) -> str | None:
+    """Why the training folder's model.pt cannot be reused, or None: the training finished (train's marker lists
+    its files; written before markers: train_summary.json is there) and the model loads (dqn.load_model)."""
+    from coopsumo.agents.dqn import ModelFileError, load_model
+    from coopsumo.runio import RUN_MARKER, finished_run
+
+    if (folder / RUN_MARKER).exists():
+        if not finished_run(folder, "train"):
+            return "is from a training that has not finished"
+    elif not (folder / "train_summary.json").exists():
+        return "has no train_summary.json (its training has not finished)"
+    try:
+        _, meta = load_model(folder / "model.pt")
+    except ModelFileError as err:
+        return f"cannot be used: {err}"
+    try:
+        recorded = json.loads((folder / "config.json").read_text())["config"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # nothing to compare with (the caller checked config.json against the study's configuration)
+    if (where := first_difference(meta.get("config"), recorded)) is not None:
+        return f"holds a model.pt made by another configuration than its config.json ({where}): swapped?"
+    return None
+
+
+def first_difference(a: Any, b: Any, path: str = "config") -> str | None:
+    """Where two configurations (config.results_view of each) first differ, as 'config.sim.seed: 2 != 0'; None
+    when they are equal."""
+    a, b = results_view(json.loads(json.dumps(a))), results_view(json.loads(json.dumps(b)))
+
+    def walk(x: Any, y: Any, at: str) -> str | None:
+        if isinstance(x, dict) and isinstance(y, dict):
+            for key in sorted(set(x) | set(y)):
+                if (found := walk(x.get(key), y.get(key), f"{at}.{key}")) is not None:
+                    return found
+            return None
+        return None if x == y else f"{at}: {json.dumps(x)[:40]} != {json.dumps(y)[:40]}"
+
+    return walk(a, b, path)
