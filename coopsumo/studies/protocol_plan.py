@@ -87,7 +87,7 @@ PROFILES = {
     "mix": Profile("mix", variants=("mix", "mix_last"), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "gamma": Profile("gamma", variants=("gamma",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "v2x": Profile("v2x", variants=("v2x", "v2x_mix"), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
-    "v2x10": Profile("v2x10", variants=("v2x",)),  # the v2x learner on the default's 10 seeds, alpha 8 on 3
+    "v2x_mix10": Profile("v2x_mix10", variants=("v2x_mix",)),  # v2x_mix on the default's 10 seeds, alpha 8 on 3
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
