@@ -225,9 +225,10 @@ class DQNConfig:
     """when the trained model drives (evaluation, simulate, studies), a lane change is chosen only when its Q-value
     beats the best of speed-up and none by more than this (Q units; 0: plain argmax, the paper's). Training ignores it:
     the same seed gives the same weights whatever the margin"""
-    observation: str = "paper"
+    observation: str = "v2x"
     """what the network reads: 'paper' (3 frames of the 3 x 20 m occupancy grid and the speed errors) or 'v2x'
-    (those plus each side lane's nearest leader and follower within 200 m: gap and speed; see v2x_features)"""
+    (those plus each side lane's nearest leader and follower within 200 m: gap and speed; see v2x_features).
+    Default v2x: the learner protocol (results/learner_protocol_v2x*) measured it against the paper's state"""
     alpha_conditioned: bool = False
     """one network for every alpha: alpha is an input (log(1 + alpha) beside the speed errors), training draws it
     from PAPER_ALPHAS for all vehicles every alpha_period_steps, and the model drives at any alpha (not in the paper)"""
@@ -245,9 +246,10 @@ class DQNConfig:
     """model selection: the free-flow demands T_up (s) of the validation runs, one run each"""
     validation_steps: int = 3000
     """model selection: steps of 0.1 s of each validation run"""
-    train_t_ups: tuple[float, ...] = ()
-    """training demand: each episode's T_up (s) drawn from these (agents/episodes.py); empty: the run's own T_up"""
-    accident_share: float = 0.0
+    train_t_ups: tuple[float, ...] = (2.0, 1.5, 1.0)
+    """training demand: each episode's T_up (s) drawn from these (agents/episodes.py); empty: the run's own T_up
+    (train --t-up T trains at T alone)"""
+    accident_share: float = 0.5
     """training demand: the share of episodes with an accident (position, start and length drawn)"""
     episode_steps: int = 9000
     """training demand: steps of one episode when train_t_ups or accident_share is set (a fresh world each)"""
@@ -317,6 +319,8 @@ PAPER_DQN = DQNConfig(
     change_margin=0.0,
     observation="paper",
     select_every_steps=0,
+    train_t_ups=(),
+    accident_share=0.0,
 )
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""

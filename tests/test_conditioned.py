@@ -299,7 +299,7 @@ def test_bad_alpha_input_is_one_line_and_writes_nothing(conditioned_model: Path,
                                                          fragment: str) -> None:  # fmt: skip
     if kind.startswith("plain,"):
         plain = tmp_path / "plain"
-        net = QNetwork(110 / 3.6, dueling=True)
+        net = QNetwork(110 / 3.6, dueling=True, observation=TrainConfig().dqn.observation)
         plain.mkdir()
         from coopsumo.config import to_dict
 

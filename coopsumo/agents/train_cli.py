@@ -175,7 +175,9 @@ def build_parser() -> Parser:
     p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
     p.add_argument("--alpha", type=alpha, default=None,
                    help="lane-change penalty of eq. (7), per accepted change (default 0)")  # fmt: skip
-    p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
+    p.add_argument("--t-up", type=number(), default=None,
+                   help=f"upstream departure interval (s) of the evaluation and, given, of the training (trained at "
+                        f"it alone); default: {DemandConfig.t_up_s:g} s, training on the preset's demands")  # fmt: skip
     p.add_argument("--steps", type=steps, default=90_000, help="training steps of 0.1 s")
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the learner and SUMO (0 to 2^31 - 1)")
     p.add_argument("--out", type=out_dir, default=None, help="run folder (default results/train/...)")
@@ -189,14 +191,16 @@ def build_parser() -> Parser:
 
 
 def config_from_args(args: Any) -> TrainConfig:
-    check_t_up("--t-up", args.t_up, ControlConfig().dt_s)
+    t_up = DemandConfig.t_up_s if args.t_up is None else check_t_up("--t-up", args.t_up, ControlConfig().dt_s)
     dqn = learner_from_args(args)
+    if args.t_up is not None and args.train_t_ups is None and dqn.train_t_ups:
+        dqn = replace(dqn, train_t_ups=())  # an explicit --t-up: trained at that demand alone
     if dqn.alpha_conditioned and args.alpha is not None:
         raise UsageError("--alpha-conditioned trains one model for every alpha; leave --alpha out (drive the model "
                          "at an alpha with --policy dqn:PATH,alpha=A)")  # fmt: skip
     sim = SimConfig(
         road=RoadConfig(lanes=args.lanes),
-        demand=DemandConfig(t_up_s=args.t_up),
+        demand=DemandConfig(t_up_s=t_up),
         reward=RewardConfig(alpha=args.alpha or 0.0),
         steps=args.steps,
         seed=args.seed,

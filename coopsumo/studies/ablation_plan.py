@@ -58,7 +58,7 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
         ("v2x_margin", "the `v2x` models driven with the change margin of 1",
          {"observation": "v2x", "change_margin": 1.0}),
         ("select", "`margin` with model.pt chosen on held-out demand: validated greedily every 15,000 steps, the best "
-         "kept (the default preset; coopsumo protocol judges it)",
+         "kept (the default preset before the v2x state and the mix; coopsumo protocol judges it)",
          {"change_margin": 1.0, "select_every_steps": 15_000}),
         ("conditioned", "`margin` with alpha an input: one alpha-conditioned model per seed (train "
          "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A) with the change margin of 1",

@@ -43,15 +43,18 @@ class Variant:
     weights: str = "model.pt"
 
 
-MIX = replace(DQNConfig(), train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)
+SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0)
+"""the default learner before the v2x state and the mix (free flow at the run's own demand, the paper's state)"""
+MIX = replace(SELECT, train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)
 """the learner trained on the mix of demands and accidents (agents/episodes.py)"""
 
 
 def variants() -> dict[str, Variant]:
-    """The variants the protocol knows; `select` is the default preset."""
-    default = DQNConfig()
+    """The variants the protocol knows; `v2x_mix` is the default preset (DQNConfig()), `select` the one before."""
+    default = SELECT
     return {v.name: v for v in (
-        Variant("select", "the default: the paper's state, change margin 1, model.pt chosen on held-out demand "
+        Variant("select", "the default until v2x_mix: the paper's state, free-flow training at T_up 1 s, change "
+                "margin 1, model.pt chosen on held-out demand "
                 "(validated every 15,000 steps)", default),
         Variant("margin", "the previous default: the same trainings' last weights (model_last.pt), change margin 1",
                 default, "model_last.pt"),
@@ -59,10 +62,11 @@ def variants() -> dict[str, Variant]:
                 "and 1 s, half of them with an accident (position, start and length drawn)", MIX),
         Variant("mix_last", "the `mix` trainings' last weights", MIX, "model_last.pt"),
         Variant("v2x", "`select` reading the v2x state: the paper's state plus each side lane's nearest leader and "
-                "follower within 200 m (gap, speed)", replace(DQNConfig(), observation="v2x")),
-        Variant("v2x_mix", "`v2x` trained where it is used, as `mix`", replace(MIX, observation="v2x")),
+                "follower within 200 m (gap, speed)", replace(SELECT, observation="v2x")),
+        Variant("v2x_mix", "`v2x` trained where it is used, as `mix` (the default preset)",
+                replace(MIX, observation="v2x")),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
-                "(10 s)", replace(DQNConfig(), gamma=0.97)),
+                "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
 
 

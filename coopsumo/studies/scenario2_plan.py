@@ -12,6 +12,7 @@ from coopsumo.config import (
     DQN_PRESETS,
     PAPER_ALPHAS,
     DemandConfig,
+    DQNConfig,
     RewardConfig,
     RoadConfig,
     SimConfig,
@@ -104,7 +105,8 @@ def mobil_key(lanes: int, t_up_s: float, p: float, seed: int) -> str:
 
 
 def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Profile) -> TrainConfig:
-    """Scenario II training (free flow) plus the greedy evaluation on the same condition."""
+    """Scenario II training (free flow at the condition's own inflow, as the paper trains, whatever the preset's
+    training demand) plus the greedy evaluation on the same condition."""
     sim = SimConfig(
         road=RoadConfig(lanes=lanes),
         demand=DemandConfig(t_up_s=t_up_s),
@@ -113,14 +115,20 @@ def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Pr
         seed=seed,
         policy="dqn",
     )
-    return TrainConfig(sim=sim, dqn=DQN_PRESETS[profile.preset], eval_steps=profile.eval_steps)
+    return TrainConfig(sim=sim, dqn=at_condition(DQN_PRESETS[profile.preset]), eval_steps=profile.eval_steps)
+
+
+def at_condition(dqn: DQNConfig) -> DQNConfig:
+    """The learner trained on its condition alone: free flow at the run's own inflow (no drawn demands, no
+    accidents), so each condition's alpha* is learned where it is judged."""
+    return replace(dqn, train_t_ups=(), accident_share=0.0)
 
 
 def conditioned_configs(lanes: int, t_up_s: float, alpha: float, seed: int,
                         profile: Profile) -> tuple[TrainConfig, SimConfig]:  # fmt: skip
     """A conditioned cell: the alpha-conditioned training of its (condition, seed) (no evaluation of its own) and
     the greedy evaluation at `alpha` on the same condition and seed."""
-    dqn = replace(DQN_PRESETS[profile.preset], alpha_conditioned=True)
+    dqn = replace(at_condition(DQN_PRESETS[profile.preset]), alpha_conditioned=True)
     sim = SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up_s), steps=profile.train_steps,
                     seed=seed, policy="dqn")  # fmt: skip
     ev = replace(sim, reward=RewardConfig(alpha=alpha), steps=profile.eval_steps)
