@@ -28,7 +28,12 @@ def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
     for (_, _, before), (name, _, after) in pairs:
         changed = [f for f in fields if f != "preset" and getattr(before, f) != getattr(after, f)]
         assert 1 <= len(changed) <= 3, (name, changed)  # one idea (e.g. replay size + its update rate)
-    assert any(cfg == DQNConfig() for _, _, cfg in VARIANTS)  # the default design is one of the variants
+    # the default design is judged by the learner protocol, one change at a time from the learning study's `select`
+    from coopsumo.studies.protocol_plan import variants
+
+    protocol = variants()
+    assert protocol["v2x_mix"].learner == DQNConfig()
+    assert learner_of("select") == protocol["select"].learner
 
 
 def test_evaluation_seeds_are_not_training_seeds() -> None:

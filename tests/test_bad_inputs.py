@@ -164,7 +164,7 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("scenario1", ["--quick", "--preset", "default,,paper"], ("--preset", "empty item")),
     ("train", [*TRAIN, "--alpha-relabel", "0.3"], ("--alpha-relabel", "--alpha-conditioned")),
     ("train", [*TRAIN, "--alpha-period", "300"], ("--alpha-period", "--alpha-conditioned")),
-    ("train", [*TRAIN, "--episode-steps", "3000"], ("--episode-steps", "--train-t-up")),
+    ("train", [*TRAIN, "--preset", "paper", "--episode-steps", "3000"], ("--episode-steps", "--train-t-up")),
     ("train", [*TRAIN, "--select-every", "0", "--validation-steps", "300"], ("--validation-steps", "--select-every")),
 ]  # fmt: skip
 

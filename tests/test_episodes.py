@@ -32,8 +32,10 @@ def test_the_draw_is_a_pure_function_of_seed_and_episode() -> None:
 
 
 def test_without_a_mix_the_training_is_one_world() -> None:
-    assert not episodic(DQNConfig()) and not episodic(PAPER_DQN)  # the paper trains in free flow at one demand
-    assert episode_bounds(90_000, DQNConfig(), 12_345) == (0, 0, 90_000)
+    one_world = dataclasses.replace(DQNConfig(), train_t_ups=(), accident_share=0.0)
+    assert not episodic(one_world) and not episodic(PAPER_DQN)  # the paper trains in free flow at one demand
+    assert episodic(DQNConfig())  # the default trains on the mix
+    assert episode_bounds(90_000, one_world, 12_345) == (0, 0, 90_000)
     assert episode_bounds(90_000, MIX, 12_345) == (1, 9000, 18_000)
     assert episode_bounds(10_000, MIX, 9500) == (1, 9000, 10_000)
     share_zero = dataclasses.replace(MIX, accident_share=0.0)
