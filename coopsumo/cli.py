@@ -18,7 +18,7 @@ from coopsumo.runio import NETS_ENV, Parser, nets_dir_problem, working_folder_pr
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("coopsumo.simulate", "run one simulation (free flow or the accident) with any policy"),
-    "train": ("coopsumo.agents.train_cli", "train the shared DQN (on drawn demands and accidents), then evaluate it greedily"),
+    "train": ("coopsumo.agents.train_cli", "train the shared DQN on drawn demands and accidents, evaluate it"),
     "scenario1": ("coopsumo.studies.scenario1", "the accident study of section IV.A, across demands"),
     "scenario2": ("coopsumo.studies.scenario2", "the alpha sweep of section IV.B (Fig. 6)"),
     "learning": ("coopsumo.studies.ablation", "the learner ablation and the alpha response"),
