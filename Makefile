@@ -3,6 +3,7 @@ PY      ?= python3
 VENV    := .venv
 BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
+DEMO_OUT ?= results/demo
 QUICK   ?=
 SEEDS   ?=
 PRESET  ?=
@@ -34,7 +35,7 @@ bench: $(STAMP)
 	$(BIN)/coopsumo bench $(BENCH_ARGS)
 
 demo: $(STAMP)
-	$(BIN)/coopsumo simulate --scenario free --lanes 3 --policy greedy --steps 3000 --seed 1 --out results/demo
+	$(BIN)/coopsumo simulate --scenario free --lanes 3 --policy greedy --steps 3000 --seed 1 --out $(DEMO_OUT)
 
 nets: $(STAMP)
 	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.sim.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"

@@ -75,11 +75,13 @@ def test_documented_commands_run(tmp_path: Path) -> None:
 
 
 @pytest.mark.sumo
-def test_make_demo_and_the_sumolib_snippet() -> None:
-    res = subprocess.run(["make", "demo"], cwd=ROOT, capture_output=True, text=True, check=False)
+def test_make_demo_and_the_sumolib_snippet(tmp_path: Path) -> None:
+    """`make demo` (into a temporary folder: the suite leaves the checkout as it found it) and the snippet on it."""
+    demo = tmp_path / "results" / "demo"
+    res = subprocess.run(["make", "demo", f"DEMO_OUT={demo}"], cwd=ROOT, capture_output=True, text=True, check=False)
     assert res.returncode == 0, res.stderr[-1500:]
     snippet = next(b for b in blocks("python") if "sumolib.xml.parse" in b and "detectors.xml" in b)
-    res = subprocess.run([sys.executable, "-c", snippet], cwd=ROOT, capture_output=True, text=True, check=False)
+    res = subprocess.run([sys.executable, "-c", snippet], cwd=tmp_path, capture_output=True, text=True, check=False)
     assert res.returncode == 0, res.stderr
     rows = [line.split() for line in res.stdout.splitlines()]
     assert len(rows) >= 4  # 300 s of 60 s intervals
