@@ -246,8 +246,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.resume:
             if args.out is None:
                 raise UsageError("--resume needs --out pointing at the interrupted run")
-            work = retrain_folder(args.out.resolve())  # a new training of a finished folder, killed
-            source = work if (work / "checkpoint.pt").exists() else args.out
+            source = training_folder(args.out, resume=True)  # or the killed new training of a finished folder
             cfg = Trainer.checkpoint_config(source, Trainer.load_checkpoint(source))
             check_resume_flags(argv, cfg)
         else:
