@@ -43,7 +43,10 @@ FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
 
 
 def _init_worker(parent_pid: int, pids: Any) -> None:
-    """Pool initializer: exit with the main process, and tell it this worker's pid (for abort)."""
+    """Pool initializer: exit with the main process, and tell it this worker's pid (for abort). Ctrl-C reaches the
+    whole process group: a worker leaves it to the main process, which stops the workers (abort: SIGTERM, on which
+    a training saves its checkpoint), so an idle worker never dies with a traceback of its own."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     start_parent_watch(parent_pid)
     pids.put(os.getpid())
 
