@@ -322,6 +322,37 @@ def alpha_list(flag: str, text: str) -> tuple[float, ...]:
     return number_list(flag, text, low=ALPHA_MIN, high=ALPHA_MAX)
 
 
+def train_seed_list(flag: str, text: str, first: int, evaluation: Sequence[int] = ()) -> tuple[int, ...]:
+    """--train-seeds: K (the K seeds first, first + 1, ...) or a comma-separated list of training seeds; UsageError
+    naming the flag for anything else (0, a negative count, a seed twice, a word) and for a seed that is also an
+    evaluation seed (a model is judged only on seeds it never trained on)."""
+    items = split_list(flag, text)
+
+    def whole(item: str) -> int:
+        try:
+            return int(item)
+        except ValueError:
+            raise UsageError(f"{flag}: {item!r} is not an integer; give a model count K or a comma-separated list of "
+                             "training seeds") from None  # fmt: skip
+
+    if len(items) == 1:
+        k = whole(items[0])
+        if not 1 <= k <= MAX_SEEDS:
+            raise UsageError(f"{flag} must be a model count in [1, {MAX_SEEDS}] or a comma-separated list of seeds, "
+                             f"got {text!r}")  # fmt: skip
+        seeds = tuple(range(first, first + k))
+    else:
+        seeds = tuple(whole(x) for x in items)
+        bad = [x for x in seeds if not 0 <= x <= SEED_MAX]
+        if bad:
+            raise UsageError(f"{flag}: seed {bad[0]} is outside [0, {SEED_MAX}]")
+    shared = sorted(set(seeds) & set(evaluation))
+    if shared:
+        raise UsageError(f"{flag}: training seed(s) {', '.join(map(str, shared))} also used as evaluation seed(s); a "
+                         "model is judged only on seeds it never trained on")  # fmt: skip
+    return seeds
+
+
 def number_name(x: float) -> str:
     """x in a cell key, folder or column name: as :g prints it when that reads back as exactly x (8 -> "8",
     0.125 -> "0.125"), else the shortest text that does (8.000001 -> "8.000001"); distinct values never share one."""

@@ -100,6 +100,11 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("train", [*TRAIN, "--restart-below", "inf"], ("--restart-below", "inf")),
     ("train", [*TRAIN, "--gamma", "-0.1"], ("--gamma", "-0.1")),
     # scenario1
+    ("scenario1", ["--train-seeds", "0"], ("--train-seeds", "0")),
+    ("scenario1", ["--train-seeds", "-1"], ("--train-seeds", "-1")),
+    ("scenario1", ["--train-seeds", "2,2"], ("--train-seeds", "2 more than once")),
+    ("scenario1", ["--train-seeds", "abc"], ("--train-seeds", "'abc'")),
+    ("scenario1", ["--train-seeds", "100,2"], ("--train-seeds", "training seed(s) 2", "evaluation")),
     ("scenario1", ["--seeds", "0"], ("--seeds", "0")),
     ("scenario1", ["--seeds", "99999999999"], ("--seeds", "99999999999")),
     ("scenario1", ["--workers", "0"], ("--workers", "0")),

@@ -23,20 +23,27 @@ from coopsumo.runio import RUN_MARKER
 pytestmark = pytest.mark.sumo
 REPO = Path(__file__).resolve().parent.parent
 STUDY = ["-m", "coopsumo.scenario1", "--quick", "--t-up", "2", "--mobil-p", "0", "--alphas", "0", "--train-steps",
-         "3000", "--steps", "600", "--seeds", "1", "--workers", "2"]  # fmt: skip
+         "3000", "--steps", "600", "--seeds", "1", "--train-seeds", "1", "--workers", "2"]  # fmt: skip
 """3,000 training steps: seconds on a quiet machine, so that a Ctrl-C sent while the model trains lands in it"""
 """one model (alpha 0), one demand, one seed: a training and five accident runs (dqn_alpha0, keep, greedy, MOBIL
 p = 0, sumo)"""
-ENV = {k: v for k, v in os.environ.items() if k != "DISPLAY"}  # the report says why there is no screenshot
+MODEL = "alpha0_m100"
+"""the study's model folder under models/: a link into its model store"""
+
+
+def env(out: Path) -> dict[str, str]:
+    """No display (the report says why there is no screenshot); each study its own model store, so that the second
+    study trains its model instead of taking the first one's."""
+    return {**{k: v for k, v in os.environ.items() if k != "DISPLAY"}, "COOPSUMO_MODELS": f"{out}_models"}
 
 
 def start(out: Path) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, *STUDY, "--out", str(out)], cwd=REPO, env=ENV, text=True,
+    return subprocess.Popen([sys.executable, *STUDY, "--out", str(out)], cwd=REPO, env=env(out), text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, start_new_session=True)  # fmt: skip
 
 
 def run(out: Path) -> subprocess.CompletedProcess[str]:
-    res = subprocess.run([sys.executable, *STUDY, "--out", str(out)], cwd=REPO, env=ENV, capture_output=True,
+    res = subprocess.run([sys.executable, *STUDY, "--out", str(out)], cwd=REPO, env=env(out), capture_output=True,
                          text=True, timeout=600, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     return res
@@ -62,8 +69,9 @@ def kill_group_when(ready: Callable[[], bool], proc: subprocess.Popen[str], sig:
 
 
 def leftovers(root: Path) -> list[str]:
-    return sorted(str(p) for p in root.rglob("*") if ".partial-" in p.name or p.name.endswith((".tmp", ".lock"))
-                  or p.name == "checkpoint.pt")  # fmt: skip
+    """Partial and temporary files, locks and checkpoints; a model store's per-model lock files stay (flock's)."""
+    return sorted(str(p) for p in root.rglob("*") if ".partial-" in p.name or p.name == "checkpoint.pt"
+                  or (p.name.endswith((".tmp", ".lock")) and not p.parent.name.endswith("_models")))  # fmt: skip
 
 
 def test_scenario1_interrupted_and_spoiled_ends_as_the_uninterrupted_study(
@@ -73,7 +81,7 @@ def test_scenario1_interrupted_and_spoiled_ends_as_the_uninterrupted_study(
     run(ref)
     runs_t2 = cut / "runs" / "t2"
     # 1. Ctrl-C while the model trains (its step-0 checkpoint exists)
-    code, err = kill_group_when(lambda: (cut / "models" / "alpha0" / "checkpoint.pt").exists(), start(cut),
+    code, err = kill_group_when(lambda: (cut / "models" / MODEL / "checkpoint.pt").exists(), start(cut),
                                 signal.SIGINT)  # fmt: skip
     assert code == 130 and "scenario1: interrupted" in err.splitlines() and "Traceback" not in err, err
     # 2. SIGKILL of everything once an accident run is finished: the runs still going leave partial folders
@@ -96,7 +104,7 @@ def test_scenario1_interrupted_and_spoiled_ends_as_the_uninterrupted_study(
     detectors.write_bytes(detectors.read_bytes()[: detectors.stat().st_size // 2])
     traj = runs_t2 / "mobil_p0_seed1" / "trajectories.parquet"
     traj.write_bytes(traj.read_bytes()[: traj.stat().st_size // 2])
-    (cut / "models" / "alpha0" / "model.pt").write_bytes(b"")
+    (cut / "models" / MODEL / "model.pt").write_bytes(b"")
     err = run(cut).stderr
     for fragment in ("keep_seed1 has summary.json", "greedy_seed1 has a missing or cut-short detectors.xml",
                      "mobil_p0_seed1 has an unreadable trajectories.parquet", "model.pt cannot be used"):  # fmt: skip

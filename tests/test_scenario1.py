@@ -25,16 +25,26 @@ pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
 PNG = b"\x89PNG\r\n\x1a\n"
 TINY = ["--quick", "--train-steps", "400", "--steps", "1500", "--seeds", "2", "--mobil-p", "0,1"]
-"""the quick study's 2 demands (T_up 3 and 1 s), 2 seeds, MOBIL p = 0 and 1; 1,500 steps, so that the first vehicles
+"""the quick study's 2 demands (T_up 3 and 1 s), 2 models per alpha (0 and 8; training seeds 100 and 101), 2
+evaluation seeds, MOBIL p = 0 and 1; 1,500 steps, so that the first vehicles
 reach the bottleneck (about step 600) while it still holds most of them and a real jam forms for sumo-gui to show
 (at 900 steps the scaled accident had nearly ended by then, and only a policy that stood still of itself made one)"""
-POLICIES = ("dqn_alpha0", "dqn_alpha2", "dqn_alpha8", "keep", "greedy", "mobil_p0", "mobil_p1", "sumo")
+LEARNED = ("dqn_alpha0", "dqn_alpha8")
+BASELINES = ("keep", "greedy", "mobil_p0", "mobil_p1", "sumo")
+POLICIES = LEARNED + BASELINES
+MODELS = (100, 101)
+
+
+def run_name(policy: str, seed: int, train_seed: object = None) -> str:
+    """A run folder's name: <policy>[_m<training seed>]_seed<k>."""
+    return f"{policy}_seed{seed}" if pd.isna(train_seed) else f"{policy}_m{int(train_seed)}_seed{seed}"  # type: ignore[call-overload]
 
 
 @pytest.fixture(scope="module")
 def study(tmp_path_factory: pytest.TempPathFactory, display_or_none: str | None) -> Path:
-    """The quick study, on a (virtual) display when there is one, so that it makes its sumo-gui screenshot."""
-    out = tmp_path_factory.mktemp("scenario1")
+    """The quick study, on a (virtual) display when there is one, so that it makes its sumo-gui screenshot; its
+    model store (beside its folder) its own."""
+    out = tmp_path_factory.mktemp("scenario1") / "study"
     cmd = [sys.executable, "-m", "coopsumo.scenario1", *TINY, "--out", str(out)]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
                          env=env_with_display(display_or_none))  # fmt: skip
@@ -52,7 +62,9 @@ def test_every_output_is_written(study: Path) -> None:
         assert (study / name).stat().st_size > 0
     for t in (3, 1):
         runs = sorted(p.name for p in (study / "runs" / f"t{t}").iterdir())
-        assert runs == sorted(f"{p}_seed{k}" for p in POLICIES for k in (1, 2))
+        expected = [run_name(p, k) for p in BASELINES for k in (1, 2)]
+        expected += [run_name(p, k, m) for p in LEARNED for m in MODELS for k in (1, 2)]
+        assert runs == sorted(expected)
     for run in (study / "runs").glob("t*/*"):
         for name in ("config.json", "summary.json", "detectors.xml", "trajectories.parquet", "fcd.xml", "tripinfo.xml"):
             assert (run / name).exists(), f"{run.name}/{name}"
@@ -60,8 +72,12 @@ def test_every_output_is_written(study: Path) -> None:
         assert len(trips) == json.loads((run / "summary.json").read_text())["arrived"], run.name
         times = {float(t.time) for t in sumolib.xml.parse(str(run / "fcd.xml"), "timestep")}
         assert times == {5.0 * k for k in range(30)}, run.name  # every 5 s of the 150 s run
-    for alpha in ("alpha0", "alpha2", "alpha8"):
-        assert (study / "models" / alpha / "model.pt").exists()
+    for alpha in ("alpha0", "alpha8"):
+        for m in MODELS:  # each a link into the model store beside the study
+            link = study / "models" / f"{alpha}_m{m}"
+            assert link.is_symlink() and (link / "model.pt").is_file()
+            assert link.resolve().parent == study.parent / "models"
+            assert json.loads((link / "config.json").read_text())["config"]["sim"]["seed"] == m
 
 
 def test_report_numbers_equal_the_summaries_per_demand(study: Path) -> None:
@@ -69,7 +85,7 @@ def test_report_numbers_equal_the_summaries_per_demand(study: Path) -> None:
     assert sorted(runs["t_up_s"].unique()) == [1.0, 3.0]
     summary = pd.read_csv(study / "summary.csv").set_index(["t_up_s", "policy"])
     for _, row in runs.iterrows():
-        run_dir = study / "runs" / f"t{row['t_up_s']:g}" / f"{row['policy']}_seed{row['seed']}"
+        run_dir = study / "runs" / f"t{row['t_up_s']:g}" / run_name(row["policy"], row["seed"], row["train_seed"])
         s = json.loads((run_dir / "summary.json").read_text())
         cfg = json.loads((run_dir / "config.json").read_text())["config"]
         assert cfg["demand"]["t_up_s"] == row["t_up_s"]
@@ -85,16 +101,20 @@ def test_report_numbers_equal_the_summaries_per_demand(study: Path) -> None:
         part = report.split(f"### T_up = {t} s")[1].split("### ")[0]
         for policy in POLICIES:
             assert f"| {policy} | " in part
-        # the verdicts of this demand: every alpha against 0, every MOBIL p against 0, each with its interval,
-        # and none passed on 2 seeds
-        for a, b in (("dqn_alpha2", "dqn_alpha0"), ("dqn_alpha8", "dqn_alpha0"), ("mobil_p1", "mobil_p0")):
-            assert f"- `{a}` against `{b}` cannot be judged on 2 seed(s)" in part and "95% CI" in part
+        # the verdicts of this demand: alpha 8 against 0 and MOBIL p 1 against 0, each with its interval, none
+        # passed on 2 models or 2 seeds; the table of each model's total time spent
+        assert "- `dqn_alpha8` against `dqn_alpha0` cannot be judged on 2 model(s) (at least 3 needed)" in part
+        assert "- `mobil_p1` against `mobil_p0` cannot be judged on 2 seed(s)" in part and "95% CI" in part
+        assert "lower for " in part and " of 2 models, each on 2 seeds" in part
+        assert "| policy | model 100 | model 101 | worst | spread (sd) |" in part
+    models = runs[runs["train_seed"].notna()]
+    assert set(models["train_seed"].astype(int)) == set(MODELS) and runs["train_seed"].isna().sum() == 2 * 2 * 5
     assert "Deviations and choices" in report and "fig4_trajectories.png" in report
     assert "Where the queue goes" in report and "| T_up (s) |" in report
 
 
 def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) -> None:
-    model = study / "models" / "alpha8" / "model.pt"
+    model = study / "models" / "alpha8_m100" / "model.pt"
     before = model.stat().st_mtime_ns
     run_summary = next((study / "runs" / "t3").iterdir()) / "summary.json"
     run_before = run_summary.stat().st_mtime_ns
@@ -103,7 +123,7 @@ def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) 
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
                          env=env_with_display(display_or_none))  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
-    assert "reusing" in res.stderr and "sumo-gui screenshot" not in res.stderr
+    assert "4 of 4 models from the model store" in res.stderr and "sumo-gui screenshot" not in res.stderr
     assert model.stat().st_mtime_ns == before and run_summary.stat().st_mtime_ns == run_before
     if shot_before is not None:  # the same sumo-gui screenshot is reused too
         assert (study / "gui_jam.png").stat().st_mtime_ns == shot_before
@@ -117,7 +137,7 @@ def test_report_shows_sumo_guis_screenshot_of_the_jam(study: Path, gui_display: 
     assert len(counts) >= 4 and counts.max() < 0.9 * len(pixels)  # not one flat colour
     assert (pixels == (255, 0, 0)).all(axis=1).any()  # the accident bar
     record = json.loads((study / "gui_jam.json").read_text())
-    assert record["identical_to_run"] is True and record["run"] == "t1/dqn_alpha8_seed1"
+    assert record["identical_to_run"] is True and record["run"] == "t1/dqn_alpha8_m100_seed1"
     report = (study / "report.md").read_text()
     assert "![sumo-gui](gui_jam.png)" in report and f"sumo-gui at step {record['step']} " in report
     assert "identical to the recorded run" in report
@@ -210,11 +230,12 @@ def test_verdict_on_total_time_spent_with_recovery_counted_at_the_end_when_never
     assert c["never_b"] == 1 and c["never_a"] == 0
     text = rep.verdict_line(c)
     assert text.startswith("`dqn_alpha8` against `dqn_alpha0` **helps**: total time spent -7.7 veh-h")
-    assert "never recovered: 0 and 1 of 3 seeds" in text
+    assert "never recovered: 0 of 3 and 1 of 3 runs" in text and "lower on 3 of 3 seeds" in text
     worse = _rows({"a": {"tts_veh_h": [110.0, 112.0, 111.0]}, "b": {"tts_veh_h": [100.0, 101.0, 99.0]}})
     assert "**hurts**" in rep.verdict_line(measures.compare(worse, 1.0, "a", "b"))
     mixed = _rows({"a": {"tts_veh_h": [90.0, 112.0, 100.0]}, "b": {"tts_veh_h": [100.0, 101.0, 99.0]}})
-    assert "**makes no detectable difference**" in rep.verdict_line(measures.compare(mixed, 1.0, "a", "b"))
+    undecided = rep.verdict_line(measures.compare(mixed, 1.0, "a", "b"))
+    assert "**cannot decide** (the interval includes 0; at the spread measured here it would take about" in undecided
     two = _rows({"a": {"tts_veh_h": [90.0, 91.0]}, "b": {"tts_veh_h": [100.0, 101.0]}})
     assert "cannot be judged on 2 seed(s)" in rep.verdict_line(measures.compare(two, 1.0, "a", "b"))
     assert measures.compare(rows, 3.0, "dqn_alpha8", "dqn_alpha0") is None  # no runs at that demand
@@ -246,7 +267,9 @@ def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("args", [["--alphas", "-1"], ["--alphas", "x"], ["--preset", "bogus"], ["--t-up", "2,2"],
-                                  ["--mobil-p", "-1"]])
+                                  ["--mobil-p", "-1"], ["--train-seeds", "0"], ["--train-seeds", "-1"],
+                                  ["--train-seeds", "2,2"], ["--train-seeds", "abc"], ["--train-seeds", "100,3"],
+                                  ["--train-seeds", "3,x"], ["--train-seeds", ""]])  # fmt: skip
 def test_bad_study_lists(tmp_path: Path, args: list[str]) -> None:
     out = tmp_path / "s1"
     assert scenario1.main([*args, "--out", str(out)]) == 2
@@ -257,12 +280,13 @@ def test_the_paper_preset_stands_beside_the_default(tmp_path: Path) -> None:
     """--preset default,paper --alphas 0: both learners' alpha = 0 models in one study and one report."""
     out = tmp_path / "s1"
     cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "300", "--steps", "450",
-           "--seeds", "1", "--alphas", "0", "--preset", "default,paper", "--t-up", "2", "--mobil-p", "0",
-           "--out", str(out)]  # fmt: skip
+           "--seeds", "1", "--train-seeds", "1", "--alphas", "0", "--preset", "default,paper", "--t-up", "2",
+           "--mobil-p", "0", "--out", str(out)]  # fmt: skip
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False, env=env_with_display(None))
     assert res.returncode == 0, res.stderr[-2000:]
-    assert (out / "models" / "alpha0" / "model.pt").exists() and (out / "models" / "paper_alpha0" / "model.pt").exists()
-    paper = json.loads((out / "models" / "paper_alpha0" / "config.json").read_text())
+    models = out / "models"
+    assert (models / "alpha0_m100" / "model.pt").exists() and (models / "paper_alpha0_m100" / "model.pt").exists()
+    paper = json.loads((models / "paper_alpha0_m100" / "config.json").read_text())
     assert paper["config"]["dqn"]["preset"] == "paper"
     summary = pd.read_csv(out / "summary.csv")
     assert {"dqn_alpha0", "dqn_paper_alpha0", "keep"} <= set(summary["policy"])

@@ -77,10 +77,12 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
     from coopsumo.agents.dqn_policy import DQNPolicy
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
+    from coopsumo.studies.model_store import store_for
     from coopsumo.studies.trainings import train_shared
 
-    out = root / "train" / spec.get("train_key", spec["key"])
-    record["train_summary"], _ = train_shared(spec["config"]["train"], out)  # two cells may share one training
+    key = spec.get("train_key", spec["key"])
+    out = root / "train" / key
+    record["train_summary"], _ = train_shared(spec["config"]["train"], out, store_for(root))  # cells share trainings
     ev = sim_config_from_dict(spec["config"]["eval"])
     margin = float(spec["config"].get("drive", {}).get("change_margin", 0.0))
     name = f"eval_seed{ev.seed}" + (f"_margin{number_name(margin)}" if margin else "")
@@ -91,8 +93,8 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
         spec_text += f",alpha={ev.reward.alpha:g}"
         name += f"_alpha{number_name(ev.reward.alpha)}"
     ev = replace(ev, policy=spec_text)
-    eval_dir = out / name
-    eval_dir.mkdir(exist_ok=True)
+    eval_dir = root / "evals" / key / name  # beside the training: the stored model folder holds the training only
+    eval_dir.mkdir(parents=True, exist_ok=True)
     policy.change_margin = margin
     summary = run(ev, policy, eval_dir, progress=False)
     record["summary"] = {k: v for k, v in summary.items() if k != "policy"}

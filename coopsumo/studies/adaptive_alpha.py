@@ -3,7 +3,7 @@ alpha-conditioned models (`coopsumo adaptive-fit` fits the rule on them: adaptiv
 
 ROOT is a finished `coopsumo scenario2 --conditioned` folder. Every (condition, seed) model of the folder is driven
 once more with dqn:PATH,alpha=adaptive on its evaluation's condition, seed and steps. Each is a cell of the shared
-runner (record ROOT/cells/adaptive_<key>.json, run folder ROOT/train/<key>/eval_adaptive/, both reused when
+runner (record ROOT/cells/adaptive_<key>.json, run folder ROOT/evals/<key>/eval_adaptive/, both reused when
 finished); ROOT/adaptive_runs.csv holds one row per (condition, seed) and ROOT/adaptive.md compares it, paired by
 seed, with the best fixed alpha (alpha*, chosen on these same seeds: an oracle the adaptive rule has to match) and
 with alpha 0 (adaptive_alpha_report).
@@ -54,7 +54,7 @@ def cell_specs(root: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
             raise UsageError(f"{model} is missing: run `coopsumo scenario2 --conditioned --out {root}` again")
         cfg = replace(ev, policy=f"dqn:{model},alpha=adaptive", reward=replace(ev.reward, alpha=0.0))
         specs.append({"key": f"adaptive_{key}", "lanes": int(lanes), "t_up_s": float(t_up), "seed": int(seed),
-                      "out": f"train/{key}/eval_adaptive", "config": to_dict(cfg)})  # fmt: skip
+                      "out": f"evals/{key}/eval_adaptive", "config": to_dict(cfg)})  # fmt: skip
     return specs
 
 

@@ -57,13 +57,14 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     from coopsumo.config import sim_config_from_dict
+    from coopsumo.studies.model_store import store_for
     from coopsumo.studies.run_folders import simulate_into
     from coopsumo.studies.trainings import train_shared
 
     ev = sim_config_from_dict(spec["config"]["eval"])
     if spec["kind"] == "model":
         model_dir = root / "train" / spec["train_key"]
-        record["train_summary"], _ = train_shared(spec["config"]["train"], model_dir)
+        record["train_summary"], _ = train_shared(spec["config"]["train"], model_dir, store_for(root))
         ev = replace(ev, policy=f"dqn:{(model_dir / spec['weights']).resolve()}")
     every = TRAJECTORY_EVERY if ev.accident.enabled else 0
     out = root / "runs" / spec["key"]

@@ -20,11 +20,12 @@ from coopsumo.config import (
     TrainConfig,
     to_dict,
 )
+from coopsumo.studies.model_store import FIRST_TRAIN_SEED
 from coopsumo.validation import number_name
 
 EVAL_SEED = 5000
 """evaluation run of condition i uses seed EVAL_SEED + i (free flow) or EVAL_SEED + 100 + i (accident)"""
-TRAIN_SEED = 100
+TRAIN_SEED = FIRST_TRAIN_SEED
 """first training seed of the protocol (the committed learning studies used 0-8)"""
 BASELINES = ("keep", "greedy", "mobil:p=0")
 DEMANDS = (2.0, 1.5, 1.0)

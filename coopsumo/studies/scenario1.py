@@ -1,11 +1,12 @@
 """`coopsumo scenario1` (`make scenario1`): the accident-bottleneck study of section IV.A, across demands.
 
-1. trains (or reuses) one model per learner preset and alpha in free flow, once;
+1. takes one model per learner preset, alpha and training seed (default 5 seeds) from the model store
+   (studies/model_store.py), training those it does not hold;
 2. runs every model and every baseline (keep, greedy, MOBIL at every politeness, SUMO's own models) through the
    accident at every demand T_up, on the same evaluation seeds;
-3. writes results/scenario1/: run folders runs/t<T_up>/<policy>_seed<k>/ (with SUMO's detectors.xml, fcd.xml and
-   tripinfo.xml), runs.csv, summary.csv, the figures and report.md; with a display, gui_jam.png: sumo-gui's view
-   of the jam at the bottleneck, replayed through TraCI.
+3. writes results/scenario1/: run folders runs/t<T_up>/<policy>[_m<training seed>]_seed<k>/ (with SUMO's
+   detectors.xml, fcd.xml and tripinfo.xml), runs.csv, summary.csv, the figures and report.md; with a display,
+   gui_jam.png: sumo-gui's view of the jam at the bottleneck, replayed through TraCI.
 
 The plan (sizes, configurations, names) is scenario1_plan, the measures scenario1_measures, the report
 scenario1_report; this module runs the plan's cells on the shared runner and is the command.
@@ -22,18 +23,21 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import DQN_PRESETS, ControlConfig, OutputConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.config import DQN_PRESETS, ControlConfig, OutputConfig, RoadConfig, to_dict
 from coopsumo.policy_spec import model_file, split_dqn_spec
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.studies.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.records import CellRecords, failed_exit
-from coopsumo.studies.run_folders import reusable_run, same_config, study_root
+from coopsumo.studies.run_folders import reusable_run, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
 from coopsumo.studies.scenario1_measures import run_metrics
 from coopsumo.studies.scenario1_plan import (
     ALPHAS,
     DEMANDS,
     MOBIL_PS,
+    TRAIN_SEEDS,
     Plan,
+    Run,
     accident_config,
     label_for,
     model_label,
@@ -42,7 +46,6 @@ from coopsumo.studies.scenario1_plan import (
     train_config,
 )
 from coopsumo.studies.scenario1_report import timing_text, write_outputs
-from coopsumo.studies.trainings import model_folder_problem
 from coopsumo.validation import (
     MAX_STEPS,
     MOBIL_LIMITS,
@@ -55,6 +58,7 @@ from coopsumo.validation import (
     seed_count,
     steps,
     t_up_list,
+    train_seed_list,
     workers,
 )
 
@@ -71,12 +75,13 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 
 def _train_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
+    """Train the model in the model store (an interrupted training continues exactly); out links to it."""
     import torch
 
-    from coopsumo.studies.trainings import train_resuming
+    from coopsumo.studies.trainings import train_shared
 
     torch.set_num_threads(1)
-    record["summary"] = train_resuming(spec["config"], out)[0]  # an interrupted training continues exactly
+    record["summary"] = train_shared(spec["config"], out, Path(spec["store"]))[0]
 
 
 def _run_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
@@ -108,6 +113,10 @@ def build_parser() -> Parser:
                            "5 seeds")  # fmt: skip
     p.add_argument("--seeds", type=seed_count, default=None,
                    help="number of evaluation seeds, 1..N (default 3; quick 1; full 5)")  # fmt: skip
+    p.add_argument("--train-seeds", default=None,
+                   help=f"models per alpha: a count K (training seeds {FIRST_TRAIN_SEED}, {FIRST_TRAIN_SEED + 1}, ...) "
+                        f"or a comma-separated list of training seeds (default {len(TRAIN_SEEDS)}; quick "
+                        f"{len(Plan.quick().train_seeds)})")  # fmt: skip
     p.add_argument("--t-up", dest="t_ups", default=None,
                    help="demands: T_up (s) of the accident runs, comma-separated, e.g. 3,1.5,1 "
                         f"(default {','.join(f'{t:g}' for t in DEMANDS)})")  # fmt: skip
@@ -141,6 +150,9 @@ def main(argv: list[str] | None = None) -> int:
             if args.seeds < 1:
                 raise UsageError(f"seeds must be >= 1, got {args.seeds}")
             plan = replace(plan, seeds=tuple(range(1, args.seeds + 1)))
+        if args.train_seeds is not None:
+            plan = replace(plan, train_seeds=train_seed_list("--train-seeds", args.train_seeds, FIRST_TRAIN_SEED,
+                                                             plan.seeds))  # fmt: skip
         if args.workers < 1:
             raise UsageError(f"workers must be >= 1, got {args.workers}")
         if args.t_ups is not None:
@@ -177,45 +189,45 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
     write_json(root / "plan.json", {"plan": to_dict(plan), "versions": versions()})
 
     # 1. cells: trainings first (the longest chains), each model's accident runs as soon as it exists, then
-    #    the baselines; finished models and runs with the same configuration are reused
+    #    the baselines; models come from the model store (shared with other studies), finished runs with the
+    #    same configuration are reused
+    store = store_for(root)
     specs: list[dict[str, Any]] = []
-    train_keys: dict[tuple[str, float], str] = {}
-    model_paths: dict[tuple[str, float], Path] = {}
+    models: dict[tuple[str, float, int], tuple[Path, str]] = {}  # (preset, alpha, train seed) -> (model.pt, key)
     for preset in plan.presets:
         for alpha in plan.alphas:
-            tcfg = train_config(plan, alpha, preset)
-            name = model_name(preset, alpha)
-            model_paths[preset, alpha] = root / "models" / name / "model.pt"
-            train_keys[preset, alpha] = f"train_{name}"
-            if model_paths[preset, alpha].exists() and same_config(root / f"models/{name}/config.json", to_dict(tcfg)):
-                problem = model_folder_problem(root / "models" / name)  # finished, and the model loads
-                if problem is None:
-                    print(f"scenario1: reusing {model_paths[preset, alpha]} (same configuration)", file=sys.stderr)
+            for train_seed in plan.train_seeds:
+                tcfg = train_config(plan, alpha, preset, train_seed)
+                name = model_name(preset, alpha, train_seed)
+                models[preset, alpha, train_seed] = (root / "models" / name / "model.pt", f"train_{name}")
+                if stored_model(to_dict(tcfg), store, root / "models" / name) is not None:
                     continue
-                print(f"scenario1: model {model_paths[preset, alpha]} {problem}; training it again", file=sys.stderr)
-            specs.append({"key": train_keys[preset, alpha], "kind": "train", "label": model_label(preset, alpha),
-                          "seed": plan.train_seed, "out": f"models/{name}", "config": to_dict(tcfg)})  # fmt: skip
+                specs.append({"key": f"train_{name}", "kind": "train", "label": model_label(preset, alpha),
+                              "seed": train_seed, "out": f"models/{name}", "config": to_dict(tcfg),
+                              "store": str(store)})  # fmt: skip
     n_train = len(specs)
+    print(f"scenario1: {len(models) - n_train} of {len(models)} models from the model store {store}", file=sys.stderr)
     retrained = {spec["key"] for spec in specs}
-    policies: list[tuple[str, str | None]] = [(f"dqn:{model_paths[k]}", train_keys[k]) for k in model_paths]
-    policies += [(b, None) for b in plan.baseline_policies()]
-    runs: list[tuple[str, float, int, Path, SimConfig]] = []
-    for policy, after in policies:
+    policies: list[tuple[str, str, str | None, int | None]] = [
+        (f"dqn:{path}", model_label(preset, alpha), key, k) for (preset, alpha, k), (path, key) in models.items()]
+    policies += [(b, label_for(b), None, None) for b in plan.baseline_policies()]
+    runs: list[Run] = []
+    for policy, label, after, model_seed in policies:
         for t_up in plan.t_ups:
             for seed in plan.seeds:
                 cfg = accident_config(plan, policy, seed, t_up)
-                label = label_for(policy)
-                folder = run_folder(label, seed, t_up)
+                folder = run_folder(label, seed, t_up, model_seed)
                 out = root / folder
-                runs.append((label, t_up, seed, out, cfg))
+                runs.append(Run(label, t_up, seed, out, cfg, model_seed))
                 model = Path(model_file(split_dqn_spec(policy)[0])) if policy.startswith("dqn:") else None
                 if after not in retrained and reusable_run(out, to_dict(cfg), plan.outputs(), model):
                     continue
-                specs.append({"key": f"run_t{number_name(t_up)}_{label}_seed{seed}", "kind": "run", "label": label,
-                              "seed": seed, "t_up_s": t_up, "out": folder, "after": after, "config": to_dict(cfg),
-                              "trajectory_every": plan.trajectory_every,
+                tag = "" if model_seed is None else f"_m{model_seed}"
+                specs.append({"key": f"run_t{number_name(t_up)}_{label}{tag}_seed{seed}", "kind": "run",
+                              "label": label, "seed": seed, "t_up_s": t_up, "out": folder, "after": after,
+                              "config": to_dict(cfg), "trajectory_every": plan.trajectory_every,
                               "outputs": to_dict(plan.outputs())})  # fmt: skip
-    n_cells = len(model_paths) + len(runs)
+    n_cells = len(models) + len(runs)
     if specs:
         from coopsumo.sim.network import build_net
 
@@ -235,15 +247,16 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
 
     # 2. tables, figures, report
     sample_s = plan.trajectory_every * ControlConfig().dt_s
-    order = {lab: i for i, lab in enumerate(dict.fromkeys(r[0] for r in runs))}
-    rows = pd.DataFrame([{"t_up_s": t_up, "policy": lab, "seed": seed, **run_metrics(out, cfg, sample_s)}
-                         for lab, t_up, seed, out, cfg in runs])  # fmt: skip
-    rows = rows.sort_values(["t_up_s", "policy", "seed"], ascending=[False, True, True],
+    order = {lab: i for i, lab in enumerate(dict.fromkeys(r.label for r in runs))}
+    rows = pd.DataFrame([{"t_up_s": r.t_up, "policy": r.label, "train_seed": r.train_seed, "seed": r.seed,
+                          **run_metrics(r.out, r.cfg, sample_s)} for r in runs])  # fmt: skip
+    rows["train_seed"] = rows["train_seed"].astype("Int64")  # empty for a baseline
+    rows = rows.sort_values(["t_up_s", "policy", "train_seed", "seed"], ascending=[False, True, True, True],
                             key=lambda c: c.map(order) if c.name == "policy" else c, kind="stable",
                             ignore_index=True)  # fmt: skip
     rows.to_csv(root / "runs.csv", index=False)
     wall = time.perf_counter() - start
-    timing = timing_text(plan, runs, model_paths, n_train, len(specs), wall)
+    timing = timing_text(plan, runs, [path for path, _ in models.values()], n_train, len(specs), wall)
     write_outputs(root, plan, rows, runs, timing)
     print(f"scenario1: done in {(time.perf_counter() - start) / 60:.1f} min; report: {root / 'report.md'}")
     return 0

@@ -104,13 +104,18 @@ EXTRA = ("wave_speed_kmh", "slow_regions", "wave_onset_share", "mean_travel_time
 
 
 def aggregate(rows: pd.DataFrame) -> pd.DataFrame:
-    """Mean and standard deviation over seeds per demand and policy (metric_mean, metric_std, metric_n)."""
+    """Mean and standard deviation over runs (models x seeds) per demand and policy (metric_mean, metric_std,
+    metric_n); `seeds` counts the runs, `models` the trained models among them (0 for a baseline)."""
     keys = [m for m, _, _ in METRICS] + [k for k in EXTRA if k in rows]
     grouped = rows.groupby(["t_up_s", "policy"], sort=False)[keys]
     out = pd.concat([grouped.mean().add_suffix("_mean"), grouped.std(ddof=1).add_suffix("_std"),
                      rows[keys].notna().groupby([rows["t_up_s"], rows["policy"]], sort=False).sum().add_suffix("_n")],
                     axis=1)  # fmt: skip
     out["seeds"] = grouped.size()
+    if "train_seed" in rows:
+        out["models"] = rows.groupby(["t_up_s", "policy"], sort=False)["train_seed"].nunique()
+    else:
+        out["models"] = 0
     return out.reset_index()
 
 
@@ -132,26 +137,68 @@ def censored(values: pd.Series, horizon: pd.Series) -> pd.Series:
     return values.where(values.notna(), horizon)
 
 
+MIN_MODELS = 3
+"""a comparison of learned policies with fewer models than this gives no verdict: one model is one draw"""
+
+
+def model_table(frame: pd.DataFrame, value: str | pd.Series) -> pd.DataFrame:
+    """One policy's runs as a (models x evaluation seeds) table of `value` (a column name or a Series on frame's
+    index); a baseline, which has no model, is one row."""
+    model = frame["train_seed"].astype("Float64").fillna(-1) if "train_seed" in frame else pd.Series(-1.0, frame.index)
+    values = frame[value] if isinstance(value, str) else value
+    wide = pd.DataFrame({"model": model, "seed": frame["seed"], "v": values.astype(float)})
+    return wide.pivot_table(index="model", columns="seed", values="v", aggfunc="first", dropna=False)
+
+
+def paired_differences(ta: pd.DataFrame, tb: pd.DataFrame) -> pd.DataFrame:
+    """a - b as a (models x seeds) table on the seeds both have: models of a against models of b of the same
+    training seed, models against a baseline's one row, or baseline against baseline (one row)."""
+    seeds = ta.columns.intersection(tb.columns)
+    ta, tb = ta[seeds], tb[seeds]
+    a_models, b_models = list(ta.index) != [-1], list(tb.index) != [-1]
+    if a_models and b_models:
+        common = ta.index.intersection(tb.index)
+        return ta.loc[common] - tb.loc[common]
+    if a_models:
+        return ta - tb.iloc[0]
+    if b_models:
+        return -(tb - ta.iloc[0])
+    return ta - tb
+
+
 def compare(rows: pd.DataFrame, t_up: float, a: str, b: str) -> dict[str, Any] | None:
-    """Seed-paired comparison of policy a against b at one demand: TTS, system recovery (never = the run's
-    horizon) and waves, each as (mean a - b, 95% bootstrap interval); None if either is missing."""
+    """Comparison of policy a against b at one demand: TTS, system recovery (never = the run's horizon), waves
+    and lane changes, each as (mean a - b, 95% interval) from the two-level bootstrap over models and evaluation
+    seeds (stats.hierarchical_bootstrap; over seeds alone when neither is a learned policy); None if either is
+    missing. `models`: how many models stand behind the difference (0: none is learned); `tts_fewer`: for how
+    many models (or seeds, without models) a spent less time; `tts_model_means`: the difference per model."""
+    from coopsumo.studies.stats import hierarchical_bootstrap
+
     at = rows[rows["t_up_s"] == t_up]
-    wide = {p: at[at["policy"] == p].set_index("seed") for p in (a, b)}
-    if any(w.empty for w in wide.values()):
+    frames = {p: at[at["policy"] == p] for p in (a, b)}
+    if any(f.empty for f in frames.values()):
         return None
-    seeds = wide[a].index.intersection(wide[b].index)
-    out: dict[str, Any] = {"pairs": len(seeds), "a": a, "b": b}
+    out: dict[str, Any] = {"a": a, "b": b}
     for key in ("tts_veh_h", "system_recovery_s", "waves", "lane_changes_per_vehicle"):
-        va, vb = wide[a].loc[seeds, key], wide[b].loc[seeds, key]
-        if key == "system_recovery_s":
-            va = censored(va, wide[a].loc[seeds, "horizon_after_start_s"])
-            vb = censored(vb, wide[b].loc[seeds, "horizon_after_start_s"])
-        out[key] = paired_bootstrap((va - vb).to_numpy(dtype=float))
-        out[key + "_b"] = float(vb.mean())
-        out[key + "_a"] = float(va.mean())
-    out["never_a"] = int(wide[a].loc[seeds, "system_recovery_s"].isna().sum())
-    out["never_b"] = int(wide[b].loc[seeds, "system_recovery_s"].isna().sum())
-    out["tts_fewer"] = int((wide[a].loc[seeds, "tts_veh_h"] < wide[b].loc[seeds, "tts_veh_h"]).sum())
+        tables = []
+        for f in (frames[a], frames[b]):
+            v = censored(f[key], f["horizon_after_start_s"]) if key == "system_recovery_s" else f[key]
+            tables.append(model_table(f, v))
+        diff = paired_differences(*tables)
+        out[key] = hierarchical_bootstrap(diff.to_numpy(dtype=float), reps=N_BOOT, seed=BOOT_SEED)
+        out[key + "_a"] = float(np.nanmean(tables[0][diff.columns].to_numpy(dtype=float)))
+        out[key + "_b"] = float(np.nanmean(tables[1][diff.columns].to_numpy(dtype=float)))
+        if key == "tts_veh_h":
+            learned = list(diff.index) != [-1]
+            out["models"] = len(diff) if learned else 0
+            out["pairs"] = len(diff.columns)
+            means = diff.mean(axis=1)
+            out["tts_model_means"] = means.to_numpy(dtype=float)
+            out["tts_fewer"] = int((means < 0).sum()) if learned else int((diff.iloc[0] < 0).sum())
+            out["tts_seed_diffs"] = diff.iloc[0].to_numpy(dtype=float)
+    out["never_a"] = int(frames[a]["system_recovery_s"].isna().sum())
+    out["never_b"] = int(frames[b]["system_recovery_s"].isna().sum())
+    out["runs_a"], out["runs_b"] = len(frames[a]), len(frames[b])
     return out
 
 
@@ -180,10 +227,14 @@ def most_different_demand(rows: pd.DataFrame, a: str, b: str) -> float | None:
 
 
 def demand_table(rows: pd.DataFrame, value: str) -> pd.DataFrame:
-    """Per policy and demand: the mean of value over seeds and its 95% bootstrap interval (for demand_figure)."""
+    """Per policy and demand: the mean of value over models and seeds and its 95% two-level bootstrap interval
+    (for demand_figure)."""
+    from coopsumo.studies.stats import hierarchical_bootstrap
+
     out = []
     for (t_up, policy), g in rows.groupby(["t_up_s", "policy"], sort=False):
-        mean, lo, hi = paired_bootstrap(g[value].to_numpy(dtype=float))
+        table = model_table(g, value).to_numpy(dtype=float)
+        mean, lo, hi = hierarchical_bootstrap(table, reps=N_BOOT, seed=BOOT_SEED)
         out.append({"policy": policy, "t_up_s": t_up, value: mean, value + "_lo": lo, value + "_hi": hi})
     return pd.DataFrame(out)
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 from coopsumo.config import (
     DQN_PRESETS,
@@ -18,15 +19,20 @@ from coopsumo.config import (
     TrainConfig,
 )
 from coopsumo.policy_spec import model_file, split_dqn_spec
+from coopsumo.studies.model_store import FIRST_TRAIN_SEED
 from coopsumo.validation import number_name
 
-ALPHAS = (0.0, 2.0, 8.0)
-"""alpha = 0 and 8 are the paper's; 2 is the largest alpha of the learning study's response whose model still
-changes lanes in free flow (0.49 per vehicle; alpha = 8 makes none, i.e. it is `keep`)"""
+ALPHAS = (0.0, 8.0)
+"""the paper's two; the default learner still changes lanes at alpha = 8 (0.14-0.23 per vehicle in free flow,
+results/learner_protocol_v2x_mix10), so it is not simply `keep` (the earlier learner's alpha = 8 was; alpha = 2
+was then added, and is one --alphas away)"""
+TRAIN_SEEDS = tuple(range(FIRST_TRAIN_SEED, FIRST_TRAIN_SEED + 5))
+"""training seeds of the default: 5 models per alpha, the learner protocol's first five (model store: shared)"""
 PRESETS = ("default",)
 BASELINES = ("keep", "greedy", "sumo")
-MOBIL_PS = (0.0, 0.25, 0.5, 1.0)
-"""MOBIL politeness values run beside the learned models: classical cooperation as the control"""
+MOBIL_PS = (0.0, 0.5)
+"""MOBIL politeness values run beside the learned models: classical cooperation as the control (0.25 and 1 are
+one --mobil-p away; the default keeps the study within 90 minutes on 2 cores)"""
 DEMANDS = (2.0, 1.5, 1.0)
 """T_up (s) of the default study: the queue stays on the road, reaches the entrance, still waits at the end"""
 
@@ -44,8 +50,10 @@ class Plan:
     steps: int = 20_000
     accident_start: int = 2_000
     accident_steps: int = 10_000
-    seeds: tuple[int, ...] = (1, 2, 3)
-    train_seed: int = 0
+    seeds: tuple[int, ...] = (1, 2, 3, 4, 5)
+    """evaluation seeds: every model and baseline meets each"""
+    train_seeds: tuple[int, ...] = TRAIN_SEEDS
+    """one model per training seed, preset and alpha: the unit of replication"""
     trajectory_every: int = 5
     loop_period_s: float = 60.0
     baselines: tuple[str, ...] = BASELINES
@@ -74,7 +82,7 @@ class Plan:
         """2 demands, 1 seed, small step counts. The accident starts at 100 s, once the first vehicles have
         reached the bottleneck (1,300 m at about 23 m/s), so that even a shortened run holds a jam to show."""
         return Plan(t_ups=(3.0, 1.0), train_steps=3000, steps=6000, accident_start=1000, accident_steps=3000,
-                    seeds=(1,), loop_period_s=30.0, profile="quick")  # fmt: skip
+                    seeds=(1,), train_seeds=TRAIN_SEEDS[:2], loop_period_s=30.0, profile="quick")  # fmt: skip
 
     @staticmethod
     def full() -> Plan:
@@ -84,14 +92,28 @@ class Plan:
                     profile="full")  # fmt: skip
 
 
-def model_name(preset: str, alpha: float) -> str:
-    """Folder of a model under models/ (the default preset keeps the plain alpha<A> name)."""
-    return f"alpha{number_name(alpha)}" if preset == "default" else f"{preset}_alpha{number_name(alpha)}"
+class Run(NamedTuple):
+    """One accident run of the study: its policy label, demand (s), evaluation seed, folder, configuration, and the
+    training seed of its model (None for a baseline)."""
+
+    label: str
+    t_up: float
+    seed: int
+    out: Path
+    cfg: SimConfig
+    train_seed: int | None = None
+
+
+def model_name(preset: str, alpha: float, train_seed: int) -> str:
+    """Folder of a model under models/, a link into the model store (the default preset keeps the plain
+    alpha<A> name): alpha<A>_m<training seed>."""
+    base = f"alpha{number_name(alpha)}" if preset == "default" else f"{preset}_alpha{number_name(alpha)}"
+    return f"{base}_m{train_seed}"
 
 
 def model_label(preset: str, alpha: float) -> str:
-    """A model's name in tables and run folders (label_for of its policy)."""
-    return "dqn_" + model_name(preset, alpha)
+    """A learned policy's name in tables (every training seed of it): dqn_alpha<A>."""
+    return "dqn_" + (f"alpha{number_name(alpha)}" if preset == "default" else f"{preset}_alpha{number_name(alpha)}")
 
 
 def label_for(policy: str) -> str:
@@ -104,19 +126,21 @@ def label_for(policy: str) -> str:
     return policy.replace(":", "_").replace("=", "")
 
 
-def run_folder(label: str, seed: int, t_up: float) -> str:
-    """A run's folder under the results folder: runs/t<T_up>/<label>_seed<k>."""
-    return f"runs/t{number_name(t_up)}/{label}_seed{seed}"
+def run_folder(label: str, seed: int, t_up: float, train_seed: int | None = None) -> str:
+    """A run's folder under the results folder: runs/t<T_up>/<label>[_m<training seed>]_seed<k>."""
+    model = "" if train_seed is None else f"_m{train_seed}"
+    return f"runs/t{number_name(t_up)}/{label}{model}_seed{seed}"
 
 
-def train_config(plan: Plan, alpha: float, preset: str = "default") -> TrainConfig:
-    """The free-flow training of one model with the learner preset `preset`."""
+def train_config(plan: Plan, alpha: float, preset: str = "default", train_seed: int = FIRST_TRAIN_SEED) -> TrainConfig:
+    """The training of one model with the learner preset `preset` (the learner's own training demand; the same
+    configuration as the learner protocol's, so the model store holds one model for both)."""
     sim = SimConfig(
         road=RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s),
         demand=DemandConfig(t_up_s=plan.train_t_up_s),
         reward=RewardConfig(alpha=alpha),
         steps=plan.train_steps,
-        seed=plan.train_seed,
+        seed=train_seed,
         policy="dqn",
     )
     return TrainConfig(sim=sim, dqn=DQN_PRESETS[preset], eval_steps=0)

@@ -23,6 +23,7 @@ from coopsumo.studies.scenario1_measures import (
     FIELD_DT_S,
     FIELD_DX_M,
     METRICS,
+    MIN_MODELS,
     MIN_PAIRS,
     N_BOOT,
     RECOVERY_MPS,
@@ -36,7 +37,8 @@ from coopsumo.studies.scenario1_measures import (
     jam_step,
     most_different_demand,
 )
-from coopsumo.studies.scenario1_plan import Plan, label_for, model_label
+from coopsumo.studies.scenario1_plan import Plan, Run, label_for, model_label
+from coopsumo.studies.stats import models_needed
 from coopsumo.validation import number_name
 
 FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
@@ -91,29 +93,75 @@ def _direction(ci: tuple[float, float, float], lower_is_better: bool = True) -> 
     if lo > 0 or hi < 0:
         better = (hi < 0) == lower_is_better
         return "helps" if better else "hurts"
-    return "no detectable difference"
+    return "cannot decide"
+
+
+def _what_it_takes(c: dict[str, Any]) -> str:
+    """Why a comparison cannot decide, and about how many models (or seeds) would, at the spread measured."""
+    if c["models"]:
+        need = models_needed(c["tts_model_means"])
+        unit = "models"
+    else:
+        need = models_needed(c["tts_seed_diffs"])
+        unit = "evaluation seeds"
+    if need is None:
+        return "the interval includes 0"
+    return f"the interval includes 0; at the spread measured here it would take about {need} {unit}"
 
 
 def verdict_line(c: dict[str, Any]) -> str:
-    """One sentence on one comparison: its headline on total time spent, then recovery and waves."""
+    """One sentence on one comparison: its headline on total time spent (decided only when the two-level interval
+    over models and seeds excludes 0), then recovery and waves."""
     mean, lo, hi = c["tts_veh_h"]
     base = c["tts_veh_h_b"]
-    head = _direction(c["tts_veh_h"]) if c["pairs"] >= MIN_PAIRS else "too few"
+    if 0 < c["models"] < MIN_MODELS:
+        head = "few models"
+    elif c["pairs"] < MIN_PAIRS:
+        head = "too few"
+    else:
+        head = _direction(c["tts_veh_h"])
     word = {"helps": "**helps**", "hurts": "**hurts**",
-            "no detectable difference": "**makes no detectable difference**", "no data": "cannot be judged",
-            "too few": f"cannot be judged on {c['pairs']} seed(s) (at least {MIN_PAIRS} needed)"}[head]  # fmt: skip
+            "cannot decide": f"**cannot decide** ({_what_it_takes(c) if head == 'cannot decide' else ''})",
+            "no data": "cannot be judged",
+            "too few": f"cannot be judged on {c['pairs']} seed(s) (at least {MIN_PAIRS} needed)",
+            "few models": f"cannot be judged on {c['models']} model(s) (at least {MIN_MODELS} needed)",
+            }[head]  # fmt: skip
     rec, rlo, rhi = c["system_recovery_s"]
     wav, wlo, whi = c["waves"]
     never = ""
     if c["never_a"] or c["never_b"]:
-        never = f"; never recovered: {c['never_a']} and {c['never_b']} of {c['pairs']} seeds, counted at the run's end"
+        never = (f"; never recovered: {c['never_a']} of {c['runs_a']} and {c['never_b']} of {c['runs_b']} runs, "
+                 "counted at the run's end")  # fmt: skip
+    if c["models"]:
+        count = f"lower for {c['tts_fewer']} of {c['models']} models, each on {c['pairs']} seeds"
+    else:
+        count = f"lower on {c['tts_fewer']} of {c['pairs']} seeds"
     return (
         f"`{c['a']}` against `{c['b']}` {word}: total time spent {mean:+.1f} veh-h "
-        f"({100 * mean / base:+.1f}% of {base:.1f}; 95% CI {lo:+.1f} to {hi:+.1f}; lower on {c['tts_fewer']} of "
-        f"{c['pairs']} seeds); system recovery {rec:+.0f} s (CI {rlo:+.0f} to {rhi:+.0f}{never}); stop-and-go waves "
-        f"{wav:+.1f} (CI {wlo:+.1f} to {whi:+.1f}); lane changes per vehicle {c['lane_changes_per_vehicle_a']:.2f} "
-        f"against {c['lane_changes_per_vehicle_b']:.2f}."
+        f"({100 * mean / base:+.1f}% of {base:.1f}; 95% CI {lo:+.1f} to {hi:+.1f}; {count}); system recovery "
+        f"{rec:+.0f} s (CI {rlo:+.0f} to {rhi:+.0f}{never}); stop-and-go waves {wav:+.1f} (CI {wlo:+.1f} to "
+        f"{whi:+.1f}); lane changes per vehicle {c['lane_changes_per_vehicle_a']:.2f} against "
+        f"{c['lane_changes_per_vehicle_b']:.2f}."
     )
+
+
+def model_spread_table(rows: pd.DataFrame, t_up: float) -> str:
+    """Total time spent of each trained model at one demand (mean over its evaluation seeds): the spread between
+    models that the intervals include. Empty without learned policies."""
+    at = rows[(rows["t_up_s"] == t_up)]
+    if "train_seed" not in at or at["train_seed"].isna().all():
+        return ""
+    learned = at[at["train_seed"].notna()]
+    seeds = sorted(int(x) for x in learned["train_seed"].unique())
+    lines = ["| policy | " + " | ".join(f"model {k}" for k in seeds) + " | worst | spread (sd) |",
+             "|" + "---|" * (len(seeds) + 3)]  # fmt: skip
+    for policy, g in learned.groupby("policy", sort=False):
+        per = g.groupby("train_seed")["tts_veh_h"].mean()
+        cells = [f"{per[k]:.1f}" if k in per.index else "-" for k in seeds]
+        spread = f"{per.std(ddof=1):.1f}" if len(per) > 1 else "-"
+        lines.append(f"| {policy} | " + " | ".join(cells) + f" | {per.max():.1f} | {spread} |")
+    return ("Total time spent (veh-h) of each trained model, mean over its evaluation seeds (training seeds as "
+            "columns):\n\n" + "\n".join(lines))
 
 
 def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int, runs: int,
@@ -168,9 +216,13 @@ DEFINITIONS = f"""- **Total time spent** (TTS, the headline): vehicle-hours on t
 - **Queue reach**: the largest distance from the bottleneck to the furthest-upstream vehicle slower than
   {SLOW_MPS:g} m/s after the accident's start. **Regime**: "on the road" if at most one vehicle per lane ever
   waits to enter; "reaches the entrance, clears" if more do but not at the end; else "still waiting at the end".
-- **Verdicts**: seed-paired differences (cooperative minus non-cooperative) with 95% percentile bootstrap
-  intervals over seeds ({N_BOOT:,} resamples). "Helps" or "hurts" only when the interval of the TTS difference
-  excludes 0."""
+- **Verdicts**: the trained model is the unit of replication. Differences (cooperative minus non-cooperative) are
+  paired on evaluation seeds, and models of two alphas on their training seed; the 95% interval is a two-level
+  percentile bootstrap ({N_BOOT:,} resamples) that draws models, then evaluation seeds within each drawn model, so
+  it includes the spread between models (one level, over seeds, when neither policy is learned). "Helps" or
+  "hurts" only when the interval of the TTS difference excludes 0, and only with at least {MIN_MODELS} models;
+  otherwise "cannot decide", with about how many models (or seeds) the measured spread would need. Beside each
+  interval: for how many models the difference has the verdict's sign."""
 
 
 def demand_section(rows: pd.DataFrame, agg: pd.DataFrame, t_up: float, pairs: Sequence[tuple[str, str]],
@@ -186,6 +238,9 @@ def demand_section(rows: pd.DataFrame, agg: pd.DataFrame, t_up: float, pairs: Se
             lines.append("- " + verdict_line(c))
     lines.append("")
     lines.append(report_table(agg[agg["t_up_s"] == t_up]))
+    spread = model_spread_table(rows, t_up)
+    if spread:
+        lines.append("\n" + spread)
     for key, caption in (("fig5", "Fig. 5: flow against density from every loop and interval, one panel per policy"),
                          ("recovery", "Speed before the bottleneck and vehicles waiting to enter")):  # fmt: skip
         grey = "the other policies' points" if key == "fig5" else "the accident window"
@@ -223,8 +278,9 @@ it is asked at every demand, of the learned models (alpha > 0 against alpha = 0)
 
 {gui_text}
 
-Every run folder (`runs/t<T_up>/<policy>_seed<k>/`) also holds SUMO's own `detectors.xml`, `fcd.xml` (every 5 s)
-and `tripinfo.xml`, for SUMO's tools (`docs/sumo-tools.md` draws Fig. 4 from `fcd.xml` with `plot_trajectories.py`).
+Every run folder (`runs/t<T_up>/<policy>[_m<training seed>]_seed<k>/`) also holds SUMO's own `detectors.xml`,
+`fcd.xml` (every 5 s) and `tripinfo.xml`, for SUMO's tools (`docs/sumo-tools.md` draws Fig. 4 from `fcd.xml`
+with `plot_trajectories.py`).
 
 ## Definitions (chosen here; the paper gives none)
 
@@ -250,8 +306,7 @@ def comparison_pairs(plan: Plan, rows: pd.DataFrame) -> tuple[list[tuple[str, st
     return pairs, coop
 
 
-def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[str, float, int, Path, SimConfig]],
-                  timing: str) -> None:  # fmt: skip
+def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], timing: str) -> None:
     """summary.csv, the figures and report.md from the table of runs."""
     from coopsumo.report.analysis import flow_density, insertion_backlog, read_detectors, section_speed_bins
     from coopsumo.report.bottleneck import REGIMES
@@ -260,7 +315,9 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[s
     agg.to_csv(root / "summary.csv", index=False)
     pairs, coop = comparison_pairs(plan, rows)
     first = plan.seeds[0]
-    cfg0 = runs[0][4]
+    cfg0 = runs[0].cfg
+    first_model = plan.train_seeds[0]
+    shown_runs = [r for r in runs if r.train_seed in (None, first_model)]  # the figures show the first model
     acc, dt = cfg0.accident, cfg0.control.dt_s
     start_s, end_s, run_end_s = acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt, plan.steps * dt
     window = (start_s, end_s)
@@ -268,7 +325,7 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[s
     for name in [p.name for p in root.glob("fig*.png")]:
         (root / name).unlink()  # figures of an earlier study with other demands must not stay beside this one
     for t_up in plan.t_ups:
-        firsts = [(lab, out) for lab, t, seed, out, _ in runs if seed == first and t == t_up]
+        firsts = [(r.label, r.out) for r in shown_runs if r.seed == first and r.t_up == t_up]
         fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, out in firsts}
         tname = number_name(t_up)
         figures[f"fig5_t{tname}"] = flow_density_figure(fd, root / f"fig5_flow_density_t{tname}.png").name
@@ -286,15 +343,16 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[s
     shown = [noncoop] + ([model_label(plan.presets[0], shown_alpha)] if shown_alpha > 0 else [])
     fig4_t = most_different_demand(rows, shown[-1], noncoop) if len(shown) > 1 else None
     fig4_t = fig4_t if fig4_t is not None else plan.t_ups[0]
-    windows = fig4_windows(rows, fig4_t, shown, first, start_s, run_end_s)
-    trajs = {lab: pd.read_parquet(out / "trajectories.parquet") for lab, t, seed, out, _ in runs
-             if seed == first and t == fig4_t and lab in shown}  # fmt: skip
+    first_rows = rows[rows["train_seed"].isna() | (rows["train_seed"] == first_model)]
+    windows = fig4_windows(first_rows, fig4_t, shown, first, start_s, run_end_s)
+    trajs = {r.label: pd.read_parquet(r.out / "trajectories.parquet") for r in shown_runs
+             if r.seed == first and r.t_up == fig4_t and r.label in shown}  # fmt: skip
     trajectory_windows_figure(trajs, FIG4_LANE, windows, root / "fig4_trajectories.png", acc.x_m,
                               f"SUMO lane {FIG4_LANE}")  # fmt: skip
     gui_label = model_label(plan.presets[0], GUI_ALPHA if GUI_ALPHA in plan.alphas else max(plan.alphas))
     gui_t = min(plan.t_ups)
-    _, _, gui_seed, gui_out, gui_cfg = next(r for r in runs if r[0] == gui_label and r[2] == first and r[1] == gui_t)
-    gui_text = gui_section(root, gui_out, f"t{number_name(gui_t)}/{gui_label}_seed{gui_seed}", gui_cfg)
+    gui = next(r for r in shown_runs if r.label == gui_label and r.seed == first and r.t_up == gui_t)
+    gui_text = gui_section(root, gui.out, str(gui.out.relative_to(root / "runs")), gui.cfg)
 
     header = (
         f"Profile `{plan.profile}`: {plan.lanes} lanes; demands T_up = {', '.join(f'{t:g}' for t in plan.t_ups)} s "
@@ -302,9 +360,12 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[s
         f"per run; the accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps "
         f"(t = {start_s:.0f}-{end_s:.0f} s), stuck ratio decaying 1 -> 0. Models (learner presets "
         f"{', '.join(f'`{p}`' for p in plan.presets)}; alpha in {{{', '.join(f'{x:g}' for x in plan.alphas)}}}) "
-        f"trained once, {plan.train_steps} steps in free flow at T_up = {plan.train_t_up_s:g} s (seed "
-        f"{plan.train_seed}); evaluated greedily on seeds {', '.join(map(str, plan.seeds))}, which no model saw; "
-        f"every policy meets the same demand on the same seeds. Values: mean ± standard deviation over seeds."
+        f"{training_text(plan)}; **{len(plan.train_seeds)} models per alpha** (training seeds "
+        f"{', '.join(map(str, plan.train_seeds))}), each evaluated greedily on **{len(plan.seeds)} evaluation seeds** "
+        f"({', '.join(map(str, plan.seeds))}), which no model saw; every policy meets the same demand on the same "
+        f"seeds. Values in the tables: mean ± standard deviation over runs ({len(plan.train_seeds)} x "
+        f"{len(plan.seeds)} for a learned policy, {len(plan.seeds)} for a baseline); Fig. 4, Fig. 5 and the "
+        f"recovery figures show the first model (training seed {plan.train_seeds[0]})."
     )
     if coop is None:
         claim = ("No model with alpha > 0 makes even 10% of alpha = 0's lane changes here: every cooperative model "
@@ -327,14 +388,26 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[tuple[s
     print(report_table(agg[agg["t_up_s"] == plan.t_ups[-1]]))
 
 
-def timing_text(plan: Plan, runs: list[tuple[str, float, int, Path, SimConfig]],
-                model_paths: dict[tuple[str, float], Path], n_train: int, n_specs: int,
+def training_text(plan: Plan) -> str:
+    """How the models were trained: the learner's own training demand (the default's mix of demands and
+    accidents, or free flow at one demand)."""
+    from coopsumo.config import DQN_PRESETS
+
+    dqn = DQN_PRESETS[plan.presets[0]]
+    t_ups = ", ".join(f"{t:g}" for t in dqn.train_t_ups)
+    where = (f"episodes of {dqn.episode_steps:,} steps at T_up drawn from {t_ups} s, {dqn.accident_share:.0%} of "
+             "them with an accident" if dqn.train_t_ups
+             else f"free flow at T_up = {plan.train_t_up_s:g} s")  # fmt: skip
+    return f"trained {plan.train_steps:,} steps ({where})"
+
+
+def timing_text(plan: Plan, runs: list[Run], model_files: list[Path], n_train: int, n_specs: int,
                 wall: float) -> str:  # fmt: skip
     per: dict[float, list[Path]] = {t: [] for t in plan.t_ups}
-    for _, t_up, _, out, _ in runs:
-        per[t_up].append(out / "summary.json")
-    return timing_note(wall, len(model_paths) - n_train, len(model_paths), len(runs) - (n_specs - n_train), len(runs),
-                       [m.parent / "train_summary.json" for m in model_paths.values()], per)  # fmt: skip
+    for r in runs:
+        per[r.t_up].append(r.out / "summary.json")
+    return timing_note(wall, len(model_files) - n_train, len(model_files), len(runs) - (n_specs - n_train), len(runs),
+                       [m.parent / "train_summary.json" for m in model_files], per)  # fmt: skip
 
 
 def gui_run(cfg: SimConfig, shot: Path) -> dict[str, list[Any]]:

@@ -52,7 +52,7 @@ from coopsumo.studies.scenario2_plan import (
     cell_specs,
 )
 from coopsumo.studies.scenario2_report import condition_label, write_outputs
-from coopsumo.studies.trainings import train_resuming, train_shared
+from coopsumo.studies.trainings import train_shared
 from coopsumo.validation import (
     MAX_T_UP_S,
     MOBIL_LIMITS,
@@ -107,24 +107,29 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     """Train and evaluate a DQN cell into ROOT/train/<key>/; fills `record`. A stop by signal -> KeyboardInterrupt."""
-    out = root / "train" / spec["key"]
-    summary, record["resumed_from_step"] = train_resuming(spec["config"], out)
+    from coopsumo.studies.model_store import store_for
+
+    out = root / "train" / spec["key"]  # a link into the model store (the training and its own evaluation)
+    summary, record["resumed_from_step"] = train_shared(spec["config"], out, store_for(root))
     record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
     record["train_summary"] = json.loads((out / "train_summary.json").read_text())
 
 
 def _run_conditioned(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Train (or reuse) the alpha-conditioned model of the cell's (condition, seed) in ROOT/train/<train_key>/ under
-    a lock (the cells of every alpha share it), then evaluate it at the cell's alpha in eval_a<alpha>/; the summary
-    also holds the evaluation's mean loop flow and occupancy (SUMO's detectors.xml)."""
+    """Take the alpha-conditioned model of the cell's (condition, seed) from the model store (ROOT/train/<train_key>/
+    links to it; the cells of every alpha share it), then evaluate it at the cell's alpha in
+    ROOT/evals/<train_key>/eval_a<alpha>/; the summary also holds the evaluation's mean loop flow and occupancy
+    (SUMO's detectors.xml)."""
     from coopsumo.config import sim_config_from_dict
     from coopsumo.report.analysis import read_detectors
+    from coopsumo.studies.model_store import store_for
 
     out = root / "train" / spec["train_key"]
-    _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out)
+
+    _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
     ev = sim_config_from_dict(spec["config"]["eval"])
     config = to_dict(replace(ev, policy=f"dqn:{out / 'model.pt'},alpha={ev.reward.alpha:g}"))
-    eval_dir = out / f"eval_a{number_name(ev.reward.alpha)}"
+    eval_dir = root / "evals" / spec["train_key"] / f"eval_a{number_name(ev.reward.alpha)}"  # the store: training only
     summary = simulate_into(config, eval_dir, spec["key"])
     det = read_detectors(eval_dir / "detectors.xml")
     summary.update(loop_flow_veh_h_per_lane=round(float(det["flow_veh_h"].mean()), 2),

@@ -242,8 +242,9 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
             "told. Each cell's summary also holds its evaluation's mean loop flow and occupancy (`runs.csv`: "
             "loop_flow_veh_h_per_lane, loop_occupancy_pct), from which `alpha=adaptive`'s rule is fitted."
         )  # fmt: skip
-    cond_folders = ("(conditioned: `train/L<lanes>_T<T_up>_cond_s<seed>/`, its evaluation at alpha A in "
-                    "`eval_a<A>/`)") if profile.conditioned else ""  # fmt: skip
+    cond_folders = ("(conditioned: `train/L<lanes>_T<T_up>_cond_s<seed>/`, a link into the model store, its "
+                    "evaluation at alpha A in `evals/L<lanes>_T<T_up>_cond_s<seed>/eval_a<A>/`)"
+                    ) if profile.conditioned else ""  # fmt: skip
     if not profile.conditioned:
         training_text = ("Each cell trains the shared DQN in free flow (scenario II) on its condition with its alpha "
                          "and seed, then evaluates the model greedily on the same condition and seed.")  # fmt: skip

@@ -64,3 +64,46 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
     x, y = np.asarray(x, float), np.asarray(y, float)
     a, b = x[:, None, :], y[None, :, :]
     return float(((a > b) + 0.5 * (a == b)).mean(axis=(0, 1)).mean())
+
+
+def hierarchical_bootstrap(diff: np.ndarray, reps: int = REPS, seed: int = SEED,
+                           confidence: float = CONFIDENCE) -> tuple[float, float, float]:  # fmt: skip
+    """(mean, low, high) of a (models x evaluation seeds) table of paired differences, with a two-level percentile
+    bootstrap: each resample draws the models with replacement, then within each drawn model its evaluation seeds
+    with replacement (Davison and Hinkley 1997, sec. 3.8). The mean weighs every model equally (the mean over models
+    of each model's mean over its seeds). NaN entries are dropped per model; a model without a value is left out.
+    One row (no model, e.g. two baselines) is the one-level bootstrap over seeds. (nan, nan, nan) without data."""
+    d = np.atleast_2d(np.asarray(diff, float))
+    valid = np.isfinite(d)
+    keep = valid.any(axis=1)
+    d, valid = d[keep], valid[keep]
+    if d.size == 0:
+        return float("nan"), float("nan"), float("nan")
+    counts = valid.sum(axis=1)
+    packed = np.zeros_like(d)  # each model's values first, in order; the rest unused
+    for i, row in enumerate(d):
+        packed[i, : counts[i]] = row[valid[i]]
+    point = float(np.mean([packed[i, : counts[i]].mean() for i in range(len(d))]))
+    rng = np.random.default_rng(seed)
+    k, s = packed.shape
+    models = rng.integers(0, k, size=(reps, k))
+    seeds = np.floor(rng.random((reps, k, s)) * counts[models][:, :, None]).astype(int)
+    drawn = packed[models[:, :, None], seeds]  # (reps, k, s): s draws among each drawn model's own values
+    values = drawn.mean(axis=2).mean(axis=1)
+    tail = (1 - confidence) / 2 * 100
+    low, high = np.percentile(values, [tail, 100 - tail])
+    return point, float(low), float(high)
+
+
+def models_needed(model_means: np.ndarray, confidence: float = CONFIDENCE) -> int | None:
+    """About how many models a two-sided interval at `confidence` needs to exclude zero, if the mean difference and
+    the spread between models stay as measured: (z sd / mean)^2. None when it cannot be said (fewer than 2 models,
+    a zero mean)."""
+    from scipy.stats import norm
+
+    m = np.asarray(model_means, float)
+    m = m[np.isfinite(m)]
+    if len(m) < 2 or m.mean() == 0:
+        return None
+    z = float(norm.ppf(0.5 + confidence / 2))
+    return max(int(np.ceil((z * m.std(ddof=1) / abs(m.mean())) ** 2)), len(m) + 1)

@@ -71,15 +71,15 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
     return summary, resumed_from
 
 
-def train_shared(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:
-    """train_resuming under a lock on out (a file beside it): cells that share one training (the margin variants,
-    a conditioned model's alphas) wait for the first to train it, then reuse it."""
-    import fcntl
+def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[str, Any], int | None]:
+    """The model of the training `config` from the model store (studies/model_store.py), trained there first if it
+    is not whole, under a lock per model: cells and studies that share one training (the margin variants, a
+    conditioned model's alphas, scenario I and the protocol) train it once. out, the study's own training folder,
+    becomes a link to the stored one."""
+    from coopsumo.studies.model_store import obtain
 
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with open(out.parent / f".{out.name}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        return train_resuming(config, out)
+    summary, resumed, _ = obtain(config, store, link=out)
+    return summary, resumed
 
 
 def model_folder_problem(folder: Path) -> str | None:

@@ -1,0 +1,121 @@
+"""The model store: every trained model lives once, in a folder named by what made it, and every study that needs
+it takes it from there instead of training its own copy.
+
+A model's identity is its training configuration (config.results_view of the TrainConfig: the learner settings,
+alpha or conditioning, training seed, schedule, road and demand). Its folder in the store is
+`<preset>_a<alpha>_seed<seed>_<digest>`, the digest a hash of that identity, so a changed setting is another
+folder and trains a new model. A study links its own training folder (e.g. OUT/train/<key>) to the store's, so
+its reports read the model where they always did.
+
+The store is the folder `models` beside the study's results folder (results/models for the committed studies), or
+$COOPSUMO_MODELS. A stored model is used only when it is whole and is its identity's (trainings.finished_training:
+the run marker, config.json equal to the identity, a model.pt that loads and was made by that configuration); a
+hand-edited or truncated one is trained again in its folder, and nothing else in the store is touched. A killed
+training resumes from its checkpoint, as a study's own would.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import sys
+from pathlib import Path
+from typing import Any
+
+from coopsumo.config import results_view
+from coopsumo.validation import number_name
+
+STORE_ENV = "COOPSUMO_MODELS"
+FIRST_TRAIN_SEED = 100
+"""training seeds of the studies' models are 100, 101, ...: none of the evaluation seeds (1-5, 5000+) nor the
+validation seed"""
+
+
+def store_for(root: Path) -> Path:
+    """The store a study with results folder root uses: $COOPSUMO_MODELS, else the folder `models` beside root."""
+    env = os.environ.get(STORE_ENV)
+    return Path(env) if env else Path(root).resolve().parent / "models"
+
+
+def identity(config: dict[str, Any]) -> dict[str, Any]:
+    """What identifies a model: the results view of its TrainConfig dict (JSON round trip)."""
+    return results_view(json.loads(json.dumps(config)))
+
+
+def model_id(config: dict[str, Any]) -> str:
+    """The store folder name of the training `config` (a TrainConfig dict)."""
+    ident = identity(config)
+    digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:12]
+    dqn, sim = ident.get("dqn", {}), ident.get("sim", {})
+    alpha = "c" if dqn.get("alpha_conditioned") else number_name(float(sim.get("reward", {}).get("alpha", 0.0)))
+    return f"{dqn.get('preset', 'dqn')}_a{alpha}_seed{sim.get('seed')}_{digest}"
+
+
+def stored_model(config: dict[str, Any], store: Path, link: Path | None = None) -> Path | None:
+    """The stored folder of the training `config` when the store holds it whole (trainings.finished_training), with
+    `link` made a link to it; None when it must be trained (absent, unfinished, or not this identity's: then one
+    line on stderr says why)."""
+    from coopsumo.studies.trainings import finished_training, model_folder_problem
+
+    folder = store / model_id(config)
+    if not folder.is_dir() or identity(config).get("eval_steps", 0) != 0:
+        return None
+    if (folder / "model.pt").exists() and (problem := model_folder_problem(folder)) is not None:
+        print(f"coopsumo: stored model {folder / 'model.pt'} {problem}; training it again", file=sys.stderr)
+        return None
+    if finished_training(folder, config) is None:
+        return None
+    if link is not None:
+        _link(link, folder)
+    return folder
+
+
+def obtain(config: dict[str, Any], store: Path, link: Path | None = None) -> tuple[dict[str, Any], int | None, Path]:
+    """The model of the training `config` from `store`, trained (or resumed) there first if it is not whole.
+
+    Under a lock per model, so that cells and studies asking at once train it once. With `link`, that path (a
+    study's own training folder) becomes a symlink to the stored folder; a study's earlier training of the same
+    configuration in `link` moves into the store instead of being trained again.
+    Returns (train summary, step resumed from or None, the stored folder).
+    """
+    import fcntl
+
+    from coopsumo.studies.trainings import train_resuming
+
+    store.mkdir(parents=True, exist_ok=True)
+    folder = store / model_id(config)
+    with open(store / f".{folder.name}.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if link is not None:
+            _adopt(link, folder)
+            folder.mkdir(exist_ok=True)
+            _link(link, folder)  # before training: its checkpoint shows through the study's folder
+        summary, resumed = train_resuming(config, folder)
+    return summary, resumed, folder
+
+
+def _adopt(link: Path, folder: Path) -> None:
+    """A study's own training folder (made before the store) moves into the store when the store has none; the
+    store's checks then decide whether it is whole and this model's. When the store has one, the study's copy goes."""
+    if link.is_symlink() or not link.is_dir():
+        return
+    if folder.exists():
+        shutil.rmtree(link)
+    else:
+        shutil.move(str(link), str(folder))
+
+
+def _link(link: Path, folder: Path) -> None:
+    """link -> folder (absolute), replacing a link to elsewhere; a race with another cell is harmless."""
+    target = folder.resolve()
+    if link.is_symlink():
+        if Path(os.readlink(link)) == target:
+            return
+        link.unlink()
+    link.parent.mkdir(parents=True, exist_ok=True)
+    tmp = link.parent / f".{link.name}.{os.getpid()}.link"
+    tmp.unlink(missing_ok=True)
+    tmp.symlink_to(target, target_is_directory=True)
+    os.replace(tmp, link)
