@@ -50,3 +50,99 @@ def test_models_needed_grows_with_the_spread() -> None:
     many = stats.models_needed(np.array([3.0, -1.0, 2.0, -0.5]))
     assert few is not None and many is not None and few < many
     assert many >= 5  # more than the models there are
+
+
+# -- the model store and the committed report, with real trainings and SUMO runs --------------------------------
+import hashlib  # noqa: E402
+import json  # noqa: E402
+import os  # noqa: E402
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import pytest  # noqa: E402
+
+from coopsumo.config import DQNConfig, to_dict  # noqa: E402
+from coopsumo.studies import model_store  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+SMALL = ["-m", "coopsumo.scenario1", "--quick", "--train-steps", "300", "--steps", "300", "--seeds", "1",
+         "--t-up", "2", "--mobil-p", "0", "--alphas", "0", "--workers", "2"]  # fmt: skip
+"""a small scenario I: models at alpha 0 only, one demand, one evaluation seed"""
+
+
+def _study(out: Path | None, *extra: str, cwd: Path = REPO) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", model_store.STORE_ENV)}
+    return subprocess.run([sys.executable, *SMALL, *extra, *(["--out", str(out)] if out else [])], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
+
+
+def test_scenario_one_takes_the_protocols_models_from_the_store() -> None:
+    """The default scenario I trains exactly the learner protocol's models (same identity, so one stored model)."""
+    from coopsumo.studies import protocol_plan, scenario1_plan
+
+    for alpha in (0.0, 8.0):
+        for seed in scenario1_plan.TRAIN_SEEDS:
+            s1 = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), alpha, "default", seed))
+            proto = to_dict(protocol_plan.train_config(protocol_plan.PROFILES["v2x_mix10"], DQNConfig(), alpha, seed))
+            assert model_store.model_id(s1) == model_store.model_id(proto)
+    base = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), 0.0, "default", 100))
+    other = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), 0.0, "default", 101))
+    assert model_store.model_id(base) != model_store.model_id(other)  # a changed setting is another model
+
+
+@pytest.mark.sumo
+def test_a_second_study_takes_stored_models_and_a_tampered_one_is_retrained(tmp_path: Path) -> None:
+    first, second = tmp_path / "first", tmp_path / "second"
+    res = _study(first, "--train-seeds", "2")
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "0 of 2 models from the model store" in res.stderr
+    store = tmp_path / "models"  # beside the studies
+    stored = sorted(p for p in store.iterdir() if p.is_dir())
+    assert [p.name.split("_")[2] for p in stored] == ["seed100", "seed101"]
+    stamps = {p: (p / "model.pt").stat().st_mtime_ns for p in stored}
+    # 1. another study asking for the same models trains nothing: its model folders link to the stored ones
+    res = _study(second, "--train-seeds", "2")
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "2 of 2 models from the model store" in res.stderr and "0 trainings" in res.stderr
+    assert {(second / "models" / f"alpha0_m{k}").resolve() for k in (100, 101)} == set(stored)
+    assert {p: (p / "model.pt").stat().st_mtime_ns for p in stored} == stamps
+    runs_first = (first / "runs.csv").read_text()
+    assert (second / "runs.csv").read_text() == runs_first.replace(str(first), str(second))
+    # 2. a hand-edited config.json: that model is not used but trained again, with one line; the other is kept
+    edited = stored[0] / "config.json"
+    record = json.loads(edited.read_text())
+    record["config"]["dqn"]["lr"] = 0.5
+    edited.write_text(json.dumps(record))
+    res = _study(second, "--train-seeds", "2")
+    assert res.returncode == 0, res.stderr[-2000:]
+    lines = [line for line in res.stderr.splitlines() if "another configuration than its config.json" in line]
+    assert len(lines) == 1 and str(stored[0]) in lines[0], res.stderr[-2000:]
+    assert (stored[1] / "model.pt").stat().st_mtime_ns == stamps[stored[1]]
+    assert json.loads(edited.read_text())["config"]["dqn"]["lr"] == DQNConfig().lr  # retrained as its identity
+    assert (second / "runs.csv").read_text() == runs_first.replace(str(first), str(second))  # the same model again
+
+
+def _digests(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*")) if p.is_file()}  # fmt: skip
+
+
+@pytest.mark.sumo
+def test_a_quick_run_leaves_the_committed_report_byte_identical(tmp_path: Path) -> None:
+    """`make scenario1 QUICK=1` (coopsumo scenario1 --quick) writes into results/scenario1_quick; asked to write
+    into the default profile's folder, it refuses with one line."""
+    committed = tmp_path / "results" / "scenario1"
+    shutil.copytree(REPO / "results" / "scenario1", committed, ignore=shutil.ignore_patterns("runs", "models",
+                                                                                             "cells", ".*"))
+    before = _digests(committed)
+    assert "report.md" in before and "plan.json" in before
+    res = _study(None, "--train-seeds", "1", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert (tmp_path / "results" / "scenario1_quick" / "report.md").is_file()
+    assert _digests(committed) == before
+    res = _study(committed, "--train-seeds", "1")
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
+    assert "holds the default profile's study" in res.stderr and "results/scenario1_quick" in res.stderr
+    assert _digests(committed) == before

@@ -42,7 +42,7 @@ from coopsumo.studies.ablation_plan import (
 )
 from coopsumo.studies.ablation_report import write_outputs
 from coopsumo.studies.records import failed_exit
-from coopsumo.studies.run_folders import study_root
+from coopsumo.studies.run_folders import default_out, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend
 from coopsumo.validation import alpha_list, number_name, out_dir, seed_count, workers
 
@@ -175,10 +175,13 @@ def build_parser() -> Parser:
                    help="comma-separated alpha grid of the alpha response (default: the profile's)")
     p.add_argument("--alpha-variants", default=None,
                    help="comma-separated variants whose alpha response is measured (default: the default learner)")
-    p.add_argument("--seeds", type=seed_count, default=None, help="training seeds 0..N-1 (default: the profile's)")
+    p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
+                   help="models per variant: training seeds 0..N-1, each evaluated on its own held-out seed "
+                        "(default: the profile's)")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
-    p.add_argument("--out", type=out_dir, default=Path("results/learning"))
+    p.add_argument("--out", type=out_dir, default=None,
+                   help="results folder (default results/learning, another profile results/learning_<profile>)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -207,6 +210,8 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         profile = profile_from_args(args)
         check_backend(args.backend, args.address)
+        if args.out is None:
+            args.out = default_out("learning", profile.name, "full")
         with study_root(args.out, "ablation"):  # path, lock, ownership and marker of the results folder
             meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip

@@ -20,7 +20,6 @@ import hashlib
 import json
 import os
 import shutil
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -55,17 +54,13 @@ def model_id(config: dict[str, Any]) -> str:
 
 def stored_model(config: dict[str, Any], store: Path, link: Path | None = None) -> Path | None:
     """The stored folder of the training `config` when the store holds it whole (trainings.finished_training), with
-    `link` made a link to it; None when it must be trained (absent, unfinished, or not this identity's: then one
-    line on stderr says why)."""
-    from coopsumo.studies.trainings import finished_training, model_folder_problem
+    `link` made a link to it; None when it must be trained (absent, unfinished, or not this identity's)."""
+    from coopsumo.studies.trainings import finished_training
 
     folder = store / model_id(config)
     if not folder.is_dir() or identity(config).get("eval_steps", 0) != 0:
         return None
-    if (folder / "model.pt").exists() and (problem := model_folder_problem(folder)) is not None:
-        print(f"coopsumo: stored model {folder / 'model.pt'} {problem}; training it again", file=sys.stderr)
-        return None
-    if finished_training(folder, config) is None:
+    if finished_training(folder, config, quiet=True) is None:  # the training cell says why, once
         return None
     if link is not None:
         _link(link, folder)

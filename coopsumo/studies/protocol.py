@@ -27,7 +27,7 @@ from coopsumo.config import RoadConfig, SimConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.protocol_plan import PROFILES, REQUIRED, TRAJECTORY_EVERY, Profile, cell_specs, variants
 from coopsumo.studies.records import failed_exit
-from coopsumo.studies.run_folders import study_root
+from coopsumo.studies.run_folders import default_out, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend
 from coopsumo.validation import out_dir, workers
 
@@ -142,7 +142,9 @@ def build_parser() -> Parser:
     p.add_argument("--profile", choices=tuple(PROFILES), default="default", help="study size")
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
-    p.add_argument("--out", type=out_dir, default=Path("results/learner_protocol"))
+    p.add_argument("--out", type=out_dir, default=None,
+                   help="results folder (default results/learner_protocol, another profile "
+                        "results/learner_protocol_<profile>)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -154,6 +156,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.workers <= 0:
             raise UsageError(f"--workers must be positive, got {args.workers}")
         check_backend(args.backend, args.address)
+        if args.out is None:
+            args.out = default_out("learner_protocol", args.profile, "default")
         with study_root(args.out, "protocol"):
             meta = run_study(PROFILES[args.profile], args.out, args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip

@@ -101,6 +101,12 @@ STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
 """the names each study writes at the top of its root, its plan file first (runio.check_study_root)"""
 
 
+def default_out(name: str, profile: str, committed: str) -> Path:
+    """A study's results folder when --out is not given: results/<name> for the profile whose report is committed,
+    results/<name>_<profile> for any other, so that a quick or test run never replaces a committed report."""
+    return Path("results") / (name if profile == committed else f"{name}_{profile}")
+
+
 def study_root(root: Path, kind: str) -> AbstractContextManager[Path]:
     """Claim the study root for the block (runio.study_root: path checked, lock held, ownership checked, marked)."""
     return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"))

@@ -28,7 +28,7 @@ from coopsumo.policy_spec import model_file, split_dqn_spec
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.records import CellRecords, failed_exit
-from coopsumo.studies.run_folders import reusable_run, study_root
+from coopsumo.studies.run_folders import default_out, reusable_run, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
 from coopsumo.studies.scenario1_measures import run_metrics
 from coopsumo.studies.scenario1_plan import (
@@ -122,7 +122,9 @@ def build_parser() -> Parser:
                         f"(default {','.join(f'{t:g}' for t in DEMANDS)})")  # fmt: skip
     p.add_argument("--mobil-p", dest="mobil_ps", default=None,
                    help=f"MOBIL politeness values, comma-separated (default {','.join(f'{x:g}' for x in MOBIL_PS)})")
-    p.add_argument("--out", type=out_dir, default=Path("results/scenario1"), help="results folder")
+    p.add_argument("--out", type=out_dir, default=None,
+                   help="results folder (default results/scenario1; --quick results/scenario1_quick, --full "
+                        "results/scenario1_full: only the default profile's report is committed)")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
     add_backend_flags(p)
     sizes = {"": Plan(), " --quick": Plan.quick(), " --full": Plan.full()}
@@ -174,10 +176,24 @@ def main(argv: list[str] | None = None) -> int:
         if args.presets is not None:
             plan = replace(plan, presets=_preset_list(args.presets))
         check_backend(args.backend, args.address)
+        if args.out is None:
+            args.out = default_out("scenario1", plan.profile, Plan().profile)
+        if (other := recorded_profile(args.out)) not in (None, plan.profile):
+            raise UsageError(f"{args.out} holds the {other} profile's study; the {plan.profile} profile writes into "
+                             f"its own folder (default {default_out('scenario1', plan.profile, Plan().profile)})")
         with study_root(args.out, "scenario1"):  # path, lock, ownership and marker of the results folder
             return run_study(plan, args.out, args.workers, args.backend, args.address)
 
     return run_cli("scenario1", body)
+
+
+def recorded_profile(root: Path) -> str | None:
+    """The profile of the study in root (its plan.json), or None when there is none or it cannot be read."""
+    try:
+        profile = json.loads((root / "plan.json").read_text())["plan"]["profile"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return profile if isinstance(profile, str) else None
 
 
 def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "local", address: str | None = None) -> int:
@@ -186,7 +202,8 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
         root.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise UsageError(f"cannot write {root}: {err.strerror}") from None
-    write_json(root / "plan.json", {"plan": to_dict(plan), "versions": versions()})
+    learners = {preset: to_dict(DQN_PRESETS[preset]) for preset in plan.presets}  # the report's learner settings
+    write_json(root / "plan.json", {"plan": to_dict(plan), "learners": learners, "versions": versions()})
 
     # 1. cells: trainings first (the longest chains), each model's accident runs as soon as it exists, then
     #    the baselines; models come from the model store (shared with other studies), finished runs with the

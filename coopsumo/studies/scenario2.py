@@ -41,7 +41,7 @@ import pandas as pd
 from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.records import CellRecords, cell_path, checked_record, failed_exit, read_record, reusable_keys
-from coopsumo.studies.run_folders import simulate_into, study_root
+from coopsumo.studies.run_folders import default_out, simulate_into, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
 from coopsumo.studies.scenario2_measures import CRITERION, KEY_COLUMNS, runs_table
 from coopsumo.studies.scenario2_plan import (
@@ -165,6 +165,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
                              -s["lanes"] * s["load"]))  # fmt: skip
     meta = {
         "profile": asdict(profile),
+        "learner": learner_of(profile),
         "conditions": [
             {"lanes": n, "t_up_s": t, "load": load, "inflow_veh_h": round(3600 / t, 1)}
             for n, t, load in profile.conditions()
@@ -204,6 +205,14 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     write_outputs(root, runs, profile, meta, n_boot)
     write_json(root / "sweep.json", meta)
     return meta
+
+
+def learner_of(profile: Profile) -> dict[str, Any]:
+    """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json)."""
+    from coopsumo.studies.scenario2_plan import at_condition
+
+    dqn = at_condition(DQN_PRESETS[profile.preset])
+    return json.loads(json.dumps(to_dict(replace(dqn, alpha_conditioned=True) if profile.conditioned else dqn)))
 
 
 def profile_from_args(args: Any) -> Profile:
@@ -261,7 +270,9 @@ def build_parser() -> Parser:
                    help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
     p.add_argument("--steps", type=steps, default=None, help="training steps per cell (default: the profile's)")
     p.add_argument("--eval-steps", type=steps, default=None, help="evaluation steps per cell (default: the profile's)")
-    p.add_argument("--seeds", type=seed_count, default=None, help="number of seeds 1..N (default: the profile's)")
+    p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
+                   help="models per condition and alpha (or per condition, --conditioned): training seeds 1..N, "
+                        "each model evaluated greedily once (default: the profile's: quick 3)")  # fmt: skip
     p.add_argument("--lanes", default=None, help="comma-separated lane counts (default: the profile's)")
     p.add_argument("--alphas", default=None,
                    help="comma-separated alphas, fractions allowed: 0,1/8,2 (default: the profile's)")
@@ -290,7 +301,8 @@ def main(argv: list[str] | None = None) -> int:
             raise UsageError(f"bootstrap must be >= 0, got {args.bootstrap}")
         check_backend(args.backend, args.address)
         if args.out is None:
-            args.out = Path("results/scenario2_conditioned" if profile.conditioned else "results/scenario2")
+            name = "scenario2_conditioned" if profile.conditioned else "scenario2"
+            args.out = default_out(name, profile.name, "quick")
         with study_root(args.out, "scenario2"):  # path, lock, ownership and marker of the results folder
             meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet,
                              args.bootstrap)  # fmt: skip

@@ -19,10 +19,11 @@ FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
 """failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
 
 
-def finished_training(out: Path, config: dict[str, Any]) -> dict[str, Any] | None:
+def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) -> dict[str, Any] | None:
     """The training summary of a training without evaluation that finished in out with exactly this config
     (its run marker lists its files, its config.json holds config, model.pt and train_summary.json exist);
-    None otherwise. A cell killed after its training but before its record was written reuses it."""
+    None otherwise (with one line on stderr when the model itself is the problem, unless quiet). A cell killed after
+    its training but before its record was written reuses it."""
     from coopsumo.runio import RUN_MARKER
 
     try:
@@ -35,7 +36,8 @@ def finished_training(out: Path, config: dict[str, Any]) -> dict[str, Any] | Non
     if not (done and "model.pt" in marker["files"] and (out / "model.pt").is_file() and isinstance(summary, dict)):
         return None
     if (problem := model_folder_problem(out)) is not None:  # a model that does not load or is not this training's
-        print(f"coopsumo: training folder {out} {problem}; training it again", file=sys.stderr)
+        if not quiet:
+            print(f"coopsumo: {out / 'model.pt'} {problem}; training it again", file=sys.stderr)
         return None
     return summary if results_view(stored) == results_view(json.loads(json.dumps(config))) else None
 

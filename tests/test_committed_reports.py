@@ -1,0 +1,92 @@
+"""Every committed report is the current code's answer: the learner recorded beside it is the learner its command
+trains today, so a report can no longer go stale behind a banner. Reports made with an earlier learner live in
+results/archive/ and say so at their top."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from coopsumo.config import DQN_PRESETS, DQNConfig, results_view, to_dict
+from coopsumo.studies.protocol_plan import variants
+from coopsumo.studies.scenario2 import learner_of
+from coopsumo.studies.scenario2_plan import PROFILES as SCENARIO2_PROFILES
+from coopsumo.studies.trainings import first_difference
+
+ROOT = Path(__file__).resolve().parent.parent
+LEARNER_FREE = {"regime_map"}
+"""reports without a learned policy (keep through the accident)"""
+
+
+def committed_reports() -> list[Path]:
+    """The report folders under results/ that git tracks (not the archive)."""
+    try:
+        out = subprocess.run(["git", "ls-files", "results/*/report.md"], cwd=ROOT, capture_output=True, text=True,
+                             check=True).stdout  # fmt: skip
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    paths = [Path(line) for line in out.splitlines() if line.strip()]
+    return [ROOT / p.parent for p in paths if len(p.parts) == 3]  # git's * also matches results/archive/x/
+
+
+def _same(recorded: Any, current: Any, what: str) -> None:
+    where = first_difference(recorded, current)
+    assert where is None, f"{what}: the committed report's learner differs from today's ({where}); remake it"
+
+
+def _learner_check(folder: Path) -> None:
+    name = folder.name
+    if name == "scenario1":
+        plan = json.loads((folder / "plan.json").read_text())
+        assert set(plan["learners"]) == set(plan["plan"]["presets"])
+        for preset, learner in plan["learners"].items():
+            _same(learner, to_dict(DQN_PRESETS[preset]), f"{name} ({preset})")
+        _same(plan["learners"].get("default", to_dict(DQNConfig())), to_dict(DQNConfig()), name)
+    elif name.startswith("learner_protocol"):
+        study = json.loads((folder / "study.json").read_text())
+        known = variants()
+        for variant, entry in study["learners"].items():
+            _same(entry["learner"], to_dict(known[variant].learner), f"{name} ({variant})")
+            assert entry["weights"] == known[variant].weights
+    elif name in ("scenario2", "scenario2_conditioned"):
+        sweep = json.loads((folder / "sweep.json").read_text())
+        profile = SCENARIO2_PROFILES[sweep["profile"]["name"]]
+        _same(sweep["learner"], learner_of(replace(profile, conditioned=sweep["profile"]["conditioned"])), name)
+    else:
+        assert name in LEARNER_FREE, f"results/{name}: a committed report whose learner no test checks"
+
+
+def test_every_committed_report_was_made_by_todays_learner() -> None:
+    folders = committed_reports()
+    assert any(f.name == "scenario1" for f in folders)
+    for folder in folders:
+        _learner_check(folder)
+
+
+def test_the_default_learner_is_the_protocols_v2x_mix_and_scenario_ones() -> None:
+    """The headline learner report judges today's default."""
+    assert results_view(to_dict(variants()["v2x_mix"].learner)) == results_view(to_dict(DQNConfig()))
+    assert results_view(to_dict(DQN_PRESETS["default"])) == results_view(to_dict(DQNConfig()))
+
+
+def test_the_check_fires_on_a_changed_learner(tmp_path: Path) -> None:
+    """The test above could fail: a scenario I plan.json with another learning rate is caught."""
+    plan = {"plan": {"presets": ["default"]}, "learners": {"default": to_dict(DQNConfig(lr=0.5))}}
+    folder = tmp_path / "scenario1"
+    folder.mkdir()
+    (folder / "plan.json").write_text(json.dumps(plan))
+    with pytest.raises(AssertionError, match=r"config\.lr"):
+        _learner_check(folder)
+    with pytest.raises(AssertionError, match="no test checks"):
+        _learner_check(tmp_path / "learning")
+
+
+def test_archived_reports_say_so_at_their_top() -> None:
+    for page in sorted((ROOT / "results" / "archive").rglob("report.md")):
+        head = "\n".join(page.read_text().splitlines()[:4])
+        assert "**Archived on " in head and "earlier default learner" in head, page
