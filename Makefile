@@ -6,6 +6,7 @@ STAMP   := $(VENV)/.installed
 DEMO_OUT ?= results/demo
 QUICK   ?=
 SEEDS   ?=
+TRAIN_SEEDS ?=
 PRESET  ?=
 ALPHAS  ?=
 FULL    ?=
@@ -41,7 +42,7 @@ nets: $(STAMP)
 	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.sim.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"
 
 scenario1: $(STAMP)
-	$(BIN)/coopsumo scenario1 $(if $(QUICK),--quick) $(if $(FULL),--full) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(T_UP),--t-up $(T_UP)) $(if $(MOBIL_P),--mobil-p $(MOBIL_P)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
+	$(BIN)/coopsumo scenario1 $(if $(QUICK),--quick) $(if $(FULL),--full) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(TRAIN_SEEDS),--train-seeds $(TRAIN_SEEDS)) $(if $(T_UP),--t-up $(T_UP)) $(if $(MOBIL_P),--mobil-p $(MOBIL_P)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
 
 scenario2: $(STAMP)
 	$(BIN)/coopsumo scenario2 --profile quick --policies dqn,mobil

@@ -28,6 +28,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "diagnose": ("coopsumo.studies.diagnosis", "the Q-value margins behind a learning study's models' choices"),
     "adaptive-fit": ("coopsumo.studies.adaptive_fit", "fit the adaptive-alpha rule on a scenario2 --conditioned sweep"),
     "adaptive": ("coopsumo.studies.adaptive_alpha", "alpha=adaptive against the best fixed alpha, conditioned sweep"),
+    "models": ("coopsumo.studies.model_store", "list the model store: every trained model and whether it is usable"),
     "bench": ("coopsumo.bench", "speed figures (printed, not asserted)"),
 }
 """command -> (module holding its parser and main(argv), one line of what it does)"""

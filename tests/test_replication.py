@@ -115,6 +115,13 @@ def test_a_second_study_takes_stored_models_and_a_tampered_one_is_retrained(tmp_
     record = json.loads(edited.read_text())
     record["config"]["dqn"]["lr"] = 0.5
     edited.write_text(json.dumps(record))
+    listing = subprocess.run([sys.executable, "-m", "coopsumo", "models", "--store", str(store)], cwd=REPO,
+                             capture_output=True, text=True, check=False)  # fmt: skip
+    assert listing.returncode == 0, listing.stderr
+    lines = listing.stdout.splitlines()
+    assert lines[-1] == f"2 models in {store}, 1 usable"
+    assert "not this folder's identity" in next(line for line in lines if line.startswith(stored[0].name))
+    assert next(line for line in lines if line.startswith(stored[1].name)).rstrip().endswith(" ok")
     res = _study(second, "--train-seeds", "2")
     assert res.returncode == 0, res.stderr[-2000:]
     lines = [line for line in res.stderr.splitlines() if "another configuration than its config.json" in line]

@@ -114,3 +114,60 @@ def _link(link: Path, folder: Path) -> None:
     tmp.unlink(missing_ok=True)
     tmp.symlink_to(target, target_is_directory=True)
     os.replace(tmp, link)
+
+
+# -- `coopsumo models`: what the store holds -----------------------------------------------------------------
+def listing(store: Path) -> list[dict[str, Any]]:
+    """One row per stored model folder: its name, preset, alpha, training seed, steps, whether it is whole and
+    its own (trainings.finished_training against its recorded configuration and name), and the step model.pt
+    was chosen at."""
+    from coopsumo.studies.trainings import finished_training
+
+    rows = []
+    for folder in sorted(p for p in store.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        row: dict[str, Any] = {"model": folder.name, "preset": "-", "alpha": "-", "seed": "-", "steps": "-",
+                               "state": "unfinished", "selected_step": "-"}  # fmt: skip
+        try:
+            config = json.loads((folder / "config.json").read_text())["config"]
+            sim, dqn = config["sim"], config["dqn"]
+            row.update(preset=dqn["preset"], seed=sim["seed"], steps=sim["steps"],
+                       alpha="conditioned" if dqn.get("alpha_conditioned") else sim["reward"]["alpha"])  # fmt: skip
+        except (OSError, ValueError, KeyError, TypeError):
+            row["state"] = "no readable config.json"
+            rows.append(row)
+            continue
+        if model_id(config) != folder.name:
+            row["state"] = "config.json is not this folder's identity (edited?)"
+        elif (summary := finished_training(folder, config, quiet=True)) is not None:
+            row["state"] = "ok"
+            row["selected_step"] = summary.get("selected_step", "-")
+        elif (folder / "model.pt").exists():
+            row["state"] = "not usable: trained again when a study asks for it"
+        rows.append(row)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    from coopsumo.runio import Parser, UsageError, run_cli
+
+    p = Parser(prog="coopsumo models", description="List the model store: every trained model, by the training "
+               "that made it, and whether a study would use it.")  # fmt: skip
+    p.add_argument("--store", type=Path, default=None,
+                   help=f"the store (default ${STORE_ENV} if set, else results/models)")  # fmt: skip
+    args = p.parse_args(argv)
+
+    def body() -> int:
+        store = args.store or Path(os.environ.get(STORE_ENV) or "results/models")
+        if not store.is_dir():
+            raise UsageError(f"--store {store}: no such folder (a study makes it when it trains its first model)")
+        rows = listing(store)
+        keys = ("model", "preset", "alpha", "seed", "steps", "selected_step", "state")
+        widths = {k: max([len(k)] + [len(str(r[k])) for r in rows]) for k in keys}
+        print("  ".join(k.ljust(widths[k]) for k in keys))
+        for r in rows:
+            print("  ".join(str(r[k]).ljust(widths[k]) for k in keys))
+        usable = sum(r["state"] == "ok" for r in rows)
+        print(f"{len(rows)} models in {store}, {usable} usable")
+        return 0
+
+    return run_cli("models", body)

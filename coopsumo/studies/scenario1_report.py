@@ -145,6 +145,36 @@ def verdict_line(c: dict[str, Any]) -> str:
     )
 
 
+def verdict_word(c: dict[str, Any]) -> str:
+    """The verdict on total time spent in one word or phrase (as verdict_line decides it)."""
+    if 0 < c["models"] < MIN_MODELS:
+        return f"{c['models']} model(s): too few"
+    if c["pairs"] < MIN_PAIRS:
+        return f"{c['pairs']} seed(s): too few"
+    return _direction(c["tts_veh_h"])
+
+
+def verdict_table(rows: pd.DataFrame, t_ups: Sequence[float], pairs: Sequence[tuple[str, str]]) -> str:
+    """Every comparison at every demand in one table: the difference in total time spent (a - b, veh-h) with its
+    95% interval, the count of models (or seeds) with a lower time, and the verdict."""
+    lines = ["| comparison (a against b) | " + " | ".join(f"T_up {t:g} s" for t in t_ups) + " |",
+             "|" + "---|" * (len(t_ups) + 1)]  # fmt: skip
+    for a, b in pairs:
+        cells = []
+        for t in t_ups:
+            c = compare(rows, t, a, b)
+            if c is None:
+                cells.append("-")
+                continue
+            mean, lo, hi = c["tts_veh_h"]
+            unit = f"{c['models']} models" if c["models"] else f"{c['pairs']} seeds"
+            cells.append(f"{mean:+.1f} [{lo:+.1f}, {hi:+.1f}], lower for {c['tts_fewer']} of {unit}: "
+                         f"**{verdict_word(c)}**")  # fmt: skip
+        lines.append(f"| `{a}` against `{b}` | " + " | ".join(cells) + " |")
+    return ("Total time spent, a minus b (veh-h), with the 95% two-level interval over models and evaluation "
+            "seeds:\n\n" + "\n".join(lines))
+
+
 def model_spread_table(rows: pd.DataFrame, t_up: float) -> str:
     """Total time spent of each trained model at one demand (mean over its evaluation seeds): the spread between
     models that the intervals include. Empty without learned policies."""
@@ -165,18 +195,23 @@ def model_spread_table(rows: pd.DataFrame, t_up: float) -> str:
 
 
 def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int, runs: int,
-                train_files: list[Path], run_files: dict[float, list[Path]]) -> str:  # fmt: skip
-    """Wall time of this invocation, what it reused, and the compute its parts recorded (per demand)."""
+                train_files: list[Path], run_cpu: dict[float, list[float]], workers: int = 2) -> str:  # fmt: skip
+    """Wall time of this invocation, what it reused, the compute its parts recorded (trainings: wall time of each;
+    runs: CPU time per demand, which does not grow when the machine is shared) and the from-scratch estimate:
+    all of it spread over `workers` cores."""
     train_s = [float(json.loads(f.read_text()).get("wall_seconds", 0.0)) for f in train_files if f.exists()]
-    per = {t: sum(float(json.loads(f.read_text()).get("wall_seconds", 0.0)) for f in fs if f.exists())
-           for t, fs in run_files.items()}  # fmt: skip
+    per = {t: sum(v) for t, v in run_cpu.items()}
     text = f"Wall time of this invocation: {wall_s / 60:.1f} min"
     if models_reused or runs_reused:
         text += f" (reused {models_reused} of {models} models and {runs_reused} of {runs} runs)"
-    text += (f". Compute recorded by the parts: trainings {', '.join(f'{t / 60:.1f}' for t in train_s)} min; accident "
-             f"runs {sum(per.values()) / 60:.1f} core-min in all, per demand: "
-             + ", ".join(f"T_up {t:g} s {s / 60:.1f} core-min ({s / max(len(run_files[t]), 1):.0f} s per run)"
+    train_text = f"{min(train_s) / 60:.1f}-{max(train_s) / 60:.1f} min each" if train_s else "none recorded"
+    text += (f". Compute recorded by the parts: {len(train_s)} trainings, {train_text}; accident runs "
+             f"{sum(per.values()) / 60:.1f} core-min of CPU time in all, per demand: "
+             + ", ".join(f"T_up {t:g} s {s / 60:.1f} core-min ({s / max(len(run_cpu[t]), 1):.0f} s per run)"
                          for t, s in per.items()) + ".")  # fmt: skip
+    total = (sum(train_s) + sum(per.values())) / 60
+    text += (f" From scratch on {workers} cores, the parts add up to about {total / workers:.0f} min ({total:.0f} "
+             "core-min), before the report's figures.")
     return text
 
 
@@ -298,10 +333,13 @@ Versions: {versions_text}.
 
 def comparison_pairs(plan: Plan, rows: pd.DataFrame) -> tuple[list[tuple[str, str]], float | None]:
     """The verdict's pairs (cooperative, non-cooperative): every alpha > 0 against alpha = 0 per learner preset,
-    every MOBIL p > 0 against p = 0; and the first preset's cooperative alpha (the largest still changing lanes)."""
+    every MOBIL p > 0 against p = 0, then every learned policy against `keep` and MOBIL p = 0 (learned against
+    classical); and the first preset's cooperative alpha (the largest still changing lanes)."""
     pairs = [(model_label(pr, x), model_label(pr, 0.0)) for pr in plan.presets for x in plan.alphas if x > 0]
     if 0.0 in plan.mobil_ps:
         pairs += [(label_for(f"mobil:p={number_name(x)}"), label_for("mobil:p=0")) for x in plan.mobil_ps if x > 0]
+    classical = [b for b in ("keep", label_for("mobil:p=0")) if b in set(rows["policy"])]
+    pairs += [(model_label(pr, x), b) for pr in plan.presets for x in plan.alphas for b in classical]
     coop = cooperative_alpha(rows, {x: model_label(plan.presets[0], x) for x in plan.alphas})
     return pairs, coop
 
@@ -374,6 +412,7 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
         claim = (f"The cooperative model that is not simply `keep`: **alpha = {coop:g}** (the largest alpha whose "
                  f"model makes at least 10% of alpha = 0's lane changes per vehicle over every accident run).")
     sections = [demand_section(rows, agg, t, pairs, figures) for t in plan.t_ups]
+    claim += "\n\n" + verdict_table(rows, plan.t_ups, pairs)
     regimes = regime_table(rows, REGIMES)
     figures_text = (
         f"![total time spent](fig_tts_demand.png)\n\nTotal time spent against the inflow, per policy: mean over "
@@ -401,13 +440,10 @@ def training_text(plan: Plan) -> str:
     return f"trained {plan.train_steps:,} steps ({where})"
 
 
-def timing_text(plan: Plan, runs: list[Run], model_files: list[Path], n_train: int, n_specs: int,
-                wall: float) -> str:  # fmt: skip
-    per: dict[float, list[Path]] = {t: [] for t in plan.t_ups}
-    for r in runs:
-        per[r.t_up].append(r.out / "summary.json")
+def timing_text(plan: Plan, runs: list[Run], model_files: list[Path], n_train: int, n_specs: int, wall: float,
+                run_cpu: dict[float, list[float]]) -> str:  # fmt: skip
     return timing_note(wall, len(model_files) - n_train, len(model_files), len(runs) - (n_specs - n_train), len(runs),
-                       [m.parent / "train_summary.json" for m in model_files], per)  # fmt: skip
+                       [m.parent / "train_summary.json" for m in model_files], run_cpu)  # fmt: skip
 
 
 def gui_run(cfg: SimConfig, shot: Path) -> dict[str, list[Any]]:

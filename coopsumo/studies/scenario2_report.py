@@ -247,7 +247,10 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
                     ) if profile.conditioned else ""  # fmt: skip
     if not profile.conditioned:
         training_text = ("Each cell trains the shared DQN in free flow (scenario II) on its condition with its alpha "
-                         "and seed, then evaluates the model greedily on the same condition and seed.")  # fmt: skip
+                         "and seed, then evaluates the model greedily on the same condition and seed. **The trained "
+                         f"model is the unit:** {len(profile.seeds)} models per condition and alpha (training seeds "
+                         f"{', '.join(map(str, profile.seeds))}), each evaluated once, so every mean, win share and "
+                         "bootstrap below is over models.")  # fmt: skip
     return f"""# Scenario II: choosing the cooperation coefficient alpha
 
 Profile **{profile.name}**: lanes {", ".join(map(str, profile.lanes))}; {len(meta["conditions"])} conditions;
