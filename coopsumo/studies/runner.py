@@ -130,6 +130,7 @@ class RayBackend:
         import ray
 
         self._ray = ray
+        self.address = address
         kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": False}
         if address is None:
             kwargs["num_cpus"] = workers
@@ -141,6 +142,24 @@ class RayBackend:
             raise UsageError(f"cannot start or reach Ray{where}: {detail}") from None
         self.slots = max(1, int(ray.cluster_resources().get("CPU", workers)))
         self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=1)(cell_fn)
+
+    def check_cluster(self, root: Path, timeout_s: float = 120.0) -> None:
+        """Every alive node of the cluster runs this coopsumo, SUMO and torch and can write root, or UsageError
+        naming the node and the problem (one probe task pinned to each node, before any cell runs)."""
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        from coopsumo.runio import versions
+
+        nodes = [n for n in self._ray.nodes() if n.get("Alive") and n.get("Resources", {}).get("CPU", 0) > 0]
+        probe = self._ray.remote(num_cpus=0, max_retries=0)(node_probe)
+        refs = [probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False))
+                .remote(str(root)) for n in nodes]  # fmt: skip
+        try:
+            answers = self._ray.get(refs, timeout=timeout_s)
+        except Exception as err:
+            raise UsageError(f"a node of the Ray cluster did not answer its probe: {type(err).__name__}") from None
+        if (problem := cluster_problem(versions(), [n["NodeManagerAddress"] for n in nodes], answers, root)):
+            raise UsageError(problem)
 
     def submit(self, spec: dict[str, Any], root: Path) -> Any:
         return self._task.remote(spec, str(root))
@@ -160,6 +179,41 @@ class RayBackend:
 
     def close(self) -> None:
         self._ray.shutdown()
+
+
+PINNED = ("coopsumo", "sumo", "libsumo", "torch", "python")
+"""versions every node of a cluster must share with the machine that starts the study"""
+
+
+def node_probe(root: str) -> dict[str, Any]:
+    """What one node of a cluster runs, and whether it can write the study's folder (a file made and removed)."""
+    import socket
+
+    from coopsumo.runio import versions
+
+    probe = Path(root) / f".node-probe-{socket.gethostname()}-{os.getpid()}"
+    try:
+        probe.write_text("ok")
+        probe.unlink()
+        problem = None
+    except OSError as err:
+        problem = err.strerror or type(err).__name__
+    return {"versions": versions(), "write_problem": problem}
+
+
+def cluster_problem(mine: dict[str, str], nodes: Sequence[str], answers: Sequence[dict[str, Any]],
+                    root: Path) -> str | None:  # fmt: skip
+    """Why the cluster cannot run this study (a node with other versions, a node that cannot write root), or None."""
+    for node, answer in zip(nodes, answers, strict=True):
+        theirs = answer["versions"]
+        for name in PINNED:
+            if theirs.get(name) != mine.get(name):
+                return (f"--address: node {node} runs {name} {theirs.get(name)}, this machine {mine.get(name)}; "
+                        "install the same versions on every node")  # fmt: skip
+        if answer["write_problem"]:
+            return (f"--out {root}: node {node} cannot write it ({answer['write_problem']}); give a folder every "
+                    "node shares")  # fmt: skip
+    return None
 
 
 def add_backend_flags(parser: Any) -> None:
@@ -231,6 +285,8 @@ def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend |
     cells. On KeyboardInterrupt (Ctrl-C or SIGTERM) the workers are stopped and the interrupt re-raised.
     """
     (root / "cells").mkdir(parents=True, exist_ok=True)
+    if isinstance(backend, RayBackend) and backend.address is not None:
+        backend.check_cluster(root)
     todo = list(specs)
     pending = {spec["key"] for spec in specs}  # not finished yet in this call
     ok_keys: set[str] = set(done_keys)

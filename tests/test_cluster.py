@@ -1,0 +1,100 @@
+"""A study on a real multi-node Ray cluster: two Ray nodes on this machine (Ray's own ray.cluster_utils.Cluster),
+the study connecting with --backend ray --address as it would to a remote cluster. Its records equal the local
+backend's; a node removed in the middle of a study loses nothing; a folder a node cannot write is refused."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytestmark = pytest.mark.sumo
+REPO = Path(__file__).resolve().parent.parent
+STUDY = ["-m", "coopsumo", "regime-map", "--t-up", "2,1", "--seeds", "2", "--steps", "300", "--quiet"]
+"""`keep` at 2 demands x 2 accident lengths x 2 seeds: 8 short cells (a Ray task starts a fresh worker process)"""
+
+
+@pytest.fixture
+def cluster() -> Iterator[tuple[Any, Any]]:
+    """A head node and a worker node, one CPU each."""
+    pytest.importorskip("ray")
+    from ray.cluster_utils import Cluster
+
+    c = Cluster(initialize_head=True, connect=False, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    worker = c.add_node(num_cpus=1)
+    c.wait_for_nodes()
+    try:
+        yield c, worker
+    finally:
+        c.shutdown()
+
+
+def _env() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if k != "DISPLAY"}
+
+
+def _run(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, *STUDY, *extra, "--out", str(out)], cwd=REPO, env=_env(),
+                          capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
+
+
+def test_a_study_on_two_nodes_equals_the_local_one_and_loses_nothing_with_a_node(
+    tmp_path: Path, cluster: tuple[Any, Any]
+) -> None:
+    c, worker = cluster
+    local = tmp_path / "local"
+    res = _run(local, "--workers", "2")
+    assert res.returncode == 0, res.stderr[-2000:]
+    expected = (local / "runs.csv").read_text()
+
+    # 1. the whole study on the two-node cluster: the same records
+    both = tmp_path / "cluster"
+    res = _run(both, "--backend", "ray", "--address", c.address)
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert (both / "runs.csv").read_text() == expected
+
+    # 2. the worker node removed while the study runs: its cells are retried on the other node (or, if recorded
+    #    as failed, redone by the rerun); nothing recorded is lost and the records are the same
+    lost = tmp_path / "lost"
+    proc = subprocess.Popen([sys.executable, *STUDY, "--backend", "ray", "--address", c.address, "--out",
+                             str(lost)], cwd=REPO, env=_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)  # fmt: skip
+    deadline = time.monotonic() + 300
+    while not any((lost / "cells").glob("*.json")):
+        assert proc.poll() is None, proc.communicate()[1][-2000:]
+        assert time.monotonic() < deadline
+        time.sleep(0.05)
+    recorded = {p.name: p.read_text() for p in (lost / "cells").glob("*.json")}
+    c.remove_node(worker)
+    _, err = proc.communicate(timeout=600)
+    for name, text in recorded.items():  # what was recorded before the loss stays as it was
+        assert (lost / "cells" / name).read_text() == text, name
+    if proc.returncode != 0:  # cells lost with the node are recorded as failed: the rerun redoes them
+        assert "failed" in err, err[-2000:]
+        res = _run(lost, "--backend", "ray", "--address", c.address)
+        assert res.returncode == 0, res.stderr[-2000:]
+    assert (lost / "runs.csv").read_text() == expected
+    records = [json.loads(p.read_text()) for p in (lost / "cells").glob("*.json")]
+    assert len(records) == 8 and all(r["status"] == "ok" for r in records)
+
+
+def test_a_node_that_cannot_write_the_folder_is_refused_in_one_line() -> None:
+    from coopsumo.runio import versions
+    from coopsumo.studies.runner import cluster_problem
+
+    mine = versions()
+    ok = {"versions": dict(mine), "write_problem": None}
+    assert cluster_problem(mine, ["10.0.0.1", "10.0.0.2"], [ok, ok], Path("/shared/out")) is None
+    unwritable = {"versions": dict(mine), "write_problem": "Read-only file system"}
+    text = cluster_problem(mine, ["10.0.0.1", "10.0.0.2"], [ok, unwritable], Path("/shared/out"))
+    assert text is not None and "--out /shared/out: node 10.0.0.2 cannot write it (Read-only file system)" in text
+    other = {"versions": {**mine, "coopsumo": "0.0.1"}, "write_problem": None}
+    text = cluster_problem(mine, ["10.0.0.1"], [other], Path("/shared/out"))
+    assert text is not None and text.startswith("--address: node 10.0.0.1 runs coopsumo 0.0.1, this machine ")
