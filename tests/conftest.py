@@ -215,3 +215,14 @@ class InlineBackend:
 
     def close(self) -> None:
         pass
+
+
+def committed_report_pages() -> list[Path]:
+    """results/<study>/report.md of every committed study (git's index; without git, every one on disk): a report
+    made locally and not committed is not one the README must link."""
+    try:
+        out = subprocess.run(["git", "ls-files", "results/*/report.md"], cwd=REPO, capture_output=True, text=True,
+                             check=True).stdout  # fmt: skip
+    except (OSError, subprocess.CalledProcessError):
+        return sorted((REPO / "results").glob("*/report.md"))
+    return sorted(REPO / line for line in out.splitlines() if len(Path(line).parts) == 3)

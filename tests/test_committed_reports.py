@@ -5,12 +5,12 @@ results/archive/ and say so at their top."""
 from __future__ import annotations
 
 import json
-import subprocess
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import committed_report_pages
 
 from coopsumo.config import DQN_PRESETS, DQNConfig, results_view, to_dict
 from coopsumo.studies.protocol_plan import variants
@@ -25,13 +25,7 @@ LEARNER_FREE = {"regime_map"}
 
 def committed_reports() -> list[Path]:
     """The report folders under results/ that git tracks (not the archive)."""
-    try:
-        out = subprocess.run(["git", "ls-files", "results/*/report.md"], cwd=ROOT, capture_output=True, text=True,
-                             check=True).stdout  # fmt: skip
-    except (OSError, subprocess.CalledProcessError):
-        pytest.skip("not a git checkout")
-    paths = [Path(line) for line in out.splitlines() if line.strip()]
-    return [ROOT / p.parent for p in paths if len(p.parts) == 3]  # git's * also matches results/archive/x/
+    return [page.parent for page in committed_report_pages()]
 
 
 def _same(recorded: Any, current: Any, what: str) -> None:

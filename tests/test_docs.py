@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import committed_report_pages
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
@@ -132,7 +133,8 @@ def relative_links(page: Path) -> list[str]:
 
 
 def test_every_relative_link_resolves() -> None:
-    pages = [*PAGES, *sorted((ROOT / "results").glob("*/report.md")), ROOT / "results" / "README.md"]
+    readmes = [ROOT / "results" / "README.md", ROOT / "results" / "archive" / "README.md"]
+    pages = [*PAGES, *committed_report_pages(), *readmes]
     broken, checked = [], 0
     for page in pages:
         TEXT.setdefault(page, page.read_text())
@@ -156,7 +158,7 @@ def test_anchor_follows_github() -> None:
 def test_readme_is_short_and_links_each_report_instead_of_copying_it() -> None:
     readme = TEXT[ROOT / "README.md"]
     assert len(readme.splitlines()) <= 200
-    reports = sorted(p.relative_to(ROOT).as_posix() for p in (ROOT / "results").glob("*/report.md"))
+    reports = sorted(p.relative_to(ROOT).as_posix() for p in committed_report_pages())
     assert reports and all(f"]({r})" in readme for r in reports)
     assert not re.search(r"\d+\.\d+ ± \d", readme)  # no measured value copied from a report
     assert readme[: readme.index("## The package")].count("\n") < 40  # the package map near the top
