@@ -67,7 +67,7 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert "## Seed robustness at alpha = 0" in report and "| `v2x` |" in report  # the v2x state end to end
     # the margin variant drove the v2x models: no training of its own, an evaluation folder beside v2x's
     assert not list((out / "train").glob("v2x_margin_*"))
-    assert list((out / "train").glob("v2x_alpha0_seed0/eval_*_margin1"))
+    assert list((out / "evals").glob("v2x_alpha0_seed0/eval_*_margin1"))  # beside the stored model, not in it
     for fig in ("fig_training_curves.png", "fig_alpha_response.png", "fig_training_seeds.png"):
         assert (out / fig).stat().st_size > 1000
     study = json.loads((out / "study.json").read_text())

@@ -340,7 +340,7 @@ def test_tiny_scenario2_conditioned_trains_once_per_condition_and_seed(tmp_path:
     assert runs.groupby(["lanes", "t_up_s", "seed"])["train_dir"].nunique().eq(1).all()
     assert (runs["loop_occupancy_pct"] > 0).all() and (runs["collisions"] == 0).all()
     for train in trainings:
-        assert sorted(p.name for p in (out / "train" / train).glob("eval_a*")) == ["eval_a0", "eval_a8"]
+        assert sorted(p.name for p in (out / "evals" / train).glob("eval_a*")) == ["eval_a0", "eval_a8"]
     assert "Alpha-conditioned" in (out / "report.md").read_text()
     assert len(pd.read_csv(out / "alpha_star.csv")) == 2
     # the adaptive rule fitted on the sweep, and alpha=adaptive driven on its conditions (docs/studies.md)
@@ -368,7 +368,7 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
                          cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     assert sorted(p.name for p in (out / "train").glob("conditioned*")) == ["conditioned_seed0", "conditioned_seed1"]
-    assert sorted(p.name for p in (out / "train" / "conditioned_seed0").glob("eval_*")) == [
+    assert sorted(p.name for p in (out / "evals" / "conditioned_seed0").glob("eval_*")) == [
         "eval_seed1000_margin1_alpha0", "eval_seed1000_margin1_alpha8"]
     report = (out / "report.md").read_text()
     assert "## One network for every alpha: `conditioned` against per-alpha `margin` models" in report

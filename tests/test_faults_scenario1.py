@@ -69,9 +69,8 @@ def kill_group_when(ready: Callable[[], bool], proc: subprocess.Popen[str], sig:
 
 
 def leftovers(root: Path) -> list[str]:
-    """Partial and temporary files, locks and checkpoints; a model store's per-model lock files stay (flock's)."""
-    return sorted(str(p) for p in root.rglob("*") if ".partial-" in p.name or p.name == "checkpoint.pt"
-                  or (p.name.endswith((".tmp", ".lock")) and not p.parent.name.endswith("_models")))  # fmt: skip
+    return sorted(str(p) for p in root.rglob("*") if ".partial-" in p.name or p.name.endswith((".tmp", ".lock"))
+                  or p.name == "checkpoint.pt")  # fmt: skip
 
 
 def test_scenario1_interrupted_and_spoiled_ends_as_the_uninterrupted_study(

@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -495,7 +496,7 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
     calls: list[str] = []
 
     def fake_train(cfg, out, resume=False, progress=True, on_steps=None):  # type: ignore[no-untyped-def]
-        calls.append(out.name)
+        calls.append(trained_key(cfg))
         if cfg.sim.reward.alpha == 8.0 and cfg.sim.seed == 2 and len(calls) <= 8:
             raise RuntimeError("SUMO said no\nsecond line")
         (out / "train_summary.json").write_text('{"mean_speed_mps": 20.0, "updates": 3}')
@@ -592,6 +593,11 @@ def test_tiny_sweep_with_the_paper_preset(tmp_path: Path) -> None:
 
 
 # -- records that cannot be trusted, failures, close alphas (no SUMO: train is faked) ---------------------------
+def trained_key(cfg: Any) -> str:
+    """The scenario II cell key of a training (its store folder is named by its configuration, not by the cell)."""
+    return s2_plan.cell_key(cfg.sim.road.lanes, cfg.sim.demand.t_up_s, cfg.sim.reward.alpha, cfg.sim.seed)
+
+
 @pytest.fixture
 def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     """train() faked in this process (cells run inline): it fails for every cell named in the returned list's
@@ -603,9 +609,9 @@ def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     calls: list[str] = []
 
     def fake_train(cfg, out, resume=False, progress=True, on_steps=None):  # type: ignore[no-untyped-def]
-        calls.append(out.name)
+        calls.append(trained_key(cfg))
         failing = calls[0].removeprefix("fail:").split(",") if calls[0].startswith("fail:") else []
-        if "*" in failing or out.name in failing:
+        if "*" in failing or trained_key(cfg) in failing:
             raise RuntimeError("SUMO said no")
         (out / "train_summary.json").write_text('{"mean_speed_mps": 20.0, "updates": 3}')
         return {"mean_speed_mps": 20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed, "collisions": 0, "teleports": 0}

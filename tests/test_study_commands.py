@@ -284,7 +284,7 @@ def test_adaptive_drives_every_model_of_the_sweep(tmp_path: Path) -> None:
     table = pd.read_csv(root / "adaptive_runs.csv")
     assert list(table["seed"]) == [1, 2] and (table["collisions"] == 0).all()
     assert sorted(cell_times(root, "adaptive_*")) == ["adaptive_L2_T4_cond_s1.json", "adaptive_L2_T4_cond_s2.json"]
-    assert (root / "train/L2_T4_cond_s1/eval_adaptive/adaptive_alpha.csv").exists()
+    assert (root / "evals/L2_T4_cond_s1/eval_adaptive/adaptive_alpha.csv").exists()
     assert table["adaptive_alpha_mean"].notna().all()  # one 60 s loop period: the rule chose once
     assert "| 2 | 4 | 8 |" in (root / "adaptive.md").read_text()
     cells = cell_times(root, "adaptive_*.json")

@@ -77,8 +77,7 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
     from coopsumo.agents.dqn_policy import DQNPolicy
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.model_store import store_for
-    from coopsumo.studies.trainings import train_shared
+    from coopsumo.studies.model_store import store_for, train_shared
 
     key = spec.get("train_key", spec["key"])
     out = root / "train" / key

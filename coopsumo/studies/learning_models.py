@@ -40,7 +40,8 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
         if (variants is not None and variant not in variants) or (alphas is not None and alpha not in alphas) \
                 or (seeds is not None and seed >= seeds):  # fmt: skip
             continue
-        model = (root / "train" / training_key(learner, variant, alpha, seed) / "model.pt").resolve()
+        # the study's own training folder (a link into the model store), not the store folder it points to
+        model = root.resolve() / "train" / training_key(learner, variant, alpha, seed) / "model.pt"
         if not model.is_file():
             raise UsageError(f"{model} is missing, though record {cell} says its training finished: run `coopsumo "
                              f"learning` on {root} again")  # fmt: skip

@@ -20,6 +20,8 @@ import hashlib
 import json
 import os
 import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -67,6 +69,14 @@ def stored_model(config: dict[str, Any], store: Path, link: Path | None = None) 
     return folder
 
 
+def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[str, Any], int | None]:
+    """The model of the training `config` from the store, trained there first if it is not whole: cells and studies
+    that share one training (the margin variants, a conditioned model's alphas, scenario I and the protocol) train it
+    once. out, the study's own training folder, becomes a link to the stored one. Returns (summary, resumed from)."""
+    summary, resumed, _ = obtain(config, store, link=out)
+    return summary, resumed
+
+
 def obtain(config: dict[str, Any], store: Path, link: Path | None = None) -> tuple[dict[str, Any], int | None, Path]:
     """The model of the training `config` from `store`, trained (or resumed) there first if it is not whole.
 
@@ -75,20 +85,39 @@ def obtain(config: dict[str, Any], store: Path, link: Path | None = None) -> tup
     configuration in `link` moves into the store instead of being trained again.
     Returns (train summary, step resumed from or None, the stored folder).
     """
-    import fcntl
-
     from coopsumo.studies.trainings import train_resuming
 
     store.mkdir(parents=True, exist_ok=True)
     folder = store / model_id(config)
-    with open(store / f".{folder.name}.lock", "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
+    with _locked(store / f".{folder.name}.lock"):
         if link is not None:
             _adopt(link, folder)
             folder.mkdir(exist_ok=True)
             _link(link, folder)  # before training: its checkpoint shows through the study's folder
         summary, resumed = train_resuming(config, folder)
     return summary, resumed, folder
+
+
+@contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    """An exclusive lock on the file `path`, removed when released: a waiter that locked a file already removed
+    opens the path again, so the lock file never outlives the holders."""
+    import fcntl
+
+    while True:
+        handle = open(path, "w")  # noqa: SIM115 (closed below, after the unlink)
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            if os.fstat(handle.fileno()).st_ino == os.stat(path).st_ino:
+                break
+        except FileNotFoundError:
+            pass
+        handle.close()
+    try:
+        yield
+    finally:
+        path.unlink(missing_ok=True)
+        handle.close()
 
 
 def _adopt(link: Path, folder: Path) -> None:
@@ -147,14 +176,20 @@ def listing(store: Path) -> list[dict[str, Any]]:
     return rows
 
 
-def main(argv: list[str] | None = None) -> int:
-    from coopsumo.runio import Parser, UsageError, run_cli
+def build_parser() -> Any:
+    from coopsumo.runio import Parser
 
     p = Parser(prog="coopsumo models", description="List the model store: every trained model, by the training "
                "that made it, and whether a study would use it.")  # fmt: skip
     p.add_argument("--store", type=Path, default=None,
                    help=f"the store (default ${STORE_ENV} if set, else results/models)")  # fmt: skip
-    args = p.parse_args(argv)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    from coopsumo.runio import UsageError, run_cli
+
+    args = build_parser().parse_args(argv)
 
     def body() -> int:
         store = args.store or Path(os.environ.get(STORE_ENV) or "results/models")

@@ -57,9 +57,8 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.model_store import store_for
+    from coopsumo.studies.model_store import store_for, train_shared
     from coopsumo.studies.run_folders import simulate_into
-    from coopsumo.studies.trainings import train_shared
 
     ev = sim_config_from_dict(spec["config"]["eval"])
     if spec["kind"] == "model":

@@ -78,7 +78,7 @@ def _train_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None
     """Train the model in the model store (an interrupted training continues exactly); out links to it."""
     import torch
 
-    from coopsumo.studies.trainings import train_shared
+    from coopsumo.studies.model_store import train_shared
 
     torch.set_num_threads(1)
     record["summary"] = train_shared(spec["config"], out, Path(spec["store"]))[0]

@@ -40,6 +40,7 @@ import pandas as pd
 
 from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.studies.model_store import train_shared
 from coopsumo.studies.records import CellRecords, cell_path, checked_record, failed_exit, read_record, reusable_keys
 from coopsumo.studies.run_folders import default_out, simulate_into, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
@@ -52,7 +53,6 @@ from coopsumo.studies.scenario2_plan import (
     cell_specs,
 )
 from coopsumo.studies.scenario2_report import condition_label, write_outputs
-from coopsumo.studies.trainings import train_shared
 from coopsumo.validation import (
     MAX_T_UP_S,
     MOBIL_LIMITS,

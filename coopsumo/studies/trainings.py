@@ -73,17 +73,6 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
     return summary, resumed_from
 
 
-def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[str, Any], int | None]:
-    """The model of the training `config` from the model store (studies/model_store.py), trained there first if it
-    is not whole, under a lock per model: cells and studies that share one training (the margin variants, a
-    conditioned model's alphas, scenario I and the protocol) train it once. out, the study's own training folder,
-    becomes a link to the stored one."""
-    from coopsumo.studies.model_store import obtain
-
-    summary, resumed, _ = obtain(config, store, link=out)
-    return summary, resumed
-
-
 def model_folder_problem(folder: Path) -> str | None:
     """Why the training folder's model.pt cannot be reused, or None: the training finished (train's marker lists
     its files; written before markers: train_summary.json is there) and the model loads (dqn.load_model)."""
