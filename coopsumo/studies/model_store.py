@@ -70,32 +70,22 @@ def stored_model(config: dict[str, Any], store: Path, link: Path | None = None) 
 
 
 def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[str, Any], int | None]:
-    """The model of the training `config` from the store, trained there first if it is not whole: cells and studies
-    that share one training (the margin variants, a conditioned model's alphas, scenario I and the protocol) train it
-    once. out, the study's own training folder, becomes a link to the stored one. Returns (summary, resumed from)."""
-    summary, resumed, _ = obtain(config, store, link=out)
-    return summary, resumed
-
-
-def obtain(config: dict[str, Any], store: Path, link: Path | None = None) -> tuple[dict[str, Any], int | None, Path]:
     """The model of the training `config` from `store`, trained (or resumed) there first if it is not whole.
 
-    Under a lock per model, so that cells and studies asking at once train it once. With `link`, that path (a
-    study's own training folder) becomes a symlink to the stored folder; a study's earlier training of the same
-    configuration in `link` moves into the store instead of being trained again.
-    Returns (train summary, step resumed from or None, the stored folder).
+    Under a lock per model, so that cells and studies asking at once (the margin variants, a conditioned model's
+    alphas, scenario I and the protocol) train it once. out, the study's own training folder, becomes a link to the
+    stored one; a study's earlier training in out moves into the store instead of being trained again.
+    Returns (train summary, step resumed from or None).
     """
     from coopsumo.studies.trainings import train_resuming
 
     store.mkdir(parents=True, exist_ok=True)
     folder = store / model_id(config)
     with _locked(store / f".{folder.name}.lock"):
-        if link is not None:
-            _adopt(link, folder)
-            folder.mkdir(exist_ok=True)
-            _link(link, folder)  # before training: its checkpoint shows through the study's folder
-        summary, resumed = train_resuming(config, folder)
-    return summary, resumed, folder
+        _adopt(out, folder)
+        folder.mkdir(exist_ok=True)
+        _link(out, folder)  # before training: its checkpoint shows through the study's folder
+        return train_resuming(config, folder)
 
 
 @contextmanager

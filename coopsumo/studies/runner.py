@@ -144,7 +144,7 @@ class RayBackend:
         self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=1)(cell_fn)
 
     def check_cluster(self, root: Path, timeout_s: float = 120.0) -> None:
-        """Every alive node of the cluster runs this coopsumo, SUMO and torch and can write root, or UsageError
+        """Every alive node of the cluster runs this machine's versions (PINNED) and can write root, or UsageError
         naming the node and the problem (one probe task pinned to each node, before any cell runs)."""
         from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 

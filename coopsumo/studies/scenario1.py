@@ -53,7 +53,6 @@ from coopsumo.validation import (
     distinct_list,
     integer,
     name_list,
-    number_name,
     out_dir,
     seed_count,
     steps,
@@ -229,7 +228,6 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
         (f"dqn:{path}", model_label(preset, alpha), key, k) for (preset, alpha, k), (path, key) in models.items()]
     policies += [(b, label_for(b), None, None) for b in plan.baseline_policies()]
     runs: list[Run] = []
-    run_keys: list[str] = []  # each run's cell key
     for policy, label, after, model_seed in policies:
         for t_up in plan.t_ups:
             for seed in plan.seeds:
@@ -237,12 +235,10 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
                 folder = run_folder(label, seed, t_up, model_seed)
                 out = root / folder
                 runs.append(Run(label, t_up, seed, out, cfg, model_seed))
-                tag = "" if model_seed is None else f"_m{model_seed}"
-                run_keys.append(f"run_t{number_name(t_up)}_{label}{tag}_seed{seed}")
                 model = Path(model_file(split_dqn_spec(policy)[0])) if policy.startswith("dqn:") else None
                 if after not in retrained and reusable_run(out, to_dict(cfg), plan.outputs(), model):
                     continue
-                specs.append({"key": run_keys[-1], "kind": "run",
+                specs.append({"key": runs[-1].key, "kind": "run",
                               "label": label, "seed": seed, "t_up_s": t_up, "out": folder, "after": after,
                               "config": to_dict(cfg), "trajectory_every": plan.trajectory_every,
                               "outputs": to_dict(plan.outputs())})  # fmt: skip
@@ -276,9 +272,9 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
     rows.to_csv(root / "runs.csv", index=False)
     wall = time.perf_counter() - start
     run_cpu: dict[float, list[float]] = {t: [] for t in plan.t_ups}
-    for key, r in zip(run_keys, runs, strict=True):
+    for r in runs:
         try:
-            run_cpu[r.t_up].append(float(json.loads((root / "cells" / f"{key}.json").read_text())["cell_cpu_s"]))
+            run_cpu[r.t_up].append(float(json.loads((root / "cells" / f"{r.key}.json").read_text())["cell_cpu_s"]))
         except (OSError, ValueError, KeyError, TypeError):
             pass  # a run reused from before cell records: no CPU time recorded
     timing = timing_text(plan, runs, [path for path, _ in models.values()], n_train, len(specs), wall, run_cpu)

@@ -120,16 +120,11 @@ def aggregate(rows: pd.DataFrame) -> pd.DataFrame:
 
 
 def paired_bootstrap(diff: np.ndarray, n_boot: int = N_BOOT, seed: int = BOOT_SEED) -> tuple[float, float, float]:
-    """Mean of seed-paired differences and its 95% percentile bootstrap interval over seeds (NaNs dropped).
-    (nan, nan, nan) without a difference; the interval is the mean itself with one seed."""
-    d = np.asarray(diff, dtype=float)
-    d = d[np.isfinite(d)]
-    if len(d) == 0:
-        return float("nan"), float("nan"), float("nan")
-    rng = np.random.default_rng(seed)
-    means = d[rng.integers(0, len(d), size=(n_boot, len(d)))].mean(axis=1)
-    lo, hi = np.percentile(means, [2.5, 97.5])
-    return float(d.mean()), float(lo), float(hi)
+    """Mean of seed-paired differences and its 95% percentile bootstrap interval over seeds (NaNs dropped): the
+    two-level bootstrap with one model. (nan, nan, nan) without a difference; the mean itself with one seed."""
+    from coopsumo.studies.stats import hierarchical_bootstrap
+
+    return hierarchical_bootstrap(np.asarray(diff, dtype=float)[None, :], reps=n_boot, seed=seed)
 
 
 def censored(values: pd.Series, horizon: pd.Series) -> pd.Series:

@@ -103,6 +103,12 @@ class Run(NamedTuple):
     cfg: SimConfig
     train_seed: int | None = None
 
+    @property
+    def key(self) -> str:
+        """The run's cell key: run_t<T_up>_<label>[_m<training seed>]_seed<k>."""
+        model = "" if self.train_seed is None else f"_m{self.train_seed}"
+        return f"run_t{number_name(self.t_up)}_{self.label}{model}_seed{self.seed}"
+
 
 def model_name(preset: str, alpha: float, train_seed: int) -> str:
     """Folder of a model under models/, a link into the model store (the default preset keeps the plain

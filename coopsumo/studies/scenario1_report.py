@@ -96,6 +96,15 @@ def _direction(ci: tuple[float, float, float], lower_is_better: bool = True) -> 
     return "cannot decide"
 
 
+def _head(c: dict[str, Any]) -> str:
+    """The verdict on total time spent: too few models or seeds to judge, else the interval's direction."""
+    if 0 < c["models"] < MIN_MODELS:
+        return "few models"
+    if c["pairs"] < MIN_PAIRS:
+        return "too few"
+    return _direction(c["tts_veh_h"])
+
+
 def _what_it_takes(c: dict[str, Any]) -> str:
     """Why a comparison cannot decide, and about how many models (or seeds) would, at the spread measured."""
     if c["models"]:
@@ -114,12 +123,7 @@ def verdict_line(c: dict[str, Any]) -> str:
     over models and seeds excludes 0), then recovery and waves."""
     mean, lo, hi = c["tts_veh_h"]
     base = c["tts_veh_h_b"]
-    if 0 < c["models"] < MIN_MODELS:
-        head = "few models"
-    elif c["pairs"] < MIN_PAIRS:
-        head = "too few"
-    else:
-        head = _direction(c["tts_veh_h"])
+    head = _head(c)
     word = {"helps": "**helps**", "hurts": "**hurts**",
             "cannot decide": f"**cannot decide** ({_what_it_takes(c) if head == 'cannot decide' else ''})",
             "no data": "cannot be judged",
@@ -147,11 +151,12 @@ def verdict_line(c: dict[str, Any]) -> str:
 
 def verdict_word(c: dict[str, Any]) -> str:
     """The verdict on total time spent in one word or phrase (as verdict_line decides it)."""
-    if 0 < c["models"] < MIN_MODELS:
+    head = _head(c)
+    if head == "few models":
         return f"{c['models']} model(s): too few"
-    if c["pairs"] < MIN_PAIRS:
+    if head == "too few":
         return f"{c['pairs']} seed(s): too few"
-    return _direction(c["tts_veh_h"])
+    return head
 
 
 def verdict_table(rows: pd.DataFrame, t_ups: Sequence[float], pairs: Sequence[tuple[str, str]]) -> str:

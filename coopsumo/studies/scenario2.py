@@ -40,7 +40,7 @@ import pandas as pd
 
 from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
-from coopsumo.studies.model_store import train_shared
+from coopsumo.studies.model_store import store_for, train_shared
 from coopsumo.studies.records import CellRecords, cell_path, checked_record, failed_exit, read_record, reusable_keys
 from coopsumo.studies.run_folders import default_out, simulate_into, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
@@ -50,6 +50,7 @@ from coopsumo.studies.scenario2_plan import (
     POLICIES,
     PROFILES,
     Profile,
+    at_condition,
     cell_specs,
 )
 from coopsumo.studies.scenario2_report import condition_label, write_outputs
@@ -107,8 +108,6 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     """Train and evaluate a DQN cell into ROOT/train/<key>/; fills `record`. A stop by signal -> KeyboardInterrupt."""
-    from coopsumo.studies.model_store import store_for
-
     out = root / "train" / spec["key"]  # a link into the model store (the training and its own evaluation)
     summary, record["resumed_from_step"] = train_shared(spec["config"], out, store_for(root))
     record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
@@ -122,10 +121,8 @@ def _run_conditioned(spec: dict[str, Any], root: Path, record: dict[str, Any]) -
     (SUMO's detectors.xml)."""
     from coopsumo.config import sim_config_from_dict
     from coopsumo.report.analysis import read_detectors
-    from coopsumo.studies.model_store import store_for
 
     out = root / "train" / spec["train_key"]
-
     _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
     ev = sim_config_from_dict(spec["config"]["eval"])
     config = to_dict(replace(ev, policy=f"dqn:{out / 'model.pt'},alpha={ev.reward.alpha:g}"))
@@ -209,8 +206,6 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
 
 def learner_of(profile: Profile) -> dict[str, Any]:
     """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json)."""
-    from coopsumo.studies.scenario2_plan import at_condition
-
     dqn = at_condition(DQN_PRESETS[profile.preset])
     return json.loads(json.dumps(to_dict(replace(dqn, alpha_conditioned=True) if profile.conditioned else dqn)))
 
