@@ -421,10 +421,12 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
     regimes = regime_table(rows, REGIMES)
     figures_text = (
         f"![total time spent](fig_tts_demand.png)\n\nTotal time spent against the inflow, per policy: mean over "
-        f"seeds with its 95% bootstrap interval.\n\n![Fig. 4](fig4_trajectories.png)\n\nFig. 4 as in the paper: "
+        f"models and evaluation seeds with its 95% two-level bootstrap interval (models, then seeds; seeds alone "
+        f"for a baseline).\n\n![Fig. 4](fig4_trajectories.png)\n\nFig. 4 as in the paper: "
         f"partial trajectories on SUMO lane {FIG4_LANE} (the paper's \"lane 1\"), one line per vehicle coloured by "
         f"speed, at T_up = {fig4_t:g} s (the demand where `{shown[-1]}` and `{noncoop}` differ most in total time "
-        f"spent), seed {first}: {WINDOW_S / 60:.0f} minutes around the jam's onset "
+        f"spent), the first model of each (training seed {first_model}), evaluation seed {first}: "
+        f"{WINDOW_S / 60:.0f} minutes around the jam's onset "
         f"({windows['onset'][0]:.0f}-{windows['onset'][1]:.0f} s) and around its dissolution "
         f"({windows['dissolution'][0]:.0f}-{windows['dissolution'][1]:.0f} s); dashed: the bottleneck."
     )
