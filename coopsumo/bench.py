@@ -3,7 +3,8 @@
 - simulation throughput (steps/s) of the world alone, per policy, in free flow and in a jam;
 - the controlled `keep` policy against SUMO alone on the same network, demand and seed, with the table read
   every 10 steps (the default) and every step (--read-every-step); the "jam ratio" and "free flow ratio" lines;
-- training throughput (environment steps/s with learning on);
+- training throughput (environment steps/s with learning on), and the training ratio: a default training's
+  wall time over that of the same steps of the same worlds driven by `keep`;
 - observation and decision cost per vehicle per step (grids; one batched DQN forward pass).
 - what SUMO's FCD output (--fcd) at scenario I's period adds to a jammed run's wall time.
 """
@@ -13,6 +14,7 @@ from __future__ import annotations
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +94,33 @@ def bench_training(steps: int, preset: str = "default") -> float:
         start = time.perf_counter()
         trainer.run()
         return steps / (time.perf_counter() - start)
+
+
+def bench_training_ratio(steps: int) -> tuple[float, float, float]:
+    """(wall s of a default training of `steps` steps with its updates in a second process, the same serially,
+    the same steps of the same worlds driven by `keep`): the default learner and schedule (validation included,
+    no final evaluation), training seed 1; keep drives each of the training's episodes (agents/episodes.py) for
+    as many steps as the training spends in it. Wall times: the pipelined training uses both cores."""
+    from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
+    from coopsumo.agents.train import train
+
+    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), eval_steps=0)
+    walls = []
+    for process in (True, False):
+        with tempfile.TemporaryDirectory() as tmp:
+            start = time.perf_counter()
+            train(cfg, Path(tmp) / "train", progress=False, learner_process=process)
+            walls.append(time.perf_counter() - start)
+    start = time.perf_counter()
+    done = 0
+    while done < steps:
+        index, first, end = episode_bounds(steps, cfg.dqn, done)
+        world = episode_config(cfg.sim, cfg.dqn, index) if episodic(cfg.dqn) else cfg.sim
+        with tempfile.TemporaryDirectory() as tmp:
+            run(replace(world, steps=end - first, policy="keep"), make_policy("keep", np.random.default_rng(1)),
+                Path(tmp), progress=False)  # fmt: skip
+        done = end
+    return walls[0], walls[1], time.perf_counter() - start
 
 
 def bench_decision(n_vehicles: int, repeats: int = 200) -> tuple[float, float]:
@@ -190,6 +219,12 @@ def main(argv: list[str] | None = None) -> int:
         sps = bench_training(steps, preset)
         print(f"  train --preset {preset:8s}     : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min",
               flush=True)  # fmt: skip
+    ratio_steps = 1800 if quick else 18_000
+    pipelined, serial, keep = bench_training_ratio(ratio_steps)
+    print(f"  train (default, {ratio_steps:,} steps, validation included): {pipelined:.1f} s with the updates in a "
+          f"second process, {serial:.1f} s serially; keep on the same worlds {keep:.1f} s", flush=True)  # fmt: skip
+    print(f"training ratio {pipelined / keep:.2f}  (default training / keep on the same worlds and steps, wall time; "
+          f"target <= 1.3; {serial / keep:.2f} serially)", flush=True)  # fmt: skip
     for n in (50, 200):
         grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
         print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)

@@ -26,9 +26,9 @@ from coopsumo.agents.dqn import (
     ReplayBuffer,
     alpha_input,
     load_model,
-    relabelled,
     save_model,
 )
+from coopsumo.agents.replay import relabelled
 from coopsumo.agents.train import training_alpha
 from coopsumo.config import PAPER_ALPHAS, ConfigError, DQNConfig, RewardConfig, SimConfig, TrainConfig
 from coopsumo.policy_spec import ADAPTIVE, split_dqn_spec

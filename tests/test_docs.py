@@ -112,6 +112,7 @@ def test_make_bench_quick() -> None:
     assert res.returncode == 0, res.stderr[-1500:]
     assert "steps/s" in res.stdout and "us/veh/step" in res.stdout
     assert re.search(r"--fcd every 5 s \(scenario I\).*: [+-]\d+\.\d% wall time", res.stdout), res.stdout
+    assert re.search(r"^training ratio \d+\.\d\d .*; \d+\.\d\d serially\)$", res.stdout, re.M), res.stdout
 
 
 # -- the pages themselves (no SUMO) ------------------------------------------------------------------------

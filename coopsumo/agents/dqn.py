@@ -13,22 +13,17 @@ import copy
 import hashlib
 import os
 import tempfile
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch
 from torch import nn
 
 from coopsumo.agents.file_checks import model_problem
+from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch, ReplayBuffer
 from coopsumo.config import OBSERVATIONS, PAPER_ALPHAS, DQNConfig
 from coopsumo.sim.observation import n_features
-
-GRID_SHAPE = (3, 3, 20)
-"""(frames, lanes, cells) of one observation's occupancy grids"""
-N_ACTIONS = 4
-"""0 = left, 1 = right, 2 = speedup, 3 = none"""
 
 _CONV_OUT = 32 * 1 * 5
 """features after the two convolutions: 32 filters x 1 row x 5 columns"""
@@ -41,12 +36,6 @@ ALPHA_INPUT_SCALE = float(np.log1p(max(PAPER_ALPHAS)))
 def alpha_input(alpha: torch.Tensor) -> torch.Tensor:
     """The network's alpha input: log(1 + alpha) / log(49), 0 at alpha 0 and 1 at the paper's largest, 48."""
     return torch.log1p(alpha) / ALPHA_INPUT_SCALE
-
-
-def relabelled(rewards: np.ndarray, alphas: np.ndarray, lane_changes: np.ndarray, new_alphas: np.ndarray) -> np.ndarray:
-    """Rewards of stored transitions as they would have been at new_alphas: the reward is linear in alpha
-    (r = r_speed + r_flow - alpha x lane changes started), so r' = r + (alpha - alpha') x lane changes."""
-    return (rewards + (alphas - new_alphas) * lane_changes).astype(np.float32)
 
 
 def seed_torch(seed: int) -> None:
@@ -100,177 +89,6 @@ class QNetwork(nn.Module):
             adv = self.out(x)
             return self.value(x) + adv - adv.mean(dim=1, keepdim=True)
         return self.out(x)
-
-
-@dataclass(frozen=True)
-class ReplayBatch:
-    """A minibatch of B transitions as float32 tensors (actions int64)."""
-
-    grids: torch.Tensor
-    """(B, 3, 3, 20) occupancy, 0/1"""
-    features: torch.Tensor
-    """(B, F) speed errors (m/s), then any v2x features"""
-    actions: torch.Tensor
-    """(B,) action indices, int64"""
-    rewards: torch.Tensor
-    """(B,) rewards"""
-    next_grids: torch.Tensor
-    """(B, 3, 3, 20) occupancy of the next state"""
-    next_features: torch.Tensor
-    """(B, F) features of the next state"""
-    dones: torch.Tensor
-    """(B,) 1.0 where the episode ended at this transition (no bootstrap), else 0.0"""
-    next_mask: torch.Tensor
-    """(B, 4) bool: actions feasible in the next state (all True when masking is off)"""
-    alphas: torch.Tensor | None = None
-    """(B,) the alpha each transition is learned at (conditioned replay only; reward already at that alpha)"""
-
-
-def buffer_fields(width: int, conditioned: bool = False) -> dict[str, tuple[tuple[int, ...], Any]]:
-    """name -> (shape of one transition, storage dtype) of a replay memory whose feature vectors have `width`;
-    a conditioned one also stores each transition's alpha and its lane changes started (for relabelling)."""
-    fields: dict[str, tuple[tuple[int, ...], Any]] = {
-        "grids": (GRID_SHAPE, np.uint8),
-        "features": ((width,), np.float32),
-        "actions": ((), np.int64),
-        "rewards": ((), np.float32),
-        "next_grids": (GRID_SHAPE, np.uint8),
-        "next_features": ((width,), np.float32),
-        "dones": ((), np.float32),
-        "next_mask": ((N_ACTIONS,), np.bool_),
-    }
-    if conditioned:
-        fields.update(alphas=((), np.float32), lane_changes=((), np.float32))
-    return fields
-
-
-_OLD_NAMES = {"speed_err": "features", "next_speed_err": "next_features"}
-"""replay field names in checkpoints written before the v2x state -> their names now"""
-
-
-class ReplayBuffer:
-    """Fixed-capacity ring buffer of transitions; the oldest are overwritten first.
-
-    width: length of each state's feature vector (observation.n_features; 3 for the paper's state);
-    conditioned: each transition also carries its alpha and its lane changes started (add_batch's alphas and
-    lane_changes), and sample may relabel a share of a minibatch with other alphas.
-    """
-
-    def __init__(self, capacity: int, width: int = GRID_SHAPE[0], conditioned: bool = False) -> None:
-        if capacity <= 0:
-            raise ValueError(f"replay capacity must be positive, got {capacity}")
-        self.capacity = capacity
-        self.conditioned = conditioned
-        self.fields = buffer_fields(width, conditioned)
-        self._pos = 0  # index the next transition is written to
-        self._size = 0
-        self._data = {name: np.zeros((capacity, *shape), dtype=dtype) for name, (shape, dtype) in self.fields.items()}
-
-    def __len__(self) -> int:
-        return self._size
-
-    def add_batch(
-        self,
-        grids: np.ndarray,
-        features: np.ndarray,
-        actions: np.ndarray,
-        rewards: np.ndarray,
-        next_grids: np.ndarray,
-        next_features: np.ndarray,
-        dones: np.ndarray,
-        next_mask: np.ndarray | None = None,
-        alphas: np.ndarray | None = None,
-        lane_changes: np.ndarray | None = None,
-    ) -> None:
-        """Store N transitions (arrays with leading dimension N); only the newest capacity are kept.
-
-        next_mask (N, 4) bool: feasible actions of the next state; None means all feasible.
-        alphas, lane_changes (N,): a conditioned buffer's alpha and lane changes started of each transition.
-        """
-        if next_mask is None:
-            next_mask = np.ones((len(actions), N_ACTIONS), dtype=bool)
-        if self.conditioned != (alphas is not None and lane_changes is not None):
-            raise ValueError("a conditioned replay stores alphas and lane changes, another neither")
-        arrays = {
-            "grids": grids,
-            "features": features,
-            "actions": actions,
-            "rewards": rewards,
-            "next_grids": next_grids,
-            "next_features": next_features,
-            "dones": dones,
-            "next_mask": next_mask,
-        }
-        if alphas is not None and lane_changes is not None:
-            arrays.update(alphas=alphas, lane_changes=lane_changes)
-        n = len(actions)
-        for name, arr in arrays.items():
-            shape = (n, *self.fields[name][0])
-            if np.shape(arr) != shape:
-                raise ValueError(f"replay {name} must have shape {shape}, got {np.shape(arr)}")
-        if n == 0:
-            return
-        skip = max(0, n - self.capacity)  # transitions overwritten within this same batch
-        idx = (self._pos + skip + np.arange(n - skip)) % self.capacity
-        for name, arr in arrays.items():
-            self._data[name][idx] = np.asarray(arr)[skip:]
-        self._pos = (self._pos + n) % self.capacity
-        self._size = min(self._size + n, self.capacity)
-
-    def sample(self, batch_size: int, rng: np.random.Generator, relabel: float = 0.0) -> ReplayBatch:
-        """batch_size transitions drawn uniformly with replacement.
-
-        relabel (conditioned buffer): each transition is, with this probability, learned at an alpha drawn from
-        PAPER_ALPHAS instead of its own, its reward recomputed (relabelled).
-        """
-        if self._size == 0:
-            raise ValueError("cannot sample from an empty replay buffer")
-        idx = rng.integers(0, self._size, size=batch_size)
-        d = self._data
-        rewards = d["rewards"][idx]
-        alphas = None
-        if self.conditioned:
-            alphas = d["alphas"][idx]
-            if relabel > 0:
-                new = np.where(rng.random(batch_size) < relabel,
-                               rng.choice(np.array(PAPER_ALPHAS, np.float32), size=batch_size), alphas)  # fmt: skip
-                rewards = relabelled(rewards, alphas, d["lane_changes"][idx], new)
-                alphas = new.astype(np.float32)
-        return ReplayBatch(
-            grids=torch.from_numpy(d["grids"][idx].astype(np.float32)),
-            features=torch.from_numpy(d["features"][idx]),
-            actions=torch.from_numpy(d["actions"][idx]),
-            rewards=torch.from_numpy(rewards),
-            next_grids=torch.from_numpy(d["next_grids"][idx].astype(np.float32)),
-            next_features=torch.from_numpy(d["next_features"][idx]),
-            dones=torch.from_numpy(d["dones"][idx]),
-            next_mask=torch.from_numpy(d["next_mask"][idx]),
-            alphas=None if alphas is None else torch.from_numpy(alphas),
-        )
-
-    def state_dict(self) -> dict[str, Any]:
-        """A snapshot (copies) of the buffer as plain types and tensors."""
-        return {
-            "capacity": self.capacity,
-            "pos": self._pos,
-            "size": self._size,
-            "data": {name: torch.from_numpy(arr.copy()) for name, arr in self._data.items()},
-        }
-
-    def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore a snapshot from state_dict(); the capacity must match."""
-        if state["capacity"] != self.capacity:
-            raise ValueError(f"replay capacity mismatch: buffer has {self.capacity}, state has {state['capacity']}")
-        data = {_OLD_NAMES.get(name, name): arr for name, arr in state["data"].items()}
-        if set(data) != set(self.fields):
-            raise ValueError(f"replay fields {sorted(data)} differ from this buffer's {sorted(self.fields)}")
-        for name, (shape, dtype) in self.fields.items():
-            arr = data[name].numpy().astype(dtype, copy=True)
-            if arr.shape[1:] != shape:
-                raise ValueError(f"replay {name} has shape {tuple(arr.shape[1:])} per transition, expected {shape}")
-            self._data[name] = arr
-        self._pos = int(state["pos"])
-        self._size = int(state["size"])
 
 
 def q_values(net: nn.Module, grids: torch.Tensor, features: torch.Tensor, alphas: torch.Tensor | None) -> torch.Tensor:
@@ -359,11 +177,26 @@ def make_optimizer(net: nn.Module, cfg: DQNConfig) -> torch.optim.Optimizer:
     raise ValueError(f"unknown optimizer {cfg.optimizer!r}, expected 'adam' or 'sgd'")
 
 
+class UpdateWorkerLike(Protocol):
+    """What Learner needs of an update worker (agents/update_worker.UpdateWorker)."""
+
+    losses: list[float]
+
+    def submit(self, batches: list[ReplayBatch]) -> None: ...
+    def sync(self) -> None: ...
+    def wait(self) -> None: ...
+    def state(self) -> dict[str, Any]: ...
+    def close(self) -> None: ...
+
+
 class Learner:
-    """Online and target networks, optimizer, replay memory and RNG, advanced once per environment step."""
+    """Online and target networks, optimizer, replay memory and RNG, advanced once per environment step.
+
+    The gradient updates run here, or in an attached worker (attach), with the same result bit for bit."""
 
     def __init__(self, cfg: DQNConfig, seed: int) -> None:
         self.cfg = cfg
+        self.worker: UpdateWorkerLike | None = None  # set by attach(): the updates run there
         # The initial weights depend on the seed only; torch's global RNG is left as it was.
         with torch.random.fork_rng(devices=[]):
             seed_torch(seed)
@@ -376,7 +209,51 @@ class Learner:
         self.rng = np.random.default_rng([seed, 0x44514E])
         self.env_steps = 0  # environment steps seen by step()
         self.decisions = 0  # decision rounds seen by step()
-        self.updates = 0  # gradient updates done
+        self.updates = 0  # gradient updates done (sent, with a worker)
+        self._losses: list[float] = []  # mean loss of each finished round not yet taken (take_losses)
+
+    @property
+    def online(self) -> QNetwork:
+        """The online network, with every update sent to a worker applied."""
+        if self.worker is not None:
+            self.worker.wait()
+        return self._online
+
+    @online.setter
+    def online(self, net: QNetwork) -> None:
+        self._online = net
+
+    def attach(self, worker: UpdateWorkerLike) -> None:
+        """Run the updates in `worker` (agents/update_worker.py) from now on; detach() takes them back."""
+        self.worker = worker
+
+    def detach(self) -> None:
+        """Take the updates back into this process: the worker's target network and optimiser state are loaded
+        here, its unread losses kept, and it is closed."""
+        worker = self.worker
+        if worker is None:
+            return
+        state = worker.state()
+        self._losses.extend(worker.losses)
+        worker.losses.clear()
+        self.worker = None
+        worker.close()
+        self.target.load_state_dict(state["target"])
+        self.optimizer.load_state_dict(state["optimizer"])
+
+    def wait(self) -> None:
+        """Block until every update sent to a worker is applied (nothing to do without one)."""
+        if self.worker is not None:
+            self.worker.wait()
+
+    def take_losses(self) -> list[float]:
+        """The mean loss of each update round finished since the last call, in order (a worker's rounds still
+        running are not waited for)."""
+        if self.worker is not None:
+            self._losses.extend(self.worker.losses)
+            self.worker.losses.clear()
+        taken, self._losses = self._losses, []
+        return taken
 
     @property
     def epsilon(self) -> float:
@@ -432,7 +309,8 @@ class Learner:
         """Advance one environment step; on a decision round (decided) maybe learn; maybe sync the target.
 
         Learning: updates_per_learn gradient updates every learn_every decision rounds, once the
-        buffer holds a batch and learn_start_steps have passed. Returns the mean loss or None.
+        buffer holds a batch and learn_start_steps have passed; their minibatches are drawn here in either case.
+        Returns the mean loss, or None (no update, or the updates were sent to a worker: take_losses).
         """
         cfg = self.cfg
         self.env_steps += 1
@@ -444,21 +322,32 @@ class Learner:
                 and self.env_steps >= cfg.learn_start_steps
                 and self.decisions % cfg.learn_every == 0
             ):
-                for _ in range(cfg.updates_per_learn):
-                    batch = self.buffer.sample(cfg.batch_size, self.rng, cfg.alpha_relabel)
-                    losses.append(dqn_update(self.online, self.target, self.optimizer, batch, cfg.gamma,
-                                             cfg.grad_clip_norm, cfg.double_dqn, cfg.loss))  # fmt: skip
-                    self.updates += 1
+                batches = [self.buffer.sample(cfg.batch_size, self.rng, cfg.alpha_relabel)
+                           for _ in range(cfg.updates_per_learn)]  # fmt: skip
+                self.updates += len(batches)
+                if self.worker is not None:
+                    self.worker.submit(batches)
+                else:
+                    for batch in batches:
+                        losses.append(dqn_update(self._online, self.target, self.optimizer, batch, cfg.gamma,
+                                                 cfg.grad_clip_norm, cfg.double_dqn, cfg.loss))  # fmt: skip
         if self.env_steps % cfg.target_sync_steps == 0:
-            sync_target(self.online, self.target)
-        return float(np.mean(losses)) if losses else None
+            if self.worker is not None:
+                self.worker.sync()
+            else:
+                sync_target(self._online, self.target)
+        if not losses:
+            return None
+        self._losses.append(float(np.mean(losses)))
+        return self._losses[-1]
 
     def state_dict(self) -> dict[str, Any]:
         """A snapshot (copies) of everything needed for an exact resume; loads with torch.load(weights_only=True)."""
+        remote = self.worker.state() if self.worker is not None else None  # after every round sent
         return {
             "online": copy.deepcopy(self.online.state_dict()),
-            "target": copy.deepcopy(self.target.state_dict()),
-            "optimizer": copy.deepcopy(self.optimizer.state_dict()),
+            "target": copy.deepcopy(remote["target"] if remote else self.target.state_dict()),
+            "optimizer": copy.deepcopy(remote["optimizer"] if remote else self.optimizer.state_dict()),
             "buffer": self.buffer.state_dict(),
             "numpy_rng": copy.deepcopy(self.rng.bit_generator.state),
             "torch_rng": torch.get_rng_state(),
@@ -468,7 +357,10 @@ class Learner:
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
-        """Restore a snapshot from state_dict(), including torch's global RNG state."""
+        """Restore a snapshot from state_dict(), including torch's global RNG state (not while a worker is
+        attached)."""
+        if self.worker is not None:
+            raise RuntimeError("load a learner's state before attaching a worker")
         self.online.load_state_dict(state["online"])
         self.target.load_state_dict(state["target"])
         self.optimizer.load_state_dict(state["optimizer"])

@@ -21,6 +21,7 @@ import shutil
 import subprocess
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -244,9 +245,11 @@ class Validator:
                 shutil.rmtree(d, ignore_errors=True)
         self.queue = pending(out)
 
-    def after_step(self, step: int, net: Any) -> None:
-        """Called after every training step with the online network."""
+    def after_step(self, step: int, online: Callable[[], Any]) -> None:
+        """Called after every training step; online() gives the online network (called only when a snapshot is
+        due: with an update worker, it waits for the updates sent)."""
         if step % self.every == 0 or step == self.cfg.sim.steps:
+            net = online()
             from coopsumo.agents.dqn import save_model
             from coopsumo.runio import versions
 

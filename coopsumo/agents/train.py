@@ -39,6 +39,7 @@ from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
 from coopsumo.agents.file_checks import checkpoint_problem, ended_training, prepare_resume
 from coopsumo.agents.tb_log import open_log
 from coopsumo.agents.transitions import Pending, all_if_none, transitions
+from coopsumo.agents.update_worker import LearnerProcessError, UpdateWorker
 from coopsumo.config import (
     PAPER_ALPHAS,
     ConfigError,
@@ -132,8 +133,9 @@ class Trainer:
     """The training loop, its log, checkpoints and resume."""
 
     def __init__(self, cfg: TrainConfig, out: Path, progress: bool = True,
-                 on_steps: Callable[[int], None] | None = None):  # fmt: skip
+                 on_steps: Callable[[int], None] | None = None, learner_process: bool = False):  # fmt: skip
         cfg.validate()
+        self.learner_process = learner_process  # the updates in a second process (update_worker), same result
         self.on_steps = on_steps
         self.cfg = cfg
         self.out = out
@@ -157,10 +159,12 @@ class Trainer:
     def save_checkpoint(self) -> None:
         counts = np.array([len(a) for a in self.action_log], np.int64)
         flat = np.concatenate(self.action_log) if self.action_log else np.zeros(0, np.int64)
+        learner = self.learner.state_dict()  # waits for a worker's updates: their losses belong to this window
+        self.window.loss.extend(self.learner.take_losses())
         state = {
             "config": to_dict(self.cfg),
             "step": self.step,
-            "learner": self.learner.state_dict(),
+            "learner": learner,
             "action_counts": torch.from_numpy(counts),
             "actions": torch.from_numpy(flat.astype(np.int8)),
             "window": {k: v for k, v in vars(self.window).items()},
@@ -217,11 +221,21 @@ class Trainer:
         """Train up to cfg.sim.steps; raises Interrupted after checkpointing on SIGINT/SIGTERM."""
         cfg = self.cfg
         old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+        learner = self.learner
         try:
+            if self.learner_process:
+                learner.attach(UpdateWorker(cfg.dqn, learner.online, learner.target, learner.optimizer))
             self._loop(cfg)
         finally:
             for s, h in old.items():
                 signal.signal(s, h)
+            if learner.worker is not None:
+                try:
+                    learner.detach()  # the worker's target network and optimiser come back for the last checkpoint
+                except LearnerProcessError:
+                    learner.worker.close()
+                    learner.worker = None
+                    raise
 
     def _offered(self, obs: Observation) -> np.ndarray | None:
         """The actions offered to each vehicle of obs (decisions.offered); None: all of them."""
@@ -328,14 +342,15 @@ class Trainer:
                 raise Interrupted(self._stop_signal, self.step)
             decided = self.hold.is_decision_step(world.step_count)
             out, penalty = self._advance(world)
-            loss = learner.step(decided)
+            learner.step(decided)
             self.step += 1
             if self.validator is not None:
-                self.validator.after_step(self.step, learner.online)
+                self.validator.after_step(self.step, lambda: learner.online)
             w = self.window
-            if loss is not None:
-                w.loss.append(loss)
             w.add(out, world.table.speed, penalty)
+            if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
+                learner.wait()  # every update of the window has its loss
+            w.loss.extend(learner.take_losses())
             if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
                 self._write_row(log, world, time.perf_counter() - start)
                 log_file.flush()
@@ -418,15 +433,19 @@ def train(
     on_steps: Callable[[int], None] | None = None,
     tensorboard: bool = False,
     final: Path | None = None,
+    learner_process: bool = False,
 ) -> dict[str, Any]:
     """Train (or resume) into `out`; returns the evaluation summary (or the training summary).
+
+    learner_process: the gradient updates run in a second process while the world steps (agents/update_worker.py;
+    the model is the same file either way, the wall time shorter when a core is free).
 
     final: the folder the results will be moved to, when `out` is a working folder (recorded paths name it).
 
     on_steps(n) is told of progress (training and evaluation steps), for a caller's progress bar;
     tensorboard: also write the log's scalars to out/tensorboard/ (tb_log).
     """
-    trainer = Trainer(cfg, out, progress, on_steps)
+    trainer = Trainer(cfg, out, progress, on_steps, learner_process)
     out.mkdir(parents=True, exist_ok=True)
     if resume:
         check_recorded_config(out, cfg)
@@ -474,7 +493,7 @@ def train(
         save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
     train_summary = ended or dict(trainer.world_summary, wall_seconds=round(wall, 2),
                                   steps_per_second=round(cfg.sim.steps / wall, 1),
-                                  updates=trainer.learner.updates)  # fmt: skip
+                                  updates=trainer.learner.updates, learner_process=learner_process)  # fmt: skip
     if chosen is not None:
         train_summary = dict(train_summary, selected_step=chosen["step"], selected_score=chosen["score"],
                              last_score=selection.results(out)[-1]["score"])  # fmt: skip

@@ -14,6 +14,7 @@ import torch
 
 from coopsumo.agents.tb_log import TensorBoardFlag
 from coopsumo.agents.train import Interrupted, Trainer, train
+from coopsumo.agents.update_worker import LearnerProcessError
 from coopsumo.config import (
     DQN_PRESETS,
     MAX_LANES,
@@ -186,6 +187,9 @@ def build_parser() -> Parser:
                    help="greedy evaluation steps (0: none)")  # fmt: skip
     add_learner_flags(p)
     p.add_argument("--tensorboard", action=TensorBoardFlag, help="also write TensorBoard scalars to OUT/tensorboard/")
+    p.add_argument("--serial-learner", action="store_true",
+                   help="run the learner's updates in this process between the world's steps (default: in a second "
+                        "process while the world steps, on a second core; the model is the same file either way)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -263,13 +267,18 @@ def main(argv: list[str] | None = None) -> int:
             with out_lock(out, "train"):  # a second command writing to the same folder is refused
                 target = training_folder(out, args.resume, progress=not args.quiet)
                 summary = train(cfg, target, resume=args.resume, progress=not args.quiet,
-                                tensorboard=args.tensorboard, final=out)  # fmt: skip
+                                tensorboard=args.tensorboard, final=out,
+                                learner_process=not args.serial_learner)  # fmt: skip
                 if target != out:
                     finish_run_dir(target, out, "train")
         except Interrupted as stop:
             print(f"train: interrupted at step {stop.step}; checkpoint saved in {target / 'checkpoint.pt'}; "
                   f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
             return 128 + stop.signum
+        except LearnerProcessError as err:  # the update worker died: the last periodic checkpoint stands
+            print(f"train: error: {err}; the training stopped; continue from its last checkpoint with --resume "
+                  f"--out {out}", file=sys.stderr)  # fmt: skip
+            return 1
         except KeyboardInterrupt:  # outside the training loop (saving the model): the last checkpoint stands
             print(f"train: interrupted; continue with --resume --out {out}", file=sys.stderr)
             return 130

@@ -1,0 +1,204 @@
+"""The learner's gradient updates in a second process, in lockstep with the world (`coopsumo train`'s default).
+
+The world, the decisions, the replay memory and every random draw stay in the training process; a decision
+round's minibatches are drawn there, exactly as in the serial loop, and sent here. This process owns the target
+network and the optimiser and updates the online network's weights in shared memory while the world runs its
+next steps. The training process waits for the updates before anything reads the weights (the next decision,
+a validation snapshot, a checkpoint), so every decision sees the same weights as in the serial loop: the lag is
+zero rounds and the trained model is the same file, bit for bit, whatever the machine's load.
+
+A round's minibatches travel through shared memory too (slots, one per update of a round, written only while
+the worker is idle); the messages are small and pickled by value: ("update", n) answered by ("done", mean loss);
+("sync",) unanswered; ("state",) answered by ("state", target and optimiser state dicts); ("stop",). A worker
+that fails answers ("error", one line) and exits.
+"""
+
+from __future__ import annotations
+
+import pickle
+import signal
+import sys
+from multiprocessing.connection import Connection
+from typing import Any
+
+import numpy as np
+import torch
+
+from coopsumo.agents.dqn import QNetwork, dqn_update, make_optimizer, sync_target
+from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch
+from coopsumo.config import DQNConfig
+
+POLL_S = 0.5
+"""how often a wait checks that the worker still lives (s)"""
+
+
+class LearnerProcessError(RuntimeError):
+    """The update worker died or failed; the training cannot go on from its current state."""
+
+
+def make_slots(cfg: DQNConfig, online: QNetwork) -> list[ReplayBatch]:
+    """One minibatch of zeros in shared memory per update of a round, shaped as the replay's samples."""
+    b, width = cfg.batch_size, online.n_features
+
+    def zeros(*shape: int, dtype: torch.dtype = torch.float32) -> torch.Tensor:
+        return torch.zeros(shape, dtype=dtype).share_memory_()
+
+    return [ReplayBatch(grids=zeros(b, *GRID_SHAPE), features=zeros(b, width), actions=zeros(b, dtype=torch.int64),
+                        rewards=zeros(b), next_grids=zeros(b, *GRID_SHAPE), next_features=zeros(b, width),
+                        dones=zeros(b), next_mask=zeros(b, N_ACTIONS, dtype=torch.bool),
+                        alphas=zeros(b) if online.conditioned else None)
+            for _ in range(cfg.updates_per_learn)]  # fmt: skip
+
+
+def fill(slot: ReplayBatch, batch: ReplayBatch) -> None:
+    """Copy a minibatch into a slot of make_slots."""
+    for name, tensor in vars(batch).items():
+        if tensor is not None:
+            getattr(slot, name).copy_(tensor)
+
+
+def _send(conn: Connection, message: tuple[Any, ...]) -> None:
+    conn.send_bytes(pickle.dumps(message, protocol=pickle.HIGHEST_PROTOCOL))
+
+
+def _receive(conn: Connection) -> tuple[Any, ...]:
+    message: tuple[Any, ...] = pickle.loads(conn.recv_bytes())
+    return message
+
+
+def serve(conn: Connection, cfg: DQNConfig, online: QNetwork, target_state: dict[str, Any],
+          optimizer_state: dict[str, Any], slots: list[ReplayBatch], threads: int) -> None:  # fmt: skip
+    """The worker's loop (the spawned process's target): online's parameters and the slots are the training
+    process's, shared."""
+    # Ctrl-C and a group's SIGTERM are the training process's to handle: it asks for the state and checkpoints.
+    # When it is gone, the pipe closes and this loop ends.
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, signal.SIG_IGN)
+    torch.set_num_threads(threads)
+    try:
+        target = QNetwork(online.speed_scale_mps, online.dueling, online.observation, online.conditioned)
+        target.load_state_dict(target_state)
+        optimizer = make_optimizer(online, cfg)
+        optimizer.load_state_dict(optimizer_state)
+        while True:
+            try:
+                message = _receive(conn)
+            except EOFError:
+                return
+            kind = message[0]
+            if kind == "update":
+                losses = [dqn_update(online, target, optimizer, b, cfg.gamma, cfg.grad_clip_norm, cfg.double_dqn,
+                                     cfg.loss) for b in slots[: message[1]]]  # fmt: skip
+                _send(conn, ("done", float(np.mean(losses))))
+            elif kind == "sync":
+                sync_target(online, target)
+            elif kind == "state":
+                _send(conn, ("state", {"target": target.state_dict(), "optimizer": optimizer.state_dict()}))
+            elif kind == "stop":
+                return
+            else:
+                raise ValueError(f"unknown message {kind!r}")
+    except Exception as err:  # reported to the training process in one line, which ends the training
+        text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        try:
+            _send(conn, ("error", f"{type(err).__name__}: {text}"))
+        except OSError:
+            pass
+        sys.exit(1)
+
+
+class UpdateWorker:
+    """The training process's handle on the update worker: submit rounds, wait for them, fetch the state."""
+
+    def __init__(self, cfg: DQNConfig, online: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer):
+        online.share_memory()  # the worker updates these very tensors
+        self.slots = make_slots(cfg, online)
+        ctx = torch.multiprocessing.get_context("spawn")
+        self.conn, child = ctx.Pipe()
+        self.process = ctx.Process(
+            target=serve,
+            args=(child, cfg, online, target.state_dict(), optimizer.state_dict(), self.slots,
+                  torch.get_num_threads()),  # fmt: skip
+            name="coopsumo-learner",
+            daemon=True,
+        )
+        # The child starts with SIGINT and SIGTERM ignored (a spawned Python keeps an ignored SIGINT ignored), so
+        # a Ctrl-C during its start cannot kill it before serve() takes over.
+        old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            self.process.start()
+        finally:
+            for s, h in old.items():
+                signal.signal(s, h)
+        child.close()
+        self.pending = 0  # update rounds sent and not yet answered
+        self.losses: list[float] = []  # mean loss of each answered round, in order
+
+    def submit(self, batches: list[ReplayBatch]) -> None:
+        """Send one round's minibatches; the worker answers with their mean loss."""
+        if len(batches) > len(self.slots):
+            raise ValueError(f"a round has at most {len(self.slots)} minibatches, got {len(batches)}")
+        self.wait()  # the slots are the worker's while it runs
+        for slot, batch in zip(self.slots, batches, strict=False):
+            fill(slot, batch)
+        self._send(("update", len(batches)))
+        self.pending += 1
+
+    def sync(self) -> None:
+        """Copy the online weights into the target network, after every round sent so far."""
+        self._send(("sync",))
+
+    def wait(self) -> None:
+        """Block until every round sent has been applied to the shared weights."""
+        while self.pending:
+            kind, value = self._answer()
+            if kind != "done":
+                raise LearnerProcessError(f"the learner process answered {kind!r} to an update")
+            self.losses.append(value)
+            self.pending -= 1
+
+    def state(self) -> dict[str, Any]:
+        """The target network's and the optimiser's state dicts, after every round sent so far."""
+        self.wait()
+        self._send(("state",))
+        kind, value = self._answer()
+        if kind != "state":
+            raise LearnerProcessError(f"the learner process answered {kind!r} to a state request")
+        return dict(value)
+
+    def close(self) -> None:
+        """Stop the worker (it has no state worth keeping once state() was read)."""
+        if self.process.is_alive():
+            try:
+                self._send(("stop",))
+            except LearnerProcessError:
+                pass
+            self.process.join(timeout=10)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
+        self.conn.close()
+
+    def _send(self, message: tuple[Any, ...]) -> None:
+        try:
+            _send(self.conn, message)
+        except (OSError, EOFError):
+            raise LearnerProcessError(self._death()) from None
+
+    def _answer(self) -> tuple[str, Any]:
+        while not self.conn.poll(POLL_S):
+            if not self.process.is_alive():
+                raise LearnerProcessError(self._death())
+        try:
+            kind, value = _receive(self.conn)
+        except (OSError, EOFError):
+            raise LearnerProcessError(self._death()) from None
+        if kind == "error":
+            raise LearnerProcessError(f"the learner process failed: {value}")
+        return str(kind), value
+
+    def _death(self) -> str:
+        self.process.join(timeout=1)
+        code = self.process.exitcode
+        how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
+        return f"the learner process died ({how})"

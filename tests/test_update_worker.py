@@ -1,0 +1,140 @@
+"""The learner's updates in a second process (agents/update_worker.py): the same model bit for bit as the serial
+loop, a resume that stays exact, and a worker that dies ending the training in one line with a checkpoint."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from coopsumo.agents.dqn import Learner, load_model
+from coopsumo.agents.update_worker import LearnerProcessError, UpdateWorker
+from coopsumo.config import PAPER_DQN, DQNConfig
+from tests.test_dqn import random_transitions, run_steps, same, weights
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _attached(cfg: DQNConfig, seed: int) -> Learner:
+    learner = Learner(cfg, seed)
+    learner.attach(UpdateWorker(cfg, learner.online, learner.target, learner.optimizer))
+    return learner
+
+
+@pytest.mark.parametrize("conditioned", [False, True])
+def test_worker_learns_exactly_what_the_serial_learner_learns(conditioned: bool) -> None:
+    cfg = dataclasses.replace(PAPER_DQN, replay_size=64, batch_size=8, learn_start_steps=0, target_sync_steps=3,
+                              learn_every=1, updates_per_learn=2, double_dqn=True, loss="huber",
+                              alpha_conditioned=conditioned, alpha_relabel=0.5 if conditioned else 0.0)  # fmt: skip
+    serial, piped = Learner(cfg, 4), _attached(cfg, 4)
+
+    def drive(learner: Learner, seed: int, steps: int) -> None:
+        if not conditioned:
+            run_steps(learner, np.random.default_rng(seed), steps)
+            return
+        rng = np.random.default_rng(seed)
+        for _ in range(steps):  # alphas travel in the slots too
+            t = random_transitions(rng, 5)
+            alphas = rng.choice([0.0, 8.0], 5).astype(np.float32)
+            t["actions"] = learner.act(t["grids"], t["features"], explore=True, alphas=alphas)
+            learner.observe(**t, alphas=alphas, lane_changes=(rng.random(5) < 0.3).astype(np.float32))
+            learner.step()
+
+    try:
+        for learner in (serial, piped):
+            drive(learner, 9, 12)
+        assert piped.updates == serial.updates > 0
+        assert same(weights(piped.online), weights(serial.online))
+        assert piped.take_losses() == serial.take_losses()
+        state = piped.state_dict()  # the worker's target network and optimiser, fetched
+        assert same(list(state["target"].values()), list(serial.target.state_dict().values()))
+        assert state["optimizer"]["state"].keys() == serial.optimizer.state_dict()["state"].keys()
+        piped.detach()  # and taken back: the learner goes on alone, still in step with the serial one
+        assert piped.worker is None
+        assert same(weights(piped.target), weights(serial.target))
+        for learner in (serial, piped):
+            drive(learner, 10, 4)
+        assert same(weights(piped.online), weights(serial.online))
+    finally:
+        if piped.worker is not None:
+            piped.worker.close()
+
+
+def test_a_dead_worker_is_reported_in_one_line() -> None:
+    cfg = dataclasses.replace(PAPER_DQN, replay_size=64, batch_size=8, learn_start_steps=0, learn_every=1)
+    learner = _attached(cfg, 0)
+    worker = learner.worker
+    assert isinstance(worker, UpdateWorker)
+    try:
+        learner.observe(**random_transitions(np.random.default_rng(0), 16))
+        assert worker.process.pid is not None
+        os.kill(worker.process.pid, signal.SIGKILL)
+        worker.process.join(timeout=10)
+        with pytest.raises(LearnerProcessError, match=r"^the learner process died \(killed by signal 9\)$"):
+            for _ in range(3):  # the first send may still fit in the pipe; a wait cannot succeed
+                learner.step()
+                learner.wait()
+    finally:
+        worker.close()
+
+
+@pytest.mark.sumo
+def test_train_in_two_processes_equals_serial(tmp_path: Path) -> None:
+    from coopsumo.agents.train import train
+    from coopsumo.config import SimConfig, TrainConfig
+
+    cfg = TrainConfig(sim=SimConfig(steps=1200, seed=7, policy="dqn"), eval_steps=0, log_every_steps=300)
+    cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=600, validation_steps=200))
+    runs = {}
+    for process in (True, False):
+        out = tmp_path / f"process_{process}"
+        summary = train(cfg, out, progress=False, learner_process=process)
+        assert summary["learner_process"] is process
+        runs[process] = out
+    net = {k: load_model(runs[k] / "model.pt")[0].state_dict() for k in runs}
+    assert net[True].keys() == net[False].keys() and all(torch.equal(net[True][k], net[False][k]) for k in net[True])
+
+    def log(folder: Path) -> list[str]:  # every column but the wall time
+        rows = (folder / "train_log.csv").read_text().splitlines()
+        return [",".join(r.split(",")[:14] + r.split(",")[15:]) for r in rows]
+
+    assert log(runs[True]) == log(runs[False]) and len(log(runs[True])) == 5
+    assert (runs[True] / "validation.csv").read_text() == (runs[False] / "validation.csv").read_text()
+
+
+@pytest.mark.sumo
+def test_a_killed_worker_ends_the_training_in_one_line_and_it_resumes(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    args = [sys.executable, "-m", "coopsumo.train", "--steps", "3000", "--eval-steps", "0", "--seed", "3", "--out",
+            str(out), "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(args, cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    log = out / "train_log.csv"
+    deadline = time.time() + 120
+    while time.time() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 2):
+        time.sleep(0.05)
+    children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+    assert children, "no learner process beside the training"
+    for pid in children:
+        os.kill(int(pid), signal.SIGKILL)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 1, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "the learner process died (killed by signal 9)" in lines[0], err
+    assert f"--resume --out {out}" in lines[0]
+    assert (out / "checkpoint.pt").exists() and not (out / "model.pt").exists()
+    res = subprocess.run(args[:3] + ["--resume", "--out", str(out), "--quiet"], cwd=ROOT, capture_output=True,
+                         text=True)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    serial = tmp_path / "serial"
+    subprocess.run([*args[:-3], "--out", str(serial), "--quiet", "--serial-learner"], cwd=ROOT, check=True,
+                   capture_output=True)  # fmt: skip
+    a, b = (load_model(folder / "model.pt")[0].state_dict() for folder in (out, serial))
+    assert all(torch.equal(a[k], b[k]) for k in a)
