@@ -174,6 +174,19 @@ def test_a_corrupt_record_is_rerun_with_one_line(tmp_path: Path, capsys: pytest.
     assert err[0].endswith("; rerunning it") and "Traceback" not in err[0]
 
 
+def test_a_record_cut_by_a_kill_of_the_writer_is_removed_and_the_cell_rerun(tmp_path: Path) -> None:
+    """SIGKILL of a study's main process while it writes a record leaves that record's temporary file (no process
+    can catch SIGKILL); the next run removes it and reruns the cell. Other files are left alone."""
+    (tmp_path / "cells").mkdir()
+    cut = tmp_path / "cells" / "c2.json.tmp"
+    cut.write_text(json.dumps(GOOD)[:20])
+    cell_records.cell_path(tmp_path, "c1").write_text(json.dumps(GOOD))
+    other = tmp_path / "cells" / "notes.tmp"
+    other.write_text("a user's file")
+    assert cell_records.reusable_keys(tmp_path, specs_of([1, 2]), "study", ("v", "n")) == {"c1"}
+    assert not cut.exists() and other.read_text() == "a user's file"
+
+
 def test_a_sound_record_is_reused_and_expected_reruns_are_silent(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     (tmp_path / "cells").mkdir()

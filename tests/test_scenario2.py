@@ -436,13 +436,17 @@ def wait_group_gone(pgid: int, timeout: float = 60.0) -> None:
         time.sleep(0.1)
 
 
-def assert_records_trustworthy(out: Path) -> int:
-    """Every record a killed sweep left is whole: a JSON object, status ok with a sound summary, or failed."""
+def assert_records_trustworthy(out: Path, main_killed: bool = False) -> int:
+    """Every record a killed sweep left is whole: a JSON object, status ok with a sound summary, or failed.
+    main_killed: the main process (the only writer of records) was SIGKILLed, which no process can catch: the one
+    record it was writing at that instant may be left as its temporary file, never read as a record (the next run
+    removes it, which the last step of the test below checks)."""
     paths = list((out / "cells").glob("*.json"))
     for path in paths:
         record = json.loads(path.read_text())
         assert record["status"] == "failed" or records.record_problem(record, s2.REQUIRED_SUMMARY) is None, path
-    assert not list((out / "cells").glob("*.tmp"))
+    left = list((out / "cells").glob("*.tmp"))
+    assert not left or (main_killed and len(left) == 1 and left[0].name.endswith(".json.tmp")), left
     return len(paths)
 
 
@@ -466,7 +470,7 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_
     proc.kill()
     proc.communicate(timeout=60)
     wait_group_gone(proc.pid)
-    done = assert_records_trustworthy(out)
+    done = assert_records_trustworthy(out, main_killed=True)
     # 3. SIGKILL while the report is written (runs.csv comes first, then the figures and report.md); not Ctrl-C,
     # which CPython may drop when it lands in a garbage collector's callback (test_faults_scenario1.py)
     proc = start_sweep(out)

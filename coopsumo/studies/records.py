@@ -176,10 +176,12 @@ def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str,
 def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> set[str]:
     """The cells whose stored record can be reused: one record_problem accepts, made with the cell's
     configuration. Every other cell is rerun; a record that is neither failed nor interrupted and yet not
-    accepted (unreadable, the wrong shape, a bad summary) gets one line on stderr saying why."""
+    accepted (unreadable, the wrong shape, a bad summary) gets one line on stderr saying why. A record's
+    temporary file left by a run killed (SIGKILL) while writing it is removed: it was never a record."""
     done = set()
     for spec in specs:
         path = cell_path(root, spec["key"])
+        path.with_name(path.name + ".tmp").unlink(missing_ok=True)  # write_atomic's name for it
         try:
             record = json.loads(path.read_text())
         except FileNotFoundError:
