@@ -68,10 +68,15 @@ def first_line(err: BaseException) -> str:
     return text.splitlines()[0] if text else type(err).__name__
 
 
+def temporary_of(path: Path) -> Path:
+    """The temporary file write_atomic writes `path` through: 'PATH.tmp' (left behind only by a SIGKILL)."""
+    return path.with_name(path.name + ".tmp")
+
+
 def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
     """write(tmp) into 'PATH.tmp', then rename it to `path`: a reader sees the old file or the whole new one.
     On any failure (a full disk, a kill by signal) the temporary file is removed and the error passed on."""
-    tmp = path.with_suffix(path.suffix + ".tmp")
+    tmp = temporary_of(path)
     try:
         write(tmp)
         os.replace(tmp, path)

@@ -349,9 +349,8 @@ class Trainer:
             w = self.window
             w.add(out, world.table.speed, penalty)
             if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
-                learner.wait()  # every update of the window has its loss
-            w.loss.extend(learner.take_losses())
-            if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
+                learner.wait()  # every update of the window has its loss (a checkpoint takes them itself)
+                w.loss.extend(learner.take_losses())
                 self._write_row(log, world, time.perf_counter() - start)
                 log_file.flush()
                 if self.on_steps is not None:

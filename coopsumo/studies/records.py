@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
-from coopsumo.runio import versions
+from coopsumo.runio import temporary_of, versions
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -181,7 +181,7 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
     done = set()
     for spec in specs:
         path = cell_path(root, spec["key"])
-        path.with_name(path.name + ".tmp").unlink(missing_ok=True)  # write_atomic's name for it
+        temporary_of(path).unlink(missing_ok=True)
         try:
             record = json.loads(path.read_text())
         except FileNotFoundError:
