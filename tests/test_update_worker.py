@@ -86,6 +86,34 @@ def test_a_dead_worker_is_reported_in_one_line() -> None:
         worker.close()
 
 
+def test_a_ctrl_c_while_the_worker_starts_reaches_the_training(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A signal sent while the worker process starts is held until it has started, then delivered here (the
+    training checkpoints on it); the worker lives on."""
+    import multiprocessing.process
+
+    got: list[int] = []
+    real_start = multiprocessing.process.BaseProcess.start
+
+    def start(self: multiprocessing.process.BaseProcess) -> None:
+        os.kill(os.getpid(), signal.SIGINT)  # Ctrl-C lands in the middle of the start
+        real_start(self)
+
+    monkeypatch.setattr(multiprocessing.process.BaseProcess, "start", start)
+    old = signal.signal(signal.SIGINT, lambda signum, _frame: got.append(signum))
+    try:
+        learner = _attached(dataclasses.replace(PAPER_DQN, replay_size=64, batch_size=8), 0)
+        for _ in range(100):  # the handler runs between bytecodes once the signal is unblocked
+            if got:
+                break
+            time.sleep(0.01)
+        worker = learner.worker
+        assert isinstance(worker, UpdateWorker) and worker.process.is_alive()
+        worker.close()
+    finally:
+        signal.signal(signal.SIGINT, old)
+    assert got == [signal.SIGINT]
+
+
 @pytest.mark.sumo
 def test_train_in_two_processes_equals_serial(tmp_path: Path) -> None:
     from coopsumo.agents.train import train

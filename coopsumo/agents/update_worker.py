@@ -122,14 +122,15 @@ class UpdateWorker:
             name="coopsumo-learner",
             daemon=True,
         )
-        # The child starts with SIGINT and SIGTERM ignored (a spawned Python keeps an ignored SIGINT ignored), so
-        # a Ctrl-C during its start cannot kill it before serve() takes over.
-        old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+        # SIGINT and SIGTERM are blocked while the child starts: the child inherits the mask, so a Ctrl-C during its
+        # start cannot kill it before serve() takes over, and this process gets a signal sent meanwhile the moment
+        # the mask is lifted (ignoring them here instead would lose it).
+        stop_signals = {signal.SIGINT, signal.SIGTERM}
+        old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
         try:
             self.process.start()
         finally:
-            for s, h in old.items():
-                signal.signal(s, h)
+            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
         child.close()
         self.pending = 0  # update rounds sent and not yet answered
         self.losses: list[float] = []  # mean loss of each answered round, in order
