@@ -141,8 +141,8 @@ def test_train_in_two_processes_equals_serial(tmp_path: Path) -> None:
 @pytest.mark.sumo
 def test_a_killed_worker_ends_the_training_in_one_line_and_it_resumes(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    args = [sys.executable, "-m", "coopsumo.train", "--steps", "3000", "--eval-steps", "0", "--seed", "3", "--out",
-            str(out), "--quiet"]  # fmt: skip
+    args = [sys.executable, "-m", "coopsumo.train", "--steps", "3000", "--eval-steps", "0", "--seed", "3",
+            "--update-worker", "on", "--out", str(out), "--quiet"]  # fmt: skip
     proc = subprocess.Popen(args, cwd=ROOT, stderr=subprocess.PIPE, text=True)
     log = out / "train_log.csv"
     deadline = time.time() + 120
@@ -162,7 +162,7 @@ def test_a_killed_worker_ends_the_training_in_one_line_and_it_resumes(tmp_path: 
                          text=True)  # fmt: skip
     assert res.returncode == 0, res.stderr
     serial = tmp_path / "serial"
-    subprocess.run([*args[:-3], "--out", str(serial), "--quiet", "--serial-learner"], cwd=ROOT, check=True,
+    subprocess.run([*args[:-3], "--out", str(serial), "--quiet", "--update-worker", "off"], cwd=ROOT, check=True,
                    capture_output=True)  # fmt: skip
     a, b = (load_model(folder / "model.pt")[0].state_dict() for folder in (out, serial))
     assert all(torch.equal(a[k], b[k]) for k in a)
