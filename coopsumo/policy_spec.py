@@ -3,7 +3,8 @@
     keep | random | greedy                          no parameters
     mobil[:p=P,threshold=T,b_safe=B,bias=R]          any subset, any order (MOBIL_LIMITS)
     sumo[:lcCooperative=X,lcSpeedGain=X,...]          SUMO's LC2013 factors (SUMO_LC_LIMITS)
-    dqn:PATH[,alpha=A|alpha=adaptive]                PATH: a model file, or a folder holding model.pt
+    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M]     PATH: a model file, or a folder holding model.pt; M: the
+                                                     change margin it drives with (Q units; default: the model's)
 
 Parameters are KEY=VALUE separated by ','; each key at most once; each value a finite number in its key's range
 (alpha also 'adaptive'). No spaces anywhere, no empty parameter, and no ',' inside a model path (the grammar and
@@ -22,15 +23,17 @@ from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MOBIL_LIMITS, SUMO_LC_LIMI
 
 ADAPTIVE = "adaptive"
 """the value of a dqn policy's alpha that chooses alpha online from the loops (agents/adaptive.py)"""
+MARGIN_MAX = 100.0
+"""the largest change margin a dqn policy string takes (Q units; a few is already large)"""
 PLAIN = ("keep", "random", "greedy")
 """policies without parameters"""
 KEYS: dict[str, dict[str, tuple[float, float, bool]]] = {
     "mobil": MOBIL_LIMITS,
     "sumo": SUMO_LC_LIMITS,
-    "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False)},
+    "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False), "margin": (0.0, MARGIN_MAX, False)},
 }
 """the parameters each policy takes: key -> (lowest, highest, lowest excluded)"""
-FORMS = "keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], dqn:PATH[,alpha=A|adaptive]"
+FORMS = "keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], dqn:PATH[,alpha=A|adaptive,margin=M]"
 
 
 class PolicySpecError(UsageError):
@@ -39,13 +42,14 @@ class PolicySpecError(UsageError):
 
 @dataclass(frozen=True)
 class PolicySpec:
-    """A parsed policy string: its name, its numeric parameters in the order given, and for dqn the model path and
-    alpha (a number, 'adaptive', or None when not given)."""
+    """A parsed policy string: its name, its numeric parameters in the order given, and for dqn the model path,
+    alpha (a number, 'adaptive', or None when not given) and the change margin (None: the model's own)."""
 
     name: str
     params: tuple[tuple[str, float], ...] = ()
     model: str | None = None
     alpha: float | str | None = None
+    margin: float | None = None
 
     def values(self) -> dict[str, float]:
         return dict(self.params)
@@ -69,7 +73,7 @@ def _fail(text: str, problem: str) -> PolicySpecError:
 
 
 def _value(text: str, name: str, key: str, value: str) -> float | str:
-    if name == "dqn" and key == "alpha" and value == ADAPTIVE:
+    if name == "dqn" and key == "alpha" and value == ADAPTIVE:  # only alpha takes a word
         return ADAPTIVE
     low, high, low_open = KEYS[name][key]
     try:
@@ -77,7 +81,7 @@ def _value(text: str, name: str, key: str, value: str) -> float | str:
     except ValueError:
         number = math.nan
     if problem := number_problem(number, low, high, low_open):
-        also = f" or {ADAPTIVE!r}" if name == "dqn" else ""
+        also = f" or {ADAPTIVE!r}" if (name, key) == ("dqn", "alpha") else ""
         raise _fail(text, f"{key} must be {problem}{also}, got {value!r}")
     return number
 
@@ -120,5 +124,7 @@ def parse_policy(text: str) -> PolicySpec:
             raise _fail(text, f"parameter {key!r} has no value")
         seen[key] = _value(text, name, key, value)
     if name == "dqn":
-        return PolicySpec(name, model=model, alpha=seen.get("alpha"))
+        margin = seen.get("margin")
+        return PolicySpec(name, model=model, alpha=seen.get("alpha"),
+                          margin=None if margin is None else float(margin))
     return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))

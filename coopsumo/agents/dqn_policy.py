@@ -12,7 +12,7 @@ from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, c
 from coopsumo.agents.decisions import offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
-from coopsumo.policy_spec import ADAPTIVE, model_file, split_dqn_spec
+from coopsumo.policy_spec import ADAPTIVE, model_file, parse_policy, split_dqn_spec
 from coopsumo.runio import UsageError
 from coopsumo.sim.observation import Observation, network_features
 
@@ -82,12 +82,18 @@ class DQNPolicy:
 
     @classmethod
     def from_spec(cls, spec: str, lanes: int = 3) -> DQNPolicy:
-        """The policy of 'dqn:PATH[,alpha=A|adaptive]' on a road of `lanes` lanes (policy_spec: the one grammar).
+        """The policy of 'dqn:PATH[,alpha=A|adaptive][,margin=M]' on a road of `lanes` lanes (policy_spec: the one
+        grammar).
 
-        alpha is for an alpha-conditioned model only, and such a model needs it: otherwise a usage error.
+        alpha is for an alpha-conditioned model only, and such a model needs it: otherwise a usage error. margin
+        replaces the change margin the model was saved with (training ignores it, so any margin can drive it).
         """
+        parsed = parse_policy(spec)
         path, alpha = split_dqn_spec(spec)
         policy = cls.from_file(path)
+        if parsed.margin is not None:
+            policy.change_margin = parsed.margin
+            policy.trained_on = dict(policy.trained_on or {}, driven_change_margin=parsed.margin)
         conditioned = policy.net.conditioned
         if alpha is not None and not conditioned:
             raise UsageError(f"model {path} is not alpha-conditioned (trained at one alpha): drive it as dqn:{path}, "

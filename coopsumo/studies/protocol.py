@@ -32,7 +32,7 @@ from coopsumo.studies.runner import add_backend_flags, check_backend
 from coopsumo.validation import out_dir, workers
 
 # -- one cell (in a worker process) ----------------------------------------------------------------
-FIELDS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key")
+FIELDS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "margin", "train_key")
 
 
 def new_record(spec: dict[str, Any]) -> dict[str, Any]:
@@ -64,7 +64,8 @@ def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     if spec["kind"] == "model":
         model_dir = root / "train" / spec["train_key"]
         record["train_summary"], _ = train_shared(spec["config"]["train"], model_dir, store_for(root))
-        ev = replace(ev, policy=f"dqn:{(model_dir / spec['weights']).resolve()}")
+        margin = "" if spec.get("margin") is None else f",margin={spec['margin']:g}"
+        ev = replace(ev, policy=f"dqn:{(model_dir / spec['weights']).resolve()}{margin}")
     every = TRAJECTORY_EVERY if ev.accident.enabled else 0
     out = root / "runs" / spec["key"]
     summary = simulate_into(json.loads(json.dumps(to_dict(ev))), out, spec["key"], trajectory_every=every,
@@ -111,7 +112,8 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
     todo.sort(key=lambda s: (s["train_key"] is None or first[s["train_key"]] != s["key"], s["scenario"] != "free"))
     meta: dict[str, Any] = {"profile": asdict(profile), "cells": len(specs), "backend": backend_name,
                             "workers": workers, "versions": versions(),
-                            "learners": {n: {"text": v.text, "weights": v.weights, "learner": to_dict(v.learner)}
+                            "learners": {n: {"text": v.text, "weights": v.weights, "margin": v.margin,
+                                             "learner": to_dict(v.learner)}
                                          for n, v in variants().items() if n in profile.variants}}  # fmt: skip
     print(f"protocol: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
           f"{len(todo)} to run", file=sys.stderr)  # fmt: skip

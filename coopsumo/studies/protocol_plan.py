@@ -42,6 +42,8 @@ class Variant:
     text: str
     learner: DQNConfig
     weights: str = "model.pt"
+    margin: float | None = None
+    """the change margin it drives with (Q units; None: the learner's own); the trainings are the same"""
 
 
 SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0)
@@ -66,6 +68,10 @@ def variants() -> dict[str, Variant]:
                 "follower within 200 m (gap, speed)", replace(SELECT, observation="v2x")),
         Variant("v2x_mix", "`v2x` trained where it is used, as `mix` (the default preset)",
                 replace(MIX, observation="v2x")),
+        Variant("v2x_mix_m2", "`v2x_mix`'s trainings driven with a change margin of 2 instead of 1",
+                replace(MIX, observation="v2x"), margin=2.0),
+        Variant("v2x_mix_m4", "`v2x_mix`'s trainings driven with a change margin of 4 instead of 1",
+                replace(MIX, observation="v2x"), margin=4.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -93,6 +99,8 @@ PROFILES = {
     "gamma": Profile("gamma", variants=("gamma",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "v2x": Profile("v2x", variants=("v2x", "v2x_mix"), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "v2x_mix10": Profile("v2x_mix10", variants=("v2x_mix",)),  # v2x_mix on the default's 10 seeds, alpha 8 on 3
+    "margin": Profile("margin", variants=("v2x_mix", "v2x_mix_m2", "v2x_mix_m4"),
+                      seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
@@ -150,7 +158,8 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
                 ev = eval_config(profile, scenario, i, policy)
                 specs.append({"key": f"{policy.replace(':', '_').replace('=', '')}_{scenario}_t{number_name(t_up)}",
                               "kind": "baseline", "variant": policy, "alpha": 0.0, "seed": None, "scenario": scenario,
-                              "t_up": t_up, "eval_seed": ev.seed, "weights": None, "train_key": None,
+                              "t_up": t_up, "eval_seed": ev.seed, "weights": None, "margin": None,
+                              "train_key": None,
                               "config": json.loads(json.dumps({"eval": to_dict(ev)}))})  # fmt: skip
     return specs
 

@@ -171,7 +171,8 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
     ]
     for name in profile.variants:
         info = meta["learners"][name]
-        lines.append(f"- `{name}`: {info['text']} (drives `{info['weights']}`)")
+        margin = "" if info.get("margin") is None else f" with change margin {info['margin']:g}"
+        lines.append(f"- `{name}`: {info['text']} (drives `{info['weights']}`{margin})")
     for scenario in ("free", "accident"):
         measure, words, sign = MEASURES[scenario]
         sub = table[table["scenario"] == scenario] if len(table) else table
