@@ -65,9 +65,9 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert "| paper |" in report and "| mobil:p=0.5 |" in report and "Alpha response" in report
     assert "mean speed minus `keep`" in report
     assert "## Seed robustness at alpha = 0" in report and "| `v2x` |" in report  # the v2x state end to end
-    # the margin variant drove the v2x models: no training of its own, an evaluation folder beside v2x's
-    assert not list((out / "train").glob("v2x_margin_*"))
-    assert list((out / "evals").glob("v2x_alpha0_seed0/eval_*_margin1"))  # beside the stored model, not in it
+    # the margin2 variant drove the mix models (the default's): no training of its own, an evaluation folder beside
+    assert not list((out / "train").glob("margin2_*"))
+    assert list((out / "evals").glob("mix_alpha0_seed0/eval_*_margin2"))  # beside the stored model, not in it
     for fig in ("fig_training_curves.png", "fig_alpha_response.png", "fig_training_seeds.png"):
         assert (out / fig).stat().st_size > 1000
     study = json.loads((out / "study.json").read_text())
@@ -78,14 +78,14 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert diag.returncode == 0, diag.stderr[-2000:]
     table = pd.read_csv(out / "diagnosis.csv")
     assert len(table) == len(profile.seeds) and table["decisions"].gt(0).all()
-    acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "v2x_margin",
+    acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "margin2",
                           "--alphas", "0", "--seeds", "1", "--quick", "--t-up", "3", "--out", str(tmp_path / "acc")],
                          cwd=ROOT, capture_output=True, text=True)  # fmt: skip
     assert acc.returncode == 0, acc.stderr[-2000:]
     acc_runs = pd.read_csv(tmp_path / "acc" / "runs.csv")
-    assert set(acc_runs["variant"]) == {"keep", "greedy", "mobil:p=0", "v2x_margin"}
+    assert set(acc_runs["variant"]) == {"keep", "greedy", "mobil:p=0", "margin2"}
     assert (acc_runs["collisions"] == 0).all() and (acc_runs["teleports"] == 0).all()
-    assert "`v2x_margin` | 0 | 1 |" in (tmp_path / "acc" / "report.md").read_text()
+    assert "`margin2` | 0 | 1 |" in (tmp_path / "acc" / "report.md").read_text()
     again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     assert again.returncode == 0, again.stderr[-2000:]
     assert json.loads((out / "study.json").read_text())["cells_run"] == 0
@@ -164,9 +164,10 @@ def test_robustness_table_pairs_each_model_with_the_baselines_on_its_own_seed() 
 
 
 def test_a_margin_variant_drives_its_twins_training() -> None:
-    specs = {s["key"]: s for s in cell_specs(PROFILES["robust"], DQNConfig())}
-    twin, driven = specs["v2x_alpha0_seed4"], specs["v2x_margin_alpha0_seed4"]
+    profile = replace(PROFILES["full"], alpha_variants=("restart", "margin", "mix", "margin2"))
+    specs = {s["key"]: s for s in cell_specs(profile, DQNConfig())}
+    twin, driven = specs["mix_alpha0_seed2"], specs["margin2_alpha0_seed2"]
     assert driven["train_key"] == twin["key"] == twin["train_key"]
-    assert driven["config"]["train"] == twin["config"]["train"]  # one training, margin 0
-    assert driven["config"]["drive"] == {"change_margin": 1.0} and "drive" not in twin["config"]
+    assert driven["config"]["train"] == twin["config"]["train"]  # one training
+    assert driven["config"]["drive"] == {"change_margin": 2.0} and twin["config"]["drive"] == {"change_margin": 1.0}
     assert specs["margin_alpha8_seed1"]["train_key"] == "restart_alpha8_seed1"

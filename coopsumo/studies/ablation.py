@@ -122,15 +122,10 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     specs = cell_specs(profile, default)
     done_keys = reusable_keys(root, specs, "ablation", REQUIRED_SUMMARY)
     todo = [s for s in specs if s["key"] not in done_keys]
-    # the slow paper trainings first, the single changes on top of the default last; the robust profile:
-    # alpha = 0 seed by seed (the tuning seeds before the held-out ones), then the alpha response
+    # the slow paper trainings first, the single changes on top of the default last
     extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
-    if profile.name == "robust":
-        todo.sort(key=lambda s: (s["kind"] != "baseline", s["alpha"] != 0, s.get("train_key", s["key"]) != s["key"],
-                                 s["seed"]))  # fmt: skip
-    else:
-        todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
-                                 s["variant"] != "paper"))  # fmt: skip
+    todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
+                             s["variant"] != "paper"))  # fmt: skip
     # a training shared by several cells (margin variants, a conditioned model's alphas) is started by one cell
     # first: the others wait for it (a lock), so every training comes before every cell that would wait
     first: dict[str, str] = {}

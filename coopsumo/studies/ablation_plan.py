@@ -42,27 +42,25 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
         ("replay", "+ replay 20,000 and 2 updates every decision round (not 1 every 4)",
          {"replay_size": 20_000, "learn_every": 1, "updates_per_learn": 2}),
         ("dueling", "+ a dueling Q head (V + A - mean A)", {"dueling": True}),
-        ("restart", "+ 'none' withheld below 1 m/s (a standing vehicle must speed up): the default preset until "
-         "the change margin (`margin`)",
-         {"restart_below_mps": 1.0}),
+        ("restart", "+ 'none' withheld below 1 m/s (a standing vehicle must speed up)", {"restart_below_mps": 1.0}),
+        ("margin", "+ driven with a change margin of 1: a lane change only when its Q-value beats staying by more "
+         "than 1 (the `restart` models: training ignores the margin)", {"change_margin": 1.0}),
+        ("select", "+ model.pt chosen on held-out demand: validated greedily every 15,000 steps, the best kept",
+         {"select_every_steps": 15_000}),
+        ("v2x", "+ the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed), the own "
+         "speed, expected speed and lane-change flag", {"observation": "v2x"}),
+        ("mix", "+ trained where it is used: episodes of 9,000 steps at a T_up drawn from 2, 1.5 and 1 s, half of "
+         "them with an accident (the default preset)",
+         {"train_t_ups": (2.0, 1.5, 1.0), "accident_share": 0.5, "episode_steps": 9000}),
     ]  # fmt: skip
     extras: list[tuple[str, str, dict[str, Any]]] = [
-        ("eps_decay", "`restart` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
+        ("eps_decay", "`mix` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
          {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
-        ("store_all", "`restart` + every transition of a decision round stored (not 16 at random)",
+        ("store_all", "`mix` + every transition of a decision round stored (not 16 at random)",
          {"store_per_decision": 1000}),
-        ("v2x", "`restart` + the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed)",
-         {"observation": "v2x"}),
-        ("margin", "the `restart` models driven with a change margin of 1: a lane change only when its "
-         "Q-value beats staying by more than 1", {"change_margin": 1.0}),
-        ("v2x_margin", "the `v2x` models driven with the change margin of 1",
-         {"observation": "v2x", "change_margin": 1.0}),
-        ("select", "`margin` with model.pt chosen on held-out demand: validated greedily every 15,000 steps, the best "
-         "kept (the default preset before the v2x state and the mix; coopsumo protocol judges it)",
-         {"change_margin": 1.0, "select_every_steps": 15_000}),
-        ("conditioned", "`margin` with alpha an input: one alpha-conditioned model per seed (train "
-         "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A) with the change margin of 1",
-         {"alpha_conditioned": True, "change_margin": 1.0}),
+        ("margin2", "the `mix` models driven with a change margin of 2 instead of 1", {"change_margin": 2.0}),
+        ("conditioned", "`mix` with alpha an input: one alpha-conditioned model per seed (train "
+         "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A)", {"alpha_conditioned": True}),
     ]  # fmt: skip
     out = []
     cfg = PAPER_DQN
@@ -74,9 +72,9 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
     return out
 
 
-CHAIN_LENGTH = 8
-"""the first CHAIN_LENGTH variants form the chain paper -> ... -> restart; the rest branch off its end (margin: the
-default)"""
+CHAIN_LENGTH = 12
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> mix; the rest branch off its end (mix: the default
+preset)"""
 VARIANTS = _variants()
 VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
 
@@ -99,14 +97,17 @@ class Profile:
     t_up_s: float = 1.0
 
 
+FULL_VARIANTS = (*VARIANT_NAMES[:CHAIN_LENGTH], "margin2", "conditioned")
+"""the full study: the chain, the default driven with a margin of 2, and the alpha-conditioned network"""
+RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
+"""the alphas of the alpha response and of the conditioned network's comparison"""
 PROFILES = {
-    "full": Profile("full", 90_000, 9000, (0, 1, 2), VARIANT_NAMES, ALPHAS),
-    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "margin"), (0.0, 1.0)),
-    "robust": Profile("robust", 90_000, 9000, tuple(range(9)), ("restart", "v2x", "margin", "v2x_margin"),
-                      (0.0, 8.0), alpha_variants=("margin", "v2x_margin"), alpha_seeds=(0, 1, 2)),
-    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("margin", "conditioned"),
-                           (0.0, 0.25, 1.0, 2.0, 8.0), alpha_variants=("margin", "conditioned")),
-    "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "v2x_margin"), (0.0, 1.0)),
+    "full": Profile("full", 90_000, 9000, (0, 1, 2), FULL_VARIANTS, RESPONSE_ALPHAS,
+                    alpha_variants=("mix", "conditioned")),
+    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "mix"), (0.0, 1.0)),
+    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("mix", "conditioned"), RESPONSE_ALPHAS,
+                           alpha_variants=("mix", "conditioned")),
+    "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "margin2"), (0.0, 1.0)),
 }
 
 
@@ -134,7 +135,7 @@ def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int) -> str:
     trained = replace(dqn, change_margin=0.0)
     if dqn.alpha_conditioned:  # one training for every alpha
         return f"{variant}_seed{seed}"
-    twin = next((n for n, _, c in VARIANTS if c == trained), variant)
+    twin = next((n for n, _, c in VARIANTS if replace(c, change_margin=0.0) == trained), variant)
     return f"{twin}_alpha{number_name(alpha)}_seed{seed}"
 
 
