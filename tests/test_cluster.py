@@ -98,3 +98,14 @@ def test_a_node_that_cannot_write_the_folder_is_refused_in_one_line() -> None:
     other = {"versions": {**mine, "coopsumo": "0.0.1"}, "write_problem": None}
     text = cluster_problem(mine, ["10.0.0.1"], [other], Path("/shared/out"))
     assert text is not None and text.startswith("--address: node 10.0.0.1 runs coopsumo 0.0.1, this machine ")
+
+
+def test_the_cluster_bench_runs_one_study_on_every_backend_with_the_same_records() -> None:
+    """`coopsumo bench --cluster` (docs/performance.md): the figures are printed; what is checked is that all four
+    backends ran and that bench_cluster found their runs.csv equal (it fails otherwise)."""
+    pytest.importorskip("ray")
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "bench", "--cluster", "--quick"], cwd=REPO, env=_env(),
+                         capture_output=True, text=True, timeout=900, check=False)  # fmt: skip
+    assert res.returncode == 0, res.stderr[-2000:]
+    for line in ("local, 1 worker", "local, 2 workers", "ray, 1 node", "ray, 2 nodes", "cluster scaling"):
+        assert line in res.stdout, res.stdout
