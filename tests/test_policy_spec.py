@@ -30,6 +30,8 @@ VALID: list[tuple[str, PolicySpec]] = [
     ("dqn:a/model.pt,alpha=2", PolicySpec("dqn", model="a/model.pt", alpha=2.0)),
     ("dqn:a/model.pt,alpha=1000", PolicySpec("dqn", model="a/model.pt", alpha=1000.0)),
     ("dqn:a/model.pt,alpha=adaptive", PolicySpec("dqn", model="a/model.pt", alpha=ADAPTIVE)),
+    ("dqn:a/model.pt,margin=2", PolicySpec("dqn", model="a/model.pt", margin=2.0)),
+    ("dqn:a,margin=0,alpha=adaptive", PolicySpec("dqn", model="a", alpha=ADAPTIVE, margin=0.0)),
 ]  # fmt: skip
 
 INVALID: list[tuple[str, str]] = [
@@ -44,6 +46,9 @@ INVALID: list[tuple[str, str]] = [
     ("dqn:m.pt,alpha=", "parameter 'alpha' has no value"),
     ("dqn:m.pt,alpha=-1", "alpha must be"),
     ("dqn:m.pt,alpha=nan", "alpha must be"),
+    ("dqn:m.pt,margin=-1", "margin must be a finite number >= 0 and <= 100, got '-1'"),
+    ("dqn:m.pt,margin=adaptive", "margin must be"),
+    ("dqn:m.pt,margin=1,margin=2", "parameter 'margin' is given twice"),
     ("fast", "unknown policy 'fast'"),
     ("Keep", "unknown policy 'Keep'"),
     ("keep:", "keep takes no parameters"),
@@ -125,3 +130,20 @@ def test_a_training_folder_drives_as_its_model(tmp_path: Path) -> None:
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="model.pt"):
         DQNPolicy.from_spec(f"dqn:{tmp_path / 'empty'}")
+
+
+def test_margin_replaces_the_change_margin_a_model_was_saved_with(tmp_path: Path) -> None:
+    from dataclasses import replace
+
+    from coopsumo.agents.dqn import QNetwork, save_model
+    from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
+
+    dqn = replace(DQN_PRESETS["default"], observation="paper")
+    model = tmp_path / "model.pt"
+    net = QNetwork(30.0, dueling=dqn.dueling, observation="paper")
+    save_model(model, net, {"config": to_dict(TrainConfig(sim=SimConfig(policy="dqn"), dqn=dqn))})
+    assert DQNPolicy.from_spec(f"dqn:{model}").change_margin == dqn.change_margin == 1.0
+    driven = DQNPolicy.from_spec(f"dqn:{model},margin=2.5")
+    assert driven.change_margin == 2.5 and driven.trained_on is not None
+    assert driven.trained_on["change_margin"] == 1.0 and driven.trained_on["driven_change_margin"] == 2.5
