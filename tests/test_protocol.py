@@ -48,3 +48,17 @@ def test_bad_protocol_input_is_one_line(tmp_path: Path, args: list[str], fragmen
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in res.stderr
     assert not out.exists()
+
+
+def test_a_margin_variant_drives_the_same_training_with_its_own_margin() -> None:
+    from coopsumo.policy_spec import parse_policy
+    from coopsumo.studies.protocol import driven_policy
+    from coopsumo.studies.protocol_plan import PROFILES, cell_specs
+
+    specs = {s["key"]: s for s in cell_specs(PROFILES["margin"])}
+    own, m2 = specs["v2x_mix_a0_seed100_accident_t1"], specs["v2x_mix_m2_a0_seed100_accident_t1"]
+    assert own["train_key"] == m2["train_key"] and own["config"]["train"] == m2["config"]["train"]
+    assert "drive" not in own["config"] and m2["config"]["drive"] == {"change_margin": 2.0}  # a different record
+    assert parse_policy(driven_policy(own, Path("/m"))).margin is None  # the margin the model was saved with
+    assert parse_policy(driven_policy(m2, Path("/m"))).margin == 2.0
+    assert parse_policy(driven_policy(specs["v2x_mix_m4_a0_seed104_free_t2"], Path("/m"))).margin == 4.0

@@ -64,8 +64,7 @@ def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     if spec["kind"] == "model":
         model_dir = root / "train" / spec["train_key"]
         record["train_summary"], _ = train_shared(spec["config"]["train"], model_dir, store_for(root))
-        margin = "" if spec.get("margin") is None else f",margin={spec['margin']:g}"
-        ev = replace(ev, policy=f"dqn:{(model_dir / spec['weights']).resolve()}{margin}")
+        ev = replace(ev, policy=driven_policy(spec, model_dir))
     every = TRAJECTORY_EVERY if ev.accident.enabled else 0
     out = root / "runs" / spec["key"]
     summary = simulate_into(json.loads(json.dumps(to_dict(ev))), out, spec["key"], trajectory_every=every,
@@ -74,6 +73,13 @@ def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
         summary["tts_veh_h"] = total_time_spent(out, ev)
         (out / "trajectories.parquet").unlink(missing_ok=True)  # measured; 10 MB a run is not kept
     record["summary"] = summary
+
+
+def driven_policy(spec: dict[str, Any], model_dir: Path) -> str:
+    """The policy string a model cell drives: its weights in model_dir, with the cell's change margin if it has one."""
+    drive = spec["config"].get("drive", {})
+    margin = f",margin={drive['change_margin']:g}" if "change_margin" in drive else ""
+    return f"dqn:{(model_dir / spec['weights']).resolve()}{margin}"
 
 
 def total_time_spent(run_dir: Path, cfg: SimConfig) -> float:

@@ -147,11 +147,13 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
             for i, t_up in enumerate(profile.t_ups):
                 ev = eval_config(profile, scenario, i, "dqn", alpha)
                 key = f"{variant.name}_a{number_name(alpha)}_seed{seed}_{scenario}_t{number_name(t_up)}"
+                config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
+                if variant.margin is not None:  # part of the cell's identity: a record driven otherwise is rerun
+                    config["drive"] = {"change_margin": variant.margin}
                 specs.append({"key": key, "kind": "model", "variant": variant.name, "alpha": alpha, "seed": seed,
                               "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
-                              "train_key": train_key,
-                              "config": json.loads(json.dumps({"train": to_dict(cfg),
-                                                               "eval": to_dict(ev)}))})  # fmt: skip
+                              "margin": variant.margin, "train_key": train_key,
+                              "config": json.loads(json.dumps(config))})  # fmt: skip
     for policy in BASELINES:
         for scenario in ("free", "accident"):
             for i, t_up in enumerate(profile.t_ups):
