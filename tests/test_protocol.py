@@ -62,3 +62,17 @@ def test_a_margin_variant_drives_the_same_training_with_its_own_margin() -> None
     assert parse_policy(driven_policy(own, Path("/m"))).margin is None  # the margin the model was saved with
     assert parse_policy(driven_policy(m2, Path("/m"))).margin == 2.0
     assert parse_policy(driven_policy(specs["v2x_mix_m4_a0_seed104_free_t2"], Path("/m"))).margin == 4.0
+
+
+def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:
+    from coopsumo.studies.protocol_report import paired_rows
+
+    rows = []
+    for seed, (own, m2) in enumerate([(40.0, 38.0), (42.0, 41.0), (39.0, 39.5)]):
+        for variant, tts, lcs in (("v2x_mix", own, 3.0), ("v2x_mix_m2", m2, 1.0)):
+            rows.append({"status": "ok", "alpha": 0.0, "scenario": "accident", "t_up": 1.5, "variant": variant,
+                         "train_key": f"k{seed}", "tts_veh_h": tts, "lane_changes_per_vehicle": lcs})
+    (row,) = paired_rows(pd.DataFrame(rows), "v2x_mix_m2", "v2x_mix")
+    assert row["models"] == 3 and row["better"] == 2  # lower total time spent is better
+    assert row["diff"] == pytest.approx((-2.0 - 1.0 + 0.5) / 3) and row["low"] < row["diff"] < row["high"]
+    assert row["lane_changes"] == pytest.approx(-2.0)
