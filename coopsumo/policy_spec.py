@@ -3,8 +3,10 @@
     keep | random | greedy                          no parameters
     mobil[:p=P,threshold=T,b_safe=B,bias=R]          any subset, any order (MOBIL_LIMITS)
     sumo[:lcCooperative=X,lcSpeedGain=X,...]          SUMO's LC2013 factors (SUMO_LC_LIMITS)
-    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M]     PATH: a model file, or a folder holding model.pt; M: the
-                                                     change margin it drives with (Q units; default: the model's)
+    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S]
+                                                     PATH: a model file, or a folder holding model.pt; M: the
+                                                     change margin it drives with (Q units; default: the model's);
+                                                     S: seconds after a lane change before another (default 0)
 
 Parameters are KEY=VALUE separated by ','; each key at most once; each value a finite number in its key's range
 (alpha also 'adaptive'). No spaces anywhere, no empty parameter, and no ',' inside a model path (the grammar and
@@ -25,15 +27,19 @@ ADAPTIVE = "adaptive"
 """the value of a dqn policy's alpha that chooses alpha online from the loops (agents/adaptive.py)"""
 MARGIN_MAX = 100.0
 """the largest change margin a dqn policy string takes (Q units; a few is already large)"""
+COOLDOWN_MAX_S = 600.0
+"""the longest lane-change cooldown a dqn policy string takes (s)"""
 PLAIN = ("keep", "random", "greedy")
 """policies without parameters"""
 KEYS: dict[str, dict[str, tuple[float, float, bool]]] = {
     "mobil": MOBIL_LIMITS,
     "sumo": SUMO_LC_LIMITS,
-    "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False), "margin": (0.0, MARGIN_MAX, False)},
+    "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False), "margin": (0.0, MARGIN_MAX, False),
+            "cooldown": (0.0, COOLDOWN_MAX_S, False)},
 }
 """the parameters each policy takes: key -> (lowest, highest, lowest excluded)"""
-FORMS = "keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], dqn:PATH[,alpha=A|adaptive,margin=M]"
+FORMS = ("keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], "
+         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S]")
 
 
 class PolicySpecError(UsageError):
@@ -43,13 +49,15 @@ class PolicySpecError(UsageError):
 @dataclass(frozen=True)
 class PolicySpec:
     """A parsed policy string: its name, its numeric parameters in the order given, and for dqn the model path,
-    alpha (a number, 'adaptive', or None when not given) and the change margin (None: the model's own)."""
+    alpha (a number, 'adaptive', or None when not given), the change margin (None: the model's own) and the
+    lane-change cooldown in seconds (None: none)."""
 
     name: str
     params: tuple[tuple[str, float], ...] = ()
     model: str | None = None
     alpha: float | str | None = None
     margin: float | None = None
+    cooldown: float | None = None
 
     def values(self) -> dict[str, float]:
         return dict(self.params)
@@ -124,7 +132,7 @@ def parse_policy(text: str) -> PolicySpec:
             raise _fail(text, f"parameter {key!r} has no value")
         seen[key] = _value(text, name, key, value)
     if name == "dqn":
-        margin = seen.get("margin")
-        return PolicySpec(name, model=model, alpha=seen.get("alpha"),
-                          margin=None if margin is None else float(margin))
+        margin, cooldown = seen.get("margin"), seen.get("cooldown")
+        return PolicySpec(name, model=model, alpha=seen.get("alpha"), margin=None if margin is None else float(margin),
+                          cooldown=None if cooldown is None else float(cooldown))  # fmt: skip
     return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))

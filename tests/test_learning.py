@@ -247,6 +247,25 @@ def test_a_lane_change_must_beat_staying_by_the_change_margin(observation_of: La
     assert learner.act(obs.grids, obs.speed_err, explore=True).tolist() == [LEFT]
 
 
+def test_a_cooldown_withholds_lane_changes_for_its_seconds_after_the_last(observation_of: Layout) -> None:
+    from coopsumo.agents.decisions import cooled_down
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    mask = np.ones((3, 4), bool)
+    since = np.array([0.5, 3.0, np.inf])
+    expected = [[False, False], [True, True], [True, True]]
+    np.testing.assert_array_equal(cooled_down(mask, since, 3.0)[:, [LEFT, RIGHT]], expected)
+    assert cooled_down(mask, since, 0.0) is mask
+    changing = observation_of(lane=[1], pos=[300.0], speed=[20.0], v_exp=[25.0], other_lane=[2])  # a change under way
+    free = observation_of(lane=[1], pos=[300.0], speed=[20.0], v_exp=[25.0])
+    for cooldown, rounds_held in ((0.0, 0), (3.0, 2)):  # decisions 1 s apart: 1 and 2 s after < 3 s
+        policy = DQNPolicy(_net_preferring(LEFT, SPEEDUP), decision_interval=10, action_mask=True)  # type: ignore[arg-type]
+        policy.change_cooldown_s = cooldown
+        assert policy.act(changing).tolist() == [SPEEDUP]  # the controller's mask: no change during a change
+        chosen = [int(policy.act(free)[0]) for _ in range(4)]
+        assert chosen == [SPEEDUP] * rounds_held + [LEFT] * (4 - rounds_held), cooldown
+
+
 @pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
 def test_a_bad_change_margin_is_refused(bad: float) -> None:
     with pytest.raises(ConfigError, match="change_margin"):

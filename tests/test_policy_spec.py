@@ -32,6 +32,7 @@ VALID: list[tuple[str, PolicySpec]] = [
     ("dqn:a/model.pt,alpha=adaptive", PolicySpec("dqn", model="a/model.pt", alpha=ADAPTIVE)),
     ("dqn:a/model.pt,margin=2", PolicySpec("dqn", model="a/model.pt", margin=2.0)),
     ("dqn:a,margin=0,alpha=adaptive", PolicySpec("dqn", model="a", alpha=ADAPTIVE, margin=0.0)),
+    ("dqn:a,cooldown=10,margin=2", PolicySpec("dqn", model="a", margin=2.0, cooldown=10.0)),
 ]  # fmt: skip
 
 INVALID: list[tuple[str, str]] = [
@@ -49,6 +50,8 @@ INVALID: list[tuple[str, str]] = [
     ("dqn:m.pt,margin=-1", "margin must be a finite number >= 0 and <= 100, got '-1'"),
     ("dqn:m.pt,margin=adaptive", "margin must be"),
     ("dqn:m.pt,margin=1,margin=2", "parameter 'margin' is given twice"),
+    ("dqn:m.pt,cooldown=-5", "cooldown must be a finite number >= 0 and <= 600, got '-5'"),
+    ("dqn:m.pt,cooldown=inf", "cooldown must be"),
     ("fast", "unknown policy 'fast'"),
     ("Keep", "unknown policy 'Keep'"),
     ("keep:", "keep takes no parameters"),

@@ -55,13 +55,15 @@ def test_a_margin_variant_drives_the_same_training_with_its_own_margin() -> None
     from coopsumo.studies.protocol import driven_policy
     from coopsumo.studies.protocol_plan import PROFILES, cell_specs
 
-    specs = {s["key"]: s for s in cell_specs(PROFILES["margin"])}
+    specs = {s["key"]: s for s in cell_specs(PROFILES["drive"])}
     own, m2 = specs["v2x_mix_a0_seed100_accident_t1"], specs["v2x_mix_m2_a0_seed100_accident_t1"]
     assert own["train_key"] == m2["train_key"] and own["config"]["train"] == m2["config"]["train"]
     assert "drive" not in own["config"] and m2["config"]["drive"] == {"change_margin": 2.0}  # a different record
     assert parse_policy(driven_policy(own, Path("/m"))).margin is None  # the margin the model was saved with
     assert parse_policy(driven_policy(m2, Path("/m"))).margin == 2.0
     assert parse_policy(driven_policy(specs["v2x_mix_m4_a0_seed104_free_t2"], Path("/m"))).margin == 4.0
+    cd10 = parse_policy(driven_policy(specs["v2x_mix_cd10_a0_seed104_free_t2"], Path("/m")))
+    assert cd10.cooldown == 10.0 and cd10.margin is None
 
 
 def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:

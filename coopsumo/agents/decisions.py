@@ -48,6 +48,17 @@ def with_change_margin(q_values: np.ndarray, change_margin: float) -> np.ndarray
     return out
 
 
+def cooled_down(mask: np.ndarray, since_change_s: np.ndarray, cooldown_s: float) -> np.ndarray:
+    """(n, 4) mask without left and right for vehicles whose last lane change was under way less than cooldown_s
+    seconds ago (since_change_s; inf when never): a learned vehicle cannot change back and forth at once."""
+    if cooldown_s <= 0:
+        return mask
+    out = mask.copy()
+    out[since_change_s < cooldown_s, LEFT] = False
+    out[since_change_s < cooldown_s, RIGHT] = False
+    return out
+
+
 def follow_up(actions: np.ndarray) -> np.ndarray:
     """The action held on the steps after a decision: speedup after a lane change, else the same."""
     actions = np.asarray(actions, np.int64)

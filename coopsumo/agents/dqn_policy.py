@@ -9,12 +9,15 @@ import numpy as np
 import torch
 
 from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, choose_alpha
-from coopsumo.agents.decisions import offered, with_change_margin
+from coopsumo.agents.decisions import cooled_down, offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
-from coopsumo.config import PAPER_DQN, ConfigError, dqn_config_from_dict
+from coopsumo.config import PAPER_DQN, ConfigError, ControlConfig, dqn_config_from_dict
 from coopsumo.policy_spec import ADAPTIVE, model_file, parse_policy, split_dqn_spec
 from coopsumo.runio import UsageError
 from coopsumo.sim.observation import Observation, network_features
+
+DT_S = ControlConfig().dt_s
+"""the step (s) a decision interval counts in"""
 
 
 def _field(d: Any, *keys: str) -> Any:
@@ -65,6 +68,8 @@ class DQNPolicy:
         self.action_mask = action_mask
         self.restart_below_mps = restart_below_mps
         self.change_margin = change_margin
+        self.change_cooldown_s = 0.0
+        """seconds after a lane change during which no other is chosen (0: none; set by dqn:PATH,cooldown=S)"""
         self.rule = rule
         self.lanes = lanes
         self.alpha = choose_alpha(rule, lanes, 0.0) if rule is not None else alpha
@@ -77,6 +82,8 @@ class DQNPolicy:
         self._features = np.zeros((0, net.n_features), np.float32)
         self._mask = np.zeros((0, N_ACTIONS), bool)
         self._action = np.full(0, -1, np.int64)  # -1: no previous decision
+        self._rounds = 0  # decision rounds driven
+        self._busy_round = np.zeros(0, np.int64)  # the last round each vehicle was seen changing lanes (0: never)
         self.q_log: list[np.ndarray] | None = None
         """when a list: every fresh decision appends its rows [Q-values (4), offered (4), action] (diagnosis)"""
 
@@ -94,6 +101,9 @@ class DQNPolicy:
         if parsed.margin is not None:
             policy.change_margin = parsed.margin
             policy.trained_on = dict(policy.trained_on or {}, driven_change_margin=parsed.margin)
+        if parsed.cooldown is not None:
+            policy.change_cooldown_s = parsed.cooldown
+            policy.trained_on = dict(policy.trained_on or {}, driven_change_cooldown_s=parsed.cooldown)
         conditioned = policy.net.conditioned
         if alpha is not None and not conditioned:
             raise UsageError(f"model {path} is not alpha-conditioned (trained at one alpha): drive it as dqn:{path}, "
@@ -183,6 +193,7 @@ class DQNPolicy:
         self._features = np.concatenate([self._features, np.zeros((extra, self.net.n_features), np.float32)])
         self._mask = np.concatenate([self._mask, np.zeros((extra, N_ACTIONS), bool)])
         self._action = np.concatenate([self._action, np.full(extra, -1, np.int64)])
+        self._busy_round = np.concatenate([self._busy_round, np.zeros(extra, np.int64)])
 
     def act(self, obs: Observation) -> np.ndarray:
         n = len(obs)
@@ -194,6 +205,12 @@ class DQNPolicy:
         feats = network_features(obs, self.net.observation, self.net.speed_scale_mps)
         if mask is None:
             mask = np.ones((n, N_ACTIONS), bool)
+        self._rounds += 1
+        self._busy_round[nums[obs.busy]] = self._rounds
+        if self.change_cooldown_s > 0:
+            last = self._busy_round[nums]
+            since_s = np.where(last > 0, (self._rounds - last) * self.decision_interval * DT_S, np.inf)
+            mask = cooled_down(mask, since_s, self.change_cooldown_s)
         same = (
             (self._action[nums] >= 0)
             & (self._grids[nums] == obs.grids).reshape(n, -1).all(axis=1)

@@ -32,7 +32,7 @@ from coopsumo.studies.runner import add_backend_flags, check_backend
 from coopsumo.validation import out_dir, workers
 
 # -- one cell (in a worker process) ----------------------------------------------------------------
-FIELDS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "margin", "train_key")
+FIELDS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key")
 
 
 def new_record(spec: dict[str, Any]) -> dict[str, Any]:
@@ -76,10 +76,12 @@ def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
 
 
 def driven_policy(spec: dict[str, Any], model_dir: Path) -> str:
-    """The policy string a model cell drives: its weights in model_dir, with the cell's change margin if it has one."""
+    """The policy string a model cell drives: its weights in model_dir, with the cell's change margin and lane-change
+    cooldown if it has them (config.drive)."""
     drive = spec["config"].get("drive", {})
-    margin = f",margin={drive['change_margin']:g}" if "change_margin" in drive else ""
-    return f"dqn:{(model_dir / spec['weights']).resolve()}{margin}"
+    extra = "".join(f",{word}={drive[key]:g}" for key, word in (("change_margin", "margin"),
+                                                                 ("change_cooldown_s", "cooldown")) if key in drive)
+    return f"dqn:{(model_dir / spec['weights']).resolve()}{extra}"
 
 
 def total_time_spent(run_dir: Path, cfg: SimConfig) -> float:
@@ -118,7 +120,7 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
     todo.sort(key=lambda s: (s["train_key"] is None or first[s["train_key"]] != s["key"], s["scenario"] != "free"))
     meta: dict[str, Any] = {"profile": asdict(profile), "cells": len(specs), "backend": backend_name,
                             "workers": workers, "versions": versions(),
-                            "learners": {n: {"text": v.text, "weights": v.weights, "margin": v.margin,
+                            "learners": {n: {"text": v.text, "weights": v.weights, "drive": v.drive(),
                                              "learner": to_dict(v.learner)}
                                          for n, v in variants().items() if n in profile.variants}}  # fmt: skip
     print(f"protocol: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "

@@ -44,6 +44,13 @@ class Variant:
     weights: str = "model.pt"
     margin: float | None = None
     """the change margin it drives with (Q units; None: the learner's own); the trainings are the same"""
+    cooldown: float | None = None
+    """the lane-change cooldown it drives with (s; None: none)"""
+
+    def drive(self) -> dict[str, float]:
+        """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""
+        out = {} if self.margin is None else {"change_margin": self.margin}
+        return out | ({} if self.cooldown is None else {"change_cooldown_s": self.cooldown})
 
 
 SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0)
@@ -72,6 +79,10 @@ def variants() -> dict[str, Variant]:
                 replace(MIX, observation="v2x"), margin=2.0),
         Variant("v2x_mix_m4", "`v2x_mix`'s trainings driven with a change margin of 4 instead of 1",
                 replace(MIX, observation="v2x"), margin=4.0),
+        Variant("v2x_mix_cd10", "`v2x_mix`'s trainings driven with a lane-change cooldown of 10 s (no change chosen "
+                "within 10 s of the last one's end)", replace(MIX, observation="v2x"), cooldown=10.0),
+        Variant("v2x_mix_cd30", "`v2x_mix`'s trainings driven with a lane-change cooldown of 30 s",
+                replace(MIX, observation="v2x"), cooldown=30.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -99,9 +110,8 @@ PROFILES = {
     "gamma": Profile("gamma", variants=("gamma",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "v2x": Profile("v2x", variants=("v2x", "v2x_mix"), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
     "v2x_mix10": Profile("v2x_mix10", variants=("v2x_mix",)),  # v2x_mix on the default's 10 seeds, alpha 8 on 3
-    "margin": Profile("margin", variants=("v2x_mix", "v2x_mix_m2", "v2x_mix_m4"),
-                      seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),
-    "margin10": Profile("margin10", variants=("v2x_mix", "v2x_mix_m2", "v2x_mix_m4"), alpha_seeds=0),
+    "drive": Profile("drive", variants=("v2x_mix", "v2x_mix_m2", "v2x_mix_m4", "v2x_mix_cd10", "v2x_mix_cd30"),
+                     seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # the default driven otherwise
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
@@ -149,11 +159,11 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
                 ev = eval_config(profile, scenario, i, "dqn", alpha)
                 key = f"{variant.name}_a{number_name(alpha)}_seed{seed}_{scenario}_t{number_name(t_up)}"
                 config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
-                if variant.margin is not None:  # part of the cell's identity: a record driven otherwise is rerun
-                    config["drive"] = {"change_margin": variant.margin}
+                if variant.drive():  # part of the cell's identity: a record driven otherwise is rerun
+                    config["drive"] = variant.drive()
                 specs.append({"key": key, "kind": "model", "variant": variant.name, "alpha": alpha, "seed": seed,
                               "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
-                              "margin": variant.margin, "train_key": train_key,
+                              "train_key": train_key,
                               "config": json.loads(json.dumps(config))})  # fmt: skip
     for policy in BASELINES:
         for scenario in ("free", "accident"):
@@ -161,8 +171,7 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
                 ev = eval_config(profile, scenario, i, policy)
                 specs.append({"key": f"{policy.replace(':', '_').replace('=', '')}_{scenario}_t{number_name(t_up)}",
                               "kind": "baseline", "variant": policy, "alpha": 0.0, "seed": None, "scenario": scenario,
-                              "t_up": t_up, "eval_seed": ev.seed, "weights": None, "margin": None,
-                              "train_key": None,
+                              "t_up": t_up, "eval_seed": ev.seed, "weights": None, "train_key": None,
                               "config": json.loads(json.dumps({"eval": to_dict(ev)}))})  # fmt: skip
     return specs
 

@@ -192,8 +192,10 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
     ]
     for name in profile.variants:
         info = meta["learners"][name]
-        margin = "" if info.get("margin") is None else f" with change margin {info['margin']:g}"
-        lines.append(f"- `{name}`: {info['text']} (drives `{info['weights']}`{margin})")
+        drive = info.get("drive") or {}
+        how = "".join(f", {words} {drive[key]:g}" for key, words in (("change_margin", "change margin"),
+                      ("change_cooldown_s", "lane-change cooldown (s)")) if key in drive)  # fmt: skip
+        lines.append(f"- `{name}`: {info['text']} (drives `{info['weights']}`{how})")
     for scenario in ("free", "accident"):
         measure, words, sign = MEASURES[scenario]
         sub = table[table["scenario"] == scenario] if len(table) else table
