@@ -47,6 +47,7 @@ def _learner_check(folder: Path) -> None:
         for variant, entry in study["learners"].items():
             _same(entry["learner"], to_dict(known[variant].learner), f"{name} ({variant})")
             assert entry["weights"] == known[variant].weights
+            assert entry.get("drive", {}) == known[variant].drive(), f"{name} ({variant}): driven otherwise"
     elif name in ("scenario2", "scenario2_conditioned"):
         sweep = json.loads((folder / "sweep.json").read_text())
         profile = SCENARIO2_PROFILES[sweep["profile"]["name"]]
