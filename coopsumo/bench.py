@@ -182,7 +182,7 @@ CLUSTER_QUICK = ("regime-map", "--t-up", "2", "--seeds", "2")
 """--quick: 4 cells"""
 
 
-def bench_cluster(study_args: tuple[str, ...], steps: int) -> dict[str, float]:
+def bench_cluster(study_args: tuple[str, ...], steps: int, warm_up: bool = True) -> dict[str, float]:
     """Wall time (s) of a study's cells (each `steps` long) on the local backend with 1 and 2 workers and on
     a Ray cluster of 1 and 2 nodes of one CPU each, started on this machine with Ray's cluster_utils (the study
     connects with --backend ray --address as it would to a remote cluster). Every run must give the same runs.csv."""
@@ -202,8 +202,9 @@ def bench_cluster(study_args: tuple[str, ...], steps: int) -> dict[str, float]:
     times: dict[str, float] = {}
     with tempfile.TemporaryDirectory() as tmp:
         # a first study pays for cold caches (imports, the network, SUMO's files): one short one, not timed
-        subprocess.run([sys.executable, "-m", "coopsumo", "regime-map", "--t-up", "2", "--seeds", "1", "--steps",
-                        "100", "--quiet", "--out", str(Path(tmp) / "warm-up")], capture_output=True, check=False)
+        if warm_up:
+            subprocess.run([sys.executable, "-m", "coopsumo", "regime-map", "--t-up", "2", "--seeds", "1", "--steps",
+                            "100", "--quiet", "--out", str(Path(tmp) / "warm-up")], capture_output=True, check=False)
         for workers in (1, 2):
             times[f"local, {workers} worker{'s' if workers > 1 else ''}"] = study(
                 Path(tmp) / f"local{workers}", "--workers", str(workers))  # fmt: skip
@@ -246,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--cluster needs Ray: .venv/bin/pip install 'ray[default]'")
         cell_steps, study = (300, CLUSTER_QUICK) if quick else (3000, CLUSTER_STUDY)
         print(f"coopsumo bench --cluster: {' '.join(study)}, {cell_steps} steps a cell", flush=True)
-        times = bench_cluster(study, cell_steps)
+        times = bench_cluster(study, cell_steps, warm_up=not quick)
         for name, wall in times.items():
             print(f"  {name:16s}: {wall:6.1f} s", flush=True)
         print(f"cluster scaling {times['ray, 1 node'] / times['ray, 2 nodes']:.2f}  (wall time on 1 node / on 2 nodes "
