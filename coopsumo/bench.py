@@ -178,8 +178,8 @@ def bench_fcd_cost(steps: int, period_s: float, repeats: int) -> tuple[float, fl
 
 CLUSTER_STUDY = ("regime-map", "--t-up", "2,1.5,1", "--seeds", "2")
 """the study of the cluster measurement: `keep` at 3 demands x 2 accident lengths x 2 seeds, 12 cells"""
-CLUSTER_QUICK = ("regime-map", "--t-up", "2", "--seeds", "2")
-"""--quick: 4 cells"""
+CLUSTER_QUICK = ("regime-map", "--t-up", "2", "--seeds", "1")
+"""--quick: 2 cells"""
 
 
 def bench_cluster(study_args: tuple[str, ...], steps: int, warm_up: bool = True) -> dict[str, float]:
@@ -245,7 +245,7 @@ def main(argv: list[str] | None = None) -> int:
             import ray  # noqa: F401
         except ImportError:
             parser.error("--cluster needs Ray: .venv/bin/pip install 'ray[default]'")
-        cell_steps, study = (300, CLUSTER_QUICK) if quick else (3000, CLUSTER_STUDY)
+        cell_steps, study = (100, CLUSTER_QUICK) if quick else (3000, CLUSTER_STUDY)
         print(f"coopsumo bench --cluster: {' '.join(study)}, {cell_steps} steps a cell", flush=True)
         times = bench_cluster(study, cell_steps, warm_up=not quick)
         for name, wall in times.items():
