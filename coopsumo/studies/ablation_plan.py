@@ -23,7 +23,6 @@ from coopsumo.validation import name_list, number_name
 EVAL_SEED_OFFSET = 1000
 """a model trained with seed s is evaluated on seed EVAL_SEED_OFFSET + s (a demand it never saw)"""
 BASELINES = ("keep", "greedy", "mobil:p=0", "mobil:p=0.5")
-ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 8.0)
 METRICS = ("mean_speed_mps", "lane_changes_per_vehicle", "lane_changes_rejected", "teleports", "collisions",
            "throughput_veh_per_h", "mean_travel_time_s")  # fmt: skip
 REQUIRED_SUMMARY = ("mean_speed_mps", "lane_changes_per_vehicle", "teleports", "collisions")

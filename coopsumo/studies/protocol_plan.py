@@ -57,6 +57,8 @@ SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_shar
 """the default learner before the v2x state and the mix (free flow at the run's own demand, the paper's state)"""
 MIX = replace(SELECT, train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)
 """the learner trained on the mix of demands and accidents (agents/episodes.py)"""
+V2X_MIX = replace(MIX, observation="v2x")
+"""the default preset: the v2x state trained on the mix (DQNConfig())"""
 
 
 def variants() -> dict[str, Variant]:
@@ -74,15 +76,15 @@ def variants() -> dict[str, Variant]:
         Variant("v2x", "`select` reading the v2x state: the paper's state plus each side lane's nearest leader and "
                 "follower within 200 m (gap, speed)", replace(SELECT, observation="v2x")),
         Variant("v2x_mix", "`v2x` trained where it is used, as `mix` (the default preset)",
-                replace(MIX, observation="v2x")),
+                V2X_MIX),
         Variant("v2x_mix_m2", "`v2x_mix`'s trainings driven with a change margin of 2 instead of 1",
-                replace(MIX, observation="v2x"), margin=2.0),
+                V2X_MIX, margin=2.0),
         Variant("v2x_mix_m4", "`v2x_mix`'s trainings driven with a change margin of 4 instead of 1",
-                replace(MIX, observation="v2x"), margin=4.0),
+                V2X_MIX, margin=4.0),
         Variant("v2x_mix_cd10", "`v2x_mix`'s trainings driven with a lane-change cooldown of 10 s (no change chosen "
-                "within 10 s of the last one's end)", replace(MIX, observation="v2x"), cooldown=10.0),
+                "within 10 s of the last one's end)", V2X_MIX, cooldown=10.0),
         Variant("v2x_mix_cd30", "`v2x_mix`'s trainings driven with a lane-change cooldown of 30 s",
-                replace(MIX, observation="v2x"), cooldown=30.0),
+                V2X_MIX, cooldown=30.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
