@@ -114,6 +114,7 @@ PROFILES = {
     "v2x_mix10": Profile("v2x_mix10", variants=("v2x_mix",)),  # v2x_mix on the default's 10 seeds, alpha 8 on 3
     "drive": Profile("drive", variants=("v2x_mix", "v2x_mix_m2", "v2x_mix_m4", "v2x_mix_cd10", "v2x_mix_cd30"),
                      seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # the default driven otherwise
+    "cooldown": Profile("cooldown", variants=("v2x_mix", "v2x_mix_cd10")),  # the 10 s cooldown on 10 models
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
