@@ -40,7 +40,7 @@ sys.exit(t.main(sys.argv[1:]))
 """
 """`python -m coopsumo.train` with a log row every 250 steps and a periodic checkpoint every 500 (the command's
 own are 1,000 and 10,000 steps); --resume reads them back from the checkpoint"""
-TRAIN = ["--steps", "3000", "--eval-steps", "20000", "--seed", "2", "--quiet", "--tensorboard"]
+TRAIN = ["--steps", "3000", "--eval-steps", "6000", "--seed", "2", "--quiet", "--tensorboard"]
 """an evaluation long enough (several seconds on a quiet machine) that a signal 0.3 s into it lands in it"""
 
 

@@ -86,7 +86,7 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str)
                "select": ["--select-every", "1000", "--validation-steps", "300", "--validation-t-up", "1.5"],
                "default": ["--preset", "default", "--update-worker", "on"]}.get(  # the checkpoint asks the worker
         preset, ["--preset", preset])  # fmt: skip
-    args = ["--steps", "2500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
+    args = ["--steps", "1500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
     full = tmp_path / "full"
     subprocess.run(_cmd(*args, "--out", str(full)), check=True, cwd=ROOT, capture_output=True)
     cut = tmp_path / "cut"

@@ -121,7 +121,8 @@ class LocalBackend:
 
 
 class RayBackend:
-    """Cells as Ray tasks (num_cpus=1, a fresh worker process per task) on a local instance or a cluster."""
+    """Cells as Ray tasks (num_cpus=1; a worker process runs one cell after another, as the local pool's do) on a
+    local instance or a cluster."""
 
     name = "ray"
 
@@ -141,7 +142,7 @@ class RayBackend:
             where = f" at {address}" if address else ""
             raise UsageError(f"cannot start or reach Ray{where}: {detail}") from None
         self.slots = max(1, int(ray.cluster_resources().get("CPU", workers)))
-        self._task = ray.remote(num_cpus=1, max_calls=1, max_retries=1)(cell_fn)
+        self._task = ray.remote(num_cpus=1, max_retries=1)(cell_fn)
 
     def check_cluster(self, root: Path, timeout_s: float = 120.0) -> None:
         """Every alive node of the cluster runs this machine's versions (PINNED) and can write root, or UsageError
