@@ -107,7 +107,7 @@ def test_resume_refuses_a_foreign_checkpoint_and_rewrites_a_lost_config(tmp_path
     """A checkpoint copied in from another training is refused in one line; a deleted config.json comes back."""
     common = ["--eval-steps", "0", "--quiet", "--select-every", "0"]
     a, b = tmp_path / "a", tmp_path / "b"
-    for out, steps, lanes in ((a, "3000", "3"), (b, "2000", "2")):
+    for out, steps, lanes in ((a, "1500", "3"), (b, "1500", "2")):
         proc = subprocess.Popen([sys.executable, "-m", "coopsumo.train", "--steps", steps, "--lanes", lanes, *common,
                                  "--out", str(out)], cwd=REPO, stderr=subprocess.PIPE, text=True)  # fmt: skip
         log = out / "train_log.csv"

@@ -141,7 +141,7 @@ def test_train_in_two_processes_equals_serial(tmp_path: Path) -> None:
 @pytest.mark.sumo
 def test_a_killed_worker_ends_the_training_in_one_line_and_it_resumes(tmp_path: Path) -> None:
     out = tmp_path / "run"
-    args = [sys.executable, "-m", "coopsumo.train", "--steps", "3000", "--eval-steps", "0", "--seed", "3",
+    args = [sys.executable, "-m", "coopsumo.train", "--steps", "1500", "--eval-steps", "0", "--seed", "3",
             "--update-worker", "on", "--out", str(out), "--quiet"]  # fmt: skip
     proc = subprocess.Popen(args, cwd=ROOT, stderr=subprocess.PIPE, text=True)
     log = out / "train_log.csv"
