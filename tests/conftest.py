@@ -24,16 +24,6 @@ from coopsumo.sim import physics
 from coopsumo.sim.observation import Observation
 
 REPO = Path(__file__).resolve().parent.parent
-SLOWEST_FILES = ("test_train.py", "test_docs.py", "test_scenario2.py", "test_faults.py", "test_scenario1.py",
-                 "test_cluster.py", "test_conditioned.py", "test_faults_scenario1.py", "test_runner.py")
-"""The files of the longest tests (minutes each, measured by `make test`'s --durations), run first: `make test`
-hands whole files to its two workers, and a long file handed out last would run alone at the end."""
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """The slowest files first; every file's tests stay in their order (a stable sort)."""
-    rank = {name: i for i, name in enumerate(SLOWEST_FILES)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
 
 
 @pytest.fixture
