@@ -79,7 +79,8 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     table = pd.read_csv(out / "diagnosis.csv")
     assert len(table) == len(profile.seeds) and table["decisions"].gt(0).all()
     acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "margin2",
-                          "--alphas", "0", "--seeds", "1", "--quick", "--t-up", "3", "--out", str(tmp_path / "acc")],
+                          "--alphas", "0", "--seeds", "1", "--steps", "900", "--t-up", "3",
+                          "--out", str(tmp_path / "acc")],
                          cwd=ROOT, capture_output=True, text=True)  # fmt: skip
     assert acc.returncode == 0, acc.stderr[-2000:]
     acc_runs = pd.read_csv(tmp_path / "acc" / "runs.csv")

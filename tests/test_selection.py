@@ -155,3 +155,13 @@ def test_the_stratified_bootstrap_resamples_runs_within_tasks() -> None:
     spread = np.arange(20.0)[:, None]
     _, low, high = stats.stratified_bootstrap((spread,), lambda s: float(s.mean()), reps=400)
     assert 5 < low < 9.5 < high < 14
+
+
+@pytest.mark.parametrize("shape", [(10, 1), (7, 3), (5, 6)])
+def test_the_batched_bootstrap_gives_the_intervals_of_one_call_per_resample(shape: tuple[int, int]) -> None:
+    rng = np.random.default_rng(11)
+    x, y = rng.normal(0.0, 3.0, shape), rng.normal(0.5, 3.0, (shape[0] + 2, shape[1])).round(0)
+    x[0] = y[0].copy()  # ties
+    for mats, func, batch in (((x,), stats.iqm, stats.iqm_batch),
+                              ((x, y), stats.probability_of_improvement, stats.improvement_batch)):  # fmt: skip
+        assert stats.stratified_bootstrap(mats, func, 300, batch=batch) == stats.stratified_bootstrap(mats, func, 300)
