@@ -24,6 +24,10 @@ from coopsumo.sim import physics
 from coopsumo.sim.observation import Observation
 
 REPO = Path(__file__).resolve().parent.parent
+# One OpenMP (torch) thread in the test processes and the commands they start, set before torch is imported: two
+# pytest-xdist workers share two cores, and a second torch thread per worker only spins (a test of 200 updates took
+# 68 s instead of 1 while the other core was busy). The commands decide and train on one thread already.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 @pytest.fixture

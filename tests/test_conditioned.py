@@ -374,7 +374,7 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
     assert "## One network for every alpha: `conditioned` against per-alpha `mix` models" in report
     assert "| 8 | 2 |" in report
     acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "conditioned",
-                          "--alphas", "0,8", "--adaptive", "--seeds", "1", "--quick", "--t-up", "3", "--out",
+                          "--alphas", "0,8", "--adaptive", "--seeds", "1", "--steps", "1500", "--t-up", "3", "--out",
                           str(tmp_path / "acc")], cwd=ROOT, capture_output=True, text=True)  # fmt: skip
     assert acc.returncode == 0, acc.stderr[-2000:]
     runs = pd.read_csv(tmp_path / "acc" / "runs.csv")

@@ -98,6 +98,28 @@ def test_forward_output_shape() -> None:
     assert q.shape == (7, N_ACTIONS)
 
 
+def test_a_dqn_policy_decides_on_one_torch_thread_as_the_studies_do() -> None:
+    """A second thread can change the last bit of a Q-value (so a near-tie's choice): DQNPolicy takes one thread,
+    the thread count of every study cell, so that `simulate` repeats a study's run exactly on any machine."""
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    torch.manual_seed(3)
+    net = QNetwork(speed_scale_mps=30.0).eval()
+    grids, features = (torch.rand(7, *GRID_SHAPE) < 0.3).float(), torch.randn(7, net.n_features)
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        with torch.no_grad():
+            two = net(grids, features)
+        DQNPolicy(net)
+        assert torch.get_num_threads() == 1
+        with torch.no_grad():
+            one = net(grids, features)
+        assert torch.allclose(one, two, rtol=1e-5, atol=1e-6)  # the same network, at most last-bit differences
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_speed_errors_are_divided_by_the_scale() -> None:
     torch.manual_seed(0)
     net_a = QNetwork(speed_scale_mps=10.0)

@@ -62,6 +62,10 @@ class DQNPolicy:
     ):
         if net.conditioned == (alpha is None and rule is None):
             raise ValueError("an alpha-conditioned network drives at an alpha or by a rule, another at neither")
+        # one torch thread, as in every study cell: a second thread can change the last bit of a Q-value (and so a
+        # near-tie's choice), so `simulate` now repeats a study's run exactly whatever the machine's core count;
+        # a decision is one small batch, and on a busy machine a second thread's spinning made it 40 times slower
+        torch.set_num_threads(1)
         self.net = net.eval()
         self.name = name
         self.decision_interval = decision_interval
