@@ -20,14 +20,12 @@ SEED = 20211206
 def iqm(scores: np.ndarray) -> float:
     """Interquartile mean of every entry of the (models x tasks) matrix: the mean of the middle half, as
     rliable's aggregate_iqm (scipy's trim_mean cutting 25% at each end); the tests check it against rliable."""
-    from scipy.stats import trim_mean
-
-    return float(trim_mean(np.asarray(scores, float), proportiontocut=0.25, axis=None))
+    return float(iqm_batch(np.asarray(scores, float)[None])[0])
 
 
 def iqm_batch(scores: np.ndarray) -> np.ndarray:
     """iqm of each (models x tasks) matrix of a (resamples x models x tasks) stack, computed as scipy's trim_mean
-    does it (the same partition and mean per matrix, so every value equals iqm's bit for bit)."""
+    computes it (the same partition of the flattened matrix, the mean of its middle)."""
     flat = np.asarray(scores, float).reshape(len(scores), -1)
     low = int(0.25 * flat.shape[1])
     high = flat.shape[1] - low
@@ -80,9 +78,7 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
     """P(X > Y) + P(X = Y) / 2 for a run X of x and a run Y of y on the same task, averaged over tasks: rliable's
     probability_of_improvement (its Mann-Whitney U statistic over runs), written in numpy for the bootstrap's
     thousands of calls; the tests check it against rliable."""
-    x, y = np.asarray(x, float), np.asarray(y, float)
-    a, b = x[:, None, :], y[None, :, :]
-    return float(((a > b) + 0.5 * (a == b)).mean(axis=(0, 1)).mean())
+    return float(improvement_batch(np.asarray(x, float)[None], np.asarray(y, float)[None])[0])
 
 
 def hierarchical_bootstrap(diff: np.ndarray, reps: int = REPS, seed: int = SEED,
