@@ -131,6 +131,8 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("scenario2", ["--profile", "tiny", "--seeds", "99999999999"], ("--seeds", "99999999999")),
     ("scenario2", ["--profile", "tiny", "--steps", "0"], ("--steps", "0")),
     ("scenario2", ["--profile", "tiny", "--eval-steps", "0"], ("--eval-steps", "0")),
+    ("scenario2", ["--profile", "tiny", "--eval-seeds", "0"], ("--eval-seeds", "0")),
+    ("scenario2", ["--profile", "tiny", "--eval-seeds", "abc"], ("--eval-seeds", "abc")),
     ("scenario2", ["--profile", "tiny", "--alphas", "1/0"], ("--alphas", "1/0")),
     ("scenario2", ["--profile", "tiny", "--alphas", "0,nan"], ("--alphas", "0,nan")),
     ("scenario2", ["--profile", "tiny", "--lanes", "nan"], ("--lanes", "nan")),

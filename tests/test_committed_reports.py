@@ -13,6 +13,7 @@ import pytest
 from conftest import committed_report_pages
 
 from coopsumo.config import DQN_PRESETS, DQNConfig, results_view, to_dict
+from coopsumo.studies.ablation_plan import learner_of as learner_of_variant
 from coopsumo.studies.protocol_plan import variants
 from coopsumo.studies.scenario2 import learner_of
 from coopsumo.studies.scenario2_plan import PROFILES as SCENARIO2_PROFILES
@@ -52,6 +53,12 @@ def _learner_check(folder: Path) -> None:
         sweep = json.loads((folder / "sweep.json").read_text())
         profile = SCENARIO2_PROFILES[sweep["profile"]["name"]]
         _same(sweep["learner"], learner_of(replace(profile, conditioned=sweep["profile"]["conditioned"])), name)
+    elif name == "learning":
+        study = json.loads((folder / "study.json").read_text())
+        _same(study["default_learner"], to_dict(DQNConfig()), f"{name} (the default)")
+        assert set(study["learners"]) >= set(study["profile"]["variants"]), f"{name}: a variant without its learner"
+        for variant, learner in study["learners"].items():
+            _same(learner, to_dict(learner_of_variant(variant)), f"{name} ({variant})")
     else:
         assert name in LEARNER_FREE, f"results/{name}: a committed report whose learner no test checks"
 
@@ -78,7 +85,19 @@ def test_the_check_fires_on_a_changed_learner(tmp_path: Path) -> None:
     with pytest.raises(AssertionError, match=r"config\.lr"):
         _learner_check(folder)
     with pytest.raises(AssertionError, match="no test checks"):
-        _learner_check(tmp_path / "learning")
+        _learner_check(tmp_path / "learning_old")
+    # a learning study whose `mix` variant was trained with another replay size
+    folder = tmp_path / "learning"
+    folder.mkdir()
+    learners = {"paper": to_dict(learner_of_variant("paper")), "mix": to_dict(replace(learner_of_variant("mix"),
+                                                                                     replay_size=7))}  # fmt: skip
+    study = {"default_learner": to_dict(DQNConfig()), "profile": {"variants": ["paper", "mix"]}, "learners": learners}
+    (folder / "study.json").write_text(json.dumps(study))
+    with pytest.raises(AssertionError, match=r"learning \(mix\).*replay_size"):
+        _learner_check(folder)
+    study["learners"]["mix"] = to_dict(learner_of_variant("mix"))
+    (folder / "study.json").write_text(json.dumps(study))
+    _learner_check(folder)
 
 
 def test_archived_reports_say_so_at_their_top() -> None:

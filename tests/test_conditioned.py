@@ -340,7 +340,7 @@ def test_tiny_scenario2_conditioned_trains_once_per_condition_and_seed(tmp_path:
     assert runs.groupby(["lanes", "t_up_s", "seed"])["train_dir"].nunique().eq(1).all()
     assert (runs["loop_occupancy_pct"] > 0).all() and (runs["collisions"] == 0).all()
     for train in trainings:
-        assert sorted(p.name for p in (out / "evals" / train).glob("eval_a*")) == ["eval_a0", "eval_a8"]
+        assert sorted(p.name for p in (out / "evals" / train).glob("eval_a*")) == ["eval_a0_s2001", "eval_a8_s2001"]
     assert "Alpha-conditioned" in (out / "report.md").read_text()
     assert len(pd.read_csv(out / "alpha_star.csv")) == 2
     # the adaptive rule fitted on the sweep, and alpha=adaptive driven on its conditions (docs/studies.md)

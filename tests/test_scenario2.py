@@ -10,6 +10,7 @@ import signal
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -202,8 +203,8 @@ def test_mobil_p_star_and_side_by_side(tmp_path: Path) -> None:
     # the same through write_outputs: mobil_p_star.csv and the report's section
     profile = s2_plan.Profile("hand", lanes=(2,), loads=(), alphas=(0.0, 8.0), seeds=(1, 2), train_steps=10,
                          eval_steps=10, t_up_s=(1.0, 2.0), policies=("dqn", "mobil"),
-                         mobil_ps=(0.0, 0.5, 1.0))  # fmt: skip
-    assert profile.n_cells() == 2 * (2 + 3) * 2
+                         mobil_ps=(0.0, 0.5, 1.0), eval_seeds=(1, 2))  # fmt: skip
+    assert profile.n_cells() == 2 * (2 * 2 + 3 * 2)  # conditions x (alphas x training seeds + ps x eval seeds)
     meta = {"conditions": [{"lanes": n, "t_up_s": t, "load": ld} for n, t, ld in profile.conditions()],
             "cells": 20, "cells_ok": 20, "cells_failed": 0, "backend": "local", "workers": 1, "wall_seconds": 1.0,
             "cells_run": 0, "cell_wall_seconds_sum": 0.0, "cell_cpu_seconds_sum": 0.0, "bootstrap_replicates": 10,
@@ -307,6 +308,12 @@ def assert_outputs(out: Path) -> pd.DataFrame:
     assert runs["mean_speed_mps"].between(1, 35).all() and (runs["collisions"] == 0).all()
     assert len(list((out / "cells").glob("*.json"))) == 8
     assert all((out / "train" / k / "model.pt").is_file() for k in runs["key"])
+    # every model was driven on the evaluation seed, a demand its training (seed 1 or 2) never saw
+    evals = pd.read_csv(out / "evals.csv")
+    assert len(evals) == 8 and (evals["eval_seed"] == 2001).all() and set(evals["seed"]) == {1, 2}
+    assert all(json.loads((out / "evals" / k / "eval_s2001" / "summary.json").read_text())["steps"] == 300
+               for k in runs["key"])  # fmt: skip
+    pd.testing.assert_series_equal(evals["mean_speed_mps"], runs["mean_speed_mps"], check_names=False)
     table = pd.read_csv(out / "alpha_star.csv")
     assert len(table) == 2 and table["alpha_star"].isin([0.0, 8.0]).all()
     report = (out / "report.md").read_text()
@@ -334,27 +341,28 @@ def test_tiny_sweep_local(local_sweep: Path) -> None:
 
 @pytest.mark.sumo
 def test_tiny_sweep_with_mobil(local_sweep: Path, tmp_path: Path) -> None:
-    """--policies dqn,mobil on the finished DQN cells: only the 8 MOBIL cells run; p* beside alpha* in the report."""
+    """--policies dqn,mobil on the finished DQN cells: only the 4 MOBIL cells run (2 conditions x 2 p x 1 evaluation
+    seed); p* beside alpha* in the report."""
     out = tmp_path / "mobil"
     shutil.copytree(local_sweep / "cells", out / "cells")
     result = run_sweep_cli(out, "--workers", "2", "--policies", "dqn,mobil")
-    assert "16 cells, 8 already done" in result.stderr and "8 to run" in result.stderr
+    assert "12 cells, 8 already done" in result.stderr and "4 to run" in result.stderr
     runs = pd.read_csv(out / "runs.csv")
     assert (runs["status"] == "ok").all(), runs["error"].tolist()
-    assert runs["policy"].value_counts().to_dict() == {"dqn": 8, "mobil": 8}
+    assert runs["policy"].value_counts().to_dict() == {"dqn": 8, "mobil": 4}
     dqn, mobil = runs[runs["policy"] == "dqn"], runs[runs["policy"] == "mobil"]
     assert dqn["p"].isna().all() and mobil["alpha"].isna().all() and set(mobil["p"]) == {0.0, 1.0}
     assert mobil["mean_speed_mps"].between(1, 35).all() and (mobil["collisions"] == 0).all()
     local = pd.read_csv(local_sweep / "runs.csv")
     pd.testing.assert_frame_equal(dqn[COMPARED].reset_index(drop=True), local[COMPARED], check_dtype=False)
     assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
-    # a MOBIL cell runs the DQN cell's evaluation world: same condition, seed and steps
-    cell = json.loads((out / "cells" / "L2_T4_mobil_p1_s2.json").read_text())
-    dqn_sim = json.loads((out / "cells" / "L2_T4_a0_s2.json").read_text())["config"]["sim"]
-    for k in ("road", "demand", "control", "accident", "seed", "time_to_teleport_s"):
-        assert cell["config"][k] == dqn_sim[k], k
-    assert cell["config"]["steps"] == s2_plan.PROFILES["tiny"].eval_steps and cell["config"]["policy"] == "mobil:p=1.0"
-    assert (out / "mobil" / "L2_T4_mobil_p1_s2" / "summary.json").is_file()
+    # a MOBIL cell runs a DQN model's evaluation world: same condition, evaluation seed and steps
+    cell = json.loads((out / "cells" / "L2_T4_mobil_p1_s2001.json").read_text())
+    dqn_eval = json.loads((out / "cells" / "L2_T4_a0_s2.json").read_text())["config"]["evals"][0]
+    for k in ("road", "demand", "control", "accident", "seed", "steps", "time_to_teleport_s"):
+        assert cell["config"][k] == dqn_eval[k], k
+    assert cell["config"]["seed"] == 2001 and cell["config"]["policy"] == "mobil:p=1.0"
+    assert (out / "mobil" / "L2_T4_mobil_p1_s2001" / "summary.json").is_file()
     table = pd.read_csv(out / "mobil_p_star.csv")
     assert len(table) == 2 and table["p_star"].isin([0.0, 1.0]).all()
     assert {"win_share", "speed_mps_p0", "speed_mps_p1"} <= set(table)
@@ -503,14 +511,14 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
         calls.append(trained_key(cfg))
         if cfg.sim.reward.alpha == 8.0 and cfg.sim.seed == 2 and len(calls) <= 8:
             raise RuntimeError("SUMO said no\nsecond line")
-        (out / "train_summary.json").write_text('{"mean_speed_mps": 20.0, "updates": 3}')
-        return {"mean_speed_mps": 20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed, "collisions": 0, "teleports": 0,
-                "policy": "dqn:somewhere"}  # fmt: skip
+        write_fake_model(cfg, out)
+        return {"policy": "dqn:somewhere"}
 
     import torch
 
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)  # keep this test process's threads
     monkeypatch.setattr(train_module, "train", fake_train)
+    monkeypatch.setattr(s2, "evaluate_model", fake_evaluation)
     monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(s2.run_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     meta = s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
@@ -583,6 +591,9 @@ def test_paper_cost_is_extrapolated_from_the_cells() -> None:
     assert cost["core_hours"] == pytest.approx(6 * per_cell / 3600)
     assert cost["cluster_hours"] == pytest.approx(per_cell / 3600)
     assert stats.paper_cost_estimate(pd.DataFrame(rows[:1]), 2000, paper) == {}
+    # each model is evaluated on every evaluation seed: two seeds, two evaluations per cell
+    two = stats.paper_cost_estimate(pd.DataFrame(rows), 2000, replace(paper, eval_seeds=(1, 2)), cluster_cpus=6)
+    assert two["evaluations"] == 12 and two["core_hours"] == pytest.approx(cost["core_hours"] + 6 * 100 * 5e-4 / 3600)
 
 
 @pytest.mark.sumo
@@ -592,7 +603,7 @@ def test_tiny_sweep_with_the_paper_preset(tmp_path: Path) -> None:
     run_sweep_cli(out, "--workers", "2", "--preset", "paper")
     assert_outputs(out)
     for cell in (out / "cells").glob("*.json"):
-        dqn = json.loads(cell.read_text())["config"]["dqn"]
+        dqn = json.loads(cell.read_text())["config"]["train"]["dqn"]
         assert dqn["preset"] == "paper" and dqn["decision_interval_steps"] == 1 and dqn["dueling"] is False
 
 
@@ -600,6 +611,21 @@ def test_tiny_sweep_with_the_paper_preset(tmp_path: Path) -> None:
 def trained_key(cfg: Any) -> str:
     """The scenario II cell key of a training (its store folder is named by its configuration, not by the cell)."""
     return s2_plan.cell_key(cfg.sim.road.lanes, cfg.sim.demand.t_up_s, cfg.sim.reward.alpha, cfg.sim.seed)
+
+
+def write_fake_model(cfg: Any, out: Path) -> None:
+    """What a faked training leaves: its summary, and in place of a model the speed its evaluations will give (from
+    alpha and the training seed)."""
+    (out / "train_summary.json").write_text('{"mean_speed_mps": 20.0, "updates": 3}')
+    (out / "fake_speed.txt").write_text(str(20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed))
+
+
+def fake_evaluation(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
+    """scenario2.evaluate_model without SUMO: the faked model's speed, plus a thousandth per evaluation seed above
+    the first (so that pooling shows), no collision."""
+    model = Path(config["policy"].removeprefix("dqn:").split(",")[0])
+    speed = float((model.parent / "fake_speed.txt").read_text()) + (config["seed"] - 2001) / 1000
+    return {"mean_speed_mps": speed, "collisions": 0, "teleports": 0, "lane_changes": 1}
 
 
 @pytest.fixture
@@ -617,11 +643,12 @@ def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
         failing = calls[0].removeprefix("fail:").split(",") if calls[0].startswith("fail:") else []
         if "*" in failing or trained_key(cfg) in failing:
             raise RuntimeError("SUMO said no")
-        (out / "train_summary.json").write_text('{"mean_speed_mps": 20.0, "updates": 3}')
-        return {"mean_speed_mps": 20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed, "collisions": 0, "teleports": 0}
+        write_fake_model(cfg, out)
+        return {}
 
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)
     monkeypatch.setattr(train_module, "train", fake_train)
+    monkeypatch.setattr(s2, "evaluate_model", fake_evaluation)
     monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(s2.run_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     calls.append("fail:")
@@ -679,3 +706,35 @@ def test_close_alphas_are_two_cells_on_the_command_line(tmp_path: Path, faked_tr
         "L2_T2_a8.000001_s1", "L2_T2_a8_s1", "L2_T4_a8.000001_s1", "L2_T4_a8_s1"]
     assert sorted(faked_train[1:]) == ["L2_T2_a8.000001_s1", "L2_T2_a8_s1", "L2_T4_a8.000001_s1", "L2_T4_a8_s1"]
     assert (pd.read_csv(tmp_path / "alpha_star.csv")["alpha_star"] == 8.000001).all()
+
+
+def test_every_model_meets_every_evaluation_seed_and_none_was_trained_on(tmp_path: Path,
+                                                                        faked_train: list[str]) -> None:  # fmt: skip
+    """Each DQN cell trains on its training seed and is evaluated on every evaluation seed, none of them a training
+    seed; its summary pools them; MOBIL runs once per evaluation seed (no SUMO: training and evaluation faked)."""
+    profile = replace(s2_plan.PROFILES["tiny"], eval_seeds=s2_plan.eval_seeds(3), policies=("dqn", "mobil"))
+    specs = s2_plan.cell_specs(profile)
+    dqn = [s for s in specs if s["policy"] == "dqn"]
+    mobil = [s for s in specs if s["policy"] == "mobil"]
+    assert len(dqn) == 8 and len(mobil) == 2 * 2 * 3 == profile.n_cells() - 8
+    for spec in dqn:
+        assert spec["config"]["train"]["sim"]["seed"] == spec["seed"] and spec["config"]["train"]["eval_steps"] == 0
+        assert [e["seed"] for e in spec["config"]["evals"]] == [2001, 2002, 2003]
+        assert all(e["reward"]["alpha"] == spec["alpha"] for e in spec["config"]["evals"])
+    assert {s["seed"] for s in mobil} == {2001, 2002, 2003} and not {2001, 2002, 2003} & set(profile.seeds)
+    meta = s2.run_sweep(replace(profile, policies=("dqn",)), tmp_path, progress=False, n_boot=20)
+    assert meta["cells_ok"] == 8
+    record = json.loads((tmp_path / "cells" / "L2_T4_a8_s2.json").read_text())
+    assert [e["eval_seed"] for e in record["eval_summaries"]] == [2001, 2002, 2003]
+    assert record["summary"]["mean_speed_mps"] == pytest.approx(20.0 + 0.08 + 2 + 0.001)  # the mean of the three
+    assert record["summary"]["lane_changes"] == 3  # a count: summed
+    evals = pd.read_csv(tmp_path / "evals.csv")
+    assert len(evals) == 24 and sorted(set(evals["eval_seed"])) == [2001, 2002, 2003]
+    assert "evaluation seeds 2001, 2002, 2003, which no training saw" in (tmp_path / "report.md").read_text()
+
+
+def test_pooled_summaries_sum_counts_and_average_the_rest() -> None:
+    pooled = stats.pool_summaries([{"mean_speed_mps": 10.0, "collisions": 0, "teleports": 1, "scenario": "free"},
+                                   {"mean_speed_mps": 14.0, "collisions": 2, "teleports": 0, "scenario": "free"}])
+    assert pooled == {"mean_speed_mps": 12.0, "collisions": 2, "teleports": 1, "scenario": "free"}
+    assert stats.pool_summaries([]) == {}

@@ -78,7 +78,8 @@ def learning_folder(root: Path, variants: tuple[str, ...] = ("margin", "conditio
 
 def conditioned_sweep(root: Path, fitted_only: bool = False) -> Path:
     """A `scenario2 --conditioned` folder on one condition (2 lanes, T_up 4 s) and 2 seeds, alphas 0 and 8: runs.csv
-    and alpha_star.csv beside its sweep.json; unless fitted_only, each seed's record and model (untrained weights)."""
+    and alpha_star.csv beside its sweep.json; unless fitted_only, each seed's record (two evaluation seeds) and model
+    (untrained weights)."""
     root.mkdir(parents=True, exist_ok=True)
     (root / "sweep.json").write_text("{}")
     rows = []
@@ -92,7 +93,8 @@ def conditioned_sweep(root: Path, fitted_only: bool = False) -> Path:
             ev = SimConfig(road=RoadConfig(lanes=2), demand=DemandConfig(t_up_s=4.0), reward=RewardConfig(alpha=alpha),
                            steps=700, seed=seed, policy="dqn")  # fmt: skip
             (root / "cells").mkdir(parents=True, exist_ok=True)
-            (root / "cells" / f"{key}.json").write_text(json.dumps({"key": key, "config": {"eval": to_dict(ev)}}))
+            evals = [to_dict(ev), to_dict(replace(ev, seed=seed + 10))]  # two evaluation seeds
+            (root / "cells" / f"{key}.json").write_text(json.dumps({"key": key, "config": {"evals": evals}}))
         if not fitted_only:
             train = TrainConfig(sim=SimConfig(road=RoadConfig(lanes=2), seed=seed),
                                 dqn=replace(DQNConfig(), alpha_conditioned=True), eval_steps=0)  # fmt: skip
@@ -282,9 +284,10 @@ def test_adaptive_drives_every_model_of_the_sweep(tmp_path: Path) -> None:
     res = coopsumo("adaptive", str(root))
     assert res.returncode == 0, res.stderr[-2000:]
     table = pd.read_csv(root / "adaptive_runs.csv")
-    assert list(table["seed"]) == [1, 2] and (table["collisions"] == 0).all()
-    assert sorted(cell_times(root, "adaptive_*")) == ["adaptive_L2_T4_cond_s1.json", "adaptive_L2_T4_cond_s2.json"]
-    assert (root / "evals/L2_T4_cond_s1/eval_adaptive/adaptive_alpha.csv").exists()
+    assert list(table["seed"]) == [1, 2] and (table["collisions"] == 0).all() and (table["eval_runs"] == 2).all()
+    assert sorted(cell_times(root, "adaptive_*")) == [f"adaptive_L2_T4_cond_s{seed}_s{e}.json"
+                                                      for seed, e in ((1, 1), (1, 11), (2, 12), (2, 2))]
+    assert (root / "evals/L2_T4_cond_s1/eval_adaptive_s11/adaptive_alpha.csv").exists()
     assert table["adaptive_alpha_mean"].notna().all()  # one 60 s loop period: the rule chose once
     assert "| 2 | 4 | 8 |" in (root / "adaptive.md").read_text()
     cells = cell_times(root, "adaptive_*.json")

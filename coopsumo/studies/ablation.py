@@ -38,6 +38,7 @@ from coopsumo.studies.ablation_plan import (
     VARIANTS,
     Profile,
     cell_specs,
+    learner_of,
     variant_list,
 )
 from coopsumo.studies.ablation_report import write_outputs
@@ -133,8 +134,9 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
         first.setdefault(s.get("train_key", s["key"]), s["key"])
     todo.sort(key=lambda s: first[s.get("train_key", s["key"])] != s["key"])
     default_variant = next((n for n, _, c in VARIANTS if c == default), "default")
+    learners = {v: to_dict(learner_of(v)) for v in dict.fromkeys((*profile.variants, *profile.alpha_variants))}
     meta: dict[str, Any] = {"profile": asdict(profile), "default_learner": to_dict(default), "cells": len(specs),
-                            "default_variant": default_variant,
+                            "default_variant": default_variant, "learners": learners,
                             "backend": backend_name, "workers": workers, "versions": versions()}  # fmt: skip
     print(f"ablation: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
           f"{len(todo)} to run", file=sys.stderr)  # fmt: skip

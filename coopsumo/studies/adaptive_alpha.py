@@ -2,11 +2,11 @@
 alpha-conditioned models (`coopsumo adaptive-fit` fits the rule on them: adaptive_fit).
 
 ROOT is a finished `coopsumo scenario2 --conditioned` folder. Every (condition, seed) model of the folder is driven
-once more with dqn:PATH,alpha=adaptive on its evaluation's condition, seed and steps. Each is a cell of the shared
-runner (record ROOT/cells/adaptive_<key>.json, run folder ROOT/evals/<key>/eval_adaptive/, both reused when
-finished); ROOT/adaptive_runs.csv holds one row per (condition, seed) and ROOT/adaptive.md compares it, paired by
-seed, with the best fixed alpha (alpha*, chosen on these same seeds: an oracle the adaptive rule has to match) and
-with alpha 0 (adaptive_alpha_report).
+once more with dqn:PATH,alpha=adaptive on each of its evaluations' condition, seed and steps. Each is a cell of the
+shared runner (record ROOT/cells/adaptive_<key>_s<E>.json, run folder ROOT/evals/<key>/eval_adaptive_s<E>/, both
+reused when finished); ROOT/adaptive_runs.csv holds one row per (condition, seed), its evaluations pooled, and
+ROOT/adaptive.md compares it, paired by seed, with the best fixed alpha (alpha*, chosen on these same models and
+evaluations: an oracle the adaptive rule has to match) and with alpha 0 (adaptive_alpha_report).
 """
 
 from __future__ import annotations
@@ -32,13 +32,14 @@ from coopsumo.studies.scenario2_plan import conditioned_key
 PROG = "adaptive"
 REQUIRED = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
 """summary values a stored record must hold as finite numbers to be reused, and the ones adaptive_runs.csv keeps"""
-RECORDS = CellRecords(("key", "lanes", "t_up_s", "seed", "out"))
+RECORDS = CellRecords(("key", "lanes", "t_up_s", "seed", "eval_seed", "out"))
 failed_record = RECORDS.failed
 
 
 def cell_specs(root: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
-    """One cell per (condition, seed): its model driven at alpha=adaptive on its evaluation's condition, seed and
-    steps; UsageError when the sweep's record or model of one is missing."""
+    """One cell per (condition, seed, evaluation seed): its model driven at alpha=adaptive on that evaluation's
+    condition, seed and steps (the sweep's own evaluations); UsageError when the sweep's record or model of one is
+    missing or was made by an earlier version."""
     from coopsumo.config import sim_config_from_dict
 
     specs = []
@@ -46,15 +47,17 @@ def cell_specs(root: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
         key = conditioned_key(int(lanes), float(t_up), int(seed))
         record, model = root / "cells" / f"{group['key'].iloc[0]}.json", (root / "train" / key / "model.pt").resolve()
         try:
-            ev = sim_config_from_dict(json.loads(record.read_text())["config"]["eval"])
+            evals = [sim_config_from_dict(c) for c in json.loads(record.read_text())["config"]["evals"]]
         except (OSError, ValueError, KeyError, TypeError) as err:
             raise UsageError(f"record {record} cannot be read ({type(err).__name__}): run `coopsumo scenario2 "
                              f"--conditioned --out {root}` again") from None  # fmt: skip
         if not model.is_file():
             raise UsageError(f"{model} is missing: run `coopsumo scenario2 --conditioned --out {root}` again")
-        cfg = replace(ev, policy=f"dqn:{model},alpha=adaptive", reward=replace(ev.reward, alpha=0.0))
-        specs.append({"key": f"adaptive_{key}", "lanes": int(lanes), "t_up_s": float(t_up), "seed": int(seed),
-                      "out": f"evals/{key}/eval_adaptive", "config": to_dict(cfg)})  # fmt: skip
+        for ev in evals:
+            cfg = replace(ev, policy=f"dqn:{model},alpha=adaptive", reward=replace(ev.reward, alpha=0.0))
+            specs.append({"key": f"adaptive_{key}_s{ev.seed}", "lanes": int(lanes), "t_up_s": float(t_up),
+                          "seed": int(seed), "eval_seed": ev.seed, "out": f"evals/{key}/eval_adaptive_s{ev.seed}",
+                          "config": to_dict(cfg)})  # fmt: skip
     return specs
 
 
@@ -90,12 +93,20 @@ def drive(specs: list[dict[str, Any]], root: Path, workers: int = 2, backend: st
 
 
 def adaptive_table(records: list[dict[str, Any]]) -> pd.DataFrame:
-    """adaptive_runs.csv: one row per (condition, seed) of the finished cells' records."""
-    return pd.DataFrame([{k: r[k] for k in ("lanes", "t_up_s", "seed")} | {
-        "mean_speed_mps": r["summary"]["mean_speed_mps"],
-        "lane_changes_per_vehicle": r["summary"]["lane_changes_per_vehicle"],
-        "adaptive_alpha_mean": r["summary"].get("adaptive_alpha_mean"), "collisions": r["summary"]["collisions"],
-        "teleports": r["summary"]["teleports"]} for r in records])  # fmt: skip
+    """adaptive_runs.csv: one row per (condition, seed) of the finished cells' records, its evaluation seeds pooled
+    as the sweep pools a model's (scenario2_measures.pool_summaries: collisions and teleports summed, the rest
+    averaged)."""
+    from coopsumo.studies.scenario2_measures import pool_summaries
+
+    rows = []
+    for (lanes, t_up, seed), group in pd.DataFrame(records).groupby(["lanes", "t_up_s", "seed"], sort=True):
+        pooled = pool_summaries([{k: r["summary"].get(k) for k in REQUIRED + ("adaptive_alpha_mean",)}
+                                 for r in group.to_dict("records")])  # fmt: skip
+        rows.append({"lanes": lanes, "t_up_s": t_up, "seed": seed, "mean_speed_mps": pooled["mean_speed_mps"],
+                     "lane_changes_per_vehicle": pooled["lane_changes_per_vehicle"],
+                     "adaptive_alpha_mean": pooled.get("adaptive_alpha_mean"), "collisions": pooled["collisions"],
+                     "teleports": pooled["teleports"], "eval_runs": len(group)})  # fmt: skip
+    return pd.DataFrame(rows)
 
 
 def build_parser() -> Parser:

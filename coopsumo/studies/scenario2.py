@@ -1,21 +1,23 @@
 """`coopsumo scenario2` (`make scenario2`): the alpha sweep of section IV.B (paper Fig. 6).
 
 For every condition (lane count, upstream departure interval T_up) and every lane-change
-penalty alpha, a model is trained in free flow and evaluated greedily on the same condition
-(`train.train` does both), repeated over seeds. alpha* is the alpha with the best mean
-travelling speed over seeds; its uncertainty is given by per-seed win shares and a bootstrap
-over seeds. A plane alpha* = b0 + b1 T_up + b2 lanes is fitted over the conditions.
+penalty alpha, a model is trained in free flow per training seed (taken from the model store when
+it holds it) and evaluated greedily on the same condition on every evaluation seed, demands no
+training saw; a model's value is its mean over them. alpha* is the alpha with the best mean
+travelling speed over models; its uncertainty is given by per-model win shares and a bootstrap
+over models. A plane alpha* = b0 + b1 T_up + b2 lanes is fitted over the conditions.
 
-With `--policies dqn,mobil`, MOBIL cells (lanes, T_up, politeness p, seed) are added: no training,
-one run of `mobil:p=P` on the same condition, seed and step count as a DQN cell's evaluation. p* is
-the p with the best mean speed over seeds; the report puts alpha* and p* side by side.
+With `--policies dqn,mobil`, MOBIL cells (lanes, T_up, politeness p, evaluation seed) are added: no
+training, one run of `mobil:p=P` on the same condition and step count as a DQN model's evaluation on
+that seed. p* is the p with the best mean speed over evaluation seeds; the report puts alpha* and p*
+side by side.
 
 Every (lanes, T_up, alpha, seed) is one "cell", run in its own worker process (libsumo allows
 one SUMO per process), on a local process pool or on Ray. Each finished cell is written
 atomically to OUT/cells/<key>.json the moment it ends; a rerun skips finished cells and
 retries failed ones; a training interrupted by SIGTERM/SIGINT is resumed from its checkpoint.
 
-Outputs in OUT (default results/scenario2): sweep.json, cells/, train/<key>/, runs.csv,
+Outputs in OUT (default results/scenario2): sweep.json, cells/, train/<key>/, evals/<key>/, runs.csv, evals.csv,
 alpha_star.csv, fig6_alpha_star.png, fig6_speed_heatmap.png, report.md; with MOBIL cells also
 mobil/<key>/ and mobil_p_star.csv.
 
@@ -44,14 +46,16 @@ from coopsumo.studies.model_store import store_for, train_shared
 from coopsumo.studies.records import CellRecords, cell_path, checked_record, failed_exit, read_record, reusable_keys
 from coopsumo.studies.run_folders import default_out, simulate_into, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
-from coopsumo.studies.scenario2_measures import CRITERION, KEY_COLUMNS, runs_table
+from coopsumo.studies.scenario2_measures import CRITERION, KEY_COLUMNS, evals_table, pool_summaries, runs_table
 from coopsumo.studies.scenario2_plan import (
+    EVAL_SEED_BASE,
     NOMINAL_CAPACITY_VEH_H_PER_LANE,
     POLICIES,
     PROFILES,
     Profile,
     at_condition,
     cell_specs,
+    eval_seeds,
 )
 from coopsumo.studies.scenario2_report import condition_label, write_outputs
 from coopsumo.validation import (
@@ -85,7 +89,8 @@ def _cell_folder(spec: dict[str, Any]) -> dict[str, Any]:
     return {"train_dir": f"train/{spec.get('train_key', spec['key'])}"}
 
 
-RECORDS = CellRecords(RECORD_KEYS, ("train_dir", "resumed_from_step", "train_summary"), _cell_folder)
+RECORDS = CellRecords(RECORD_KEYS, ("train_dir", "resumed_from_step", "train_summary", "eval_summaries"),
+                      _cell_folder)  # fmt: skip
 """a cell's record: its coordinates and folder, then what its run measured"""
 failed_record = RECORDS.failed
 
@@ -107,32 +112,53 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 
 def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Train and evaluate a DQN cell into ROOT/train/<key>/; fills `record`. A stop by signal -> KeyboardInterrupt."""
-    out = root / "train" / spec["key"]  # a link into the model store (the training and its own evaluation)
-    summary, record["resumed_from_step"] = train_shared(spec["config"], out, store_for(root))
-    record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
-    record["train_summary"] = json.loads((out / "train_summary.json").read_text())
+    """Take the cell's model from the model store (ROOT/train/<key>/ links to it; trained there when missing, a
+    matching checkpoint resumed), then evaluate it greedily on every evaluation seed; fills `record`. A stop by
+    signal -> KeyboardInterrupt."""
+    out = root / "train" / spec["key"]
+    _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
+    _evaluate(spec, out, root / "evals" / spec["key"], record)
 
 
 def _run_conditioned(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     """Take the alpha-conditioned model of the cell's (condition, seed) from the model store (ROOT/train/<train_key>/
-    links to it; the cells of every alpha share it), then evaluate it at the cell's alpha in
-    ROOT/evals/<train_key>/eval_a<alpha>/; the summary also holds the evaluation's mean loop flow and occupancy
-    (SUMO's detectors.xml)."""
-    from coopsumo.config import sim_config_from_dict
-    from coopsumo.report.analysis import read_detectors
-
+    links to it; the cells of every alpha share it), then evaluate it at the cell's alpha on every evaluation seed,
+    in ROOT/evals/<train_key>/eval_a<alpha>_s<seed>/."""
     out = root / "train" / spec["train_key"]
     _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
-    ev = sim_config_from_dict(spec["config"]["eval"])
-    config = to_dict(replace(ev, policy=f"dqn:{out / 'model.pt'},alpha={ev.reward.alpha:g}"))
-    eval_dir = root / "evals" / spec["train_key"] / f"eval_a{number_name(ev.reward.alpha)}"  # the store: training only
-    summary = simulate_into(config, eval_dir, spec["key"])
-    det = read_detectors(eval_dir / "detectors.xml")
+    _evaluate(spec, out, root / "evals" / spec["train_key"], record)
+
+
+def _evaluate(spec: dict[str, Any], train_dir: Path, evals_dir: Path, record: dict[str, Any]) -> None:
+    """Drive the model of train_dir greedily on each of the cell's evaluations (one per evaluation seed) into
+    evals_dir/eval_[a<alpha>_]s<seed>/; the record's summary pools them (scenario2_measures.pool_summaries), its
+    eval_summaries keeps each. An evaluation's summary also holds its mean loop flow and occupancy (SUMO's
+    detectors.xml), from which `alpha=adaptive`'s rule is fitted."""
+    from coopsumo.config import sim_config_from_dict
+
+    conditioned = "train_key" in spec
+    summaries = []
+    for config in spec["config"]["evals"]:
+        ev = sim_config_from_dict(config)
+        policy = f"dqn:{train_dir / 'model.pt'}" + (f",alpha={ev.reward.alpha:g}" if conditioned else "")
+        name = (f"eval_a{number_name(ev.reward.alpha)}_s{ev.seed}" if conditioned else f"eval_s{ev.seed}")
+        summary = evaluate_model(to_dict(replace(ev, policy=policy)), evals_dir / name, spec["key"])
+        summaries.append({**summary, "eval_seed": ev.seed})
+    record["eval_summaries"] = summaries
+    record["summary"] = {k: v for k, v in pool_summaries(summaries).items() if k != "eval_seed"}
+    record["train_summary"] = json.loads((train_dir / "train_summary.json").read_text())
+
+
+def evaluate_model(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
+    """One greedy evaluation (a SimConfig dict whose policy names the model) into out: its summary, with the run's
+    mean loop flow (veh/h per lane) and occupancy (%) from SUMO's detectors.xml."""
+    from coopsumo.report.analysis import read_detectors
+
+    summary = simulate_into(config, out, label)
+    det = read_detectors(out / "detectors.xml")
     summary.update(loop_flow_veh_h_per_lane=round(float(det["flow_veh_h"].mean()), 2),
                    loop_occupancy_pct=round(float(det["occupancy_pct"].mean()), 4))  # fmt: skip
-    record["summary"] = summary
-    record["train_summary"] = json.loads((out / "train_summary.json").read_text())
+    return summary
 
 
 def _run_mobil(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
@@ -193,6 +219,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     records = [checked_record(json.loads(cell_path(root, s["key"]).read_text()), REQUIRED_SUMMARY) for s in specs]
     runs = runs_table(records)
     runs.to_csv(root / "runs.csv", index=False)
+    evals_table(records).to_csv(root / "evals.csv", index=False)
     wall = time.perf_counter() - start
     meta.update(wall_seconds=round(wall, 1), cells_run=len(todo), cells_ok=int((runs["status"] == "ok").sum()),
                 cells_failed=int((runs["status"] != "ok").sum()),
@@ -225,6 +252,8 @@ def profile_from_args(args: Any) -> Profile:
         if args.seeds < 1:
             raise UsageError(f"seeds must be >= 1, got {args.seeds}")
         profile = replace(profile, seeds=tuple(range(1, args.seeds + 1)))
+    if args.eval_seeds is not None:
+        profile = replace(profile, eval_seeds=eval_seeds(args.eval_seeds))
     if args.lanes is not None:
         lanes = number_list("--lanes", args.lanes, MIN_LANES, MAX_LANES, whole=True)
         profile = replace(profile, lanes=tuple(sorted({int(x) for x in lanes})))
@@ -266,8 +295,12 @@ def build_parser() -> Parser:
     p.add_argument("--steps", type=steps, default=None, help="training steps per cell (default: the profile's)")
     p.add_argument("--eval-steps", type=steps, default=None, help="evaluation steps per cell (default: the profile's)")
     p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
-                   help="models per condition and alpha (or per condition, --conditioned): training seeds 1..N, "
-                        "each model evaluated greedily once (default: the profile's: quick 3)")  # fmt: skip
+                   help="models per condition and alpha (or per condition, --conditioned): training seeds 1..N "
+                        "(default: the profile's: quick 3)")  # fmt: skip
+    p.add_argument("--eval-seeds", type=seed_count, default=None,
+                   help=f"evaluation seeds {EVAL_SEED_BASE + 1}..{EVAL_SEED_BASE}+N, which no training sees: every "
+                   "model, and MOBIL, is evaluated greedily on each (default: the profile's: tiny 1, quick 3, "
+                   "paper 5)")  # fmt: skip
     p.add_argument("--lanes", default=None, help="comma-separated lane counts (default: the profile's)")
     p.add_argument("--alphas", default=None,
                    help="comma-separated alphas, fractions allowed: 0,1/8,2 (default: the profile's)")

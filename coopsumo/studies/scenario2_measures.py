@@ -305,6 +305,29 @@ COUNT_COLUMNS = frozenset(("steps", "departed", "arrived", "insertion_blocked", 
                            "collisions", "teleports", "lane_changes", "lane_changes_rejected", "train_lane_changes",
                            "train_collisions", "train_updates"))  # fmt: skip
 KEY_COLUMNS = ("key", "lanes", "t_up_s", "load", "alpha", "seed")
+SUMMED = COUNT_COLUMNS | {"sim_seconds", "wall_seconds"}
+"""summary values a model's evaluations add up (counts and times); the others are averaged"""
+
+
+def pool_summaries(summaries: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """One model's summary over its evaluations (one per evaluation seed): counts and times summed (SUMMED: e.g.
+    collisions over all runs), every other number averaged (mean speed, lane changes per vehicle), anything else
+    taken from the first; a key missing from one evaluation is left out."""
+    if not summaries:
+        return {}
+    out: dict[str, Any] = {}
+    for key, first in summaries[0].items():
+        values = [s.get(key) for s in summaries]
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+        if numbers:
+            total = float(sum(values))  # type: ignore[arg-type]
+            if key in SUMMED:
+                out[key] = int(total) if all(isinstance(v, int) for v in values) else total
+            else:
+                out[key] = total / len(values)
+        elif all(key in s for s in summaries):
+            out[key] = first
+    return out
 
 
 def runs_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
@@ -334,6 +357,29 @@ def runs_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
     return table
 
 
+EVAL_COLUMNS = ("mean_speed_mps", "lane_changes_per_vehicle", "throughput_veh_per_h", "mean_travel_time_s",
+                "collisions", "teleports", "loop_flow_veh_h_per_lane", "loop_occupancy_pct")
+"""the columns of evals.csv besides the coordinates"""
+
+
+def evals_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
+    """evals.csv: one row per evaluation run of the finished cells (a DQN model's every evaluation seed, a MOBIL
+    cell's one run), with the cell's key and coordinates; `seed` is the training seed (NaN for MOBIL)."""
+    rows = []
+    for r in records:
+        if r.get("status") != "ok":
+            continue
+        mobil = r.get("policy") == "mobil"
+        runs = [r.get("summary") or {}] if mobil else r.get("eval_summaries") or []
+        for summary in runs:
+            row = {k: r.get(k) for k in ("key", "lanes", "t_up_s", "load", "policy", "alpha", "p")}
+            row.update(seed=None if mobil else r.get("seed"), eval_seed=r.get("seed") if mobil else
+                       summary.get("eval_seed"), **{k: summary.get(k) for k in EVAL_COLUMNS})  # fmt: skip
+            rows.append(row)
+    return pd.DataFrame(rows, columns=["key", "lanes", "t_up_s", "load", "policy", "alpha", "p", "seed", "eval_seed",
+                                       *EVAL_COLUMNS])  # fmt: skip
+
+
 def withhold_incomplete(table: pd.DataFrame, star: str) -> pd.DataFrame:
     """`table` (alpha_star_table or mobil_p_star_table) with no winner (NaN, separation None) in a condition where a
     cell failed: it would rest on fewer seeds than asked for."""
@@ -358,10 +404,10 @@ def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
 
     The wall seconds per training step (train_steps per cell) and per evaluation step of every successful
     cell that was not resumed are fitted as a + b * inflow (veh/h) by least squares; each paper cell then
-    costs its train_steps and eval_steps at its inflow (a conditioned paper profile trains once per condition and
-    seed, and evaluates at every alpha). Returns the fits, the sum in core-hours, and the wall
-    time on this machine's cores and on a Ray cluster of cluster_cpus CPUs (perfect scaling assumed).
-    Empty when fewer than 2 such cells exist.
+    costs its train_steps at its inflow, and eval_steps on each of its evaluation seeds (a conditioned paper
+    profile trains once per condition and seed, and evaluates at every alpha). Returns the fits, the sum in
+    core-hours, and the wall time on this machine's cores and on a Ray cluster of cluster_cpus CPUs (perfect
+    scaling assumed). Empty when fewer than 2 such cells exist.
     """
     needed = {"status", "t_up_s", "train_wall_seconds", "wall_seconds", "steps", "resumed_from_step"}
     if not needed <= set(runs.columns):
@@ -381,10 +427,12 @@ def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
         q = 3600.0 / t_up
         training = paper.train_steps * (fit_train[0] + fit_train[1] * q)
         evaluation = paper.eval_steps * (fit_eval[0] + fit_eval[1] * q)
-        total += training * trainings_per_condition + evaluation * len(paper.alphas) * len(paper.seeds)
+        total += training * trainings_per_condition + evaluation * len(paper.alphas) * len(paper.seeds) * len(
+            paper.eval_seeds)
     cores = os.cpu_count() or 1
     return {
         "cells": float(len(paper.conditions()) * len(paper.alphas) * len(paper.seeds)),
+        "evaluations": float(len(paper.conditions()) * len(paper.alphas) * len(paper.seeds) * len(paper.eval_seeds)),
         "trainings": float(len(paper.conditions()) * trainings_per_condition),
         "train_s_per_step_a": float(fit_train[0]), "train_s_per_step_b_per_veh_h": float(fit_train[1]),
         "eval_s_per_step_a": float(fit_eval[0]), "eval_s_per_step_b_per_veh_h": float(fit_eval[1]),

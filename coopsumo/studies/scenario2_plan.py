@@ -27,6 +27,9 @@ NOMINAL_CAPACITY_VEH_H_PER_LANE = 1800.0
 """capacity used to place the T_up grid: load 1 means T_up = 3600 / (lanes * 1800) s (near capacity)"""
 POLICIES = ("dqn", "mobil")
 """the two kinds of cell: a DQN trained and evaluated per alpha, MOBIL evaluated per politeness p"""
+EVAL_SEED_BASE = 2000
+"""evaluation seeds are EVAL_SEED_BASE + 1, + 2, ...: demands no training of the sweep saw (training seeds are 1, 2,
+...; validation seeds 900,000 and above)"""
 
 
 # -- the plan ----------------------------------------------------------------------------------
@@ -40,6 +43,7 @@ class Profile:
     """inflow as a share of lanes x 1,800 veh/h; T_up = 3600 / (load x lanes x 1800) s, 2 decimals"""
     alphas: tuple[float, ...]
     seeds: tuple[int, ...]
+    """training seeds: one model per seed (per condition and alpha)"""
     train_steps: int
     """training steps (0.1 s) per cell"""
     eval_steps: int
@@ -54,6 +58,8 @@ class Profile:
     """the learner preset of every DQN cell (config.DQN_PRESETS)"""
     conditioned: bool = False
     """one alpha-conditioned training per condition and seed (not per alpha), evaluated at every alpha"""
+    eval_seeds: tuple[int, ...] = (EVAL_SEED_BASE + 1,)
+    """evaluation seeds: every model (and MOBIL) is evaluated greedily on each of them; none is a training seed"""
 
     def conditions(self) -> list[tuple[int, float, float]]:
         """(lanes, T_up s, load) of every condition, by lanes then decreasing T_up."""
@@ -67,9 +73,9 @@ class Profile:
         return out
 
     def n_cells(self) -> int:
-        per_condition = len(self.alphas) if "dqn" in self.policies else 0
-        per_condition += len(self.mobil_ps) if "mobil" in self.policies else 0
-        return len(self.conditions()) * per_condition * len(self.seeds)
+        per_condition = len(self.alphas) * len(self.seeds) if "dqn" in self.policies else 0
+        per_condition += len(self.mobil_ps) * len(self.eval_seeds) if "mobil" in self.policies else 0
+        return len(self.conditions()) * per_condition
 
 
 def t_up_for(lanes: int, load: float) -> float:
@@ -81,13 +87,18 @@ def load_of(lanes: int, t_up_s: float) -> float:
     return round(3600.0 / (t_up_s * lanes * NOMINAL_CAPACITY_VEH_H_PER_LANE), 4)
 
 
+def eval_seeds(n: int) -> tuple[int, ...]:
+    """The first n evaluation seeds."""
+    return tuple(EVAL_SEED_BASE + i for i in range(1, n + 1))
+
+
 PROFILES = {
     "tiny": Profile("tiny", lanes=(2,), loads=(0.25, 0.5), alphas=(0.0, 8.0), seeds=(1, 2),
                     train_steps=300, eval_steps=300, mobil_ps=(0.0, 1.0)),
     "quick": Profile("quick", lanes=(2, 3, 4), loads=(0.25, 0.5, 0.75, 1.0), alphas=QUICK_ALPHAS,
-                     seeds=(1, 2, 3), train_steps=8000, eval_steps=3000),
+                     seeds=(1, 2, 3), train_steps=8000, eval_steps=3000, eval_seeds=eval_seeds(3)),
     "paper": Profile("paper", lanes=(2, 3, 4, 5, 6), loads=(0.2, 0.4, 0.6, 0.8, 1.0), alphas=PAPER_ALPHAS,
-                     seeds=tuple(range(1, 11)), train_steps=90_000, eval_steps=9000),
+                     seeds=tuple(range(1, 11)), train_steps=90_000, eval_steps=9000, eval_seeds=eval_seeds(5)),
 }  # fmt: skip
 
 
@@ -106,7 +117,7 @@ def mobil_key(lanes: int, t_up_s: float, p: float, seed: int) -> str:
 
 def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Profile) -> TrainConfig:
     """Scenario II training (free flow at the condition's own inflow, as the paper trains, whatever the preset's
-    training demand) plus the greedy evaluation on the same condition."""
+    training demand), without an evaluation of its own: eval_configs are the model's evaluations."""
     sim = SimConfig(
         road=RoadConfig(lanes=lanes),
         demand=DemandConfig(t_up_s=t_up_s),
@@ -115,7 +126,15 @@ def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Pr
         seed=seed,
         policy="dqn",
     )
-    return TrainConfig(sim=sim, dqn=at_condition(DQN_PRESETS[profile.preset]), eval_steps=profile.eval_steps)
+    return TrainConfig(sim=sim, dqn=at_condition(DQN_PRESETS[profile.preset]), eval_steps=0)
+
+
+def eval_configs(lanes: int, t_up_s: float, alpha: float, profile: Profile) -> list[SimConfig]:
+    """The greedy evaluations of a model of the condition at `alpha` (policy "dqn": the cell names the model), one
+    per evaluation seed: free flow, the condition's inflow, eval_steps each."""
+    return [SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up_s),
+                      reward=RewardConfig(alpha=alpha), steps=profile.eval_steps, seed=s, policy="dqn")
+            for s in profile.eval_seeds]  # fmt: skip
 
 
 def at_condition(dqn: DQNConfig) -> DQNConfig:
@@ -124,19 +143,18 @@ def at_condition(dqn: DQNConfig) -> DQNConfig:
     return replace(dqn, train_t_ups=(), accident_share=0.0)
 
 
-def conditioned_configs(lanes: int, t_up_s: float, alpha: float, seed: int,
-                        profile: Profile) -> tuple[TrainConfig, SimConfig]:  # fmt: skip
-    """A conditioned cell: the alpha-conditioned training of its (condition, seed) (no evaluation of its own) and
-    the greedy evaluation at `alpha` on the same condition and seed."""
+def conditioned_train_config(lanes: int, t_up_s: float, seed: int, profile: Profile) -> TrainConfig:
+    """The alpha-conditioned training of a (condition, seed), shared by the cells of every alpha (no evaluation of
+    its own: each cell evaluates it at its alpha, eval_configs)."""
     dqn = replace(at_condition(DQN_PRESETS[profile.preset]), alpha_conditioned=True)
     sim = SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up_s), steps=profile.train_steps,
                     seed=seed, policy="dqn")  # fmt: skip
-    ev = replace(sim, reward=RewardConfig(alpha=alpha), steps=profile.eval_steps)
-    return TrainConfig(sim=sim, dqn=dqn, eval_steps=0), ev
+    return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
 
 
 def mobil_config(lanes: int, t_up_s: float, p: float, seed: int, profile: Profile) -> SimConfig:
-    """A MOBIL cell: one run of mobil:p=P in free flow, like a DQN cell's evaluation (condition, seed, steps)."""
+    """A MOBIL cell: one run of mobil:p=P on evaluation seed `seed`, as a DQN model's evaluation there (free flow,
+    condition, steps)."""
     return SimConfig(
         road=RoadConfig(lanes=lanes),
         demand=DemandConfig(t_up_s=t_up_s),
@@ -149,37 +167,39 @@ def mobil_config(lanes: int, t_up_s: float, p: float, seed: int, profile: Profil
 def cell_specs(profile: Profile) -> list[dict[str, Any]]:
     """One JSON-ready spec per cell: key, coordinates and the full configuration as a dict.
 
-    A DQN cell's configuration is a TrainConfig, a MOBIL cell's a SimConfig; a conditioned cell's is
-    {"train": TrainConfig, "eval": SimConfig} and its spec names the shared training folder (train_key).
+    A DQN cell is one model (condition, alpha, training seed): its configuration is {"train": TrainConfig, "evals":
+    [SimConfig per evaluation seed]}; a conditioned cell's the same, its spec naming the training folder its alphas
+    share (train_key). A MOBIL cell is one run (condition, p, evaluation seed): its configuration a SimConfig, its
+    seed the evaluation seed.
     """
     specs = []
 
-    def add(key: str, lanes: int, t_up: float, load: float, seed: int, policy: str,
-            alpha: float | None, p: float | None, cfg: TrainConfig | SimConfig) -> None:  # fmt: skip
-        cfg.validate()
+    def add(key: str, lanes: int, t_up: float, load: float, seed: int, policy: str, alpha: float | None,
+            p: float | None, cfg: TrainConfig | SimConfig | dict[str, Any], **extra: Any) -> None:  # fmt: skip
         specs.append({"key": key, "lanes": lanes, "t_up_s": t_up, "load": load, "alpha": alpha, "seed": seed,
-                      "policy": policy, "p": p, "config": json.loads(json.dumps(to_dict(cfg)))})  # fmt: skip
+                      "policy": policy, "p": p, **extra,
+                      "config": json.loads(json.dumps(cfg if isinstance(cfg, dict) else to_dict(cfg)))})  # fmt: skip
 
     for lanes, t_up, load in profile.conditions():
-        if "dqn" in profile.policies and profile.conditioned:
+        if "dqn" in profile.policies:
             for alpha in profile.alphas:
+                evals = eval_configs(lanes, t_up, alpha, profile)
                 for seed in profile.seeds:
-                    train, ev = conditioned_configs(lanes, t_up, alpha, seed, profile)
+                    if profile.conditioned:
+                        train = conditioned_train_config(lanes, t_up, seed, profile)
+                        extra = {"train_key": conditioned_key(lanes, t_up, seed)}
+                    else:
+                        train, extra = train_config(lanes, t_up, alpha, seed, profile), {}
                     train.validate()
-                    ev.validate()
-                    config = {"train": to_dict(train), "eval": to_dict(ev)}
-                    specs.append({"key": cell_key(lanes, t_up, alpha, seed), "lanes": lanes, "t_up_s": t_up,
-                                  "load": load, "alpha": alpha, "seed": seed, "policy": "dqn", "p": None,
-                                  "train_key": conditioned_key(lanes, t_up, seed),
-                                  "config": json.loads(json.dumps(config))})  # fmt: skip
-        elif "dqn" in profile.policies:
-            for alpha in profile.alphas:
-                for seed in profile.seeds:
-                    add(cell_key(lanes, t_up, alpha, seed), lanes, t_up, load, seed, "dqn", alpha, None,
-                        train_config(lanes, t_up, alpha, seed, profile))  # fmt: skip
+                    for ev in evals:
+                        ev.validate()
+                    config = {"train": to_dict(train), "evals": [to_dict(ev) for ev in evals]}
+                    add(cell_key(lanes, t_up, alpha, seed), lanes, t_up, load, seed, "dqn", alpha, None, config,
+                        **extra)  # fmt: skip
         if "mobil" in profile.policies:
             for p in profile.mobil_ps:
-                for seed in profile.seeds:
-                    add(mobil_key(lanes, t_up, p, seed), lanes, t_up, load, seed, "mobil", None, p,
-                        mobil_config(lanes, t_up, p, seed, profile))  # fmt: skip
+                for seed in profile.eval_seeds:
+                    cfg = mobil_config(lanes, t_up, p, seed, profile)
+                    cfg.validate()
+                    add(mobil_key(lanes, t_up, p, seed), lanes, t_up, load, seed, "mobil", None, p, cfg)
     return specs

@@ -62,7 +62,7 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
     table.to_csv(root / "alpha_star.csv", index=False)
     side = None
     if "mobil" in profile.policies:
-        p_table = mobil_p_star_table(policy_rows(runs, "mobil"), profile.mobil_ps, profile.seeds)
+        p_table = mobil_p_star_table(policy_rows(runs, "mobil"), profile.mobil_ps, profile.eval_seeds)
         p_table = withhold_incomplete(p_table, "p_star")
         p_table.to_csv(root / "mobil_p_star.csv", index=False)
         side = side_by_side_table(table, p_table)
@@ -122,6 +122,16 @@ def side_by_side_text(side: pd.DataFrame, alpha_label: Any) -> str:
     return f"{_md_table(header, rows)}\n\n{sentence}"
 
 
+def _eval_text(profile: Profile) -> str:
+    """How the models are evaluated, for the report."""
+    seeds = profile.eval_seeds
+    which = f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {', '.join(map(str, seeds))}"
+    return (f"on evaluation {which}, which no training saw (training seeds {', '.join(map(str, profile.seeds))}). "
+            f"**The trained model is the unit:** {len(profile.seeds)} models per condition and alpha, each driven on "
+            f"every evaluation seed; a model's value is its mean over them, and every mean, win share and bootstrap "
+            "below is over models.")
+
+
 def _sep(value: Any) -> str:
     """A neighbour separation flag for the report: yes, no, or – (no neighbour)."""
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
@@ -161,7 +171,8 @@ Measured here: wall seconds per training step = {cost["train_s_per_step_a"] * 1e
 {cost["eval_s_per_step_a"] * 1e3:.2f} ms {cost["eval_s_per_step_b_per_veh_h"] * 1e6:+.3f} us per veh/h
 (least squares over this sweep's cells, 2 cells at a time on this machine). Extrapolated to the paper
 profile ({cost["cells"]:,.0f} cells, {cost.get("trainings", cost["cells"]):,.0f} trainings of
-{paper.train_steps:,} steps and {cost["cells"]:,.0f} evaluations of {paper.eval_steps:,} steps; inflows up to
+{paper.train_steps:,} steps and {cost.get("evaluations", cost["cells"]):,.0f} evaluations of
+{paper.eval_steps:,} steps; inflows up to
 {cost["max_paper_inflow_veh_h"]:,.0f} veh/h, measured only up to {cost["max_measured_inflow_veh_h"]:,.0f}):
 **{cost["core_hours"]:,.0f} core-hours**, i.e. about {cost["machine_days"]:.1f} days on this machine's
 {cost["machine_cores"]:.0f} cores and about {cost["cluster_hours"]:.1f} h on a Ray cluster of
@@ -220,9 +231,10 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
     if side is not None:
         mobil_intro = (
             "\nMOBIL cells need no training: each runs `mobil:p=P` once, for p in "
-            f"{{{', '.join(f'{x:g}' for x in profile.mobil_ps)}}}, on the same condition, seed and number of "
-            "steps as a DQN cell's greedy evaluation (free flow). p* is the p with the best mean speed over seeds "
-            "(ties go to the smaller p); its win share is counted as for alpha*.\n"
+            f"{{{', '.join(f'{x:g}' for x in profile.mobil_ps)}}}, on each evaluation seed, with the condition and "
+            "number of steps of a DQN model's greedy evaluation (free flow). p* is the p with the best mean speed "
+            "over the evaluation seeds (ties go to the smaller p); its win share is counted over them as alpha*'s "
+            "is over models.\n"
         )  # fmt: skip
         mobil_section = f"\n## alpha* beside the best MOBIL politeness\n\n{side_by_side_text(side, alpha_label)}\n"
         mobil_note = ("\n- MOBIL: per condition `mobil_p_star.csv` (p*, its win share, the mean speed of every p); "
@@ -237,26 +249,27 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
             "**Alpha-conditioned** (`--conditioned`): one model per condition and seed, trained in free flow with "
             "`train --alpha-conditioned` (alpha an input, all vehicles sharing one alpha drawn from the paper's 12 "
             "values every 3,000 steps), is evaluated greedily at every alpha of the grid (`dqn:PATH,alpha=A`) on the "
-            "same condition and seed: one training per condition and seed instead of one per alpha. The cells of "
+            "same condition: one training per condition and seed instead of one per alpha. The cells of "
             "one (condition, seed) share that training, so their speeds differ only by the alpha the model is "
-            "told. Each cell's summary also holds its evaluation's mean loop flow and occupancy (`runs.csv`: "
-            "loop_flow_veh_h_per_lane, loop_occupancy_pct), from which `alpha=adaptive`'s rule is fitted."
+            "told. Each cell's summary also holds its evaluations' mean loop flow and occupancy (`runs.csv`: "
+            "loop_flow_veh_h_per_lane, loop_occupancy_pct), from which `alpha=adaptive`'s rule is fitted. "
+            f"Evaluation: {_eval_text(profile)}"
         )  # fmt: skip
     cond_folders = ("(conditioned: `train/L<lanes>_T<T_up>_cond_s<seed>/`, a link into the model store, its "
-                    "evaluation at alpha A in `evals/L<lanes>_T<T_up>_cond_s<seed>/eval_a<A>/`)"
+                    "evaluation at alpha A on evaluation seed E in "
+                    "`evals/L<lanes>_T<T_up>_cond_s<seed>/eval_a<A>_s<E>/`)"
                     ) if profile.conditioned else ""  # fmt: skip
     if not profile.conditioned:
         training_text = ("Each cell trains the shared DQN in free flow (scenario II) on its condition with its alpha "
-                         "and seed, then evaluates the model greedily on the same condition and seed. **The trained "
-                         f"model is the unit:** {len(profile.seeds)} models per condition and alpha (training seeds "
-                         f"{', '.join(map(str, profile.seeds))}), each evaluated once, so every mean, win share and "
-                         "bootstrap below is over models.")  # fmt: skip
+                         "and training seed, then evaluates the model greedily on the same condition "
+                         f"{_eval_text(profile)}")  # fmt: skip
     return f"""# Scenario II: choosing the cooperation coefficient alpha
 
 Profile **{profile.name}**: lanes {", ".join(map(str, profile.lanes))}; {len(meta["conditions"])} conditions;
-alphas {{{", ".join(alpha_label(a) for a in alphas)}}}; seeds {", ".join(map(str, profile.seeds))};
+alphas {{{", ".join(alpha_label(a) for a in alphas)}}}; training seeds {", ".join(map(str, profile.seeds))};
+evaluation seeds {", ".join(map(str, profile.eval_seeds))};
 {profile.train_steps:,} training steps ({profile.train_steps * 0.1 / 60:.1f} min simulated) and
-{profile.eval_steps:,} greedy evaluation steps per cell; {meta["cells"]} cells
+{profile.eval_steps:,} greedy evaluation steps per run; {meta["cells"]} cells
 ({meta["cells_ok"]} ok, {meta["cells_failed"]} failed). Backend {meta["backend"]}, {meta["workers"]} workers.
 Wall time of this invocation: {meta["wall_seconds"] / 60:.1f} min ({meta["cells_run"]} cells run now); the cells'
 own wall times sum to {meta["cell_wall_seconds_sum"] / 60:.1f} min and their CPU times to
@@ -301,9 +314,10 @@ Rerunning the same command retries failed cells and keeps the finished ones.
 
 ## Notes
 
-- Runs: `runs.csv` (one row per cell, every evaluation metric, status and error); per condition: `alpha_star.csv`;
-  each cell's record: `cells/<key>.json`; its training folder: `train/<key>/`
-  {cond_folders}.{mobil_note}
+- Runs: `runs.csv` (one row per cell, status and error; a DQN model's evaluations pooled: counts summed, every
+  other metric averaged over the evaluation seeds), `evals.csv` (one row per evaluation run); per condition:
+  `alpha_star.csv`; each cell's record: `cells/<key>.json`; its training folder: `train/<key>/`, a link into the
+  model store, its evaluations `evals/<key>/eval_s<E>/` {cond_folders}.{mobil_note}
 - {steps_note}
 - Versions: {json.dumps(meta["versions"])}.
 """
