@@ -24,6 +24,7 @@ from coopsumo import simulate
 from coopsumo.agents import train_cli as train
 from coopsumo.agents.dqn import QNetwork, save_model
 from coopsumo.agents.file_checks import prepare_resume, truncate_log
+from coopsumo.agents.train import Trainer
 from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
 from coopsumo.runio import (
     RUN_MARKER,
@@ -144,7 +145,7 @@ def checkpoint_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
                       log_every_steps=10, checkpoint_every_steps=20)  # fmt: skip
     out.mkdir()
     mark_run_dir(out, "train", finished=False)
-    trainer = train.Trainer(cfg, out, progress=False)
+    trainer = Trainer(cfg, out, progress=False)
     save = trainer.save_checkpoint
 
     def save_and_keep_step_20() -> None:

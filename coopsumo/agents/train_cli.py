@@ -10,11 +10,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from coopsumo.agents.tb_log import TensorBoardFlag
-from coopsumo.agents.train import Interrupted, Trainer, train
-from coopsumo.agents.update_worker import LearnerProcessError
 from coopsumo.config import (
     DQN_PRESETS,
     MAX_LANES,
@@ -256,17 +252,23 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
-        torch.set_num_threads(1)
         if args.out is not None:
             check_run_dir(args.out, "train")  # before anything is read, written or deleted
-        if args.resume:
-            if args.out is None:
-                raise UsageError("--resume needs --out pointing at the interrupted run")
+        if args.resume and args.out is None:
+            raise UsageError("--resume needs --out pointing at the interrupted run")
+        new_cfg = None if args.resume else config_from_args(args)  # bad flags refused before torch loads (~2 s)
+        import torch
+
+        from coopsumo.agents.train import Interrupted, Trainer, train
+        from coopsumo.agents.update_worker import LearnerProcessError
+
+        torch.set_num_threads(1)
+        if new_cfg is None:
             source = training_folder(args.out, resume=True)  # or the killed new training of a finished folder
             cfg = Trainer.checkpoint_config(source, Trainer.load_checkpoint(source))
             check_resume_flags(argv, cfg)
         else:
-            cfg = config_from_args(args)
+            cfg = new_cfg
         out = args.out or default_out(cfg)
         check_out_path(out)  # also the default folder (a relative path when the current folder was deleted)
         check_run_dir(out, "train")
