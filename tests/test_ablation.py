@@ -65,6 +65,7 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert "| paper |" in report and "| mobil:p=0.5 |" in report and "Alpha response" in report
     assert "mean speed minus `keep`" in report
     assert "## Seed robustness at alpha = 0" in report and "| `v2x` |" in report  # the v2x state end to end
+    assert "| `paper` -> `interval` |" in report and "| `interval` -> `v2x` |" in report  # the chain, step by step
     # the margin2 variant drove the mix models (the default's): no training of its own, an evaluation folder beside
     assert not list((out / "train").glob("margin2_*"))
     assert list((out / "evals").glob("mix_alpha0_seed0/eval_*_margin2"))  # beside the stored model, not in it
@@ -162,6 +163,26 @@ def test_robustness_table_pairs_each_model_with_the_baselines_on_its_own_seed() 
     assert "15.00 (4.00), seed 1" in text and "(2)" in text
     matrix = "\n".join(robustness.seed_matrix_markdown(robustness.per_seed_table(runs, ["dqn"], ["keep"])))
     assert "| `dqn` | 17.00 (1.00) | 15.00 (4.00) | 16.60 (0.50) |" in matrix
+
+
+def test_each_chain_step_is_paired_by_training_seed() -> None:
+    """A change that helps every model has an interval above 0; one whose models split is undecided; the worst
+    model of a step is named (no SUMO: a hand-made table)."""
+    from coopsumo.studies import robustness
+
+    def row(variant: str, seed: int, speed: float) -> dict[str, object]:
+        return {"key": f"{variant}_{seed}", "kind": "train", "part": "ablation", "variant": variant, "alpha": 0.0,
+                "seed": seed, "eval_seed": 1000 + seed, "status": "ok", "mean_speed_mps": speed}
+    speeds = {"a": (15.0, 16.0, 14.0), "b": (16.0, 17.2, 15.1), "c": (17.0, 16.0, 15.2)}
+    runs = pd.DataFrame([row(v, seed, x) for v, xs in speeds.items() for seed, x in enumerate(xs)])
+    steps = robustness.chain_steps(runs, ["a", "b", "c"]).set_index("variant")
+    assert steps.loc["b", "better"] == 3 and steps.loc["b", "diff_mean"] == pytest.approx(1.1)
+    assert steps.loc["b", "diff_low"] > 0  # +1.0, +1.2, +1.1: decidedly faster
+    assert steps.loc["c", "better"] == 2 and steps.loc["c", "diff_min"] == pytest.approx(-1.2)
+    assert steps.loc["c", "diff_low"] < 0 < steps.loc["c", "diff_high"] and steps.loc["c", "worst"] == 15.2
+    text = "\n".join(robustness.chain_markdown(robustness.chain_steps(runs, ["a", "b", "c"])))
+    assert "| `a` -> `b` | +1.10 [" in text and "| 3 of 3 |" in text and "decidedly helped or hurt on these " \
+        "models): `b`." in text
 
 
 def test_a_margin_variant_drives_its_twins_training() -> None:

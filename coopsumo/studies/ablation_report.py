@@ -13,6 +13,7 @@ import pandas as pd
 from coopsumo.studies import robustness
 from coopsumo.studies.ablation_plan import (
     BASELINES,
+    CHAIN_LENGTH,
     EVAL_SEED_OFFSET,
     METRICS,
     VARIANT_NAMES,
@@ -193,8 +194,8 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
     lines.append(f"Safety: {len(bad)} of {len(ok)} evaluations had a teleport or a collision.")
     if len(failed):
         lines.append(f"Failed cells: {', '.join(failed['key'])}.")
-    lines += ["", "Reproduce: `python -m coopsumo.ablation" + ("" if profile.name == "full" else
-              f" --profile {profile.name}") + "` (finished cells are reused)."]  # fmt: skip
+    lines += ["", "Reproduce: `coopsumo learning" + ("" if profile.name == "full" else f" --profile {profile.name}")
+              + "` (`make learning`; finished cells are reused)."]  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
@@ -220,7 +221,19 @@ def robustness_lines(runs: pd.DataFrame, profile: Profile) -> list[str]:
         "",
         "![training curves per seed](fig_training_seeds.png)",
         "",
+        *_chain_lines(runs, profile),
     ]
+
+
+def _chain_lines(runs: pd.DataFrame, profile: Profile) -> list[str]:
+    """The section on what each change of the chain did, model by model."""
+    chain = [v for v in VARIANT_NAMES[:CHAIN_LENGTH] if v in profile.variants]
+    table = robustness.chain_markdown(robustness.chain_steps(runs, chain))
+    if not table:
+        return []
+    return ["## Each change of the chain, model by model (alpha = 0)", "",
+            "Each variant's model of a training seed minus the previous variant's model of the same seed, both "
+            "driven on that seed's evaluation demand.", "", *table, ""]  # fmt: skip
 
 
 def paired_gap(

@@ -192,3 +192,39 @@ def paired_interval(diffs: np.ndarray) -> tuple[float, float, float]:
     t = T95[len(d) - 2] if len(d) - 1 <= len(T95) else 1.645
     half = t * float(d.std(ddof=1)) / math.sqrt(len(d))
     return float(d.mean()), float(d.mean()) - half, float(d.mean()) + half
+
+
+def chain_steps(runs: pd.DataFrame, chain: list[str], metric: str = "mean_speed_mps") -> pd.DataFrame:
+    """What each change of the chain did at alpha 0: variant minus the variant before it, paired by training seed
+    (the same seed's models meet the same evaluation demand). One row per step with both finished on a seed: the
+    mean difference, its 90% t-interval over models, and how many models the change made better (higher metric),
+    the worst model's difference and the variant's own worst model."""
+    rows = []
+    for before, after in zip(chain[:-1], chain[1:], strict=True):
+        a = alpha0_runs(runs, after).set_index("seed")[metric]
+        b = alpha0_runs(runs, before).set_index("seed")[metric]
+        diff = (a - b).dropna()
+        if diff.empty:
+            continue
+        mean, low, high = paired_interval(diff.to_numpy(float))
+        rows.append({"variant": after, "before": before, "models": len(diff), "diff_mean": mean, "diff_low": low,
+                     "diff_high": high, "better": int((diff > 0).sum()), "diff_min": float(diff.min()),
+                     "worst": float(a.min())})  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def chain_markdown(steps: pd.DataFrame) -> list[str]:
+    """The chain_steps table as markdown lines, with a sentence on what an interval over 3 models can say."""
+    if steps.empty:
+        return []
+    lines = ["| change | mean speed: after minus before (m/s), 90% interval over models | models faster | "
+             "largest loss of one model (m/s) | worst model after (m/s) |", "|---|---|---|---|---|"]  # fmt: skip
+    for _, r in steps.iterrows():
+        interval = "" if math.isnan(r["diff_low"]) else f" [{r['diff_low']:+.2f}, {r['diff_high']:+.2f}]"
+        lines.append(f"| `{r['before']}` -> `{r['variant']}` | {r['diff_mean']:+.2f}{interval} | "
+                     f"{r['better']} of {r['models']} | {min(r['diff_min'], 0.0):+.2f} | {r['worst']:.2f} |")
+    decided = steps[(steps["diff_low"] > 0) | (steps["diff_high"] < 0)]
+    lines += ["", f"An interval that excludes 0 (a change that decidedly helped or hurt on these models): "
+              f"{', '.join(f'`{v}`' for v in decided['variant']) or 'none'}. With {int(steps['models'].max())} "
+              "models per variant the intervals are wide; a change whose models split is undecided, not neutral."]
+    return lines
