@@ -3,10 +3,11 @@
     keep | random | greedy                          no parameters
     mobil[:p=P,threshold=T,b_safe=B,bias=R]          any subset, any order (MOBIL_LIMITS)
     sumo[:lcCooperative=X,lcSpeedGain=X,...]          SUMO's LC2013 factors (SUMO_LC_LIMITS)
-    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S]
+    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S][,restart=R]
                                                      PATH: a model file, or a folder holding model.pt; M: the
                                                      change margin it drives with (Q units; default: the model's);
-                                                     S: seconds after a lane change before another (default 0)
+                                                     S: seconds after a lane change before another (default 0);
+                                                     R: 'none' withheld below R m/s (default: the model's)
 
 Parameters are KEY=VALUE separated by ','; each key at most once; each value a finite number in its key's range
 (alpha also 'adaptive'). No spaces anywhere, no empty parameter, and no ',' inside a model path (the grammar and
@@ -29,17 +30,19 @@ MARGIN_MAX = 100.0
 """the largest change margin a dqn policy string takes (Q units; a few is already large)"""
 COOLDOWN_MAX_S = 600.0
 """the longest lane-change cooldown a dqn policy string takes (s)"""
+RESTART_MAX_MPS = 50.0
+"""the largest 'none'-withholding speed a dqn policy string takes (m/s; above every expected speed: never 'none')"""
 PLAIN = ("keep", "random", "greedy")
 """policies without parameters"""
 KEYS: dict[str, dict[str, tuple[float, float, bool]]] = {
     "mobil": MOBIL_LIMITS,
     "sumo": SUMO_LC_LIMITS,
     "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False), "margin": (0.0, MARGIN_MAX, False),
-            "cooldown": (0.0, COOLDOWN_MAX_S, False)},
+            "cooldown": (0.0, COOLDOWN_MAX_S, False), "restart": (0.0, RESTART_MAX_MPS, False)},
 }
 """the parameters each policy takes: key -> (lowest, highest, lowest excluded)"""
 FORMS = ("keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], "
-         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S]")
+         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,restart=R]")
 
 
 class PolicySpecError(UsageError):
@@ -49,8 +52,9 @@ class PolicySpecError(UsageError):
 @dataclass(frozen=True)
 class PolicySpec:
     """A parsed policy string: its name, its numeric parameters in the order given, and for dqn the model path,
-    alpha (a number, 'adaptive', or None when not given), the change margin (None: the model's own) and the
-    lane-change cooldown in seconds (None: none)."""
+    alpha (a number, 'adaptive', or None when not given), the change margin (None: the model's own), the
+    lane-change cooldown in seconds (None: none) and the speed (m/s) below which 'none' is withheld (None: the
+    model's own)."""
 
     name: str
     params: tuple[tuple[str, float], ...] = ()
@@ -58,6 +62,7 @@ class PolicySpec:
     alpha: float | str | None = None
     margin: float | None = None
     cooldown: float | None = None
+    restart: float | None = None
 
     def values(self) -> dict[str, float]:
         return dict(self.params)
@@ -132,7 +137,8 @@ def parse_policy(text: str) -> PolicySpec:
             raise _fail(text, f"parameter {key!r} has no value")
         seen[key] = _value(text, name, key, value)
     if name == "dqn":
-        margin, cooldown = seen.get("margin"), seen.get("cooldown")
+        margin, cooldown, restart = seen.get("margin"), seen.get("cooldown"), seen.get("restart")
         return PolicySpec(name, model=model, alpha=seen.get("alpha"), margin=None if margin is None else float(margin),
-                          cooldown=None if cooldown is None else float(cooldown))  # fmt: skip
+                          cooldown=None if cooldown is None else float(cooldown),
+                          restart=None if restart is None else float(restart))  # fmt: skip
     return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))

@@ -225,6 +225,24 @@ def test_a_standing_vehicle_of_a_model_that_prefers_none_speeds_up(observation_o
     assert guarded.act(obs).tolist() == [SPEEDUP, NONE]
 
 
+
+def test_a_model_driven_with_restart_withholds_none_below_that_speed(tmp_path: Path, observation_of: Layout) -> None:
+    """dqn:PATH,restart=R replaces the model's own threshold: R 50 (above every expected speed) never chooses
+    'none', so the model chooses lanes only; the threshold is recorded beside the other driven settings."""
+    from coopsumo.agents.dqn import save_model
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    path = tmp_path / "m.pt"
+    learner = dataclasses.replace(DQNConfig(), dueling=False, observation="paper")  # what _net_preferring is
+    save_model(path, _net_preferring(NONE, SPEEDUP), {"config": to_dict(TrainConfig(dqn=learner))})  # type: ignore[arg-type]
+    obs = observation_of(lane=[0, 1, 2], pos=[100.0, 300.0, 500.0], speed=[0.5, 4.0, 20.0], v_exp=[25.0] * 3)
+    assert DQNPolicy.from_spec(f"dqn:{path}").act(obs).tolist() == [SPEEDUP, NONE, NONE]  # the model's own: 1 m/s
+    assert DQNPolicy.from_spec(f"dqn:{path},restart=5").act(obs).tolist() == [SPEEDUP, SPEEDUP, NONE]
+    lanes_only = DQNPolicy.from_spec(f"dqn:{path},restart=50")
+    assert lanes_only.act(obs).tolist() == [SPEEDUP] * 3
+    assert (lanes_only.trained_on or {})["driven_restart_below_mps"] == 50.0
+
+
 def test_a_lane_change_must_beat_staying_by_the_change_margin(observation_of: Layout) -> None:
     from coopsumo.agents.decisions import with_change_margin
     from coopsumo.agents.dqn_policy import DQNPolicy

@@ -33,6 +33,7 @@ VALID: list[tuple[str, PolicySpec]] = [
     ("dqn:a/model.pt,margin=2", PolicySpec("dqn", model="a/model.pt", margin=2.0)),
     ("dqn:a,margin=0,alpha=adaptive", PolicySpec("dqn", model="a", alpha=ADAPTIVE, margin=0.0)),
     ("dqn:a,cooldown=10,margin=2", PolicySpec("dqn", model="a", margin=2.0, cooldown=10.0)),
+    ("dqn:a,restart=5", PolicySpec("dqn", model="a", restart=5.0)),
 ]  # fmt: skip
 
 INVALID: list[tuple[str, str]] = [
@@ -52,6 +53,7 @@ INVALID: list[tuple[str, str]] = [
     ("dqn:m.pt,margin=1,margin=2", "parameter 'margin' is given twice"),
     ("dqn:m.pt,cooldown=-5", "cooldown must be a finite number >= 0 and <= 600, got '-5'"),
     ("dqn:m.pt,cooldown=inf", "cooldown must be"),
+    ("dqn:m.pt,restart=51", "restart must be a finite number >= 0 and <= 50, got '51'"),
     ("fast", "unknown policy 'fast'"),
     ("Keep", "unknown policy 'Keep'"),
     ("keep:", "keep takes no parameters"),

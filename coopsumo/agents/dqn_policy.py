@@ -93,11 +93,12 @@ class DQNPolicy:
 
     @classmethod
     def from_spec(cls, spec: str, lanes: int = 3) -> DQNPolicy:
-        """The policy of 'dqn:PATH[,alpha=A|adaptive][,margin=M]' on a road of `lanes` lanes (policy_spec: the one
-        grammar).
+        """The policy of 'dqn:PATH[,alpha=A|adaptive][,margin=M][,cooldown=S][,restart=R]' on a road of `lanes`
+        lanes (policy_spec: the one grammar).
 
         alpha is for an alpha-conditioned model only, and such a model needs it: otherwise a usage error. margin
-        replaces the change margin the model was saved with (training ignores it, so any margin can drive it).
+        replaces the change margin the model was saved with (training ignores it, so any margin can drive it), and
+        restart the speed below which 'none' is withheld (m/s; as the mask, it only narrows the greedy choice).
         """
         parsed = parse_policy(spec)
         path, alpha = split_dqn_spec(spec)
@@ -108,6 +109,9 @@ class DQNPolicy:
         if parsed.cooldown is not None:
             policy.change_cooldown_s = parsed.cooldown
             policy.trained_on = dict(policy.trained_on or {}, driven_change_cooldown_s=parsed.cooldown)
+        if parsed.restart is not None:
+            policy.restart_below_mps = parsed.restart
+            policy.trained_on = dict(policy.trained_on or {}, driven_restart_below_mps=parsed.restart)
         conditioned = policy.net.conditioned
         if alpha is not None and not conditioned:
             raise UsageError(f"model {path} is not alpha-conditioned (trained at one alpha): drive it as dqn:{path}, "

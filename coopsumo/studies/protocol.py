@@ -80,7 +80,8 @@ def driven_policy(spec: dict[str, Any], model_dir: Path) -> str:
     cooldown if it has them (config.drive)."""
     drive = spec["config"].get("drive", {})
     extra = "".join(f",{word}={drive[key]:g}" for key, word in (("change_margin", "margin"),
-                                                                 ("change_cooldown_s", "cooldown")) if key in drive)
+                                                                 ("change_cooldown_s", "cooldown"),
+                                                                 ("restart_below_mps", "restart")) if key in drive)
     return f"dqn:{(model_dir / spec['weights']).resolve()}{extra}"
 
 

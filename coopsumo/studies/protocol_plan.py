@@ -46,11 +46,14 @@ class Variant:
     """the change margin it drives with (Q units; None: the learner's own); the trainings are the same"""
     cooldown: float | None = None
     """the lane-change cooldown it drives with (s; None: none)"""
+    restart: float | None = None
+    """the speed below which it withholds 'none' (m/s; None: the learner's own)"""
 
     def drive(self) -> dict[str, float]:
         """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""
         out = {} if self.margin is None else {"change_margin": self.margin}
-        return out | ({} if self.cooldown is None else {"change_cooldown_s": self.cooldown})
+        out |= {} if self.cooldown is None else {"change_cooldown_s": self.cooldown}
+        return out | ({} if self.restart is None else {"restart_below_mps": self.restart})
 
 
 SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0)
@@ -85,6 +88,10 @@ def variants() -> dict[str, Variant]:
                 "within 10 s of the last one's end)", V2X_MIX, cooldown=10.0),
         Variant("v2x_mix_cd30", "`v2x_mix`'s trainings driven with a lane-change cooldown of 30 s",
                 V2X_MIX, cooldown=30.0),
+        Variant("v2x_mix_r5", "`v2x_mix`'s trainings driven with 'none' withheld below 5 m/s instead of 1 (a vehicle "
+                "in a queue always asks to speed up)", V2X_MIX, restart=5.0),
+        Variant("v2x_mix_lanes", "`v2x_mix`'s trainings choosing lanes only: 'none' never offered, so every vehicle "
+                "that stays asks to speed up, as `keep` does", V2X_MIX, restart=50.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -115,6 +122,7 @@ PROFILES = {
     "drive": Profile("drive", variants=("v2x_mix", "v2x_mix_m2", "v2x_mix_m4", "v2x_mix_cd10", "v2x_mix_cd30"),
                      seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # the default driven otherwise
     "cooldown": Profile("cooldown", variants=("v2x_mix", "v2x_mix_cd10")),  # the 10 s cooldown on 10 models
+    "restart": Profile("restart", variants=("v2x_mix", "v2x_mix_r5", "v2x_mix_lanes"), alpha_seeds=0),  # 'none'?
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
