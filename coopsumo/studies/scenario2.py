@@ -99,34 +99,24 @@ failed_record = RECORDS.failed
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
     """Run one cell and return its record (never raises on failure).
 
-    A DQN cell trains and evaluates into ROOT/train/<key>/ (a matching checkpoint there is resumed
-    instead of starting afresh); a MOBIL cell runs one simulation into ROOT/mobil/<key>/.
-    status "ok" (with the evaluation summary), "failed" (with the error) or "interrupted"
+    A DQN cell takes (or trains) its model in ROOT/train/<key>/ (a matching checkpoint there is resumed
+    instead of starting afresh) and evaluates it in ROOT/evals/<key>/; a MOBIL cell runs one simulation into
+    ROOT/mobil/<key>/. status "ok" (with the evaluation summary), "failed" (with the error) or "interrupted"
     (SIGTERM/SIGINT: a checkpoint was saved when training, the cell is to be run again).
     """
-    if spec.get("policy") == "mobil":
-        cell = _run_mobil
-    else:
-        cell = _run_conditioned if "train_key" in spec else _run_dqn
+    cell = _run_mobil if spec.get("policy") == "mobil" else _run_dqn
     return RECORDS.run(spec, lambda record: cell(spec, Path(root), record))
 
 
 def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Take the cell's model from the model store (ROOT/train/<key>/ links to it; trained there when missing, a
-    matching checkpoint resumed), then evaluate it greedily on every evaluation seed; fills `record`. A stop by
-    signal -> KeyboardInterrupt."""
-    out = root / "train" / spec["key"]
+    """Take the cell's model from the model store (ROOT/train/<key>/ links to it, or for a conditioned cell
+    ROOT/train/<train_key>/, the training its alphas share; trained there when missing, a matching checkpoint
+    resumed), then evaluate it greedily on every evaluation seed; fills `record`. A stop by signal ->
+    KeyboardInterrupt."""
+    name = spec.get("train_key", spec["key"])
+    out = root / "train" / name
     _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
-    _evaluate(spec, out, root / "evals" / spec["key"], record)
-
-
-def _run_conditioned(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Take the alpha-conditioned model of the cell's (condition, seed) from the model store (ROOT/train/<train_key>/
-    links to it; the cells of every alpha share it), then evaluate it at the cell's alpha on every evaluation seed,
-    in ROOT/evals/<train_key>/eval_a<alpha>_s<seed>/."""
-    out = root / "train" / spec["train_key"]
-    _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
-    _evaluate(spec, out, root / "evals" / spec["train_key"], record)
+    _evaluate(spec, out, root / "evals" / name, record)
 
 
 def _evaluate(spec: dict[str, Any], train_dir: Path, evals_dir: Path, record: dict[str, Any]) -> None:
