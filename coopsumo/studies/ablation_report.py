@@ -68,7 +68,8 @@ def training_curves_figure(root: Path, runs: pd.DataFrame, out_path: Path) -> Pa
     fig = new_figure(9.0, 4.5)
     axes = fig.subplots(1, 2)
     ok = runs[(runs["status"] == "ok") & (runs["part"] == "ablation")]
-    for variant, group in ok.groupby("variant", sort=False):
+    for i, (variant, group) in enumerate(ok.groupby("variant", sort=False)):
+        style = {"color": f"C{i % 10}", "linestyle": "-" if i < 10 else "--"}  # 10 colours: the rest dashed
         logs = []
         for key in group["key"]:
             path = root / "train" / key / "train_log.csv"
@@ -78,14 +79,14 @@ def training_curves_figure(root: Path, runs: pd.DataFrame, out_path: Path) -> Pa
             continue
         speed = pd.concat([lg["mean_speed_mps"] for lg in logs], axis=1).mean(axis=1)
         lc = pd.concat([lg["lane_changes"] / lg["vehicles"].clip(lower=1) for lg in logs], axis=1).mean(axis=1)
-        axes[0].plot(speed.index, speed.to_numpy(), label=str(variant))
-        axes[1].plot(lc.index, lc.to_numpy(), label=str(variant))
+        axes[0].plot(speed.index, speed.to_numpy(), label=str(variant), **style)
+        axes[1].plot(lc.index, lc.to_numpy(), label=str(variant), **style)
     axes[0].set_xlabel("training step")
     axes[0].set_ylabel("mean speed while training (m/s)")
     axes[1].set_xlabel("training step")
     axes[1].set_ylabel("lane changes per 1,000 steps / vehicles on road")
     if axes[0].get_lines():
-        axes[0].legend(fontsize=7)
+        axes[0].legend(fontsize=7, ncol=2)
     fig.tight_layout()
     return save_figure(fig, out_path)
 
