@@ -738,3 +738,17 @@ def test_pooled_summaries_sum_counts_and_average_the_rest() -> None:
                                    {"mean_speed_mps": 14.0, "collisions": 2, "teleports": 0, "scenario": "free"}])
     assert pooled == {"mean_speed_mps": 12.0, "collisions": 2, "teleports": 1, "scenario": "free"}
     assert stats.pool_summaries([]) == {}
+
+
+def test_a_pooled_summary_passes_the_record_check() -> None:
+    """Lane changes per vehicle is pooled as a ratio of the summed counts, not averaged: an averaged one (0.5286 for
+    386 changes of 735 vehicles) made a resumed quick sweep call its own records edited and rerun them."""
+    from coopsumo.studies.records import implausible
+
+    runs = [{"lane_changes": 200, "departed": 350, "lane_changes_per_vehicle": 200 / 350},
+            {"lane_changes": 186, "departed": 385, "lane_changes_per_vehicle": 186 / 385}]
+    pooled = stats.pool_summaries(runs)
+    assert pooled["lane_changes_per_vehicle"] == 386 / 735
+    assert implausible(pooled) is None
+    averaged = dict(pooled, lane_changes_per_vehicle=(200 / 350 + 186 / 385) / 2)
+    assert implausible(averaged) is not None  # the check that fired on the averaged ratio

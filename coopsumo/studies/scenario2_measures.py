@@ -311,8 +311,9 @@ SUMMED = COUNT_COLUMNS | {"sim_seconds", "wall_seconds"}
 
 def pool_summaries(summaries: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """One model's summary over its evaluations (one per evaluation seed): counts and times summed (SUMMED: e.g.
-    collisions over all runs), every other number averaged (mean speed, lane changes per vehicle), anything else
-    taken from the first; a key missing from one evaluation is left out."""
+    collisions over all runs), lane changes per vehicle the pooled ratio (all lane changes over all departed vehicles,
+    so the record stays self-consistent: records.implausible checks it), every other number averaged (mean speed),
+    anything else taken from the first; a key missing from one evaluation is left out."""
     if not summaries:
         return {}
     out: dict[str, Any] = {}
@@ -327,6 +328,8 @@ def pool_summaries(summaries: Sequence[dict[str, Any]]) -> dict[str, Any]:
                 out[key] = total / len(values)
         elif all(key in s for s in summaries):
             out[key] = first
+    if {"lane_changes", "departed", "lane_changes_per_vehicle"} <= out.keys() and out["departed"] > 0:
+        out["lane_changes_per_vehicle"] = out["lane_changes"] / out["departed"]  # the pooled ratio, as one run's
     return out
 
 
