@@ -165,6 +165,8 @@ class RewardConfig:
 
 VALIDATION_SEED = 900_000
 """first seed of the model-selection runs (DQNConfig.validation_seed): far above every study's evaluation seeds"""
+MIN_ACCIDENT_VALIDATION_STEPS = 600
+"""shortest accident validation run (steps of 0.1 s): the accident holds from step 50, so a queue forms"""
 
 
 @dataclass(frozen=True)
@@ -246,6 +248,10 @@ class DQNConfig:
     """model selection: the free-flow demands T_up (s) of the validation runs, one run each"""
     validation_steps: int = 3000
     """model selection: steps of 0.1 s of each validation run"""
+    validation_accident_steps: int = 0
+    """model selection: when > 0, every validation demand also gets a run of this many steps through an accident at
+    the default position (held from 1/12 of the run for 5/6 of it), scored with the free-flow runs, so that a
+    snapshot that thrashes in a queue is not chosen; 0: free flow only"""
     train_t_ups: tuple[float, ...] = (2.0, 1.5, 1.0)
     """training demand: each episode's T_up (s) drawn from these (agents/episodes.py); empty: the run's own T_up
     (train --t-up T trains at T alone)"""
@@ -289,6 +295,9 @@ class DQNConfig:
                 raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
         if problem := limits_problem(self, LEARNER_LIMITS):  # every number finite and bounded
             raise ConfigError(problem)
+        if 0 < self.validation_accident_steps < MIN_ACCIDENT_VALIDATION_STEPS:
+            raise ConfigError(f"validation_accident_steps must be 0 (none) or at least {MIN_ACCIDENT_VALIDATION_STEPS} "
+                              f"(a queue needs time to form), got {self.validation_accident_steps}")  # fmt: skip
         for name, may_be_empty in (("validation_t_ups", False), ("train_t_ups", True)):
             ts = getattr(self, name)
             if not isinstance(ts, tuple) or (not ts and not may_be_empty) or len(ts) > 10 or len(set(ts)) != len(ts) \
@@ -427,6 +436,12 @@ class GuiConfig:
             raise ConfigError(f"gui delay must be a number of ms from 0 to {MAX_GUI_DELAY_MS:g}, got {self.delay_ms:g}")
 
 
+def validation_runs(dq: DQNConfig) -> int:
+    """How many validation runs judge a snapshot (seeds validation_seed to validation_seed + this - 1): one per
+    validation demand, and one more through an accident per demand when validation_accident_steps > 0."""
+    return len(dq.validation_t_ups) * (2 if dq.validation_accident_steps else 1)
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """A training run: the free-flow world, the learner, and bookkeeping."""
@@ -454,7 +469,7 @@ class TrainConfig:
             raise ConfigError(f"log every must be >= 1 and checkpoint every >= 0 steps, got {self.log_every_steps} "
                               f"and {self.checkpoint_every_steps}")  # fmt: skip
         dq = self.dqn
-        last = dq.validation_seed + len(dq.validation_t_ups) - 1
+        last = dq.validation_seed + validation_runs(dq) - 1
         if dq.select_every_steps and dq.validation_seed <= self.sim.seed <= last:
             raise ConfigError(f"validation seeds {dq.validation_seed}-{last} overlap the training seed "
                               f"{self.sim.seed}: choose another validation seed")  # fmt: skip
@@ -526,7 +541,7 @@ ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "a
                                  "alpha_period_steps": 3000, "alpha_relabel": 0.5, "select_every_steps": 0,
                                  "validation_seed": VALIDATION_SEED, "validation_t_ups": [2.0, 1.5, 1.0],
                                  "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
-                                 "episode_steps": 9000}
+                                 "episode_steps": 9000, "validation_accident_steps": 0}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

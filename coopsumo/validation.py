@@ -83,6 +83,7 @@ LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
     "select_every_steps": (0, MAX_STEPS, False, False),
     "validation_seed": (0, SEED_MAX - 10, False, False),
     "validation_steps": (100, MAX_STEPS, False, False),
+    "validation_accident_steps": (0, MAX_STEPS, False, False),
     "accident_share": (0.0, 1.0, False, False),
     "episode_steps": (1000, MAX_STEPS, False, False),
 }

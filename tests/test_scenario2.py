@@ -734,10 +734,10 @@ def test_every_model_meets_every_evaluation_seed_and_none_was_trained_on(tmp_pat
 
 
 def test_pooled_summaries_sum_counts_and_average_the_rest() -> None:
-    pooled = stats.pool_summaries([{"mean_speed_mps": 10.0, "collisions": 0, "teleports": 1, "scenario": "free"},
+    pooled = records.pool_summaries([{"mean_speed_mps": 10.0, "collisions": 0, "teleports": 1, "scenario": "free"},
                                    {"mean_speed_mps": 14.0, "collisions": 2, "teleports": 0, "scenario": "free"}])
     assert pooled == {"mean_speed_mps": 12.0, "collisions": 2, "teleports": 1, "scenario": "free"}
-    assert stats.pool_summaries([]) == {}
+    assert records.pool_summaries([]) == {}
 
 
 def test_a_pooled_summary_passes_the_record_check() -> None:
@@ -747,7 +747,7 @@ def test_a_pooled_summary_passes_the_record_check() -> None:
 
     runs = [{"lane_changes": 200, "departed": 350, "lane_changes_per_vehicle": 200 / 350},
             {"lane_changes": 186, "departed": 385, "lane_changes_per_vehicle": 186 / 385}]
-    pooled = stats.pool_summaries(runs)
+    pooled = records.pool_summaries(runs)
     assert pooled["lane_changes_per_vehicle"] == 386 / 735
     assert implausible(pooled) is None
     averaged = dict(pooled, lane_changes_per_vehicle=(200 / 350 + 186 / 385) / 2)

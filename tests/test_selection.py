@@ -83,6 +83,29 @@ def test_validation_demands_and_seeds_are_checked() -> None:
     assert dqn_config_from_dict(json.loads(json.dumps(to_dict(DQNConfig())))) == DQNConfig()
 
 
+def test_accident_validation_adds_one_run_per_demand_through_an_accident() -> None:
+    dq = dataclasses.replace(DQNConfig(), validation_t_ups=(2.0, 1.0), validation_steps=3000)
+    cfg = TrainConfig(sim=SimConfig(steps=90_000, seed=3, policy="dqn"), dqn=dq)
+    free = selection.validation_configs(cfg, Path("m.pt"))
+    assert [(c.demand.t_up_s, c.seed, c.accident.enabled) for c in free] == [(2.0, 900_000, False),
+                                                                             (1.0, 900_001, False)]
+    cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(dq, validation_accident_steps=6000))
+    runs = selection.validation_configs(cfg, Path("m.pt"))
+    assert runs[:2] == free  # the free-flow runs are unchanged: a model chosen before is judged the same there
+    assert [(c.demand.t_up_s, c.seed, c.steps) for c in runs[2:]] == [(2.0, 900_002, 6000), (1.0, 900_003, 6000)]
+    assert all(c.accident.enabled and c.accident.start_step == 500 and c.accident.duration_steps == 5000
+               for c in runs[2:])  # fmt: skip
+    assert all(c.policy == "dqn:m.pt" for c in runs)
+    # its seeds count in the overlap check, and a learner written before the field existed had none
+    with pytest.raises(ConfigError, match="overlap the training seed"):
+        dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, seed=900_003)).validate()
+    dataclasses.replace(cfg, sim=dataclasses.replace(cfg.sim, seed=900_004)).validate()
+    old = {k: v for k, v in json.loads(json.dumps(to_dict(DQNConfig()))).items() if k != "validation_accident_steps"}
+    assert dqn_config_from_dict(old).validation_accident_steps == 0
+    with pytest.raises(ConfigError, match="validation_accident_steps"):
+        DQNConfig(validation_accident_steps=599).validate()
+
+
 @pytest.mark.parametrize(
     "args, fragment",
     [
@@ -95,6 +118,9 @@ def test_validation_demands_and_seeds_are_checked() -> None:
         (["--validation-steps", "5"], "--validation-steps"),
         (["--validation-seed", "-3"], "--validation-seed"),
         (["--seed", "900001"], "overlap the training seed"),
+        (["--validation-accident-steps", "300"], "--validation-accident-steps"),
+        (["--validation-accident-steps", "-1"], "--validation-accident-steps"),
+        (["--validation-accident-steps", "6000", "--seed", "900005"], "overlap the training seed"),
     ],
 )
 def test_bad_selection_flags_are_one_line_usage_errors(tmp_path: Path, args: list[str], fragment: str) -> None:
@@ -116,13 +142,15 @@ def test_selection_chooses_among_real_snapshots_without_changing_training(tmp_pa
     weights, which equal the model.pt of the same training without selection (validation never feeds back)."""
     base = TrainConfig(sim=SimConfig(steps=600, seed=3, policy="dqn"), eval_steps=0,
                        dqn=dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=200,
-                                               validation_t_ups=(1.5, 1.0)))  # fmt: skip
+                                               validation_t_ups=(1.5, 1.0), validation_accident_steps=600))  # fmt: skip
     summary = train(base, tmp_path / "sel", progress=False)
     plain = dataclasses.replace(base, dqn=dataclasses.replace(base.dqn, select_every_steps=0))
     train(plain, tmp_path / "plain", progress=False)
     results = selection.results(tmp_path / "sel")
     assert [r["step"] for r in results] == [200, 400, 600]
-    assert all(len(r["runs"]) == 2 and r["runs"][0]["t_up_s"] == 1.5 for r in results)
+    assert all([(x["t_up_s"], x["accident"]) for x in r["runs"]] == [(1.5, False), (1.0, False), (1.5, True),
+                                                                       (1.0, True)] for r in results)  # fmt: skip
+    assert all(r["score"] == pytest.approx(np.mean([x["mean_reward"] for x in r["runs"]])) for r in results)
     best = max(results, key=lambda r: r["score"])
     assert summary["selected_step"] == best["step"]
     chosen = _weights(tmp_path / "sel" / "model.pt")
@@ -130,7 +158,9 @@ def test_selection_chooses_among_real_snapshots_without_changing_training(tmp_pa
     assert all(torch.equal(chosen[k], snap[k]) for k in chosen)
     last, without = _weights(tmp_path / "sel" / selection.LAST_MODEL), _weights(tmp_path / "plain" / "model.pt")
     assert all(torch.equal(last[k], without[k]) for k in last)
-    assert (tmp_path / "sel" / "validation.csv").exists() and not (tmp_path / "plain" / selection.SNAPSHOTS).exists()
+    assert not (tmp_path / "plain" / selection.SNAPSHOTS).exists()
+    table = (tmp_path / "sel" / "validation.csv").read_text().splitlines()[0].split(",")
+    assert {"mean_speed_mps_t1.5", "lane_changes_per_vehicle_accident_t1", "mean_reward_accident_t1.5"} <= set(table)
 
 
 def test_stats_match_rliable_on_a_fixed_table() -> None:

@@ -4,8 +4,9 @@ Every DQNConfig.select_every_steps training steps the trainer saves the online n
 OUT/snapshots/step<N>/model.pt and validates it in a separate process (`python -m coopsumo.agents.selection DIR`;
 libsumo holds one simulation per process, and the training's is open): one greedy free-flow run per demand of
 DQNConfig.validation_t_ups, each DQNConfig.validation_steps long, on seeds validation_seed + i that no training
-and no study evaluation uses. The process writes DIR/validation.json. The score is the run's own objective,
-the mean reward per vehicle and step (speed + flow - alpha per lane change), averaged over the demands; ties go
+and no study evaluation uses; with DQNConfig.validation_accident_steps > 0, one more run per demand through an
+accident (the next seeds). The process writes DIR/validation.json. The score is the run's own objective,
+the mean reward per vehicle and step (speed + flow - alpha per lane change), averaged over the runs; ties go
 to the earlier snapshot. Validation never feeds back into training: the same seed trains the same weights
 whether or not it runs, and whatever the machine's load.
 
@@ -28,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from coopsumo.config import SimConfig, TrainConfig, sim_config_from_dict, to_dict
+from coopsumo.config import AccidentConfig, SimConfig, TrainConfig, sim_config_from_dict, to_dict
 from coopsumo.runio import write_atomic
 
 SNAPSHOTS = "snapshots"
@@ -48,11 +49,20 @@ def selecting(cfg: TrainConfig) -> bool:
 
 
 def validation_configs(cfg: TrainConfig, model: Path) -> list[SimConfig]:
-    """The greedy free-flow runs that judge a snapshot of the training cfg: one per validation demand."""
+    """The greedy runs that judge a snapshot of the training cfg: one in free flow per validation demand (seeds
+    validation_seed + i), then, when validation_accident_steps > 0, one through an accident per demand (the next
+    seeds): held at the default position from 1/12 of the run for 5/6 of it."""
     dq = cfg.dqn
     base = replace(cfg.sim, steps=dq.validation_steps, policy=f"dqn:{model}")
-    return [replace(base, demand=replace(base.demand, t_up_s=t), seed=dq.validation_seed + i)
+    runs = [replace(base, demand=replace(base.demand, t_up_s=t), seed=dq.validation_seed + i)
             for i, t in enumerate(dq.validation_t_ups)]  # fmt: skip
+    n = dq.validation_accident_steps
+    if n:
+        accident = AccidentConfig(enabled=True, start_step=n // 12, duration_steps=n * 5 // 6)
+        runs += [replace(base, steps=n, accident=accident, demand=replace(base.demand, t_up_s=t),
+                         seed=dq.validation_seed + len(dq.validation_t_ups) + i)
+                 for i, t in enumerate(dq.validation_t_ups)]  # fmt: skip
+    return runs
 
 
 def snapshot_dir(out: Path, step: int) -> Path:
@@ -133,7 +143,7 @@ def write_table(out: Path) -> None:
         row = {"step": r["step"], "score": r["score"], "best": chosen is not None and r["step"] == chosen["step"]}
         row.update({k: v for k, v in r.items() if k not in ("step", "score", "runs")})
         for run in r["runs"]:
-            tag = f"t{run['t_up_s']:g}"
+            tag = f"{'accident_' if run.get('accident') else ''}t{run['t_up_s']:g}"
             for key in ("mean_speed_mps", "lane_changes_per_vehicle", "mean_reward"):
                 row[f"{key}_{tag}"] = run[key]
         flat.append(row)
@@ -189,7 +199,8 @@ def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path) -> tup
             reward += float(out.reward.total.sum())
             samples += len(out.nums)
         summary = world.summary()
-    run = {"t_up_s": cfg.demand.t_up_s, "seed": cfg.seed, "mean_reward": reward / max(samples, 1),
+    run = {"t_up_s": cfg.demand.t_up_s, "accident": cfg.accident.enabled, "seed": cfg.seed,
+           "mean_reward": reward / max(samples, 1),
            **{k: summary[k] for k in ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")}}
     return run, policy.q_log
 

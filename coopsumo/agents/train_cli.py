@@ -100,6 +100,8 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
      "model selection: validation run i uses seed VALIDATION_SEED + i (must not meet the training seed)"),
     ("--validation-t-up", "validation_t_ups", str, "model selection: comma-separated demands T_up (s), one run each"),
     ("--validation-steps", "validation_steps", int, "model selection: steps of 0.1 s of each validation run"),
+    ("--validation-accident-steps", "validation_accident_steps", int,
+     "model selection: also validate each demand through an accident, a run of this many steps (0: free flow only)"),
     ("--train-t-up", "train_t_ups", str,
      "training demand: comma-separated T_up (s); each episode of --episode-steps draws one (empty: --t-up "
      "throughout)"),

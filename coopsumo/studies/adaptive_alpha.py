@@ -94,9 +94,9 @@ def drive(specs: list[dict[str, Any]], root: Path, workers: int = 2, backend: st
 
 def adaptive_table(records: list[dict[str, Any]]) -> pd.DataFrame:
     """adaptive_runs.csv: one row per (condition, seed) of the finished cells' records, its evaluation seeds pooled
-    as the sweep pools a model's (scenario2_measures.pool_summaries: collisions and teleports summed, the rest
+    as the sweep pools a model's (records.pool_summaries: collisions and teleports summed, the rest
     averaged)."""
-    from coopsumo.studies.scenario2_measures import pool_summaries
+    from coopsumo.studies.records import pool_summaries
 
     rows = []
     for (lanes, t_up, seed), group in pd.DataFrame(records).groupby(["lanes", "t_up_s", "seed"], sort=True):

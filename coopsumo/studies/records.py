@@ -108,6 +108,32 @@ def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
 COUNTS = ("departed", "arrived", "collisions", "teleports", "lane_changes", "lane_changes_rejected",
           "insertion_blocked", "insertion_pending_at_end", "steps")  # fmt: skip
 """summary values that count something: whole numbers >= 0"""
+POOL_SUMMED = frozenset(COUNTS) | {"sim_seconds", "wall_seconds"}
+"""summary values a model's evaluations add up when pooled (counts and times); the others are averaged"""
+
+
+def pool_summaries(summaries: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """One model's summary over its evaluations (one per evaluation seed): counts and times summed (POOL_SUMMED: e.g.
+    collisions over all runs), lane changes per vehicle the pooled ratio (all lane changes over all departed vehicles,
+    so the record stays self-consistent: implausible checks it), every other number averaged (mean speed),
+    anything else taken from the first; a key missing from one evaluation is left out."""
+    if not summaries:
+        return {}
+    out: dict[str, Any] = {}
+    for key, first in summaries[0].items():
+        values = [s.get(key) for s in summaries]
+        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
+        if numbers:
+            total = float(sum(values))  # type: ignore[arg-type]
+            if key in POOL_SUMMED:
+                out[key] = int(total) if all(isinstance(v, int) for v in values) else total
+            else:
+                out[key] = total / len(values)
+        elif all(key in s for s in summaries):
+            out[key] = first
+    if {"lane_changes", "departed", "lane_changes_per_vehicle"} <= out.keys() and out["departed"] > 0:
+        out["lane_changes_per_vehicle"] = out["lane_changes"] / out["departed"]  # the pooled ratio, as one run's
+    return out
 
 
 MAX_SPEED_MPS = 50.0

@@ -43,10 +43,18 @@ import pandas as pd
 from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.model_store import store_for, train_shared
-from coopsumo.studies.records import CellRecords, cell_path, checked_record, failed_exit, read_record, reusable_keys
+from coopsumo.studies.records import (
+    CellRecords,
+    cell_path,
+    checked_record,
+    failed_exit,
+    pool_summaries,
+    read_record,
+    reusable_keys,
+)
 from coopsumo.studies.run_folders import default_out, simulate_into, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
-from coopsumo.studies.scenario2_measures import CRITERION, KEY_COLUMNS, evals_table, pool_summaries, runs_table
+from coopsumo.studies.scenario2_measures import CRITERION, KEY_COLUMNS, evals_table, runs_table
 from coopsumo.studies.scenario2_plan import (
     EVAL_SEED_BASE,
     NOMINAL_CAPACITY_VEH_H_PER_LANE,
@@ -121,7 +129,7 @@ def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
 
 def _evaluate(spec: dict[str, Any], train_dir: Path, evals_dir: Path, record: dict[str, Any]) -> None:
     """Drive the model of train_dir greedily on each of the cell's evaluations (one per evaluation seed) into
-    evals_dir/eval_[a<alpha>_]s<seed>/; the record's summary pools them (scenario2_measures.pool_summaries), its
+    evals_dir/eval_[a<alpha>_]s<seed>/; the record's summary pools them (records.pool_summaries), its
     eval_summaries keeps each. An evaluation's summary also holds its mean loop flow and occupancy (SUMO's
     detectors.xml), from which `alpha=adaptive`'s rule is fitted."""
     from coopsumo.config import sim_config_from_dict

@@ -305,34 +305,6 @@ COUNT_COLUMNS = frozenset(("steps", "departed", "arrived", "insertion_blocked", 
                            "collisions", "teleports", "lane_changes", "lane_changes_rejected", "train_lane_changes",
                            "train_collisions", "train_updates"))  # fmt: skip
 KEY_COLUMNS = ("key", "lanes", "t_up_s", "load", "alpha", "seed")
-SUMMED = COUNT_COLUMNS | {"sim_seconds", "wall_seconds"}
-"""summary values a model's evaluations add up (counts and times); the others are averaged"""
-
-
-def pool_summaries(summaries: Sequence[dict[str, Any]]) -> dict[str, Any]:
-    """One model's summary over its evaluations (one per evaluation seed): counts and times summed (SUMMED: e.g.
-    collisions over all runs), lane changes per vehicle the pooled ratio (all lane changes over all departed vehicles,
-    so the record stays self-consistent: records.implausible checks it), every other number averaged (mean speed),
-    anything else taken from the first; a key missing from one evaluation is left out."""
-    if not summaries:
-        return {}
-    out: dict[str, Any] = {}
-    for key, first in summaries[0].items():
-        values = [s.get(key) for s in summaries]
-        numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
-        if numbers:
-            total = float(sum(values))  # type: ignore[arg-type]
-            if key in SUMMED:
-                out[key] = int(total) if all(isinstance(v, int) for v in values) else total
-            else:
-                out[key] = total / len(values)
-        elif all(key in s for s in summaries):
-            out[key] = first
-    if {"lane_changes", "departed", "lane_changes_per_vehicle"} <= out.keys() and out["departed"] > 0:
-        out["lane_changes_per_vehicle"] = out["lane_changes"] / out["departed"]  # the pooled ratio, as one run's
-    return out
-
-
 def runs_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
     """One tidy row per cell: coordinates, status, error, every evaluation summary metric, bookkeeping.
 
