@@ -253,3 +253,10 @@ def test_a_fresh_record_with_a_bad_summary_counts_as_failed() -> None:
     assert cell_records.checked_record(bad, ("v", "n"))["status"] == "failed"
     assert cell_records.checked_record(bad, ("v", "n"))["error"] == "record has summary v = null, not a number"
     assert cell_records.checked_record({**bad, "status": "failed"}, ("v",))["status"] == "failed"
+
+
+def test_a_cell_counts_the_cpu_of_the_processes_it_ran() -> None:
+    """A training's update worker and validations are child processes: their CPU time is the cell's too."""
+    burn = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.4: pass"
+    record = cell_records.run_recorded({}, lambda: subprocess.run([sys.executable, "-c", burn], check=True))
+    assert record["status"] == "ok" and record["cell_cpu_s"] >= 0.4
