@@ -13,7 +13,7 @@ import pytest
 from conftest import InlineBackend
 
 from coopsumo.config import PAPER_DQN, DQNConfig
-from coopsumo.studies.ablation_plan import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, learner_of
+from coopsumo.studies.ablation_plan import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, learner_of, own_eval
 from coopsumo.studies.ablation_report import is_monotone_decreasing
 
 pytestmark = pytest.mark.sumo
@@ -36,11 +36,17 @@ def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
     assert learner_of("select") == protocol["select"].learner
 
 
-def test_evaluation_seeds_are_not_training_seeds() -> None:
-    specs = cell_specs(PROFILES["full"], DQNConfig())
+def test_every_model_meets_every_evaluation_seed_and_none_is_a_training_seed() -> None:
+    profile = PROFILES["full"]
+    specs = cell_specs(profile, DQNConfig())
     train_seeds = {s["seed"] for s in specs}
-    assert all(s["eval_seed"] not in train_seeds for s in specs)
-    assert {s["config"]["eval"]["seed"] for s in specs} == {s["eval_seed"] for s in specs}
+    seeds = [1000 + s for s in profile.seeds]
+    models = [s for s in specs if s["kind"] == "train"]
+    assert models and all([e["seed"] for e in s["config"]["evals"]] == seeds for s in models)
+    assert sorted(s["eval_seed"] for s in specs if s["kind"] == "baseline") == sorted(seeds * 4)  # 4 baselines
+    assert not set(seeds) & train_seeds
+    assert own_eval(models[0]["config"], models[0]["seed"])["seed"] == 1000 + models[0]["seed"]
+    assert own_eval({"eval": {"seed": 7}}, 0) == {"seed": 7}  # a record of one evaluation per model
 
 
 def test_monotone_check() -> None:
@@ -142,13 +148,14 @@ def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkey
     assert "monotonically" not in report and "mean speed minus" not in report
 
 
-def test_robustness_table_pairs_each_model_with_the_baselines_on_its_own_seed() -> None:
+def test_robustness_table_compares_each_model_with_the_baselines_over_the_same_seeds() -> None:
     from coopsumo.studies import robustness
 
     def row(variant: str, kind: str, seed: int, speed: float, lc: float) -> dict[str, object]:
         return {"key": f"{variant}_{seed}", "kind": kind, "part": "ablation" if kind == "train" else "baseline",
                 "variant": variant, "alpha": 0.0 if kind == "train" else None, "seed": seed,
-                "eval_seed": 1000 + seed, "status": "ok", "mean_speed_mps": speed, "lane_changes_per_vehicle": lc}
+                "eval_seed": None if kind == "train" else 1000 + seed, "status": "ok", "mean_speed_mps": speed,
+                "lane_changes_per_vehicle": lc}  # fmt: skip
     runs = pd.DataFrame([
         row("dqn", "train", 0, 17.0, 1.0), row("dqn", "train", 1, 15.0, 4.0), row("dqn", "train", 2, 16.6, 0.5),
         row("keep", "baseline", 0, 16.5, 0.0), row("keep", "baseline", 1, 16.0, 0.0),
@@ -157,10 +164,16 @@ def test_robustness_table_pairs_each_model_with_the_baselines_on_its_own_seed() 
     table = robustness.robustness_table(runs, ["dqn"], ["keep"])
     r = table.iloc[0]
     assert r["seeds"] == 3 and r["worst_seed"] == 1 and r["worst_speed"] == 15.0 and r["worst_lane_changes"] == 4.0
-    assert r["keep_below"] == 2  # seed 1 (-1.0) and seed 2 (-0.1): a mean above keep hides neither
-    assert r["keep_gap_min"] == pytest.approx(-1.0) and r["keep_gap_mean"] == pytest.approx((0.5 - 1.0 - 0.1) / 3)
+    keep = (16.5 + 16.0 + 16.7) / 3  # every model met all three evaluation seeds: keep's mean over them
+    assert r["keep_below"] == 1  # seed 1 (15.0): a mean above keep does not hide it
+    assert r["keep_gap_min"] == pytest.approx(15.0 - keep) and r["keep_gap_mean"] == pytest.approx(
+        (17.0 + 15.0 + 16.6) / 3 - keep)
+    # another learner's models are paired by training seed
+    other = runs.assign(variant=runs["variant"].replace({"dqn": "other"}), mean_speed_mps=runs["mean_speed_mps"] - 1)
+    gaps = robustness.paired_gaps(pd.concat([runs, other[other["kind"] == "train"]]), "dqn", "other")
+    assert list(gaps) == pytest.approx([1.0, 1.0, 1.0])
     text = "\n".join(robustness.markdown(table, ["keep"]))
-    assert "15.00 (4.00), seed 1" in text and "(2)" in text
+    assert "15.00 (4.00), seed 1" in text and "(1)" in text
     matrix = "\n".join(robustness.seed_matrix_markdown(robustness.per_seed_table(runs, ["dqn"], ["keep"])))
     assert "| `dqn` | 17.00 (1.00) | 15.00 (4.00) | 16.60 (0.50) |" in matrix
 
@@ -172,7 +185,7 @@ def test_each_chain_step_is_paired_by_training_seed() -> None:
 
     def row(variant: str, seed: int, speed: float) -> dict[str, object]:
         return {"key": f"{variant}_{seed}", "kind": "train", "part": "ablation", "variant": variant, "alpha": 0.0,
-                "seed": seed, "eval_seed": 1000 + seed, "status": "ok", "mean_speed_mps": speed}
+                "seed": seed, "eval_seed": None, "status": "ok", "mean_speed_mps": speed}
     speeds = {"a": (15.0, 16.0, 14.0), "b": (16.0, 17.2, 15.1), "c": (17.0, 16.0, 15.2)}
     runs = pd.DataFrame([row(v, seed, x) for v, xs in speeds.items() for seed, x in enumerate(xs)])
     steps = robustness.chain_steps(runs, ["a", "b", "c"]).set_index("variant")

@@ -369,7 +369,8 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
     assert res.returncode == 0, res.stderr[-2000:]
     assert sorted(p.name for p in (out / "train").glob("conditioned*")) == ["conditioned_seed0", "conditioned_seed1"]
     assert sorted(p.name for p in (out / "evals" / "conditioned_seed0").glob("eval_*")) == [
-        "eval_seed1000_margin1_alpha0", "eval_seed1000_margin1_alpha8"]
+        "eval_seed1000_margin1_alpha0", "eval_seed1000_margin1_alpha8", "eval_seed1001_margin1_alpha0",
+        "eval_seed1001_margin1_alpha8"]  # every model meets every evaluation seed
     report = (out / "report.md").read_text()
     assert "## One network for every alpha: `conditioned` against per-alpha `mix` models" in report
     assert "| 8 | 2 |" in report

@@ -74,30 +74,36 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 
 def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Train into ROOT/train/<key>/ (resuming a matching checkpoint), then evaluate greedily on the eval seed."""
+    """Train into ROOT/train/<key>/ (resuming a matching checkpoint), then evaluate greedily on every evaluation
+    seed; the record's summary pools the evaluations (records.pool_summaries), eval_summaries keeps each."""
     from coopsumo.agents.dqn_policy import DQNPolicy
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
     from coopsumo.studies.model_store import store_for, train_shared
+    from coopsumo.studies.records import pool_summaries
 
     key = spec.get("train_key", spec["key"])
     out = root / "train" / key
     record["train_summary"], _ = train_shared(spec["config"]["train"], out, store_for(root))  # cells share trainings
-    ev = sim_config_from_dict(spec["config"]["eval"])
     margin = float(spec["config"].get("drive", {}).get("change_margin", 0.0))
-    name = f"eval_seed{ev.seed}" + (f"_margin{number_name(margin)}" if margin else "")
-    spec_text = f"dqn:{out / 'model.pt'}"
-    policy = DQNPolicy.from_file(spec_text[4:])
-    if policy.net.conditioned:  # driven at the cell's alpha (its evaluation's)
-        policy.drive_at(ev.reward.alpha, ev.road.lanes)
-        spec_text += f",alpha={ev.reward.alpha:g}"
-        name += f"_alpha{number_name(ev.reward.alpha)}"
-    ev = replace(ev, policy=spec_text)
-    eval_dir = root / "evals" / key / name  # beside the training: the stored model folder holds the training only
-    eval_dir.mkdir(parents=True, exist_ok=True)
-    policy.change_margin = margin
-    summary = run(ev, policy, eval_dir, progress=False)
-    record["summary"] = {k: v for k, v in summary.items() if k != "policy"}
+    summaries = []
+    for raw in spec["config"]["evals"]:
+        ev = sim_config_from_dict(raw)
+        name = f"eval_seed{ev.seed}" + (f"_margin{number_name(margin)}" if margin else "")
+        spec_text = f"dqn:{out / 'model.pt'}"
+        policy = DQNPolicy.from_file(spec_text[4:])
+        if policy.net.conditioned:  # driven at the cell's alpha (its evaluation's)
+            policy.drive_at(ev.reward.alpha, ev.road.lanes)
+            spec_text += f",alpha={ev.reward.alpha:g}"
+            name += f"_alpha{number_name(ev.reward.alpha)}"
+        ev = replace(ev, policy=spec_text)
+        eval_dir = root / "evals" / key / name  # beside the training: the stored model folder holds the training only
+        eval_dir.mkdir(parents=True, exist_ok=True)
+        policy.change_margin = margin
+        summary = run(ev, policy, eval_dir, progress=False)
+        summaries.append({"eval_seed": ev.seed, **{k: v for k, v in summary.items() if k != "policy"}})
+    record["eval_summaries"] = summaries
+    record["summary"] = {k: v for k, v in pool_summaries(summaries).items() if k != "eval_seed"}
 
 
 def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:

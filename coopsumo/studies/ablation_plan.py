@@ -21,7 +21,8 @@ from coopsumo.runio import UsageError
 from coopsumo.validation import name_list, number_name
 
 EVAL_SEED_OFFSET = 1000
-"""a model trained with seed s is evaluated on seed EVAL_SEED_OFFSET + s (a demand it never saw)"""
+"""the evaluation seeds are EVAL_SEED_OFFSET + s for every training seed s of the profile (demands no training saw);
+every model meets all of them"""
 BASELINES = ("keep", "greedy", "mobil:p=0", "mobil:p=0.5")
 METRICS = ("mean_speed_mps", "lane_changes_per_vehicle", "lane_changes_rejected", "teleports", "collisions",
            "throughput_veh_per_h", "mean_travel_time_s")  # fmt: skip
@@ -143,6 +144,19 @@ def variant_list(flag: str, text: str) -> tuple[str, ...]:
     return name_list(flag, text, VARIANT_NAMES)
 
 
+def eval_seeds(profile: Profile) -> tuple[int, ...]:
+    """The evaluation seeds every model and baseline of the study meets: EVAL_SEED_OFFSET + each training seed."""
+    return tuple(EVAL_SEED_OFFSET + s for s in profile.seeds)
+
+
+def own_eval(config: dict[str, Any], seed: int) -> dict[str, Any]:
+    """A training cell's evaluation on seed EVAL_SEED_OFFSET + its training seed (diagnose drives that one); a
+    record written when each model met one evaluation holds it as config["eval"]."""
+    if "eval" in config:
+        return dict(config["eval"])
+    return dict(next(e for e in config["evals"] if e["seed"] == EVAL_SEED_OFFSET + seed))
+
+
 def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
     """Every cell of the study: ablation trainings, alpha-response trainings, baselines."""
     specs: list[dict[str, Any]] = []
@@ -156,14 +170,14 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
         # training ignores the margin; a conditioned one draws its own alphas (its world's alpha is 0)
         cfg = train_config(profile, replace(dqn, change_margin=0.0), 0.0 if dqn.alpha_conditioned else alpha, seed)
         cfg.validate()
-        ev = eval_config(profile, "dqn", EVAL_SEED_OFFSET + seed)
+        evals = [eval_config(profile, "dqn", e) for e in eval_seeds(profile)]
         if dqn.alpha_conditioned:
-            ev = replace(ev, reward=RewardConfig(alpha=alpha))
-        config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
+            evals = [replace(ev, reward=RewardConfig(alpha=alpha)) for ev in evals]
+        config: dict[str, Any] = {"train": to_dict(cfg), "evals": [to_dict(ev) for ev in evals]}
         if dqn.change_margin:
             config["drive"] = {"change_margin": dqn.change_margin}
         specs.append({"key": key, "kind": "train", "part": part, "variant": variant, "alpha": alpha, "seed": seed,
-                      "eval_seed": EVAL_SEED_OFFSET + seed, "policy": "dqn",
+                      "eval_seed": None, "policy": "dqn",
                       "train_key": training_key(dqn, variant, alpha, seed),
                       "config": json.loads(json.dumps(config))})  # fmt: skip
 

@@ -19,6 +19,7 @@ from coopsumo.studies.ablation_plan import (
     VARIANT_NAMES,
     VARIANTS,
     Profile,
+    eval_seeds,
     learner_of,
 )
 
@@ -152,8 +153,11 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
         "",
         f"Profile `{profile.name}`: {profile.lanes} lanes, T_up = {profile.t_up_s:g} s, free flow; each model trained "
         f"{profile.train_steps:,} steps of 0.1 s on training seeds {list(profile.seeds)}, then evaluated greedily for "
-        f"{profile.eval_steps:,} steps on evaluation seed {EVAL_SEED_OFFSET} + training seed (a demand it never "
-        f"saw). Baselines run on the same evaluation seeds. Every figure is mean ± standard deviation over seeds.",
+        f"{profile.eval_steps:,} steps on every evaluation seed {list(eval_seeds(profile))} ({EVAL_SEED_OFFSET} + "
+        "each training seed: demands no training saw). A model's measures pool its evaluations (counts summed, lane "
+        "changes per vehicle over all its vehicles, speeds averaged); baselines run on the same evaluation seeds. "
+        "The trained model is the unit: every figure is mean ± standard deviation over models (training seeds); a "
+        "baseline's is over the evaluation seeds.",
         f"{meta['cells']} cells, {meta['cells_run']} run by the last command (wall time {meta['wall_seconds']:.0f} s, "
         f"{meta['workers']} workers, {meta['backend']} backend); all cells together took "
         f"{meta.get('cell_cpu_seconds_sum', 0) / 3600:.1f} CPU hours "
@@ -210,13 +214,14 @@ def robustness_lines(runs: pd.DataFrame, profile: Profile) -> list[str]:
     return [
         "## Seed robustness at alpha = 0",
         "",
-        "Each model is paired with the baselines on its own evaluation seed. Gap: model minus baseline (m/s); "
-        "worst: the seed with the smallest gap; seeds below: how many models lost to that baseline.",
+        "Every model meets every evaluation seed. Gap: the model (pooled over the evaluation seeds) minus the "
+        "baseline's mean over the same seeds (m/s); worst: the training seed with the smallest gap; seeds below: how "
+        "many models lost to that baseline.",
         "",
         *robustness.markdown(table, list(BASELINES)),
         "",
-        "Mean speed (m/s) and, in brackets, lane changes per vehicle of each model by training seed (baselines: "
-        "on that seed's evaluation demand):",
+        f"Mean speed (m/s) and, in brackets, lane changes per vehicle of each model by training seed, pooled over "
+        f"the evaluation seeds (baselines: on evaluation seed {EVAL_SEED_OFFSET} + that seed alone):",
         "",
         *robustness.seed_matrix_markdown(per_seed),
         "",
@@ -234,20 +239,20 @@ def _chain_lines(runs: pd.DataFrame, profile: Profile) -> list[str]:
         return []
     return ["## Each change of the chain, model by model (alpha = 0)", "",
             "Each variant's model of a training seed minus the previous variant's model of the same seed, both "
-            "driven on that seed's evaluation demand.", "", *table, ""]  # fmt: skip
+            "pooled over the same evaluation seeds.", "", *table, ""]  # fmt: skip
 
 
 def paired_gap(
     runs: pd.DataFrame, variant: str, other: str, metric: str = "mean_speed_mps"
 ) -> tuple[float, float, int]:
-    """Mean and sd over evaluation seeds of metric(variant, alpha 0) - metric(other), paired by seed."""
+    """Mean and sd over models of metric(variant, alpha 0) - metric(other) (robustness.paired_gaps)."""
     diff = robustness.paired_gaps(runs, variant, other, metric)
     sd = float(diff.std()) if len(diff) > 1 else float("nan")
     return float(diff.mean()) if len(diff) else float("nan"), sd, len(diff)
 
 
 def target_lines(runs: pd.DataFrame, default_variant: str) -> list[str]:
-    """The issue's targets for the default design at alpha = 0, measured (paired by evaluation seed)."""
+    """The issue's targets for the default design at alpha = 0, measured over its models."""
     lines = [f"## Targets: the default design (`{default_variant}`) at alpha = 0", ""]
     mobils = [b for b in BASELINES if b.startswith("mobil")]
     ok = runs[runs["status"] == "ok"]
@@ -259,7 +264,7 @@ def target_lines(runs: pd.DataFrame, default_variant: str) -> list[str]:
         if math.isnan(mean):
             continue
         verdict = "met" if mean >= goal else f"not met by {goal - mean:.2f} m/s"
-        lines.append(f"- mean speed minus `{other}`: {mean:+.2f} ± {sd:.2f} m/s over {n} evaluation seeds "
+        lines.append(f"- mean speed minus `{other}`: {mean:+.2f} ± {sd:.2f} m/s over {n} models "
                      f"(target {goal:+.1f}: {verdict})")  # fmt: skip
     wall = ok[(ok["variant"] == default_variant) & (ok["kind"] == "train")]["train_wall_s"]
     if len(wall):

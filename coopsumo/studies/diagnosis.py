@@ -1,7 +1,8 @@
 """`coopsumo diagnose`: why some training seeds fail: what each trained model's greedy choices rest on.
 
 For every model of a learning-study folder (`coopsumo learning --out ROOT`: each finished training's record in
-ROOT/cells/, its model in ROOT/train/<key>/model.pt), drive it greedily on its evaluation seed for --steps steps and
+ROOT/cells/, its model in ROOT/train/<key>/model.pt), drive it greedily on its own evaluation seed (1000 + its
+training seed) for --steps steps and
 record, at every decision of every vehicle, its Q-values and the actions offered. Beside the training log, this says
 whether a model's lane changes come from clear Q-value margins or from near-ties, and when during training its lane
 changing grew (diagnosis_measures). Each model is a cell of the shared runner (record
@@ -25,7 +26,7 @@ from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.config import sim_config_from_dict
 from coopsumo.runio import Parser, UsageError, run_cli
 from coopsumo.sim.observation import Observation, network_features
-from coopsumo.studies.ablation_plan import variant_list
+from coopsumo.studies.ablation_plan import own_eval, variant_list
 from coopsumo.studies.cells import add_cell_flags, failed_keys, run_cells
 from coopsumo.studies.diagnosis_measures import COLUMNS, decision_measures, training_course
 from coopsumo.studies.learning_models import finished_trainings
@@ -101,12 +102,14 @@ def cell_specs(root: Path, steps: int, variants: tuple[str, ...] | None, alpha0_
     specs = []
     for t in finished_trainings(root, PROG, variants, (0.0,) if alpha0_only else None):
         try:
-            sim_config_from_dict(t["config"]["eval"])  # an evaluation this version can drive
-        except (KeyError, TypeError, ValueError) as err:
-            raise UsageError(f"the record of training {t['key']} in {root} has no usable evaluation ({err})") from None
+            own = own_eval(t["config"], t["seed"])  # the model's evaluation on its own seed
+            sim_config_from_dict(own)  # one this version can drive
+        except (KeyError, TypeError, ValueError, StopIteration) as err:
+            raise UsageError(f"the record of training {t['key']} in {root} has no usable evaluation "
+                             f"({type(err).__name__} {err})") from None  # fmt: skip
         specs.append({"key": f"diagnosis_{t['key']}", "cell": t["key"], "variant": t["variant"], "alpha": t["alpha"],
                       "seed": t["seed"], "train_key": t["model"].parent.name,
-                      "config": {"eval": t["config"]["eval"], "steps": steps}})  # fmt: skip
+                      "config": {"eval": own, "steps": steps}})  # fmt: skip
     if not specs:
         raise UsageError(f"no finished trainings{' of ' + ','.join(variants) if variants else ''}"
                          f"{' at alpha 0' if alpha0_only else ''} in {root}")  # fmt: skip

@@ -1,7 +1,8 @@
 """Seed robustness of learned policies (the learning study's `make learning` report): pure tables on its runs.
 
-Every learner row is judged per training seed, not only on its mean: each model is paired with the
-baselines on its own evaluation seed, and the worst seed is shown beside the mean.
+Every learner row is judged per training seed, not only on its mean: every model meets every evaluation seed (its
+measures pooled over them) and is compared with each baseline's mean over the same seeds; the worst seed is shown
+beside the mean.
 """
 
 from __future__ import annotations
@@ -14,18 +15,24 @@ import pandas as pd
 
 
 def alpha0_runs(runs: pd.DataFrame, variant: str) -> pd.DataFrame:
-    """The finished alpha = 0 models of a variant, one row per evaluation seed."""
+    """The finished alpha = 0 models of a variant, one row per training seed."""
     ok = runs[(runs["status"] == "ok") & (runs["kind"] == "train")]
     mine = ok[(ok["variant"] == variant) & (ok["alpha"].fillna(0) == 0)]
-    return mine.drop_duplicates("eval_seed").sort_values("seed")
+    return mine.drop_duplicates("seed").sort_values("seed")
 
 
 def paired_gaps(runs: pd.DataFrame, variant: str, other: str, metric: str = "mean_speed_mps") -> pd.Series:
-    """metric(variant at alpha 0) - metric(other), by evaluation seed (seeds where both finished)."""
+    """metric(variant at alpha 0) - metric(other), one per model (by training seed): the model's measure pooled over
+    the evaluation seeds minus the other's mean over them. Another learner's models are paired by training seed; a
+    baseline (one run per evaluation seed) is its mean, the same for every model."""
     ok = runs[runs["status"] == "ok"]
-    mine = alpha0_runs(runs, variant).set_index("eval_seed")[metric]
-    theirs = ok[ok["variant"] == other].groupby("eval_seed")[metric].mean()
-    return (mine - theirs).dropna()
+    mine = alpha0_runs(runs, variant).set_index("seed")[metric]
+    others = ok[ok["variant"] == other]
+    if (others["kind"] == "train").any():
+        return (mine - alpha0_runs(runs, other).set_index("seed")[metric]).dropna()
+    if others.empty:
+        return mine.iloc[:0]
+    return (mine - float(others[metric].mean())).dropna()
 
 
 def robustness_table(runs: pd.DataFrame, variants: list[str], baselines: list[str]) -> pd.DataFrame:
@@ -61,7 +68,7 @@ def per_seed_table(runs: pd.DataFrame, variants: list[str], baselines: list[str]
     for variant in [*variants, *baselines]:
         mine = alpha0_runs(runs, variant) if variant in variants else ok[ok["variant"] == variant]
         for _, r in mine.iterrows():
-            rows.append({"variant": variant, "seed": int(r["seed"]), "eval_seed": int(r["eval_seed"]),
+            rows.append({"variant": variant, "seed": int(r["seed"]),
                          "mean_speed_mps": r["mean_speed_mps"],
                          "lane_changes_per_vehicle": r["lane_changes_per_vehicle"]})  # fmt: skip
     return pd.DataFrame(rows)
