@@ -195,3 +195,45 @@ def test_the_batched_bootstrap_gives_the_intervals_of_one_call_per_resample(shap
     for mats, func, batch in (((x,), stats.iqm, stats.iqm_batch),
                               ((x, y), stats.probability_of_improvement, stats.improvement_batch)):  # fmt: skip
         assert stats.stratified_bootstrap(mats, func, 300, batch=batch) == stats.stratified_bootstrap(mats, func, 300)
+
+
+def test_a_training_that_differs_only_in_validation_is_reselected_not_trained(tmp_path: Path,
+                                                                               monkeypatch: pytest.MonkeyPatch) -> None:
+    """In SUMO: the store holds a training validated in free flow; asking for the same training validated through an
+    accident too trains nothing (its snapshots are validated again into their own folder), leaves the stored one
+    as it was, and the new folder is a whole model of its own configuration that a third ask takes as it is."""
+    from coopsumo.studies import model_store, trainings
+    from coopsumo.studies.trainings import finished_training
+
+    dq = dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=100, validation_t_ups=(1.5,),
+                             train_t_ups=(), accident_share=0.0)  # fmt: skip
+    free = TrainConfig(sim=SimConfig(steps=400, seed=3, policy="dqn"), eval_steps=0, dqn=dq)
+    both = dataclasses.replace(free, dqn=dataclasses.replace(dq, validation_accident_steps=600))
+    store = tmp_path / "models"
+    model_store.train_shared(to_dict(free), tmp_path / "a", store)
+    src = store / model_store.model_id(to_dict(free))
+    before = {p.name: p.read_bytes() for p in (src / "snapshots").rglob("*") if p.is_file()}
+
+    def no_training(*_: object) -> None:
+        raise AssertionError("trained")
+
+    monkeypatch.setattr(trainings, "train_resuming", no_training)  # imported by train_shared when it is called
+    summary, resumed = model_store.train_shared(to_dict(both), tmp_path / "b", store)
+    dst = store / model_store.model_id(to_dict(both))
+    assert dst != src and resumed is None and summary["reselected_from"] == src.name
+    assert {p.name: p.read_bytes() for p in (src / "snapshots").rglob("*") if p.is_file()} == before
+    assert finished_training(dst, to_dict(both)) is not None and finished_training(src, to_dict(free)) is not None
+    assert (dst / "train_log.csv").read_bytes() == (src / "train_log.csv").read_bytes()
+    last = _weights(dst / selection.LAST_MODEL), _weights(src / selection.LAST_MODEL)
+    assert all(torch.equal(last[0][k], last[1][k]) for k in last[0])
+    results = selection.results(dst)
+    assert [r["step"] for r in results] == [200, 400]
+    assert all([x["accident"] for x in r["runs"]] == [False, True] for r in results)
+    assert summary["selected_step"] == selection.best(results)["step"]  # type: ignore[index]
+    chosen = _weights(dst / "model.pt")
+    snap = _weights(selection.snapshot_dir(src, summary["selected_step"]) / "model.pt")
+    assert all(torch.equal(chosen[k], snap[k]) for k in chosen)
+    monkeypatch.undo()  # train_resuming returns a whole stored training as it is
+    stamp = (dst / "model.pt").stat().st_mtime_ns
+    assert model_store.train_shared(to_dict(both), tmp_path / "c", store)[0] == summary
+    assert (dst / "model.pt").stat().st_mtime_ns == stamp  # neither trained nor judged again

@@ -155,6 +155,55 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
     write_atomic(path, lambda tmp: tmp.write_text(text))
 
 
+SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps")
+"""learner settings that only judge snapshots: two trainings that differ in nothing else train the same weights"""
+
+
+def reselect(src: Path, out: Path, cfg: TrainConfig, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Make `out` a finished training folder of cfg from `src`, a finished training that differs from cfg only in
+    SELECTION_FIELDS: the same snapshots, last weights and training log (rewritten under cfg's configuration),
+    validated again with cfg's validation, the best installed as model.pt. No training step runs (validation never
+    feeds back into training, so these are the weights cfg would train). Returns out's train summary."""
+    from coopsumo.agents.dqn import load_model, save_model
+    from coopsumo.runio import mark_run_dir, versions, write_json
+
+    meta = {"config": to_dict(cfg), "versions": versions()}
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    mark_run_dir(out, "train", finished=False)
+    write_json(out / "config.json", meta)
+    for name in ("train_log.csv", "sumo", "tensorboard"):
+        if (src / name).is_dir():
+            shutil.copytree(src / name, out / name)
+        elif (src / name).is_file():
+            shutil.copyfile(src / name, out / name)
+    net, _ = load_model(src / LAST_MODEL)
+    save_model(out / LAST_MODEL, net, meta)
+    steps = sorted(int(d.name[4:]) for d in (src / SNAPSHOTS).glob("step*") if d.name[4:].isdigit())
+    for step in steps:
+        net, _ = load_model(snapshot_dir(src, step) / "model.pt")
+        snapshot_dir(out, step).mkdir(parents=True)
+        save_model(snapshot_dir(out, step) / "model.pt", net, meta)
+        folder = request(out, cfg, step)
+        if progress is not None:
+            progress(f"validating step {step:,}")
+        proc = start(folder)
+        _, err = proc.communicate()
+        if proc.returncode != 0 or result(folder) is None:
+            lines = err.decode(errors="replace").strip().splitlines() if err else []
+            raise RuntimeError(f"validation of {folder} failed: {lines[-1] if lines else f'exit {proc.returncode}'}")
+    chosen = install_best(out)
+    if chosen is None:
+        raise RuntimeError(f"{src} has no snapshots to choose from")
+    write_table(out)
+    summary = json.loads((src / "train_summary.json").read_text())
+    summary.update(selected_step=chosen["step"], selected_score=chosen["score"], last_score=results(out)[-1]["score"],
+                   reselected_from=src.name)  # fmt: skip
+    write_json(out / "train_summary.json", summary)
+    mark_run_dir(out, "train")
+    return summary
+
+
 # -- the validation process -------------------------------------------------------------------------
 def diagnosis(rows: list[np.ndarray]) -> dict[str, float]:
     """Action shares and Q-gap measures of greedy decisions; rows: [Q (4), offered (4), action] per decision."""

@@ -11,7 +11,9 @@ The store is the folder `models` beside the study's results folder (results/mode
 $COOPSUMO_MODELS. A stored model is used only when it is whole and is its identity's (trainings.finished_training:
 the run marker, config.json equal to the identity, a model.pt that loads and was made by that configuration); a
 hand-edited or truncated one is trained again in its folder, and nothing else in the store is touched. A killed
-training resumes from its checkpoint, as a study's own would.
+training resumes from its checkpoint, as a study's own would. A model whose training differs from a stored one only
+in how its snapshots are judged (selection.SELECTION_FIELDS, e.g. validation through an accident) is not trained:
+the stored training's snapshots are validated again into its own folder (reselectable, selection.reselect).
 """
 
 from __future__ import annotations
@@ -77,7 +79,7 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
     stored one; a study's earlier training in out moves into the store instead of being trained again.
     Returns (train summary, step resumed from or None).
     """
-    from coopsumo.studies.trainings import train_resuming
+    from coopsumo.studies.trainings import finished_training, train_resuming
 
     store.mkdir(parents=True, exist_ok=True)
     folder = store / model_id(config)
@@ -85,7 +87,55 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
         _adopt(out, folder)
         folder.mkdir(exist_ok=True)
         _link(out, folder)  # before training: its checkpoint shows through the study's folder
+        if finished_training(folder, config, quiet=True) is None and (src := reselectable(config, store)) is not None:
+            return _reselect(src, folder, config), None
         return train_resuming(config, folder)
+
+
+def without_selection(config: dict[str, Any]) -> dict[str, Any]:
+    """A training's identity without the settings that only judge its snapshots (selection.SELECTION_FIELDS)."""
+    from coopsumo.agents.selection import SELECTION_FIELDS
+
+    ident = identity(config)
+    ident["dqn"] = {k: v for k, v in ident.get("dqn", {}).items() if k not in SELECTION_FIELDS}
+    return ident
+
+
+def reselectable(config: dict[str, Any], store: Path) -> Path | None:
+    """A whole stored training that differs from the training `config` only in how snapshots are judged, or None:
+    then `config`'s model is that training's snapshots validated again, and nothing is trained. Only for a training
+    that selects its model (agents/selection.selecting) and has no evaluation of its own."""
+    from coopsumo.agents.selection import selecting
+    from coopsumo.config import train_config_from_dict
+    from coopsumo.studies.trainings import finished_training
+
+    cfg = train_config_from_dict(config)
+    if not selecting(cfg) or cfg.eval_steps != 0:
+        return None
+    wanted, name = without_selection(config), model_id(config)
+    for folder in sorted(p for p in store.iterdir() if p.is_dir() and not p.name.startswith(".") and p.name != name):
+        try:
+            other = json.loads((folder / "config.json").read_text())["config"]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if without_selection(other) == wanted and model_id(other) == folder.name \
+                and finished_training(folder, other, quiet=True) is not None:  # fmt: skip
+            return folder
+    return None
+
+
+def _reselect(src: Path, folder: Path, config: dict[str, Any]) -> dict[str, Any]:
+    """The model of `config` from the snapshots of `src` (selection.reselect), under its lock (a training of src
+    cannot change it meanwhile)."""
+    import sys
+
+    from coopsumo.agents.selection import reselect
+    from coopsumo.config import train_config_from_dict
+
+    print(f"coopsumo: {folder.name}: the snapshots of {src.name} judged again (they differ only in model selection; "
+          "nothing is trained)", file=sys.stderr)  # fmt: skip
+    with _locked(src.parent / f".{src.name}.lock"):
+        return reselect(src, folder, train_config_from_dict(config))
 
 
 @contextmanager

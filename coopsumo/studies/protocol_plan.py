@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from coopsumo.config import (
+    MIN_ACCIDENT_VALIDATION_STEPS,
     AccidentConfig,
     DemandConfig,
     DQNConfig,
@@ -92,6 +93,9 @@ def variants() -> dict[str, Variant]:
                 "in a queue always asks to speed up)", V2X_MIX, restart=5.0),
         Variant("v2x_mix_lanes", "`v2x_mix`'s trainings choosing lanes only: 'none' never offered, so every vehicle "
                 "that stays asks to speed up, as `keep` does", V2X_MIX, restart=50.0),
+        Variant("v2x_mix_av", "`v2x_mix` with model.pt chosen through an accident too: each snapshot also driven "
+                "6,000 steps through an accident at T_up 2, 1.5 and 1 s (--validation-accident-steps 6000; the "
+                "same trainings, judged again)", replace(V2X_MIX, validation_accident_steps=6000)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -123,6 +127,7 @@ PROFILES = {
                      seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # the default driven otherwise
     "cooldown": Profile("cooldown", variants=("v2x_mix", "v2x_mix_cd10")),  # the 10 s cooldown on 10 models
     "restart": Profile("restart", variants=("v2x_mix", "v2x_mix_r5", "v2x_mix_lanes"), alpha_seeds=0),  # 'none'?
+    "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), alpha_seeds=0),  # choosing through an accident
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
@@ -134,6 +139,9 @@ def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> T
     if profile.train_steps < dqn.select_every_steps:  # a short profile validates twice
         dqn = replace(dqn, select_every_steps=max(profile.train_steps // 2, 1), validation_steps=min(
             dqn.validation_steps, profile.free_steps))  # fmt: skip
+        if dqn.validation_accident_steps:
+            dqn = replace(dqn, validation_accident_steps=max(MIN_ACCIDENT_VALIDATION_STEPS, min(
+                dqn.validation_accident_steps, profile.accident_steps)))  # fmt: skip
     return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
 
 
