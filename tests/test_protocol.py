@@ -77,8 +77,27 @@ def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:
     for seed, (own, m2) in enumerate([(40.0, 38.0), (42.0, 41.0), (39.0, 39.5)]):
         for variant, tts, lcs in (("v2x_mix", own, 3.0), ("v2x_mix_m2", m2, 1.0)):
             rows.append({"status": "ok", "alpha": 0.0, "scenario": "accident", "t_up": 1.5, "variant": variant,
-                         "train_key": f"k{seed}", "tts_veh_h": tts, "lane_changes_per_vehicle": lcs})
+                         "seed": 100 + seed, "train_key": f"k{seed}", "tts_veh_h": tts,
+                         "lane_changes_per_vehicle": lcs})  # fmt: skip
     (row,) = paired_rows(pd.DataFrame(rows), "v2x_mix_m2", "v2x_mix")
     assert row["models"] == 3 and row["better"] == 2  # lower total time spent is better
     assert row["diff"] == pytest.approx((-2.0 - 1.0 + 0.5) / 3) and row["low"] < row["diff"] < row["high"]
     assert row["lane_changes"] == pytest.approx(-2.0)
+
+
+def test_a_variant_that_only_chooses_snapshots_otherwise_is_paired_by_model() -> None:
+    """v2x_mix_av's trainings are v2x_mix's judged again (another train_key): paired by training seed."""
+    from coopsumo.config import to_dict
+    from coopsumo.studies.protocol_plan import Profile, variants
+    from coopsumo.studies.protocol_report import paired_lines
+
+    known = variants()
+    rows = [{"status": "ok", "alpha": 0.0, "scenario": "free", "t_up": 2.0, "variant": v, "seed": seed,
+             "train_key": f"{v}{seed}", "mean_speed_mps": speed + (0.5 if v == "v2x_mix_av" else 0.0),
+             "lane_changes_per_vehicle": 1.0} for v in ("v2x_mix", "v2x_mix_av", "select")
+            for seed, speed in ((100, 20.0), (101, 21.0))]  # fmt: skip
+    learners = {v: {"learner": to_dict(known[v].learner)} for v in ("v2x_mix", "v2x_mix_av", "select")}
+    profile = Profile("x", variants=("v2x_mix", "v2x_mix_av", "select"))
+    text = "\n".join(paired_lines(pd.DataFrame(rows), profile, {"learners": learners}))
+    assert "| `v2x_mix_av` | free | 2 | +0.50" in text and "2 of 2" in text
+    assert "`select` |" not in text  # another training: not paired

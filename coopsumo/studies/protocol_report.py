@@ -83,15 +83,16 @@ def pooled_stats(runs: pd.DataFrame, variant: str, baseline: str, scenario: str)
 
 
 def paired_rows(runs: pd.DataFrame, variant: str, reference: str) -> list[dict[str, Any]]:
-    """Per condition, `variant` minus `reference` driven by the same trainings (the same train_key per seed): the mean
-    over models of the paired difference in the headline measure and in lane changes per vehicle, a 95% bootstrap
-    interval over models (stats.hierarchical_bootstrap, one evaluation per model), and how many models did better."""
+    """Per condition, `variant` minus `reference` on the same trainings (paired by training seed: the same run, driven
+    or chosen otherwise): the mean over models of the paired difference in the headline measure and in lane changes
+    per vehicle, a 95% bootstrap interval over models (stats.hierarchical_bootstrap, one evaluation per model), and
+    how many models did better."""
     ok = runs[(runs["status"] == "ok") & (runs["alpha"] == 0)]
     rows = []
     for (scenario, t_up), cond in ok.groupby(["scenario", "t_up"], sort=False):
         measure, _, sign = MEASURES[str(scenario)]
-        mine = cond[cond["variant"] == variant].set_index("train_key")
-        ref = cond[cond["variant"] == reference].set_index("train_key")
+        mine = cond[cond["variant"] == variant].set_index("seed")
+        ref = cond[cond["variant"] == reference].set_index("seed")
         both = mine.index.intersection(ref.index)
         if not len(both):
             continue
@@ -258,13 +259,20 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
 
 
 def paired_lines(runs: pd.DataFrame, profile: Any, meta: dict[str, Any]) -> list[str]:
-    """A section per variant that drives the first variant's trainings another way (another margin or weights):
-    the differences paired by model, which the intervals against the baselines above cannot show."""
+    """A section per variant that drives the first variant's trainings another way (another margin or weights) or
+    chooses among their snapshots otherwise (the learner differs only in selection.SELECTION_FIELDS): the
+    differences paired by model, which the intervals against the baselines above cannot show."""
+    from coopsumo.agents.selection import SELECTION_FIELDS
+
+    def trained(variant: str) -> dict[str, Any]:
+        return {k: v for k, v in meta["learners"][variant]["learner"].items() if k not in SELECTION_FIELDS}
+
     first = profile.variants[0]
-    same = [v for v in profile.variants[1:] if meta["learners"][v]["learner"] == meta["learners"][first]["learner"]]
+    same = [v for v in profile.variants[1:] if trained(v) == trained(first)]
     if not same:
         return []
-    lines = ["", f"## The same trainings driven otherwise: each variant minus `{first}`, paired by model", "",
+    lines = ["", f"## The same trainings driven or chosen otherwise: each variant minus `{first}`, paired by model",
+             "",
              "Mean over models of the paired difference, 95% bootstrap interval over models, and how many models "
              f"did better than with `{first}` (free flow: mean speed, m/s; accident: total time spent, veh-h).", "",
              "| learner | scenario | T_up (s) | difference [95% CI] | better | lane changes / veh, difference |",
