@@ -85,6 +85,14 @@ def start(folder: Path) -> subprocess.Popen[bytes]:
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
 
 
+def check_finished(folder: Path, proc: subprocess.Popen[bytes]) -> None:
+    """RuntimeError naming the last line the ended validation process `proc` of `folder` wrote, unless it left a
+    result."""
+    if proc.returncode != 0 or result(folder) is None:
+        err = proc.stderr.read().decode(errors="replace").strip().splitlines() if proc.stderr else []
+        raise RuntimeError(f"validation of {folder} failed: {err[-1] if err else f'exit {proc.returncode}'}")
+
+
 def result(folder: Path) -> dict[str, Any] | None:
     """The finished validation of a snapshot folder, or None."""
     try:
@@ -159,7 +167,12 @@ SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "
 """learner settings that only judge snapshots: two trainings that differ in nothing else train the same weights"""
 
 
-def reselect(src: Path, out: Path, cfg: TrainConfig, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+def trained_part(learner: dict[str, Any]) -> dict[str, Any]:
+    """A learner (DQNConfig dict) without SELECTION_FIELDS: two learners with equal parts train the same weights."""
+    return {k: v for k, v in learner.items() if k not in SELECTION_FIELDS}
+
+
+def reselect(src: Path, out: Path, cfg: TrainConfig) -> dict[str, Any]:
     """Make `out` a finished training folder of cfg from `src`, a finished training that differs from cfg only in
     SELECTION_FIELDS: the same snapshots, last weights and training log (rewritten under cfg's configuration),
     validated again with cfg's validation, the best installed as model.pt. No training step runs (validation never
@@ -185,13 +198,9 @@ def reselect(src: Path, out: Path, cfg: TrainConfig, progress: Callable[[str], N
         snapshot_dir(out, step).mkdir(parents=True)
         save_model(snapshot_dir(out, step) / "model.pt", net, meta)
         folder = request(out, cfg, step)
-        if progress is not None:
-            progress(f"validating step {step:,}")
         proc = start(folder)
-        _, err = proc.communicate()
-        if proc.returncode != 0 or result(folder) is None:
-            lines = err.decode(errors="replace").strip().splitlines() if err else []
-            raise RuntimeError(f"validation of {folder} failed: {lines[-1] if lines else f'exit {proc.returncode}'}")
+        proc.wait()
+        check_finished(folder, proc)
     chosen = install_best(out)
     if chosen is None:
         raise RuntimeError(f"{src} has no snapshots to choose from")
@@ -328,9 +337,7 @@ class Validator:
             if proc.poll() is None:
                 return
             self.running = None
-            if proc.returncode != 0 or result(folder) is None:
-                err = proc.stderr.read().decode(errors="replace").strip().splitlines() if proc.stderr else []
-                raise RuntimeError(f"validation of {folder} failed: {err[-1] if err else f'exit {proc.returncode}'}")
+            check_finished(folder, proc)
         if self.queue:
             folder = self.queue.pop(0)
             self.running = (folder, start(folder))

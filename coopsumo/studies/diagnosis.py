@@ -2,8 +2,8 @@
 
 For every model of a learning-study folder (`coopsumo learning --out ROOT`: each finished training's record in
 ROOT/cells/, its model in ROOT/train/<key>/model.pt), drive it greedily on its own evaluation seed (1000 + its
-training seed) for --steps steps and
-record, at every decision of every vehicle, its Q-values and the actions offered. Beside the training log, this says
+training seed) for --steps steps and record, at every decision of every vehicle, its Q-values and the actions
+offered. Beside the training log, this says
 whether a model's lane changes come from clear Q-value margins or from near-ties, and when during training its lane
 changing grew (diagnosis_measures). Each model is a cell of the shared runner (record
 ROOT/cells/diagnosis_<key>.json, reused on a rerun); writes ROOT/diagnosis.csv (one row per model) and prints it.

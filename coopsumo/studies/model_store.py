@@ -94,10 +94,10 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
 
 def without_selection(config: dict[str, Any]) -> dict[str, Any]:
     """A training's identity without the settings that only judge its snapshots (selection.SELECTION_FIELDS)."""
-    from coopsumo.agents.selection import SELECTION_FIELDS
+    from coopsumo.agents.selection import trained_part
 
     ident = identity(config)
-    ident["dqn"] = {k: v for k, v in ident.get("dqn", {}).items() if k not in SELECTION_FIELDS}
+    ident["dqn"] = trained_part(ident.get("dqn", {}))
     return ident
 
 

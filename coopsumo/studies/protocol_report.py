@@ -262,10 +262,10 @@ def paired_lines(runs: pd.DataFrame, profile: Any, meta: dict[str, Any]) -> list
     """A section per variant that drives the first variant's trainings another way (another margin or weights) or
     chooses among their snapshots otherwise (the learner differs only in selection.SELECTION_FIELDS): the
     differences paired by model, which the intervals against the baselines above cannot show."""
-    from coopsumo.agents.selection import SELECTION_FIELDS
+    from coopsumo.agents.selection import trained_part
 
     def trained(variant: str) -> dict[str, Any]:
-        return {k: v for k, v in meta["learners"][variant]["learner"].items() if k not in SELECTION_FIELDS}
+        return trained_part(meta["learners"][variant]["learner"])
 
     first = profile.variants[0]
     same = [v for v in profile.variants[1:] if trained(v) == trained(first)]
