@@ -126,8 +126,10 @@ def diagnosis_table(root: Path, runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def validation_curves_figure(root: Path, keys: list[str], out_path: Path) -> Path | None:
-    """Validation score and the share of 'none' among greedy decisions over training, one line per training."""
+def validation_curves_figure(root: Path, keys: list[str], out_path: Path,
+                             names: dict[str, str] | None = None) -> Path | None:  # fmt: skip
+    """Validation score and the share of 'none' among greedy decisions over training, one line per training: a
+    colour per seed, a line style per learner (named by `names`, training key -> variant, when there are several)."""
     from coopsumo.report.plots import new_figure, save_figure
 
     curves = [(k, pd.read_csv(p)) for k in keys if (p := root / "train" / k / "validation.csv").exists()]
@@ -135,11 +137,17 @@ def validation_curves_figure(root: Path, keys: list[str], out_path: Path) -> Pat
         return None
     fig = new_figure(10.0, 3.6)
     axes = fig.subplots(1, 3)
+    seeds = sorted({key.split("_")[1] for key, _ in curves})
+    learners = sorted({key.split("_", 2)[2] for key, _ in curves})  # a key: a<alpha>_seed<s>_<learner tag>
     for key, val in curves:
-        seed = key.split("_")[1]
-        axes[0].plot(val["step"], val["mean_speed_mps"], marker="o", ms=3, lw=1, label=seed)
-        axes[1].plot(val["step"], val["share_none"], marker="o", ms=3, lw=1)
-        axes[2].plot(val["step"], val["lane_changes_per_vehicle"], marker="o", ms=3, lw=1)
+        _, seed, learner = key.split("_", 2)
+        n = learners.index(learner)  # each seed one colour, each learner its own line style and label
+        style = {"color": f"C{seeds.index(seed) % 10}", "linestyle": ("-", "--", ":", "-.")[n % 4], "marker": "o",
+                 "ms": 3, "lw": 1}  # fmt: skip
+        label = seed if len(learners) == 1 else f"{seed}, {(names or {}).get(key, f'learner {n + 1}')}"
+        axes[0].plot(val["step"], val["mean_speed_mps"], label=label, **style)
+        axes[1].plot(val["step"], val["share_none"], **style)
+        axes[2].plot(val["step"], val["lane_changes_per_vehicle"], **style)
     for ax, label in zip(axes, ("validation mean speed (m/s)", "share of 'none' in greedy decisions",
                                 "lane changes per vehicle"), strict=True):  # fmt: skip
         ax.set_xlabel("training step")
@@ -164,8 +172,9 @@ def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta:
     diag = diagnosis_table(root, runs)
     if len(diag):
         diag.to_csv(root / "diagnosis.csv", index=False, float_format="%.6g")
-    keys = sorted({k for k in runs[(runs["kind"] == "model") & (runs["alpha"] == 0)]["train_key"].dropna()})
-    validation_curves_figure(root, keys, root / "fig_validation.png")
+    models = runs[(runs["kind"] == "model") & (runs["alpha"] == 0)].dropna(subset=["train_key"])
+    names = dict(zip(models["train_key"][::-1], models["variant"][::-1], strict=True))  # the first variant driving it
+    validation_curves_figure(root, sorted(names), root / "fig_validation.png", names)
     (root / "report.md").write_text(report_text(profile, runs, table, diag, meta))
 
 
