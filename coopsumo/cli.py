@@ -14,7 +14,8 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from coopsumo import __version__
-from coopsumo.runio import NETS_ENV, Parser, nets_dir_problem, working_folder_problem
+from coopsumo.paths import nets_dir_problem
+from coopsumo.runio import NETS_ENV, Parser, working_folder_problem
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("coopsumo.simulate", "run one simulation (free flow or the accident) with any policy"),

@@ -23,7 +23,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from coopsumo.runio import UsageError, out_path_problem
+from coopsumo.paths import out_path_problem
+from coopsumo.runio import UsageError
 
 SEED_MAX = 2**31 - 1
 """largest seed: SUMO's --seed is a C int"""
@@ -230,7 +231,7 @@ alpha = number(ALPHA_MIN, ALPHA_MAX)
 
 
 def out_dir(text: str) -> Path:
-    """A `type=` for --out: a folder path SUMO and the file system can take (runio.out_path_problem: no ':' or ','
+    """A `type=` for --out: a folder path SUMO and the file system can take (paths.out_path_problem: no ':' or ','
     in it, not too long, no symlink loop, ASCII under an ASCII locale, a current folder that exists), checked
     here instead of failing inside SUMO after a folder was made."""
     if not text:

@@ -14,8 +14,9 @@ import pytest
 import coopsumo
 
 PACKAGE_DIR = Path(coopsumo.__file__).parent
-# what each layer may import from the others (the top-level modules config, runio, validation are shared by all)
-SHARED = {"coopsumo", "coopsumo.config", "coopsumo.policy_spec", "coopsumo.runio", "coopsumo.validation"}
+# what each layer may import from the others (the top-level modules config, paths, runio, validation are shared by all)
+SHARED = {"coopsumo", "coopsumo.config", "coopsumo.paths", "coopsumo.policy_spec", "coopsumo.runio",
+          "coopsumo.validation"}
 ALLOWED = {
     "coopsumo.sim": {"coopsumo.sim"},
     "coopsumo.agents": {"coopsumo.agents", "coopsumo.sim"},
@@ -144,3 +145,13 @@ def test_text_names_only_modules_that_exist() -> None:
             if module is not None and not hasattr(module, rest[0]):
                 stale.append(f"{path.relative_to(root)}: {dotted}")
     assert not stale, "; ".join(sorted(set(stale)))
+
+
+MAX_MODULE_LINES = 600
+"""a module past this is two concepts: split it"""
+
+
+def test_every_module_stays_short() -> None:
+    lengths = {name: len(path.read_text().splitlines()) for name, path in module_files().items()}
+    long = {name: n for name, n in lengths.items() if n > MAX_MODULE_LINES}
+    assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"

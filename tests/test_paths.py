@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from coopsumo.runio import NAME_ROOM, PATH_ROOM, out_path_problem
+from coopsumo.paths import NAME_ROOM, PATH_ROOM, out_path_problem
 
 REPO = Path(__file__).resolve().parent.parent
 COMMANDS = ("simulate", "train", "scenario1", "scenario2", "ablation")

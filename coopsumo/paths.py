@@ -1,0 +1,102 @@
+"""Which paths SUMO and the file system can take as output folders: the checks behind every --out and
+--nets-dir, each returning why not as a phrase to follow the flag."""
+
+from __future__ import annotations
+
+import locale
+import os
+from pathlib import Path
+
+NAME_ROOM = 18
+"""bytes a run adds to the last name of --out: its partial folder '.<name>.partial-XXXXXXXX' beside it"""
+PATH_ROOM = 256
+"""bytes left free under PATH_MAX for the files a command writes inside --out (the deepest: a study's run folders)"""
+
+
+def _exists(path: Path) -> bool:
+    """Path.exists, False where the system cannot even look (a name too long, a loop, no permission)."""
+    try:
+        return path.exists()
+    except OSError:
+        return False
+
+
+def nearest_existing(path: Path) -> Path:
+    """`path` or its nearest ancestor that exists."""
+    folder = path
+    while not _exists(folder) and folder != folder.parent:
+        folder = folder.parent
+    return folder
+
+
+def _fs_limits(path: Path) -> tuple[int, int]:
+    """(NAME_MAX, PATH_MAX) in bytes of the file system holding path's nearest existing folder."""
+    folder = nearest_existing(path)
+    try:
+        return os.pathconf(folder, "PC_NAME_MAX"), os.pathconf(folder, "PC_PATH_MAX")
+    except (OSError, ValueError):
+        return 255, 4096
+
+
+def _utf8_locale() -> bool:
+    """True when the C library's character set is UTF-8 (SUMO opens files by names in it; LC_ALL=C is ASCII)."""
+    return locale.nl_langinfo(locale.CODESET).replace("-", "").lower() == "utf8"
+
+
+def out_path_problem(path: Path) -> str | None:
+    """Why SUMO or the file system cannot take `path` as an output folder (a phrase to follow the flag), or None.
+
+    Refused: a relative path when the current folder was deleted; ':' (SUMO reads it as host:port) or ','
+    (SUMO splits its file lists at commas) anywhere in the absolute path; non-ASCII characters under an
+    ASCII locale (LC_ALL=C: SUMO cannot open such names); a symbolic link loop; a file where a folder must be;
+    a name longer than NAME_MAX less NAME_ROOM, a path longer than PATH_MAX less PATH_ROOM.
+    """
+    try:
+        absolute = path.absolute()
+    except OSError:  # os.getcwd(): the current folder is gone
+        return (f"{str(path)!r} is relative, but the current folder no longer exists (deleted?); change to an "
+                "existing folder or give an absolute path")  # fmt: skip
+    text = str(absolute)
+    try:
+        real = absolute.resolve()
+    except (RuntimeError, OSError):  # Python 3.11: RuntimeError for a loop; later versions: OSError ELOOP
+        return f"{text!r} goes through a loop of symbolic links"
+    for shown in dict.fromkeys((text, str(real))):
+        if ":" in shown:
+            return (f"must be a folder path without ':' (SUMO reads an output file name with ':' as host:port), "
+                    f"got {shown!r}")  # fmt: skip
+        if "," in shown:
+            return f"must be a folder path without ',' (SUMO splits its lists of files at commas), got {shown!r}"
+        if not shown.isascii() and not _utf8_locale():
+            return (f"{shown!r} has non-ASCII characters, which SUMO cannot open under this ASCII locale "
+                    f"({locale.setlocale(locale.LC_CTYPE)}); set LC_ALL=C.UTF-8 or pick an ASCII path")  # fmt: skip
+    name_max, path_max = _fs_limits(real)
+    for part in real.parts[1:]:
+        if len(os.fsencode(part)) > name_max - (NAME_ROOM if part == real.name else 0):
+            limit = name_max - NAME_ROOM if part == real.name else name_max
+            return (f"has a name of {len(os.fsencode(part))} bytes ({part[:20]}...); at most {limit} are allowed "
+                    f"here (the file system's {name_max}, less room for the run's partial folder)")  # fmt: skip
+    if len(os.fsencode(str(real))) > path_max - PATH_ROOM:
+        return (f"is {len(os.fsencode(str(real)))} bytes long; at most {path_max - PATH_ROOM} are allowed (the file "
+                f"system's {path_max}, less room for the files written inside)")  # fmt: skip
+    folder = nearest_existing(real)
+    if folder != real and not folder.is_dir():
+        return f"output folder {text!r} cannot be made: {folder} is a file, not a folder"
+    return None
+
+
+def nets_dir_problem(text: str) -> str | None:
+    """Why `text` cannot be the networks folder (a phrase to follow --nets-dir or $COOPSUMO_NETS_DIR), or None:
+    empty, a path SUMO or the file system cannot take (out_path_problem), a file, or a folder not writable."""
+    if not text.strip():
+        return "must name a folder, got an empty string"
+    path = Path(text).expanduser()
+    if problem := out_path_problem(path):
+        return problem.replace("folder path", "path")
+    real = path.resolve()
+    if _exists(real) and not real.is_dir():
+        return f"{text!r} is a file, not a folder"
+    folder = nearest_existing(real)
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"{text!r} cannot be written: {folder} is not writable"
+    return None
