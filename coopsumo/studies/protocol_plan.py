@@ -57,16 +57,20 @@ class Variant:
         return out | ({} if self.restart is None else {"restart_below_mps": self.restart})
 
 
-SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0)
-"""the default learner before the v2x state and the mix (free flow at the run's own demand, the paper's state)"""
+SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0, validation_accident_steps=0)
+"""the default learner before the v2x state and the mix (free flow at the run's own demand, the paper's state,
+model.pt chosen on free flow alone)"""
 MIX = replace(SELECT, train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)
 """the learner trained on the mix of demands and accidents (agents/episodes.py)"""
 V2X_MIX = replace(MIX, observation="v2x")
-"""the default preset: the v2x state trained on the mix (DQNConfig())"""
+"""the v2x state trained on the mix, model.pt chosen on free flow alone (the default until v2x_mix_av)"""
+V2X_MIX_AV = replace(V2X_MIX, validation_accident_steps=6000)
+"""the default preset (DQNConfig()): v2x_mix with model.pt chosen through an accident too"""
 
 
 def variants() -> dict[str, Variant]:
-    """The variants the protocol knows; `v2x_mix` is the default preset (DQNConfig()), `select` the one before."""
+    """The variants the protocol knows; `v2x_mix_av` is the default preset (DQNConfig()), `v2x_mix` the one
+    before."""
     default = SELECT
     return {v.name: v for v in (
         Variant("select", "the default until v2x_mix: the paper's state, free-flow training at T_up 1 s, change "
@@ -79,7 +83,7 @@ def variants() -> dict[str, Variant]:
         Variant("mix_last", "the `mix` trainings' last weights", MIX, "model_last.pt"),
         Variant("v2x", "`select` reading the v2x state: the paper's state plus each side lane's nearest leader and "
                 "follower within 200 m (gap, speed)", replace(SELECT, observation="v2x")),
-        Variant("v2x_mix", "`v2x` trained where it is used, as `mix` (the default preset)",
+        Variant("v2x_mix", "`v2x` trained where it is used, as `mix` (the default until `v2x_mix_av`)",
                 V2X_MIX),
         Variant("v2x_mix_m2", "`v2x_mix`'s trainings driven with a change margin of 2 instead of 1",
                 V2X_MIX, margin=2.0),
@@ -95,7 +99,7 @@ def variants() -> dict[str, Variant]:
                 "that stays asks to speed up, as `keep` does", V2X_MIX, restart=50.0),
         Variant("v2x_mix_av", "`v2x_mix` with model.pt chosen through an accident too: each snapshot also driven "
                 "6,000 steps through an accident at T_up 2, 1.5 and 1 s (--validation-accident-steps 6000; the "
-                "same trainings, judged again)", replace(V2X_MIX, validation_accident_steps=6000)),
+                "same trainings, judged again; the default preset)", V2X_MIX_AV),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
