@@ -84,7 +84,8 @@ def test_validation_demands_and_seeds_are_checked() -> None:
 
 
 def test_accident_validation_adds_one_run_per_demand_through_an_accident() -> None:
-    dq = dataclasses.replace(DQNConfig(), validation_t_ups=(2.0, 1.0), validation_steps=3000, validation_accident_steps=0)
+    dq = dataclasses.replace(DQNConfig(), validation_t_ups=(2.0, 1.0), validation_steps=3000,
+                             validation_accident_steps=0)
     cfg = TrainConfig(sim=SimConfig(steps=90_000, seed=3, policy="dqn"), dqn=dq)
     free = selection.validation_configs(cfg, Path("m.pt"))
     assert [(c.demand.t_up_s, c.seed, c.accident.enabled) for c in free] == [(2.0, 900_000, False),
