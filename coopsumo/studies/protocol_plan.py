@@ -117,8 +117,14 @@ class Profile:
     accident_start: int = 2000
     accident_duration: int = 10_000
     alpha_seeds: int = 3
-    """models at alpha 8 of the first variant (free flow only): does alpha do something?"""
+    """models at alpha 8 of the judged variant (free flow only): does alpha do something?"""
     lanes: int = 3
+    judged: str = ""
+    """the variant whose targets and alpha response the report gives (empty: the first; the others are paired
+    against the first)"""
+
+    def judged_variant(self) -> str:
+        return self.judged or self.variants[0]
 
 
 PROFILES = {
@@ -131,7 +137,7 @@ PROFILES = {
                      seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # the default driven otherwise
     "cooldown": Profile("cooldown", variants=("v2x_mix", "v2x_mix_cd10")),  # the 10 s cooldown on 10 models
     "restart": Profile("restart", variants=("v2x_mix", "v2x_mix_r5", "v2x_mix_lanes"), alpha_seeds=0),  # 'none'?
-    "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), alpha_seeds=0),  # choosing through an accident
+    "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), judged="v2x_mix_av"),  # the default since 11-26
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
@@ -171,9 +177,9 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
     for name in profile.variants:
         for seed in profile.seeds:
             models.append((known[name], 0.0, seed, ("free", "accident")))
-    first = known[profile.variants[0]]
+    judged = known[profile.judged_variant()]
     for seed in profile.seeds[: profile.alpha_seeds]:
-        models.append((first, 8.0, seed, ("free",)))
+        models.append((judged, 8.0, seed, ("free",)))
     for variant, alpha, seed, scenarios in models:
         cfg = train_config(profile, variant.learner, alpha, seed)
         train_key = f"a{number_name(alpha)}_seed{seed}_{_learner_tag(variant.learner)}"
