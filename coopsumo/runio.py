@@ -6,6 +6,7 @@ import argparse
 import errno
 import fcntl
 import fnmatch
+import hashlib
 import json
 import locale
 import math
@@ -83,6 +84,15 @@ def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def file_sha256(path: Path) -> str:
+    """sha256 of a file's bytes (a model file: which weights a run was driven by)."""
+    h = hashlib.sha256()
+    with path.open("rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
 
 
 def write_json(path: Path, data: Any) -> None:

@@ -17,6 +17,7 @@ from conftest import env_with_display
 from PIL import Image
 
 from coopsumo.config import AccidentConfig, OutputConfig, SimConfig, to_dict
+from coopsumo.runio import file_sha256
 from coopsumo.studies import run_folders, scenario1
 from coopsumo.studies import scenario1_measures as measures
 from coopsumo.studies import scenario1_report as rep
@@ -78,6 +79,11 @@ def test_every_output_is_written(study: Path) -> None:
             assert link.is_symlink() and (link / "model.pt").is_file()
             assert link.resolve().parent == study.parent / "models"
             assert json.loads((link / "config.json").read_text())["config"]["sim"]["seed"] == m
+            driven_runs = list((study / "runs").glob(f"t*/dqn_{alpha}_m{m}_seed*"))
+            assert driven_runs
+            for run in driven_runs:  # which weights drove it
+                driven = json.loads((run / "config.json").read_text())["model_trained_on"]["model_sha256"]
+                assert driven == file_sha256(link / "model.pt"), run.name
 
 
 def test_report_numbers_equal_the_summaries_per_demand(study: Path) -> None:
@@ -264,6 +270,17 @@ def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
     os.utime(model, ns=(old, old))
     (out / "summary.json").write_text(json.dumps({**summary, "mean_speed_mps": None}))
     assert not run_folders.reusable_run(out, to_dict(cfg), outputs, model)
+    # a run that recorded its model's digest is reused exactly when the file holds those bytes, whatever the times:
+    # the study's link moved to another, older model file (a model chosen otherwise) is caught
+    (out / "summary.json").write_text(json.dumps(summary))
+    (out / "config.json").write_text(json.dumps({"config": to_dict(cfg), "sumo_outputs": to_dict(outputs),
+                                                 "model_trained_on": {"model_sha256": file_sha256(model)}}))
+    other = tmp_path / "other.pt"
+    other.write_bytes(b"another model, written long before the run")
+    os.utime(other, ns=(old, old))
+    assert not run_folders.reusable_run(out, to_dict(cfg), outputs, other)
+    os.utime(model, ns=(new, new))  # the same bytes written again (copied, restored) after the run
+    assert run_folders.reusable_run(out, to_dict(cfg), outputs, model)
 
 
 @pytest.mark.parametrize("args", [["--alphas", "-1"], ["--alphas", "x"], ["--preset", "bogus"], ["--t-up", "2,2"],

@@ -13,7 +13,7 @@ from coopsumo.agents.decisions import cooled_down, offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.config import PAPER_DQN, ConfigError, ControlConfig, dqn_config_from_dict
 from coopsumo.policy_spec import ADAPTIVE, model_file, parse_policy, split_dqn_spec
-from coopsumo.runio import UsageError
+from coopsumo.runio import UsageError, file_sha256
 from coopsumo.sim.observation import Observation, network_features
 
 DT_S = ControlConfig().dt_s
@@ -177,7 +177,8 @@ class DQNPolicy:
                              "lanes": _field(config, "sim", "road", "lanes"),
                              "t_up_s": _field(config, "sim", "demand", "t_up_s"),
                              "alpha": _field(config, "sim", "reward", "alpha"),
-                             "coopsumo": _field(meta, "versions", "coopsumo")}  # fmt: skip
+                             "coopsumo": _field(meta, "versions", "coopsumo"),
+                             "model_sha256": file_sha256(Path(path))}  # fmt: skip
         return policy
 
     def loop_interval(self, interval: LoopInterval) -> None:

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import OutputConfig, results_view, to_dict
+from coopsumo.runio import file_sha256
 from coopsumo.runio import study_root as claim_study_root
 from coopsumo.studies.records import MAX_LANE_FLOW_VEH_H, summary_problem
 
@@ -40,15 +41,16 @@ RUN_SUMMARY = ("departed", "mean_speed_mps", "throughput_veh_per_h", "lane_chang
 def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None,
                  prog: str = "scenario1") -> bool:  # fmt: skip
     """True when the run folder out holds a finished run of the SimConfig dict cfg with the SUMO output files
-    `outputs` asks for and, for a model's run, was made after the model file was written (a retrained model keeps
-    its path), and its values and files can be trusted (run_folder_problem; else one line on stderr)."""
+    `outputs` asks for and, for a model's run, was driven by the model file as it is now (model_driven), and its
+    values and files can be trusted (run_folder_problem; else one line on stderr)."""
     if not ((out / "summary.json").exists() and same_config(out / "config.json", cfg)):
         return False
-    if model is not None and not (model.exists() and (out / "summary.json").stat().st_mtime >= model.stat().st_mtime):
-        return False
     try:
-        recorded = json.loads((out / "config.json").read_text()).get("sumo_outputs")
-    except (OSError, ValueError):
+        written = json.loads((out / "config.json").read_text())
+        recorded = written.get("sumo_outputs")
+    except (OSError, ValueError, AttributeError):
+        return False
+    if model is not None and not model_driven(out, written, model):
         return False
     files = (["fcd.xml"] if outputs.fcd_period_s > 0 else []) + (["tripinfo.xml"] if outputs.tripinfo else [])
     if not (recorded == to_dict(outputs) and all((out / f).exists() for f in files)):
@@ -57,6 +59,19 @@ def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: P
         print(f"{prog}: run folder {out} {problem}; running it again", file=sys.stderr)
         return False
     return True
+
+
+def model_driven(out: Path, written: Any, model: Path) -> bool:
+    """True when the run in out (its config.json: written) was driven by the model file as it is now: the file's
+    sha256 recorded at the run equals today's (a retrained model, or a link moved to another model, keeps its
+    path). A run written before the digest was recorded: made after the model file was last written."""
+    if not model.exists():
+        return False
+    trained_on = written.get("model_trained_on") if isinstance(written, dict) else None
+    digest = trained_on.get("model_sha256") if isinstance(trained_on, dict) else None
+    if digest is not None:
+        return bool(digest == file_sha256(model))
+    return (out / "summary.json").stat().st_mtime >= model.stat().st_mtime
 
 
 def simulate_into(
