@@ -248,10 +248,11 @@ class DQNConfig:
     """model selection: the free-flow demands T_up (s) of the validation runs, one run each"""
     validation_steps: int = 3000
     """model selection: steps of 0.1 s of each validation run"""
-    validation_accident_steps: int = 0
+    validation_accident_steps: int = 6000
     """model selection: when > 0, every validation demand also gets a run of this many steps through an accident at
     the default position (held from 1/12 of the run for 5/6 of it), scored with the free-flow runs, so that a
-    snapshot that thrashes in a queue is not chosen; 0: free flow only"""
+    snapshot that thrashes in a queue is not chosen; 0: free flow only. Default 6,000: the protocol
+    (results/learner_protocol_accval) measured it against free flow only"""
     train_t_ups: tuple[float, ...] = (2.0, 1.5, 1.0)
     """training demand: each episode's T_up (s) drawn from these (agents/episodes.py); empty: the run's own T_up
     (train --t-up T trains at T alone)"""
@@ -328,6 +329,7 @@ PAPER_DQN = DQNConfig(
     change_margin=0.0,
     observation="paper",
     select_every_steps=0,
+    validation_accident_steps=0,
     train_t_ups=(),
     accident_share=0.0,
 )

@@ -363,7 +363,7 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
     alpha (experiments/accident_seeds.py --adaptive)."""
     out = tmp_path / "learning"
     res = subprocess.run([sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--variants",
-                          "mix,conditioned", "--alpha-variants", "mix,conditioned", "--alphas", "0,8",
+                          "accval,conditioned", "--alpha-variants", "accval,conditioned", "--alphas", "0,8",
                           "--out", str(out), "--quiet"],
                          cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
@@ -372,7 +372,7 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
         "eval_seed1000_margin1_alpha0", "eval_seed1000_margin1_alpha8", "eval_seed1001_margin1_alpha0",
         "eval_seed1001_margin1_alpha8"]  # every model meets every evaluation seed
     report = (out / "report.md").read_text()
-    assert "## One network for every alpha: `conditioned` against per-alpha `mix` models" in report
+    assert "## One network for every alpha: `conditioned` against per-alpha `accval` models" in report
     assert "| 8 | 2 |" in report
     acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "conditioned",
                           "--alphas", "0,8", "--adaptive", "--seeds", "1", "--steps", "1500", "--t-up", "3", "--out",

@@ -101,3 +101,16 @@ def test_a_variant_that_only_chooses_snapshots_otherwise_is_paired_by_model() ->
     text = "\n".join(paired_lines(pd.DataFrame(rows), profile, {"learners": learners}))
     assert "| `v2x_mix_av` | free | 2 | +0.50" in text and "2 of 2" in text
     assert "`select` |" not in text  # another training: not paired
+
+
+def test_the_accval_profile_judges_the_default_and_measures_its_alpha_response() -> None:
+    """accval pairs the default (v2x_mix_av) with the free-flow choice; its alpha-8 models are the default's."""
+    from coopsumo.config import DQNConfig
+    from coopsumo.studies.protocol_plan import PROFILES, cell_specs, variants
+
+    profile = PROFILES["accval"]
+    assert profile.judged_variant() == "v2x_mix_av" and variants()["v2x_mix_av"].learner == DQNConfig()
+    alpha8 = [s for s in cell_specs(profile) if s.get("alpha") == 8.0]
+    assert alpha8 and {s["variant"] for s in alpha8} == {"v2x_mix_av"}
+    assert {s["scenario"] for s in alpha8} == {"free"} and len({s["train_key"] for s in alpha8}) == profile.alpha_seeds
+    assert PROFILES["v2x_mix10"].judged_variant() == "v2x_mix"  # no judged variant named: the first

@@ -84,7 +84,8 @@ def test_validation_demands_and_seeds_are_checked() -> None:
 
 
 def test_accident_validation_adds_one_run_per_demand_through_an_accident() -> None:
-    dq = dataclasses.replace(DQNConfig(), validation_t_ups=(2.0, 1.0), validation_steps=3000)
+    dq = dataclasses.replace(DQNConfig(), validation_t_ups=(2.0, 1.0), validation_steps=3000,
+                             validation_accident_steps=0)
     cfg = TrainConfig(sim=SimConfig(steps=90_000, seed=3, policy="dqn"), dqn=dq)
     free = selection.validation_configs(cfg, Path("m.pt"))
     assert [(c.demand.t_up_s, c.seed, c.accident.enabled) for c in free] == [(2.0, 900_000, False),
@@ -206,7 +207,7 @@ def test_a_training_that_differs_only_in_validation_is_reselected_not_trained(tm
     from coopsumo.studies.trainings import finished_training
 
     dq = dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=100, validation_t_ups=(1.5,),
-                             train_t_ups=(), accident_share=0.0)  # fmt: skip
+                             train_t_ups=(), accident_share=0.0, validation_accident_steps=0)  # fmt: skip
     free = TrainConfig(sim=SimConfig(steps=400, seed=3, policy="dqn"), eval_steps=0, dqn=dq)
     both = dataclasses.replace(free, dqn=dataclasses.replace(dq, validation_accident_steps=600))
     store = tmp_path / "models"

@@ -86,7 +86,8 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str)
     sig = signal.SIGTERM  # Ctrl-C (SIGINT) is exercised by tests/test_docs.py on the README's commands
     learner = {"features": ["--observation", "v2x", "--alpha-conditioned", "--alpha-period", "700",
                             "--train-t-up", "1.5,1", "--accident-share", "0.5", "--episode-steps", "1000",
-                            "--select-every", "1000", "--validation-steps", "300", "--validation-t-up", "1.5"],
+                            "--select-every", "1000", "--validation-steps", "300", "--validation-t-up", "1.5",
+                            "--validation-accident-steps", "600"],
                "default": ["--preset", "default", "--update-worker", "on"]}.get(  # the checkpoint asks the worker
         preset, ["--preset", preset])  # fmt: skip
     args = ["--steps", "1500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]

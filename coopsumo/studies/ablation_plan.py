@@ -50,16 +50,19 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
         ("v2x", "+ the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed), the own "
          "speed, expected speed and lane-change flag", {"observation": "v2x"}),
         ("mix", "+ trained where it is used: episodes of 9,000 steps at a T_up drawn from 2, 1.5 and 1 s, half of "
-         "them with an accident (the default preset)",
+         "them with an accident",
          {"train_t_ups": (2.0, 1.5, 1.0), "accident_share": 0.5, "episode_steps": 9000}),
+        ("accval", "+ model.pt chosen through an accident too: each snapshot also driven 6,000 steps through an "
+         "accident at T_up 2, 1.5 and 1 s (the `mix` trainings, judged again; the default preset)",
+         {"validation_accident_steps": 6000}),
     ]  # fmt: skip
     extras: list[tuple[str, str, dict[str, Any]]] = [
-        ("eps_decay", "`mix` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
+        ("eps_decay", "`accval` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
          {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
-        ("store_all", "`mix` + every transition of a decision round stored (not 16 at random)",
+        ("store_all", "`accval` + every transition of a decision round stored (not 16 at random)",
          {"store_per_decision": 1000}),
-        ("margin2", "the `mix` models driven with a change margin of 2 instead of 1", {"change_margin": 2.0}),
-        ("conditioned", "`mix` with alpha an input: one alpha-conditioned model per seed (train "
+        ("margin2", "the `accval` models driven with a change margin of 2 instead of 1", {"change_margin": 2.0}),
+        ("conditioned", "`accval` with alpha an input: one alpha-conditioned model per seed (train "
          "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A)", {"alpha_conditioned": True}),
     ]  # fmt: skip
     out = []
@@ -72,9 +75,9 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
     return out
 
 
-CHAIN_LENGTH = 12
-"""the first CHAIN_LENGTH variants form the chain paper -> ... -> mix; the rest branch off its end (mix: the default
-preset)"""
+CHAIN_LENGTH = 13
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> accval; the rest branch off its end (accval: the
+default preset)"""
 VARIANTS = _variants()
 VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
 
@@ -103,10 +106,10 @@ RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
 """the alphas of the alpha response and of the conditioned network's comparison"""
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), FULL_VARIANTS, RESPONSE_ALPHAS,
-                    alpha_variants=("mix", "conditioned")),
-    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "mix"), (0.0, 1.0)),
-    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("mix", "conditioned"), RESPONSE_ALPHAS,
-                           alpha_variants=("mix", "conditioned")),
+                    alpha_variants=("accval", "conditioned")),
+    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "accval"), (0.0, 1.0)),
+    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("accval", "conditioned"), RESPONSE_ALPHAS,
+                           alpha_variants=("accval", "conditioned")),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "margin2"), (0.0, 1.0)),
 }
 

@@ -57,16 +57,20 @@ class Variant:
         return out | ({} if self.restart is None else {"restart_below_mps": self.restart})
 
 
-SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0)
-"""the default learner before the v2x state and the mix (free flow at the run's own demand, the paper's state)"""
+SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0, validation_accident_steps=0)
+"""the default learner before the v2x state and the mix (free flow at the run's own demand, the paper's state,
+model.pt chosen on free flow alone)"""
 MIX = replace(SELECT, train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)
 """the learner trained on the mix of demands and accidents (agents/episodes.py)"""
 V2X_MIX = replace(MIX, observation="v2x")
-"""the default preset: the v2x state trained on the mix (DQNConfig())"""
+"""the v2x state trained on the mix, model.pt chosen on free flow alone (the default until v2x_mix_av)"""
+V2X_MIX_AV = replace(V2X_MIX, validation_accident_steps=6000)
+"""the default preset (DQNConfig()): v2x_mix with model.pt chosen through an accident too"""
 
 
 def variants() -> dict[str, Variant]:
-    """The variants the protocol knows; `v2x_mix` is the default preset (DQNConfig()), `select` the one before."""
+    """The variants the protocol knows; `v2x_mix_av` is the default preset (DQNConfig()), `v2x_mix` the one
+    before."""
     default = SELECT
     return {v.name: v for v in (
         Variant("select", "the default until v2x_mix: the paper's state, free-flow training at T_up 1 s, change "
@@ -79,7 +83,7 @@ def variants() -> dict[str, Variant]:
         Variant("mix_last", "the `mix` trainings' last weights", MIX, "model_last.pt"),
         Variant("v2x", "`select` reading the v2x state: the paper's state plus each side lane's nearest leader and "
                 "follower within 200 m (gap, speed)", replace(SELECT, observation="v2x")),
-        Variant("v2x_mix", "`v2x` trained where it is used, as `mix` (the default preset)",
+        Variant("v2x_mix", "`v2x` trained where it is used, as `mix` (the default until `v2x_mix_av`)",
                 V2X_MIX),
         Variant("v2x_mix_m2", "`v2x_mix`'s trainings driven with a change margin of 2 instead of 1",
                 V2X_MIX, margin=2.0),
@@ -95,7 +99,7 @@ def variants() -> dict[str, Variant]:
                 "that stays asks to speed up, as `keep` does", V2X_MIX, restart=50.0),
         Variant("v2x_mix_av", "`v2x_mix` with model.pt chosen through an accident too: each snapshot also driven "
                 "6,000 steps through an accident at T_up 2, 1.5 and 1 s (--validation-accident-steps 6000; the "
-                "same trainings, judged again)", replace(V2X_MIX, validation_accident_steps=6000)),
+                "same trainings, judged again; the default preset)", V2X_MIX_AV),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -113,8 +117,14 @@ class Profile:
     accident_start: int = 2000
     accident_duration: int = 10_000
     alpha_seeds: int = 3
-    """models at alpha 8 of the first variant (free flow only): does alpha do something?"""
+    """models at alpha 8 of the judged variant (free flow only): does alpha do something?"""
     lanes: int = 3
+    judged: str = ""
+    """the variant whose targets and alpha response the report gives (empty: the first; the others are paired
+    against the first)"""
+
+    def judged_variant(self) -> str:
+        return self.judged or self.variants[0]
 
 
 PROFILES = {
@@ -127,7 +137,7 @@ PROFILES = {
                      seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # the default driven otherwise
     "cooldown": Profile("cooldown", variants=("v2x_mix", "v2x_mix_cd10")),  # the 10 s cooldown on 10 models
     "restart": Profile("restart", variants=("v2x_mix", "v2x_mix_r5", "v2x_mix_lanes"), alpha_seeds=0),  # 'none'?
-    "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), alpha_seeds=0),  # choosing through an accident
+    "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), judged="v2x_mix_av"),  # the default since 11-26
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
@@ -167,9 +177,9 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
     for name in profile.variants:
         for seed in profile.seeds:
             models.append((known[name], 0.0, seed, ("free", "accident")))
-    first = known[profile.variants[0]]
+    judged = known[profile.judged_variant()]
     for seed in profile.seeds[: profile.alpha_seeds]:
-        models.append((first, 8.0, seed, ("free",)))
+        models.append((judged, 8.0, seed, ("free",)))
     for variant, alpha, seed, scenarios in models:
         cfg = train_config(profile, variant.learner, alpha, seed)
         train_key = f"a{number_name(alpha)}_seed{seed}_{_learner_tag(variant.learner)}"

@@ -231,9 +231,10 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
             lines.append(f"- `{variant}`: " + "; ".join(parts))
     lines += paired_lines(runs, profile, meta)
     lines += ["", *target_lines(table, ok, profile), ""]
-    alpha = ok[(ok["kind"] == "model") & (ok["scenario"] == "free") & (ok["variant"] == profile.variants[0])]
+    judged = profile.judged_variant()
+    alpha = ok[(ok["kind"] == "model") & (ok["scenario"] == "free") & (ok["variant"] == judged)]
     if (alpha["alpha"] > 0).any():
-        lines += ["## Does alpha do something? (free flow, the first learner, lane changes per vehicle)", "",
+        lines += [f"## Does alpha do something? (free flow, `{judged}`, lane changes per vehicle)", "",
                   "| T_up (s) | alpha 0 (models) | alpha 8 (models) |", "|---|---|---|"]
         for t_up, grp in alpha.groupby("t_up", sort=False):
             a0 = grp[grp["alpha"] == 0]["lane_changes_per_vehicle"]
@@ -295,10 +296,10 @@ def paired_lines(runs: pd.DataFrame, profile: Any, meta: dict[str, Any]) -> list
 
 
 def target_lines(table: pd.DataFrame, ok: pd.DataFrame, profile: Any) -> list[str]:
-    """The learner issue's targets for the first learner, as measured."""
+    """The learner issue's targets for the judged learner, as measured."""
     if table.empty:
         return []
-    v = profile.variants[0]
+    v = profile.judged_variant()
     mine = table[table["variant"] == v]
     free = mine[mine["scenario"] == "free"]
     acc = mine[mine["scenario"] == "accident"]

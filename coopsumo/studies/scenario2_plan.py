@@ -139,8 +139,8 @@ def eval_configs(lanes: int, t_up_s: float, alpha: float, profile: Profile) -> l
 
 def at_condition(dqn: DQNConfig) -> DQNConfig:
     """The learner trained on its condition alone: free flow at the run's own inflow (no drawn demands, no
-    accidents), so each condition's alpha* is learned where it is judged."""
-    return replace(dqn, train_t_ups=(), accident_share=0.0)
+    accidents, none in the model selection either), so each condition's alpha* is learned where it is judged."""
+    return replace(dqn, train_t_ups=(), accident_share=0.0, validation_accident_steps=0)
 
 
 def conditioned_train_config(lanes: int, t_up_s: float, seed: int, profile: Profile) -> TrainConfig:
