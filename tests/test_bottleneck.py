@@ -166,3 +166,17 @@ def test_short_or_barely_moving_slow_regions_are_not_waves() -> None:
     jams = bn.moving_jams(field, DT, DX)
     assert [j.moving for j in jams] == [False]
     assert jams[0].duration_s == 200.0
+
+
+def test_lane_changes_in_a_queue_are_those_made_below_the_slow_speed() -> None:
+    # vehicle 1 changes lane at speed 2 m/s (in a queue) then again at 20 m/s; vehicle 2 changes at 4.9 m/s;
+    # vehicle 3 never changes; a new vehicle starting in another lane is not a change of the one before it
+    traj = pd.DataFrame({
+        "vid": [1, 1, 1, 1, 2, 2, 3, 3, 4],
+        "time_s": [0.0, 0.5, 1.0, 1.5, 0.0, 0.5, 0.0, 0.5, 0.5],
+        "lane": [0, 1, 1, 2, 2, 1, 0, 0, 2],
+        "speed_mps": [3.0, 2.0, 10.0, 20.0, 6.0, 4.9, 1.0, 1.0, 1.0],
+    })
+    assert bn.queue_lane_changes(traj.sample(frac=1.0, random_state=0), slow_mps=5.0) == 2
+    assert bn.queue_lane_changes(traj, slow_mps=30.0) == 3  # every change, when every speed counts as slow
+    assert bn.queue_lane_changes(traj, slow_mps=1.0) == 0

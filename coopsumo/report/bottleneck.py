@@ -8,6 +8,7 @@ Inputs are a run's trajectory table (columns time_s, vid, lane, pos_m, speed_mps
 - discharge_veh_h: the flow leaving the bottleneck while the accident holds (loops just downstream);
 - system_recovery_s: the time from which the road is fast AND nobody waits to enter;
 - queue_reach: how far upstream the queue reaches, and the run's demand regime;
+- queue_lane_changes: lane changes made where the traffic stands;
 - speed_field and moving_jams: stop-and-go waves as connected slow regions of the space-time speed
   field (after Ji et al. 2024, arXiv 2409.00326) whose downstream front travels upstream (a moving
   jam; a bottleneck queue's front stays at the bottleneck: Kerner and Rehborn 1996).
@@ -268,3 +269,15 @@ def wave_summary(jams: list[Jam]) -> dict[str, float]:
     moving = [j for j in jams if j.moving]
     speed = float(np.mean([j.front_speed_kmh for j in moving])) if moving else float("nan")
     return {"waves": float(len(moving)), "wave_speed_kmh": speed, "slow_regions": float(len(jams))}
+
+
+def queue_lane_changes(traj: pd.DataFrame, slow_mps: float = 5.0) -> int:
+    """Lane changes made in a queue: a vehicle's sample whose lane differs from its previous sample's while it moves
+    below slow_mps (m/s). A change takes seconds (4 s here) across both lanes, so one made where the traffic
+    stands holds up the followers of two queues; counted once per change (samples every few tenths of a second)."""
+    order = traj.sort_values(["vid", "time_s"], kind="stable")
+    vid = order["vid"].to_numpy()
+    lane = order["lane"].to_numpy()
+    speed = order["speed_mps"].to_numpy()
+    changed = (vid[1:] == vid[:-1]) & (lane[1:] != lane[:-1])
+    return int(np.count_nonzero(changed & (speed[1:] < slow_mps)))

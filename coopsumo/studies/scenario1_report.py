@@ -256,6 +256,9 @@ DEFINITIONS = f"""- **Total time spent** (TTS, the headline): vehicle-hours on t
 - **Queue reach**: the largest distance from the bottleneck to the furthest-upstream vehicle slower than
   {SLOW_MPS:g} m/s after the accident's start. **Regime**: "on the road" if at most one vehicle per lane ever
   waits to enter; "reaches the entrance, clears" if more do but not at the end; else "still waiting at the end".
+- **Lane changes in a queue**: lane changes per vehicle made below {SLOW_MPS:g} m/s (a vehicle's lane differs from
+  its previous trajectory sample's while it moves that slowly): a change takes 4 s across both lanes, so one made
+  where the traffic stands holds up two queues.
 - **Verdicts**: the trained model is the unit of replication. Differences (cooperative minus non-cooperative) are
   paired on evaluation seeds, and models of two alphas on their training seed; the 95% interval is a two-level
   percentile bootstrap ({N_BOOT:,} resamples) that draws models, then evaluation seeds within each drawn model, so
