@@ -3,11 +3,12 @@
     keep | random | greedy                          no parameters
     mobil[:p=P,threshold=T,b_safe=B,bias=R]          any subset, any order (MOBIL_LIMITS)
     sumo[:lcCooperative=X,lcSpeedGain=X,...]          SUMO's LC2013 factors (SUMO_LC_LIMITS)
-    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S][,restart=R]
+    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S][,restart=R][,queue=V]
                                                      PATH: a model file, or a folder holding model.pt; M: the
                                                      change margin it drives with (Q units; default: the model's);
                                                      S: seconds after a lane change before another (default 0);
-                                                     R: 'none' withheld below R m/s (default: the model's)
+                                                     R: 'none' withheld below R m/s (default: the model's);
+                                                     V: no lane change chosen below V m/s (default 0: none)
 
 Parameters are KEY=VALUE separated by ','; each key at most once; each value a finite number in its key's range
 (alpha also 'adaptive'). No spaces anywhere, no empty parameter, and no ',' inside a model path (the grammar and
@@ -38,11 +39,12 @@ KEYS: dict[str, dict[str, tuple[float, float, bool]]] = {
     "mobil": MOBIL_LIMITS,
     "sumo": SUMO_LC_LIMITS,
     "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False), "margin": (0.0, MARGIN_MAX, False),
-            "cooldown": (0.0, COOLDOWN_MAX_S, False), "restart": (0.0, RESTART_MAX_MPS, False)},
+            "cooldown": (0.0, COOLDOWN_MAX_S, False), "restart": (0.0, RESTART_MAX_MPS, False),
+            "queue": (0.0, RESTART_MAX_MPS, False)},
 }
 """the parameters each policy takes: key -> (lowest, highest, lowest excluded)"""
 FORMS = ("keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], "
-         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,restart=R]")
+         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,restart=R,queue=V]")
 
 
 class PolicySpecError(UsageError):
@@ -53,8 +55,8 @@ class PolicySpecError(UsageError):
 class PolicySpec:
     """A parsed policy string: its name, its numeric parameters in the order given, and for dqn the model path,
     alpha (a number, 'adaptive', or None when not given), the change margin (None: the model's own), the
-    lane-change cooldown in seconds (None: none) and the speed (m/s) below which 'none' is withheld (None: the
-    model's own)."""
+    lane-change cooldown in seconds (None: none), the speed (m/s) below which 'none' is withheld (None: the
+    model's own) and the speed (m/s) below which no lane change is chosen (None: none)."""
 
     name: str
     params: tuple[tuple[str, float], ...] = ()
@@ -63,6 +65,7 @@ class PolicySpec:
     margin: float | None = None
     cooldown: float | None = None
     restart: float | None = None
+    queue: float | None = None
 
     def values(self) -> dict[str, float]:
         return dict(self.params)
@@ -137,8 +140,9 @@ def parse_policy(text: str) -> PolicySpec:
             raise _fail(text, f"parameter {key!r} has no value")
         seen[key] = _value(text, name, key, value)
     if name == "dqn":
-        margin, cooldown, restart = seen.get("margin"), seen.get("cooldown"), seen.get("restart")
-        return PolicySpec(name, model=model, alpha=seen.get("alpha"), margin=None if margin is None else float(margin),
-                          cooldown=None if cooldown is None else float(cooldown),
-                          restart=None if restart is None else float(restart))  # fmt: skip
+        def number(key: str) -> float | None:
+            return None if seen.get(key) is None else float(seen[key])
+
+        return PolicySpec(name, model=model, alpha=seen.get("alpha"), margin=number("margin"),
+                          cooldown=number("cooldown"), restart=number("restart"), queue=number("queue"))
     return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))

@@ -284,6 +284,27 @@ def test_a_cooldown_withholds_lane_changes_for_its_seconds_after_the_last(observ
         assert chosen == [SPEEDUP] * rounds_held + [LEFT] * (4 - rounds_held), cooldown
 
 
+
+def test_no_lane_change_is_chosen_in_a_queue(observation_of: Layout) -> None:
+    from coopsumo.agents.decisions import no_change_in_queue
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    mask = np.ones((3, 4), bool)
+    speed = np.array([1.0, 4.99, 5.0])
+    expected = [[False, False], [False, False], [True, True]]
+    np.testing.assert_array_equal(no_change_in_queue(mask, speed, 5.0)[:, [LEFT, RIGHT]], expected)
+    assert no_change_in_queue(mask, speed, 0.0) is mask
+    assert no_change_in_queue(mask, speed, 5.0)[:, [SPEEDUP, NONE]].all()  # staying is always offered
+    slow = observation_of(lane=[1], pos=[300.0], speed=[3.0], v_exp=[25.0])
+    fast = observation_of(lane=[1], pos=[300.0], speed=[20.0], v_exp=[25.0])
+    for below, in_queue, moving in ((0.0, LEFT, LEFT), (5.0, SPEEDUP, LEFT)):
+        policy = DQNPolicy(_net_preferring(LEFT, SPEEDUP), decision_interval=10, action_mask=True)  # type: ignore[arg-type]
+        policy.queue_below_mps = below
+        assert policy.act(slow).tolist() == [in_queue], below
+        policy = DQNPolicy(_net_preferring(LEFT, SPEEDUP), decision_interval=10, action_mask=True)  # type: ignore[arg-type]
+        policy.queue_below_mps = below
+        assert policy.act(fast).tolist() == [moving], below
+
 @pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
 def test_a_bad_change_margin_is_refused(bad: float) -> None:
     with pytest.raises(ConfigError, match="change_margin"):

@@ -68,6 +68,10 @@ def test_a_margin_variant_drives_the_same_training_with_its_own_margin() -> None
     drives = {s["variant"]: parse_policy(driven_policy(s, Path("/m"))) for s in lanes_only if s["kind"] != "baseline"}
     assert drives["v2x_mix_lanes"].restart == 50.0 and drives["v2x_mix_r5"].restart == 5.0
     assert drives["v2x_mix"].restart is None  # driven as saved
+    queue = {s["variant"]: s for s in cell_specs(PROFILES["queue"]) if s["kind"] != "baseline"}
+    assert queue["v2x_mix_av_q5"]["train_key"] == queue["v2x_mix_av"]["train_key"]  # the same trainings
+    assert parse_policy(driven_policy(queue["v2x_mix_av_q5"], Path("/m"))).queue == 5.0
+    assert parse_policy(driven_policy(queue["v2x_mix_av"], Path("/m"))).queue is None
 
 
 def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:

@@ -48,6 +48,18 @@ def with_change_margin(q_values: np.ndarray, change_margin: float) -> np.ndarray
     return out
 
 
+def no_change_in_queue(mask: np.ndarray, speed_mps: np.ndarray, below_mps: float) -> np.ndarray:
+    """(n, 4) mask without left and right for vehicles moving below below_mps (m/s; 0: unchanged): a lane change
+    takes 4 s across both lanes, so one made where the traffic stands holds up two queues."""
+    if below_mps <= 0:
+        return mask
+    out = mask.copy()
+    slow = speed_mps < below_mps
+    out[slow, LEFT] = False
+    out[slow, RIGHT] = False
+    return out
+
+
 def cooled_down(mask: np.ndarray, since_change_s: np.ndarray, cooldown_s: float) -> np.ndarray:
     """(n, 4) mask without left and right for vehicles whose last lane change was under way less than cooldown_s
     seconds ago (since_change_s; inf when never): a learned vehicle cannot change back and forth at once."""

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 
 from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, choose_alpha
-from coopsumo.agents.decisions import cooled_down, offered, with_change_margin
+from coopsumo.agents.decisions import cooled_down, no_change_in_queue, offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.config import PAPER_DQN, ConfigError, ControlConfig, dqn_config_from_dict
 from coopsumo.policy_spec import ADAPTIVE, model_file, parse_policy, split_dqn_spec
@@ -74,6 +74,8 @@ class DQNPolicy:
         self.change_margin = change_margin
         self.change_cooldown_s = 0.0
         """seconds after a lane change during which no other is chosen (0: none; set by dqn:PATH,cooldown=S)"""
+        self.queue_below_mps = 0.0
+        """speed below which no lane change is chosen (m/s; 0: none; set by dqn:PATH,queue=V)"""
         self.rule = rule
         self.lanes = lanes
         self.alpha = choose_alpha(rule, lanes, 0.0) if rule is not None else alpha
@@ -93,12 +95,13 @@ class DQNPolicy:
 
     @classmethod
     def from_spec(cls, spec: str, lanes: int = 3) -> DQNPolicy:
-        """The policy of 'dqn:PATH[,alpha=A|adaptive][,margin=M][,cooldown=S][,restart=R]' on a road of `lanes`
-        lanes (policy_spec: the one grammar).
+        """The policy of 'dqn:PATH[,alpha=A|adaptive][,margin=M][,cooldown=S][,restart=R][,queue=V]' on a road of
+        `lanes` lanes (policy_spec: the one grammar).
 
         alpha is for an alpha-conditioned model only, and such a model needs it: otherwise a usage error. margin
         replaces the change margin the model was saved with (training ignores it, so any margin can drive it), and
-        restart the speed below which 'none' is withheld (m/s; as the mask, it only narrows the greedy choice).
+        restart the speed below which 'none' is withheld (m/s; as the mask, it only narrows the greedy choice);
+        queue the speed below which no lane change is chosen (m/s).
         """
         parsed = parse_policy(spec)
         path, alpha = split_dqn_spec(spec)
@@ -109,6 +112,9 @@ class DQNPolicy:
         if parsed.cooldown is not None:
             policy.change_cooldown_s = parsed.cooldown
             policy.trained_on = dict(policy.trained_on or {}, driven_change_cooldown_s=parsed.cooldown)
+        if parsed.queue is not None:
+            policy.queue_below_mps = parsed.queue
+            policy.trained_on = dict(policy.trained_on or {}, driven_queue_below_mps=parsed.queue)
         if parsed.restart is not None:
             policy.restart_below_mps = parsed.restart
             policy.trained_on = dict(policy.trained_on or {}, driven_restart_below_mps=parsed.restart)
@@ -220,6 +226,7 @@ class DQNPolicy:
             last = self._busy_round[nums]
             since_s = np.where(last > 0, (self._rounds - last) * self.decision_interval * DT_S, np.inf)
             mask = cooled_down(mask, since_s, self.change_cooldown_s)
+        mask = no_change_in_queue(mask, obs.speed, self.queue_below_mps)
         same = (
             (self._action[nums] >= 0)
             & (self._grids[nums] == obs.grids).reshape(n, -1).all(axis=1)

@@ -77,11 +77,12 @@ def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
 
 def driven_policy(spec: dict[str, Any], model_dir: Path) -> str:
     """The policy string a model cell drives: its weights in model_dir, with the cell's change margin and lane-change
-    cooldown if it has them (config.drive)."""
+    cooldown, 'none' and queue speeds if it has them (config.drive)."""
     drive = spec["config"].get("drive", {})
     extra = "".join(f",{word}={drive[key]:g}" for key, word in (("change_margin", "margin"),
                                                                  ("change_cooldown_s", "cooldown"),
-                                                                 ("restart_below_mps", "restart")) if key in drive)
+                                                                 ("restart_below_mps", "restart"),
+                                                                 ("queue_below_mps", "queue")) if key in drive)
     return f"dqn:{(model_dir / spec['weights']).resolve()}{extra}"
 
 

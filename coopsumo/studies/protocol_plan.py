@@ -49,12 +49,15 @@ class Variant:
     """the lane-change cooldown it drives with (s; None: none)"""
     restart: float | None = None
     """the speed below which it withholds 'none' (m/s; None: the learner's own)"""
+    queue: float | None = None
+    """the speed below which it chooses no lane change (m/s; None: none)"""
 
     def drive(self) -> dict[str, float]:
         """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""
         out = {} if self.margin is None else {"change_margin": self.margin}
         out |= {} if self.cooldown is None else {"change_cooldown_s": self.cooldown}
-        return out | ({} if self.restart is None else {"restart_below_mps": self.restart})
+        out |= {} if self.restart is None else {"restart_below_mps": self.restart}
+        return out | ({} if self.queue is None else {"queue_below_mps": self.queue})
 
 
 SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0, validation_accident_steps=0)
@@ -100,6 +103,8 @@ def variants() -> dict[str, Variant]:
         Variant("v2x_mix_av", "`v2x_mix` with model.pt chosen through an accident too: each snapshot also driven "
                 "6,000 steps through an accident at T_up 2, 1.5 and 1 s (--validation-accident-steps 6000; the "
                 "same trainings, judged again; the default preset)", V2X_MIX_AV),
+        Variant("v2x_mix_av_q5", "the default's trainings (`v2x_mix_av`) choosing no lane change below 5 m/s, in a "
+                "queue (dqn:PATH,queue=5)", V2X_MIX_AV, queue=5.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -138,6 +143,7 @@ PROFILES = {
     "cooldown": Profile("cooldown", variants=("v2x_mix", "v2x_mix_cd10")),  # the 10 s cooldown on 10 models
     "restart": Profile("restart", variants=("v2x_mix", "v2x_mix_r5", "v2x_mix_lanes"), alpha_seeds=0),  # 'none'?
     "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), judged="v2x_mix_av"),  # the default since 11-26
+    "queue": Profile("queue", variants=("v2x_mix_av", "v2x_mix_av_q5"), judged="v2x_mix_av_q5", alpha_seeds=0),
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip

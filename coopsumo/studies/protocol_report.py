@@ -25,6 +25,10 @@ COLUMNS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_
            "selected_step")  # fmt: skip
 
 
+DRIVE_WORDS = (("change_margin", "change margin"), ("change_cooldown_s", "lane-change cooldown (s)"),
+               ("restart_below_mps", "'none' withheld below (m/s)"), ("queue_below_mps", "no lane change below (m/s)"))
+"""how a variant drives its trainings otherwise (Variant.drive), as the report names it"""
+
 def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:
     rows = []
     for r in records:
@@ -203,8 +207,7 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
     for name in profile.variants:
         info = meta["learners"][name]
         drive = info.get("drive") or {}
-        how = "".join(f", {words} {drive[key]:g}" for key, words in (("change_margin", "change margin"),
-                      ("change_cooldown_s", "lane-change cooldown (s)")) if key in drive)  # fmt: skip
+        how = "".join(f", {words} {drive[key]:g}" for key, words in DRIVE_WORDS if key in drive)
         lines.append(f"- `{name}`: {info['text']} (drives `{info['weights']}`{how})")
     for scenario in ("free", "accident"):
         measure, words, sign = MEASURES[scenario]
