@@ -25,7 +25,15 @@ from typing import Any
 
 from coopsumo.config import RoadConfig, SimConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
-from coopsumo.studies.protocol_plan import PROFILES, REQUIRED, TRAJECTORY_EVERY, Profile, cell_specs, variants
+from coopsumo.studies.protocol_plan import (
+    DRIVES,
+    PROFILES,
+    REQUIRED,
+    TRAJECTORY_EVERY,
+    Profile,
+    cell_specs,
+    variants,
+)
 from coopsumo.studies.records import failed_exit
 from coopsumo.studies.run_folders import default_out, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend
@@ -79,10 +87,7 @@ def driven_policy(spec: dict[str, Any], model_dir: Path) -> str:
     """The policy string a model cell drives: its weights in model_dir, with the cell's change margin and lane-change
     cooldown, 'none' and queue speeds if it has them (config.drive)."""
     drive = spec["config"].get("drive", {})
-    extra = "".join(f",{word}={drive[key]:g}" for key, word in (("change_margin", "margin"),
-                                                                 ("change_cooldown_s", "cooldown"),
-                                                                 ("restart_below_mps", "restart"),
-                                                                 ("queue_below_mps", "queue")) if key in drive)
+    extra = "".join(f",{field}={drive[key]:g}" for field, key, _ in DRIVES if key in drive)
     return f"dqn:{(model_dir / spec['weights']).resolve()}{extra}"
 
 

@@ -35,6 +35,13 @@ TRAJECTORY_EVERY = 5
 REQUIRED = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
 
 
+DRIVES = (("margin", "change_margin", "change margin"), ("cooldown", "change_cooldown_s", "lane-change cooldown (s)"),
+          ("restart", "restart_below_mps", "'none' withheld below (m/s)"),
+          ("queue", "queue_below_mps", "no lane change below (m/s)"))
+"""how a variant may drive its trainings otherwise: its field (also the key of the dqn policy string), the key in a
+cell's config.drive, and the report's words"""
+
+
 @dataclass(frozen=True)
 class Variant:
     """A learner as judged: the training (its learner settings) and the weights that drive."""
@@ -54,10 +61,7 @@ class Variant:
 
     def drive(self) -> dict[str, float]:
         """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""
-        out = {} if self.margin is None else {"change_margin": self.margin}
-        out |= {} if self.cooldown is None else {"change_cooldown_s": self.cooldown}
-        out |= {} if self.restart is None else {"restart_below_mps": self.restart}
-        return out | ({} if self.queue is None else {"queue_below_mps": self.queue})
+        return {key: getattr(self, field) for field, key, _ in DRIVES if getattr(self, field) is not None}
 
 
 SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0, validation_accident_steps=0)

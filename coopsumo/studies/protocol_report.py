@@ -15,7 +15,7 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.studies import stats
-from coopsumo.studies.protocol_plan import BASELINES, EVAL_SEED
+from coopsumo.studies.protocol_plan import BASELINES, DRIVES, EVAL_SEED
 
 MEASURES = {"free": ("mean_speed_mps", "mean speed (m/s)", 1.0),
             "accident": ("tts_veh_h", "total time spent (veh-h)", -1.0)}
@@ -24,10 +24,6 @@ COLUMNS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_
            "status", "mean_speed_mps", "tts_veh_h", "lane_changes_per_vehicle", "collisions", "teleports",
            "selected_step")  # fmt: skip
 
-
-DRIVE_WORDS = (("change_margin", "change margin"), ("change_cooldown_s", "lane-change cooldown (s)"),
-               ("restart_below_mps", "'none' withheld below (m/s)"), ("queue_below_mps", "no lane change below (m/s)"))
-"""how a variant drives its trainings otherwise (Variant.drive), as the report names it"""
 
 def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:
     rows = []
@@ -207,7 +203,7 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
     for name in profile.variants:
         info = meta["learners"][name]
         drive = info.get("drive") or {}
-        how = "".join(f", {words} {drive[key]:g}" for key, words in DRIVE_WORDS if key in drive)
+        how = "".join(f", {words} {drive[key]:g}" for _, key, words in DRIVES if key in drive)
         lines.append(f"- `{name}`: {info['text']} (drives `{info['weights']}`{how})")
     for scenario in ("free", "accident"):
         measure, words, sign = MEASURES[scenario]
