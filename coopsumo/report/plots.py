@@ -226,6 +226,7 @@ def trajectory_windows_figure(
             ax.set_title(f"{label}, {name}: {title_lane}", fontsize=9)
             ax.set_xlabel("time (s)")
             ax.set_ylabel("position (m)")
+    fig.subplots_adjust(hspace=0.35)  # room for each row's title below the time axis of the row above
     fig.colorbar(ScalarMappable(norm=norm, cmap=SPEED_CMAP), ax=list(axes.ravel()), label="speed (m/s)",
                  fraction=0.03, pad=0.02)  # fmt: skip
     return save_figure(fig, out_path)
