@@ -260,6 +260,13 @@ class DQNConfig:
     """training demand: the share of episodes with an accident (position, start and length drawn)"""
     episode_steps: int = 9000
     """training demand: steps of one episode when train_t_ups or accident_share is set (a fresh world each)"""
+    followers_weight: float = 0.0
+    """reward shaping for training (not in the paper): each step a vehicle's reward also gets this times the mean
+    speed reward r_v of the vehicles behind it within followers_m in the lanes it occupies, so that slowing the
+    traffic behind (a lane change into a queue, crawling) costs it; 0: the paper's reward. Model selection and
+    every report score the paper's reward"""
+    followers_m: float = 50.0
+    """reward shaping: the window behind a vehicle whose followers' speed reward it shares (m)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
@@ -543,7 +550,8 @@ ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "a
                                  "alpha_period_steps": 3000, "alpha_relabel": 0.5, "select_every_steps": 0,
                                  "validation_seed": VALIDATION_SEED, "validation_t_ups": [2.0, 1.5, 1.0],
                                  "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
-                                 "episode_steps": 9000, "validation_accident_steps": 0}
+                                 "episode_steps": 9000, "validation_accident_steps": 0, "followers_weight": 0.0,
+                                 "followers_m": 50.0}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from coopsumo.config import RewardConfig
-from coopsumo.sim.reward import flow_term, reward_parts, section_crossings
+from coopsumo.sim import physics
+from coopsumo.sim.reward import flow_term, followers_mean, reward_parts, section_crossings
 
 
 def test_speed_term_is_the_speed_error_over_the_speed_range() -> None:
@@ -68,3 +69,18 @@ def test_section_crossings_on_empty_tables() -> None:
     assert section_crossings(empty_i, empty_f, np.array([1]), np.array([300.0]), sections) == 0
     assert section_crossings(np.array([1]), np.array([100.0]), empty_i, empty_f, sections) == 0
     assert section_crossings(np.array([1]), np.array([100.0]), np.array([1]), np.array([300.0]), np.zeros(0)) == 0
+
+
+def test_followers_mean_averages_the_vehicles_behind_in_every_lane_a_vehicle_occupies() -> None:
+    # lane 0: vehicles at 100, 80, 30 m; lane 1: one at 90 m changing into lane 0, one at 60 m
+    lane, pos = np.array([0, 0, 0, 1, 1]), np.array([100.0, 80.0, 30.0, 90.0, 60.0])
+    other = np.array([-1, -1, -1, 0, -1])
+    value = np.array([1.0, 2.0, 3.0, 4.0, 5.0])
+    occ = physics.occupancy(lane, pos, other)
+    got = followers_mean(occ.keys, value[occ.veh], lane, other, pos, 50.0)
+    # 100 m: the one at 80 and the changer at 90 (in lane 0 too); 80 m: the one at 30 (the window's edge counts);
+    # 30 m: none; the changer: 60 m in lane 1 and 80 m in lane 0; 60 m: none within 50 m behind
+    np.testing.assert_allclose(got, [3.0, 3.0, 0.0, 3.5, 0.0])
+    # a shorter window leaves out the vehicle 50 m behind; an empty road gives nothing
+    np.testing.assert_allclose(followers_mean(occ.keys, value[occ.veh], lane, other, pos, 49.0)[1], 0.0)
+    assert followers_mean(occ.keys[:0], value[:0], lane[:0], other[:0], pos[:0], 50.0).shape == (0,)

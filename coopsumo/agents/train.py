@@ -289,12 +289,15 @@ class Trainer:
             raise ResumeDiverged(f"the replay of its recorded actions diverged at step {world.step_count}")
         out = world.apply(actions)
         started = out.lane_change_started.astype(np.float64)
+        learned = out.reward.total
+        if dq.followers_weight > 0:  # reward shaping: the speed of the traffic behind (DQNConfig.followers_weight)
+            learned = learned + dq.followers_weight * world.followers_speed_reward(out.nums, dq.followers_m)
         if dq.alpha_conditioned:  # the world's alpha is 0 (TrainConfig.validate): charge the drawn one
             penalty = -alpha * started
-            pend.add_rewards(out.nums, out.reward.total + penalty, started)
+            pend.add_rewards(out.nums, learned + penalty, started)
         else:
             penalty = out.reward.lane_change
-            pend.add_rewards(out.nums, out.reward.total, started)
+            pend.add_rewards(out.nums, learned, started)
         if out.arrived.any():
             pend.arrived.append(out.nums[out.arrived])
         if recorded is None:

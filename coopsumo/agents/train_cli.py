@@ -108,6 +108,10 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--accident-share", "accident_share", float,
      "training demand: share of episodes (0-1) with an accident whose position, start and length are drawn"),
     ("--episode-steps", "episode_steps", int, "training demand: steps of one episode (a fresh world each)"),
+    ("--followers-weight", "followers_weight", float,
+     "reward shaping: add this times the mean speed reward of the vehicles behind within --followers-m in the "
+     "lanes a vehicle occupies (0: the paper's reward)"),
+    ("--followers-m", "followers_m", float, "reward shaping: the window behind a vehicle (m)"),
     ("--observation", "observation", OBSERVATIONS,
      "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
      "side lane's nearest leader and follower within 200 m: gap and speed)"),

@@ -22,6 +22,11 @@ SIDE_OFFSETS = np.array([1, 0, -1])
 _LANE_KEY = 1.0e6  # lane * _LANE_KEY + position gives one sortable key (road << 1e6 m)
 
 
+def lane_key(lane: np.ndarray, pos: np.ndarray) -> np.ndarray:
+    """The occupancy's sort key of a (lane, position (m)) pair."""
+    return np.asarray(lane, np.int64) * _LANE_KEY + np.asarray(pos, np.float64)
+
+
 @dataclass(frozen=True)
 class Occupancy:
     """Every (vehicle, lane) pair a vehicle occupies, sorted by lane then position."""
@@ -39,7 +44,7 @@ def occupancy(lane: np.ndarray, pos: np.ndarray, other_lane: np.ndarray) -> Occu
     occ_lane = np.concatenate([lane, other_lane[extra]]).astype(np.int64)
     occ_pos = np.concatenate([pos, pos[extra]]).astype(np.float64)
     occ_veh = np.concatenate([np.arange(n), extra])
-    keys = occ_lane * _LANE_KEY + occ_pos
+    keys = lane_key(occ_lane, occ_pos)
     order = np.argsort(keys, kind="stable")
     return Occupancy(keys[order], occ_lane[order], occ_pos[order], occ_veh[order])
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from coopsumo.config import RewardConfig
+from coopsumo.sim.physics import lane_key
 
 
 @dataclass(frozen=True)
@@ -52,11 +53,40 @@ def flow_term(vehicles_counted: int, window_s: float, n_sections: int, lanes: in
     return flow_veh_h / (lanes * cfg.capacity_veh_h_per_lane)
 
 
+def speed_term(speed_mps: np.ndarray, v_exp_mps: np.ndarray, cfg: RewardConfig) -> np.ndarray:
+    """Eq. (5): r_v = w_v * (v - v_exp) / (v_max - v_min) per vehicle."""
+    return cfg.w_speed * (speed_mps - v_exp_mps) / (cfg.v_max_mps - cfg.v_min_mps)
+
+
 def reward_parts(
     speed_mps: np.ndarray, v_exp_mps: np.ndarray, lane_change_started: np.ndarray, q_t: float, cfg: RewardConfig
 ) -> RewardParts:
     """r_v = w_v * (v - v_exp) / (v_max - v_min); r_cl = -alpha on a started change; w_q * q_t."""
-    r_v = cfg.w_speed * (speed_mps - v_exp_mps) / (cfg.v_max_mps - cfg.v_min_mps)
+    r_v = speed_term(speed_mps, v_exp_mps, cfg)
     r_cl = np.where(lane_change_started, -cfg.alpha, 0.0)
     r_q = np.full(len(speed_mps), cfg.w_flow * q_t)
     return RewardParts(r_v.astype(np.float64), r_cl.astype(np.float64), r_q)
+
+
+def followers_mean(
+    occ_keys: np.ndarray, occ_value: np.ndarray, lane: np.ndarray, other_lane: np.ndarray, pos: np.ndarray,
+    window_m: float,
+) -> np.ndarray:
+    """Per vehicle, the mean value of the vehicles behind it within window_m (m) in every lane it occupies (its
+    own, and the second lane while it changes; -1: none); 0 where no vehicle is there.
+
+    occ_keys, occ_value: a sorted occupancy's keys (physics.occupancy) and each entry's value. A vehicle behind in
+    both lanes of a changer counts twice; the vehicle itself and one at exactly its position do not count.
+    """
+    if len(pos) == 0:
+        return np.zeros(0)
+    csum = np.concatenate([[0.0], np.cumsum(occ_value, dtype=np.float64)])
+    total, count = np.zeros(len(pos)), np.zeros(len(pos))
+    second = (other_lane >= 0) & (other_lane != lane)
+    for lanes, use in ((lane, np.ones(len(pos), bool)), (other_lane, second)):
+        hi_key = lane_key(lanes[use], pos[use])
+        lo = np.searchsorted(occ_keys, hi_key - window_m, side="left")
+        hi = np.searchsorted(occ_keys, hi_key, side="left")
+        total[use] += csum[hi] - csum[lo]
+        count[use] += hi - lo
+    return np.divide(total, count, out=np.zeros(len(pos)), where=count > 0)

@@ -19,7 +19,7 @@ from coopsumo.sim import accident, controller, physics, view
 from coopsumo.sim.accident import HELD
 from coopsumo.sim.driver import sumo_lc_params, sumo_models
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
-from coopsumo.sim.reward import RewardParts, flow_term, reward_parts, section_crossings
+from coopsumo.sim.reward import RewardParts, flow_term, followers_mean, reward_parts, section_crossings, speed_term
 from coopsumo.sim.sumo_session import StepEvents, SumoSession
 from coopsumo.sim.vehicle_table import VehicleTable
 
@@ -352,6 +352,19 @@ class World:
         new_speed[still] = self.table.speed[row[still]]
         reward = reward_parts(new_speed, obs.v_exp, ok, q_t, self.cfg.reward)
         return StepOutcome(obs.nums, actions, ok, rejected, arrived, reward, q_t)
+
+    def followers_speed_reward(self, nums: np.ndarray, window_m: float) -> np.ndarray:
+        """Now (after a step): for each vehicle of `nums`, the mean speed reward r_v of the vehicles behind it within
+        window_m (m) in the lanes it occupies (reward.followers_mean); 0 for one that has left or has none behind."""
+        t = self.table
+        other = self._other_lane(t.nums, t.lane)
+        occ = physics.occupancy(t.lane, t.pos, other)
+        r_v = speed_term(t.speed, self.veh.v_exp[t.nums], self.cfg.reward)
+        behind = followers_mean(occ.keys, r_v[occ.veh], t.lane, other, t.pos, window_m)
+        row, still = self._rows_now(nums)
+        out = np.zeros(len(nums))
+        out[still] = behind[row[still]]
+        return out
 
     def _accident_obstacle(
         self, obs: Observation, gap: np.ndarray, v_lead: np.ndarray

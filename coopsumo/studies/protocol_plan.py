@@ -109,6 +109,9 @@ def variants() -> dict[str, Variant]:
                 "same trainings, judged again; the default preset)", V2X_MIX_AV),
         Variant("v2x_mix_av_q5", "the default's trainings (`v2x_mix_av`) choosing no lane change below 5 m/s, in a "
                 "queue (dqn:PATH,queue=5)", V2X_MIX_AV, queue=5.0),
+        Variant("v2x_mix_av_f1", "the default (`v2x_mix_av`) trained with the speed of the traffic behind in its "
+                "reward: each step, plus the mean speed reward of the vehicles within 50 m behind in the lanes a "
+                "vehicle occupies (--followers-weight 1)", replace(V2X_MIX_AV, followers_weight=1.0)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -148,6 +151,8 @@ PROFILES = {
     "restart": Profile("restart", variants=("v2x_mix", "v2x_mix_r5", "v2x_mix_lanes"), alpha_seeds=0),  # 'none'?
     "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), judged="v2x_mix_av"),  # the default since 11-26
     "queue": Profile("queue", variants=("v2x_mix_av", "v2x_mix_av_q5"), judged="v2x_mix_av_q5", alpha_seeds=0),
+    "followers": Profile("followers", variants=("v2x_mix_av", "v2x_mix_av_f1"), judged="v2x_mix_av_f1",
+                         seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 3)), alpha_seeds=0),  # a trained remedy, first look
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
