@@ -81,13 +81,14 @@ def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
 @pytest.mark.parametrize("preset", ["default", "paper", "features"])
 def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str) -> None:
     """Each state a checkpoint must keep, within 1,500 steps: `features` is the default learner (the v2x state,
-    drawn demands and accidents) with episodes of 1,000 steps, the alpha-conditioned network's alpha schedule and
-    model selection all at work in one training (any state a resume lost would change the weights)."""
+    drawn demands and accidents) with episodes of 1,000 steps, the alpha-conditioned network's alpha schedule,
+    the followers' speed in the reward and model selection all at work in one training (any state a resume lost
+    would change the weights)."""
     sig = signal.SIGTERM  # Ctrl-C (SIGINT) is exercised by tests/test_docs.py on the README's commands
     learner = {"features": ["--observation", "v2x", "--alpha-conditioned", "--alpha-period", "700",
                             "--train-t-up", "1.5,1", "--accident-share", "0.5", "--episode-steps", "1000",
                             "--select-every", "1000", "--validation-steps", "300", "--validation-t-up", "1.5",
-                            "--validation-accident-steps", "600"],
+                            "--validation-accident-steps", "600", "--followers-weight", "1"],
                "default": ["--preset", "default", "--update-worker", "on"]}.get(  # the checkpoint asks the worker
         preset, ["--preset", preset])  # fmt: skip
     args = ["--steps", "1500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
