@@ -90,7 +90,8 @@ def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:
 
 
 def test_a_variant_that_only_chooses_snapshots_otherwise_is_paired_by_model() -> None:
-    """v2x_mix_av's trainings are v2x_mix's judged again (another train_key): paired by training seed."""
+    """v2x_mix_av's trainings are v2x_mix's judged again (another train_key): paired by model; another learner's
+    trainings on the same seeds (select) are paired by training seed in a section of their own."""
     from coopsumo.config import to_dict
     from coopsumo.studies.protocol_plan import Profile, variants
     from coopsumo.studies.protocol_report import paired_lines
@@ -103,8 +104,11 @@ def test_a_variant_that_only_chooses_snapshots_otherwise_is_paired_by_model() ->
     learners = {v: {"learner": to_dict(known[v].learner)} for v in ("v2x_mix", "v2x_mix_av", "select")}
     profile = Profile("x", variants=("v2x_mix", "v2x_mix_av", "select"))
     text = "\n".join(paired_lines(pd.DataFrame(rows), profile, {"learners": learners}))
-    assert "| `v2x_mix_av` | free | 2 | +0.50" in text and "2 of 2" in text
-    assert "`select` |" not in text  # another training: not paired
+    same, other = text.split("## Other trainings on the same training seeds")
+    assert "## The same trainings driven or chosen otherwise" in same
+    assert "| `v2x_mix_av` | free | 2 | +0.50" in same and "2 of 2" in same and "`select` |" not in same
+    # another learner's trainings: paired by training seed in a section of their own
+    assert "| `select` | free | 2 | +0.00" in other and "`v2x_mix_av` |" not in other
 
 
 def test_the_accval_profile_judges_the_default_and_measures_its_alpha_response() -> None:

@@ -152,7 +152,7 @@ PROFILES = {
     "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), judged="v2x_mix_av"),  # the default since 11-26
     "queue": Profile("queue", variants=("v2x_mix_av", "v2x_mix_av_q5"), judged="v2x_mix_av_q5", alpha_seeds=0),
     "followers": Profile("followers", variants=("v2x_mix_av", "v2x_mix_av_f1"), judged="v2x_mix_av_f1",
-                         seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 3)), alpha_seeds=0),  # a trained remedy, first look
+                         seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # a trained remedy, first look
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip

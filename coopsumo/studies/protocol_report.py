@@ -83,10 +83,10 @@ def pooled_stats(runs: pd.DataFrame, variant: str, baseline: str, scenario: str)
 
 
 def paired_rows(runs: pd.DataFrame, variant: str, reference: str) -> list[dict[str, Any]]:
-    """Per condition, `variant` minus `reference` on the same trainings (paired by training seed: the same run, driven
-    or chosen otherwise): the mean over models of the paired difference in the headline measure and in lane changes
-    per vehicle, a 95% bootstrap interval over models (stats.hierarchical_bootstrap, one evaluation per model), and
-    how many models did better."""
+    """Per condition, `variant` minus `reference` paired by training seed (the same training driven or chosen
+    otherwise, or another learner's training on the same seed, evaluated on the same seeds): the mean over models
+    of the paired difference in the headline measure and in lane changes per vehicle, a 95% bootstrap interval
+    over models (stats.hierarchical_bootstrap, one evaluation per model), and how many models did better."""
     ok = runs[(runs["status"] == "ok") & (runs["alpha"] == 0)]
     rows = []
     for (scenario, t_up), cond in ok.groupby(["scenario", "t_up"], sort=False):
@@ -169,7 +169,7 @@ def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta:
     variants = list(profile.variants)
     table = condition_stats(runs, variants, list(BASELINES))
     table.to_csv(root / "stats.csv", index=False, float_format="%.6g")
-    diag = diagnosis_table(root, runs)
+    diag = diagnosis_table(root, runs[runs["variant"] == profile.judged_variant()])  # the judged learner's trainings
     if len(diag):
         diag.to_csv(root / "diagnosis.csv", index=False, float_format="%.6g")
     models = runs[(runs["kind"] == "model") & (runs["alpha"] == 0)].dropna(subset=["train_key"])
@@ -244,7 +244,8 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
     lines += [f"Safety: {int(safety['collisions'])} collisions and {int(safety['teleports'])} teleports in all "
               f"{len(ok)} runs.", ""]  # fmt: skip
     if len(diag):
-        lines += ["## Diagnosis: what each training's validation saw (alpha 0)", "",
+        judged = profile.judged_variant()
+        lines += [f"## Diagnosis: what each training of `{judged}` saw in its validation (alpha 0)", "",
                   "Each training was validated every few thousand steps on held-out free-flow demand "
                   "(agents/selection.py); `best` is the snapshot model.pt holds, `last` the last weights. Shares are "
                   "of the greedy decisions; q gap: median Q(best change) - Q(best stay) where a change was offered; "
@@ -278,19 +279,24 @@ def paired_lines(runs: pd.DataFrame, profile: Any, meta: dict[str, Any]) -> list
 
     first = profile.variants[0]
     same = [v for v in profile.variants[1:] if trained(v) == trained(first)]
-    if not same:
-        return []
-    lines = ["", f"## The same trainings driven or chosen otherwise: each variant minus `{first}`, paired by model",
-             "",
-             "Mean over models of the paired difference, 95% bootstrap interval over models, and how many models "
-             f"did better than with `{first}` (free flow: mean speed, m/s; accident: total time spent, veh-h).", "",
-             "| learner | scenario | T_up (s) | difference [95% CI] | better | lane changes / veh, difference |",
-             "|---|---|---|---|---|---|"]  # fmt: skip
-    for variant in same:
-        for r in paired_rows(runs, variant, first):
-            lines.append(f"| `{variant}` | {r['scenario']} | {r['t_up']:g} | "
-                         f"{_ci(r['diff'], r['low'], r['high'], '{:+.2f}')} | {r['better']} of {r['models']} | "
-                         f"{r['lane_changes']:+.2f} |")  # fmt: skip
+    other = [v for v in profile.variants[1:] if v not in same]
+    lines: list[str] = []
+    for group, title, unit in (
+        (same, "The same trainings driven or chosen otherwise", "model"),
+        (other, "Other trainings on the same training seeds (the same evaluation seeds too)", "training seed"),
+    ):
+        if not group:
+            continue
+        lines += ["", f"## {title}: each variant minus `{first}`, paired by {unit}", "",
+                  f"Mean over {unit}s of the paired difference, 95% bootstrap interval over them, and how many did "
+                  f"better than `{first}` (free flow: mean speed, m/s; accident: total time spent, veh-h).", "",
+                  "| learner | scenario | T_up (s) | difference [95% CI] | better | lane changes / veh, difference |",
+                  "|---|---|---|---|---|---|"]  # fmt: skip
+        for variant in group:
+            for r in paired_rows(runs, variant, first):
+                lines.append(f"| `{variant}` | {r['scenario']} | {r['t_up']:g} | "
+                             f"{_ci(r['diff'], r['low'], r['high'], '{:+.2f}')} | {r['better']} of {r['models']} | "
+                             f"{r['lane_changes']:+.2f} |")  # fmt: skip
     return lines
 
 
