@@ -112,6 +112,8 @@ def variants() -> dict[str, Variant]:
         Variant("v2x_mix_av_f1", "the default (`v2x_mix_av`) trained with the speed of the traffic behind in its "
                 "reward: each step, plus the mean speed reward of the vehicles within 50 m behind in the lanes a "
                 "vehicle occupies (--followers-weight 1)", replace(V2X_MIX_AV, followers_weight=1.0)),
+        Variant("v2x_mix_av_f05", "`v2x_mix_av_f1` with half the weight on the traffic behind (--followers-weight "
+                "0.5)", replace(V2X_MIX_AV, followers_weight=0.5)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -151,7 +153,8 @@ PROFILES = {
     "restart": Profile("restart", variants=("v2x_mix", "v2x_mix_r5", "v2x_mix_lanes"), alpha_seeds=0),  # 'none'?
     "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), judged="v2x_mix_av"),  # the default since 11-26
     "queue": Profile("queue", variants=("v2x_mix_av", "v2x_mix_av_q5"), judged="v2x_mix_av_q5", alpha_seeds=0),
-    "followers": Profile("followers", variants=("v2x_mix_av", "v2x_mix_av_f1"), judged="v2x_mix_av_f1",
+    "followers": Profile("followers", variants=("v2x_mix_av", "v2x_mix_av_f1", "v2x_mix_av_f05"),
+                         judged="v2x_mix_av_f1",
                          seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # a trained remedy, first look
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
