@@ -156,6 +156,8 @@ PROFILES = {
     "followers": Profile("followers", variants=("v2x_mix_av", "v2x_mix_av_f1", "v2x_mix_av_f05"),
                          judged="v2x_mix_av_f1",
                          seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # a trained remedy, first look
+    "followers05": Profile("followers05", variants=("v2x_mix_av_f05",),
+                           seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # its dose, half the weight
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
