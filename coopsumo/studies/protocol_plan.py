@@ -114,6 +114,9 @@ def variants() -> dict[str, Variant]:
                 "vehicle occupies (--followers-weight 1)", replace(V2X_MIX_AV, followers_weight=1.0)),
         Variant("v2x_mix_av_f05", "`v2x_mix_av_f1` with half the weight on the traffic behind (--followers-weight "
                 "0.5)", replace(V2X_MIX_AV, followers_weight=0.5)),
+        Variant("v2x_mix_av_f05_q5", "`v2x_mix_av_f05`'s trainings choosing no lane change below 5 m/s, in a queue "
+                "(dqn:PATH,queue=5): the trained remedy and the drive-time one together",
+                replace(V2X_MIX_AV, followers_weight=0.5), queue=5.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -156,7 +159,7 @@ PROFILES = {
     "followers": Profile("followers", variants=("v2x_mix_av", "v2x_mix_av_f1", "v2x_mix_av_f05"),
                          judged="v2x_mix_av_f1",
                          seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # a trained remedy, first look
-    "followers05": Profile("followers05", variants=("v2x_mix_av_f05",),
+    "followers05": Profile("followers05", variants=("v2x_mix_av_f05", "v2x_mix_av_f05_q5"),
                            seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # its dose, half the weight
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
