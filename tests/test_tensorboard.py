@@ -58,7 +58,11 @@ def test_train_writes_the_csv_scalars_to_tensorboard(tmp_path: Path) -> None:
         expected = [(int(r["step"]), float(r[column])) for r in rows if r[column] != ""]
         assert [p.step for p in points] == [s for s, _ in expected], tag
         assert [p.value for p in points] == pytest.approx([v for _, v in expected], rel=1e-5, abs=1e-7), tag
-    # a fresh training into the same folder replaces the event files instead of mixing two runs
-    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
+    # a fresh (shorter) training into the same folder replaces the event files instead of mixing two runs
+    res = subprocess.run([*cmd[: cmd.index("2000")], "1000", *cmd[cmd.index("2000") + 1:]], cwd=ROOT,
+                         capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     assert len(list((out / tb_log.TB_DIR).glob("events.out.tfevents.*"))) == 1
+    acc = EventAccumulator(str(out / tb_log.TB_DIR))
+    acc.Reload()
+    assert [p.step for p in acc.Scalars(tb_log.SCALARS["td_loss"])] == [1000]  # the new run's points alone
