@@ -122,3 +122,45 @@ def test_the_accval_profile_judges_the_default_and_measures_its_alpha_response()
     assert alpha8 and {s["variant"] for s in alpha8} == {"v2x_mix_av"}
     assert {s["scenario"] for s in alpha8} == {"free"} and len({s["train_key"] for s in alpha8}) == profile.alpha_seeds
     assert PROFILES["v2x_mix10"].judged_variant() == "v2x_mix"  # no judged variant named: the first
+
+
+def test_a_committed_studys_trainings_pair_only_when_made_the_same_way(tmp_path: Path) -> None:
+    """Profile.paired_with: a committed study's variant on the same training and evaluation seeds is paired by
+    training seed; another learner, other evaluation seeds or another profile are refused with the reason."""
+    import json
+    from dataclasses import asdict, replace
+
+    from coopsumo.config import to_dict
+    from coopsumo.studies.protocol_plan import Profile, variants
+    from coopsumo.studies.protocol_report import committed_pair_lines
+
+    def rows(variant: str, speeds: tuple[float, ...], eval_seed: int = 5000) -> list[dict[str, object]]:
+        return [{"key": f"{variant}{seed}", "kind": "model", "variant": variant, "alpha": 0.0, "seed": seed,
+                 "scenario": "free", "t_up": 2.0, "eval_seed": eval_seed, "status": "ok", "mean_speed_mps": v,
+                 "lane_changes_per_vehicle": 1.0} for seed, v in zip((100, 101), speeds, strict=True)]  # fmt: skip
+
+    profile = Profile("x", variants=("v2x_mix_av_f05",), seeds=(100, 101),
+                      paired_with=(("v2x_mix_av_f05", "learner_protocol_old", "v2x_mix_av"),))  # fmt: skip
+    runs = pd.DataFrame(rows("v2x_mix_av_f05", (20.0, 21.0)))
+    folder = tmp_path / "learner_protocol_old"
+    folder.mkdir()
+    learners = {"v2x_mix_av": {"learner": to_dict(variants()["v2x_mix_av"].learner), "weights": "model.pt"}}
+
+    def commit(study_profile: Profile, eval_seed: int = 5000, learner_lr: float | None = None) -> str:
+        entry = dict(learners["v2x_mix_av"])
+        if learner_lr is not None:
+            entry["learner"] = {**entry["learner"], "lr": learner_lr}  # type: ignore[dict-item]
+        study = {"profile": asdict(study_profile), "learners": {"v2x_mix_av": entry}}
+        (folder / "study.json").write_text(json.dumps(study))
+        pd.DataFrame(rows("v2x_mix_av", (19.5, 20.0), eval_seed)).to_csv(folder / "runs.csv", index=False)
+        return "\n".join(committed_pair_lines(runs, profile, tmp_path))
+
+    text = commit(Profile("old", variants=("v2x_mix_av",), seeds=(100, 101)))
+    assert "| `v2x_mix_av_f05` | `v2x_mix_av` ([learner_protocol_old]" in text and "| +0.75 [" in text
+    assert "2 of 2" in text and "not paired" not in text
+    assert "not paired, its v2x_mix_av is not today's" in commit(Profile("old", seeds=(100, 101)), learner_lr=0.5)
+    assert "not paired, other evaluation seeds (free, T_up 2 s)" in commit(Profile("old"), eval_seed=5007)
+    assert "not paired, its profile differs in train_steps" in commit(replace(Profile("old"), train_steps=1000))
+    (folder / "runs.csv").unlink()
+    assert "not paired, no runs.csv and study.json in learner_protocol_old" in "\n".join(
+        committed_pair_lines(runs, profile, tmp_path))

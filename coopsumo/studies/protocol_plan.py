@@ -143,6 +143,10 @@ class Profile:
     judged: str = ""
     """the variant whose targets and alpha response the report gives (empty: the first; the others are paired
     against the first)"""
+    paired_with: tuple[tuple[str, str, str], ...] = ()
+    """(a variant here, a committed protocol report's folder under results/, a variant there): the report pairs the
+    two by training seed when that study ran the same seeds, demands and step counts with today's learner of that
+    variant (protocol_report.committed_pair_lines), so that trainings made once need not be made again"""
 
     def judged_variant(self) -> str:
         return self.judged or self.variants[0]
@@ -165,7 +169,11 @@ PROFILES = {
                          seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # a trained remedy, first look
     "followers05": Profile("followers05", variants=("v2x_mix_av_f05", "v2x_mix_av_f05_q5",
                                                            "v2x_mix_av_f05_cd10", "v2x_mix_av_f05_q5_cd10"),
-                           seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # f05, drive-time remedies
+                           seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0,
+                           paired_with=(("v2x_mix_av_f05", "learner_protocol_queue", "v2x_mix_av"),
+                                        ("v2x_mix_av_f05", "learner_protocol_followers", "v2x_mix_av_f1"),
+                                        ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av_q5"),
+                                        ("v2x_mix_av_f05_q5_cd10", "learner_protocol_queue", "v2x_mix_av"))),
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip

@@ -8,7 +8,9 @@ training's validation.csv (agents/selection.py).
 
 from __future__ import annotations
 
+import json
 import math
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +25,12 @@ MEASURES = {"free": ("mean_speed_mps", "mean speed (m/s)", 1.0),
 COLUMNS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key",
            "status", "mean_speed_mps", "tts_veh_h", "lane_changes_per_vehicle", "collisions", "teleports",
            "selected_step")  # fmt: skip
+
+
+COMMITTED = Path(__file__).resolve().parents[2] / "results"
+"""the repository's committed reports, which Profile.paired_with names (absent beside an installed wheel)"""
+SAME_PROFILE = ("lanes", "train_steps", "t_ups", "free_steps", "accident_steps", "accident_start", "accident_duration")
+"""what a committed study must share with this one for its trainings to pair with this one's"""
 
 
 def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:
@@ -102,6 +110,63 @@ def paired_rows(runs: pd.DataFrame, variant: str, reference: str) -> list[dict[s
         rows.append({"scenario": scenario, "t_up": t_up, "models": len(both), "diff": point, "low": low,
                      "high": high, "better": int((sign * diff > 0).sum()), "lane_changes": float(lcs)})
     return rows
+
+
+def committed_runs(folder: Path, variant: str, runs: pd.DataFrame, profile: Any) -> tuple[pd.DataFrame, str]:
+    """`variant`'s alpha-0 model rows of the committed protocol study in `folder`, or an empty table and why they
+    cannot be paired with this study's: missing, another profile, another learner than today's, other seeds."""
+    from coopsumo.config import to_dict
+    from coopsumo.studies.protocol_plan import variants
+    from coopsumo.studies.trainings import first_difference
+
+    empty = runs.iloc[0:0]
+    if not (folder / "runs.csv").is_file() or not (folder / "study.json").is_file():
+        return empty, f"no runs.csv and study.json in {folder.name}"
+    study = json.loads((folder / "study.json").read_text())
+    theirs, ours = study.get("profile", {}), json.loads(json.dumps(asdict(profile)))
+    differ = [f for f in SAME_PROFILE if json.dumps(theirs.get(f)) != json.dumps(ours.get(f))]
+    if differ:
+        return empty, f"its profile differs in {', '.join(differ)}"
+    known, entry = variants().get(variant), study.get("learners", {}).get(variant)
+    if known is None or entry is None:
+        return empty, f"no variant {variant} there or here"
+    if first_difference(entry.get("learner"), to_dict(known.learner)) is not None or \
+            entry.get("drive", {}) != known.drive() or entry.get("weights") != known.weights:
+        return empty, f"its {variant} is not today's"
+    ref = pd.read_csv(folder / "runs.csv")
+    ref = ref[(ref["kind"] == "model") & (ref["variant"] == variant) & (ref["alpha"] == 0) & (ref["status"] == "ok")]
+    for (scenario, t_up), cond in runs[runs["kind"] == "model"].groupby(["scenario", "t_up"]):
+        there = ref[(ref["scenario"] == scenario) & (ref["t_up"] == t_up)]["eval_seed"]
+        if set(there) != set(cond["eval_seed"]):
+            return empty, f"other evaluation seeds ({scenario}, T_up {t_up:g} s)"
+    return ref, ""
+
+
+def committed_pair_lines(runs: pd.DataFrame, profile: Any, results: Path = COMMITTED) -> list[str]:
+    """Profile.paired_with: each named variant here minus a committed study's variant, paired by training seed."""
+    if not profile.paired_with:
+        return []
+    lines = ["", "## Paired with the trainings of committed studies on the same training seeds", "",
+             "Each variant here minus a variant of another committed protocol study that ran the same training "
+             "seeds, demands, evaluation seeds and step counts with today's settings of that variant (checked from "
+             "its study.json and runs.csv); mean over training seeds of the paired difference, 95% bootstrap "
+             "interval over them, and how many did better (free flow: mean speed, m/s; accident: total time spent, "
+             "veh-h).", "",
+             "| learner | minus | scenario | T_up (s) | difference [95% CI] | better | lane changes / veh, diff. |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    notes = []
+    for mine, folder, theirs in profile.paired_with:
+        ref, problem = committed_runs(results / folder, theirs, runs, profile)
+        if problem:
+            notes.append(f"- `{mine}` minus `{theirs}` of {folder}: not paired, {problem}.")
+            continue
+        label = f"{theirs} ({folder})"
+        both = pd.concat([runs[runs["variant"] == mine], ref.assign(variant=label)], ignore_index=True)
+        for r in paired_rows(both, mine, label):
+            lines.append(f"| `{mine}` | `{theirs}` ([{folder}](../{folder}/report.md)) | {r['scenario']} | "
+                         f"{r['t_up']:g} | {_ci(r['diff'], r['low'], r['high'], '{:+.2f}')} | {r['better']} of "
+                         f"{r['models']} | {r['lane_changes']:+.2f} |")  # fmt: skip
+    return lines + ([""] + notes if notes else [])
 
 
 def diagnosis_table(root: Path, runs: pd.DataFrame) -> pd.DataFrame:
@@ -229,6 +294,7 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
             parts = [f"P(> `{b}`) = {_ci(*pooled_stats(runs, variant, b, scenario))}" for b in BASELINES]
             lines.append(f"- `{variant}`: " + "; ".join(parts))
     lines += paired_lines(runs, profile, meta)
+    lines += committed_pair_lines(runs, profile)
     lines += ["", *target_lines(table, ok, profile), ""]
     judged = profile.judged_variant()
     alpha = ok[(ok["kind"] == "model") & (ok["scenario"] == "free") & (ok["variant"] == judged)]
