@@ -169,7 +169,7 @@ PROFILES = {
                          seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # a trained remedy, first look
     "followers05": Profile("followers05", variants=("v2x_mix_av_f05", "v2x_mix_av_f05_q5",
                                                            "v2x_mix_av_f05_cd10", "v2x_mix_av_f05_q5_cd10"),
-                           seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0,
+                           alpha_seeds=0,  # the default's 10 seeds, as learner_protocol_queue
                            paired_with=(("v2x_mix_av_f05", "learner_protocol_queue", "v2x_mix_av"),
                                         ("v2x_mix_av_f05", "learner_protocol_followers", "v2x_mix_av_f1"),
                                         ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av_q5"),
