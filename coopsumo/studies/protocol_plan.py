@@ -162,7 +162,7 @@ PROFILES = {
     "restart": Profile("restart", variants=("v2x_mix", "v2x_mix_r5", "v2x_mix_lanes"), alpha_seeds=0),  # 'none'?
     "accval": Profile("accval", variants=("v2x_mix", "v2x_mix_av"), judged="v2x_mix_av"),  # the default since 11-26
     "queue": Profile("queue", variants=("v2x_mix_av", "v2x_mix_av_q5"), judged="v2x_mix_av_q5", alpha_seeds=0),
-    "followers": Profile("followers", variants=("v2x_mix_av", "v2x_mix_av_f1", "v2x_mix_av_f05"),
+    "followers": Profile("followers", variants=("v2x_mix_av", "v2x_mix_av_f1"),
                          judged="v2x_mix_av_f1",
                          seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # a trained remedy, first look
     "followers05": Profile("followers05", variants=("v2x_mix_av_f05", "v2x_mix_av_f05_q5", "v2x_mix_av_f05_q5_cd10"),
