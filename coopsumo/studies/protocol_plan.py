@@ -117,8 +117,6 @@ def variants() -> dict[str, Variant]:
         Variant("v2x_mix_av_f05_q5", "`v2x_mix_av_f05`'s trainings choosing no lane change below 5 m/s, in a queue "
                 "(dqn:PATH,queue=5): the trained remedy and the drive-time one together",
                 replace(V2X_MIX_AV, followers_weight=0.5), queue=5.0),
-        Variant("v2x_mix_av_f05_q5_cd10", "`v2x_mix_av_f05`'s trainings driven with both: no lane change below 5 m/s "
-                "and a cooldown of 10 s", replace(V2X_MIX_AV, followers_weight=0.5), queue=5.0, cooldown=10.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -165,12 +163,12 @@ PROFILES = {
     "followers": Profile("followers", variants=("v2x_mix_av", "v2x_mix_av_f1"),
                          judged="v2x_mix_av_f1",
                          seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)), alpha_seeds=0),  # a trained remedy, first look
-    "followers05": Profile("followers05", variants=("v2x_mix_av_f05", "v2x_mix_av_f05_q5", "v2x_mix_av_f05_q5_cd10"),
+    "followers05": Profile("followers05", variants=("v2x_mix_av_f05", "v2x_mix_av_f05_q5"),
                            alpha_seeds=0,  # the default's 10 seeds, as learner_protocol_queue
                            paired_with=(("v2x_mix_av_f05", "learner_protocol_queue", "v2x_mix_av"),
                                         ("v2x_mix_av_f05", "learner_protocol_followers", "v2x_mix_av_f1"),
                                         ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av_q5"),
-                                        ("v2x_mix_av_f05_q5_cd10", "learner_protocol_queue", "v2x_mix_av"))),
+                                        ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av"))),
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
