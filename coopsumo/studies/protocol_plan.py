@@ -73,6 +73,8 @@ V2X_MIX = replace(MIX, observation="v2x")
 """the v2x state trained on the mix, model.pt chosen on free flow alone (the default until v2x_mix_av)"""
 V2X_MIX_AV = replace(V2X_MIX, validation_accident_steps=6000)
 """the default preset (DQNConfig()): v2x_mix with model.pt chosen through an accident too"""
+V2X_MIX_AV_F05 = replace(V2X_MIX_AV, followers_weight=0.5)
+"""the default trained with half the weight on the speed of the traffic behind (--followers-weight 0.5)"""
 
 
 def variants() -> dict[str, Variant]:
@@ -113,10 +115,10 @@ def variants() -> dict[str, Variant]:
                 "reward: each step, plus the mean speed reward of the vehicles within 50 m behind in the lanes a "
                 "vehicle occupies (--followers-weight 1)", replace(V2X_MIX_AV, followers_weight=1.0)),
         Variant("v2x_mix_av_f05", "`v2x_mix_av_f1` with half the weight on the traffic behind (--followers-weight "
-                "0.5)", replace(V2X_MIX_AV, followers_weight=0.5)),
+                "0.5)", V2X_MIX_AV_F05),
         Variant("v2x_mix_av_f05_q5", "`v2x_mix_av_f05`'s trainings choosing no lane change below 5 m/s, in a queue "
                 "(dqn:PATH,queue=5): the trained remedy and the drive-time one together",
-                replace(V2X_MIX_AV, followers_weight=0.5), queue=5.0),
+                V2X_MIX_AV_F05, queue=5.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
