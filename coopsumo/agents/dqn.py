@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import inspect
 import os
 import tempfile
 from pathlib import Path
@@ -159,8 +160,25 @@ def dqn_update(
     optimizer.zero_grad()
     loss.backward()
     nn.utils.clip_grad_norm_(online.parameters(), grad_clip_norm)
-    optimizer.step()
+    optimizer_step(optimizer)
     return float(loss.item())
+
+
+def optimizer_step(optimizer: torch.optim.Optimizer) -> None:
+    """optimizer.step() without its wrappers: torch's step first imports torch._dynamo (1.8 s of CPU per process)
+    to tell eager code from compiled; this project runs eagerly only. The same arithmetic, grad off as torch's
+    wrapper sets it (differentiable=False); torch is pinned (2.13)."""
+    with torch.no_grad():
+        inspect.unwrap(type(optimizer).step)(optimizer)
+
+
+def _no_dynamo_import() -> None:
+    """Fill the cache of torch's Optimizer methods that would import torch._dynamo on their first call (construction,
+    zero_grad, state_dict, load_state_dict) with the plain methods, which is what that import gives when nothing is
+    compiled."""
+    for name in ("zero_grad", "add_param_group", "state_dict", "load_state_dict"):
+        plain = inspect.unwrap(getattr(torch.optim.Optimizer, name))
+        setattr(plain, "__dynamo_disable", plain)
 
 
 def sync_target(online: nn.Module, target: nn.Module) -> None:
@@ -169,7 +187,8 @@ def sync_target(online: nn.Module, target: nn.Module) -> None:
 
 
 def make_optimizer(net: nn.Module, cfg: DQNConfig) -> torch.optim.Optimizer:
-    """Adam or SGD on net's parameters with cfg.lr."""
+    """Adam or SGD on net's parameters with cfg.lr (step it with optimizer_step)."""
+    _no_dynamo_import()
     if cfg.optimizer == "adam":
         return torch.optim.Adam(net.parameters(), lr=cfg.lr)
     if cfg.optimizer == "sgd":
