@@ -217,8 +217,9 @@ def validation_curves_figure(root: Path, keys: list[str], out_path: Path,
                                 "lane changes per vehicle"), strict=True):  # fmt: skip
         ax.set_xlabel("training step")
         ax.set_ylabel(label)
-    axes[0].legend(fontsize=6, ncol=2)
-    fig.tight_layout()
+    handles, labels = axes[0].get_legend_handles_labels()  # beside the panels, where it hides no point
+    fig.legend(handles, labels, fontsize=6, loc="center right", title="training seed", title_fontsize=7)
+    fig.tight_layout(rect=(0.0, 0.0, 0.9 if len(learners) == 1 else 0.84, 1.0))
     return save_figure(fig, out_path)
 
 
