@@ -267,6 +267,11 @@ class DQNConfig:
     every report score the paper's reward"""
     followers_m: float = 50.0
     """reward shaping: the window behind a vehicle whose followers' speed reward it shares (m)"""
+    queue_below_mps: float = 0.0
+    """when the trained model drives (evaluation, simulate, studies), no lane change is chosen by a vehicle slower
+    than this (m/s; 0: none, the paper's): a change takes 4 s across both lanes, so one made where the traffic
+    stands holds up two queues. Training and model selection ignore it (measured so: learner_protocol_followers05;
+    dqn:PATH,queue=V replaces it)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
@@ -339,6 +344,8 @@ PAPER_DQN = DQNConfig(
     validation_accident_steps=0,
     train_t_ups=(),
     accident_share=0.0,
+    followers_weight=0.0,
+    queue_below_mps=0.0,
 )
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""
@@ -551,7 +558,7 @@ ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "a
                                  "validation_seed": VALIDATION_SEED, "validation_t_ups": [2.0, 1.5, 1.0],
                                  "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
                                  "episode_steps": 9000, "validation_accident_steps": 0, "followers_weight": 0.0,
-                                 "followers_m": 50.0}
+                                 "followers_m": 50.0, "queue_below_mps": 0.0}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

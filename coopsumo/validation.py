@@ -89,6 +89,7 @@ LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
     "episode_steps": (1000, MAX_STEPS, False, False),
     "followers_weight": (0.0, 100.0, False, False),
     "followers_m": (0.0, 1000.0, True, False),
+    "queue_below_mps": (0.0, 100.0, False, False),
 }
 """every number of the learner (config.DQNConfig): (lowest, highest, lowest excluded, highest excluded); a decision
 at most every 60 s, lr at most 1 (beyond, every loss diverges), a gradient clip at most 1e6"""

@@ -305,6 +305,42 @@ def test_no_lane_change_is_chosen_in_a_queue(observation_of: Layout) -> None:
         policy.queue_below_mps = below
         assert policy.act(fast).tolist() == [moving], below
 
+def test_a_saved_model_drives_with_its_own_queue_rule_and_a_spec_replaces_it(tmp_path: Path,
+                                                                               observation_of: Layout) -> None:
+    """A learner's queue rule (DQNConfig.queue_below_mps, 5 in the candidate default f05q) drives a model from its
+    file; the default and paper presets and a model saved before the field have none; dqn:PATH,queue=V replaces it."""
+    from coopsumo.agents.dqn import save_model
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    slow = observation_of(lane=[1], pos=[300.0], speed=[3.0], v_exp=[25.0])
+    queue5 = dataclasses.replace(DQNConfig(), queue_below_mps=5.0)
+    for name, learner, below in (("queue5", queue5, 5.0), ("default", DQNConfig(), 0.0), ("paper", PAPER_DQN, 0.0)):
+        path = tmp_path / f"{name}.pt"
+        learner = dataclasses.replace(learner, dueling=False, observation="paper", action_mask=True, change_margin=0.0)
+        save_model(path, _net_preferring(LEFT, SPEEDUP), {"config": to_dict(TrainConfig(dqn=learner))})  # type: ignore[arg-type]
+        policy = DQNPolicy.from_spec(f"dqn:{path}")
+        assert policy.queue_below_mps == below and (policy.trained_on or {})["queue_below_mps"] == below
+        assert policy.act(slow).tolist() == [SPEEDUP if below else LEFT], name
+        assert DQNPolicy.from_spec(f"dqn:{path},queue=2").act(slow).tolist() == [LEFT]  # 3 m/s is not below 2
+    from coopsumo.agents.selection import snapshot_policy
+
+    assert snapshot_policy(str(tmp_path / "queue5.pt")).queue_below_mps == 0.0  # model selection ignores it
+    stored = to_dict(queue5)
+    del stored["queue_below_mps"]
+    assert dqn_config_from_dict(stored).queue_below_mps == 0.0
+
+
+@pytest.mark.parametrize("bad", ["-1", "nan", "abc"])
+def test_a_bad_queue_flag_is_a_one_line_usage_error(tmp_path: Path, bad: str) -> None:
+    out = tmp_path / "run"
+    res = subprocess.run([sys.executable, "-m", "coopsumo.train", "--steps", "50", "--out", str(out), "--queue-below",
+                          bad], capture_output=True, text=True, cwd=ROOT, check=False)  # fmt: skip
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and "--queue-below" in lines[0] and "Traceback" not in res.stderr
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("bad", [-0.1, float("nan"), float("inf")])
 def test_a_bad_change_margin_is_refused(bad: float) -> None:
     with pytest.raises(ConfigError, match="change_margin"):

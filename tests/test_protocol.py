@@ -111,6 +111,25 @@ def test_a_variant_that_only_chooses_snapshots_otherwise_is_paired_by_model() ->
     assert "| `select` | free | 2 | +0.00" in other and "`v2x_mix_av` |" not in other
 
 
+def test_the_f05q_profile_judges_the_candidate_and_drives_its_trainings_otherwise() -> None:
+    """f05q is v2x_mix_av_f05 with the queue rule in its settings: the same trainings as f05_q5 would get, one
+    learner; its drive variants share its trainings; its alpha-8 models are its own."""
+    from dataclasses import replace
+
+    from coopsumo.studies.protocol_plan import F05Q, PROFILES, V2X_MIX_AV_F05, cell_specs, variants
+
+    assert F05Q == replace(V2X_MIX_AV_F05, queue_below_mps=5.0) and variants()["f05q"].learner == F05Q
+    profile = PROFILES["f05q"]
+    specs = cell_specs(profile)
+    assert profile.judged_variant() == "f05q"
+    assert {s["variant"] for s in specs if s.get("alpha") == 8.0} == {"f05q"}
+    keys = {s["variant"]: s["train_key"] for s in specs if s.get("seed") == 105 and s.get("alpha") == 0.0}
+    assert len(set(keys.values())) == 1 and set(keys) == set(profile.variants)  # one training, four drives
+    drives = {s["variant"]: s["config"].get("drive") for s in specs if s["key"].endswith("seed105_free_t2")}
+    assert drives == {"f05q": None, "f05q_m05": {"change_margin": 0.5}, "f05q_m0": {"change_margin": 0.0},
+                      "f05q_q8": {"queue_below_mps": 8.0}}
+
+
 def test_the_accval_profile_judges_the_default_and_measures_its_alpha_response() -> None:
     """accval pairs the default (v2x_mix_av) with the free-flow choice; its alpha-8 models are the default's."""
     from coopsumo.config import DQNConfig

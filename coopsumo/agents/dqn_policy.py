@@ -75,7 +75,8 @@ class DQNPolicy:
         self.change_cooldown_s = 0.0
         """seconds after a lane change during which no other is chosen (0: none; set by dqn:PATH,cooldown=S)"""
         self.queue_below_mps = 0.0
-        """speed below which no lane change is chosen (m/s; 0: none; set by dqn:PATH,queue=V)"""
+        """speed below which no lane change is chosen (m/s; 0: none; the model's DQNConfig.queue_below_mps, or
+        dqn:PATH,queue=V)"""
         self.rule = rule
         self.lanes = lanes
         self.alpha = choose_alpha(rule, lanes, 0.0) if rule is not None else alpha
@@ -176,10 +177,12 @@ class DQNPolicy:
                      decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask,
                      restart_below_mps=dqn.restart_below_mps, change_margin=dqn.change_margin,
                      alpha=0.0 if net.conditioned else None)  # fmt: skip
+        policy.queue_below_mps = dqn.queue_below_mps
         policy.trained_on = {"preset": dqn.preset, "observation": dqn.observation,
                              "decision_interval_steps": dqn.decision_interval_steps,
                              "action_mask": dqn.action_mask, "restart_below_mps": dqn.restart_below_mps,
-                             "change_margin": dqn.change_margin, "alpha_conditioned": dqn.alpha_conditioned,
+                             "change_margin": dqn.change_margin, "queue_below_mps": dqn.queue_below_mps,
+                             "alpha_conditioned": dqn.alpha_conditioned,
                              "lanes": _field(config, "sim", "road", "lanes"),
                              "t_up_s": _field(config, "sim", "demand", "t_up_s"),
                              "alpha": _field(config, "sim", "reward", "alpha"),

@@ -25,12 +25,15 @@ import tempfile
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from coopsumo.config import AccidentConfig, SimConfig, TrainConfig, sim_config_from_dict, to_dict
 from coopsumo.runio import write_atomic
+
+if TYPE_CHECKING:
+    from coopsumo.agents.dqn_policy import DQNPolicy
 
 SNAPSHOTS = "snapshots"
 """folder of a training's snapshots (one subfolder step<N> each)"""
@@ -236,13 +239,22 @@ def diagnosis(rows: list[np.ndarray]) -> dict[str, float]:
     return out
 
 
+def snapshot_policy(path: str) -> DQNPolicy:
+    """A snapshot as validation drives it: as saved, but without the queue rule (DQNConfig.queue_below_mps), which
+    model selection ignores as training does (measured so: learner_protocol_followers05)."""
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    policy = DQNPolicy.from_file(path)
+    policy.queue_below_mps = 0.0
+    return policy
+
+
 def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
     """One greedy run of the snapshot: its measures and the recorded decisions (diagnosis)."""
     from coopsumo.agents.decisions import ActionHold
-    from coopsumo.agents.dqn_policy import DQNPolicy
     from coopsumo.sim.world import World
 
-    policy = DQNPolicy.from_file(cfg.policy[4:])
+    policy = snapshot_policy(cfg.policy[4:])
     if drive_alpha is not None:
         policy.drive_at(drive_alpha, cfg.road.lanes)
     policy.q_log = []

@@ -515,6 +515,7 @@ def train(
                        action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps,
                        change_margin=cfg.dqn.change_margin,
                        alpha=cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None)  # fmt: skip
+    policy.queue_below_mps = cfg.dqn.queue_below_mps
     shutil.rmtree(out / "eval", ignore_errors=True)  # what an interrupted evaluation had written
     try:
         summary = evaluate(cfg, policy, out, progress, on_steps, shown=final)

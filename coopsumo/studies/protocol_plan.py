@@ -64,7 +64,8 @@ class Variant:
         return {key: getattr(self, field) for field, key, _ in DRIVES if getattr(self, field) is not None}
 
 
-SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0, validation_accident_steps=0)
+SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0, validation_accident_steps=0,
+                 followers_weight=0.0, queue_below_mps=0.0)
 """the default learner before the v2x state and the mix (free flow at the run's own demand, the paper's state,
 model.pt chosen on free flow alone)"""
 MIX = replace(SELECT, train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)
@@ -74,7 +75,10 @@ V2X_MIX = replace(MIX, observation="v2x")
 V2X_MIX_AV = replace(V2X_MIX, validation_accident_steps=6000)
 """the default preset (DQNConfig()): v2x_mix with model.pt chosen through an accident too"""
 V2X_MIX_AV_F05 = replace(V2X_MIX_AV, followers_weight=0.5)
-"""the default trained with half the weight on the speed of the traffic behind (--followers-weight 0.5)"""
+"""v2x_mix_av trained with half the weight on the speed of the traffic behind (--followers-weight 0.5)"""
+F05Q = replace(V2X_MIX_AV_F05, queue_below_mps=5.0)
+"""the candidate default: v2x_mix_av_f05 driving with no lane change below 5 m/s, the queue rule in its own settings
+(--queue-below 5; v2x_mix_av_f05_q5's trainings and drive as one learner)"""
 
 
 def variants() -> dict[str, Variant]:
@@ -119,6 +123,15 @@ def variants() -> dict[str, Variant]:
         Variant("v2x_mix_av_f05_q5", "`v2x_mix_av_f05`'s trainings choosing no lane change below 5 m/s, in a queue "
                 "(dqn:PATH,queue=5): the trained remedy and the drive-time one together",
                 V2X_MIX_AV_F05, queue=5.0),
+        Variant("f05q", "the candidate default: `v2x_mix_av_f05` with the queue rule in its settings "
+                "(--queue-below 5: no lane change chosen below 5 m/s when it drives; training and model selection "
+                "as `v2x_mix_av_f05`)", F05Q),
+        Variant("f05q_m05", "`f05q`'s trainings driven with a change margin of 0.5 instead of 1",
+                F05Q, margin=0.5),
+        Variant("f05q_m0", "`f05q`'s trainings driven with no change margin (plain argmax)", F05Q,
+                margin=0.0),
+        Variant("f05q_q8", "`f05q`'s trainings choosing no lane change below 8 m/s instead of 5", F05Q,
+                queue=8.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -171,6 +184,10 @@ PROFILES = {
                                         ("v2x_mix_av_f05", "learner_protocol_followers", "v2x_mix_av_f1"),
                                         ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av_q5"),
                                         ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av"))),
+    "f05q": Profile("f05q", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"),  # the candidate default
+                    paired_with=(("f05q", "learner_protocol_followers05", "v2x_mix_av_f05_q5"),
+                                 ("f05q", "learner_protocol_queue", "v2x_mix_av")),
+                    judged="f05q"),  # alpha 8 on 3 models; the others drive its trainings otherwise
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
