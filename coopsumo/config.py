@@ -260,14 +260,14 @@ class DQNConfig:
     """training demand: the share of episodes with an accident (position, start and length drawn)"""
     episode_steps: int = 9000
     """training demand: steps of one episode when train_t_ups or accident_share is set (a fresh world each)"""
-    followers_weight: float = 0.0
+    followers_weight: float = 0.5
     """reward shaping for training (not in the paper): each step a vehicle's reward also gets this times the mean
     speed reward r_v of the vehicles behind it within followers_m in the lanes it occupies, so that slowing the
     traffic behind (a lane change into a queue, crawling) costs it; 0: the paper's reward. Model selection and
     every report score the paper's reward"""
     followers_m: float = 50.0
     """reward shaping: the window behind a vehicle whose followers' speed reward it shares (m)"""
-    queue_below_mps: float = 0.0
+    queue_below_mps: float = 5.0
     """when the trained model drives (evaluation, simulate, studies), no lane change is chosen by a vehicle slower
     than this (m/s; 0: none, the paper's): a change takes 4 s across both lanes, so one made where the traffic
     stands holds up two queues. Training and model selection ignore it (measured so: learner_protocol_followers05;

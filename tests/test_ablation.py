@@ -32,7 +32,8 @@ def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
     from coopsumo.studies.protocol_plan import variants
 
     protocol = variants()
-    assert protocol["v2x_mix_av"].learner == DQNConfig() == learner_of("accval")
+    assert protocol["f05q"].learner == DQNConfig() == learner_of("queue")
+    assert protocol["v2x_mix_av"].learner == learner_of("accval")
     assert protocol["v2x_mix"].learner == learner_of("mix")
     assert learner_of("select") == protocol["select"].learner
 
@@ -73,9 +74,9 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert "mean speed minus `keep`" in report
     assert "## Seed robustness at alpha = 0" in report and "| `v2x` |" in report  # the v2x state end to end
     assert "| `paper` -> `interval` |" in report and "| `interval` -> `v2x` |" in report  # the chain, step by step
-    # the margin2 variant drove the accval models (the default's): no training of its own, an evaluation folder beside
+    # the margin2 variant drove the followers models (the default's): no training of its own, evaluations beside
     assert not list((out / "train").glob("margin2_*"))
-    assert list((out / "evals").glob("accval_alpha0_seed0/eval_*_margin2"))  # beside the stored model, not in it
+    assert list((out / "evals").glob("followers_alpha0_seed0/eval_*_margin2_queue5"))  # beside the stored model
     for fig in ("fig_training_curves.png", "fig_alpha_response.png", "fig_training_seeds.png"):
         assert (out / fig).stat().st_size > 1000
     study = json.loads((out / "study.json").read_text())
@@ -200,10 +201,12 @@ def test_each_chain_step_is_paired_by_training_seed() -> None:
 
 
 def test_a_margin_variant_drives_its_twins_training() -> None:
-    profile = replace(PROFILES["full"], alpha_variants=("restart", "margin", "accval", "margin2"))
+    profile = replace(PROFILES["full"], alpha_variants=("restart", "margin", "followers", "queue", "margin2"))
     specs = {s["key"]: s for s in cell_specs(profile, DQNConfig())}
-    twin, driven = specs["accval_alpha0_seed2"], specs["margin2_alpha0_seed2"]
-    assert driven["train_key"] == twin["key"] == twin["train_key"]
-    assert driven["config"]["train"] == twin["config"]["train"]  # one training
-    assert driven["config"]["drive"] == {"change_margin": 2.0} and twin["config"]["drive"] == {"change_margin": 1.0}
+    twin, queue, driven = specs["followers_alpha0_seed2"], specs["queue_alpha0_seed2"], specs["margin2_alpha0_seed2"]
+    assert driven["train_key"] == queue["train_key"] == twin["key"] == twin["train_key"]
+    assert driven["config"]["train"] == queue["config"]["train"] == twin["config"]["train"]  # one training
+    assert twin["config"]["drive"] == {"change_margin": 1.0}
+    assert queue["config"]["drive"] == {"change_margin": 1.0, "queue_below_mps": 5.0}
+    assert driven["config"]["drive"] == {"change_margin": 2.0, "queue_below_mps": 5.0}
     assert specs["margin_alpha8_seed1"]["train_key"] == "restart_alpha8_seed1"

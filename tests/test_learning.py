@@ -307,14 +307,14 @@ def test_no_lane_change_is_chosen_in_a_queue(observation_of: Layout) -> None:
 
 def test_a_saved_model_drives_with_its_own_queue_rule_and_a_spec_replaces_it(tmp_path: Path,
                                                                                observation_of: Layout) -> None:
-    """A learner's queue rule (DQNConfig.queue_below_mps, 5 in the candidate default f05q) drives a model from its
-    file; the default and paper presets and a model saved before the field have none; dqn:PATH,queue=V replaces it."""
+    """A learner's queue rule (DQNConfig.queue_below_mps, 5 in the default) drives a model from its file; the paper
+    preset and a model saved before the field have none; dqn:PATH,queue=V replaces it."""
     from coopsumo.agents.dqn import save_model
     from coopsumo.agents.dqn_policy import DQNPolicy
 
     slow = observation_of(lane=[1], pos=[300.0], speed=[3.0], v_exp=[25.0])
     queue5 = dataclasses.replace(DQNConfig(), queue_below_mps=5.0)
-    for name, learner, below in (("queue5", queue5, 5.0), ("default", DQNConfig(), 0.0), ("paper", PAPER_DQN, 0.0)):
+    for name, learner, below in (("queue5", queue5, 5.0), ("default", DQNConfig(), 5.0), ("paper", PAPER_DQN, 0.0)):
         path = tmp_path / f"{name}.pt"
         learner = dataclasses.replace(learner, dueling=False, observation="paper", action_mask=True, change_margin=0.0)
         save_model(path, _net_preferring(LEFT, SPEEDUP), {"config": to_dict(TrainConfig(dqn=learner))})  # type: ignore[arg-type]

@@ -130,13 +130,14 @@ def test_the_f05q_profile_judges_the_candidate_and_drives_its_trainings_otherwis
                       "f05q_q8": {"queue_below_mps": 8.0}}
 
 
-def test_the_accval_profile_judges_the_default_and_measures_its_alpha_response() -> None:
-    """accval pairs the default (v2x_mix_av) with the free-flow choice; its alpha-8 models are the default's."""
+def test_the_accval_profile_judges_the_previous_default_and_measures_its_alpha_response() -> None:
+    """accval pairs the previous default (v2x_mix_av) with the free-flow choice; its alpha-8 models are its own."""
     from coopsumo.config import DQNConfig
-    from coopsumo.studies.protocol_plan import PROFILES, cell_specs, variants
+    from coopsumo.studies.protocol_plan import PROFILES, V2X_MIX_AV, cell_specs, variants
 
     profile = PROFILES["accval"]
-    assert profile.judged_variant() == "v2x_mix_av" and variants()["v2x_mix_av"].learner == DQNConfig()
+    assert profile.judged_variant() == "v2x_mix_av" and variants()["v2x_mix_av"].learner == V2X_MIX_AV
+    assert variants()["f05q"].learner == DQNConfig()  # the default since 2026-11-27
     alpha8 = [s for s in cell_specs(profile) if s.get("alpha") == 8.0]
     assert alpha8 and {s["variant"] for s in alpha8} == {"v2x_mix_av"}
     assert {s["scenario"] for s in alpha8} == {"free"} and len({s["train_key"] for s in alpha8}) == profile.alpha_seeds

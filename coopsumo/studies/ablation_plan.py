@@ -53,16 +53,20 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          "them with an accident",
          {"train_t_ups": (2.0, 1.5, 1.0), "accident_share": 0.5, "episode_steps": 9000}),
         ("accval", "+ model.pt chosen through an accident too: each snapshot also driven 6,000 steps through an "
-         "accident at T_up 2, 1.5 and 1 s (the `mix` trainings, judged again; the default preset)",
+         "accident at T_up 2, 1.5 and 1 s (the `mix` trainings, judged again)",
          {"validation_accident_steps": 6000}),
+        ("followers", "+ half the weight on the speed of the traffic behind in the reward (--followers-weight 0.5)",
+         {"followers_weight": 0.5}),
+        ("queue", "+ driven with no lane change below 5 m/s (the `followers` models: training ignores it; the "
+         "default preset)", {"queue_below_mps": 5.0}),
     ]  # fmt: skip
     extras: list[tuple[str, str, dict[str, Any]]] = [
-        ("eps_decay", "`accval` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
+        ("eps_decay", "`queue` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
          {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
-        ("store_all", "`accval` + every transition of a decision round stored (not 16 at random)",
+        ("store_all", "`queue` + every transition of a decision round stored (not 16 at random)",
          {"store_per_decision": 1000}),
-        ("margin2", "the `accval` models driven with a change margin of 2 instead of 1", {"change_margin": 2.0}),
-        ("conditioned", "`accval` with alpha an input: one alpha-conditioned model per seed (train "
+        ("margin2", "the `queue` models driven with a change margin of 2 instead of 1", {"change_margin": 2.0}),
+        ("conditioned", "`queue` with alpha an input: one alpha-conditioned model per seed (train "
          "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A)", {"alpha_conditioned": True}),
     ]  # fmt: skip
     out = []
@@ -75,8 +79,8 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
     return out
 
 
-CHAIN_LENGTH = 13
-"""the first CHAIN_LENGTH variants form the chain paper -> ... -> accval; the rest branch off its end (accval: the
+CHAIN_LENGTH = 15
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> queue; the rest branch off its end (queue: the
 default preset)"""
 VARIANTS = _variants()
 VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
@@ -106,10 +110,10 @@ RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
 """the alphas of the alpha response and of the conditioned network's comparison"""
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), FULL_VARIANTS, RESPONSE_ALPHAS,
-                    alpha_variants=("accval", "conditioned")),
-    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "accval"), (0.0, 1.0)),
-    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("accval", "conditioned"), RESPONSE_ALPHAS,
-                           alpha_variants=("accval", "conditioned")),
+                    alpha_variants=("queue", "conditioned")),
+    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "queue"), (0.0, 1.0)),
+    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("queue", "conditioned"), RESPONSE_ALPHAS,
+                           alpha_variants=("queue", "conditioned")),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "margin2"), (0.0, 1.0)),
 }
 
@@ -132,13 +136,23 @@ def eval_config(profile: Profile, policy: str, seed: int) -> SimConfig:
                      steps=profile.eval_steps, seed=seed, policy=policy)  # fmt: skip
 
 
+DRIVE_FIELDS = ("change_margin", "queue_below_mps")
+"""learner fields that only the driving reads: a study trains with them at 0 (as_trained) and drives with them
+(config.drive)"""
+
+
+def as_trained(dqn: DQNConfig) -> DQNConfig:
+    """The learner as a study trains it: the drive-time fields at 0."""
+    return replace(dqn, change_margin=0.0, queue_below_mps=0.0)
+
+
 def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int) -> str:
     """The folder under train/ of the model that `variant` (learner dqn) drives at alpha on seed. Training ignores
-    the change margin, so a variant differing from another only in it drives that one's training."""
-    trained = replace(dqn, change_margin=0.0)
+    the drive-time fields, so a variant differing from another only in them drives that one's training."""
+    trained = as_trained(dqn)
     if dqn.alpha_conditioned:  # one training for every alpha
         return f"{variant}_seed{seed}"
-    twin = next((n for n, _, c in VARIANTS if replace(c, change_margin=0.0) == trained), variant)
+    twin = next((n for n, _, c in VARIANTS if as_trained(c) == trained), variant)
     return f"{twin}_alpha{number_name(alpha)}_seed{seed}"
 
 
@@ -170,15 +184,15 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
         if key in seen:
             return
         seen.add(key)
-        # training ignores the margin; a conditioned one draws its own alphas (its world's alpha is 0)
-        cfg = train_config(profile, replace(dqn, change_margin=0.0), 0.0 if dqn.alpha_conditioned else alpha, seed)
+        # training ignores the drive-time fields; a conditioned one draws its own alphas (its world's alpha is 0)
+        cfg = train_config(profile, as_trained(dqn), 0.0 if dqn.alpha_conditioned else alpha, seed)
         cfg.validate()
         evals = [eval_config(profile, "dqn", e) for e in eval_seeds(profile)]
         if dqn.alpha_conditioned:
             evals = [replace(ev, reward=RewardConfig(alpha=alpha)) for ev in evals]
         config: dict[str, Any] = {"train": to_dict(cfg), "evals": [to_dict(ev) for ev in evals]}
-        if dqn.change_margin:
-            config["drive"] = {"change_margin": dqn.change_margin}
+        if drive := {f: getattr(dqn, f) for f in DRIVE_FIELDS if getattr(dqn, f)}:
+            config["drive"] = drive
         specs.append({"key": key, "kind": "train", "part": part, "variant": variant, "alpha": alpha, "seed": seed,
                       "eval_seed": None, "policy": "dqn",
                       "train_key": training_key(dqn, variant, alpha, seed),

@@ -73,17 +73,16 @@ MIX = replace(SELECT, train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_s
 V2X_MIX = replace(MIX, observation="v2x")
 """the v2x state trained on the mix, model.pt chosen on free flow alone (the default until v2x_mix_av)"""
 V2X_MIX_AV = replace(V2X_MIX, validation_accident_steps=6000)
-"""the default preset (DQNConfig()): v2x_mix with model.pt chosen through an accident too"""
+"""v2x_mix with model.pt chosen through an accident too (the default preset from 2026-11-26 to 11-27)"""
 V2X_MIX_AV_F05 = replace(V2X_MIX_AV, followers_weight=0.5)
 """v2x_mix_av trained with half the weight on the speed of the traffic behind (--followers-weight 0.5)"""
 F05Q = replace(V2X_MIX_AV_F05, queue_below_mps=5.0)
-"""the candidate default: v2x_mix_av_f05 driving with no lane change below 5 m/s, the queue rule in its own settings
-(--queue-below 5; v2x_mix_av_f05_q5's trainings and drive as one learner)"""
+"""the default preset (DQNConfig()) since 2026-11-27: v2x_mix_av_f05 driving with no lane change below 5 m/s, the
+queue rule in its own settings (--queue-below 5; v2x_mix_av_f05_q5's trainings and drive as one learner)"""
 
 
 def variants() -> dict[str, Variant]:
-    """The variants the protocol knows; `v2x_mix_av` is the default preset (DQNConfig()), `v2x_mix` the one
-    before."""
+    """The variants the protocol knows; `f05q` is the default preset (DQNConfig()), `v2x_mix_av` the one before."""
     default = SELECT
     return {v.name: v for v in (
         Variant("select", "the default until v2x_mix: the paper's state, free-flow training at T_up 1 s, change "
@@ -123,7 +122,7 @@ def variants() -> dict[str, Variant]:
         Variant("v2x_mix_av_f05_q5", "`v2x_mix_av_f05`'s trainings choosing no lane change below 5 m/s, in a queue "
                 "(dqn:PATH,queue=5): the trained remedy and the drive-time one together",
                 V2X_MIX_AV_F05, queue=5.0),
-        Variant("f05q", "the candidate default: `v2x_mix_av_f05` with the queue rule in its settings "
+        Variant("f05q", "the default since 2026-11-27: `v2x_mix_av_f05` with the queue rule in its settings "
                 "(--queue-below 5: no lane change chosen below 5 m/s when it drives; training and model selection "
                 "as `v2x_mix_av_f05`)", F05Q),
         Variant("f05q_m05", "`f05q`'s trainings driven with a change margin of 0.5 instead of 1",
@@ -184,7 +183,7 @@ PROFILES = {
                                         ("v2x_mix_av_f05", "learner_protocol_followers", "v2x_mix_av_f1"),
                                         ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av_q5"),
                                         ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av"))),
-    "f05q": Profile("f05q", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"),  # the candidate default
+    "f05q": Profile("f05q", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"),  # the default since 2026-11-27
                     paired_with=(("f05q", "learner_protocol_followers05", "v2x_mix_av_f05_q5"),
                                  ("f05q", "learner_protocol_queue", "v2x_mix_av")),
                     judged="f05q"),  # alpha 8 on 3 models; the others drive its trainings otherwise
