@@ -130,6 +130,19 @@ def test_the_f05q_profile_judges_the_candidate_and_drives_its_trainings_otherwis
                       "f05q_q8": {"queue_below_mps": 8.0}}
 
 
+def test_fresh_evaluation_seeds_drive_the_same_trainings() -> None:
+    """f05q_e1 replicates f05q on evaluation seeds that no other study, training or validation uses."""
+    from coopsumo.config import VALIDATION_SEED
+    from coopsumo.studies.protocol_plan import PROFILES, cell_specs
+
+    ours, theirs = cell_specs(PROFILES["f05q_e1"]), cell_specs(PROFILES["f05q"])
+    trainings = {s["train_key"]: s["config"]["train"] for s in theirs if s["kind"] == "model"}
+    assert all(trainings[s["train_key"]] == s["config"]["train"] for s in ours if s["kind"] == "model")
+    seeds, before = {s["eval_seed"] for s in ours}, {s["eval_seed"] for s in theirs}
+    assert seeds == {5010, 5011, 5012, 5110, 5111, 5112} and not seeds & before
+    assert not seeds & set(PROFILES["f05q"].seeds) and min(seeds) < VALIDATION_SEED
+
+
 def test_the_accval_profile_judges_the_default_and_measures_its_alpha_response() -> None:
     """accval pairs the default (v2x_mix_av) with the free-flow choice; its alpha-8 models are the default's."""
     from coopsumo.config import DQNConfig

@@ -255,8 +255,9 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
         "every model driven greedily in free flow "
         f"({profile.free_steps:,} steps) and through scenario I's accident ({profile.accident_steps:,} steps, closure "
         f"decaying over steps {profile.accident_start:,}-{profile.accident_start + profile.accident_duration:,}) at "
-        f"T_up {', '.join(f'{t:g}' for t in profile.t_ups)} s, on evaluation seeds {EVAL_SEED}+i (free flow) and "
-        f"{EVAL_SEED + 100}+i (accident) that no training or validation saw; the baselines on the same seeds. "
+        f"T_up {', '.join(f'{t:g}' for t in profile.t_ups)} s, on evaluation seeds {EVAL_SEED + profile.eval_offset}+i "
+        f"(free flow) and {EVAL_SEED + 100 + profile.eval_offset}+i (accident) that no training or validation saw; "
+        "the baselines on the same seeds. "
         "The trained model is the unit: each interval is a 95% stratified bootstrap over models (rliable's "
         "procedure), IQM is the interquartile mean over models, P(>b) the probability that a model beats "
         "baseline b (rliable's probability of improvement), 'lost' how many models did worse than b.",
