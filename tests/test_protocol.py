@@ -89,6 +89,21 @@ def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:
     assert row["lane_changes"] == pytest.approx(-2.0)
 
 
+def test_a_rounded_copy_of_the_same_run_is_not_counted_better() -> None:
+    """A committed runs.csv keeps 6 significant digits: the same run read back differs by about 1e-6 and is a tie,
+    not a model that did better; a real difference in the 5th digit still counts."""
+    from coopsumo.studies.protocol_report import paired_rows
+
+    rows = []
+    for seed, (own, copy) in enumerate([(20.1234567, 20.1235), (19.87654321, 19.8765), (20.5, 20.499)]):
+        for variant, speed in (("f05q", own), ("committed", copy)):
+            rows.append({"status": "ok", "alpha": 0.0, "scenario": "free", "t_up": 2.0, "variant": variant,
+                         "seed": 100 + seed, "tts_veh_h": 0.0, "mean_speed_mps": speed,
+                         "lane_changes_per_vehicle": 1.0})  # fmt: skip
+    (row,) = paired_rows(pd.DataFrame(rows), "f05q", "committed")
+    assert row["models"] == 3 and row["better"] == 1  # only seed 102 (+0.001 m/s) is better
+
+
 def test_a_variant_that_only_chooses_snapshots_otherwise_is_paired_by_model() -> None:
     """v2x_mix_av's trainings are v2x_mix's judged again (another train_key): paired by model; another learner's
     trainings on the same seeds (select) are paired by training seed in a section of their own."""
@@ -128,6 +143,19 @@ def test_the_f05q_profile_judges_the_candidate_and_drives_its_trainings_otherwis
     drives = {s["variant"]: s["config"].get("drive") for s in specs if s["key"].endswith("seed105_free_t2")}
     assert drives == {"f05q": None, "f05q_m05": {"change_margin": 0.5}, "f05q_m0": {"change_margin": 0.0},
                       "f05q_q8": {"queue_below_mps": 8.0}}
+
+
+def test_fresh_evaluation_seeds_drive_the_same_trainings() -> None:
+    """f05q_e1 replicates f05q on evaluation seeds that no other study, training or validation uses."""
+    from coopsumo.config import VALIDATION_SEED
+    from coopsumo.studies.protocol_plan import PROFILES, cell_specs
+
+    ours, theirs = cell_specs(PROFILES["f05q_e1"]), cell_specs(PROFILES["f05q"])
+    trainings = {s["train_key"]: s["config"]["train"] for s in theirs if s["kind"] == "model"}
+    assert all(trainings[s["train_key"]] == s["config"]["train"] for s in ours if s["kind"] == "model")
+    seeds, before = {s["eval_seed"] for s in ours}, {s["eval_seed"] for s in theirs}
+    assert seeds == {5010, 5011, 5012, 5110, 5111, 5112} and not seeds & before
+    assert not seeds & set(PROFILES["f05q"].seeds) and min(seeds) < VALIDATION_SEED
 
 
 def test_the_accval_profile_judges_the_previous_default_and_measures_its_alpha_response() -> None:

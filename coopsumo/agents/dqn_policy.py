@@ -59,6 +59,7 @@ class DQNPolicy:
         alpha: float | None = None,
         rule: AdaptiveRule | None = None,
         lanes: int = 3,
+        queue_below_mps: float = 0.0,
     ):
         if net.conditioned == (alpha is None and rule is None):
             raise ValueError("an alpha-conditioned network drives at an alpha or by a rule, another at neither")
@@ -74,7 +75,7 @@ class DQNPolicy:
         self.change_margin = change_margin
         self.change_cooldown_s = 0.0
         """seconds after a lane change during which no other is chosen (0: none; set by dqn:PATH,cooldown=S)"""
-        self.queue_below_mps = 0.0
+        self.queue_below_mps = queue_below_mps
         """speed below which no lane change is chosen (m/s; 0: none; the model's DQNConfig.queue_below_mps, or
         dqn:PATH,queue=V)"""
         self.rule = rule
@@ -176,8 +177,7 @@ class DQNPolicy:
         policy = cls(net, name=f"dqn:{Path(path).parent.name or path}",
                      decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask,
                      restart_below_mps=dqn.restart_below_mps, change_margin=dqn.change_margin,
-                     alpha=0.0 if net.conditioned else None)  # fmt: skip
-        policy.queue_below_mps = dqn.queue_below_mps
+                     alpha=0.0 if net.conditioned else None, queue_below_mps=dqn.queue_below_mps)  # fmt: skip
         policy.trained_on = {"preset": dqn.preset, "observation": dqn.observation,
                              "decision_interval_steps": dqn.decision_interval_steps,
                              "action_mask": dqn.action_mask, "restart_below_mps": dqn.restart_below_mps,

@@ -513,9 +513,8 @@ def train(
         net = DQNPolicy.from_file(str(out / "model.pt")).net
     policy = DQNPolicy(net, decision_interval=cfg.dqn.decision_interval_steps,
                        action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps,
-                       change_margin=cfg.dqn.change_margin,
+                       change_margin=cfg.dqn.change_margin, queue_below_mps=cfg.dqn.queue_below_mps,
                        alpha=cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None)  # fmt: skip
-    policy.queue_below_mps = cfg.dqn.queue_below_mps
     shutil.rmtree(out / "eval", ignore_errors=True)  # what an interrupted evaluation had written
     try:
         summary = evaluate(cfg, policy, out, progress, on_steps, shown=final)

@@ -25,7 +25,8 @@ from coopsumo.studies.model_store import FIRST_TRAIN_SEED
 from coopsumo.validation import number_name
 
 EVAL_SEED = 5000
-"""evaluation run of condition i uses seed EVAL_SEED + i (free flow) or EVAL_SEED + 100 + i (accident)"""
+"""evaluation run of condition i uses seed EVAL_SEED + i (free flow) or EVAL_SEED + 100 + i (accident), each plus
+the profile's eval_offset"""
 TRAIN_SEED = FIRST_TRAIN_SEED
 """first training seed of the protocol (the committed learning studies used 0-8)"""
 BASELINES = ("keep", "greedy", "mobil:p=0")
@@ -150,6 +151,8 @@ class Profile:
     alpha_seeds: int = 3
     """models at alpha 8 of the judged variant (free flow only): does alpha do something?"""
     lanes: int = 3
+    eval_offset: int = 0
+    """added to every evaluation seed: the same models on fresh demand (10: seeds 5010+i and 5110+i)"""
     judged: str = ""
     """the variant whose targets and alpha response the report gives (empty: the first; the others are paired
     against the first)"""
@@ -187,6 +190,8 @@ PROFILES = {
                     paired_with=(("f05q", "learner_protocol_followers05", "v2x_mix_av_f05_q5"),
                                  ("f05q", "learner_protocol_queue", "v2x_mix_av")),
                     judged="f05q"),  # alpha 8 on 3 models; the others drive its trainings otherwise
+    "f05q_e1": Profile("f05q_e1", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"), alpha_seeds=0,
+                       eval_offset=10),  # f05q's trainings on fresh evaluation seeds: does its verdict replicate?
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
@@ -209,12 +214,14 @@ def eval_config(profile: Profile, scenario: str, i: int, policy: str, alpha: flo
     t_up = profile.t_ups[i]
     if scenario == "free":
         return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=t_up),
-                         reward=RewardConfig(alpha=alpha), steps=profile.free_steps, seed=EVAL_SEED + i,
+                         reward=RewardConfig(alpha=alpha), steps=profile.free_steps,
+                         seed=EVAL_SEED + profile.eval_offset + i,
                          policy=policy)  # fmt: skip
     return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=t_up),
                      accident=AccidentConfig(enabled=True, start_step=profile.accident_start,
                                              duration_steps=profile.accident_duration),
-                     reward=RewardConfig(alpha=alpha), steps=profile.accident_steps, seed=EVAL_SEED + 100 + i,
+                     reward=RewardConfig(alpha=alpha), steps=profile.accident_steps,
+                     seed=EVAL_SEED + 100 + profile.eval_offset + i,
                      policy=policy)  # fmt: skip
 
 

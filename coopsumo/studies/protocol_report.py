@@ -14,6 +14,7 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 
 from coopsumo.studies import stats
@@ -29,6 +30,9 @@ COLUMNS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_
 
 COMMITTED = Path(__file__).resolve().parents[2] / "results"
 """the repository's committed reports, which Profile.paired_with names (absent beside an installed wheel)"""
+SAME_DIGITS = 1e-5
+"""relative difference (of the reference's value) up to which two runs' measures count as the same: runs.csv keeps 6
+digits"""
 SAME_PROFILE = ("lanes", "train_steps", "t_ups", "free_steps", "accident_steps", "accident_start", "accident_duration")
 """what a committed study must share with this one for its trainings to pair with this one's"""
 
@@ -94,7 +98,9 @@ def paired_rows(runs: pd.DataFrame, variant: str, reference: str) -> list[dict[s
     """Per condition, `variant` minus `reference` paired by training seed (the same training driven or chosen
     otherwise, or another learner's training on the same seed, evaluated on the same seeds): the mean over models
     of the paired difference in the headline measure and in lane changes per vehicle, a 95% bootstrap interval
-    over models (stats.hierarchical_bootstrap, one evaluation per model), and how many models did better."""
+    over models (stats.hierarchical_bootstrap, one evaluation per model), and how many models did better: by more
+    than the 6 significant digits of a runs.csv (SAME_DIGITS), so that a committed study's rounded copy of the same
+    run is not counted as better or worse."""
     ok = runs[(runs["status"] == "ok") & (runs["alpha"] == 0)]
     rows = []
     for (scenario, t_up), cond in ok.groupby(["scenario", "t_up"], sort=False):
@@ -104,11 +110,13 @@ def paired_rows(runs: pd.DataFrame, variant: str, reference: str) -> list[dict[s
         both = mine.index.intersection(ref.index)
         if not len(both):
             continue
-        diff = (mine.loc[both, measure] - ref.loc[both, measure]).to_numpy(float)
+        a, b = mine.loc[both, measure].to_numpy(float), ref.loc[both, measure].to_numpy(float)
+        diff = a - b
+        same = np.isclose(a, b, rtol=SAME_DIGITS, atol=0.0)
         lcs = (mine.loc[both, "lane_changes_per_vehicle"] - ref.loc[both, "lane_changes_per_vehicle"]).mean()
         point, low, high = stats.hierarchical_bootstrap(diff[:, None])
         rows.append({"scenario": scenario, "t_up": t_up, "models": len(both), "diff": point, "low": low,
-                     "high": high, "better": int((sign * diff > 0).sum()), "lane_changes": float(lcs)})
+                     "high": high, "better": int(((sign * diff > 0) & ~same).sum()), "lane_changes": float(lcs)})
     return rows
 
 
@@ -255,8 +263,9 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
         "every model driven greedily in free flow "
         f"({profile.free_steps:,} steps) and through scenario I's accident ({profile.accident_steps:,} steps, closure "
         f"decaying over steps {profile.accident_start:,}-{profile.accident_start + profile.accident_duration:,}) at "
-        f"T_up {', '.join(f'{t:g}' for t in profile.t_ups)} s, on evaluation seeds {EVAL_SEED}+i (free flow) and "
-        f"{EVAL_SEED + 100}+i (accident) that no training or validation saw; the baselines on the same seeds. "
+        f"T_up {', '.join(f'{t:g}' for t in profile.t_ups)} s, on evaluation seeds {EVAL_SEED + profile.eval_offset}+i "
+        f"(free flow) and {EVAL_SEED + 100 + profile.eval_offset}+i (accident) that no training or validation saw; "
+        "the baselines on the same seeds. "
         "The trained model is the unit: each interval is a 95% stratified bootstrap over models (rliable's "
         "procedure), IQM is the interquartile mean over models, P(>b) the probability that a model beats "
         "baseline b (rliable's probability of improvement), 'lost' how many models did worse than b.",
