@@ -139,10 +139,11 @@ def test_the_f05q_profile_judges_the_candidate_and_drives_its_trainings_otherwis
     assert profile.judged_variant() == "f05q"
     assert {s["variant"] for s in specs if s.get("alpha") == 8.0} == {"f05q"}
     keys = {s["variant"]: s["train_key"] for s in specs if s.get("seed") == 105 and s.get("alpha") == 0.0}
-    assert len(set(keys.values())) == 1 and set(keys) == set(profile.variants)  # one training, four drives
+    assert len(set(keys.values())) == 1 and set(keys) == set(profile.variants)  # one training, six drives
     drives = {s["variant"]: s["config"].get("drive") for s in specs if s["key"].endswith("seed105_free_t2")}
     assert drives == {"f05q": None, "f05q_m05": {"change_margin": 0.5}, "f05q_m0": {"change_margin": 0.0},
-                      "f05q_q8": {"queue_below_mps": 8.0}}
+                      "f05q_q8": {"queue_below_mps": 8.0}, "f05q_r5": {"restart_below_mps": 5.0},
+                      "f05q_lanes": {"restart_below_mps": 50.0}}
 
 
 def test_fresh_evaluation_seeds_drive_the_same_trainings() -> None:

@@ -132,6 +132,10 @@ def variants() -> dict[str, Variant]:
                 margin=0.0),
         Variant("f05q_q8", "`f05q`'s trainings choosing no lane change below 8 m/s instead of 5", F05Q,
                 queue=8.0),
+        Variant("f05q_r5", "`f05q`'s trainings driven with 'none' withheld below 5 m/s instead of 1 (a vehicle in a "
+                "queue that stays always asks to speed up)", F05Q, restart=5.0),
+        Variant("f05q_lanes", "`f05q`'s trainings choosing lanes only: 'none' never offered (withheld below 50 m/s), "
+                "so every vehicle that stays asks to speed up, as `keep` and `greedy` do", F05Q, restart=50.0),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -186,10 +190,10 @@ PROFILES = {
                                         ("v2x_mix_av_f05", "learner_protocol_followers", "v2x_mix_av_f1"),
                                         ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av_q5"),
                                         ("v2x_mix_av_f05_q5", "learner_protocol_queue", "v2x_mix_av"))),
-    "f05q": Profile("f05q", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"),  # the default since 2026-11-27
+    "f05q": Profile("f05q", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8", "f05q_r5", "f05q_lanes"),
                     paired_with=(("f05q", "learner_protocol_followers05", "v2x_mix_av_f05_q5"),
                                  ("f05q", "learner_protocol_queue", "v2x_mix_av")),
-                    judged="f05q"),  # alpha 8 on 3 models; the others drive its trainings otherwise
+                    judged="f05q"),  # the default since 2026-11-27; alpha 8 on 3 models; the others drive its trainings
     "f05q_e1": Profile("f05q_e1", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"), alpha_seeds=0,
                        eval_offset=10),  # f05q's trainings on fresh evaluation seeds: does its verdict replicate?
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
