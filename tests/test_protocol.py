@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -34,6 +35,9 @@ def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path) -> None:
     assert table["keep_poi"].between(0, 1).all()
     report = (out / "report.md").read_text()
     assert "## Free flow" in report and "## Targets for `select`" in report and "## Diagnosis" in report
+    free = runs[runs["scenario"] == "free"]  # every run records its passing chances; keep never takes one
+    assert free["held_share"].between(0, 1).all() and "## Passing in free flow" in report
+    assert (free[free["variant"] == "keep"]["passing_taken_share"].fillna(0) == 0).all()
     assert (out / "fig_validation.png").exists() and (out / "diagnosis.csv").exists()
     again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     assert again.returncode == 0 and "30 already done" in again.stderr
@@ -87,6 +91,20 @@ def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:
     assert row["models"] == 3 and row["better"] == 2  # lower total time spent is better
     assert row["diff"] == pytest.approx((-2.0 - 1.0 + 0.5) / 3) and row["low"] < row["diff"] < row["high"]
     assert row["lane_changes"] == pytest.approx(-2.0)
+
+
+def test_the_passing_section_shows_each_policy_and_is_left_out_for_runs_without_it() -> None:
+    from coopsumo.studies.protocol_plan import Profile
+    from coopsumo.studies.protocol_report import passing_lines
+
+    profile = Profile("p", variants=("f05q",))
+    rows = [{"status": "ok", "alpha": 0.0, "scenario": "free", "t_up": 2.0, "variant": v, "held_share": h,
+             "passing_open_share": o, "passing_taken_share": t}
+            for v, h, o, t in (("f05q", 0.30, 0.10, 0.06), ("f05q", 0.32, 0.12, 0.08), ("keep", 0.55, 0.36, 0.0))]
+    lines = passing_lines(pd.DataFrame(rows), profile)
+    assert "| 2 | `f05q` | 2 | 0.310 | 0.110 | 0.07 |" in lines and "| 2 | `keep` | 1 | 0.550 | 0.360 | 0.00 |" in lines
+    old = pd.DataFrame(rows).assign(held_share=math.nan, passing_open_share=math.nan, passing_taken_share=math.nan)
+    assert passing_lines(old, profile) == []  # runs made before the measure: no section
 
 
 def test_a_rounded_copy_of_the_same_run_is_not_counted_better() -> None:

@@ -22,7 +22,7 @@ SUMMARY_KEYS = {
     "collisions", "sumo_collisions", "teleports", "lane_changes", "lane_changes_rejected", "lane_changes_per_vehicle",
     "mean_speed_mps", "mean_vehicles_on_road", "mean_travel_time_s", "throughput_veh_per_h", "wall_seconds",
     "steps_per_second", "sumo_step_share", "policy", "scenario", "table_max_dev_pos_m", "table_max_dev_speed_mps",
-    "table_mismatch_step",
+    "table_mismatch_step", "held_share", "passing_open_share", "passing_taken_share",
 }  # fmt: skip
 
 

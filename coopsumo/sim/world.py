@@ -19,6 +19,7 @@ from coopsumo.sim import accident, controller, physics, view
 from coopsumo.sim.accident import HELD
 from coopsumo.sim.driver import sumo_lc_params, sumo_models
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
+from coopsumo.sim.passing import PASSING_EVERY_S, PassingCount, passing_chances
 from coopsumo.sim.reward import RewardParts, flow_term, followers_mean, reward_parts, section_crossings, speed_term
 from coopsumo.sim.sumo_session import StepEvents, SumoSession
 from coopsumo.sim.vehicle_table import VehicleTable
@@ -143,6 +144,7 @@ class World:
         self._obs: Observation | None = None
         self._leader = (np.zeros(0), np.zeros(0))  # the observation's nearest leaders: gap (m), speed (m/s)
         self._overlapping: set[tuple[int, int]] = set()  # (follower, leader) pairs already counted
+        self.passing = PassingCount(max(1, round(PASSING_EVERY_S / cfg.control.dt_s)))
         self.observe_grids = observe_grids
         self.record_every = record_trajectories_every  # 0: no trajectories
         self._traj: list[tuple[np.ndarray, ...]] = []
@@ -258,10 +260,12 @@ class World:
         else:
             frames = np.zeros((len(t.nums), N_FRAMES, N_SIDES, N_CELLS), np.uint8)
             speed_err = np.zeros((len(t.nums), N_FRAMES), np.float32)
+        feasible = physics.feasible_actions(around, busy, t.speed, c.control)
+        if self.step_count % self.passing.every == 0:
+            self.passing.sample(self.step_count, t.nums, *passing_chances(t.speed, v_exp, around, feasible))
         self._obs = Observation(
             nums=t.nums, grids=frames, speed_err=speed_err, lane=t.lane, pos=t.pos, speed=t.speed,
-            v_exp=v_exp, busy=busy, around=around, n_lanes=c.road.lanes,
-            feasible=physics.feasible_actions(around, busy, t.speed, c.control),
+            v_exp=v_exp, busy=busy, around=around, n_lanes=c.road.lanes, feasible=feasible,
         )  # fmt: skip
         return self._obs
 
@@ -283,6 +287,7 @@ class World:
         # lane changes: ask, check safety, resolve same-step conflicts
         ok, rejected, target = controller.lane_changes(actions, obs.lane, obs.pos, obs.speed, obs.feasible, c)
         movers = obs.nums[ok]
+        self.passing.changed(movers)
         self.veh.lc_left_s[movers] = c.t_change_s
         self.veh.lc_from[movers] = obs.lane[ok]
         self.veh.lc_to[movers] = target[ok]
@@ -320,6 +325,7 @@ class World:
         events = self._advance()
         row, still = self._rows_now(obs.nums)
         changed = still & (self.table.lane[row] != obs.lane)
+        self.passing.changed(obs.nums[changed])
         return self._outcome(obs, actions, events, obs.speed.copy(), changed, np.zeros(n, bool))
 
     def _rows_now(self, nums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -456,6 +462,7 @@ class World:
             "mean_vehicles_on_road": tot.vehicle_time_s / self.time_s if self.time_s else 0.0,
             "mean_travel_time_s": tot.travel_time_sum_s / tot.arrived if tot.arrived else float("nan"),
             "throughput_veh_per_h": tot.arrived / hours if hours else 0.0,
+            **self.passing.summary(),
             **self._table_check(),
         }
 

@@ -25,7 +25,9 @@ MEASURES = {"free": ("mean_speed_mps", "mean speed (m/s)", 1.0),
 """scenario -> (headline measure, its words, +1 when higher is better / -1 when lower is)"""
 COLUMNS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key",
            "status", "mean_speed_mps", "tts_veh_h", "lane_changes_per_vehicle", "collisions", "teleports",
-           "selected_step")  # fmt: skip
+           "selected_step", "held_share", "passing_open_share", "passing_taken_share")  # fmt: skip
+PASSING = COLUMNS[17:]
+"""the passing chances of a run (coopsumo/sim/passing.py); absent from runs made before 2026-11-27"""
 
 
 COMMITTED = Path(__file__).resolve().parents[2] / "results"
@@ -45,6 +47,7 @@ def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:
         row = {k: r.get(k) for k in COLUMNS[:11]}
         row.update({k: s.get(k) for k in COLUMNS[11:16]})
         row["selected_step"] = t.get("selected_step") if r.get("weights") == "model.pt" else None
+        row.update({k: s.get(k) for k in PASSING})
         rows.append(row)
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     for c in ("alpha", "t_up", *COLUMNS[11:]):
@@ -118,6 +121,29 @@ def paired_rows(runs: pd.DataFrame, variant: str, reference: str) -> list[dict[s
         rows.append({"scenario": scenario, "t_up": t_up, "models": len(both), "diff": point, "low": low,
                      "high": high, "better": int(((sign * diff > 0) & ~same).sum()), "lane_changes": float(lcs)})
     return rows
+
+
+def passing_lines(runs: pd.DataFrame, profile: Any) -> list[str]:
+    """Free flow, alpha 0: each learner's and baseline's passing chances (coopsumo/sim/passing.py), means over its
+    models; nothing when no run recorded them."""
+    ok = runs[(runs["status"] == "ok") & (runs["alpha"] == 0) & (runs["scenario"] == "free")]
+    if ok.empty or ok["held_share"].isna().all():
+        return []
+    lines = ["", "## Passing in free flow: held back, a faster lane open, and taken", "",
+             "Sampled once a second over every vehicle on the road: the share held back (more than 2 m/s below its "
+             "expected speed behind a leader within 60 m), the share held back with a side lane open to pass (one "
+             "the controller would let it enter now, whose leader is at least 1 m/s faster or absent), and the "
+             "share of those open chances after which the vehicle started a lane change within the second. Means "
+             "over models (alpha 0); a policy that passes well is seldom held back and takes its chances.", "",
+             "| T_up (s) | policy | runs | held back | lane open | taken |", "|---|---|---|---|---|---|"]  # fmt: skip
+    for t_up, cond in ok.groupby("t_up", sort=False):
+        for name in [*profile.variants, *BASELINES]:
+            rows = cond[cond["variant"] == name].dropna(subset=["held_share"])
+            if rows.empty:
+                continue
+            lines.append(f"| {t_up:g} | `{name}` | {len(rows)} | {rows['held_share'].mean():.3f} | "
+                         f"{rows['passing_open_share'].mean():.3f} | {rows['passing_taken_share'].mean():.2f} |")
+    return lines
 
 
 def committed_runs(folder: Path, variant: str, runs: pd.DataFrame, profile: Any) -> tuple[pd.DataFrame, str]:
@@ -303,6 +329,7 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
         for variant in profile.variants:
             parts = [f"P(> `{b}`) = {_ci(*pooled_stats(runs, variant, b, scenario))}" for b in BASELINES]
             lines.append(f"- `{variant}`: " + "; ".join(parts))
+    lines += passing_lines(runs, profile)
     lines += paired_lines(runs, profile, meta)
     lines += committed_pair_lines(runs, profile)
     lines += ["", *target_lines(table, ok, profile), ""]
