@@ -44,9 +44,19 @@ class PassingCount:
         self.samples = self.held = self.open = self.taken = 0
         self._waiting = np.zeros(0, np.int64)  # vehicles with an open side lane at the last sample, not yet changed
 
+    def due(self, step: int) -> bool:
+        """Whether `step` is a sample step (a multiple of `every`)."""
+        return step % self.every == 0
+
+    def look(self, step: int, nums: np.ndarray, speed_mps: np.ndarray, v_exp_mps: np.ndarray, around: Neighbours,
+             feasible: np.ndarray) -> None:  # fmt: skip
+        """On a sample step, the observed vehicles' passing chances (passing_chances) as a new sample."""
+        if self.due(step):
+            self.sample(step, nums, *passing_chances(speed_mps, v_exp_mps, around, feasible))
+
     def sample(self, step: int, nums: np.ndarray, held: np.ndarray, open_: np.ndarray) -> None:
         """A new sample on the steps that are multiples of `every` (others ignored); nums: the observed vehicles."""
-        if step % self.every:
+        if not self.due(step):
             return
         self.samples += len(nums)
         self.held += int(held.sum())

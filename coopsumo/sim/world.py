@@ -19,7 +19,7 @@ from coopsumo.sim import accident, controller, physics, view
 from coopsumo.sim.accident import HELD
 from coopsumo.sim.driver import sumo_lc_params, sumo_models
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
-from coopsumo.sim.passing import PASSING_EVERY_S, PassingCount, passing_chances
+from coopsumo.sim.passing import PASSING_EVERY_S, PassingCount
 from coopsumo.sim.reward import RewardParts, flow_term, followers_mean, reward_parts, section_crossings, speed_term
 from coopsumo.sim.sumo_session import StepEvents, SumoSession
 from coopsumo.sim.vehicle_table import VehicleTable
@@ -261,8 +261,7 @@ class World:
             frames = np.zeros((len(t.nums), N_FRAMES, N_SIDES, N_CELLS), np.uint8)
             speed_err = np.zeros((len(t.nums), N_FRAMES), np.float32)
         feasible = physics.feasible_actions(around, busy, t.speed, c.control)
-        if self.step_count % self.passing.every == 0:
-            self.passing.sample(self.step_count, t.nums, *passing_chances(t.speed, v_exp, around, feasible))
+        self.passing.look(self.step_count, t.nums, t.speed, v_exp, around, feasible)
         self._obs = Observation(
             nums=t.nums, grids=frames, speed_err=speed_err, lane=t.lane, pos=t.pos, speed=t.speed,
             v_exp=v_exp, busy=busy, around=around, n_lanes=c.road.lanes, feasible=feasible,

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.sim import passing
 from coopsumo.studies import stats
 from coopsumo.studies.protocol_plan import BASELINES, DRIVES, EVAL_SEED
 
@@ -130,11 +131,12 @@ def passing_lines(runs: pd.DataFrame, profile: Any) -> list[str]:
     if ok.empty or ok["held_share"].isna().all():
         return []
     lines = ["", "## Passing in free flow: held back, a faster lane open, and taken", "",
-             "Sampled once a second over every vehicle on the road: the share held back (more than 2 m/s below its "
-             "expected speed behind a leader within 60 m), the share held back with a side lane open to pass (one "
-             "the controller would let it enter now, whose leader is at least 1 m/s faster or absent), and the "
-             "share of those open chances after which the vehicle started a lane change within the second. Means "
-             "over models (alpha 0); a policy that passes well is seldom held back and takes its chances.", "",
+             f"Sampled every {passing.PASSING_EVERY_S:g} s over every vehicle on the road: the share held back "
+             f"(more than {passing.HELD_BELOW_MPS:g} m/s below its expected speed behind a leader within "
+             f"{passing.HELD_GAP_M:g} m), the share held back with a side lane open to pass (one the controller would "
+             f"let it enter now, whose leader is at least {passing.FASTER_MPS:g} m/s faster or absent), and the share "
+             "of those open chances after which the vehicle started a lane change before the next sample. Means over "
+             "models (alpha 0); a policy that passes well is seldom held back and takes its chances.", "",
              "| T_up (s) | policy | runs | held back | lane open | taken |", "|---|---|---|---|---|---|"]  # fmt: skip
     for t_up, cond in ok.groupby("t_up", sort=False):
         for name in [*profile.variants, *BASELINES]:
