@@ -137,6 +137,9 @@ def variants() -> dict[str, Variant]:
                 "queue that stays always asks to speed up)", F05Q, restart=5.0),
         Variant("f05q_lanes", "`f05q`'s trainings choosing lanes only: 'none' never offered (withheld below 50 m/s), "
                 "so every vehicle that stays asks to speed up, as `keep` and `greedy` do", F05Q, restart=50.0),
+        Variant("f05q_g95", "`f05q` trained with a discount of 0.95 per decision round (about a 20 s horizon) instead "
+                "of 0.9 (10 s): does a longer horizon buy the passing a slower leader pays for later?",
+                replace(F05Q, gamma=0.95)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -197,6 +200,8 @@ PROFILES = {
                     judged="f05q"),  # the candidate default; alpha 8 on 3 models; the others drive its trainings
     "f05q_e1": Profile("f05q_e1", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"), alpha_seeds=0,
                        eval_offset=10),  # f05q's trainings on fresh evaluation seeds: does its verdict replicate?
+    "f05q_g95": Profile("f05q_g95", variants=("f05q_g95",), alpha_seeds=0,
+                        paired_with=(("f05q_g95", "learner_protocol_f05q", "f05q"),)),  # one change: the discount
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
