@@ -77,7 +77,10 @@ def request(out: Path, cfg: TrainConfig, step: int) -> Path:
     folder = snapshot_dir(out, step)
     runs = [to_dict(c) for c in validation_configs(cfg, (folder / "model.pt").resolve())]
     alpha = cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None
-    _write_json(folder / REQUEST, {"step": step, "runs": runs, "drive_alpha": alpha})
+    data: dict[str, Any] = {"step": step, "runs": runs, "drive_alpha": alpha}
+    if cfg.dqn.validation_queue and cfg.dqn.queue_below_mps:
+        data["queue_below_mps"] = cfg.dqn.queue_below_mps
+    _write_json(folder / REQUEST, data)
     return folder
 
 
@@ -166,7 +169,8 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
     write_atomic(path, lambda tmp: tmp.write_text(text))
 
 
-SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps")
+SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps",
+                    "validation_queue")
 """learner settings that only judge snapshots: two trainings that differ in nothing else train the same weights"""
 
 
@@ -239,22 +243,24 @@ def diagnosis(rows: list[np.ndarray]) -> dict[str, float]:
     return out
 
 
-def snapshot_policy(path: str) -> DQNPolicy:
-    """A snapshot as validation drives it: as saved, but without the queue rule (DQNConfig.queue_below_mps), which
-    model selection ignores as training does (measured so: learner_protocol_followers05)."""
+def snapshot_policy(path: str, queue_below_mps: float = 0.0) -> DQNPolicy:
+    """A snapshot as validation drives it: as saved, but with the queue rule (DQNConfig.queue_below_mps) at
+    queue_below_mps (m/s; 0: off, as training drives; the request says, see DQNConfig.validation_queue)."""
     from coopsumo.agents.dqn_policy import DQNPolicy
 
     policy = DQNPolicy.from_file(path)
-    policy.queue_below_mps = 0.0
+    policy.queue_below_mps = queue_below_mps
     return policy
 
 
-def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
-    """One greedy run of the snapshot: its measures and the recorded decisions (diagnosis)."""
+def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path,
+                 queue_below_mps: float = 0.0) -> tuple[dict[str, Any], list[np.ndarray]]:  # fmt: skip
+    """One greedy run of the snapshot (queue rule at queue_below_mps, m/s): its measures and the recorded decisions
+    (diagnosis)."""
     from coopsumo.agents.decisions import ActionHold
     from coopsumo.sim.world import World
 
-    policy = snapshot_policy(cfg.policy[4:])
+    policy = snapshot_policy(cfg.policy[4:], queue_below_mps)
     if drive_alpha is not None:
         policy.drive_at(drive_alpha, cfg.road.lanes)
     policy.q_log = []
@@ -285,7 +291,7 @@ def validate(folder: Path) -> dict[str, Any]:
     for i, raw in enumerate(req["runs"]):
         cfg = sim_config_from_dict(raw)
         with tempfile.TemporaryDirectory(dir=folder, prefix=f".run{i}.") as tmp:
-            run, log = validate_run(cfg, req["drive_alpha"], Path(tmp))
+            run, log = validate_run(cfg, req["drive_alpha"], Path(tmp), float(req.get("queue_below_mps", 0.0)))
         runs.append(run)
         rows += log
     score = float(np.mean([r["mean_reward"] for r in runs]))

@@ -102,6 +102,8 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--validation-steps", "validation_steps", int, "model selection: steps of 0.1 s of each validation run"),
     ("--validation-accident-steps", "validation_accident_steps", int,
      "model selection: also validate each demand through an accident, a run of this many steps (0: free flow only)"),
+    ("--validation-queue", "validation_queue", bool,
+     "model selection: validate the snapshots with the queue rule (--queue-below) on, as the model will drive"),
     ("--train-t-up", "train_t_ups", str,
      "training demand: comma-separated T_up (s); each episode of --episode-steps draws one (empty: --t-up "
      "throughout)"),

@@ -140,6 +140,9 @@ def variants() -> dict[str, Variant]:
         Variant("f05q_g95", "`f05q` trained with a discount of 0.95 per decision round (about a 20 s horizon) instead "
                 "of 0.9 (10 s): does a longer horizon buy the passing a slower leader pays for later?",
                 replace(F05Q, gamma=0.95)),
+        Variant("f05q_vq", "`f05q`'s trainings with each snapshot validated as it will drive, with the queue rule on "
+                "(--validation-queue; the same weights, model.pt chosen again)",
+                replace(F05Q, validation_queue=True)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -202,6 +205,8 @@ PROFILES = {
                        eval_offset=10),  # f05q's trainings on fresh evaluation seeds: does its verdict replicate?
     "f05q_g95": Profile("f05q_g95", variants=("f05q_g95",), alpha_seeds=0,
                         paired_with=(("f05q_g95", "learner_protocol_f05q", "f05q"),)),  # one change: the discount
+    "f05q_vq": Profile("f05q_vq", variants=("f05q_vq",), alpha_seeds=0,
+                       paired_with=(("f05q_vq", "learner_protocol_f05q", "f05q"),)),  # one change: selection
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
