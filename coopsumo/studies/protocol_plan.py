@@ -203,8 +203,9 @@ PROFILES = {
                     judged="f05q"),  # the candidate default; alpha 8 on 3 models; the others drive its trainings
     "f05q_e1": Profile("f05q_e1", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"), alpha_seeds=0,
                        eval_offset=10),  # f05q's trainings on fresh evaluation seeds: does its verdict replicate?
-    "f05q_g95": Profile("f05q_g95", variants=("f05q_g95",), alpha_seeds=0,
-                        paired_with=(("f05q_g95", "learner_protocol_f05q", "f05q"),)),  # one change: the discount
+    "f05q_g95": Profile("f05q_g95", variants=("f05q_g95",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
+                        alpha_seeds=0,
+                        paired_with=(("f05q_g95", "learner_protocol_f05q", "f05q"),)),  # the discount, a first look
     "f05q_vq": Profile("f05q_vq", variants=("f05q_vq",), alpha_seeds=0,
                        paired_with=(("f05q_vq", "learner_protocol_f05q", "f05q"),)),  # one change: selection
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
