@@ -29,15 +29,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from coopsumo.agents.snapshots import RESULT, SNAPSHOTS, best, result, results, snapshot_dir
+
+__all__ = ["RESULT", "SNAPSHOTS", "best", "result", "results", "snapshot_dir"]  # the snapshot layout, re-exported
 from coopsumo.config import AccidentConfig, SimConfig, TrainConfig, sim_config_from_dict, to_dict
 from coopsumo.runio import write_atomic
 
 if TYPE_CHECKING:
     from coopsumo.agents.dqn_policy import DQNPolicy
 
-SNAPSHOTS = "snapshots"
-"""folder of a training's snapshots (one subfolder step<N> each)"""
-RESULT = "validation.json"
 REQUEST = "request.json"
 LAST_MODEL = "model_last.pt"
 """the last weights of a training that selects its model (model.pt is the best snapshot)"""
@@ -68,10 +68,6 @@ def validation_configs(cfg: TrainConfig, model: Path) -> list[SimConfig]:
     return runs
 
 
-def snapshot_dir(out: Path, step: int) -> Path:
-    return out / SNAPSHOTS / f"step{step}"
-
-
 def request(out: Path, cfg: TrainConfig, step: int) -> Path:
     """Write the validation request of the snapshot at `step` (its model.pt must exist); returns its folder."""
     folder = snapshot_dir(out, step)
@@ -97,28 +93,6 @@ def check_finished(folder: Path, proc: subprocess.Popen[bytes]) -> None:
     if proc.returncode != 0 or result(folder) is None:
         err = proc.stderr.read().decode(errors="replace").strip().splitlines() if proc.stderr else []
         raise RuntimeError(f"validation of {folder} failed: {err[-1] if err else f'exit {proc.returncode}'}")
-
-
-def result(folder: Path) -> dict[str, Any] | None:
-    """The finished validation of a snapshot folder, or None."""
-    try:
-        data = json.loads((folder / RESULT).read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) and isinstance(data.get("score"), float) else None
-
-
-def best(results: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The result with the highest score; the earliest step among equal scores; None for none."""
-    if not results:
-        return None
-    return max(sorted(results, key=lambda r: r["step"]), key=lambda r: r["score"])
-
-
-def results(out: Path) -> list[dict[str, Any]]:
-    """Every finished validation of the training in out, by step."""
-    found = [r for d in sorted((out / SNAPSHOTS).glob("step*")) if (r := result(d)) is not None]
-    return sorted(found, key=lambda r: r["step"])
 
 
 def pending(out: Path) -> list[Path]:
