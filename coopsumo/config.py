@@ -253,6 +253,9 @@ class DQNConfig:
     the default position (held from 1/12 of the run for 5/6 of it), scored with the free-flow runs, so that a
     snapshot that thrashes in a queue is not chosen; 0: free flow only. Default 6,000: the protocol
     (results/learner_protocol_accval) measured it against free flow only"""
+    validation_queue: bool = False
+    """model selection: the snapshots are validated with the queue rule (queue_below_mps) on, as the model will
+    drive; False: without it, as training (not in the paper)"""
     train_t_ups: tuple[float, ...] = (2.0, 1.5, 1.0)
     """training demand: each episode's T_up (s) drawn from these (agents/episodes.py); empty: the run's own T_up
     (train --t-up T trains at T alone)"""
@@ -558,7 +561,8 @@ ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "a
                                  "validation_seed": VALIDATION_SEED, "validation_t_ups": [2.0, 1.5, 1.0],
                                  "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
                                  "episode_steps": 9000, "validation_accident_steps": 0, "followers_weight": 0.0,
-                                 "followers_m": 50.0, "queue_below_mps": 0.0}
+                                 "followers_m": 50.0, "queue_below_mps": 0.0,
+                                 "validation_queue": False}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

@@ -3,12 +3,14 @@
     keep | random | greedy                          no parameters
     mobil[:p=P,threshold=T,b_safe=B,bias=R]          any subset, any order (MOBIL_LIMITS)
     sumo[:lcCooperative=X,lcSpeedGain=X,...]          SUMO's LC2013 factors (SUMO_LC_LIMITS)
-    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S][,restart=R][,queue=V]
+    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S][,restart=R][,queue=V][,ensemble=K]
                                                      PATH: a model file, or a folder holding model.pt; M: the
                                                      change margin it drives with (Q units; default: the model's);
                                                      S: seconds after a lane change before another (default 0);
                                                      R: 'none' withheld below R m/s (default: the model's);
-                                                     V: no lane change chosen below V m/s (default 0: none)
+                                                     V: no lane change chosen below V m/s (default 0: none);
+                                                     K: drive the mean Q-value of the K best-validated snapshots
+                                                     of the model's training (default 1: the model alone)
 
 Parameters are KEY=VALUE separated by ','; each key at most once; each value a finite number in its key's range
 (alpha also 'adaptive'). No spaces anywhere, no empty parameter, and no ',' inside a model path (the grammar and
@@ -31,6 +33,8 @@ MARGIN_MAX = 100.0
 """the largest change margin a dqn policy string takes (Q units; a few is already large)"""
 COOLDOWN_MAX_S = 600.0
 """the longest lane-change cooldown a dqn policy string takes (s)"""
+ENSEMBLE_MAX = 20
+"""the most snapshots a dqn policy string averages"""
 RESTART_MAX_MPS = 50.0
 """the largest 'none'-withholding speed a dqn policy string takes (m/s; above every expected speed: never 'none')"""
 PLAIN = ("keep", "random", "greedy")
@@ -40,11 +44,11 @@ KEYS: dict[str, dict[str, tuple[float, float, bool]]] = {
     "sumo": SUMO_LC_LIMITS,
     "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False), "margin": (0.0, MARGIN_MAX, False),
             "cooldown": (0.0, COOLDOWN_MAX_S, False), "restart": (0.0, RESTART_MAX_MPS, False),
-            "queue": (0.0, RESTART_MAX_MPS, False)},
+            "queue": (0.0, RESTART_MAX_MPS, False), "ensemble": (1.0, ENSEMBLE_MAX, False)},
 }
 """the parameters each policy takes: key -> (lowest, highest, lowest excluded)"""
 FORMS = ("keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], "
-         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,restart=R,queue=V]")
+         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,restart=R,queue=V,ensemble=K]")
 
 
 class PolicySpecError(UsageError):
@@ -56,7 +60,8 @@ class PolicySpec:
     """A parsed policy string: its name, its numeric parameters in the order given, and for dqn the model path,
     alpha (a number, 'adaptive', or None when not given), the change margin (None: the model's own), the
     lane-change cooldown in seconds (None: none), the speed (m/s) below which 'none' is withheld (None: the
-    model's own) and the speed (m/s) below which no lane change is chosen (None: none)."""
+    model's own), the speed (m/s) below which no lane change is chosen (None: none) and how many best-validated
+    snapshots are averaged (None: the model alone)."""
 
     name: str
     params: tuple[tuple[str, float], ...] = ()
@@ -66,6 +71,7 @@ class PolicySpec:
     cooldown: float | None = None
     restart: float | None = None
     queue: float | None = None
+    ensemble: int | None = None
 
     def values(self) -> dict[str, float]:
         return dict(self.params)
@@ -99,6 +105,8 @@ def _value(text: str, name: str, key: str, value: str) -> float | str:
     if problem := number_problem(number, low, high, low_open):
         also = f" or {ADAPTIVE!r}" if (name, key) == ("dqn", "alpha") else ""
         raise _fail(text, f"{key} must be {problem}{also}, got {value!r}")
+    if (name, key) == ("dqn", "ensemble") and not number.is_integer():
+        raise _fail(text, f"ensemble must be a whole number of snapshots, got {value!r}")
     return number
 
 
@@ -144,5 +152,6 @@ def parse_policy(text: str) -> PolicySpec:
             return None if seen.get(key) is None else float(seen[key])
 
         return PolicySpec(name, model=model, alpha=seen.get("alpha"), margin=number("margin"),
-                          cooldown=number("cooldown"), restart=number("restart"), queue=number("queue"))
+                          cooldown=number("cooldown"), restart=number("restart"), queue=number("queue"),
+                          ensemble=None if seen.get("ensemble") is None else int(float(seen["ensemble"])))
     return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import subprocess
 import sys
 from collections.abc import Callable
@@ -26,6 +27,7 @@ from coopsumo.config import (
     results_view,
     to_dict,
 )
+from coopsumo.runio import UsageError
 from coopsumo.sim import physics
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
@@ -325,9 +327,40 @@ def test_a_saved_model_drives_with_its_own_queue_rule_and_a_spec_replaces_it(tmp
     from coopsumo.agents.selection import snapshot_policy
 
     assert snapshot_policy(str(tmp_path / "queue5.pt")).queue_below_mps == 0.0  # model selection ignores it
+    assert snapshot_policy(str(tmp_path / "queue5.pt"), 5.0).act(slow).tolist() == [SPEEDUP]  # ... unless told
     stored = to_dict(queue5)
     del stored["queue_below_mps"]
     assert dqn_config_from_dict(stored).queue_below_mps == 0.0
+
+
+def test_an_ensemble_drives_the_mean_q_of_the_best_validated_snapshots(tmp_path: Path, observation_of: Layout) -> None:
+    """dqn:PATH,ensemble=K: model.pt (the best snapshot) and the next-best K - 1 by validation score vote by their
+    mean Q-value; too few snapshots, or a model that is not the best of them, is a one-line usage error."""
+    from coopsumo.agents import selection
+    from coopsumo.agents.dqn import save_model
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    learner = dataclasses.replace(DQNConfig(), dueling=False, observation="paper", change_margin=0.0)
+    meta = {"config": to_dict(TrainConfig(dqn=learner))}
+    # Q(left, speed-up, none) of three snapshots: the best prefers left a little, the others speed-up much more
+    nets = {1: _net_preferring(LEFT, SPEEDUP), 2: _net_preferring(SPEEDUP, NONE), 3: _net_preferring(SPEEDUP, LEFT)}
+    scores = {1: 0.3, 2: 0.2, 3: 0.1}
+    for step, net in nets.items():
+        folder = selection.snapshot_dir(tmp_path, step)
+        folder.mkdir(parents=True)
+        save_model(folder / "model.pt", net, meta)  # type: ignore[arg-type]
+        (folder / selection.RESULT).write_text(json.dumps({"step": step, "score": scores[step]}))
+    save_model(tmp_path / "model.pt", nets[1], meta)  # type: ignore[arg-type]
+    fast = observation_of(lane=[1], pos=[300.0], speed=[20.0], v_exp=[25.0])
+    assert DQNPolicy.from_spec(f"dqn:{tmp_path}").act(fast).tolist() == [LEFT]
+    pair = DQNPolicy.from_spec(f"dqn:{tmp_path},ensemble=2")
+    assert pair.act(fast).tolist() == [SPEEDUP]  # (1 + 0.5) / 2 against (0.5 + 0) / 2
+    assert (pair.trained_on or {})["ensemble_steps"] == [1, 2]
+    with pytest.raises(UsageError, match="has 3 validated snapshots"):
+        DQNPolicy.from_spec(f"dqn:{tmp_path},ensemble=4")
+    save_model(tmp_path / "model.pt", nets[2], meta)  # type: ignore[arg-type]
+    with pytest.raises(UsageError, match="is not the best-validated snapshot"):
+        DQNPolicy.from_spec(f"dqn:{tmp_path},ensemble=2")
 
 
 @pytest.mark.parametrize("bad", ["-1", "nan", "abc"])

@@ -35,6 +35,7 @@ VALID: list[tuple[str, PolicySpec]] = [
     ("dqn:a,cooldown=10,margin=2", PolicySpec("dqn", model="a", margin=2.0, cooldown=10.0)),
     ("dqn:a,restart=5", PolicySpec("dqn", model="a", restart=5.0)),
     ("dqn:a,queue=5,cooldown=10", PolicySpec("dqn", model="a", cooldown=10.0, queue=5.0)),
+    ("dqn:a,ensemble=3", PolicySpec("dqn", model="a", ensemble=3)),
 ]  # fmt: skip
 
 INVALID: list[tuple[str, str]] = [
@@ -56,6 +57,8 @@ INVALID: list[tuple[str, str]] = [
     ("dqn:m.pt,cooldown=inf", "cooldown must be"),
     ("dqn:m.pt,restart=51", "restart must be a finite number >= 0 and <= 50, got '51'"),
     ("dqn:m.pt,queue=-1", "queue must be a finite number >= 0 and <= 50, got '-1'"),
+    ("dqn:m.pt,ensemble=0", "ensemble must be a finite number >= 1 and <= 20, got '0'"),
+    ("dqn:m.pt,ensemble=2.5", "ensemble must be a whole number of snapshots, got '2.5'"),
     ("fast", "unknown policy 'fast'"),
     ("Keep", "unknown policy 'Keep'"),
     ("keep:", "keep takes no parameters"),

@@ -11,6 +11,7 @@ import torch
 from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, choose_alpha
 from coopsumo.agents.decisions import cooled_down, no_change_in_queue, offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
+from coopsumo.agents.snapshots import ranked, snapshot_dir
 from coopsumo.config import PAPER_DQN, ConfigError, ControlConfig, dqn_config_from_dict
 from coopsumo.policy_spec import ADAPTIVE, model_file, parse_policy, split_dqn_spec
 from coopsumo.runio import UsageError, file_sha256
@@ -92,6 +93,8 @@ class DQNPolicy:
         self._action = np.full(0, -1, np.int64)  # -1: no previous decision
         self._rounds = 0  # decision rounds driven
         self._busy_round = np.zeros(0, np.int64)  # the last round each vehicle was seen changing lanes (0: never)
+        self.companions: list[QNetwork] = []
+        """more networks whose Q-values are averaged with net's (dqn:PATH,ensemble=K: the next-best snapshots)"""
         self.q_log: list[np.ndarray] | None = None
         """when a list: every fresh decision appends its rows [Q-values (4), offered (4), action] (diagnosis)"""
 
@@ -117,6 +120,9 @@ class DQNPolicy:
         if parsed.queue is not None:
             policy.queue_below_mps = parsed.queue
             policy.trained_on = dict(policy.trained_on or {}, driven_queue_below_mps=parsed.queue)
+        if parsed.ensemble is not None and parsed.ensemble > 1:
+            steps = policy.average_snapshots(path, parsed.ensemble)
+            policy.trained_on = dict(policy.trained_on or {}, driven_ensemble=parsed.ensemble, ensemble_steps=steps)
         if parsed.restart is not None:
             policy.restart_below_mps = parsed.restart
             policy.trained_on = dict(policy.trained_on or {}, driven_restart_below_mps=parsed.restart)
@@ -131,6 +137,34 @@ class DQNPolicy:
             policy.drive_at(alpha, lanes)
             policy.trained_on = dict(policy.trained_on or {}, driven_alpha=alpha)
         return policy
+
+    def average_snapshots(self, path: str, k: int) -> list[int]:
+        """Drive the mean Q-value of the k best-validated snapshots of the training that made the model at `path`
+        (its folder's snapshots/, best validation score first, ties to the earlier step): the model must be the
+        best of them, as model selection makes it. Returns their steps; UsageError naming what is missing."""
+        folder = Path(model_file(path)).parent
+        found = ranked(folder)
+        if len(found) < k:
+            raise UsageError(f"ensemble={k}: the training in {folder} has {len(found)} validated snapshots; give "
+                             "the model.pt of a training that selects its model (--select-every), or a smaller K")
+        steps = [int(r["step"]) for r in found[:k]]
+        nets = []
+        for step in steps:
+            try:
+                net, _ = load_model(snapshot_dir(folder, step) / "model.pt")
+            except ModelFileError as err:
+                raise UsageError(str(err)) from None
+            nets.append(net.eval())
+        mine, best = self.net.state_dict(), nets[0].state_dict()
+        if mine.keys() != best.keys() or not all(torch.equal(mine[key], best[key]) for key in mine):
+            raise UsageError(f"ensemble={k}: {model_file(path)} is not the best-validated snapshot of its training "
+                             f"(step {steps[0]}); drive the training's model.pt")  # fmt: skip
+        shape = [(n.observation, n.dueling, n.conditioned, n.speed_scale_mps) for n in nets]
+        if len(set(shape)) != 1:
+            raise UsageError(f"ensemble={k}: the snapshots in {folder} read different inputs")
+        self.companions = nets[1:]
+        self._action[:] = -1  # choices remembered from one network
+        return steps
 
     def drive_at(self, alpha: float | str, lanes: int) -> None:
         """Drive a conditioned network at a fixed alpha, or at 'adaptive' by DEFAULT_RULE on a road of `lanes`."""
@@ -244,6 +278,8 @@ class DQNPolicy:
                 inputs.append(torch.full((int(fresh.sum()),), float(self.alpha)))
             with torch.no_grad():
                 q = self.net(*inputs)
+                if self.companions:
+                    q = torch.stack([q, *(net(*inputs) for net in self.companions)]).mean(dim=0)
             chosen = np.where(mask[fresh], with_change_margin(q.numpy(), self.change_margin), -np.inf)
             actions[fresh] = chosen.argmax(axis=1)
             if self.q_log is not None:

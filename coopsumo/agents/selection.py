@@ -29,15 +29,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from coopsumo.agents.snapshots import RESULT, SNAPSHOTS, best, result, results, snapshot_dir
+
+__all__ = ["RESULT", "SNAPSHOTS", "best", "result", "results", "snapshot_dir"]  # the snapshot layout, re-exported
 from coopsumo.config import AccidentConfig, SimConfig, TrainConfig, sim_config_from_dict, to_dict
 from coopsumo.runio import write_atomic
 
 if TYPE_CHECKING:
     from coopsumo.agents.dqn_policy import DQNPolicy
 
-SNAPSHOTS = "snapshots"
-"""folder of a training's snapshots (one subfolder step<N> each)"""
-RESULT = "validation.json"
 REQUEST = "request.json"
 LAST_MODEL = "model_last.pt"
 """the last weights of a training that selects its model (model.pt is the best snapshot)"""
@@ -68,16 +68,15 @@ def validation_configs(cfg: TrainConfig, model: Path) -> list[SimConfig]:
     return runs
 
 
-def snapshot_dir(out: Path, step: int) -> Path:
-    return out / SNAPSHOTS / f"step{step}"
-
-
 def request(out: Path, cfg: TrainConfig, step: int) -> Path:
     """Write the validation request of the snapshot at `step` (its model.pt must exist); returns its folder."""
     folder = snapshot_dir(out, step)
     runs = [to_dict(c) for c in validation_configs(cfg, (folder / "model.pt").resolve())]
     alpha = cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None
-    _write_json(folder / REQUEST, {"step": step, "runs": runs, "drive_alpha": alpha})
+    data: dict[str, Any] = {"step": step, "runs": runs, "drive_alpha": alpha}
+    if cfg.dqn.validation_queue and cfg.dqn.queue_below_mps:
+        data["queue_below_mps"] = cfg.dqn.queue_below_mps
+    _write_json(folder / REQUEST, data)
     return folder
 
 
@@ -94,28 +93,6 @@ def check_finished(folder: Path, proc: subprocess.Popen[bytes]) -> None:
     if proc.returncode != 0 or result(folder) is None:
         err = proc.stderr.read().decode(errors="replace").strip().splitlines() if proc.stderr else []
         raise RuntimeError(f"validation of {folder} failed: {err[-1] if err else f'exit {proc.returncode}'}")
-
-
-def result(folder: Path) -> dict[str, Any] | None:
-    """The finished validation of a snapshot folder, or None."""
-    try:
-        data = json.loads((folder / RESULT).read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) and isinstance(data.get("score"), float) else None
-
-
-def best(results: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The result with the highest score; the earliest step among equal scores; None for none."""
-    if not results:
-        return None
-    return max(sorted(results, key=lambda r: r["step"]), key=lambda r: r["score"])
-
-
-def results(out: Path) -> list[dict[str, Any]]:
-    """Every finished validation of the training in out, by step."""
-    found = [r for d in sorted((out / SNAPSHOTS).glob("step*")) if (r := result(d)) is not None]
-    return sorted(found, key=lambda r: r["step"])
 
 
 def pending(out: Path) -> list[Path]:
@@ -166,7 +143,8 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
     write_atomic(path, lambda tmp: tmp.write_text(text))
 
 
-SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps")
+SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps",
+                    "validation_queue")
 """learner settings that only judge snapshots: two trainings that differ in nothing else train the same weights"""
 
 
@@ -239,22 +217,24 @@ def diagnosis(rows: list[np.ndarray]) -> dict[str, float]:
     return out
 
 
-def snapshot_policy(path: str) -> DQNPolicy:
-    """A snapshot as validation drives it: as saved, but without the queue rule (DQNConfig.queue_below_mps), which
-    model selection ignores as training does (measured so: learner_protocol_followers05)."""
+def snapshot_policy(path: str, queue_below_mps: float = 0.0) -> DQNPolicy:
+    """A snapshot as validation drives it: as saved, but with the queue rule (DQNConfig.queue_below_mps) at
+    queue_below_mps (m/s; 0: off, as training drives; the request says, see DQNConfig.validation_queue)."""
     from coopsumo.agents.dqn_policy import DQNPolicy
 
     policy = DQNPolicy.from_file(path)
-    policy.queue_below_mps = 0.0
+    policy.queue_below_mps = queue_below_mps
     return policy
 
 
-def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
-    """One greedy run of the snapshot: its measures and the recorded decisions (diagnosis)."""
+def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path,
+                 queue_below_mps: float = 0.0) -> tuple[dict[str, Any], list[np.ndarray]]:  # fmt: skip
+    """One greedy run of the snapshot (queue rule at queue_below_mps, m/s): its measures and the recorded decisions
+    (diagnosis)."""
     from coopsumo.agents.decisions import ActionHold
     from coopsumo.sim.world import World
 
-    policy = snapshot_policy(cfg.policy[4:])
+    policy = snapshot_policy(cfg.policy[4:], queue_below_mps)
     if drive_alpha is not None:
         policy.drive_at(drive_alpha, cfg.road.lanes)
     policy.q_log = []
@@ -285,7 +265,7 @@ def validate(folder: Path) -> dict[str, Any]:
     for i, raw in enumerate(req["runs"]):
         cfg = sim_config_from_dict(raw)
         with tempfile.TemporaryDirectory(dir=folder, prefix=f".run{i}.") as tmp:
-            run, log = validate_run(cfg, req["drive_alpha"], Path(tmp))
+            run, log = validate_run(cfg, req["drive_alpha"], Path(tmp), float(req.get("queue_below_mps", 0.0)))
         runs.append(run)
         rows += log
     score = float(np.mean([r["mean_reward"] for r in runs]))

@@ -102,6 +102,8 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--validation-steps", "validation_steps", int, "model selection: steps of 0.1 s of each validation run"),
     ("--validation-accident-steps", "validation_accident_steps", int,
      "model selection: also validate each demand through an accident, a run of this many steps (0: free flow only)"),
+    ("--validation-queue", "validation_queue", bool,
+     "model selection: validate the snapshots with the queue rule (--queue-below) on, as the model will drive"),
     ("--train-t-up", "train_t_ups", str,
      "training demand: comma-separated T_up (s); each episode of --episode-steps draws one (empty: --t-up "
      "throughout)"),
@@ -149,6 +151,8 @@ FLAG_NEEDS: dict[str, tuple[str, Callable[[DQNConfig], bool]]] = {
     "--validation-seed": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
     "--validation-t-up": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
     "--validation-steps": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
+    "--validation-queue": ("--select-every N (N > 0) and --queue-below V (V > 0)",
+                           lambda c: c.select_every_steps > 0 and c.queue_below_mps > 0),
     "--episode-steps": ("--train-t-up or --accident-share", lambda c: bool(c.train_t_ups) or c.accident_share > 0),
 }
 """learner flags that act only beside another setting: given without it, they are refused (not silently ignored)"""

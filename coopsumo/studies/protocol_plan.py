@@ -38,7 +38,8 @@ REQUIRED = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "telepor
 
 DRIVES = (("margin", "change_margin", "change margin"), ("cooldown", "change_cooldown_s", "lane-change cooldown (s)"),
           ("restart", "restart_below_mps", "'none' withheld below (m/s)"),
-          ("queue", "queue_below_mps", "no lane change below (m/s)"))
+          ("queue", "queue_below_mps", "no lane change below (m/s)"),
+          ("ensemble", "ensemble_snapshots", "best-validated snapshots averaged"))
 """how a variant may drive its trainings otherwise: its field (also the key of the dqn policy string), the key in a
 cell's config.drive, and the report's words"""
 
@@ -59,6 +60,8 @@ class Variant:
     """the speed below which it withholds 'none' (m/s; None: the learner's own)"""
     queue: float | None = None
     """the speed below which it chooses no lane change (m/s; None: none)"""
+    ensemble: int | None = None
+    """how many best-validated snapshots of its training it averages the Q-values of (None: model.pt alone)"""
 
     def drive(self) -> dict[str, float]:
         """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""
@@ -136,6 +139,15 @@ def variants() -> dict[str, Variant]:
                 "queue that stays always asks to speed up)", F05Q, restart=5.0),
         Variant("f05q_lanes", "`f05q`'s trainings choosing lanes only: 'none' never offered (withheld below 50 m/s), "
                 "so every vehicle that stays asks to speed up, as `keep` and `greedy` do", F05Q, restart=50.0),
+        Variant("f05q_g95", "`f05q` trained with a discount of 0.95 per decision round (about a 20 s horizon) instead "
+                "of 0.9 (10 s): does a longer horizon buy the passing a slower leader pays for later?",
+                replace(F05Q, gamma=0.95)),
+        Variant("f05q_vq", "`f05q`'s trainings with each snapshot validated as it will drive, with the queue rule on "
+                "(--validation-queue; the same weights, model.pt chosen again)",
+                replace(F05Q, validation_queue=True)),
+        Variant("f05q_ens3", "`f05q`'s trainings driven with the mean Q-value of each training's 3 best-validated "
+                "snapshots, model.pt among them (dqn:PATH,ensemble=3): the same weights, a steadier choice?",
+                F05Q, ensemble=3),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -196,6 +208,13 @@ PROFILES = {
                     judged="f05q"),  # the default since 2026-11-27; alpha 8 on 3 models; the others drive its trainings
     "f05q_e1": Profile("f05q_e1", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"), alpha_seeds=0,
                        eval_offset=10),  # f05q's trainings on fresh evaluation seeds: does its verdict replicate?
+    "f05q_g95": Profile("f05q_g95", variants=("f05q_g95",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
+                        alpha_seeds=0,
+                        paired_with=(("f05q_g95", "learner_protocol_f05q", "f05q"),)),  # the discount, a first look
+    "f05q_vq": Profile("f05q_vq", variants=("f05q_vq",), alpha_seeds=0,
+                       paired_with=(("f05q_vq", "learner_protocol_f05q", "f05q"),)),  # one change: selection
+    "f05q_ens": Profile("f05q_ens", variants=("f05q_ens3",), alpha_seeds=0,
+                        paired_with=(("f05q_ens3", "learner_protocol_f05q", "f05q"),)),  # one change: 3 snapshots
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip

@@ -1,0 +1,47 @@
+"""Where a training that selects its model keeps its snapshots and their validations (agents/selection.py makes
+them; a dqn policy driving an ensemble of them reads them).
+
+OUT/snapshots/step<N>/model.pt is the online network at training step N, OUT/snapshots/step<N>/validation.json the
+result of validating it (its "score" the mean reward per vehicle and step over the validation runs).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+SNAPSHOTS = "snapshots"
+"""folder of a training's snapshots (one subfolder step<N> each)"""
+RESULT = "validation.json"
+
+
+def snapshot_dir(out: Path, step: int) -> Path:
+    return out / SNAPSHOTS / f"step{step}"
+
+
+def result(folder: Path) -> dict[str, Any] | None:
+    """The finished validation of a snapshot folder, or None."""
+    try:
+        data = json.loads((folder / RESULT).read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and isinstance(data.get("score"), float) else None
+
+
+def best(results: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The result with the highest score; the earliest step among equal scores; None for none."""
+    if not results:
+        return None
+    return max(sorted(results, key=lambda r: r["step"]), key=lambda r: r["score"])
+
+
+def results(out: Path) -> list[dict[str, Any]]:
+    """Every finished validation of the training in out, by step."""
+    found = [r for d in sorted((out / SNAPSHOTS).glob("step*")) if (r := result(d)) is not None]
+    return sorted(found, key=lambda r: r["step"])
+
+
+def ranked(out: Path) -> list[dict[str, Any]]:
+    """Every finished validation of the training in out, best score first, ties to the earlier step."""
+    return sorted(results(out), key=lambda r: (-r["score"], r["step"]))
