@@ -121,7 +121,8 @@ def test_validation_drives_the_queue_rule_only_when_asked(tmp_path: Path) -> Non
     queue5 = dataclasses.replace(DQNConfig(), queue_below_mps=5.0)
     assert request_of(dataclasses.replace(queue5, validation_queue=True))["queue_below_mps"] == 5.0
     assert "queue_below_mps" not in request_of(queue5)
-    assert "queue_below_mps" not in request_of(dataclasses.replace(DQNConfig(), validation_queue=True))
+    assert "queue_below_mps" not in request_of(dataclasses.replace(DQNConfig(), validation_queue=True,
+                                                                   queue_below_mps=0.0))
     as_driven = TrainConfig(dqn=dataclasses.replace(queue5, validation_queue=True))
     trained = TrainConfig(dqn=queue5)
     assert without_selection(to_dict(as_driven)) == without_selection(to_dict(trained))
