@@ -356,6 +356,7 @@ def test_an_ensemble_drives_the_mean_q_of_the_best_validated_snapshots(tmp_path:
     pair = DQNPolicy.from_spec(f"dqn:{tmp_path},ensemble=2")
     assert pair.act(fast).tolist() == [SPEEDUP]  # (1 + 0.5) / 2 against (0.5 + 0) / 2
     assert (pair.trained_on or {})["ensemble_steps"] == [1, 2]
+    assert len(set((pair.trained_on or {})["ensemble_sha256"])) == 2  # what drove, recorded in a run's config.json
     with pytest.raises(UsageError, match="has 3 validated snapshots"):
         DQNPolicy.from_spec(f"dqn:{tmp_path},ensemble=4")
     save_model(tmp_path / "model.pt", nets[2], meta)  # type: ignore[arg-type]

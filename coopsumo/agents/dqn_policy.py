@@ -122,7 +122,10 @@ class DQNPolicy:
             policy.trained_on = dict(policy.trained_on or {}, driven_queue_below_mps=parsed.queue)
         if parsed.ensemble is not None and parsed.ensemble > 1:
             steps = policy.average_snapshots(path, parsed.ensemble)
-            policy.trained_on = dict(policy.trained_on or {}, driven_ensemble=parsed.ensemble, ensemble_steps=steps)
+            folder = Path(model_file(path)).parent
+            digests = [file_sha256(snapshot_dir(folder, step) / "model.pt") for step in steps]
+            policy.trained_on = dict(policy.trained_on or {}, driven_ensemble=parsed.ensemble, ensemble_steps=steps,
+                                     ensemble_sha256=digests)  # fmt: skip
         if parsed.restart is not None:
             policy.restart_below_mps = parsed.restart
             policy.trained_on = dict(policy.trained_on or {}, driven_restart_below_mps=parsed.restart)

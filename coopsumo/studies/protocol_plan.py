@@ -215,6 +215,8 @@ PROFILES = {
                        paired_with=(("f05q_vq", "learner_protocol_f05q", "f05q"),)),  # one change: selection
     "f05q_ens": Profile("f05q_ens", variants=("f05q_ens3",), alpha_seeds=0,
                         paired_with=(("f05q_ens3", "learner_protocol_f05q", "f05q"),)),  # one change: 3 snapshots
+    "f05q_ens_e2": Profile("f05q_ens_e2", variants=("f05q", "f05q_ens3"), alpha_seeds=0,
+                           eval_offset=20),  # the ensemble against f05q on evaluation seeds no study used before
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
