@@ -148,6 +148,9 @@ def variants() -> dict[str, Variant]:
         Variant("f05q_ens3", "`f05q`'s trainings driven with the mean Q-value of each training's 3 best-validated "
                 "snapshots, model.pt among them (dqn:PATH,ensemble=3): the same weights, a steadier choice?",
                 F05Q, ensemble=3),
+        Variant("f05q_ts2k", "`f05q` with the target network synced every 2,000 steps instead of 500 (about 400 "
+                "updates instead of 100): do the snapshots of one training swing less?",
+                replace(F05Q, target_sync_steps=2000)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -217,6 +220,9 @@ PROFILES = {
                         paired_with=(("f05q_ens3", "learner_protocol_f05q", "f05q"),)),  # one change: 3 snapshots
     "f05q_ens_e2": Profile("f05q_ens_e2", variants=("f05q", "f05q_ens3"), alpha_seeds=0,
                            eval_offset=20),  # the ensemble against f05q on evaluation seeds no study used before
+    "f05q_ts2k": Profile("f05q_ts2k", variants=("f05q_ts2k",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
+                         alpha_seeds=0,
+                         paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),  # a steadier target
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
