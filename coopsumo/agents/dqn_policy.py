@@ -11,7 +11,7 @@ import torch
 from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, choose_alpha
 from coopsumo.agents.decisions import cooled_down, no_change_in_queue, offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
-from coopsumo.agents.snapshots import ranked, snapshot_dir
+from coopsumo.agents.snapshots import by_score, results, snapshot_dir
 from coopsumo.config import PAPER_DQN, ConfigError, ControlConfig, dqn_config_from_dict
 from coopsumo.policy_spec import ADAPTIVE, model_file, parse_policy, split_dqn_spec
 from coopsumo.runio import UsageError, file_sha256
@@ -121,9 +121,7 @@ class DQNPolicy:
             policy.queue_below_mps = parsed.queue
             policy.trained_on = dict(policy.trained_on or {}, driven_queue_below_mps=parsed.queue)
         if parsed.ensemble is not None and parsed.ensemble > 1:
-            steps = policy.average_snapshots(path, parsed.ensemble)
-            folder = Path(model_file(path)).parent
-            digests = [file_sha256(snapshot_dir(folder, step) / "model.pt") for step in steps]
+            steps, digests = policy.average_snapshots(path, parsed.ensemble)
             policy.trained_on = dict(policy.trained_on or {}, driven_ensemble=parsed.ensemble, ensemble_steps=steps,
                                      ensemble_sha256=digests)  # fmt: skip
         if parsed.restart is not None:
@@ -141,20 +139,22 @@ class DQNPolicy:
             policy.trained_on = dict(policy.trained_on or {}, driven_alpha=alpha)
         return policy
 
-    def average_snapshots(self, path: str, k: int) -> list[int]:
+    def average_snapshots(self, path: str, k: int) -> tuple[list[int], list[str]]:
         """Drive the mean Q-value of the k best-validated snapshots of the training that made the model at `path`
         (its folder's snapshots/, best validation score first, ties to the earlier step): the model must be the
-        best of them, as model selection makes it. Returns their steps; UsageError naming what is missing."""
+        best of them, as model selection makes it. Returns their steps and file digests; UsageError naming what is
+        missing."""
         folder = Path(model_file(path)).parent
-        found = ranked(folder)
+        found = by_score(results(folder))
         if len(found) < k:
             raise UsageError(f"ensemble={k}: the training in {folder} has {len(found)} validated snapshots; give "
                              "the model.pt of a training that selects its model (--select-every), or a smaller K")
         steps = [int(r["step"]) for r in found[:k]]
+        files = [snapshot_dir(folder, step) / "model.pt" for step in steps]
         nets = []
-        for step in steps:
+        for file in files:
             try:
-                net, _ = load_model(snapshot_dir(folder, step) / "model.pt")
+                net, _ = load_model(file)
             except ModelFileError as err:
                 raise UsageError(str(err)) from None
             nets.append(net.eval())
@@ -167,7 +167,7 @@ class DQNPolicy:
             raise UsageError(f"ensemble={k}: the snapshots in {folder} read different inputs")
         self.companions = nets[1:]
         self._action[:] = -1  # choices remembered from one network
-        return steps
+        return steps, [file_sha256(file) for file in files]
 
     def drive_at(self, alpha: float | str, lanes: int) -> None:
         """Drive a conditioned network at a fixed alpha, or at 'adaptive' by DEFAULT_RULE on a road of `lanes`."""

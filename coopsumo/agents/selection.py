@@ -29,9 +29,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from coopsumo.agents.snapshots import RESULT, SNAPSHOTS, best, result, results, snapshot_dir
-
-__all__ = ["RESULT", "SNAPSHOTS", "best", "result", "results", "snapshot_dir"]  # the snapshot layout, re-exported
+from coopsumo.agents.snapshots import RESULT, SNAPSHOTS, best, result, results, snapshot_dir  # also selection.*
 from coopsumo.config import AccidentConfig, SimConfig, TrainConfig, sim_config_from_dict, to_dict
 from coopsumo.runio import write_atomic
 

@@ -29,19 +29,17 @@ def result(folder: Path) -> dict[str, Any] | None:
     return data if isinstance(data, dict) and isinstance(data.get("score"), float) else None
 
 
+def by_score(results: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Validation results best score first, ties to the earlier step (model selection's order)."""
+    return sorted(results, key=lambda r: (-r["score"], r["step"]))
+
+
 def best(results: list[dict[str, Any]]) -> dict[str, Any] | None:
     """The result with the highest score; the earliest step among equal scores; None for none."""
-    if not results:
-        return None
-    return max(sorted(results, key=lambda r: r["step"]), key=lambda r: r["score"])
+    return next(iter(by_score(results)), None)
 
 
 def results(out: Path) -> list[dict[str, Any]]:
     """Every finished validation of the training in out, by step."""
     found = [r for d in sorted((out / SNAPSHOTS).glob("step*")) if (r := result(d)) is not None]
     return sorted(found, key=lambda r: r["step"])
-
-
-def ranked(out: Path) -> list[dict[str, Any]]:
-    """Every finished validation of the training in out, best score first, ties to the earlier step."""
-    return sorted(results(out), key=lambda r: (-r["score"], r["step"]))

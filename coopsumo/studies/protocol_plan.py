@@ -151,6 +151,8 @@ def variants() -> dict[str, Variant]:
         Variant("f05q_ts2k", "`f05q` with the target network synced every 2,000 steps instead of 500 (about 400 "
                 "updates instead of 100): do the snapshots of one training swing less?",
                 replace(F05Q, target_sync_steps=2000)),
+        Variant("f05q_lr3", "`f05q` trained with Adam's learning rate at 3e-4 instead of 1e-3: smaller steps, do the "
+                "snapshots of one training swing less?", replace(F05Q, lr=3e-4)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -223,6 +225,9 @@ PROFILES = {
     "f05q_ts2k": Profile("f05q_ts2k", variants=("f05q_ts2k",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                          alpha_seeds=0,
                          paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),  # a steadier target
+    "f05q_lr3": Profile("f05q_lr3", variants=("f05q_lr3",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
+                        alpha_seeds=0,
+                        paired_with=(("f05q_lr3", "learner_protocol_f05q", "f05q"),)),  # smaller steps
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
