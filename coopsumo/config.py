@@ -263,6 +263,11 @@ class DQNConfig:
     """training demand: the share of episodes with an accident (position, start and length drawn)"""
     episode_steps: int = 9000
     """training demand: steps of one episode when train_t_ups or accident_share is set (a fresh world each)"""
+    weights_ema: float = 0.0
+    """the weights that drive (validation snapshots, model.pt, model_last.pt) are an exponential moving average of
+    the online network's, updated after every gradient update with this decay: average = d * average + (1 - d) *
+    online (0: off, the online weights themselves, the paper's). Training itself is unchanged: the vehicles act
+    and learn with the online network, so the same seed trains the same online weights with or without it"""
     followers_weight: float = 0.0
     """reward shaping for training (not in the paper): each step a vehicle's reward also gets this times the mean
     speed reward r_v of the vehicles behind it within followers_m in the lanes it occupies, so that slowing the
@@ -562,7 +567,7 @@ ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "a
                                  "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
                                  "episode_steps": 9000, "validation_accident_steps": 0, "followers_weight": 0.0,
                                  "followers_m": 50.0, "queue_below_mps": 0.0,
-                                 "validation_queue": False}
+                                 "validation_queue": False, "weights_ema": 0.0}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 
