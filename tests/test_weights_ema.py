@@ -88,13 +88,14 @@ def test_a_training_with_the_average_learns_the_same_and_keeps_the_average(tmp_p
     from coopsumo.agents.train import train
     from coopsumo.config import SimConfig, TrainConfig
 
-    cfg = TrainConfig(sim=SimConfig(steps=600, seed=7, policy="dqn"), eval_steps=0, log_every_steps=300)
-    cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=300, validation_steps=200,
-                                                              validation_accident_steps=0))
+    cfg = TrainConfig(sim=SimConfig(steps=400, seed=7, policy="dqn"), eval_steps=0, log_every_steps=200)
+    cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=200, validation_steps=100,
+                                                              validation_t_ups=(1.0,), validation_accident_steps=0))
     runs = {}
     for decay in (0.0, 0.99):
         out = tmp_path / f"ema_{decay}"
-        train(dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, weights_ema=decay)), out, progress=False)
+        train(dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, weights_ema=decay)), out, progress=False,
+              learner_process=decay > 0)  # the average kept in the worker and in the serial loop
         runs[decay] = out
 
     def log(folder: Path) -> list[str]:  # every column but the wall time: the same training
