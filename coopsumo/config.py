@@ -329,32 +329,12 @@ class DQNConfig:
 
 
 PAPER_DQN = DQNConfig(
-    preset="paper",
-    decision_interval_steps=1,
-    action_mask=False,
-    double_dqn=False,
-    dueling=False,
-    loss="mse",
-    lr=0.01,
-    optimizer="sgd",
-    gamma=0.9,
-    replay_size=2000,
-    batch_size=64,
-    learn_every=4,
-    updates_per_learn=1,
-    epsilon_start=0.1,
-    epsilon_end=0.1,
-    epsilon_decay_steps=0,
-    restart_below_mps=0.0,
-    change_margin=0.0,
-    observation="paper",
-    select_every_steps=0,
-    validation_accident_steps=0,
-    train_t_ups=(),
-    accident_share=0.0,
-    followers_weight=0.0,
-    queue_below_mps=0.0,
-)
+    preset="paper", decision_interval_steps=1, action_mask=False, double_dqn=False, dueling=False, loss="mse",
+    lr=0.01, optimizer="sgd", gamma=0.9, replay_size=2000, batch_size=64, learn_every=4, updates_per_learn=1,
+    epsilon_start=0.1, epsilon_end=0.1, epsilon_decay_steps=0, restart_below_mps=0.0, change_margin=0.0,
+    observation="paper", select_every_steps=0, validation_accident_steps=0, train_t_ups=(), accident_share=0.0,
+    followers_weight=0.0, queue_below_mps=0.0,
+)  # fmt: skip
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""
 
