@@ -263,6 +263,11 @@ class DQNConfig:
     """training demand: the share of episodes with an accident (position, start and length drawn)"""
     episode_steps: int = 9000
     """training demand: steps of one episode when train_t_ups or accident_share is set (a fresh world each)"""
+    weights_ema: float = 0.0
+    """the weights that drive (validation snapshots, model.pt, model_last.pt) are an exponential moving average of
+    the online network's, updated after every gradient update with this decay: average = d * average + (1 - d) *
+    online (0: off, the online weights themselves, the paper's). Training itself is unchanged: the vehicles act
+    and learn with the online network, so the same seed trains the same online weights with or without it"""
     followers_weight: float = 0.5
     """reward shaping for training (not in the paper): each step a vehicle's reward also gets this times the mean
     speed reward r_v of the vehicles behind it within followers_m in the lanes it occupies, so that slowing the
@@ -324,32 +329,12 @@ class DQNConfig:
 
 
 PAPER_DQN = DQNConfig(
-    preset="paper",
-    decision_interval_steps=1,
-    action_mask=False,
-    double_dqn=False,
-    dueling=False,
-    loss="mse",
-    lr=0.01,
-    optimizer="sgd",
-    gamma=0.9,
-    replay_size=2000,
-    batch_size=64,
-    learn_every=4,
-    updates_per_learn=1,
-    epsilon_start=0.1,
-    epsilon_end=0.1,
-    epsilon_decay_steps=0,
-    restart_below_mps=0.0,
-    change_margin=0.0,
-    observation="paper",
-    select_every_steps=0,
-    validation_accident_steps=0,
-    train_t_ups=(),
-    accident_share=0.0,
-    followers_weight=0.0,
-    queue_below_mps=0.0,
-)
+    preset="paper", decision_interval_steps=1, action_mask=False, double_dqn=False, dueling=False, loss="mse",
+    lr=0.01, optimizer="sgd", gamma=0.9, replay_size=2000, batch_size=64, learn_every=4, updates_per_learn=1,
+    epsilon_start=0.1, epsilon_end=0.1, epsilon_decay_steps=0, restart_below_mps=0.0, change_margin=0.0,
+    observation="paper", select_every_steps=0, validation_accident_steps=0, train_t_ups=(), accident_share=0.0,
+    followers_weight=0.0, queue_below_mps=0.0,
+)  # fmt: skip
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""
 
@@ -562,7 +547,7 @@ ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "a
                                  "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
                                  "episode_steps": 9000, "validation_accident_steps": 0, "followers_weight": 0.0,
                                  "followers_m": 50.0, "queue_below_mps": 0.0,
-                                 "validation_queue": False}
+                                 "validation_queue": False, "weights_ema": 0.0}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

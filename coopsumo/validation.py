@@ -90,6 +90,7 @@ LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
     "followers_weight": (0.0, 100.0, False, False),
     "followers_m": (0.0, 1000.0, True, False),
     "queue_below_mps": (0.0, 100.0, False, False),
+    "weights_ema": (0.0, 1.0, False, True),
 }
 """every number of the learner (config.DQNConfig): (lowest, highest, lowest excluded, highest excluded); a decision
 at most every 60 s, lr at most 1 (beyond, every loss diverges), a gradient clip at most 1e6"""

@@ -186,6 +186,15 @@ def sync_target(online: nn.Module, target: nn.Module) -> None:
     target.load_state_dict(online.state_dict())
 
 
+def update_average(average: nn.Module, online: nn.Module, decay: float) -> None:
+    """average <- decay * average + (1 - decay) * online, parameter by parameter, in place (buffers copied)."""
+    with torch.no_grad():
+        for a, o in zip(average.parameters(), online.parameters(), strict=True):
+            a.mul_(decay).add_(o, alpha=1.0 - decay)
+        for b, ob in zip(average.buffers(), online.buffers(), strict=True):
+            b.copy_(ob)
+
+
 def make_optimizer(net: nn.Module, cfg: DQNConfig) -> torch.optim.Optimizer:
     """Adam or SGD on net's parameters with cfg.lr (step it with optimizer_step)."""
     _no_dynamo_import()
@@ -222,6 +231,11 @@ class Learner:
             self.online = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation, cfg.alpha_conditioned)
             self.target = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation, cfg.alpha_conditioned)
         sync_target(self.online, self.target)
+        # DQNConfig.weights_ema: the moving average of the online weights that drives (None: the online weights)
+        self._average: QNetwork | None = None
+        if cfg.weights_ema > 0:
+            self._average = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation, cfg.alpha_conditioned)
+            sync_target(self.online, self._average)
         self.optimizer = make_optimizer(self.online, cfg)
         self.buffer = ReplayBuffer(cfg.replay_size, self.online.n_features, cfg.alpha_conditioned)
         # A stream distinct from np.random.default_rng(seed), which the caller may use elsewhere.
@@ -241,6 +255,20 @@ class Learner:
     @online.setter
     def online(self, net: QNetwork) -> None:
         self._online = net
+
+    @property
+    def average(self) -> QNetwork | None:
+        """The moving average of the online weights (DQNConfig.weights_ema), every update applied; None when off."""
+        if self.worker is not None:
+            self.worker.wait()
+        return self._average
+
+    @property
+    def driving(self) -> QNetwork:
+        """The weights a snapshot or model file takes: the moving average when DQNConfig.weights_ema > 0, else the
+        online network."""
+        average = self.average
+        return average if average is not None else self.online
 
     def attach(self, worker: UpdateWorkerLike) -> None:
         """Run the updates in `worker` (agents/update_worker.py) from now on; detach() takes them back."""
@@ -350,6 +378,8 @@ class Learner:
                     for batch in batches:
                         losses.append(dqn_update(self._online, self.target, self.optimizer, batch, cfg.gamma,
                                                  cfg.grad_clip_norm, cfg.double_dqn, cfg.loss))  # fmt: skip
+                        if self._average is not None:
+                            update_average(self._average, self._online, cfg.weights_ema)
         if self.env_steps % cfg.target_sync_steps == 0:
             if self.worker is not None:
                 self.worker.sync()
@@ -363,7 +393,9 @@ class Learner:
     def state_dict(self) -> dict[str, Any]:
         """A snapshot (copies) of everything needed for an exact resume; loads with torch.load(weights_only=True)."""
         remote = self.worker.state() if self.worker is not None else None  # after every round sent
+        average = {"average": copy.deepcopy(self._average.state_dict())} if self._average is not None else {}
         return {
+            **average,
             "online": copy.deepcopy(self.online.state_dict()),
             "target": copy.deepcopy(remote["target"] if remote else self.target.state_dict()),
             "optimizer": copy.deepcopy(remote["optimizer"] if remote else self.optimizer.state_dict()),
@@ -381,6 +413,11 @@ class Learner:
         if self.worker is not None:
             raise RuntimeError("load a learner's state before attaching a worker")
         self.online.load_state_dict(state["online"])
+        if self._average is not None:
+            if "average" not in state:
+                raise ValueError("the learner state has no moving average of the weights (weights_ema), which this "
+                                 "learner keeps")  # fmt: skip
+            self._average.load_state_dict(state["average"])
         self.target.load_state_dict(state["target"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.buffer.load_state_dict(state["buffer"])

@@ -224,7 +224,8 @@ class Trainer:
         learner = self.learner
         try:
             if self.learner_process:
-                learner.attach(UpdateWorker(cfg.dqn, learner.online, learner.target, learner.optimizer))
+                learner.attach(UpdateWorker(cfg.dqn, learner.online, learner.target, learner.optimizer,
+                                             learner.average))
             self._loop(cfg)
         finally:
             for s, h in old.items():
@@ -348,7 +349,7 @@ class Trainer:
             learner.step(decided)
             self.step += 1
             if self.validator is not None:
-                self.validator.after_step(self.step, lambda: learner.online)
+                self.validator.after_step(self.step, lambda: learner.driving)
             w = self.window
             w.add(out, world.table.speed, penalty)
             if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
@@ -488,11 +489,11 @@ def train(
         trainer.save_checkpoint()  # the last step's, kept until the evaluation is written: a resume evaluates again
     chosen = None
     if selection.selecting(cfg):  # model.pt: the best validated snapshot; the last weights beside it
-        save_model(out / selection.LAST_MODEL, trainer.learner.online, model_meta(cfg))
+        save_model(out / selection.LAST_MODEL, trainer.learner.driving, model_meta(cfg))
         chosen = selection.install_best(out)
         selection.write_table(out)
     if chosen is None:
-        save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
+        save_model(out / "model.pt", trainer.learner.driving, model_meta(cfg))
     train_summary = ended or dict(trainer.world_summary, wall_seconds=round(wall, 2),
                                   steps_per_second=round(cfg.sim.steps / wall, 1),
                                   updates=trainer.learner.updates, learner_process=learner_process)  # fmt: skip
@@ -508,7 +509,7 @@ def train(
         trainer.checkpoint_path().unlink(missing_ok=True)
         mark_run_dir(out, "train")
         return train_summary
-    net = trainer.learner.online
+    net = trainer.learner.driving
     if chosen is not None:
         net = DQNPolicy.from_file(str(out / "model.pt")).net
     policy = DQNPolicy(net, decision_interval=cfg.dqn.decision_interval_steps,

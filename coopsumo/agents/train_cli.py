@@ -110,6 +110,9 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--accident-share", "accident_share", float,
      "training demand: share of episodes (0-1) with an accident whose position, start and length are drawn"),
     ("--episode-steps", "episode_steps", int, "training demand: steps of one episode (a fresh world each)"),
+    ("--weights-ema", "weights_ema", float,
+     "the weights that drive (snapshots, model.pt) are a moving average of the online weights with this decay per "
+     "gradient update (0: the online weights); training is unchanged"),
     ("--followers-weight", "followers_weight", float,
      "reward shaping: add this times the mean speed reward of the vehicles behind within --followers-m in the "
      "lanes a vehicle occupies (0: the paper's reward)"),

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from coopsumo.agents.dqn import QNetwork, dqn_update, make_optimizer, sync_target
+from coopsumo.agents.dqn import QNetwork, dqn_update, make_optimizer, sync_target, update_average
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch
 from coopsumo.config import DQNConfig
 
@@ -67,9 +67,10 @@ def _receive(conn: Connection) -> tuple[Any, ...]:
 
 
 def serve(conn: Connection, cfg: DQNConfig, online: QNetwork, target_state: dict[str, Any],
-          optimizer_state: dict[str, Any], slots: list[ReplayBatch], threads: int) -> None:  # fmt: skip
-    """The worker's loop (the spawned process's target): online's parameters and the slots are the training
-    process's, shared."""
+          optimizer_state: dict[str, Any], slots: list[ReplayBatch], threads: int,
+          average: QNetwork | None = None) -> None:  # fmt: skip
+    """The worker's loop (the spawned process's target): online's parameters, the slots and the moving average of
+    the weights (DQNConfig.weights_ema; None: off) are the training process's, shared."""
     # Ctrl-C and a group's SIGTERM are the training process's to handle: it asks for the state and checkpoints.
     # When it is gone, the pipe closes and this loop ends.
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -87,8 +88,12 @@ def serve(conn: Connection, cfg: DQNConfig, online: QNetwork, target_state: dict
                 return
             kind = message[0]
             if kind == "update":
-                losses = [dqn_update(online, target, optimizer, b, cfg.gamma, cfg.grad_clip_norm, cfg.double_dqn,
-                                     cfg.loss) for b in slots[: message[1]]]  # fmt: skip
+                losses = []
+                for b in slots[: message[1]]:
+                    losses.append(dqn_update(online, target, optimizer, b, cfg.gamma, cfg.grad_clip_norm,
+                                             cfg.double_dqn, cfg.loss))  # fmt: skip
+                    if average is not None:
+                        update_average(average, online, cfg.weights_ema)
                 _send(conn, ("done", float(np.mean(losses))))
             elif kind == "sync":
                 sync_target(online, target)
@@ -110,15 +115,18 @@ def serve(conn: Connection, cfg: DQNConfig, online: QNetwork, target_state: dict
 class UpdateWorker:
     """The training process's handle on the update worker: submit rounds, wait for them, fetch the state."""
 
-    def __init__(self, cfg: DQNConfig, online: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer):
+    def __init__(self, cfg: DQNConfig, online: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer,
+                 average: QNetwork | None = None):  # fmt: skip
         online.share_memory()  # the worker updates these very tensors
+        if average is not None:
+            average.share_memory()
         self.slots = make_slots(cfg, online)
         ctx = torch.multiprocessing.get_context("spawn")
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(
             target=serve,
             args=(child, cfg, online, target.state_dict(), optimizer.state_dict(), self.slots,
-                  torch.get_num_threads()),  # fmt: skip
+                  torch.get_num_threads(), average),  # fmt: skip
             name="coopsumo-learner",
             daemon=True,
         )

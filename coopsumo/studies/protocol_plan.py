@@ -153,6 +153,9 @@ def variants() -> dict[str, Variant]:
                 replace(F05Q, target_sync_steps=2000)),
         Variant("f05q_lr3", "`f05q` trained with Adam's learning rate at 3e-4 instead of 1e-3: smaller steps, do the "
                 "snapshots of one training swing less?", replace(F05Q, lr=3e-4)),
+        Variant("f05q_ema", "`f05q` driven by a moving average of its online weights (decay 0.999 per gradient "
+                "update, a time constant of about 1,000 updates or 5,000 steps): the same training, steadier "
+                "snapshots?", replace(F05Q, weights_ema=0.999)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -225,9 +228,16 @@ PROFILES = {
     "f05q_ts2k": Profile("f05q_ts2k", variants=("f05q_ts2k",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                          alpha_seeds=0,
                          paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),  # a steadier target
+    "f05q_ts2k10": Profile("f05q_ts2k10", variants=("f05q_ts2k",), alpha_seeds=0,
+                           paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),  # the same on 10 seeds
+    "f05q_ts2k_e2": Profile("f05q_ts2k_e2", variants=("f05q_ts2k",), alpha_seeds=0, eval_offset=20,
+                            paired_with=(("f05q_ts2k", "learner_protocol_f05q_ens_e2", "f05q"),)),  # fresh seeds
     "f05q_lr3": Profile("f05q_lr3", variants=("f05q_lr3",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                         alpha_seeds=0,
                         paired_with=(("f05q_lr3", "learner_protocol_f05q", "f05q"),)),  # smaller steps
+    "f05q_ema": Profile("f05q_ema", variants=("f05q_ema",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
+                        alpha_seeds=0,
+                        paired_with=(("f05q_ema", "learner_protocol_f05q", "f05q"),)),  # averaged weights
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
