@@ -202,8 +202,9 @@ class DQNConfig:
     """decision rounds between two learning phases (paper setup: 4)"""
     updates_per_learn: int = 2
     """gradient updates in one learning phase (paper setup: 1)"""
-    target_sync_steps: int = 500
-    """environment steps between target-network syncs, paper"""
+    target_sync_steps: int = 2000
+    """environment steps between target-network syncs (paper: 500). Default 2,000: the protocol
+    (results/learner_protocol_f05q_ts2k10) measured it against 500"""
     epsilon_start: float = 0.1
     """exploration probability at the start (paper: 0.1, the greedy action with probability 0.9)"""
     epsilon_end: float = 0.1
@@ -333,7 +334,7 @@ PAPER_DQN = DQNConfig(
     lr=0.01, optimizer="sgd", gamma=0.9, replay_size=2000, batch_size=64, learn_every=4, updates_per_learn=1,
     epsilon_start=0.1, epsilon_end=0.1, epsilon_decay_steps=0, restart_below_mps=0.0, change_margin=0.0,
     observation="paper", select_every_steps=0, validation_accident_steps=0, train_t_ups=(), accident_share=0.0,
-    followers_weight=0.0, queue_below_mps=0.0,
+    followers_weight=0.0, queue_below_mps=0.0, target_sync_steps=500,
 )  # fmt: skip
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""

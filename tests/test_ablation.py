@@ -32,7 +32,8 @@ def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
     from coopsumo.studies.protocol_plan import variants
 
     protocol = variants()
-    assert protocol["f05q"].learner == DQNConfig() == learner_of("queue")
+    assert protocol["f05q_ts2k"].learner == DQNConfig() == learner_of("target")
+    assert protocol["f05q"].learner == learner_of("queue")
     assert protocol["v2x_mix_av"].learner == learner_of("accval")
     assert protocol["v2x_mix"].learner == learner_of("mix")
     assert learner_of("select") == protocol["select"].learner
@@ -74,9 +75,9 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert "mean speed minus `keep`" in report
     assert "## Seed robustness at alpha = 0" in report and "| `v2x` |" in report  # the v2x state end to end
     assert "| `paper` -> `interval` |" in report and "| `interval` -> `v2x` |" in report  # the chain, step by step
-    # the margin2 variant drove the followers models (the default's): no training of its own, evaluations beside
+    # the margin2 variant drove the target models (the default's): no training of its own, evaluations beside
     assert not list((out / "train").glob("margin2_*"))
-    assert list((out / "evals").glob("followers_alpha0_seed0/eval_*_margin2_queue5"))  # beside the stored model
+    assert list((out / "evals").glob("target_alpha0_seed0/eval_*_margin2_queue5"))  # beside the stored model
     for fig in ("fig_training_curves.png", "fig_alpha_response.png", "fig_training_seeds.png"):
         assert (out / fig).stat().st_size > 1000
     study = json.loads((out / "study.json").read_text())
@@ -201,12 +202,16 @@ def test_each_chain_step_is_paired_by_training_seed() -> None:
 
 
 def test_a_margin_variant_drives_its_twins_training() -> None:
-    profile = replace(PROFILES["full"], alpha_variants=("restart", "margin", "followers", "queue", "margin2"))
+    profile = replace(PROFILES["full"], alpha_variants=("restart", "margin", "followers", "queue", "target",
+                                                        "margin2"))  # fmt: skip
     specs = {s["key"]: s for s in cell_specs(profile, DQNConfig())}
-    twin, queue, driven = specs["followers_alpha0_seed2"], specs["queue_alpha0_seed2"], specs["margin2_alpha0_seed2"]
-    assert driven["train_key"] == queue["train_key"] == twin["key"] == twin["train_key"]
-    assert driven["config"]["train"] == queue["config"]["train"] == twin["config"]["train"]  # one training
+    twin, queue = specs["followers_alpha0_seed2"], specs["queue_alpha0_seed2"]
+    target, driven = specs["target_alpha0_seed2"], specs["margin2_alpha0_seed2"]
+    assert queue["train_key"] == twin["key"] == twin["train_key"]
+    assert queue["config"]["train"] == twin["config"]["train"]  # one training
+    assert driven["train_key"] == target["key"] == target["train_key"] != queue["train_key"]  # a training of its own
+    assert driven["config"]["train"] == target["config"]["train"]
     assert twin["config"]["drive"] == {"change_margin": 1.0}
-    assert queue["config"]["drive"] == {"change_margin": 1.0, "queue_below_mps": 5.0}
+    assert queue["config"]["drive"] == target["config"]["drive"] == {"change_margin": 1.0, "queue_below_mps": 5.0}
     assert driven["config"]["drive"] == {"change_margin": 2.0, "queue_below_mps": 5.0}
     assert specs["margin_alpha8_seed1"]["train_key"] == "restart_alpha8_seed1"

@@ -363,7 +363,7 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
     alpha (experiments/accident_seeds.py --adaptive)."""
     out = tmp_path / "learning"
     res = subprocess.run([sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--variants",
-                          "queue,conditioned", "--alpha-variants", "queue,conditioned", "--alphas", "0,8",
+                          "target,conditioned", "--alpha-variants", "target,conditioned", "--alphas", "0,8",
                           "--out", str(out), "--quiet"],
                          cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
@@ -372,7 +372,7 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
         "eval_seed1000_margin1_queue5_alpha0", "eval_seed1000_margin1_queue5_alpha8",
         "eval_seed1001_margin1_queue5_alpha0", "eval_seed1001_margin1_queue5_alpha8"]  # every model, every seed
     report = (out / "report.md").read_text()
-    assert "## One network for every alpha: `conditioned` against per-alpha `queue` models" in report
+    assert "## One network for every alpha: `conditioned` against per-alpha `target` models" in report
     assert "| 8 | 2 |" in report
     acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "conditioned",
                           "--alphas", "0,8", "--adaptive", "--seeds", "1", "--steps", "1500", "--t-up", "3", "--out",

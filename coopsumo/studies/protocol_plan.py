@@ -69,7 +69,7 @@ class Variant:
 
 
 SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0, validation_accident_steps=0,
-                 followers_weight=0.0, queue_below_mps=0.0)
+                 followers_weight=0.0, queue_below_mps=0.0, target_sync_steps=500)
 """the default learner before the v2x state and the mix (free flow at the run's own demand, the paper's state,
 model.pt chosen on free flow alone)"""
 MIX = replace(SELECT, train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)
@@ -81,12 +81,12 @@ V2X_MIX_AV = replace(V2X_MIX, validation_accident_steps=6000)
 V2X_MIX_AV_F05 = replace(V2X_MIX_AV, followers_weight=0.5)
 """v2x_mix_av trained with half the weight on the speed of the traffic behind (--followers-weight 0.5)"""
 F05Q = replace(V2X_MIX_AV_F05, queue_below_mps=5.0)
-"""the default preset (DQNConfig()) since 2026-11-27: v2x_mix_av_f05 driving with no lane change below 5 m/s, the
+"""the candidate default of 2026-11-27 (not the preset): v2x_mix_av_f05 driving with no lane change below 5 m/s, the
 queue rule in its own settings (--queue-below 5; v2x_mix_av_f05_q5's trainings and drive as one learner)"""
 
 
 def variants() -> dict[str, Variant]:
-    """The variants the protocol knows; `f05q` is the default preset (DQNConfig()), `v2x_mix_av` the one before."""
+    """The variants the protocol knows; `f05q_ts2k` is the default preset (DQNConfig()), `v2x_mix_av` the one before."""
     default = SELECT
     return {v.name: v for v in (
         Variant("select", "the default until v2x_mix: the paper's state, free-flow training at T_up 1 s, change "
@@ -126,9 +126,9 @@ def variants() -> dict[str, Variant]:
         Variant("v2x_mix_av_f05_q5", "`v2x_mix_av_f05`'s trainings choosing no lane change below 5 m/s, in a queue "
                 "(dqn:PATH,queue=5): the trained remedy and the drive-time one together",
                 V2X_MIX_AV_F05, queue=5.0),
-        Variant("f05q", "the default since 2026-11-27: `v2x_mix_av_f05` with the queue rule in its settings "
-                "(--queue-below 5: no lane change chosen below 5 m/s when it drives; training and model selection "
-                "as `v2x_mix_av_f05`)", F05Q),
+        Variant("f05q", "the candidate default before `f05q_ts2k`: `v2x_mix_av_f05` with the queue rule in its "
+                "settings (--queue-below 5: no lane change chosen below 5 m/s when it drives; training and model "
+                "selection as `v2x_mix_av_f05`)", F05Q),
         Variant("f05q_m05", "`f05q`'s trainings driven with a change margin of 0.5 instead of 1",
                 F05Q, margin=0.5),
         Variant("f05q_m0", "`f05q`'s trainings driven with no change margin (plain argmax)", F05Q,
@@ -148,8 +148,8 @@ def variants() -> dict[str, Variant]:
         Variant("f05q_ens3", "`f05q`'s trainings driven with the mean Q-value of each training's 3 best-validated "
                 "snapshots, model.pt among them (dqn:PATH,ensemble=3): the same weights, a steadier choice?",
                 F05Q, ensemble=3),
-        Variant("f05q_ts2k", "`f05q` with the target network synced every 2,000 steps instead of 500 (about 400 "
-                "updates instead of 100): do the snapshots of one training swing less?",
+        Variant("f05q_ts2k", "the default preset: `f05q` with the target network synced every 2,000 steps instead of "
+                "500 (about 400 updates instead of 100): do the snapshots of one training swing less?",
                 replace(F05Q, target_sync_steps=2000)),
         Variant("f05q_lr3", "`f05q` trained with Adam's learning rate at 3e-4 instead of 1e-3: smaller steps, do the "
                 "snapshots of one training swing less?", replace(F05Q, lr=3e-4)),
@@ -213,7 +213,7 @@ PROFILES = {
     "f05q": Profile("f05q", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8", "f05q_r5", "f05q_lanes"),
                     paired_with=(("f05q", "learner_protocol_followers05", "v2x_mix_av_f05_q5"),
                                  ("f05q", "learner_protocol_queue", "v2x_mix_av")),
-                    judged="f05q"),  # the default since 2026-11-27; alpha 8 on 3 models; the others drive its trainings
+                    judged="f05q"),  # the candidate before f05q_ts2k; alpha 8 on 3 models; the others drive it
     "f05q_e1": Profile("f05q_e1", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"), alpha_seeds=0,
                        eval_offset=10),  # f05q's trainings on fresh evaluation seeds: does its verdict replicate?
     "f05q_g95": Profile("f05q_g95", variants=("f05q_g95",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
