@@ -120,12 +120,18 @@ def mark_run_dir(folder: Path, kind: str, finished: bool = True) -> None:
                                      "files": _entries(folder) if finished else None})  # fmt: skip
 
 
-def _marker(folder: Path) -> dict[str, Any] | None:
+def read_json_object(path: Path) -> dict[str, Any] | None:
+    """The JSON object in the file `path`; None when it is missing, unreadable, not JSON or not an object."""
     try:
-        data = json.loads((folder / RUN_MARKER).read_text())
+        data = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return data if isinstance(data, dict) and isinstance(data.get("kind"), str) else None
+    return data if isinstance(data, dict) else None
+
+
+def _marker(folder: Path) -> dict[str, Any] | None:
+    data = read_json_object(folder / RUN_MARKER)
+    return data if data is not None and isinstance(data.get("kind"), str) else None
 
 
 def check_run_dir(out: Path, kind: str) -> None:

@@ -195,6 +195,16 @@ def update_average(average: nn.Module, online: nn.Module, decay: float) -> None:
             b.copy_(ob)
 
 
+def learn(online: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, batch: ReplayBatch, cfg: DQNConfig,
+          average: QNetwork | None) -> float:
+    """One gradient update of online with cfg's settings, then the moving average of its weights (average: None when
+    DQNConfig.weights_ema is off); returns the loss."""
+    loss = dqn_update(online, target, optimizer, batch, cfg.gamma, cfg.grad_clip_norm, cfg.double_dqn, cfg.loss)
+    if average is not None:
+        update_average(average, online, cfg.weights_ema)
+    return loss
+
+
 def make_optimizer(net: nn.Module, cfg: DQNConfig) -> torch.optim.Optimizer:
     """Adam or SGD on net's parameters with cfg.lr (step it with optimizer_step)."""
     _no_dynamo_import()
@@ -375,11 +385,7 @@ class Learner:
                 if self.worker is not None:
                     self.worker.submit(batches)
                 else:
-                    for batch in batches:
-                        losses.append(dqn_update(self._online, self.target, self.optimizer, batch, cfg.gamma,
-                                                 cfg.grad_clip_norm, cfg.double_dqn, cfg.loss))  # fmt: skip
-                        if self._average is not None:
-                            update_average(self._average, self._online, cfg.weights_ema)
+                    losses = [learn(self._online, self.target, self.optimizer, b, cfg, self._average) for b in batches]
         if self.env_steps % cfg.target_sync_steps == 0:
             if self.worker is not None:
                 self.worker.sync()
@@ -393,9 +399,7 @@ class Learner:
     def state_dict(self) -> dict[str, Any]:
         """A snapshot (copies) of everything needed for an exact resume; loads with torch.load(weights_only=True)."""
         remote = self.worker.state() if self.worker is not None else None  # after every round sent
-        average = {"average": copy.deepcopy(self._average.state_dict())} if self._average is not None else {}
-        return {
-            **average,
+        state: dict[str, Any] = {
             "online": copy.deepcopy(self.online.state_dict()),
             "target": copy.deepcopy(remote["target"] if remote else self.target.state_dict()),
             "optimizer": copy.deepcopy(remote["optimizer"] if remote else self.optimizer.state_dict()),
@@ -406,6 +410,9 @@ class Learner:
             "decisions": self.decisions,
             "updates": self.updates,
         }
+        if self._average is not None:  # DQNConfig.weights_ema
+            state["average"] = copy.deepcopy(self._average.state_dict())
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore a snapshot from state_dict(), including torch's global RNG state (not while a worker is

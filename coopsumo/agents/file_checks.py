@@ -11,7 +11,6 @@ summary of a training whose checkpoint holds its last step (it was interrupted d
 from __future__ import annotations
 
 import csv
-import json
 import math
 import numbers
 from collections.abc import Mapping
@@ -20,7 +19,7 @@ from typing import Any
 
 import torch
 
-from coopsumo.runio import write_atomic
+from coopsumo.runio import read_json_object, write_atomic
 
 N_ACTIONS = 4
 """actions a recorded action may take: 0 left, 1 right, 2 speedup, 3 none (dqn.N_ACTIONS)"""
@@ -97,7 +96,7 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
     learner = state["learner"]
     if not isinstance(learner, Mapping):
         return f"has learner state of type {type(learner).__name__}, not a mapping"
-    averaged = config["dqn"].get("weights_ema", 0) not in (0, 0.0, None)  # DQNConfig.weights_ema: kept too
+    averaged = bool(config["dqn"].get("weights_ema"))  # DQNConfig.weights_ema > 0: the average is kept too
     missing = [k for k in LEARNER_KEYS + (("average",) if averaged else ()) if k not in learner]
     if missing:
         return f"has learner state without {missing[0]}"
@@ -153,8 +152,5 @@ def ended_training(out: Path, step: int, steps: int) -> dict[str, Any] | None:
     was written (the training ended and was interrupted in its evaluation); else None (the training resumes)."""
     if step != steps:
         return None
-    try:
-        summary = json.loads((out / "train_summary.json").read_text())
-    except (OSError, ValueError):
-        return None
-    return summary if isinstance(summary, dict) and summary.get("steps") == steps else None
+    summary = read_json_object(out / "train_summary.json")
+    return summary if summary is not None and summary.get("steps") == steps else None

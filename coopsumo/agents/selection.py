@@ -304,11 +304,11 @@ class Validator:
                 shutil.rmtree(d, ignore_errors=True)
         self.queue = pending(out)
 
-    def after_step(self, step: int, online: Callable[[], Any]) -> None:
-        """Called after every training step; online() gives the online network (called only when a snapshot is
-        due: with an update worker, it waits for the updates sent)."""
+    def after_step(self, step: int, weights: Callable[[], Any]) -> None:
+        """Called after every training step; weights() gives the network that drives (Learner.driving; called only
+        when a snapshot is due: with an update worker, it waits for the updates sent)."""
         if step % self.every == 0 or step == self.cfg.sim.steps:
-            net = online()
+            net = weights()
             from coopsumo.agents.dqn import save_model
             from coopsumo.runio import versions
 

@@ -1,15 +1,17 @@
 """Where a training that selects its model keeps its snapshots and their validations (agents/selection.py makes
 them; a dqn policy driving an ensemble of them reads them).
 
-OUT/snapshots/step<N>/model.pt is the online network at training step N, OUT/snapshots/step<N>/validation.json the
+OUT/snapshots/step<N>/model.pt is the weights that drive at training step N (the online network, or its moving
+average with DQNConfig.weights_ema), OUT/snapshots/step<N>/validation.json the
 result of validating it (its "score" the mean reward per vehicle and step over the validation runs).
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
+
+from coopsumo.runio import read_json_object
 
 SNAPSHOTS = "snapshots"
 """folder of a training's snapshots (one subfolder step<N> each)"""
@@ -22,11 +24,8 @@ def snapshot_dir(out: Path, step: int) -> Path:
 
 def result(folder: Path) -> dict[str, Any] | None:
     """The finished validation of a snapshot folder, or None."""
-    try:
-        data = json.loads((folder / RESULT).read_text())
-    except (OSError, ValueError):
-        return None
-    return data if isinstance(data, dict) and isinstance(data.get("score"), float) else None
+    data = read_json_object(folder / RESULT)
+    return data if data is not None and isinstance(data.get("score"), float) else None
 
 
 def by_score(results: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from coopsumo.agents.dqn import QNetwork, dqn_update, make_optimizer, sync_target, update_average
+from coopsumo.agents.dqn import QNetwork, learn, make_optimizer, sync_target
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch
 from coopsumo.config import DQNConfig
 
@@ -88,12 +88,7 @@ def serve(conn: Connection, cfg: DQNConfig, online: QNetwork, target_state: dict
                 return
             kind = message[0]
             if kind == "update":
-                losses = []
-                for b in slots[: message[1]]:
-                    losses.append(dqn_update(online, target, optimizer, b, cfg.gamma, cfg.grad_clip_norm,
-                                             cfg.double_dqn, cfg.loss))  # fmt: skip
-                    if average is not None:
-                        update_average(average, online, cfg.weights_ema)
+                losses = [learn(online, target, optimizer, b, cfg, average) for b in slots[: message[1]]]
                 _send(conn, ("done", float(np.mean(losses))))
             elif kind == "sync":
                 sync_target(online, target)

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
-from coopsumo.runio import temporary_of, versions
+from coopsumo.runio import read_json_object, temporary_of, versions
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -106,11 +106,8 @@ def cell_path(root: Path, key: str) -> Path:
 
 def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
     """The stored record of this cell if it is a JSON object made with this configuration (config.results_view)."""
-    try:
-        record = json.loads(cell_path(root, spec["key"]).read_text())
-    except (OSError, ValueError):
-        return None
-    if not isinstance(record, dict) or results_view(record.get("config")) != results_view(spec["config"]):
+    record = read_json_object(cell_path(root, spec["key"]))
+    if record is None or results_view(record.get("config")) != results_view(spec["config"]):
         return None
     return record
 
