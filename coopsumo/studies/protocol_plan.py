@@ -229,8 +229,8 @@ PROFILES = {
     "f05q_ts2k": Profile("f05q_ts2k", variants=("f05q_ts2k",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                          alpha_seeds=0,
                          paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),  # a steadier target
-    "f05q_ts2k10": Profile("f05q_ts2k10", variants=("f05q_ts2k",), alpha_seeds=0,
-                           paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),  # the same on 10 seeds
+    "f05q_ts2k10": Profile("f05q_ts2k10", variants=("f05q_ts2k",),  # the same on 10 seeds, alpha 8 on 3
+                           paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),
     "f05q_ts2k_e2": Profile("f05q_ts2k_e2", variants=("f05q_ts2k",), alpha_seeds=0, eval_offset=20,
                             paired_with=(("f05q_ts2k", "learner_protocol_f05q_ens_e2", "f05q"),)),  # fresh seeds
     "f05q_lr3": Profile("f05q_lr3", variants=("f05q_lr3",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
