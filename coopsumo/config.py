@@ -194,6 +194,8 @@ class DQNConfig:
     """'sgd' (paper: stochastic gradient descent) or 'adam'"""
     gamma: float = 0.9
     """discount per decision round (paper: 0.9 per 0.1 s step)"""
+    n_step: int = 1
+    """returns over n decision rounds of one vehicle, bootstrapped with gamma^n (agents/nstep; 1: the paper's)"""
     replay_size: int = 20_000
     """replay memory (transitions; paper: 2,000)"""
     batch_size: int = 64
@@ -548,7 +550,7 @@ ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "a
                                  "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
                                  "episode_steps": 9000, "validation_accident_steps": 0, "followers_weight": 0.0,
                                  "followers_m": 50.0, "queue_below_mps": 0.0,
-                                 "validation_queue": False, "weights_ema": 0.0}
+                                 "validation_queue": False, "weights_ema": 0.0, "n_step": 1}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

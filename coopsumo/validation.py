@@ -65,6 +65,7 @@ LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
     "decision_interval_steps": (1, 600, False, False),
     "lr": (0.0, 1.0, True, False),
     "gamma": (0.0, 1.0, False, True),
+    "n_step": (1, 20, False, False),
     "replay_size": (1, MAX_REPLAY, False, False),
     "batch_size": (1, MAX_REPLAY, False, False),
     "learn_every": (1, MAX_STEPS, False, False),

@@ -64,11 +64,15 @@ def test_short_training_loads_and_drives_safely(tmp_path: Path) -> None:
     assert driven["decision_interval_steps"] == summary["decision_interval_steps"] == 10
 
 
-@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned"])
+@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned", "nstep"])
 def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
     dqn = replace(DQNConfig(), observation="v2x") if preset == "v2x" else DQN_PRESETS.get(preset, DQNConfig())
     if preset == "conditioned":
         dqn = replace(dqn, alpha_conditioned=True, alpha_period_steps=200)
+    if preset == "nstep":  # 3-round returns: reproducible, and not the 1-round training of the same seed
+        dqn = replace(dqn, n_step=3)
+        one = TrainConfig(sim=SimConfig(steps=700, seed=5, policy="dqn"), dqn=replace(dqn, n_step=1), eval_steps=0)
+        train(one, tmp_path / "one", progress=False)
     cfg = TrainConfig(sim=SimConfig(steps=700, seed=5, policy="dqn"), dqn=dqn, eval_steps=0)
     train(cfg, tmp_path / "a", progress=False)
     train(cfg, tmp_path / "b", progress=False)
@@ -76,19 +80,23 @@ def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
     other = TrainConfig(sim=SimConfig(steps=700, seed=6, policy="dqn"), dqn=dqn, eval_steps=0)
     train(other, tmp_path / "c", progress=False)
     assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "c" / "model.pt"))
+    if preset == "nstep":
+        assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "one" / "model.pt"))
 
 
 @pytest.mark.parametrize("preset", ["paper", "features"])
 def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str) -> None:
     """Each state a checkpoint must keep, within 1,500 steps: `features` is the default learner (the v2x state,
     drawn demands and accidents, its updates in the second process, whose state the checkpoint asks for) with
-    episodes of 1,000 steps, the alpha-conditioned network's alpha schedule, the followers' speed in the reward and
-    model selection all at work in one training (any state a resume lost would change the weights)."""
+    episodes of 1,200 steps (the cut after 1,000 lands inside one), the alpha-conditioned network's alpha schedule,
+    the followers' speed in the reward, 3-round returns (the rounds not yet joined) and model selection all at work
+    in one training (any state a resume lost would change the weights)."""
     sig = signal.SIGTERM  # Ctrl-C (SIGINT) is exercised by tests/test_docs.py on the README's commands
     learner = {"features": ["--observation", "v2x", "--alpha-conditioned", "--alpha-period", "700",
-                            "--train-t-up", "1.5,1", "--accident-share", "0.5", "--episode-steps", "1000",
+                            "--train-t-up", "1.5,1", "--accident-share", "0.5", "--episode-steps", "1200",
                             "--select-every", "1000", "--validation-steps", "300", "--validation-t-up", "1.5",
-                            "--validation-accident-steps", "600", "--followers-weight", "1", "--update-worker", "on"]
+                            "--validation-accident-steps", "600", "--followers-weight", "1", "--update-worker", "on",
+                            "--n-step", "3"]
                }.get(preset, ["--preset", preset])  # fmt: skip
     args = ["--steps", "1500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
     full = tmp_path / "full"
@@ -164,6 +172,9 @@ def test_a_killed_retrain_keeps_the_finished_training(tmp_path: Path) -> None:
         (["--gamma", "nan"], "gamma"),
         (["--observation", "lidar"], "observation"),
         (["--change-margin", "-1"], "change-margin"),
+        (["--n-step", "0"], "n-step"),
+        (["--n-step", "21"], "n-step"),
+        (["--n-step", "2.5"], "n-step"),
     ],
 )
 def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:

@@ -198,8 +198,9 @@ def update_average(average: nn.Module, online: nn.Module, decay: float) -> None:
 def learn(online: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, batch: ReplayBatch, cfg: DQNConfig,
           average: QNetwork | None) -> float:
     """One gradient update of online with cfg's settings, then the moving average of its weights (average: None when
-    DQNConfig.weights_ema is off); returns the loss."""
-    loss = dqn_update(online, target, optimizer, batch, cfg.gamma, cfg.grad_clip_norm, cfg.double_dqn, cfg.loss)
+    DQNConfig.weights_ema is off); returns the loss. An n-step transition (DQNConfig.n_step) bootstraps with gamma^n."""
+    gamma = cfg.gamma**cfg.n_step
+    loss = dqn_update(online, target, optimizer, batch, gamma, cfg.grad_clip_norm, cfg.double_dqn, cfg.loss)
     if average is not None:
         update_average(average, online, cfg.weights_ema)
     return loss

@@ -37,6 +37,7 @@ from coopsumo.agents.dqn import Learner, save_model
 from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
 from coopsumo.agents.file_checks import checkpoint_problem, ended_training, prepare_resume
+from coopsumo.agents.nstep import Round, mature
 from coopsumo.agents.tb_log import open_log
 from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import LearnerProcessError, UpdateWorker
@@ -266,17 +267,24 @@ class Trainer:
         if decide:
             feats = network_features(obs, dq.observation, dq.speed_scale_mps)
             mask = self._offered(obs)
-            if recorded is None and pend.prev is not None:
+            # a resume replays the rounds too when n-step returns keep the last ones (Pending.rounds)
+            if pend.prev is not None and (recorded is None or dq.n_step > 1):
                 arrived = np.concatenate(pend.arrived) if pend.arrived else np.zeros(0, np.int64)
                 prev_mask = self._offered(pend.prev)
-                batch = transitions(pend.prev, pend.prev_features, pend.prev_actions, pend.reward_sum, arrived, obs,
-                                    feats, dq.exit_transition, all_if_none(prev_mask, pend.prev),
-                                    all_if_none(mask, obs), pend.change_sum)  # fmt: skip
-                n = len(batch[0])
-                if n:
+                *parts, nums = transitions(pend.prev, pend.prev_features, pend.prev_actions, pend.reward_sum, arrived,
+                                           obs, feats, dq.exit_transition, all_if_none(prev_mask, pend.prev),
+                                           all_if_none(mask, obs), pend.change_sum)  # fmt: skip
+                batch: tuple[np.ndarray, ...] | None = tuple(parts)
+                batch_alpha = pend.prev_alpha
+                if dq.n_step > 1:  # agents/nstep: store the round of n - 1 rounds ago, joined with the ones after it
+                    pend.rounds.append(Round(nums, tuple(parts), pend.prev_alpha))
+                    joined = mature(pend.rounds, dq.n_step, dq.gamma)
+                    batch, batch_alpha = joined if joined is not None else (None, batch_alpha)
+                n = len(batch[0]) if batch is not None and recorded is None else 0
+                if batch is not None and n:
                     keep = learner.rng.permutation(n)[: dq.store_per_decision]
                     grids, err, acts, rews, ngrids, nerr, dones, nmask, changes = (x[keep] for x in batch)
-                    alphas = np.full(len(keep), pend.prev_alpha, np.float32) if dq.alpha_conditioned else None
+                    alphas = np.full(len(keep), batch_alpha, np.float32) if dq.alpha_conditioned else None
                     learner.observe(grids, err, acts, rews, ngrids, nerr, dones, None if mask is None else nmask,
                                     alphas, changes if dq.alpha_conditioned else None)  # fmt: skip
             if recorded is None:

@@ -110,6 +110,8 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--accident-share", "accident_share", float,
      "training demand: share of episodes (0-1) with an accident whose position, start and length are drawn"),
     ("--episode-steps", "episode_steps", int, "training demand: steps of one episode (a fresh world each)"),
+    ("--n-step", "n_step", int,
+     "returns over this many decision rounds of one vehicle, bootstrapped with gamma^n (1: one round, the paper's)"),
     ("--weights-ema", "weights_ema", float,
      "the weights that drive (snapshots, model.pt) are a moving average of the online weights with this decay per "
      "gradient update (0: the online weights); training is unchanged"),

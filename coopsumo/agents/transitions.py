@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coopsumo.agents.dqn import N_ACTIONS
+from coopsumo.agents.nstep import Round
 from coopsumo.sim.observation import Observation
 
 
@@ -24,8 +25,8 @@ def transitions(
     now_mask: np.ndarray,
     change_sum: np.ndarray,
 ) -> tuple[np.ndarray, ...]:
-    """(grids, features, actions, rewards, next_grids, next_features, dones, next_mask, lane_changes) of the last
-    interval.
+    """(grids, features, actions, rewards, next_grids, next_features, dones, next_mask, lane_changes, nums) of the
+    last interval, nums the vehicle number of each row.
 
     prev: the last decision round's observation, its network features (observation.network_features) and its
     `actions`; now: this round's observation and features;
@@ -40,7 +41,7 @@ def transitions(
     changes = change_sum[prev.nums]
     g, e = prev.grids[i_prev], prev_features[i_prev]
     ng, ne = now.grids[i_now], now_features[i_now]
-    a, r, c = actions[i_prev], reward[i_prev], changes[i_prev]
+    a, r, c, nums = actions[i_prev], reward[i_prev], changes[i_prev], prev.nums[i_prev]
     nm = now_mask[i_now]
     done = np.zeros(len(i_prev), np.float32)
     gone_rows = np.isin(prev.nums, arrived)
@@ -49,10 +50,10 @@ def transitions(
         g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev_features[gone]])
         ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev_features[gone]])
         a, r = np.concatenate([a, actions[gone]]), np.concatenate([r, reward[gone]])
-        c = np.concatenate([c, changes[gone]])
+        c, nums = np.concatenate([c, changes[gone]]), np.concatenate([nums, prev.nums[gone]])
         nm = np.concatenate([nm, prev_mask[gone]])
         done = np.concatenate([done, np.ones(len(gone), np.float32)])
-    return g, e, a, r.astype(np.float32), ng, ne, done, nm, c.astype(np.float32)
+    return g, e, a, r.astype(np.float32), ng, ne, done, nm, c.astype(np.float32), nums
 
 
 def all_if_none(mask: np.ndarray | None, obs: Observation) -> np.ndarray:
@@ -78,6 +79,8 @@ class Pending:
     """the alpha of the last decision round (a conditioned training's draw)"""
     arrived: list[np.ndarray] = field(default_factory=list)
     """numbers of vehicles that left the road since the last decision round"""
+    rounds: list[Round] = field(default_factory=list)
+    """the last n - 1 intervals' transitions, not yet joined into n-step ones (DQNConfig.n_step > 1; agents/nstep)"""
 
     def _grow(self, nums: np.ndarray) -> None:
         if len(nums) and int(nums.max()) >= len(self.reward_sum):

@@ -156,6 +156,12 @@ def variants() -> dict[str, Variant]:
         Variant("f05q_ema", "`f05q` driven by a moving average of its online weights (decay 0.999 per gradient "
                 "update, a time constant of about 1,000 updates or 5,000 steps): the same training, steadier "
                 "snapshots?", replace(F05Q, weights_ema=0.999)),
+        Variant("f05q_ts2k_cd10", "`f05q_ts2k`'s trainings driven with a lane-change cooldown of 10 s (no change "
+                "chosen within 10 s of the last one's end): does it bring the busiest model under 3 lane changes per "
+                "vehicle without costing free flow?", replace(F05Q, target_sync_steps=2000), cooldown=10.0),
+        Variant("f05q_ts2k_n3", "`f05q_ts2k` learning from 3-round returns (--n-step 3, bootstrapped with gamma^3): "
+                "does the speed a lane change buys reach the decision that made it sooner than through the target's "
+                "estimate?", replace(F05Q, target_sync_steps=2000, n_step=3)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -228,8 +234,8 @@ PROFILES = {
     "f05q_ts2k": Profile("f05q_ts2k", variants=("f05q_ts2k",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                          alpha_seeds=0,
                          paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),  # a steadier target
-    "f05q_ts2k10": Profile("f05q_ts2k10", variants=("f05q_ts2k",), alpha_seeds=0,
-                           paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),  # the same on 10 seeds
+    "f05q_ts2k10": Profile("f05q_ts2k10", variants=("f05q_ts2k",),  # the same on 10 seeds, alpha 8 on 3
+                           paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),
     "f05q_ts2k_e2": Profile("f05q_ts2k_e2", variants=("f05q_ts2k",), alpha_seeds=0, eval_offset=20,
                             paired_with=(("f05q_ts2k", "learner_protocol_f05q_ens_e2", "f05q"),)),  # fresh seeds
     "f05q_lr3": Profile("f05q_lr3", variants=("f05q_lr3",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
@@ -238,6 +244,11 @@ PROFILES = {
     "f05q_ema": Profile("f05q_ema", variants=("f05q_ema",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                         alpha_seeds=0,
                         paired_with=(("f05q_ema", "learner_protocol_f05q", "f05q"),)),  # averaged weights
+    "f05q_ts2k_n3": Profile("f05q_ts2k_n3", variants=("f05q_ts2k_n3",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
+                            alpha_seeds=0,
+                            paired_with=(("f05q_ts2k_n3", "learner_protocol_f05q_ts2k10", "f05q_ts2k"),)),  # n-step
+    "f05q_ts2k_cd10": Profile("f05q_ts2k_cd10", variants=("f05q_ts2k", "f05q_ts2k_cd10"),
+                              alpha_seeds=0),  # the default's 10 models with the 10 s cooldown, paired by model
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
