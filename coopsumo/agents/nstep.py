@@ -45,10 +45,12 @@ def join(rounds: list[Round], gamma: float) -> tuple[np.ndarray, ...]:
     ended = first.batch[DONES] > 0
     kept = np.ones(len(first.nums), bool)
     for i, later in enumerate(rounds[1:], start=1):
+        if not len(later.nums):  # nobody left on the road: only the chains that already ended stay
+            kept &= ended
+            continue
         order = np.argsort(later.nums, kind="stable")
-        at = np.minimum(np.searchsorted(later.nums, first.nums, sorter=order), max(len(order) - 1, 0))
-        rows = order[at] if len(order) else np.zeros(len(first.nums), np.int64)
-        found = later.nums[rows] == first.nums if len(order) else np.zeros(len(first.nums), bool)
+        rows = order[np.minimum(np.searchsorted(later.nums, first.nums, sorter=order), len(order) - 1)]
+        found = later.nums[rows] == first.nums
         kept &= found | ended
         go = np.flatnonzero(found & ~ended & kept)
         src = rows[go]

@@ -278,11 +278,9 @@ class Trainer:
                 batch_alpha = pend.prev_alpha
                 if dq.n_step > 1:  # agents/nstep: store the round of n - 1 rounds ago, joined with the ones after it
                     pend.rounds.append(Round(nums, tuple(parts), pend.prev_alpha))
-                    joined = mature(pend.rounds, dq.n_step, dq.gamma)
-                    batch, batch_alpha = joined if joined is not None else (None, batch_alpha)
-                n = len(batch[0]) if batch is not None and recorded is None else 0
-                if batch is not None and n:
-                    keep = learner.rng.permutation(n)[: dq.store_per_decision]
+                    batch, batch_alpha = mature(pend.rounds, dq.n_step, dq.gamma) or (None, batch_alpha)
+                if recorded is None and batch is not None and len(batch[0]):
+                    keep = learner.rng.permutation(len(batch[0]))[: dq.store_per_decision]
                     grids, err, acts, rews, ngrids, nerr, dones, nmask, changes = (x[keep] for x in batch)
                     alphas = np.full(len(keep), batch_alpha, np.float32) if dq.alpha_conditioned else None
                     learner.observe(grids, err, acts, rews, ngrids, nerr, dones, None if mask is None else nmask,

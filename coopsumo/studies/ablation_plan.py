@@ -145,7 +145,8 @@ DRIVE_FIELDS = ("change_margin", "queue_below_mps")
 
 def as_trained(dqn: DQNConfig) -> DQNConfig:
     """The learner as a study trains it: the drive-time fields at 0."""
-    return replace(dqn, change_margin=0.0, queue_below_mps=0.0)
+    zeros: dict[str, Any] = {f: 0.0 for f in DRIVE_FIELDS}
+    return replace(dqn, **zeros)
 
 
 def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int) -> str:

@@ -83,6 +83,8 @@ V2X_MIX_AV_F05 = replace(V2X_MIX_AV, followers_weight=0.5)
 F05Q = replace(V2X_MIX_AV_F05, queue_below_mps=5.0)
 """the candidate default of 2026-11-27 (not the preset): v2x_mix_av_f05 driving with no lane change below 5 m/s, the
 queue rule in its own settings (--queue-below 5; v2x_mix_av_f05_q5's trainings and drive as one learner)"""
+F05Q_TS2K = replace(F05Q, target_sync_steps=2000)
+"""the default preset since 2026-11-27 (DQNConfig()): f05q with the target network synced every 2,000 steps"""
 
 
 def variants() -> dict[str, Variant]:
@@ -150,7 +152,7 @@ def variants() -> dict[str, Variant]:
                 F05Q, ensemble=3),
         Variant("f05q_ts2k", "the default preset: `f05q` with the target network synced every 2,000 steps instead of "
                 "500 (about 400 updates instead of 100): do the snapshots of one training swing less?",
-                replace(F05Q, target_sync_steps=2000)),
+                F05Q_TS2K),
         Variant("f05q_lr3", "`f05q` trained with Adam's learning rate at 3e-4 instead of 1e-3: smaller steps, do the "
                 "snapshots of one training swing less?", replace(F05Q, lr=3e-4)),
         Variant("f05q_ema", "`f05q` driven by a moving average of its online weights (decay 0.999 per gradient "
@@ -158,10 +160,10 @@ def variants() -> dict[str, Variant]:
                 "snapshots?", replace(F05Q, weights_ema=0.999)),
         Variant("f05q_ts2k_cd10", "`f05q_ts2k`'s trainings driven with a lane-change cooldown of 10 s (no change "
                 "chosen within 10 s of the last one's end): does it bring the busiest model under 3 lane changes per "
-                "vehicle without costing free flow?", replace(F05Q, target_sync_steps=2000), cooldown=10.0),
+                "vehicle without costing free flow?", F05Q_TS2K, cooldown=10.0),
         Variant("f05q_ts2k_n3", "`f05q_ts2k` learning from 3-round returns (--n-step 3, bootstrapped with gamma^3): "
                 "does the speed a lane change buys reach the decision that made it sooner than through the target's "
-                "estimate?", replace(F05Q, target_sync_steps=2000, n_step=3)),
+                "estimate?", replace(F05Q_TS2K, n_step=3)),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
