@@ -246,9 +246,9 @@ PROFILES = {
     "f05q_ema": Profile("f05q_ema", variants=("f05q_ema",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                         alpha_seeds=0,
                         paired_with=(("f05q_ema", "learner_protocol_f05q", "f05q"),)),  # averaged weights
-    "f05q_ts2k_n3": Profile("f05q_ts2k_n3", variants=("f05q_ts2k_n3",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 4)),
+    "f05q_ts2k_n3": Profile("f05q_ts2k_n3", variants=("f05q_ts2k_n3",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                             alpha_seeds=0,
-                            paired_with=(("f05q_ts2k_n3", "learner_protocol_f05q_ts2k10", "f05q_ts2k"),)),  # n-step; 4 seeds fit a session
+                            paired_with=(("f05q_ts2k_n3", "learner_protocol_f05q_ts2k10", "f05q_ts2k"),)),  # n-step
     "f05q_ts2k_cd10": Profile("f05q_ts2k_cd10", variants=("f05q_ts2k", "f05q_ts2k_cd10"),
                               alpha_seeds=0),  # the default's 10 models with the 10 s cooldown, paired by model
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
