@@ -149,6 +149,12 @@ def test_plane_bootstrap_and_trend_statements() -> None:
     assert len(text) == 2 and all(s.startswith("**Holds**") for s in text)
     opposite = s2_report.trend_statements(stats.PlaneFit(1.0, 2.0, 0.5, 0.3, 9), {})
     assert all(s.startswith("**Does not hold**") and "b" in s for s in opposite)
+    # with models behind the fit, a verdict only when the 90% interval excludes 0
+    wide = {"replicates": 1000, "b1_negative_share": 0.8, "b1_p05": -1.7, "b1_p95": 0.5,
+            "b2_negative_share": 0.0, "b2_p05": 0.1, "b2_p95": 0.9}  # fmt: skip
+    undecided, reversed_ = s2_report.trend_statements(stats.PlaneFit(1.0, -0.6, 0.5, 0.3, 9), wide)
+    assert undecided.startswith("**Cannot decide**") and "more models" in undecided
+    assert reversed_.startswith("**Reversed**")
 
 
 def test_outputs_from_a_hand_made_table(tmp_path: Path) -> None:

@@ -34,20 +34,31 @@ def condition_label(lanes: int, t_up_s: float) -> str:
     return f"{lanes} lanes, T_up {number_name(t_up_s)} s"
 
 
+def trend_verdict(coef: float, low: float | None, high: float | None) -> str:
+    """'Holds' (the trend needs coef < 0), 'Reversed' or 'Cannot decide': with a bootstrap interval [low, high]
+    over models, a verdict only when it excludes 0; without one (a single seed), the sign of coef."""
+    if low is None or high is None:
+        return "Holds" if coef < 0 else "Does not hold"
+    return "Holds" if high < 0 else "Reversed" if low > 0 else "Cannot decide"
+
+
 def trend_statements(fit: PlaneFit, boot: dict[str, float]) -> list[str]:
-    """Plain statements of whether the paper's two trends hold (b1 < 0, b2 < 0)."""
+    """Plain statements of whether the paper's two trends hold (b1 < 0, b2 < 0), decided on the 90% bootstrap
+    interval over models when there is one."""
     out = []
     for coef, name, trend, unit, key in (
         (fit.b1, "b1", "alpha* grows as T_up shrinks (higher inflow)", "per s of T_up", "b1"),
         (fit.b2, "b2", "alpha* grows as the lane count shrinks", "per lane", "b2"),
     ):
-        holds = coef < 0
-        text = (f"**{'Holds' if holds else 'Does not hold'}**: the paper's trend \"{trend}\" needs {name} < 0; "
+        low, high = (boot[f"{key}_p05"], boot[f"{key}_p95"]) if boot else (None, None)
+        verdict = trend_verdict(coef, low, high)
+        text = (f"**{verdict}**: the paper's trend \"{trend}\" needs {name} < 0; "
                 f"here {name} = {coef:+.3f} {unit}")  # fmt: skip
         if boot:
             text += (f" (bootstrap over seeds: {name} < 0 in {boot[f'{key}_negative_share']:.0%} of "
-                     f"{boot['replicates']} replicates, 90% interval [{boot[f'{key}_p05']:+.3f}, "
-                     f"{boot[f'{key}_p95']:+.3f}])")  # fmt: skip
+                     f"{boot['replicates']} replicates, 90% interval [{low:+.3f}, {high:+.3f}])")  # fmt: skip
+        if verdict == "Cannot decide":
+            text += "; the interval includes 0, so more models per condition would be needed to tell"
         out.append(text + ".")
     return out
 
