@@ -281,7 +281,7 @@ def profile_from_args(args: Any) -> Profile:
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
     p.add_argument("--profile", choices=sorted(PROFILES), default="quick",
-                   help="grid and step counts: tiny (tests), quick (about 45 min on 2 cores), paper")  # fmt: skip
+                   help="grid and step counts: tiny (tests), quick (about 80 min on 2 cores), paper")  # fmt: skip
     p.add_argument("--out", type=out_dir, default=None,
                    help="results folder (default results/scenario2, with --conditioned results/scenario2_conditioned)")
     p.add_argument("--conditioned", action="store_true",
