@@ -13,6 +13,7 @@ import pytest
 from conftest import committed_report_pages
 
 from coopsumo.config import DQN_PRESETS, DQNConfig, results_view, to_dict
+from coopsumo.studies.ablation_plan import PROFILES as LEARNING_PROFILES
 from coopsumo.studies.ablation_plan import learner_of as learner_of_variant
 from coopsumo.studies.protocol_plan import variants
 from coopsumo.studies.scenario2 import learner_of
@@ -53,7 +54,7 @@ def _learner_check(folder: Path) -> None:
         sweep = json.loads((folder / "sweep.json").read_text())
         profile = SCENARIO2_PROFILES[sweep["profile"]["name"]]
         _same(sweep["learner"], learner_of(replace(profile, conditioned=sweep["profile"]["conditioned"])), name)
-    elif name == "learning":
+    elif name == "learning" or name in {f"learning_{profile}" for profile in LEARNING_PROFILES}:  # PROFILE=...
         study = json.loads((folder / "study.json").read_text())
         _same(study["default_learner"], to_dict(DQNConfig()), f"{name} (the default)")
         assert set(study["learners"]) >= set(study["profile"]["variants"]), f"{name}: a variant without its learner"
@@ -98,6 +99,13 @@ def test_the_check_fires_on_a_changed_learner(tmp_path: Path) -> None:
     study["learners"]["mix"] = to_dict(learner_of_variant("mix"))
     (folder / "study.json").write_text(json.dumps(study))
     _learner_check(folder)
+    # the same study under another profile's folder (make learning PROFILE=conditioned) is checked alike
+    other = tmp_path / "learning_conditioned"
+    other.mkdir()
+    study["default_learner"] = to_dict(DQNConfig(gamma=0.5))
+    (other / "study.json").write_text(json.dumps(study))
+    with pytest.raises(AssertionError, match=r"learning_conditioned \(the default\).*gamma"):
+        _learner_check(other)
 
 
 def test_archived_reports_say_so_at_their_top() -> None:
