@@ -30,23 +30,6 @@ REPO = Path(__file__).resolve().parent.parent
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
-HEAVY_FIRST = (
-    "test_docs.py", "test_train.py", "test_cluster.py", "test_faults.py", "test_scenario2.py", "test_scenario1.py",
-    "test_faults_scenario1.py", "test_protocol.py", "test_conditioned.py", "test_update_worker.py",
-    "test_ablation.py", "test_runner.py", "test_replication.py", "test_sumo_tools.py", "test_world_sumo.py",
-    "test_identity.py",
-)  # fmt: skip
-"""The slowest test files (the durations `make test` prints), longest first."""
-
-
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Run the slowest files first. `make test` hands whole files to its two workers in collection order
-    (pytest-xdist --dist loadfile): a heavy file left for the end keeps one worker busy while the other waits.
-    The order within a file is kept."""
-    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
-
-
 @pytest.fixture
 def ctrl() -> ControlConfig:
     """The controller configuration with the paper's collision-check values (a1=2, a2=0.5, v_cc=1, L=4)."""
