@@ -16,6 +16,7 @@ from coopsumo.config import DQN_PRESETS, DQNConfig, results_view, to_dict
 from coopsumo.studies.ablation_plan import PROFILES as LEARNING_PROFILES
 from coopsumo.studies.ablation_plan import learner_of as learner_of_variant
 from coopsumo.studies.protocol_plan import variants
+from coopsumo.studies.run_folders import default_out
 from coopsumo.studies.scenario2 import learner_of
 from coopsumo.studies.scenario2_plan import PROFILES as SCENARIO2_PROFILES
 from coopsumo.studies.trainings import first_difference
@@ -54,7 +55,7 @@ def _learner_check(folder: Path) -> None:
         sweep = json.loads((folder / "sweep.json").read_text())
         profile = SCENARIO2_PROFILES[sweep["profile"]["name"]]
         _same(sweep["learner"], learner_of(replace(profile, conditioned=sweep["profile"]["conditioned"])), name)
-    elif name == "learning" or name in {f"learning_{profile}" for profile in LEARNING_PROFILES}:  # PROFILE=...
+    elif name in {default_out("learning", profile, "full").name for profile in LEARNING_PROFILES}:
         study = json.loads((folder / "study.json").read_text())
         _same(study["default_learner"], to_dict(DQNConfig()), f"{name} (the default)")
         assert set(study["learners"]) >= set(study["profile"]["variants"]), f"{name}: a variant without its learner"

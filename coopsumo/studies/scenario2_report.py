@@ -46,16 +46,16 @@ def trend_statements(fit: PlaneFit, boot: dict[str, float]) -> list[str]:
     """Plain statements of whether the paper's two trends hold (b1 < 0, b2 < 0), decided on the 90% bootstrap
     interval over models when there is one."""
     out = []
-    for coef, name, trend, unit, key in (
-        (fit.b1, "b1", "alpha* grows as T_up shrinks (higher inflow)", "per s of T_up", "b1"),
-        (fit.b2, "b2", "alpha* grows as the lane count shrinks", "per lane", "b2"),
+    for coef, name, trend, unit in (
+        (fit.b1, "b1", "alpha* grows as T_up shrinks (higher inflow)", "per s of T_up"),
+        (fit.b2, "b2", "alpha* grows as the lane count shrinks", "per lane"),
     ):
-        low, high = (boot[f"{key}_p05"], boot[f"{key}_p95"]) if boot else (None, None)
+        low, high = (boot[f"{name}_p05"], boot[f"{name}_p95"]) if boot else (None, None)
         verdict = trend_verdict(coef, low, high)
         text = (f"**{verdict}**: the paper's trend \"{trend}\" needs {name} < 0; "
                 f"here {name} = {coef:+.3f} {unit}")  # fmt: skip
         if boot:
-            text += (f" (bootstrap over seeds: {name} < 0 in {boot[f'{key}_negative_share']:.0%} of "
+            text += (f" (bootstrap over seeds: {name} < 0 in {boot[f'{name}_negative_share']:.0%} of "
                      f"{boot['replicates']} replicates, 90% interval [{low:+.3f}, {high:+.3f}])")  # fmt: skip
         if verdict == "Cannot decide":
             text += "; the interval includes 0, so more models per condition would be needed to tell"
