@@ -231,3 +231,32 @@ def test_a_committed_studys_trainings_pair_only_when_made_the_same_way(tmp_path:
     (folder / "runs.csv").unlink()
     assert "not paired, no runs.csv and study.json in learner_protocol_old" in "\n".join(
         committed_pair_lines(runs, profile, tmp_path))
+
+
+def test_several_evaluation_seed_sets_judge_each_model_by_its_mean() -> None:
+    """f05q_ts2k_3sets meets every condition on 3 seeds: the first set's cells are f05q_ts2k10's (reused), and the
+    statistics compare each model's mean over the sets with the baselines' mean over the same seeds."""
+    from coopsumo.studies.protocol_plan import PROFILES, cell_specs
+    from coopsumo.studies.protocol_report import condition_stats, per_model
+
+    three, one = cell_specs(PROFILES["f05q_ts2k_3sets"]), cell_specs(PROFILES["f05q_ts2k10"])
+    first = {s["key"]: s for s in one if s.get("alpha") == 0.0}
+    assert all(first[s["key"]]["config"] == s["config"] for s in three if s["key"] in first)
+    assert len(three) == 3 * len(first) and len({s["key"] for s in three}) == len(three)
+    free_t2 = {s["eval_seed"] for s in three if s["scenario"] == "free" and s["t_up"] == 2.0}
+    assert free_t2 == {5000, 5020, 5040}
+    # a model below keep on one seed and above it on average is not a loss; the mean decides
+    rows = []
+    for eval_seed, own, keep in ((5000, 17.0, 18.0), (5020, 20.0, 18.5), (5040, 21.0, 18.5)):
+        for variant, kind, seed, speed in (("m", "model", 100.0, own), ("keep", "baseline", math.nan, keep)):
+            rows.append({"key": f"{variant}{eval_seed}", "kind": kind, "variant": variant, "alpha": 0.0,
+                         "seed": seed, "scenario": "free", "t_up": 2.0, "eval_seed": eval_seed, "status": "ok",
+                         "weights": "model.pt" if kind == "model" else None, "mean_speed_mps": speed,
+                         "lane_changes_per_vehicle": 1.0, "collisions": 0.0, "teleports": 0.0})  # fmt: skip
+    models = per_model(pd.DataFrame(rows))
+    assert len(models) == 2 and set(models["eval_runs"]) == {3} and set(models["eval_seed"]) == {5000}
+    assert models.set_index("variant").loc["m", "mean_speed_mps"] == pytest.approx(58.0 / 3)
+    (row,) = condition_stats(models, ["m"], ["keep"]).to_dict("records")
+    assert row["keep_value"] == pytest.approx(55.0 / 3) and row["keep_losses"] == 0
+    (one_set,) = condition_stats(per_model(pd.DataFrame(rows[:2])), ["m"], ["keep"]).to_dict("records")
+    assert one_set["keep_losses"] == 1  # judged on the first seed alone, the same model lost

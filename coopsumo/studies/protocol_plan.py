@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, replace
+from itertools import product
 from typing import Any
 
 from coopsumo.config import (
@@ -26,7 +27,7 @@ from coopsumo.validation import number_name
 
 EVAL_SEED = 5000
 """evaluation run of condition i uses seed EVAL_SEED + i (free flow) or EVAL_SEED + 100 + i (accident), each plus
-the profile's eval_offset"""
+one of the profile's eval_offsets"""
 TRAIN_SEED = FIRST_TRAIN_SEED
 """first training seed of the protocol (the committed learning studies used 0-8)"""
 BASELINES = ("keep", "greedy", "mobil:p=0")
@@ -183,8 +184,9 @@ class Profile:
     alpha_seeds: int = 3
     """models at alpha 8 of the judged variant (free flow only): does alpha do something?"""
     lanes: int = 3
-    eval_offset: int = 0
-    """added to every evaluation seed: the same models on fresh demand (10: seeds 5010+i and 5110+i)"""
+    eval_offsets: tuple[int, ...] = (0,)
+    """each is added to every evaluation seed, one evaluation per offset (10: seeds 5010+i and 5110+i): every model
+    and baseline meets each condition on len(eval_offsets) seeds, and the report judges each by its mean over them"""
     judged: str = ""
     """the variant whose targets and alpha response the report gives (empty: the first; the others are paired
     against the first)"""
@@ -223,7 +225,7 @@ PROFILES = {
                                  ("f05q", "learner_protocol_queue", "v2x_mix_av")),
                     judged="f05q"),  # the candidate before f05q_ts2k; alpha 8 on 3 models; the others drive it
     "f05q_e1": Profile("f05q_e1", variants=("f05q", "f05q_m05", "f05q_m0", "f05q_q8"), alpha_seeds=0,
-                       eval_offset=10),  # f05q's trainings on fresh evaluation seeds: does its verdict replicate?
+                       eval_offsets=(10,)),  # f05q's trainings on fresh evaluation seeds: does its verdict replicate?
     "f05q_g95": Profile("f05q_g95", variants=("f05q_g95",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                         alpha_seeds=0,
                         paired_with=(("f05q_g95", "learner_protocol_f05q", "f05q"),)),  # the discount, a first look
@@ -232,13 +234,13 @@ PROFILES = {
     "f05q_ens": Profile("f05q_ens", variants=("f05q_ens3",), alpha_seeds=0,
                         paired_with=(("f05q_ens3", "learner_protocol_f05q", "f05q"),)),  # one change: 3 snapshots
     "f05q_ens_e2": Profile("f05q_ens_e2", variants=("f05q", "f05q_ens3"), alpha_seeds=0,
-                           eval_offset=20),  # the ensemble against f05q on evaluation seeds no study used before
+                           eval_offsets=(20,)),  # the ensemble against f05q on evaluation seeds no study used before
     "f05q_ts2k": Profile("f05q_ts2k", variants=("f05q_ts2k",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                          alpha_seeds=0,
                          paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),  # a steadier target
     "f05q_ts2k10": Profile("f05q_ts2k10", variants=("f05q_ts2k",),  # the same on 10 seeds, alpha 8 on 3
                            paired_with=(("f05q_ts2k", "learner_protocol_f05q", "f05q"),)),
-    "f05q_ts2k_e2": Profile("f05q_ts2k_e2", variants=("f05q_ts2k",), alpha_seeds=0, eval_offset=20,
+    "f05q_ts2k_e2": Profile("f05q_ts2k_e2", variants=("f05q_ts2k",), alpha_seeds=0, eval_offsets=(20,),
                             paired_with=(("f05q_ts2k", "learner_protocol_f05q_ens_e2", "f05q"),)),  # fresh seeds
     "f05q_lr3": Profile("f05q_lr3", variants=("f05q_lr3",), seeds=tuple(range(TRAIN_SEED, TRAIN_SEED + 5)),
                         alpha_seeds=0,
@@ -251,6 +253,8 @@ PROFILES = {
                             paired_with=(("f05q_ts2k_n3", "learner_protocol_f05q_ts2k10", "f05q_ts2k"),)),  # n-step
     "f05q_ts2k_cd10": Profile("f05q_ts2k_cd10", variants=("f05q_ts2k", "f05q_ts2k_cd10"),
                               alpha_seeds=0),  # the default's 10 models with the 10 s cooldown, paired by model
+    "f05q_ts2k_3sets": Profile("f05q_ts2k_3sets", variants=("f05q_ts2k",), alpha_seeds=0,
+                               eval_offsets=(0, 20, 40)),  # the default's 10 models on 3 seeds per condition
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
@@ -268,24 +272,26 @@ def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> T
     return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
 
 
-def eval_config(profile: Profile, scenario: str, i: int, policy: str, alpha: float = 0.0) -> SimConfig:
-    """The evaluation run of condition i (its demand profile.t_ups[i]) in free flow or through the accident."""
+def eval_config(profile: Profile, scenario: str, i: int, policy: str, alpha: float = 0.0, offset: int = 0) -> SimConfig:
+    """The evaluation run of condition i (its demand profile.t_ups[i]) in free flow or through the accident, on the
+    evaluation seed of `offset` (one of profile.eval_offsets)."""
     t_up = profile.t_ups[i]
     if scenario == "free":
         return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=t_up),
                          reward=RewardConfig(alpha=alpha), steps=profile.free_steps,
-                         seed=EVAL_SEED + profile.eval_offset + i,
+                         seed=EVAL_SEED + offset + i,
                          policy=policy)  # fmt: skip
     return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=t_up),
                      accident=AccidentConfig(enabled=True, start_step=profile.accident_start,
                                              duration_steps=profile.accident_duration),
                      reward=RewardConfig(alpha=alpha), steps=profile.accident_steps,
-                     seed=EVAL_SEED + 100 + profile.eval_offset + i,
+                     seed=EVAL_SEED + 100 + offset + i,
                      policy=policy)  # fmt: skip
 
 
 def cell_specs(profile: Profile) -> list[dict[str, Any]]:
-    """Every cell: one per (variant, alpha, training seed, scenario, demand) and per (baseline, scenario, demand)."""
+    """Every cell: one per (variant, alpha, training seed, scenario, demand, evaluation seed set) and per (baseline,
+    scenario, demand, evaluation seed set)."""
     known = variants()
     specs: list[dict[str, Any]] = []
     models: list[tuple[Variant, float, int, tuple[str, ...]]] = []
@@ -298,26 +304,33 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
     for variant, alpha, seed, scenarios in models:
         cfg = train_config(profile, variant.learner, alpha, seed)
         train_key = f"a{number_name(alpha)}_seed{seed}_{_learner_tag(variant.learner)}"
-        for scenario in scenarios:
-            for i, t_up in enumerate(profile.t_ups):
-                ev = eval_config(profile, scenario, i, "dqn", alpha)
-                key = f"{variant.name}_a{number_name(alpha)}_seed{seed}_{scenario}_t{number_name(t_up)}"
-                config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
-                if variant.drive():  # part of the cell's identity: a record driven otherwise is rerun
-                    config["drive"] = variant.drive()
-                specs.append({"key": key, "kind": "model", "variant": variant.name, "alpha": alpha, "seed": seed,
-                              "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
-                              "train_key": train_key,
-                              "config": json.loads(json.dumps(config))})  # fmt: skip
+        for scenario, (i, t_up), offset in product(scenarios, enumerate(profile.t_ups), profile.eval_offsets):
+            ev = eval_config(profile, scenario, i, "dqn", alpha, offset)
+            key = f"{variant.name}_a{number_name(alpha)}_seed{seed}_{scenario}_t{number_name(t_up)}"
+            key += _set_suffix(profile, offset)
+            config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
+            if variant.drive():  # part of the cell's identity: a record driven otherwise is rerun
+                config["drive"] = variant.drive()
+            specs.append({"key": key, "kind": "model", "variant": variant.name, "alpha": alpha, "seed": seed,
+                          "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
+                          "train_key": train_key,
+                          "config": json.loads(json.dumps(config))})  # fmt: skip
     for policy in BASELINES:
-        for scenario in ("free", "accident"):
-            for i, t_up in enumerate(profile.t_ups):
-                ev = eval_config(profile, scenario, i, policy)
-                specs.append({"key": f"{policy.replace(':', '_').replace('=', '')}_{scenario}_t{number_name(t_up)}",
-                              "kind": "baseline", "variant": policy, "alpha": 0.0, "seed": None, "scenario": scenario,
-                              "t_up": t_up, "eval_seed": ev.seed, "weights": None, "train_key": None,
-                              "config": json.loads(json.dumps({"eval": to_dict(ev)}))})  # fmt: skip
+        for scenario, (i, t_up), offset in product(("free", "accident"), enumerate(profile.t_ups),
+                                                   profile.eval_offsets):  # fmt: skip
+            ev = eval_config(profile, scenario, i, policy, offset=offset)
+            key = f"{policy.replace(':', '_').replace('=', '')}_{scenario}_t{number_name(t_up)}"
+            specs.append({"key": key + _set_suffix(profile, offset),
+                          "kind": "baseline", "variant": policy, "alpha": 0.0, "seed": None, "scenario": scenario,
+                          "t_up": t_up, "eval_seed": ev.seed, "weights": None, "train_key": None,
+                          "config": json.loads(json.dumps({"eval": to_dict(ev)}))})  # fmt: skip
     return specs
+
+
+def _set_suffix(profile: Profile, offset: int) -> str:
+    """The cell key's suffix of an evaluation seed set: none for the profile's first (so that a profile given more
+    sets keeps its cells), `_e<offset>` for the others."""
+    return "" if offset == profile.eval_offsets[0] else f"_e{offset}"
 
 
 def _learner_tag(dqn: DQNConfig) -> str:

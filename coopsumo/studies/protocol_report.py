@@ -56,6 +56,22 @@ def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:
     return table
 
 
+def per_model(runs: pd.DataFrame) -> pd.DataFrame:
+    """One row per model (or baseline) and condition from its ok runs: the mean of each measure over its evaluation
+    seeds (Profile.eval_offsets), collisions and teleports summed, eval_seed the first seed and eval_runs their
+    count. With one seed per condition the rows are the runs'. Columns a table lacks (a committed runs.csv of
+    before a measure) are NaN."""
+    runs = runs.reindex(columns=list(COLUMNS))
+    ok = runs[runs["status"] == "ok"]
+    groups = ok.groupby(["kind", "variant", "alpha", "seed", "scenario", "t_up", "weights"], dropna=False, sort=False)
+    summed = ["collisions", "teleports"]
+    flat = groups[[c for c in COLUMNS[11:] if c not in summed]].mean()
+    flat[summed] = groups[summed].sum()
+    flat[["key", "train_key", "status"]] = groups[["key", "train_key", "status"]].first()
+    flat["eval_seed"], flat["eval_runs"] = groups["eval_seed"].min(), groups.size()
+    return flat.reset_index()[[*COLUMNS, "eval_runs"]]
+
+
 def condition_stats(runs: pd.DataFrame, variants: list[str], baselines: list[str]) -> pd.DataFrame:
     """One row per (scenario, demand, variant): IQM and interval over models, worst model, mean, and against each
     baseline the probability of improvement (with interval) and how many models lost to it."""
@@ -197,7 +213,7 @@ def committed_pair_lines(runs: pd.DataFrame, profile: Any, results: Path = COMMI
             notes.append(f"- `{mine}` minus `{theirs}` of {folder}: not paired, {problem}.")
             continue
         label = f"{theirs} ({folder})"
-        both = pd.concat([runs[runs["variant"] == mine], ref.assign(variant=label)], ignore_index=True)
+        both = per_model(pd.concat([runs[runs["variant"] == mine], ref.assign(variant=label)], ignore_index=True))
         for r in paired_rows(both, mine, label):
             lines.append(f"| `{mine}` | `{theirs}` ([{folder}](../{folder}/report.md)) | {r['scenario']} | "
                          f"{r['t_up']:g} | {_ci(r['diff'], r['low'], r['high'], '{:+.2f}')} | {r['better']} of "
@@ -268,10 +284,10 @@ def _ci(point: float, low: float, high: float, fmt: str = "{:.2f}") -> str:
 def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
     runs = runs_table(records)
     runs.to_csv(root / "runs.csv", index=False, float_format="%.6g")
-    variants = list(profile.variants)
-    table = condition_stats(runs, variants, list(BASELINES))
+    models = per_model(runs)  # every statistic below is over models, each its mean over its evaluation seeds
+    table = condition_stats(models, list(profile.variants), list(BASELINES))
     table.to_csv(root / "stats.csv", index=False, float_format="%.6g")
-    diag = diagnosis_table(root, runs[runs["variant"] == profile.judged_variant()])  # the judged learner's trainings
+    diag = diagnosis_table(root, models[models["variant"] == profile.judged_variant()])  # the judged trainings
     if len(diag):
         diag.to_csv(root / "diagnosis.csv", index=False, float_format="%.6g")
     models = runs[(runs["kind"] == "model") & (runs["alpha"] == 0)].dropna(subset=["train_key"])
@@ -280,9 +296,20 @@ def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta:
     (root / "report.md").write_text(report_text(profile, runs, table, diag, meta))
 
 
+def _eval_seed_words(profile: Any) -> str:
+    sets = profile.eval_offsets
+    free = ", ".join(f"{EVAL_SEED + o}+i" for o in sets)
+    accident = ", ".join(f"{EVAL_SEED + 100 + o}+i" for o in sets)
+    words = f"on evaluation seeds {free} (free flow) and {accident} (accident) that no training or validation saw; "
+    if len(sets) > 1:
+        words += (f"each model and baseline met every condition on these {len(sets)} seeds, and each value below is "
+                  "its mean over them; ")  # fmt: skip
+    return words
+
+
 def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.DataFrame,
                 meta: dict[str, Any]) -> str:  # fmt: skip
-    ok = runs[runs["status"] == "ok"]
+    ok = per_model(runs)
     lines = [
         "# The learner protocol: every training seed against the hand-made rules",
         "",
@@ -291,8 +318,7 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
         "every model driven greedily in free flow "
         f"({profile.free_steps:,} steps) and through scenario I's accident ({profile.accident_steps:,} steps, closure "
         f"decaying over steps {profile.accident_start:,}-{profile.accident_start + profile.accident_duration:,}) at "
-        f"T_up {', '.join(f'{t:g}' for t in profile.t_ups)} s, on evaluation seeds {EVAL_SEED + profile.eval_offset}+i "
-        f"(free flow) and {EVAL_SEED + 100 + profile.eval_offset}+i (accident) that no training or validation saw; "
+        f"T_up {', '.join(f'{t:g}' for t in profile.t_ups)} s, {_eval_seed_words(profile)}"
         "the baselines on the same seeds. "
         "The trained model is the unit: each interval is a 95% stratified bootstrap over models (rliable's "
         "procedure), IQM is the interquartile mean over models, P(>b) the probability that a model beats "
@@ -329,10 +355,10 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
             lines.append("| " + " | ".join(cells) + " |")
         lines += ["", "Across the demands (probability of improvement averaged over demands, 95% CI):", ""]
         for variant in profile.variants:
-            parts = [f"P(> `{b}`) = {_ci(*pooled_stats(runs, variant, b, scenario))}" for b in BASELINES]
+            parts = [f"P(> `{b}`) = {_ci(*pooled_stats(ok, variant, b, scenario))}" for b in BASELINES]
             lines.append(f"- `{variant}`: " + "; ".join(parts))
-    lines += passing_lines(runs, profile)
-    lines += paired_lines(runs, profile, meta)
+    lines += passing_lines(ok, profile)
+    lines += paired_lines(ok, profile, meta)
     lines += committed_pair_lines(runs, profile)
     lines += ["", *target_lines(table, ok, profile), ""]
     judged = profile.judged_variant()
@@ -345,9 +371,10 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
             a8 = grp[grp["alpha"] == 8]["lane_changes_per_vehicle"]
             lines.append(f"| {t_up:g} | {a0.mean():.3f} ({len(a0)}) | {a8.mean():.3f} ({len(a8)}) |")
         lines.append("")
-    safety = ok[["collisions", "teleports"]].sum()
+    done = runs[runs["status"] == "ok"]
+    safety = done[["collisions", "teleports"]].sum()
     lines += [f"Safety: {int(safety['collisions'])} collisions and {int(safety['teleports'])} teleports in all "
-              f"{len(ok)} runs.", ""]  # fmt: skip
+              f"{len(done)} runs.", ""]  # fmt: skip
     if len(diag):
         judged = profile.judged_variant()
         lines += [f"## Diagnosis: what each training of `{judged}` saw in its validation (alpha 0)", "",
