@@ -324,7 +324,8 @@ def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.
         "procedure), IQM is the interquartile mean over models, P(>b) the probability that a model beats "
         "baseline b (rliable's probability of improvement), 'lost' how many models did worse than b.",
         f"{meta['cells']} cells, {meta['cells_run']} run by the last command ({meta['wall_seconds']:.0f} s wall, "
-        f"{meta['workers']} workers); {meta.get('cell_cpu_seconds_sum', 0) / 3600:.1f} CPU hours in all.",
+        f"{meta['workers']} worker{'s' if meta['workers'] != 1 else ''}); "
+        f"{meta.get('cell_cpu_seconds_sum', 0) / 3600:.1f} CPU hours in all.",
         "",
         "Learners:",
         "",
