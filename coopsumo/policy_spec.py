@@ -3,10 +3,11 @@
     keep | random | greedy                          no parameters
     mobil[:p=P,threshold=T,b_safe=B,bias=R]          any subset, any order (MOBIL_LIMITS)
     sumo[:lcCooperative=X,lcSpeedGain=X,...]          SUMO's LC2013 factors (SUMO_LC_LIMITS)
-    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S][,restart=R][,queue=V][,ensemble=K]
+    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S][,noreturn=S][,restart=R][,queue=V][,ensemble=K]
                                                      PATH: a model file, or a folder holding model.pt; M: the
                                                      change margin it drives with (Q units; default: the model's);
-                                                     S: seconds after a lane change before another (default 0);
+                                                     S: seconds after a lane change before another (cooldown),
+                                                     or before the change back (noreturn) (default 0: none);
                                                      R: 'none' withheld below R m/s (default: the model's);
                                                      V: no lane change chosen below V m/s (default 0: none);
                                                      K: drive the mean Q-value of the K best-validated snapshots
@@ -43,12 +44,13 @@ KEYS: dict[str, dict[str, tuple[float, float, bool]]] = {
     "mobil": MOBIL_LIMITS,
     "sumo": SUMO_LC_LIMITS,
     "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False), "margin": (0.0, MARGIN_MAX, False),
-            "cooldown": (0.0, COOLDOWN_MAX_S, False), "restart": (0.0, RESTART_MAX_MPS, False),
+            "cooldown": (0.0, COOLDOWN_MAX_S, False), "noreturn": (0.0, COOLDOWN_MAX_S, False),
+            "restart": (0.0, RESTART_MAX_MPS, False),
             "queue": (0.0, RESTART_MAX_MPS, False), "ensemble": (1.0, ENSEMBLE_MAX, False)},
 }
 """the parameters each policy takes: key -> (lowest, highest, lowest excluded)"""
 FORMS = ("keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], "
-         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,restart=R,queue=V,ensemble=K]")
+         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,noreturn=S,restart=R,queue=V,ensemble=K]")
 
 
 class PolicySpecError(UsageError):
@@ -59,7 +61,8 @@ class PolicySpecError(UsageError):
 class PolicySpec:
     """A parsed policy string: its name, its numeric parameters in the order given, and for dqn the model path,
     alpha (a number, 'adaptive', or None when not given), the change margin (None: the model's own), the
-    lane-change cooldown in seconds (None: none), the speed (m/s) below which 'none' is withheld (None: the
+    lane-change cooldown in seconds (None: none), how long (s) the change back into the lane just left is not chosen
+    (None: no such rule), the speed (m/s) below which 'none' is withheld (None: the
     model's own), the speed (m/s) below which no lane change is chosen (None: none) and how many best-validated
     snapshots are averaged (None: the model alone)."""
 
@@ -69,6 +72,7 @@ class PolicySpec:
     alpha: float | str | None = None
     margin: float | None = None
     cooldown: float | None = None
+    noreturn: float | None = None
     restart: float | None = None
     queue: float | None = None
     ensemble: int | None = None
@@ -152,6 +156,7 @@ def parse_policy(text: str) -> PolicySpec:
             return None if seen.get(key) is None else float(seen[key])
 
         return PolicySpec(name, model=model, alpha=seen.get("alpha"), margin=number("margin"),
-                          cooldown=number("cooldown"), restart=number("restart"), queue=number("queue"),
+                          cooldown=number("cooldown"), noreturn=number("noreturn"), restart=number("restart"),
+                          queue=number("queue"),
                           ensemble=None if seen.get("ensemble") is None else int(float(seen["ensemble"])))
     return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))

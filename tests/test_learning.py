@@ -287,6 +287,34 @@ def test_a_cooldown_withholds_lane_changes_for_its_seconds_after_the_last(observ
 
 
 
+def test_no_return_withholds_only_the_change_back_for_its_seconds(observation_of: Layout) -> None:
+    from coopsumo.agents.decisions import no_return
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    mask = np.ones((4, 4), bool)
+    since, last = np.array([1.0, 1.0, 5.0, 1.0]), np.array([LEFT, RIGHT, LEFT, -1])
+    expected = [[True, False], [False, True], [True, True], [True, True]]  # back withheld, onward offered
+    np.testing.assert_array_equal(no_return(mask, since, last, 3.0)[:, [LEFT, RIGHT]], expected)
+    assert no_return(mask, since, last, 0.0) is mask
+
+    def drive(noreturn: float, lane_before: int, lane_after: int) -> list[int]:
+        """A model that prefers left, then right: it changes left from lane_before, then decides 4 more rounds."""
+        policy = DQNPolicy(_net_preferring(LEFT, RIGHT), decision_interval=10, action_mask=True)  # type: ignore[arg-type]
+        policy.no_return_s = noreturn
+        first = observation_of(lane=[lane_before], pos=[300.0], speed=[20.0], v_exp=[25.0])
+        assert policy.act(first).tolist() == [LEFT]
+        changing = observation_of(lane=[lane_after], pos=[300.0], speed=[20.0], v_exp=[25.0],
+                                  other_lane=[lane_before])  # fmt: skip
+        assert policy.act(changing)[0] not in (LEFT, RIGHT)  # the controller's mask: no change during a change
+        after = observation_of(lane=[lane_after], pos=[300.0], speed=[20.0], v_exp=[25.0])
+        return [int(policy.act(after)[0]) for _ in range(4)]
+
+    # in the leftmost lane only the change back (right) is left: withheld 1 and 2 s after the change, not at 3 s
+    assert drive(0.0, 1, 2) == [RIGHT] * 4
+    assert drive(3.0, 1, 2) == [SPEEDUP, SPEEDUP, RIGHT, RIGHT]  # Q ties at 0: the first of speed-up and none
+    assert drive(3.0, 0, 1) == [LEFT] * 4  # onward is never withheld (a cooldown would hold it)
+
+
 def test_no_lane_change_is_chosen_in_a_queue(observation_of: Layout) -> None:
     from coopsumo.agents.decisions import no_change_in_queue
     from coopsumo.agents.dqn_policy import DQNPolicy

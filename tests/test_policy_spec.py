@@ -34,6 +34,7 @@ VALID: list[tuple[str, PolicySpec]] = [
     ("dqn:a,margin=0,alpha=adaptive", PolicySpec("dqn", model="a", alpha=ADAPTIVE, margin=0.0)),
     ("dqn:a,cooldown=10,margin=2", PolicySpec("dqn", model="a", margin=2.0, cooldown=10.0)),
     ("dqn:a,restart=5", PolicySpec("dqn", model="a", restart=5.0)),
+    ("dqn:a,noreturn=10,cooldown=2", PolicySpec("dqn", model="a", cooldown=2.0, noreturn=10.0)),
     ("dqn:a,queue=5,cooldown=10", PolicySpec("dqn", model="a", cooldown=10.0, queue=5.0)),
     ("dqn:a,ensemble=3", PolicySpec("dqn", model="a", ensemble=3)),
 ]  # fmt: skip
@@ -55,6 +56,7 @@ INVALID: list[tuple[str, str]] = [
     ("dqn:m.pt,margin=1,margin=2", "parameter 'margin' is given twice"),
     ("dqn:m.pt,cooldown=-5", "cooldown must be a finite number >= 0 and <= 600, got '-5'"),
     ("dqn:m.pt,cooldown=inf", "cooldown must be"),
+    ("dqn:m.pt,noreturn=-1", "noreturn must be a finite number >= 0"),
     ("dqn:m.pt,restart=51", "restart must be a finite number >= 0 and <= 50, got '51'"),
     ("dqn:m.pt,queue=-1", "queue must be a finite number >= 0 and <= 50, got '-1'"),
     ("dqn:m.pt,ensemble=0", "ensemble must be a finite number >= 1 and <= 20, got '0'"),

@@ -68,6 +68,10 @@ def test_a_margin_variant_drives_the_same_training_with_its_own_margin() -> None
     assert parse_policy(driven_policy(specs["v2x_mix_m4_a0_seed104_free_t2"], Path("/m"))).margin == 4.0
     cd10 = parse_policy(driven_policy(specs["v2x_mix_cd10_a0_seed104_free_t2"], Path("/m")))
     assert cd10.cooldown == 10.0 and cd10.margin is None
+    nr10 = {s["variant"]: s for s in cell_specs(PROFILES["f05q_ts2k_nr10"]) if s["key"].endswith("seed104_free_t2")}
+    assert nr10["f05q_ts2k_nr10"]["train_key"] == nr10["f05q_ts2k"]["train_key"]  # the same training
+    assert parse_policy(driven_policy(nr10["f05q_ts2k_nr10"], Path("/m"))).noreturn == 10.0
+    assert parse_policy(driven_policy(nr10["f05q_ts2k"], Path("/m"))).noreturn is None
     lanes_only = cell_specs(PROFILES["restart"])
     drives = {s["variant"]: parse_policy(driven_policy(s, Path("/m"))) for s in lanes_only if s["kind"] != "baseline"}
     assert drives["v2x_mix_lanes"].restart == 50.0 and drives["v2x_mix_r5"].restart == 5.0

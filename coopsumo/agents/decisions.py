@@ -71,6 +71,19 @@ def cooled_down(mask: np.ndarray, since_change_s: np.ndarray, cooldown_s: float)
     return out
 
 
+def no_return(mask: np.ndarray, since_change_s: np.ndarray, last_change: np.ndarray, window_s: float) -> np.ndarray:
+    """(n, 4) mask without the change back into the lane a vehicle's last lane change left (last_change LEFT or
+    RIGHT; anything else: none), for window_s seconds after that change was last under way (since_change_s; inf when
+    never): no left-right dithering, while a second change onward stays offered."""
+    if window_s <= 0:
+        return mask
+    out = mask.copy()
+    recent = since_change_s < window_s
+    out[recent & (last_change == LEFT), RIGHT] = False
+    out[recent & (last_change == RIGHT), LEFT] = False
+    return out
+
+
 def follow_up(actions: np.ndarray) -> np.ndarray:
     """The action held on the steps after a decision: speedup after a lane change, else the same."""
     actions = np.asarray(actions, np.int64)

@@ -9,13 +9,14 @@ import numpy as np
 import torch
 
 from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, choose_alpha
-from coopsumo.agents.decisions import cooled_down, no_change_in_queue, offered, with_change_margin
+from coopsumo.agents.decisions import cooled_down, no_change_in_queue, no_return, offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.agents.snapshots import by_score, results, snapshot_dir
 from coopsumo.config import PAPER_DQN, ConfigError, ControlConfig, dqn_config_from_dict
 from coopsumo.policy_spec import ADAPTIVE, model_file, parse_policy, split_dqn_spec
 from coopsumo.runio import UsageError, file_sha256
 from coopsumo.sim.observation import Observation, network_features
+from coopsumo.sim.physics import LEFT, RIGHT
 
 DT_S = ControlConfig().dt_s
 """the step (s) a decision interval counts in"""
@@ -76,6 +77,8 @@ class DQNPolicy:
         self.change_margin = change_margin
         self.change_cooldown_s = 0.0
         """seconds after a lane change during which no other is chosen (0: none; set by dqn:PATH,cooldown=S)"""
+        self.no_return_s = 0.0
+        """seconds after a lane change during which the change back is not chosen (0: none; dqn:PATH,noreturn=S)"""
         self.queue_below_mps = queue_below_mps
         """speed below which no lane change is chosen (m/s; 0: none; the model's DQNConfig.queue_below_mps, or
         dqn:PATH,queue=V)"""
@@ -93,6 +96,7 @@ class DQNPolicy:
         self._action = np.full(0, -1, np.int64)  # -1: no previous decision
         self._rounds = 0  # decision rounds driven
         self._busy_round = np.zeros(0, np.int64)  # the last round each vehicle was seen changing lanes (0: never)
+        self._last_change = np.full(0, -1, np.int64)  # the direction (LEFT, RIGHT) of its last lane change (-1: none)
         self.companions: list[QNetwork] = []
         """more networks whose Q-values are averaged with net's (dqn:PATH,ensemble=K: the next-best snapshots)"""
         self.q_log: list[np.ndarray] | None = None
@@ -100,8 +104,8 @@ class DQNPolicy:
 
     @classmethod
     def from_spec(cls, spec: str, lanes: int = 3) -> DQNPolicy:
-        """The policy of 'dqn:PATH[,alpha=A|adaptive][,margin=M][,cooldown=S][,restart=R][,queue=V]' on a road of
-        `lanes` lanes (policy_spec: the one grammar).
+        """The policy of 'dqn:PATH[,alpha=A|adaptive][,margin=M][,cooldown=S][,noreturn=S][,restart=R][,queue=V]' on
+        a road of `lanes` lanes (policy_spec: the one grammar).
 
         alpha is for an alpha-conditioned model only, and such a model needs it: otherwise a usage error. margin
         replaces the change margin the model was saved with (training ignores it, so any margin can drive it), and
@@ -117,6 +121,9 @@ class DQNPolicy:
         if parsed.cooldown is not None:
             policy.change_cooldown_s = parsed.cooldown
             policy.trained_on = dict(policy.trained_on or {}, driven_change_cooldown_s=parsed.cooldown)
+        if parsed.noreturn is not None:
+            policy.no_return_s = parsed.noreturn
+            policy.trained_on = dict(policy.trained_on or {}, driven_no_return_s=parsed.noreturn)
         if parsed.queue is not None:
             policy.queue_below_mps = parsed.queue
             policy.trained_on = dict(policy.trained_on or {}, driven_queue_below_mps=parsed.queue)
@@ -249,6 +256,7 @@ class DQNPolicy:
         self._mask = np.concatenate([self._mask, np.zeros((extra, N_ACTIONS), bool)])
         self._action = np.concatenate([self._action, np.full(extra, -1, np.int64)])
         self._busy_round = np.concatenate([self._busy_round, np.zeros(extra, np.int64)])
+        self._last_change = np.concatenate([self._last_change, np.full(extra, -1, np.int64)])
 
     def act(self, obs: Observation) -> np.ndarray:
         n = len(obs)
@@ -262,10 +270,14 @@ class DQNPolicy:
             mask = np.ones((n, N_ACTIONS), bool)
         self._rounds += 1
         self._busy_round[nums[obs.busy]] = self._rounds
-        if self.change_cooldown_s > 0:
+        # a change under way was started by the vehicle's last choice (a change is not offered while one runs)
+        started = obs.busy & ((self._action[nums] == LEFT) | (self._action[nums] == RIGHT))
+        self._last_change[nums[started]] = self._action[nums[started]]
+        if self.change_cooldown_s > 0 or self.no_return_s > 0:
             last = self._busy_round[nums]
             since_s = np.where(last > 0, (self._rounds - last) * self.decision_interval * DT_S, np.inf)
             mask = cooled_down(mask, since_s, self.change_cooldown_s)
+            mask = no_return(mask, since_s, self._last_change[nums], self.no_return_s)
         mask = no_change_in_queue(mask, obs.speed, self.queue_below_mps)
         same = (
             (self._action[nums] >= 0)

@@ -38,6 +38,7 @@ REQUIRED = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "telepor
 
 
 DRIVES = (("margin", "change_margin", "change margin"), ("cooldown", "change_cooldown_s", "lane-change cooldown (s)"),
+          ("noreturn", "no_return_s", "no change back within (s)"),
           ("restart", "restart_below_mps", "'none' withheld below (m/s)"),
           ("queue", "queue_below_mps", "no lane change below (m/s)"),
           ("ensemble", "ensemble_snapshots", "best-validated snapshots averaged"))
@@ -57,6 +58,8 @@ class Variant:
     """the change margin it drives with (Q units; None: the learner's own); the trainings are the same"""
     cooldown: float | None = None
     """the lane-change cooldown it drives with (s; None: none)"""
+    noreturn: float | None = None
+    """how long after a lane change it does not choose the change back (s; None: no such rule)"""
     restart: float | None = None
     """the speed below which it withholds 'none' (m/s; None: the learner's own)"""
     queue: float | None = None
@@ -162,6 +165,10 @@ def variants() -> dict[str, Variant]:
         Variant("f05q_ts2k_cd10", "`f05q_ts2k`'s trainings driven with a lane-change cooldown of 10 s (no change "
                 "chosen within 10 s of the last one's end): does it bring the busiest model under 3 lane changes per "
                 "vehicle without costing free flow?", F05Q_TS2K, cooldown=10.0),
+        Variant("f05q_ts2k_nr10", "`f05q_ts2k`'s trainings driven without the change back: for 10 s after a lane "
+                "change's end the change into the lane it left is not chosen (a change onward stays offered): does "
+                "the busiest model stop changing back and forth (a third of its changes undone within 5 s) without "
+                "the cooldown's cost through the accident?", F05Q_TS2K, noreturn=10.0),
         Variant("f05q_ts2k_n3", "`f05q_ts2k` learning from 3-round returns (--n-step 3, bootstrapped with gamma^3): "
                 "does the speed a lane change buys reach the decision that made it sooner than through the target's "
                 "estimate?", replace(F05Q_TS2K, n_step=3)),
@@ -255,6 +262,8 @@ PROFILES = {
                               alpha_seeds=0),  # the default's 10 models with the 10 s cooldown, paired by model
     "f05q_ts2k_3sets": Profile("f05q_ts2k_3sets", variants=("f05q_ts2k",), alpha_seeds=0,
                                eval_offsets=(0, 20, 40)),  # the default's 10 models on 3 seeds per condition
+    "f05q_ts2k_nr10": Profile("f05q_ts2k_nr10", variants=("f05q_ts2k", "f05q_ts2k_nr10"), alpha_seeds=0,
+                              eval_offsets=(0, 20, 40)),  # the default's 10 models without the change back, by model
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
