@@ -270,9 +270,10 @@ class DQNPolicy:
             mask = np.ones((n, N_ACTIONS), bool)
         self._rounds += 1
         self._busy_round[nums[obs.busy]] = self._rounds
-        # a change under way was started by the vehicle's last choice (a change is not offered while one runs)
-        started = obs.busy & ((self._action[nums] == LEFT) | (self._action[nums] == RIGHT))
-        self._last_change[nums[started]] = self._action[nums[started]]
+        if self.no_return_s > 0:
+            # a change under way was started by the vehicle's last choice (no change is offered while one runs)
+            started = obs.busy & ((self._action[nums] == LEFT) | (self._action[nums] == RIGHT))
+            self._last_change[nums[started]] = self._action[nums[started]]
         if self.change_cooldown_s > 0 or self.no_return_s > 0:
             last = self._busy_round[nums]
             since_s = np.where(last > 0, (self._rounds - last) * self.decision_interval * DT_S, np.inf)

@@ -290,10 +290,13 @@ def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta:
     diag = diagnosis_table(root, models[models["variant"] == profile.judged_variant()])  # the judged trainings
     if len(diag):
         diag.to_csv(root / "diagnosis.csv", index=False, float_format="%.6g")
-    models = runs[(runs["kind"] == "model") & (runs["alpha"] == 0)].dropna(subset=["train_key"])
-    names = dict(zip(models["train_key"][::-1], models["variant"][::-1], strict=True))  # the first variant driving it
-    validation_curves_figure(root, sorted(names), root / "fig_validation.png", names)
-    (root / "report.md").write_text(report_text(profile, runs, table, diag, meta))
+    trained = runs[(runs["kind"] == "model") & (runs["alpha"] == 0)].dropna(subset=["train_key"])
+    names = dict(zip(trained["train_key"][::-1], trained["variant"][::-1], strict=True))  # the first variant driving it
+    folders: dict[Path, str] = {}  # one curve per training: cells copied from other studies name it by their keys
+    for key in sorted(names):
+        folders.setdefault((root / "train" / key).resolve(), key)
+    validation_curves_figure(root, sorted(folders.values()), root / "fig_validation.png", names)
+    (root / "report.md").write_text(report_text(profile, runs, models, table, diag, meta))
 
 
 def _eval_seed_words(profile: Any) -> str:
@@ -307,9 +310,10 @@ def _eval_seed_words(profile: Any) -> str:
     return words
 
 
-def report_text(profile: Any, runs: pd.DataFrame, table: pd.DataFrame, diag: pd.DataFrame,
+def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.DataFrame, diag: pd.DataFrame,
                 meta: dict[str, Any]) -> str:  # fmt: skip
-    ok = per_model(runs)
+    """The report from every run (runs) and every model's and baseline's mean over its evaluation seeds (ok,
+    per_model)."""
     lines = [
         "# The learner protocol: every training seed against the hand-made rules",
         "",
