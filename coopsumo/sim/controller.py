@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from coopsumo.config import ControlConfig
-from coopsumo.sim import physics
+from coopsumo.sim import fast, physics
 
 
 def other_lane(lane: np.ndarray, lc_from: np.ndarray, lc_to: np.ndarray, lc_left_s: np.ndarray) -> np.ndarray:
@@ -28,9 +28,8 @@ def leaders_in_occupied_lanes(
     lane: np.ndarray, other: np.ndarray, pos_m: np.ndarray, speed_mps: np.ndarray, n_lanes: int, car_length_m: float
 ) -> tuple[np.ndarray, np.ndarray]:
     """Gap (m) and speed (m/s) of each vehicle's nearest leader in its lane and the second lane it occupies."""
-    occ = physics.occupancy(lane, pos_m, other)
     query = np.stack([lane, np.where(other >= 0, other, lane)], axis=1)
-    nb = physics.neighbours(occ, pos_m, speed_mps, query, n_lanes, car_length_m)
+    _, nb = fast.occupancy_and_neighbours(lane, pos_m, other, speed_mps, query, n_lanes, car_length_m)
     return nearest_leader(nb.lead_gap, nb.lead_speed)
 
 

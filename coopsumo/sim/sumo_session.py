@@ -351,7 +351,9 @@ class SumoSession:
 
     def set_speeds(self, nums: np.ndarray, speeds: np.ndarray) -> None:
         """Speeds (m/s) for the next step (one libsumo call per vehicle, without a Python loop); SUMO keeps them."""
-        deque(map(self.ls.vehicle.setSpeed, self._ids[nums], speeds.tolist()), maxlen=0)
+        # with libsumo its compiled setter itself, without the Python wrapper around it (TraCI: the wrapper)
+        setter = getattr(getattr(self.ls, "_libsumo", None), "vehicle_setSpeed", None) or self.ls.vehicle.setSpeed
+        deque(map(setter, self._ids[nums], speeds.tolist()), maxlen=0)
         self._speed_sent[nums] = speeds
 
     def speeds_sent(self, nums: np.ndarray) -> np.ndarray:

@@ -15,12 +15,12 @@ from types import TracebackType
 import numpy as np
 
 from coopsumo.config import ACCIDENT_STREAM, DEMAND_STREAM, DemandConfig, GuiConfig, OutputConfig, SimConfig, rng_stream
-from coopsumo.sim import accident, controller, physics, view
+from coopsumo.sim import accident, controller, fast, physics, view
 from coopsumo.sim.accident import HELD
 from coopsumo.sim.driver import sumo_lc_params, sumo_models
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
 from coopsumo.sim.passing import PASSING_EVERY_S, PassingCount
-from coopsumo.sim.reward import RewardParts, flow_term, followers_mean, reward_parts, section_crossings, speed_term
+from coopsumo.sim.reward import RewardParts, flow_term, followers_mean, reward_parts, speed_term
 from coopsumo.sim.sumo_session import StepEvents, SumoSession
 from coopsumo.sim.vehicle_table import VehicleTable
 
@@ -248,10 +248,10 @@ class World:
         v_exp = self.veh.v_exp[t.nums]
         other = self._other_lane(t.nums, t.lane)
         busy = other >= 0
-        occ = physics.occupancy(t.lane, t.pos, other)
         # one search for the three side lanes and the second lane a changer touches (its own when none)
         query = np.concatenate([physics.side_lanes(t.lane), np.where(busy, other, t.lane)[:, None]], axis=1)
-        nb = physics.neighbours(occ, t.pos, t.speed, query, c.road.lanes, c.control.car_length_m)
+        occ, nb = fast.occupancy_and_neighbours(t.lane, t.pos, other, t.speed, query, c.road.lanes,
+                                                c.control.car_length_m)  # fmt: skip
         around = physics.Neighbours(*(getattr(nb, f.name)[:, :3] for f in dataclasses.fields(nb)))
         self._leader = controller.nearest_leader(nb.lead_gap[:, 1::2], nb.lead_speed[:, 1::2])
         if self.observe_grids if grids is None else grids:
@@ -410,7 +410,7 @@ class World:
         tot.teleports += events.teleports
         tot.distance_m += float(t.speed.sum()) * dt
         tot.vehicle_time_s += len(t.nums) * dt
-        self._loop_counts.append(section_crossings(prev.nums, prev.pos, t.nums, t.pos, self._sections_m))
+        self._loop_counts.append(fast.section_crossings(prev.nums, prev.pos, t.nums, t.pos, self._sections_m))
         if self.record_every and self.step_count % self.record_every == 0 and len(t.nums):
             self._traj.append((np.full(len(t.nums), self.time_s, np.float32), t.nums.astype(np.int32),
                                t.lane.astype(np.int8), t.pos.astype(np.float32),
@@ -427,7 +427,7 @@ class World:
         v = self.veh
         first, second = physics.body_lanes(t.lane, v.lc_from[t.nums], v.lc_to[t.nums], v.lc_left_s[t.nums],
                                            c.t_change_s, self.cfg.road.lane_width_m, c.vehicle_width_m)  # fmt: skip
-        rows = physics.overlaps(physics.occupancy(first, t.pos, second), c.car_length_m)
+        rows = fast.overlaps(first, t.pos, second, c.car_length_m)
         if len(rows) == 0:
             return 0
         pairs = set(zip(t.nums[rows[:, 0]].tolist(), t.nums[rows[:, 1]].tolist(), strict=True))
