@@ -242,6 +242,9 @@ class DQNConfig:
     alpha_relabel: float = 0.5
     """conditioned training: share of each minibatch given another alpha of PAPER_ALPHAS, its reward recomputed from
     the stored lane changes (r = r_speed + r_flow - alpha x lane changes)"""
+    alpha_draw_max: float = 48.0
+    """conditioned training: the alphas drawn and relabelled to are those of PAPER_ALPHAS up to this one (48: all
+    twelve, the paper's grid; 8: the eight up to scenario I's and II's largest, `conditioned8` of the learning study)"""
     select_every_steps: int = 15_000
     """model selection: every this many training steps (and at the last) the weights are validated greedily on
     held-out demand and model.pt is the best of them (agents/selection.py); 0: model.pt is the last weights (paper)"""
@@ -545,7 +548,8 @@ matches a stored run, cell or checkpoint to its configuration)"""
 
 
 ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "alpha_conditioned": False,
-                                 "alpha_period_steps": 3000, "alpha_relabel": 0.5, "select_every_steps": 0,
+                                 "alpha_period_steps": 3000, "alpha_relabel": 0.5, "alpha_draw_max": 48.0,
+                                 "select_every_steps": 0,
                                  "validation_seed": VALIDATION_SEED, "validation_t_ups": [2.0, 1.5, 1.0],
                                  "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
                                  "episode_steps": 9000, "validation_accident_steps": 0, "followers_weight": 0.0,
@@ -585,3 +589,8 @@ def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
         )
     except KeyError as err:
         raise ConfigError(f"simulation configuration has no {err.args[0]!r} (written by another coopsumo?)") from None
+
+
+def conditioned_alphas(dq: DQNConfig) -> tuple[float, ...]:
+    """The alphas a conditioned training draws and relabels to: PAPER_ALPHAS up to dq.alpha_draw_max."""
+    return tuple(a for a in PAPER_ALPHAS if a <= dq.alpha_draw_max)

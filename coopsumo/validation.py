@@ -82,6 +82,7 @@ LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
     "change_margin": (0.0, 1e6, False, False),
     "alpha_period_steps": (1, MAX_STEPS, False, False),
     "alpha_relabel": (0.0, 1.0, False, False),
+    "alpha_draw_max": (0.0, 1e6, False, False),
     "select_every_steps": (0, MAX_STEPS, False, False),
     "validation_seed": (0, SEED_MAX - 10, False, False),
     "validation_steps": (100, MAX_STEPS, False, False),

@@ -23,7 +23,7 @@ from torch import nn
 
 from coopsumo.agents.file_checks import model_problem
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch, ReplayBuffer
-from coopsumo.config import OBSERVATIONS, PAPER_ALPHAS, DQNConfig
+from coopsumo.config import OBSERVATIONS, PAPER_ALPHAS, DQNConfig, conditioned_alphas
 from coopsumo.sim.observation import n_features
 
 _CONV_OUT = 32 * 1 * 5
@@ -249,6 +249,7 @@ class Learner:
             sync_target(self.online, self._average)
         self.optimizer = make_optimizer(self.online, cfg)
         self.buffer = ReplayBuffer(cfg.replay_size, self.online.n_features, cfg.alpha_conditioned)
+        self._alphas = conditioned_alphas(cfg)
         # A stream distinct from np.random.default_rng(seed), which the caller may use elsewhere.
         self.rng = np.random.default_rng([seed, 0x44514E])
         self.env_steps = 0  # environment steps seen by step()
@@ -380,7 +381,7 @@ class Learner:
                 and self.env_steps >= cfg.learn_start_steps
                 and self.decisions % cfg.learn_every == 0
             ):
-                batches = [self.buffer.sample(cfg.batch_size, self.rng, cfg.alpha_relabel)
+                batches = [self.buffer.sample(cfg.batch_size, self.rng, cfg.alpha_relabel, self._alphas)
                            for _ in range(cfg.updates_per_learn)]  # fmt: skip
                 self.updates += len(batches)
                 if self.worker is not None:

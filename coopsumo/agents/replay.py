@@ -144,11 +144,13 @@ class ReplayBuffer:
         self._pos = (self._pos + n) % self.capacity
         self._size = min(self._size + n, self.capacity)
 
-    def sample(self, batch_size: int, rng: np.random.Generator, relabel: float = 0.0) -> ReplayBatch:
+    def sample(
+        self, batch_size: int, rng: np.random.Generator, relabel: float = 0.0, relabel_to: tuple[float, ...] = PAPER_ALPHAS
+    ) -> ReplayBatch:
         """batch_size transitions drawn uniformly with replacement.
 
         relabel (conditioned buffer): each transition is, with this probability, learned at an alpha drawn from
-        PAPER_ALPHAS instead of its own, its reward recomputed (relabelled).
+        relabel_to (config.conditioned_alphas) instead of its own, its reward recomputed (relabelled).
         """
         if self._size == 0:
             raise ValueError("cannot sample from an empty replay buffer")
@@ -160,7 +162,7 @@ class ReplayBuffer:
             alphas = d["alphas"][idx]
             if relabel > 0:
                 new = np.where(rng.random(batch_size) < relabel,
-                               rng.choice(np.array(PAPER_ALPHAS, np.float32), size=batch_size), alphas)  # fmt: skip
+                               rng.choice(np.array(relabel_to, np.float32), size=batch_size), alphas)  # fmt: skip
                 rewards = relabelled(rewards, alphas, d["lane_changes"][idx], new)
                 alphas = new.astype(np.float32)
         return ReplayBatch(

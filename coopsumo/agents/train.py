@@ -45,6 +45,7 @@ from coopsumo.config import (
     PAPER_ALPHAS,
     ConfigError,
     TrainConfig,
+    conditioned_alphas,
     results_view,
     to_dict,
     train_config_from_dict,
@@ -72,17 +73,17 @@ ALPHA_STREAM = 0x414C5048
 """random stream of a conditioned training's alpha draws (with the seed and the period's index)"""
 
 
-def training_alpha(seed: int, step: int, period_steps: int) -> float:
-    """The alpha all vehicles share at training step `step` of a conditioned training: one of PAPER_ALPHAS, drawn
-    uniformly and afresh every period_steps, a pure function of (seed, step // period_steps) so a resume
-    replays it exactly."""
-    return _alpha_draw(seed, step // period_steps)
+def training_alpha(seed: int, step: int, period_steps: int, alphas: tuple[float, ...] = PAPER_ALPHAS) -> float:
+    """The alpha all vehicles share at training step `step` of a conditioned training: one of `alphas`
+    (config.conditioned_alphas), drawn uniformly and afresh every period_steps, a pure function of
+    (seed, step // period_steps) so a resume replays it exactly."""
+    return _alpha_draw(seed, step // period_steps, alphas)
 
 
 @functools.lru_cache(maxsize=256)
-def _alpha_draw(seed: int, period: int) -> float:
+def _alpha_draw(seed: int, period: int, alphas: tuple[float, ...]) -> float:
     """The alpha of period `period` of a conditioned training seeded `seed` (training_alpha)."""
-    return float(PAPER_ALPHAS[np.random.default_rng([seed, ALPHA_STREAM, period]).integers(len(PAPER_ALPHAS))])
+    return float(alphas[np.random.default_rng([seed, ALPHA_STREAM, period]).integers(len(alphas))])
 
 
 CHECKPOINT_KEYS = ("config", "step", "learner", "action_counts", "actions", "window")
@@ -247,7 +248,8 @@ class Trainer:
     def alpha_at(self, step: int) -> float:
         """The reward's alpha at training step `step`: drawn (training_alpha) when conditioned, else the run's."""
         if self.cfg.dqn.alpha_conditioned:
-            return training_alpha(self.cfg.sim.seed, step, self.cfg.dqn.alpha_period_steps)
+            return training_alpha(self.cfg.sim.seed, step, self.cfg.dqn.alpha_period_steps,
+                                  conditioned_alphas(self.cfg.dqn))
         return self.cfg.sim.reward.alpha
 
     def _advance(self, world: World, recorded: np.ndarray | None = None) -> tuple[StepOutcome, np.ndarray]:

@@ -93,6 +93,8 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--alpha-period", "alpha_period_steps", int, "conditioned training: steps of 0.1 s between two alpha draws"),
     ("--alpha-relabel", "alpha_relabel", float,
      "conditioned training: share of each minibatch learned at another alpha (reward recomputed)"),
+    ("--alpha-draw-max", "alpha_draw_max", float,
+     "conditioned training: draw and relabel only the paper's alphas up to this one (48: all twelve)"),
     ("--select-every", "select_every_steps", int,
      "model selection: every this many steps (and at the last) validate the weights greedily on held-out free-flow "
      "demand; model.pt is the best, model_last.pt the last weights (0: model.pt is the last weights, the paper's)"),
@@ -153,6 +155,7 @@ def flag_value(flag: str, name: str, value: Any) -> Any:
 FLAG_NEEDS: dict[str, tuple[str, Callable[[DQNConfig], bool]]] = {
     "--alpha-period": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
     "--alpha-relabel": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
+    "--alpha-draw-max": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
     "--validation-seed": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
     "--validation-t-up": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
     "--validation-steps": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),

@@ -70,6 +70,9 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
         ("margin2", "the `target` models driven with a change margin of 2 instead of 1", {"change_margin": 2.0}),
         ("conditioned", "`target` with alpha an input: one alpha-conditioned model per seed (train "
          "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A)", {"alpha_conditioned": True}),
+        ("conditioned8", "`conditioned` trained on the paper's alphas up to 8 (the eight of 0-8 drawn and relabelled "
+         "to, not all twelve up to 48; train --alpha-conditioned --alpha-draw-max 8)",
+         {"alpha_conditioned": True, "alpha_draw_max": 8.0}),
     ]  # fmt: skip
     out = []
     cfg = PAPER_DQN
@@ -106,16 +109,16 @@ class Profile:
     t_up_s: float = 1.0
 
 
-FULL_VARIANTS = (*VARIANT_NAMES[:CHAIN_LENGTH], "margin2", "conditioned")
+FULL_VARIANTS = (*VARIANT_NAMES[:CHAIN_LENGTH], "margin2", "conditioned8")
 """the full study: the chain, the default driven with a margin of 2, and the alpha-conditioned network"""
 RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
 """the alphas of the alpha response and of the conditioned network's comparison"""
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), FULL_VARIANTS, RESPONSE_ALPHAS,
-                    alpha_variants=("target", "conditioned")),
+                    alpha_variants=("target", "conditioned8")),
     "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "target"), (0.0, 1.0)),
-    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("target", "conditioned"), RESPONSE_ALPHAS,
-                           alpha_variants=("target", "conditioned")),
+    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("target", "conditioned8"), RESPONSE_ALPHAS,
+                           alpha_variants=("target", "conditioned8")),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "margin2"), (0.0, 1.0)),
 }
 
