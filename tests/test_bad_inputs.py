@@ -171,6 +171,8 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("scenario1", ["--quick", "--preset", "default,,paper"], ("--preset", "empty item")),
     ("train", [*TRAIN, "--alpha-relabel", "0.3"], ("--alpha-relabel", "--alpha-conditioned")),
     ("train", [*TRAIN, "--alpha-period", "300"], ("--alpha-period", "--alpha-conditioned")),
+    ("train", [*TRAIN, "--alpha-draw-max", "8"], ("--alpha-draw-max", "--alpha-conditioned")),
+    ("train", [*TRAIN, "--alpha-conditioned", "--alpha-draw-max", "-1"], ("--alpha-draw-max", "-1")),
     ("train", [*TRAIN, "--preset", "paper", "--episode-steps", "3000"], ("--episode-steps", "--train-t-up")),
     ("train", [*TRAIN, "--select-every", "0", "--validation-steps", "300"], ("--validation-steps", "--select-every")),
 ]  # fmt: skip

@@ -30,7 +30,15 @@ from coopsumo.agents.dqn import (
 )
 from coopsumo.agents.replay import relabelled
 from coopsumo.agents.train import training_alpha
-from coopsumo.config import PAPER_ALPHAS, ConfigError, DQNConfig, RewardConfig, SimConfig, TrainConfig
+from coopsumo.config import (
+    PAPER_ALPHAS,
+    ConfigError,
+    DQNConfig,
+    RewardConfig,
+    SimConfig,
+    TrainConfig,
+    conditioned_alphas,
+)
 from coopsumo.policy_spec import ADAPTIVE, split_dqn_spec
 from coopsumo.runio import UsageError
 from coopsumo.sim.observation import Observation
@@ -111,6 +119,24 @@ def test_training_alpha_is_drawn_from_the_grid_per_period_and_repeats_exactly() 
     assert all(training_alpha(7, k * period + j, period) == draws[k] for k in (0, 5) for j in (1, period - 1))
     assert draws == [training_alpha(7, k * period, period) for k in range(60)]
     assert draws != [training_alpha(8, k * period, period) for k in range(60)]
+
+
+def test_alpha_draw_max_keeps_the_draws_and_the_relabelling_within_the_paper_alphas_up_to_it() -> None:
+    assert conditioned_alphas(DQNConfig()) == PAPER_ALPHAS  # 48: all twelve, as before the option
+    up_to_8 = conditioned_alphas(DQNConfig(alpha_draw_max=8.0))
+    assert up_to_8 == (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0)
+    period = 3000
+    draws = [training_alpha(7, k * period, period, up_to_8) for k in range(60)]
+    assert set(draws) == set(up_to_8)  # every one of the eight, none above
+    assert [training_alpha(7, k * period, period, PAPER_ALPHAS) for k in range(60)] == [
+        training_alpha(7, k * period, period) for k in range(60)]  # fmt: skip
+    buf = ReplayBuffer(32, conditioned=True)
+    buf.add_batch(**_transitions(10, True))
+    moved = buf.sample(512, np.random.default_rng(0), relabel=1.0, relabel_to=up_to_8)
+    assert moved.alphas is not None and set(moved.alphas.tolist()) == set(up_to_8)
+    assert DQNConfig(alpha_draw_max=0.5).validate() is None
+    with pytest.raises(ConfigError, match="alpha_draw_max"):
+        DQNConfig(alpha_draw_max=-1.0).validate()
 
 
 def test_a_conditioned_training_keeps_the_worlds_alpha_at_zero() -> None:
