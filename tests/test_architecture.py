@@ -94,7 +94,9 @@ def test_every_module_imports(name: str) -> None:
 
 def test_walk_packages_finds_the_same_modules() -> None:
     walked = {m.name for m in pkgutil.walk_packages(coopsumo.__path__, "coopsumo.")} | {"coopsumo"}
-    assert walked == set(module_files())
+    compiled = {"coopsumo.sim._kernels"}  # the C extension built from coopsumo/sim/kernels.c (setup.py)
+    assert (PACKAGE_DIR / "sim" / "kernels.c").is_file()
+    assert walked == set(module_files()) | compiled
 
 
 def test_no_import_cycle_inside_coopsumo() -> None:

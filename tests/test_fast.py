@@ -92,3 +92,25 @@ def test_section_crossings_counts_a_front_reaching_the_loop() -> None:
     before = np.array([199.0, 150.0, 200.0])
     after = np.array([200.0, 199.0, 201.0])  # 1 reaches 200 (counted), 2 does not, 3 was on it already
     assert fast.section_crossings(nums, before, nums, after, np.array([200.0])) == 1
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_occupancy_equals_the_definition(seed: int) -> None:
+    rng = np.random.default_rng(300 + seed)
+    lane, pos, _, other = road(rng, int(rng.integers(0, 80)))
+    got, ref = fast.occupancy(lane, pos, other), physics.occupancy(lane, pos, other)
+    for name in ("keys", "lane", "pos", "veh"):
+        assert same(getattr(got, name), getattr(ref, name)), name
+
+
+def test_the_kernels_refuse_arrays_of_the_wrong_kind() -> None:
+    """A caller that bypasses fast.py gets a Python error, not a read out of bounds."""
+    from coopsumo.sim import _kernels  # type: ignore[attr-defined]
+
+    lane = np.array([0, 1])
+    with pytest.raises(TypeError, match="bytes"):
+        _kernels.section_crossings(lane.astype(np.int32), np.zeros(2), lane, np.zeros(2), np.zeros(1))
+    with pytest.raises(ValueError, match="lengths"):
+        _kernels.overlaps(lane, np.zeros(3), lane, np.zeros((1, 2), np.int64), CAR_M)
+    with pytest.raises(TypeError, match="arguments"):
+        _kernels.overlaps(lane)

@@ -145,8 +145,9 @@ class ReplayBuffer:
         self._size = min(self._size + n, self.capacity)
 
     def sample(
-        self, batch_size: int, rng: np.random.Generator, relabel: float = 0.0, relabel_to: tuple[float, ...] = PAPER_ALPHAS
-    ) -> ReplayBatch:
+        self, batch_size: int, rng: np.random.Generator, relabel: float = 0.0,
+        relabel_to: tuple[float, ...] = PAPER_ALPHAS,
+    ) -> ReplayBatch:  # fmt: skip
         """batch_size transitions drawn uniformly with replacement.
 
         relabel (conditioned buffer): each transition is, with this probability, learned at an alpha drawn from
