@@ -594,3 +594,7 @@ def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
 def conditioned_alphas(dq: DQNConfig) -> tuple[float, ...]:
     """The alphas a conditioned training draws and relabels to: PAPER_ALPHAS up to dq.alpha_draw_max."""
     return tuple(a for a in PAPER_ALPHAS if a <= dq.alpha_draw_max)
+
+
+CONDITIONED_FIELDS = ("alpha_conditioned", "alpha_period_steps", "alpha_relabel", "alpha_draw_max")
+"""the learner fields of an alpha-conditioned training, which a network of one alpha ignores"""

@@ -43,6 +43,7 @@ from coopsumo.policy_spec import ADAPTIVE, split_dqn_spec
 from coopsumo.runio import UsageError
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, SPEEDUP
+from coopsumo.studies.ablation_report import per_alpha_twin
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -137,6 +138,12 @@ def test_alpha_draw_max_keeps_the_draws_and_the_relabelling_within_the_paper_alp
     assert DQNConfig(alpha_draw_max=0.5).validate() is None
     with pytest.raises(ConfigError, match="alpha_draw_max"):
         DQNConfig(alpha_draw_max=-1.0).validate()
+
+
+def test_both_conditioned_variants_are_compared_with_the_per_alpha_default() -> None:
+    assert per_alpha_twin("conditioned", ("target", "conditioned")) == "target"
+    assert per_alpha_twin("conditioned8", ("target", "conditioned8")) == "target"  # alpha_draw_max is no difference
+    assert per_alpha_twin("conditioned8", ("queue", "conditioned8")) is None  # the twin must be in the study
 
 
 def test_a_conditioned_training_keeps_the_worlds_alpha_at_zero() -> None:

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.config import CONDITIONED_FIELDS, DQNConfig
 from coopsumo.studies import robustness
 from coopsumo.studies.ablation_plan import (
     BASELINES,
@@ -22,6 +23,14 @@ from coopsumo.studies.ablation_plan import (
     eval_seeds,
     learner_of,
 )
+
+
+def per_alpha_twin(variant: str, candidates: tuple[str, ...]) -> str | None:
+    """The variant among candidates that trains the conditioned `variant`'s learner at one alpha: every
+    conditioned-only setting (config.CONDITIONED_FIELDS) at its default; None when there is none."""
+    default = DQNConfig()
+    twin = replace(learner_of(variant), preset="default", **{f: getattr(default, f) for f in CONDITIONED_FIELDS})
+    return next((n for n, _, c in VARIANTS if c == twin and n in candidates), None)
 
 
 # -- tables ----------------------------------------------------------------------------------------
@@ -185,9 +194,7 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
         lines += ["![alpha response](fig_alpha_response.png)", ""]
     conditioned = [v for v in profile.alpha_variants if learner_of(v).alpha_conditioned]
     for variant in conditioned:
-        reference = replace(learner_of(variant), alpha_conditioned=False, preset="default")
-        ref = next((n for n, _, c in VARIANTS if c == reference and n in profile.alpha_variants), None)
-        if ref is not None:
+        if (ref := per_alpha_twin(variant, profile.alpha_variants)) is not None:
             lines += robustness.conditioned_markdown(robustness.conditioned_table(runs, variant, ref), variant, ref)
     if failed.empty:
         lines += target_lines(runs, meta.get("default_variant", "replay"))
