@@ -18,7 +18,7 @@ PROFILE ?=
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
-	$(BIN)/pip install --quiet --upgrade pip "setuptools>=68"  # setuptools: the wheel test builds without isolation
+	$(BIN)/pip install --quiet --upgrade pip "setuptools>=74.1"  # setuptools: the wheel test builds without isolation
 	$(BIN)/pip install --quiet torch==2.13.0
 	$(BIN)/pip install --quiet -e ".[dev,sb3,ray,tensorboard]"
 	touch $(STAMP)

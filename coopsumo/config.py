@@ -236,7 +236,7 @@ class DQNConfig:
     Default v2x: the learner protocol (results/learner_protocol_v2x*) measured it against the paper's state"""
     alpha_conditioned: bool = False
     """one network for every alpha: alpha is an input (log(1 + alpha) beside the speed errors), training draws it
-    from PAPER_ALPHAS for all vehicles every alpha_period_steps, and the model drives at any alpha (not in the paper)"""
+    from conditioned_alphas for all vehicles every alpha_period_steps; it drives at any alpha (not in the paper)"""
     alpha_period_steps: int = 3000
     """conditioned training: environment steps between two draws of the shared alpha (3,000 = 5 simulated minutes)"""
     alpha_relabel: float = 0.5

@@ -94,7 +94,7 @@ def test_every_module_imports(name: str) -> None:
 
 def test_walk_packages_finds_the_same_modules() -> None:
     walked = {m.name for m in pkgutil.walk_packages(coopsumo.__path__, "coopsumo.")} | {"coopsumo"}
-    compiled = {"coopsumo.sim._kernels"}  # the C extension built from coopsumo/sim/kernels.c (setup.py)
+    compiled = {"coopsumo.sim._kernels"}  # the C extension built from coopsumo/sim/kernels.c (pyproject.toml)
     assert (PACKAGE_DIR / "sim" / "kernels.c").is_file()
     assert walked == set(module_files()) | compiled
 

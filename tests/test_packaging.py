@@ -22,11 +22,10 @@ pytestmark = pytest.mark.sumo
 
 
 def source_copy(dest: Path) -> Path:
-    """pyproject.toml, setup.py and the package, copied: a build in the checkout itself would leave build/ there, and
+    """pyproject.toml and the package, copied: a build in the checkout itself would leave build/ there, and
     setuptools puts a stale build/lib file into the next wheel."""
     dest.mkdir(parents=True)
     shutil.copy2(ROOT / "pyproject.toml", dest / "pyproject.toml")
-    shutil.copy2(ROOT / "setup.py", dest / "setup.py")  # the C extension (coopsumo/sim/kernels.c)
     shutil.copytree(ROOT / "coopsumo", dest / "coopsumo", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
     return dest
 

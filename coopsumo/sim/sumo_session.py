@@ -165,6 +165,9 @@ class SumoSession:
         else:
             self._ls, self._tc = self._start_gui(self.gui)
         _open_sessions += 1
+        # setSpeed: with libsumo its compiled function itself, without the Python wrapper around it (TraCI: the wrapper)
+        native = getattr(self._ls, "_libsumo", None)
+        self._set_speed = getattr(native, "vehicle_setSpeed", None) or self._ls.vehicle.setSpeed
         self._collision_pairs: set[tuple[str, str]] = set()
         tc = self._tc
         self._row = operator.itemgetter(tc.VAR_LANE_INDEX, tc.VAR_LANEPOSITION, tc.VAR_SPEED)
@@ -351,9 +354,7 @@ class SumoSession:
 
     def set_speeds(self, nums: np.ndarray, speeds: np.ndarray) -> None:
         """Speeds (m/s) for the next step (one libsumo call per vehicle, without a Python loop); SUMO keeps them."""
-        # with libsumo its compiled setter itself, without the Python wrapper around it (TraCI: the wrapper)
-        setter = getattr(getattr(self.ls, "_libsumo", None), "vehicle_setSpeed", None) or self.ls.vehicle.setSpeed
-        deque(map(setter, self._ids[nums], speeds.tolist()), maxlen=0)
+        deque(map(self._set_speed, self._ids[nums], speeds.tolist()), maxlen=0)
         self._speed_sent[nums] = speeds
 
     def speeds_sent(self, nums: np.ndarray) -> np.ndarray:

@@ -363,7 +363,7 @@ class World:
         window_m (m) in the lanes it occupies (reward.followers_mean); 0 for one that has left or has none behind."""
         t = self.table
         other = self._other_lane(t.nums, t.lane)
-        occ = physics.occupancy(t.lane, t.pos, other)
+        occ = fast.occupancy(t.lane, t.pos, other)
         r_v = speed_term(t.speed, self.veh.v_exp[t.nums], self.cfg.reward)
         behind = followers_mean(occ.keys, r_v[occ.veh], t.lane, other, t.pos, window_m)
         row, still = self._rows_now(nums)
