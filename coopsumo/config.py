@@ -262,6 +262,9 @@ class DQNConfig:
     validation_queue: bool = False
     """model selection: the snapshots are validated with the queue rule (queue_below_mps) on, as the model will
     drive; False: without it, as training (not in the paper)"""
+    validation_alphas: tuple[float, ...] = ()
+    """model selection of an alpha-conditioned training: every validation run is driven at each of these alphas and
+    the score is the mean over all; empty: at the training's own alpha (0 in the studies) alone"""
     train_t_ups: tuple[float, ...] = (2.0, 1.5, 1.0)
     """training demand: each episode's T_up (s) drawn from these (agents/episodes.py); empty: the run's own T_up
     (train --t-up T trains at T alone)"""
@@ -332,6 +335,11 @@ class DQNConfig:
                            for t in ts):  # fmt: skip
                 raise ConfigError(f"{name} must be {'0' if may_be_empty else '1'} to 10 distinct demands T_up from "
                                   f"0.1 to {MAX_T_UP_S:g} s, got {ts!r}")  # fmt: skip
+        va = self.validation_alphas
+        if not isinstance(va, tuple) or len(va) > 10 or len(set(va)) != len(va) or (va and not self.alpha_conditioned) \
+                or any(number_problem(a, ALPHA_MIN, ALPHA_MAX) for a in va):  # fmt: skip
+            raise ConfigError(f"validation_alphas must be up to 10 distinct alphas from {ALPHA_MIN:g} to "
+                              f"{ALPHA_MAX:g}, and only for an alpha-conditioned learner, got {va!r}")  # fmt: skip
 
 
 PAPER_DQN = DQNConfig(
@@ -521,7 +529,7 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
     d.setdefault("restart_below_mps", 0.0)  # written before the standing rule: 'none' offered at any speed
     for name, implied in ADDED_FIELDS.items():  # written before the field existed: what it meant then
         d.setdefault(name, implied)
-    for name in ("validation_t_ups", "train_t_ups"):
+    for name in ("validation_t_ups", "train_t_ups", "validation_alphas"):
         if isinstance(d[name], list):  # JSON has no tuples
             d[name] = tuple(d[name])
     return _from_fields(DQNConfig, d, "learner")
@@ -549,12 +557,11 @@ matches a stored run, cell or checkpoint to its configuration)"""
 
 ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "alpha_conditioned": False,
                                  "alpha_period_steps": 3000, "alpha_relabel": 0.5, "alpha_draw_max": 48.0,
-                                 "select_every_steps": 0,
-                                 "validation_seed": VALIDATION_SEED, "validation_t_ups": [2.0, 1.5, 1.0],
-                                 "validation_steps": 3000, "train_t_ups": [], "accident_share": 0.0,
-                                 "episode_steps": 9000, "validation_accident_steps": 0, "followers_weight": 0.0,
-                                 "followers_m": 50.0, "queue_below_mps": 0.0,
-                                 "validation_queue": False, "weights_ema": 0.0, "n_step": 1}
+                                 "select_every_steps": 0, "validation_seed": VALIDATION_SEED,
+                                 "validation_t_ups": [2.0, 1.5, 1.0], "validation_steps": 3000, "train_t_ups": [],
+                                 "accident_share": 0.0, "episode_steps": 9000, "validation_accident_steps": 0,
+                                 "followers_weight": 0.0, "followers_m": 50.0, "queue_below_mps": 0.0,
+                                 "validation_queue": False, "weights_ema": 0.0, "n_step": 1, "validation_alphas": []}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 
@@ -589,12 +596,3 @@ def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
         )
     except KeyError as err:
         raise ConfigError(f"simulation configuration has no {err.args[0]!r} (written by another coopsumo?)") from None
-
-
-def conditioned_alphas(dq: DQNConfig) -> tuple[float, ...]:
-    """The alphas a conditioned training draws and relabels to: PAPER_ALPHAS up to dq.alpha_draw_max."""
-    return tuple(a for a in PAPER_ALPHAS if a <= dq.alpha_draw_max)
-
-
-CONDITIONED_FIELDS = ("alpha_conditioned", "alpha_period_steps", "alpha_relabel", "alpha_draw_max")
-"""the learner fields of an alpha-conditioned training, which a network of one alpha ignores"""

@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 from conftest import InlineBackend
 
+from coopsumo.agents.selection import trained_part
 from coopsumo.config import PAPER_DQN, DQNConfig
 from coopsumo.studies.ablation_plan import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, learner_of, own_eval
 from coopsumo.studies.ablation_report import is_monotone_decreasing
@@ -208,10 +209,18 @@ def test_a_margin_variant_drives_its_twins_training() -> None:
     twin, queue = specs["followers_alpha0_seed2"], specs["queue_alpha0_seed2"]
     target, driven = specs["target_alpha0_seed2"], specs["margin2_alpha0_seed2"]
     assert queue["train_key"] == twin["key"] == twin["train_key"]
-    assert queue["config"]["train"] == twin["config"]["train"]  # one training
-    assert driven["train_key"] == target["key"] == target["train_key"] != queue["train_key"]  # a training of its own
-    assert driven["config"]["train"] == target["config"]["train"]
+    assert queue["config"]["train"] == twin["config"]["train"]  # one training: validation leaves the queue rule off
+    assert target["train_key"] == target["key"] != queue["train_key"]  # a training of its own
+    # model selection drives the snapshots with the change margin, as `coopsumo train` does: margin2's model.pt is
+    # chosen with a margin of 2 (from the same weights: the store validates target's snapshots again)
+    assert driven["train_key"] == driven["key"]
+    assert driven["config"]["train"]["dqn"]["change_margin"] == 2.0
+    assert target["config"]["train"]["dqn"]["change_margin"] == 1.0 == DQNConfig().change_margin
+    assert trained_part(driven["config"]["train"]["dqn"]) == trained_part(target["config"]["train"]["dqn"])
     assert twin["config"]["drive"] == {"change_margin": 1.0}
     assert queue["config"]["drive"] == target["config"]["drive"] == {"change_margin": 1.0, "queue_below_mps": 5.0}
     assert driven["config"]["drive"] == {"change_margin": 2.0, "queue_below_mps": 5.0}
-    assert specs["margin_alpha8_seed1"]["train_key"] == "restart_alpha8_seed1"
+    assert specs["margin_alpha8_seed1"]["train_key"] == "restart_alpha8_seed1"  # no model selection: the margin unread
+    tiny = {s["key"]: s for s in cell_specs(replace(profile, train_steps=300), DQNConfig())}
+    assert tiny["margin2_alpha0_seed2"]["train_key"] == "target_alpha0_seed2"  # 300 steps select nothing
+    assert tiny["margin2_alpha0_seed2"]["config"]["train"] == tiny["target_alpha0_seed2"]["config"]["train"]

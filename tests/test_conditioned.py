@@ -10,6 +10,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -17,6 +18,7 @@ import pytest
 import torch
 
 from coopsumo.agents.adaptive import AdaptiveRule, choose_alpha, fit_rule, interval_measures
+from coopsumo.agents.conditioning import conditioned_alphas
 from coopsumo.agents.dqn import (
     ALPHA_INPUT_SCALE,
     GRID_SHAPE,
@@ -37,7 +39,7 @@ from coopsumo.config import (
     RewardConfig,
     SimConfig,
     TrainConfig,
-    conditioned_alphas,
+    to_dict,
 )
 from coopsumo.policy_spec import ADAPTIVE, split_dqn_spec
 from coopsumo.runio import UsageError
@@ -151,6 +153,56 @@ def test_a_conditioned_training_keeps_the_worlds_alpha_at_zero() -> None:
                       dqn=replace(DQNConfig(), alpha_conditioned=True))  # fmt: skip
     with pytest.raises(ConfigError, match="draws alpha itself"):
         cfg.validate()
+
+
+def test_validation_alphas_judge_a_conditioned_snapshot_at_each_alpha(tmp_path: Path) -> None:
+    """--validation-alphas: every validation run once per alpha (the same seeds), the weights trained unchanged."""
+    from coopsumo.agents import selection
+    from coopsumo.studies.model_store import without_selection
+
+    def request_of(dq: DQNConfig, name: str) -> dict[str, Any]:
+        cfg = TrainConfig(sim=SimConfig(steps=90_000, seed=3, policy="dqn"), dqn=dq)
+        cfg.validate()
+        selection.snapshot_dir(tmp_path / name, 15_000).mkdir(parents=True)
+        return dict(json.loads((selection.request(tmp_path / name, cfg, 15_000) / selection.REQUEST).read_text()))
+
+    cond = replace(DQNConfig(), alpha_conditioned=True)
+    three = request_of(replace(cond, validation_alphas=(0.0, 1.0, 8.0)), "three")
+    one = request_of(cond, "one")
+    assert three["drive_alphas"] == [0.0] * 6 + [1.0] * 6 + [8.0] * 6  # 3 demands, free flow and accident
+    runs_of = lambda req: [(r["seed"], r["steps"], r["demand"], r["accident"]) for r in req["runs"]]  # noqa: E731
+    assert runs_of(three) == runs_of(one) * 3 and one["drive_alphas"] == [0.0] * 6
+    assert request_of(DQNConfig(), "plain")["drive_alphas"] == [None] * 6
+    assert without_selection(to_dict(TrainConfig(dqn=replace(cond, validation_alphas=(0.0, 8.0))))) \
+        == without_selection(to_dict(TrainConfig(dqn=cond)))  # fmt: skip
+    for bad in ((-1.0,), (1.0, 1.0), tuple(float(a) for a in range(11))):
+        with pytest.raises(ConfigError, match="validation_alphas"):
+            replace(cond, validation_alphas=bad).validate()
+    with pytest.raises(ConfigError, match="alpha-conditioned"):
+        replace(DQNConfig(), validation_alphas=(0.0, 8.0)).validate()
+
+
+def test_a_conditioned_snapshot_is_validated_in_sumo_at_each_alpha(tmp_path: Path) -> None:
+    """The hand-made network changes lanes at alpha 0 and never at alpha 8: validated at both, its runs say so, and
+    the score is the mean of the two."""
+    from coopsumo.agents import selection
+
+    dq = replace(DQNConfig(), observation="paper", dueling=False, alpha_conditioned=True, change_margin=0.0,
+                 validation_t_ups=(1.0,),
+                 validation_steps=600, validation_accident_steps=0, validation_alphas=(0.0, 8.0))  # fmt: skip
+    cfg = TrainConfig(sim=SimConfig(steps=90_000, seed=3, policy="dqn"), dqn=dq)
+    folder = selection.snapshot_dir(tmp_path, 15_000)
+    folder.mkdir(parents=True)
+    save_model(folder / "model.pt", _handmade_conditioned_net(), {"config": to_dict(cfg)})
+    result = selection.validate(selection.request(tmp_path, cfg, 15_000))
+    runs = {r["alpha"]: r for r in result["runs"]}
+    assert sorted(runs) == [0.0, 8.0] and runs[0.0]["seed"] == runs[8.0]["seed"]
+    assert runs[0.0]["lane_changes_per_vehicle"] > 0 and runs[8.0]["lane_changes_per_vehicle"] == 0
+    assert result["score"] == pytest.approx((runs[0.0]["mean_reward"] + runs[8.0]["mean_reward"]) / 2)
+    assert all(r["collisions"] == 0 and r["teleports"] == 0 for r in result["runs"])
+    selection.write_table(tmp_path)
+    table = pd.read_csv(tmp_path / "validation.csv")
+    assert {"lane_changes_per_vehicle_t1_alpha0", "lane_changes_per_vehicle_t1_alpha8"} <= set(table.columns)
 
 
 # -- driving at an alpha (no SUMO) -----------------------------------------------------------------

@@ -146,6 +146,11 @@ def test_validation_drives_the_queue_rule_only_when_asked(tmp_path: Path) -> Non
         (["--validation-accident-steps", "300"], "--validation-accident-steps"),
         (["--validation-accident-steps", "-1"], "--validation-accident-steps"),
         (["--validation-accident-steps", "6000", "--seed", "900005"], "overlap the training seed"),
+        (["--validation-alphas", "0,8"], "--validation-alphas"),
+        (["--alpha-conditioned", "--validation-alphas", "-1"], "--validation-alphas"),
+        (["--alpha-conditioned", "--validation-alphas", "1,1"], "--validation-alphas"),
+        (["--alpha-conditioned", "--validation-alphas", "a"], "--validation-alphas"),
+        (["--alpha-conditioned", "--select-every", "0", "--validation-alphas", "0,8"], "--validation-alphas"),
     ],
 )
 def test_bad_selection_flags_are_one_line_usage_errors(tmp_path: Path, args: list[str], fragment: str) -> None:

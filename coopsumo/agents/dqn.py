@@ -21,9 +21,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from coopsumo.agents.conditioning import conditioned_alphas
 from coopsumo.agents.file_checks import model_problem
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch, ReplayBuffer
-from coopsumo.config import OBSERVATIONS, PAPER_ALPHAS, DQNConfig, conditioned_alphas
+from coopsumo.config import OBSERVATIONS, PAPER_ALPHAS, DQNConfig
 from coopsumo.sim.observation import n_features
 
 _CONV_OUT = 32 * 1 * 5

@@ -151,7 +151,7 @@ class ReplayBuffer:
         """batch_size transitions drawn uniformly with replacement.
 
         relabel (conditioned buffer): each transition is, with this probability, learned at an alpha drawn from
-        relabel_to (config.conditioned_alphas) instead of its own, its reward recomputed (relabelled).
+        relabel_to (conditioning.conditioned_alphas) instead of its own, its reward recomputed (relabelled).
         """
         if self._size == 0:
             raise ValueError("cannot sample from an empty replay buffer")

@@ -5,10 +5,11 @@ OUT/snapshots/step<N>/model.pt and validates it in a separate process (`python -
 libsumo holds one simulation per process, and the training's is open): one greedy free-flow run per demand of
 DQNConfig.validation_t_ups, each DQNConfig.validation_steps long, on seeds validation_seed + i that no training
 and no study evaluation uses; with DQNConfig.validation_accident_steps > 0, one more run per demand through an
-accident (the next seeds). The process writes DIR/validation.json. The score is the run's own objective,
-the mean reward per vehicle and step (speed + flow - alpha per lane change), averaged over the runs; ties go
-to the earlier snapshot. Validation never feeds back into training: the same seed trains the same weights
-whether or not it runs, and whatever the machine's load.
+accident (the next seeds). A snapshot drives as model.pt would, with its change margin; an alpha-conditioned one
+at its training's alpha, or at each of DQNConfig.validation_alphas (every run once per alpha). The process writes
+DIR/validation.json. The score is the run's own objective, the mean reward per vehicle and step (speed + flow -
+alpha per lane change), averaged over the runs; ties go to the earlier snapshot. Validation never feeds back into
+training: the same seed trains the same weights whether or not it runs, and whatever the machine's load.
 
 The validation also records what the diagnosis of a training needs: the share of each action among the greedy
 decisions, and the Q-value gap between the best lane change and the best of staying where a change is offered.
@@ -70,8 +71,11 @@ def request(out: Path, cfg: TrainConfig, step: int) -> Path:
     """Write the validation request of the snapshot at `step` (its model.pt must exist); returns its folder."""
     folder = snapshot_dir(out, step)
     runs = [to_dict(c) for c in validation_configs(cfg, (folder / "model.pt").resolve())]
-    alpha = cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None
-    data: dict[str, Any] = {"step": step, "runs": runs, "drive_alpha": alpha}
+    alphas: list[float | None] = [None]
+    if cfg.dqn.alpha_conditioned:  # a conditioned snapshot drives at its training's alpha, or at each one asked for
+        alphas = list(cfg.dqn.validation_alphas or (cfg.sim.reward.alpha,))
+    data: dict[str, Any] = {"step": step, "runs": runs * len(alphas),
+                            "drive_alphas": [a for a in alphas for _ in runs]}  # fmt: skip
     if cfg.dqn.validation_queue and cfg.dqn.queue_below_mps:
         data["queue_below_mps"] = cfg.dqn.queue_below_mps
     _write_json(folder / REQUEST, data)
@@ -130,6 +134,8 @@ def write_table(out: Path) -> None:
         row.update({k: v for k, v in r.items() if k not in ("step", "score", "runs")})
         for run in r["runs"]:
             tag = f"{'accident_' if run.get('accident') else ''}t{run['t_up_s']:g}"
+            if len({x.get("alpha") for x in r["runs"]}) > 1:  # validated at several alphas
+                tag += f"_alpha{run['alpha']:g}"
             for key in ("mean_speed_mps", "lane_changes_per_vehicle", "mean_reward"):
                 row[f"{key}_{tag}"] = run[key]
         flat.append(row)
@@ -142,8 +148,9 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
 
 
 SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps",
-                    "validation_queue")
-"""learner settings that only judge snapshots: two trainings that differ in nothing else train the same weights"""
+                    "validation_queue", "validation_alphas", "change_margin", "queue_below_mps")
+"""learner settings that training never reads, only the judging of snapshots (the change margin and the queue rule
+also the driving): two trainings that differ in nothing else train the same weights"""
 
 
 def trained_part(learner: dict[str, Any]) -> dict[str, Any]:
@@ -247,7 +254,7 @@ def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path,
             reward += float(out.reward.total.sum())
             samples += len(out.nums)
         summary = world.summary()
-    run = {"t_up_s": cfg.demand.t_up_s, "accident": cfg.accident.enabled, "seed": cfg.seed,
+    run = {"t_up_s": cfg.demand.t_up_s, "accident": cfg.accident.enabled, "seed": cfg.seed, "alpha": drive_alpha,
            "mean_reward": reward / max(samples, 1),
            **{k: summary[k] for k in ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")}}
     return run, policy.q_log
@@ -260,10 +267,11 @@ def validate(folder: Path) -> dict[str, Any]:
     torch.set_num_threads(1)
     req = json.loads((folder / REQUEST).read_text())
     runs, rows = [], []
-    for i, raw in enumerate(req["runs"]):
+    alphas = req.get("drive_alphas") or [req.get("drive_alpha")] * len(req["runs"])  # one alpha: an older request
+    for i, (raw, alpha) in enumerate(zip(req["runs"], alphas, strict=True)):
         cfg = sim_config_from_dict(raw)
         with tempfile.TemporaryDirectory(dir=folder, prefix=f".run{i}.") as tmp:
-            run, log = validate_run(cfg, req["drive_alpha"], Path(tmp), float(req.get("queue_below_mps", 0.0)))
+            run, log = validate_run(cfg, alpha, Path(tmp), float(req.get("queue_below_mps", 0.0)))
         runs.append(run)
         rows += log
     score = float(np.mean([r["mean_reward"] for r in runs]))

@@ -32,6 +32,7 @@ import torch
 from tqdm import tqdm
 
 from coopsumo.agents import selection
+from coopsumo.agents.conditioning import conditioned_alphas
 from coopsumo.agents.decisions import ActionHold, offered
 from coopsumo.agents.dqn import Learner, save_model
 from coopsumo.agents.dqn_policy import DQNPolicy
@@ -45,7 +46,6 @@ from coopsumo.config import (
     PAPER_ALPHAS,
     ConfigError,
     TrainConfig,
-    conditioned_alphas,
     results_view,
     to_dict,
     train_config_from_dict,
@@ -75,7 +75,7 @@ ALPHA_STREAM = 0x414C5048
 
 def training_alpha(seed: int, step: int, period_steps: int, alphas: tuple[float, ...] = PAPER_ALPHAS) -> float:
     """The alpha all vehicles share at training step `step` of a conditioned training: one of `alphas`
-    (config.conditioned_alphas), drawn uniformly and afresh every period_steps, a pure function of
+    (conditioning.conditioned_alphas), drawn uniformly and afresh every period_steps, a pure function of
     (seed, step // period_steps) so a resume replays it exactly."""
     return _alpha_draw(seed, step // period_steps, alphas)
 

@@ -37,7 +37,18 @@ from coopsumo.runio import (
     retrain_folder,
     run_cli,
 )
-from coopsumo.validation import MAX_STEPS, alpha, check_t_up, integer, number, out_dir, seed, steps, t_up_list
+from coopsumo.validation import (
+    MAX_STEPS,
+    alpha,
+    alpha_list,
+    check_t_up,
+    integer,
+    number,
+    out_dir,
+    seed,
+    steps,
+    t_up_list,
+)
 
 
 def training_folder(out: Path, resume: bool, progress: bool = True) -> Path:
@@ -86,7 +97,7 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--restart-below", "restart_below_mps", float, "'none' is not offered below this speed (m/s; 0: off)"),
     ("--change-margin", "change_margin", float,
      "when the model drives, a lane change is chosen only when its Q-value beats staying by more than this "
-     "(0: plain argmax); training ignores it"),
+     "(0: plain argmax); training ignores it, model selection drives the snapshots with it"),
     ("--alpha-conditioned", "alpha_conditioned", bool,
      "one network for every alpha: alpha is an input, drawn from the paper's 12 values for all vehicles every "
      "--alpha-period steps; drive it with --policy dqn:PATH,alpha=A (not with --alpha)"),
@@ -104,6 +115,9 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--validation-steps", "validation_steps", int, "model selection: steps of 0.1 s of each validation run"),
     ("--validation-accident-steps", "validation_accident_steps", int,
      "model selection: also validate each demand through an accident, a run of this many steps (0: free flow only)"),
+    ("--validation-alphas", "validation_alphas", str,
+     "model selection of a conditioned training: comma-separated alphas each validation run is driven at, the score "
+     "their mean (empty: the training's alpha alone)"),
     ("--validation-queue", "validation_queue", bool,
      "model selection: validate the snapshots with the queue rule (--queue-below) on, as the model will drive"),
     ("--train-t-up", "train_t_ups", str,
@@ -149,6 +163,8 @@ def flag_value(flag: str, name: str, value: Any) -> Any:
     """A learner flag's value as DQNConfig holds it (a list flag's text parsed)."""
     if name in ("validation_t_ups", "train_t_ups") and isinstance(value, str):
         return t_up_list(flag, value, ControlConfig().dt_s)
+    if name == "validation_alphas" and isinstance(value, str):
+        return alpha_list(flag, value) if value.strip() else ()
     return value
 
 
@@ -156,6 +172,8 @@ FLAG_NEEDS: dict[str, tuple[str, Callable[[DQNConfig], bool]]] = {
     "--alpha-period": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
     "--alpha-relabel": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
     "--alpha-draw-max": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
+    "--validation-alphas": ("--alpha-conditioned and --select-every N (N > 0)",
+                            lambda c: c.alpha_conditioned and c.select_every_steps > 0),
     "--validation-seed": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
     "--validation-t-up": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
     "--validation-steps": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),

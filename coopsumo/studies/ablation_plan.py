@@ -67,12 +67,16 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
         ("store_all", "`target` + every transition of a decision round stored (not 16 at random)",
          {"store_per_decision": 1000}),
-        ("margin2", "the `target` models driven with a change margin of 2 instead of 1", {"change_margin": 2.0}),
+        ("margin2", "the `target` trainings with a change margin of 2 instead of 1 (model.pt chosen and driven with "
+         "it)", {"change_margin": 2.0}),
         ("conditioned", "`target` with alpha an input: one alpha-conditioned model per seed (train "
          "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A)", {"alpha_conditioned": True}),
         ("conditioned8", "`conditioned` trained on the paper's alphas up to 8 (the eight of 0-8 drawn and relabelled "
          "to, not all twelve up to 48; train --alpha-conditioned --alpha-draw-max 8)",
          {"alpha_conditioned": True, "alpha_draw_max": 8.0}),
+        ("conditioned8v", "`conditioned8` with model.pt chosen at alphas 0, 1 and 8 (every validation run driven at "
+         "each, the score their mean; train --validation-alphas 0,1,8), not at alpha 0 alone",
+         {"alpha_conditioned": True, "alpha_draw_max": 8.0, "validation_alphas": (0.0, 1.0, 8.0)}),
     ]  # fmt: skip
     out = []
     cfg = PAPER_DQN
@@ -117,8 +121,8 @@ PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), FULL_VARIANTS, RESPONSE_ALPHAS,
                     alpha_variants=("target", "conditioned8")),
     "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "target"), (0.0, 1.0)),
-    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("target", "conditioned8"), RESPONSE_ALPHAS,
-                           alpha_variants=("target", "conditioned8")),
+    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("target", "conditioned8", "conditioned8v"),
+                           RESPONSE_ALPHAS, alpha_variants=("target", "conditioned8", "conditioned8v")),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "margin2"), (0.0, 1.0)),
 }
 
@@ -142,23 +146,28 @@ def eval_config(profile: Profile, policy: str, seed: int) -> SimConfig:
 
 
 DRIVE_FIELDS = ("change_margin", "queue_below_mps")
-"""learner fields that only the driving reads: a study trains with them at 0 (as_trained) and drives with them
-(config.drive)"""
+"""learner fields that only the driving and the choice of model.pt read (config.drive)"""
 
 
-def as_trained(dqn: DQNConfig) -> DQNConfig:
-    """The learner as a study trains it: the drive-time fields at 0."""
-    zeros: dict[str, Any] = {f: 0.0 for f in DRIVE_FIELDS}
+def as_trained(dqn: DQNConfig, steps: int) -> DQNConfig:
+    """The learner as a study trains it for `steps` steps: as `coopsumo train` would, but a drive-time field at 0
+    where the training never reads it (no model selection in that many steps, or a queue rule that validation leaves
+    off), so that variants differing only there share one training. Where model selection drives with it, it stays:
+    model.pt is the snapshot the variant's own validation chooses."""
+    selects = 0 < dqn.select_every_steps < steps
+    zeros: dict[str, Any] = {"queue_below_mps": dqn.queue_below_mps if selects and dqn.validation_queue else 0.0,
+                             "change_margin": dqn.change_margin if selects else 0.0}  # fmt: skip
     return replace(dqn, **zeros)
 
 
-def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int) -> str:
-    """The folder under train/ of the model that `variant` (learner dqn) drives at alpha on seed. Training ignores
-    the drive-time fields, so a variant differing from another only in them drives that one's training."""
-    trained = as_trained(dqn)
+def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int, steps: int) -> str:
+    """The folder under train/ of the model that `variant` (learner dqn) drives at alpha on seed after `steps` of
+    training. A variant differing from another only in drive-time fields that its training does not read
+    (as_trained) drives that one's training."""
+    trained = as_trained(dqn, steps)
     if dqn.alpha_conditioned:  # one training for every alpha
         return f"{variant}_seed{seed}"
-    twin = next((n for n, _, c in VARIANTS if as_trained(c) == trained), variant)
+    twin = next((n for n, _, c in VARIANTS if as_trained(c, steps) == trained), variant)
     return f"{twin}_alpha{number_name(alpha)}_seed{seed}"
 
 
@@ -190,8 +199,9 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
         if key in seen:
             return
         seen.add(key)
-        # training ignores the drive-time fields; a conditioned one draws its own alphas (its world's alpha is 0)
-        cfg = train_config(profile, as_trained(dqn), 0.0 if dqn.alpha_conditioned else alpha, seed)
+        # drive-time fields as_trained; a conditioned one draws its own alphas (its world's alpha is 0)
+        cfg = train_config(profile, as_trained(dqn, profile.train_steps), 0.0 if dqn.alpha_conditioned else alpha,
+                           seed)  # fmt: skip
         cfg.validate()
         evals = [eval_config(profile, "dqn", e) for e in eval_seeds(profile)]
         if dqn.alpha_conditioned:
@@ -201,7 +211,7 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
             config["drive"] = drive
         specs.append({"key": key, "kind": "train", "part": part, "variant": variant, "alpha": alpha, "seed": seed,
                       "eval_seed": None, "policy": "dqn",
-                      "train_key": training_key(dqn, variant, alpha, seed),
+                      "train_key": training_key(dqn, variant, alpha, seed, profile.train_steps),
                       "config": json.loads(json.dumps(config))})  # fmt: skip
 
     for variant in profile.variants:

@@ -10,7 +10,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from coopsumo.config import CONDITIONED_FIELDS, DQNConfig
+from coopsumo.agents.conditioning import CONDITIONED_FIELDS
+from coopsumo.config import DQNConfig
 from coopsumo.studies import robustness
 from coopsumo.studies.ablation_plan import (
     BASELINES,
@@ -27,7 +28,7 @@ from coopsumo.studies.ablation_plan import (
 
 def per_alpha_twin(variant: str, candidates: tuple[str, ...]) -> str | None:
     """The variant among candidates that trains the conditioned `variant`'s learner at one alpha: every
-    conditioned-only setting (config.CONDITIONED_FIELDS) at its default; None when there is none."""
+    conditioned-only setting (conditioning.CONDITIONED_FIELDS) at its default; None when there is none."""
     default = DQNConfig()
     twin = replace(learner_of(variant), preset="default", **{f: getattr(default, f) for f in CONDITIONED_FIELDS})
     return next((n for n, _, c in VARIANTS if c == twin and n in candidates), None)

@@ -33,6 +33,7 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
                 continue
             variant, alpha, seed = str(rec["variant"]), float(rec["alpha"]), int(rec["seed"])
             learner, config = learner_of(variant), dict(rec["config"])
+            steps = int(config["train"]["sim"]["steps"])
         except (OSError, ValueError, KeyError, TypeError) as err:  # UsageError (an unknown variant) among them
             print(f"{prog}: record {cell} cannot be used ({err if isinstance(err, UsageError) else type(err).__name__})"
                   "; skipped", file=sys.stderr)  # fmt: skip
@@ -41,7 +42,8 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
                 or (seeds is not None and seed >= seeds):  # fmt: skip
             continue
         # the study's own training folder (a link into the model store), not the store folder it points to
-        model = root.resolve() / "train" / training_key(learner, variant, alpha, seed) / "model.pt"
+        key = training_key(learner, variant, alpha, seed, steps)
+        model = root.resolve() / "train" / key / "model.pt"
         if not model.is_file():
             raise UsageError(f"{model} is missing, though record {cell} says its training finished: run `coopsumo "
                              f"learning` on {root} again")  # fmt: skip
