@@ -255,10 +255,9 @@ class DQNConfig:
     validation_steps: int = 3000
     """model selection: steps of 0.1 s of each validation run"""
     validation_accident_steps: int = 6000
-    """model selection: when > 0, every validation demand also gets a run of this many steps through an accident at
-    the default position (held from 1/12 of the run for 5/6 of it), scored with the free-flow runs, so that a
-    snapshot that thrashes in a queue is not chosen; 0: free flow only. Default 6,000: the protocol
-    (results/learner_protocol_accval) measured it against free flow only"""
+    """model selection: when > 0, each validation demand also gets a run of this many steps through an accident (held
+    from 1/12 of the run for 5/6 of it), so that a snapshot that thrashes in a queue is not chosen; 0: free flow only
+    (default 6,000: measured against free flow only in results/learner_protocol_accval)"""
     validation_queue: bool = False
     """model selection: the snapshots are validated with the queue rule (queue_below_mps) on, as the model will
     drive; False: without it, as training (not in the paper)"""
@@ -289,6 +288,9 @@ class DQNConfig:
     than this (m/s; 0: none, the paper's): a change takes 4 s across both lanes, so one made where the traffic
     stands holds up two queues. Training and model selection ignore it (measured so: learner_protocol_followers05;
     dqn:PATH,queue=V replaces it)"""
+    no_return_s: float = 0.0
+    """when the trained model drives (and model selection, as it drives), for this many s after a vehicle's lane
+    change the change back into the lane it left is not chosen (0: none; dqn:PATH,noreturn=S replaces it)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
@@ -455,8 +457,7 @@ class GuiConfig:
 
 
 def validation_runs(dq: DQNConfig) -> int:
-    """How many validation runs judge a snapshot (seeds validation_seed to validation_seed + this - 1): one per
-    validation demand, and one more through an accident per demand when validation_accident_steps > 0."""
+    """Validation runs per snapshot (seeds validation_seed + i): per demand, free flow and (when asked) an accident."""
     return len(dq.validation_t_ups) * (2 if dq.validation_accident_steps else 1)
 
 
@@ -561,7 +562,8 @@ ADDED_FIELDS: dict[str, Any] = {"observation": "paper", "change_margin": 0.0, "a
                                  "validation_t_ups": [2.0, 1.5, 1.0], "validation_steps": 3000, "train_t_ups": [],
                                  "accident_share": 0.0, "episode_steps": 9000, "validation_accident_steps": 0,
                                  "followers_weight": 0.0, "followers_m": 50.0, "queue_below_mps": 0.0,
-                                 "validation_queue": False, "weights_ema": 0.0, "n_step": 1, "validation_alphas": []}
+                                 "validation_queue": False, "weights_ema": 0.0, "n_step": 1, "validation_alphas": [],
+                                 "no_return_s": 0.0}
 """fields added after results were stored, with the value a configuration without them means (dropped from
 results_view at that value, so a stored run still matches the configuration it was made with)"""
 

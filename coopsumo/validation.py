@@ -80,6 +80,7 @@ LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
     "store_per_decision": (1, MAX_REPLAY, False, False),
     "restart_below_mps": (0.0, 100.0, False, False),
     "change_margin": (0.0, 1e6, False, False),
+    "no_return_s": (0.0, 600.0, False, False),
     "alpha_period_steps": (1, MAX_STEPS, False, False),
     "alpha_relabel": (0.0, 1.0, False, False),
     "alpha_draw_max": (0.0, 1e6, False, False),

@@ -315,6 +315,29 @@ def test_no_return_withholds_only_the_change_back_for_its_seconds(observation_of
     assert drive(3.0, 0, 1) == [LEFT] * 4  # onward is never withheld (a cooldown would hold it)
 
 
+def test_no_return_is_a_learner_setting_a_model_file_carries(tmp_path: Path) -> None:
+    """DQNConfig.no_return_s (train --no-return S): the saved model drives with it, dqn:PATH,noreturn=S replaces
+    it, and a training differing only there trains the same weights (only model selection drives with it)."""
+    from coopsumo.agents.dqn import QNetwork, save_model
+    from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.agents.selection import trained_part
+    from coopsumo.config import TrainConfig, dqn_config_from_dict, results_view, to_dict
+
+    dq = dataclasses.replace(DQNConfig(), no_return_s=10.0)
+    dq.validate()
+    net = QNetwork(30.0, dueling=dq.dueling, observation=dq.observation)
+    save_model(tmp_path / "model.pt", net, {"config": to_dict(TrainConfig(dqn=dq))})
+    policy = DQNPolicy.from_file(str(tmp_path / "model.pt"))
+    assert policy.no_return_s == 10.0 and policy.trained_on is not None and policy.trained_on["no_return_s"] == 10.0
+    assert DQNPolicy.from_spec(f"dqn:{tmp_path / 'model.pt'},noreturn=0").no_return_s == 0.0
+    assert trained_part(to_dict(dq)) == trained_part(to_dict(DQNConfig()))
+    old = {k: v for k, v in json.loads(json.dumps(to_dict(DQNConfig()))).items() if k != "no_return_s"}
+    assert dqn_config_from_dict(old).no_return_s == 0.0  # a model saved before the setting: none
+    assert results_view(old) == results_view(json.loads(json.dumps(to_dict(DQNConfig()))))  # stored models keep theirs
+    with pytest.raises(ConfigError, match="no_return_s"):
+        dataclasses.replace(DQNConfig(), no_return_s=-1.0).validate()
+
+
 def test_no_lane_change_is_chosen_in_a_queue(observation_of: Layout) -> None:
     from coopsumo.agents.decisions import no_change_in_queue
     from coopsumo.agents.dqn_policy import DQNPolicy

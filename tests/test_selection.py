@@ -147,6 +147,8 @@ def test_validation_drives_the_queue_rule_only_when_asked(tmp_path: Path) -> Non
         (["--validation-accident-steps", "-1"], "--validation-accident-steps"),
         (["--validation-accident-steps", "6000", "--seed", "900005"], "overlap the training seed"),
         (["--validation-alphas", "0,8"], "--validation-alphas"),
+        (["--no-return", "-1"], "--no-return"),
+        (["--no-return", "nan"], "--no-return"),
         (["--alpha-conditioned", "--validation-alphas", "-1"], "--validation-alphas"),
         (["--alpha-conditioned", "--validation-alphas", "1,1"], "--validation-alphas"),
         (["--alpha-conditioned", "--validation-alphas", "a"], "--validation-alphas"),

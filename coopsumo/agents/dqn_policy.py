@@ -62,6 +62,7 @@ class DQNPolicy:
         rule: AdaptiveRule | None = None,
         lanes: int = 3,
         queue_below_mps: float = 0.0,
+        no_return_s: float = 0.0,
     ):
         if net.conditioned == (alpha is None and rule is None):
             raise ValueError("an alpha-conditioned network drives at an alpha or by a rule, another at neither")
@@ -77,8 +78,9 @@ class DQNPolicy:
         self.change_margin = change_margin
         self.change_cooldown_s = 0.0
         """seconds after a lane change during which no other is chosen (0: none; set by dqn:PATH,cooldown=S)"""
-        self.no_return_s = 0.0
-        """seconds after a lane change during which the change back is not chosen (0: none; dqn:PATH,noreturn=S)"""
+        self.no_return_s = no_return_s
+        """seconds after a lane change during which the change back is not chosen (0: none; the model's
+        DQNConfig.no_return_s, or dqn:PATH,noreturn=S)"""
         self.queue_below_mps = queue_below_mps
         """speed below which no lane change is chosen (m/s; 0: none; the model's DQNConfig.queue_below_mps, or
         dqn:PATH,queue=V)"""
@@ -221,12 +223,13 @@ class DQNPolicy:
         policy = cls(net, name=f"dqn:{Path(path).parent.name or path}",
                      decision_interval=dqn.decision_interval_steps, action_mask=dqn.action_mask,
                      restart_below_mps=dqn.restart_below_mps, change_margin=dqn.change_margin,
-                     alpha=0.0 if net.conditioned else None, queue_below_mps=dqn.queue_below_mps)  # fmt: skip
+                     alpha=0.0 if net.conditioned else None, queue_below_mps=dqn.queue_below_mps,
+                     no_return_s=dqn.no_return_s)  # fmt: skip
         policy.trained_on = {"preset": dqn.preset, "observation": dqn.observation,
                              "decision_interval_steps": dqn.decision_interval_steps,
                              "action_mask": dqn.action_mask, "restart_below_mps": dqn.restart_below_mps,
                              "change_margin": dqn.change_margin, "queue_below_mps": dqn.queue_below_mps,
-                             "alpha_conditioned": dqn.alpha_conditioned,
+                             "no_return_s": dqn.no_return_s, "alpha_conditioned": dqn.alpha_conditioned,
                              "lanes": _field(config, "sim", "road", "lanes"),
                              "t_up_s": _field(config, "sim", "demand", "t_up_s"),
                              "alpha": _field(config, "sim", "reward", "alpha"),

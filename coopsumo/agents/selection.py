@@ -148,9 +148,9 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
 
 
 SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps",
-                    "validation_queue", "validation_alphas", "change_margin", "queue_below_mps")
-"""learner settings that training never reads, only the judging of snapshots (the change margin and the queue rule
-also the driving): two trainings that differ in nothing else train the same weights"""
+                    "validation_queue", "validation_alphas", "change_margin", "queue_below_mps", "no_return_s")
+"""learner settings that training never reads, only the judging of snapshots (the change margin, the queue rule and
+no change back also the driving): two trainings that differ in nothing else train the same weights"""
 
 
 def trained_part(learner: dict[str, Any]) -> dict[str, Any]:

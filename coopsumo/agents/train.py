@@ -523,6 +523,7 @@ def train(
     policy = DQNPolicy(net, decision_interval=cfg.dqn.decision_interval_steps,
                        action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps,
                        change_margin=cfg.dqn.change_margin, queue_below_mps=cfg.dqn.queue_below_mps,
+                       no_return_s=cfg.dqn.no_return_s,
                        alpha=cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None)  # fmt: skip
     shutil.rmtree(out / "eval", ignore_errors=True)  # what an interrupted evaluation had written
     try:

@@ -137,6 +137,9 @@ LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
     ("--followers-m", "followers_m", float, "reward shaping: the window behind a vehicle (m)"),
     ("--queue-below", "queue_below_mps", float,
      "driving (not training): no lane change is chosen by a vehicle slower than this (m/s; 0: none)"),
+    ("--no-return", "no_return_s", float,
+     "driving and model selection (not training): for this many s after a lane change, the change back is not "
+     "chosen (s; 0: none)"),
     ("--observation", "observation", OBSERVATIONS,
      "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
      "side lane's nearest leader and follower within 200 m: gap and speed)"),

@@ -87,11 +87,12 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
     record["train_summary"], _ = train_shared(spec["config"]["train"], out, store_for(root))  # cells share trainings
     margin = float(spec["config"].get("drive", {}).get("change_margin", 0.0))
     queue = float(spec["config"].get("drive", {}).get("queue_below_mps", 0.0))
+    no_return = float(spec["config"].get("drive", {}).get("no_return_s", 0.0))
     summaries = []
     for raw in spec["config"]["evals"]:
         ev = sim_config_from_dict(raw)
-        name = f"eval_seed{ev.seed}" + (f"_margin{number_name(margin)}" if margin else "") + (
-            f"_queue{number_name(queue)}" if queue else "")
+        name = f"eval_seed{ev.seed}" + "".join(f"_{tag}{number_name(x)}" for tag, x in
+                                               (("margin", margin), ("queue", queue), ("noreturn", no_return)) if x)
         spec_text = f"dqn:{out / 'model.pt'}"
         policy = DQNPolicy.from_file(spec_text[4:])
         if policy.net.conditioned:  # driven at the cell's alpha (its evaluation's)
@@ -101,7 +102,7 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
         ev = replace(ev, policy=spec_text)
         eval_dir = root / "evals" / key / name  # beside the training: the stored model folder holds the training only
         eval_dir.mkdir(parents=True, exist_ok=True)
-        policy.change_margin, policy.queue_below_mps = margin, queue
+        policy.change_margin, policy.queue_below_mps, policy.no_return_s = margin, queue, no_return
         summary = run(ev, policy, eval_dir, progress=False)
         summaries.append({"eval_seed": ev.seed, **{k: v for k, v in summary.items() if k != "policy"}})
     record["eval_summaries"] = summaries

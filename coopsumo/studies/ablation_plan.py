@@ -145,7 +145,7 @@ def eval_config(profile: Profile, policy: str, seed: int) -> SimConfig:
                      steps=profile.eval_steps, seed=seed, policy=policy)  # fmt: skip
 
 
-DRIVE_FIELDS = ("change_margin", "queue_below_mps")
+DRIVE_FIELDS = ("change_margin", "queue_below_mps", "no_return_s")
 """learner fields that only the driving and the choice of model.pt read (config.drive)"""
 
 
@@ -156,7 +156,8 @@ def as_trained(dqn: DQNConfig, steps: int) -> DQNConfig:
     model.pt is the snapshot the variant's own validation chooses."""
     selects = 0 < dqn.select_every_steps < steps
     zeros: dict[str, Any] = {"queue_below_mps": dqn.queue_below_mps if selects and dqn.validation_queue else 0.0,
-                             "change_margin": dqn.change_margin if selects else 0.0}  # fmt: skip
+                             "change_margin": dqn.change_margin if selects else 0.0,
+                             "no_return_s": dqn.no_return_s if selects else 0.0}  # fmt: skip
     return replace(dqn, **zeros)
 
 
