@@ -146,6 +146,7 @@ def test_both_conditioned_variants_are_compared_with_the_per_alpha_default() -> 
     assert per_alpha_twin("conditioned", ("target", "conditioned")) == "target"
     assert per_alpha_twin("conditioned8", ("target", "conditioned8")) == "target"  # alpha_draw_max is no difference
     assert per_alpha_twin("conditioned8", ("queue", "conditioned8")) is None  # the twin must be in the study
+    assert per_alpha_twin("conditioned8v", ("target", "conditioned8v")) == "target"  # nor are validation alphas
 
 
 def test_a_conditioned_training_keeps_the_worlds_alpha_at_zero() -> None:
@@ -467,4 +468,6 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
     assert set(runs["variant"]) == {"keep", "greedy", "mobil:p=0", "conditioned", "conditioned_adaptive"}
     assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
     assert list((tmp_path / "acc" / "runs").glob("t3/*adaptive*/adaptive_alpha.csv"))
-    assert "## Adaptive alpha against every fixed alpha" in (tmp_path / "acc" / "report.md").read_text()
+    acc_report = (tmp_path / "acc" / "report.md").read_text()
+    assert "## Adaptive alpha against every fixed alpha" in acc_report
+    assert "| 3 | `conditioned` | 0 | 1 |" in acc_report and "| 3 | `conditioned` | 8 | 1 |" in acc_report  # its models

@@ -113,13 +113,14 @@ class Profile:
     t_up_s: float = 1.0
 
 
-FULL_VARIANTS = (*VARIANT_NAMES[:CHAIN_LENGTH], "margin2", "conditioned8")
-"""the full study: the chain, the default driven with a margin of 2, and the alpha-conditioned network"""
+FULL_VARIANTS = (*VARIANT_NAMES[:CHAIN_LENGTH], "margin2", "conditioned8v")
+"""the full study: the chain, the default with a margin of 2, and the alpha-conditioned network (conditioned8v: level
+with conditioned8 or ahead on every seed and alpha of results/learning_conditioned)"""
 RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
 """the alphas of the alpha response and of the conditioned network's comparison"""
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), FULL_VARIANTS, RESPONSE_ALPHAS,
-                    alpha_variants=("target", "conditioned8")),
+                    alpha_variants=("target", "conditioned8v")),
     "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "target"), (0.0, 1.0)),
     "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("target", "conditioned8", "conditioned8v"),
                            RESPONSE_ALPHAS, alpha_variants=("target", "conditioned8", "conditioned8v")),

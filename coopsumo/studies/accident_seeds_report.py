@@ -49,8 +49,8 @@ def adaptive_lines(table: pd.DataFrame) -> list[str]:
         return []
     lines = ["", "## Adaptive alpha against every fixed alpha (the same conditioned models, paired by seed)", "",
              "Difference adaptive minus fixed: mean [90% t-interval over seeds]; TTS lower is better, speed higher.",
-             "", "| T_up (s) | fixed alpha | seeds | TTS difference (veh-h) | speed difference (m/s) | adaptive's "
-             "mean alpha |", "|---|---|---|---|---|---|"]  # fmt: skip
+             "", "| T_up (s) | models | fixed alpha | seeds | TTS difference (veh-h) | speed difference (m/s) | "
+             "adaptive's mean alpha |", "|---|---|---|---|---|---|---|"]  # fmt: skip
     for (t_up, variant), ad in adaptive.groupby(["t_up_s", "variant"], sort=False):
         base = variant.removesuffix("_adaptive")
         fixed = table[(table["t_up_s"] == t_up) & (table["variant"] == base)]
@@ -62,6 +62,6 @@ def adaptive_lines(table: pd.DataFrame) -> list[str]:
             for col in ("tts_veh_h", "mean_speed_mps"):
                 mean, lo, hi = paired_interval((a.loc[seeds, col] - f.loc[seeds, col]).to_numpy(float))
                 cells.append(f"{mean:+.2f} [{lo:+.2f}, {hi:+.2f}]")
-            lines.append(f"| {t_up:g} | {alpha:g} | {len(seeds)} | {cells[0]} | {cells[1]} | "
+            lines.append(f"| {t_up:g} | `{base}` | {alpha:g} | {len(seeds)} | {cells[0]} | {cells[1]} | "
                          f"{a.loc[seeds, 'adaptive_alpha_mean'].astype(float).mean():.2f} |")  # fmt: skip
     return lines
