@@ -14,7 +14,15 @@ from conftest import InlineBackend
 
 from coopsumo.agents.selection import trained_part
 from coopsumo.config import PAPER_DQN, DQNConfig
-from coopsumo.studies.ablation_plan import CHAIN_LENGTH, PROFILES, VARIANTS, cell_specs, learner_of, own_eval
+from coopsumo.studies.ablation_plan import (
+    CHAIN_LENGTH,
+    PROFILES,
+    VARIANTS,
+    as_trained,
+    cell_specs,
+    learner_of,
+    own_eval,
+)
 from coopsumo.studies.ablation_report import is_monotone_decreasing
 
 pytestmark = pytest.mark.sumo
@@ -224,3 +232,7 @@ def test_a_margin_variant_drives_its_twins_training() -> None:
     tiny = {s["key"]: s for s in cell_specs(replace(profile, train_steps=300), DQNConfig())}
     assert tiny["margin2_alpha0_seed2"]["train_key"] == "target_alpha0_seed2"  # 300 steps select nothing
     assert tiny["margin2_alpha0_seed2"]["config"]["train"] == tiny["target_alpha0_seed2"]["config"]["train"]
+    nr = replace(DQNConfig(), no_return_s=10.0)  # no change back: kept where validation drives with it, like the margin
+    assert as_trained(nr, 90_000).no_return_s == 10.0 and as_trained(nr, 300).no_return_s == 0.0
+    assert as_trained(replace(nr, queue_below_mps=5.0), 90_000).queue_below_mps == 0.0  # validation leaves it off
+    assert as_trained(replace(nr, queue_below_mps=5.0, validation_queue=True), 90_000).queue_below_mps == 5.0
