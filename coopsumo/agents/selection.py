@@ -132,9 +132,10 @@ def write_table(out: Path) -> None:
     for r in rows:
         row = {"step": r["step"], "score": r["score"], "best": chosen is not None and r["step"] == chosen["step"]}
         row.update({k: v for k, v in r.items() if k not in ("step", "score", "runs")})
+        several = len({run.get("alpha") for run in r["runs"]}) > 1  # validated at several alphas
         for run in r["runs"]:
             tag = f"{'accident_' if run.get('accident') else ''}t{run['t_up_s']:g}"
-            if len({x.get("alpha") for x in r["runs"]}) > 1:  # validated at several alphas
+            if several:
                 tag += f"_alpha{run['alpha']:g}"
             for key in ("mean_speed_mps", "lane_changes_per_vehicle", "mean_reward"):
                 row[f"{key}_{tag}"] = run[key]

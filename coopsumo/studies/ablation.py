@@ -85,9 +85,8 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
     key = spec.get("train_key", spec["key"])
     out = root / "train" / key
     record["train_summary"], _ = train_shared(spec["config"]["train"], out, store_for(root))  # cells share trainings
-    margin = float(spec["config"].get("drive", {}).get("change_margin", 0.0))
-    queue = float(spec["config"].get("drive", {}).get("queue_below_mps", 0.0))
-    no_return = float(spec["config"].get("drive", {}).get("no_return_s", 0.0))
+    drive = spec["config"].get("drive", {})
+    margin, queue, no_return = (float(drive.get(f, 0.0)) for f in ("change_margin", "queue_below_mps", "no_return_s"))
     summaries = []
     for raw in spec["config"]["evals"]:
         ev = sim_config_from_dict(raw)
