@@ -77,6 +77,9 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
         ("conditioned8v", "`conditioned8` with model.pt chosen at alphas 0, 1 and 8 (every validation run driven at "
          "each, the score their mean; train --validation-alphas 0,1,8), not at alpha 0 alone",
          {"alpha_conditioned": True, "alpha_draw_max": 8.0, "validation_alphas": (0.0, 1.0, 8.0)}),
+        ("conditioned8v_2x", "`conditioned8v` trained twice the study's steps: one network learns every alpha, each "
+         "per-alpha model one (five of them cost five trainings)",
+         {"alpha_conditioned": True, "alpha_draw_max": 8.0, "validation_alphas": (0.0, 1.0, 8.0)}),
     ]  # fmt: skip
     out = []
     cfg = PAPER_DQN
@@ -88,6 +91,8 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
     return out
 
 
+STEPS_FACTOR = {"conditioned8v_2x": 2}
+"""variants trained this many times the profile's train_steps (the others: once)"""
 CHAIN_LENGTH = 16
 """the first CHAIN_LENGTH variants form the chain paper -> ... -> target; the rest branch off its end (target: the
 default preset)"""
@@ -116,14 +121,16 @@ class Profile:
 FULL_VARIANTS = (*VARIANT_NAMES[:CHAIN_LENGTH], "margin2", "conditioned8v")
 """the full study: the chain, the default with a margin of 2, and the alpha-conditioned network (conditioned8v: level
 with conditioned8 or ahead on every seed and alpha of results/learning_conditioned)"""
+CONDITIONED_VARIANTS = ("target", "conditioned8", "conditioned8v", "conditioned8v_2x")
+"""the per-alpha models against the alpha-conditioned network's variants"""
 RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
 """the alphas of the alpha response and of the conditioned network's comparison"""
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), FULL_VARIANTS, RESPONSE_ALPHAS,
                     alpha_variants=("target", "conditioned8v")),
     "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "target"), (0.0, 1.0)),
-    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), ("target", "conditioned8", "conditioned8v"),
-                           RESPONSE_ALPHAS, alpha_variants=("target", "conditioned8", "conditioned8v")),
+    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), CONDITIONED_VARIANTS, RESPONSE_ALPHAS,
+                           alpha_variants=CONDITIONED_VARIANTS),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "margin2"), (0.0, 1.0)),
 }
 
@@ -135,9 +142,14 @@ def learner_of(variant: str) -> DQNConfig:
     raise UsageError(f"unknown variant {variant!r}; expected one of {', '.join(VARIANT_NAMES)}")
 
 
-def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> TrainConfig:
+def train_steps(profile: Profile, variant: str) -> int:
+    """How many steps `variant` trains for in `profile` (STEPS_FACTOR)."""
+    return profile.train_steps * STEPS_FACTOR.get(variant, 1)
+
+
+def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int, steps: int) -> TrainConfig:
     sim = SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=profile.t_up_s),
-                    reward=RewardConfig(alpha=alpha), steps=profile.train_steps, seed=seed, policy="dqn")  # fmt: skip
+                    reward=RewardConfig(alpha=alpha), steps=steps, seed=seed, policy="dqn")  # fmt: skip
     return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
 
 
@@ -169,7 +181,9 @@ def training_key(dqn: DQNConfig, variant: str, alpha: float, seed: int, steps: i
     trained = as_trained(dqn, steps)
     if dqn.alpha_conditioned:  # one training for every alpha
         return f"{variant}_seed{seed}"
-    twin = next((n for n, _, c in VARIANTS if as_trained(c, steps) == trained), variant)
+    factor = STEPS_FACTOR.get(variant, 1)
+    twin = next((n for n, _, c in VARIANTS if as_trained(c, steps) == trained and STEPS_FACTOR.get(n, 1) == factor),
+                variant)  # fmt: skip
     return f"{twin}_alpha{number_name(alpha)}_seed{seed}"
 
 
@@ -202,8 +216,8 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
             return
         seen.add(key)
         # drive-time fields as_trained; a conditioned one draws its own alphas (its world's alpha is 0)
-        cfg = train_config(profile, as_trained(dqn, profile.train_steps), 0.0 if dqn.alpha_conditioned else alpha,
-                           seed)  # fmt: skip
+        steps = train_steps(profile, variant)
+        cfg = train_config(profile, as_trained(dqn, steps), 0.0 if dqn.alpha_conditioned else alpha, seed, steps)
         cfg.validate()
         evals = [eval_config(profile, "dqn", e) for e in eval_seeds(profile)]
         if dqn.alpha_conditioned:
@@ -213,7 +227,7 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
             config["drive"] = drive
         specs.append({"key": key, "kind": "train", "part": part, "variant": variant, "alpha": alpha, "seed": seed,
                       "eval_seed": None, "policy": "dqn",
-                      "train_key": training_key(dqn, variant, alpha, seed, profile.train_steps),
+                      "train_key": training_key(dqn, variant, alpha, seed, steps),
                       "config": json.loads(json.dumps(config))})  # fmt: skip
 
     for variant in profile.variants:

@@ -23,6 +23,7 @@ from coopsumo.studies.ablation_plan import (
     Profile,
     eval_seeds,
     learner_of,
+    train_steps,
 )
 
 
@@ -156,13 +157,21 @@ HEADER = ("| {} | mean speed (m/s) | lane changes / veh | refused requests | tel
           "throughput (veh/h) | training wall (s) | seeds |\n|---|---|---|---|---|---|---|---|---|")  # fmt: skip
 
 
+def _longer(profile: Profile) -> str:
+    """The variants of the profile trained longer, as words (empty: none)."""
+    longer = [f"`{v}` {train_steps(profile, v):,}" for v in profile.variants
+              if train_steps(profile, v) != profile.train_steps]  # fmt: skip
+    return f" ({', '.join(longer)})" if longer else ""
+
+
 def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_tab: pd.DataFrame,
                 base: pd.DataFrame, meta: dict[str, Any]) -> str:  # fmt: skip
     lines = [
         "# What makes the shared DQN learn: ablation and alpha response",
         "",
         f"Profile `{profile.name}`: {profile.lanes} lanes, T_up = {profile.t_up_s:g} s, free flow; each model trained "
-        f"{profile.train_steps:,} steps of 0.1 s on training seeds {list(profile.seeds)}, then evaluated greedily for "
+        f"{profile.train_steps:,} steps of 0.1 s{_longer(profile)} on training seeds {list(profile.seeds)}, then "
+        f"evaluated greedily for "
         f"{profile.eval_steps:,} steps on every evaluation seed {list(eval_seeds(profile))} ({EVAL_SEED_OFFSET} + "
         "each training seed: demands no training saw). A model's measures pool its evaluations (counts summed, lane "
         "changes per vehicle over all its vehicles, speeds averaged); baselines run on the same evaluation seeds. "
