@@ -210,6 +210,31 @@ def test_each_chain_step_is_paired_by_training_seed() -> None:
         "models): `b`." in text
 
 
+def test_a_longer_variant_trains_its_own_model_for_its_steps() -> None:
+    """STEPS_FACTOR: conditioned8v_2x trains twice the profile's steps, a training of its own (not conditioned8v's,
+    whose learner it shares), and the report's profile line names it."""
+    from coopsumo.studies import ablation_plan
+    from coopsumo.studies.ablation_report import _longer
+
+    profile = PROFILES["conditioned"]
+    specs = [s for s in cell_specs(profile, DQNConfig()) if s["kind"] == "train"]
+    longer = [s for s in specs if s["variant"] == "conditioned8v_2x"]
+    plain = [s for s in specs if s["variant"] == "conditioned8v"]
+    assert longer and plain and learner_of("conditioned8v_2x") == learner_of("conditioned8v")
+    assert {s["config"]["train"]["sim"]["steps"] for s in longer} == {2 * profile.train_steps}
+    assert {s["config"]["train"]["sim"]["steps"] for s in plain} == {profile.train_steps}
+    assert not {s["train_key"] for s in longer} & {s["train_key"] for s in plain}
+    assert _longer(profile) == " (`conditioned8v_2x` 180,000)" and _longer(PROFILES["quick"]) == ""
+    # a per-alpha variant trained longer is nobody's twin: it keeps a training of its own
+    factors = {**ablation_plan.STEPS_FACTOR, "margin2": 2}
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(ablation_plan, "STEPS_FACTOR", factors)
+        short = replace(profile, train_steps=300, variants=("target", "margin2"), alpha_variants=())
+        keys = {s["variant"]: s["train_key"] for s in cell_specs(short, DQNConfig())
+                if s["kind"] == "train" and s["seed"] == 0 and s["alpha"] == 0}
+    assert keys == {"target": "target_alpha0_seed0", "margin2": "margin2_alpha0_seed0"}
+
+
 def test_a_margin_variant_drives_its_twins_training() -> None:
     profile = replace(PROFILES["full"], alpha_variants=("restart", "margin", "followers", "queue", "target",
                                                         "margin2"))  # fmt: skip
