@@ -471,3 +471,25 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
     acc_report = (tmp_path / "acc" / "report.md").read_text()
     assert "## Adaptive alpha against every fixed alpha" in acc_report
     assert "| 3 | `conditioned` | 0 | 1 |" in acc_report and "| 3 | `conditioned` | 8 | 1 |" in acc_report  # its models
+
+
+def test_the_conditioned_table_tells_behind_from_ahead() -> None:
+    """conditioned_table: per alpha the paired speed difference against the per-alpha models' seed sd; within spread
+    is two-sided, not behind one-sided, and the report's count line gives both."""
+    from coopsumo.studies.robustness import conditioned_markdown, conditioned_table
+
+    rows = []
+    per_alpha = {0.0: (17.0, 17.2, 17.4), 1.0: (17.0, 17.1, 17.2), 8.0: (17.0, 17.1, 17.2)}  # sd 0.2, 0.1, 0.1
+    shift = {0.0: -0.1, 1.0: +0.5, 8.0: -0.5}  # within; ahead by more than the sd; behind by more
+    for alpha, speeds in per_alpha.items():
+        for seed, v in enumerate(speeds):
+            common = {"status": "ok", "alpha": alpha, "seed": seed, "lane_changes_per_vehicle": 1.0}
+            rows.append({**common, "key": f"t{alpha}{seed}", "variant": "target", "mean_speed_mps": v})
+            rows.append({**common, "key": f"c{alpha}{seed}", "variant": "cond", "mean_speed_mps": v + shift[alpha]})
+    table = conditioned_table(pd.DataFrame(rows), "cond", "target").set_index("alpha")
+    assert table["within_spread"].to_dict() == {0.0: True, 1.0: False, 8.0: False}
+    assert table["not_behind"].to_dict() == {0.0: True, 1.0: True, 8.0: False}
+    assert table.loc[1.0, "d_speed_mean"] == pytest.approx(0.5)
+    text = "\n".join(conditioned_markdown(table.reset_index(), "cond", "target"))
+    assert ("Within the per-alpha seed spread at 1 of 3 alphas; not behind by more than it at 2 of 3 (ahead by more "
+            "at 1)") in text
