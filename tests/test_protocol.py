@@ -14,6 +14,30 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.mark.sumo
+def test_an_alpha_conditioned_variant_trains_once_and_drives_at_each_cells_alpha(tmp_path: Path) -> None:
+    """The c2x variant: one conditioned training per seed (its world's alpha 0) for its alpha 0 and alpha 8 cells, each
+    driven at its own alpha; the report is written."""
+    from dataclasses import replace
+
+    from coopsumo.studies.protocol import driven_policy, run_study
+    from coopsumo.studies.protocol_plan import PROFILES, cell_specs
+
+    profile = replace(PROFILES["tiny"], name="tiny_c2x", variants=("c2x",), seeds=(PROFILES["tiny"].seeds[0],),
+                      t_ups=(1.0,))  # fmt: skip
+    specs = [s for s in cell_specs(profile) if s["kind"] == "model"]
+    assert {s["alpha"] for s in specs} == {0.0, 8.0}
+    assert len({str(s["config"]["train"]) for s in specs}) == 1  # one training for both alphas
+    assert {driven_policy(s, Path("/m")).rsplit(",", 1)[-1] for s in specs} == {"alpha=0", "alpha=8"}
+    assert PROFILES["c2x"].train_steps == PROFILES["ts2k_180k"].train_steps == 180_000
+    out = tmp_path / "proto"
+    run_study(profile, out, workers=2, progress=False)
+    runs = pd.read_csv(out / "runs.csv")
+    assert (runs["status"] == "ok").all() and set(runs[runs["kind"] == "model"]["alpha"]) == {0.0, 8.0}
+    assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
+    assert "## Free flow" in (out / "report.md").read_text()
+
+
+@pytest.mark.sumo
 def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path) -> None:
     out = tmp_path / "proto"
     cmd = [sys.executable, "-m", "coopsumo", "protocol", "--profile", "tiny", "--out", str(out), "--quiet"]

@@ -169,6 +169,10 @@ def variants() -> dict[str, Variant]:
                 "change's end the change into the lane it left is not chosen (a change onward stays offered): does "
                 "the busiest model stop changing back and forth (a third of its changes undone within 5 s) without "
                 "the cooldown's cost through the accident?", F05Q_TS2K, noreturn=10.0),
+        Variant("c2x", "`f05q_ts2k` trained as one alpha-conditioned network (alphas up to 8 drawn and relabelled to, "
+                "model.pt chosen at alphas 0, 1 and 8: the learning study's `conditioned8v`), driven at the cell's "
+                "alpha; its profile trains it 180,000 steps (`conditioned8v_2x`)",
+                replace(F05Q_TS2K, alpha_conditioned=True, alpha_draw_max=8.0, validation_alphas=(0.0, 1.0, 8.0))),
         Variant("f05q_ts2k_n3", "`f05q_ts2k` learning from 3-round returns (--n-step 3, bootstrapped with gamma^3): "
                 "does the speed a lane change buys reach the decision that made it sooner than through the target's "
                 "estimate?", replace(F05Q_TS2K, n_step=3)),
@@ -264,13 +268,19 @@ PROFILES = {
                                eval_offsets=(0, 20, 40)),  # the default's 10 models on 3 seeds per condition
     "f05q_ts2k_nr10": Profile("f05q_ts2k_nr10", variants=("f05q_ts2k", "f05q_ts2k_nr10"), alpha_seeds=0,
                               eval_offsets=(0, 20, 40)),  # the default's 10 models without the change back, by model
+    "c2x": Profile("c2x", variants=("c2x",), train_steps=180_000),  # one conditioned network per seed, alpha 8 on 3
+    "ts2k_180k": Profile("ts2k_180k", variants=("f05q_ts2k",), train_steps=180_000,
+                         alpha_seeds=0),  # the default trained as long: is c2x's gain the steps or the conditioning?
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
 
 
 def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> TrainConfig:
-    sim = SimConfig(road=RoadConfig(lanes=profile.lanes), reward=RewardConfig(alpha=alpha),
+    """A model's training; an alpha-conditioned learner draws its own alphas, so its world's alpha is 0 (one training
+    for every alpha it drives at)."""
+    sim = SimConfig(road=RoadConfig(lanes=profile.lanes), reward=RewardConfig(alpha=0.0 if dqn.alpha_conditioned
+                                                                             else alpha),
                     steps=profile.train_steps, seed=seed, policy="dqn")  # fmt: skip
     if profile.train_steps < dqn.select_every_steps:  # a short profile validates twice
         dqn = replace(dqn, select_every_steps=max(profile.train_steps // 2, 1), validation_steps=min(
