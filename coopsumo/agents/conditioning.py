@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 from coopsumo.config import PAPER_ALPHAS, DQNConfig
 
 
@@ -12,3 +14,14 @@ def conditioned_alphas(dq: DQNConfig) -> tuple[float, ...]:
 
 CONDITIONED_FIELDS = ("alpha_conditioned", "alpha_period_steps", "alpha_relabel", "alpha_draw_max", "validation_alphas")
 """the learner fields of an alpha-conditioned training, which a network of one alpha ignores"""
+
+
+CONDITIONED8V: dict[str, Any] = {"alpha_conditioned": True, "alpha_draw_max": 8.0, "validation_alphas": (0.0, 1.0, 8.0)}
+"""the studies' conditioned network (learning study `conditioned8v`, protocol `c2x`): trained on the paper's alphas
+up to 8, model.pt chosen at alphas 0, 1 and 8"""
+
+
+def world_alpha(dq: DQNConfig, alpha: float) -> float:
+    """The world's alpha of a training whose model drives at `alpha`: 0 for a conditioned one, which draws its own, so
+    that one training serves every alpha it drives at."""
+    return 0.0 if dq.alpha_conditioned else alpha

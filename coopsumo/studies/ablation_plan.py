@@ -7,6 +7,7 @@ import json
 from dataclasses import dataclass, replace
 from typing import Any
 
+from coopsumo.agents.conditioning import CONDITIONED8V, world_alpha
 from coopsumo.config import (
     PAPER_DQN,
     DemandConfig,
@@ -75,11 +76,9 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          "to, not all twelve up to 48; train --alpha-conditioned --alpha-draw-max 8)",
          {"alpha_conditioned": True, "alpha_draw_max": 8.0}),
         ("conditioned8v", "`conditioned8` with model.pt chosen at alphas 0, 1 and 8 (every validation run driven at "
-         "each, the score their mean; train --validation-alphas 0,1,8), not at alpha 0 alone",
-         {"alpha_conditioned": True, "alpha_draw_max": 8.0, "validation_alphas": (0.0, 1.0, 8.0)}),
+         "each, the score their mean; train --validation-alphas 0,1,8), not at alpha 0 alone", CONDITIONED8V),
         ("conditioned8v_2x", "`conditioned8v` trained twice the study's steps: one network learns every alpha, each "
-         "per-alpha model one (five of them cost five trainings)",
-         {"alpha_conditioned": True, "alpha_draw_max": 8.0, "validation_alphas": (0.0, 1.0, 8.0)}),
+         "per-alpha model one (five of them cost five trainings)", CONDITIONED8V),
     ]  # fmt: skip
     out = []
     cfg = PAPER_DQN
@@ -215,9 +214,9 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
         if key in seen:
             return
         seen.add(key)
-        # drive-time fields as_trained; a conditioned one draws its own alphas (its world's alpha is 0)
+        # drive-time fields as_trained; a conditioned one draws its own alphas (conditioning.world_alpha)
         steps = train_steps(profile, variant)
-        cfg = train_config(profile, as_trained(dqn, steps), 0.0 if dqn.alpha_conditioned else alpha, seed, steps)
+        cfg = train_config(profile, as_trained(dqn, steps), world_alpha(dqn, alpha), seed, steps)
         cfg.validate()
         evals = [eval_config(profile, "dqn", e) for e in eval_seeds(profile)]
         if dqn.alpha_conditioned:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 from itertools import product
 from typing import Any
 
+from coopsumo.agents.conditioning import CONDITIONED8V, world_alpha
 from coopsumo.config import (
     MIN_ACCIDENT_VALIDATION_STEPS,
     AccidentConfig,
@@ -172,7 +173,7 @@ def variants() -> dict[str, Variant]:
         Variant("c2x", "`f05q_ts2k` trained as one alpha-conditioned network (alphas up to 8 drawn and relabelled to, "
                 "model.pt chosen at alphas 0, 1 and 8: the learning study's `conditioned8v`), driven at the cell's "
                 "alpha; its profile trains it 180,000 steps (`conditioned8v_2x`)",
-                replace(F05Q_TS2K, alpha_conditioned=True, alpha_draw_max=8.0, validation_alphas=(0.0, 1.0, 8.0))),
+                replace(F05Q_TS2K, **CONDITIONED8V)),
         Variant("f05q_ts2k_n3", "`f05q_ts2k` learning from 3-round returns (--n-step 3, bootstrapped with gamma^3): "
                 "does the speed a lane change buys reach the decision that made it sooner than through the target's "
                 "estimate?", replace(F05Q_TS2K, n_step=3)),
@@ -277,10 +278,8 @@ PROFILES = {
 
 
 def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> TrainConfig:
-    """A model's training; an alpha-conditioned learner draws its own alphas, so its world's alpha is 0 (one training
-    for every alpha it drives at)."""
-    sim = SimConfig(road=RoadConfig(lanes=profile.lanes), reward=RewardConfig(alpha=0.0 if dqn.alpha_conditioned
-                                                                             else alpha),
+    """A model's training (a conditioned one's world at alpha 0: conditioning.world_alpha)."""
+    sim = SimConfig(road=RoadConfig(lanes=profile.lanes), reward=RewardConfig(alpha=world_alpha(dqn, alpha)),
                     steps=profile.train_steps, seed=seed, policy="dqn")  # fmt: skip
     if profile.train_steps < dqn.select_every_steps:  # a short profile validates twice
         dqn = replace(dqn, select_every_steps=max(profile.train_steps // 2, 1), validation_steps=min(
