@@ -1,6 +1,7 @@
-"""The world gives the same bits on every CPU: its one transcendental function, the exponential of Newell's bound,
-is the C library's (physics.exp), not numpy's, whose vector path on AVX-512 CPUs differs in the last bit for about
-5% of arguments (measured: a dense greedy run through the accident made 2,251 lane changes there, 2,381 elsewhere)."""
+"""The world gives the same bits with or without AVX-512: its one transcendental function, the exponential of
+Newell's bound, is the C library's (physics.exp), not numpy's, whose vector path on AVX-512 CPUs differs in the
+last bit for about 5% of arguments (measured: a dense greedy run through the accident made 2,251 lane changes
+there, 2,381 elsewhere)."""
 
 from __future__ import annotations
 

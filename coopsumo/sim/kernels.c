@@ -255,7 +255,7 @@ static PyObject *section_crossings(PyObject *Py_UNUSED(self), PyObject *const *a
     return PyLong_FromSsize_t(count);
 }
 
-/* exp_into(x, out): out[i] = exp(x[i]) by the C library, the same bits on every x86-64 CPU. numpy's np.exp takes
+/* exp_into(x, out): out[i] = exp(x[i]) by the C library, whose bits do not depend on AVX-512. numpy's np.exp takes
  * a vector path on CPUs with AVX-512 that differs from it in the last bit for about 5% of arguments, enough to
  * send a dense run elsewhere (docs/model.md, "The same run on every machine"). */
 static PyObject *exp_into(PyObject *Py_UNUSED(self), PyObject *const *args, Py_ssize_t nargs) {

@@ -156,9 +156,9 @@ def side_lanes(lane: np.ndarray) -> np.ndarray:
 
 
 def exp(x: np.ndarray) -> np.ndarray:
-    """e ** x elementwise by the C library's exp (as math.exp): the same bits on every CPU. np.exp is not: on CPUs
-    with AVX-512 it takes a vector path that differs in the last bit for about 5% of arguments, and a dense run
-    that meets one such difference goes elsewhere."""
+    """e ** x elementwise by the C library's exp (as math.exp), whose bits do not depend on AVX-512. np.exp's do:
+    on CPUs with AVX-512 it takes a vector path that differs in the last bit for about 5% of arguments, and a dense
+    run that meets one such difference goes elsewhere."""
     z = np.asarray(x, np.float64)
     flat = np.ascontiguousarray(z).reshape(-1)
     out = np.empty_like(flat)
