@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import hashlib
 import inspect
+import math
 import os
 import tempfile
 from pathlib import Path
@@ -31,7 +32,7 @@ _CONV_OUT = 32 * 1 * 5
 """features after the two convolutions: 32 filters x 1 row x 5 columns"""
 
 
-ALPHA_INPUT_SCALE = float(np.log1p(max(PAPER_ALPHAS)))
+ALPHA_INPUT_SCALE = math.log1p(max(PAPER_ALPHAS))
 """log(1 + alpha) is divided by this (log 49) before entering a conditioned network: the paper's grid spans 0-1"""
 
 
