@@ -24,6 +24,8 @@ from coopsumo.sim import physics
 from coopsumo.sim.observation import Observation
 
 REPO = Path(__file__).resolve().parent.parent
+TIMING_KEYS = frozenset({"wall_seconds", "steps_per_second", "sumo_step_share"})
+"""the fields of a run's summary.json that measure the machine, not the run"""
 # One OpenMP (torch) thread in the test processes and the commands they start, set before torch is imported: two
 # pytest-xdist workers share two cores, and a second torch thread per worker only spins (a test of 200 updates took
 # 68 s instead of 1 while the other core was busy). The commands decide and train on one thread already.

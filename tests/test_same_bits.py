@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import TIMING_KEYS
 
 from coopsumo.config import ControlConfig
 from coopsumo.sim import physics
@@ -24,8 +25,6 @@ DISPATCHED = {"exp", "exp2", "expm1", "log", "log2", "log10", "log1p", "power", 
               "arcsin", "arccos", "arctan", "arctan2", "sinh", "cosh", "tanh", "arcsinh", "arccosh", "arctanh",
               "cbrt", "hypot"}  # fmt: skip
 """numpy functions whose float64 results may depend on the CPU's vector extensions (SVML on AVX-512)"""
-TIMING = {"steps_per_second", "wall_seconds", "sumo_step_share"}
-"""summary fields that measure the machine, not the run"""
 WORLD = ["sim", "agents/mobil.py", "agents/policies.py", "agents/decisions.py", "agents/dqn.py", "agents/dqn_policy.py"]
 """the code that moves vehicles: the world, the hand-made policies and a model's decisions"""
 
@@ -93,7 +92,7 @@ def test_a_dense_run_is_the_same_with_numpys_avx512_paths_off(tmp_path: Path) ->
         proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
         assert proc.returncode == 0, proc.stderr[-2000:]
         summary = json.loads((tmp_path / name / "summary.json").read_text())
-        summaries.append({k: v for k, v in summary.items() if k not in TIMING})
+        summaries.append({k: v for k, v in summary.items() if k not in TIMING_KEYS})
     assert summaries[0]["lane_changes"] > 100  # dense enough to diverge
     assert summaries[0] == summaries[1]
     loops = [(tmp_path / name / "detectors.xml").read_text().split("-->", 1)[1] for name in ("on", "off")]

@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import sumolib
-from conftest import env_with_display
+from conftest import TIMING_KEYS, env_with_display
 from PIL import Image
 
 from coopsumo.sim import view
@@ -26,7 +26,6 @@ ROOT = Path(__file__).resolve().parent.parent
 PAGE = (ROOT / "docs" / "sumo-tools.md").read_text()
 """the page that documents SUMO's tools on coopsumo's runs"""
 PNG = b"\x89PNG\r\n\x1a\n"
-WALL_KEYS = {"wall_seconds", "steps_per_second", "sumo_step_share"}
 
 
 def page_lines(marker: str) -> list[str]:
@@ -46,7 +45,7 @@ def simulate(args: list[str], env: dict[str, str] | None = None) -> subprocess.C
 
 
 def without_wall(summary_path: Path) -> dict[str, Any]:
-    return {k: v for k, v in json.loads(summary_path.read_text()).items() if k not in WALL_KEYS}
+    return {k: v for k, v in json.loads(summary_path.read_text()).items() if k not in TIMING_KEYS}
 
 
 def colours_of(png: Path) -> Counter[tuple[int, int, int]]:

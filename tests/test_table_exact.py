@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import TIMING_KEYS
 
 from coopsumo.agents.policies import make_policy, policy_for_run
 from coopsumo.agents.rollout import run
@@ -197,7 +198,7 @@ def run_folder(cfg: SimConfig, out: Path) -> dict[str, Any]:
     out.mkdir()
     summary = run(cfg, policy_for_run(cfg), out, trajectories=True, progress=False,
                   outputs=OutputConfig(fcd_period_s=0.5, tripinfo=True))  # fmt: skip
-    return {k: v for k, v in summary.items() if k not in ("wall_seconds", "steps_per_second", "sumo_step_share")}
+    return {k: v for k, v in summary.items() if k not in TIMING_KEYS}
 
 
 def sumo_file(path: Path) -> bytes:

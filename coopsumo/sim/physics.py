@@ -159,11 +159,10 @@ def exp(x: np.ndarray) -> np.ndarray:
     """e ** x elementwise by the C library's exp (as math.exp), whose bits do not depend on AVX-512. np.exp's do:
     on CPUs with AVX-512 it takes a vector path that differs in the last bit for about 5% of arguments, and a dense
     run that meets one such difference goes elsewhere."""
-    z = np.asarray(x, np.float64)
-    flat = np.ascontiguousarray(z).reshape(-1)
+    flat = np.ascontiguousarray(x, np.float64).reshape(-1)
     out = np.empty_like(flat)
     _kernels.exp_into(flat, out)
-    return out.reshape(z.shape)
+    return out.reshape(np.shape(x))
 
 
 def newell_speed(gap_m: np.ndarray, v_exp_mps: np.ndarray, cfg: ControlConfig) -> np.ndarray:
