@@ -267,10 +267,11 @@ def test_several_evaluation_seed_sets_judge_each_model_by_its_mean() -> None:
     from coopsumo.studies.protocol_plan import PROFILES, cell_specs
     from coopsumo.studies.protocol_report import condition_stats, per_model
 
-    three, one = cell_specs(PROFILES["f05q_ts2k_3sets"]), cell_specs(PROFILES["f05q_ts2k10"])
-    first = {s["key"]: s for s in one if s.get("alpha") == 0.0}
-    assert all(first[s["key"]]["config"] == s["config"] for s in three if s["key"] in first)
-    assert len(three) == 3 * len(first) and len({s["key"] for s in three}) == len(three)
+    for three_sets, one_set in (("f05q_ts2k_3sets", "f05q_ts2k10"), ("nr10_3sets", "nr10")):
+        three, one = cell_specs(PROFILES[three_sets]), cell_specs(PROFILES[one_set])
+        first = {s["key"]: s for s in one if s.get("alpha") == 0.0}
+        assert all(first[s["key"]]["config"] == s["config"] for s in three if s["key"] in first)
+        assert len(three) == 3 * len(first) and len({s["key"] for s in three}) == len(three)
     free_t2 = {s["eval_seed"] for s in three if s["scenario"] == "free" and s["t_up"] == 2.0}
     assert free_t2 == {5000, 5020, 5040}
     # a model below keep on one seed and above it on average is not a loss; the mean decides

@@ -90,6 +90,8 @@ F05Q = replace(V2X_MIX_AV_F05, queue_below_mps=5.0)
 queue rule in its own settings (--queue-below 5; v2x_mix_av_f05_q5's trainings and drive as one learner)"""
 F05Q_TS2K = replace(F05Q, target_sync_steps=2000)
 """the default preset since 2026-11-27 (DQNConfig()): f05q with the target network synced every 2,000 steps"""
+NR10 = replace(F05Q_TS2K, no_return_s=10.0)
+"""the candidate default (not the preset yet): f05q_ts2k with no change back for 10 s in its settings"""
 
 
 def variants() -> dict[str, Variant]:
@@ -170,6 +172,9 @@ def variants() -> dict[str, Variant]:
                 "change's end the change into the lane it left is not chosen (a change onward stays offered): does "
                 "the busiest model stop changing back and forth (a third of its changes undone within 5 s) without "
                 "the cooldown's cost through the accident?", F05Q_TS2K, noreturn=10.0),
+        Variant("nr10", "the candidate default: `f05q_ts2k` with no change back for 10 s in its settings "
+                "(--no-return 10): model.pt chosen and driven so (`f05q_ts2k_nr10` drove `f05q_ts2k`'s model.pt so)",
+                NR10),
         Variant("c2x", "`f05q_ts2k` trained as one alpha-conditioned network (alphas up to 8 drawn and relabelled to, "
                 "model.pt chosen at alphas 0, 1 and 8: the learning study's `conditioned8v`), driven at the cell's "
                 "alpha; its profile trains it 180,000 steps (`conditioned8v_2x`)",
@@ -272,6 +277,10 @@ PROFILES = {
     "c2x": Profile("c2x", variants=("c2x",), train_steps=180_000),  # one conditioned network per seed, alpha 8 on 3
     "ts2k_180k": Profile("ts2k_180k", variants=("f05q_ts2k",), train_steps=180_000,
                          alpha_seeds=0),  # the default trained as long: is c2x's gain the steps or the conditioning?
+    "nr10": Profile("nr10", variants=("nr10",),  # the candidate default on 10 seeds, alpha 8 on 3, paired by model
+                    paired_with=(("nr10", "learner_protocol_f05q_ts2k10", "f05q_ts2k"),)),
+    "nr10_3sets": Profile("nr10_3sets", variants=("nr10",), alpha_seeds=0,
+                          eval_offsets=(0, 20, 40)),  # the candidate's 10 models on 3 seeds per condition
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
