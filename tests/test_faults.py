@@ -21,6 +21,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import torch
+from conftest import TIMING_KEYS
 
 from coopsumo.agents.dqn import load_model
 from coopsumo.report.analysis import read_detectors
@@ -28,7 +29,7 @@ from coopsumo.runio import RUN_MARKER, finished_run
 
 pytestmark = pytest.mark.sumo
 REPO = Path(__file__).resolve().parent.parent
-TIMING = {"wall_seconds", "steps_per_second", "sumo_step_share", "wall_s"}
+TIMING = TIMING_KEYS | {"wall_s"}  # and train_summary.json's wall time
 """summary fields and log columns that measure the machine, not the run"""
 SIM = ["coopsumo.simulate", "--steps", "8000", "--t-up", "1.2", "--seed", "4", "--policy", "greedy", "--quiet"]
 TRAIN_DRIVER = """

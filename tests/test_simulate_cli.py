@@ -10,6 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import sumolib
+from conftest import TIMING_KEYS
 
 from coopsumo.config import sim_config_from_dict
 
@@ -98,8 +99,7 @@ def test_read_every_step_is_recorded_in_the_config_and_changes_nothing(
     proc = simulate_cli(args)
     assert proc.returncode == 0, proc.stderr
     assert json.loads((out / "config.json").read_text())["config"]["full_read_every_steps"] == 1
-    wall = ("wall_seconds", "steps_per_second", "sumo_step_share")
-    summaries = [{k: v for k, v in json.loads((d / "summary.json").read_text()).items() if k not in wall}
+    summaries = [{k: v for k, v in json.loads((d / "summary.json").read_text()).items() if k not in TIMING_KEYS}
                  for d in (small, out)]  # fmt: skip
     assert summaries[0] == summaries[1] and summaries[0]["table_max_dev_pos_m"] == 0.0
     pd.testing.assert_frame_equal(pd.read_parquet(small / "trajectories.parquet"),

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import TIMING_KEYS
 
 from coopsumo.agents.policies import make_policy
 from coopsumo.agents.rollout import run
@@ -324,7 +325,7 @@ def test_same_seed_gives_identical_runs_and_another_seed_does_not(tmp_path: Path
         summary = run(cfg, make_policy("random", np.random.default_rng([seed, 3])), out, trajectories=True,
                       progress=False)  # fmt: skip
         assert json.loads((out / "summary.json").read_text())["departed"] == summary["departed"]
-        for key in ("wall_seconds", "steps_per_second", "sumo_step_share"):
+        for key in TIMING_KEYS:
             summary.pop(key)
         return summary, pd.read_parquet(out / "trajectories.parquet")
 
