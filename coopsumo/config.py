@@ -288,9 +288,9 @@ class DQNConfig:
     than this (m/s; 0: none, the paper's): a change takes 4 s across both lanes, so one made where the traffic
     stands holds up two queues. Training and model selection ignore it (measured so: learner_protocol_followers05;
     dqn:PATH,queue=V replaces it)"""
-    no_return_s: float = 0.0
+    no_return_s: float = 10.0
     """when the trained model drives (and model selection, as it drives), for this many s after a vehicle's lane
-    change the change back into the lane it left is not chosen (0: none; dqn:PATH,noreturn=S replaces it)"""
+    change the change back into the lane it left is not chosen (0: the paper's; see learner_protocol_f05q_ts2k_nr10)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""
@@ -349,7 +349,7 @@ PAPER_DQN = DQNConfig(
     lr=0.01, optimizer="sgd", gamma=0.9, replay_size=2000, batch_size=64, learn_every=4, updates_per_learn=1,
     epsilon_start=0.1, epsilon_end=0.1, epsilon_decay_steps=0, restart_below_mps=0.0, change_margin=0.0,
     observation="paper", select_every_steps=0, validation_accident_steps=0, train_t_ups=(), accident_share=0.0,
-    followers_weight=0.0, queue_below_mps=0.0, target_sync_steps=500,
+    followers_weight=0.0, queue_below_mps=0.0, target_sync_steps=500, no_return_s=0.0,
 )  # fmt: skip
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""

@@ -41,7 +41,7 @@ def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
     from coopsumo.studies.protocol_plan import variants
 
     protocol = variants()
-    assert protocol["f05q_ts2k"].learner == DQNConfig() == learner_of("target")
+    assert protocol["nr10"].learner == DQNConfig() == learner_of("noreturn")
     assert protocol["f05q"].learner == learner_of("queue")
     assert protocol["v2x_mix_av"].learner == learner_of("accval")
     assert protocol["v2x_mix"].learner == learner_of("mix")
@@ -86,7 +86,7 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert "| `paper` -> `interval` |" in report and "| `interval` -> `v2x` |" in report  # the chain, step by step
     # the margin2 variant drove the target models (the default's): no training of its own, evaluations beside
     assert not list((out / "train").glob("margin2_*"))
-    assert list((out / "evals").glob("target_alpha0_seed0/eval_*_margin2_queue5"))  # beside the stored model
+    assert list((out / "evals").glob("target_alpha0_seed0/eval_*_margin2_queue5_noreturn10"))  # beside the stored model
     for fig in ("fig_training_curves.png", "fig_alpha_response.png", "fig_training_seeds.png"):
         assert (out / fig).stat().st_size > 1000
     study = json.loads((out / "study.json").read_text())
@@ -252,7 +252,7 @@ def test_a_margin_variant_drives_its_twins_training() -> None:
     assert trained_part(driven["config"]["train"]["dqn"]) == trained_part(target["config"]["train"]["dqn"])
     assert twin["config"]["drive"] == {"change_margin": 1.0}
     assert queue["config"]["drive"] == target["config"]["drive"] == {"change_margin": 1.0, "queue_below_mps": 5.0}
-    assert driven["config"]["drive"] == {"change_margin": 2.0, "queue_below_mps": 5.0}
+    assert driven["config"]["drive"] == {"change_margin": 2.0, "queue_below_mps": 5.0, "no_return_s": 10.0}
     assert specs["margin_alpha8_seed1"]["train_key"] == "restart_alpha8_seed1"  # no model selection: the margin unread
     tiny = {s["key"]: s for s in cell_specs(replace(profile, train_steps=300), DQNConfig())}
     assert tiny["margin2_alpha0_seed2"]["train_key"] == "target_alpha0_seed2"  # 300 steps select nothing

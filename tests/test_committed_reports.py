@@ -72,9 +72,10 @@ def test_every_committed_report_was_made_by_todays_learner() -> None:
         _learner_check(folder)
 
 
-def test_the_default_learner_is_the_protocols_f05q_ts2k_and_scenario_ones() -> None:
+def test_the_default_learner_is_the_protocols_nr10_and_scenario_ones() -> None:
     """The headline learner report judges today's default."""
-    assert results_view(to_dict(variants()["f05q_ts2k"].learner)) == results_view(to_dict(DQNConfig()))
+    assert (ROOT / "results" / "learner_protocol_nr10" / "report.md").is_file()
+    assert results_view(to_dict(variants()["nr10"].learner)) == results_view(to_dict(DQNConfig()))
     assert results_view(to_dict(DQN_PRESETS["default"])) == results_view(to_dict(DQNConfig()))
 
 

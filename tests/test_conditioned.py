@@ -143,10 +143,10 @@ def test_alpha_draw_max_keeps_the_draws_and_the_relabelling_within_the_paper_alp
 
 
 def test_both_conditioned_variants_are_compared_with_the_per_alpha_default() -> None:
-    assert per_alpha_twin("conditioned", ("target", "conditioned")) == "target"
-    assert per_alpha_twin("conditioned8", ("target", "conditioned8")) == "target"  # alpha_draw_max is no difference
+    assert per_alpha_twin("conditioned", ("noreturn", "conditioned")) == "noreturn"
+    assert per_alpha_twin("conditioned8", ("noreturn", "conditioned8")) == "noreturn"  # alpha_draw_max is no difference
     assert per_alpha_twin("conditioned8", ("queue", "conditioned8")) is None  # the twin must be in the study
-    assert per_alpha_twin("conditioned8v", ("target", "conditioned8v")) == "target"  # nor are validation alphas
+    assert per_alpha_twin("conditioned8v", ("noreturn", "conditioned8v")) == "noreturn"  # nor are validation alphas
 
 
 def test_a_conditioned_training_keeps_the_worlds_alpha_at_zero() -> None:
@@ -449,16 +449,17 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
     alpha (experiments/accident_seeds.py --adaptive)."""
     out = tmp_path / "learning"
     res = subprocess.run([sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--variants",
-                          "target,conditioned", "--alpha-variants", "target,conditioned", "--alphas", "0,8",
+                          "noreturn,conditioned", "--alpha-variants", "noreturn,conditioned", "--alphas", "0,8",
                           "--out", str(out), "--quiet"],
                          cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     assert sorted(p.name for p in (out / "train").glob("conditioned*")) == ["conditioned_seed0", "conditioned_seed1"]
     assert sorted(p.name for p in (out / "evals" / "conditioned_seed0").glob("eval_*")) == [
-        "eval_seed1000_margin1_queue5_alpha0", "eval_seed1000_margin1_queue5_alpha8",
-        "eval_seed1001_margin1_queue5_alpha0", "eval_seed1001_margin1_queue5_alpha8"]  # every model, every seed
+        "eval_seed1000_margin1_queue5_noreturn10_alpha0", "eval_seed1000_margin1_queue5_noreturn10_alpha8",
+        "eval_seed1001_margin1_queue5_noreturn10_alpha0",
+        "eval_seed1001_margin1_queue5_noreturn10_alpha8"]  # every model, every seed
     report = (out / "report.md").read_text()
-    assert "## One network for every alpha: `conditioned` against per-alpha `target` models" in report
+    assert "## One network for every alpha: `conditioned` against per-alpha `noreturn` models" in report
     assert "| 8 | 2 |" in report
     acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "conditioned",
                           "--alphas", "0,8", "--adaptive", "--seeds", "1", "--steps", "1500", "--t-up", "3", "--out",

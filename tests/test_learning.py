@@ -323,17 +323,19 @@ def test_no_return_is_a_learner_setting_a_model_file_carries(tmp_path: Path) -> 
     from coopsumo.agents.selection import trained_part
     from coopsumo.config import TrainConfig, dqn_config_from_dict, results_view, to_dict
 
-    dq = dataclasses.replace(DQNConfig(), no_return_s=10.0)
+    dq = dataclasses.replace(DQNConfig(), no_return_s=5.0)
     dq.validate()
     net = QNetwork(30.0, dueling=dq.dueling, observation=dq.observation)
     save_model(tmp_path / "model.pt", net, {"config": to_dict(TrainConfig(dqn=dq))})
     policy = DQNPolicy.from_file(str(tmp_path / "model.pt"))
-    assert policy.no_return_s == 10.0 and policy.trained_on is not None and policy.trained_on["no_return_s"] == 10.0
+    assert policy.no_return_s == 5.0 and policy.trained_on is not None and policy.trained_on["no_return_s"] == 5.0
     assert DQNPolicy.from_spec(f"dqn:{tmp_path / 'model.pt'},noreturn=0").no_return_s == 0.0
     assert trained_part(to_dict(dq)) == trained_part(to_dict(DQNConfig()))
     old = {k: v for k, v in json.loads(json.dumps(to_dict(DQNConfig()))).items() if k != "no_return_s"}
     assert dqn_config_from_dict(old).no_return_s == 0.0  # a model saved before the setting: none
-    assert results_view(old) == results_view(json.loads(json.dumps(to_dict(DQNConfig()))))  # stored models keep theirs
+    before = dataclasses.replace(DQNConfig(), no_return_s=0.0)  # stored models keep theirs: none, not today's 10 s
+    assert results_view(old) == results_view(json.loads(json.dumps(to_dict(before))))
+    assert results_view(old) != results_view(json.loads(json.dumps(to_dict(DQNConfig()))))
     with pytest.raises(ConfigError, match="no_return_s"):
         dataclasses.replace(DQNConfig(), no_return_s=-1.0).validate()
 

@@ -212,7 +212,7 @@ def test_the_accval_profile_judges_the_previous_default_and_measures_its_alpha_r
 
     profile = PROFILES["accval"]
     assert profile.judged_variant() == "v2x_mix_av" and variants()["v2x_mix_av"].learner == V2X_MIX_AV
-    assert variants()["f05q_ts2k"].learner == DQNConfig()  # the default on this branch (f05q with a slower target)
+    assert variants()["nr10"].learner == DQNConfig()  # the default: f05q_ts2k with no change back in its settings
     alpha8 = [s for s in cell_specs(profile) if s.get("alpha") == 8.0]
     assert alpha8 and {s["variant"] for s in alpha8} == {"v2x_mix_av"}
     assert {s["scenario"] for s in alpha8} == {"free"} and len({s["train_key"] for s in alpha8}) == profile.alpha_seeds

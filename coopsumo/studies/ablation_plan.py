@@ -60,17 +60,19 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
          {"followers_weight": 0.5}),
         ("queue", "+ driven with no lane change below 5 m/s (the `followers` models: training ignores it)",
          {"queue_below_mps": 5.0}),
-        ("target", "+ the target network synced every 2,000 steps instead of 500 (about 400 updates instead of 100; "
-         "the default preset)", {"target_sync_steps": 2000}),
+        ("target", "+ the target network synced every 2,000 steps instead of 500 (about 400 updates instead of 100)",
+         {"target_sync_steps": 2000}),
+        ("noreturn", "+ no change back for 10 s after a lane change, when model.pt is chosen and when it drives (the "
+         "default preset)", {"no_return_s": 10.0}),
     ]  # fmt: skip
     extras: list[tuple[str, str, dict[str, Any]]] = [
-        ("eps_decay", "`target` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
+        ("eps_decay", "`noreturn` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
          {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
-        ("store_all", "`target` + every transition of a decision round stored (not 16 at random)",
+        ("store_all", "`noreturn` + every transition of a decision round stored (not 16 at random)",
          {"store_per_decision": 1000}),
-        ("margin2", "the `target` trainings with a change margin of 2 instead of 1 (model.pt chosen and driven with "
+        ("margin2", "the `noreturn` trainings with a change margin of 2 instead of 1 (model.pt chosen and driven with "
          "it)", {"change_margin": 2.0}),
-        ("conditioned", "`target` with alpha an input: one alpha-conditioned model per seed (train "
+        ("conditioned", "`noreturn` with alpha an input: one alpha-conditioned model per seed (train "
          "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A)", {"alpha_conditioned": True}),
         ("conditioned8", "`conditioned` trained on the paper's alphas up to 8 (the eight of 0-8 drawn and relabelled "
          "to, not all twelve up to 48; train --alpha-conditioned --alpha-draw-max 8)",
@@ -92,8 +94,8 @@ def _variants() -> list[tuple[str, str, DQNConfig]]:
 
 STEPS_FACTOR = {"conditioned8v_2x": 2}
 """variants trained this many times the profile's train_steps (the others: once)"""
-CHAIN_LENGTH = 16
-"""the first CHAIN_LENGTH variants form the chain paper -> ... -> target; the rest branch off its end (target: the
+CHAIN_LENGTH = 17
+"""the first CHAIN_LENGTH variants form the chain paper -> ... -> noreturn; the rest branch off its end (noreturn: the
 default preset)"""
 VARIANTS = _variants()
 VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
@@ -120,14 +122,14 @@ class Profile:
 FULL_VARIANTS = (*VARIANT_NAMES[:CHAIN_LENGTH], "margin2", "conditioned8v")
 """the full study: the chain, the default with a margin of 2, and the alpha-conditioned network (conditioned8v: level
 with conditioned8 or ahead on every seed and alpha of results/learning_conditioned)"""
-CONDITIONED_VARIANTS = ("target", "conditioned8", "conditioned8v", "conditioned8v_2x")
+CONDITIONED_VARIANTS = ("noreturn", "conditioned8", "conditioned8v", "conditioned8v_2x")
 """the per-alpha models against the alpha-conditioned network's variants"""
 RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
 """the alphas of the alpha response and of the conditioned network's comparison"""
 PROFILES = {
     "full": Profile("full", 90_000, 9000, (0, 1, 2), FULL_VARIANTS, RESPONSE_ALPHAS,
-                    alpha_variants=("target", "conditioned8v")),
-    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "target"), (0.0, 1.0)),
+                    alpha_variants=("noreturn", "conditioned8v")),
+    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "noreturn"), (0.0, 1.0)),
     "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), CONDITIONED_VARIANTS, RESPONSE_ALPHAS,
                            alpha_variants=CONDITIONED_VARIANTS),
     "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "margin2"), (0.0, 1.0)),

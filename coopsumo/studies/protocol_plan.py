@@ -74,7 +74,7 @@ class Variant:
 
 
 SELECT = replace(DQNConfig(), observation="paper", train_t_ups=(), accident_share=0.0, validation_accident_steps=0,
-                 followers_weight=0.0, queue_below_mps=0.0, target_sync_steps=500)
+                 followers_weight=0.0, queue_below_mps=0.0, target_sync_steps=500, no_return_s=0.0)
 """the default learner before the v2x state and the mix (free flow at the run's own demand, the paper's state,
 model.pt chosen on free flow alone)"""
 MIX = replace(SELECT, train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)
@@ -89,13 +89,13 @@ F05Q = replace(V2X_MIX_AV_F05, queue_below_mps=5.0)
 """the candidate default of 2026-11-27 (not the preset): v2x_mix_av_f05 driving with no lane change below 5 m/s, the
 queue rule in its own settings (--queue-below 5; v2x_mix_av_f05_q5's trainings and drive as one learner)"""
 F05Q_TS2K = replace(F05Q, target_sync_steps=2000)
-"""the default preset since 2026-11-27 (DQNConfig()): f05q with the target network synced every 2,000 steps"""
+"""the default preset from 2026-11-27 to 11-29: f05q with the target network synced every 2,000 steps"""
 NR10 = replace(F05Q_TS2K, no_return_s=10.0)
-"""the candidate default (not the preset yet): f05q_ts2k with no change back for 10 s in its settings"""
+"""the default preset (DQNConfig()): f05q_ts2k with no change back for 10 s in its settings"""
 
 
 def variants() -> dict[str, Variant]:
-    """The variants the protocol knows; `f05q_ts2k` is the default preset (DQNConfig()), `v2x_mix_av` the one before."""
+    """The variants the protocol knows; `nr10` is the default preset (DQNConfig()), `v2x_mix_av` the one before."""
     default = SELECT
     return {v.name: v for v in (
         Variant("select", "the default until v2x_mix: the paper's state, free-flow training at T_up 1 s, change "
@@ -172,13 +172,12 @@ def variants() -> dict[str, Variant]:
                 "change's end the change into the lane it left is not chosen (a change onward stays offered): does "
                 "the busiest model stop changing back and forth (a third of its changes undone within 5 s) without "
                 "the cooldown's cost through the accident?", F05Q_TS2K, noreturn=10.0),
-        Variant("nr10", "the candidate default: `f05q_ts2k` with no change back for 10 s in its settings "
-                "(--no-return 10): model.pt chosen and driven so (`f05q_ts2k_nr10` drove `f05q_ts2k`'s model.pt so)",
-                NR10),
         Variant("c2x", "`f05q_ts2k` trained as one alpha-conditioned network (alphas up to 8 drawn and relabelled to, "
                 "model.pt chosen at alphas 0, 1 and 8: the learning study's `conditioned8v`), driven at the cell's "
                 "alpha; its profile trains it 180,000 steps (`conditioned8v_2x`)",
                 replace(F05Q_TS2K, **CONDITIONED8V)),
+        Variant("nr10", "the default preset: `f05q_ts2k` with no change back for 10 s in its settings (--no-return 10): "
+                "model.pt chosen and driven so (`f05q_ts2k_nr10` drove `f05q_ts2k`'s model.pt so)", NR10),
         Variant("f05q_ts2k_n3", "`f05q_ts2k` learning from 3-round returns (--n-step 3, bootstrapped with gamma^3): "
                 "does the speed a lane change buys reach the decision that made it sooner than through the target's "
                 "estimate?", replace(F05Q_TS2K, n_step=3)),
@@ -277,10 +276,10 @@ PROFILES = {
     "c2x": Profile("c2x", variants=("c2x",), train_steps=180_000),  # one conditioned network per seed, alpha 8 on 3
     "ts2k_180k": Profile("ts2k_180k", variants=("f05q_ts2k",), train_steps=180_000,
                          alpha_seeds=0),  # the default trained as long: is c2x's gain the steps or the conditioning?
-    "nr10": Profile("nr10", variants=("nr10",),  # the candidate default on 10 seeds, alpha 8 on 3, paired by model
+    "nr10": Profile("nr10", variants=("nr10",),  # the default on 10 seeds, alpha 8 on 3, paired by model
                     paired_with=(("nr10", "learner_protocol_f05q_ts2k10", "f05q_ts2k"),)),
     "nr10_3sets": Profile("nr10_3sets", variants=("nr10",), alpha_seeds=0,
-                          eval_offsets=(0, 20, 40)),  # the candidate's 10 models on 3 seeds per condition
+                          eval_offsets=(0, 20, 40)),  # the default's 10 models on 3 seeds per condition
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
