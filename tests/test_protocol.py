@@ -28,7 +28,7 @@ def test_an_alpha_conditioned_variant_trains_once_and_drives_at_each_cells_alpha
     assert {s["alpha"] for s in specs} == {0.0, 8.0}
     assert len({str(s["config"]["train"]) for s in specs}) == 1  # one training for both alphas
     assert {driven_policy(s, Path("/m")).rsplit(",", 1)[-1] for s in specs} == {"alpha=0", "alpha=8"}
-    assert PROFILES["c2x"].train_steps == PROFILES["ts2k_180k"].train_steps == 180_000
+    assert PROFILES["c2x"].train_steps == PROFILES["nr10_180k"].train_steps == 180_000
     out = tmp_path / "proto"
     run_study(profile, out, workers=2, progress=False)
     runs = pd.read_csv(out / "runs.csv")

@@ -172,12 +172,12 @@ def variants() -> dict[str, Variant]:
                 "change's end the change into the lane it left is not chosen (a change onward stays offered): does "
                 "the busiest model stop changing back and forth (a third of its changes undone within 5 s) without "
                 "the cooldown's cost through the accident?", F05Q_TS2K, noreturn=10.0),
-        Variant("c2x", "`f05q_ts2k` trained as one alpha-conditioned network (alphas up to 8 drawn and relabelled to, "
-                "model.pt chosen at alphas 0, 1 and 8: the learning study's `conditioned8v`), driven at the cell's "
-                "alpha; its profile trains it 180,000 steps (`conditioned8v_2x`)",
-                replace(F05Q_TS2K, **CONDITIONED8V)),
-        Variant("nr10", "the default preset: `f05q_ts2k` with no change back for 10 s in its settings (--no-return 10): "
-                "model.pt chosen and driven so (`f05q_ts2k_nr10` drove `f05q_ts2k`'s model.pt so)", NR10),
+        Variant("nr10", "the default preset: `f05q_ts2k` with no change back for 10 s in its settings (--no-return "
+                "10): model.pt chosen and driven so (`f05q_ts2k_nr10` drove `f05q_ts2k`'s model.pt so)", NR10),
+        Variant("c2x", "the default (`nr10`) trained as one alpha-conditioned network (alphas up to 8 drawn and "
+                "relabelled to, model.pt chosen at alphas 0, 1 and 8: the learning study's `conditioned8v`), driven "
+                "at the cell's alpha; its profile trains it 180,000 steps (`conditioned8v_2x`)",
+                replace(NR10, **CONDITIONED8V)),
         Variant("f05q_ts2k_n3", "`f05q_ts2k` learning from 3-round returns (--n-step 3, bootstrapped with gamma^3): "
                 "does the speed a lane change buys reach the decision that made it sooner than through the target's "
                 "estimate?", replace(F05Q_TS2K, n_step=3)),
@@ -274,7 +274,7 @@ PROFILES = {
     "f05q_ts2k_nr10": Profile("f05q_ts2k_nr10", variants=("f05q_ts2k", "f05q_ts2k_nr10"), alpha_seeds=0,
                               eval_offsets=(0, 20, 40)),  # the default's 10 models without the change back, by model
     "c2x": Profile("c2x", variants=("c2x",), train_steps=180_000),  # one conditioned network per seed, alpha 8 on 3
-    "ts2k_180k": Profile("ts2k_180k", variants=("f05q_ts2k",), train_steps=180_000,
+    "nr10_180k": Profile("nr10_180k", variants=("nr10",), train_steps=180_000,
                          alpha_seeds=0),  # the default trained as long: is c2x's gain the steps or the conditioning?
     "nr10": Profile("nr10", variants=("nr10",),  # the default on 10 seeds, alpha 8 on 3, paired by model
                     paired_with=(("nr10", "learner_protocol_f05q_ts2k10", "f05q_ts2k"),)),
