@@ -232,7 +232,9 @@ def test_a_longer_variant_trains_its_own_model_for_its_steps() -> None:
         short = replace(profile, train_steps=300, variants=("target", "margin2"), alpha_variants=())
         keys = {s["variant"]: s["train_key"] for s in cell_specs(short, DQNConfig())
                 if s["kind"] == "train" and s["seed"] == 0 and s["alpha"] == 0}
-    assert keys == {"target": "target_alpha0_seed0", "margin2": "margin2_alpha0_seed0"}
+    # the default's alpha response (noreturn) selects nothing in 300 steps: it drives target's training
+    assert keys == {"target": "target_alpha0_seed0", "margin2": "margin2_alpha0_seed0",
+                    "noreturn": "target_alpha0_seed0"}
 
 
 def test_a_margin_variant_drives_its_twins_training() -> None:
