@@ -95,7 +95,7 @@ NR10 = replace(F05Q_TS2K, no_return_s=10.0)
 
 
 def variants() -> dict[str, Variant]:
-    """The variants the protocol knows; `nr10` is the default preset (DQNConfig()), `v2x_mix_av` the one before."""
+    """The variants the protocol knows; `nr10` is the default preset (DQNConfig()), `f05q_ts2k` the one before."""
     default = SELECT
     return {v.name: v for v in (
         Variant("select", "the default until v2x_mix: the paper's state, free-flow training at T_up 1 s, change "
