@@ -290,7 +290,7 @@ class DQNConfig:
     dqn:PATH,queue=V replaces it)"""
     no_return_s: float = 10.0
     """when the trained model drives (and model selection, as it drives), for this many s after a vehicle's lane
-    change the change back into the lane it left is not chosen (0: the paper's; see learner_protocol_f05q_ts2k_nr10)"""
+    change the change back into the lane it left is not chosen (0: the paper's; dqn:PATH,noreturn=S replaces it)"""
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""

@@ -89,7 +89,7 @@ F05Q = replace(V2X_MIX_AV_F05, queue_below_mps=5.0)
 """the candidate default of 2026-11-27 (not the preset): v2x_mix_av_f05 driving with no lane change below 5 m/s, the
 queue rule in its own settings (--queue-below 5; v2x_mix_av_f05_q5's trainings and drive as one learner)"""
 F05Q_TS2K = replace(F05Q, target_sync_steps=2000)
-"""the default preset from 2026-11-27 to 11-29: f05q with the target network synced every 2,000 steps"""
+"""the default preset from 2026-11-27 to 11-28: f05q with the target network synced every 2,000 steps"""
 NR10 = replace(F05Q_TS2K, no_return_s=10.0)
 """the default preset (DQNConfig()): f05q_ts2k with no change back for 10 s in its settings"""
 
