@@ -207,6 +207,22 @@ def test_actions_and_outcomes_line_up(random_run: Recording) -> None:
     assert rejected_total == random_run.summary["lane_changes_rejected"]
 
 
+def test_drive_moves_the_world_as_apply_does(random_run: Recording, tmp_path: Path) -> None:
+    """drive() skips only the outcome: the same run driven by it writes the same summary, trajectories and loops."""
+    cfg = random_run.cfg
+    policy = make_policy("random", np.random.default_rng([cfg.seed, 3]))
+    with World(cfg, tmp_path, record_trajectories_every=1) as world:
+        for _ in range(cfg.steps):
+            assert world.drive(policy.act(world.observe())) is None
+        summary = world.summary()
+        traj = pd.DataFrame(world.trajectories())
+    assert summary == random_run.summary
+    assert summary["lane_changes"] > 0
+    pd.testing.assert_frame_equal(traj, random_run.traj)
+    loops = [read_detectors(d / "detectors.xml") for d in (tmp_path, random_run.run_dir)]
+    pd.testing.assert_frame_equal(*loops)
+
+
 def test_rewards_belong_to_the_right_vehicles(random_run: Recording) -> None:
     r = random_run.cfg.reward
     span = r.v_max_mps - r.v_min_mps

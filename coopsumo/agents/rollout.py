@@ -65,7 +65,7 @@ def run(
         for _ in range(cfg.steps):
             decide = hold.is_decision_step(world.step_count)
             obs = world.observe(grids=decide and policy.needs_grids)
-            world.apply(hold.actions(obs.nums, policy.act(obs) if decide else None))
+            world.drive(hold.actions(obs.nums, policy.act(obs) if decide else None))  # no rewards needed
             if listen is not None and world.step_count % world.loop_period_steps == 0:
                 counts, occupancy, speeds = world.loop_last_interval()
                 listen(interval_measures(world.time_s, counts, occupancy, speeds, cfg.road.loop_period_s))

@@ -38,6 +38,10 @@ class StepOutcome:
     q_t: float
 
 
+_Step = tuple[Observation, np.ndarray, StepEvents, np.ndarray, np.ndarray, np.ndarray]
+"""what a step did: the observation, the actions, SUMO's events, the speeds sent (m/s), changes started, refused"""
+
+
 @dataclass
 class Totals:
     """Running counts for the summary."""
@@ -270,6 +274,15 @@ class World:
 
     def apply(self, actions: np.ndarray) -> StepOutcome:
         """Check and execute the actions of the last observation, step SUMO, return the outcome."""
+        return self._outcome(*self._step(actions))
+
+    def drive(self, actions: np.ndarray) -> None:
+        """apply() without building the outcome (rewards and the flow term), for a run that needs only the world's
+        outputs (summary, loops, FCD, tripinfo, trajectories), which are the same."""
+        self._step(actions)
+
+    def _step(self, actions: np.ndarray) -> _Step:
+        """Check and execute the actions of the last observation, step SUMO, count the lane changes."""
         obs = self._obs
         if obs is None:
             raise RuntimeError("apply() needs an observe() first")
@@ -307,10 +320,15 @@ class World:
         self.session.set_speeds(obs.nums[changed], speeds[changed])
         self.session.change_lanes(movers, target[ok])
         events = self._advance()
+        return self._counted(obs, actions, events, speeds, ok, rejected)
 
-        return self._outcome(obs, actions, events, speeds, ok, rejected)
+    def _counted(self, obs: Observation, actions: np.ndarray, events: StepEvents, speeds: np.ndarray, ok: np.ndarray,
+                 rejected: np.ndarray) -> _Step:  # fmt: skip
+        self.totals.lane_changes += int(ok.sum())
+        self.totals.lane_changes_rejected += int(rejected.sum())
+        return obs, actions, events, speeds, ok, rejected
 
-    def _apply_sumo(self, obs: Observation, actions: np.ndarray) -> StepOutcome:
+    def _apply_sumo(self, obs: Observation, actions: np.ndarray) -> _Step:
         """SUMO's own models drive; only vehicles held by the accident get a commanded speed."""
         c = self.cfg.control
         n = len(obs)
@@ -325,7 +343,7 @@ class World:
         row, still = self._rows_now(obs.nums)
         changed = still & (self.table.lane[row] != obs.lane)
         self.passing.changed(obs.nums[changed])
-        return self._outcome(obs, actions, events, obs.speed.copy(), changed, np.zeros(n, bool))
+        return self._counted(obs, actions, events, obs.speed.copy(), changed, np.zeros(n, bool))
 
     def _rows_now(self, nums: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rows of `nums` in the current table, and whether each is still on the road."""
@@ -344,10 +362,8 @@ class World:
         ok: np.ndarray,
         rejected: np.ndarray,
     ) -> StepOutcome:
-        """Count lane changes and build the rewards of the observed vehicles after the step."""
+        """The rewards of the observed vehicles after the step."""
         c = self.cfg.control
-        self.totals.lane_changes += int(ok.sum())
-        self.totals.lane_changes_rejected += int(rejected.sum())
         q_t = flow_term(sum(self._loop_counts), len(self._loop_counts) * c.dt_s, self._n_sections,
                         self.cfg.road.lanes, self.cfg.reward)  # fmt: skip
         arrived = np.isin(obs.nums, events.arrived) if len(events.arrived) else np.zeros(len(obs.nums), bool)
