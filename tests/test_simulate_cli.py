@@ -10,7 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import sumolib
-from conftest import TIMING_KEYS
+from conftest import REPO, TIMING_KEYS
 
 from coopsumo.config import sim_config_from_dict
 
@@ -57,6 +57,11 @@ def test_config_json_holds_the_config_the_seed_and_versions(
     assert cfg.scenario == "free" and cfg.full_read_every_steps == 10
     for package in ("coopsumo", "sumo", "libsumo", "numpy", "python"):
         assert data["versions"][package] not in ("", None, "not installed"), package
+    # the source's commit, as git names it (this checkout is a git clone in CI and here)
+    head = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short=12", "HEAD"], capture_output=True, text=True)
+    if head.returncode != 0:
+        pytest.skip("not a git checkout")
+    assert data["versions"]["coopsumo_source"].split("-")[0] == head.stdout.strip()
 
 
 def test_detectors_xml_is_sumo_loop_output_readable_by_sumolib(
