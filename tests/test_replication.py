@@ -131,6 +131,20 @@ def test_a_second_study_takes_stored_models_and_a_tampered_one_is_retrained(tmp_
     assert (second / "runs.csv").read_text() == runs_first.replace(str(first), str(second))  # the same model again
 
 
+def test_more_models_per_alpha_go_to_their_own_folder() -> None:
+    """`make scenario1 TRAIN_SEEDS=10` writes results/scenario1_10models, never over the committed 5-model report;
+    the other profiles keep their folders whatever their model count."""
+    from dataclasses import replace
+
+    from coopsumo.studies.scenario1 import study_out
+    from coopsumo.studies.scenario1_plan import Plan
+
+    assert study_out(Plan()) == Path("results/scenario1")
+    assert study_out(replace(Plan(), train_seeds=tuple(range(100, 110)))) == Path("results/scenario1_10models")
+    assert study_out(replace(Plan(), train_seeds=(100, 101, 102))) == Path("results/scenario1_3models")
+    assert study_out(replace(Plan.quick(), train_seeds=(100,))) == Path("results/scenario1_quick")
+
+
 def _digests(folder: Path) -> dict[str, str]:
     return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
             for p in sorted(folder.rglob("*")) if p.is_file()}  # fmt: skip

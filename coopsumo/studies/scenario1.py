@@ -176,14 +176,24 @@ def main(argv: list[str] | None = None) -> int:
             plan = replace(plan, presets=_preset_list(args.presets))
         check_backend(args.backend, args.address)
         if args.out is None:
-            args.out = default_out("scenario1", plan.profile, Plan().profile)
+            args.out = study_out(plan)
         if (other := recorded_profile(args.out)) not in (None, plan.profile):
             raise UsageError(f"{args.out} holds the {other} profile's study; the {plan.profile} profile writes into "
-                             f"its own folder (default {default_out('scenario1', plan.profile, Plan().profile)})")
+                             f"its own folder (default {study_out(plan)})")
         with study_root(args.out, "scenario1"):  # path, lock, ownership and marker of the results folder
             return run_study(plan, args.out, args.workers, args.backend, args.address)
 
     return run_cli("scenario1", body)
+
+
+def study_out(plan: Plan) -> Path:
+    """The results folder without --out: results/scenario1 (the committed profile) or results/scenario1_<profile>;
+    the committed profile with another number of models per alpha (--train-seeds K) writes results/scenario1_<K>models,
+    so that a larger replication never replaces the committed report."""
+    out = default_out("scenario1", plan.profile, Plan().profile)
+    k = len(plan.train_seeds)
+    committed = plan.profile == Plan().profile
+    return out.with_name(f"{out.name}_{k}models") if committed and k != len(Plan().train_seeds) else out
 
 
 def recorded_profile(root: Path) -> str | None:
