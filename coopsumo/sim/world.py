@@ -285,7 +285,7 @@ class World:
         """Check and execute the actions of the last observation, step SUMO, count the lane changes."""
         obs = self._obs
         if obs is None:
-            raise RuntimeError("apply() needs an observe() first")
+            raise RuntimeError("apply() and drive() need an observe() first")
         self._obs = None
         c = self.cfg.control
         n = len(obs)
@@ -324,6 +324,7 @@ class World:
 
     def _counted(self, obs: Observation, actions: np.ndarray, events: StepEvents, speeds: np.ndarray, ok: np.ndarray,
                  rejected: np.ndarray) -> _Step:  # fmt: skip
+        """The step's lane changes, started and refused, added to the run's totals; the step passed on."""
         self.totals.lane_changes += int(ok.sum())
         self.totals.lane_changes_rejected += int(rejected.sum())
         return obs, actions, events, speeds, ok, rejected
