@@ -190,10 +190,10 @@ def study_out(plan: Plan) -> Path:
     """The results folder without --out: results/scenario1 (the committed profile) or results/scenario1_<profile>;
     the committed profile with another number of models per alpha (--train-seeds K) writes results/scenario1_<K>models,
     so that a larger replication never replaces the committed report."""
-    out = default_out("scenario1", plan.profile, Plan().profile)
     k = len(plan.train_seeds)
-    committed = plan.profile == Plan().profile
-    return out.with_name(f"{out.name}_{k}models") if committed and k != len(Plan().train_seeds) else out
+    if plan.profile == Plan().profile and k != len(Plan().train_seeds):
+        return Path("results") / f"scenario1_{k}models"
+    return default_out("scenario1", plan.profile, Plan().profile)
 
 
 def recorded_profile(root: Path) -> str | None:
