@@ -6,60 +6,7 @@
  * multiply-add is fused. Arrays arrive through the buffer protocol, C-contiguous, as fast.py makes them: int64 and
  * float64 (8 bytes an item) and bool (1 byte); outputs are filled in place.
  */
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-#include <math.h>
-#include <stdint.h>
-#include <stdlib.h>
-#include <string.h>
-
-#define LANE_KEY 1.0e6 /* physics._LANE_KEY */
-
-/* Acquire the buffers of args[0..count-1]; sizes[i] is the item size asked for, negative when the buffer is written.
- * On failure every buffer taken so far is released and -1 returned with a Python error set. */
-static int acquire(PyObject *const *args, Py_ssize_t count, const int *sizes, Py_buffer *views) {
-    for (Py_ssize_t i = 0; i < count; i++) {
-        int writable = sizes[i] < 0;
-        if (PyObject_GetBuffer(args[i], &views[i], PyBUF_C_CONTIGUOUS | PyBUF_FORMAT |
-                                                       (writable ? PyBUF_WRITABLE : 0)) < 0 ||
-            views[i].itemsize != abs(sizes[i])) {
-            if (!PyErr_Occurred()) {
-                PyErr_Format(PyExc_TypeError, "argument %zd: items of %d bytes expected", i, abs(sizes[i]));
-                PyBuffer_Release(&views[i]);
-            }
-            for (Py_ssize_t j = 0; j < i; j++)
-                PyBuffer_Release(&views[j]);
-            return -1;
-        }
-    }
-    return 0;
-}
-
-static void release(Py_ssize_t count, Py_buffer *views) {
-    for (Py_ssize_t i = 0; i < count; i++)
-        PyBuffer_Release(&views[i]);
-}
-
-static int check_count(const char *name, Py_ssize_t nargs, Py_ssize_t expected) {
-    if (nargs != expected) {
-        PyErr_Format(PyExc_TypeError, "%s takes %zd arguments, got %zd", name, expected, nargs);
-        return -1;
-    }
-    return 0;
-}
-
-/* numpy.searchsorted(keys, x, side="right"): the first index whose key is greater than x */
-static Py_ssize_t search_right(const double *keys, Py_ssize_t m, double x) {
-    Py_ssize_t lo = 0, hi = m;
-    while (lo < hi) {
-        Py_ssize_t mid = lo + (hi - lo) / 2;
-        if (keys[mid] <= x)
-            lo = mid + 1;
-        else
-            hi = mid;
-    }
-    return lo;
-}
+#include "kernels.h"
 
 /* occupancy(lane, pos, other, keys, occ_lane, occ_pos, occ_veh): physics.occupancy into the four outputs (each
  * as long as the vehicles plus the lane changers touching a second lane), sorted by key, stable. */
@@ -69,9 +16,6 @@ static PyObject *occupancy(PyObject *Py_UNUSED(self), PyObject *const *args, Py_
     if (check_count("occupancy", nargs, 7) < 0 || acquire(args, 7, sizes, v) < 0)
         return NULL;
     const int64_t *lane = v[0].buf, *other = v[2].buf;
-    const double *pos = v[1].buf;
-    double *keys = v[3].buf, *occ_pos = v[5].buf;
-    int64_t *occ_lane = v[4].buf, *occ_veh = v[6].buf;
     Py_ssize_t n = v[0].len / 8, m = v[3].len / 8;
     Py_ssize_t extra = 0;
     for (Py_ssize_t i = 0; i < n; i++)
@@ -81,57 +25,10 @@ static PyObject *occupancy(PyObject *Py_UNUSED(self), PyObject *const *args, Py_
         release(7, v);
         return PyErr_Format(PyExc_ValueError, "occupancy: array lengths do not match");
     }
-    /* unsorted lane, vehicle and key of each entry (the vehicles, then the changers' second lanes), two index
-     * arrays for the merge sort */
-    int64_t *work = malloc(sizeof(int64_t) * (size_t)(4 * m + 1));
-    double *unsorted = malloc(sizeof(double) * (size_t)(m + 1));
-    if (work == NULL || unsorted == NULL) {
-        free(work);
-        free(unsorted);
-        release(7, v);
-        return PyErr_NoMemory();
-    }
-    int64_t *e_lane = work, *e_veh = work + m, *src = work + 2 * m, *dst = work + 3 * m;
-    Py_ssize_t j = n;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        e_lane[i] = lane[i];
-        e_veh[i] = i;
-        if (other[i] >= 0 && other[i] != lane[i]) {
-            e_lane[j] = other[i];
-            e_veh[j] = i;
-            j++;
-        }
-    }
-    for (Py_ssize_t i = 0; i < m; i++) {
-        unsorted[i] = (double)e_lane[i] * LANE_KEY + pos[e_veh[i]];
-        src[i] = i;
-    }
-    /* bottom-up merge sort of the indices by key: stable, so the permutation numpy's stable argsort gives */
-    for (Py_ssize_t width = 1; width < m; width *= 2) {
-        for (Py_ssize_t lo = 0; lo < m; lo += 2 * width) {
-            Py_ssize_t mid = lo + width < m ? lo + width : m, hi = lo + 2 * width < m ? lo + 2 * width : m;
-            Py_ssize_t a = lo, b = mid, k = lo;
-            while (a < mid && b < hi)
-                dst[k++] = unsorted[src[b]] < unsorted[src[a]] ? src[b++] : src[a++];
-            while (a < mid)
-                dst[k++] = src[a++];
-            while (b < hi)
-                dst[k++] = src[b++];
-        }
-        int64_t *swap = src;
-        src = dst;
-        dst = swap;
-    }
-    for (Py_ssize_t i = 0; i < m; i++) {
-        int64_t at = src[i];
-        keys[i] = unsorted[at];
-        occ_lane[i] = e_lane[at];
-        occ_pos[i] = pos[e_veh[at]];
-        occ_veh[i] = e_veh[at];
-    }
-    free(work);
-    free(unsorted);
+    Py_ssize_t got = build_occupancy(n, lane, v[1].buf, other, v[3].buf, v[4].buf, v[5].buf, v[6].buf);
     release(7, v);
+    if (got < 0)
+        return PyErr_NoMemory();
     Py_RETURN_NONE;
 }
 
@@ -147,8 +44,6 @@ static PyObject *neighbours(PyObject *Py_UNUSED(self), PyObject *const *args, Py
     double car_length_m = PyFloat_AsDouble(args[10]);
     if (PyErr_Occurred() || acquire(args, 9, sizes, v) < 0)
         return NULL;
-    const double *keys = v[0].buf, *pos = v[3].buf, *speed = v[4].buf;
-    const int64_t *occ_lane = v[1].buf, *occ_veh = v[2].buf, *query = v[5].buf;
     Py_ssize_t m = v[0].len / 8, n = v[3].len / 8, nk = v[5].len / 8;
     Py_ssize_t k = n ? nk / n : 0;
     if (v[1].len / 8 != m || v[2].len / 8 != m || v[4].len / 8 != n || k * n != nk || v[6].len / 8 != 4 * nk ||
@@ -156,45 +51,10 @@ static PyObject *neighbours(PyObject *Py_UNUSED(self), PyObject *const *args, Py
         release(9, v);
         return PyErr_Format(PyExc_ValueError, "neighbours: array lengths do not match");
     }
-    double *lead_gap = v[6].buf, *lead_speed = lead_gap + nk, *follow_gap = lead_gap + 2 * nk;
-    double *follow_speed = lead_gap + 3 * nk;
-    int64_t *lead_idx = v[7].buf, *follow_idx = lead_idx + nk;
-    uint8_t *exists = v[8].buf;
-    for (Py_ssize_t r = 0; r < n; r++) {
-        double qp = pos[r];
-        for (Py_ssize_t c = 0; c < k; c++) {
-            Py_ssize_t i = r * k + c;
-            int64_t ql = query[i];
-            Py_ssize_t ahead = search_right(keys, m, (double)ql * LANE_KEY + qp);
-            Py_ssize_t behind = ahead - 1;
-            if (behind >= 0 && occ_veh[behind] == r) /* the vehicle itself: step over it */
-                behind -= 1;
-            int on_road = ql >= 0 && ql < n_lanes;
-            exists[i] = (uint8_t)on_road;
-            lead_gap[i] = INFINITY;
-            lead_speed[i] = 0.0;
-            lead_idx[i] = -1;
-            if (ahead < m && occ_lane[ahead] == ql) {
-                int64_t at = occ_veh[ahead];
-                lead_speed[i] = speed[at];
-                if (on_road) {
-                    lead_gap[i] = pos[at] - car_length_m - qp;
-                    lead_idx[i] = at;
-                }
-            }
-            follow_gap[i] = INFINITY;
-            follow_speed[i] = 0.0;
-            follow_idx[i] = -1;
-            if (behind >= 0 && occ_lane[behind] == ql) {
-                int64_t at = occ_veh[behind];
-                follow_speed[i] = speed[at];
-                if (on_road) {
-                    follow_gap[i] = qp - car_length_m - pos[at];
-                    follow_idx[i] = at;
-                }
-            }
-        }
-    }
+    double *gaps = v[6].buf;
+    int64_t *idx = v[7].buf;
+    find_neighbours(m, v[0].buf, v[1].buf, v[2].buf, n, k, v[3].buf, v[4].buf, v[5].buf, n_lanes, car_length_m,
+                    gaps, gaps + nk, gaps + 2 * nk, gaps + 3 * nk, idx, idx + nk, v[8].buf);
     release(9, v);
     Py_RETURN_NONE;
 }
@@ -283,6 +143,12 @@ static PyMethodDef methods[] = {
     {"section_crossings", (PyCFunction)(void (*)(void))section_crossings, METH_FASTCALL,
      "reward.section_crossings"},
     {"exp_into", (PyCFunction)(void (*)(void))exp_into, METH_FASTCALL, "the C library's exp into a given array"},
+    {"sight", (PyCFunction)(void (*)(void))step_sight, METH_FASTCALL, "controller.sight into given arrays"},
+    {"decide", (PyCFunction)(void (*)(void))step_decide, METH_FASTCALL, "controller.decide into given arrays"},
+    {"after_step", (PyCFunction)(void (*)(void))step_after_step, METH_FASTCALL,
+     "controller.after_step into given rows"},
+    {"advanced_table", (PyCFunction)(void (*)(void))step_advanced_table, METH_FASTCALL,
+     "vehicle_table.advanced_table into given arrays"},
     {NULL, NULL, 0, NULL},
 };
 

@@ -22,7 +22,7 @@ import numpy as np
 
 from coopsumo.config import GuiConfig, OutputConfig, SimConfig
 from coopsumo.runio import UsageError
-from coopsumo.sim import network
+from coopsumo.sim import fast, network
 from coopsumo.sim import vehicle_table as vt
 from coopsumo.sim.vehicle_table import TableCheck, VehicleTable
 
@@ -325,11 +325,11 @@ class SumoSession:
         """The last table advanced by one step from the speeds and lane changes sent, without the arrived
         vehicles, with the departed ones as read; None when a vehicle on the road was never sent a speed."""
         prev = self._table
-        speed = self._speed_sent[prev.nums]
-        if np.isnan(speed).any():  # World.apply sends every vehicle a speed; a caller that did not gets a full read
-            return None
         switch_to = vt.switch_rows(prev.nums, *switch) if switch is not None else np.full(len(prev.nums), -1)
-        table = vt.drop(vt.advance(prev, speed, switch_to, self.cfg.control.dt_s), arrived)
+        # World.apply sends every vehicle a speed; a caller that did not gets a full read (None)
+        table = fast.advanced_table(prev, self._speed_sent, switch_to, arrived, self.cfg.control.dt_s)
+        if table is None:
+            return None
         return vt.add(table, self._read(departed)) if departed else table
 
     def _read(self, ids: tuple[str, ...]) -> VehicleTable:
@@ -360,6 +360,12 @@ class SumoSession:
     def speeds_sent(self, nums: np.ndarray) -> np.ndarray:
         """The speed (m/s) last sent to each of `nums`, which SUMO keeps; NaN where none is in force."""
         return self._speed_sent[nums]
+
+    def speeds_sent_all(self) -> np.ndarray:
+        """speeds_sent of every vehicle number, indexed by it (a read-only view)."""
+        view = self._speed_sent.view()
+        view.flags.writeable = False
+        return view
 
     def release_speeds(self, nums: np.ndarray) -> None:
         """Hand speed control back to SUMO's car-following model."""

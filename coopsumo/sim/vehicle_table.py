@@ -126,3 +126,14 @@ def deviation(advanced: VehicleTable, read: VehicleTable) -> Deviation:
         lanes=int(np.count_nonzero(advanced.lane[i] != read.lane[j])),
         membership=membership,
     )
+
+
+def advanced_table(
+    table: VehicleTable, sent_mps: np.ndarray, switch_to: np.ndarray, arrived: np.ndarray, dt_s: float
+) -> VehicleTable | None:
+    """The table one step later (advance) without the arrived vehicles (drop); sent_mps: the speed last sent to
+    each vehicle number (m/s). None when a vehicle of the table was never sent one (NaN)."""
+    speed = sent_mps[table.nums]
+    if np.isnan(speed).any():
+        return None
+    return drop(advance(table, speed, switch_to, dt_s), arrived)

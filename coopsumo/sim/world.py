@@ -6,7 +6,6 @@ One step: observe every vehicle (grids, neighbours) -> a policy's actions -> lan
 
 from __future__ import annotations
 
-import dataclasses
 from collections import deque
 from dataclasses import dataclass
 from pathlib import Path
@@ -146,7 +145,8 @@ class World:
         self._sections_m = np.array(cfg.road.loop_positions_m())
         self._n_sections = len(self._sections_m)
         self._obs: Observation | None = None
-        self._leader = (np.zeros(0), np.zeros(0))  # the observation's nearest leaders: gap (m), speed (m/s)
+        self._sight: controller.Sight | None = None  # what the controller saw at the observation
+        self.controls = controller.Controls(cfg.control, cfg.accident, cfg.road.lanes, cfg.road.lane_width_m)
         self._overlapping: set[tuple[int, int]] = set()  # (follower, leader) pairs already counted
         self.passing = PassingCount(max(1, round(PASSING_EVERY_S / cfg.control.dt_s)))
         self.observe_grids = observe_grids
@@ -249,26 +249,18 @@ class World:
         """
         t = self.table
         c = self.cfg
-        v_exp = self.veh.v_exp[t.nums]
-        other = self._other_lane(t.nums, t.lane)
-        busy = other >= 0
-        # one search for the three side lanes and the second lane a changer touches (its own when none)
-        query = np.concatenate([physics.side_lanes(t.lane), np.where(busy, other, t.lane)[:, None]], axis=1)
-        occ, nb = fast.occupancy_and_neighbours(t.lane, t.pos, other, t.speed, query, c.road.lanes,
-                                                c.control.car_length_m)  # fmt: skip
-        around = physics.Neighbours(*(getattr(nb, f.name)[:, :3] for f in dataclasses.fields(nb)))
-        self._leader = controller.nearest_leader(nb.lead_gap[:, 1::2], nb.lead_speed[:, 1::2])
+        seen = self._sight = fast.sight(t.nums, t.lane, t.pos, t.speed, self.veh, self.controls)
+        around = seen.around
         if self.observe_grids if grids is None else grids:
-            grid = snapshot(occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
-            frames, speed_err = self.history.push(t.nums, grid, (t.speed - v_exp).astype(np.float32))
+            grid = snapshot(seen.occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
+            frames, speed_err = self.history.push(t.nums, grid, (t.speed - seen.v_exp).astype(np.float32))
         else:
             frames = np.zeros((len(t.nums), N_FRAMES, N_SIDES, N_CELLS), np.uint8)
             speed_err = np.zeros((len(t.nums), N_FRAMES), np.float32)
-        feasible = physics.feasible_actions(around, busy, t.speed, c.control)
-        self.passing.look(self.step_count, t.nums, t.speed, v_exp, around, feasible)
+        self.passing.look(self.step_count, t.nums, t.speed, seen.v_exp, around, seen.feasible)
         self._obs = Observation(
             nums=t.nums, grids=frames, speed_err=speed_err, lane=t.lane, pos=t.pos, speed=t.speed,
-            v_exp=v_exp, busy=busy, around=around, n_lanes=c.road.lanes, feasible=feasible,
+            v_exp=seen.v_exp, busy=seen.busy, around=around, n_lanes=c.road.lanes, feasible=seen.feasible,
         )  # fmt: skip
         return self._obs
 
@@ -283,10 +275,10 @@ class World:
 
     def _step(self, actions: np.ndarray) -> _Step:
         """Check and execute the actions of the last observation, step SUMO, count the lane changes."""
-        obs = self._obs
-        if obs is None:
+        obs, seen = self._obs, self._sight
+        if obs is None or seen is None:
             raise RuntimeError("apply() and drive() need an observe() first")
-        self._obs = None
+        self._obs = self._sight = None
         c = self.cfg.control
         n = len(obs)
         actions = np.asarray(actions, dtype=np.int64)
@@ -296,31 +288,17 @@ class World:
         if self.sumo_models:
             return self._apply_sumo(obs, actions)
 
-        # lane changes: ask, check safety, resolve same-step conflicts
-        ok, rejected, target = controller.lane_changes(actions, obs.lane, obs.pos, obs.speed, obs.feasible, c)
-        movers = obs.nums[ok]
+        # lane changes (asked, safe, no same-step conflict), the accident's obstacle, Newell speeds and eq. (11)
+        draw = accident.hold_draw(self.step_count, self.cfg.accident, c.dt_s, self.accident_rng, n)
+        d = fast.decide(obs.nums, obs.lane, obs.pos, obs.speed, seen, actions, self.veh, self.session.speeds_sent_all(),
+                        draw, self.controls)  # fmt: skip
+        movers = obs.nums[d.ok]
         self.passing.changed(movers)
-        self.veh.lc_left_s[movers] = c.t_change_s
-        self.veh.lc_from[movers] = obs.lane[ok]
-        self.veh.lc_to[movers] = target[ok]
-
-        # speeds: nearest leader over every lane a vehicle occupies (movers: both lanes from now on);
-        # the observation's search holds unless a change started (then every vehicle's leader may change)
-        if len(movers):
-            gap, v_lead = controller.leaders_in_occupied_lanes(obs.lane, self._other_lane(obs.nums, obs.lane),
-                                                               obs.pos, obs.speed, self.cfg.road.lanes,
-                                                               c.car_length_m)  # fmt: skip
-        else:
-            gap, v_lead = self._leader
-        gap, v_lead = self._accident_obstacle(obs, gap, v_lead)
-        speeds = physics.next_speed(obs.speed, obs.v_exp, actions == physics.SPEEDUP, gap, v_lead, c)
-
         # SUMO keeps a set speed until told otherwise, so only changed speeds are sent
-        changed = speeds != self.session.speeds_sent(obs.nums)
-        self.session.set_speeds(obs.nums[changed], speeds[changed])
-        self.session.change_lanes(movers, target[ok])
+        self.session.set_speeds(obs.nums[d.changed], d.speeds[d.changed])
+        self.session.change_lanes(movers, d.target[d.ok])
         events = self._advance()
-        return self._counted(obs, actions, events, speeds, ok, rejected)
+        return self._counted(obs, actions, events, d.speeds, d.ok, d.rejected)
 
     def _counted(self, obs: Observation, actions: np.ndarray, events: StepEvents, speeds: np.ndarray, ok: np.ndarray,
                  rejected: np.ndarray) -> _Step:  # fmt: skip
@@ -411,18 +389,18 @@ class World:
         self.table = self.session.table()
         t = self.table
         tot = self.totals
-        busy = t.nums[self.veh.lc_left_s[t.nums] > 0]
-        self.veh.lc_left_s[busy] = np.maximum(self.veh.lc_left_s[busy] - dt, 0.0)
-        self.veh.depart_s[events.departed] = self.time_s - dt
+        overlapping = fast.after_step(t.nums, t.lane, t.pos, self.veh, self.controls)  # lane-change clocks run down
         if len(events.departed):
+            self.veh.depart_s[events.departed] = self.time_s - dt
             self._handed[np.isin(self._handed, events.departed)] = -1
-        tot.departed += len(events.departed)
-        late = self.time_s - dt - self.veh.scheduled_s[events.departed]
-        tot.insertion_blocked += int(np.sum(late >= dt - 1e-6))
-        tot.arrived += len(events.arrived)
-        # as SUMO's tripinfo counts it: from the start of the departure step to the start of the arrival step
-        tot.travel_time_sum_s += float(np.sum(self.time_s - dt - self.veh.depart_s[events.arrived]))
-        tot.collisions += self._count_collisions()
+            tot.departed += len(events.departed)
+            late = self.time_s - dt - self.veh.scheduled_s[events.departed]
+            tot.insertion_blocked += int(np.sum(late >= dt - 1e-6))
+        if len(events.arrived):
+            tot.arrived += len(events.arrived)
+            # as SUMO's tripinfo counts it: from the start of the departure step to the start of the arrival step
+            tot.travel_time_sum_s += float(np.sum(self.time_s - dt - self.veh.depart_s[events.arrived]))
+        tot.collisions += self._new_overlaps(overlapping)
         tot.sumo_collisions += events.collisions
         tot.teleports += events.teleports
         tot.distance_m += float(t.speed.sum()) * dt
@@ -437,16 +415,12 @@ class World:
         self._insert_due()
         return events
 
-    def _count_collisions(self) -> int:
-        """New pairs of vehicles whose bodies overlap after the step (physics.body_lanes for lane changers)."""
-        t = self.table
-        c = self.cfg.control
-        v = self.veh
-        first, second = physics.body_lanes(t.lane, v.lc_from[t.nums], v.lc_to[t.nums], v.lc_left_s[t.nums],
-                                           c.t_change_s, self.cfg.road.lane_width_m, c.vehicle_width_m)  # fmt: skip
-        rows = fast.overlaps(first, t.pos, second, c.car_length_m)
+    def _new_overlaps(self, rows: np.ndarray) -> int:
+        """Pairs of vehicles whose bodies overlap after the step (rows of the table: controller.after_step) that
+        were not overlapping already: the step's new collisions."""
         if len(rows) == 0:
             return 0
+        t = self.table
         pairs = set(zip(t.nums[rows[:, 0]].tolist(), t.nums[rows[:, 1]].tolist(), strict=True))
         new = pairs - self._overlapping
         self._overlapping |= new
