@@ -55,6 +55,10 @@ def gui_closed_errors() -> tuple[type[BaseException], ...]:
     return (traci.exceptions.FatalTraCIError, ConnectionError)
 
 
+_NONE = np.zeros(0, np.int64)
+_NONE.flags.writeable = False  # shared by every step without departures or arrivals
+
+
 @dataclass(frozen=True)
 class StepEvents:
     """What SUMO reports for one step."""
@@ -295,10 +299,10 @@ class SumoSession:
             new_collisions = len(pairs - self._collision_pairs)
             self._collision_pairs |= pairs
         teleports = ls.simulation.getStartingTeleportNumber()
-        arrived_nums = np.array([int(v) for v in arrived], dtype=np.int64)
+        arrived_nums = np.array(list(map(int, arrived)), dtype=np.int64) if arrived else _NONE
         self._update_table(departed, arrived_nums, teleports > 0 or ls.simulation.getEndingTeleportNumber() > 0)
         return StepEvents(
-            departed=np.array([int(v) for v in departed], dtype=np.int64),
+            departed=np.array(list(map(int, departed)), dtype=np.int64) if departed else _NONE,
             arrived=arrived_nums,
             collisions=new_collisions,
             teleports=teleports,
@@ -362,10 +366,8 @@ class SumoSession:
         return self._speed_sent[nums]
 
     def speeds_sent_all(self) -> np.ndarray:
-        """speeds_sent of every vehicle number, indexed by it (a read-only view)."""
-        view = self._speed_sent.view()
-        view.flags.writeable = False
-        return view
+        """speeds_sent of every vehicle number, indexed by it (the session's own array: read it, do not write)."""
+        return self._speed_sent
 
     def release_speeds(self, nums: np.ndarray) -> None:
         """Hand speed control back to SUMO's car-following model."""

@@ -303,8 +303,8 @@ class World:
     def _counted(self, obs: Observation, actions: np.ndarray, events: StepEvents, speeds: np.ndarray, ok: np.ndarray,
                  rejected: np.ndarray) -> _Step:  # fmt: skip
         """The step's lane changes, started and refused, added to the run's totals; the step passed on."""
-        self.totals.lane_changes += int(ok.sum())
-        self.totals.lane_changes_rejected += int(rejected.sum())
+        self.totals.lane_changes += int(np.count_nonzero(ok))
+        self.totals.lane_changes_rejected += int(np.count_nonzero(rejected))
         return obs, actions, events, speeds, ok, rejected
 
     def _apply_sumo(self, obs: Observation, actions: np.ndarray) -> _Step:
