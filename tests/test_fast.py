@@ -1,14 +1,20 @@
-"""The compiled kernels (coopsumo.sim.fast) equal their numpy definitions (physics, reward) bit for bit."""
+"""The compiled kernels (coopsumo.sim.fast) equal their numpy definitions (physics, reward) bit for bit; hand-made
+cases of the neighbour search and the overlap scan (the controller's step: test_fast_step.py)."""
 
 from __future__ import annotations
+
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
+from coopsumo.config import AccidentConfig, ControlConfig
 from coopsumo.sim import fast, physics
+from coopsumo.sim.controller import Controls
 from coopsumo.sim.reward import section_crossings
 
-CAR_M = 5.0
+CAR_M = 4.0
+CONTROLS = Controls(ControlConfig(car_length_m=CAR_M), AccidentConfig(), 3, 3.2)
 
 
 def road(rng: np.random.Generator, n: int, lanes: int = 3) -> tuple[np.ndarray, ...]:
@@ -25,49 +31,32 @@ def same(a: np.ndarray, b: np.ndarray) -> bool:
     return a.dtype == b.dtype and a.shape == b.shape and np.array_equal(a, b)
 
 
-@pytest.mark.parametrize("seed", range(40))
-def test_occupancy_and_neighbours_equal_the_definitions(seed: int) -> None:
-    rng = np.random.default_rng(seed)
-    n = int(rng.integers(0, 60))
-    lane, pos, speed, other = road(rng, n)
-    busy = other >= 0
-    query = np.concatenate([physics.side_lanes(lane), np.where(busy, other, lane)[:, None]], axis=1)
-    occ, nb = fast.occupancy_and_neighbours(lane, pos, other, speed, query, 3, CAR_M)
-    occ_ref = physics.occupancy(lane, pos, other)
-    nb_ref = physics.neighbours(occ_ref, pos, speed, query, 3, CAR_M)
-    for name in ("keys", "lane", "pos", "veh"):
-        assert same(getattr(occ, name), getattr(occ_ref, name)), name
-    for name in ("lead_gap", "lead_speed", "lead_idx", "follow_gap", "follow_speed", "follow_idx", "exists"):
-        assert same(getattr(nb, name), getattr(nb_ref, name)), name
-
-
 def test_neighbours_see_leader_and_follower_across_lanes() -> None:
-    """A hand-made case, so that the comparison above cannot pass on two equal mistakes: vehicle 1 changes from
-    lane 0 to 1 and is in both; vehicle 0 sees it ahead in lane 1, vehicle 2 behind in lane 0."""
-    lane = np.array([1, 0, 0])
-    pos = np.array([40.0, 60.0, 100.0])
-    other = np.array([-1, 1, -1])
-    query = np.array([[1], [0], [0]])
-    _, nb = fast.occupancy_and_neighbours(lane, pos, other, np.array([10.0, 20.0, 30.0]), query, 3, CAR_M)
-    assert nb.lead_idx[:, 0].tolist() == [1, 2, -1]
-    assert nb.lead_gap[0, 0] == 60.0 - CAR_M - 40.0
-    assert nb.follow_idx[:, 0].tolist() == [-1, -1, 1]
-    assert nb.lead_speed[0, 0] == 20.0
+    """A hand-made case, so that the comparisons with the definitions (here and in test_fast_step.py) cannot pass on
+    two equal mistakes: vehicle 1 changes from lane 0 to 1 and is in both; vehicle 0 sees it ahead in lane 1,
+    vehicle 2 behind in lane 0."""
+    nums, lane, pos = np.array([0, 1, 2]), np.array([1, 0, 0]), np.array([40.0, 60.0, 100.0])
+    state = SimpleNamespace(v_exp=np.full(3, 30.0), lc_left_s=np.array([0.0, 2.0, 0.0]), lc_from=np.array([-1, 0, -1]),
+                            lc_to=np.array([-1, 1, -1]), hold=np.zeros(3, np.int8))  # fmt: skip
+    seen = fast.sight(nums, lane, pos, np.array([10.0, 20.0, 30.0]), state, CONTROLS)
+    own = 1  # the columns: left, own, right, second lane
+    assert seen.other.tolist() == [-1, 1, -1] and seen.busy.tolist() == [False, True, False]
+    assert seen.nb.lead_idx[:, own].tolist() == [1, 2, -1]
+    assert seen.nb.lead_gap[0, own] == 60.0 - CAR_M - 40.0 and seen.nb.lead_speed[0, own] == 20.0
+    assert seen.nb.follow_idx[:, own].tolist() == [-1, -1, 1]
+    assert seen.leader_gap[1] == 100.0 - CAR_M - 60.0  # its nearest over lanes 0 and 1
+    assert not seen.feasible[1, physics.LEFT] and seen.feasible[:, physics.SPEEDUP].all()
 
 
-@pytest.mark.parametrize("seed", range(40))
-def test_overlaps_equal_the_definition(seed: int) -> None:
-    rng = np.random.default_rng(100 + seed)
-    lane, pos, _, other = road(rng, int(rng.integers(0, 80)))
-    got = fast.overlaps(lane, pos, other, CAR_M)
-    assert same(got, physics.overlaps(physics.occupancy(lane, pos, other), CAR_M))
-
-
-def test_overlaps_finds_a_known_collision() -> None:
-    lane = np.array([0, 0, 1])
-    pos = np.array([10.0, 13.0, 11.0])  # 0 and 1 overlap (3 m < one car); 2 is alone in lane 1
-    assert fast.overlaps(lane, pos, np.full(3, -1), CAR_M).tolist() == [[0, 1]]
-    assert fast.overlaps(lane, pos, np.array([-1, -1, 0]), CAR_M).tolist() == [[0, 2], [2, 1]]
+def test_overlaps_find_a_known_collision() -> None:
+    """after_step's overlap scan: 0 and 1 overlap (3 m < one car); 2, alone in lane 1, overlaps both once it is half
+    way into lane 0."""
+    nums, lane, pos = np.array([0, 1, 2]), np.array([0, 0, 1]), np.array([10.0, 13.0, 11.0])
+    state = SimpleNamespace(lc_left_s=np.zeros(3), lc_from=np.full(3, -1), lc_to=np.full(3, -1))
+    assert fast.after_step(nums, lane, pos, state, CONTROLS).tolist() == [[0, 1]]
+    state.lc_left_s[2], state.lc_from[2], state.lc_to[2] = 2.0, 1, 0
+    assert fast.after_step(nums, lane, pos, state, CONTROLS).tolist() == [[0, 2], [2, 1]]
+    assert state.lc_left_s[2] == 2.0 - CONTROLS.control.dt_s  # its clock ran down by one step
 
 
 @pytest.mark.parametrize("seed", range(40))
@@ -111,6 +100,6 @@ def test_the_kernels_refuse_arrays_of_the_wrong_kind() -> None:
     with pytest.raises(TypeError, match="bytes"):
         _kernels.section_crossings(lane.astype(np.int32), np.zeros(2), lane, np.zeros(2), np.zeros(1))
     with pytest.raises(ValueError, match="lengths"):
-        _kernels.overlaps(lane, np.zeros(3), lane, np.zeros((1, 2), np.int64), CAR_M)
+        _kernels.occupancy(lane, np.zeros(3), lane, np.zeros(2), lane, np.zeros(2), lane)
     with pytest.raises(TypeError, match="arguments"):
-        _kernels.overlaps(lane)
+        _kernels.after_step(lane)

@@ -3,8 +3,8 @@
 
 At 100-300 vehicles the definitions' many small numpy calls, not their arithmetic, were the world's largest
 Python cost (docs/performance.md); here each is one call into C, and the controller's step three calls (sight,
-decide, after_step). Tested against the definitions on random and
-hand-made roads (tests/test_fast.py).
+decide, after_step). Tested against the definitions on random and hand-made roads and whole runs
+(tests/test_fast.py, tests/test_fast_step.py).
 """
 
 from __future__ import annotations
@@ -33,31 +33,6 @@ def occupancy(lane: np.ndarray, pos: np.ndarray, other_lane: np.ndarray) -> Occu
     occ = Occupancy(np.empty(m), np.empty(m, np.int64), np.empty(m), np.empty(m, np.int64))
     _kernels.occupancy(lane, pos, other, occ.keys, occ.lane, occ.pos, occ.veh)
     return occ
-
-
-def occupancy_and_neighbours(
-    lane: np.ndarray, pos: np.ndarray, other: np.ndarray, speed: np.ndarray, query_lanes: np.ndarray, n_lanes: int,
-    car_length_m: float,
-) -> tuple[Occupancy, Neighbours]:  # fmt: skip
-    """physics.occupancy(lane, pos, other) and physics.neighbours of it for query_lanes (n, k)."""
-    pos = _f64(pos)
-    occ = occupancy(lane, pos, other)
-    query = _i64(query_lanes)
-    gaps = np.empty((4, *query.shape))  # lead gap, lead speed, follow gap, follow speed
-    idx = np.empty((2, *query.shape), np.int64)  # lead, follow
-    exists = np.empty(query.shape, np.bool_)
-    _kernels.neighbours(occ.keys, occ.lane, occ.veh, pos, _f64(speed), query, gaps, idx, exists, int(n_lanes),
-                        float(car_length_m))  # fmt: skip
-    return occ, Neighbours(lead_gap=gaps[0], lead_speed=gaps[1], lead_idx=idx[0], follow_gap=gaps[2],
-                           follow_speed=gaps[3], follow_idx=idx[1], exists=exists)  # fmt: skip
-
-
-def overlaps(lane: np.ndarray, pos: np.ndarray, other: np.ndarray, car_length_m: float) -> np.ndarray:
-    """physics.overlaps(physics.occupancy(lane, pos, other), car_length_m): (k, 2) rows (follower, leader)."""
-    occ = occupancy(lane, pos, other)
-    rows = np.empty((max(len(occ.keys) - 1, 0), 2), np.int64)
-    count = _kernels.overlaps(occ.lane, occ.pos, occ.veh, rows, float(car_length_m))
-    return rows[:count]
 
 
 def section_crossings(

@@ -32,63 +32,6 @@ static PyObject *occupancy(PyObject *Py_UNUSED(self), PyObject *const *args, Py_
     Py_RETURN_NONE;
 }
 
-/* neighbours(keys, occ_lane, occ_veh, pos, speed, query, gaps, idx, exists, n_lanes, car_length_m):
- * physics.neighbours of vehicle r in lane query[r, c] (n x k, row-major) in the sorted occupancy; gaps holds
- * lead gap, lead speed, follow gap, follow speed (4 x n x k), idx lead and follow rows (2 x n x k). */
-static PyObject *neighbours(PyObject *Py_UNUSED(self), PyObject *const *args, Py_ssize_t nargs) {
-    static const int sizes[] = {8, 8, 8, 8, 8, 8, -8, -8, -1};
-    Py_buffer v[9];
-    if (check_count("neighbours", nargs, 11) < 0)
-        return NULL;
-    int64_t n_lanes = PyLong_AsLongLong(args[9]);
-    double car_length_m = PyFloat_AsDouble(args[10]);
-    if (PyErr_Occurred() || acquire(args, 9, sizes, v) < 0)
-        return NULL;
-    Py_ssize_t m = v[0].len / 8, n = v[3].len / 8, nk = v[5].len / 8;
-    Py_ssize_t k = n ? nk / n : 0;
-    if (v[1].len / 8 != m || v[2].len / 8 != m || v[4].len / 8 != n || k * n != nk || v[6].len / 8 != 4 * nk ||
-        v[7].len / 8 != 2 * nk || v[8].len != nk) {
-        release(9, v);
-        return PyErr_Format(PyExc_ValueError, "neighbours: array lengths do not match");
-    }
-    double *gaps = v[6].buf;
-    int64_t *idx = v[7].buf;
-    find_neighbours(m, v[0].buf, v[1].buf, v[2].buf, n, k, v[3].buf, v[4].buf, v[5].buf, n_lanes, car_length_m,
-                    gaps, gaps + nk, gaps + 2 * nk, gaps + 3 * nk, idx, idx + nk, v[8].buf);
-    release(9, v);
-    Py_RETURN_NONE;
-}
-
-/* overlaps(occ_lane, occ_pos, occ_veh, rows, car_length_m) -> count: physics.overlaps, neighbours in one lane of
- * the sorted occupancy whose bodies overlap, written as (follower, leader) rows (room for m - 1). */
-static PyObject *overlaps(PyObject *Py_UNUSED(self), PyObject *const *args, Py_ssize_t nargs) {
-    static const int sizes[] = {8, 8, 8, -8};
-    Py_buffer v[4];
-    if (check_count("overlaps", nargs, 5) < 0)
-        return NULL;
-    double car_length_m = PyFloat_AsDouble(args[4]);
-    if (PyErr_Occurred() || acquire(args, 4, sizes, v) < 0)
-        return NULL;
-    const int64_t *occ_lane = v[0].buf, *occ_veh = v[2].buf;
-    const double *occ_pos = v[1].buf;
-    int64_t *rows = v[3].buf;
-    Py_ssize_t m = v[0].len / 8, count = 0;
-    if (v[1].len / 8 != m || v[2].len / 8 != m || v[3].len / 8 < 2 * (m - 1)) {
-        release(4, v);
-        return PyErr_Format(PyExc_ValueError, "overlaps: array lengths do not match");
-    }
-    for (Py_ssize_t i = 0; i + 1 < m; i++) {
-        if (occ_lane[i + 1] == occ_lane[i] && occ_pos[i + 1] - occ_pos[i] < car_length_m - 1e-6 &&
-            occ_veh[i + 1] != occ_veh[i]) {
-            rows[2 * count] = occ_veh[i];
-            rows[2 * count + 1] = occ_veh[i + 1];
-            count++;
-        }
-    }
-    release(4, v);
-    return PyLong_FromSsize_t(count);
-}
-
 /* section_crossings(prev_nums, prev_pos, nums, pos, sections_m) -> count: reward.section_crossings, vehicles in
  * both tables (each sorted by number) whose front passed a cross-section, prev_pos < x <= pos, once per section. */
 static PyObject *section_crossings(PyObject *Py_UNUSED(self), PyObject *const *args, Py_ssize_t nargs) {
@@ -138,8 +81,6 @@ static PyObject *exp_into(PyObject *Py_UNUSED(self), PyObject *const *args, Py_s
 
 static PyMethodDef methods[] = {
     {"occupancy", (PyCFunction)(void (*)(void))occupancy, METH_FASTCALL, "physics.occupancy into given arrays"},
-    {"neighbours", (PyCFunction)(void (*)(void))neighbours, METH_FASTCALL, "physics.neighbours into given arrays"},
-    {"overlaps", (PyCFunction)(void (*)(void))overlaps, METH_FASTCALL, "physics.overlaps into given rows"},
     {"section_crossings", (PyCFunction)(void (*)(void))section_crossings, METH_FASTCALL,
      "reward.section_crossings"},
     {"exp_into", (PyCFunction)(void (*)(void))exp_into, METH_FASTCALL, "the C library's exp into a given array"},
