@@ -2,14 +2,14 @@
 and the Newell speed with the collision check over every lane a vehicle occupies. No SUMO.
 
 These are the definitions; the world runs the controller's step (sight, decide, after_step) as coopsumo.sim.fast's
-C functions of the same names, equal to them bit for bit (tests/test_fast.py, tests/test_world_sumo.py).
+C functions of the same names, equal to them bit for bit (tests/test_fast_step.py).
 
 A vehicle in a lane change occupies its origin and target lane until the change completes (4 s).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import NamedTuple, Protocol
 
 import numpy as np
@@ -102,9 +102,13 @@ class Sight:
     @property
     def around(self) -> Neighbours:
         """The neighbours in the left, own and right lane, (n, 3)."""
-        nb = self.nb
-        return Neighbours(nb.lead_gap[:, :3], nb.lead_speed[:, :3], nb.lead_idx[:, :3], nb.follow_gap[:, :3],
-                          nb.follow_speed[:, :3], nb.follow_idx[:, :3], nb.exists[:, :3])  # fmt: skip
+        return sides(self.nb)
+
+
+def sides(nb: Neighbours) -> Neighbours:
+    """The first three query columns of nb (left, own and right lane) as views."""
+    return Neighbours(nb.lead_gap[:, :3], nb.lead_speed[:, :3], nb.lead_idx[:, :3], nb.follow_gap[:, :3],
+                      nb.follow_speed[:, :3], nb.follow_idx[:, :3], nb.exists[:, :3])  # fmt: skip
 
 
 class Decision(NamedTuple):
@@ -129,8 +133,7 @@ def sight(nums: np.ndarray, lane: np.ndarray, pos: np.ndarray, speed: np.ndarray
     occ = physics.occupancy(lane, pos, other)
     nb = physics.neighbours(occ, pos, speed, query, controls.n_lanes, c.car_length_m)
     gap, v_lead = nearest_leader(nb.lead_gap[:, 1::2], nb.lead_speed[:, 1::2])
-    around = Neighbours(*(getattr(nb, f.name)[:, :3] for f in fields(nb)))
-    feasible = physics.feasible_actions(around, busy, speed, c)
+    feasible = physics.feasible_actions(sides(nb), busy, speed, c)
     return Sight(v_exp, other, busy, occ, nb, gap, v_lead, feasible)
 
 
