@@ -354,7 +354,16 @@ PAPER_DQN = DQNConfig(
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""
 
-DQN_PRESETS: dict[str, DQNConfig] = {"default": DQNConfig(), "paper": PAPER_DQN}
+ALPHA_ONLY_DQN = DQNConfig(
+    preset="alpha_only", followers_weight=0.0, queue_below_mps=0.0, no_return_s=0.0, change_margin=0.0,
+    accident_share=0.0, validation_accident_steps=0,
+)  # fmt: skip
+"""The default's learning machinery with alpha as its only cooperative mechanism (claim (a) as the paper poses it):
+no share of the followers' speed in the reward, no queue rule, no change-back rule, no change margin; trained in free
+flow at scenario I's demands (train_t_ups) and its model chosen on free flow alone, with no accident in training or
+selection, as the paper trained in scenario II and moved the models to the accident unchanged"""
+
+DQN_PRESETS: dict[str, DQNConfig] = {"default": DQNConfig(), "paper": PAPER_DQN, "alpha_only": ALPHA_ONLY_DQN}
 """name -> learner configuration"""
 
 

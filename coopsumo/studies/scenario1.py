@@ -137,8 +137,8 @@ def build_parser() -> Parser:
                    help=f"alphas to train and run, comma-separated (default {','.join(f'{a:g}' for a in ALPHAS)}; "
                         "0 is always included)")  # fmt: skip
     p.add_argument("--preset", "--presets", dest="presets", default=None,
-                   help="learner presets, comma-separated: default, paper, or default,paper for both side by side "
-                        "(default: default)")  # fmt: skip
+                   help=f"learner presets, comma-separated: {', '.join(DQN_PRESETS)}, or several side by side, e.g. "
+                        "default,alpha_only (default: default)")  # fmt: skip
     return p
 
 
@@ -189,8 +189,11 @@ def main(argv: list[str] | None = None) -> int:
 def study_out(plan: Plan) -> Path:
     """The results folder without --out: results/scenario1 (the committed profile) or results/scenario1_<profile>;
     the committed profile with another number of models per alpha (--train-seeds K) writes results/scenario1_<K>models,
-    so that a larger replication never replaces the committed report."""
+    and with other learner presets results/scenario1_<presets>[_<K>models], so that a larger replication or another
+    learner never replaces the committed report."""
     k = len(plan.train_seeds)
+    if plan.profile == Plan().profile and plan.presets != Plan().presets:  # another learner: never the default's report
+        return Path("results") / f"scenario1_{'_'.join(plan.presets)}{f'_{k}models' if k != len(TRAIN_SEEDS) else ''}"
     if plan.profile == Plan().profile and k != len(Plan().train_seeds):
         return Path("results") / f"scenario1_{k}models"
     return default_out("scenario1", plan.profile, Plan().profile)
