@@ -27,7 +27,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
 )
-from coopsumo.policy_spec import PolicySpecError, model_file, parse_policy, split_dqn_spec
+from coopsumo.policy_spec import KEYS, PolicySpecError, model_file, parse_policy, split_dqn_spec
 from coopsumo.runio import Parser, UsageError, atomic_run_dir, check_apart, check_run_dir, run_cli
 from coopsumo.sim import sumo_session
 from coopsumo.validation import (
@@ -45,6 +45,28 @@ from coopsumo.validation import (
 )
 
 SCENARIOS = ("free", "accident")
+DEFAULT_STEPS = 9000
+PAPER_STEPS = 90_000
+
+
+def default_accident(steps: int) -> tuple[int, int]:
+    """(first step, length) of the accident of a `steps`-step run when --accident-start and --accident-steps are not
+    given: the paper's window, steps 20,000-70,000 of 90,000, scaled to the run (from 2/9 of it for 5/9 of it), so
+    that it starts inside any run."""
+    return steps * 2 // 9, max(1, steps * 5 // 9)
+
+
+DQN_VALUES = {"alpha": "A|adaptive", "margin": "M", "cooldown": "S", "noreturn": "S", "restart": "R", "queue": "V",
+              "ensemble": "K"}
+"""the placeholder --help shows for each parameter of a dqn policy (policy_spec.KEYS["dqn"])"""
+DQN_MODIFIERS = " ".join(f",{key}={DQN_VALUES.get(key, 'X')}" for key in KEYS["dqn"])
+
+
+def _accident_help(what: str, index: int) -> str:
+    share = ("2/9", "5/9")[index]
+    paper, ours = default_accident(PAPER_STEPS)[index], default_accident(DEFAULT_STEPS)[index]
+    return (f"{what} (--scenario accident; default: {share} of --steps, the paper's {paper:,} of {PAPER_STEPS:,}; "
+            f"{ours:,} of the default {DEFAULT_STEPS:,})")
 
 
 def build_parser() -> Parser:
@@ -55,15 +77,17 @@ def build_parser() -> Parser:
     p.add_argument("--policy", default="keep",
                    help="keep | random | greedy | mobil[:p=P,threshold=T,b_safe=B,bias=X] (MOBIL, p politeness) | "
                         "sumo[:lcCooperative=X,lcSpeedGain=Y,...] (SUMO's own Krauss and LC2013 models) | "
-                        "dqn:PATH/model.pt (a trained model)")  # fmt: skip
-    p.add_argument("--steps", type=steps, default=9000, help="steps of 0.1 s")
+                        "dqn:PATH/model.pt or dqn:FOLDER (a trained model, or a training's folder holding model.pt), "
+                        f"followed by any of {DQN_MODIFIERS} (alpha: for an alpha-conditioned model; the others "
+                        "change how it drives; docs/model.md)")  # fmt: skip
+    p.add_argument("--steps", type=steps, default=DEFAULT_STEPS, help="steps of 0.1 s")
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the policy and SUMO (0 to 2^31 - 1)")
     p.add_argument("--out", type=out_dir, required=True, help="run folder to write")
     p.add_argument("--trajectories", action="store_true", help="also write every vehicle's trajectory")
     p.add_argument("--accident-start", type=integer(0), default=None,
-                   help=f"first accident step (--scenario accident; default {AccidentConfig.start_step})")  # fmt: skip
+                   help=_accident_help("first accident step", 0))
     p.add_argument("--accident-steps", type=integer(1, MAX_STEPS), default=None,
-                   help=f"length (steps; --scenario accident; default {AccidentConfig.duration_steps})")  # fmt: skip
+                   help=_accident_help("its length in steps, the hold decaying from 1 to 0 over it", 1))
     p.add_argument("--sumo-collision-check", action="store_true",
                    help="also count collisions with SUMO's own check (slower in jams)")  # fmt: skip
     p.add_argument("--read-every-step", action="store_true",
@@ -139,9 +163,11 @@ def config_from_args(args: Any) -> SimConfig:
         for flag, value in (("--accident-start", args.accident_start), ("--accident-steps", args.accident_steps)):
             if value is not None:
                 raise UsageError(f"{flag} needs --scenario accident")
-    start = AccidentConfig.start_step if args.accident_start is None else args.accident_start
-    duration = AccidentConfig.duration_steps if args.accident_steps is None else args.accident_steps
+    start, duration = AccidentConfig.start_step, AccidentConfig.duration_steps  # free flow: not used
     if args.scenario == "accident":
+        start, duration = default_accident(args.steps)
+        start = start if args.accident_start is None else args.accident_start
+        duration = duration if args.accident_steps is None else args.accident_steps
         check_accident(start, duration, args.steps)
     cfg = SimConfig(
         road=RoadConfig(lanes=args.lanes),

@@ -45,7 +45,7 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("simulate", [*SIM, "--lanes", "7"], ("--lanes", "7")),
     ("simulate", [*SIM, "--scenario", "accident", "--accident-start", "-5"], ("--accident-start", "-5")),
     ("simulate", [*SIM, "--scenario", "accident", "--accident-steps", "0"], ("--accident-steps", "0")),
-    ("simulate", [*SIM, "--scenario", "accident"], ("--accident-start", "20000", "0 to 19")),
+    ("simulate", [*SIM, "--scenario", "accident", "--accident-start", "20000"], ("--accident-start", "0 to 19")),
     ("simulate", [*SIM, "--scenario", "accident", "--accident-start", "20"], ("--accident-start", "20")),
     ("simulate", [*SIM, "--policy", "mobil:p=nan"], ("--policy", "nan")),
     ("simulate", [*SIM, "--policy", "dqn:no/such/model.pt"], ("--policy", "no/such/model.pt")),

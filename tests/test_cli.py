@@ -13,7 +13,9 @@ from pathlib import Path
 import pytest
 
 import coopsumo
-from coopsumo import cli
+from coopsumo import cli, simulate
+from coopsumo.config import AccidentConfig
+from coopsumo.policy_spec import KEYS
 from coopsumo.runio import DefaultsHelpFormatter
 from coopsumo.sim import network
 
@@ -58,6 +60,34 @@ def test_simulate_help_lists_every_policy_form() -> None:
     text = " ".join(parsers()["simulate"].format_help().split())
     assert all(form in text for form in POLICY_FORMS), text
     assert "(default: keep)" in text and "(default: 9000)" in text
+
+
+def test_simulate_help_names_the_dqn_folder_form_and_every_drive_modifier() -> None:
+    text = " ".join(parsers()["simulate"].format_help().split())
+    assert "dqn:FOLDER" in text
+    missing = [key for key in KEYS["dqn"] if f",{key}=" not in text]
+    assert not missing, text
+
+
+def test_simulate_accident_defaults_follow_the_run_length(tmp_path: Path) -> None:
+    """Without --accident-start/--accident-steps the accident is the paper's window scaled to --steps (issue 68: the
+    bare default and the README's --steps 20000 were refused), and --help states the default 9,000-step run's."""
+    out = str(tmp_path / "run")
+
+    def window(*extra: str) -> tuple[int, int]:
+        cfg = simulate.config_from_args(simulate.build_parser().parse_args(["--scenario", "accident", "--out", out,
+                                                                             *extra]))  # fmt: skip
+        assert cfg.accident.enabled
+        return cfg.accident.start_step, cfg.accident.duration_steps
+
+    assert window("--steps", "90000") == (AccidentConfig.start_step, AccidentConfig.duration_steps)  # the paper's
+    assert window() == (2000, 5000)
+    assert window("--steps", "20000") == (4444, 11111)
+    assert window("--steps", "1") == (0, 1)
+    assert window("--accident-start", "100") == (100, 5000)
+    assert window("--accident-steps", "7") == (2000, 7)
+    text = " ".join(parsers()["simulate"].format_help().split())
+    assert "2,000 of the default 9,000" in text and "5,000 of the default 9,000" in text
 
 
 def test_dispatch_hands_the_rest_of_the_line_to_the_command(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:
