@@ -233,9 +233,14 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         store = args.store or Path(os.environ.get(STORE_ENV) or "results/models")
-        if not store.is_dir():
+        if args.store is not None and not store.exists():  # a folder named by hand: a typo is not an empty store
             raise UsageError(f"--store {store}: no such folder (a study makes it when it trains its first model)")
-        rows = listing(store)
+        if store.exists() and not store.is_dir():
+            raise UsageError(f"--store {store}: not a folder")
+        rows = listing(store) if store.is_dir() else []
+        if not rows:
+            print(f"no models yet in {store}: the studies (scenario1, scenario2, learning, protocol) train there")
+            return 0
         keys = ("model", "preset", "alpha", "seed", "steps", "selected_step", "state")
         widths = {k: max([len(k)] + [len(str(r[k])) for r in rows]) for k in keys}
         print("  ".join(k.ljust(widths[k]) for k in keys))
