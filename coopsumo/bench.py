@@ -5,6 +5,10 @@
   every 10 steps (the default) and every step (--read-every-step); the "jam ratio" and "free flow ratio" lines;
 - training throughput (environment steps/s with learning on), and the training ratio: a default training's
   wall time over that of the same steps of the same worlds driven by `keep`;
+- the three ratios of a training's own cost: the learn ratio (a default training without model selection over `keep`
+  on the same worlds and steps, wall time), the greedy ratio (a default model's greedy run over `keep`'s, CPU time, in
+  free flow and through the accident) and the selection share (model selection's share of a default training's wall
+  time, on a schedule scaled to the bench's steps);
 - observation and decision cost per vehicle per step (grids; one batched DQN forward pass).
 - what SUMO's FCD output (--fcd) at scenario I's period adds to a jammed run's wall time.
 - `--cluster` (alone): a study's cells on a real Ray cluster of one node, then of two (Ray's cluster_utils on this
@@ -103,7 +107,6 @@ def bench_training_ratio(steps: int) -> tuple[float, float, float]:
     the same steps of the same worlds driven by `keep`): the default learner and schedule (validation included,
     no final evaluation), training seed 1; keep drives each of the training's episodes (agents/episodes.py) for
     as many steps as the training spends in it. Wall times: the pipelined training uses both cores."""
-    from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
     from coopsumo.agents.train import train
 
     cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), eval_steps=0)
@@ -113,16 +116,111 @@ def bench_training_ratio(steps: int) -> tuple[float, float, float]:
             start = time.perf_counter()
             train(cfg, Path(tmp) / "train", progress=False, learner_process=process)
             walls.append(time.perf_counter() - start)
+    return walls[0], walls[1], keep_on_training_worlds(cfg)
+
+
+def keep_on_training_worlds(cfg: TrainConfig) -> float:
+    """Wall s of `keep` driving the worlds of the training cfg (agents/episodes.py) for as many steps as it spends in
+    each."""
+    from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
+
     start = time.perf_counter()
     done = 0
-    while done < steps:
-        index, first, end = episode_bounds(steps, cfg.dqn, done)
+    while done < cfg.sim.steps:
+        index, first, end = episode_bounds(cfg.sim.steps, cfg.dqn, done)
         world = episode_config(cfg.sim, cfg.dqn, index) if episodic(cfg.dqn) else cfg.sim
         with tempfile.TemporaryDirectory() as tmp:
             run(replace(world, steps=end - first, policy="keep"), make_policy("keep", np.random.default_rng(1)),
                 Path(tmp), progress=False)  # fmt: skip
         done = end
-    return walls[0], walls[1], time.perf_counter() - start
+    return time.perf_counter() - start
+
+
+def bench_learn_ratio(steps: int) -> tuple[float, float, float]:
+    """(wall s of a default training of `steps` steps without model selection, updates in a second process; the same
+    serially; `keep` on the same worlds and steps): training seed 1, no final evaluation."""
+    from coopsumo.agents.train import train
+
+    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), dqn=replace(DQN_PRESETS["default"],
+                      select_every_steps=0), eval_steps=0)  # fmt: skip
+    walls = []
+    for process in (True, False):
+        with tempfile.TemporaryDirectory() as tmp:
+            start = time.perf_counter()
+            train(cfg, Path(tmp) / "train", progress=False, learner_process=process)
+            walls.append(time.perf_counter() - start)
+    return walls[0], walls[1], keep_on_training_worlds(cfg)
+
+
+def scaled_selection(steps: int) -> TrainConfig:
+    """A default training of `steps` steps whose model selection costs what the default's costs a 90,000-step
+    training: 6 snapshots, each validated on runs scaled by steps / 90,000 (accident runs at least
+    MIN_ACCIDENT_VALIDATION_STEPS), so that it runs as many greedy steps per training step."""
+    from coopsumo.config import MIN_ACCIDENT_VALIDATION_STEPS
+
+    dq = DQN_PRESETS["default"]
+    scale = steps / 90_000
+    dq = replace(dq, select_every_steps=max(steps // 6, 1), validation_steps=max(int(dq.validation_steps * scale), 100),
+                 validation_accident_steps=max(int(dq.validation_accident_steps * scale),
+                                               MIN_ACCIDENT_VALIDATION_STEPS))  # fmt: skip
+    return TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), dqn=dq, eval_steps=0)
+
+
+def bench_selection_share(steps: int) -> tuple[float, float, float, float]:
+    """(wall s of a default training with its model selection scaled to `steps` (scaled_selection), the same training
+    without selection, the CPU s of the selection's processes, the CPU s of the whole training with them): both with
+    the updates in a second process. The share is 1 - without / with."""
+    import resource
+
+    from coopsumo.agents.train import train
+
+    def children_cpu() -> float:
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return usage.ru_utime + usage.ru_stime
+
+    with_cfg = scaled_selection(steps)
+    without_cfg = replace(with_cfg, dqn=replace(with_cfg.dqn, select_every_steps=0))
+    walls, cpus = [], []
+    for cfg in (with_cfg, without_cfg):
+        with tempfile.TemporaryDirectory() as tmp:
+            start, cpu0, own0 = time.perf_counter(), children_cpu(), time.process_time()
+            train(cfg, Path(tmp) / "train", progress=False, learner_process=True)
+            walls.append(time.perf_counter() - start)
+            cpus.append((children_cpu() - cpu0, time.process_time() - own0))
+    (kids_with, own_with), (kids_without, _) = cpus
+    return walls[0], walls[1], kids_with - kids_without, kids_with + own_with
+
+
+def bench_greedy_ratio(model: Path, steps: int, jam: bool, rounds: int = 1) -> tuple[float, float, float]:
+    """(CPU s of `model`'s greedy run, CPU s of `keep`'s, lane changes per vehicle of the greedy run): the same world
+    and seed (3 lanes, T_up 1 s; jam: the accident from step steps // 12 for 5/6 of the run), CPU time of this process
+    (SUMO runs in it), the model loaded inside the timed call; the median of `rounds` rounds, in rotated order."""
+    accident = AccidentConfig(enabled=jam, start_step=steps // 12, duration_steps=steps * 5 // 6)
+    cfg = SimConfig(accident=accident, steps=steps, seed=2)
+    times: dict[str, list[float]] = {"dqn": [], "keep": []}
+    changes = 0.0
+    for r in range(rounds):
+        for name in ("dqn", "keep") if r % 2 == 0 else ("keep", "dqn"):
+            spec = f"dqn:{model}" if name == "dqn" else "keep"
+            with tempfile.TemporaryDirectory() as tmp:
+                start = time.process_time()
+                summary = run(replace(cfg, policy=spec), make_policy(spec, np.random.default_rng(2)), Path(tmp),
+                              progress=False)  # fmt: skip
+                times[name].append(time.process_time() - start)
+            if name == "dqn":
+                changes = float(summary["lane_changes_per_vehicle"])
+    return float(np.median(times["dqn"])), float(np.median(times["keep"])), changes
+
+
+def bench_model(steps: int, folder: Path) -> Path:
+    """A default model for the greedy ratio: a default training of `steps` steps (seed 1, no model selection) in
+    folder; returns its model.pt."""
+    from coopsumo.agents.train import train
+
+    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), dqn=replace(DQN_PRESETS["default"],
+                      select_every_steps=0), eval_steps=0)  # fmt: skip
+    train(cfg, folder, progress=False, learner_process=True)
+    return folder / "model.pt"
 
 
 def bench_decision(n_vehicles: int, repeats: int = 200) -> tuple[float, float]:
@@ -225,11 +323,113 @@ def bench_cluster(study_args: tuple[str, ...], steps: int, warm_up: bool = True)
     return times
 
 
+def world_lines(steps: int, quick: bool) -> None:
+    """The world's lines: simulation throughput per policy, and controlled keep against plain SUMO."""
+    for policy in ("keep", "random", "greedy", "mobil", "sumo"):
+        sps, veh, _ = bench_simulation(policy, steps)
+        print(f"  simulate --policy {policy:7s}: {sps:8.0f} steps/s  ({veh:.0f} vehicles on the road)", flush=True)
+    for policy, check in (("keep", False), ("keep", True), ("mobil", False)):
+        sps, veh, _ = bench_simulation(policy, steps, jam=True, sumo_check=check)
+        label = f"{policy}{' + SUMO collision check' if check else ''}"
+        print(f"  jammed (accident) {label:30s}: {sps:8.0f} steps/s  ({veh:.0f} vehicles on the road)", flush=True)
+    ratios = {}
+    for jam in (True, False):
+        r = bench_plain_vs_controlled(steps, jam, rounds=1 if quick else 3)
+        (p_sps, p_veh, _), (r_sps, _, _), (k_sps, k_veh, k_share), (e_sps, _, _) = (
+            r["plain"], r["plain+read"], r["keep"], r["keep every step"])  # fmt: skip
+        where = "jam (accident)" if jam else "free flow     "
+        print(f"  {where}: steps per CPU second: plain SUMO {p_sps:6.0f} ({p_veh:.0f} veh), with a full read every "
+              f"step {r_sps:6.0f}; controlled keep {k_sps:6.0f} ({k_veh:.0f} veh), with --read-every-step "
+              f"{e_sps:6.0f}", flush=True)  # fmt: skip
+        # SUMO's step inside the controlled run bounds the ratio: with Python costing nothing it would be this
+        print(f"  {where}: SUMO's own step is {100 * k_share:.0f}% of the controlled run's wall time: ratio "
+              f"ceiling {k_sps / k_share / p_sps:.2f} with zero Python cost", flush=True)  # fmt: skip
+        ratios["jam" if jam else "free flow"] = (k_sps / p_sps, e_sps / p_sps)
+    for name, target in (("jam", 0.5), ("free flow", 0.35)):
+        new, every = ratios[name]
+        print(f"{name} ratio {new:.2f}  (controlled keep / plain SUMO, steps per CPU second, same network, demand "
+              f"and seed, median of {1 if quick else 3} rounds; target >= {target:g}; {every:.2f} with "
+              "--read-every-step)", flush=True)  # fmt: skip
+
+
+def learner_lines(steps: int, quick: bool, model: Path | None) -> None:
+    """The learner's lines: training throughput, the training ratio, and the learn ratio, greedy ratio and selection
+    share (a training's own cost, a learned policy's decisions and the model selection, each against keep)."""
+    model_given = model is not None
+    for preset in ("default", "paper"):
+        sps = bench_training(steps, preset)
+        print(f"  train --preset {preset:8s}     : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min",
+              flush=True)  # fmt: skip
+    ratio_steps = 1800 if quick else 18_000
+    pipelined, serial, keep = bench_training_ratio(ratio_steps)
+    print(f"  train (default, {ratio_steps:,} steps, validation included): {pipelined:.1f} s with the updates in a "
+          f"second process, {serial:.1f} s serially; keep on the same worlds {keep:.1f} s", flush=True)  # fmt: skip
+    print(f"training ratio {pipelined / keep:.2f}  (default training / keep on the same worlds and steps, wall time; "
+          f"target <= 1.3; {serial / keep:.2f} serially)", flush=True)  # fmt: skip
+    learn, learn_serial, learn_keep = bench_learn_ratio(ratio_steps)
+    print(f"  train (default, {ratio_steps:,} steps, no model selection): {learn:.1f} s with the updates in a second "
+          f"process, {learn_serial:.1f} s serially; keep on the same worlds {learn_keep:.1f} s",
+          flush=True)  # fmt: skip
+    print(f"learn ratio {learn / learn_keep:.2f}  (default training without model selection / keep on the same worlds "
+          f"and steps, wall time, updates in a second process; target <= 2.5; {learn_serial / learn_keep:.2f} "
+          "serially)", flush=True)  # fmt: skip
+    greedy_steps = 1200 if quick else 8000
+    with tempfile.TemporaryDirectory() as tmp:
+        model = model or bench_model(600 if quick else 6000, Path(tmp) / "model")
+        ratios = {}
+        for jam in (False, True):
+            dqn_cpu, keep_cpu, changes = bench_greedy_ratio(model, greedy_steps, jam, rounds=1 if quick else 3)
+            where = "through the accident" if jam else "free flow"
+            print(f"  greedy {where:20s}: {dqn_cpu:.1f} s of CPU, keep {keep_cpu:.1f} s ({greedy_steps:,} steps, "
+                  f"{changes:.2f} lane changes per vehicle)", flush=True)  # fmt: skip
+            ratios[where] = dqn_cpu / keep_cpu
+    shown = "the --model given" if model_given else f"a {600 if quick else 6000:,}-step default training"
+    print(f"greedy ratio {ratios['free flow']:.2f} free flow, {ratios['through the accident']:.2f} through the accident"
+          f"  (greedy run of {shown} / keep's, same world and seed, CPU time; target <= 1.2)", flush=True)  # fmt: skip
+    with_s, without_s, selection_cpu, total_cpu = bench_selection_share(ratio_steps)
+    print(f"  train (default, {ratio_steps:,} steps, selection scaled to it): {with_s:.1f} s, without selection "
+          f"{without_s:.1f} s; the selection's processes {selection_cpu:.1f} of {total_cpu:.1f} CPU s", flush=True)
+    print(f"selection share {100 * (1 - without_s / with_s):.0f}%  (model selection's share of a default training's "
+          f"wall time: 6 snapshots validated on runs scaled by {ratio_steps:,} / 90,000; target <= 30%; "
+          f"{100 * selection_cpu / total_cpu:.0f}% of its CPU time)", flush=True)  # fmt: skip
+
+
+def decision_and_output_lines(steps: int, quick: bool) -> None:
+    """Observation and decision cost per vehicle, and what SUMO's FCD output costs a jammed run."""
+    for n in (50, 200):
+        grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
+        print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)
+    from coopsumo.studies.scenario1_plan import Plan
+
+    period = Plan().fcd_period_s
+    extra, low, high, mb_per_h, veh = bench_fcd_cost(steps, period, repeats=1 if quick else 4)
+    print(f"  --fcd every {period:g} s (scenario I), jammed keep run ({veh:.0f} vehicles): {extra:+.1f}% wall time "
+          f"(median of runs side by side; {low:+.1f} to {high:+.1f}%; limit 10%), {mb_per_h:.0f} MB of fcd.xml "
+          f"per simulated hour{' (--quick: runs too short to tell)' if quick else ''}", flush=True)  # fmt: skip
+
+
+def model_path(text: str) -> Path:
+    """--model: an existing model file (a training's folder stands for its model.pt)."""
+    import argparse
+
+    path = Path(text)
+    if path.is_dir():
+        path = path / "model.pt"
+    if not path.is_file():
+        raise argparse.ArgumentTypeError(f"no model file at {path}")
+    return path.resolve()
+
+
 def build_parser() -> Parser:
     parser = Parser(prog="coopsumo bench", description="Speed figures (printed, not asserted).")
     parser.add_argument("--quick", action="store_true", help="short runs (600 steps), a first look")
     parser.add_argument("--cluster", action="store_true",
                         help="only the Ray scaling: a study on a cluster of 1, then 2 nodes (needs the ray extra)")
+    parser.add_argument("--model", type=model_path, default=None,
+                        help="the model.pt of the greedy ratio (default: a 6,000-step default training made first)")
+    parser.add_argument("--learner", action="store_true",
+                        help="only the learner's lines: training throughput and the training, learn, greedy and "
+                             "selection ratios")
     return parser
 
 
@@ -258,51 +458,11 @@ def main(argv: list[str] | None = None) -> int:
 
     torch.set_num_threads(1)
     print(f"coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread, {steps} steps a run)", flush=True)
-    for policy in ("keep", "random", "greedy", "mobil", "sumo"):
-        sps, veh, _ = bench_simulation(policy, steps)
-        print(f"  simulate --policy {policy:7s}: {sps:8.0f} steps/s  ({veh:.0f} vehicles on the road)", flush=True)
-    for policy, check in (("keep", False), ("keep", True), ("mobil", False)):
-        sps, veh, _ = bench_simulation(policy, steps, jam=True, sumo_check=check)
-        label = f"{policy}{' + SUMO collision check' if check else ''}"
-        print(f"  jammed (accident) {label:30s}: {sps:8.0f} steps/s  ({veh:.0f} vehicles on the road)", flush=True)
-    ratios = {}
-    for jam in (True, False):
-        r = bench_plain_vs_controlled(steps, jam, rounds=1 if quick else 3)
-        (p_sps, p_veh, _), (r_sps, _, _), (k_sps, k_veh, k_share), (e_sps, _, _) = (
-            r["plain"], r["plain+read"], r["keep"], r["keep every step"])  # fmt: skip
-        where = "jam (accident)" if jam else "free flow     "
-        print(f"  {where}: steps per CPU second: plain SUMO {p_sps:6.0f} ({p_veh:.0f} veh), with a full read every "
-              f"step {r_sps:6.0f}; controlled keep {k_sps:6.0f} ({k_veh:.0f} veh), with --read-every-step "
-              f"{e_sps:6.0f}", flush=True)  # fmt: skip
-        # SUMO's step inside the controlled run bounds the ratio: with Python costing nothing it would be this
-        print(f"  {where}: SUMO's own step is {100 * k_share:.0f}% of the controlled run's wall time: ratio "
-              f"ceiling {k_sps / k_share / p_sps:.2f} with zero Python cost", flush=True)  # fmt: skip
-        ratios["jam" if jam else "free flow"] = (k_sps / p_sps, e_sps / p_sps)
-    for name, target in (("jam", 0.5), ("free flow", 0.35)):
-        new, every = ratios[name]
-        print(f"{name} ratio {new:.2f}  (controlled keep / plain SUMO, steps per CPU second, same network, demand "
-              f"and seed, median of {1 if quick else 3} rounds; target >= {target:g}; {every:.2f} with "
-              "--read-every-step)", flush=True)  # fmt: skip
-    for preset in ("default", "paper"):
-        sps = bench_training(steps, preset)
-        print(f"  train --preset {preset:8s}     : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min",
-              flush=True)  # fmt: skip
-    ratio_steps = 1800 if quick else 18_000
-    pipelined, serial, keep = bench_training_ratio(ratio_steps)
-    print(f"  train (default, {ratio_steps:,} steps, validation included): {pipelined:.1f} s with the updates in a "
-          f"second process, {serial:.1f} s serially; keep on the same worlds {keep:.1f} s", flush=True)  # fmt: skip
-    print(f"training ratio {pipelined / keep:.2f}  (default training / keep on the same worlds and steps, wall time; "
-          f"target <= 1.3; {serial / keep:.2f} serially)", flush=True)  # fmt: skip
-    for n in (50, 200):
-        grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
-        print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)
-    from coopsumo.studies.scenario1_plan import Plan
-
-    period = Plan().fcd_period_s
-    extra, low, high, mb_per_h, veh = bench_fcd_cost(steps, period, repeats=1 if quick else 4)
-    print(f"  --fcd every {period:g} s (scenario I), jammed keep run ({veh:.0f} vehicles): {extra:+.1f}% wall time "
-          f"(median of runs side by side; {low:+.1f} to {high:+.1f}%; limit 10%), {mb_per_h:.0f} MB of fcd.xml "
-          f"per simulated hour{' (--quick: runs too short to tell)' if quick else ''}", flush=True)  # fmt: skip
+    if not args.learner:
+        world_lines(steps, quick)
+    learner_lines(steps, quick, args.model)
+    if not args.learner:
+        decision_and_output_lines(steps, quick)
     return 0
 
 
