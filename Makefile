@@ -37,6 +37,7 @@ bench: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/coopsumo simulate --scenario free --lanes 3 --policy greedy --steps 3000 --seed 1 --out $(DEMO_OUT)
+	@echo "demo: wrote the run folder $(DEMO_OUT)/ (what it holds: docs/run-folders.md)"
 
 nets: $(STAMP)
 	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.sim.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"
@@ -50,8 +51,9 @@ scenario2: $(STAMP)
 learning: $(STAMP)
 	$(BIN)/coopsumo learning $(if $(QUICK),--quick) $(if $(PROFILE),--profile $(PROFILE) --out results/learning_$(PROFILE))
 
+# without PROFILE the profile judging today's default learner (protocol_plan.CURRENT); each writes its own folder
 protocol: $(STAMP)
-	$(BIN)/coopsumo protocol $(if $(PROFILE),--profile $(PROFILE) --out results/learner_protocol_$(PROFILE))
+	$(BIN)/coopsumo protocol $(if $(PROFILE),--profile $(PROFILE))
 
 regime-map: $(STAMP)
 	$(BIN)/coopsumo regime-map $(if $(SEEDS),--seeds $(SEEDS))

@@ -109,8 +109,8 @@ def test_report_numbers_equal_the_summaries_per_demand(study: Path) -> None:
             assert f"| {policy} | " in part
         # the verdicts of this demand: alpha 8 against 0 and MOBIL p 1 against 0, each with its interval, none
         # passed on 2 models or 2 seeds; the table of each model's total time spent
-        assert "- `dqn_alpha8` against `dqn_alpha0` cannot be judged on 2 model(s) (at least 3 needed)" in part
-        assert "- `mobil_p1` against `mobil_p0` cannot be judged on 2 seed(s)" in part and "95% CI" in part
+        assert "- `dqn_alpha8` against `dqn_alpha0` cannot be judged on 2 models (at least 3 needed)" in part
+        assert "- `mobil_p1` against `mobil_p0` cannot be judged on 2 seeds" in part and "95% CI" in part
         assert "lower for " in part and " of 2 models, each on 2 seeds" in part
         assert "| policy | model 100 | model 101 | worst | spread (sd) |" in part
     models = runs[runs["train_seed"].notna()]
@@ -205,6 +205,15 @@ def _rows(values: dict[str, dict[str, list[float]]], t_up: float = 1.0) -> pd.Da
     return pd.DataFrame(rows)
 
 
+def test_the_consoles_closing_table_says_which_demand_it_shows() -> None:
+    rows = pd.concat([_rows({"keep": {"tts_veh_h": [10.0, 12.0]}}, t_up=2.0),
+                      _rows({"keep": {"tts_veh_h": [30.0, 34.0]}}, t_up=1.0)])  # fmt: skip
+    text = rep.closing_table(measures.aggregate(rows), 1.0)
+    head, *table = text.splitlines()
+    assert "T_up = 1 s (3,600 veh/h)" in head and "report.md" in head
+    assert len([line for line in table if line.startswith("| keep |")]) == 1 and "32.0" in text and "11.0" not in text
+
+
 def test_cooperative_alpha_is_the_largest_that_still_changes_lanes() -> None:
     rows = _rows({"dqn_alpha0": {"lane_changes_per_vehicle": [2.0, 2.0]},
                   "dqn_alpha2": {"lane_changes_per_vehicle": [0.5, 0.3]},
@@ -243,7 +252,10 @@ def test_verdict_on_total_time_spent_with_recovery_counted_at_the_end_when_never
     undecided = rep.verdict_line(measures.compare(mixed, 1.0, "a", "b"))
     assert "**cannot decide** (the interval includes 0; at the spread measured here it would take about" in undecided
     two = _rows({"a": {"tts_veh_h": [90.0, 91.0]}, "b": {"tts_veh_h": [100.0, 101.0]}})
-    assert "cannot be judged on 2 seed(s)" in rep.verdict_line(measures.compare(two, 1.0, "a", "b"))
+    assert "cannot be judged on 2 seeds" in rep.verdict_line(measures.compare(two, 1.0, "a", "b"))
+    one = _rows({"a": {"tts_veh_h": [90.0]}, "b": {"tts_veh_h": [100.0]}})  # the quick profile's single seed
+    assert "cannot be judged on 1 seed (" in rep.verdict_line(measures.compare(one, 1.0, "a", "b"))
+    assert rep.verdict_word(measures.compare(one, 1.0, "a", "b")) == "1 seed: too few"
     assert measures.compare(rows, 3.0, "dqn_alpha8", "dqn_alpha0") is None  # no runs at that demand
 
 

@@ -11,7 +11,9 @@ A variant is a training (its learner) plus which weights drive: `model.pt` (the 
 selects) or `model_last.pt` (the last weights). Model selection never feeds back into training, so the last
 weights of a selecting training are the model the same learner without selection would have saved: one
 training gives both rows. Cells run on the shared runner; a rerun reuses finished cells. Outputs in OUT
-(default results/learner_protocol): cells/, train/, runs/, runs.csv, report.md and figures.
+(default results/learner_protocol_<profile>, the first protocol's profile `default` results/learner_protocol; without
+--profile, protocol_plan.CURRENT: the one judging today's default learner): cells/, train/, runs/, runs.csv,
+report.md and figures.
 """
 
 from __future__ import annotations
@@ -26,7 +28,9 @@ from typing import Any
 from coopsumo.config import RoadConfig, SimConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.protocol_plan import (
+    CURRENT,
     DRIVES,
+    OLDEST,
     PROFILES,
     REQUIRED,
     TRAJECTORY_EVERY,
@@ -157,12 +161,18 @@ def build_parser() -> Parser:
                description="Judge learners: every training seed's model in free flow and through the accident "
                            "against keep, greedy and MOBIL p=0 (IQM, bootstrap intervals, probability of "
                            "improvement).")  # fmt: skip
-    p.add_argument("--profile", choices=tuple(PROFILES), default="default", help="study size")
+    p.add_argument("--profile", choices=tuple(PROFILES), default=CURRENT, metavar="PROFILE",
+                   help=f"which learners, on how many models (protocol_plan.PROFILES; docs/studies.md): {CURRENT} "
+                        f"(the default) judges today's default learner; {OLDEST!r} is the first protocol's, of an "
+                        f"older learner; tiny takes seconds, for trying it out; the others, one of "
+                        f"{', '.join(p for p in PROFILES if p not in (CURRENT, OLDEST, 'tiny'))}, judge earlier "
+                        "learners or one change each")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
     p.add_argument("--out", type=out_dir, default=None,
-                   help="results folder (default results/learner_protocol, another profile "
-                        "results/learner_protocol_<profile>)")  # fmt: skip
+                   help=f"results folder (default {default_out('learner_protocol', CURRENT, OLDEST)}; another "
+                        f"profile results/learner_protocol_<profile>, the {OLDEST!r} profile "
+                        f"{default_out('learner_protocol', OLDEST, OLDEST)})")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -175,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
             raise UsageError(f"--workers must be positive, got {args.workers}")
         check_backend(args.backend, args.address)
         if args.out is None:
-            args.out = default_out("learner_protocol", args.profile, "default")
+            args.out = default_out("learner_protocol", args.profile, OLDEST)
         with study_root(args.out, "protocol"):
             meta = run_study(PROFILES[args.profile], args.out, args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip

@@ -283,6 +283,12 @@ PROFILES = {
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
+CURRENT = "nr10"
+"""the profile that judges today's default learner (DQNConfig()): `coopsumo protocol` and `make protocol` run it when
+no profile is named (its committed report: results/learner_protocol_nr10); the profile named `default` is the first
+protocol's, of an older learner"""
+OLDEST = "default"
+"""the first protocol's profile; its folder is results/learner_protocol, any other's results/learner_protocol_<name>"""
 
 
 def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> TrainConfig:

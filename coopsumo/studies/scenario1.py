@@ -32,9 +32,6 @@ from coopsumo.studies.run_folders import default_out, reusable_run, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
 from coopsumo.studies.scenario1_measures import run_metrics
 from coopsumo.studies.scenario1_plan import (
-    ALPHAS,
-    DEMANDS,
-    MOBIL_PS,
     TRAIN_SEEDS,
     Plan,
     Run,
@@ -45,7 +42,7 @@ from coopsumo.studies.scenario1_plan import (
     run_folder,
     train_config,
 )
-from coopsumo.studies.scenario1_report import timing_text, write_outputs
+from coopsumo.studies.scenario1_report import counted, timing_text, write_outputs
 from coopsumo.validation import (
     MAX_STEPS,
     MOBIL_LIMITS,
@@ -103,77 +100,105 @@ def _preset_list(text: str) -> tuple[str, ...]:
     return name_list("--preset", text, tuple(DQN_PRESETS))
 
 
+PROFILE_FLAGS = {"": Plan(), " --quick": Plan.quick(), " --full": Plan.full()}
+"""the profiles as the command line picks them, and their plans: --help states each default from these"""
+
+
+def by_profile(show: Any) -> str:
+    """An option's default as --help states it, from the plans: "5; 1 --quick; 5 --full", or one value when every
+    profile has the same."""
+    values = {flag: str(show(plan)) for flag, plan in PROFILE_FLAGS.items()}
+    if len(set(values.values())) == 1:
+        return values[""]
+    return "; ".join(f"{value}{flag}" for flag, value in values.items())
+
+
+def _numbers(values: tuple[float, ...]) -> str:
+    return ",".join(f"{x:g}" for x in values)
+
+
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo scenario1", description="Scenario I: the accident bottleneck study.")
+    quick, full = Plan.quick(), Plan.full()
     size = p.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true", help="2 demands, 1 seed, small step counts: a few minutes")
+    size.add_argument("--quick", action="store_true",
+                      help=f"{len(quick.t_ups)} demands, {counted(len(quick.seeds), 'evaluation seed')}, "
+                           f"{counted(len(quick.train_seeds), 'model')} per alpha, small step counts: a few minutes "
+                           "(models trained into the model store too)")  # fmt: skip
     size.add_argument("--full", action="store_true",
-                      help="the paper's accident (90,000 steps, 50,000 of them decaying), 4 demands, "
-                           "5 seeds")  # fmt: skip
+                      help=f"the paper's accident ({full.steps:,} steps, {full.accident_steps:,} of them decaying), "
+                           f"{len(full.t_ups)} demands, {len(full.seeds)} evaluation seeds")  # fmt: skip
     p.add_argument("--seeds", type=seed_count, default=None,
-                   help="number of evaluation seeds, 1..N (default 3; quick 1; full 5)")  # fmt: skip
+                   help=f"number of evaluation seeds, 1..N (default: {by_profile(lambda plan: len(plan.seeds))})")
     p.add_argument("--train-seeds", default=None,
                    help=f"models per alpha: a count K (training seeds {FIRST_TRAIN_SEED}, {FIRST_TRAIN_SEED + 1}, ...) "
-                        f"or a comma-separated list of training seeds (default {len(TRAIN_SEEDS)}; quick "
-                        f"{len(Plan.quick().train_seeds)})")  # fmt: skip
+                        "or a comma-separated list of training seeds "
+                        f"(default: {by_profile(lambda plan: len(plan.train_seeds))})")  # fmt: skip
     p.add_argument("--t-up", dest="t_ups", default=None,
                    help="demands: T_up (s) of the accident runs, comma-separated, e.g. 3,1.5,1 "
-                        f"(default {','.join(f'{t:g}' for t in DEMANDS)})")  # fmt: skip
+                        f"(default: {by_profile(lambda plan: _numbers(plan.t_ups))})")  # fmt: skip
     p.add_argument("--mobil-p", dest="mobil_ps", default=None,
-                   help=f"MOBIL politeness values, comma-separated (default {','.join(f'{x:g}' for x in MOBIL_PS)})")
+                   help="MOBIL politeness values, comma-separated "
+                        f"(default: {by_profile(lambda plan: _numbers(plan.mobil_ps))})")  # fmt: skip
+    k = len(TRAIN_SEEDS)
     p.add_argument("--out", type=out_dir, default=None,
-                   help="results folder (default results/scenario1; --quick results/scenario1_quick, --full "
-                        "results/scenario1_full: only the default profile's report is committed)")  # fmt: skip
+                   help=f"results folder (default: {by_profile(study_out)}; with --train-seeds K other than {k}: "
+                        "results/scenario1_<K>models, with --preset: results/scenario1_<presets>[_<K>models]; only "
+                        "the default profile's report is committed)")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
     add_backend_flags(p)
-    sizes = {"": Plan(), " --quick": Plan.quick(), " --full": Plan.full()}
     p.add_argument("--train-steps", type=steps, default=None,
-                   help="training steps of each model (default: the profile's: "
-                        + ", ".join(f"{plan.train_steps:,}{name}" for name, plan in sizes.items()) + ")")  # fmt: skip
+                   help=f"training steps of each model (default: {by_profile(lambda plan: f'{plan.train_steps:,}')})")
     p.add_argument("--steps", type=integer(10, MAX_STEPS), default=None,
-                   help="steps of each accident run; the accident window scales with it (default: the profile's: "
-                        + ", ".join(f"{plan.steps:,}{name}" for name, plan in sizes.items()) + ")")  # fmt: skip
+                   help="steps of each accident run; the accident window scales with it "
+                        f"(default: {by_profile(lambda plan: f'{plan.steps:,}')})")  # fmt: skip
     p.add_argument("--alphas", default=None,
-                   help=f"alphas to train and run, comma-separated (default {','.join(f'{a:g}' for a in ALPHAS)}; "
-                        "0 is always included)")  # fmt: skip
+                   help="alphas to train and run, comma-separated, 0 always included "
+                        f"(default: {by_profile(lambda plan: _numbers(plan.alphas))})")  # fmt: skip
     p.add_argument("--preset", "--presets", dest="presets", default=None,
                    help=f"learner presets, comma-separated: {', '.join(DQN_PRESETS)}, or several side by side, e.g. "
-                        "default,alpha_only (default: default)")  # fmt: skip
+                        f"default,alpha_only (default: {by_profile(lambda plan: ','.join(plan.presets))})")  # fmt: skip
     return p
+
+
+def plan_from_args(args: Any) -> Plan:
+    """The plan of the chosen profile with the command line's overrides applied and checked (UsageError)."""
+    plan = Plan.quick() if args.quick else Plan.full() if args.full else Plan()
+    if args.seeds is not None:
+        if args.seeds < 1:
+            raise UsageError(f"seeds must be >= 1, got {args.seeds}")
+        plan = replace(plan, seeds=tuple(range(1, args.seeds + 1)))
+    if args.train_seeds is not None:
+        plan = replace(plan, train_seeds=train_seed_list("--train-seeds", args.train_seeds, FIRST_TRAIN_SEED,
+                                                         plan.seeds))  # fmt: skip
+    if args.t_ups is not None:
+        plan = replace(plan, t_ups=t_up_list("--t-up", args.t_ups, ControlConfig().dt_s))
+    if args.mobil_ps is not None:
+        plan = replace(plan, mobil_ps=distinct_list("--mobil-p", args.mobil_ps, low=0.0, high=MOBIL_LIMITS["p"][1]))
+    if args.train_steps is not None:
+        if args.train_steps < 1:
+            raise UsageError(f"train-steps must be >= 1, got {args.train_steps}")
+        plan = replace(plan, train_steps=args.train_steps)
+    if args.steps is not None:
+        if args.steps < 10:
+            raise UsageError(f"steps must be >= 10, got {args.steps}")
+        scale = args.steps / plan.steps
+        plan = replace(plan, steps=args.steps, accident_start=max(int(plan.accident_start * scale), 1),
+                       accident_steps=max(int(plan.accident_steps * scale), 1))  # fmt: skip
+    if args.alphas is not None:
+        plan = replace(plan, alphas=_alpha_list(args.alphas))
+    if args.presets is not None:
+        plan = replace(plan, presets=_preset_list(args.presets))
+    return plan
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
-        plan = Plan.quick() if args.quick else Plan.full() if args.full else Plan()
-        if args.seeds is not None:
-            if args.seeds < 1:
-                raise UsageError(f"seeds must be >= 1, got {args.seeds}")
-            plan = replace(plan, seeds=tuple(range(1, args.seeds + 1)))
-        if args.train_seeds is not None:
-            plan = replace(plan, train_seeds=train_seed_list("--train-seeds", args.train_seeds, FIRST_TRAIN_SEED,
-                                                             plan.seeds))  # fmt: skip
+        plan = plan_from_args(args)
         if args.workers < 1:
             raise UsageError(f"workers must be >= 1, got {args.workers}")
-        if args.t_ups is not None:
-            plan = replace(plan, t_ups=t_up_list("--t-up", args.t_ups, ControlConfig().dt_s))
-        if args.mobil_ps is not None:
-            plan = replace(plan, mobil_ps=distinct_list("--mobil-p", args.mobil_ps, low=0.0, high=MOBIL_LIMITS["p"][1]))
-        if args.train_steps is not None:
-            if args.train_steps < 1:
-                raise UsageError(f"train-steps must be >= 1, got {args.train_steps}")
-            plan = replace(plan, train_steps=args.train_steps)
-        if args.steps is not None:
-            if args.steps < 10:
-                raise UsageError(f"steps must be >= 10, got {args.steps}")
-            scale = args.steps / plan.steps
-            plan = replace(plan, steps=args.steps, accident_start=max(int(plan.accident_start * scale), 1),
-                           accident_steps=max(int(plan.accident_steps * scale), 1))  # fmt: skip
-        if args.alphas is not None:
-            plan = replace(plan, alphas=_alpha_list(args.alphas))
-        if args.presets is not None:
-            plan = replace(plan, presets=_preset_list(args.presets))
         check_backend(args.backend, args.address)
         if args.out is None:
             args.out = study_out(plan)

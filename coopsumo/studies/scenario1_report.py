@@ -48,6 +48,11 @@ MODEL_DOC = "docs/model.md"
 """the one table of the project's deviations from the paper and its choices, in the source checkout"""
 
 
+def counted(n: int, word: str) -> str:
+    """'1 seed', '5 seeds': a count and its noun, singular for one."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
 def _fmt(fmt: str, mean: float, std: float) -> str:
     if mean is None or (isinstance(mean, float) and math.isnan(mean)):
         return "never"
@@ -127,8 +132,8 @@ def verdict_line(c: dict[str, Any]) -> str:
     word = {"helps": "**helps**", "hurts": "**hurts**",
             "cannot decide": f"**cannot decide** ({_what_it_takes(c) if head == 'cannot decide' else ''})",
             "no data": "cannot be judged",
-            "too few": f"cannot be judged on {c['pairs']} seed(s) (at least {MIN_PAIRS} needed)",
-            "few models": f"cannot be judged on {c['models']} model(s) (at least {MIN_MODELS} needed)",
+            "too few": f"cannot be judged on {counted(c['pairs'], 'seed')} (at least {MIN_PAIRS} needed)",
+            "few models": f"cannot be judged on {counted(c['models'], 'model')} (at least {MIN_MODELS} needed)",
             }[head]  # fmt: skip
     rec, rlo, rhi = c["system_recovery_s"]
     wav, wlo, whi = c["waves"]
@@ -137,9 +142,9 @@ def verdict_line(c: dict[str, Any]) -> str:
         never = (f"; never recovered: {c['never_a']} of {c['runs_a']} and {c['never_b']} of {c['runs_b']} runs, "
                  "counted at the run's end")  # fmt: skip
     if c["models"]:
-        count = f"lower for {c['tts_fewer']} of {c['models']} models, each on {c['pairs']} seeds"
+        count = f"lower for {c['tts_fewer']} of {counted(c['models'], 'model')}, each on {counted(c['pairs'], 'seed')}"
     else:
-        count = f"lower on {c['tts_fewer']} of {c['pairs']} seeds"
+        count = f"lower on {c['tts_fewer']} of {counted(c['pairs'], 'seed')}"
     return (
         f"`{c['a']}` against `{c['b']}` {word}: total time spent {mean:+.1f} veh-h "
         f"({100 * mean / base:+.1f}% of {base:.1f}; 95% CI {lo:+.1f} to {hi:+.1f}; {count}); system recovery "
@@ -153,9 +158,9 @@ def verdict_word(c: dict[str, Any]) -> str:
     """The verdict on total time spent in one word or phrase (as verdict_line decides it)."""
     head = _head(c)
     if head == "few models":
-        return f"{c['models']} model(s): too few"
+        return f"{counted(c['models'], 'model')}: too few"
     if head == "too few":
-        return f"{c['pairs']} seed(s): too few"
+        return f"{counted(c['pairs'], 'seed')}: too few"
     return head
 
 
@@ -172,7 +177,7 @@ def verdict_table(rows: pd.DataFrame, t_ups: Sequence[float], pairs: Sequence[tu
                 cells.append("-")
                 continue
             mean, lo, hi = c["tts_veh_h"]
-            unit = f"{c['models']} models" if c["models"] else f"{c['pairs']} seeds"
+            unit = counted(c["models"], "model") if c["models"] else counted(c["pairs"], "seed")
             cells.append(f"{mean:+.1f} [{lo:+.1f}, {hi:+.1f}], lower for {c['tts_fewer']} of {unit}: "
                          f"**{verdict_word(c)}**")  # fmt: skip
         lines.append(f"| `{a}` against `{b}` | " + " | ".join(cells) + " |")
@@ -406,8 +411,9 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
         f"per run; the accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps "
         f"(t = {start_s:.0f}-{end_s:.0f} s), stuck ratio decaying 1 -> 0. Models (learner presets "
         f"{', '.join(f'`{p}`' for p in plan.presets)}; alpha in {{{', '.join(f'{x:g}' for x in plan.alphas)}}}) "
-        f"{training_text(plan)}; **{len(plan.train_seeds)} models per alpha** (training seeds "
-        f"{', '.join(map(str, plan.train_seeds))}), each evaluated greedily on **{len(plan.seeds)} evaluation seeds** "
+        f"{training_text(plan)}; **{counted(len(plan.train_seeds), 'model')} per alpha** (training seeds "
+        f"{', '.join(map(str, plan.train_seeds))}), each evaluated greedily on "
+        f"**{counted(len(plan.seeds), 'evaluation seed')}** "
         f"({', '.join(map(str, plan.seeds))}), which no model saw; every policy meets the same demand on the same "
         f"seeds. Values in the tables: mean ± standard deviation over runs ({len(plan.train_seeds)} x "
         f"{len(plan.seeds)} for a learned policy, {len(plan.seeds)} for a baseline); Fig. 4, Fig. 5 and the "
@@ -434,7 +440,13 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
         f"({windows['dissolution'][0]:.0f}-{windows['dissolution'][1]:.0f} s); dashed: the bottleneck."
     )
     write_report(root, header, claim, sections, regimes, figures_text, gui_text, timing, json.dumps(versions()))
-    print(report_table(agg[agg["t_up_s"] == plan.t_ups[-1]]))
+    print(closing_table(agg, plan.t_ups[-1]))
+
+
+def closing_table(agg: pd.DataFrame, t_up: float) -> str:
+    """The console's closing table: one demand's table of every policy, headed by which demand it shows."""
+    return (f"scenario1: every policy at T_up = {t_up:g} s ({3600 / t_up:,.0f} veh/h), the study's last demand; mean "
+            f"± sd over runs (every demand: report.md)\n" + report_table(agg[agg["t_up_s"] == t_up]))
 
 
 def training_text(plan: Plan) -> str:

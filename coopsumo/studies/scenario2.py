@@ -278,38 +278,61 @@ def profile_from_args(args: Any) -> Profile:
     return profile
 
 
+DEFAULT_PROFILE = "quick"
+"""the profile without --profile: the committed report's"""
+
+
+def by_profile(show: Any) -> str:
+    """An option's default as --help states it, from the profiles: "the profile's: tiny 2; quick 3; paper 10", or one
+    value when every profile has the same."""
+    values = {name: str(show(profile)) for name, profile in PROFILES.items()}
+    if len(set(values.values())) == 1:
+        return next(iter(values.values()))
+    return "the profile's: " + "; ".join(f"{name} {value}" for name, value in values.items())
+
+
+def _numbers(values: tuple[float, ...]) -> str:
+    return ",".join(f"{x:g}" for x in values)
+
+
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
-    p.add_argument("--profile", choices=sorted(PROFILES), default="quick",
+    p.add_argument("--profile", choices=sorted(PROFILES), default=DEFAULT_PROFILE,
                    help="grid and step counts: tiny (tests), quick (about 80 min on 2 cores), paper")  # fmt: skip
     p.add_argument("--out", type=out_dir, default=None,
-                   help="results folder (default results/scenario2, with --conditioned results/scenario2_conditioned)")
+                   help=f"results folder (default {default_out('scenario2', DEFAULT_PROFILE, DEFAULT_PROFILE)}, "
+                        "another profile results/scenario2_<profile>; with --conditioned "
+                        "results/scenario2_conditioned[_<profile>])")  # fmt: skip
     p.add_argument("--conditioned", action="store_true",
                    help="one alpha-conditioned model per condition and seed (train --alpha-conditioned), evaluated at "
                    "every alpha of the grid, instead of one training per alpha")  # fmt: skip
     add_backend_flags(p)
     p.add_argument("--workers", type=workers, default=os.cpu_count() or 1,
                    help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
-    p.add_argument("--steps", type=steps, default=None, help="training steps per cell (default: the profile's)")
-    p.add_argument("--eval-steps", type=steps, default=None, help="evaluation steps per cell (default: the profile's)")
+    p.add_argument("--steps", type=steps, default=None,
+                   help=f"training steps per cell (default: {by_profile(lambda f: f'{f.train_steps:,}')})")
+    p.add_argument("--eval-steps", type=steps, default=None,
+                   help=f"evaluation steps per cell (default: {by_profile(lambda f: f'{f.eval_steps:,}')})")
     p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
                    help="models per condition and alpha (or per condition, --conditioned): training seeds 1..N "
-                        "(default: the profile's: quick 3)")  # fmt: skip
+                        f"(default: {by_profile(lambda f: len(f.seeds))})")  # fmt: skip
     p.add_argument("--eval-seeds", type=seed_count, default=None,
                    help=f"evaluation seeds {EVAL_SEED_BASE + 1}..{EVAL_SEED_BASE}+N, which no training sees: every "
-                   "model, and MOBIL, is evaluated greedily on each (default: the profile's: tiny 1, quick 3, "
-                   "paper 5)")  # fmt: skip
-    p.add_argument("--lanes", default=None, help="comma-separated lane counts (default: the profile's)")
+                        "model, and MOBIL, is evaluated greedily on each "
+                        f"(default: {by_profile(lambda f: len(f.eval_seeds))})")  # fmt: skip
+    p.add_argument("--lanes", default=None,
+                   help=f"comma-separated lane counts (default: {by_profile(lambda f: _numbers(f.lanes))})")
     p.add_argument("--alphas", default=None,
-                   help="comma-separated alphas, fractions allowed: 0,1/8,2 (default: the profile's)")
+                   help="comma-separated alphas, fractions allowed: 0,1/8,2 "
+                        f"(default: {by_profile(lambda f: _numbers(f.alphas))})")  # fmt: skip
     p.add_argument("--t-up", default=None, help="fixed comma-separated T_up list (s) for every lane count, "
                    "instead of the profile's load grid (default: the load grid)")  # fmt: skip
     p.add_argument("--policies", default="dqn", help="comma-separated: dqn (train per alpha) and/or mobil "
                    "(one MOBIL run per politeness p, no training; default: dqn)")  # fmt: skip
-    p.add_argument("--mobil-p", default=None, help="comma-separated MOBIL politeness values (default: the "
-                   "profile's: 0,0.25,0.5,1; tiny 0,1)")  # fmt: skip
+    p.add_argument("--mobil-p", default=None, help="comma-separated MOBIL politeness values "
+                   f"(default: {by_profile(lambda f: _numbers(f.mobil_ps))})")  # fmt: skip
     p.add_argument("--preset", choices=sorted(DQN_PRESETS), default=None,
-                   help="learner preset of the DQN cells (default: the profile's, default)")  # fmt: skip
+                   help=f"learner preset of the DQN cells (default: {by_profile(lambda f: f.preset)})")  # fmt: skip
     p.add_argument("--bootstrap", type=integer(0, 100_000), default=1000,
                    help="bootstrap replicates over seeds (default 1000)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -328,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
         check_backend(args.backend, args.address)
         if args.out is None:
             name = "scenario2_conditioned" if profile.conditioned else "scenario2"
-            args.out = default_out(name, profile.name, "quick")
+            args.out = default_out(name, profile.name, DEFAULT_PROFILE)
         with study_root(args.out, "scenario2"):  # path, lock, ownership and marker of the results folder
             meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet,
                              args.bootstrap)  # fmt: skip

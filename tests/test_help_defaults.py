@@ -1,0 +1,111 @@
+"""What a study's --help states as a default is what the code does: each stated default is read back from the help
+text and compared with the plan the command builds without that option (issue 68: `scenario1 --help` said
+`--seeds (default 3)` while the code used 5)."""
+
+from __future__ import annotations
+
+import argparse
+import re
+
+from coopsumo.config import DQNConfig, results_view, to_dict
+from coopsumo.studies import protocol, protocol_plan, scenario1, scenario2
+from coopsumo.studies.run_folders import default_out
+
+
+def option_help(parser: argparse.ArgumentParser, flag: str) -> str:
+    (action,) = [a for a in parser._actions if flag in a.option_strings]
+    return " ".join((action.help or "").split())
+
+
+def stated(text: str, profiles: tuple[str, ...], where: str) -> dict[str, str]:
+    """The default a help text states for each profile: "(default: A; B --quick; C --full)" (scenario1) or
+    "(default: the profile's: tiny A; quick B; paper C)" (scenario2): the profile's name after the value (where
+    "suffix") or before it ("prefix"); one value without a profile is every profile's.
+    Parts that name no profile after the first (e.g. "with --preset: ...") are left out."""
+    match = re.search(r"\(default: (.*)\)", text)
+    assert match, text
+    body = match.group(1).removeprefix("the profile's: ")
+    out: dict[str, str] = {}
+    for i, part in enumerate(body.split("; ")):
+        for name in profiles:
+            if name and where == "suffix" and part.endswith(f" {name}"):
+                out[name] = part.removesuffix(f" {name}")
+                break
+            if name and where == "prefix" and part.startswith(f"{name} "):
+                out[name] = part.removeprefix(f"{name} ")
+                break
+        else:
+            if i == 0:
+                out[""] = part
+    if set(out) == {""}:
+        return {name: out[""] for name in profiles}
+    return {name: out.get(name, out.get("", "")) for name in profiles}
+
+
+def numbers(values: tuple[float, ...]) -> str:
+    return ",".join(f"{x:g}" for x in values)
+
+
+def test_scenario1_help_states_each_profiles_defaults() -> None:
+    parser = scenario1.build_parser()
+    flags = ("", "--quick", "--full")
+    plans = {flag: scenario1.plan_from_args(parser.parse_args([flag] if flag else [])) for flag in flags}
+    expected = {
+        "--seeds": lambda plan: str(len(plan.seeds)),
+        "--train-seeds": lambda plan: str(len(plan.train_seeds)),
+        "--t-up": lambda plan: numbers(plan.t_ups),
+        "--mobil-p": lambda plan: numbers(plan.mobil_ps),
+        "--train-steps": lambda plan: f"{plan.train_steps:,}",
+        "--steps": lambda plan: f"{plan.steps:,}",
+        "--alphas": lambda plan: numbers(plan.alphas),
+        "--preset": lambda plan: ",".join(plan.presets),
+        "--out": lambda plan: str(scenario1.study_out(plan)),
+    }
+    wrong = []
+    for option, show in expected.items():
+        text = option_help(parser, option)
+        says = stated(text, flags, "suffix")
+        for flag, plan in plans.items():
+            if says[flag] != show(plan):
+                wrong.append(f"{option}{' ' + flag if flag else ''}: help says {says[flag]!r}, code {show(plan)!r}")
+    assert not wrong, "; ".join(wrong)
+    assert plans[""].seeds == (1, 2, 3, 4, 5)  # the issue's case, read from the code's plan
+    assert "(default: 5;" in option_help(parser, "--seeds")
+
+
+def test_scenario2_help_states_each_profiles_defaults() -> None:
+    parser = scenario2.build_parser()
+    names = tuple(scenario2.PROFILES)
+    profiles = {name: scenario2.profile_from_args(parser.parse_args(["--profile", name])) for name in names}
+    expected = {
+        "--steps": lambda f: f"{f.train_steps:,}",
+        "--eval-steps": lambda f: f"{f.eval_steps:,}",
+        "--seeds": lambda f: str(len(f.seeds)),
+        "--eval-seeds": lambda f: str(len(f.eval_seeds)),
+        "--lanes": lambda f: numbers(f.lanes),
+        "--alphas": lambda f: numbers(f.alphas),
+        "--mobil-p": lambda f: numbers(f.mobil_ps),
+        "--preset": lambda f: f.preset,
+    }
+    wrong = []
+    for option, show in expected.items():
+        says = stated(option_help(parser, option), names, "prefix")
+        for name, profile in profiles.items():
+            if says[name] != show(profile):
+                wrong.append(f"{option} ({name}): help says {says[name]!r}, code {show(profile)!r}")
+    assert not wrong, "; ".join(wrong)
+    assert parser.get_default("profile") == scenario2.DEFAULT_PROFILE
+    assert f"(default {default_out('scenario2', 'quick', scenario2.DEFAULT_PROFILE)}," in option_help(parser, "--out")
+
+
+def test_protocol_without_a_profile_judges_todays_default_learner_and_says_so() -> None:
+    parser = protocol.build_parser()
+    current = parser.get_default("profile")
+    assert current == protocol_plan.CURRENT
+    judged = protocol_plan.PROFILES[current].judged_variant()
+    assert results_view(to_dict(protocol_plan.variants()[judged].learner)) == results_view(to_dict(DQNConfig()))
+    text = option_help(parser, "--profile")
+    assert f"{current} (the default) judges today's default learner" in text
+    oldest = protocol_plan.PROFILES[protocol_plan.OLDEST].judged_variant()
+    assert results_view(to_dict(protocol_plan.variants()[oldest].learner)) != results_view(to_dict(DQNConfig()))
+    assert f"(default results/learner_protocol_{current};" in option_help(parser, "--out")
