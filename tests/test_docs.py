@@ -75,10 +75,12 @@ def test_documented_commands_run(tmp_path: Path) -> None:
 
 @pytest.mark.sumo
 def test_make_demo_and_the_sumolib_snippet(tmp_path: Path) -> None:
-    """`make demo` (into a temporary folder: the suite leaves the checkout as it found it) and the snippet on it."""
+    """`make demo` (into a temporary folder: the suite leaves the checkout as it found it), which says where it wrote,
+    and the snippet on it."""
     demo = tmp_path / "results" / "demo"
     res = subprocess.run(["make", "demo", f"DEMO_OUT={demo}"], cwd=ROOT, capture_output=True, text=True, check=False)
     assert res.returncode == 0, res.stderr[-1500:]
+    assert f"demo: wrote the run folder {demo}/" in res.stdout  # where it wrote, as its last line
     snippet = next(b for b in blocks("python") if "sumolib.xml.parse" in b and "detectors.xml" in b)
     res = subprocess.run([sys.executable, "-c", snippet], cwd=tmp_path, capture_output=True, text=True, check=False)
     assert res.returncode == 0, res.stderr

@@ -30,7 +30,6 @@ from coopsumo.runio import (
     UsageError,
     check_out_path,
     check_run_dir,
-    discard_run_dir,
     finish_run_dir,
     finished_run,
     out_lock,
@@ -51,21 +50,23 @@ from coopsumo.validation import (
 )
 
 
-def training_folder(out: Path, resume: bool, progress: bool = True) -> Path:
-    """The folder a training into `out` works in: `out` itself, or, when `out` holds a finished training, a
-    folder beside it (retrain_folder) that replaces `out` only once the new training has finished, so that a
-    kill or a failure never loses the finished one. --resume continues whichever holds a checkpoint."""
+def check_new_training(out: Path) -> None:
+    """A new training (no --resume) never overwrites a training it would have to start over on: UsageError when
+    `out` holds an interrupted one (its checkpoint.pt, or that of a new training a coopsumo before this rule was
+    building beside a finished one, retrain_folder) or a finished one (its model.pt)."""
+    if (out / "checkpoint.pt").exists() or (retrain_folder(out.resolve()) / "checkpoint.pt").exists():
+        raise UsageError(f"--out {out}: there is an interrupted training here: --resume, or another --out")
+    if (out / "model.pt").exists() or finished_run(out, "train"):
+        raise UsageError(f"--out {out}: there is a finished training here, which a new one would replace: another "
+                         "--out, or remove the folder yourself")  # fmt: skip
+
+
+def training_folder(out: Path) -> Path:
+    """The folder `train --resume --out OUT` continues: OUT, or the folder beside it (retrain_folder) in which a
+    coopsumo before check_new_training built a new training over a finished one; that training replaces OUT when
+    it has finished."""
     work = retrain_folder(out.resolve())
-    if resume:
-        return work if (work / "checkpoint.pt").exists() else out
-    if work.exists():
-        discard_run_dir(work)  # an earlier new training, killed: this one starts afresh
-    if not finished_run(out, "train"):
-        return out
-    if progress:
-        print(f"train: {out} holds a finished training; the new one is built in {work} and replaces it when it "
-              "has finished", file=sys.stderr)  # fmt: skip
-    return work
+    return work if (work / "checkpoint.pt").exists() else out
 
 
 def default_out(cfg: TrainConfig) -> Path:
@@ -295,6 +296,8 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         if args.out is not None:
             check_run_dir(args.out, "train")  # before anything is read, written or deleted
+            if not args.resume:
+                check_new_training(args.out)
         if args.resume and args.out is None:
             raise UsageError("--resume needs --out pointing at the interrupted run")
         new_cfg = None if args.resume else config_from_args(args)  # bad flags refused before torch loads (~2 s)
@@ -305,7 +308,7 @@ def main(argv: list[str] | None = None) -> int:
 
         torch.set_num_threads(1)
         if new_cfg is None:
-            source = training_folder(args.out, resume=True)  # or the killed new training of a finished folder
+            source = training_folder(args.out)  # or an earlier version's killed new training beside a finished one
             cfg = Trainer.checkpoint_config(source, Trainer.load_checkpoint(source))
             check_resume_flags(argv, cfg)
         else:
@@ -313,6 +316,8 @@ def main(argv: list[str] | None = None) -> int:
         out = args.out or default_out(cfg)
         check_out_path(out)  # also the default folder (a relative path when the current folder was deleted)
         check_run_dir(out, "train")
+        if not args.resume:
+            check_new_training(out)  # also the default folder
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as err:
@@ -320,7 +325,9 @@ def main(argv: list[str] | None = None) -> int:
         target = out
         try:
             with out_lock(out, "train"):  # a second command writing to the same folder is refused
-                target = training_folder(out, args.resume, progress=not args.quiet)
+                if not args.resume:
+                    check_new_training(out)  # again under the lock: another command may have trained meanwhile
+                target = training_folder(out) if args.resume else out
                 summary = train(cfg, target, resume=args.resume, progress=not args.quiet,
                                 tensorboard=args.tensorboard, final=out,
                                 learner_process=uses_update_worker(args.update_worker, cfg))  # fmt: skip
@@ -338,7 +345,9 @@ def main(argv: list[str] | None = None) -> int:
             print(f"train: interrupted; continue with --resume --out {out}", file=sys.stderr)
             return 130
         keys = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
-        print(f"model: {out / 'model.pt'}  " + " ".join(f"{k}={summary.get(k)}" for k in keys))
+        values = {k: summary.get(k) for k in keys}  # floats to 4 significant digits, as simulate prints them
+        print(f"model: {out / 'model.pt'}  " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                                                        for k, v in values.items()))  # fmt: skip
         return 0
 
     return run_cli("train", body)
