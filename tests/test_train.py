@@ -130,34 +130,6 @@ def _files(folder: Path) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
 
 
-def test_a_killed_retrain_keeps_the_finished_training(tmp_path: Path) -> None:
-    """A new training into a folder holding a finished one works beside it: killed, the finished files are
-    byte-identical; resumed, it finishes and takes the folder's place, equal to the same training run whole."""
-    out = tmp_path / "run"
-    first = ["--steps", "600", "--eval-steps", "0", "--seed", "1", "--quiet"]
-    subprocess.run(_cmd(*first, "--out", str(out)), check=True, cwd=ROOT, capture_output=True)
-    before = _files(out)
-    second = ["--steps", "1500", "--eval-steps", "0", "--seed", "2"]
-    proc = subprocess.Popen(_cmd(*second, "--quiet", "--out", str(out)), cwd=ROOT, stderr=subprocess.PIPE, text=True)
-    log = tmp_path / ".run.retrain" / "train_log.csv"
-    deadline = time.time() + 120
-    while time.time() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 2):
-        time.sleep(0.05)
-    os.kill(proc.pid, signal.SIGTERM)
-    _, err = proc.communicate(timeout=120)
-    assert proc.returncode == 128 + signal.SIGTERM, err
-    assert "Traceback" not in err and f"--resume --out {out}" in err
-    assert _files(out) == before  # the finished training, untouched
-    res = subprocess.run(_cmd("--resume", "--out", str(out), "--quiet"), cwd=ROOT, capture_output=True, text=True)
-    assert res.returncode == 0, res.stderr
-    assert not (tmp_path / ".run.retrain").exists() and not (out / "checkpoint.pt").exists()
-    whole = tmp_path / "whole"
-    subprocess.run(_cmd(*second, "--quiet", "--out", str(whole)), check=True, cwd=ROOT, capture_output=True)
-    assert _same(_weights(whole / "model.pt"), _weights(out / "model.pt"))
-    assert json.loads((out / "config.json").read_text())["config"]["sim"]["seed"] == 2
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "whole"]  # nothing left beside it
-
-
 @pytest.mark.parametrize(
     "args, fragment",
     [

@@ -1,0 +1,163 @@
+"""Issue 67: nothing a user made is overwritten or deleted by a command that did not make it.
+
+Each data-loss path of the issue, closed and pinned: a new training over an interrupted or finished one, `train
+--out` into the model store or a study's model link, a study's `models/<name>` that is a real folder, a training
+folder whose outputs are links leading outside it. Every case ends in one line, and the user's files are there
+byte for byte afterwards (the fault injection: the command is run against them)."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from coopsumo.agents import train_cli
+from coopsumo.agents.dqn import load_model
+from coopsumo.agents.train import Trainer, model_meta, train
+from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
+from coopsumo.runio import finished_run, mark_run_dir, write_json
+
+pytestmark = pytest.mark.sumo
+TINY = TrainConfig(sim=SimConfig(steps=40, seed=3, policy="dqn"), dqn=DQN_PRESETS["paper"], eval_steps=0,
+                   log_every_steps=20)  # fmt: skip
+"""a training of 40 steps (about a second)"""
+OTHER = replace(TINY, sim=replace(TINY.sim, seed=4))
+
+
+def as_json(cfg: TrainConfig) -> dict[str, Any]:
+    """A configuration as a study's cell holds it (read back from JSON)."""
+    return dict(json.loads(json.dumps(to_dict(cfg))))
+
+
+def snapshot(folder: Path) -> dict[str, str]:
+    """Every entry under folder: a file's sha256, a link's target, 'dir' for a folder."""
+    def entry(p: Path) -> str:
+        if p.is_symlink():
+            return "-> " + os.readlink(p)
+        return "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
+
+    return {str(p.relative_to(folder)): entry(p) for p in sorted(folder.rglob("*"))}
+
+
+def one_line(capsys: pytest.CaptureFixture[str], code: int, *fragments: str, exit_code: int = 2) -> str:
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == exit_code and len(lines) == 1 and "Traceback" not in err, (code, err)
+    assert all(f in lines[0] for f in fragments), (fragments, lines[0])
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A finished training folder (train() of TINY), with a user's notes added to it."""
+    out = tmp_path_factory.mktemp("finished") / "run"
+    train(TINY, out, progress=False)
+    assert finished_run(out, "train")
+    return out
+
+
+def interrupted_at_start(out: Path, cfg: TrainConfig = TINY) -> None:
+    """A training folder as a training killed right after its start leaves it: its marker, config.json and the
+    checkpoint of step 0."""
+    out.mkdir(parents=True)
+    mark_run_dir(out, "train", finished=False)
+    write_json(out / "config.json", model_meta(cfg))
+    Trainer(cfg, out, progress=False).save_checkpoint()
+
+
+def interrupted_in_evaluation(out: Path, finished: Path) -> None:
+    """A training interrupted in its evaluation: model.pt written, its checkpoint still there, not marked done."""
+    shutil.copytree(finished, out)
+    mark_run_dir(out, "train", finished=False)
+    Trainer(TINY, out, progress=False).save_checkpoint()
+
+
+def killed_retrain(out: Path, finished: Path) -> None:
+    """A finished training with, beside it, the killed new training an earlier coopsumo built there."""
+    shutil.copytree(finished, out)
+    interrupted_at_start(out.parent / f".{out.name}.retrain", OTHER)
+
+
+FOLDERS: dict[str, tuple[Callable[[Path, Path], None], str]] = {
+    "interrupted": (lambda out, _: interrupted_at_start(out), "there is an interrupted training here: --resume, "
+                                                              "or another --out"),
+    "interrupted in its evaluation": (interrupted_in_evaluation, "there is an interrupted training here"),
+    "a killed retrain beside a finished one": (killed_retrain, "there is an interrupted training here"),
+    "finished": (lambda out, src: shutil.copytree(src, out), "there is a finished training here"),
+    "a model.pt, the marker unfinished": (lambda out, src: (shutil.copytree(src, out),
+                                                            mark_run_dir(out, "train", finished=False)),
+                                           "there is a finished training here"),
+}  # fmt: skip
+"""folder states a new training must not start over on -> what the refusal says"""
+COMMANDS = {
+    "the same command": ["--steps", "40", "--seed", "3", "--eval-steps", "0", "--preset", "paper"],
+    "another --steps": ["--steps", "90000"],
+    "another seed and preset": ["--seed", "9"],
+}
+
+
+@pytest.mark.parametrize("command", sorted(COMMANDS))
+@pytest.mark.parametrize("state", sorted(FOLDERS))
+def test_a_new_training_never_starts_over_on_an_interrupted_or_finished_one(
+    state: str, command: str, finished: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    make, fragment = FOLDERS[state]
+    out = tmp_path / "run"
+    make(out, finished)
+    before = snapshot(tmp_path)
+    code = train_cli.main([*COMMANDS[command], "--quiet", "--out", str(out)])
+    one_line(capsys, code, f"--out {out}", fragment)
+    assert snapshot(tmp_path) == before  # byte for byte, and nothing beside it (no lock file)
+
+
+def test_an_unfinished_training_with_nothing_to_lose_is_started_again(tmp_path: Path) -> None:
+    """A training killed before its first checkpoint leaves its marker and config.json only: a new one may go."""
+    out = tmp_path / "run"
+    out.mkdir()
+    mark_run_dir(out, "train", finished=False)
+    write_json(out / "config.json", model_meta(TINY))
+    args = ["--steps", "40", "--eval-steps", "0", "--preset", "paper", "--quiet", "--out", str(out)]
+    assert train_cli.main(args) == 0
+    assert finished_run(out, "train")
+
+
+def test_the_studies_still_train_again_over_their_own_folders(finished: Path, tmp_path: Path) -> None:
+    """The refusal is the command's: train() itself, which the model store calls to train a damaged model again in
+    its folder, still starts over there, and resumes an interrupted one."""
+    from coopsumo.studies.trainings import train_resuming
+
+    damaged = tmp_path / "damaged"
+    shutil.copytree(finished, damaged)
+    (damaged / "model.pt").write_bytes(b"cut short")
+    summary, resumed = train_resuming(as_json(TINY), damaged)
+    assert resumed is None and summary["steps"] == 40 and finished_run(damaged, "train")
+    again, first = load_model(damaged / "model.pt")[0].state_dict(), load_model(finished / "model.pt")[0].state_dict()
+    assert all(torch.equal(again[k], first[k]) for k in first)  # the same seed's weights
+    stopped = tmp_path / "stopped"
+    interrupted_at_start(stopped)
+    _, resumed = train_resuming(as_json(TINY), stopped)
+    assert resumed == 0 and finished_run(stopped, "train")
+
+
+def test_resume_finishes_the_retrain_an_earlier_version_left_beside_a_finished_training(
+    finished: Path, tmp_path: Path
+) -> None:
+    """A coopsumo before the rule built a new training beside a finished one ('.<name>.retrain'): --resume still
+    completes it, and only then does it replace the finished one."""
+    out = tmp_path / "run"
+    killed_retrain(out, finished)
+    assert train_cli.main(["--resume", "--quiet", "--out", str(out)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"] and finished_run(out, "train")
+    assert json.loads((out / "config.json").read_text())["config"]["sim"]["seed"] == 4
+    whole = tmp_path / "whole"
+    train(OTHER, whole, progress=False)
+    resumed, first = load_model(out / "model.pt")[0].state_dict(), load_model(whole / "model.pt")[0].state_dict()
+    assert all(torch.equal(resumed[k], first[k]) for k in first)
