@@ -161,3 +161,55 @@ def test_resume_finishes_the_retrain_an_earlier_version_left_beside_a_finished_t
     train(OTHER, whole, progress=False)
     resumed, first = load_model(out / "model.pt")[0].state_dict(), load_model(whole / "model.pt")[0].state_dict()
     assert all(torch.equal(resumed[k], first[k]) for k in first)
+
+
+# -- 2. the model store is the studies' alone ------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A study folder whose models/alpha0_m100 links into the model store beside it, as a study leaves them."""
+    from coopsumo.studies.model_store import train_shared
+
+    root = tmp_path_factory.mktemp("shared")
+    train_shared(as_json(TINY), root / "study" / "models" / "alpha0_m100", root / "models")
+    return root / "study"
+
+
+STORE_OUTS: dict[str, tuple[str, bool, str]] = {
+    "the study's model link": ("study/models/alpha0_m100", False, "a model of a model store"),
+    "inside the study's model link": ("study/models/alpha0_m100/more", False, "a model of a model store"),
+    "the store's model folder": ("models/{model}", False, "a model of a model store"),
+    "a new folder in the store": ("models/mine", False, "a model store (it holds the studies' models)"),
+    "a new folder in $COOPSUMO_MODELS": ("models/mine", True, "is in the model store"),
+    "results/models": ("results/models/mine", False, "is in the model store"),
+}  # fmt: skip
+"""--out (relative to the study's parent, the current folder), $COOPSUMO_MODELS set to that store, the refusal"""
+
+
+@pytest.mark.parametrize("resume", [False, True])
+@pytest.mark.parametrize("case", sorted(STORE_OUTS))
+def test_train_never_writes_into_the_model_store(
+    case: str, resume: bool, study: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from coopsumo.studies.model_store import model_id
+
+    where, env, fragment = STORE_OUTS[case]
+    root = study.parent
+    monkeypatch.chdir(root)
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    if env:
+        monkeypatch.setenv("COOPSUMO_MODELS", str(root / "models"))
+    before = snapshot(root)
+    out = Path(where.format(model=model_id(as_json(TINY))))
+    args = ["--resume"] if resume else ["--steps", "40", "--eval-steps", "0", "--preset", "paper"]
+    one_line(capsys, train_cli.main([*args, "--quiet", "--out", str(out)]), f"--out {out}", fragment)
+    assert snapshot(root) == before
+
+
+def test_the_store_names_train_knows_are_the_stores() -> None:
+    from coopsumo.studies import model_store
+
+    assert train_cli.STORE_ENV == model_store.STORE_ENV
+    cond = replace(TINY, dqn=replace(DQN_PRESETS["default"], alpha_conditioned=True))
+    for cfg in (TINY, replace(TINY, sim=replace(TINY.sim, reward=replace(TINY.sim.reward, alpha=0.125))), cond):
+        assert train_cli.STORE_NAME.fullmatch(model_store.model_id(as_json(cfg)))
+    assert not train_cli.STORE_NAME.fullmatch("lanes3_alpha8_tup1.5_seed0")  # train's own default folder name

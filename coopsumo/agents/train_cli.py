@@ -4,6 +4,8 @@ folder it works in and the run) around agents/train.py's loop."""
 from __future__ import annotations
 
 import argparse
+import os
+import re
 import sys
 from collections.abc import Callable
 from dataclasses import replace
@@ -59,6 +61,37 @@ def check_new_training(out: Path) -> None:
     if (out / "model.pt").exists() or finished_run(out, "train"):
         raise UsageError(f"--out {out}: there is a finished training here, which a new one would replace: another "
                          "--out, or remove the folder yourself")  # fmt: skip
+
+
+STORE_ENV = "COOPSUMO_MODELS"
+"""the variable naming the model store (studies/model_store.py, which this layer does not import)"""
+DEFAULT_STORE = Path("results") / "models"
+"""the committed studies' model store"""
+STORE_NAME = re.compile(r".+_a[^_/]+_seed\d+_[0-9a-f]{12}")
+"""the name of a model's folder in the store (model_store.model_id: <preset>_a<alpha>_seed<seed>_<digest>)"""
+
+
+def store_problem(out: Path) -> str | None:
+    """Why `train` may not write `out`, or None: the model store is the studies' alone. `out` (its links resolved)
+    lies in $COOPSUMO_MODELS or results/models, is or lies in a store model's folder (a study's `models/<name>` or
+    `train/<key>` is a link to one), or lies in a folder holding store models (another study's store)."""
+    real = out.resolve()
+    env = os.environ.get(STORE_ENV)
+    for store in [DEFAULT_STORE.resolve(), *([Path(env).resolve()] if env else [])]:
+        if real.is_relative_to(store):
+            return f"--out {out} is in the model store {store}, which only the studies write; pick another --out"
+    for folder in (real, *real.parents):
+        if STORE_NAME.fullmatch(folder.name):
+            return (f"--out {out} leads into {folder}, a model of a model store (a study's model link?), which only "
+                    "the studies write; pick another --out")  # fmt: skip
+    try:
+        beside = [p.name for p in real.parent.iterdir()]
+    except OSError:
+        return None
+    if any(STORE_NAME.fullmatch(name) or STORE_NAME.fullmatch(name[1:].removesuffix(".lock")) for name in beside):
+        return (f"--out {out} is in {real.parent}, a model store (it holds the studies' models), which only the "
+                "studies write; pick another --out")  # fmt: skip
+    return None
 
 
 def training_folder(out: Path) -> Path:
@@ -294,6 +327,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
+        if args.out is not None and (problem := store_problem(args.out)):
+            raise UsageError(problem)
         if args.out is not None:
             check_run_dir(args.out, "train")  # before anything is read, written or deleted
             if not args.resume:
@@ -315,6 +350,8 @@ def main(argv: list[str] | None = None) -> int:
             cfg = new_cfg
         out = args.out or default_out(cfg)
         check_out_path(out)  # also the default folder (a relative path when the current folder was deleted)
+        if problem := store_problem(out):
+            raise UsageError(problem)
         check_run_dir(out, "train")
         if not args.resume:
             check_new_training(out)  # also the default folder
