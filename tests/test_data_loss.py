@@ -213,3 +213,79 @@ def test_the_store_names_train_knows_are_the_stores() -> None:
     for cfg in (TINY, replace(TINY, sim=replace(TINY.sim, reward=replace(TINY.sim.reward, alpha=0.125))), cond):
         assert train_cli.STORE_NAME.fullmatch(model_store.model_id(as_json(cfg)))
     assert not train_cli.STORE_NAME.fullmatch("lanes3_alpha8_tup1.5_seed0")  # train's own default folder name
+
+
+# -- 3. a study's models/<name> that is not its link ------------------------------------------------------------------
+def user_copy(link: Path, finished: Path) -> None:
+    """A training copied in with `cp -rL`, with the user's own file in it."""
+    shutil.copytree(finished, link)
+    (link / "notes.txt").write_text("my notes\n")
+
+
+def notes_folder(link: Path, _: Path) -> None:
+    link.mkdir(parents=True)
+    (link / "notes.txt").write_text("my notes\n")
+
+
+def a_file(link: Path, _: Path) -> None:
+    link.parent.mkdir(parents=True)
+    link.write_text("not a folder\n")
+
+
+STUDY_FOLDERS = {"a training copied in": user_copy, "a folder of notes": notes_folder, "a file": a_file}
+STORE_STATES = ("holds the model", "lacks the model", "holds it damaged")
+
+
+@pytest.mark.parametrize("store_state", STORE_STATES)
+@pytest.mark.parametrize("what", sorted(STUDY_FOLDERS))
+def test_a_real_folder_where_the_study_links_its_model_is_never_deleted_moved_or_trained_into(
+    what: str, store_state: str, finished: Path, tmp_path: Path
+) -> None:
+    from coopsumo.runio import UsageError
+    from coopsumo.studies.model_store import model_id, stored_model, train_shared
+
+    store = tmp_path / "models"
+    stored = store / model_id(as_json(TINY))
+    if store_state != "lacks the model":
+        shutil.copytree(finished, stored)
+    if store_state == "holds it damaged":
+        (stored / "model.pt").write_bytes(b"cut short")
+    link = tmp_path / "study" / "models" / "alpha0_m100"
+    STUDY_FOLDERS[what](link, finished)
+    before = snapshot(tmp_path)
+    for step in (lambda: stored_model(as_json(TINY), store, link), lambda: train_shared(as_json(TINY), link, store)):
+        with pytest.raises(UsageError) as err:
+            step()
+        assert str(link) in str(err.value) and "the study did not make" in str(err.value)
+        assert len(str(err.value).splitlines()) == 1
+        assert snapshot(tmp_path) == before  # nothing deleted, moved or trained; no .alpha0_m100.<pid>.link
+
+
+def test_scenario1_refuses_a_real_model_folder_before_any_cell(
+    finished: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from coopsumo.studies import scenario1
+
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    root = tmp_path / "study"
+    link = root / "models" / "alpha0_m100"
+    user_copy(link, finished)
+    before = snapshot(link)
+    code = scenario1.main(["--quick", "--train-steps", "40", "--steps", "450", "--seeds", "1", "--alphas", "0",
+                           "--train-seeds", "1", "--out", str(root)])  # fmt: skip
+    one_line(capsys, code, str(link), "the study did not make")
+    assert snapshot(link) == before and not (tmp_path / "models").exists() and not (root / "cells").exists()
+
+
+def test_the_studys_own_link_is_made_and_kept(study: Path) -> None:
+    """What the rule leaves to the study: its links, made again when they point elsewhere."""
+    from coopsumo.studies.model_store import model_id, stored_model
+
+    link = study / "models" / "alpha0_m100"
+    assert link.is_symlink() and link.resolve() == (study.parent / "models" / model_id(as_json(TINY))).resolve()
+    other = study / "models" / "other"
+    other.symlink_to(study.parent)  # a link to elsewhere is the study's to replace
+    assert stored_model(as_json(TINY), study.parent / "models", other) is not None
+    assert other.resolve() == link.resolve()
+    assert not [p for p in (study / "models").iterdir() if p.name.endswith(".link")]
+    other.unlink()

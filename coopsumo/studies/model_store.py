@@ -21,7 +21,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -62,6 +61,8 @@ def stored_model(config: dict[str, Any], store: Path, link: Path | None = None) 
     from coopsumo.studies.trainings import finished_training
 
     folder = store / model_id(config)
+    if link is not None:
+        check_link(link)  # before anything is read: a real folder there is the user's
     if not folder.is_dir() or identity(config).get("eval_steps", 0) != 0:
         return None
     if finished_training(folder, config, quiet=True) is None:  # the training cell says why, once
@@ -76,15 +77,16 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
 
     Under a lock per model, so that cells and studies asking at once (the margin variants, a conditioned model's
     alphas, scenario I and the protocol) train it once. out, the study's own training folder, becomes a link to the
-    stored one; a study's earlier training in out moves into the store instead of being trained again.
+    stored one; a real folder there is never deleted, moved or trained into (check_link).
     Returns (train summary, step resumed from or None).
     """
     from coopsumo.studies.trainings import finished_training, train_resuming
 
+    check_link(out)
     store.mkdir(parents=True, exist_ok=True)
     folder = store / model_id(config)
     with _locked(store / f".{folder.name}.lock"):
-        _adopt(out, folder)
+        check_link(out)  # again under the lock
         folder.mkdir(exist_ok=True)
         _link(out, folder)  # before training: its checkpoint shows through the study's folder
         if finished_training(folder, config, quiet=True) is None and (src := reselectable(config, store)) is not None:
@@ -160,29 +162,34 @@ def _locked(path: Path) -> Iterator[None]:
         handle.close()
 
 
-def _adopt(link: Path, folder: Path) -> None:
-    """A study's own training folder (made before the store) moves into the store when the store has none; the
-    store's checks then decide whether it is whole and this model's. When the store has one, the study's copy goes."""
-    if link.is_symlink() or not link.is_dir():
-        return
-    if folder.exists():
-        shutil.rmtree(link)
-    else:
-        shutil.move(str(link), str(folder))
+def check_link(link: Path) -> None:
+    """UsageError naming `link`, a study's model folder (models/<name>, train/<key>), when it is there and is not a
+    link: the study makes only links there, so a real folder (a training copied in, a folder of notes) or a file is
+    the user's, and is never deleted, moved into the store or trained into."""
+    from coopsumo.runio import UsageError
+
+    if os.path.lexists(link) and not link.is_symlink():
+        what = "a folder" if link.is_dir() else "a file"
+        raise UsageError(f"{link} is {what} the study did not make (it makes a link into the model store there) "
+                         "and is left alone; move it away and run the study again")  # fmt: skip
 
 
 def _link(link: Path, folder: Path) -> None:
-    """link -> folder (absolute), replacing a link to elsewhere; a race with another cell is harmless."""
+    """link -> folder (absolute), replacing a link to elsewhere (never anything else: check_link); a race with
+    another cell is harmless. The temporary link it is made as is removed if that fails."""
+    check_link(link)
     target = folder.resolve()
-    if link.is_symlink():
-        if Path(os.readlink(link)) == target:
-            return
-        link.unlink()
+    if link.is_symlink() and Path(os.readlink(link)) == target:
+        return
     link.parent.mkdir(parents=True, exist_ok=True)
     tmp = link.parent / f".{link.name}.{os.getpid()}.link"
     tmp.unlink(missing_ok=True)
-    tmp.symlink_to(target, target_is_directory=True)
-    os.replace(tmp, link)
+    try:
+        tmp.symlink_to(target, target_is_directory=True)
+        os.replace(tmp, link)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 # -- `coopsumo models`: what the store holds -----------------------------------------------------------------
