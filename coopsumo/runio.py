@@ -376,6 +376,25 @@ def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Pat
     return removed
 
 
+def outside_link(folder: Path) -> tuple[Path, Path] | None:
+    """The first symbolic link under `folder` (none followed) that leads outside it, and where it leads; None when
+    there is none. A command writing into `folder` would write through such a link into a folder it does not own."""
+    root = folder.resolve()
+    for parent, folders, files in os.walk(root):
+        for name in folders + files:
+            path = Path(parent) / name
+            if path.is_symlink() and not (target := path.resolve()).is_relative_to(root):
+                return path, target
+    return None
+
+
+def check_no_outside_link(folder: Path) -> None:
+    """UsageError naming the first link in `folder` that leads outside it (outside_link)."""
+    if found := outside_link(folder):
+        raise UsageError(f"{found[0]} is a link to {found[1]}, outside {folder.resolve()}: a command writes only "
+                         "inside its own folder; remove the link or pick another --out")  # fmt: skip
+
+
 def check_apart(out: Path, model: Path) -> None:
     """UsageError when `out` is the folder `model` is read from or holds it (it would be replaced), or lies
     inside it while that folder is a run folder (a training's: marker or config.json). A loose model file

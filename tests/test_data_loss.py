@@ -289,3 +289,63 @@ def test_the_studys_own_link_is_made_and_kept(study: Path) -> None:
     assert other.resolve() == link.resolve()
     assert not [p for p in (study / "models").iterdir() if p.name.endswith(".link")]
     other.unlink()
+
+
+# -- 4. a training folder's outputs linked outside it ------------------------------------------------------------
+LINKED = ("sumo", "eval", "snapshots", "tensorboard", "train_log.csv", "config.json", "sumo/routes.rou.xml")
+"""what a training writes (folders and files), each made a link to the user's folder or file outside it"""
+
+
+def unfinished(out: Path) -> None:
+    """A training killed before its first checkpoint: a new training may go there (nothing to lose)."""
+    out.mkdir(parents=True)
+    mark_run_dir(out, "train", finished=False)
+    write_json(out / "config.json", model_meta(TINY))
+
+
+MODES: dict[str, tuple[Callable[[Path], None], Callable[[Path], int]]] = {
+    "train": (unfinished, lambda out: train_cli.main(["--steps", "40", "--eval-steps", "0", "--preset", "paper",
+                                                      "--quiet", "--out", str(out)])),
+    "train --resume": (interrupted_at_start, lambda out: train_cli.main(["--resume", "--quiet", "--out", str(out)])),
+    "a study's training (train())": (unfinished, lambda out: train(TINY, out, progress=False) and 0),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("mode", sorted(MODES))
+@pytest.mark.parametrize("name", LINKED)
+def test_a_training_never_writes_through_a_link_leading_outside_its_folder(
+    name: str, mode: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from coopsumo.runio import UsageError
+
+    make, run = MODES[mode]
+    out = tmp_path / "run"
+    make(out)
+    user = tmp_path / "user"
+    user.mkdir()
+    (user / "routes.rou.xml").write_text("the user's own routes\n")
+    (user / "data.csv").write_text("1,2,3\n")
+    link = out / name
+    link.parent.mkdir(exist_ok=True)
+    link.unlink(missing_ok=True)
+    folder = not name.endswith((".csv", ".json", ".xml"))
+    link.symlink_to(user if folder else user / "data.csv" if name.endswith(".csv") else user / "routes.rou.xml")
+    before = snapshot(tmp_path)
+    if mode.startswith("a study"):
+        with pytest.raises(UsageError, match="outside"):
+            run(out)
+    else:
+        one_line(capsys, run(out), str(link), f"is a link to {user}", "outside")
+    assert snapshot(tmp_path) == before
+
+
+def test_links_inside_the_folder_and_the_folder_itself_behind_a_link_are_fine(tmp_path: Path) -> None:
+    from coopsumo.runio import outside_link
+
+    real = tmp_path / "disk" / "run"
+    (real / "sumo").mkdir(parents=True)
+    (real / "latest").symlink_to(real / "sumo")
+    (tmp_path / "run").symlink_to(real)  # --out itself a link (a results folder on another disk)
+    assert outside_link(tmp_path / "run") is None
+    (real / "sumo" / "up").symlink_to(tmp_path / "disk")
+    assert outside_link(tmp_path / "run") == (real / "sumo" / "up", tmp_path / "disk")

@@ -52,6 +52,7 @@ from coopsumo.config import (
 )
 from coopsumo.runio import (
     UsageError,
+    check_no_outside_link,
     finished_run,
     first_line,
     mark_run_dir,
@@ -456,6 +457,7 @@ def train(
     on_steps(n) is told of progress (training and evaluation steps), for a caller's progress bar;
     tensorboard: also write the log's scalars to out/tensorboard/ (tb_log).
     """
+    check_no_outside_link(out)  # sumo/, eval/, a log file...: written through, it would write elsewhere
     trainer = Trainer(cfg, out, progress, on_steps, learner_process)
     out.mkdir(parents=True, exist_ok=True)
     if resume:

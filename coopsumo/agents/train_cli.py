@@ -30,6 +30,7 @@ from coopsumo.config import (
 from coopsumo.runio import (
     Parser,
     UsageError,
+    check_no_outside_link,
     check_out_path,
     check_run_dir,
     finish_run_dir,
@@ -331,6 +332,7 @@ def main(argv: list[str] | None = None) -> int:
             raise UsageError(problem)
         if args.out is not None:
             check_run_dir(args.out, "train")  # before anything is read, written or deleted
+            check_no_outside_link(args.out)
             if not args.resume:
                 check_new_training(args.out)
         if args.resume and args.out is None:
@@ -353,6 +355,7 @@ def main(argv: list[str] | None = None) -> int:
         if problem := store_problem(out):
             raise UsageError(problem)
         check_run_dir(out, "train")
+        check_no_outside_link(out)
         if not args.resume:
             check_new_training(out)  # also the default folder
         try:
