@@ -11,7 +11,7 @@ import pytest
 from coopsumo.config import AccidentConfig, ControlConfig
 from coopsumo.sim import fast, physics
 from coopsumo.sim.controller import Controls
-from coopsumo.sim.reward import section_crossings
+from coopsumo.sim.reward import followers_mean, section_crossings
 
 CAR_M = 4.0
 CONTROLS = Controls(ControlConfig(car_length_m=CAR_M), AccidentConfig(), 3, 3.2)
@@ -92,6 +92,28 @@ def test_occupancy_equals_the_definition(seed: int) -> None:
         assert same(getattr(got, name), getattr(ref, name)), name
 
 
+@pytest.mark.parametrize("seed", range(40))
+def test_followers_mean_equals_the_definition(seed: int) -> None:
+    """Bit for bit, on roads with shared positions, lane changers in two lanes, windows of 0 m to everything."""
+    rng = np.random.default_rng(400 + seed)
+    lane, pos, speed, other = road(rng, int(rng.integers(0, 80)), lanes=int(rng.integers(2, 7)))
+    occ = physics.occupancy(lane, pos, other)
+    value = speed[occ.veh] * rng.normal(size=len(occ.veh))  # a vehicle in two lanes: its value twice
+    for window in (0.0, 4.0, 50.0, 1e9):
+        got = fast.followers_mean(occ.keys, value, lane, other, pos, window)
+        assert same(got, followers_mean(occ.keys, value, lane, other, pos, window)), window
+
+
+def test_followers_mean_of_a_hand_made_road() -> None:
+    """Lane 0: vehicles at 10, 30 and 70 m; at 30 m one changing into lane 1, where one stands at 5 m."""
+    lane, pos, other = np.array([0, 0, 0, 1]), np.array([10.0, 30.0, 70.0, 5.0]), np.array([-1, 1, -1, -1])
+    value = np.array([1.0, 2.0, 4.0, 8.0])
+    occ = physics.occupancy(lane, pos, other)
+    got = fast.followers_mean(occ.keys, value[occ.veh], lane, other, pos, 50.0)
+    # 10 m: nobody behind; 30 m: 10 m in lane 0 and 5 m in lane 1; 70 m: 30 m only (10 m is 60 m behind); 5 m: none
+    assert got.tolist() == [0.0, (1.0 + 8.0) / 2, 2.0, 0.0]
+
+
 def test_the_kernels_refuse_arrays_of_the_wrong_kind() -> None:
     """A caller that bypasses fast.py gets a Python error, not a read out of bounds."""
     from coopsumo.sim import _kernels  # type: ignore[attr-defined]
@@ -103,3 +125,7 @@ def test_the_kernels_refuse_arrays_of_the_wrong_kind() -> None:
         _kernels.occupancy(lane, np.zeros(3), lane, np.zeros(2), lane, np.zeros(2), lane)
     with pytest.raises(TypeError, match="arguments"):
         _kernels.after_step(lane)
+    with pytest.raises(TypeError, match="arguments"):
+        _kernels.followers_mean(lane)
+    with pytest.raises(ValueError, match="lengths"):
+        _kernels.followers_mean(np.zeros(2), np.zeros(3), lane, lane, np.zeros(2), 1.0, np.zeros(2))

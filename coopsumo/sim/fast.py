@@ -42,6 +42,18 @@ def section_crossings(
     return int(_kernels.section_crossings(_i64(prev_nums), _f64(prev_pos), _i64(nums), _f64(pos), _f64(sections_m)))
 
 
+def followers_mean(
+    occ_keys: np.ndarray, occ_value: np.ndarray, lane: np.ndarray, other_lane: np.ndarray, pos: np.ndarray,
+    window_m: float,
+) -> np.ndarray:
+    """reward.followers_mean: per vehicle, the mean value of the vehicles behind it within window_m (m) in every lane
+    it occupies; 0 where none is there."""
+    out = np.empty(len(pos))
+    _kernels.followers_mean(_f64(occ_keys), _f64(occ_value), _i64(lane), _i64(other_lane), _f64(pos), float(window_m),
+                            out)  # fmt: skip
+    return out
+
+
 def sight(nums: np.ndarray, lane: np.ndarray, pos: np.ndarray, speed: np.ndarray, state: LaneState,
           controls: Controls) -> Sight:  # fmt: skip
     """controller.sight in one call."""

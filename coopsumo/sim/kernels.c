@@ -58,6 +58,71 @@ static PyObject *section_crossings(PyObject *Py_UNUSED(self), PyObject *const *a
     return PyLong_FromSsize_t(count);
 }
 
+/* numpy.searchsorted(keys, x, side="left"): the first index whose key is at least x */
+static inline Py_ssize_t search_left(const double *keys, Py_ssize_t m, double x) {
+    Py_ssize_t lo = 0, hi = m;
+    while (lo < hi) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;
+        if (keys[mid] < x)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
+/* followers_mean(occ_keys, occ_value, lane, other_lane, pos, window_m, out): reward.followers_mean into out, per
+ * vehicle the mean value of the occupancy entries behind it within window_m in its own lane and, while it changes
+ * lanes, in the second lane; 0 where there is none. The same sums in the same order: a running sum of the values
+ * (numpy's cumsum is sequential), each lane's window as the difference of two of its entries. */
+static PyObject *followers_mean(PyObject *Py_UNUSED(self), PyObject *const *args, Py_ssize_t nargs) {
+    static const int sizes[] = {8, 8, 8, 8, 8, -8};
+    Py_buffer v[6];
+    if (check_count("followers_mean", nargs, 7) < 0)
+        return NULL;
+    PyObject *const bufs[6] = {args[0], args[1], args[2], args[3], args[4], args[6]};
+    double window = PyFloat_AsDouble(args[5]);
+    if (window == -1.0 && PyErr_Occurred())
+        return NULL;
+    if (acquire(bufs, 6, sizes, v) < 0)
+        return NULL;
+    const double *keys = v[0].buf, *value = v[1].buf, *pos = v[4].buf;
+    const int64_t *lane = v[2].buf, *other = v[3].buf;
+    double *out = v[5].buf;
+    Py_ssize_t m = v[0].len / 8, n = v[2].len / 8;
+    if (v[1].len / 8 != m || v[3].len / 8 != n || v[4].len / 8 != n || v[5].len / 8 != n) {
+        release(6, v);
+        return PyErr_Format(PyExc_ValueError, "followers_mean: array lengths do not match");
+    }
+    double *csum = malloc((size_t)(m + 1) * sizeof(double));
+    if (csum == NULL) {
+        release(6, v);
+        return PyErr_NoMemory();
+    }
+    csum[0] = 0.0;
+    double run = 0.0;
+    for (Py_ssize_t k = 0; k < m; k++) {
+        run += value[k];
+        csum[k + 1] = run;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double total = 0.0, count = 0.0;
+        for (int second = 0; second < 2; second++) {
+            int64_t l = second ? other[i] : lane[i];
+            if (second && !(other[i] >= 0 && other[i] != lane[i]))
+                break;
+            double hi_key = (double)l * LANE_KEY + pos[i];
+            Py_ssize_t lo = search_left(keys, m, hi_key - window), hi = search_left(keys, m, hi_key);
+            total += csum[hi] - csum[lo];
+            count += (double)(hi - lo);
+        }
+        out[i] = count > 0 ? total / count : 0.0;
+    }
+    free(csum);
+    release(6, v);
+    Py_RETURN_NONE;
+}
+
 /* exp_into(x, out): out[i] = exp(x[i]) by the C library, whose bits do not depend on AVX-512. numpy's np.exp takes
  * a vector path on CPUs with AVX-512 that differs from it in the last bit for about 5% of arguments, enough to
  * send a dense run elsewhere (docs/model.md, "The same run on every machine"). */
@@ -84,6 +149,7 @@ static PyMethodDef methods[] = {
     {"section_crossings", (PyCFunction)(void (*)(void))section_crossings, METH_FASTCALL,
      "reward.section_crossings"},
     {"exp_into", (PyCFunction)(void (*)(void))exp_into, METH_FASTCALL, "the C library's exp into a given array"},
+    {"followers_mean", (PyCFunction)(void (*)(void))followers_mean, METH_FASTCALL, "reward.followers_mean"},
     {"sight", (PyCFunction)(void (*)(void))step_sight, METH_FASTCALL, "controller.sight into given arrays"},
     {"decide", (PyCFunction)(void (*)(void))step_decide, METH_FASTCALL, "controller.decide into given arrays"},
     {"after_step", (PyCFunction)(void (*)(void))step_after_step, METH_FASTCALL,

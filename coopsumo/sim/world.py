@@ -19,7 +19,7 @@ from coopsumo.sim.accident import HELD
 from coopsumo.sim.driver import sumo_lc_params, sumo_models
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
 from coopsumo.sim.passing import PASSING_EVERY_S, PassingCount
-from coopsumo.sim.reward import RewardParts, flow_term, followers_mean, reward_parts, speed_term
+from coopsumo.sim.reward import RewardParts, flow_term, reward_parts, speed_term
 from coopsumo.sim.sumo_session import StepEvents, SumoSession
 from coopsumo.sim.vehicle_table import VehicleTable
 
@@ -355,12 +355,13 @@ class World:
 
     def followers_speed_reward(self, nums: np.ndarray, window_m: float) -> np.ndarray:
         """Now (after a step): for each vehicle of `nums`, the mean speed reward r_v of the vehicles behind it within
-        window_m (m) in the lanes it occupies (reward.followers_mean); 0 for one that has left or has none behind."""
+        window_m (m) in the lanes it occupies (reward.followers_mean, in C: fast.followers_mean); 0 for one that has
+        left or has none behind."""
         t = self.table
         other = self._other_lane(t.nums, t.lane)
         occ = fast.occupancy(t.lane, t.pos, other)
         r_v = speed_term(t.speed, self.veh.v_exp[t.nums], self.cfg.reward)
-        behind = followers_mean(occ.keys, r_v[occ.veh], t.lane, other, t.pos, window_m)
+        behind = fast.followers_mean(occ.keys, r_v[occ.veh], t.lane, other, t.pos, window_m)
         row, still = self._rows_now(nums)
         out = np.zeros(len(nums))
         out[still] = behind[row[still]]
