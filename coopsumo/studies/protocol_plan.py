@@ -13,6 +13,7 @@ from typing import Any
 
 from coopsumo.agents.conditioning import CONDITIONED8V, world_alpha
 from coopsumo.config import (
+    ALPHA_ONLY_DQN,
     MIN_ACCIDENT_VALIDATION_STEPS,
     AccidentConfig,
     DemandConfig,
@@ -181,6 +182,10 @@ def variants() -> dict[str, Variant]:
         Variant("f05q_ts2k_n3", "`f05q_ts2k` learning from 3-round returns (--n-step 3, bootstrapped with gamma^3): "
                 "does the speed a lane change buys reach the decision that made it sooner than through the target's "
                 "estimate?", replace(F05Q_TS2K, n_step=3)),
+        Variant("alpha_only", "the default's learning machinery with alpha as its only cooperative mechanism (the "
+                "`alpha_only` preset: no followers' term in the reward, no queue rule, no change-back rule, no change "
+                "margin), trained in free flow at T_up 2, 1.5 and 1 s and chosen on free flow alone, as the paper "
+                "trained; the learner of claim (a) as the paper poses it", ALPHA_ONLY_DQN),
         Variant("gamma", "`select` with a discount of 0.97 per decision round (about a 33 s horizon) instead of 0.9 "
                 "(10 s)", replace(SELECT, gamma=0.97)),
     )}  # fmt: skip
@@ -280,6 +285,7 @@ PROFILES = {
                     paired_with=(("nr10", "learner_protocol_f05q_ts2k10", "f05q_ts2k"),)),
     "nr10_3sets": Profile("nr10_3sets", variants=("nr10",), alpha_seeds=0,
                           eval_offsets=(0, 20, 40)),  # the default's 10 models on 3 seeds per condition
+    "alpha_only": Profile("alpha_only", variants=("alpha_only",)),  # claim (a)'s learner: does it learn? alpha 8 on 3
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
