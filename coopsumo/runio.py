@@ -13,6 +13,7 @@ import os
 import platform
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -509,6 +510,56 @@ def start_parent_watch(parent_pid: int) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
 
 
+class Stop(KeyboardInterrupt):
+    """SIGINT or SIGTERM received while stop_on_signals holds (a KeyboardInterrupt, so every handler of Ctrl-C
+    takes it); signum: which one."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _raise_stop(signum: int, _frame: Any) -> None:
+    raise Stop(signum)
+
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+@contextmanager
+def stop_on_signals() -> Iterator[None]:
+    """For the block, SIGINT and SIGTERM raise Stop wherever the command is, its setup included: also when the
+    command was started with them ignored (a job a shell script put in the background ignores SIGINT, which was then
+    lost until the training loop took it). Only in the main thread (elsewhere the block runs as it is)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    old = {s: signal.signal(s, _raise_stop) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+
+
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """For the block (a few file operations that must happen together), SIGINT and SIGTERM wait: one that comes
+    meanwhile is raised again right after it, to the handler that was in place. Only in the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got: list[int] = []
+    old = {s: signal.signal(s, lambda signum, _frame: got.append(signum)) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+        if got:
+            signal.raise_signal(got[0])
+
+
 def working_folder_problem() -> str | None:
     """Why no command can run in the current folder (it was deleted: torch cannot even be imported there, and the
     studies' worker processes start in it), or None."""
@@ -533,9 +584,9 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
     except UsageError as err:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return USAGE_EXIT
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:
         print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
+        return 128 + getattr(err, "signum", signal.SIGINT)
     except OSError as err:  # the system refused a file operation: one line naming the path and the problem
         print(f"{prog}: error: {os_error_text(err)}", file=sys.stderr)
         return USAGE_EXIT if err.errno in USER_ERRNOS else 1

@@ -83,10 +83,12 @@ def request(out: Path, cfg: TrainConfig, step: int) -> Path:
 
 
 def start(folder: Path) -> subprocess.Popen[bytes]:
-    """Validate the snapshot in `folder` in a new process (its result: folder/validation.json)."""
+    """Validate the snapshot in `folder` in a new process (its result: folder/validation.json). In a process group of
+    its own: a Ctrl-C sent to the training's group is the training's to handle (it ends the validation,
+    Validator.close), and cannot fail the validation first."""
     env = dict(os.environ, OMP_NUM_THREADS="1")
     return subprocess.Popen([sys.executable, "-m", "coopsumo.agents.selection", str(folder)], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, process_group=0)  # fmt: skip
 
 
 def check_finished(folder: Path, proc: subprocess.Popen[bytes]) -> None:

@@ -51,11 +51,13 @@ from coopsumo.config import (
     train_config_from_dict,
 )
 from coopsumo.runio import (
+    Stop,
     UsageError,
     check_no_outside_link,
     finished_run,
     first_line,
     mark_run_dir,
+    signals_deferred,
     versions,
     write_atomic,
     write_json,
@@ -150,6 +152,7 @@ class Trainer:
         self.action_log: list[np.ndarray] = []
         self.window = Window()
         self._stop_signal: int | None = None
+        self._run_step = 0  # the step run() started at
         self.on_row: Callable[[dict[str, Any]], None] | None = None  # each train_log.csv row, by column (tb_log)
         self.validator: selection.Validator | None = None  # model selection (DQNConfig.select_every_steps)
         self.episode_start = 0  # training step of the current world's first step (agents/episodes.py)
@@ -218,11 +221,17 @@ class Trainer:
 
     # -- the loop ----------------------------------------------------------------------------
     def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
+        """SIGINT/SIGTERM: checkpoint after the current step (Interrupted); before the first step of this run (the
+        update worker's start, the world's, a resume's replay) stop at once: the checkpoint on disk is this state."""
+        if self.step == self._run_step:
+            raise Stop(signum)
         self._stop_signal = signum
 
     def run(self) -> None:
-        """Train up to cfg.sim.steps; raises Interrupted after checkpointing on SIGINT/SIGTERM."""
+        """Train up to cfg.sim.steps; raises Interrupted after checkpointing on SIGINT/SIGTERM (runio.Stop before the
+        first step: nothing new to save)."""
         cfg = self.cfg
+        self._run_step = self.step
         old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         learner = self.learner
         try:
@@ -230,6 +239,9 @@ class Trainer:
                 learner.attach(UpdateWorker(cfg.dqn, learner.online, learner.target, learner.optimizer,
                                              learner.average))
             self._loop(cfg)
+            if self._stop_signal is not None:  # it came during the last step, after the loop's last look
+                self.save_checkpoint()
+                raise Interrupted(self._stop_signal, self.step)
         finally:
             for s, h in old.items():
                 signal.signal(s, h)
@@ -484,7 +496,8 @@ def train(
     try:
         if ended is None:
             trainer.run()
-            if trainer.validator is not None:
+            trainer.save_checkpoint()  # the last step's, kept until the evaluation is written: a resume evaluates again
+            if trainer.validator is not None:  # (and validates again: an interruption here loses no training)
                 trainer.validator.finish()
     except ResumeDiverged as err:
         raise UsageError(f"checkpoint {trainer.checkpoint_path()} (another coopsumo or SUMO version?): {err}; "
@@ -495,8 +508,6 @@ def train(
         if trainer.validator is not None:
             trainer.validator.close()
     wall = time.perf_counter() - start
-    if ended is None:
-        trainer.save_checkpoint()  # the last step's, kept until the evaluation is written: a resume evaluates again
     chosen = None
     if selection.selecting(cfg):  # model.pt: the best validated snapshot; the last weights beside it
         save_model(out / selection.LAST_MODEL, trainer.learner.driving, model_meta(cfg))
@@ -516,8 +527,9 @@ def train(
                   file=sys.stderr)  # fmt: skip
     write_json(out / "train_summary.json", train_summary)
     if cfg.eval_steps == 0:
-        trainer.checkpoint_path().unlink(missing_ok=True)
-        mark_run_dir(out, "train")
+        with signals_deferred():  # a stop between the two would leave a training neither resumable nor finished
+            trainer.checkpoint_path().unlink(missing_ok=True)
+            mark_run_dir(out, "train")
         return train_summary
     net = trainer.learner.driving
     if chosen is not None:
@@ -530,9 +542,10 @@ def train(
     shutil.rmtree(out / "eval", ignore_errors=True)  # what an interrupted evaluation had written
     try:
         summary = evaluate(cfg, policy, out, progress, on_steps, shown=final)
-    except KeyboardInterrupt:
-        raise Interrupted(signal.SIGINT, trainer.step) from None
+    except KeyboardInterrupt as stop:  # SIGINT, or runio.Stop: its signal
+        raise Interrupted(getattr(stop, "signum", signal.SIGINT), trainer.step) from None
     write_json(out / "summary.json", summary)
-    trainer.checkpoint_path().unlink(missing_ok=True)
-    mark_run_dir(out, "train")
+    with signals_deferred():
+        trainer.checkpoint_path().unlink(missing_ok=True)
+        mark_run_dir(out, "train")
     return summary

@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import shutil
+import signal
 import sys
 from collections.abc import Callable
 from dataclasses import replace
@@ -28,6 +30,7 @@ from coopsumo.config import (
     TrainConfig,
 )
 from coopsumo.runio import (
+    STOP_SIGNALS,
     Parser,
     UsageError,
     check_no_outside_link,
@@ -38,6 +41,7 @@ from coopsumo.runio import (
     out_lock,
     retrain_folder,
     run_cli,
+    stop_on_signals,
 )
 from coopsumo.validation import (
     MAX_STEPS,
@@ -324,7 +328,32 @@ def check_resume_flags(argv: list[str] | None, cfg: TrainConfig) -> None:
                              f"run as it was started (leave {flag} out)")  # fmt: skip
 
 
+def stopped(out: Path, target: Path, created: bool, signum: int) -> int:
+    """The line and exit code of a training stopped by a signal outside its loop (its setup, model selection, its
+    evaluation): its checkpoint stands; before its first one, a folder this command made is removed again."""
+    if (target / "checkpoint.pt").exists():
+        print(f"train: interrupted; its checkpoint {target / 'checkpoint.pt'} stands: continue with --resume --out "
+              f"{out}", file=sys.stderr)  # fmt: skip
+    elif finished_run(target, "train"):
+        if target != out:
+            finish_run_dir(target, out, "train")
+        print(f"train: interrupted as it finished; its model is whole: {out / 'model.pt'}", file=sys.stderr)
+    else:
+        removed = created and out.is_dir() and not (out / "model.pt").exists()
+        if removed:
+            shutil.rmtree(out, ignore_errors=True)  # this command made it, and nothing in it can be resumed
+        print(f"train: interrupted before the training's first checkpoint; nothing to resume"
+              f"{f' ({out} removed)' if removed else ''}", file=sys.stderr)  # fmt: skip
+    return 128 + signum
+
+
 def main(argv: list[str] | None = None) -> int:
+    """`coopsumo train`; SIGINT and SIGTERM end it wherever it is (runio.stop_on_signals), with one line."""
+    with stop_on_signals():
+        return run_cli("train", lambda: _main(argv))
+
+
+def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
@@ -358,13 +387,14 @@ def main(argv: list[str] | None = None) -> int:
         check_no_outside_link(out)
         if not args.resume:
             check_new_training(out)  # also the default folder
+        created = not os.path.lexists(out)
         try:
             out.mkdir(parents=True, exist_ok=True)
         except OSError as err:
             raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
         target = out
-        try:
-            with out_lock(out, "train"):  # a second command writing to the same folder is refused
+        with out_lock(out, "train"):  # a second command writing to the same folder is refused
+            try:  # under the lock: what an interrupted command removes is its own
                 if not args.resume:
                     check_new_training(out)  # again under the lock: another command may have trained meanwhile
                 target = training_folder(out) if args.resume else out
@@ -373,24 +403,25 @@ def main(argv: list[str] | None = None) -> int:
                                 learner_process=uses_update_worker(args.update_worker, cfg))  # fmt: skip
                 if target != out:
                     finish_run_dir(target, out, "train")
-        except Interrupted as stop:
-            print(f"train: interrupted at step {stop.step}; checkpoint saved in {target / 'checkpoint.pt'}; "
-                  f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
-            return 128 + stop.signum
-        except LearnerProcessError as err:  # the update worker died: the last periodic checkpoint stands
-            print(f"train: error: {err}; the training stopped; continue from its last checkpoint with --resume "
-                  f"--out {out}", file=sys.stderr)  # fmt: skip
-            return 1
-        except KeyboardInterrupt:  # outside the training loop (saving the model): the last checkpoint stands
-            print(f"train: interrupted; continue with --resume --out {out}", file=sys.stderr)
-            return 130
+            except Interrupted as stop:
+                print(f"train: interrupted at step {stop.step}; checkpoint saved in {target / 'checkpoint.pt'}; "
+                      f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
+                return 128 + stop.signum
+            except LearnerProcessError as err:  # the update worker died: the last periodic checkpoint stands
+                if err.signum in STOP_SIGNALS:  # a Ctrl-C to the whole group that reached the worker as it started
+                    return stopped(out, target, created, err.signum)
+                print(f"train: error: {err}; the training stopped; continue from its last checkpoint with --resume "
+                      f"--out {out}", file=sys.stderr)  # fmt: skip
+                return 1
+            except KeyboardInterrupt as stop:  # outside the training loop (runio.Stop: setup, selection, saving)
+                return stopped(out, target, created, getattr(stop, "signum", signal.SIGINT))
         keys = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
         values = {k: summary.get(k) for k in keys}  # floats to 4 significant digits, as simulate prints them
         print(f"model: {out / 'model.pt'}  " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                                                         for k, v in values.items()))  # fmt: skip
         return 0
 
-    return run_cli("train", body)
+    return body()
 
 
 if __name__ == "__main__":

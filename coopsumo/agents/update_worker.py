@@ -15,25 +15,37 @@ that fails answers ("error", one line) and exits.
 
 from __future__ import annotations
 
+import multiprocessing
 import pickle
 import signal
 import sys
 from multiprocessing.connection import Connection
 from typing import Any
 
-import numpy as np
-import torch
+WORKER_NAME = "coopsumo-learner"
+"""the worker process's name (multiprocessing sets it before the child imports this module to run serve)"""
+if multiprocessing.current_process().name == WORKER_NAME:  # the worker, starting: before torch's import (seconds),
+    for _stop in (signal.SIGINT, signal.SIGTERM):  # so that a Ctrl-C sent to the whole group meanwhile cannot kill it
+        signal.signal(_stop, signal.SIG_IGN)
 
-from coopsumo.agents.dqn import QNetwork, learn, make_optimizer, sync_target
-from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch
-from coopsumo.config import DQNConfig
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from coopsumo.agents.dqn import QNetwork, learn, make_optimizer, sync_target  # noqa: E402
+from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch  # noqa: E402
+from coopsumo.config import DQNConfig  # noqa: E402
 
 POLL_S = 0.5
 """how often a wait checks that the worker still lives (s)"""
 
 
 class LearnerProcessError(RuntimeError):
-    """The update worker died or failed; the training cannot go on from its current state."""
+    """The update worker died or failed; the training cannot go on from its current state. signum: the signal that
+    killed it (a Ctrl-C that reached it before it could ignore it), else None."""
+
+    def __init__(self, text: str, signum: int | None = None) -> None:
+        super().__init__(text)
+        self.signum = signum
 
 
 def make_slots(cfg: DQNConfig, online: QNetwork) -> list[ReplayBatch]:
@@ -122,12 +134,12 @@ class UpdateWorker:
             target=serve,
             args=(child, cfg, online, target.state_dict(), optimizer.state_dict(), self.slots,
                   torch.get_num_threads(), average),  # fmt: skip
-            name="coopsumo-learner",
+            name=WORKER_NAME,
             daemon=True,
         )
-        # SIGINT and SIGTERM are blocked while the child starts: the child inherits the mask, so a Ctrl-C during its
-        # start cannot kill it before serve() takes over, and this process gets a signal sent meanwhile the moment
-        # the mask is lifted (ignoring them here instead would lose it).
+        # SIGINT and SIGTERM are blocked here while the child starts (a signal sent meanwhile comes the moment the
+        # mask is lifted). The spawned child does not inherit the mask: it ignores them from its import of this
+        # module on (WORKER_NAME); one that kills it before that is reported as LearnerProcessError.signum.
         stop_signals = {signal.SIGINT, signal.SIGTERM}
         old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
         try:
@@ -187,22 +199,23 @@ class UpdateWorker:
         try:
             _send(self.conn, message)
         except (OSError, EOFError):
-            raise LearnerProcessError(self._death()) from None
+            raise self._death() from None
 
     def _answer(self) -> tuple[str, Any]:
         while not self.conn.poll(POLL_S):
             if not self.process.is_alive():
-                raise LearnerProcessError(self._death())
+                raise self._death()
         try:
             kind, value = _receive(self.conn)
         except (OSError, EOFError):
-            raise LearnerProcessError(self._death()) from None
+            raise self._death() from None
         if kind == "error":
             raise LearnerProcessError(f"the learner process failed: {value}")
         return str(kind), value
 
-    def _death(self) -> str:
+    def _death(self) -> LearnerProcessError:
         self.process.join(timeout=1)
         code = self.process.exitcode
-        how = f"killed by signal {-code}" if code is not None and code < 0 else f"exit code {code}"
-        return f"the learner process died ({how})"
+        signum = -code if code is not None and code < 0 else None
+        how = f"killed by signal {signum}" if signum is not None else f"exit code {code}"
+        return LearnerProcessError(f"the learner process died ({how})", signum)

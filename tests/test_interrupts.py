@@ -1,0 +1,73 @@
+"""Issue 67: an interruption is never lost. `coopsumo train` started the way a shell script's background job is
+(SIGINT ignored) gets Ctrl-C (SIGINT to its whole process group: the update worker and the validation process too)
+or SIGTERM at moments from its imports to its evaluation, and ends within seconds with one line: nothing written
+before its first checkpoint, else the checkpoint to resume from. Before, a SIGINT during the setup was lost and the
+training ran to its end."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import pytest
+
+from coopsumo.runio import finished_run
+
+pytestmark = pytest.mark.sumo
+REPO = Path(__file__).resolve().parent.parent
+TRAIN = ["-m", "coopsumo.train", "--steps", "1000", "--eval-steps", "3000", "--seed", "6", "--update-worker", "on",
+         "--select-every", "500", "--validation-steps", "100", "--validation-t-up", "1.5", "--quiet"]  # fmt: skip
+"""a short training with every part a signal may land in: the update worker, model selection, the evaluation"""
+
+
+def background_job() -> None:
+    """In the child: a session of its own (a process group to signal) and SIGINT ignored, as `cmd &` in a script."""
+    os.setsid()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def rows(out: Path) -> int:
+    log = out / "train_log.csv"
+    return len(log.read_text().splitlines()) if log.exists() else 0
+
+
+MOMENTS: dict[str, tuple[Callable[[Path], bool], int, str]] = {
+    "importing": (lambda out: False, signal.SIGINT, "nothing"),
+    "setting up (the first checkpoint written)": (lambda out: (out / "checkpoint.pt").exists(), signal.SIGINT,
+                                                  "checkpoint"),
+    "training": (lambda out: rows(out) >= 2, signal.SIGTERM, "checkpoint"),
+    "model selection": (lambda out: (out / "snapshots" / "step1000").exists(), signal.SIGINT, "checkpoint"),
+    "evaluating": (lambda out: (out / "eval").exists(), signal.SIGINT, "checkpoint"),
+}  # fmt: skip
+"""moment -> (ready(out): signal now (never: after 0.4 s), signal, what the folder then holds)"""
+
+
+@pytest.mark.parametrize("moment", list(MOMENTS))
+def test_a_signal_at_any_moment_ends_train_within_seconds_in_one_line(moment: str, tmp_path: Path) -> None:
+    ready, sig, left = MOMENTS[moment]
+    out = tmp_path / "run"
+    proc = subprocess.Popen([sys.executable, *TRAIN, "--out", str(out)], cwd=REPO, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=background_job)  # fmt: skip
+    start = time.monotonic()
+    while not ready(out) and not (moment == "importing" and time.monotonic() - start > 0.4):
+        assert proc.poll() is None, f"ended before {moment}: {proc.communicate()[1][-1500:]}"
+        assert time.monotonic() - start < 120, f"no {moment} within 120 s"
+        time.sleep(0.02)
+    sent = time.monotonic()
+    os.killpg(proc.pid, sig)
+    _, err = proc.communicate(timeout=60)
+    took = time.monotonic() - sent
+    lines = err.strip().splitlines()
+    assert proc.returncode == 128 + sig and len(lines) == 1 and "Traceback" not in err, (proc.returncode, err[-2000:])
+    assert lines[0].startswith("train: interrupted") and took < 15, (lines, took)
+    if left == "nothing":
+        assert not out.exists() and list(tmp_path.iterdir()) == [], list(tmp_path.rglob("*"))
+    else:
+        assert (out / "checkpoint.pt").exists() and not finished_run(out, "train"), sorted(os.listdir(out))
+        assert f"--resume --out {out}" in lines[0]
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no lock file left
