@@ -188,6 +188,35 @@ def _nan_online(state: dict[str, Any]) -> None:
     state["learner"]["online"][name] = torch.full_like(state["learner"]["online"][name], math.nan)
 
 
+def _set_in(*keys: Any, value: Any) -> Callable[[dict[str, Any]], None]:
+    """Set state[k1][k2]...[kn] = value (keys may be list indices)."""
+
+    def change(state: dict[str, Any]) -> None:
+        d: Any = state
+        for k in keys[:-1]:
+            d = d[k]
+        d[keys[-1]] = value
+
+    return change
+
+
+def _replay(field: str, row: int, value: float) -> Callable[[dict[str, Any]], None]:
+    """Write `value` into row `row` (one the memory holds) of the replay memory's field `field`."""
+
+    def change(state: dict[str, Any]) -> None:
+        data = state["learner"]["buffer"]["data"]
+        data[field] = data[field].clone()
+        data[field][row] = value
+        assert row < state["learner"]["buffer"]["size"]
+
+    return change
+
+
+def _inf_target(state: dict[str, Any]) -> None:
+    name = next(iter(state["learner"]["target"]))
+    state["learner"]["target"][name] = torch.full_like(state["learner"]["target"][name], math.inf)
+
+
 def _action_seven(state: dict[str, Any]) -> None:
     state["actions"] = state["actions"].clone()
     state["actions"][0] = 7
@@ -227,6 +256,28 @@ CHECKPOINT_CASES: dict[str, tuple[Callable[[dict[str, Any]], None] | bytes, str]
     "alpha nan": (_at("config", "sim", "reward", "alpha", value=math.nan), "alpha must be a finite number"),
     "step beyond the run": (_at("config", "sim", "steps", value=10), "step 20 lies beyond the run's 10 steps"),
     "eval steps negative": (_at("config", "eval_steps", value=-1), "eval steps"),
+    # issue 67: what a checkpoint holds must agree with itself before it is trusted
+    "nan in the optimizer state": (_at("learner", "optimizer", "state", value={0: {"momentum_buffer": torch.full(
+        (3,), math.nan)}}), "non-finite values (nan or inf) in its optimizer state (state.0.momentum_buffer)"),
+    "optimizer lr inf": (_set_in("learner", "optimizer", "param_groups", 0, "lr", value=math.inf),
+                         "optimizer state (param_groups.0.lr)"),
+    "nan reward in the replay memory": (_replay("rewards", 0, math.nan), "replay memory (rewards)"),
+    "inf reward in the replay memory": (_replay("rewards", 1, math.inf), "replay memory (rewards)"),
+    "-inf feature in the replay memory": (_replay("next_features", 2, -math.inf), "replay memory (next_features)"),
+    "an action 9 in the replay memory": (_replay("actions", 0, 9), "actions outside 0-3 in its replay memory"),
+    "replay position beyond its capacity": (_at("learner", "buffer", "pos", value=5000), "position 5000"),
+    "replay position out of order": (_at("learner", "buffer", "pos", value=3), "position 3"),
+    "replay size beyond its capacity": (_at("learner", "buffer", "size", value=2001), "size 2001"),
+    "replay position a string": (_at("learner", "buffer", "pos", value="3"), "without a capacity, size, position"),
+    "replay capacity not the configuration's": (_at("learner", "buffer", "capacity", value=1000), "capacity 1000"),
+    "a replay field cut short": (_set_in("learner", "buffer", "data", "rewards", value=torch.zeros(100)),
+                                 "'rewards' that is not a tensor of 2000 rows"),
+    "env steps not the step": (_at("learner", "env_steps", value=25), "env_steps = 25, not its step 20"),
+    "more decisions than steps": (_at("learner", "decisions", value=21), "21 decision rounds in 20 steps"),
+    "updates no decisions can make": (_at("learner", "updates", value=6), "6 gradient updates"),
+    "inf in the log window": (_at("window", "r_speed", value=math.inf), "log window (r_speed)"),
+    "nan in the log window's losses": (_at("window", "loss", value=[0.5, math.nan]), "log window (loss.1)"),
+    "inf target weights": (_inf_target, "non-finite values (nan or inf) in target weights"),
 }  # fmt: skip
 
 

@@ -110,6 +110,73 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
         return "has a replay memory or optimizer state that is not a mapping"
     if not isinstance(learner["torch_rng"], torch.Tensor) or not isinstance(learner["numpy_rng"], Mapping):
         return "has random-generator states of the wrong type"
+    if (where := non_finite(window)) is not None:
+        return f"has non-finite values (nan or inf) in its log window ({where})"
+    if (where := non_finite(learner["optimizer"])) is not None:
+        return f"has non-finite values (nan or inf) in its optimizer state ({where})"
+    return _counters_problem(step, learner, config["dqn"]) or _buffer_problem(learner["buffer"], config["dqn"])
+
+
+def non_finite(x: Any, at: str = "") -> str | None:
+    """Where the nested mappings, lists and tuples `x` hold a number or floating-point tensor that is nan or
+    infinite (the keys joined by '.'), or None."""
+    if isinstance(x, torch.Tensor):
+        finite = not x.is_floating_point() or bool(torch.isfinite(x).all())
+        return None if finite else at or "a tensor"
+    if isinstance(x, numbers.Real) and not isinstance(x, numbers.Integral):
+        return None if math.isfinite(x) else at or "a number"
+    items = x.items() if isinstance(x, Mapping) else enumerate(x) if isinstance(x, list | tuple) else ()
+    for key, value in items:
+        if (found := non_finite(value, f"{at}.{key}" if at else str(key))) is not None:
+            return found
+    return None
+
+
+def _setting(dqn: Mapping[str, Any], name: str) -> int | None:
+    """A learner setting that must be a positive integer, or None when it is not one (the configuration's own
+    check names it)."""
+    value: Any = dqn.get(name)
+    return int(value) if _is_count(value) and int(value) > 0 else None
+
+
+def _counters_problem(step: int, learner: Mapping[str, Any], dqn: Mapping[str, Any]) -> str | None:
+    """Why the learner's counters disagree with the checkpoint's step and with each other, or None: one environment
+    step per training step; at most one decision round per step and at least one per decision interval; gradient
+    updates only in whole rounds of updates_per_learn, one round per learn_every decision rounds at most."""
+    env_steps, decisions, updates = (int(learner[k]) for k in ("env_steps", "decisions", "updates"))
+    if env_steps != step:
+        return f"has learner env_steps = {env_steps}, not its step {step}"
+    interval = _setting(dqn, "decision_interval_steps")
+    if decisions > env_steps or (interval is not None and decisions < env_steps // interval):
+        return f"has {decisions} decision rounds in {env_steps} steps (a decision every {interval} steps)"
+    per_round, every = _setting(dqn, "updates_per_learn"), _setting(dqn, "learn_every")
+    if per_round and every and (updates % per_round or updates > decisions // every * per_round):
+        return (f"has {updates} gradient updates, not a number {decisions} decision rounds can make ({per_round} "
+                f"every {every} rounds)")  # fmt: skip
+    return None
+
+
+def _buffer_problem(buffer: Mapping[str, Any], dqn: Mapping[str, Any]) -> str | None:
+    """Why the replay memory (replay.ReplayBuffer.state_dict) cannot be loaded as it is, or None: its capacity the
+    configuration's, its size and position inside it (a memory not yet full is written in order), one row per slot
+    in every field, finite numbers, actions 0-3."""
+    counts: list[Any] = [buffer.get(k) for k in ("capacity", "size", "pos")]
+    data = buffer.get("data")
+    if not (all(_is_count(n) for n in counts) and isinstance(data, Mapping)):
+        return "has a replay memory without a capacity, size, position or data"
+    capacity, size, pos = (int(n) for n in counts)
+    if _setting(dqn, "replay_size") not in (None, capacity):
+        return f"has a replay memory of capacity {capacity}, not its configuration's {dqn.get('replay_size')}"
+    if size > capacity or pos >= capacity or (size < capacity and pos != size):
+        return f"has a replay memory position {pos} and size {size} that do not fit its capacity {capacity}"
+    for name, tensor in data.items():
+        if not isinstance(tensor, torch.Tensor) or tensor.dim() == 0 or len(tensor) != capacity:
+            return f"has replay memory {name!r} that is not a tensor of {capacity} rows"
+    if (where := non_finite(data)) is not None:
+        return f"has non-finite values (nan or inf) in its replay memory ({where})"
+    actions = data.get("actions")
+    if isinstance(actions, torch.Tensor) and len(actions) and not 0 <= int(actions.min()) <= int(actions.max()) < 4:
+        return "has actions outside 0-3 in its replay memory"
     return None
 
 
