@@ -354,14 +354,10 @@ PAPER_DQN = DQNConfig(
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""
 
-ALPHA_ONLY_DQN = DQNConfig(
-    preset="alpha_only", followers_weight=0.0, queue_below_mps=0.0, no_return_s=0.0, change_margin=0.0,
-    accident_share=0.0, validation_accident_steps=0,
-)  # fmt: skip
-"""The default's learning machinery with alpha as its only cooperative mechanism (claim (a) as the paper poses it):
-no share of the followers' speed in the reward, no queue rule, no change-back rule, no change margin; trained in free
-flow at scenario I's demands (train_t_ups) and its model chosen on free flow alone, with no accident in training or
-selection, as the paper trained in scenario II and moved the models to the accident unchanged"""
+ALPHA_ONLY_DQN = DQNConfig(preset="alpha_only", followers_weight=0.0, queue_below_mps=0.0, no_return_s=0.0,
+                           change_margin=0.0, accident_share=0.0, validation_accident_steps=0)
+"""Claim (a) as the paper poses it: the default's machinery with alpha its only cooperative mechanism (no followers'
+term, queue rule, change-back rule or change margin), trained and chosen in free flow at scenario I's demands"""
 
 DQN_PRESETS: dict[str, DQNConfig] = {"default": DQNConfig(), "paper": PAPER_DQN, "alpha_only": ALPHA_ONLY_DQN}
 """name -> learner configuration"""
@@ -592,18 +588,12 @@ def results_view(d: Any) -> Any:
 def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
     """Inverse of to_dict for SimConfig; a missing or unknown field is a ConfigError naming it."""
     try:
-        return SimConfig(
-            road=_from_fields(RoadConfig, d["road"], "road"),
-            demand=_from_fields(DemandConfig, d["demand"], "demand"),
-            control=_from_fields(ControlConfig, d["control"], "control"),
-            accident=_from_fields(AccidentConfig, d["accident"], "accident"),
-            reward=_from_fields(RewardConfig, d["reward"], "reward"),
-            steps=d["steps"],
-            seed=d["seed"],
-            policy=d["policy"],
-            time_to_teleport_s=d["time_to_teleport_s"],
-            sumo_collision_check=d.get("sumo_collision_check", False),
-            full_read_every_steps=d.get("full_read_every_steps", SimConfig.full_read_every_steps),  # same results
-        )
+        parts = {name: _from_fields(cls, d[name], name) for name, cls in (
+            ("road", RoadConfig), ("demand", DemandConfig), ("control", ControlConfig), ("accident", AccidentConfig),
+            ("reward", RewardConfig))}  # fmt: skip
+        return SimConfig(**parts, steps=d["steps"], seed=d["seed"], policy=d["policy"],
+                         time_to_teleport_s=d["time_to_teleport_s"],
+                         sumo_collision_check=d.get("sumo_collision_check", False),
+                         full_read_every_steps=d.get("full_read_every_steps", SimConfig.full_read_every_steps))
     except KeyError as err:
         raise ConfigError(f"simulation configuration has no {err.args[0]!r} (written by another coopsumo?)") from None

@@ -100,3 +100,15 @@ def nets_dir_problem(text: str) -> str | None:
     if not os.access(folder, os.W_OK | os.X_OK):
         return f"{text!r} cannot be written: {folder} is not writable"
     return None
+
+
+def outside_link(folder: Path) -> tuple[Path, Path] | None:
+    """The first symbolic link under `folder` (none followed) that leads outside it, and where it leads; None when
+    there is none. A command writing into `folder` would write through such a link into a folder it does not own."""
+    root = folder.resolve()
+    for parent, folders, files in os.walk(root):
+        for name in folders + files:
+            path = Path(parent) / name
+            if path.is_symlink() and not (target := path.resolve()).is_relative_to(root):
+                return path, target
+    return None

@@ -26,7 +26,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, NoReturn
 
-from coopsumo.paths import nets_dir_problem, out_path_problem
+from coopsumo.paths import nets_dir_problem, out_path_problem, outside_link
 
 USAGE_EXIT = 2
 NETS_ENV = "COOPSUMO_NETS_DIR"
@@ -375,18 +375,6 @@ def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Pat
         finally:
             release_lock(fd, path)
     return removed
-
-
-def outside_link(folder: Path) -> tuple[Path, Path] | None:
-    """The first symbolic link under `folder` (none followed) that leads outside it, and where it leads; None when
-    there is none. A command writing into `folder` would write through such a link into a folder it does not own."""
-    root = folder.resolve()
-    for parent, folders, files in os.walk(root):
-        for name in folders + files:
-            path = Path(parent) / name
-            if path.is_symlink() and not (target := path.resolve()).is_relative_to(root):
-                return path, target
-    return None
 
 
 def check_no_outside_link(folder: Path) -> None:

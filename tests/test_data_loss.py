@@ -340,7 +340,7 @@ def test_a_training_never_writes_through_a_link_leading_outside_its_folder(
 
 
 def test_links_inside_the_folder_and_the_folder_itself_behind_a_link_are_fine(tmp_path: Path) -> None:
-    from coopsumo.runio import outside_link
+    from coopsumo.paths import outside_link
 
     real = tmp_path / "disk" / "run"
     (real / "sumo").mkdir(parents=True)
