@@ -361,3 +361,47 @@ def test_regime_map_bad_demands_one_line_exit_2(tmp_path: Path) -> None:
         lines = res.stderr.strip().splitlines()
         assert res.returncode == 2 and len(lines) == 1 and "--t-up" in lines[0], (bad, res.stderr)
         assert not out.exists()
+
+
+def _model_rows(policy: str, tts: dict[int, list[float]], t_up: float = 1.0) -> pd.DataFrame:
+    """Runs rows of one learned policy: {training seed: [total time spent per evaluation seed]}."""
+    frames = []
+    for train_seed, values in tts.items():
+        frame = _rows({policy: {"tts_veh_h": values}}, t_up)
+        frame["train_seed"] = float(train_seed)
+        frames.append(frame)
+    return pd.concat(frames, ignore_index=True)
+
+
+def test_claim_a_side_by_side_with_the_default_learners_study(tmp_path: Path) -> None:
+    """A study of another learner preset reads the default's study beside it (the same plan but for the presets):
+    alpha 8 minus alpha 0 for each learner on its own models, and whether the baselines agree."""
+    from dataclasses import replace
+
+    from coopsumo.config import to_dict
+    from coopsumo.studies.scenario1_plan import Plan
+
+    plan = replace(Plan(), presets=("alpha_only",), t_ups=(1.0,), train_seeds=(100, 101, 102))
+    keep = _rows({"keep": {"tts_veh_h": [120.0, 121.0, 122.0]}})
+    keep["train_seed"] = np.nan
+    ours = pd.concat([keep, _model_rows("dqn_alpha_only_alpha8", {m: [90.0, 91.0, 92.0] for m in (100, 101, 102)}),
+                      _model_rows("dqn_alpha_only_alpha0", {m: [100.0, 101.0, 102.0] for m in (100, 101, 102)})])
+    theirs = pd.concat([keep.assign(tts_veh_h=[120.0, 121.0, 130.0]),
+                        _model_rows("dqn_alpha8", {100: [99.0, 104.0, 98.0], 101: [103.0, 98.0, 101.0],
+                                                   102: [100.0, 100.0, 103.0]}),
+                        _model_rows("dqn_alpha0", {m: [100.0, 101.0, 102.0] for m in (100, 101, 102)})])
+    text = rep.side_by_side(ours, plan, theirs, "results/scenario1_3models")
+    row = next(line for line in text.splitlines() if line.startswith("| T_up 1 s |"))
+    ours_cell, theirs_cell = row.split(" | ")[2:4]
+    assert ours_cell.startswith("-10.0 [-10.0, -10.0] veh-h, lower for 3 of 3 models: **helps**")
+    assert "lower for 2 of 3 models: **cannot decide**" in theirs_cell and "would take about" in theirs_cell
+    assert text.endswith("2 of 3 give the same total time spent.")
+    # the study beside it is found only when its plan is this plan for the default learner
+    root = tmp_path / "scenario1_alpha_only_3models"
+    beside = tmp_path / "scenario1_3models"
+    beside.mkdir()
+    theirs.to_csv(beside / "runs.csv", index=False)
+    (beside / "plan.json").write_text(json.dumps({"plan": to_dict(replace(plan, presets=("default",)))}))
+    assert rep.default_study(root, plan) == beside
+    assert rep.default_study(root, replace(plan, seeds=(1, 2))) is None  # another plan: no pairing
+    assert rep.default_study(root, replace(plan, presets=("default",))) is None  # the default's study itself

@@ -28,7 +28,7 @@ from coopsumo.policy_spec import model_file, split_dqn_spec
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.records import CellRecords, failed_exit
-from coopsumo.studies.run_folders import default_out, reusable_run, study_root
+from coopsumo.studies.run_folders import reusable_run, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
 from coopsumo.studies.scenario1_measures import run_metrics
 from coopsumo.studies.scenario1_plan import (
@@ -40,6 +40,7 @@ from coopsumo.studies.scenario1_plan import (
     model_label,
     model_name,
     run_folder,
+    study_out,
     train_config,
 )
 from coopsumo.studies.scenario1_report import counted, timing_text, write_outputs
@@ -209,19 +210,6 @@ def main(argv: list[str] | None = None) -> int:
             return run_study(plan, args.out, args.workers, args.backend, args.address)
 
     return run_cli("scenario1", body)
-
-
-def study_out(plan: Plan) -> Path:
-    """The results folder without --out: results/scenario1 (the committed profile) or results/scenario1_<profile>;
-    the committed profile with another number of models per alpha (--train-seeds K) writes results/scenario1_<K>models,
-    and with other learner presets results/scenario1_<presets>[_<K>models], so that a larger replication or another
-    learner never replaces the committed report."""
-    k = len(plan.train_seeds)
-    if plan.profile == Plan().profile and plan.presets != Plan().presets:  # another learner: never the default's report
-        return Path("results") / f"scenario1_{'_'.join(plan.presets)}{f'_{k}models' if k != len(TRAIN_SEEDS) else ''}"
-    if plan.profile == Plan().profile and k != len(Plan().train_seeds):
-        return Path("results") / f"scenario1_{k}models"
-    return default_out("scenario1", plan.profile, Plan().profile)
 
 
 def recorded_profile(root: Path) -> str | None:

@@ -20,6 +20,7 @@ from coopsumo.config import (
 )
 from coopsumo.policy_spec import model_file, split_dqn_spec
 from coopsumo.studies.model_store import FIRST_TRAIN_SEED
+from coopsumo.studies.run_folders import default_out
 from coopsumo.validation import number_name
 
 ALPHAS = (0.0, 8.0)
@@ -162,3 +163,16 @@ def accident_config(plan: Plan, policy: str, seed: int, t_up_s: float) -> SimCon
         seed=seed,
         policy=policy,
     )
+
+
+def study_out(plan: Plan) -> Path:
+    """The results folder without --out: results/scenario1 (the committed profile) or results/scenario1_<profile>;
+    the committed profile with another number of models per alpha (--train-seeds K) writes results/scenario1_<K>models,
+    and with other learner presets results/scenario1_<presets>[_<K>models], so that a larger replication or another
+    learner never replaces the committed report."""
+    k = len(plan.train_seeds)
+    if plan.profile == Plan().profile and plan.presets != Plan().presets:  # another learner: never the default's report
+        return Path("results") / f"scenario1_{'_'.join(plan.presets)}{f'_{k}models' if k != len(TRAIN_SEEDS) else ''}"
+    if plan.profile == Plan().profile and k != len(Plan().train_seeds):
+        return Path("results") / f"scenario1_{k}models"
+    return default_out("scenario1", plan.profile, Plan().profile)

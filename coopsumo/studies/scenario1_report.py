@@ -37,7 +37,7 @@ from coopsumo.studies.scenario1_measures import (
     jam_step,
     most_different_demand,
 )
-from coopsumo.studies.scenario1_plan import Plan, Run, label_for, model_label
+from coopsumo.studies.scenario1_plan import Plan, Run, label_for, model_label, study_out
 from coopsumo.studies.stats import models_needed
 from coopsumo.validation import number_name
 
@@ -344,6 +344,61 @@ Versions: {versions_text}.
     (root / "report.md").write_text(text)
 
 
+PAPER_CLAIM = ("alpha 8 helps: the waves disappear and the road recovers above 15 m/s about 54,000 steps after the "
+               "accident starts (Fig. 4, one run, 90,000 steps); with alpha 0 the bottleneck remains")
+"""claim (a) as the paper states it, for the side-by-side table"""
+
+
+def default_study(root: Path, plan: Plan) -> Path | None:
+    """The default learner's scenario I beside a study of other presets: the folder the same plan with presets
+    ('default',) writes by default (results/scenario1 or results/scenario1_<K>models), when it holds a runs.csv and a
+    plan.json whose plan equals this one's but for the presets; None otherwise."""
+    if "default" in plan.presets:
+        return None
+    folder = root.parent / study_out(replace(plan, presets=("default",))).name
+    try:
+        recorded = json.loads((folder / "plan.json").read_text())["plan"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    mine = json.loads(json.dumps(to_dict(replace(plan, presets=("default",)))))
+    if not (folder / "runs.csv").is_file() or recorded != mine:
+        return None
+    return folder
+
+
+def side_by_side(rows: pd.DataFrame, plan: Plan, default_rows: pd.DataFrame, default_name: str) -> str:
+    """Claim (a) side by side: per demand, alpha 8 minus alpha 0 in total time spent for each learner preset of this
+    study and for the default learner of the study beside it (its own models, the same demands and evaluation seeds),
+    each with its 95% two-level interval, the count of models with a lower time and the verdict; then whether the
+    baselines' runs, which both studies make on the same seeds, agree."""
+    learners = [(pr, rows, f"`{pr}` (this study)") for pr in plan.presets]
+    learners.append(("default", default_rows, f"`default` ({default_name})"))
+    lines = ["| demand | the paper | " + " | ".join(name for _, _, name in learners) + " |",
+             "|" + "---|" * (len(learners) + 2)]  # fmt: skip
+    for t in plan.t_ups:
+        cells = []
+        for preset, frame, _ in learners:
+            c = compare(frame, t, model_label(preset, 8.0), model_label(preset, 0.0))
+            if c is None:
+                cells.append("-")
+                continue
+            mean, lo, hi = c["tts_veh_h"]
+            need = "" if verdict_word(c) != "cannot decide" else f"; {_what_it_takes(c).split('; ')[-1]}"
+            cells.append(f"{mean:+.1f} [{lo:+.1f}, {hi:+.1f}] veh-h, lower for {c['tts_fewer']} of "
+                         f"{counted(c['models'], 'model')}: **{verdict_word(c)}**{need}")  # fmt: skip
+        lines.append(f"| T_up {t:g} s | alpha 8 helps | " + " | ".join(cells) + " |")
+    keys = ["t_up_s", "policy", "seed"]
+    base = rows[rows["train_seed"].isna()].set_index(keys)["tts_veh_h"]
+    other = default_rows[default_rows["train_seed"].isna()].set_index(keys)["tts_veh_h"]
+    common = base.index.intersection(other.index)
+    same = int((base.loc[common].round(9) == other.loc[common].round(9)).sum())
+    return (f"The paper's claim: {PAPER_CLAIM}. Total time spent, alpha 8 minus alpha 0 (veh-h), with the 95% "
+            "two-level interval over models and evaluation seeds, for each learner on its own models:\n\n"
+            + "\n".join(lines)
+            + f"\n\nThe baselines' runs of the two studies (the same demands and evaluation seeds): {same} of "
+              f"{len(common)} give the same total time spent.")
+
+
 def comparison_pairs(plan: Plan, rows: pd.DataFrame) -> tuple[list[tuple[str, str]], float | None]:
     """The verdict's pairs (cooperative, non-cooperative): every alpha > 0 against alpha = 0 per learner preset,
     every MOBIL p > 0 against p = 0, then every learned policy against `keep` and MOBIL p = 0 (learned against
@@ -427,6 +482,10 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
                  f"model makes at least 10% of alpha = 0's lane changes per vehicle over every accident run).")
     sections = [demand_section(rows, agg, t, pairs, figures) for t in plan.t_ups]
     claim += "\n\n" + verdict_table(rows, plan.t_ups, pairs)
+    beside = default_study(root, plan)
+    if beside is not None:
+        claim += ("\n\n### Claim (a) side by side with the default learner\n\n"
+                  + side_by_side(rows, plan, pd.read_csv(beside / "runs.csv"), f"results/{beside.name}"))
     regimes = regime_table(rows, REGIMES)
     figures_text = (
         f"![total time spent](fig_tts_demand.png)\n\nTotal time spent against the inflow, per policy: mean over "
