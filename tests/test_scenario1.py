@@ -18,7 +18,7 @@ from PIL import Image
 
 from coopsumo.config import AccidentConfig, OutputConfig, SimConfig, to_dict
 from coopsumo.runio import file_sha256
-from coopsumo.studies import run_folders, scenario1
+from coopsumo.studies import run_folders, scenario1, scenario1_gui
 from coopsumo.studies import scenario1_measures as measures
 from coopsumo.studies import scenario1_report as rep
 
@@ -152,7 +152,7 @@ def test_report_shows_sumo_guis_screenshot_of_the_jam(study: Path, gui_display: 
 def test_without_a_display_the_report_says_why_there_is_no_screenshot(tmp_path: Path) -> None:
     (tmp_path / "gui_jam.png").write_bytes(PNG)  # from an earlier study: must not stay beside the new report
     cfg = SimConfig(accident=AccidentConfig(enabled=True), policy="keep")
-    text = rep.gui_section(tmp_path, tmp_path / "no_such_run", "keep_seed1", cfg, environ={})
+    text = scenario1_gui.gui_section(tmp_path, tmp_path / "no_such_run", "keep_seed1", cfg, environ={})
     assert text.startswith("No sumo-gui screenshot: no display") and "xvfb-run" in text
     assert list(tmp_path.iterdir()) == []
 
