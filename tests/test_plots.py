@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from PIL import Image
 
 from coopsumo.report.plots import flow_density_figure, subsample_times, time_space_figure
 
@@ -112,3 +113,47 @@ def test_demand_figure_with_intervals(tmp_path: Path) -> None:
                           "tts": [40.0, 160.0, 42.0, 150.0], "tts_lo": [38.0, 150.0, 40.0, 140.0],
                           "tts_hi": [43.0, 170.0, 44.0, 155.0]})  # fmt: skip
     assert_png(demand_figure(table, "tts", "veh-h", tmp_path / "d.png"), 15)
+
+
+def _differences(pairs: list[tuple[str, str]], t_ups: tuple[float, ...]) -> pd.DataFrame:
+    rows = [(a, b, t, -1.0 + j, -2.0 + j, 0.5 + j) for j, (a, b) in enumerate(pairs) for t in t_ups]
+    return pd.DataFrame(rows, columns=["a", "b", "t_up_s", "diff", "lo", "hi"])
+
+
+def test_difference_figure_written_with_a_panel_per_kind_of_pair(tmp_path: Path) -> None:
+    from coopsumo.report.plots import difference_figure
+
+    coop = _differences([("dqn_alpha8", "dqn_alpha0"), ("mobil_p0.5", "mobil_p0")], (2.0, 1.5, 1.0))
+    classical = _differences([("dqn_alpha8", "keep"), ("dqn_alpha0", "keep")], (2.0, 1.0))
+    out = difference_figure({"cooperative": coop, "learned against classical": classical}, "veh-h",
+                            tmp_path / "figs" / "diff.png")  # fmt: skip
+    assert out == tmp_path / "figs" / "diff.png"
+    assert_png(out, 20)
+    two = np.asarray(Image.open(out)).shape[1]
+    empty = pd.DataFrame(columns=coop.columns)
+    one = difference_figure({"cooperative": coop, "learned against classical": empty}, "veh-h", tmp_path / "one.png")
+    assert np.asarray(Image.open(one)).shape[1] < two  # an empty table gets no panel
+    assert_png(difference_figure({"cooperative": empty}, "veh-h", tmp_path / "none.png"), 5)
+
+
+def test_bin_means_average_a_flickering_count_over_the_speed_bins() -> None:
+    from coopsumo.report.plots import bin_means
+
+    flicker = pd.Series([0.0, 1.0] * 30 + [4.0] * 10, index=np.arange(70.0))  # 0/1 for 60 s, then 4 for 10 s
+    means = bin_means(flicker, 0.0, 30.0)
+    assert means.index.tolist() == [0.0, 30.0, 60.0] and means.tolist() == [0.5, 0.5, 4.0]
+    assert bin_means(flicker.iloc[35:], 0.0, 30.0).index.tolist() == [30.0, 60.0]  # bins from the same origin
+
+
+def test_recovery_figure_written(tmp_path: Path) -> None:
+    from coopsumo.report.plots import recovery_figure
+
+    bins = np.arange(0.0, 600.0, 30.0)
+    t = np.arange(0.0, 600.0, 1.0)
+    speeds = {lab: pd.Series(np.where((bins > 100) & (bins < 300), 2.0, 20.0 + i), index=bins)
+              for i, lab in enumerate(("dqn_alpha8", "keep", "sumo"))}  # fmt: skip
+    backlogs = {"dqn_alpha8": pd.Series(np.clip(50 - np.abs(t - 250) / 3, 0, None), index=t),
+                "keep": pd.Series(np.clip(60 - np.abs(t - 260) / 3, 0, None), index=t),
+                "sumo": pd.Series(np.arange(len(t)) % 2, index=t)}  # fmt: skip
+    out = recovery_figure(speeds, backlogs, tmp_path / "rec.png", (100.0, 300.0), 15.0, front=["dqn_alpha8"])
+    assert_png(out, 20)

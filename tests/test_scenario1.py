@@ -54,7 +54,7 @@ def study(tmp_path_factory: pytest.TempPathFactory, display_or_none: str | None)
 
 
 def test_every_output_is_written(study: Path) -> None:
-    names = ["fig4_trajectories.png", "fig_tts_demand.png"]
+    names = ["fig4_trajectories.png", "fig_tts_demand.png", "fig_tts_difference.png"]
     names += [f"{f}_t{t}.png" for f in ("fig5_flow_density", "fig_recovery") for t in (3, 1)]
     for name in names:
         data = (study / name).read_bytes()
@@ -116,6 +116,7 @@ def test_report_numbers_equal_the_summaries_per_demand(study: Path) -> None:
     models = runs[runs["train_seed"].notna()]
     assert set(models["train_seed"].astype(int)) == set(MODELS) and runs["train_seed"].isna().sum() == 2 * 2 * 5
     assert "Deviations and choices" in report and "fig4_trajectories.png" in report
+    assert "![difference in total time spent](fig_tts_difference.png)" in report and "linear scale" in report
     assert "Where the queue goes" in report and "| T_up (s) |" in report
 
 
@@ -405,3 +406,31 @@ def test_claim_a_side_by_side_with_the_default_learners_study(tmp_path: Path) ->
     assert rep.default_study(root, plan) == beside
     assert rep.default_study(root, replace(plan, seeds=(1, 2))) is None  # another plan: no pairing
     assert rep.default_study(root, replace(plan, presets=("default",))) is None  # the default's study itself
+
+
+def test_the_difference_figure_plots_the_numbers_compare_gives() -> None:
+    """fig_tts_difference.png's numbers (difference_table) are compare()'s: the verdict table's, pair by pair and
+    demand by demand; a pair missing at a demand has no point there."""
+    frames = []
+    for t_up, shift in ((2.0, 0.0), (1.0, 30.0)):
+        frames += [_model_rows("dqn_alpha8", {100: [90.0 + shift, 95.0, 92.0], 101: [99.0, 104.0 + shift, 98.0],
+                                              102: [100.0, 97.0, 103.0]}, t_up),
+                   _model_rows("dqn_alpha0", {m: [100.0 + shift, 101.0, 102.0] for m in (100, 101, 102)}, t_up),
+                   _rows({"mobil_p0": {"tts_veh_h": [120.0, 121.0 + shift, 119.0]}}, t_up)]  # fmt: skip
+    frames.append(_rows({"mobil_p0.5": {"tts_veh_h": [118.0, 150.0, 117.0]}}, 1.0))  # at T_up 1 s only
+    rows = pd.concat(frames, ignore_index=True)
+    pairs = [("dqn_alpha8", "dqn_alpha0"), ("mobil_p0.5", "mobil_p0"), ("dqn_alpha8", "mobil_p0")]
+    table = measures.difference_table(rows, pairs)
+    assert list(table.columns) == ["a", "b", "t_up_s", "diff", "lo", "hi"]
+    assert sorted(zip(table["a"], table["b"], table["t_up_s"], strict=True)) == sorted(
+        [(a, b, t) for a, b in pairs for t in (2.0, 1.0) if (a, t) != ("mobil_p0.5", 2.0)])
+    for _, r in table.iterrows():
+        c = measures.compare(rows, r["t_up_s"], r["a"], r["b"])
+        assert c is not None and (r["diff"], r["lo"], r["hi"]) == c["tts_veh_h"]
+        assert r["lo"] < r["diff"] < r["hi"]
+    at = table.set_index(["a", "b", "t_up_s"])
+    assert at.loc[("mobil_p0.5", "mobil_p0", 1.0), "diff"] == pytest.approx(-5.0 / 3)  # (-2 - 1 - 2) / 3
+    assert at.loc[("dqn_alpha8", "dqn_alpha0", 2.0), "diff"] == pytest.approx((-26.0 - 2.0 - 3.0) / 9)
+    waves = measures.difference_table(rows, pairs[:1], "waves")
+    assert (waves["diff"] == 0.0).all() and len(waves) == 2
+    assert measures.difference_table(rows, []).empty

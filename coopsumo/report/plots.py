@@ -7,6 +7,7 @@ global backend switch, no display needed.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -139,32 +140,48 @@ def flow_density_figure(fd: dict[str, pd.DataFrame], out_path: str | Path) -> Pa
     return save_figure(fig, out_path)
 
 
+def bin_means(series: pd.Series, start_s: float, bin_s: float) -> pd.Series:
+    """Mean of a time-indexed series (s) over bins of bin_s from start_s, indexed by bin start; a bin with no
+    sample is left out (the bins of analysis.section_speed_bins)."""
+    k = np.floor((series.index.to_numpy(dtype=float) - start_s) / bin_s)
+    means = series.groupby(k).mean()
+    return pd.Series(means.to_numpy(dtype=float), index=start_s + bin_s * means.index.to_numpy(dtype=float))
+
+
 def recovery_figure(
     speeds: dict[str, pd.Series],
     backlogs: dict[str, pd.Series],
     out_path: str | Path,
     accident_window_s: tuple[float, float],
     threshold_mps: float,
+    front: Sequence[str] = (),
+    bin_s: float = 30.0,
 ) -> Path:
-    """Two panels over time (s), one line per policy label: the space-mean speed (m/s) before the bottleneck
-    (a Series indexed by bin start) with the recovery threshold dashed, and the insertion backlog (vehicles
-    waiting to enter, a Series indexed by time). The accident window is shaded. Writes a PNG, returns its path."""
+    """Two panels over time (s), one step line per policy label: the space-mean speed (m/s) before the bottleneck
+    (a Series per bin of bin_s, indexed by bin start) with the recovery threshold dashed, and the insertion backlog
+    (vehicles waiting to enter, a Series indexed by time) averaged over the same bins, so that a count flickering
+    between 0 and 1 is a line near 0.5, not a band. The labels in `front` are drawn thick and on top, the others
+    thin, dashed and behind them. The accident window is shaded. Writes a PNG, returns its path."""
     if not speeds:
         raise ValueError("recovery_figure needs at least one speed series")
     fig = new_figure(10.0, 6.4)
     top, bottom = fig.subplots(2, 1, sharex=True)
     for i, (label, series) in enumerate(speeds.items()):
-        top.plot(series.index, series.to_numpy(), color=f"C{i % 10}", linewidth=1.2, label=label)
+        shown = label in front
+        style = {"color": f"C{i % 10}", "label": label, "where": "post", "zorder": 3 if shown else 2,
+                 "linewidth": 1.8 if shown else 1.0, "linestyle": "-" if shown else "--"}  # fmt: skip
+        top.step(series.index, series.to_numpy(), **style)
         if label in backlogs:
-            b = backlogs[label]
-            bottom.plot(b.index, b.to_numpy(), color=f"C{i % 10}", linewidth=1.2, label=label)
+            start = float(series.index[0]) if len(series) else 0.0
+            b = bin_means(backlogs[label], start, bin_s)
+            bottom.step(b.index, b.to_numpy(), **style)
     for ax in (top, bottom):
         ax.axvspan(*accident_window_s, color="0.5", alpha=0.15, linewidth=0, zorder=0)
         ax.grid(True, alpha=0.3)
-    top.axhline(threshold_mps, color="k", linestyle="--", linewidth=0.8)
+    top.axhline(threshold_mps, color="k", linestyle=":", linewidth=0.8)
     top.set_ylabel("speed before the bottleneck (m/s)")
     top.legend(fontsize=8, ncol=3, loc="lower left")
-    bottom.set_ylabel("vehicles waiting to enter")
+    bottom.set_ylabel(f"vehicles waiting to enter\n(mean over {bin_s:g} s)")
     bottom.set_xlabel("time (s)")
     fig.tight_layout()
     return save_figure(fig, out_path)
@@ -254,5 +271,36 @@ def demand_figure(table: pd.DataFrame, value: str, ylabel: str, out_path: str | 
     ax.set_yscale("log")
     ax.grid(True, alpha=0.3, which="both")
     ax.legend(fontsize=8, ncol=2)
+    fig.tight_layout()
+    return save_figure(fig, out_path)
+
+
+def difference_figure(panels: dict[str, pd.DataFrame], ylabel: str, out_path: str | Path) -> Path:
+    """Paired differences a - b with their intervals, one panel per named table (columns a, b, t_up_s, diff, lo,
+    hi, as scenario1_measures.difference_table gives them): the demands on the x axis by inflow, one marker per
+    pair side by side within a demand, a linear y axis with the zero line. Empty tables get no panel (a note when
+    every table is empty). Writes a PNG, returns its path."""
+    shown = {title: table for title, table in panels.items() if not table.empty}
+    fig = new_figure(6.4 * max(len(shown), 1), 4.8)
+    axes = fig.subplots(1, max(len(shown), 1), squeeze=False)[0]
+    if not shown:
+        axes[0].text(0.5, 0.5, "no pairs to compare", ha="center", va="center", transform=axes[0].transAxes)
+    for ax, (title, table) in zip(axes, shown.items(), strict=False):
+        t_ups = sorted(table["t_up_s"].unique(), reverse=True)  # by inflow, lowest first
+        pairs = list(dict.fromkeys(zip(table["a"], table["b"], strict=True)))
+        width = 0.8 / len(pairs)
+        for j, (a, b) in enumerate(pairs):
+            rows = table[(table["a"] == a) & (table["b"] == b)]
+            x = np.array([t_ups.index(t) for t in rows["t_up_s"]]) + (j - (len(pairs) - 1) / 2) * width
+            mid = rows["diff"].to_numpy(dtype=float)
+            err = np.abs(np.vstack([mid - rows["lo"].to_numpy(dtype=float), rows["hi"].to_numpy(dtype=float) - mid]))
+            ax.errorbar(x, mid, yerr=err, fmt="o", ms=5, capsize=3, color=f"C{j % 10}", label=f"{a} - {b}")
+        ax.axhline(0.0, color="k", linewidth=0.9)
+        ax.set_xticks(range(len(t_ups)), [f"T_up {t:g} s\n{3600 / t:.0f} veh/h" for t in t_ups])
+        ax.set_xlim(-0.6, len(t_ups) - 0.4)
+        ax.set_title(title, fontsize=10)
+        ax.set_ylabel(ylabel)
+        ax.grid(True, axis="y", alpha=0.3)
+        ax.legend(fontsize=8)
     fig.tight_layout()
     return save_figure(fig, out_path)

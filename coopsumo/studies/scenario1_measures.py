@@ -199,6 +199,20 @@ def compare(rows: pd.DataFrame, t_up: float, a: str, b: str) -> dict[str, Any] |
     return out
 
 
+def difference_table(rows: pd.DataFrame, pairs: Sequence[tuple[str, str]], key: str = "tts_veh_h") -> pd.DataFrame:
+    """Per comparison pair (a, b) and demand: compare()'s mean a - b of key and its 95% two-level interval, the very
+    numbers the verdicts judge (for plots.difference_figure). Columns a, b, t_up_s, diff, lo, hi; a pair with a
+    policy missing at a demand has no row there."""
+    out = []
+    for a, b in pairs:
+        for t_up in rows["t_up_s"].unique():
+            c = compare(rows, float(t_up), a, b)
+            if c is not None:
+                mean, lo, hi = c[key]
+                out.append({"a": a, "b": b, "t_up_s": float(t_up), "diff": mean, "lo": lo, "hi": hi})
+    return pd.DataFrame(out, columns=["a", "b", "t_up_s", "diff", "lo", "hi"])
+
+
 def cooperative_alpha(rows: pd.DataFrame, labels: dict[float, str]) -> float | None:
     """The largest alpha > 0 whose model makes at least COOPERATIVE_LC_SHARE of alpha = 0's lane changes per
     vehicle over every accident run: cooperative, but not simply `keep`. None if none does. labels: alpha -> policy."""
