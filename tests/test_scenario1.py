@@ -434,3 +434,46 @@ def test_the_difference_figure_plots_the_numbers_compare_gives() -> None:
     waves = measures.difference_table(rows, pairs[:1], "waves")
     assert (waves["diff"] == 0.0).all() and len(waves) == 2
     assert measures.difference_table(rows, []).empty
+
+
+def test_the_report_writes_the_difference_figure_and_names_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """write_outputs on a synthetic runs table and run folders (no SUMO): fig_tts_difference.png is written, the
+    report shows it beside fig_tts_demand.png, whose caption points to it, and says what it plots."""
+    from dataclasses import replace
+
+    from coopsumo.studies.scenario1_plan import Plan, Run
+
+    monkeypatch.delenv("DISPLAY", raising=False)  # no sumo-gui screenshot
+    plan = replace(Plan(), t_ups=(2.0, 1.0), seeds=(1, 2, 3), train_seeds=(100, 101, 102), alphas=(0.0, 8.0),
+                   mobil_ps=(0.0, 0.5), steps=1200)  # fmt: skip
+    cfg = SimConfig(accident=AccidentConfig(enabled=True, x_m=1300.0, start_step=200, duration_steps=600))
+    t = np.arange(0.0, 600.0, 1.0)
+    traj = pd.DataFrame([(x, v, v % 3, 20.0 * (x - 4.0 * v), 20.0) for v in range(100) for x in t
+                         if 0.0 <= 20.0 * (x - 4.0 * v) < 2000.0],
+                        columns=["time_s", "vid", "lane", "pos_m", "speed_mps"])  # fmt: skip
+    loop = ('<detector><interval begin="0" end="60" id="e1_x01400_l0" nVehContrib="10" flow="600" occupancy="5" '
+            'speed="20" harmonicMeanSpeed="20"/></detector>')  # fmt: skip
+    root = tmp_path / "study"
+    frames, runs = [], []
+    for t_up in plan.t_ups:
+        for policy, shift in (("dqn_alpha0", 0.0), ("dqn_alpha8", -1.0)):
+            frames.append(_model_rows(policy, {m: [100.0 + shift + m - 100, 101.0, 102.0] for m in (100, 101, 102)},
+                                      t_up))  # fmt: skip
+            runs.append(Run(policy, t_up, 1, root / "runs" / f"{policy}_t{t_up:g}", cfg, 100))
+        for policy, tts in (("keep", 110.0), ("mobil_p0", 104.0), ("mobil_p0.5", 103.0)):
+            base = _rows({policy: {"tts_veh_h": [tts, tts + 2.0, tts - 1.0]}}, t_up)
+            frames.append(base.assign(train_seed=np.nan))
+            runs.append(Run(policy, t_up, 1, root / "runs" / f"{policy}_t{t_up:g}", cfg))
+    for run in runs:
+        run.out.mkdir(parents=True)
+        traj.to_parquet(run.out / "trajectories.parquet")
+        (run.out / "detectors.xml").write_text(loop)
+    rows = pd.concat(frames, ignore_index=True).assign(regime="on the road", spilled_s=np.nan)
+    rep.write_outputs(root, plan, rows, runs, "timing")
+    data = (root / "fig_tts_difference.png").read_bytes()
+    assert data.startswith(PNG) and len(data) > 10_000
+    report = (root / "report.md").read_text()
+    figures = report.split("## Figures")[1]
+    assert figures.index("(fig_tts_demand.png)") < figures.index("(fig_tts_difference.png)") < figures.index("Fig. 4")
+    assert "the next figure shows the differences" in figures and "a minus b (veh-h, linear scale)" in figures
+    assert "learned policies thick, the baselines dashed behind" in report
