@@ -11,6 +11,7 @@ import pytest
 from coopsumo.config import AccidentConfig, ControlConfig
 from coopsumo.sim import fast, physics
 from coopsumo.sim.controller import Controls
+from coopsumo.sim.observation import snapshot
 from coopsumo.sim.reward import followers_mean, section_crossings
 
 CAR_M = 4.0
@@ -114,6 +115,29 @@ def test_followers_mean_of_a_hand_made_road() -> None:
     assert got.tolist() == [0.0, (1.0 + 8.0) / 2, 2.0, 0.0]
 
 
+@pytest.mark.parametrize("seed", range(40))
+def test_snapshot_equals_the_definition(seed: int) -> None:
+    """Bit for bit, with shared and overlapping positions, lane changers in two lanes, vehicles behind the road's start
+    and lanes off the road, for several vehicle lengths."""
+    rng = np.random.default_rng(500 + seed)
+    lanes = int(rng.integers(2, 7))
+    lane, pos, _, other = road(rng, int(rng.integers(0, 120)), lanes=lanes)
+    pos = pos - 10.0 * (rng.random(len(pos)) < 0.1)
+    occ = physics.occupancy(lane, pos, other)
+    for car in (4.0, 4.5, 7.3):
+        assert same(fast.snapshot(occ, lane, pos, lanes, car), snapshot(occ, lane, pos, lanes, car)), car
+
+
+def test_snapshot_of_a_hand_made_road() -> None:
+    """Two lanes; the vehicle at 100 m in lane 0 sees its own body (cells 1-4), one ahead at 112 m (cells 13-16) and,
+    to its left, one at 103 m (cells 4-7); right of it is off the road."""
+    lane, pos, other = np.array([0, 0, 1]), np.array([100.0, 112.0, 103.0]), np.full(3, -1)
+    grid = fast.snapshot(physics.occupancy(lane, pos, other), lane, pos, 2, 4.0)[0]
+    assert np.flatnonzero(grid[1]).tolist() == [1, 2, 3, 4, 13, 14, 15, 16]
+    assert np.flatnonzero(grid[0]).tolist() == [4, 5, 6, 7]
+    assert grid[2].tolist() == [1] * 20
+
+
 def test_the_kernels_refuse_arrays_of_the_wrong_kind() -> None:
     """A caller that bypasses fast.py gets a Python error, not a read out of bounds."""
     from coopsumo.sim import _kernels  # type: ignore[attr-defined]
@@ -127,5 +151,7 @@ def test_the_kernels_refuse_arrays_of_the_wrong_kind() -> None:
         _kernels.after_step(lane)
     with pytest.raises(TypeError, match="arguments"):
         _kernels.followers_mean(lane)
+    with pytest.raises(ValueError, match="lengths"):
+        _kernels.snapshot(np.zeros(2), lane, np.zeros(2), lane, np.zeros(2), 3, 4.0, np.zeros((3, 3, 20), np.uint8))
     with pytest.raises(ValueError, match="lengths"):
         _kernels.followers_mean(np.zeros(2), np.zeros(3), lane, lane, np.zeros(2), 1.0, np.zeros(2))

@@ -14,11 +14,11 @@ import torch
 
 from coopsumo.agents.train import train
 from coopsumo.config import AccidentConfig, DQNConfig, SimConfig, TrainConfig
-from coopsumo.sim import fast, reward
+from coopsumo.sim import fast, observation, reward
 
 pytestmark = pytest.mark.sumo
 
-DEFINITIONS = {"followers_mean": reward.followers_mean}
+DEFINITIONS = {"followers_mean": reward.followers_mean, "snapshot": observation.snapshot}
 """fast's function -> its definition"""
 
 
@@ -29,7 +29,7 @@ def _log(folder: Path) -> list[dict[str, str]]:
 
 def test_a_training_is_the_same_with_the_definitions(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The default learner (the followers' term in its reward, decisions every 10 steps) through an accident with lane
-    changes: the same model weights and log rows, bit for bit."""
+    changes: the same model weights and log rows, bit for bit (the followers' term and the grids)."""
     dqn = replace(DQNConfig(), select_every_steps=0, train_t_ups=(), accident_share=0.0, learn_start_steps=100)
     sim = SimConfig(steps=1500, seed=4, policy="dqn",
                     accident=AccidentConfig(enabled=True, x_m=900.0, start_step=200, duration_steps=1000))  # fmt: skip

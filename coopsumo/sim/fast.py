@@ -54,6 +54,14 @@ def followers_mean(
     return out
 
 
+def snapshot(occ: Occupancy, lane: np.ndarray, pos: np.ndarray, n_lanes: int, car_length_m: float) -> np.ndarray:
+    """observation.snapshot: the (n, 3, 20) uint8 occupancy grids of every vehicle from the sorted occupancy."""
+    out = np.empty((len(lane), 3, 20), np.uint8)
+    _kernels.snapshot(_f64(occ.keys), _i64(occ.lane), _f64(occ.pos), _i64(lane), _f64(pos), int(n_lanes),
+                      float(car_length_m), out)  # fmt: skip
+    return out
+
+
 def sight(nums: np.ndarray, lane: np.ndarray, pos: np.ndarray, speed: np.ndarray, state: LaneState,
           controls: Controls) -> Sight:  # fmt: skip
     """controller.sight in one call."""

@@ -123,6 +123,60 @@ static PyObject *followers_mean(PyObject *Py_UNUSED(self), PyObject *const *args
     Py_RETURN_NONE;
 }
 
+/* snapshot(occ_keys, occ_lane, occ_pos, lane, pos, n_lanes, car_length_m, out): observation.snapshot into out, (n, 3,
+ * 20) uint8: for the left, own and right lane of each vehicle, cell k (centre pos - 5 + 0.5 + k) is 1 when it lies in
+ * [front - car_length_m, front) of one of the 8 occupancy entries after the window's start in that lane, or when the
+ * lane is off the road. The same comparisons on the same doubles as the numpy definition. */
+static PyObject *snapshot(PyObject *Py_UNUSED(self), PyObject *const *args, Py_ssize_t nargs) {
+    static const int sizes[] = {8, 8, 8, 8, 8, -1};
+    Py_buffer v[6];
+    if (check_count("snapshot", nargs, 8) < 0)
+        return NULL;
+    PyObject *const bufs[6] = {args[0], args[1], args[2], args[3], args[4], args[7]};
+    long long n_lanes = PyLong_AsLongLong(args[5]);
+    if (n_lanes == -1 && PyErr_Occurred())
+        return NULL;
+    double car = PyFloat_AsDouble(args[6]);
+    if (car == -1.0 && PyErr_Occurred())
+        return NULL;
+    if (acquire(bufs, 6, sizes, v) < 0)
+        return NULL;
+    const double *keys = v[0].buf, *occ_pos = v[2].buf, *pos = v[4].buf;
+    const int64_t *occ_lane = v[1].buf, *lane = v[3].buf;
+    uint8_t *out = v[5].buf;
+    Py_ssize_t m = v[0].len / 8, n = v[3].len / 8;
+    if (v[1].len / 8 != m || v[2].len / 8 != m || v[4].len / 8 != n || v[5].len != n * 3 * 20) {
+        release(6, v);
+        return PyErr_Format(PyExc_ValueError, "snapshot: array lengths do not match");
+    }
+    static const int64_t sides[3] = {1, 0, -1}; /* physics.SIDE_OFFSETS: left, own, right */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double start = pos[i] - 5.0; /* observation.BEHIND_M */
+        for (int side = 0; side < 3; side++) {
+            int64_t l = lane[i] + sides[side];
+            uint8_t *cells = out + (i * 3 + side) * 20;
+            int off_road = l < 0 || l >= n_lanes;
+            for (int k = 0; k < 20; k++)
+                cells[k] = (uint8_t)off_road;
+            if (off_road)
+                continue;
+            Py_ssize_t first = search_right(keys, m, (double)l * LANE_KEY + start);
+            for (Py_ssize_t j = first; j < first + 8 && j < m; j++) { /* observation.MAX_PER_WINDOW */
+                if (occ_lane[j] != l)
+                    continue;
+                double front = occ_pos[j], back = front - car;
+                for (int k = 0; k < 20; k++) {
+                    double centre = start + 0.5 + (double)k;
+                    if (centre >= back && centre < front)
+                        cells[k] = 1;
+                }
+            }
+        }
+    }
+    release(6, v);
+    Py_RETURN_NONE;
+}
+
 /* exp_into(x, out): out[i] = exp(x[i]) by the C library, whose bits do not depend on AVX-512. numpy's np.exp takes
  * a vector path on CPUs with AVX-512 that differs from it in the last bit for about 5% of arguments, enough to
  * send a dense run elsewhere (docs/model.md, "The same run on every machine"). */
@@ -150,6 +204,7 @@ static PyMethodDef methods[] = {
      "reward.section_crossings"},
     {"exp_into", (PyCFunction)(void (*)(void))exp_into, METH_FASTCALL, "the C library's exp into a given array"},
     {"followers_mean", (PyCFunction)(void (*)(void))followers_mean, METH_FASTCALL, "reward.followers_mean"},
+    {"snapshot", (PyCFunction)(void (*)(void))snapshot, METH_FASTCALL, "observation.snapshot into a given array"},
     {"sight", (PyCFunction)(void (*)(void))step_sight, METH_FASTCALL, "controller.sight into given arrays"},
     {"decide", (PyCFunction)(void (*)(void))step_decide, METH_FASTCALL, "controller.decide into given arrays"},
     {"after_step", (PyCFunction)(void (*)(void))step_after_step, METH_FASTCALL,

@@ -17,7 +17,7 @@ from coopsumo.config import ACCIDENT_STREAM, DEMAND_STREAM, DemandConfig, GuiCon
 from coopsumo.sim import accident, controller, fast, physics, view
 from coopsumo.sim.accident import HELD
 from coopsumo.sim.driver import sumo_lc_params, sumo_models
-from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation, snapshot
+from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation
 from coopsumo.sim.passing import PASSING_EVERY_S, PassingCount
 from coopsumo.sim.reward import RewardParts, flow_term, reward_parts, speed_term
 from coopsumo.sim.sumo_session import StepEvents, SumoSession
@@ -252,7 +252,7 @@ class World:
         seen = self._sight = fast.sight(t.nums, t.lane, t.pos, t.speed, self.veh, self.controls)
         around = seen.around
         if self.observe_grids if grids is None else grids:
-            grid = snapshot(seen.occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
+            grid = fast.snapshot(seen.occ, t.lane, t.pos, c.road.lanes, c.control.car_length_m)
             frames, speed_err = self.history.push(t.nums, grid, (t.speed - seen.v_exp).astype(np.float32))
         else:
             frames = np.zeros((len(t.nums), N_FRAMES, N_SIDES, N_CELLS), np.uint8)
