@@ -499,3 +499,35 @@ def test_a_model_whose_settings_and_weights_disagree_on_the_observation_is_refus
             with pytest.raises(UsageError, match="observation") as info:
                 DQNPolicy.from_file(str(path))
             assert "\n" not in str(info.value)
+
+
+def test_a_greedy_policy_asks_the_network_only_for_vehicles_whose_input_changed() -> None:
+    """DQNPolicy keeps each vehicle's last input and action: an unchanged vehicle keeps its action without a forward
+    pass; a change in its speed errors, its grids or its offered actions alone makes it decide afresh."""
+    from coopsumo.agents.dqn_policy import DQNPolicy
+
+    net = QNetwork(30.0)
+    asked: list[int] = []
+    forward = net.forward
+    net.forward = lambda grids, feats, *a: (asked.append(len(grids)), forward(grids, feats, *a))[1]  # type: ignore[method-assign]
+    policy = DQNPolicy(net, action_mask=True)
+    rng = np.random.default_rng(0)
+    n = 5
+
+    def obs(grids: np.ndarray, err: np.ndarray, feasible: np.ndarray) -> Observation:
+        return Observation(nums=np.arange(n), grids=grids, speed_err=err, lane=np.zeros(n, np.int64),
+                           pos=np.arange(n) * 10.0, speed=np.full(n, 20.0), v_exp=np.full(n, 25.0),
+                           busy=np.zeros(n, bool), around=None, n_lanes=3, feasible=feasible)  # type: ignore[arg-type]
+
+    grids = rng.integers(0, 2, (n, 3, 3, 20)).astype(np.uint8)
+    err = rng.normal(size=(n, 3)).astype(np.float32)
+    feasible = np.ones((n, 4), bool)
+    first = policy.act(obs(grids, err, feasible))
+    assert asked == [n]
+    assert np.array_equal(policy.act(obs(grids.copy(), err.copy(), feasible.copy())), first) and asked == [n]
+    err2, grids2, feasible2 = err.copy(), grids.copy(), feasible.copy()
+    err2[1, 2] += 0.5  # vehicle 1: its speed error
+    grids2[3, 2, 1, 7] ^= 1  # vehicle 3: one cell of its newest frame
+    feasible2[4, 0] = False  # vehicle 4: left no longer offered
+    policy.act(obs(grids2, err2, feasible2))
+    assert asked == [n, 3]

@@ -283,12 +283,13 @@ class DQNPolicy:
             mask = cooled_down(mask, since_s, self.change_cooldown_s)
             mask = no_return(mask, since_s, self._last_change[nums], self.no_return_s)
         mask = no_change_in_queue(mask, obs.speed, self.queue_below_mps)
-        same = (
-            (self._action[nums] >= 0)
-            & (self._grids[nums] == obs.grids).reshape(n, -1).all(axis=1)
-            & (self._features[nums] == feats).all(axis=1)
-            & (self._mask[nums] == mask).all(axis=1)
-        )
+        # the features (speeds, gaps) differ for nearly every moving vehicle: the grids and masks are compared only
+        # where they do not
+        same = (self._action[nums] >= 0) & (self._features[nums] == feats).all(axis=1)
+        if same.any():
+            rows = np.flatnonzero(same)
+            same[rows] = ((self._grids[nums[rows]] == obs.grids[rows]).reshape(len(rows), -1).all(axis=1)
+                          & (self._mask[nums[rows]] == mask[rows]).all(axis=1))  # fmt: skip
         actions = self._action[nums]
         fresh = ~same
         if fresh.any():
