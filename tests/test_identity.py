@@ -18,7 +18,7 @@ from coopsumo.agents.dqn import MAX_MODEL_BYTES, ModelFileError, QNetwork, load_
 from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
 from coopsumo.runio import USAGE_EXIT, mark_run_dir, write_json
 from coopsumo.studies.records import implausible, record_problem
-from coopsumo.studies.run_folders import detector_flow_problem
+from coopsumo.studies.run_checks import detectors_problem
 from coopsumo.studies.trainings import model_folder_problem
 
 REPO = Path(__file__).resolve().parent.parent
@@ -89,12 +89,13 @@ def test_impossible_summaries_are_not_trusted(edit: dict, fragment: str) -> None
 
 def test_loop_flows_above_what_a_lane_carries_are_not_trusted(tmp_path: Path) -> None:
     path = tmp_path / "detectors.xml"
-    row = '<interval begin="0.00" end="60.00" id="loop_0_0" nVehContrib="30" flow="{}" occupancy="5.00"/>\n'
-    path.write_text("<detector>\n" + row.format("1800.00") + "</detector>\n")
-    assert detector_flow_problem(path) is None
-    path.write_text("<detector>\n" + row.format("1800.00") + row.format("99999.00") + "</detector>\n")
-    problem = detector_flow_problem(path)
-    assert problem is not None and "99999.00" in problem
+    cfg = to_dict(SimConfig(steps=600))
+    row = '<interval begin="0.00" end="60.00" id="loop_0_0" nVehContrib="{}" flow="{}" occupancy="5.00"/>\n'
+    path.write_text("<detector>\n" + row.format(30, "1800.00") + "</detector>\n")
+    assert detectors_problem(path, cfg, 60.0) is None
+    path.write_text("<detector>\n" + row.format(30, "1800.00") + row.format(1666, "99960.00") + "</detector>\n")
+    problem = detectors_problem(path, cfg, 60.0)
+    assert problem is not None and "99960.00 veh/h, outside 0 to 36,000" in problem, problem
 
 
 def _train(*args: str) -> subprocess.CompletedProcess[str]:

@@ -267,9 +267,12 @@ def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
     outputs = OutputConfig()
     (out / "config.json").write_text(json.dumps({"config": to_dict(cfg),
                                                  "sumo_outputs": to_dict(outputs)}))  # fmt: skip
-    summary = dict.fromkeys(run_folders.RUN_SUMMARY, 1.0)
+    # a run's summary and loops as they agree with each other and the configuration (run_checks)
+    summary = {**dict.fromkeys(run_folders.RUN_SUMMARY, 1.0), "throughput_veh_per_h": 0.0, "steps": cfg.steps,
+               "sim_seconds": cfg.steps * cfg.control.dt_s}  # fmt: skip
     (out / "summary.json").write_text(json.dumps(summary))
-    (out / "detectors.xml").write_text("<detector>\n</detector>\n")
+    rows = [f'<interval begin="{t}" end="{t + 60}" id="e1" nVehContrib="0" flow="0.00"/>' for t in range(0, 900, 60)]
+    (out / "detectors.xml").write_text("<detector>\n" + "\n".join(rows) + "\n</detector>\n")
     model = tmp_path / "model.pt"
     model.write_bytes(b"old")
     old = out.stat().st_mtime_ns - 10**9

@@ -4,9 +4,6 @@ finished run folder can be reused (its configuration, its outputs, its values)."
 from __future__ import annotations
 
 import json
-import math
-import os
-import re
 import sys
 from collections.abc import Callable, Sequence
 from contextlib import AbstractContextManager, nullcontext
@@ -16,7 +13,8 @@ from typing import Any
 from coopsumo.config import OutputConfig, results_view, to_dict
 from coopsumo.runio import file_sha256
 from coopsumo.runio import study_root as claim_study_root
-from coopsumo.studies.records import MAX_LANE_FLOW_VEH_H, summary_problem
+from coopsumo.studies.records import summary_problem
+from coopsumo.studies.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -42,23 +40,34 @@ def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: P
                  prog: str = "scenario1") -> bool:  # fmt: skip
     """True when the run folder out holds a finished run of the SimConfig dict cfg with the SUMO output files
     `outputs` asks for and, for a model's run, was driven by the model file as it is now (model_driven), and its
-    values and files can be trusted (run_folder_problem; else one line on stderr)."""
-    if not ((out / "summary.json").exists() and same_config(out / "config.json", cfg)):
+    values and files can be trusted (run_folder_problem). A folder that holds a summary.json and is not reused
+    gets one line on stderr saying why."""
+    if not (out / "summary.json").exists():
         return False
+    if problem := reuse_problem(out, cfg, outputs, model):
+        print(f"{prog}: run folder {out} {problem}; running it again", file=sys.stderr)
+        return False
+    return True
+
+
+def reuse_problem(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None) -> str | None:
+    """Why the finished run folder out (it holds a summary.json) cannot stand for a run of cfg with `outputs`
+    driven by `model` as it is now (reusable_run), or None."""
+    if not same_config(out / "config.json", cfg):
+        return "was run with another or an unreadable configuration (config.json)"
     try:
         written = json.loads((out / "config.json").read_text())
         recorded = written.get("sumo_outputs")
     except (OSError, ValueError, AttributeError):
-        return False
+        return "has an unreadable config.json"
     if model is not None and not model_driven(out, written, model):
-        return False
+        return f"was driven by another model than {model} holds now (retrained, replaced or missing)"
+    if recorded != to_dict(outputs):
+        return f"has other SUMO outputs ({json.dumps(recorded)[:80]}) than the study writes"
     files = (["fcd.xml"] if outputs.fcd_period_s > 0 else []) + (["tripinfo.xml"] if outputs.tripinfo else [])
-    if not (recorded == to_dict(outputs) and all((out / f).exists() for f in files)):
-        return False
-    if problem := run_folder_problem(out, RUN_SUMMARY):  # its values and files, not only its configuration
-        print(f"{prog}: run folder {out} {problem}; running it again", file=sys.stderr)
-        return False
-    return True
+    if missing := [f for f in files if not (out / f).exists()]:
+        return f"has no {missing[0]}"
+    return run_folder_problem(out, RUN_SUMMARY, cfg, outputs.fcd_period_s)  # its values and files, not only its config
 
 
 def model_driven(out: Path, written: Any, model: Path) -> bool:
@@ -127,10 +136,12 @@ def study_root(root: Path, kind: str) -> AbstractContextManager[Path]:
     return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"))
 
 
-def run_folder_problem(out: Path, required: Sequence[str]) -> str | None:
-    """Why a finished run folder (simulate's: config.json, summary.json, detectors.xml, maybe trajectories.parquet)
-    cannot be reused as it is, or None: marked finished by simulate (or written before markers: no marker at
-    all), its summary trusted (summary_problem), detectors.xml complete, trajectories.parquet readable."""
+def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], fcd_period_s: float) -> str | None:
+    """Why a finished run folder of the SimConfig dict cfg (simulate's: config.json, summary.json, detectors.xml,
+    maybe fcd.xml every fcd_period_s, tripinfo.xml, trajectories.parquet) cannot be reused as it is, or None: marked
+    finished by simulate (or written before markers: no marker at all), its summary trusted (summary_problem) and
+    consistent with itself and cfg (run_checks.run_summary_problem), detectors.xml, fcd.xml and tripinfo.xml
+    complete and consistent with it (run_checks), trajectories.parquet readable."""
     import pyarrow.parquet as pq
 
     from coopsumo.runio import RUN_MARKER, finished_run
@@ -139,40 +150,19 @@ def run_folder_problem(out: Path, required: Sequence[str]) -> str | None:
         return f"has a {RUN_MARKER} that does not mark a finished simulate run"
     if problem := summary_problem(out / "summary.json", required):
         return problem
-    try:
-        with (out / "detectors.xml").open("rb") as f:
-            f.seek(max(0, f.seek(0, os.SEEK_END) - 64))
-            complete = f.read().rstrip().endswith(b"</detector>")
-    except OSError:
-        complete = False
-    if not complete:
-        return "has a missing or cut-short detectors.xml"
-    if problem := detector_flow_problem(out / "detectors.xml"):
+    summary = json.loads((out / "summary.json").read_text())  # summary_problem read it: a JSON object
+    if problem := run_summary_problem(summary, cfg):
+        return problem
+    sim_seconds, dt = float(summary["sim_seconds"]), float(cfg["control"]["dt_s"])
+    if problem := detectors_problem(out / "detectors.xml", cfg, sim_seconds):
+        return problem
+    if (out / "fcd.xml").exists() and (problem := fcd_problem(out / "fcd.xml", sim_seconds, fcd_period_s, dt)):
+        return problem
+    if (out / "tripinfo.xml").exists() and (problem := tripinfo_problem(out / "tripinfo.xml", summary)):
         return problem
     if (out / "trajectories.parquet").exists():
         try:
             pq.read_metadata(out / "trajectories.parquet")
         except Exception:  # pyarrow raises several types for a damaged file
             return "has an unreadable trajectories.parquet"
-    return None
-
-
-_FLOW = re.compile(rb'\sflow="([^"]*)"')
-
-
-def detector_flow_problem(path: Path) -> str | None:
-    """Why the loops' flows in an E1 detectors.xml cannot come from a run, or None: every flow="..." a number from
-    0 to MAX_LANE_FLOW_VEH_H (a loop lies on one lane)."""
-    try:
-        text = path.read_bytes()
-    except OSError:
-        return "has an unreadable detectors.xml"
-    for match in _FLOW.finditer(text):
-        try:
-            flow = float(match.group(1))
-        except ValueError:
-            flow = math.nan
-        if not 0 <= flow <= MAX_LANE_FLOW_VEH_H:
-            return (f"has detectors.xml with flow {match.group(1).decode(errors='replace')[:20]} veh/h, outside 0 to "
-                    f"{MAX_LANE_FLOW_VEH_H:,.0f} (one vehicle per 0.1 s step on a lane)")  # fmt: skip
     return None

@@ -1,0 +1,179 @@
+"""What a finished run folder's files must agree with before a study reuses it: its summary with itself and with the
+run's configuration, and SUMO's loop, trip and FCD files with the summary (complete, consistent, within what the
+road can carry). Each check returns why the folder cannot be trusted, or None.
+
+Cheap enough for hundreds of folders: detectors.xml and tripinfo.xml (hundreds of kB) are read whole, fcd.xml
+(megabytes) only from its end.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+TAIL_BYTES = 1 << 16
+"""the first read from a file's end (fcd.xml's last timestep can be longer: the read doubles until it is found)"""
+
+
+def _number(value: Any) -> float | None:
+    """value as a float when it is a JSON number (not a bool), else None."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    return float(value)
+
+
+def run_summary_problem(summary: dict[str, Any], cfg: dict[str, Any]) -> str | None:
+    """Why a run's summary.json disagrees with itself or with the configuration it ran (a SimConfig dict), or None:
+    its steps the configuration's and its simulated seconds theirs; wall time finite and >= 0 and its steps per
+    second steps / wall time; shares from 0 to 1; a mean travel time from 0 to the run's length (NaN only without
+    arrivals); throughput the arrivals per hour; the mean vehicle count from 0 to the departures; no more
+    departures than one per lane and step; vehicles still waiting at the end among the blocked ones."""
+    steps, dt = cfg["steps"], float(cfg["control"]["dt_s"])
+    if summary.get("steps") != steps or isinstance(summary.get("steps"), bool):
+        return f"has summary.json steps = {str(summary.get('steps'))[:20]}, but its configuration runs {steps} steps"
+    num = {k: n for k, v in summary.items() if (n := _number(v)) is not None}
+    sim_s = num.get("sim_seconds", math.nan)
+    if not math.isclose(sim_s, steps * dt, abs_tol=dt / 2):
+        return f"has summary.json sim_seconds = {sim_s:g}, but {steps} steps of {dt:g} s are {steps * dt:g} s"
+    wall = num.get("wall_seconds", 0.0)
+    if not (math.isfinite(wall) and wall >= 0):
+        return f"has summary.json wall_seconds = {wall:g}, not a time"
+    rate = num.get("steps_per_second")
+    if rate is not None and wall > 0.001:  # both rounded: wall to 0.001 s, the rate to 0.1 step/s
+        if not steps / (wall + 0.0005) - 0.05 <= rate <= steps / (wall - 0.0005) + 0.05:
+            return f"has summary.json steps_per_second = {rate:g}, but {steps} steps took {wall:g} s"
+    for key, value in num.items():
+        if key.endswith("_share") and not (math.isnan(value) or 0 <= value <= 1):
+            return f"has summary.json {key} = {value:g}, not a share from 0 to 1"
+    arrived, departed = num.get("arrived", 0.0), num.get("departed", 0.0)
+    travel = _number(summary.get("mean_travel_time_s"))
+    if arrived > 0 and not (travel is not None and 0 <= travel <= sim_s):
+        return f"has summary.json mean_travel_time_s = {travel}, not a time from 0 to the run's {sim_s:g} s"
+    if arrived == 0 and travel is not None and not (math.isnan(travel) or 0 <= travel <= sim_s):
+        return f"has summary.json mean_travel_time_s = {travel:g} without a vehicle that arrived"
+    throughput = num.get("throughput_veh_per_h")
+    if throughput is not None and sim_s > 0 and not math.isclose(throughput, arrived * 3600 / sim_s,
+                                                                 rel_tol=1e-6, abs_tol=1e-6):  # fmt: skip
+        return (f"has summary.json throughput_veh_per_h = {throughput:g}, but {arrived:g} vehicles arrived in "
+                f"{sim_s:g} s ({arrived * 3600 / sim_s:g} veh/h)")  # fmt: skip
+    on_road = num.get("mean_vehicles_on_road")
+    if on_road is not None and not 0 <= on_road <= departed:
+        return f"has summary.json mean_vehicles_on_road = {on_road:g}, outside 0 to the {departed:g} departed"
+    lanes = int(cfg["road"]["lanes"])
+    if departed > steps * lanes:
+        return f"has summary.json departed = {departed:g}, more than one vehicle per lane and step ({steps * lanes})"
+    if num.get("insertion_pending_at_end", 0.0) > num.get("insertion_blocked", math.inf):
+        return "has summary.json insertion_pending_at_end above insertion_blocked"
+    if isinstance(summary.get("policy"), str) and summary["policy"] != cfg["policy"]:
+        return f"has summary.json policy {summary['policy'][:60]}, but its configuration drives {cfg['policy'][:60]}"
+    return None
+
+
+_INTERVAL = re.compile(rb"<interval\s([^>]*)>")
+_ATTRIBUTE = re.compile(rb'([\w:]+)="([^"]*)"')
+
+
+def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> str | None:
+    """Why SUMO's E1 loop file of a run of cfg (sim_seconds long) cannot be trusted, or None: complete (it ends
+    with </detector>), at least one interval, each inside the run and at most a loop period long, its flow the
+    vehicles it counted per hour of the interval (nVehContrib * 3600 / (end - begin), as SUMO rounds it) and from 0
+    to one vehicle per step (a loop lies on one lane), the last interval ending with the run."""
+    try:
+        text = path.read_bytes()
+    except OSError as err:
+        return f"has an unreadable detectors.xml ({type(err).__name__})"
+    if not text.rstrip().endswith(b"</detector>"):
+        return "has a missing or cut-short detectors.xml"
+    dt, period = float(cfg["control"]["dt_s"]), float(cfg["road"]["loop_period_s"])
+    max_flow = 3600 / dt
+    last_end = -math.inf
+    for match in _INTERVAL.finditer(text):
+        attrs = dict(_ATTRIBUTE.findall(match.group(1)))
+        shown = match.group(0).decode(errors="replace")[:120]
+        try:
+            begin, end = float(attrs[b"begin"]), float(attrs[b"end"])
+            count, flow = float(attrs[b"nVehContrib"]), float(attrs[b"flow"])
+        except (KeyError, ValueError):
+            return f"has detectors.xml with an interval lacking a number: {shown}"
+        if not (0 <= begin < end <= sim_seconds + dt / 2 and end - begin <= period + 1e-6):
+            return (f"has detectors.xml with an interval {begin:g}-{end:g} s, not within the run's {sim_seconds:g} s "
+                    f"and its {period:g} s loop period")  # fmt: skip
+        if not 0 <= flow <= max_flow:
+            return (f"has detectors.xml with flow {attrs[b'flow'].decode(errors='replace')[:20]} veh/h, outside 0 to "
+                    f"{max_flow:,.0f} (one vehicle per {dt:g} s step on a lane)")  # fmt: skip
+        expected = count * 3600 / (end - begin)
+        if count < 0 or count != int(count) or abs(flow - expected) > 0.011:
+            return (f"has detectors.xml with flow {flow:g} veh/h from {count:g} vehicles in {end - begin:g} s "
+                    f"(that is {expected:.2f} veh/h)")  # fmt: skip
+        last_end = max(last_end, end)
+    if last_end == -math.inf:
+        return "has a detectors.xml without an interval"
+    if abs(last_end - sim_seconds) > dt / 2:
+        return f"has detectors.xml ending at {last_end:g} s, but the run lasted {sim_seconds:g} s"
+    return None
+
+
+def tail(path: Path, size: int = TAIL_BYTES) -> bytes:
+    """The last `size` bytes of the file at path (OSError when it cannot be read)."""
+    with path.open("rb") as f:
+        f.seek(max(0, f.seek(0, os.SEEK_END) - size))
+        return f.read()
+
+
+_TIMESTEP = re.compile(rb'<timestep time="([^"]*)"')
+
+
+def fcd_problem(path: Path, sim_seconds: float, period_s: float, dt: float) -> str | None:
+    """Why SUMO's FCD file of a run sim_seconds long, written every period_s, cannot be trusted, or None: it ends
+    with </fcd-export> and its last timestep lies within one period (and a step) of the run's end. Reads from the
+    end only, until the last timestep is found."""
+    try:
+        size, end = TAIL_BYTES, tail(path)
+        if not end.rstrip().endswith(b"</fcd-export>"):
+            return "has a cut-short fcd.xml (it does not end with </fcd-export>)"
+        while not (found := _TIMESTEP.findall(end)) and size < path.stat().st_size:
+            size *= 4
+            end = tail(path, size)
+    except OSError as err:
+        return f"has an unreadable fcd.xml ({type(err).__name__})"
+    if not found:
+        return "has an fcd.xml without a timestep"
+    try:
+        last = float(found[-1])
+    except ValueError:
+        last = math.nan
+    if not sim_seconds - period_s - dt - 1e-6 < last <= sim_seconds + 1e-6:
+        shown = found[-1].decode(errors="replace")[:20]
+        return f"has fcd.xml ending at {shown} s, but the run lasted {sim_seconds:g} s"
+    return None
+
+
+_DURATION = re.compile(rb'<tripinfo\s[^>]*?\sduration="([^"]*)"')
+
+
+def tripinfo_problem(path: Path, summary: dict[str, Any]) -> str | None:
+    """Why SUMO's tripinfo file cannot be trusted beside the run's summary, or None: it ends with </tripinfos>, holds
+    one trip per vehicle that arrived, and their mean duration is the summary's mean travel time."""
+    try:
+        text = path.read_bytes()
+    except OSError as err:
+        return f"has an unreadable tripinfo.xml ({type(err).__name__})"
+    if not text.rstrip().endswith(b"</tripinfos>"):
+        return "has a cut-short tripinfo.xml (it does not end with </tripinfos>)"
+    trips, arrived = text.count(b"<tripinfo "), summary.get("arrived")
+    if trips != arrived:
+        return f"has tripinfo.xml with {trips} trips, but summary.json says {arrived} vehicles arrived"
+    try:
+        durations = [float(d) for d in _DURATION.findall(text)]
+    except ValueError:
+        return "has tripinfo.xml with a duration that is not a number"
+    if len(durations) != trips:
+        return "has tripinfo.xml with a trip without a duration"
+    travel = _number(summary.get("mean_travel_time_s"))
+    if trips and (travel is None or not math.isclose(sum(durations) / trips, travel, rel_tol=1e-6, abs_tol=1e-3)):
+        return (f"has tripinfo.xml with a mean duration of {sum(durations) / len(durations):g} s, but summary.json "
+                f"says a mean travel time of {travel} s")  # fmt: skip
+    return None

@@ -1,0 +1,183 @@
+"""Issue 67, read-back checks that look inside: a study reuses a finished run folder (scenario I, adaptive-alpha) only
+when its summary agrees with itself and its configuration and SUMO's loop, FCD and trip files are complete and agree
+with it. One real short run (400 steps on a 400 m road, with fcd.xml, tripinfo.xml and trajectories) is made once;
+each case spoils a copy and the folder is redone with one line naming it and why, the intact copy is reused and
+left as it was."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from coopsumo.config import DemandConfig, OutputConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.studies.run_folders import reusable_run, simulate_into
+
+pytestmark = pytest.mark.sumo
+CFG = SimConfig(road=RoadConfig(length_m=400.0, loop_spacing_m=100.0, loop_period_s=10.0),
+                demand=DemandConfig(t_up_s=1.0), steps=400, seed=3, policy="keep")  # fmt: skip
+"""vehicles cross the road in about 15 s: arrivals, several loop intervals and FCD timesteps in 40 s"""
+OUTPUTS = OutputConfig(fcd_period_s=5.0, tripinfo=True)
+
+
+@pytest.fixture(scope="module")
+def made(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("made") / "run"
+    simulate_into(to_dict(CFG), out, "run", trajectory_every=5, outputs=OUTPUTS, atomic=True)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["arrived"] > 5 and summary["steps"] == CFG.steps  # a run the cases can spoil
+    return out
+
+
+def snapshot(folder: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def summary(**changes: Any) -> Callable[[Path], None]:
+    def spoil(out: Path) -> None:
+        values = json.loads((out / "summary.json").read_text())
+        values.update({k: v(values) if callable(v) else v for k, v in changes.items()})
+        (out / "summary.json").write_text(json.dumps(values))
+
+    return spoil
+
+
+def text(name: str, change: Callable[[str], str]) -> Callable[[Path], None]:
+    def spoil(out: Path) -> None:
+        before = (out / name).read_text()
+        after = change(before)
+        assert after != before, name
+        (out / name).write_text(after)
+
+    return spoil
+
+
+def cut(name: str) -> Callable[[Path], None]:
+    def spoil(out: Path) -> None:
+        data = (out / name).read_bytes()
+        (out / name).write_bytes(data[: len(data) // 2])
+
+    return spoil
+
+
+def _interval_flow(xml: str, count: int, flow: str) -> str:
+    """The first loop interval with nVehContrib and flow replaced."""
+    return re.sub(r'nVehContrib="\d+" flow="[^"]*"', f'nVehContrib="{count}" flow="{flow}"', xml, count=1)
+
+
+def _drop_last_intervals(xml: str) -> str:
+    """detectors.xml of a run 10 s shorter: its last period's intervals gone."""
+    return "\n".join(line for line in xml.splitlines() if 'end="40.00"' not in line) + "\n"
+
+
+def _drop_last_timesteps(xml: str) -> str:
+    """fcd.xml of a run one FCD period shorter: its last timestep gone, closed again."""
+    return xml[: xml.rindex("<timestep ")] + "</fcd-export>\n"
+
+
+def _one_longer_trip(xml: str) -> str:
+    return re.sub(r'duration="([\d.]+)"', lambda m: f'duration="{float(m.group(1)) + 30:.2f}"', xml, count=1)
+
+
+def _newer_model(out: Path) -> None:
+    later = (out / "summary.json").stat().st_mtime_ns + 10**9
+    os.utime(out.parent / "model.pt", ns=(later, later))
+
+
+CASES: dict[str, tuple[Callable[[Path], None], str]] = {
+    # the probe's corruptions (issue 67)
+    "travel time 1e308": (summary(mean_travel_time_s=1e308), "mean_travel_time_s = 1e+308"),
+    "negative wall time": (summary(wall_seconds=-3.0), "wall_seconds = -3"),
+    "150 steps": (summary(steps=150), "steps = 150, but its configuration runs 400 steps"),
+    "30,000 veh/h from 3 vehicles": (text("detectors.xml", lambda x: _interval_flow(x, 3, "30000.00")),
+                                     "flow 30000 veh/h from 3 vehicles in 10 s"),
+    "fcd.xml cut short": (cut("fcd.xml"), "cut-short fcd.xml"),
+    "fcd.xml without its closing tag": (text("fcd.xml", lambda x: x.replace("</fcd-export>", "")),
+                                        "cut-short fcd.xml"),
+    # more of the same classes
+    "tripinfo.xml cut short": (cut("tripinfo.xml"), "cut-short tripinfo.xml"),
+    "detectors.xml cut short": (cut("detectors.xml"), "cut-short detectors.xml"),
+    "a lane above one vehicle a step": (text("detectors.xml", lambda x: _interval_flow(x, 101, "36360.00")),
+                                        "flow 36360.00 veh/h, outside 0 to 36,000"),
+    "loops of a shorter run": (text("detectors.xml", _drop_last_intervals), "ending at 30 s, but the run lasted 40"),
+    "FCD of a shorter run": (text("fcd.xml", _drop_last_timesteps),
+                             "fcd.xml ending at 30.00 s, but the run lasted 40 s"),
+    "one arrival more": (summary(arrived=lambda s: s["arrived"] + 1,
+                                 throughput_veh_per_h=lambda s: (s["arrived"] + 1) * 90.0), "trips, but summary.json"),
+    "throughput edited": (summary(throughput_veh_per_h=lambda s: s["throughput_veh_per_h"] * 2),
+                          "throughput_veh_per_h"),
+    "a trip longer than recorded": (text("tripinfo.xml", _one_longer_trip), "mean duration"),
+    "negative travel time": (summary(mean_travel_time_s=-1.0), "mean_travel_time_s = -1"),
+    "sim seconds edited": (summary(sim_seconds=4000.0), "sim_seconds = 4000"),
+    "steps per second edited": (summary(steps_per_second=lambda s: s["steps_per_second"] * 10),
+                                "steps_per_second"),
+    "a share above 1": (summary(held_share=1.5), "held_share = 1.5"),
+    "more vehicles on the road than departed": (summary(mean_vehicles_on_road=1e6), "mean_vehicles_on_road"),
+    "another policy's summary": (summary(policy="greedy"), "policy greedy"),
+    "infinite speed": (summary(mean_speed_mps=float("inf")), "mean_speed_mps = inf"),
+    "another configuration": (text("config.json", lambda x: x.replace('"steps": 400', '"steps": 401')),
+                              "another or an unreadable configuration"),
+    "its model written after the run": (_newer_model, "was driven by another model"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_spoiled_run_folder_is_redone_with_one_line(
+    case: str, made: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    spoil, fragment = CASES[case]
+    out = tmp_path / "run"
+    shutil.copytree(made, out)
+    model = tmp_path / "model.pt"  # the model the run stands for (keep drives: a stand-in file, older than the run)
+    model.write_bytes(b"weights")
+    old = (out / "summary.json").stat().st_mtime_ns - 10**9
+    os.utime(model, ns=(old, old))
+    assert reusable_run(out, to_dict(CFG), OUTPUTS, model)
+    assert capsys.readouterr().err == ""
+    spoil(out)
+    assert not reusable_run(out, to_dict(CFG), OUTPUTS, model)
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"scenario1: run folder {out} "), lines
+    assert fragment in lines[0] and lines[0].endswith("; running it again"), lines
+
+
+def test_an_intact_run_folder_is_reused_untouched(
+    made: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "run"
+    shutil.copytree(made, out)
+    before = snapshot(out)
+    for _ in range(2):
+        assert reusable_run(out, to_dict(CFG), OUTPUTS)
+        assert reusable_run(out, to_dict(CFG), OutputConfig(fcd_period_s=5.0, tripinfo=True), prog="adaptive-alpha")
+    assert capsys.readouterr().err == ""
+    assert snapshot(out) == before
+    # a run never made (no summary.json) is run without a word; one with other outputs is redone with a line
+    assert not reusable_run(tmp_path / "none", to_dict(CFG), OUTPUTS)
+    assert capsys.readouterr().err == ""
+    assert not reusable_run(out, to_dict(CFG), OutputConfig(fcd_period_s=1.0, tripinfo=True))
+    assert "has other SUMO outputs" in capsys.readouterr().err
+    assert snapshot(out) == before
+
+
+def test_fcd_is_read_from_its_end(made: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A big fcd.xml is not read whole: the check reads a tail (doubling until a timestep is found)."""
+    from coopsumo.studies import run_checks
+
+    out = tmp_path / "run"
+    shutil.copytree(made, out)
+    fcd = out / "fcd.xml"
+    head, body = fcd.read_text().split("<timestep ", 1)
+    fcd.write_text(head + "<!--" + "x" * 5_000_000 + "-->\n<timestep " + body)  # 5 MB before the timesteps
+    read: list[int] = []
+    real_tail = run_checks.tail
+    monkeypatch.setattr(run_checks, "tail", lambda path, size=run_checks.TAIL_BYTES: read.append(size) or
+                        real_tail(path, size))  # fmt: skip
+    assert reusable_run(out, to_dict(CFG), OUTPUTS)
+    assert read and max(read) < 1_000_000, read
