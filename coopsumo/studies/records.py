@@ -197,7 +197,33 @@ def record_problem(record: Any, required: Sequence[str]) -> str | None:
             return f"has summary {key} = {json.dumps(value)[:40]}, not a number"
         if not math.isfinite(value):
             return f"has summary {key} = {value}, not a finite number"
-    return implausible(summary)
+    return implausible(summary) or pooled_problem(record)
+
+
+def _same_number(a: Any, b: Any) -> bool:
+    if isinstance(a, bool) or isinstance(b, bool) or not isinstance(a, int | float) or not isinstance(b, int | float):
+        return False
+    return (math.isnan(a) and math.isnan(b)) or math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
+
+
+def pooled_problem(record: dict[str, Any]) -> str | None:
+    """Why a record's summary is not what its own evaluations pool to, or None: where it keeps them (eval_summaries,
+    one per evaluation seed), each must be plausible (implausible) and every number of the summary the pooled one
+    (pool_summaries), so that neither the summary nor an evaluation can be edited alone."""
+    evals = record.get("eval_summaries")
+    if evals is None:
+        return None
+    if not (isinstance(evals, list) and evals and all(isinstance(e, dict) for e in evals)):
+        return f"has eval_summaries {json.dumps(evals)[:40]}, not a list of summaries"
+    for i, one in enumerate(evals):
+        if problem := implausible(one):
+            return problem.replace("has summary", f"has evaluation {i + 1} of {len(evals)} with", 1)
+    pooled, summary = pool_summaries(evals), record["summary"]
+    for key, value in summary.items():
+        if isinstance(value, int | float) and not isinstance(value, bool) and not _same_number(value, pooled.get(key)):
+            return (f"has summary {key} = {value:g}, but its {len(evals)} evaluations pool to "
+                    f"{json.dumps(pooled.get(key))[:20]}: edited?")  # fmt: skip
+    return None
 
 
 def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str, Any]:
