@@ -285,7 +285,8 @@ PROFILES = {
                     paired_with=(("nr10", "learner_protocol_f05q_ts2k10", "f05q_ts2k"),)),
     "nr10_3sets": Profile("nr10_3sets", variants=("nr10",), alpha_seeds=0,
                           eval_offsets=(0, 20, 40)),  # the default's 10 models on 3 seeds per condition
-    "alpha_only": Profile("alpha_only", variants=("alpha_only",)),  # claim (a)'s learner: does it learn? alpha 8 on 3
+    "alpha_only": Profile("alpha_only", variants=("alpha_only",),  # claim (a)'s learner: does it learn? alpha 8 on 3
+                          paired_with=(("alpha_only", "learner_protocol_nr10", "nr10"),)),  # against the default
     "tiny": Profile("tiny", seeds=(TRAIN_SEED, TRAIN_SEED + 1), train_steps=600, t_ups=(1.5, 1.0), free_steps=300,
                     accident_steps=600, accident_start=100, accident_duration=300, alpha_seeds=1),
 }  # fmt: skip
