@@ -39,7 +39,8 @@ def _same(recorded: Any, current: Any, what: str) -> None:
 
 def _learner_check(folder: Path) -> None:
     name = folder.name
-    if name == "scenario1" or re.fullmatch(r"scenario1_\d+models", name):  # the default profile, K models per alpha
+    # the default profile, K models per alpha, of the default learner or other presets (scenario1_alpha_only_10models)
+    if re.fullmatch(r"scenario1(_[a-z_]+?)?(_\d+models)?", name) and name not in ("scenario1_quick", "scenario1_full"):
         plan = json.loads((folder / "plan.json").read_text())
         assert set(plan["learners"]) == set(plan["plan"]["presets"])
         for preset, learner in plan["learners"].items():
