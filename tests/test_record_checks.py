@@ -1,19 +1,23 @@
 """Issue 67, read-back checks that look inside, for cell records: a scenario II (or ablation) record whose summary
-or one of its evaluations was edited is not what its evaluations pool to and is rerun, with one line. An intact
-record is reused and left as it was."""
+or one of its evaluations was edited is not what its evaluations pool to and is rerun; a cell of accident-seeds or
+diagnose is tied to the model file it drives (its sha256) and is rerun, with one line, when the file was replaced or
+cut short since. An intact record is reused and left as it was."""
 
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import pytest
+from test_study_commands import cell_times, coopsumo, learning_folder
 
-from coopsumo.studies import scenario2
-from coopsumo.studies.records import cell_path, checked_record, reusable_keys
+from coopsumo.studies import accident_seeds, scenario1, scenario2
+from coopsumo.studies.records import cell_path, checked_record, model_fields, reusable_keys
+from coopsumo.studies.scenario1_plan import Plan
 from coopsumo.studies.scenario2_plan import PROFILES, cell_specs
 
 
@@ -99,3 +103,131 @@ def test_an_intact_record_is_reused_untouched(dqn_spec: dict[str, Any], tmp_path
     assert capsys.readouterr().err == ""
     assert {p.name: p.read_bytes() for p in (tmp_path / "cells").iterdir()} == before
     assert checked_record(_record(dqn_spec), scenario2.REQUIRED_SUMMARY)["status"] == "ok"
+
+
+# -- a cell tied to the model file it drives ------------------------------------------------------------------------
+def _swap(model: Path) -> None:
+    """Another model of the same training in its place: other weights, the same configuration (it loads)."""
+    import torch
+
+    from coopsumo.agents.dqn import load_model, save_model
+
+    net, meta = load_model(model)
+    with torch.no_grad():
+        for weights in net.parameters():
+            weights.add_(0.01)
+    save_model(model, net, meta)
+
+
+def _cut(model: Path) -> None:
+    model.write_bytes(model.read_bytes()[: model.stat().st_size // 2])
+
+
+def _older_file(model: Path) -> None:
+    """Other bytes, written long before the record (a link moved to an older model keeps the path)."""
+    model.write_bytes(model.read_bytes() + b"\0")
+    os.utime(model, (1_000_000_000, 1_000_000_000))
+
+
+MODEL_CASES: dict[str, tuple[Callable[[Path], None], str]] = {
+    "swapped": (_swap, "has changed since (sha256)"),
+    "truncated": (_cut, "has changed since (sha256)"),
+    "replaced by an older file": (_older_file, "has changed since (sha256)"),
+}
+
+
+@pytest.mark.parametrize("case", MODEL_CASES)
+def test_an_accident_seeds_run_of_a_changed_model_is_rerun_with_one_line(
+    case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """accident-seeds' cells carry their model's sha256; a record made with another is rerun, baselines are kept."""
+    root = learning_folder(tmp_path / "learning", ("paper",))
+    out = tmp_path / "acc"
+    found = accident_seeds.models(root, ("paper",), (0.0,), 1)
+    plan = accident_seeds.accident_runs.scaled(Plan(), 0.03)
+
+    def specs() -> list[dict[str, Any]]:
+        who = accident_seeds.drivers(found, False, out / "models")
+        return [spec for _, _, spec in accident_seeds.cells(who, (3.0,), [0], plan)]
+
+    model = found[0]["model"]
+    assert [s.get("model_sha256") for s in specs()] == [None] * 3 + [model_fields(model)["model_sha256"]]
+    for spec in specs():  # each cell's record as the run left it (scenario I's run cell)
+        cell_path(out, spec["key"]).parent.mkdir(parents=True, exist_ok=True)
+        record = {**scenario1.RECORDS.new(spec), "status": "ok", "summary": {"mean_speed_mps": 20.0, "collisions": 0,
+                                                                             "teleports": 0}}  # fmt: skip
+        cell_path(out, spec["key"]).write_text(json.dumps(record))
+    before = {p.name: p.read_bytes() for p in (out / "cells").iterdir()}
+    required = accident_seeds.accident_runs.REQUIRED
+    assert reusable_keys(out, specs(), "accident-seeds", required) == {s["key"] for s in specs()}
+    assert capsys.readouterr().err == ""
+    change, fragment = MODEL_CASES[case]
+    change(model)
+    now = specs()
+    assert reusable_keys(out, now, "accident-seeds", required) == {s["key"] for s in now[:3]}  # the baselines kept
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"accident-seeds: cell {now[3]['key']}: record "), lines
+    assert fragment in lines[0] and str(model) in lines[0] and lines[0].endswith("; rerunning it"), lines
+    assert {p.name: p.read_bytes() for p in (out / "cells").iterdir()} == before  # judging writes nothing
+
+
+def test_accident_seeds_refuses_a_cut_short_model_it_drives_through_a_copy(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A margin variant drives a copy of its model that carries the margin, written from the model each time: a model
+    cut short is refused in one line before anything is written (it was a traceback)."""
+    root = learning_folder(tmp_path / "learning")
+    model = accident_seeds.models(root, ("margin",), (0.0,), 1)[0]["model"]
+    _cut(model)
+    out = tmp_path / "acc"
+    args = [str(root), "--variants", "margin", "--seeds", "1", "--t-up", "3", "--steps", "600", "--out", str(out)]
+    assert accident_seeds.main(args) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 1 and f"cannot read model file {model}" in lines[0] and "leave its variant out" in lines[0]
+    assert not out.exists()
+
+
+def test_a_record_from_before_digests_is_judged_by_time(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    model = tmp_path / "model.pt"
+    model.write_bytes(b"weights")
+    spec = {"key": "c1", "config": {"x": 1}, **model_fields(model)}
+    path = cell_path(tmp_path, "c1")
+    path.parent.mkdir()
+    path.write_text(json.dumps({"key": "c1", "config": {"x": 1}, "status": "ok", "summary": {"v": 1.0}}))
+    os.utime(model, (1_000_000_000, 1_000_000_000))  # the model written before the record: reused
+    assert reusable_keys(tmp_path, [spec], "study", ("v",)) == {"c1"}
+    os.utime(model, (path.stat().st_mtime + 10, path.stat().st_mtime + 10))  # written after it: rerun
+    assert reusable_keys(tmp_path, [spec], "study", ("v",)) == set()
+    assert f"record {path} is older than its model {model}; rerunning it" in capsys.readouterr().err
+    # the same bytes written again after the record (copied back, restored) with the digest recorded: reused
+    path.write_text(json.dumps({"key": "c1", "config": {"x": 1}, "status": "ok", "summary": {"v": 1.0},
+                                **model_fields(model)}))  # fmt: skip
+    os.utime(model, (path.stat().st_mtime + 10, path.stat().st_mtime + 10))
+    assert reusable_keys(tmp_path, [spec], "study", ("v",)) == {"c1"}
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.sumo
+def test_diagnose_redoes_the_cell_of_a_swapped_or_truncated_model(tmp_path: Path) -> None:
+    root = learning_folder(tmp_path / "learning")
+    assert coopsumo("diagnose", str(root), "--steps", "200").returncode == 0
+    cells = cell_times(root, "diagnosis_*.json")
+    assert len(cells) == 2
+    for record in (root / "cells").glob("diagnosis_*.json"):
+        assert json.loads(record.read_text())["model_sha256"]
+    key = "diagnosis_margin_alpha0_seed0.json"
+    margin = root / "train" / json.loads((root / "cells" / key).read_text())["train_key"] / "model.pt"
+    margin.write_bytes(margin.read_bytes())  # the same bytes written again: nothing redone
+    again = coopsumo("diagnose", str(root), "--steps", "200")
+    assert again.returncode == 0 and cell_times(root, "diagnosis_*.json") == cells, again.stderr[-2000:]
+    _swap(margin)  # another model of the same training: redone, with one line
+    swapped = coopsumo("diagnose", str(root), "--steps", "200")
+    assert swapped.returncode == 0, swapped.stderr[-2000:]
+    lines = [line for line in swapped.stderr.splitlines() if "rerunning it" in line]
+    assert len(lines) == 1 and f"cell {key[:-5]}: record" in lines[0] and "has changed since" in lines[0], lines
+    now = cell_times(root, "diagnosis_*.json")
+    assert now[key] != cells[key] and all(now[k] == cells[k] for k in cells if k != key)
+    _cut(margin)  # cut short: redone, and the cell fails in one line naming it
+    cut = coopsumo("diagnose", str(root), "--steps", "200")
+    assert cut.returncode == 1 and "has changed since" in cut.stderr and key[:-5] in cut.stderr.splitlines()[-1]
+    assert json.loads((root / "cells" / key).read_text())["status"] == "failed"

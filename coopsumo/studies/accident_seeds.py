@@ -30,7 +30,7 @@ from coopsumo.studies.ablation_plan import variant_list
 from coopsumo.studies.accident_seeds_report import report
 from coopsumo.studies.cells import add_cell_flags
 from coopsumo.studies.learning_models import finished_trainings
-from coopsumo.studies.records import failed_exit
+from coopsumo.studies.records import failed_exit, model_fields
 from coopsumo.studies.runner import check_backend
 from coopsumo.studies.scenario1_plan import Plan, accident_config
 from coopsumo.validation import MAX_STEPS, alpha_list, integer, number_name, out_dir, seed_count, t_up_list
@@ -54,17 +54,28 @@ def models(root: Path, variants: tuple[str, ...], alphas: tuple[float, ...], see
 
 def driving_copy(model: Path, margin: float, folder: Path) -> Path:
     """model.pt as it is, with change_margin set in its learner settings: the file a user would get from
-    `train --change-margin M` (training ignores the margin), driven with that margin by `dqn:PATH`. Written again
-    when the model is newer than the copy."""
+    `train --change-margin M` (training ignores the margin), driven with that margin by `dqn:PATH`. Written afresh
+    each time, from the model as it is now (a model replaced by an older file is caught too)."""
     from coopsumo.agents.dqn import load_model, save_model
 
     out = folder / f"{model.parent.name}_margin{number_name(margin)}.pt"
-    if not out.exists() or out.stat().st_mtime < model.stat().st_mtime:
-        net, meta = load_model(model)
-        meta["config"]["dqn"]["change_margin"] = margin
-        folder.mkdir(parents=True, exist_ok=True)
-        save_model(out, net, meta)
+    net, meta = load_model(model)
+    meta["config"]["dqn"]["change_margin"] = margin
+    folder.mkdir(parents=True, exist_ok=True)
+    save_model(out, net, meta)
     return out.resolve()
+
+
+def check_copyable(model: Path) -> None:
+    """UsageError (one line) unless the model a margin variant drives through its copy (driving_copy) can be read:
+    checked before the study writes anything."""
+    from coopsumo.agents.dqn import ModelFileError, load_model
+
+    try:
+        load_model(model)
+    except ModelFileError as err:
+        first = str(err).splitlines()[0].split(". ")[0] if str(err) else type(err).__name__
+        raise UsageError(f"{first[:300]}; train it again (`coopsumo learning`) or leave its variant out") from None
 
 
 def drivers(found: list[dict[str, Any]], adaptive: bool, models_dir: Path) -> list[dict[str, Any]]:
@@ -77,20 +88,24 @@ def drivers(found: list[dict[str, Any]], adaptive: bool, models_dir: Path) -> li
         model = driving_copy(m["model"], m["margin"], models_dir) if m["margin"] else m["model"]
         alpha = number_name(m["alpha"])
         out.append({"label": f"{m['variant']}_alpha{alpha}_train{m['seed']}", "variant": m["variant"],
-                    "alpha": m["alpha"], "only": m["seed"],
+                    "alpha": m["alpha"], "only": m["seed"], "source": m["model"],
                     "policy": f"dqn:{model}" + (f",alpha={alpha}" if m["conditioned"] else "")})  # fmt: skip
         if adaptive and m["conditioned"]:
             adaptive_models.setdefault(model, m)
     for model, m in adaptive_models.items():
         out.append({"label": f"{m['variant']}_adaptive_train{m['seed']}", "variant": f"{m['variant']}_adaptive",
-                    "alpha": None, "only": m["seed"], "policy": f"dqn:{model},alpha=adaptive"})  # fmt: skip
+                    "alpha": None, "only": m["seed"], "source": m["model"],
+                    "policy": f"dqn:{model},alpha=adaptive"})  # fmt: skip
     return out
 
 
 def cells(who: list[dict[str, Any]], t_ups: tuple[float, ...], seeds: list[int],
           plan: Plan) -> list[tuple[dict[str, Any], SimConfig, dict[str, Any]]]:  # fmt: skip
-    """(driver, configuration, cell) of every run: each demand, each driver, each of its seeds."""
+    """(driver, configuration, cell) of every run: each demand, each driver, each of its seeds. A model's cell is
+    tied to its trained model file as it is now (records.model_fields): a stored run of a model since replaced or
+    cut short is run again."""
     out = []
+    tied = {d["source"]: model_fields(d["source"]) for d in who if d.get("source") is not None}
     for t_up in t_ups:
         t = number_name(t_up)
         for d in who:
@@ -98,7 +113,8 @@ def cells(who: list[dict[str, Any]], t_ups: tuple[float, ...], seeds: list[int],
                 cfg = accident_config(plan, d["policy"], ACCIDENT_SEED_OFFSET + seed, t_up)
                 name = d["label"].replace(":", "_").replace("=", "")
                 key = f"t{t}_{name}_seed{seed}"
-                out.append((d, cfg, accident_runs.run_spec(plan, cfg, key, f"runs/t{t}/{key}", name, seed, t_up)))
+                spec = accident_runs.run_spec(plan, cfg, key, f"runs/t{t}/{key}", name, seed, t_up)
+                out.append((d, cfg, {**spec, **tied.get(d.get("source"), {})}))
     return out
 
 
@@ -184,6 +200,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.adaptive and not any(m["conditioned"] for m in found):
             raise UsageError(f"--adaptive drives alpha-conditioned models, and none of --variants {args.variants} "
                              "is alpha-conditioned (e.g. conditioned)")  # fmt: skip
+        for m in found:
+            if m["margin"]:
+                check_copyable(m["model"])
         plan = Plan.quick() if args.quick else Plan()
         if args.steps is not None:
             plan = accident_runs.scaled(plan, args.steps / plan.steps)

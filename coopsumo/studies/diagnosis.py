@@ -6,7 +6,8 @@ training seed) for --steps steps and record, at every decision of every vehicle,
 offered. Beside the training log, this says
 whether a model's lane changes come from clear Q-value margins or from near-ties, and when during training its lane
 changing grew (diagnosis_measures). Each model is a cell of the shared runner (record
-ROOT/cells/diagnosis_<key>.json, reused on a rerun); writes ROOT/diagnosis.csv (one row per model) and prints it.
+ROOT/cells/diagnosis_<key>.json, reused on a rerun while the model file holds the same bytes); writes
+ROOT/diagnosis.csv (one row per model) and prints it.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from coopsumo.studies.ablation_plan import own_eval, variant_list
 from coopsumo.studies.cells import add_cell_flags, failed_keys, run_cells
 from coopsumo.studies.diagnosis_measures import COLUMNS, decision_measures, training_course
 from coopsumo.studies.learning_models import finished_trainings
-from coopsumo.studies.records import CellRecords, failed_exit
+from coopsumo.studies.records import CellRecords, failed_exit, model_fields
 from coopsumo.studies.run_folders import study_root
 from coopsumo.studies.runner import check_backend
 from coopsumo.validation import MAX_STEPS, integer
@@ -108,7 +109,7 @@ def cell_specs(root: Path, steps: int, variants: tuple[str, ...] | None, alpha0_
             raise UsageError(f"the record of training {t['key']} in {root} has no usable evaluation "
                              f"({type(err).__name__} {err})") from None  # fmt: skip
         specs.append({"key": f"diagnosis_{t['key']}", "cell": t["key"], "variant": t["variant"], "alpha": t["alpha"],
-                      "seed": t["seed"], "train_key": t["model"].parent.name,
+                      "seed": t["seed"], "train_key": t["model"].parent.name, **model_fields(t["model"]),
                       "config": {"eval": own, "steps": steps}})  # fmt: skip
     if not specs:
         raise UsageError(f"no finished trainings{' of ' + ','.join(variants) if variants else ''}"

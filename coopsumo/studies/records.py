@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
-from coopsumo.runio import read_json_object, temporary_of, versions
+from coopsumo.runio import UsageError, file_sha256, read_json_object, temporary_of, versions
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -28,9 +28,39 @@ def blank_record(spec: dict[str, Any], fields: Sequence[str], **empty: Any) -> d
     """A cell's record before it runs: the spec's `fields`, its configuration, then `empty` (the study's own
     result fields) and no error or summary yet."""
     record = {k: spec.get(k) for k in fields}
+    record.update({k: spec[k] for k in MODEL_FIELDS if k in spec})  # the model file it stands for (model_changed)
     record.update(config=spec["config"], **empty)
     record.update(error=None, traceback=None, summary=None)
     return record
+
+
+MODEL_FIELDS = ("model", "model_sha256")
+"""a cell that drives a model file the study does not make names it in its spec and record: its path and sha256"""
+
+
+def model_fields(path: Path) -> dict[str, str]:
+    """The spec fields that tie a cell to the model file at path as it is now (UsageError when it cannot be read)."""
+    try:
+        return {"model": str(path), "model_sha256": file_sha256(path)}
+    except OSError as err:
+        raise UsageError(f"cannot read the model {path}: {err.strerror or type(err).__name__}") from None
+
+
+def model_changed(record: dict[str, Any], spec: dict[str, Any], path: Path) -> str | None:
+    """Why the stored record at path no longer stands for the model file its cell drives (the spec's model_fields),
+    or None: it was made with another sha256 of the file or, a record from before digests, before the file was last
+    written. A spec without a model: None."""
+    digest = spec.get("model_sha256")
+    if digest is None or record.get("model_sha256") == digest:
+        return None
+    if record.get("model_sha256") is None:
+        try:
+            if path.stat().st_mtime >= Path(spec["model"]).stat().st_mtime:
+                return None
+        except OSError:
+            pass
+        return f"is older than its model {spec['model']}"
+    return f"was made with another model: {spec['model']} has changed since (sha256)"
 
 
 def as_failed(record: dict[str, Any], error: str) -> dict[str, Any]:
@@ -234,7 +264,8 @@ def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str,
 
 def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> set[str]:
     """The cells whose stored record can be reused: one record_problem accepts, made with the cell's
-    configuration. Every other cell is rerun; a record that is neither failed nor interrupted and yet not
+    configuration and, for a cell that drives a model file, with that file as it is now (model_changed). Every
+    other cell is rerun; a record that is neither failed nor interrupted and yet not
     accepted (unreadable, the wrong shape, a bad summary) gets one line on stderr saying why. A record's
     temporary file left by a run killed (SIGKILL) while writing it is removed: it was never a record."""
     done = set()
@@ -252,9 +283,11 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
         if isinstance(record, dict) and record.get("status") in ("failed", "interrupted"):
             continue  # rerun without a word: the study counts these
         problem = record_problem(record, required)
-        if problem:
+        if problem is None and results_view(record.get("config")) != results_view(spec["config"]):
+            continue  # another configuration: another cell
+        if problem := problem or model_changed(record, spec, path):
             print(f"{prog}: cell {spec['key']}: record {path} {problem}; rerunning it", file=sys.stderr)
-        elif results_view(record.get("config")) == results_view(spec["config"]):
+        else:
             done.add(spec["key"])
     return done
 
