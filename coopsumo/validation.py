@@ -323,7 +323,17 @@ def number_list(flag: str, text: str, low: float | None = None, high: float | No
     if not values or problem or (whole and any(v != int(v) for v in values)):
         rng = (problem or _number_range(low, high, low_open, False)).replace("a finite number", f"finite {kind}")
         raise UsageError(f"{flag} must be a comma-separated list of {rng}{note}, got {text!r}")
+    same_twice(flag, text, parts, values)
     return values
+
+
+def same_twice(flag: str, text: str, items: Sequence[str], values: Sequence[object]) -> None:
+    """UsageError naming the flag and the first value whose items (as written) read as the same value
+    (0 and -0, 1 and 1.0, 2 and 02, 1/8 and 0.125): a list never merges them silently."""
+    for j, value in enumerate(values):
+        i = values.index(value)
+        if i < j:
+            raise UsageError(f"{flag} gives the same value twice in {text!r}: {items[i]!r} and {items[j]!r}")
 
 
 def alpha_list(flag: str, text: str) -> tuple[float, ...]:
@@ -352,6 +362,7 @@ def train_seed_list(flag: str, text: str, first: int, evaluation: Sequence[int] 
         seeds = tuple(range(first, first + k))
     else:
         seeds = tuple(whole(x) for x in items)
+        same_twice(flag, text, items, seeds)
         bad = [x for x in seeds if not 0 <= x <= SEED_MAX]
         if bad:
             raise UsageError(f"{flag}: seed {bad[0]} is outside [0, {SEED_MAX}]")
@@ -371,14 +382,9 @@ def number_name(x: float) -> str:
 
 def distinct_list(flag: str, text: str, low: float | None = None, low_open: bool = False,
                   note: str = "", high: float | None = None) -> tuple[float, ...]:  # fmt: skip
-    """A study axis: comma-separated finite numbers inside the bounds, no empty item and no value twice (they
-    name run folders: number_name); UsageError otherwise."""
-    values = number_list(flag, text, low=low, high=high, low_open=low_open, note=note)
-    names = [number_name(v) for v in values]
-    twice = sorted({n for n in names if names.count(n) > 1})
-    if twice:
-        raise UsageError(f"{flag} lists {', '.join(twice)} more than once in {text!r}")
-    return values
+    """A study axis: comma-separated finite numbers inside the bounds, no empty item and no value twice in any
+    form (number_list; they name run folders: number_name); UsageError otherwise."""
+    return number_list(flag, text, low=low, high=high, low_open=low_open, note=note)
 
 
 def min_t_up_s(dt_s: float) -> float:

@@ -175,6 +175,17 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("train", [*TRAIN, "--alpha-conditioned", "--alpha-draw-max", "-1"], ("--alpha-draw-max", "-1")),
     ("train", [*TRAIN, "--preset", "paper", "--episode-steps", "3000"], ("--episode-steps", "--train-t-up")),
     ("train", [*TRAIN, "--select-every", "0", "--validation-steps", "300"], ("--validation-steps", "--select-every")),
+    # issue 67: the same value written twice in any form is refused, naming the flag and both spellings
+    ("scenario1", ["--alphas", "0,-0"], ("--alphas", "same value twice", "'0' and '-0'")),
+    ("scenario1", ["--t-up", "1,1.0"], ("--t-up", "same value twice", "'1' and '1.0'")),
+    ("scenario1", ["--mobil-p", "0.5,0.50"], ("--mobil-p", "'0.5' and '0.50'")),
+    ("scenario1", ["--mobil-p", "1/8,0.125"], ("--mobil-p", "'1/8' and '0.125'")),
+    ("scenario1", ["--train-seeds", "2,02"], ("--train-seeds", "'2' and '02'")),
+    ("scenario2", ["--profile", "tiny", "--lanes", "3,3.0"], ("--lanes", "'3' and '3.0'")),
+    ("scenario2", ["--profile", "tiny", "--alphas", "8,8e0"], ("--alphas", "'8' and '8e0'")),
+    ("scenario2", ["--profile", "tiny", "--policies", "mobil", "--mobil-p", "0,-0.0"], ("--mobil-p", "'-0.0'")),
+    ("ablation", ["--profile", "tiny", "--alphas", "2, 2.0"], ("--alphas", "'2' and '2.0'")),
+    ("train", [*TRAIN, "--select-every", "100", "--validation-t-up", "2,2.00"], ("--validation-t-up", "'2.00'")),
 ]  # fmt: skip
 
 SUBPROCESS = (

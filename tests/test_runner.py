@@ -243,8 +243,10 @@ def test_study_lists_refuse_only_equal_values() -> None:
     from coopsumo.validation import distinct_list
 
     assert distinct_list("--t-up", "8,8.000001") == (8.0, 8.000001)
-    with pytest.raises(UsageError, match="lists 8 more than once"):
+    with pytest.raises(UsageError, match="same value twice in '8,8.0': '8' and '8.0'"):
         distinct_list("--t-up", "8,8.0")
+    with pytest.raises(UsageError, match="'0' and '-0'"):  # 0 == -0, though number_name tells them apart
+        distinct_list("--alphas", "0,-0")
 
 
 def test_a_fresh_record_with_a_bad_summary_counts_as_failed() -> None:
