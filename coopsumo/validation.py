@@ -267,7 +267,7 @@ def check_number(flag: str, value: float, low: float | None = None, high: float 
                  low_open: bool = False, high_open: bool = False, note: str = "") -> float:  # fmt: skip
     problem = number_problem(value, low, high, low_open, high_open)
     if problem:
-        raise UsageError(f"{flag} must be {problem}{note}, got {value:g}")
+        raise UsageError(f"{flag} must be {problem}{note}, got {number_name(value)}")  # as given, not rounded
     return value
 
 

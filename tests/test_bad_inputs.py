@@ -186,6 +186,10 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("scenario2", ["--profile", "tiny", "--policies", "mobil", "--mobil-p", "0,-0.0"], ("--mobil-p", "'-0.0'")),
     ("ablation", ["--profile", "tiny", "--alphas", "2, 2.0"], ("--alphas", "'2' and '2.0'")),
     ("train", [*TRAIN, "--select-every", "100", "--validation-t-up", "2,2.00"], ("--validation-t-up", "'2.00'")),
+    # issue 67: a value just outside its range is printed as given, not rounded onto the limit
+    ("simulate", [*SIM, "--t-up", "3600.0000001"], ("--t-up", "<= 3600", "got 3600.0000001")),
+    ("train", [*TRAIN, "--t-up", "3600.0000001"], ("--t-up", "got 3600.0000001")),
+    ("simulate", [*SIM, "--fcd", "--fcd-period", "0.1500001"], ("--fcd-period", "got 0.1500001")),
 ]  # fmt: skip
 
 SUBPROCESS = (
