@@ -431,8 +431,7 @@ class OutputConfig:
         """Raise ConfigError naming the first bad value; dt_s is the simulation step (s)."""
         period = self.fcd_period_s
         if not (math.isfinite(period) and 0 <= period <= MAX_FCD_PERIOD_S):
-            raise ConfigError(f"fcd period must be a number of seconds from 0 to {MAX_FCD_PERIOD_S:g}, "
-                              f"got {number_name(period)}")
+            raise ConfigError(f"fcd period must be from 0 to {MAX_FCD_PERIOD_S:g} s, got {number_name(period)}")
         steps = period / dt_s
         if period > 0 and (steps < 1 - 1e-9 or abs(steps - round(steps)) > 1e-6):
             raise ConfigError(f"fcd period must be a multiple of the {dt_s:g} s step, got {number_name(period)}")
@@ -460,8 +459,7 @@ class GuiConfig:
         if self.screenshot and not 1 <= self.screenshot_step <= steps:
             raise ConfigError(f"gui screenshot step must be between 1 and steps ({steps}), got {self.screenshot_step}")
         if not (math.isfinite(self.delay_ms) and 0 <= self.delay_ms <= MAX_GUI_DELAY_MS):
-            raise ConfigError(f"gui delay must be a number of ms from 0 to {MAX_GUI_DELAY_MS:g}, "
-                              f"got {number_name(self.delay_ms)}")
+            raise ConfigError(f"gui delay must be from 0 to {MAX_GUI_DELAY_MS:g} ms, got {number_name(self.delay_ms)}")
 
 
 def validation_runs(dq: DQNConfig) -> int:
