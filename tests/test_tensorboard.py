@@ -58,10 +58,19 @@ def test_train_writes_the_csv_scalars_to_tensorboard(tmp_path: Path) -> None:
         expected = [(int(r["step"]), float(r[column])) for r in rows if r[column] != ""]
         assert [p.step for p in points] == [s for s, _ in expected], tag
         assert [p.value for p in points] == pytest.approx([v for _, v in expected], rel=1e-5, abs=1e-7), tag
-    # a fresh (shorter) training into the same folder replaces the event files instead of mixing two runs
+    # the command refuses to train afresh over a finished training, its event file untouched
+    before = events[0].read_bytes()
     res = subprocess.run([*cmd[: cmd.index("2000")], "1000", *cmd[cmd.index("2000") + 1:]], cwd=ROOT,
                          capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
-    assert res.returncode == 0, res.stderr[-2000:]
+    assert res.returncode == 2 and "finished training" in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    assert list((out / tb_log.TB_DIR).glob("events.out.tfevents.*")) == events and events[0].read_bytes() == before
+    # a study's fresh (shorter) training into the same folder (train() itself, as the model store retrains a damaged
+    # model) replaces the event files instead of mixing two runs
+    from coopsumo.agents.train import train
+    from coopsumo.config import SimConfig, TrainConfig
+
+    train(TrainConfig(sim=SimConfig(steps=1000, seed=3, policy="dqn"), eval_steps=0), out, progress=False,
+          tensorboard=True)  # fmt: skip
     assert len(list((out / tb_log.TB_DIR).glob("events.out.tfevents.*"))) == 1
     acc = EventAccumulator(str(out / tb_log.TB_DIR))
     acc.Reload()
