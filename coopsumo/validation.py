@@ -250,6 +250,30 @@ def out_dir(text: str) -> Path:
     return path
 
 
+def policy_path_problem(path: Path) -> str | None:
+    """Why a policy string (dqn:PATH, policy_spec.parse_policy) could not name a model under `path`, or None: a space
+    (any whitespace) in it as given, absolute or with its links resolved. ',' and ':' are out_path_problem's."""
+    try:
+        shown = (str(path), str(path.absolute()), str(path.resolve()))
+    except (RuntimeError, OSError):
+        return None  # out_path_problem names a loop or a deleted current folder
+    bad = next((text for text in dict.fromkeys(shown) if any(ch.isspace() for ch in text)), None)
+    if bad is None:
+        return None
+    return (f"must be a folder path without spaces: a policy string (dqn:PATH) names the models trained here and "
+            f"cannot hold a space, got {bad!r}")  # fmt: skip
+
+
+def model_out_dir(text: str) -> Path:
+    """A `type=` for the --out of a command whose models a policy string names later (train and the studies that
+    train): out_dir, and no space in it (policy_path_problem), refused before hours of training, not after."""
+    path = out_dir(text)
+    problem = policy_path_problem(path)
+    if problem:
+        raise argparse.ArgumentTypeError(problem)
+    return path
+
+
 def workers(text: str) -> int:
     """`type=` of a --workers flag: 1 to four per core."""
     return integer(1, max_workers(), f" (4 per core; this machine has {os.cpu_count() or 1})")(text)

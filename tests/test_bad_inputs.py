@@ -503,3 +503,31 @@ def test_an_output_folder_with_a_colon_is_refused(command: str, tmp_path: Path,
     assert stop.value.code == 2 and len(err) == 1
     assert "--out" in err[0] and "':'" in err[0] and "run:1" in err[0]
     assert list(tmp_path.iterdir()) == []
+
+
+MODEL_COMMANDS = ["agents.train_cli", "studies.scenario1", "studies.scenario2", "studies.ablation", "studies.protocol",
+                  "studies.accident_seeds"]  # fmt: skip
+"""the commands whose --out holds models a policy string (dqn:PATH) names later: train, scenario1, scenario2,
+learning, protocol, accident-seeds"""
+
+
+@pytest.mark.parametrize("module", MODEL_COMMANDS)
+@pytest.mark.parametrize("how", ["named", "through a link"])
+def test_a_model_folder_no_policy_string_can_name_is_refused(module: str, how: str, tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Regression (issue 67): a space in scenario II's --out trained every model, then failed every DQN cell with
+    "policy ... has a space"; train took such an --out though no --policy could name its model."""
+    main = importlib.import_module(f"coopsumo.{module}").main
+    spaced = tmp_path / "my runs"
+    out = spaced / "out"
+    if how == "through a link":  # the path as given has no space; the folder it leads to has
+        spaced.mkdir()
+        (tmp_path / "link").symlink_to(spaced, target_is_directory=True)
+        out = tmp_path / "link" / "out"
+    before = sorted(p.name for p in tmp_path.rglob("*"))
+    with pytest.raises(SystemExit) as stop:  # argparse
+        main(["--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and len(err) == 1, err
+    assert "--out" in err[0] and "without spaces" in err[0] and "my runs" in err[0], err[0]
+    assert sorted(p.name for p in tmp_path.rglob("*")) == before

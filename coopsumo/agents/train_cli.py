@@ -49,8 +49,8 @@ from coopsumo.validation import (
     alpha_list,
     check_t_up,
     integer,
+    model_out_dir,
     number,
-    out_dir,
     seed,
     steps,
     t_up_list,
@@ -257,7 +257,7 @@ def build_parser() -> Parser:
                         f"it alone); default: {DemandConfig.t_up_s:g} s, training on the preset's demands")  # fmt: skip
     p.add_argument("--steps", type=steps, default=90_000, help="training steps of 0.1 s")
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the learner and SUMO (0 to 2^31 - 1)")
-    p.add_argument("--out", type=out_dir, default=None, help="run folder (default results/train/...)")
+    p.add_argument("--out", type=model_out_dir, default=None, help="run folder (default results/train/...)")
     p.add_argument("--resume", action="store_true", help="continue the interrupted run in --out")
     p.add_argument("--eval-steps", type=integer(0, MAX_STEPS), default=TrainConfig.eval_steps,
                    help="greedy evaluation steps (0: none)")  # fmt: skip

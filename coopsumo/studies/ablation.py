@@ -45,7 +45,7 @@ from coopsumo.studies.ablation_report import write_outputs
 from coopsumo.studies.records import failed_exit
 from coopsumo.studies.run_folders import default_out, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import alpha_list, number_name, out_dir, seed_count, workers
+from coopsumo.validation import alpha_list, model_out_dir, number_name, seed_count, workers
 
 
 # -- one cell (in a worker process) ----------------------------------------------------------------
@@ -184,7 +184,7 @@ def build_parser() -> Parser:
                         "(default: the profile's)")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
-    p.add_argument("--out", type=out_dir, default=None,
+    p.add_argument("--out", type=model_out_dir, default=None,
                    help="results folder (default results/learning, another profile results/learning_<profile>)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p

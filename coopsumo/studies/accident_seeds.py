@@ -33,7 +33,7 @@ from coopsumo.studies.learning_models import finished_trainings
 from coopsumo.studies.records import failed_exit, model_fields
 from coopsumo.studies.runner import check_backend
 from coopsumo.studies.scenario1_plan import Plan, accident_config
-from coopsumo.validation import MAX_STEPS, alpha_list, integer, number_name, out_dir, seed_count, t_up_list
+from coopsumo.validation import MAX_STEPS, alpha_list, integer, model_out_dir, number_name, seed_count, t_up_list
 
 ACCIDENT_SEED_OFFSET = 2000
 """a model trained on seed s meets the accident on seed ACCIDENT_SEED_OFFSET + s (baselines too)"""
@@ -172,8 +172,8 @@ def build_parser() -> Parser:
         action="store_true",
         help="also drive every alpha-conditioned model at alpha=adaptive (chosen from the loops)",
     )
-    p.add_argument("--out", type=out_dir, default=None, help="results folder (default: ROOT/accident of the first "
-                                                             "ROOT)")  # fmt: skip
+    p.add_argument("--out", type=model_out_dir, default=None,
+                   help="results folder (default: ROOT/accident of the first ROOT)")
     add_cell_flags(p)
     return p
 

@@ -41,7 +41,7 @@ from coopsumo.studies.protocol_plan import (
 from coopsumo.studies.records import failed_exit
 from coopsumo.studies.run_folders import default_out, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import out_dir, workers
+from coopsumo.validation import model_out_dir, workers
 
 # -- one cell (in a worker process) ----------------------------------------------------------------
 FIELDS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key")
@@ -169,7 +169,7 @@ def build_parser() -> Parser:
                         "learners or one change each")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
-    p.add_argument("--out", type=out_dir, default=None,
+    p.add_argument("--out", type=model_out_dir, default=None,
                    help=f"results folder (default {default_out('learner_protocol', CURRENT, OLDEST)}; another "
                         f"profile results/learner_protocol_<profile>, the {OLDEST!r} profile "
                         f"{default_out('learner_protocol', OLDEST, OLDEST)})")  # fmt: skip

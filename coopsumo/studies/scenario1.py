@@ -50,8 +50,8 @@ from coopsumo.validation import (
     alpha_list,
     distinct_list,
     integer,
+    model_out_dir,
     name_list,
-    out_dir,
     seed_count,
     steps,
     t_up_list,
@@ -142,7 +142,7 @@ def build_parser() -> Parser:
                    help="MOBIL politeness values, comma-separated "
                         f"(default: {by_profile(lambda plan: _numbers(plan.mobil_ps))})")  # fmt: skip
     k = len(TRAIN_SEEDS)
-    p.add_argument("--out", type=out_dir, default=None,
+    p.add_argument("--out", type=model_out_dir, default=None,
                    help=f"results folder (default: {by_profile(study_out)}; with --train-seeds K other than {k}: "
                         "results/scenario1_<K>models, with --preset: results/scenario1_<presets>[_<K>models]; only "
                         "the default profile's report is committed)")  # fmt: skip

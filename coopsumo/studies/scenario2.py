@@ -72,10 +72,10 @@ from coopsumo.validation import (
     alpha_list,
     integer,
     min_t_up_s,
+    model_out_dir,
     name_list,
     number_list,
     number_name,
-    out_dir,
     seed_count,
     steps,
     t_up_note,
@@ -299,7 +299,7 @@ def build_parser() -> Parser:
     p = Parser(prog="coopsumo scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
     p.add_argument("--profile", choices=sorted(PROFILES), default=DEFAULT_PROFILE,
                    help="grid and step counts: tiny (tests), quick (about 80 min on 2 cores), paper")  # fmt: skip
-    p.add_argument("--out", type=out_dir, default=None,
+    p.add_argument("--out", type=model_out_dir, default=None,
                    help=f"results folder (default {default_out('scenario2', DEFAULT_PROFILE, DEFAULT_PROFILE)}, "
                         "another profile results/scenario2_<profile>; with --conditioned "
                         "results/scenario2_conditioned[_<profile>])")  # fmt: skip
