@@ -112,3 +112,19 @@ def outside_link(folder: Path) -> tuple[Path, Path] | None:
             if path.is_symlink() and not (target := path.resolve()).is_relative_to(root):
                 return path, target
     return None
+
+
+NETS_ENV = "COOPSUMO_NETS_DIR"
+"""environment variable naming the folder the SUMO networks are built into (read by sim.network)"""
+STORE_ENV = "COOPSUMO_MODELS"
+"""environment variable naming the studies' model store (studies/model_store.py; unset or empty: results/models)"""
+
+
+def env_problem() -> str | None:
+    """Why a folder the environment names cannot be used ('$NAME ...', a line to follow 'error: '), or None: every
+    variable the package reads a folder from, checked like --nets-dir (nets_dir_problem) before a command starts."""
+    for name, may_be_empty in ((NETS_ENV, False), (STORE_ENV, True)):
+        value = os.environ.get(name)
+        if value is not None and not (may_be_empty and not value) and (problem := nets_dir_problem(value)):
+            return f"${name} {problem}"
+    return None

@@ -26,11 +26,10 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any, NoReturn
 
-from coopsumo.paths import nets_dir_problem, out_path_problem, outside_link
+from coopsumo.paths import NETS_ENV as NETS_ENV  # re-exported: sim.network and cli read it from here
+from coopsumo.paths import env_problem, out_path_problem, outside_link
 
 USAGE_EXIT = 2
-NETS_ENV = "COOPSUMO_NETS_DIR"
-"""environment variable naming the folder the SUMO networks are built into (read by sim.network)"""
 
 
 class UsageError(ValueError):
@@ -564,8 +563,8 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
     if problem := working_folder_problem():
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
-    if (nets := os.environ.get(NETS_ENV)) is not None and (problem := nets_dir_problem(nets)):
-        print(f"{prog}: error: ${NETS_ENV} {problem}", file=sys.stderr)
+    if problem := env_problem():  # $COOPSUMO_NETS_DIR, $COOPSUMO_MODELS
+        print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
     try:
         return body()

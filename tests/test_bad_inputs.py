@@ -8,6 +8,7 @@ from __future__ import annotations
 import copy
 import importlib
 import json
+import os
 import socket
 import subprocess
 import sys
@@ -531,3 +532,42 @@ def test_a_model_folder_no_policy_string_can_name_is_refused(module: str, how: s
     assert stop.value.code == 2 and len(err) == 1, err
     assert "--out" in err[0] and "without spaces" in err[0] and "my runs" in err[0], err[0]
     assert sorted(p.name for p in tmp_path.rglob("*")) == before
+
+
+# (variable, its value with {tmp} the test's folder and {out} the command's --out, fragments of the error line)
+ENV_ROWS = [
+    ("COOPSUMO_MODELS", "{tmp}/a_file", ("$COOPSUMO_MODELS", "a_file", "is a file")),
+    ("COOPSUMO_MODELS", "{tmp}/a,b", ("$COOPSUMO_MODELS", "without ','", "a,b")),
+    ("COOPSUMO_MODELS", "{tmp}/a:b", ("$COOPSUMO_MODELS", "without ':'", "a:b")),
+    ("COOPSUMO_MODELS", "{tmp}/read_only/store", ("$COOPSUMO_MODELS", "cannot be written")),
+    ("COOPSUMO_NETS_DIR", "{out}/nets", ("$COOPSUMO_NETS_DIR", "lies in --out")),
+    ("COOPSUMO_NETS_DIR", "{out}", ("$COOPSUMO_NETS_DIR", "lies in --out")),
+]
+
+
+@pytest.mark.parametrize("command", ["train", "scenario1", "scenario2"])
+@pytest.mark.parametrize(("name", "value", "fragments"), ENV_ROWS, ids=[f"{r[0]}={r[1]}" for r in ENV_ROWS])
+def test_environment_folders_are_checked_up_front(command: str, name: str, value: str, fragments: tuple[str, ...],
+                                                  tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Regression (issue 67): $COOPSUMO_MODELS naming a file, unwritable or holding a comma was found out only in
+    the cells' records after the study ran; $COOPSUMO_NETS_DIR inside train's --out was recorded as its own files."""
+    if name == "COOPSUMO_NETS_DIR" and command != "train":
+        pytest.skip("a study's networks folder inside its results folder is not refused")
+    (tmp_path / "a_file").write_text("the user's\n")
+    (tmp_path / "read_only").mkdir(mode=0o555)
+    if "read_only" in value and os.access(tmp_path / "read_only", os.W_OK):
+        pytest.skip("running as root: every folder can be written")
+    out = tmp_path / "out"
+    monkeypatch.setenv(name, value.format(tmp=tmp_path, out=out))
+    main = importlib.import_module(f"coopsumo.{command}").main
+    args = TRAIN if command == "train" else ["--profile", "tiny"] if command == "scenario2" else ["--quick"]
+    try:
+        code = main([*args, "--out", str(out)])
+    except SystemExit as stop:
+        code = int(stop.code or 0)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "error" in err[0] and all(f in err[0] for f in fragments), (fragments, err[0])
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "read_only"]
+    assert (tmp_path / "a_file").read_text() == "the user's\n"

@@ -29,6 +29,7 @@ from coopsumo.config import (
     SimConfig,
     TrainConfig,
 )
+from coopsumo.paths import NETS_ENV, STORE_ENV
 from coopsumo.runio import (
     STOP_SIGNALS,
     Parser,
@@ -68,12 +69,24 @@ def check_new_training(out: Path) -> None:
                          "--out, or remove the folder yourself")  # fmt: skip
 
 
-STORE_ENV = "COOPSUMO_MODELS"
-"""the variable naming the model store (studies/model_store.py, which this layer does not import)"""
 DEFAULT_STORE = Path("results") / "models"
 """the committed studies' model store"""
 STORE_NAME = re.compile(r".+_a[^_/]+_seed\d+_[0-9a-f]{12}")
 """the name of a model's folder in the store (model_store.model_id: <preset>_a<alpha>_seed<seed>_<digest>)"""
+
+
+def nets_problem(out: Path) -> str | None:
+    """Why `train` may not write `out`, or None: $COOPSUMO_NETS_DIR (its links resolved) is `out` or lies in it, so the
+    networks SUMO builds there would be taken for the training's own files (as `coopsumo --nets-dir D train --out D`
+    is refused)."""
+    nets = os.environ.get(NETS_ENV)
+    if not nets:
+        return None
+    real = Path(nets).expanduser().resolve()
+    if real.is_relative_to(out.resolve()):
+        return (f"${NETS_ENV} {nets} lies in --out {out}: the networks would fill the training folder; pick a "
+                "networks folder outside it")  # fmt: skip
+    return None
 
 
 def store_problem(out: Path) -> str | None:
@@ -357,7 +370,7 @@ def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
-        if args.out is not None and (problem := store_problem(args.out)):
+        if args.out is not None and (problem := store_problem(args.out) or nets_problem(args.out)):
             raise UsageError(problem)
         if args.out is not None:
             check_run_dir(args.out, "train")  # before anything is read, written or deleted
@@ -381,7 +394,7 @@ def _main(argv: list[str] | None) -> int:
             cfg = new_cfg
         out = args.out or default_out(cfg)
         check_out_path(out)  # also the default folder (a relative path when the current folder was deleted)
-        if problem := store_problem(out):
+        if problem := store_problem(out) or nets_problem(out):
             raise UsageError(problem)
         check_run_dir(out, "train")
         check_no_outside_link(out)

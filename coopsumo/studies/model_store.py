@@ -27,9 +27,9 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
+from coopsumo.paths import STORE_ENV
 from coopsumo.validation import number_name
 
-STORE_ENV = "COOPSUMO_MODELS"
 FIRST_TRAIN_SEED = 100
 """training seeds of the studies' models are 100, 101, ...: none of the evaluation seeds (1-5, 5000+) nor the
 validation seed"""
