@@ -14,7 +14,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
@@ -411,6 +411,38 @@ def test_mismatched_model_files_are_refused(meta: dict, fragment: str, tmp_path:
     out.parent.mkdir()
     code, err = _simulate([*SIM, "--policy", f"dqn:{model}", "--out", str(out)], capsys)
     _check(code, err, out, ("--policy", fragment))
+
+
+def _drop_first(weights: dict) -> None:
+    del weights[next(iter(weights))]
+
+
+def _add_key(weights: dict) -> None:
+    weights["extra.weight"] = torch.zeros(2)
+
+
+def _reshape_first(weights: dict) -> None:
+    weights[next(iter(weights))] = torch.zeros(3)
+
+
+@pytest.mark.parametrize(("change", "fragments"), [
+    (_drop_first, ('Missing key(s) in state_dict: "conv1.weight"',)),
+    (_add_key, ('Unexpected key(s) in state_dict: "extra.weight"',)),
+    (_reshape_first, ("size mismatch for conv1.weight", "torch.Size([3])")),
+], ids=["missing", "unexpected", "mismatched"])  # fmt: skip
+def test_incompatible_weights_name_a_key(change: Callable[[dict], None], fragments: tuple[str, ...], tmp_path: Path,
+                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Regression (issue 67): the line ended at torch's "Error(s) in loading state_dict for QNetwork:"."""
+    model = tmp_path / "models" / "model.pt"
+    model.parent.mkdir()
+    save_model(model, QNetwork(30.0), {"config": to_dict(TrainConfig())})
+    payload = torch.load(model, weights_only=True)
+    change(payload["state_dict"])
+    torch.save(payload, model)
+    out = tmp_path / "runs" / "out"
+    out.parent.mkdir()
+    code, err = _simulate([*SIM, "--policy", f"dqn:{model}", "--out", str(out)], capsys)
+    _check(code, err, out, ("--policy", "incompatible weights", *fragments))
 
 
 @pytest.mark.sumo

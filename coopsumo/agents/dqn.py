@@ -14,6 +14,7 @@ import hashlib
 import inspect
 import math
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Any, Protocol
@@ -446,10 +447,19 @@ class ModelFileError(ValueError):
 _MODEL_KEYS = ("state_dict", "grid_shape", "n_actions", "speed_scale_mps", "meta")
 
 
-def _first_line(exc: BaseException) -> str:
-    """The first line of an exception's message, or its type name if empty."""
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
+def load_error_text(exc: BaseException) -> str:
+    """The first line of an exception's message, or its type name if empty. torch's "Error(s) in loading state_dict
+    for QNetwork:" lists what did not fit on the lines below: the first of them is added, cut after its first key
+    ('Missing key(s) in state_dict: "value.weight" and more'), so the line names a key."""
+    lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+    if not lines:
+        return type(exc).__name__
+    if not (lines[0].endswith(":") and len(lines) > 1):
+        return lines[0]
+    detail = lines[1]
+    if (keys := re.match(r'((?:Missing|Unexpected) key\(s\) in state_dict: "[^"]*")(,)?', detail)) is not None:
+        detail = keys.group(1) + (" and more" if keys.group(2) else "")
+    return f"{lines[0]} {detail}"
 
 
 MAX_MODEL_BYTES = 512 * 2**20
@@ -505,7 +515,7 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
     try:
         payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a corrupt or unsafe file
-        text = _first_line(exc)
+        text = load_error_text(exc)
         if "weights_only" in text:  # torch's advice to load with weights_only=False is unsafe and wrong here
             text = "not a file of tensors torch can read safely"
         raise ModelFileError(f"cannot read model file {path}: {text}") from exc
@@ -530,7 +540,7 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
                        conditioned)  # fmt: skip
         net.load_state_dict(payload["state_dict"])
     except (RuntimeError, ValueError, TypeError) as exc:
-        raise ModelFileError(f"model {path} has incompatible weights: {_first_line(exc)}") from exc
+        raise ModelFileError(f"model {path} has incompatible weights: {load_error_text(exc)}") from exc
     if not isinstance(payload["meta"], dict):
         raise ModelFileError(f"model {path} has meta of type {type(payload['meta']).__name__}, expected a dict")
     stored = payload.get("weights_sha256")  # written since digests: the weights must be the ones saved

@@ -34,7 +34,7 @@ from tqdm import tqdm
 from coopsumo.agents import selection
 from coopsumo.agents.conditioning import conditioned_alphas
 from coopsumo.agents.decisions import ActionHold, offered
-from coopsumo.agents.dqn import Learner, save_model
+from coopsumo.agents.dqn import Learner, load_error_text, save_model
 from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
 from coopsumo.agents.file_checks import checkpoint_problem, ended_training, prepare_resume
@@ -477,7 +477,7 @@ def train(
         try:
             trainer.restore(Trainer.load_checkpoint(out))
         except (RuntimeError, KeyError, ValueError, TypeError) as err:  # weights, buffer or RNG of another shape
-            text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            text = load_error_text(err)  # torch's state_dict errors: with the first key that did not fit
             raise UsageError(f"checkpoint {trainer.checkpoint_path()} does not fit its configuration: {text}") from None
     else:
         mark_run_dir(out, "train", finished=False)
