@@ -445,6 +445,28 @@ def test_incompatible_weights_name_a_key(change: Callable[[dict], None], fragmen
     _check(code, err, out, ("--policy", "incompatible weights", *fragments))
 
 
+@pytest.mark.parametrize(("kind", "fragment"), [
+    ("fifo", "a FIFO (named pipe)"), ("folder", "a folder"), ("device", "a device"), ("missing", "not found"),
+])  # fmt: skip
+def test_a_model_that_is_not_a_regular_file_says_so(kind: str, fragment: str, tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Regression (issue 67): a FIFO given as the model read "model file not found"."""
+    model = tmp_path / "models" / "model.pt"
+    model.parent.mkdir()
+    if kind == "fifo":
+        os.mkfifo(model)
+    elif kind == "folder":  # dqn:models is models/model.pt, here a folder
+        model.mkdir()
+    elif kind == "device":
+        model = Path(os.devnull)
+    out = tmp_path / "runs" / "out"
+    out.parent.mkdir()
+    named = model.parent if kind == "folder" else model
+    code, err = _simulate([*SIM, "--policy", f"dqn:{named}", "--out", str(out)], capsys)
+    _check(code, err, out, ("--policy", str(model), fragment))
+    assert ("not a regular file" in err) == (kind != "missing"), err
+
+
 @pytest.mark.sumo
 def test_model_from_before_the_dueling_head_on_another_lane_count_is_driven_as_trained(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]

@@ -508,7 +508,12 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
     """Read a model written by save_model; raise ModelFileError naming the problem."""
     path = Path(path)
     if not path.is_file():
-        raise ModelFileError(f"model file not found: {path}")
+        if not path.exists():
+            raise ModelFileError(f"model file not found: {path}")
+        kinds = ((path.is_dir, "a folder"), (path.is_fifo, "a FIFO (named pipe)"), (path.is_socket, "a socket"),
+                 (path.is_char_device, "a device"), (path.is_block_device, "a device"))  # fmt: skip
+        kind = next((name for test, name in kinds if test()), "not a file")
+        raise ModelFileError(f"model file {path} is not a regular file but {kind}; give a model.pt a training wrote")
     if (size := path.stat().st_size) > MAX_MODEL_BYTES:
         raise ModelFileError(f"model file {path} is {size / 2**20:,.0f} MB; a coopsumo model is a few MB "
                              "(not a model?)")  # fmt: skip
