@@ -39,6 +39,7 @@ from coopsumo.runio import (
     check_run_dir,
     finish_run_dir,
     finished_run,
+    lock_path,
     out_lock,
     retrain_folder,
     run_cli,
@@ -360,6 +361,25 @@ def stopped(out: Path, target: Path, created: bool, signum: int) -> int:
     return 128 + signum
 
 
+def check_not_writing(out: Path) -> None:
+    """UsageError, as out_lock gives it, when another command holds out's lock now (a training running there);
+    creates nothing. Checked before the folder's contents are judged, which a running training changes."""
+    import fcntl
+
+    path = lock_path(out.resolve())
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        raise UsageError(f"another coopsumo command is writing {out.resolve()}; wait for it to end or pick another "
+                         "--out") from None  # fmt: skip
+    finally:
+        os.close(fd)
+
+
 def main(argv: list[str] | None = None) -> int:
     """`coopsumo train`; SIGINT and SIGTERM end it wherever it is (runio.stop_on_signals), with one line."""
     with stop_on_signals():
@@ -375,6 +395,7 @@ def _main(argv: list[str] | None) -> int:
         if args.out is not None:
             check_run_dir(args.out, "train")  # before anything is read, written or deleted
             check_no_outside_link(args.out)
+            check_not_writing(args.out)  # a training running there is not an interrupted one
             if not args.resume:
                 check_new_training(args.out)
         if args.resume and args.out is None:
