@@ -142,3 +142,29 @@ def test_a_non_ascii_out_under_a_utf8_locale_runs(tmp_path: Path) -> None:
                          capture_output=True, env=_with_locale("C.UTF-8"), timeout=120, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     assert (out / "summary.json").is_file()
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("damage", ["empty", "cut short", "garbage", "a lane removed", "another lane count"])
+def test_a_damaged_cached_network_is_built_again_once_with_a_line(
+    damage: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A cached .net.xml that is empty, cut short, not XML, missing a lane or another road's is rebuilt by netconvert
+    with one line naming it; an intact one is used as it is, without a line."""
+    from coopsumo.config import RoadConfig
+    from coopsumo.sim.network import build_net, net_problem
+
+    road = RoadConfig(lanes=3)
+    path = build_net(road, tmp_path)
+    good = path.read_text()
+    assert net_problem(path, road) is None and build_net(road, tmp_path) == path and capsys.readouterr().err == ""
+    spoiled = {"empty": "", "cut short": good[: len(good) // 2], "garbage": "\x00\x01 not xml at all",
+               "a lane removed": good.replace('<lane id="road_2"', '<lane id="road_x"'),
+               "another lane count": build_net(RoadConfig(lanes=2), tmp_path / "two").read_text()}[damage]
+    path.write_text(spoiled)
+    assert net_problem(path, road) is not None
+    assert build_net(road, tmp_path) == path
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and str(path) in err[0] and "building it again" in err[0], err
+    body = path.read_text()  # netconvert's header comment carries the time it ran
+    assert net_problem(path, road) is None and body[body.index("<net "):] == good[good.index("<net "):]

@@ -9,7 +9,9 @@ $XDG_CACHE_HOME/coopsumo/sumo_nets (~/.cache/coopsumo/sumo_nets). Nothing is wri
 from __future__ import annotations
 
 import os
+import re
 import subprocess
+import sys
 import tempfile
 from collections.abc import Mapping
 from pathlib import Path
@@ -86,7 +88,10 @@ def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
     stem = net_name(road)
     net_path = folder / f"{stem}.net.xml"
     if net_path.exists():
-        return net_path
+        problem = net_problem(net_path, road)
+        if problem is None:
+            return net_path
+        print(f"network {net_path} is damaged ({problem}): building it again", file=sys.stderr)
     nodes, edges = plain_xml(road)
     (folder / f"{stem}.nod.xml").write_text(nodes)
     (folder / f"{stem}.edg.xml").write_text(edges)
@@ -104,8 +109,26 @@ def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
     if result.returncode != 0:
         Path(tmp).unlink(missing_ok=True)
         raise RuntimeError(f"netconvert failed: {result.stderr.strip()}")
+    if problem := net_problem(Path(tmp), road):
+        Path(tmp).unlink(missing_ok=True)
+        raise RuntimeError(f"netconvert wrote a network that is not this road's: {problem}")
     os.replace(tmp, net_path)
     return net_path
+
+
+def net_problem(path: Path, road: RoadConfig) -> str | None:
+    """Why the cached network file at `path` is not a whole network of `road` (empty, cut short, garbage, another
+    number of lanes), or None. A cheap look: the file is a few kB, written atomically by build_net."""
+    try:
+        text = path.read_text(errors="replace")
+    except OSError as err:
+        return f"unreadable: {err.strerror}"
+    if not text.rstrip().endswith("</net>"):
+        return "empty or cut short" if len(text.strip()) < 20 or "<net" in text else "not a SUMO network"
+    lanes = re.findall(rf'<lane id="{EDGE_ID}_(\d+)"', text)
+    if sorted(map(int, lanes)) != list(range(road.lanes)):
+        return f"lanes {', '.join(lanes) or 'none'} instead of 0-{road.lanes - 1}"
+    return None
 
 
 def loop_id(pos_m: float, lane: int) -> str:
