@@ -5,10 +5,21 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
 from coopsumo.studies.robustness import paired_interval
+
+
+def fitted_points(path: Path) -> list[Any] | None:
+    """The points of the rule `adaptive-fit` wrote at path; None when there is none, or it is not such a rule (not
+    JSON, cut short, edited): the report then says the rule driven is not the one fitted there, instead of failing."""
+    try:
+        points = json.loads(path.read_text())["points"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return points if isinstance(points, list) else None
 
 
 def report(root: Path, runs: pd.DataFrame, star: pd.DataFrame, adaptive: pd.DataFrame) -> str:
@@ -17,8 +28,7 @@ def report(root: Path, runs: pd.DataFrame, star: pd.DataFrame, adaptive: pd.Data
     from coopsumo.agents.adaptive import DEFAULT_RULE
 
     rule = {"points": [list(p) for p in DEFAULT_RULE.points], "source": DEFAULT_RULE.source}
-    fitted = json.loads((root / "adaptive_rule.json").read_text()) if (root / "adaptive_rule.json").exists() else None
-    same = fitted is not None and fitted["points"] == rule["points"]
+    same = fitted_points(root / "adaptive_rule.json") == rule["points"]
     lines = [
         "# alpha=adaptive against fixed alphas on scenario II's conditions",
         "",
