@@ -63,15 +63,10 @@ def source_revision() -> str:
 
 def versions() -> dict[str, str]:
     """Versions of everything that shapes a result, with the source's git commit (source_revision)."""
-    return {
-        "coopsumo": package_version("coopsumo"),
-        "coopsumo_source": source_revision(),
-        "sumo": package_version("eclipse-sumo"),
-        "libsumo": package_version("libsumo"),
-        "torch": package_version("torch"),
-        "numpy": package_version("numpy"),
-        "python": platform.python_version(),
-    }
+    return {"coopsumo": package_version("coopsumo"), "coopsumo_source": source_revision(),
+            "sumo": package_version("eclipse-sumo"), "libsumo": package_version("libsumo"),
+            "torch": package_version("torch"), "numpy": package_version("numpy"),
+            "python": platform.python_version()}  # fmt: skip
 
 
 def _clean(obj: Any) -> Any:
@@ -577,7 +572,11 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
     except OSError as err:  # the system refused a file operation: one line naming the path and the problem
         print(f"{prog}: error: {os_error_text(err)}", file=sys.stderr)
         return USAGE_EXIT if err.errno in USER_ERRNOS else 1
-    except RuntimeError as err:  # Python 3.11's Path.resolve reports a loop of symbolic links so
+    except RuntimeError as err:  # Python 3.11's Path.resolve reports a loop of symbolic links so; torch a failed write
+        if "PytorchStreamWriter" in str(err) or "inline_container" in str(err):
+            print(f"{prog}: error: writing a model or checkpoint failed (is the disk full?): {first_line(err)}",
+                  file=sys.stderr)  # fmt: skip
+            return 1
         if not str(err).startswith("Symlink loop from "):
             raise
         print(f"{prog}: error: {str(err)[len('Symlink loop from '):]} goes through a loop of symbolic links",

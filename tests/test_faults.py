@@ -236,3 +236,18 @@ def test_resume_without_a_checkpoint_says_why_in_one_line(tmp_path: Path, capsys
     assert train.main(["--resume", "--quiet", "--out", str(out)]) == 2
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and "nothing to resume" in lines[0] and "has finished" in lines[0], lines
+
+
+@pytest.mark.skipif(not Path("/dev/full").exists(), reason="needs /dev/full (writes fail as on a full disk)")
+def test_a_model_write_on_a_full_disk_is_one_line(capsys: pytest.CaptureFixture[str]) -> None:
+    """torch reports a failed write (here to /dev/full, which answers every write as a full disk does) as a
+    RuntimeError of its own; the command boundary makes it one line with exit code 1, not a traceback."""
+    from coopsumo.runio import run_cli
+
+    def body() -> int:
+        torch.save({"weights": torch.zeros(10_000)}, "/dev/full")
+        return 0
+
+    assert run_cli("train", body) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("train: error: writing a model or checkpoint failed (is the disk full?)")
