@@ -143,6 +143,13 @@ def test_more_models_per_alpha_go_to_their_own_folder() -> None:
     assert study_out(replace(Plan(), train_seeds=tuple(range(100, 110)))) == Path("results/scenario1_10models")
     assert study_out(replace(Plan(), train_seeds=(100, 101, 102))) == Path("results/scenario1_3models")
     assert study_out(replace(Plan.quick(), train_seeds=(100,))) == Path("results/scenario1_quick")
+    # another learner never writes the default learner's folder, in any profile
+    alpha_only = replace(Plan(), presets=("alpha_only",), train_seeds=tuple(range(100, 110)))
+    assert study_out(alpha_only) == Path("results/scenario1_alpha_only_10models")
+    assert study_out(replace(Plan(), presets=("alpha_only",))) == Path("results/scenario1_alpha_only")
+    assert study_out(replace(Plan.full(), presets=("alpha_only",))) == Path("results/scenario1_full_alpha_only")
+    assert study_out(replace(Plan.quick(), presets=("default", "paper"))) == Path(
+        "results/scenario1_quick_default_paper")  # fmt: skip
 
 
 def _digests(folder: Path) -> dict[str, str]:

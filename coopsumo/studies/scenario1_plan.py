@@ -171,8 +171,10 @@ def study_out(plan: Plan) -> Path:
     and with other learner presets results/scenario1_<presets>[_<K>models], so that a larger replication or another
     learner never replaces the committed report."""
     k = len(plan.train_seeds)
-    if plan.profile == Plan().profile and plan.presets != Plan().presets:  # another learner: never the default's report
-        return Path("results") / f"scenario1_{'_'.join(plan.presets)}{f'_{k}models' if k != len(TRAIN_SEEDS) else ''}"
+    if plan.presets != Plan().presets:  # another learner: never the default learner's folder, in any profile
+        profile = "" if plan.profile == Plan().profile else f"{plan.profile}_"
+        return Path("results") / f"scenario1_{profile}{'_'.join(plan.presets)}" \
+            f"{f'_{k}models' if plan.profile == Plan().profile and k != len(TRAIN_SEEDS) else ''}"  # fmt: skip
     if plan.profile == Plan().profile and k != len(Plan().train_seeds):
         return Path("results") / f"scenario1_{k}models"
     return default_out("scenario1", plan.profile, Plan().profile)
