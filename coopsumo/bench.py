@@ -29,7 +29,7 @@ from coopsumo.agents.policies import make_policy
 from coopsumo.agents.rollout import run
 from coopsumo.config import DQN_PRESETS, AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.runio import Parser, working_folder_problem
-from coopsumo.sim.observation import snapshot
+from coopsumo.sim import fast
 from coopsumo.sim.physics import occupancy
 
 
@@ -103,13 +103,16 @@ def bench_training(steps: int, preset: str = "default") -> float:
 
 
 def bench_training_ratio(steps: int) -> tuple[float, float, float]:
-    """(wall s of a default training of `steps` steps with its updates in a second process, the same serially,
-    the same steps of the same worlds driven by `keep`): the default learner and schedule (validation included,
-    no final evaluation), training seed 1; keep drives each of the training's episodes (agents/episodes.py) for
-    as many steps as the training spends in it. Wall times: the pipelined training uses both cores."""
+    """training_against_keep for the default learner and schedule (validation included, no final evaluation),
+    training seed 1. Wall times: the pipelined training uses both cores."""
+    return training_against_keep(TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), eval_steps=0))
+
+
+def training_against_keep(cfg: TrainConfig) -> tuple[float, float, float]:
+    """(wall s of the training cfg with its updates in a second process, the same serially, `keep` on the same worlds
+    and steps: keep_on_training_worlds)."""
     from coopsumo.agents.train import train
 
-    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), eval_steps=0)
     walls = []
     for process in (True, False):
         with tempfile.TemporaryDirectory() as tmp:
@@ -136,20 +139,15 @@ def keep_on_training_worlds(cfg: TrainConfig) -> float:
     return time.perf_counter() - start
 
 
-def bench_learn_ratio(steps: int) -> tuple[float, float, float]:
-    """(wall s of a default training of `steps` steps without model selection, updates in a second process; the same
-    serially; `keep` on the same worlds and steps): training seed 1, no final evaluation."""
-    from coopsumo.agents.train import train
+def without_selection(steps: int) -> TrainConfig:
+    """A default training of `steps` steps, training seed 1, without model selection or final evaluation."""
+    dqn = replace(DQN_PRESETS["default"], select_every_steps=0)
+    return TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), dqn=dqn, eval_steps=0)
 
-    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), dqn=replace(DQN_PRESETS["default"],
-                      select_every_steps=0), eval_steps=0)  # fmt: skip
-    walls = []
-    for process in (True, False):
-        with tempfile.TemporaryDirectory() as tmp:
-            start = time.perf_counter()
-            train(cfg, Path(tmp) / "train", progress=False, learner_process=process)
-            walls.append(time.perf_counter() - start)
-    return walls[0], walls[1], keep_on_training_worlds(cfg)
+
+def bench_learn_ratio(steps: int) -> tuple[float, float, float]:
+    """training_against_keep for a default training without model selection (without_selection)."""
+    return training_against_keep(without_selection(steps))
 
 
 def scaled_selection(steps: int) -> TrainConfig:
@@ -217,9 +215,7 @@ def bench_model(steps: int, folder: Path) -> Path:
     folder; returns its model.pt."""
     from coopsumo.agents.train import train
 
-    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=1, policy="dqn"), dqn=replace(DQN_PRESETS["default"],
-                      select_every_steps=0), eval_steps=0)  # fmt: skip
-    train(cfg, folder, progress=False, learner_process=True)
+    train(without_selection(steps), folder, progress=False, learner_process=True)
     return folder / "model.pt"
 
 
@@ -231,7 +227,7 @@ def bench_decision(n_vehicles: int, repeats: int = 200) -> tuple[float, float]:
     occ = occupancy(lane, pos, np.full(n_vehicles, -1))
     start = time.perf_counter()
     for _ in range(repeats):
-        snapshot(occ, lane, pos, 3, 4.0)
+        fast.snapshot(occ, lane, pos, 3, 4.0)
     grid_us = (time.perf_counter() - start) / repeats / n_vehicles * 1e6
     from coopsumo.agents.dqn import Learner
     from coopsumo.config import DQNConfig
