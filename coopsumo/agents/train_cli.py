@@ -41,9 +41,11 @@ from coopsumo.runio import (
     finished_run,
     lock_path,
     out_lock,
+    release_lock,
     retrain_folder,
     run_cli,
     stop_on_signals,
+    try_lock,
 )
 from coopsumo.validation import (
     MAX_STEPS,
@@ -363,21 +365,15 @@ def stopped(out: Path, target: Path, created: bool, signum: int) -> int:
 
 def check_not_writing(out: Path) -> None:
     """UsageError, as out_lock gives it, when another command holds out's lock now (a training running there);
-    creates nothing. Checked before the folder's contents are judged, which a running training changes."""
-    import fcntl
-
+    checked before the folder's contents are judged, which a running training changes."""
     path = lock_path(out.resolve())
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:
+    if not path.exists():  # a lock file lives only while it is held
         return
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
+    fd = try_lock(path)
+    if fd is None:
         raise UsageError(f"another coopsumo command is writing {out.resolve()}; wait for it to end or pick another "
-                         "--out") from None  # fmt: skip
-    finally:
-        os.close(fd)
+                         "--out")  # fmt: skip
+    release_lock(fd, path)
 
 
 def main(argv: list[str] | None = None) -> int:
