@@ -58,19 +58,6 @@ static PyObject *section_crossings(PyObject *Py_UNUSED(self), PyObject *const *a
     return PyLong_FromSsize_t(count);
 }
 
-/* numpy.searchsorted(keys, x, side="left"): the first index whose key is at least x */
-static inline Py_ssize_t search_left(const double *keys, Py_ssize_t m, double x) {
-    Py_ssize_t lo = 0, hi = m;
-    while (lo < hi) {
-        Py_ssize_t mid = lo + (hi - lo) / 2;
-        if (keys[mid] < x)
-            lo = mid + 1;
-        else
-            hi = mid;
-    }
-    return lo;
-}
-
 /* followers_mean(occ_keys, occ_value, lane, other_lane, pos, window_m, out): reward.followers_mean into out, per
  * vehicle the mean value of the occupancy entries behind it within window_m in its own lane and, while it changes
  * lanes, in the second lane; 0 where there is none. The same sums in the same order: a running sum of the values

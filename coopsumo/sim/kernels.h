@@ -58,6 +58,19 @@ static inline Py_ssize_t search_right(const double *keys, Py_ssize_t m, double x
     return lo;
 }
 
+/* numpy.searchsorted(keys, x, side="left"): the first index whose key is at least x */
+static inline Py_ssize_t search_left(const double *keys, Py_ssize_t m, double x) {
+    Py_ssize_t lo = 0, hi = m;
+    while (lo < hi) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;
+        if (keys[mid] < x)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
 /* physics.occupancy of n vehicles into keys, occ_lane, occ_pos, occ_veh (room for n plus the changers): every
  * (vehicle, lane) pair, sorted by key, stable. Returns the number of pairs m, or -1 when out of memory. */
 static inline Py_ssize_t build_occupancy(Py_ssize_t n, const int64_t *lane, const double *pos, const int64_t *other,
