@@ -120,6 +120,23 @@ STORE_ENV = "COOPSUMO_MODELS"
 """environment variable naming the studies' model store (studies/model_store.py; unset or empty: results/models)"""
 
 
+def nets_in_out_problem(out: Path) -> str | None:
+    """Why `out` may not be written while $COOPSUMO_NETS_DIR (its links resolved) is `out` or lies in it (a phrase to
+    follow the flag, runio.check_out_path), or None: the networks SUMO builds there would be taken for the command's
+    own files (as `coopsumo --nets-dir D COMMAND --out D` is refused)."""
+    nets = os.environ.get(NETS_ENV)
+    if not nets:
+        return None
+    try:
+        real, target = Path(nets).expanduser().resolve(), out.resolve()
+    except (RuntimeError, OSError):  # a loop of links: out_path_problem and env_problem name it
+        return None
+    if not real.is_relative_to(target):
+        return None
+    return (f"{out} {'is' if real == target else 'holds'} the networks folder ${NETS_ENV} {nets}: the networks SUMO "
+            "builds would fill the output folder; pick a networks folder outside it")  # fmt: skip
+
+
 def env_problem() -> str | None:
     """Why a folder the environment names cannot be used ('$NAME ...', a line to follow 'error: '), or None: every
     variable the package reads a folder from, checked like --nets-dir (nets_dir_problem) before a command starts."""

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from coopsumo.paths import NETS_ENV as NETS_ENV  # re-exported: sim.network and cli read it from here
-from coopsumo.paths import env_problem, out_path_problem, outside_link
+from coopsumo.paths import env_problem, nets_in_out_problem, out_path_problem, outside_link
 
 USAGE_EXIT = 2
 
@@ -236,8 +236,9 @@ def study_root(root: Path, kind: str, own: Sequence[str]) -> Iterator[Path]:
 
 # -- output paths ---------------------------------------------------------------------------------------
 def check_out_path(out: Path, flag: str = "--out") -> None:
-    """UsageError naming `flag` when out_path_problem faults `out`."""
-    problem = out_path_problem(out)
+    """UsageError naming `flag` when out_path_problem faults `out` or $COOPSUMO_NETS_DIR lies in it
+    (nets_in_out_problem): every command's --out and every study's root, given or default."""
+    problem = out_path_problem(out) or nets_in_out_problem(out)
     if problem:
         raise UsageError(f"{flag} {problem}")
 

@@ -274,6 +274,16 @@ def model_out_dir(text: str) -> Path:
     return path
 
 
+def default_model_out(default: Path) -> Path:
+    """The folder a command of model_out_dir writes when --out is not given (its default, resolved from the current
+    folder), checked as model_out_dir checks a given one: UsageError when SUMO cannot take it (out_path_problem) or a
+    policy string could not name its models (policy_path_problem: a project cloned into a path with a space)."""
+    problem = out_path_problem(default) or policy_path_problem(default)
+    if problem:
+        raise UsageError(f"--out not given, and its default {default} {problem}; name another folder with --out")
+    return default
+
+
 def workers(text: str) -> int:
     """`type=` of a --workers flag: 1 to four per core."""
     return integer(1, max_workers(), f" (4 per core; this machine has {os.cpu_count() or 1})")(text)

@@ -594,14 +594,11 @@ ENV_ROWS = [
     ("COOPSUMO_MODELS", "{tmp}/a,b", ("$COOPSUMO_MODELS", "without ','", "a,b")),
     ("COOPSUMO_MODELS", "{tmp}/a:b", ("$COOPSUMO_MODELS", "without ':'", "a:b")),
     ("COOPSUMO_MODELS", "{tmp}/read_only/store", ("$COOPSUMO_MODELS", "cannot be written")),
-    ("COOPSUMO_NETS_DIR", "{out}/nets", ("$COOPSUMO_NETS_DIR", "lies in --out")),
-    ("COOPSUMO_NETS_DIR", "{out}", ("$COOPSUMO_NETS_DIR", "lies in --out")),
 ]
 
 
-ENV_CASES = [(command, *row) for command in ("train", "scenario1", "scenario2") for row in ENV_ROWS
-             if row[0] != "COOPSUMO_NETS_DIR" or command == "train"]  # fmt: skip
-"""every command with every $COOPSUMO_MODELS row; the networks folder inside --out is train's (its own files)"""
+ENV_CASES = [(command, *row) for command in ("train", "scenario1", "scenario2") for row in ENV_ROWS]
+"""every command with every $COOPSUMO_MODELS row ($COOPSUMO_NETS_DIR inside --out: test_networks_inside_out_...)"""
 
 
 @pytest.mark.parametrize(("command", "name", "value", "fragments"), ENV_CASES,
@@ -610,7 +607,7 @@ def test_environment_folders_are_checked_up_front(command: str, name: str, value
                                                   tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """Regression (issue 67): $COOPSUMO_MODELS naming a file, unwritable or holding a comma was found out only in
-    the cells' records after the study ran; $COOPSUMO_NETS_DIR inside train's --out was recorded as its own files."""
+    the cells' records after the study ran."""
     (tmp_path / "a_file").write_text("the user's\n")
     (tmp_path / "read_only").mkdir(mode=0o555)
     if "read_only" in value and os.access(tmp_path / "read_only", os.W_OK):
@@ -628,3 +625,78 @@ def test_environment_folders_are_checked_up_front(command: str, name: str, value
     assert "error" in err[0] and all(f in err[0] for f in fragments), (fragments, err[0])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "read_only"]
     assert (tmp_path / "a_file").read_text() == "the user's\n"
+
+
+OUT_COMMANDS: dict[str, list[str]] = {
+    "train": TRAIN, "simulate": SIM, "scenario1": ["--quick"], "scenario2": ["--profile", "tiny"],
+    "learning": ["--profile", "tiny"], "protocol": ["--profile", "tiny"], "regime-map": ["--seeds", "1"],
+    "accident-seeds": ["study", "--variants", "margin"],
+}  # fmt: skip
+"""every command that writes an --out, with arguments that would run it (accident-seeds: a learning study in study/,
+relative to the test's folder)"""
+NETS_CASES = [(command, where) for command in OUT_COMMANDS for where in ("{out}/nets", "{out}", "{link}/nets")]
+
+
+def _command_main(command: str, argv: list[str]) -> int:
+    """`coopsumo COMMAND ARGV` in this process: its exit code (argparse's too)."""
+    from coopsumo.cli import COMMANDS
+
+    try:
+        return int(importlib.import_module(COMMANDS[command][0]).main(argv))
+    except SystemExit as stop:
+        return int(stop.code or 0)
+
+
+def _listing(folder: Path) -> dict[str, int]:
+    """Every file and folder under folder with its modification time: equal before and after means nothing written."""
+    return {p.relative_to(folder).as_posix(): p.lstat().st_mtime_ns for p in folder.rglob("*")}
+
+
+@pytest.mark.parametrize(("command", "where"), NETS_CASES, ids=[f"{c}-{w}" for c, w in NETS_CASES])
+def test_networks_inside_out_are_refused_up_front_by_every_command(command: str, where: str, tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """Regression (issue 67): $COOPSUMO_NETS_DIR inside a study's --out (as given, or through a link) was taken:
+    the networks SUMO builds would be written among the study's own files. Every command that writes an --out
+    refuses it as train does, in one line, exit code 2, nothing written."""
+    from test_study_commands import learning_folder
+
+    monkeypatch.chdir(tmp_path)
+    learning_folder(tmp_path / "study", ("margin",))
+    out = tmp_path / "out"
+    (tmp_path / "link").symlink_to(out, target_is_directory=True)  # leads into --out, which does not exist yet
+    nets = where.format(out=out, link=tmp_path / "link")
+    monkeypatch.setenv("COOPSUMO_NETS_DIR", nets)
+    before = _listing(tmp_path)
+    code = _command_main(command, [*OUT_COMMANDS[command], "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "error: --out" in err[0] and f"$COOPSUMO_NETS_DIR {nets}:" in err[0], err[0]
+    assert "pick a networks folder outside it" in err[0] and "Traceback" not in err[0]
+    assert _listing(tmp_path) == before
+
+
+MODEL_COMMAND_ARGS = {name: OUT_COMMANDS[name] for name in ("train", "scenario1", "scenario2", "learning",
+                                                            "protocol", "accident-seeds")}  # fmt: skip
+"""the commands whose --out holds models a policy string names (MODEL_COMMANDS), run without --out"""
+
+
+@pytest.mark.parametrize("command", MODEL_COMMAND_ARGS)
+def test_a_default_out_no_policy_string_can_name_is_refused(command: str, tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Regression (issue 67): a project cloned into a path with a space, the command run there without --out: its
+    default results/... folder holds the space, so no policy string (dqn:PATH) could name the models trained there.
+    Refused as a given --out with a space is, before anything is written."""
+    from test_study_commands import learning_folder
+
+    project = tmp_path / "my project"
+    learning_folder(project / "study", ("margin",))
+    monkeypatch.chdir(project)
+    before = _listing(tmp_path)
+    code = _command_main(command, MODEL_COMMAND_ARGS[command])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert "error: --out not given, and its default" in err[0] and "without spaces" in err[0], err[0]
+    assert str(project) in err[0] and "Traceback" not in err[0]
+    assert _listing(tmp_path) == before

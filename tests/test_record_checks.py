@@ -1,18 +1,22 @@
 """Issue 67, read-back checks that look inside, for cell records: a scenario II (or ablation) record whose summary
 or one of its evaluations was edited is not what its evaluations pool to and is rerun; a cell of accident-seeds or
 diagnose is tied to the model file it drives (its sha256) and is rerun, with one line, when the file was replaced or
-cut short since. An intact record is reused and left as it was."""
+cut short since; a scenario II record whose train/ link was pointed at another model is rerun, the link put back.
+An intact record is reused and left as it was."""
 
 from __future__ import annotations
 
 import json
 import os
+import shutil
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+import pandas as pd
 import pytest
+import test_scenario2
 from test_study_commands import cell_times, coopsumo, learning_folder
 
 from coopsumo.studies import accident_seeds, scenario1, scenario2
@@ -103,6 +107,47 @@ def test_an_intact_record_is_reused_untouched(dqn_spec: dict[str, Any], tmp_path
     assert capsys.readouterr().err == ""
     assert {p.name: p.read_bytes() for p in (tmp_path / "cells").iterdir()} == before
     assert checked_record(_record(dqn_spec), scenario2.REQUIRED_SUMMARY)["status"] == "ok"
+
+
+# -- a scenario II record whose model link was moved ------------------------------------------------------------
+faked_train = test_scenario2.faked_train
+"""train() and the evaluations faked (no SUMO), as scenario II's own record tests run them"""
+
+
+def test_a_train_link_pointed_at_another_model_is_rerun(tmp_path: Path, faked_train: list[str],
+                                                       capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Regression (issue 67): a condition's train/<key> link (into the model store) that a user pointed at another
+    model was kept, and the cell's record reused. The cell is run again with one line, and its link leads to its own
+    model once more; the folder the user pointed it at is left as it was, byte for byte."""
+    root = tmp_path / "sweep"
+    assert scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)["cells_ok"] == 8
+    first = pd.read_csv(root / "alpha_star.csv")
+    train = root / "train"
+    own = {p.name: p.resolve() for p in train.iterdir()}
+    mine = tmp_path / "mine"  # a training folder of the user's: another name than the store's
+    shutil.copytree(own["L2_T4_a0_s2"], mine)
+    edited = tmp_path / "copy" / own["L2_T4_a8_s2"].name  # the model's name, another training's config.json
+    shutil.copytree(own["L2_T4_a8_s2"], edited)
+    config = json.loads(cell_path(root, "L2_T2_a0_s1").read_text())["config"]["train"]
+    (edited / "config.json").write_text(json.dumps({"config": config}))
+    pointed = {"L2_T2_a8_s1": own["L2_T2_a0_s1"], "L2_T4_a0_s2": mine, "L2_T4_a8_s2": edited,
+               "L2_T2_a0_s2": tmp_path / "gone"}  # fmt: skip
+    for key, target in pointed.items():
+        (train / key).unlink()
+        (train / key).symlink_to(target, target_is_directory=True)
+    before = {p: p.read_bytes() for p in [*mine.rglob("*"), *edited.parent.rglob("*")] if p.is_file()}
+    capsys.readouterr()
+    del faked_train[1:]
+    meta = scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)
+    err = capsys.readouterr().err.splitlines()
+    assert sorted(faked_train[1:]) == sorted(pointed)  # exactly the cells whose link was moved ran again
+    for key in pointed:
+        lines = [line for line in err if f"cell {key}: {train / key} leads to" in line]
+        assert len(lines) == 1 and lines[0].endswith("; rerunning it"), err
+    assert "4 already done" in "\n".join(err) and meta["cells_ok"] == 8 and meta["cells_run"] == 4
+    assert {p.name: p.resolve() for p in train.iterdir()} == own
+    assert {p: p.read_bytes() for p in before} == before
+    pd.testing.assert_frame_equal(pd.read_csv(root / "alpha_star.csv"), first)
 
 
 # -- a cell tied to the model file it drives ------------------------------------------------------------------------

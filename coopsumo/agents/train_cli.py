@@ -29,7 +29,7 @@ from coopsumo.config import (
     SimConfig,
     TrainConfig,
 )
-from coopsumo.paths import NETS_ENV, STORE_ENV
+from coopsumo.paths import STORE_ENV
 from coopsumo.runio import (
     STOP_SIGNALS,
     Parser,
@@ -52,6 +52,7 @@ from coopsumo.validation import (
     alpha,
     alpha_list,
     check_t_up,
+    default_model_out,
     integer,
     model_out_dir,
     number,
@@ -76,20 +77,6 @@ DEFAULT_STORE = Path("results") / "models"
 """the committed studies' model store"""
 STORE_NAME = re.compile(r".+_a[^_/]+_seed\d+_[0-9a-f]{12}")
 """the name of a model's folder in the store (model_store.model_id: <preset>_a<alpha>_seed<seed>_<digest>)"""
-
-
-def nets_problem(out: Path) -> str | None:
-    """Why `train` may not write `out`, or None: $COOPSUMO_NETS_DIR (its links resolved) is `out` or lies in it, so the
-    networks SUMO builds there would be taken for the training's own files (as `coopsumo --nets-dir D train --out D`
-    is refused)."""
-    nets = os.environ.get(NETS_ENV)
-    if not nets:
-        return None
-    real = Path(nets).expanduser().resolve()
-    if real.is_relative_to(out.resolve()):
-        return (f"${NETS_ENV} {nets} lies in --out {out}: the networks would fill the training folder; pick a "
-                "networks folder outside it")  # fmt: skip
-    return None
 
 
 def store_problem(out: Path) -> str | None:
@@ -386,9 +373,10 @@ def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
-        if args.out is not None and (problem := store_problem(args.out) or nets_problem(args.out)):
+        if args.out is not None and (problem := store_problem(args.out)):
             raise UsageError(problem)
         if args.out is not None:
+            check_out_path(args.out)  # $COOPSUMO_NETS_DIR inside it too (paths.nets_in_out_problem)
             check_run_dir(args.out, "train")  # before anything is read, written or deleted
             check_no_outside_link(args.out)
             check_not_writing(args.out)  # a training running there is not an interrupted one
@@ -409,9 +397,9 @@ def _main(argv: list[str] | None) -> int:
             check_resume_flags(argv, cfg)
         else:
             cfg = new_cfg
-        out = args.out or default_out(cfg)
+        out = args.out or default_model_out(default_out(cfg))  # checked as a given --out is
         check_out_path(out)  # also the default folder (a relative path when the current folder was deleted)
-        if problem := store_problem(out) or nets_problem(out):
+        if problem := store_problem(out):
             raise UsageError(problem)
         check_run_dir(out, "train")
         check_no_outside_link(out)

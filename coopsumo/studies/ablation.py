@@ -45,7 +45,7 @@ from coopsumo.studies.ablation_report import write_outputs
 from coopsumo.studies.records import failed_exit
 from coopsumo.studies.run_folders import default_out, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import alpha_list, model_out_dir, number_name, seed_count, workers
+from coopsumo.validation import alpha_list, default_model_out, model_out_dir, number_name, seed_count, workers
 
 
 # -- one cell (in a worker process) ----------------------------------------------------------------
@@ -215,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         profile = profile_from_args(args)
         check_backend(args.backend, args.address)
         if args.out is None:
-            args.out = default_out("learning", profile.name, "full")
+            args.out = default_model_out(default_out("learning", profile.name, "full"))
         with study_root(args.out, "ablation"):  # path, lock, ownership and marker of the results folder
             meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip

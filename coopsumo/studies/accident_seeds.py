@@ -33,7 +33,16 @@ from coopsumo.studies.learning_models import finished_trainings
 from coopsumo.studies.records import failed_exit, model_fields
 from coopsumo.studies.runner import check_backend
 from coopsumo.studies.scenario1_plan import Plan, accident_config
-from coopsumo.validation import MAX_STEPS, alpha_list, integer, model_out_dir, number_name, seed_count, t_up_list
+from coopsumo.validation import (
+    MAX_STEPS,
+    alpha_list,
+    default_model_out,
+    integer,
+    model_out_dir,
+    number_name,
+    seed_count,
+    t_up_list,
+)
 
 ACCIDENT_SEED_OFFSET = 2000
 """a model trained on seed s meets the accident on seed ACCIDENT_SEED_OFFSET + s (baselines too)"""
@@ -206,7 +215,7 @@ def main(argv: list[str] | None = None) -> int:
         plan = Plan.quick() if args.quick else Plan()
         if args.steps is not None:
             plan = accident_runs.scaled(plan, args.steps / plan.steps)
-        out = args.out if args.out is not None else args.roots[0] / "accident"
+        out = args.out if args.out is not None else default_model_out(args.roots[0] / "accident")
         with claim_study_root(out, "accident_seeds", (*OUTPUTS, "*.tmp")):  # path, lock, ownership and marker
             return run_study(found, t_ups, out, plan, args.adaptive, args.workers, args.backend, args.address,
                              progress=not args.quiet)  # fmt: skip

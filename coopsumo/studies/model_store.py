@@ -174,6 +174,29 @@ def check_link(link: Path) -> None:
                          "and is left alone; move it away and run the study again")  # fmt: skip
 
 
+def link_problem(link: Path, config: dict[str, Any]) -> str | None:
+    """Why the study's model link `link` (train/<key>, models/<name>) does not lead to the model of the training
+    `config`, or None: it leads to no folder, to a folder not named for this training (model_id: another model, a
+    training folder of the user's) or to one whose config.json records another training (identity; a config.json
+    that is missing or unreadable is finished_training's to judge when the model is used). A study reusing a result
+    of that model runs it again, which makes the link lead to its model once more (_link). Not a link: None (a real
+    folder there is check_link's)."""
+    if not link.is_symlink():
+        return None
+    target = link.resolve()
+    if not target.is_dir():
+        return f"leads to {target}, which is not a folder (the stored model moved or removed?)"
+    if target.name != (name := model_id(config)):
+        return f"leads to {target}, not to {name}, the model of its training (pointed at another model?)"
+    try:
+        recorded = json.loads((target / "config.json").read_text())["config"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if identity(recorded) != identity(config):
+        return f"leads to {target}, whose config.json records another training than its name (edited?)"
+    return None
+
+
 def _link(link: Path, folder: Path) -> None:
     """link -> folder (absolute), replacing a link to elsewhere (never anything else: check_link); a race with
     another cell is harmless. The temporary link it is made as is removed if that fails."""

@@ -41,7 +41,7 @@ from coopsumo.studies.protocol_plan import (
 from coopsumo.studies.records import failed_exit
 from coopsumo.studies.run_folders import default_out, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend
-from coopsumo.validation import model_out_dir, workers
+from coopsumo.validation import default_model_out, model_out_dir, workers
 
 # -- one cell (in a worker process) ----------------------------------------------------------------
 FIELDS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key")
@@ -185,7 +185,7 @@ def main(argv: list[str] | None = None) -> int:
             raise UsageError(f"--workers must be positive, got {args.workers}")
         check_backend(args.backend, args.address)
         if args.out is None:
-            args.out = default_out("learner_protocol", args.profile, OLDEST)
+            args.out = default_model_out(default_out("learner_protocol", args.profile, OLDEST))
         with study_root(args.out, "protocol"):
             meta = run_study(PROFILES[args.profile], args.out, args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip

@@ -48,6 +48,7 @@ from coopsumo.validation import (
     MAX_STEPS,
     MOBIL_LIMITS,
     alpha_list,
+    default_model_out,
     distinct_list,
     integer,
     model_out_dir,
@@ -202,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
             raise UsageError(f"workers must be >= 1, got {args.workers}")
         check_backend(args.backend, args.address)
         if args.out is None:
-            args.out = study_out(plan)
+            args.out = default_model_out(study_out(plan))
         if (other := recorded_profile(args.out)) not in (None, plan.profile):
             raise UsageError(f"{args.out} holds the {other} profile's study; the {plan.profile} profile writes into "
                              f"its own folder (default {study_out(plan)})")

@@ -18,7 +18,7 @@ atomically to OUT/cells/<key>.json the moment it ends; a rerun skips finished ce
 retries failed ones; a training interrupted by SIGTERM/SIGINT is resumed from its checkpoint.
 
 Outputs in OUT (default results/scenario2): sweep.json, cells/, train/<key>/, evals/<key>/, runs.csv, evals.csv,
-alpha_star.csv, fig6_alpha_star.png, fig6_speed_heatmap.png, report.md; with MOBIL cells also
+alpha_star.csv, fig6_alpha_star_lanes.png, fig6_speed_heatmap.png, report.md; with MOBIL cells also
 mobil/<key>/ and mobil_p_star.csv.
 
 On a Ray cluster (--address), every node needs this package (same versions) and OUT must be on a
@@ -42,7 +42,7 @@ import pandas as pd
 
 from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
 from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
-from coopsumo.studies.model_store import store_for, train_shared
+from coopsumo.studies.model_store import link_problem, store_for, train_shared
 from coopsumo.studies.records import (
     CellRecords,
     cell_path,
@@ -70,6 +70,7 @@ from coopsumo.validation import (
     MAX_T_UP_S,
     MOBIL_LIMITS,
     alpha_list,
+    default_model_out,
     integer,
     min_t_up_s,
     model_out_dir,
@@ -164,6 +165,21 @@ def _run_mobil(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
     record["summary"] = simulate_into(spec["config"], root / "mobil" / spec["key"], spec["key"])
 
 
+def repointed(root: Path, specs: list[dict[str, Any]]) -> set[str]:
+    """The DQN cells of `specs` (records otherwise reusable) whose train/ link no longer leads to their model
+    (model_store.link_problem: a user pointed it at another model): the record stands for a model the link does not
+    show, so the cell is run again (it links its model back), each with one line saying why."""
+    keys = set()
+    for spec in specs:
+        if spec.get("policy") == "mobil":
+            continue
+        link = root / "train" / spec.get("train_key", spec["key"])
+        if problem := link_problem(link, spec["config"]["train"]):
+            print(f"scenario2: cell {spec['key']}: {link} {problem}; rerunning it", file=sys.stderr)
+            keys.add(spec["key"])
+    return keys
+
+
 def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers: int = 1,
               address: str | None = None, progress: bool = True, n_boot: int = 1000) -> dict[str, Any]:  # fmt: skip
     """Run (or finish) the sweep in `root` and write every output; returns the sweep.json content."""
@@ -176,6 +192,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile)
     done_keys = reusable_keys(root, specs, "scenario2", REQUIRED_SUMMARY)
+    done_keys -= repointed(root, [s for s in specs if s["key"] in done_keys])
     done = [s for s in specs if s["key"] in done_keys]
     todo = [s for s in specs if s["key"] not in done_keys]
     retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
@@ -351,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
         check_backend(args.backend, args.address)
         if args.out is None:
             name = "scenario2_conditioned" if profile.conditioned else "scenario2"
-            args.out = default_out(name, profile.name, DEFAULT_PROFILE)
+            args.out = default_model_out(default_out(name, profile.name, DEFAULT_PROFILE))
         with study_root(args.out, "scenario2"):  # path, lock, ownership and marker of the results folder
             meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet,
                              args.bootstrap)  # fmt: skip
