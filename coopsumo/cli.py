@@ -29,6 +29,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "diagnose": ("coopsumo.studies.diagnosis", "the Q-value margins behind a learning study's models' choices"),
     "adaptive-fit": ("coopsumo.studies.adaptive_fit", "fit the adaptive-alpha rule on a scenario2 --conditioned sweep"),
     "adaptive": ("coopsumo.studies.adaptive_alpha", "alpha=adaptive against the best fixed alpha, conditioned sweep"),
+    "history": ("coopsumo.studies.history", "write the learner search's table from the protocol studies' records"),
     "models": ("coopsumo.studies.model_store", "list the model store: every trained model and whether it is usable"),
     "bench": ("coopsumo.bench", "speed figures (printed, not asserted)"),
 }

@@ -18,8 +18,9 @@ from conftest import committed_report_pages
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 TEXT = {page: page.read_text() for page in PAGES}
-STUDIES = ("scenario1", "scenario2", "learning", "protocol")
-"""run in tests/test_scenario1.py, test_scenario2.py, test_ablation.py and test_protocol.py with tiny profiles"""
+STUDIES = ("scenario1", "scenario2", "learning", "protocol", "history")
+"""run in tests/test_scenario1.py, test_scenario2.py, test_ablation.py and test_protocol.py with tiny profiles;
+history (which rewrites the committed table) in tests/test_history.py, into a temp folder"""
 
 
 def blocks(lang: str, pages: list[Path] = PAGES) -> list[str]:
@@ -134,7 +135,8 @@ def relative_links(page: Path) -> list[str]:
 
 
 def test_every_relative_link_resolves() -> None:
-    readmes = [ROOT / "results" / "README.md", ROOT / "results" / "archive" / "README.md"]
+    readmes = [ROOT / "results" / "README.md", ROOT / "results" / "archive" / "README.md",
+               ROOT / "results" / "history" / "README.md", *sorted((ROOT / "results" / "history").glob("*/report.md"))]
     pages = [*PAGES, *committed_report_pages(), *readmes]
     broken, checked = [], 0
     for page in pages:

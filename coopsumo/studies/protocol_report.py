@@ -164,6 +164,12 @@ def passing_lines(runs: pd.DataFrame, profile: Any) -> list[str]:
     return lines
 
 
+def committed_folder(results: Path, name: str) -> Path:
+    """A committed protocol study's folder: results/<name>, or results/history/<name> once it is frozen there."""
+    frozen = results / "history" / name
+    return frozen if not (results / name).is_dir() and frozen.is_dir() else results / name
+
+
 def committed_runs(folder: Path, variant: str, runs: pd.DataFrame, profile: Any) -> tuple[pd.DataFrame, str]:
     """`variant`'s alpha-0 model rows of the committed protocol study in `folder`, or an empty table and why they
     cannot be paired with this study's: missing, another profile, another learner than today's, other seeds."""
@@ -208,14 +214,16 @@ def committed_pair_lines(runs: pd.DataFrame, profile: Any, results: Path = COMMI
              "|---|---|---|---|---|---|---|"]  # fmt: skip
     notes = []
     for mine, folder, theirs in profile.paired_with:
-        ref, problem = committed_runs(results / folder, theirs, runs, profile)
+        where = committed_folder(results, folder)
+        ref, problem = committed_runs(where, theirs, runs, profile)
         if problem:
             notes.append(f"- `{mine}` minus `{theirs}` of {folder}: not paired, {problem}.")
             continue
         label = f"{theirs} ({folder})"
         both = per_model(pd.concat([runs[runs["variant"] == mine], ref.assign(variant=label)], ignore_index=True))
+        link = f"../{where.relative_to(results).as_posix()}/report.md"
         for r in paired_rows(both, mine, label):
-            lines.append(f"| `{mine}` | `{theirs}` ([{folder}](../{folder}/report.md)) | {r['scenario']} | "
+            lines.append(f"| `{mine}` | `{theirs}` ([{folder}]({link})) | {r['scenario']} | "
                          f"{r['t_up']:g} | {_ci(r['diff'], r['low'], r['high'], '{:+.2f}')} | {r['better']} of "
                          f"{r['models']} | {r['lane_changes']:+.2f} |")  # fmt: skip
     return lines + ([""] + notes if notes else [])

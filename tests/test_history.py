@@ -1,0 +1,95 @@
+"""`coopsumo history`: the learner search's table is generated from the protocol studies' own records, and the
+committed table is what the command writes today."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from coopsumo.config import DQN_PRESETS, to_dict
+from coopsumo.studies import history
+
+ROOT = Path(__file__).resolve().parent.parent
+COMMITTED = ROOT / "results" / "history" / "README.md"
+KEEP_OUT = ("date", "commit")
+"""columns that come from git (a shallow clone may lack them): left out of the comparison with the committed table"""
+
+
+def _columns(text: str) -> list[dict[str, str]]:
+    lines = [line for line in text.splitlines() if line.startswith("| ")]
+    head = [c.strip() for c in lines[0].strip("|").split("|")]
+    rows = [dict(zip(head, (c.strip() for c in line.strip("|").split("|")), strict=True)) for line in lines[1:]]
+    return [{k: v for k, v in row.items() if k not in KEEP_OUT} for row in rows]
+
+
+def test_committed_table_is_what_the_command_writes(tmp_path: Path) -> None:
+    out = tmp_path / "table.md"
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "history", "--out", str(out)], cwd=ROOT,
+                         capture_output=True, text=True, check=False)  # fmt: skip
+    assert res.returncode == 0, res.stderr
+    def rows(text: str) -> list[list[str]]:  # the order follows git's dates: a shallow clone may order otherwise
+        return sorted(list(row.values()) for row in _columns(text))
+
+    assert rows(out.read_text()) == rows(COMMITTED.read_text()), "results/history/README.md: run coopsumo history"
+    studies = history.study_folders(ROOT / "results")
+    assert len(studies) >= 20 and all(f"]({history._link(s, ROOT / 'results')})" in out.read_text() for s in studies)
+
+
+def _study(folder: Path, learner: dict, drive: dict, rows: list[dict]) -> None:
+    folder.mkdir(parents=True)
+    (folder / "study.json").write_text(json.dumps({"profile": {"eval_offsets": [0, 20]},
+                                                   "learners": {"v": {"learner": learner, "drive": drive,
+                                                                      "weights": "model.pt"}}}))  # fmt: skip
+    pd.DataFrame(rows).to_csv(folder / "stats.csv", index=False)
+
+
+def _row(scenario: str, t_up: float, iqm: float, keep: float, keep_low: float) -> dict:
+    return {"scenario": scenario, "t_up": t_up, "variant": "v", "models": 5, "iqm": iqm, "low": iqm, "high": iqm,
+            "worst": iqm, "mean": iqm, "lane_changes_per_vehicle": 1.0, "keep_value": keep, "keep_poi": keep_low,
+            "keep_poi_low": keep_low, "keep_poi_high": 1.0, "greedy_poi": 0.6, "mobil:p=0_poi": 0.4}  # fmt: skip
+
+
+def test_a_row_reads_the_records(tmp_path: Path) -> None:
+    learner = json.loads(json.dumps(to_dict(DQN_PRESETS["default"])))
+    learner["gamma"] = 0.95
+    _study(tmp_path / "history" / "learner_protocol_x", learner, {"change_margin": 2.0},
+           [_row("free", 2.0, 20.0, 18.0, 0.9), _row("free", 1.0, 17.0, 16.5, 0.3),
+            _row("accident", 2.0, 30.0, 31.5, 0.8)])  # fmt: skip
+    text = history.table(tmp_path)
+    row = _columns(text)[0]
+    assert row["differs from today's default"] == "gamma 0.95; drives with change_margin 2"
+    assert row["models x evaluation sets"] == "5 x 2" and row["T_up (s)"] == "2 / 1"
+    assert row["free flow: IQM - keep (m/s)"] == "+2.00 / +0.50"
+    assert row["accident: IQM - keep (veh-h)"] == "-1.5"
+    assert row["verdict"] == "free flow: ahead of keep at 1 of 2; accident: ahead of keep at 1 of 1"
+    assert row["report"] == "[learner_protocol_x](learner_protocol_x/report.md)"
+
+
+def test_an_old_record_without_a_later_field_means_its_implied_value(tmp_path: Path) -> None:
+    learner = json.loads(json.dumps(to_dict(DQN_PRESETS["default"])))
+    del learner["no_return_s"]  # recorded before the field existed: no such rule
+    assert history.differences(learner, {}, "model_last.pt") == "no_return_s 0; weights model_last.pt"
+
+
+def test_no_study_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "history", "--results", str(tmp_path)], cwd=tmp_path,
+                         capture_output=True, text=True, check=False)  # fmt: skip
+    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "no learner protocol" in res.stderr
+    assert not any(tmp_path.iterdir())
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "history", "--results", str(tmp_path / "none")],
+                         cwd=tmp_path, capture_output=True, text=True, check=False)  # fmt: skip
+    assert res.returncode == 2 and "no such folder" in res.stderr
+
+
+def test_a_frozen_study_is_found_where_it_was_moved(tmp_path: Path) -> None:
+    from coopsumo.studies.protocol_report import committed_folder
+
+    shutil.copytree(ROOT / "results" / "history" / "learner_protocol_f05q_ts2k10", tmp_path / "history" / "f")
+    assert committed_folder(tmp_path, "f") == tmp_path / "history" / "f"
+    (tmp_path / "f").mkdir()
+    assert committed_folder(tmp_path, "f") == tmp_path / "f"
