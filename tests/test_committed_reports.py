@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from coopsumo.studies.protocol_plan import variants
 from coopsumo.studies.run_folders import default_out
 from coopsumo.studies.scenario2 import learner_of
 from coopsumo.studies.scenario2_plan import PROFILES as SCENARIO2_PROFILES
+from coopsumo.studies.scenario2_report import rewrite_outputs
 from coopsumo.studies.trainings import first_difference
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -72,6 +74,21 @@ def test_every_committed_report_was_made_by_todays_learner() -> None:
     assert any(f.name == "scenario1" for f in folders)
     for folder in folders:
         _learner_check(folder)
+
+
+def test_scenario2_is_todays_rendering_of_its_runs(tmp_path: Path) -> None:
+    """results/scenario2 keeps no cells/ (rerunning its command would train every cell again): its tables,
+    report.md and figures are redrawn from runs.csv and sweep.json by rewrite_outputs, and are what today's code
+    draws from them."""
+    committed = ROOT / "results" / "scenario2"
+    for name in ("runs.csv", "sweep.json"):
+        shutil.copy(committed / name, tmp_path / name)
+    rewrite_outputs(tmp_path)
+    for name in ("report.md", "alpha_star.csv", "mobil_p_star.csv", "sweep.json"):
+        assert (tmp_path / name).read_text() == (committed / name).read_text(), (
+            f"results/scenario2/{name} is not what today's code draws from runs.csv and sweep.json; redraw it with "
+            "coopsumo.studies.scenario2_report.rewrite_outputs(Path('results/scenario2'))")  # fmt: skip
+    assert sorted(p.name for p in committed.glob("*.png")) == sorted(p.name for p in tmp_path.glob("*.png"))
 
 
 def test_the_default_learner_is_the_protocols_nr10_and_scenario_ones() -> None:

@@ -10,7 +10,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -27,7 +27,8 @@ from coopsumo.studies import scenario2_report as s2_report
 
 REPO = Path(__file__).resolve().parent.parent
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-OUTPUTS = ("sweep.json", "runs.csv", "alpha_star.csv", "fig6_alpha_star.png", "fig6_speed_heatmap.png", "report.md")
+OUTPUTS = ("sweep.json", "runs.csv", "alpha_star.csv", s2_report.ALPHA_STAR_FIGURE, "fig6_speed_heatmap.png",
+           "report.md")
 COMPARED = [*stats.KEY_COLUMNS, "status", *stats.METRIC_COLUMNS]
 
 
@@ -170,9 +171,9 @@ def test_outputs_from_a_hand_made_table(tmp_path: Path) -> None:
             "wall_seconds": 1.0, "cells_run": 0, "cell_wall_seconds_sum": 0.0, "cell_cpu_seconds_sum": 0.0,
             "bootstrap_replicates": 100, "versions": {}}  # fmt: skip
     s2_report.write_outputs(tmp_path, runs, profile, meta, n_boot=100)
-    for name in ("alpha_star.csv", "fig6_alpha_star.png", "fig6_speed_heatmap.png", "report.md"):
+    for name in ("alpha_star.csv", s2_report.ALPHA_STAR_FIGURE, "fig6_speed_heatmap.png", "report.md"):
         assert (tmp_path / name).is_file(), name
-    assert (tmp_path / "fig6_alpha_star.png").read_bytes()[:8] == PNG_SIGNATURE
+    assert (tmp_path / s2_report.ALPHA_STAR_FIGURE).read_bytes()[:8] == PNG_SIGNATURE
     table = pd.read_csv(tmp_path / "alpha_star.csv")
     assert len(table) == 4 and {"alpha_star", "win_share", "boot_support", "speed_mps_alpha32"} <= set(table)
     report = (tmp_path / "report.md").read_text()
@@ -182,6 +183,48 @@ def test_outputs_from_a_hand_made_table(tmp_path: Path) -> None:
     assert "Fitted plane over 3 conditions" in report and "R² =" in report
     assert "L2_T0.7_a8_s1" in report and "boom" in report
     assert meta["plane"]["n"] == 3
+    assert f"]({s2_report.ALPHA_STAR_FIGURE})" in report and not (tmp_path / "fig6_alpha_star.png").exists()
+    # the same outputs redrawn from runs.csv and sweep.json alone (a committed folder keeps no cells/)
+    runs.to_csv(tmp_path / "runs.csv", index=False)
+    meta.update(profile=asdict(profile))
+    (tmp_path / "sweep.json").write_text(json.dumps(meta))
+    redrawn = tmp_path / "redrawn"
+    redrawn.mkdir()
+    for name in ("runs.csv", "sweep.json"):
+        shutil.copy(tmp_path / name, redrawn / name)
+    s2_report.rewrite_outputs(redrawn)
+    for name in ("alpha_star.csv", "report.md"):
+        assert (redrawn / name).read_text() == (tmp_path / name).read_text(), name
+    assert (redrawn / s2_report.ALPHA_STAR_FIGURE).read_bytes()[:8] == PNG_SIGNATURE
+
+
+def test_alpha_star_chart_has_one_panel_per_lane_count(tmp_path: Path) -> None:
+    """The alpha* figure: one panel per lane count on a shared y axis ticked at the alphas tried (0 shown, a
+    symmetric log scale), alpha* against inflow, its bootstrap range and discs, a withheld alpha* said so."""
+    from coopsumo.report.plots_sweep import alpha_star_lanes_chart, alpha_star_lanes_figure
+
+    alphas = (0.0, 0.125, 1.0, 8.0)
+    rows = [(2, 2.0, 0.0), (2, 1.0, 1.0), (3, 1.33, 0.125), (3, 0.67, np.nan), (4, 1.0, 8.0), (4, 0.5, 1.0)]
+    table = pd.DataFrame([{"lanes": n, "t_up_s": t, "inflow_veh_h": round(3600 / t, 1), "alpha_star": a,
+                           "boot_alpha_p05": 0.0, "boot_alpha_p95": 8.0} for n, t, a in rows])  # fmt: skip
+    boots = {(n, t): np.array([a, a, 0.0, 8.0]) for n, t, a in rows}
+    fig = alpha_star_lanes_chart(table, alphas, plane=(0.5, -0.1, -0.05), boot_alphas=boots)
+    assert [ax.get_title() for ax in fig.axes] == ["2 lanes", "3 lanes", "4 lanes"]
+    first = fig.axes[0]
+    assert all(first.get_shared_y_axes().joined(first, ax) for ax in fig.axes)
+    assert first.get_yscale() == "symlog" and list(first.get_yticks()) == list(alphas)
+    assert first.get_ylim()[0] < 0 < first.get_ylim()[1] and first.get_ylim()[1] > 8
+    for ax, n in zip(fig.axes, (2, 3, 4), strict=True):
+        shown = table[(table["lanes"] == n) & table["alpha_star"].notna()].sort_values("inflow_veh_h")
+        star = next(line for line in ax.get_lines() if line.get_marker() == "D")
+        assert list(star.get_xdata()) == list(shown["inflow_veh_h"])
+        assert list(star.get_ydata()) == list(shown["alpha_star"])
+        assert "inflow (veh/h)" in ax.get_xlabel()
+    assert [t.get_text() for t in fig.axes[1].texts] == ["no α*"]
+    path = alpha_star_lanes_figure(table, alphas, tmp_path / "chart.png")  # no plane, no bootstrap discs
+    assert path.read_bytes()[:8] == PNG_SIGNATURE
+    with pytest.raises(ValueError, match="at least one condition"):
+        alpha_star_lanes_chart(table.iloc[:0], alphas)
 
 
 def test_mobil_p_star_and_side_by_side(tmp_path: Path) -> None:
@@ -305,7 +348,7 @@ def run_sweep_cli(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
 def assert_outputs(out: Path) -> pd.DataFrame:
     for name in OUTPUTS:
         assert (out / name).is_file(), name
-    for name in ("fig6_alpha_star.png", "fig6_speed_heatmap.png"):
+    for name in (s2_report.ALPHA_STAR_FIGURE, "fig6_speed_heatmap.png"):
         assert (out / name).read_bytes()[:8] == PNG_SIGNATURE
     runs = pd.read_csv(out / "runs.csv")
     assert len(runs) == s2_plan.PROFILES["tiny"].n_cells() == 8

@@ -1,22 +1,27 @@
 """Figures of the scenario II alpha sweep (paper Fig. 6) written as PNG files.
 
-`alpha_surface_figure`: alpha* against T_up and lane count with the fitted plane
-alpha* = b0 + b1 T_up + b2 lanes (3D scatter + plane). `speed_heatmap_figure`: mean speed
-over (alpha, condition). Figures and PNG files come from plots.py's helpers (Agg canvas, same DPI).
+`alpha_star_lanes_figure`: alpha* against inflow, one panel per lane count on a shared symlog axis of the
+alphas tried, with its bootstrap range and the fitted plane alpha* = b0 + b1 T_up + b2 lanes.
+`speed_heatmap_figure`: mean speed over (alpha, condition). Figures and PNG files come from plots.py's helpers
+(Agg canvas, same DPI).
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from fractions import Fraction
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from matplotlib.patches import Rectangle
-from numpy.typing import ArrayLike
 
 from coopsumo.report.plots import new_figure, save_figure
+
+BOOT_AREA = 260.0
+"""marker area (points²) of an alpha picked by every bootstrap resample"""
 
 
 def alpha_label(alpha: float) -> str:
@@ -25,48 +30,101 @@ def alpha_label(alpha: float) -> str:
     return str(frac.numerator) if frac.denominator == 1 else f"{frac.numerator}/{frac.denominator}"
 
 
-def alpha_surface_figure(
-    t_up_s: ArrayLike,
-    lanes: ArrayLike,
-    alpha_star: ArrayLike,
-    plane: tuple[float, float, float] | None,
-    out_path: str | Path,
+def alpha_star_lanes_chart(
+    table: pd.DataFrame,
+    alphas: Sequence[float],
+    plane: tuple[float, float, float] | None = None,
+    boot_alphas: Mapping[tuple[int, float], np.ndarray] | None = None,
     note: str = "",
-) -> Path:
-    """Red points (T_up, lanes, alpha*) and, when `plane` = (b0, b1, b2) is given, the plane.
+) -> Figure:
+    """alpha* against inflow, one panel per lane count sharing a symlog y axis ticked at the alphas tried (so 0
+    shows).
 
-    `note` is printed under the title (e.g. why no plane was fitted). Returns the PNG path.
+    `table`: one row per condition with lanes, t_up_s, inflow_veh_h, alpha_star (NaN: withheld, marked
+    "no alpha*") and, when present, boot_alpha_p05/boot_alpha_p95 (drawn as the 90% bootstrap range).
+    `boot_alphas`: per (lanes, t_up_s), the alpha* of each bootstrap resample; grey discs then show the share
+    of resamples picking each alpha (area). `plane` = (b0, b1, b2): the fitted alpha* = b0 + b1 T_up + b2 lanes,
+    dashed, at each panel's lane count.
     """
-    t = np.asarray(t_up_s, float)
-    n = np.asarray(lanes, float)
-    a = np.asarray(alpha_star, float)
-    if not (len(t) == len(n) == len(a)) or len(t) == 0:
-        raise ValueError("alpha_surface_figure needs equally long, non-empty t_up_s, lanes and alpha_star")
-    fig = new_figure(7.0, 5.6)
-    ax = fig.add_subplot(1, 1, 1, projection="3d")
+    if table.empty:
+        raise ValueError("alpha_star_lanes_chart needs at least one condition")
+    grid = sorted(float(a) for a in alphas)
+    lanes = sorted(int(n) for n in set(table["lanes"]))
+    fig = new_figure(1.2 + 3.0 * len(lanes), 4.4)
+    axes = fig.subplots(1, len(lanes), sharey=True, squeeze=False)[0]
+    positive = [a for a in grid if a > 0]
+    top = max([*grid, *table["alpha_star"].dropna().astype(float)], default=1.0)
+    low = -0.35 * (min(positive) if positive else 1.0)
+    for ax, n in zip(axes, lanes, strict=True):
+        rows = table[table["lanes"] == n].sort_values("inflow_veh_h")
+        x = rows["inflow_veh_h"].to_numpy(float)
+        a = rows["alpha_star"].to_numpy(float)
+        solved = np.isfinite(a)
+        step = float(np.diff(x).min()) if len(x) > 1 else max(float(x[0]) * 0.3, 1.0)
+        if boot_alphas is not None:
+            for r in rows[solved].itertuples():
+                draws = np.asarray(boot_alphas.get((int(r.lanes), float(r.t_up_s)), []), float)
+                draws = draws[np.isfinite(draws)]
+                for alpha in grid:
+                    share = float(np.mean(draws == alpha)) if draws.size else 0.0
+                    if share > 0:
+                        ax.scatter(r.inflow_veh_h, alpha, s=BOOT_AREA * share, color="0.75", edgecolor="0.5",
+                                   linewidth=0.4, zorder=1)  # fmt: skip
+        if {"boot_alpha_p05", "boot_alpha_p95"} <= set(rows):
+            lo = rows["boot_alpha_p05"].to_numpy(float)[solved]
+            hi = rows["boot_alpha_p95"].to_numpy(float)[solved]
+            ax.vlines(x[solved], lo, hi, color="tab:red", linewidth=1.0, alpha=0.6, zorder=2)
+        if plane is not None:
+            b0, b1, b2 = plane
+            xs = np.linspace(x.min(), x.max(), 50)  # over the conditions measured, no further
+            ax.plot(xs, b0 + b1 * 3600.0 / xs + b2 * n, color="tab:blue", linestyle="--", linewidth=1.0, zorder=2)
+        ax.plot(x[solved], a[solved], color="tab:red", marker="D", markersize=6, linewidth=0.8, zorder=3)
+        for xi in x[~solved]:
+            ax.text(xi, 0.0, "no α*", ha="center", va="center", fontsize=7, color="0.3", rotation=90)
+        ax.set_xticks(x, [f"{xi:,.0f}\n{t:g} s" for xi, t in zip(x, rows["t_up_s"], strict=True)], fontsize=7)
+        ax.set_xlim(x.min() - step / 2, x.max() + step / 2)
+        ax.set_title(f"{n} lanes", fontsize=9)
+        ax.set_xlabel("inflow (veh/h)\nT_up (s)", fontsize=8)
+        ax.grid(True, axis="y", color="0.9", linewidth=0.6)
+    first = axes[0]
+    first.set_yscale("symlog", linthresh=min(positive) if positive else 1.0, linscale=0.6)
+    first.set_ylim(low, top * 1.6)
+    first.set_yticks(grid, [alpha_label(a) for a in grid])
+    first.minorticks_off()
+    first.set_ylabel(r"$\alpha^*$ (the alphas tried)")
+    handles = [
+        Line2D([], [], color="tab:red", marker="D", markersize=6, linewidth=0.8, label=r"$\alpha^*$: best mean speed"),
+        Line2D([], [], color="tab:red", alpha=0.6, linewidth=1.0, label="90% bootstrap range of $\\alpha^*$"),
+    ]  # fmt: skip
+    if boot_alphas is not None:
+        for share in (0.25, 1.0):
+            handles.append(Line2D([], [], linestyle="", marker="o", markersize=float(np.sqrt(BOOT_AREA * share)),
+                                  color="0.75", markeredgecolor="0.5",
+                                  label=f"{share:.0%} of bootstrap resamples pick this $\\alpha$"))  # fmt: skip
+    if plane is not None:
+        handles.append(Line2D([], [], color="tab:blue", linestyle="--", linewidth=1.0, label="fitted plane"))
+    fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 3), fontsize=7, frameon=False)
+    title = r"$\alpha^*$ per lane count against inflow"
     if plane is not None:
         b0, b1, b2 = plane
-        tt, nn = np.meshgrid(np.linspace(t.min(), t.max(), 12), np.linspace(n.min(), n.max(), 12))
-        ax.plot_surface(tt, nn, b0 + b1 * tt + b2 * nn, color="tab:blue", alpha=0.25, linewidth=0)
-        ax.plot_wireframe(tt, nn, b0 + b1 * tt + b2 * nn, color="tab:blue", alpha=0.35, linewidth=0.4,
-                          rstride=3, cstride=3)  # fmt: skip
-        fitted = b0 + b1 * t + b2 * n
-        for ti, ni, ai, fi in zip(t, n, a, fitted, strict=True):
-            ax.plot([ti, ti], [ni, ni], [fi, ai], color="0.4", linewidth=0.6)
-    ax.scatter(t, n, a, color="red", s=28, depthshade=False, label=r"$\alpha^*$")
-    ax.set_xlabel(r"$T_{up}$ (s)")
-    ax.set_ylabel("lanes")
-    ax.set_zlabel(r"$\alpha^*$")
-    ax.set_yticks(sorted(set(n.tolist())))
-    title = r"$\alpha^*$ by inflow interval and lane count"
-    if plane is not None:
-        b0, b1, b2 = plane
-        title += "\n" + rf"plane: $\alpha^*$ = {b0:.2f} {b1:+.2f} $T_{{up}}$ {b2:+.2f} lanes"
+        title += rf" (plane: $\alpha^*$ = {b0:.2f} {b1:+.2f} $T_{{up}}$ {b2:+.2f} lanes)"
     if note:
         title += "\n" + note
-    ax.set_title(title, fontsize=9)
-    fig.tight_layout()
-    return save_figure(fig, out_path)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout(rect=(0, 0.09, 1, 1))
+    return fig
+
+
+def alpha_star_lanes_figure(
+    table: pd.DataFrame,
+    alphas: Sequence[float],
+    out_path: str | Path,
+    plane: tuple[float, float, float] | None = None,
+    boot_alphas: Mapping[tuple[int, float], np.ndarray] | None = None,
+    note: str = "",
+) -> Path:
+    """alpha_star_lanes_chart written as a PNG file; returns its path."""
+    return save_figure(alpha_star_lanes_chart(table, alphas, plane, boot_alphas, note), out_path)
 
 
 def speed_heatmap_figure(

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.runio import write_json
 from coopsumo.studies.scenario2_measures import (
     PlaneFit,
     PlaneFitError,
@@ -28,6 +29,9 @@ from coopsumo.studies.scenario2_measures import (
 )
 from coopsumo.studies.scenario2_plan import PROFILES, Profile
 from coopsumo.validation import number_name
+
+ALPHA_STAR_FIGURE = "fig6_alpha_star_lanes.png"
+"""alpha* per lane count (alpha_star_lanes_figure)"""
 
 
 def condition_label(lanes: int, t_up_s: float) -> str:
@@ -66,7 +70,7 @@ def trend_statements(fit: PlaneFit, boot: dict[str, float]) -> list[str]:
 def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[str, Any], n_boot: int) -> None:
     """alpha_star.csv, the two figures, mobil_p_star.csv (with MOBIL cells) and report.md from the runs table; a
     condition with a failed cell gets no alpha* (or p*): withhold_incomplete."""
-    from coopsumo.report.plots_sweep import alpha_label, alpha_surface_figure, speed_heatmap_figure
+    from coopsumo.report.plots_sweep import alpha_label, alpha_star_lanes_figure, speed_heatmap_figure
 
     table, boots = alpha_star_table(policy_rows(runs, "dqn"), profile.alphas, profile.seeds, n_boot=n_boot)
     table = withhold_incomplete(table, "alpha_star")
@@ -88,10 +92,9 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
         plane_note = f"No plane fitted: {err}."
     figures = {}
     if len(solved):
-        alpha_surface_figure(solved["t_up_s"], solved["lanes"], solved["alpha_star"],
-                             (fit.b0, fit.b1, fit.b2) if fit else None, root / "fig6_alpha_star.png",
-                             note=plane_note)  # fmt: skip
-        figures["surface"] = "fig6_alpha_star.png"
+        alpha_star_lanes_figure(table, profile.alphas, root / ALPHA_STAR_FIGURE,
+                                (fit.b0, fit.b1, fit.b2) if fit else None, boots, note=plane_note)  # fmt: skip
+        figures["alpha_star"] = ALPHA_STAR_FIGURE
         speeds = table.set_index([pd.Index([condition_label(r.lanes, r.t_up_s) for r in table.itertuples()])])
         speeds = speeds[[f"speed_mps_alpha{number_name(a)}" for a in profile.alphas]]
         speeds.columns = list(profile.alphas)
@@ -104,6 +107,18 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
     meta["plane_bootstrap"] = boot
     (root / "report.md").write_text(report_text(runs, table, fit, boot, plane_note, profile, meta, figures,
                                                 alpha_label, side))  # fmt: skip
+
+
+def rewrite_outputs(root: Path) -> dict[str, Any]:
+    """Redraw a finished sweep's tables, figures and report.md from its runs.csv and sweep.json alone, nothing
+    trained or run (a committed folder keeps no cells/, so rerunning its command would train every cell again);
+    the bootstraps are seeded, so the numbers come out as they were. Returns sweep.json's new content."""
+    meta = json.loads((root / "sweep.json").read_text())
+    fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["profile"].items()}
+    profile = Profile(**fields)
+    write_outputs(root, pd.read_csv(root / "runs.csv"), profile, meta, int(meta["bootstrap_replicates"]))
+    write_json(root / "sweep.json", meta)
+    return meta
 
 
 def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -233,8 +248,10 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
     safety = (f"Collisions in evaluation: {int(ok['collisions'].sum())}; teleports: {int(ok['teleports'].sum())} "
               f"(over {len(ok)} successful cells).")  # fmt: skip
     figs = "\n\n".join(
-        [f"![alpha* and plane]({figures['surface']})\n\nFig. 6: alpha* (red) against T_up and lane count; "
-         "the plane is the least-squares fit, grey lines are residuals." if "surface" in figures else "",
+        [f"![alpha* per lane count]({figures['alpha_star']})\n\nFig. 6: alpha* (red) against inflow, one panel "
+         "per lane count on a shared axis of the alphas tried (symmetric log, so 0 shows); the red bar is its 90% "
+         "bootstrap range over models, grey discs the share of bootstrap resamples picking each alpha (area), the "
+         "dashed line the fitted plane at that lane count." if "alpha_star" in figures else "",
          f"![speed heat map]({figures['heatmap']})\n\nMean evaluation speed over seeds for every alpha and "
          "condition; colour is the gap to the condition's best, framed cells are alpha*." if "heatmap" in figures
          else ""]).strip() or "No figure: no cell succeeded."  # fmt: skip
@@ -330,5 +347,5 @@ Rerunning the same command retries failed cells and keeps the finished ones.
   `alpha_star.csv`; each cell's record: `cells/<key>.json`; its training folder: `train/<key>/`, a link into the
   model store, its evaluations `evals/<key>/eval_s<E>/` {cond_folders}.{mobil_note}
 - {steps_note}
-- Versions: {json.dumps(meta["versions"])}.
+- Versions: {json.dumps(meta["versions"], sort_keys=True)}.
 """
