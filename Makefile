@@ -25,8 +25,10 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
+# one line per test file as it ends ([ 37%] tests/test_x.py: 42 passed in 95.2 s; tests/file_progress.py) instead
+# of dots: with -n 2 pytest names no file, and -v would print a line per test
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --durations=25
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --file-progress -o console_output_style=classic --durations=25
 
 lint: $(STAMP)
 	$(BIN)/ruff check coopsumo tests experiments

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from file_progress import pytest_addoption, pytest_configure  # noqa: F401  (make test's --file-progress)
 
 from coopsumo.config import AccidentConfig, ControlConfig, DemandConfig, RoadConfig, SimConfig
 from coopsumo.sim import physics
