@@ -42,9 +42,7 @@ def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
 
     protocol = variants()
     assert protocol["nr10"].learner == DQNConfig() == learner_of("noreturn")
-    assert protocol["f05q"].learner == learner_of("queue")
-    assert protocol["v2x_mix_av"].learner == learner_of("accval")
-    assert protocol["v2x_mix"].learner == learner_of("mix")
+    assert protocol["f05q_ts2k"].learner == learner_of("target")
     assert learner_of("select") == protocol["select"].learner
 
 

@@ -84,6 +84,8 @@ def test_the_wheel_installs_and_runs_outside_the_repository(tmp_path: Path) -> N
     names = set(zipfile.ZipFile(wheel).namelist())
     modules = {p.relative_to(ROOT).as_posix() for p in (ROOT / "coopsumo").rglob("*.py")}
     assert modules <= names, sorted(modules - names)  # every subpackage: sim, agents, studies, report, envs
+    data = {p.relative_to(ROOT).as_posix() for p in (ROOT / "coopsumo" / "experiments_data").glob("*.toml")}
+    assert len(data) == 2 and data <= names, sorted(data - names)  # the protocol's learners.toml and protocol.toml
     assert not [n for n in names if n.endswith(".xml") or "sumo_nets" in n]  # no network inside the package
     entry = next(n for n in names if n.endswith("entry_points.txt"))
     assert "coopsumo = coopsumo.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()
@@ -91,6 +93,8 @@ def test_the_wheel_installs_and_runs_outside_the_repository(tmp_path: Path) -> N
     res = pip("install", "--no-deps", "--target", str(target), str(wheel), cwd=tmp_path)
     assert res.returncode == 0, res.stderr[-2000:]
     out = check_installed(target, tmp_path)
+    res = run_installed(target, ["protocol", "--help"], tmp_path / "elsewhere", installed_env(target))
+    assert res.returncode == 0 and "nr10 (the default)" in " ".join(res.stdout.split()), res.stderr[-2000:]
     print(f"wheel {wheel.name} ({wheel.stat().st_size / 1024:.0f} KiB, {len(names)} files) installed into a fresh "
           f"target; coopsumo simulate from outside the repository: {out.strip()}")  # fmt: skip
 

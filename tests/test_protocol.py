@@ -6,6 +6,7 @@ import math
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 import pytest
@@ -78,32 +79,79 @@ def test_bad_protocol_input_is_one_line(tmp_path: Path, args: list[str], fragmen
     assert not out.exists()
 
 
-def test_a_margin_variant_drives_the_same_training_with_its_own_margin() -> None:
+DRIVEN = """
+[nr10]
+preset = "default"
+status = "default"
+why = "the default"
+
+[m2]
+parent = "nr10"
+status = "tried"
+why = "driven with a change margin of 2"
+drive = { change_margin = 2 }
+
+[cd10]
+parent = "nr10"
+status = "tried"
+why = "driven with a 10 s lane-change cooldown"
+drive = { change_cooldown_s = 10 }
+
+[nr10_off]
+parent = "nr10"
+status = "tried"
+why = "the same trainings without the change back when they drive"
+drive = { no_return_s = 0.0 }
+
+[lanes]
+parent = "cd10"
+status = "tried"
+why = "lanes only, and the cooldown of its parent"
+drive = { restart_below_mps = 50.0, queue_below_mps = 5.0 }
+
+[other]
+parent = "nr10"
+status = "tried"
+why = "another training: a discount of 0.95"
+learner = { gamma = 0.95 }
+"""
+
+
+def driven_catalogue(tmp_path: Path) -> dict[str, Any]:
+    from coopsumo.studies.protocol_plan import load_variants
+
+    (tmp_path / "learners.toml").write_text(DRIVEN)
+    return load_variants(tmp_path / "learners.toml")
+
+
+def test_a_drive_variant_drives_the_same_training_its_own_way(tmp_path: Path) -> None:
+    """A variant with a `drive` table shares its parent's trainings (the same train_key and training config) and
+    records how it drives in its cells (another record); a child inherits its parent's drive; the judged variant's
+    alpha-8 models are its own, and a learner change is another training."""
+    from dataclasses import replace
+
     from coopsumo.policy_spec import parse_policy
     from coopsumo.studies.protocol import driven_policy
     from coopsumo.studies.protocol_plan import PROFILES, cell_specs
 
-    specs = {s["key"]: s for s in cell_specs(PROFILES["drive"])}
-    own, m2 = specs["v2x_mix_a0_seed100_accident_t1"], specs["v2x_mix_m2_a0_seed100_accident_t1"]
+    known = driven_catalogue(tmp_path)
+    profile = replace(PROFILES["nr10"], name="drive", variants=tuple(known), judged="m2")
+    specs = {s["key"]: s for s in cell_specs(profile, known)}
+    own, m2 = specs["nr10_a0_seed100_accident_t1"], specs["m2_a0_seed100_accident_t1"]
     assert own["train_key"] == m2["train_key"] and own["config"]["train"] == m2["config"]["train"]
     assert "drive" not in own["config"] and m2["config"]["drive"] == {"change_margin": 2.0}  # a different record
     assert parse_policy(driven_policy(own, Path("/m"))).margin is None  # the margin the model was saved with
     assert parse_policy(driven_policy(m2, Path("/m"))).margin == 2.0
-    assert parse_policy(driven_policy(specs["v2x_mix_m4_a0_seed104_free_t2"], Path("/m"))).margin == 4.0
-    cd10 = parse_policy(driven_policy(specs["v2x_mix_cd10_a0_seed104_free_t2"], Path("/m")))
-    assert cd10.cooldown == 10.0 and cd10.margin is None
-    nr10 = {s["variant"]: s for s in cell_specs(PROFILES["f05q_ts2k_nr10"]) if s["key"].endswith("seed104_free_t2")}
-    assert nr10["f05q_ts2k_nr10"]["train_key"] == nr10["f05q_ts2k"]["train_key"]  # the same training
-    assert parse_policy(driven_policy(nr10["f05q_ts2k_nr10"], Path("/m"))).noreturn == 10.0
-    assert parse_policy(driven_policy(nr10["f05q_ts2k"], Path("/m"))).noreturn is None
-    lanes_only = cell_specs(PROFILES["restart"])
-    drives = {s["variant"]: parse_policy(driven_policy(s, Path("/m"))) for s in lanes_only if s["kind"] != "baseline"}
-    assert drives["v2x_mix_lanes"].restart == 50.0 and drives["v2x_mix_r5"].restart == 5.0
-    assert drives["v2x_mix"].restart is None  # driven as saved
-    queue = {s["variant"]: s for s in cell_specs(PROFILES["queue"]) if s["kind"] != "baseline"}
-    assert queue["v2x_mix_av_q5"]["train_key"] == queue["v2x_mix_av"]["train_key"]  # the same trainings
-    assert parse_policy(driven_policy(queue["v2x_mix_av_q5"], Path("/m"))).queue == 5.0
-    assert parse_policy(driven_policy(queue["v2x_mix_av"], Path("/m"))).queue is None
+    drives = {s["variant"]: parse_policy(driven_policy(s, Path("/m"))) for s in specs.values()
+              if s["key"].endswith("a0_seed104_free_t2")}  # fmt: skip
+    assert drives["cd10"].cooldown == 10.0 and drives["cd10"].margin is None
+    assert drives["nr10_off"].noreturn == 0.0 and drives["nr10"].noreturn is None
+    assert (drives["lanes"].restart, drives["lanes"].queue, drives["lanes"].cooldown) == (50.0, 5.0, 10.0)
+    keys = {s["variant"]: s["train_key"] for s in specs.values() if s["seed"] == 105 and s["alpha"] == 0.0}
+    assert len({k for v, k in keys.items() if v != "other"}) == 1 and keys["other"] != keys["nr10"]
+    alpha8 = [s for s in specs.values() if s["alpha"] == 8.0]
+    assert {s["variant"] for s in alpha8} == {"m2"} and {s["scenario"] for s in alpha8} == {"free"}
+    assert len({s["train_key"] for s in alpha8}) == profile.alpha_seeds
 
 
 def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:
@@ -151,72 +199,55 @@ def test_a_rounded_copy_of_the_same_run_is_not_counted_better() -> None:
 
 
 def test_a_variant_that_only_chooses_snapshots_otherwise_is_paired_by_model() -> None:
-    """v2x_mix_av's trainings are v2x_mix's judged again (another train_key): paired by model; another learner's
-    trainings on the same seeds (select) are paired by training seed in a section of their own."""
+    """nr10's trainings are f05q_ts2k's judged again (no change back when snapshots are chosen; another train_key):
+    paired by model; another learner's trainings on the same seeds (select) are paired by training seed in a section
+    of their own."""
     from coopsumo.config import to_dict
     from coopsumo.studies.protocol_plan import Profile, variants
     from coopsumo.studies.protocol_report import paired_lines
 
     known = variants()
     rows = [{"status": "ok", "alpha": 0.0, "scenario": "free", "t_up": 2.0, "variant": v, "seed": seed,
-             "train_key": f"{v}{seed}", "mean_speed_mps": speed + (0.5 if v == "v2x_mix_av" else 0.0),
-             "lane_changes_per_vehicle": 1.0} for v in ("v2x_mix", "v2x_mix_av", "select")
+             "train_key": f"{v}{seed}", "mean_speed_mps": speed + (0.5 if v == "nr10" else 0.0),
+             "lane_changes_per_vehicle": 1.0} for v in ("f05q_ts2k", "nr10", "select")
             for seed, speed in ((100, 20.0), (101, 21.0))]  # fmt: skip
-    learners = {v: {"learner": to_dict(known[v].learner)} for v in ("v2x_mix", "v2x_mix_av", "select")}
-    profile = Profile("x", variants=("v2x_mix", "v2x_mix_av", "select"))
+    learners = {v: {"learner": to_dict(known[v].learner)} for v in ("f05q_ts2k", "nr10", "select")}
+    profile = Profile("x", variants=("f05q_ts2k", "nr10", "select"))
     text = "\n".join(paired_lines(pd.DataFrame(rows), profile, {"learners": learners}))
     same, other = text.split("## Other trainings on the same training seeds")
     assert "## The same trainings driven or chosen otherwise" in same
-    assert "| `v2x_mix_av` | free | 2 | +0.50" in same and "2 of 2" in same and "`select` |" not in same
+    assert "| `nr10` | free | 2 | +0.50" in same and "2 of 2" in same and "`select` |" not in same
     # another learner's trainings: paired by training seed in a section of their own
-    assert "| `select` | free | 2 | +0.00" in other and "`v2x_mix_av` |" not in other
-
-
-def test_the_f05q_profile_judges_the_candidate_and_drives_its_trainings_otherwise() -> None:
-    """f05q is v2x_mix_av_f05 with the queue rule in its settings: the same trainings as f05_q5 would get, one
-    learner; its drive variants share its trainings; its alpha-8 models are its own."""
-    from dataclasses import replace
-
-    from coopsumo.studies.protocol_plan import F05Q, PROFILES, V2X_MIX_AV_F05, cell_specs, variants
-
-    assert F05Q == replace(V2X_MIX_AV_F05, queue_below_mps=5.0) and variants()["f05q"].learner == F05Q
-    profile = PROFILES["f05q"]
-    specs = cell_specs(profile)
-    assert profile.judged_variant() == "f05q"
-    assert {s["variant"] for s in specs if s.get("alpha") == 8.0} == {"f05q"}
-    keys = {s["variant"]: s["train_key"] for s in specs if s.get("seed") == 105 and s.get("alpha") == 0.0}
-    assert len(set(keys.values())) == 1 and set(keys) == set(profile.variants)  # one training, six drives
-    drives = {s["variant"]: s["config"].get("drive") for s in specs if s["key"].endswith("seed105_free_t2")}
-    assert drives == {"f05q": None, "f05q_m05": {"change_margin": 0.5}, "f05q_m0": {"change_margin": 0.0},
-                      "f05q_q8": {"queue_below_mps": 8.0}, "f05q_r5": {"restart_below_mps": 5.0},
-                      "f05q_lanes": {"restart_below_mps": 50.0}}
+    assert "| `select` | free | 2 | +0.00" in other and "`nr10` |" not in other
 
 
 def test_fresh_evaluation_seeds_drive_the_same_trainings() -> None:
-    """f05q_e1 replicates f05q on evaluation seeds that no other study, training or validation uses."""
+    """A profile with another evaluation seed offset replicates nr10 on seeds that no other study, training or
+    validation uses, with the same trainings."""
+    from dataclasses import replace
+
     from coopsumo.config import VALIDATION_SEED
     from coopsumo.studies.protocol_plan import PROFILES, cell_specs
 
-    ours, theirs = cell_specs(PROFILES["f05q_e1"]), cell_specs(PROFILES["f05q"])
+    ours = cell_specs(replace(PROFILES["nr10"], name="nr10_e1", eval_offsets=(10,), alpha_seeds=0))
+    theirs = cell_specs(PROFILES["nr10"])
     trainings = {s["train_key"]: s["config"]["train"] for s in theirs if s["kind"] == "model"}
     assert all(trainings[s["train_key"]] == s["config"]["train"] for s in ours if s["kind"] == "model")
     seeds, before = {s["eval_seed"] for s in ours}, {s["eval_seed"] for s in theirs}
     assert seeds == {5010, 5011, 5012, 5110, 5111, 5112} and not seeds & before
-    assert not seeds & set(PROFILES["f05q"].seeds) and min(seeds) < VALIDATION_SEED
+    assert not seeds & set(PROFILES["nr10"].seeds) and min(seeds) < VALIDATION_SEED
 
 
-def test_the_accval_profile_judges_the_previous_default_and_measures_its_alpha_response() -> None:
-    """accval pairs the previous default (v2x_mix_av) with the free-flow choice; its alpha-8 models are its own."""
+def test_the_current_profile_judges_the_default_and_measures_its_alpha_response() -> None:
+    """nr10 judges today's default (no judged variant named: the first), alpha 8 on 3 of its seeds in free flow."""
     from coopsumo.config import DQNConfig
-    from coopsumo.studies.protocol_plan import PROFILES, V2X_MIX_AV, cell_specs, variants
+    from coopsumo.studies.protocol_plan import CURRENT, PROFILES, cell_specs, variants
 
-    profile = PROFILES["accval"]
-    assert profile.judged_variant() == "v2x_mix_av" and variants()["v2x_mix_av"].learner == V2X_MIX_AV
-    assert variants()["nr10"].learner == DQNConfig()  # the default: f05q_ts2k with no change back in its settings
+    profile = PROFILES[CURRENT]
+    assert CURRENT == "nr10" and profile.judged_variant() == "nr10" and variants()["nr10"].learner == DQNConfig()
     alpha8 = [s for s in cell_specs(profile) if s.get("alpha") == 8.0]
-    assert alpha8 and {s["variant"] for s in alpha8} == {"v2x_mix_av"}
+    assert alpha8 and {s["variant"] for s in alpha8} == {"nr10"}
     assert {s["scenario"] for s in alpha8} == {"free"} and len({s["train_key"] for s in alpha8}) == profile.alpha_seeds
-    assert PROFILES["v2x_mix10"].judged_variant() == "v2x_mix"  # no judged variant named: the first
 
 
 def test_a_committed_studys_trainings_pair_only_when_made_the_same_way(tmp_path: Path) -> None:
@@ -234,44 +265,44 @@ def test_a_committed_studys_trainings_pair_only_when_made_the_same_way(tmp_path:
                  "scenario": "free", "t_up": 2.0, "eval_seed": eval_seed, "status": "ok", "mean_speed_mps": v,
                  "lane_changes_per_vehicle": 1.0} for seed, v in zip((100, 101), speeds, strict=True)]  # fmt: skip
 
-    profile = Profile("x", variants=("v2x_mix_av_f05",), seeds=(100, 101),
-                      paired_with=(("v2x_mix_av_f05", "learner_protocol_old", "v2x_mix_av"),))  # fmt: skip
-    runs = pd.DataFrame(rows("v2x_mix_av_f05", (20.0, 21.0)))
+    profile = Profile("x", variants=("nr10",), seeds=(100, 101),
+                      paired_with=(("nr10", "learner_protocol_old", "f05q_ts2k"),))  # fmt: skip
+    runs = pd.DataFrame(rows("nr10", (20.0, 21.0)))
     folder = tmp_path / "learner_protocol_old"
     folder.mkdir()
-    learners = {"v2x_mix_av": {"learner": to_dict(variants()["v2x_mix_av"].learner), "weights": "model.pt"}}
+    learners = {"f05q_ts2k": {"learner": to_dict(variants()["f05q_ts2k"].learner), "weights": "model.pt"}}
+    old = Profile("old", variants=("f05q_ts2k",))
 
     def commit(study_profile: Profile, eval_seed: int = 5000, learner_lr: float | None = None) -> str:
-        entry = dict(learners["v2x_mix_av"])
+        entry = dict(learners["f05q_ts2k"])
         if learner_lr is not None:
             entry["learner"] = {**entry["learner"], "lr": learner_lr}  # type: ignore[dict-item]
-        study = {"profile": asdict(study_profile), "learners": {"v2x_mix_av": entry}}
+        study = {"profile": asdict(study_profile), "learners": {"f05q_ts2k": entry}}
         (folder / "study.json").write_text(json.dumps(study))
-        pd.DataFrame(rows("v2x_mix_av", (19.5, 20.0), eval_seed)).to_csv(folder / "runs.csv", index=False)
+        pd.DataFrame(rows("f05q_ts2k", (19.5, 20.0), eval_seed)).to_csv(folder / "runs.csv", index=False)
         return "\n".join(committed_pair_lines(runs, profile, tmp_path))
 
-    text = commit(Profile("old", variants=("v2x_mix_av",), seeds=(100, 101)))
-    assert "| `v2x_mix_av_f05` | `v2x_mix_av` ([learner_protocol_old]" in text and "| +0.75 [" in text
+    text = commit(replace(old, seeds=(100, 101)))
+    assert "| `nr10` | `f05q_ts2k` ([learner_protocol_old]" in text and "| +0.75 [" in text
     assert "2 of 2" in text and "not paired" not in text
-    assert "not paired, its v2x_mix_av is not today's" in commit(Profile("old", seeds=(100, 101)), learner_lr=0.5)
-    assert "not paired, other evaluation seeds (free, T_up 2 s)" in commit(Profile("old"), eval_seed=5007)
-    assert "not paired, its profile differs in train_steps" in commit(replace(Profile("old"), train_steps=1000))
+    assert "not paired, its f05q_ts2k is not today's" in commit(replace(old, seeds=(100, 101)), learner_lr=0.5)
+    assert "not paired, other evaluation seeds (free, T_up 2 s)" in commit(old, eval_seed=5007)
+    assert "not paired, its profile differs in train_steps" in commit(replace(old, train_steps=1000))
     (folder / "runs.csv").unlink()
     assert "not paired, no runs.csv and study.json in learner_protocol_old" in "\n".join(
         committed_pair_lines(runs, profile, tmp_path))
 
 
 def test_several_evaluation_seed_sets_judge_each_model_by_its_mean() -> None:
-    """f05q_ts2k_3sets meets every condition on 3 seeds: the first set's cells are f05q_ts2k10's (reused), and the
-    statistics compare each model's mean over the sets with the baselines' mean over the same seeds."""
+    """nr10_3sets meets every condition on 3 seeds: the first set's cells are nr10's (reused), and the statistics
+    compare each model's mean over the sets with the baselines' mean over the same seeds."""
     from coopsumo.studies.protocol_plan import PROFILES, cell_specs
     from coopsumo.studies.protocol_report import condition_stats, per_model
 
-    for three_sets, one_set in (("f05q_ts2k_3sets", "f05q_ts2k10"), ("nr10_3sets", "nr10")):
-        three, one = cell_specs(PROFILES[three_sets]), cell_specs(PROFILES[one_set])
-        first = {s["key"]: s for s in one if s.get("alpha") == 0.0}
-        assert all(first[s["key"]]["config"] == s["config"] for s in three if s["key"] in first)
-        assert len(three) == 3 * len(first) and len({s["key"] for s in three}) == len(three)
+    three, one = cell_specs(PROFILES["nr10_3sets"]), cell_specs(PROFILES["nr10"])
+    first = {s["key"]: s for s in one if s.get("alpha") == 0.0}
+    assert all(first[s["key"]]["config"] == s["config"] for s in three if s["key"] in first)
+    assert len(three) == 3 * len(first) and len({s["key"] for s in three}) == len(three)
     free_t2 = {s["eval_seed"] for s in three if s["scenario"] == "free" and s["t_up"] == 2.0}
     assert free_t2 == {5000, 5020, 5040}
     # a model below keep on one seed and above it on average is not a loss; the mean decides

@@ -85,7 +85,7 @@ def test_scenario_one_takes_the_protocols_models_from_the_store() -> None:
     for alpha in (0.0, 8.0):
         for seed in scenario1_plan.TRAIN_SEEDS:
             s1 = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), alpha, "default", seed))
-            proto = to_dict(protocol_plan.train_config(protocol_plan.PROFILES["v2x_mix10"], DQNConfig(), alpha, seed))
+            proto = to_dict(protocol_plan.train_config(protocol_plan.PROFILES["nr10"], DQNConfig(), alpha, seed))
             assert model_store.model_id(s1) == model_store.model_id(proto)
     base = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), 0.0, "default", 100))
     other = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), 0.0, "default", 101))

@@ -10,10 +10,10 @@ bootstrap interval, the worst model, and the probability of improvement against 
 A variant is a training (its learner) plus which weights drive: `model.pt` (the validated best, when the learner
 selects) or `model_last.pt` (the last weights). Model selection never feeds back into training, so the last
 weights of a selecting training are the model the same learner without selection would have saved: one
-training gives both rows. Cells run on the shared runner; a rerun reuses finished cells. Outputs in OUT
-(default results/learner_protocol_<profile>, the first protocol's profile `default` results/learner_protocol; without
---profile, protocol_plan.CURRENT: the one judging today's default learner): cells/, train/, runs/, runs.csv,
-report.md and figures.
+training gives both rows. The variants and profiles are data (coopsumo/experiments_data/learners.toml and
+protocol.toml). Cells run on the shared runner; a rerun reuses finished cells. Outputs in OUT (default
+results/learner_protocol_<profile>; without --profile, protocol_plan.CURRENT: the one judging today's default
+learner): cells/, train/, runs/, runs.csv, report.md and figures.
 """
 
 from __future__ import annotations
@@ -30,7 +30,6 @@ from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
 from coopsumo.studies.protocol_plan import (
     CURRENT,
     DRIVES,
-    OLDEST,
     PROFILES,
     REQUIRED,
     TRAJECTORY_EVERY,
@@ -156,23 +155,27 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
     return meta
 
 
+def default_folder(profile: str) -> Path:
+    """A profile's results folder when --out is not given: results/learner_protocol_<profile>."""
+    return default_out("learner_protocol", profile, committed="")
+
+
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo protocol",
                description="Judge learners: every training seed's model in free flow and through the accident "
                            "against keep, greedy and MOBIL p=0 (IQM, bootstrap intervals, probability of "
                            "improvement).")  # fmt: skip
     p.add_argument("--profile", choices=tuple(PROFILES), default=CURRENT, metavar="PROFILE",
-                   help=f"which learners, on how many models (protocol_plan.PROFILES; docs/studies.md): {CURRENT} "
-                        f"(the default) judges today's default learner; {OLDEST!r} is the first protocol's, of an "
-                        f"older learner; tiny takes seconds, for trying it out; the others, one of "
-                        f"{', '.join(p for p in PROFILES if p not in (CURRENT, OLDEST, 'tiny'))}, judge earlier "
-                        "learners or one change each")  # fmt: skip
+                   help=f"which learners, on how many models (coopsumo/experiments_data/protocol.toml; "
+                        f"docs/studies.md): {CURRENT} (the default) judges today's default learner; tiny takes "
+                        f"seconds, for trying it out; the others: "
+                        f"{', '.join(p for p in PROFILES if p not in (CURRENT, 'tiny'))}. The earlier profiles are "
+                        "rows of results/history/README.md, each run at the commit its row names")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
     p.add_argument("--out", type=model_out_dir, default=None,
-                   help=f"results folder (default {default_out('learner_protocol', CURRENT, OLDEST)}; another "
-                        f"profile results/learner_protocol_<profile>, the {OLDEST!r} profile "
-                        f"{default_out('learner_protocol', OLDEST, OLDEST)})")  # fmt: skip
+                   help=f"results folder (default {default_folder(CURRENT)}; another profile "
+                        f"{default_folder('<profile>')})")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
 
@@ -185,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
             raise UsageError(f"--workers must be positive, got {args.workers}")
         check_backend(args.backend, args.address)
         if args.out is None:
-            args.out = default_model_out(default_out("learner_protocol", args.profile, OLDEST))
+            args.out = default_model_out(default_folder(args.profile))
         with study_root(args.out, "protocol"):
             meta = run_study(PROFILES[args.profile], args.out, args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip
