@@ -15,7 +15,7 @@ from pathlib import Path
 
 from coopsumo import __version__
 from coopsumo.paths import nets_dir_problem
-from coopsumo.runio import NETS_ENV, Parser, working_folder_problem
+from coopsumo.runio import NETS_ENV, Parser, UsageError, working_folder_problem
 
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("coopsumo.simulate", "run one simulation (free flow or the accident) with any policy"),
@@ -94,7 +94,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.nets_dir is not None:
         # read by sim.network when a network is built, here and in the study's worker processes
         os.environ[NETS_ENV] = str(Path(args.nets_dir).expanduser().resolve())
-    module = importlib.import_module(COMMANDS[args.command][0])
+    try:
+        module = importlib.import_module(COMMANDS[args.command][0])
+    except UsageError as err:  # data the command reads when imported refused (the protocol's learners.toml)
+        print(f"coopsumo {args.command}: error: {err}", file=sys.stderr)
+        return 2
     return int(module.main(rest))
 
 

@@ -135,3 +135,18 @@ def test_the_packaged_catalogue_holds_the_current_profiles_and_what_they_pair_wi
     assert known["c2x"].learner == replace(DQN_PRESETS["default"], **CONDITIONED8V)
     assert known["f05q_ts2k"].learner == replace(known["nr10"].learner, no_return_s=0.0)
     assert known["margin"].learner == known["select"].learner and known["margin"].weights == "model_last.pt"
+
+
+def test_a_refused_catalogue_ends_the_command_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """protocol_plan reads the catalogue when it is imported: `coopsumo protocol` then says the error in one line,
+    exit 2, not a traceback."""
+    from coopsumo import cli
+
+    (tmp_path / "broken_protocol.py").write_text(
+        "from coopsumo.config import ConfigError\nraise ConfigError(\"learners.toml: [x] unknown parent 'nr9'\")\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setitem(cli.COMMANDS, "protocol", ("broken_protocol", "judge learners"))
+    assert cli.main(["protocol", "--profile", "nr10"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["coopsumo protocol: error: learners.toml: [x] unknown parent 'nr9'"]
