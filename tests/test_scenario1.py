@@ -480,3 +480,33 @@ def test_the_report_writes_the_difference_figure_and_names_it(tmp_path: Path, mo
     assert figures.index("(fig_tts_demand.png)") < figures.index("(fig_tts_difference.png)") < figures.index("Fig. 4")
     assert "the next figure shows the differences" in figures and "a minus b (veh-h, linear scale)" in figures
     assert "learned policies thick, the baselines dashed behind" in report
+
+
+def test_the_paper_horizon_section_reads_every_model_and_draws_fig4_for_each_learner(study: Path) -> None:
+    """The --full profile's section, on the quick study's real run folders: a recovery step (or never) for every
+    model of every learned policy, waves on Fig. 4's lane for every run, and Fig. 4 of a second learner preset."""
+    from dataclasses import replace
+
+    from coopsumo.studies import scenario1_horizon as hz
+    from coopsumo.studies.scenario1_plan import Plan, Run
+
+    rows = pd.read_csv(study / "runs.csv")
+    rows["train_seed"] = rows["train_seed"].astype("Int64")
+    plan = replace(Plan.quick(), t_ups=(3.0, 1.0), seeds=(1, 2), train_seeds=MODELS, presets=("default", "default"),
+                   steps=1500)  # fmt: skip
+    from coopsumo.config import sim_config_from_dict
+
+    record = json.loads((study / "runs" / "t3" / "keep_seed1" / "config.json").read_text())
+    cfg = sim_config_from_dict(record["config"])
+    runs = [Run(r.policy, r.t_up_s, r.seed, study / "runs" / f"t{r.t_up_s:g}" / run_name(r.policy, r.seed,
+                r.train_seed), cfg, None if pd.isna(r.train_seed) else int(r.train_seed))
+            for r in rows.itertuples()]  # fmt: skip
+    out = study.parent / "horizon"
+    out.mkdir()
+    text = hz.horizon_outputs(out, plan, rows, runs, rep.FIG4_LANE)
+    for policy in LEARNED:
+        lines = [line for line in text.splitlines() if line.startswith(f"| `{policy}` |")]
+        assert len(lines) == 2 and all("m100: " in line and "m101: " in line for line in lines)
+    waves = [line for line in text.splitlines() if line.count("|") == 5 and line.startswith("| 3 |")]
+    assert len(waves) == len(POLICIES)
+    assert (out / "fig4_trajectories_default.png").read_bytes().startswith(PNG)

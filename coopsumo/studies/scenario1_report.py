@@ -17,6 +17,7 @@ import pandas as pd
 from coopsumo.config import to_dict
 from coopsumo.runio import versions
 from coopsumo.studies.scenario1_gui import gui_section
+from coopsumo.studies.scenario1_horizon import horizon_outputs
 from coopsumo.studies.scenario1_measures import (
     COUNTED,
     FIELD_DT_S,
@@ -493,6 +494,8 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
         claim = (f"The cooperative model that is not simply `keep`: **alpha = {coop:g}** (the largest alpha whose "
                  f"model makes at least 10% of alpha = 0's lane changes per vehicle over every accident run).")
     sections = [demand_section(rows, agg, t, pairs, figures) for t in plan.t_ups]
+    if plan.profile == Plan.full().profile:  # the paper's horizon: recovery steps per model, waves on lane 1
+        sections.append(horizon_outputs(root, plan, rows, runs, FIG4_LANE))
     claim += "\n\n" + verdict_table(rows, plan.t_ups, pairs)
     beside = default_study(root, plan)
     if beside is not None:
