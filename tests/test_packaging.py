@@ -1,7 +1,7 @@
 """The package off the checkout: the wheel holds every module, installs (its dependencies already present) into a
 fresh folder, and `coopsumo simulate` runs from it in a folder outside the repository, building its network into
-the per-user cache, --nets-dir or COOPSUMO_NETS_DIR, never inside the package. The README's cluster install is
-run the same way."""
+the per-user cache, --nets-dir or COOPSUMO_NETS_DIR, never inside the package. The cluster install of docs/cluster.md
+is run the same way."""
 
 from __future__ import annotations
 
@@ -99,11 +99,10 @@ def test_the_wheel_installs_and_runs_outside_the_repository(tmp_path: Path) -> N
           f"target; coopsumo simulate from outside the repository: {out.strip()}")  # fmt: skip
 
 
-def test_the_readme_cluster_install_works_outside_the_repository(tmp_path: Path) -> None:
-    """The README's `pip install ".[ray]"` from a copy of the repository, with its dependencies already present
+def test_the_documented_cluster_install_works_outside_the_repository(tmp_path: Path) -> None:
+    """docs/cluster.md's `pip install ".[ray]"` from a copy of the repository, with its dependencies already present
     (the test cannot fetch them: --no-deps), into a fresh target; Ray and the study runner import from it."""
-    readme = (ROOT / "README.md").read_text()
-    section = readme.split("## On a cluster")[1]
+    section = (ROOT / "docs" / "cluster.md").read_text()
     (block,) = re.findall(r"```bash\n(.*?)```", section, flags=re.S)
     lines = [line.strip() for line in block.splitlines() if line.strip()]
     assert lines == ["pip install torch==2.13.0", 'pip install ".[ray]"']
