@@ -66,7 +66,7 @@ def test_monotone_check() -> None:
 
 def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     out = tmp_path / "learning"
-    cmd = [sys.executable, "-m", "coopsumo.ablation", "--profile", "tiny", "--workers", "2", "--out", str(out),
+    cmd = [sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--workers", "2", "--out", str(out),
            "--quiet"]  # fmt: skip
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     assert res.returncode == 0, res.stderr[-2000:]
@@ -90,12 +90,12 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     study = json.loads((out / "study.json").read_text())
     assert study["cells_run"] == study["cells"]
     # the two experiments beside the study read its models (as docs/studies.md runs them)
-    diag = subprocess.run([sys.executable, "experiments/seed_diagnosis.py", str(out), "--steps", "200",
+    diag = subprocess.run([sys.executable, "-m", "coopsumo", "diagnose", str(out), "--steps", "200",
                            "--alpha0-only", "--variants", "v2x"], cwd=ROOT, capture_output=True, text=True)  # fmt: skip
     assert diag.returncode == 0, diag.stderr[-2000:]
     table = pd.read_csv(out / "diagnosis.csv")
     assert len(table) == len(profile.seeds) and table["decisions"].gt(0).all()
-    acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "margin2",
+    acc = subprocess.run([sys.executable, "-m", "coopsumo", "accident-seeds", str(out), "--variants", "margin2",
                           "--alphas", "0", "--seeds", "1", "--steps", "900", "--t-up", "3",
                           "--out", str(tmp_path / "acc")],
                          cwd=ROOT, capture_output=True, text=True)  # fmt: skip
@@ -117,7 +117,7 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
 )  # fmt: skip
 def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:
     out = tmp_path / "out"
-    res = subprocess.run([sys.executable, "-m", "coopsumo.ablation", "--profile", "tiny", "--out", str(out), *args],
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--out", str(out), *args],
                          cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
     assert res.returncode == 2
     lines = res.stderr.strip().splitlines()

@@ -430,12 +430,12 @@ def test_tiny_scenario2_conditioned_trains_once_per_condition_and_seed(tmp_path:
     assert "Alpha-conditioned" in (out / "report.md").read_text()
     assert len(pd.read_csv(out / "alpha_star.csv")) == 2
     # the adaptive rule fitted on the sweep, and alpha=adaptive driven on its conditions (docs/studies.md)
-    fitted = subprocess.run([sys.executable, "experiments/adaptive_scenario2.py", str(out), "--fit"], cwd=ROOT,
+    fitted = subprocess.run([sys.executable, "-m", "coopsumo", "adaptive-fit", str(out)], cwd=ROOT,
                             capture_output=True, text=True, check=False)  # fmt: skip
     assert fitted.returncode == 0, fitted.stderr[-2000:]
     assert "DEFAULT_RULE = AdaptiveRule(points=((2, " in fitted.stdout
     assert len(json.loads((out / "adaptive_rule.json").read_text())["points"]) == 2
-    driven = subprocess.run([sys.executable, "experiments/adaptive_scenario2.py", str(out)], cwd=ROOT,
+    driven = subprocess.run([sys.executable, "-m", "coopsumo", "adaptive", str(out)], cwd=ROOT,
                             capture_output=True, text=True, check=False)  # fmt: skip
     assert driven.returncode == 0, driven.stderr[-2000:]
     adaptive = pd.read_csv(out / "adaptive_runs.csv")
@@ -446,7 +446,7 @@ def test_tiny_scenario2_conditioned_trains_once_per_condition_and_seed(tmp_path:
 @pytest.mark.sumo
 def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp_path: Path) -> None:
     """The learning study's conditioned variant beside per-alpha models, then the accident at fixed and adaptive
-    alpha (experiments/accident_seeds.py --adaptive)."""
+    alpha (coopsumo accident-seeds --adaptive)."""
     out = tmp_path / "learning"
     res = subprocess.run([sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--variants",
                           "noreturn,conditioned", "--alpha-variants", "noreturn,conditioned", "--alphas", "0,8",
@@ -461,7 +461,7 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
     report = (out / "report.md").read_text()
     assert "## One network for every alpha: `conditioned` against per-alpha `noreturn` models" in report
     assert "| 8 | 2 |" in report
-    acc = subprocess.run([sys.executable, "experiments/accident_seeds.py", str(out), "--variants", "conditioned",
+    acc = subprocess.run([sys.executable, "-m", "coopsumo", "accident-seeds", str(out), "--variants", "conditioned",
                           "--alphas", "0,8", "--adaptive", "--seeds", "1", "--steps", "1500", "--t-up", "3", "--out",
                           str(tmp_path / "acc")], cwd=ROOT, capture_output=True, text=True)  # fmt: skip
     assert acc.returncode == 0, acc.stderr[-2000:]

@@ -22,7 +22,7 @@ from coopsumo.runio import RUN_MARKER
 
 pytestmark = pytest.mark.sumo
 REPO = Path(__file__).resolve().parent.parent
-STUDY = ["-m", "coopsumo.scenario1", "--quick", "--t-up", "2", "--mobil-p", "0", "--alphas", "0", "--train-steps",
+STUDY = ["-m", "coopsumo", "scenario1", "--quick", "--t-up", "2", "--mobil-p", "0", "--alphas", "0", "--train-steps",
          "1500", "--steps", "600", "--seeds", "1", "--train-seeds", "1", "--workers", "2"]  # fmt: skip
 """1,500 training steps: seconds on a quiet machine, so that a Ctrl-C sent while the model trains lands in it"""
 """one model (alpha 0), one demand, one seed: a training and five accident runs (dqn_alpha0, keep, greedy, MOBIL

@@ -101,8 +101,8 @@ def _in_deleted_folder(args: list[str], tmp_path: Path) -> subprocess.CompletedP
     ["coopsumo.simulate", "--steps", "20", "--quiet", "--out", "ABS"],
     ["coopsumo.train", "--steps", "20", "--eval-steps", "0", "--quiet"],  # the default --out, relative
     ["coopsumo.train", "--steps", "20", "--eval-steps", "0", "--quiet", "--out", "ABS"],
-    ["coopsumo.scenario2", "--profile", "tiny", "--quiet"],  # the default --out, relative
-    ["coopsumo.scenario1", "--quick", "--out", "ABS"],
+    ["coopsumo", "scenario2", "--profile", "tiny", "--quiet"],  # the default --out, relative
+    ["coopsumo", "scenario1", "--quick", "--out", "ABS"],
     ["coopsumo.bench", "--quick"],
 ], ids=["simulate", "simulate-absolute", "train", "train-absolute", "scenario2", "scenario1-absolute",
         "bench"])  # fmt: skip

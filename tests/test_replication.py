@@ -67,7 +67,7 @@ from coopsumo.config import DQNConfig, to_dict  # noqa: E402
 from coopsumo.studies import model_store  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
-SMALL = ["-m", "coopsumo.scenario1", "--quick", "--train-steps", "300", "--steps", "300", "--seeds", "1",
+SMALL = ["-m", "coopsumo", "scenario1", "--quick", "--train-steps", "300", "--steps", "300", "--seeds", "1",
          "--t-up", "2", "--mobil-p", "0", "--alphas", "0", "--workers", "2"]  # fmt: skip
 """a small scenario I: models at alpha 0 only, one demand, one evaluation seed"""
 

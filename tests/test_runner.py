@@ -126,7 +126,7 @@ def test_scenario1_on_ray_gives_the_same_summary_as_local(tmp_path: Path) -> Non
     tables = {}
     for backend in ("local", "ray"):
         out = tmp_path / backend
-        cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "300", "--steps", "450",
+        cmd = [sys.executable, "-m", "coopsumo", "scenario1", "--quick", "--train-steps", "300", "--steps", "450",
                "--seeds", "1", "--train-seeds", "1", "--alphas", "0", "--t-up", "3,1", "--mobil-p", "0",
                "--backend", backend, "--out", str(out)]  # fmt: skip
         res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False, env=env_with_display(None))

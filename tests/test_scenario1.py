@@ -46,7 +46,7 @@ def study(tmp_path_factory: pytest.TempPathFactory, display_or_none: str | None)
     """The quick study, on a (virtual) display when there is one, so that it makes its sumo-gui screenshot; its
     model store (beside its folder) its own."""
     out = tmp_path_factory.mktemp("scenario1") / "study"
-    cmd = [sys.executable, "-m", "coopsumo.scenario1", *TINY, "--out", str(out)]
+    cmd = [sys.executable, "-m", "coopsumo", "scenario1", *TINY, "--out", str(out)]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
                          env=env_with_display(display_or_none))  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
@@ -126,7 +126,7 @@ def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) 
     run_summary = next((study / "runs" / "t3").iterdir()) / "summary.json"
     run_before = run_summary.stat().st_mtime_ns
     shot_before = (study / "gui_jam.png").stat().st_mtime_ns if (study / "gui_jam.png").exists() else None
-    cmd = [sys.executable, "-m", "coopsumo.scenario1", *TINY, "--out", str(study)]
+    cmd = [sys.executable, "-m", "coopsumo", "scenario1", *TINY, "--out", str(study)]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
                          env=env_with_display(display_or_none))  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
@@ -187,7 +187,7 @@ def test_jam_step_is_the_first_time_the_view_is_nearly_full_of_slow_vehicles() -
 )  # fmt: skip
 def test_bad_input(tmp_path: Path, args: list[str]) -> None:
     out = tmp_path / "s1"
-    res = subprocess.run([sys.executable, "-m", "coopsumo.scenario1", *args, "--out", str(out)], cwd=ROOT,
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "scenario1", *args, "--out", str(out)], cwd=ROOT,
                          capture_output=True, text=True, check=False)  # fmt: skip
     assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
     assert not out.exists()
@@ -312,7 +312,7 @@ def test_bad_study_lists(tmp_path: Path, args: list[str]) -> None:
 def test_the_paper_preset_stands_beside_the_default(tmp_path: Path) -> None:
     """--preset default,paper --alphas 0: both learners' alpha = 0 models in one study and one report."""
     out = tmp_path / "s1"
-    cmd = [sys.executable, "-m", "coopsumo.scenario1", "--quick", "--train-steps", "300", "--steps", "450",
+    cmd = [sys.executable, "-m", "coopsumo", "scenario1", "--quick", "--train-steps", "300", "--steps", "450",
            "--seeds", "1", "--train-seeds", "1", "--alphas", "0", "--preset", "default,paper", "--t-up", "2",
            "--mobil-p", "0", "--out", str(out)]  # fmt: skip
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False, env=env_with_display(None))
@@ -328,7 +328,7 @@ def test_the_paper_preset_stands_beside_the_default(tmp_path: Path) -> None:
 
 
 def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
-    """experiments/regime_map.py on shortened plans: a light demand keeps the queue on the road, a heavy one
+    """`coopsumo regime-map` on shortened plans: a light demand keeps the queue on the road, a heavy one
     (one vehicle every 0.2 s, beyond what 3 lanes can take in) fills the entrance and still waits at the end."""
     sys.path.insert(0, str(ROOT / "experiments"))
     try:
@@ -360,7 +360,7 @@ def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
 def test_regime_map_bad_demands_one_line_exit_2(tmp_path: Path) -> None:
     out = tmp_path / "out"
     for bad in ("0", "1,,2", "nan", "2,2", "-1"):
-        res = subprocess.run([sys.executable, "experiments/regime_map.py", "--t-up", bad, "--out", str(out)],
+        res = subprocess.run([sys.executable, "-m", "coopsumo", "regime-map", "--t-up", bad, "--out", str(out)],
                              cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
         lines = res.stderr.strip().splitlines()
         assert res.returncode == 2 and len(lines) == 1 and "--t-up" in lines[0], (bad, res.stderr)

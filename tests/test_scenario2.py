@@ -335,7 +335,7 @@ def test_ray_backend_without_ray(monkeypatch: pytest.MonkeyPatch, tmp_path: Path
 
 # -- real sweeps ------------------------------------------------------------------------------------------
 def sweep_cmd(out: Path, *extra: str) -> list[str]:
-    return [sys.executable, "-m", "coopsumo.scenario2", "--profile", "tiny", "--out", str(out), "--quiet", *extra]
+    return [sys.executable, "-m", "coopsumo", "scenario2", "--profile", "tiny", "--out", str(out), "--quiet", *extra]
 
 
 def run_sweep_cli(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:

@@ -25,8 +25,6 @@ from coopsumo.studies.diagnosis_measures import COLUMNS, decision_measures, trai
 
 ROOT = Path(__file__).resolve().parent.parent
 COMMANDS = ("regime-map", "accident-seeds", "diagnose", "adaptive-fit", "adaptive")
-OLD_SPELLINGS = {"regime_map.py": "regime-map", "accident_seeds.py": "accident-seeds", "seed_diagnosis.py": "diagnose",
-                 "adaptive_scenario2.py": "adaptive"}  # fmt: skip
 
 
 def command_main(name: str, argv: list[str]) -> int:
@@ -110,20 +108,6 @@ def test_help_names_the_command(name: str, capsys: pytest.CaptureFixture[str]) -
     assert command_main(name, ["--help"]) == 0
     out = capsys.readouterr().out
     assert out.startswith(f"usage: coopsumo {name} ") and ("(default" in out or name == "adaptive-fit")  # no options
-
-
-@pytest.mark.parametrize("script", sorted(OLD_SPELLINGS))
-def test_the_old_experiment_scripts_are_the_commands(script: str) -> None:
-    res = subprocess.run([sys.executable, f"experiments/{script}", "--help"], cwd=ROOT, capture_output=True,
-                         text=True, timeout=120, check=False)  # fmt: skip
-    assert res.returncode == 0, res.stderr[-1500:]
-    assert res.stdout.startswith(f"usage: coopsumo {OLD_SPELLINGS[script]} ")
-
-
-def test_the_old_fit_spelling_is_adaptive_fit() -> None:
-    res = subprocess.run([sys.executable, "experiments/adaptive_scenario2.py", "--fit", "--help"], cwd=ROOT,
-                         capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
-    assert res.returncode == 0 and res.stdout.startswith("usage: coopsumo adaptive-fit "), res.stderr[-1500:]
 
 
 # -- bad input ----------------------------------------------------------------------------------------------------
@@ -212,7 +196,7 @@ def test_regime_map_runs_both_lengths_and_reuses_every_cell(tmp_path: Path) -> N
     runs = pd.read_csv(out / "runs.csv")
     assert list(runs["accident"]) == ["default", "paper"] and list(runs["run_steps"]) == [600, 2700]
     assert set(runs["collisions"]) == {0} and set(runs["teleports"]) == {0}
-    # the cells and run folders keep the names experiments/regime_map.py gave them: its folders are reused
+    # the cells and run folders keep the names the old experiments/regime_map.py script gave them: its folders are reused
     assert sorted(cell_times(out)) == ["default_t4_seed1.json", "paper_t4_seed1.json"]
     assert (out / "runs/default/t4/keep_seed1/summary.json").exists()
     report = (out / "report.md").read_text()

@@ -92,6 +92,6 @@ DEFAULT_RULE = AdaptiveRule(
             (4, 2.012, 0.0), (4, 4.32, 0.0), (4, 6.963, 0.125), (4, 9.892, 48.0)),
     source="results/scenario2_conditioned",
 )
-"""the rule `alpha=adaptive` uses: printed by `experiments/adaptive_scenario2.py results/scenario2_conditioned --fit`
+"""the rule `alpha=adaptive` uses: printed by `coopsumo adaptive-fit results/archive/scenario2_conditioned`
 (2, 3 and 4 lanes, 90,000 training steps, 3 seeds; a road of another lane count uses the nearest lane count's
 points)"""

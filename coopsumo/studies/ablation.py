@@ -1,4 +1,4 @@
-"""`python -m coopsumo.ablation` (`make learning`): what makes the shared DQN learn, one change at a time.
+"""`coopsumo learning` (`make learning`): what makes the shared DQN learn, one change at a time.
 
 Two parts, both trained in free flow (3 lanes, T_up 1 s by default) and evaluated greedily on
 evaluation seeds the models never trained on, beside baselines on the same evaluation seeds:
