@@ -314,7 +314,7 @@ def run_main(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, 
         (["--address", "auto"], "--address"),
         (["--policies", "dqn,ppo"], "policies"),
         (["--policies", "mobil", "--mobil-p", "0,-1"], "mobil-p"),
-        (["--mobil-p", "0.5"], "--mobil-p"),
+        (["--policies", "dqn", "--mobil-p", "0.5"], "--mobil-p"),
     ],
 )
 def test_bad_input_one_line_exit_2(argv: list[str], words: str, tmp_path: Path,

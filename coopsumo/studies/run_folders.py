@@ -115,8 +115,8 @@ def simulate_into(
 STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
     "scenario1": ("plan.json", "cells", "models", "runs", "runs.csv", "summary.csv", "report.md", "fig*.png",
                   "gui_jam.png", "gui_jam.json"),
-    "scenario2": ("sweep.json", "cells", "train", "evals", "mobil", "runs.csv", "evals.csv", "alpha_star.csv",
-                  "mobil_p_star.csv", "fig6_*.png", "report.md"),
+    "scenario2": ("sweep.json", "cells", "train", "evals", "mobil", "baselines", "runs.csv", "evals.csv",
+                  "alpha_star.csv", "mobil_p_star.csv", "gate.csv", "check.csv", "fig6_*.png", "report.md"),
     "ablation": ("study.json", "cells", "train", "baselines", "runs.csv", "summary.csv", "fig_*.png", "report.md"),
     "regime_map": ("plan.json", "cells", "runs", "runs.csv", "report.md"),
     "protocol": ("study.json", "cells", "train", "runs", "runs.csv", "stats.csv", "diagnosis.csv", "fig_*.png",

@@ -1,5 +1,11 @@
 """`coopsumo scenario2` (`make scenario2`): the alpha sweep of section IV.B (paper Fig. 6).
 
+The default profile `full` (and `check`, `paper`) trains one alpha-conditioned network per lane count and training
+seed on that lane count's demands and drives it at every condition of the lane count and every alpha; `keep`,
+`greedy` and MOBIL run on the same evaluation seeds, every speed is measured once the road is full, and the report
+(scenario2_gate_report) judges per condition whether the learner is fit to be asked (the gate) before alpha*'s
+trends are fitted. The profiles `quick` and `tiny` are the per-alpha sweep described below.
+
 For every condition (lane count, upstream departure interval T_up) and every lane-change
 penalty alpha, a model is trained in free flow per training seed (taken from the model store when
 it holds it) and evaluated greedily on the same condition on every evaluation seed, demands no
@@ -31,6 +37,7 @@ scenario2_report; this module runs the plan's cells on the shared runner and is 
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -54,9 +61,12 @@ from coopsumo.studies.records import (
 )
 from coopsumo.studies.run_folders import default_out, simulate_into, study_root
 from coopsumo.studies.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
-from coopsumo.studies.scenario2_measures import CRITERION, KEY_COLUMNS, evals_table, runs_table
+from coopsumo.studies.scenario2_measures import KEY_COLUMNS, evals_table, runs_table
 from coopsumo.studies.scenario2_plan import (
+    CLASSICAL,
+    CRITERION,
     EVAL_SEED_BASE,
+    FULL_ROAD,
     NOMINAL_CAPACITY_VEH_H_PER_LANE,
     POLICIES,
     PROFILES,
@@ -64,6 +74,8 @@ from coopsumo.studies.scenario2_plan import (
     at_condition,
     cell_specs,
     eval_seeds,
+    lane_learner,
+    lane_train_config,
 )
 from coopsumo.studies.scenario2_report import condition_label, write_outputs
 from coopsumo.validation import (
@@ -84,6 +96,8 @@ from coopsumo.validation import (
 )
 from coopsumo.validation import parse_number as parse_number  # '1/8' -> 0.125, kept in this module's interface
 
+MAX_LANE_DEMANDS = 10
+"""a lane network's training demands (DQNConfig.train_t_ups holds at most 10)"""
 REQUIRED_SUMMARY = (CRITERION, "collisions", "teleports")
 """summary values a stored cell record must hold as finite numbers to be reused (records.record_problem)"""
 RECORD_KEYS = (*KEY_COLUMNS, "policy", "p")
@@ -91,11 +105,15 @@ RECORD_KEYS = (*KEY_COLUMNS, "policy", "p")
 
 
 def _cell_folder(spec: dict[str, Any]) -> dict[str, Any]:
-    """A cell's folder in its record: mobil/<key>/ (run_dir) for a MOBIL cell, train/<key>/ (train_dir) for a DQN's
-    (train/<train_key>/ for a conditioned one: the training its alphas share)."""
-    if spec.get("policy") == "mobil":
-        return {"run_dir": f"mobil/{spec['key']}"}
+    """A cell's folder in its record: mobil/<key>/ (run_dir) for a MOBIL cell, baselines/<key>/ for keep and greedy,
+    train/<key>/ (train_dir) for a DQN's (train/<train_key>/ for a conditioned one: the training it shares)."""
+    if spec.get("policy") in CLASSICAL:
+        return {"run_dir": f"{_classical_folder(spec)}/{spec['key']}"}
     return {"train_dir": f"train/{spec.get('train_key', spec['key'])}"}
+
+
+def _classical_folder(spec: dict[str, Any]) -> str:
+    return "mobil" if spec.get("policy") == "mobil" else "baselines"
 
 
 RECORDS = CellRecords(RECORD_KEYS, ("train_dir", "resumed_from_step", "train_summary", "eval_summaries"),
@@ -110,10 +128,11 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
     A DQN cell takes (or trains) its model in ROOT/train/<key>/ (a matching checkpoint there is resumed
     instead of starting afresh) and evaluates it in ROOT/evals/<key>/; a MOBIL cell runs one simulation into
-    ROOT/mobil/<key>/. status "ok" (with the evaluation summary), "failed" (with the error) or "interrupted"
-    (SIGTERM/SIGINT: a checkpoint was saved when training, the cell is to be run again).
+    ROOT/mobil/<key>/, a keep or greedy cell into ROOT/baselines/<key>/. status "ok" (with the evaluation summary),
+    "failed" (with the error) or "interrupted" (SIGTERM/SIGINT: a checkpoint was saved when training, the cell is
+    to be run again).
     """
-    cell = _run_mobil if spec.get("policy") == "mobil" else _run_dqn
+    cell = _run_classical if spec.get("policy") in CLASSICAL else _run_dqn
     return RECORDS.run(spec, lambda record: cell(spec, Path(root), record))
 
 
@@ -125,44 +144,70 @@ def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     name = spec.get("train_key", spec["key"])
     out = root / "train" / name
     _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
-    _evaluate(spec, out, root / "evals" / name, record)
+    _evaluate(spec, out, root / "evals" / spec.get("evals_key", name), record)
 
 
 def _evaluate(spec: dict[str, Any], train_dir: Path, evals_dir: Path, record: dict[str, Any]) -> None:
     """Drive the model of train_dir greedily on each of the cell's evaluations (one per evaluation seed) into
     evals_dir/eval_[a<alpha>_]s<seed>/; the record's summary pools them (records.pool_summaries), its
     eval_summaries keeps each. An evaluation's summary also holds its mean loop flow and occupancy (SUMO's
-    detectors.xml), from which `alpha=adaptive`'s rule is fitted."""
+    detectors.xml), from which `alpha=adaptive`'s rule is fitted; with trajectory_every_steps in the cell's
+    configuration, its full-road speed too (full_road_measures)."""
     from coopsumo.config import sim_config_from_dict
 
-    conditioned = "train_key" in spec
+    conditioned = spec.get("conditioned", "train_key" in spec)
+    every = spec["config"].get("trajectory_every_steps", 0)
     summaries = []
     for config in spec["config"]["evals"]:
         ev = sim_config_from_dict(config)
         policy = f"dqn:{train_dir / 'model.pt'}" + (f",alpha={ev.reward.alpha:g}" if conditioned else "")
         name = (f"eval_a{number_name(ev.reward.alpha)}_s{ev.seed}" if conditioned else f"eval_s{ev.seed}")
-        summary = evaluate_model(to_dict(replace(ev, policy=policy)), evals_dir / name, spec["key"])
+        summary = evaluate_model(to_dict(replace(ev, policy=policy)), evals_dir / name, spec["key"],
+                                 **({"trajectory_every": every} if every else {}))  # fmt: skip
         summaries.append({**summary, "eval_seed": ev.seed})
     record["eval_summaries"] = summaries
     record["summary"] = {k: v for k, v in pool_summaries(summaries).items() if k != "eval_seed"}
+    if every and any(s.get(FULL_ROAD) is None for s in summaries):  # one evaluation without it: the model has none
+        record["summary"].update({FULL_ROAD: None, "full_road_from_s": None})
     record["train_summary"] = json.loads((train_dir / "train_summary.json").read_text())
 
 
-def evaluate_model(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
+def evaluate_model(config: dict[str, Any], out: Path, label: str, trajectory_every: int = 0) -> dict[str, Any]:
     """One greedy evaluation (a SimConfig dict whose policy names the model) into out: its summary, with the run's
-    mean loop flow (veh/h per lane) and occupancy (%) from SUMO's detectors.xml."""
+    mean loop flow (veh/h per lane) and occupancy (%) from SUMO's detectors.xml; with trajectory_every, trajectories
+    sampled every that many steps and the full-road speed measured on them (full_road_measures)."""
     from coopsumo.report.analysis import read_detectors
 
-    summary = simulate_into(config, out, label)
+    summary = simulate_into(config, out, label, trajectory_every=trajectory_every)
     det = read_detectors(out / "detectors.xml")
     summary.update(loop_flow_veh_h_per_lane=round(float(det["flow_veh_h"].mean()), 2),
                    loop_occupancy_pct=round(float(det["occupancy_pct"].mean()), 4))  # fmt: skip
+    if trajectory_every:
+        summary.update(full_road_measures(out))
     return summary
 
 
-def _run_mobil(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Run a MOBIL cell (no training: one simulation) into ROOT/mobil/<key>/; fills `record`."""
-    record["summary"] = simulate_into(spec["config"], root / "mobil" / spec["key"], spec["key"])
+def full_road_measures(out: Path) -> dict[str, float | None]:
+    """The run folder's full-road speed and when it starts (scenario2_gate.full_road_speed on its
+    trajectories.parquet); None each when the run ended before the first vehicle inserted had left the road."""
+    from coopsumo.studies.scenario2_gate import full_road_speed
+
+    speed, start = full_road_speed(pd.read_parquet(out / "trajectories.parquet", columns=["time_s", "vid",
+                                                                                          "speed_mps"]))
+    if not math.isfinite(speed):
+        return {FULL_ROAD: None, "full_road_from_s": None}
+    return {FULL_ROAD: round(speed, 6), "full_road_from_s": round(start, 3)}
+
+
+def _run_classical(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    """Run a MOBIL, keep or greedy cell (no training: one simulation) into ROOT/mobil/<key>/ or
+    ROOT/baselines/<key>/; fills `record`. Its configuration is the run's SimConfig, or {"run": SimConfig,
+    "trajectory_every_steps": K} when the full-road speed is measured."""
+    config, every = spec["config"].get("run", spec["config"]), spec["config"].get("trajectory_every_steps", 0)
+    out = root / _classical_folder(spec) / spec["key"]
+    record["summary"] = simulate_into(config, out, spec["key"], trajectory_every=every)
+    if every:
+        record["summary"].update(full_road_measures(out))
 
 
 def repointed(root: Path, specs: list[dict[str, Any]]) -> set[str]:
@@ -171,7 +216,7 @@ def repointed(root: Path, specs: list[dict[str, Any]]) -> set[str]:
     show, so the cell is run again (it links its model back), each with one line saying why."""
     keys = set()
     for spec in specs:
-        if spec.get("policy") == "mobil":
+        if spec.get("policy") in CLASSICAL:
             continue
         link = root / "train" / spec.get("train_key", spec["key"])
         if problem := link_problem(link, spec["config"]["train"]):
@@ -196,11 +241,12 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     done = [s for s in specs if s["key"] in done_keys]
     todo = [s for s in specs if s["key"] not in done_keys]
     retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
-    # the busiest roads first and the short MOBIL runs last: a shorter tail; conditioned cells that start a
-    # training (their first alpha) before those that find it done, so that two workers train two models at once
+    # the busiest roads first and the short runs of MOBIL, keep and greedy last: a shorter tail; conditioned cells
+    # that start a training (their first alpha) before those that find it done, so that two workers train two
+    # models at once (a lane network's other cells wait for it: "after")
     first_alpha = profile.alphas[0]
-    todo.sort(key=lambda s: (s.get("policy") == "mobil", "train_key" in s and s["alpha"] != first_alpha,
-                             -s["lanes"] * s["load"]))  # fmt: skip
+    todo.sort(key=lambda s: (s.get("policy") in CLASSICAL, "after" in s or ("train_key" in s and s["alpha"] !=
+                             first_alpha and not profile.lane_networks), -s["lanes"] * s["load"]))  # fmt: skip
     meta = {
         "profile": asdict(profile),
         "learner": learner_of(profile),
@@ -209,7 +255,8 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
             for n, t, load in profile.conditions()
         ],  # fmt: skip
         "cells": len(specs),
-        "criterion": CRITERION,
+        "trainings": profile.n_trainings(),
+        "criterion": profile.criterion,
         "nominal_capacity_veh_h_per_lane": NOMINAL_CAPACITY_VEH_H_PER_LANE,
         "backend": backend_name,
         "address": address,
@@ -241,13 +288,21 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
                 failed_cells=runs.loc[runs["status"] != "ok", "key"].tolist(),
                 cell_wall_seconds_sum=round(float(pd.to_numeric(runs["cell_wall_s"]).sum()), 1),
                 cell_cpu_seconds_sum=round(float(pd.to_numeric(runs["cell_cpu_s"]).sum()), 1))  # fmt: skip
-    write_outputs(root, runs, profile, meta, n_boot)
+    if profile.lane_networks:
+        from coopsumo.studies.scenario2_gate_report import write_lane_outputs
+
+        write_lane_outputs(root, runs, evals_table(records), profile, meta, n_boot)
+    else:
+        write_outputs(root, runs, profile, meta, n_boot)
     write_json(root / "sweep.json", meta)
     return meta
 
 
 def learner_of(profile: Profile) -> dict[str, Any]:
-    """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json)."""
+    """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json); with lane networks,
+    the network's of every lane count (a check's per-alpha models: the same, not conditioned)."""
+    if profile.lane_networks:
+        return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile)))) for n in profile.lanes}
     dqn = at_condition(DQN_PRESETS[profile.preset])
     return json.loads(json.dumps(to_dict(replace(dqn, alpha_conditioned=True) if profile.conditioned else dqn)))
 
@@ -273,18 +328,26 @@ def profile_from_args(args: Any) -> Profile:
         lanes = number_list("--lanes", args.lanes, MIN_LANES, MAX_LANES, whole=True)
         profile = replace(profile, lanes=tuple(sorted({int(x) for x in lanes})))
     if args.alphas is not None:
-        alphas = alpha_list("--alphas", args.alphas)
-        profile = replace(profile, alphas=tuple(sorted(set(alphas))))
+        alphas = tuple(sorted(set(alpha_list("--alphas", args.alphas))))
+        # a check compares the networks with per-alpha models at the alphas of the grid it keeps
+        profile = replace(profile, alphas=alphas, check_alphas=tuple(a for a in profile.check_alphas if a in alphas))
     if args.t_up is not None:
         dt_s = ControlConfig().dt_s
         t_up = number_list("--t-up", args.t_up, low=min_t_up_s(dt_s), high=MAX_T_UP_S, note=t_up_note(dt_s))
         profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
+        if profile.lane_networks and len(profile.t_up_s) > MAX_LANE_DEMANDS:
+            raise UsageError(f"--t-up: profile {profile.name} trains each lane count's network on all its T_ups, at "
+                             f"most {MAX_LANE_DEMANDS}; got {len(profile.t_up_s)}")  # fmt: skip
     if args.preset is not None:
         profile = replace(profile, preset=args.preset)
     if args.conditioned:
+        if profile.lane_networks:
+            raise UsageError(f"--conditioned trains one network per condition; profile {profile.name} trains one "
+                             "alpha-conditioned network per lane count already (--profile quick or tiny take it)")
         profile = replace(profile, conditioned=True)
-    policies = set(name_list("--policies", args.policies, POLICIES))
-    profile = replace(profile, policies=tuple(x for x in POLICIES if x in policies))
+    if args.policies is not None:
+        policies = set(name_list("--policies", args.policies, POLICIES))
+        profile = replace(profile, policies=tuple(x for x in POLICIES if x in policies))
     if profile.conditioned and "dqn" not in profile.policies:
         raise UsageError("--conditioned trains the DQN cells once per condition and seed: --policies must hold dqn")
     if args.mobil_p is not None:
@@ -295,8 +358,17 @@ def profile_from_args(args: Any) -> Profile:
     return profile
 
 
-DEFAULT_PROFILE = "quick"
+DEFAULT_PROFILE = "full"
 """the profile without --profile: the committed report's"""
+PROFILE_HELP = {
+    "tiny": "tests",
+    "quick": "the 8,000-step per-alpha sweep of before, about 80 min on 2 cores",
+    "full": "the default: one alpha-conditioned network per lane count and seed, 90,000 steps, baselines and the "
+            "gate; about 3 h on 2 cores from scratch, under 1 h with every model stored",
+    "check": "the per-lane-count networks against per-alpha models at 3 lanes, loads 0.5 and 1; about 1 h",
+    "paper": "the paper's grid as full is built: a Ray cluster",
+}
+"""what --help says of each profile (the estimates: docs/studies.md, scenario II)"""
 
 
 def by_profile(show: Any) -> str:
@@ -315,7 +387,7 @@ def _numbers(values: tuple[float, ...]) -> str:
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
     p.add_argument("--profile", choices=sorted(PROFILES), default=DEFAULT_PROFILE,
-                   help="grid and step counts: tiny (tests), quick (about 80 min on 2 cores), paper")  # fmt: skip
+                   help="grid, models and step counts: " + "; ".join(f"{k} ({v})" for k, v in PROFILE_HELP.items()))
     p.add_argument("--out", type=model_out_dir, default=None,
                    help=f"results folder (default {default_out('scenario2', DEFAULT_PROFILE, DEFAULT_PROFILE)}, "
                         "another profile results/scenario2_<profile>; with --conditioned "
@@ -344,8 +416,9 @@ def build_parser() -> Parser:
                         f"(default: {by_profile(lambda f: _numbers(f.alphas))})")  # fmt: skip
     p.add_argument("--t-up", default=None, help="fixed comma-separated T_up list (s) for every lane count, "
                    "instead of the profile's load grid (default: the load grid)")  # fmt: skip
-    p.add_argument("--policies", default="dqn", help="comma-separated: dqn (train per alpha) and/or mobil "
-                   "(one MOBIL run per politeness p, no training; default: dqn)")  # fmt: skip
+    p.add_argument("--policies", default=None, help="comma-separated: dqn (the models), mobil (one MOBIL run per "
+                   "politeness p and evaluation seed), keep, greedy (one run per evaluation seed; no training) "
+                   f"(default: {by_profile(lambda f: ','.join(f.policies))})")  # fmt: skip
     p.add_argument("--mobil-p", default=None, help="comma-separated MOBIL politeness values "
                    f"(default: {by_profile(lambda f: _numbers(f.mobil_ps))})")  # fmt: skip
     p.add_argument("--preset", choices=sorted(DQN_PRESETS), default=None,
@@ -366,6 +439,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.bootstrap < 0:
             raise UsageError(f"bootstrap must be >= 0, got {args.bootstrap}")
         check_backend(args.backend, args.address)
+        if profile.lane_networks:  # a lane network's settings (e.g. at most 10 demands) checked before any folder
+            for lanes in profile.lanes:
+                lane_train_config(lanes, profile.seeds[0], profile).validate()
         if args.out is None:
             name = "scenario2_conditioned" if profile.conditioned else "scenario2"
             args.out = default_model_out(default_out(name, profile.name, DEFAULT_PROFILE))
@@ -386,6 +462,10 @@ def main(argv: list[str] | None = None) -> int:
                       f"R2 = {plane['r2']:.3f}")  # fmt: skip
             else:
                 print(plane.get("error", ""))
+            if profile.lane_networks:
+                from coopsumo.studies.scenario2_gate_report import console_lines
+
+                print("\n".join(console_lines(args.out)))
         if "mobil" in profile.policies:
             for r in pd.read_csv(args.out / "mobil_p_star.csv").itertuples():
                 if r.cells_failed:

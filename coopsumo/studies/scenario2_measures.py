@@ -18,11 +18,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
-from coopsumo.studies.scenario2_plan import Profile
+from coopsumo.studies.scenario2_plan import CLASSICAL, CRITERION, Profile
 from coopsumo.validation import number_name
-
-CRITERION = "mean_speed_mps"
-"""the paper's criterion: mean travelling speed over the evaluation (m/s)"""
 
 
 def speed_matrix(group: pd.DataFrame, alphas: Sequence[float], seeds: Sequence[int],
@@ -333,18 +330,20 @@ def runs_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
 
 
 EVAL_COLUMNS = ("mean_speed_mps", "lane_changes_per_vehicle", "throughput_veh_per_h", "mean_travel_time_s",
-                "collisions", "teleports", "loop_flow_veh_h_per_lane", "loop_occupancy_pct")
+                "collisions", "teleports", "loop_flow_veh_h_per_lane", "loop_occupancy_pct", "full_road_speed_mps",
+                "full_road_from_s", "wall_seconds")
 """the columns of evals.csv besides the coordinates"""
 
 
 def evals_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
-    """evals.csv: one row per evaluation run of the finished cells (a DQN model's every evaluation seed, a MOBIL
-    cell's one run), with the cell's key and coordinates; `seed` is the training seed (NaN for MOBIL)."""
+    """evals.csv: one row per evaluation run of the finished cells (a DQN model's every evaluation seed, a MOBIL,
+    keep or greedy cell's one run), with the cell's key and coordinates; `seed` is the training seed (NaN for the
+    policies that need no training)."""
     rows = []
     for r in records:
         if r.get("status") != "ok":
             continue
-        mobil = r.get("policy") == "mobil"
+        mobil = r.get("policy") in CLASSICAL
         runs = [r.get("summary") or {}] if mobil else r.get("eval_summaries") or []
         for summary in runs:
             row = {k: r.get(k) for k in ("key", "lanes", "t_up_s", "load", "policy", "alpha", "p")}

@@ -25,8 +25,19 @@ QUICK_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 8.0)
 """the paper's small values and where the default learner's lane changes fall to none (results/learning)"""
 NOMINAL_CAPACITY_VEH_H_PER_LANE = 1800.0
 """capacity used to place the T_up grid: load 1 means T_up = 3600 / (lanes * 1800) s (near capacity)"""
-POLICIES = ("dqn", "mobil")
-"""the two kinds of cell: a DQN trained and evaluated per alpha, MOBIL evaluated per politeness p"""
+POLICIES = ("dqn", "mobil", "keep", "greedy")
+"""the kinds of cell: a DQN model evaluated per alpha; MOBIL per politeness p, `keep` and `greedy` (no training)"""
+CLASSICAL = ("mobil", "keep", "greedy")
+"""the policies that need no training: one run per condition (and p) and evaluation seed"""
+PER_ALPHA = "per_alpha"
+"""the policy of a check profile's per-alpha model cells (Profile.check_alphas)"""
+CRITERION = "mean_speed_mps"
+"""the paper's criterion: mean travelling speed over the evaluation (m/s)"""
+FULL_ROAD = "full_road_speed_mps"
+"""mean speed once the road is full: from the time the first vehicle inserted has left the road (m/s;
+scenario2_gate.full_road_speed)"""
+FULL_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0, 32.0)
+"""the full profile's alphas: the paper's small values, 1, and its large ones"""
 EVAL_SEED_BASE = 2000
 """evaluation seeds are EVAL_SEED_BASE + 1, + 2, ...: demands no training of the sweep saw (training seeds are 1, 2,
 ...; validation seeds 900,000 and above)"""
@@ -60,9 +71,35 @@ class Profile:
     """one alpha-conditioned training per condition and seed (not per alpha), evaluated at every alpha"""
     eval_seeds: tuple[int, ...] = (EVAL_SEED_BASE + 1,)
     """evaluation seeds: every model (and MOBIL) is evaluated greedily on each of them; none is a training seed"""
+    lane_networks: bool = False
+    """one alpha-conditioned network per lane count and training seed, trained on that lane count's demands (its
+    conditions' T_ups) and chosen on held-out demand of them at validation_alphas; evaluated at every condition of
+    its lane count and every alpha (lane_train_config)"""
+    alpha_draw_max: float = 32.0
+    """lane networks: the alphas drawn and relabelled to in training are PAPER_ALPHAS up to this one"""
+    validation_alphas: tuple[float, ...] = (0.0, 1.0, 8.0)
+    """lane networks: model selection drives every validation run at each of these alphas (their mean scores)"""
+    check_alphas: tuple[float, ...] = ()
+    """lane networks: per-alpha models beside them, the same learner trained at each of these alphas alone (same
+    demands, selection at that alpha), one per lane count and training seed, evaluated at every condition"""
+    eval_loads: tuple[float, ...] = ()
+    """lane networks: if set, only the conditions of these loads are evaluated (the networks still train on every
+    load's T_up: they are the same networks as a profile without it); ignored with t_up_s"""
+    trajectory_every_steps: int = 0
+    """evaluation runs record trajectories every this many steps, from which FULL_ROAD is measured; 0: not"""
+    criterion: str = CRITERION
+    """the speed alpha*, p*, the gate and the trends are judged on (CRITERION or FULL_ROAD)"""
 
     def conditions(self) -> list[tuple[int, float, float]]:
-        """(lanes, T_up s, load) of every condition, by lanes then decreasing T_up."""
+        """(lanes, T_up s, load) of every condition evaluated, by lanes then decreasing T_up: the grid's, or those of
+        eval_loads."""
+        grid = self.grid()
+        if self.eval_loads and not self.t_up_s:
+            return [c for c in grid if c[2] in self.eval_loads]
+        return grid
+
+    def grid(self) -> list[tuple[int, float, float]]:
+        """(lanes, T_up s, load) of every condition of the grid (a lane network trains on its lane count's)."""
         out = []
         for n in self.lanes:
             if self.t_up_s:
@@ -74,8 +111,24 @@ class Profile:
 
     def n_cells(self) -> int:
         per_condition = len(self.alphas) * len(self.seeds) if "dqn" in self.policies else 0
+        per_condition += len(self.check_alphas) * len(self.seeds) if "dqn" in self.policies else 0
         per_condition += len(self.mobil_ps) * len(self.eval_seeds) if "mobil" in self.policies else 0
+        per_condition += sum(p in self.policies for p in ("keep", "greedy")) * len(self.eval_seeds)
         return len(self.conditions()) * per_condition
+
+    def n_trainings(self) -> int:
+        """Models trained (or taken from the model store): per lane count and seed with lane networks (plus one per
+        check alpha), else per condition and seed (conditioned) or per condition, alpha and seed."""
+        if "dqn" not in self.policies:
+            return 0
+        if self.lane_networks:
+            return len(self.lanes) * len(self.seeds) * (1 + len(self.check_alphas))
+        return len(self.conditions()) * len(self.seeds) * (1 if self.conditioned else len(self.alphas))
+
+    def lane_t_ups(self, lanes: int) -> tuple[float, ...]:
+        """The T_ups (s) of the grid's conditions of `lanes` lanes, from the lightest load: a lane network's demands
+        (evaluated or not: eval_loads)."""
+        return tuple(t for n, t, _ in self.grid() if n == lanes)
 
 
 def t_up_for(lanes: int, load: float) -> float:
@@ -92,13 +145,26 @@ def eval_seeds(n: int) -> tuple[int, ...]:
     return tuple(EVAL_SEED_BASE + i for i in range(1, n + 1))
 
 
+QUICK_LOADS = (0.25, 0.5, 0.75, 1.0)
+CHECK_ALPHAS = (0.0, 1.0, 8.0)
+"""the check profile's alphas: per-alpha models trained at each, beside the 3-lane networks driven at each"""
+FULL_ROAD_EVERY_STEPS = 50
+"""the lane-network profiles record trajectories every 5 s: the full-road speed's samples"""
+LANE_STUDY: dict[str, Any] = {"lane_networks": True, "policies": POLICIES, "criterion": FULL_ROAD,
+                              "trajectory_every_steps": FULL_ROAD_EVERY_STEPS, "train_steps": 90_000,
+                              "eval_steps": 9000}
+"""what the lane-network profiles share: the default learner's steps, baselines, the full-road criterion"""
 PROFILES = {
     "tiny": Profile("tiny", lanes=(2,), loads=(0.25, 0.5), alphas=(0.0, 8.0), seeds=(1, 2),
                     train_steps=300, eval_steps=300, mobil_ps=(0.0, 1.0)),
-    "quick": Profile("quick", lanes=(2, 3, 4), loads=(0.25, 0.5, 0.75, 1.0), alphas=QUICK_ALPHAS,
+    "quick": Profile("quick", lanes=(2, 3, 4), loads=QUICK_LOADS, alphas=QUICK_ALPHAS,
                      seeds=(1, 2, 3), train_steps=8000, eval_steps=3000, eval_seeds=eval_seeds(3)),
+    "full": Profile("full", lanes=(2, 3, 4), loads=QUICK_LOADS, alphas=FULL_ALPHAS, seeds=tuple(range(1, 6)),
+                    eval_seeds=eval_seeds(3), **LANE_STUDY),
+    "check": Profile("check", lanes=(3,), loads=QUICK_LOADS, eval_loads=(0.5, 1.0), alphas=CHECK_ALPHAS,
+                     seeds=(1, 2, 3), eval_seeds=eval_seeds(3), check_alphas=CHECK_ALPHAS, **LANE_STUDY),
     "paper": Profile("paper", lanes=(2, 3, 4, 5, 6), loads=(0.2, 0.4, 0.6, 0.8, 1.0), alphas=PAPER_ALPHAS,
-                     seeds=tuple(range(1, 11)), train_steps=90_000, eval_steps=9000, eval_seeds=eval_seeds(5)),
+                     seeds=tuple(range(1, 11)), eval_seeds=eval_seeds(5), alpha_draw_max=48.0, **LANE_STUDY),
 }  # fmt: skip
 
 
@@ -113,6 +179,23 @@ def conditioned_key(lanes: int, t_up_s: float, seed: int) -> str:
 
 def mobil_key(lanes: int, t_up_s: float, p: float, seed: int) -> str:
     return f"L{lanes}_T{number_name(t_up_s)}_mobil_p{number_name(p)}_s{seed}"
+
+
+def classical_key(lanes: int, t_up_s: float, policy: str, p: float | None, seed: int) -> str:
+    """A cell of a policy that needs no training on evaluation seed `seed` (MOBIL at politeness p)."""
+    if policy == "mobil":
+        return mobil_key(lanes, t_up_s, float(p or 0.0), seed)
+    return f"L{lanes}_T{number_name(t_up_s)}_{policy}_s{seed}"
+
+
+def lane_key(lanes: int, seed: int, alpha: float | None = None) -> str:
+    """The training folder of a lane network (alpha None) or of a check's per-alpha model, shared by its cells of
+    every condition (and alpha)."""
+    return f"L{lanes}_cond_s{seed}" if alpha is None else f"L{lanes}_a{number_name(alpha)}_s{seed}"
+
+
+def per_alpha_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:
+    return f"L{lanes}_T{number_name(t_up_s)}_pa{number_name(alpha)}_s{seed}"
 
 
 def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Profile) -> TrainConfig:
@@ -152,16 +235,37 @@ def conditioned_train_config(lanes: int, t_up_s: float, seed: int, profile: Prof
     return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
 
 
+def lane_learner(lanes: int, profile: Profile, alpha: float | None = None) -> DQNConfig:
+    """The learner of a lane network (alpha None: alpha-conditioned, drawing up to alpha_draw_max, chosen at
+    validation_alphas) or of a per-alpha model beside it: the preset's machinery in free flow (no accident in
+    training or selection: scenario II has none), trained on the lane count's demands and chosen on held-out demand
+    of them (validation seeds, which no study evaluates on)."""
+    t_ups = profile.lane_t_ups(lanes)
+    dqn = replace(at_condition(DQN_PRESETS[profile.preset]), train_t_ups=t_ups, validation_t_ups=t_ups)
+    if alpha is not None:
+        return dqn
+    return replace(dqn, alpha_conditioned=True, alpha_draw_max=profile.alpha_draw_max,
+                   validation_alphas=profile.validation_alphas)  # fmt: skip
+
+
+def lane_train_config(lanes: int, seed: int, profile: Profile, alpha: float | None = None) -> TrainConfig:
+    """The training of a lane network (alpha None) or per-alpha model of `lanes` lanes: lane_learner on episodes
+    of the lane count's demands (sim's own T_up, the heaviest, only names the run)."""
+    sim = SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=min(profile.lane_t_ups(lanes))),
+                    reward=RewardConfig(alpha=alpha or 0.0), steps=profile.train_steps, seed=seed, policy="dqn")
+    return TrainConfig(sim=sim, dqn=lane_learner(lanes, profile, alpha), eval_steps=0)
+
+
 def mobil_config(lanes: int, t_up_s: float, p: float, seed: int, profile: Profile) -> SimConfig:
     """A MOBIL cell: one run of mobil:p=P on evaluation seed `seed`, as a DQN model's evaluation there (free flow,
     condition, steps)."""
-    return SimConfig(
-        road=RoadConfig(lanes=lanes),
-        demand=DemandConfig(t_up_s=t_up_s),
-        steps=profile.eval_steps,
-        seed=seed,
-        policy=f"mobil:p={p}",
-    )
+    return classical_config(lanes, t_up_s, f"mobil:p={p}", seed, profile)
+
+
+def classical_config(lanes: int, t_up_s: float, policy: str, seed: int, profile: Profile) -> SimConfig:
+    """One run of a policy that needs no training on evaluation seed `seed`, as a DQN model's evaluation there."""
+    return SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up_s), steps=profile.eval_steps,
+                     seed=seed, policy=policy)  # fmt: skip
 
 
 def cell_specs(profile: Profile) -> list[dict[str, Any]]:
@@ -169,10 +273,17 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
 
     A DQN cell is one model (condition, alpha, training seed): its configuration is {"train": TrainConfig, "evals":
     [SimConfig per evaluation seed]}; a conditioned cell's the same, its spec naming the training folder its alphas
-    share (train_key). A MOBIL cell is one run (condition, p, evaluation seed): its configuration a SimConfig, its
-    seed the evaluation seed.
+    share (train_key). With lane networks the training is shared by every condition and alpha of a lane count and
+    seed; the spec also names the cell's evaluation folder (evals_key), whether the model is told its alpha
+    (conditioned: False for a check's per-alpha model, policy PER_ALPHA) and, for every cell of a training but its
+    first, that first cell (after: the runner starts it once the training is done, so that no worker waits on a
+    training another one runs). A MOBIL, keep or greedy cell is one run (condition, p, evaluation seed): its
+    configuration a SimConfig, its seed the evaluation seed. With trajectory_every_steps, a DQN configuration also
+    holds it and a run's is {"run": SimConfig, "trajectory_every_steps": K} (a record made without is not reused).
     """
     specs = []
+    traj = {"trajectory_every_steps": profile.trajectory_every_steps} if profile.trajectory_every_steps else {}
+    first_of: dict[str, str] = {}
 
     def add(key: str, lanes: int, t_up: float, load: float, seed: int, policy: str, alpha: float | None,
             p: float | None, cfg: TrainConfig | SimConfig | dict[str, Any], **extra: Any) -> None:  # fmt: skip
@@ -180,26 +291,42 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
                       "policy": policy, "p": p, **extra,
                       "config": json.loads(json.dumps(cfg if isinstance(cfg, dict) else to_dict(cfg)))})  # fmt: skip
 
+    def add_model(key: str, lanes: int, t_up: float, load: float, alpha: float, seed: int, train: TrainConfig,
+                  policy: str = "dqn", **extra: Any) -> None:  # fmt: skip
+        evals = eval_configs(lanes, t_up, alpha, profile)
+        train.validate()
+        for ev in evals:
+            ev.validate()
+        if profile.lane_networks:
+            extra.update(evals_key=key)
+            if (first := first_of.setdefault(extra["train_key"], key)) != key:
+                extra["after"] = first
+        config = {"train": to_dict(train), "evals": [to_dict(ev) for ev in evals], **traj}
+        add(key, lanes, t_up, load, seed, policy, alpha, None, config, **extra)
+
     for lanes, t_up, load in profile.conditions():
         if "dqn" in profile.policies:
             for alpha in profile.alphas:
-                evals = eval_configs(lanes, t_up, alpha, profile)
                 for seed in profile.seeds:
-                    if profile.conditioned:
-                        train = conditioned_train_config(lanes, t_up, seed, profile)
-                        extra = {"train_key": conditioned_key(lanes, t_up, seed)}
+                    key = cell_key(lanes, t_up, alpha, seed)
+                    if profile.lane_networks:
+                        add_model(key, lanes, t_up, load, alpha, seed, lane_train_config(lanes, seed, profile),
+                                  train_key=lane_key(lanes, seed), conditioned=True)  # fmt: skip
+                    elif profile.conditioned:
+                        add_model(key, lanes, t_up, load, alpha, seed, conditioned_train_config(lanes, t_up, seed,
+                                  profile), train_key=conditioned_key(lanes, t_up, seed))  # fmt: skip
                     else:
-                        train, extra = train_config(lanes, t_up, alpha, seed, profile), {}
-                    train.validate()
-                    for ev in evals:
-                        ev.validate()
-                    config = {"train": to_dict(train), "evals": [to_dict(ev) for ev in evals]}
-                    add(cell_key(lanes, t_up, alpha, seed), lanes, t_up, load, seed, "dqn", alpha, None, config,
-                        **extra)  # fmt: skip
-        if "mobil" in profile.policies:
-            for p in profile.mobil_ps:
+                        add_model(key, lanes, t_up, load, alpha, seed, train_config(lanes, t_up, alpha, seed, profile))
+            for alpha in profile.check_alphas if profile.lane_networks else ():
+                for seed in profile.seeds:
+                    add_model(per_alpha_key(lanes, t_up, alpha, seed), lanes, t_up, load, alpha, seed,
+                              lane_train_config(lanes, seed, profile, alpha), PER_ALPHA,
+                              train_key=lane_key(lanes, seed, alpha), conditioned=False)  # fmt: skip
+        for policy in (x for x in CLASSICAL if x in profile.policies):
+            for p in profile.mobil_ps if policy == "mobil" else (None,):
                 for seed in profile.eval_seeds:
-                    cfg = mobil_config(lanes, t_up, p, seed, profile)
+                    cfg = classical_config(lanes, t_up, f"mobil:p={p}" if policy == "mobil" else policy, seed, profile)
                     cfg.validate()
-                    add(mobil_key(lanes, t_up, p, seed), lanes, t_up, load, seed, "mobil", None, p, cfg)
+                    add(classical_key(lanes, t_up, policy, p, seed), lanes, t_up, load, seed, policy, None, p,
+                        {"run": to_dict(cfg), **traj} if traj else cfg)  # fmt: skip
     return specs
