@@ -109,3 +109,31 @@ def test_the_cluster_bench_runs_one_study_on_every_backend_with_the_same_records
     assert res.returncode == 0, res.stderr[-2000:]
     for line in ("local, 1 worker", "local, 2 workers", "ray, 1 node", "ray, 2 nodes", "cluster scaling"):
         assert line in res.stdout, res.stdout
+
+
+SCENARIO2 = ["-m", "coopsumo", "scenario2", "--profile", "paper", "--lanes", "2", "--t-up", "2", "--alphas", "0,8",
+             "--seeds", "1", "--eval-seeds", "1", "--steps", "300", "--eval-steps", "1200", "--mobil-p", "0",
+             "--bootstrap", "50", "--quiet"]  # fmt: skip
+"""scenario II's paper profile at a tiny size: one lane network (300 steps) driven at 2 alphas, keep, greedy and
+MOBIL p = 0 on one evaluation seed: 5 cells"""
+
+
+def test_the_paper_profile_of_scenario2_runs_on_two_nodes_as_locally(tmp_path: Path,
+                                                                    cluster: tuple[Any, Any]) -> None:  # fmt: skip
+    """The paper profile (a Ray cluster's, issue 65) at a tiny size on the two-node cluster: the network trained
+    there (each run has its own model store) and every cell's measures equal to the local backend's."""
+    import pandas as pd
+
+    c, _ = cluster
+    outs = {"local": tmp_path / "a" / "local", "ray": tmp_path / "b" / "ray"}
+    for name, extra in (("local", ["--workers", "2"]), ("ray", ["--backend", "ray", "--address", c.address])):
+        res = subprocess.run([sys.executable, *SCENARIO2, *extra, "--out", str(outs[name])], cwd=REPO, env=_env(),
+                             capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
+        assert res.returncode == 0, res.stderr[-2000:]
+    columns = ["key", "policy", "status", "mean_speed_mps", "full_road_speed_mps", "lane_changes", "departed",
+               "collisions", "train_updates"]  # fmt: skip
+    local, ray = (pd.read_csv(outs[k] / "runs.csv")[columns] for k in ("local", "ray"))
+    assert len(local) == 5 and (local["status"] == "ok").all()
+    pd.testing.assert_frame_equal(ray, local)
+    assert (outs["ray"] / "gate.csv").read_text() == (outs["local"] / "gate.csv").read_text()
+    assert (tmp_path / "b" / "models").is_dir() and any((tmp_path / "b" / "models").iterdir())

@@ -364,8 +364,8 @@ PROFILE_HELP = {
     "tiny": "tests",
     "quick": "the 8,000-step per-alpha sweep of before, about 80 min on 2 cores",
     "full": "the default: one alpha-conditioned network per lane count and seed, 90,000 steps, baselines and the "
-            "gate; about 3 h on 2 cores from scratch, under 1 h with every model stored",
-    "check": "the per-lane-count networks against per-alpha models at 3 lanes, loads 0.5 and 1; about 1 h",
+            "gate; estimated 2 h on 2 cores from scratch, 1 h with every model stored",
+    "check": "the per-lane-count networks against per-alpha models at 3 lanes, loads 0.5 and 1; estimated 1 h",
     "paper": "the paper's grid as full is built: a Ray cluster",
 }
 """what --help says of each profile (the estimates: docs/studies.md, scenario II)"""

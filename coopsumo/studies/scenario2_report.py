@@ -112,11 +112,18 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
 def rewrite_outputs(root: Path) -> dict[str, Any]:
     """Redraw a finished sweep's tables, figures and report.md from its runs.csv and sweep.json alone, nothing
     trained or run (a committed folder keeps no cells/, so rerunning its command would train every cell again);
-    the bootstraps are seeded, so the numbers come out as they were. Returns sweep.json's new content."""
+    the bootstraps are seeded, so the numbers come out as they were; a lane-network profile's (full, check) from its
+    evals.csv too (scenario2_gate_report). Returns sweep.json's new content."""
     meta = json.loads((root / "sweep.json").read_text())
     fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["profile"].items()}
     profile = Profile(**fields)
-    write_outputs(root, pd.read_csv(root / "runs.csv"), profile, meta, int(meta["bootstrap_replicates"]))
+    runs, n_boot = pd.read_csv(root / "runs.csv"), int(meta["bootstrap_replicates"])
+    if profile.lane_networks:
+        from coopsumo.studies.scenario2_gate_report import write_lane_outputs
+
+        write_lane_outputs(root, runs, pd.read_csv(root / "evals.csv"), profile, meta, n_boot)
+    else:
+        write_outputs(root, runs, profile, meta, n_boot)
     write_json(root / "sweep.json", meta)
     return meta
 
