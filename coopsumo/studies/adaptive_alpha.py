@@ -50,9 +50,10 @@ def cell_specs(root: Path, runs: pd.DataFrame) -> list[dict[str, Any]]:
             evals = [sim_config_from_dict(c) for c in json.loads(record.read_text())["config"]["evals"]]
         except (OSError, ValueError, KeyError, TypeError) as err:
             raise UsageError(f"record {record} cannot be read ({type(err).__name__}): run `coopsumo scenario2 "
-                             f"--conditioned --out {root}` again") from None  # fmt: skip
+                             f"--profile quick --conditioned --out {root}` again") from None  # fmt: skip
         if not model.is_file():
-            raise UsageError(f"{model} is missing: run `coopsumo scenario2 --conditioned --out {root}` again")
+            raise UsageError(f"{model} is missing: run `coopsumo scenario2 --profile quick --conditioned --out {root}` "
+                             "again")
         for ev in evals:
             cfg = replace(ev, policy=f"dqn:{model},alpha=adaptive", reward=replace(ev.reward, alpha=0.0))
             specs.append({"key": f"adaptive_{key}_s{ev.seed}", "lanes": int(lanes), "t_up_s": float(t_up),

@@ -32,7 +32,8 @@ def read_sweep(root: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     for name, columns in COLUMNS.items():
         path = root / name
         if not path.is_file():
-            raise UsageError(f"{root} holds no {name}: run `coopsumo scenario2 --conditioned --out {root}` first")
+            raise UsageError(f"{root} holds no {name}: run `coopsumo scenario2 --profile quick --conditioned --out "
+                             f"{root}` first")
         try:
             tables[name] = pd.read_csv(path)
         except ValueError as err:  # pandas' parser and empty-file errors
