@@ -87,7 +87,7 @@ def write_lane_outputs(root: Path, runs: pd.DataFrame, evals: pd.DataFrame, prof
                                 note="" if plane else f"No plane fitted: {trends['error']}.")  # fmt: skip
         figures["alpha_star"] = ALPHA_STAR_FIGURE
     if len(table):
-        marks = {k: "" if k in passing else " ✗" for k in _keys(table)}
+        marks = {k: "" if k in passing else " (fails the gate)" for k in _keys(table)}
         speeds = table.set_index(pd.Index([condition_label(n, t) + marks[(n, t)] for n, t in _keys(table)]))
         speeds = speeds[[f"speed_mps_alpha{number_name(a)}" for a in profile.alphas]]
         speeds.columns = list(profile.alphas)
@@ -318,7 +318,7 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, gate: pd.DataFrame, tre
          "the gate, one panel per lane count; the red bar is its 90% bootstrap range over models, grey discs the "
          "share of resamples picking each alpha, the dashed line the fitted plane." if "alpha_star" in figures else "",
          f"![speed heat map]({figures['heatmap']})\n\nMean speed ({measure}) over models for every alpha and "
-         "condition (✗: fails the gate); framed: alpha*." if "heatmap" in figures else ""]).strip() \
+         "condition; framed: alpha*." if "heatmap" in figures else ""]).strip() \
         or "No figure: no condition has an alpha*."  # fmt: skip
     check_section = f"\n## One network per lane count against per-alpha models\n\n{check_text(check, alpha_label)}\n" \
         if profile.check_alphas else ""  # fmt: skip
