@@ -25,6 +25,19 @@ from coopsumo.agents.dqn import QNetwork, save_model
 from coopsumo.config import DQN_PRESETS, ConfigError, DemandConfig, SimConfig, TrainConfig, to_dict
 from coopsumo.runio import mark_run_dir
 
+SHIM_NAMES = {"ablation": "learning"}
+"""the test tables' module names that are not command names"""
+
+
+def command_main_of(name: str) -> Callable[..., int]:
+    """A command's main (the module cli.COMMANDS names), by the command's name or coopsumo's module name."""
+    from coopsumo.cli import COMMANDS
+
+    command = SHIM_NAMES.get(name, name)
+    module = COMMANDS[command][0] if command in COMMANDS else f"coopsumo.{name}"
+    main: Callable[..., int] = importlib.import_module(module).main
+    return main
+
 REPO = Path(__file__).resolve().parent.parent
 SIM = ["--steps", "20", "--quiet"]
 TRAIN = ["--steps", "20", "--eval-steps", "0", "--quiet"]
@@ -233,7 +246,7 @@ def _id(row: tuple[str, list[str], tuple[str, ...]]) -> str:
 @pytest.mark.parametrize(("command", "args", "fragments"), ROWS, ids=[_id(r) for r in ROWS])
 def test_bad_input_in_process(command: str, args: list[str], fragments: tuple[str, ...], tmp_path: Path,
                               capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    main = importlib.import_module(f"coopsumo.{command}").main
+    main = command_main_of(command)
     out = tmp_path / "out"
     try:
         code = main(_argv(command, args, out))
@@ -248,7 +261,8 @@ def test_bad_input_in_process(command: str, args: list[str], fragments: tuple[st
 def test_bad_input_as_a_process(index: int, tmp_path: Path) -> None:
     command, args, fragments = ROWS[index]
     out = tmp_path / "out"
-    res = subprocess.run([sys.executable, "-m", f"coopsumo.{command}", *_argv(command, args, out)], cwd=REPO,
+    name = SHIM_NAMES.get(command, command)
+    res = subprocess.run([sys.executable, "-m", "coopsumo", name, *_argv(command, args, out)], cwd=REPO,
                          capture_output=True, text=True, timeout=60, check=False)  # fmt: skip
     _check(res.returncode, res.stderr, out, fragments)
     assert res.stdout == ""
@@ -550,7 +564,7 @@ def test_checkpoints_of_other_versions_and_runs_are_refused_or_resumed(
 def test_an_output_folder_with_a_colon_is_refused(command: str, tmp_path: Path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """Regression: SUMO reads an output file name holding ':' as host:port and failed with a libsumo traceback."""
-    main = importlib.import_module(f"coopsumo.{command}").main
+    main = command_main_of(command)
     out = tmp_path / "run:1"
     with pytest.raises(SystemExit) as stop:  # argparse
         main(["--out", str(out)])
@@ -572,7 +586,7 @@ def test_a_model_folder_no_policy_string_can_name_is_refused(module: str, how: s
                                                              capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """Regression (issue 67): a space in scenario II's --out trained every model, then failed every DQN cell with
     "policy ... has a space"; train took such an --out though no --policy could name its model."""
-    main = importlib.import_module(f"coopsumo.{module}").main
+    main = command_main_of(module)
     spaced = tmp_path / "my runs"
     out = spaced / "out"
     if how == "through a link":  # the path as given has no space; the folder it leads to has
@@ -614,7 +628,7 @@ def test_environment_folders_are_checked_up_front(command: str, name: str, value
         pytest.skip("running as root: every folder can be written")
     out = tmp_path / "out"
     monkeypatch.setenv(name, value.format(tmp=tmp_path, out=out))
-    main = importlib.import_module(f"coopsumo.{command}").main
+    main = command_main_of(command)
     args = TRAIN if command == "train" else ["--profile", "tiny"] if command == "scenario2" else ["--quick"]
     try:
         code = main([*args, "--out", str(out)])

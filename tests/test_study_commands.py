@@ -196,7 +196,7 @@ def test_regime_map_runs_both_lengths_and_reuses_every_cell(tmp_path: Path) -> N
     runs = pd.read_csv(out / "runs.csv")
     assert list(runs["accident"]) == ["default", "paper"] and list(runs["run_steps"]) == [600, 2700]
     assert set(runs["collisions"]) == {0} and set(runs["teleports"]) == {0}
-    # the cells and run folders keep the names the old experiments/regime_map.py script gave them: its folders are reused
+    # the cells and run folders keep the names the old experiments/regime_map.py gave them: its folders are reused
     assert sorted(cell_times(out)) == ["default_t4_seed1.json", "paper_t4_seed1.json"]
     assert (out / "runs/default/t4/keep_seed1/summary.json").exists()
     report = (out / "report.md").read_text()
