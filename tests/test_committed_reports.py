@@ -21,7 +21,7 @@ from coopsumo.studies.protocol_plan import variants
 from coopsumo.studies.run_folders import default_out
 from coopsumo.studies.scenario2 import learner_of
 from coopsumo.studies.scenario2_plan import PROFILES as SCENARIO2_PROFILES
-from coopsumo.studies.scenario2_report import rewrite_outputs
+from coopsumo.studies.scenario2_redraw import rewrite_outputs
 from coopsumo.studies.trainings import first_difference
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -87,7 +87,7 @@ def test_scenario2_is_todays_rendering_of_its_runs(tmp_path: Path) -> None:
     for name in ("report.md", "alpha_star.csv", "mobil_p_star.csv", "sweep.json"):
         assert (tmp_path / name).read_text() == (committed / name).read_text(), (
             f"results/scenario2/{name} is not what today's code draws from runs.csv and sweep.json; redraw it with "
-            "coopsumo.studies.scenario2_report.rewrite_outputs(Path('results/scenario2'))")  # fmt: skip
+            "coopsumo.studies.scenario2_redraw.rewrite_outputs(Path('results/scenario2'))")  # fmt: skip
     assert sorted(p.name for p in committed.glob("*.png")) == sorted(p.name for p in tmp_path.glob("*.png"))
 
 

@@ -18,6 +18,9 @@ from coopsumo.paths import NAME_ROOM, PATH_ROOM, out_path_problem
 
 REPO = Path(__file__).resolve().parent.parent
 COMMANDS = ("simulate", "train", "scenario1", "scenario2", "ablation")
+COMMAND_MODULES = {"simulate": "coopsumo.simulate", "train": "coopsumo.train",
+                   "scenario1": "coopsumo.studies.scenario1", "scenario2": "coopsumo.studies.scenario2",
+                   "ablation": "coopsumo.studies.ablation"}  # fmt: skip
 NAME_MAX = os.pathconf("/tmp", "PC_NAME_MAX")
 PATH_MAX = os.pathconf("/tmp", "PC_PATH_MAX")
 
@@ -67,7 +70,7 @@ def test_an_output_path_sumo_or_the_file_system_cannot_take_is_refused(
     make, fragment = CASES[case]
     out = make(tmp_path)
     before = snapshot(tmp_path)
-    main = importlib.import_module(f"coopsumo.{command}").main
+    main = importlib.import_module(COMMAND_MODULES[command]).main
     with pytest.raises(SystemExit) as stop:  # argparse's type= check of --out
         main(["--out", str(out)])
     lines = capsys.readouterr().err.strip().splitlines()

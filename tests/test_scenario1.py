@@ -330,17 +330,14 @@ def test_the_paper_preset_stands_beside_the_default(tmp_path: Path) -> None:
 def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
     """`coopsumo regime-map` on shortened plans: a light demand keeps the queue on the road, a heavy one
     (one vehicle every 0.2 s, beyond what 3 lanes can take in) fills the entrance and still waits at the end."""
-    sys.path.insert(0, str(ROOT / "experiments"))
-    try:
-        import regime_map
-    finally:
-        sys.path.remove(str(ROOT / "experiments"))
     from dataclasses import replace
+
+    from coopsumo.studies import regime_map
 
     base = replace(scenario1.Plan.quick(), steps=1500, accident_start=300, accident_steps=900, seeds=(1,),
                    t_ups=(4.0, 0.2))  # fmt: skip
     plans = {"default": base, "paper": replace(base, accident_steps=1100)}
-    assert regime_map.run(plans, tmp_path, 1) == 0
+    assert regime_map.run_study(plans, tmp_path, 1) == 0
     table = pd.read_csv(tmp_path / "runs.csv").set_index(["accident", "t_up_s"])
     assert len(table) == 4 and set(table["collisions"]) == {0} and set(table["teleports"]) == {0}
     for length in plans:
@@ -352,7 +349,7 @@ def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
     # a rerun reuses every run
     stamp = (tmp_path / "runs.csv").stat().st_mtime_ns
     cells = {p: p.stat().st_mtime_ns for p in (tmp_path / "cells").glob("*.json")}
-    assert regime_map.run(plans, tmp_path, 1) == 0
+    assert regime_map.run_study(plans, tmp_path, 1) == 0
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "cells").glob("*.json")} == cells
     assert (tmp_path / "runs.csv").stat().st_mtime_ns >= stamp
 

@@ -24,6 +24,7 @@ from coopsumo.studies import scenario2 as s2
 from coopsumo.studies import scenario2_measures as stats
 from coopsumo.studies import scenario2_plan as s2_plan
 from coopsumo.studies import scenario2_report as s2_report
+from coopsumo.studies.scenario2_redraw import rewrite_outputs
 
 REPO = Path(__file__).resolve().parent.parent
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -192,7 +193,7 @@ def test_outputs_from_a_hand_made_table(tmp_path: Path) -> None:
     redrawn.mkdir()
     for name in ("runs.csv", "sweep.json"):
         shutil.copy(tmp_path / name, redrawn / name)
-    s2_report.rewrite_outputs(redrawn)
+    rewrite_outputs(redrawn)
     for name in ("alpha_star.csv", "report.md"):
         assert (redrawn / name).read_text() == (tmp_path / name).read_text(), name
     assert (redrawn / s2_report.ALPHA_STAR_FIGURE).read_bytes()[:8] == PNG_SIGNATURE

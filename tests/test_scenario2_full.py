@@ -21,7 +21,7 @@ from coopsumo.studies import scenario2_gate as gate
 from coopsumo.studies import scenario2_gate_report as gate_report
 from coopsumo.studies import scenario2_plan as plan
 from coopsumo.studies.model_store import model_id
-from coopsumo.studies.scenario2_report import rewrite_outputs
+from coopsumo.studies.scenario2_redraw import rewrite_outputs
 
 REPO = Path(__file__).resolve().parent.parent
 FULL_ROAD = plan.FULL_ROAD

@@ -27,9 +27,7 @@ from coopsumo.studies.scenario2_gate import (
 )
 from coopsumo.studies.scenario2_measures import alpha_star_table, mobil_p_star_table, policy_rows, withhold_incomplete
 from coopsumo.studies.scenario2_plan import CRITERION, FULL_ROAD, PROFILES, Profile, lane_learner
-from coopsumo.studies.scenario2_report import ALPHA_STAR_FIGURE, condition_label, trend_verdict
-from coopsumo.studies.scenario2_report import _md_table as md_table
-from coopsumo.studies.scenario2_report import _num as num
+from coopsumo.studies.scenario2_text import ALPHA_STAR_FIGURE, condition_label, md_table, num, trend_verdict
 from coopsumo.validation import number_name
 
 MEASURES = {CRITERION: "mean speed over the whole run (the paper's criterion)",

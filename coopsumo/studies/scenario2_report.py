@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
@@ -14,7 +13,6 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from coopsumo.runio import write_json
 from coopsumo.studies.scenario2_measures import (
     PlaneFit,
     PlaneFitError,
@@ -28,22 +26,10 @@ from coopsumo.studies.scenario2_measures import (
     withhold_incomplete,
 )
 from coopsumo.studies.scenario2_plan import PROFILES, Profile
+from coopsumo.studies.scenario2_text import ALPHA_STAR_FIGURE, condition_label, trend_verdict
+from coopsumo.studies.scenario2_text import md_table as _md_table
+from coopsumo.studies.scenario2_text import num as _num
 from coopsumo.validation import number_name
-
-ALPHA_STAR_FIGURE = "fig6_alpha_star_lanes.png"
-"""alpha* per lane count (alpha_star_lanes_figure)"""
-
-
-def condition_label(lanes: int, t_up_s: float) -> str:
-    return f"{lanes} lanes, T_up {number_name(t_up_s)} s"
-
-
-def trend_verdict(coef: float, low: float | None, high: float | None) -> str:
-    """'Holds' (the trend needs coef < 0), 'Reversed' or 'Cannot decide': with a bootstrap interval [low, high]
-    over models, a verdict only when it excludes 0; without one (a single seed), the sign of coef."""
-    if low is None or high is None:
-        return "Holds" if coef < 0 else "Does not hold"
-    return "Holds" if high < 0 else "Reversed" if low > 0 else "Cannot decide"
 
 
 def trend_statements(fit: PlaneFit, boot: dict[str, float]) -> list[str]:
@@ -107,35 +93,6 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
     meta["plane_bootstrap"] = boot
     (root / "report.md").write_text(report_text(runs, table, fit, boot, plane_note, profile, meta, figures,
                                                 alpha_label, side))  # fmt: skip
-
-
-def rewrite_outputs(root: Path) -> dict[str, Any]:
-    """Redraw a finished sweep's tables, figures and report.md from its runs.csv and sweep.json alone, nothing
-    trained or run (a committed folder keeps no cells/, so rerunning its command would train every cell again);
-    the bootstraps are seeded, so the numbers come out as they were; a lane-network profile's (full, check) from its
-    evals.csv too (scenario2_gate_report). Returns sweep.json's new content."""
-    meta = json.loads((root / "sweep.json").read_text())
-    fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["profile"].items()}
-    profile = Profile(**fields)
-    runs, n_boot = pd.read_csv(root / "runs.csv"), int(meta["bootstrap_replicates"])
-    if profile.lane_networks:
-        from coopsumo.studies.scenario2_gate_report import write_lane_outputs
-
-        write_lane_outputs(root, runs, pd.read_csv(root / "evals.csv"), profile, meta, n_boot)
-    else:
-        write_outputs(root, runs, profile, meta, n_boot)
-    write_json(root / "sweep.json", meta)
-    return meta
-
-
-def _md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(r) + " |" for r in rows]
-    return "\n".join(lines)
-
-
-def _num(x: Any, fmt: str = "{:.2f}") -> str:
-    return "–" if x is None or (isinstance(x, float) and not math.isfinite(x)) else fmt.format(x)
 
 
 def side_by_side_text(side: pd.DataFrame, alpha_label: Any) -> str:
