@@ -55,7 +55,7 @@ def _learner_check(folder: Path) -> None:
             _same(entry["learner"], to_dict(known[variant].learner), f"{name} ({variant})")
             assert entry["weights"] == known[variant].weights
             assert entry.get("drive", {}) == known[variant].drive(), f"{name} ({variant}): driven otherwise"
-    elif name in ("scenario2", "scenario2_conditioned"):
+    elif name in ("scenario2", "scenario2_conditioned", "scenario2_check"):
         sweep = json.loads((folder / "sweep.json").read_text())
         profile = SCENARIO2_PROFILES[sweep["profile"]["name"]]
         _same(sweep["learner"], learner_of(replace(profile, conditioned=sweep["profile"]["conditioned"])), name)
@@ -76,18 +76,21 @@ def test_every_committed_report_was_made_by_todays_learner() -> None:
         _learner_check(folder)
 
 
-def test_scenario2_is_todays_rendering_of_its_runs(tmp_path: Path) -> None:
-    """results/scenario2 keeps no cells/ (rerunning its command would train every cell again): its tables,
-    report.md and figures are redrawn from runs.csv and sweep.json by rewrite_outputs, and are what today's code
-    draws from them."""
-    committed = ROOT / "results" / "scenario2"
-    for name in ("runs.csv", "sweep.json"):
-        shutil.copy(committed / name, tmp_path / name)
+@pytest.mark.parametrize("study", ["scenario2", "scenario2_check"])
+def test_scenario2_is_todays_rendering_of_its_runs(study: str, tmp_path: Path) -> None:
+    """A committed scenario II keeps no cells/ (rerunning its command would train every cell again): its tables,
+    report.md and figures are redrawn from runs.csv, evals.csv and sweep.json by rewrite_outputs, and are what
+    today's code draws from them."""
+    committed = ROOT / "results" / study
+    for name in ("runs.csv", "evals.csv", "sweep.json"):
+        if (committed / name).exists():
+            shutil.copy(committed / name, tmp_path / name)
     rewrite_outputs(tmp_path)
-    for name in ("report.md", "alpha_star.csv", "mobil_p_star.csv", "sweep.json"):
+    tables = [p.name for p in committed.glob("*.csv") if p.name not in ("runs.csv", "evals.csv")]
+    for name in ("report.md", "sweep.json", *tables):
         assert (tmp_path / name).read_text() == (committed / name).read_text(), (
-            f"results/scenario2/{name} is not what today's code draws from runs.csv and sweep.json; redraw it with "
-            "coopsumo.studies.scenario2_redraw.rewrite_outputs(Path('results/scenario2'))")  # fmt: skip
+            f"results/{study}/{name} is not what today's code draws from its records; redraw it with "
+            f"coopsumo.studies.scenario2_redraw.rewrite_outputs(Path('results/{study}'))")  # fmt: skip
     assert sorted(p.name for p in committed.glob("*.png")) == sorted(p.name for p in tmp_path.glob("*.png"))
 
 
