@@ -35,12 +35,9 @@ def recovery_step(recovery_s: float, start_step: int, dt_s: float) -> float:
 
 
 def lane_waves(traj: pd.DataFrame, lane: int, x_to_m: float, t_to_s: float) -> float:
-    """Stop-and-go waves (moving jams of the speed field, report/bottleneck.py) on one lane, entrance to x_to_m."""
+    """Stop-and-go waves (bn.lane_jams' moving jams, as run_metrics counts them over every lane) on one lane."""
     one = traj[traj["lane"] == lane]
-    if one.empty:
-        return 0.0
-    field = bn.speed_field(one, 0.0, x_to_m, 0.0, t_to_s, FIELD_DT_S, FIELD_DX_M)
-    return bn.wave_summary(bn.moving_jams(field, FIELD_DT_S, FIELD_DX_M, slow_mps=SLOW_MPS))["waves"]
+    return bn.wave_summary(bn.lane_jams(one, x_to_m, t_to_s, FIELD_DT_S, FIELD_DX_M, slow_mps=SLOW_MPS))["waves"]
 
 
 def _step_text(v: float) -> str:
@@ -118,28 +115,36 @@ def horizon_section(rows: pd.DataFrame, t_ups: Sequence[float], start_step: int,
     return "\n".join(parts)
 
 
-def horizon_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: Sequence[Run], lane: int) -> str:
-    """The horizon section of a --full study, and Fig. 4 for every learner preset after the first (the first's is
-    fig4_trajectories.png): fig4_trajectories_<preset>.png, its alpha 0 and largest alpha, first model and seed."""
+def fig4(root: Path, name: str, plan: Plan, rows: pd.DataFrame, runs: Sequence[Run], shown: Sequence[str],
+         lane: int) -> tuple[float, dict[str, tuple[float, float]]]:  # fmt: skip
+    """Fig. 4 of the policies `shown` (their first model, first evaluation seed) into root/name, at the demand where
+    the last of them and the first differ most in total time spent: (that T_up, its two windows)."""
     from coopsumo.report.plots import trajectory_windows_figure
 
     cfg = runs[0].cfg
     acc, dt = cfg.accident, cfg.control.dt_s
-    start_s, run_end_s = acc.start_step * dt, plan.steps * dt
-    waves = wave_rows([(r.label, r.t_up, r.train_seed, r.seed, r.out) for r in runs], lane, acc.x_m, run_end_s)
-    text = horizon_section(rows, plan.t_ups, acc.start_step, dt, waves, lane)
     first, first_model = plan.seeds[0], plan.train_seeds[0]
+    t_up = most_different_demand(rows, shown[-1], shown[0]) if len(shown) > 1 else None
+    t_up = t_up if t_up is not None else plan.t_ups[0]
     first_rows = rows[rows["train_seed"].isna() | (rows["train_seed"] == first_model)]
+    windows = fig4_windows(first_rows, t_up, shown, first, acc.start_step * dt, plan.steps * dt)
+    trajs = {r.label: pd.read_parquet(r.out / "trajectories.parquet") for r in runs
+             if r.seed == first and r.t_up == t_up and r.label in shown and r.train_seed in (None, first_model)}
+    trajectory_windows_figure(trajs, lane, windows, root / name, acc.x_m, f"SUMO lane {lane}")
+    return t_up, windows
+
+
+def horizon_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: Sequence[Run], lane: int) -> str:
+    """The horizon section of a --full study, and Fig. 4 for every learner preset after the first (the first's is
+    fig4_trajectories.png): fig4_trajectories_<preset>.png, its alpha 0 and largest alpha, first model and seed."""
+    acc, dt = runs[0].cfg.accident, runs[0].cfg.control.dt_s
+    waves = wave_rows([(r.label, r.t_up, r.train_seed, r.seed, r.out) for r in runs], lane, acc.x_m, plan.steps * dt)
+    text = horizon_section(rows, plan.t_ups, acc.start_step, dt, waves, lane)
     for preset in plan.presets[1:]:
-        shown = [model_label(preset, 0.0), model_label(preset, max(plan.alphas))]
-        t_up = most_different_demand(rows, shown[-1], shown[0])
-        t_up = t_up if t_up is not None else plan.t_ups[0]
-        windows = fig4_windows(first_rows, t_up, shown, first, start_s, run_end_s)
-        trajs = {r.label: pd.read_parquet(r.out / "trajectories.parquet") for r in runs
-                 if r.seed == first and r.t_up == t_up and r.label in shown and r.train_seed == first_model}
         name = f"fig4_trajectories_{preset}.png"
-        trajectory_windows_figure(trajs, lane, windows, root / name, acc.x_m, f"SUMO lane {lane}")
+        t_up, _ = fig4(root, name, plan, rows, runs, [model_label(preset, 0.0), model_label(preset, max(plan.alphas))],
+                       lane)  # fmt: skip
         text += (f"\n\n![Fig. 4, {preset}]({name})\n\nFig. 4 for the `{preset}` learner: lane {lane}, T_up = "
-                 f"{t_up:g} s, the first model (training seed {first_model}) at alpha 0 and {max(plan.alphas):g}, "
-                 f"evaluation seed {first}; windows as in the figure above.")  # fmt: skip
+                 f"{t_up:g} s, the first model (training seed {plan.train_seeds[0]}) at alpha 0 and "
+                 f"{max(plan.alphas):g}, evaluation seed {plan.seeds[0]}; windows as in the figure above.")  # fmt: skip
     return text

@@ -17,7 +17,7 @@ import pandas as pd
 from coopsumo.config import to_dict
 from coopsumo.runio import versions
 from coopsumo.studies.scenario1_gui import gui_section
-from coopsumo.studies.scenario1_horizon import horizon_outputs
+from coopsumo.studies.scenario1_horizon import fig4, horizon_outputs
 from coopsumo.studies.scenario1_measures import (
     COUNTED,
     FIELD_DT_S,
@@ -34,8 +34,6 @@ from coopsumo.studies.scenario1_measures import (
     cooperative_alpha,
     demand_table,
     difference_table,
-    fig4_windows,
-    most_different_demand,
 )
 from coopsumo.studies.scenario1_plan import Plan, Run, label_for, model_label, study_out
 from coopsumo.studies.stats import models_needed
@@ -421,7 +419,6 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
         difference_figure,
         flow_density_figure,
         recovery_figure,
-        trajectory_windows_figure,
     )
 
     agg = aggregate(rows)
@@ -433,7 +430,7 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
     shown_runs = [r for r in runs if r.train_seed in (None, first_model)]  # the figures show the first model
     learned = sorted({r.label for r in runs if r.train_seed is not None})
     acc, dt = cfg0.accident, cfg0.control.dt_s
-    start_s, end_s, run_end_s = acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt, plan.steps * dt
+    start_s, end_s = acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt
     window = (start_s, end_s)
     figures: dict[str, str] = {}
     for name in [p.name for p in root.glob("fig*.png")]:
@@ -460,14 +457,7 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
     noncoop = model_label(plan.presets[0], 0.0)
     shown_alpha = coop if coop is not None else max(plan.alphas)
     shown = [noncoop] + ([model_label(plan.presets[0], shown_alpha)] if shown_alpha > 0 else [])
-    fig4_t = most_different_demand(rows, shown[-1], noncoop) if len(shown) > 1 else None
-    fig4_t = fig4_t if fig4_t is not None else plan.t_ups[0]
-    first_rows = rows[rows["train_seed"].isna() | (rows["train_seed"] == first_model)]
-    windows = fig4_windows(first_rows, fig4_t, shown, first, start_s, run_end_s)
-    trajs = {r.label: pd.read_parquet(r.out / "trajectories.parquet") for r in shown_runs
-             if r.seed == first and r.t_up == fig4_t and r.label in shown}  # fmt: skip
-    trajectory_windows_figure(trajs, FIG4_LANE, windows, root / "fig4_trajectories.png", acc.x_m,
-                              f"SUMO lane {FIG4_LANE}")  # fmt: skip
+    fig4_t, windows = fig4(root, "fig4_trajectories.png", plan, rows, runs, shown, FIG4_LANE)
     gui_label = model_label(plan.presets[0], GUI_ALPHA if GUI_ALPHA in plan.alphas else max(plan.alphas))
     gui_t = min(plan.t_ups)
     gui = next(r for r in shown_runs if r.label == gui_label and r.seed == first and r.t_up == gui_t)
