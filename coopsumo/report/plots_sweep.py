@@ -8,6 +8,7 @@ alphas tried, with its bootstrap range and the fitted plane alpha* = b0 + b1 T_u
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping, Sequence
 from fractions import Fraction
 from pathlib import Path
@@ -50,7 +51,7 @@ def alpha_star_lanes_chart(
         raise ValueError("alpha_star_lanes_chart needs at least one condition")
     grid = sorted(float(a) for a in alphas)
     lanes = sorted(int(n) for n in set(table["lanes"]))
-    fig = new_figure(1.2 + 3.0 * len(lanes), 4.4)
+    fig = new_figure(max(1.2 + 3.0 * len(lanes), 7.5), 4.4)  # one panel is still wide enough for the legend and note
     axes = fig.subplots(1, len(lanes), sharey=True, squeeze=False)[0]
     positive = [a for a in grid if a > 0]
     top = max([*grid, *table["alpha_star"].dropna().astype(float)], default=1.0)
@@ -109,7 +110,7 @@ def alpha_star_lanes_chart(
         b0, b1, b2 = plane
         title += rf" (plane: $\alpha^*$ = {b0:.2f} {b1:+.2f} $T_{{up}}$ {b2:+.2f} lanes)"
     if note:
-        title += "\n" + note
+        title += "\n" + "\n".join(textwrap.wrap(note, 110))
     fig.suptitle(title, fontsize=9)
     fig.tight_layout(rect=(0, 0.09, 1, 1))
     return fig
