@@ -114,8 +114,8 @@ def test_the_cluster_bench_runs_one_study_on_every_backend_with_the_same_records
 SCENARIO2 = ["-m", "coopsumo", "scenario2", "--profile", "paper", "--lanes", "2", "--t-up", "2", "--alphas", "0,8",
              "--seeds", "1", "--eval-seeds", "1", "--steps", "300", "--eval-steps", "1200", "--mobil-p", "0",
              "--bootstrap", "50", "--quiet"]  # fmt: skip
-"""scenario II's paper profile at a tiny size: one lane network (300 steps) driven at 2 alphas, keep, greedy and
-MOBIL p = 0 on one evaluation seed: 5 cells"""
+"""scenario II's paper profile at a tiny size: a model per alpha (300 steps each) for the one lane count, keep, greedy
+and MOBIL p = 0 on one evaluation seed: 5 cells"""
 
 
 def test_the_paper_profile_of_scenario2_runs_on_two_nodes_as_locally(tmp_path: Path,

@@ -1,6 +1,7 @@
 """Scenario II's lane-network profiles (full, check, paper; issue 65): the full-road speed on known trajectories, the
-gate, the trends' models-to-decide and the check on hand-made tables, the plan (one alpha-conditioned network per
-lane count and seed, its store identity), bad input, and the check profile end to end at a tiny size on SUMO."""
+gate, the trends' models-to-decide and the check on hand-made tables, the plan (one model per alpha, or one
+alpha-conditioned network, per lane count and seed; its store identity), bad input, and the check and full profiles
+end to end at a tiny size on SUMO."""
 
 from __future__ import annotations
 
@@ -217,7 +218,7 @@ def test_the_report_of_hand_made_tables(tmp_path: Path) -> None:
     assert "Fitted over the 1 of 2 conditions that pass the gate" in report and "No plane fitted" in report
     assert "within the per-alpha models' spread (min to max over models) at 0 of 4" in report
     assert "**1.00 h**" in report and "**1.94 core-hours**" in report
-    assert "| `full` | 15 | 576 |" in report and "| `paper` | 50 | 3750 |" in report
+    assert "| `full` | 90 | 576 |" in report and "| `paper` | 600 | 3750 |" in report
     assert meta["gate"] == {"conditions": 2, "judged": True, "passing": 1, "in_trend_fit": 1}
     json.dumps(meta)  # sweep.json can hold it
     costs = meta["step_costs"]
@@ -226,7 +227,7 @@ def test_the_report_of_hand_made_tables(tmp_path: Path) -> None:
     full = meta["estimates"]["full"]
     evaluation = sum(len(plan.PROFILES["full"].eval_seeds) * 9000 * (30 * 1e-3 + 6 * 5e-4)
                      for _ in plan.PROFILES["full"].conditions())  # fmt: skip
-    assert full["training_core_hours"] == pytest.approx(15 * 600 / 3600)
+    assert full["training_core_hours"] == pytest.approx(90 * 600 / 3600)
     assert full["evaluation_core_hours"] == pytest.approx(evaluation / 3600)
 
 
@@ -235,27 +236,28 @@ def test_the_full_and_check_profiles() -> None:
     full, check = plan.PROFILES["full"], plan.PROFILES["check"]
     assert full.lanes == (2, 3, 4) and full.loads == (0.25, 0.5, 0.75, 1.0) and len(full.eval_seeds) == 3
     assert full.alphas == (0.0, 0.25, 1.0, 2.0, 8.0, 32.0) and len(full.seeds) == 5 and full.criterion == FULL_ROAD
-    assert (full.train_steps, full.eval_steps, full.n_trainings(), full.n_cells()) == (90_000, 9000, 15, 576)
+    assert (full.train_steps, full.eval_steps, full.n_trainings(), full.n_cells()) == (90_000, 9000, 90, 576)
     assert set(full.policies) == {"dqn", "mobil", "keep", "greedy"} and full.mobil_ps == (0.0, 0.25, 0.5, 1.0)
     assert check.conditions() == [(3, 1.33, 0.5), (3, 0.67, 1.0)] and check.n_trainings() == 12
-    assert s2.DEFAULT_PROFILE == "full" and plan.PROFILES["paper"].n_trainings() == 50
+    assert s2.DEFAULT_PROFILE == "full" and plan.PROFILES["paper"].n_trainings() == 5 * 12 * 10
     specs = plan.cell_specs(full)
     trainings: dict[str, list[dict[str, Any]]] = {}
     for spec in specs:
         if spec["policy"] == "dqn":
             trainings.setdefault(spec["train_key"], []).append(spec)
-    assert len(trainings) == 15 and all(len(cells) == 4 * 6 for cells in trainings.values())
+    assert len(trainings) == 3 * 6 * 5 and all(len(cells) == 4 for cells in trainings.values())
     for key, cells in trainings.items():  # every cell of a training waits for its first, which trains it
         assert "after" not in cells[0] and all(c["after"] == cells[0]["key"] for c in cells[1:]), key
         assert len({json.dumps(c["config"]["train"], sort_keys=True) for c in cells}) == 1
-        assert all(c["conditioned"] and c["evals_key"] == c["key"] for c in cells)
-    train = trainings["L4_cond_s2"][0]["config"]["train"]
+        assert all(not c["conditioned"] and c["evals_key"] == c["key"] for c in cells)
+        assert len({c["alpha"] for c in cells}) == 1 and len({c["t_up_s"] for c in cells}) == 4
+    train = trainings["L4_a32_s2"][0]["config"]["train"]
     dqn = train["dqn"]
-    assert dqn["alpha_conditioned"] and dqn["alpha_draw_max"] == 32.0 and dqn["validation_alphas"] == [0.0, 1.0, 8.0]
+    assert not dqn["alpha_conditioned"] and train["sim"]["reward"]["alpha"] == 32
     assert dqn["train_t_ups"] == dqn["validation_t_ups"] == [2.0, 1.0, 0.67, 0.5]
     assert dqn["preset"] == "default" and dqn["accident_share"] == 0 and dqn["validation_accident_steps"] == 0
     assert dqn["select_every_steps"] == 15_000 and train["sim"]["steps"] == 90_000 and train["sim"]["seed"] == 2
-    assert train["sim"]["road"]["lanes"] == 4 and train["sim"]["reward"]["alpha"] == 0
+    assert train["sim"]["road"]["lanes"] == 4
     cell = next(s for s in specs if s["key"] == "L4_T0.5_a32_s2")
     assert [e["seed"] for e in cell["config"]["evals"]] == [2001, 2002, 2003]
     assert cell["config"]["evals"][0]["steps"] == 9000 and cell["config"]["trajectory_every_steps"] == 50
@@ -266,8 +268,8 @@ def test_the_full_and_check_profiles() -> None:
 
 def test_a_stored_model_of_another_identity_is_another_folder() -> None:
     """The model store names a model by its whole training configuration (model_store.model_id): the check's 3-lane
-    networks are the full profile's (trained once), and a network whose alpha draw, selection alphas, demands,
-    steps or preset differ is another folder, trained anew, never the stored one."""
+    per-alpha models are the full profile's of those alphas (trained once), and a network whose alpha draw,
+    selection alphas, demands, steps or preset differ is another folder, trained anew, never the stored one."""
     full, check = plan.PROFILES["full"], plan.PROFILES["check"]
     ident = model_id(json.loads(json.dumps(plan.to_dict(plan.lane_train_config(3, 1, full)))))
     assert ident == model_id(json.loads(json.dumps(plan.to_dict(plan.lane_train_config(3, 1, check)))))
@@ -277,6 +279,8 @@ def test_a_stored_model_of_another_identity_is_another_folder() -> None:
     assert ident not in names and len(names) == len(others)
     per_alpha = model_id(json.loads(json.dumps(plan.to_dict(plan.lane_train_config(3, 1, check, 1.0)))))
     assert per_alpha.startswith("default_a1_seed1_") and ident.startswith("default_ac_seed1_")
+    full_specs = {s["key"]: s for s in plan.cell_specs(full)}
+    assert model_id(full_specs["L3_T0.67_a1_s1"]["config"]["train"]) == per_alpha
 
 
 # -- bad input ---------------------------------------------------------------------------------------------------
@@ -346,7 +350,7 @@ def test_the_check_profile_end_to_end(tmp_path: Path) -> None:
     assert len(check) == 4 and set(check["alpha"]) == {0.0, 8.0}
     report = (out / "report.md").read_text()
     for text in ("## The gate: where the learner is fit to be asked", "## The paper's trends",
-                 "## One network per lane count against per-alpha models", "core-hours", "| `full` | 15 | 576 |"):
+                 "## One network per lane count against per-alpha models", "core-hours", "| `full` | 90 | 576 |"):
         assert text in report, text
     assert "gate" in res.stdout and "scenario2: 28 ok, 0 failed" in res.stdout
     sweep = json.loads((out / "sweep.json").read_text())

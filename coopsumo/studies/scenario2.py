@@ -1,7 +1,8 @@
 """`coopsumo scenario2` (`make scenario2`): the alpha sweep of section IV.B (paper Fig. 6).
 
-The default profile `full` (and `check`, `paper`) trains one alpha-conditioned network per lane count and training
-seed on that lane count's demands and drives it at every condition of the lane count and every alpha; `keep`,
+The default profile `full` (and `paper`) trains one model per alpha, lane count and training seed on that lane
+count's demands and drives it at every condition of the lane count (`check` trains one alpha-conditioned network per
+lane count and seed beside per-alpha models, and drives it at every alpha); `keep`,
 `greedy` and MOBIL run on the same evaluation seeds, every speed is measured once the road is full, and the report
 (scenario2_gate_report) judges per condition whether the learner is fit to be asked (the gate) before alpha*'s
 trends are fitted. The profiles `quick` and `tiny` are the per-alpha sweep described below.
@@ -302,7 +303,8 @@ def learner_of(profile: Profile) -> dict[str, Any]:
     """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json); with lane networks,
     the network's of every lane count (a check's per-alpha models: the same, not conditioned)."""
     if profile.lane_networks:
-        return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile)))) for n in profile.lanes}
+        alpha = 0.0 if profile.alpha_models else None  # per-alpha models: alpha 0's learner (each its own alpha)
+        return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile, alpha)))) for n in profile.lanes}
     dqn = at_condition(DQN_PRESETS[profile.preset])
     return json.loads(json.dumps(to_dict(replace(dqn, alpha_conditioned=True) if profile.conditioned else dqn)))
 
@@ -342,8 +344,8 @@ def profile_from_args(args: Any) -> Profile:
         profile = replace(profile, preset=args.preset)
     if args.conditioned:
         if profile.lane_networks:
-            raise UsageError(f"--conditioned trains one network per condition; profile {profile.name} trains one "
-                             "alpha-conditioned network per lane count already (--profile quick or tiny take it)")
+            raise UsageError(f"--conditioned trains one network per condition; profile {profile.name} trains its "
+                             "models per lane count (--profile quick or tiny take it)")
         profile = replace(profile, conditioned=True)
     if args.policies is not None:
         policies = set(name_list("--policies", args.policies, POLICIES))
@@ -363,8 +365,8 @@ DEFAULT_PROFILE = "full"
 PROFILE_HELP = {
     "tiny": "tests",
     "quick": "the 8,000-step per-alpha sweep of before, about 80 min on 2 cores",
-    "full": "the default: one alpha-conditioned network per lane count and seed, 90,000 steps, baselines and the "
-            "gate; estimated 2 h on 2 cores from scratch, 1 h with every model stored",
+    "full": "the default: one model per alpha, lane count and seed (90 trainings of 90,000 steps), baselines and "
+            "the gate; estimated 4.7 h on 2 cores from scratch, 1.5 h with every model stored",
     "check": "the per-lane-count networks against per-alpha models at 3 lanes, loads 0.5 and 1; estimated 1 h",
     "paper": "the paper's grid as full is built: a Ray cluster",
 }

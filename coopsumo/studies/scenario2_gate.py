@@ -256,7 +256,7 @@ def core_hours(costs: dict[str, Any], profile: Profile) -> dict[str, float]:
 
     model, classical = fit("model", "classical"), fit("classical", "model")
     train = sum(profile.train_steps * max(costs["train_a"] + costs["train_b_per_lane"] * n, 0.0)
-                * len(profile.seeds) * (1 + len(profile.check_alphas)) for n in profile.lanes)  # fmt: skip
+                * len(profile.seeds) * profile.trainings_per_lane_seed() for n in profile.lanes)  # fmt: skip
     per_condition_models = (len(profile.alphas) + len(profile.check_alphas)) * len(profile.seeds)
     per_condition_runs = (len(profile.mobil_ps) * ("mobil" in profile.policies)
                           + sum(p in profile.policies for p in ("keep", "greedy")))  # fmt: skip

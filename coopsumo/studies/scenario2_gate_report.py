@@ -264,9 +264,31 @@ def cost_text(meta: dict[str, Any], profile: Profile) -> str:
 
 def design_text(profile: Profile, alpha_label: Any) -> str:
     """How the models are made and evaluated, and why."""
-    n = profile.lanes[0]
-    dq = lane_learner(n, profile)
+    dq = lane_learner(profile.lanes[0], profile)
     demands = "; ".join(f"{k} lanes: {', '.join(f'{t:g}' for t in profile.lane_t_ups(k))} s" for k in profile.lanes)
+    trained = (f"trained {profile.train_steps:,} steps of 0.1 s in free flow (no accident in training or in model "
+               f"selection: scenario II has none) on episodes of {dq.episode_steps:,} steps whose demand is drawn "
+               f"from the lane count's conditions ({demands})")  # fmt: skip
+    chosen = (f"model.pt is the best of its snapshots (every {dq.select_every_steps:,} steps) on held-out demand of "
+              f"the same T_ups (validation seeds from {dq.validation_seed:,}, {dq.validation_steps:,} steps each)")
+    evaluated = (f"on evaluation seeds {', '.join(map(str, profile.eval_seeds))}, which no training or selection "
+                 f"saw, {profile.eval_steps:,} steps each; a model's value is its mean over them.")
+    baselines = (f" `keep`, `greedy` and MOBIL at p = {', '.join(f'{p:g}' for p in profile.mobil_ps)} run once on "
+                 "each evaluation seed of every condition (p* is the best p).")
+    if profile.alpha_models:
+        n_models = len(profile.lanes) * len(profile.seeds) * len(profile.alphas)
+        return (
+            f"**Models.** One model per lane count, alpha and training seed ({len(profile.seeds)} seeds: {n_models} "
+            f"models): the `{profile.preset}` learner, {trained}, at its one alpha; {chosen}, driven at that alpha. "
+            f"Each model is driven greedily at every condition of its lane count {evaluated}{baselines}\n\n"
+            "**Why one model per alpha and lane count.** One model per (condition, alpha, seed) at the learner's "
+            f"90,000 steps would be {len(profile.conditions()) * len(profile.alphas) * len(profile.seeds)} "
+            "trainings. One alpha-conditioned network per lane count and seed would be "
+            f"{len(profile.lanes) * len(profile.seeds)}, but its check (results/scenario2_check, `coopsumo scenario2 "
+            "--profile check`: 3 lanes, loads 0.5 and 1) found it within the per-alpha models' spread at only 3 of "
+            "6 (condition, alpha) pairs and below it at alpha 8 at both loads, where it nearly stopped changing "
+            "lanes; so each alpha gets models of its own, trained on the lane count's four demands as the check's "
+            "per-alpha models were.")
     drawn = ", ".join(alpha_label(a) for a in conditioned_alphas(dq))
     check = ""
     if profile.check_alphas:
@@ -275,19 +297,12 @@ def design_text(profile: Profile, alpha_label: Any) -> str:
                  "that alpha), one per lane count and training seed, on the same demands and evaluation seeds.")
     return (
         f"**Models.** One alpha-conditioned network per lane count and training seed ({len(profile.seeds)} seeds: "
-        f"{len(profile.lanes) * len(profile.seeds)} networks): the `{profile.preset}` learner's machinery, trained "
-        f"{profile.train_steps:,} steps of 0.1 s in free flow (no accident in training or in model selection: "
-        f"scenario II has none) on episodes of {dq.episode_steps:,} steps whose demand is drawn from the lane count's "
-        f"conditions ({demands}); the shared alpha is drawn every {dq.alpha_period_steps:,} steps from the paper's "
+        f"{len(profile.lanes) * len(profile.seeds)} networks): the `{profile.preset}` learner's machinery, {trained}; "
+        f"the shared alpha is drawn every {dq.alpha_period_steps:,} steps from the paper's "
         f"values up to {profile.alpha_draw_max:g} ({drawn}) and {dq.alpha_relabel:.0%} of each minibatch relabelled. "
-        f"model.pt is the best of its snapshots (every {dq.select_every_steps:,} steps) on held-out demand of the "
-        f"same T_ups (validation seeds from {dq.validation_seed:,}, {dq.validation_steps:,} steps each), every run "
-        f"driven at alphas {', '.join(alpha_label(a) for a in profile.validation_alphas)} and their mean scored. "
-        "Each network is driven greedily at every condition of its lane count and every alpha (`dqn:PATH,alpha=A`) "
-        f"on evaluation seeds {', '.join(map(str, profile.eval_seeds))}, which no training or selection saw, "
-        f"{profile.eval_steps:,} steps each; a model's value is its mean over them.{check} `keep`, `greedy` and "
-        f"MOBIL at p = {', '.join(f'{p:g}' for p in profile.mobil_ps)} run once on each evaluation seed of every "
-        "condition (p* is the best p).\n\n"
+        f"{chosen}, every run driven at alphas {', '.join(alpha_label(a) for a in profile.validation_alphas)} and "
+        "their mean scored. Each network is driven greedily at every condition of its lane count and every alpha "
+        f"(`dqn:PATH,alpha=A`) {evaluated}{check}{baselines}\n\n"
         "**Why one network per lane count.** One model per (condition, alpha, seed) at the learner's 90,000 steps "
         f"would be {len(profile.conditions()) * len(profile.alphas) * len(profile.seeds)} trainings; one per lane "
         f"count and seed is {len(profile.lanes) * len(profile.seeds)}, which keeps the study within hours on two "

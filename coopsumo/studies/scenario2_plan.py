@@ -79,6 +79,10 @@ class Profile:
     """lane networks: the alphas drawn and relabelled to in training are PAPER_ALPHAS up to this one"""
     validation_alphas: tuple[float, ...] = (0.0, 1.0, 8.0)
     """lane networks: model selection drives every validation run at each of these alphas (their mean scores)"""
+    alpha_models: bool = False
+    """lane networks: one model per alpha instead of one alpha-conditioned network (per lane count and training
+    seed, trained at that alpha alone on the lane count's demands and chosen at it): the design the check's
+    criterion leaves (results/scenario2_check: the conditioned network fell below the per-alpha models at alpha 8)"""
     check_alphas: tuple[float, ...] = ()
     """lane networks: per-alpha models beside them, the same learner trained at each of these alphas alone (same
     demands, selection at that alpha), one per lane count and training seed, evaluated at every condition"""
@@ -122,8 +126,13 @@ class Profile:
         if "dqn" not in self.policies:
             return 0
         if self.lane_networks:
-            return len(self.lanes) * len(self.seeds) * (1 + len(self.check_alphas))
+            return len(self.lanes) * len(self.seeds) * self.trainings_per_lane_seed()
         return len(self.conditions()) * len(self.seeds) * (1 if self.conditioned else len(self.alphas))
+
+    def trainings_per_lane_seed(self) -> int:
+        """Lane networks: the models of one lane count and training seed (one per alpha with alpha_models, else the
+        conditioned network and one per check alpha)."""
+        return len(self.alphas) if self.alpha_models else 1 + len(self.check_alphas)
 
     def lane_t_ups(self, lanes: int) -> tuple[float, ...]:
         """The T_ups (s) of the grid's conditions of `lanes` lanes, from the lightest load: a lane network's demands
@@ -150,10 +159,11 @@ CHECK_ALPHAS = (0.0, 1.0, 8.0)
 """the check profile's alphas: per-alpha models trained at each, beside the 3-lane networks driven at each"""
 FULL_ROAD_EVERY_STEPS = 50
 """the lane-network profiles record trajectories every 5 s: the full-road speed's samples"""
-LANE_STUDY: dict[str, Any] = {"lane_networks": True, "policies": POLICIES, "criterion": FULL_ROAD,
+LANE_STUDY: dict[str, Any] = {"lane_networks": True, "alpha_models": True, "policies": POLICIES, "criterion": FULL_ROAD,
                               "trajectory_every_steps": FULL_ROAD_EVERY_STEPS, "train_steps": 90_000,
                               "eval_steps": 9000}
-"""what the lane-network profiles share: the default learner's steps, baselines, the full-road criterion"""
+"""what the lane-network profiles share: the default learner's steps, one model per alpha and lane count,
+baselines, the full-road criterion (the check replaces alpha_models: it measures the conditioned network)"""
 PROFILES = {
     "tiny": Profile("tiny", lanes=(2,), loads=(0.25, 0.5), alphas=(0.0, 8.0), seeds=(1, 2),
                     train_steps=300, eval_steps=300, mobil_ps=(0.0, 1.0)),
@@ -162,7 +172,8 @@ PROFILES = {
     "full": Profile("full", lanes=(2, 3, 4), loads=QUICK_LOADS, alphas=FULL_ALPHAS, seeds=tuple(range(1, 6)),
                     eval_seeds=eval_seeds(3), **LANE_STUDY),
     "check": Profile("check", lanes=(3,), loads=QUICK_LOADS, eval_loads=(0.5, 1.0), alphas=CHECK_ALPHAS,
-                     seeds=(1, 2, 3), eval_seeds=eval_seeds(3), check_alphas=CHECK_ALPHAS, **LANE_STUDY),
+                     seeds=(1, 2, 3), eval_seeds=eval_seeds(3), check_alphas=CHECK_ALPHAS,
+                     **{**LANE_STUDY, "alpha_models": False}),
     "paper": Profile("paper", lanes=(2, 3, 4, 5, 6), loads=(0.2, 0.4, 0.6, 0.8, 1.0), alphas=PAPER_ALPHAS,
                      seeds=tuple(range(1, 11)), eval_seeds=eval_seeds(5), alpha_draw_max=48.0, **LANE_STUDY),
 }  # fmt: skip
@@ -309,7 +320,10 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
             for alpha in profile.alphas:
                 for seed in profile.seeds:
                     key = cell_key(lanes, t_up, alpha, seed)
-                    if profile.lane_networks:
+                    if profile.lane_networks and profile.alpha_models:
+                        add_model(key, lanes, t_up, load, alpha, seed, lane_train_config(lanes, seed, profile, alpha),
+                                  train_key=lane_key(lanes, seed, alpha), conditioned=False)  # fmt: skip
+                    elif profile.lane_networks:
                         add_model(key, lanes, t_up, load, alpha, seed, lane_train_config(lanes, seed, profile),
                                   train_key=lane_key(lanes, seed), conditioned=True)  # fmt: skip
                     elif profile.conditioned:
@@ -317,7 +331,7 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
                                   profile), train_key=conditioned_key(lanes, t_up, seed))  # fmt: skip
                     else:
                         add_model(key, lanes, t_up, load, alpha, seed, train_config(lanes, t_up, alpha, seed, profile))
-            for alpha in profile.check_alphas if profile.lane_networks else ():
+            for alpha in profile.check_alphas if profile.lane_networks and not profile.alpha_models else ():
                 for seed in profile.seeds:
                     add_model(per_alpha_key(lanes, t_up, alpha, seed), lanes, t_up, load, alpha, seed,
                               lane_train_config(lanes, seed, profile, alpha), PER_ALPHA,
