@@ -365,3 +365,55 @@ def test_the_check_profile_end_to_end(tmp_path: Path) -> None:
     rewrite_outputs(redrawn)
     for name in ("report.md", "gate.csv", "alpha_star.csv", "check.csv", "mobil_p_star.csv"):
         assert (redrawn / name).read_text() == (out / name).read_text(), name
+
+
+PART = ["--t-up", "4", "--alphas", "0,8", "--seeds", "1", "--eval-seeds", "1", "--steps", "300", "--eval-steps",
+        "1200", "--mobil-p", "0", "--bootstrap", "50", "--workers", "2", "--quiet"]  # fmt: skip
+"""one part of the full profile at a tiny size: one condition, a model per alpha of 300 steps, one evaluation seed"""
+
+
+def test_the_full_profile_in_parts_merged(tmp_path: Path) -> None:
+    """The full profile (one model per alpha, lane count and seed) run one lane count at a time, then --merge: the
+    merged tables are the parts' together, its report covers both lane counts and says it ran in parts, and each
+    condition's gate row is the one its part drew alone."""
+    parts = {n: tmp_path / f"L{n}" for n in (2, 3)}
+    for n, out in parts.items():
+        cmd = [sys.executable, "-m", "coopsumo", "scenario2", "--lanes", str(n), *PART, "--out", str(out)]
+        res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
+        assert res.returncode == 0, res.stderr[-3000:]
+        assert sorted(p.name for p in (out / "train").iterdir()) == [f"L{n}_a0_s1", f"L{n}_a8_s1"]
+        cfg = json.loads((out / "train" / f"L{n}_a8_s1" / "config.json").read_text())["config"]
+        assert not cfg["dqn"]["alpha_conditioned"] and cfg["sim"]["reward"]["alpha"] == 8
+    merged = tmp_path / "merged"
+    cmd = [sys.executable, "-m", "coopsumo", "scenario2", "--merge", f"{parts[2]},{parts[3]}", "--out", str(merged)]
+    res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300, check=False)
+    assert res.returncode == 0, res.stderr[-3000:]
+    assert "merged 2 parts (10 cells, lanes 2, 3)" in res.stdout
+    runs = pd.read_csv(merged / "runs.csv")
+    assert len(runs) == 10 and set(runs["lanes"]) == {2, 3} and (runs["status"] == "ok").all()
+    pd.testing.assert_frame_equal(runs, pd.concat([pd.read_csv(p / "runs.csv") for p in parts.values()],
+                                                  ignore_index=True))  # fmt: skip
+    gate = pd.read_csv(merged / "gate.csv")
+    for n, out in parts.items():
+        alone = pd.read_csv(out / "gate.csv")
+        pd.testing.assert_frame_equal(gate[gate["lanes"] == n].reset_index(drop=True), alone)
+    sweep = json.loads((merged / "sweep.json").read_text())
+    assert sweep["profile"]["lanes"] == [2, 3] and [p["lanes"] for p in sweep["parts"]] == [[2], [3]]
+    assert sweep["cells"] == 10 and sweep["trainings"] == 4
+    report = (merged / "report.md").read_text()
+    assert "It ran in 2 parts" in report and "| 2 | 4 |" in report and "| 3 | 4 |" in report
+    again = subprocess.run([*cmd[:-1], str(tmp_path / "other")], cwd=REPO, capture_output=True, text=True,
+                           timeout=300, check=False)  # fmt: skip
+    assert again.returncode == 0 and (tmp_path / "other" / "report.md").read_text() == report
+    copy = tmp_path / "L2_copy"
+    copy.mkdir()
+    for name in ("sweep.json", "runs.csv", "evals.csv"):
+        (copy / name).write_bytes((parts[2] / name).read_bytes())
+    for argv, words in (([f"{parts[2]},{copy}"], "repeats lanes [2]"), ([str(tmp_path / "none")], "not a finished"),
+                        ([f"{parts[2]}", "--lanes", "2"], "--lanes cannot go with it")):  # fmt: skip
+        bad = subprocess.run([sys.executable, "-m", "coopsumo", "scenario2", "--merge", *argv, "--out",
+                              str(tmp_path / "bad")], cwd=REPO, capture_output=True, text=True,
+                             check=False)  # fmt: skip
+        lines = bad.stderr.strip().splitlines()
+        assert bad.returncode == 2 and len(lines) == 1 and words in lines[0], bad.stderr
+        assert not (tmp_path / "bad").exists()

@@ -91,6 +91,7 @@ from coopsumo.validation import (
     number_list,
     number_name,
     seed_count,
+    split_list,
     steps,
     t_up_note,
     workers,
@@ -360,6 +361,33 @@ def profile_from_args(args: Any) -> Profile:
     return profile
 
 
+MERGE_ALONE = ("steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", "t_up", "policies", "mobil_p",
+               "preset")  # fmt: skip
+"""options that choose what a sweep runs, which --merge (nothing run) refuses"""
+
+
+def merge(args: Any) -> int:
+    """--merge: the parts' sweep folders merged into --out (scenario2_redraw.merge_parts)."""
+    from coopsumo.studies.scenario2_redraw import merge_parts, read_parts
+
+    if given := [f"--{name.replace('_', '-')}" for name in MERGE_ALONE if getattr(args, name) is not None]:
+        raise UsageError(f"--merge runs nothing: {', '.join(given)} cannot go with it")
+    if args.out is None:
+        raise UsageError("--merge needs --out, the merged sweep's folder")
+    parts = [Path(x) for x in split_list("--merge", args.merge)]
+    if any(p.resolve() == args.out.resolve() for p in parts):
+        raise UsageError(f"--merge: --out {args.out} is one of the parts")
+    read = read_parts(parts)  # checked before anything is written
+    with study_root(args.out, "scenario2"):
+        meta = merge_parts(parts, read, args.out)
+    from coopsumo.studies.scenario2_gate_report import console_lines
+
+    print("\n".join(console_lines(args.out)))
+    print(f"scenario2: merged {len(parts)} parts ({meta['cells']} cells, lanes "
+          f"{', '.join(map(str, meta['profile']['lanes']))}); report: {args.out / 'report.md'}")  # fmt: skip
+    return 0
+
+
 DEFAULT_PROFILE = "full"
 """the profile without --profile: the committed report's"""
 PROFILE_HELP = {
@@ -428,6 +456,9 @@ def build_parser() -> Parser:
     p.add_argument("--bootstrap", type=integer(0, 100_000), default=1000,
                    help="bootstrap replicates over seeds (default 1000)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--merge", default=None, metavar="DIR,DIR,...",
+                   help="nothing run: finished sweeps of one lane-network profile, each run with its own --lanes "
+                        "(a study run one lane count at a time), merged into --out with its tables and report")
     return p
 
 
@@ -435,6 +466,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
+        if args.merge is not None:
+            return merge(args)
         profile = profile_from_args(args)
         if args.workers < 1:
             raise UsageError(f"workers must be >= 1, got {args.workers}")
