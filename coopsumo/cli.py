@@ -17,20 +17,21 @@ from coopsumo import __version__
 from coopsumo.paths import nets_dir_problem
 from coopsumo.runio import NETS_ENV, Parser, UsageError, working_folder_problem
 
+S = "coopsumo.studies."
 COMMANDS: dict[str, tuple[str, str]] = {
     "simulate": ("coopsumo.simulate", "run one simulation (free flow or the accident) with any policy"),
     "train": ("coopsumo.agents.train_cli", "train the shared DQN on drawn demands and accidents, evaluate it"),
-    "scenario1": ("coopsumo.studies.scenario1", "the accident study of section IV.A, across demands"),
-    "scenario2": ("coopsumo.studies.scenario2", "the alpha sweep of section IV.B (Fig. 6)"),
-    "learning": ("coopsumo.studies.ablation", "the learner ablation and the alpha response"),
-    "protocol": ("coopsumo.studies.protocol", "judge learners: 10 models each, free flow and accident, vs baselines"),
-    "regime-map": ("coopsumo.studies.regime_map", "where the accident's queue goes: keep at every demand, two lengths"),
-    "accident-seeds": ("coopsumo.studies.accident_seeds", "a learning study's models through the accident, by seed"),
-    "diagnose": ("coopsumo.studies.diagnosis", "the Q-value margins behind a learning study's models' choices"),
-    "adaptive-fit": ("coopsumo.studies.adaptive_fit", "fit the adaptive-alpha rule on a scenario2 --conditioned sweep"),
-    "adaptive": ("coopsumo.studies.adaptive_alpha", "alpha=adaptive against the best fixed alpha, conditioned sweep"),
-    "history": ("coopsumo.studies.history", "write the learner search's table from the protocol studies' records"),
-    "models": ("coopsumo.studies.model_store", "list the model store: every trained model and whether it is usable"),
+    "scenario1": (S + "scenario1.study", "the accident study of section IV.A, across demands"),
+    "scenario2": (S + "scenario2.study", "the alpha sweep of section IV.B (Fig. 6)"),
+    "learning": (S + "learning.study", "the learner ablation and the alpha response"),
+    "protocol": (S + "protocol.study", "judge learners: 10 models each, free flow and accident, vs baselines"),
+    "regime-map": (S + "followups.regime_map", "where the accident's queue goes: keep at every demand, two lengths"),
+    "accident-seeds": (S + "followups.accident_seeds", "a learning study's models through the accident, by seed"),
+    "diagnose": (S + "followups.diagnosis", "the Q-value margins behind a learning study's models' choices"),
+    "adaptive-fit": (S + "followups.adaptive_fit", "fit the adaptive-alpha rule on a scenario2 --conditioned sweep"),
+    "adaptive": (S + "followups.adaptive_alpha", "alpha=adaptive against the best fixed alpha, conditioned sweep"),
+    "history": (S + "protocol.history", "write the learner search's table from the protocol studies' records"),
+    "models": (S + "engine.model_store", "list the model store: every trained model and whether it is usable"),
     "bench": ("coopsumo.bench", "speed figures (printed, not asserted)"),
 }
 """command -> (module holding its parser and main(argv), one line of what it does)"""

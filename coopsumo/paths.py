@@ -117,7 +117,8 @@ def outside_link(folder: Path) -> tuple[Path, Path] | None:
 NETS_ENV = "COOPSUMO_NETS_DIR"
 """environment variable naming the folder the SUMO networks are built into (read by sim.network)"""
 STORE_ENV = "COOPSUMO_MODELS"
-"""environment variable naming the studies' model store (studies/model_store.py; unset or empty: results/models)"""
+"""environment variable naming the studies' model store (studies/engine/model_store.py; unset or empty:
+results/models)"""
 
 
 def nets_in_out_problem(out: Path) -> str | None:

@@ -14,7 +14,7 @@ from conftest import InlineBackend
 
 from coopsumo.agents.selection import trained_part
 from coopsumo.config import PAPER_DQN, DQNConfig
-from coopsumo.studies.ablation_plan import (
+from coopsumo.studies.learning.plan import (
     CHAIN_LENGTH,
     PROFILES,
     VARIANTS,
@@ -23,7 +23,7 @@ from coopsumo.studies.ablation_plan import (
     learner_of,
     own_eval,
 )
-from coopsumo.studies.ablation_report import is_monotone_decreasing
+from coopsumo.studies.learning.report import is_monotone_decreasing
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
@@ -38,7 +38,7 @@ def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
         changed = [f for f in fields if f != "preset" and getattr(before, f) != getattr(after, f)]
         assert 1 <= len(changed) <= 3, (name, changed)  # one idea (e.g. replay size + its update rate)
     # the default design is judged by the learner protocol, one change at a time from the learning study's `select`
-    from coopsumo.studies.protocol_plan import variants
+    from coopsumo.studies.protocol.plan import variants
 
     protocol = variants()
     assert protocol["nr10"].learner == DQNConfig() == learner_of("noreturn")
@@ -134,14 +134,15 @@ def test_default_alpha_zero_cells_are_shared_between_the_parts() -> None:
 
 def failing_cell(spec: dict[str, object], root: str) -> dict[str, object]:
     """Runs no SUMO: every cell is recorded failed at once."""
-    from coopsumo.studies.ablation import failed_record
+    from coopsumo.studies.learning.study import failed_record
 
     return failed_record(spec, "RuntimeError: SUMO said no")
 
 
 def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    from coopsumo.studies import ablation, runner
+    from coopsumo.studies.engine import runner
+    from coopsumo.studies.learning import study as ablation
 
     monkeypatch.setattr(runner, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(failing_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
@@ -159,7 +160,7 @@ def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkey
 
 
 def test_robustness_table_compares_each_model_with_the_baselines_over_the_same_seeds() -> None:
-    from coopsumo.studies import robustness
+    from coopsumo.studies.followups import robustness
 
     def row(variant: str, kind: str, seed: int, speed: float, lc: float) -> dict[str, object]:
         return {"key": f"{variant}_{seed}", "kind": kind, "part": "ablation" if kind == "train" else "baseline",
@@ -191,7 +192,7 @@ def test_robustness_table_compares_each_model_with_the_baselines_over_the_same_s
 def test_each_chain_step_is_paired_by_training_seed() -> None:
     """A change that helps every model has an interval above 0; one whose models split is undecided; the worst
     model of a step is named (no SUMO: a hand-made table)."""
-    from coopsumo.studies import robustness
+    from coopsumo.studies.followups import robustness
 
     def row(variant: str, seed: int, speed: float) -> dict[str, object]:
         return {"key": f"{variant}_{seed}", "kind": "train", "part": "ablation", "variant": variant, "alpha": 0.0,
@@ -211,8 +212,8 @@ def test_each_chain_step_is_paired_by_training_seed() -> None:
 def test_a_longer_variant_trains_its_own_model_for_its_steps() -> None:
     """STEPS_FACTOR: conditioned8v_2x trains twice the profile's steps, a training of its own (not conditioned8v's,
     whose learner it shares), and the report's profile line names it."""
-    from coopsumo.studies import ablation_plan
-    from coopsumo.studies.ablation_report import _longer
+    from coopsumo.studies.learning import plan as ablation_plan
+    from coopsumo.studies.learning.report import _longer
 
     profile = PROFILES["conditioned"]
     specs = [s for s in cell_specs(profile, DQNConfig()) if s["kind"] == "train"]

@@ -157,3 +157,26 @@ def test_every_module_stays_short() -> None:
     lengths = {name: len(path.read_text().splitlines()) for name, path in module_files().items()}
     long = {name: n for name, n in lengths.items() if n > MAX_MODULE_LINES}
     assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
+
+
+def test_the_engine_reaches_into_no_study() -> None:
+    """studies/engine/ (runner, records, run folders, trainings, model store, statistics) is what every study runs on:
+    it imports no study's folder, so that a study can change or go without touching the others."""
+    graph = import_graph(module_files())
+    engine = "coopsumo.studies.engine"
+    bad = {f"{name} -> {dep}" for name, deps in graph.items() if name.startswith(engine) for dep in deps
+           if dep.startswith("coopsumo.studies.") and not dep.startswith(engine)}  # fmt: skip
+    assert not bad, sorted(bad)
+
+
+MAX_FOLDER_MODULES = 12
+"""a study folder past this holds two things: give one of them a folder (agents/ and sim/ are past it, 19 and 13)"""
+
+
+def test_every_study_folder_stays_small() -> None:
+    folders: dict[Path, int] = {}
+    for path in module_files().values():
+        if path.name != "__init__.py" and "studies" in path.relative_to(PACKAGE_DIR).parts:
+            folders[path.parent] = folders.get(path.parent, 0) + 1
+    big = {str(p.relative_to(PACKAGE_DIR)): n for p, n in folders.items() if n > MAX_FOLDER_MODULES}
+    assert not big, f"folders over {MAX_FOLDER_MODULES} modules: {big}"

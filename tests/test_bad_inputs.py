@@ -367,7 +367,7 @@ def http2_server() -> Iterator[int]:
 
 
 def _scenario2_ray(address: str, out: Path, capsys: pytest.CaptureFixture[str]) -> tuple[int, str, float]:
-    from coopsumo.studies import scenario2
+    from coopsumo.studies.scenario2 import study as scenario2
 
     start = time.monotonic()
     code = scenario2.main(["--profile", "tiny", "--backend", "ray", "--address", address, "--out", str(out)])
@@ -574,8 +574,8 @@ def test_an_output_folder_with_a_colon_is_refused(command: str, tmp_path: Path,
     assert list(tmp_path.iterdir()) == []
 
 
-MODEL_COMMANDS = ["agents.train_cli", "studies.scenario1", "studies.scenario2", "studies.ablation", "studies.protocol",
-                  "studies.accident_seeds"]  # fmt: skip
+MODEL_COMMANDS = ["agents.train_cli", "studies.scenario1.study", "studies.scenario2.study", "studies.learning.study",
+                  "studies.protocol.study", "studies.followups.accident_seeds"]  # fmt: skip
 """the commands whose --out holds models a policy string (dqn:PATH) names later: train, scenario1, scenario2,
 learning, protocol, accident-seeds"""
 

@@ -15,14 +15,14 @@ import pytest
 from conftest import committed_report_pages
 
 from coopsumo.config import DQN_PRESETS, DQNConfig, results_view, to_dict
-from coopsumo.studies.ablation_plan import PROFILES as LEARNING_PROFILES
-from coopsumo.studies.ablation_plan import learner_of as learner_of_variant
-from coopsumo.studies.protocol_plan import variants
-from coopsumo.studies.run_folders import default_out
-from coopsumo.studies.scenario2 import learner_of
-from coopsumo.studies.scenario2_plan import PROFILES as SCENARIO2_PROFILES
-from coopsumo.studies.scenario2_redraw import rewrite_outputs
-from coopsumo.studies.trainings import first_difference
+from coopsumo.studies.engine.run_folders import default_out
+from coopsumo.studies.engine.trainings import first_difference
+from coopsumo.studies.learning.plan import PROFILES as LEARNING_PROFILES
+from coopsumo.studies.learning.plan import learner_of as learner_of_variant
+from coopsumo.studies.protocol.plan import variants
+from coopsumo.studies.scenario2.plan import PROFILES as SCENARIO2_PROFILES
+from coopsumo.studies.scenario2.redraw import rewrite_outputs
+from coopsumo.studies.scenario2.study import learner_of
 
 ROOT = Path(__file__).resolve().parent.parent
 LEARNER_FREE = {"regime_map"}
@@ -90,7 +90,7 @@ def test_scenario2_is_todays_rendering_of_its_runs(study: str, tmp_path: Path) -
     for name in ("report.md", "sweep.json", *tables):
         assert (tmp_path / name).read_text() == (committed / name).read_text(), (
             f"results/{study}/{name} is not what today's code draws from its records; redraw it with "
-            f"coopsumo.studies.scenario2_redraw.rewrite_outputs(Path('results/{study}'))")  # fmt: skip
+            f"coopsumo.studies.scenario2.redraw.rewrite_outputs(Path('results/{study}'))")  # fmt: skip
     assert sorted(p.name for p in committed.glob("*.png")) == sorted(p.name for p in tmp_path.glob("*.png"))
 
 

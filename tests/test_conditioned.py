@@ -45,7 +45,7 @@ from coopsumo.policy_spec import ADAPTIVE, split_dqn_spec
 from coopsumo.runio import UsageError
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, SPEEDUP
-from coopsumo.studies.ablation_report import per_alpha_twin
+from coopsumo.studies.learning.report import per_alpha_twin
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -159,7 +159,7 @@ def test_a_conditioned_training_keeps_the_worlds_alpha_at_zero() -> None:
 def test_validation_alphas_judge_a_conditioned_snapshot_at_each_alpha(tmp_path: Path) -> None:
     """--validation-alphas: every validation run once per alpha (the same seeds), the weights trained unchanged."""
     from coopsumo.agents import selection
-    from coopsumo.studies.model_store import without_selection
+    from coopsumo.studies.engine.model_store import without_selection
 
     def request_of(dq: DQNConfig, name: str) -> dict[str, Any]:
         cfg = TrainConfig(sim=SimConfig(steps=90_000, seed=3, policy="dqn"), dqn=dq)
@@ -477,7 +477,7 @@ def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp
 def test_the_conditioned_table_tells_behind_from_ahead() -> None:
     """conditioned_table: per alpha the paired speed difference against the per-alpha models' seed sd; within spread
     is two-sided, not behind one-sided, and the report's count line gives both."""
-    from coopsumo.studies.robustness import conditioned_markdown, conditioned_table
+    from coopsumo.studies.followups.robustness import conditioned_markdown, conditioned_table
 
     rows = []
     per_alpha = {0.0: (17.0, 17.2, 17.4), 1.0: (17.0, 17.1, 17.2), 8.0: (17.0, 17.1, 17.2)}  # sd 0.2, 0.1, 0.1

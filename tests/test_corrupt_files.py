@@ -395,7 +395,7 @@ def test_a_study_root_is_claimed_only_when_it_is_the_studys(tmp_path: Path) -> N
 
 
 def test_scenario2_refuses_a_training_folder_as_its_root(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from coopsumo.studies import scenario2
+    from coopsumo.studies.scenario2 import study as scenario2
 
     out = tmp_path / "trained"
     out.mkdir()

@@ -132,7 +132,7 @@ def test_an_unfinished_training_with_nothing_to_lose_is_started_again(tmp_path: 
 def test_the_studies_still_train_again_over_their_own_folders(finished: Path, tmp_path: Path) -> None:
     """The refusal is the command's: train() itself, which the model store calls to train a damaged model again in
     its folder, still starts over there, and resumes an interrupted one."""
-    from coopsumo.studies.trainings import train_resuming
+    from coopsumo.studies.engine.trainings import train_resuming
 
     damaged = tmp_path / "damaged"
     shutil.copytree(finished, damaged)
@@ -167,7 +167,7 @@ def test_resume_finishes_the_retrain_an_earlier_version_left_beside_a_finished_t
 @pytest.fixture(scope="module")
 def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A study folder whose models/alpha0_m100 links into the model store beside it, as a study leaves them."""
-    from coopsumo.studies.model_store import train_shared
+    from coopsumo.studies.engine.model_store import train_shared
 
     root = tmp_path_factory.mktemp("shared")
     train_shared(as_json(TINY), root / "study" / "models" / "alpha0_m100", root / "models")
@@ -190,7 +190,7 @@ STORE_OUTS: dict[str, tuple[str, bool, str]] = {
 def test_train_never_writes_into_the_model_store(
     case: str, resume: bool, study: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from coopsumo.studies.model_store import model_id
+    from coopsumo.studies.engine.model_store import model_id
 
     where, env, fragment = STORE_OUTS[case]
     root = study.parent
@@ -206,7 +206,7 @@ def test_train_never_writes_into_the_model_store(
 
 
 def test_the_store_names_train_knows_are_the_stores() -> None:
-    from coopsumo.studies import model_store
+    from coopsumo.studies.engine import model_store
 
     assert train_cli.STORE_ENV == model_store.STORE_ENV
     cond = replace(TINY, dqn=replace(DQN_PRESETS["default"], alpha_conditioned=True))
@@ -242,7 +242,7 @@ def test_a_real_folder_where_the_study_links_its_model_is_never_deleted_moved_or
     what: str, store_state: str, finished: Path, tmp_path: Path
 ) -> None:
     from coopsumo.runio import UsageError
-    from coopsumo.studies.model_store import model_id, stored_model, train_shared
+    from coopsumo.studies.engine.model_store import model_id, stored_model, train_shared
 
     store = tmp_path / "models"
     stored = store / model_id(as_json(TINY))
@@ -264,7 +264,7 @@ def test_a_real_folder_where_the_study_links_its_model_is_never_deleted_moved_or
 def test_scenario1_refuses_a_real_model_folder_before_any_cell(
     finished: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    from coopsumo.studies import scenario1
+    from coopsumo.studies.scenario1 import study as scenario1
 
     monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
     root = tmp_path / "study"
@@ -279,7 +279,7 @@ def test_scenario1_refuses_a_real_model_folder_before_any_cell(
 
 def test_the_studys_own_link_is_made_and_kept(study: Path) -> None:
     """What the rule leaves to the study: its links, made again when they point elsewhere."""
-    from coopsumo.studies.model_store import model_id, stored_model
+    from coopsumo.studies.engine.model_store import model_id, stored_model
 
     link = study / "models" / "alpha0_m100"
     assert link.is_symlink() and link.resolve() == (study.parent / "models" / model_id(as_json(TINY))).resolve()

@@ -12,8 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from coopsumo.studies import ablation_plan, scenario2
-from coopsumo.studies.run_folders import default_out
+from coopsumo.studies.engine.run_folders import default_out
+from coopsumo.studies.learning import plan as ablation_plan
+from coopsumo.studies.scenario2 import study as scenario2
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", ROOT / "results" / "README.md", *sorted((ROOT / "docs").glob("*.md"))]

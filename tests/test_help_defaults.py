@@ -8,8 +8,11 @@ import argparse
 import re
 
 from coopsumo.config import DQNConfig, results_view, to_dict
-from coopsumo.studies import protocol, protocol_plan, scenario1, scenario2
-from coopsumo.studies.run_folders import default_out
+from coopsumo.studies.engine.run_folders import default_out
+from coopsumo.studies.protocol import plan as protocol_plan
+from coopsumo.studies.protocol import study as protocol
+from coopsumo.studies.scenario1 import study as scenario1
+from coopsumo.studies.scenario2 import study as scenario2
 
 
 def option_help(parser: argparse.ArgumentParser, flag: str) -> str:

@@ -12,7 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from coopsumo.config import DQN_PRESETS, to_dict
-from coopsumo.studies import history
+from coopsumo.studies.protocol import history
 
 ROOT = Path(__file__).resolve().parent.parent
 COMMITTED = ROOT / "results" / "history" / "README.md"
@@ -87,7 +87,7 @@ def test_no_study_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
 
 
 def test_a_frozen_study_is_found_where_it_was_moved(tmp_path: Path) -> None:
-    from coopsumo.studies.protocol_report import committed_folder
+    from coopsumo.studies.protocol.report import committed_folder
 
     shutil.copytree(ROOT / "results" / "history" / "learner_protocol_f05q_ts2k10", tmp_path / "history" / "f")
     assert committed_folder(tmp_path, "f") == tmp_path / "history" / "f"

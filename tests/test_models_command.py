@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from coopsumo.studies import model_store
+from coopsumo.studies.engine import model_store
 
 
 def test_a_missing_default_store_has_no_models_yet(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,

@@ -111,7 +111,7 @@ def test_the_documented_cluster_install_works_outside_the_repository(tmp_path: P
     res = pip("install", "--no-deps", "--no-build-isolation", "--target", str(target), ".[ray]", cwd=src)
     assert res.returncode == 0, res.stderr[-2000:]
     check_installed(target, tmp_path)
-    probe = "import ray, torch, coopsumo.studies.runner as r; print(torch.__version__, r.__file__)"
+    probe = "import ray, torch, coopsumo.studies.engine.runner as r; print(torch.__version__, r.__file__)"
     res = subprocess.run([sys.executable, "-c", probe], cwd=tmp_path / "elsewhere", env=installed_env(target),
                          capture_output=True, text=True, timeout=120, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]

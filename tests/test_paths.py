@@ -19,8 +19,8 @@ from coopsumo.paths import NAME_ROOM, PATH_ROOM, out_path_problem
 REPO = Path(__file__).resolve().parent.parent
 COMMANDS = ("simulate", "train", "scenario1", "scenario2", "ablation")
 COMMAND_MODULES = {"simulate": "coopsumo.simulate", "train": "coopsumo.train",
-                   "scenario1": "coopsumo.studies.scenario1", "scenario2": "coopsumo.studies.scenario2",
-                   "ablation": "coopsumo.studies.ablation"}  # fmt: skip
+                   "scenario1": "coopsumo.studies.scenario1.study", "scenario2": "coopsumo.studies.scenario2.study",
+                   "ablation": "coopsumo.studies.learning.study"}  # fmt: skip
 NAME_MAX = os.pathconf("/tmp", "PC_NAME_MAX")
 PATH_MAX = os.pathconf("/tmp", "PC_PATH_MAX")
 

@@ -20,8 +20,8 @@ def test_an_alpha_conditioned_variant_trains_once_and_drives_at_each_cells_alpha
     driven at its own alpha; the report is written."""
     from dataclasses import replace
 
-    from coopsumo.studies.protocol import driven_policy, run_study
-    from coopsumo.studies.protocol_plan import PROFILES, cell_specs
+    from coopsumo.studies.protocol.plan import PROFILES, cell_specs
+    from coopsumo.studies.protocol.study import driven_policy, run_study
 
     profile = replace(PROFILES["tiny"], name="tiny_c2x", variants=("c2x",), seeds=(PROFILES["tiny"].seeds[0],),
                       t_ups=(1.0,))  # fmt: skip
@@ -118,7 +118,7 @@ learner = { gamma = 0.95 }
 
 
 def driven_catalogue(tmp_path: Path) -> dict[str, Any]:
-    from coopsumo.studies.protocol_plan import load_variants
+    from coopsumo.studies.protocol.plan import load_variants
 
     (tmp_path / "learners.toml").write_text(DRIVEN)
     return load_variants(tmp_path / "learners.toml")
@@ -131,8 +131,8 @@ def test_a_drive_variant_drives_the_same_training_its_own_way(tmp_path: Path) ->
     from dataclasses import replace
 
     from coopsumo.policy_spec import parse_policy
-    from coopsumo.studies.protocol import driven_policy
-    from coopsumo.studies.protocol_plan import PROFILES, cell_specs
+    from coopsumo.studies.protocol.plan import PROFILES, cell_specs
+    from coopsumo.studies.protocol.study import driven_policy
 
     known = driven_catalogue(tmp_path)
     profile = replace(PROFILES["nr10"], name="drive", variants=tuple(known), judged="m2")
@@ -155,7 +155,7 @@ def test_a_drive_variant_drives_the_same_training_its_own_way(tmp_path: Path) ->
 
 
 def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:
-    from coopsumo.studies.protocol_report import paired_rows
+    from coopsumo.studies.protocol.report import paired_rows
 
     rows = []
     for seed, (own, m2) in enumerate([(40.0, 38.0), (42.0, 41.0), (39.0, 39.5)]):
@@ -170,8 +170,8 @@ def test_paired_rows_compare_the_same_trainings_model_by_model() -> None:
 
 
 def test_the_passing_section_shows_each_policy_and_is_left_out_for_runs_without_it() -> None:
-    from coopsumo.studies.protocol_plan import Profile
-    from coopsumo.studies.protocol_report import passing_lines
+    from coopsumo.studies.protocol.plan import Profile
+    from coopsumo.studies.protocol.report import passing_lines
 
     profile = Profile("p", variants=("f05q",))
     rows = [{"status": "ok", "alpha": 0.0, "scenario": "free", "t_up": 2.0, "variant": v, "held_share": h,
@@ -186,7 +186,7 @@ def test_the_passing_section_shows_each_policy_and_is_left_out_for_runs_without_
 def test_a_rounded_copy_of_the_same_run_is_not_counted_better() -> None:
     """A committed runs.csv keeps 6 significant digits: the same run read back differs by about 1e-6 and is a tie,
     not a model that did better; a real difference in the 5th digit still counts."""
-    from coopsumo.studies.protocol_report import paired_rows
+    from coopsumo.studies.protocol.report import paired_rows
 
     rows = []
     for seed, (own, copy) in enumerate([(20.1234567, 20.1235), (19.87654321, 19.8765), (20.5, 20.499)]):
@@ -203,8 +203,8 @@ def test_a_variant_that_only_chooses_snapshots_otherwise_is_paired_by_model() ->
     paired by model; another learner's trainings on the same seeds (select) are paired by training seed in a section
     of their own."""
     from coopsumo.config import to_dict
-    from coopsumo.studies.protocol_plan import Profile, variants
-    from coopsumo.studies.protocol_report import paired_lines
+    from coopsumo.studies.protocol.plan import Profile, variants
+    from coopsumo.studies.protocol.report import paired_lines
 
     known = variants()
     rows = [{"status": "ok", "alpha": 0.0, "scenario": "free", "t_up": 2.0, "variant": v, "seed": seed,
@@ -227,7 +227,7 @@ def test_fresh_evaluation_seeds_drive_the_same_trainings() -> None:
     from dataclasses import replace
 
     from coopsumo.config import VALIDATION_SEED
-    from coopsumo.studies.protocol_plan import PROFILES, cell_specs
+    from coopsumo.studies.protocol.plan import PROFILES, cell_specs
 
     ours = cell_specs(replace(PROFILES["nr10"], name="nr10_e1", eval_offsets=(10,), alpha_seeds=0))
     theirs = cell_specs(PROFILES["nr10"])
@@ -241,7 +241,7 @@ def test_fresh_evaluation_seeds_drive_the_same_trainings() -> None:
 def test_the_current_profile_judges_the_default_and_measures_its_alpha_response() -> None:
     """nr10 judges today's default (no judged variant named: the first), alpha 8 on 3 of its seeds in free flow."""
     from coopsumo.config import DQNConfig
-    from coopsumo.studies.protocol_plan import CURRENT, PROFILES, cell_specs, variants
+    from coopsumo.studies.protocol.plan import CURRENT, PROFILES, cell_specs, variants
 
     profile = PROFILES[CURRENT]
     assert CURRENT == "nr10" and profile.judged_variant() == "nr10" and variants()["nr10"].learner == DQNConfig()
@@ -257,8 +257,8 @@ def test_a_committed_studys_trainings_pair_only_when_made_the_same_way(tmp_path:
     from dataclasses import asdict, replace
 
     from coopsumo.config import to_dict
-    from coopsumo.studies.protocol_plan import Profile, variants
-    from coopsumo.studies.protocol_report import committed_pair_lines
+    from coopsumo.studies.protocol.plan import Profile, variants
+    from coopsumo.studies.protocol.report import committed_pair_lines
 
     def rows(variant: str, speeds: tuple[float, ...], eval_seed: int = 5000) -> list[dict[str, object]]:
         return [{"key": f"{variant}{seed}", "kind": "model", "variant": variant, "alpha": 0.0, "seed": seed,
@@ -296,8 +296,8 @@ def test_a_committed_studys_trainings_pair_only_when_made_the_same_way(tmp_path:
 def test_several_evaluation_seed_sets_judge_each_model_by_its_mean() -> None:
     """nr10_3sets meets every condition on 3 seeds: the first set's cells are nr10's (reused), and the statistics
     compare each model's mean over the sets with the baselines' mean over the same seeds."""
-    from coopsumo.studies.protocol_plan import PROFILES, cell_specs
-    from coopsumo.studies.protocol_report import condition_stats, per_model
+    from coopsumo.studies.protocol.plan import PROFILES, cell_specs
+    from coopsumo.studies.protocol.report import condition_stats, per_model
 
     three, one = cell_specs(PROFILES["nr10_3sets"]), cell_specs(PROFILES["nr10"])
     first = {s["key"]: s for s in one if s.get("alpha") == 0.0}

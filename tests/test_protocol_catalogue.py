@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 
 from coopsumo.config import DQN_PRESETS, ConfigError
-from coopsumo.studies import protocol_plan
-from coopsumo.studies.protocol_plan import load_profiles, load_variants
+from coopsumo.studies.protocol import plan as protocol_plan
+from coopsumo.studies.protocol.plan import load_profiles, load_variants
 
 BASE = '''
 [nr10]

@@ -19,10 +19,12 @@ import pytest
 import test_scenario2
 from test_study_commands import cell_times, coopsumo, learning_folder
 
-from coopsumo.studies import accident_seeds, scenario1, scenario2
-from coopsumo.studies.records import cell_path, checked_record, model_fields, reusable_keys
-from coopsumo.studies.scenario1_plan import Plan
-from coopsumo.studies.scenario2_plan import PROFILES, cell_specs
+from coopsumo.studies.engine.records import cell_path, checked_record, model_fields, reusable_keys
+from coopsumo.studies.followups import accident_seeds
+from coopsumo.studies.scenario1 import study as scenario1
+from coopsumo.studies.scenario1.plan import Plan
+from coopsumo.studies.scenario2 import study as scenario2
+from coopsumo.studies.scenario2.plan import PROFILES, cell_specs
 
 
 # -- a scenario II record against its own evaluations -------------------------------------------------------------
@@ -282,7 +284,7 @@ def test_diagnose_redoes_the_cell_of_a_swapped_or_truncated_model(tmp_path: Path
 def test_an_unreadable_adaptive_rule_is_not_the_fitted_one(text: str, tmp_path: Path) -> None:
     """adaptive_rule.json that is not a rule (empty, not JSON, edited) makes the report say the rule driven is not the
     one fitted there, instead of a traceback; a rule that is there is read."""
-    from coopsumo.studies.adaptive_alpha_report import fitted_points
+    from coopsumo.studies.followups.adaptive_alpha_report import fitted_points
 
     path = tmp_path / "adaptive_rule.json"
     path.write_text(text)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from coopsumo.studies import stats
-from coopsumo.studies.scenario1_measures import paired_bootstrap
+from coopsumo.studies.engine import stats
+from coopsumo.studies.scenario1.measures import paired_bootstrap
 
 
 def _model_dominated() -> np.ndarray:
@@ -64,7 +64,7 @@ from pathlib import Path  # noqa: E402
 import pytest  # noqa: E402
 
 from coopsumo.config import DQNConfig, to_dict  # noqa: E402
-from coopsumo.studies import model_store  # noqa: E402
+from coopsumo.studies.engine import model_store  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 SMALL = ["-m", "coopsumo", "scenario1", "--quick", "--train-steps", "300", "--steps", "300", "--seeds", "1",
@@ -80,7 +80,8 @@ def _study(out: Path | None, *extra: str, cwd: Path = REPO) -> subprocess.Comple
 
 def test_scenario_one_takes_the_protocols_models_from_the_store() -> None:
     """The default scenario I trains exactly the learner protocol's models (same identity, so one stored model)."""
-    from coopsumo.studies import protocol_plan, scenario1_plan
+    from coopsumo.studies.protocol import plan as protocol_plan
+    from coopsumo.studies.scenario1 import plan as scenario1_plan
 
     for alpha in (0.0, 8.0):
         for seed in scenario1_plan.TRAIN_SEEDS:
@@ -136,8 +137,8 @@ def test_more_models_per_alpha_go_to_their_own_folder() -> None:
     the other profiles keep their folders whatever their model count."""
     from dataclasses import replace
 
-    from coopsumo.studies.scenario1 import study_out
-    from coopsumo.studies.scenario1_plan import Plan
+    from coopsumo.studies.scenario1.plan import Plan
+    from coopsumo.studies.scenario1.study import study_out
 
     assert study_out(Plan()) == Path("results/scenario1")
     assert study_out(replace(Plan(), train_seeds=tuple(range(100, 110)))) == Path("results/scenario1_10models")

@@ -17,7 +17,7 @@ from typing import Any
 import pytest
 
 from coopsumo.config import DemandConfig, OutputConfig, RoadConfig, SimConfig, to_dict
-from coopsumo.studies.run_folders import reusable_run, simulate_into
+from coopsumo.studies.engine.run_folders import reusable_run, simulate_into
 
 pytestmark = pytest.mark.sumo
 CFG = SimConfig(road=RoadConfig(length_m=400.0, loop_spacing_m=100.0, loop_period_s=10.0),
@@ -168,7 +168,7 @@ def test_an_intact_run_folder_is_reused_untouched(
 
 def test_fcd_is_read_from_its_end(made: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A big fcd.xml is not read whole: the check reads a tail (doubling until a timestep is found)."""
-    from coopsumo.studies import run_checks
+    from coopsumo.studies.engine import run_checks
 
     out = tmp_path / "run"
     shutil.copytree(made, out)

@@ -1,4 +1,4 @@
-"""The shared study runner (coopsumo.studies.runner) with cells that need no SUMO: records written per cell,
+"""The shared study runner (coopsumo.studies.engine.runner) with cells that need no SUMO: records written per cell,
 failures recorded while the rest finish, dependencies between cells, local against Ray; and scenario I on Ray."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import pandas as pd
 import pytest
 from conftest import env_with_display
 
-from coopsumo.studies import records as cell_records
-from coopsumo.studies import runner
+from coopsumo.studies.engine import records as cell_records
+from coopsumo.studies.engine import runner
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -223,8 +223,9 @@ def test_close_alphas_give_distinct_cells_in_every_study() -> None:
     from dataclasses import replace
 
     from coopsumo.config import DQNConfig
-    from coopsumo.studies import ablation_plan as ablation
-    from coopsumo.studies import scenario1, scenario2
+    from coopsumo.studies.learning import plan as ablation
+    from coopsumo.studies.scenario1 import study as scenario1
+    from coopsumo.studies.scenario2 import study as scenario2
 
     profile = replace(scenario2.PROFILES["tiny"], alphas=(8.0, 8.000001), t_up_s=(2.0, 2.000001))
     keys = [s["key"] for s in scenario2.cell_specs(profile)]

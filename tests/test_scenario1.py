@@ -18,9 +18,11 @@ from PIL import Image
 
 from coopsumo.config import AccidentConfig, OutputConfig, SimConfig, to_dict
 from coopsumo.runio import file_sha256
-from coopsumo.studies import run_folders, scenario1, scenario1_gui
-from coopsumo.studies import scenario1_measures as measures
-from coopsumo.studies import scenario1_report as rep
+from coopsumo.studies.engine import run_folders
+from coopsumo.studies.scenario1 import gui as scenario1_gui
+from coopsumo.studies.scenario1 import measures
+from coopsumo.studies.scenario1 import report as rep
+from coopsumo.studies.scenario1 import study as scenario1
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
@@ -332,7 +334,7 @@ def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
     (one vehicle every 0.2 s, beyond what 3 lanes can take in) fills the entrance and still waits at the end."""
     from dataclasses import replace
 
-    from coopsumo.studies import regime_map
+    from coopsumo.studies.followups import regime_map
 
     base = replace(scenario1.Plan.quick(), steps=1500, accident_start=300, accident_steps=900, seeds=(1,),
                    t_ups=(4.0, 0.2))  # fmt: skip
@@ -380,7 +382,7 @@ def test_claim_a_side_by_side_with_the_default_learners_study(tmp_path: Path) ->
     from dataclasses import replace
 
     from coopsumo.config import to_dict
-    from coopsumo.studies.scenario1_plan import Plan
+    from coopsumo.studies.scenario1.plan import Plan
 
     plan = replace(Plan(), presets=("alpha_only",), t_ups=(1.0,), train_seeds=(100, 101, 102))
     keep = _rows({"keep": {"tts_veh_h": [120.0, 121.0, 122.0]}})
@@ -441,7 +443,7 @@ def test_the_report_writes_the_difference_figure_and_names_it(tmp_path: Path, mo
     report shows it beside fig_tts_demand.png, whose caption points to it, and says what it plots."""
     from dataclasses import replace
 
-    from coopsumo.studies.scenario1_plan import Plan, Run
+    from coopsumo.studies.scenario1.plan import Plan, Run
 
     monkeypatch.delenv("DISPLAY", raising=False)  # no sumo-gui screenshot
     plan = replace(Plan(), t_ups=(2.0, 1.0), seeds=(1, 2, 3), train_seeds=(100, 101, 102), alphas=(0.0, 8.0),
@@ -484,8 +486,8 @@ def test_the_paper_horizon_section_reads_every_model_and_draws_fig4_for_each_lea
     model of every learned policy, waves on Fig. 4's lane for every run, and Fig. 4 of a second learner preset."""
     from dataclasses import replace
 
-    from coopsumo.studies import scenario1_horizon as hz
-    from coopsumo.studies.scenario1_plan import Plan, Run
+    from coopsumo.studies.scenario1 import horizon as hz
+    from coopsumo.studies.scenario1.plan import Plan, Run
 
     rows = pd.read_csv(study / "runs.csv")
     rows["train_seed"] = rows["train_seed"].astype("Int64")

@@ -11,8 +11,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from coopsumo.studies import scenario1_horizon as hz
-from coopsumo.studies.scenario1_measures import FIELD_DT_S, FIELD_DX_M
+from coopsumo.studies.scenario1 import horizon as hz
+from coopsumo.studies.scenario1.measures import FIELD_DT_S, FIELD_DX_M
 
 
 def test_the_recovery_step_counts_from_the_accident_start() -> None:

@@ -19,12 +19,12 @@ import pandas as pd
 import pytest
 from conftest import InlineBackend
 
-from coopsumo.studies import records, runner, trainings
-from coopsumo.studies import scenario2 as s2
-from coopsumo.studies import scenario2_measures as stats
-from coopsumo.studies import scenario2_plan as s2_plan
-from coopsumo.studies import scenario2_report as s2_report
-from coopsumo.studies.scenario2_redraw import rewrite_outputs
+from coopsumo.studies.engine import records, runner, trainings
+from coopsumo.studies.scenario2 import measures as stats
+from coopsumo.studies.scenario2 import plan as s2_plan
+from coopsumo.studies.scenario2 import report as s2_report
+from coopsumo.studies.scenario2 import study as s2
+from coopsumo.studies.scenario2.redraw import rewrite_outputs
 
 REPO = Path(__file__).resolve().parent.parent
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
@@ -793,7 +793,7 @@ def test_pooled_summaries_sum_counts_and_average_the_rest() -> None:
 def test_a_pooled_summary_passes_the_record_check() -> None:
     """Lane changes per vehicle is pooled as a ratio of the summed counts, not averaged: an averaged one (0.5286 for
     386 changes of 735 vehicles) made a resumed quick sweep call its own records edited and rerun them."""
-    from coopsumo.studies.records import implausible
+    from coopsumo.studies.engine.records import implausible
 
     runs = [{"lane_changes": 200, "departed": 350, "lane_changes_per_vehicle": 200 / 350},
             {"lane_changes": 186, "departed": 385, "lane_changes_per_vehicle": 186 / 385}]

@@ -17,12 +17,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from coopsumo.studies import scenario2 as s2
-from coopsumo.studies import scenario2_gate as gate
-from coopsumo.studies import scenario2_gate_report as gate_report
-from coopsumo.studies import scenario2_plan as plan
-from coopsumo.studies.model_store import model_id
-from coopsumo.studies.scenario2_redraw import rewrite_outputs
+from coopsumo.studies.engine.model_store import model_id
+from coopsumo.studies.scenario2 import gate, gate_report, plan
+from coopsumo.studies.scenario2 import study as s2
+from coopsumo.studies.scenario2.redraw import rewrite_outputs
 
 REPO = Path(__file__).resolve().parent.parent
 FULL_ROAD = plan.FULL_ROAD
@@ -130,7 +128,7 @@ def flag(value: Any) -> bool | None:
 
 
 def tables(runs: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
-    from coopsumo.studies.scenario2_measures import alpha_star_table, mobil_p_star_table, policy_rows
+    from coopsumo.studies.scenario2.measures import alpha_star_table, mobil_p_star_table, policy_rows
 
     alpha, _ = alpha_star_table(policy_rows(runs, "dqn"), (0.0, 8.0), (1, 2, 3), n_boot=200, metric=FULL_ROAD)
     p = mobil_p_star_table(policy_rows(runs, "mobil"), (0.0, 1.0), tuple(KEEP), metric=FULL_ROAD)

@@ -1,4 +1,5 @@
-"""Model selection on held-out demand (agents/selection.py) and the learner protocol's statistics (studies/stats.py)."""
+"""Model selection on held-out demand (agents/selection.py) and the learner protocol's statistics
+(studies/engine/stats.py)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from coopsumo.agents import selection
 from coopsumo.agents.dqn import load_model
 from coopsumo.agents.train import train
 from coopsumo.config import PAPER_DQN, ConfigError, DQNConfig, SimConfig, TrainConfig, dqn_config_from_dict, to_dict
-from coopsumo.studies import stats
+from coopsumo.studies.engine import stats
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -110,7 +111,7 @@ def test_accident_validation_adds_one_run_per_demand_through_an_accident() -> No
 def test_validation_drives_the_queue_rule_only_when_asked(tmp_path: Path) -> None:
     """DQNConfig.validation_queue: the request carries the learner's queue speed, so snapshots are judged as they
     will drive; off (the default) or without a queue rule it carries none, and a training's identity is the same."""
-    from coopsumo.studies.model_store import model_id, without_selection
+    from coopsumo.studies.engine.model_store import model_id, without_selection
 
     def request_of(dq: DQNConfig) -> dict[str, object]:
         cfg = TrainConfig(sim=SimConfig(steps=90_000, seed=3, policy="dqn"), dqn=dq)
@@ -234,8 +235,8 @@ def test_a_training_that_differs_only_in_validation_is_reselected_not_trained(tm
     """In SUMO: the store holds a training validated in free flow; asking for the same training validated through an
     accident too trains nothing (its snapshots are validated again into their own folder), leaves the stored one
     as it was, and the new folder is a whole model of its own configuration that a third ask takes as it is."""
-    from coopsumo.studies import model_store, trainings
-    from coopsumo.studies.trainings import finished_training
+    from coopsumo.studies.engine import model_store, trainings
+    from coopsumo.studies.engine.trainings import finished_training
 
     dq = dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=100, validation_t_ups=(1.5,),
                              train_t_ups=(), accident_share=0.0, validation_accident_steps=0)  # fmt: skip

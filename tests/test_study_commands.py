@@ -20,8 +20,8 @@ import pytest
 
 from coopsumo import cli
 from coopsumo.config import DemandConfig, DQNConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
-from coopsumo.studies import ablation
-from coopsumo.studies.diagnosis_measures import COLUMNS, decision_measures, training_course
+from coopsumo.studies.followups.diagnosis_measures import COLUMNS, decision_measures, training_course
+from coopsumo.studies.learning import study as ablation
 
 ROOT = Path(__file__).resolve().parent.parent
 COMMANDS = ("regime-map", "accident-seeds", "diagnose", "adaptive-fit", "adaptive")

@@ -1,0 +1,69 @@
+"""A study's cells through the shared runner (coopsumo.studies.engine.runner) in one call, and the options that
+choose where.
+
+run_cells reuses every cell whose stored record can be trusted (records.reusable_keys), builds the road networks once
+in this process (not in every worker), runs the other cells on local processes or Ray (runner.execute, one progress
+bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
+The studies that only drive or measure (regime_map, accident_seeds, adaptive_alpha, diagnosis) call it instead of
+repeating those steps.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+from coopsumo.config import RoadConfig
+from coopsumo.runio import Parser
+from coopsumo.studies.engine.records import cell_path, checked_record, reusable_keys
+from coopsumo.studies.engine.runner import (
+    CellFn,
+    FailedRecord,
+    add_backend_flags,
+    execute,
+    make_backend,
+    sigterm_interrupts,
+)
+from coopsumo.validation import workers as workers_flag
+
+
+def add_cell_flags(parser: Parser) -> None:
+    """--workers, --backend, --address and --quiet, as every study has them."""
+    parser.add_argument("--workers", type=workers_flag, default=2, help="parallel processes")
+    add_backend_flags(parser)
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run_cells(specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn, failed_record: FailedRecord, *,
+              prog: str, required: Sequence[str], roads: Iterable[RoadConfig] = (), workers: int = 2,
+              backend: str = "local", address: str | None = None, progress: bool = True,
+              desc: str = "cells") -> list[dict[str, Any]]:  # fmt: skip
+    """Run the cells of `specs` not finished in root (their records in ROOT/cells/) and return every cell's record,
+    in the order of specs; a record whose status is not "ok" names a cell that failed.
+
+    required: the summary values a stored record must hold as finite numbers to be reused; roads: the networks the
+    cells drive on, built here before any worker starts.
+    """
+    root = root.resolve()
+    done = reusable_keys(root, specs, prog, required)
+    todo = [s for s in specs if s["key"] not in done]
+    if todo:
+        from coopsumo.sim.network import build_net
+
+        for road in dict.fromkeys(roads):
+            build_net(road)
+        runner = make_backend(backend, workers, address, cell_fn)
+        try:
+            with sigterm_interrupts():
+                execute(todo, root, runner, len(specs), len(specs) - len(todo), progress, failed_record, desc=desc,
+                        done_keys=sorted(done))  # fmt: skip
+        finally:
+            runner.close()
+    return [checked_record(json.loads(cell_path(root, s["key"]).read_text()), required) for s in specs]
+
+
+def failed_keys(records: Sequence[dict[str, Any]]) -> list[str]:
+    """The cells among `records` that did not end ok."""
+    return [r["key"] for r in records if r.get("status") != "ok"]

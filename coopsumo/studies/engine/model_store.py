@@ -1,0 +1,283 @@
+"""The model store: every trained model lives once, in a folder named by what made it, and every study that needs
+it takes it from there instead of training its own copy.
+
+A model's identity is its training configuration (config.results_view of the TrainConfig: the learner settings,
+alpha or conditioning, training seed, schedule, road and demand). Its folder in the store is
+`<preset>_a<alpha>_seed<seed>_<digest>`, the digest a hash of that identity, so a changed setting is another
+folder and trains a new model. A study links its own training folder (e.g. OUT/train/<key>) to the store's, so
+its reports read the model where they always did.
+
+The store is the folder `models` beside the study's results folder (results/models for the committed studies), or
+$COOPSUMO_MODELS. A stored model is used only when it is whole and is its identity's (trainings.finished_training:
+the run marker, config.json equal to the identity, a model.pt that loads and was made by that configuration); a
+hand-edited or truncated one is trained again in its folder, and nothing else in the store is touched. A killed
+training resumes from its checkpoint, as a study's own would. A model whose training differs from a stored one only
+in how its snapshots are judged (selection.SELECTION_FIELDS, e.g. validation through an accident) is not trained:
+the stored training's snapshots are validated again into its own folder (reselectable, selection.reselect).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from coopsumo.config import results_view
+from coopsumo.paths import STORE_ENV
+from coopsumo.validation import number_name
+
+FIRST_TRAIN_SEED = 100
+"""training seeds of the studies' models are 100, 101, ...: none of the evaluation seeds (1-5, 5000+) nor the
+validation seed"""
+
+
+def store_for(root: Path) -> Path:
+    """The store a study with results folder root uses: $COOPSUMO_MODELS, else the folder `models` beside root."""
+    env = os.environ.get(STORE_ENV)
+    return Path(env) if env else Path(root).resolve().parent / "models"
+
+
+def identity(config: dict[str, Any]) -> dict[str, Any]:
+    """What identifies a model: the results view of its TrainConfig dict (JSON round trip)."""
+    return results_view(json.loads(json.dumps(config)))
+
+
+def model_id(config: dict[str, Any]) -> str:
+    """The store folder name of the training `config` (a TrainConfig dict)."""
+    ident = identity(config)
+    digest = hashlib.sha256(json.dumps(ident, sort_keys=True).encode()).hexdigest()[:12]
+    dqn, sim = ident.get("dqn", {}), ident.get("sim", {})
+    alpha = "c" if dqn.get("alpha_conditioned") else number_name(float(sim.get("reward", {}).get("alpha", 0.0)))
+    return f"{dqn.get('preset', 'dqn')}_a{alpha}_seed{sim.get('seed')}_{digest}"
+
+
+def stored_model(config: dict[str, Any], store: Path, link: Path | None = None) -> Path | None:
+    """The stored folder of the training `config` when the store holds it whole (trainings.finished_training), with
+    `link` made a link to it; None when it must be trained (absent, unfinished, or not this identity's)."""
+    from coopsumo.studies.engine.trainings import finished_training
+
+    folder = store / model_id(config)
+    if link is not None:
+        check_link(link)  # before anything is read: a real folder there is the user's
+    if not folder.is_dir() or identity(config).get("eval_steps", 0) != 0:
+        return None
+    if finished_training(folder, config, quiet=True) is None:  # the training cell says why, once
+        return None
+    if link is not None:
+        _link(link, folder)
+    return folder
+
+
+def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[str, Any], int | None]:
+    """The model of the training `config` from `store`, trained (or resumed) there first if it is not whole.
+
+    Under a lock per model, so that cells and studies asking at once (the margin variants, a conditioned model's
+    alphas, scenario I and the protocol) train it once. out, the study's own training folder, becomes a link to the
+    stored one; a real folder there is never deleted, moved or trained into (check_link).
+    Returns (train summary, step resumed from or None).
+    """
+    from coopsumo.studies.engine.trainings import finished_training, train_resuming
+
+    check_link(out)
+    store.mkdir(parents=True, exist_ok=True)
+    folder = store / model_id(config)
+    with _locked(store / f".{folder.name}.lock"):
+        check_link(out)  # again under the lock
+        folder.mkdir(exist_ok=True)
+        _link(out, folder)  # before training: its checkpoint shows through the study's folder
+        if finished_training(folder, config, quiet=True) is None and (src := reselectable(config, store)) is not None:
+            return _reselect(src, folder, config), None
+        return train_resuming(config, folder)
+
+
+def without_selection(config: dict[str, Any]) -> dict[str, Any]:
+    """A training's identity without the settings that only judge its snapshots (selection.SELECTION_FIELDS)."""
+    from coopsumo.agents.selection import trained_part
+
+    ident = identity(config)
+    ident["dqn"] = trained_part(ident.get("dqn", {}))
+    return ident
+
+
+def reselectable(config: dict[str, Any], store: Path) -> Path | None:
+    """A whole stored training that differs from the training `config` only in how snapshots are judged, or None:
+    then `config`'s model is that training's snapshots validated again, and nothing is trained. Only for a training
+    that selects its model (agents/selection.selecting) and has no evaluation of its own."""
+    from coopsumo.agents.selection import selecting
+    from coopsumo.config import train_config_from_dict
+    from coopsumo.studies.engine.trainings import finished_training
+
+    cfg = train_config_from_dict(config)
+    if not selecting(cfg) or cfg.eval_steps != 0:
+        return None
+    wanted, name = without_selection(config), model_id(config)
+    for folder in sorted(p for p in store.iterdir() if p.is_dir() and not p.name.startswith(".") and p.name != name):
+        try:
+            other = json.loads((folder / "config.json").read_text())["config"]
+        except (OSError, ValueError, KeyError, TypeError):
+            continue
+        if without_selection(other) == wanted and model_id(other) == folder.name \
+                and finished_training(folder, other, quiet=True) is not None:  # fmt: skip
+            return folder
+    return None
+
+
+def _reselect(src: Path, folder: Path, config: dict[str, Any]) -> dict[str, Any]:
+    """The model of `config` from the snapshots of `src` (selection.reselect), under its lock (a training of src
+    cannot change it meanwhile)."""
+    import sys
+
+    from coopsumo.agents.selection import reselect
+    from coopsumo.config import train_config_from_dict
+
+    print(f"coopsumo: {folder.name}: the snapshots of {src.name} judged again (they differ only in model selection; "
+          "nothing is trained)", file=sys.stderr)  # fmt: skip
+    with _locked(src.parent / f".{src.name}.lock"):
+        return reselect(src, folder, train_config_from_dict(config))
+
+
+@contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    """An exclusive lock on the file `path`, removed when released: a waiter that locked a file already removed
+    opens the path again, so the lock file never outlives the holders."""
+    import fcntl
+
+    while True:
+        handle = open(path, "w")  # noqa: SIM115 (closed below, after the unlink)
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            if os.fstat(handle.fileno()).st_ino == os.stat(path).st_ino:
+                break
+        except FileNotFoundError:
+            pass
+        handle.close()
+    try:
+        yield
+    finally:
+        path.unlink(missing_ok=True)
+        handle.close()
+
+
+def check_link(link: Path) -> None:
+    """UsageError naming `link`, a study's model folder (models/<name>, train/<key>), when it is there and is not a
+    link: the study makes only links there, so a real folder (a training copied in, a folder of notes) or a file is
+    the user's, and is never deleted, moved into the store or trained into."""
+    from coopsumo.runio import UsageError
+
+    if os.path.lexists(link) and not link.is_symlink():
+        what = "a folder" if link.is_dir() else "a file"
+        raise UsageError(f"{link} is {what} the study did not make (it makes a link into the model store there) "
+                         "and is left alone; move it away and run the study again")  # fmt: skip
+
+
+def link_problem(link: Path, config: dict[str, Any]) -> str | None:
+    """Why the study's model link `link` (train/<key>, models/<name>) does not lead to the model of the training
+    `config`, or None: it leads to no folder, to a folder not named for this training (model_id: another model, a
+    training folder of the user's) or to one whose config.json records another training (identity; a config.json
+    that is missing or unreadable is finished_training's to judge when the model is used). A study reusing a result
+    of that model runs it again, which makes the link lead to its model once more (_link). Not a link: None (a real
+    folder there is check_link's)."""
+    if not link.is_symlink():
+        return None
+    target = link.resolve()
+    if not target.is_dir():
+        return f"leads to {target}, which is not a folder (the stored model moved or removed?)"
+    if target.name != (name := model_id(config)):
+        return f"leads to {target}, not to {name}, the model of its training (pointed at another model?)"
+    try:
+        recorded = json.loads((target / "config.json").read_text())["config"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if identity(recorded) != identity(config):
+        return f"leads to {target}, whose config.json records another training than its name (edited?)"
+    return None
+
+
+def _link(link: Path, folder: Path) -> None:
+    """link -> folder (absolute), replacing a link to elsewhere (never anything else: check_link); a race with
+    another cell is harmless. The temporary link it is made as is removed if that fails."""
+    check_link(link)
+    target = folder.resolve()
+    if link.is_symlink() and Path(os.readlink(link)) == target:
+        return
+    link.parent.mkdir(parents=True, exist_ok=True)
+    tmp = link.parent / f".{link.name}.{os.getpid()}.link"
+    tmp.unlink(missing_ok=True)
+    try:
+        tmp.symlink_to(target, target_is_directory=True)
+        os.replace(tmp, link)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+# -- `coopsumo models`: what the store holds -----------------------------------------------------------------
+def listing(store: Path) -> list[dict[str, Any]]:
+    """One row per stored model folder: its name, preset, alpha, training seed, steps, whether it is whole and
+    its own (trainings.finished_training against its recorded configuration and name), and the step model.pt
+    was chosen at."""
+    from coopsumo.studies.engine.trainings import finished_training
+
+    rows = []
+    for folder in sorted(p for p in store.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        row: dict[str, Any] = {"model": folder.name, "preset": "-", "alpha": "-", "seed": "-", "steps": "-",
+                               "state": "unfinished", "selected_step": "-"}  # fmt: skip
+        try:
+            config = json.loads((folder / "config.json").read_text())["config"]
+            sim, dqn = config["sim"], config["dqn"]
+            row.update(preset=dqn["preset"], seed=sim["seed"], steps=sim["steps"],
+                       alpha="conditioned" if dqn.get("alpha_conditioned") else sim["reward"]["alpha"])  # fmt: skip
+        except (OSError, ValueError, KeyError, TypeError):
+            row["state"] = "no readable config.json"
+            rows.append(row)
+            continue
+        if model_id(config) != folder.name:
+            row["state"] = "config.json is not this folder's identity (edited?)"
+        elif (summary := finished_training(folder, config, quiet=True)) is not None:
+            row["state"] = "ok"
+            row["selected_step"] = summary.get("selected_step", "-")
+        elif (folder / "model.pt").exists():
+            row["state"] = "not usable: trained again when a study asks for it"
+        rows.append(row)
+    return rows
+
+
+def build_parser() -> Any:
+    from coopsumo.runio import Parser
+
+    p = Parser(prog="coopsumo models", description="List the model store: every trained model, by the training "
+               "that made it, and whether a study would use it.")  # fmt: skip
+    p.add_argument("--store", type=Path, default=None,
+                   help=f"the store (default ${STORE_ENV} if set, else results/models)")  # fmt: skip
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    from coopsumo.runio import UsageError, run_cli
+
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        store = args.store or Path(os.environ.get(STORE_ENV) or "results/models")
+        if args.store is not None and not store.exists():  # a folder named by hand: a typo is not an empty store
+            raise UsageError(f"--store {store}: no such folder (a study makes it when it trains its first model)")
+        if store.exists() and not store.is_dir():
+            raise UsageError(f"--store {store}: not a folder")
+        rows = listing(store) if store.is_dir() else []
+        if not rows:
+            print(f"no models yet in {store}: the studies (scenario1, scenario2, learning, protocol) train there")
+            return 0
+        keys = ("model", "preset", "alpha", "seed", "steps", "selected_step", "state")
+        widths = {k: max([len(k)] + [len(str(r[k])) for r in rows]) for k in keys}
+        print("  ".join(k.ljust(widths[k]) for k in keys))
+        for r in rows:
+            print("  ".join(str(r[k]).ljust(widths[k]) for k in keys))
+        usable = sum(r["state"] == "ok" for r in rows)
+        print(f"{len(rows)} models in {store}, {usable} usable")
+        return 0
+
+    return run_cli("models", body)

@@ -1,0 +1,168 @@
+"""A study's run folders: a run of one configuration into its folder, the roots studies write, and when a
+finished run folder can be reused (its configuration, its outputs, its values)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Callable, Sequence
+from contextlib import AbstractContextManager, nullcontext
+from pathlib import Path
+from typing import Any
+
+from coopsumo.config import OutputConfig, results_view, to_dict
+from coopsumo.runio import file_sha256
+from coopsumo.runio import study_root as claim_study_root
+from coopsumo.studies.engine.records import summary_problem
+from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
+
+MAX_CRASHES = 2
+"""a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
+CellFn = Callable[[dict[str, Any], str], dict[str, Any]]
+"""cell_fn(spec, root) -> record, a module-level function (it is pickled to the workers)"""
+FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
+"""failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
+
+
+def same_config(path: Path, cfg: dict[str, Any]) -> bool:
+    """True when path (a run or training folder's config.json) records this configuration (config.results_view)."""
+    try:
+        return bool(results_view(json.loads(path.read_text())["config"]) == results_view(json.loads(json.dumps(cfg))))
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+RUN_SUMMARY = ("departed", "mean_speed_mps", "throughput_veh_per_h", "lane_changes", "collisions", "teleports")
+"""summary.json values a stored accident run must hold as finite numbers to be reused (scenario I's measures)"""
+
+
+def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None,
+                 prog: str = "scenario1") -> bool:  # fmt: skip
+    """True when the run folder out holds a finished run of the SimConfig dict cfg with the SUMO output files
+    `outputs` asks for and, for a model's run, was driven by the model file as it is now (model_driven), and its
+    values and files can be trusted (run_folder_problem). A folder that holds a summary.json and is not reused
+    gets one line on stderr saying why."""
+    if not (out / "summary.json").exists():
+        return False
+    if problem := reuse_problem(out, cfg, outputs, model):
+        print(f"{prog}: run folder {out} {problem}; running it again", file=sys.stderr)
+        return False
+    return True
+
+
+def reuse_problem(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None) -> str | None:
+    """Why the finished run folder out (it holds a summary.json) cannot stand for a run of cfg with `outputs`
+    driven by `model` as it is now (reusable_run), or None."""
+    if not same_config(out / "config.json", cfg):
+        return "was run with another or an unreadable configuration (config.json)"
+    try:
+        written = json.loads((out / "config.json").read_text())
+        recorded = written.get("sumo_outputs")
+    except (OSError, ValueError, AttributeError):
+        return "has an unreadable config.json"
+    if model is not None and not model_driven(out, written, model):
+        return f"was driven by another model than {model} holds now (retrained, replaced or missing)"
+    if recorded != to_dict(outputs):
+        return f"has other SUMO outputs ({json.dumps(recorded)[:80]}) than the study writes"
+    files = (["fcd.xml"] if outputs.fcd_period_s > 0 else []) + (["tripinfo.xml"] if outputs.tripinfo else [])
+    if missing := [f for f in files if not (out / f).exists()]:
+        return f"has no {missing[0]}"
+    return run_folder_problem(out, RUN_SUMMARY, cfg, outputs.fcd_period_s)  # its values and files, not only its config
+
+
+def model_driven(out: Path, written: Any, model: Path) -> bool:
+    """True when the run in out (its config.json: written) was driven by the model file as it is now: the file's
+    sha256 recorded at the run equals today's (a retrained model, or a link moved to another model, keeps its
+    path). A run written before the digest was recorded: made after the model file was last written."""
+    if not model.exists():
+        return False
+    trained_on = written.get("model_trained_on") if isinstance(written, dict) else None
+    digest = trained_on.get("model_sha256") if isinstance(trained_on, dict) else None
+    if digest is not None:
+        return bool(digest == file_sha256(model))
+    return (out / "summary.json").stat().st_mtime >= model.stat().st_mtime
+
+
+def simulate_into(
+    config: dict[str, Any],
+    out: Path,
+    label: str,
+    trajectory_every: int = 0,
+    outputs: OutputConfig | None = None,
+    atomic: bool = False,
+) -> dict[str, Any]:
+    """Run the SimConfig dict `config` with its own policy into out; the summary without its policy field.
+
+    trajectory_every: also write trajectories, every this many steps (0: none); outputs: SUMO's FCD and
+    tripinfo files; atomic: build the folder aside and move it into place when the run has finished, so a
+    killed run leaves no half folder.
+    """
+    from coopsumo.agents.policies import policy_for_run
+    from coopsumo.agents.rollout import run
+    from coopsumo.config import sim_config_from_dict
+    from coopsumo.runio import atomic_run_dir
+
+    cfg = sim_config_from_dict(config)
+    policy = policy_for_run(cfg)
+    if not atomic:
+        out.mkdir(parents=True, exist_ok=True)
+    with atomic_run_dir(out) if atomic else nullcontext(out) as run_dir:
+        summary = run(cfg, policy, run_dir, trajectories=trajectory_every > 0, progress=False, label=label,
+                      trajectory_every=max(trajectory_every, 1), outputs=outputs)  # fmt: skip
+    return {k: v for k, v in summary.items() if k != "policy"}
+
+
+STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
+    "scenario1": ("plan.json", "cells", "models", "runs", "runs.csv", "summary.csv", "report.md", "fig*.png",
+                  "gui_jam.png", "gui_jam.json"),
+    "scenario2": ("sweep.json", "cells", "train", "evals", "mobil", "baselines", "runs.csv", "evals.csv",
+                  "alpha_star.csv", "mobil_p_star.csv", "gate.csv", "check.csv", "fig6_*.png", "report.md"),
+    "ablation": ("study.json", "cells", "train", "baselines", "runs.csv", "summary.csv", "fig_*.png", "report.md"),
+    "regime_map": ("plan.json", "cells", "runs", "runs.csv", "report.md"),
+    "protocol": ("study.json", "cells", "train", "runs", "runs.csv", "stats.csv", "diagnosis.csv", "fig_*.png",
+                 "report.md"),
+}  # fmt: skip
+"""the names each study writes at the top of its root, its plan file first (runio.check_study_root)"""
+
+
+def default_out(name: str, profile: str, committed: str) -> Path:
+    """A study's results folder when --out is not given: results/<name> for the profile whose report is committed,
+    results/<name>_<profile> for any other, so that a quick or test run never replaces a committed report."""
+    return Path("results") / (name if profile == committed else f"{name}_{profile}")
+
+
+def study_root(root: Path, kind: str) -> AbstractContextManager[Path]:
+    """Claim the study root for the block (runio.study_root: path checked, lock held, ownership checked, marked)."""
+    return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"))
+
+
+def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], fcd_period_s: float) -> str | None:
+    """Why a finished run folder of the SimConfig dict cfg (simulate's: config.json, summary.json, detectors.xml,
+    maybe fcd.xml every fcd_period_s, tripinfo.xml, trajectories.parquet) cannot be reused as it is, or None: marked
+    finished by simulate (or written before markers: no marker at all), its summary trusted (summary_problem) and
+    consistent with itself and cfg (run_checks.run_summary_problem), detectors.xml, fcd.xml and tripinfo.xml
+    complete and consistent with it (run_checks), trajectories.parquet readable."""
+    import pyarrow.parquet as pq
+
+    from coopsumo.runio import RUN_MARKER, finished_run
+
+    if (out / RUN_MARKER).exists() and not finished_run(out, "simulate"):
+        return f"has a {RUN_MARKER} that does not mark a finished simulate run"
+    if problem := summary_problem(out / "summary.json", required):
+        return problem
+    summary = json.loads((out / "summary.json").read_text())  # summary_problem read it: a JSON object
+    if problem := run_summary_problem(summary, cfg):
+        return problem
+    sim_seconds, dt = float(summary["sim_seconds"]), float(cfg["control"]["dt_s"])
+    if problem := detectors_problem(out / "detectors.xml", cfg, sim_seconds):
+        return problem
+    if (out / "fcd.xml").exists() and (problem := fcd_problem(out / "fcd.xml", sim_seconds, fcd_period_s, dt)):
+        return problem
+    if (out / "tripinfo.xml").exists() and (problem := tripinfo_problem(out / "tripinfo.xml", summary)):
+        return problem
+    if (out / "trajectories.parquet").exists():
+        try:
+            pq.read_metadata(out / "trajectories.parquet")
+        except Exception:  # pyarrow raises several types for a damaged file
+            return "has an unreadable trajectories.parquet"
+    return None

@@ -1,0 +1,364 @@
+"""The one study runner: cells on a local process pool or on Ray, each record written atomically, resume, failures.
+
+A cell is a JSON-ready spec (at least "key" and "config") and a module-level function cell_fn(spec, root) -> record
+that runs it in a worker process (libsumo allows one SUMO per process) and never raises: its record says
+status "ok", "failed" (with the error) or "interrupted". `execute` runs a list of cells on a backend, writes each
+finished cell's record to ROOT/cells/<key>.json the moment it arrives, shows one progress bar with an ETA, records
+a cell whose worker died (after a solo retry) as failed and goes on, and on SIGINT/SIGTERM stops the workers (a
+training saves its checkpoint) and re-raises. A cell may name another cell ("after": key) whose record must be
+"ok" before it starts (scenario I: a model's runs wait for its training). Scenario I, scenario II and the
+ablation are each a plan (which cells) plus an analysis on top of this module.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+import os
+import queue
+import signal
+import sys
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
+from concurrent.futures import wait as wait_futures
+from concurrent.futures.process import BrokenProcessPool
+from contextlib import contextmanager
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from tqdm import tqdm
+
+from coopsumo.runio import UsageError, start_parent_watch, write_json
+from coopsumo.studies.engine.records import cell_path
+
+MAX_CRASHES = 2
+"""a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
+CellFn = Callable[[dict[str, Any], str], dict[str, Any]]
+"""cell_fn(spec, root) -> record, a module-level function (it is pickled to the workers)"""
+FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
+"""failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
+
+
+def _init_worker(parent_pid: int, pids: Any) -> None:
+    """Pool initializer: exit with the main process, and tell it this worker's pid (for abort). Ctrl-C reaches the
+    whole process group: a worker leaves it to the main process, which stops the workers (abort: SIGTERM, on which
+    a training saves its checkpoint), so an idle worker never dies with a traceback of its own."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    start_parent_watch(parent_pid)
+    pids.put(os.getpid())
+
+
+class LocalBackend:
+    """A spawn-context process pool; one cell per worker at a time, at most `workers` in flight."""
+
+    name = "local"
+
+    def __init__(self, workers: int, cell_fn: Callable[[dict[str, Any], str], dict[str, Any]]):
+        self.slots = workers
+        self._cell_fn = cell_fn
+        self._ctx = mp.get_context("spawn")
+        self._pids: Any = self._ctx.Queue()  # every worker's pid, put there by _init_worker
+        self._worker_pids: set[int] = set()
+        self._generation = 0
+        self._pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=self.slots, mp_context=self._ctx, initializer=_init_worker,
+                                   initargs=(os.getpid(), self._pids))  # fmt: skip
+
+    def _renew(self) -> None:
+        """Replace a broken pool (a worker died) by a fresh one; its other futures fail as BrokenProcessPool."""
+        self._pool.shutdown(wait=False, cancel_futures=True)
+        self._generation += 1
+        self._pool = self._new_pool()
+
+    def submit(self, spec: dict[str, Any], root: Path) -> Any:
+        try:
+            future = self._pool.submit(self._cell_fn, spec, str(root))
+        except BrokenProcessPool:  # the pool broke before wait() saw the dead worker's future
+            self._renew()
+            future = self._pool.submit(self._cell_fn, spec, str(root))
+        return (self._generation, future)
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
+        """Finished handles with their record, or the exception that stopped their worker."""
+        futures: dict[Future[dict[str, Any]], Any] = {h[1]: h for h in handles}
+        done, _ = wait_futures(list(futures), timeout=timeout, return_when=FIRST_COMPLETED)
+        results: list[tuple[Any, dict[str, Any] | BaseException]] = []
+        for fut in done:
+            err = fut.exception()
+            results.append((futures[fut], err if err is not None else fut.result()))
+            if isinstance(err, BrokenProcessPool) and futures[fut][0] == self._generation:
+                self._renew()
+        return results
+
+    def abort(self) -> None:
+        """Stop the workers: SIGTERM (a training saves its checkpoint), then SIGKILL after 15 s.
+
+        The workers are found among multiprocessing.active_children() by the pids they reported on start.
+        """
+        while True:
+            try:
+                self._worker_pids.add(self._pids.get(timeout=0.1))
+            except queue.Empty:
+                break
+        procs = [p for p in mp.active_children() if p.pid in self._worker_pids]
+        for p in procs:
+            p.terminate()
+        deadline = time.monotonic() + 15.0
+        for p in procs:
+            p.join(timeout=max(0.0, deadline - time.monotonic()))
+        for p in procs:
+            if p.is_alive():
+                p.kill()
+        self._pool.shutdown(wait=False, cancel_futures=True)
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True)
+
+
+class RayBackend:
+    """Cells as Ray tasks (num_cpus=1; a worker process runs one cell after another, as the local pool's do) on a
+    local instance or a cluster."""
+
+    name = "ray"
+
+    def __init__(self, workers: int, address: str | None,
+                 cell_fn: Callable[[dict[str, Any], str], dict[str, Any]]):  # fmt: skip
+        import ray
+
+        self._ray = ray
+        self.address = address
+        kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": False}
+        if address is None:
+            kwargs["num_cpus"] = workers
+        try:
+            ray.init(address=address, **kwargs)
+        except (ConnectionError, ValueError, RuntimeError) as err:
+            detail = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            where = f" at {address}" if address else ""
+            raise UsageError(f"cannot start or reach Ray{where}: {detail}") from None
+        self.slots = max(1, int(ray.cluster_resources().get("CPU", workers)))
+        self._task = ray.remote(num_cpus=1, max_retries=1)(cell_fn)
+
+    def check_cluster(self, root: Path, timeout_s: float = 120.0) -> None:
+        """Every alive node of the cluster runs this machine's versions (PINNED) and can write root, or UsageError
+        naming the node and the problem (one probe task pinned to each node, before any cell runs)."""
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        from coopsumo.runio import versions
+
+        nodes = [n for n in self._ray.nodes() if n.get("Alive") and n.get("Resources", {}).get("CPU", 0) > 0]
+        probe = self._ray.remote(num_cpus=0, max_retries=0)(node_probe)
+        refs = [probe.options(scheduling_strategy=NodeAffinitySchedulingStrategy(n["NodeID"], soft=False))
+                .remote(str(root)) for n in nodes]  # fmt: skip
+        try:
+            answers = self._ray.get(refs, timeout=timeout_s)
+        except Exception as err:
+            raise UsageError(f"a node of the Ray cluster did not answer its probe: {type(err).__name__}") from None
+        if (problem := cluster_problem(versions(), [n["NodeManagerAddress"] for n in nodes], answers, root)):
+            raise UsageError(problem)
+
+    def submit(self, spec: dict[str, Any], root: Path) -> Any:
+        return self._task.remote(spec, str(root))
+
+    def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
+        ready, _ = self._ray.wait(list(handles), num_returns=1, timeout=timeout)
+        results: list[tuple[Any, dict[str, Any] | BaseException]] = []
+        for ref in ready:
+            try:
+                results.append((ref, self._ray.get(ref)))
+            except Exception as err:
+                results.append((ref, err))
+        return results
+
+    def abort(self) -> None:
+        pass  # close() shuts Ray down, which stops its workers
+
+    def close(self) -> None:
+        self._ray.shutdown()
+
+
+PINNED = ("coopsumo", "sumo", "libsumo", "torch", "python")
+"""versions every node of a cluster must share with the machine that starts the study"""
+
+
+def node_probe(root: str) -> dict[str, Any]:
+    """What one node of a cluster runs, and whether it can write the study's folder (a file made and removed)."""
+    import socket
+
+    from coopsumo.runio import versions
+
+    probe = Path(root) / f".node-probe-{socket.gethostname()}-{os.getpid()}"
+    try:
+        probe.write_text("ok")
+        probe.unlink()
+        problem = None
+    except OSError as err:
+        problem = err.strerror or type(err).__name__
+    return {"versions": versions(), "write_problem": problem}
+
+
+def cluster_problem(mine: dict[str, str], nodes: Sequence[str], answers: Sequence[dict[str, Any]],
+                    root: Path) -> str | None:  # fmt: skip
+    """Why the cluster cannot run this study (a node with other versions, a node that cannot write root), or None."""
+    for node, answer in zip(nodes, answers, strict=True):
+        theirs = answer["versions"]
+        for name in PINNED:
+            if theirs.get(name) != mine.get(name):
+                return (f"--address: node {node} runs {name} {theirs.get(name)}, this machine {mine.get(name)}; "
+                        "install the same versions on every node")  # fmt: skip
+        if answer["write_problem"]:
+            return (f"--out {root}: node {node} cannot write it ({answer['write_problem']}); give a folder every "
+                    "node shares")  # fmt: skip
+    return None
+
+
+def add_backend_flags(parser: Any) -> None:
+    """--backend local|ray and --address, the same on every study."""
+    parser.add_argument("--backend", choices=("local", "ray"), default="local", help="local process pool or Ray")
+    parser.add_argument("--address", default=None, help="Ray cluster address (default: start a local Ray instance)")
+
+
+def check_backend(backend: str, address: str | None) -> None:
+    """Usage errors before anything is written: --address without Ray, Ray not installed, a cluster that does
+    not answer (validation.check_ray_address: within 30 s)."""
+    from coopsumo.validation import check_ray_address
+
+    if address is not None and backend != "ray":
+        raise UsageError("--address is for --backend ray")
+    if backend == "ray":
+        try:
+            import ray  # noqa: F401
+        except ImportError:
+            raise UsageError("--backend ray needs Ray: .venv/bin/pip install 'ray[default]'") from None
+        if address is not None:
+            check_ray_address("--address", address)
+
+
+def make_backend(
+    name: str, workers: int, address: str | None, cell_fn: Callable[[dict[str, Any], str], dict[str, Any]]
+) -> LocalBackend | RayBackend:
+    """The execution backend; cell_fn(spec, root) -> record runs one cell (a module-level function)."""
+    if name == "local":
+        return LocalBackend(workers, cell_fn)
+    try:
+        import ray  # noqa: F401
+    except ImportError:
+        raise UsageError("--backend ray needs Ray: .venv/bin/pip install 'ray[default]'") from None
+    return RayBackend(workers, address, cell_fn)
+
+
+def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+@contextmanager
+def sigterm_interrupts() -> Iterator[None]:
+    """SIGTERM in the main process becomes KeyboardInterrupt, so the workers are stopped cleanly."""
+    old = signal.signal(signal.SIGTERM, _raise_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, old)
+
+
+@contextmanager
+def _signals_ignored() -> Iterator[None]:
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend | RayBackend, total: int,
+            done_before: int, progress: bool, failed_record: FailedRecord, desc: str = "cells",
+            done_keys: Sequence[str] = ()) -> dict[str, int]:  # fmt: skip
+    """Run the cells in the given order (the order is the priority); write each record the moment it arrives.
+
+    total and done_before size the progress bar (cells of the whole study, cells finished before this call);
+    done_keys: cells finished ok before this call (a cell's "after" may name one). Returns counts of ok/failed
+    cells. On KeyboardInterrupt (Ctrl-C or SIGTERM) the workers are stopped and the interrupt re-raised.
+    """
+    (root / "cells").mkdir(parents=True, exist_ok=True)
+    if isinstance(backend, RayBackend) and backend.address is not None:
+        backend.check_cluster(root)
+    todo = list(specs)
+    pending = {spec["key"] for spec in specs}  # not finished yet in this call
+    ok_keys: set[str] = set(done_keys)
+    failed_keys: set[str] = set()
+    # A dead worker breaks the whole pool, so every cell in flight sees BrokenProcessPool; such cells
+    # are rerun alone ("solo"), where a crash can only be their own, before one is recorded as failed.
+    solo: deque[dict[str, Any]] = deque()
+    solo_running = False
+    inflight: dict[Any, dict[str, Any]] = {}
+    crashes: Counter[str] = Counter()
+    counts = {"ok": 0, "failed": 0}
+    bar = tqdm(total=total, initial=done_before, desc=desc, unit="cell", file=sys.stderr,
+               disable=not progress, mininterval=1.0, smoothing=0.1)  # fmt: skip
+
+    def finish(spec: dict[str, Any], record: dict[str, Any]) -> None:
+        write_json(cell_path(root, spec["key"]), record)
+        pending.discard(spec["key"])
+        (ok_keys if record["status"] == "ok" else failed_keys).add(spec["key"])
+        counts[record["status"]] += 1
+        bar.update(1)
+
+    def startable() -> list[dict[str, Any]]:
+        """Cells of todo whose dependency is done (a failed dependency fails them at once)."""
+        ready = []
+        for spec in list(todo):
+            dep = spec.get("after")
+            if dep in failed_keys:
+                todo.remove(spec)
+                finish(spec, failed_record(spec, f"needs cell {dep}, which failed"))
+            elif dep is None or dep in ok_keys or dep not in pending:
+                ready.append(spec)
+        return ready
+
+    try:
+        while todo or solo or inflight:
+            if solo and not inflight:
+                spec = solo.popleft()
+                inflight[backend.submit(spec, root)] = spec
+                solo_running = True
+            if not solo and not solo_running:
+                ready = startable()
+                if not ready and not inflight and todo:  # only cells waiting on cells that will never run
+                    for spec in todo:
+                        finish(spec, failed_record(spec, f"needs cell {spec.get('after')}, which did not run"))
+                    todo.clear()
+                for spec in ready[: max(0, backend.slots - len(inflight))]:
+                    todo.remove(spec)
+                    inflight[backend.submit(spec, root)] = spec
+            bar.refresh()  # the elapsed time moves on while long cells run
+            for handle, outcome in backend.wait(list(inflight), timeout=1.0):
+                spec = inflight.pop(handle)
+                was_solo, solo_running = solo_running, solo_running and bool(inflight)
+                if isinstance(outcome, BrokenProcessPool):
+                    crashes[spec["key"]] += 1
+                    if not (was_solo and crashes[spec["key"]] >= MAX_CRASHES):
+                        solo.append(spec)
+                        continue
+                    record = failed_record(spec, f"worker process died {MAX_CRASHES} times (BrokenProcessPool)")
+                elif isinstance(outcome, BaseException):
+                    record = failed_record(spec, f"{type(outcome).__name__}: {str(outcome).strip()[:300]}")
+                else:
+                    record = outcome
+                if record["status"] == "interrupted":
+                    raise KeyboardInterrupt(f"cell {spec['key']} interrupted")
+                finish(spec, record)
+                running = len(inflight) + min(len(todo), backend.slots - len(inflight))
+                bar.set_postfix(failed=counts["failed"], running=running, refresh=False)
+    except KeyboardInterrupt:
+        bar.close()
+        with _signals_ignored():
+            backend.abort()
+        raise
+    bar.close()
+    return counts

@@ -1,0 +1,229 @@
+"""`coopsumo learning` (`make learning`): what makes the shared DQN learn, one change at a time.
+
+Two parts, both trained in free flow (3 lanes, T_up 1 s by default) and evaluated greedily on
+evaluation seeds the models never trained on, beside baselines on the same evaluation seeds:
+
+- the ablation: learner variants from the paper-literal setup to the default design, each adding
+  one change to the one before (VARIANTS);
+- the alpha response: the default design trained for every alpha of the grid.
+
+A "cell" is one training seed of one variant and alpha (train, then one greedy evaluation on
+evaluation seed EVAL_SEED_OFFSET + training seed) or one baseline evaluation. Cells run on the
+scenario II runner (local processes or Ray), each finished cell is written atomically to
+OUT/cells/<key>.json, and a rerun skips finished cells. Outputs in OUT (default
+results/learning): cells/, train/<key>/, baselines/<key>/, runs.csv, summary.csv,
+alpha_response.csv, fig_training_curves.png, fig_alpha_response.png, report.md.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+from coopsumo.config import (
+    DQNConfig,
+    RoadConfig,
+    to_dict,
+)
+from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.studies.engine.records import failed_exit
+from coopsumo.studies.engine.run_folders import default_out, study_root
+from coopsumo.studies.engine.runner import add_backend_flags, check_backend
+from coopsumo.studies.learning.plan import (
+    CHAIN_LENGTH,
+    PROFILES,
+    REQUIRED_SUMMARY,
+    VARIANT_NAMES,
+    VARIANTS,
+    Profile,
+    cell_specs,
+    learner_of,
+    variant_list,
+)
+from coopsumo.studies.learning.report import write_outputs
+from coopsumo.validation import alpha_list, default_model_out, model_out_dir, number_name, seed_count, workers
+
+
+# -- one cell (in a worker process) ----------------------------------------------------------------
+def new_record(spec: dict[str, Any]) -> dict[str, Any]:
+    """A cell's record before it runs: coordinates and configuration, nothing measured yet."""
+    from coopsumo.studies.engine.records import blank_record
+
+    return blank_record(spec, ("key", "kind", "part", "variant", "alpha", "seed", "eval_seed", "policy"),
+                        train_summary=None)  # fmt: skip
+
+
+def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
+    """The record of a cell whose worker died or whose task could not run."""
+    from coopsumo.studies.engine.records import as_failed
+
+    return as_failed(new_record(spec), error)
+
+
+def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
+    """Run one cell and return its record (never raises on failure; see records.run_recorded)."""
+    from coopsumo.studies.engine.records import run_recorded
+
+    record = new_record(spec)
+    cell = _run_train if spec["kind"] == "train" else _run_baseline
+    return run_recorded(record, lambda: cell(spec, Path(root), record))
+
+
+def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    """Train into ROOT/train/<key>/ (resuming a matching checkpoint), then evaluate greedily on every evaluation
+    seed; the record's summary pools the evaluations (records.pool_summaries), eval_summaries keeps each."""
+    from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.agents.rollout import run
+    from coopsumo.config import sim_config_from_dict
+    from coopsumo.studies.engine.model_store import store_for, train_shared
+    from coopsumo.studies.engine.records import pool_summaries
+
+    key = spec.get("train_key", spec["key"])
+    out = root / "train" / key
+    record["train_summary"], _ = train_shared(spec["config"]["train"], out, store_for(root))  # cells share trainings
+    drive = spec["config"].get("drive", {})
+    margin, queue, no_return = (float(drive.get(f, 0.0)) for f in ("change_margin", "queue_below_mps", "no_return_s"))
+    summaries = []
+    for raw in spec["config"]["evals"]:
+        ev = sim_config_from_dict(raw)
+        name = f"eval_seed{ev.seed}" + "".join(f"_{tag}{number_name(x)}" for tag, x in
+                                               (("margin", margin), ("queue", queue), ("noreturn", no_return)) if x)
+        spec_text = f"dqn:{out / 'model.pt'}"
+        policy = DQNPolicy.from_file(spec_text[4:])
+        if policy.net.conditioned:  # driven at the cell's alpha (its evaluation's)
+            policy.drive_at(ev.reward.alpha, ev.road.lanes)
+            spec_text += f",alpha={ev.reward.alpha:g}"
+            name += f"_alpha{number_name(ev.reward.alpha)}"
+        ev = replace(ev, policy=spec_text)
+        eval_dir = root / "evals" / key / name  # beside the training: the stored model folder holds the training only
+        eval_dir.mkdir(parents=True, exist_ok=True)
+        policy.change_margin, policy.queue_below_mps, policy.no_return_s = margin, queue, no_return
+        summary = run(ev, policy, eval_dir, progress=False)
+        summaries.append({"eval_seed": ev.seed, **{k: v for k, v in summary.items() if k != "policy"}})
+    record["eval_summaries"] = summaries
+    record["summary"] = {k: v for k, v in pool_summaries(summaries).items() if k != "eval_seed"}
+
+
+def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    """One baseline evaluation into ROOT/baselines/<key>/."""
+    from coopsumo.studies.engine.run_folders import simulate_into
+
+    record["summary"] = simulate_into(spec["config"]["eval"], root / "baselines" / spec["key"], spec["key"])
+
+
+# -- the study -------------------------------------------------------------------------------------
+def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
+              address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
+    from coopsumo.sim.network import build_net
+    from coopsumo.studies.engine.records import cell_path, checked_record, reusable_keys
+    from coopsumo.studies.engine.runner import execute, make_backend, sigterm_interrupts
+
+    start = time.perf_counter()
+    root = root.resolve()
+    try:
+        (root / "cells").mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
+    specs = cell_specs(profile, default)
+    done_keys = reusable_keys(root, specs, "ablation", REQUIRED_SUMMARY)
+    todo = [s for s in specs if s["key"] not in done_keys]
+    # the slow paper trainings first, the single changes on top of the default last
+    extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
+    todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
+                             s["variant"] != "paper"))  # fmt: skip
+    # a training shared by several cells (margin variants, a conditioned model's alphas) is started by one cell
+    # first: the others wait for it (a lock), so every training comes before every cell that would wait
+    first: dict[str, str] = {}
+    for s in todo:
+        first.setdefault(s.get("train_key", s["key"]), s["key"])
+    todo.sort(key=lambda s: first[s.get("train_key", s["key"])] != s["key"])
+    default_variant = next((n for n, _, c in VARIANTS if c == default), "default")
+    learners = {v: to_dict(learner_of(v)) for v in dict.fromkeys((*profile.variants, *profile.alpha_variants))}
+    meta: dict[str, Any] = {"profile": asdict(profile), "default_learner": to_dict(default), "cells": len(specs),
+                            "default_variant": default_variant, "learners": learners,
+                            "backend": backend_name, "workers": workers, "versions": versions()}  # fmt: skip
+    print(f"ablation: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
+          f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
+    if todo:
+        build_net(RoadConfig(lanes=profile.lanes))
+        backend = make_backend(backend_name, workers, address, run_cell)
+        try:
+            with sigterm_interrupts():
+                execute(todo, root, backend, len(specs), len(specs) - len(todo), progress, failed_record,
+                        desc="learning cells")  # fmt: skip
+        finally:
+            backend.close()
+    records = [checked_record(json.loads(cell_path(root, s["key"]).read_text()), REQUIRED_SUMMARY) for s in specs]
+    meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
+                failed_cells=[r["key"] for r in records if r["status"] != "ok"],
+                cell_wall_seconds_sum=round(sum(r.get("cell_wall_s") or 0.0 for r in records), 1),
+                cell_cpu_seconds_sum=round(sum(r.get("cell_cpu_s") or 0.0 for r in records), 1))  # fmt: skip
+    write_outputs(root, profile, records, meta)
+    write_json(root / "study.json", meta)
+    return meta
+
+
+def build_parser() -> Parser:
+    p = Parser(prog="coopsumo learning",
+               description="Ablation of the DQN learner and its alpha response (results/learning).")  # fmt: skip
+    size = p.add_mutually_exclusive_group()  # one way to say the study's size
+    size.add_argument("--profile", choices=tuple(PROFILES), default="full", help="study size (full: paper scale)")
+    size.add_argument("--quick", action="store_true", help="the same as --profile quick")
+    p.add_argument("--variants", default=None,
+                   help=f"comma-separated subset of {','.join(VARIANT_NAMES)} (default: the profile's)")
+    p.add_argument("--alphas", default=None,
+                   help="comma-separated alpha grid of the alpha response (default: the profile's)")
+    p.add_argument("--alpha-variants", default=None,
+                   help="comma-separated variants whose alpha response is measured (default: the default learner)")
+    p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
+                   help="models per variant: training seeds 0..N-1, each evaluated on its own held-out seed "
+                        "(default: the profile's)")  # fmt: skip
+    p.add_argument("--workers", type=workers, default=2, help="parallel cells")
+    add_backend_flags(p)
+    p.add_argument("--out", type=model_out_dir, default=None,
+                   help="results folder (default results/learning, another profile results/learning_<profile>)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def profile_from_args(args: Any) -> Profile:
+    profile = PROFILES["quick" if args.quick else args.profile]
+    if args.variants is not None:
+        profile = replace(profile, variants=variant_list("--variants", args.variants))
+    if args.alpha_variants is not None:
+        profile = replace(profile, alpha_variants=variant_list("--alpha-variants", args.alpha_variants))
+    if args.alphas is not None:
+        alphas = alpha_list("--alphas", args.alphas)
+        profile = replace(profile, alphas=alphas)
+    if args.seeds is not None:
+        if args.seeds <= 0:
+            raise UsageError(f"--seeds must be positive, got {args.seeds}")
+        profile = replace(profile, seeds=tuple(range(args.seeds)))
+    if args.workers <= 0:
+        raise UsageError(f"--workers must be positive, got {args.workers}")
+    return profile
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        profile = profile_from_args(args)
+        check_backend(args.backend, args.address)
+        if args.out is None:
+            args.out = default_model_out(default_out("learning", profile.name, "full"))
+        with study_root(args.out, "ablation"):  # path, lock, ownership and marker of the results folder
+            meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
+                             progress=not args.quiet)  # fmt: skip
+        print(f"ablation: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")
+        return failed_exit("ablation", meta["failed_cells"], meta["cells"], args.out)
+
+    return run_cli("ablation", body)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,346 @@
+"""The learner protocol's plan: its learners, profiles and cells (studies/protocol/study.py runs them).
+
+A variant is a training (its learner) plus which weights drive: `model.pt` (the validated best, when the learner
+selects) or `model_last.pt` (the last weights). Every model meets every condition on the same evaluation seeds.
+The variants and profiles are data (coopsumo/experiments_data/learners.toml and protocol.toml, inside the package so
+that an installed wheel has them too); this module reads and checks them and makes the cells.
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+import types
+from dataclasses import dataclass, fields, replace
+from itertools import product
+from pathlib import Path
+from typing import Any, Union, get_args, get_origin, get_type_hints
+
+from coopsumo.agents.conditioning import world_alpha
+from coopsumo.config import (
+    DQN_PRESETS,
+    MIN_ACCIDENT_VALIDATION_STEPS,
+    AccidentConfig,
+    ConfigError,
+    DemandConfig,
+    DQNConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
+from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
+from coopsumo.validation import number_name
+
+EVAL_SEED = 5000
+"""evaluation run of condition i uses seed EVAL_SEED + i (free flow) or EVAL_SEED + 100 + i (accident), each plus
+one of the profile's eval_offsets"""
+TRAIN_SEED = FIRST_TRAIN_SEED
+"""first training seed of the protocol (the committed learning studies used 0-8)"""
+BASELINES = ("keep", "greedy", "mobil:p=0")
+DEMANDS = (2.0, 1.5, 1.0)
+TRAJECTORY_EVERY = 5
+"""accident runs record trajectories every 5 steps (0.5 s) for total time spent"""
+REQUIRED = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
+DATA = Path(__file__).resolve().parents[2] / "experiments_data"
+LEARNERS_FILE = DATA / "learners.toml"
+PROFILES_FILE = DATA / "protocol.toml"
+STATUSES = ("default", "current", "tried", "retired")
+"""a variant's status (learners.toml says what each means)"""
+WEIGHTS = ("model.pt", "model_last.pt")
+
+
+DRIVES = (("margin", "change_margin", "change margin"), ("cooldown", "change_cooldown_s", "lane-change cooldown (s)"),
+          ("noreturn", "no_return_s", "no change back within (s)"),
+          ("restart", "restart_below_mps", "'none' withheld below (m/s)"),
+          ("queue", "queue_below_mps", "no lane change below (m/s)"),
+          ("ensemble", "ensemble_snapshots", "best-validated snapshots averaged"))
+"""how a variant may drive its trainings otherwise: its field (also the key of the dqn policy string), the key in a
+cell's config.drive (and in a variant's `drive` table in learners.toml), and the report's words"""
+
+
+@dataclass(frozen=True)
+class Variant:
+    """A learner as judged: the training (its learner settings) and the weights that drive."""
+
+    name: str
+    text: str
+    """what it is and why it is judged (learners.toml's `why`; the report's words)"""
+    learner: DQNConfig
+    weights: str = "model.pt"
+    margin: float | None = None
+    """the change margin it drives with (Q units; None: the learner's own); the trainings are the same"""
+    cooldown: float | None = None
+    """the lane-change cooldown it drives with (s; None: none)"""
+    noreturn: float | None = None
+    """how long after a lane change it does not choose the change back (s; None: no such rule)"""
+    restart: float | None = None
+    """the speed below which it withholds 'none' (m/s; None: the learner's own)"""
+    queue: float | None = None
+    """the speed below which it chooses no lane change (m/s; None: none)"""
+    ensemble: int | None = None
+    """how many best-validated snapshots of its training it averages the Q-values of (None: model.pt alone)"""
+
+    def drive(self) -> dict[str, float]:
+        """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""
+        return {key: getattr(self, field) for field, key, _ in DRIVES if getattr(self, field) is not None}
+
+
+@dataclass(frozen=True)
+class Profile:
+    name: str
+    variants: tuple[str, ...]
+    seeds: tuple[int, ...] = tuple(range(TRAIN_SEED, TRAIN_SEED + 10))
+    train_steps: int = 90_000
+    t_ups: tuple[float, ...] = DEMANDS
+    free_steps: int = 6000
+    accident_steps: int = 20_000
+    accident_start: int = 2000
+    accident_duration: int = 10_000
+    alpha_seeds: int = 3
+    """models at alpha 8 of the judged variant (free flow only): does alpha do something?"""
+    lanes: int = 3
+    eval_offsets: tuple[int, ...] = (0,)
+    """each is added to every evaluation seed, one evaluation per offset (10: seeds 5010+i and 5110+i): every model
+    and baseline meets each condition on len(eval_offsets) seeds, and the report judges each by its mean over them"""
+    judged: str = ""
+    """the variant whose targets and alpha response the report gives (empty: the first; the others are paired
+    against the first)"""
+    paired_with: tuple[tuple[str, str, str], ...] = ()
+    """(a variant here, a committed protocol report's folder under results/ or results/history/, a variant there):
+    the report pairs the two by training seed when that study ran the same seeds, demands and step counts with
+    today's learner of that variant (protocol_report.committed_pair_lines), so that trainings made once need not be
+    made again"""
+
+    def judged_variant(self) -> str:
+        return self.judged or self.variants[0]
+
+
+# -- the catalogue: learners.toml and protocol.toml -------------------------------------------------
+VARIANT_KEYS = ("parent", "preset", "status", "why", "learner", "drive", "weights")
+PROFILE_KEYS = ("why", *(f.name for f in fields(Profile) if f.name != "name"))
+
+
+class _Entry:
+    """Errors about one entry of one file: `<file>: [<entry>] <what is wrong>`."""
+
+    def __init__(self, path: Path, name: str) -> None:
+        self.where = f"{path}: [{name}]"
+
+    def error(self, text: str) -> ConfigError:
+        return ConfigError(f"{self.where} {text}")
+
+    def value(self, key: str, value: Any, hint: Any) -> Any:
+        """`value` as the type `hint` names (bool, int, float, str, tuple[X, ...], tuple[X, Y, Z], X | None): an
+        integer where a float belongs becomes one (a learner's identity is its JSON); anything else is an error."""
+        origin, args = get_origin(hint), get_args(hint)
+        if origin in (Union, types.UnionType):
+            return self.value(key, value, next(a for a in args if a is not type(None)))
+        if origin is tuple:
+            any_length = args[-1] is Ellipsis
+            if not isinstance(value, list) or not (any_length or len(value) == len(args)):
+                raise self.error(f"{key} must be a list{'' if any_length else f' of {len(args)}'}, got {value!r}")
+            items = [args[0]] * len(value) if any_length else list(args)
+            return tuple(self.value(key, v, a) for v, a in zip(value, items, strict=True))
+        if hint is float and isinstance(value, int | float) and not isinstance(value, bool):
+            return float(value)
+        if isinstance(value, hint) and not (hint is int and isinstance(value, bool)):
+            return value
+        raise self.error(f"{key} must be {hint.__name__}, got {value!r}")
+
+    def table(self, data: Any, what: str, known: tuple[str, ...] | dict[str, Any]) -> dict[str, Any]:
+        if not isinstance(data, dict):
+            raise self.error(f"{what} must be a table, got {data!r}")
+        for key in data:
+            if key not in known:
+                raise self.error(f"unknown field {key!r} in {what} (known: {', '.join(known)})")
+        return data
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    try:
+        with path.open("rb") as f:
+            return tomllib.load(f)
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read it ({err.strerror})") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not TOML ({err})") from None
+
+
+def load_variants(path: Path = LEARNERS_FILE) -> dict[str, Variant]:
+    """Every variant of a learners.toml, each its parent with its own changes; one ConfigError naming the file and
+    the entry for an unknown field, parent or status, a cycle of parents, or a value the learner refuses."""
+    data = read_toml(path)
+    learner_hints = {k: v for k, v in get_type_hints(DQNConfig).items() if k != "preset"}
+    drive_hints = {key: get_type_hints(Variant)[field] for field, key, _ in DRIVES}
+    for name, entry in data.items():
+        at = _Entry(path, name)
+        at.table(entry, "a variant", VARIANT_KEYS)
+        if ("parent" in entry) == ("preset" in entry):
+            raise at.error("needs a parent (a variant here) or a preset (one of config.DQN_PRESETS), not both")
+        for key in ("parent" if "parent" in entry else "preset", "status", "why"):
+            if not isinstance(entry.get(key), str) or not entry[key]:
+                raise at.error(f"needs {key} (a string), got {entry.get(key)!r}")
+        if entry.get("parent", name) not in data:
+            raise at.error(f"unknown parent {entry['parent']!r} (a variant here: {', '.join(data)})")
+        if entry.get("preset", "default") not in DQN_PRESETS:
+            raise at.error(f"unknown preset {entry['preset']!r} (one of {', '.join(DQN_PRESETS)})")
+        if entry["status"] not in STATUSES:
+            raise at.error(f"unknown status {entry['status']!r} (one of {', '.join(STATUSES)})")
+        if entry.get("weights", WEIGHTS[0]) not in WEIGHTS:
+            raise at.error(f"weights must be one of {', '.join(WEIGHTS)}, got {entry['weights']!r}")
+        at.table(entry.get("learner", {}), "learner", learner_hints)
+        at.table(entry.get("drive", {}), "drive", drive_hints)
+    built: dict[str, Variant] = {}
+
+    def build(name: str, below: tuple[str, ...]) -> Variant:
+        if name in below:
+            raise _Entry(path, name).error(f"is its own ancestor: {' -> '.join((*below[below.index(name):], name))}")
+        if name not in built:
+            entry, at = data[name], _Entry(path, name)
+            base = build(entry["parent"], (*below, name)) if "parent" in entry else \
+                Variant(entry["preset"], "", DQN_PRESETS[entry["preset"]])
+            changes = {k: at.value(f"learner.{k}", v, learner_hints[k]) for k, v in entry.get("learner", {}).items()}
+            drives = {field: at.value(f"drive.{key}", entry["drive"][key], drive_hints[key])
+                      for field, key, _ in DRIVES if key in entry.get("drive", {})}  # fmt: skip
+            try:
+                learner = replace(base.learner, **changes)
+                learner.validate()
+            except ConfigError as err:
+                raise at.error(f"learner: {err}") from None
+            built[name] = replace(base, name=name, text=entry["why"], learner=learner,
+                                  weights=entry.get("weights", base.weights), **drives)  # fmt: skip
+        return built[name]
+
+    for name in data:
+        build(name, ())
+    defaults = [name for name, entry in data.items() if entry["status"] == "default"]
+    if len(defaults) != 1:
+        raise ConfigError(f"{path}: exactly one variant has status 'default' (today's default learner), got "
+                          f"{len(defaults)}: {', '.join(defaults) or 'none'}")  # fmt: skip
+    if built[defaults[0]].learner != DQN_PRESETS["default"] or built[defaults[0]].drive():
+        raise _Entry(path, defaults[0]).error("has status 'default' but is not the default preset (DQNConfig())")
+    return built
+
+
+def load_profiles(known: dict[str, Variant], path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], str]:
+    """The profiles of a protocol.toml and its `current` one; one ConfigError naming the file and the entry for an
+    unknown field or variant, a judged variant or pair it does not run, or a value of the wrong type."""
+    data = dict(read_toml(path))
+    current = data.pop("current", None)
+    hints = get_type_hints(Profile)
+    profiles: dict[str, Profile] = {}
+    for name, entry in data.items():
+        at = _Entry(path, name)
+        at.table(entry, "a profile", PROFILE_KEYS)
+        if not isinstance(entry.get("why"), str) or not entry["why"]:
+            raise at.error(f"needs why (a string), got {entry.get('why')!r}")
+        if not entry.get("variants"):
+            raise at.error("needs variants (a list of learners.toml's variants)")
+        settings = {key: at.value(key, value, hints[key]) for key, value in entry.items() if key != "why"}
+        profile = Profile(name, **settings)
+        named = [*profile.variants, *(p[2] for p in profile.paired_with)]
+        if unknown := [v for v in named if v not in known]:
+            raise at.error(f"unknown variant {unknown[0]!r} (learners.toml has {', '.join(known)})")
+        if profile.judged_variant() not in profile.variants:
+            raise at.error(f"judges {profile.judged!r}, which it does not run")
+        if outside := [p[0] for p in profile.paired_with if p[0] not in profile.variants]:
+            raise at.error(f"pairs {outside[0]!r}, which it does not run")
+        profiles[name] = profile
+    if current not in profiles:
+        raise ConfigError(f"{path}: current must name one of its profiles ({', '.join(profiles)}), got {current!r}")
+    return profiles, current
+
+
+_VARIANTS = load_variants()
+PROFILES, CURRENT = load_profiles(_VARIANTS)
+"""the protocol's profiles (protocol.toml) and the one judging today's default learner (DQNConfig()): `coopsumo
+protocol` and `make protocol` run it when no profile is named (its committed report: results/learner_protocol_nr10)"""
+
+
+def variants() -> dict[str, Variant]:
+    """The variants the protocol knows (learners.toml); the one of status default is the default preset."""
+    return dict(_VARIANTS)
+
+
+def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> TrainConfig:
+    """A model's training (a conditioned one's world at alpha 0: conditioning.world_alpha)."""
+    sim = SimConfig(road=RoadConfig(lanes=profile.lanes), reward=RewardConfig(alpha=world_alpha(dqn, alpha)),
+                    steps=profile.train_steps, seed=seed, policy="dqn")  # fmt: skip
+    if profile.train_steps < dqn.select_every_steps:  # a short profile validates twice
+        dqn = replace(dqn, select_every_steps=max(profile.train_steps // 2, 1), validation_steps=min(
+            dqn.validation_steps, profile.free_steps))  # fmt: skip
+        if dqn.validation_accident_steps:
+            dqn = replace(dqn, validation_accident_steps=max(MIN_ACCIDENT_VALIDATION_STEPS, min(
+                dqn.validation_accident_steps, profile.accident_steps)))  # fmt: skip
+    return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
+
+
+def eval_config(profile: Profile, scenario: str, i: int, policy: str, alpha: float = 0.0, offset: int = 0) -> SimConfig:
+    """The evaluation run of condition i (its demand profile.t_ups[i]) in free flow or through the accident, on the
+    evaluation seed of `offset` (one of profile.eval_offsets)."""
+    t_up = profile.t_ups[i]
+    if scenario == "free":
+        return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=t_up),
+                         reward=RewardConfig(alpha=alpha), steps=profile.free_steps,
+                         seed=EVAL_SEED + offset + i,
+                         policy=policy)  # fmt: skip
+    return SimConfig(road=RoadConfig(lanes=profile.lanes), demand=DemandConfig(t_up_s=t_up),
+                     accident=AccidentConfig(enabled=True, start_step=profile.accident_start,
+                                             duration_steps=profile.accident_duration),
+                     reward=RewardConfig(alpha=alpha), steps=profile.accident_steps,
+                     seed=EVAL_SEED + 100 + offset + i,
+                     policy=policy)  # fmt: skip
+
+
+def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> list[dict[str, Any]]:
+    """Every cell: one per (variant, alpha, training seed, scenario, demand, evaluation seed set) and per (baseline,
+    scenario, demand, evaluation seed set); the variants are learners.toml's unless `known` gives others."""
+    known = variants() if known is None else known
+    specs: list[dict[str, Any]] = []
+    models: list[tuple[Variant, float, int, tuple[str, ...]]] = []
+    for name in profile.variants:
+        for seed in profile.seeds:
+            models.append((known[name], 0.0, seed, ("free", "accident")))
+    judged = known[profile.judged_variant()]
+    for seed in profile.seeds[: profile.alpha_seeds]:
+        models.append((judged, 8.0, seed, ("free",)))
+    for variant, alpha, seed, scenarios in models:
+        cfg = train_config(profile, variant.learner, alpha, seed)
+        train_key = f"a{number_name(alpha)}_seed{seed}_{_learner_tag(variant.learner)}"
+        for scenario, (i, t_up), offset in product(scenarios, enumerate(profile.t_ups), profile.eval_offsets):
+            ev = eval_config(profile, scenario, i, "dqn", alpha, offset)
+            key = f"{variant.name}_a{number_name(alpha)}_seed{seed}_{scenario}_t{number_name(t_up)}"
+            key += _set_suffix(profile, offset)
+            config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
+            if variant.drive():  # part of the cell's identity: a record driven otherwise is rerun
+                config["drive"] = variant.drive()
+            specs.append({"key": key, "kind": "model", "variant": variant.name, "alpha": alpha, "seed": seed,
+                          "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
+                          "train_key": train_key,
+                          "config": json.loads(json.dumps(config))})  # fmt: skip
+    for policy in BASELINES:
+        for scenario, (i, t_up), offset in product(("free", "accident"), enumerate(profile.t_ups),
+                                                   profile.eval_offsets):  # fmt: skip
+            ev = eval_config(profile, scenario, i, policy, offset=offset)
+            key = f"{policy.replace(':', '_').replace('=', '')}_{scenario}_t{number_name(t_up)}"
+            specs.append({"key": key + _set_suffix(profile, offset),
+                          "kind": "baseline", "variant": policy, "alpha": 0.0, "seed": None, "scenario": scenario,
+                          "t_up": t_up, "eval_seed": ev.seed, "weights": None, "train_key": None,
+                          "config": json.loads(json.dumps({"eval": to_dict(ev)}))})  # fmt: skip
+    return specs
+
+
+def _set_suffix(profile: Profile, offset: int) -> str:
+    """The cell key's suffix of an evaluation seed set: none for the profile's first (so that a profile given more
+    sets keeps its cells), `_e<offset>` for the others."""
+    return "" if offset == profile.eval_offsets[0] else f"_e{offset}"
+
+
+def _learner_tag(dqn: DQNConfig) -> str:
+    """A short name of a learner for its training folder: the preset, and a digest of its settings."""
+    import hashlib
+
+    digest = hashlib.sha256(json.dumps(to_dict(dqn), sort_keys=True).encode()).hexdigest()[:8]
+    return f"{dqn.preset}_{digest}"

@@ -1,0 +1,202 @@
+"""`coopsumo protocol`: one protocol for judging a learner, with the trained model as the unit of replication.
+
+Each learner variant is trained on every training seed (default 10, seeds 100-109: none of the committed studies'
+nor the validation seeds); every model then drives free flow at T_up 2, 1.5 and 1 s and scenario I's accident
+(closure decaying over steps 2,000-12,000 of 20,000) at the same demands, on evaluation seeds no training or
+validation saw (EVAL_SEED + condition index), the same seeds for every model. `keep`, `greedy` and MOBIL p = 0 run
+on those seeds too. Statistics over models (studies/engine/stats.py, rliable): interquartile mean with a stratified
+bootstrap interval, the worst model, and the probability of improvement against each baseline (protocol_report).
+
+A variant is a training (its learner) plus which weights drive: `model.pt` (the validated best, when the learner
+selects) or `model_last.pt` (the last weights). Model selection never feeds back into training, so the last
+weights of a selecting training are the model the same learner without selection would have saved: one
+training gives both rows. The variants and profiles are data (coopsumo/experiments_data/learners.toml and
+protocol.toml). Cells run on the shared runner; a rerun reuses finished cells. Outputs in OUT (default
+results/learner_protocol_<profile>; without --profile, protocol_plan.CURRENT: the one judging today's default
+learner): cells/, train/, runs/, runs.csv, report.md and figures.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+from coopsumo.config import RoadConfig, SimConfig, to_dict
+from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.studies.engine.records import failed_exit
+from coopsumo.studies.engine.run_folders import default_out, study_root
+from coopsumo.studies.engine.runner import add_backend_flags, check_backend
+from coopsumo.studies.protocol.plan import (
+    CURRENT,
+    DRIVES,
+    PROFILES,
+    REQUIRED,
+    TRAJECTORY_EVERY,
+    Profile,
+    cell_specs,
+    variants,
+)
+from coopsumo.validation import default_model_out, model_out_dir, workers
+
+# -- one cell (in a worker process) ----------------------------------------------------------------
+FIELDS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key")
+
+
+def new_record(spec: dict[str, Any]) -> dict[str, Any]:
+    from coopsumo.studies.engine.records import blank_record
+
+    return blank_record(spec, FIELDS, train_summary=None)
+
+
+def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
+    from coopsumo.studies.engine.records import as_failed
+
+    return as_failed(new_record(spec), error)
+
+
+def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
+    """Train (or reuse) the model, then drive it; or run a baseline. Never raises (records.run_recorded)."""
+    from coopsumo.studies.engine.records import run_recorded
+
+    record = new_record(spec)
+    return run_recorded(record, lambda: _run(spec, Path(root), record))
+
+
+def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    from coopsumo.config import sim_config_from_dict
+    from coopsumo.studies.engine.model_store import store_for, train_shared
+    from coopsumo.studies.engine.run_folders import simulate_into
+
+    ev = sim_config_from_dict(spec["config"]["eval"])
+    if spec["kind"] == "model":
+        model_dir = root / "train" / spec["train_key"]
+        record["train_summary"], _ = train_shared(spec["config"]["train"], model_dir, store_for(root))
+        ev = replace(ev, policy=driven_policy(spec, model_dir))
+    every = TRAJECTORY_EVERY if ev.accident.enabled else 0
+    out = root / "runs" / spec["key"]
+    summary = simulate_into(json.loads(json.dumps(to_dict(ev))), out, spec["key"], trajectory_every=every,
+                            atomic=True)  # fmt: skip
+    if ev.accident.enabled:
+        summary["tts_veh_h"] = total_time_spent(out, ev)
+        (out / "trajectories.parquet").unlink(missing_ok=True)  # measured; 10 MB a run is not kept
+    record["summary"] = summary
+
+
+def driven_policy(spec: dict[str, Any], model_dir: Path) -> str:
+    """The policy string a model cell drives: its weights in model_dir, with the cell's change margin and lane-change
+    cooldown, 'none' and queue speeds if it has them (config.drive); an alpha-conditioned model at the cell's alpha."""
+    drive = spec["config"].get("drive", {})
+    extra = "".join(f",{field}={drive[key]:g}" for field, key, _ in DRIVES if key in drive)
+    if spec["config"]["train"]["dqn"].get("alpha_conditioned"):
+        extra += f",alpha={spec['alpha']:g}"
+    return f"dqn:{(model_dir / spec['weights']).resolve()}{extra}"
+
+
+def total_time_spent(run_dir: Path, cfg: SimConfig) -> float:
+    """Total time spent on the road and waiting to enter (veh-h) of an accident run (scenario I's measure)."""
+    import pandas as pd
+
+    from coopsumo.report import bottleneck as bn
+
+    traj = pd.read_parquet(run_dir / "trajectories.parquet")
+    v_ref = cfg.demand.v_exp_mean_kmh / 3.6
+    return float(bn.run_time_spent(traj, cfg.demand.t_up_s, TRAJECTORY_EVERY * cfg.control.dt_s, v_ref)["tts_veh_h"])
+
+
+# -- the study -------------------------------------------------------------------------------------
+def run_study(profile: Profile, root: Path, backend_name: str = "local", workers: int = 2,
+              address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
+    from coopsumo.sim.network import build_net
+    from coopsumo.studies.engine.records import cell_path, checked_record, reusable_keys
+    from coopsumo.studies.engine.runner import execute, make_backend, sigterm_interrupts
+    from coopsumo.studies.protocol import report as protocol_report
+
+    start = time.perf_counter()
+    root = root.resolve()
+    try:
+        (root / "cells").mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
+    specs = cell_specs(profile)
+    done = reusable_keys(root, specs, "protocol", REQUIRED)
+    todo = [s for s in specs if s["key"] not in done]
+    # each training's first cell before any cell that would wait for it, free flow (short) before the accident
+    first: dict[str, str] = {}
+    for s in todo:
+        if s["train_key"] is not None:
+            first.setdefault(s["train_key"], s["key"])
+    todo.sort(key=lambda s: (s["train_key"] is None or first[s["train_key"]] != s["key"], s["scenario"] != "free"))
+    meta: dict[str, Any] = {"profile": asdict(profile), "cells": len(specs), "backend": backend_name,
+                            "workers": workers, "versions": versions(),
+                            "learners": {n: {"text": v.text, "weights": v.weights, "drive": v.drive(),
+                                             "learner": to_dict(v.learner)}
+                                         for n, v in variants().items() if n in profile.variants}}  # fmt: skip
+    print(f"protocol: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
+          f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
+    if todo:
+        build_net(RoadConfig(lanes=profile.lanes))
+        backend = make_backend(backend_name, workers, address, run_cell)
+        try:
+            with sigterm_interrupts():
+                execute(todo, root, backend, len(specs), len(specs) - len(todo), progress, failed_record,
+                        desc="protocol cells")  # fmt: skip
+        finally:
+            backend.close()
+    records = [checked_record(json.loads(cell_path(root, s["key"]).read_text()), REQUIRED) for s in specs]
+    meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
+                failed_cells=[r["key"] for r in records if r["status"] != "ok"],
+                cell_cpu_seconds_sum=round(sum(r.get("cell_cpu_s") or 0.0 for r in records), 1))  # fmt: skip
+    protocol_report.write_outputs(root, profile, records, meta)
+    write_json(root / "study.json", meta)
+    return meta
+
+
+def default_folder(profile: str) -> Path:
+    """A profile's results folder when --out is not given: results/learner_protocol_<profile>."""
+    return default_out("learner_protocol", profile, committed="")
+
+
+def build_parser() -> Parser:
+    p = Parser(prog="coopsumo protocol",
+               description="Judge learners: every training seed's model in free flow and through the accident "
+                           "against keep, greedy and MOBIL p=0 (IQM, bootstrap intervals, probability of "
+                           "improvement).")  # fmt: skip
+    p.add_argument("--profile", choices=tuple(PROFILES), default=CURRENT, metavar="PROFILE",
+                   help=f"which learners, on how many models (coopsumo/experiments_data/protocol.toml; "
+                        f"docs/studies.md): {CURRENT} (the default) judges today's default learner; tiny takes "
+                        f"seconds, for trying it out; the others: "
+                        f"{', '.join(p for p in PROFILES if p not in (CURRENT, 'tiny'))}. The earlier profiles are "
+                        "rows of results/history/README.md, each run at the commit its row names")  # fmt: skip
+    p.add_argument("--workers", type=workers, default=2, help="parallel cells")
+    add_backend_flags(p)
+    p.add_argument("--out", type=model_out_dir, default=None,
+                   help=f"results folder (default {default_folder(CURRENT)}; another profile "
+                        f"{default_folder('<profile>')})")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        if args.workers <= 0:
+            raise UsageError(f"--workers must be positive, got {args.workers}")
+        check_backend(args.backend, args.address)
+        if args.out is None:
+            args.out = default_model_out(default_folder(args.profile))
+        with study_root(args.out, "protocol"):
+            meta = run_study(PROFILES[args.profile], args.out, args.backend, args.workers, args.address,
+                             progress=not args.quiet)  # fmt: skip
+        print(f"protocol: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")
+        return failed_exit("protocol", meta["failed_cells"], meta["cells"], args.out)
+
+    return run_cli("protocol", body)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

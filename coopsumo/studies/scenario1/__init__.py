@@ -1,0 +1,3 @@
+"""Scenario I, the accident (section IV.A, Fig. 4-5): `coopsumo scenario1` (study.py), its plan, measures, report,
+the paper's horizon and the sumo-gui replay; accident_runs.py runs keep or a model through the accident for the
+follow-up studies."""

@@ -1,0 +1,537 @@
+"""Scenario I's report: the figures, sumo-gui's screenshot of the jam (scenario1_gui), the tables per demand, the
+verdicts in words and report.md, from the table of runs (scenario1_measures) and the run folders.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from coopsumo.config import to_dict
+from coopsumo.runio import versions
+from coopsumo.studies.engine.stats import models_needed
+from coopsumo.studies.scenario1.gui import gui_section
+from coopsumo.studies.scenario1.horizon import fig4, horizon_outputs
+from coopsumo.studies.scenario1.measures import (
+    COUNTED,
+    FIELD_DT_S,
+    FIELD_DX_M,
+    METRICS,
+    MIN_MODELS,
+    MIN_PAIRS,
+    N_BOOT,
+    RECOVERY_MPS,
+    SLOW_MPS,
+    WINDOW_S,
+    aggregate,
+    compare,
+    cooperative_alpha,
+    demand_table,
+    difference_table,
+)
+from coopsumo.studies.scenario1.plan import Plan, Run, label_for, model_label, study_out
+from coopsumo.validation import number_name
+
+FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
+GUI_ALPHA = 8.0  # sumo-gui shows the paper's cooperative model (first preset, first seed, highest demand)
+MODEL_DOC = "docs/model.md"
+"""the one table of the project's deviations from the paper and its choices, in the source checkout"""
+
+
+def counted(n: int, word: str) -> str:
+    """'1 seed', '5 seeds': a count and its noun, singular for one."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
+
+
+def _fmt(fmt: str, mean: float, std: float) -> str:
+    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
+        return "never"
+    text = fmt.format(mean)
+    if std is not None and not (isinstance(std, float) and math.isnan(std)):
+        text += " ± " + fmt.format(std)
+    return text
+
+
+def report_table(agg: pd.DataFrame) -> str:
+    """One markdown table of one demand's aggregate: a row per policy."""
+    header = "| policy | " + " | ".join(label for _, label, _ in METRICS) + " |"
+    lines = [header, "|" + "---|" * (len(METRICS) + 1)]
+    for _, r in agg.iterrows():
+        cells = [_fmt(fmt, r[f"{m}_mean"], r[f"{m}_std"])
+                 + (f" ({int(r[f'{m}_n'])}/{int(r['seeds'])})" if m in COUNTED and 0 < r[f"{m}_n"] < r["seeds"] else "")
+                 for m, _, fmt in METRICS]  # fmt: skip
+        lines.append(f"| {r['policy']} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def regime_table(rows: pd.DataFrame, regimes: Sequence[str]) -> str:
+    """Per demand: where the queue went (runs per regime over every policy and seed), keep's queue reach and
+    when the queue reached the entrance."""
+    lines = ["| T_up (s) | inflow (veh/h) | " + " | ".join(f"runs: {r}" for r in regimes)
+             + " | keep: queue reach (m) | keep: reached the entrance (s after start) |",
+             "|" + "---|" * (len(regimes) + 4)]  # fmt: skip
+    for t_up, group in rows.groupby("t_up_s", sort=False):
+        counts = [int((group["regime"] == r).sum()) for r in regimes]
+        keep = group[group["policy"] == "keep"]
+        reach = _fmt("{:.0f}", keep["queue_m"].mean(), keep["queue_m"].std(ddof=1)) if len(keep) else "-"
+        spilled = keep["spilled_s"].dropna()
+        spill = f"{spilled.mean():.0f} ({len(spilled)}/{len(keep)} seeds)" if len(spilled) else "never"
+        spill = spill if len(keep) else "-"
+        lines.append(f"| {t_up:g} | {3600 / t_up:.0f} | " + " | ".join(map(str, counts)) + f" | {reach} | {spill} |")
+    return "\n".join(lines)
+
+
+def _direction(ci: tuple[float, float, float], lower_is_better: bool = True) -> str:
+    mean, lo, hi = ci
+    if not math.isfinite(mean):
+        return "no data"
+    if lo > 0 or hi < 0:
+        better = (hi < 0) == lower_is_better
+        return "helps" if better else "hurts"
+    return "cannot decide"
+
+
+def _head(c: dict[str, Any]) -> str:
+    """The verdict on total time spent: too few models or seeds to judge, else the interval's direction."""
+    if 0 < c["models"] < MIN_MODELS:
+        return "few models"
+    if c["pairs"] < MIN_PAIRS:
+        return "too few"
+    return _direction(c["tts_veh_h"])
+
+
+def _what_it_takes(c: dict[str, Any]) -> str:
+    """Why a comparison cannot decide, and about how many models (or seeds) would, at the spread measured."""
+    if c["models"]:
+        need = models_needed(c["tts_model_means"])
+        unit = "models"
+    else:
+        need = models_needed(c["tts_seed_diffs"])
+        unit = "evaluation seeds"
+    if need is None:
+        return "the interval includes 0"
+    return f"the interval includes 0; at the spread measured here it would take about {need} {unit}"
+
+
+def verdict_line(c: dict[str, Any]) -> str:
+    """One sentence on one comparison: its headline on total time spent (decided only when the two-level interval
+    over models and seeds excludes 0), then recovery and waves."""
+    mean, lo, hi = c["tts_veh_h"]
+    base = c["tts_veh_h_b"]
+    head = _head(c)
+    word = {"helps": "**helps**", "hurts": "**hurts**",
+            "cannot decide": f"**cannot decide** ({_what_it_takes(c) if head == 'cannot decide' else ''})",
+            "no data": "cannot be judged",
+            "too few": f"cannot be judged on {counted(c['pairs'], 'seed')} (at least {MIN_PAIRS} needed)",
+            "few models": f"cannot be judged on {counted(c['models'], 'model')} (at least {MIN_MODELS} needed)",
+            }[head]  # fmt: skip
+    rec, rlo, rhi = c["system_recovery_s"]
+    wav, wlo, whi = c["waves"]
+    never = ""
+    if c["never_a"] or c["never_b"]:
+        never = (f"; never recovered: {c['never_a']} of {c['runs_a']} and {c['never_b']} of {c['runs_b']} runs, "
+                 "counted at the run's end")  # fmt: skip
+    if c["models"]:
+        count = f"lower for {c['tts_fewer']} of {counted(c['models'], 'model')}, each on {counted(c['pairs'], 'seed')}"
+    else:
+        count = f"lower on {c['tts_fewer']} of {counted(c['pairs'], 'seed')}"
+    return (
+        f"`{c['a']}` against `{c['b']}` {word}: total time spent {mean:+.1f} veh-h "
+        f"({100 * mean / base:+.1f}% of {base:.1f}; 95% CI {lo:+.1f} to {hi:+.1f}; {count}); system recovery "
+        f"{rec:+.0f} s (CI {rlo:+.0f} to {rhi:+.0f}{never}); stop-and-go waves {wav:+.1f} (CI {wlo:+.1f} to "
+        f"{whi:+.1f}); lane changes per vehicle {c['lane_changes_per_vehicle_a']:.2f} against "
+        f"{c['lane_changes_per_vehicle_b']:.2f}."
+    )
+
+
+def verdict_word(c: dict[str, Any]) -> str:
+    """The verdict on total time spent in one word or phrase (as verdict_line decides it)."""
+    head = _head(c)
+    if head == "few models":
+        return f"{counted(c['models'], 'model')}: too few"
+    if head == "too few":
+        return f"{counted(c['pairs'], 'seed')}: too few"
+    return head
+
+
+def verdict_table(rows: pd.DataFrame, t_ups: Sequence[float], pairs: Sequence[tuple[str, str]]) -> str:
+    """Every comparison at every demand in one table: the difference in total time spent (a - b, veh-h) with its
+    95% interval, the count of models (or seeds) with a lower time, and the verdict."""
+    lines = ["| comparison (a against b) | " + " | ".join(f"T_up {t:g} s" for t in t_ups) + " |",
+             "|" + "---|" * (len(t_ups) + 1)]  # fmt: skip
+    for a, b in pairs:
+        cells = []
+        for t in t_ups:
+            c = compare(rows, t, a, b)
+            if c is None:
+                cells.append("-")
+                continue
+            mean, lo, hi = c["tts_veh_h"]
+            unit = counted(c["models"], "model") if c["models"] else counted(c["pairs"], "seed")
+            cells.append(f"{mean:+.1f} [{lo:+.1f}, {hi:+.1f}], lower for {c['tts_fewer']} of {unit}: "
+                         f"**{verdict_word(c)}**")  # fmt: skip
+        lines.append(f"| `{a}` against `{b}` | " + " | ".join(cells) + " |")
+    return ("Total time spent, a minus b (veh-h), with the 95% two-level interval over models and evaluation "
+            "seeds:\n\n" + "\n".join(lines))
+
+
+def model_spread_table(rows: pd.DataFrame, t_up: float) -> str:
+    """Total time spent of each trained model at one demand (mean over its evaluation seeds): the spread between
+    models that the intervals include. Empty without learned policies."""
+    at = rows[(rows["t_up_s"] == t_up)]
+    if "train_seed" not in at or at["train_seed"].isna().all():
+        return ""
+    learned = at[at["train_seed"].notna()]
+    seeds = sorted(int(x) for x in learned["train_seed"].unique())
+    lines = ["| policy | " + " | ".join(f"model {k}" for k in seeds) + " | worst | spread (sd) |",
+             "|" + "---|" * (len(seeds) + 3)]  # fmt: skip
+    for policy, g in learned.groupby("policy", sort=False):
+        per = g.groupby("train_seed")["tts_veh_h"].mean()
+        cells = [f"{per[k]:.1f}" if k in per.index else "-" for k in seeds]
+        spread = f"{per.std(ddof=1):.1f}" if len(per) > 1 else "-"
+        lines.append(f"| {policy} | " + " | ".join(cells) + f" | {per.max():.1f} | {spread} |")
+    return ("Total time spent (veh-h) of each trained model, mean over its evaluation seeds (training seeds as "
+            "columns):\n\n" + "\n".join(lines))
+
+
+def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int, runs: int,
+                train_files: list[Path], run_cpu: dict[float, list[float]], workers: int = 2) -> str:  # fmt: skip
+    """Wall time of this invocation, what it reused, the compute its parts recorded (trainings: wall time of each;
+    runs: CPU time per demand, which does not grow when the machine is shared) and the from-scratch estimate:
+    all of it spread over `workers` cores."""
+    train_s = [float(json.loads(f.read_text()).get("wall_seconds", 0.0)) for f in train_files if f.exists()]
+    per = {t: sum(v) for t, v in run_cpu.items()}
+    text = f"Wall time of this invocation: {wall_s / 60:.1f} min"
+    if models_reused or runs_reused:
+        text += f" (reused {models_reused} of {models} models and {runs_reused} of {runs} runs)"
+    train_text = f"{min(train_s) / 60:.1f}-{max(train_s) / 60:.1f} min each" if train_s else "none recorded"
+    text += (f". Compute recorded by the parts: {len(train_s)} trainings, {train_text}; accident runs "
+             f"{sum(per.values()) / 60:.1f} core-min of CPU time in all, per demand: "
+             + ", ".join(f"T_up {t:g} s {s / 60:.1f} core-min ({s / max(len(run_cpu[t]), 1):.0f} s per run)"
+                         for t, s in per.items()) + ".")  # fmt: skip
+    total = (sum(train_s) + sum(per.values())) / 60
+    text += (f" From scratch on {workers} cores, the parts add up to about {total / workers:.0f} min ({total:.0f} "
+             "core-min), before the report's figures.")
+    return text
+
+
+def deviations_text(root: Path) -> str:
+    """The report's pointer to the deviations and choices: they are one table, in the checkout's docs/model.md,
+    linked relative to the report when the report is inside that checkout."""
+    from coopsumo.sim.network import checkout_root
+
+    where = f"`{MODEL_DOC}` of the coopsumo source (section \"Deviations and choices\")"
+    checkout = checkout_root()
+    if checkout is not None and root.resolve().is_relative_to(checkout):
+        target = os.path.relpath(checkout / MODEL_DOC, root.resolve())
+        where = f"[{MODEL_DOC}]({target}#deviations-and-choices)"
+    return (f"The paper's silences and this project's choices (simulator, Newell parameters, road, demand, accident, "
+            f"measures, learner) are listed once, in {where}.")
+
+
+DEFINITIONS = f"""- **Total time spent** (TTS, the headline): vehicle-hours on the road plus vehicle-hours waiting to
+  enter, over the whole run. Vehicle k is due to enter at k T_up; it waits from then until it appears on the road. All
+  policies meet the same due times, so a policy cannot look good by keeping vehicles off the road.
+  **Delay**: TTS minus the time the distance driven would take at 85 km/h (the mean expected speed).
+- **Discharge**: vehicles per hour past the first loops downstream of the bottleneck (1,400 m, all lanes), over
+  the loop intervals inside the accident window (SUMO's E1 output).
+- **System recovery**: seconds from the accident's start to the first 30 s bin from which, to the end of the run,
+  the space-mean speed in the 200 m before the bottleneck is above {RECOVERY_MPS:g} m/s AND at most one vehicle
+  per lane waits to enter. "never" when that does not happen; in paired differences a "never" counts as the
+  run's end (a lower bound). **On-road recovery** is the speed condition alone (the earlier studies' measure).
+- **Stop-and-go waves** (moving jams): the space-mean speed field over all lanes from the entrance to the
+  bottleneck, in cells of {FIELD_DX_M:g} m x {FIELD_DT_S:g} s; its connected regions (8-neighbours) below
+  {SLOW_MPS:g} m/s lasting at least 20 s are slow regions (after Ji et al. 2024, arXiv 2409.00326, who identify
+  waves as regions of the speed field below a critical speed of 10-20 mph). A region is a wave when its
+  downstream front travels at least 100 m upstream, at a least-squares speed of -5 km/h or faster: a moving
+  jam, whose front propagates upstream, where a bottleneck queue's front stays at the bottleneck (Kerner and
+  Rehborn 1996). A wave that touches the standing queue merges with it and is not counted. Tests show the
+  measure on known cases: hand-made waves (counted, with their speed), steady congestion and free flow (quiet),
+  and a real SUMO disturbance (counted, moving upstream; no wave without it).
+- **Queue reach**: the largest distance from the bottleneck to the furthest-upstream vehicle slower than
+  {SLOW_MPS:g} m/s after the accident's start. **Regime**: "on the road" if at most one vehicle per lane ever
+  waits to enter; "reaches the entrance, clears" if more do but not at the end; else "still waiting at the end".
+- **Lane changes in a queue**: lane changes per vehicle made below {SLOW_MPS:g} m/s (a vehicle's lane differs from
+  its previous trajectory sample's while it moves that slowly): a change takes 4 s across both lanes, so one made
+  where the traffic stands holds up two queues.
+- **Verdicts**: the trained model is the unit of replication. Differences (cooperative minus non-cooperative) are
+  paired on evaluation seeds, and models of two alphas on their training seed; the 95% interval is a two-level
+  percentile bootstrap ({N_BOOT:,} resamples) that draws models, then evaluation seeds within each drawn model, so
+  it includes the spread between models (one level, over seeds, when neither policy is learned). "Helps" or
+  "hurts" only when the interval of the TTS difference excludes 0, and only with at least {MIN_MODELS} models;
+  otherwise "cannot decide", with about how many models (or seeds) the measured spread would need. Beside each
+  interval: for how many models the difference has the verdict's sign."""
+
+
+def demand_section(rows: pd.DataFrame, agg: pd.DataFrame, t_up: float, pairs: Sequence[tuple[str, str]],
+                   figures: dict[str, str]) -> str:  # fmt: skip
+    """The report's part for one demand: its regime, verdict lines, table and figures."""
+    at = rows[rows["t_up_s"] == t_up]
+    regimes = at["regime"].value_counts()
+    regime_text = ", ".join(f"{r}: {n} of {len(at)} runs" for r, n in regimes.items())
+    lines = [f"### T_up = {t_up:g} s ({3600 / t_up:.0f} veh/h)\n", f"Where the queue went: {regime_text}.\n"]
+    for a, b in pairs:
+        c = compare(rows, t_up, a, b)
+        if c is not None:
+            lines.append("- " + verdict_line(c))
+    lines.append("")
+    lines.append(report_table(agg[agg["t_up_s"] == t_up]))
+    spread = model_spread_table(rows, t_up)
+    if spread:
+        lines.append("\n" + spread)
+    for key, caption in (("fig5", "Fig. 5: flow against density from every loop and interval, one panel per policy"),
+                         ("recovery", "Speed before the bottleneck and vehicles waiting to enter, both per 30 s "
+                                      "bin (learned policies thick, the baselines dashed behind)")):  # fmt: skip
+        grey = "the other policies' points" if key == "fig5" else "the accident window"
+        name = figures.get(f"{key}_t{number_name(t_up)}")
+        if name:
+            lines.append(f"\n![{key}]({name})\n\n{caption}, T_up = {t_up:g} s, first seed (grey: {grey}).")
+    return "\n".join(lines)
+
+
+def write_report(root: Path, header: str, claim: str, sections: list[str], regimes: str, figures_text: str,
+                 gui_text: str, timing: str, versions_text: str) -> None:  # fmt: skip
+    """report.md from its parts (scenario1.write_outputs makes them)."""
+    text = f"""# Scenario I: accident bottleneck
+
+{header}
+
+## The paper's claim and the answer, per demand
+
+The paper (section IV.A, Fig. 4-5): with cooperation (alpha = 8) the stop-and-go waves disappear and the
+traffic recovers above 15 m/s after about 74,000 steps; without it (alpha = 0) the bottleneck remains. Here
+it is asked at every demand, of the learned models (alpha > 0 against alpha = 0) and of MOBIL's politeness
+(p > 0 against p = 0), on the headline measure total time spent, with system recovery and waves beside it.
+
+{claim}
+
+{chr(10).join(sections)}
+
+## Where the queue goes: the demand regimes
+
+{regimes}
+
+## Figures
+
+{figures_text}
+
+{gui_text}
+
+Every run folder (`runs/t<T_up>/<policy>[_m<training seed>]_seed<k>/`) also holds SUMO's own `detectors.xml`,
+`fcd.xml` (every 5 s) and `tripinfo.xml`, for SUMO's tools (`docs/sumo-tools.md` draws Fig. 4 from `fcd.xml`
+with `plot_trajectories.py`).
+
+## Definitions (chosen here; the paper gives none)
+
+{DEFINITIONS}
+
+## Deviations and choices
+
+{deviations_text(root)}
+{timing}
+
+Versions: {versions_text}.
+"""
+    (root / "report.md").write_text(text)
+
+
+PAPER_CLAIM = ("alpha 8 helps: the waves disappear and the road recovers above 15 m/s about 54,000 steps after the "
+               "accident starts (Fig. 4, one run, 90,000 steps); with alpha 0 the bottleneck remains")
+"""claim (a) as the paper states it, for the side-by-side table"""
+
+
+def default_study(root: Path, plan: Plan) -> Path | None:
+    """The default learner's scenario I beside a study of other presets: the folder the same plan with presets
+    ('default',) writes by default (results/scenario1 or results/scenario1_<K>models), when it holds a runs.csv and a
+    plan.json whose plan equals this one's but for the presets; None otherwise."""
+    if "default" in plan.presets:
+        return None
+    folder = root.parent / study_out(replace(plan, presets=("default",))).name
+    try:
+        recorded = json.loads((folder / "plan.json").read_text())["plan"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    mine = json.loads(json.dumps(to_dict(replace(plan, presets=("default",)))))
+    if not (folder / "runs.csv").is_file() or recorded != mine:
+        return None
+    return folder
+
+
+def side_by_side(rows: pd.DataFrame, plan: Plan, default_rows: pd.DataFrame, default_name: str) -> str:
+    """Claim (a) side by side: per demand, alpha 8 minus alpha 0 in total time spent for each learner preset of this
+    study and for the default learner of the study beside it (its own models, the same demands and evaluation seeds),
+    each with its 95% two-level interval, the count of models with a lower time and the verdict; then whether the
+    baselines' runs, which both studies make on the same seeds, agree."""
+    learners = [(pr, rows, f"`{pr}` (this study)") for pr in plan.presets]
+    learners.append(("default", default_rows, f"`default` ({default_name})"))
+    lines = ["| demand | the paper | " + " | ".join(name for _, _, name in learners) + " |",
+             "|" + "---|" * (len(learners) + 2)]  # fmt: skip
+    for t in plan.t_ups:
+        cells = []
+        for preset, frame, _ in learners:
+            c = compare(frame, t, model_label(preset, 8.0), model_label(preset, 0.0))
+            if c is None:
+                cells.append("-")
+                continue
+            mean, lo, hi = c["tts_veh_h"]
+            need = "" if verdict_word(c) != "cannot decide" else f"; {_what_it_takes(c).split('; ')[-1]}"
+            cells.append(f"{mean:+.1f} [{lo:+.1f}, {hi:+.1f}] veh-h, lower for {c['tts_fewer']} of "
+                         f"{counted(c['models'], 'model')}: **{verdict_word(c)}**{need}")  # fmt: skip
+        lines.append(f"| T_up {t:g} s | alpha 8 helps | " + " | ".join(cells) + " |")
+    keys = ["t_up_s", "policy", "seed"]
+    base = rows[rows["train_seed"].isna()].set_index(keys)["tts_veh_h"]
+    other = default_rows[default_rows["train_seed"].isna()].set_index(keys)["tts_veh_h"]
+    common = base.index.intersection(other.index)
+    same = int((base.loc[common].round(9) == other.loc[common].round(9)).sum())
+    return (f"The paper's claim: {PAPER_CLAIM}. Total time spent, alpha 8 minus alpha 0 (veh-h), with the 95% "
+            "two-level interval over models and evaluation seeds, for each learner on its own models:\n\n"
+            + "\n".join(lines)
+            + f"\n\nThe baselines' runs of the two studies (the same demands and evaluation seeds): {same} of "
+              f"{len(common)} give the same total time spent.")
+
+
+def comparison_pairs(plan: Plan, rows: pd.DataFrame) -> tuple[list[tuple[str, str]], float | None]:
+    """The verdict's pairs (cooperative, non-cooperative): every alpha > 0 against alpha = 0 per learner preset,
+    every MOBIL p > 0 against p = 0, then every learned policy against `keep` and MOBIL p = 0 (learned against
+    classical); and the first preset's cooperative alpha (the largest still changing lanes)."""
+    pairs = [(model_label(pr, x), model_label(pr, 0.0)) for pr in plan.presets for x in plan.alphas if x > 0]
+    if 0.0 in plan.mobil_ps:
+        pairs += [(label_for(f"mobil:p={number_name(x)}"), label_for("mobil:p=0")) for x in plan.mobil_ps if x > 0]
+    classical = [b for b in ("keep", label_for("mobil:p=0")) if b in set(rows["policy"])]
+    pairs += [(model_label(pr, x), b) for pr in plan.presets for x in plan.alphas for b in classical]
+    coop = cooperative_alpha(rows, {x: model_label(plan.presets[0], x) for x in plan.alphas})
+    return pairs, coop
+
+
+def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], timing: str) -> None:
+    """summary.csv, the figures and report.md from the table of runs."""
+    from coopsumo.report.analysis import flow_density, insertion_backlog, read_detectors, section_speed_bins
+    from coopsumo.report.bottleneck import REGIMES
+    from coopsumo.report.plots import (
+        demand_figure,
+        difference_figure,
+        flow_density_figure,
+        recovery_figure,
+    )
+
+    agg = aggregate(rows)
+    agg.to_csv(root / "summary.csv", index=False)
+    pairs, coop = comparison_pairs(plan, rows)
+    first = plan.seeds[0]
+    cfg0 = runs[0].cfg
+    first_model = plan.train_seeds[0]
+    shown_runs = [r for r in runs if r.train_seed in (None, first_model)]  # the figures show the first model
+    learned = sorted({r.label for r in runs if r.train_seed is not None})
+    acc, dt = cfg0.accident, cfg0.control.dt_s
+    start_s, end_s = acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt
+    window = (start_s, end_s)
+    figures: dict[str, str] = {}
+    for name in [p.name for p in root.glob("fig*.png")]:
+        (root / name).unlink()  # figures of an earlier study with other demands must not stay beside this one
+    for t_up in plan.t_ups:
+        firsts = [(r.label, r.out) for r in shown_runs if r.seed == first and r.t_up == t_up]
+        fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, out in firsts}
+        tname = number_name(t_up)
+        figures[f"fig5_t{tname}"] = flow_density_figure(fd, root / f"fig5_flow_density_t{tname}.png").name
+        speeds, backlogs = {}, {}
+        for lab, out in firsts:
+            traj = pd.read_parquet(out / "trajectories.parquet", columns=["time_s", "vid", "pos_m", "speed_mps"])
+            speeds[lab] = section_speed_bins(traj, acc.x_m - 200.0, acc.x_m, 0.0, 30.0)
+            backlogs[lab] = insertion_backlog(traj, t_up)
+        figures[f"recovery_t{tname}"] = recovery_figure(speeds, backlogs, root / f"fig_recovery_t{tname}.png",
+                                                         window, RECOVERY_MPS, learned).name  # fmt: skip
+    tts_table = demand_table(rows, "tts_veh_h")
+    demand_figure(tts_table, "tts_veh_h", "total time spent (veh-h, log scale)", root / "fig_tts_demand.png")
+    vs_classical = [(a, b) for a, b in pairs if a in learned and b not in learned]  # the other panel's pairs
+    coop_pairs = [p for p in pairs if p not in vs_classical]
+    difference_figure({"cooperative against non-cooperative": difference_table(rows, coop_pairs),
+                       "learned against classical": difference_table(rows, vs_classical)},
+                      "total time spent, a - b (veh-h)", root / "fig_tts_difference.png")  # fmt: skip
+    noncoop = model_label(plan.presets[0], 0.0)
+    shown_alpha = coop if coop is not None else max(plan.alphas)
+    shown = [noncoop] + ([model_label(plan.presets[0], shown_alpha)] if shown_alpha > 0 else [])
+    fig4_t, windows = fig4(root, "fig4_trajectories.png", plan, rows, runs, shown, FIG4_LANE)
+    gui_label = model_label(plan.presets[0], GUI_ALPHA if GUI_ALPHA in plan.alphas else max(plan.alphas))
+    gui_t = min(plan.t_ups)
+    gui = next(r for r in shown_runs if r.label == gui_label and r.seed == first and r.t_up == gui_t)
+    gui_text = gui_section(root, gui.out, str(gui.out.relative_to(root / "runs")), gui.cfg)
+
+    header = (
+        f"Profile `{plan.profile}`: {plan.lanes} lanes; demands T_up = {', '.join(f'{t:g}' for t in plan.t_ups)} s "
+        f"({', '.join(f'{3600 / t:.0f}' for t in plan.t_ups)} veh/h); {plan.steps} steps ({plan.steps * dt:.0f} s) "
+        f"per run; the accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps "
+        f"(t = {start_s:.0f}-{end_s:.0f} s), stuck ratio decaying 1 -> 0. Models (learner presets "
+        f"{', '.join(f'`{p}`' for p in plan.presets)}; alpha in {{{', '.join(f'{x:g}' for x in plan.alphas)}}}) "
+        f"{training_text(plan)}; **{counted(len(plan.train_seeds), 'model')} per alpha** (training seeds "
+        f"{', '.join(map(str, plan.train_seeds))}), each evaluated greedily on "
+        f"**{counted(len(plan.seeds), 'evaluation seed')}** "
+        f"({', '.join(map(str, plan.seeds))}), which no model saw; every policy meets the same demand on the same "
+        f"seeds. Values in the tables: mean ± standard deviation over runs ({len(plan.train_seeds)} x "
+        f"{len(plan.seeds)} for a learned policy, {len(plan.seeds)} for a baseline); Fig. 4, Fig. 5 and the "
+        f"recovery figures show the first model (training seed {plan.train_seeds[0]})."
+    )
+    if coop is None:
+        claim = ("No model with alpha > 0 makes even 10% of alpha = 0's lane changes here: every cooperative model "
+                 "behaves like `keep`.")  # fmt: skip
+    else:
+        claim = (f"The cooperative model that is not simply `keep`: **alpha = {coop:g}** (the largest alpha whose "
+                 f"model makes at least 10% of alpha = 0's lane changes per vehicle over every accident run).")
+    sections = [demand_section(rows, agg, t, pairs, figures) for t in plan.t_ups]
+    if plan.profile == Plan.full().profile:  # the paper's horizon: recovery steps per model, waves on lane 1
+        sections.append(horizon_outputs(root, plan, rows, runs, FIG4_LANE))
+    claim += "\n\n" + verdict_table(rows, plan.t_ups, pairs)
+    beside = default_study(root, plan)
+    if beside is not None:
+        claim += ("\n\n### Claim (a) side by side with the default learner\n\n"
+                  + side_by_side(rows, plan, pd.read_csv(beside / "runs.csv"), f"results/{beside.name}"))
+    regimes = regime_table(rows, REGIMES)
+    figures_text = (
+        f"![total time spent](fig_tts_demand.png)\n\nTotal time spent against the inflow, per policy: mean over "
+        f"models and evaluation seeds with its 95% two-level bootstrap interval (models, then seeds; seeds alone "
+        f"for a baseline). On this log scale a difference of a few veh-h cannot be seen: the next figure shows the "
+        f"differences themselves.\n\n![difference in total time spent](fig_tts_difference.png)\n\nThe differences "
+        f"the verdicts judge: total time spent a minus b (veh-h, linear scale) per demand, with its 95% two-level "
+        f"interval: the numbers of the verdict table. Below the zero line a spends less time. One panel per kind of "
+        f"pair: cooperative against non-cooperative, learned against classical.\n\n"
+        f"![Fig. 4](fig4_trajectories.png)\n\nFig. 4 as in the paper: "
+        f"partial trajectories on SUMO lane {FIG4_LANE} (the paper's \"lane 1\"), one line per vehicle coloured by "
+        f"speed, at T_up = {fig4_t:g} s (the demand where `{shown[-1]}` and `{noncoop}` differ most in total time "
+        f"spent), the first model of each (training seed {first_model}), evaluation seed {first}: "
+        f"{WINDOW_S / 60:.0f} minutes around the jam's onset "
+        f"({windows['onset'][0]:.0f}-{windows['onset'][1]:.0f} s) and around its dissolution "
+        f"({windows['dissolution'][0]:.0f}-{windows['dissolution'][1]:.0f} s); dashed: the bottleneck."
+    )
+    write_report(root, header, claim, sections, regimes, figures_text, gui_text, timing, json.dumps(versions()))
+    print(closing_table(agg, plan.t_ups[-1]))
+
+
+def closing_table(agg: pd.DataFrame, t_up: float) -> str:
+    """The console's closing table: one demand's table of every policy, headed by which demand it shows."""
+    return (f"scenario1: every policy at T_up = {t_up:g} s ({3600 / t_up:,.0f} veh/h), the study's last demand; mean "
+            f"± sd over runs (every demand: report.md)\n" + report_table(agg[agg["t_up_s"] == t_up]))
+
+
+def training_text(plan: Plan) -> str:
+    """How the models were trained: the learner's own training demand (the default's mix of demands and
+    accidents, or free flow at one demand)."""
+    from coopsumo.config import DQN_PRESETS
+
+    dqn = DQN_PRESETS[plan.presets[0]]
+    t_ups = ", ".join(f"{t:g}" for t in dqn.train_t_ups)
+    where = (f"episodes of {dqn.episode_steps:,} steps at T_up drawn from {t_ups} s, {dqn.accident_share:.0%} of "
+             "them with an accident" if dqn.train_t_ups
+             else f"free flow at T_up = {plan.train_t_up_s:g} s")  # fmt: skip
+    return f"trained {plan.train_steps:,} steps ({where})"
+
+
+def timing_text(plan: Plan, runs: list[Run], model_files: list[Path], n_train: int, n_specs: int, wall: float,
+                run_cpu: dict[float, list[float]]) -> str:  # fmt: skip
+    return timing_note(wall, len(model_files) - n_train, len(model_files), len(runs) - (n_specs - n_train), len(runs),
+                       [m.parent / "train_summary.json" for m in model_files], run_cpu)  # fmt: skip

@@ -1,0 +1,314 @@
+"""`coopsumo scenario1` (`make scenario1`): the accident-bottleneck study of section IV.A, across demands.
+
+1. takes one model per learner preset, alpha and training seed (default 5 seeds) from the model store
+   (studies/engine/model_store.py), training those it does not hold;
+2. runs every model and every baseline (keep, greedy, MOBIL at every politeness, SUMO's own models) through the
+   accident at every demand T_up, on the same evaluation seeds;
+3. writes results/scenario1/: run folders runs/t<T_up>/<policy>[_m<training seed>]_seed<k>/ (with SUMO's
+   detectors.xml, fcd.xml and tripinfo.xml), runs.csv, summary.csv, the figures and report.md; with a display,
+   gui_jam.png: sumo-gui's view of the jam at the bottleneck, replayed through TraCI.
+
+The plan (sizes, configurations, names) is scenario1_plan, the measures scenario1_measures, the report
+scenario1_report; this module runs the plan's cells on the shared runner and is the command.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from coopsumo.config import DQN_PRESETS, ControlConfig, OutputConfig, RoadConfig, to_dict
+from coopsumo.policy_spec import model_file, split_dqn_spec
+from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
+from coopsumo.studies.engine.records import CellRecords, failed_exit
+from coopsumo.studies.engine.run_folders import reusable_run, study_root
+from coopsumo.studies.engine.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
+from coopsumo.studies.scenario1.measures import run_metrics
+from coopsumo.studies.scenario1.plan import (
+    TRAIN_SEEDS,
+    Plan,
+    Run,
+    accident_config,
+    label_for,
+    model_label,
+    model_name,
+    run_folder,
+    study_out,
+    train_config,
+)
+from coopsumo.studies.scenario1.report import counted, timing_text, write_outputs
+from coopsumo.validation import (
+    MAX_STEPS,
+    MOBIL_LIMITS,
+    alpha_list,
+    default_model_out,
+    distinct_list,
+    integer,
+    model_out_dir,
+    name_list,
+    seed_count,
+    steps,
+    t_up_list,
+    train_seed_list,
+    workers,
+)
+
+# -- cells run by the shared runner (coopsumo.studies.engine.runner), one per worker process -----------------------
+RECORDS = CellRecords(("key", "kind", "label", "seed", "t_up_s", "out", "after"))
+"""a cell's record: a training ("train") or an accident run ("run"), its folder under the study's root"""
+failed_record = RECORDS.failed
+
+
+def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
+    """Train one model ("train") or run one policy through the accident ("run") into ROOT/<out>; never raises."""
+    body = _train_cell if spec["kind"] == "train" else _run_cell
+    return RECORDS.run(spec, lambda record: body(spec, Path(root) / spec["out"], record))
+
+
+def _train_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
+    """Train the model in the model store (an interrupted training continues exactly); out links to it."""
+    import torch
+
+    from coopsumo.studies.engine.model_store import train_shared
+
+    torch.set_num_threads(1)
+    record["summary"] = train_shared(spec["config"], out, Path(spec["store"]))[0]
+
+
+def _run_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
+    """One accident run into its run folder, written atomically (a killed run leaves no half folder)."""
+    import torch
+
+    from coopsumo.studies.engine.run_folders import simulate_into
+
+    torch.set_num_threads(1)
+    record["summary"] = simulate_into(spec["config"], out, spec["out"], trajectory_every=spec["trajectory_every"],
+                                      outputs=OutputConfig(**spec["outputs"]), atomic=True)  # fmt: skip
+
+
+def _alpha_list(text: str) -> tuple[float, ...]:
+    """--alphas: comma-separated alphas (validation.alpha_list; UsageError otherwise); 0 is always part of the study."""
+    return tuple(sorted({0.0, *alpha_list("--alphas", text)}))
+
+
+def _preset_list(text: str) -> tuple[str, ...]:
+    return name_list("--preset", text, tuple(DQN_PRESETS))
+
+
+PROFILE_FLAGS = {"": Plan(), " --quick": Plan.quick(), " --full": Plan.full()}
+"""the profiles as the command line picks them, and their plans: --help states each default from these"""
+
+
+def by_profile(show: Any) -> str:
+    """An option's default as --help states it, from the plans: "5; 1 --quick; 5 --full", or one value when every
+    profile has the same."""
+    values = {flag: str(show(plan)) for flag, plan in PROFILE_FLAGS.items()}
+    if len(set(values.values())) == 1:
+        return values[""]
+    return "; ".join(f"{value}{flag}" for flag, value in values.items())
+
+
+def _numbers(values: tuple[float, ...]) -> str:
+    return ",".join(f"{x:g}" for x in values)
+
+
+def build_parser() -> Parser:
+    p = Parser(prog="coopsumo scenario1", description="Scenario I: the accident bottleneck study.")
+    quick, full = Plan.quick(), Plan.full()
+    size = p.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true",
+                      help=f"{len(quick.t_ups)} demands, {counted(len(quick.seeds), 'evaluation seed')}, "
+                           f"{counted(len(quick.train_seeds), 'model')} per alpha, small step counts: a few minutes "
+                           "(models trained into the model store too)")  # fmt: skip
+    size.add_argument("--full", action="store_true",
+                      help=f"the paper's accident ({full.steps:,} steps, {full.accident_steps:,} of them decaying), "
+                           f"{len(full.t_ups)} demands, {len(full.seeds)} evaluation seeds")  # fmt: skip
+    p.add_argument("--seeds", type=seed_count, default=None,
+                   help=f"number of evaluation seeds, 1..N (default: {by_profile(lambda plan: len(plan.seeds))})")
+    p.add_argument("--train-seeds", default=None,
+                   help=f"models per alpha: a count K (training seeds {FIRST_TRAIN_SEED}, {FIRST_TRAIN_SEED + 1}, ...) "
+                        "or a comma-separated list of training seeds "
+                        f"(default: {by_profile(lambda plan: len(plan.train_seeds))})")  # fmt: skip
+    p.add_argument("--t-up", dest="t_ups", default=None,
+                   help="demands: T_up (s) of the accident runs, comma-separated, e.g. 3,1.5,1 "
+                        f"(default: {by_profile(lambda plan: _numbers(plan.t_ups))})")  # fmt: skip
+    p.add_argument("--mobil-p", dest="mobil_ps", default=None,
+                   help="MOBIL politeness values, comma-separated "
+                        f"(default: {by_profile(lambda plan: _numbers(plan.mobil_ps))})")  # fmt: skip
+    k = len(TRAIN_SEEDS)
+    p.add_argument("--out", type=model_out_dir, default=None,
+                   help=f"results folder (default: {by_profile(study_out)}; with --train-seeds K other than {k}: "
+                        "results/scenario1_<K>models, with --preset: results/scenario1_<presets>[_<K>models]; only "
+                        "the default profile's report is committed)")  # fmt: skip
+    p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
+    add_backend_flags(p)
+    p.add_argument("--train-steps", type=steps, default=None,
+                   help=f"training steps of each model (default: {by_profile(lambda plan: f'{plan.train_steps:,}')})")
+    p.add_argument("--steps", type=integer(10, MAX_STEPS), default=None,
+                   help="steps of each accident run; the accident window scales with it "
+                        f"(default: {by_profile(lambda plan: f'{plan.steps:,}')})")  # fmt: skip
+    p.add_argument("--alphas", default=None,
+                   help="alphas to train and run, comma-separated, 0 always included "
+                        f"(default: {by_profile(lambda plan: _numbers(plan.alphas))})")  # fmt: skip
+    p.add_argument("--preset", "--presets", dest="presets", default=None,
+                   help=f"learner presets, comma-separated: {', '.join(DQN_PRESETS)}, or several side by side, e.g. "
+                        f"default,alpha_only (default: {by_profile(lambda plan: ','.join(plan.presets))})")  # fmt: skip
+    return p
+
+
+def plan_from_args(args: Any) -> Plan:
+    """The plan of the chosen profile with the command line's overrides applied and checked (UsageError)."""
+    plan = Plan.quick() if args.quick else Plan.full() if args.full else Plan()
+    if args.seeds is not None:
+        if args.seeds < 1:
+            raise UsageError(f"seeds must be >= 1, got {args.seeds}")
+        plan = replace(plan, seeds=tuple(range(1, args.seeds + 1)))
+    if args.train_seeds is not None:
+        plan = replace(plan, train_seeds=train_seed_list("--train-seeds", args.train_seeds, FIRST_TRAIN_SEED,
+                                                         plan.seeds))  # fmt: skip
+    if args.t_ups is not None:
+        plan = replace(plan, t_ups=t_up_list("--t-up", args.t_ups, ControlConfig().dt_s))
+    if args.mobil_ps is not None:
+        plan = replace(plan, mobil_ps=distinct_list("--mobil-p", args.mobil_ps, low=0.0, high=MOBIL_LIMITS["p"][1]))
+    if args.train_steps is not None:
+        if args.train_steps < 1:
+            raise UsageError(f"train-steps must be >= 1, got {args.train_steps}")
+        plan = replace(plan, train_steps=args.train_steps)
+    if args.steps is not None:
+        if args.steps < 10:
+            raise UsageError(f"steps must be >= 10, got {args.steps}")
+        scale = args.steps / plan.steps
+        plan = replace(plan, steps=args.steps, accident_start=max(int(plan.accident_start * scale), 1),
+                       accident_steps=max(int(plan.accident_steps * scale), 1))  # fmt: skip
+    if args.alphas is not None:
+        plan = replace(plan, alphas=_alpha_list(args.alphas))
+    if args.presets is not None:
+        plan = replace(plan, presets=_preset_list(args.presets))
+    return plan
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        plan = plan_from_args(args)
+        if args.workers < 1:
+            raise UsageError(f"workers must be >= 1, got {args.workers}")
+        check_backend(args.backend, args.address)
+        if args.out is None:
+            args.out = default_model_out(study_out(plan))
+        if (other := recorded_profile(args.out)) not in (None, plan.profile):
+            raise UsageError(f"{args.out} holds the {other} profile's study; the {plan.profile} profile writes into "
+                             f"its own folder (default {study_out(plan)})")
+        with study_root(args.out, "scenario1"):  # path, lock, ownership and marker of the results folder
+            return run_study(plan, args.out, args.workers, args.backend, args.address)
+
+    return run_cli("scenario1", body)
+
+
+def recorded_profile(root: Path) -> str | None:
+    """The profile of the study in root (its plan.json), or None when there is none or it cannot be read."""
+    try:
+        profile = json.loads((root / "plan.json").read_text())["plan"]["profile"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return profile if isinstance(profile, str) else None
+
+
+def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "local", address: str | None = None) -> int:
+    start = time.perf_counter()
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write {root}: {err.strerror}") from None
+    learners = {preset: to_dict(DQN_PRESETS[preset]) for preset in plan.presets}  # the report's learner settings
+    write_json(root / "plan.json", {"plan": to_dict(plan), "learners": learners, "versions": versions()})
+
+    # 1. cells: trainings first (the longest chains), each model's accident runs as soon as it exists, then
+    #    the baselines; models come from the model store (shared with other studies), finished runs with the
+    #    same configuration are reused
+    store = store_for(root)
+    specs: list[dict[str, Any]] = []
+    models: dict[tuple[str, float, int], tuple[Path, str]] = {}  # (preset, alpha, train seed) -> (model.pt, key)
+    for preset in plan.presets:
+        for alpha in plan.alphas:
+            for train_seed in plan.train_seeds:
+                tcfg = train_config(plan, alpha, preset, train_seed)
+                name = model_name(preset, alpha, train_seed)
+                models[preset, alpha, train_seed] = (root / "models" / name / "model.pt", f"train_{name}")
+                if stored_model(to_dict(tcfg), store, root / "models" / name) is not None:
+                    continue
+                specs.append({"key": f"train_{name}", "kind": "train", "label": model_label(preset, alpha),
+                              "seed": train_seed, "out": f"models/{name}", "config": to_dict(tcfg),
+                              "store": str(store)})  # fmt: skip
+    n_train = len(specs)
+    print(f"scenario1: {len(models) - n_train} of {len(models)} models from the model store {store}", file=sys.stderr)
+    retrained = {spec["key"] for spec in specs}
+    policies: list[tuple[str, str, str | None, int | None]] = [
+        (f"dqn:{path}", model_label(preset, alpha), key, k) for (preset, alpha, k), (path, key) in models.items()]
+    policies += [(b, label_for(b), None, None) for b in plan.baseline_policies()]
+    runs: list[Run] = []
+    for policy, label, after, model_seed in policies:
+        for t_up in plan.t_ups:
+            for seed in plan.seeds:
+                cfg = accident_config(plan, policy, seed, t_up)
+                folder = run_folder(label, seed, t_up, model_seed)
+                out = root / folder
+                runs.append(Run(label, t_up, seed, out, cfg, model_seed))
+                model = Path(model_file(split_dqn_spec(policy)[0])) if policy.startswith("dqn:") else None
+                if after not in retrained and reusable_run(out, to_dict(cfg), plan.outputs(), model):
+                    continue
+                specs.append({"key": runs[-1].key, "kind": "run",
+                              "label": label, "seed": seed, "t_up_s": t_up, "out": folder, "after": after,
+                              "config": to_dict(cfg), "trajectory_every": plan.trajectory_every,
+                              "outputs": to_dict(plan.outputs())})  # fmt: skip
+    n_cells = len(models) + len(runs)
+    if specs:
+        from coopsumo.sim.network import build_net
+
+        build_net(RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s))  # once here, not in the workers
+        backend = make_backend(backend_name, workers, address, run_cell)
+        try:
+            with sigterm_interrupts():
+                counts = execute(specs, root.resolve(), backend, n_cells, n_cells - len(specs), progress=True,
+                                 failed_record=failed_record,
+                                 desc=f"{n_train} trainings, {len(specs) - n_train} accident runs")  # fmt: skip
+        finally:
+            backend.close()
+        if counts["failed"]:
+            failed = [s["key"] for s in specs if json.loads((root / "cells" / f"{s['key']}.json").read_text())
+                      ["status"] != "ok"]  # fmt: skip
+            return failed_exit("scenario1", failed, len(specs), root)
+
+    # 2. tables, figures, report
+    sample_s = plan.trajectory_every * ControlConfig().dt_s
+    order = {lab: i for i, lab in enumerate(dict.fromkeys(r.label for r in runs))}
+    rows = pd.DataFrame([{"t_up_s": r.t_up, "policy": r.label, "train_seed": r.train_seed, "seed": r.seed,
+                          **run_metrics(r.out, r.cfg, sample_s)} for r in runs])  # fmt: skip
+    rows["train_seed"] = rows["train_seed"].astype("Int64")  # empty for a baseline
+    rows = rows.sort_values(["t_up_s", "policy", "train_seed", "seed"], ascending=[False, True, True, True],
+                            key=lambda c: c.map(order) if c.name == "policy" else c, kind="stable",
+                            ignore_index=True)  # fmt: skip
+    rows.to_csv(root / "runs.csv", index=False)
+    wall = time.perf_counter() - start
+    run_cpu: dict[float, list[float]] = {t: [] for t in plan.t_ups}
+    for r in runs:
+        try:
+            run_cpu[r.t_up].append(float(json.loads((root / "cells" / f"{r.key}.json").read_text())["cell_cpu_s"]))
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # a run reused from before cell records: no CPU time recorded
+    timing = timing_text(plan, runs, [path for path, _ in models.values()], n_train, len(specs), wall, run_cpu)
+    write_outputs(root, plan, rows, runs, timing)
+    print(f"scenario1: done in {(time.perf_counter() - start) / 60:.1f} min; report: {root / 'report.md'}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,519 @@
+"""`coopsumo scenario2` (`make scenario2`): the alpha sweep of section IV.B (paper Fig. 6).
+
+The default profile `full` (and `paper`) trains one model per alpha, lane count and training seed on that lane
+count's demands and drives it at every condition of the lane count (`check` trains one alpha-conditioned network per
+lane count and seed beside per-alpha models, and drives it at every alpha); `keep`,
+`greedy` and MOBIL run on the same evaluation seeds, every speed is measured once the road is full, and the report
+(scenario2_gate_report) judges per condition whether the learner is fit to be asked (the gate) before alpha*'s
+trends are fitted. The profiles `quick` and `tiny` are the per-alpha sweep described below.
+
+For every condition (lane count, upstream departure interval T_up) and every lane-change
+penalty alpha, a model is trained in free flow per training seed (taken from the model store when
+it holds it) and evaluated greedily on the same condition on every evaluation seed, demands no
+training saw; a model's value is its mean over them. alpha* is the alpha with the best mean
+travelling speed over models; its uncertainty is given by per-model win shares and a bootstrap
+over models. A plane alpha* = b0 + b1 T_up + b2 lanes is fitted over the conditions.
+
+With `--policies dqn,mobil`, MOBIL cells (lanes, T_up, politeness p, evaluation seed) are added: no
+training, one run of `mobil:p=P` on the same condition and step count as a DQN model's evaluation on
+that seed. p* is the p with the best mean speed over evaluation seeds; the report puts alpha* and p*
+side by side.
+
+Every (lanes, T_up, alpha, seed) is one "cell", run in its own worker process (libsumo allows
+one SUMO per process), on a local process pool or on Ray. Each finished cell is written
+atomically to OUT/cells/<key>.json the moment it ends; a rerun skips finished cells and
+retries failed ones; a training interrupted by SIGTERM/SIGINT is resumed from its checkpoint.
+
+Outputs in OUT (default results/scenario2): sweep.json, cells/, train/<key>/, evals/<key>/, runs.csv, evals.csv,
+alpha_star.csv, fig6_alpha_star_lanes.png, fig6_speed_heatmap.png, report.md; with MOBIL cells also
+mobil/<key>/ and mobil_p_star.csv.
+
+On a Ray cluster (--address), every node needs this package (same versions) and OUT must be on a
+filesystem shared by all nodes: the workers write the training folders, the driver the cell records.
+
+The plan (profiles, cells, keys) is scenario2_plan, the measures scenario2_measures, the report
+scenario2_report; this module runs the plan's cells on the shared runner and is the command.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
+from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.studies.engine.model_store import link_problem, store_for, train_shared
+from coopsumo.studies.engine.records import (
+    CellRecords,
+    cell_path,
+    checked_record,
+    failed_exit,
+    pool_summaries,
+    read_record,
+    reusable_keys,
+)
+from coopsumo.studies.engine.run_folders import default_out, simulate_into, study_root
+from coopsumo.studies.engine.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
+from coopsumo.studies.scenario2.measures import KEY_COLUMNS, evals_table, runs_table
+from coopsumo.studies.scenario2.plan import (
+    CLASSICAL,
+    CRITERION,
+    EVAL_SEED_BASE,
+    FULL_ROAD,
+    NOMINAL_CAPACITY_VEH_H_PER_LANE,
+    POLICIES,
+    PROFILES,
+    Profile,
+    at_condition,
+    cell_specs,
+    eval_seeds,
+    lane_learner,
+    lane_train_config,
+)
+from coopsumo.studies.scenario2.report import condition_label, write_outputs
+from coopsumo.validation import (
+    MAX_T_UP_S,
+    MOBIL_LIMITS,
+    alpha_list,
+    default_model_out,
+    integer,
+    min_t_up_s,
+    model_out_dir,
+    name_list,
+    number_list,
+    number_name,
+    seed_count,
+    split_list,
+    steps,
+    t_up_note,
+    workers,
+)
+from coopsumo.validation import parse_number as parse_number  # '1/8' -> 0.125, kept in this module's interface
+
+MAX_LANE_DEMANDS = 10
+"""a lane network's training demands (DQNConfig.train_t_ups holds at most 10)"""
+REQUIRED_SUMMARY = (CRITERION, "collisions", "teleports")
+"""summary values a stored cell record must hold as finite numbers to be reused (records.record_problem)"""
+RECORD_KEYS = (*KEY_COLUMNS, "policy", "p")
+"""coordinates copied from a cell's spec into its record: policy "dqn" (p None) or "mobil" (alpha None)"""
+
+
+def _cell_folder(spec: dict[str, Any]) -> dict[str, Any]:
+    """A cell's folder in its record: mobil/<key>/ (run_dir) for a MOBIL cell, baselines/<key>/ for keep and greedy,
+    train/<key>/ (train_dir) for a DQN's (train/<train_key>/ for a conditioned one: the training it shares)."""
+    if spec.get("policy") in CLASSICAL:
+        return {"run_dir": f"{_classical_folder(spec)}/{spec['key']}"}
+    return {"train_dir": f"train/{spec.get('train_key', spec['key'])}"}
+
+
+def _classical_folder(spec: dict[str, Any]) -> str:
+    return "mobil" if spec.get("policy") == "mobil" else "baselines"
+
+
+RECORDS = CellRecords(RECORD_KEYS, ("train_dir", "resumed_from_step", "train_summary", "eval_summaries"),
+                      _cell_folder)  # fmt: skip
+"""a cell's record: its coordinates and folder, then what its run measured"""
+failed_record = RECORDS.failed
+
+
+# -- one cell (runs in a worker process) ------------------------------------------------------------
+def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
+    """Run one cell and return its record (never raises on failure).
+
+    A DQN cell takes (or trains) its model in ROOT/train/<key>/ (a matching checkpoint there is resumed
+    instead of starting afresh) and evaluates it in ROOT/evals/<key>/; a MOBIL cell runs one simulation into
+    ROOT/mobil/<key>/, a keep or greedy cell into ROOT/baselines/<key>/. status "ok" (with the evaluation summary),
+    "failed" (with the error) or "interrupted" (SIGTERM/SIGINT: a checkpoint was saved when training, the cell is
+    to be run again).
+    """
+    cell = _run_classical if spec.get("policy") in CLASSICAL else _run_dqn
+    return RECORDS.run(spec, lambda record: cell(spec, Path(root), record))
+
+
+def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    """Take the cell's model from the model store (ROOT/train/<key>/ links to it, or for a conditioned cell
+    ROOT/train/<train_key>/, the training its alphas share; trained there when missing, a matching checkpoint
+    resumed), then evaluate it greedily on every evaluation seed; fills `record`. A stop by signal ->
+    KeyboardInterrupt."""
+    name = spec.get("train_key", spec["key"])
+    out = root / "train" / name
+    _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
+    _evaluate(spec, out, root / "evals" / spec.get("evals_key", name), record)
+
+
+def _evaluate(spec: dict[str, Any], train_dir: Path, evals_dir: Path, record: dict[str, Any]) -> None:
+    """Drive the model of train_dir greedily on each of the cell's evaluations (one per evaluation seed) into
+    evals_dir/eval_[a<alpha>_]s<seed>/; the record's summary pools them (records.pool_summaries), its
+    eval_summaries keeps each. An evaluation's summary also holds its mean loop flow and occupancy (SUMO's
+    detectors.xml), from which `alpha=adaptive`'s rule is fitted; with trajectory_every_steps in the cell's
+    configuration, its full-road speed too (full_road_measures)."""
+    from coopsumo.config import sim_config_from_dict
+
+    conditioned = spec.get("conditioned", "train_key" in spec)
+    every = spec["config"].get("trajectory_every_steps", 0)
+    summaries = []
+    for config in spec["config"]["evals"]:
+        ev = sim_config_from_dict(config)
+        policy = f"dqn:{train_dir / 'model.pt'}" + (f",alpha={ev.reward.alpha:g}" if conditioned else "")
+        name = (f"eval_a{number_name(ev.reward.alpha)}_s{ev.seed}" if conditioned else f"eval_s{ev.seed}")
+        summary = evaluate_model(to_dict(replace(ev, policy=policy)), evals_dir / name, spec["key"],
+                                 **({"trajectory_every": every} if every else {}))  # fmt: skip
+        summaries.append({**summary, "eval_seed": ev.seed})
+    record["eval_summaries"] = summaries
+    record["summary"] = {k: v for k, v in pool_summaries(summaries).items() if k != "eval_seed"}
+    if every and any(s.get(FULL_ROAD) is None for s in summaries):  # one evaluation without it: the model has none
+        record["summary"].update({FULL_ROAD: None, "full_road_from_s": None})
+    record["train_summary"] = json.loads((train_dir / "train_summary.json").read_text())
+
+
+def evaluate_model(config: dict[str, Any], out: Path, label: str, trajectory_every: int = 0) -> dict[str, Any]:
+    """One greedy evaluation (a SimConfig dict whose policy names the model) into out: its summary, with the run's
+    mean loop flow (veh/h per lane) and occupancy (%) from SUMO's detectors.xml; with trajectory_every, trajectories
+    sampled every that many steps and the full-road speed measured on them (full_road_measures)."""
+    from coopsumo.report.analysis import read_detectors
+
+    summary = simulate_into(config, out, label, trajectory_every=trajectory_every)
+    det = read_detectors(out / "detectors.xml")
+    summary.update(loop_flow_veh_h_per_lane=round(float(det["flow_veh_h"].mean()), 2),
+                   loop_occupancy_pct=round(float(det["occupancy_pct"].mean()), 4))  # fmt: skip
+    if trajectory_every:
+        summary.update(full_road_measures(out))
+    return summary
+
+
+def full_road_measures(out: Path) -> dict[str, float | None]:
+    """The run folder's full-road speed and when it starts (scenario2_gate.full_road_speed on its
+    trajectories.parquet); None each when the run ended before the first vehicle inserted had left the road."""
+    from coopsumo.studies.scenario2.gate import full_road_speed
+
+    speed, start = full_road_speed(pd.read_parquet(out / "trajectories.parquet", columns=["time_s", "vid",
+                                                                                          "speed_mps"]))
+    if not math.isfinite(speed):
+        return {FULL_ROAD: None, "full_road_from_s": None}
+    return {FULL_ROAD: round(speed, 6), "full_road_from_s": round(start, 3)}
+
+
+def _run_classical(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+    """Run a MOBIL, keep or greedy cell (no training: one simulation) into ROOT/mobil/<key>/ or
+    ROOT/baselines/<key>/; fills `record`. Its configuration is the run's SimConfig, or {"run": SimConfig,
+    "trajectory_every_steps": K} when the full-road speed is measured."""
+    config, every = spec["config"].get("run", spec["config"]), spec["config"].get("trajectory_every_steps", 0)
+    out = root / _classical_folder(spec) / spec["key"]
+    record["summary"] = simulate_into(config, out, spec["key"], trajectory_every=every)
+    if every:
+        record["summary"].update(full_road_measures(out))
+
+
+def repointed(root: Path, specs: list[dict[str, Any]]) -> set[str]:
+    """The DQN cells of `specs` (records otherwise reusable) whose train/ link no longer leads to their model
+    (model_store.link_problem: a user pointed it at another model): the record stands for a model the link does not
+    show, so the cell is run again (it links its model back), each with one line saying why."""
+    keys = set()
+    for spec in specs:
+        if spec.get("policy") in CLASSICAL:
+            continue
+        link = root / "train" / spec.get("train_key", spec["key"])
+        if problem := link_problem(link, spec["config"]["train"]):
+            print(f"scenario2: cell {spec['key']}: {link} {problem}; rerunning it", file=sys.stderr)
+            keys.add(spec["key"])
+    return keys
+
+
+def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers: int = 1,
+              address: str | None = None, progress: bool = True, n_boot: int = 1000) -> dict[str, Any]:  # fmt: skip
+    """Run (or finish) the sweep in `root` and write every output; returns the sweep.json content."""
+    start = time.perf_counter()
+    root = root.resolve()
+    try:
+        (root / "cells").mkdir(parents=True, exist_ok=True)
+        (root / "train").mkdir(exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
+    specs = cell_specs(profile)
+    done_keys = reusable_keys(root, specs, "scenario2", REQUIRED_SUMMARY)
+    done_keys -= repointed(root, [s for s in specs if s["key"] in done_keys])
+    done = [s for s in specs if s["key"] in done_keys]
+    todo = [s for s in specs if s["key"] not in done_keys]
+    retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
+    # the busiest roads first and the short runs of MOBIL, keep and greedy last: a shorter tail; conditioned cells
+    # that start a training (their first alpha) before those that find it done, so that two workers train two
+    # models at once (a lane network's other cells wait for it: "after")
+    first_alpha = profile.alphas[0]
+    todo.sort(key=lambda s: (s.get("policy") in CLASSICAL, "after" in s or ("train_key" in s and s["alpha"] !=
+                             first_alpha and not profile.lane_networks), -s["lanes"] * s["load"]))  # fmt: skip
+    meta = {
+        "profile": asdict(profile),
+        "learner": learner_of(profile),
+        "conditions": [
+            {"lanes": n, "t_up_s": t, "load": load, "inflow_veh_h": round(3600 / t, 1)}
+            for n, t, load in profile.conditions()
+        ],  # fmt: skip
+        "cells": len(specs),
+        "trainings": profile.n_trainings(),
+        "criterion": profile.criterion,
+        "nominal_capacity_veh_h_per_lane": NOMINAL_CAPACITY_VEH_H_PER_LANE,
+        "backend": backend_name,
+        "address": address,
+        "workers": workers,
+        "bootstrap_replicates": n_boot,
+        "versions": versions(),
+    }
+    write_json(root / "sweep.json", meta)
+    print(f"scenario2: profile {profile.name}: {len(specs)} cells, {len(done)} already done, {len(retry)} "
+          f"failed before (retried), {len(todo)} to run on the {backend_name} backend", file=sys.stderr)  # fmt: skip
+    if todo:
+        from coopsumo.sim.network import build_net
+
+        for lanes in sorted({s["lanes"] for s in todo}):
+            build_net(RoadConfig(lanes=lanes))  # once here, not concurrently in the workers
+        backend = make_backend(backend_name, workers, address, run_cell)
+        try:
+            with sigterm_interrupts():
+                execute(todo, root, backend, len(specs), len(done), progress, failed_record, desc="scenario2 cells")
+        finally:
+            backend.close()
+    records = [checked_record(json.loads(cell_path(root, s["key"]).read_text()), REQUIRED_SUMMARY) for s in specs]
+    runs = runs_table(records)
+    runs.to_csv(root / "runs.csv", index=False)
+    evals_table(records).to_csv(root / "evals.csv", index=False)
+    wall = time.perf_counter() - start
+    meta.update(wall_seconds=round(wall, 1), cells_run=len(todo), cells_ok=int((runs["status"] == "ok").sum()),
+                cells_failed=int((runs["status"] != "ok").sum()),
+                failed_cells=runs.loc[runs["status"] != "ok", "key"].tolist(),
+                cell_wall_seconds_sum=round(float(pd.to_numeric(runs["cell_wall_s"]).sum()), 1),
+                cell_cpu_seconds_sum=round(float(pd.to_numeric(runs["cell_cpu_s"]).sum()), 1))  # fmt: skip
+    if profile.lane_networks:
+        from coopsumo.studies.scenario2.gate_report import write_lane_outputs
+
+        write_lane_outputs(root, runs, evals_table(records), profile, meta, n_boot)
+    else:
+        write_outputs(root, runs, profile, meta, n_boot)
+    write_json(root / "sweep.json", meta)
+    return meta
+
+
+def learner_of(profile: Profile) -> dict[str, Any]:
+    """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json); with lane networks,
+    the network's of every lane count (a check's per-alpha models: the same, not conditioned)."""
+    if profile.lane_networks:
+        alpha = 0.0 if profile.alpha_models else None  # per-alpha models: alpha 0's learner (each its own alpha)
+        return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile, alpha)))) for n in profile.lanes}
+    dqn = at_condition(DQN_PRESETS[profile.preset])
+    return json.loads(json.dumps(to_dict(replace(dqn, alpha_conditioned=True) if profile.conditioned else dqn)))
+
+
+def profile_from_args(args: Any) -> Profile:
+    """The chosen profile with the command line's overrides applied and checked."""
+    profile = PROFILES[args.profile]
+    if args.steps is not None:
+        if args.steps <= 0:
+            raise UsageError(f"steps must be positive, got {args.steps}")
+        profile = replace(profile, train_steps=args.steps)
+    if args.eval_steps is not None:
+        if args.eval_steps <= 0:
+            raise UsageError(f"eval-steps must be positive, got {args.eval_steps}")
+        profile = replace(profile, eval_steps=args.eval_steps)
+    if args.seeds is not None:
+        if args.seeds < 1:
+            raise UsageError(f"seeds must be >= 1, got {args.seeds}")
+        profile = replace(profile, seeds=tuple(range(1, args.seeds + 1)))
+    if args.eval_seeds is not None:
+        profile = replace(profile, eval_seeds=eval_seeds(args.eval_seeds))
+    if args.lanes is not None:
+        lanes = number_list("--lanes", args.lanes, MIN_LANES, MAX_LANES, whole=True)
+        profile = replace(profile, lanes=tuple(sorted({int(x) for x in lanes})))
+    if args.alphas is not None:
+        alphas = tuple(sorted(set(alpha_list("--alphas", args.alphas))))
+        # a check compares the networks with per-alpha models at the alphas of the grid it keeps
+        profile = replace(profile, alphas=alphas, check_alphas=tuple(a for a in profile.check_alphas if a in alphas))
+    if args.t_up is not None:
+        dt_s = ControlConfig().dt_s
+        t_up = number_list("--t-up", args.t_up, low=min_t_up_s(dt_s), high=MAX_T_UP_S, note=t_up_note(dt_s))
+        profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
+        if profile.lane_networks and len(profile.t_up_s) > MAX_LANE_DEMANDS:
+            raise UsageError(f"--t-up: profile {profile.name} trains each lane count's network on all its T_ups, at "
+                             f"most {MAX_LANE_DEMANDS}; got {len(profile.t_up_s)}")  # fmt: skip
+    if args.preset is not None:
+        profile = replace(profile, preset=args.preset)
+    if args.conditioned:
+        if profile.lane_networks:
+            raise UsageError(f"--conditioned trains one network per condition; profile {profile.name} trains its "
+                             "models per lane count (--profile quick or tiny take it)")
+        profile = replace(profile, conditioned=True)
+    if args.policies is not None:
+        policies = set(name_list("--policies", args.policies, POLICIES))
+        profile = replace(profile, policies=tuple(x for x in POLICIES if x in policies))
+    if profile.conditioned and "dqn" not in profile.policies:
+        raise UsageError("--conditioned trains the DQN cells once per condition and seed: --policies must hold dqn")
+    if args.mobil_p is not None:
+        if "mobil" not in profile.policies:
+            raise UsageError("--mobil-p is for --policies with mobil")
+        ps = number_list("--mobil-p", args.mobil_p, low=0, high=MOBIL_LIMITS["p"][1])
+        profile = replace(profile, mobil_ps=tuple(sorted(set(ps))))
+    return profile
+
+
+MERGE_ALONE = ("steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", "t_up", "policies", "mobil_p",
+               "preset")  # fmt: skip
+"""options that choose what a sweep runs, which --merge (nothing run) refuses"""
+
+
+def merge(args: Any) -> int:
+    """--merge: the parts' sweep folders merged into --out (scenario2_redraw.merge_parts)."""
+    from coopsumo.studies.scenario2.redraw import merge_parts, read_parts
+
+    if given := [f"--{name.replace('_', '-')}" for name in MERGE_ALONE if getattr(args, name) is not None]:
+        raise UsageError(f"--merge runs nothing: {', '.join(given)} cannot go with it")
+    if args.out is None:
+        raise UsageError("--merge needs --out, the merged sweep's folder")
+    parts = [Path(x) for x in split_list("--merge", args.merge)]
+    if any(p.resolve() == args.out.resolve() for p in parts):
+        raise UsageError(f"--merge: --out {args.out} is one of the parts")
+    read = read_parts(parts)  # checked before anything is written
+    with study_root(args.out, "scenario2"):
+        meta = merge_parts(parts, read, args.out)
+    from coopsumo.studies.scenario2.gate_report import console_lines
+
+    print("\n".join(console_lines(args.out)))
+    print(f"scenario2: merged {len(parts)} parts ({meta['cells']} cells, lanes "
+          f"{', '.join(map(str, meta['profile']['lanes']))}); report: {args.out / 'report.md'}")  # fmt: skip
+    return 0
+
+
+DEFAULT_PROFILE = "full"
+"""the profile without --profile: the committed report's"""
+PROFILE_HELP = {
+    "tiny": "tests",
+    "quick": "the 8,000-step per-alpha sweep of before, about 80 min on 2 cores",
+    "full": "the default: one model per alpha, lane count and seed (90 trainings of 90,000 steps), baselines and "
+            "the gate; estimated 4.7 h on 2 cores from scratch, 1.5 h with every model stored",
+    "check": "the per-lane-count networks against per-alpha models at 3 lanes, loads 0.5 and 1; estimated 1 h",
+    "paper": "the paper's grid as full is built: a Ray cluster",
+}
+"""what --help says of each profile (the estimates: docs/studies.md, scenario II)"""
+
+
+def by_profile(show: Any) -> str:
+    """An option's default as --help states it, from the profiles: "the profile's: tiny 2; quick 3; paper 10", or one
+    value when every profile has the same."""
+    values = {name: str(show(profile)) for name, profile in PROFILES.items()}
+    if len(set(values.values())) == 1:
+        return next(iter(values.values()))
+    return "the profile's: " + "; ".join(f"{name} {value}" for name, value in values.items())
+
+
+def _numbers(values: tuple[float, ...]) -> str:
+    return ",".join(f"{x:g}" for x in values)
+
+
+def build_parser() -> Parser:
+    p = Parser(prog="coopsumo scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
+    p.add_argument("--profile", choices=sorted(PROFILES), default=DEFAULT_PROFILE,
+                   help="grid, models and step counts: " + "; ".join(f"{k} ({v})" for k, v in PROFILE_HELP.items()))
+    p.add_argument("--out", type=model_out_dir, default=None,
+                   help=f"results folder (default {default_out('scenario2', DEFAULT_PROFILE, DEFAULT_PROFILE)}, "
+                        "another profile results/scenario2_<profile>; with --conditioned "
+                        "results/scenario2_conditioned[_<profile>])")  # fmt: skip
+    p.add_argument("--conditioned", action="store_true",
+                   help="one alpha-conditioned model per condition and seed (train --alpha-conditioned), evaluated at "
+                   "every alpha of the grid, instead of one training per alpha")  # fmt: skip
+    add_backend_flags(p)
+    p.add_argument("--workers", type=workers, default=os.cpu_count() or 1,
+                   help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
+    p.add_argument("--steps", type=steps, default=None,
+                   help=f"training steps per cell (default: {by_profile(lambda f: f'{f.train_steps:,}')})")
+    p.add_argument("--eval-steps", type=steps, default=None,
+                   help=f"evaluation steps per cell (default: {by_profile(lambda f: f'{f.eval_steps:,}')})")
+    p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
+                   help="models per condition and alpha (or per condition, --conditioned): training seeds 1..N "
+                        f"(default: {by_profile(lambda f: len(f.seeds))})")  # fmt: skip
+    p.add_argument("--eval-seeds", type=seed_count, default=None,
+                   help=f"evaluation seeds {EVAL_SEED_BASE + 1}..{EVAL_SEED_BASE}+N, which no training sees: every "
+                        "model, and MOBIL, is evaluated greedily on each "
+                        f"(default: {by_profile(lambda f: len(f.eval_seeds))})")  # fmt: skip
+    p.add_argument("--lanes", default=None,
+                   help=f"comma-separated lane counts (default: {by_profile(lambda f: _numbers(f.lanes))})")
+    p.add_argument("--alphas", default=None,
+                   help="comma-separated alphas, fractions allowed: 0,1/8,2 "
+                        f"(default: {by_profile(lambda f: _numbers(f.alphas))})")  # fmt: skip
+    p.add_argument("--t-up", default=None, help="fixed comma-separated T_up list (s) for every lane count, "
+                   "instead of the profile's load grid (default: the load grid)")  # fmt: skip
+    p.add_argument("--policies", default=None, help="comma-separated: dqn (the models), mobil (one MOBIL run per "
+                   "politeness p and evaluation seed), keep, greedy (one run per evaluation seed; no training) "
+                   f"(default: {by_profile(lambda f: ','.join(f.policies))})")  # fmt: skip
+    p.add_argument("--mobil-p", default=None, help="comma-separated MOBIL politeness values "
+                   f"(default: {by_profile(lambda f: _numbers(f.mobil_ps))})")  # fmt: skip
+    p.add_argument("--preset", choices=sorted(DQN_PRESETS), default=None,
+                   help=f"learner preset of the DQN cells (default: {by_profile(lambda f: f.preset)})")  # fmt: skip
+    p.add_argument("--bootstrap", type=integer(0, 100_000), default=1000,
+                   help="bootstrap replicates over seeds (default 1000)")  # fmt: skip
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--merge", default=None, metavar="DIR,DIR,...",
+                   help="nothing run: finished sweeps of one lane-network profile, each run with its own --lanes "
+                        "(a study run one lane count at a time), merged into --out with its tables and report "
+                        "(default: none, the sweep is run)")  # fmt: skip
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        if args.merge is not None:
+            return merge(args)
+        profile = profile_from_args(args)
+        if args.workers < 1:
+            raise UsageError(f"workers must be >= 1, got {args.workers}")
+        if args.bootstrap < 0:
+            raise UsageError(f"bootstrap must be >= 0, got {args.bootstrap}")
+        check_backend(args.backend, args.address)
+        if profile.lane_networks:  # a lane network's settings (e.g. at most 10 demands) checked before any folder
+            for lanes in profile.lanes:
+                lane_train_config(lanes, profile.seeds[0], profile).validate()
+        if args.out is None:
+            name = "scenario2_conditioned" if profile.conditioned else "scenario2"
+            args.out = default_model_out(default_out(name, profile.name, DEFAULT_PROFILE))
+        with study_root(args.out, "scenario2"):  # path, lock, ownership and marker of the results folder
+            meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet,
+                             args.bootstrap)  # fmt: skip
+        if "dqn" in profile.policies:
+            table = pd.read_csv(args.out / "alpha_star.csv")
+            for r in table.itertuples():
+                if r.cells_failed:
+                    print(f"{condition_label(r.lanes, r.t_up_s)}: no alpha* ({r.cells_failed} cells failed)")
+                    continue
+                print(f"{condition_label(r.lanes, r.t_up_s)}: alpha* = {r.alpha_star:g} "
+                      f"(win share {r.win_share:.0%}, bootstrap {r.boot_support:.0%})")  # fmt: skip
+            plane = meta.get("plane", {})
+            if "b0" in plane:
+                print(f"plane: alpha* = {plane['b0']:.3f} {plane['b1']:+.3f} T_up {plane['b2']:+.3f} lanes, "
+                      f"R2 = {plane['r2']:.3f}")  # fmt: skip
+            else:
+                print(plane.get("error", ""))
+            if profile.lane_networks:
+                from coopsumo.studies.scenario2.gate_report import console_lines
+
+                print("\n".join(console_lines(args.out)))
+        if "mobil" in profile.policies:
+            for r in pd.read_csv(args.out / "mobil_p_star.csv").itertuples():
+                if r.cells_failed:
+                    print(f"{condition_label(r.lanes, r.t_up_s)}: no MOBIL p* ({r.cells_failed} cells failed)")
+                    continue
+                print(f"{condition_label(r.lanes, r.t_up_s)}: MOBIL p* = {r.p_star:g} (win share {r.win_share:.0%})")
+        print(f"scenario2: {meta['cells_ok']} ok, {meta['cells_failed']} failed, "
+              f"{meta['wall_seconds'] / 60:.1f} min; report: {args.out / 'report.md'}")  # fmt: skip
+        return failed_exit("scenario2", meta["failed_cells"], meta["cells"], args.out)
+
+    return run_cli("scenario2", body)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
