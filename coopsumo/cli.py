@@ -14,8 +14,9 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from coopsumo import __version__
-from coopsumo.paths import nets_dir_problem
-from coopsumo.runio import NETS_ENV, Parser, UsageError, working_folder_problem
+from coopsumo.errors import UsageError
+from coopsumo.paths import NETS_ENV, nets_dir_problem
+from coopsumo.runio import Parser, working_folder_problem
 
 S = "coopsumo.studies."
 COMMANDS: dict[str, tuple[str, str]] = {

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from coopsumo.runio import UsageError
+from coopsumo.errors import UsageError
 from coopsumo.validation import (
     ALPHA_MAX,
     ALPHA_MIN,

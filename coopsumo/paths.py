@@ -123,7 +123,7 @@ results/models)"""
 
 def nets_in_out_problem(out: Path) -> str | None:
     """Why `out` may not be written while $COOPSUMO_NETS_DIR (its links resolved) is `out` or lies in it (a phrase to
-    follow the flag, runio.check_out_path), or None: the networks SUMO builds there would be taken for the command's
+    follow the flag, run_dirs.check_out_path), or None: the networks SUMO builds there would be taken for the command's
     own files (as `coopsumo --nets-dir D COMMAND --out D` is refused)."""
     nets = os.environ.get(NETS_ENV)
     if not nets:

@@ -25,7 +25,7 @@ import math
 import os
 from dataclasses import dataclass
 
-from coopsumo.runio import UsageError
+from coopsumo.errors import UsageError
 from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MOBIL_LIMITS, SUMO_LC_LIMITS, number_problem
 
 ADAPTIVE = "adaptive"

@@ -3,7 +3,7 @@
 Writes config.json, detectors.xml (SUMO's loop output), summary.json and, with
 --trajectories, trajectories.parquet; with --fcd and --tripinfo SUMO's fcd.xml and tripinfo.xml.
 --gui runs the same simulation in sumo-gui. Bad input: one line on stderr, exit code 2. An existing --out
-is replaced only if simulate wrote it and nothing was added (runio.check_run_dir); never the model's folder.
+is replaced only if simulate wrote it and nothing was added (run_dirs.check_run_dir); never the model's folder.
 """
 
 from __future__ import annotations
@@ -27,8 +27,10 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
 )
+from coopsumo.errors import UsageError
 from coopsumo.policy_spec import KEYS, PolicySpecError, model_file, parse_policy, split_dqn_spec
-from coopsumo.runio import Parser, UsageError, atomic_run_dir, check_apart, check_run_dir, run_cli
+from coopsumo.run_dirs import atomic_run_dir, check_apart, check_run_dir
+from coopsumo.runio import Parser, run_cli
 from coopsumo.sim import sumo_session
 from coopsumo.validation import (
     MAX_FCD_PERIOD_S,

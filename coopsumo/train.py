@@ -2,7 +2,8 @@
 
 import sys
 
-from coopsumo.runio import USAGE_EXIT, working_folder_problem
+from coopsumo.errors import USAGE_EXIT
+from coopsumo.runio import working_folder_problem
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -23,8 +23,8 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from coopsumo.errors import UsageError
 from coopsumo.paths import out_path_problem
-from coopsumo.runio import UsageError
 
 SEED_MAX = 2**31 - 1
 """largest seed: SUMO's --seed is a C int"""

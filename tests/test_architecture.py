@@ -16,7 +16,9 @@ import coopsumo
 PACKAGE_DIR = Path(coopsumo.__file__).parent
 # what each layer may import from the others (the top-level modules config, paths, runio, validation are shared by all)
 SHARED = {"coopsumo", "coopsumo.config", "coopsumo.paths", "coopsumo.policy_spec", "coopsumo.runio",
-          "coopsumo.validation"}
+          "coopsumo.validation", "coopsumo.errors", "coopsumo.provenance", "coopsumo.files", "coopsumo.run_dirs"}
+GROUND = {"coopsumo.errors", "coopsumo.provenance", "coopsumo.files", "coopsumo.paths"}
+"""the ground floor: errors, provenance, files and output paths, which import nothing else of coopsumo"""
 ALLOWED = {
     "coopsumo.sim": {"coopsumo.sim"},
     "coopsumo.agents": {"coopsumo.agents", "coopsumo.sim"},
@@ -180,3 +182,19 @@ def test_every_study_folder_stays_small() -> None:
             folders[path.parent] = folders.get(path.parent, 0) + 1
     big = {str(p.relative_to(PACKAGE_DIR)): n for p, n in folders.items() if n > MAX_FOLDER_MODULES}
     assert not big, f"folders over {MAX_FOLDER_MODULES} modules: {big}"
+
+
+def test_the_ground_floor_imports_only_the_ground_floor() -> None:
+    graph = import_graph(module_files())
+    bad = {f"{name} -> {dep}" for name in GROUND for dep in graph[name] if dep not in GROUND | {"coopsumo"}}
+    assert not bad, sorted(bad)
+
+
+def test_only_commands_import_the_command_line_helpers() -> None:
+    """runio (the parser, run_cli, signals) is the command layer's: the simulation, the configuration, the input
+    checks, the policy grammar and the ground floor never import it."""
+    graph = import_graph(module_files())
+    below = [n for n in graph if n.startswith("coopsumo.sim.") or n in GROUND
+             or n in {"coopsumo.config", "coopsumo.validation", "coopsumo.policy_spec", "coopsumo.run_dirs"}]
+    bad = {f"{name} -> coopsumo.runio" for name in below if "coopsumo.runio" in graph[name]}
+    assert not bad, sorted(bad)

@@ -23,7 +23,7 @@ import torch
 from coopsumo import validation
 from coopsumo.agents.dqn import QNetwork, save_model
 from coopsumo.config import DQN_PRESETS, ConfigError, DemandConfig, SimConfig, TrainConfig, to_dict
-from coopsumo.runio import mark_run_dir
+from coopsumo.run_dirs import mark_run_dir
 
 SHIM_NAMES = {"ablation": "learning"}
 """the test tables' module names that are not command names"""

@@ -86,7 +86,7 @@ def test_a_study_on_two_nodes_equals_the_local_one_and_loses_nothing_with_a_node
 
 
 def test_a_node_that_cannot_write_the_folder_is_refused_in_one_line() -> None:
-    from coopsumo.runio import versions
+    from coopsumo.provenance import versions
     from coopsumo.studies.engine.runner import cluster_problem
 
     mine = versions()

@@ -41,8 +41,8 @@ from coopsumo.config import (
     TrainConfig,
     to_dict,
 )
+from coopsumo.errors import UsageError
 from coopsumo.policy_spec import ADAPTIVE, split_dqn_spec
-from coopsumo.runio import UsageError
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, SPEEDUP
 from coopsumo.studies.learning.report import per_alpha_twin

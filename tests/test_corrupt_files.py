@@ -26,9 +26,9 @@ from coopsumo.agents.dqn import QNetwork, save_model
 from coopsumo.agents.file_checks import prepare_resume, truncate_log
 from coopsumo.agents.train import Trainer
 from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
-from coopsumo.runio import (
+from coopsumo.errors import UsageError
+from coopsumo.run_dirs import (
     RUN_MARKER,
-    UsageError,
     check_study_root,
     clear_partials,
     finished_run,
@@ -411,9 +411,9 @@ def test_scenario2_refuses_a_training_folder_as_its_root(tmp_path: Path, capsys:
 def test_a_second_lock_on_the_same_folder_is_refused_and_the_lock_file_goes(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import coopsumo.runio as runio
+    import coopsumo.run_dirs as run_dirs
 
-    monkeypatch.setattr(runio, "LOCK_WAIT_S", 0.1)
+    monkeypatch.setattr(run_dirs, "LOCK_WAIT_S", 0.1)
     out = tmp_path / "run"
     with out_lock(out, "simulate"):
         assert "simulate, pid" in lock_path(out.resolve()).read_text()

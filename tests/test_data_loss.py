@@ -23,7 +23,8 @@ from coopsumo.agents import train_cli
 from coopsumo.agents.dqn import load_model
 from coopsumo.agents.train import Trainer, model_meta, train
 from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
-from coopsumo.runio import finished_run, mark_run_dir, write_json
+from coopsumo.files import write_json
+from coopsumo.run_dirs import finished_run, mark_run_dir
 
 pytestmark = pytest.mark.sumo
 TINY = TrainConfig(sim=SimConfig(steps=40, seed=3, policy="dqn"), dqn=DQN_PRESETS["paper"], eval_steps=0,
@@ -241,7 +242,7 @@ STORE_STATES = ("holds the model", "lacks the model", "holds it damaged")
 def test_a_real_folder_where_the_study_links_its_model_is_never_deleted_moved_or_trained_into(
     what: str, store_state: str, finished: Path, tmp_path: Path
 ) -> None:
-    from coopsumo.runio import UsageError
+    from coopsumo.errors import UsageError
     from coopsumo.studies.engine.model_store import model_id, stored_model, train_shared
 
     store = tmp_path / "models"
@@ -316,7 +317,7 @@ MODES: dict[str, tuple[Callable[[Path], None], Callable[[Path], int]]] = {
 def test_a_training_never_writes_through_a_link_leading_outside_its_folder(
     name: str, mode: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    from coopsumo.runio import UsageError
+    from coopsumo.errors import UsageError
 
     make, run = MODES[mode]
     out = tmp_path / "run"

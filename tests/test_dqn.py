@@ -485,7 +485,7 @@ def test_a_model_without_an_observation_reads_the_papers_and_an_unknown_one_is_r
 def test_a_model_whose_settings_and_weights_disagree_on_the_observation_is_refused(tmp_path: Path) -> None:
     from coopsumo.agents.dqn_policy import DQNPolicy
     from coopsumo.config import TrainConfig, to_dict
-    from coopsumo.runio import UsageError
+    from coopsumo.errors import UsageError
 
     paper_cfg = to_dict(TrainConfig(dqn=dataclasses.replace(TrainConfig().dqn, observation="paper")))
     v2x_cfg = to_dict(TrainConfig(dqn=dataclasses.replace(TrainConfig().dqn, observation="v2x")))

@@ -25,7 +25,7 @@ from conftest import TIMING_KEYS
 
 from coopsumo.agents.dqn import load_model
 from coopsumo.report.analysis import read_detectors
-from coopsumo.runio import RUN_MARKER, finished_run
+from coopsumo.run_dirs import RUN_MARKER, finished_run
 
 pytestmark = pytest.mark.sumo
 REPO = Path(__file__).resolve().parent.parent

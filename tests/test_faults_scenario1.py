@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from coopsumo import simulate
-from coopsumo.runio import RUN_MARKER
+from coopsumo.run_dirs import RUN_MARKER
 
 pytestmark = pytest.mark.sumo
 REPO = Path(__file__).resolve().parent.parent

@@ -16,7 +16,9 @@ import torch
 
 from coopsumo.agents.dqn import MAX_MODEL_BYTES, ModelFileError, QNetwork, load_model, save_model
 from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
-from coopsumo.runio import USAGE_EXIT, mark_run_dir, write_json
+from coopsumo.errors import USAGE_EXIT
+from coopsumo.files import write_json
+from coopsumo.run_dirs import mark_run_dir
 from coopsumo.studies.engine.records import implausible, record_problem
 from coopsumo.studies.engine.run_checks import detectors_problem
 from coopsumo.studies.engine.trainings import model_folder_problem

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-from coopsumo.runio import finished_run
+from coopsumo.run_dirs import finished_run
 
 pytestmark = pytest.mark.sumo
 REPO = Path(__file__).resolve().parent.parent

@@ -27,7 +27,7 @@ from coopsumo.config import (
     results_view,
     to_dict,
 )
-from coopsumo.runio import UsageError
+from coopsumo.errors import UsageError
 from coopsumo.sim import physics
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP

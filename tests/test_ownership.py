@@ -14,7 +14,8 @@ import pytest
 
 from coopsumo import simulate
 from coopsumo.agents import train_cli as train
-from coopsumo.runio import RUN_MARKER, UsageError, atomic_run_dir
+from coopsumo.errors import UsageError
+from coopsumo.run_dirs import RUN_MARKER, atomic_run_dir
 
 SIM = ["--steps", "20", "--quiet"]
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from coopsumo.agents.policies import GreedyPolicy, KeepPolicy, PolicySpecError, RandomPolicy, make_policy
-from coopsumo.runio import UsageError
+from coopsumo.errors import UsageError
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
 

@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from coopsumo.errors import USAGE_EXIT
 from coopsumo.policy_spec import ADAPTIVE, PolicySpec, PolicySpecError, model_file, parse_policy
-from coopsumo.runio import USAGE_EXIT
 
 REPO = Path(__file__).resolve().parent.parent
 

@@ -240,7 +240,7 @@ def test_close_alphas_give_distinct_cells_in_every_study() -> None:
 
 
 def test_study_lists_refuse_only_equal_values() -> None:
-    from coopsumo.runio import UsageError
+    from coopsumo.errors import UsageError
     from coopsumo.validation import distinct_list
 
     assert distinct_list("--t-up", "8,8.000001") == (8.0, 8.000001)

@@ -17,7 +17,7 @@ from conftest import env_with_display
 from PIL import Image
 
 from coopsumo.config import AccidentConfig, OutputConfig, SimConfig, to_dict
-from coopsumo.runio import file_sha256
+from coopsumo.files import file_sha256
 from coopsumo.studies.engine import run_folders
 from coopsumo.studies.scenario1 import gui as scenario1_gui
 from coopsumo.studies.scenario1 import measures

@@ -11,7 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from coopsumo.runio import USAGE_EXIT, run_cli, write_atomic, write_json
+from coopsumo.errors import USAGE_EXIT
+from coopsumo.files import write_atomic, write_json
+from coopsumo.runio import run_cli
 
 REPO = Path(__file__).resolve().parent.parent
 LONG = "x" * 300

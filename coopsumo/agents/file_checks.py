@@ -19,7 +19,7 @@ from typing import Any
 
 import torch
 
-from coopsumo.runio import read_json_object, write_atomic
+from coopsumo.files import read_json_object, write_atomic
 
 N_ACTIONS = 4
 """actions a recorded action may take: 0 left, 1 right, 2 speedup, 3 none (dqn.N_ACTIONS)"""

@@ -18,7 +18,8 @@ from coopsumo.agents.adaptive import interval_measures
 from coopsumo.agents.decisions import ActionHold
 from coopsumo.agents.policies import Policy
 from coopsumo.config import GuiConfig, OutputConfig, SimConfig, to_dict
-from coopsumo.runio import versions, write_json
+from coopsumo.files import write_json
+from coopsumo.provenance import versions
 from coopsumo.sim.world import World
 
 ADAPTIVE_ALPHA_FILE = "adaptive_alpha.csv"

@@ -32,7 +32,7 @@ import numpy as np
 
 from coopsumo.agents.snapshots import RESULT, SNAPSHOTS, best, result, results, snapshot_dir  # also selection.*
 from coopsumo.config import AccidentConfig, SimConfig, TrainConfig, sim_config_from_dict, to_dict
-from coopsumo.runio import write_atomic
+from coopsumo.files import write_atomic
 
 if TYPE_CHECKING:
     from coopsumo.agents.dqn_policy import DQNPolicy
@@ -167,7 +167,9 @@ def reselect(src: Path, out: Path, cfg: TrainConfig) -> dict[str, Any]:
     validated again with cfg's validation, the best installed as model.pt. No training step runs (validation never
     feeds back into training, so these are the weights cfg would train). Returns out's train summary."""
     from coopsumo.agents.dqn import load_model, save_model
-    from coopsumo.runio import mark_run_dir, versions, write_json
+    from coopsumo.files import write_json
+    from coopsumo.provenance import versions
+    from coopsumo.run_dirs import mark_run_dir
 
     meta = {"config": to_dict(cfg), "versions": versions()}
     shutil.rmtree(out, ignore_errors=True)
@@ -321,7 +323,7 @@ class Validator:
         if step % self.every == 0 or step == self.cfg.sim.steps:
             net = weights()
             from coopsumo.agents.dqn import save_model
-            from coopsumo.runio import versions
+            from coopsumo.provenance import versions
 
             folder = snapshot_dir(self.out, step)
             folder.mkdir(parents=True, exist_ok=True)

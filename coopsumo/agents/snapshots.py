@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from coopsumo.runio import read_json_object
+from coopsumo.files import read_json_object
 
 SNAPSHOTS = "snapshots"
 """folder of a training's snapshots (one subfolder step<N> each)"""

@@ -5,7 +5,7 @@ config.json, train_log.csv (one row per logging window), model.pt, and the greed
 evaluation's summary.json (its SUMO files in eval/). Ctrl-C or SIGTERM saves
 checkpoint.pt and exits; --resume continues it exactly (the world is rebuilt by replaying
 the recorded actions, then the learner's saved state takes over). An existing non-empty --out is used
-only if this command wrote it (its .coopsumo-run.json, runio.check_run_dir).
+only if this command wrote it (its .coopsumo-run.json, run_dirs.check_run_dir).
 
 --alpha-conditioned trains one network for every alpha: alpha is an input, and all vehicles share one alpha
 drawn from the paper's grid every alpha_period_steps (training_alpha); the world's own reward alpha is 0 and
@@ -50,18 +50,11 @@ from coopsumo.config import (
     to_dict,
     train_config_from_dict,
 )
-from coopsumo.runio import (
-    Stop,
-    UsageError,
-    check_no_outside_link,
-    finished_run,
-    first_line,
-    mark_run_dir,
-    signals_deferred,
-    versions,
-    write_atomic,
-    write_json,
-)
+from coopsumo.errors import UsageError, first_line
+from coopsumo.files import write_atomic, write_json
+from coopsumo.provenance import versions
+from coopsumo.run_dirs import check_no_outside_link, finished_run, mark_run_dir
+from coopsumo.runio import Stop, signals_deferred
 from coopsumo.sim.observation import Observation, network_features
 from coopsumo.sim.world import StepOutcome, World
 

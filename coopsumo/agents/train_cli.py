@@ -29,11 +29,9 @@ from coopsumo.config import (
     SimConfig,
     TrainConfig,
 )
+from coopsumo.errors import UsageError
 from coopsumo.paths import STORE_ENV
-from coopsumo.runio import (
-    STOP_SIGNALS,
-    Parser,
-    UsageError,
+from coopsumo.run_dirs import (
     check_no_outside_link,
     check_out_path,
     check_run_dir,
@@ -43,10 +41,9 @@ from coopsumo.runio import (
     out_lock,
     release_lock,
     retrain_folder,
-    run_cli,
-    stop_on_signals,
     try_lock,
 )
+from coopsumo.runio import STOP_SIGNALS, Parser, run_cli, stop_on_signals
 from coopsumo.validation import (
     MAX_STEPS,
     alpha,

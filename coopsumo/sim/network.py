@@ -17,7 +17,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from coopsumo.config import RoadConfig
-from coopsumo.runio import NETS_ENV
+from coopsumo.paths import NETS_ENV
 
 EDGE_ID = "road"
 ROUTE_ID = "r0"

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from coopsumo.config import GuiConfig, OutputConfig, SimConfig
-from coopsumo.runio import UsageError
+from coopsumo.errors import UsageError
 from coopsumo.sim import fast, network
 from coopsumo.sim import vehicle_table as vt
 from coopsumo.sim.vehicle_table import TableCheck, VehicleTable

@@ -166,7 +166,7 @@ def check_link(link: Path) -> None:
     """UsageError naming `link`, a study's model folder (models/<name>, train/<key>), when it is there and is not a
     link: the study makes only links there, so a real folder (a training copied in, a folder of notes) or a file is
     the user's, and is never deleted, moved into the store or trained into."""
-    from coopsumo.runio import UsageError
+    from coopsumo.errors import UsageError
 
     if os.path.lexists(link) and not link.is_symlink():
         what = "a folder" if link.is_dir() else "a file"
@@ -257,7 +257,8 @@ def build_parser() -> Any:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from coopsumo.runio import UsageError, run_cli
+    from coopsumo.errors import UsageError
+    from coopsumo.runio import run_cli
 
     args = build_parser().parse_args(argv)
 

@@ -14,7 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
-from coopsumo.runio import UsageError, file_sha256, read_json_object, temporary_of, versions
+from coopsumo.errors import UsageError
+from coopsumo.files import file_sha256, read_json_object, temporary_of
+from coopsumo.provenance import versions
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""

@@ -11,8 +11,8 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import OutputConfig, results_view, to_dict
-from coopsumo.runio import file_sha256
-from coopsumo.runio import study_root as claim_study_root
+from coopsumo.files import file_sha256
+from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
 
@@ -100,7 +100,7 @@ def simulate_into(
     from coopsumo.agents.policies import policy_for_run
     from coopsumo.agents.rollout import run
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.runio import atomic_run_dir
+    from coopsumo.run_dirs import atomic_run_dir
 
     cfg = sim_config_from_dict(config)
     policy = policy_for_run(cfg)
@@ -122,7 +122,7 @@ STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
     "protocol": ("study.json", "cells", "train", "runs", "runs.csv", "stats.csv", "diagnosis.csv", "fig_*.png",
                  "report.md"),
 }  # fmt: skip
-"""the names each study writes at the top of its root, its plan file first (runio.check_study_root)"""
+"""the names each study writes at the top of its root, its plan file first (run_dirs.check_study_root)"""
 
 
 def default_out(name: str, profile: str, committed: str) -> Path:
@@ -132,7 +132,7 @@ def default_out(name: str, profile: str, committed: str) -> Path:
 
 
 def study_root(root: Path, kind: str) -> AbstractContextManager[Path]:
-    """Claim the study root for the block (runio.study_root: path checked, lock held, ownership checked, marked)."""
+    """Claim the study root for the block (run_dirs.study_root: path checked, lock held, ownership checked, marked)."""
     return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"))
 
 
@@ -144,7 +144,7 @@ def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], 
     complete and consistent with it (run_checks), trajectories.parquet readable."""
     import pyarrow.parquet as pq
 
-    from coopsumo.runio import RUN_MARKER, finished_run
+    from coopsumo.run_dirs import RUN_MARKER, finished_run
 
     if (out / RUN_MARKER).exists() and not finished_run(out, "simulate"):
         return f"has a {RUN_MARKER} that does not mark a finished simulate run"

@@ -31,7 +31,9 @@ from typing import Any
 
 from tqdm import tqdm
 
-from coopsumo.runio import UsageError, start_parent_watch, write_json
+from coopsumo.errors import UsageError
+from coopsumo.files import write_json
+from coopsumo.runio import start_parent_watch
 from coopsumo.studies.engine.records import cell_path
 
 MAX_CRASHES = 2
@@ -149,7 +151,7 @@ class RayBackend:
         naming the node and the problem (one probe task pinned to each node, before any cell runs)."""
         from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
 
-        from coopsumo.runio import versions
+        from coopsumo.provenance import versions
 
         nodes = [n for n in self._ray.nodes() if n.get("Alive") and n.get("Resources", {}).get("CPU", 0) > 0]
         probe = self._ray.remote(num_cpus=0, max_retries=0)(node_probe)
@@ -190,7 +192,7 @@ def node_probe(root: str) -> dict[str, Any]:
     """What one node of a cluster runs, and whether it can write the study's folder (a file made and removed)."""
     import socket
 
-    from coopsumo.runio import versions
+    from coopsumo.provenance import versions
 
     probe = Path(root) / f".node-probe-{socket.gethostname()}-{os.getpid()}"
     try:

@@ -24,7 +24,7 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
     (its run marker lists its files, its config.json holds config, model.pt and train_summary.json exist);
     None otherwise (with one line on stderr when the model itself is the problem, unless quiet). A cell killed after
     its training but before its record was written reuses it."""
-    from coopsumo.runio import RUN_MARKER
+    from coopsumo.run_dirs import RUN_MARKER
 
     try:
         marker = json.loads((out / RUN_MARKER).read_text())
@@ -77,7 +77,7 @@ def model_folder_problem(folder: Path) -> str | None:
     """Why the training folder's model.pt cannot be reused, or None: the training finished (train's marker lists
     its files; written before markers: train_summary.json is there) and the model loads (dqn.load_model)."""
     from coopsumo.agents.dqn import ModelFileError, load_model
-    from coopsumo.runio import RUN_MARKER, finished_run
+    from coopsumo.run_dirs import RUN_MARKER, finished_run
 
     if (folder / RUN_MARKER).exists():
         if not finished_run(folder, "train"):

@@ -23,8 +23,11 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import ControlConfig, SimConfig, to_dict
-from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
-from coopsumo.runio import study_root as claim_study_root
+from coopsumo.errors import UsageError
+from coopsumo.files import write_json
+from coopsumo.provenance import versions
+from coopsumo.run_dirs import study_root as claim_study_root
+from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.cells import add_cell_flags
 from coopsumo.studies.engine.records import failed_exit, model_fields
 from coopsumo.studies.engine.runner import check_backend
@@ -48,7 +51,7 @@ ACCIDENT_SEED_OFFSET = 2000
 """a model trained on seed s meets the accident on seed ACCIDENT_SEED_OFFSET + s (baselines too)"""
 BASELINES = ("keep", "greedy", "mobil:p=0")
 OUTPUTS = ("plan.json", "cells", "runs", "models", "runs.csv", "report.md")
-"""the names the study writes at the top of its results folder, its plan file first (runio.check_study_root)"""
+"""the names the study writes at the top of its results folder, its plan file first (run_dirs.check_study_root)"""
 PROG = "accident-seeds"
 
 

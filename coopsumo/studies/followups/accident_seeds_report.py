@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from coopsumo.runio import versions
+from coopsumo.provenance import versions
 from coopsumo.studies.followups.robustness import paired_interval
 
 

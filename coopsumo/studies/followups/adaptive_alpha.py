@@ -20,7 +20,8 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import OutputConfig, to_dict
-from coopsumo.runio import Parser, UsageError, run_cli
+from coopsumo.errors import UsageError
+from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.cells import add_cell_flags, failed_keys, run_cells
 from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import study_root

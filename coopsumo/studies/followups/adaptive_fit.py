@@ -13,7 +13,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from coopsumo.runio import Parser, UsageError, first_line, run_cli, write_json
+from coopsumo.errors import UsageError, first_line
+from coopsumo.files import write_json
+from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.run_folders import study_root
 
 COLUMNS = {"runs.csv": ("key", "status", "lanes", "t_up_s", "seed", "alpha", "mean_speed_mps",

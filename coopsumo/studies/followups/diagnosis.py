@@ -25,7 +25,8 @@ import torch
 from coopsumo.agents.decisions import offered
 from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.config import sim_config_from_dict
-from coopsumo.runio import Parser, UsageError, run_cli
+from coopsumo.errors import UsageError
+from coopsumo.runio import Parser, run_cli
 from coopsumo.sim.observation import Observation, network_features
 from coopsumo.studies.engine.cells import add_cell_flags, failed_keys, run_cells
 from coopsumo.studies.engine.records import CellRecords, failed_exit, model_fields

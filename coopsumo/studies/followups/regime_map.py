@@ -19,7 +19,9 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import ControlConfig, SimConfig, to_dict
-from coopsumo.runio import Parser, run_cli, versions, write_json
+from coopsumo.files import write_json
+from coopsumo.provenance import versions
+from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.cells import add_cell_flags
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import study_root

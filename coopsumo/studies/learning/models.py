@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from coopsumo.runio import UsageError
+from coopsumo.errors import UsageError
 from coopsumo.studies.learning.plan import learner_of, training_key
 
 

@@ -18,7 +18,7 @@ from coopsumo.config import (
     TrainConfig,
     to_dict,
 )
-from coopsumo.runio import UsageError
+from coopsumo.errors import UsageError
 from coopsumo.validation import name_list, number_name
 
 EVAL_SEED_OFFSET = 1000

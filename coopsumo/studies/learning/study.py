@@ -29,7 +29,10 @@ from coopsumo.config import (
     RoadConfig,
     to_dict,
 )
-from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.errors import UsageError
+from coopsumo.files import write_json
+from coopsumo.provenance import versions
+from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import default_out, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend

@@ -18,7 +18,9 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import ADDED_FIELDS, DQN_PRESETS, SPEED_ONLY_FIELDS, to_dict
-from coopsumo.runio import Parser, UsageError, run_cli, write_atomic
+from coopsumo.errors import UsageError
+from coopsumo.files import write_atomic
+from coopsumo.runio import Parser, run_cli
 
 HISTORY = Path("results") / "history"
 """the frozen learner studies and their table"""

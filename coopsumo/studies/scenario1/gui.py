@@ -14,7 +14,8 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.config import SimConfig, to_dict
-from coopsumo.runio import UsageError, write_json
+from coopsumo.errors import UsageError
+from coopsumo.files import write_json
 from coopsumo.sim import view
 from coopsumo.studies.scenario1.measures import SLOW_MPS, jam_step
 

@@ -15,7 +15,7 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import to_dict
-from coopsumo.runio import versions
+from coopsumo.provenance import versions
 from coopsumo.studies.engine.stats import models_needed
 from coopsumo.studies.scenario1.gui import gui_section
 from coopsumo.studies.scenario1.horizon import fig4, horizon_outputs

@@ -24,8 +24,11 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import DQN_PRESETS, ControlConfig, OutputConfig, RoadConfig, to_dict
+from coopsumo.errors import UsageError
+from coopsumo.files import write_json
 from coopsumo.policy_spec import model_file, split_dqn_spec
-from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.provenance import versions
+from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import reusable_run, study_root

@@ -10,7 +10,8 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.runio import UsageError, write_json
+from coopsumo.errors import UsageError
+from coopsumo.files import write_json
 from coopsumo.studies.scenario2.gate_report import write_lane_outputs
 from coopsumo.studies.scenario2.plan import Profile
 from coopsumo.studies.scenario2.report import write_outputs

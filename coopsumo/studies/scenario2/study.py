@@ -49,7 +49,10 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
-from coopsumo.runio import Parser, UsageError, run_cli, versions, write_json
+from coopsumo.errors import UsageError
+from coopsumo.files import write_json
+from coopsumo.provenance import versions
+from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.model_store import link_problem, store_for, train_shared
 from coopsumo.studies.engine.records import (
     CellRecords,

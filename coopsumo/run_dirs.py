@@ -1,0 +1,358 @@
+"""Run folders and study roots: markers that say which command wrote a folder and whether it finished, locks,
+the checks before a command writes into a folder, and folders made whole or not at all (atomic_run_dir)."""
+
+from __future__ import annotations
+
+import fcntl
+import fnmatch
+import os
+import re
+import shutil
+import sys
+import tempfile
+import time
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+from coopsumo.errors import UsageError
+from coopsumo.files import read_json_object, write_json
+from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
+from coopsumo.provenance import package_version
+
+RUN_MARKER = ".coopsumo-run.json"
+
+"""Written by a command into every folder it owns: {"kind": command, "version": coopsumo's, "files": the
+folder's entries when it finished (null while a training runs)}. A dot-file, so listings stay as they were;
+named after the package, so no user's file is taken for it; a separate file, because config.json is a
+common name that proves nothing about who wrote a folder."""
+
+
+def _entries(folder: Path) -> list[str]:
+    """Every file and folder under `folder` (relative, '/'-separated), the marker left out."""
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p != folder / RUN_MARKER)
+
+
+def mark_run_dir(folder: Path, kind: str, finished: bool = True) -> None:
+    """Claim `folder` for the command `kind`; finished: also list what it holds (nothing else may be replaced)."""
+    write_json(folder / RUN_MARKER, {"kind": kind, "version": package_version("coopsumo"),
+                                     "files": _entries(folder) if finished else None})  # fmt: skip
+
+
+def _marker(folder: Path) -> dict[str, Any] | None:
+    data = read_json_object(folder / RUN_MARKER)
+    return data if data is not None and isinstance(data.get("kind"), str) else None
+
+
+def check_run_dir(out: Path, kind: str) -> None:
+    """UsageError unless `out` is missing, empty, or a folder the command `kind` wrote and nobody added to.
+
+    The ownership rule: an existing non-empty folder is written into or replaced only when its marker names
+    the same command and every entry in it is one the marker lists (a training's marker lists none until
+    the training has finished: it only overwrites its own file names).
+    """
+    out = out.resolve()
+    if not out.exists():
+        return
+    if not out.is_dir():
+        raise UsageError(f"output folder {out} exists and is not a folder")
+    if not any(out.iterdir()):
+        return
+    marker = _marker(out)
+    if marker is None:
+        if (out / "config.json").exists():
+            raise UsageError(f"output folder {out} has no {RUN_MARKER} (written before coopsumo marked its folders, "
+                             "or not by coopsumo) and is left alone: remove it yourself or pick another --out")
+        raise UsageError(f"output folder {out} is not empty and is not a coopsumo run folder; pick another --out")
+    if marker["kind"] != kind:
+        raise UsageError(f"output folder {out} holds a coopsumo {marker['kind']} run, not a {kind} run, and is "
+                         "left alone; pick another --out")  # fmt: skip
+    listed = marker.get("files")
+    if not isinstance(listed, list) and kind != "train":  # only a training marks its folder before it ends
+        raise UsageError(f"output folder {out} has a {RUN_MARKER} that lists no files (damaged?) and is left "
+                         "alone; remove it yourself or pick another --out")  # fmt: skip
+    if isinstance(listed, list):
+        extra = sorted(set(_entries(out)) - set(listed))
+        if extra:
+            more = f" and {len(extra) - 1} more" if len(extra) > 1 else ""
+            raise UsageError(f"output folder {out} holds {extra[0]}{more}, which coopsumo {kind} did not write, and "
+                             "is left alone; move it away or pick another --out")  # fmt: skip
+
+
+def finished_run(folder: Path, kind: str) -> bool:
+    """True when `folder` is a finished output of the command `kind`: its marker names `kind` and lists its
+    entries (written when the command ended), and every listed entry is there."""
+    marker = _marker(folder)
+    listed = marker.get("files") if marker is not None and marker["kind"] == kind else None
+    return isinstance(listed, list) and all(isinstance(f, str) and (folder / f).exists() for f in listed)
+
+
+def check_study_root(root: Path, kind: str, own: Sequence[str]) -> None:
+    """UsageError unless `root` is missing, empty, marked by the study `kind`, or (a root written before the
+    marker) holds the study's plan file own[0] or only entries whose names match the study's own patterns `own`
+    (fnmatch: 'fig*.png'; a study writes only these names and never replaces the root as a whole)."""
+    root = root.resolve()
+    if not root.exists():
+        return
+    if not root.is_dir():
+        raise UsageError(f"output folder {root} exists and is not a folder")
+    marker = _marker(root)
+    if marker is not None:
+        if marker["kind"] != kind:
+            raise UsageError(f"output folder {root} holds a coopsumo {marker['kind']} run, not a {kind} study, and "
+                             "is left alone; pick another --out")  # fmt: skip
+        return
+    if (root / own[0]).is_file():  # the study's own plan file: a root it wrote before markers existed
+        return
+    foreign = sorted(p.name for p in root.iterdir() if not any(fnmatch.fnmatchcase(p.name, pat) for pat in own))
+    if foreign:
+        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+        raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, and "
+                         f"has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
+
+
+@contextmanager
+def study_root(root: Path, kind: str, own: Sequence[str]) -> Iterator[Path]:
+    """Claim the study root `root` for the block: its path checked (check_out_path), its lock held (out_lock),
+    ownership checked (check_study_root) and its marker written (unfinished: a study adds to it run by run)."""
+    check_out_path(root)
+    root = root.resolve()
+    check_study_root(root, kind, own)
+    with out_lock(root, kind):
+        check_study_root(root, kind, own)  # again, under the lock
+        try:
+            root.mkdir(exist_ok=True)
+            mark_run_dir(root, kind, finished=False)
+        except OSError as err:
+            raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
+        yield root
+
+
+def check_out_path(out: Path, flag: str = "--out") -> None:
+    """UsageError naming `flag` when out_path_problem faults `out` or $COOPSUMO_NETS_DIR lies in it
+    (nets_in_out_problem): every command's --out and every study's root, given or default."""
+    problem = out_path_problem(out) or nets_in_out_problem(out)
+    if problem:
+        raise UsageError(f"{flag} {problem}")
+
+
+PARTIAL = ".partial-"
+
+"""infix of the temporary folder a run is built in beside its --out: '.<name>.partial-XXXXXXXX'"""
+
+
+_PARTIAL_NAME = re.compile(r"\.(.+)\.partial-[A-Za-z0-9_]{8}")
+
+
+_LOCK_NAME = re.compile(r"\.(.+)\.lock")
+
+
+def lock_path(out: Path) -> Path:
+    """The lock file of the output folder `out`: '.<name>.lock' beside it."""
+    return out.parent / f".{out.name}.lock"
+
+
+def _same_file(fd: int, path: Path) -> bool:
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return False
+    own = os.fstat(fd)
+    return (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino)
+
+
+def try_lock(path: Path) -> int | None:
+    """An open descriptor holding an exclusive flock on the lock file `path` (made if missing), or None when
+    another process holds it. A file removed or replaced between opening and locking is opened again."""
+    while True:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            held = _same_file(fd, path)
+            os.close(fd)
+            if held:
+                return None
+            continue
+        if _same_file(fd, path):
+            return fd
+        os.close(fd)  # its holder removed it after we opened it: lock the file now at the path
+
+
+def release_lock(fd: int, path: Path) -> None:
+    """Remove the lock file (while still holding it) and release it."""
+    path.unlink(missing_ok=True)
+    os.close(fd)
+
+
+def _holder(path: Path) -> str:
+    try:
+        text = path.read_text().strip()
+    except OSError:
+        return ""
+    return f" ({text})" if text else ""
+
+
+LOCK_WAIT_S = 1.0
+
+"""how long a command waits for a held lock before it is refused (s): clear_partials holds another run's lock
+only while it removes that run's partial folder; a command writing a folder holds it for the whole run"""
+
+
+@contextmanager
+def out_lock(out: Path, kind: str) -> Iterator[None]:
+    """Hold the lock of the output folder `out` for the block (fcntl.flock on lock_path(out), removed after);
+    UsageError in one line when another command holds it. Released by the kernel if the process is killed."""
+    out = out.resolve()
+    path = lock_path(out)
+    deadline = time.monotonic() + LOCK_WAIT_S
+    while True:
+        try:
+            out.parent.mkdir(parents=True, exist_ok=True)
+            fd = try_lock(path)
+        except OSError as err:
+            raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
+        if fd is not None or time.monotonic() > deadline:
+            break
+        time.sleep(0.05)
+    if fd is None:
+        raise UsageError(f"another coopsumo command is writing {out}{_holder(path)}; wait for it to end or pick "
+                         "another --out")  # fmt: skip
+    try:
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{kind}, pid {os.getpid()}\n".encode())
+        yield
+    finally:
+        release_lock(fd, path)
+
+
+def _remove_partial(entry: Path, prog: str) -> None:
+    shutil.rmtree(entry, ignore_errors=True)
+    print(f"{prog}: removed {entry}, the partial folder of an interrupted run", file=sys.stderr)
+
+
+def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Path]:
+    """Remove the partial folders and lock files that killed runs left in `parent` (one line on stderr per
+    folder); those of runs still going (their lock is held) are left alone. mine: the name of the output
+    folder whose lock the caller holds (its partial folders are removed, its lock file kept). Returns the
+    folders removed."""
+    removed: list[Path] = []
+    try:
+        entries = [p for p in parent.iterdir() if p.name.startswith(".")]
+    except OSError:
+        return removed
+    for entry in entries:
+        found = _PARTIAL_NAME.fullmatch(entry.name)
+        is_partial = found is not None and entry.is_dir() and not entry.is_symlink()
+        if not is_partial:
+            found = _LOCK_NAME.fullmatch(entry.name) if entry.is_file() else None
+        if found is None:
+            continue
+        name = found.group(1)
+        if name == mine:
+            if is_partial:
+                _remove_partial(entry, prog)
+                removed.append(entry)
+            continue
+        path = lock_path(parent / name)
+        try:
+            fd = try_lock(path)
+        except OSError:
+            continue
+        if fd is None:
+            continue  # its run is still going
+        try:
+            if is_partial and entry.exists():
+                _remove_partial(entry, prog)
+                removed.append(entry)
+        finally:
+            release_lock(fd, path)
+    return removed
+
+
+def check_no_outside_link(folder: Path) -> None:
+    """UsageError naming the first link in `folder` that leads outside it (outside_link)."""
+    if found := outside_link(folder):
+        raise UsageError(f"{found[0]} is a link to {found[1]}, outside {folder.resolve()}: a command writes only "
+                         "inside its own folder; remove the link or pick another --out")  # fmt: skip
+
+
+def check_apart(out: Path, model: Path) -> None:
+    """UsageError when `out` is the folder `model` is read from or holds it (it would be replaced), or lies
+    inside it while that folder is a run folder (a training's: marker or config.json). A loose model file
+    in a plain folder (the current one, say) does not forbid run folders beneath it."""
+    o, m = out.resolve(), model.resolve().parent
+    run_folder = (m / RUN_MARKER).exists() or (m / "config.json").exists()
+    if o == m or m.is_relative_to(o) or (run_folder and o.is_relative_to(m)):
+        raise UsageError(f"--out {out} would write into or replace {m}, the folder the model is read from; "
+                         "pick another --out")  # fmt: skip
+
+
+def start_run_dir(out: Path, kind: str = "simulate") -> Path:
+    """A fresh temporary folder beside `out`; results appear in `out` only when finish_run_dir is called.
+
+    Raises UsageError if `out` cannot be written or is not ours to replace (check_run_dir). Partial folders
+    that killed runs left in the same parent are removed first (clear_partials).
+    """
+    check_out_path(out)
+    out = out.resolve()
+    check_run_dir(out, kind)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        clear_partials(out.parent, kind, mine=out.name)
+        return Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
+    except OSError as err:
+        raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
+
+
+def finish_run_dir(tmp: Path, out: Path, kind: str = "simulate") -> None:
+    """Mark the finished run and move it into place, replacing an earlier run of `kind` in the same folder.
+
+    The earlier folder is removed only if it is still ours by check_run_dir (marker of `kind`, nothing
+    added); else the new run is discarded and UsageError raised.
+    """
+    out = out.resolve()
+    mark_run_dir(tmp, kind)
+    if not out.exists():
+        os.replace(tmp, out)
+        return
+    try:
+        check_run_dir(out, kind)
+    except UsageError:
+        discard_run_dir(tmp)
+        raise
+    # the old folder steps aside under a partial name (clear_partials removes it if a kill comes now), the new
+    # one takes its place, then the old one goes: at every moment one whole result is on disk
+    aside = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
+    os.replace(out, aside / out.name)
+    os.replace(tmp, out)
+    shutil.rmtree(aside, ignore_errors=True)
+
+
+def retrain_folder(out: Path) -> Path:
+    """Where a new training into `out` is built while `out` holds a finished one: '.<name>.retrain' beside it
+    (it replaces `out` when it has finished; `train --resume --out OUT` continues it after a kill)."""
+    return out.parent / f".{out.name}.retrain"
+
+
+def discard_run_dir(tmp: Path) -> None:
+    shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextmanager
+def atomic_run_dir(out: Path, kind: str = "simulate") -> Iterator[Path]:
+    """A temporary run folder (start_run_dir) moved into `out` when the block ends normally and removed when
+    it raises, so a failed or killed run never leaves a half-written `out`; `out`'s lock is held throughout
+    (out_lock: a second command writing to the same folder is refused)."""
+    check_out_path(out)
+    check_run_dir(out.resolve(), kind)  # before the lock's parent folder is made
+    with out_lock(out, kind):
+        tmp = start_run_dir(out, kind)
+        try:
+            yield tmp
+        except BaseException:
+            discard_run_dir(tmp)
+            raise
+        finish_run_dir(tmp, out, kind)
+
