@@ -126,7 +126,7 @@ def test_the_packaged_catalogue_holds_the_current_profiles_and_what_they_pair_wi
 
     from coopsumo.agents.conditioning import CONDITIONED8V
 
-    assert protocol_plan.LEARNERS_FILE.parent == Path(protocol_plan.__file__).parent.parent / "experiments_data"
+    assert protocol_plan.LEARNERS_FILE.parent == Path(protocol_plan.__file__).parents[2] / "experiments_data"
     known = protocol_plan.variants()
     assert {"nr10_3sets", "alpha_only", "tiny"} <= set(protocol_plan.PROFILES) and protocol_plan.CURRENT == "nr10"
     assert ("nr10", "learner_protocol_f05q_ts2k10", "f05q_ts2k") in protocol_plan.PROFILES["nr10"].paired_with
