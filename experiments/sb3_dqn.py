@@ -29,17 +29,11 @@ from typing import Any
 import numpy as np
 
 from coopsumo.config import PAPER_DQN, ControlConfig, DemandConfig, RewardConfig, RoadConfig, SimConfig, to_dict
-from coopsumo.runio import (
-    Parser,
-    UsageError,
-    discard_run_dir,
-    finish_run_dir,
-    package_version,
-    run_cli,
-    start_run_dir,
-    versions,
-    write_json,
-)
+from coopsumo.errors import UsageError
+from coopsumo.files import write_json
+from coopsumo.provenance import package_version, versions
+from coopsumo.run_dirs import discard_run_dir, finish_run_dir, start_run_dir
+from coopsumo.runio import Parser, run_cli
 from coopsumo.validation import (
     MAX_STEPS,
     MAX_T_UP_S,
