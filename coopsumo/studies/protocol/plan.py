@@ -9,12 +9,10 @@ that an installed wheel has them too); this module reads and checks them and mak
 from __future__ import annotations
 
 import json
-import tomllib
-import types
 from dataclasses import dataclass, fields, replace
 from itertools import product
 from pathlib import Path
-from typing import Any, Union, get_args, get_origin, get_type_hints
+from typing import Any, get_type_hints
 
 from coopsumo.agents.conditioning import world_alpha
 from coopsumo.config import (
@@ -30,6 +28,7 @@ from coopsumo.config import (
     TrainConfig,
     to_dict,
 )
+from coopsumo.studies.engine.catalogue import DATA, Entry, read_toml
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.validation import number_name
 
@@ -43,7 +42,6 @@ DEMANDS = (2.0, 1.5, 1.0)
 TRAJECTORY_EVERY = 5
 """accident runs record trajectories every 5 steps (0.5 s) for total time spent"""
 REQUIRED = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
-DATA = Path(__file__).resolve().parents[2] / "experiments_data"
 LEARNERS_FILE = DATA / "learners.toml"
 PROFILES_FILE = DATA / "protocol.toml"
 STATUSES = ("default", "current", "tried", "retired")
@@ -122,52 +120,6 @@ VARIANT_KEYS = ("parent", "preset", "status", "why", "learner", "drive", "weight
 PROFILE_KEYS = ("why", *(f.name for f in fields(Profile) if f.name != "name"))
 
 
-class _Entry:
-    """Errors about one entry of one file: `<file>: [<entry>] <what is wrong>`."""
-
-    def __init__(self, path: Path, name: str) -> None:
-        self.where = f"{path}: [{name}]"
-
-    def error(self, text: str) -> ConfigError:
-        return ConfigError(f"{self.where} {text}")
-
-    def value(self, key: str, value: Any, hint: Any) -> Any:
-        """`value` as the type `hint` names (bool, int, float, str, tuple[X, ...], tuple[X, Y, Z], X | None): an
-        integer where a float belongs becomes one (a learner's identity is its JSON); anything else is an error."""
-        origin, args = get_origin(hint), get_args(hint)
-        if origin in (Union, types.UnionType):
-            return self.value(key, value, next(a for a in args if a is not type(None)))
-        if origin is tuple:
-            any_length = args[-1] is Ellipsis
-            if not isinstance(value, list) or not (any_length or len(value) == len(args)):
-                raise self.error(f"{key} must be a list{'' if any_length else f' of {len(args)}'}, got {value!r}")
-            items = [args[0]] * len(value) if any_length else list(args)
-            return tuple(self.value(key, v, a) for v, a in zip(value, items, strict=True))
-        if hint is float and isinstance(value, int | float) and not isinstance(value, bool):
-            return float(value)
-        if isinstance(value, hint) and not (hint is int and isinstance(value, bool)):
-            return value
-        raise self.error(f"{key} must be {hint.__name__}, got {value!r}")
-
-    def table(self, data: Any, what: str, known: tuple[str, ...] | dict[str, Any]) -> dict[str, Any]:
-        if not isinstance(data, dict):
-            raise self.error(f"{what} must be a table, got {data!r}")
-        for key in data:
-            if key not in known:
-                raise self.error(f"unknown field {key!r} in {what} (known: {', '.join(known)})")
-        return data
-
-
-def read_toml(path: Path) -> dict[str, Any]:
-    try:
-        with path.open("rb") as f:
-            return tomllib.load(f)
-    except OSError as err:
-        raise ConfigError(f"{path}: cannot read it ({err.strerror})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise ConfigError(f"{path}: not TOML ({err})") from None
-
-
 def load_variants(path: Path = LEARNERS_FILE) -> dict[str, Variant]:
     """Every variant of a learners.toml, each its parent with its own changes; one ConfigError naming the file and
     the entry for an unknown field, parent or status, a cycle of parents, or a value the learner refuses."""
@@ -175,7 +127,7 @@ def load_variants(path: Path = LEARNERS_FILE) -> dict[str, Variant]:
     learner_hints = {k: v for k, v in get_type_hints(DQNConfig).items() if k != "preset"}
     drive_hints = {key: get_type_hints(Variant)[field] for field, key, _ in DRIVES}
     for name, entry in data.items():
-        at = _Entry(path, name)
+        at = Entry(path, name)
         at.table(entry, "a variant", VARIANT_KEYS)
         if ("parent" in entry) == ("preset" in entry):
             raise at.error("needs a parent (a variant here) or a preset (one of config.DQN_PRESETS), not both")
@@ -196,9 +148,9 @@ def load_variants(path: Path = LEARNERS_FILE) -> dict[str, Variant]:
 
     def build(name: str, below: tuple[str, ...]) -> Variant:
         if name in below:
-            raise _Entry(path, name).error(f"is its own ancestor: {' -> '.join((*below[below.index(name):], name))}")
+            raise Entry(path, name).error(f"is its own ancestor: {' -> '.join((*below[below.index(name):], name))}")
         if name not in built:
-            entry, at = data[name], _Entry(path, name)
+            entry, at = data[name], Entry(path, name)
             base = build(entry["parent"], (*below, name)) if "parent" in entry else \
                 Variant(entry["preset"], "", DQN_PRESETS[entry["preset"]])
             changes = {k: at.value(f"learner.{k}", v, learner_hints[k]) for k, v in entry.get("learner", {}).items()}
@@ -220,7 +172,7 @@ def load_variants(path: Path = LEARNERS_FILE) -> dict[str, Variant]:
         raise ConfigError(f"{path}: exactly one variant has status 'default' (today's default learner), got "
                           f"{len(defaults)}: {', '.join(defaults) or 'none'}")  # fmt: skip
     if built[defaults[0]].learner != DQN_PRESETS["default"] or built[defaults[0]].drive():
-        raise _Entry(path, defaults[0]).error("has status 'default' but is not the default preset (DQNConfig())")
+        raise Entry(path, defaults[0]).error("has status 'default' but is not the default preset (DQNConfig())")
     return built
 
 
@@ -232,7 +184,7 @@ def load_profiles(known: dict[str, Variant], path: Path = PROFILES_FILE) -> tupl
     hints = get_type_hints(Profile)
     profiles: dict[str, Profile] = {}
     for name, entry in data.items():
-        at = _Entry(path, name)
+        at = Entry(path, name)
         at.table(entry, "a profile", PROFILE_KEYS)
         if not isinstance(entry.get("why"), str) or not entry["why"]:
             raise at.error(f"needs why (a string), got {entry.get('why')!r}")

@@ -6,11 +6,12 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, replace
-from typing import Any
+from pathlib import Path
+from typing import Any, get_type_hints
 
 from coopsumo.config import (
     DQN_PRESETS,
-    PAPER_ALPHAS,
+    ConfigError,
     DemandConfig,
     DQNConfig,
     RewardConfig,
@@ -19,10 +20,9 @@ from coopsumo.config import (
     TrainConfig,
     to_dict,
 )
+from coopsumo.studies.engine.catalogue import DATA, Entry, read_toml
 from coopsumo.validation import number_name
 
-QUICK_ALPHAS = (0.0, 0.125, 0.25, 0.5, 1.0, 2.0, 8.0)
-"""the paper's small values and where the default learner's lane changes fall to none (results/learning)"""
 NOMINAL_CAPACITY_VEH_H_PER_LANE = 1800.0
 """capacity used to place the T_up grid: load 1 means T_up = 3600 / (lanes * 1800) s (near capacity)"""
 POLICIES = ("dqn", "mobil", "keep", "greedy")
@@ -36,8 +36,6 @@ CRITERION = "mean_speed_mps"
 FULL_ROAD = "full_road_speed_mps"
 """mean speed once the road is full: from the time the first vehicle inserted has left the road (m/s;
 scenario2_gate.full_road_speed)"""
-FULL_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0, 32.0)
-"""the full profile's alphas: the paper's small values, 1, and its large ones"""
 EVAL_SEED_BASE = 2000
 """evaluation seeds are EVAL_SEED_BASE + 1, + 2, ...: demands no training of the sweep saw (training seeds are 1, 2,
 ...; validation seeds 900,000 and above)"""
@@ -154,29 +152,43 @@ def eval_seeds(n: int) -> tuple[int, ...]:
     return tuple(EVAL_SEED_BASE + i for i in range(1, n + 1))
 
 
-QUICK_LOADS = (0.25, 0.5, 0.75, 1.0)
-CHECK_ALPHAS = (0.0, 1.0, 8.0)
-"""the check profile's alphas: per-alpha models trained at each, beside the 3-lane networks driven at each"""
-FULL_ROAD_EVERY_STEPS = 50
-"""the lane-network profiles record trajectories every 5 s: the full-road speed's samples"""
-LANE_STUDY: dict[str, Any] = {"lane_networks": True, "alpha_models": True, "policies": POLICIES, "criterion": FULL_ROAD,
-                              "trajectory_every_steps": FULL_ROAD_EVERY_STEPS, "train_steps": 90_000,
-                              "eval_steps": 9000}
-"""what the lane-network profiles share: the default learner's steps, one model per alpha and lane count,
-baselines, the full-road criterion (the check replaces alpha_models: it measures the conditioned network)"""
-PROFILES = {
-    "tiny": Profile("tiny", lanes=(2,), loads=(0.25, 0.5), alphas=(0.0, 8.0), seeds=(1, 2),
-                    train_steps=300, eval_steps=300, mobil_ps=(0.0, 1.0)),
-    "quick": Profile("quick", lanes=(2, 3, 4), loads=QUICK_LOADS, alphas=QUICK_ALPHAS,
-                     seeds=(1, 2, 3), train_steps=8000, eval_steps=3000, eval_seeds=eval_seeds(3)),
-    "full": Profile("full", lanes=(2, 3, 4), loads=QUICK_LOADS, alphas=FULL_ALPHAS, seeds=tuple(range(1, 6)),
-                    eval_seeds=eval_seeds(3), **LANE_STUDY),
-    "check": Profile("check", lanes=(3,), loads=QUICK_LOADS, eval_loads=(0.5, 1.0), alphas=CHECK_ALPHAS,
-                     seeds=(1, 2, 3), eval_seeds=eval_seeds(3), check_alphas=CHECK_ALPHAS,
-                     **{**LANE_STUDY, "alpha_models": False}),
-    "paper": Profile("paper", lanes=(2, 3, 4, 5, 6), loads=(0.2, 0.4, 0.6, 0.8, 1.0), alphas=PAPER_ALPHAS,
-                     seeds=tuple(range(1, 11)), eval_seeds=eval_seeds(5), alpha_draw_max=48.0, **LANE_STUDY),
-}  # fmt: skip
+PROFILES_FILE = DATA / "scenario2.toml"
+"""the profiles as data: `[profiles.NAME]` tables, `[shared.NAME]` bundles they `use`, and the `default`"""
+
+
+def load_profiles(path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], dict[str, str], str]:
+    """The profiles of a scenario2.toml, what --help says of each, and the default one; one ConfigError naming the
+    file and the entry for an unknown field, `use` or default, or a value of another type (an integer where a float
+    belongs is taken as that float, so that a model's identity does not change)."""
+    data = dict(read_toml(path))
+    hints = get_type_hints(Profile)
+    settable = tuple(k for k in hints if k not in ("name", "eval_seeds"))
+    shared, tables, default = data.pop("shared", {}), data.pop("profiles", None), data.pop("default", None)
+    for key, table in (("shared", shared), ("profiles", tables)):  # any names, each a table
+        Entry(path, key).table(table, key, tuple(table) if isinstance(table, dict) else ())
+    if data:
+        raise ConfigError(f"{path}: unknown top-level keys {', '.join(map(repr, data))} (known: default, shared, "
+                          "profiles)")  # fmt: skip
+    profiles, helps = {}, {}
+    for name, entry in tables.items():
+        at = Entry(path, f"profiles.{name}")
+        entry = dict(at.table(entry, "the profile", ("help", "use", "eval_seeds", *settable)))
+        if (use := entry.pop("use", None)) is not None and use not in shared:
+            raise at.error(f"use must name a [shared.NAME] table ({', '.join(shared) or 'none'}), got {use!r}")
+        base = Entry(path, f"shared.{use}").table(shared[use], "the shared table", settable) if use else {}
+        helps[name] = at.value("help", entry.pop("help", ""), str)
+        values = {key: at.value(key, value, hints[key]) for key, value in {**base, **entry}.items()
+                  if key != "eval_seeds"}  # fmt: skip
+        if "eval_seeds" in entry:
+            values["eval_seeds"] = eval_seeds(at.value("eval_seeds", entry["eval_seeds"], int))
+        profiles[name] = Profile(name, **values)
+    if default not in profiles:
+        raise ConfigError(f"{path}: default must name one of its profiles ({', '.join(profiles)}), got {default!r}")
+    return profiles, helps, str(default)
+
+
+PROFILES, PROFILE_HELP, DEFAULT_PROFILE = load_profiles()
+"""the profiles (scenario2.toml), what --help says of each, and the one run when none is named"""
 
 
 def cell_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:

@@ -69,10 +69,12 @@ from coopsumo.studies.scenario2.measures import KEY_COLUMNS, evals_table, runs_t
 from coopsumo.studies.scenario2.plan import (
     CLASSICAL,
     CRITERION,
+    DEFAULT_PROFILE,
     EVAL_SEED_BASE,
     FULL_ROAD,
     NOMINAL_CAPACITY_VEH_H_PER_LANE,
     POLICIES,
+    PROFILE_HELP,
     PROFILES,
     Profile,
     at_condition,
@@ -391,17 +393,6 @@ def merge(args: Any) -> int:
     return 0
 
 
-DEFAULT_PROFILE = "full"
-"""the profile without --profile: the committed report's"""
-PROFILE_HELP = {
-    "tiny": "tests",
-    "quick": "the 8,000-step per-alpha sweep of before, about 80 min on 2 cores",
-    "full": "the default: one model per alpha, lane count and seed (90 trainings of 90,000 steps), baselines and "
-            "the gate; estimated 4.7 h on 2 cores from scratch, 1.5 h with every model stored",
-    "check": "the per-lane-count networks against per-alpha models at 3 lanes, loads 0.5 and 1; estimated 1 h",
-    "paper": "the paper's grid as full is built: a Ray cluster",
-}
-"""what --help says of each profile (the estimates: docs/studies.md, scenario II)"""
 
 
 def by_profile(show: Any) -> str:
