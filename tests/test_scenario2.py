@@ -19,6 +19,7 @@ import pandas as pd
 import pytest
 from conftest import InlineBackend
 
+from coopsumo.config import PAPER_ALPHAS
 from coopsumo.studies.engine import records, runner, trainings
 from coopsumo.studies.scenario2 import measures as stats
 from coopsumo.studies.scenario2 import plan as s2_plan
@@ -278,7 +279,7 @@ def test_grid_and_profiles() -> None:
     assert {0.125, 0.25, 0.5} <= set(quick.alphas) and quick.preset == "default"
     assert [t for n, t, _ in quick.conditions() if n == 3] == [2.67, 1.33, 0.89, 0.67]
     paper = s2_plan.PROFILES["paper"]
-    assert paper.alphas == s2_plan.PAPER_ALPHAS and len(paper.seeds) == 10 and paper.train_steps == 90_000
+    assert paper.alphas == PAPER_ALPHAS and len(paper.seeds) == 10 and paper.train_steps == 90_000
     assert paper.lanes == (2, 3, 4, 5, 6) and len(paper.conditions()) >= 20
     tiny = s2_plan.PROFILES["tiny"]
     assert len(tiny.conditions()) == 2 and len(tiny.alphas) == 2 and len(tiny.seeds) == 2
