@@ -233,14 +233,15 @@ def check_text(check: pd.DataFrame, alpha_label: Any) -> str:
 def cost_text(meta: dict[str, Any], profile: Profile) -> str:
     """Measured time and the core-hours of the other lane-network profiles at the measured step costs."""
     costs = meta.get("step_costs") or {}
-    lines = [f"Wall time of this invocation: **{meta['wall_seconds'] / 3600:.2f} h** ({meta['cells_run']} of "
+    parts = meta.get("parts") or []
+    scope = f"its {len(parts)} parts added up" if parts else "this invocation"
+    lines = [f"Wall time of {scope}: **{meta['wall_seconds'] / 3600:.2f} h** ({meta['cells_run']} of "
              f"{meta['cells']} cells run now, {meta['workers']} workers, {meta['backend']} backend); the cells' CPU "
              f"time, children included: **{meta['cell_cpu_seconds_sum'] / 3600:.2f} core-hours** (their wall times "
              f"sum to {meta['cell_wall_seconds_sum'] / 3600:.2f} h)."]  # fmt: skip
-    if parts := meta.get("parts"):
+    if parts:
         each = "; ".join(f"{', '.join(map(str, p['lanes']))} lanes {p['wall_seconds'] / 3600:.2f} h "
                          f"(source {p['versions'].get('coopsumo_source', '?')})" for p in parts)  # fmt: skip
-        lines[0] = lines[0].replace("this invocation", f"its {len(parts)} parts, added up,")
         lines.append(f"It ran in {len(parts)} parts, one per invocation (`--lanes N`, then `--merge`): {each}.")
     if "train_a" in costs:
         by = ", ".join(f"{n} lanes {s / 60:.1f}" for n, s in sorted(costs["train_core_s_by_lanes"].items()))

@@ -164,8 +164,9 @@ def load_profiles(path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], dict[
     hints = get_type_hints(Profile)
     settable = tuple(k for k in hints if k not in ("name", "eval_seeds"))
     shared, tables, default = data.pop("shared", {}), data.pop("profiles", None), data.pop("default", None)
-    for key, table in (("shared", shared), ("profiles", tables)):  # any names, each a table
-        Entry(path, key).table(table, key, tuple(table) if isinstance(table, dict) else ())
+    for key, table in (("shared", shared), ("profiles", tables)):
+        if not isinstance(table, dict):
+            raise Entry(path, key).error(f"must be a table, got {table!r}")
     if data:
         raise ConfigError(f"{path}: unknown top-level keys {', '.join(map(repr, data))} (known: default, shared, "
                           "profiles)")  # fmt: skip

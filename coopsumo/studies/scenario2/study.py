@@ -373,6 +373,7 @@ MERGE_ALONE = ("steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", 
 
 def merge(args: Any) -> int:
     """--merge: the parts' sweep folders merged into --out (scenario2_redraw.merge_parts)."""
+    from coopsumo.studies.scenario2.gate_report import console_lines
     from coopsumo.studies.scenario2.redraw import merge_parts, read_parts
 
     if given := [f"--{name.replace('_', '-')}" for name in MERGE_ALONE if getattr(args, name) is not None]:
@@ -384,15 +385,11 @@ def merge(args: Any) -> int:
         raise UsageError(f"--merge: --out {args.out} is one of the parts")
     read = read_parts(parts)  # checked before anything is written
     with study_root(args.out, "scenario2"):
-        meta = merge_parts(parts, read, args.out)
-    from coopsumo.studies.scenario2.gate_report import console_lines
-
+        meta = merge_parts(read, args.out)
     print("\n".join(console_lines(args.out)))
     print(f"scenario2: merged {len(parts)} parts ({meta['cells']} cells, lanes "
           f"{', '.join(map(str, meta['profile']['lanes']))}); report: {args.out / 'report.md'}")  # fmt: skip
     return 0
-
-
 
 
 def by_profile(show: Any) -> str:
