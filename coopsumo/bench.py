@@ -27,7 +27,8 @@ import numpy as np
 
 from coopsumo.agents.policies import make_policy
 from coopsumo.agents.rollout import run
-from coopsumo.config import DQN_PRESETS, AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
+from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
+from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.runio import Parser, working_folder_problem
 from coopsumo.sim import fast
 from coopsumo.sim.physics import occupancy
@@ -154,7 +155,7 @@ def scaled_selection(steps: int) -> TrainConfig:
     """A default training of `steps` steps whose model selection costs what the default's costs a 90,000-step
     training: 6 snapshots, each validated on runs scaled by steps / 90,000 (accident runs at least
     MIN_ACCIDENT_VALIDATION_STEPS), so that it runs as many greedy steps per training step."""
-    from coopsumo.config import MIN_ACCIDENT_VALIDATION_STEPS
+    from coopsumo.dqn_config import MIN_ACCIDENT_VALIDATION_STEPS
 
     dq = DQN_PRESETS["default"]
     scale = steps / 90_000
@@ -230,7 +231,7 @@ def bench_decision(n_vehicles: int, repeats: int = 200) -> tuple[float, float]:
         fast.snapshot(occ, lane, pos, 3, 4.0)
     grid_us = (time.perf_counter() - start) / repeats / n_vehicles * 1e6
     from coopsumo.agents.dqn import Learner
-    from coopsumo.config import DQNConfig
+    from coopsumo.dqn_config import DQNConfig
 
     learner = Learner(DQNConfig(), 0)
     grids = rng.integers(0, 2, (n_vehicles, 3, 3, 20)).astype(np.uint8)

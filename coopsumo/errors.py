@@ -12,6 +12,10 @@ class UsageError(ValueError):
     """Bad input from the user: reported in one line, exit code 2."""
 
 
+class ConfigError(UsageError):
+    """A configuration value is outside what the model supports (a usage error)."""
+
+
 def first_line(err: BaseException) -> str:
     """The first line of an exception's message, or its type's name when the message is empty."""
     text = str(err).strip()

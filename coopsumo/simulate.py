@@ -19,7 +19,6 @@ from coopsumo.config import (
     MAX_LANES,
     MIN_LANES,
     AccidentConfig,
-    ConfigError,
     ControlConfig,
     DemandConfig,
     GuiConfig,
@@ -27,7 +26,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
 )
-from coopsumo.errors import UsageError
+from coopsumo.errors import ConfigError, UsageError
 from coopsumo.policy_spec import KEYS, PolicySpecError, model_file, parse_policy, split_dqn_spec
 from coopsumo.run_dirs import atomic_run_dir, check_apart, check_run_dir
 from coopsumo.runio import Parser, run_cli

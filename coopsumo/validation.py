@@ -23,7 +23,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from coopsumo.errors import UsageError
+from coopsumo.errors import ConfigError, UsageError
 from coopsumo.paths import out_path_problem
 
 SEED_MAX = 2**31 - 1
@@ -61,42 +61,6 @@ SUMO_LC_LIMITS: dict[str, tuple[float, float, bool]] = {
 }
 """SUMO's LC2013 factors a `sumo:` policy may set: (lowest, highest, lowest excluded); lcStrategic -1 turns
 strategic changes off; lcCooperative is a share"""
-LEARNER_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
-    "decision_interval_steps": (1, 600, False, False),
-    "lr": (0.0, 1.0, True, False),
-    "gamma": (0.0, 1.0, False, True),
-    "n_step": (1, 20, False, False),
-    "replay_size": (1, MAX_REPLAY, False, False),
-    "batch_size": (1, MAX_REPLAY, False, False),
-    "learn_every": (1, MAX_STEPS, False, False),
-    "updates_per_learn": (1, 1000, False, False),
-    "target_sync_steps": (1, MAX_STEPS, False, False),
-    "epsilon_start": (0.0, 1.0, False, False),
-    "epsilon_end": (0.0, 1.0, False, False),
-    "epsilon_decay_steps": (0, MAX_STEPS, False, False),
-    "learn_start_steps": (0, MAX_STEPS, False, False),
-    "grad_clip_norm": (0.0, 1e6, True, False),
-    "speed_scale_mps": (0.0, 1000.0, True, False),
-    "store_per_decision": (1, MAX_REPLAY, False, False),
-    "restart_below_mps": (0.0, 100.0, False, False),
-    "change_margin": (0.0, 1e6, False, False),
-    "no_return_s": (0.0, 600.0, False, False),
-    "alpha_period_steps": (1, MAX_STEPS, False, False),
-    "alpha_relabel": (0.0, 1.0, False, False),
-    "alpha_draw_max": (0.0, 1e6, False, False),
-    "select_every_steps": (0, MAX_STEPS, False, False),
-    "validation_seed": (0, SEED_MAX - 10, False, False),
-    "validation_steps": (100, MAX_STEPS, False, False),
-    "validation_accident_steps": (0, MAX_STEPS, False, False),
-    "accident_share": (0.0, 1.0, False, False),
-    "episode_steps": (1000, MAX_STEPS, False, False),
-    "followers_weight": (0.0, 100.0, False, False),
-    "followers_m": (0.0, 1000.0, True, False),
-    "queue_below_mps": (0.0, 100.0, False, False),
-    "weights_ema": (0.0, 1.0, False, True),
-}
-"""every number of the learner (config.DQNConfig): (lowest, highest, lowest excluded, highest excluded); a decision
-at most every 60 s, lr at most 1 (beyond, every loss diverges), a gradient clip at most 1e6"""
 RAY_PROBE_TIMEOUT_S = 20.0
 """time a Ray cluster address gets to answer (s); with the socket check, failure comes within 30 s"""
 
@@ -159,6 +123,16 @@ def type_problem(obj: Any, prefix: str = "") -> str | None:
         if kind in _KINDS and not _kind_fits(kind, value):
             return f"{prefix}{f.name} must be {_KINDS[kind]}, got {value!r}"
     return None
+
+
+def from_fields(cls: Any, d: dict[str, Any], what: str) -> Any:
+    """cls(**d); a field cls does not know is a ConfigError naming it (missing fields take their defaults)."""
+    if not isinstance(d, dict):
+        raise ConfigError(f"{what} settings are not a mapping: {d!r}")
+    unknown = sorted(set(d) - {f.name for f in dataclasses.fields(cls)})
+    if unknown:
+        raise ConfigError(f"unknown {what} setting {unknown[0]!r} (written by a newer coopsumo?)")
+    return cls(**d)
 
 
 def limits_problem(obj: Any, limits: Mapping[str, tuple[float, float, bool, bool]]) -> str | None:

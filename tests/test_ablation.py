@@ -13,7 +13,7 @@ import pytest
 from conftest import InlineBackend
 
 from coopsumo.agents.selection import trained_part
-from coopsumo.config import PAPER_DQN, DQNConfig
+from coopsumo.dqn_config import PAPER_DQN, DQNConfig
 from coopsumo.studies.learning.plan import (
     CHAIN_LENGTH,
     PROFILES,

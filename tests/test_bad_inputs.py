@@ -22,7 +22,9 @@ import torch
 
 from coopsumo import validation
 from coopsumo.agents.dqn import QNetwork, save_model
-from coopsumo.config import DQN_PRESETS, ConfigError, DemandConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.config import DemandConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import DQN_PRESETS
+from coopsumo.errors import ConfigError
 from coopsumo.run_dirs import mark_run_dir
 
 SHIM_NAMES = {"ablation": "learning"}

@@ -14,7 +14,8 @@ from typing import Any
 import pytest
 from conftest import committed_report_pages
 
-from coopsumo.config import DQN_PRESETS, DQNConfig, results_view, to_dict
+from coopsumo.config import results_view, to_dict
+from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.studies.engine.run_folders import default_out
 from coopsumo.studies.engine.trainings import first_difference
 from coopsumo.studies.learning.plan import PROFILES as LEARNING_PROFILES

@@ -32,16 +32,9 @@ from coopsumo.agents.dqn import (
 )
 from coopsumo.agents.replay import relabelled
 from coopsumo.agents.train import training_alpha
-from coopsumo.config import (
-    PAPER_ALPHAS,
-    ConfigError,
-    DQNConfig,
-    RewardConfig,
-    SimConfig,
-    TrainConfig,
-    to_dict,
-)
-from coopsumo.errors import UsageError
+from coopsumo.config import PAPER_ALPHAS, RewardConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import DQNConfig
+from coopsumo.errors import ConfigError, UsageError
 from coopsumo.policy_spec import ADAPTIVE, split_dqn_spec
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, SPEEDUP

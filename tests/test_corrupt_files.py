@@ -25,7 +25,8 @@ from coopsumo.agents import train_cli as train
 from coopsumo.agents.dqn import QNetwork, save_model
 from coopsumo.agents.file_checks import prepare_resume, truncate_log
 from coopsumo.agents.train import Trainer
-from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
+from coopsumo.config import SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.run_dirs import (
     RUN_MARKER,

@@ -22,7 +22,8 @@ import torch
 from coopsumo.agents import train_cli
 from coopsumo.agents.dqn import load_model
 from coopsumo.agents.train import Trainer, model_meta, train
-from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
+from coopsumo.config import SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.files import write_json
 from coopsumo.run_dirs import finished_run, mark_run_dir
 

@@ -27,7 +27,7 @@ from coopsumo.agents.dqn import (
     save_model,
     sync_target,
 )
-from coopsumo.config import PAPER_DQN, DQNConfig
+from coopsumo.dqn_config import PAPER_DQN, DQNConfig
 from coopsumo.sim.observation import Observation, n_features
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -248,7 +248,7 @@ def test_optimizer_step_equals_torchs_step_and_imports_no_dynamo(optimizer: str,
     code = f"""
 import sys, numpy as np, torch
 from coopsumo.agents.dqn import QNetwork, ReplayBuffer, dqn_update, make_optimizer, sync_target
-from coopsumo.config import DQNConfig
+from coopsumo.dqn_config import DQNConfig
 sys.path.insert(0, "tests")
 from test_dqn import random_transitions
 from coopsumo.agents.dqn import q_values, td_targets

@@ -172,7 +172,7 @@ def test_trained_dqn_as_background(tmp_path: Path) -> None:
     import torch
 
     from coopsumo.agents.dqn import QNetwork, save_model
-    from coopsumo.config import DQNConfig
+    from coopsumo.dqn_config import DQNConfig
 
     torch.manual_seed(0)
     save_model(tmp_path / "model.pt", QNetwork(DQNConfig().speed_scale_mps), {"note": "untrained"})

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 
 from coopsumo.agents.episodes import ACCIDENT_X_M, SEED_LOW, episode_bounds, episode_config, episodic
-from coopsumo.config import PAPER_DQN, DQNConfig, SimConfig
+from coopsumo.config import SimConfig
+from coopsumo.dqn_config import PAPER_DQN, DQNConfig
 
 ROOT = Path(__file__).resolve().parent.parent
 MIX = dataclasses.replace(DQNConfig(), train_t_ups=(2.0, 1.5, 1.0), accident_share=0.5, episode_steps=9000)

@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from coopsumo.agents.train import train
-from coopsumo.config import AccidentConfig, DQNConfig, SimConfig, TrainConfig
+from coopsumo.config import AccidentConfig, SimConfig, TrainConfig
+from coopsumo.dqn_config import DQNConfig
 from coopsumo.sim import fast, observation, reward
 
 pytestmark = pytest.mark.sumo

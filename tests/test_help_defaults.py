@@ -7,7 +7,8 @@ from __future__ import annotations
 import argparse
 import re
 
-from coopsumo.config import DQNConfig, results_view, to_dict
+from coopsumo.config import results_view, to_dict
+from coopsumo.dqn_config import DQNConfig
 from coopsumo.studies.engine.run_folders import default_out
 from coopsumo.studies.protocol import plan as protocol_plan
 from coopsumo.studies.protocol import study as protocol

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from coopsumo.config import DQN_PRESETS, to_dict
+from coopsumo.config import to_dict
+from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.studies.protocol import history
 
 ROOT = Path(__file__).resolve().parent.parent

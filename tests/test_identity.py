@@ -15,7 +15,8 @@ import pytest
 import torch
 
 from coopsumo.agents.dqn import MAX_MODEL_BYTES, ModelFileError, QNetwork, load_model, save_model
-from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
+from coopsumo.config import SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import USAGE_EXIT
 from coopsumo.files import write_json
 from coopsumo.run_dirs import mark_run_dir

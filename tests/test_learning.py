@@ -16,18 +16,9 @@ from torch import nn
 
 from coopsumo.agents.decisions import ActionHold, follow_up, is_decision_step, offered
 from coopsumo.agents.dqn import Learner, ReplayBatch, epsilon_at, epsilon_greedy, td_targets
-from coopsumo.config import (
-    DQN_PRESETS,
-    PAPER_DQN,
-    ConfigError,
-    DQNConfig,
-    SimConfig,
-    TrainConfig,
-    dqn_config_from_dict,
-    results_view,
-    to_dict,
-)
-from coopsumo.errors import UsageError
+from coopsumo.config import SimConfig, TrainConfig, results_view, to_dict
+from coopsumo.dqn_config import DQN_PRESETS, PAPER_DQN, DQNConfig, dqn_config_from_dict
+from coopsumo.errors import ConfigError, UsageError
 from coopsumo.sim import physics
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
@@ -321,7 +312,8 @@ def test_no_return_is_a_learner_setting_a_model_file_carries(tmp_path: Path) -> 
     from coopsumo.agents.dqn import QNetwork, save_model
     from coopsumo.agents.dqn_policy import DQNPolicy
     from coopsumo.agents.selection import trained_part
-    from coopsumo.config import TrainConfig, dqn_config_from_dict, results_view, to_dict
+    from coopsumo.config import TrainConfig, results_view, to_dict
+    from coopsumo.dqn_config import dqn_config_from_dict
 
     dq = dataclasses.replace(DQNConfig(), no_return_s=5.0)
     dq.validate()
@@ -468,7 +460,7 @@ def test_train_flags_resolve_the_preset_and_override_fields() -> None:
 
 
 def test_legacy_learner_dict_is_the_paper_setup() -> None:
-    from coopsumo.config import dqn_config_from_dict
+    from coopsumo.dqn_config import dqn_config_from_dict
 
     old = {"lr": 0.01, "gamma": 0.9, "replay_size": 2000, "batch_size": 64, "target_sync_steps": 500,
            "greedy_prob": 0.9, "learn_every_steps": 4, "learn_start_steps": 200, "optimizer": "sgd",

@@ -133,7 +133,8 @@ def test_a_training_folder_drives_as_its_model(tmp_path: Path) -> None:
     """`dqn:FOLDER` loads FOLDER/model.pt; a folder without one is named in the error."""
     from coopsumo.agents.dqn import QNetwork, save_model
     from coopsumo.agents.dqn_policy import DQNPolicy
-    from coopsumo.config import DQN_PRESETS, to_dict
+    from coopsumo.config import to_dict
+    from coopsumo.dqn_config import DQN_PRESETS
 
     run = tmp_path / "run"
     run.mkdir()
@@ -149,7 +150,8 @@ def test_margin_replaces_the_change_margin_a_model_was_saved_with(tmp_path: Path
 
     from coopsumo.agents.dqn import QNetwork, save_model
     from coopsumo.agents.dqn_policy import DQNPolicy
-    from coopsumo.config import DQN_PRESETS, SimConfig, TrainConfig, to_dict
+    from coopsumo.config import SimConfig, TrainConfig, to_dict
+    from coopsumo.dqn_config import DQN_PRESETS
 
     dqn = replace(DQN_PRESETS["default"], observation="paper")
     model = tmp_path / "model.pt"

@@ -226,7 +226,7 @@ def test_fresh_evaluation_seeds_drive_the_same_trainings() -> None:
     validation uses, with the same trainings."""
     from dataclasses import replace
 
-    from coopsumo.config import VALIDATION_SEED
+    from coopsumo.dqn_config import VALIDATION_SEED
     from coopsumo.studies.protocol.plan import PROFILES, cell_specs
 
     ours = cell_specs(replace(PROFILES["nr10"], name="nr10_e1", eval_offsets=(10,), alpha_seeds=0))
@@ -240,7 +240,7 @@ def test_fresh_evaluation_seeds_drive_the_same_trainings() -> None:
 
 def test_the_current_profile_judges_the_default_and_measures_its_alpha_response() -> None:
     """nr10 judges today's default (no judged variant named: the first), alpha 8 on 3 of its seeds in free flow."""
-    from coopsumo.config import DQNConfig
+    from coopsumo.dqn_config import DQNConfig
     from coopsumo.studies.protocol.plan import CURRENT, PROFILES, cell_specs, variants
 
     profile = PROFILES[CURRENT]

@@ -7,7 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from coopsumo.config import DQN_PRESETS, ConfigError
+from coopsumo.dqn_config import DQN_PRESETS
+from coopsumo.errors import ConfigError
 from coopsumo.studies.protocol import plan as protocol_plan
 from coopsumo.studies.protocol.plan import load_profiles, load_variants
 
@@ -42,7 +43,7 @@ VARIANT_ERRORS = [
     (X + 'learner = { gamma = "high" }', "x", "learner.gamma must be float, got 'high'"),
     (X + 'learner = { n_step = true }', "x", "learner.n_step must be int"),
     (X + 'learner = { train_t_ups = 2.0 }', "x", "learner.train_t_ups must be a list"),
-    (X + 'learner = { gamma = 1.5 }', "x", "learner: gamma must be in [0, 1)"),
+    (X + 'learner = { gamma = 1.5 }', "x", "learner: gamma must be a finite number >= 0 and < 1, got 1.5"),
     (X + 'drive = { ensemble_snapshots = 2.5 }', "x", "drive.ensemble_snapshots must be int"),
     (X + 'weights = "best.pt"', "x", "weights must be one of"),
     ("x = 3", "x", "a variant must be a table, got 3"),

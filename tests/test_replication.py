@@ -63,7 +63,8 @@ from pathlib import Path  # noqa: E402
 
 import pytest  # noqa: E402
 
-from coopsumo.config import DQNConfig, to_dict  # noqa: E402
+from coopsumo.config import to_dict  # noqa: E402
+from coopsumo.dqn_config import DQNConfig  # noqa: E402
 from coopsumo.studies.engine import model_store  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent

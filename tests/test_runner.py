@@ -222,7 +222,7 @@ def test_number_names_are_exact_and_keep_the_short_form() -> None:
 def test_close_alphas_give_distinct_cells_in_every_study() -> None:
     from dataclasses import replace
 
-    from coopsumo.config import DQNConfig
+    from coopsumo.dqn_config import DQNConfig
     from coopsumo.studies.learning import plan as ablation
     from coopsumo.studies.scenario1 import study as scenario1
     from coopsumo.studies.scenario2 import study as scenario2

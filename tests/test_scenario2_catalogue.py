@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from coopsumo.config import ConfigError
+from coopsumo.errors import ConfigError
 from coopsumo.studies.scenario2 import plan
 
 GOOD = """

@@ -16,7 +16,9 @@ import torch
 from coopsumo.agents import selection
 from coopsumo.agents.dqn import load_model
 from coopsumo.agents.train import train
-from coopsumo.config import PAPER_DQN, ConfigError, DQNConfig, SimConfig, TrainConfig, dqn_config_from_dict, to_dict
+from coopsumo.config import SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import PAPER_DQN, DQNConfig, dqn_config_from_dict
+from coopsumo.errors import ConfigError
 from coopsumo.studies.engine import stats
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -19,7 +19,8 @@ import pandas as pd
 import pytest
 
 from coopsumo import cli
-from coopsumo.config import DemandConfig, DQNConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.config import DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import DQNConfig
 from coopsumo.studies.followups.diagnosis_measures import COLUMNS, decision_measures, training_course
 from coopsumo.studies.learning import study as ablation
 

@@ -16,7 +16,8 @@ import torch
 
 from coopsumo.agents.dqn import load_model
 from coopsumo.agents.train import train
-from coopsumo.config import DQN_PRESETS, DQNConfig, SimConfig, TrainConfig
+from coopsumo.config import SimConfig, TrainConfig
+from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent

@@ -17,7 +17,7 @@ import torch
 
 from coopsumo.agents.dqn import Learner, load_model
 from coopsumo.agents.update_worker import LearnerProcessError, UpdateWorker
-from coopsumo.config import PAPER_DQN, DQNConfig
+from coopsumo.dqn_config import PAPER_DQN, DQNConfig
 from tests.test_dqn import random_transitions, run_steps, same, weights
 
 ROOT = Path(__file__).resolve().parent.parent

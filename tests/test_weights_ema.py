@@ -14,7 +14,7 @@ import torch
 
 from coopsumo.agents.dqn import Learner, QNetwork, update_average
 from coopsumo.agents.update_worker import UpdateWorker
-from coopsumo.config import PAPER_DQN, DQNConfig
+from coopsumo.dqn_config import PAPER_DQN, DQNConfig
 from tests.test_dqn import run_steps, same, weights
 
 ROOT = Path(__file__).resolve().parent.parent

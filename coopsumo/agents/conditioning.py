@@ -4,7 +4,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from coopsumo.config import PAPER_ALPHAS, DQNConfig
+from coopsumo.config import PAPER_ALPHAS
+from coopsumo.dqn_config import DQNConfig
 
 
 def conditioned_alphas(dq: DQNConfig) -> tuple[float, ...]:

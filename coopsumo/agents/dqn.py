@@ -26,7 +26,8 @@ from torch import nn
 from coopsumo.agents.conditioning import conditioned_alphas
 from coopsumo.agents.file_checks import model_problem
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch, ReplayBuffer
-from coopsumo.config import OBSERVATIONS, PAPER_ALPHAS, DQNConfig
+from coopsumo.config import PAPER_ALPHAS
+from coopsumo.dqn_config import OBSERVATIONS, DQNConfig
 from coopsumo.sim.observation import n_features
 
 _CONV_OUT = 32 * 1 * 5

@@ -12,8 +12,9 @@ from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, c
 from coopsumo.agents.decisions import cooled_down, no_change_in_queue, no_return, offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
 from coopsumo.agents.snapshots import by_score, results, snapshot_dir
-from coopsumo.config import PAPER_DQN, ConfigError, ControlConfig, dqn_config_from_dict
-from coopsumo.errors import UsageError
+from coopsumo.config import ControlConfig
+from coopsumo.dqn_config import PAPER_DQN, dqn_config_from_dict
+from coopsumo.errors import ConfigError, UsageError
 from coopsumo.files import file_sha256
 from coopsumo.policy_spec import ADAPTIVE, model_file, parse_policy, split_dqn_spec
 from coopsumo.sim.observation import Observation, network_features

@@ -13,7 +13,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from coopsumo.config import AccidentConfig, DQNConfig, SimConfig
+from coopsumo.config import AccidentConfig, SimConfig
+from coopsumo.dqn_config import DQNConfig
 
 EPISODE_STREAM = 0x45504953
 """random stream of the episode draws (with the training seed and the episode's index)"""

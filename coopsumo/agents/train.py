@@ -42,15 +42,8 @@ from coopsumo.agents.nstep import Round, mature
 from coopsumo.agents.tb_log import open_log
 from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import LearnerProcessError, UpdateWorker
-from coopsumo.config import (
-    PAPER_ALPHAS,
-    ConfigError,
-    TrainConfig,
-    results_view,
-    to_dict,
-    train_config_from_dict,
-)
-from coopsumo.errors import UsageError, first_line
+from coopsumo.config import PAPER_ALPHAS, TrainConfig, results_view, to_dict, train_config_from_dict
+from coopsumo.errors import ConfigError, UsageError, first_line
 from coopsumo.files import write_atomic, write_json
 from coopsumo.provenance import versions
 from coopsumo.run_dirs import check_no_outside_link, finished_run, mark_run_dir

@@ -16,20 +16,17 @@ from typing import Any
 
 from coopsumo.agents.tb_log import TensorBoardFlag
 from coopsumo.config import (
-    DQN_PRESETS,
     MAX_LANES,
     MIN_LANES,
-    OBSERVATIONS,
-    ConfigError,
     ControlConfig,
     DemandConfig,
-    DQNConfig,
     RewardConfig,
     RoadConfig,
     SimConfig,
     TrainConfig,
 )
-from coopsumo.errors import UsageError
+from coopsumo.dqn_config import DQN_PRESETS, LEARNER_FLAGS, DQNConfig
+from coopsumo.errors import ConfigError, UsageError
 from coopsumo.paths import STORE_ENV
 from coopsumo.run_dirs import (
     check_no_outside_link,
@@ -111,79 +108,6 @@ def default_out(cfg: TrainConfig) -> Path:
     s = cfg.sim
     alpha = "cond" if cfg.dqn.alpha_conditioned else f"{s.reward.alpha:g}"
     return Path("results") / "train" / f"lanes{s.road.lanes}_alpha{alpha}_tup{s.demand.t_up_s:g}_seed{s.seed}"
-
-
-LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = (
-    ("--decision-interval", "decision_interval_steps", int,
-     "steps of 0.1 s between a vehicle's decisions (paper: 1); a lane change starts on the decision step, "
-     "then the vehicle asks to speed up; rewards of the interval are summed into one transition"),
-    ("--action-mask", "action_mask", bool, "offer left/right only when the controller would accept them"),
-    ("--double-dqn", "double_dqn", bool, "double DQN target"),
-    ("--dueling", "dueling", bool, "dueling Q head (value + advantages)"),
-    ("--loss", "loss", ("mse", "huber"), "TD loss (paper: mse)"),
-    ("--lr", "lr", float, "learning rate"),
-    ("--optimizer", "optimizer", ("sgd", "adam"), "optimizer (paper: sgd)"),
-    ("--gamma", "gamma", float, "discount per decision round (paper: 0.9 per 0.1 s step)"),
-    ("--replay-size", "replay_size", int, "replay memory (transitions)"),
-    ("--batch-size", "batch_size", int, "minibatch (transitions)"),
-    ("--learn-every", "learn_every", int, "decision rounds between learning phases"),
-    ("--updates-per-decision", "updates_per_learn", int, "gradient updates per learning phase"),
-    ("--store-per-decision", "store_per_decision", int, "transitions stored per decision round (random subset)"),
-    ("--target-sync", "target_sync_steps", int, "steps of 0.1 s between target-network syncs"),
-    ("--epsilon-start", "epsilon_start", float, "exploration probability at the start"),
-    ("--epsilon-end", "epsilon_end", float, "exploration probability after the decay"),
-    ("--epsilon-decay-steps", "epsilon_decay_steps", int, "steps of the linear epsilon decay (0: constant)"),
-    ("--restart-below", "restart_below_mps", float, "'none' is not offered below this speed (m/s; 0: off)"),
-    ("--change-margin", "change_margin", float,
-     "when the model drives, a lane change is chosen only when its Q-value beats staying by more than this "
-     "(0: plain argmax); training ignores it, model selection drives the snapshots with it"),
-    ("--alpha-conditioned", "alpha_conditioned", bool,
-     "one network for every alpha: alpha is an input, drawn from the paper's 12 values for all vehicles every "
-     "--alpha-period steps; drive it with --policy dqn:PATH,alpha=A (not with --alpha)"),
-    ("--alpha-period", "alpha_period_steps", int, "conditioned training: steps of 0.1 s between two alpha draws"),
-    ("--alpha-relabel", "alpha_relabel", float,
-     "conditioned training: share of each minibatch learned at another alpha (reward recomputed)"),
-    ("--alpha-draw-max", "alpha_draw_max", float,
-     "conditioned training: draw and relabel only the paper's alphas up to this one (48: all twelve)"),
-    ("--select-every", "select_every_steps", int,
-     "model selection: every this many steps (and at the last) validate the weights greedily on held-out free-flow "
-     "demand; model.pt is the best, model_last.pt the last weights (0: model.pt is the last weights, the paper's)"),
-    ("--validation-seed", "validation_seed", int,
-     "model selection: validation run i uses seed VALIDATION_SEED + i (must not meet the training seed)"),
-    ("--validation-t-up", "validation_t_ups", str, "model selection: comma-separated demands T_up (s), one run each"),
-    ("--validation-steps", "validation_steps", int, "model selection: steps of 0.1 s of each validation run"),
-    ("--validation-accident-steps", "validation_accident_steps", int,
-     "model selection: also validate each demand through an accident, a run of this many steps (0: free flow only)"),
-    ("--validation-alphas", "validation_alphas", str,
-     "model selection of a conditioned training: comma-separated alphas each validation run is driven at, the score "
-     "their mean (empty: the training's alpha alone)"),
-    ("--validation-queue", "validation_queue", bool,
-     "model selection: validate the snapshots with the queue rule (--queue-below) on, as the model will drive"),
-    ("--train-t-up", "train_t_ups", str,
-     "training demand: comma-separated T_up (s); each episode of --episode-steps draws one (empty: --t-up "
-     "throughout)"),
-    ("--accident-share", "accident_share", float,
-     "training demand: share of episodes (0-1) with an accident whose position, start and length are drawn"),
-    ("--episode-steps", "episode_steps", int, "training demand: steps of one episode (a fresh world each)"),
-    ("--n-step", "n_step", int,
-     "returns over this many decision rounds of one vehicle, bootstrapped with gamma^n (1: one round, the paper's)"),
-    ("--weights-ema", "weights_ema", float,
-     "the weights that drive (snapshots, model.pt) are a moving average of the online weights with this decay per "
-     "gradient update (0: the online weights); training is unchanged"),
-    ("--followers-weight", "followers_weight", float,
-     "reward shaping: add this times the mean speed reward of the vehicles behind within --followers-m in the "
-     "lanes a vehicle occupies (0: the paper's reward)"),
-    ("--followers-m", "followers_m", float, "reward shaping: the window behind a vehicle (m)"),
-    ("--queue-below", "queue_below_mps", float,
-     "driving (not training): no lane change is chosen by a vehicle slower than this (m/s; 0: none)"),
-    ("--no-return", "no_return_s", float,
-     "driving and model selection (not training): for this many s after a lane change, the change back is not "
-     "chosen (s; 0: none)"),
-    ("--observation", "observation", OBSERVATIONS,
-     "what the network reads: 'paper' (3 x 20 m occupancy grids and speed errors) or 'v2x' (those plus each "
-     "side lane's nearest leader and follower within 200 m: gap and speed)"),
-)  # fmt: skip
-"""(flag, DQNConfig field, type or choices, help); every flag defaults to the chosen preset's value"""
 
 
 def add_learner_flags(p: Parser) -> None:

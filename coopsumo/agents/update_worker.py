@@ -33,7 +33,7 @@ import torch  # noqa: E402
 
 from coopsumo.agents.dqn import QNetwork, learn, make_optimizer, sync_target  # noqa: E402
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch  # noqa: E402
-from coopsumo.config import DQNConfig  # noqa: E402
+from coopsumo.dqn_config import DQNConfig  # noqa: E402
 
 POLL_S = 0.5
 """how often a wait checks that the worker still lives (s)"""

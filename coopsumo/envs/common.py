@@ -13,7 +13,8 @@ import numpy as np
 from gymnasium import spaces
 
 from coopsumo.agents.policies import Policy, make_policy
-from coopsumo.config import POLICY_STREAM, ConfigError, ControlConfig, SimConfig, rng_stream
+from coopsumo.config import POLICY_STREAM, ControlConfig, SimConfig, rng_stream
+from coopsumo.errors import ConfigError
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, Observation
 from coopsumo.sim.physics import ACTION_NAMES
 from coopsumo.sim.world import StepOutcome, World

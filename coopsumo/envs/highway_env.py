@@ -40,7 +40,7 @@ import numpy as np
 
 from coopsumo.agents.decisions import ActionHold, follow_up
 from coopsumo.agents.policies import Policy
-from coopsumo.config import ConfigError, SimConfig
+from coopsumo.config import SimConfig
 from coopsumo.envs.common import (
     WorldSlot,
     action_space,
@@ -56,6 +56,7 @@ from coopsumo.envs.common import (
     step_info,
     vehicle_observation,
 )
+from coopsumo.errors import ConfigError
 from coopsumo.sim.driver import sumo_models
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.world import World

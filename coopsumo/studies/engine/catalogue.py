@@ -8,7 +8,7 @@ import types
 from pathlib import Path
 from typing import Any, Union, get_args, get_origin
 
-from coopsumo.config import ConfigError
+from coopsumo.errors import ConfigError
 
 DATA = Path(__file__).resolve().parents[2] / "experiments_data"
 """the folder of the experiments' data files"""

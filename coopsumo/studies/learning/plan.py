@@ -8,16 +8,8 @@ from dataclasses import dataclass, replace
 from typing import Any
 
 from coopsumo.agents.conditioning import CONDITIONED8V, world_alpha
-from coopsumo.config import (
-    PAPER_DQN,
-    DemandConfig,
-    DQNConfig,
-    RewardConfig,
-    RoadConfig,
-    SimConfig,
-    TrainConfig,
-    to_dict,
-)
+from coopsumo.config import DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import PAPER_DQN, DQNConfig
 from coopsumo.errors import UsageError
 from coopsumo.validation import name_list, number_name
 

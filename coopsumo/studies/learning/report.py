@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.agents.conditioning import CONDITIONED_FIELDS
-from coopsumo.config import DQNConfig
+from coopsumo.dqn_config import DQNConfig
 from coopsumo.studies.followups import robustness
 from coopsumo.studies.learning.plan import (
     BASELINES,

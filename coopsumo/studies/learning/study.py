@@ -24,11 +24,8 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
-from coopsumo.config import (
-    DQNConfig,
-    RoadConfig,
-    to_dict,
-)
+from coopsumo.config import RoadConfig, to_dict
+from coopsumo.dqn_config import DQNConfig
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions

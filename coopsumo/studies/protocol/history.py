@@ -17,7 +17,8 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import ADDED_FIELDS, DQN_PRESETS, SPEED_ONLY_FIELDS, to_dict
+from coopsumo.config import SPEED_ONLY_FIELDS, to_dict
+from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_atomic
 from coopsumo.runio import Parser, run_cli

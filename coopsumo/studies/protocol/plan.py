@@ -15,19 +15,9 @@ from pathlib import Path
 from typing import Any, get_type_hints
 
 from coopsumo.agents.conditioning import world_alpha
-from coopsumo.config import (
-    DQN_PRESETS,
-    MIN_ACCIDENT_VALIDATION_STEPS,
-    AccidentConfig,
-    ConfigError,
-    DemandConfig,
-    DQNConfig,
-    RewardConfig,
-    RoadConfig,
-    SimConfig,
-    TrainConfig,
-    to_dict,
-)
+from coopsumo.config import AccidentConfig, DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import DQN_PRESETS, MIN_ACCIDENT_VALIDATION_STEPS, DQNConfig
+from coopsumo.errors import ConfigError
 from coopsumo.studies.engine.catalogue import DATA, Entry, read_toml
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.validation import number_name

@@ -8,16 +8,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-from coopsumo.config import (
-    DQN_PRESETS,
-    AccidentConfig,
-    DemandConfig,
-    OutputConfig,
-    RewardConfig,
-    RoadConfig,
-    SimConfig,
-    TrainConfig,
-)
+from coopsumo.config import AccidentConfig, DemandConfig, OutputConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig
+from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.policy_spec import model_file, split_dqn_spec
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.studies.engine.run_folders import default_out

@@ -521,7 +521,7 @@ def closing_table(agg: pd.DataFrame, t_up: float) -> str:
 def training_text(plan: Plan) -> str:
     """How the models were trained: the learner's own training demand (the default's mix of demands and
     accidents, or free flow at one demand)."""
-    from coopsumo.config import DQN_PRESETS
+    from coopsumo.dqn_config import DQN_PRESETS
 
     dqn = DQN_PRESETS[plan.presets[0]]
     t_ups = ", ".join(f"{t:g}" for t in dqn.train_t_ups)

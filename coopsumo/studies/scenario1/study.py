@@ -23,7 +23,8 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import DQN_PRESETS, ControlConfig, OutputConfig, RoadConfig, to_dict
+from coopsumo.config import ControlConfig, OutputConfig, RoadConfig, to_dict
+from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.policy_spec import model_file, split_dqn_spec

@@ -9,17 +9,9 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, get_type_hints
 
-from coopsumo.config import (
-    DQN_PRESETS,
-    ConfigError,
-    DemandConfig,
-    DQNConfig,
-    RewardConfig,
-    RoadConfig,
-    SimConfig,
-    TrainConfig,
-    to_dict,
-)
+from coopsumo.config import DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
+from coopsumo.errors import ConfigError
 from coopsumo.studies.engine.catalogue import DATA, Entry, read_toml
 from coopsumo.validation import number_name
 

@@ -48,7 +48,8 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import DQN_PRESETS, MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
+from coopsumo.config import MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
+from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
