@@ -28,7 +28,8 @@ from typing import Any
 
 import numpy as np
 
-from coopsumo.config import PAPER_DQN, ControlConfig, DemandConfig, RewardConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.config import ControlConfig, DemandConfig, RewardConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.dqn_config import PAPER_DQN
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import package_version, versions
