@@ -371,43 +371,76 @@ PART = ["--t-up", "4", "--alphas", "0,8", "--seeds", "1", "--eval-seeds", "1", "
 
 
 def test_the_full_profile_in_parts_merged(tmp_path: Path) -> None:
-    """The full profile (one model per alpha, lane count and seed) run one lane count at a time, then --merge: the
-    merged tables are the parts' together, its report covers both lane counts and says it ran in parts, and each
-    condition's gate row is the one its part drew alone."""
-    parts = {n: tmp_path / f"L{n}" for n in (2, 3)}
-    for n, out in parts.items():
-        cmd = [sys.executable, "-m", "coopsumo", "scenario2", "--lanes", str(n), *PART, "--out", str(out)]
+    """The full profile (one model per alpha, lane count and seed) run in parts, one lane count or some of its alphas
+    at a time, then --merge: the merged tables are the parts' together (the classical runs two parts of one lane
+    count both made, once), its report covers both lane counts and says it ran in parts, and the gate row of a lane
+    count run in one part is the one that part drew alone."""
+    parts = {"L2": (2, "0,8"), "L3a": (3, "0"), "L3b": (3, "8")}
+    folders = {name: tmp_path / name for name in parts}
+    for name, (n, alphas) in parts.items():
+        out = folders[name]
+        cmd = [sys.executable, "-m", "coopsumo", "scenario2", "--lanes", str(n), *PART, "--alphas", alphas, "--out",
+               str(out)]  # fmt: skip
         res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
         assert res.returncode == 0, res.stderr[-3000:]
-        assert sorted(p.name for p in (out / "train").iterdir()) == [f"L{n}_a0_s1", f"L{n}_a8_s1"]
-        cfg = json.loads((out / "train" / f"L{n}_a8_s1" / "config.json").read_text())["config"]
-        assert not cfg["dqn"]["alpha_conditioned"] and cfg["sim"]["reward"]["alpha"] == 8
+        assert sorted(p.name for p in (out / "train").iterdir()) == [f"L{n}_a{a}_s1" for a in alphas.split(",")]
+    cfg = json.loads((folders["L2"] / "train" / "L2_a8_s1" / "config.json").read_text())["config"]
+    assert not cfg["dqn"]["alpha_conditioned"] and cfg["sim"]["reward"]["alpha"] == 8
     merged = tmp_path / "merged"
-    cmd = [sys.executable, "-m", "coopsumo", "scenario2", "--merge", f"{parts[2]},{parts[3]}", "--out", str(merged)]
+    cmd = [sys.executable, "-m", "coopsumo", "scenario2", "--merge", ",".join(map(str, folders.values())), "--out",
+           str(merged)]  # fmt: skip
     res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300, check=False)
     assert res.returncode == 0, res.stderr[-3000:]
-    assert "merged 2 parts (10 cells, lanes 2, 3)" in res.stdout
+    assert "merged 3 parts (10 cells, lanes 2, 3)" in res.stdout
     runs = pd.read_csv(merged / "runs.csv")
     assert len(runs) == 10 and set(runs["lanes"]) == {2, 3} and (runs["status"] == "ok").all()
-    pd.testing.assert_frame_equal(runs, pd.concat([pd.read_csv(p / "runs.csv") for p in parts.values()],
+    alone = {name: pd.read_csv(out / "runs.csv") for name, out in folders.items()}
+    assert len(alone["L3a"]) == len(alone["L3b"]) == 4  # one model and the classical runs, in both
+    pd.testing.assert_frame_equal(runs, pd.concat([alone["L2"], alone["L3a"], alone["L3b"].iloc[[0]]],
                                                   ignore_index=True))  # fmt: skip
+    classical = alone["L3b"][alone["L3b"]["policy"] != "dqn"].reset_index(drop=True)
+    same = alone["L3a"][alone["L3a"]["policy"] != "dqn"].reset_index(drop=True)
+    pd.testing.assert_frame_equal(classical.drop(columns=["cell_wall_s", "cell_cpu_s", "wall_seconds",
+                                                          "steps_per_second", "sumo_step_share"]),
+                                  same.drop(columns=["cell_wall_s", "cell_cpu_s", "wall_seconds", "steps_per_second",
+                                                     "sumo_step_share"]))  # fmt: skip
+    evals = pd.read_csv(merged / "evals.csv")
+    assert len(evals) == sum(len(pd.read_csv(out / "evals.csv")) for out in folders.values()) - 3
     gate = pd.read_csv(merged / "gate.csv")
-    for n, out in parts.items():
-        alone = pd.read_csv(out / "gate.csv")
-        pd.testing.assert_frame_equal(gate[gate["lanes"] == n].reset_index(drop=True), alone)
+    pd.testing.assert_frame_equal(gate[gate["lanes"] == 2].reset_index(drop=True),
+                                  pd.read_csv(folders["L2"] / "gate.csv"))  # fmt: skip
     sweep = json.loads((merged / "sweep.json").read_text())
-    assert sweep["profile"]["lanes"] == [2, 3] and [p["lanes"] for p in sweep["parts"]] == [[2], [3]]
-    assert sweep["cells"] == 10 and sweep["trainings"] == 4
+    assert sweep["profile"]["lanes"] == [2, 3] and sweep["profile"]["alphas"] == [0, 8]
+    assert [(p["lanes"], p["alphas"]) for p in sweep["parts"]] == [([2], [0, 8]), ([3], [0]), ([3], [8])]
+    assert sweep["cells"] == 10 and sweep["trainings"] == 4 and len(sweep["conditions"]) == 2
     report = (merged / "report.md").read_text()
-    assert "It ran in 2 parts" in report and "| 2 | 4 |" in report and "| 3 | 4 |" in report
+    assert "It ran in 3 parts" in report and "3 lanes at alphas 8" in report
+    assert "| 2 | 4 |" in report and "| 3 | 4 |" in report
     again = subprocess.run([*cmd[:-1], str(tmp_path / "other")], cwd=REPO, capture_output=True, text=True,
                            timeout=300, check=False)  # fmt: skip
     assert again.returncode == 0 and (tmp_path / "other" / "report.md").read_text() == report
+    parts = {2: folders["L2"], 3: folders["L3a"]}
+    changed = tmp_path / "L3b_changed"
+    changed.mkdir()
+    for name in ("sweep.json", "evals.csv"):
+        (changed / name).write_bytes((folders["L3b"] / name).read_bytes())
+    keep_row = alone["L3b"]["policy"] == "keep"
+    alone["L3b"].assign(mean_speed_mps=alone["L3b"]["mean_speed_mps"].where(~keep_row, 1.0)).to_csv(
+        changed / "runs.csv", index=False)
+    for argv, words in (([f"{folders['L3a']},{changed}"], "with different results"),
+                        ([f"{folders['L2']},{folders['L3b']}"], "no part holds lanes 3 at alpha 0")):
+        bad = subprocess.run([sys.executable, "-m", "coopsumo", "scenario2", "--merge", *argv, "--out",
+                              str(tmp_path / "bad")], cwd=REPO, capture_output=True, text=True,
+                             check=False)  # fmt: skip
+        lines = bad.stderr.strip().splitlines()
+        assert bad.returncode == 2 and len(lines) == 1 and words in lines[0], bad.stderr
+        assert not (tmp_path / "bad").exists()
     copy = tmp_path / "L2_copy"
     copy.mkdir()
     for name in ("sweep.json", "runs.csv", "evals.csv"):
         (copy / name).write_bytes((parts[2] / name).read_bytes())
-    for argv, words in (([f"{parts[2]},{copy}"], "repeats lanes [2]"), ([str(tmp_path / "none")], "not a finished"),
+    for argv, words in (([f"{parts[2]},{copy}"], "repeats lanes 2 at alpha 0"),
+                        ([str(tmp_path / "none")], "not a finished"),
                         ([f"{parts[2]}", "--lanes", "2"], "--lanes cannot go with it")):  # fmt: skip
         bad = subprocess.run([sys.executable, "-m", "coopsumo", "scenario2", "--merge", *argv, "--out",
                               str(tmp_path / "bad")], cwd=REPO, capture_output=True, text=True,

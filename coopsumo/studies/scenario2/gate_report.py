@@ -240,9 +240,16 @@ def cost_text(meta: dict[str, Any], profile: Profile) -> str:
              f"time, children included: **{meta['cell_cpu_seconds_sum'] / 3600:.2f} core-hours** (their wall times "
              f"sum to {meta['cell_wall_seconds_sum'] / 3600:.2f} h)."]  # fmt: skip
     if parts:
-        each = "; ".join(f"{', '.join(map(str, p['lanes']))} lanes {p['wall_seconds'] / 3600:.2f} h "
+        every = sorted(profile.alphas)
+
+        def which(p: dict[str, Any]) -> str:
+            some = sorted(p.get("alphas", every))
+            return "" if some == every else f" at alphas {', '.join(f'{a:g}' for a in some)}"
+
+        each = "; ".join(f"{', '.join(map(str, p['lanes']))} lanes{which(p)} {p['wall_seconds'] / 3600:.2f} h "
                          f"(source {p['versions'].get('coopsumo_source', '?')})" for p in parts)  # fmt: skip
-        lines.append(f"It ran in {len(parts)} parts, one per invocation (`--lanes N`, then `--merge`): {each}.")
+        lines.append(f"It ran in {len(parts)} parts, one per invocation (`--lanes N [--alphas A,...]`, then "
+                     f"`--merge`): {each}.")  # fmt: skip
     if "train_a" in costs:
         by = ", ".join(f"{n} lanes {s / 60:.1f}" for n, s in sorted(costs["train_core_s_by_lanes"].items()))
         lines.append(f"Measured: a training of {profile.train_steps:,} steps with its model selection took {by} "

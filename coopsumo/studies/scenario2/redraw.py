@@ -34,9 +34,8 @@ def rewrite_outputs(root: Path) -> dict[str, Any]:
     return meta
 
 
-MERGED_SUMS = ("cells", "cells_run", "cells_ok", "cells_failed", "wall_seconds", "cell_wall_seconds_sum",
-               "cell_cpu_seconds_sum")  # fmt: skip
-"""sweep.json values a merged sweep adds up over its parts"""
+MERGED_SUMS = ("cells_run", "wall_seconds", "cell_wall_seconds_sum", "cell_cpu_seconds_sum")
+"""sweep.json values a merged sweep adds up over its parts (the work each part did)"""
 
 
 class Part(NamedTuple):
@@ -48,10 +47,17 @@ class Part(NamedTuple):
     evals: pd.DataFrame
 
 
+SPLIT_BY = ("lanes", "alphas", "check_alphas")
+"""profile fields in which the parts of one sweep may differ: a part is some lane counts at some alphas"""
+TIMING = ("wall_seconds", "train_wall_seconds", "cell_wall_s", "cell_cpu_s", "steps_per_second", "sumo_step_share")
+"""runs.csv and evals.csv columns that say how fast a run went, not what it gave"""
+
+
 def read_parts(folders: list[Path]) -> list[Part]:
     """The finished sweeps to merge (merge_parts), checked: UsageError when a part is missing a file, is not a
     finished lane-network sweep, has tables that disagree with its sweep.json (another number of cells, another lane
-    count), differs from the first in anything but its lanes, or repeats another's lanes."""
+    count), differs from the first in anything but its lanes and alphas, or when together the parts do not make one
+    grid (every lane count at every alpha, once) or two parts' classical runs of one lane count differ."""
     parts = []
     for folder in folders:
         try:
@@ -68,38 +74,68 @@ def read_parts(folders: list[Path]) -> list[Part]:
             raise UsageError(f"--merge: {folder}'s runs.csv and evals.csv do not agree with its sweep.json "
                              f"({len(runs)} rows for {meta.get('cells')} cells of lanes {sorted(lanes)})")  # fmt: skip
         parts.append(Part(folder, meta, runs, evals))
-    first = {k: v for k, v in parts[0].meta["profile"].items() if k != "lanes"}
-    seen: set[int] = set()
+    first = {k: v for k, v in parts[0].meta["profile"].items() if k not in SPLIT_BY}
+    grid: set[tuple[int, float]] = set()
     for part in parts:
-        if {k: v for k, v in part.meta["profile"].items() if k != "lanes"} != first:
+        if {k: v for k, v in part.meta["profile"].items() if k not in SPLIT_BY} != first:
             raise UsageError(f"--merge: {part.folder} was run with another profile than {parts[0].folder} (only "
-                             "--lanes may differ)")  # fmt: skip
-        if overlap := seen & set(part.meta["profile"]["lanes"]):
-            raise UsageError(f"--merge: {part.folder} repeats lanes {sorted(overlap)} of another part")
-        seen |= set(part.meta["profile"]["lanes"])
+                             "--lanes and --alphas may differ)")  # fmt: skip
+        cells = {(n, a) for n in part.meta["profile"]["lanes"] for a in part.meta["profile"]["alphas"]}
+        if overlap := grid & cells:
+            n, a = min(overlap)
+            raise UsageError(f"--merge: {part.folder} repeats lanes {n} at alpha {a:g} of another part")
+        grid |= cells
+    lanes, alphas = {n for n, _ in grid}, {a for _, a in grid}
+    if missing := {(n, a) for n in lanes for a in alphas} - grid:
+        n, a = min(missing)
+        raise UsageError(f"--merge: no part holds lanes {n} at alpha {a:g}: the parts do not make one grid")
+    _one_of_each([part.runs for part in parts], ["key"], "runs.csv")
+    _one_of_each([part.evals for part in parts], ["key", "eval_seed"], "evals.csv")
     return parts
+
+
+def _one_of_each(tables: list[pd.DataFrame], ids: list[str], what: str) -> pd.DataFrame:
+    """The parts' tables together, the runs of `keep`, `greedy` and MOBIL that two parts of one lane count both ran
+    (the same `ids`) kept once; UsageError when those differ in anything but their timing (not the same code or
+    seeds), or when a model's run is in two parts."""
+    table = pd.concat(tables, ignore_index=True)
+    twice = table[table.duplicated(ids, keep=False)]
+    if (twice["policy"] == "dqn").any():
+        raise UsageError(f"--merge: a model's run appears in two parts' {what}")
+    differ = twice.drop(columns=[c for c in TIMING if c in twice]).drop_duplicates()
+    if differ.duplicated(ids).any():
+        key = differ.loc[differ.duplicated(ids), "key"].iloc[0]
+        raise UsageError(f"--merge: two parts ran {key} with different results ({what}): not the same code?")
+    return table.drop_duplicates(ids, keep="first").reset_index(drop=True)
 
 
 def merge_parts(parts: list[Part], out: Path) -> dict[str, Any]:
     """One sweep in `out` from its finished parts (read_parts): sweeps of one lane-network profile run with
-    different --lanes (a study longer than a session runs one lane count at a time). Their runs.csv and evals.csv
-    are concatenated, sweep.json records the profile with every part's lanes and each part's folder, lanes, time and
-    versions, and the tables, figures and report are drawn as rewrite_outputs draws them."""
+    different --lanes, or one lane count's alphas in two parts (a study longer than a session runs one lane count, or
+    part of one, at a time). Their runs.csv and evals.csv are concatenated (a classical run two parts of one lane
+    count both made, kept once), sweep.json records the profile with every part's lanes and alphas and each part's
+    folder, lanes, alphas, time and versions, and the tables, figures and report are drawn as rewrite_outputs draws
+    them."""
     metas = [part.meta for part in parts]
-    lanes = sorted(n for m in metas for n in m["profile"]["lanes"])
-    merged = {**metas[0], "profile": {**metas[0]["profile"], "lanes": lanes}}
-    merged["conditions"] = sorted((c for m in metas for c in m["conditions"]), key=lambda c: (c["lanes"],
-                                                                                              -c["t_up_s"]))
+    runs = _one_of_each([part.runs for part in parts], ["key"], "runs.csv")
+    evals = _one_of_each([part.evals for part in parts], ["key", "eval_seed"], "evals.csv")
+    union = {k: sorted({x for m in metas for x in m["profile"][k]}) for k in SPLIT_BY}
+    merged = {**metas[0], "profile": {**metas[0]["profile"], **union}}
+    conditions = {json.dumps(c, sort_keys=True): c for m in metas for c in m["conditions"]}
+    merged["conditions"] = sorted(conditions.values(), key=lambda c: (c["lanes"], -c["t_up_s"]))
     for name in MERGED_SUMS:
         total = sum(m[name] for m in metas)
         merged[name] = round(total, 1) if isinstance(total, float) else total
-    merged["failed_cells"] = [k for m in metas for k in m.get("failed_cells", [])]
+    merged["failed_cells"] = sorted({k for m in metas for k in m.get("failed_cells", [])})
+    merged.update(cells=len(runs), cells_ok=int((runs["status"] == "ok").sum()),
+                  cells_failed=len(merged["failed_cells"]))  # a classical run two parts made counts once
     merged["trainings"] = sum(int(m["trainings"]) for m in metas)
     merged["parts"] = [{"folder": str(part.folder), "lanes": part.meta["profile"]["lanes"],
-                        "wall_seconds": part.meta["wall_seconds"], "workers": part.meta["workers"],
-                        "versions": part.meta["versions"]} for part in parts]  # fmt: skip
+                        "alphas": part.meta["profile"]["alphas"], "wall_seconds": part.meta["wall_seconds"],
+                        "workers": part.meta["workers"], "versions": part.meta["versions"]}
+                       for part in parts]  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
-    pd.concat([part.runs for part in parts], ignore_index=True).to_csv(out / "runs.csv", index=False)
-    pd.concat([part.evals for part in parts], ignore_index=True).to_csv(out / "evals.csv", index=False)
+    runs.to_csv(out / "runs.csv", index=False)
+    evals.to_csv(out / "evals.csv", index=False)
     write_json(out / "sweep.json", merged)
     return rewrite_outputs(out)
