@@ -16,8 +16,9 @@ import coopsumo
 PACKAGE_DIR = Path(coopsumo.__file__).parent
 # what each layer may import from the others (the top-level modules config, dqn_config, paths, runio, validation are
 # shared by all)
-SHARED = {"coopsumo", "coopsumo.config", "coopsumo.dqn_config", "coopsumo.paths", "coopsumo.policy_spec", "coopsumo.runio",
-          "coopsumo.validation", "coopsumo.errors", "coopsumo.provenance", "coopsumo.files", "coopsumo.run_dirs"}
+SHARED = {"coopsumo", "coopsumo.config", "coopsumo.dqn_config", "coopsumo.paths", "coopsumo.policy_spec",
+          "coopsumo.runio", "coopsumo.validation", "coopsumo.errors", "coopsumo.provenance", "coopsumo.files",
+          "coopsumo.run_dirs"}
 GROUND = {"coopsumo.errors", "coopsumo.provenance", "coopsumo.files", "coopsumo.paths"}
 """the ground floor: errors, provenance, files and output paths, which import nothing else of coopsumo"""
 ALLOWED = {
@@ -196,6 +197,7 @@ def test_only_commands_import_the_command_line_helpers() -> None:
     checks, the policy grammar and the ground floor never import it."""
     graph = import_graph(module_files())
     below = [n for n in graph if n.startswith("coopsumo.sim.") or n in GROUND
-             or n in {"coopsumo.config", "coopsumo.dqn_config", "coopsumo.validation", "coopsumo.policy_spec", "coopsumo.run_dirs"}]
+             or n in {"coopsumo.config", "coopsumo.dqn_config", "coopsumo.validation", "coopsumo.policy_spec",
+                      "coopsumo.run_dirs"}]
     bad = {f"{name} -> coopsumo.runio" for name in below if "coopsumo.runio" in graph[name]}
     assert not bad, sorted(bad)

@@ -21,7 +21,8 @@ import pytest
 import torch
 
 from coopsumo import validation
-from coopsumo.agents.dqn import QNetwork, save_model
+from coopsumo.agents.dqn import QNetwork
+from coopsumo.agents.model_file import save_model
 from coopsumo.config import DemandConfig, SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import ConfigError

@@ -18,20 +18,10 @@ import pytest
 import torch
 
 from coopsumo.agents.adaptive import AdaptiveRule, choose_alpha, fit_rule, interval_measures
-from coopsumo.agents.conditioning import conditioned_alphas
-from coopsumo.agents.dqn import (
-    ALPHA_INPUT_SCALE,
-    GRID_SHAPE,
-    N_ACTIONS,
-    ModelFileError,
-    QNetwork,
-    ReplayBuffer,
-    alpha_input,
-    load_model,
-    save_model,
-)
+from coopsumo.agents.conditioning import conditioned_alphas, training_alpha
+from coopsumo.agents.dqn import ALPHA_INPUT_SCALE, GRID_SHAPE, N_ACTIONS, QNetwork, ReplayBuffer, alpha_input
+from coopsumo.agents.model_file import ModelFileError, load_model, save_model
 from coopsumo.agents.replay import relabelled
-from coopsumo.agents.train import training_alpha
 from coopsumo.config import PAPER_ALPHAS, RewardConfig, SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQNConfig
 from coopsumo.errors import ConfigError, UsageError

@@ -22,8 +22,9 @@ import torch
 
 from coopsumo import simulate
 from coopsumo.agents import train_cli as train
-from coopsumo.agents.dqn import QNetwork, save_model
+from coopsumo.agents.dqn import QNetwork
 from coopsumo.agents.file_checks import prepare_resume, truncate_log
+from coopsumo.agents.model_file import save_model
 from coopsumo.agents.train import Trainer
 from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS

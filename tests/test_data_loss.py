@@ -20,7 +20,7 @@ import pytest
 import torch
 
 from coopsumo.agents import train_cli
-from coopsumo.agents.dqn import load_model
+from coopsumo.agents.model_file import load_model
 from coopsumo.agents.train import Trainer, model_meta, train
 from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS

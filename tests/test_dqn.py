@@ -16,17 +16,15 @@ from coopsumo.agents.dqn import (
     GRID_SHAPE,
     N_ACTIONS,
     Learner,
-    ModelFileError,
     QNetwork,
     ReplayBatch,
     ReplayBuffer,
     dqn_update,
     epsilon_greedy,
-    load_model,
     make_optimizer,
-    save_model,
     sync_target,
 )
+from coopsumo.agents.model_file import ModelFileError, load_model, save_model
 from coopsumo.dqn_config import PAPER_DQN, DQNConfig
 from coopsumo.sim.observation import Observation, n_features
 

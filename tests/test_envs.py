@@ -171,7 +171,8 @@ def test_episode_ends_when_the_agent_leaves_the_road() -> None:
 def test_trained_dqn_as_background(tmp_path: Path) -> None:
     import torch
 
-    from coopsumo.agents.dqn import QNetwork, save_model
+    from coopsumo.agents.dqn import QNetwork
+    from coopsumo.agents.model_file import save_model
     from coopsumo.dqn_config import DQNConfig
 
     torch.manual_seed(0)

@@ -23,7 +23,7 @@ import pytest
 import torch
 from conftest import TIMING_KEYS
 
-from coopsumo.agents.dqn import load_model
+from coopsumo.agents.model_file import load_model
 from coopsumo.report.analysis import read_detectors
 from coopsumo.run_dirs import RUN_MARKER, finished_run
 

@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 import torch
 
-from coopsumo.agents.dqn import MAX_MODEL_BYTES, ModelFileError, QNetwork, load_model, save_model
+from coopsumo.agents.dqn import QNetwork
+from coopsumo.agents.model_file import MAX_MODEL_BYTES, ModelFileError, load_model, save_model
 from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import USAGE_EXIT

@@ -222,8 +222,8 @@ def test_a_standing_vehicle_of_a_model_that_prefers_none_speeds_up(observation_o
 def test_a_model_driven_with_restart_withholds_none_below_that_speed(tmp_path: Path, observation_of: Layout) -> None:
     """dqn:PATH,restart=R replaces the model's own threshold: R 50 (above every expected speed) never chooses
     'none', so the model chooses lanes only; the threshold is recorded beside the other driven settings."""
-    from coopsumo.agents.dqn import save_model
     from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.agents.model_file import save_model
 
     path = tmp_path / "m.pt"
     learner = dataclasses.replace(DQNConfig(), dueling=False, observation="paper")  # what _net_preferring is
@@ -309,8 +309,9 @@ def test_no_return_withholds_only_the_change_back_for_its_seconds(observation_of
 def test_no_return_is_a_learner_setting_a_model_file_carries(tmp_path: Path) -> None:
     """DQNConfig.no_return_s (train --no-return S): the saved model drives with it, dqn:PATH,noreturn=S replaces
     it, and a training differing only there trains the same weights (only model selection drives with it)."""
-    from coopsumo.agents.dqn import QNetwork, save_model
+    from coopsumo.agents.dqn import QNetwork
     from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.agents.model_file import save_model
     from coopsumo.agents.selection import trained_part
     from coopsumo.config import TrainConfig, results_view, to_dict
     from coopsumo.dqn_config import dqn_config_from_dict
@@ -356,8 +357,8 @@ def test_a_saved_model_drives_with_its_own_queue_rule_and_a_spec_replaces_it(tmp
                                                                                observation_of: Layout) -> None:
     """A learner's queue rule (DQNConfig.queue_below_mps, 5 in the default) drives a model from its file; the paper
     preset and a model saved before the field have none; dqn:PATH,queue=V replaces it."""
-    from coopsumo.agents.dqn import save_model
     from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.agents.model_file import save_model
 
     slow = observation_of(lane=[1], pos=[300.0], speed=[3.0], v_exp=[25.0])
     queue5 = dataclasses.replace(DQNConfig(), queue_below_mps=5.0)
@@ -382,8 +383,8 @@ def test_an_ensemble_drives_the_mean_q_of_the_best_validated_snapshots(tmp_path:
     """dqn:PATH,ensemble=K: model.pt (the best snapshot) and the next-best K - 1 by validation score vote by their
     mean Q-value; too few snapshots, or a model that is not the best of them, is a one-line usage error."""
     from coopsumo.agents import selection
-    from coopsumo.agents.dqn import save_model
     from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.agents.model_file import save_model
 
     learner = dataclasses.replace(DQNConfig(), dueling=False, observation="paper", change_margin=0.0)
     meta = {"config": to_dict(TrainConfig(dqn=learner))}
@@ -602,7 +603,8 @@ def test_in_sumo_a_model_that_prefers_none_stands_for_good_only_without_the_rest
 
 
 def test_dueling_head_and_its_model_file(tmp_path: Path) -> None:
-    from coopsumo.agents.dqn import QNetwork, load_model, save_model
+    from coopsumo.agents.dqn import QNetwork
+    from coopsumo.agents.model_file import load_model, save_model
 
     torch.manual_seed(0)
     net = QNetwork(30.0, dueling=True)

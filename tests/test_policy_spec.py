@@ -131,8 +131,9 @@ def test_the_command_line_and_the_gymnasium_env_give_the_same_line(tmp_path: Pat
 
 def test_a_training_folder_drives_as_its_model(tmp_path: Path) -> None:
     """`dqn:FOLDER` loads FOLDER/model.pt; a folder without one is named in the error."""
-    from coopsumo.agents.dqn import QNetwork, save_model
+    from coopsumo.agents.dqn import QNetwork
     from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.agents.model_file import save_model
     from coopsumo.config import to_dict
     from coopsumo.dqn_config import DQN_PRESETS
 
@@ -148,8 +149,9 @@ def test_a_training_folder_drives_as_its_model(tmp_path: Path) -> None:
 def test_margin_replaces_the_change_margin_a_model_was_saved_with(tmp_path: Path) -> None:
     from dataclasses import replace
 
-    from coopsumo.agents.dqn import QNetwork, save_model
+    from coopsumo.agents.dqn import QNetwork
     from coopsumo.agents.dqn_policy import DQNPolicy
+    from coopsumo.agents.model_file import save_model
     from coopsumo.config import SimConfig, TrainConfig, to_dict
     from coopsumo.dqn_config import DQN_PRESETS
 

@@ -157,7 +157,7 @@ def _swap(model: Path) -> None:
     """Another model of the same training in its place: other weights, the same configuration (it loads)."""
     import torch
 
-    from coopsumo.agents.dqn import load_model, save_model
+    from coopsumo.agents.model_file import load_model, save_model
 
     net, meta = load_model(model)
     with torch.no_grad():

@@ -14,7 +14,7 @@ import pytest
 import torch
 
 from coopsumo.agents import selection
-from coopsumo.agents.dqn import load_model
+from coopsumo.agents.model_file import load_model
 from coopsumo.agents.train import train
 from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import PAPER_DQN, DQNConfig, dqn_config_from_dict

@@ -45,7 +45,8 @@ def save_untrained(folder: Path, train_config: dict[str, Any]) -> None:
     """folder/model.pt: a network of the training's learner with untrained weights, and its train_log.csv."""
     import torch
 
-    from coopsumo.agents.dqn import QNetwork, save_model
+    from coopsumo.agents.dqn import QNetwork
+    from coopsumo.agents.model_file import save_model
 
     torch.manual_seed(0)
     dqn = train_config["dqn"]
@@ -221,7 +222,7 @@ def test_accident_seeds_drives_every_model_beside_the_baselines(tmp_path: Path) 
     assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
     assert list(runs["seed"]) == [0] * 6
     # the margin variant drove a copy of its model carrying the margin; the conditioned one at alpha 0 and adaptive
-    from coopsumo.agents.dqn import load_model
+    from coopsumo.agents.model_file import load_model
 
     copies = sorted((out / "models").glob("*.pt"))  # both variants drive with the change margin of 1
     assert len(copies) == 2 and all(load_model(c)[1]["config"]["dqn"]["change_margin"] == 1.0 for c in copies)

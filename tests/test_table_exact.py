@@ -210,7 +210,8 @@ def sumo_file(path: Path) -> bytes:
 def dqn_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     import torch
 
-    from coopsumo.agents.dqn import QNetwork, save_model
+    from coopsumo.agents.dqn import QNetwork
+    from coopsumo.agents.model_file import save_model
 
     torch.manual_seed(4)
     path = tmp_path_factory.mktemp("model") / "model.pt"

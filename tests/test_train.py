@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from coopsumo.agents.dqn import load_model
+from coopsumo.agents.model_file import load_model
 from coopsumo.agents.train import train
 from coopsumo.config import SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig

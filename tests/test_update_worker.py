@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 import torch
 
-from coopsumo.agents.dqn import Learner, load_model
+from coopsumo.agents.dqn import Learner
+from coopsumo.agents.model_file import load_model
 from coopsumo.agents.update_worker import LearnerProcessError, UpdateWorker
 from coopsumo.dqn_config import PAPER_DQN, DQNConfig
 from tests.test_dqn import random_transitions, run_steps, same, weights

@@ -84,7 +84,7 @@ def test_a_bad_decay_is_one_line_and_exit_2(tmp_path: Path, value: str) -> None:
 
 @pytest.mark.sumo
 def test_a_training_with_the_average_learns_the_same_and_keeps_the_average(tmp_path: Path) -> None:
-    from coopsumo.agents.dqn import load_model
+    from coopsumo.agents.model_file import load_model
     from coopsumo.agents.train import train
     from coopsumo.config import SimConfig, TrainConfig
 

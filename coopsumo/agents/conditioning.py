@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import functools
 from typing import Any
+
+import numpy as np
 
 from coopsumo.config import PAPER_ALPHAS
 from coopsumo.dqn_config import DQNConfig
@@ -26,3 +29,20 @@ def world_alpha(dq: DQNConfig, alpha: float) -> float:
     """The world's alpha of a training whose model drives at `alpha`: 0 for a conditioned one, which draws its own, so
     that one training serves every alpha it drives at."""
     return 0.0 if dq.alpha_conditioned else alpha
+
+
+ALPHA_STREAM = 0x414C5048
+"""random stream of a conditioned training's alpha draws (with the seed and the period's index)"""
+
+
+def training_alpha(seed: int, step: int, period_steps: int, alphas: tuple[float, ...] = PAPER_ALPHAS) -> float:
+    """The alpha all vehicles share at training step `step` of a conditioned training: one of `alphas`
+    (conditioning.conditioned_alphas), drawn uniformly and afresh every period_steps, a pure function of
+    (seed, step // period_steps) so a resume replays it exactly."""
+    return _alpha_draw(seed, step // period_steps, alphas)
+
+
+@functools.lru_cache(maxsize=256)
+def _alpha_draw(seed: int, period: int, alphas: tuple[float, ...]) -> float:
+    """The alpha of period `period` of a conditioned training seeded `seed` (training_alpha)."""
+    return float(alphas[np.random.default_rng([seed, ALPHA_STREAM, period]).integers(len(alphas))])

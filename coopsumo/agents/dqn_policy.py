@@ -10,7 +10,8 @@ import torch
 
 from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, choose_alpha
 from coopsumo.agents.decisions import cooled_down, no_change_in_queue, no_return, offered, with_change_margin
-from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, ModelFileError, QNetwork, load_model
+from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, QNetwork
+from coopsumo.agents.model_file import ModelFileError, load_model
 from coopsumo.agents.snapshots import by_score, results, snapshot_dir
 from coopsumo.config import ControlConfig
 from coopsumo.dqn_config import PAPER_DQN, dqn_config_from_dict

@@ -1,7 +1,7 @@
 """What the learner reads back from disk, checked by type and range before it is used, and the repairs a resume
 makes to a training folder.
 
-model_problem checks a model file's payload (dqn.save_model's dict), checkpoint_problem a training checkpoint
+model_problem checks a model file's payload (model_file.save_model's dict), checkpoint_problem a training checkpoint
 (train.Trainer.save_checkpoint's dict): each says in words why the file cannot be trusted, or None. The learner
 settings inside either are checked by config.DQNConfig.validate (types and the limits on its fields).
 prepare_resume makes a training folder ready to continue from its checkpoint's step; ended_training reads the

@@ -166,7 +166,7 @@ def reselect(src: Path, out: Path, cfg: TrainConfig) -> dict[str, Any]:
     SELECTION_FIELDS: the same snapshots, last weights and training log (rewritten under cfg's configuration),
     validated again with cfg's validation, the best installed as model.pt. No training step runs (validation never
     feeds back into training, so these are the weights cfg would train). Returns out's train summary."""
-    from coopsumo.agents.dqn import load_model, save_model
+    from coopsumo.agents.model_file import load_model, save_model
     from coopsumo.files import write_json
     from coopsumo.provenance import versions
     from coopsumo.run_dirs import mark_run_dir
@@ -322,7 +322,7 @@ class Validator:
         when a snapshot is due: with an update worker, it waits for the updates sent)."""
         if step % self.every == 0 or step == self.cfg.sim.steps:
             net = weights()
-            from coopsumo.agents.dqn import save_model
+            from coopsumo.agents.model_file import save_model
             from coopsumo.provenance import versions
 
             folder = snapshot_dir(self.out, step)

@@ -1,7 +1,7 @@
-"""TensorBoard scalars of a training run (`coopsumo train --tensorboard`): the numbers of every train_log.csv
-row, at its step, in OUT/tensorboard/. The CSV stays the record; this is for watching a run live
-(`tensorboard --logdir OUT/tensorboard`). torch's SummaryWriter needs the `tensorboard` package
-(`pip install 'coopsumo[tensorboard]'`; `make install` installs it).
+"""A training's log: the sums of one logging window (Window), train_log.csv's columns, and TensorBoard scalars of
+the run (`coopsumo train --tensorboard`): the numbers of every train_log.csv row, at its step, in OUT/tensorboard/.
+The CSV stays the record; TensorBoard is for watching a run live (`tensorboard --logdir OUT/tensorboard`). torch's
+SummaryWriter needs the `tensorboard` package (`pip install 'coopsumo[tensorboard]'`; `make install` installs it).
 """
 
 from __future__ import annotations
@@ -9,8 +9,47 @@ from __future__ import annotations
 import argparse
 import shutil
 from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
+
+from coopsumo.sim.world import StepOutcome
+
+LOG_FIELDS = (
+    "step", "sim_time_s", "td_loss", "r_speed", "r_lane_change", "r_flow", "reward", "epsilon",
+    "mean_speed_mps", "vehicles", "lane_changes", "lane_changes_rejected", "collisions", "teleports", "wall_s",
+    "alpha",
+)  # fmt: skip
+"""train_log.csv's columns; alpha: the reward's alpha at the window's last step (drawn, when conditioned)"""
+
+
+@dataclass
+class Window:
+    """Sums over one logging window."""
+
+    loss: list[float] = field(default_factory=list)
+    r_speed: float = 0.0
+    r_lane_change: float = 0.0
+    r_flow: float = 0.0
+    samples: int = 0
+    speed_sum: float = 0.0
+    vehicle_steps: int = 0
+    lane_changes: int = 0
+    rejected: int = 0
+
+    def add(self, out: StepOutcome, speeds: np.ndarray, lane_change_penalty: np.ndarray) -> None:
+        """One step: its outcome, the speeds on the road (m/s), and the lane-change reward the learner got."""
+        self.r_speed += float(out.reward.speed.sum())
+        self.r_lane_change += float(lane_change_penalty.sum())
+        self.r_flow += float(out.reward.flow.sum())
+        self.samples += len(out.nums)
+        self.speed_sum += float(speeds.sum())
+        self.vehicle_steps += len(speeds)
+        self.lane_changes += int(out.lane_change_started.sum())
+        self.rejected += int(out.rejected.sum())
+
 
 TB_DIR = "tensorboard"
 """folder of the event files inside the training's run folder"""

@@ -15,14 +15,13 @@ the trainer charges the drawn alpha per lane change started.
 from __future__ import annotations
 
 import csv
-import functools
 import json
 import shutil
 import signal
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -32,17 +31,18 @@ import torch
 from tqdm import tqdm
 
 from coopsumo.agents import selection
-from coopsumo.agents.conditioning import conditioned_alphas
+from coopsumo.agents.conditioning import conditioned_alphas, training_alpha
 from coopsumo.agents.decisions import ActionHold, offered
-from coopsumo.agents.dqn import Learner, load_error_text, save_model
+from coopsumo.agents.dqn import Learner
 from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
 from coopsumo.agents.file_checks import checkpoint_problem, ended_training, prepare_resume
+from coopsumo.agents.model_file import load_error_text, save_model
 from coopsumo.agents.nstep import Round, mature
-from coopsumo.agents.tb_log import open_log
+from coopsumo.agents.tb_log import LOG_FIELDS, Window, open_log
 from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import LearnerProcessError, UpdateWorker
-from coopsumo.config import PAPER_ALPHAS, TrainConfig, results_view, to_dict, train_config_from_dict
+from coopsumo.config import TrainConfig, results_view, to_dict, train_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line
 from coopsumo.files import write_atomic, write_json
 from coopsumo.provenance import versions
@@ -50,30 +50,6 @@ from coopsumo.run_dirs import check_no_outside_link, finished_run, mark_run_dir
 from coopsumo.runio import Stop, signals_deferred
 from coopsumo.sim.observation import Observation, network_features
 from coopsumo.sim.world import StepOutcome, World
-
-LOG_FIELDS = (
-    "step", "sim_time_s", "td_loss", "r_speed", "r_lane_change", "r_flow", "reward", "epsilon",
-    "mean_speed_mps", "vehicles", "lane_changes", "lane_changes_rejected", "collisions", "teleports", "wall_s",
-    "alpha",
-)  # fmt: skip
-"""train_log.csv's columns; alpha: the reward's alpha at the window's last step (drawn, when conditioned)"""
-
-ALPHA_STREAM = 0x414C5048
-"""random stream of a conditioned training's alpha draws (with the seed and the period's index)"""
-
-
-def training_alpha(seed: int, step: int, period_steps: int, alphas: tuple[float, ...] = PAPER_ALPHAS) -> float:
-    """The alpha all vehicles share at training step `step` of a conditioned training: one of `alphas`
-    (conditioning.conditioned_alphas), drawn uniformly and afresh every period_steps, a pure function of
-    (seed, step // period_steps) so a resume replays it exactly."""
-    return _alpha_draw(seed, step // period_steps, alphas)
-
-
-@functools.lru_cache(maxsize=256)
-def _alpha_draw(seed: int, period: int, alphas: tuple[float, ...]) -> float:
-    """The alpha of period `period` of a conditioned training seeded `seed` (training_alpha)."""
-    return float(alphas[np.random.default_rng([seed, ALPHA_STREAM, period]).integers(len(alphas))])
-
 
 CHECKPOINT_KEYS = ("config", "step", "learner", "action_counts", "actions", "window")
 """what every checkpoint.pt holds"""
@@ -90,34 +66,6 @@ class Interrupted(Exception):
         super().__init__(f"interrupted at step {step}")
         self.signum = signum
         self.step = step
-
-
-@dataclass
-class Window:
-    """Sums over one logging window."""
-
-    loss: list[float] = field(default_factory=list)
-    r_speed: float = 0.0
-    r_lane_change: float = 0.0
-    r_flow: float = 0.0
-    samples: int = 0
-    speed_sum: float = 0.0
-    vehicle_steps: int = 0
-    lane_changes: int = 0
-    rejected: int = 0
-
-    def add(self, out: StepOutcome, speeds: np.ndarray, lane_change_penalty: np.ndarray) -> None:
-        """One step: its outcome, the speeds on the road (m/s), and the lane-change reward the learner got."""
-        self.r_speed += float(out.reward.speed.sum())
-        self.r_lane_change += float(lane_change_penalty.sum())
-        self.r_flow += float(out.reward.flow.sum())
-        self.samples += len(out.nums)
-        self.speed_sum += float(speeds.sum())
-        self.vehicle_steps += len(speeds)
-        self.lane_changes += int(out.lane_change_started.sum())
-        self.rejected += int(out.rejected.sum())
-
-
 
 
 class Trainer:

@@ -75,8 +75,8 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
 
 def model_folder_problem(folder: Path) -> str | None:
     """Why the training folder's model.pt cannot be reused, or None: the training finished (train's marker lists
-    its files; written before markers: train_summary.json is there) and the model loads (dqn.load_model)."""
-    from coopsumo.agents.dqn import ModelFileError, load_model
+    its files; written before markers: train_summary.json is there) and the model loads (model_file.load_model)."""
+    from coopsumo.agents.model_file import ModelFileError, load_model
     from coopsumo.run_dirs import RUN_MARKER, finished_run
 
     if (folder / RUN_MARKER).exists():

@@ -68,7 +68,7 @@ def driving_copy(model: Path, margin: float, folder: Path) -> Path:
     """model.pt as it is, with change_margin set in its learner settings: the file a user would get from
     `train --change-margin M` (training ignores the margin), driven with that margin by `dqn:PATH`. Written afresh
     each time, from the model as it is now (a model replaced by an older file is caught too)."""
-    from coopsumo.agents.dqn import load_model, save_model
+    from coopsumo.agents.model_file import load_model, save_model
 
     out = folder / f"{model.parent.name}_margin{number_name(margin)}.pt"
     net, meta = load_model(model)
@@ -81,7 +81,7 @@ def driving_copy(model: Path, margin: float, folder: Path) -> Path:
 def check_copyable(model: Path) -> None:
     """UsageError (one line) unless the model a margin variant drives through its copy (driving_copy) can be read:
     checked before the study writes anything."""
-    from coopsumo.agents.dqn import ModelFileError, load_model
+    from coopsumo.agents.model_file import ModelFileError, load_model
 
     try:
         load_model(model)

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -21,14 +20,10 @@ from coopsumo.studies.scenario1.gui import gui_section
 from coopsumo.studies.scenario1.horizon import fig4, horizon_outputs
 from coopsumo.studies.scenario1.measures import (
     COUNTED,
-    FIELD_DT_S,
-    FIELD_DX_M,
     METRICS,
     MIN_MODELS,
     MIN_PAIRS,
-    N_BOOT,
     RECOVERY_MPS,
-    SLOW_MPS,
     WINDOW_S,
     aggregate,
     compare,
@@ -37,12 +32,11 @@ from coopsumo.studies.scenario1.measures import (
     difference_table,
 )
 from coopsumo.studies.scenario1.plan import Plan, Run, label_for, model_label, study_out
+from coopsumo.studies.scenario1.text import DEFINITIONS, deviations_text, training_text
 from coopsumo.validation import number_name
 
 FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
 GUI_ALPHA = 8.0  # sumo-gui shows the paper's cooperative model (first preset, first seed, highest demand)
-MODEL_DOC = "docs/model.md"
-"""the one table of the project's deviations from the paper and its choices, in the source checkout"""
 
 
 def counted(n: int, word: str) -> str:
@@ -199,75 +193,6 @@ def model_spread_table(rows: pd.DataFrame, t_up: float) -> str:
         lines.append(f"| {policy} | " + " | ".join(cells) + f" | {per.max():.1f} | {spread} |")
     return ("Total time spent (veh-h) of each trained model, mean over its evaluation seeds (training seeds as "
             "columns):\n\n" + "\n".join(lines))
-
-
-def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int, runs: int,
-                train_files: list[Path], run_cpu: dict[float, list[float]], workers: int = 2) -> str:  # fmt: skip
-    """Wall time of this invocation, what it reused, the compute its parts recorded (trainings: wall time of each;
-    runs: CPU time per demand, which does not grow when the machine is shared) and the from-scratch estimate:
-    all of it spread over `workers` cores."""
-    train_s = [float(json.loads(f.read_text()).get("wall_seconds", 0.0)) for f in train_files if f.exists()]
-    per = {t: sum(v) for t, v in run_cpu.items()}
-    text = f"Wall time of this invocation: {wall_s / 60:.1f} min"
-    if models_reused or runs_reused:
-        text += f" (reused {models_reused} of {models} models and {runs_reused} of {runs} runs)"
-    train_text = f"{min(train_s) / 60:.1f}-{max(train_s) / 60:.1f} min each" if train_s else "none recorded"
-    text += (f". Compute recorded by the parts: {len(train_s)} trainings, {train_text}; accident runs "
-             f"{sum(per.values()) / 60:.1f} core-min of CPU time in all, per demand: "
-             + ", ".join(f"T_up {t:g} s {s / 60:.1f} core-min ({s / max(len(run_cpu[t]), 1):.0f} s per run)"
-                         for t, s in per.items()) + ".")  # fmt: skip
-    total = (sum(train_s) + sum(per.values())) / 60
-    text += (f" From scratch on {workers} cores, the parts add up to about {total / workers:.0f} min ({total:.0f} "
-             "core-min), before the report's figures.")
-    return text
-
-
-def deviations_text(root: Path) -> str:
-    """The report's pointer to the deviations and choices: they are one table, in the checkout's docs/model.md,
-    linked relative to the report when the report is inside that checkout."""
-    from coopsumo.sim.network import checkout_root
-
-    where = f"`{MODEL_DOC}` of the coopsumo source (section \"Deviations and choices\")"
-    checkout = checkout_root()
-    if checkout is not None and root.resolve().is_relative_to(checkout):
-        target = os.path.relpath(checkout / MODEL_DOC, root.resolve())
-        where = f"[{MODEL_DOC}]({target}#deviations-and-choices)"
-    return (f"The paper's silences and this project's choices (simulator, Newell parameters, road, demand, accident, "
-            f"measures, learner) are listed once, in {where}.")
-
-
-DEFINITIONS = f"""- **Total time spent** (TTS, the headline): vehicle-hours on the road plus vehicle-hours waiting to
-  enter, over the whole run. Vehicle k is due to enter at k T_up; it waits from then until it appears on the road. All
-  policies meet the same due times, so a policy cannot look good by keeping vehicles off the road.
-  **Delay**: TTS minus the time the distance driven would take at 85 km/h (the mean expected speed).
-- **Discharge**: vehicles per hour past the first loops downstream of the bottleneck (1,400 m, all lanes), over
-  the loop intervals inside the accident window (SUMO's E1 output).
-- **System recovery**: seconds from the accident's start to the first 30 s bin from which, to the end of the run,
-  the space-mean speed in the 200 m before the bottleneck is above {RECOVERY_MPS:g} m/s AND at most one vehicle
-  per lane waits to enter. "never" when that does not happen; in paired differences a "never" counts as the
-  run's end (a lower bound). **On-road recovery** is the speed condition alone (the earlier studies' measure).
-- **Stop-and-go waves** (moving jams): the space-mean speed field over all lanes from the entrance to the
-  bottleneck, in cells of {FIELD_DX_M:g} m x {FIELD_DT_S:g} s; its connected regions (8-neighbours) below
-  {SLOW_MPS:g} m/s lasting at least 20 s are slow regions (after Ji et al. 2024, arXiv 2409.00326, who identify
-  waves as regions of the speed field below a critical speed of 10-20 mph). A region is a wave when its
-  downstream front travels at least 100 m upstream, at a least-squares speed of -5 km/h or faster: a moving
-  jam, whose front propagates upstream, where a bottleneck queue's front stays at the bottleneck (Kerner and
-  Rehborn 1996). A wave that touches the standing queue merges with it and is not counted. Tests show the
-  measure on known cases: hand-made waves (counted, with their speed), steady congestion and free flow (quiet),
-  and a real SUMO disturbance (counted, moving upstream; no wave without it).
-- **Queue reach**: the largest distance from the bottleneck to the furthest-upstream vehicle slower than
-  {SLOW_MPS:g} m/s after the accident's start. **Regime**: "on the road" if at most one vehicle per lane ever
-  waits to enter; "reaches the entrance, clears" if more do but not at the end; else "still waiting at the end".
-- **Lane changes in a queue**: lane changes per vehicle made below {SLOW_MPS:g} m/s (a vehicle's lane differs from
-  its previous trajectory sample's while it moves that slowly): a change takes 4 s across both lanes, so one made
-  where the traffic stands holds up two queues.
-- **Verdicts**: the trained model is the unit of replication. Differences (cooperative minus non-cooperative) are
-  paired on evaluation seeds, and models of two alphas on their training seed; the 95% interval is a two-level
-  percentile bootstrap ({N_BOOT:,} resamples) that draws models, then evaluation seeds within each drawn model, so
-  it includes the spread between models (one level, over seeds, when neither policy is learned). "Helps" or
-  "hurts" only when the interval of the TTS difference excludes 0, and only with at least {MIN_MODELS} models;
-  otherwise "cannot decide", with about how many models (or seeds) the measured spread would need. Beside each
-  interval: for how many models the difference has the verdict's sign."""
 
 
 def demand_section(rows: pd.DataFrame, agg: pd.DataFrame, t_up: float, pairs: Sequence[tuple[str, str]],
@@ -516,22 +441,3 @@ def closing_table(agg: pd.DataFrame, t_up: float) -> str:
     """The console's closing table: one demand's table of every policy, headed by which demand it shows."""
     return (f"scenario1: every policy at T_up = {t_up:g} s ({3600 / t_up:,.0f} veh/h), the study's last demand; mean "
             f"± sd over runs (every demand: report.md)\n" + report_table(agg[agg["t_up_s"] == t_up]))
-
-
-def training_text(plan: Plan) -> str:
-    """How the models were trained: the learner's own training demand (the default's mix of demands and
-    accidents, or free flow at one demand)."""
-    from coopsumo.dqn_config import DQN_PRESETS
-
-    dqn = DQN_PRESETS[plan.presets[0]]
-    t_ups = ", ".join(f"{t:g}" for t in dqn.train_t_ups)
-    where = (f"episodes of {dqn.episode_steps:,} steps at T_up drawn from {t_ups} s, {dqn.accident_share:.0%} of "
-             "them with an accident" if dqn.train_t_ups
-             else f"free flow at T_up = {plan.train_t_up_s:g} s")  # fmt: skip
-    return f"trained {plan.train_steps:,} steps ({where})"
-
-
-def timing_text(plan: Plan, runs: list[Run], model_files: list[Path], n_train: int, n_specs: int, wall: float,
-                run_cpu: dict[float, list[float]]) -> str:  # fmt: skip
-    return timing_note(wall, len(model_files) - n_train, len(model_files), len(runs) - (n_specs - n_train), len(runs),
-                       [m.parent / "train_summary.json" for m in model_files], run_cpu)  # fmt: skip

@@ -47,7 +47,8 @@ from coopsumo.studies.scenario1.plan import (
     study_out,
     train_config,
 )
-from coopsumo.studies.scenario1.report import counted, timing_text, write_outputs
+from coopsumo.studies.scenario1.report import counted, write_outputs
+from coopsumo.studies.scenario1.text import timing_text
 from coopsumo.validation import (
     MAX_STEPS,
     MOBIL_LIMITS,

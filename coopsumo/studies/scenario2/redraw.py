@@ -12,9 +12,11 @@ import pandas as pd
 
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
-from coopsumo.studies.scenario2.gate_report import write_lane_outputs
+from coopsumo.studies.engine.run_folders import study_root
+from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.plan import Profile
 from coopsumo.studies.scenario2.report import write_outputs
+from coopsumo.validation import split_list
 
 
 def rewrite_outputs(root: Path) -> dict[str, Any]:
@@ -139,3 +141,26 @@ def merge_parts(parts: list[Part], out: Path) -> dict[str, Any]:
     evals.to_csv(out / "evals.csv", index=False)
     write_json(out / "sweep.json", merged)
     return rewrite_outputs(out)
+
+
+MERGE_ALONE = ("steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", "t_up", "policies", "mobil_p",
+               "preset")  # fmt: skip
+"""options that choose what a sweep runs, which --merge (nothing run) refuses"""
+
+
+def merge_command(args: Any) -> int:
+    """--merge: the parts' sweep folders merged into --out (merge_parts)."""
+    if given := [f"--{name.replace('_', '-')}" for name in MERGE_ALONE if getattr(args, name) is not None]:
+        raise UsageError(f"--merge runs nothing: {', '.join(given)} cannot go with it")
+    if args.out is None:
+        raise UsageError("--merge needs --out, the merged sweep's folder")
+    parts = [Path(x) for x in split_list("--merge", args.merge)]
+    if any(p.resolve() == args.out.resolve() for p in parts):
+        raise UsageError(f"--merge: --out {args.out} is one of the parts")
+    read = read_parts(parts)  # checked before anything is written
+    with study_root(args.out, "scenario2"):
+        meta = merge_parts(read, args.out)
+    print("\n".join(console_lines(args.out)))
+    print(f"scenario2: merged {len(parts)} parts ({meta['cells']} cells, lanes "
+          f"{', '.join(map(str, meta['profile']['lanes']))}); report: {args.out / 'report.md'}")  # fmt: skip
+    return 0

@@ -84,6 +84,7 @@ from coopsumo.studies.scenario2.plan import (
     lane_learner,
     lane_train_config,
 )
+from coopsumo.studies.scenario2.redraw import merge_command
 from coopsumo.studies.scenario2.report import condition_label, write_outputs
 from coopsumo.validation import (
     MAX_T_UP_S,
@@ -97,7 +98,6 @@ from coopsumo.validation import (
     number_list,
     number_name,
     seed_count,
-    split_list,
     steps,
     t_up_note,
     workers,
@@ -367,32 +367,6 @@ def profile_from_args(args: Any) -> Profile:
     return profile
 
 
-MERGE_ALONE = ("steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", "t_up", "policies", "mobil_p",
-               "preset")  # fmt: skip
-"""options that choose what a sweep runs, which --merge (nothing run) refuses"""
-
-
-def merge(args: Any) -> int:
-    """--merge: the parts' sweep folders merged into --out (scenario2_redraw.merge_parts)."""
-    from coopsumo.studies.scenario2.gate_report import console_lines
-    from coopsumo.studies.scenario2.redraw import merge_parts, read_parts
-
-    if given := [f"--{name.replace('_', '-')}" for name in MERGE_ALONE if getattr(args, name) is not None]:
-        raise UsageError(f"--merge runs nothing: {', '.join(given)} cannot go with it")
-    if args.out is None:
-        raise UsageError("--merge needs --out, the merged sweep's folder")
-    parts = [Path(x) for x in split_list("--merge", args.merge)]
-    if any(p.resolve() == args.out.resolve() for p in parts):
-        raise UsageError(f"--merge: --out {args.out} is one of the parts")
-    read = read_parts(parts)  # checked before anything is written
-    with study_root(args.out, "scenario2"):
-        meta = merge_parts(read, args.out)
-    print("\n".join(console_lines(args.out)))
-    print(f"scenario2: merged {len(parts)} parts ({meta['cells']} cells, lanes "
-          f"{', '.join(map(str, meta['profile']['lanes']))}); report: {args.out / 'report.md'}")  # fmt: skip
-    return 0
-
-
 def by_profile(show: Any) -> str:
     """An option's default as --help states it, from the profiles: "the profile's: tiny 2; quick 3; paper 10", or one
     value when every profile has the same."""
@@ -460,7 +434,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         if args.merge is not None:
-            return merge(args)
+            return merge_command(args)
         profile = profile_from_args(args)
         if args.workers < 1:
             raise UsageError(f"workers must be >= 1, got {args.workers}")
