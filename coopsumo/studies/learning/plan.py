@@ -5,12 +5,14 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, replace
-from typing import Any
+from pathlib import Path
+from typing import Any, get_type_hints
 
-from coopsumo.agents.conditioning import CONDITIONED8V, world_alpha
+from coopsumo.agents.conditioning import world_alpha
 from coopsumo.config import DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
-from coopsumo.dqn_config import PAPER_DQN, DQNConfig
-from coopsumo.errors import UsageError
+from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
+from coopsumo.errors import ConfigError, UsageError
+from coopsumo.studies.engine.catalogue import DATA, Entry, read_toml
 from coopsumo.validation import name_list, number_name
 
 EVAL_SEED_OFFSET = 1000
@@ -23,74 +25,9 @@ REQUIRED_SUMMARY = ("mean_speed_mps", "lane_changes_per_vehicle", "teleports", "
 """summary values a stored cell record must hold as finite numbers to be reused (records.record_problem)"""
 
 
-def _variants() -> list[tuple[str, str, DQNConfig]]:
-    """(name, what it adds, learner): a chain from the paper's learner to the default design, each
-    variant the previous one plus one change, then single changes on top of the default."""
-    chain: list[tuple[str, str, dict[str, Any]]] = [
-        ("paper", "the paper-literal learner (--preset paper)", {}),
-        ("interval", "+ a decision every 10 steps (1 s), rewards summed over it", {"decision_interval_steps": 10}),
-        ("mask", "+ feasible-action masking (choice, exploration, target max)", {"action_mask": True}),
-        ("double_huber", "+ double DQN target and Huber loss", {"double_dqn": True, "loss": "huber"}),
-        ("adam", "+ Adam at lr 1e-3 instead of SGD at 0.01", {"optimizer": "adam", "lr": 1e-3}),
-        ("replay", "+ replay 20,000 and 2 updates every decision round (not 1 every 4)",
-         {"replay_size": 20_000, "learn_every": 1, "updates_per_learn": 2}),
-        ("dueling", "+ a dueling Q head (V + A - mean A)", {"dueling": True}),
-        ("restart", "+ 'none' withheld below 1 m/s (a standing vehicle must speed up)", {"restart_below_mps": 1.0}),
-        ("margin", "+ driven with a change margin of 1: a lane change only when its Q-value beats staying by more "
-         "than 1 (the `restart` models: training ignores the margin)", {"change_margin": 1.0}),
-        ("select", "+ model.pt chosen on held-out demand: validated greedily every 15,000 steps, the best kept",
-         {"select_every_steps": 15_000}),
-        ("v2x", "+ the v2x state: each side lane's nearest leader and follower within 200 m (gap, speed), the own "
-         "speed, expected speed and lane-change flag", {"observation": "v2x"}),
-        ("mix", "+ trained where it is used: episodes of 9,000 steps at a T_up drawn from 2, 1.5 and 1 s, half of "
-         "them with an accident",
-         {"train_t_ups": (2.0, 1.5, 1.0), "accident_share": 0.5, "episode_steps": 9000}),
-        ("accval", "+ model.pt chosen through an accident too: each snapshot also driven 6,000 steps through an "
-         "accident at T_up 2, 1.5 and 1 s (the `mix` trainings, judged again)",
-         {"validation_accident_steps": 6000}),
-        ("followers", "+ half the weight on the speed of the traffic behind in the reward (--followers-weight 0.5)",
-         {"followers_weight": 0.5}),
-        ("queue", "+ driven with no lane change below 5 m/s (the `followers` models: training ignores it)",
-         {"queue_below_mps": 5.0}),
-        ("target", "+ the target network synced every 2,000 steps instead of 500 (about 400 updates instead of 100)",
-         {"target_sync_steps": 2000}),
-        ("noreturn", "+ no change back for 10 s after a lane change, when model.pt is chosen and when it drives (the "
-         "default preset)", {"no_return_s": 10.0}),
-    ]  # fmt: skip
-    extras: list[tuple[str, str, dict[str, Any]]] = [
-        ("eps_decay", "`noreturn` + epsilon decaying linearly 1.0 -> 0.05 over the first 20% of training",
-         {"epsilon_start": 1.0, "epsilon_end": 0.05, "epsilon_decay_steps": 18_000}),
-        ("store_all", "`noreturn` + every transition of a decision round stored (not 16 at random)",
-         {"store_per_decision": 1000}),
-        ("margin2", "the `noreturn` trainings with a change margin of 2 instead of 1 (model.pt chosen and driven with "
-         "it)", {"change_margin": 2.0}),
-        ("conditioned", "`noreturn` with alpha an input: one alpha-conditioned model per seed (train "
-         "--alpha-conditioned), driven at each alpha (dqn:PATH,alpha=A)", {"alpha_conditioned": True}),
-        ("conditioned8", "`conditioned` trained on the paper's alphas up to 8 (the eight of 0-8 drawn and relabelled "
-         "to, not all twelve up to 48; train --alpha-conditioned --alpha-draw-max 8)",
-         {"alpha_conditioned": True, "alpha_draw_max": 8.0}),
-        ("conditioned8v", "`conditioned8` with model.pt chosen at alphas 0, 1 and 8 (every validation run driven at "
-         "each, the score their mean; train --validation-alphas 0,1,8), not at alpha 0 alone", CONDITIONED8V),
-        ("conditioned8v_2x", "`conditioned8v` trained twice the study's steps: one network learns every alpha, each "
-         "per-alpha model one (five of them cost five trainings)", CONDITIONED8V),
-    ]  # fmt: skip
-    out = []
-    cfg = PAPER_DQN
-    for name, text, change in chain:
-        cfg = replace(cfg, **change)
-        out.append((name, text, replace(cfg, preset="paper" if name == "paper" else "default")))
-    for name, text, change in extras:
-        out.append((name, text, replace(cfg, **change, preset="default")))
-    return out
-
-
-STEPS_FACTOR = {"conditioned8v_2x": 2}
-"""variants trained this many times the profile's train_steps (the others: once)"""
-CHAIN_LENGTH = 17
-"""the first CHAIN_LENGTH variants form the chain paper -> ... -> noreturn; the rest branch off its end (noreturn: the
-default preset)"""
-VARIANTS = _variants()
-VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
+LEARNING_FILE = DATA / "learning.toml"
+"""the study's variants and profiles, as data"""
+VARIANT_KEYS = ("parent", "preset", "chain", "why", "learner", "steps_factor")
 
 
 @dataclass(frozen=True)
@@ -111,21 +48,68 @@ class Profile:
     t_up_s: float = 1.0
 
 
-FULL_VARIANTS = (*VARIANT_NAMES[:CHAIN_LENGTH], "margin2", "conditioned8v")
-"""the full study: the chain, the default with a margin of 2, and the alpha-conditioned network (conditioned8v: level
-with conditioned8 or ahead on every seed and alpha of results/learning_conditioned)"""
-CONDITIONED_VARIANTS = ("noreturn", "conditioned8", "conditioned8v", "conditioned8v_2x")
-"""the per-alpha models against the alpha-conditioned network's variants"""
-RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
-"""the alphas of the alpha response and of the conditioned network's comparison"""
-PROFILES = {
-    "full": Profile("full", 90_000, 9000, (0, 1, 2), FULL_VARIANTS, RESPONSE_ALPHAS,
-                    alpha_variants=("noreturn", "conditioned8v")),
-    "quick": Profile("quick", 6000, 1500, (0, 1, 2), ("paper", "noreturn"), (0.0, 1.0)),
-    "conditioned": Profile("conditioned", 90_000, 9000, (0, 1, 2), CONDITIONED_VARIANTS, RESPONSE_ALPHAS,
-                           alpha_variants=CONDITIONED_VARIANTS),
-    "tiny": Profile("tiny", 300, 200, (0, 1), ("paper", "interval", "v2x", "margin2"), (0.0, 1.0)),
-}
+def load_catalogue(path: Path = LEARNING_FILE) -> tuple[list[tuple[str, str, DQNConfig]], int, dict[str, int],
+                                                          dict[str, Profile]]:  # fmt: skip
+    """learning.toml's variants, in order, as (name, why, learner); how many form the chain; the variants trained
+    longer (steps_factor); and the profiles. One ConfigError naming the file and the entry for an unknown field,
+    parent or variant, a value of the wrong type, or a learner the learner refuses."""
+    data = read_toml(path)
+    Entry(path, "file").table(data, "the file", ("variants", "profiles"))
+    learner_hints = {k: v for k, v in get_type_hints(DQNConfig).items() if k != "preset"}
+    variants: list[tuple[str, str, DQNConfig]] = []
+    built: dict[str, DQNConfig] = {}
+    chain, factors = 0, {}
+    for name, entry in data.get("variants", {}).items():
+        at = Entry(path, f"variants.{name}")
+        at.table(entry, "a variant", VARIANT_KEYS)
+        if ("parent" in entry) == ("preset" in entry):
+            raise at.error("needs a parent (a variant above it) or a preset (one of config.DQN_PRESETS), not both")
+        if "parent" in entry and entry["parent"] not in built:
+            raise at.error(f"unknown parent {entry['parent']!r} (a variant above it: {', '.join(built) or 'none'})")
+        if "preset" in entry and entry["preset"] not in DQN_PRESETS:
+            raise at.error(f"unknown preset {entry['preset']!r} (one of {', '.join(DQN_PRESETS)})")
+        if not isinstance(entry.get("why"), str) or not entry["why"]:
+            raise at.error(f"needs why (a string), got {entry.get('why')!r}")
+        if at.value("chain", entry.get("chain", False), bool):
+            if chain != len(variants):
+                raise at.error("is in the chain after a variant that is not: the chain comes first, in order")
+            chain += 1
+        if (factor := at.value("steps_factor", entry.get("steps_factor", 1), int)) < 1:
+            raise at.error(f"steps_factor must be at least 1, got {factor}")
+        if factor != 1:
+            factors[name] = factor
+        changes = {k: at.value(f"learner.{k}", v, learner_hints[k])
+                   for k, v in at.table(entry.get("learner", {}), "learner", learner_hints).items()}  # fmt: skip
+        base = built[entry["parent"]] if "parent" in entry else DQN_PRESETS[entry["preset"]]
+        try:
+            if "parent" in entry:
+                changes["preset"] = "default"
+            learner = replace(base, **changes)
+            learner.validate()
+        except ConfigError as err:
+            raise at.error(f"learner: {err}") from None
+        built[name] = learner
+        variants.append((name, entry["why"], learner))
+    hints = get_type_hints(Profile)
+    profiles = {}
+    for name, entry in data.get("profiles", {}).items():
+        at = Entry(path, f"profiles.{name}")
+        at.table(entry, "a profile", tuple(k for k in hints if k != "name"))
+        try:
+            profile = Profile(name, **{k: at.value(k, v, hints[k]) for k, v in entry.items()})
+        except TypeError as err:
+            raise at.error(f"is not a whole profile ({err})") from None
+        if unknown := [v for v in (*profile.variants, *profile.alpha_variants) if v not in built]:
+            raise at.error(f"unknown variant {unknown[0]!r}")
+        profiles[name] = profile
+    return variants, chain, factors, profiles
+
+
+VARIANTS, CHAIN_LENGTH, STEPS_FACTOR, PROFILES = load_catalogue()
+"""the study's variants (name, why, learner), in order; the first CHAIN_LENGTH form the chain paper -> ... ->
+noreturn, the rest branch off its end; the variants trained STEPS_FACTOR times the profile's train_steps; and the
+profiles (learning.toml)"""
+VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
 
 
 def learner_of(variant: str) -> DQNConfig:
