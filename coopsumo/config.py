@@ -15,6 +15,7 @@ import numpy as np
 
 from coopsumo.dqn_config import ADDED_FIELDS, DQNConfig, dqn_config_from_dict, validation_runs
 from coopsumo.errors import ConfigError
+from coopsumo.policy_spec import sumo_lc_params, sumo_models
 from coopsumo.validation import (
     ALPHA_MAX,
     ALPHA_MIN,
@@ -184,6 +185,12 @@ class SimConfig:
     @property
     def scenario(self) -> str:
         return "accident" if self.accident.enabled else "free"
+
+    @property
+    def sumo_driver(self) -> dict[str, float] | None:
+        """None when the Newell controller drives (every policy but `sumo`); the LC2013 parameters of `sumo[:...]`
+        (empty for plain `sumo`) when SUMO's own models drive. The policy string is read here, so sim/ reads none."""
+        return sumo_lc_params(self.policy) if sumo_models(self.policy) else None
 
     def validate(self) -> None:
         """Raise ConfigError naming the first bad value."""

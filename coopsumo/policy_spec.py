@@ -160,3 +160,21 @@ def parse_policy(text: str) -> PolicySpec:
                           queue=number("queue"),
                           ensemble=None if seen.get("ensemble") is None else int(float(seen["ensemble"])))
     return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))
+
+
+LC_KEYS = tuple(SUMO_LC_LIMITS)
+"""LC2013 parameters a `sumo:` spec may set on every vehicle"""
+
+
+def sumo_models(spec: str) -> bool:
+    """True when the policy spec puts SUMO's own models in charge (`sumo` or `sumo:...`): its Krauss car-following
+    and LC2013 lane changing drive instead of the Newell controller."""
+    return spec == "sumo" or spec.startswith("sumo:")
+
+
+def sumo_lc_params(spec: str) -> dict[str, float]:
+    """The LC2013 parameters of `sumo` or `sumo:lcCooperative=0.5,lcSpeedGain=1` (empty for plain `sumo`)."""
+    parsed = parse_policy(spec)
+    if parsed.name != "sumo":
+        raise PolicySpecError(f"policy {spec!r} is not a sumo policy")
+    return parsed.values()

@@ -201,3 +201,12 @@ def test_only_commands_import_the_command_line_helpers() -> None:
                       "coopsumo.run_dirs"}]
     bad = {f"{name} -> coopsumo.runio" for name in below if "coopsumo.runio" in graph[name]}
     assert not bad, sorted(bad)
+
+
+def test_the_simulation_reads_no_policy_string() -> None:
+    """sim/ receives typed values: whether SUMO's own models drive comes from SimConfig.sumo_driver, the policy
+    grammar's (policy_spec) answer; no module of sim/ imports the grammar."""
+    graph = import_graph(module_files())
+    sim = [n for n in graph if n == "coopsumo.sim" or n.startswith("coopsumo.sim.")]
+    bad = {name for name in sim if "coopsumo.policy_spec" in graph[name]}
+    assert not bad, sorted(bad)

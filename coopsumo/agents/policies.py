@@ -11,8 +11,7 @@ from typing import Protocol
 import numpy as np
 
 from coopsumo.config import POLICY_STREAM, ControlConfig, SimConfig, rng_stream
-from coopsumo.policy_spec import PolicySpecError, parse_policy
-from coopsumo.sim.driver import LC_KEYS, sumo_lc_params
+from coopsumo.policy_spec import LC_KEYS, PolicySpecError, parse_policy, sumo_lc_params
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, RIGHT, SPEEDUP
 
@@ -103,7 +102,7 @@ class SumoPolicy:
 
     @classmethod
     def from_spec(cls, spec: str) -> SumoPolicy:
-        """Parse `sumo` or `sumo:lcCooperative=0.5,lcSpeedGain=1` (coopsumo.sim.driver)."""
+        """Parse `sumo` or `sumo:lcCooperative=0.5,lcSpeedGain=1` (coopsumo.policy_spec)."""
         return cls(sumo_lc_params(spec))
 
     def act(self, obs: Observation) -> np.ndarray:

@@ -57,7 +57,7 @@ from coopsumo.envs.common import (
     vehicle_observation,
 )
 from coopsumo.errors import ConfigError
-from coopsumo.sim.driver import sumo_models
+from coopsumo.policy_spec import sumo_models
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.world import World
 from coopsumo.validation import MAX_STEPS

@@ -16,7 +16,6 @@ import numpy as np
 from coopsumo.config import ACCIDENT_STREAM, DEMAND_STREAM, DemandConfig, GuiConfig, OutputConfig, SimConfig, rng_stream
 from coopsumo.sim import accident, controller, fast, physics, view
 from coopsumo.sim.accident import HELD
-from coopsumo.sim.driver import sumo_lc_params, sumo_models
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation
 from coopsumo.sim.passing import PASSING_EVERY_S, PassingCount
 from coopsumo.sim.reward import RewardParts, flow_term, reward_parts, speed_term
@@ -125,8 +124,8 @@ class World:
         self.cfg = cfg
         self.run_dir = run_dir
         self.gui = gui
-        self.sumo_models = sumo_models(cfg.policy)
-        lc_params = sumo_lc_params(cfg.policy) if self.sumo_models else None
+        lc_params = cfg.sumo_driver
+        self.sumo_models = lc_params is not None
         self.session = SumoSession(cfg, run_dir, sumo_models=self.sumo_models, lc_params=lc_params,
                                    outputs=outputs, gui=gui)  # fmt: skip
         self._accident_marked: bool | None = None  # sumo-gui: whether the marker shows an active accident
