@@ -170,11 +170,8 @@ profile ({cost["cells"]:,.0f} cells, {cost.get("trainings", cost["cells"]):,.0f}
 """
 
 
-def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, boot: dict[str, float],
-                plane_note: str, profile: Profile, meta: dict[str, Any], figures: dict[str, str],
-                alpha_label: Any, side: pd.DataFrame | None = None) -> str:  # fmt: skip
-    """The Markdown report; `side` (alpha* beside p*) adds the MOBIL section."""
-    alphas = list(profile.alphas)
+def _alpha_star_rows(table: pd.DataFrame, alphas: list[float], alpha_label: Any) -> tuple[list[str], list[list[str]]]:
+    """The alpha* table's header and rows: one row per condition."""
     header = ["lanes", "T_up (s)", "inflow (veh/h)", "load", "α*", "win share", "bootstrap support",
               "α* 90% boot.", "α* vs smaller / larger α", "spread (m/s)", "seed SE (m/s)"
               ] + [f"v(α={alpha_label(a)})" for a in alphas]  # fmt: skip
@@ -187,31 +184,23 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
                      f"{_sep(r.get('separated_below'))} / {_sep(r.get('separated_above'))}",
                      _num(r["spread_mps"]), _num(r["seed_se_mps"])]
                     + [_num(r[f"speed_mps_alpha{number_name(a)}"]) for a in alphas])  # fmt: skip
-    noise = noise_floor_text(table)
-    withheld = [condition_label(r["lanes"], r["t_up_s"]) for r in table.to_dict("records") if r["cells_failed"]]
-    if withheld:
-        noise = (f"**No alpha\\* (–) where a cell failed** ({'; '.join(withheld)}): it would rest on fewer seeds "
-                 f"than asked for; see Failed cells and rerun the same command.\n\n{noise}")  # fmt: skip
+    return header, rows
+
+
+def _plane_text(fit: PlaneFit | None, boot: dict[str, float], plane_note: str) -> str:
+    """The fitted plane and the paper's two trends in words, or why they cannot be checked."""
     if fit is not None:
-        plane = (f"Fitted plane over {fit.n} conditions (least squares on alpha*): "
+        return (f"Fitted plane over {fit.n} conditions (least squares on alpha*): "
                  f"**alpha\\* = {fit.b0:.3f} {fit.b1:+.3f} T_up {fit.b2:+.3f} lanes**, "
                  f"R² = {_num(fit.r2, '{:.3f}')}"
                  + (" (undefined: alpha* is the same in every condition)" if not math.isfinite(fit.r2) else "")
                  + ".\n\n" + "\n\n".join(f"- {s}" for s in trend_statements(fit, boot)))  # fmt: skip
-    else:
-        plane = f"{plane_note} The paper's trends (b1 < 0, b2 < 0) cannot be checked with this grid."
-    failed = runs[runs["status"] != "ok"]
-    failed_text = ("None." if failed.empty else
-                   _md_table(["cell", "error"], [[r.key, str(r.error).replace("|", "\\|")]
-                                                 for r in failed.itertuples()]))  # fmt: skip
-    grid = _md_table(["lanes", "T_up (s)", "loads (share of lanes × 1,800 veh/h)"],
-                     [[str(n), ", ".join(f"{c['t_up_s']:g}" for c in meta["conditions"] if c["lanes"] == n),
-                       ", ".join(f"{c['load']:g}" for c in meta["conditions"] if c["lanes"] == n)]
-                      for n in profile.lanes])  # fmt: skip
-    ok = runs[runs["status"] == "ok"]
-    safety = (f"Collisions in evaluation: {int(ok['collisions'].sum())}; teleports: {int(ok['teleports'].sum())} "
-              f"(over {len(ok)} successful cells).")  # fmt: skip
-    figs = "\n\n".join(
+    return f"{plane_note} The paper's trends (b1 < 0, b2 < 0) cannot be checked with this grid."
+
+
+def _figures_text(figures: dict[str, str]) -> str:
+    """The report's figures with their captions."""
+    return "\n\n".join(
         [f"![alpha* per lane count]({figures['alpha_star']})\n\nFig. 6: alpha* (red) against inflow, one panel "
          "per lane count on a shared axis of the alphas tried (symmetric log, so 0 shows); the red bar is its 90% "
          "bootstrap range over models, grey discs the share of bootstrap resamples picking each alpha (area), the "
@@ -219,6 +208,10 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
          f"![speed heat map]({figures['heatmap']})\n\nMean evaluation speed over seeds for every alpha and "
          "condition; colour is the gap to the condition's best, framed cells are alpha*." if "heatmap" in figures
          else ""]).strip() or "No figure: no cell succeeded."  # fmt: skip
+
+
+def _mobil_texts(side: pd.DataFrame | None, profile: Profile, alpha_label: Any) -> tuple[str, str, str]:
+    """MOBIL's introduction, section and note (empty when the sweep ran no MOBIL)."""
     mobil_intro, mobil_section, mobil_note = "", "", ""
     if side is not None:
         mobil_intro = (
@@ -231,11 +224,11 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
         mobil_section = f"\n## alpha* beside the best MOBIL politeness\n\n{side_by_side_text(side, alpha_label)}\n"
         mobil_note = ("\n- MOBIL: per condition `mobil_p_star.csv` (p*, its win share, the mean speed of every p); "
                       "each MOBIL cell's run folder: `mobil/<key>/`.")  # fmt: skip
-    steps_note = (
-        "Step counts as in the paper (90,000 training steps)." if profile.train_steps >= 90_000 else
-        f"{profile.train_steps:,} training steps are far below the paper's 90,000: the models are barely trained, "
-        "so alpha* here mostly reflects differences between short trainings, not the paper's effect."
-    )  # fmt: skip
+    return mobil_intro, mobil_section, mobil_note
+
+
+def _training_texts(profile: Profile) -> tuple[str, str]:
+    """How the cells train and evaluate, and where a conditioned sweep's folders are."""
     if profile.conditioned:
         training_text = (
             "**Alpha-conditioned** (`--conditioned`): one model per condition and seed, trained in free flow with "
@@ -255,6 +248,12 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
         training_text = ("Each cell trains the shared DQN in free flow (scenario II) on its condition with its alpha "
                          "and training seed, then evaluates the model greedily on the same condition "
                          f"{_eval_text(profile)}")  # fmt: skip
+    return training_text, cond_folders
+
+
+def _head_text(profile: Profile, meta: dict[str, Any], alpha_label: Any, training_text: str, mobil_intro: str) -> str:
+    """The report's title, what ran and how alpha* is read."""
+    alphas = list(profile.alphas)
     return f"""# Scenario II: choosing the cooperation coefficient alpha
 
 Profile **{profile.name}**: lanes {", ".join(map(str, profile.lanes))}; {len(meta["conditions"])} conditions;
@@ -274,7 +273,47 @@ own wall times sum to {meta["cell_wall_seconds_sum"] / 60:.1f} min and their CPU
 the seeds (paired over alphas) whose best alpha is alpha*; the 90% bootstrap range is that of the resampled alpha*.
 *Spread* is the best minus the worst alpha's mean speed; *seed SE* the typical standard error of one alpha's mean.
 {mobil_intro}
-## alpha* per condition
+"""
+
+
+def _tables_text(runs: pd.DataFrame, meta: dict[str, Any], profile: Profile) -> tuple[str, str, str]:
+    """The failed cells, the grid of conditions and the safety line."""
+    failed = runs[runs["status"] != "ok"]
+    failed_text = ("None." if failed.empty else
+                   _md_table(["cell", "error"], [[r.key, str(r.error).replace("|", "\\|")]
+                                                 for r in failed.itertuples()]))  # fmt: skip
+    grid = _md_table(["lanes", "T_up (s)", "loads (share of lanes × 1,800 veh/h)"],
+                     [[str(n), ", ".join(f"{c['t_up_s']:g}" for c in meta["conditions"] if c["lanes"] == n),
+                       ", ".join(f"{c['load']:g}" for c in meta["conditions"] if c["lanes"] == n)]
+                      for n in profile.lanes])  # fmt: skip
+    ok = runs[runs["status"] == "ok"]
+    safety = (f"Collisions in evaluation: {int(ok['collisions'].sum())}; teleports: {int(ok['teleports'].sum())} "
+              f"(over {len(ok)} successful cells).")  # fmt: skip
+    return failed_text, grid, safety
+
+
+def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, boot: dict[str, float],
+                plane_note: str, profile: Profile, meta: dict[str, Any], figures: dict[str, str],
+                alpha_label: Any, side: pd.DataFrame | None = None) -> str:  # fmt: skip
+    """The Markdown report; `side` (alpha* beside p*) adds the MOBIL section."""
+    alphas = list(profile.alphas)
+    header, rows = _alpha_star_rows(table, alphas, alpha_label)
+    noise = noise_floor_text(table)
+    withheld = [condition_label(r["lanes"], r["t_up_s"]) for r in table.to_dict("records") if r["cells_failed"]]
+    if withheld:
+        noise = (f"**No alpha\\* (–) where a cell failed** ({'; '.join(withheld)}): it would rest on fewer seeds "
+                 f"than asked for; see Failed cells and rerun the same command.\n\n{noise}")  # fmt: skip
+    plane = _plane_text(fit, boot, plane_note)
+    failed_text, grid, safety = _tables_text(runs, meta, profile)
+    figs = _figures_text(figures)
+    mobil_intro, mobil_section, mobil_note = _mobil_texts(side, profile, alpha_label)
+    steps_note = (
+        "Step counts as in the paper (90,000 training steps)." if profile.train_steps >= 90_000 else
+        f"{profile.train_steps:,} training steps are far below the paper's 90,000: the models are barely trained, "
+        "so alpha* here mostly reflects differences between short trainings, not the paper's effect."
+    )  # fmt: skip
+    training_text, cond_folders = _training_texts(profile)
+    return f"""{_head_text(profile, meta, alpha_label, training_text, mobil_intro)}## alpha* per condition
 
 {_md_table(header, rows)}
 
