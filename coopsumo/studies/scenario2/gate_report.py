@@ -325,17 +325,21 @@ def design_text(profile: Profile, alpha_label: Any) -> str:
         "says at which (condition, alpha) the network's speed lies within the per-alpha models' spread.")
 
 
-def report_text(runs: pd.DataFrame, table: pd.DataFrame, gate: pd.DataFrame, trends: dict[str, Any],
-                check: pd.DataFrame, profile: Profile, meta: dict[str, Any], figures: dict[str, str],
-                alpha_label: Any) -> str:  # fmt: skip
-    """The Markdown report of a lane-network profile."""
-    passing = passing_conditions(gate)
+def _check_section(check: pd.DataFrame, profile: Profile, alpha_label: Any) -> str:
+    """The check's section (one network per lane count against per-alpha models), when the profile has one."""
+    if not profile.check_alphas:
+        return ""
+    return f"\n## One network per lane count against per-alpha models\n\n{check_text(check, alpha_label)}\n"
+
+
+def _failed_warm_figures(runs: pd.DataFrame, profile: Profile, figures: dict[str, str],
+                         measure: str) -> tuple[str, str, str]:  # fmt: skip
+    """The failed cells, when the road was full in these runs, and the figures with their captions."""
     failed = runs[runs["status"] != "ok"]
     failed_text = ("None." if failed.empty else
                    md_table(["cell", "error"], [[r.key, str(r.error).replace("|", "\\|")]
                                                 for r in failed.itertuples()]))  # fmt: skip
     ok = runs[runs["status"] == "ok"]
-    measure = MEASURES.get(profile.criterion, profile.criterion)
     starts = pd.to_numeric(ok.get("full_road_from_s", pd.Series(dtype=float)), errors="coerce")
     warm = (f" Here the road was full after {starts.min():.0f}-{starts.max():.0f} s of the "
             f"{profile.eval_steps * 0.1:.0f} s runs." if starts.notna().any() else "")  # fmt: skip
@@ -346,8 +350,28 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, gate: pd.DataFrame, tre
          f"![speed heat map]({figures['heatmap']})\n\nMean speed ({measure}) over models for every alpha and "
          "condition; framed: alpha*." if "heatmap" in figures else ""]).strip() \
         or "No figure: no condition has an alpha*."  # fmt: skip
-    check_section = f"\n## One network per lane count against per-alpha models\n\n{check_text(check, alpha_label)}\n" \
-        if profile.check_alphas else ""  # fmt: skip
+    return failed_text, warm, figs
+
+
+def _notes_text(profile: Profile, meta: dict[str, Any]) -> str:
+    """Where the tables, records, trainings and runs are, and the versions."""
+    check = ", `check.csv`" if profile.check_alphas else ""
+    return f"""- Tables: `gate.csv`, `alpha_star.csv`, `mobil_p_star.csv`{check};
+  runs: `runs.csv` (one row per cell), `evals.csv` (one row per evaluation run, with its `{FULL_ROAD}` and
+  `full_road_from_s`); each cell's record `cells/<key>.json`; a network's training `train/L<lanes>_cond_s<seed>/`
+  (a per-alpha model's `train/L<lanes>_a<alpha>_s<seed>/`), a link into the model store; a cell's evaluations
+  `evals/<key>/eval_a<A>_s<E>/`, MOBIL's runs `mobil/<key>/`, `keep`'s and `greedy`'s `baselines/<key>/`.
+- Versions: {json.dumps(meta["versions"], sort_keys=True)}."""
+
+
+def report_text(runs: pd.DataFrame, table: pd.DataFrame, gate: pd.DataFrame, trends: dict[str, Any],
+                check: pd.DataFrame, profile: Profile, meta: dict[str, Any], figures: dict[str, str],
+                alpha_label: Any) -> str:  # fmt: skip
+    """The Markdown report of a lane-network profile."""
+    passing = passing_conditions(gate)
+    measure = MEASURES.get(profile.criterion, profile.criterion)
+    failed_text, warm, figs = _failed_warm_figures(runs, profile, figures, measure)
+    check_section = _check_section(check, profile, alpha_label)
     return f"""# Scenario II: alpha* where the learner is fit to be asked
 
 Profile **{profile.name}**: lanes {", ".join(map(str, profile.lanes))}; {len(meta["conditions"])} conditions;
@@ -395,12 +419,7 @@ Rerunning the same command retries failed cells and keeps the finished ones.
 
 ## Notes
 
-- Tables: `gate.csv`, `alpha_star.csv`, `mobil_p_star.csv`{", `check.csv`" if profile.check_alphas else ""};
-  runs: `runs.csv` (one row per cell), `evals.csv` (one row per evaluation run, with its `{FULL_ROAD}` and
-  `full_road_from_s`); each cell's record `cells/<key>.json`; a network's training `train/L<lanes>_cond_s<seed>/`
-  (a per-alpha model's `train/L<lanes>_a<alpha>_s<seed>/`), a link into the model store; a cell's evaluations
-  `evals/<key>/eval_a<A>_s<E>/`, MOBIL's runs `mobil/<key>/`, `keep`'s and `greedy`'s `baselines/<key>/`.
-- Versions: {json.dumps(meta["versions"], sort_keys=True)}.
+{_notes_text(profile, meta)}
 """
 
 
