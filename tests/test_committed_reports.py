@@ -77,7 +77,11 @@ def test_every_committed_report_was_made_by_todays_learner() -> None:
         _learner_check(folder)
 
 
-@pytest.mark.parametrize("study", ["scenario2", "scenario2_check"])
+PARTS = sorted(f"scenario2_parts/{p.parent.name}" for p in (ROOT / "results" / "scenario2_parts").glob("*/report.md"))
+"""the committed parts of scenario II's full profile (results/scenario2_parts/README.md)"""
+
+
+@pytest.mark.parametrize("study", ["scenario2", "scenario2_check", *PARTS])
 def test_scenario2_is_todays_rendering_of_its_runs(study: str, tmp_path: Path) -> None:
     """A committed scenario II keeps no cells/ (rerunning its command would train every cell again): its tables,
     report.md and figures are redrawn from runs.csv, evals.csv and sweep.json by rewrite_outputs, and are what
