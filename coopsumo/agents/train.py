@@ -383,28 +383,9 @@ def check_recorded_config(out: Path, cfg: TrainConfig) -> None:
                          f"in {', '.join(differ)}): copied in?; train again without --resume")  # fmt: skip
 
 
-def train(
-    cfg: TrainConfig,
-    out: Path,
-    resume: bool = False,
-    progress: bool = True,
-    on_steps: Callable[[int], None] | None = None,
-    tensorboard: bool = False,
-    final: Path | None = None,
-    learner_process: bool = False,
-) -> dict[str, Any]:
-    """Train (or resume) into `out`; returns the evaluation summary (or the training summary).
-
-    learner_process: the gradient updates run in a second process while the world steps (agents/update_worker.py;
-    the model is the same file either way, the wall time shorter when a core is free).
-
-    final: the folder the results will be moved to, when `out` is a working folder (recorded paths name it).
-
-    on_steps(n) is told of progress (training and evaluation steps), for a caller's progress bar;
-    tensorboard: also write the log's scalars to out/tensorboard/ (tb_log).
-    """
-    check_no_outside_link(out)  # sumo/, eval/, a log file...: written through, it would write elsewhere
-    trainer = Trainer(cfg, out, progress, on_steps, learner_process)
+def _begin(trainer: Trainer, cfg: TrainConfig, out: Path, resume: bool) -> None:
+    """Resume from out's checkpoint (refused in one line when it does not fit its configuration), or start afresh:
+    the run folder marked unfinished, config.json written, what an earlier run left removed, a step-0 checkpoint."""
     out.mkdir(parents=True, exist_ok=True)
     if resume:
         check_recorded_config(out, cfg)
@@ -421,6 +402,53 @@ def train(
             (out / stale).unlink(missing_ok=True)
         shutil.rmtree(out / selection.SNAPSHOTS, ignore_errors=True)
         trainer.save_checkpoint()  # step 0: from here on, an interrupted run always has a checkpoint to resume
+
+
+def _write_models(trainer: Trainer, cfg: TrainConfig, out: Path, wall: float, ended: dict[str, Any] | None,
+                  learner_process: bool) -> tuple[dict[str, Any], dict[str, Any] | None]:  # fmt: skip
+    """model.pt (the best validated snapshot when the learner selects, the last weights beside it; else the last
+    weights) and train_summary.json; returns that summary and the chosen snapshot's record (None: no selection)."""
+    chosen = None
+    if selection.selecting(cfg):  # model.pt: the best validated snapshot; the last weights beside it
+        save_model(out / selection.LAST_MODEL, trainer.learner.driving, model_meta(cfg))
+        chosen = selection.install_best(out)
+        selection.write_table(out)
+    if chosen is None:
+        save_model(out / "model.pt", trainer.learner.driving, model_meta(cfg))
+    train_summary = ended or dict(trainer.world_summary, wall_seconds=round(wall, 2),
+                                  steps_per_second=round(cfg.sim.steps / wall, 1),
+                                  updates=trainer.learner.updates, learner_process=learner_process)  # fmt: skip
+    if chosen is not None:
+        train_summary = dict(train_summary, selected_step=chosen["step"], selected_score=chosen["score"],
+                             last_score=selection.results(out)[-1]["score"])  # fmt: skip
+        if trainer.progress:
+            print(f"train: model.pt is the weights of step {chosen['step']:,} (validation score "
+                  f"{chosen['score']:.4f}; last weights {train_summary['last_score']:.4f}, in {selection.LAST_MODEL})",
+                  file=sys.stderr)  # fmt: skip
+    write_json(out / "train_summary.json", train_summary)
+    return train_summary, chosen
+
+
+def _driving_policy(cfg: TrainConfig, net: Any) -> DQNPolicy:
+    """The trained network as the greedy evaluation drives it: the learner's decision and driving rules."""
+    return DQNPolicy(net, decision_interval=cfg.dqn.decision_interval_steps,
+                       action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps,
+                       change_margin=cfg.dqn.change_margin, queue_below_mps=cfg.dqn.queue_below_mps,
+                       no_return_s=cfg.dqn.no_return_s,
+                       alpha=cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None)  # fmt: skip
+
+
+def train(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = True,
+          on_steps: Callable[[int], None] | None = None, tensorboard: bool = False, final: Path | None = None,
+          learner_process: bool = False) -> dict[str, Any]:  # fmt: skip
+    """Train (or resume) into `out`; returns the evaluation summary (or the training summary). learner_process: the
+    gradient updates run in a second process while the world steps (agents/update_worker.py; the same model file
+    either way). final: the folder the results will be moved to, when `out` is a working folder (recorded paths name
+    it). on_steps(n) is told of progress (training and evaluation steps); tensorboard: also write the log's scalars
+    to out/tensorboard/ (tb_log)."""
+    check_no_outside_link(out)  # sumo/, eval/, a log file...: written through, it would write elsewhere
+    trainer = Trainer(cfg, out, progress, on_steps, learner_process)
+    _begin(trainer, cfg, out, resume)
     ended = ended_training(out, trainer.step, cfg.sim.steps) if resume else None  # interrupted in its evaluation
     scalars = open_log(out, tensorboard, resume, trainer.step)
     trainer.on_row = None if scalars is None else scalars.add_row
@@ -442,37 +470,14 @@ def train(
         if trainer.validator is not None:
             trainer.validator.close()
     wall = time.perf_counter() - start
-    chosen = None
-    if selection.selecting(cfg):  # model.pt: the best validated snapshot; the last weights beside it
-        save_model(out / selection.LAST_MODEL, trainer.learner.driving, model_meta(cfg))
-        chosen = selection.install_best(out)
-        selection.write_table(out)
-    if chosen is None:
-        save_model(out / "model.pt", trainer.learner.driving, model_meta(cfg))
-    train_summary = ended or dict(trainer.world_summary, wall_seconds=round(wall, 2),
-                                  steps_per_second=round(cfg.sim.steps / wall, 1),
-                                  updates=trainer.learner.updates, learner_process=learner_process)  # fmt: skip
-    if chosen is not None:
-        train_summary = dict(train_summary, selected_step=chosen["step"], selected_score=chosen["score"],
-                             last_score=selection.results(out)[-1]["score"])  # fmt: skip
-        if trainer.progress:
-            print(f"train: model.pt is the weights of step {chosen['step']:,} (validation score "
-                  f"{chosen['score']:.4f}; last weights {train_summary['last_score']:.4f}, in {selection.LAST_MODEL})",
-                  file=sys.stderr)  # fmt: skip
-    write_json(out / "train_summary.json", train_summary)
+    train_summary, chosen = _write_models(trainer, cfg, out, wall, ended, learner_process)
     if cfg.eval_steps == 0:
         with signals_deferred():  # a stop between the two would leave a training neither resumable nor finished
             trainer.checkpoint_path().unlink(missing_ok=True)
             mark_run_dir(out, "train")
         return train_summary
-    net = trainer.learner.driving
-    if chosen is not None:
-        net = DQNPolicy.from_file(str(out / "model.pt")).net
-    policy = DQNPolicy(net, decision_interval=cfg.dqn.decision_interval_steps,
-                       action_mask=cfg.dqn.action_mask, restart_below_mps=cfg.dqn.restart_below_mps,
-                       change_margin=cfg.dqn.change_margin, queue_below_mps=cfg.dqn.queue_below_mps,
-                       no_return_s=cfg.dqn.no_return_s,
-                       alpha=cfg.sim.reward.alpha if cfg.dqn.alpha_conditioned else None)  # fmt: skip
+    net = trainer.learner.driving if chosen is None else DQNPolicy.from_file(str(out / "model.pt")).net
+    policy = _driving_policy(cfg, net)
     shutil.rmtree(out / "eval", ignore_errors=True)  # what an interrupted evaluation had written
     try:
         summary = evaluate(cfg, policy, out, progress, on_steps, shown=final)
