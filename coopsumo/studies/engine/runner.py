@@ -278,6 +278,82 @@ def _signals_ignored() -> Iterator[None]:
             signal.signal(s, h)
 
 
+class _Schedule:
+    """The cells of one execute call: which wait, which run, which finished, and each record's writing.
+
+    A dead worker breaks the whole pool, so every cell in flight sees BrokenProcessPool; such cells are rerun alone
+    ("solo"), where a crash can only be their own, before one is recorded as failed."""
+
+    def __init__(self, specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend | RayBackend, bar: Any,
+                 failed_record: FailedRecord, done_keys: Sequence[str]) -> None:  # fmt: skip
+        self.root, self.backend, self.bar, self.failed_record = root, backend, bar, failed_record
+        self.todo = list(specs)
+        self.pending = {spec["key"] for spec in specs}  # not finished yet in this call
+        self.ok_keys: set[str] = set(done_keys)
+        self.failed_keys: set[str] = set()
+        self.solo: deque[dict[str, Any]] = deque()
+        self.solo_running = False
+        self.inflight: dict[Any, dict[str, Any]] = {}
+        self.crashes: Counter[str] = Counter()
+        self.counts = {"ok": 0, "failed": 0}
+
+    def finish(self, spec: dict[str, Any], record: dict[str, Any]) -> None:
+        write_json(cell_path(self.root, spec["key"]), record)
+        self.pending.discard(spec["key"])
+        (self.ok_keys if record["status"] == "ok" else self.failed_keys).add(spec["key"])
+        self.counts[record["status"]] += 1
+        self.bar.update(1)
+
+    def startable(self) -> list[dict[str, Any]]:
+        """Cells of todo whose dependency is done (a failed dependency fails them at once)."""
+        ready = []
+        for spec in list(self.todo):
+            dep = spec.get("after")
+            if dep in self.failed_keys:
+                self.todo.remove(spec)
+                self.finish(spec, self.failed_record(spec, f"needs cell {dep}, which failed"))
+            elif dep is None or dep in self.ok_keys or dep not in self.pending:
+                ready.append(spec)
+        return ready
+
+    def submit(self) -> None:
+        """A solo cell alone once nothing runs; else as many startable cells as the backend has free slots."""
+        if self.solo and not self.inflight:
+            spec = self.solo.popleft()
+            self.inflight[self.backend.submit(spec, self.root)] = spec
+            self.solo_running = True
+        if self.solo or self.solo_running:
+            return
+        ready = self.startable()
+        if not ready and not self.inflight and self.todo:  # only cells waiting on cells that will never run
+            for spec in self.todo:
+                self.finish(spec, self.failed_record(spec, f"needs cell {spec.get('after')}, which did not run"))
+            self.todo.clear()
+        for spec in ready[: max(0, self.backend.slots - len(self.inflight))]:
+            self.todo.remove(spec)
+            self.inflight[self.backend.submit(spec, self.root)] = spec
+
+    def take(self, handle: Any, outcome: Any) -> None:
+        """One finished cell: record it, or queue it to run solo after a broken pool."""
+        spec = self.inflight.pop(handle)
+        was_solo, self.solo_running = self.solo_running, self.solo_running and bool(self.inflight)
+        if isinstance(outcome, BrokenProcessPool):
+            self.crashes[spec["key"]] += 1
+            if not (was_solo and self.crashes[spec["key"]] >= MAX_CRASHES):
+                self.solo.append(spec)
+                return
+            record = self.failed_record(spec, f"worker process died {MAX_CRASHES} times (BrokenProcessPool)")
+        elif isinstance(outcome, BaseException):
+            record = self.failed_record(spec, f"{type(outcome).__name__}: {str(outcome).strip()[:300]}")
+        else:
+            record = outcome
+        if record["status"] == "interrupted":
+            raise KeyboardInterrupt(f"cell {spec['key']} interrupted")
+        self.finish(spec, record)
+        running = len(self.inflight) + min(len(self.todo), self.backend.slots - len(self.inflight))
+        self.bar.set_postfix(failed=self.counts["failed"], running=running, refresh=False)
+
+
 def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend | RayBackend, total: int,
             done_before: int, progress: bool, failed_record: FailedRecord, desc: str = "cells",
             done_keys: Sequence[str] = ()) -> dict[str, int]:  # fmt: skip
@@ -290,77 +366,19 @@ def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend |
     (root / "cells").mkdir(parents=True, exist_ok=True)
     if isinstance(backend, RayBackend) and backend.address is not None:
         backend.check_cluster(root)
-    todo = list(specs)
-    pending = {spec["key"] for spec in specs}  # not finished yet in this call
-    ok_keys: set[str] = set(done_keys)
-    failed_keys: set[str] = set()
-    # A dead worker breaks the whole pool, so every cell in flight sees BrokenProcessPool; such cells
-    # are rerun alone ("solo"), where a crash can only be their own, before one is recorded as failed.
-    solo: deque[dict[str, Any]] = deque()
-    solo_running = False
-    inflight: dict[Any, dict[str, Any]] = {}
-    crashes: Counter[str] = Counter()
-    counts = {"ok": 0, "failed": 0}
     bar = tqdm(total=total, initial=done_before, desc=desc, unit="cell", file=sys.stderr,
                disable=not progress, mininterval=1.0, smoothing=0.1)  # fmt: skip
-
-    def finish(spec: dict[str, Any], record: dict[str, Any]) -> None:
-        write_json(cell_path(root, spec["key"]), record)
-        pending.discard(spec["key"])
-        (ok_keys if record["status"] == "ok" else failed_keys).add(spec["key"])
-        counts[record["status"]] += 1
-        bar.update(1)
-
-    def startable() -> list[dict[str, Any]]:
-        """Cells of todo whose dependency is done (a failed dependency fails them at once)."""
-        ready = []
-        for spec in list(todo):
-            dep = spec.get("after")
-            if dep in failed_keys:
-                todo.remove(spec)
-                finish(spec, failed_record(spec, f"needs cell {dep}, which failed"))
-            elif dep is None or dep in ok_keys or dep not in pending:
-                ready.append(spec)
-        return ready
-
+    schedule = _Schedule(specs, root, backend, bar, failed_record, done_keys)
     try:
-        while todo or solo or inflight:
-            if solo and not inflight:
-                spec = solo.popleft()
-                inflight[backend.submit(spec, root)] = spec
-                solo_running = True
-            if not solo and not solo_running:
-                ready = startable()
-                if not ready and not inflight and todo:  # only cells waiting on cells that will never run
-                    for spec in todo:
-                        finish(spec, failed_record(spec, f"needs cell {spec.get('after')}, which did not run"))
-                    todo.clear()
-                for spec in ready[: max(0, backend.slots - len(inflight))]:
-                    todo.remove(spec)
-                    inflight[backend.submit(spec, root)] = spec
+        while schedule.todo or schedule.solo or schedule.inflight:
+            schedule.submit()
             bar.refresh()  # the elapsed time moves on while long cells run
-            for handle, outcome in backend.wait(list(inflight), timeout=1.0):
-                spec = inflight.pop(handle)
-                was_solo, solo_running = solo_running, solo_running and bool(inflight)
-                if isinstance(outcome, BrokenProcessPool):
-                    crashes[spec["key"]] += 1
-                    if not (was_solo and crashes[spec["key"]] >= MAX_CRASHES):
-                        solo.append(spec)
-                        continue
-                    record = failed_record(spec, f"worker process died {MAX_CRASHES} times (BrokenProcessPool)")
-                elif isinstance(outcome, BaseException):
-                    record = failed_record(spec, f"{type(outcome).__name__}: {str(outcome).strip()[:300]}")
-                else:
-                    record = outcome
-                if record["status"] == "interrupted":
-                    raise KeyboardInterrupt(f"cell {spec['key']} interrupted")
-                finish(spec, record)
-                running = len(inflight) + min(len(todo), backend.slots - len(inflight))
-                bar.set_postfix(failed=counts["failed"], running=running, refresh=False)
+            for handle, outcome in backend.wait(list(schedule.inflight), timeout=1.0):
+                schedule.take(handle, outcome)
     except KeyboardInterrupt:
         bar.close()
         with _signals_ignored():
             backend.abort()
         raise
     bar.close()
-    return counts
+    return schedule.counts

@@ -318,10 +318,7 @@ def _eval_seed_words(profile: Any) -> str:
     return words
 
 
-def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.DataFrame, diag: pd.DataFrame,
-                meta: dict[str, Any]) -> str:  # fmt: skip
-    """The report from every run (runs) and every model's and baseline's mean over its evaluation seeds (ok,
-    per_model)."""
+def _header_lines(profile: Any, meta: dict[str, Any]) -> list[str]:
     lines = [
         "# The learner protocol: every training seed against the hand-made rules",
         "",
@@ -347,6 +344,12 @@ def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.Da
         drive = info.get("drive") or {}
         how = "".join(f", {words} {drive[key]:g}" for _, key, words in DRIVES if key in drive)
         lines.append(f"- `{name}`: {info['text']} (drives `{info['weights']}`{how})")
+    return lines
+
+
+def _scenario_tables(profile: Any, ok: pd.DataFrame, table: pd.DataFrame) -> list[str]:
+    """Per scenario: each learner's IQM, worst model and probability of improvement per demand, then pooled."""
+    lines: list[str] = []
     for scenario in ("free", "accident"):
         measure, words, sign = MEASURES[scenario]
         sub = table[table["scenario"] == scenario] if len(table) else table
@@ -370,10 +373,11 @@ def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.Da
         for variant in profile.variants:
             parts = [f"P(> `{b}`) = {_ci(*pooled_stats(ok, variant, b, scenario))}" for b in BASELINES]
             lines.append(f"- `{variant}`: " + "; ".join(parts))
-    lines += passing_lines(ok, profile)
-    lines += paired_lines(ok, profile, meta)
-    lines += committed_pair_lines(runs, profile)
-    lines += ["", *target_lines(table, ok, profile), ""]
+    return lines
+
+
+def _alpha_lines(profile: Any, ok: pd.DataFrame) -> list[str]:
+    lines: list[str] = []
     judged = profile.judged_variant()
     alpha = ok[(ok["kind"] == "model") & (ok["scenario"] == "free") & (ok["variant"] == judged)]
     if (alpha["alpha"] > 0).any():
@@ -384,10 +388,11 @@ def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.Da
             a8 = grp[grp["alpha"] == 8]["lane_changes_per_vehicle"]
             lines.append(f"| {t_up:g} | {a0.mean():.3f} ({len(a0)}) | {a8.mean():.3f} ({len(a8)}) |")
         lines.append("")
-    done = runs[runs["status"] == "ok"]
-    safety = done[["collisions", "teleports"]].sum()
-    lines += [f"Safety: {int(safety['collisions'])} collisions and {int(safety['teleports'])} teleports in all "
-              f"{len(done)} runs.", ""]  # fmt: skip
+    return lines
+
+
+def _diagnosis_lines(profile: Any, diag: pd.DataFrame) -> list[str]:
+    lines: list[str] = []
     if len(diag):
         judged = profile.judged_variant()
         lines += [f"## Diagnosis: what each training of `{judged}` saw in its validation (alpha 0)", "",
@@ -407,6 +412,24 @@ def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.Da
                          f"{d['best_q_gap_median']:.2f} / {d['last_q_gap_median']:.2f} | "
                          f"{d['best_near_tie_share']:.2f} / {d['last_near_tie_share']:.2f} |")  # fmt: skip
         lines += ["", "![validation over training](fig_validation.png)", ""]
+    return lines
+
+
+def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.DataFrame, diag: pd.DataFrame,
+                meta: dict[str, Any]) -> str:  # fmt: skip
+    """The report from every run (runs) and every model's and baseline's mean over its evaluation seeds (ok,
+    per_model)."""
+    lines = _header_lines(profile, meta) + _scenario_tables(profile, ok, table)
+    lines += passing_lines(ok, profile)
+    lines += paired_lines(ok, profile, meta)
+    lines += committed_pair_lines(runs, profile)
+    lines += ["", *target_lines(table, ok, profile), ""]
+    lines += _alpha_lines(profile, ok)
+    done = runs[runs["status"] == "ok"]
+    safety = done[["collisions", "teleports"]].sum()
+    lines += [f"Safety: {int(safety['collisions'])} collisions and {int(safety['teleports'])} teleports in all "
+              f"{len(done)} runs.", ""]  # fmt: skip
+    lines += _diagnosis_lines(profile, diag)
     failed = runs[runs["status"] != "ok"]
     if len(failed):
         lines += [f"Failed cells ({len(failed)}): " + ", ".join(failed["key"]), ""]

@@ -13,7 +13,7 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import to_dict
+from coopsumo.config import SimConfig, to_dict
 from coopsumo.provenance import versions
 from coopsumo.studies.engine.stats import models_needed
 from coopsumo.studies.scenario1.gui import gui_section
@@ -335,33 +335,18 @@ def comparison_pairs(plan: Plan, rows: pd.DataFrame) -> tuple[list[tuple[str, st
     return pairs, coop
 
 
-def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], timing: str) -> None:
-    """summary.csv, the figures and report.md from the table of runs."""
+def _demand_figures(root: Path, plan: Plan, shown_runs: list[Run], learned: list[str]) -> dict[str, str]:
+    """Fig. 5 (flow-density) and the recovery figure per demand, from the first model's first evaluation seed."""
     from coopsumo.report.analysis import flow_density, insertion_backlog, read_detectors, section_speed_bins
-    from coopsumo.report.bottleneck import REGIMES
-    from coopsumo.report.plots import (
-        demand_figure,
-        difference_figure,
-        flow_density_figure,
-        recovery_figure,
-    )
+    from coopsumo.report.plots import flow_density_figure, recovery_figure
 
-    agg = aggregate(rows)
-    agg.to_csv(root / "summary.csv", index=False)
-    pairs, coop = comparison_pairs(plan, rows)
-    first = plan.seeds[0]
-    cfg0 = runs[0].cfg
-    first_model = plan.train_seeds[0]
-    shown_runs = [r for r in runs if r.train_seed in (None, first_model)]  # the figures show the first model
-    learned = sorted({r.label for r in runs if r.train_seed is not None})
-    acc, dt = cfg0.accident, cfg0.control.dt_s
-    start_s, end_s = acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt
-    window = (start_s, end_s)
+    acc, dt = shown_runs[0].cfg.accident, shown_runs[0].cfg.control.dt_s
+    window = (acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt)
     figures: dict[str, str] = {}
     for name in [p.name for p in root.glob("fig*.png")]:
         (root / name).unlink()  # figures of an earlier study with other demands must not stay beside this one
     for t_up in plan.t_ups:
-        firsts = [(r.label, r.out) for r in shown_runs if r.seed == first and r.t_up == t_up]
+        firsts = [(r.label, r.out) for r in shown_runs if r.seed == plan.seeds[0] and r.t_up == t_up]
         fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, out in firsts}
         tname = number_name(t_up)
         figures[f"fig5_t{tname}"] = flow_density_figure(fd, root / f"fig5_flow_density_t{tname}.png").name
@@ -372,6 +357,74 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
             backlogs[lab] = insertion_backlog(traj, t_up)
         figures[f"recovery_t{tname}"] = recovery_figure(speeds, backlogs, root / f"fig_recovery_t{tname}.png",
                                                          window, RECOVERY_MPS, learned).name  # fmt: skip
+    return figures
+
+
+def _header(plan: Plan, cfg0: SimConfig) -> str:
+    acc, dt = cfg0.accident, cfg0.control.dt_s
+    start_s, end_s = acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt
+    return (
+        f"Profile `{plan.profile}`: {plan.lanes} lanes; demands T_up = {', '.join(f'{t:g}' for t in plan.t_ups)} s "
+        f"({', '.join(f'{3600 / t:.0f}' for t in plan.t_ups)} veh/h); {plan.steps} steps ({plan.steps * dt:.0f} s) "
+        f"per run; the accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps "
+        f"(t = {start_s:.0f}-{end_s:.0f} s), stuck ratio decaying 1 -> 0. Models (learner presets "
+        f"{', '.join(f'`{p}`' for p in plan.presets)}; alpha in {{{', '.join(f'{x:g}' for x in plan.alphas)}}}) "
+        f"{training_text(plan)}; **{counted(len(plan.train_seeds), 'model')} per alpha** (training seeds "
+        f"{', '.join(map(str, plan.train_seeds))}), each evaluated greedily on "
+        f"**{counted(len(plan.seeds), 'evaluation seed')}** "
+        f"({', '.join(map(str, plan.seeds))}), which no model saw; every policy meets the same demand on the same "
+        f"seeds. Values in the tables: mean ± standard deviation over runs ({len(plan.train_seeds)} x "
+        f"{len(plan.seeds)} for a learned policy, {len(plan.seeds)} for a baseline); Fig. 4, Fig. 5 and the "
+        f"recovery figures show the first model (training seed {plan.train_seeds[0]})."
+    )
+
+
+def _claim(root: Path, plan: Plan, rows: pd.DataFrame, pairs: list[tuple[str, str]], coop: float | None) -> str:
+    if coop is None:
+        claim = ("No model with alpha > 0 makes even 10% of alpha = 0's lane changes here: every cooperative model "
+                 "behaves like `keep`.")  # fmt: skip
+    else:
+        claim = (f"The cooperative model that is not simply `keep`: **alpha = {coop:g}** (the largest alpha whose "
+                 f"model makes at least 10% of alpha = 0's lane changes per vehicle over every accident run).")
+    claim += "\n\n" + verdict_table(rows, plan.t_ups, pairs)
+    beside = default_study(root, plan)
+    if beside is not None:
+        claim += ("\n\n### Claim (a) side by side with the default learner\n\n"
+                  + side_by_side(rows, plan, pd.read_csv(beside / "runs.csv"), f"results/{beside.name}"))
+    return claim
+
+
+def _figures_text(plan: Plan, fig4_t: float, shown: list[str], windows: dict[str, tuple[float, float]]) -> str:
+    return (
+        f"![total time spent](fig_tts_demand.png)\n\nTotal time spent against the inflow, per policy: mean over "
+        f"models and evaluation seeds with its 95% two-level bootstrap interval (models, then seeds; seeds alone "
+        f"for a baseline). On this log scale a difference of a few veh-h cannot be seen: the next figure shows the "
+        f"differences themselves.\n\n![difference in total time spent](fig_tts_difference.png)\n\nThe differences "
+        f"the verdicts judge: total time spent a minus b (veh-h, linear scale) per demand, with its 95% two-level "
+        f"interval: the numbers of the verdict table. Below the zero line a spends less time. One panel per kind of "
+        f"pair: cooperative against non-cooperative, learned against classical.\n\n"
+        f"![Fig. 4](fig4_trajectories.png)\n\nFig. 4 as in the paper: "
+        f"partial trajectories on SUMO lane {FIG4_LANE} (the paper's \"lane 1\"), one line per vehicle coloured by "
+        f"speed, at T_up = {fig4_t:g} s (the demand where `{shown[-1]}` and `{shown[0]}` differ most in total time "
+        f"spent), the first model of each (training seed {plan.train_seeds[0]}), evaluation seed {plan.seeds[0]}: "
+        f"{WINDOW_S / 60:.0f} minutes around the jam's onset "
+        f"({windows['onset'][0]:.0f}-{windows['onset'][1]:.0f} s) and around its dissolution "
+        f"({windows['dissolution'][0]:.0f}-{windows['dissolution'][1]:.0f} s); dashed: the bottleneck."
+    )
+
+
+def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], timing: str) -> None:
+    """summary.csv, the figures and report.md from the table of runs."""
+    from coopsumo.report.bottleneck import REGIMES
+    from coopsumo.report.plots import demand_figure, difference_figure
+
+    agg = aggregate(rows)
+    agg.to_csv(root / "summary.csv", index=False)
+    pairs, coop = comparison_pairs(plan, rows)
+    first = plan.seeds[0]
+    shown_runs = [r for r in runs if r.train_seed in (None, plan.train_seeds[0])]  # the figures show the first model
+    learned = sorted({r.label for r in runs if r.train_seed is not None})
+    figures = _demand_figures(root, plan, shown_runs, learned)
     tts_table = demand_table(rows, "tts_veh_h")
     demand_figure(tts_table, "tts_veh_h", "total time spent (veh-h, log scale)", root / "fig_tts_demand.png")
     vs_classical = [(a, b) for a, b in pairs if a in learned and b not in learned]  # the other panel's pairs
@@ -387,53 +440,12 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
     gui_t = min(plan.t_ups)
     gui = next(r for r in shown_runs if r.label == gui_label and r.seed == first and r.t_up == gui_t)
     gui_text = gui_section(root, gui.out, str(gui.out.relative_to(root / "runs")), gui.cfg)
-
-    header = (
-        f"Profile `{plan.profile}`: {plan.lanes} lanes; demands T_up = {', '.join(f'{t:g}' for t in plan.t_ups)} s "
-        f"({', '.join(f'{3600 / t:.0f}' for t in plan.t_ups)} veh/h); {plan.steps} steps ({plan.steps * dt:.0f} s) "
-        f"per run; the accident at x = {acc.x_m:.0f} m from step {acc.start_step} for {acc.duration_steps} steps "
-        f"(t = {start_s:.0f}-{end_s:.0f} s), stuck ratio decaying 1 -> 0. Models (learner presets "
-        f"{', '.join(f'`{p}`' for p in plan.presets)}; alpha in {{{', '.join(f'{x:g}' for x in plan.alphas)}}}) "
-        f"{training_text(plan)}; **{counted(len(plan.train_seeds), 'model')} per alpha** (training seeds "
-        f"{', '.join(map(str, plan.train_seeds))}), each evaluated greedily on "
-        f"**{counted(len(plan.seeds), 'evaluation seed')}** "
-        f"({', '.join(map(str, plan.seeds))}), which no model saw; every policy meets the same demand on the same "
-        f"seeds. Values in the tables: mean ± standard deviation over runs ({len(plan.train_seeds)} x "
-        f"{len(plan.seeds)} for a learned policy, {len(plan.seeds)} for a baseline); Fig. 4, Fig. 5 and the "
-        f"recovery figures show the first model (training seed {plan.train_seeds[0]})."
-    )
-    if coop is None:
-        claim = ("No model with alpha > 0 makes even 10% of alpha = 0's lane changes here: every cooperative model "
-                 "behaves like `keep`.")  # fmt: skip
-    else:
-        claim = (f"The cooperative model that is not simply `keep`: **alpha = {coop:g}** (the largest alpha whose "
-                 f"model makes at least 10% of alpha = 0's lane changes per vehicle over every accident run).")
     sections = [demand_section(rows, agg, t, pairs, figures) for t in plan.t_ups]
     if plan.profile == Plan.full().profile:  # the paper's horizon: recovery steps per model, waves on lane 1
         sections.append(horizon_outputs(root, plan, rows, runs, FIG4_LANE))
-    claim += "\n\n" + verdict_table(rows, plan.t_ups, pairs)
-    beside = default_study(root, plan)
-    if beside is not None:
-        claim += ("\n\n### Claim (a) side by side with the default learner\n\n"
-                  + side_by_side(rows, plan, pd.read_csv(beside / "runs.csv"), f"results/{beside.name}"))
-    regimes = regime_table(rows, REGIMES)
-    figures_text = (
-        f"![total time spent](fig_tts_demand.png)\n\nTotal time spent against the inflow, per policy: mean over "
-        f"models and evaluation seeds with its 95% two-level bootstrap interval (models, then seeds; seeds alone "
-        f"for a baseline). On this log scale a difference of a few veh-h cannot be seen: the next figure shows the "
-        f"differences themselves.\n\n![difference in total time spent](fig_tts_difference.png)\n\nThe differences "
-        f"the verdicts judge: total time spent a minus b (veh-h, linear scale) per demand, with its 95% two-level "
-        f"interval: the numbers of the verdict table. Below the zero line a spends less time. One panel per kind of "
-        f"pair: cooperative against non-cooperative, learned against classical.\n\n"
-        f"![Fig. 4](fig4_trajectories.png)\n\nFig. 4 as in the paper: "
-        f"partial trajectories on SUMO lane {FIG4_LANE} (the paper's \"lane 1\"), one line per vehicle coloured by "
-        f"speed, at T_up = {fig4_t:g} s (the demand where `{shown[-1]}` and `{noncoop}` differ most in total time "
-        f"spent), the first model of each (training seed {first_model}), evaluation seed {first}: "
-        f"{WINDOW_S / 60:.0f} minutes around the jam's onset "
-        f"({windows['onset'][0]:.0f}-{windows['onset'][1]:.0f} s) and around its dissolution "
-        f"({windows['dissolution'][0]:.0f}-{windows['dissolution'][1]:.0f} s); dashed: the bottleneck."
-    )
-    write_report(root, header, claim, sections, regimes, figures_text, gui_text, timing, json.dumps(versions()))
+    write_report(root, _header(plan, runs[0].cfg), _claim(root, plan, rows, pairs, coop), sections,
+                 regime_table(rows, REGIMES), _figures_text(plan, fig4_t, shown, windows), gui_text, timing,
+                 json.dumps(versions()))  # fmt: skip
     print(closing_table(agg, plan.t_ups[-1]))
 
 

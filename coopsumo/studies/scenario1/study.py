@@ -227,18 +227,11 @@ def recorded_profile(root: Path) -> str | None:
     return profile if isinstance(profile, str) else None
 
 
-def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "local", address: str | None = None) -> int:
-    start = time.perf_counter()
-    try:
-        root.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise UsageError(f"cannot write {root}: {err.strerror}") from None
-    learners = {preset: to_dict(DQN_PRESETS[preset]) for preset in plan.presets}  # the report's learner settings
-    write_json(root / "plan.json", {"plan": to_dict(plan), "learners": learners, "versions": versions()})
-
-    # 1. cells: trainings first (the longest chains), each model's accident runs as soon as it exists, then
-    #    the baselines; models come from the model store (shared with other studies), finished runs with the
-    #    same configuration are reused
+def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], dict[tuple[str, float, int], tuple[Path, str]],
+                                            list[Run], int]:  # fmt: skip
+    """The cells still to run: trainings first (the longest chains), each model's accident runs as soon as it exists,
+    then the baselines. Models come from the model store (shared with other studies); finished runs with the same
+    configuration are reused. Returns (specs, models, every run, trainings to run)."""
     store = store_for(root)
     specs: list[dict[str, Any]] = []
     models: dict[tuple[str, float, int], tuple[Path, str]] = {}  # (preset, alpha, train seed) -> (model.pt, key)
@@ -274,6 +267,41 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
                               "label": label, "seed": seed, "t_up_s": t_up, "out": folder, "after": after,
                               "config": to_dict(cfg), "trajectory_every": plan.trajectory_every,
                               "outputs": to_dict(plan.outputs())})  # fmt: skip
+    return specs, models, runs, n_train
+
+
+def _runs_table(plan: Plan, runs: list[Run]) -> pd.DataFrame:
+    """One row per run, demands from the highest, policies in the plan's order."""
+    sample_s = plan.trajectory_every * ControlConfig().dt_s
+    order = {lab: i for i, lab in enumerate(dict.fromkeys(r.label for r in runs))}
+    rows = pd.DataFrame([{"t_up_s": r.t_up, "policy": r.label, "train_seed": r.train_seed, "seed": r.seed,
+                          **run_metrics(r.out, r.cfg, sample_s)} for r in runs])  # fmt: skip
+    rows["train_seed"] = rows["train_seed"].astype("Int64")  # empty for a baseline
+    return rows.sort_values(["t_up_s", "policy", "train_seed", "seed"], ascending=[False, True, True, True],
+                            key=lambda c: c.map(order) if c.name == "policy" else c, kind="stable",
+                            ignore_index=True)  # fmt: skip
+
+
+def _run_cpu(plan: Plan, runs: list[Run], root: Path) -> dict[float, list[float]]:
+    """Each demand's accident runs' CPU seconds, from their cell records."""
+    run_cpu: dict[float, list[float]] = {t: [] for t in plan.t_ups}
+    for r in runs:
+        try:
+            run_cpu[r.t_up].append(float(json.loads((root / "cells" / f"{r.key}.json").read_text())["cell_cpu_s"]))
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # a run reused from before cell records: no CPU time recorded
+    return run_cpu
+
+
+def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "local", address: str | None = None) -> int:
+    start = time.perf_counter()
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write {root}: {err.strerror}") from None
+    learners = {preset: to_dict(DQN_PRESETS[preset]) for preset in plan.presets}  # the report's learner settings
+    write_json(root / "plan.json", {"plan": to_dict(plan), "learners": learners, "versions": versions()})
+    specs, models, runs, n_train = _cells(plan, root)
     n_cells = len(models) + len(runs)
     if specs:
         from coopsumo.sim.network import build_net
@@ -291,25 +319,11 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
             failed = [s["key"] for s in specs if json.loads((root / "cells" / f"{s['key']}.json").read_text())
                       ["status"] != "ok"]  # fmt: skip
             return failed_exit("scenario1", failed, len(specs), root)
-
-    # 2. tables, figures, report
-    sample_s = plan.trajectory_every * ControlConfig().dt_s
-    order = {lab: i for i, lab in enumerate(dict.fromkeys(r.label for r in runs))}
-    rows = pd.DataFrame([{"t_up_s": r.t_up, "policy": r.label, "train_seed": r.train_seed, "seed": r.seed,
-                          **run_metrics(r.out, r.cfg, sample_s)} for r in runs])  # fmt: skip
-    rows["train_seed"] = rows["train_seed"].astype("Int64")  # empty for a baseline
-    rows = rows.sort_values(["t_up_s", "policy", "train_seed", "seed"], ascending=[False, True, True, True],
-                            key=lambda c: c.map(order) if c.name == "policy" else c, kind="stable",
-                            ignore_index=True)  # fmt: skip
+    rows = _runs_table(plan, runs)
     rows.to_csv(root / "runs.csv", index=False)
     wall = time.perf_counter() - start
-    run_cpu: dict[float, list[float]] = {t: [] for t in plan.t_ups}
-    for r in runs:
-        try:
-            run_cpu[r.t_up].append(float(json.loads((root / "cells" / f"{r.key}.json").read_text())["cell_cpu_s"]))
-        except (OSError, ValueError, KeyError, TypeError):
-            pass  # a run reused from before cell records: no CPU time recorded
-    timing = timing_text(plan, runs, [path for path, _ in models.values()], n_train, len(specs), wall, run_cpu)
+    timing = timing_text(plan, runs, [path for path, _ in models.values()], n_train, len(specs), wall,
+                         _run_cpu(plan, runs, root))  # fmt: skip
     write_outputs(root, plan, rows, runs, timing)
     print(f"scenario1: done in {(time.perf_counter() - start) / 60:.1f} min; report: {root / 'report.md'}")
     return 0
