@@ -163,6 +163,21 @@ def test_every_module_stays_short() -> None:
     assert not long, f"modules over {MAX_MODULE_LINES} lines: {long}"
 
 
+MAX_FUNCTION_LINES = 60
+"""a function past this does two things: give one of them a name"""
+
+
+def test_every_function_stays_short() -> None:
+    long = {}
+    for name, path in module_files().items():
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                lines = (node.end_lineno or node.lineno) - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES:
+                    long[f"{name}.{node.name}"] = lines
+    assert not long, f"functions over {MAX_FUNCTION_LINES} lines: {long}"
+
+
 def test_the_engine_reaches_into_no_study() -> None:
     """studies/engine/ (runner, records, run folders, trainings, model store, statistics) is what every study runs on:
     it imports no study's folder, so that a study can change or go without touching the others."""

@@ -26,6 +26,30 @@ ADAPTIVE_ALPHA_FILE = "adaptive_alpha.csv"
 """an adaptive policy's choices: per loop period, the road's loop measurements and the alpha chosen from them"""
 
 
+def _drive(world: World, cfg: SimConfig, policy: Policy, progress: bool, label: str,
+           on_steps: Callable[[int], None] | None) -> None:  # fmt: skip
+    """cfg.steps steps of `policy` in the world, with a progress bar; a policy that adapts to the loops'
+    measurements (an adaptive rule) is told of every loop period."""
+    bar = tqdm(total=cfg.steps, desc=label, unit="step", disable=not progress, mininterval=0.5, file=sys.stderr)
+    hold = ActionHold(policy.decision_interval)
+    listen = getattr(policy, "loop_interval", None) if getattr(policy, "rule", None) is not None else None
+    for _ in range(cfg.steps):
+        decide = hold.is_decision_step(world.step_count)
+        obs = world.observe(grids=decide and policy.needs_grids)
+        world.drive(hold.actions(obs.nums, policy.act(obs) if decide else None))  # no rewards needed
+        if listen is not None and world.step_count % world.loop_period_steps == 0:
+            counts, occupancy, speeds = world.loop_last_interval()
+            listen(interval_measures(world.time_s, counts, occupancy, speeds, cfg.road.loop_period_s))
+        if world.step_count % 500 == 0:
+            bar.update(500)
+            if on_steps is not None:
+                on_steps(500)
+            bar.set_postfix(
+                veh=len(world.table.nums), v=f"{world.table.speed.mean() if len(world.table.nums) else 0:.1f}"
+            )
+    bar.close()
+
+
 def run(
     cfg: SimConfig,
     policy: Policy,
@@ -59,25 +83,7 @@ def run(
     record_every = trajectory_every if trajectories else 0
     with World(cfg, run_dir, record_trajectories_every=record_every, observe_grids=policy.needs_grids,
                outputs=outputs, gui=gui) as world:  # fmt: skip
-        bar = tqdm(total=cfg.steps, desc=label, unit="step", disable=not progress, mininterval=0.5, file=sys.stderr)
-        hold = ActionHold(policy.decision_interval)
-        # a policy that adapts to the loops' measurements (an adaptive rule): told of every loop period
-        listen = getattr(policy, "loop_interval", None) if getattr(policy, "rule", None) is not None else None
-        for _ in range(cfg.steps):
-            decide = hold.is_decision_step(world.step_count)
-            obs = world.observe(grids=decide and policy.needs_grids)
-            world.drive(hold.actions(obs.nums, policy.act(obs) if decide else None))  # no rewards needed
-            if listen is not None and world.step_count % world.loop_period_steps == 0:
-                counts, occupancy, speeds = world.loop_last_interval()
-                listen(interval_measures(world.time_s, counts, occupancy, speeds, cfg.road.loop_period_s))
-            if world.step_count % 500 == 0:
-                bar.update(500)
-                if on_steps is not None:
-                    on_steps(500)
-                bar.set_postfix(
-                    veh=len(world.table.nums), v=f"{world.table.speed.mean() if len(world.table.nums) else 0:.1f}"
-                )
-        bar.close()
+        _drive(world, cfg, policy, progress, label, on_steps)
         summary: dict[str, Any] = world.summary()
         sumo_step_s = world.session.step_seconds
         traj = world.trajectories() if trajectories else None

@@ -290,77 +290,96 @@ def main(argv: list[str] | None = None) -> int:
         return run_cli("train", lambda: _main(argv))
 
 
+def _check_given_out(args: Any) -> None:
+    """A given --out is checked before anything is read, written or deleted."""
+    if args.out is not None and (problem := store_problem(args.out)):
+        raise UsageError(problem)
+    if args.out is not None:
+        check_out_path(args.out)  # $COOPSUMO_NETS_DIR inside it too (paths.nets_in_out_problem)
+        check_run_dir(args.out, "train")
+        check_no_outside_link(args.out)
+        check_not_writing(args.out)  # a training running there is not an interrupted one
+        if not args.resume:
+            check_new_training(args.out)
+    if args.resume and args.out is None:
+        raise UsageError("--resume needs --out pointing at the interrupted run")
+
+
+def _config(args: Any, argv: list[str] | None) -> TrainConfig:
+    """The flags' configuration, or the interrupted training's with --resume."""
+    new_cfg = None if args.resume else config_from_args(args)  # bad flags refused before torch loads (~2 s)
+    import torch
+
+    from coopsumo.agents.train import Trainer
+
+    torch.set_num_threads(1)
+    if new_cfg is not None:
+        return new_cfg
+    source = training_folder(args.out)  # or an earlier version's killed new training beside a finished one
+    cfg = Trainer.checkpoint_config(source, Trainer.load_checkpoint(source))
+    check_resume_flags(argv, cfg)
+    return cfg
+
+
+def _prepare_out(args: Any, cfg: TrainConfig) -> tuple[Path, bool]:
+    """The output folder, checked and made; whether this command created it."""
+    out = args.out or default_model_out(default_out(cfg))  # checked as a given --out is
+    check_out_path(out)  # also the default folder (a relative path when the current folder was deleted)
+    if problem := store_problem(out):
+        raise UsageError(problem)
+    check_run_dir(out, "train")
+    check_no_outside_link(out)
+    if not args.resume:
+        check_new_training(out)  # also the default folder
+    created = not os.path.lexists(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
+    return out, created
+
+
+def _train_in(args: Any, cfg: TrainConfig, out: Path, created: bool) -> int:
+    """The training under out's lock; its exit code (128 + signal when stopped, resumable)."""
+    from coopsumo.agents.train import Interrupted, train
+    from coopsumo.agents.update_worker import LearnerProcessError
+
+    target = out
+    with out_lock(out, "train"):  # a second command writing to the same folder is refused
+        try:  # under the lock: what an interrupted command removes is its own
+            if not args.resume:
+                check_new_training(out)  # again under the lock: another command may have trained meanwhile
+            target = training_folder(out) if args.resume else out
+            summary = train(cfg, target, resume=args.resume, progress=not args.quiet,
+                            tensorboard=args.tensorboard, final=out,
+                            learner_process=uses_update_worker(args.update_worker, cfg))  # fmt: skip
+            if target != out:
+                finish_run_dir(target, out, "train")
+        except Interrupted as stop:
+            print(f"train: interrupted at step {stop.step}; checkpoint saved in {target / 'checkpoint.pt'}; "
+                  f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
+            return 128 + stop.signum
+        except LearnerProcessError as err:  # the update worker died: the last periodic checkpoint stands
+            if err.signum in STOP_SIGNALS:  # a Ctrl-C to the whole group that reached the worker as it started
+                return stopped(out, target, created, err.signum)
+            print(f"train: error: {err}; the training stopped; continue from its last checkpoint with --resume "
+                  f"--out {out}", file=sys.stderr)  # fmt: skip
+            return 1
+        except KeyboardInterrupt as stop:  # outside the training loop (runio.Stop: setup, selection, saving)
+            return stopped(out, target, created, getattr(stop, "signum", signal.SIGINT))
+    keys = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
+    values = {k: summary.get(k) for k in keys}  # floats to 4 significant digits, as simulate prints them
+    print(f"model: {out / 'model.pt'}  " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                                                    for k, v in values.items()))  # fmt: skip
+    return 0
+
+
 def _main(argv: list[str] | None) -> int:
     args = build_parser().parse_args(argv)
-
-    def body() -> int:
-        if args.out is not None and (problem := store_problem(args.out)):
-            raise UsageError(problem)
-        if args.out is not None:
-            check_out_path(args.out)  # $COOPSUMO_NETS_DIR inside it too (paths.nets_in_out_problem)
-            check_run_dir(args.out, "train")  # before anything is read, written or deleted
-            check_no_outside_link(args.out)
-            check_not_writing(args.out)  # a training running there is not an interrupted one
-            if not args.resume:
-                check_new_training(args.out)
-        if args.resume and args.out is None:
-            raise UsageError("--resume needs --out pointing at the interrupted run")
-        new_cfg = None if args.resume else config_from_args(args)  # bad flags refused before torch loads (~2 s)
-        import torch
-
-        from coopsumo.agents.train import Interrupted, Trainer, train
-        from coopsumo.agents.update_worker import LearnerProcessError
-
-        torch.set_num_threads(1)
-        if new_cfg is None:
-            source = training_folder(args.out)  # or an earlier version's killed new training beside a finished one
-            cfg = Trainer.checkpoint_config(source, Trainer.load_checkpoint(source))
-            check_resume_flags(argv, cfg)
-        else:
-            cfg = new_cfg
-        out = args.out or default_model_out(default_out(cfg))  # checked as a given --out is
-        check_out_path(out)  # also the default folder (a relative path when the current folder was deleted)
-        if problem := store_problem(out):
-            raise UsageError(problem)
-        check_run_dir(out, "train")
-        check_no_outside_link(out)
-        if not args.resume:
-            check_new_training(out)  # also the default folder
-        created = not os.path.lexists(out)
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
-        target = out
-        with out_lock(out, "train"):  # a second command writing to the same folder is refused
-            try:  # under the lock: what an interrupted command removes is its own
-                if not args.resume:
-                    check_new_training(out)  # again under the lock: another command may have trained meanwhile
-                target = training_folder(out) if args.resume else out
-                summary = train(cfg, target, resume=args.resume, progress=not args.quiet,
-                                tensorboard=args.tensorboard, final=out,
-                                learner_process=uses_update_worker(args.update_worker, cfg))  # fmt: skip
-                if target != out:
-                    finish_run_dir(target, out, "train")
-            except Interrupted as stop:
-                print(f"train: interrupted at step {stop.step}; checkpoint saved in {target / 'checkpoint.pt'}; "
-                      f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
-                return 128 + stop.signum
-            except LearnerProcessError as err:  # the update worker died: the last periodic checkpoint stands
-                if err.signum in STOP_SIGNALS:  # a Ctrl-C to the whole group that reached the worker as it started
-                    return stopped(out, target, created, err.signum)
-                print(f"train: error: {err}; the training stopped; continue from its last checkpoint with --resume "
-                      f"--out {out}", file=sys.stderr)  # fmt: skip
-                return 1
-            except KeyboardInterrupt as stop:  # outside the training loop (runio.Stop: setup, selection, saving)
-                return stopped(out, target, created, getattr(stop, "signum", signal.SIGINT))
-        keys = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
-        values = {k: summary.get(k) for k in keys}  # floats to 4 significant digits, as simulate prints them
-        print(f"model: {out / 'model.pt'}  " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                                                        for k, v in values.items()))  # fmt: skip
-        return 0
-
-    return body()
+    _check_given_out(args)
+    cfg = _config(args, argv)
+    out, created = _prepare_out(args, cfg)
+    return _train_in(args, cfg, out, created)
 
 
 if __name__ == "__main__":

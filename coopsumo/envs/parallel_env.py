@@ -144,22 +144,12 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
         self._started, self._done = True, not self.agents
         return observations, infos
 
-    def step(
-        self, actions: dict[str, Any]
-    ) -> tuple[
-        dict[str, dict[str, np.ndarray]],
-        dict[str, float],
-        dict[str, bool],
-        dict[str, bool],
-        dict[str, dict[str, Any]],
-    ]:
-        check_episode(self._started, self._done)
-        world, obs = self._slot.world, self._obs
-        assert world is not None and obs is not None
+    @staticmethod
+    def _action_batch(actions: Any, obs: Any, live: set[str]) -> np.ndarray:
+        """One action per observed vehicle: a live agent's own (checked), SPEEDUP for the others."""
         if not isinstance(actions, Mapping):
             raise TypeError(f"actions must be a dict of live agent name -> action 0-3, got {type(actions).__name__} "
                             f"{actions!r:.80}")  # fmt: skip
-        live = set(self.agents)
         unknown = set(actions) - live
         missing = live - set(actions)
         if unknown or missing:
@@ -172,6 +162,22 @@ class HighwayParallelEnv(ParallelEnv[str, dict[str, np.ndarray], int]):
             name = agent_name(num)
             if name in live:
                 batch[row] = check_action(actions[name], f"action of {name}")
+        return batch
+
+    def step(
+        self, actions: dict[str, Any]
+    ) -> tuple[
+        dict[str, dict[str, np.ndarray]],
+        dict[str, float],
+        dict[str, bool],
+        dict[str, bool],
+        dict[str, dict[str, Any]],
+    ]:
+        check_episode(self._started, self._done)
+        world, obs = self._slot.world, self._obs
+        assert world is not None and obs is not None
+        live = set(self.agents)
+        batch = self._action_batch(actions, obs, live)
         out = world.apply(batch)
         if self.decision_interval > 1:
             out = self._hold(world, obs, batch, out)

@@ -12,6 +12,7 @@ import textwrap
 from collections.abc import Mapping, Sequence
 from fractions import Fraction
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -29,6 +30,56 @@ def alpha_label(alpha: float) -> str:
     """1/8 for 0.125, 24 for 24.0."""
     frac = Fraction(alpha).limit_denominator(64)
     return str(frac.numerator) if frac.denominator == 1 else f"{frac.numerator}/{frac.denominator}"
+
+
+def _lane_panel(ax: Any, rows: pd.DataFrame, n: int, grid: list[float], plane: tuple[float, float, float] | None,
+                boot_alphas: Mapping[tuple[int, float], np.ndarray] | None) -> None:  # fmt: skip
+    """One lane count's panel: alpha* per inflow, its bootstrap range and resample shares, the plane."""
+    x = rows["inflow_veh_h"].to_numpy(float)
+    a = rows["alpha_star"].to_numpy(float)
+    solved = np.isfinite(a)
+    step = float(np.diff(x).min()) if len(x) > 1 else max(float(x[0]) * 0.3, 1.0)
+    if boot_alphas is not None:
+        for r in rows[solved].itertuples():
+            draws = np.asarray(boot_alphas.get((int(r.lanes), float(r.t_up_s)), []), float)
+            draws = draws[np.isfinite(draws)]
+            for alpha in grid:
+                share = float(np.mean(draws == alpha)) if draws.size else 0.0
+                if share > 0:
+                    ax.scatter(r.inflow_veh_h, alpha, s=BOOT_AREA * share, color="0.75", edgecolor="0.5",
+                               linewidth=0.4, zorder=1)  # fmt: skip
+    if {"boot_alpha_p05", "boot_alpha_p95"} <= set(rows):
+        lo = rows["boot_alpha_p05"].to_numpy(float)[solved]
+        hi = rows["boot_alpha_p95"].to_numpy(float)[solved]
+        ax.vlines(x[solved], lo, hi, color="tab:red", linewidth=1.0, alpha=0.6, zorder=2)
+    if plane is not None:
+        b0, b1, b2 = plane
+        xs = np.linspace(x.min(), x.max(), 50)  # over the conditions measured, no further
+        ax.plot(xs, b0 + b1 * 3600.0 / xs + b2 * n, color="tab:blue", linestyle="--", linewidth=1.0, zorder=2)
+    ax.plot(x[solved], a[solved], color="tab:red", marker="D", markersize=6, linewidth=0.8, zorder=3)
+    for xi in x[~solved]:
+        ax.text(xi, 0.0, "no α*", ha="center", va="center", fontsize=7, color="0.3", rotation=90)
+    ax.set_xticks(x, [f"{xi:,.0f}\n{t:g} s" for xi, t in zip(x, rows["t_up_s"], strict=True)], fontsize=7)
+    ax.set_xlim(x.min() - step / 2, x.max() + step / 2)
+    ax.set_title(f"{n} lanes", fontsize=9)
+    ax.set_xlabel("inflow (veh/h)\nT_up (s)", fontsize=8)
+    ax.grid(True, axis="y", color="0.9", linewidth=0.6)
+
+
+def _legend_handles(plane: tuple[float, float, float] | None,
+                   boot_alphas: Mapping[tuple[int, float], np.ndarray] | None) -> list[Line2D]:  # fmt: skip
+    handles = [
+        Line2D([], [], color="tab:red", marker="D", markersize=6, linewidth=0.8, label=r"$\alpha^*$: best mean speed"),
+        Line2D([], [], color="tab:red", alpha=0.6, linewidth=1.0, label="90% bootstrap range of $\\alpha^*$"),
+    ]  # fmt: skip
+    if boot_alphas is not None:
+        for share in (0.25, 1.0):
+            handles.append(Line2D([], [], linestyle="", marker="o", markersize=float(np.sqrt(BOOT_AREA * share)),
+                                  color="0.75", markeredgecolor="0.5",
+                                  label=f"{share:.0%} of bootstrap resamples pick this $\\alpha$"))  # fmt: skip
+    if plane is not None:
+        handles.append(Line2D([], [], color="tab:blue", linestyle="--", linewidth=1.0, label="fitted plane"))
+    return handles
 
 
 def alpha_star_lanes_chart(
@@ -57,53 +108,14 @@ def alpha_star_lanes_chart(
     top = max([*grid, *table["alpha_star"].dropna().astype(float)], default=1.0)
     low = -0.35 * (min(positive) if positive else 1.0)
     for ax, n in zip(axes, lanes, strict=True):
-        rows = table[table["lanes"] == n].sort_values("inflow_veh_h")
-        x = rows["inflow_veh_h"].to_numpy(float)
-        a = rows["alpha_star"].to_numpy(float)
-        solved = np.isfinite(a)
-        step = float(np.diff(x).min()) if len(x) > 1 else max(float(x[0]) * 0.3, 1.0)
-        if boot_alphas is not None:
-            for r in rows[solved].itertuples():
-                draws = np.asarray(boot_alphas.get((int(r.lanes), float(r.t_up_s)), []), float)
-                draws = draws[np.isfinite(draws)]
-                for alpha in grid:
-                    share = float(np.mean(draws == alpha)) if draws.size else 0.0
-                    if share > 0:
-                        ax.scatter(r.inflow_veh_h, alpha, s=BOOT_AREA * share, color="0.75", edgecolor="0.5",
-                                   linewidth=0.4, zorder=1)  # fmt: skip
-        if {"boot_alpha_p05", "boot_alpha_p95"} <= set(rows):
-            lo = rows["boot_alpha_p05"].to_numpy(float)[solved]
-            hi = rows["boot_alpha_p95"].to_numpy(float)[solved]
-            ax.vlines(x[solved], lo, hi, color="tab:red", linewidth=1.0, alpha=0.6, zorder=2)
-        if plane is not None:
-            b0, b1, b2 = plane
-            xs = np.linspace(x.min(), x.max(), 50)  # over the conditions measured, no further
-            ax.plot(xs, b0 + b1 * 3600.0 / xs + b2 * n, color="tab:blue", linestyle="--", linewidth=1.0, zorder=2)
-        ax.plot(x[solved], a[solved], color="tab:red", marker="D", markersize=6, linewidth=0.8, zorder=3)
-        for xi in x[~solved]:
-            ax.text(xi, 0.0, "no α*", ha="center", va="center", fontsize=7, color="0.3", rotation=90)
-        ax.set_xticks(x, [f"{xi:,.0f}\n{t:g} s" for xi, t in zip(x, rows["t_up_s"], strict=True)], fontsize=7)
-        ax.set_xlim(x.min() - step / 2, x.max() + step / 2)
-        ax.set_title(f"{n} lanes", fontsize=9)
-        ax.set_xlabel("inflow (veh/h)\nT_up (s)", fontsize=8)
-        ax.grid(True, axis="y", color="0.9", linewidth=0.6)
+        _lane_panel(ax, table[table["lanes"] == n].sort_values("inflow_veh_h"), n, grid, plane, boot_alphas)
     first = axes[0]
     first.set_yscale("symlog", linthresh=min(positive) if positive else 1.0, linscale=0.6)
     first.set_ylim(low, top * 1.6)
     first.set_yticks(grid, [alpha_label(a) for a in grid])
     first.minorticks_off()
     first.set_ylabel(r"$\alpha^*$ (the alphas tried)")
-    handles = [
-        Line2D([], [], color="tab:red", marker="D", markersize=6, linewidth=0.8, label=r"$\alpha^*$: best mean speed"),
-        Line2D([], [], color="tab:red", alpha=0.6, linewidth=1.0, label="90% bootstrap range of $\\alpha^*$"),
-    ]  # fmt: skip
-    if boot_alphas is not None:
-        for share in (0.25, 1.0):
-            handles.append(Line2D([], [], linestyle="", marker="o", markersize=float(np.sqrt(BOOT_AREA * share)),
-                                  color="0.75", markeredgecolor="0.5",
-                                  label=f"{share:.0%} of bootstrap resamples pick this $\\alpha$"))  # fmt: skip
-    if plane is not None:
-        handles.append(Line2D([], [], color="tab:blue", linestyle="--", linewidth=1.0, label="fitted plane"))
+    handles = _legend_handles(plane, boot_alphas)
     fig.legend(handles=handles, loc="lower center", ncol=min(len(handles), 3), fontsize=7, frameon=False)
     title = r"$\alpha^*$ per lane count against inflow"
     if plane is not None:

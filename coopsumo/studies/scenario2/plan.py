@@ -284,6 +284,20 @@ def classical_config(lanes: int, t_up_s: float, policy: str, seed: int, profile:
                      seed=seed, policy=policy)  # fmt: skip
 
 
+def _model_training(profile: Profile, lanes: int, t_up: float, alpha: float,
+                    seed: int) -> tuple[TrainConfig, dict[str, Any]]:  # fmt: skip
+    """A DQN cell's training and what its spec says of it: the lane network it shares (per alpha or told its alpha),
+    the conditioned training of its condition, or a training of its own."""
+    if profile.lane_networks and profile.alpha_models:
+        return lane_train_config(lanes, seed, profile, alpha), {"train_key": lane_key(lanes, seed, alpha),
+                                                                 "conditioned": False}  # fmt: skip
+    if profile.lane_networks:
+        return lane_train_config(lanes, seed, profile), {"train_key": lane_key(lanes, seed), "conditioned": True}
+    if profile.conditioned:
+        return conditioned_train_config(lanes, t_up, seed, profile), {"train_key": conditioned_key(lanes, t_up, seed)}
+    return train_config(lanes, t_up, alpha, seed, profile), {}
+
+
 def cell_specs(profile: Profile) -> list[dict[str, Any]]:
     """One JSON-ready spec per cell: key, coordinates and the full configuration as a dict.
 
@@ -324,18 +338,8 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
         if "dqn" in profile.policies:
             for alpha in profile.alphas:
                 for seed in profile.seeds:
-                    key = cell_key(lanes, t_up, alpha, seed)
-                    if profile.lane_networks and profile.alpha_models:
-                        add_model(key, lanes, t_up, load, alpha, seed, lane_train_config(lanes, seed, profile, alpha),
-                                  train_key=lane_key(lanes, seed, alpha), conditioned=False)  # fmt: skip
-                    elif profile.lane_networks:
-                        add_model(key, lanes, t_up, load, alpha, seed, lane_train_config(lanes, seed, profile),
-                                  train_key=lane_key(lanes, seed), conditioned=True)  # fmt: skip
-                    elif profile.conditioned:
-                        add_model(key, lanes, t_up, load, alpha, seed, conditioned_train_config(lanes, t_up, seed,
-                                  profile), train_key=conditioned_key(lanes, t_up, seed))  # fmt: skip
-                    else:
-                        add_model(key, lanes, t_up, load, alpha, seed, train_config(lanes, t_up, alpha, seed, profile))
+                    train, extra = _model_training(profile, lanes, t_up, alpha, seed)
+                    add_model(cell_key(lanes, t_up, alpha, seed), lanes, t_up, load, alpha, seed, train, **extra)
             for alpha in profile.check_alphas if profile.lane_networks and not profile.alpha_models else ():
                 for seed in profile.seeds:
                     add_model(per_alpha_key(lanes, t_up, alpha, seed), lanes, t_up, load, alpha, seed,

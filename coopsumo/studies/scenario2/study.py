@@ -233,6 +233,37 @@ def repointed(root: Path, specs: list[dict[str, Any]]) -> set[str]:
     return keys
 
 
+def _order(todo: list[dict[str, Any]], profile: Profile) -> None:
+    """Sort the cells to run, in place: the busiest roads first and the short runs of MOBIL, keep and greedy last
+    (a shorter tail); conditioned cells that start a training (their first alpha) before those that find it done,
+    so that two workers train two models at once (a lane network's other cells wait for it: "after")."""
+    first_alpha = profile.alphas[0]
+    todo.sort(key=lambda s: (s.get("policy") in CLASSICAL, "after" in s or ("train_key" in s and s["alpha"] !=
+                             first_alpha and not profile.lane_networks), -s["lanes"] * s["load"]))  # fmt: skip
+
+
+def _sweep_meta(profile: Profile, cells: int, backend_name: str, address: str | None, workers: int,
+                n_boot: int) -> dict[str, Any]:  # fmt: skip
+    """sweep.json before the cells run: the profile, its learner, the conditions and how the sweep runs."""
+    return {
+        "profile": asdict(profile),
+        "learner": learner_of(profile),
+        "conditions": [
+            {"lanes": n, "t_up_s": t, "load": load, "inflow_veh_h": round(3600 / t, 1)}
+            for n, t, load in profile.conditions()
+        ],  # fmt: skip
+        "cells": cells,
+        "trainings": profile.n_trainings(),
+        "criterion": profile.criterion,
+        "nominal_capacity_veh_h_per_lane": NOMINAL_CAPACITY_VEH_H_PER_LANE,
+        "backend": backend_name,
+        "address": address,
+        "workers": workers,
+        "bootstrap_replicates": n_boot,
+        "versions": versions(),
+    }
+
+
 def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers: int = 1,
               address: str | None = None, progress: bool = True, n_boot: int = 1000) -> dict[str, Any]:  # fmt: skip
     """Run (or finish) the sweep in `root` and write every output; returns the sweep.json content."""
@@ -249,29 +280,8 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     done = [s for s in specs if s["key"] in done_keys]
     todo = [s for s in specs if s["key"] not in done_keys]
     retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
-    # the busiest roads first and the short runs of MOBIL, keep and greedy last: a shorter tail; conditioned cells
-    # that start a training (their first alpha) before those that find it done, so that two workers train two
-    # models at once (a lane network's other cells wait for it: "after")
-    first_alpha = profile.alphas[0]
-    todo.sort(key=lambda s: (s.get("policy") in CLASSICAL, "after" in s or ("train_key" in s and s["alpha"] !=
-                             first_alpha and not profile.lane_networks), -s["lanes"] * s["load"]))  # fmt: skip
-    meta = {
-        "profile": asdict(profile),
-        "learner": learner_of(profile),
-        "conditions": [
-            {"lanes": n, "t_up_s": t, "load": load, "inflow_veh_h": round(3600 / t, 1)}
-            for n, t, load in profile.conditions()
-        ],  # fmt: skip
-        "cells": len(specs),
-        "trainings": profile.n_trainings(),
-        "criterion": profile.criterion,
-        "nominal_capacity_veh_h_per_lane": NOMINAL_CAPACITY_VEH_H_PER_LANE,
-        "backend": backend_name,
-        "address": address,
-        "workers": workers,
-        "bootstrap_replicates": n_boot,
-        "versions": versions(),
-    }
+    _order(todo, profile)
+    meta = _sweep_meta(profile, len(specs), backend_name, address, workers, n_boot)
     write_json(root / "sweep.json", meta)
     print(f"scenario2: profile {profile.name}: {len(specs)} cells, {len(done)} already done, {len(retry)} "
           f"failed before (retried), {len(todo)} to run on the {backend_name} backend", file=sys.stderr)  # fmt: skip
