@@ -411,6 +411,8 @@ def test_the_full_profile_in_parts_merged(tmp_path: Path) -> None:
     assert sweep["profile"]["lanes"] == [2, 3] and sweep["profile"]["alphas"] == [0, 8]
     assert [(p["lanes"], p["alphas"]) for p in sweep["parts"]] == [([2], [0, 8]), ([3], [0]), ([3], [8])]
     assert sweep["cells"] == 10 and sweep["trainings"] == 4 and len(sweep["conditions"]) == 2
+    learners = [json.loads((folders[name] / "sweep.json").read_text())["learner"] for name in ("L2", "L3a")]
+    assert list(sweep["learner"]) == ["2_lanes", "3_lanes"] and sweep["learner"] == {**learners[0], **learners[1]}
     report = (merged / "report.md").read_text()
     assert "It ran in 3 parts" in report and "3 lanes at alphas 8" in report
     assert "| 2 | 4 |" in report and "| 3 | 4 |" in report
@@ -428,7 +430,15 @@ def test_the_full_profile_in_parts_merged(tmp_path: Path) -> None:
     copy.mkdir()
     for name in ("sweep.json", "runs.csv", "evals.csv"):
         (copy / name).write_bytes((folders["L2"] / name).read_bytes())
+    relearned = tmp_path / "L3b_relearned"
+    relearned.mkdir()
+    for name in ("runs.csv", "evals.csv"):
+        (relearned / name).write_bytes((folders["L3b"] / name).read_bytes())
+    meta = json.loads((folders["L3b"] / "sweep.json").read_text())
+    meta["learner"]["3_lanes"]["lr"] *= 2
+    (relearned / "sweep.json").write_text(json.dumps(meta))
     for argv, words in (([f"{folders['L3a']},{changed}"], "with different results"),
+                        ([f"{folders['L3a']},{relearned}"], "trained 3 lanes with different learners"),
                         ([f"{folders['L2']},{folders['L3b']}"], "no part holds lanes 3 at alpha 0"),
                         ([f"{folders['L2']},{copy}"], "repeats lanes 2 at alpha 0"),
                         ([str(tmp_path / "none")], "not a finished"),

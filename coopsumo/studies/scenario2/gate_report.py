@@ -235,8 +235,11 @@ def cost_text(meta: dict[str, Any], profile: Profile) -> str:
     costs = meta.get("step_costs") or {}
     parts = meta.get("parts") or []
     scope = f"its {len(parts)} parts added up" if parts else "this invocation"
-    lines = [f"Wall time of {scope}: **{meta['wall_seconds'] / 3600:.2f} h** ({meta['cells_run']} of "
-             f"{meta['cells']} cells run now, {meta['workers']} workers, {meta['backend']} backend); the cells' CPU "
+    run = (f"the parts ran {meta['cells_run']} cells for the {meta['cells']} of the grid, a lane count split by "
+           f"alpha running its classical baselines in each of its parts" if parts
+           else f"{meta['cells_run']} of {meta['cells']} cells run now")  # fmt: skip
+    lines = [f"Wall time of {scope}: **{meta['wall_seconds'] / 3600:.2f} h** ({run}, {meta['workers']} workers, "
+             f"{meta['backend']} backend); the cells' CPU "
              f"time, children included: **{meta['cell_cpu_seconds_sum'] / 3600:.2f} core-hours** (their wall times "
              f"sum to {meta['cell_wall_seconds_sum'] / 3600:.2f} h)."]  # fmt: skip
     if parts:
@@ -251,9 +254,10 @@ def cost_text(meta: dict[str, Any], profile: Profile) -> str:
         lines.append(f"It ran in {len(parts)} parts, one per invocation (`--lanes N [--alphas A,...]`, then "
                      f"`--merge`): {each}.")  # fmt: skip
     if "train_a" in costs:
+        where = "the parts" if parts else "this invocation"
         by = ", ".join(f"{n} lanes {s / 60:.1f}" for n, s in sorted(costs["train_core_s_by_lanes"].items()))
         lines.append(f"Measured: a training of {profile.train_steps:,} steps with its model selection took {by} "
-                     f"core-minutes ({costs['trainings_measured']} trainings run in this invocation).")  # fmt: skip
+                     f"core-minutes ({costs['trainings_measured']} trainings run in {where}).")  # fmt: skip
     if "model_eval_a" in costs:
         lines.append(f"An evaluation step of a model: {costs['model_eval_a'] * 1e3:.2f} ms "
                      f"{costs['model_eval_b_per_veh_h'] * 1e6:+.3f} µs per veh/h of inflow"

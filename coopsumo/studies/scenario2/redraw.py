@@ -59,7 +59,8 @@ def read_parts(folders: list[Path]) -> list[Part]:
     """The finished sweeps to merge (merge_parts), checked: UsageError when a part is missing a file, is not a
     finished lane-network sweep, has tables that disagree with its sweep.json (another number of cells, another lane
     count), differs from the first in anything but its lanes and alphas, or when together the parts do not make one
-    grid (every lane count at every alpha, once) or two parts' classical runs of one lane count differ."""
+    grid (every lane count at every alpha, once) or two parts of one lane count differ in their classical runs
+    or their learner."""
     parts = []
     for folder in folders:
         try:
@@ -93,6 +94,7 @@ def read_parts(folders: list[Path]) -> list[Part]:
         raise UsageError(f"--merge: no part holds lanes {n} at alpha {a:g}: the parts do not make one grid")
     _one_of_each([part.runs for part in parts], ["key"], "runs.csv")
     _one_of_each([part.evals for part in parts], ["key", "eval_seed"], "evals.csv")
+    _learners([part.meta for part in parts])
     return parts
 
 
@@ -111,6 +113,17 @@ def _one_of_each(tables: list[pd.DataFrame], ids: list[str], what: str) -> pd.Da
     return table.drop_duplicates(ids, keep="first").reset_index(drop=True)
 
 
+def _learners(metas: list[dict[str, Any]]) -> dict[str, Any]:
+    """The learner of every lane count the parts trained (sweep.json's "learner", per lane count); UsageError when
+    two parts of one lane count trained with different learners."""
+    learners: dict[str, Any] = {}
+    for meta in metas:
+        for lanes, learner in meta["learner"].items():
+            if learners.setdefault(lanes, learner) != learner:
+                raise UsageError(f"--merge: two parts trained {lanes.replace('_', ' ')} with different learners")
+    return dict(sorted(learners.items(), key=lambda item: int(item[0].split("_")[0])))
+
+
 def merge_parts(parts: list[Part], out: Path) -> dict[str, Any]:
     """One sweep in `out` from its finished parts (read_parts): sweeps of one lane-network profile run with
     different --lanes, or one lane count's alphas in two parts (a study longer than a session runs one lane count, or
@@ -122,7 +135,7 @@ def merge_parts(parts: list[Part], out: Path) -> dict[str, Any]:
     runs = _one_of_each([part.runs for part in parts], ["key"], "runs.csv")
     evals = _one_of_each([part.evals for part in parts], ["key", "eval_seed"], "evals.csv")
     union = {k: sorted({x for m in metas for x in m["profile"][k]}) for k in SPLIT_BY}
-    merged = {**metas[0], "profile": {**metas[0]["profile"], **union}}
+    merged = {**metas[0], "profile": {**metas[0]["profile"], **union}, "learner": _learners(metas)}
     conditions = {json.dumps(c, sort_keys=True): c for m in metas for c in m["conditions"]}
     merged["conditions"] = sorted(conditions.values(), key=lambda c: (c["lanes"], -c["t_up_s"]))
     for name in MERGED_SUMS:
