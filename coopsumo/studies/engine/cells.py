@@ -5,7 +5,7 @@ run_cells reuses every cell whose stored record can be trusted (records.reusable
 in this process (not in every worker), runs the other cells on local processes or Ray (runner.execute, one progress
 bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
 The studies that only drive or measure (regime_map, accident_seeds, adaptive_alpha, diagnosis) call it instead of
-repeating those steps.
+repeating those steps; the learning study and the protocol, which choose and order their own cells, call run_todo.
 """
 
 from __future__ import annotations
@@ -49,6 +49,18 @@ def run_cells(specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn, fail
     root = root.resolve()
     done = reusable_keys(root, specs, prog, required)
     todo = [s for s in specs if s["key"] not in done]
+    return run_todo(todo, specs, root, cell_fn, failed_record, required=required, roads=roads, workers=workers,
+                    backend=backend, address=address, progress=progress, desc=desc, done_keys=sorted(done))
+
+
+def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn,
+             failed_record: FailedRecord, *, required: Sequence[str], roads: Iterable[RoadConfig] = (),
+             workers: int = 2, backend: str = "local", address: str | None = None, progress: bool = True,
+             desc: str = "cells", done_keys: Sequence[str] = ()) -> list[dict[str, Any]]:  # fmt: skip
+    """run_cells for a study that chose and ordered its cells to run itself (`todo`, in priority order, among all its
+    `specs`; done_keys: those finished ok before): the same steps, every cell's record returned in the order of
+    specs."""
+    root = root.resolve()
     if todo:
         from coopsumo.sim.network import build_net
 
@@ -58,7 +70,7 @@ def run_cells(specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn, fail
         try:
             with sigterm_interrupts():
                 execute(todo, root, runner, len(specs), len(specs) - len(todo), progress, failed_record, desc=desc,
-                        done_keys=sorted(done))  # fmt: skip
+                        done_keys=done_keys)  # fmt: skip
         finally:
             runner.close()
     return [checked_record(json.loads(cell_path(root, s["key"]).read_text()), required) for s in specs]

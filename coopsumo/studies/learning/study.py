@@ -17,7 +17,6 @@ alpha_response.csv, fig_training_curves.png, fig_alpha_response.png, report.md.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from dataclasses import asdict, replace
@@ -118,9 +117,8 @@ def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> N
 # -- the study -------------------------------------------------------------------------------------
 def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
-    from coopsumo.sim.network import build_net
-    from coopsumo.studies.engine.records import cell_path, checked_record, reusable_keys
-    from coopsumo.studies.engine.runner import execute, make_backend, sigterm_interrupts
+    from coopsumo.studies.engine.cells import run_todo
+    from coopsumo.studies.engine.records import reusable_keys
 
     start = time.perf_counter()
     root = root.resolve()
@@ -148,16 +146,9 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
                             "backend": backend_name, "workers": workers, "versions": versions()}  # fmt: skip
     print(f"ablation: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
           f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
-    if todo:
-        build_net(RoadConfig(lanes=profile.lanes))
-        backend = make_backend(backend_name, workers, address, run_cell)
-        try:
-            with sigterm_interrupts():
-                execute(todo, root, backend, len(specs), len(specs) - len(todo), progress, failed_record,
-                        desc="learning cells")  # fmt: skip
-        finally:
-            backend.close()
-    records = [checked_record(json.loads(cell_path(root, s["key"]).read_text()), REQUIRED_SUMMARY) for s in specs]
+    records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED_SUMMARY,
+                       roads=[RoadConfig(lanes=profile.lanes)], workers=workers, backend=backend_name, address=address,
+                       progress=progress, desc="learning cells", done_keys=sorted(done_keys))  # fmt: skip
     meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
                 failed_cells=[r["key"] for r in records if r["status"] != "ok"],
                 cell_wall_seconds_sum=round(sum(r.get("cell_wall_s") or 0.0 for r in records), 1),

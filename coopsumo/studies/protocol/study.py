@@ -113,9 +113,8 @@ def total_time_spent(run_dir: Path, cfg: SimConfig) -> float:
 # -- the study -------------------------------------------------------------------------------------
 def run_study(profile: Profile, root: Path, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
-    from coopsumo.sim.network import build_net
-    from coopsumo.studies.engine.records import cell_path, checked_record, reusable_keys
-    from coopsumo.studies.engine.runner import execute, make_backend, sigterm_interrupts
+    from coopsumo.studies.engine.cells import run_todo
+    from coopsumo.studies.engine.records import reusable_keys
     from coopsumo.studies.protocol import report as protocol_report
 
     start = time.perf_counter()
@@ -140,16 +139,9 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
                                          for n, v in variants().items() if n in profile.variants}}  # fmt: skip
     print(f"protocol: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
           f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
-    if todo:
-        build_net(RoadConfig(lanes=profile.lanes))
-        backend = make_backend(backend_name, workers, address, run_cell)
-        try:
-            with sigterm_interrupts():
-                execute(todo, root, backend, len(specs), len(specs) - len(todo), progress, failed_record,
-                        desc="protocol cells")  # fmt: skip
-        finally:
-            backend.close()
-    records = [checked_record(json.loads(cell_path(root, s["key"]).read_text()), REQUIRED) for s in specs]
+    records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED,
+                       roads=[RoadConfig(lanes=profile.lanes)], workers=workers, backend=backend_name, address=address,
+                       progress=progress, desc="protocol cells", done_keys=sorted(done))  # fmt: skip
     meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
                 failed_cells=[r["key"] for r in records if r["status"] != "ok"],
                 cell_cpu_seconds_sum=round(sum(r.get("cell_cpu_s") or 0.0 for r in records), 1))  # fmt: skip
