@@ -141,10 +141,10 @@ def failing_cell(spec: dict[str, object], root: str) -> dict[str, object]:
 
 def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    from coopsumo.studies.engine import runner
+    from coopsumo.studies.engine import cells
     from coopsumo.studies.learning import study as ablation
 
-    monkeypatch.setattr(runner, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(failing_cell))
+    monkeypatch.setattr(cells, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(failing_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     (tmp_path / "cells").mkdir()
     (tmp_path / "cells" / "keep_seed0.json").write_text('{"status": "ok", "summary": {}}')  # never trusted
