@@ -20,6 +20,7 @@ import pytest
 from conftest import InlineBackend
 
 from coopsumo.config import PAPER_ALPHAS
+from coopsumo.studies.engine import cells as engine_cells
 from coopsumo.studies.engine import records, runner, trainings
 from coopsumo.studies.scenario2 import measures as stats
 from coopsumo.studies.scenario2 import plan as s2_plan
@@ -570,7 +571,7 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)  # keep this test process's threads
     monkeypatch.setattr(train_module, "train", fake_train)
     monkeypatch.setattr(s2, "evaluate_model", fake_evaluation)
-    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(s2.run_cell))
+    monkeypatch.setattr(engine_cells, "make_backend", lambda *_: InlineBackend(s2.run_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     meta = s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
     assert meta["cells_failed"] == 2 and meta["cells_ok"] == 6
@@ -700,7 +701,7 @@ def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)
     monkeypatch.setattr(train_module, "train", fake_train)
     monkeypatch.setattr(s2, "evaluate_model", fake_evaluation)
-    monkeypatch.setattr(s2, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(s2.run_cell))
+    monkeypatch.setattr(engine_cells, "make_backend", lambda *_: InlineBackend(s2.run_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     calls.append("fail:")
     return calls

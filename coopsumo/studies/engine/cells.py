@@ -5,7 +5,8 @@ run_cells reuses every cell whose stored record can be trusted (records.reusable
 in this process (not in every worker), runs the other cells on local processes or Ray (runner.execute, one progress
 bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
 The studies that only drive or measure (regime_map, accident_seeds, adaptive_alpha, diagnosis) call it instead of
-repeating those steps; the learning study and the protocol, which choose and order their own cells, call run_todo.
+repeating those steps; the learning study, the protocol and scenario II, which choose and order their own cells,
+call run_todo.
 """
 
 from __future__ import annotations

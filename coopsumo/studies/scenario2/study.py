@@ -54,18 +54,17 @@ from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
+from coopsumo.studies.engine.cells import run_todo
 from coopsumo.studies.engine.model_store import link_problem, store_for, train_shared
 from coopsumo.studies.engine.records import (
     CellRecords,
-    cell_path,
-    checked_record,
     failed_exit,
     pool_summaries,
     read_record,
     reusable_keys,
 )
 from coopsumo.studies.engine.run_folders import default_out, simulate_into, study_root
-from coopsumo.studies.engine.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
+from coopsumo.studies.engine.runner import add_backend_flags, check_backend
 from coopsumo.studies.scenario2.measures import KEY_COLUMNS, evals_table, runs_table
 from coopsumo.studies.scenario2.plan import (
     CLASSICAL,
@@ -285,18 +284,10 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     write_json(root / "sweep.json", meta)
     print(f"scenario2: profile {profile.name}: {len(specs)} cells, {len(done)} already done, {len(retry)} "
           f"failed before (retried), {len(todo)} to run on the {backend_name} backend", file=sys.stderr)  # fmt: skip
-    if todo:
-        from coopsumo.sim.network import build_net
-
-        for lanes in sorted({s["lanes"] for s in todo}):
-            build_net(RoadConfig(lanes=lanes))  # once here, not concurrently in the workers
-        backend = make_backend(backend_name, workers, address, run_cell)
-        try:
-            with sigterm_interrupts():
-                execute(todo, root, backend, len(specs), len(done), progress, failed_record, desc="scenario2 cells")
-        finally:
-            backend.close()
-    records = [checked_record(json.loads(cell_path(root, s["key"]).read_text()), REQUIRED_SUMMARY) for s in specs]
+    roads = [RoadConfig(lanes=lanes) for lanes in sorted({s["lanes"] for s in todo})]  # built once, not in workers
+    records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED_SUMMARY, roads=roads,
+                       workers=workers, backend=backend_name, address=address, progress=progress,
+                       desc="scenario2 cells", done_keys=sorted(done_keys))  # fmt: skip
     runs = runs_table(records)
     runs.to_csv(root / "runs.csv", index=False)
     evals_table(records).to_csv(root / "evals.csv", index=False)
