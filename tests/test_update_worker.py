@@ -168,3 +168,27 @@ def test_a_killed_worker_ends_the_training_in_one_line_and_it_resumes(tmp_path: 
                    capture_output=True)  # fmt: skip
     a, b = (load_model(folder / "model.pt")[0].state_dict() for folder in (out, serial))
     assert all(torch.equal(a[k], b[k]) for k in a)
+
+
+@pytest.mark.sumo
+def test_a_worker_that_dies_during_a_stop_ends_the_training_as_stopped(tmp_path: Path) -> None:
+    """A Ctrl-C to the whole group can kill the worker in ways of its own (its interpreter still starting: exit 1 or
+    an abort); when the training process got the stop too, the worker's death is that stop, not an error."""
+    out = tmp_path / "run"
+    args = [sys.executable, "-m", "coopsumo.train", "--steps", "1500", "--eval-steps", "0", "--seed", "3",
+            "--update-worker", "on", "--out", str(out), "--quiet"]  # fmt: skip
+    proc = subprocess.Popen(args, cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    log = out / "train_log.csv"
+    deadline = time.time() + 120
+    while time.time() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 2):
+        time.sleep(0.05)
+    children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
+    assert children, "no learner process beside the training"
+    os.kill(proc.pid, signal.SIGINT)  # the stop first, then the worker's death before the checkpoint can ask it
+    for pid in children:
+        os.kill(int(pid), signal.SIGKILL)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 128 + signal.SIGINT, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("train: interrupted") and "error" not in lines[0], err
+    assert f"--resume --out {out}" in lines[0] and (out / "checkpoint.pt").exists()

@@ -157,9 +157,9 @@ class Trainer:
     def _on_signal(self, signum: int, _frame: FrameType | None) -> None:
         """SIGINT/SIGTERM: checkpoint after the current step (Interrupted); before the first step of this run (the
         update worker's start, the world's, a resume's replay) stop at once: the checkpoint on disk is this state."""
+        self._stop_signal = signum
         if self.step == self._run_step:
             raise Stop(signum)
-        self._stop_signal = signum
 
     def run(self) -> None:
         """Train up to cfg.sim.steps; raises Interrupted after checkpointing on SIGINT/SIGTERM (runio.Stop before the
@@ -176,16 +176,24 @@ class Trainer:
             if self._stop_signal is not None:  # it came during the last step, after the loop's last look
                 self.save_checkpoint()
                 raise Interrupted(self._stop_signal, self.step)
+        except LearnerProcessError as err:
+            raise self._stopped_with(err) from None
         finally:
             for s, h in old.items():
                 signal.signal(s, h)
             if learner.worker is not None:
                 try:
                     learner.detach()  # the worker's target network and optimiser come back for the last checkpoint
-                except LearnerProcessError:
+                except LearnerProcessError as err:
                     learner.worker.close()
                     learner.worker = None
-                    raise
+                    raise self._stopped_with(err) from None
+
+    def _stopped_with(self, err: LearnerProcessError) -> BaseException:
+        """What a dead update worker means: the stop, when this process had received one (a Ctrl-C to the whole group
+        can kill the worker in ways of its own, e.g. while its interpreter still starts; the last checkpoint stands),
+        else the worker's error."""
+        return err if self._stop_signal is None else Stop(self._stop_signal)
 
     def _offered(self, obs: Observation) -> np.ndarray | None:
         """The actions offered to each vehicle of obs (decisions.offered); None: all of them."""
