@@ -152,20 +152,6 @@ def limits_problem(obj: Any, limits: Mapping[str, tuple[float, float, bool, bool
     return None
 
 
-def spec_number(owner: str, key: str, text: str, limits: Mapping[str, tuple[float, float, bool]]) -> float:
-    """A policy parameter `key`=`text` of the policy `owner` (mobil, sumo) as a float inside limits[key];
-    ValueError naming it and its range otherwise (the caller turns it into its usage error)."""
-    low, high, low_open = limits[key]
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    problem = number_problem(value, low, high, low_open)
-    if problem:
-        raise ValueError(f"{owner}: {key} must be {problem}, got {text!r}")
-    return value
-
-
 # -- argparse type= callables (argparse prefixes "argument --flag:") ------------------------------
 def integer(low: int, high: int | None = None, note: str = "") -> Callable[[str], int]:
     """A `type=` for an integer flag in [low, high]; note is added to the range (e.g. its reason)."""

@@ -23,8 +23,6 @@ from coopsumo.errors import UsageError
 from coopsumo.files import write_atomic
 from coopsumo.runio import Parser, run_cli
 
-HISTORY = Path("results") / "history"
-"""the frozen learner studies and their table"""
 TABLE = "README.md"
 STATS = ("study.json", "stats.csv")
 """what makes a folder a learner protocol study"""

@@ -19,7 +19,6 @@ from coopsumo.sim import view
 
 SLOW_MPS = 5.0
 RECOVERY_MPS = 15.0
-STOP_GO_UPSTREAM_M = 1000.0
 WAVE_LOOKBACK_S = 120.0
 FIELD_DT_S = 5.0
 FIELD_DX_M = 25.0

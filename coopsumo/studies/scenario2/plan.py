@@ -272,12 +272,6 @@ def lane_train_config(lanes: int, seed: int, profile: Profile, alpha: float | No
     return TrainConfig(sim=sim, dqn=lane_learner(lanes, profile, alpha), eval_steps=0)
 
 
-def mobil_config(lanes: int, t_up_s: float, p: float, seed: int, profile: Profile) -> SimConfig:
-    """A MOBIL cell: one run of mobil:p=P on evaluation seed `seed`, as a DQN model's evaluation there (free flow,
-    condition, steps)."""
-    return classical_config(lanes, t_up_s, f"mobil:p={p}", seed, profile)
-
-
 def classical_config(lanes: int, t_up_s: float, policy: str, seed: int, profile: Profile) -> SimConfig:
     """One run of a policy that needs no training on evaluation seed `seed`, as a DQN model's evaluation there."""
     return SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up_s), steps=profile.eval_steps,
