@@ -140,9 +140,8 @@ def test_train_in_two_processes_equals_serial(tmp_path: Path) -> None:
     assert (runs[True] / "validation.csv").read_text() == (runs[False] / "validation.csv").read_text()
 
 
-@pytest.mark.sumo
-def test_a_killed_worker_ends_the_training_in_one_line_and_it_resumes(tmp_path: Path) -> None:
-    out = tmp_path / "run"
+def _training_with_its_worker(out: Path) -> tuple[subprocess.Popen[str], list[str], list[str]]:
+    """A real `train` with its update worker, once its log has a row: the process, its argv and the worker's pids."""
     args = [sys.executable, "-m", "coopsumo.train", "--steps", "1500", "--eval-steps", "0", "--seed", "3",
             "--update-worker", "on", "--out", str(out), "--quiet"]  # fmt: skip
     proc = subprocess.Popen(args, cwd=ROOT, stderr=subprocess.PIPE, text=True)
@@ -152,6 +151,13 @@ def test_a_killed_worker_ends_the_training_in_one_line_and_it_resumes(tmp_path: 
         time.sleep(0.05)
     children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
     assert children, "no learner process beside the training"
+    return proc, args, children
+
+
+@pytest.mark.sumo
+def test_a_killed_worker_ends_the_training_in_one_line_and_it_resumes(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    proc, args, children = _training_with_its_worker(out)
     for pid in children:
         os.kill(int(pid), signal.SIGKILL)
     _, err = proc.communicate(timeout=120)
@@ -175,15 +181,7 @@ def test_a_worker_that_dies_during_a_stop_ends_the_training_as_stopped(tmp_path:
     """A Ctrl-C to the whole group can kill the worker in ways of its own (its interpreter still starting: exit 1 or
     an abort); when the training process got the stop too, the worker's death is that stop, not an error."""
     out = tmp_path / "run"
-    args = [sys.executable, "-m", "coopsumo.train", "--steps", "1500", "--eval-steps", "0", "--seed", "3",
-            "--update-worker", "on", "--out", str(out), "--quiet"]  # fmt: skip
-    proc = subprocess.Popen(args, cwd=ROOT, stderr=subprocess.PIPE, text=True)
-    log = out / "train_log.csv"
-    deadline = time.time() + 120
-    while time.time() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 2):
-        time.sleep(0.05)
-    children = subprocess.run(["pgrep", "-P", str(proc.pid)], capture_output=True, text=True).stdout.split()
-    assert children, "no learner process beside the training"
+    proc, _, children = _training_with_its_worker(out)
     os.kill(proc.pid, signal.SIGINT)  # the stop first, then the worker's death before the checkpoint can ask it
     for pid in children:
         os.kill(int(pid), signal.SIGKILL)
