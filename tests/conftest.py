@@ -233,3 +233,29 @@ def committed_report_pages() -> list[Path]:
     except (OSError, subprocess.CalledProcessError):
         return sorted((REPO / "results").glob("*/report.md"))
     return sorted(REPO / line for line in out.splitlines() if len(Path(line).parts) == 3)
+
+
+NUMBER = r"-?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?"
+REL_TOLERANCE = 1e-9
+"""how far a number in a redrawn record may be from the committed one: fits and bootstraps go through numpy's BLAS,
+whose last bits differ between processors (docs/run-folders.md, "Exact across machines")"""
+
+
+def text_difference(committed: str, redrawn: str, rel: float = REL_TOLERANCE) -> str | None:
+    """Where two texts differ beyond the last bits of their numbers, or None: the text between numbers must match
+    exactly, integers exactly, and each other number to a relative `rel` (an absolute 1e-12 near zero)."""
+    import re
+
+    a_parts, b_parts = re.split(f"({NUMBER})", committed), re.split(f"({NUMBER})", redrawn)
+    if len(a_parts) != len(b_parts):
+        return "the texts hold different numbers of numbers"
+    for i, (a, b) in enumerate(zip(a_parts, b_parts, strict=True)):
+        if a == b:
+            continue
+        line = committed[: sum(len(p) for p in a_parts[:i])].count("\n") + 1
+        if i % 2 == 0 or not any(c in a + b for c in ".eE"):
+            return f"line {line}: {a[:40]!r} != {b[:40]!r}"
+        x, y = float(a), float(b)
+        if abs(x - y) > max(rel * max(abs(x), abs(y)), 1e-12):
+            return f"line {line}: {a} != {b}"
+    return None
