@@ -367,11 +367,30 @@ def _train_in(args: Any, cfg: TrainConfig, out: Path, created: bool) -> int:
             return 1
         except KeyboardInterrupt as stop:  # outside the training loop (runio.Stop: setup, selection, saving)
             return stopped(out, target, created, getattr(stop, "signum", signal.SIGINT))
-    keys = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
-    values = {k: summary.get(k) for k in keys}  # floats to 4 significant digits, as simulate prints them
-    print(f"model: {out / 'model.pt'}  " + " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
-                                                    for k, v in values.items()))  # fmt: skip
+    for line in closing_lines(out, cfg, summary):
+        print(line)
     return 0
+
+
+EVAL_KEYS = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
+"""the greedy evaluation's numbers `train` ends with"""
+
+
+def closing_lines(out: Path, cfg: TrainConfig, summary: dict[str, Any]) -> list[str]:
+    """What `train` ends with: where its model is, then what the model did in the greedy evaluation (its floats to
+    4 significant digits, as simulate prints them) and a warning when it made no lane change there, as `keep`
+    drives; with --eval-steps 0, that no evaluation ran (the training's own numbers were made while exploring)."""
+    lines = [f"model: {out / 'model.pt'}"]
+    if cfg.eval_steps == 0:
+        lines.append(f"no evaluation ran (--eval-steps 0): what the model does is unmeasured; drive it with "
+                     f"coopsumo simulate --policy dqn:{out / 'model.pt'}")  # fmt: skip
+        return lines
+    values = " ".join(f"{k}={v:.4g}" if isinstance(v := summary.get(k), float) else f"{k}={v}" for k in EVAL_KEYS)
+    lines.append(f"greedy evaluation ({cfg.eval_steps:,} steps, {out / 'eval'}): {values}")
+    if summary.get("lane_changes") == 0 and summary.get("departed", 0) > 0:
+        lines.append("train: warning: 0 lane changes in the greedy evaluation: the model drove like `keep`; it learned "
+                     "nothing beyond keeping its lane")  # fmt: skip
+    return lines
 
 
 def _main(argv: list[str] | None) -> int:
