@@ -20,7 +20,7 @@ PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 TEXT = {page: page.read_text() for page in PAGES}
 STUDIES = ("scenario1", "scenario2", "learning", "protocol", "history")
 """run in tests/test_scenario1.py, test_scenario2.py, test_ablation.py and test_protocol.py with tiny profiles;
-history (which rewrites the committed table) in tests/test_history.py, into a temp folder"""
+history (which prints the whole committed table) in tests/test_history.py"""
 
 
 def blocks(lang: str, pages: list[Path] = PAGES) -> list[str]:

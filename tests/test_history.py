@@ -1,5 +1,6 @@
-"""`coopsumo history`: the learner search's table is generated from the protocol studies' own records, and the
-committed table is what the command writes today."""
+"""`coopsumo history`: the learner search's table is generated from the protocol studies' own records, the committed
+table is what the command prints today, and it writes only with --out, over nothing but a table it wrote (issue 82: it
+overwrote a user's file)."""
 
 from __future__ import annotations
 
@@ -28,17 +29,26 @@ def _columns(text: str) -> list[dict[str, str]]:
     return [{k: v for k, v in row.items() if k not in KEEP_OUT} for row in rows]
 
 
-def test_committed_table_is_what_the_command_writes(tmp_path: Path) -> None:
-    out = tmp_path / "table.md"
-    res = subprocess.run([sys.executable, "-m", "coopsumo", "history", "--out", str(out)], cwd=ROOT,
-                         capture_output=True, text=True, check=False)  # fmt: skip
+def _history(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "coopsumo", "history", *args], cwd=cwd, capture_output=True,
+                          text=True, check=False)  # fmt: skip
+
+
+def test_committed_table_is_what_the_command_prints() -> None:
+    before = COMMITTED.stat().st_mtime_ns, COMMITTED.read_bytes()
+    res = _history()
     assert res.returncode == 0, res.stderr
+    assert (COMMITTED.stat().st_mtime_ns, COMMITTED.read_bytes()) == before  # printed, not written
+
     def rows(text: str) -> list[list[str]]:  # the order follows git's dates: a shallow clone may order otherwise
         return sorted(list(row.values()) for row in _columns(text))
 
-    assert rows(out.read_text()) == rows(COMMITTED.read_text()), "results/history/README.md: run coopsumo history"
+    assert rows(res.stdout) == rows(COMMITTED.read_text()), ("results/history/README.md: run coopsumo history --out "
+                                                              "results/history/README.md")  # fmt: skip
     studies = history.study_folders(ROOT / "results")
-    assert len(studies) >= 20 and all(f"]({history._link(s, ROOT / 'results')})" in out.read_text() for s in studies)
+    assert len(studies) >= 20 and all(f"]({history._link(s, ROOT / 'results')})" in res.stdout for s in studies)
+    assert res.stdout.splitlines()[0] == history.TITLE and res.stdout.splitlines()[2].startswith(history.GENERATED)
+    history.check_writable(COMMITTED)  # `--out results/history/README.md` may rewrite it: a table it wrote
 
 
 def _study(folder: Path, learner: dict, drive: dict, rows: list[dict]) -> None:
@@ -94,3 +104,59 @@ def test_a_frozen_study_is_found_where_it_was_moved(tmp_path: Path) -> None:
     assert committed_folder(tmp_path, "f") == tmp_path / "history" / "f"
     (tmp_path / "f").mkdir()
     assert committed_folder(tmp_path, "f") == tmp_path / "f"
+
+
+def _one_study(results: Path, gamma: float = 0.95) -> None:
+    learner = json.loads(json.dumps(to_dict(DQN_PRESETS["default"])))
+    learner["gamma"] = gamma
+    _study(results / f"learner_protocol_g{gamma:g}", learner, {}, [_row("free", 2.0, 20.0, 18.0, 0.9)])
+
+
+def _files(folder: Path) -> dict[str, bytes]:
+    return {p.relative_to(folder).as_posix(): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+def test_without_out_the_table_is_printed_and_nothing_written(tmp_path: Path) -> None:
+    results = tmp_path / "results"
+    _one_study(results)
+    before = _files(tmp_path)
+    res = _history("--results", str(results), cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout == history.table(results) and _files(tmp_path) == before
+    assert not (results / "history").exists()
+
+
+def test_out_writes_a_new_file_then_only_its_own_table(tmp_path: Path) -> None:
+    results = tmp_path / "results"
+    _one_study(results)
+    out = tmp_path / "tables" / "history.md"
+    res = _history("--results", str(results), "--out", str(out), cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout == f"history: 1 learners judged, written to {out}\n" and out.read_text() == history.table(results)
+    _one_study(results, gamma=0.8)  # a second study: the table it wrote is rewritten whole
+    res = _history("--results", str(results), "--out", str(out), cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert out.read_text() == history.table(results) and len(_columns(out.read_text())) == 2
+
+
+def test_out_refuses_a_file_it_did_not_write(tmp_path: Path) -> None:
+    results = tmp_path / "results"
+    _one_study(results)
+    mine = history.table(results).splitlines()
+    others = {
+        "notes.md": "my notes\n",
+        "empty.md": "",
+        "title_only.md": f"{history.TITLE}\n\nmy own page under the same title\n",
+        "binary.md": b"\xff\xfe\x00".decode("latin-1"),
+        "edited.md": "\n".join(["# My table", *mine[1:]]) + "\n",
+    }
+    for name, text in others.items():
+        (tmp_path / name).write_text(text, encoding="latin-1")
+    (tmp_path / "folder.md").mkdir()
+    before = _files(tmp_path)
+    for name in [*others, "folder.md"]:
+        res = _history("--results", str(results), "--out", str(tmp_path / name), cwd=tmp_path)
+        assert res.returncode == 2 and res.stdout == "", name
+        assert len(res.stderr.strip().splitlines()) == 1 and f"--out {tmp_path / name}" in res.stderr, res.stderr
+        assert "Traceback" not in res.stderr
+    assert _files(tmp_path) == before and (tmp_path / "folder.md").is_dir()
