@@ -52,7 +52,8 @@ def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path) -> None:
     assert set(models["weights"]) == {"model.pt", "model_last.pt"}
     assert models[models["alpha"] == 0]["train_key"].nunique() == 2
     acc = runs[runs["scenario"] == "accident"]
-    assert (acc["tts_veh_h"] > 0).all()
+    assert (acc["tts_veh_h"] > 0).all() and acc["queue_lane_changes_per_vehicle"].ge(0).all()
+    assert runs[runs["scenario"] == "free"]["queue_lane_changes_per_vehicle"].isna().all()  # an accident measure
     assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
     table = pd.read_csv(out / "stats.csv")
     assert len(table) == 2 * 2 * 2  # scenarios x demands x learners
@@ -60,6 +61,7 @@ def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path) -> None:
     assert table["keep_poi"].between(0, 1).all()
     report = (out / "report.md").read_text()
     assert "## Free flow" in report and "## Targets for `select`" in report and "## Diagnosis" in report
+    assert "### Thrashing: lane changes in the queue" in report
     free = runs[runs["scenario"] == "free"]  # every run records its passing chances; keep never takes one
     assert free["held_share"].between(0, 1).all() and "## Passing in free flow" in report
     assert (free[free["variant"] == "keep"]["passing_taken_share"].fillna(0) == 0).all()
@@ -181,6 +183,59 @@ def test_the_passing_section_shows_each_policy_and_is_left_out_for_runs_without_
     assert "| 2 | `f05q` | 2 | 0.310 | 0.110 | 0.07 |" in lines and "| 2 | `keep` | 1 | 0.550 | 0.360 | 0.00 |" in lines
     old = pd.DataFrame(rows).assign(held_share=math.nan, passing_open_share=math.nan, passing_taken_share=math.nan)
     assert passing_lines(old, profile) == []  # runs made before the measure: no section
+
+
+@pytest.mark.sumo
+def test_the_thrashing_measure_is_scenario_ones_on_the_same_run(tmp_path: Path) -> None:
+    """An accident run's queue lane changes per vehicle (and total time spent) as the protocol records them equal
+    scenario I's measures of the same run (run_metrics: bottleneck.queue_lane_changes on its trajectories): the same
+    sampling and the same 5 m/s. Greedy at T_up 1 s changes lanes in the queue, so the count is not a trivial 0."""
+    import json
+    from dataclasses import replace
+
+    from coopsumo.config import to_dict
+    from coopsumo.report import bottleneck as bn
+    from coopsumo.studies.engine.run_folders import simulate_into
+    from coopsumo.studies.protocol.plan import PROFILES, QUEUE_MPS, TRAJECTORY_EVERY, eval_config
+    from coopsumo.studies.protocol.study import accident_measures
+    from coopsumo.studies.scenario1.measures import SLOW_MPS, run_metrics
+    from coopsumo.studies.scenario1.plan import Plan
+
+    assert QUEUE_MPS == SLOW_MPS and TRAJECTORY_EVERY == Plan().trajectory_every
+    profile = replace(PROFILES["tiny"], accident_steps=2000, accident_start=100, accident_duration=1500)
+    cfg = eval_config(profile, "accident", profile.t_ups.index(1.0), "greedy")
+    out = tmp_path / "run"
+    summary = simulate_into(json.loads(json.dumps(to_dict(cfg))), out, "run", trajectory_every=TRAJECTORY_EVERY)
+    ours = accident_measures(out, cfg, summary["departed"])
+    theirs = run_metrics(out, cfg, TRAJECTORY_EVERY * cfg.control.dt_s)
+    queue = bn.queue_lane_changes(pd.read_parquet(out / "trajectories.parquet"), 5.0)
+    assert queue > 0 and ours["queue_lane_changes_per_vehicle"] == queue / summary["departed"]
+    assert ours == {k: theirs[k] for k in ("tts_veh_h", "queue_lane_changes_per_vehicle")}
+
+
+def test_the_thrashing_table_counts_models_and_says_n_a_for_runs_without_the_measure() -> None:
+    """Per demand and learner: the median and range of the models' queue lane changes per vehicle and how many
+    thrash (0.5 or more); the baselines' values; a committed runs.csv from before the measure reads n/a."""
+    from coopsumo.studies.protocol.plan import Profile
+    from coopsumo.studies.protocol.report import per_model
+    from coopsumo.studies.protocol.thrashing import thrashing_lines
+
+    profile = Profile("p", variants=("a", "b"))
+    rows = [{"key": f"{v}{seed}{e}", "kind": "model", "variant": v, "alpha": 0.0, "seed": seed, "scenario": "accident",
+             "t_up": 1.5, "eval_seed": 5101 + e, "weights": "model.pt", "status": "ok", "tts_veh_h": 60.0,
+             "queue_lane_changes_per_vehicle": q + e * 0.25}
+            for v, qs in (("a", (0.125, 0.375, 1.875)), ("b", (0.125, 0.25, 0.25))) for seed, q in enumerate(qs, 100)
+            for e in (0, 1)]  # fmt: skip
+    rows += [{"key": f"{b}{e}", "kind": "baseline", "variant": b, "alpha": 0.0, "scenario": "accident", "t_up": 1.5,
+              "eval_seed": 5101 + e, "status": "ok", "queue_lane_changes_per_vehicle": q}
+             for b, q in (("keep", 0.0), ("greedy", 0.8), ("mobil:p=0", 0.3)) for e in (0, 1)]  # fmt: skip
+    runs = pd.DataFrame(rows)
+    lines = thrashing_lines(per_model(runs), profile)
+    # a: model means 0.25, 0.5, 2 (two thrash: 0.5 counts); b: 0.25, 0.375, 0.375 (none)
+    assert "| 1.5 | `a` | 3 | 0.50 [0.25, 2.00] | 2 of 3 | 0.00 | 0.80 | 0.30 |" in lines
+    assert "| 1.5 | `b` | 3 | 0.38 [0.25, 0.38] | 0 of 3 | 0.00 | 0.80 | 0.30 |" in lines
+    old = per_model(runs.drop(columns="queue_lane_changes_per_vehicle"))
+    assert "| 1.5 | `a` | 3 | n/a | n/a | n/a | n/a | n/a |" in thrashing_lines(old, profile)
 
 
 def test_a_rounded_copy_of_the_same_run_is_not_counted_better() -> None:

@@ -30,7 +30,9 @@ TRAIN_SEED = FIRST_TRAIN_SEED
 BASELINES = ("keep", "greedy", "mobil:p=0")
 DEMANDS = (2.0, 1.5, 1.0)
 TRAJECTORY_EVERY = 5
-"""accident runs record trajectories every 5 steps (0.5 s) for total time spent"""
+"""accident runs record trajectories every 5 steps (0.5 s) for total time spent, as scenario I's do"""
+QUEUE_MPS = 5.0
+"""a lane change made below this speed (m/s) is made in a queue (scenario I's SLOW_MPS): the thrashing measure"""
 REQUIRED = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
 LEARNERS_FILE = DATA / "learners.toml"
 PROFILES_FILE = DATA / "protocol.toml"

@@ -20,14 +20,16 @@ import pandas as pd
 from coopsumo.sim import passing
 from coopsumo.studies.engine import stats
 from coopsumo.studies.protocol.plan import BASELINES, DRIVES, EVAL_SEED
+from coopsumo.studies.protocol.thrashing import thrashing_lines
 
 MEASURES = {"free": ("mean_speed_mps", "mean speed (m/s)", 1.0),
             "accident": ("tts_veh_h", "total time spent (veh-h)", -1.0)}
 """scenario -> (headline measure, its words, +1 when higher is better / -1 when lower is)"""
 COLUMNS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key",
-           "status", "mean_speed_mps", "tts_veh_h", "lane_changes_per_vehicle", "collisions", "teleports",
-           "selected_step", "held_share", "passing_open_share", "passing_taken_share")  # fmt: skip
-PASSING = COLUMNS[17:]
+           "status", "mean_speed_mps", "tts_veh_h", "lane_changes_per_vehicle", "queue_lane_changes_per_vehicle",
+           "collisions", "teleports", "selected_step", "held_share", "passing_open_share",
+           "passing_taken_share")  # fmt: skip
+PASSING = COLUMNS[18:]
 """the passing chances of a run (coopsumo/sim/passing.py); absent from runs made before 2026-11-27"""
 
 
@@ -46,7 +48,7 @@ def runs_table(records: list[dict[str, Any]]) -> pd.DataFrame:
         s = r.get("summary") or {}
         t = r.get("train_summary") or {}
         row = {k: r.get(k) for k in COLUMNS[:11]}
-        row.update({k: s.get(k) for k in COLUMNS[11:16]})
+        row.update({k: s.get(k) for k in COLUMNS[11:17]})
         row["selected_step"] = t.get("selected_step") if r.get("weights") == "model.pt" else None
         row.update({k: s.get(k) for k in PASSING})
         rows.append(row)
@@ -419,7 +421,7 @@ def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.Da
                 meta: dict[str, Any]) -> str:  # fmt: skip
     """The report from every run (runs) and every model's and baseline's mean over its evaluation seeds (ok,
     per_model)."""
-    lines = _header_lines(profile, meta) + _scenario_tables(profile, ok, table)
+    lines = _header_lines(profile, meta) + _scenario_tables(profile, ok, table) + thrashing_lines(ok, profile)
     lines += passing_lines(ok, profile)
     lines += paired_lines(ok, profile, meta)
     lines += committed_pair_lines(runs, profile)

@@ -37,6 +37,7 @@ from coopsumo.studies.protocol.plan import (
     CURRENT,
     DRIVES,
     PROFILES,
+    QUEUE_MPS,
     REQUIRED,
     TRAJECTORY_EVERY,
     Profile,
@@ -84,7 +85,7 @@ def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     summary = simulate_into(json.loads(json.dumps(to_dict(ev))), out, spec["key"], trajectory_every=every,
                             atomic=True)  # fmt: skip
     if ev.accident.enabled:
-        summary["tts_veh_h"] = total_time_spent(out, ev)
+        summary.update(accident_measures(out, ev, summary["departed"]))
         (out / "trajectories.parquet").unlink(missing_ok=True)  # measured; 10 MB a run is not kept
     record["summary"] = summary
 
@@ -99,15 +100,19 @@ def driven_policy(spec: dict[str, Any], model_dir: Path) -> str:
     return f"dqn:{(model_dir / spec['weights']).resolve()}{extra}"
 
 
-def total_time_spent(run_dir: Path, cfg: SimConfig) -> float:
-    """Total time spent on the road and waiting to enter (veh-h) of an accident run (scenario I's measure)."""
+def accident_measures(run_dir: Path, cfg: SimConfig, departed: int) -> dict[str, float]:
+    """Scenario I's measures of an accident run from its trajectories (sampled every TRAJECTORY_EVERY steps, as
+    scenario I samples them): total time spent on the road and waiting to enter (veh-h), and the lane changes made
+    below QUEUE_MPS per vehicle that departed (queue_lane_changes_per_vehicle, the thrashing measure)."""
     import pandas as pd
 
     from coopsumo.report import bottleneck as bn
 
     traj = pd.read_parquet(run_dir / "trajectories.parquet")
     v_ref = cfg.demand.v_exp_mean_kmh / 3.6
-    return float(bn.run_time_spent(traj, cfg.demand.t_up_s, TRAJECTORY_EVERY * cfg.control.dt_s, v_ref)["tts_veh_h"])
+    tts = bn.run_time_spent(traj, cfg.demand.t_up_s, TRAJECTORY_EVERY * cfg.control.dt_s, v_ref)["tts_veh_h"]
+    return {"tts_veh_h": float(tts),
+            "queue_lane_changes_per_vehicle": bn.queue_lane_changes(traj, QUEUE_MPS) / max(departed, 1)}
 
 
 # -- the study -------------------------------------------------------------------------------------
