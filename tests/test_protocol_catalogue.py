@@ -133,6 +133,10 @@ def test_the_packaged_catalogue_holds_the_current_profiles_and_what_they_pair_wi
     assert ("nr10", "learner_protocol_f05q_ts2k10", "f05q_ts2k") in protocol_plan.PROFILES["nr10"].paired_with
     assert known["nr10"].learner == DQN_PRESETS["default"]
     assert known["alpha_only"].learner == DQN_PRESETS["alpha_only"]
+    dense = replace(DQN_PRESETS["alpha_only"], train_t_ups=(2.67, 2.0, 1.5, 1.33, 1.0, 0.89, 0.67),
+                    validation_t_ups=(2.0, 1.0, 0.67))  # fmt: skip
+    assert known["alpha_only_dense"].learner == dense and dense.accident_share == dense.validation_accident_steps == 0
+    assert protocol_plan.PROFILES["alpha_only_dense"].variants == ("alpha_only", "alpha_only_dense")
     assert known["c2x"].learner == replace(DQN_PRESETS["default"], **CONDITIONED8V)
     assert known["f05q_ts2k"].learner == replace(known["nr10"].learner, no_return_s=0.0)
     assert known["margin"].learner == known["select"].learner and known["margin"].weights == "model_last.pt"
