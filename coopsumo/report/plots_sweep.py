@@ -2,7 +2,8 @@
 
 `alpha_star_lanes_figure`: alpha* against inflow, one panel per lane count on a shared symlog axis of the
 alphas tried, with its bootstrap range and the fitted plane alpha* = b0 + b1 T_up + b2 lanes.
-`speed_heatmap_figure`: mean speed over (alpha, condition). Figures and PNG files come from plots.py's helpers
+`speed_heatmap_figure`: mean speed over (alpha, condition). `response_surface_figure`: the slope of speed over
+log2(1 + alpha) per lane count and load, with its interval. Figures and PNG files come from plots.py's helpers
 (Agg canvas, same DPI).
 """
 
@@ -180,5 +181,39 @@ def speed_heatmap_figure(
             c = alphas.index(float(a_star))
             ax.add_patch(Rectangle((c - 0.5, r - 0.5), 1, 1, fill=False, edgecolor="black", linewidth=1.6))
     ax.set_title(r"mean speed by $\alpha$ (framed: $\alpha^*$, the best mean over seeds)", fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, out_path)
+
+
+def response_surface_figure(table: pd.DataFrame, out_path: str | Path, title: str) -> Path:
+    """Fig. 6 read continuously: the response of speed to alpha (the slope per doubling of 1 + alpha, m/s) per
+    lane count (rows) and load (columns), each cell annotated with its slope and interval; blank where none.
+
+    table: lanes, load, slope_mps, slope_low, slope_high (response.condition_responses)."""
+    if table.empty:
+        raise ValueError("response_surface_figure needs at least one condition")
+    lanes = sorted(int(n) for n in set(table["lanes"]))
+    loads = sorted(float(q) for q in set(table["load"]))
+    grid = np.full((len(lanes), len(loads)), np.nan)
+    text = {}
+    for r in table.itertuples():
+        i, j = lanes.index(int(r.lanes)), loads.index(float(r.load))
+        grid[i, j] = r.slope_mps
+        text[i, j] = f"{r.slope_mps:+.2f}\n[{r.slope_low:+.2f}, {r.slope_high:+.2f}]"
+    fig = new_figure(max(5.5, 2.6 + 1.25 * len(loads)), max(2.6, 1.3 + 0.62 * len(lanes)))
+    ax = fig.subplots()
+    bound = float(np.nanmax(np.abs(grid))) or 1.0
+    image = ax.imshow(np.ma.masked_invalid(grid), cmap="RdBu", vmin=-bound, vmax=bound, aspect="auto",
+                      origin="lower")  # fmt: skip
+    cbar = fig.colorbar(image, ax=ax, fraction=0.05, pad=0.02)
+    cbar.set_label("m/s per doubling of 1 + alpha")
+    ax.set_xticks(range(len(loads)), [f"{q:g}" for q in loads])
+    ax.set_yticks(range(len(lanes)), [str(n) for n in lanes])
+    ax.set_xlabel("load (inflow per lane / 1,800 veh/h)")
+    ax.set_ylabel("lanes")
+    for (i, j), label in text.items():
+        ax.text(j, i, label, ha="center", va="center", fontsize=7,
+                color="white" if abs(grid[i, j]) > 0.6 * bound else "black")  # fmt: skip
+    ax.set_title(title, fontsize=9)
     fig.tight_layout()
     return save_figure(fig, out_path)

@@ -27,6 +27,7 @@ from coopsumo.studies.scenario2.gate import (
 )
 from coopsumo.studies.scenario2.measures import alpha_star_table, mobil_p_star_table, policy_rows, withhold_incomplete
 from coopsumo.studies.scenario2.plan import CRITERION, FULL_ROAD, PROFILES, Profile, lane_learner
+from coopsumo.studies.scenario2.response_report import first_lines, response_section, sensitivity_text, write_response
 from coopsumo.studies.scenario2.text import ALPHA_STAR_FIGURE, condition_label, md_table, num, trend_verdict
 from coopsumo.validation import number_name
 
@@ -67,6 +68,7 @@ def write_lane_outputs(root: Path, runs: pd.DataFrame, evals: pd.DataFrame, prof
         trends = trend_rows(kept, boots, len(profile.seeds))
     meta["plane"] = {k: trends[k] for k in ("b0", "b1", "b2", "r2", "n")} if "b0" in trends else trends
     meta["trends"] = trends
+    write_response(root, evals, passing, kept, profile, meta, n_boot)
     meta["gate"] = {"conditions": len(gate), "judged": judged, "passing": len(passing & set(_keys(gate))),
                     "in_trend_fit": len(kept)}  # fmt: skip
     check = pd.DataFrame()
@@ -375,13 +377,14 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, gate: pd.DataFrame, tre
     passing = passing_conditions(gate)
     measure = MEASURES.get(profile.criterion, profile.criterion)
     failed_text, warm, figs = _failed_warm_figures(runs, profile, figures, measure)
-    check_section = _check_section(check, profile, alpha_label)
     return f"""# Scenario II: alpha* where the learner is fit to be asked
 
 Profile **{profile.name}**: lanes {", ".join(map(str, profile.lanes))}; {len(meta["conditions"])} conditions;
 alphas {{{", ".join(alpha_label(a) for a in profile.alphas)}}}; training seeds {", ".join(map(str, profile.seeds))};
 evaluation seeds {", ".join(map(str, profile.eval_seeds))}; {meta["cells"]} cells ({meta["cells_ok"]} ok,
 {meta["cells_failed"]} failed), {meta["trainings"]} trainings. Backend {meta["backend"]}, {meta["workers"]} workers.
+
+{first_lines(meta["response"], profile)}
 
 {design_text(profile, alpha_label)}
 
@@ -395,6 +398,7 @@ alpha* by the paper's whole-run mean is given beside it.
 
 {gate_text(gate, alpha_label)}
 
+{response_section(meta["response"], profile)}
 ## alpha* per condition
 
 alpha* is the alpha with the best mean over models (ties to the smaller); win share over models, bootstrap support
@@ -406,7 +410,8 @@ vehicle. ✗: the condition fails the gate.
 ## The paper's trends
 
 {trend_text(trends, len([k for k in passing if k in set(_keys(table))]), len(table), len(profile.seeds))}
-{check_section}
+{sensitivity_text(meta["alpha_star_sensitivity"])}
+{_check_section(check, profile, alpha_label)}
 ## Figures
 
 {figs}

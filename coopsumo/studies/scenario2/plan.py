@@ -83,6 +83,9 @@ class Profile:
     """evaluation runs record trajectories every this many steps, from which FULL_ROAD is measured; 0: not"""
     criterion: str = CRITERION
     """the speed alpha*, p*, the gate and the trends are judged on (CRITERION or FULL_ROAD)"""
+    response_plan: str = ""
+    """the commit that fixed claim (b)'s analysis plan before this profile's models were trained (the report then
+    calls its response reading confirmatory); empty: the reading is exploratory (scenario2.response_report)"""
 
     def conditions(self) -> list[tuple[int, float, float]]:
         """(lanes, T_up s, load) of every condition evaluated, by lanes then decreasing T_up: the grid's, or those of
