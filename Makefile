@@ -13,13 +13,17 @@ FULL    ?=
 T_UP    ?=
 MOBIL_P ?=
 PROFILE ?=
+# torch from PyPI by default (on Linux x86-64 its CUDA build); TORCH_INDEX=https://download.pytorch.org/whl/cpu takes the
+# CPU build from PyTorch's index (pip --index-url, as PyTorch's instructions for CPU-only machines). It acts when the
+# .venv is installed: in a new checkout, or after make clean
+TORCH_INDEX ?=
 
 .PHONY: install test lint bench demo nets scenario1 scenario2 learning protocol regime-map clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip "setuptools>=74.1"  # setuptools: the wheel test builds without isolation
-	$(BIN)/pip install --quiet torch==2.13.0
+	$(BIN)/pip install --quiet torch==2.13.0$(if $(TORCH_INDEX), --index-url $(TORCH_INDEX))
 	$(BIN)/pip install --quiet -e ".[dev,sb3,ray,tensorboard]"
 	touch $(STAMP)
 
