@@ -27,6 +27,12 @@ class DefaultsHelpFormatter(argparse.HelpFormatter):
             return text
         return f"{text} (default: %(default)s)".lstrip()
 
+    def _split_lines(self, text: str, width: int) -> list[str]:
+        """Lines broken at spaces only, so that a flag (--no-action-mask) or a value (2,1.5,1) stays whole."""
+        import textwrap
+
+        return textwrap.wrap(" ".join(text.split()), width, break_on_hyphens=False)
+
 
 class Parser(argparse.ArgumentParser):
     """argparse with one-line errors, exit code 2, and every default in --help."""

@@ -118,3 +118,74 @@ def test_protocol_without_a_profile_judges_todays_default_learner_and_says_so() 
     assert all(re.search(rf"\b{name}\b", text) for name in protocol_plan.PROFILES), text  # every profile listed
     assert "results/history/README.md" in text  # where the earlier ones are
     assert f"(default results/learner_protocol_{current};" in option_help(parser, "--out")
+
+
+# -- every default in the form its flag takes (issue 81: `train --help` printed `(2.0, 1.5, 1.0)` and `True`) -------
+PYTHON_FORMS = re.compile(r"\((?:[-+\d.e]+, )+[-+\d.e]+,?\)|\(\)|\[[^\]]*'[^\]]*\]|\b(?:True|False|None)\b")
+"""a tuple, an empty tuple, a list of strings, a bool or None as Python prints them"""
+
+
+def test_no_help_prints_a_python_value() -> None:
+    import importlib
+
+    from coopsumo import cli
+
+    found = {}
+    for name, (module, _) in cli.COMMANDS.items():
+        text = " ".join(importlib.import_module(module).build_parser().format_help().split())
+        found.update({name: hits} if (hits := PYTHON_FORMS.findall(text)) else {})
+    assert not found, found
+
+
+def test_train_help_states_each_presets_learner_values_as_the_flags_take_them() -> None:
+    """Each learner flag's help states the default preset's value and every other preset's that differs; each
+    stated value, given to its flag (beside --preset P), makes P's setting again."""
+    from coopsumo.agents import train_cli
+    from coopsumo.dqn_config import DQN_PRESETS, LEARNER_FLAGS
+
+    select = ["--select-every", "15000"]
+    enable = {"--alpha-period": ["--alpha-conditioned"], "--alpha-relabel": ["--alpha-conditioned"],
+              "--alpha-draw-max": ["--alpha-conditioned"], "--validation-alphas": ["--alpha-conditioned", *select],
+              "--validation-seed": select, "--validation-t-up": select, "--validation-steps": select,
+              "--validation-queue": [*select, "--queue-below", "5"], "--episode-steps": ["--accident-share", "0.5"]}
+    assert set(enable) == set(train_cli.FLAG_NEEDS)  # the flags that act only beside another, given it
+    parser = train_cli.build_parser()
+    checked = 0
+    for flag, name, kind, _ in LEARNER_FLAGS:
+        match = re.search(r"\((default preset: [^()]*)\)$", option_help(parser, flag))
+        assert match, flag
+        says = dict(part.split(": ", 1) for part in match.group(1).split("; "))
+        says = {"default": says.pop("default preset"), **says}
+        assert set(says) <= set(DQN_PRESETS), flag
+        for preset, cfg in DQN_PRESETS.items():
+            value = says.get(preset, says["default"])  # not named: the default preset's value
+            want = getattr(cfg, name)
+            if value == "empty":
+                assert want == (), f"{flag} ({preset}): help says empty, the preset has {want!r}"
+                continue
+            if kind is bool:
+                assert value in (flag, f"--no-{flag[2:]}"), f"{flag} ({preset}): {value}"
+                args = ["--preset", preset, *enable.get(flag, []), value]
+            else:
+                args = ["--preset", preset, *enable.get(flag, []), flag, value]
+            got = getattr(train_cli.learner_from_args(parser.parse_args(args)), name)
+            assert got == want, f"{flag} {value} ({preset}): makes {got!r}, the preset has {want!r}"
+            checked += 1
+    assert checked >= 3 * len(LEARNER_FLAGS) - 5
+    text = option_help(parser, "--validation-t-up")
+    assert "(default preset: 2,1.5,1)" in text and "(2.0" not in text  # the issue's case
+    assert "(default preset: --action-mask; paper: --no-action-mask)" in option_help(parser, "--action-mask")
+    assert "--no-action-mask" in parser.format_help()  # a flag is never broken across lines at its hyphens
+
+
+def test_train_preset_lists_every_preset() -> None:
+    from coopsumo.agents import train_cli
+    from coopsumo.dqn_config import DQN_PRESETS
+
+    parser = train_cli.build_parser()
+    (action,) = [a for a in parser._actions if "--preset" in a.option_strings]
+    assert action.choices is not None and tuple(action.choices) == tuple(DQN_PRESETS)
+    assert "alpha_only" in DQN_PRESETS
+    text = option_help(parser, "--preset")
+    assert all(f"'{name}' (" in text for name in DQN_PRESETS), text
+    assert train_cli.learner_from_args(parser.parse_args(["--preset", "alpha_only"])) == DQN_PRESETS["alpha_only"]

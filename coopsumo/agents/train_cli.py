@@ -110,13 +110,40 @@ def default_out(cfg: TrainConfig) -> Path:
     return Path("results") / "train" / f"lanes{s.road.lanes}_alpha{alpha}_tup{s.demand.t_up_s:g}_seed{s.seed}"
 
 
+PRESET_TEXT = {
+    "default": "the project's measured design",
+    "paper": "the paper's literal learner",
+    "alpha_only": "the default's machinery with alpha as its only cooperative mechanism, for claim (a)",
+}
+"""what --help says of each learner preset (dqn_config.DQN_PRESETS)"""
+
+
+def flag_form(flag: str, value: Any) -> str:
+    """A learner setting as its flag takes it: a list comma-separated (2,1.5,1; an empty one 'empty'), a switch as
+    the flag that sets it (--dueling, --no-dueling), a whole float without its '.0', anything else as str()."""
+    if isinstance(value, bool):
+        return flag if value else f"--no-{flag.removeprefix('--')}"
+    if isinstance(value, tuple):
+        return ",".join(flag_form(flag, v) for v in value) or "empty"
+    if isinstance(value, float) and value.is_integer():
+        return str(int(value))
+    return str(value)
+
+
+def preset_defaults(flag: str, name: str) -> str:
+    """A learner flag's default in --help: the default preset's value, then each other preset's where it differs."""
+    default = flag_form(flag, getattr(DQN_PRESETS["default"], name))
+    others = [f"{preset}: {form}" for preset, cfg in DQN_PRESETS.items()
+              if preset != "default" and (form := flag_form(flag, getattr(cfg, name))) != default]  # fmt: skip
+    return "; ".join([f"default preset: {default}", *others])
+
+
 def add_learner_flags(p: Parser) -> None:
     """--preset and one flag per learner setting (unset flags keep the preset's value)."""
     p.add_argument("--preset", choices=tuple(DQN_PRESETS), default="default",
-                   help="learner preset: 'default' (the project's measured design) or 'paper' (literal)")  # fmt: skip
+                   help="learner preset: " + "; ".join(f"'{name}' ({PRESET_TEXT[name]})" for name in DQN_PRESETS))
     for flag, name, kind, text in LEARNER_FLAGS:
-        default = getattr(DQNConfig(), name)
-        help_text = f"{text} (default preset: {default})"
+        help_text = f"{text} ({preset_defaults(flag, name)})"
         if kind is bool:
             p.add_argument(flag, dest=name, action=argparse.BooleanOptionalAction, default=None, help=help_text)
         elif isinstance(kind, tuple):
