@@ -56,7 +56,8 @@ def _learner_check(folder: Path) -> None:
             _same(entry["learner"], to_dict(known[variant].learner), f"{name} ({variant})")
             assert entry["weights"] == known[variant].weights
             assert entry.get("drive", {}) == known[variant].drive(), f"{name} ({variant}): driven otherwise"
-    elif name in ("scenario2", "scenario2_conditioned", "scenario2_check"):
+    elif name in ("scenario2", "scenario2_conditioned", "scenario2_check", "scenario2_confirm") or \
+            folder.parent.name == "scenario2_confirm_parts":  # fmt: skip
         sweep = json.loads((folder / "sweep.json").read_text())
         profile = SCENARIO2_PROFILES[sweep["profile"]["name"]]
         _same(sweep["learner"], learner_of(replace(profile, conditioned=sweep["profile"]["conditioned"])), name)
@@ -77,11 +78,14 @@ def test_every_committed_report_was_made_by_todays_learner() -> None:
         _learner_check(folder)
 
 
-PARTS = sorted(f"scenario2_parts/{p.parent.name}" for p in (ROOT / "results" / "scenario2_parts").glob("*/report.md"))
-"""the committed parts of scenario II's full profile (results/scenario2_parts/README.md)"""
+PARTS = sorted(f"{p.parent.parent.name}/{p.parent.name}" for folder in ("scenario2_parts", "scenario2_confirm_parts")
+               for p in (ROOT / "results" / folder).glob("*/report.md"))  # fmt: skip
+"""the committed parts of scenario II's full profile (results/scenario2_parts/README.md) and of its confirmation"""
+SWEEPS = [name for name in ("scenario2", "scenario2_check", "scenario2_confirm")
+          if (ROOT / "results" / name / "sweep.json").exists()]  # fmt: skip
 
 
-@pytest.mark.parametrize("study", ["scenario2", "scenario2_check", *PARTS])
+@pytest.mark.parametrize("study", [*SWEEPS, *PARTS])
 def test_scenario2_is_todays_rendering_of_its_runs(study: str, tmp_path: Path) -> None:
     """A committed scenario II keeps no cells/ (rerunning its command would train every cell again): its tables,
     report.md and figures are redrawn from runs.csv, evals.csv and sweep.json by rewrite_outputs, and are what
