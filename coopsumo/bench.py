@@ -29,7 +29,7 @@ from coopsumo.agents.policies import make_policy
 from coopsumo.agents.rollout import run
 from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS
-from coopsumo.runio import Parser, working_folder_problem
+from coopsumo.runio import Parser, children_start_deaf, working_folder_problem
 from coopsumo.sim import fast
 from coopsumo.sim.physics import occupancy
 
@@ -258,11 +258,18 @@ def bench_fcd_cost(steps: int, period_s: float, repeats: int) -> tuple[float, fl
     for i in range(repeats):
         with tempfile.TemporaryDirectory() as tmp:
             runs = [("plain", []), ("fcd", ["--fcd", "--fcd-period", f"{period_s:g}"])]
-            procs = {name: subprocess.Popen([sys.executable, "-m", "coopsumo.simulate", *args, *flags, "--out",
-                                             f"{tmp}/{name}"], stdout=subprocess.DEVNULL)
-                     for name, flags in (runs if i % 2 == 0 else runs[::-1])}  # fmt: skip
-            if any(proc.wait() != 0 for proc in procs.values()):
-                raise RuntimeError("a bench run of coopsumo.simulate failed")
+            with children_start_deaf():  # a Ctrl-C is this process's: it stops them (below), they print nothing
+                procs = {name: subprocess.Popen([sys.executable, "-m", "coopsumo.simulate", *args, *flags, "--out",
+                                                 f"{tmp}/{name}"], stdout=subprocess.DEVNULL)
+                         for name, flags in (runs if i % 2 == 0 else runs[::-1])}  # fmt: skip
+            try:
+                if any(proc.wait() != 0 for proc in procs.values()):
+                    raise RuntimeError("a bench run of coopsumo.simulate failed")
+            finally:
+                for proc in procs.values():
+                    if proc.poll() is None:
+                        proc.kill()
+                        proc.wait()
             summary = {name: json.loads((Path(tmp) / name / "summary.json").read_text()) for name in procs}
             extra.append(100 * (summary["fcd"]["wall_seconds"] / summary["plain"]["wall_seconds"] - 1))
             size_mb = (Path(tmp) / "fcd" / "fcd.xml").stat().st_size / 1e6

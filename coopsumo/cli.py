@@ -16,7 +16,7 @@ from pathlib import Path
 from coopsumo import __version__
 from coopsumo.errors import UsageError
 from coopsumo.paths import NETS_ENV, nets_dir_problem
-from coopsumo.runio import Parser, working_folder_problem
+from coopsumo.runio import Parser, run_interruptible, working_folder_problem
 
 S = "coopsumo.studies."
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -75,10 +75,24 @@ def _out_of(argv: Sequence[str]) -> str | None:
     return None
 
 
+def command_of(argv: Sequence[str]) -> str:
+    """The command a command line names (the name its lines start with), else "coopsumo"."""
+    own, _ = split_argv(argv)
+    return own[-1] if own and own[-1] in COMMANDS else "coopsumo"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run `coopsumo [--nets-dir DIR] COMMAND [options]`; returns the command's exit code."""
+    """Run `coopsumo [--nets-dir DIR] COMMAND [options]`; returns the command's exit code. A Ctrl-C at any moment,
+    from this first instruction on (the command's imports included), ends it in one line and exit code 130; run as
+    the process's command (argv None: the console command, `python -m coopsumo`), one while Python exits is ignored."""
+    return run_interruptible(lambda: _main(sys.argv[1:] if argv is None else argv),
+                             lambda: command_of(sys.argv[1:] if argv is None else argv),
+                             whole_process=argv is None)  # fmt: skip
+
+
+def _main(argv: Sequence[str]) -> int:
     parser = build_parser()
-    own, rest = split_argv(sys.argv[1:] if argv is None else argv)
+    own, rest = split_argv(argv)
     args = parser.parse_args(own)
     if args.command is None:
         parser.print_usage(sys.stderr)

@@ -9,7 +9,7 @@ import signal
 import sys
 import threading
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from typing import Any, NoReturn
 
@@ -90,6 +90,55 @@ def stop_on_signals() -> Iterator[None]:
             signal.signal(s, handler)
 
 
+def interrupted(prog: str, err: KeyboardInterrupt) -> int:
+    """The one line of a command stopped by a signal (`prog: interrupted`); its exit code, 128 + the signal."""
+    print(f"{prog}: interrupted", file=sys.stderr)
+    return 128 + getattr(err, "signum", signal.SIGINT)
+
+
+def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_process: bool = False) -> int:
+    """body(), a console command's whole run: a Ctrl-C (SIGINT) from this call's first instruction on raises Stop
+    wherever it lands, the command's imports included (seconds for torch, libsumo, pandas, when Python's own
+    KeyboardInterrupt used to end in a traceback), and also when the process was started with SIGINT ignored. A
+    command that reports its own interruption (run_cli) returns its exit code; one that reaches here ends in one
+    line, `prog(): interrupted`, exit code 130. whole_process: body is the process's command, which exits next; a
+    Ctrl-C while Python exits then has nothing left to stop and is ignored (it used to kill the ending process
+    without a line, or print a traceback from an exit handler). Only in the main thread (elsewhere: body())."""
+    if threading.current_thread() is not threading.main_thread():
+        return body()
+    old = signal.getsignal(signal.SIGINT)
+    try:
+        signal.signal(signal.SIGINT, _raise_stop)
+        return body()
+    except KeyboardInterrupt as err:
+        return interrupted(prog(), err)
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN if whole_process or old is None else old)
+
+
+@contextmanager
+def children_start_deaf(signals: Collection[int] = (signal.SIGINT,)) -> Iterator[None]:
+    """Child processes started in the block (multiprocessing's spawn, subprocess) begin with `signals` blocked, from
+    their first instruction on (a signal mask survives fork and exec): a Ctrl-C to the whole process group while a
+    child's interpreter starts cannot end it in a KeyboardInterrupt traceback of its own. The child takes them when
+    it is ready (a study's worker ignores SIGINT, then unblocks it: runner._init_worker) or never (it is stopped by
+    this process). Here SIGINT and SIGTERM wait for the block's end (signals_deferred), so that a start is never cut
+    half-way (a child left reading what it was to be sent). multiprocessing's resource tracker unblocks SIGINT and
+    SIGTERM when it starts, so it is started first. Only in the main thread (elsewhere the block runs as it is)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    from multiprocessing import resource_tracker
+
+    resource_tracker.ensure_running()
+    old = signal.pthread_sigmask(signal.SIG_BLOCK, signals)
+    try:
+        with signals_deferred():
+            yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+
+
 @contextmanager
 def signals_deferred() -> Iterator[None]:
     """For the block (a few file operations that must happen together), SIGINT and SIGTERM wait: one that comes
@@ -133,8 +182,7 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
         print(f"{prog}: error: {err}", file=sys.stderr)
         return USAGE_EXIT
     except KeyboardInterrupt as err:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return 128 + getattr(err, "signum", signal.SIGINT)
+        return interrupted(prog, err)
     except OSError as err:  # the system refused a file operation: one line naming the path and the problem
         print(f"{prog}: error: {os_error_text(err)}", file=sys.stderr)
         return USAGE_EXIT if err.errno in USER_ERRNOS else 1

@@ -34,6 +34,7 @@ import torch  # noqa: E402
 from coopsumo.agents.dqn import QNetwork, learn, make_optimizer, sync_target  # noqa: E402
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch  # noqa: E402
 from coopsumo.dqn_config import DQNConfig  # noqa: E402
+from coopsumo.runio import STOP_SIGNALS, children_start_deaf  # noqa: E402
 
 POLL_S = 0.5
 """how often a wait checks that the worker still lives (s)"""
@@ -138,14 +139,11 @@ class UpdateWorker:
             daemon=True,
         )
         # SIGINT and SIGTERM are blocked here while the child starts (a signal sent meanwhile comes the moment the
-        # mask is lifted). The spawned child does not inherit the mask: it ignores them from its import of this
-        # module on (WORKER_NAME); one that kills it before that is reported as LearnerProcessError.signum.
-        stop_signals = {signal.SIGINT, signal.SIGTERM}
-        old_mask = signal.pthread_sigmask(signal.SIG_BLOCK, stop_signals)
-        try:
+        # mask is lifted), and the child inherits the mask: blocked from its first instruction, it ignores them from
+        # its import of this module on (WORKER_NAME). One that kills it all the same (a signal it was not deaf to)
+        # is reported as LearnerProcessError.signum.
+        with children_start_deaf(STOP_SIGNALS):
             self.process.start()
-        finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, old_mask)
         child.close()
         self.pending = 0  # update rounds sent and not yet answered
         self.losses: list[float] = []  # mean loss of each answered round, in order

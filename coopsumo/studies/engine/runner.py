@@ -15,7 +15,6 @@ from __future__ import annotations
 import logging
 import multiprocessing as mp
 import os
-import queue
 import signal
 import sys
 import time
@@ -33,7 +32,7 @@ from tqdm import tqdm
 
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
-from coopsumo.runio import start_parent_watch
+from coopsumo.runio import children_start_deaf, start_parent_watch
 from coopsumo.studies.engine.records import cell_path
 
 MAX_CRASHES = 2
@@ -44,13 +43,15 @@ FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
 """failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
 
 
-def _init_worker(parent_pid: int, pids: Any) -> None:
-    """Pool initializer: exit with the main process, and tell it this worker's pid (for abort). Ctrl-C reaches the
-    whole process group: a worker leaves it to the main process, which stops the workers (abort: SIGTERM, on which
-    a training saves its checkpoint), so an idle worker never dies with a traceback of its own."""
+def _init_worker(parent_pid: int) -> None:
+    """Pool initializer: exit with the main process. Ctrl-C reaches the whole process group: a worker leaves it to
+    the main process, which stops the workers (abort: SIGTERM, on which a training saves its checkpoint), so a
+    worker never dies with a traceback of its own. It started with SIGINT blocked (LocalBackend.submit), so that one
+    sent while its interpreter and imports start waits until now: ignored here, then unblocked (a cell's training
+    takes Ctrl-C with its own handler)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     start_parent_watch(parent_pid)
-    pids.put(os.getpid())
 
 
 class LocalBackend:
@@ -62,14 +63,12 @@ class LocalBackend:
         self.slots = workers
         self._cell_fn = cell_fn
         self._ctx = mp.get_context("spawn")
-        self._pids: Any = self._ctx.Queue()  # every worker's pid, put there by _init_worker
-        self._worker_pids: set[int] = set()
         self._generation = 0
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
         return ProcessPoolExecutor(max_workers=self.slots, mp_context=self._ctx, initializer=_init_worker,
-                                   initargs=(os.getpid(), self._pids))  # fmt: skip
+                                   initargs=(os.getpid(),))  # fmt: skip
 
     def _renew(self) -> None:
         """Replace a broken pool (a worker died) by a fresh one; its other futures fail as BrokenProcessPool."""
@@ -78,11 +77,13 @@ class LocalBackend:
         self._pool = self._new_pool()
 
     def submit(self, spec: dict[str, Any], root: Path) -> Any:
-        try:
-            future = self._pool.submit(self._cell_fn, spec, str(root))
-        except BrokenProcessPool:  # the pool broke before wait() saw the dead worker's future
-            self._renew()
-            future = self._pool.submit(self._cell_fn, spec, str(root))
+        """Submit a cell; the pool starts its worker processes here, deaf to Ctrl-C until _init_worker."""
+        with children_start_deaf():
+            try:
+                future = self._pool.submit(self._cell_fn, spec, str(root))
+            except BrokenProcessPool:  # the pool broke before wait() saw the dead worker's future
+                self._renew()
+                future = self._pool.submit(self._cell_fn, spec, str(root))
         return (self._generation, future)
 
     def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
@@ -100,14 +101,10 @@ class LocalBackend:
     def abort(self) -> None:
         """Stop the workers: SIGTERM (a training saves its checkpoint), then SIGKILL after 15 s.
 
-        The workers are found among multiprocessing.active_children() by the pids they reported on start.
+        The workers are this process's multiprocessing children (multiprocessing.active_children()), those still
+        starting included: one left starting would find this process's queues gone and end in a traceback.
         """
-        while True:
-            try:
-                self._worker_pids.add(self._pids.get(timeout=0.1))
-            except queue.Empty:
-                break
-        procs = [p for p in mp.active_children() if p.pid in self._worker_pids]
+        procs = mp.active_children()
         for p in procs:
             p.terminate()
         deadline = time.monotonic() + 15.0

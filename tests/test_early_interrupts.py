@@ -1,0 +1,106 @@
+"""Issue 82, item 4: a Ctrl-C at any moment of a command, from its first instruction on, is one line and exit code
+130, in the command and in every process it started. Each command is started as a terminal starts it (a process
+group of its own), with small valid arguments in a fresh folder, and gets SIGINT sent to its whole group, as a
+terminal's Ctrl-C does, 0.2, 0.5, 1 or 2 s after it started: while Python imports torch, libsumo and pandas, while
+it checks its arguments, while a study's workers or the training's update worker start, or once they work. Its
+stderr must then hold exactly one line saying it was interrupted (its progress bars and own lines beside it are
+fine), no traceback from it or from any of its processes, and it must exit with 130, its processes gone. Before,
+`coopsumo train` and the other commands printed a KeyboardInterrupt traceback when the Ctrl-C came during their
+imports, and a scenario I worker printed one of its own when it came while the worker started.
+
+Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1,
+scenario2, learning, protocol, regime-map: their pools of workers) and simulate get all four moments; the others,
+and `python -m coopsumo`, one each, chosen while they still run: accident-seeds, adaptive, adaptive-fit and models
+end within a second (here on a folder they refuse or one with nothing to use: 0.2 s, during their imports),
+diagnose (refusing its folder after its imports) and scenario2 --merge at 1 s, history and bench at 2 s."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.sumo
+REPO = Path(__file__).resolve().parent.parent
+CONSOLE = Path(sys.executable).parent / "coopsumo"
+"""the console command beside this interpreter ([project.scripts]), as a user runs it"""
+FOUR = (0.2, 0.5, 1.0, 2.0)
+PARTS = "{repo}/results/scenario2_parts"
+CASES: dict[str, tuple[list[str], tuple[float, ...]]] = {
+    "train": (["train", "--steps", "3000", "--eval-steps", "0", "--out", "{tmp}/run", "--quiet"], FOUR),
+    "simulate": (["simulate", "--steps", "20000", "--out", "{tmp}/sim", "--quiet"], FOUR),
+    "scenario1": (["scenario1", "--quick", "--out", "{tmp}/s1"], FOUR),
+    "scenario2": (["scenario2", "--profile", "tiny", "--out", "{tmp}/s2", "--quiet"], FOUR),
+    "learning": (["learning", "--profile", "tiny", "--out", "{tmp}/learning", "--quiet"], FOUR),
+    "protocol": (["protocol", "--profile", "tiny", "--out", "{tmp}/protocol", "--quiet"], FOUR),
+    "regime-map": (["regime-map", "--t-up", "2", "--steps", "2000", "--out", "{tmp}/rm", "--quiet"], FOUR),
+    "scenario2 --merge": (["scenario2", "--merge", f"{PARTS}/L2,{PARTS}/L3", "--out", "{tmp}/merged", "--quiet"],
+                          (1.0,)),  # fmt: skip
+    "accident-seeds": (["accident-seeds", "{tmp}/no_study", "--out", "{tmp}/accident", "--quiet"], (0.2,)),
+    "diagnose": (["diagnose", "{tmp}/no_study", "--quiet"], (1.0,)),
+    "adaptive-fit": (["adaptive-fit", "{tmp}/conditioned"], (0.2,)),
+    "adaptive": (["adaptive", "{tmp}/conditioned", "--quiet"], (0.2,)),
+    "history": (["history", "--results", "{repo}/results", "--out", "{tmp}/history.md"], (2.0,)),
+    "models": (["models", "--store", "{tmp}/store"], (0.2,)),
+    "bench": (["bench", "--quick"], (2.0,)),
+    "python -m coopsumo train": (["train", "--steps", "3000", "--eval-steps", "0", "--out", "{tmp}/run", "--quiet"],
+                                 (0.5,)),  # fmt: skip
+}
+"""case -> (the command line, {tmp} the test's folder, {repo} the checkout; the moments of its Ctrl-C, s)"""
+LINE = re.compile(r"(coopsumo )?[a-z0-9-]+: interrupted\b.*")
+"""the one line: `<command>: interrupted` and what it leaves (train: its checkpoint, or nothing)"""
+
+
+def command(case: str, tmp: Path) -> list[str]:
+    """The case's process: the console command (python -m coopsumo for that case, or where none is installed)."""
+    argv = [word.format(tmp=tmp, repo=REPO) for word in CASES[case][0]]
+    if case.startswith("python -m") or not CONSOLE.exists():
+        return [sys.executable, "-m", "coopsumo", *argv]
+    return [str(CONSOLE), *argv]
+
+
+def prepare(tmp: Path) -> None:
+    """What the commands read: a model store with one folder that is no model (models lists it: its imports), a
+    finished alpha-conditioned sweep of its own (adaptive-fit and adaptive write into it)."""
+    (tmp / "store" / "not_a_model").mkdir(parents=True)
+    shutil.copytree(REPO / "results" / "archive" / "scenario2_conditioned", tmp / "conditioned")
+
+
+def ctrl_c(proc: subprocess.Popen[str], at_s: float, start: float) -> tuple[int, str]:
+    """SIGINT to proc's process group at_s seconds after start; its exit code and stderr once every process of the
+    group is gone."""
+    time.sleep(max(0.0, start + at_s - time.monotonic()))
+    assert proc.poll() is None, f"ended before its Ctrl-C at {at_s} s: {proc.communicate()[1][-1500:]}"
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=90)
+    end = time.monotonic() + 30
+    while True:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            return proc.returncode, err
+        assert time.monotonic() < end, f"processes of the command outlived it: {err[-1500:]}"
+        time.sleep(0.05)
+
+
+@pytest.mark.parametrize(("case", "at_s"), [(case, at_s) for case, (_, moments) in CASES.items() for at_s in moments],
+                         ids=lambda value: f"{value}s" if isinstance(value, float) else value)  # fmt: skip
+def test_a_ctrl_c_at_any_moment_is_one_line_and_exit_code_130(case: str, at_s: float, tmp_path: Path) -> None:
+    prepare(tmp_path)
+    env = {**{k: v for k, v in os.environ.items() if k != "DISPLAY"}, "COOPSUMO_MODELS": str(tmp_path / "models")}
+    start = time.monotonic()
+    proc = subprocess.Popen(command(case, tmp_path), cwd=tmp_path, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    code, err = ctrl_c(proc, at_s, start)
+    said = [line for line in err.splitlines() if "interrupted" in line]
+    for mark in ("Traceback", "KeyboardInterrupt", "Exception ignored", ": error:"):
+        assert mark not in err, err[-3000:]
+    assert code == 128 + signal.SIGINT, (code, err[-3000:])
+    assert len(said) == 1 and LINE.fullmatch(said[0]), err[-3000:]
