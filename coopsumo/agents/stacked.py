@@ -93,12 +93,13 @@ def stack_batches(batches: Sequence[ReplayBatch | None]) -> tuple[StackedBatch, 
     template = next((b for b in batches if b is not None), None)
     if template is None:
         raise ValueError("a stacked step needs at least one member's minibatch")
-    filler = ReplayBatch(**{name: None if t is None else torch.zeros_like(t) for name, t in vars(template).items()})
+    zeros: dict[str, Any] = {name: None if t is None else torch.zeros_like(t) for name, t in vars(template).items()}
+    filler = ReplayBatch(**zeros)
     filler.dones.fill_(1.0)
     filler.next_mask.fill_(True)
     rows = [filler if b is None else b for b in batches]
-    stacked = {name: None if t is None else torch.stack([getattr(b, name) for b in rows])
-               for name, t in vars(template).items()}  # fmt: skip
+    stacked: dict[str, Any] = {name: None if t is None else torch.stack([getattr(b, name) for b in rows])
+                               for name, t in vars(template).items()}  # fmt: skip
     return StackedBatch(**stacked), torch.tensor([b is not None for b in batches])
 
 
@@ -276,7 +277,7 @@ class StackedLearner:
 
     def _optimizer_state(self, k: int) -> dict[str, Any]:
         template = make_optimizer(self._net, self.cfg).state_dict()
-        state: dict[str, Any] = {}
+        state: dict[int, Any] = {}  # torch's: parameter index -> its state
         if self._exp_avg is not None and self._exp_avg_sq is not None and self.steps[k] > 0:
             exp_avg, exp_avg_sq = self._member(self._exp_avg, k), self._member(self._exp_avg_sq, k)
             state = {i: {"step": torch.tensor(float(self.steps[k])), "exp_avg": exp_avg[name],
