@@ -48,9 +48,19 @@ def rng_stream(seed: int, stream: int) -> np.random.Generator:
     return np.random.default_rng([seed, stream])
 
 
+ROAD_LENGTH_M = (100.0, 100_000.0)
+"""shortest and longest road (m): a vehicle's sight is 15 m and a loop section 200 m; 100 km is hours of driving"""
+SPEED_LIMIT_MPS = (1.0, 70.0)
+"""lowest and highest lane speed limit (m/s); 70 m/s is 252 km/h"""
+LOOP_SPACING_M = (10.0, 10_000.0)
+"""closest and farthest spacing of the loop cross-sections (m); the road must hold at least one"""
+REWARD_WEIGHT_MAX = 1000.0
+"""largest weight of the reward's speed and flow terms (both >= 0): as alpha's limit, far above the paper's 1"""
+
+
 @dataclass(frozen=True)
 class RoadConfig:
-    """The straight highway."""
+    """The straight highway: one edge of `lanes` parallel lanes, built by netconvert (sim/network.py)."""
 
     lanes: int = 3
     """number of lanes, 2-6"""
@@ -59,7 +69,8 @@ class RoadConfig:
     lane_width_m: float = 3.2
     """lane width (m)"""
     speed_limit_mps: float = 33.34
-    """SUMO lane speed limit (m/s); above the largest expected speed (110 km/h)"""
+    """SUMO lane speed limit (m/s); above the largest expected speed (110 km/h). A lower limit caps every
+    vehicle's expected speed (sim.world.draw_vehicle): the controller drives at most at the limit"""
     loop_spacing_m: float = 200.0
     """distance between induction-loop cross-sections (m), paper: 200 m"""
     loop_period_s: float = 60.0
@@ -213,9 +224,31 @@ class SimConfig:
         alpha = self.reward.alpha
         if problem := number_problem(alpha, ALPHA_MIN, ALPHA_MAX):
             raise ConfigError(f"alpha must be {problem}, got {alpha}")
+        if problem := road_problem(self.road, self.accident):
+            raise ConfigError(problem)
+        for name in ("w_speed", "w_flow"):
+            if problem := number_problem(getattr(self.reward, name), 0.0, REWARD_WEIGHT_MAX):
+                raise ConfigError(f"reward weight {name} must be {problem}, got {getattr(self.reward, name)}")
         if int_problem(self.full_read_every_steps, 1, MAX_STEPS):
             raise ConfigError(f"full_read_every_steps must be an integer from 1 to {MAX_STEPS}, "
                               f"got {self.full_read_every_steps}")  # fmt: skip
+
+
+def road_problem(road: RoadConfig, accident: AccidentConfig) -> str | None:
+    """Why the road cannot be driven, or None: its length, speed limit or loop spacing outside their limits
+    (ROAD_LENGTH_M, SPEED_LIMIT_MPS, LOOP_SPACING_M), no loop on it, or an accident (when enabled) off it."""
+    for what, value, (low, high) in (("road length (m)", road.length_m, ROAD_LENGTH_M),
+                                     ("speed limit (m/s)", road.speed_limit_mps, SPEED_LIMIT_MPS),
+                                     ("loop spacing (m)", road.loop_spacing_m, LOOP_SPACING_M)):  # fmt: skip
+        if problem := number_problem(value, low, high):
+            return f"{what} must be {problem}, got {number_name(value)}"
+    if not road.loop_positions_m():
+        return (f"loop spacing {number_name(road.loop_spacing_m)} m leaves no loop on the "
+                f"{number_name(road.length_m)} m road: it must be below the road's length")  # fmt: skip
+    if accident.enabled and not 0 < accident.x_m < road.length_m:
+        return (f"the accident at {number_name(accident.x_m)} m is not on the {number_name(road.length_m)} m road: "
+                "it must lie above 0 and below the road's length")  # fmt: skip
+    return None
 
 
 @dataclass(frozen=True)

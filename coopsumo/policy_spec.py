@@ -12,11 +12,18 @@
                                                      V: no lane change chosen below V m/s (default 0: none);
                                                      K: drive the mean Q-value of the K best-validated snapshots
                                                      of the model's training (default 1: the model alone)
+    py:MODULE:CLASS                                  a class of your own (agents/user_policy.py): MODULE a Python
+                                                     file (a path ending in .py) or a module name (MODULE.py in the
+                                                     current folder, else an importable module); CLASS a class in it
+                                                     whose act(obs) gives one action per vehicle (docs/extending.md)
+    sb3:PATH                                         a Stable-Baselines3 DQN model saved by its save() (a .zip file,
+                                                     e.g. experiments/sb3_dqn.py's model.zip; agents/sb3_policy.py)
 
 Parameters are KEY=VALUE separated by ','; each key at most once; each value a finite number in its key's range
 (alpha also 'adaptive'). No spaces anywhere, no empty parameter, and no ',' inside a model path (the grammar and
-SUMO's file lists split at commas). Pure text (model_file aside): whether a model exists or is alpha-conditioned
-is checked when it is loaded (agents/dqn_policy.py).
+SUMO's file lists split at commas). py and sb3 take no parameters. Pure text (model_file aside): whether a model
+exists or is alpha-conditioned, whether a module defines its class, is checked when it is loaded
+(agents/dqn_policy.py, agents/user_policy.py, agents/sb3_policy.py).
 """
 
 from __future__ import annotations
@@ -49,8 +56,11 @@ KEYS: dict[str, dict[str, tuple[float, float, bool]]] = {
             "queue": (0.0, RESTART_MAX_MPS, False), "ensemble": (1.0, ENSEMBLE_MAX, False)},
 }
 """the parameters each policy takes: key -> (lowest, highest, lowest excluded)"""
+OWN = ("py", "sb3")
+"""policies from the user's own files: a class of their own (py:MODULE:CLASS), a Stable-Baselines3 model (sb3:PATH)"""
 FORMS = ("keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], "
-         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,noreturn=S,restart=R,queue=V,ensemble=K]")
+         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,noreturn=S,restart=R,queue=V,ensemble=K], py:MODULE:CLASS, "
+         "sb3:PATH")
 
 
 class PolicySpecError(UsageError):
@@ -76,6 +86,10 @@ class PolicySpec:
     restart: float | None = None
     queue: float | None = None
     ensemble: int | None = None
+    module: str | None = None
+    """py: the module's file or name"""
+    class_name: str | None = None
+    """py: the class in it"""
 
     def values(self) -> dict[str, float]:
         return dict(self.params)
@@ -84,7 +98,7 @@ class PolicySpec:
 def split_dqn_spec(text: str) -> tuple[str, float | str | None]:
     """'dqn:PATH[,alpha=A|adaptive]' -> (PATH, alpha: a number, 'adaptive' or None); PolicySpecError otherwise."""
     spec = parse_policy(text)
-    if spec.model is None:
+    if spec.name != "dqn" or spec.model is None:
         raise _fail(text, "is not a dqn policy; expected dqn:PATH[,alpha=A|adaptive]")
     return spec.model, spec.alpha
 
@@ -125,6 +139,8 @@ def parse_policy(text: str) -> PolicySpec:
         if colon:
             raise _fail(text, f"{name} takes no parameters; write {name}")
         return PolicySpec(name)
+    if name in OWN:
+        return _own(text, name, colon, body)
     if name not in KEYS:
         raise _fail(text, f"unknown policy {name!r}; expected one of {FORMS}")
     items = body.split(",") if colon else []
@@ -160,6 +176,46 @@ def parse_policy(text: str) -> PolicySpec:
                           queue=number("queue"),
                           ensemble=None if seen.get("ensemble") is None else int(float(seen["ensemble"])))
     return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))
+
+
+def _own(text: str, name: str, colon: str, body: str) -> PolicySpec:
+    """The spec of py:MODULE:CLASS or sb3:PATH (no parameters, no ',' anywhere)."""
+    form = "py:MODULE:CLASS (MODULE a .py file or a module name)" if name == "py" else "sb3:PATH (a model.zip)"
+    if not colon or not body:
+        raise _fail(text, f"{name} needs {'a module and a class' if name == 'py' else 'a model'}: {form}")
+    if "," in body:
+        raise _fail(text, f"{name} takes no parameters and its path cannot hold ','; write {form}")
+    if name == "sb3":
+        return PolicySpec(name, model=body)
+    module, sep, class_name = body.rpartition(":")
+    if not sep or not module:
+        raise _fail(text, f"names no class; write {form}")
+    if not class_name.isidentifier():
+        raise _fail(text, f"{class_name!r} is not a Python class name; write {form}")
+    return PolicySpec(name, module=module, class_name=class_name)
+
+
+def policy_file(text: str) -> str | None:
+    """The file a policy string drives, whose bytes decide what it does (a study reruns a run when they change), or
+    None: a dqn policy's model file, an sb3 policy's model, a py policy's module when MODULE is a file (a .py path, or
+    MODULE.py in the current folder); None for the built-in policies and an installed module."""
+    spec = parse_policy(text)
+    if spec.name == "dqn" and spec.model is not None:
+        return model_file(spec.model)
+    if spec.name == "sb3":
+        return spec.model
+    if spec.name == "py" and spec.module is not None:
+        return module_file(spec.module)
+    return None
+
+
+def module_file(module: str) -> str | None:
+    """The file of a py policy's MODULE: MODULE itself when it ends in .py, MODULE.py (dots as folders) in the
+    current folder when that file exists, else None (an importable module, found by Python's import)."""
+    if module.endswith(".py"):
+        return module
+    local = os.path.join(*module.split(".")) + ".py" if all(p.isidentifier() for p in module.split(".")) else None
+    return local if local is not None and os.path.isfile(local) else None
 
 
 LC_KEYS = tuple(SUMO_LC_LIMITS)

@@ -16,8 +16,11 @@ from typing import Any
 from coopsumo.agents.policies import policy_for_run
 from coopsumo.agents.rollout import run  # noqa: F401  (simulate.run: the rollout, re-exported for callers)
 from coopsumo.config import (
+    LOOP_SPACING_M,
     MAX_LANES,
     MIN_LANES,
+    ROAD_LENGTH_M,
+    SPEED_LIMIT_MPS,
     AccidentConfig,
     ControlConfig,
     DemandConfig,
@@ -27,10 +30,10 @@ from coopsumo.config import (
     SimConfig,
 )
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.policy_spec import KEYS, PolicySpecError, model_file, parse_policy, split_dqn_spec
+from coopsumo.policy_spec import KEYS, PolicySpecError, parse_policy, policy_file
 from coopsumo.run_dirs import atomic_run_dir, check_apart, check_run_dir
 from coopsumo.runio import Parser, run_cli
-from coopsumo.sim import sumo_session
+from coopsumo.sim import network, sumo_session
 from coopsumo.validation import (
     MAX_FCD_PERIOD_S,
     MAX_GUI_DELAY_MS,
@@ -80,7 +83,9 @@ def build_parser() -> Parser:
                         "sumo[:lcCooperative=X,lcSpeedGain=Y,...] (SUMO's own Krauss and LC2013 models) | "
                         "dqn:PATH/model.pt or dqn:FOLDER (a trained model, or a training's folder holding model.pt), "
                         f"followed by any of {DQN_MODIFIERS} (alpha: for an alpha-conditioned model; the others "
-                        "change how it drives; docs/model.md)")  # fmt: skip
+                        "change how it drives; docs/model.md) | py:MODULE:CLASS (a class of your own in MODULE, a "
+                        ".py file or a module name) | sb3:PATH (a Stable-Baselines3 DQN's model.zip); "
+                        "docs/extending.md")  # fmt: skip
     p.add_argument("--steps", type=steps, default=DEFAULT_STEPS, help="steps of 0.1 s")
     p.add_argument("--seed", type=seed, default=0, help="seed of the demand, the policy and SUMO (0 to 2^31 - 1)")
     p.add_argument("--out", type=out_dir, required=True, help="run folder to write")
@@ -89,6 +94,7 @@ def build_parser() -> Parser:
                    help=_accident_help("first accident step", 0))
     p.add_argument("--accident-steps", type=integer(1, MAX_STEPS), default=None,
                    help=_accident_help("its length in steps, the hold decaying from 1 to 0 over it", 1))
+    add_road_flags(p)
     p.add_argument("--sumo-collision-check", action="store_true",
                    help="also count collisions with SUMO's own check (slower in jams)")  # fmt: skip
     p.add_argument("--read-every-step", action="store_true",
@@ -106,6 +112,46 @@ def build_parser() -> Parser:
                    help="sumo-gui's pause between steps (ms, at most 10,000)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     return p
+
+
+def add_road_flags(p: Parser) -> None:
+    """A road of one's own: its length, speed limit and loop spacing, the accident's position (config.RoadConfig,
+    AccidentConfig; limits config.ROAD_LENGTH_M, SPEED_LIMIT_MPS, LOOP_SPACING_M; docs/extending.md)."""
+    road, acc = RoadConfig(), AccidentConfig()
+    p.add_argument("--road-length", type=number(*ROAD_LENGTH_M), default=road.length_m,
+                   help=f"road length (m, {ROAD_LENGTH_M[0]:g} to {ROAD_LENGTH_M[1]:,g}; default {road.length_m:g})")
+    p.add_argument("--speed-limit", type=number(*SPEED_LIMIT_MPS), default=road.speed_limit_mps,
+                   help=f"lane speed limit (m/s, {SPEED_LIMIT_MPS[0]:g} to {SPEED_LIMIT_MPS[1]:g}; default "
+                        f"{road.speed_limit_mps:g}); a limit below a vehicle's expected speed caps it")  # fmt: skip
+    p.add_argument("--loop-spacing", type=number(*LOOP_SPACING_M), default=road.loop_spacing_m,
+                   help=f"distance between the induction-loop cross-sections (m, {LOOP_SPACING_M[0]:g} to "
+                        f"{LOOP_SPACING_M[1]:,g}, below the road's length; default {road.loop_spacing_m:g})")
+    p.add_argument("--net-file", default=None,
+                   help="a SUMO network of your own: refused with what the world needs (it drives only its own "
+                        "straight highway; for a file that is one straight edge, the flags that build it)")
+    p.add_argument("--accident-x", type=number(0, ROAD_LENGTH_M[1], low_open=True), default=None,
+                   help=f"the accident's position (m from the entrance, on the road; --scenario accident; default "
+                        f"{acc.x_m:g})")  # fmt: skip
+
+
+def road_from_args(args: Any) -> tuple[RoadConfig, float]:
+    """The road of the flags and the accident's position (m); UsageError naming the flags when the road holds no
+    loop or the accident lies beyond its end (config.road_problem states the rules)."""
+    if args.net_file is not None:
+        raise UsageError(f"--net-file: {network.net_file_refusal(args.net_file)}")
+    road = RoadConfig(lanes=args.lanes, length_m=args.road_length, speed_limit_mps=args.speed_limit,
+                      loop_spacing_m=args.loop_spacing)  # fmt: skip
+    x_m = AccidentConfig.x_m if args.accident_x is None else args.accident_x
+    if args.accident_x is not None and args.scenario != "accident":
+        raise UsageError("--accident-x needs --scenario accident")
+    if not road.loop_positions_m():
+        raise UsageError(f"--loop-spacing {args.loop_spacing:g} leaves no loop on the {args.road_length:g} m road "
+                         "(--road-length): it must be below the road's length")  # fmt: skip
+    if args.scenario == "accident" and x_m >= road.length_m:
+        given = "--accident-x" if args.accident_x is not None else "the default --accident-x"
+        raise UsageError(f"--road-length {args.road_length:g} is too short for its accident: {given} {x_m:g} m must "
+                         "lie below the road's end (a longer --road-length, or a smaller --accident-x)")  # fmt: skip
+    return road, x_m
 
 
 DEFAULT_FCD_PERIOD_S = 1.0
@@ -170,11 +216,12 @@ def config_from_args(args: Any) -> SimConfig:
         start = start if args.accident_start is None else args.accident_start
         duration = duration if args.accident_steps is None else args.accident_steps
         check_accident(start, duration, args.steps)
+    road, x_m = road_from_args(args)
     cfg = SimConfig(
-        road=RoadConfig(lanes=args.lanes),
+        road=road,
         demand=DemandConfig(t_up_s=args.t_up),
         accident=AccidentConfig(
-            enabled=args.scenario == "accident", start_step=start, duration_steps=duration
+            enabled=args.scenario == "accident", x_m=x_m, start_step=start, duration_steps=duration
         ),
         steps=args.steps,
         seed=args.seed,
@@ -196,15 +243,16 @@ def main(argv: list[str] | None = None) -> int:
             parse_policy(cfg.policy)  # the grammar first, before any file is looked at
         except PolicySpecError as err:
             raise UsageError(f"--policy: {err}") from None
-        if cfg.policy.startswith("dqn:"):
-            check_apart(args.out, Path(model_file(split_dqn_spec(cfg.policy)[0])))
+        if (read := policy_file(cfg.policy)) is not None:  # a model or module file: never written over
+            check_apart(args.out, Path(read))
         check_run_dir(args.out, "simulate")  # before anything is written (the screenshot's folder, the run)
         outputs = outputs_from_args(args, cfg)
         gui = gui_from_args(args, cfg)
         try:
             policy = policy_for_run(cfg)
         except UsageError as err:
-            flag = "--policy" if cfg.policy.startswith("dqn:") else f"--policy {cfg.policy}"  # a model's error names it
+            own = cfg.policy.startswith(("dqn:", "py:", "sb3:"))
+            flag = "--policy" if own else f"--policy {cfg.policy}"  # a model's or module's error names it
             raise UsageError(f"{flag}: {err}") from None
         closed = sumo_session.gui_closed_errors() if gui is not None else ()
         try:

@@ -1,7 +1,9 @@
 """Decision-makers: a batch of observations in, one action per vehicle out.
 
 Every policy goes through the same controller (Newell + collision check + lane-change safety),
-so they are compared on equal terms. Actions: 0 left, 1 right, 2 speedup, 3 none.
+so they are compared on equal terms. Actions: 0 left, 1 right, 2 speedup, 3 none (sim.physics). Beside the
+built-in ones: a class of the user's own (py:MODULE:CLASS, agents/user_policy.py) and a Stable-Baselines3 model
+(sb3:PATH, agents/sb3_policy.py); docs/extending.md.
 """
 
 from __future__ import annotations
@@ -111,7 +113,7 @@ class SumoPolicy:
 
 def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | None = None, lanes: int = 3) -> Policy:
     """Build a policy from its command-line spec: keep, random, greedy, dqn:PATH[,alpha=A|adaptive],
-    mobil[:p=P,...], sumo.
+    mobil[:p=P,...], sumo, py:MODULE:CLASS, sb3:PATH.
 
     `control` is the run's controller configuration (MOBIL derives its accelerations from it); `lanes` the road's
     lane count (an adaptive alpha's rule depends on it).
@@ -131,6 +133,14 @@ def make_policy(spec: str, rng: np.random.Generator, control: ControlConfig | No
         from coopsumo.agents.mobil import MobilPolicy
 
         return MobilPolicy.from_spec(spec, control)
+    if name == "py":
+        from coopsumo.agents.user_policy import UserPolicy
+
+        return UserPolicy.from_spec(spec, rng)
+    if name == "sb3":
+        from coopsumo.agents.sb3_policy import SB3Policy  # stable_baselines3 only when such a model is asked for
+
+        return SB3Policy.from_spec(spec)
     return SumoPolicy.from_spec(spec)
 
 

@@ -18,6 +18,7 @@ from coopsumo.agents.tb_log import TensorBoardFlag
 from coopsumo.config import (
     MAX_LANES,
     MIN_LANES,
+    REWARD_WEIGHT_MAX,
     ControlConfig,
     DemandConfig,
     RewardConfig,
@@ -203,6 +204,10 @@ def build_parser() -> Parser:
     p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
     p.add_argument("--alpha", type=alpha, default=None,
                    help="lane-change penalty of eq. (7), per accepted change (default 0)")  # fmt: skip
+    for flag, term in (("--w-speed", "speed term r_v, eq. (5)"), ("--w-flow", "flow term q_t")):
+        p.add_argument(flag, type=number(0, REWARD_WEIGHT_MAX), default=None,
+                       help=f"weight of the reward's {term} (0 to {REWARD_WEIGHT_MAX:,g}; default "
+                            f"{getattr(RewardConfig, flag[2:].replace('-', '_')):g}, the paper's)")  # fmt: skip
     p.add_argument("--t-up", type=number(), default=None,
                    help=f"upstream departure interval (s) of the evaluation and, given, of the training (trained at "
                         f"it alone); default: {DemandConfig.t_up_s:g} s, training on the preset's demands")  # fmt: skip
@@ -234,7 +239,8 @@ def config_from_args(args: Any) -> TrainConfig:
     sim = SimConfig(
         road=RoadConfig(lanes=args.lanes),
         demand=DemandConfig(t_up_s=t_up),
-        reward=RewardConfig(alpha=args.alpha or 0.0),
+        reward=RewardConfig(alpha=args.alpha or 0.0, w_speed=_or(args.w_speed, RewardConfig.w_speed),
+                            w_flow=_or(args.w_flow, RewardConfig.w_flow)),
         steps=args.steps,
         seed=args.seed,
         policy="dqn",
@@ -242,6 +248,10 @@ def config_from_args(args: Any) -> TrainConfig:
     cfg = TrainConfig(sim=sim, dqn=dqn, eval_steps=args.eval_steps)
     cfg.validate()
     return cfg
+
+
+def _or(value: float | None, default: float) -> float:
+    return default if value is None else value
 
 
 UPDATE_WORKER_MIN_STEPS = 5_000
@@ -257,6 +267,8 @@ def uses_update_worker(choice: str, cfg: TrainConfig) -> bool:
 RUN_FLAGS: tuple[tuple[str, str, Callable[[TrainConfig], Any]], ...] = (
     ("--lanes", "lanes", lambda c: c.sim.road.lanes),
     ("--alpha", "alpha", lambda c: c.sim.reward.alpha),
+    ("--w-speed", "w_speed", lambda c: c.sim.reward.w_speed),
+    ("--w-flow", "w_flow", lambda c: c.sim.reward.w_flow),
     ("--t-up", "t_up", lambda c: c.sim.demand.t_up_s),
     ("--steps", "steps", lambda c: c.sim.steps),
     ("--seed", "seed", lambda c: c.sim.seed),

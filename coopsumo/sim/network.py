@@ -163,3 +163,31 @@ def routes_xml(max_speed_mps: float, car_length_m: float, lc_motivations: bool =
         f'    <route id="{ROUTE_ID}" edges="{EDGE_ID}"/>\n'
         "</routes>\n"
     )
+
+
+def net_file_refusal(path: str) -> str:
+    """Why the world does not drive the SUMO network file at `path` (a phrase to follow the flag): it builds its own
+    straight highway from RoadConfig and reads positions along that one edge, so a network file is never driven. A
+    file that is one straight edge of 2-6 lanes is answered with the flags that build the same road."""
+    import math
+
+    import sumolib
+
+    try:
+        net = sumolib.net.readNet(path)
+    except Exception as err:  # sumolib raises many types (a missing file, XML errors) for a file it cannot read
+        return f"{path} is not a SUMO network sumolib can read ({type(err).__name__})"
+    edges = net.getEdges(withInternal=False)
+    needs = ("the world drives its own road only: one straight edge of 2-6 parallel lanes, built by netconvert from "
+             "--lanes, --road-length and --speed-limit (positions along that edge, its lanes each vehicle's left, "
+             "own and right, loops on every lane every --loop-spacing)")  # fmt: skip
+    if len(edges) != 1:
+        return f"{path} has {len(edges)} edges; {needs}"
+    edge = edges[0]
+    (x0, y0), (x1, y1) = edge.getShape()[0][:2], edge.getShape()[-1][:2]
+    chord = math.hypot(x1 - x0, y1 - y0)
+    lanes, length, speed = edge.getLaneNumber(), edge.getLength(), edge.getSpeed()
+    if abs(chord - length) > 0.01 * length or not 2 <= lanes <= 6:
+        return f"{path}'s edge {edge.getID()} is not straight or has {lanes} lanes; {needs}"
+    return (f"{needs}; {path} is such a road: give it as --lanes {lanes} --road-length {length:g} --speed-limit "
+            f"{speed:g}")

@@ -13,7 +13,16 @@ from types import TracebackType
 
 import numpy as np
 
-from coopsumo.config import ACCIDENT_STREAM, DEMAND_STREAM, DemandConfig, GuiConfig, OutputConfig, SimConfig, rng_stream
+from coopsumo.config import (
+    ACCIDENT_STREAM,
+    DEMAND_STREAM,
+    DemandConfig,
+    GuiConfig,
+    OutputConfig,
+    RoadConfig,
+    SimConfig,
+    rng_stream,
+)
 from coopsumo.sim import accident, controller, fast, physics, view
 from coopsumo.sim.accident import HELD
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, FrameHistory, Observation
@@ -83,11 +92,12 @@ class _Growable:
             setattr(self, name, np.concatenate([old, np.full(new - cap, fill, old.dtype)]))
 
 
-def draw_vehicle(rng: np.random.Generator, demand: DemandConfig, lanes: int) -> tuple[float, int]:
-    """The next upstream vehicle's expected speed (m/s, clipped normal) and entry lane (uniform)."""
+def draw_vehicle(rng: np.random.Generator, demand: DemandConfig, road: RoadConfig) -> tuple[float, int]:
+    """The next upstream vehicle's expected speed (m/s, clipped normal, at most the road's speed limit) and entry
+    lane (uniform)."""
     v_kmh = np.clip(rng.normal(demand.v_exp_mean_kmh, demand.v_exp_std_kmh), demand.v_exp_min_kmh,
                     demand.v_exp_max_kmh)  # fmt: skip
-    return float(v_kmh) / 3.6, int(rng.integers(0, lanes))
+    return min(float(v_kmh) / 3.6, road.speed_limit_mps), int(rng.integers(0, road.lanes))
 
 
 def departures(cfg: SimConfig) -> list[tuple[float, int, float]]:
@@ -96,7 +106,7 @@ def departures(cfg: SimConfig) -> list[tuple[float, int, float]]:
     n = int(cfg.steps * cfg.control.dt_s / cfg.demand.t_up_s + 1e-9) + 1
     out = []
     for num in range(n):
-        v, lane = draw_vehicle(rng, cfg.demand, cfg.road.lanes)
+        v, lane = draw_vehicle(rng, cfg.demand, cfg.road)
         out.append((num * cfg.demand.t_up_s, lane, v))
     return out
 
@@ -223,7 +233,7 @@ class World:
         while self.next_num * t_up <= self.time_s + 1e-9:
             num = self.next_num
             self.veh.ensure(num + 1)
-            self.veh.v_exp[num], lane = draw_vehicle(self.demand_rng, d, self.cfg.road.lanes)
+            self.veh.v_exp[num], lane = draw_vehicle(self.demand_rng, d, self.cfg.road)
             self.veh.scheduled_s[num] = num * t_up
             self._waiting[lane].append(num)
             self.next_num += 1

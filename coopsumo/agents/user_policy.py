@@ -1,0 +1,160 @@
+"""A policy of the user's own: `py:MODULE:CLASS`, a class in the user's file or module, checked against the policy
+interface when it is loaded and wrapped so that every decision it gives is checked too.
+
+The class needs act(obs) -> one action per vehicle of the batch (coopsumo.sim.physics: 0 left, 1 right, 2 speed-up,
+3 none), obs being the batch's coopsumo.sim.observation.Observation. It may set `needs_grids` (False: the world need
+not build the occupancy grids for it; default True), `decision_interval` (steps between two decisions, the actions
+held between; default 1) and `name`. Its constructor takes no argument, or one named `rng`: the run's policy stream
+(config.rng_stream(seed, POLICY_STREAM)), so that a policy that draws repeats with the run's seed. docs/extending.md
+shows one.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import inspect
+import os
+import sys
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from coopsumo.errors import UsageError, first_line
+from coopsumo.files import file_sha256
+from coopsumo.policy_spec import module_file, parse_policy
+from coopsumo.sim.observation import Observation
+from coopsumo.sim.physics import ACTION_NAMES
+
+MAX_DECISION_INTERVAL = 600
+"""the longest decision interval a policy of one's own may ask for (steps; a minute), as the learner's"""
+ACTIONS_TEXT = "0 left, 1 right, 2 speed-up, 3 none"
+
+
+class UserPolicyError(UsageError):
+    """A py:MODULE:CLASS the interface refuses, or a decision outside it (one line, exit code 2)."""
+
+
+def _from_file(path: str, text: str) -> ModuleType:
+    """The module of the Python file at `path`, run once under a private name (a file named like an installed
+    module shadows nothing)."""
+    if not os.path.isfile(path):
+        raise UserPolicyError(f"{text}: no file {path} (MODULE is a .py file, or a module name)")
+    real = os.path.realpath(path)
+    name = f"_coopsumo_py_{hashlib.sha256(real.encode()).hexdigest()[:12]}"
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.spec_from_file_location(name, real)
+    if spec is None or spec.loader is None:
+        raise UserPolicyError(f"{text}: {path} cannot be loaded as Python")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses and pickling look a class's module up there
+    try:
+        spec.loader.exec_module(module)
+    except Exception as err:  # the user's code: any error, in one line
+        del sys.modules[name]
+        raise UserPolicyError(f"{text}: running {path} failed: {type(err).__name__}: {first_line(err)}") from None
+    return module
+
+
+def _imported(module: str, text: str) -> ModuleType:
+    """An importable module by name; its own import errors in one line."""
+    try:
+        return importlib.import_module(module)
+    except ModuleNotFoundError as err:
+        if err.name is not None and (module == err.name or module.startswith(f"{err.name}.")):
+            raise UserPolicyError(f"{text}: no module {module!r}: neither {module.replace('.', '/')}.py in the current "
+                                  "folder nor an importable module") from None  # fmt: skip
+        raise UserPolicyError(f"{text}: importing {module} failed: {first_line(err)}") from None
+    except Exception as err:  # the user's code: any error, in one line
+        raise UserPolicyError(f"{text}: importing {module} failed: {type(err).__name__}: {first_line(err)}") from None
+
+
+def load_class(module: str, class_name: str, text: str) -> type:
+    """The class `class_name` of `module` (a .py file, MODULE.py in the current folder, or an importable module),
+    checked: a class with an act method; UserPolicyError naming what is missing otherwise."""
+    path = module_file(module)
+    found = _from_file(path, text) if path is not None else _imported(module, text)
+    where = path or module
+    cls = getattr(found, class_name, None)
+    if cls is None:
+        classes = sorted(n for n, v in vars(found).items() if inspect.isclass(v) and v.__module__ == found.__name__)
+        also = f" (it defines {', '.join(classes)})" if classes else " (it defines no class)"
+        raise UserPolicyError(f"{text}: {where} defines no {class_name!r}{also}")
+    if not inspect.isclass(cls):
+        raise UserPolicyError(f"{text}: {class_name} in {where} is not a class (it is {type(cls).__name__} "
+                              f"{str(cls)[:40]})")
+    if not callable(getattr(cls, "act", None)):
+        raise UserPolicyError(f"{text}: class {class_name} has no act(obs) method; a policy needs act(obs) giving "
+                              f"one action per vehicle ({ACTIONS_TEXT})")  # fmt: skip
+    return cls
+
+
+def _instance(cls: type, rng: np.random.Generator, text: str) -> Any:
+    """cls() or cls(rng=rng) when its constructor takes `rng`; its errors in one line."""
+    try:
+        takes_rng = "rng" in inspect.signature(cls).parameters
+    except (TypeError, ValueError):
+        takes_rng = False
+    try:
+        return cls(rng=rng) if takes_rng else cls()
+    except Exception as err:  # the user's code: any error, in one line
+        raise UserPolicyError(f"{text}: {cls.__name__}() failed: {type(err).__name__}: {first_line(err)} (its "
+                              "constructor takes no argument, or only rng)") from None  # fmt: skip
+
+
+def _attribute(inner: Any, key: str, default: Any, text: str) -> Any:
+    """A policy attribute the class may set, checked (needs_grids a bool, decision_interval 1-600, name a string)."""
+    value = getattr(inner, key, default)
+    fine = {"needs_grids": isinstance(value, bool | np.bool_),
+            "decision_interval": isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+            and 1 <= value <= MAX_DECISION_INTERVAL,
+            "name": isinstance(value, str) and value != ""}[key]  # fmt: skip
+    if not fine:
+        must = {"needs_grids": "True or False", "decision_interval": f"an integer from 1 to {MAX_DECISION_INTERVAL}",
+                "name": "a non-empty string"}[key]  # fmt: skip
+        raise UserPolicyError(f"{text}: its {key} must be {must}, got {value!r}")
+    return type(default)(value)
+
+
+class UserPolicy:
+    """The user's policy object behind the policy interface: its attributes checked once, every decision checked
+    (one integer 0-3 per vehicle)."""
+
+    def __init__(self, inner: Any, text: str, file: str | None) -> None:
+        self.inner = inner
+        self.text = text
+        self.name = _attribute(inner, "name", type(inner).__name__, text)
+        self.needs_grids = _attribute(inner, "needs_grids", True, text)
+        self.decision_interval = _attribute(inner, "decision_interval", 1, text)
+        self.trained_on: dict[str, object] = {"policy": text}
+        """what config.json records of it (rollout: model_trained_on): its file and that file's sha256, by which a
+        study sees that the file changed (run_folders.model_driven)"""
+        if file is not None:
+            self.trained_on.update(policy_file=os.path.abspath(file), model_sha256=file_sha256(Path(file)))
+
+    @classmethod
+    def from_spec(cls, text: str, rng: np.random.Generator) -> UserPolicy:
+        """The policy of 'py:MODULE:CLASS' (policy_spec), its class loaded, checked and made."""
+        spec = parse_policy(text)
+        assert spec.module is not None and spec.class_name is not None
+        inner = _instance(load_class(spec.module, spec.class_name, text), rng, text)
+        return cls(inner, text, module_file(spec.module))
+
+    def act(self, obs: Observation) -> np.ndarray:
+        return checked_actions(self.inner.act(obs), len(obs), self.text)
+
+
+def checked_actions(actions: Any, n: int, who: str) -> np.ndarray:
+    """`actions` as an int64 array of n actions 0-3; UserPolicyError naming `who` and what it gave otherwise."""
+    arr = np.asarray(actions)
+    if arr.shape != (n,) or not (np.issubdtype(arr.dtype, np.integer) or (n == 0 and arr.dtype == float)):
+        raise UserPolicyError(f"{who}: act(obs) gave {arr.dtype} of shape {arr.shape}; it must give {n} integers, one "
+                              f"per vehicle ({ACTIONS_TEXT})")  # fmt: skip
+    if n and (arr.min() < 0 or arr.max() >= len(ACTION_NAMES)):
+        raise UserPolicyError(f"{who}: act(obs) gave the action {int(arr.max() if arr.max() >= 4 else arr.min())}; "
+                              f"actions are {ACTIONS_TEXT}")  # fmt: skip
+    return arr.astype(np.int64, copy=False)

@@ -1,0 +1,198 @@
+"""A policy of one's own (py:MODULE:CLASS) and a Stable-Baselines3 model (sb3:PATH): the grammar, the checks a class
+and a zip pass before they drive (each refusal one line), the decisions checked while driving, and `simulate` driven
+by a class of one's own in a real SUMO run, a bad one refused with exit code 2 and nothing written. docs/extending.md's
+examples (the SB3 model in simulate and beside keep in scenario I) run in tests/test_extending.py."""
+
+from __future__ import annotations
+
+import json
+import sys
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from coopsumo.agents.policies import make_policy
+from coopsumo.agents.sb3_policy import SB3ModelError, check_model
+from coopsumo.agents.user_policy import UserPolicy, UserPolicyError, checked_actions
+from coopsumo.policy_spec import PolicySpecError, parse_policy, policy_file
+
+POLICIES = '''
+import numpy as np
+
+
+class Right:
+    needs_grids = False
+    decision_interval = 5
+
+    def act(self, obs):
+        return np.full(len(obs), 1)
+
+
+class Drawing:
+    def __init__(self, rng):
+        self.rng = rng
+
+    def act(self, obs):
+        return self.rng.integers(0, 4, size=len(obs))
+
+
+class NoAct:
+    pass
+
+
+class Sevens:
+    def act(self, obs):
+        return np.full(len(obs), 7)
+
+
+class Needy:
+    def __init__(self, size):
+        pass
+
+    def act(self, obs):
+        return []
+
+
+class BadInterval:
+    decision_interval = 0
+
+    def act(self, obs):
+        return []
+
+
+NOT_A_CLASS = 3
+'''
+
+
+@pytest.fixture
+def folder(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A working folder holding the module mine.py, made the current folder."""
+    (tmp_path / "mine.py").write_text(POLICIES)
+    (tmp_path / "broken.py").write_text("import numpy as np\nraise RuntimeError('half written')\n")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_the_grammar_of_own_policies() -> None:
+    spec = parse_policy("py:mine:Right")
+    assert (spec.name, spec.module, spec.class_name) == ("py", "mine", "Right")
+    spec = parse_policy("py:lib/my_policies.py:KeepRight")
+    assert (spec.module, spec.class_name) == ("lib/my_policies.py", "KeepRight")
+    assert parse_policy("sb3:runs/a/model.zip").model == "runs/a/model.zip"
+    for text, fragment in (("py", "needs a module and a class"), ("py:mine", "names no class"),
+                           ("py::X", "names no class"), ("py:mine:1x", "not a Python class name"),
+                           ("py:mine:X,a=1", "takes no parameters"), ("sb3", "needs a model"),
+                           ("sb3:a,b.zip", "takes no parameters"), ("sb3:", "needs a model")):  # fmt: skip
+        with pytest.raises(PolicySpecError) as err:
+            parse_policy(text)
+        assert fragment in str(err.value) and len(str(err.value).splitlines()) == 1, text
+
+
+def test_the_file_a_policy_drives_is_known(folder: Path) -> None:
+    assert policy_file("py:mine:Right") == "mine.py"  # MODULE.py in the current folder
+    assert policy_file("py:sub/x.py:Right") == "sub/x.py"
+    assert policy_file("py:json:JSONDecoder") is None  # an installed module: Python finds it
+    assert policy_file("sb3:m.zip") == "m.zip" and policy_file("keep") is None
+
+
+def test_a_class_of_ones_own_is_a_policy(folder: Path) -> None:
+    rng = np.random.default_rng(0)
+    policy = make_policy("py:mine:Right", rng)
+    assert isinstance(policy, UserPolicy)
+    assert (policy.name, policy.needs_grids, policy.decision_interval) == ("Right", False, 5)
+    assert policy.trained_on["policy_file"] == str(folder / "mine.py")
+    assert len(str(policy.trained_on["model_sha256"])) == 64
+    same = make_policy(f"py:{folder / 'mine.py'}:Right", rng)  # the same file by its path
+    assert same.trained_on["model_sha256"] == policy.trained_on["model_sha256"]
+    drawing = make_policy("py:mine:Drawing", np.random.default_rng([4, 3]))
+    assert drawing.inner.rng.integers(1 << 30) == np.random.default_rng([4, 3]).integers(1 << 30)  # the run's stream
+
+
+@pytest.mark.parametrize(("spec", "fragment"), [
+    ("py:nowhere:X", "no module 'nowhere': neither nowhere.py in the current folder nor an importable module"),
+    ("py:nowhere.py:X", "no file nowhere.py"),
+    ("py:mine:Missing", "mine.py defines no 'Missing' (it defines BadInterval, Drawing, Needy, NoAct, Right, Sevens)"),
+    ("py:mine:NoAct", "class NoAct has no act(obs) method"),
+    ("py:mine:NOT_A_CLASS", "NOT_A_CLASS in mine.py is not a class (it is int 3)"),
+    ("py:mine:Needy", "Needy() failed: TypeError"),
+    ("py:mine:BadInterval", "its decision_interval must be an integer from 1 to 600, got 0"),
+    ("py:broken:X", "running broken.py failed: RuntimeError: half written"),
+    ("py:json.nothere:X", "no module 'json.nothere'"),
+    ("py:json:JSONDecoder", "class JSONDecoder has no act(obs) method"),
+])  # fmt: skip
+def test_what_a_class_lacks_is_said_in_one_line(folder: Path, spec: str, fragment: str) -> None:
+    with pytest.raises(UserPolicyError) as err:
+        make_policy(spec, np.random.default_rng(0))
+    assert fragment in str(err.value) and str(err.value).startswith(spec), str(err.value)
+    assert len(str(err.value).splitlines()) == 1
+
+
+def test_every_decision_is_checked() -> None:
+    assert checked_actions([0, 1, 2, 3], 4, "p").dtype == np.int64
+    assert len(checked_actions(np.zeros(0), 0, "p")) == 0  # an empty road: an empty answer of any dtype
+    for actions, fragment in (([0, 1], "of shape (2,); it must give 3 integers"),
+                              ([0.0, 1.0, 2.0], "gave float64"), ([0, 1, 7], "gave the action 7"),
+                              ([0, -1, 2], "gave the action -1"), ([[0, 1, 2]], "of shape (1, 3)")):  # fmt: skip
+        with pytest.raises(UserPolicyError) as err:
+            checked_actions(actions, 3, "py:m:P")
+        assert fragment in str(err.value) and "0 left, 1 right, 2 speed-up, 3 none" in str(err.value)
+
+
+def _zip(path: Path, data: object) -> Path:
+    with zipfile.ZipFile(path, "w") as archive:
+        archive.writestr("data", json.dumps(data))
+    return path
+
+
+def test_a_zip_that_is_no_highway_dqn_is_refused_before_sb3_reads_it(tmp_path: Path) -> None:
+    highway = {"spaces": "{'grids': Box(0, 1, (3, 3, 20), uint8), 'speed_err': Box(-inf, inf, (3,), float32)}"}
+    ppo = _zip(tmp_path / "ppo.zip", {"policy_class": {"__module__": "stable_baselines3.common.policies"},
+                                      "observation_space": highway})  # fmt: skip
+    other = _zip(tmp_path / "other.zip", {"policy_class": {"__module__": "stable_baselines3.dqn.policies"},
+                                          "observation_space": {"spaces": "Box(0, 1, (4,))"}})  # fmt: skip
+    (tmp_path / "notzip.zip").write_text("not a zip")
+    nodata = tmp_path / "nodata.zip"
+    with zipfile.ZipFile(nodata, "w") as archive:
+        archive.writestr("policy.pth", b"")
+    for path, fragment in ((tmp_path / "missing.zip", "model file not found"),
+                           (tmp_path, "is not a file"),
+                           (tmp_path / "notzip.zip", "is not a Stable-Baselines3 model"),
+                           (nodata, "is not a Stable-Baselines3 model"),
+                           (ppo, "is not a Stable-Baselines3 DQN (its policy comes from stable_baselines3.common"),
+                           (other, "was not trained on coopsumo/Highway-v0")):  # fmt: skip
+        with pytest.raises(SB3ModelError) as err:
+            check_model(str(path), f"sb3:{path}")
+        assert fragment in str(err.value) and len(str(err.value).splitlines()) == 1, path
+
+
+def test_checking_a_zip_and_parsing_import_no_stable_baselines3() -> None:
+    import subprocess
+
+    code = ("import sys; from coopsumo.agents import policies, sb3_policy; from coopsumo import simulate; "
+            "policies.make_policy('keep', None); print('stable_baselines3' in sys.modules)")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
+
+
+@pytest.mark.sumo
+def test_simulate_drives_a_class_of_ones_own_and_refuses_a_bad_one(
+    folder: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from coopsumo import simulate
+
+    assert simulate.main(["--policy", "py:mine:Right", "--steps", "400", "--t-up", "1", "--quiet",
+                          "--out", "run"]) == 0  # fmt: skip
+    summary = json.loads((folder / "run" / "summary.json").read_text())
+    config = json.loads((folder / "run" / "config.json").read_text())
+    assert summary["policy"] == "py:mine:Right" and summary["decision_interval_steps"] == 5
+    assert summary["lane_changes"] > 0 and summary["collisions"] == 0  # it asked right; the controller let some
+    assert config["model_trained_on"]["policy_file"] == str(folder / "mine.py")
+    capsys.readouterr()
+    for spec, fragment in (("py:mine:NoAct", "has no act(obs) method"), ("py:mine:Sevens", "gave the action 7"),
+                           ("py:nowhere:X", "no module 'nowhere'")):  # fmt: skip
+        assert simulate.main(["--policy", spec, "--steps", "50", "--quiet", "--out", "bad"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and fragment in err[0], err
+        assert not (folder / "bad").exists() and not list(folder.glob(".bad*"))  # nothing written
