@@ -128,7 +128,8 @@ def add_road_flags(p: Parser) -> None:
                         f"{LOOP_SPACING_M[1]:,g}, below the road's length; default {road.loop_spacing_m:g})")
     p.add_argument("--net-file", default=None,
                    help="a SUMO network of your own: refused with what the world needs (it drives only its own "
-                        "straight highway; for a file that is one straight edge, the flags that build it)")
+                        "straight highway; for a file that is one straight edge, the flags that build it; default: "
+                        "none, the road of the flags below)")
     p.add_argument("--accident-x", type=number(0, ROAD_LENGTH_M[1], low_open=True), default=None,
                    help=f"the accident's position (m from the entrance, on the road; --scenario accident; default "
                         f"{acc.x_m:g})")  # fmt: skip
