@@ -12,6 +12,7 @@ call run_todo.
 from __future__ import annotations
 
 import json
+import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -62,6 +63,8 @@ def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], ro
     `specs`; done_keys: those finished ok before): the same steps, every cell's record returned in the order of
     specs."""
     root = root.resolve()
+    if any(isinstance(s.get("config"), dict) and "train" in s["config"] for s in specs):
+        say_store(root)
     if todo:
         from coopsumo.sim.network import build_net
 
@@ -75,6 +78,14 @@ def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], ro
         finally:
             runner.close()
     return [checked_record(json.loads(cell_path(root, s["key"]).read_text()), required) for s in specs]
+
+
+def say_store(root: Path) -> None:
+    """One line on stderr naming the model store of a study that trains (its models' home, outside its folder)."""
+    from coopsumo.studies.engine.model_store import store_for
+
+    print(f"coopsumo: model store {store_for(root).resolve()} (the study's models; `coopsumo models` lists it)",
+          file=sys.stderr)  # fmt: skip
 
 
 def failed_keys(records: Sequence[dict[str, Any]]) -> list[str]:

@@ -89,8 +89,13 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
         check_link(out)  # again under the lock
         folder.mkdir(exist_ok=True)
         _link(out, folder)  # before training: its checkpoint shows through the study's folder
-        if finished_training(folder, config, quiet=True) is None and (src := reselectable(config, store)) is not None:
-            return _reselect(src, folder, config), None
+        if finished_training(folder, config, quiet=True) is None:
+            if (src := reselectable(config, store)) is not None:
+                return _reselect(src, folder, config), None
+            import sys
+
+            print(f"coopsumo: training {folder.name} in the model store {store.resolve()} (`coopsumo models` lists "
+                  "it)", file=sys.stderr)  # written outside the study's folder: said where
         return train_resuming(config, folder)
 
 
@@ -246,14 +251,79 @@ def listing(store: Path) -> list[dict[str, Any]]:
     return rows
 
 
+STORE_FOLDER = "models"
+"""the name of a model store's folder (store_for: beside a study's results folder)"""
+SEARCH_DEPTH = 3
+"""`coopsumo models` without --store looks for stores this many folders down from the current one"""
+
+
+def is_store(folder: Path) -> bool:
+    """True when `folder` holds a stored model (a folder named as model_id names one, train_cli.STORE_NAME)."""
+    from coopsumo.agents.train_cli import STORE_NAME
+
+    try:
+        return any(STORE_NAME.fullmatch(p.name) and p.is_dir() for p in folder.iterdir())
+    except OSError:
+        return False
+
+
+def found_stores(base: Path, depth: int = SEARCH_DEPTH) -> list[Path]:
+    """Every model store under `base`, relative to it: the folders named `models` at most `depth` folders down that
+    hold a stored model (hidden folders, the virtualenv's and stores' insides not searched), in name order."""
+    found, level = [], [base]
+    for _ in range(depth):
+        below = []
+        for folder in level:
+            try:
+                entries = sorted(p for p in folder.iterdir() if p.is_dir() and not p.is_symlink()
+                                 and not p.name.startswith(".") and p.name not in ("venv", "node_modules"))  # fmt: skip
+            except OSError:
+                continue
+            for entry in entries:
+                if entry.name == STORE_FOLDER and is_store(entry):
+                    found.append(entry.relative_to(base))
+                else:
+                    below.append(entry)
+        level = below
+    return sorted(found)
+
+
 def build_parser() -> Any:
     from coopsumo.runio import Parser
 
-    p = Parser(prog="coopsumo models", description="List the model store: every trained model, by the training "
+    p = Parser(prog="coopsumo models", description="List the model stores: every trained model, by the training "
                "that made it, and whether a study would use it.")  # fmt: skip
     p.add_argument("--store", type=Path, default=None,
-                   help=f"the store (default ${STORE_ENV} if set, else results/models)")  # fmt: skip
+                   help=f"one store (default: ${STORE_ENV} if set, else results/models and every other store found "
+                        f"up to {SEARCH_DEPTH} folders below the current one: a study's is `models` beside its --out, "
+                        "which it names)")  # fmt: skip
     return p
+
+
+def _print_store(store: Path, rows: list[dict[str, Any]]) -> None:
+    keys = ("model", "preset", "alpha", "seed", "steps", "selected_step", "state")
+    widths = {k: max([len(k)] + [len(str(r[k])) for r in rows]) for k in keys}
+    print("  ".join(k.ljust(widths[k]) for k in keys))
+    for r in rows:
+        print("  ".join(str(r[k]).ljust(widths[k]) for k in keys))
+    usable = sum(r["state"] == "ok" for r in rows)
+    print(f"{len(rows)} models in {store}, {usable} usable")
+
+
+def _stores(given: Path | None) -> list[Path]:
+    """The stores `coopsumo models` lists: --store; else $COOPSUMO_MODELS; else results/models and every store found
+    below the current folder."""
+    from coopsumo.errors import UsageError
+
+    if given is not None:
+        if not given.exists():  # a folder named by hand: a typo is not an empty store
+            raise UsageError(f"--store {given}: no such folder (a study makes it when it trains its first model)")
+        if not given.is_dir():
+            raise UsageError(f"--store {given}: not a folder")
+        return [given]
+    if os.environ.get(STORE_ENV):
+        return [Path(os.environ[STORE_ENV])]
+    return list(dict.fromkeys([Path("results/models"), *found_stores(Path("."))]))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -263,22 +333,20 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
-        store = args.store or Path(os.environ.get(STORE_ENV) or "results/models")
-        if args.store is not None and not store.exists():  # a folder named by hand: a typo is not an empty store
-            raise UsageError(f"--store {store}: no such folder (a study makes it when it trains its first model)")
-        if store.exists() and not store.is_dir():
-            raise UsageError(f"--store {store}: not a folder")
-        rows = listing(store) if store.is_dir() else []
-        if not rows:
-            print(f"no models yet in {store}: the studies (scenario1, scenario2, learning, protocol) train there")
-            return 0
-        keys = ("model", "preset", "alpha", "seed", "steps", "selected_step", "state")
-        widths = {k: max([len(k)] + [len(str(r[k])) for r in rows]) for k in keys}
-        print("  ".join(k.ljust(widths[k]) for k in keys))
-        for r in rows:
-            print("  ".join(str(r[k]).ljust(widths[k]) for k in keys))
-        usable = sum(r["state"] == "ok" for r in rows)
-        print(f"{len(rows)} models in {store}, {usable} usable")
+        stores = _stores(args.store)
+        listed = 0
+        for store in stores:
+            if store.exists() and not store.is_dir():
+                raise UsageError(f"--store {store}: not a folder")
+            rows = listing(store) if store.is_dir() else []
+            if rows:
+                if listed:
+                    print()
+                _print_store(store, rows)
+                listed += 1
+        if not listed:
+            print(f"no models yet in {stores[0]}: the studies (scenario1, scenario2, learning, protocol) train into "
+                  "`models` beside their --out (or $COOPSUMO_MODELS) and say where")  # fmt: skip
         return 0
 
     return run_cli("models", body)
