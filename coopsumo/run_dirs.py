@@ -11,7 +11,7 @@ import shutil
 import sys
 import tempfile
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -34,10 +34,12 @@ def _entries(folder: Path) -> list[str]:
     return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p != folder / RUN_MARKER)
 
 
-def mark_run_dir(folder: Path, kind: str, finished: bool = True) -> None:
-    """Claim `folder` for the command `kind`; finished: also list what it holds (nothing else may be replaced)."""
+def mark_run_dir(folder: Path, kind: str, finished: bool = True, study: str | None = None) -> None:
+    """Claim `folder` for the command `kind`; finished: also list what it holds (nothing else may be replaced);
+    study: which study of `kind` a study root holds ("the quick profile's study", check_study_root)."""
     write_json(folder / RUN_MARKER, {"kind": kind, "version": package_version("coopsumo"),
-                                     "files": _entries(folder) if finished else None})  # fmt: skip
+                                     "files": _entries(folder) if finished else None,
+                                     **({"study": study} if study is not None else {})})  # fmt: skip
 
 
 def _marker(folder: Path) -> dict[str, Any] | None:
@@ -88,42 +90,89 @@ def finished_run(folder: Path, kind: str) -> bool:
     return isinstance(listed, list) and all(isinstance(f, str) and (folder / f).exists() for f in listed)
 
 
-def check_study_root(root: Path, kind: str, own: Sequence[str]) -> None:
+Recorded = Callable[[Path], str | None]
+"""recorded(root) -> the study a root written before its marker named it holds, read from its plan file, or None"""
+
+
+def held_study(root: Path, recorded: Recorded | None = None) -> str | None:
+    """Which study the study root `root` holds: its marker's "study", else (a root marked before markers named it,
+    or not marked) what recorded(root) reads from its plan file; None when neither says."""
+    marker = _marker(root)
+    named = marker.get("study") if marker is not None else None
+    if isinstance(named, str):
+        return named
+    return recorded(root) if recorded is not None else None
+
+
+def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None,
+                     recorded: Recorded | None = None, advice: str = "pick another --out") -> None:  # fmt: skip
     """UsageError unless `root` is missing, empty, marked by the study `kind`, or (a root written before the
     marker) holds the study's plan file own[0] or only entries whose names match the study's own patterns `own`
-    (fnmatch: 'fig*.png'; a study writes only these names and never replaces the root as a whole)."""
+    (fnmatch: 'fig*.png'; a study writes only these names and never replaces the root as a whole). study: which
+    study of `kind` the command writes ("the quick profile's study"): a root that holds another (held_study, with
+    `recorded` for a root whose marker does not name it) is refused too, with `advice`; the same study resumes.
+    Either way a link in it that leads outside it is refused (study_link)."""
     root = root.resolve()
     if not root.exists():
         return
     if not root.is_dir():
         raise UsageError(f"output folder {root} exists and is not a folder")
     marker = _marker(root)
-    if marker is not None:
-        if marker["kind"] != kind:
-            raise UsageError(f"output folder {root} holds a coopsumo {marker['kind']} run, not a {kind} study, and "
-                             "is left alone; pick another --out")  # fmt: skip
-        return
-    if (root / own[0]).is_file():  # the study's own plan file: a root it wrote before markers existed
-        return
-    foreign = sorted(p.name for p in root.iterdir() if not any(fnmatch.fnmatchcase(p.name, pat) for pat in own))
-    if foreign:
-        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
-        raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, and "
-                         f"has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
+    if marker is not None and marker["kind"] != kind:
+        raise UsageError(f"output folder {root} holds a coopsumo {marker['kind']} run, not a {kind} study, and "
+                         "is left alone; pick another --out")  # fmt: skip
+    if marker is None and not (root / own[0]).is_file():  # not the study's plan file: a root it wrote before markers?
+        foreign = sorted(p.name for p in root.iterdir() if not any(fnmatch.fnmatchcase(p.name, pat) for pat in own))
+        if foreign:
+            more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+            raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, "
+                             f"and has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
+    if study is not None and (held := held_study(root, recorded)) not in (None, study):
+        raise UsageError(f"output folder {root} holds {held}, not {study}: a study writes into its own folder, and "
+                         f"this one is left alone; {advice}")  # fmt: skip
+    if found := study_link(root):
+        raise UsageError(f"{found[0]} is a link to {found[1]}, outside the study's folder {root}: a study writes only "
+                         "inside its own folder (through the link it would replace what is there); remove the link or "
+                         "pick another --out")  # fmt: skip
+
+
+STORE_LINKS = ("models", "train")
+"""the folders of a study root whose entries are the study's links into the model store (studies/engine/model_store:
+link_problem and check_link judge them; the store may lie anywhere)"""
+
+
+def study_link(root: Path) -> tuple[Path, Path] | None:
+    """The first symbolic link in the study root `root` (none followed) that leads outside it, and where it leads,
+    or None; the entries of its STORE_LINKS folders, links into the model store, are not looked into. A study
+    writing into a run folder that is such a link (runs/t2/greedy_seed1 -> a user's folder) would write into, or
+    replace, the folder it leads to."""
+    root = root.resolve()
+    for parent, folders, files in os.walk(root):
+        here = Path(parent)
+        if here.parent == root and here.name in STORE_LINKS:
+            folders[:] = []
+            continue
+        for name in folders + files:
+            path = here / name
+            if path.is_symlink() and not (target := path.resolve()).is_relative_to(root):
+                return path, target
+    return None
 
 
 @contextmanager
-def study_root(root: Path, kind: str, own: Sequence[str]) -> Iterator[Path]:
+def study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None, recorded: Recorded | None = None,
+               advice: str = "pick another --out") -> Iterator[Path]:  # fmt: skip
     """Claim the study root `root` for the block: its path checked (check_out_path), its lock held (out_lock),
-    ownership checked (check_study_root) and its marker written (unfinished: a study adds to it run by run)."""
+    ownership checked (check_study_root: of the study `study`, if given) and its marker written (unfinished: a study
+    adds to it run by run), naming `study` (without one: the study it named before, kept)."""
     check_out_path(root)
     root = root.resolve()
-    check_study_root(root, kind, own)
+    check_study_root(root, kind, own, study, recorded, advice)
     with out_lock(root, kind):
-        check_study_root(root, kind, own)  # again, under the lock
+        check_study_root(root, kind, own, study, recorded, advice)  # again, under the lock
         try:
             root.mkdir(exist_ok=True)
-            mark_run_dir(root, kind, finished=False)
+            mark_run_dir(root, kind, finished=False, study=study or held_study(root, recorded))
         except OSError as err:
             raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
         yield root

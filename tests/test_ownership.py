@@ -151,3 +151,124 @@ def test_finish_keeps_a_folder_that_gained_a_file_during_the_run(tmp_path: Path)
     with pytest.raises(UsageError, match="late.txt"), atomic_run_dir(out) as tmp:
         (tmp / "summary.json").write_text("2\n")
     assert snapshot(tmp_path) == before  # and no partial folder left beside it
+
+
+# -- issue 82: a study's folder belongs to one study ----------------------------------------------------------------
+STUDIES = {
+    "scenario1": (["--quick"], "quick", "plan.json", {"plan": {"profile": "default"}}, "default"),
+    "scenario2": (["--profile", "tiny"], "tiny", "sweep.json", {"profile": {"name": "quick"}}, "quick"),
+    "protocol": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "nr10"}}, "nr10"),
+    "learning": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "conditioned"}}, "conditioned"),
+}
+"""each study command: how to run a profile and its name, and the plan file of another profile's study, whose
+profile it names"""
+KINDS = {"scenario1": "scenario1", "scenario2": "scenario2", "protocol": "protocol", "learning": "ablation"}
+"""the kind each study command marks its folder with"""
+
+
+def study_main(name: str, argv: list[str]) -> int:
+    from coopsumo.studies.learning import study as learning
+    from coopsumo.studies.protocol import study as protocol
+    from coopsumo.studies.scenario1 import study as scenario1
+    from coopsumo.studies.scenario2 import study as scenario2
+
+    mains = {"scenario1": scenario1.main, "scenario2": scenario2.main, "protocol": protocol.main,
+             "learning": learning.main}  # fmt: skip
+    return mains[name](argv)
+
+
+@pytest.mark.parametrize("marked", [False, True], ids=["written before markers named a study", "marked"])
+@pytest.mark.parametrize("name", sorted(STUDIES))
+def test_a_study_refuses_the_folder_of_another_profiles_study(name: str, marked: bool, tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The probe's mg46: `scenario2 --profile tiny` replaced a merged 576-cell sweep with a 2-cell one (scenario I
+    refused another profile's folder; the others did not). A folder marked before markers named a study is known by
+    its plan file; a marked one by its marker, with or without the plan file."""
+    from coopsumo.run_dirs import mark_run_dir
+
+    argv, mine, plan_file, plan, other = STUDIES[name]
+    root = tmp_path / "study"
+    (root / "cells").mkdir(parents=True)
+    (root / "report.md").write_text("# the other profile's report\n")
+    if marked:
+        mark_run_dir(root, KINDS[name], finished=False, study=f"the {other} profile's study")
+    else:
+        (root / plan_file).write_text(json.dumps(plan))
+    before = snapshot(tmp_path)
+    code = study_main(name, [*argv, "--out", str(root)])
+    line = refused(capsys, code, str(root), f"holds the {other} profile's", f"not the {mine} profile's")
+    assert "pick another --out" in line
+    assert snapshot(tmp_path) == before
+
+
+def test_a_study_root_resumes_its_own_study_and_keeps_its_name(tmp_path: Path) -> None:
+    """A rerun of the same profile into its own folder is taken (its finished cells are reused), and names the study
+    in the marker; a follow-up that claims the folder without naming a study (adaptive-fit) keeps the name."""
+    from coopsumo.run_dirs import check_study_root, held_study
+    from coopsumo.studies.engine.run_folders import profile_study, recorded_profile, study_root
+
+    root = tmp_path / "study"
+    (root / "cells").mkdir(parents=True)
+    (root / "study.json").write_text(json.dumps({"profile": {"name": "nr10"}}))
+    recorded = recorded_profile("study.json", "profile", "name")
+    with study_root(root, "protocol", profile_study("nr10"), recorded):
+        pass
+    assert json.loads((root / RUN_MARKER).read_text())["study"] == "the nr10 profile's study"
+    (root / "study.json").unlink()  # the marker names it now
+    with pytest.raises(UsageError, match="holds the nr10 profile's study, not the tiny profile's study"):
+        check_study_root(root, "protocol", ("study.json", "cells"), profile_study("tiny"), recorded)
+    with study_root(root, "protocol"):
+        pass
+    assert held_study(root) == "the nr10 profile's study"
+
+
+def test_a_study_refuses_a_run_folder_that_links_outside_it(tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The probe's rl1b: scenario I's run folder runs/t2/greedy_seed1 made a link to a user's folder outside the
+    study; the rerun replaced the user's folder through it. Refused as train refuses such links: one line naming the
+    link, before anything is written; the user's folder is kept byte for byte."""
+    root = tmp_path / "study"
+    (root / "runs" / "t2").mkdir(parents=True)
+    (root / "plan.json").write_text(json.dumps({"plan": {"profile": "quick"}}))
+    user = tmp_path / "mine"
+    user.mkdir()
+    (user / "summary.json").write_text('{"mine": true}\n')
+    (root / "runs" / "t2" / "greedy_seed1").symlink_to(user, target_is_directory=True)
+    before = snapshot(tmp_path)
+    code = study_main("scenario1", ["--quick", "--out", str(root)])
+    refused(capsys, code, str(root / "runs" / "t2" / "greedy_seed1"), f"is a link to {user}", "remove the link")
+    assert snapshot(tmp_path) == before
+
+
+def test_only_the_model_links_of_a_study_may_lead_outside_it(tmp_path: Path) -> None:
+    """models/<name> and train/<key> are the study's links into the model store, which may lie anywhere; any other
+    link out of the study (its cells/, an evaluation's folder) is refused, and one inside it is not."""
+    from coopsumo.run_dirs import check_study_root, study_link
+
+    store = tmp_path / "store" / "model_a"
+    store.mkdir(parents=True)
+    root = tmp_path / "study"
+    for folder in ("models", "train", "evals", "cells"):
+        (root / folder).mkdir(parents=True)
+    (root / "models" / "alpha0_m100").symlink_to(store)
+    (root / "train" / "L2_a0_s1").symlink_to(store)
+    (root / "evals" / "inside").symlink_to(root / "cells")
+    assert study_link(root) is None
+    check_study_root(root, "scenario2", ("sweep.json", "models", "train", "evals", "cells"))
+    (root / "evals" / "L2_T2_a0_s1").symlink_to(tmp_path / "store")
+    assert study_link(root) == (root.resolve() / "evals" / "L2_T2_a0_s1", (tmp_path / "store").resolve())
+    with pytest.raises(UsageError, match="L2_T2_a0_s1 is a link to"):
+        check_study_root(root, "scenario2", ("sweep.json", "models", "train", "evals", "cells"))
+
+
+def test_scenario2_refuses_a_user_file_where_a_model_link_belongs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The probe's s2f1: train/<key> replaced by a user's file failed its cell on every rerun without naming the file;
+    refused before any cell, as scenario I refuses a real folder under models/, one line naming it, the file kept."""
+    root = tmp_path / "study"
+    (root / "train").mkdir(parents=True)
+    (root / "train" / "L2_T4_a8_s2").write_text("my notes\n")
+    code = study_main("scenario2", ["--profile", "tiny", "--quiet", "--out", str(root)])
+    refused(capsys, code, str(root / "train" / "L2_T4_a8_s2"), "is a file the study did not make")
+    assert (root / "train" / "L2_T4_a8_s2").read_text() == "my notes\n" and not (root / "cells").exists()

@@ -12,6 +12,7 @@ from typing import Any
 
 from coopsumo.config import OutputConfig, results_view, to_dict
 from coopsumo.files import file_sha256
+from coopsumo.run_dirs import Recorded
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
@@ -131,9 +132,34 @@ def default_out(name: str, profile: str, committed: str) -> Path:
     return Path("results") / (name if profile == committed else f"{name}_{profile}")
 
 
-def study_root(root: Path, kind: str) -> AbstractContextManager[Path]:
-    """Claim the study root for the block (run_dirs.study_root: path checked, lock held, ownership checked, marked)."""
-    return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"))
+def study_root(root: Path, kind: str, study: str | None = None, recorded: Recorded | None = None,
+               advice: str = "pick another --out") -> AbstractContextManager[Path]:  # fmt: skip
+    """Claim the study root for the block (run_dirs.study_root: path checked, lock held, ownership checked, marked):
+    with `study` (profile_study), a root that holds another study of `kind` is refused, with `advice`; `recorded`
+    reads which one a root holds whose marker does not say (recorded_profile)."""
+    return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"), study, recorded, advice)
+
+
+def profile_study(profile: str, what: str = "study") -> str:
+    """Which study a profile's run writes, as a study root's marker names it: "the quick profile's study"."""
+    return f"the {profile} profile's {what}"
+
+
+def recorded_profile(plan_file: str, *keys: str) -> Recorded:
+    """recorded(root) -> profile_study of the profile name a study's plan file holds under `keys` (plan.json's
+    plan.profile), or None when there is none or it cannot be read: which study a root written before its marker
+    named it holds."""
+
+    def recorded(root: Path) -> str | None:
+        try:
+            value = json.loads((root / plan_file).read_text())
+            for key in keys:
+                value = value[key]
+        except (OSError, ValueError, KeyError, TypeError):
+            return None
+        return profile_study(value) if isinstance(value, str) else None
+
+    return recorded
 
 
 def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], fcd_period_s: float) -> str | None:

@@ -30,7 +30,7 @@ from coopsumo.files import write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.records import failed_exit
-from coopsumo.studies.engine.run_folders import default_out, study_root
+from coopsumo.studies.engine.run_folders import default_out, profile_study, recorded_profile, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
 from coopsumo.studies.learning.plan import (
     CHAIN_LENGTH,
@@ -207,7 +207,10 @@ def main(argv: list[str] | None = None) -> int:
         check_backend(args.backend, args.address)
         if args.out is None:
             args.out = default_model_out(default_out("learning", profile.name, "full"))
-        with study_root(args.out, "ablation"):  # path, lock, ownership and marker of the results folder
+        # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
+        with study_root(args.out, "ablation", profile_study(profile.name), recorded_profile("study.json", "profile",
+                        "name"), f"pick another --out (the {profile.name} profile's default: "
+                        f"{default_out('learning', profile.name, 'full')})"):  # fmt: skip
             meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip
         print(f"ablation: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")

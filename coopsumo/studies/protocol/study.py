@@ -31,7 +31,7 @@ from coopsumo.files import write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.records import failed_exit
-from coopsumo.studies.engine.run_folders import default_out, study_root
+from coopsumo.studies.engine.run_folders import default_out, profile_study, recorded_profile, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
 from coopsumo.studies.protocol.plan import (
     CURRENT,
@@ -189,7 +189,10 @@ def main(argv: list[str] | None = None) -> int:
         check_backend(args.backend, args.address)
         if args.out is None:
             args.out = default_model_out(default_folder(args.profile))
-        with study_root(args.out, "protocol"):
+        # another profile's study refused, its own resumed (study.json names it in a root marked before markers did)
+        with study_root(args.out, "protocol", profile_study(args.profile), recorded_profile("study.json", "profile",
+                        "name"), f"pick another --out (the {args.profile} profile's default: "
+                        f"{default_folder(args.profile)})"):  # fmt: skip
             meta = run_study(PROFILES[args.profile], args.out, args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip
         print(f"protocol: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")

@@ -32,7 +32,7 @@ from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.engine.records import CellRecords, failed_exit
-from coopsumo.studies.engine.run_folders import reusable_run, study_root
+from coopsumo.studies.engine.run_folders import profile_study, recorded_profile, reusable_run, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
 from coopsumo.studies.scenario1.measures import run_metrics
 from coopsumo.studies.scenario1.plan import (
@@ -209,22 +209,12 @@ def main(argv: list[str] | None = None) -> int:
         check_backend(args.backend, args.address)
         if args.out is None:
             args.out = default_model_out(study_out(plan))
-        if (other := recorded_profile(args.out)) not in (None, plan.profile):
-            raise UsageError(f"{args.out} holds the {other} profile's study; the {plan.profile} profile writes into "
-                             f"its own folder (default {study_out(plan)})")
-        with study_root(args.out, "scenario1"):  # path, lock, ownership and marker of the results folder
+        # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
+        with study_root(args.out, "scenario1", profile_study(plan.profile), recorded_profile("plan.json", "plan",
+                        "profile"), f"pick another --out (the {plan.profile} profile's default: {study_out(plan)})"):
             return run_study(plan, args.out, args.workers, args.backend, args.address)
 
     return run_cli("scenario1", body)
-
-
-def recorded_profile(root: Path) -> str | None:
-    """The profile of the study in root (its plan.json), or None when there is none or it cannot be read."""
-    try:
-        profile = json.loads((root / "plan.json").read_text())["plan"]["profile"]
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
-    return profile if isinstance(profile, str) else None
 
 
 def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], dict[tuple[str, float, int], tuple[Path, str]],

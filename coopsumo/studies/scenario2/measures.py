@@ -333,6 +333,8 @@ EVAL_COLUMNS = ("mean_speed_mps", "lane_changes_per_vehicle", "throughput_veh_pe
                 "collisions", "teleports", "loop_flow_veh_h_per_lane", "loop_occupancy_pct", "full_road_speed_mps",
                 "full_road_from_s", "wall_seconds")
 """the columns of evals.csv besides the coordinates"""
+EVAL_KEYS = ("key", "lanes", "t_up_s", "load", "policy", "alpha", "p", "seed", "eval_seed")
+"""the coordinates of an evaluation run in evals.csv: its cell's and its evaluation seed"""
 
 
 def evals_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
@@ -350,8 +352,7 @@ def evals_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
             row.update(seed=None if mobil else r.get("seed"), eval_seed=r.get("seed") if mobil else
                        summary.get("eval_seed"), **{k: summary.get(k) for k in EVAL_COLUMNS})  # fmt: skip
             rows.append(row)
-    return pd.DataFrame(rows, columns=["key", "lanes", "t_up_s", "load", "policy", "alpha", "p", "seed", "eval_seed",
-                                       *EVAL_COLUMNS])  # fmt: skip
+    return pd.DataFrame(rows, columns=[*EVAL_KEYS, *EVAL_COLUMNS])
 
 
 def withhold_incomplete(table: pd.DataFrame, star: str) -> pd.DataFrame:

@@ -275,6 +275,22 @@ def lane_train_config(lanes: int, seed: int, profile: Profile, alpha: float | No
     return TrainConfig(sim=sim, dqn=lane_learner(lanes, profile, alpha), eval_steps=0)
 
 
+def learner_of(profile: Profile) -> dict[str, Any]:
+    """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json); with lane networks,
+    the network's of every lane count (a check's per-alpha models: the same, not conditioned)."""
+    if profile.lane_networks:
+        alpha = 0.0 if profile.alpha_models else None  # per-alpha models: alpha 0's learner (each its own alpha)
+        return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile, alpha)))) for n in profile.lanes}
+    dqn = at_condition(DQN_PRESETS[profile.preset])
+    return json.loads(json.dumps(to_dict(replace(dqn, alpha_conditioned=True) if profile.conditioned else dqn)))
+
+
+def condition_rows(profile: Profile) -> list[dict[str, Any]]:
+    """sweep.json's conditions: every condition the profile evaluates, with its load and inflow."""
+    return [{"lanes": n, "t_up_s": t, "load": load, "inflow_veh_h": round(3600 / t, 1)}
+            for n, t, load in profile.conditions()]  # fmt: skip
+
+
 def classical_config(lanes: int, t_up_s: float, policy: str, seed: int, profile: Profile) -> SimConfig:
     """One run of a policy that needs no training on evaluation seed `seed`, as a DQN model's evaluation there."""
     return SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up_s), steps=profile.eval_steps,

@@ -5,16 +5,25 @@ the per-alpha profiles, scenario2_gate_report for the lane-network ones) so that
 from __future__ import annotations
 
 import json
+import math
+from collections.abc import Sequence
+from dataclasses import MISSING, asdict
+from dataclasses import fields as dataclass_fields
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, get_type_hints
 
 import pandas as pd
+from pandas.api.types import is_numeric_dtype
 
-from coopsumo.errors import UsageError
+from coopsumo.errors import ConfigError, UsageError
 from coopsumo.files import write_json
-from coopsumo.studies.engine.run_folders import study_root
+from coopsumo.studies.engine.catalogue import Entry
+from coopsumo.studies.engine.records import implausible, pooled_problem
+from coopsumo.studies.engine.run_folders import profile_study, study_root
+from coopsumo.studies.engine.trainings import first_difference
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
-from coopsumo.studies.scenario2.plan import Profile
+from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS
+from coopsumo.studies.scenario2.plan import Profile, cell_specs, condition_rows, learner_of
 from coopsumo.studies.scenario2.report import write_outputs
 from coopsumo.validation import split_list
 
@@ -41,10 +50,11 @@ MERGED_SUMS = ("cells_run", "wall_seconds", "cell_wall_seconds_sum", "cell_cpu_s
 
 
 class Part(NamedTuple):
-    """A finished sweep to merge: its folder and its sweep.json, runs.csv and evals.csv."""
+    """A finished sweep to merge: its folder, its sweep.json and profile, runs.csv and evals.csv."""
 
     folder: Path
     meta: dict[str, Any]
+    profile: Profile
     runs: pd.DataFrame
     evals: pd.DataFrame
 
@@ -53,37 +63,35 @@ SPLIT_BY = ("lanes", "alphas", "check_alphas")
 """profile fields in which the parts of one sweep may differ: a part is some lane counts at some alphas"""
 TIMING = ("wall_seconds", "train_wall_seconds", "cell_wall_s", "cell_cpu_s", "steps_per_second", "sumo_step_share")
 """runs.csv and evals.csv columns that say how fast a run went, not what it gave"""
+COUNTS = ("cells", "cells_ok", "cells_failed", "cells_run", "trainings", "workers", "bootstrap_replicates")
+"""sweep.json values a merge reads that count something: whole numbers >= 0"""
+SECONDS = ("wall_seconds", "cell_wall_seconds_sum", "cell_cpu_seconds_sum")
+"""sweep.json times (s) a merge adds up: finite numbers >= 0"""
+RUN_COLUMNS = (*KEY_COLUMNS, "policy", "p", "status", *METRIC_COLUMNS, *EVAL_COLUMNS)
+"""runs.csv columns a part must hold (runs_table writes them all; its criterion, if another, too)"""
+POOLED = tuple(c for c in EVAL_COLUMNS if c != "lane_changes_per_vehicle")
+"""runs.csv values re-derived from the cell's rows of evals.csv (records.pool_summaries); lane changes per vehicle
+pools as a ratio of counts evals.csv does not keep (records.implausible checks it against runs.csv's counts)"""
 
 
 def read_parts(folders: list[Path]) -> list[Part]:
-    """The finished sweeps to merge (merge_parts), checked: UsageError when a part is missing a file, is not a
-    finished lane-network sweep, has tables that disagree with its sweep.json (another number of cells, another lane
-    count), differs from the first in anything but its lanes and alphas, or when together the parts do not make one
-    grid (every lane count at every alpha, once) or two parts of one lane count differ in their classical runs
-    or their learner."""
-    parts = []
-    for folder in folders:
-        try:
-            meta = json.loads((folder / "sweep.json").read_text())
-            runs, evals = pd.read_csv(folder / "runs.csv"), pd.read_csv(folder / "evals.csv")
-        except (OSError, ValueError) as err:
-            raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err.__class__.__name__}: "
-                             f"{getattr(err, 'strerror', None) or err})") from None  # fmt: skip
-        if "wall_seconds" not in meta or not meta.get("profile", {}).get("lane_networks"):
-            raise UsageError(f"--merge: {folder} is not a finished sweep of a lane-network profile (full, check, "
-                             "paper)")  # fmt: skip
-        lanes = set(meta["profile"]["lanes"])
-        if len(runs) != meta.get("cells") or not {*runs.get("lanes", []), *evals.get("lanes", [])} <= lanes:
-            raise UsageError(f"--merge: {folder}'s runs.csv and evals.csv do not agree with its sweep.json "
-                             f"({len(runs)} rows for {meta.get('cells')} cells of lanes {sorted(lanes)})")  # fmt: skip
-        parts.append(Part(folder, meta, runs, evals))
-    first = {k: v for k, v in parts[0].meta["profile"].items() if k not in SPLIT_BY}
+    """The finished sweeps to merge (merge_parts), checked, each refusal one UsageError line naming the part: a part
+    missing a file or not a finished lane-network sweep; its sweep.json not as a sweep writes it (_meta_problem); its
+    tables not its profile's cells and evaluations (_table_problem); a part run with another profile than the first
+    in anything but its lanes and alphas; parts that together do not make one grid (every lane count at every
+    alpha, once); two parts of one lane count that differ in their classical runs or their learner; then, each part
+    against itself, a learner other than the one its profile trains and a runs.csv that is not what its evals.csv
+    pools to (_check_pooled)."""
+    parts = [_read_part(folder) for folder in folders]
+    first = _shared(parts[0].profile)
     grid: set[tuple[int, float]] = set()
     for part in parts:
-        if {k: v for k, v in part.meta["profile"].items() if k not in SPLIT_BY} != first:
-            raise UsageError(f"--merge: {part.folder} was run with another profile than {parts[0].folder} (only "
-                             "--lanes and --alphas may differ)")  # fmt: skip
-        cells = {(n, a) for n in part.meta["profile"]["lanes"] for a in part.meta["profile"]["alphas"]}
+        if (other := _shared(part.profile)) != first:
+            field = next(k for k in first if first[k] != other[k])
+            raise UsageError(f"--merge: {part.folder} was run with another profile than {parts[0].folder} ({field} "
+                             f"{json.dumps(other[field])[:60]}, not {json.dumps(first[field])[:60]}; only --lanes and "
+                             "--alphas may differ)")  # fmt: skip
+        cells = {(n, a) for n in part.profile.lanes for a in part.profile.alphas}
         if overlap := grid & cells:
             n, a = min(overlap)
             raise UsageError(f"--merge: {part.folder} repeats lanes {n} at alpha {a:g} of another part")
@@ -92,35 +100,204 @@ def read_parts(folders: list[Path]) -> list[Part]:
     if missing := {(n, a) for n in lanes for a in alphas} - grid:
         n, a = min(missing)
         raise UsageError(f"--merge: no part holds lanes {n} at alpha {a:g}: the parts do not make one grid")
-    _one_of_each([part.runs for part in parts], ["key"], "runs.csv")
-    _one_of_each([part.evals for part in parts], ["key", "eval_seed"], "evals.csv")
-    _learners([part.meta for part in parts])
+    _one_of_each([(part.folder, part.runs) for part in parts], ["key"], "runs.csv")
+    _one_of_each([(part.folder, part.evals) for part in parts], ["key", "eval_seed"], "evals.csv")
+    _learners(parts)
+    for part in parts:
+        if where := first_difference(part.meta["learner"], learner_of(part.profile), "learner"):
+            raise UsageError(f"--merge: {part.folder}'s sweep.json records another learner than its profile "
+                             f"{part.profile.name} trains ({where}): made by another version, or edited")  # fmt: skip
+        _check_pooled(part)
     return parts
 
 
-def _one_of_each(tables: list[pd.DataFrame], ids: list[str], what: str) -> pd.DataFrame:
-    """The parts' tables together, the runs of `keep`, `greedy` and MOBIL that two parts of one lane count both ran
-    (the same `ids`) kept once; UsageError when those differ in anything but their timing (not the same code or
-    seeds), or when a model's run is in two parts."""
-    table = pd.concat(tables, ignore_index=True)
+def _shared(profile: Profile) -> dict[str, Any]:
+    """A part's profile but the fields in which parts differ (SPLIT_BY), its defaults filled in."""
+    return {k: v for k, v in asdict(profile).items() if k not in SPLIT_BY}
+
+
+def _read_part(folder: Path) -> Part:
+    """One part read and checked against itself before anything is written (_part_profile, _meta_problem,
+    _table_problem)."""
+    try:
+        meta = json.loads((folder / "sweep.json").read_text())
+        runs, evals = pd.read_csv(folder / "runs.csv"), pd.read_csv(folder / "evals.csv")
+    except (OSError, ValueError) as err:
+        raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err.__class__.__name__}: "
+                         f"{getattr(err, 'strerror', None) or err})") from None  # fmt: skip
+    profile = _part_profile(folder, meta)
+    try:
+        specs = cell_specs(profile)
+    except (ValueError, ArithmeticError, LookupError) as err:  # ConfigError, a load of 0, an unknown preset
+        raise UsageError(f"--merge: {folder}'s sweep.json holds a profile no sweep runs ({type(err).__name__}: "
+                         f"{err})") from None  # fmt: skip
+    if problem := _meta_problem(meta, profile, len(specs)) or _table_problem(meta, profile, specs, runs, evals):
+        raise UsageError(f"--merge: {folder}'s {problem}")
+    return Part(folder, meta, profile, runs, evals)
+
+
+def _part_profile(folder: Path, meta: Any) -> Profile:
+    """The profile a part's sweep.json records, each field of Profile's type (catalogue.Entry: an integer where a
+    float belongs is taken as that float); UsageError unless it is an object of a lane-network profile."""
+    fields = meta.get("profile") if isinstance(meta, dict) else None
+    if not isinstance(fields, dict):
+        what = f"its profile is {json.dumps(fields)[:40]}" if isinstance(meta, dict) else "it is not a JSON object"
+        raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep (sweep.json: {what})")
+    if "wall_seconds" not in meta or not fields.get("lane_networks"):
+        raise UsageError(f"--merge: {folder} is not a finished sweep of a lane-network profile (full, check, "
+                         "paper)")  # fmt: skip
+    hints = get_type_hints(Profile)
+    at = Entry(folder / "sweep.json", "profile")
+    required = [f.name for f in dataclass_fields(Profile) if f.default is MISSING]
+    try:
+        at.table(fields, "the profile", tuple(hints))
+        if missing := [k for k in required if k not in fields]:
+            raise at.error(f"has no {missing[0]}")
+        return Profile(**{k: at.value(k, v, hints[k]) for k, v in fields.items()})
+    except ConfigError as err:
+        raise UsageError(f"--merge: {err}") from None
+
+
+def _meta_problem(meta: dict[str, Any], profile: Profile, cells: int) -> str | None:
+    """Why a part's sweep.json is not what a finished sweep of `profile` (`cells` cells) writes, as a phrase after
+    "<part>'s", or None: its counts and times of the wrong type or range, its failed cells not a list of keys, no
+    learner of every lane count, conditions other than the profile's, another number of cells or trainings."""
+    for name in COUNTS:
+        value = meta.get(name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+            return f"sweep.json has {name} = {json.dumps(value)[:40]}, not a whole number >= 0"
+    for name in SECONDS:
+        value = meta.get(name)
+        if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value < math.inf:
+            return f"sweep.json has {name} = {json.dumps(value)[:40]}, not a finite number of seconds >= 0"
+    failed = meta.get("failed_cells")
+    if not isinstance(failed, list) or not all(isinstance(k, str) for k in failed):
+        return f"sweep.json has failed_cells = {json.dumps(failed)[:40]}, not a list of cell keys"
+    if not isinstance(meta.get("backend"), str) or not isinstance(meta.get("versions"), dict):
+        return "sweep.json has no backend or versions (not as a sweep writes it)"
+    learner = meta.get("learner")
+    if not isinstance(learner, dict) or set(learner) != {f"{n}_lanes" for n in profile.lanes}:
+        return (f"sweep.json has learner = {json.dumps(learner)[:40]}, not the learner of each of its lanes "
+                f"{list(profile.lanes)}")  # fmt: skip
+    if meta.get("conditions") != condition_rows(profile):
+        return (f"sweep.json has conditions = {json.dumps(meta.get('conditions'))[:40]}, not those of its profile "
+                f"({len(condition_rows(profile))} conditions of lanes {list(profile.lanes)})")  # fmt: skip
+    for name, planned in (("cells", cells), ("trainings", profile.n_trainings())):
+        if meta[name] != planned:
+            return f"sweep.json has {name} = {meta[name]}, but its profile makes {planned}"
+    return None
+
+
+def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str, Any]], runs: pd.DataFrame,
+                   evals: pd.DataFrame) -> str | None:  # fmt: skip
+    """Why a part's runs.csv and evals.csv are not the tables of its profile's cells `specs`, as a phrase after
+    "<part>'s", or None: a column missing; not one runs.csv row per cell, with the cell's coordinates; statuses other
+    than sweep.json's failed cells; not one evals.csv row per evaluation of each successful cell (a DQN model's
+    every evaluation seed, a classical run's one), with its cell's coordinates, and none of a failed cell."""
+    for name, table, columns in (("runs.csv", runs, (*RUN_COLUMNS, profile.criterion)), ("evals.csv", evals,
+                                 (*EVAL_KEYS, *EVAL_COLUMNS))):  # fmt: skip
+        if missing := [c for c in dict.fromkeys(columns) if c not in table.columns]:
+            more = f" and {len(missing) - 1} more" if len(missing) > 1 else ""
+            return f"{name} has no {missing[0]} column{more}: not as a sweep writes it"
+        numbers = [table[c] for c in columns if c not in ("key", "policy", "status")]
+        if text := [c for c in numbers if len(c) and not is_numeric_dtype(c)]:  # (an empty table reads as text)
+            column = text[0]
+            bad = column[pd.to_numeric(column, errors="coerce").isna() & column.notna()]
+            return f"{name} has {column.name} = {bad.iloc[0] if len(bad) else column.iloc[0]!r}, not a number: edited?"
+    planned = {s["key"]: s for s in specs}
+    if len(runs) != len(specs) or set(runs["key"]) != set(planned):
+        extra = sorted(set(map(str, runs["key"])) - set(planned)) or sorted(runs.loc[runs["key"].duplicated(), "key"])
+        which = (f"{extra[0]}, not one of its cells" if extra
+                 else f"no row of cell {min(set(planned) - set(runs['key']))}")  # fmt: skip
+        return f"runs.csv holds {len(runs)} rows for the {len(specs)} cells of its profile ({which})"
+    rows = {r["key"]: r for r in runs.to_dict("records")}
+    for key, spec in planned.items():
+        if (field := _differs(rows[key], spec, (*KEY_COLUMNS[1:], "policy", "p"))) is not None:
+            return f"runs.csv row {key} has {field} = {rows[key][field]}, not its cell's {spec[field]}"
+    failed = sorted(k for k, r in rows.items() if r["status"] != "ok")
+    if failed != sorted(meta["failed_cells"]) or meta["cells_failed"] != len(failed):
+        return (f"runs.csv has {len(failed)} cells not ok ({', '.join(failed[:2]) or 'none'}), but sweep.json "
+                f"{meta['cells_failed']} failed ({', '.join(meta['failed_cells'][:2]) or 'none'})")  # fmt: skip
+    seeds = evals.groupby("key")["eval_seed"].apply(sorted).to_dict()
+    for key, spec in planned.items():
+        want = sorted(ev["seed"] for ev in spec["config"]["evals"]) if "evals" in spec["config"] else [spec["seed"]]
+        have = seeds.get(key, []) if rows[key]["status"] == "ok" else []
+        if seeds.get(key, []) != have or have != want:
+            state = "ok" if rows[key]["status"] == "ok" else "not ok"
+            return (f"evals.csv holds evaluation seeds {have or seeds.get(key) or 'none'} of cell {key} ({state}), "
+                    f"not {want if state == 'ok' else 'none'}: cut short or edited?")  # fmt: skip
+    if unknown := sorted(set(map(str, evals["key"])) - set(planned)):
+        return f"evals.csv holds evaluations of {unknown[0]}, not one of its cells"
+    for e in evals.to_dict("records"):
+        if (field := _differs(e, rows[e["key"]], ("lanes", "t_up_s", "load", "policy", "alpha", "p"))) is not None:
+            return f"evals.csv has {field} = {e[field]} in an evaluation of {e['key']}, not its runs.csv row's"
+    return None
+
+
+def _differs(row: dict[str, Any], cell: dict[str, Any], names: Sequence[str]) -> str | None:
+    """The first of `names` whose value in the table row is not the cell's (None and NaN alike), or None."""
+    for name in names:
+        a, b = row.get(name), cell.get(name)
+        if _blank(a) and _blank(b):
+            continue
+        if _blank(a) or _blank(b) or (a != b and not (isinstance(a, int | float) and isinstance(b, int | float)
+                                                      and float(a) == float(b))):  # fmt: skip
+            return name
+    return None
+
+
+def _blank(value: Any) -> bool:
+    return value is None or (isinstance(value, float) and math.isnan(value))
+
+
+def _check_pooled(part: Part) -> None:
+    """UsageError unless every successful cell's runs.csv values are what its rows of evals.csv pool to
+    (records.pooled_problem, on POOLED) and both are values a run can give (records.implausible): neither table can
+    be edited alone."""
+    evals = {key: group.to_dict("records") for key, group in part.evals.groupby("key")}
+    for row in part.runs.to_dict("records"):
+        if row["status"] != "ok":
+            continue
+        runs = [{k: e[k] for k in (*POOLED, "lane_changes_per_vehicle")} for e in evals[row["key"]]]
+        record = {"summary": {k: row[k] for k in POOLED}, "eval_summaries": runs}
+        if problem := implausible(row) or pooled_problem(record):
+            raise UsageError(f"--merge: {part.folder}'s runs.csv row {row['key']} {problem}")
+
+
+def _one_of_each(tables: list[tuple[Path, pd.DataFrame]], ids: list[str], what: str) -> pd.DataFrame:
+    """The parts' tables (each with its part's folder) together, the runs of `keep`, `greedy` and MOBIL that two parts
+    of one lane count both ran (the same `ids`) kept once; UsageError naming both parts when those differ in anything
+    but their timing (not the same code or seeds), or when a model's run is in two parts."""
+    table = pd.concat([t for _, t in tables], ignore_index=True)
+    owners = [folder for folder, t in tables for _ in range(len(t))]
+
+    def both(key: str) -> str:
+        held = dict.fromkeys(owners[i] for i in table.index[table["key"] == key])
+        return " and ".join(map(str, held))
+
     twice = table[table.duplicated(ids, keep=False)]
     if (twice["policy"] == "dqn").any():
-        raise UsageError(f"--merge: a model's run appears in two parts' {what}")
+        key = twice.loc[twice["policy"] == "dqn", "key"].iloc[0]
+        raise UsageError(f"--merge: a model's run ({key}) appears in two parts' {what}: {both(key)}")
     differ = twice.drop(columns=[c for c in TIMING if c in twice]).drop_duplicates()
     if differ.duplicated(ids).any():
         key = differ.loc[differ.duplicated(ids), "key"].iloc[0]
-        raise UsageError(f"--merge: two parts ran {key} with different results ({what}): not the same code?")
+        raise UsageError(f"--merge: two parts, {both(key)}, ran {key} with different results ({what}): not the same "
+                         "code?")  # fmt: skip
     return table.drop_duplicates(ids, keep="first").reset_index(drop=True)
 
 
-def _learners(metas: list[dict[str, Any]]) -> dict[str, Any]:
-    """The learner of every lane count the parts trained (sweep.json's "learner", per lane count); UsageError when
-    two parts of one lane count trained with different learners."""
+def _learners(parts: list[Part]) -> dict[str, Any]:
+    """The learner of every lane count the parts trained (sweep.json's "learner", per lane count); UsageError naming
+    both parts when two parts of one lane count trained with different learners."""
     learners: dict[str, Any] = {}
-    for meta in metas:
-        for lanes, learner in meta["learner"].items():
+    first: dict[str, Path] = {}
+    for part in parts:
+        for lanes, learner in part.meta["learner"].items():
             if learners.setdefault(lanes, learner) != learner:
-                raise UsageError(f"--merge: two parts trained {lanes.replace('_', ' ')} with different learners")
+                raise UsageError(f"--merge: two parts, {first[lanes]} and {part.folder}, trained "
+                                 f"{lanes.replace('_', ' ')} with different learners")  # fmt: skip
+            first.setdefault(lanes, part.folder)
     return dict(sorted(learners.items(), key=lambda item: int(item[0].split("_")[0])))
 
 
@@ -132,10 +309,10 @@ def merge_parts(parts: list[Part], out: Path) -> dict[str, Any]:
     folder, lanes, alphas, time and versions, and the tables, figures and report are drawn as rewrite_outputs draws
     them."""
     metas = [part.meta for part in parts]
-    runs = _one_of_each([part.runs for part in parts], ["key"], "runs.csv")
-    evals = _one_of_each([part.evals for part in parts], ["key", "eval_seed"], "evals.csv")
+    runs = _one_of_each([(part.folder, part.runs) for part in parts], ["key"], "runs.csv")
+    evals = _one_of_each([(part.folder, part.evals) for part in parts], ["key", "eval_seed"], "evals.csv")
     union = {k: sorted({x for m in metas for x in m["profile"][k]}) for k in SPLIT_BY}
-    merged = {**metas[0], "profile": {**metas[0]["profile"], **union}, "learner": _learners(metas)}
+    merged = {**metas[0], "profile": {**metas[0]["profile"], **union}, "learner": _learners(parts)}
     conditions = {json.dumps(c, sort_keys=True): c for m in metas for c in m["conditions"]}
     merged["conditions"] = sorted(conditions.values(), key=lambda c: (c["lanes"], -c["t_up_s"]))
     for name in MERGED_SUMS:
@@ -156,22 +333,56 @@ def merge_parts(parts: list[Part], out: Path) -> dict[str, Any]:
     return rewrite_outputs(out)
 
 
-MERGE_ALONE = ("steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", "t_up", "policies", "mobil_p",
-               "preset")  # fmt: skip
-"""options that choose what a sweep runs, which --merge (nothing run) refuses"""
+MERGE_ALONE = ("profile", "conditioned", "steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", "t_up",
+               "policies", "mobil_p", "preset", "bootstrap", "workers", "backend", "address")  # fmt: skip
+"""options that choose what a sweep runs or how (the parts' profile and bootstrap replicates are the merge's), which
+--merge (nothing run) refuses"""
 
 
-def merge_command(args: Any) -> int:
-    """--merge: the parts' sweep folders merged into --out (merge_parts)."""
-    if given := [f"--{name.replace('_', '-')}" for name in MERGE_ALONE if getattr(args, name) is not None]:
-        raise UsageError(f"--merge runs nothing: {', '.join(given)} cannot go with it")
+def sweep_study(profile: Profile) -> str:
+    """Which study a sweep of `profile` writes, as its folder's marker names it (run_dirs.check_study_root)."""
+    return profile_study(profile.name, "conditioned sweep" if profile.conditioned else "sweep")
+
+
+def merged_study(profile: str, parts: Sequence[Path]) -> str:
+    """Which study a merge of `parts` (sweeps of `profile`) writes: named by its parts' folders, their links resolved,
+    in the order of their paths (a merge of other parts, or of some of them, is another study)."""
+    return profile_study(profile, "sweep merged from " + ", ".join(sorted(str(p.resolve()) for p in parts)))
+
+
+def recorded_sweep(root: Path) -> str | None:
+    """Which study the sweep folder `root` holds by its sweep.json (a folder merged or run before its marker named
+    the study: results/scenario2), or None when it cannot be read: a merge's part folders as it recorded them, a
+    relative one from the working folder (the merge was run from it)."""
+    try:
+        meta = json.loads((root / "sweep.json").read_text())
+        name, conditioned, parts = meta["profile"]["name"], meta["profile"].get("conditioned"), meta.get("parts")
+        if parts is not None:
+            return merged_study(name, [Path(part["folder"]) for part in parts]) if isinstance(name, str) else None
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    return profile_study(name, "conditioned sweep" if conditioned else "sweep") if isinstance(name, str) else None
+
+
+def merge_command(args: Any, given: set[str]) -> int:
+    """--merge: the parts' sweep folders merged into --out (merge_parts); `given`: the options set on the command
+    line. Everything is checked before anything is written: the options, the parts (read_parts), and --out (not in a
+    part; a folder that holds no other study than this merge of these parts: run_dirs.check_study_root)."""
+    if refused := [f"--{name.replace('_', '-')}" for name in MERGE_ALONE if name in given]:
+        raise UsageError(f"--merge runs nothing: {', '.join(refused)} cannot go with it")
     if args.out is None:
         raise UsageError("--merge needs --out, the merged sweep's folder")
     parts = [Path(x) for x in split_list("--merge", args.merge)]
-    if any(p.resolve() == args.out.resolve() for p in parts):
-        raise UsageError(f"--merge: --out {args.out} is one of the parts")
+    for part in parts:
+        if part.resolve() == args.out.resolve():
+            raise UsageError(f"--merge: --out {args.out} is one of the parts")
+        if args.out.resolve().is_relative_to(part.resolve()):
+            raise UsageError(f"--merge: --out {args.out} lies in the part {part}: the merged sweep writes into its own "
+                             "folder")  # fmt: skip
     read = read_parts(parts)  # checked before anything is written
-    with study_root(args.out, "scenario2"):
+    study = merged_study(read[0].profile.name, parts)
+    with study_root(args.out, "scenario2", study, recorded_sweep, "a merge of the same parts redraws its own folder; "
+                    "pick another --out"):  # fmt: skip
         meta = merge_parts(read, args.out)
     print("\n".join(console_lines(args.out)))
     print(f"scenario2: merged {len(parts)} parts ({meta['cells']} cells, lanes "

@@ -37,6 +37,7 @@ scenario2_report; this module runs the plan's cells on the shared runner and is 
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -55,7 +56,7 @@ from coopsumo.files import write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.cells import run_todo
-from coopsumo.studies.engine.model_store import link_problem, store_for, train_shared
+from coopsumo.studies.engine.model_store import check_link, link_problem, store_for, train_shared
 from coopsumo.studies.engine.records import (
     CellRecords,
     failed_exit,
@@ -77,13 +78,13 @@ from coopsumo.studies.scenario2.plan import (
     PROFILE_HELP,
     PROFILES,
     Profile,
-    at_condition,
     cell_specs,
+    condition_rows,
     eval_seeds,
-    lane_learner,
     lane_train_config,
+    learner_of,
 )
-from coopsumo.studies.scenario2.redraw import merge_command
+from coopsumo.studies.scenario2.redraw import merge_command, recorded_sweep, sweep_study
 from coopsumo.studies.scenario2.report import condition_label, write_outputs
 from coopsumo.validation import (
     MAX_T_UP_S,
@@ -247,10 +248,7 @@ def _sweep_meta(profile: Profile, cells: int, backend_name: str, address: str | 
     return {
         "profile": asdict(profile),
         "learner": learner_of(profile),
-        "conditions": [
-            {"lanes": n, "t_up_s": t, "load": load, "inflow_veh_h": round(3600 / t, 1)}
-            for n, t, load in profile.conditions()
-        ],  # fmt: skip
+        "conditions": condition_rows(profile),
         "cells": cells,
         "trainings": profile.n_trainings(),
         "criterion": profile.criterion,
@@ -268,12 +266,15 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     """Run (or finish) the sweep in `root` and write every output; returns the sweep.json content."""
     start = time.perf_counter()
     root = root.resolve()
+    specs = cell_specs(profile)
+    for spec in specs:  # a real folder or file where a model's link belongs is the user's: refused before any cell
+        if spec.get("policy") not in CLASSICAL:
+            check_link(root / "train" / spec.get("train_key", spec["key"]))
     try:
         (root / "cells").mkdir(parents=True, exist_ok=True)
         (root / "train").mkdir(exist_ok=True)
     except OSError as err:
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
-    specs = cell_specs(profile)
     done_keys = reusable_keys(root, specs, "scenario2", REQUIRED_SUMMARY)
     done_keys -= repointed(root, [s for s in specs if s["key"] in done_keys])
     done = [s for s in specs if s["key"] in done_keys]
@@ -305,16 +306,6 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
         write_outputs(root, runs, profile, meta, n_boot)
     write_json(root / "sweep.json", meta)
     return meta
-
-
-def learner_of(profile: Profile) -> dict[str, Any]:
-    """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json); with lane networks,
-    the network's of every lane count (a check's per-alpha models: the same, not conditioned)."""
-    if profile.lane_networks:
-        alpha = 0.0 if profile.alpha_models else None  # per-alpha models: alpha 0's learner (each its own alpha)
-        return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile, alpha)))) for n in profile.lanes}
-    dqn = at_condition(DQN_PRESETS[profile.preset])
-    return json.loads(json.dumps(to_dict(replace(dqn, alpha_conditioned=True) if profile.conditioned else dqn)))
 
 
 def profile_from_args(args: Any) -> Profile:
@@ -430,12 +421,21 @@ def build_parser() -> Parser:
     return p
 
 
+def given_options(parser: Parser, argv: list[str] | None) -> set[str]:
+    """The options set on the command line `argv` (None: sys.argv's), whatever their values: parsed again into a
+    namespace holding a mark under every name, which only the options given replace."""
+    unset = object()
+    names = {action.dest for action in parser._actions if action.dest != "help"}
+    parsed = parser.parse_args(argv, namespace=argparse.Namespace(**dict.fromkeys(names, unset)))
+    return {name for name in names if getattr(parsed, name) is not unset}
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
         if args.merge is not None:
-            return merge_command(args)
+            return merge_command(args, given_options(build_parser(), argv))
         profile = profile_from_args(args)
         if args.workers < 1:
             raise UsageError(f"workers must be >= 1, got {args.workers}")
@@ -445,10 +445,13 @@ def main(argv: list[str] | None = None) -> int:
         if profile.lane_networks:  # a lane network's settings (e.g. at most 10 demands) checked before any folder
             for lanes in profile.lanes:
                 lane_train_config(lanes, profile.seeds[0], profile).validate()
+        default = default_out("scenario2_conditioned" if profile.conditioned else "scenario2", profile.name,
+                              DEFAULT_PROFILE)  # fmt: skip
         if args.out is None:
-            name = "scenario2_conditioned" if profile.conditioned else "scenario2"
-            args.out = default_model_out(default_out(name, profile.name, DEFAULT_PROFILE))
-        with study_root(args.out, "scenario2"):  # path, lock, ownership and marker of the results folder
+            args.out = default_model_out(default)
+        # path, lock, ownership (another profile's sweep or a merge refused; its own resumed) and marker of the folder
+        with study_root(args.out, "scenario2", sweep_study(profile), recorded_sweep,
+                        f"pick another --out (the {profile.name} profile's default: {default})"):
             meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet,
                              args.bootstrap)  # fmt: skip
         if "dqn" in profile.policies:

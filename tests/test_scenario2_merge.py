@@ -1,0 +1,221 @@
+"""Issue 82, items 2 and 3: `scenario2 --merge` re-derives what it can of each part and checks what it cannot, and
+writes only into a folder that holds nothing else than this merge of these parts. Every case is run on copies of the
+committed parts (results/scenario2_parts) in tmp_path, one edit each, and ends in one line naming the part and the
+problem, exit code 2, nothing written; the merge of the four committed parts still redraws results/scenario2."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pytest
+from conftest import REPO, text_difference
+
+from coopsumo.studies.scenario2 import study as s2
+
+PARTS = REPO / "results" / "scenario2_parts"
+RECORDS = ("sweep.json", "runs.csv", "evals.csv")
+"""what a part is to a merge: its tables and sweep.json (its report and figures are drawn from them)"""
+
+
+def snapshot(folder: Path) -> dict[str, str]:
+    return {p.relative_to(folder).as_posix(): "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*"))}  # fmt: skip
+
+
+def copy_part(name: str, to: Path) -> Path:
+    """A copy of the committed part `name` (its records) in `to`."""
+    folder = to / name
+    folder.mkdir(parents=True)
+    for record in RECORDS:
+        shutil.copy(PARTS / name / record, folder / record)
+    return folder
+
+
+def merge(capsys: pytest.CaptureFixture[str], parts: list[Path], out: Path, *extra: str) -> tuple[int, list[str]]:
+    capsys.readouterr()
+    code = s2.main(["--merge", ",".join(map(str, parts)), "--out", str(out), *extra])
+    return code, capsys.readouterr().err.strip().splitlines()
+
+
+def edit_json(folder: Path, change: Callable[[dict[str, Any]], Any]) -> None:
+    meta = json.loads((folder / "sweep.json").read_text())
+    change(meta)
+    (folder / "sweep.json").write_text(json.dumps(meta, indent=2))
+
+
+def edit_table(folder: Path, name: str, change: Callable[[pd.DataFrame], pd.DataFrame]) -> None:
+    change(pd.read_csv(folder / name)).to_csv(folder / name, index=False)
+
+
+def models_at_32(table: pd.DataFrame) -> pd.Series:
+    return (table["policy"] == "dqn") & (table["alpha"] == 32)
+
+
+def speed(table: pd.DataFrame, mps: float) -> pd.DataFrame:
+    """The alpha-32 models' mean speed set to `mps` (the probe's mg16 and mg50: alpha* became 32 everywhere)."""
+    return table.assign(mean_speed_mps=table["mean_speed_mps"].mask(models_at_32(table), mps))
+
+
+def another_learner(folder: Path) -> None:
+    """The probe's mg21: a part recorded with another learner (lr 0.01, preset alpha_only)."""
+    edit_json(folder, lambda m: m["learner"]["4_lanes"].update(lr=0.01, preset="alpha_only"))
+
+
+def learner_lr(folder: Path) -> None:
+    edit_json(folder, lambda m: m["learner"]["4_lanes"].update(lr=0.01))
+
+
+EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
+    "runs.csv edited to 40 m/s, evals.csv untouched": (
+        lambda f: edit_table(f, "runs.csv", lambda t: speed(t, 40.0)), "but its 3 evaluations pool to"),
+    "evals.csv edited to 45 m/s, runs.csv untouched": (
+        lambda f: edit_table(f, "evals.csv", lambda t: speed(t, 45.0)), "but its 3 evaluations pool to"),
+    "evals.csv speeds of 999 m/s": (
+        lambda f: edit_table(f, "evals.csv", lambda t: speed(t, 999.0)), "outside 0 to 50"),
+    "runs.csv with a speed that is not a number": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.astype({"mean_speed_mps": object}).assign(
+            mean_speed_mps=["x", *t["mean_speed_mps"][1:]])), "runs.csv has mean_speed_mps = 'x', not a number"),
+    "sweep.json with the preset of no learner": (
+        lambda f: edit_json(f, lambda m: m["profile"].update(preset="bogus")), "holds a profile no sweep runs"),
+    "runs.csv without its policy column": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.drop(columns="policy")), "runs.csv has no policy column"),
+    "runs.csv without its key column": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.drop(columns="key")), "runs.csv has no key column"),
+    "evals.csv cut to its header": (
+        lambda f: edit_table(f, "evals.csv", lambda t: t.iloc[:0]), "evals.csv holds evaluation seeds none of cell"),
+    "a cell's row gone": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.iloc[1:]), "151 rows for the 152 cells of its profile"),
+    "a cell's evaluation gone": (
+        lambda f: edit_table(f, "evals.csv", lambda t: t.iloc[1:]),
+        "evaluation seeds [2002, 2003] of cell L4_T2_a1_s1 (ok), not [2001, 2002, 2003]"),
+    "a cell marked failed that sweep.json counts ok": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(status=["failed", *t["status"][1:]])),
+        "runs.csv has 1 cells not ok"),
+    "a row moved to another demand": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(t_up_s=[4.0, *t["t_up_s"][1:]])),
+        "has t_up_s = 4.0, not its cell's 2.0"),
+    "sweep.json without conditions": (
+        lambda f: edit_json(f, lambda m: m.pop("conditions")), "sweep.json has conditions = null"),
+    "sweep.json with wall_seconds 'x'": (
+        lambda f: edit_json(f, lambda m: m.update(wall_seconds="x")), 'sweep.json has wall_seconds = "x"'),
+    "sweep.json with cells '152', a string": (
+        lambda f: edit_json(f, lambda m: m.update(cells="152")), 'sweep.json has cells = "152"'),
+    "sweep.json with the profile a list": (
+        lambda f: edit_json(f, lambda m: m.update(profile=[m["profile"]])), "not a finished scenario2 sweep"),
+    "sweep.json without learner": (
+        lambda f: edit_json(f, lambda m: m.pop("learner")), "sweep.json has learner = null"),
+    "sweep.json with lanes 'x'": (
+        lambda f: edit_json(f, lambda m: m["profile"].update(lanes="x")), "[profile] lanes must be a list"),
+    "sweep.json with an unknown profile field": (
+        lambda f: edit_json(f, lambda m: m["profile"].update(lane=4)), "unknown field 'lane'"),
+    "a part of another response plan": (
+        lambda f: edit_json(f, lambda m: m["profile"].update(response_plan="b2bb97b")),
+        'was run with another profile than'),
+    "a part of another learner than its profile trains (both parts)": (
+        another_learner, "records another learner than its profile full trains (learner.4_lanes.lr: 0.01 != 0.001)"),
+    "two parts of one lane count with different learners": (learner_lr, "trained 4 lanes with different learners"),
+    "a classical run with another result than the other part's": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(mean_speed_mps=t["mean_speed_mps"].mask(
+            t["key"] == "L4_T2_keep_s2001", 1.0))), "ran L4_T2_keep_s2001 with different results (runs.csv)"),
+}  # fmt: skip
+"""each case: how the part L4b is edited, and what the refusal says"""
+
+
+@pytest.mark.parametrize("case", sorted(EDITS))
+def test_a_part_that_disagrees_is_refused_in_one_line_before_anything_is_written(
+    case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    parts = [copy_part("L4a", tmp_path), copy_part("L4b", tmp_path)]
+    edit, words = EDITS[case]
+    edit(parts[1])
+    if case.endswith("(both parts)"):
+        edit(parts[0])
+    before = snapshot(tmp_path)
+    code, err = merge(capsys, parts, tmp_path / "merged")
+    assert code == 2 and len(err) == 1 and "Traceback" not in err[0], err
+    assert words in err[0] and str(tmp_path) in err[0], err[0]
+    assert snapshot(tmp_path) == before and not (tmp_path / "merged").exists()
+
+
+def test_the_response_plan_names_the_field(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    parts = [copy_part("L4a", tmp_path), copy_part("L4b", tmp_path)]
+    edit_json(parts[1], lambda m: m["profile"].update(response_plan="b2bb97b"))
+    code, err = merge(capsys, parts, tmp_path / "merged")
+    assert code == 2 and 'response_plan "b2bb97b", not ""' in err[0] and str(parts[1]) in err[0], err
+
+
+@pytest.mark.parametrize("argv", [["--profile", "tiny"], ["--profile", "full"], ["--conditioned"],
+                                  ["--bootstrap", "5"], ["--workers", "1"]])  # fmt: skip
+def test_an_option_the_merge_would_ignore_is_refused(argv: list[str], tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    parts = [copy_part("L4a", tmp_path), copy_part("L4b", tmp_path)]
+    code, err = merge(capsys, parts, tmp_path / "merged", *argv)
+    assert code == 2 and len(err) == 1 and f"{argv[0]} cannot go with it" in err[0], err
+    assert not (tmp_path / "merged").exists()
+
+
+def test_an_out_inside_a_part_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    parts = [copy_part("L4a", tmp_path), copy_part("L4b", tmp_path)]
+    before = snapshot(tmp_path)
+    code, err = merge(capsys, parts, parts[0] / "merged")
+    assert code == 2 and len(err) == 1 and "lies in the part" in err[0], err
+    assert snapshot(tmp_path) == before
+
+
+def test_a_merge_writes_only_into_its_own_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The probe's mg15: a merge over a finished sweep replaced its tables; a merge redraws its own folder (the same
+    parts again), and refuses another merge's and another sweep's."""
+    parts = [copy_part("L4a", tmp_path), copy_part("L4b", tmp_path)]
+    finished = copy_part("L2", tmp_path / "finished")  # a finished sweep of the full profile, not a merge
+    before = snapshot(finished)
+    code, err = merge(capsys, parts, finished)
+    assert code == 2 and len(err) == 1 and "holds the full profile's sweep, not the full profile's sweep merged" \
+        in err[0], err  # fmt: skip
+    assert snapshot(finished) == before
+    out = tmp_path / "merged"
+    assert merge(capsys, parts, out)[0] == 0
+    marker = json.loads((out / ".coopsumo-run.json").read_text())
+    assert marker["kind"] == "scenario2" and str(parts[0]) in marker["study"] and str(parts[1]) in marker["study"]
+    report = (out / "report.md").read_text()
+    assert merge(capsys, parts, out)[0] == 0 and (out / "report.md").read_text() == report  # redrawn as it was
+    assert merge(capsys, parts[::-1], out)[0] == 0  # the same parts in another order: the same study
+    others = [copy_part("L4a", tmp_path / "other"), copy_part("L4b", tmp_path / "other")]
+    before = snapshot(out)
+    code, err = merge(capsys, others, out)
+    assert code == 2 and len(err) == 1 and f"not the full profile's sweep merged from {others[0]}" in err[0], err
+    assert snapshot(out) == before
+    code = s2.main(["--profile", "tiny", "--quiet", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and "not the tiny profile's sweep" in err[0], err
+    assert snapshot(out) == before
+
+
+def test_the_committed_parts_still_redraw_the_committed_merge(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """results/scenario2 was merged before markers named a study: its sweep.json names its parts, so the merge of the
+    same four parts (from the checkout, as results/scenario2_parts/README.md runs it) redraws a copy of it as it is
+    committed, while a merge of some of them, or a sweep of another profile, is refused and changes nothing."""
+    committed = REPO / "results" / "scenario2"
+    copy = tmp_path / "scenario2"
+    shutil.copytree(committed, copy)
+    assert not (copy / ".coopsumo-run.json").exists()
+    monkeypatch.chdir(REPO)
+    names = [f"results/scenario2_parts/{name}" for name in ("L2", "L3", "L4a", "L4b")]
+    before = snapshot(copy)
+    code, err = merge(capsys, [Path(n) for n in names[:2]], copy)
+    assert code == 2 and len(err) == 1 and "holds the full profile's sweep merged from" in err[0], err
+    code = s2.main(["--profile", "tiny", "--quiet", "--out", str(copy)])
+    assert code == 2 and "not the tiny profile's sweep" in capsys.readouterr().err
+    assert snapshot(copy) == before
+    code, err = merge(capsys, [Path(n) for n in names], copy)
+    assert code == 0, err
+    for path in committed.iterdir():
+        if path.suffix in (".md", ".json", ".csv"):
+            where = text_difference(path.read_text(), (copy / path.name).read_text())
+            assert where is None, f"{path.name}: {where}"
