@@ -43,9 +43,9 @@ _LAYOUT_WARNING = "grad and param do not obey the gradient layout contract"
 
 def hold_freed_memory() -> bool:
     """Ask glibc's malloc to keep freed memory for reuse in this process (True if it could): the megabyte-sized
-    temporaries of a stacked update would otherwise go back to the system and fault in afresh at every update (a
-    quarter of a group of 8's CPU). For a process that runs stacked updates only (the update worker): its heap keeps
-    its largest size, tens of MB."""
+    temporaries of a stacked update otherwise go back to the system and fault in afresh at every update (1,200-2,600
+    page faults an update of a group of 8, up to a fifth of its CPU; docs/performance.md). For a process that runs
+    stacked updates (the update worker): its heap then keeps its largest size, tens of MB."""
     try:
         libc = ctypes.CDLL("libc.so.6")
     except OSError:
