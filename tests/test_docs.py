@@ -18,16 +18,19 @@ from conftest import committed_report_pages
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 TEXT = {page: page.read_text() for page in PAGES}
+RUN_HERE = [page for page in PAGES if page.name != "extending.md"]
+"""the pages whose commands and snippets run here (docs/extending.md's run in tests/test_extending.py, in a working
+folder holding its module)"""
 STUDIES = ("scenario1", "scenario2", "learning", "protocol", "history")
 """run in tests/test_scenario1.py, test_scenario2.py, test_ablation.py and test_protocol.py with tiny profiles;
 history (which prints the whole committed table) in tests/test_history.py"""
 
 
-def blocks(lang: str, pages: list[Path] = PAGES) -> list[str]:
+def blocks(lang: str, pages: list[Path] = RUN_HERE) -> list[str]:
     return [b for page in pages for b in re.findall(rf"```{lang}\n(.*?)```", TEXT[page], flags=re.S)]
 
 
-def coopsumo_commands(pages: list[Path] = PAGES) -> list[str]:
+def coopsumo_commands(pages: list[Path] = RUN_HERE) -> list[str]:
     """The `coopsumo ...` commands of the pages' bash blocks, continuation lines joined, comments dropped; not the
     studies, and not --gui (it needs a display: tests/test_sumo_tools.py runs it under Xvfb)."""
     cmds = []

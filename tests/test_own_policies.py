@@ -196,3 +196,33 @@ def test_simulate_drives_a_class_of_ones_own_and_refuses_a_bad_one(
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and fragment in err[0], err
         assert not (folder / "bad").exists() and not list(folder.glob(".bad*"))  # nothing written
+
+
+@pytest.mark.parametrize(("baselines", "fragment"), [
+    (["py:mine:NoAct"], "--baseline py:mine:NoAct: py:mine:NoAct: class NoAct has no act(obs) method"),
+    (["py:nowhere:X"], "no module 'nowhere'"),
+    (["py:mine"], "names no class"),
+    (["sb3:none.zip"], "model file not found: none.zip"),
+    (["keep"], "its name in the tables, keep, is another policy's of the study"),
+    (["py:mine:Right", f"py:{'mine.py'}:Right"], "its name in the tables, py_Right, is another policy's"),
+])  # fmt: skip
+def test_scenario1_refuses_a_bad_baseline_before_it_writes(baselines: list[str], fragment: str, folder: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    from coopsumo.studies.scenario1 import study
+
+    argv = ["--quick", *[a for b in baselines for a in ("--baseline", b)], "--out", "s1"]
+    assert study.main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and fragment in err[0], err
+    assert sorted(p.name for p in folder.iterdir()) == ["broken.py", "mine.py"]  # nothing written
+
+
+def test_scenario1_takes_baselines_of_ones_own_beside_keep(folder: Path) -> None:
+    from coopsumo.studies.scenario1 import study
+
+    args = study.build_parser().parse_args(["--quick", "--baseline", "py:mine:Right", "--baseline", "mobil:p=0.25"])
+    plan = study.plan_from_args(args)
+    assert plan.baseline_policies() == ("keep", "greedy", "py:mine:Right", "mobil:p=0.25", "mobil:p=0", "mobil:p=0.5",
+                                        "sumo")  # fmt: skip
+    assert study.label_for("py:mine:Right") == "py_Right" and study.label_for("sb3:a/b/model.zip") == "sb3_b"
+    assert study.label_for("sb3:runs/highway.zip") == "sb3_highway"

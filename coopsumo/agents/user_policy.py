@@ -52,11 +52,14 @@ def _from_file(path: str, text: str) -> ModuleType:
         raise UserPolicyError(f"{text}: {path} cannot be loaded as Python")
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # dataclasses and pickling look a class's module up there
+    writes, sys.dont_write_bytecode = sys.dont_write_bytecode, True  # reading it leaves no __pycache__ beside it
     try:
         spec.loader.exec_module(module)
     except Exception as err:  # the user's code: any error, in one line
         del sys.modules[name]
         raise UserPolicyError(f"{text}: running {path} failed: {type(err).__name__}: {first_line(err)}") from None
+    finally:
+        sys.dont_write_bytecode = writes
     return module
 
 

@@ -10,7 +10,7 @@ from typing import NamedTuple
 
 from coopsumo.config import AccidentConfig, DemandConfig, OutputConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS
-from coopsumo.policy_spec import model_file, split_dqn_spec
+from coopsumo.policy_spec import model_file, parse_policy, split_dqn_spec
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.studies.engine.run_folders import default_out
 from coopsumo.validation import number_name
@@ -117,11 +117,18 @@ def model_label(preset: str, alpha: float) -> str:
 
 def label_for(policy: str) -> str:
     """Short name of a policy in tables and folders: dqn_<model folder> for a model (then _a<alpha> or _adaptive
-    for an alpha-conditioned one's alpha), else the spec."""
-    if policy.startswith("dqn:"):
+    for an alpha-conditioned one's alpha), py_<class> for a class of one's own, sb3_<zip's name> for a
+    Stable-Baselines3 model, else the spec."""
+    spec = parse_policy(policy)
+    if spec.name == "dqn":
         path, alpha = split_dqn_spec(policy)
         tail = "" if alpha is None else "_" + (alpha if isinstance(alpha, str) else f"a{number_name(alpha)}")
         return "dqn_" + Path(model_file(path)).parent.name + tail
+    if spec.name == "py":
+        return f"py_{spec.class_name}"
+    if spec.name == "sb3" and spec.model is not None:
+        name = Path(spec.model).name.removesuffix(".zip")
+        return "sb3_" + (Path(spec.model).parent.name if name == "model" else name)
     return policy.replace(":", "_").replace("=", "")
 
 

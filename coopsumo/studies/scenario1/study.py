@@ -2,8 +2,9 @@
 
 1. takes one model per learner preset, alpha and training seed (default 5 seeds) from the model store
    (studies/engine/model_store.py), training those it does not hold;
-2. runs every model and every baseline (keep, greedy, MOBIL at every politeness, SUMO's own models) through the
-   accident at every demand T_up, on the same evaluation seeds;
+2. runs every model and every baseline (keep, greedy, MOBIL at every politeness, SUMO's own models, and any
+   policy given by --baseline: a class of one's own, a Stable-Baselines3 model, ...) through the accident at every
+   demand T_up, on the same evaluation seeds;
 3. writes results/scenario1/: run folders runs/t<T_up>/<policy>[_m<training seed>]_seed<k>/ (with SUMO's
    detectors.xml, fcd.xml and tripinfo.xml), runs.csv, summary.csv, the figures and report.md; with a display,
    gui_jam.png: sumo-gui's view of the jam at the bottleneck, replayed through TraCI.
@@ -27,7 +28,7 @@ from coopsumo.config import ControlConfig, OutputConfig, RoadConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
-from coopsumo.policy_spec import model_file, split_dqn_spec
+from coopsumo.policy_spec import policy_file
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
@@ -162,6 +163,10 @@ def build_parser() -> Parser:
     p.add_argument("--alphas", default=None,
                    help="alphas to train and run, comma-separated, 0 always included "
                         f"(default: {by_profile(lambda plan: _numbers(plan.alphas))})")  # fmt: skip
+    p.add_argument("--baseline", dest="baselines", action="append", default=None, metavar="POLICY",
+                   help="one more policy run beside keep, greedy, MOBIL and sumo, as simulate's --policy takes it (a "
+                        "class of your own py:MODULE:CLASS, a Stable-Baselines3 model sb3:PATH, dqn:PATH, ...); "
+                        "repeat it for several (default: none; docs/extending.md)")  # fmt: skip
     p.add_argument("--preset", "--presets", dest="presets", default=None,
                    help=f"learner presets, comma-separated: {', '.join(DQN_PRESETS)}, or several side by side, e.g. "
                         f"default,alpha_only (default: {by_profile(lambda plan: ','.join(plan.presets))})")  # fmt: skip
@@ -196,7 +201,29 @@ def plan_from_args(args: Any) -> Plan:
         plan = replace(plan, alphas=_alpha_list(args.alphas))
     if args.presets is not None:
         plan = replace(plan, presets=_preset_list(args.presets))
+    if getattr(args, "baselines", None):
+        plan = replace(plan, baselines=(*plan.baselines, *extra_baselines(args.baselines, plan)))
     return plan
+
+
+def extra_baselines(texts: list[str], plan: Plan) -> tuple[str, ...]:
+    """--baseline's policies, each loaded once here, before anything is written (a module without its class, a
+    missing model: UsageError naming it), and each named in the tables apart from every other policy of the plan."""
+    import numpy as np
+
+    from coopsumo.agents.policies import make_policy
+
+    taken = {label_for(b) for b in plan.baseline_policies()} | {model_label(p, a) for p in plan.presets
+                                                                 for a in plan.alphas}  # fmt: skip
+    for text in texts:
+        try:
+            make_policy(text, np.random.default_rng(0), ControlConfig(), plan.lanes)
+        except UsageError as err:
+            raise UsageError(f"--baseline {text}: {err}") from None
+        if (label := label_for(text)) in taken:
+            raise UsageError(f"--baseline {text}: its name in the tables, {label}, is another policy's of the study")
+        taken.add(label)
+    return tuple(texts)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -250,7 +277,7 @@ def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], dict[tuple[str
                 folder = run_folder(label, seed, t_up, model_seed)
                 out = root / folder
                 runs.append(Run(label, t_up, seed, out, cfg, model_seed))
-                model = Path(model_file(split_dqn_spec(policy)[0])) if policy.startswith("dqn:") else None
+                model = Path(read) if (read := policy_file(policy)) is not None else None  # a model or module
                 if after not in retrained and reusable_run(out, to_dict(cfg), plan.outputs(), model):
                     continue
                 specs.append({"key": runs[-1].key, "kind": "run",
