@@ -195,6 +195,14 @@ class DQNConfig:
     the online network's, updated after every gradient update with this decay: average = d * average + (1 - d) *
     online (0: off, the online weights themselves, the paper's). Training itself is unchanged: the vehicles act
     and learn with the online network, so the same seed trains the same online weights with or without it"""
+    stacked_updates: bool = setting(False, "--stacked-updates", before=False,
+        help="the gradient updates by the stacked learner (agents/stacked.py), in an update process that serves a "
+             "group of trainings at once (a lone training is a group of one): cheaper per model; other last bits")
+    """the gradient updates by the stacked learner (issue 77; agents/stacked.py): the same loss, targets, clipping and
+    Adam as torch's layers, computed as batched matrix products over a group's networks, in an update process that
+    serves every training of a group (agents/update_worker.serve_group; a lone training is a group of one, and a
+    model's bits do not depend on its group). Not the default's bits: weights agree within about 1e-6 after an
+    update and part later, as after any change of arithmetic (docs/performance.md)"""
     followers_weight: float = setting(0.5, "--followers-weight", limits=(0.0, 100.0), before=0.0,
         help="reward shaping: add this times the mean speed reward of the vehicles behind within --followers-m in "
              "the lanes a vehicle occupies (0: the paper's reward)")
@@ -226,6 +234,9 @@ class DQNConfig:
                 raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
         if problem := limits_problem(self, LEARNER_LIMITS):  # every number finite and bounded
             raise ConfigError(problem)
+        if self.stacked_updates and self.weights_ema > 0:
+            raise ConfigError("stacked_updates cannot keep a moving average of the weights (weights_ema): set one "
+                              "of them to its default")  # fmt: skip
         if self.batch_size > self.replay_size:
             raise ConfigError(f"batch_size {self.batch_size} must be at most replay_size {self.replay_size} "
                               "(a larger batch never fills, so nothing would be learned)")  # fmt: skip

@@ -41,7 +41,7 @@ from coopsumo.agents.model_file import load_error_text, save_model
 from coopsumo.agents.nstep import Round, mature
 from coopsumo.agents.tb_log import LOG_FIELDS, Window, open_log
 from coopsumo.agents.transitions import Pending, all_if_none, transitions
-from coopsumo.agents.update_worker import LearnerProcessError, UpdateWorker
+from coopsumo.agents.update_worker import GroupTicket, LearnerProcessError, attach_updates
 from coopsumo.config import TrainConfig, results_view, to_dict, train_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line
 from coopsumo.files import write_atomic, write_json
@@ -72,9 +72,11 @@ class Trainer:
     """The training loop, its log, checkpoints and resume."""
 
     def __init__(self, cfg: TrainConfig, out: Path, progress: bool = True,
-                 on_steps: Callable[[int], None] | None = None, learner_process: bool = False):  # fmt: skip
+                 on_steps: Callable[[int], None] | None = None, learner_process: bool = False,
+                 group: GroupTicket | None = None):  # fmt: skip
         cfg.validate()
         self.learner_process = learner_process  # the updates in a second process (update_worker), same result
+        self.group = group  # a member of a group of stacked trainings (update_worker.start_group; None: alone)
         self.on_steps = on_steps
         self.cfg = cfg
         self.out = out
@@ -169,9 +171,7 @@ class Trainer:
         old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
         learner = self.learner
         try:
-            if self.learner_process:
-                learner.attach(UpdateWorker(cfg.dqn, learner.online, learner.target, learner.optimizer,
-                                             learner.average))
+            attach_updates(learner, self.learner_process, self.group)
             self._loop(cfg)
             if self._stop_signal is not None:  # it came during the last step, after the loop's last look
                 self.save_checkpoint()
@@ -448,14 +448,15 @@ def _driving_policy(cfg: TrainConfig, net: Any) -> DQNPolicy:
 
 def train(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = True,
           on_steps: Callable[[int], None] | None = None, tensorboard: bool = False, final: Path | None = None,
-          learner_process: bool = False) -> dict[str, Any]:  # fmt: skip
+          learner_process: bool = False, group: GroupTicket | None = None) -> dict[str, Any]:  # fmt: skip
     """Train (or resume) into `out`; returns the evaluation summary (or the training summary). learner_process: the
     gradient updates run in a second process while the world steps (agents/update_worker.py; the same model file
-    either way). final: the folder the results will be moved to, when `out` is a working folder (recorded paths name
-    it). on_steps(n) is told of progress (training and evaluation steps); tensorboard: also write the log's scalars
-    to out/tensorboard/ (tb_log)."""
+    either way); group: as a member of a group of stacked trainings (agents/group.py). final: the folder the results
+    will be moved to, when `out` is a working folder (recorded paths name it). on_steps(n) is told of progress
+    (training and evaluation steps); tensorboard: also write the log's scalars to out/tensorboard/ (tb_log)."""
     check_no_outside_link(out)  # sumo/, eval/, a log file...: written through, it would write elsewhere
-    trainer = Trainer(cfg, out, progress, on_steps, learner_process)
+    learner_process = learner_process or cfg.dqn.stacked_updates or group is not None  # stacked: in its process
+    trainer = Trainer(cfg, out, progress, on_steps, learner_process, group)
     _begin(trainer, cfg, out, resume)
     ended = ended_training(out, trainer.step, cfg.sim.steps) if resume else None  # interrupted in its evaluation
     scalars = open_log(out, tensorboard, resume, trainer.step)

@@ -1,0 +1,62 @@
+"""A group of trainings whose gradient updates run together in one update process (agents/group.py, the stacked
+learner of issue 77): a member's model is the same bit for bit as when it trains alone, whatever the others' seeds,
+alphas and lane counts; a member that fails fails alone; only one learner's trainings make a group."""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+
+import pytest
+import torch
+
+from coopsumo.agents.group import group_problem, train_group
+from coopsumo.agents.model_file import load_model
+from coopsumo.agents.train import train
+from coopsumo.config import SimConfig, TrainConfig
+from coopsumo.errors import ConfigError
+
+
+def stacked(seed: int, alpha: float = 0.0, lanes: int = 3, steps: int = 600) -> TrainConfig:
+    """A short training that learns from step 100 with the stacked learner (no model selection)."""
+    cfg = TrainConfig(sim=SimConfig(steps=steps, seed=seed, policy="dqn"), eval_steps=0, log_every_steps=300)
+    sim = dataclasses.replace(cfg.sim, reward=dataclasses.replace(cfg.sim.reward, alpha=alpha),
+                              road=dataclasses.replace(cfg.sim.road, lanes=lanes))  # fmt: skip
+    return dataclasses.replace(cfg, sim=sim, dqn=dataclasses.replace(cfg.dqn, stacked_updates=True,
+                                                                     select_every_steps=0, learn_start_steps=100))
+
+
+def weights(folder: Path) -> dict[str, torch.Tensor]:
+    return load_model(folder / "model.pt")[0].state_dict()
+
+
+def test_a_member_of_a_group_learns_what_it_learns_alone(tmp_path: Path) -> None:
+    alone = train(stacked(7), tmp_path / "alone", progress=False)
+    assert alone["updates"] > 0 and alone["learner_process"] is True
+    results = train_group([stacked(5, alpha=8.0, lanes=2), stacked(7)], [tmp_path / "g0", tmp_path / "g1"])
+    assert [r.error for r in results] == [None, None]
+    assert results[1].summary is not None and results[1].summary["updates"] == alone["updates"]
+    mine, other, lone = weights(tmp_path / "g1"), weights(tmp_path / "g0"), weights(tmp_path / "alone")
+    assert all(torch.equal(mine[k], lone[k]) for k in lone)
+    assert not all(torch.equal(other[k], lone[k]) for k in lone)  # the other member learned its own model
+    log = [(tmp_path / f / "train_log.csv").read_text().splitlines() for f in ("g1", "alone")]
+    assert [r.split(",")[:4] for r in log[0]] == [r.split(",")[:4] for r in log[1]]
+
+
+def test_a_member_that_fails_fails_alone(tmp_path: Path) -> None:
+    (tmp_path / "taken").write_text("a user's file\n")  # where the second member should write its folder
+    results = train_group([stacked(3, steps=300), stacked(4, steps=300)], [tmp_path / "ok", tmp_path / "taken"])
+    assert results[0].error is None and (tmp_path / "ok" / "model.pt").is_file()
+    assert results[1].error is not None and results[1].summary is None
+    assert (tmp_path / "taken").read_text() == "a user's file\n"
+
+
+def test_only_one_learners_stacked_trainings_make_a_group() -> None:
+    assert group_problem([stacked(1), stacked(2, alpha=8.0, lanes=5)]) is None
+    other = stacked(2)
+    other = dataclasses.replace(other, dqn=dataclasses.replace(other.dqn, lr=1e-4))
+    assert "another learner" in (group_problem([stacked(1), other]) or "")
+    plain = dataclasses.replace(other, dqn=dataclasses.replace(other.dqn, stacked_updates=False))
+    assert "stacked_updates" in (group_problem([plain]) or "")
+    with pytest.raises(ConfigError, match="another learner"):
+        train_group([stacked(1), other], [Path("unused0"), Path("unused1")])
