@@ -42,7 +42,8 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 
 def test_the_packaged_profiles() -> None:
-    assert plan.DEFAULT_PROFILE == "full" and set(plan.PROFILES) == {"tiny", "quick", "full", "check", "confirm", "paper"}
+    assert plan.DEFAULT_PROFILE == "full"
+    assert set(plan.PROFILES) == {"tiny", "quick", "full", "check", "confirm", "paper"}
     assert all(plan.PROFILE_HELP[name] for name in plan.PROFILES)
     full, check = plan.PROFILES["full"], plan.PROFILES["check"]
     assert full.lane_networks and full.alpha_models and not check.alpha_models and check.lane_networks
