@@ -396,6 +396,9 @@ def learner_lines(steps: int, quick: bool, model: Path | None) -> None:
     print(f"selection share {100 * (1 - without_s / with_s):.0f}%  (model selection's share of a default training's "
           f"wall time: 6 snapshots validated on runs scaled by {ratio_steps:,} / 90,000; target <= 30%; "
           f"{100 * selection_cpu / total_cpu:.0f}% of its CPU time)", flush=True)  # fmt: skip
+    from coopsumo.bench_group import group_lines
+
+    print("\n".join(group_lines(scaled_selection(ratio_steps), 2 if quick else 8)), flush=True)
 
 
 def decision_and_output_lines(steps: int, quick: bool) -> None:

@@ -17,7 +17,7 @@ from coopsumo.config import SimConfig, TrainConfig
 from coopsumo.errors import ConfigError
 
 
-def stacked(seed: int, alpha: float = 0.0, lanes: int = 3, steps: int = 600) -> TrainConfig:
+def stacked(seed: int, alpha: float = 0.0, lanes: int = 3, steps: int = 400) -> TrainConfig:
     """A short training that learns from step 100 with the stacked learner (no model selection)."""
     cfg = TrainConfig(sim=SimConfig(steps=steps, seed=seed, policy="dqn"), eval_steps=0, log_every_steps=300)
     sim = dataclasses.replace(cfg.sim, reward=dataclasses.replace(cfg.sim.reward, alpha=alpha),
@@ -60,3 +60,34 @@ def test_only_one_learners_stacked_trainings_make_a_group() -> None:
     assert "stacked_updates" in (group_problem([plain]) or "")
     with pytest.raises(ConfigError, match="another learner"):
         train_group([stacked(1), other], [Path("unused0"), Path("unused1")])
+
+
+def test_a_studys_stacked_trainings_are_grouped_by_learner(tmp_path: Path) -> None:
+    from coopsumo.config import to_dict
+    from coopsumo.studies.engine.groups import groups_to_train
+
+    def spec(cfg: TrainConfig, nested: bool) -> dict[str, object]:
+        return {"key": f"k{cfg.sim.seed}", "config": {"train": to_dict(cfg)} if nested else to_dict(cfg),
+                "kind": "eval" if nested else "train"}  # fmt: skip
+
+    slow = stacked(20)
+    slow = dataclasses.replace(slow, dqn=dataclasses.replace(slow.dqn, lr=1e-4))
+    plain = dataclasses.replace(stacked(30), dqn=dataclasses.replace(stacked(30).dqn, stacked_updates=False))
+    specs = [spec(stacked(s), s % 2 == 0) for s in range(1, 7)] + [spec(stacked(3), True), spec(slow, False),
+                                                                   spec(plain, False)]  # fmt: skip
+    groups = groups_to_train(specs, tmp_path / "store", size=4)
+    assert [[g["sim"]["seed"] for g in group] for group in groups] == [[1, 2, 3, 4], [5, 6]]  # seed 3 once; the
+    # lone learner (lr 1e-4) and the plain one are no group: their cells train them as ever
+
+
+def test_a_studys_groups_land_in_the_model_store(tmp_path: Path) -> None:
+    from coopsumo.config import to_dict
+    from coopsumo.studies.engine.groups import train_groups
+    from coopsumo.studies.engine.model_store import model_id, stored_model
+
+    configs = [to_dict(stacked(s, steps=300)) for s in (1, 2)]
+    specs = [{"key": f"train_{i}", "kind": "train", "config": c} for i, c in enumerate(configs)]
+    store = tmp_path / "models"
+    assert train_groups(specs, store, quiet=True) == 2
+    assert all(stored_model(c, store) == store / model_id(c) for c in configs)
+    assert train_groups(specs, store, quiet=True) == 0  # stored: nothing to train

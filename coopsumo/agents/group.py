@@ -7,6 +7,7 @@ model's bits do not depend on its group (tests/test_group.py). A member that fai
 from __future__ import annotations
 
 import multiprocessing
+from collections.abc import Sequence
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from pathlib import Path
@@ -41,8 +42,11 @@ def group_problem(cfgs: list[TrainConfig]) -> str | None:
 
 def _member(cfg: TrainConfig, out: Path, ticket: Any, resume: bool, result: Connection) -> None:
     """A member's process: train (or resume) into out as a member of the group; send its MemberResult."""
+    import torch
+
     from coopsumo.agents.train import train
 
+    torch.set_num_threads(1)  # as a study's training: its decisions on one thread
     try:
         summary = train(cfg, out, resume=resume, progress=False, learner_process=True, group=ticket)
         result.send(MemberResult(out, summary))
@@ -52,9 +56,11 @@ def _member(cfg: TrainConfig, out: Path, ticket: Any, resume: bool, result: Conn
         result.close()
 
 
-def train_group(cfgs: list[TrainConfig], outs: list[Path], resume: bool = False) -> list[MemberResult]:
-    """Train cfgs[i] into outs[i] as one group (ConfigError when group_problem finds one); returns each member's
-    result in order. A member's process that dies without a word is reported by its exit code."""
+def train_group(cfgs: list[TrainConfig], outs: list[Path], resume: bool | Sequence[bool] = False) -> list[MemberResult]:
+    """Train cfgs[i] into outs[i] as one group (ConfigError when group_problem finds one), resuming member i's
+    checkpoint where resume (or resume[i]) is true; returns each member's result in order. A member's process that
+    dies without a word is reported by its exit code."""
+    resumes = [resume] * len(cfgs) if isinstance(resume, bool) else list(resume)
     if problem := group_problem(cfgs):
         raise ConfigError(problem)
     from coopsumo.agents.update_worker import start_group
@@ -62,9 +68,9 @@ def train_group(cfgs: list[TrainConfig], outs: list[Path], resume: bool = False)
     updates, tickets = start_group(cfgs[0].dqn, len(cfgs))
     ctx = multiprocessing.get_context("spawn")
     members = []
-    for cfg, out, ticket in zip(cfgs, outs, tickets, strict=True):
+    for cfg, out, ticket, again in zip(cfgs, outs, tickets, resumes, strict=True):
         mine, theirs = ctx.Pipe(duplex=False)
-        process = ctx.Process(target=_member, args=(cfg, out, ticket, resume, theirs), name="coopsumo-member")
+        process = ctx.Process(target=_member, args=(cfg, out, ticket, again, theirs), name="coopsumo-member")
         process.start()
         theirs.close()
         ticket.conn.close()  # the member holds its end now: the update process sees it leave

@@ -50,7 +50,7 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
     """
     import torch
 
-    from coopsumo.agents.train import Interrupted, Trainer, train
+    from coopsumo.agents.train import Interrupted, train
     from coopsumo.config import train_config_from_dict
 
     torch.set_num_threads(1)
@@ -58,19 +58,28 @@ def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], i
     out.mkdir(parents=True, exist_ok=True)
     if cfg.eval_steps == 0 and (stored := finished_training(out, config)) is not None:
         return stored, cfg.sim.steps
-    resumed_from = None
-    if (out / "checkpoint.pt").exists():
-        try:
-            state = Trainer.load_checkpoint(out)
-            if results_view(json.loads(json.dumps(state["config"]))) == results_view(config):
-                resumed_from = int(state["step"])
-        except Exception:  # a damaged checkpoint: start afresh
-            resumed_from = None
+    resumed_from = resumable_step(config, out)
     try:
         summary = train(cfg, out, resume=resumed_from is not None, progress=False)
     except Interrupted as err:
         raise KeyboardInterrupt(str(err)) from err
     return summary, resumed_from
+
+
+def resumable_step(config: dict[str, Any], out: Path) -> int | None:
+    """The step of a checkpoint in out made with exactly the training `config`, or None (none, damaged, another's):
+    then the training starts afresh."""
+    from coopsumo.agents.train import Trainer
+
+    if not (out / "checkpoint.pt").exists():
+        return None
+    try:
+        state = Trainer.load_checkpoint(out)
+        if results_view(json.loads(json.dumps(state["config"]))) == results_view(config):
+            return int(state["step"])
+    except Exception:  # a damaged checkpoint: start afresh
+        return None
+    return None
 
 
 def model_folder_problem(folder: Path) -> str | None:

@@ -1,0 +1,56 @@
+"""`coopsumo bench --learner`'s group line (issue 77): the CPU per trained model, training and model selection, of
+a group of K stacked trainings (agents/group.py) against a lone training of today's default learner (its updates in
+an UpdateWorker). CPU time of every process involved (the trainings, their update processes, their validations)."""
+
+from __future__ import annotations
+
+import resource
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+from coopsumo.config import TrainConfig
+
+
+def _children_cpu() -> float:
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def _cpu_of(work: object) -> tuple[float, float]:
+    """(CPU s of this process and its children, wall s) while work() runs."""
+    cpu0, own0, start = _children_cpu(), time.process_time(), time.perf_counter()
+    work()  # type: ignore[operator]
+    return _children_cpu() - cpu0 + time.process_time() - own0, time.perf_counter() - start
+
+
+def bench_group(cfg: TrainConfig, k: int) -> dict[str, float]:
+    """CPU s per model: a lone training of cfg (today's learner, updates in an UpdateWorker), and each of k trainings
+    of cfg with stacked_updates (seeds cfg's + i) trained as one group; and their wall s."""
+    from coopsumo.agents.group import train_group
+    from coopsumo.agents.train import train
+
+    stacked = replace(cfg, dqn=replace(cfg.dqn, stacked_updates=True))
+    cfgs = [replace(stacked, sim=replace(stacked.sim, seed=stacked.sim.seed + i)) for i in range(k)]
+    with tempfile.TemporaryDirectory() as tmp:
+        lone_cpu, lone_wall = _cpu_of(lambda: train(cfg, Path(tmp) / "lone", progress=False, learner_process=True))
+        outs = [Path(tmp) / f"member{i}" for i in range(k)]
+        results: list[object] = []
+        group_cpu, group_wall = _cpu_of(lambda: results.extend(train_group(cfgs, outs)))
+    failed = [r for r in results if getattr(r, "error", None)]
+    if failed:
+        raise RuntimeError(f"a member of the benchmark's group failed: {getattr(failed[0], 'error', '')}")
+    return {"lone_cpu_s": lone_cpu, "lone_wall_s": lone_wall, "group_cpu_s_per_model": group_cpu / k,
+            "group_wall_s": group_wall, "k": k}  # fmt: skip
+
+
+def group_lines(cfg: TrainConfig, k: int) -> list[str]:
+    """The bench's lines for bench_group."""
+    m = bench_group(cfg, k)
+    steps = cfg.sim.steps
+    return [f"  train (default, {steps:,} steps, selection scaled to it): lone {m['lone_cpu_s']:.1f} CPU s "
+            f"({m['lone_wall_s']:.1f} s wall); a group of {k} with the stacked learner "
+            f"{m['group_cpu_s_per_model']:.1f} CPU s per model ({m['group_wall_s']:.1f} s wall for all {k})",
+            f"group cost {m['group_cpu_s_per_model'] / m['lone_cpu_s']:.2f}  (CPU per trained model, training and "
+            f"selection, in a group of {k} / a lone training of today's learner; target <= 0.55)"]  # fmt: skip

@@ -1,0 +1,82 @@
+"""A study's trainings of the stacked learner (DQNConfig.stacked_updates) trained as groups before its cells run
+(issue 77): the trainings its cells will ask the model store for, not yet stored, with one learner's settings, in
+groups of up to GROUP_SIZE, each group one update process and a process per training (agents/group.py). Each model
+lands in its own store folder exactly as a lone training would put it there (a model's bits do not depend on its
+group), so the cells then find it stored and only link and drive it; a training that fails here is left to its cell,
+which trains it alone and records the failure as its own. Local backend only: on Ray every cell trains its own.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Sequence
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from coopsumo.studies.engine.model_store import _locked, model_id, reselectable, stored_model
+
+GROUP_SIZE = 4
+"""trainings per group: the stacked learner's cost per model-update falls to about 0.46 of today's at 4 and no
+further beyond (docs/performance.md, "The stacked learner"), while every member is a process of its own"""
+
+
+def training_configs(specs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The training configurations (TrainConfig dicts) the cells of `specs` ask the model store for, each once: a
+    cell's config["train"], or a training cell's config (scenario I's train cells, kind "train")."""
+    found: dict[str, dict[str, Any]] = {}
+    for spec in specs:
+        config = spec.get("config")
+        if not isinstance(config, dict):
+            continue
+        train = config.get("train") if isinstance(config.get("train"), dict) else \
+            config if spec.get("kind") == "train" else None  # fmt: skip
+        if isinstance(train, dict) and isinstance(train.get("dqn"), dict):
+            found.setdefault(model_id(train), train)
+    return list(found.values())
+
+
+def groups_to_train(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP_SIZE) -> list[list[dict[str, Any]]]:
+    """The stacked trainings of specs not whole in the store (and not a stored training's snapshots judged again),
+    grouped by learner settings into groups of up to `size`, in the cells' order; a lone one is no group."""
+    by_learner: dict[str, list[dict[str, Any]]] = {}
+    for config in training_configs(specs):
+        if not config["dqn"].get("stacked_updates") or config.get("eval_steps", 0) != 0:
+            continue
+        if stored_model(config, store) is not None or (store.is_dir() and reselectable(config, store) is not None):
+            continue
+        by_learner.setdefault(json.dumps(config["dqn"], sort_keys=True), []).append(config)
+    groups = [configs[i: i + size] for configs in by_learner.values() for i in range(0, len(configs), size)]
+    return [g for g in groups if len(g) > 1]
+
+
+def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP_SIZE, quiet: bool = False) -> int:
+    """Train groups_to_train's groups into the store, one group after another; returns the models trained. Each
+    model's folder is locked while its group trains (a study asking for it at once waits, as for a lone training)."""
+    from coopsumo.agents.group import train_group
+    from coopsumo.config import train_config_from_dict
+    from coopsumo.studies.engine.trainings import resumable_step
+
+    groups = groups_to_train(specs, store, size)
+    trained = 0
+    for n, configs in enumerate(groups, start=1):
+        store.mkdir(parents=True, exist_ok=True)
+        folders = [store / model_id(c) for c in configs]
+        if not quiet:
+            print(f"coopsumo: training group {n} of {len(groups)} ({len(configs)} models of the stacked learner, one "
+                  f"update process) in the model store {store.resolve()}", file=sys.stderr)  # fmt: skip
+        with ExitStack() as locks:
+            for folder in sorted(folders):
+                locks.enter_context(_locked(store / f".{folder.name}.lock"))
+            for folder in folders:
+                folder.mkdir(exist_ok=True)
+            resumes = [resumable_step(c, f) is not None for c, f in zip(configs, folders, strict=True)]
+            results = train_group([train_config_from_dict(c) for c in configs], folders, resumes)
+        for config, result in zip(configs, results, strict=True):
+            if result.error is None:
+                trained += 1
+            elif not quiet:
+                print(f"coopsumo: {model_id(config)} failed in its group ({result.error}); its cell trains it alone",
+                      file=sys.stderr)  # fmt: skip
+    return trained
