@@ -10,7 +10,8 @@ hyper-parameters are coopsumo's paper preset (PAPER_DQN: one decision per 0.1 s 
 replay size, batch, an update every 4 steps, target sync every 500 steps, a constant epsilon of 0.1.
 
 Prints `episodes=N mean_episode_reward=R ...` over the finished episodes (nan if none finished).
-With --out, writes model.zip (SB3's format), config.json and summary.json into that folder.
+With --out, writes model.zip (SB3's format), config.json and summary.json into that folder; the model then drives
+every vehicle in `coopsumo simulate --policy sb3:OUT/model.zip` and as a study's baseline (docs/extending.md).
 Bad input (every value checked as the commands check it, coopsumo.validation): one line on stderr, exit code 2,
 nothing written; without stable-baselines3 installed, one line saying how to install it.
 
