@@ -263,3 +263,74 @@ def test_a_cell_counts_the_cpu_of_the_processes_it_ran() -> None:
     burn = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.4: pass"
     record = cell_records.run_recorded({}, lambda: subprocess.run([sys.executable, "-c", burn], check=True))
     assert record["status"] == "ok" and record["cell_cpu_s"] >= 0.4
+
+
+class _StepBackend:
+    """A backend without processes: each wait() ends the oldest cell in flight with an ok record."""
+
+    name = "local"
+    slots = 2
+
+    def __init__(self) -> None:
+        self.running: list[dict[str, Any]] = []
+
+    def submit(self, spec: dict[str, Any], root: Path) -> Any:
+        self.running.append(spec)
+        return spec["key"]
+
+    def wait(self, handles: list[Any], timeout: float) -> list[tuple[Any, dict[str, Any]]]:
+        spec = self.running.pop(0)
+        return [(spec["key"], cell_record(spec, "ok"))]
+
+    def abort(self) -> None:
+        pass
+
+
+class _BarSpy:
+    """tqdm's place in runner.execute: what the bar showed at each refresh (its format and postfix)."""
+
+    def __init__(self, **kwargs: Any) -> None:
+        self.bar_format = kwargs.get("bar_format")
+        self.postfix = ""
+        self.shown: list[tuple[str | None, str]] = []
+
+    def set_postfix_str(self, text: str, refresh: bool = True) -> None:
+        self.postfix = text
+
+    def refresh(self) -> None:
+        self.shown.append((self.bar_format, self.postfix))
+
+    def update(self, n: int) -> None:
+        self.refresh()
+
+    def close(self) -> None:
+        self.refresh()  # tqdm draws the bar a last time
+
+
+def test_the_bar_names_the_cells_in_flight_and_estimates_only_after_a_cell_ends(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    bars: list[_BarSpy] = []
+    monkeypatch.setattr(runner, "tqdm", lambda **kw: bars.append(_BarSpy(**kw)) or bars[-1])
+    specs = [{"key": "L3_T1.33_a0_s1", "config": {}}, {"key": "noreturn_alpha0_seed0", "kind": "train", "config": {}},
+             {"key": "train_alpha8_m100", "kind": "train", "config": {}}]  # fmt: skip
+    backend: Any = _StepBackend()
+    counts = runner.execute(specs, tmp_path, backend, 3, 0, progress=True, failed_record=failed)
+    assert counts == {"ok": 3, "failed": 0}
+    shown = bars[0].shown
+    first_end = next(i for i, (fmt, _) in enumerate(shown) if fmt is None)
+    assert shown[0] == (runner.WAITING_FORMAT, "running L3_T1.33_a0_s1, training noreturn_alpha0_seed0")
+    assert all("{remaining}" not in fmt for fmt, _ in shown[:first_end])  # type: ignore[operator]
+    assert "{remaining}" not in runner.WAITING_FORMAT and "{elapsed}" in runner.WAITING_FORMAT
+    assert all(fmt is None for fmt, _ in shown[first_end:])  # tqdm's own format, with its estimate, from then on
+    assert shown[-1][1] == "" and any(text == "running train_alpha8_m100" for _, text in shown)  # none at the end
+
+
+def test_a_cells_label_is_short_and_the_bar_says_how_many_more_run() -> None:
+    long_key = "alpha_only_a0.25_seed100_accident_t1.5_set40_extra"
+    label = runner.cell_label({"key": long_key})
+    assert len(label) == runner.LABEL_CHARS and label.startswith("alpha_only") and label.endswith("_extra")
+    assert runner.cell_label({"key": "a0_seed1", "kind": "train"}) == "training a0_seed1"
+    specs = [{"key": f"c{i}"} for i in range(5)]
+    assert runner.in_flight_text(specs, 0) == "running c0, c1, c2 and 2 more"
+    assert runner.in_flight_text(specs[:1], 2) == "running c0; 2 failed"
+    assert runner.in_flight_text([], 1) == "1 failed" and runner.in_flight_text([], 0) == ""

@@ -3,11 +3,12 @@
 A cell is a JSON-ready spec (at least "key" and "config") and a module-level function cell_fn(spec, root) -> record
 that runs it in a worker process (libsumo allows one SUMO per process) and never raises: its record says
 status "ok", "failed" (with the error) or "interrupted". `execute` runs a list of cells on a backend, writes each
-finished cell's record to ROOT/cells/<key>.json the moment it arrives, shows one progress bar with an ETA, records
-a cell whose worker died (after a solo retry) as failed and goes on, and on SIGINT/SIGTERM stops the workers (a
-training saves its checkpoint) and re-raises. A cell may name another cell ("after": key) whose record must be
-"ok" before it starts (scenario I: a model's runs wait for its training). Scenario I, scenario II and the
-ablation are each a plan (which cells) plus an analysis on top of this module.
+finished cell's record to ROOT/cells/<key>.json the moment it arrives, shows one progress bar naming the cells in
+flight (its estimate of the time left once a cell has ended), records a cell whose worker died (after a solo retry)
+as failed and goes on, and on SIGINT/SIGTERM stops the workers (a training saves its checkpoint) and re-raises. A
+cell may name another cell ("after": key) whose record must be "ok" before it starts (scenario I: a model's runs
+wait for its training). Scenario I, scenario II and the ablation are each a plan (which cells) plus an analysis on
+top of this module.
 """
 
 from __future__ import annotations
@@ -275,6 +276,34 @@ def _signals_ignored() -> Iterator[None]:
             signal.signal(s, h)
 
 
+WAITING_FORMAT = "{l_bar}{bar}| {n_fmt}/{total_fmt} [{elapsed}, no estimate until a cell ends{postfix}]"
+"""the progress bar until the first cell of an execute call ends: elapsed time, no estimate of the time left (which
+would rest on no cell's time); tqdm's own format, with the estimate, from then on"""
+LABEL_CHARS = 32
+"""a cell's label on the progress bar: its key, cut in the middle beyond this many characters"""
+SHOWN_IN_FLIGHT = 3
+"""the progress bar names at most this many cells in flight, then says how many more"""
+
+
+def cell_label(spec: dict[str, Any]) -> str:
+    """A cell's short name on the progress bar: its key (cells/<key>.json), cut in the middle when longer than
+    LABEL_CHARS; a training cell whose key does not say so is called one."""
+    key = str(spec["key"])
+    if len(key) > LABEL_CHARS:
+        head = (LABEL_CHARS - 2) // 2
+        key = key[:head] + ".." + key[len(key) - (LABEL_CHARS - 2 - head):]
+    return key if spec.get("kind") != "train" or key.startswith("train") else f"training {key}"
+
+
+def in_flight_text(running: Sequence[dict[str, Any]], failed: int) -> str:
+    """The progress bar's postfix: the cells running now (the first SHOWN_IN_FLIGHT by label, then how many more)
+    and how many failed so far; empty when neither."""
+    names = ", ".join(cell_label(spec) for spec in running[:SHOWN_IN_FLIGHT])
+    more = f" and {len(running) - SHOWN_IN_FLIGHT} more" if len(running) > SHOWN_IN_FLIGHT else ""
+    parts = ([f"running {names}{more}"] if running else []) + ([f"{failed} failed"] if failed else [])
+    return "; ".join(parts)
+
+
 class _Schedule:
     """The cells of one execute call: which wait, which run, which finished, and each record's writing.
 
@@ -293,12 +322,18 @@ class _Schedule:
         self.inflight: dict[Any, dict[str, Any]] = {}
         self.crashes: Counter[str] = Counter()
         self.counts = {"ok": 0, "failed": 0}
+        self.ended = False  # a cell that ran has ended: the bar may estimate the time left
+
+    def show(self) -> None:
+        """Name the cells in flight on the bar (drawn at its next refresh)."""
+        self.bar.set_postfix_str(in_flight_text(list(self.inflight.values()), self.counts["failed"]), refresh=False)
 
     def finish(self, spec: dict[str, Any], record: dict[str, Any]) -> None:
         write_json(cell_path(self.root, spec["key"]), record)
         self.pending.discard(spec["key"])
         (self.ok_keys if record["status"] == "ok" else self.failed_keys).add(spec["key"])
         self.counts[record["status"]] += 1
+        self.show()
         self.bar.update(1)
 
     def startable(self) -> list[dict[str, Any]]:
@@ -329,6 +364,7 @@ class _Schedule:
         for spec in ready[: max(0, self.backend.slots - len(self.inflight))]:
             self.todo.remove(spec)
             self.inflight[self.backend.submit(spec, self.root)] = spec
+        self.show()
 
     def take(self, handle: Any, outcome: Any) -> None:
         """One finished cell: record it, or queue it to run solo after a broken pool."""
@@ -346,9 +382,10 @@ class _Schedule:
             record = outcome
         if record["status"] == "interrupted":
             raise KeyboardInterrupt(f"cell {spec['key']} interrupted")
+        if not self.ended:  # from now on the bar has a cell's time to estimate from
+            self.ended = True
+            self.bar.bar_format = None
         self.finish(spec, record)
-        running = len(self.inflight) + min(len(self.todo), self.backend.slots - len(self.inflight))
-        self.bar.set_postfix(failed=self.counts["failed"], running=running, refresh=False)
 
 
 def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend | RayBackend, total: int,
@@ -363,8 +400,8 @@ def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend |
     (root / "cells").mkdir(parents=True, exist_ok=True)
     if isinstance(backend, RayBackend) and backend.address is not None:
         backend.check_cluster(root)
-    bar = tqdm(total=total, initial=done_before, desc=desc, unit="cell", file=sys.stderr,
-               disable=not progress, mininterval=1.0, smoothing=0.1)  # fmt: skip
+    bar = tqdm(total=total, initial=done_before, desc=desc, unit="cell", file=sys.stderr, disable=not progress,
+               mininterval=1.0, smoothing=0.1, bar_format=WAITING_FORMAT)  # fmt: skip
     schedule = _Schedule(specs, root, backend, bar, failed_record, done_keys)
     try:
         while schedule.todo or schedule.solo or schedule.inflight:
