@@ -23,10 +23,11 @@ from coopsumo.provenance import package_version
 
 RUN_MARKER = ".coopsumo-run.json"
 
-"""Written by a command into every folder it owns: {"kind": command, "version": coopsumo's, "files": the
-folder's entries when it finished (null while a training runs)}. A dot-file, so listings stay as they were;
-named after the package, so no user's file is taken for it; a separate file, because config.json is a
-common name that proves nothing about who wrote a folder."""
+"""Written by a command into every folder it owns: {"kind": command, "version": coopsumo's, "finished": whether the
+command has ended, "files": the names of the folder's entries when it ended (no "files" while a training or a study
+runs)}. A dot-file, so listings stay as they were; named after the package, so no user's file is taken for it; a
+separate file, because config.json is a common name that proves nothing about who wrote a folder. A marker written
+before "finished" was (files null while its command ran) reads as it did (listed_files)."""
 
 
 def _entries(folder: Path) -> list[str]:
@@ -37,14 +38,23 @@ def _entries(folder: Path) -> list[str]:
 def mark_run_dir(folder: Path, kind: str, finished: bool = True, study: str | None = None) -> None:
     """Claim `folder` for the command `kind`; finished: also list what it holds (nothing else may be replaced);
     study: which study of `kind` a study root holds ("the quick profile's study", check_study_root)."""
-    write_json(folder / RUN_MARKER, {"kind": kind, "version": package_version("coopsumo"),
-                                     "files": _entries(folder) if finished else None,
+    write_json(folder / RUN_MARKER, {"kind": kind, "version": package_version("coopsumo"), "finished": finished,
+                                     **({"files": _entries(folder)} if finished else {}),
                                      **({"study": study} if study is not None else {})})  # fmt: skip
 
 
 def _marker(folder: Path) -> dict[str, Any] | None:
     data = read_json_object(folder / RUN_MARKER)
     return data if data is not None and isinstance(data.get("kind"), str) else None
+
+
+def listed_files(marker: Any) -> list[str] | None:
+    """The entries a finished command's marker lists; None for a marker of a command still running or stopped
+    ("finished" false, no "files"; an older marker's files null) and for one whose list is not a list of names."""
+    if not isinstance(marker, dict) or marker.get("finished", True) is not True:
+        return None
+    files = marker.get("files")
+    return files if isinstance(files, list) and all(isinstance(f, str) for f in files) else None
 
 
 def check_run_dir(out: Path, kind: str) -> None:
@@ -70,11 +80,12 @@ def check_run_dir(out: Path, kind: str) -> None:
     if marker["kind"] != kind:
         raise UsageError(f"output folder {out} holds a coopsumo {marker['kind']} run, not a {kind} run, and is "
                          "left alone; pick another --out")  # fmt: skip
-    listed = marker.get("files")
-    if not isinstance(listed, list) and kind != "train":  # only a training marks its folder before it ends
+    listed = listed_files(marker)
+    running = marker.get("finished") is False or marker.get("files") is None  # as a training marks it while it runs
+    if listed is None and not (kind == "train" and running):  # only a training marks its folder before it ends
         raise UsageError(f"output folder {out} has a {RUN_MARKER} that lists no files (damaged?) and is left "
                          "alone; remove it yourself or pick another --out")  # fmt: skip
-    if isinstance(listed, list):
+    if listed is not None:
         extra = sorted(set(_entries(out)) - set(listed))
         if extra:
             more = f" and {len(extra) - 1} more" if len(extra) > 1 else ""
@@ -86,8 +97,8 @@ def finished_run(folder: Path, kind: str) -> bool:
     """True when `folder` is a finished output of the command `kind`: its marker names `kind` and lists its
     entries (written when the command ended), and every listed entry is there."""
     marker = _marker(folder)
-    listed = marker.get("files") if marker is not None and marker["kind"] == kind else None
-    return isinstance(listed, list) and all(isinstance(f, str) and (folder / f).exists() for f in listed)
+    listed = listed_files(marker) if marker is not None and marker["kind"] == kind else None
+    return listed is not None and all((folder / f).exists() for f in listed)
 
 
 Recorded = Callable[[Path], str | None]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import json
 import math
 import shutil
 from collections.abc import Callable
@@ -31,6 +32,7 @@ from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.run_dirs import (
     RUN_MARKER,
+    check_run_dir,
     check_study_root,
     clear_partials,
     finished_run,
@@ -338,6 +340,8 @@ MARKERS: dict[str, str | None] = {
     "kind a number": '{"kind": 7, "files": []}',
     "files a string": '{"kind": "simulate", "files": "config.json"}',
     "files null": '{"kind": "simulate", "files": null}',
+    "not finished": '{"kind": "simulate", "finished": false}',
+    "files not names": '{"kind": "simulate", "files": [null, "config.json", "summary.json"]}',
     "another command's": '{"kind": "train", "files": ["config.json", "summary.json"]}',
     "a folder": None,
 }
@@ -371,6 +375,28 @@ def test_finished_run_needs_the_marker_of_its_kind_and_every_listed_entry(tmp_pa
     assert not finished_run(out, "simulate")
     mark_run_dir(out, "train", finished=False)
     assert not finished_run(out, "train")
+
+
+def test_a_running_commands_marker_says_so_and_lists_names_only(tmp_path: Path) -> None:
+    """A training's marker while it runs (and a study's) was {"files": null}: now "finished" false and no list until
+    it ends, then the names of what it holds; a marker of either form, or an older one, reads the same."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "train_log.csv").write_text("step\n")
+    mark_run_dir(out, "train", finished=False)
+    running = json.loads((out / RUN_MARKER).read_text())
+    assert running["finished"] is False and "files" not in running and None not in running.values()
+    check_run_dir(out, "train")  # its training may go on (resume) or start again (simulate's: MARKERS above)
+    (out / "model.pt").write_text("weights")
+    mark_run_dir(out, "train")
+    ended = json.loads((out / RUN_MARKER).read_text())
+    assert ended["finished"] is True and ended["files"] == ["model.pt", "train_log.csv"] and finished_run(out, "train")
+    (out / RUN_MARKER).write_text('{"kind": "train", "version": "0.1.0", "files": null}')  # written before
+    assert not finished_run(out, "train")
+    check_run_dir(out, "train")
+    (out / RUN_MARKER).write_text('{"kind": "train", "files": ["model.pt", 7]}')  # a list spoiled: left alone
+    with pytest.raises(UsageError, match="lists no files"):
+        check_run_dir(out, "train")
 
 
 # -- study roots ------------------------------------------------------------------------------------------------

@@ -24,7 +24,7 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
     (its run marker lists its files, its config.json holds config, model.pt and train_summary.json exist);
     None otherwise (with one line on stderr when the model itself is the problem, unless quiet). A cell killed after
     its training but before its record was written reuses it."""
-    from coopsumo.run_dirs import RUN_MARKER
+    from coopsumo.run_dirs import RUN_MARKER, listed_files
 
     try:
         marker = json.loads((out / RUN_MARKER).read_text())
@@ -32,8 +32,8 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
         summary = json.loads((out / "train_summary.json").read_text())
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    done = isinstance(marker, dict) and marker.get("kind") == "train" and isinstance(marker.get("files"), list)
-    if not (done and "model.pt" in marker["files"] and (out / "model.pt").is_file() and isinstance(summary, dict)):
+    listed = listed_files(marker) if isinstance(marker, dict) and marker.get("kind") == "train" else None
+    if not (listed is not None and "model.pt" in listed and (out / "model.pt").is_file() and isinstance(summary, dict)):
         return None
     if (problem := model_folder_problem(out)) is not None:  # a model that does not load or is not this training's
         if not quiet:
