@@ -179,6 +179,38 @@ def test_fcd_is_the_controlled_traffic_of_the_trajectories(runs: tuple[Path, Pat
     assert len(merged) > 1000
 
 
+def test_sumo_headers_name_the_run_files_by_name(runs: tuple[Path, Path]) -> None:
+    """SUMO heads each output with its command line; a run written into a temporary folder and moved had them name
+    that folder, gone since: they name the run's files by file name, each one beside them."""
+    out = runs[0]
+    for name in ("detectors.xml", "fcd.xml", "tripinfo.xml"):
+        head = (out / name).read_text()[:4000].split("-->")[0]
+        values = dict(re.findall(r"<([a-z.-]+) value=\"([^\"]*)\"/>", head))
+        assert ".partial-" not in head and str(out) not in head, name
+        named = [values[k] for k in ("route-files", "additional-files", "fcd-output", "tripinfo-output")]
+        assert named == ["routes.rou.xml", "detectors.add.xml", "fcd.xml", "tripinfo.xml"], name
+        assert all((out / n).is_file() for n in named)
+        assert Path(values["net-file"]).is_file()  # the network, outside the run folder, by its path
+
+
+def test_a_header_loses_its_folder_and_nothing_else(tmp_path: Path) -> None:
+    from coopsumo.sim.sumo_session import HEADER_BYTES, name_run_files_by_name
+
+    run = tmp_path / ".run.partial-ab&c"
+    run.mkdir()
+    body = "".join(f'<interval id="e1_{i}" file="{run}/x.xml"/>\n' for i in range(HEADER_BYTES // 20))
+    text = (f'<?xml version="1.0"?>\n<!-- generated\n<route-files value="{run}/routes.rou.xml"/>\n'
+            f'<additional-files value="{str(run).replace("&", "&amp;")}/detectors.add.xml"/>\n-->\n{body}')
+    (run / "detectors.xml").write_text(text)
+    name_run_files_by_name(run / "detectors.xml", run)
+    got = (run / "detectors.xml").read_text()
+    assert got.split("-->")[0].count(run.name) == 0
+    assert '<route-files value="routes.rou.xml"/>' in got and '<additional-files value="detectors.add.xml"/>' in got
+    assert got.split("-->", 1)[1] == text.split("-->", 1)[1]  # the data past the header, byte for byte
+    assert sorted(p.name for p in run.iterdir()) == ["detectors.xml"]  # no working file left
+    name_run_files_by_name(run / "missing.xml", run)  # an output not asked for: nothing to do
+
+
 def test_documented_tripinfo_snippet_runs(runs: tuple[Path, Path]) -> None:
     (snippet,) = [b for b in re.findall(r"```python\n(.*?)```", PAGE, flags=re.S) if '"tripinfo"' in b]
     code = snippet.replace("results/tools/keep/", f"{runs[0]}/")
