@@ -26,10 +26,15 @@ def _cpu_of(work: object) -> tuple[float, float]:
 
 
 def bench_group(cfg: TrainConfig, k: int) -> dict[str, float]:
-    """CPU s per model: a lone training of cfg (today's learner, updates in an UpdateWorker), and each of k trainings
-    of cfg with stacked_updates (seeds cfg's + i) trained as one group; and their wall s."""
+    """CPU s per model: a lone training of cfg (today's learner, updates in an UpdateWorker, on one torch thread as a
+    study's training cell), and each of k trainings of cfg with stacked_updates (seeds cfg's + i) trained as one
+    group; and their wall s."""
+    import torch
+
     from coopsumo.agents.group import train_group
     from coopsumo.agents.train import train
+
+    torch.set_num_threads(1)  # as a study's training cell (engine/trainings.train_resuming) and a group's member
 
     stacked = replace(cfg, dqn=replace(cfg.dqn, stacked_updates=True))
     cfgs = [replace(stacked, sim=replace(stacked.sim, seed=stacked.sim.seed + i)) for i in range(k)]
