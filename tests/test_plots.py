@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -157,3 +158,26 @@ def test_recovery_figure_written(tmp_path: Path) -> None:
                 "sumo": pd.Series(np.arange(len(t)) % 2, index=t)}  # fmt: skip
     out = recovery_figure(speeds, backlogs, tmp_path / "rec.png", (100.0, 300.0), 15.0, front=["dqn_alpha8"])
     assert_png(out, 20)
+
+
+def test_recovery_figure_legend_names_the_threshold_and_hides_no_line(tmp_path: Path, monkeypatch: Any) -> None:
+    """The legend covered the accident window in the lower left and left the 15 m/s line unexplained: it names the
+    line and the window and stands outside both panels."""
+    from coopsumo.report import plots
+
+    drawn = []
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: drawn.append(fig) or Path(path))
+    bins = np.arange(0.0, 600.0, 30.0)
+    labels = ("dqn_alpha0", "dqn_alpha8", "keep", "greedy", "mobil_p0", "mobil_p0.5", "sumo")
+    speeds = {lab: pd.Series(np.where((bins > 100) & (bins < 300), 2.0, 20.0 + i), index=bins)
+              for i, lab in enumerate(labels)}  # fmt: skip
+    plots.recovery_figure(speeds, {}, tmp_path / "rec.png", (100.0, 300.0), 15.0, front=["dqn_alpha8"])
+    (fig,) = drawn
+    renderer = fig.canvas.get_renderer()
+    top, bottom = fig.axes
+    legend = top.get_legend()
+    assert [t.get_text() for t in legend.get_texts()] == [*labels, "accident window", "15 m/s: recovered above"]
+    box = legend.get_window_extent(renderer)
+    for ax in (top, bottom):
+        assert not box.overlaps(ax.get_window_extent(renderer))
+    assert box.x1 <= fig.bbox.x1  # inside the picture

@@ -10,6 +10,9 @@ from typing import Any
 
 import pandas as pd
 import pytest
+from conftest import committed_report_pages
+
+from coopsumo.studies.protocol.report import VALIDATION_CAPTION
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -66,8 +69,19 @@ def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path) -> None:
     assert free["held_share"].between(0, 1).all() and "## Passing in free flow" in report
     assert (free[free["variant"] == "keep"]["passing_taken_share"].fillna(0) == 0).all()
     assert (out / "fig_validation.png").exists() and (out / "diagnosis.csv").exists()
+    assert f"![validation over training](fig_validation.png)\n\n{VALIDATION_CAPTION}\n" in report  # captioned
     again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     assert again.returncode == 0 and "30 already done" in again.stderr
+
+
+def test_every_committed_protocol_report_captions_its_validation_figure() -> None:
+    """fig_validation.png had no caption: the report says under it what it draws, as the committed reports do."""
+    pages = [p for p in committed_report_pages() if p.parent.name.startswith("learner_protocol")]
+    assert pages and "training seed" in VALIDATION_CAPTION and "(middle)" in VALIDATION_CAPTION
+    for page in pages:
+        text = page.read_text()
+        if "fig_validation.png" in text:
+            assert f"![validation over training](fig_validation.png)\n\n{VALIDATION_CAPTION}\n" in text, page
 
 
 @pytest.mark.parametrize("args, fragment", [(["--profile", "huge"], "--profile"), (["--workers", "0"], "--workers")])

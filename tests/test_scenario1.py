@@ -471,14 +471,20 @@ def test_the_report_writes_the_difference_figure_and_names_it(tmp_path: Path, mo
         traj.to_parquet(run.out / "trajectories.parquet")
         (run.out / "detectors.xml").write_text(loop)
     rows = pd.concat(frames, ignore_index=True).assign(regime="on the road", spilled_s=np.nan)
+    from coopsumo.report import plots
+
+    drawn, draw = [], plots.difference_figure
+    monkeypatch.setattr(plots, "difference_figure", lambda *args: drawn.append(args) or draw(*args))
     rep.write_outputs(root, plan, rows, runs, "timing")
     data = (root / "fig_tts_difference.png").read_bytes()
     assert data.startswith(PNG) and len(data) > 10_000
+    assert [args[1] for args in drawn] == [rep.TTS_DIFFERENCE_LABEL] and "lower is better" in rep.TTS_DIFFERENCE_LABEL
     report = (root / "report.md").read_text()
     figures = report.split("## Figures")[1]
     assert figures.index("(fig_tts_demand.png)") < figures.index("(fig_tts_difference.png)") < figures.index("Fig. 4")
     assert "the next figure shows the differences" in figures and "a minus b (veh-h, linear scale)" in figures
     assert "learned policies thick, the baselines dashed behind" in report
+    assert f"(grey: the accident window; {rep.RECOVERY_LINE})." in report and "dotted: 15 m/s" in rep.RECOVERY_LINE
 
 
 def test_the_paper_horizon_section_reads_every_model_and_draws_fig4_for_each_learner(study: Path) -> None:

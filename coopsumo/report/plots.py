@@ -161,10 +161,11 @@ def recovery_figure(
     (a Series per bin of bin_s, indexed by bin start) with the recovery threshold dashed, and the insertion backlog
     (vehicles waiting to enter, a Series indexed by time) averaged over the same bins, so that a count flickering
     between 0 and 1 is a line near 0.5, not a band. The labels in `front` are drawn thick and on top, the others
-    thin, dashed and behind them. The accident window is shaded. Writes a PNG, returns its path."""
+    thin, dashed and behind them. The accident window is shaded. The legend, which names the threshold line and the
+    shaded window too, stands right of the panels, where it hides no line. Writes a PNG, returns its path."""
     if not speeds:
         raise ValueError("recovery_figure needs at least one speed series")
-    fig = new_figure(10.0, 6.4)
+    fig = new_figure(12.0, 6.4)
     top, bottom = fig.subplots(2, 1, sharex=True)
     for i, (label, series) in enumerate(speeds.items()):
         shown = label in front
@@ -176,11 +177,12 @@ def recovery_figure(
             b = bin_means(backlogs[label], start, bin_s)
             bottom.step(b.index, b.to_numpy(), **style)
     for ax in (top, bottom):
-        ax.axvspan(*accident_window_s, color="0.5", alpha=0.15, linewidth=0, zorder=0)
+        ax.axvspan(*accident_window_s, color="0.5", alpha=0.15, linewidth=0, zorder=0,
+                   label="accident window" if ax is top else None)  # fmt: skip
         ax.grid(True, alpha=0.3)
-    top.axhline(threshold_mps, color="k", linestyle=":", linewidth=0.8)
+    top.axhline(threshold_mps, color="k", linestyle=":", linewidth=0.8, label=f"{threshold_mps:g} m/s: recovered above")
     top.set_ylabel("speed before the bottleneck (m/s)")
-    top.legend(fontsize=8, ncol=3, loc="lower left")
+    top.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
     bottom.set_ylabel(f"vehicles waiting to enter\n(mean over {bin_s:g} s)")
     bottom.set_xlabel("time (s)")
     fig.tight_layout()

@@ -253,6 +253,13 @@ def diagnosis_table(root: Path, runs: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+VALIDATION_CAPTION = ("One line per training at alpha 0 (a colour per training seed; with several learners, a line "
+                      "style each): at each validation snapshot of its training, the validation runs' mean speed "
+                      "(left), the share of 'none' among their greedy decisions (middle) and their lane changes per "
+                      "vehicle (right); model.pt holds the snapshot of the table's chosen step.")
+"""fig_validation.png's caption in the report, under the figure"""
+
+
 def validation_curves_figure(root: Path, keys: list[str], out_path: Path,
                              names: dict[str, str] | None = None) -> Path | None:  # fmt: skip
     """Validation score and the share of 'none' among greedy decisions over training, one line per training: a
@@ -413,7 +420,7 @@ def _diagnosis_lines(profile: Any, diag: pd.DataFrame) -> list[str]:
                          f"{d['last_share_speedup']:.2f} | "
                          f"{d['best_q_gap_median']:.2f} / {d['last_q_gap_median']:.2f} | "
                          f"{d['best_near_tie_share']:.2f} / {d['last_near_tie_share']:.2f} |")  # fmt: skip
-        lines += ["", "![validation over training](fig_validation.png)", ""]
+        lines += ["", "![validation over training](fig_validation.png)", "", VALIDATION_CAPTION, ""]
     return lines
 
 

@@ -37,6 +37,10 @@ from coopsumo.validation import number_name
 
 FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
 GUI_ALPHA = 8.0  # sumo-gui shows the paper's cooperative model (first preset, first seed, highest demand)
+RECOVERY_LINE = f"dotted: {RECOVERY_MPS:g} m/s, the speed above which the road counts as recovered"
+"""what the recovery figures' dotted line is, in their caption"""
+TTS_DIFFERENCE_LABEL = "total time spent, a - b (veh-h): lower is better for a"
+"""fig_tts_difference.png's axis: which way is better, on the figure itself"""
 
 
 def counted(n: int, word: str) -> str:
@@ -214,7 +218,7 @@ def demand_section(rows: pd.DataFrame, agg: pd.DataFrame, t_up: float, pairs: Se
     for key, caption in (("fig5", "Fig. 5: flow against density from every loop and interval, one panel per policy"),
                          ("recovery", "Speed before the bottleneck and vehicles waiting to enter, both per 30 s "
                                       "bin (learned policies thick, the baselines dashed behind)")):  # fmt: skip
-        grey = "the other policies' points" if key == "fig5" else "the accident window"
+        grey = "the other policies' points" if key == "fig5" else f"the accident window; {RECOVERY_LINE}"
         name = figures.get(f"{key}_t{number_name(t_up)}")
         if name:
             lines.append(f"\n![{key}]({name})\n\n{caption}, T_up = {t_up:g} s, first seed (grey: {grey}).")
@@ -431,7 +435,7 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
     coop_pairs = [p for p in pairs if p not in vs_classical]
     difference_figure({"cooperative against non-cooperative": difference_table(rows, coop_pairs),
                        "learned against classical": difference_table(rows, vs_classical)},
-                      "total time spent, a - b (veh-h)", root / "fig_tts_difference.png")  # fmt: skip
+                      TTS_DIFFERENCE_LABEL, root / "fig_tts_difference.png")  # fmt: skip
     noncoop = model_label(plan.presets[0], 0.0)
     shown_alpha = coop if coop is not None else max(plan.alphas)
     shown = [noncoop] + ([model_label(plan.presets[0], shown_alpha)] if shown_alpha > 0 else [])
