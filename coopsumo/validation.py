@@ -4,7 +4,8 @@ A bad value becomes one line naming the flag, the value and the allowed range (e
 before anything is written. Single values are checked while parsing (`argparse` `type=`
 callables: `seed`, `integer(...)`, `number(...)`; argparse names the flag); values that depend
 on each other or come as lists are checked after parsing (`check_*`, `number_list`), raising
-UsageError with the flag in the message.
+UsageError with the flag in the message. The rules a data file's values share with their flags (IntRule, NumberRule,
+ListRule) live in field_rules.py and are given here under the same names.
 """
 
 from __future__ import annotations
@@ -19,11 +20,21 @@ import signal
 import socket
 import subprocess
 import sys
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import ConfigError, UsageError
+from coopsumo.field_rules import IntRule as IntRule
+from coopsumo.field_rules import ListRule as ListRule
+from coopsumo.field_rules import NumberRule as NumberRule
+from coopsumo.field_rules import int_problem, int_range, integer, number_problem, split_list
+from coopsumo.field_rules import names_problem as names_problem
+from coopsumo.field_rules import number as number
+from coopsumo.field_rules import number_list as number_list
+from coopsumo.field_rules import parse_number as parse_number
+from coopsumo.field_rules import same_twice as same_twice
+from coopsumo.field_rules import twice_at as twice_at
 from coopsumo.paths import out_path_problem
 
 SEED_MAX = 2**31 - 1
@@ -68,30 +79,6 @@ RAY_PROBE_TIMEOUT_S = 20.0
 def max_workers() -> int:
     """Largest --workers: four processes per core of this machine."""
     return 4 * (os.cpu_count() or 1)
-
-
-def _int_range(low: int, high: int | None) -> str:
-    return f"an integer from {low} to {high}" if high is not None else f"an integer >= {low}"
-
-
-def _number_range(low: float | None, high: float | None, low_open: bool, high_open: bool) -> str:
-    lo = "" if low is None else f"{'>' if low_open else '>='} {low:g}"
-    hi = "" if high is None else f"{'<' if high_open else '<='} {high:g}"
-    return "a finite number" + (f" {lo}" if lo else "") + (" and" if lo and hi else "") + (f" {hi}" if hi else "")
-
-
-def int_problem(value: int, low: int, high: int | None = None) -> str | None:
-    """None when low <= value <= high, else the allowed range in words."""
-    return None if low <= value and (high is None or value <= high) else _int_range(low, high)
-
-
-def number_problem(value: float, low: float | None = None, high: float | None = None,
-                   low_open: bool = False, high_open: bool = False) -> str | None:  # fmt: skip
-    """None when value is finite and inside the bounds (open or closed), else the allowed range in words."""
-    ok = math.isfinite(value)
-    ok = ok and (low is None or (value > low if low_open else value >= low))
-    ok = ok and (high is None or (value < high if high_open else value <= high))
-    return None if ok else _number_range(low, high, low_open, high_open)
 
 
 _KINDS = {"int": "an integer", "float": "a finite number", "bool": "true or false", "str": "a string"}
@@ -144,7 +131,7 @@ def limits_problem(obj: Any, limits: Mapping[str, tuple[float, float, bool, bool
             return f"{name} must be a number, got {value!r}"
         if isinstance(low, int) and isinstance(high, int) and not (low_open or high_open):
             whole = isinstance(value, numbers.Integral)
-            problem = int_problem(int(float(value)), low, high) if whole else _int_range(low, high)
+            problem = int_problem(int(float(value)), low, high) if whole else int_range(low, high)
         else:
             problem = number_problem(float(value), low, high, low_open, high_open)
         if problem:
@@ -153,40 +140,6 @@ def limits_problem(obj: Any, limits: Mapping[str, tuple[float, float, bool, bool
 
 
 # -- argparse type= callables (argparse prefixes "argument --flag:") ------------------------------
-def integer(low: int, high: int | None = None, note: str = "") -> Callable[[str], int]:
-    """A `type=` for an integer flag in [low, high]; note is added to the range (e.g. its reason)."""
-
-    def parse(text: str) -> int:
-        try:
-            value = int(text)
-        except ValueError:
-            value = None
-        if value is None or int_problem(value, low, high):
-            raise argparse.ArgumentTypeError(f"must be {_int_range(low, high)}{note}, got {text!r}")
-        return value
-
-    parse.__name__ = "integer"
-    return parse
-
-
-def number(low: float | None = None, high: float | None = None, low_open: bool = False, high_open: bool = False,
-           note: str = "") -> Callable[[str], float]:  # fmt: skip
-    """A `type=` for a finite float flag inside the bounds."""
-
-    def parse(text: str) -> float:
-        try:
-            value = float(text)
-        except ValueError:
-            value = math.nan
-        problem = number_problem(value, low, high, low_open, high_open)
-        if problem:
-            raise argparse.ArgumentTypeError(f"must be {problem}{note}, got {text!r}")
-        return value
-
-    parse.__name__ = "number"
-    return parse
-
-
 seed = integer(0, SEED_MAX, " (SUMO's seed range)")
 """`type=` of a --seed flag"""
 steps = integer(1, MAX_STEPS)
@@ -265,32 +218,6 @@ def check_number(flag: str, value: float, low: float | None = None, high: float 
     return value
 
 
-def parse_number(text: str) -> float:
-    """'1/8' -> 0.125, '2.5' -> 2.5; ValueError otherwise (also for a zero denominator)."""
-    text = text.strip()
-    if "/" in text:
-        num, den = text.split("/", 1)
-        try:
-            return float(num) / float(den)
-        except ZeroDivisionError:
-            raise ValueError(f"division by zero in {text!r}") from None
-    return float(text)
-
-
-def split_list(flag: str, text: str) -> list[str]:
-    """The items of a comma-separated flag value, spaces around them dropped; UsageError naming the flag for an
-    empty value or an empty item (',,' or a ',' at either end) and for an item given twice."""
-    items = [x.strip() for x in text.split(",")]
-    if not text.strip():
-        raise UsageError(f"{flag} is empty; give a comma-separated list")
-    if any(not x for x in items):
-        raise UsageError(f"{flag} has an empty item in {text!r} (',,' or a ',' at either end)")
-    twice = sorted({x for x in items if items.count(x) > 1})
-    if twice:
-        raise UsageError(f"{flag} lists {', '.join(twice)} more than once in {text!r}")
-    return items
-
-
 def name_list(flag: str, text: str, known: Sequence[str]) -> tuple[str, ...]:
     """A comma-separated list of names out of `known` (split_list); UsageError naming an unknown one."""
     items = split_list(flag, text)
@@ -301,38 +228,17 @@ def name_list(flag: str, text: str, known: Sequence[str]) -> tuple[str, ...]:
     return tuple(items)
 
 
-def number_list(flag: str, text: str, low: float | None = None, high: float | None = None,
-                low_open: bool = False, whole: bool = False, note: str = "") -> tuple[float, ...]:  # fmt: skip
-    """A comma-separated list of finite numbers (fractions like 1/8 allowed) inside the bounds, not empty.
-
-    whole: every value must be a whole number; note is added to the range in the message.
-    """
-    parts = split_list(flag, text)
-    kind = "whole numbers" if whole else "numbers"
-    try:
-        values = tuple(parse_number(x) for x in parts)
-    except ValueError:
-        values = ()
-    problem = next((p for v in values if (p := number_problem(v, low, high, low_open))), None)
-    if not values or problem or (whole and any(v != int(v) for v in values)):
-        rng = (problem or _number_range(low, high, low_open, False)).replace("a finite number", f"finite {kind}")
-        raise UsageError(f"{flag} must be a comma-separated list of {rng}{note}, got {text!r}")
-    same_twice(flag, text, parts, values)
-    return values
-
-
-def same_twice(flag: str, text: str, items: Sequence[str], values: Sequence[object]) -> None:
-    """UsageError naming the flag and the first value whose items (as written) read as the same value
-    (0 and -0, 1 and 1.0, 2 and 02, 1/8 and 0.125): a list never merges them silently."""
-    for j, value in enumerate(values):
-        i = values.index(value)
-        if i < j:
-            raise UsageError(f"{flag} gives the same value twice in {text!r}: {items[i]!r} and {items[j]!r}")
+ALPHA_LIST = ListRule(ALPHA_MIN, ALPHA_MAX)
+"""a list of alphas (--alphas, a profile's alphas): distinct finite numbers from ALPHA_MIN to ALPHA_MAX"""
+SEED_LIST = ListRule(0, SEED_MAX, whole=True, note=" (SUMO's seed range)", most=MAX_SEEDS)
+"""a list of training seeds (a profile's seeds): distinct, at most MAX_SEEDS (--seeds N: seeds 1..N)"""
+MOBIL_P_LIST = ListRule(0.0, MOBIL_LIMITS["p"][1])
+"""a list of MOBIL politeness values (--mobil-p, a profile's mobil_ps)"""
 
 
 def alpha_list(flag: str, text: str) -> tuple[float, ...]:
     """A comma-separated list of alphas (--alphas), each a finite number from ALPHA_MIN to ALPHA_MAX."""
-    return number_list(flag, text, low=ALPHA_MIN, high=ALPHA_MAX)
+    return ALPHA_LIST.parse(flag, text)
 
 
 def train_seed_list(flag: str, text: str, first: int, evaluation: Sequence[int] = ()) -> tuple[int, ...]:
@@ -398,9 +304,14 @@ def check_t_up(flag: str, value: float, dt_s: float) -> float:
     return check_number(flag, value, low=min_t_up_s(dt_s), high=MAX_T_UP_S, note=t_up_note(dt_s))
 
 
+def t_up_rule(dt_s: float, least: int = 1) -> ListRule:
+    """The rule of a list of distinct demands T_up (s), each from one simulation step to MAX_T_UP_S."""
+    return ListRule(min_t_up_s(dt_s), MAX_T_UP_S, note=t_up_note(dt_s), least=least)
+
+
 def t_up_list(flag: str, text: str, dt_s: float) -> tuple[float, ...]:
     """A list of distinct demands T_up (s), each from one simulation step to MAX_T_UP_S."""
-    return distinct_list(flag, text, low=min_t_up_s(dt_s), high=MAX_T_UP_S, note=t_up_note(dt_s))
+    return t_up_rule(dt_s).parse(flag, text)
 
 
 def check_accident(start: int, duration: int, steps: int, start_flag: str = "--accident-start",
@@ -409,8 +320,17 @@ def check_accident(start: int, duration: int, steps: int, start_flag: str = "--a
 
     It may end after the run (the hold probability then has not decayed to 0 when the run ends).
     """
-    check_int(start_flag, start, 0, steps - 1, f" (a step of the {steps}-step run)")
-    check_int(steps_flag, duration, 1, MAX_STEPS)
+    if problem := accident_problem(start, duration, steps, start_flag, steps_flag):
+        raise UsageError(problem)
+
+
+def accident_problem(start: int, duration: int, steps: int, start_name: str, steps_name: str) -> str | None:
+    """check_accident's rule in words naming the flag or field at fault (a data file's accident_start), or None."""
+    for name, value, rule in ((start_name, start, integer(0, steps - 1, f" (a step of the {steps}-step run)")),
+                              (steps_name, duration, integer(1, MAX_STEPS))):  # fmt: skip
+        if int_problem(value, rule.low, rule.high):
+            return f"{name} must be {rule.words()}, got {value}"
+    return None
 
 
 # -- Ray cluster addresses ------------------------------------------------------------------------

@@ -1,17 +1,30 @@
 """The catalogue reader: the experiments' data files (coopsumo/experiments_data/*.toml, inside the package so that an
-installed wheel has them too) read and checked, every error one ConfigError line naming the file and the entry."""
+installed wheel has them too) read and checked, every error one ConfigError line naming the file and the entry; a
+value checked by the very rule its flag is (validation.IntRule, NumberRule, ListRule, names_problem); and a study's
+profile taken from a file of one's own (`--profile PATH.toml[:NAME]`, own_profile)."""
 
 from __future__ import annotations
 
+import argparse
 import tomllib
 import types
+from collections.abc import Callable, Collection, Mapping, Sequence
 from pathlib import Path
-from typing import Any, Union, get_args, get_origin
+from typing import Any, Protocol, TypeVar, Union, get_args, get_origin
 
-from coopsumo.errors import ConfigError
+from coopsumo.errors import ConfigError, UsageError
+from coopsumo.validation import names_problem
 
 DATA = Path(__file__).resolve().parents[2] / "experiments_data"
 """the folder of the experiments' data files"""
+P = TypeVar("P")
+
+
+class Rule(Protocol):
+    """A field's rule, shared with its flag (validation.IntRule, NumberRule, ListRule): why a value breaks it, in words
+    after the field's name, or None."""
+
+    def problem(self, value: Any) -> str | None: ...
 
 
 class Entry:
@@ -23,18 +36,32 @@ class Entry:
     def error(self, text: str) -> ConfigError:
         return ConfigError(f"{self.where} {text}")
 
-    def value(self, key: str, value: Any, hint: Any) -> Any:
+    def value(self, key: str, value: Any, hint: Any, rule: Rule | None = None) -> Any:
         """`value` as the type `hint` names (bool, int, float, str, tuple[X, ...], tuple[X, Y, Z], X | None): an
-        integer where a float belongs becomes one (a learner's identity is its JSON); anything else is an error."""
+        integer where a float belongs becomes one (a learner's identity is its JSON); anything else is an error. With
+        `rule` (its flag's), a value the rule refuses is an error too, the value shown as the file gives it."""
+        typed = self._typed(key, value, hint)
+        if rule is not None and (problem := rule.problem(value)):
+            raise self.error(f"{key} {problem}")
+        return typed
+
+    def names(self, key: str, value: Any, known: Sequence[str], least: int = 1) -> tuple[str, ...]:
+        """A list of names out of `known` (variants, policies), by its flag's rule (validation.names_problem)."""
+        names: tuple[str, ...] = self._typed(key, value, tuple[str, ...])
+        if problem := names_problem(names, known, least):
+            raise self.error(f"{key} {problem}")
+        return names
+
+    def _typed(self, key: str, value: Any, hint: Any) -> Any:
         origin, args = get_origin(hint), get_args(hint)
         if origin in (Union, types.UnionType):
-            return self.value(key, value, next(a for a in args if a is not type(None)))
+            return self._typed(key, value, next(a for a in args if a is not type(None)))
         if origin is tuple:
             any_length = args[-1] is Ellipsis
             if not isinstance(value, list) or not (any_length or len(value) == len(args)):
                 raise self.error(f"{key} must be a list{'' if any_length else f' of {len(args)}'}, got {value!r}")
             items = [args[0]] * len(value) if any_length else list(args)
-            return tuple(self.value(key, v, a) for v, a in zip(value, items, strict=True))
+            return tuple(self._typed(key, v, a) for v, a in zip(value, items, strict=True))
         if hint is float and isinstance(value, int | float) and not isinstance(value, bool):
             return float(value)
         if isinstance(value, hint) and not (hint is int and isinstance(value, bool)):
@@ -61,3 +88,60 @@ def read_toml(path: Path) -> dict[str, Any]:
 
 
 
+
+
+# -- a profile of one's own --------------------------------------------------------------------------
+OWN_PROFILE = "PATH.toml or PATH.toml:NAME"
+"""how --profile names a profile in a file of one's own"""
+
+
+def profile_file(text: str) -> tuple[Path, str | None] | None:
+    """(file, profile name or None) when --profile's `text` names a file of one's own (PATH.toml, PATH.toml:NAME),
+    else None (a packaged profile's name)."""
+    if text.endswith(".toml"):
+        return Path(text), None
+    head, sep, name = text.rpartition(".toml:")
+    return (Path(head + ".toml"), name) if sep and head else None
+
+
+def profile_arg(known: Collection[str]) -> Callable[[str], str]:
+    """The `type=` of a study's --profile: one of `known` (the packaged profiles) or a file of one's own
+    (profile_file), read later by own_profile; anything else is refused naming both forms."""
+
+    def parse(text: str) -> str:
+        if text in known or profile_file(text) is not None:
+            return text
+        raise argparse.ArgumentTypeError(f"invalid choice: {text!r} (choose from {', '.join(known)}, or a profile "
+                                         f"file of your own: {OWN_PROFILE})")  # fmt: skip
+
+    parse.__name__ = "profile"
+    return parse
+
+
+def own_profile(text: str, read: Callable[[Path], tuple[Mapping[str, P], str | None]], packaged: Collection[str],
+                default_key: str | None = None) -> P:  # fmt: skip
+    """The profile --profile PATH.toml[:NAME] names, read by `read` (the study's loader, which checks every profile of
+    the file as it checks the packaged ones, and gives the file's `default_key`, or None): NAME, else the file's
+    only profile, else the one its `default_key` names; UsageError naming the file otherwise (the profiles it holds
+    listed), and for a profile that takes a packaged profile's name (it would share that profile's results folder
+    and records)."""
+    where = profile_file(text)
+    assert where is not None, text
+    path, name = where
+    if not path.is_file():
+        raise UsageError(f"--profile {text}: no file {path}" + (" (it is a folder)" if path.is_dir() else ""))
+    profiles, default = read(path)
+    if not profiles:
+        raise UsageError(f"--profile {text}: {path} holds no profile")
+    if name is None:
+        if len(profiles) > 1 and default is None:
+            unset = f" and no {default_key}" if default_key else ""
+            raise UsageError(f"--profile {text}: {path} holds {len(profiles)} profiles ({', '.join(profiles)}){unset}; "
+                             f"name one: --profile {path}:NAME")  # fmt: skip
+        name = default if default is not None else next(iter(profiles))
+    if name not in profiles:
+        raise UsageError(f"--profile {text}: {path} has no profile {name!r} (it has {', '.join(profiles)})")
+    if name in packaged:
+        raise UsageError(f"--profile {text}: {path}'s profile {name!r} takes the name of a packaged profile; name it "
+                         "otherwise (the name chooses its results folder and its records)")  # fmt: skip
+    return profiles[name]

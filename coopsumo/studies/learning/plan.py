@@ -9,11 +9,33 @@ from pathlib import Path
 from typing import Any, get_type_hints
 
 from coopsumo.agents.conditioning import world_alpha
-from coopsumo.config import DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.config import (
+    MAX_LANES,
+    MIN_LANES,
+    ControlConfig,
+    DemandConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.studies.engine.catalogue import DATA, Entry, read_toml
-from coopsumo.validation import name_list, number_name
+from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_toml
+from coopsumo.validation import (
+    ALPHA_LIST,
+    MAX_T_UP_S,
+    SEED_LIST,
+    integer,
+    min_t_up_s,
+    name_list,
+    names_problem,
+    number,
+    number_name,
+    steps,
+    t_up_note,
+)
 
 EVAL_SEED_OFFSET = 1000
 """the evaluation seeds are EVAL_SEED_OFFSET + s for every training seed s of the profile (demands no training saw);
@@ -90,26 +112,58 @@ def load_catalogue(path: Path = LEARNING_FILE) -> tuple[list[tuple[str, str, DQN
             raise at.error(f"learner: {err}") from None
         built[name] = learner
         variants.append((name, entry["why"], learner))
+    return variants, chain, factors, read_profiles(path, data.get("profiles", {}), built, factors)
+
+
+_DT_S = ControlConfig().dt_s
+FIELD_RULES: dict[str, Rule] = {
+    "train_steps": steps, "eval_steps": steps, "seeds": SEED_LIST, "alphas": ALPHA_LIST,
+    "alpha_seeds": replace(SEED_LIST, least=0), "lanes": integer(MIN_LANES, MAX_LANES),
+    "t_up_s": number(min_t_up_s(_DT_S), MAX_T_UP_S, note=t_up_note(_DT_S)),
+}  # fmt: skip
+"""the rule of each field of a profile: its flag's (--seeds N: seeds 0..N-1, up to 1,000; --alphas) or that of the
+same quantity's flag elsewhere (--steps, --lanes, --t-up), so that a file takes no value a flag refuses"""
+
+
+def read_profiles(path: Path, tables: Any, built: dict[str, DQNConfig], factors: dict[str, int]) -> dict[str, Profile]:
+    """The `[profiles.NAME]` tables of `path`, naming the variants `built` (trained `factors` times longer), each
+    checked: its fields' types and rules (FIELD_RULES; variants and alpha_variants as --variants: known, none twice),
+    a training seed that is an evaluation seed, a training the learner or the simulation refuses."""
     hints = get_type_hints(Profile)
     profiles = {}
-    for name, entry in data.get("profiles", {}).items():
+    for name, entry in Entry(path, "profiles").table(tables, "profiles", tables).items():
         at = Entry(path, f"profiles.{name}")
         at.table(entry, "a profile", tuple(k for k in hints if k != "name"))
         try:
-            profile = Profile(name, **{k: at.value(k, v, hints[k]) for k, v in entry.items()})
+            profile = Profile(name, **{k: at.value(k, v, hints[k], FIELD_RULES.get(k)) for k, v in entry.items()})
         except TypeError as err:
             raise at.error(f"is not a whole profile ({err})") from None
         if unknown := [v for v in (*profile.variants, *profile.alpha_variants) if v not in built]:
             raise at.error(f"unknown variant {unknown[0]!r}")
+        for key, least in (("variants", 1), ("alpha_variants", 0)):
+            if problem := names_problem(getattr(profile, key), tuple(built), least):
+                raise at.error(f"{key} {problem}")
+        evaluation = {EVAL_SEED_OFFSET + s for s in profile.seeds}
+        if shared := sorted(set((*profile.seeds, *profile.alpha_seeds)) & evaluation):
+            raise at.error(f"seeds: training seed {shared[0]} is also an evaluation seed ({EVAL_SEED_OFFSET} + each "
+                           "of seeds); a model is judged only on seeds it never trained on")  # fmt: skip
+        try:
+            for variant in dict.fromkeys((*profile.variants, *profile.alpha_variants)):
+                n_steps = profile.train_steps * factors.get(variant, 1)
+                train_config(profile, built[variant], 0.0, profile.seeds[0], n_steps).validate()
+            eval_config(profile, "keep", EVAL_SEED_OFFSET + profile.seeds[0]).validate()
+        except ConfigError as err:
+            raise at.error(f"makes a run the simulation refuses: {err}") from None
         profiles[name] = profile
-    return variants, chain, factors, profiles
+    return profiles
 
 
-VARIANTS, CHAIN_LENGTH, STEPS_FACTOR, PROFILES = load_catalogue()
-"""the study's variants (name, why, learner), in order; the first CHAIN_LENGTH form the chain paper -> ... ->
-noreturn, the rest branch off its end; the variants trained STEPS_FACTOR times the profile's train_steps; and the
-profiles (learning.toml)"""
-VARIANT_NAMES = tuple(v[0] for v in VARIANTS)
+def own_profiles(path: Path) -> tuple[dict[str, Profile], None]:
+    """The profiles of a file of one's own (`--profile PATH.toml[:NAME]`: `[profiles.NAME]` tables as in
+    learning.toml, naming its variants), checked as the packaged ones are; no default (None)."""
+    data = read_toml(path)
+    Entry(path, "file").table(data, "a profile file of one's own (its variants are learning.toml's)", ("profiles",))
+    return read_profiles(path, data.get("profiles", {}), {n: c for n, _, c in VARIANTS}, STEPS_FACTOR), None
 
 
 def learner_of(variant: str) -> DQNConfig:
@@ -226,3 +280,8 @@ def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
     return specs
 
 
+VARIANTS, CHAIN_LENGTH, STEPS_FACTOR, PROFILES = load_catalogue()
+"""the study's variants (name, why, learner), in order; the first CHAIN_LENGTH form the chain paper -> ... ->
+noreturn, the rest branch off its end; the variants trained STEPS_FACTOR times the profile's train_steps; and the
+profiles (learning.toml)"""
+VARIANT_NAMES = tuple(v[0] for v in VARIANTS)

@@ -29,6 +29,7 @@ from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
+from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import default_out, profile_study, recorded_profile, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
@@ -41,6 +42,7 @@ from coopsumo.studies.learning.plan import (
     Profile,
     cell_specs,
     learner_of,
+    own_profiles,
     variant_list,
 )
 from coopsumo.studies.learning.report import write_outputs
@@ -162,7 +164,10 @@ def build_parser() -> Parser:
     p = Parser(prog="coopsumo learning",
                description="Ablation of the DQN learner and its alpha response (results/learning).")  # fmt: skip
     size = p.add_mutually_exclusive_group()  # one way to say the study's size
-    size.add_argument("--profile", choices=tuple(PROFILES), default="full", help="study size (full: paper scale)")
+    size.add_argument("--profile", type=profile_arg(tuple(PROFILES)), default="full",
+                      help=f"study size (full: paper scale; {', '.join(PROFILES)}), or a profile of your own in a "
+                           f"file of [profiles.NAME] tables as in learning.toml, naming its variants, "
+                           f"{OWN_PROFILE}")  # fmt: skip
     size.add_argument("--quick", action="store_true", help="the same as --profile quick")
     p.add_argument("--variants", default=None,
                    help=f"comma-separated subset of {','.join(VARIANT_NAMES)} (default: the profile's)")
@@ -181,8 +186,14 @@ def build_parser() -> Parser:
     return p
 
 
+def chosen_profile(text: str) -> Profile:
+    """--profile's profile: a packaged one by name, or one of a file of one's own (PATH.toml[:NAME]: [profiles.NAME]
+    tables as in learning.toml, naming its variants, every profile checked as the packaged ones are)."""
+    return PROFILES[text] if text in PROFILES else own_profile(text, own_profiles, PROFILES)
+
+
 def profile_from_args(args: Any) -> Profile:
-    profile = PROFILES["quick" if args.quick else args.profile]
+    profile = PROFILES["quick"] if args.quick else chosen_profile(args.profile)
     if args.variants is not None:
         profile = replace(profile, variants=variant_list("--variants", args.variants))
     if args.alpha_variants is not None:

@@ -15,12 +15,34 @@ from pathlib import Path
 from typing import Any, get_type_hints
 
 from coopsumo.agents.conditioning import world_alpha
-from coopsumo.config import AccidentConfig, DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.config import (
+    MAX_LANES,
+    MIN_LANES,
+    AccidentConfig,
+    ControlConfig,
+    DemandConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
 from coopsumo.dqn_config import DQN_PRESETS, MIN_ACCIDENT_VALIDATION_STEPS, DQNConfig
 from coopsumo.errors import ConfigError
-from coopsumo.studies.engine.catalogue import DATA, Entry, read_toml
+from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_toml
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
-from coopsumo.validation import number_name
+from coopsumo.validation import (
+    MAX_SEEDS,
+    SEED_LIST,
+    SEED_MAX,
+    ListRule,
+    accident_problem,
+    integer,
+    names_problem,
+    number_name,
+    steps,
+    t_up_rule,
+)
 
 EVAL_SEED = 5000
 """evaluation run of condition i uses seed EVAL_SEED + i (free flow) or EVAL_SEED + 100 + i (accident), each plus
@@ -110,6 +132,44 @@ class Profile:
 # -- the catalogue: learners.toml and protocol.toml -------------------------------------------------
 VARIANT_KEYS = ("parent", "preset", "status", "why", "learner", "drive", "weights")
 PROFILE_KEYS = ("why", *(f.name for f in fields(Profile) if f.name != "name"))
+FIELD_RULES: dict[str, Rule] = {
+    "seeds": SEED_LIST, "train_steps": steps, "t_ups": t_up_rule(ControlConfig().dt_s), "free_steps": steps,
+    "accident_steps": steps, "accident_start": integer(0), "accident_duration": integer(1),
+    "alpha_seeds": integer(0, MAX_SEEDS), "lanes": integer(MIN_LANES, MAX_LANES),
+    "eval_offsets": ListRule(0, SEED_MAX, whole=True, most=MAX_SEEDS),
+}  # fmt: skip
+"""the rule of each field of a profile: the flags' rules of the same quantities elsewhere (the studies' --seeds,
+--steps, --t-up, --lanes; simulate's --accident-start and --accident-steps: profile_problem), so that a profile takes
+no value a flag would refuse"""
+
+
+def profile_problem(profile: Profile, known: dict[str, Variant]) -> str | None:
+    """Why a profile breaks a rule between its fields, in words starting with the field at fault, or None: a variant
+    named twice; the accident window outside its run (validation.accident_problem); more alpha seeds than seeds; an
+    evaluation seed outside SUMO's range or one that is a training seed; a run the simulation or a learner refuses."""
+    if problem := names_problem(profile.variants, tuple(known)):
+        return f"variants {problem}"
+    if problem := accident_problem(profile.accident_start, profile.accident_duration, profile.accident_steps,
+                                   "accident_start", "accident_duration"):  # fmt: skip
+        return problem
+    if profile.alpha_seeds > len(profile.seeds):
+        return (f"alpha_seeds must be at most the number of seeds ({len(profile.seeds)}): its models are the first "
+                f"seeds', got {profile.alpha_seeds}")  # fmt: skip
+    evaluation = {EVAL_SEED + extra + offset + i for extra in (0, 100) for offset in profile.eval_offsets
+                  for i in range(len(profile.t_ups))}  # fmt: skip
+    if max(evaluation) > SEED_MAX:
+        return f"eval_offsets: evaluation seed {max(evaluation)} is above {SEED_MAX} (SUMO's seed range)"
+    if shared := sorted(set(profile.seeds) & evaluation):
+        return (f"seeds: training seed {shared[0]} is also an evaluation seed ({EVAL_SEED} + condition + offset, "
+                f"{EVAL_SEED + 100} + ... through the accident); a model is judged only on seeds it never trained on")
+    try:
+        for name in profile.variants:
+            train_config(profile, known[name].learner, 0.0, profile.seeds[0]).validate()
+        for scenario in ("free", "accident"):
+            eval_config(profile, scenario, 0, "keep", offset=profile.eval_offsets[0]).validate()
+    except ConfigError as err:
+        return f"makes a run the simulation refuses: {err}"
+    return None
 
 
 def load_variants(path: Path = LEARNERS_FILE) -> dict[str, Variant]:
@@ -170,7 +230,25 @@ def load_variants(path: Path = LEARNERS_FILE) -> dict[str, Variant]:
 
 def load_profiles(known: dict[str, Variant], path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], str]:
     """The profiles of a protocol.toml and its `current` one; one ConfigError naming the file and the entry for an
-    unknown field or variant, a judged variant or pair it does not run, or a value of the wrong type."""
+    unknown field or variant, a judged variant or pair it does not run, a value of the wrong type, or a value a flag
+    of the same quantity refuses (FIELD_RULES, profile_problem)."""
+    profiles, current = read_profiles(known, path)
+    if current not in profiles:
+        raise ConfigError(f"{path}: current must name one of its profiles ({', '.join(profiles)}), got {current!r}")
+    return profiles, str(current)
+
+
+def own_profiles(path: Path) -> tuple[dict[str, Profile], str | None]:
+    """The profiles of a file of one's own (`--profile PATH.toml[:NAME]`, protocol.toml's format, naming
+    learners.toml's variants; its `current` optional), checked as the packaged ones are, and its current or None."""
+    profiles, current = read_profiles(variants(), path)
+    if current is not None and current not in profiles:
+        raise ConfigError(f"{path}: current must name one of its profiles ({', '.join(profiles)}), got {current!r}")
+    return profiles, current
+
+
+def read_profiles(known: dict[str, Variant], path: Path) -> tuple[dict[str, Profile], Any]:
+    """load_profiles' reading and checks of every profile; the file's `current` as it gives it (or None)."""
     data = dict(read_toml(path))
     current = data.pop("current", None)
     hints = get_type_hints(Profile)
@@ -182,7 +260,8 @@ def load_profiles(known: dict[str, Variant], path: Path = PROFILES_FILE) -> tupl
             raise at.error(f"needs why (a string), got {entry.get('why')!r}")
         if not entry.get("variants"):
             raise at.error("needs variants (a list of learners.toml's variants)")
-        settings = {key: at.value(key, value, hints[key]) for key, value in entry.items() if key != "why"}
+        settings = {key: at.value(key, value, hints[key], FIELD_RULES.get(key)) for key, value in entry.items()
+                    if key != "why"}  # fmt: skip
         profile = Profile(name, **settings)
         named = [*profile.variants, *(p[2] for p in profile.paired_with)]
         if unknown := [v for v in named if v not in known]:
@@ -191,16 +270,10 @@ def load_profiles(known: dict[str, Variant], path: Path = PROFILES_FILE) -> tupl
             raise at.error(f"judges {profile.judged!r}, which it does not run")
         if outside := [p[0] for p in profile.paired_with if p[0] not in profile.variants]:
             raise at.error(f"pairs {outside[0]!r}, which it does not run")
+        if problem := profile_problem(profile, known):
+            raise at.error(problem)
         profiles[name] = profile
-    if current not in profiles:
-        raise ConfigError(f"{path}: current must name one of its profiles ({', '.join(profiles)}), got {current!r}")
     return profiles, current
-
-
-_VARIANTS = load_variants()
-PROFILES, CURRENT = load_profiles(_VARIANTS)
-"""the protocol's profiles (protocol.toml) and the one judging today's default learner (DQNConfig()): `coopsumo
-protocol` and `make protocol` run it when no profile is named (its committed report: results/learner_protocol_nr10)"""
 
 
 def variants() -> dict[str, Variant]:
@@ -288,3 +361,9 @@ def _learner_tag(dqn: DQNConfig) -> str:
 
     digest = hashlib.sha256(json.dumps(to_dict(dqn), sort_keys=True).encode()).hexdigest()[:8]
     return f"{dqn.preset}_{digest}"
+
+
+_VARIANTS = load_variants()
+PROFILES, CURRENT = load_profiles(_VARIANTS)
+"""the protocol's profiles (protocol.toml) and the one judging today's default learner (DQNConfig()): `coopsumo
+protocol` and `make protocol` run it when no profile is named (its committed report: results/learner_protocol_nr10)"""

@@ -30,6 +30,7 @@ from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
+from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import default_out, profile_study, recorded_profile, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
@@ -42,6 +43,7 @@ from coopsumo.studies.protocol.plan import (
     TRAJECTORY_EVERY,
     Profile,
     cell_specs,
+    own_profiles,
     variants,
 )
 from coopsumo.validation import default_model_out, model_out_dir, workers
@@ -160,17 +162,24 @@ def default_folder(profile: str) -> Path:
     return default_out("learner_protocol", profile, committed="")
 
 
+def chosen_profile(text: str) -> Profile:
+    """--profile's profile: a packaged one by name, or one of a file of one's own (PATH.toml[:NAME]: protocol.toml's
+    format, naming learners.toml's variants, every profile checked as the packaged ones are)."""
+    return PROFILES[text] if text in PROFILES else own_profile(text, own_profiles, PROFILES, "current")
+
+
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo protocol",
                description="Judge learners: every training seed's model in free flow and through the accident "
                            "against keep, greedy and MOBIL p=0 (IQM, bootstrap intervals, probability of "
                            "improvement).")  # fmt: skip
-    p.add_argument("--profile", choices=tuple(PROFILES), default=CURRENT, metavar="PROFILE",
+    p.add_argument("--profile", type=profile_arg(tuple(PROFILES)), default=CURRENT, metavar="PROFILE",
                    help=f"which learners, on how many models (coopsumo/experiments_data/protocol.toml; "
                         f"docs/studies.md): {CURRENT} (the default) judges today's default learner; tiny takes "
                         f"seconds, for trying it out; the others: "
                         f"{', '.join(p for p in PROFILES if p not in (CURRENT, 'tiny'))}. The earlier profiles are "
-                        "rows of results/history/README.md, each run at the commit its row names")  # fmt: skip
+                        "rows of results/history/README.md, each run at the commit its row names. Or a profile of "
+                        f"your own in a file of protocol.toml's format naming learners.toml's variants, {OWN_PROFILE}")
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
     p.add_argument("--out", type=model_out_dir, default=None,
@@ -186,14 +195,15 @@ def main(argv: list[str] | None = None) -> int:
     def body() -> int:
         if args.workers <= 0:
             raise UsageError(f"--workers must be positive, got {args.workers}")
+        profile = chosen_profile(args.profile)
         check_backend(args.backend, args.address)
         if args.out is None:
-            args.out = default_model_out(default_folder(args.profile))
+            args.out = default_model_out(default_folder(profile.name))
         # another profile's study refused, its own resumed (study.json names it in a root marked before markers did)
-        with study_root(args.out, "protocol", profile_study(args.profile), recorded_profile("study.json", "profile",
-                        "name"), f"pick another --out (the {args.profile} profile's default: "
-                        f"{default_folder(args.profile)})"):  # fmt: skip
-            meta = run_study(PROFILES[args.profile], args.out, args.backend, args.workers, args.address,
+        with study_root(args.out, "protocol", profile_study(profile.name), recorded_profile("study.json", "profile",
+                        "name"), f"pick another --out (the {profile.name} profile's default: "
+                        f"{default_folder(profile.name)})"):  # fmt: skip
+            meta = run_study(profile, args.out, args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip
         print(f"protocol: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")
         return failed_exit("protocol", meta["failed_cells"], meta["cells"], args.out)

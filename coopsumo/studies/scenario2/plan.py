@@ -5,15 +5,39 @@ configuration of every cell and their keys. No SUMO here; scenario2.py runs the 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, replace
+from dataclasses import MISSING, dataclass, fields, replace
 from pathlib import Path
 from typing import Any, get_type_hints
 
-from coopsumo.config import DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
+from coopsumo.config import (
+    MAX_LANES,
+    MIN_LANES,
+    ControlConfig,
+    DemandConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+    to_dict,
+)
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError
-from coopsumo.studies.engine.catalogue import DATA, Entry, read_toml
-from coopsumo.validation import number_name
+from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_toml
+from coopsumo.validation import (
+    ALPHA_LIST,
+    MAX_STEPS,
+    MAX_T_UP_S,
+    MOBIL_P_LIST,
+    SEED_LIST,
+    ListRule,
+    alpha,
+    integer,
+    min_t_up_s,
+    number_name,
+    seed_count,
+    steps,
+    t_up_rule,
+)
 
 NOMINAL_CAPACITY_VEH_H_PER_LANE = 1800.0
 """capacity used to place the T_up grid: load 1 means T_up = 3600 / (lanes * 1800) s (near capacity)"""
@@ -149,12 +173,117 @@ def eval_seeds(n: int) -> tuple[int, ...]:
 
 PROFILES_FILE = DATA / "scenario2.toml"
 """the profiles as data: `[profiles.NAME]` tables, `[shared.NAME]` bundles they `use`, and the `default`"""
+MAX_LANE_DEMANDS = 10
+"""a lane network's training demands (DQNConfig.train_t_ups holds at most 10)"""
+LANE_LIST = ListRule(MIN_LANES, MAX_LANES, whole=True)
+"""lane counts (--lanes, a profile's lanes)"""
+LOAD_LIST = ListRule(0.0, low_open=True, least=0)
+"""loads (a profile's loads and eval_loads): each T_up they give is checked too (profile_problem)"""
+T_UP_LIST = t_up_rule(ControlConfig().dt_s, least=0)
+"""a fixed T_up list (--t-up, a profile's t_up_s; none: the load grid)"""
+FIELD_RULES: dict[str, Rule] = {
+    "lanes": LANE_LIST, "loads": LOAD_LIST, "alphas": ALPHA_LIST, "seeds": SEED_LIST, "train_steps": steps,
+    "eval_steps": steps, "t_up_s": T_UP_LIST, "mobil_ps": MOBIL_P_LIST, "eval_seeds": seed_count,
+    "alpha_draw_max": alpha, "validation_alphas": ALPHA_LIST, "check_alphas": replace(ALPHA_LIST, least=0),
+    "eval_loads": LOAD_LIST, "trajectory_every_steps": integer(0, MAX_STEPS),
+}  # fmt: skip
+"""the rule of each field of a profile read from a file: its flag's (--lanes, --alphas, --t-up, --mobil-p, --steps,
+--eval-steps, --eval-seeds; seeds: --seeds N's 1 to 1,000 seeds), so that a file takes no value the flag refuses"""
+
+
+def profile_problem(profile: Profile) -> str | None:
+    """Why a profile read from a file breaks a rule between its fields (the flags' checks of one another, and those of
+    the fields no flag sets), in words starting with the field at fault, or None: a load grid that gives a T_up
+    outside its limits or two loads the same T_up; loads beside t_up_s (which replaces them); eval_loads not among
+    the loads; a lane network with more than MAX_LANE_DEMANDS demands; check_alphas outside the alphas or without a
+    conditioned lane network; alpha_models without lane_networks; conditioned with lane networks or without dqn; an
+    unknown preset or criterion; the full-road criterion without trajectories; a training seed that is an evaluation
+    seed; and a run of the profile the simulation refuses."""
+    if profile.t_up_s and profile.loads:
+        return f"loads must be [] beside t_up_s (the T_up list replaces the load grid), got {list(profile.loads)}"
+    if not profile.t_up_s and not profile.loads:
+        return "loads must be a list of finite numbers > 0 (or t_up_s a list of T_ups), got []"
+    low = min_t_up_s(ControlConfig().dt_s)
+    for lanes in profile.lanes if not profile.t_up_s else ():
+        t_ups = [t_up_for(lanes, load) for load in profile.loads]
+        if (bad := next((i for i, t in enumerate(t_ups) if not low <= t <= MAX_T_UP_S), None)) is not None:
+            return (f"loads: load {number_name(profile.loads[bad])} gives T_up {t_ups[bad]:g} s on {lanes} lanes; a "
+                    f"load must give a T_up from {low:g} to {MAX_T_UP_S:g} s on every lane count")  # fmt: skip
+        if len(set(t_ups)) < len(t_ups):
+            i, j = next((i, j) for j, t in enumerate(t_ups) for i in range(j) if t_ups[i] == t)
+            return (f"loads {number_name(profile.loads[i])} and {number_name(profile.loads[j])} give the same T_up "
+                    f"{t_ups[i]:g} s on {lanes} lanes (T_up has 2 decimals)")  # fmt: skip
+    if outside := [x for x in profile.eval_loads if x not in profile.loads]:
+        return f"eval_loads must be some of loads ({_numbers(profile.loads)}), got {number_name(outside[0])}"
+    if profile.lane_networks and (most := max(len(profile.lane_t_ups(n)) for n in profile.lanes)) > MAX_LANE_DEMANDS:
+        return (f"{'t_up_s' if profile.t_up_s else 'loads'}: lane networks train each lane count's network on all its "
+                f"demands, at most {MAX_LANE_DEMANDS}; got {most}")  # fmt: skip
+    if profile.check_alphas and not (profile.lane_networks and not profile.alpha_models):
+        return "check_alphas needs lane_networks = true and alpha_models = false (per-alpha models beside a network)"
+    if outside := [x for x in profile.check_alphas if x not in profile.alphas]:
+        return f"check_alphas must be some of alphas ({_numbers(profile.alphas)}), got {number_name(outside[0])}"
+    if profile.alpha_models and not profile.lane_networks:
+        return "alpha_models needs lane_networks = true (one model per alpha and lane count)"
+    if profile.conditioned and profile.lane_networks:
+        return "conditioned trains one network per condition; lane_networks trains them per lane count: not both"
+    if profile.conditioned and "dqn" not in profile.policies:
+        return "conditioned trains the DQN cells once per condition and seed: policies must hold dqn"
+    if profile.preset not in DQN_PRESETS:
+        return f"preset must be one of {', '.join(DQN_PRESETS)}, got {profile.preset!r}"
+    if profile.criterion not in (CRITERION, FULL_ROAD):
+        return f"criterion must be {CRITERION} or {FULL_ROAD}, got {profile.criterion!r}"
+    if profile.criterion == FULL_ROAD and not profile.trajectory_every_steps:
+        return f"criterion {FULL_ROAD} is measured on trajectories: trajectory_every_steps must be above 0"
+    if shared := sorted(set(profile.seeds) & set(profile.eval_seeds)):
+        return (f"seeds: training seed {shared[0]} is also an evaluation seed ({EVAL_SEED_BASE + 1} to "
+                f"{EVAL_SEED_BASE} + eval_seeds); a model is judged only on seeds it never trained on")  # fmt: skip
+    return _runs_problem(profile)
+
+
+def _numbers(values: tuple[float, ...]) -> str:
+    return ", ".join(map(number_name, values))
+
+
+def _runs_problem(profile: Profile) -> str | None:
+    """A run of the profile the simulation or the learner refuses, in words, or None: of each lane count, the first
+    condition's training (a lane network's learner holds all its demands) and evaluation, and a classical run; checked
+    on the profile, not found after its folder is made (its fields' own limits are FIELD_RULES')."""
+    try:
+        for lanes in profile.lanes:
+            t_up = profile.lane_t_ups(lanes)[0]
+            if "dqn" in profile.policies:
+                _model_training(profile, lanes, t_up, profile.alphas[0], profile.seeds[0])[0].validate()
+                eval_configs(lanes, t_up, profile.alphas[0], profile)[0].validate()
+            if policy := next((x for x in CLASSICAL if x in profile.policies), None):
+                name = f"mobil:p={profile.mobil_ps[0]}" if policy == "mobil" else policy
+                classical_config(lanes, t_up, name, profile.eval_seeds[0], profile).validate()
+    except ConfigError as err:
+        return f"makes a run the simulation refuses: {err}"
+    return None
 
 
 def load_profiles(path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], dict[str, str], str]:
     """The profiles of a scenario2.toml, what --help says of each, and the default one; one ConfigError naming the
     file and the entry for an unknown field, `use` or default, or a value of another type (an integer where a float
-    belongs is taken as that float, so that a model's identity does not change)."""
+    belongs is taken as that float, so that a model's identity does not change), or a value its flag refuses
+    (FIELD_RULES, profile_problem)."""
+    profiles, helps, default = read_profiles(path)
+    if default not in profiles:
+        raise ConfigError(f"{path}: default must name one of its profiles ({', '.join(profiles)}), got {default!r}")
+    return profiles, helps, str(default)
+
+
+def own_profiles(path: Path) -> tuple[dict[str, Profile], str | None]:
+    """The profiles of a file of one's own (`--profile PATH.toml[:NAME]`, the packaged file's format; its `default`
+    optional), checked as the packaged ones are, and its default or None."""
+    profiles, _, default = read_profiles(path)
+    if default is not None and default not in profiles:
+        raise ConfigError(f"{path}: default must name one of its profiles ({', '.join(profiles)}), got {default!r}")
+    return profiles, default
+
+
+def read_profiles(path: Path) -> tuple[dict[str, Profile], dict[str, str], Any]:
+    """load_profiles' reading and checks of every profile; the file's `default` as it gives it (or None)."""
     data = dict(read_toml(path))
     hints = get_type_hints(Profile)
     settable = tuple(k for k in hints if k not in ("name", "eval_seeds"))
@@ -173,18 +302,17 @@ def load_profiles(path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], dict[
             raise at.error(f"use must name a [shared.NAME] table ({', '.join(shared) or 'none'}), got {use!r}")
         base = Entry(path, f"shared.{use}").table(shared[use], "the shared table", settable) if use else {}
         helps[name] = at.value("help", entry.pop("help", ""), str)
-        values = {key: at.value(key, value, hints[key]) for key, value in {**base, **entry}.items()
-                  if key != "eval_seeds"}  # fmt: skip
+        values: dict[str, Any] = {key: at.names(key, value, POLICIES) if key == "policies" else
+                  at.value(key, value, hints[key], FIELD_RULES.get(key))
+                  for key, value in {**base, **entry}.items() if key != "eval_seeds"}  # fmt: skip
         if "eval_seeds" in entry:
-            values["eval_seeds"] = eval_seeds(at.value("eval_seeds", entry["eval_seeds"], int))
+            values["eval_seeds"] = eval_seeds(at.value("eval_seeds", entry["eval_seeds"], int, seed_count))
+        if missing := [f.name for f in fields(Profile)[1:] if f.default is MISSING and f.name not in values]:
+            raise at.error(f"needs {', '.join(missing)} (a profile's fields without a default)")
         profiles[name] = Profile(name, **values)
-    if default not in profiles:
-        raise ConfigError(f"{path}: default must name one of its profiles ({', '.join(profiles)}), got {default!r}")
-    return profiles, helps, str(default)
-
-
-PROFILES, PROFILE_HELP, DEFAULT_PROFILE = load_profiles()
-"""the profiles (scenario2.toml), what --help says of each, and the one run when none is named"""
+        if problem := profile_problem(profiles[name]):
+            raise at.error(problem)
+    return profiles, helps, default
 
 
 def cell_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:
@@ -366,3 +494,7 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
                     add(classical_key(lanes, t_up, policy, p, seed), lanes, t_up, load, seed, policy, None, p,
                         {"run": to_dict(cfg), **traj} if traj else cfg)  # fmt: skip
     return specs
+
+
+PROFILES, PROFILE_HELP, DEFAULT_PROFILE = load_profiles()
+"""the profiles (scenario2.toml), what --help says of each, and the one run when none is named"""

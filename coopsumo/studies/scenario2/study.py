@@ -49,12 +49,13 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import MAX_LANES, MIN_LANES, ControlConfig, RoadConfig, to_dict
+from coopsumo.config import RoadConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
+from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.cells import run_todo
 from coopsumo.studies.engine.model_store import check_link, link_problem, store_for, train_shared
 from coopsumo.studies.engine.records import (
@@ -73,39 +74,37 @@ from coopsumo.studies.scenario2.plan import (
     DEFAULT_PROFILE,
     EVAL_SEED_BASE,
     FULL_ROAD,
+    LANE_LIST,
+    MAX_LANE_DEMANDS,
     NOMINAL_CAPACITY_VEH_H_PER_LANE,
     POLICIES,
     PROFILE_HELP,
     PROFILES,
+    T_UP_LIST,
     Profile,
     cell_specs,
     condition_rows,
     eval_seeds,
     lane_train_config,
     learner_of,
+    own_profiles,
 )
 from coopsumo.studies.scenario2.redraw import merge_command, recorded_sweep, sweep_study
 from coopsumo.studies.scenario2.report import condition_label, write_outputs
 from coopsumo.validation import (
-    MAX_T_UP_S,
-    MOBIL_LIMITS,
+    MOBIL_P_LIST,
     alpha_list,
     default_model_out,
     integer,
-    min_t_up_s,
     model_out_dir,
     name_list,
-    number_list,
     number_name,
     seed_count,
     steps,
-    t_up_note,
     workers,
 )
 from coopsumo.validation import parse_number as parse_number  # '1/8' -> 0.125, kept in this module's interface
 
-MAX_LANE_DEMANDS = 10
-"""a lane network's training demands (DQNConfig.train_t_ups holds at most 10)"""
 REQUIRED_SUMMARY = (CRITERION, "collisions", "teleports")
 """summary values a stored cell record must hold as finite numbers to be reused (records.record_problem)"""
 RECORD_KEYS = (*KEY_COLUMNS, "policy", "p")
@@ -308,9 +307,15 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     return meta
 
 
+def chosen_profile(text: str) -> Profile:
+    """--profile's profile: a packaged one by name, or one of a file of one's own (PATH.toml[:NAME]: the packaged
+    file's format, every profile checked as the packaged ones are; catalogue.own_profile)."""
+    return PROFILES[text] if text in PROFILES else own_profile(text, own_profiles, PROFILES, "default")
+
+
 def profile_from_args(args: Any) -> Profile:
     """The chosen profile with the command line's overrides applied and checked."""
-    profile = PROFILES[args.profile]
+    profile = chosen_profile(args.profile)
     if args.steps is not None:
         if args.steps <= 0:
             raise UsageError(f"steps must be positive, got {args.steps}")
@@ -326,15 +331,14 @@ def profile_from_args(args: Any) -> Profile:
     if args.eval_seeds is not None:
         profile = replace(profile, eval_seeds=eval_seeds(args.eval_seeds))
     if args.lanes is not None:
-        lanes = number_list("--lanes", args.lanes, MIN_LANES, MAX_LANES, whole=True)
+        lanes = LANE_LIST.parse("--lanes", args.lanes)
         profile = replace(profile, lanes=tuple(sorted({int(x) for x in lanes})))
     if args.alphas is not None:
         alphas = tuple(sorted(set(alpha_list("--alphas", args.alphas))))
         # a check compares the networks with per-alpha models at the alphas of the grid it keeps
         profile = replace(profile, alphas=alphas, check_alphas=tuple(a for a in profile.check_alphas if a in alphas))
     if args.t_up is not None:
-        dt_s = ControlConfig().dt_s
-        t_up = number_list("--t-up", args.t_up, low=min_t_up_s(dt_s), high=MAX_T_UP_S, note=t_up_note(dt_s))
+        t_up = T_UP_LIST.parse("--t-up", args.t_up)
         profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
         if profile.lane_networks and len(profile.t_up_s) > MAX_LANE_DEMANDS:
             raise UsageError(f"--t-up: profile {profile.name} trains each lane count's network on all its T_ups, at "
@@ -354,7 +358,7 @@ def profile_from_args(args: Any) -> Profile:
     if args.mobil_p is not None:
         if "mobil" not in profile.policies:
             raise UsageError("--mobil-p is for --policies with mobil")
-        ps = number_list("--mobil-p", args.mobil_p, low=0, high=MOBIL_LIMITS["p"][1])
+        ps = MOBIL_P_LIST.parse("--mobil-p", args.mobil_p)
         profile = replace(profile, mobil_ps=tuple(sorted(set(ps))))
     return profile
 
@@ -374,8 +378,10 @@ def _numbers(values: tuple[float, ...]) -> str:
 
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo scenario2", description="Scenario II: the alpha sweep over lanes and inflows.")
-    p.add_argument("--profile", choices=sorted(PROFILES), default=DEFAULT_PROFILE,
-                   help="grid, models and step counts: " + "; ".join(f"{k} ({v})" for k, v in PROFILE_HELP.items()))
+    p.add_argument("--profile", type=profile_arg(sorted(PROFILES)), default=DEFAULT_PROFILE,
+                   help="grid, models and step counts: " + "; ".join(f"{k} ({v})" for k, v in PROFILE_HELP.items())
+                   + f"; or a profile of your own in a file of scenario2.toml's format, {OWN_PROFILE} "
+                   "(docs/studies.md)")  # fmt: skip
     p.add_argument("--out", type=model_out_dir, default=None,
                    help=f"results folder (default {default_out('scenario2', DEFAULT_PROFILE, DEFAULT_PROFILE)}, "
                         "another profile results/scenario2_<profile>; with --conditioned "

@@ -1,0 +1,224 @@
+"""The rules of the values a command takes, each read by its flag and by a data file's loader alike.
+
+A rule is one object: called on a flag's text as an argparse `type=` (IntRule, NumberRule) or `parse`d from a
+comma-separated flag value (ListRule), and asked for the `problem` of a value a data file gives (the studies' TOML
+profiles, read by studies/engine/catalogue.Entry.value), so that a profile takes no value its flag refuses and the
+words of a refusal are the same. validation.py holds the commands' other checks and gives these under its own name.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import math
+from collections.abc import Sequence
+
+from coopsumo.errors import UsageError
+
+
+def int_range(low: int, high: int | None) -> str:
+    return f"an integer from {low} to {high}" if high is not None else f"an integer >= {low}"
+
+
+def _number_range(low: float | None, high: float | None, low_open: bool, high_open: bool) -> str:
+    lo = "" if low is None else f"{'>' if low_open else '>='} {low:g}"
+    hi = "" if high is None else f"{'<' if high_open else '<='} {high:g}"
+    return "a finite number" + (f" {lo}" if lo else "") + (" and" if lo and hi else "") + (f" {hi}" if hi else "")
+
+
+def int_problem(value: int, low: int, high: int | None = None) -> str | None:
+    """None when low <= value <= high, else the allowed range in words."""
+    return None if low <= value and (high is None or value <= high) else int_range(low, high)
+
+
+def number_problem(value: float, low: float | None = None, high: float | None = None,
+                   low_open: bool = False, high_open: bool = False) -> str | None:  # fmt: skip
+    """None when value is finite and inside the bounds (open or closed), else the allowed range in words."""
+    ok = math.isfinite(value)
+    ok = ok and (low is None or (value > low if low_open else value >= low))
+    ok = ok and (high is None or (value < high if high_open else value <= high))
+    return None if ok else _number_range(low, high, low_open, high_open)
+
+
+class IntRule:
+    """An integer field's rule, read by its flag (an argparse `type=`: the rule is called on the flag's text) and by
+    a data file's loader (`problem` on the value read, catalogue.Entry.value), so that a profile in a file takes no
+    value its flag refuses: low <= value <= high; note is added to the range (e.g. its reason)."""
+
+    __name__ = "integer"
+
+    def __init__(self, low: int, high: int | None = None, note: str = "") -> None:
+        self.low, self.high, self.note = low, high, note
+
+    def words(self) -> str:
+        return f"{int_range(self.low, self.high)}{self.note}"
+
+    def __call__(self, text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            value = None
+        if value is None or int_problem(value, self.low, self.high):
+            raise argparse.ArgumentTypeError(f"must be {self.words()}, got {text!r}")
+        return value
+
+    def problem(self, value: int) -> str | None:
+        """None when value is inside the range, else "must be ..., got VALUE" (a data file's value)."""
+        return f"must be {self.words()}, got {value!r}" if int_problem(value, self.low, self.high) else None
+
+
+def integer(low: int, high: int | None = None, note: str = "") -> IntRule:
+    """A `type=` for an integer flag in [low, high]; note is added to the range (e.g. its reason)."""
+    return IntRule(low, high, note)
+
+
+class NumberRule:
+    """A number field's rule, read by its flag (`type=`) and by a data file's loader (`problem`), as IntRule: finite
+    and inside the bounds (open or closed)."""
+
+    __name__ = "number"
+
+    def __init__(self, low: float | None = None, high: float | None = None, low_open: bool = False,
+                 high_open: bool = False, note: str = "") -> None:  # fmt: skip
+        self.low, self.high, self.low_open, self.high_open, self.note = low, high, low_open, high_open, note
+
+    def _problem(self, value: float) -> str | None:
+        return number_problem(value, self.low, self.high, self.low_open, self.high_open)
+
+    def __call__(self, text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            value = math.nan
+        if problem := self._problem(value):
+            raise argparse.ArgumentTypeError(f"must be {problem}{self.note}, got {text!r}")
+        return value
+
+    def problem(self, value: float) -> str | None:
+        """None when value is finite and inside the bounds, else "must be ..., got VALUE" (a data file's value)."""
+        problem = self._problem(float(value))
+        return f"must be {problem}{self.note}, got {value!r}" if problem else None
+
+
+def number(low: float | None = None, high: float | None = None, low_open: bool = False, high_open: bool = False,
+           note: str = "") -> NumberRule:  # fmt: skip
+    """A `type=` for a finite float flag inside the bounds."""
+    return NumberRule(low, high, low_open, high_open, note)
+
+
+def parse_number(text: str) -> float:
+    """'1/8' -> 0.125, '2.5' -> 2.5; ValueError otherwise (also for a zero denominator)."""
+    text = text.strip()
+    if "/" in text:
+        num, den = text.split("/", 1)
+        try:
+            return float(num) / float(den)
+        except ZeroDivisionError:
+            raise ValueError(f"division by zero in {text!r}") from None
+    return float(text)
+
+
+def split_list(flag: str, text: str) -> list[str]:
+    """The items of a comma-separated flag value, spaces around them dropped; UsageError naming the flag for an
+    empty value or an empty item (',,' or a ',' at either end) and for an item given twice."""
+    items = [x.strip() for x in text.split(",")]
+    if not text.strip():
+        raise UsageError(f"{flag} is empty; give a comma-separated list")
+    if any(not x for x in items):
+        raise UsageError(f"{flag} has an empty item in {text!r} (',,' or a ',' at either end)")
+    twice = sorted({x for x in items if items.count(x) > 1})
+    if twice:
+        raise UsageError(f"{flag} lists {', '.join(twice)} more than once in {text!r}")
+    return items
+
+
+@dataclasses.dataclass(frozen=True)
+class ListRule:
+    """The rule of a list of numbers a command takes (a study's axis), read by its flag (`parse`, a comma-separated
+    value, fractions like 1/8 allowed) and by a data file's loader (`problem` on the list read,
+    catalogue.Entry.value), so that a profile in a file takes no list its flag refuses: finite numbers inside the
+    bounds, whole numbers where `whole`, from `least` to `most` of them, no value twice in any form (0 and -0, 1 and
+    1.0: a list never merges them silently); note is added to the range in the message."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    whole: bool = False
+    note: str = ""
+    least: int = 1
+    most: int | None = None
+
+    def values_problem(self, values: Sequence[float], items: Sequence[str], shown: str, form: str) -> str | None:
+        """Why `values` (written as `items`, the whole as `shown`) break the rule, in words after the field's name
+        ("must be a list of ..., got [nan]"), or None."""
+        problem = next((p for v in values if (p := number_problem(v, self.low, self.high, self.low_open))), None)
+        if len(values) < self.least or problem or (self.whole and any(v != int(v) for v in values)):
+            if self.whole and self.low is not None and self.high is not None and not self.low_open:
+                rng = f"integers from {self.low:.0f} to {self.high:.0f}"
+            else:
+                kind = "whole numbers" if self.whole else "numbers"
+                rng = (problem or _number_range(self.low, self.high, self.low_open, False)).replace(
+                    "a finite number", f"finite {kind}")  # fmt: skip
+            return f"must be {form} of {rng}{self.note}, got {shown}"
+        if self.most is not None and len(values) > self.most:
+            return f"must be {form} of at most {self.most} values, got {len(values)}"
+        if twice := twice_at(values):
+            return f"gives the same value twice in {shown}: {items[twice[0]]} and {items[twice[1]]}"
+        return None
+
+    def parse(self, flag: str, text: str) -> tuple[float, ...]:
+        """A flag's comma-separated value (split_list, each item a number); UsageError naming the flag otherwise."""
+        parts = split_list(flag, text)
+        try:
+            values = tuple(parse_number(x) for x in parts)
+        except ValueError:
+            values = (math.nan,)  # not a number: the range's words
+        if problem := self.values_problem(values, [repr(x) for x in parts], repr(text), "a comma-separated list"):
+            raise UsageError(f"{flag} {problem}")
+        return values
+
+    def problem(self, values: Sequence[float]) -> str | None:
+        """Why a data file's list breaks the rule ("must be a list of ..., got [nan]"), or None."""
+        return self.values_problem([float(v) for v in values], [repr(v) for v in values], repr(list(values)),
+                                   "a list")  # fmt: skip
+
+
+def number_list(flag: str, text: str, low: float | None = None, high: float | None = None,
+                low_open: bool = False, whole: bool = False, note: str = "") -> tuple[float, ...]:  # fmt: skip
+    """A comma-separated list of finite numbers (fractions like 1/8 allowed) inside the bounds, not empty
+    (ListRule.parse).
+
+    whole: every value must be a whole number; note is added to the range in the message.
+    """
+    return ListRule(low, high, low_open, whole, note).parse(flag, text)
+
+
+def twice_at(values: Sequence[object]) -> tuple[int, int] | None:
+    """The positions (i, j), i < j, of the first value given twice in `values` (0 and -0, 1 and 1.0 are one value),
+    or None."""
+    seen = list(values)
+    for j, value in enumerate(seen):
+        i = seen.index(value)
+        if i < j:
+            return i, j
+    return None
+
+
+def same_twice(flag: str, text: str, items: Sequence[str], values: Sequence[object]) -> None:
+    """UsageError naming the flag and the first value whose items (as written) read as the same value
+    (0 and -0, 1 and 1.0, 2 and 02, 1/8 and 0.125): a list never merges them silently."""
+    if twice := twice_at(values):
+        i, j = twice
+        raise UsageError(f"{flag} gives the same value twice in {text!r}: {items[i]!r} and {items[j]!r}")
+
+
+def names_problem(names: Sequence[str], known: Sequence[str], least: int = 1) -> str | None:
+    """Why a data file's list of names (variants, policies) breaks the rule of its flag (name_list: no name twice,
+    none outside `known`), or None; at least `least` of them."""
+    if len(names) < least:
+        return f"must name at least {least} of {', '.join(known)}, got {list(names)!r}"
+    if twice := twice_at(names):
+        return f"names {names[twice[1]]!r} twice in {list(names)!r}"
+    if unknown := [x for x in names if x not in known]:
+        return f"names unknown {', '.join(map(repr, unknown))}; expected some of {', '.join(known)}"
+    return None
