@@ -283,3 +283,25 @@ def test_a_learning_profile_of_ones_own_runs_under_its_name(tmp_path: Path, monk
     path.write_text("[variants.x]\nparent = \"paper\"\nwhy = \"w\"\n" + tiny_learning())
     code, err = run_main(learning.main, ["--profile", str(path), "--out", str(tmp_path / "o2")], capsys)
     assert code == 2 and len(err) == 1 and "unknown field 'variants'" in err[0], err
+
+
+def test_the_documented_profile_file_runs_as_documented(tmp_path: Path, faked_train: list[str],  # noqa: F811
+                                                        monkeypatch: pytest.MonkeyPatch,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """docs/studies.md's "A profile of one's own": its file and its commands, run in a folder of their own (training
+    faked)."""
+    page = (Path(__file__).resolve().parent.parent / "docs" / "studies.md").read_text()
+    section = page.split("## A profile of one's own\n", 1)[1].split("\n## ", 1)[0]
+    (toml,) = re.findall(r"```toml\n(.*?)```", section, flags=re.S)
+    (bash,) = re.findall(r"```bash\n(.*?)```", section, flags=re.S)
+    monkeypatch.chdir(tmp_path)
+    Path(toml.splitlines()[0].removeprefix("# ").split(":")[0]).write_text(toml)
+    for line in bash.strip().splitlines():
+        words = line.split()
+        assert words[:2] == ["coopsumo", "scenario2"], line
+        code, err = run_main(s2.main, [*words[2:], "--quiet", "--bootstrap", "20"], capsys)
+        assert code == 0, (line, err)
+        out = tmp_path / words[words.index("--out") + 1]
+        meta = json.loads((out / "sweep.json").read_text())
+        assert meta["profile"]["name"] == "mine" and meta["profile"]["lanes"] == [3]
+        assert meta["cells_ok"] == meta["cells"] == 4 * len(meta["profile"]["alphas"])
