@@ -6,17 +6,14 @@ the command, applies the options shared by all (--nets-dir) and hands it the res
 
 from __future__ import annotations
 
-import argparse
-import importlib
-import os
 import sys
 from collections.abc import Sequence
-from pathlib import Path
 
-from coopsumo import __version__
-from coopsumo.errors import UsageError
-from coopsumo.paths import NETS_ENV, nets_dir_problem
-from coopsumo.runio import Parser, run_interruptible, working_folder_problem
+# Nothing else is imported here (not even typing): the console command imports this module before main runs, and a
+# Ctrl-C is one line from main's first instruction on. The command line's machinery is imported where it is used.
+TYPE_CHECKING = False  # typing.TYPE_CHECKING's idiom without typing: True for mypy only
+if TYPE_CHECKING:
+    from coopsumo.runio import Parser
 
 S = "coopsumo.studies."
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -39,6 +36,12 @@ COMMANDS: dict[str, tuple[str, str]] = {
 
 
 def build_parser() -> Parser:
+    import argparse
+
+    from coopsumo import __version__
+    from coopsumo.paths import NETS_ENV
+    from coopsumo.runio import Parser
+
     table = "\n".join(f"  {name:10s} {text}" for name, (_, text) in COMMANDS.items())
     p = Parser(
         prog="coopsumo",
@@ -84,13 +87,28 @@ def command_of(argv: Sequence[str]) -> str:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run `coopsumo [--nets-dir DIR] COMMAND [options]`; returns the command's exit code. A Ctrl-C at any moment,
     from this first instruction on (the command's imports included), ends it in one line and exit code 130; run as
-    the process's command (argv None: the console command, `python -m coopsumo`), one while Python exits is ignored."""
-    return run_interruptible(lambda: _main(sys.argv[1:] if argv is None else argv),
-                             lambda: command_of(sys.argv[1:] if argv is None else argv),
-                             whole_process=argv is None)  # fmt: skip
+    the process's command (argv None: the console command, `python -m coopsumo`), one while Python exits is ignored
+    (runio.run_interruptible)."""
+    try:  # Python's own KeyboardInterrupt until run_interruptible takes SIGINT (while runio is imported)
+        from coopsumo.runio import run_interruptible
+
+        return run_interruptible(lambda: _main(sys.argv[1:] if argv is None else argv),
+                                 lambda: command_of(sys.argv[1:] if argv is None else argv),
+                                 whole_process=argv is None)  # fmt: skip
+    except KeyboardInterrupt:
+        print(f"{command_of(sys.argv[1:] if argv is None else argv)}: interrupted", file=sys.stderr)
+        return 130
 
 
 def _main(argv: Sequence[str]) -> int:
+    import importlib
+    import os
+    from pathlib import Path
+
+    from coopsumo.errors import UsageError
+    from coopsumo.paths import NETS_ENV, nets_dir_problem
+    from coopsumo.runio import working_folder_problem
+
     parser = build_parser()
     own, rest = split_argv(argv)
     args = parser.parse_args(own)

@@ -67,7 +67,12 @@ class Stop(KeyboardInterrupt):
         self.signum = signum
 
 
+_STOPS_RAISED: list[int] = []
+"""every signal _raise_stop turned into Stop in this process, in order (run_interruptible reads it)"""
+
+
 def _raise_stop(signum: int, _frame: Any) -> None:
+    _STOPS_RAISED.append(signum)
     raise Stop(signum)
 
 
@@ -106,12 +111,18 @@ def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_pr
     without a line, or print a traceback from an exit handler). Only in the main thread (elsewhere: body())."""
     if threading.current_thread() is not threading.main_thread():
         return body()
-    old = signal.getsignal(signal.SIGINT)
+    old, stops_before = signal.getsignal(signal.SIGINT), len(_STOPS_RAISED)
     try:
         signal.signal(signal.SIGINT, _raise_stop)
         return body()
     except KeyboardInterrupt as err:
         return interrupted(prog(), err)
+    except Exception:
+        if len(_STOPS_RAISED) == stops_before:
+            raise
+        # the Stop of a signal, turned into another error by the code it landed in: numpy makes one raised while its
+        # C extension loads an ImportError (PyCapsule_Import), which pandas's import passes on as its own
+        return interrupted(prog(), Stop(_STOPS_RAISED[-1]))
     finally:
         signal.signal(signal.SIGINT, signal.SIG_IGN if whole_process or old is None else old)
 

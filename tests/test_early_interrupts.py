@@ -10,9 +10,12 @@ imports, and a scenario I worker printed one of its own when it came while the w
 
 Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1,
 scenario2, learning, protocol, regime-map: their pools of workers) and simulate get all four moments; the others,
-and `python -m coopsumo`, one each, chosen while they still run: accident-seeds, adaptive, adaptive-fit and models
-end within a second (here on a folder they refuse or one with nothing to use: 0.2 s, during their imports),
-diagnose (refusing its folder after its imports) and scenario2 --merge at 1 s, history and bench at 2 s."""
+and `python -m coopsumo`, one each, chosen while they still run: accident-seeds and adaptive (refusing their
+folder), adaptive-fit (on a copy of the archived conditioned sweep) and models (a store of one folder that is no
+model) end within a second or two, so 0.2 s, during their imports; diagnose (refusing its folder after its imports)
+and scenario2 --merge at 1 s; history and bench at 2 s. A Ctrl-C later in a training is tests/test_interrupts.py's,
+in a study tests/test_faults_scenario1.py's. What comes before the command's first instruction is Python's own start
+(some 0.05 s), which no code of the command can guard; the console command imports nothing there (test below)."""
 
 from __future__ import annotations
 
@@ -27,7 +30,8 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.sumo
+from coopsumo.runio import run_interruptible
+
 REPO = Path(__file__).resolve().parent.parent
 CONSOLE = Path(sys.executable).parent / "coopsumo"
 """the console command beside this interpreter ([project.scripts]), as a user runs it"""
@@ -90,6 +94,7 @@ def ctrl_c(proc: subprocess.Popen[str], at_s: float, start: float) -> tuple[int,
         time.sleep(0.05)
 
 
+@pytest.mark.sumo
 @pytest.mark.parametrize(("case", "at_s"), [(case, at_s) for case, (_, moments) in CASES.items() for at_s in moments],
                          ids=lambda value: f"{value}s" if isinstance(value, float) else value)  # fmt: skip
 def test_a_ctrl_c_at_any_moment_is_one_line_and_exit_code_130(case: str, at_s: float, tmp_path: Path) -> None:
@@ -104,3 +109,32 @@ def test_a_ctrl_c_at_any_moment_is_one_line_and_exit_code_130(case: str, at_s: f
         assert mark not in err, err[-3000:]
     assert code == 128 + signal.SIGINT, (code, err[-3000:])
     assert len(said) == 1 and LINE.fullmatch(said[0]), err[-3000:]
+
+
+def test_the_console_command_imports_nothing_before_main_takes_ctrl_c() -> None:
+    """The console command imports coopsumo.cli before it calls main: nothing there but the command table, so that
+    the moments before main are Python's own start only (the command line's machinery used to load there)."""
+    code = "import sys; before = set(sys.modules); import coopsumo.cli; print(*sorted(set(sys.modules) - before))"
+    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True)
+    assert set(res.stdout.split()) <= {"collections.abc", "coopsumo", "coopsumo.cli"}, res.stdout
+
+
+def _import_that_turns_ctrl_c_into_import_error() -> int:
+    """What numpy does when a Ctrl-C lands while its C extension loads: the KeyboardInterrupt becomes an ImportError."""
+    try:
+        signal.raise_signal(signal.SIGINT)
+    except KeyboardInterrupt:
+        raise ImportError("PyCapsule_Import could not import module \"datetime\"") from None
+    return 0
+
+
+def test_a_ctrl_c_that_a_library_turned_into_another_error_is_still_one_line(
+        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    assert run_interruptible(_import_that_turns_ctrl_c_into_import_error, lambda: "train") == 130
+    assert capsys.readouterr().err == "train: interrupted\n"
+
+    def broken() -> int:  # the same error without a Ctrl-C is the command's own: raised as it is
+        raise ImportError("no module named x")
+
+    with pytest.raises(ImportError, match="no module named x"):
+        run_interruptible(broken, lambda: "train")

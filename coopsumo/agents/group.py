@@ -15,6 +15,7 @@ from typing import Any
 
 from coopsumo.config import TrainConfig
 from coopsumo.errors import ConfigError, first_line
+from coopsumo.runio import children_start_deaf
 
 
 @dataclass(frozen=True)
@@ -71,7 +72,8 @@ def train_group(cfgs: list[TrainConfig], outs: list[Path], resume: bool | Sequen
     for cfg, out, ticket, again in zip(cfgs, outs, tickets, resumes, strict=True):
         mine, theirs = ctx.Pipe(duplex=False)
         process = ctx.Process(target=_member, args=(cfg, out, ticket, again, theirs), name="coopsumo-member")
-        process.start()
+        with children_start_deaf():  # a Ctrl-C is this process's: it stops the members (SIGTERM: their checkpoints)
+            process.start()
         theirs.close()
         ticket.conn.close()  # the member holds its end now: the update process sees it leave
         members.append((process, mine, out))

@@ -188,6 +188,9 @@ class Trainer:
                     learner.worker.close()
                     learner.worker = None
                     raise self._stopped_with(err) from None
+        if self._stop_signal is not None:  # its handler ran after the look above, before the handlers were put back
+            self.save_checkpoint()
+            raise Interrupted(self._stop_signal, self.step)
 
     def _stopped_with(self, err: LearnerProcessError) -> BaseException:
         """What a dead update worker means: the stop, when this process had received one (a Ctrl-C to the whole group
