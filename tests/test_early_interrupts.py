@@ -111,6 +111,12 @@ def test_a_ctrl_c_at_any_moment_is_one_line_and_exit_code_130(case: str, at_s: f
     assert len(said) == 1 and LINE.fullmatch(said[0]), err[-3000:]
 
 
+def test_every_command_has_its_ctrl_c() -> None:
+    from coopsumo.cli import COMMANDS
+
+    assert set(COMMANDS) <= {argv[0] for argv, _ in CASES.values()}
+
+
 def test_the_console_command_imports_nothing_before_main_takes_ctrl_c() -> None:
     """The console command imports coopsumo.cli before it calls main: nothing there but the command table, so that
     the moments before main are Python's own start only (the command line's machinery used to load there)."""
