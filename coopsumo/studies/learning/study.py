@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
@@ -160,6 +161,21 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     return meta
 
 
+def by_profile(show: Callable[[Profile], str]) -> str:
+    """An option's default as --help states it, each packaged profile's in the form the flag takes: "the profile's:
+    full 0,0.25,1,2,8; quick 0,1; ...", or one value when every profile gives the same."""
+    values = {name: show(profile) for name, profile in PROFILES.items()}
+    if len(set(values.values())) == 1:
+        return next(iter(values.values()))
+    return "the profile's: " + "; ".join(f"{name} {value}" for name, value in values.items())
+
+
+def default_variant_name() -> str:
+    """The variant whose learner is today's default (DQNConfig()): the one a profile without alpha_variants measures
+    the alpha response of."""
+    return next((n for n, _, c in VARIANTS if c == DQNConfig()), "default")
+
+
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo learning",
                description="Ablation of the DQN learner and its alpha response (results/learning).")  # fmt: skip
@@ -169,15 +185,19 @@ def build_parser() -> Parser:
                            f"file of [profiles.NAME] tables as in learning.toml, naming its variants, "
                            f"{OWN_PROFILE}")  # fmt: skip
     size.add_argument("--quick", action="store_true", help="the same as --profile quick")
+    own = f"the default learner, {default_variant_name()}"
     p.add_argument("--variants", default=None,
-                   help=f"comma-separated subset of {','.join(VARIANT_NAMES)} (default: the profile's)")
+                   help=f"comma-separated subset of {','.join(VARIANT_NAMES)} "
+                        f"(default: {by_profile(lambda f: ','.join(f.variants))})")  # fmt: skip
     p.add_argument("--alphas", default=None,
-                   help="comma-separated alpha grid of the alpha response (default: the profile's)")
+                   help=f"comma-separated alpha grid of the alpha response "
+                        f"(default: {by_profile(lambda f: ','.join(f'{a:g}' for a in f.alphas))})")  # fmt: skip
     p.add_argument("--alpha-variants", default=None,
-                   help="comma-separated variants whose alpha response is measured (default: the default learner)")
+                   help=f"comma-separated variants whose alpha response is measured "
+                        f"(default: {by_profile(lambda f: ','.join(f.alpha_variants) or own)})")  # fmt: skip
     p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
-                   help="models per variant: training seeds 0..N-1, each evaluated on its own held-out seed "
-                        "(default: the profile's)")  # fmt: skip
+                   help=f"models per variant: training seeds 0..N-1, each evaluated on its own held-out seed "
+                        f"(default: {by_profile(lambda f: str(len(f.seeds)))})")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
     p.add_argument("--out", type=model_out_dir, default=None,
