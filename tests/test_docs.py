@@ -43,10 +43,14 @@ def coopsumo_commands(pages: list[Path] = RUN_HERE) -> list[str]:
     return cmds
 
 
-def shortened(cmd: str, tmp: Path) -> list[str]:
-    """The command with --steps cut to 1,500 and results/ moved under tmp (an accident left at its default window
-    follows the run: 2/9 and 5/9 of it)."""
-    cmd = re.sub(r"--steps \d+", "--steps 1500", cmd).replace("results/", f"{tmp}/")
+def shortened(cmd: str, tmp: Path, steps: int = 1500) -> list[str]:
+    """The command with --steps cut to `steps` and results/ moved under tmp; an accident follows the run (left at its
+    default window, 2/9 and 5/9 of it; a window given, --accident-start and --accident-steps cut by the same factor)."""
+    if found := re.search(r"--steps (\d+)", cmd):
+        factor = min(1.0, steps / int(found.group(1)))
+        cmd = re.sub(r"(--accident-(?:start|steps)) (\d+)", lambda m: f"{m.group(1)} {int(int(m.group(2)) * factor)}",
+                     cmd)  # fmt: skip
+    cmd = re.sub(r"--steps \d+", f"--steps {steps}", cmd).replace("results/", f"{tmp}/")
     cmd = re.sub(r"--eval-steps \d+", "--eval-steps 300", cmd)
     return [sys.executable, "-m", "coopsumo", *shlex.split(cmd)[1:]]
 

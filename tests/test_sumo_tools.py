@@ -220,14 +220,24 @@ def test_documented_tripinfo_snippet_runs(runs: tuple[Path, Path]) -> None:
     assert res.stdout.split()[0] == str(summary["arrived"])
 
 
-def test_documented_plot_trajectories_command_draws_a_png(runs: tuple[Path, Path], tmp_path: Path) -> None:
-    (cmd,) = page_lines("plot_trajectories.py")
-    fcd = "results/scenario1/runs/t1/keep_seed1/fcd.xml"
-    assert fcd in cmd
-    cmd = cmd.replace(fcd, str(runs[0] / "fcd.xml")).replace("results/", f"{tmp_path}/")
+def test_documented_fig4_commands_make_their_run_and_draw_a_png(tmp_path: Path) -> None:
+    """The page's Fig. 4 block as written, on a fresh clone: its simulate command makes the run folder (shortened
+    to 3,000 steps, the accident window with it), its plot_trajectories.py command draws that run's fcd.xml."""
+    (block,) = [b for b in re.findall(r"```bash\n(.*?)```", PAGE, flags=re.S) if "plot_trajectories.py" in b]
+    sim, plot = [re.sub(r"\s+", " ", line).strip() for line in block.replace("\\\n", " ").splitlines()]
+    args = shlex.split(sim.replace("results/", f"{tmp_path}/"))
+    assert args[:2] == ["coopsumo", "simulate"] and "--fcd" in args
+    run = args[args.index("--out") + 1]
+    assert f"{run}/fcd.xml" in plot.replace("results/", f"{tmp_path}/")  # the plot reads the run just made
+    steps = int(args[args.index("--steps") + 1])
+    for flag in ("--accident-start", "--accident-steps"):
+        args[args.index(flag) + 1] = str(int(args[args.index(flag) + 1]) * 3000 // steps)
+    args[args.index("--steps") + 1] = "3000"
+    proc = simulate([*args[2:], "--quiet"])
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    cmd = plot.replace("results/", f"{tmp_path}/")
     cmd = re.sub(r"(^|\$\()python ", rf"\1{shlex.quote(sys.executable)} ", cmd)  # the page's activated venv
     png = Path(shlex.split(cmd)[shlex.split(cmd).index("-o") + 1])
-    png.parent.mkdir(parents=True)  # the study's folder, there in the page's use
     res = subprocess.run(["bash", "-c", cmd], cwd=ROOT, capture_output=True, text=True, timeout=120, check=False)
     assert res.returncode == 0, res.stderr[-2000:]
     assert png.read_bytes().startswith(PNG) and png.stat().st_size > 20_000
