@@ -82,24 +82,31 @@ def test_a_signal_handled_as_the_training_loop_ends_is_not_lost(tmp_path: Path,
     and stops as one in the last step does. Here the handler runs at that very moment."""
     import dataclasses
 
+    import torch
+
+    from coopsumo.agents.model_file import load_model
     from coopsumo.agents.train import Interrupted, train
     from coopsumo.config import SimConfig, TrainConfig
 
-    real = signal.signal
+    real, fired = signal.signal, []
 
     def put_back(signum: int, handler: Any) -> Any:
         noted = signal.getsignal(signum)
-        if getattr(noted, "__name__", "") == "_on_signal" and handler is not noted:  # the loop's handler put back
-            noted(signal.SIGTERM, None)  # the signal that came meanwhile: its handler runs only now
+        if getattr(noted, "__name__", "") == "_on_signal" and noted.__self__.step == 60 and not fired:
+            fired.append(signum)  # the loop's handlers are put back after its last step: the signal that came
+            noted(signal.SIGTERM, None)  # meanwhile has its handler run only now
         return real(signum, handler)
 
     cfg = TrainConfig(sim=SimConfig(steps=60, seed=2, policy="dqn"), eval_steps=0, log_every_steps=30)
-    cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=0))
+    cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=0, learn_start_steps=10))
     monkeypatch.setattr(signal, "signal", put_back)
     with pytest.raises(Interrupted) as stop:
-        train(cfg, tmp_path / "run", progress=False)
+        train(cfg, tmp_path / "run", progress=False, learner_process=True)
     monkeypatch.undo()
     assert (stop.value.signum, stop.value.step) == (signal.SIGTERM, 60)
     assert (tmp_path / "run" / "checkpoint.pt").exists() and not finished_run(tmp_path / "run", "train")
-    train(cfg, tmp_path / "run", resume=True, progress=False)  # and it resumes to its end
+    train(cfg, tmp_path / "run", resume=True, progress=False, learner_process=True)  # it resumes to its end,
+    train(cfg, tmp_path / "whole", progress=False, learner_process=True)  # the model of the uninterrupted training
     assert finished_run(tmp_path / "run", "train")
+    resumed, whole = (load_model(tmp_path / f / "model.pt")[0].state_dict() for f in ("run", "whole"))
+    assert all(torch.equal(resumed[k], whole[k]) for k in whole)

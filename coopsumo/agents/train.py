@@ -173,9 +173,6 @@ class Trainer:
         try:
             attach_updates(learner, self.learner_process, self.group)
             self._loop(cfg)
-            if self._stop_signal is not None:  # it came during the last step, after the loop's last look
-                self.save_checkpoint()
-                raise Interrupted(self._stop_signal, self.step)
         except LearnerProcessError as err:
             raise self._stopped_with(err) from None
         finally:
@@ -188,8 +185,8 @@ class Trainer:
                     learner.worker.close()
                     learner.worker = None
                     raise self._stopped_with(err) from None
-        if self._stop_signal is not None:  # its handler ran after the look above, before the handlers were put back
-            self.save_checkpoint()
+        if self._stop_signal is not None:  # it came in the last step, after the loop's last look, or its handler ran
+            self.save_checkpoint()  # only as the handlers were put back: checked once they are (it was lost there)
             raise Interrupted(self._stop_signal, self.step)
 
     def _stopped_with(self, err: LearnerProcessError) -> BaseException:
