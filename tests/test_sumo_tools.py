@@ -194,7 +194,7 @@ def test_sumo_headers_name_the_run_files_by_name(runs: tuple[Path, Path]) -> Non
 
 
 def test_a_header_loses_its_folder_and_nothing_else(tmp_path: Path) -> None:
-    from coopsumo.sim.sumo_session import HEADER_BYTES, name_run_files_by_name
+    from coopsumo.sim.output_headers import HEADER_BYTES, name_run_files_by_name
 
     run = tmp_path / ".run.partial-ab&c"
     run.mkdir()
