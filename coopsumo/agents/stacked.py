@@ -255,6 +255,10 @@ class StackedLearner:
             for name, t in stacked_weights(state).items():
                 views[name][0].copy_(t)
 
+    def online_state(self, k: int) -> dict[str, torch.Tensor]:
+        """Member k's online network as a QNetwork state dict (member_state's "online", without the rest)."""
+        return self._member(self.online, k)
+
     def member_state(self, k: int) -> dict[str, Any]:
         """Member k as a Learner keeps it: "online" and "target" QNetwork state dicts, "optimizer" the state dict of
         dqn.make_optimizer's optimiser over QNetwork's parameters, and "average" (DQNConfig.weights_ema only)."""

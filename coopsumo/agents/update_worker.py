@@ -19,6 +19,7 @@ import multiprocessing
 import pickle
 import signal
 import sys
+import time
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from typing import Any
@@ -37,6 +38,9 @@ from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch  # noqa: E
 from coopsumo.dqn_config import DQNConfig  # noqa: E402
 from coopsumo.runio import STOP_SIGNALS, children_start_deaf  # noqa: E402
 
+GATHER_S = 0.05
+"""a group's update process waits up to this long after a member's round for the other members' (a stacked step
+costs as much for one member as for all: its rows are computed whether they take part or not)"""
 POLL_S = 0.5
 """how often a wait checks that the worker still lives (s)"""
 
@@ -285,12 +289,15 @@ def serve_group(conns: list[Connection], cfg: DQNConfig, onlines: list[QNetwork]
         signal.signal(sig, signal.SIG_IGN)
     torch.set_num_threads(1)  # a member's bits are the same in any group on one thread
     hold_freed_memory()
-    live = dict(enumerate(conns))
+    live, joined = dict(enumerate(conns)), set()
     try:
         learner = StackedLearner(cfg, [net.state_dict() for net in onlines])
+        rounds: dict[int, int] = {}  # member -> minibatches of its round waiting (its next message waits too)
+        gather_until = 0.0
         while live:
-            rounds: dict[int, int] = {}
-            ready = wait_for(list(live.values()))
+            waiting = [c for k, c in live.items() if k not in rounds]
+            left = max(gather_until - time.monotonic(), 0.0) if rounds else None
+            ready = wait_for(waiting, left) if waiting else []
             for k, conn in [(k, c) for k, c in live.items() if c in ready]:
                 try:
                     message = _receive(conn)
@@ -298,11 +305,16 @@ def serve_group(conns: list[Connection], cfg: DQNConfig, onlines: list[QNetwork]
                     del live[k]
                     continue
                 if message[0] == "update":
-                    rounds[k] = int(message[1])  # its next message waits until this round is done
+                    gather_until = gather_until if rounds else time.monotonic() + GATHER_S
+                    rounds[k] = int(message[1])
+                elif message[0] == "join":
+                    joined.add(k)
+                    _member_message(learner, k, message, onlines[k], conn)
                 elif _member_message(learner, k, message, onlines[k], conn):
                     del live[k]
-            if rounds:
+            if rounds and (joined & set(live) <= set(rounds) or time.monotonic() >= gather_until):
                 _group_round(learner, rounds, slots, onlines, live)
+                rounds = {}
     except Exception as err:  # told to every member in one line; each ends its training
         text = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
         for conn in live.values():
@@ -350,7 +362,7 @@ def _group_round(learner: Any, rounds: dict[int, int], slots: list[list[ReplayBa
             if rounds[k] > i:
                 losses[k].append(float(step[k]))
     for k in rounds:
-        onlines[k].load_state_dict(learner.member_state(k)["online"])
+        onlines[k].load_state_dict(learner.online_state(k))
         if k in live:
             try:
                 _send(live[k], ("done", float(np.mean(losses[k]))))
