@@ -1,6 +1,7 @@
 """A group of trainings whose gradient updates run together in one update process (agents/group.py, the stacked
 learner of issue 77): a member's model is the same bit for bit as when it trains alone, whatever the others' seeds,
-alphas and lane counts; a member that fails fails alone; only one learner's trainings make a group."""
+alphas and lane counts; a member that fails fails alone; only one learner's trainings make a group; a study's
+trainings of the stacked learner go into the model store as groups."""
 
 from __future__ import annotations
 
@@ -30,25 +31,22 @@ def weights(folder: Path) -> dict[str, torch.Tensor]:
     return load_model(folder / "model.pt")[0].state_dict()
 
 
-def test_a_member_of_a_group_learns_what_it_learns_alone(tmp_path: Path) -> None:
+def test_a_member_of_a_group_learns_what_it_learns_alone_and_fails_alone(tmp_path: Path) -> None:
+    """Member 1 (another member with another seed, alpha and lane count beside it) is bit-identical to its lone
+    training; member 2, whose folder is a user's file, fails alone."""
     alone = train(stacked(7), tmp_path / "alone", progress=False)
     assert alone["updates"] > 0 and alone["learner_process"] is True
-    results = train_group([stacked(5, alpha=8.0, lanes=2), stacked(7)], [tmp_path / "g0", tmp_path / "g1"])
-    assert [r.error for r in results] == [None, None]
+    (tmp_path / "taken").write_text("a user's file\n")
+    results = train_group([stacked(5, alpha=8.0, lanes=2), stacked(7), stacked(4)],
+                          [tmp_path / "g0", tmp_path / "g1", tmp_path / "taken"])  # fmt: skip
+    assert [r.error is None for r in results] == [True, True, False] and results[2].summary is None
+    assert (tmp_path / "taken").read_text() == "a user's file\n"
     assert results[1].summary is not None and results[1].summary["updates"] == alone["updates"]
     mine, other, lone = weights(tmp_path / "g1"), weights(tmp_path / "g0"), weights(tmp_path / "alone")
     assert all(torch.equal(mine[k], lone[k]) for k in lone)
     assert not all(torch.equal(other[k], lone[k]) for k in lone)  # the other member learned its own model
     log = [(tmp_path / f / "train_log.csv").read_text().splitlines() for f in ("g1", "alone")]
     assert [r.split(",")[:4] for r in log[0]] == [r.split(",")[:4] for r in log[1]]
-
-
-def test_a_member_that_fails_fails_alone(tmp_path: Path) -> None:
-    (tmp_path / "taken").write_text("a user's file\n")  # where the second member should write its folder
-    results = train_group([stacked(3, steps=300), stacked(4, steps=300)], [tmp_path / "ok", tmp_path / "taken"])
-    assert results[0].error is None and (tmp_path / "ok" / "model.pt").is_file()
-    assert results[1].error is not None and results[1].summary is None
-    assert (tmp_path / "taken").read_text() == "a user's file\n"
 
 
 def test_only_one_learners_stacked_trainings_make_a_group() -> None:
