@@ -176,7 +176,7 @@ def build_parser() -> Parser:
     p.add_argument("--profile", type=profile_arg(tuple(PROFILES)), default=CURRENT, metavar="PROFILE",
                    help=f"which learners, on how many models (coopsumo/experiments_data/protocol.toml; "
                         f"docs/studies.md): {CURRENT} (the default) judges today's default learner; tiny takes "
-                        f"seconds, for trying it out; the others: "
+                        f"a minute or two, for trying it out; the others: "
                         f"{', '.join(p for p in PROFILES if p not in (CURRENT, 'tiny'))}. The earlier profiles are "
                         "rows of results/history/README.md, each run at the commit its row names. Or a profile of "
                         f"your own in a file of protocol.toml's format naming learners.toml's variants, {OWN_PROFILE}")
