@@ -131,8 +131,8 @@ def build_parser() -> Parser:
     size = p.add_mutually_exclusive_group()
     size.add_argument("--quick", action="store_true",
                       help=f"{len(quick.t_ups)} demands, {counted(len(quick.seeds), 'evaluation seed')}, "
-                           f"{counted(len(quick.train_seeds), 'model')} per alpha, small step counts: a few minutes "
-                           "(models trained into the model store too)")  # fmt: skip
+                           f"{counted(len(quick.train_seeds), 'model')} per alpha, small step counts: about 5 "
+                           "minutes from scratch (models trained into the model store too)")  # fmt: skip
     size.add_argument("--full", action="store_true",
                       help=f"the paper's accident ({full.steps:,} steps, {full.accident_steps:,} of them decaying), "
                            f"{len(full.t_ups)} demands, {len(full.seeds)} evaluation seeds")  # fmt: skip
