@@ -11,14 +11,16 @@ imports, and a scenario I worker printed one of its own when it came while the w
 Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1,
 scenario2, learning, protocol, regime-map: their pools of workers) and simulate get all four moments; the others,
 and `python -m coopsumo`, one each, chosen while they still run: accident-seeds and adaptive (refusing their
-folder), adaptive-fit (on a copy of the archived conditioned sweep) and models (a store of one folder that is no
-model) end within a second or two, so 0.2 s, during their imports; diagnose (refusing its folder after its imports)
+folder), adaptive-fit (on a copy of the archived conditioned sweep) end within a second or two, so 0.2 s, during their
+imports; models (a store of one real 40-step model, which its listing checks with torch, and one folder that is no
+model) takes about 2 s, so 0.2 and 1 s (a store without a model ended within 0.2 s on a fast machine); diagnose (refusing its folder after its imports)
 and scenario2 --merge at 1 s; history and bench at 2 s. A Ctrl-C later in a training is tests/test_interrupts.py's,
 in a study tests/test_faults_scenario1.py's. What comes before the command's first instruction is Python's own start
 (some 0.05 s), which no code of the command can guard; the console command imports nothing there (test below)."""
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import shutil
@@ -52,7 +54,7 @@ CASES: dict[str, tuple[list[str], tuple[float, ...]]] = {
     "adaptive-fit": (["adaptive-fit", "{tmp}/conditioned"], (0.2,)),
     "adaptive": (["adaptive", "{tmp}/conditioned", "--quiet"], (0.2,)),
     "history": (["history", "--results", "{repo}/results", "--out", "{tmp}/history.md"], (2.0,)),
-    "models": (["models", "--store", "{tmp}/store"], (0.2,)),
+    "models": (["models", "--store", "{tmp}/store"], (0.2, 1.0)),
     "bench": (["bench", "--quick"], (2.0,)),
     "python -m coopsumo train": (["train", "--steps", "3000", "--eval-steps", "0", "--out", "{tmp}/run", "--quiet"],
                                  (0.5,)),  # fmt: skip
@@ -70,10 +72,27 @@ def command(case: str, tmp: Path) -> list[str]:
     return [str(CONSOLE), *argv]
 
 
-def prepare(tmp: Path) -> None:
-    """What the commands read: a model store with one folder that is no model (models lists it: its imports), a
-    finished alpha-conditioned sweep of its own (adaptive-fit and adaptive write into it)."""
+@pytest.fixture(scope="module")
+def stored_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One real model of a model store: a 40-step training (about a second), as a study stores it."""
+    from coopsumo.config import SimConfig, TrainConfig, to_dict
+    from coopsumo.dqn_config import DQN_PRESETS
+    from coopsumo.studies.engine.model_store import train_shared
+
+    cfg = TrainConfig(sim=SimConfig(steps=40, seed=3, policy="dqn"), dqn=DQN_PRESETS["paper"], eval_steps=0,
+                      log_every_steps=20)  # fmt: skip
+    root = tmp_path_factory.mktemp("store")
+    train_shared(json.loads(json.dumps(to_dict(cfg))), root / "study" / "models" / "m", root / "models")
+    (model,) = [p for p in (root / "models").iterdir() if p.is_dir() and not p.name.startswith(".")]
+    return model
+
+
+def prepare(tmp: Path, model: Path) -> None:
+    """What the commands read: a model store with one real model and one folder that is no model (models checks
+    the one and lists both), a finished alpha-conditioned sweep of its own (adaptive-fit and adaptive write into
+    it)."""
     (tmp / "store" / "not_a_model").mkdir(parents=True)
+    shutil.copytree(model, tmp / "store" / model.name)
     shutil.copytree(REPO / "results" / "archive" / "scenario2_conditioned", tmp / "conditioned")
 
 
@@ -97,8 +116,9 @@ def ctrl_c(proc: subprocess.Popen[str], at_s: float, start: float) -> tuple[int,
 @pytest.mark.sumo
 @pytest.mark.parametrize(("case", "at_s"), [(case, at_s) for case, (_, moments) in CASES.items() for at_s in moments],
                          ids=lambda value: f"{value}s" if isinstance(value, float) else value)  # fmt: skip
-def test_a_ctrl_c_at_any_moment_is_one_line_and_exit_code_130(case: str, at_s: float, tmp_path: Path) -> None:
-    prepare(tmp_path)
+def test_a_ctrl_c_at_any_moment_is_one_line_and_exit_code_130(case: str, at_s: float, tmp_path: Path,
+                                                               stored_model: Path) -> None:  # fmt: skip
+    prepare(tmp_path, stored_model)
     env = {**{k: v for k, v in os.environ.items() if k != "DISPLAY"}, "COOPSUMO_MODELS": str(tmp_path / "models")}
     start = time.monotonic()
     proc = subprocess.Popen(command(case, tmp_path), cwd=tmp_path, env=env, stdout=subprocess.DEVNULL,
