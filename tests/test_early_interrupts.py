@@ -1,22 +1,23 @@
-"""Issue 82, item 4: a Ctrl-C at any moment of a command, from its first instruction on, is one line and exit code
-130, in the command and in every process it started. Each command is started as a terminal starts it (a process
-group of its own), with small valid arguments in a fresh folder, and gets SIGINT sent to its whole group, as a
-terminal's Ctrl-C does, 0.2, 0.5, 1 or 2 s after it started: while Python imports torch, libsumo and pandas, while
-it checks its arguments, while a study's workers or the training's update worker start, or once they work. Its
-stderr must then hold exactly one line saying it was interrupted (its progress bars and own lines beside it are
-fine), no traceback from it or from any of its processes, and it must exit with 130, its processes gone. Before,
-`coopsumo train` and the other commands printed a KeyboardInterrupt traceback when the Ctrl-C came during their
-imports, and a scenario I worker printed one of its own when it came while the worker started.
+"""Issue 82, item 4: a Ctrl-C at any moment of a command, from its first instruction on, is one line and exit code 130,
+in the command and in every process it started. Each command is started as a terminal starts it (a process group of
+its own), with small valid arguments in a fresh folder, and gets SIGINT sent to its whole group, as a terminal's
+Ctrl-C does, 0.2, 0.5, 1 or 2 s after it started: while Python imports torch, libsumo and pandas, while it checks
+its arguments, while a study's workers or the training's update worker start, or once they work. Its stderr must
+then hold exactly one line saying it was interrupted (its progress bars and own lines beside it are fine), no
+traceback from it or from any of its processes, and it must exit with 130, its processes gone. Before, `coopsumo
+train` and the other commands printed a KeyboardInterrupt traceback when the Ctrl-C came during their imports, and a
+scenario I worker printed one of its own when it came while the worker started.
 
-Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1,
-scenario2, learning, protocol, regime-map: their pools of workers) and simulate get all four moments; the others,
-and `python -m coopsumo`, one each, chosen while they still run: accident-seeds and adaptive (refusing their
-folder), adaptive-fit (on a copy of the archived conditioned sweep) end within a second or two, so 0.2 s, during their
-imports; models (a store of one real 40-step model, which its listing checks with torch, and one folder that is no
-model) takes about 2 s, so 0.2 and 1 s (a store without a model ended within 0.2 s on a fast machine); diagnose (refusing its folder after its imports)
-and scenario2 --merge at 1 s; history and bench at 2 s. A Ctrl-C later in a training is tests/test_interrupts.py's,
-in a study tests/test_faults_scenario1.py's. What comes before the command's first instruction is Python's own start
-(some 0.05 s), which no code of the command can guard; the console command imports nothing there (test below)."""
+Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1, scenario2,
+learning, protocol, regime-map: their pools of workers) and simulate get all four moments; the others, and `python
+-m coopsumo`, one each, chosen while they still run: accident-seeds and adaptive (refusing their folder), adaptive-
+fit (on a copy of the archived conditioned sweep) end within a second or two, so 0.2 s, during their imports; models
+(a store of one real 40-step model, which its listing checks with torch, and one folder that is no model) takes
+about 2 s, so 0.2 and 1 s (a store without a model ended within 0.2 s on a fast machine); diagnose (refusing its
+folder after its imports) and scenario2 --merge at 1 s; history and bench at 2 s. A Ctrl-C later in a training is
+tests/test_interrupts.py's, in a study tests/test_faults_scenario1.py's. What comes before the command's first
+instruction is Python's own start (some 0.05 s), which no code of the command can guard; the console command imports
+nothing there (test below)."""
 
 from __future__ import annotations
 
