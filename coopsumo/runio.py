@@ -108,13 +108,19 @@ def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_pr
     command that reports its own interruption (run_cli) returns its exit code; one that reaches here ends in one
     line, `prog(): interrupted`, exit code 130. whole_process: body is the process's command, which exits next; a
     Ctrl-C while Python exits then has nothing left to stop and is ignored (it used to kill the ending process
-    without a line, or print a traceback from an exit handler). Only in the main thread (elsewhere: body())."""
+    without a line, or print a traceback from an exit handler). A Ctrl-C that the code it landed in swallowed, so
+    that body() ran on and returned 0, still ends in that line and 130. Only in the main thread (elsewhere: body())."""
     if threading.current_thread() is not threading.main_thread():
         return body()
     old, stops_before = signal.getsignal(signal.SIGINT), len(_STOPS_RAISED)
     try:
         signal.signal(signal.SIGINT, _raise_stop)
-        return body()
+        code = body()
+        if code == 0 and len(_STOPS_RAISED) > stops_before:
+            # a Ctrl-C swallowed by the code it landed in (a library's `except ImportError` around an optional
+            # import, once numpy turned the Stop into an ImportError): the command ran on, but was interrupted
+            return interrupted(prog(), Stop(_STOPS_RAISED[-1]))
+        return code
     except KeyboardInterrupt as err:
         return interrupted(prog(), err)
     except Exception:

@@ -165,3 +165,19 @@ def test_a_ctrl_c_that_a_library_turned_into_another_error_is_still_one_line(
 
     with pytest.raises(ImportError, match="no module named x"):
         run_interruptible(broken, lambda: "train")
+
+
+def _optional_import_that_swallows_ctrl_c() -> int:
+    """A library's guard around an optional import: the Ctrl-C lands in the import, numpy turns it into an
+    ImportError, the guard takes that for a missing module, and the command runs on to its end."""
+    try:
+        _import_that_turns_ctrl_c_into_import_error()
+    except ImportError:
+        pass
+    return 0
+
+
+def test_a_ctrl_c_that_a_library_swallowed_still_ends_in_one_line_and_130(
+        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    assert run_interruptible(_optional_import_that_swallows_ctrl_c, lambda: "regime-map") == 130
+    assert capsys.readouterr().err == "regime-map: interrupted\n"
