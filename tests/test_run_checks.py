@@ -71,6 +71,11 @@ def _interval_flow(xml: str, count: int, flow: str) -> str:
     return re.sub(r'nVehContrib="\d+" flow="[^"]*"', f'nVehContrib="{count}" flow="{flow}"', xml, count=1)
 
 
+def _attribute(xml: str, name: str, value: str) -> str:
+    """The first loop interval with its attribute `name` set to value."""
+    return re.sub(rf' {name}="[^"]*"', f' {name}="{value}"', xml, count=1)
+
+
 def _drop_last_intervals(xml: str) -> str:
     """detectors.xml of a run 10 s shorter: its last period's intervals gone."""
     return "\n".join(line for line in xml.splitlines() if 'end="40.00"' not in line) + "\n"
@@ -104,7 +109,7 @@ CASES: dict[str, tuple[Callable[[Path], None], str]] = {
     "tripinfo.xml cut short": (cut("tripinfo.xml"), "cut-short tripinfo.xml"),
     "detectors.xml cut short": (cut("detectors.xml"), "cut-short detectors.xml"),
     "a lane above one vehicle a step": (text("detectors.xml", lambda x: _interval_flow(x, 101, "36360.00")),
-                                        "flow 36360.00 veh/h, outside 0 to 36,000"),
+                                        "101 vehicles in 10 s on one lane, above a lane's capacity"),
     "loops of a shorter run": (text("detectors.xml", _drop_last_intervals), "ending at 30 s, but the run lasted 40"),
     "FCD of a shorter run": (text("fcd.xml", _drop_last_timesteps),
                              "fcd.xml ending at 30.00 s, but the run lasted 40 s"),
@@ -124,7 +129,31 @@ CASES: dict[str, tuple[Callable[[Path], None], str]] = {
     "another configuration": (text("config.json", lambda x: x.replace('"steps": 400', '"steps": 401')),
                               "another or an unreadable configuration"),
     "its model written after the run": (_newer_model, "was driven by another model"),
+    # issue 82: every number of an interval inside record_schemas.DETECTOR_INTERVAL's limits
+    "a loop speed of 999 m/s": (text("detectors.xml", lambda x: _attribute(x, "speed", "999.00")),
+                                "field speed must be a finite number >= 0 and <= 70 (m/s, or -1 without a vehicle), "
+                                "got 999.0"),
+    "a loop speed of -5 m/s": (text("detectors.xml", lambda x: _attribute(x, "speed", "-5.00")), "field speed"),
+    "a harmonic mean speed of 80 m/s": (text("detectors.xml", lambda x: _attribute(x, "harmonicMeanSpeed", "80")),
+                                        "field harmonicMeanSpeed"),
+    "an occupancy of 150 %": (text("detectors.xml", lambda x: _attribute(x, "occupancy", "150.00")),
+                              "field occupancy must be a finite number >= 0 and <= 100 (%)"),
+    "a negative count": (text("detectors.xml", lambda x: _interval_flow(x, -1, "-360.00")), "field nVehContrib"),
+    "a count of 2.5": (text("detectors.xml", lambda x: _interval_flow(x, 2.5, "900.00")), "field nVehContrib"),
+    "a speed not a number": (text("detectors.xml", lambda x: _attribute(x, "speed", "fast")), "lacking a number"),
+    "above a lane's capacity": (text("detectors.xml", lambda x: _interval_flow(x, 9, "3240.00")),
+                                "9 vehicles in 10 s on one lane, above a lane's capacity of 2,600 veh/h"),
 }  # fmt: skip
+
+
+def test_a_count_at_a_lanes_capacity_is_trusted(made: Path, tmp_path: Path) -> None:
+    """The capacity limit leaves a vehicle for the interval's edges: 8 vehicles in 10 s (2,880 veh/h) pass."""
+    from coopsumo.studies.engine.run_checks import detectors_problem
+
+    out = tmp_path / "run"
+    shutil.copytree(made, out)
+    text("detectors.xml", lambda x: _interval_flow(x, 8, "2880.00"))(out)
+    assert detectors_problem(out / "detectors.xml", to_dict(CFG), 40.0) is None
 
 
 @pytest.mark.parametrize("case", CASES)

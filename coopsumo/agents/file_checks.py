@@ -20,6 +20,7 @@ from typing import Any
 import torch
 
 from coopsumo.files import read_json_object, write_atomic
+from coopsumo.record_schemas import CHECKPOINT_TENSORS, MODEL_TENSORS, tensor_problem
 
 N_ACTIONS = 4
 """actions a recorded action may take: 0 left, 1 right, 2 speedup, 3 none (dqn.N_ACTIONS)"""
@@ -62,7 +63,15 @@ def model_problem(payload: Mapping[str, Any]) -> str | None:
         return f"has dueling = {payload['dueling']!r}, not true or false"
     if not isinstance(payload["meta"], Mapping):
         return f"has meta of type {type(payload['meta']).__name__}, expected a dict"
-    return _weights_problem(payload["state_dict"], "weights")
+    return _weights_problem(payload["state_dict"], "weights") or tensor_problem(payload, MODEL_TENSORS, min_max)
+
+
+def min_max(x: Any) -> tuple[float, float] | None:
+    """A tensor's smallest and largest entries (booleans as 0 and 1), None for an empty one or not a tensor."""
+    if not isinstance(x, torch.Tensor) or not x.numel():
+        return None
+    x = x.to(torch.float64) if x.dtype == torch.bool else x
+    return float(x.min()), float(x.max())
 
 
 def _int_tensor(x: Any) -> bool:
@@ -114,7 +123,29 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
         return f"has non-finite values (nan or inf) in its log window ({where})"
     if (where := non_finite(learner["optimizer"])) is not None:
         return f"has non-finite values (nan or inf) in its optimizer state ({where})"
-    return _counters_problem(step, learner, config["dqn"]) or _buffer_problem(learner["buffer"], config["dqn"])
+    return (_counters_problem(step, learner, config["dqn"]) or _buffer_problem(learner["buffer"], config["dqn"])
+            or _optimizer_problem(learner["optimizer"], learner["online"])
+            or tensor_problem(state, CHECKPOINT_TENSORS, min_max))  # the limits of record_schemas
+
+
+def _optimizer_problem(optimizer: Mapping[str, Any], online: Mapping[str, Any]) -> str | None:
+    """Why the optimizer's state does not fit the online network it steps, or None: one group, its parameters the
+    network's tensors in order, each parameter's moments of that tensor's shape."""
+    groups, state, shapes = optimizer.get("param_groups"), optimizer.get("state"), [t.shape for t in online.values()]
+    if not (isinstance(groups, list) and len(groups) == 1 and isinstance(groups[0], Mapping)
+            and isinstance(state, Mapping)):  # fmt: skip
+        return "has an optimizer state without its one parameter group"
+    if groups[0].get("params") != list(range(len(shapes))):
+        return f"has optimizer parameters {str(groups[0].get('params'))[:40]}, not its network's {len(shapes)} tensors"
+    for index, moments in state.items():
+        if index not in range(len(shapes)) or not isinstance(moments, Mapping):
+            return f"has optimizer state for a parameter {index!r} its network does not have"
+        for name, tensor in moments.items():
+            if name != "step" and tensor is not None and (not isinstance(tensor, torch.Tensor)
+                                                          or tensor.shape != shapes[index]):  # fmt: skip
+                return (f"has optimizer state field {index}.{name} of another shape than its parameter "
+                        f"{tuple(shapes[index])}")  # fmt: skip
+    return None
 
 
 def non_finite(x: Any, at: str = "") -> str | None:

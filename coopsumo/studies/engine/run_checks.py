@@ -14,6 +14,8 @@ import re
 from pathlib import Path
 from typing import Any
 
+from coopsumo.record_schemas import DETECTOR_INTERVAL, LANE_CAPACITY_VEH_H
+
 TAIL_BYTES = 1 << 16
 """the first read from a file's end (fcd.xml's last timestep can be longer: the read doubles until it is found)"""
 
@@ -78,9 +80,11 @@ _ATTRIBUTE = re.compile(rb'([\w:]+)="([^"]*)"')
 
 def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> str | None:
     """Why SUMO's E1 loop file of a run of cfg (sim_seconds long) cannot be trusted, or None: complete (it ends
-    with </detector>), at least one interval, each inside the run and at most a loop period long, its flow the
-    vehicles it counted per hour of the interval (nVehContrib * 3600 / (end - begin), as SUMO rounds it) and from 0
-    to one vehicle per step (a loop lies on one lane), the last interval ending with the run."""
+    with </detector>), at least one interval, each inside the run and at most a loop period long, its numbers inside
+    record_schemas.DETECTOR_INTERVAL (speeds 0-70 m/s, occupancy 0-100 %), its count at most a lane's capacity over
+    the interval (a loop lies on one lane; one vehicle more for the interval's edges) and its flow the vehicles it
+    counted per hour of the interval (nVehContrib * 3600 / (end - begin), as SUMO rounds it), the last interval
+    ending with the run."""
     try:
         text = path.read_bytes()
     except OSError as err:
@@ -88,31 +92,38 @@ def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> st
     if not text.rstrip().endswith(b"</detector>"):
         return "has a missing or cut-short detectors.xml"
     dt, period = float(cfg["control"]["dt_s"]), float(cfg["road"]["loop_period_s"])
-    max_flow = 3600 / dt
     last_end = -math.inf
     for match in _INTERVAL.finditer(text):
-        attrs = dict(_ATTRIBUTE.findall(match.group(1)))
-        shown = match.group(0).decode(errors="replace")[:120]
-        try:
-            begin, end = float(attrs[b"begin"]), float(attrs[b"end"])
-            count, flow = float(attrs[b"nVehContrib"]), float(attrs[b"flow"])
-        except (KeyError, ValueError):
-            return f"has detectors.xml with an interval lacking a number: {shown}"
-        if not (0 <= begin < end <= sim_seconds + dt / 2 and end - begin <= period + 1e-6):
-            return (f"has detectors.xml with an interval {begin:g}-{end:g} s, not within the run's {sim_seconds:g} s "
-                    f"and its {period:g} s loop period")  # fmt: skip
-        if not 0 <= flow <= max_flow:
-            return (f"has detectors.xml with flow {attrs[b'flow'].decode(errors='replace')[:20]} veh/h, outside 0 to "
-                    f"{max_flow:,.0f} (one vehicle per {dt:g} s step on a lane)")  # fmt: skip
-        expected = count * 3600 / (end - begin)
-        if count < 0 or count != int(count) or abs(flow - expected) > 0.011:
-            return (f"has detectors.xml with flow {flow:g} veh/h from {count:g} vehicles in {end - begin:g} s "
-                    f"(that is {expected:.2f} veh/h)")  # fmt: skip
-        last_end = max(last_end, end)
+        if (problem := _interval_problem(match, sim_seconds, dt, period)) is not None:
+            return f"has detectors.xml with {problem}"
+        last_end = max(last_end, float(dict(_ATTRIBUTE.findall(match.group(1)))[b"end"]))
     if last_end == -math.inf:
         return "has a detectors.xml without an interval"
     if abs(last_end - sim_seconds) > dt / 2:
         return f"has detectors.xml ending at {last_end:g} s, but the run lasted {sim_seconds:g} s"
+    return None
+
+
+def _interval_problem(match: re.Match[bytes], sim_seconds: float, dt: float, period: float) -> str | None:
+    """Why one <interval> of detectors.xml cannot be trusted (words after "has detectors.xml with"), or None."""
+    attrs = {k.decode(errors="replace"): v.decode(errors="replace") for k, v in _ATTRIBUTE.findall(match.group(1))}
+    shown = match.group(0).decode(errors="replace")[:120]
+    try:
+        begin, end, count, flow = (float(attrs[k]) for k in ("begin", "end", "nVehContrib", "flow"))
+        numbers = {k: float(v) for k, v in attrs.items() if k != "id"}
+    except (KeyError, ValueError):
+        return f"an interval lacking a number: {shown}"
+    if problem := DETECTOR_INTERVAL.problem(numbers):
+        return f"an interval {attrs['begin']}-{attrs['end']} s of {attrs.get('id', '?')[:40]} whose {problem}"
+    if not (begin < end <= sim_seconds + dt / 2 and end - begin <= period + 1e-6):
+        return (f"an interval {begin:g}-{end:g} s, not within the run's {sim_seconds:g} s and its {period:g} s loop "
+                "period")  # fmt: skip
+    if count > LANE_CAPACITY_VEH_H * (end - begin) / 3600 + 1:
+        return (f"{count:g} vehicles in {end - begin:g} s on one lane, above a lane's capacity of "
+                f"{LANE_CAPACITY_VEH_H:,.0f} veh/h")  # fmt: skip
+    expected = count * 3600 / (end - begin)
+    if abs(flow - expected) > 0.011:
+        return f"flow {flow:g} veh/h from {count:g} vehicles in {end - begin:g} s (that is {expected:.2f} veh/h)"
     return None
 
 

@@ -1,0 +1,329 @@
+"""One schema per record kind the project writes and reads back, its fields' types and physical or logical limits
+declared here as data, so that the writer and every reader agree and a record outside them is refused (or redone,
+where its reader redoes a bad record) in one line naming the file and the field.
+
+Built on field_rules (the flags' own NumberRule and IntRule), not on pydantic or pandera: neither is installed (a
+dependency for a few dozen lines of declarations), the records are read by pandas, torch, XML and JSON alike (pydantic
+covers the JSON ones, pandera the tables only, each with multi-line error reports to reword into one line), and the
+flags' rules already word a refusal the way the commands do ("must be a finite number >= 0 and <= 70, got 999").
+
+A field is a dotted name into the record (`sim.reward.alpha`; `*` for every key or item at that level) and a rule: a
+Number or an Integer (field_rules' bounds, plus the type), Text (a string, maybe one of a few) or Flag (a bool).
+Schema.problem checks a JSON record, Table.problem a table's rows, tensor_problem a checkpoint's or model's nested
+tensors (bounds only; the caller gives each tensor's min and max, so that torch is not imported here). The limits
+are ones a real run never reaches (no committed record comes near them); the comment of each says why.
+
+Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS), a stored
+model's config.json (STORE_CONFIG), a run's detectors.xml intervals (DETECTOR_INTERVAL), a learner protocol study's
+study.json (PROTOCOL_STUDY) and stats.csv (PROTOCOL_STATS).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import numbers
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from typing import Any
+
+from coopsumo.errors import UsageError
+from coopsumo.field_rules import IntRule, NumberRule
+
+SPEED_MAX_MPS = 70.0
+"""no vehicle on the road goes faster (252 km/h; config.SPEED_LIMIT_MPS's upper end): a recorded speed above it is
+not a measurement"""
+LANE_CAPACITY_VEH_H = 2600.0
+"""no lane carries more vehicles an hour (the Newell model's capacity is about 2,000; committed loops peak at 2,160)"""
+ALPHA_MAX = 1000.0
+"""the largest lane-change penalty alpha (validation.ALPHA_MAX, the --alpha flag's)"""
+WEIGHT_MAX = 1e6
+"""a network weight's magnitude: trained weights stay below 10; above this the training diverged or was edited"""
+REWARD_MAX = 1e6
+"""a stored reward's or observed feature's magnitude: a step's reward is a few units (speed, penalty alpha <= 1000,
+flow)"""
+MOMENT_MAX = 1e6
+"""Adam's first moment's magnitude (an average of clipped gradients); its second moment lies in [0, MOMENT_MAX^2]"""
+TTS_MAX_VEH_H = 1e6
+"""total time spent through the accident: at most every departure (one per lane and 0.1 s step) for the whole run"""
+
+
+class RecordError(UsageError):
+    """A record outside its schema: one line naming the file and the field (exit code 2, as bad input)."""
+
+
+@dataclasses.dataclass(frozen=True)
+class Number:
+    """A finite number (not a bool) inside field_rules' bounds; `also`: values that stand for "no value" (SUMO's
+    speed -1 of an interval without a vehicle)."""
+
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    unit: str = ""
+    also: tuple[float, ...] = ()
+
+    def problem(self, value: Any) -> str | None:
+        unit = f" ({self.unit})" if self.unit else ""
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            return f"must be a number{unit}, got {_shown(value)}"
+        if value in self.also:
+            return None
+        rule = NumberRule(self.low, self.high, self.low_open, self.high_open, unit)
+        return rule.problem(float(value))
+
+
+@dataclasses.dataclass(frozen=True)
+class Integer:
+    """An integer (a whole float as a table reads it too, not a bool) from low to high."""
+
+    low: int = 0
+    high: int | None = None
+
+    def problem(self, value: Any) -> str | None:
+        number = float(value) if isinstance(value, numbers.Real) and not isinstance(value, bool) else math.nan
+        if not (math.isfinite(number) and number == int(number)):
+            return f"must be an integer, got {_shown(value)}"
+        return IntRule(self.low, self.high).problem(int(number))
+
+
+@dataclasses.dataclass(frozen=True)
+class Text:
+    """A string, one of `choices` when given, not empty."""
+
+    choices: tuple[str, ...] = ()
+
+    def problem(self, value: Any) -> str | None:
+        if not isinstance(value, str) or not value:
+            return f"must be a text, got {_shown(value)}"
+        if self.choices and value not in self.choices:
+            return f"must be one of {', '.join(self.choices)}, got {_shown(value)}"
+        return None
+
+
+@dataclasses.dataclass(frozen=True)
+class Kind:
+    """A value of a Python type (a mapping, a list, a bool), its contents checked by other fields."""
+
+    types: tuple[type, ...]
+    words: str
+
+    def problem(self, value: Any) -> str | None:
+        return None if isinstance(value, self.types) else f"must be {self.words}, got {_shown(value)}"
+
+
+Rule = Number | Integer | Text | Kind
+MAPPING = Kind((Mapping,), "a mapping")
+LIST = Kind((list, tuple), "a list")
+FLAG = Kind((bool,), "true or false")
+
+
+def _shown(value: Any) -> str:
+    text = repr(value)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+@dataclasses.dataclass(frozen=True)
+class Field:
+    """One field of a record: its dotted name (`*` for every key or item at that level), rule, and whether a record
+    may lack it."""
+
+    name: str
+    rule: Rule
+    optional: bool = False
+
+
+_MISSING = object()
+
+
+def values_at(record: Any, name: str) -> Iterator[tuple[str, Any]]:
+    """(the dotted name with every `*` filled in, value) of each value at `name` in the nested mappings and lists
+    `record`; _MISSING where a key is absent or a level is not a mapping or list."""
+    head, _, rest = name.partition(".")
+    if head == "*":
+        items = record.items() if isinstance(record, Mapping) else enumerate(record) \
+            if isinstance(record, list | tuple) else ()  # fmt: skip
+        for key, value in items:
+            for where, found in values_at(value, rest) if rest else [("", value)]:
+                yield (f"{key}.{where}" if where else str(key)), found
+        return
+    value = record.get(head, _MISSING) if isinstance(record, Mapping) else _MISSING
+    if not rest or value is _MISSING:
+        yield head, value
+        return
+    for where, found in values_at(value, rest):
+        yield f"{head}.{where}", found
+
+
+@dataclasses.dataclass(frozen=True)
+class Schema:
+    """A JSON record's fields, checked in order: the first one outside its rule is the problem."""
+
+    fields: tuple[Field, ...]
+
+    def problem(self, record: Any) -> str | None:
+        """Why `record` breaks the schema ("field sim.reward.alpha must be a number, got 'x'"), or None."""
+        if not isinstance(record, Mapping):
+            return f"is not a JSON object (got {type(record).__name__})"
+        for field in self.fields:
+            for where, value in values_at(record, field.name):
+                if value is _MISSING:
+                    if field.optional:
+                        continue
+                    return f"has no field {where}"
+                if (problem := field.rule.problem(value)) is not None:
+                    return f"field {where} {problem}"
+        return None
+
+    def check(self, record: Any, path: object) -> None:
+        """RecordError "PATH field ... must be ..." when `record` breaks the schema (before it is written or used)."""
+        if (problem := self.problem(record)) is not None:
+            raise RecordError(f"{path} {problem}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Table:
+    """A table's columns: `columns` every row has (a field named `_x` is the rule of every column whose name ends
+    with it, a baseline's `keep_value` and `greedy_value`, and is not required); `cases`: the rules of columns whose
+    unit depends on another column's value (`case`: the scenario, free or accident)."""
+
+    columns: tuple[Field, ...]
+    case: str = ""
+    cases: Mapping[str, tuple[Field, ...]] = dataclasses.field(default_factory=dict)
+
+    def problem(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> str | None:
+        """Why the table (its column names, its rows as mappings) breaks the schema ("row 3 column iqm must be ...",
+        rows counted from 1 after the header), or None."""
+        required = [f.name for f in self.columns if not f.optional and not f.name.startswith("_")]
+        if missing := [name for name in required if name not in names]:
+            return f"has no column {missing[0]}"
+        rules = _rules(self.columns, names)
+        cases = {case: {**rules, **_rules(fields, names)} for case, fields in self.cases.items()}
+        count = 0
+        for count, row in enumerate(rows, 1):
+            for name, rule in cases.get(str(row.get(self.case)), rules).items():
+                if name in row and (problem := rule.problem(_plain(row[name]))) is not None:
+                    return f"row {count} column {name} {problem}"
+        return None if count else "has no row"
+
+    def check(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]], path: object) -> None:
+        """RecordError "PATH row 3 column iqm must be ..." when the table breaks the schema."""
+        if (problem := self.problem(names, rows)) is not None:
+            raise RecordError(f"{path} {problem}")
+
+
+def _rules(fields: Iterable[Field], names: Sequence[str]) -> dict[str, Rule]:
+    """Column name -> rule: a field's own name, or every column ending with a field named `_x`."""
+    out: dict[str, Rule] = {}
+    for field in fields:
+        out.update({n: field.rule for n in names if n.endswith(field.name)} if field.name.startswith("_")
+                   else {field.name: field.rule})  # fmt: skip
+    return out
+
+
+def _plain(value: Any) -> Any:
+    """A table's cell as Python: numpy's numbers (which pandas gives) as int or float."""
+    if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+        return int(value)
+    return float(value) if isinstance(value, numbers.Real) and not isinstance(value, bool) else value
+
+
+def tensor_problem(state: Any, fields: Sequence[Field], min_max: Callable[[Any], tuple[float, float] | None]
+                   ) -> str | None:  # fmt: skip
+    """Why the nested mappings and lists `state` (a checkpoint, a model file) hold a tensor or number outside its
+    field's Number bounds (Integer: also whole), or None. min_max(value): a tensor's smallest and largest entries
+    (None for an empty one or not a tensor); plain numbers are checked as they are. Absent fields are not checked
+    here (the reader's structural checks say so)."""
+    for field in fields:
+        for where, value in values_at(state, field.name):
+            if value is _MISSING:
+                continue
+            if isinstance(value, numbers.Real) and not isinstance(value, bool):
+                low_high: tuple[float, float] | None = (float(value), float(value))
+            else:
+                low_high = min_max(value)
+            for end in low_high or ():
+                if (problem := field.rule.problem(end)) is not None:
+                    return f"field {where} {problem}"
+    return None
+
+
+# -- the schemas ---------------------------------------------------------------------------------------------
+SPEED = Number(0.0, SPEED_MAX_MPS, unit="m/s")
+SHARE = Number(0.0, 1.0)
+WEIGHTS = Number(-WEIGHT_MAX, WEIGHT_MAX, low_open=True, high_open=True, unit="a network weight")
+
+MODEL_TENSORS = (Field("state_dict.*", WEIGHTS),)
+"""a model file's (model_file.save_model's) tensors"""
+CHECKPOINT_TENSORS = (
+    *(Field(f"learner.{net}.*", WEIGHTS) for net in ("online", "target", "average")),
+    Field("learner.buffer.data.rewards", Number(-REWARD_MAX, REWARD_MAX, True, True, "a reward")),
+    *(Field(f"learner.buffer.data.{name}", Number(-REWARD_MAX, REWARD_MAX, True, True, "an observed feature"))
+      for name in ("features", "next_features")),  # fmt: skip
+    Field("learner.buffer.data.dones", Integer(0, 1)),
+    Field("learner.optimizer.param_groups.*.lr", Number(0.0, 1.0, low_open=True, unit="a learning rate")),
+    Field("learner.optimizer.param_groups.*.betas.*", Number(0.0, 1.0, high_open=True, unit="Adam's beta")),
+    Field("learner.optimizer.param_groups.*.eps", Number(0.0, 1.0, low_open=True)),
+    Field("learner.optimizer.param_groups.*.weight_decay", Number(0.0, 1.0)),
+    Field("learner.optimizer.param_groups.*.momentum", Number(0.0, 1.0, high_open=True)),
+    Field("learner.optimizer.state.*.step", Integer(0, 10**12)),
+    Field("learner.optimizer.state.*.exp_avg", Number(-MOMENT_MAX, MOMENT_MAX, True, True, "Adam's first moment")),
+    Field("learner.optimizer.state.*.exp_avg_sq", Number(0.0, MOMENT_MAX**2, unit="Adam's second moment")),
+    Field("learner.optimizer.state.*.momentum_buffer", Number(-MOMENT_MAX, MOMENT_MAX, True, True)),
+)
+"""a training checkpoint's (train.Trainer.save_checkpoint's) numbers: weights, replay memory, optimizer"""
+
+STORE_CONFIG = Schema((
+    Field("config", MAPPING),
+    Field("config.sim", MAPPING),
+    Field("config.dqn", MAPPING),
+    Field("config.sim.seed", Integer(0, 2**31 - 1)),
+    Field("config.sim.steps", Integer(1)),
+    Field("config.sim.reward", MAPPING),
+    Field("config.sim.reward.alpha", Number(0.0, ALPHA_MAX)),
+    Field("config.dqn.preset", Text()),
+    Field("config.dqn.alpha_conditioned", FLAG, optional=True),
+))  # fmt: skip
+"""a stored model's config.json (train.model_meta's): what names its store folder (model_store.model_id)"""
+
+DETECTOR_INTERVAL = Schema((
+    Field("begin", Number(0.0, unit="s")),
+    Field("end", Number(0.0, unit="s")),
+    Field("nVehContrib", Integer(0)),
+    Field("flow", Number(0.0, unit="veh/h")),
+    Field("occupancy", Number(0.0, 100.0, unit="%")),
+    Field("speed", Number(0.0, SPEED_MAX_MPS, unit="m/s, or -1 without a vehicle", also=(-1.0,))),
+    Field("harmonicMeanSpeed", Number(0.0, SPEED_MAX_MPS, unit="m/s, or -1 without a vehicle", also=(-1.0,)),
+          optional=True),
+))  # fmt: skip
+"""one <interval> of SUMO's E1 loop output (detectors.xml), its attributes as numbers (a speed of -1: SUMO's "no
+vehicle"); its count at most LANE_CAPACITY_VEH_H per lane over the interval (run_checks.detectors_problem)"""
+
+PROTOCOL_STUDY = Schema((
+    Field("learners", MAPPING),
+    Field("learners.*", MAPPING),
+    Field("learners.*.learner", MAPPING, optional=True),
+    Field("learners.*.drive", MAPPING, optional=True),
+    Field("learners.*.weights", Text(), optional=True),
+    Field("profile", MAPPING, optional=True),
+    Field("profile.eval_offsets", LIST, optional=True),
+))  # fmt: skip
+"""a learner protocol study's study.json (protocol.study's meta), as `coopsumo history` reads it"""
+
+POI = Number(0.0, 1.0, unit="a probability")
+PROTOCOL_STATS = Table(
+    columns=(Field("scenario", Text(("free", "accident"))), Field("t_up", Number(0.0, 3600.0, True, unit="s")),
+             Field("variant", Text()), Field("models", Integer(1)),
+             Field("lane_changes_per_vehicle", Number(0.0, 1000.0)),
+             *(Field(name, Number(0.0, TTS_MAX_VEH_H)) for name in ("iqm", "low", "high", "worst", "mean")),
+             Field("keep_value", Number(0.0, TTS_MAX_VEH_H)), Field("keep_poi_low", POI), Field("greedy_poi", POI),
+             Field("mobil:p=0_poi", POI),
+             Field("_poi", POI), Field("_poi_low", POI), Field("_poi_high", POI), Field("_losses", Integer(0))),
+    case="scenario",
+    cases={"free": tuple(Field(name, SPEED) for name in ("iqm", "low", "high", "worst", "mean", "_value")),
+           "accident": tuple(Field(name, Number(0.0, TTS_MAX_VEH_H, unit="veh-h"))
+                             for name in ("iqm", "low", "high", "worst", "mean", "_value"))},
+)  # fmt: skip
+"""a learner protocol study's stats.csv (protocol.report.condition_stats): per scenario, demand and learner, the IQM
+and its interval over models (free flow: mean speed, m/s; accident: total time spent, veh-h), each baseline's value
+and probability of improvement"""

@@ -1,0 +1,196 @@
+"""Issue 82 items 1 and 6: record_schemas' limits, each field of each record kind outside them refused in one line
+naming the file and the field. Here the schemas themselves and a training checkpoint (resumed by `train --resume`);
+a run's detectors.xml in test_run_checks.py, `coopsumo history`'s study.json and stats.csv in test_history.py, a
+stored model's config.json in test_model_store.py."""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import hashlib
+import math
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from coopsumo import record_schemas as rs
+from coopsumo.agents import train_cli as train
+from coopsumo.agents.file_checks import checkpoint_problem
+from coopsumo.agents.train import Trainer
+from coopsumo.config import SimConfig, TrainConfig
+from coopsumo.dqn_config import DQN_PRESETS
+from coopsumo.run_dirs import finished_run, mark_run_dir
+
+
+# -- the schemas on their own ---------------------------------------------------------------------------------
+def test_a_json_record_names_its_first_field_outside_the_schema() -> None:
+    schema = rs.Schema((rs.Field("a.b", rs.Number(0.0, 70.0, unit="m/s")), rs.Field("n", rs.Integer(1)),
+                        rs.Field("c.*.d", rs.Text(("x", "y"))), rs.Field("e", rs.FLAG, optional=True)))  # fmt: skip
+    good = {"a": {"b": 20.0}, "n": 3, "c": [{"d": "x"}, {"d": "y"}]}
+    assert schema.problem(good) is None
+    cases = {
+        "field a.b must be a finite number >= 0 and <= 70 (m/s), got 999": {"a": {"b": 999}},
+        "field a.b must be a number (m/s), got 'x'": {"a": {"b": "x"}},
+        "field a.b must be a number (m/s), got None": {"a": {"b": None}},
+        "field a.b must be a number (m/s), got True": {"a": {"b": True}},
+        "field a.b must be a finite number": {"a": {"b": math.nan}},
+        "has no field a.b": {"a": {}},
+        "field n must be an integer, got 2.5": {"n": 2.5},
+        "field n must be an integer >= 1, got 0": {"n": 0},
+        "field c.1.d must be one of x, y, got 'z'": {"c": [{"d": "x"}, {"d": "z"}]},
+        "field e must be true or false, got 'yes'": {"e": "yes"},
+    }
+    for words, change in cases.items():
+        problem = schema.problem({**good, **change})
+        assert problem is not None and problem.startswith(words), (words, problem)
+    assert schema.problem({"n": 3}) == "has no field a"
+    assert schema.problem([1]) == "is not a JSON object (got list)"
+    with pytest.raises(rs.RecordError, match=r"^/x/f.json field n must be an integer >= 1, got 0$"):
+        schema.check({**good, "n": 0}, "/x/f.json")
+
+
+def test_a_table_names_its_row_and_column() -> None:
+    table = rs.Table((rs.Field("kind", rs.Text(("free", "jam"))), rs.Field("v", rs.Number(0.0, 1e6)),
+                      rs.Field("_p", rs.Number(0.0, 1.0))),
+                     case="kind", cases={"free": (rs.Field("v", rs.Number(0.0, 70.0)),)})  # fmt: skip
+    names = ["kind", "v", "a_p", "b_p"]
+    rows = [{"kind": "free", "v": 20.0, "a_p": 0.5, "b_p": 1.0}, {"kind": "jam", "v": 500.0, "a_p": 0.0, "b_p": 0.0}]
+    assert table.problem(names, rows) is None
+    assert table.problem(["v"], rows) == "has no column kind"
+    assert table.problem(names, []) == "has no row"
+    spoiled = {"v": 80.0}, {"b_p": 1.5}, {"a_p": math.nan}, {"kind": "x"}
+    words = "row 1 column v must be", "row 1 column b_p must be", "row 1 column a_p must be", "row 1 column kind"
+    for change, start in zip(spoiled, words, strict=True):
+        problem = table.problem(names, [{**rows[0], **change}, rows[1]])
+        assert problem is not None and problem.startswith(start), (change, problem)
+    assert table.problem(names, [rows[0], {**rows[1], "v": 2e6}]) is not None  # the other case's wider limit
+
+
+def test_the_limits_are_ones_a_real_run_never_reaches() -> None:
+    assert rs.SPEED_MAX_MPS >= 70 and rs.LANE_CAPACITY_VEH_H > 2160  # the committed loops' highest flow
+    assert rs.STORE_CONFIG.problem({"config": {"sim": {"seed": 100, "steps": 90000, "reward": {"alpha": 48.0}},
+                                               "dqn": {"preset": "default"}}}) is None  # fmt: skip
+    interval = {"begin": 0.0, "end": 60.0, "nVehContrib": 0, "flow": 0.0, "occupancy": 0.0, "speed": -1.0,
+                "harmonicMeanSpeed": -1.0}  # an interval without a vehicle, as SUMO writes it
+    assert rs.DETECTOR_INTERVAL.problem(interval) is None
+
+
+# -- a training checkpoint ------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def checkpoint_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A training folder of the default learner (Adam) interrupted at step 20, its optimizer holding Adam's moments
+    for every parameter (as after its first updates)."""
+    out = tmp_path_factory.mktemp("ckpt") / "run"
+    dqn = dataclasses.replace(DQN_PRESETS["default"], replay_size=500, batch_size=8, select_every_steps=0)
+    cfg = TrainConfig(sim=SimConfig(steps=40, seed=3, policy="dqn"), dqn=dqn, eval_steps=0, log_every_steps=10,
+                      checkpoint_every_steps=20)  # fmt: skip
+    out.mkdir()
+    mark_run_dir(out, "train", finished=False)
+    trainer = Trainer(cfg, out, progress=False)
+    save = trainer.save_checkpoint
+
+    def save_and_keep_step_20() -> None:
+        save()
+        if trainer.step == 20:
+            shutil.copy(out / "checkpoint.pt", out / "step20.pt")
+
+    trainer.save_checkpoint = save_and_keep_step_20  # type: ignore[method-assign]
+    trainer.run()
+    state = torch.load(out / "step20.pt", weights_only=True)
+    state["learner"]["optimizer"]["state"] = {
+        i: {"step": torch.tensor(3.0), "exp_avg": torch.full_like(w, 0.01), "exp_avg_sq": torch.full_like(w, 1e-4)}
+        for i, w in enumerate(state["learner"]["online"].values())}  # fmt: skip
+    torch.save(state, out / "checkpoint.pt")
+    (out / "step20.pt").unlink()
+    return out
+
+
+def _set(*keys: Any, value: Any) -> Callable[[dict[str, Any]], None]:
+    """Set state[k1]...[kn] = value; a tensor value is written into the tensor there (its first entries)."""
+
+    def change(state: dict[str, Any]) -> None:
+        d: Any = state
+        for k in keys[:-1]:
+            d = d[k]
+        if isinstance(d[keys[-1]], torch.Tensor) and not isinstance(value, torch.Tensor):
+            d[keys[-1]] = d[keys[-1]].clone()
+            d[keys[-1]].view(-1)[0] = value
+        else:
+            d[keys[-1]] = value
+
+    return change
+
+
+GROUP = ("learner", "optimizer", "param_groups", 0)
+ADAM = ("learner", "optimizer", "state", 0)
+REPLAY = ("learner", "buffer", "data")
+CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
+    # the probe's (2026-12-01): each resumed with rc 0, the first two writing a model of NaN weights
+    "learning rate 1e30": (_set(*GROUP, "lr", value=1e30), "field learner.optimizer.param_groups.0.lr must be a "
+                           "finite number > 0 and <= 1 (a learning rate), got 1e+30"),
+    "learning rate -1": (_set(*GROUP, "lr", value=-1.0), "field learner.optimizer.param_groups.0.lr must be"),
+    "learning rate 0": (_set(*GROUP, "lr", value=0.0), "field learner.optimizer.param_groups.0.lr must be"),
+    "Adam's second moment -1": (_set(*ADAM, "exp_avg_sq", value=-1.0),
+                                "field learner.optimizer.state.0.exp_avg_sq must be a finite number >= 0"),
+    "online weights 1e30": (_set("learner", "online", "conv1.weight", value=1e30),
+                            "field learner.online.conv1.weight must be a finite number > -1e+06 and < 1e+06"),
+    "stored rewards 3e38": (_set(*REPLAY, "rewards", value=3e38),
+                            "field learner.buffer.data.rewards must be a finite number > -1e+06 and < 1e+06 (a "
+                            "reward), got 3.0"),
+    "Adam's betas (5, 0.999)": (_set(*GROUP, "betas", value=(5.0, 0.999)),
+                                "field learner.optimizer.param_groups.0.betas.0 must be"),
+    "a moment of another shape": (_set(*ADAM, "exp_avg", value=torch.zeros(3)), "field 0.exp_avg of another shape"),
+    "Adam's step -5": (_set(*ADAM, "step", value=torch.tensor(-5.0)), "field learner.optimizer.state.0.step must be"),
+    "a replay done of 7": (_set(*REPLAY, "dones", value=7.0), "field learner.buffer.data.dones must be an integer"),
+    "optimizer parameters [999]": (_set(*GROUP, "params", value=[999]), "optimizer parameters [999]"),
+    # the other limits of record_schemas.CHECKPOINT_TENSORS
+    "Adam's first moment 1e9": (_set(*ADAM, "exp_avg", value=1e9), "field learner.optimizer.state.0.exp_avg must"),
+    "Adam's second moment 1e13": (_set(*ADAM, "exp_avg_sq", value=1e13), "state.0.exp_avg_sq must"),
+    "Adam's step 2.5": (_set(*ADAM, "step", value=torch.tensor(2.5)), "state.0.step must be an integer"),
+    "Adam's eps -1": (_set(*GROUP, "eps", value=-1.0), "param_groups.0.eps must"),
+    "Adam's second beta 1": (_set(*GROUP, "betas", value=(0.9, 1.0)), "param_groups.0.betas.1 must"),
+    "weight decay 2": (_set(*GROUP, "weight_decay", value=2.0), "param_groups.0.weight_decay must"),
+    "target weights -1e7": (_set("learner", "target", "fc1.bias", value=-1e7), "field learner.target.fc1.bias"),
+    "a stored feature 1e7": (_set(*REPLAY, "features", value=1e7), "field learner.buffer.data.features must"),
+    "a next feature -1e7": (_set(*REPLAY, "next_features", value=-1e7), "field learner.buffer.data.next_features"),
+    "a replay done of -1": (_set(*REPLAY, "dones", value=-1.0), "field learner.buffer.data.dones must"),
+    "two parameter groups": (lambda s: s["learner"]["optimizer"]["param_groups"].append({}), "one parameter group"),
+}  # fmt: skip
+
+
+def snapshot(folder: Path) -> dict[str, str]:
+    return {str(p.relative_to(folder)): "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.rglob("*"))}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_a_checkpoint_outside_its_limits_is_one_line_and_every_byte_is_kept(
+    case: str, checkpoint_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    change, fragment = CASES[case]
+    out = tmp_path / "run"
+    shutil.copytree(checkpoint_folder, out)
+    state = copy.deepcopy(torch.load(out / "checkpoint.pt", weights_only=True))
+    change(state)
+    torch.save(state, out / "checkpoint.pt")
+    before = snapshot(tmp_path)
+    code = train.main(["--resume", "--quiet", "--out", str(out)])
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith(f"train: error: checkpoint {out / 'checkpoint.pt'} "), lines[0]
+    assert fragment in lines[0] and lines[0].endswith("; train again without --resume"), (fragment, lines[0])
+    assert snapshot(tmp_path) == before
+
+
+def test_the_checkpoint_inside_its_limits_resumes(checkpoint_folder: Path, tmp_path: Path) -> None:
+    """The cases above fail for what was spoiled: the checkpoint they start from (Adam's moments included) resumes."""
+    out = tmp_path / "run"
+    shutil.copytree(checkpoint_folder, out)
+    assert checkpoint_problem(torch.load(out / "checkpoint.pt", weights_only=True)) is None
+    assert train.main(["--resume", "--quiet", "--out", str(out)]) == 0
+    assert finished_run(out, "train") and (out / "model.pt").is_file()
