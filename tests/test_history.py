@@ -8,9 +8,11 @@ import json
 import shutil
 import subprocess
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import pandas as pd
+import pytest
 
 from coopsumo.config import to_dict
 from coopsumo.dqn_config import DQN_PRESETS
@@ -160,3 +162,79 @@ def test_out_refuses_a_file_it_did_not_write(tmp_path: Path) -> None:
         assert len(res.stderr.strip().splitlines()) == 1 and f"--out {tmp_path / name}" in res.stderr, res.stderr
         assert "Traceback" not in res.stderr
     assert _files(tmp_path) == before and (tmp_path / "folder.md").is_dir()
+
+
+def _stats(change: dict) -> Callable[[Path], object]:
+    """A change to the first row of a study's stats.csv (None: drop the column)."""
+
+    def spoil(folder: Path) -> None:
+        table = pd.read_csv(folder / "stats.csv")
+        for column, value in change.items():
+            if value is None:
+                table = table.drop(columns=column)
+            else:
+                table[column] = table[column].astype(object)
+                table.loc[0, column] = value
+        table.to_csv(folder / "stats.csv", index=False)
+
+    return spoil
+
+
+def _text(name: str, text: str) -> Callable[[Path], object]:
+    return lambda folder: (folder / name).write_text(text)
+
+
+def _learners(value: object) -> Callable[[Path], object]:
+    def spoil(folder: Path) -> None:
+        study = json.loads((folder / "study.json").read_text())
+        study["learners"] = value
+        (folder / "study.json").write_text(json.dumps(study))
+
+    return spoil
+
+
+SPOILED = {
+    # the probe's (2026-12-01): tracebacks (h5-h9), and numbers copied into the table (h20, h21)
+    "study.json not JSON": (_text("study.json", "{not json"), "study.json cannot be read as JSON (JSONDecodeError)"),
+    "stats.csv without iqm": (_stats({"iqm": None}), "stats.csv has no column iqm"),
+    "stats.csv empty": (_text("stats.csv", ""), "stats.csv cannot be read as a table (EmptyDataError)"),
+    "study.json a list": (_text("study.json", "[1, 2]"), "study.json is not a JSON object (got list)"),
+    "a learner not a table": (_learners({"v": 3}), "study.json field learners.v must be a mapping, got 3"),
+    "keep's value nan": (_stats({"keep_value": "nan"}), "stats.csv row 1 column keep_value must be a finite number"),
+    "an IQM of 1e9 m/s": (_stats({"iqm": 1e9}), "stats.csv row 1 column iqm must be a finite number >= 0 and <= 70 "
+                          "(m/s), got 1000000000.0"),
+    # the other fields of record_schemas.PROTOCOL_STUDY and PROTOCOL_STATS
+    "learners a list": (_learners([1]), "study.json field learners must be a mapping"),
+    "no learners": (_text("study.json", "{}"), "study.json has no field learners"),
+    "a speed below 0": (_stats({"low": -1.0}), "row 1 column low must be"),
+    "worst a word": (_stats({"worst": "x"}), "row 1 column worst must be a number (m/s), got 'x'"),
+    "a probability of 1.5": (_stats({"keep_poi_high": 1.5}), "row 1 column keep_poi_high must be a finite number >= 0 "
+                             "and <= 1 (a probability)"),
+    "greedy's probability nan": (_stats({"greedy_poi": "nan"}), "row 1 column greedy_poi"),
+    "a negative count of losses": (_stats({"keep_losses": -1}), "row 1 column keep_losses must be an integer >= 0"),
+    "2.5 models": (_stats({"models": 2.5}), "row 1 column models must be an integer"),
+    "another scenario": (_stats({"scenario": "jam"}), "row 1 column scenario must be one of free, accident"),
+    "a demand of 0 s": (_stats({"t_up": 0.0}), "row 1 column t_up must be"),
+    "lane changes 1e6": (_stats({"lane_changes_per_vehicle": 1e6}), "row 1 column lane_changes_per_vehicle"),
+    "no greedy column": (_stats({"greedy_poi": None}), "stats.csv has no column greedy_poi"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(SPOILED))
+def test_a_spoiled_record_is_one_line_and_nothing_is_written(
+    case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    spoil, fragment = SPOILED[case]
+    folder = tmp_path / "results" / "learner_protocol_x"
+    learner = json.loads(json.dumps(to_dict(DQN_PRESETS["default"])))
+    _study(folder, learner, {}, [_row("free", 2.0, 20.0, 18.0, 0.9) | {"keep_losses": 0},
+                                 _row("accident", 2.0, 30.0, 31.5, 0.8) | {"keep_losses": 1}])  # fmt: skip
+    assert history.main(["--results", str(tmp_path / "results")]) == 0  # the study before it is spoiled
+    capsys.readouterr()
+    spoil(folder)
+    out = tmp_path / "table.md"
+    code = history.main(["--results", str(tmp_path / "results"), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert err.startswith(f"coopsumo history: error: {folder}/") and fragment in err, (fragment, err)
+    assert not out.exists()

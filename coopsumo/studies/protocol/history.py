@@ -24,6 +24,7 @@ from coopsumo.config import SPEED_ONLY_FIELDS, to_dict
 from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_atomic
+from coopsumo.record_schemas import PROTOCOL_STATS, PROTOCOL_STUDY, RecordError
 from coopsumo.runio import Parser, run_cli
 
 TITLE = "# The learner search, one row per learner judged"
@@ -89,10 +90,30 @@ def verdict(free: pd.DataFrame, accident: pd.DataFrame) -> str:
     return "; ".join(parts)
 
 
+def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
+    """A study's study.json and stats.csv, read and checked against their schemas (record_schemas.PROTOCOL_STUDY,
+    PROTOCOL_STATS: no number copied into the table lies outside its limits); RecordError naming the file and the
+    field otherwise."""
+    path = folder / "study.json"
+    try:
+        study = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as err:
+        raise RecordError(f"{path} cannot be read as JSON ({type(err).__name__}); restore it or move the study "
+                          "away") from None  # fmt: skip
+    PROTOCOL_STUDY.check(study, path)
+    path = folder / "stats.csv"
+    try:
+        stats = pd.read_csv(path)
+    except (OSError, UnicodeDecodeError, ValueError) as err:  # pandas' EmptyDataError and ParserError among them
+        raise RecordError(f"{path} cannot be read as a table ({type(err).__name__}); restore it or move the study "
+                          "away") from None  # fmt: skip
+    PROTOCOL_STATS.check([str(c) for c in stats.columns], stats.to_dict("records"), path)
+    return study, stats
+
+
 def rows_of(folder: Path, results: Path) -> list[dict[str, str]]:
-    """One table row per learner the study judged, from its study.json and stats.csv."""
-    study = json.loads((folder / "study.json").read_text())
-    stats = pd.read_csv(folder / "stats.csv")
+    """One table row per learner the study judged, from its study.json and stats.csv (records)."""
+    study, stats = records(folder)
     profile = study.get("profile", {})
     commit, date = added(folder)
     out = []

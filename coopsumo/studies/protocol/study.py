@@ -29,6 +29,7 @@ from coopsumo.config import RoadConfig, SimConfig, to_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
+from coopsumo.record_schemas import PROTOCOL_STUDY
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.records import failed_exit
@@ -152,6 +153,7 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
     meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
                 failed_cells=[r["key"] for r in records if r["status"] != "ok"],
                 cell_cpu_seconds_sum=round(sum(r.get("cell_cpu_s") or 0.0 for r in records), 1))  # fmt: skip
+    PROTOCOL_STUDY.check(meta, root / "study.json")  # the schema `coopsumo history` reads it by, before any output
     protocol_report.write_outputs(root, profile, records, meta)
     write_json(root / "study.json", meta)
     return meta
