@@ -1,12 +1,16 @@
 """`coopsumo models` on a store that is not there yet (a fresh clone): "no models yet" and where they would go,
-exit code 0; a --store named by hand that does not exist, or a file, is still one line and exit code 2."""
+exit code 0; a --store named by hand that does not exist, or a file, is still one line and exit code 2; a stored
+model's config.json outside its schema is a row naming the field, not a traceback."""
 
 from __future__ import annotations
 
+import json
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 
+from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.studies.engine import model_store
 
 
@@ -39,3 +43,64 @@ def test_a_named_store_that_is_no_folder_is_one_line_and_exit_2(
     assert model_store.main(["--store", str(store)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--store" in err[0] and str(store) in err[0]
+
+
+def _spoil(*keys: str, value: object = None, drop: bool = False) -> Callable[[dict], None]:
+    def change(record: dict) -> None:
+        d = record
+        for k in keys[:-1]:
+            d = d[k]
+        if drop:
+            del d[keys[-1]]
+        else:
+            d[keys[-1]] = value
+
+    return change
+
+
+CONFIGS = {
+    # the probe's (2026-12-01): `coopsumo models` ended in a traceback
+    "alpha 'x'": (_spoil("config", "sim", "reward", "alpha", value="x"),
+                  "field config.sim.reward.alpha must be a number, got 'x'"),
+    "alpha null": (_spoil("config", "sim", "reward", "alpha", value=None),
+                   "field config.sim.reward.alpha must be a number, got None"),
+    # the other fields of record_schemas.STORE_CONFIG
+    "alpha -1": (_spoil("config", "sim", "reward", "alpha", value=-1.0), "field config.sim.reward.alpha must be a "
+                 "finite number >= 0 and <= 1000, got -1.0"),
+    "alpha 1e9": (_spoil("config", "sim", "reward", "alpha", value=1e9), "field config.sim.reward.alpha"),
+    "seed -4": (_spoil("config", "sim", "seed", value=-4), "field config.sim.seed must be an integer from 0"),
+    "seed 2.5": (_spoil("config", "sim", "seed", value=2.5), "field config.sim.seed must be an integer, got 2.5"),
+    "steps 0": (_spoil("config", "sim", "steps", value=0), "field config.sim.steps must be an integer >= 1"),
+    "preset 3": (_spoil("config", "dqn", "preset", value=3), "field config.dqn.preset must be a text, got 3"),
+    "conditioned 'yes'": (_spoil("config", "dqn", "alpha_conditioned", value="yes"),
+                          "field config.dqn.alpha_conditioned must be true or false"),
+    "sim a list": (_spoil("config", "sim", value=[1]), "field config.sim must be a mapping"),
+    "no reward": (_spoil("config", "sim", "reward", drop=True), "has no field config.sim.reward"),
+    "not an object": (lambda record: record.clear(), "has no field config"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(CONFIGS))
+def test_a_stored_config_outside_its_schema_is_listed_not_usable(
+        case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82: one folder's config.json outside record_schemas.STORE_CONFIG is a row saying why it is not usable
+    (no traceback, exit 0); the store's other models are listed as before."""
+    spoil, fragment = CONFIGS[case]
+    store = tmp_path / "models"
+    for seed in (100, 101):
+        config = to_dict(TrainConfig(sim=SimConfig(steps=300, seed=seed, policy="dqn"), eval_steps=0))
+        folder = store / model_store.model_id(config)
+        folder.mkdir(parents=True)
+        (folder / "config.json").write_text(json.dumps({"config": config}))
+    assert model_store.main(["--store", str(store)]) == 0
+    assert "not usable" not in capsys.readouterr().out  # both unfinished (no model), neither refused
+    first = sorted(store.iterdir())[0]
+    record = json.loads((first / "config.json").read_text())
+    spoil(record)
+    (first / "config.json").write_text(json.dumps(record))
+    assert model_store.main(["--store", str(store)]) == 0
+    out, err = capsys.readouterr()
+    assert err == "" and "2 models in" in out
+    row = next(line for line in out.splitlines() if line.startswith(first.name))
+    assert f"not usable: config.json {fragment}" in row, (fragment, row)
+    assert "unfinished" in next(line for line in out.splitlines() if line.startswith(sorted(store.iterdir())[1].name))

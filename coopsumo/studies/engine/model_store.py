@@ -28,6 +28,7 @@ from typing import Any
 
 from coopsumo.config import results_view
 from coopsumo.paths import STORE_ENV
+from coopsumo.record_schemas import STORE_CONFIG
 from coopsumo.validation import number_name
 
 FIRST_TRAIN_SEED = 100
@@ -232,14 +233,19 @@ def listing(store: Path) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"model": folder.name, "preset": "-", "alpha": "-", "seed": "-", "steps": "-",
                                "state": "unfinished", "selected_step": "-"}  # fmt: skip
         try:
-            config = json.loads((folder / "config.json").read_text())["config"]
-            sim, dqn = config["sim"], config["dqn"]
-            row.update(preset=dqn["preset"], seed=sim["seed"], steps=sim["steps"],
-                       alpha="conditioned" if dqn.get("alpha_conditioned") else sim["reward"]["alpha"])  # fmt: skip
-        except (OSError, ValueError, KeyError, TypeError):
+            recorded = json.loads((folder / "config.json").read_text())
+        except (OSError, ValueError):
             row["state"] = "no readable config.json"
             rows.append(row)
             continue
+        if (problem := STORE_CONFIG.problem(recorded)) is not None:  # what names the folder, inside its limits
+            row["state"] = f"not usable: config.json {problem}"
+            rows.append(row)
+            continue
+        config = recorded["config"]
+        sim, dqn = config["sim"], config["dqn"]
+        row.update(preset=dqn["preset"], seed=sim["seed"], steps=sim["steps"],
+                   alpha="conditioned" if dqn.get("alpha_conditioned") else sim["reward"]["alpha"])  # fmt: skip
         if model_id(config) != folder.name:
             row["state"] = "config.json is not this folder's identity (edited?)"
         elif (summary := finished_training(folder, config, quiet=True)) is not None:
