@@ -133,6 +133,10 @@ def _main(argv: Sequence[str]) -> int:
     except UsageError as err:  # data the command reads when imported refused (the protocol's learners.toml)
         print(f"coopsumo {args.command}: error: {err}", file=sys.stderr)
         return 2
+    if args.command == "bench":  # bench reports no file error of its own: a full temporary folder is one line too
+        from coopsumo.runio import run_cli
+
+        return run_cli("bench", lambda: int(module.main(rest)))
     return int(module.main(rest))
 
 

@@ -186,3 +186,21 @@ def test_an_installed_package_builds_into_the_per_user_cache(monkeypatch: pytest
     assert network.nets_dir({}) == Path.home() / ".cache" / "coopsumo" / "sumo_nets"
     (tmp_path / "pyproject.toml").write_text('[project]\nname = "other"\n')
     assert network.checkout_root() is None  # another project's checkout is not ours
+
+
+@pytest.mark.parametrize("error", [OSError(28, "No space left on device"),
+                                   RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 17280")])
+def test_bench_with_a_full_temporary_folder_is_one_line(error: Exception, monkeypatch: pytest.MonkeyPatch,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82: `bench` with a 64 KB TMPDIR ended in two tracebacks (torch's writer failing, a full disk); its
+    writes fail so here (measured on a 64 KB and a 4 KB tmpfs: these two errors), and the command says so in one
+    line, exit code 1."""
+    from coopsumo import bench
+
+    def full(*_args: object) -> None:
+        raise error
+
+    monkeypatch.setattr(bench, "learner_lines", full)
+    assert cli.main(["bench", "--quick", "--learner"]) == 1
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and err.startswith("bench: error: ") and "Traceback" not in err, err
