@@ -97,6 +97,10 @@ MODEL_CASES: dict[str, tuple[Callable[[dict[str, Any]], None] | bytes, str]] = {
     "weights a list": (_set("state_dict", [1, 2]), "weights of type list"),
     "a weight not a tensor": (lambda p: p["state_dict"].update({"fc1.bias": "x"}), "not a tensor"),
     "a nan weight": (_nan_weight, "non-finite"),
+    # issue 82: record_schemas.MODEL_TENSORS, |w| < 1e6
+    "a weight 1e30": (lambda p: p["state_dict"]["fc1.weight"].view(-1).__setitem__(0, 1e30),
+                      "field state_dict.fc1.weight must be a finite number > -1e+06 and < 1e+06 (a network weight)"),
+    "a bias -2e6": (lambda p: p["state_dict"]["out.bias"].view(-1).__setitem__(0, -2e6), "field state_dict.out.bias"),
     "decision interval 0": (_learner(decision_interval_steps=0), "decision_interval_steps"),
     "decision interval a string": (_learner(decision_interval_steps="10"), "decision_interval_steps must be an"),
     "decision interval 2.5": (_learner(decision_interval_steps=2.5), "decision_interval_steps must be an integer"),
