@@ -26,16 +26,16 @@ import numbers
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
+from coopsumo.config import SPEED_LIMIT_MPS
 from coopsumo.errors import UsageError
 from coopsumo.field_rules import IntRule, NumberRule
+from coopsumo.validation import ALPHA_MAX, ALPHA_MIN
 
-SPEED_MAX_MPS = 70.0
-"""no vehicle on the road goes faster (252 km/h; config.SPEED_LIMIT_MPS's upper end): a recorded speed above it is
-not a measurement"""
+SPEED_MAX_MPS = SPEED_LIMIT_MPS[1]
+"""no vehicle goes faster (70 m/s, 252 km/h: the largest speed limit a road takes, config.SPEED_LIMIT_MPS): a recorded
+speed above it is not a measurement"""
 LANE_CAPACITY_VEH_H = 2600.0
 """no lane carries more vehicles an hour (the Newell model's capacity is about 2,000; committed loops peak at 2,160)"""
-ALPHA_MAX = 1000.0
-"""the largest lane-change penalty alpha (validation.ALPHA_MAX, the --alpha flag's)"""
 WEIGHT_MAX = 1e6
 """a network weight's magnitude: trained weights stay below 10; above this the training diverged or was edited"""
 REWARD_MAX = 1e6
@@ -280,7 +280,7 @@ STORE_CONFIG = Schema((
     Field("config.sim.seed", Integer(0, 2**31 - 1)),
     Field("config.sim.steps", Integer(1)),
     Field("config.sim.reward", MAPPING),
-    Field("config.sim.reward.alpha", Number(0.0, ALPHA_MAX)),
+    Field("config.sim.reward.alpha", Number(ALPHA_MIN, ALPHA_MAX)),
     Field("config.dqn.preset", Text()),
     Field("config.dqn.alpha_conditioned", FLAG, optional=True),
 ))  # fmt: skip

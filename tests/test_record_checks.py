@@ -292,3 +292,40 @@ def test_an_unreadable_adaptive_rule_is_not_the_fitted_one(text: str, tmp_path: 
     path.write_text('{"points": [[3, 10.0, 0.5]], "source": "t"}')
     assert fitted_points(path) == [[3, 10.0, 0.5]]
     assert fitted_points(tmp_path / "missing.json") is None
+
+
+def _copied_in(model: Path, other: Path) -> None:
+    """Another learner's model file copied over this one (the probe's: default alpha 1 over the paper model)."""
+    shutil.copyfile(other, model)
+
+
+def _linked_to(model: Path, other: Path) -> None:
+    """The study's train/<key> made a link to another training's folder."""
+    shutil.rmtree(model.parent)
+    model.parent.symlink_to(other.parent, target_is_directory=True)
+
+
+@pytest.mark.parametrize("command", ["diagnose", "accident-seeds"])
+@pytest.mark.parametrize("change", [_copied_in, _linked_to])
+def test_a_model_of_another_training_is_never_driven_as_this_one(
+    command: str, change: Callable[[Path, Path], None], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82: diagnose and accident-seeds drove a model swapped in from another learner as the study's (its
+    Q-margins reported under the wrong name); now refused in one line naming the file, exit code 2, nothing written."""
+    from coopsumo.studies.followups import diagnosis
+
+    root = learning_folder(tmp_path / "learning")
+    margin, conditioned = (accident_seeds.models(root, (v,), (0.0,), 1)[0]["model"] for v in ("margin", "conditioned"))
+    change(margin, conditioned)
+    out = tmp_path / "acc"
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    if command == "diagnose":
+        code = diagnosis.main([str(root), "--steps", "200", "--quiet"])
+    else:
+        code = accident_seeds.main([str(root), "--variants", "margin", "--seeds", "1", "--t-up", "3", "--steps", "600",
+                                    "--out", str(out), "--quiet"])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert str(margin.parent) in err and ("made by another training" in err or "not to " in err), err
+    assert f"not the model record {root / 'cells'}" in err, err
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before and not out.exists()

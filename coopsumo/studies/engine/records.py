@@ -17,6 +17,7 @@ from coopsumo.config import results_view
 from coopsumo.errors import UsageError
 from coopsumo.files import file_sha256, read_json_object, temporary_of
 from coopsumo.provenance import versions
+from coopsumo.record_schemas import SPEED_MAX_MPS
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -175,8 +176,9 @@ def pool_summaries(summaries: Sequence[dict[str, Any]]) -> dict[str, Any]:
     return out
 
 
-MAX_SPEED_MPS = 50.0
-"""no run's speed is above this (1.5 x the road's 33.34 m/s limit, which no vehicle's expected speed exceeds)"""
+MAX_SPEED_MPS = SPEED_MAX_MPS
+"""no run's speed is above this (record_schemas' limit on every recorded speed: the largest speed limit a road takes,
+config.SPEED_LIMIT_MPS)"""
 
 
 MAX_LANE_FLOW_VEH_H = 36_000.0

@@ -21,7 +21,8 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
     margin drives its twin's training).
 
     A record that cannot be read, or names a variant this version does not know, is skipped with one line on stderr;
-    UsageError when root has no cells/ or the model of a finished training asked for is missing."""
+    UsageError when root has no cells/ or the model of a finished training asked for is missing or is not that
+    training's (model_problem: a model swapped in from another learner is never driven as this one)."""
     if not (root / "cells").is_dir():
         raise UsageError(f"{root} is not a learning-study folder (it has no cells/): give the --out of `coopsumo "
                          "learning`")  # fmt: skip
@@ -47,6 +48,30 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
         if not model.is_file():
             raise UsageError(f"{model} is missing, though record {cell} says its training finished: run `coopsumo "
                              f"learning` on {root} again")  # fmt: skip
+        if (problem := model_problem(model, config["train"])) is not None:
+            raise UsageError(f"{problem}: it is not the model record {cell} trained, and is not driven as it; restore "
+                             f"it, or run `coopsumo learning` on {root} again")  # fmt: skip
         found.append({"key": str(rec.get("key", cell.stem)), "variant": variant, "alpha": alpha, "seed": seed,
                       "config": config, "learner": learner, "model": model})  # fmt: skip
     return found
+
+
+def model_problem(model: Path, config: dict[str, Any]) -> str | None:
+    """Why `model` (ROOT/train/<key>/model.pt) is not the model of the training `config` (a TrainConfig dict, its
+    record's), in words naming the file, or None: its folder is a link into the model store that leads elsewhere
+    (model_store.link_problem), or the model file records another training than that (trainings.first_difference:
+    another learner's model copied in). A model file that cannot be read is left to the command that drives it,
+    which says so in its own line."""
+    from coopsumo.agents.model_file import ModelFileError, load_model
+    from coopsumo.studies.engine.model_store import link_problem
+    from coopsumo.studies.engine.trainings import first_difference
+
+    if (problem := link_problem(model.parent, config)) is not None:
+        return f"{model.parent} {problem}"
+    try:
+        _, meta = load_model(model)
+    except ModelFileError:
+        return None
+    if (where := first_difference(meta.get("config"), config)) is not None:
+        return f"{model} was made by another training than its record's ({where}; swapped in?)"
+    return None
