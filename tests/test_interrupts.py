@@ -110,3 +110,31 @@ def test_a_signal_handled_as_the_training_loop_ends_is_not_lost(tmp_path: Path,
     assert finished_run(tmp_path / "run", "train")
     resumed, whole = (load_model(tmp_path / f / "model.pt")[0].state_dict() for f in ("run", "whole"))
     assert all(torch.equal(resumed[k], whole[k]) for k in whole)
+
+
+def test_a_signal_as_the_loop_puts_its_handlers_in_leaves_none_of_them_behind(tmp_path: Path,
+                                                                               monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """A signal that came just before the loop starts has its handler run as soon as the loop's handler is in, before
+    the first step, and stops the training at once (runio.Stop). The handlers used to go in outside the loop's
+    try: one raising there left the loop's handlers installed, and a study's worker, idle again after the cell,
+    ended in a traceback of its own at the abort's SIGTERM (scenario I's Ctrl-C test, 1 run in about 10). Here the
+    handler runs at that very moment; afterwards both handlers are the ones from before."""
+    from coopsumo.agents.train import train
+    from coopsumo.config import SimConfig, TrainConfig
+    from coopsumo.runio import Stop
+
+    real = signal.signal
+
+    def put_in(signum: int, handler: Any) -> Any:
+        before = real(signum, handler)
+        if getattr(handler, "__name__", "") == "_on_signal" and signum == signal.SIGINT:
+            handler(signal.SIGTERM, None)  # the pending signal's handler runs at the next instruction
+        return before
+
+    cfg = TrainConfig(sim=SimConfig(steps=60, seed=2, policy="dqn"), eval_steps=0, log_every_steps=30)
+    handlers = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    monkeypatch.setattr(signal, "signal", put_in)
+    with pytest.raises(Stop):
+        train(cfg, tmp_path / "run", progress=False)
+    monkeypatch.undo()
+    assert {s: signal.getsignal(s) for s in handlers} == handlers

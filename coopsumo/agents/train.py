@@ -1,11 +1,10 @@
 """The training loop of the shared lane-changing DQN (`coopsumo train`: its command line in agents/train_cli.py).
 
-Every vehicle is an agent; all share one network and one replay memory. Writes into --out:
-config.json, train_log.csv (one row per logging window), model.pt, and the greedy
-evaluation's summary.json (its SUMO files in eval/). Ctrl-C or SIGTERM saves
-checkpoint.pt and exits; --resume continues it exactly (the world is rebuilt by replaying
-the recorded actions, then the learner's saved state takes over). An existing non-empty --out is used
-only if this command wrote it (its .coopsumo-run.json, run_dirs.check_run_dir).
+Every vehicle is an agent; all share one network and one replay memory. Writes into --out: config.json,
+train_log.csv (one row per logging window), model.pt, and the greedy evaluation's summary.json (its SUMO files in
+eval/). Ctrl-C or SIGTERM saves checkpoint.pt and exits; --resume continues it exactly (the world is rebuilt by
+replaying the recorded actions, then the learner's saved state takes over). An existing non-empty --out is used only
+if this command wrote it (its .coopsumo-run.json, run_dirs.check_run_dir).
 
 --alpha-conditioned trains one network for every alpha: alpha is an input, and all vehicles share one alpha
 drawn from the paper's grid every alpha_period_steps (training_alpha); the world's own reward alpha is 0 and
@@ -166,18 +165,19 @@ class Trainer:
     def run(self) -> None:
         """Train up to cfg.sim.steps; raises Interrupted after checkpointing on SIGINT/SIGTERM (runio.Stop before the
         first step: nothing new to save)."""
-        cfg = self.cfg
-        self._run_step = self.step
-        old = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-        learner = self.learner
-        try:
+        cfg, learner, self._run_step = self.cfg, self.learner, self.step
+        old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+        try:  # the handlers go in inside the try, so that one raising at once (a stop before the first step) is undone
+            for s in old:
+                signal.signal(s, self._on_signal)
             attach_updates(learner, self.learner_process, self.group)
             self._loop(cfg)
         except LearnerProcessError as err:
             raise self._stopped_with(err) from None
         finally:
+            self._run_step = -1  # a signal while the handlers are put back is only noted: every one is put back
             for s, h in old.items():
-                signal.signal(s, h)
+                signal.signal(s, signal.SIG_DFL if h is None else h)
             if learner.worker is not None:
                 try:
                     learner.detach()  # the worker's target network and optimiser come back for the last checkpoint
