@@ -112,8 +112,8 @@ def test_a_signal_handled_as_the_training_loop_ends_is_not_lost(tmp_path: Path,
     assert all(torch.equal(resumed[k], whole[k]) for k in whole)
 
 
-def test_a_signal_as_the_loop_puts_its_handlers_in_leaves_none_of_them_behind(tmp_path: Path,
-                                                                               monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+def test_a_signal_as_the_loop_puts_its_handlers_in_leaves_none_behind(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     """A signal that came just before the loop starts has its handler run as soon as the loop's handler is in, before
     the first step, and stops the training at once (runio.Stop). The handlers used to go in outside the loop's
     try: one raising there left the loop's handlers installed, and a study's worker, idle again after the cell,
