@@ -15,7 +15,8 @@ are ones a real run never reaches (no committed record comes near them); the com
 
 Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS), a stored
 model's config.json (STORE_CONFIG), a run's detectors.xml intervals (DETECTOR_INTERVAL), a learner protocol study's
-study.json (PROTOCOL_STUDY) and stats.csv (PROTOCOL_STATS).
+study.json (PROTOCOL_STUDY) and stats.csv (PROTOCOL_STATS), scenario II's runs.csv and evals.csv (SCENARIO2_RUNS,
+SCENARIO2_EVALS).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import numbers
 from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
-from coopsumo.config import SPEED_LIMIT_MPS
+from coopsumo.config import MAX_LANES, MIN_LANES, SPEED_LIMIT_MPS
 from coopsumo.errors import UsageError
 from coopsumo.field_rules import IntRule, NumberRule
 from coopsumo.validation import ALPHA_MAX, ALPHA_MIN
@@ -54,7 +55,7 @@ class RecordError(UsageError):
 @dataclasses.dataclass(frozen=True)
 class Number:
     """A finite number (not a bool) inside field_rules' bounds; `also`: values that stand for "no value" (SUMO's
-    speed -1 of an interval without a vehicle)."""
+    speed -1 of an interval without a vehicle); blank_ok: NaN (a table's empty cell) or None stands for one too."""
 
     low: float | None = None
     high: float | None = None
@@ -62,9 +63,12 @@ class Number:
     high_open: bool = False
     unit: str = ""
     also: tuple[float, ...] = ()
+    blank_ok: bool = False
 
     def problem(self, value: Any) -> str | None:
         unit = f" ({self.unit})" if self.unit else ""
+        if self.blank_ok and (value is None or (isinstance(value, float) and math.isnan(value))):
+            return None
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
             return f"must be a number{unit}, got {_shown(value)}"
         if value in self.also:
@@ -199,9 +203,13 @@ class Table:
             return f"has no column {missing[0]}"
         rules = _rules(self.columns, names)
         cases = {case: {**rules, **_rules(fields, names)} for case, fields in self.cases.items()}
+        lacking = {case: [f.name for f in fields if not (f.optional or f.name.startswith("_") or f.name in names)]
+                   for case, fields in self.cases.items()}  # fmt: skip
         count = 0
         for count, row in enumerate(rows, 1):
-            for name, rule in cases.get(str(row.get(self.case)), rules).items():
+            if lacking.get(case := str(row.get(self.case))):
+                return f"row {count} ({self.case} {case}) has no column {lacking[case][0]}"
+            for name, rule in cases.get(case, rules).items():
                 if name in row and (problem := rule.problem(_plain(row[name]))) is not None:
                     return f"row {count} column {name} {problem}"
         return None if count else "has no row"
@@ -209,6 +217,19 @@ class Table:
     def check(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]], path: object) -> None:
         """RecordError "PATH row 3 column iqm must be ..." when the table breaks the schema."""
         if (problem := self.problem(names, rows)) is not None:
+            raise RecordError(f"{path} {problem}")
+
+    def frame_problem(self, frame: Any) -> str | None:
+        """problem() of a pandas DataFrame (duck-typed: pandas is not imported here); None for one without rows (a
+        study whose cells all failed writes its tables empty)."""
+        return self.problem([str(c) for c in frame.columns], frame.to_dict("records")) if len(frame) else None
+
+    def check_frame(self, frame: Any, path: object) -> None:
+        """check() of a pandas DataFrame before it is written to `path`: the numbers it holds inside their limits (a
+        writer leaves a value it did not measure blank, NaN or None; a reader that copies it refuses that with
+        frame_problem). Nothing for a frame without rows."""
+        rows = [{k: v for k, v in row.items() if v is not None and v == v} for row in frame.to_dict("records")]
+        if rows and (problem := self.problem([str(c) for c in frame.columns], rows)) is not None:
             raise RecordError(f"{path} {problem}")
 
 
@@ -327,3 +348,31 @@ PROTOCOL_STATS = Table(
 """a learner protocol study's stats.csv (protocol.report.condition_stats): per scenario, demand and learner, the IQM
 and its interval over models (free flow: mean speed, m/s; accident: total time spent, veh-h), each baseline's value
 and probability of improvement"""
+
+_EVALUATION = (
+    Field("mean_speed_mps", SPEED),
+    Field("lane_changes_per_vehicle", Number(0.0, 1000.0)),
+    Field("throughput_veh_per_h", Number(0.0, MAX_LANES * LANE_CAPACITY_VEH_H, unit="veh/h")),
+    Field("mean_travel_time_s", Number(0.0, unit="s", blank_ok=True)),  # no vehicle arrived: none
+    Field("collisions", Integer(0)),
+    Field("teleports", Integer(0)),
+    Field("loop_flow_veh_h_per_lane", Number(0.0, LANE_CAPACITY_VEH_H, unit="veh/h per lane", blank_ok=True)),
+    Field("loop_occupancy_pct", Number(0.0, 100.0, unit="%", blank_ok=True)),  # a MOBIL cell's: not measured
+    Field("full_road_speed_mps", Number(0.0, SPEED_MAX_MPS, unit="m/s", blank_ok=True), optional=True),
+    Field("full_road_from_s", Number(0.0, unit="s", blank_ok=True), optional=True),
+    Field("wall_seconds", Number(0.0, unit="s"), optional=True),
+)
+_COORDINATES = (
+    Field("key", Text()),
+    Field("lanes", Integer(MIN_LANES, MAX_LANES)),
+    Field("t_up_s", Number(0.0, 3600.0, low_open=True, unit="s")),
+    Field("load", Number(0.0, low_open=True)),
+    Field("policy", Text()),  # dqn, mobil; per_alpha in the check profile
+    Field("alpha", Number(ALPHA_MIN, ALPHA_MAX, blank_ok=True)),  # a MOBIL row: none
+    Field("p", Number(-1.0, 1.0, blank_ok=True)),  # a DQN row: none
+)
+SCENARIO2_EVALS = Table((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUATION))
+"""scenario II's evals.csv (scenario2.measures.evals_table): one row per evaluation run of a successful cell"""
+SCENARIO2_RUNS = Table((*_COORDINATES, Field("status", Text())), case="status", cases={"ok": _EVALUATION})
+"""scenario II's runs.csv (scenario2.measures.runs_table): one row per cell, its pooled evaluations when ok (a failed
+cell's numbers are blank)"""

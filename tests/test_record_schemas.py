@@ -79,6 +79,33 @@ def test_the_limits_are_ones_a_real_run_never_reaches() -> None:
     assert rs.DETECTOR_INTERVAL.problem(interval) is None
 
 
+def test_a_writer_leaves_blanks_a_reader_refuses_them(tmp_path: Path) -> None:
+    """A writer's table may leave a value it did not measure blank (a failed baseline, a MOBIL cell's alpha); the
+    numbers it holds are checked before it is written. A reader that copies every value (history) refuses a blank."""
+    import pandas as pd
+
+    row = {"key": "L2_T4_a0_s1", "lanes": 2, "t_up_s": 4.0, "load": 0.25, "policy": "dqn", "alpha": 0.0,
+           "p": math.nan, "eval_seed": 2001, "mean_speed_mps": 22.1, "lane_changes_per_vehicle": 1.6,
+           "throughput_veh_per_h": 808.0, "mean_travel_time_s": 90.2, "collisions": 0, "teleports": 0,
+           "loop_flow_veh_h_per_lane": 427.8, "loop_occupancy_pct": 2.2, "wall_seconds": 2.8}  # fmt: skip
+    frame = pd.DataFrame([row, {**row, "lane_changes_per_vehicle": None}])
+    rs.SCENARIO2_EVALS.check_frame(frame, tmp_path / "evals.csv")  # the blank is not a number outside its limits
+    assert rs.SCENARIO2_EVALS.frame_problem(frame.iloc[:1]) is None
+    problem = rs.SCENARIO2_EVALS.frame_problem(frame)
+    assert problem is not None and problem.startswith("row 2 column lane_changes_per_vehicle must be a finite"), problem
+    for column, value in (("mean_speed_mps", 71.0), ("loop_flow_veh_h_per_lane", 2601.0), ("lanes", 7),
+                          ("loop_occupancy_pct", 101.0), ("teleports", -1), ("alpha", 1001.0), ("p", 1.5),
+                          ("throughput_veh_per_h", 6 * 2600.0 + 1), ("t_up_s", 0.0), ("eval_seed", 1.5)):
+        with pytest.raises(rs.RecordError, match=rf"^{tmp_path}/evals.csv row 1 column {column} must be"):
+            rs.SCENARIO2_EVALS.check_frame(pd.DataFrame([{**row, column: value}]), tmp_path / "evals.csv")
+    assert not (tmp_path / "evals.csv").exists()
+    failed = {k: row[k] for k in ("key", "lanes", "t_up_s", "load", "policy", "alpha", "p")} | {"status": "failed"}
+    assert rs.SCENARIO2_RUNS.frame_problem(pd.DataFrame([failed])) is None  # a failed cell's numbers: none
+    assert rs.SCENARIO2_RUNS.frame_problem(pd.DataFrame([failed, {**failed, "status": "ok"}])) == \
+        "row 2 (status ok) has no column mean_speed_mps"  # an ok row needs its numbers (the columns of its case)
+    assert rs.SCENARIO2_EVALS.frame_problem(pd.DataFrame()) is None  # a study whose cells all failed
+
+
 # -- a training checkpoint ------------------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def checkpoint_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:

@@ -77,7 +77,30 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     "evals.csv edited to 45 m/s, runs.csv untouched": (
         lambda f: edit_table(f, "evals.csv", lambda t: speed(t, 45.0)), "but its 3 evaluations pool to"),
     "evals.csv speeds of 999 m/s": (
-        lambda f: edit_table(f, "evals.csv", lambda t: speed(t, 999.0)), "outside 0 to 50"),
+        lambda f: edit_table(f, "evals.csv", lambda t: speed(t, 999.0)),
+        "column mean_speed_mps must be a finite number >= 0 and <= 70 (m/s), got 999.0"),
+    # issue 82 item 1: every number of runs.csv and evals.csv inside record_schemas.SCENARIO2_RUNS, SCENARIO2_EVALS
+    "evals.csv with a loop flow of 3,000 veh/h per lane": (
+        lambda f: edit_table(f, "evals.csv", lambda t: t.assign(loop_flow_veh_h_per_lane=3000.0)),
+        "evals.csv row 1 column loop_flow_veh_h_per_lane must be a finite number >= 0 and <= 2600 (veh/h per lane)"),
+    "runs.csv with an occupancy of 150 %": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(loop_occupancy_pct=150.0)),
+        "runs.csv row 1 column loop_occupancy_pct must be a finite number >= 0 and <= 100 (%)"),
+    "evals.csv with half a collision": (
+        lambda f: edit_table(f, "evals.csv", lambda t: t.assign(collisions=0.5)),
+        "evals.csv row 1 column collisions must be an integer, got 0.5"),
+    "runs.csv with a throughput of 1e6 veh/h": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(throughput_veh_per_h=1e6)),
+        "runs.csv row 1 column throughput_veh_per_h must be"),
+    "evals.csv with a negative travel time": (
+        lambda f: edit_table(f, "evals.csv", lambda t: t.assign(mean_travel_time_s=-5.0)),
+        "evals.csv row 1 column mean_travel_time_s must be"),
+    "evals.csv with a negative wall time": (
+        lambda f: edit_table(f, "evals.csv", lambda t: t.assign(wall_seconds=-1.0)),
+        "evals.csv row 1 column wall_seconds must be"),
+    "evals.csv with lane changes of 1e4 a vehicle": (
+        lambda f: edit_table(f, "evals.csv", lambda t: t.assign(lane_changes_per_vehicle=1e4)),
+        "evals.csv row 1 column lane_changes_per_vehicle must be"),
     "runs.csv with a speed that is not a number": (
         lambda f: edit_table(f, "runs.csv", lambda t: t.astype({"mean_speed_mps": object}).assign(
             mean_speed_mps=["x", *t["mean_speed_mps"][1:]])), "runs.csv has mean_speed_mps = 'x', not a number"),

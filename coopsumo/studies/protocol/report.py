@@ -266,9 +266,7 @@ def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta:
     runs.to_csv(root / "runs.csv", index=False, float_format="%.6g")
     models = per_model(runs)  # every statistic below is over models, each its mean over its evaluation seeds
     table = condition_stats(models, list(profile.variants), list(BASELINES))
-    if len(table):  # the numbers it holds inside record_schemas' limits (a baseline's failed cell leaves a gap)
-        present = [{k: v for k, v in row.items() if v == v} for row in table.to_dict("records")]
-        PROTOCOL_STATS.check([str(c) for c in table.columns], present, root / "stats.csv")
+    PROTOCOL_STATS.check_frame(table, root / "stats.csv")  # inside record_schemas' limits (a failed baseline: blank)
     table.to_csv(root / "stats.csv", index=False, float_format="%.6g")
     diag = diagnosis_table(root, models[models["variant"] == profile.judged_variant()])  # the judged trainings
     if len(diag):

@@ -17,6 +17,7 @@ from pandas.api.types import is_numeric_dtype
 
 from coopsumo.errors import ConfigError, UsageError
 from coopsumo.files import write_json
+from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
@@ -231,6 +232,9 @@ def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str,
     for e in evals.to_dict("records"):
         if (field := _differs(e, rows[e["key"]], ("lanes", "t_up_s", "load", "policy", "alpha", "p"))) is not None:
             return f"evals.csv has {field} = {e[field]} in an evaluation of {e['key']}, not its runs.csv row's"
+    for name, table, schema in (("runs.csv", runs, SCENARIO2_RUNS), ("evals.csv", evals, SCENARIO2_EVALS)):
+        if (problem := schema.frame_problem(table)) is not None:  # every number inside its limits (record_schemas)
+            return f"{name} {problem}"
     return None
 
 

@@ -54,6 +54,7 @@ from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
+from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.cells import run_todo
@@ -288,9 +289,11 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED_SUMMARY, roads=roads,
                        workers=workers, backend=backend_name, address=address, progress=progress,
                        desc="scenario2 cells", done_keys=sorted(done_keys))  # fmt: skip
-    runs = runs_table(records)
+    runs, evals = runs_table(records), evals_table(records)
+    SCENARIO2_RUNS.check_frame(runs, root / "runs.csv")  # the limits the merge reads them by (record_schemas)
+    SCENARIO2_EVALS.check_frame(evals, root / "evals.csv")
     runs.to_csv(root / "runs.csv", index=False)
-    evals_table(records).to_csv(root / "evals.csv", index=False)
+    evals.to_csv(root / "evals.csv", index=False)
     wall = time.perf_counter() - start
     meta.update(wall_seconds=round(wall, 1), cells_run=len(todo), cells_ok=int((runs["status"] == "ok").sum()),
                 cells_failed=int((runs["status"] != "ok").sum()),
