@@ -370,11 +370,12 @@ PART = ["--t-up", "4", "--alphas", "0,8", "--seeds", "1", "--eval-seeds", "1", "
 """one part of the full profile at a tiny size: one condition, a model per alpha of 300 steps, one evaluation seed"""
 
 
-def test_the_full_profile_in_parts_merged(tmp_path: Path) -> None:
+def test_the_full_profile_in_parts_merged(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """The full profile (one model per alpha, lane count and seed) run in parts, one lane count or some of its alphas
     at a time, then --merge: the merged tables are the parts' together (the classical runs two parts of one lane
     count both made, once), its report covers both lane counts and says it ran in parts, and the gate row of a lane
-    count run in one part is the one that part drew alone."""
+    count run in one part is the one that part drew alone. The parts run as commands; the merges, which run no
+    simulation, in this process (the command's one-line refusals as a process: tests/test_bad_inputs.py)."""
     parts = {"L2": (2, "0,8"), "L3a": (3, "0"), "L3b": (3, "8")}
     folders = {name: tmp_path / name for name in parts}
     for name, (n, alphas) in parts.items():
@@ -387,11 +388,12 @@ def test_the_full_profile_in_parts_merged(tmp_path: Path) -> None:
     cfg = json.loads((folders["L2"] / "train" / "L2_a8_s1" / "config.json").read_text())["config"]
     assert not cfg["dqn"]["alpha_conditioned"] and cfg["sim"]["reward"]["alpha"] == 8
     merged = tmp_path / "merged"
-    cmd = [sys.executable, "-m", "coopsumo", "scenario2", "--merge", ",".join(map(str, folders.values())), "--out",
-           str(merged)]  # fmt: skip
-    res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300, check=False)
-    assert res.returncode == 0, res.stderr[-3000:]
-    assert "merged 3 parts (10 cells, lanes 2, 3)" in res.stdout
+    argv = ["--merge", ",".join(map(str, folders.values())), "--out"]
+    capsys.readouterr()
+    code = s2.main([*argv, str(merged)])
+    out, err = capsys.readouterr()
+    assert code == 0, err[-3000:]
+    assert "merged 3 parts (10 cells, lanes 2, 3)" in out
     runs = pd.read_csv(merged / "runs.csv")
     assert len(runs) == 10 and set(runs["lanes"]) == {2, 3} and (runs["status"] == "ok").all()
     alone = {name: pd.read_csv(out / "runs.csv") for name, out in folders.items()}
@@ -416,9 +418,8 @@ def test_the_full_profile_in_parts_merged(tmp_path: Path) -> None:
     report = (merged / "report.md").read_text()
     assert "It ran in 3 parts" in report and "3 lanes at alphas 8" in report
     assert "| 2 | 4 |" in report and "| 3 | 4 |" in report
-    again = subprocess.run([*cmd[:-1], str(tmp_path / "other")], cwd=REPO, capture_output=True, text=True,
-                           timeout=300, check=False)  # fmt: skip
-    assert again.returncode == 0 and (tmp_path / "other" / "report.md").read_text() == report
+    assert s2.main([*argv, str(tmp_path / "other")]) == 0
+    assert (tmp_path / "other" / "report.md").read_text() == report
     changed = tmp_path / "L3b_changed"
     changed.mkdir()
     for name in ("sweep.json", "evals.csv"):
@@ -437,15 +438,15 @@ def test_the_full_profile_in_parts_merged(tmp_path: Path) -> None:
     meta = json.loads((folders["L3b"] / "sweep.json").read_text())
     meta["learner"]["3_lanes"]["lr"] *= 2
     (relearned / "sweep.json").write_text(json.dumps(meta))
-    for argv, words in (([f"{folders['L3a']},{changed}"], "with different results"),
-                        ([f"{folders['L3a']},{relearned}"], "trained 3 lanes with different learners"),
-                        ([f"{folders['L2']},{folders['L3b']}"], "no part holds lanes 3 at alpha 0"),
-                        ([f"{folders['L2']},{copy}"], "repeats lanes 2 at alpha 0"),
-                        ([str(tmp_path / "none")], "not a finished"),
-                        ([str(folders["L2"]), "--lanes", "2"], "--lanes cannot go with it")):  # fmt: skip
-        bad = subprocess.run([sys.executable, "-m", "coopsumo", "scenario2", "--merge", *argv, "--out",
-                              str(tmp_path / "bad")], cwd=REPO, capture_output=True, text=True,
-                             check=False)  # fmt: skip
-        lines = bad.stderr.strip().splitlines()
-        assert bad.returncode == 2 and len(lines) == 1 and words in lines[0], bad.stderr
+    for bad_argv, words in (([f"{folders['L3a']},{changed}"], "with different results"),
+                            ([f"{folders['L3a']},{relearned}"], "trained 3 lanes with different learners"),
+                            ([f"{folders['L2']},{folders['L3b']}"], "no part holds lanes 3 at alpha 0"),
+                            ([f"{folders['L2']},{copy}"], "repeats lanes 2 at alpha 0"),
+                            ([str(tmp_path / "none")], "not a finished"),
+                            ([str(folders["L2"]), "--lanes", "2"], "--lanes cannot go with it")):  # fmt: skip
+        capsys.readouterr()
+        code = s2.main(["--merge", *bad_argv, "--out", str(tmp_path / "bad")])
+        err = capsys.readouterr().err
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and words in lines[0], err
         assert not (tmp_path / "bad").exists()
