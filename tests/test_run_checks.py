@@ -141,6 +141,9 @@ CASES: dict[str, tuple[Callable[[Path], None], str]] = {
     "a negative count": (text("detectors.xml", lambda x: _interval_flow(x, -1, "-360.00")), "field nVehContrib"),
     "a count of 2.5": (text("detectors.xml", lambda x: _interval_flow(x, 2.5, "900.00")), "field nVehContrib"),
     "a speed not a number": (text("detectors.xml", lambda x: _attribute(x, "speed", "fast")), "lacking a number"),
+    "detectors.xml deleted": (lambda out: (out / "detectors.xml").unlink(),
+                              "has lost detectors.xml, which its .coopsumo-run.json lists"),  # was blamed on the marker
+    "tripinfo.xml deleted": (lambda out: (out / "tripinfo.xml").unlink(), "has no tripinfo.xml"),
     "above a lane's capacity": (text("detectors.xml", lambda x: _interval_flow(x, 9, "3240.00")),
                                 "9 vehicles in 10 s on one lane, above a lane's capacity of 2,600 veh/h"),
 }  # fmt: skip

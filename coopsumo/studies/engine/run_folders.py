@@ -162,6 +162,18 @@ def recorded_profile(plan_file: str, *keys: str) -> Recorded:
     return recorded
 
 
+def _listed_but_gone(out: Path) -> str | None:
+    """The first entry a finished simulate marker of `out` lists that is not there, or None."""
+    from coopsumo.run_dirs import RUN_MARKER, listed_files
+
+    try:
+        marker = json.loads((out / RUN_MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    listed = listed_files(marker) if isinstance(marker, dict) and marker.get("kind") == "simulate" else None
+    return next((name for name in listed or () if not (out / name).exists()), None)
+
+
 def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], fcd_period_s: float) -> str | None:
     """Why a finished run folder of the SimConfig dict cfg (simulate's: config.json, summary.json, detectors.xml,
     maybe fcd.xml every fcd_period_s, tripinfo.xml, trajectories.parquet) cannot be reused as it is, or None: marked
@@ -173,6 +185,8 @@ def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], 
     from coopsumo.run_dirs import RUN_MARKER, finished_run
 
     if (out / RUN_MARKER).exists() and not finished_run(out, "simulate"):
+        if gone := _listed_but_gone(out):  # the marker is fine: one of the files it lists was deleted
+            return f"has lost {gone}, which its {RUN_MARKER} lists"
         return f"has a {RUN_MARKER} that does not mark a finished simulate run"
     if problem := summary_problem(out / "summary.json", required):
         return problem
