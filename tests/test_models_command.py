@@ -34,6 +34,15 @@ def test_a_missing_store_from_the_environment_or_an_empty_one_has_no_models_yet(
     assert capsys.readouterr().out.startswith("no models yet")
 
 
+@pytest.mark.parametrize("text", ["", " "])
+def test_an_empty_store_is_one_line_and_exit_2(text: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 82 (ms07): `models --store ""` listed the working folder as a store."""
+    with pytest.raises(SystemExit) as stop:
+        model_store.main(["--store", text])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and len(err) == 1 and "--store: is empty" in err[0], err
+
+
 @pytest.mark.parametrize("kind", ["missing", "file"])
 def test_a_named_store_that_is_no_folder_is_one_line_and_exit_2(
         kind: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip

@@ -294,12 +294,21 @@ def found_stores(base: Path, depth: int = SEARCH_DEPTH) -> list[Path]:
     return sorted(found)
 
 
+def _store_path(text: str) -> Path:
+    """--store's value: a folder's path, not empty (Path("") is the working folder, which was listed as a store)."""
+    import argparse
+
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: name the store's folder")
+    return Path(text)
+
+
 def build_parser() -> Any:
     from coopsumo.runio import Parser
 
     p = Parser(prog="coopsumo models", description="List the model stores: every trained model, by the training "
                "that made it, and whether a study would use it.")  # fmt: skip
-    p.add_argument("--store", type=Path, default=None,
+    p.add_argument("--store", type=_store_path, default=None,
                    help=f"one store (default: ${STORE_ENV} if set, else results/models and every other store found "
                         f"up to {SEARCH_DEPTH} folders below the current one: a study's is `models` beside its --out, "
                         "which it names)")  # fmt: skip
