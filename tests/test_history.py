@@ -97,6 +97,10 @@ def test_no_study_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
     res = subprocess.run([sys.executable, "-m", "coopsumo", "history", "--results", str(tmp_path / "none")],
                          cwd=tmp_path, capture_output=True, text=True, check=False)  # fmt: skip
     assert res.returncode == 2 and "no such folder" in res.stderr
+    (tmp_path / "notes.md").write_text("x")  # issue 82 (h2): a file was called no such folder
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "history", "--results", str(tmp_path / "notes.md")],
+                         cwd=tmp_path, capture_output=True, text=True, check=False)  # fmt: skip
+    assert res.returncode == 2 and f"--results {tmp_path / 'notes.md'}: not a folder" in res.stderr, res.stderr
 
 
 def test_a_frozen_study_is_found_where_it_was_moved(tmp_path: Path) -> None:

@@ -209,7 +209,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def body() -> int:
         if not args.results.is_dir():
-            raise UsageError(f"--results {args.results}: no such folder")
+            what = "not a folder" if args.results.exists() else "no such folder"
+            raise UsageError(f"--results {args.results}: {what}")
         if args.out is not None:
             check_writable(args.out)  # before the table is built: a refusal leaves everything as it was
         text = table(args.results)
