@@ -365,7 +365,11 @@ def test_adaptive_alpha_reads_the_loops_sumo_writes(conditioned_model: Path, tmp
     ],
 )
 def test_bad_alpha_input_is_one_line_and_writes_nothing(conditioned_model: Path, tmp_path: Path, kind: str,
-                                                         fragment: str) -> None:  # fmt: skip
+                                                         fragment: str, capsys: pytest.CaptureFixture[str]) -> None:
+    """simulate's own main in this process (refused before SUMO starts; the one-line refusal of a command run as a
+    process: tests/test_bad_inputs.py)."""
+    from coopsumo import simulate
+
     if kind.startswith("plain,"):
         plain = tmp_path / "plain"
         net = QNetwork(110 / 3.6, dueling=True, observation=TrainConfig().dqn.observation)
@@ -379,10 +383,12 @@ def test_bad_alpha_input_is_one_line_and_writes_nothing(conditioned_model: Path,
     else:
         policy = f"dqn:{conditioned_model},{kind}"
     out = tmp_path / "out"
-    res = _simulate(out, policy, "--steps", "50")
-    assert res.returncode == 2, res.stderr
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in res.stderr
+    capsys.readouterr()
+    code = simulate.main(["--policy", policy, "--out", str(out), "--quiet", "--steps", "50"])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err
     assert not out.exists()
 
 
