@@ -160,15 +160,18 @@ def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: st
     assert not out.exists()
 
 
-def test_bad_model_files_are_usage_errors(tmp_path: Path) -> None:
+def test_bad_model_files_are_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """simulate's own main in this process (refused before SUMO starts; the one-line refusal of a command run as a
+    process: tests/test_bad_inputs.py)."""
+    from coopsumo import simulate
+
     garbage = tmp_path / "garbage.pt"
     garbage.write_bytes(b"not a model")
     for model in (tmp_path / "missing.pt", garbage):
         out = tmp_path / f"out_{model.stem}"
-        res = subprocess.run(
-            [sys.executable, "-m", "coopsumo.simulate", "--policy", f"dqn:{model}", "--steps", "10", "--out", str(out)],
-            capture_output=True, text=True, cwd=ROOT, check=False,
-        )  # fmt: skip
-        assert res.returncode == 2, res.stderr
-        assert len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+        capsys.readouterr()
+        code = simulate.main(["--policy", f"dqn:{model}", "--steps", "10", "--out", str(out)])
+        err = capsys.readouterr().err
+        assert code == 2, err
+        assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
         assert not out.exists()
