@@ -113,3 +113,31 @@ def test_a_stored_config_outside_its_schema_is_listed_not_usable(
     row = next(line for line in out.splitlines() if line.startswith(first.name))
     assert f"not usable: config.json {fragment}" in row, (fragment, row)
     assert "unfinished" in next(line for line in out.splitlines() if line.startswith(sorted(store.iterdir())[1].name))
+
+
+@pytest.mark.parametrize("lost, spoil", [(".coopsumo-run.json", None), ("config.json", None),
+                                         ("config.json", "garbage"), ("train_summary.json", None)])  # fmt: skip
+def test_a_stored_model_that_lost_a_record_is_trained_again_with_a_line_naming_it(
+        lost: str, spoil: str | None, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82 (md05x): a store folder holding a model.pt whose marker, config.json or train_summary.json is gone or
+    garbage was trained again without a word; now one line names the folder and the file (quiet: none, as the
+    listing and the study's first look use it)."""
+    from coopsumo.run_dirs import mark_run_dir
+    from coopsumo.studies.engine.trainings import finished_training
+
+    config = to_dict(TrainConfig(sim=SimConfig(steps=300, seed=100, policy="dqn"), eval_steps=0))
+    folder = tmp_path / model_store.model_id(config)
+    folder.mkdir()
+    (folder / "config.json").write_text(json.dumps({"config": config}))
+    (folder / "train_summary.json").write_text(json.dumps({"steps": 300}))
+    (folder / "model.pt").write_bytes(b"weights")
+    mark_run_dir(folder, "train")
+    if spoil is None:
+        (folder / lost).unlink()
+    else:
+        (folder / lost).write_text(spoil)
+    assert finished_training(folder, config, quiet=True) is None and capsys.readouterr().err == ""
+    assert finished_training(folder, config) is None
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"coopsumo: {folder} holds a model.pt but its {lost} is missing or unreadable "
+                   f"({'FileNotFoundError' if spoil is None else 'JSONDecodeError'}); training it again"], err

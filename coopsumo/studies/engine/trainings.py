@@ -22,16 +22,23 @@ FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
 def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) -> dict[str, Any] | None:
     """The training summary of a training without evaluation that finished in out with exactly this config
     (its run marker lists its files, its config.json holds config, model.pt and train_summary.json exist);
-    None otherwise (with one line on stderr when the model itself is the problem, unless quiet). A cell killed after
-    its training but before its record was written reuses it."""
+    None otherwise (with one line on stderr, unless quiet, when the model itself is the problem or when a folder holding
+    a model.pt lost or spoiled its marker, config.json or train_summary.json). A cell killed after its training but
+    before its record was written reuses it."""
     from coopsumo.run_dirs import RUN_MARKER, listed_files
 
-    try:
-        marker = json.loads((out / RUN_MARKER).read_text())
-        stored = json.loads((out / "config.json").read_text())["config"]
-        summary = json.loads((out / "train_summary.json").read_text())
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
+    read: dict[str, Any] = {}
+    for name in (RUN_MARKER, "config.json", "train_summary.json"):
+        try:
+            read[name] = json.loads((out / name).read_text())
+            if name == "config.json":
+                read[name] = read[name]["config"]
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            if not quiet and (out / "model.pt").is_file():  # a finished training's folder that lost or spoiled it
+                print(f"coopsumo: {out} holds a model.pt but its {name} is missing or unreadable "
+                      f"({type(err).__name__}); training it again", file=sys.stderr)  # fmt: skip
+            return None
+    marker, stored, summary = read[RUN_MARKER], read["config.json"], read["train_summary.json"]
     listed = listed_files(marker) if isinstance(marker, dict) and marker.get("kind") == "train" else None
     if not (listed is not None and "model.pt" in listed and (out / "model.pt").is_file() and isinstance(summary, dict)):
         return None
