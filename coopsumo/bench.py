@@ -167,8 +167,8 @@ def scaled_selection(steps: int) -> TrainConfig:
 
 def bench_selection_share(steps: int) -> tuple[float, float, float, float]:
     """(wall s of a default training with its model selection scaled to `steps` (scaled_selection), the same training
-    without selection, the CPU s of the selection's processes, the CPU s of the whole training with them): both with
-    the updates in a second process. The share is 1 - without / with."""
+    without selection, the CPU s of the selection's processes, the CPU s of the whole training with them, this
+    process's included): both with the updates in a second process. The share is 1 - without / with."""
     import resource
 
     from coopsumo.agents.train import train
@@ -364,7 +364,7 @@ def learner_lines(steps: int, quick: bool, model: Path | None) -> None:
         sps = bench_training(steps, preset)
         print(f"  train --preset {preset:8s}     : {sps:8.0f} steps/s  -> 90,000 steps in {90000 / sps / 60:.1f} min",
               flush=True)  # fmt: skip
-    ratio_steps = 1800 if quick else 18_000
+    ratio_steps = 900 if quick else 18_000
     pipelined, serial, keep = bench_training_ratio(ratio_steps)
     print(f"  train (default, {ratio_steps:,} steps, validation included): {pipelined:.1f} s with the updates in a "
           f"second process, {serial:.1f} s serially; keep on the same worlds {keep:.1f} s", flush=True)  # fmt: skip
@@ -377,7 +377,7 @@ def learner_lines(steps: int, quick: bool, model: Path | None) -> None:
     print(f"learn ratio {learn / learn_keep:.2f}  (default training without model selection / keep on the same worlds "
           f"and steps, wall time, updates in a second process; target <= 2.5; {learn_serial / learn_keep:.2f} "
           "serially)", flush=True)  # fmt: skip
-    greedy_steps = 1200 if quick else 8000
+    greedy_steps = 600 if quick else 8000
     with tempfile.TemporaryDirectory() as tmp:
         model = model or bench_model(600 if quick else 6000, Path(tmp) / "model")
         ratios = {}
@@ -390,6 +390,10 @@ def learner_lines(steps: int, quick: bool, model: Path | None) -> None:
     shown = "the --model given" if model_given else f"a {600 if quick else 6000:,}-step default training"
     print(f"greedy ratio {ratios['free flow']:.2f} free flow, {ratios['through the accident']:.2f} through the accident"
           f"  (greedy run of {shown} / keep's, same world and seed, CPU time; target <= 1.2)", flush=True)  # fmt: skip
+    if quick:  # a selection scaled to a short training is its accident runs' floor (MIN_ACCIDENT_VALIDATION_STEPS)
+        print("selection share and group cost: not in --quick (at its short trainings the model selection is its "
+              "runs' minimum lengths: 80% of the time, a share that says nothing)", flush=True)  # fmt: skip
+        return
     with_s, without_s, selection_cpu, total_cpu = bench_selection_share(ratio_steps)
     print(f"  train (default, {ratio_steps:,} steps, selection scaled to it): {with_s:.1f} s, without selection "
           f"{without_s:.1f} s; the selection's processes {selection_cpu:.1f} of {total_cpu:.1f} CPU s", flush=True)
@@ -398,7 +402,8 @@ def learner_lines(steps: int, quick: bool, model: Path | None) -> None:
           f"{100 * selection_cpu / total_cpu:.0f}% of its CPU time)", flush=True)  # fmt: skip
     from coopsumo.bench_group import group_lines
 
-    print("\n".join(group_lines(scaled_selection(ratio_steps), 2 if quick else 8)), flush=True)
+    lone = (total_cpu, with_s)  # the group's lone training is the selection share's with selection
+    print("\n".join(group_lines(scaled_selection(ratio_steps), 8, lone)), flush=True)
 
 
 def decision_and_output_lines(steps: int, quick: bool) -> None:
@@ -429,7 +434,9 @@ def model_path(text: str) -> Path:
 
 def build_parser() -> Parser:
     parser = Parser(prog="coopsumo bench", description="Speed figures (printed, not asserted).")
-    parser.add_argument("--quick", action="store_true", help="short runs (600 steps), a first look")
+    parser.add_argument("--quick", action="store_true",
+                        help="short runs (600 steps; 900 for the learner's ratios), a first look: without the "
+                             "selection share and the group cost, which need long trainings")
     parser.add_argument("--cluster", action="store_true",
                         help="only the Ray scaling: a study on a cluster of 1, then 2 nodes (needs the ray extra)")
     parser.add_argument("--model", type=model_path, default=None,

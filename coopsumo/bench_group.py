@@ -25,10 +25,11 @@ def _cpu_of(work: object) -> tuple[float, float]:
     return _children_cpu() - cpu0 + time.process_time() - own0, time.perf_counter() - start
 
 
-def bench_group(cfg: TrainConfig, k: int) -> dict[str, float]:
+def bench_group(cfg: TrainConfig, k: int, lone: tuple[float, float] | None = None) -> dict[str, float]:
     """CPU s per model: a lone training of cfg (today's learner, updates in an UpdateWorker, on one torch thread as a
     study's training cell), and each of k trainings of cfg with stacked_updates (seeds cfg's + i) trained as one
-    group; and their wall s."""
+    group; and their wall s. lone: the lone training's (CPU s, wall s) when already measured (bench's selection
+    share trains the same cfg the same way), else it is trained here."""
     import torch
 
     from coopsumo.agents.group import train_group
@@ -39,7 +40,8 @@ def bench_group(cfg: TrainConfig, k: int) -> dict[str, float]:
     stacked = replace(cfg, dqn=replace(cfg.dqn, stacked_updates=True))
     cfgs = [replace(stacked, sim=replace(stacked.sim, seed=stacked.sim.seed + i)) for i in range(k)]
     with tempfile.TemporaryDirectory() as tmp:
-        lone_cpu, lone_wall = _cpu_of(lambda: train(cfg, Path(tmp) / "lone", progress=False, learner_process=True))
+        lone_cpu, lone_wall = lone or _cpu_of(lambda: train(cfg, Path(tmp) / "lone", progress=False,
+                                                             learner_process=True))  # fmt: skip
         outs = [Path(tmp) / f"member{i}" for i in range(k)]
         results: list[object] = []
         group_cpu, group_wall = _cpu_of(lambda: results.extend(train_group(cfgs, outs)))
@@ -50,9 +52,9 @@ def bench_group(cfg: TrainConfig, k: int) -> dict[str, float]:
             "group_wall_s": group_wall, "k": k}  # fmt: skip
 
 
-def group_lines(cfg: TrainConfig, k: int) -> list[str]:
-    """The bench's lines for bench_group."""
-    m = bench_group(cfg, k)
+def group_lines(cfg: TrainConfig, k: int, lone: tuple[float, float] | None = None) -> list[str]:
+    """The bench's lines for bench_group (lone: as there)."""
+    m = bench_group(cfg, k, lone)
     steps = cfg.sim.steps
     return [f"  train (default, {steps:,} steps, selection scaled to it): lone {m['lone_cpu_s']:.1f} CPU s "
             f"({m['lone_wall_s']:.1f} s wall); a group of {k} with the stacked learner "

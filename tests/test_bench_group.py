@@ -1,0 +1,28 @@
+"""bench's group line (coopsumo/bench_group.py, issue 77) on a short training: `make bench`'s full run prints it,
+`--quick` does not (tests/test_docs.py runs that), so it is run here at a size that takes seconds: a group of 2
+against a lone training's figures given as bench gives them (its selection share trains the same lone training)."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import replace
+
+import pytest
+
+from coopsumo.bench import scaled_selection
+from coopsumo.bench_group import group_lines
+
+pytestmark = pytest.mark.sumo
+LINE = (r"  train \(default, 300 steps, selection scaled to it\): lone 20\.0 CPU s \(9\.0 s wall\); a group of 2 with "
+        r"the stacked learner (\d+\.\d) CPU s per model \(\d+\.\d s wall for all 2\)")
+
+
+def test_the_group_line_measures_a_group_against_the_lone_training_given() -> None:
+    cfg = scaled_selection(300)
+    cfg = replace(cfg, dqn=replace(cfg.dqn, select_every_steps=0))  # the line's arithmetic, not a selection's cost
+    first, second = group_lines(cfg, 2, lone=(20.0, 9.0))
+    per_model = re.fullmatch(LINE, first)
+    assert per_model, first
+    assert 1.0 < float(per_model.group(1)) < 200.0  # two real trainings' processes were measured
+    cost = re.match(r"group cost (\d+\.\d\d) ", second)
+    assert cost and abs(float(cost.group(1)) - float(per_model.group(1)) / 20.0) <= 0.01, second
