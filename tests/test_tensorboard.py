@@ -40,14 +40,14 @@ def test_flag_off_by_default() -> None:
 
 
 @pytest.mark.sumo
-def test_train_writes_the_csv_scalars_to_tensorboard(tmp_path: Path) -> None:
+def test_train_writes_the_csv_scalars_to_tensorboard(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "run"
-    cmd = [sys.executable, "-m", "coopsumo", "train", "--steps", "2000", "--eval-steps", "0", "--seed", "3",
+    cmd = [sys.executable, "-m", "coopsumo", "train", "--steps", "1500", "--eval-steps", "0", "--seed", "3",
            "--tensorboard", "--quiet", "--out", str(out)]  # fmt: skip
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600, check=False)
     assert res.returncode == 0, res.stderr[-2000:]
     rows = list(csv.DictReader((out / "train_log.csv").open()))
-    assert [int(r["step"]) for r in rows] == [1000, 2000]
+    assert [int(r["step"]) for r in rows] == [1000, 1500]  # a row every 1,000 steps and at the end
     events = list((out / tb_log.TB_DIR).glob("events.out.tfevents.*"))
     assert len(events) == 1
     acc = EventAccumulator(str(out / tb_log.TB_DIR))
@@ -58,20 +58,25 @@ def test_train_writes_the_csv_scalars_to_tensorboard(tmp_path: Path) -> None:
         expected = [(int(r["step"]), float(r[column])) for r in rows if r[column] != ""]
         assert [p.step for p in points] == [s for s, _ in expected], tag
         assert [p.value for p in points] == pytest.approx([v for _, v in expected], rel=1e-5, abs=1e-7), tag
-    # the command refuses to train afresh over a finished training, its event file untouched
+    # the command (its main, in this process) refuses to train afresh over a finished training, its event file
+    # untouched
+    from coopsumo.agents.train_cli import main
+
     before = events[0].read_bytes()
-    res = subprocess.run([*cmd[: cmd.index("2000")], "1000", *cmd[cmd.index("2000") + 1:]], cwd=ROOT,
-                         capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
-    assert res.returncode == 2 and "finished training" in res.stderr and len(res.stderr.strip().splitlines()) == 1
+    capsys.readouterr()
+    argv = cmd[cmd.index("train") + 1:]
+    code = main([*argv[: argv.index("1500")], "1000", *argv[argv.index("1500") + 1:]])
+    err = capsys.readouterr().err
+    assert code == 2 and "finished training" in err and len(err.strip().splitlines()) == 1, err
     assert list((out / tb_log.TB_DIR).glob("events.out.tfevents.*")) == events and events[0].read_bytes() == before
     # a study's fresh (shorter) training into the same folder (train() itself, as the model store retrains a damaged
     # model) replaces the event files instead of mixing two runs
     from coopsumo.agents.train import train
     from coopsumo.config import SimConfig, TrainConfig
 
-    train(TrainConfig(sim=SimConfig(steps=1000, seed=3, policy="dqn"), eval_steps=0), out, progress=False,
+    train(TrainConfig(sim=SimConfig(steps=500, seed=3, policy="dqn"), eval_steps=0), out, progress=False,
           tensorboard=True)  # fmt: skip
     assert len(list((out / tb_log.TB_DIR).glob("events.out.tfevents.*"))) == 1
     acc = EventAccumulator(str(out / tb_log.TB_DIR))
     acc.Reload()
-    assert [p.step for p in acc.Scalars(tb_log.SCALARS["td_loss"])] == [1000]  # the new run's points alone
+    assert [p.step for p in acc.Scalars(tb_log.SCALARS["td_loss"])] == [500]  # the new run's points alone
