@@ -356,13 +356,21 @@ def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
     assert (tmp_path / "runs.csv").stat().st_mtime_ns >= stamp
 
 
-def test_regime_map_bad_demands_one_line_exit_2(tmp_path: Path) -> None:
+def test_regime_map_bad_demands_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """regime-map's main in this process (the one-line refusal of a command run as a process:
+    tests/test_bad_inputs.py)."""
+    from coopsumo.studies.followups import regime_map
+
     out = tmp_path / "out"
     for bad in ("0", "1,,2", "nan", "2,2", "-1"):
-        res = subprocess.run([sys.executable, "-m", "coopsumo", "regime-map", "--t-up", bad, "--out", str(out)],
-                             cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
-        lines = res.stderr.strip().splitlines()
-        assert res.returncode == 2 and len(lines) == 1 and "--t-up" in lines[0], (bad, res.stderr)
+        capsys.readouterr()
+        try:
+            code = regime_map.main(["--t-up", bad, "--out", str(out)])
+        except SystemExit as stop:  # argparse
+            code = int(stop.code or 0)
+        err = capsys.readouterr().err
+        lines = err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and "--t-up" in lines[0], (bad, err)
         assert not out.exists()
 
 
