@@ -494,13 +494,23 @@ def test_legacy_learner_dict_is_the_paper_setup() -> None:
         (["--preset", "fastest"], "preset"),
     ],
 )
-def test_bad_learner_flags_are_one_line_usage_errors(tmp_path: Path, args: list[str], fragment: str) -> None:
+def test_bad_learner_flags_are_one_line_usage_errors(
+    tmp_path: Path, args: list[str], fragment: str, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """python -m coopsumo.train's main, in this process (the one-line refusal of a command run as a process:
+    tests/test_bad_inputs.py)."""
+    from coopsumo import train
+
     out = tmp_path / "run"
-    res = subprocess.run([sys.executable, "-m", "coopsumo.train", "--steps", "50", "--out", str(out), *args],
-                         capture_output=True, text=True, cwd=ROOT, check=False)  # fmt: skip
-    assert res.returncode == 2, res.stderr
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in res.stderr
+    capsys.readouterr()
+    try:
+        code = train.main(["--steps", "50", "--out", str(out), *args])
+    except SystemExit as stop:  # argparse
+        code = int(stop.code or 0)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err
     assert not out.exists()
 
 
