@@ -115,13 +115,22 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     [(["--variants", "paper,warp"], "warp"), (["--alphas", "0,-1"], "alphas"), (["--seeds", "0"], "seeds"),
      (["--workers", "0"], "workers"), (["--alphas", "a,b"], "alphas"), (["--alpha-variants", "v2x,x"], "x")],
 )  # fmt: skip
-def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:
+def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str,
+                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """learning's main in this process (the one-line refusal of a command run as a process:
+    tests/test_bad_inputs.py)."""
+    from coopsumo.studies.learning import study
+
     out = tmp_path / "out"
-    res = subprocess.run([sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--out", str(out), *args],
-                         cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
-    assert res.returncode == 2
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in res.stderr
+    capsys.readouterr()
+    try:
+        code = study.main(["--profile", "tiny", "--out", str(out), *args])
+    except SystemExit as stop:  # argparse
+        code = int(stop.code or 0)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err
     assert not out.exists()
 
 
