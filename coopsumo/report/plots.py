@@ -306,3 +306,25 @@ def difference_figure(panels: dict[str, pd.DataFrame], ylabel: str, out_path: st
         ax.legend(fontsize=8)
     fig.tight_layout()
     return save_figure(fig, out_path)
+
+
+def thrashing_figure(panels: dict[float, dict[str, pd.DataFrame]], keep_tts: dict[float, float], threshold: float,
+                     out_path: str | Path) -> Path:  # fmt: skip
+    """Every model, one panel per demand (T_up): its queue lane changes per vehicle (x) against its total time spent
+    (y), one colour per learned policy (panels[t_up][label]: columns qlc, tts_veh_h), `keep`'s total time spent as
+    a horizontal line and the thrashing threshold as a vertical one."""
+    fig = new_figure(4.2 * max(len(panels), 1), 3.8)
+    colours = ("tab:blue", "tab:red", "tab:green", "tab:purple")
+    for i, (t_up, models) in enumerate(panels.items()):
+        ax = fig.add_subplot(1, max(len(panels), 1), i + 1)
+        for colour, (label, table) in zip(colours, models.items(), strict=False):
+            ax.scatter(table["qlc"], table["tts_veh_h"], s=18, color=colour, alpha=0.8, label=label)
+        if t_up in keep_tts:
+            ax.axhline(keep_tts[t_up], color="black", linestyle="--", linewidth=1, label="keep")
+        ax.axvline(threshold, color="grey", linestyle=":", linewidth=1, label="thrashing above")
+        ax.set_title(f"T_up = {t_up:g} s ({3600 / t_up:,.0f} veh/h)")
+        ax.set_xlabel("queue lane changes per vehicle (model mean)")
+        if i == 0:
+            ax.set_ylabel("total time spent (veh-h, model mean)")
+            ax.legend(fontsize=7)
+    return save_figure(fig, out_path)

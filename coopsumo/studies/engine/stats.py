@@ -83,17 +83,29 @@ def probability_of_improvement(x: np.ndarray, y: np.ndarray) -> float:
 
 def hierarchical_bootstrap(diff: np.ndarray, reps: int = REPS, seed: int = SEED,
                            confidence: float = CONFIDENCE) -> tuple[float, float, float]:  # fmt: skip
-    """(mean, low, high) of a (models x evaluation seeds) table of paired differences, with a two-level percentile
-    bootstrap: each resample draws the models with replacement, then within each drawn model its evaluation seeds
-    with replacement (Davison and Hinkley 1997, sec. 3.8). The mean weighs every model equally (the mean over models
-    of each model's mean over its seeds). NaN entries are dropped per model; a model without a value is left out.
-    One row (no model, e.g. two baselines) is the one-level bootstrap over seeds. (nan, nan, nan) without data."""
+    """(mean, low, high) of a (models x evaluation seeds) table of paired differences: the percentile interval of
+    hierarchical_replicates. (nan, nan, nan) without data."""
+    point, values = hierarchical_replicates(diff, reps, seed)
+    if values.size == 0:
+        return float("nan"), float("nan"), float("nan")
+    tail = (1 - confidence) / 2 * 100
+    low, high = np.percentile(values, [tail, 100 - tail])
+    return point, float(low), float(high)
+
+
+def hierarchical_replicates(diff: np.ndarray, reps: int = REPS, seed: int = SEED) -> tuple[float, np.ndarray]:
+    """(mean, the `reps` bootstrap means) of a (models x evaluation seeds) table of paired differences, by a
+    two-level bootstrap: each resample draws the models with replacement, then within each drawn model its
+    evaluation seeds with replacement (Davison and Hinkley 1997, sec. 3.8). The mean weighs every model equally (the
+    mean over models of each model's mean over its seeds). NaN entries are dropped per model; a model without a
+    value is left out. One row (no model, e.g. two baselines) is the one-level bootstrap over seeds. (nan, no
+    replicates) without data."""
     d = np.atleast_2d(np.asarray(diff, float))
     valid = np.isfinite(d)
     keep = valid.any(axis=1)
     d, valid = d[keep], valid[keep]
     if d.size == 0:
-        return float("nan"), float("nan"), float("nan")
+        return float("nan"), np.empty(0)
     counts = valid.sum(axis=1)
     packed = np.zeros_like(d)  # each model's values first, in order; the rest unused
     for i, row in enumerate(d):
@@ -104,10 +116,7 @@ def hierarchical_bootstrap(diff: np.ndarray, reps: int = REPS, seed: int = SEED,
     models = rng.integers(0, k, size=(reps, k))
     seeds = np.floor(rng.random((reps, k, s)) * counts[models][:, :, None]).astype(int)
     drawn = packed[models[:, :, None], seeds]  # (reps, k, s): s draws among each drawn model's own values
-    values = drawn.mean(axis=2).mean(axis=1)
-    tail = (1 - confidence) / 2 * 100
-    low, high = np.percentile(values, [tail, 100 - tail])
-    return point, float(low), float(high)
+    return point, drawn.mean(axis=2).mean(axis=1)
 
 
 def models_needed(model_means: np.ndarray, confidence: float = CONFIDENCE) -> int | None:

@@ -450,6 +450,10 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
     write_report(root, _header(plan, runs[0].cfg), _claim(root, plan, rows, pairs, coop), sections,
                  regime_table(rows, REGIMES), _figures_text(plan, fig4_t, shown, windows), gui_text, timing,
                  json.dumps(versions()))  # fmt: skip
+    if {0.0, 8.0} <= set(plan.alphas):  # claim (a) under its analysis plan: claim_a.md, fig_thrashing.png
+        from coopsumo.studies.scenario1.claim_a_report import write_claim_a
+
+        write_claim_a(root, rows, model_label(plan.presets[0], 8.0), model_label(plan.presets[0], 0.0))
     print(closing_table(agg, plan.t_ups[-1]))
 
 
