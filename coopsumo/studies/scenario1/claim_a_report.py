@@ -11,7 +11,7 @@ import pandas as pd
 
 from coopsumo.studies.scenario1 import claim_a
 
-PLAN_COMMIT = "(this commit)"
+PLAN_COMMIT = "40d5c82"
 """the commit that fixed the plan (docs/studies.md, "Claim (a): the analysis plan"), quoted by every report"""
 UNITS = {"tts_veh_h": ("total time spent", "veh-h", 1), "system_recovery_s": ("system recovery", "s", 0),
          "waves": ("stop-and-go waves", "per run", 2)}  # fmt: skip
