@@ -7,7 +7,8 @@ dependency for a few dozen lines of declarations), the records are read by panda
 covers the JSON ones, pandera the tables only, each with multi-line error reports to reword into one line), and the
 flags' rules already word a refusal the way the commands do ("must be a finite number >= 0 and <= 70, got 999").
 
-A field is a dotted name into the record (`sim.reward.alpha`; `*` for every key or item at that level) and a rule: a
+A field is a dotted name into the record (`sim.reward.alpha`; `*` for every key or item at that level, `*_mps` for
+every key ending with `_mps`) and a rule: a
 Number or an Integer (field_rules' bounds, plus the type), Text (a string, maybe one of a few) or Flag (a bool).
 Schema.problem checks a JSON record, Table.problem a table's rows, tensor_problem a checkpoint's or model's nested
 tensors (bounds only; the caller gives each tensor's min and max, so that torch is not imported here). The limits
@@ -144,10 +145,12 @@ def values_at(record: Any, name: str) -> Iterator[tuple[str, Any]]:
     """(the dotted name with every `*` filled in, value) of each value at `name` in the nested mappings and lists
     `record`; _MISSING where a key is absent or a level is not a mapping or list."""
     head, _, rest = name.partition(".")
-    if head == "*":
+    if head.startswith("*"):  # every key or item; `*_mps`: every key ending with `_mps`
         items = record.items() if isinstance(record, Mapping) else enumerate(record) \
-            if isinstance(record, list | tuple) else ()  # fmt: skip
+            if isinstance(record, list | tuple) and head == "*" else ()  # fmt: skip
         for key, value in items:
+            if not str(key).endswith(head[1:]):
+                continue
             for where, found in values_at(value, rest) if rest else [("", value)]:
                 yield (f"{key}.{where}" if where else str(key)), found
         return
@@ -195,16 +198,17 @@ class Table:
     case: str = ""
     cases: Mapping[str, tuple[Field, ...]] = dataclasses.field(default_factory=dict)
 
-    def problem(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]]) -> str | None:
+    def problem(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]], complete: bool = True) -> str | None:
         """Why the table (its column names, its rows as mappings) breaks the schema ("row 3 column iqm must be ...",
-        rows counted from 1 after the header), or None."""
+        rows counted from 1 after the header), or None. complete=False: a row may lack its case's columns (a writer
+        that measured none of them)."""
         required = [f.name for f in self.columns if not f.optional and not f.name.startswith("_")]
         if missing := [name for name in required if name not in names]:
             return f"has no column {missing[0]}"
         rules = _rules(self.columns, names)
         cases = {case: {**rules, **_rules(fields, names)} for case, fields in self.cases.items()}
         lacking = {case: [f.name for f in fields if not (f.optional or f.name.startswith("_") or f.name in names)]
-                   for case, fields in self.cases.items()}  # fmt: skip
+                   for case, fields in self.cases.items() if complete}  # fmt: skip
         count = 0
         for count, row in enumerate(rows, 1):
             if lacking.get(case := str(row.get(self.case))):
@@ -229,7 +233,7 @@ class Table:
         writer leaves a value it did not measure blank, NaN or None; a reader that copies it refuses that with
         frame_problem). Nothing for a frame without rows."""
         rows = [{k: v for k, v in row.items() if v is not None and v == v} for row in frame.to_dict("records")]
-        if rows and (problem := self.problem([str(c) for c in frame.columns], rows)) is not None:
+        if rows and (problem := self.problem([str(c) for c in frame.columns], rows, complete=False)) is not None:
             raise RecordError(f"{path} {problem}")
 
 
@@ -273,6 +277,22 @@ def tensor_problem(state: Any, fields: Sequence[Field], min_max: Callable[[Any],
 SPEED = Number(0.0, SPEED_MAX_MPS, unit="m/s")
 SHARE = Number(0.0, 1.0)
 WEIGHTS = Number(-WEIGHT_MAX, WEIGHT_MAX, low_open=True, high_open=True, unit="a network weight")
+
+SUMMARY_COUNTS = ("departed", "arrived", "collisions", "teleports", "lane_changes", "lane_changes_rejected",
+                  "insertion_blocked", "insertion_pending_at_end", "steps")  # fmt: skip
+"""a run summary's values that count something: whole numbers >= 0"""
+RUN_SUMMARY = Schema((
+    *(Field(name, Integer(0), optional=True) for name in SUMMARY_COUNTS),
+    Field("*_mps", SPEED, optional=True),
+    Field("throughput_veh_per_h", Number(0.0, MAX_LANES * LANE_CAPACITY_VEH_H, unit="veh/h"), optional=True),
+    Field("*_per_vehicle", Number(0.0), optional=True),
+    Field("*_veh_h", Number(0.0, unit="veh-h"), optional=True),
+    Field("*_time_s", Number(0.0, unit="s"), optional=True),
+    Field("*_share", SHARE, optional=True),
+))  # fmt: skip
+"""a run's summary (simulate's summary.json, a cell record's summary and each of its evaluations), its finite numbers
+(records.implausible leaves out the non-finite ones, which record_problem judges where a study reads them, and the
+table_ diagnostics, whose -1 means "not measured"); a summary's keys are many and grow: the rules go by suffix"""
 
 MODEL_TENSORS = (Field("state_dict.*", WEIGHTS),)
 """a model file's (model_file.save_model's) tensors"""

@@ -75,15 +75,21 @@ OK = {"departed": 600, "arrived": 474, "collisions": 0, "teleports": 0, "lane_ch
 
 
 @pytest.mark.parametrize(("edit", "fragment"), [
-    ({"mean_speed_mps": 500.0}, "mean_speed_mps = 500 m/s"),
-    ({"mean_speed_mps": 99.0}, "mean_speed_mps = 99 m/s"),
-    ({"mean_speed_mps": -1.0}, "outside 0"),
-    ({"collisions": -3}, "collisions = -3, not a count"),
-    ({"teleports": 1.5}, "teleports = 1.5, not a count"),
+    ({"mean_speed_mps": 500.0}, "mean_speed_mps must be a finite number >= 0 and <= 70 (m/s), got 500.0"),
+    ({"mean_speed_mps": 99.0}, "mean_speed_mps must be a finite number >= 0 and <= 70 (m/s), got 99.0"),
+    ({"mean_speed_mps": -1.0}, "mean_speed_mps must be a finite number >= 0"),
+    ({"collisions": -3}, "collisions must be an integer >= 0, got -3"),
+    ({"teleports": 1.5}, "teleports must be an integer, got 1.5"),
     ({"arrived": 700}, "above departed"),
     ({"lane_changes": 12345}, "edited?"),
-    ({"throughput_veh_per_h": 1e7}, "more than 6 lanes"),
-    ({"lane_changes_per_vehicle": -0.1, "lane_changes": -60}, "not a count"),
+    # issue 82: record_schemas.RUN_SUMMARY, its other limits
+    ({"held_share": 1.5}, "held_share must be a finite number >= 0 and <= 1, got 1.5"),
+    ({"mean_travel_time_s": -2.0}, "mean_travel_time_s must be"),
+    ({"full_road_speed_mps": 80.0}, "full_road_speed_mps must be"),
+    ({"departed": 2.5}, "departed must be an integer, got 2.5"),
+    ({"lost_veh_h": -1.0}, "lost_veh_h must be"),
+    ({"throughput_veh_per_h": 1e7}, "throughput_veh_per_h must be a finite number >= 0 and <= 15600 (veh/h)"),
+    ({"lane_changes_per_vehicle": -0.1, "lane_changes": -60}, "lane_changes must be an integer >= 0"),
 ])  # fmt: skip
 def test_impossible_summaries_are_not_trusted(edit: dict, fragment: str) -> None:
     assert implausible(OK) is None
@@ -110,15 +116,16 @@ def _train(*args: str) -> subprocess.CompletedProcess[str]:
 
 @pytest.mark.sumo
 def test_resume_refuses_a_foreign_checkpoint_and_rewrites_a_lost_config(tmp_path: Path) -> None:
-    """A checkpoint copied in from another training is refused in one line; a deleted config.json comes back."""
+    """A checkpoint copied in from another training is refused in one line; a deleted config.json comes back. Each
+    training is stopped at its first checkpoint (step 0, written atomically before the first step), which holds the
+    training's identity as any later one does; the resume then runs the 600 steps."""
     common = ["--eval-steps", "0", "--quiet", "--select-every", "0"]
     a, b = tmp_path / "a", tmp_path / "b"
-    for out, steps, lanes in ((a, "1500", "3"), (b, "1500", "2")):
+    for out, steps, lanes in ((a, "600", "3"), (b, "600", "2")):
         proc = subprocess.Popen([sys.executable, "-m", "coopsumo.train", "--steps", steps, "--lanes", lanes, *common,
                                  "--out", str(out)], cwd=REPO, stderr=subprocess.PIPE, text=True)  # fmt: skip
-        log = out / "train_log.csv"
-        while proc.poll() is None and (not log.exists() or len(log.read_text().splitlines()) < 2):
-            time.sleep(0.05)
+        while proc.poll() is None and not (out / "checkpoint.pt").exists():
+            time.sleep(0.02)
         proc.terminate()
         proc.communicate(timeout=120)
         assert (out / "checkpoint.pt").exists()

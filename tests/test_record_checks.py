@@ -67,7 +67,8 @@ RECORD_CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
                                     "lane_changes = 72"),
     "the loops' flow edited": (_set("loop_flow_veh_h_per_lane", 999.0), "loop_flow_veh_h_per_lane = 999"),
     "an evaluation dropped": (lambda r: r["eval_summaries"].pop(), "its 2 evaluations pool"),
-    "an impossible evaluation": (_set_eval(1, "mean_speed_mps", -2.0), "evaluation 2 of 3 with mean_speed_mps = -2"),
+    "an impossible evaluation": (_set_eval(1, "mean_speed_mps", -2.0),
+                                 "evaluation 2 of 3 with mean_speed_mps must be a finite number >= 0"),
     "evaluations not a list": (lambda r: r.update(eval_summaries={"mean_speed_mps": 21.6}), "not a list"),
     "no evaluations": (lambda r: r.update(eval_summaries=[]), "not a list of summaries"),
 }  # fmt: skip

@@ -17,7 +17,7 @@ from coopsumo.config import results_view
 from coopsumo.errors import UsageError
 from coopsumo.files import file_sha256, read_json_object, temporary_of
 from coopsumo.provenance import versions
-from coopsumo.record_schemas import SPEED_MAX_MPS
+from coopsumo.record_schemas import RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -145,9 +145,8 @@ def read_record(root: Path, spec: dict[str, Any]) -> dict[str, Any] | None:
     return record
 
 
-COUNTS = ("departed", "arrived", "collisions", "teleports", "lane_changes", "lane_changes_rejected",
-          "insertion_blocked", "insertion_pending_at_end", "steps")  # fmt: skip
-"""summary values that count something: whole numbers >= 0"""
+COUNTS = SUMMARY_COUNTS
+"""summary values that count something: whole numbers >= 0 (record_schemas.RUN_SUMMARY)"""
 POOL_SUMMED = frozenset(COUNTS) | {"sim_seconds", "wall_seconds"}
 """summary values a model's evaluations add up when pooled (counts and times); the others are averaged"""
 
@@ -181,27 +180,15 @@ MAX_SPEED_MPS = SPEED_MAX_MPS
 config.SPEED_LIMIT_MPS)"""
 
 
-MAX_LANE_FLOW_VEH_H = 36_000.0
-"""no lane carries more than one vehicle per 0.1 s step"""
-
-
-MAX_LANES = 6
-
-
 def implausible(summary: dict[str, Any]) -> str | None:
-    """Why a summary's values cannot come from a run, or None: counts negative or fractional, a speed outside
-    0..MAX_SPEED_MPS, a negative rate, time or share, a throughput above MAX_LANES lanes at MAX_LANE_FLOW_VEH_H."""
-    for key, value in summary.items():
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-            continue  # record_problem judges the values a study reads
-        if key in COUNTS and (value < 0 or value != int(value)):
-            return f"has summary {key} = {value}, not a count (a whole number >= 0)"
-        if key.endswith("_mps") and not key.startswith("table_") and not 0 <= value <= MAX_SPEED_MPS:
-            return f"has summary {key} = {value:g} m/s, outside 0 to {MAX_SPEED_MPS:g} (no run drives so)"
-        if key == "throughput_veh_per_h" and not 0 <= value <= MAX_LANES * MAX_LANE_FLOW_VEH_H:
-            return f"has summary {key} = {value:g}, more than {MAX_LANES} lanes can carry"
-        if key.endswith(("_per_vehicle", "_veh_h", "_time_s", "_share")) and value < 0:
-            return f"has summary {key} = {value:g}, below 0"
+    """Why a summary's values cannot come from a run, or None: a finite number outside record_schemas.RUN_SUMMARY's
+    limits (counts negative or fractional, a speed outside 0..MAX_SPEED_MPS, a throughput above config.MAX_LANES
+    lanes at a lane's capacity, a negative rate or time, a share outside 0-1), more arrivals than departures, lane
+    changes per vehicle that are not the lane changes over the departures."""
+    finite = {k: v for k, v in summary.items() if not k.startswith("table_")
+              and not (isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v))}  # fmt: skip
+    if (problem := RUN_SUMMARY.problem(finite)) is not None:  # record_problem judges the values a study reads
+        return f"has summary {problem.removeprefix('field ')}"
     number = {k: float(v) for k, v in summary.items() if isinstance(v, int | float) and not isinstance(v, bool)}
     if number.get("arrived", 0.0) > number.get("departed", math.inf):
         return f"has summary arrived = {number['arrived']:g} above departed = {number['departed']:g}"
