@@ -327,4 +327,5 @@ def thrashing_figure(panels: dict[float, dict[str, pd.DataFrame]], keep_tts: dic
         if i == 0:
             ax.set_ylabel("total time spent (veh-h, model mean)")
             ax.legend(fontsize=7)
+    fig.tight_layout()
     return save_figure(fig, out_path)
