@@ -187,11 +187,17 @@ def test_jam_step_is_the_first_time_the_view_is_nearly_full_of_slow_vehicles() -
      ["--t-up", "1,1.0"], ["--t-up", "0.01"], ["--t-up", "x"], ["--mobil-p", "-0.5"], ["--mobil-p", "0,0"],
      ["--mobil-p", "0,"], ["--mobil-p", "inf"]],
 )  # fmt: skip
-def test_bad_input(tmp_path: Path, args: list[str]) -> None:
+def test_bad_input(tmp_path: Path, args: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    """scenario1's main in this process (the one-line refusal of a command run as a process:
+    tests/test_bad_inputs.py)."""
     out = tmp_path / "s1"
-    res = subprocess.run([sys.executable, "-m", "coopsumo", "scenario1", *args, "--out", str(out)], cwd=ROOT,
-                         capture_output=True, text=True, check=False)  # fmt: skip
-    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1 and "Traceback" not in res.stderr
+    capsys.readouterr()
+    try:
+        code = scenario1.main([*args, "--out", str(out)])
+    except SystemExit as stop:  # argparse
+        code = int(stop.code or 0)
+    err = capsys.readouterr().err
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
     assert not out.exists()
 
 

@@ -150,13 +150,23 @@ def _files(folder: Path) -> dict[str, bytes]:
         (["--n-step", "2.5"], "n-step"),
     ],
 )
-def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str) -> None:
+def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str,
+                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """python -m coopsumo.train's main, in this process (the one-line refusal of a command run as a process:
+    tests/test_bad_inputs.py)."""
+    from coopsumo import train as train_command
+
     out = tmp_path / "out"
     extra = [] if "--resume" in args else ["--out", str(out)]
-    res = subprocess.run(_cmd(*args, *extra), capture_output=True, text=True, cwd=ROOT, check=False)
-    assert res.returncode == 2
-    lines = res.stderr.strip().splitlines()
-    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in res.stderr
+    capsys.readouterr()
+    try:
+        code = train_command.main([*args, *extra])
+    except SystemExit as stop:  # argparse
+        code = int(stop.code or 0)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err
     assert not out.exists()
 
 
