@@ -44,6 +44,20 @@ def simulate(args: list[str], env: dict[str, str] | None = None) -> subprocess.C
                           capture_output=True, text=True, timeout=300, check=False)  # fmt: skip
 
 
+def simulate_here(args: list[str], capsys: pytest.CaptureFixture[str]) -> subprocess.CompletedProcess[str]:
+    """simulate's main in this process, for refusals made before SUMO starts (the one-line refusal of a command run
+    as a process: tests/test_bad_inputs.py)."""
+    from coopsumo import simulate as simulate_command
+
+    capsys.readouterr()
+    try:
+        code = simulate_command.main(args)
+    except SystemExit as stop:  # argparse
+        code = int(stop.code or 0)
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(args, code, out, err)
+
+
 def without_wall(summary_path: Path) -> dict[str, Any]:
     return {k: v for k, v in json.loads(summary_path.read_text()).items() if k not in TIMING_KEYS}
 
@@ -98,9 +112,11 @@ def test_documented_gui_command_shows_the_run_and_saves_a_screenshot(tmp_path: P
     assert json.loads((out / "config.json").read_text())["gui"]["screenshot"] == str(shot)
 
 
-def test_gui_without_a_display_is_one_line_and_exit_2(tmp_path: Path) -> None:
+def test_gui_without_a_display_is_one_line_and_exit_2(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    monkeypatch.delenv("DISPLAY", raising=False)
     out = tmp_path / "run"
-    proc = simulate(["--steps", "50", "--quiet", "--gui", "--out", str(out)], env_with_display(None))
+    proc = simulate_here(["--steps", "50", "--quiet", "--gui", "--out", str(out)], capsys)
     assert_one_line_usage_error(proc, "display")
     assert list(tmp_path.iterdir()) == []
 
@@ -115,8 +131,12 @@ GUI_BAD_INPUTS = [
 
 
 @pytest.mark.parametrize(("extra", "named"), GUI_BAD_INPUTS, ids=[" ".join(a) for a, _ in GUI_BAD_INPUTS])
-def test_bad_gui_and_output_options_are_one_line_and_exit_2(tmp_path: Path, extra: list[str], named: str) -> None:
-    proc = simulate(["--steps", "50", "--quiet", "--out", str(tmp_path / "run"), *extra], env_with_display(":0"))
+def test_bad_gui_and_output_options_are_one_line_and_exit_2(tmp_path: Path, extra: list[str], named: str,
+                                                            monkeypatch: pytest.MonkeyPatch,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    monkeypatch.setenv("DISPLAY", ":0")
+    monkeypatch.chdir(tmp_path)  # x.png, x.jpg: never written
+    proc = simulate_here(["--steps", "50", "--quiet", "--out", str(tmp_path / "run"), *extra], capsys)
     assert_one_line_usage_error(proc, named)
     assert list(tmp_path.iterdir()) == []
 
