@@ -120,8 +120,9 @@ def test_train_in_two_processes_equals_serial(tmp_path: Path) -> None:
     from coopsumo.agents.train import train
     from coopsumo.config import SimConfig, TrainConfig
 
-    cfg = TrainConfig(sim=SimConfig(steps=1200, seed=7, policy="dqn"), eval_steps=0, log_every_steps=300)
-    cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=600, validation_steps=200,
+    # 800 steps: updates from step 200, 4 log rows, model selection at steps 400 and 800
+    cfg = TrainConfig(sim=SimConfig(steps=800, seed=7, policy="dqn"), eval_steps=0, log_every_steps=200)
+    cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=400, validation_steps=200,
                                                               validation_accident_steps=0))
     runs = {}
     for process in (True, False):
