@@ -448,37 +448,6 @@ def kill_group(proc: subprocess.Popen[str], sig: int) -> None:
     proc.communicate(timeout=60)
 
 
-@pytest.mark.sumo
-def test_killed_sweep_resumes_without_recomputing(local_sweep: Path, tmp_path: Path) -> None:
-    out = tmp_path / "killed"
-    # 1. SIGTERM to the whole process group once a cell is done, while the next one trains
-    proc = subprocess.Popen(sweep_cmd(out, "--workers", "1"), cwd=REPO, start_new_session=True, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
-    wait_for_cells(out, 1, proc)
-    time.sleep(0.5)
-    kill_group(proc, signal.SIGTERM)
-    assert proc.returncode != 0
-    first = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
-    assert 1 <= len(first) < 8
-    # 2. SIGKILL, no chance to clean up, once one more cell is done
-    proc = subprocess.Popen(sweep_cmd(out, "--workers", "1"), cwd=REPO, start_new_session=True, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
-    wait_for_cells(out, len(first) + 1, proc)
-    kill_group(proc, signal.SIGKILL)
-    second = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
-    assert len(second) > len(first)
-    # 3. finish: the cells done before are neither recomputed nor rewritten
-    result = run_sweep_cli(out, "--workers", "1")
-    assert f"{len(second)} already done" in result.stderr
-    for name, (mtime, data) in second.items():
-        path = out / "cells" / name
-        assert path.stat().st_mtime_ns == mtime and path.read_bytes() == data, name
-    runs = assert_outputs(out)
-    local = pd.read_csv(local_sweep / "runs.csv")
-    pd.testing.assert_frame_equal(runs[COMPARED], local[COMPARED])
-    assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
-
-
 def start_sweep(out: Path) -> subprocess.Popen[str]:
     return subprocess.Popen(sweep_cmd(out, "--workers", "2"), cwd=REPO, start_new_session=True, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
@@ -513,7 +482,8 @@ def assert_records_trustworthy(out: Path, main_killed: bool = False) -> int:
 @pytest.mark.sumo
 def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_sweep: Path, tmp_path: Path) -> None:
     """Issue 25: Ctrl-C (SIGINT to the process group) while cells run, SIGKILL of the main process alone (its workers
-    notice and exit), SIGKILL while the report is being written; the last rerun equals the uninterrupted sweep."""
+    notice and exit), SIGTERM to the process group, SIGKILL while the report is being written; the last rerun equals
+    the uninterrupted sweep, and the cells done before it are neither recomputed nor rewritten."""
     out = tmp_path / "cut"
     # 1. Ctrl-C once a cell is done: the trainings save their checkpoints, the sweep exits 130 in one line
     proc = start_sweep(out)
@@ -531,7 +501,14 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_
     proc.communicate(timeout=60)
     wait_group_gone(proc.pid)
     done = assert_records_trustworthy(out, main_killed=True)
-    # 3. SIGKILL while the report is written (runs.csv comes first, then the figures and report.md); not Ctrl-C,
+    # 3. SIGTERM to the whole process group once one more cell is done
+    proc = start_sweep(out)
+    wait_for_cells(out, done + 1, proc)
+    kill_group(proc, signal.SIGTERM)
+    wait_group_gone(proc.pid)
+    assert proc.returncode != 0
+    done = assert_records_trustworthy(out)
+    # 4. SIGKILL while the report is written (runs.csv comes first, then the figures and report.md); not Ctrl-C,
     # which CPython may drop when it lands in a garbage collector's callback (test_faults_scenario1.py)
     proc = start_sweep(out)
     end = time.monotonic() + 300
@@ -542,9 +519,12 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_
     wait_group_gone(proc.pid)
     assert proc.returncode == -signal.SIGKILL and not (out / "report.md").exists()
     assert assert_records_trustworthy(out) == 8
-    # 4. the rerun reuses every cell and equals the uninterrupted sweep; nothing partial is left anywhere
+    # 5. the rerun reuses every cell, neither recomputed nor rewritten, and equals the uninterrupted sweep; nothing
+    # partial is left anywhere
+    cells = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
     result = run_sweep_cli(out, "--workers", "2")
     assert "8 already done" in result.stderr and "0 to run" in result.stderr
+    assert {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")} == cells
     runs = assert_outputs(out)
     pd.testing.assert_frame_equal(runs[COMPARED], pd.read_csv(local_sweep / "runs.csv")[COMPARED])
     assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
