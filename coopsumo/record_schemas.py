@@ -16,8 +16,8 @@ are ones a real run never reaches (no committed record comes near them); the com
 
 Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS), a stored
 model's config.json (STORE_CONFIG), a run's detectors.xml intervals (DETECTOR_INTERVAL), a learner protocol study's
-study.json (PROTOCOL_STUDY) and stats.csv (PROTOCOL_STATS), scenario II's runs.csv and evals.csv (SCENARIO2_RUNS,
-SCENARIO2_EVALS).
+study.json (PROTOCOL_STUDY) and stats.csv (PROTOCOL_STATS), scenario II's sweep.json, runs.csv and evals.csv (SWEEP,
+SCENARIO2_RUNS, SCENARIO2_EVALS), a run's summary (RUN_SUMMARY).
 """
 
 from __future__ import annotations
@@ -396,3 +396,21 @@ SCENARIO2_EVALS = Table((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUA
 SCENARIO2_RUNS = Table((*_COORDINATES, Field("status", Text())), case="status", cases={"ok": _EVALUATION})
 """scenario II's runs.csv (scenario2.measures.runs_table): one row per cell, its pooled evaluations when ok (a failed
 cell's numbers are blank)"""
+
+SWEEP_COUNTS = ("cells", "cells_ok", "cells_failed", "cells_run", "trainings", "workers", "bootstrap_replicates")
+"""sweep.json values that count something: whole numbers >= 0"""
+SWEEP_SECONDS = ("wall_seconds", "cell_wall_seconds_sum", "cell_cpu_seconds_sum")
+"""sweep.json times (s), which a merge adds up: finite numbers >= 0"""
+SWEEP = Schema((
+    Field("profile", MAPPING),
+    Field("learner", MAPPING),
+    Field("conditions", LIST),
+    *(Field(name, Integer(0)) for name in SWEEP_COUNTS),
+    *(Field(name, Number(0.0, unit="s")) for name in SWEEP_SECONDS),
+    Field("failed_cells", LIST),
+    Field("failed_cells.*", Text()),
+    Field("backend", Text()),
+    Field("versions", MAPPING),
+))  # fmt: skip
+"""a finished scenario II sweep's sweep.json (scenario2.study.run_sweep's meta), as a merge reads a part's; what must
+agree with its profile (its learner per lane count, its conditions, its cell count) is redraw._meta_problem's"""

@@ -79,6 +79,14 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     "evals.csv speeds of 999 m/s": (
         lambda f: edit_table(f, "evals.csv", lambda t: speed(t, 999.0)),
         "column mean_speed_mps must be a finite number >= 0 and <= 70 (m/s), got 999.0"),
+    # issue 82 item 1: sweep.json inside record_schemas.SWEEP
+    "sweep.json with a negative wall time": (
+        lambda f: edit_json(f, lambda m: m.update(cell_cpu_seconds_sum=-1.0)), "field cell_cpu_seconds_sum must be"),
+    "sweep.json with 2.5 workers": (lambda f: edit_json(f, lambda m: m.update(workers=2.5)), "field workers must be"),
+    "sweep.json with a failed cell not a key": (
+        lambda f: edit_json(f, lambda m: m.update(failed_cells=[3])), "field failed_cells.0 must be a text, got 3"),
+    "sweep.json with versions a list": (
+        lambda f: edit_json(f, lambda m: m.update(versions=[])), "field versions must be a mapping"),
     # issue 82 item 1: every number of runs.csv and evals.csv inside record_schemas.SCENARIO2_RUNS, SCENARIO2_EVALS
     "evals.csv with a loop flow of 3,000 veh/h per lane": (
         lambda f: edit_table(f, "evals.csv", lambda t: t.assign(loop_flow_veh_h_per_lane=3000.0)),
@@ -124,15 +132,17 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
         lambda f: edit_table(f, "runs.csv", lambda t: t.assign(t_up_s=[4.0, *t["t_up_s"][1:]])),
         "has t_up_s = 4.0, not its cell's 2.0"),
     "sweep.json without conditions": (
-        lambda f: edit_json(f, lambda m: m.pop("conditions")), "sweep.json has conditions = null"),
+        lambda f: edit_json(f, lambda m: m.pop("conditions")), "sweep.json has no field conditions"),
     "sweep.json with wall_seconds 'x'": (
-        lambda f: edit_json(f, lambda m: m.update(wall_seconds="x")), 'sweep.json has wall_seconds = "x"'),
+        lambda f: edit_json(f, lambda m: m.update(wall_seconds="x")),
+        "sweep.json field wall_seconds must be a number (s), got 'x'"),
     "sweep.json with cells '152', a string": (
-        lambda f: edit_json(f, lambda m: m.update(cells="152")), 'sweep.json has cells = "152"'),
+        lambda f: edit_json(f, lambda m: m.update(cells="152")),
+        "sweep.json field cells must be an integer, got '152'"),
     "sweep.json with the profile a list": (
         lambda f: edit_json(f, lambda m: m.update(profile=[m["profile"]])), "not a finished scenario2 sweep"),
     "sweep.json without learner": (
-        lambda f: edit_json(f, lambda m: m.pop("learner")), "sweep.json has learner = null"),
+        lambda f: edit_json(f, lambda m: m.pop("learner")), "sweep.json has no field learner"),
     "sweep.json with lanes 'x'": (
         lambda f: edit_json(f, lambda m: m["profile"].update(lanes="x")), "[profile] lanes must be a list"),
     "sweep.json with an unknown profile field": (

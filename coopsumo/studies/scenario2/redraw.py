@@ -17,7 +17,7 @@ from pandas.api.types import is_numeric_dtype
 
 from coopsumo.errors import ConfigError, UsageError
 from coopsumo.files import write_json
-from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS
+from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
@@ -64,10 +64,6 @@ SPLIT_BY = ("lanes", "alphas", "check_alphas")
 """profile fields in which the parts of one sweep may differ: a part is some lane counts at some alphas"""
 TIMING = ("wall_seconds", "train_wall_seconds", "cell_wall_s", "cell_cpu_s", "steps_per_second", "sumo_step_share")
 """runs.csv and evals.csv columns that say how fast a run went, not what it gave"""
-COUNTS = ("cells", "cells_ok", "cells_failed", "cells_run", "trainings", "workers", "bootstrap_replicates")
-"""sweep.json values a merge reads that count something: whole numbers >= 0"""
-SECONDS = ("wall_seconds", "cell_wall_seconds_sum", "cell_cpu_seconds_sum")
-"""sweep.json times (s) a merge adds up: finite numbers >= 0"""
 RUN_COLUMNS = (*KEY_COLUMNS, "policy", "p", "status", *METRIC_COLUMNS, *EVAL_COLUMNS)
 """runs.csv columns a part must hold (runs_table writes them all; its criterion, if another, too)"""
 POOLED = tuple(c for c in EVAL_COLUMNS if c != "lane_changes_per_vehicle")
@@ -161,21 +157,11 @@ def _part_profile(folder: Path, meta: Any) -> Profile:
 
 def _meta_problem(meta: dict[str, Any], profile: Profile, cells: int) -> str | None:
     """Why a part's sweep.json is not what a finished sweep of `profile` (`cells` cells) writes, as a phrase after
-    "<part>'s", or None: its counts and times of the wrong type or range, its failed cells not a list of keys, no
-    learner of every lane count, conditions other than the profile's, another number of cells or trainings."""
-    for name in COUNTS:
-        value = meta.get(name)
-        if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-            return f"sweep.json has {name} = {json.dumps(value)[:40]}, not a whole number >= 0"
-    for name in SECONDS:
-        value = meta.get(name)
-        if isinstance(value, bool) or not isinstance(value, int | float) or not 0 <= value < math.inf:
-            return f"sweep.json has {name} = {json.dumps(value)[:40]}, not a finite number of seconds >= 0"
-    failed = meta.get("failed_cells")
-    if not isinstance(failed, list) or not all(isinstance(k, str) for k in failed):
-        return f"sweep.json has failed_cells = {json.dumps(failed)[:40]}, not a list of cell keys"
-    if not isinstance(meta.get("backend"), str) or not isinstance(meta.get("versions"), dict):
-        return "sweep.json has no backend or versions (not as a sweep writes it)"
+    "<part>'s", or None: outside record_schemas.SWEEP (its counts and times of the wrong type or range, its failed
+    cells not a list of keys), no learner of every lane count, conditions other than the profile's, another number of
+    cells or trainings."""
+    if (problem := SWEEP.problem(meta)) is not None:  # types and ranges (record_schemas)
+        return f"sweep.json {problem}"
     learner = meta.get("learner")
     if not isinstance(learner, dict) or set(learner) != {f"{n}_lanes" for n in profile.lanes}:
         return (f"sweep.json has learner = {json.dumps(learner)[:40]}, not the learner of each of its lanes "

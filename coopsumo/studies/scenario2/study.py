@@ -54,7 +54,7 @@ from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
-from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS
+from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.cells import run_todo
@@ -306,6 +306,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
         write_lane_outputs(root, runs, evals_table(records), profile, meta, n_boot)
     else:
         write_outputs(root, runs, profile, meta, n_boot)
+    SWEEP.check(meta, root / "sweep.json")  # the schema a merge reads it by
     write_json(root / "sweep.json", meta)
     return meta
 
