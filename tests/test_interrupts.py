@@ -21,9 +21,12 @@ from coopsumo.run_dirs import finished_run
 
 pytestmark = pytest.mark.sumo
 REPO = Path(__file__).resolve().parent.parent
-TRAIN = ["-m", "coopsumo.train", "--steps", "1000", "--eval-steps", "3000", "--seed", "6", "--update-worker", "on",
-         "--select-every", "500", "--validation-steps", "100", "--validation-t-up", "1.5", "--quiet"]  # fmt: skip
-"""a short training with every part a signal may land in: the update worker, model selection, the evaluation"""
+TRAIN = ["-m", "coopsumo.train", "--steps", "600", "--eval-steps", "3000", "--seed", "6", "--update-worker", "on",
+         "--select-every", "300", "--validation-steps", "100", "--validation-t-up", "1.5",
+         "--validation-accident-steps", "600", "--quiet"]  # fmt: skip
+"""a short training with every part a signal may land in: the update worker (learning from step 200), model
+selection (at steps 300 and 600, in free flow and through the shortest accident; the log's one row at the end), the
+evaluation"""
 
 
 def background_job() -> None:
@@ -42,7 +45,7 @@ MOMENTS: dict[str, tuple[Callable[[Path], bool], int, str]] = {
     "setting up (the first checkpoint written)": (lambda out: (out / "checkpoint.pt").exists(), signal.SIGINT,
                                                   "checkpoint"),
     "training": (lambda out: rows(out) >= 2, signal.SIGTERM, "checkpoint"),
-    "model selection": (lambda out: (out / "snapshots" / "step1000").exists(), signal.SIGINT, "checkpoint"),
+    "model selection": (lambda out: (out / "snapshots" / "step600").exists(), signal.SIGINT, "checkpoint"),
     "evaluating": (lambda out: (out / "eval").exists(), signal.SIGINT, "checkpoint"),
 }  # fmt: skip
 """moment -> (ready(out): signal now (never: after 0.4 s), signal, what the folder then holds)"""
