@@ -14,7 +14,7 @@ from pathlib import Path
 import pandas as pd
 
 from coopsumo.errors import UsageError, first_line
-from coopsumo.files import write_json
+from coopsumo.files import read_json_object, write_json
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.run_folders import study_root
 
@@ -27,9 +27,15 @@ conditioned sweep measures it)"""
 
 def read_sweep(root: Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(runs.csv's ok cells, alpha_star.csv) of the finished conditioned sweep in root; UsageError naming what is
-    missing or unreadable."""
+    missing or unreadable, and for a sweep whose sweep.json says it is not conditioned (its rule was written into a
+    plain or merged sweep)."""
     if not root.is_dir():
         raise UsageError(f"{root} is not a folder: give a finished `coopsumo scenario2 --conditioned` folder")
+    profile = (read_json_object(root / "sweep.json") or {}).get("profile")
+    if isinstance(profile, dict) and profile.get("conditioned") is False:  # a sweep of one model per alpha
+        raise UsageError(f"{root} holds a scenario2 sweep that is not conditioned (its sweep.json: profile "
+                         f"{str(profile.get('name'))[:40]}, conditioned false); give a finished `coopsumo scenario2 "
+                         "--conditioned` folder")  # fmt: skip
     tables = {}
     for name, columns in COLUMNS.items():
         path = root / name
