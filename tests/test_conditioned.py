@@ -402,7 +402,8 @@ def test_alpha_conditioned_beside_alpha_is_refused(tmp_path: Path) -> None:
 
 
 @pytest.mark.sumo
-def test_tiny_scenario2_conditioned_trains_once_per_condition_and_seed(tmp_path: Path) -> None:
+def test_tiny_scenario2_conditioned_trains_once_per_condition_and_seed(tmp_path: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
     out = tmp_path / "s2"
     res = subprocess.run([sys.executable, "-m", "coopsumo", "scenario2", "--profile", "tiny", "--conditioned",
                           "--workers", "2", "--out", str(out), "--quiet"],
@@ -418,11 +419,15 @@ def test_tiny_scenario2_conditioned_trains_once_per_condition_and_seed(tmp_path:
         assert sorted(p.name for p in (out / "evals" / train).glob("eval_a*")) == ["eval_a0_s2001", "eval_a8_s2001"]
     assert "Alpha-conditioned" in (out / "report.md").read_text()
     assert len(pd.read_csv(out / "alpha_star.csv")) == 2
-    # the adaptive rule fitted on the sweep, and alpha=adaptive driven on its conditions (docs/studies.md)
-    fitted = subprocess.run([sys.executable, "-m", "coopsumo", "adaptive-fit", str(out)], cwd=ROOT,
-                            capture_output=True, text=True, check=False)  # fmt: skip
-    assert fitted.returncode == 0, fitted.stderr[-2000:]
-    assert "DEFAULT_RULE = AdaptiveRule(points=((2, " in fitted.stdout
+    # the adaptive rule fitted on the sweep (adaptive-fit's main, in this process: it runs no simulation), and
+    # alpha=adaptive driven on its conditions (docs/studies.md)
+    from coopsumo.studies.followups import adaptive_fit
+
+    capsys.readouterr()
+    code = adaptive_fit.main([str(out)])
+    fitted = capsys.readouterr()
+    assert code == 0, fitted.err[-2000:]
+    assert "DEFAULT_RULE = AdaptiveRule(points=((2, " in fitted.out
     assert len(json.loads((out / "adaptive_rule.json").read_text())["points"]) == 2
     driven = subprocess.run([sys.executable, "-m", "coopsumo", "adaptive", str(out)], cwd=ROOT,
                             capture_output=True, text=True, check=False)  # fmt: skip
