@@ -87,9 +87,12 @@ def test_vehicle_states_follow_the_precedence_held_changing_slow_cruising() -> N
 # -- sumo-gui ---------------------------------------------------------------------------------
 def test_documented_gui_command_shows_the_run_and_saves_a_screenshot(tmp_path: Path, gui_display: str) -> None:
     """The page's --gui command under a (virtual) display: sumo-gui's PNG shows the colours of the
-    controller's states and the accident bar, and the run is the one libsumo makes without --gui."""
+    controller's states and the accident bar, and the run is the one libsumo makes without --gui. The run ends at
+    the screenshot's step (the page's run goes on past it; the window shows nothing more)."""
     (cmd,) = [c for c in page_lines("--gui ") if c.startswith("coopsumo simulate")]
     args = shlex.split(cmd.replace("results/", f"{tmp_path}/"))[2:] + ["--quiet", "--trajectories"]
+    assert int(args[args.index("--steps") + 1]) >= int(args[args.index("--gui-screenshot-step") + 1])
+    args[args.index("--steps") + 1] = args[args.index("--gui-screenshot-step") + 1]
     proc = simulate(args, env_with_display(gui_display))
     assert proc.returncode == 0, proc.stderr[-2000:]
     shot = Path(args[args.index("--gui-screenshot") + 1])
