@@ -245,7 +245,7 @@ def test_documented_tripinfo_snippet_runs(runs: tuple[Path, Path]) -> None:
 
 def test_documented_fig4_commands_make_their_run_and_draw_a_png(tmp_path: Path) -> None:
     """The page's Fig. 4 block as written, on a fresh clone: its simulate command makes the run folder (shortened
-    to 3,000 steps, the accident window with it), its plot_trajectories.py command draws that run's fcd.xml."""
+    to 1,500 steps, the accident window with it), its plot_trajectories.py command draws that run's fcd.xml."""
     (block,) = [b for b in re.findall(r"```bash\n(.*?)```", PAGE, flags=re.S) if "plot_trajectories.py" in b]
     sim, plot = [re.sub(r"\s+", " ", line).strip() for line in block.replace("\\\n", " ").splitlines()]
     args = shlex.split(sim.replace("results/", f"{tmp_path}/"))
@@ -254,8 +254,8 @@ def test_documented_fig4_commands_make_their_run_and_draw_a_png(tmp_path: Path) 
     assert f"{run}/fcd.xml" in plot.replace("results/", f"{tmp_path}/")  # the plot reads the run just made
     steps = int(args[args.index("--steps") + 1])
     for flag in ("--accident-start", "--accident-steps"):
-        args[args.index(flag) + 1] = str(int(args[args.index(flag) + 1]) * 3000 // steps)
-    args[args.index("--steps") + 1] = "3000"
+        args[args.index(flag) + 1] = str(int(args[args.index(flag) + 1]) * 1500 // steps)
+    args[args.index("--steps") + 1] = "1500"
     proc = simulate([*args[2:], "--quiet"])
     assert proc.returncode == 0, proc.stderr[-2000:]
     cmd = plot.replace("results/", f"{tmp_path}/")
