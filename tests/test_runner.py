@@ -196,6 +196,11 @@ def test_a_sound_record_is_reused_and_expected_reruns_are_silent(
     # c4 has no record yet
     assert cell_records.reusable_keys(tmp_path, specs_of([1, 2, 3, 4]), "study", ("v", "n")) == {"c1"}
     assert capsys.readouterr().err == ""
+    # issue 82 (s2x2): a record copied in from another cell is rerun with a line naming both
+    cell_records.cell_path(tmp_path, "c5").write_text(json.dumps(GOOD))
+    assert cell_records.reusable_keys(tmp_path, specs_of([1, 5]), "study", ("v", "n")) == {"c1"}
+    path = cell_records.cell_path(tmp_path, "c5")
+    assert capsys.readouterr().err == f"study: cell c5: record {path} is cell c1's (copied?); rerunning it\n"
     # read_record never raises on a record of the wrong shape
     cell_records.cell_path(tmp_path, "c2").write_text("[1, 2]")
     assert cell_records.read_record(tmp_path, specs_of([2])[0]) is None

@@ -256,9 +256,9 @@ def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str,
 def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> set[str]:
     """The cells whose stored record can be reused: one record_problem accepts, made with the cell's
     configuration and, for a cell that drives a model file, with that file as it is now (model_changed). Every
-    other cell is rerun; a record that is neither failed nor interrupted and yet not
-    accepted (unreadable, the wrong shape, a bad summary) gets one line on stderr saying why. A record's
-    temporary file left by a run killed (SIGKILL) while writing it is removed: it was never a record."""
+    other cell is rerun; a record that is neither failed nor interrupted and yet not accepted (unreadable, the wrong
+    shape, a bad summary, another cell's copied in) gets one line on stderr saying why. A record's temporary file
+    left by a run killed (SIGKILL) while writing it is removed: it was never a record."""
     done = set()
     for spec in specs:
         path = cell_path(root, spec["key"])
@@ -275,7 +275,10 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
             continue  # rerun without a word: the study counts these
         problem = record_problem(record, required)
         if problem is None and results_view(record.get("config")) != results_view(spec["config"]):
-            continue  # another configuration: another cell
+            if record.get("key", spec["key"]) != spec["key"]:  # a record copied in from another cell
+                print(f"{prog}: cell {spec['key']}: record {path} is cell {str(record['key'])[:60]}'s (copied?); "
+                      "rerunning it", file=sys.stderr)  # fmt: skip
+            continue  # another configuration: another cell (a changed setting reruns it without a word)
         if problem := problem or model_changed(record, spec, path):
             print(f"{prog}: cell {spec['key']}: record {path} {problem}; rerunning it", file=sys.stderr)
         else:
