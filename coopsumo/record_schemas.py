@@ -8,16 +8,20 @@ covers the JSON ones, pandera the tables only, each with multi-line error report
 flags' rules already word a refusal the way the commands do ("must be a finite number >= 0 and <= 70, got 999").
 
 A field is a dotted name into the record (`sim.reward.alpha`; `*` for every key or item at that level, `*_mps` for
-every key ending with `_mps`) and a rule: a
-Number or an Integer (field_rules' bounds, plus the type), Text (a string, maybe one of a few) or Flag (a bool).
-Schema.problem checks a JSON record, Table.problem a table's rows, tensor_problem a checkpoint's or model's nested
-tensors (bounds only; the caller gives each tensor's min and max, so that torch is not imported here). The limits
-are ones a real run never reaches (no committed record comes near them); the comment of each says why.
+every key ending with `_mps`) and a rule: a Number or an Integer (field_rules' bounds, plus the type), Text (a string,
+maybe one of a few) or a Kind (a mapping, a list, a bool). Schema.problem checks a JSON record, Table.problem a
+table's rows (Table.check_frame a pandas table before it is written), tensor_problem a checkpoint's or model's
+nested tensors (bounds only; the caller gives each tensor's min and max, so that torch is not imported here). The
+limits are ones a real run never reaches (no committed record comes near them); the comment of each says why.
 
-Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS), a stored
-model's config.json (STORE_CONFIG), a run's detectors.xml intervals (DETECTOR_INTERVAL), a learner protocol study's
-study.json (PROTOCOL_STUDY) and stats.csv (PROTOCOL_STATS), scenario II's sweep.json, runs.csv and evals.csv (SWEEP,
-SCENARIO2_RUNS, SCENARIO2_EVALS), a run's summary (RUN_SUMMARY).
+Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS; read
+back only: a checkpoint is the training's to save whatever it holds), a stored model's config.json (STORE_CONFIG;
+its writer's TrainConfig is checked by config.py when built), a run's summary (RUN_SUMMARY) and detectors.xml
+intervals (DETECTOR_INTERVAL; SUMO writes the latter), a learner protocol study's study.json and stats.csv
+(PROTOCOL_STUDY, PROTOCOL_STATS), scenario II's sweep.json, runs.csv and evals.csv (SWEEP, SCENARIO2_RUNS,
+SCENARIO2_EVALS). Not yet: a cell record's envelope (records.record_problem, by hand; its summary is RUN_SUMMARY's),
+the other studies' plan files and tables (scenario I's plan.json and runs.csv, the learning study's), the studies'
+TOML data (field_rules' rules, read by catalogue.Entry).
 """
 
 from __future__ import annotations
