@@ -290,7 +290,7 @@ def test_bad_spec_is_a_one_line_policy_spec_error(spec: str) -> None:
 def test_mobil_near_capacity_in_sumo(tmp_path: Path, lanes: int, p: float) -> None:
     from coopsumo.agents.rollout import run
 
-    steps = 3000 if lanes == 2 else 2000  # 5 lanes: 2000 steps keep the suite short; the road fills in ~1500
+    steps = 2000  # the road fills in ~1500 (2 lanes: 53-109 lane changes by then, p 0 to 1)
     cfg = SimConfig(
         road=RoadConfig(lanes=lanes),
         demand=DemandConfig(t_up_s=3600.0 / (lanes * 1800.0)),
@@ -315,7 +315,7 @@ def test_sumo_models_near_capacity_in_sumo(tmp_path: Path, lanes: int) -> None:
     cfg = SimConfig(
         road=RoadConfig(lanes=lanes),
         demand=DemandConfig(t_up_s=3600.0 / (lanes * 1800.0)),
-        steps=3000 if lanes == 2 else 2000,
+        steps=2000,  # the road fills in ~1500
         seed=1,
         policy="sumo:lcCooperative=0.5",
         sumo_collision_check=True,
