@@ -113,3 +113,17 @@ def test_claim_a_md_and_the_thrashing_figure_are_written(tmp_path: Path) -> None
     assert "total time spent at T_up 2 s (helps); total time spent at T_up 1 s (helps)" in text
     assert text.count("| **cannot decide** |") == 4 and "| 2 of 12 | 8 of 12 |" in text
     assert (tmp_path / "fig_thrashing.png").read_bytes().startswith(b"\x89PNG")
+
+
+def test_a_report_of_several_presets_says_how_each_was_trained() -> None:
+    """Issue 78: the header of a study of `default` and `alpha_only` said both trained with accident episodes (the
+    first preset's text); `alpha_only` trains with none."""
+    from dataclasses import replace
+
+    from coopsumo.studies.scenario1.plan import Plan
+    from coopsumo.studies.scenario1.text import training_text
+
+    both = training_text(replace(Plan.full(), presets=("default", "alpha_only")))
+    assert "`default`: episodes of 9,000 steps at T_up drawn from 2, 1.5, 1 s, 50% of them with an accident" in both
+    assert "`alpha_only`: episodes of 9,000 steps at T_up drawn from 2, 1.5, 1 s, no accident" in both
+    assert training_text(replace(Plan(), presets=("alpha_only",))).endswith("1 s, no accident)")

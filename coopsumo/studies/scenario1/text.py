@@ -63,16 +63,21 @@ DEFINITIONS = f"""- **Total time spent** (TTS, the headline): vehicle-hours on t
 
 
 def training_text(plan: Plan) -> str:
-    """How the models were trained: the learner's own training demand (the default's mix of demands and
-    accidents, or free flow at one demand)."""
+    """How the models were trained: each learner preset's own training demand (a mix of demands, with accidents in
+    a share of its episodes or none, or free flow at one demand), named per preset when the plan has several."""
     from coopsumo.dqn_config import DQN_PRESETS
 
-    dqn = DQN_PRESETS[plan.presets[0]]
-    t_ups = ", ".join(f"{t:g}" for t in dqn.train_t_ups)
-    where = (f"episodes of {dqn.episode_steps:,} steps at T_up drawn from {t_ups} s, {dqn.accident_share:.0%} of "
-             "them with an accident" if dqn.train_t_ups
-             else f"free flow at T_up = {plan.train_t_up_s:g} s")  # fmt: skip
-    return f"trained {plan.train_steps:,} steps ({where})"
+    def where(preset: str) -> str:
+        dqn = DQN_PRESETS[preset]
+        if not dqn.train_t_ups:
+            return f"free flow at T_up = {plan.train_t_up_s:g} s"
+        accidents = f"{dqn.accident_share:.0%} of them with an accident" if dqn.accident_share else "no accident"
+        t_ups = ", ".join(f"{t:g}" for t in dqn.train_t_ups)
+        return f"episodes of {dqn.episode_steps:,} steps at T_up drawn from {t_ups} s, {accidents}"
+
+    if len(plan.presets) == 1:
+        return f"trained {plan.train_steps:,} steps ({where(plan.presets[0])})"
+    return f"trained {plan.train_steps:,} steps (" + "; ".join(f"`{p}`: {where(p)}" for p in plan.presets) + ")"
 
 
 def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int, runs: int,
