@@ -141,9 +141,21 @@ def test_train_in_two_processes_equals_serial(tmp_path: Path) -> None:
     assert (runs[True] / "validation.csv").read_text() == (runs[False] / "validation.csv").read_text()
 
 
+LOG_EVERY_250 = """
+import dataclasses, sys
+import coopsumo.agents.train_cli as t
+base = t.config_from_args
+t.config_from_args = lambda args: dataclasses.replace(base(args), log_every_steps=250)
+sys.exit(t.main(sys.argv[1:]))
+"""
+"""`coopsumo train` with a log row every 250 steps (as tests/test_faults.py's driver), so that a row is written soon
+after the updates begin (step 200)"""
+
+
 def _training_with_its_worker(out: Path) -> tuple[subprocess.Popen[str], list[str], list[str]]:
-    """A real `train` with its update worker, once its log has a row: the process, its argv and the worker's pids."""
-    args = [sys.executable, "-m", "coopsumo.train", "--steps", "1500", "--eval-steps", "0", "--seed", "3",
+    """A real `train` of 800 steps with its update worker, once its log has a row (step 250, the worker updating):
+    the process, its argv and the worker's pids."""
+    args = [sys.executable, "-c", LOG_EVERY_250, "--steps", "800", "--eval-steps", "0", "--seed", "3",
             "--update-worker", "on", "--out", str(out), "--quiet"]  # fmt: skip
     proc = subprocess.Popen(args, cwd=ROOT, stderr=subprocess.PIPE, text=True)
     log = out / "train_log.csv"
@@ -167,8 +179,8 @@ def test_a_killed_worker_ends_the_training_in_one_line_and_it_resumes(tmp_path: 
     assert len(lines) == 1 and "the learner process died (killed by signal 9)" in lines[0], err
     assert f"--resume --out {out}" in lines[0]
     assert (out / "checkpoint.pt").exists() and not (out / "model.pt").exists()
-    res = subprocess.run(args[:3] + ["--resume", "--out", str(out), "--quiet"], cwd=ROOT, capture_output=True,
-                         text=True)  # fmt: skip
+    res = subprocess.run([sys.executable, "-m", "coopsumo.train", "--resume", "--out", str(out), "--quiet"], cwd=ROOT,
+                         capture_output=True, text=True)  # fmt: skip
     assert res.returncode == 0, res.stderr
     serial = tmp_path / "serial"
     subprocess.run([*args[:-3], "--out", str(serial), "--quiet", "--update-worker", "off"], cwd=ROOT, check=True,
