@@ -88,13 +88,25 @@ def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
         assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "one" / "model.pt"))
 
 
+LOG_EVERY_250 = """
+import dataclasses, sys
+import coopsumo.agents.train_cli as t
+base = t.config_from_args
+t.config_from_args = lambda args: dataclasses.replace(base(args), log_every_steps=250)
+sys.exit(t.main(sys.argv[1:]))
+"""
+"""`python -m coopsumo.train` with a log row every 250 steps"""
+
+
 @pytest.mark.parametrize("preset", ["paper", "features"])
 def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str) -> None:
     """Each state a checkpoint must keep, within 1,500 steps: `features` is the default learner (the v2x state,
     drawn demands and accidents, its updates in the second process, whose state the checkpoint asks for) with
     episodes of 1,200 steps (the cut after 1,000 lands inside one), the alpha-conditioned network's alpha schedule,
     the followers' speed in the reward, 3-round returns (the rounds not yet joined) and model selection all at work
-    in one training (any state a resume lost would change the weights)."""
+    in one training (any state a resume lost would change the weights). `paper` (its replay, SGD and target network
+    synced every 500 steps) in 700 steps, logged every 250 (tests/test_faults.py's driver): the cut after step 250,
+    once it updates, and its target synced at 500 after the resume."""
     sig = signal.SIGTERM  # Ctrl-C (SIGINT) is exercised by tests/test_docs.py on the README's commands
     learner = {"features": ["--observation", "v2x", "--alpha-conditioned", "--alpha-period", "700",
                             "--train-t-up", "1.5,1", "--accident-share", "0.5", "--episode-steps", "1200",
@@ -102,11 +114,16 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str)
                             "--validation-accident-steps", "600", "--followers-weight", "1", "--update-worker", "on",
                             "--n-step", "3"]
                }.get(preset, ["--preset", preset])  # fmt: skip
-    args = ["--steps", "1500", "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
+    steps = "1500" if preset == "features" else "700"
+    args = ["--steps", steps, "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
+
+    def command(*extra: str) -> list[str]:
+        return _cmd(*extra) if preset == "features" else [sys.executable, "-c", LOG_EVERY_250, *extra]
+
     full = tmp_path / "full"
-    subprocess.run(_cmd(*args, "--out", str(full)), check=True, cwd=ROOT, capture_output=True)
+    subprocess.run(command(*args, "--out", str(full)), check=True, cwd=ROOT, capture_output=True)
     cut = tmp_path / "cut"
-    proc = subprocess.Popen(_cmd(*args, "--out", str(cut)), cwd=ROOT, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(command(*args, "--out", str(cut)), cwd=ROOT, stderr=subprocess.PIPE, text=True)
     log = cut / "train_log.csv"
     deadline = time.time() + 120
     while time.time() < deadline and (not log.exists() or len(log.read_text().splitlines()) < 2):
