@@ -10,7 +10,7 @@ recovery or stop-and-go waves through the accident? Pure functions on scenario I
   family-wise FAMILY_ALPHA on the bootstrap p-values. "Decided": Holm rejects and at least MIN_MODELS models stand
   behind the difference; its direction is its sign (lower total time, earlier recovery, fewer waves: alpha 8 helps).
 - The mechanism: a model thrashes at a demand when its queue lane changes per vehicle (lane changes made below
-  5 m/s), averaged over its evaluation seeds, exceed THRASHING_QLC. Per demand, the share of thrashing models per
+  5 m/s), averaged over its evaluation seeds, reach THRASHING_QLC (the learner protocol's threshold). Per demand, the share of thrashing models per
   alpha with Fisher's exact test (two-sided), Holm over the demands.
 - The number of models: from the first PILOT_MODELS models per alpha (lowest training seeds), each comparison's
   power (a two-sided one-sample t-test of the model means at FAMILY_ALPHA / family size, Bonferroni: conservative
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.studies.protocol.thrashing import THRASHING
 from coopsumo.studies.scenario1.measures import BOOT_SEED, MIN_MODELS, N_BOOT, censored, model_table, paired_differences
 
 CO_PRIMARY = ("tts_veh_h", "system_recovery_s", "waves")
@@ -34,8 +35,8 @@ CO_PRIMARY = ("tts_veh_h", "system_recovery_s", "waves")
 waves (per run); lower is better on each"""
 FAMILY_ALPHA = 0.05
 """Holm's family-wise error rate over CO_PRIMARY x the demands (and, separately, the mechanism's tests)"""
-THRASHING_QLC = 0.5
-"""queue lane changes per vehicle above which a model thrashes (issue 78: calm models, under 0.5, beat keep by
+THRASHING_QLC = THRASHING
+"""queue lane changes per vehicle from which on a model thrashes (the learner protocol's threshold) (issue 78: calm models, under 0.5, beat keep by
 1.5-4.2 veh-h at T_up 2 and 1.5 s; thrashing ones lost by 3 to 48)"""
 PILOT_MODELS = 10
 POWER = 0.9
@@ -99,7 +100,7 @@ def thrashing(rows: pd.DataFrame, policy: str) -> pd.DataFrame:
     runs = rows[rows["policy"] == policy]
     means = runs.groupby(["t_up_s", "train_seed"], as_index=False)[["queue_lane_changes_per_vehicle", "tts_veh_h"]]
     table = means.mean().rename(columns={"queue_lane_changes_per_vehicle": "qlc"})
-    table["thrashing"] = table["qlc"] > THRASHING_QLC
+    table["thrashing"] = table["qlc"] >= THRASHING_QLC
     return table
 
 
