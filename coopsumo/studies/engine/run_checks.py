@@ -114,7 +114,7 @@ def _interval_problem(match: re.Match[bytes], sim_seconds: float, dt: float, per
     except (KeyError, ValueError):
         return f"an interval lacking a number: {shown}"
     if problem := DETECTOR_INTERVAL.problem(numbers):
-        return f"an interval {attrs['begin']}-{attrs['end']} s of {attrs.get('id', '?')[:40]} whose {problem}"
+        return f"an interval {attrs['begin']}-{attrs['end']} s of {attrs.get('id', '?')[:40]}: {problem}"
     if not (begin < end <= sim_seconds + dt / 2 and end - begin <= period + 1e-6):
         return (f"an interval {begin:g}-{end:g} s, not within the run's {sim_seconds:g} s and its {period:g} s loop "
                 "period")  # fmt: skip
