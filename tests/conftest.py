@@ -259,3 +259,24 @@ def text_difference(committed: str, redrawn: str, rel: float = REL_TOLERANCE) ->
         if abs(x - y) > max(rel * max(abs(x), abs(y)), 1e-12):
             return f"line {line}: {a} != {b}"
     return None
+
+
+def main_here(main: Callable[[list[str]], int], argv: list[str],
+              capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:  # fmt: skip
+    """A command's main(argv) in this process, for refusals made before any simulation (the one-line refusal of a
+    command run as a process: tests/test_bad_inputs.py): its exit code (argparse's SystemExit too), stdout, stderr."""
+    capsys.readouterr()
+    try:
+        code = main(argv)
+    except SystemExit as stop:  # argparse
+        code = int(stop.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def assert_refused_in_one_line(code: int, err: str, out: Path, fragment: str = "") -> None:
+    """Exit code 2, one line on stderr holding fragment, no traceback, nothing written at out."""
+    assert code == 2, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err, err
+    assert not out.exists()

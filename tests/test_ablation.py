@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
-from conftest import InlineBackend
+from conftest import InlineBackend, assert_refused_in_one_line, main_here
 
 from coopsumo.agents.selection import trained_part
 from coopsumo.dqn_config import PAPER_DQN, DQNConfig
@@ -122,16 +122,8 @@ def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: st
     from coopsumo.studies.learning import study
 
     out = tmp_path / "out"
-    capsys.readouterr()
-    try:
-        code = study.main(["--profile", "tiny", "--out", str(out), *args])
-    except SystemExit as stop:  # argparse
-        code = int(stop.code or 0)
-    err = capsys.readouterr().err
-    assert code == 2, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err
-    assert not out.exists()
+    code, _, err = main_here(study.main, ["--profile", "tiny", "--out", str(out), *args], capsys)
+    assert_refused_in_one_line(code, err, out, fragment)
 
 
 def test_default_alpha_zero_cells_are_shared_between_the_parts() -> None:

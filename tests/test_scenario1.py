@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import sumolib
-from conftest import env_with_display
+from conftest import assert_refused_in_one_line, env_with_display, main_here
 from PIL import Image
 
 from coopsumo.config import AccidentConfig, OutputConfig, SimConfig, to_dict
@@ -191,14 +191,8 @@ def test_bad_input(tmp_path: Path, args: list[str], capsys: pytest.CaptureFixtur
     """scenario1's main in this process (the one-line refusal of a command run as a process:
     tests/test_bad_inputs.py)."""
     out = tmp_path / "s1"
-    capsys.readouterr()
-    try:
-        code = scenario1.main([*args, "--out", str(out)])
-    except SystemExit as stop:  # argparse
-        code = int(stop.code or 0)
-    err = capsys.readouterr().err
-    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    assert not out.exists()
+    code, _, err = main_here(scenario1.main, [*args, "--out", str(out)], capsys)
+    assert_refused_in_one_line(code, err, out)
 
 
 def _rows(values: dict[str, dict[str, list[float]]], t_up: float = 1.0) -> pd.DataFrame:
@@ -370,15 +364,8 @@ def test_regime_map_bad_demands_one_line_exit_2(tmp_path: Path, capsys: pytest.C
 
     out = tmp_path / "out"
     for bad in ("0", "1,,2", "nan", "2,2", "-1"):
-        capsys.readouterr()
-        try:
-            code = regime_map.main(["--t-up", bad, "--out", str(out)])
-        except SystemExit as stop:  # argparse
-            code = int(stop.code or 0)
-        err = capsys.readouterr().err
-        lines = err.strip().splitlines()
-        assert code == 2 and len(lines) == 1 and "--t-up" in lines[0], (bad, err)
-        assert not out.exists()
+        code, _, err = main_here(regime_map.main, ["--t-up", bad, "--out", str(out)], capsys)
+        assert_refused_in_one_line(code, err, out, "--t-up")
 
 
 def _model_rows(policy: str, tts: dict[int, list[float]], t_up: float = 1.0) -> pd.DataFrame:

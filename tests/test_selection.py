@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import assert_refused_in_one_line, main_here
 
 from coopsumo.agents import selection
 from coopsumo.agents.model_file import load_model
@@ -164,16 +165,8 @@ def test_bad_selection_flags_are_one_line_usage_errors(
     from coopsumo import train
 
     out = tmp_path / "run"
-    capsys.readouterr()
-    try:
-        code = train.main(["--steps", "50", "--out", str(out), *args])
-    except SystemExit as stop:  # argparse
-        code = int(stop.code or 0)
-    err = capsys.readouterr().err
-    assert code == 2, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err
-    assert not out.exists()
+    code, _, err = main_here(train.main, ["--steps", "50", "--out", str(out), *args], capsys)
+    assert_refused_in_one_line(code, err, out, fragment)
 
 
 def _weights(path: Path) -> dict[str, torch.Tensor]:

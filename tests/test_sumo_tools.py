@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import sumolib
-from conftest import TIMING_KEYS, env_with_display
+from conftest import TIMING_KEYS, env_with_display, main_here
 from PIL import Image
 
 from coopsumo.sim import view
@@ -49,12 +49,7 @@ def simulate_here(args: list[str], capsys: pytest.CaptureFixture[str]) -> subpro
     as a process: tests/test_bad_inputs.py)."""
     from coopsumo import simulate as simulate_command
 
-    capsys.readouterr()
-    try:
-        code = simulate_command.main(args)
-    except SystemExit as stop:  # argparse
-        code = int(stop.code or 0)
-    out, err = capsys.readouterr()
+    code, out, err = main_here(simulate_command.main, args, capsys)
     return subprocess.CompletedProcess(args, code, out, err)
 
 

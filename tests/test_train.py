@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pytest
 import torch
+from conftest import assert_refused_in_one_line, main_here
 
 from coopsumo.agents.model_file import load_model
 from coopsumo.agents.train import train
@@ -178,16 +179,8 @@ def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: st
 
     out = tmp_path / "out"
     extra = [] if "--resume" in args else ["--out", str(out)]
-    capsys.readouterr()
-    try:
-        code = train_command.main([*args, *extra])
-    except SystemExit as stop:  # argparse
-        code = int(stop.code or 0)
-    err = capsys.readouterr().err
-    assert code == 2, err
-    lines = err.strip().splitlines()
-    assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err
-    assert not out.exists()
+    code, _, err = main_here(train_command.main, [*args, *extra], capsys)
+    assert_refused_in_one_line(code, err, out, fragment)
 
 
 def test_bad_model_files_are_usage_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
