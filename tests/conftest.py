@@ -280,3 +280,25 @@ def assert_refused_in_one_line(code: int, err: str, out: Path, fragment: str = "
     lines = err.strip().splitlines()
     assert len(lines) == 1 and fragment in lines[0] and "Traceback" not in err, err
     assert not out.exists()
+
+
+def interrupted_at_step_20(cfg: Any, out: Path) -> Path:
+    """A training of cfg (a TrainConfig checkpointing every 20 steps) run in the new folder out as train leaves it
+    when killed after its checkpoint of step 20 (its marker, config.json, its log on to the end); returns the path
+    of that step-20 checkpoint, kept beside the last one (step20.pt) for the caller to put in place."""
+    from coopsumo.agents.train import Trainer
+    from coopsumo.run_dirs import mark_run_dir
+
+    out.mkdir()
+    mark_run_dir(out, "train", finished=False)
+    trainer = Trainer(cfg, out, progress=False)
+    save = trainer.save_checkpoint
+
+    def save_and_keep_step_20() -> None:
+        save()
+        if trainer.step == 20:
+            shutil.copy(out / "checkpoint.pt", out / "step20.pt")
+
+    trainer.save_checkpoint = save_and_keep_step_20  # type: ignore[method-assign]
+    trainer.run()
+    return out / "step20.pt"

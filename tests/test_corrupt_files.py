@@ -20,13 +20,13 @@ from typing import Any
 import numpy as np
 import pytest
 import torch
+from conftest import interrupted_at_step_20
 
 from coopsumo import simulate
 from coopsumo.agents import train_cli as train
 from coopsumo.agents.dqn import QNetwork
 from coopsumo.agents.file_checks import prepare_resume, truncate_log
 from coopsumo.agents.model_file import save_model
-from coopsumo.agents.train import Trainer
 from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
@@ -151,19 +151,7 @@ def checkpoint_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("ckpt") / "run"
     cfg = TrainConfig(sim=SimConfig(steps=40, seed=3, policy="dqn"), dqn=DQN_PRESETS["paper"], eval_steps=0,
                       log_every_steps=10, checkpoint_every_steps=20)  # fmt: skip
-    out.mkdir()
-    mark_run_dir(out, "train", finished=False)
-    trainer = Trainer(cfg, out, progress=False)
-    save = trainer.save_checkpoint
-
-    def save_and_keep_step_20() -> None:
-        save()
-        if trainer.step == 20:
-            shutil.copy(out / "checkpoint.pt", out / "step20.pt")
-
-    trainer.save_checkpoint = save_and_keep_step_20  # type: ignore[method-assign]
-    trainer.run()  # the log goes on to step 40: a run killed after its checkpoint of step 20
-    (out / "step20.pt").replace(out / "checkpoint.pt")
+    interrupted_at_step_20(cfg, out).replace(out / "checkpoint.pt")  # the log goes on to step 40
     return out
 
 

@@ -16,14 +16,14 @@ from typing import Any
 
 import pytest
 import torch
+from conftest import interrupted_at_step_20
 
 from coopsumo import record_schemas as rs
 from coopsumo.agents import train_cli as train
 from coopsumo.agents.file_checks import checkpoint_problem
-from coopsumo.agents.train import Trainer
 from coopsumo.config import SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS
-from coopsumo.run_dirs import finished_run, mark_run_dir
+from coopsumo.run_dirs import finished_run
 
 
 # -- the schemas on their own ---------------------------------------------------------------------------------
@@ -115,19 +115,7 @@ def checkpoint_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     dqn = dataclasses.replace(DQN_PRESETS["default"], replay_size=500, batch_size=8, select_every_steps=0)
     cfg = TrainConfig(sim=SimConfig(steps=40, seed=3, policy="dqn"), dqn=dqn, eval_steps=0, log_every_steps=10,
                       checkpoint_every_steps=20)  # fmt: skip
-    out.mkdir()
-    mark_run_dir(out, "train", finished=False)
-    trainer = Trainer(cfg, out, progress=False)
-    save = trainer.save_checkpoint
-
-    def save_and_keep_step_20() -> None:
-        save()
-        if trainer.step == 20:
-            shutil.copy(out / "checkpoint.pt", out / "step20.pt")
-
-    trainer.save_checkpoint = save_and_keep_step_20  # type: ignore[method-assign]
-    trainer.run()
-    state = torch.load(out / "step20.pt", weights_only=True)
+    state = torch.load(interrupted_at_step_20(cfg, out), weights_only=True)
     state["learner"]["optimizer"]["state"] = {
         i: {"step": torch.tensor(3.0), "exp_avg": torch.full_like(w, 0.01), "exp_avg_sq": torch.full_like(w, 1e-4)}
         for i, w in enumerate(state["learner"]["online"].values())}  # fmt: skip
