@@ -10,10 +10,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from coopsumo.studies.engine.stats import bootstrap_p
 from coopsumo.studies.scenario2.plan import t_up_for
 from coopsumo.studies.scenario2.response import (
     RESPONSE_ALPHAS,
-    bootstrap_p,
     condition_responses,
     holm,
     model_scores,

@@ -119,6 +119,12 @@ def hierarchical_replicates(diff: np.ndarray, reps: int = REPS, seed: int = SEED
     return point, drawn.mean(axis=2).mean(axis=1)
 
 
+def bootstrap_p(replicates: np.ndarray) -> float:
+    """Two-sided bootstrap p-value of an estimate against 0: twice the smaller tail's share, at most 1."""
+    r = np.asarray(replicates, float)
+    return min(1.0, 2.0 * min(float(np.mean(r <= 0)), float(np.mean(r >= 0))))
+
+
 def models_needed(model_means: np.ndarray, confidence: float = CONFIDENCE) -> int | None:
     """About how many models a two-sided interval at `confidence` needs to exclude zero, if the mean difference and
     the spread between models stay as measured: (z sd / mean)^2. None when it cannot be said (fewer than 2 models,

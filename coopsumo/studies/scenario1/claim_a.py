@@ -10,8 +10,8 @@ recovery or stop-and-go waves through the accident? Pure functions on scenario I
   family-wise FAMILY_ALPHA on the bootstrap p-values. "Decided": Holm rejects and at least MIN_MODELS models stand
   behind the difference; its direction is its sign (lower total time, earlier recovery, fewer waves: alpha 8 helps).
 - The mechanism: a model thrashes at a demand when its queue lane changes per vehicle (lane changes made below
-  5 m/s), averaged over its evaluation seeds, reach THRASHING_QLC (the learner protocol's threshold). Per demand, the share of thrashing models per
-  alpha with Fisher's exact test (two-sided), Holm over the demands.
+  5 m/s), averaged over its evaluation seeds, reach THRASHING_QLC (the learner protocol's threshold). Per demand,
+  the share of thrashing models per alpha with Fisher's exact test (two-sided), Holm over the demands.
 - The number of models: from the first PILOT_MODELS models per alpha (lowest training seeds), each comparison's
   power (a two-sided one-sample t-test of the model means at FAMILY_ALPHA / family size, Bonferroni: conservative
   beside Holm) for the measured mean and spread between models; the study runs the smallest n in
@@ -36,8 +36,8 @@ waves (per run); lower is better on each"""
 FAMILY_ALPHA = 0.05
 """Holm's family-wise error rate over CO_PRIMARY x the demands (and, separately, the mechanism's tests)"""
 THRASHING_QLC = THRASHING
-"""queue lane changes per vehicle from which on a model thrashes (the learner protocol's threshold) (issue 78: calm models, under 0.5, beat keep by
-1.5-4.2 veh-h at T_up 2 and 1.5 s; thrashing ones lost by 3 to 48)"""
+"""queue lane changes per vehicle from which on a model thrashes (the learner protocol's threshold; issue 78: calm
+models, under 0.5, beat keep by 1.5-4.2 veh-h at T_up 2 and 1.5 s; thrashing ones lost by 3 to 48)"""
 PILOT_MODELS = 10
 POWER = 0.9
 MIN_PLANNED, MAX_MODELS = 20, 40
@@ -46,14 +46,13 @@ MIN_PLANNED, MAX_MODELS = 20, 40
 def hierarchical_p(diff: np.ndarray) -> tuple[float, float, float, float]:
     """(mean, low, high, two-sided p) of a (models x seeds) table of paired differences: the two-level bootstrap's
     95% interval, and twice the smaller share of its replicates on either side of 0 (at most 1)."""
-    from coopsumo.studies.engine.stats import hierarchical_replicates
+    from coopsumo.studies.engine.stats import bootstrap_p, hierarchical_replicates
 
     point, values = hierarchical_replicates(diff, reps=N_BOOT, seed=BOOT_SEED)
     if values.size == 0:
         return (math.nan,) * 4
     low, high = np.percentile(values, [2.5, 97.5])
-    p = min(1.0, 2.0 * min(float(np.mean(values <= 0)), float(np.mean(values >= 0))))
-    return point, float(low), float(high), p
+    return point, float(low), float(high), bootstrap_p(values)
 
 
 def holm_adjusted(p_values: pd.Series) -> pd.Series:
@@ -122,7 +121,7 @@ def thrashing_tests(rows: pd.DataFrame, a: str, b: str) -> pd.DataFrame:
     return table
 
 
-def power(effect: float, sd: float, n: int, level: float, target: float = POWER) -> float:
+def power(effect: float, sd: float, n: int, level: float) -> float:
     """Power of a two-sided one-sample t-test of n model means at `level` when their mean is effect and their sd is
     sd (noncentral t); 0 when it cannot be said."""
     from scipy.stats import nct, t

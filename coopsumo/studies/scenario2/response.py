@@ -27,6 +27,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.studies.engine.stats import bootstrap_p
+
 RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
 """the alphas the slope is fitted over: the paper's small values to 8; alpha 32 (where lane changes have all but
 stopped) is left out, so that a study with or without it measures the same thing"""
@@ -111,12 +113,6 @@ def condition_responses(scores: pd.DataFrame, reps: int, seed: int = BOOT_SEED) 
 
 def _design(table: pd.DataFrame) -> np.ndarray:
     return np.column_stack([np.ones(len(table)), table["lanes"].to_numpy(float), table["load"].to_numpy(float)])
-
-
-def bootstrap_p(replicates: np.ndarray) -> float:
-    """Two-sided bootstrap p-value of a coefficient against 0: twice the smaller tail's share, at most 1."""
-    r = np.asarray(replicates, float)
-    return min(1.0, 2.0 * min(float(np.mean(r <= 0)), float(np.mean(r >= 0))))
 
 
 def holm(p_values: dict[str, float], family_alpha: float = FAMILY_ALPHA) -> dict[str, bool]:
