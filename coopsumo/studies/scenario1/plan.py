@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import NamedTuple
 
 from coopsumo.config import AccidentConfig, DemandConfig, OutputConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig
-from coopsumo.dqn_config import DQN_PRESETS
+from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.policy_spec import model_file, parse_policy, split_dqn_spec
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.studies.engine.run_folders import default_out
@@ -138,6 +138,20 @@ def run_folder(label: str, seed: int, t_up: float, train_seed: int | None = None
     return f"runs/t{number_name(t_up)}/{label}{model}_seed{seed}"
 
 
+def learners() -> dict[str, DQNConfig]:
+    """The learners a study may train, by name: config.DQN_PRESETS, then the learner protocol's variants that drive
+    as they were saved (learners.toml: no drive settings, model.pt) and are not a preset under another name, such as
+    `alpha_only_dense` (issue 78)."""
+    from coopsumo.studies.protocol.plan import variants
+
+    known = dict(DQN_PRESETS)
+    for name, variant in variants().items():
+        if name not in known and not variant.drive() and variant.weights == "model.pt" and \
+                variant.learner not in DQN_PRESETS.values():
+            known[name] = variant.learner
+    return known
+
+
 def train_config(plan: Plan, alpha: float, preset: str = "default", train_seed: int = FIRST_TRAIN_SEED) -> TrainConfig:
     """The training of one model with the learner preset `preset` (the learner's own training demand; the same
     configuration as the learner protocol's, so the model store holds one model for both)."""
@@ -149,7 +163,7 @@ def train_config(plan: Plan, alpha: float, preset: str = "default", train_seed: 
         seed=train_seed,
         policy="dqn",
     )
-    return TrainConfig(sim=sim, dqn=DQN_PRESETS[preset], eval_steps=0)
+    return TrainConfig(sim=sim, dqn=learners()[preset], eval_steps=0)
 
 
 def accident_config(plan: Plan, policy: str, seed: int, t_up_s: float) -> SimConfig:

@@ -25,7 +25,6 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import ControlConfig, OutputConfig, RoadConfig, to_dict
-from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.policy_spec import policy_file
@@ -42,6 +41,7 @@ from coopsumo.studies.scenario1.plan import (
     Run,
     accident_config,
     label_for,
+    learners,
     model_label,
     model_name,
     run_folder,
@@ -105,7 +105,7 @@ def _alpha_list(text: str) -> tuple[float, ...]:
 
 
 def _preset_list(text: str) -> tuple[str, ...]:
-    return name_list("--preset", text, tuple(DQN_PRESETS))
+    return name_list("--preset", text, tuple(learners()))
 
 
 PROFILE_FLAGS = {"": Plan(), " --quick": Plan.quick(), " --full": Plan.full()}
@@ -168,7 +168,7 @@ def build_parser() -> Parser:
                         "class of your own py:MODULE:CLASS, a Stable-Baselines3 model sb3:PATH, dqn:PATH, ...); "
                         "repeat it for several (default: none; docs/extending.md)")  # fmt: skip
     p.add_argument("--preset", "--presets", dest="presets", default=None,
-                   help=f"learner presets, comma-separated: {', '.join(DQN_PRESETS)}, or several side by side, e.g. "
+                   help=f"learner presets, comma-separated: {', '.join(learners())}, or several side by side, e.g. "
                         f"default,alpha_only (default: {by_profile(lambda plan: ','.join(plan.presets))})")  # fmt: skip
     return p
 
@@ -316,8 +316,8 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
         root.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise UsageError(f"cannot write {root}: {err.strerror}") from None
-    learners = {preset: to_dict(DQN_PRESETS[preset]) for preset in plan.presets}  # the report's learner settings
-    write_json(root / "plan.json", {"plan": to_dict(plan), "learners": learners, "versions": versions()})
+    settings = {preset: to_dict(learners()[preset]) for preset in plan.presets}  # the report's learner settings
+    write_json(root / "plan.json", {"plan": to_dict(plan), "learners": settings, "versions": versions()})
     specs, models, runs, n_train = _cells(plan, root)
     n_cells = len(models) + len(runs)
     if specs:

@@ -65,10 +65,10 @@ DEFINITIONS = f"""- **Total time spent** (TTS, the headline): vehicle-hours on t
 def training_text(plan: Plan) -> str:
     """How the models were trained: each learner preset's own training demand (a mix of demands, with accidents in
     a share of its episodes or none, or free flow at one demand), named per preset when the plan has several."""
-    from coopsumo.dqn_config import DQN_PRESETS
+    from coopsumo.studies.scenario1.plan import learners
 
     def where(preset: str) -> str:
-        dqn = DQN_PRESETS[preset]
+        dqn = learners()[preset]
         if not dqn.train_t_ups:
             return f"free flow at T_up = {plan.train_t_up_s:g} s"
         accidents = f"{dqn.accident_share:.0%} of them with an accident" if dqn.accident_share else "no accident"
