@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +24,7 @@ from coopsumo.errors import ConfigError
 from coopsumo.studies.engine import stats
 
 ROOT = Path(__file__).resolve().parent.parent
+selection_start = selection.start
 
 
 def _fake_result(out: Path, step: int, score: float) -> None:
@@ -173,14 +177,25 @@ def _weights(path: Path) -> dict[str, torch.Tensor]:
     return load_model(path)[0].state_dict()
 
 
-def test_selection_chooses_among_real_snapshots_without_changing_training(tmp_path: Path) -> None:
+def test_selection_chooses_among_real_snapshots_without_changing_training(tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch) -> None:
     """In SUMO: 400 steps validated every 200 (learning from step 200 on, after the first validation); model.pt is
     the best-scoring snapshot, model_last.pt the last weights, which equal the model.pt of the same training without
-    selection (validation never feeds back)."""
+    selection (validation never feeds back). Both snapshots are validated by one process (issue 77), with the same
+    result as a process of their own gives."""
     base = TrainConfig(sim=SimConfig(steps=400, seed=3, policy="dqn"), eval_steps=0,
                        dqn=dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=100,
                                                validation_t_ups=(1.5, 1.0), validation_accident_steps=600))  # fmt: skip
+    started = []
+    monkeypatch.setattr(selection, "start", lambda: started.append(1) or selection_start())
     summary = train(base, tmp_path / "sel", progress=False)
+    assert len(started) == 1
+    for step in (200, 400):
+        alone = tmp_path / f"alone{step}"
+        shutil.copytree(selection.snapshot_dir(tmp_path / "sel", step), alone)
+        (alone / selection.RESULT).unlink()
+        subprocess.run([sys.executable, "-m", "coopsumo.agents.selection", str(alone)], check=True)
+        assert selection.result(alone) == selection.result(selection.snapshot_dir(tmp_path / "sel", step))
     plain = dataclasses.replace(base, dqn=dataclasses.replace(base.dqn, select_every_steps=0))
     train(plain, tmp_path / "plain", progress=False)
     results = selection.results(tmp_path / "sel")

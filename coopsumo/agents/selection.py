@@ -82,21 +82,23 @@ def request(out: Path, cfg: TrainConfig, step: int) -> Path:
     return folder
 
 
-def start(folder: Path) -> subprocess.Popen[bytes]:
-    """Validate the snapshot in `folder` in a new process (its result: folder/validation.json). In a process group of
-    its own: a Ctrl-C sent to the training's group is the training's to handle (it ends the validation,
-    Validator.close), and cannot fail the validation first."""
+def start() -> subprocess.Popen[bytes]:
+    """The training's validation process (`python -m coopsumo.agents.selection --serve`): it validates the snapshot
+    folders written to its stdin, one a line, in turn, and answers each with a line once its validation.json is
+    written; one process a training, so that torch and libsumo are imported once, not once a snapshot (about 3 CPU s
+    each). In a process group of its own: a Ctrl-C sent to the training's group is the training's to handle (it ends
+    the validation, Validator.close), and cannot fail the validation first."""
     env = dict(os.environ, OMP_NUM_THREADS="1")
-    return subprocess.Popen([sys.executable, "-m", "coopsumo.agents.selection", str(folder)], env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, process_group=0)  # fmt: skip
+    return subprocess.Popen([sys.executable, "-m", "coopsumo.agents.selection", "--serve"], env=env, bufsize=0,
+                            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            process_group=0)  # fmt: skip
 
 
-def check_finished(folder: Path, proc: subprocess.Popen[bytes]) -> None:
-    """RuntimeError naming the last line the ended validation process `proc` of `folder` wrote, unless it left a
-    result."""
-    if proc.returncode != 0 or result(folder) is None:
-        err = proc.stderr.read().decode(errors="replace").strip().splitlines() if proc.stderr else []
-        raise RuntimeError(f"validation of {folder} failed: {err[-1] if err else f'exit {proc.returncode}'}")
+def failure(folder: Path, proc: subprocess.Popen[bytes]) -> RuntimeError:
+    """The error of a validation process that ended before it validated `folder`: the last line it wrote."""
+    proc.wait()
+    err = proc.stderr.read().decode(errors="replace").strip().splitlines() if proc.stderr else []
+    return RuntimeError(f"validation of {folder} failed: {err[-1] if err else f'exit {proc.returncode}'}")
 
 
 def pending(out: Path) -> list[Path]:
@@ -184,14 +186,16 @@ def reselect(src: Path, out: Path, cfg: TrainConfig) -> dict[str, Any]:
     net, _ = load_model(src / LAST_MODEL)
     save_model(out / LAST_MODEL, net, meta)
     steps = sorted(int(d.name[4:]) for d in (src / SNAPSHOTS).glob("step*") if d.name[4:].isdigit())
-    for step in steps:
-        net, _ = load_model(snapshot_dir(src, step) / "model.pt")
-        snapshot_dir(out, step).mkdir(parents=True)
-        save_model(snapshot_dir(out, step) / "model.pt", net, meta)
-        folder = request(out, cfg, step)
-        proc = start(folder)
-        proc.wait()
-        check_finished(folder, proc)
+    validator = Validator(out, cfg, max(steps, default=0))
+    try:
+        for step in steps:
+            net, _ = load_model(snapshot_dir(src, step) / "model.pt")
+            snapshot_dir(out, step).mkdir(parents=True)
+            save_model(snapshot_dir(out, step) / "model.pt", net, meta)
+            validator.queue.append(request(out, cfg, step))
+        validator.finish()
+    finally:
+        validator.close()
     chosen = install_best(out)
     if chosen is None:
         raise RuntimeError(f"{src} has no snapshots to choose from")
@@ -288,10 +292,23 @@ def validate(folder: Path) -> dict[str, Any]:
     return data
 
 
+def serve() -> int:
+    """Validate the snapshot folders read from stdin, one a line, answering each on stdout when its result is
+    written; ends at the end of its input."""
+    for line in sys.stdin:
+        validate(Path(line.rstrip("\n")))
+        sys.stdout.write("done\n")
+        sys.stdout.flush()
+    return 0
+
+
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
+    if args == ["--serve"]:
+        return serve()
     if len(args) != 1 or not (Path(args[0]) / REQUEST).exists():
-        print("usage: python -m coopsumo.agents.selection SNAPSHOT_FOLDER (holding request.json)", file=sys.stderr)
+        print("usage: python -m coopsumo.agents.selection SNAPSHOT_FOLDER (holding request.json) | --serve",
+              file=sys.stderr)  # fmt: skip
         return 2
     validate(Path(args[0]))
     return 0
@@ -303,14 +320,16 @@ if __name__ == "__main__":
 
 class Validator:
     """The trainer's side of model selection: snapshots every select_every_steps (and at the last step),
-    validated one at a time in a background process while training goes on."""
+    validated one at a time in one background process (start) while training goes on."""
 
     def __init__(self, out: Path, cfg: TrainConfig, resumed_step: int = 0):
         self.out = out
         self.cfg = cfg
         self.every = cfg.dqn.select_every_steps
         self.queue: list[Path] = []
-        self.running: tuple[Path, subprocess.Popen[bytes]] | None = None
+        self.running: Path | None = None
+        """the snapshot folder the process is validating"""
+        self.proc: subprocess.Popen[bytes] | None = None
         (out / SNAPSHOTS).mkdir(exist_ok=True)
         for d in (out / SNAPSHOTS).glob("step*"):  # a resume re-trains the steps after its checkpoint
             if not d.name[4:].isdigit() or int(d.name[4:]) > resumed_step:
@@ -333,30 +352,50 @@ class Validator:
         elif step % 1000 == 0:
             self.poll()
 
+    def _collect(self, wait: bool) -> bool:
+        """True once the running validation has answered (waiting for it if `wait`); RuntimeError if its process
+        ended first or answered without a result."""
+        import select
+
+        assert self.running is not None and self.proc is not None and self.proc.stdout is not None
+        if not wait and not select.select([self.proc.stdout], [], [], 0)[0]:
+            return False
+        if self.proc.stdout.readline() != b"done\n" or result(self.running) is None:
+            raise failure(self.running, self.proc)
+        self.running = None
+        return True
+
     def poll(self) -> None:
         """Collect a finished validation and start the next one."""
-        if self.running is not None:
-            folder, proc = self.running
-            if proc.poll() is None:
-                return
-            self.running = None
-            check_finished(folder, proc)
+        if self.running is not None and not self._collect(wait=False):
+            return
         if self.queue:
-            folder = self.queue.pop(0)
-            self.running = (folder, start(folder))
+            if self.proc is None:
+                self.proc = start()
+            self.running = self.queue.pop(0)
+            assert self.proc.stdin is not None
+            try:
+                self.proc.stdin.write(f"{self.running.resolve()}\n".encode())
+            except BrokenPipeError:
+                raise failure(self.running, self.proc) from None
 
     def finish(self) -> None:
-        """Wait until every snapshot is validated."""
+        """Wait until every snapshot is validated, then end the validation process."""
         while self.running is not None or self.queue:
             if self.running is not None:
-                self.running[1].wait()
+                self._collect(wait=True)
             self.poll()
+        if self.proc is not None:
+            assert self.proc.stdin is not None
+            self.proc.stdin.close()
+            self.proc.wait()
+            self.proc = None
 
     def close(self) -> None:
-        """Stop a running validation (interrupted training: a resume validates its snapshot again)."""
-        if self.running is not None:
-            proc = self.running[1]
-            if proc.poll() is None:
-                proc.terminate()
-                proc.wait()
-            self.running = None
+        """Stop the validation process (interrupted training: a resume validates its snapshot again)."""
+        if self.proc is not None:
+            if self.proc.poll() is None:
+                self.proc.terminate()
+                self.proc.wait()
+            self.proc = None
+        self.running = None
