@@ -178,10 +178,11 @@ def test_train_help_states_each_presets_learner_values_as_the_flags_take_them() 
     enable = {"--alpha-period": ["--alpha-conditioned"], "--alpha-relabel": ["--alpha-conditioned"],
               "--alpha-draw-max": ["--alpha-conditioned"], "--validation-alphas": ["--alpha-conditioned", *select],
               "--validation-seed": select, "--validation-t-up": select, "--validation-steps": select,
-              "--validation-queue": [*select, "--queue-below", "5"], "--episode-steps": ["--accident-share", "0.5"]}
+              "--validation-queue": [*select, "--queue-below", "5"], "--episode-steps": ["--accident-share", "0.5"],
+              "--validation-screen-t-up": select, "--validation-finalists": [*select, "--validation-screen-t-up", "2"]}
     assert set(enable) == set(train_cli.FLAG_NEEDS)  # the flags that act only beside another, given it
     parser = train_cli.build_parser()
-    checked = 0
+    checked = empty = 0
     for flag, name, kind, _ in LEARNER_FLAGS:
         match = re.search(r"\((default preset: [^()]*)\)$", option_help(parser, flag))
         assert match, flag
@@ -193,6 +194,7 @@ def test_train_help_states_each_presets_learner_values_as_the_flags_take_them() 
             want = getattr(cfg, name)
             if value == "empty":
                 assert want == (), f"{flag} ({preset}): help says empty, the preset has {want!r}"
+                empty += 1
                 continue
             if kind is bool:
                 assert value in (flag, f"--no-{flag[2:]}"), f"{flag} ({preset}): {value}"
@@ -202,7 +204,7 @@ def test_train_help_states_each_presets_learner_values_as_the_flags_take_them() 
             got = getattr(train_cli.learner_from_args(parser.parse_args(args)), name)
             assert got == want, f"{flag} {value} ({preset}): makes {got!r}, the preset has {want!r}"
             checked += 1
-    assert checked >= 3 * len(LEARNER_FLAGS) - 5
+    assert checked + empty == len(DQN_PRESETS) * len(LEARNER_FLAGS) and empty <= 12
     text = option_help(parser, "--validation-t-up")
     assert "(default preset: 2,1.5,1)" in text and "(2.0" not in text  # the case
     assert "(default preset: --action-mask; paper: --no-action-mask)" in option_help(parser, "--action-mask")

@@ -11,6 +11,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import torch
 from conftest import assert_refused_in_one_line, main_here
@@ -153,6 +154,10 @@ def test_validation_drives_the_queue_rule_only_when_asked(tmp_path: Path) -> Non
         (["--validation-accident-steps", "-1"], "--validation-accident-steps"),
         (["--validation-accident-steps", "6000", "--seed", "900005"], "overlap the training seed"),
         (["--validation-alphas", "0,8"], "--validation-alphas"),
+        (["--validation-t-up", "1.5", "--validation-screen-t-up", "1"], "--validation-screen-t-up"),
+        (["--validation-screen-t-up", "1,1"], "--validation-screen-t-up"),
+        (["--validation-finalists", "3"], "--validation-finalists"),
+        (["--validation-screen-t-up", "1", "--validation-finalists", "0"], "--validation-finalists"),
         (["--no-return", "-1"], "--no-return"),
         (["--no-return", "nan"], "--no-return"),
         (["--alpha-conditioned", "--validation-alphas", "-1"], "--validation-alphas"),
@@ -247,6 +252,31 @@ def test_the_batched_bootstrap_gives_the_intervals_of_one_call_per_resample(shap
     for mats, func, batch in (((x,), stats.iqm, stats.iqm_batch),
                               ((x, y), stats.probability_of_improvement, stats.improvement_batch)):  # fmt: skip
         assert stats.stratified_bootstrap(mats, func, 300, batch=batch) == stats.stratified_bootstrap(mats, func, 300)
+
+
+def test_a_selection_in_two_stages_runs_every_run_for_the_best_screened_alone(tmp_path: Path) -> None:
+    """In SUMO (issue 77): 600 steps, snapshots at 200, 400 and 600 screened on the runs of T_up 1 s (free flow and
+    the accident), the best 2 then validated on every run, model.pt the best of those; a screening run is the same
+    run, to the bit, as in the full validation."""
+    dq = dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=100, validation_t_ups=(1.5, 1.0),
+                             validation_accident_steps=600, validation_screen_t_ups=(1.0,))  # fmt: skip
+    cfg = TrainConfig(sim=SimConfig(steps=600, seed=3, policy="dqn"), eval_steps=0, dqn=dq)
+    summary = train(cfg, tmp_path / "two", progress=False)
+    folders = [selection.snapshot_dir(tmp_path / "two", step) for step in (200, 400, 600)]
+    screened = [selection.result(d, selection.SCREEN) for d in folders]
+    assert all([(x["t_up_s"], x["accident"]) for x in r["runs"]] == [(1.0, False), (1.0, True)]
+               for r in screened if r is not None)  # fmt: skip
+    order = sorted(screened, key=lambda r: (-r["score"], r["step"]))  # type: ignore[index]
+    final = {r["step"] for r in order[:2]}  # type: ignore[index]
+    assert {r["step"] for d in folders if (r := selection.result(d)) is not None} == final
+    full = selection.results(tmp_path / "two")
+    assert summary["selected_step"] == max(full, key=lambda r: (r["score"], -r["step"]))["step"]
+    for r in full:
+        screen = next(s for s in screened if s is not None and s["step"] == r["step"])
+        assert [x for x in r["runs"] if x["t_up_s"] == 1.0] == screen["runs"]
+    table = pd.read_csv(tmp_path / "two" / "validation.csv")
+    assert list(table["step"]) == [200, 400, 600] and sorted(table["stage"]) == ["all", "all", "screen"]
+    assert table.loc[table["best"], "step"].tolist() == [summary["selected_step"]]
 
 
 def test_a_training_that_differs_only_in_validation_is_reselected_not_trained(tmp_path: Path,

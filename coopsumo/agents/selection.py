@@ -30,9 +30,19 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from coopsumo.agents.snapshots import RESULT, SNAPSHOTS, best, result, results, snapshot_dir  # also selection.*
+from coopsumo.agents.snapshots import (  # also selection.*
+    RESULT,
+    SCREEN,
+    SCREEN_STAGE,
+    SNAPSHOTS,
+    best,
+    by_score,
+    result,
+    results,
+    snapshot_dir,
+)
 from coopsumo.config import AccidentConfig, SimConfig, TrainConfig, sim_config_from_dict, to_dict
-from coopsumo.files import write_atomic
+from coopsumo.files import read_json_object, write_atomic
 
 if TYPE_CHECKING:
     from coopsumo.agents.dqn_policy import DQNPolicy
@@ -50,10 +60,11 @@ def selecting(cfg: TrainConfig) -> bool:
     return 0 < cfg.dqn.select_every_steps < cfg.sim.steps
 
 
-def validation_configs(cfg: TrainConfig, model: Path) -> list[SimConfig]:
+def validation_configs(cfg: TrainConfig, model: Path, screen: bool = False) -> list[SimConfig]:
     """The greedy runs that judge a snapshot of the training cfg: one in free flow per validation demand (seeds
     validation_seed + i), then, when validation_accident_steps > 0, one through an accident per demand (the next
-    seeds): held at the default position from 1/12 of the run for 5/6 of it."""
+    seeds): held at the default position from 1/12 of the run for 5/6 of it. With `screen`, only the runs of the
+    screening demands (validation_screen_t_ups), each the same run as in the full list."""
     dq = cfg.dqn
     base = replace(cfg.sim, steps=dq.validation_steps, policy=f"dqn:{model}")
     runs = [replace(base, demand=replace(base.demand, t_up_s=t), seed=dq.validation_seed + i)
@@ -64,22 +75,47 @@ def validation_configs(cfg: TrainConfig, model: Path) -> list[SimConfig]:
         runs += [replace(base, steps=n, accident=accident, demand=replace(base.demand, t_up_s=t),
                          seed=dq.validation_seed + len(dq.validation_t_ups) + i)
                  for i, t in enumerate(dq.validation_t_ups)]  # fmt: skip
-    return runs
+    return [r for r in runs if r.demand.t_up_s in dq.validation_screen_t_ups] if screen else runs
 
 
-def request(out: Path, cfg: TrainConfig, step: int) -> Path:
-    """Write the validation request of the snapshot at `step` (its model.pt must exist); returns its folder."""
+def screening(cfg: TrainConfig) -> bool:
+    """True when snapshots are first judged on the screening runs alone (DQNConfig.validation_screen_t_ups)."""
+    return bool(cfg.dqn.validation_screen_t_ups)
+
+
+def request(out: Path, cfg: TrainConfig, step: int, screen: bool = False) -> Path:
+    """Write the validation request of the snapshot at `step` (its model.pt must exist), on the screening runs
+    alone when `screen` (its result: screen.json, else validation.json); returns its folder."""
     folder = snapshot_dir(out, step)
-    runs = [to_dict(c) for c in validation_configs(cfg, (folder / "model.pt").resolve())]
+    runs = [to_dict(c) for c in validation_configs(cfg, (folder / "model.pt").resolve(), screen)]
     alphas: list[float | None] = [None]
     if cfg.dqn.alpha_conditioned:  # a conditioned snapshot drives at its training's alpha, or at each one asked for
         alphas = list(cfg.dqn.validation_alphas or (cfg.sim.reward.alpha,))
-    data: dict[str, Any] = {"step": step, "runs": runs * len(alphas),
+    data: dict[str, Any] = {"step": step, "runs": runs * len(alphas), "stage": SCREEN_STAGE if screen else "all",
                             "drive_alphas": [a for a in alphas for _ in runs]}  # fmt: skip
     if cfg.dqn.validation_queue and cfg.dqn.queue_below_mps:
         data["queue_below_mps"] = cfg.dqn.queue_below_mps
     _write_json(folder / REQUEST, data)
     return folder
+
+
+def answer_file(folder: Path) -> str:
+    """The file the request of a snapshot folder is answered in: screen.json for a screening request, else
+    validation.json."""
+    data = read_json_object(folder / REQUEST)
+    return SCREEN if data is not None and data.get("stage") == SCREEN_STAGE else RESULT
+
+
+def answered(folder: Path) -> bool:
+    """True when the request in `folder` has its result."""
+    return result(folder, answer_file(folder)) is not None
+
+
+def finalists(out: Path, cfg: TrainConfig) -> list[int]:
+    """The steps of the snapshots that run every validation run after screening: the validation_finalists best
+    screened (ties to the earlier), by step."""
+    screened = [r for d in (out / SNAPSHOTS).glob("step*") if (r := result(d, SCREEN)) is not None]
+    return sorted(r["step"] for r in by_score(screened)[:cfg.dqn.validation_finalists])
 
 
 def start() -> subprocess.Popen[bytes]:
@@ -102,9 +138,9 @@ def failure(folder: Path, proc: subprocess.Popen[bytes]) -> RuntimeError:
 
 
 def pending(out: Path) -> list[Path]:
-    """Snapshot folders with a request and a model but no result (a resume validates them again)."""
+    """Snapshot folders with a request and a model but no result for it (a resume validates them again)."""
     return sorted((d for d in (out / SNAPSHOTS).glob("step*")
-                   if (d / REQUEST).exists() and (d / "model.pt").exists() and result(d) is None),
+                   if (d / REQUEST).exists() and (d / "model.pt").exists() and not answered(d)),
                   key=lambda d: int(d.name[4:]))  # fmt: skip
 
 
@@ -124,17 +160,38 @@ def install_best(out: Path) -> dict[str, Any] | None:
     return chosen
 
 
+def snapshot_folders(out: Path) -> list[Path]:
+    """A training's snapshot folders, by step."""
+    found = [d for d in (out / SNAPSHOTS).glob("step*") if d.name[4:].isdigit()]
+    return sorted(found, key=lambda d: int(d.name[4:]))
+
+
+def last_result(folder: Path) -> tuple[dict[str, Any] | None, str]:
+    """A snapshot's fullest validation and its stage: on every run ("all"), else on the screening runs, else None."""
+    full = result(folder)
+    return (full, "all") if full is not None else (result(folder, SCREEN), SCREEN_STAGE)
+
+
+def last_score(out: Path) -> float:
+    """The validation score of a training's last snapshot, on every run, or on the screening runs when it was not
+    a finalist (the training's summary says which: last_stage)."""
+    return float(last_result(snapshot_folders(out)[-1])[0]["score"])  # type: ignore[index]
+
+
 def write_table(out: Path) -> None:
     """OUT/validation.csv: one row per validated snapshot (score, per-demand measures, diagnosis), `best` marked."""
     import pandas as pd
 
-    rows = results(out)
+    chosen = best(results(out))
+    rows = [(r, stage) for r, stage in map(last_result, snapshot_folders(out)) if r is not None]
     if not rows:
         return
-    chosen = best(rows)
+    staged = any(stage == SCREEN_STAGE for _, stage in rows)  # two stages: say which runs each score is over
     flat = []
-    for r in rows:
+    for r, stage in rows:
         row = {"step": r["step"], "score": r["score"], "best": chosen is not None and r["step"] == chosen["step"]}
+        if staged:
+            row["stage"] = stage
         row.update({k: v for k, v in r.items() if k not in ("step", "score", "runs")})
         several = len({run.get("alpha") for run in r["runs"]}) > 1  # validated at several alphas
         for run in r["runs"]:
@@ -153,6 +210,7 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
 
 
 SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps",
+                    "validation_screen_t_ups", "validation_finalists",
                     "validation_queue", "validation_alphas", "change_margin", "queue_below_mps", "no_return_s")
 """learner settings that training never reads, only the judging of snapshots (the change margin, the queue rule and
 no change back also the driving): two trainings that differ in nothing else train the same weights"""
@@ -192,7 +250,7 @@ def reselect(src: Path, out: Path, cfg: TrainConfig) -> dict[str, Any]:
             net, _ = load_model(snapshot_dir(src, step) / "model.pt")
             snapshot_dir(out, step).mkdir(parents=True)
             save_model(snapshot_dir(out, step) / "model.pt", net, meta)
-            validator.queue.append(request(out, cfg, step))
+            validator.queue.append(request(out, cfg, step, screening(cfg)))
         validator.finish()
     finally:
         validator.close()
@@ -201,7 +259,7 @@ def reselect(src: Path, out: Path, cfg: TrainConfig) -> dict[str, Any]:
         raise RuntimeError(f"{src} has no snapshots to choose from")
     write_table(out)
     summary = json.loads((src / "train_summary.json").read_text())
-    summary.update(selected_step=chosen["step"], selected_score=chosen["score"], last_score=results(out)[-1]["score"],
+    summary.update(selected_step=chosen["step"], selected_score=chosen["score"], last_score=last_score(out),
                    reselected_from=src.name)  # fmt: skip
     write_json(out / "train_summary.json", summary)
     mark_run_dir(out, "train")
@@ -288,7 +346,7 @@ def validate(folder: Path) -> dict[str, Any]:
             "mean_speed_mps": float(np.mean([r["mean_speed_mps"] for r in runs])),
             "lane_changes_per_vehicle": float(np.mean([r["lane_changes_per_vehicle"] for r in runs])),
             **diagnosis(rows), "runs": runs}  # fmt: skip
-    _write_json(folder / RESULT, data)
+    _write_json(folder / (SCREEN if req.get("stage") == SCREEN_STAGE else RESULT), data)
     return data
 
 
@@ -347,7 +405,7 @@ class Validator:
             folder = snapshot_dir(self.out, step)
             folder.mkdir(parents=True, exist_ok=True)
             save_model(folder / "model.pt", net, {"config": to_dict(self.cfg), "versions": versions()})
-            self.queue.append(request(self.out, self.cfg, step))
+            self.queue.append(request(self.out, self.cfg, step, screening(self.cfg)))
             self.poll()
         elif step % 1000 == 0:
             self.poll()
@@ -360,7 +418,7 @@ class Validator:
         assert self.running is not None and self.proc is not None and self.proc.stdout is not None
         if not wait and not select.select([self.proc.stdout], [], [], 0)[0]:
             return False
-        if self.proc.stdout.readline() != b"done\n" or result(self.running) is None:
+        if self.proc.stdout.readline() != b"done\n" or not answered(self.running):
             raise failure(self.running, self.proc)
         self.running = None
         return True
@@ -380,16 +438,25 @@ class Validator:
                 raise failure(self.running, self.proc) from None
 
     def finish(self) -> None:
-        """Wait until every snapshot is validated, then end the validation process."""
-        while self.running is not None or self.queue:
-            if self.running is not None:
-                self._collect(wait=True)
+        """Wait until every snapshot is validated (after screening, the finalists on every run), then end the
+        validation process."""
+        self._drain()
+        if screening(self.cfg):
+            self.queue = [request(self.out, self.cfg, step) for step in finalists(self.out, self.cfg)
+                          if result(snapshot_dir(self.out, step)) is None]  # fmt: skip
             self.poll()
+            self._drain()
         if self.proc is not None:
             assert self.proc.stdin is not None
             self.proc.stdin.close()
             self.proc.wait()
             self.proc = None
+
+    def _drain(self) -> None:
+        while self.running is not None or self.queue:
+            if self.running is not None:
+                self._collect(wait=True)
+            self.poll()
 
     def close(self) -> None:
         """Stop the validation process (interrupted training: a resume validates its snapshot again)."""

@@ -3,7 +3,9 @@ them; a dqn policy driving an ensemble of them reads them).
 
 OUT/snapshots/step<N>/model.pt is the weights that drive at training step N (the online network, or its moving
 average with DQNConfig.weights_ema), OUT/snapshots/step<N>/validation.json the
-result of validating it (its "score" the mean reward per vehicle and step over the validation runs).
+result of validating it (its "score" the mean reward per vehicle and step over the validation runs); with a
+selection in two stages, OUT/snapshots/step<N>/screen.json that of its screening runs, and validation.json only for
+the finalists.
 """
 
 from __future__ import annotations
@@ -16,15 +18,19 @@ from coopsumo.files import read_json_object
 SNAPSHOTS = "snapshots"
 """folder of a training's snapshots (one subfolder step<N> each)"""
 RESULT = "validation.json"
+SCREEN = "screen.json"
+"""a snapshot's validation on the screening runs alone (DQNConfig.validation_screen_t_ups)"""
+SCREEN_STAGE = "screen"
+"""a request's stage when it asks for the screening runs alone"""
 
 
 def snapshot_dir(out: Path, step: int) -> Path:
     return out / SNAPSHOTS / f"step{step}"
 
 
-def result(folder: Path) -> dict[str, Any] | None:
-    """The finished validation of a snapshot folder, or None."""
-    data = read_json_object(folder / RESULT)
+def result(folder: Path, name: str = RESULT) -> dict[str, Any] | None:
+    """The finished validation of a snapshot folder (on every run; name SCREEN: on the screening runs), or None."""
+    data = read_json_object(folder / name)
     return data if data is not None and isinstance(data.get("score"), float) else None
 
 

@@ -428,7 +428,7 @@ def _write_models(trainer: Trainer, cfg: TrainConfig, out: Path, wall: float, en
                                   updates=trainer.learner.updates, learner_process=learner_process)  # fmt: skip
     if chosen is not None:
         train_summary = dict(train_summary, selected_step=chosen["step"], selected_score=chosen["score"],
-                             last_score=selection.results(out)[-1]["score"])  # fmt: skip
+                             last_score=selection.last_score(out))  # fmt: skip
         if trainer.progress:
             print(f"train: model.pt is the weights of step {chosen['step']:,} (validation score "
                   f"{chosen['score']:.4f}; last weights {train_summary['last_score']:.4f}, in {selection.LAST_MODEL})",
