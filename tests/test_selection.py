@@ -254,10 +254,12 @@ def test_the_batched_bootstrap_gives_the_intervals_of_one_call_per_resample(shap
         assert stats.stratified_bootstrap(mats, func, 300, batch=batch) == stats.stratified_bootstrap(mats, func, 300)
 
 
-def test_a_selection_in_two_stages_runs_every_run_for_the_best_screened_alone(tmp_path: Path) -> None:
+def test_a_selection_in_two_stages_runs_every_run_for_the_best_screened_alone(tmp_path: Path,
+                                                                            monkeypatch: pytest.MonkeyPatch) -> None:
     """In SUMO (issue 77): 600 steps, snapshots at 200, 400 and 600 screened on the runs of T_up 1 s (free flow and
     the accident), the best 2 then validated on every run, model.pt the best of those; a screening run is the same
-    run, to the bit, as in the full validation."""
+    run, to the bit, as in the full validation, and a finalist's full validation takes its screening runs from the
+    validation process instead of running them again, with the same result."""
     dq = dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=100, validation_t_ups=(1.5, 1.0),
                              validation_accident_steps=600, validation_screen_t_ups=(1.0,))  # fmt: skip
     cfg = TrainConfig(sim=SimConfig(steps=600, seed=3, policy="dqn"), eval_steps=0, dqn=dq)
@@ -277,6 +279,18 @@ def test_a_selection_in_two_stages_runs_every_run_for_the_best_screened_alone(tm
     table = pd.read_csv(tmp_path / "two" / "validation.csv")
     assert list(table["step"]) == [200, 400, 600] and sorted(table["stage"]) == ["all", "all", "screen"]
     assert table.loc[table["best"], "step"].tolist() == [summary["selected_step"]]
+    step = summary["selected_step"]  # again by hand: a finalist's full validation runs only what screening did not
+    shutil.copytree(selection.snapshot_dir(tmp_path / "two", step), selection.snapshot_dir(tmp_path / "again", step))
+    kept: selection.Kept = {}
+    folder = selection.request(tmp_path / "again", cfg, step, screen=True)
+    assert selection.validate(folder, kept) == screened[[200, 400, 600].index(step)]
+    ran = []
+    real_run = selection.validate_run
+    monkeypatch.setattr(selection, "validate_run", lambda *a: ran.append(a[0].seed) or real_run(*a))
+    selection.request(tmp_path / "again", cfg, step)
+    assert selection.validate(folder, kept) == selection.result(selection.snapshot_dir(tmp_path / "two", step))
+    assert sorted(ran) == [dq.validation_seed, dq.validation_seed + 2] and not kept  # T_up 1.5: free, accident
+    assert selection.validate(folder) == selection.result(folder)  # every run afresh: the same
 
 
 def test_a_training_that_differs_only_in_validation_is_reselected_not_trained(tmp_path: Path,

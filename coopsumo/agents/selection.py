@@ -327,18 +327,31 @@ def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path,
     return run, policy.q_log
 
 
-def validate(folder: Path) -> dict[str, Any]:
-    """Run the request in folder, write folder/validation.json, return it."""
+Kept = dict[str, dict[str, tuple[dict[str, Any], list[np.ndarray]]]]
+"""a validation process's screening runs, by snapshot folder and run (its configuration and alpha as JSON): their
+records and decisions, so that a finalist's full validation takes them instead of running them again"""
+
+
+def validate(folder: Path, kept: Kept | None = None) -> dict[str, Any]:
+    """Run the request in folder, write its result (validation.json, or screen.json for a screening request),
+    return it. With `kept` (the validation process's), a screening request's runs are kept there, and a full one
+    takes the kept runs of its folder (the same configuration and seed: the same result) instead of running them."""
     import torch
 
     torch.set_num_threads(1)
     req = json.loads((folder / REQUEST).read_text())
+    screen = req.get("stage") == SCREEN_STAGE
+    reuse = kept.pop(str(folder), {}) if kept is not None and not screen else {}
+    made: dict[str, tuple[dict[str, Any], list[np.ndarray]]] = {}
     runs, rows = [], []
     alphas = req.get("drive_alphas") or [req.get("drive_alpha")] * len(req["runs"])  # one alpha: an older request
     for i, (raw, alpha) in enumerate(zip(req["runs"], alphas, strict=True)):
-        cfg = sim_config_from_dict(raw)
-        with tempfile.TemporaryDirectory(dir=folder, prefix=f".run{i}.") as tmp:
-            run, log = validate_run(cfg, alpha, Path(tmp), float(req.get("queue_below_mps", 0.0)))
+        key = json.dumps([raw, alpha], sort_keys=True)
+        if key not in reuse:
+            with tempfile.TemporaryDirectory(dir=folder, prefix=f".run{i}.") as tmp:
+                made[key] = validate_run(sim_config_from_dict(raw), alpha, Path(tmp),
+                                         float(req.get("queue_below_mps", 0.0)))  # fmt: skip
+        run, log = reuse.get(key) or made[key]
         runs.append(run)
         rows += log
     score = float(np.mean([r["mean_reward"] for r in runs]))
@@ -346,15 +359,18 @@ def validate(folder: Path) -> dict[str, Any]:
             "mean_speed_mps": float(np.mean([r["mean_speed_mps"] for r in runs])),
             "lane_changes_per_vehicle": float(np.mean([r["lane_changes_per_vehicle"] for r in runs])),
             **diagnosis(rows), "runs": runs}  # fmt: skip
-    _write_json(folder / (SCREEN if req.get("stage") == SCREEN_STAGE else RESULT), data)
+    _write_json(folder / (SCREEN if screen else RESULT), data)
+    if screen and kept is not None:
+        kept[str(folder)] = made
     return data
 
 
 def serve() -> int:
     """Validate the snapshot folders read from stdin, one a line, answering each on stdout when its result is
-    written; ends at the end of its input."""
+    written; ends at the end of its input. A finalist's screening runs are taken from its screening (validate)."""
+    kept: Kept = {}
     for line in sys.stdin:
-        validate(Path(line.rstrip("\n")))
+        validate(Path(line.rstrip("\n")), kept)
         sys.stdout.write("done\n")
         sys.stdout.flush()
     return 0
