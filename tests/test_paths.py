@@ -148,12 +148,14 @@ def test_a_non_ascii_out_under_a_utf8_locale_runs(tmp_path: Path) -> None:
 
 
 @pytest.mark.sumo
-@pytest.mark.parametrize("damage", ["empty", "cut short", "garbage", "a lane removed", "another lane count"])
+@pytest.mark.parametrize("damage", ["empty", "cut short", "garbage", "a lane removed", "another lane count",
+                                    "another length", "another speed limit"])
 def test_a_damaged_cached_network_is_built_again_once_with_a_line(
     damage: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """A cached .net.xml that is empty, cut short, not XML, missing a lane or another road's is rebuilt by netconvert
-    with one line naming it; an intact one is used as it is, without a line."""
+    """A cached .net.xml that is empty, cut short, not XML, missing a lane or another road's (lanes, length, speed
+    limit) is rebuilt by netconvert with one line naming it; an intact one is used as it is, without a line. Issue 82
+    (e10f): lanes of 500 m were trusted, and SUMO failed on the loops beyond their end."""
     from coopsumo.config import RoadConfig
     from coopsumo.sim.network import build_net, net_problem
 
@@ -163,7 +165,9 @@ def test_a_damaged_cached_network_is_built_again_once_with_a_line(
     assert net_problem(path, road) is None and build_net(road, tmp_path) == path and capsys.readouterr().err == ""
     spoiled = {"empty": "", "cut short": good[: len(good) // 2], "garbage": "\x00\x01 not xml at all",
                "a lane removed": good.replace('<lane id="road_2"', '<lane id="road_x"'),
-               "another lane count": build_net(RoadConfig(lanes=2), tmp_path / "two").read_text()}[damage]
+               "another lane count": build_net(RoadConfig(lanes=2), tmp_path / "two").read_text(),
+               "another length": good.replace('length="2000.00"', 'length="500.00"'),
+               "another speed limit": good.replace('speed="33.34"', 'speed="13.89"')}[damage]
     path.write_text(spoiled)
     assert net_problem(path, road) is not None
     assert build_net(road, tmp_path) == path

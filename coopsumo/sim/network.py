@@ -118,17 +118,32 @@ def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
 
 def net_problem(path: Path, road: RoadConfig) -> str | None:
     """Why the cached network file at `path` is not a whole network of `road` (empty, cut short, garbage, another
-    number of lanes), or None. A cheap look: the file is a few kB, written atomically by build_net."""
+    number of lanes, lanes of another length, speed limit or width), or None. A cheap look: the file is a few kB,
+    written atomically by build_net."""
     try:
         text = path.read_text(errors="replace")
     except OSError as err:
         return f"unreadable: {err.strerror}"
     if not text.rstrip().endswith("</net>"):
         return "empty or cut short" if len(text.strip()) < 20 or "<net" in text else "not a SUMO network"
-    lanes = re.findall(rf'<lane id="{EDGE_ID}_(\d+)"', text)
-    if sorted(map(int, lanes)) != list(range(road.lanes)):
-        return f"lanes {', '.join(lanes) or 'none'} instead of 0-{road.lanes - 1}"
+    lanes = re.findall(rf'<lane id="{EDGE_ID}_(\d+)"([^>]*)>', text)
+    if sorted(int(index) for index, _ in lanes) != list(range(road.lanes)):
+        return f"lanes {', '.join(index for index, _ in lanes) or 'none'} instead of 0-{road.lanes - 1}"
+    wanted = {"length": road.length_m, "speed": road.speed_limit_mps, "width": road.lane_width_m}
+    for index, attributes in lanes:
+        for name, value in wanted.items():
+            found = re.search(rf' {name}="([^"]*)"', attributes)
+            if found is None or not _within_rounding(found.group(1), value):
+                return f"lane {index} has {name} {found.group(1) if found else 'none'} instead of {value:.2f}"
     return None
+
+
+def _within_rounding(text: str, value: float) -> bool:
+    """True when `text` is a number within the rounding of netconvert's two decimals of `value`."""
+    try:
+        return abs(float(text) - value) <= 0.006
+    except ValueError:
+        return False
 
 
 def loop_id(pos_m: float, lane: int) -> str:
