@@ -175,3 +175,29 @@ def test_a_damaged_cached_network_is_built_again_once_with_a_line(
     assert len(err) == 1 and str(path) in err[0] and "building it again" in err[0], err
     body = path.read_text()  # netconvert's header comment carries the time it ran
     assert net_problem(path, road) is None and body[body.index("<net "):] == good[good.index("<net "):]
+
+
+def test_a_folder_in_place_of_the_network_file_is_one_line_naming_it(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82 (e10h): a user's folder where the .net.xml goes was reported by the temporary file it was to replace
+    (and that file left in the networks folder); now one line naming the folder, exit 2, the folder kept."""
+    from conftest import main_here
+
+    from coopsumo import cli
+    from coopsumo.config import RoadConfig
+    from coopsumo.paths import NETS_ENV
+    from coopsumo.sim.network import net_name
+
+    nets, out = tmp_path / "nets", tmp_path / "out"
+    folder = nets / f"{net_name(RoadConfig(lanes=3))}.net.xml"
+    folder.mkdir(parents=True)
+    (folder / "mine.txt").write_text("a user's file")
+    monkeypatch.setenv(NETS_ENV, "")  # so that teardown restores it: cli.main below sets it
+    code, _, err = main_here(cli.main, ["--nets-dir", str(nets), "simulate", "--steps", "5", "--quiet",
+                                        "--out", str(out)], capsys)  # fmt: skip
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and lines[0].endswith(str(folder)) and "is a folder" in lines[0], err
+    assert "Traceback" not in err and not out.exists()
+    assert sorted(p.name for p in nets.glob("*.net.xml")) == [folder.name]  # no temporary file left
+    assert (folder / "mine.txt").read_text() == "a user's file"

@@ -8,6 +8,7 @@ $XDG_CACHE_HOME/coopsumo/sumo_nets (~/.cache/coopsumo/sumo_nets). Nothing is wri
 
 from __future__ import annotations
 
+import errno
 import os
 import re
 import subprocess
@@ -87,6 +88,9 @@ def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
     folder.mkdir(parents=True, exist_ok=True)
     stem = net_name(road)
     net_path = folder / f"{stem}.net.xml"
+    if net_path.is_dir():
+        raise IsADirectoryError(errno.EISDIR, "the network file is a folder (move it away to build the network)",
+                                str(net_path))  # fmt: skip
     if net_path.exists():
         problem = net_problem(net_path, road)
         if problem is None:
@@ -105,14 +109,15 @@ def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
         "--no-turnarounds", "true",
         "--no-warnings", "true",
     ]  # fmt: skip
-    result = subprocess.run(cmd, capture_output=True, text=True, check=False)
-    if result.returncode != 0:
-        Path(tmp).unlink(missing_ok=True)
-        raise RuntimeError(f"netconvert failed: {result.stderr.strip()}")
-    if problem := net_problem(Path(tmp), road):
-        Path(tmp).unlink(missing_ok=True)
-        raise RuntimeError(f"netconvert wrote a network that is not this road's: {problem}")
-    os.replace(tmp, net_path)
+    try:
+        result = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        if result.returncode != 0:
+            raise RuntimeError(f"netconvert failed: {result.stderr.strip()}")
+        if problem := net_problem(Path(tmp), road):
+            raise RuntimeError(f"netconvert wrote a network that is not this road's: {problem}")
+        os.replace(tmp, net_path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)  # gone after os.replace; left by a failure otherwise
     return net_path
 
 
