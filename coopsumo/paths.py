@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import locale
 import os
+import tempfile
 from pathlib import Path
 
 NAME_ROOM = 18
@@ -97,9 +98,19 @@ def nets_dir_problem(text: str) -> str | None:
     if _exists(real) and not real.is_dir():
         return f"{text!r} is a file, not a folder"
     folder = nearest_existing(real)
-    if not os.access(folder, os.W_OK | os.X_OK):
+    if not os.access(folder, os.W_OK | os.X_OK) or not _can_make_a_file_in(folder):
         return f"{text!r} cannot be written: {folder} is not writable"
     return None
+
+
+def _can_make_a_file_in(folder: Path) -> bool:
+    """True when a file can be made in `folder`: os.access says yes to root everywhere, /proc and /sys included. The
+    test file has no name where the system allows (O_TMPFILE) and is gone at once."""
+    try:
+        with tempfile.TemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
 
 
 def outside_link(folder: Path) -> tuple[Path, Path] | None:
