@@ -92,8 +92,8 @@ def verdict(free: pd.DataFrame, accident: pd.DataFrame) -> str:
 
 def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
     """A study's study.json and stats.csv, read and checked against their schemas (record_schemas.PROTOCOL_STUDY,
-    PROTOCOL_STATS: no number copied into the table lies outside its limits); RecordError naming the file and the
-    field otherwise."""
+    PROTOCOL_STATS: no number copied into the table lies outside its limits; a free-flow row for every learner the
+    study names); RecordError naming the file and the field otherwise."""
     path = folder / "study.json"
     try:
         study = json.loads(path.read_text(encoding="utf-8"))
@@ -108,6 +108,11 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
         raise RecordError(f"{path} cannot be read as a table ({type(err).__name__}); restore it or move the study "
                           "away") from None  # fmt: skip
     PROTOCOL_STATS.check([str(c) for c in stats.columns], stats.to_dict("records"), path)
+    free = set(stats.loc[stats["scenario"] == "free", "variant"].astype(str))
+    for variant in study["learners"]:
+        if variant not in free:
+            raise RecordError(f"{path} has no free-flow rows for learner {variant}, which study.json names; restore "
+                              "it or move the study away")  # fmt: skip
     return study, stats
 
 
@@ -119,8 +124,6 @@ def rows_of(folder: Path, results: Path) -> list[dict[str, str]]:
     out = []
     for variant, entry in study.get("learners", {}).items():
         mine = stats[stats["variant"] == variant].sort_values("t_up", ascending=False)
-        if mine.empty:
-            continue
         free, accident = mine[mine["scenario"] == "free"], mine[mine["scenario"] == "accident"]
         gap = free.assign(gap=free["iqm"] - free["keep_value"])
         tts = accident.assign(gap=accident["iqm"] - accident["keep_value"])
