@@ -53,10 +53,12 @@ def groups_to_train(specs: Sequence[dict[str, Any]], store: Path, size: int = GR
 
 def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP_SIZE, quiet: bool = False) -> int:
     """Train groups_to_train's groups into the store, one group after another; returns the models trained. Each
-    model's folder is locked while its group trains (a study asking for it at once waits, as for a lone training)."""
+    model's folder is locked while its group trains (a study asking for it at once waits, as for a lone training); a
+    stored model trained again because it lost or spoiled a record is named in one line, quiet or not, as a lone
+    training's (trainings.finished_training)."""
     from coopsumo.agents.group import train_group
     from coopsumo.config import train_config_from_dict
-    from coopsumo.studies.engine.trainings import resumable_step
+    from coopsumo.studies.engine.trainings import finished_training, resumable_step
 
     groups = groups_to_train(specs, store, size)
     trained = 0
@@ -69,8 +71,9 @@ def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP
         with ExitStack() as locks:
             for folder in sorted(folders):
                 locks.enter_context(_locked(store / f".{folder.name}.lock"))
-            for folder in folders:
+            for config, folder in zip(configs, folders, strict=True):
                 folder.mkdir(exist_ok=True)
+                finished_training(folder, config)  # a stored model that lost or spoiled a record: a line naming it
             resumes = [resumable_step(c, f) is not None for c, f in zip(configs, folders, strict=True)]
             results = train_group([train_config_from_dict(c) for c in configs], folders, resumes)
         for config, result in zip(configs, results, strict=True):
