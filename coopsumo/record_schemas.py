@@ -11,7 +11,8 @@ A field is a dotted name into the record (`sim.reward.alpha`; `*` for every key 
 every key ending with `_mps`) and a rule: a Number or an Integer (field_rules' bounds, plus the type), Text (a string,
 maybe one of a few) or a Kind (a mapping, a list, a bool). Schema.problem checks a JSON record, Table.problem a
 table's rows (Table.check_frame a pandas table before it is written), tensor_problem a checkpoint's or model's
-nested tensors (bounds only; the caller gives each tensor's min and max, so that torch is not imported here). The
+nested tensors (bounds and wholeness; the caller gives each tensor's min, max and first entry that is not whole, so
+that torch is not imported here). The
 limits are ones a real run never reaches (no committed record comes near them); the comment of each says why.
 
 Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS; read
@@ -257,21 +258,21 @@ def _plain(value: Any) -> Any:
     return float(value) if isinstance(value, numbers.Real) and not isinstance(value, bool) else value
 
 
-def tensor_problem(state: Any, fields: Sequence[Field], min_max: Callable[[Any], tuple[float, float] | None]
+def tensor_problem(state: Any, fields: Sequence[Field], entries: Callable[[Any], tuple[float, ...] | None]
                    ) -> str | None:  # fmt: skip
     """Why the nested mappings and lists `state` (a checkpoint, a model file) hold a tensor or number outside its
-    field's Number bounds (Integer: also whole), or None. min_max(value): a tensor's smallest and largest entries
-    (None for an empty one or not a tensor); plain numbers are checked as they are. Absent fields are not checked
-    here (the reader's structural checks say so)."""
+    field's Number bounds (Integer: also whole), or None. entries(value): the entries of a tensor that decide it, its
+    smallest, its largest and its first that is not whole if any (None for an empty one or not a tensor); plain
+    numbers are checked as they are. Absent fields are not checked here (the reader's structural checks say so)."""
     for field in fields:
         for where, value in values_at(state, field.name):
             if value is _MISSING:
                 continue
             if isinstance(value, numbers.Real) and not isinstance(value, bool):
-                low_high: tuple[float, float] | None = (float(value), float(value))
+                deciding: tuple[float, ...] | None = (float(value),)
             else:
-                low_high = min_max(value)
-            for end in low_high or ():
+                deciding = entries(value)
+            for end in deciding or ():
                 if (problem := field.rule.problem(end)) is not None:
                     return f"field {where} {problem}"
     return None

@@ -140,6 +140,11 @@ def _set(*keys: Any, value: Any) -> Callable[[dict[str, Any]], None]:
     return change
 
 
+def _done_half_beside_a_one(state: dict[str, Any]) -> None:
+    dones = state["learner"]["buffer"]["data"]["dones"] = state["learner"]["buffer"]["data"]["dones"].clone()
+    dones[:2] = torch.tensor([0.5, 1.0])
+
+
 GROUP = ("learner", "optimizer", "param_groups", 0)
 ADAM = ("learner", "optimizer", "state", 0)
 REPLAY = ("learner", "buffer", "data")
@@ -173,6 +178,8 @@ CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
     "a stored feature 1e7": (_set(*REPLAY, "features", value=1e7), "field learner.buffer.data.features must"),
     "a next feature -1e7": (_set(*REPLAY, "next_features", value=-1e7), "field learner.buffer.data.next_features"),
     "a replay done of -1": (_set(*REPLAY, "dones", value=-1.0), "field learner.buffer.data.dones must"),
+    "a replay done of 0.5 beside a 1": (_done_half_beside_a_one, "field learner.buffer.data.dones must be an integer, "
+                                        "got 0.5"),  # the smallest and largest dones were checked, not those between
     "two parameter groups": (lambda s: s["learner"]["optimizer"]["param_groups"].append({}), "one parameter group"),
 }  # fmt: skip
 

@@ -63,15 +63,20 @@ def model_problem(payload: Mapping[str, Any]) -> str | None:
         return f"has dueling = {payload['dueling']!r}, not true or false"
     if not isinstance(payload["meta"], Mapping):
         return f"has meta of type {type(payload['meta']).__name__}, expected a dict"
-    return _weights_problem(payload["state_dict"], "weights") or tensor_problem(payload, MODEL_TENSORS, min_max)
+    return (_weights_problem(payload["state_dict"], "weights")
+            or tensor_problem(payload, MODEL_TENSORS, deciding_entries))
 
 
-def min_max(x: Any) -> tuple[float, float] | None:
-    """A tensor's smallest and largest entries (booleans as 0 and 1), None for an empty one or not a tensor."""
+def deciding_entries(x: Any) -> tuple[float, ...] | None:
+    """The entries of a tensor that decide whether it keeps its field's rule (record_schemas.tensor_problem): its
+    smallest and largest (booleans as 0 and 1) and its first that is not whole, if any (an Integer's: a replay done of
+    0.5 lies between 0 and 1); None for an empty one or not a tensor."""
     if not isinstance(x, torch.Tensor) or not x.numel():
         return None
-    x = x.to(torch.float64) if x.dtype == torch.bool else x
-    return float(x.min()), float(x.max())
+    x = x.to(torch.float64) if x.dtype == torch.bool else x.flatten()
+    ends = (float(x.min()), float(x.max()))
+    fractions = x[x != x.round()] if x.is_floating_point() else x[:0]
+    return (*ends, float(fractions[0])) if len(fractions) else ends
 
 
 def _int_tensor(x: Any) -> bool:
@@ -125,7 +130,7 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
         return f"has non-finite values (nan or inf) in its optimizer state ({where})"
     return (_counters_problem(step, learner, config["dqn"]) or _buffer_problem(learner["buffer"], config["dqn"])
             or _optimizer_problem(learner["optimizer"], learner["online"])
-            or tensor_problem(state, CHECKPOINT_TENSORS, min_max))  # the limits of record_schemas
+            or tensor_problem(state, CHECKPOINT_TENSORS, deciding_entries))  # the limits of record_schemas
 
 
 def _optimizer_problem(optimizer: Mapping[str, Any], online: Mapping[str, Any]) -> str | None:
