@@ -26,8 +26,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "regime-map": (S + "followups.regime_map", "where the accident's queue goes: keep at every demand, two lengths"),
     "accident-seeds": (S + "followups.accident_seeds", "a learning study's models through the accident, by seed"),
     "diagnose": (S + "followups.diagnosis", "the Q-value margins behind a learning study's models' choices"),
-    "adaptive-fit": (S + "followups.adaptive_fit", "fit the adaptive-alpha rule on a scenario2 --conditioned sweep"),
-    "adaptive": (S + "followups.adaptive_alpha", "alpha=adaptive against the best fixed alpha, conditioned sweep"),
     "history": (S + "protocol.history", "print the learner search's table from the protocol studies' records"),
     "models": (S + "engine.model_store", "list the model store: every trained model and whether it is usable"),
     "bench": ("coopsumo.bench", "speed figures (printed, not asserted)"),

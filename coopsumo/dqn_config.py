@@ -177,15 +177,17 @@ class DQNConfig:
              "the score their mean (empty: the training's alpha alone)")
     """model selection of an alpha-conditioned training: every validation run is driven at each of these alphas and
     the score is the mean over all; empty: at the training's own alpha (0 in the studies) alone"""
-    validation_screen_t_ups: tuple[float, ...] = setting((), "--validation-screen-t-up", before=(),
-        help="model selection: comma-separated demands of --validation-t-up whose runs (free flow, and the accident "
-             "when on) every snapshot is first judged on; the --validation-finalists best then run them all (empty: "
-             "every snapshot runs them all)")
-    """model selection in two stages (issue 77): every snapshot is first validated on the runs of these demands
-    (a subset of validation_t_ups: the same runs, seeds included, as in the full validation), and only the
-    validation_finalists best of them on all runs, model.pt the best of those; empty: every snapshot on every run"""
+    validation_screen: int = setting(0, "--validation-screen", limits=(0, 10), before=0,
+        help="model selection in two stages: every snapshot is first judged on the runs (free flow, and the "
+             "accident when on) of the last N demands of --validation-t-up, the densest as listed; the "
+             "--validation-finalists best then on every run (0, or N not fewer than the demands: every snapshot on "
+             "every run)")
+    """model selection in two stages (issue 77): every snapshot is first validated on the runs of the last N
+    validation demands (validation_t_ups as listed, light to dense: the densest; the same runs, seeds included, as in
+    the full validation), and only the validation_finalists best of them on every run, model.pt the best of those;
+    0, or N not fewer than the validation demands: every snapshot on every run"""
     validation_finalists: int = setting(2, "--validation-finalists", limits=(1, 100), before=2,
-        help="model selection with --validation-screen-t-up: how many of the best screened snapshots run every "
+        help="model selection with --validation-screen N: how many of the best screened snapshots run every "
              "validation run")
     """model selection in two stages: how many snapshots, best screened first, are validated on every run"""
     train_t_ups: tuple[float, ...] = setting((2.0, 1.5, 1.0), "--train-t-up", before=(),
@@ -261,11 +263,6 @@ class DQNConfig:
                            for t in ts):  # fmt: skip
                 raise ConfigError(f"{name} must be {'0' if may_be_empty else '1'} to 10 distinct demands T_up from "
                                   f"0.1 to {MAX_T_UP_S:g} s, got {ts!r}")  # fmt: skip
-        screen = self.validation_screen_t_ups
-        if not isinstance(screen, tuple) or len(set(screen)) != len(screen) or \
-                any(t not in self.validation_t_ups for t in screen):  # fmt: skip
-            raise ConfigError(f"validation_screen_t_ups must be distinct demands of validation_t_ups "
-                              f"{self.validation_t_ups!r}, got {screen!r}")  # fmt: skip
         va = self.validation_alphas
         if not isinstance(va, tuple) or len(va) > 10 or len(set(va)) != len(va) or (va and not self.alpha_conditioned) \
                 or any(number_problem(a, ALPHA_MIN, ALPHA_MAX) for a in va):  # fmt: skip
@@ -340,7 +337,7 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
     d.setdefault("restart_below_mps", 0.0)  # written before the standing rule: 'none' offered at any speed
     for name, implied in ADDED_FIELDS.items():  # written before the field existed: what it meant then
         d.setdefault(name, implied)
-    for name in ("validation_t_ups", "train_t_ups", "validation_alphas", "validation_screen_t_ups"):
+    for name in ("validation_t_ups", "train_t_ups", "validation_alphas"):
         if isinstance(d[name], list):  # JSON has no tuples
             d[name] = tuple(d[name])
     return from_fields(DQNConfig, d, "learner")

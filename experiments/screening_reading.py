@@ -2,9 +2,10 @@
 
 A stored training that validated every snapshot on every run holds, inside each snapshot's validation.json, the
 very runs a screening stage would make (the same configurations and seeds: agents/selection.validation_configs), so
-the two-stage pick (DQNConfig.validation_screen_t_ups, validation_finalists) follows from those files without a
-run: each snapshot's screening score is the mean reward over its runs at the screening demands, the finalists the
-best screened (ties to the earlier step), the pick the finalist of the best full score. For each scheme, the table
+the two-stage pick (DQNConfig.validation_screen, validation_finalists; read here for any set of screening demands)
+follows from those files without a run: each snapshot's screening score is the mean reward over its runs at the
+screening demands, the finalists the best screened (ties to the earlier step), the pick the finalist of the best
+full score. For each scheme, the table
 gives how many trainings it picks today's snapshot for, what the pick's full validation score loses against
 today's best (mean and largest), and its share of today's greedy validation steps.
 

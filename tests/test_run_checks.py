@@ -187,7 +187,7 @@ def test_an_intact_run_folder_is_reused_untouched(
     before = snapshot(out)
     for _ in range(2):
         assert reusable_run(out, to_dict(CFG), OUTPUTS)
-        assert reusable_run(out, to_dict(CFG), OutputConfig(fcd_period_s=5.0, tripinfo=True), prog="adaptive-alpha")
+        assert reusable_run(out, to_dict(CFG), OutputConfig(fcd_period_s=5.0, tripinfo=True))
     assert capsys.readouterr().err == ""
     assert snapshot(out) == before
     # a run never made (no summary.json) is run without a word; one with other outputs is redone with a line

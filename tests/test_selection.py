@@ -154,10 +154,10 @@ def test_validation_drives_the_queue_rule_only_when_asked(tmp_path: Path) -> Non
         (["--validation-accident-steps", "-1"], "--validation-accident-steps"),
         (["--validation-accident-steps", "6000", "--seed", "900005"], "overlap the training seed"),
         (["--validation-alphas", "0,8"], "--validation-alphas"),
-        (["--validation-t-up", "1.5", "--validation-screen-t-up", "1"], "--validation-screen-t-up"),
-        (["--validation-screen-t-up", "1,1"], "--validation-screen-t-up"),
+        (["--validation-screen", "-1"], "--validation-screen"),
+        (["--validation-screen", "11"], "--validation-screen"),
         (["--validation-finalists", "3"], "--validation-finalists"),
-        (["--validation-screen-t-up", "1", "--validation-finalists", "0"], "--validation-finalists"),
+        (["--validation-screen", "1", "--validation-finalists", "0"], "--validation-finalists"),
         (["--no-return", "-1"], "--no-return"),
         (["--no-return", "nan"], "--no-return"),
         (["--alpha-conditioned", "--validation-alphas", "-1"], "--validation-alphas"),
@@ -254,6 +254,18 @@ def test_the_batched_bootstrap_gives_the_intervals_of_one_call_per_resample(shap
         assert stats.stratified_bootstrap(mats, func, 300, batch=batch) == stats.stratified_bootstrap(mats, func, 300)
 
 
+def test_the_screen_is_the_densest_demands_and_only_when_runs_are_left_for_the_finalists() -> None:
+    cfg = TrainConfig(sim=SimConfig(steps=400, policy="dqn"), eval_steps=0,
+                      dqn=dataclasses.replace(DQNConfig(), validation_t_ups=(2.0, 1.5, 1.0), validation_screen=2))
+    assert selection.screen_t_ups(cfg) == (1.5, 1.0) and selection.screening(cfg)
+    model = Path("m.pt")
+    assert [c.seed for c in selection.validation_configs(cfg, model, screen=True)] == [
+        c.seed for c in selection.validation_configs(cfg, model) if c.demand.t_up_s in (1.5, 1.0)]
+    for n in (0, 3, 4):
+        cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, validation_screen=n))
+        assert selection.screen_t_ups(cfg) == () and not selection.screening(cfg)
+
+
 def test_a_selection_in_two_stages_runs_every_run_for_the_best_screened_alone(tmp_path: Path,
                                                                             monkeypatch: pytest.MonkeyPatch) -> None:
     """In SUMO (issue 77): 600 steps, snapshots at 200, 400 and 600 screened on the runs of T_up 1 s (free flow and
@@ -261,7 +273,7 @@ def test_a_selection_in_two_stages_runs_every_run_for_the_best_screened_alone(tm
     run, to the bit, as in the full validation, and a finalist's full validation takes its screening runs from the
     validation process instead of running them again, with the same result."""
     dq = dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=100, validation_t_ups=(1.5, 1.0),
-                             validation_accident_steps=600, validation_screen_t_ups=(1.0,))  # fmt: skip
+                             validation_accident_steps=600, validation_screen=1)  # fmt: skip
     cfg = TrainConfig(sim=SimConfig(steps=600, seed=3, policy="dqn"), eval_steps=0, dqn=dq)
     summary = train(cfg, tmp_path / "two", progress=False)
     folders = [selection.snapshot_dir(tmp_path / "two", step) for step in (200, 400, 600)]

@@ -78,20 +78,12 @@ def choose_alpha(rule: AdaptiveRule, lanes: int, occupancy_pct: float) -> float:
     return float(pts[best][1])
 
 
-def fit_rule(rows: list[tuple[int, float, float]], source: str) -> AdaptiveRule:
-    """The rule of measured (lanes, mean loop occupancy %, alpha*) rows: one point per row, sorted."""
-    clean = tuple(sorted((int(n), round(float(o), 4), float(a)) for n, o, a in rows if math.isfinite(o)))
-    if not clean:
-        raise ValueError("no finite (lanes, occupancy, alpha*) rows to fit the adaptive rule on")
-    return AdaptiveRule(clean, source)
-
-
 DEFAULT_RULE = AdaptiveRule(
     points=((2, 1.961, 2.0), (2, 4.329, 0.25), (2, 7.09, 8.0), (2, 10.749, 8.0),
             (3, 1.987, 0.25), (3, 4.405, 0.0), (3, 7.074, 0.125), (3, 10.255, 1.0),
             (4, 2.012, 0.0), (4, 4.32, 0.0), (4, 6.963, 0.125), (4, 9.892, 48.0)),
     source="results/scenario2_conditioned",
 )
-"""the rule `alpha=adaptive` uses: printed by `coopsumo adaptive-fit results/archive/scenario2_conditioned`
-(2, 3 and 4 lanes, 90,000 training steps, 3 seeds; a road of another lane count uses the nearest lane count's
-points)"""
+"""the rule `alpha=adaptive` uses: per condition of results/archive/scenario2_conditioned, its mean loop occupancy and
+alpha* (2, 3 and 4 lanes, 90,000 training steps, 3 seeds; a road of another lane count uses the nearest lane count's
+points), as `coopsumo adaptive-fit` printed it (retired 2026-12-02; run it at commit dd78f46)"""

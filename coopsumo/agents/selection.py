@@ -64,7 +64,7 @@ def validation_configs(cfg: TrainConfig, model: Path, screen: bool = False) -> l
     """The greedy runs that judge a snapshot of the training cfg: one in free flow per validation demand (seeds
     validation_seed + i), then, when validation_accident_steps > 0, one through an accident per demand (the next
     seeds): held at the default position from 1/12 of the run for 5/6 of it. With `screen`, only the runs of the
-    screening demands (validation_screen_t_ups), each the same run as in the full list."""
+    screening demands (screen_t_ups), each the same run as in the full list."""
     dq = cfg.dqn
     base = replace(cfg.sim, steps=dq.validation_steps, policy=f"dqn:{model}")
     runs = [replace(base, demand=replace(base.demand, t_up_s=t), seed=dq.validation_seed + i)
@@ -75,12 +75,19 @@ def validation_configs(cfg: TrainConfig, model: Path, screen: bool = False) -> l
         runs += [replace(base, steps=n, accident=accident, demand=replace(base.demand, t_up_s=t),
                          seed=dq.validation_seed + len(dq.validation_t_ups) + i)
                  for i, t in enumerate(dq.validation_t_ups)]  # fmt: skip
-    return [r for r in runs if r.demand.t_up_s in dq.validation_screen_t_ups] if screen else runs
+    return [r for r in runs if r.demand.t_up_s in screen_t_ups(cfg)] if screen else runs
+
+
+def screen_t_ups(cfg: TrainConfig) -> tuple[float, ...]:
+    """The screening demands (T_up, s): the last DQNConfig.validation_screen of validation_t_ups, or none when that
+    leaves no other run (every snapshot is then validated on every run)."""
+    n, t_ups = cfg.dqn.validation_screen, cfg.dqn.validation_t_ups
+    return t_ups[-n:] if 0 < n < len(t_ups) else ()
 
 
 def screening(cfg: TrainConfig) -> bool:
-    """True when snapshots are first judged on the screening runs alone (DQNConfig.validation_screen_t_ups)."""
-    return bool(cfg.dqn.validation_screen_t_ups)
+    """True when snapshots are first judged on the screening runs alone (screen_t_ups)."""
+    return bool(screen_t_ups(cfg))
 
 
 def request(out: Path, cfg: TrainConfig, step: int, screen: bool = False) -> Path:
@@ -210,7 +217,7 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
 
 
 SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps",
-                    "validation_screen_t_ups", "validation_finalists",
+                    "validation_screen", "validation_finalists",
                     "validation_queue", "validation_alphas", "change_margin", "queue_below_mps", "no_return_s")
 """learner settings that training never reads, only the judging of snapshots (the change margin, the queue rule and
 no change back also the driving): two trainings that differ in nothing else train the same weights"""

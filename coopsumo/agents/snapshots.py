@@ -19,7 +19,7 @@ SNAPSHOTS = "snapshots"
 """folder of a training's snapshots (one subfolder step<N> each)"""
 RESULT = "validation.json"
 SCREEN = "screen.json"
-"""a snapshot's validation on the screening runs alone (DQNConfig.validation_screen_t_ups)"""
+"""a snapshot's validation on the screening runs alone (DQNConfig.validation_screen)"""
 SCREEN_STAGE = "screen"
 """a request's stage when it asks for the screening runs alone"""
 

@@ -157,8 +157,6 @@ def flag_value(flag: str, name: str, value: Any) -> Any:
     """A learner flag's value as DQNConfig holds it (a list flag's text parsed)."""
     if name in ("validation_t_ups", "train_t_ups") and isinstance(value, str):
         return t_up_list(flag, value, ControlConfig().dt_s)
-    if name == "validation_screen_t_ups" and isinstance(value, str):
-        return t_up_list(flag, value, ControlConfig().dt_s) if value.strip() else ()
     if name == "validation_alphas" and isinstance(value, str):
         return alpha_list(flag, value) if value.strip() else ()
     return value
@@ -168,8 +166,8 @@ FLAG_NEEDS: dict[str, tuple[str, Callable[[DQNConfig], bool]]] = {
     "--alpha-period": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
     "--alpha-relabel": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
     "--alpha-draw-max": ("--alpha-conditioned", lambda c: c.alpha_conditioned),
-    "--validation-screen-t-up": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
-    "--validation-finalists": ("--validation-screen-t-up", lambda c: bool(c.validation_screen_t_ups)),
+    "--validation-screen": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
+    "--validation-finalists": ("--validation-screen N (N > 0)", lambda c: c.validation_screen > 0),
     "--validation-alphas": ("--alpha-conditioned and --select-every N (N > 0)",
                             lambda c: c.alpha_conditioned and c.select_every_steps > 0),
     "--validation-seed": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),

@@ -37,8 +37,7 @@ RUN_SUMMARY = ("departed", "mean_speed_mps", "throughput_veh_per_h", "lane_chang
 """summary.json values a stored accident run must hold as finite numbers to be reused (scenario I's measures)"""
 
 
-def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None,
-                 prog: str = "scenario1") -> bool:  # fmt: skip
+def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None) -> bool:
     """True when the run folder out holds a finished run of the SimConfig dict cfg with the SUMO output files
     `outputs` asks for and, for a model's run, was driven by the model file as it is now (model_driven), and its
     values and files can be trusted (run_folder_problem). A folder that holds a summary.json and is not reused
@@ -46,7 +45,7 @@ def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: P
     if not (out / "summary.json").exists():
         return False
     if problem := reuse_problem(out, cfg, outputs, model):
-        print(f"{prog}: run folder {out} {problem}; running it again", file=sys.stderr)
+        print(f"scenario1: run folder {out} {problem}; running it again", file=sys.stderr)
         return False
     return True
 
