@@ -10,8 +10,8 @@ scenario I worker printed one of its own when it came while the worker started.
 
 Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1, scenario2,
 learning, protocol, regime-map: their pools of workers) and simulate get all four moments; the others, and `python
--m coopsumo`, one each, chosen while they still run: accident-seeds and adaptive (refusing their folder), adaptive-
-fit (on a copy of the archived conditioned sweep) end within a second or two, so 0.2 s, during their imports; models
+-m coopsumo`, one each, chosen while they still run: accident-seeds (refusing its folder) ends within a second or
+two, so 0.2 s, during its imports; models
 (a store of one real 40-step model, which its listing checks with torch, and one folder that is no model) takes
 about 2 s, so 0.2 and 1 s (a store without a model ended within 0.2 s on a fast machine); diagnose (refusing its
 folder after its imports) and scenario2 --merge at 1 s; history and bench at 2 s. A Ctrl-C later in a training is
@@ -55,8 +55,6 @@ CASES: dict[str, tuple[list[str], tuple[float, ...]]] = {
                           (1.0,)),  # fmt: skip
     "accident-seeds": (["accident-seeds", "{tmp}/no_study", "--out", "{tmp}/accident", "--quiet"], (0.2,)),
     "diagnose": (["diagnose", "{tmp}/no_study", "--quiet"], (1.0,)),
-    "adaptive-fit": (["adaptive-fit", "{tmp}/conditioned"], (0.2,)),
-    "adaptive": (["adaptive", "{tmp}/conditioned", "--quiet"], (0.2,)),
     "history": (["history", "--results", "{repo}/results", "--out", "{tmp}/history.md"], (2.0,)),
     "models": (["models", "--store", "{tmp}/store"], (0.2, 1.0)),
     "bench": (["bench", "--quick"], (2.0,)),
@@ -93,11 +91,9 @@ def stored_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def prepare(tmp: Path, model: Path) -> None:
     """What the commands read: a model store with one real model and one folder that is no model (models checks
-    the one and lists both), a finished alpha-conditioned sweep of its own (adaptive-fit and adaptive write into
-    it)."""
+    the one and lists both)."""
     (tmp / "store" / "not_a_model").mkdir(parents=True)
     shutil.copytree(model, tmp / "store" / model.name)
-    shutil.copytree(REPO / "results" / "archive" / "scenario2_conditioned", tmp / "conditioned")
 
 
 @pytest.fixture(scope="module")

@@ -203,7 +203,7 @@ def test_a_study_refuses_the_folder_of_another_profiles_study(name: str, marked:
 
 def test_a_study_root_resumes_its_own_study_and_keeps_its_name(tmp_path: Path) -> None:
     """A rerun of the same profile into its own folder is taken (its finished cells are reused), and names the study
-    in the marker; a follow-up that claims the folder without naming a study (adaptive-fit) keeps the name."""
+    in the marker; a later claim of the folder that names no study keeps the name."""
     from coopsumo.run_dirs import check_study_root, held_study
     from coopsumo.studies.engine.run_folders import profile_study, recorded_profile, study_root
 

@@ -281,20 +281,6 @@ def test_diagnose_redoes_the_cell_of_a_swapped_or_truncated_model(tmp_path: Path
     assert json.loads((root / "cells" / key).read_text())["status"] == "failed"
 
 
-@pytest.mark.parametrize("text", ["", "{not json", '{"points": 3}', '{"source": "x"}', "[1, 2]"])
-def test_an_unreadable_adaptive_rule_is_not_the_fitted_one(text: str, tmp_path: Path) -> None:
-    """adaptive_rule.json that is not a rule (empty, not JSON, edited) makes the report say the rule driven is not the
-    one fitted there, instead of a traceback; a rule that is there is read."""
-    from coopsumo.studies.followups.adaptive_alpha_report import fitted_points
-
-    path = tmp_path / "adaptive_rule.json"
-    path.write_text(text)
-    assert fitted_points(path) is None
-    path.write_text('{"points": [[3, 10.0, 0.5]], "source": "t"}')
-    assert fitted_points(path) == [[3, 10.0, 0.5]]
-    assert fitted_points(tmp_path / "missing.json") is None
-
-
 def _copied_in(model: Path, other: Path) -> None:
     """Another learner's model file copied over this one (the probe's: default alpha 1 over the paper model)."""
     shutil.copyfile(other, model)

@@ -216,28 +216,3 @@ def test_the_checkpoint_inside_its_limits_resumes(checkpoint_folder: Path, tmp_p
     assert checkpoint_problem(torch.load(out / "checkpoint.pt", weights_only=True)) is None
     assert train.main(["--resume", "--quiet", "--out", str(out)]) == 0
     assert finished_run(out, "train") and (out / "model.pt").is_file()
-
-
-# -- a sweep's sweep.json read by adaptive-fit and adaptive ----------------------------------------------------------
-@pytest.mark.parametrize("command", ["adaptive-fit", "adaptive"])
-def test_a_sweep_that_is_not_conditioned_gets_no_adaptive_rule(
-    command: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """Issue 82 (ar_fit_s2, mg48, mg49): adaptive-fit wrote adaptive_rule.json into a plain (or merged) sweep, and
-    adaptive advised rerunning it as a conditioned one over it; its sweep.json says it is not conditioned: one line,
-    exit 2, nothing written."""
-    import json
-
-    from test_study_commands import conditioned_sweep
-
-    from coopsumo.studies.followups import adaptive_alpha, adaptive_fit
-
-    root = conditioned_sweep(tmp_path / "sweep")
-    (root / "sweep.json").write_text(json.dumps({"profile": {"name": "full", "conditioned": False}}))
-    before = snapshot(tmp_path)
-    code = (adaptive_fit if command == "adaptive-fit" else adaptive_alpha).main([str(root)])
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1, err
-    assert err[0] == (f"{command}: error: {root} holds a scenario2 sweep that is not conditioned (its sweep.json: "
-                      "profile full, conditioned false); give a finished `coopsumo scenario2 --conditioned` folder")
-    assert snapshot(tmp_path) == before

@@ -1,7 +1,7 @@
-"""The commands that read or extend what the other studies made (regime-map, accident-seeds, diagnose, adaptive-fit,
-adaptive): --help, bad input (one line, exit 2, nothing written), tiny real runs on hand-made study folders (models
-with untrained weights, so each run takes seconds), a rerun that reuses every cell, and the old spellings under
-experiments/. The measures of `diagnose` on hand-made decisions."""
+"""The commands that read or extend what the other studies made (regime-map, accident-seeds, diagnose): --help, bad
+input (one line, exit 2, nothing written), tiny real runs on hand-made study folders (models with untrained weights,
+so each run takes seconds), a rerun that reuses every cell, and the old spellings under experiments/. The measures of
+`diagnose` on hand-made decisions."""
 
 from __future__ import annotations
 
@@ -19,13 +19,12 @@ import pandas as pd
 import pytest
 
 from coopsumo import cli
-from coopsumo.config import DemandConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQNConfig
 from coopsumo.studies.followups.diagnosis_measures import COLUMNS, decision_measures, training_course
 from coopsumo.studies.learning import study as ablation
 
 ROOT = Path(__file__).resolve().parent.parent
-COMMANDS = ("regime-map", "accident-seeds", "diagnose", "adaptive-fit", "adaptive")
+COMMANDS = ("regime-map", "accident-seeds", "diagnose")
 
 
 def command_main(name: str, argv: list[str]) -> int:
@@ -76,40 +75,12 @@ def learning_folder(root: Path, variants: tuple[str, ...] = ("margin", "conditio
     return root
 
 
-def conditioned_sweep(root: Path, fitted_only: bool = False) -> Path:
-    """A `scenario2 --conditioned` folder on one condition (2 lanes, T_up 4 s) and 2 seeds, alphas 0 and 8: runs.csv
-    and alpha_star.csv beside its sweep.json; unless fitted_only, each seed's record (two evaluation seeds) and model
-    (untrained weights)."""
-    root.mkdir(parents=True, exist_ok=True)
-    (root / "sweep.json").write_text("{}")
-    rows = []
-    for seed in (1, 2):
-        for alpha, speed in ((0.0, 20.0 + seed), (8.0, 20.5 + seed)):
-            key = f"L2_T4_a{alpha:g}_s{seed}"
-            rows.append({"key": key, "status": "ok", "lanes": 2, "t_up_s": 4.0, "seed": seed, "alpha": alpha,
-                         "mean_speed_mps": speed, "lane_changes_per_vehicle": 0.1, "loop_occupancy_pct": 2.0 + alpha})
-            if fitted_only:
-                continue
-            ev = SimConfig(road=RoadConfig(lanes=2), demand=DemandConfig(t_up_s=4.0), reward=RewardConfig(alpha=alpha),
-                           steps=700, seed=seed, policy="dqn")  # fmt: skip
-            (root / "cells").mkdir(parents=True, exist_ok=True)
-            evals = [to_dict(ev), to_dict(replace(ev, seed=seed + 10))]  # two evaluation seeds
-            (root / "cells" / f"{key}.json").write_text(json.dumps({"key": key, "config": {"evals": evals}}))
-        if not fitted_only:
-            train = TrainConfig(sim=SimConfig(road=RoadConfig(lanes=2), seed=seed),
-                                dqn=replace(DQNConfig(), alpha_conditioned=True), eval_steps=0)  # fmt: skip
-            save_untrained(root / "train" / f"L2_T4_cond_s{seed}", to_dict(train))
-    pd.DataFrame(rows).to_csv(root / "runs.csv", index=False)
-    pd.DataFrame([{"lanes": 2, "t_up_s": 4.0, "alpha_star": 8.0}]).to_csv(root / "alpha_star.csv", index=False)
-    return root
-
-
 # -- --help and the command table -------------------------------------------------------------------------------
 @pytest.mark.parametrize("name", COMMANDS)
 def test_help_names_the_command(name: str, capsys: pytest.CaptureFixture[str]) -> None:
     assert command_main(name, ["--help"]) == 0
     out = capsys.readouterr().out
-    assert out.startswith(f"usage: coopsumo {name} ") and ("(default" in out or name == "adaptive-fit")  # no options
+    assert out.startswith(f"usage: coopsumo {name} ") and "(default" in out
 
 
 # -- bad input ----------------------------------------------------------------------------------------------------
@@ -138,14 +109,6 @@ BAD = [
     ("diagnose", "learning", ["--variants", "warp"], "warp"),
     ("diagnose", "learning", ["--backend", "local", "--address", "127.0.0.1:1"], "--address"),
     ("diagnose", "no model", [], "is missing"),
-    ("adaptive-fit", "none", [], "is not a folder"),
-    ("adaptive-fit", "empty", [], "holds no runs.csv"),
-    ("adaptive-fit", "sweep", ["--workers", "2"], "unrecognized arguments"),
-    ("adaptive-fit", "not conditioned", [], "loop_occupancy_pct"),
-    ("adaptive-fit", "cut runs.csv", [], "cannot be read"),
-    ("adaptive", "empty", [], "holds no runs.csv"),
-    ("adaptive", "sweep", [], "cannot be read"),  # the tables without the sweep's cell records
-    ("adaptive", "sweep", ["--workers", "0"], "--workers"),
 ]  # fmt: skip
 
 
@@ -154,7 +117,7 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(name: str, setup: str |
                                                          fragment: str, tmp_path: Path,
                                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     root = tmp_path / "study"
-    if setup in ("empty", "learning", "no model", "foreign", "sweep", "not conditioned", "cut runs.csv"):
+    if setup in ("empty", "learning", "no model", "foreign"):
         (root / "cells").mkdir(parents=True)
     if setup in ("learning", "no model"):
         learning_folder(root, ("margin",))
@@ -162,12 +125,6 @@ def test_bad_input_is_one_line_exit_2_and_writes_nothing(name: str, setup: str |
         next(root.rglob("model.pt")).unlink()
     if setup == "foreign":
         (root / "notes.txt").write_text("mine")
-    if setup in ("sweep", "not conditioned", "cut runs.csv"):
-        conditioned_sweep(root, fitted_only=True)
-    if setup == "not conditioned":
-        pd.read_csv(root / "runs.csv").drop(columns="loop_occupancy_pct").to_csv(root / "runs.csv", index=False)
-    if setup == "cut runs.csv":
-        (root / "runs.csv").write_text("")
     before = listing(tmp_path)
     capsys.readouterr()
     argv = ([] if name == "regime-map" else [str(root)]) + args
@@ -253,33 +210,6 @@ def test_diagnose_measures_each_model_and_reuses_its_cell(tmp_path: Path) -> Non
     again = coopsumo("diagnose", str(root), "--steps", "200")
     assert again.returncode == 0, again.stderr[-2000:]
     assert cell_times(root, "diagnosis_*.json") == cells and pd.read_csv(root / "diagnosis.csv").equals(table)
-
-
-def test_adaptive_fit_writes_and_prints_the_rule(tmp_path: Path) -> None:
-    root = conditioned_sweep(tmp_path / "sweep", fitted_only=True)
-    res = subprocess.run([sys.executable, "-m", "coopsumo", "adaptive-fit", str(root)], cwd=ROOT, capture_output=True,
-                         text=True, timeout=120, check=False)  # fmt: skip
-    assert res.returncode == 0, res.stderr[-2000:]
-    assert res.stdout.startswith("DEFAULT_RULE = AdaptiveRule(points=((2, 6.0, 8.0),)")
-    assert json.loads((root / "adaptive_rule.json").read_text())["points"] == [[2, 6.0, 8.0]]
-
-
-@pytest.mark.sumo
-def test_adaptive_drives_every_model_of_the_sweep(tmp_path: Path) -> None:
-    root = conditioned_sweep(tmp_path / "sweep")
-    res = coopsumo("adaptive", str(root))
-    assert res.returncode == 0, res.stderr[-2000:]
-    table = pd.read_csv(root / "adaptive_runs.csv")
-    assert list(table["seed"]) == [1, 2] and (table["collisions"] == 0).all() and (table["eval_runs"] == 2).all()
-    assert sorted(cell_times(root, "adaptive_*")) == [f"adaptive_L2_T4_cond_s{seed}_s{e}.json"
-                                                      for seed, e in ((1, 1), (1, 11), (2, 12), (2, 2))]
-    assert (root / "evals/L2_T4_cond_s1/eval_adaptive_s11/adaptive_alpha.csv").exists()
-    assert table["adaptive_alpha_mean"].notna().all()  # one 60 s loop period: the rule chose once
-    assert "| 2 | 4 | 8 |" in (root / "adaptive.md").read_text()
-    cells = cell_times(root, "adaptive_*.json")
-    again = coopsumo("adaptive", str(root))
-    assert again.returncode == 0, again.stderr[-2000:]
-    assert cell_times(root, "adaptive_*.json") == cells
 
 
 # -- the diagnosis measures, on hand-made decisions ---------------------------------------------------------------
