@@ -1,5 +1,5 @@
 """One network for every alpha: the conditioned forward pass, replay with alpha and relabelling, the alpha schedule of
-training, driving at an alpha, the adaptive rule, bad input, and the tiny conditioned scenario II."""
+training, driving at an alpha, the adaptive rule, bad input, and the tiny learning study's conditioned variant."""
 
 from __future__ import annotations
 
@@ -397,25 +397,6 @@ def test_alpha_conditioned_beside_alpha_is_refused(tmp_path: Path) -> None:
     assert res.returncode == 2
     assert len(res.stderr.strip().splitlines()) == 1 and "leave --alpha out" in res.stderr
     assert not out.exists()
-
-
-@pytest.mark.sumo
-def test_tiny_scenario2_conditioned_trains_once_per_condition_and_seed(tmp_path: Path) -> None:
-    out = tmp_path / "s2"
-    res = subprocess.run([sys.executable, "-m", "coopsumo", "scenario2", "--profile", "tiny", "--conditioned",
-                          "--workers", "2", "--out", str(out), "--quiet"],
-                         capture_output=True, text=True, cwd=ROOT, check=False)  # fmt: skip
-    assert res.returncode == 0, res.stderr
-    runs = pd.read_csv(out / "runs.csv")
-    assert len(runs) == 2 * 2 * 2 and (runs["status"] == "ok").all()  # 2 conditions x 2 alphas x 2 seeds
-    trainings = sorted(p.name for p in (out / "train").iterdir() if p.is_dir())
-    assert trainings == ["L2_T2_cond_s1", "L2_T2_cond_s2", "L2_T4_cond_s1", "L2_T4_cond_s2"]
-    assert runs.groupby(["lanes", "t_up_s", "seed"])["train_dir"].nunique().eq(1).all()
-    assert (runs["loop_occupancy_pct"] > 0).all() and (runs["collisions"] == 0).all()
-    for train in trainings:
-        assert sorted(p.name for p in (out / "evals" / train).glob("eval_a*")) == ["eval_a0_s2001", "eval_a8_s2001"]
-    assert "Alpha-conditioned" in (out / "report.md").read_text()
-    assert len(pd.read_csv(out / "alpha_star.csv")) == 2
 
 
 @pytest.mark.sumo

@@ -55,10 +55,9 @@ def test_every_relative_link_points_at_a_tracked_file_or_folder() -> None:
 def study_outputs() -> set[str]:
     """The folders under results/ the learning study and scenario II write without --out (a page may name them as
     such even when a report once made there is archived): results/learning[_<profile>],
-    results/scenario2[_conditioned][_<profile>]."""
+    results/scenario2[_<profile>]."""
     learning = {default_out("learning", name, "full").name for name in ablation_plan.PROFILES}
-    sweeps = {default_out(kind, name, scenario2.DEFAULT_PROFILE).name for name in scenario2.PROFILES
-              for kind in ("scenario2", "scenario2_conditioned")}  # fmt: skip
+    sweeps = {default_out("scenario2", name, scenario2.DEFAULT_PROFILE).name for name in scenario2.PROFILES}
     return learning | sweeps
 
 
@@ -67,7 +66,7 @@ def test_no_page_names_an_archived_results_folder_by_its_old_path() -> None:
     archived = {Path(f).name for f in folders if re.fullmatch(r"results/archive/[^/]+", f)}
     assert {"learning_restart", "learning_robust", "scenario2_conditioned"} <= archived
     outputs = study_outputs()
-    assert "learning" in outputs and "scenario2_conditioned" in outputs
+    assert "learning" in outputs and "scenario2" in outputs
     stale = []
     for page in PAGES:
         text = page.read_text()

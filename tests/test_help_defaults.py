@@ -101,7 +101,7 @@ def test_scenario2_help_states_each_profiles_defaults() -> None:
     assert parser.get_default("profile") == scenario2.DEFAULT_PROFILE
     assert scenario2.DEFAULT_PROFILE == "full"  # issue 65: the lane networks, baselines and the gate
     default = default_out("scenario2", scenario2.DEFAULT_PROFILE, scenario2.DEFAULT_PROFILE)
-    assert f"(default {default}, another profile results/scenario2_<profile>;" in option_help(parser, "--out")
+    assert f"(default {default}, another profile results/scenario2_<profile>)" in option_help(parser, "--out")
     assert str(default) == "results/scenario2"
     policies = stated(option_help(parser, "--policies"), names, "prefix")
     assert policies == {name: ",".join(profile.policies) for name, profile in profiles.items()}

@@ -122,7 +122,8 @@ def test_the_file_and_the_flag_refuse_a_value_by_one_rule(tmp_path: Path, line: 
     ("policies = [\"dqn\", \"dqn\"]", "policies names 'dqn' twice"),
     ("policies = [\"ppo\"]", "policies names unknown 'ppo'"),
     ("criterion = \"fast\"", "criterion must be mean_speed_mps or full_road_speed_mps, got 'fast'"),
-    ("conditioned = true\npolicies = [\"mobil\"]", "conditioned trains the DQN cells once"),
+    ("conditioned = true", "conditioned must be false: the conditioned sweep (one network per condition and seed) was "
+                           "retired"),
     ("preset = \"fastest\"", "preset must be one of default"),
     ("trajectory_every_steps = -1", "trajectory_every_steps must be an integer from 0 to 10000000, got -1"),
 ])  # fmt: skip

@@ -285,8 +285,6 @@ def test_a_stored_model_of_another_identity_is_another_folder() -> None:
 @pytest.mark.parametrize(
     ("argv", "words"),
     [
-        (["--conditioned"], "--conditioned"),
-        (["--profile", "check", "--conditioned"], "profile check"),
         (["--t-up", "1,2,3,4,5,6,7,8,9,10,11"], "at most 10; got 11"),
         (["--policies", "dqn,keep,", "--profile", "full"], "--policies"),
         (["--policies", "keep", "--mobil-p", "0"], "--mobil-p"),

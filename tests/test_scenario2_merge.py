@@ -183,8 +183,8 @@ def test_the_response_plan_names_the_field(tmp_path: Path, capsys: pytest.Captur
     assert code == 2 and 'response_plan "b2bb97b", not ""' in err[0] and str(parts[1]) in err[0], err
 
 
-@pytest.mark.parametrize("argv", [["--profile", "tiny"], ["--profile", "full"], ["--conditioned"],
-                                  ["--bootstrap", "5"], ["--workers", "1"]])  # fmt: skip
+@pytest.mark.parametrize("argv", [["--profile", "tiny"], ["--profile", "full"], ["--bootstrap", "5"],
+                                  ["--workers", "1"]])  # fmt: skip
 def test_an_option_the_merge_would_ignore_is_refused(argv: list[str], tmp_path: Path,
                                                      capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     parts = [copy_part("L4a", tmp_path), copy_part("L4b", tmp_path)]

@@ -379,8 +379,7 @@ def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
 
     The wall seconds per training step (train_steps per cell) and per evaluation step of every successful
     cell that was not resumed are fitted as a + b * inflow (veh/h) by least squares; each paper cell then
-    costs its train_steps at its inflow, and eval_steps on each of its evaluation seeds (a conditioned paper
-    profile trains once per condition and seed, and evaluates at every alpha). Returns the fits, the sum in
+    costs its train_steps at its inflow, and eval_steps on each of its evaluation seeds. Returns the fits, the sum in
     core-hours, and the wall time on this machine's cores and on a Ray cluster of cluster_cpus CPUs (perfect
     scaling assumed). Empty when fewer than 2 such cells exist.
     """
@@ -397,7 +396,7 @@ def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
     fit_train = np.linalg.lstsq(design, train, rcond=None)[0]
     fit_eval = np.linalg.lstsq(design, ok["wall_seconds"].to_numpy(float) / ok["steps"].to_numpy(float), rcond=None)[0]
     total = 0.0
-    trainings_per_condition = (1 if paper.conditioned else len(paper.alphas)) * len(paper.seeds)
+    trainings_per_condition = len(paper.alphas) * len(paper.seeds)
     for _, t_up, _ in paper.conditions():
         q = 3600.0 / t_up
         training = paper.train_steps * (fit_train[0] + fit_train[1] * q)

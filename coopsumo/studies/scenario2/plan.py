@@ -82,7 +82,8 @@ class Profile:
     preset: str = "default"
     """the learner preset of every DQN cell (config.DQN_PRESETS)"""
     conditioned: bool = False
-    """one alpha-conditioned training per condition and seed (not per alpha), evaluated at every alpha"""
+    """always false, kept because sweep.json records it: one alpha-conditioned training per condition and seed
+    (`scenario2 --conditioned`) was retired on 2026-12-02; run it at commit dd78f46"""
     eval_seeds: tuple[int, ...] = (EVAL_SEED_BASE + 1,)
     """evaluation seeds: every model (and MOBIL) is evaluated greedily on each of them; none is a training seed"""
     lane_networks: bool = False
@@ -139,12 +140,12 @@ class Profile:
 
     def n_trainings(self) -> int:
         """Models trained (or taken from the model store): per lane count and seed with lane networks (plus one per
-        check alpha), else per condition and seed (conditioned) or per condition, alpha and seed."""
+        check alpha), else per condition, alpha and seed."""
         if "dqn" not in self.policies:
             return 0
         if self.lane_networks:
             return len(self.lanes) * len(self.seeds) * self.trainings_per_lane_seed()
-        return len(self.conditions()) * len(self.seeds) * (1 if self.conditioned else len(self.alphas))
+        return len(self.conditions()) * len(self.seeds) * len(self.alphas)
 
     def trainings_per_lane_seed(self) -> int:
         """Lane networks: the models of one lane count and training seed (one per alpha with alpha_models, else the
@@ -196,9 +197,9 @@ def profile_problem(profile: Profile) -> str | None:
     the fields no flag sets), in words starting with the field at fault, or None: a load grid that gives a T_up
     outside its limits or two loads the same T_up; loads beside t_up_s (which replaces them); eval_loads not among
     the loads; a lane network with more than MAX_LANE_DEMANDS demands; check_alphas outside the alphas or without a
-    conditioned lane network; alpha_models without lane_networks; conditioned with lane networks or without dqn; an
-    unknown preset or criterion; the full-road criterion without trajectories; a training seed that is an evaluation
-    seed; and a run of the profile the simulation refuses."""
+    conditioned lane network; alpha_models without lane_networks; conditioned (retired); an unknown preset or
+    criterion; the full-road criterion without trajectories; a training seed that is an evaluation seed; and a run
+    of the profile the simulation refuses."""
     if profile.t_up_s and profile.loads:
         return f"loads must be [] beside t_up_s (the T_up list replaces the load grid), got {list(profile.loads)}"
     if not profile.t_up_s and not profile.loads:
@@ -224,10 +225,9 @@ def profile_problem(profile: Profile) -> str | None:
         return f"check_alphas must be some of alphas ({_numbers(profile.alphas)}), got {number_name(outside[0])}"
     if profile.alpha_models and not profile.lane_networks:
         return "alpha_models needs lane_networks = true (one model per alpha and lane count)"
-    if profile.conditioned and profile.lane_networks:
-        return "conditioned trains one network per condition; lane_networks trains them per lane count: not both"
-    if profile.conditioned and "dqn" not in profile.policies:
-        return "conditioned trains the DQN cells once per condition and seed: policies must hold dqn"
+    if profile.conditioned:
+        return ("conditioned must be false: the conditioned sweep (one network per condition and seed) was retired on "
+                "2026-12-02; run it at commit dd78f46")
     if profile.preset not in DQN_PRESETS:
         return f"preset must be one of {', '.join(DQN_PRESETS)}, got {profile.preset!r}"
     if profile.criterion not in (CRITERION, FULL_ROAD):
@@ -319,11 +319,6 @@ def cell_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:
     return f"L{lanes}_T{number_name(t_up_s)}_a{number_name(alpha)}_s{seed}"
 
 
-def conditioned_key(lanes: int, t_up_s: float, seed: int) -> str:
-    """The training folder of a conditioned sweep's (condition, seed), shared by its cells of every alpha."""
-    return f"L{lanes}_T{number_name(t_up_s)}_cond_s{seed}"
-
-
 def mobil_key(lanes: int, t_up_s: float, p: float, seed: int) -> str:
     return f"L{lanes}_T{number_name(t_up_s)}_mobil_p{number_name(p)}_s{seed}"
 
@@ -373,15 +368,6 @@ def at_condition(dqn: DQNConfig) -> DQNConfig:
     return replace(dqn, train_t_ups=(), accident_share=0.0, validation_accident_steps=0)
 
 
-def conditioned_train_config(lanes: int, t_up_s: float, seed: int, profile: Profile) -> TrainConfig:
-    """The alpha-conditioned training of a (condition, seed), shared by the cells of every alpha (no evaluation of
-    its own: each cell evaluates it at its alpha, eval_configs)."""
-    dqn = replace(at_condition(DQN_PRESETS[profile.preset]), alpha_conditioned=True)
-    sim = SimConfig(road=RoadConfig(lanes=lanes), demand=DemandConfig(t_up_s=t_up_s), steps=profile.train_steps,
-                    seed=seed, policy="dqn")  # fmt: skip
-    return TrainConfig(sim=sim, dqn=dqn, eval_steps=0)
-
-
 def lane_learner(lanes: int, profile: Profile, alpha: float | None = None) -> DQNConfig:
     """The learner of a lane network (alpha None: alpha-conditioned, drawing up to alpha_draw_max, chosen at
     validation_alphas) or of a per-alpha model beside it: the preset's machinery in free flow (no accident in
@@ -409,8 +395,7 @@ def learner_of(profile: Profile) -> dict[str, Any]:
     if profile.lane_networks:
         alpha = 0.0 if profile.alpha_models else None  # per-alpha models: alpha 0's learner (each its own alpha)
         return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile, alpha)))) for n in profile.lanes}
-    dqn = at_condition(DQN_PRESETS[profile.preset])
-    return json.loads(json.dumps(to_dict(replace(dqn, alpha_conditioned=True) if profile.conditioned else dqn)))
+    return json.loads(json.dumps(to_dict(at_condition(DQN_PRESETS[profile.preset]))))
 
 
 def condition_rows(profile: Profile) -> list[dict[str, Any]]:
@@ -428,14 +413,12 @@ def classical_config(lanes: int, t_up_s: float, policy: str, seed: int, profile:
 def _model_training(profile: Profile, lanes: int, t_up: float, alpha: float,
                     seed: int) -> tuple[TrainConfig, dict[str, Any]]:  # fmt: skip
     """A DQN cell's training and what its spec says of it: the lane network it shares (per alpha or told its alpha),
-    the conditioned training of its condition, or a training of its own."""
+    or a training of its own."""
     if profile.lane_networks and profile.alpha_models:
         return lane_train_config(lanes, seed, profile, alpha), {"train_key": lane_key(lanes, seed, alpha),
                                                                  "conditioned": False}  # fmt: skip
     if profile.lane_networks:
         return lane_train_config(lanes, seed, profile), {"train_key": lane_key(lanes, seed), "conditioned": True}
-    if profile.conditioned:
-        return conditioned_train_config(lanes, t_up, seed, profile), {"train_key": conditioned_key(lanes, t_up, seed)}
     return train_config(lanes, t_up, alpha, seed, profile), {}
 
 
@@ -443,14 +426,14 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
     """One JSON-ready spec per cell: key, coordinates and the full configuration as a dict.
 
     A DQN cell is one model (condition, alpha, training seed): its configuration is {"train": TrainConfig, "evals":
-    [SimConfig per evaluation seed]}; a conditioned cell's the same, its spec naming the training folder its alphas
-    share (train_key). With lane networks the training is shared by every condition and alpha of a lane count and
-    seed; the spec also names the cell's evaluation folder (evals_key), whether the model is told its alpha
-    (conditioned: False for a check's per-alpha model, policy PER_ALPHA) and, for every cell of a training but its
-    first, that first cell (after: the runner starts it once the training is done, so that no worker waits on a
-    training another one runs). A MOBIL, keep or greedy cell is one run (condition, p, evaluation seed): its
-    configuration a SimConfig, its seed the evaluation seed. With trajectory_every_steps, a DQN configuration also
-    holds it and a run's is {"run": SimConfig, "trajectory_every_steps": K} (a record made without is not reused).
+    [SimConfig per evaluation seed]}. With lane networks the training is shared by every condition and alpha of a
+    lane count and seed; the spec also names the training folder (train_key) and the cell's evaluation folder
+    (evals_key), whether the model is told its alpha (conditioned: False for a check's per-alpha model, policy
+    PER_ALPHA) and, for every cell of a training but its first, that first cell (after: the runner starts it once
+    the training is done, so that no worker waits on a training another one runs). A MOBIL, keep or greedy cell is
+    one run (condition, p, evaluation seed): its configuration a SimConfig, its seed the evaluation seed. With
+    trajectory_every_steps, a DQN configuration also holds it and a run's is {"run": SimConfig,
+    "trajectory_every_steps": K} (a record made without is not reused).
     """
     specs = []
     traj = {"trajectory_every_steps": profile.trajectory_every_steps} if profile.trajectory_every_steps else {}

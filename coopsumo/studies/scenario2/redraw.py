@@ -323,15 +323,15 @@ def merge_parts(parts: list[Part], out: Path) -> dict[str, Any]:
     return rewrite_outputs(out)
 
 
-MERGE_ALONE = ("profile", "conditioned", "steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", "t_up",
-               "policies", "mobil_p", "preset", "bootstrap", "workers", "backend", "address")  # fmt: skip
+MERGE_ALONE = ("profile", "steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", "t_up", "policies",
+               "mobil_p", "preset", "bootstrap", "workers", "backend", "address")  # fmt: skip
 """options that choose what a sweep runs or how (the parts' profile and bootstrap replicates are the merge's), which
 --merge (nothing run) refuses"""
 
 
 def sweep_study(profile: Profile) -> str:
     """Which study a sweep of `profile` writes, as its folder's marker names it (run_dirs.check_study_root)."""
-    return profile_study(profile.name, "conditioned sweep" if profile.conditioned else "sweep")
+    return profile_study(profile.name, "sweep")
 
 
 def merged_study(profile: str, parts: Sequence[Path]) -> str:
@@ -343,7 +343,8 @@ def merged_study(profile: str, parts: Sequence[Path]) -> str:
 def recorded_sweep(root: Path) -> str | None:
     """Which study the sweep folder `root` holds by its sweep.json (a folder merged or run before its marker named
     the study: results/scenario2), or None when it cannot be read: a merge's part folders as it recorded them, a
-    relative one from the working folder (the merge was run from it)."""
+    relative one from the working folder (the merge was run from it); a conditioned sweep (the retired `--conditioned`,
+    results/archive/scenario2_conditioned) is another study than any sweep run today."""
     try:
         meta = json.loads((root / "sweep.json").read_text())
         name, conditioned, parts = meta["profile"]["name"], meta["profile"].get("conditioned"), meta.get("parts")

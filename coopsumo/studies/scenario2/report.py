@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -87,8 +87,7 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
         speed_heatmap_figure(speeds, table["alpha_star"].tolist(), root / "fig6_speed_heatmap.png")
         figures["heatmap"] = "fig6_speed_heatmap.png"
     if profile.name != "paper" and "dqn" in profile.policies:
-        paper = replace(PROFILES["paper"], conditioned=profile.conditioned)
-        meta["paper_cost_estimate"] = paper_cost_estimate(runs, profile.train_steps, paper)
+        meta["paper_cost_estimate"] = paper_cost_estimate(runs, profile.train_steps, PROFILES["paper"])
     meta["plane"] = asdict(fit) if fit else {"error": plane_note}
     meta["plane_bootstrap"] = boot
     (root / "report.md").write_text(report_text(runs, table, fit, boot, plane_note, profile, meta, figures,
@@ -227,28 +226,10 @@ def _mobil_texts(side: pd.DataFrame | None, profile: Profile, alpha_label: Any) 
     return mobil_intro, mobil_section, mobil_note
 
 
-def _training_texts(profile: Profile) -> tuple[str, str]:
-    """How the cells train and evaluate, and where a conditioned sweep's folders are."""
-    if profile.conditioned:
-        training_text = (
-            "**Alpha-conditioned** (`--conditioned`): one model per condition and seed, trained in free flow with "
-            "`train --alpha-conditioned` (alpha an input, all vehicles sharing one alpha drawn from the paper's 12 "
-            "values every 3,000 steps), is evaluated greedily at every alpha of the grid (`dqn:PATH,alpha=A`) on the "
-            "same condition: one training per condition and seed instead of one per alpha. The cells of "
-            "one (condition, seed) share that training, so their speeds differ only by the alpha the model is "
-            "told. Each cell's summary also holds its evaluations' mean loop flow and occupancy (`runs.csv`: "
-            "loop_flow_veh_h_per_lane, loop_occupancy_pct), from which `alpha=adaptive`'s rule is fitted. "
-            f"Evaluation: {_eval_text(profile)}"
-        )  # fmt: skip
-    cond_folders = ("(conditioned: `train/L<lanes>_T<T_up>_cond_s<seed>/`, a link into the model store, its "
-                    "evaluation at alpha A on evaluation seed E in "
-                    "`evals/L<lanes>_T<T_up>_cond_s<seed>/eval_a<A>_s<E>/`)"
-                    ) if profile.conditioned else ""  # fmt: skip
-    if not profile.conditioned:
-        training_text = ("Each cell trains the shared DQN in free flow (scenario II) on its condition with its alpha "
-                         "and training seed, then evaluates the model greedily on the same condition "
-                         f"{_eval_text(profile)}")  # fmt: skip
-    return training_text, cond_folders
+def _training_text(profile: Profile) -> str:
+    """How the cells train and evaluate."""
+    return ("Each cell trains the shared DQN in free flow (scenario II) on its condition with its alpha and training "
+            f"seed, then evaluates the model greedily on the same condition {_eval_text(profile)}")
 
 
 def _head_text(profile: Profile, meta: dict[str, Any], alpha_label: Any, training_text: str, mobil_intro: str) -> str:
@@ -312,8 +293,7 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
         f"{profile.train_steps:,} training steps are far below the paper's 90,000: the models are barely trained, "
         "so alpha* here mostly reflects differences between short trainings, not the paper's effect."
     )  # fmt: skip
-    training_text, cond_folders = _training_texts(profile)
-    return f"""{_head_text(profile, meta, alpha_label, training_text, mobil_intro)}## alpha* per condition
+    return f"""{_head_text(profile, meta, alpha_label, _training_text(profile), mobil_intro)}## alpha* per condition
 
 {_md_table(header, rows)}
 
@@ -348,7 +328,7 @@ Rerunning the same command retries failed cells and keeps the finished ones.
 - Runs: `runs.csv` (one row per cell, status and error; a DQN model's evaluations pooled: counts summed, every
   other metric averaged over the evaluation seeds), `evals.csv` (one row per evaluation run); per condition:
   `alpha_star.csv`; each cell's record: `cells/<key>.json`; its training folder: `train/<key>/`, a link into the
-  model store, its evaluations `evals/<key>/eval_s<E>/` {cond_folders}.{mobil_note}
+  model store, its evaluations `evals/<key>/eval_s<E>/`.{mobil_note}
 - {steps_note}
 - Versions: {json.dumps(meta["versions"], sort_keys=True)}.
 """

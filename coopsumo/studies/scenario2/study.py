@@ -114,7 +114,7 @@ RECORD_KEYS = (*KEY_COLUMNS, "policy", "p")
 
 def _cell_folder(spec: dict[str, Any]) -> dict[str, Any]:
     """A cell's folder in its record: mobil/<key>/ (run_dir) for a MOBIL cell, baselines/<key>/ for keep and greedy,
-    train/<key>/ (train_dir) for a DQN's (train/<train_key>/ for a conditioned one: the training it shares)."""
+    train/<key>/ (train_dir) for a DQN's (train/<train_key>/ for a lane network's: the training it shares)."""
     if spec.get("policy") in CLASSICAL:
         return {"run_dir": f"{_classical_folder(spec)}/{spec['key']}"}
     return {"train_dir": f"train/{spec.get('train_key', spec['key'])}"}
@@ -145,8 +145,8 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 
 def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Take the cell's model from the model store (ROOT/train/<key>/ links to it, or for a conditioned cell
-    ROOT/train/<train_key>/, the training its alphas share; trained there when missing, a matching checkpoint
+    """Take the cell's model from the model store (ROOT/train/<key>/ links to it, or for a lane network's cell
+    ROOT/train/<train_key>/, the training its conditions share; trained there when missing, a matching checkpoint
     resumed), then evaluate it greedily on every evaluation seed; fills `record`. A stop by signal ->
     KeyboardInterrupt."""
     name = spec.get("train_key", spec["key"])
@@ -159,11 +159,11 @@ def _evaluate(spec: dict[str, Any], train_dir: Path, evals_dir: Path, record: di
     """Drive the model of train_dir greedily on each of the cell's evaluations (one per evaluation seed) into
     evals_dir/eval_[a<alpha>_]s<seed>/; the record's summary pools them (records.pool_summaries), its
     eval_summaries keeps each. An evaluation's summary also holds its mean loop flow and occupancy (SUMO's
-    detectors.xml), from which `alpha=adaptive`'s rule is fitted; with trajectory_every_steps in the cell's
-    configuration, its full-road speed too (full_road_measures)."""
+    detectors.xml); with trajectory_every_steps in the cell's configuration, its full-road speed too
+    (full_road_measures)."""
     from coopsumo.config import sim_config_from_dict
 
-    conditioned = spec.get("conditioned", "train_key" in spec)
+    conditioned = spec.get("conditioned", False)  # a lane network told its alpha
     every = spec["config"].get("trajectory_every_steps", 0)
     summaries = []
     for config in spec["config"]["evals"]:
@@ -235,11 +235,8 @@ def repointed(root: Path, specs: list[dict[str, Any]]) -> set[str]:
 
 def _order(todo: list[dict[str, Any]], profile: Profile) -> None:
     """Sort the cells to run, in place: the busiest roads first and the short runs of MOBIL, keep and greedy last
-    (a shorter tail); conditioned cells that start a training (their first alpha) before those that find it done,
-    so that two workers train two models at once (a lane network's other cells wait for it: "after")."""
-    first_alpha = profile.alphas[0]
-    todo.sort(key=lambda s: (s.get("policy") in CLASSICAL, "after" in s or ("train_key" in s and s["alpha"] !=
-                             first_alpha and not profile.lane_networks), -s["lanes"] * s["load"]))  # fmt: skip
+    (a shorter tail); a lane network's cells that wait for its training ("after") behind those that start one."""
+    todo.sort(key=lambda s: (s.get("policy") in CLASSICAL, "after" in s, -s["lanes"] * s["load"]))
 
 
 def _sweep_meta(profile: Profile, cells: int, backend_name: str, address: str | None, workers: int,
@@ -349,16 +346,9 @@ def profile_from_args(args: Any) -> Profile:
                              f"most {MAX_LANE_DEMANDS}; got {len(profile.t_up_s)}")  # fmt: skip
     if args.preset is not None:
         profile = replace(profile, preset=args.preset)
-    if args.conditioned:
-        if profile.lane_networks:
-            raise UsageError(f"--conditioned trains one network per condition; profile {profile.name} trains its "
-                             "models per lane count (--profile quick or tiny take it)")
-        profile = replace(profile, conditioned=True)
     if args.policies is not None:
         policies = set(name_list("--policies", args.policies, POLICIES))
         profile = replace(profile, policies=tuple(x for x in POLICIES if x in policies))
-    if profile.conditioned and "dqn" not in profile.policies:
-        raise UsageError("--conditioned trains the DQN cells once per condition and seed: --policies must hold dqn")
     if args.mobil_p is not None:
         if "mobil" not in profile.policies:
             raise UsageError("--mobil-p is for --policies with mobil")
@@ -388,11 +378,7 @@ def build_parser() -> Parser:
                    "(docs/studies.md)")  # fmt: skip
     p.add_argument("--out", type=model_out_dir, default=None,
                    help=f"results folder (default {default_out('scenario2', DEFAULT_PROFILE, DEFAULT_PROFILE)}, "
-                        "another profile results/scenario2_<profile>; with --conditioned "
-                        "results/scenario2_conditioned[_<profile>])")  # fmt: skip
-    p.add_argument("--conditioned", action="store_true",
-                   help="one alpha-conditioned model per condition and seed (train --alpha-conditioned), evaluated at "
-                   "every alpha of the grid, instead of one training per alpha")  # fmt: skip
+                        "another profile results/scenario2_<profile>)")  # fmt: skip
     add_backend_flags(p)
     p.add_argument("--workers", type=workers, default=os.cpu_count() or 1,
                    help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
@@ -401,7 +387,7 @@ def build_parser() -> Parser:
     p.add_argument("--eval-steps", type=steps, default=None,
                    help=f"evaluation steps per cell (default: {by_profile(lambda f: f'{f.eval_steps:,}')})")
     p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
-                   help="models per condition and alpha (or per condition, --conditioned): training seeds 1..N "
+                   help="models per condition and alpha: training seeds 1..N "
                         f"(default: {by_profile(lambda f: len(f.seeds))})")  # fmt: skip
     p.add_argument("--eval-seeds", type=seed_count, default=None,
                    help=f"evaluation seeds {EVAL_SEED_BASE + 1}..{EVAL_SEED_BASE}+N, which no training sees: every "
@@ -455,8 +441,7 @@ def main(argv: list[str] | None = None) -> int:
         if profile.lane_networks:  # a lane network's settings (e.g. at most 10 demands) checked before any folder
             for lanes in profile.lanes:
                 lane_train_config(lanes, profile.seeds[0], profile).validate()
-        default = default_out("scenario2_conditioned" if profile.conditioned else "scenario2", profile.name,
-                              DEFAULT_PROFILE)  # fmt: skip
+        default = default_out("scenario2", profile.name, DEFAULT_PROFILE)
         if args.out is None:
             args.out = default_model_out(default)
         # path, lock, ownership (another profile's sweep or a merge refused; its own resumed) and marker of the folder
