@@ -25,7 +25,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "protocol": (S + "protocol.study", "judge learners: 10 models each, free flow and accident, vs baselines"),
     "regime-map": (S + "followups.regime_map", "where the accident's queue goes: keep at every demand, two lengths"),
     "accident-seeds": (S + "followups.accident_seeds", "a learning study's models through the accident, by seed"),
-    "diagnose": (S + "followups.diagnosis", "the Q-value margins behind a learning study's models' choices"),
     "history": (S + "protocol.history", "print the learner search's table from the protocol studies' records"),
     "models": (S + "engine.model_store", "list the model store: every trained model and whether it is usable"),
     "bench": ("coopsumo.bench", "speed figures (printed, not asserted)"),

@@ -29,7 +29,7 @@ def parsers() -> dict[str, argparse.ArgumentParser]:
 
 def test_the_commands_are_the_issue_s_six_the_protocol_and_the_studies_beside_them() -> None:
     assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "learning", "protocol", "regime-map",
-                                  "accident-seeds", "diagnose", "history", "models", "bench"]  # fmt: skip
+                                  "accident-seeds", "history", "models", "bench"]  # fmt: skip
 
 
 def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:

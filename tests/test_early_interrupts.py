@@ -11,10 +11,9 @@ scenario I worker printed one of its own when it came while the worker started.
 Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1, scenario2,
 learning, protocol, regime-map: their pools of workers) and simulate get all four moments; the others, and `python
 -m coopsumo`, one each, chosen while they still run: accident-seeds (refusing its folder) ends within a second or
-two, so 0.2 s, during its imports; models
-(a store of one real 40-step model, which its listing checks with torch, and one folder that is no model) takes
-about 2 s, so 0.2 and 1 s (a store without a model ended within 0.2 s on a fast machine); diagnose (refusing its
-folder after its imports) and scenario2 --merge at 1 s; history and bench at 2 s. A Ctrl-C later in a training is
+two, so 0.2 s, during its imports; models (a store of one real 40-step model, which its listing checks with torch,
+and one folder that is no model) takes about 2 s, so 0.2 and 1 s (a store without a model ended within 0.2 s on a
+fast machine); scenario2 --merge at 1 s; history and bench at 2 s. A Ctrl-C later in a training is
 tests/test_interrupts.py's, in a study tests/test_faults_scenario1.py's. What comes before the command's first
 instruction is Python's own start (some 0.05 s of CPU), which no code of the command can guard; the console command
 imports nothing there (test below). On a loaded machine that start can take longer than 0.2 s of wall time, so a
@@ -54,7 +53,6 @@ CASES: dict[str, tuple[list[str], tuple[float, ...]]] = {
     "scenario2 --merge": (["scenario2", "--merge", f"{PARTS}/L2,{PARTS}/L3", "--out", "{tmp}/merged", "--quiet"],
                           (1.0,)),  # fmt: skip
     "accident-seeds": (["accident-seeds", "{tmp}/no_study", "--out", "{tmp}/accident", "--quiet"], (0.2,)),
-    "diagnose": (["diagnose", "{tmp}/no_study", "--quiet"], (1.0,)),
     "history": (["history", "--results", "{repo}/results", "--out", "{tmp}/history.md"], (2.0,)),
     "models": (["models", "--store", "{tmp}/store"], (0.2, 1.0)),
     "bench": (["bench", "--quick"], (2.0,)),

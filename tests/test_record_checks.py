@@ -1,7 +1,7 @@
 """Issue 67, read-back checks that look inside, for cell records: a scenario II (or ablation) record whose summary
-or one of its evaluations was edited is not what its evaluations pool to and is rerun; a cell of accident-seeds or
-diagnose is tied to the model file it drives (its sha256) and is rerun, with one line, when the file was replaced or
-cut short since; a scenario II record whose train/ link was pointed at another model is rerun, the link put back.
+or one of its evaluations was edited is not what its evaluations pool to and is rerun; a cell of accident-seeds is
+tied to the model file it drives (its sha256) and is rerun, with one line, when the file was replaced or cut short
+since; a scenario II record whose train/ link was pointed at another model is rerun, the link put back.
 An intact record is reused and left as it was."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from typing import Any
 import pandas as pd
 import pytest
 import test_scenario2
-from test_study_commands import cell_times, coopsumo, learning_folder
+from test_study_commands import learning_folder
 
 from coopsumo.studies.engine.records import cell_path, checked_record, model_fields, reusable_keys
 from coopsumo.studies.followups import accident_seeds
@@ -255,32 +255,6 @@ def test_a_record_from_before_digests_is_judged_by_time(tmp_path: Path, capsys: 
     assert capsys.readouterr().err == ""
 
 
-@pytest.mark.sumo
-def test_diagnose_redoes_the_cell_of_a_swapped_or_truncated_model(tmp_path: Path) -> None:
-    root = learning_folder(tmp_path / "learning")
-    assert coopsumo("diagnose", str(root), "--steps", "200").returncode == 0
-    cells = cell_times(root, "diagnosis_*.json")
-    assert len(cells) == 2
-    for record in (root / "cells").glob("diagnosis_*.json"):
-        assert json.loads(record.read_text())["model_sha256"]
-    key = "diagnosis_margin_alpha0_seed0.json"
-    margin = root / "train" / json.loads((root / "cells" / key).read_text())["train_key"] / "model.pt"
-    margin.write_bytes(margin.read_bytes())  # the same bytes written again: nothing redone
-    again = coopsumo("diagnose", str(root), "--steps", "200")
-    assert again.returncode == 0 and cell_times(root, "diagnosis_*.json") == cells, again.stderr[-2000:]
-    _swap(margin)  # another model of the same training: redone, with one line
-    swapped = coopsumo("diagnose", str(root), "--steps", "200")
-    assert swapped.returncode == 0, swapped.stderr[-2000:]
-    lines = [line for line in swapped.stderr.splitlines() if "rerunning it" in line]
-    assert len(lines) == 1 and f"cell {key[:-5]}: record" in lines[0] and "has changed since" in lines[0], lines
-    now = cell_times(root, "diagnosis_*.json")
-    assert now[key] != cells[key] and all(now[k] == cells[k] for k in cells if k != key)
-    _cut(margin)  # cut short: redone, and the cell fails in one line naming it
-    cut = coopsumo("diagnose", str(root), "--steps", "200")
-    assert cut.returncode == 1 and "has changed since" in cut.stderr and key[:-5] in cut.stderr.splitlines()[-1]
-    assert json.loads((root / "cells" / key).read_text())["status"] == "failed"
-
-
 def _copied_in(model: Path, other: Path) -> None:
     """Another learner's model file copied over this one (the probe's: default alpha 1 over the paper model)."""
     shutil.copyfile(other, model)
@@ -292,25 +266,19 @@ def _linked_to(model: Path, other: Path) -> None:
     model.parent.symlink_to(other.parent, target_is_directory=True)
 
 
-@pytest.mark.parametrize("command", ["diagnose", "accident-seeds"])
 @pytest.mark.parametrize("change", [_copied_in, _linked_to])
 def test_a_model_of_another_training_is_never_driven_as_this_one(
-    command: str, change: Callable[[Path, Path], None], tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    change: Callable[[Path, Path], None], tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Issue 82: diagnose and accident-seeds drove a model swapped in from another learner as the study's (its
-    Q-margins reported under the wrong name); now refused in one line naming the file, exit code 2, nothing written."""
-    from coopsumo.studies.followups import diagnosis
-
+    """Issue 82: accident-seeds drove a model swapped in from another learner as the study's; now refused in one
+    line naming the file, exit code 2, nothing written."""
     root = learning_folder(tmp_path / "learning")
     margin, conditioned = (accident_seeds.models(root, (v,), (0.0,), 1)[0]["model"] for v in ("margin", "conditioned"))
     change(margin, conditioned)
     out = tmp_path / "acc"
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
-    if command == "diagnose":
-        code = diagnosis.main([str(root), "--steps", "200", "--quiet"])
-    else:
-        code = accident_seeds.main([str(root), "--variants", "margin", "--seeds", "1", "--t-up", "3", "--steps", "600",
-                                    "--out", str(out), "--quiet"])  # fmt: skip
+    code = accident_seeds.main([str(root), "--variants", "margin", "--seeds", "1", "--t-up", "3", "--steps", "600",
+                                "--out", str(out), "--quiet"])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
     assert str(margin.parent) in err and ("made by another training" in err or "not to " in err), err

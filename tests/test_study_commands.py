@@ -1,7 +1,6 @@
-"""The commands that read or extend what the other studies made (regime-map, accident-seeds, diagnose): --help, bad
-input (one line, exit 2, nothing written), tiny real runs on hand-made study folders (models with untrained weights,
-so each run takes seconds), a rerun that reuses every cell, and the old spellings under experiments/. The measures of
-`diagnose` on hand-made decisions."""
+"""The commands that read or extend what the other studies made (regime-map, accident-seeds): --help, bad input (one
+line, exit 2, nothing written), tiny real runs on hand-made study folders (models with untrained weights, so each run
+takes seconds), a rerun that reuses every cell, and the old spellings under experiments/."""
 
 from __future__ import annotations
 
@@ -14,17 +13,15 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 import pytest
 
 from coopsumo import cli
 from coopsumo.dqn_config import DQNConfig
-from coopsumo.studies.followups.diagnosis_measures import COLUMNS, decision_measures, training_course
 from coopsumo.studies.learning import study as ablation
 
 ROOT = Path(__file__).resolve().parent.parent
-COMMANDS = ("regime-map", "accident-seeds", "diagnose")
+COMMANDS = ("regime-map", "accident-seeds")
 
 
 def command_main(name: str, argv: list[str]) -> int:
@@ -103,12 +100,6 @@ BAD = [
     ("accident-seeds", "learning", ["--variants", "margin", "--alphas", "8"], "no finished models"),
     ("accident-seeds", "no model", ["--variants", "margin"], "is missing"),
     ("accident-seeds", "learning", ["--variants", "margin", "--out", "a,b"], "--out"),
-    ("diagnose", "none", [], "not a learning-study folder"),
-    ("diagnose", "empty", [], "no finished trainings"),
-    ("diagnose", "learning", ["--steps", "50"], "--steps"),
-    ("diagnose", "learning", ["--variants", "warp"], "warp"),
-    ("diagnose", "learning", ["--backend", "local", "--address", "127.0.0.1:1"], "--address"),
-    ("diagnose", "no model", [], "is missing"),
 ]  # fmt: skip
 
 
@@ -192,55 +183,6 @@ def test_accident_seeds_drives_every_model_beside_the_baselines(tmp_path: Path) 
     again = coopsumo("accident-seeds", *args)
     assert again.returncode == 0, again.stderr[-2000:]
     assert cell_times(out) == cells
-
-
-@pytest.mark.sumo
-def test_diagnose_measures_each_model_and_reuses_its_cell(tmp_path: Path) -> None:
-    root = learning_folder(tmp_path / "learning")
-    res = coopsumo("diagnose", str(root), "--steps", "200")
-    assert res.returncode == 0, res.stderr[-2000:]
-    table = pd.read_csv(root / "diagnosis.csv")
-    # an alpha-conditioned model is diagnosed at its evaluation's alpha
-    assert list(table["variant"]) == ["conditioned", "margin"] and table["decisions"].gt(0).all()
-    assert list(table.columns[:5]) == ["key", "variant", "alpha", "seed", "eval_speed_mps"]
-    assert table.loc[0, "train_lc_rate_first10pct"] == pytest.approx(0.3)
-    assert "margin_median" in res.stdout
-    cells = cell_times(root, "diagnosis_*.json")
-    assert len(cells) == 2
-    again = coopsumo("diagnose", str(root), "--steps", "200")
-    assert again.returncode == 0, again.stderr[-2000:]
-    assert cell_times(root, "diagnosis_*.json") == cells and pd.read_csv(root / "diagnosis.csv").equals(table)
-
-
-# -- the diagnosis measures, on hand-made decisions ---------------------------------------------------------------
-def test_decision_measures_on_known_margins() -> None:
-    from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
-
-    def row(q: list[float], offered: list[bool], action: int) -> list[float]:
-        return [*q, *map(float, offered), float(action), 0.0]
-
-    q = [0.0] * 4
-    q1, q2, q3 = list(q), list(q), list(q)
-    q1[LEFT], q1[NONE] = 10.2, 10.0  # a change by a near tie (margin 0.2 < 5% of 10)
-    q2[RIGHT], q2[SPEEDUP] = 8.0, 10.0  # staying, by a clear margin of 2
-    q3[SPEEDUP] = 10.0  # no change offered
-    rows = np.array([row(q1, [True] * 4, LEFT), row(q2, [True] * 4, SPEEDUP),
-                     row(q3, [False, False, True, True], SPEEDUP)])  # fmt: skip
-    m = decision_measures(rows)
-    assert set(m) <= set(COLUMNS)  # diagnosis.csv has a column for every measure
-    assert m["decisions"] == 3 and m["change_offered_share"] == pytest.approx(2 / 3)
-    assert m["change_chosen_share_of_offered"] == pytest.approx(0.5)
-    assert m["margin_median"] == pytest.approx((0.2 - 2.0) / 2) and m["margin_abs_median"] == pytest.approx(1.1)
-    assert m["chosen_change_margin_median"] == pytest.approx(0.2) and m["near_tie_share"] == pytest.approx(0.5)
-    assert m["speedup_share"] == pytest.approx(2 / 3)
-
-
-def test_training_course_reads_the_first_and_last_tenth() -> None:
-    log = pd.DataFrame({"vehicles": [10] * 20, "lane_changes": [5] * 2 + [1] * 16 + [0] * 2,
-                        "mean_speed_mps": [15.0] * 18 + [20.0] * 2, "td_loss": [""] * 18 + ["1", "3"]})  # fmt: skip
-    c = training_course(log)
-    assert c["train_lc_rate_first10pct"] == pytest.approx(0.5) and c["train_lc_rate_last10pct"] == 0
-    assert c["train_speed_last10pct"] == 20.0 and c["td_loss_last10pct"] == 2.0
 
 
 # -- the SB3 example (experiments/sb3_dqn.py: an example of the Gymnasium interface, not a command) ---------------

@@ -4,7 +4,7 @@ choose where.
 run_cells reuses every cell whose stored record can be trusted (records.reusable_keys), builds the road networks once
 in this process (not in every worker), runs the other cells on local processes or Ray (runner.execute, one progress
 bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
-The studies that only drive or measure (regime_map, accident_seeds, diagnosis) call it instead of
+The studies that only drive or measure (regime_map, accident_seeds) call it instead of
 repeating those steps; the learning study, the protocol and scenario II, which choose and order their own cells,
 call run_todo.
 """

@@ -1,5 +1,5 @@
 """The finished trainings of a learning study's folder (`coopsumo learning --out ROOT`), for the commands that read
-its models: accident_seeds and diagnosis."""
+its models: accident_seeds."""
 
 from __future__ import annotations
 

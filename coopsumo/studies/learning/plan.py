@@ -228,14 +228,6 @@ def eval_seeds(profile: Profile) -> tuple[int, ...]:
     return tuple(EVAL_SEED_OFFSET + s for s in profile.seeds)
 
 
-def own_eval(config: dict[str, Any], seed: int) -> dict[str, Any]:
-    """A training cell's evaluation on seed EVAL_SEED_OFFSET + its training seed (diagnose drives that one); a
-    record written when each model met one evaluation holds it as config["eval"]."""
-    if "eval" in config:
-        return dict(config["eval"])
-    return dict(next(e for e in config["evals"] if e["seed"] == EVAL_SEED_OFFSET + seed))
-
-
 def cell_specs(profile: Profile, default: DQNConfig) -> list[dict[str, Any]]:
     """Every cell of the study: ablation trainings, alpha-response trainings, baselines."""
     specs: list[dict[str, Any]] = []
