@@ -1,5 +1,7 @@
 """Every committed report is the current code's answer: the learner recorded beside it is the learner its command
-trains today, so a report can no longer go stale behind a banner. Reports made with an earlier learner live in
+trains today, or, for a report made by an earlier default learner that no study on today's default has replaced
+yet, the learner results/README.md's table "Reports made by an earlier default learner" names for it (a variant of
+learners.toml, reproducible at the commit the row names). Reports of learners no longer made live in
 results/archive/ and say so at their top."""
 
 from __future__ import annotations
@@ -7,9 +9,11 @@ from __future__ import annotations
 import json
 import re
 import shutil
+import subprocess
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
+from unittest import mock
 
 import pytest
 from conftest import REL_TOLERANCE, committed_report_pages, text_difference
@@ -40,7 +44,29 @@ def _same(recorded: Any, current: Any, what: str) -> None:
     assert where is None, f"{what}: the committed report's learner differs from today's ({where}); remake it"
 
 
-def _learner_check(folder: Path) -> None:
+MADE_BY = "## Reports made by an earlier default learner"
+"""results/README.md's table: | `folder/` | `variant` | commit | ... |, one row per report its learner made"""
+
+
+def made_by(readme: Path = ROOT / "results" / "README.md") -> dict[str, tuple[str, str]]:
+    """results/README.md's reports made by an earlier default learner: folder name -> (variant, commit)."""
+    text = readme.read_text()
+    if MADE_BY not in text:
+        return {}
+    rows = text.split(MADE_BY, 1)[1].split("\n## ", 1)[0]
+    found = re.findall(r"^\| `([\w/]+?)/?` \| `(\w+)` \| `?([0-9a-f]{7,40})`? \|", rows, flags=re.MULTILINE)
+    return {folder: (variant, commit) for folder, variant, commit in found}
+
+
+def _learner_check(folder: Path, marks: dict[str, tuple[str, str]] | None = None) -> None:
+    """The learner recorded beside the report in `folder` is today's, or the one its row of made_by names."""
+    marks = made_by() if marks is None else marks
+    base = variants()[marks[folder.name][0]].learner if folder.name in marks else DQNConfig()
+    with mock.patch.dict(DQN_PRESETS, {"default": base}):  # the default its commands trained with
+        _recorded_learner_check(folder)
+
+
+def _recorded_learner_check(folder: Path) -> None:
     name = folder.name
     # the default profile, K models per alpha, of the default learner or other presets (scenario1_alpha_only_10models)
     if re.fullmatch(r"scenario1(_[a-z_]+?)?(_\d+models)?", name) and name not in ("scenario1_quick", "scenario1_full"):
@@ -48,7 +74,8 @@ def _learner_check(folder: Path) -> None:
         assert set(plan["learners"]) == set(plan["plan"]["presets"])
         for preset, learner in plan["learners"].items():
             _same(learner, to_dict(DQN_PRESETS[preset]), f"{name} ({preset})")
-        _same(plan["learners"].get("default", to_dict(DQNConfig())), to_dict(DQNConfig()), name)
+        default = to_dict(DQN_PRESETS["default"])
+        _same(plan["learners"].get("default", default), default, name)
     elif name.startswith("learner_protocol"):
         study = json.loads((folder / "study.json").read_text())
         known = variants()
@@ -63,7 +90,7 @@ def _learner_check(folder: Path) -> None:
         _same(sweep["learner"], learner_of(replace(profile, conditioned=sweep["profile"]["conditioned"])), name)
     elif name in {default_out("learning", profile, "full").name for profile in LEARNING_PROFILES}:
         study = json.loads((folder / "study.json").read_text())
-        _same(study["default_learner"], to_dict(DQNConfig()), f"{name} (the default)")
+        _same(study["default_learner"], to_dict(DQN_PRESETS["default"]), f"{name} (the default)")
         assert set(study["learners"]) >= set(study["profile"]["variants"]), f"{name}: a variant without its learner"
         for variant, learner in study["learners"].items():
             _same(learner, to_dict(learner_of_variant(variant)), f"{name} ({variant})")
@@ -76,6 +103,18 @@ def test_every_committed_report_was_made_by_todays_learner() -> None:
     assert any(f.name == "scenario1" for f in folders)
     for folder in folders:
         _learner_check(folder)
+
+
+def test_a_report_made_by_an_earlier_default_is_marked_reproducibly() -> None:
+    """Each row of the table names a committed report, a variant that is not today's default, and a commit of this
+    repository (where its command trains that learner)."""
+    names = {f.name for f in committed_reports()}
+    for folder, (variant, commit) in made_by().items():
+        assert folder in names, f"results/README.md marks {folder}, which is not a committed report"
+        assert variants()[variant].learner != DQNConfig(), f"{folder}: {variant} is today's default"
+        if (ROOT / ".git").exists():
+            found = subprocess.run(["git", "cat-file", "-e", f"{commit}^{{commit}}"], cwd=ROOT, check=False)
+            assert found.returncode == 0, f"{folder}: commit {commit} is not in this repository"
 
 
 PARTS = sorted(f"{p.parent.parent.name}/{p.parent.name}" for folder in ("scenario2_parts", "scenario2_confirm_parts")
@@ -136,6 +175,18 @@ def test_the_check_fires_on_a_changed_learner(tmp_path: Path) -> None:
         _learner_check(folder)
     with pytest.raises(AssertionError, match="no test checks"):
         _learner_check(tmp_path / "learning_old")
+    # a report made by an earlier default (here u1's learner, as if it had been the default): caught unless marked
+    plan["learners"]["default"] = to_dict(variants()["u1"].learner)
+    (folder / "plan.json").write_text(json.dumps(plan))
+    with pytest.raises(AssertionError, match=r"updates_per_learn"):
+        _learner_check(folder)
+    readme = tmp_path / "README.md"
+    readme.write_text(f"# results\n\n{MADE_BY}\n\n| report | learner | commit |\n|---|---|---|\n"
+                      "| `scenario1/` | `u1` | `abc1234` |\n\n## Next\n| `scenario2/` | `u1` | `abc1234` |\n")
+    assert made_by(readme) == {"scenario1": ("u1", "abc1234")}
+    _learner_check(folder, made_by(readme))
+    with pytest.raises(AssertionError, match=r"updates_per_learn"):
+        _learner_check(folder, {"scenario1": ("nr10", "abc1234")})
     # a learning study whose `mix` variant was trained with another replay size
     folder = tmp_path / "learning"
     folder.mkdir()
