@@ -10,19 +10,30 @@ from dataclasses import replace
 import pytest
 
 from coopsumo.bench import scaled_selection
-from coopsumo.bench_group import group_lines
+from coopsumo.bench_group import before_and_after, group_lines
 
 pytestmark = pytest.mark.sumo
-LINE = (r"  train \(default, 300 steps, selection scaled to it\): lone 20\.0 CPU s \(9\.0 s wall\); a group of 2 with "
-        r"the stacked learner (\d+\.\d) CPU s per model \(\d+\.\d s wall for all 2\)")
+LINE = (r"  train \(default, 300 steps, selection scaled to it\): lone, as before issue 77, 20\.0 CPU s "
+        r"\(9\.0 s wall\); a group of 2 with stacked updates and the two-stage selection (\d+\.\d) CPU s per model "
+        r"\(\d+\.\d s wall for all 2\)")
+
+
+def test_before_and_after_differ_in_issue_77s_settings_alone() -> None:
+    before, after = before_and_after(scaled_selection(300))
+    assert not before.dqn.stacked_updates and before.dqn.validation_screen == 0
+    assert after.dqn.stacked_updates and after.dqn.validation_screen == 1 and after.dqn.validation_finalists == 2
+    assert replace(after, dqn=replace(after.dqn, stacked_updates=False, validation_screen=0)) == before
 
 
 def test_the_group_line_measures_a_group_against_the_lone_training_given() -> None:
     cfg = scaled_selection(300)
     cfg = replace(cfg, dqn=replace(cfg.dqn, select_every_steps=0))  # the line's arithmetic, not a selection's cost
+    cfg = before_and_after(cfg)[0]  # the lone figures given are this learner's
     first, second = group_lines(cfg, 2, lone=(20.0, 9.0))
     per_model = re.fullmatch(LINE, first)
     assert per_model, first
     assert 1.0 < float(per_model.group(1)) < 200.0  # two real trainings' processes were measured
     cost = re.match(r"group cost (\d+\.\d\d) ", second)
     assert cost and abs(float(cost.group(1)) - float(per_model.group(1)) / 20.0) <= 0.01, second
+    after = before_and_after(cfg)[1]  # figures measured on another learner than the one before: trained again
+    assert "lone, as before issue 77, 20.0 CPU s" not in group_lines(after, 1, lone=(20.0, 9.0))[0]
