@@ -20,9 +20,9 @@ back only: a checkpoint is the training's to save whatever it holds), a stored m
 its writer's TrainConfig is checked by config.py when built), a run's summary (RUN_SUMMARY) and detectors.xml
 intervals (DETECTOR_INTERVAL; SUMO writes the latter), a learner protocol study's study.json and stats.csv
 (PROTOCOL_STUDY, PROTOCOL_STATS), scenario II's sweep.json, runs.csv and evals.csv (SWEEP, SCENARIO2_RUNS,
-SCENARIO2_EVALS). Not yet: a cell record's envelope (records.record_problem, by hand; its summary is RUN_SUMMARY's),
-the other studies' plan files and tables (scenario I's plan.json and runs.csv, the learning study's), the studies'
-TOML data (field_rules' rules, read by catalogue.Entry).
+SCENARIO2_EVALS), a study's cell record (CELL_RECORD; its summary is RUN_SUMMARY's). Not yet: the other studies'
+plan files and tables (scenario I's plan.json and runs.csv, the learning study's), the studies' TOML data
+(field_rules' rules, read by catalogue.Entry).
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from typing import Any
 from coopsumo.config import MAX_LANES, MIN_LANES, SPEED_LIMIT_MPS
 from coopsumo.errors import UsageError
 from coopsumo.field_rules import IntRule, NumberRule
-from coopsumo.validation import ALPHA_MAX, ALPHA_MIN
+from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MOBIL_LIMITS
 
 SPEED_MAX_MPS = SPEED_LIMIT_MPS[1]
 """no vehicle goes faster (70 m/s, 252 km/h: the largest speed limit a road takes, config.SPEED_LIMIT_MPS): a recorded
@@ -73,7 +73,7 @@ class Number:
 
     def problem(self, value: Any) -> str | None:
         unit = f" ({self.unit})" if self.unit else ""
-        if self.blank_ok and (value is None or (isinstance(value, float) and math.isnan(value))):
+        if self.blank_ok and _blank(value):
             return None
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
             return f"must be a number{unit}, got {_shown(value)}"
@@ -85,12 +85,16 @@ class Number:
 
 @dataclasses.dataclass(frozen=True)
 class Integer:
-    """An integer (a whole float as a table reads it too, not a bool) from low to high."""
+    """An integer (a whole float as a table reads it too, not a bool) from low to high; blank_ok: NaN or None stands
+    for "none" (a baseline's training seed)."""
 
     low: int = 0
     high: int | None = None
+    blank_ok: bool = False
 
     def problem(self, value: Any) -> str | None:
+        if self.blank_ok and _blank(value):
+            return None
         number = float(value) if isinstance(value, numbers.Real) and not isinstance(value, bool) else math.nan
         if not (math.isfinite(number) and number == int(number)):
             return f"must be an integer, got {_shown(value)}"
@@ -99,11 +103,14 @@ class Integer:
 
 @dataclasses.dataclass(frozen=True)
 class Text:
-    """A string, one of `choices` when given, not empty."""
+    """A string, one of `choices` when given, not empty; blank_ok: NaN or None stands for "none" (no error)."""
 
     choices: tuple[str, ...] = ()
+    blank_ok: bool = False
 
     def problem(self, value: Any) -> str | None:
+        if self.blank_ok and _blank(value):
+            return None
         if not isinstance(value, str) or not value:
             return f"must be a text, got {_shown(value)}"
         if self.choices and value not in self.choices:
@@ -126,6 +133,12 @@ Rule = Number | Integer | Text | Kind
 MAPPING = Kind((Mapping,), "a mapping")
 LIST = Kind((list, tuple), "a list")
 FLAG = Kind((bool,), "true or false")
+MAPPING_OR_NULL = Kind((Mapping, type(None)), "a mapping or null")
+
+
+def _blank(value: Any) -> bool:
+    """None, or NaN (a table's empty cell)."""
+    return value is None or (isinstance(value, float) and math.isnan(value))
 
 
 def _shown(value: Any) -> str:
@@ -299,6 +312,40 @@ RUN_SUMMARY = Schema((
 (records.implausible leaves out the non-finite ones, which record_problem judges where a study reads them, and the
 table_ diagnostics, whose -1 means "not measured"); a summary's keys are many and grow: the rules go by suffix"""
 
+CELL_STATUSES = ("ok", "failed", "interrupted")
+"""a cell record's status (records.run_recorded): the runner writes no other"""
+SEED = Integer(0, 2**32 - 1, blank_ok=True)
+"""a seed (SUMO's and numpy's range), or none (a baseline's training seed)"""
+T_UP = Number(0.0, 3600.0, low_open=True, unit="s", blank_ok=True)
+"""a demand's upstream departure interval: above 0, at most one departure an hour"""
+POLITENESS = Number(0.0, MOBIL_LIMITS["p"][1], unit="MOBIL's politeness", blank_ok=True)
+"""a MOBIL cell's politeness p, the flags' limits (validation.MOBIL_LIMITS); a DQN cell's: none"""
+CELL_RECORD = Schema((
+    Field("key", Text()),
+    Field("kind", Text(), optional=True),  # scenario II's cells have none
+    Field("status", Text(CELL_STATUSES)),
+    Field("config", MAPPING),
+    Field("error", Text(blank_ok=True), optional=True),
+    Field("traceback", Text(blank_ok=True), optional=True),
+    Field("cell_wall_s", Number(0.0, unit="s", blank_ok=True), optional=True),  # a cell that could not run: none
+    Field("cell_cpu_s", Number(0.0, unit="s", blank_ok=True), optional=True),
+    Field("versions", MAPPING, optional=True),
+    Field("train_summary", MAPPING_OR_NULL, optional=True),
+    # the coordinates the studies' cells share, where a study's cells have them
+    Field("seed", SEED, optional=True),
+    Field("eval_seed", SEED, optional=True),
+    Field("alpha", Number(ALPHA_MIN, ALPHA_MAX, blank_ok=True), optional=True),  # a MOBIL cell's: none
+    Field("t_up_s", T_UP, optional=True),
+    Field("t_up", T_UP, optional=True),
+    Field("lanes", Integer(MIN_LANES, MAX_LANES), optional=True),
+    Field("p", POLITENESS, optional=True),
+    Field("model_sha256", Text(), optional=True),
+))  # fmt: skip
+"""a study's cell record (records.CellRecords, records.blank_record and run_recorded; every study's cells/<key>.json)
+as records.reusable_keys reads it back to decide whether the cell is done: its envelope and the coordinates the
+studies share; its summary and eval_summaries are records.record_problem's (RUN_SUMMARY, the values the study reads,
+each evaluation's pooled into the summary)"""
+
 MODEL_TENSORS = (Field("state_dict.*", WEIGHTS),)
 """a model file's (model_file.save_model's) tensors"""
 CHECKPOINT_TENSORS = (
@@ -394,7 +441,7 @@ _COORDINATES = (
     Field("load", Number(0.0, low_open=True)),
     Field("policy", Text()),  # dqn, mobil; per_alpha in the check profile
     Field("alpha", Number(ALPHA_MIN, ALPHA_MAX, blank_ok=True)),  # a MOBIL row: none
-    Field("p", Number(-1.0, 1.0, blank_ok=True)),  # a DQN row: none
+    Field("p", POLITENESS),  # a DQN row: none
 )
 SCENARIO2_EVALS = Table((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUATION))
 """scenario II's evals.csv (scenario2.measures.evals_table): one row per evaluation run of a successful cell"""

@@ -92,7 +92,8 @@ def test_a_study_that_trains_names_its_store(tmp_path: Path, monkeypatch: pytest
     monkeypatch.delenv(model_store.STORE_ENV, raising=False)
     root = tmp_path / "work" / "study"
     (root / "cells").mkdir(parents=True)
-    (root / "cells" / "c.json").write_text(json.dumps({"key": "c", "status": "ok", "summary": {"x": 1.0}}))
+    (root / "cells" / "c.json").write_text(json.dumps({"key": "c", "status": "ok", "config": {"train": {}, "eval": {}},
+                                                       "summary": {"x": 1.0}}))  # fmt: skip
     train = [{"key": "c", "config": {"train": {}, "eval": {}}}]
     records = cells.run_todo([], train, root, lambda s, r: {}, lambda s, e: {}, required=["x"])
     assert records[0]["status"] == "ok"

@@ -284,3 +284,22 @@ def test_a_model_of_another_training_is_never_driven_as_this_one(
     assert str(margin.parent) in err and ("made by another training" in err or "not to " in err), err
     assert f"not the model record {root / 'cells'}" in err, err
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before and not out.exists()
+
+
+# -- a learning study's training records, as accident-seeds reads them ---------------------------------------------
+@pytest.mark.parametrize(("field", "value"), [("alpha", -1.0), ("seed", 2.5), ("cell_wall_s", -3.0), ("key", 7),
+                                              ("config", None)])  # fmt: skip
+def test_a_training_record_outside_its_schema_is_skipped_with_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], field: str, value: Any) -> None:  # fmt: skip
+    """Issue 82: accident-seeds drives a learning study's finished trainings (learning.models.finished_trainings);
+    a training's record outside record_schemas.CELL_RECORD is not driven, with one line naming the file and field."""
+    from coopsumo.studies.learning.models import finished_trainings
+
+    root = learning_folder(tmp_path / "learning", ("paper",))
+    assert len(finished_trainings(root, "accident-seeds")) == 1 and capsys.readouterr().err == ""
+    path = next((root / "cells").glob("*.json"))
+    path.write_text(json.dumps({**json.loads(path.read_text()), "cell_wall_s": 5.0, field: value}))
+    assert finished_trainings(root, "accident-seeds") == []
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"accident-seeds: record {path} cannot be used (field {field} must be")
+    assert err[0].endswith("; skipped"), err

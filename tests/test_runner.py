@@ -174,6 +174,51 @@ def test_a_corrupt_record_is_rerun_with_one_line(tmp_path: Path, capsys: pytest.
     assert err[0].endswith("; rerunning it") and "Traceback" not in err[0]
 
 
+FULL = {**GOOD, "kind": "run", "error": None, "traceback": None, "cell_wall_s": 2.5, "cell_cpu_s": 2.4,
+        "versions": {"python": "3"}, "train_summary": None, "seed": 100, "eval_seed": 5001,
+        "alpha": 8.0, "t_up_s": 2.0, "t_up": 2.0, "lanes": 3, "p": None, "model_sha256": "ab12"}  # fmt: skip
+"""a cell record with every field of record_schemas.CELL_RECORD, each inside its limits"""
+OUTSIDE = {"key": "", "kind": 3, "status": "done", "config": "x", "error": 5, "traceback": ["t"], "cell_wall_s": -1.0,
+           "cell_cpu_s": "12 s", "versions": [], "train_summary": 3, "seed": -1,
+           "eval_seed": 1.5, "alpha": -0.5, "t_up_s": 0.0, "t_up": 4000.0, "lanes": 7, "p": 11.0,
+           "model_sha256": None}  # fmt: skip
+"""a value outside each field's type or limits"""
+
+
+def test_the_cases_cover_every_field_of_a_cell_record() -> None:
+    from coopsumo.record_schemas import CELL_RECORD
+
+    assert set(FULL) == set(OUTSIDE) | {"summary"} == {f.name for f in CELL_RECORD.fields} | {"summary"}
+    assert CELL_RECORD.problem(FULL) is None and cell_records.cell_problem(FULL, ("v", "n")) is None
+
+
+@pytest.mark.parametrize("field", sorted(OUTSIDE))
+def test_a_record_outside_its_schema_is_rerun_with_one_line_naming_the_field(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], field: str) -> None:  # fmt: skip
+    """Issue 82: a record whose envelope (key, status, times, configuration, the studies' shared coordinates) lies
+    outside record_schemas.CELL_RECORD is not trusted: the cell is rerun, with one line naming the file and the
+    field."""
+    (tmp_path / "cells").mkdir()
+    path = cell_records.cell_path(tmp_path, "c1")
+    path.write_text(json.dumps({**FULL, field: OUTSIDE[field]}))
+    assert cell_records.reusable_keys(tmp_path, specs_of([1]), "study", ("v", "n")) == set()
+    err = capsys.readouterr().err.strip().splitlines()
+    words = 'has status "done", not "ok"' if field == "status" else f"field {field} must be"
+    assert len(err) == 1 and err[0].startswith(f"study: cell c1: record {path} {words}"), err
+    assert err[0].endswith("; rerunning it")
+    # a cell that ran and broke the schema is counted as failed, not ok
+    counted = cell_records.checked_record({**FULL, field: OUTSIDE[field]}, ("v", "n"))
+    assert counted["status"] == "failed" or field == "status", counted
+    assert field == "status" or counted["error"].startswith(f"record field {field} must be")
+
+
+def test_a_cell_that_breaks_the_schema_is_written_as_failed() -> None:
+    """The writer's side: run_recorded records a cell whose body leaves a field outside CELL_RECORD as failed."""
+    record = cell_records.run_recorded({**FULL, "alpha": -1.0}, lambda: None)
+    assert record["status"] == "failed" and record["error"].startswith("record field alpha must be a finite number")
+    assert cell_records.run_recorded(dict(FULL), lambda: None)["status"] == "ok"
+
+
 def test_a_record_cut_by_a_kill_of_the_writer_is_removed_and_the_cell_rerun(tmp_path: Path) -> None:
     """SIGKILL of a study's main process while it writes a record leaves that record's temporary file (no process
     can catch SIGKILL); the next run removes it and reruns the cell. Other files are left alone."""
@@ -266,7 +311,8 @@ def test_a_fresh_record_with_a_bad_summary_counts_as_failed() -> None:
 def test_a_cell_counts_the_cpu_of_the_processes_it_ran() -> None:
     """A training's update worker and validations are child processes: their CPU time is the cell's too."""
     burn = "import time\nt = time.process_time()\nwhile time.process_time() - t < 0.4: pass"
-    record = cell_records.run_recorded({}, lambda: subprocess.run([sys.executable, "-c", burn], check=True))
+    record = cell_records.run_recorded({"key": "c1", "config": {}},
+                                       lambda: subprocess.run([sys.executable, "-c", burn], check=True))
     assert record["status"] == "ok" and record["cell_cpu_s"] >= 0.4
 
 

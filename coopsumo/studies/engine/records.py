@@ -17,7 +17,7 @@ from coopsumo.config import results_view
 from coopsumo.errors import UsageError
 from coopsumo.files import file_sha256, read_json_object, temporary_of
 from coopsumo.provenance import versions
-from coopsumo.record_schemas import RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS
+from coopsumo.record_schemas import CELL_RECORD, RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -83,7 +83,7 @@ def cpu_seconds() -> float:
 
 def run_recorded(record: dict[str, Any], body: Callable[[], None]) -> dict[str, Any]:
     """Run body (which fills record) and add status, error, wall and CPU time (s, cpu_seconds: with the cell's
-    children) and versions; never raises.
+    children) and versions; never raises. A record outside record_schemas.CELL_RECORD is "failed", naming the field.
 
     status "ok", "failed" (with the error's first line and a short traceback) or "interrupted"
     (KeyboardInterrupt, also raised for SIGTERM/SIGINT while training).
@@ -101,6 +101,8 @@ def run_recorded(record: dict[str, Any], body: Callable[[], None]) -> dict[str, 
     record["cell_wall_s"] = round(time.perf_counter() - start, 2)
     record["cell_cpu_s"] = round(cpu_seconds() - cpu_start, 2)
     record["versions"] = versions()
+    if record["status"] == "ok" and (problem := CELL_RECORD.problem(record)) is not None:
+        record.update(status="failed", error=f"record {problem}")  # never written as ok outside its schema
     return record
 
 
@@ -247,14 +249,20 @@ def pooled_problem(record: dict[str, Any]) -> str | None:
     return None
 
 
+def cell_problem(record: Any, required: Sequence[str]) -> str | None:
+    """Why a stored cell record cannot be trusted, or None: one of status ok whose summary record_problem accepts,
+    inside record_schemas.CELL_RECORD (its envelope: key, times, configuration, the coordinates the studies share)."""
+    return record_problem(record, required) or CELL_RECORD.problem(record)
+
+
 def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str, Any]:
-    """A record just run, as the study may count it: one of status ok that record_problem faults counts as failed."""
-    problem = record_problem(record, required) if record.get("status") == "ok" else None
+    """A record just run, as the study may count it: one of status ok that cell_problem faults counts as failed."""
+    problem = cell_problem(record, required) if record.get("status") == "ok" else None
     return {**record, "status": "failed", "error": f"record {problem}"} if problem else record
 
 
 def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> set[str]:
-    """The cells whose stored record can be reused: one record_problem accepts, made with the cell's
+    """The cells whose stored record can be reused: one cell_problem accepts, made with the cell's
     configuration and, for a cell that drives a model file, with that file as it is now (model_changed). Every
     other cell is rerun; a record that is neither failed nor interrupted and yet not accepted (unreadable, the wrong
     shape, a bad summary, another cell's copied in) gets one line on stderr saying why. A record's temporary file
@@ -273,7 +281,7 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
             continue
         if isinstance(record, dict) and record.get("status") in ("failed", "interrupted"):
             continue  # rerun without a word: the study counts these
-        problem = record_problem(record, required)
+        problem = cell_problem(record, required)
         if problem is None and results_view(record.get("config")) != results_view(spec["config"]):
             if record.get("key", spec["key"]) != spec["key"]:  # a record copied in from another cell
                 print(f"{prog}: cell {spec['key']}: record {path} is cell {str(record['key'])[:60]}'s (copied?); "

@@ -9,6 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import UsageError
+from coopsumo.record_schemas import CELL_RECORD
 from coopsumo.studies.learning.plan import learner_of, training_key
 
 
@@ -20,7 +21,8 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
     model (ROOT/train/<training_key>/model.pt, where the study trained it: a variant that differs only in its change
     margin drives its twin's training).
 
-    A record that cannot be read, or names a variant this version does not know, is skipped with one line on stderr;
+    A record that cannot be read, lies outside record_schemas.CELL_RECORD (naming the field) or names a variant this
+    version does not know, is skipped with one line on stderr;
     UsageError when root has no cells/ or the model of a finished training asked for is missing or is not that
     training's (model_problem: a model swapped in from another learner is never driven as this one)."""
     if not (root / "cells").is_dir():
@@ -32,6 +34,8 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
             rec = json.loads(cell.read_text())
             if not (isinstance(rec, dict) and rec.get("kind") == "train" and rec.get("status") == "ok"):
                 continue
+            if (problem := CELL_RECORD.problem(rec)) is not None:  # its envelope and coordinates (record_schemas)
+                raise UsageError(problem)
             variant, alpha, seed = str(rec["variant"]), float(rec["alpha"]), int(rec["seed"])
             learner, config = learner_of(variant), dict(rec["config"])
             steps = int(config["train"]["sim"]["steps"])

@@ -26,9 +26,10 @@ import pandas as pd
 
 from coopsumo.config import ControlConfig, OutputConfig, RoadConfig, to_dict
 from coopsumo.errors import UsageError
-from coopsumo.files import write_json
+from coopsumo.files import read_json_object, write_json
 from coopsumo.policy_spec import policy_file
 from coopsumo.provenance import versions
+from coopsumo.record_schemas import CELL_RECORD
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.engine.records import CellRecords, failed_exit
@@ -300,13 +301,13 @@ def _runs_table(plan: Plan, runs: list[Run]) -> pd.DataFrame:
 
 
 def _run_cpu(plan: Plan, runs: list[Run], root: Path) -> dict[float, list[float]]:
-    """Each demand's accident runs' CPU seconds, from their cell records."""
+    """Each demand's accident runs' CPU seconds, from their cell records (none from a run reused from before cell
+    records, or whose record lies outside record_schemas.CELL_RECORD)."""
     run_cpu: dict[float, list[float]] = {t: [] for t in plan.t_ups}
     for r in runs:
-        try:
-            run_cpu[r.t_up].append(float(json.loads((root / "cells" / f"{r.key}.json").read_text())["cell_cpu_s"]))
-        except (OSError, ValueError, KeyError, TypeError):
-            pass  # a run reused from before cell records: no CPU time recorded
+        record = read_json_object(root / "cells" / f"{r.key}.json")
+        if record is not None and CELL_RECORD.problem(record) is None and record.get("cell_cpu_s") is not None:
+            run_cpu[r.t_up].append(float(record["cell_cpu_s"]))
     return run_cpu
 
 
