@@ -20,9 +20,10 @@ back only: a checkpoint is the training's to save whatever it holds), a stored m
 its writer's TrainConfig is checked by config.py when built), a run's summary (RUN_SUMMARY) and detectors.xml
 intervals (DETECTOR_INTERVAL; SUMO writes the latter), a learner protocol study's study.json and stats.csv
 (PROTOCOL_STUDY, PROTOCOL_STATS), scenario II's sweep.json, runs.csv and evals.csv (SWEEP, SCENARIO2_RUNS,
-SCENARIO2_EVALS), a study's cell record (CELL_RECORD; its summary is RUN_SUMMARY's). Not yet: the other studies'
-plan files and tables (scenario I's plan.json and runs.csv, the learning study's), the studies' TOML data
-(field_rules' rules, read by catalogue.Entry).
+SCENARIO2_EVALS), a study's cell record (CELL_RECORD; its summary is RUN_SUMMARY's); scenario I's and the learning
+study's runs.csv and summary.csv are declared alike in the sibling module study_tables. Not yet: the other studies'
+plan files (scenario I's plan.json), the follow-ups' tables (regime_map's and accident_seeds' runs.csv), the studies'
+TOML data (field_rules' rules, read by catalogue.Entry).
 """
 
 from __future__ import annotations
@@ -240,6 +241,18 @@ class Table:
         """RecordError "PATH row 3 column iqm must be ..." when the table breaks the schema."""
         if (problem := self.problem(names, rows)) is not None:
             raise RecordError(f"{path} {problem}")
+
+    def read(self, path: Any) -> Any:
+        """The table in the CSV file `path` as a pandas DataFrame, every row inside the schema; RecordError naming the
+        file (and the row and column) when it cannot be read or breaks the schema."""
+        import pandas as pd
+
+        try:
+            frame = pd.read_csv(path)
+        except (OSError, UnicodeDecodeError, ValueError) as err:  # pandas' EmptyDataError and ParserError among them
+            raise RecordError(f"{path} cannot be read as a table ({type(err).__name__})") from None
+        self.check([str(c) for c in frame.columns], frame.to_dict("records"), path)
+        return frame
 
     def frame_problem(self, frame: Any) -> str | None:
         """problem() of a pandas DataFrame (duck-typed: pandas is not imported here); None for one without rows (a

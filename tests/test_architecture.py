@@ -15,10 +15,10 @@ import coopsumo
 
 PACKAGE_DIR = Path(coopsumo.__file__).parent
 # what each layer may import from the others (the top-level modules config, dqn_config, paths, runio, validation,
-# record_schemas and the rest of SHARED are shared by all)
+# record_schemas, study_tables and the rest of SHARED are shared by all)
 SHARED = {"coopsumo", "coopsumo.config", "coopsumo.dqn_config", "coopsumo.paths", "coopsumo.policy_spec",
           "coopsumo.runio", "coopsumo.validation", "coopsumo.errors", "coopsumo.provenance", "coopsumo.files",
-          "coopsumo.run_dirs", "coopsumo.record_schemas", "coopsumo.field_rules"}
+          "coopsumo.run_dirs", "coopsumo.record_schemas", "coopsumo.study_tables", "coopsumo.field_rules"}
 GROUND = {"coopsumo.errors", "coopsumo.provenance", "coopsumo.files", "coopsumo.paths"}
 """the ground floor: errors, provenance, files and output paths, which import nothing else of coopsumo"""
 ALLOWED = {

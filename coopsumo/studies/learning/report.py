@@ -25,6 +25,7 @@ from coopsumo.studies.learning.plan import (
     learner_of,
     train_steps,
 )
+from coopsumo.study_tables import LEARNING_RUNS, LEARNING_SUMMARY
 
 
 def per_alpha_twin(variant: str, candidates: tuple[str, ...]) -> str | None:
@@ -292,7 +293,7 @@ def target_lines(runs: pd.DataFrame, default_variant: str) -> list[str]:
 
 def write_outputs(root: Path, profile: Profile, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
     runs = runs_table(records)
-    runs.to_csv(root / "runs.csv", index=False)
+    LEARNING_RUNS.check_frame(runs, root / "runs.csv")  # inside study_tables' limits (a failed cell's numbers: blank)
     abl = summarise(runs[runs["part"] == "ablation"], ["variant"])
     order = {n: i for i, n in enumerate(VARIANT_NAMES)}
     abl = abl.sort_values("variant", key=lambda s: s.map(order)).reset_index(drop=True)
@@ -302,9 +303,10 @@ def write_outputs(root: Path, profile: Profile, records: list[dict[str, Any]], m
     alpha_tab = summarise(runs[in_alpha].drop_duplicates("key"), ["variant", "alpha"])
     alpha_tab = alpha_tab.sort_values(["variant", "alpha"], kind="stable").reset_index(drop=True)
     base = summarise(runs[runs["part"] == "baseline"], ["variant"])
-    pd.concat([abl.assign(part="ablation"), alpha_tab.assign(part="alpha"), base.assign(part="baseline")]).to_csv(
-        root / "summary.csv", index=False
-    )
+    summary = pd.concat([abl.assign(part="ablation"), alpha_tab.assign(part="alpha"), base.assign(part="baseline")])
+    LEARNING_SUMMARY.check_frame(summary, root / "summary.csv")  # both inside their limits before either is written
+    runs.to_csv(root / "runs.csv", index=False)
+    summary.to_csv(root / "summary.csv", index=False)
     training_curves_figure(root, runs, root / "fig_training_curves.png")
     robustness.training_seeds_figure(root, runs, list(profile.variants), root / "fig_training_seeds.png")
     if len(alpha_tab):

@@ -33,6 +33,7 @@ from coopsumo.studies.scenario1.measures import (
 )
 from coopsumo.studies.scenario1.plan import Plan, Run, label_for, model_label, study_out
 from coopsumo.studies.scenario1.text import DEFINITIONS, deviations_text, training_text
+from coopsumo.study_tables import SCENARIO1_RUNS
 from coopsumo.validation import number_name
 
 FIG4_LANE = 0  # the paper's "lane 1" taken as the rightmost lane, SUMO index 0
@@ -394,7 +395,7 @@ def _claim(root: Path, plan: Plan, rows: pd.DataFrame, pairs: list[tuple[str, st
     beside = default_study(root, plan)
     if beside is not None:
         claim += ("\n\n### Claim (a) side by side with the default learner\n\n"
-                  + side_by_side(rows, plan, pd.read_csv(beside / "runs.csv"), f"results/{beside.name}"))
+                  + side_by_side(rows, plan, SCENARIO1_RUNS.read(beside / "runs.csv"), f"results/{beside.name}"))
     return claim
 
 

@@ -35,7 +35,7 @@ from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, sto
 from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import profile_study, recorded_profile, reusable_run, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
-from coopsumo.studies.scenario1.measures import run_metrics
+from coopsumo.studies.scenario1.measures import aggregate, run_metrics
 from coopsumo.studies.scenario1.plan import (
     TRAIN_SEEDS,
     Plan,
@@ -49,8 +49,9 @@ from coopsumo.studies.scenario1.plan import (
     study_out,
     train_config,
 )
-from coopsumo.studies.scenario1.report import counted, write_outputs
+from coopsumo.studies.scenario1.report import counted, default_study, write_outputs
 from coopsumo.studies.scenario1.text import timing_text
+from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
 from coopsumo.validation import (
     MAX_STEPS,
     MOBIL_LIMITS,
@@ -317,6 +318,8 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
         root.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise UsageError(f"cannot write {root}: {err.strerror}") from None
+    if (beside := default_study(root, plan)) is not None:  # the report reads its runs.csv: refused now, not at the end
+        SCENARIO1_RUNS.read(beside / "runs.csv")
     settings = {preset: to_dict(learners()[preset]) for preset in plan.presets}  # the report's learner settings
     write_json(root / "plan.json", {"plan": to_dict(plan), "learners": settings, "versions": versions()})
     specs, models, runs, n_train = _cells(plan, root)
@@ -338,6 +341,8 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
                       ["status"] != "ok"]  # fmt: skip
             return failed_exit("scenario1", failed, len(specs), root)
     rows = _runs_table(plan, runs)
+    SCENARIO1_RUNS.check_frame(rows, root / "runs.csv")  # both tables inside their limits before either is written
+    SCENARIO1_SUMMARY.check_frame(aggregate(rows), root / "summary.csv")
     rows.to_csv(root / "runs.csv", index=False)
     wall = time.perf_counter() - start
     timing = timing_text(plan, runs, [path for path, _ in models.values()], n_train, len(specs), wall,
