@@ -1,8 +1,9 @@
 """Issue 82 items 1 and 6: record_schemas' limits, each field of each record kind outside them refused in one line
 naming the file and the field. Here the schemas themselves and a training checkpoint (resumed by `train --resume`);
 a run's detectors.xml in test_run_checks.py, `coopsumo history`'s study.json and stats.csv in test_history.py, a
-stored model's config.json in test_models_command.py, a study's cell record in test_runner.py (accident-seeds' reading of a
-learning study's in test_record_checks.py), scenario I's and the learning study's tables in test_study_tables.py."""
+stored model's config.json in test_models_command.py, a study's cell record in test_runner.py (accident-seeds'
+reading of a learning study's in test_record_checks.py), scenario I's and the learning study's tables in
+test_study_tables.py."""
 
 from __future__ import annotations
 
