@@ -121,7 +121,7 @@ def answered(folder: Path) -> bool:
 def finalists(out: Path, cfg: TrainConfig) -> list[int]:
     """The steps of the snapshots that run every validation run after screening: the validation_finalists best
     screened (ties to the earlier), by step."""
-    screened = [r for d in (out / SNAPSHOTS).glob("step*") if (r := result(d, SCREEN)) is not None]
+    screened = [r for d in snapshot_folders(out) if (r := result(d, SCREEN)) is not None]
     return sorted(r["step"] for r in by_score(screened)[:cfg.dqn.validation_finalists])
 
 
@@ -146,9 +146,8 @@ def failure(folder: Path, proc: subprocess.Popen[bytes]) -> RuntimeError:
 
 def pending(out: Path) -> list[Path]:
     """Snapshot folders with a request and a model but no result for it (a resume validates them again)."""
-    return sorted((d for d in (out / SNAPSHOTS).glob("step*")
-                   if (d / REQUEST).exists() and (d / "model.pt").exists() and not answered(d)),
-                  key=lambda d: int(d.name[4:]))  # fmt: skip
+    return [d for d in snapshot_folders(out)
+            if (d / REQUEST).exists() and (d / "model.pt").exists() and not answered(d)]
 
 
 def install_best(out: Path) -> dict[str, Any] | None:
@@ -181,7 +180,7 @@ def last_result(folder: Path) -> tuple[dict[str, Any] | None, str]:
 
 def last_score(out: Path) -> float:
     """The validation score of a training's last snapshot, on every run, or on the screening runs when it was not
-    a finalist (the training's summary says which: last_stage)."""
+    a finalist (validation.csv's stage column says which)."""
     return float(last_result(snapshot_folders(out)[-1])[0]["score"])  # type: ignore[index]
 
 
@@ -250,7 +249,7 @@ def reselect(src: Path, out: Path, cfg: TrainConfig) -> dict[str, Any]:
             shutil.copyfile(src / name, out / name)
     net, _ = load_model(src / LAST_MODEL)
     save_model(out / LAST_MODEL, net, meta)
-    steps = sorted(int(d.name[4:]) for d in (src / SNAPSHOTS).glob("step*") if d.name[4:].isdigit())
+    steps = [int(d.name[4:]) for d in snapshot_folders(src)]
     validator = Validator(out, cfg, max(steps, default=0))
     try:
         for step in steps:
@@ -467,7 +466,6 @@ class Validator:
         if screening(self.cfg):
             self.queue = [request(self.out, self.cfg, step) for step in finalists(self.out, self.cfg)
                           if result(snapshot_dir(self.out, step)) is None]  # fmt: skip
-            self.poll()
             self._drain()
         if self.proc is not None:
             assert self.proc.stdin is not None
