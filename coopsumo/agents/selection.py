@@ -184,8 +184,13 @@ def last_score(out: Path) -> float:
     return float(last_result(snapshot_folders(out)[-1])[0]["score"])  # type: ignore[index]
 
 
+SCREEN_COLUMNS = ("score", "mean_speed_mps", "lane_changes_per_vehicle", "share_none")
+"""a two-stage selection's screening measures in validation.csv (screen_<name>), for every snapshot"""
+
+
 def write_table(out: Path) -> None:
-    """OUT/validation.csv: one row per validated snapshot (score, per-demand measures, diagnosis), `best` marked."""
+    """OUT/validation.csv: one row per validated snapshot (score, per-demand measures, diagnosis), `best` marked;
+    after a selection in two stages, each row's stage and its screening measures (SCREEN_COLUMNS)."""
     import pandas as pd
 
     chosen = best(results(out))
@@ -196,8 +201,10 @@ def write_table(out: Path) -> None:
     flat = []
     for r, stage in rows:
         row = {"step": r["step"], "score": r["score"], "best": chosen is not None and r["step"] == chosen["step"]}
-        if staged:
+        if staged:  # every snapshot's screening measures too: the same runs for all, comparable along the training
+            screened = result(snapshot_dir(out, r["step"]), SCREEN) or {}
             row["stage"] = stage
+            row.update({f"screen_{k}": screened.get(k) for k in SCREEN_COLUMNS})
         row.update({k: v for k, v in r.items() if k not in ("step", "score", "runs")})
         several = len({run.get("alpha") for run in r["runs"]}) > 1  # validated at several alphas
         for run in r["runs"]:

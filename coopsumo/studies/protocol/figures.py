@@ -12,6 +12,10 @@ VALIDATION_CAPTION = ("One line per training at alpha 0 (a colour per training s
                       "(left), the share of 'none' among their greedy decisions (middle) and their lane changes per "
                       "vehicle (right); model.pt holds the snapshot of the table's chosen step.")
 """fig_validation.png's caption in the report, under the figure"""
+TWO_STAGE_NOTE = ("A learner whose model selection has two stages (`validation_screen`) is drawn on its screening "
+                  "runs (the densest validation demand), which every snapshot ran; its diagnosis's `last` is on them "
+                  "too when the last snapshot was not a finalist.")
+"""added to the caption when a training of the study selected in two stages"""
 
 
 def validation_curves_figure(root: Path, keys: list[str], out_path: Path,
@@ -33,9 +37,10 @@ def validation_curves_figure(root: Path, keys: list[str], out_path: Path,
         style = {"color": f"C{seeds.index(seed) % 10}", "linestyle": ("-", "--", ":", "-.")[n % 4], "marker": "o",
                  "ms": 3, "lw": 1}  # fmt: skip
         label = seed if len(learners) == 1 else f"{seed}, {(names or {}).get(key, f'learner {n + 1}')}"
-        axes[0].plot(val["step"], val["mean_speed_mps"], label=label, **style)
-        axes[1].plot(val["step"], val["share_none"], **style)
-        axes[2].plot(val["step"], val["lane_changes_per_vehicle"], **style)
+        tag = "screen_" if "screen_mean_speed_mps" in val else ""  # two stages: the runs every snapshot made
+        axes[0].plot(val["step"], val[f"{tag}mean_speed_mps"], label=label, **style)
+        axes[1].plot(val["step"], val[f"{tag}share_none"], **style)
+        axes[2].plot(val["step"], val[f"{tag}lane_changes_per_vehicle"], **style)
     for ax, label in zip(axes, ("validation mean speed (m/s)", "share of 'none' in greedy decisions",
                                 "lane changes per vehicle"), strict=True):  # fmt: skip
         ax.set_xlabel("training step")

@@ -20,7 +20,7 @@ import pandas as pd
 from coopsumo.record_schemas import PROTOCOL_STATS
 from coopsumo.sim import passing
 from coopsumo.studies.engine import stats
-from coopsumo.studies.protocol.figures import VALIDATION_CAPTION, validation_curves_figure
+from coopsumo.studies.protocol.figures import TWO_STAGE_NOTE, VALIDATION_CAPTION, validation_curves_figure
 from coopsumo.studies.protocol.plan import BASELINES, DRIVES, EVAL_SEED
 from coopsumo.studies.protocol.thrashing import thrashing_lines
 
@@ -247,6 +247,8 @@ def diagnosis_table(root: Path, runs: pd.DataFrame) -> pd.DataFrame:
         last = val.iloc[-1]
         row = {"seed": int(r["seed"]), "selected_step": int(best["step"]), "best_score": best["score"],
                "last_score": last["score"]}
+        if "stage" in val:  # a selection in two stages (a column only then: the other studies' tables stay as made)
+            row["screened"] = True
         for tag, src in (("best", best), ("last", last)):
             for col in ("mean_speed_mps", "lane_changes_per_vehicle", "share_speedup", "share_none", "share_left",
                         "share_right", "q_gap_median", "near_tie_share"):
@@ -385,6 +387,8 @@ def _diagnosis_lines(profile: Any, diag: pd.DataFrame) -> list[str]:
                          f"{d['best_q_gap_median']:.2f} / {d['last_q_gap_median']:.2f} | "
                          f"{d['best_near_tie_share']:.2f} / {d['last_near_tie_share']:.2f} |")  # fmt: skip
         lines += ["", "![validation over training](fig_validation.png)", "", VALIDATION_CAPTION, ""]
+        if "screened" in diag and diag["screened"].eq(True).any():
+            lines += [TWO_STAGE_NOTE, ""]
     return lines
 
 
