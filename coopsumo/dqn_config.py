@@ -177,7 +177,7 @@ class DQNConfig:
              "the score their mean (empty: the training's alpha alone)")
     """model selection of an alpha-conditioned training: every validation run is driven at each of these alphas and
     the score is the mean over all; empty: at the training's own alpha (0 in the studies) alone"""
-    validation_screen: int = setting(0, "--validation-screen", limits=(0, 10), before=0,
+    validation_screen: int = setting(1, "--validation-screen", limits=(0, 10), before=0,
         help="model selection in two stages: every snapshot is first judged on the runs (free flow, and the "
              "accident when on) of the last N demands of --validation-t-up, the densest as listed; the "
              "--validation-finalists best then on every run (0, or N not fewer than the demands: every snapshot on "
@@ -208,7 +208,7 @@ class DQNConfig:
     the online network's, updated after every gradient update with this decay: average = d * average + (1 - d) *
     online (0: off, the online weights themselves, the paper's). Training itself is unchanged: the vehicles act
     and learn with the online network, so the same seed trains the same online weights with or without it"""
-    stacked_updates: bool = setting(False, "--stacked-updates", before=False,
+    stacked_updates: bool = setting(True, "--stacked-updates", before=False,
         help="the gradient updates by the stacked learner (agents/stacked.py), in an update process that serves a "
              "group of trainings at once (a lone training is a group of one): cheaper per model; other last bits")
     """the gradient updates by the stacked learner (issue 77; agents/stacked.py): the same loss, targets, clipping and
@@ -295,13 +295,15 @@ PAPER_DQN = DQNConfig(
     lr=0.01, optimizer="sgd", gamma=0.9, replay_size=2000, batch_size=64, learn_every=4, updates_per_learn=1,
     epsilon_start=0.1, epsilon_end=0.1, epsilon_decay_steps=0, restart_below_mps=0.0, change_margin=0.0,
     observation="paper", select_every_steps=0, validation_accident_steps=0, train_t_ups=(), accident_share=0.0,
-    followers_weight=0.0, queue_below_mps=0.0, target_sync_steps=500, no_return_s=0.0,
+    followers_weight=0.0, queue_below_mps=0.0, target_sync_steps=500, no_return_s=0.0, stacked_updates=False,
+    validation_screen=0,
 )  # fmt: skip
 """The paper-literal learner: a decision every 0.1 s step, no mask, SGD 0.01, gamma 0.9, replay 2,000,
 constant epsilon 0.1 (batch 64, one update every 4 steps: the paper is silent, as before)"""
 
 ALPHA_ONLY_DQN = DQNConfig(preset="alpha_only", followers_weight=0.0, queue_below_mps=0.0, no_return_s=0.0,
-                           change_margin=0.0, accident_share=0.0, validation_accident_steps=0)
+                           change_margin=0.0, accident_share=0.0, validation_accident_steps=0,
+                           stacked_updates=False, validation_screen=0)
 """Claim (a) as the paper poses it: the default's machinery with alpha its only cooperative mechanism (no followers'
 term, queue rule, change-back rule or change margin), trained and chosen in free flow at scenario I's demands"""
 

@@ -8,6 +8,7 @@ libsumo allows one SUMO per process: in-process SUMO tests open one World at a t
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -302,3 +303,17 @@ def interrupted_at_step_20(cfg: Any, out: Path) -> Path:
     trainer.save_checkpoint = save_and_keep_step_20  # type: ignore[method-assign]
     trainer.run()
     return out / "step20.pt"
+
+
+MADE_BY = "## Reports made by an earlier default learner"
+"""results/README.md's table: | `folder/` | `variant` | commit | ... |, one row per report its learner made"""
+
+
+def made_by(readme: Path = REPO / "results" / "README.md") -> dict[str, tuple[str, str]]:
+    """results/README.md's reports made by an earlier default learner: folder name -> (variant, commit)."""
+    text = readme.read_text()
+    if MADE_BY not in text:
+        return {}
+    rows = text.split(MADE_BY, 1)[1].split("\n## ", 1)[0]
+    found = re.findall(r"^\| `([\w/]+?)/?` \| `(\w+)` \| `?([0-9a-f]{7,40})`? \|", rows, flags=re.MULTILINE)
+    return {folder: (variant, commit) for folder, variant, commit in found}

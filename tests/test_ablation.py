@@ -32,7 +32,8 @@ def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
     assert VARIANTS[0][0] == "paper" and learner_of("paper") == PAPER_DQN
     fields = DQNConfig.__dataclass_fields__
     chain = VARIANTS[:CHAIN_LENGTH]
-    pairs = list(zip(chain, chain[1:], strict=False)) + [(chain[-1], extra) for extra in VARIANTS[CHAIN_LENGTH:]]
+    branch_base = next(v for v in chain if v[0] == "noreturn")  # the branches were made off the chain's end then
+    pairs = list(zip(chain, chain[1:], strict=False)) + [(branch_base, extra) for extra in VARIANTS[CHAIN_LENGTH:]]
     for (_, _, before), (name, _, after) in pairs:
         changed = [f for f in fields if f != "preset" and getattr(before, f) != getattr(after, f)]
         assert 1 <= len(changed) <= 3, (name, changed)  # one idea (e.g. replay size + its update rate)
@@ -40,7 +41,8 @@ def test_variants_add_one_change_at_a_time_from_paper_to_default() -> None:
     from coopsumo.studies.protocol.plan import variants
 
     protocol = variants()
-    assert protocol["nr10"].learner == DQNConfig() == learner_of("noreturn")
+    assert protocol["nr10"].learner == learner_of("noreturn") and chain[-1][0] == "stacked"
+    assert protocol["stks"].learner == DQNConfig() == learner_of("stacked")
     assert protocol["f05q_ts2k"].learner == learner_of("target")
     assert learner_of("select") == protocol["select"].learner
 
@@ -224,9 +226,9 @@ def test_a_longer_variant_trains_its_own_model_for_its_steps() -> None:
         short = replace(profile, train_steps=300, variants=("target", "margin2"), alpha_variants=())
         keys = {s["variant"]: s["train_key"] for s in cell_specs(short, DQNConfig())
                 if s["kind"] == "train" and s["seed"] == 0 and s["alpha"] == 0}
-    # the default's alpha response (noreturn) selects nothing in 300 steps: it drives target's training
+    # the default's alpha response (stacked: its updates differ from target's) trains a model of its own
     assert keys == {"target": "target_alpha0_seed0", "margin2": "margin2_alpha0_seed0",
-                    "noreturn": "target_alpha0_seed0"}
+                    "stacked": "stacked_alpha0_seed0"}
 
 
 def test_a_margin_variant_drives_its_twins_training() -> None:

@@ -132,7 +132,7 @@ def test_a_report_of_several_presets_says_how_each_was_trained() -> None:
 def test_scenario1_trains_the_learner_protocols_alpha_only_dense_as_the_protocol_did() -> None:
     """Issue 78, step 3: `scenario1 --preset alpha_only_dense` trains the protocol's variant (learners.toml), so the
     pilot's models are the protocol's (one store folder for both); a variant that drives otherwise, or a preset under
-    another name (`nr10` is `default`), is not a scenario I learner."""
+    another name (`stks` is `default`), is not a scenario I learner."""
     from dataclasses import replace
 
     from coopsumo.config import to_dict
@@ -145,7 +145,7 @@ def test_scenario1_trains_the_learner_protocols_alpha_only_dense_as_the_protocol
 
     known = learners()
     assert known["alpha_only_dense"] == variants()["alpha_only_dense"].learner
-    assert "nr10" not in known and "alpha_only" in known
+    assert "stks" not in known and "alpha_only" in known and "nr10" in known  # nr10: the default before
     profile = load_profiles(variants())[0]["alpha_only_dense"]
     mine = train_config(Plan(), 0.0, "alpha_only_dense", 104)
     theirs = protocol_train(profile, variants()["alpha_only_dense"].learner, 0.0, 104)

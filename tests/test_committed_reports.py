@@ -16,7 +16,7 @@ from typing import Any
 from unittest import mock
 
 import pytest
-from conftest import REL_TOLERANCE, committed_report_pages, text_difference
+from conftest import MADE_BY, REL_TOLERANCE, committed_report_pages, made_by, text_difference
 
 from coopsumo.config import results_view, to_dict
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
@@ -42,20 +42,6 @@ def committed_reports() -> list[Path]:
 def _same(recorded: Any, current: Any, what: str) -> None:
     where = first_difference(recorded, current)
     assert where is None, f"{what}: the committed report's learner differs from today's ({where}); remake it"
-
-
-MADE_BY = "## Reports made by an earlier default learner"
-"""results/README.md's table: | `folder/` | `variant` | commit | ... |, one row per report its learner made"""
-
-
-def made_by(readme: Path = ROOT / "results" / "README.md") -> dict[str, tuple[str, str]]:
-    """results/README.md's reports made by an earlier default learner: folder name -> (variant, commit)."""
-    text = readme.read_text()
-    if MADE_BY not in text:
-        return {}
-    rows = text.split(MADE_BY, 1)[1].split("\n## ", 1)[0]
-    found = re.findall(r"^\| `([\w/]+?)/?` \| `(\w+)` \| `?([0-9a-f]{7,40})`? \|", rows, flags=re.MULTILINE)
-    return {folder: (variant, commit) for folder, variant, commit in found}
 
 
 def _learner_check(folder: Path, marks: dict[str, tuple[str, str]] | None = None) -> None:
@@ -158,10 +144,10 @@ def test_a_redrawn_record_may_differ_only_in_its_numbers_last_bits() -> None:
     assert text_difference("1.0", f"{1 + REL_TOLERANCE / 2}") is None
 
 
-def test_the_default_learner_is_the_protocols_nr10_and_scenario_ones() -> None:
-    """The headline learner report judges today's default."""
-    assert (ROOT / "results" / "learner_protocol_nr10" / "report.md").is_file()
-    assert results_view(to_dict(variants()["nr10"].learner)) == results_view(to_dict(DQNConfig()))
+def test_the_default_learner_is_the_protocols_stks_and_scenario_ones() -> None:
+    """The learner report that adopted today's default judges it."""
+    assert (ROOT / "results" / "learner_protocol_stks" / "report.md").is_file()
+    assert results_view(to_dict(variants()["stks"].learner)) == results_view(to_dict(DQNConfig()))
     assert results_view(to_dict(DQN_PRESETS["default"])) == results_view(to_dict(DQNConfig()))
 
 
@@ -178,7 +164,7 @@ def test_the_check_fires_on_a_changed_learner(tmp_path: Path) -> None:
     # a report made by an earlier default (here u1's learner, as if it had been the default): caught unless marked
     plan["learners"]["default"] = to_dict(variants()["u1"].learner)
     (folder / "plan.json").write_text(json.dumps(plan))
-    with pytest.raises(AssertionError, match=r"updates_per_learn"):
+    with pytest.raises(AssertionError, match=r"differs from today's"):
         _learner_check(folder)
     readme = tmp_path / "README.md"
     readme.write_text(f"# results\n\n{MADE_BY}\n\n| report | learner | commit |\n|---|---|---|\n"

@@ -94,7 +94,7 @@ def test_the_wheel_installs_and_runs_outside_the_repository(tmp_path: Path) -> N
     assert res.returncode == 0, res.stderr[-2000:]
     out = check_installed(target, tmp_path)
     res = run_installed(target, ["protocol", "--help"], tmp_path / "elsewhere", installed_env(target))
-    assert res.returncode == 0 and "nr10 (the default)" in " ".join(res.stdout.split()), res.stderr[-2000:]
+    assert res.returncode == 0 and "stks (the default)" in " ".join(res.stdout.split()), res.stderr[-2000:]
     print(f"wheel {wheel.name} ({wheel.stat().st_size / 1024:.0f} KiB, {len(names)} files) installed into a fresh "
           f"target; coopsumo simulate from outside the repository: {out.strip()}")  # fmt: skip
 

@@ -307,16 +307,18 @@ def test_fresh_evaluation_seeds_drive_the_same_trainings() -> None:
     assert not seeds & set(PROFILES["nr10"].seeds) and min(seeds) < VALIDATION_SEED
 
 
-def test_the_current_profile_judges_the_default_and_measures_its_alpha_response() -> None:
-    """nr10 judges today's default (no judged variant named: the first), alpha 8 on 3 of its seeds in free flow."""
+def test_the_current_profile_judges_the_default_and_nr10_measured_its_alpha_response() -> None:
+    """stks judges today's default (the profile that adopted it); nr10's profile, the default's before, measured
+    alpha 8 on 3 of its seeds in free flow."""
     from coopsumo.dqn_config import DQNConfig
     from coopsumo.studies.protocol.plan import CURRENT, PROFILES, cell_specs, variants
 
     profile = PROFILES[CURRENT]
-    assert CURRENT == "nr10" and profile.judged_variant() == "nr10" and variants()["nr10"].learner == DQNConfig()
-    alpha8 = [s for s in cell_specs(profile) if s.get("alpha") == 8.0]
+    assert CURRENT == "stks" and profile.judged_variant() == "stks" and variants()["stks"].learner == DQNConfig()
+    before = PROFILES["nr10"]
+    alpha8 = [s for s in cell_specs(before) if s.get("alpha") == 8.0]
     assert alpha8 and {s["variant"] for s in alpha8} == {"nr10"}
-    assert {s["scenario"] for s in alpha8} == {"free"} and len({s["train_key"] for s in alpha8}) == profile.alpha_seeds
+    assert {s["scenario"] for s in alpha8} == {"free"} and len({s["train_key"] for s in alpha8}) == before.alpha_seeds
 
 
 def test_a_committed_studys_trainings_pair_only_when_made_the_same_way(tmp_path: Path) -> None:

@@ -122,22 +122,24 @@ def test_the_current_profile_must_be_one_of_the_file(tmp_path: Path) -> None:
 
 def test_the_packaged_catalogue_holds_the_current_profiles_and_what_they_pair_with() -> None:
     """Inside the package (an installed wheel reads it too); every profile's variants and pairs are in it, nr10 is
-    the one default and the default preset, c2x is the learning study's conditioned8v on it."""
+    the one default and the default preset, nr10 (the default before it) that learner with torch's updates and a
+    one-stage selection, c2x is the learning study's conditioned8v on it."""
     from dataclasses import replace
 
     from coopsumo.agents.conditioning import CONDITIONED8V
 
     assert protocol_plan.LEARNERS_FILE.parent == Path(protocol_plan.__file__).parents[2] / "experiments_data"
     known = protocol_plan.variants()
-    assert {"nr10_3sets", "alpha_only", "tiny"} <= set(protocol_plan.PROFILES) and protocol_plan.CURRENT == "nr10"
+    assert {"nr10_3sets", "alpha_only", "tiny"} <= set(protocol_plan.PROFILES) and protocol_plan.CURRENT == "stks"
     assert ("nr10", "learner_protocol_f05q_ts2k10", "f05q_ts2k") in protocol_plan.PROFILES["nr10"].paired_with
-    assert known["nr10"].learner == DQN_PRESETS["default"]
+    assert known["stks"].learner == DQN_PRESETS["default"]
+    assert known["nr10"].learner == replace(DQN_PRESETS["default"], stacked_updates=False, validation_screen=0)
     assert known["alpha_only"].learner == DQN_PRESETS["alpha_only"]
     dense = replace(DQN_PRESETS["alpha_only"], train_t_ups=(2.67, 2.0, 1.5, 1.33, 1.0, 0.89, 0.67),
                     validation_t_ups=(2.0, 1.0, 0.67))  # fmt: skip
     assert known["alpha_only_dense"].learner == dense and dense.accident_share == dense.validation_accident_steps == 0
     assert protocol_plan.PROFILES["alpha_only_dense"].variants == ("alpha_only", "alpha_only_dense")
-    assert known["c2x"].learner == replace(DQN_PRESETS["default"], **CONDITIONED8V)
+    assert known["c2x"].learner == replace(known["nr10"].learner, **CONDITIONED8V)  # made on nr10
     assert known["f05q_ts2k"].learner == replace(known["nr10"].learner, no_return_s=0.0)
     assert known["margin"].learner == known["select"].learner and known["margin"].weights == "model_last.pt"
 

@@ -21,6 +21,7 @@ from conftest import InlineBackend
 
 from coopsumo.config import PAPER_ALPHAS
 from coopsumo.studies.engine import cells as engine_cells
+from coopsumo.studies.engine import groups as engine_groups
 from coopsumo.studies.engine import records, runner, trainings
 from coopsumo.studies.scenario2 import measures as stats
 from coopsumo.studies.scenario2 import plan as s2_plan
@@ -448,8 +449,8 @@ def kill_group(proc: subprocess.Popen[str], sig: int) -> None:
     proc.communicate(timeout=60)
 
 
-def start_sweep(out: Path) -> subprocess.Popen[str]:
-    return subprocess.Popen(sweep_cmd(out, "--workers", "2"), cwd=REPO, start_new_session=True, text=True,
+def start_sweep(out: Path, *extra: str) -> subprocess.Popen[str]:
+    return subprocess.Popen(sweep_cmd(out, "--workers", "2", *extra), cwd=REPO, start_new_session=True, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
 
 
@@ -479,14 +480,28 @@ def assert_records_trustworthy(out: Path, main_killed: bool = False) -> int:
     return len(paths)
 
 
+@pytest.fixture(scope="module")
+def lone_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The tiny sweep of a learner that trains inside its cells, one training each (the paper preset: no stacked
+    updates, so no groups before the cells)."""
+    out = tmp_path_factory.mktemp("s2lone") / "lone"
+    run_sweep_cli(out, "--workers", "2", *LONE)
+    return out
+
+
+LONE = ("--preset", "paper")
+"""a learner whose cells train their own models (stacked_updates off): interrupts land while cells train"""
+
+
 @pytest.mark.sumo
-def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_sweep: Path, tmp_path: Path) -> None:
+def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_sweep: Path, tmp_path: Path) -> None:
     """Issue 25: Ctrl-C (SIGINT to the process group) while cells run, SIGKILL of the main process alone (its workers
     notice and exit), SIGTERM to the process group, SIGKILL while the report is being written; the last rerun equals
-    the uninterrupted sweep, and the cells done before it are neither recomputed nor rewritten."""
+    the uninterrupted sweep, and the cells done before it are neither recomputed nor rewritten. On a learner whose
+    cells train (the default's trainings run as groups before its cells: the test below)."""
     out = tmp_path / "cut"
     # 1. Ctrl-C once a cell is done: the trainings save their checkpoints, the sweep exits 130 in one line
-    proc = start_sweep(out)
+    proc = start_sweep(out, *LONE)
     wait_for_cells(out, 1, proc)
     time.sleep(0.3)
     kill_group(proc, signal.SIGINT)
@@ -495,14 +510,14 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_
     done = assert_records_trustworthy(out)
     assert 1 <= done < 8
     # 2. SIGKILL of the main process alone, once one more cell is done
-    proc = start_sweep(out)
+    proc = start_sweep(out, *LONE)
     wait_for_cells(out, done + 1, proc)
     proc.kill()
     proc.communicate(timeout=60)
     wait_group_gone(proc.pid)
     done = assert_records_trustworthy(out, main_killed=True)
     # 3. SIGTERM to the whole process group once one more cell is done
-    proc = start_sweep(out)
+    proc = start_sweep(out, *LONE)
     wait_for_cells(out, done + 1, proc)
     kill_group(proc, signal.SIGTERM)
     wait_group_gone(proc.pid)
@@ -510,7 +525,7 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_
     done = assert_records_trustworthy(out)
     # 4. SIGKILL while the report is written (runs.csv comes first, then the figures and report.md); not Ctrl-C,
     # which CPython may drop when it lands in a garbage collector's callback (test_faults_scenario1.py)
-    proc = start_sweep(out)
+    proc = start_sweep(out, *LONE)
     end = time.monotonic() + 300
     while not (out / "runs.csv").exists():
         assert proc.poll() is None and time.monotonic() < end, "the sweep ended before its report"
@@ -522,15 +537,45 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(local_
     # 5. the rerun reuses every cell, neither recomputed nor rewritten, and equals the uninterrupted sweep; nothing
     # partial is left anywhere
     cells = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
-    result = run_sweep_cli(out, "--workers", "2")
+    result = run_sweep_cli(out, "--workers", "2", *LONE)
     assert "8 already done" in result.stderr and "0 to run" in result.stderr
     assert {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")} == cells
+    runs = assert_outputs(out)
+    pd.testing.assert_frame_equal(runs[COMPARED], pd.read_csv(lone_sweep / "runs.csv")[COMPARED])
+    assert (out / "alpha_star.csv").read_text() == (lone_sweep / "alpha_star.csv").read_text()
+    left = [p for p in tmp_path.rglob("*") if p.name.endswith((".tmp", ".lock")) or ".partial-" in p.name]
+    assert left == [] and not list(out.rglob("checkpoint.pt"))
+    assert all(trainings.model_folder_problem(out / "train" / key) is None for key in runs["key"])
+
+
+@pytest.mark.sumo
+def test_a_sweep_interrupted_while_its_trainings_group_ends_as_the_uninterrupted_one(local_sweep: Path,
+                                                                                     tmp_path: Path) -> None:
+    """The default learner's trainings run as groups before the cells (engine/groups.py): Ctrl-C while the first
+    group trains exits 130 with no half-written record; SIGKILL of the main process alone in the rerun's trainings
+    leaves no process behind; the last rerun equals the uninterrupted sweep and leaves no partial file."""
+    out = tmp_path / "cut"
+    store = tmp_path / "models"
+    for sig, whole_group in ((signal.SIGINT, True), (signal.SIGKILL, False)):
+        proc = start_sweep(out)
+        end = time.monotonic() + 300
+        while not (store.is_dir() and any(p.is_dir() for p in store.iterdir())):  # a group has begun
+            assert proc.poll() is None and time.monotonic() < end, "the sweep ended before its trainings"
+            time.sleep(0.01)
+        if whole_group:
+            kill_group(proc, sig)
+            assert proc.returncode == 130
+        else:
+            proc.kill()
+            proc.communicate(timeout=60)
+        wait_group_gone(proc.pid)
+        assert_records_trustworthy(out, main_killed=not whole_group)
+    run_sweep_cli(out, "--workers", "2")
     runs = assert_outputs(out)
     pd.testing.assert_frame_equal(runs[COMPARED], pd.read_csv(local_sweep / "runs.csv")[COMPARED])
     assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
     left = [p for p in tmp_path.rglob("*") if p.name.endswith((".tmp", ".lock")) or ".partial-" in p.name]
-    assert left == [] and not list(out.rglob("checkpoint.pt"))
-    assert all(trainings.model_folder_problem(out / "train" / key) is None for key in runs["key"])
+    assert left == [] and not list(tmp_path.rglob("checkpoint.pt"))
 
 
 def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -550,6 +595,7 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
 
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)  # keep this test process's threads
     monkeypatch.setattr(train_module, "train", fake_train)
+    monkeypatch.setattr(engine_groups, "train_groups", lambda *a, **k: 0)  # every training by the fake, alone
     monkeypatch.setattr(s2, "evaluate_model", fake_evaluation)
     monkeypatch.setattr(engine_cells, "make_backend", lambda *_: InlineBackend(s2.run_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
@@ -680,6 +726,7 @@ def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
 
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)
     monkeypatch.setattr(train_module, "train", fake_train)
+    monkeypatch.setattr(engine_groups, "train_groups", lambda *a, **k: 0)  # every training by the fake, alone
     monkeypatch.setattr(s2, "evaluate_model", fake_evaluation)
     monkeypatch.setattr(engine_cells, "make_backend", lambda *_: InlineBackend(s2.run_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)

@@ -156,7 +156,7 @@ def test_validation_drives_the_queue_rule_only_when_asked(tmp_path: Path) -> Non
         (["--validation-alphas", "0,8"], "--validation-alphas"),
         (["--validation-screen", "-1"], "--validation-screen"),
         (["--validation-screen", "11"], "--validation-screen"),
-        (["--validation-finalists", "3"], "--validation-finalists"),
+        (["--validation-screen", "0", "--validation-finalists", "3"], "--validation-finalists"),
         (["--validation-screen", "1", "--validation-finalists", "0"], "--validation-finalists"),
         (["--no-return", "-1"], "--no-return"),
         (["--no-return", "nan"], "--no-return"),

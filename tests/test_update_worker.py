@@ -123,7 +123,8 @@ def test_train_in_two_processes_equals_serial(tmp_path: Path) -> None:
     # 800 steps: updates from step 200, 4 log rows, model selection at steps 400 and 800 (on one demand)
     cfg = TrainConfig(sim=SimConfig(steps=800, seed=7, policy="dqn"), eval_steps=0, log_every_steps=200)
     cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=400, validation_steps=200,
-                                                              validation_t_ups=(1.5,), validation_accident_steps=0))
+                                                              validation_t_ups=(1.5,), validation_accident_steps=0,
+                                                              stacked_updates=False))  # torch's: in a process or not
     runs = {}
     for process in (True, False):
         out = tmp_path / f"process_{process}"

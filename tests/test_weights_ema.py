@@ -67,8 +67,10 @@ def test_the_worker_keeps_the_same_average_and_a_resume_carries_it() -> None:
 def test_the_decay_is_checked() -> None:
     for bad in (1.0, -0.1, float("nan")):
         with pytest.raises(ValueError, match="weights_ema"):
-            DQNConfig(weights_ema=bad).validate()
-    DQNConfig(weights_ema=0.999).validate()
+            DQNConfig(weights_ema=bad, stacked_updates=False).validate()
+    DQNConfig(weights_ema=0.999, stacked_updates=False).validate()
+    with pytest.raises(ValueError, match="stacked_updates cannot keep a moving average"):
+        DQNConfig(weights_ema=0.999).validate()  # the default's stacked learner keeps no average
 
 
 @pytest.mark.parametrize("value", ["1", "-0.5", "abc"])
@@ -90,7 +92,8 @@ def test_a_training_with_the_average_learns_the_same_and_keeps_the_average(tmp_p
 
     cfg = TrainConfig(sim=SimConfig(steps=400, seed=7, policy="dqn"), eval_steps=0, log_every_steps=200)
     cfg = dataclasses.replace(cfg, dqn=dataclasses.replace(cfg.dqn, select_every_steps=200, validation_steps=100,
-                                                              validation_t_ups=(1.0,), validation_accident_steps=0))
+                                                              validation_t_ups=(1.0,), validation_accident_steps=0,
+                                                              stacked_updates=False))  # torch's updates keep it
     runs = {}
     for decay in (0.0, 0.99):
         out = tmp_path / f"ema_{decay}"

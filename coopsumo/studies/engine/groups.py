@@ -9,13 +9,19 @@ which trains it alone and records the failure as its own. Local backend only: on
 from __future__ import annotations
 
 import json
+import resource
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+from coopsumo.files import write_json
 from coopsumo.studies.engine.model_store import _locked, model_id, reselectable, stored_model
+
+GROUP_COST = "group_cost.json"
+"""written into each model trained in a group: {"group_size": K, "cpu_s": the group's CPU seconds, children
+included, over K}, a model's share of its group (a study's cost per training reads it; not part of the model)"""
 
 GROUP_SIZE = 4
 """trainings per group: the stacked learner's cost per model-update falls to about 0.46 of today's at 4 and no
@@ -51,6 +57,28 @@ def groups_to_train(specs: Sequence[dict[str, Any]], store: Path, size: int = GR
     return [g for g in groups if len(g) > 1]
 
 
+def children_cpu_s() -> float:
+    """CPU seconds (user and system) of this process's finished children and theirs."""
+    used = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return used.ru_utime + used.ru_stime
+
+
+def group_cpu_s(folder: Path) -> float | None:
+    """A stored model's share of its group's CPU seconds (GROUP_COST), or None when it was trained alone."""
+    try:
+        cost = json.loads((folder / GROUP_COST).read_text())["cpu_s"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    return float(cost) if isinstance(cost, (int, float)) and not isinstance(cost, bool) else None
+
+
+def groups_cpu_s(folders: Iterable[Path]) -> float:
+    """The CPU seconds of the models among `folders` (a study's training folders or links to the store) that were
+    trained in groups, each model once: what a study's cells' own CPU time leaves out."""
+    shares = {Path(f).resolve(): group_cpu_s(Path(f)) for f in folders}
+    return sum(s for s in shares.values() if s is not None)
+
+
 def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP_SIZE, quiet: bool = False) -> int:
     """Train groups_to_train's groups into the store, one group after another; returns the models trained. Each
     model's folder is locked while its group trains (a study asking for it at once waits, as for a lone training); a
@@ -75,10 +103,13 @@ def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP
                 folder.mkdir(exist_ok=True)
                 finished_training(folder, config)  # a stored model that lost or spoiled a record: a line naming it
             resumes = [resumable_step(c, f) is not None for c, f in zip(configs, folders, strict=True)]
+            before = children_cpu_s()
             results = train_group([train_config_from_dict(c) for c in configs], folders, resumes)
-        for config, result in zip(configs, results, strict=True):
+            share = (children_cpu_s() - before) / len(configs)
+        for config, result, folder in zip(configs, results, folders, strict=True):
             if result.error is None:
                 trained += 1
+                write_json(folder / GROUP_COST, {"group_size": len(configs), "cpu_s": round(share, 2)})
             elif not quiet:
                 print(f"coopsumo: {model_id(config)} failed in its group ({result.error}); its cell trains it alone",
                       file=sys.stderr)  # fmt: skip

@@ -7,6 +7,7 @@ import json
 import os
 from pathlib import Path
 
+from coopsumo.studies.engine.groups import group_cpu_s
 from coopsumo.studies.scenario1.measures import FIELD_DT_S, FIELD_DX_M, MIN_MODELS, N_BOOT, RECOVERY_MPS, SLOW_MPS
 from coopsumo.studies.scenario1.plan import Plan, Run
 
@@ -80,12 +81,19 @@ def training_text(plan: Plan) -> str:
     return f"trained {plan.train_steps:,} steps (" + "; ".join(f"`{p}`: {where(p)}" for p in plan.presets) + ")"
 
 
+def _training_seconds(summary: Path) -> float:
+    """A training's compute: its share of its group's CPU seconds (engine/groups.py), else its wall seconds (a lone
+    training keeps about one core busy)."""
+    share = group_cpu_s(summary.parent)
+    return share if share is not None else float(json.loads(summary.read_text()).get("wall_seconds", 0.0))
+
+
 def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int, runs: int,
                 train_files: list[Path], run_cpu: dict[float, list[float]], workers: int = 2) -> str:  # fmt: skip
-    """Wall time of this invocation, what it reused, the compute its parts recorded (trainings: wall time of each;
-    runs: CPU time per demand, which does not grow when the machine is shared) and the from-scratch estimate:
-    all of it spread over `workers` cores."""
-    train_s = [float(json.loads(f.read_text()).get("wall_seconds", 0.0)) for f in train_files if f.exists()]
+    """Wall time of this invocation, what it reused, the compute its parts recorded (trainings: wall time of each, or
+    for a model trained in a group its share of the group's CPU time; runs: CPU time per demand, which does not grow
+    when the machine is shared) and the from-scratch estimate: all of it spread over `workers` cores."""
+    train_s = [_training_seconds(f) for f in train_files if f.exists()]
     per = {t: sum(v) for t, v in run_cpu.items()}
     text = f"Wall time of this invocation: {wall_s / 60:.1f} min"
     if models_reused or runs_reused:

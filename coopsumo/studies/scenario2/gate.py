@@ -220,16 +220,23 @@ def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float]:
 
 def step_costs(runs: pd.DataFrame, evals: pd.DataFrame, train_steps: int, eval_steps: int) -> dict[str, Any]:
     """Measured core-seconds per step: a training's (the cells that trained their model in this sweep, not resumed:
-    their CPU time, children included, less their evaluations' wall time), fitted a + b lanes; an evaluation run's
+    their CPU time, children included, less their evaluations' wall time; a model trained in a group before the
+    cells, its share of the group's CPU time), fitted a + b lanes; an evaluation run's
     (its wall time, one process), fitted a + b inflow (veh/h), for models and for the policies that need no
     training apart. Empty parts where nothing was measured."""
     out: dict[str, Any] = {}
     models = runs[runs["policy"].isin(["dqn", PER_ALPHA]) & (runs["status"] == "ok")]
     trained = models[models["resumed_from_step"].isna()] if "resumed_from_step" in models else models.iloc[0:0]
+    if "train_group_cpu_s" in models:  # a model of a group: trained before the cells, its share of the group known;
+        grouped = pd.to_numeric(models["train_group_cpu_s"], errors="coerce").notna()  # once per training
+        trained = models[models.index.isin(trained.index) | (grouped & ~models["train_dir"].duplicated())]
     if len(trained) and "cell_cpu_s" in trained:
         per_eval = evals[evals["policy"].isin(["dqn", PER_ALPHA])].groupby("key")["wall_seconds"].sum()
         cpu = pd.to_numeric(trained["cell_cpu_s"], errors="coerce").to_numpy(float)
         spent = cpu - trained["key"].map(per_eval).fillna(0.0).to_numpy(float)
+        if "train_group_cpu_s" in trained:  # trained in a group before its cell: the model's share of the group
+            group = pd.to_numeric(trained["train_group_cpu_s"], errors="coerce").to_numpy(float)
+            spent = np.where(np.isfinite(group), group, spent)
         keep = np.isfinite(spent) & (spent > 0)
         if keep.any():
             lanes = trained["lanes"].to_numpy(float)[keep]

@@ -317,7 +317,7 @@ def runs_table(records: Sequence[dict[str, Any]]) -> pd.DataFrame:
             row[k] = train.get(TRAIN_COLUMNS[k]) if k in TRAIN_COLUMNS else summary.get(k)
         row.update({k: v for k, v in summary.items() if k not in row and k != "scenario"})
         row.update(train_wall_seconds=train.get("wall_seconds"), cell_wall_s=r.get("cell_wall_s"),
-                   cell_cpu_s=r.get("cell_cpu_s"),
+                   cell_cpu_s=r.get("cell_cpu_s"), train_group_cpu_s=r.get("train_group_cpu_s"),
                    resumed_from_step=r.get("resumed_from_step"), train_dir=r.get("train_dir"))  # fmt: skip
         rows.append(row)
     table = pd.DataFrame(rows)

@@ -58,6 +58,7 @@ from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.cells import run_todo
+from coopsumo.studies.engine.groups import group_cpu_s, groups_cpu_s
 from coopsumo.studies.engine.model_store import check_link, link_problem, store_for, train_shared
 from coopsumo.studies.engine.records import (
     CellRecords,
@@ -124,7 +125,8 @@ def _classical_folder(spec: dict[str, Any]) -> str:
     return "mobil" if spec.get("policy") == "mobil" else "baselines"
 
 
-RECORDS = CellRecords(RECORD_KEYS, ("train_dir", "resumed_from_step", "train_summary", "eval_summaries"),
+RECORDS = CellRecords(RECORD_KEYS, ("train_dir", "resumed_from_step", "train_group_cpu_s", "train_summary",
+                                   "eval_summaries"),
                       _cell_folder)  # fmt: skip
 """a cell's record: its coordinates and folder, then what its run measured"""
 failed_record = RECORDS.failed
@@ -152,6 +154,7 @@ def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     name = spec.get("train_key", spec["key"])
     out = root / "train" / name
     _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
+    record["train_group_cpu_s"] = group_cpu_s(out)  # trained in a group before the cells: its share of the group
     _evaluate(spec, out, root / "evals" / spec.get("evals_key", name), record)
 
 
@@ -296,7 +299,9 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
                 cells_failed=int((runs["status"] != "ok").sum()),
                 failed_cells=runs.loc[runs["status"] != "ok", "key"].tolist(),
                 cell_wall_seconds_sum=round(float(pd.to_numeric(runs["cell_wall_s"]).sum()), 1),
-                cell_cpu_seconds_sum=round(float(pd.to_numeric(runs["cell_cpu_s"]).sum()), 1))  # fmt: skip
+                cell_cpu_seconds_sum=round(float(pd.to_numeric(runs["cell_cpu_s"]).sum())  # and the groups'
+                                           + groups_cpu_s(root / str(d) for d in runs["train_dir"].dropna()),
+                                           1))  # fmt: skip
     if profile.lane_networks:
         from coopsumo.studies.scenario2.gate_report import write_lane_outputs
 
