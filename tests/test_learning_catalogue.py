@@ -45,7 +45,7 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 def test_the_packaged_chain_runs_from_the_paper_to_the_chain_end() -> None:
     names = plan.VARIANT_NAMES
-    assert names[0] == "paper" and names[plan.CHAIN_LENGTH - 1] == "noreturn" and plan.CHAIN_LENGTH == 17
+    assert names[0] == "paper" and names[plan.CHAIN_LENGTH - 1] == "stacked" and plan.CHAIN_LENGTH == 18
     assert plan.learner_of("paper") == PAPER_DQN
     assert plan.STEPS_FACTOR == {"conditioned8v_2x": 2}
     assert set(plan.PROFILES) == {"full", "quick", "conditioned", "tiny"}
