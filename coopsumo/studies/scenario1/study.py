@@ -169,6 +169,9 @@ def build_parser() -> Parser:
                    help="one more policy run beside keep, greedy, MOBIL and sumo, as simulate's --policy takes it (a "
                         "class of your own py:MODULE:CLASS, a Stable-Baselines3 model sb3:PATH, dqn:PATH, ...); "
                         "repeat it for several (default: none; docs/extending.md)")  # fmt: skip
+    p.add_argument("--merge", default=None, metavar="P1,P2,...",
+                   help="merge finished parts (scenario I study folders of one plan and learner, other training seeds) "
+                        "into --out: runs.csv, summary.csv, claim_a.md, report.md (studies/scenario1/merge.py)")
     p.add_argument("--preset", "--presets", dest="presets", default=None,
                    help=f"learner presets, comma-separated: {', '.join(learners())}, or several side by side, e.g. "
                         f"default,alpha_only (default: {by_profile(lambda plan: ','.join(plan.presets))})")  # fmt: skip
@@ -232,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
+        if args.merge is not None:
+            return _merge(args)
         plan = plan_from_args(args)
         if args.workers < 1:
             raise UsageError(f"workers must be >= 1, got {args.workers}")
@@ -244,6 +249,24 @@ def main(argv: list[str] | None = None) -> int:
             return run_study(plan, args.out, args.workers, args.backend, args.address)
 
     return run_cli("scenario1", body)
+
+
+MERGE_ONLY = ("quick", "full", "seeds", "train_seeds", "t_ups", "mobil_ps", "train_steps", "steps", "alphas",
+              "baselines", "presets")
+"""the options a merge would ignore (each part's plan holds them): refused beside --merge"""
+
+
+def _merge(args: Any) -> int:
+    from coopsumo.studies.scenario1.merge import merge_parts
+
+    given = [name for name in MERGE_ONLY if getattr(args, name) not in (None, False)]
+    if given:
+        flag = "--" + given[0].replace("_", "-").replace("t-ups", "t-up").replace("mobil-ps", "mobil-p")
+        raise UsageError(f"--merge takes only --out (the parts' plans hold the rest), got {flag}")
+    if args.out is None:
+        raise UsageError("--merge needs --out, the merged study's folder")
+    parts = [Path(p.strip()) for p in args.merge.split(",") if p.strip()]
+    return merge_parts(parts, Path(args.out))
 
 
 def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], dict[tuple[str, float, int], tuple[Path, str]],

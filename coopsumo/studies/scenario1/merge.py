@@ -1,0 +1,161 @@
+"""`coopsumo scenario1 --merge P1,P2,... --out DIR`: one scenario I study of many models per alpha from parts that
+each ran a few whole models (issue 78: a study longer than a session runs in parts, each part's records committed).
+A part is a finished scenario I study folder (its plan.json and runs.csv); the parts must share one plan and one
+learner but for their training seeds, which may not overlap, and their baseline runs (the same policies on the
+same seeds) must agree to the last digit. The merge writes runs.csv (the baselines once, every part's models),
+summary.csv, plan.json (the parts named), claim_a.md and fig_thrashing.png when the plan has alphas 0 and 8, and a
+short report.md; nothing is written when a part is refused."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from coopsumo.errors import UsageError
+from coopsumo.files import read_json_object, write_json
+from coopsumo.provenance import versions
+from coopsumo.studies.scenario1.measures import aggregate
+from coopsumo.studies.scenario1.plan import model_label
+from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
+
+MERGED = "merge.json"
+"""the merged folder's record of its parts: a rerun of the same merge may write over it, nothing else may"""
+OWN_FILES = ("runs.csv", "summary.csv", "plan.json", "report.md", "claim_a.md", "fig_thrashing.png", MERGED)
+"""what a merge writes into its folder"""
+
+
+def _part(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
+    """A part's plan.json (as written) and runs.csv (checked against its schema); UsageError naming what is wrong."""
+    recorded = read_json_object(folder / "plan.json")
+    if recorded is None or not isinstance(recorded.get("plan"), dict) or not isinstance(recorded.get("learners"),
+                                                                                        dict):  # fmt: skip
+        raise UsageError(f"--merge: {folder} holds no scenario I plan.json (give finished scenario I study folders)")
+    if not (folder / "runs.csv").is_file():
+        raise UsageError(f"--merge: {folder} has no runs.csv: the part has not finished")
+    try:
+        runs = SCENARIO1_RUNS.read(folder / "runs.csv")
+    except ValueError as err:
+        raise UsageError(f"--merge: {folder}/runs.csv: {err}") from None
+    return recorded, runs
+
+
+def _without_seeds(plan: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in plan.items() if k != "train_seeds"}
+
+
+def check_parts(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]]) -> None:
+    """The parts make one study: one plan but for the training seeds, one learner, no training seed twice, and the
+    same baseline runs to the last digit. UsageError naming the first part that differs and how."""
+    first_folder, first, first_runs = parts[0]
+    seen: dict[int, Path] = {}
+    baselines = first_runs[first_runs["train_seed"].isna()].reset_index(drop=True)
+    for folder, recorded, runs in parts:
+        if _without_seeds(recorded["plan"]) != _without_seeds(first["plan"]):
+            differs = sorted(k for k in set(recorded["plan"]) | set(first["plan"]) if k != "train_seeds"
+                             and recorded["plan"].get(k) != first["plan"].get(k))  # fmt: skip
+            raise UsageError(f"--merge: {folder}'s plan differs from {first_folder}'s in {', '.join(differs)}: the "
+                             "parts of one study differ only in their training seeds")  # fmt: skip
+        if recorded["learners"] != first["learners"]:
+            raise UsageError(f"--merge: {folder} trained another learner than {first_folder} (plan.json's learners)")
+        for seed in recorded["plan"]["train_seeds"]:
+            if seed in seen:
+                raise UsageError(f"--merge: training seed {seed} is in {seen[seed]} and in {folder}: a model once")
+            seen[seed] = folder
+        theirs = runs[runs["train_seed"].isna()].reset_index(drop=True)
+        if not theirs.equals(baselines):
+            raise UsageError(f"--merge: {folder}'s baseline runs differ from {first_folder}'s (the same policies on "
+                             "the same seeds must give the same runs)")  # fmt: skip
+
+
+def merged_runs(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]]) -> pd.DataFrame:
+    """The baselines of the first part once, then every part's model runs, in the first part's order of policies
+    and demands, models by training seed."""
+    runs = parts[0][2]
+    models = pd.concat([r[r["train_seed"].notna()] for _, _, r in parts], ignore_index=True)
+    rows = pd.concat([models, runs[runs["train_seed"].isna()]], ignore_index=True)
+    order = {lab: i for i, lab in enumerate(dict.fromkeys(runs["policy"]))}
+    rows = rows.assign(_p=rows["policy"].map(order)).sort_values(["t_up_s", "_p", "train_seed", "seed"],
+                                                                 ascending=[False, True, True, True],
+                                                                 kind="stable")  # fmt: skip
+    return rows.drop(columns="_p").reset_index(drop=True)
+
+
+def _timing(folder: Path) -> str:
+    """The part's report's line on its wall time and compute, or a dash."""
+    page = folder / "report.md"
+    lines = page.read_text().splitlines() if page.is_file() else []
+    return next((ln for ln in lines if ln.startswith("Wall time of this invocation")), "-")
+
+
+def _check_out(out: Path, folders: list[Path]) -> None:
+    for folder in folders:
+        if out.resolve() == folder.resolve() or folder.resolve() in out.resolve().parents:
+            raise UsageError(f"--out {out} is inside the part {folder}: give a folder of its own")
+    if out.exists() and not out.is_dir():
+        raise UsageError(f"--out {out} is a file, not a folder")
+    if out.is_dir():
+        others = sorted(p.name for p in out.iterdir() if p.name not in OWN_FILES and not p.name.startswith("."))
+        if others:
+            raise UsageError(f"--out {out} holds other files ({', '.join(others[:3])}): a merge writes into a folder "
+                             "of its own")  # fmt: skip
+
+
+def merge_parts(folders: list[Path], out: Path) -> int:
+    """Check the parts, then write the merged study into out (module docstring); 0."""
+    if len(folders) < 2:
+        raise UsageError("--merge needs at least two part folders, comma-separated")
+    if len({f.resolve() for f in folders}) != len(folders):
+        raise UsageError("--merge names a part twice")
+    _check_out(out, folders)
+    parts = [(folder, *_part(folder)) for folder in folders]
+    check_parts(parts)
+    rows = merged_runs(parts)
+    first = parts[0][1]
+    seeds = sorted(s for _, recorded, _ in parts for s in recorded["plan"]["train_seeds"])
+    plan_dict = {**first["plan"], "train_seeds": seeds}
+    SCENARIO1_RUNS.check_frame(rows, out / "runs.csv")
+    summary = aggregate(rows)
+    SCENARIO1_SUMMARY.check_frame(summary, out / "summary.csv")
+    out.mkdir(parents=True, exist_ok=True)
+    rows.to_csv(out / "runs.csv", index=False)
+    summary.to_csv(out / "summary.csv", index=False)
+    write_json(out / "plan.json", {"plan": plan_dict, "learners": first["learners"], "versions": versions(),
+                                   "parts": [str(f) for f in folders]})  # fmt: skip
+    presets, alphas = plan_dict["presets"], plan_dict["alphas"]
+    claim = ""
+    if 0.0 in alphas and 8.0 in alphas:
+        from coopsumo.studies.scenario1.claim_a_report import write_claim_a
+
+        found = write_claim_a(out, rows, model_label(presets[0], 8.0), model_label(presets[0], 0.0))
+        claim = (f"\n\nClaim (a) under its analysis plan: [claim_a.md](claim_a.md) ({found['planned_models']} models "
+                 "per alpha planned from the first 10), `fig_thrashing.png`.")  # fmt: skip
+    write_json(out / MERGED, {"parts": [str(f) for f in folders], "train_seeds": seeds})
+    (out / "report.md").write_text(report_text(parts, rows, plan_dict) + claim + "\n")
+    print(f"scenario1: merged {len(parts)} parts ({len(seeds)} models per alpha) into {out}")
+    return 0
+
+
+def report_text(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]], rows: pd.DataFrame,
+                plan_dict: dict[str, Any]) -> str:  # fmt: skip
+    """The merged study's short report: its parts with their models and compute, and the mean total time spent per
+    policy and demand over every model and seed."""
+    p = plan_dict
+    lines = [f"# Scenario I, merged from {len(parts)} parts: {', '.join(p['presets'])}, "
+             f"{len(p['train_seeds'])} models per alpha", "",
+             f"Alphas {', '.join(f'{a:g}' for a in p['alphas'])}; demands T_up "
+             f"{', '.join(f'{t:g}' for t in p['t_ups'])} s; {len(p['seeds'])} evaluation seeds; the baselines once "
+             "(every part ran them on the same seeds, and they agree to the last digit).", "",
+             "| part | training seeds | its compute |", "|---|---|---|"]  # fmt: skip
+    for folder, recorded, _ in parts:
+        seeds = ", ".join(str(s) for s in recorded["plan"]["train_seeds"])
+        lines.append(f"| `{folder}` | {seeds} | {_timing(folder)} |")
+    table = rows.groupby(["t_up_s", "policy"], sort=False)["tts_veh_h"].agg(["mean", "std", "count"]).reset_index()
+    lines += ["", "Total time spent (veh-h), mean over models and seeds:", "",
+              "| T_up (s) | policy | mean | sd | runs |", "|---|---|---|---|---|"]  # fmt: skip
+    for r in table.itertuples():
+        sd = "-" if not math.isfinite(r.std) else f"{r.std:.1f}"
+        lines.append(f"| {r.t_up_s:g} | {r.policy} | {r.mean:.1f} | {sd} | {r.count} |")
+    return "\n".join(lines)

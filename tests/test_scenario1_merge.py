@@ -1,0 +1,130 @@
+"""`coopsumo scenario1 --merge`: a study of many models per alpha from parts of a few whole models each (issue 78).
+The parts here are the committed results/scenario1_alpha_only_10models cut in two by training seed (100-104 and
+105-109), as two invocations with those --train-seeds lists would have written them: their merge gives back the
+committed study's runs, summary and claim (a) reading; every part that does not belong is refused in one line,
+exit code 2, nothing written."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+import pytest
+from conftest import REPO, text_difference
+
+from coopsumo.studies.scenario1 import study as s1
+
+WHOLE = REPO / "results" / "scenario1_alpha_only_10models"
+HALVES = {"p1": [100, 101, 102, 103, 104], "p2": [105, 106, 107, 108, 109]}
+
+
+def make_part(tmp: Path, name: str, seeds: list[int]) -> Path:
+    """The committed study's runs of these training seeds (and every baseline run), with its plan.json so seeded."""
+    folder = tmp / name
+    folder.mkdir()
+    runs = pd.read_csv(WHOLE / "runs.csv")
+    runs[runs["train_seed"].isna() | runs["train_seed"].isin(seeds)].to_csv(folder / "runs.csv", index=False)
+    recorded = json.loads((WHOLE / "plan.json").read_text())
+    recorded["plan"]["train_seeds"] = seeds
+    (folder / "plan.json").write_text(json.dumps(recorded))
+    return folder
+
+
+@pytest.fixture
+def parts(tmp_path: Path) -> list[Path]:
+    return [make_part(tmp_path, name, seeds) for name, seeds in HALVES.items()]
+
+
+def merge(capsys: pytest.CaptureFixture[str], *argv: str) -> tuple[int, list[str]]:
+    code = s1.main(list(argv))
+    return code, [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+
+
+def test_two_halves_merge_into_the_whole(parts: list[Path], tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    out = tmp_path / "merged"
+    code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(out))
+    assert code == 0, err
+    key = ["t_up_s", "policy", "train_seed", "seed"]
+    mine = pd.read_csv(out / "runs.csv").sort_values(key).reset_index(drop=True)
+    whole = pd.read_csv(WHOLE / "runs.csv").sort_values(key).reset_index(drop=True)
+    pd.testing.assert_frame_equal(mine, whole)
+    assert text_difference((WHOLE / "summary.csv").read_text(), (out / "summary.csv").read_text()) is None
+    # the claim (a) reading of the whole: the same tables (the committed one is marked exploratory, this is not)
+    committed, merged = ((p / "claim_a.md").read_text() for p in (WHOLE, out))
+    tables = [ln for ln in committed.splitlines() if ln.startswith("| ")]
+    assert tables and tables == [ln for ln in merged.splitlines() if ln.startswith("| ")]
+    assert "**Exploratory**" in committed and "**Exploratory**" not in merged
+    assert (out / "fig_thrashing.png").read_bytes()[:4] == b"\x89PNG"
+    plan = json.loads((out / "plan.json").read_text())
+    assert plan["plan"]["train_seeds"] == list(range(100, 110)) and plan["parts"] == [str(p) for p in parts]
+    report = (out / "report.md").read_text()
+    assert "merged from 2 parts" in report and "| `" + str(parts[1]) + "` | 105, 106, 107, 108, 109 |" in report
+    # the same merge again writes over its own files
+    assert merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(out))[0] == 0
+
+
+def _plan(change: Callable[[dict[str, Any]], Any]) -> Callable[[Path], Any]:
+    def edit(folder: Path) -> None:
+        recorded = json.loads((folder / "plan.json").read_text())
+        change(recorded)
+        (folder / "plan.json").write_text(json.dumps(recorded))
+
+    return edit
+
+
+def _baseline_edited(folder: Path) -> None:
+    runs = pd.read_csv(folder / "runs.csv")
+    runs.loc[runs["policy"] == "keep", "tts_veh_h"] += 0.001
+    runs.to_csv(folder / "runs.csv", index=False)
+
+
+@pytest.mark.parametrize("edit, words", [
+    (_plan(lambda r: r["plan"].update(train_seeds=[104, 105])), "training seed 104 is in"),
+    (_plan(lambda r: r["plan"].update(t_ups=[2.0])), "plan differs from"),
+    (_plan(lambda r: r["learners"]["alpha_only"].update(lr=0.5)), "trained another learner"),
+    (_baseline_edited, "baseline runs differ"),
+    (lambda f: (f / "runs.csv").unlink(), "has no runs.csv"),
+    (lambda f: (f / "plan.json").write_text("[]"), "holds no scenario I plan.json"),
+], ids=["a seed twice", "another plan", "another learner", "a baseline edited", "unfinished", "no plan"])
+def test_a_part_that_does_not_belong_is_refused_in_one_line(edit: Callable[[Path], Any], words: str,
+                                                            parts: list[Path], tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    edit(parts[1])
+    out = tmp_path / "merged"
+    code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(out))
+    assert code == 2 and len(err) == 1 and "error" in err[0] and words in err[0], err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--seeds", "3"], "--merge takes only --out"),
+    (["--t-up", "2"], "got --t-up"),
+    ([], "needs --out"),
+], ids=["seeds", "t-up", "no out"])
+def test_options_a_merge_would_ignore_are_refused(extra: list[str], words: str, parts: list[Path],
+                                                  capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    code, err = merge(capsys, "--merge", ",".join(map(str, parts)), *extra)
+    assert code == 2 and len(err) == 1 and words in err[0], err
+
+
+def test_an_out_that_is_not_the_merges_own_is_refused(parts: list[Path], tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    inside = parts[0] / "merged"
+    code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(inside))
+    assert code == 2 and "inside the part" in err[0] and not inside.exists()
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    (busy / "notes.txt").write_text("mine")
+    code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(busy))
+    assert code == 2 and "holds other files (notes.txt)" in err[0]
+    assert sorted(p.name for p in busy.iterdir()) == ["notes.txt"]
+    code, err = merge(capsys, "--merge", str(parts[0]), "--out", str(tmp_path / "one"))
+    assert code == 2 and "at least two part folders" in err[0]
+    shutil.rmtree(parts[1])
+    code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(tmp_path / "gone"))
+    assert code == 2 and "holds no scenario I plan.json" in err[0]
