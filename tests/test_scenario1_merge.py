@@ -77,6 +77,13 @@ def _plan(change: Callable[[dict[str, Any]], Any]) -> Callable[[Path], Any]:
     return edit
 
 
+def _rows(change: Callable[[pd.DataFrame], pd.DataFrame]) -> Callable[[Path], Any]:
+    def edit(folder: Path) -> None:
+        change(pd.read_csv(folder / "runs.csv")).to_csv(folder / "runs.csv", index=False)
+
+    return edit
+
+
 def _baseline_edited(folder: Path) -> None:
     runs = pd.read_csv(folder / "runs.csv")
     runs.loc[runs["policy"] == "keep", "tts_veh_h"] += 0.001
@@ -88,9 +95,14 @@ def _baseline_edited(folder: Path) -> None:
     (_plan(lambda r: r["plan"].update(t_ups=[2.0])), "plan differs from"),
     (_plan(lambda r: r["learners"]["alpha_only"].update(lr=0.5)), "trained another learner"),
     (_baseline_edited, "baseline runs differ"),
+    (_rows(lambda r: r.drop(index=r.index[r["train_seed"] == 107][:1])), "lacks 1 of its plan's runs (first: "
+     "dqn_alpha_only_alpha0 of training seed 107"),
+    (_rows(lambda r: pd.concat([r, r.iloc[:1]])), "holds a run twice"),
+    (_rows(lambda r: r.assign(train_seed=r["train_seed"].replace(109, 111))), "lacks 30 of its plan's runs"),
     (lambda f: (f / "runs.csv").unlink(), "has no runs.csv"),
     (lambda f: (f / "plan.json").write_text("[]"), "holds no scenario I plan.json"),
-], ids=["a seed twice", "another plan", "another learner", "a baseline edited", "unfinished", "no plan"])
+], ids=["a seed twice", "another plan", "another learner", "a baseline edited", "a run missing", "a run twice",
+        "a model not in its plan", "unfinished", "no plan"])
 def test_a_part_that_does_not_belong_is_refused_in_one_line(edit: Callable[[Path], Any], words: str,
                                                             parts: list[Path], tmp_path: Path,
                                                             capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip

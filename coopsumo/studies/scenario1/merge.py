@@ -64,10 +64,33 @@ def check_parts(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]]) -> None:
             if seed in seen:
                 raise UsageError(f"--merge: training seed {seed} is in {seen[seed]} and in {folder}: a model once")
             seen[seed] = folder
+        if problem := rows_problem(recorded["plan"], runs):
+            raise UsageError(f"--merge: {folder}/runs.csv {problem}")
         theirs = runs[runs["train_seed"].isna()].reset_index(drop=True)
         if not theirs.equals(baselines):
             raise UsageError(f"--merge: {folder}'s baseline runs differ from {first_folder}'s (the same policies on "
                              "the same seeds must give the same runs)")  # fmt: skip
+
+
+def rows_problem(plan: dict[str, Any], runs: pd.DataFrame) -> str | None:
+    """What is wrong with a part's rows against its plan, or None: one run per model (preset, alpha, training seed),
+    demand and evaluation seed, one per baseline, demand and seed, and no other row."""
+    demands = [(float(t), int(k)) for t in plan["t_ups"] for k in plan["seeds"]]
+    expected = {(model_label(p, float(a)), int(m), t, k) for p in plan["presets"] for a in plan["alphas"]
+                for m in plan["train_seeds"] for t, k in demands}  # fmt: skip
+    baselines = sorted(set(runs.loc[runs["train_seed"].isna(), "policy"]))
+    expected |= {(b, -1, t, k) for b in baselines for t, k in demands}
+    found = [(str(r.policy), -1 if pd.isna(r.train_seed) else int(r.train_seed), float(r.t_up_s), int(r.seed))
+             for r in runs.itertuples()]  # fmt: skip
+    if len(found) != len(set(found)):
+        return "holds a run twice"
+    if missing := sorted(expected - set(found)):
+        policy, model, t_up, seed = missing[0]
+        of = "" if model < 0 else f" of training seed {model}"
+        return f"lacks {len(missing)} of its plan's runs (first: {policy}{of} at T_up {t_up:g} s, seed {seed})"
+    if extra := sorted(set(found) - expected):
+        return f"holds {len(extra)} runs its plan does not name (first: {extra[0][0]})"
+    return None
 
 
 def merged_runs(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]]) -> pd.DataFrame:
