@@ -100,9 +100,11 @@ def _baseline_edited(folder: Path) -> None:
     (_rows(lambda r: pd.concat([r, r.iloc[:1]])), "holds a run twice"),
     (_rows(lambda r: r.assign(train_seed=r["train_seed"].replace(109, 111))), "lacks 30 of its plan's runs"),
     (lambda f: (f / "runs.csv").unlink(), "has no runs.csv"),
+    (_plan(lambda r: r["plan"].update(train_seeds="105")), "plan.train_seeds must be a non-empty list of numbers"),
+    (_plan(lambda r: r["plan"].update(t_ups=[2.0, None])), "plan.t_ups must be"),
     (lambda f: (f / "plan.json").write_text("[]"), "holds no scenario I plan.json"),
 ], ids=["a seed twice", "another plan", "another learner", "a baseline edited", "a run missing", "a run twice",
-        "a model not in its plan", "unfinished", "no plan"])
+        "a model not in its plan", "unfinished", "seeds a string", "a demand null", "no plan"])
 def test_a_part_that_does_not_belong_is_refused_in_one_line(edit: Callable[[Path], Any], words: str,
                                                             parts: list[Path], tmp_path: Path,
                                                             capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip

@@ -27,12 +27,23 @@ OWN_FILES = ("runs.csv", "summary.csv", "plan.json", "report.md", "claim_a.md", 
 """what a merge writes into its folder"""
 
 
+PLAN_LISTS: dict[str, Any] = {"presets": str, "alphas": (int, float), "train_seeds": int, "t_ups": (int, float),
+                              "seeds": int}
+"""the plan.json lists a merge reads, and the type of their items"""
+
+
 def _part(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
     """A part's plan.json (as written) and runs.csv (checked against its schema); UsageError naming what is wrong."""
     recorded = read_json_object(folder / "plan.json")
     if recorded is None or not isinstance(recorded.get("plan"), dict) or not isinstance(recorded.get("learners"),
                                                                                         dict):  # fmt: skip
         raise UsageError(f"--merge: {folder} holds no scenario I plan.json (give finished scenario I study folders)")
+    for key, kind in PLAN_LISTS.items():
+        values = recorded["plan"].get(key)
+        if not isinstance(values, list) or not values or not all(
+                isinstance(v, kind) and not isinstance(v, bool) and (kind is str or math.isfinite(v)) for v in values):
+            raise UsageError(f"--merge: {folder}/plan.json: plan.{key} must be a non-empty list of "
+                             f"{'names' if kind is str else 'numbers'}, got {str(values)[:40]}")  # fmt: skip
     if not (folder / "runs.csv").is_file():
         raise UsageError(f"--merge: {folder} has no runs.csv: the part has not finished")
     try:
