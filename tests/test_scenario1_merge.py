@@ -64,8 +64,15 @@ def test_two_halves_merge_into_the_whole(parts: list[Path], tmp_path: Path,
     assert plan["plan"]["train_seeds"] == list(range(100, 110)) and plan["parts"] == [str(p) for p in parts]
     report = (out / "report.md").read_text()
     assert "merged from 2 parts" in report and "| `" + str(parts[1]) + "` | 105, 106, 107, 108, 109 |" in report
+    assert "In all, from scratch" not in report  # the parts here have no report.md with their compute
+    for part, minutes in zip(parts, (100, 70), strict=True):
+        (part / "report.md").write_text("# part\n\nWall time of this invocation: 3.0 min. From scratch on 2 cores, "
+                                        f"the parts add up to about {minutes // 2} min ({minutes} core-min), before "
+                                        "the report's figures.\n")  # fmt: skip
     # the same merge again writes over its own files
     assert merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(out))[0] == 0
+    total = "In all, from scratch: 170 core-min (2.8 core-hours), about 1.4 h on 2 cores"
+    assert total in (out / "report.md").read_text()
 
 
 def _plan(change: Callable[[dict[str, Any]], Any]) -> Callable[[Path], Any]:

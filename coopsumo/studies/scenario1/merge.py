@@ -9,6 +9,7 @@ short report.md; nothing is written when a part is refused."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 from typing import Any
 
@@ -186,6 +187,11 @@ def report_text(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]], rows: pd
     for folder, recorded, _ in parts:
         seeds = ", ".join(str(s) for s in recorded["plan"]["train_seeds"])
         lines.append(f"| `{folder}` | {seeds} | {_timing(folder)} |")
+    spent = [re.search(r"about \d+ min \((\d+) core-min\)", _timing(folder)) for folder, _, _ in parts]
+    if all(spent):
+        core_min = sum(int(m.group(1)) for m in spent if m)
+        lines += ["", f"In all, from scratch: {core_min:,} core-min ({core_min / 60:.1f} core-hours), about "
+                      f"{core_min / 120:.1f} h on 2 cores (each part's from-scratch estimate, its baselines included)."]
     table = rows.groupby(["t_up_s", "policy"], sort=False)["tts_veh_h"].agg(["mean", "std", "count"]).reset_index()
     lines += ["", "Total time spent (veh-h), mean over models and seeds:", "",
               "| T_up (s) | policy | mean | sd | runs |", "|---|---|---|---|---|"]  # fmt: skip
