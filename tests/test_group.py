@@ -6,6 +6,7 @@ trainings of the stacked learner go into the model store as groups."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import pytest
@@ -88,4 +89,23 @@ def test_a_studys_groups_land_in_the_model_store(tmp_path: Path) -> None:
     store = tmp_path / "models"
     assert train_groups(specs, store, quiet=True) == 2
     assert all(stored_model(c, store) == store / model_id(c) for c in configs)
+    shares = [json.loads((store / model_id(c) / "group_cost.json").read_text()) for c in configs]
+    assert all(s["group_size"] == 2 and s["cpu_s"] > 0 for s in shares) and shares[0] == shares[1]
     assert train_groups(specs, store, quiet=True) == 0  # stored: nothing to train
+
+
+@pytest.mark.parametrize("text, share", [
+    ('{"group_size": 4, "cpu_s": 12.5}', 12.5), ('{"cpu_s": 1e300}', None), ('{"cpu_s": NaN}', None),
+    ('{"cpu_s": -50}', None), ('{"cpu_s": true}', None), ("[1]", None), ("{", None),
+])  # fmt: skip
+def test_a_groups_cost_record_outside_its_limits_is_left_out_in_one_line(
+        text: str, share: float | None, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    from coopsumo.studies.engine.groups import group_cpu_s, groups_cpu_s
+
+    (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "group_cost.json").write_text(text)
+    assert group_cpu_s(tmp_path / "m") == share and groups_cpu_s([tmp_path / "m", tmp_path / "m"]) == (share or 0.0)
+    err = capsys.readouterr().err.splitlines()
+    assert (not err) if share is not None else (len(err) == 2 and "group_cost.json is damaged" in err[0])
+    assert group_cpu_s(tmp_path) is None  # trained alone: no record, no line
+    assert not capsys.readouterr().err

@@ -306,3 +306,16 @@ def test_the_documented_profile_file_runs_as_documented(tmp_path: Path, faked_tr
         meta = json.loads((out / "sweep.json").read_text())
         assert meta["profile"]["name"] == "mine" and meta["profile"]["lanes"] == [3]
         assert meta["cells_ok"] == meta["cells"] == 4 * len(meta["profile"]["alphas"])
+
+
+@pytest.mark.parametrize("name", ["a/../../esc", "", "..", "x y"])
+def test_a_profile_name_that_is_no_folder_name_is_refused(name: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The name chooses the results folder (results/scenario2_<name>): a name with a path in it, or none, is refused
+    before anything is written, wherever the command runs."""
+    monkeypatch.chdir(tmp_path)  # the default --out, results/scenario2_<name>, would be here
+    path = tmp_path / "mine.toml"
+    path.write_text(tiny_scenario2().replace("[profiles.mine]", f"[profiles.{json.dumps(name)}]"))
+    code, err = run_main(s2.main, ["--profile", f"{path}:{name}" if name else str(path), "--quiet"], capsys)
+    assert code == 2 and len(err) == 1 and "must be 1-64 letters" in err[0], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.toml"]

@@ -107,11 +107,15 @@ def _baseline_edited(folder: Path) -> None:
     (_rows(lambda r: pd.concat([r, r.iloc[:1]])), "holds a run twice"),
     (_rows(lambda r: r.assign(train_seed=r["train_seed"].replace(109, 111))), "lacks 30 of its plan's runs"),
     (lambda f: (f / "runs.csv").unlink(), "has no runs.csv"),
-    (_plan(lambda r: r["plan"].update(train_seeds="105")), "plan.train_seeds must be a non-empty list of numbers"),
+    (_plan(lambda r: r["plan"].update(train_seeds="105")), "plan.train_seeds must be a non-empty list of integers"),
     (_plan(lambda r: r["plan"].update(t_ups=[2.0, None])), "plan.t_ups must be"),
+    (_plan(lambda r: r["plan"].update(train_seeds=[105.5])), "plan.train_seeds must be a non-empty list of integers"),
+    (_plan(lambda r: r["plan"].update(steps=-1)), "plan.steps must be a finite number >= 0, got -1"),
+    (_plan(lambda r: r["learners"]["alpha_only"].update(lr=float("nan"))), "learner alpha_only: lr"),
     (lambda f: (f / "plan.json").write_text("[]"), "holds no scenario I plan.json"),
 ], ids=["a seed twice", "another plan", "another learner", "a baseline edited", "a run missing", "a run twice",
-        "a model not in its plan", "unfinished", "seeds a string", "a demand null", "no plan"])
+        "a model not in its plan", "unfinished", "seeds a string", "a demand null", "a seed not whole",
+        "steps negative", "a learner's lr NaN", "no plan"])
 def test_a_part_that_does_not_belong_is_refused_in_one_line(edit: Callable[[Path], Any], words: str,
                                                             parts: list[Path], tmp_path: Path,
                                                             capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
@@ -144,6 +148,16 @@ def test_an_out_that_is_not_the_merges_own_is_refused(parts: list[Path], tmp_pat
     code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(busy))
     assert code == 2 and "holds other files (notes.txt)" in err[0]
     assert sorted(p.name for p in busy.iterdir()) == ["notes.txt"]
+    merged = tmp_path / "merged"
+    assert merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(merged))[0] == 0
+    assert not [p for p in tmp_path.iterdir() if "partial-merge" in p.name]  # staged beside it, then moved in
+    before = {p.name: p.read_bytes() for p in merged.iterdir()}
+    third = make_part(tmp_path, "p3", [110])
+    code, err = merge(capsys, "--merge", f"{parts[0]},{third}", "--out", str(merged))
+    assert code == 2 and "holds a merge of other parts" in err[0]
+    code, err = merge(capsys, "--quick", "--out", str(merged))  # nor does a study take a merge's folder
+    assert code == 2 and "holds a merge of scenario I parts" in err[0]
+    assert {p.name: p.read_bytes() for p in merged.iterdir()} == before
     code, err = merge(capsys, "--merge", str(parts[0]), "--out", str(tmp_path / "one"))
     assert code == 2 and "at least two part folders" in err[0]
     shutil.rmtree(parts[1])

@@ -6,6 +6,7 @@ profile taken from a file of one's own (`--profile PATH.toml[:NAME]`, own_profil
 from __future__ import annotations
 
 import argparse
+import re
 import tomllib
 import types
 from collections.abc import Callable, Collection, Mapping, Sequence
@@ -141,6 +142,9 @@ def own_profile(text: str, read: Callable[[Path], tuple[Mapping[str, P], str | N
         name = default if default is not None else next(iter(profiles))
     if name not in profiles:
         raise UsageError(f"--profile {text}: {path} has no profile {name!r} (it has {', '.join(profiles)})")
+    if not re.fullmatch(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}", name) or ".." in name:
+        raise UsageError(f"--profile {text}: {path}'s profile name {name!r} must be 1-64 letters, digits, '_', '-' or "
+                         "'.' (it names the results folder)")  # fmt: skip
     if name in packaged:
         raise UsageError(f"--profile {text}: {path}'s profile {name!r} takes the name of a packaged profile; name it "
                          "otherwise (the name chooses its results folder and its records)")  # fmt: skip

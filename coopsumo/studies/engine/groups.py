@@ -63,20 +63,33 @@ def children_cpu_s() -> float:
     return used.ru_utime + used.ru_stime
 
 
+MAX_GROUP_CPU_S = 7 * 86_400.0
+"""the most CPU seconds a model's share of its group may record (a week): more is a damaged record"""
+
+
 def group_cpu_s(folder: Path) -> float | None:
-    """A stored model's share of its group's CPU seconds (GROUP_COST), or None when it was trained alone."""
-    try:
-        cost = json.loads((folder / GROUP_COST).read_text())["cpu_s"]
-    except (OSError, ValueError, KeyError, TypeError):
+    """A stored model's share of its group's CPU seconds (GROUP_COST), or None when it was trained alone or its
+    record is damaged (not a JSON object with a number from 0 to MAX_GROUP_CPU_S: one line naming the file, and the
+    cost is left out)."""
+    path = folder / GROUP_COST
+    if not path.is_file():
         return None
-    return float(cost) if isinstance(cost, (int, float)) and not isinstance(cost, bool) else None
+    try:
+        cost = json.loads(path.read_text())["cpu_s"]
+    except (OSError, ValueError, KeyError, TypeError):
+        cost = None
+    if isinstance(cost, (int, float)) and not isinstance(cost, bool) and 0.0 <= cost <= MAX_GROUP_CPU_S:
+        return float(cost)
+    print(f"coopsumo: {path.resolve()} is damaged (cpu_s must be a number from 0 to {MAX_GROUP_CPU_S:g} s): its "
+          "training's cost is left out", file=sys.stderr)  # fmt: skip
+    return None
 
 
 def groups_cpu_s(folders: Iterable[Path]) -> float:
     """The CPU seconds of the models among `folders` (a study's training folders or links to the store) that were
     trained in groups, each model once: what a study's cells' own CPU time leaves out."""
-    shares = {Path(f).resolve(): group_cpu_s(Path(f)) for f in folders}
-    return sum(s for s in shares.values() if s is not None)
+    shares = [group_cpu_s(f) for f in dict.fromkeys(Path(f).resolve() for f in folders)]
+    return sum(s for s in shares if s is not None)
 
 
 def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP_SIZE, quiet: bool = False) -> int:

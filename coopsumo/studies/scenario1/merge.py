@@ -9,12 +9,16 @@ short report.md; nothing is written when a part is refused."""
 from __future__ import annotations
 
 import math
+import os
 import re
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
+from coopsumo.dqn_config import dqn_config_from_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json_object, write_json
 from coopsumo.provenance import versions
@@ -43,8 +47,18 @@ def _part(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
         values = recorded["plan"].get(key)
         if not isinstance(values, list) or not values or not all(
                 isinstance(v, kind) and not isinstance(v, bool) and (kind is str or math.isfinite(v)) for v in values):
-            raise UsageError(f"--merge: {folder}/plan.json: plan.{key} must be a non-empty list of "
-                             f"{'names' if kind is str else 'numbers'}, got {str(values)[:40]}")  # fmt: skip
+            what = {str: "names", int: "integers"}.get(kind, "numbers")
+            raise UsageError(f"--merge: {folder}/plan.json: plan.{key} must be a non-empty list of {what}, got "
+                             f"{str(values)[:40]}")  # fmt: skip
+    for name, learner in recorded["learners"].items():
+        try:
+            dqn_config_from_dict(learner).validate()
+        except (UsageError, TypeError, ValueError) as err:
+            raise UsageError(f"--merge: {folder}/plan.json: learner {name}: {err}") from None
+    for key, value in recorded["plan"].items():
+        if isinstance(value, (int, float)) and not isinstance(value, bool) and not (math.isfinite(value) and
+                                                                                     value >= 0):  # fmt: skip
+            raise UsageError(f"--merge: {folder}/plan.json: plan.{key} must be a finite number >= 0, got {value}")
     if not (folder / "runs.csv").is_file():
         raise UsageError(f"--merge: {folder} has no runs.csv: the part has not finished")
     try:
@@ -131,6 +145,10 @@ def _check_out(out: Path, folders: list[Path]) -> None:
             raise UsageError(f"--out {out} is inside the part {folder}: give a folder of its own")
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} is a file, not a folder")
+    if out.is_dir() and (out / MERGED).exists():
+        recorded = read_json_object(out / MERGED)
+        if recorded is None or recorded.get("parts") != [str(f) for f in folders]:
+            raise UsageError(f"--out {out} holds a merge of other parts ({MERGED}): pick another --out")
     if out.is_dir():
         others = sorted(p.name for p in out.iterdir() if p.name not in OWN_FILES and not p.name.startswith("."))
         if others:
@@ -154,21 +172,30 @@ def merge_parts(folders: list[Path], out: Path) -> int:
     SCENARIO1_RUNS.check_frame(rows, out / "runs.csv")
     summary = aggregate(rows)
     SCENARIO1_SUMMARY.check_frame(summary, out / "summary.csv")
-    out.mkdir(parents=True, exist_ok=True)
-    rows.to_csv(out / "runs.csv", index=False)
-    summary.to_csv(out / "summary.csv", index=False)
-    write_json(out / "plan.json", {"plan": plan_dict, "learners": first["learners"], "versions": versions(),
-                                   "parts": [str(f) for f in folders]})  # fmt: skip
-    presets, alphas = plan_dict["presets"], plan_dict["alphas"]
-    claim = ""
-    if 0.0 in alphas and 8.0 in alphas:
-        from coopsumo.studies.scenario1.claim_a_report import write_claim_a
+    out.parent.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-merge-", dir=out.parent))
+    try:  # every file written beside out first, then moved in: an interrupted merge leaves out as it was
+        rows.to_csv(stage / "runs.csv", index=False)
+        summary.to_csv(stage / "summary.csv", index=False)
+        write_json(stage / "plan.json", {"plan": plan_dict, "learners": first["learners"], "versions": versions(),
+                                         "parts": [str(f) for f in folders]})  # fmt: skip
+        presets, alphas = plan_dict["presets"], plan_dict["alphas"]
+        claim = ""
+        if 0.0 in alphas and 8.0 in alphas:
+            from coopsumo.studies.scenario1.claim_a_report import write_claim_a
 
-        found = write_claim_a(out, rows, model_label(presets[0], 8.0), model_label(presets[0], 0.0))
-        claim = (f"\n\nClaim (a) under its analysis plan: [claim_a.md](claim_a.md) ({found['planned_models']} models "
-                 "per alpha planned from the first 10), `fig_thrashing.png`.")  # fmt: skip
-    write_json(out / MERGED, {"parts": [str(f) for f in folders], "train_seeds": seeds})
-    (out / "report.md").write_text(report_text(parts, rows, plan_dict) + claim + "\n")
+            found = write_claim_a(stage, rows, model_label(presets[0], 8.0), model_label(presets[0], 0.0))
+            claim = (f"\n\nClaim (a) under its analysis plan: [claim_a.md](claim_a.md) ({found['planned_models']} "
+                     "models per alpha planned from the first 10), `fig_thrashing.png`.")  # fmt: skip
+        (stage / "report.md").write_text(report_text(parts, rows, plan_dict) + claim + "\n")
+        write_json(stage / MERGED, {"parts": [str(f) for f in folders], "train_seeds": seeds})
+        if not out.exists():
+            stage.rename(out)
+        else:  # a merge of these parts before: its files replaced, merge.json last
+            for name in sorted(p.name for p in stage.iterdir() if p.name != MERGED) + [MERGED]:
+                os.replace(stage / name, out / name)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
     print(f"scenario1: merged {len(parts)} parts ({len(seeds)} models per alpha) into {out}")
     return 0
 

@@ -243,6 +243,8 @@ def main(argv: list[str] | None = None) -> int:
         check_backend(args.backend, args.address)
         if args.out is None:
             args.out = default_model_out(study_out(plan))
+        if (Path(args.out) / "merge.json").exists():
+            raise UsageError(f"--out {args.out} holds a merge of scenario I parts (merge.json): pick another --out")
         # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
         with study_root(args.out, "scenario1", profile_study(plan.profile), recorded_profile("plan.json", "plan",
                         "profile"), f"pick another --out (the {plan.profile} profile's default: {study_out(plan)})"):
