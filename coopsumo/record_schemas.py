@@ -353,6 +353,9 @@ CELL_RECORD = Schema((
     Field("lanes", Integer(MIN_LANES, MAX_LANES), optional=True),
     Field("p", POLITENESS, optional=True),
     Field("model_sha256", Text(), optional=True),
+    Field("load", Number(0.0, 100.0, blank_ok=True), optional=True),  # scenario II: inflow per lane / 1,800 veh/h
+    Field("resumed_from_step", Integer(0, blank_ok=True), optional=True),  # scenario II: none when trained now
+    Field("train_group_cpu_s", Number(0.0, 7 * 86_400.0, unit="s", blank_ok=True), optional=True),
 ))  # fmt: skip
 """a study's cell record (records.CellRecords, records.blank_record and run_recorded; every study's cells/<key>.json)
 as records.reusable_keys reads it back to decide whether the cell is done: its envelope and the coordinates the

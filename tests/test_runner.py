@@ -176,12 +176,13 @@ def test_a_corrupt_record_is_rerun_with_one_line(tmp_path: Path, capsys: pytest.
 
 FULL = {**GOOD, "kind": "run", "error": None, "traceback": None, "cell_wall_s": 2.5, "cell_cpu_s": 2.4,
         "versions": {"python": "3"}, "train_summary": None, "seed": 100, "eval_seed": 5001,
-        "alpha": 8.0, "t_up_s": 2.0, "t_up": 2.0, "lanes": 3, "p": None, "model_sha256": "ab12"}  # fmt: skip
+        "alpha": 8.0, "t_up_s": 2.0, "t_up": 2.0, "lanes": 3, "p": None, "model_sha256": "ab12", "load": 0.5,
+        "resumed_from_step": None, "train_group_cpu_s": 12.5}  # fmt: skip
 """a cell record with every field of record_schemas.CELL_RECORD, each inside its limits"""
 OUTSIDE = {"key": "", "kind": 3, "status": "done", "config": "x", "error": 5, "traceback": ["t"], "cell_wall_s": -1.0,
            "cell_cpu_s": "12 s", "versions": [], "train_summary": 3, "seed": -1,
            "eval_seed": 1.5, "alpha": -0.5, "t_up_s": 0.0, "t_up": 4000.0, "lanes": 7, "p": 11.0,
-           "model_sha256": None}  # fmt: skip
+           "model_sha256": None, "load": "x", "resumed_from_step": -7, "train_group_cpu_s": 1e300}  # fmt: skip
 """a value outside each field's type or limits"""
 
 

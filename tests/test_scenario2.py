@@ -831,3 +831,29 @@ def test_a_pooled_summary_passes_the_record_check() -> None:
     assert implausible(pooled) is None
     averaged = dict(pooled, lane_changes_per_vehicle=(200 / 350 + 186 / 385) / 2)
     assert implausible(averaged) is not None  # the check that fired on the averaged ratio
+
+
+def test_a_record_that_is_not_its_cells_is_rerun(tmp_path: Path, faked_train: list[str],
+                                                 capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """A fresh probe (issue 82): records whose policy, load or trained speed had been edited were reused, and the
+    edit reached runs.csv and alpha*. Each field copied from the cell's spec must be the spec's, and the training's
+    summary kept beside it plausible."""
+    assert s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=20)["cells_ok"] == 8
+    first = pd.read_csv(tmp_path / "alpha_star.csv")
+    cells = tmp_path / "cells"
+    bad = {"L2_T2_a8_s1": lambda r: {**r, "policy": "zzz"}, "L2_T2_a8_s2": lambda r: {**r, "load": "x"},
+           "L2_T2_a0_s1": lambda r: {**r, "train_summary": {**(r["train_summary"] or {}), "mean_speed_mps": 999.0}},
+           "L2_T2_a0_s2": lambda r: {**r, "resumed_from_step": -7}, "L2_T4_a0_s1": lambda r: {**r, "seed": 3}}
+    for key, spoil in bad.items():
+        path = cells / f"{key}.json"
+        path.write_text(json.dumps(spoil(json.loads(path.read_text()))))
+    capsys.readouterr()
+    del faked_train[1:]
+    meta = s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=20)
+    err = capsys.readouterr().err
+    assert sorted(faked_train[1:]) == sorted(bad)  # exactly the spoiled cells ran again
+    for key in bad:
+        assert sum(f"cell {key}: record" in line and line.endswith("rerunning it") for line in err.splitlines()) == 1
+    assert meta["cells_ok"] == 8 and meta["cells_run"] == len(bad)
+    pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "alpha_star.csv"), first)
+    assert set(pd.read_csv(tmp_path / "runs.csv")["policy"]) == {"dqn"}

@@ -261,6 +261,24 @@ def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str,
     return {**record, "status": "failed", "error": f"record {problem}"} if problem else record
 
 
+SPEC_CHECKED_ELSEWHERE = ("config", "model_sha256")
+"""spec fields reusable_keys judges on their own: the configuration (another one is another cell, rerun without a
+word) and the model file's digest (model_changed: the model has changed since)"""
+
+
+def spec_problem(record: dict[str, Any], spec: dict[str, Any]) -> str | None:
+    """Why a record is not its cell's, or None: every field it copied from its cell's spec (blank_record: its
+    coordinates, its policy, its folders) must be the spec's; and a training's summary kept beside it must be
+    plausible (implausible)."""
+    for key, value in spec.items():
+        if key not in SPEC_CHECKED_ELSEWHERE and key in record and not isinstance(value, dict) and record[key] != value:
+            return f"has {key} = {json.dumps(record[key])[:40]}, not its cell's {json.dumps(value)[:40]}"
+    train = record.get("train_summary")
+    if isinstance(train, dict) and (problem := implausible(train)):
+        return problem.replace("has summary", "has train_summary", 1)
+    return None
+
+
 def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> set[str]:
     """The cells whose stored record can be reused: one cell_problem accepts, made with the cell's
     configuration and, for a cell that drives a model file, with that file as it is now (model_changed). Every
@@ -287,7 +305,7 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
                 print(f"{prog}: cell {spec['key']}: record {path} is cell {str(record['key'])[:60]}'s (copied?); "
                       "rerunning it", file=sys.stderr)  # fmt: skip
             continue  # another configuration: another cell (a changed setting reruns it without a word)
-        if problem := problem or model_changed(record, spec, path):
+        if problem := problem or spec_problem(record, spec) or model_changed(record, spec, path):
             print(f"{prog}: cell {spec['key']}: record {path} {problem}; rerunning it", file=sys.stderr)
         else:
             done.add(spec["key"])
