@@ -251,3 +251,15 @@ def test_a_model_write_on_a_full_disk_is_one_line(capsys: pytest.CaptureFixture[
     assert run_cli("train", body) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("train: error: writing a model or checkpoint failed (is the disk full?)")
+
+
+def test_resume_from_a_checkpoint_that_is_a_pipe_says_why_without_waiting(tmp_path: Path) -> None:
+    """A fresh probe (issue 82): `train --resume` on a checkpoint.pt made a FIFO waited for a writer forever."""
+    import os
+
+    from coopsumo.agents.train import Trainer
+    from coopsumo.errors import UsageError
+
+    os.mkfifo(tmp_path / "checkpoint.pt")
+    with pytest.raises(UsageError, match="it is not a regular file"):
+        Trainer.load_checkpoint(tmp_path)

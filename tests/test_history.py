@@ -16,6 +16,7 @@ import pytest
 
 from coopsumo.config import to_dict
 from coopsumo.dqn_config import DQN_PRESETS
+from coopsumo.errors import UsageError
 from coopsumo.studies.protocol import history
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -250,3 +251,13 @@ def test_a_spoiled_record_is_one_line_and_nothing_is_written(
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
     assert err.startswith(f"coopsumo history: error: {folder}/") and fragment in err, (fragment, err)
     assert not out.exists()
+
+
+def test_out_refuses_a_pipe_without_waiting_on_it(tmp_path: Path) -> None:
+    """A fresh probe (issue 82): `history --out FIFO` waited for a writer forever; it is refused in one line."""
+    import os
+
+    fifo = tmp_path / "table.md"
+    os.mkfifo(fifo)
+    with pytest.raises(UsageError, match="is not a regular file"):
+        history.check_writable(fifo)

@@ -386,3 +386,15 @@ def test_a_cells_label_is_short_and_the_bar_says_how_many_more_run() -> None:
     assert runner.in_flight_text(specs, 0) == "running c0, c1, c2 and 2 more"
     assert runner.in_flight_text(specs[:1], 2) == "running c0; 2 failed"
     assert runner.in_flight_text([], 1) == "1 failed" and runner.in_flight_text([], 0) == ""
+
+
+def test_a_record_that_is_a_pipe_is_rerun_without_waiting_on_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """A fresh probe (issue 82): a cell record made a FIFO hung the study on its read; the cell is rerun, one line."""
+    import os
+
+    (tmp_path / "cells").mkdir()
+    os.mkfifo(cell_records.cell_path(tmp_path, "c1"))
+    assert cell_records.reusable_keys(tmp_path, specs_of([1]), "study", ("v", "n")) == set()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "is not a regular file; rerunning it" in err[0]

@@ -289,6 +289,9 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
     for spec in specs:
         path = cell_path(root, spec["key"])
         temporary_of(path).unlink(missing_ok=True)
+        if path.exists() and not path.is_file():  # a pipe or a folder: reading it would wait, or fail
+            print(f"{prog}: cell {spec['key']}: record {path} is not a regular file; rerunning it", file=sys.stderr)
+            continue
         try:
             record = json.loads(path.read_text())
         except FileNotFoundError:

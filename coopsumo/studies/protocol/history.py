@@ -184,6 +184,8 @@ def check_writable(out: Path) -> None:
         return
     if out.is_dir():
         raise UsageError(f"--out {out} is a folder; name the table's file")
+    if not out.is_file():  # a pipe or a device: reading it would wait for a writer
+        raise UsageError(f"--out {out} is not a regular file; name the table's file")
     try:
         with out.open(encoding="utf-8") as f:
             head = [f.readline().rstrip("\n") for _ in range(3)]
