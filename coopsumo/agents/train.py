@@ -115,11 +115,10 @@ class Trainer:
     @staticmethod
     def load_checkpoint(out: Path) -> dict[str, Any]:
         path = out / "checkpoint.pt"
-        if not path.exists():
+        if not path.is_file():  # missing, or a pipe or a device (reading it would wait for a writer)
             done = "; the training there has finished" if finished_run(out, "train") else ""
-            raise UsageError(f"nothing to resume: {path} does not exist{done}")
-        if not path.is_file():  # a pipe or a device: reading it would wait for a writer
-            raise UsageError(f"cannot read checkpoint {path}: it is not a regular file")
+            raise UsageError(f"cannot read checkpoint {path}: it is not a regular file" if path.exists()
+                             else f"nothing to resume: {path} does not exist{done}")  # fmt: skip
         try:
             state: dict[str, Any] = torch.load(path, weights_only=True)
         except Exception as err:  # a damaged file (empty, cut short, not torch's): report it in one line

@@ -171,7 +171,8 @@ def build_parser() -> Parser:
                         "repeat it for several (default: none; docs/extending.md)")  # fmt: skip
     p.add_argument("--merge", default=None, metavar="P1,P2,...",
                    help="merge finished parts (scenario I study folders of one plan and learner, other training seeds) "
-                        "into --out: runs.csv, summary.csv, claim_a.md, report.md (studies/scenario1/merge.py)")
+                        "into --out: runs.csv, summary.csv, claim_a.md, report.md (studies/scenario1/merge.py; "
+                        "default: none, run a study)")
     p.add_argument("--preset", "--presets", dest="presets", default=None,
                    help=f"learner presets, comma-separated: {', '.join(learners())}, or several side by side, e.g. "
                         f"default,alpha_only (default: {by_profile(lambda plan: ','.join(plan.presets))})")  # fmt: skip
