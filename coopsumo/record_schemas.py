@@ -42,8 +42,10 @@ from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MOBIL_LIMITS
 SPEED_MAX_MPS = SPEED_LIMIT_MPS[1]
 """no vehicle goes faster (70 m/s, 252 km/h: the largest speed limit a road takes, config.SPEED_LIMIT_MPS): a recorded
 speed above it is not a measurement"""
-LANE_CAPACITY_VEH_H = 2600.0
-"""no lane carries more vehicles an hour (the Newell model's capacity is about 2,000; committed loops peak at 2,160)"""
+LANE_CAPACITY_VEH_H = 3600.0
+"""no lane carries more vehicles an hour: one a second (the Newell model's capacity is about 2,000, committed loops
+peak at 2,160; SUMO's own models, the `sumo` baseline with its 1 s headway, count up to 47 vehicles in a minute on
+one lane, 2,820 veh/h, where scenario I's queue discharges: a limit of 2,600 had those runs rerun every time)"""
 WEIGHT_MAX = 1e6
 """a network weight's magnitude: trained weights stay below 10; above this the training diverged or was edited"""
 REWARD_MAX = 1e6

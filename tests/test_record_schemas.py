@@ -95,9 +95,9 @@ def test_a_writer_leaves_blanks_a_reader_refuses_them(tmp_path: Path) -> None:
     assert rs.SCENARIO2_EVALS.frame_problem(frame.iloc[:1]) is None
     problem = rs.SCENARIO2_EVALS.frame_problem(frame)
     assert problem is not None and problem.startswith("row 2 column lane_changes_per_vehicle must be a finite"), problem
-    for column, value in (("mean_speed_mps", 71.0), ("loop_flow_veh_h_per_lane", 2601.0), ("lanes", 7),
+    for column, value in (("mean_speed_mps", 71.0), ("loop_flow_veh_h_per_lane", 3601.0), ("lanes", 7),
                           ("loop_occupancy_pct", 101.0), ("teleports", -1), ("alpha", 1001.0), ("p", 11.0),
-                          ("throughput_veh_per_h", 6 * 2600.0 + 1), ("t_up_s", 0.0), ("eval_seed", 1.5)):
+                          ("throughput_veh_per_h", 6 * 3600.0 + 1), ("t_up_s", 0.0), ("eval_seed", 1.5)):
         with pytest.raises(rs.RecordError, match=rf"^{tmp_path}/evals.csv row 1 column {column} must be"):
             rs.SCENARIO2_EVALS.check_frame(pd.DataFrame([{**row, column: value}]), tmp_path / "evals.csv")
     assert not (tmp_path / "evals.csv").exists()

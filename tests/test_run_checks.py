@@ -144,8 +144,8 @@ CASES: dict[str, tuple[Callable[[Path], None], str]] = {
     "detectors.xml deleted": (lambda out: (out / "detectors.xml").unlink(),
                               "has lost detectors.xml, which its .coopsumo-run.json lists"),  # was blamed on the marker
     "tripinfo.xml deleted": (lambda out: (out / "tripinfo.xml").unlink(), "has no tripinfo.xml"),
-    "above a lane's capacity": (text("detectors.xml", lambda x: _interval_flow(x, 9, "3240.00")),
-                                "9 vehicles in 10 s on one lane, above a lane's capacity of 2,600 veh/h"),
+    "above a lane's capacity": (text("detectors.xml", lambda x: _interval_flow(x, 12, "4320.00")),
+                                "12 vehicles in 10 s on one lane, above a lane's capacity of 3,600 veh/h"),
 }  # fmt: skip
 
 

@@ -98,9 +98,9 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     "sweep.json with versions a list": (
         lambda f: edit_json(f, lambda m: m.update(versions=[])), "field versions must be a mapping"),
     # issue 82 item 1: every number of runs.csv and evals.csv inside record_schemas.SCENARIO2_RUNS, SCENARIO2_EVALS
-    "evals.csv with a loop flow of 3,000 veh/h per lane": (
-        lambda f: edit_table(f, "evals.csv", lambda t: t.assign(loop_flow_veh_h_per_lane=3000.0)),
-        "evals.csv row 1 column loop_flow_veh_h_per_lane must be a finite number >= 0 and <= 2600 (veh/h per lane)"),
+    "evals.csv with a loop flow of 4,000 veh/h per lane": (
+        lambda f: edit_table(f, "evals.csv", lambda t: t.assign(loop_flow_veh_h_per_lane=4000.0)),
+        "evals.csv row 1 column loop_flow_veh_h_per_lane must be a finite number >= 0 and <= 3600 (veh/h per lane)"),
     "runs.csv with an occupancy of 150 %": (
         lambda f: edit_table(f, "runs.csv", lambda t: t.assign(loop_occupancy_pct=150.0)),
         "runs.csv row 1 column loop_occupancy_pct must be a finite number >= 0 and <= 100 (%)"),
