@@ -218,7 +218,7 @@ def report_text(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]], rows: pd
     if all(spent):
         core_min = sum(int(m.group(1)) for m in spent if m)
         lines += ["", f"In all, from scratch: {core_min:,} core-min ({core_min / 60:.1f} core-hours), about "
-                      f"{core_min / 120:.1f} h on 2 cores (each part's from-scratch estimate, its baselines included)."]
+                      f"{core_min / 120:.1f} h on 2 cores (each part's estimate from the runs it ran itself)."]
     table = rows.groupby(["t_up_s", "policy"], sort=False)["tts_veh_h"].agg(["mean", "std", "count"]).reset_index()
     lines += ["", "Total time spent (veh-h), mean over models and seeds:", "",
               "| T_up (s) | policy | mean | sd | runs |", "|---|---|---|---|---|"]  # fmt: skip
