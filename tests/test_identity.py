@@ -88,7 +88,7 @@ OK = {"departed": 600, "arrived": 474, "collisions": 0, "teleports": 0, "lane_ch
     ({"full_road_speed_mps": 80.0}, "full_road_speed_mps must be"),
     ({"departed": 2.5}, "departed must be an integer, got 2.5"),
     ({"lost_veh_h": -1.0}, "lost_veh_h must be"),
-    ({"throughput_veh_per_h": 1e7}, "throughput_veh_per_h must be a finite number >= 0 and <= 15600 (veh/h)"),
+    ({"throughput_veh_per_h": 1e7}, "throughput_veh_per_h must be a finite number >= 0 and <= 21600 (veh/h)"),
     ({"lane_changes_per_vehicle": -0.1, "lane_changes": -60}, "lane_changes must be an integer >= 0"),
 ])  # fmt: skip
 def test_impossible_summaries_are_not_trusted(edit: dict, fragment: str) -> None:
