@@ -155,6 +155,15 @@ def test_an_out_that_is_not_the_merges_own_is_refused(parts: list[Path], tmp_pat
     third = make_part(tmp_path, "p3", [110])
     code, err = merge(capsys, "--merge", f"{parts[0]},{third}", "--out", str(merged))
     assert code == 2 and "holds a merge of other parts" in err[0]
+    grown = make_part(tmp_path, "p4", [111])  # a merge grows by parts: p1, p2 and one more
+    runs = pd.read_csv(grown / "runs.csv")
+    models = pd.read_csv(parts[0] / "runs.csv").query("train_seed == 100").assign(train_seed=111)
+    pd.concat([runs, models]).to_csv(grown / "runs.csv", index=False)
+    assert merge(capsys, "--merge", f"{parts[0]},{parts[1]},{grown}", "--out", str(merged))[0] == 0
+    assert json.loads((merged / "plan.json").read_text())["plan"]["train_seeds"] == [*range(100, 110), 111]
+    code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(merged))  # nor shrinks
+    assert code == 2 and "may only grow by parts" in err[0]
+    before = {p.name: p.read_bytes() for p in merged.iterdir()}
     code, err = merge(capsys, "--quick", "--out", str(merged))  # nor does a study take a merge's folder
     assert code == 2 and "holds a merge of scenario I parts" in err[0]
     assert {p.name: p.read_bytes() for p in merged.iterdir()} == before

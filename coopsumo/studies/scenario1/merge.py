@@ -147,8 +147,10 @@ def _check_out(out: Path, folders: list[Path]) -> None:
         raise UsageError(f"--out {out} is a file, not a folder")
     if out.is_dir() and (out / MERGED).exists():
         recorded = read_json_object(out / MERGED)
-        if recorded is None or recorded.get("parts") != [str(f) for f in folders]:
-            raise UsageError(f"--out {out} holds a merge of other parts ({MERGED}): pick another --out")
+        before = recorded.get("parts") if recorded is not None else None
+        if not isinstance(before, list) or not set(map(str, before)) <= {str(f) for f in folders}:
+            raise UsageError(f"--out {out} holds a merge of other parts ({MERGED}): pick another --out (a merge "
+                             "may only grow by parts)")  # fmt: skip
     if out.is_dir():
         others = sorted(p.name for p in out.iterdir() if p.name not in OWN_FILES and not p.name.startswith("."))
         if others:
