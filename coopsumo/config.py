@@ -7,6 +7,7 @@ the project's own choices are listed in the "Deviations and choices" table of do
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -362,6 +363,22 @@ def results_view(d: Any) -> Any:
     if isinstance(d, list):
         return [results_view(v) for v in d]
     return d
+
+
+def first_difference(a: Any, b: Any, path: str = "config") -> str | None:
+    """Where two configurations (config.results_view of each) first differ, as 'config.sim.seed: 2 != 0'; None
+    when they are equal."""
+    a, b = results_view(json.loads(json.dumps(a))), results_view(json.loads(json.dumps(b)))
+
+    def walk(x: Any, y: Any, at: str) -> str | None:
+        if isinstance(x, dict) and isinstance(y, dict):
+            for key in sorted(set(x) | set(y)):
+                if (found := walk(x.get(key), y.get(key), f"{at}.{key}")) is not None:
+                    return found
+            return None
+        return None if x == y else f"{at}: {json.dumps(x)[:40]} != {json.dumps(y)[:40]}"
+
+    return walk(a, b, path)
 
 
 def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:

@@ -372,6 +372,10 @@ CHECKPOINT_TENSORS = (
     *(Field(f"learner.buffer.data.{name}", Number(-REWARD_MAX, REWARD_MAX, True, True, "an observed feature"))
       for name in ("features", "next_features")),  # fmt: skip
     Field("learner.buffer.data.dones", Integer(0, 1)),
+    *(Field(f"window.{name}", Integer(0, 10**15)) for name in ("samples", "vehicle_steps", "lane_changes",
+                                                                 "rejected")),  # fmt: skip
+    Field("window.speed_sum", Number(0.0, unit="m/s summed over vehicle steps")),
+    Field("window.loss.*", Number(0.0, unit="a Huber or squared loss")),
     Field("learner.optimizer.param_groups.*.lr", Number(0.0, 1.0, low_open=True, unit="a learning rate")),
     Field("learner.optimizer.param_groups.*.betas.*", Number(0.0, 1.0, high_open=True, unit="Adam's beta")),
     Field("learner.optimizer.param_groups.*.eps", Number(0.0, 1.0, low_open=True)),

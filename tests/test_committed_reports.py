@@ -18,10 +18,9 @@ from unittest import mock
 import pytest
 from conftest import MADE_BY, REL_TOLERANCE, committed_report_pages, made_by, text_difference
 
-from coopsumo.config import results_view, to_dict
+from coopsumo.config import first_difference, results_view, to_dict
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.studies.engine.run_folders import default_out
-from coopsumo.studies.engine.trainings import first_difference
 from coopsumo.studies.learning.plan import PROFILES as LEARNING_PROFILES
 from coopsumo.studies.learning.plan import learner_of as learner_of_variant
 from coopsumo.studies.protocol.plan import variants

@@ -310,6 +310,44 @@ def test_the_unspoiled_checkpoint_resumes(checkpoint_folder: Path, tmp_path: Pat
 
 
 # -- the training log and temporary files on resume -------------------------------------------------------------
+@pytest.mark.parametrize(("value", "shown"), [(math.nan, "NaN"), ("x", '"x"'), (0.5, "0.5")])
+def test_a_config_json_that_is_not_the_checkpoints_names_the_field(
+    value: Any, shown: str, checkpoint_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The probe's (2026-12-02): config.json's learning rate edited to NaN was refused as another training's without
+    saying which field differs; now the line names it and its two values."""
+    out = tmp_path / "run"
+    shutil.copytree(checkpoint_folder, out)
+    meta = {"config": copy.deepcopy(torch.load(out / "checkpoint.pt", weights_only=True)["config"])}
+    lr = meta["config"]["dqn"]["lr"]
+    meta["config"]["dqn"]["lr"] = value
+    (out / "config.json").write_text(json.dumps(meta))
+    before = snapshot(tmp_path)
+    code = train.main(["--resume", "--quiet", "--out", str(out)])
+    one_line(code, capsys.readouterr().err, f"(first at config.dqn.lr: {json.dumps(lr)} != {shown})", "copied in?")
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("cell", ["nan", "inf", "x"])
+def test_a_log_row_the_resume_would_keep_must_be_numbers(
+    cell: str, checkpoint_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The probe's (2026-12-02): a row of train_log.csv before the checkpoint's step with a loss of nan was kept and
+    resumed; now it is one line naming the log, the column and the row, and nothing is written."""
+    out = tmp_path / "run"
+    shutil.copytree(checkpoint_folder, out)
+    log = out / "train_log.csv"
+    lines = log.read_text().splitlines(keepends=True)
+    header, row = lines[0].strip().split(","), lines[1].split(",")
+    row[header.index("mean_speed_mps")] = cell
+    log.write_text(lines[0] + ",".join(row) + "".join(lines[2:]))
+    before = snapshot(tmp_path)
+    code = train.main(["--resume", "--quiet", "--out", str(out)])
+    one_line(code, capsys.readouterr().err, f"training log {log} has mean_speed_mps = '{cell}' in its row of step 10",
+             "train again without --resume")  # fmt: skip
+    assert snapshot(tmp_path) == before
+
+
 def test_resume_cuts_the_log_back_to_the_checkpoint(tmp_path: Path) -> None:
     log = tmp_path / "train_log.csv"
     rows = ["step,td_loss,wall_s"] + [f"{s},0.5,{s / 100}" for s in (250, 500, 750, 1000)]

@@ -351,3 +351,35 @@ def test_links_inside_the_folder_and_the_folder_itself_behind_a_link_are_fine(tm
     assert outside_link(tmp_path / "run") is None
     (real / "sumo" / "up").symlink_to(tmp_path / "disk")
     assert outside_link(tmp_path / "run") == (real / "sumo" / "up", tmp_path / "disk")
+
+
+STUDIES = {  # a study that trains, with a run small enough to start: refused before it writes anything
+    "scenario1": ("coopsumo.studies.scenario1.study", ["--quick", "--alphas", "0", "--train-seeds", "1"]),
+    "scenario2": ("coopsumo.studies.scenario2.study", ["--profile", "tiny", "--quiet"]),
+    "protocol": ("coopsumo.studies.protocol.study", ["--profile", "tiny", "--quiet"]),
+    "learning": ("coopsumo.studies.learning.study", ["--profile", "tiny", "--quiet"]),
+}
+
+
+@pytest.mark.parametrize("command", sorted(STUDIES))
+@pytest.mark.parametrize("users", ["a file", "a folder of the user's"])
+def test_a_study_never_takes_a_users_models_beside_its_out_for_its_store(
+    command: str, users: str, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The probe's (2026-12-02): a file named `models` beside --out ended in a traceback, and a user's own `models/`
+    folder there became the study's model store; each is now one line, exit 2, before anything is written."""
+    import importlib
+
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    models = tmp_path / "models"
+    if users == "a file":
+        models.write_text("my notes\n")
+    else:
+        (models / "mine").mkdir(parents=True)
+        (models / "mine" / "model.pt").write_bytes(b"a user's model")
+    before = snapshot(tmp_path)
+    module, args = STUDIES[command]
+    code = importlib.import_module(module).main([*args, "--out", str(tmp_path / "study")])
+    what = "exists and is not a folder" if users == "a file" else "holds mine, which is not a stored model"
+    one_line(capsys, code, f"the model store {models} (beside {tmp_path / 'study'}) {what}")
+    assert snapshot(tmp_path) == before

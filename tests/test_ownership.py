@@ -15,7 +15,7 @@ import pytest
 from coopsumo import simulate
 from coopsumo.agents import train_cli as train
 from coopsumo.errors import UsageError
-from coopsumo.run_dirs import RUN_MARKER, atomic_run_dir
+from coopsumo.run_dirs import RUN_MARKER, atomic_run_dir, mark_run_dir
 
 SIM = ["--steps", "20", "--quiet"]
 
@@ -97,6 +97,24 @@ def test_train_refuses_a_study_folder(tmp_path: Path, capsys: pytest.CaptureFixt
     before = snapshot(tmp_path)
     code = train.main(["--steps", "20", "--eval-steps", "0", "--quiet", "--out", str(study)])
     refused(capsys, code, str(study), "not a coopsumo run folder")
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("command", ["simulate", "train"])
+def test_a_study_s_run_folder_is_the_study_s(tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str) -> None:
+    """The probe's (2026-12-02): simulate --out into a scenario I study's run folder replaced it (a simulate folder
+    by its marker); a run folder anywhere inside a marked study root is now refused, as is a training there."""
+    root = tmp_path / "study"
+    run = root / "runs" / "t2" / "keep_seed1"
+    assert simulate.main([*SIM, "--out", str(run)]) == 0  # as the study's cell wrote it, before the root was marked
+    mark_run_dir(root, "scenario1", finished=False, study="the default profile's study")
+    before = snapshot(tmp_path)
+    for out in (run, root / "runs" / "t2" / "new_run"):
+        if command == "simulate":
+            code = simulate.main([*SIM, "--out", str(out)])
+        else:
+            code = train.main(["--steps", "20", "--eval-steps", "0", "--quiet", "--out", str(out)])
+        refused(capsys, code, f"--out {out} lies inside {root.resolve()}, a coopsumo scenario1 study's folder")
     assert snapshot(tmp_path) == before
 
 

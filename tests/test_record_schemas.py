@@ -22,7 +22,8 @@ from conftest import interrupted_at_step_20
 
 from coopsumo import record_schemas as rs
 from coopsumo.agents import train_cli as train
-from coopsumo.agents.file_checks import checkpoint_problem
+from coopsumo.agents.file_checks import WINDOW_KEYS, checkpoint_problem
+from coopsumo.agents.tb_log import Window
 from coopsumo.config import SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.run_dirs import finished_run
@@ -147,6 +148,12 @@ def _done_half_beside_a_one(state: dict[str, Any]) -> None:
     dones[:2] = torch.tensor([0.5, 1.0])
 
 
+def _no_next_action(state: dict[str, Any]) -> None:
+    mask = state["learner"]["buffer"]["data"]["next_mask"] = state["learner"]["buffer"]["data"]["next_mask"].clone()
+    mask[0] = False
+    state["learner"]["buffer"].update(size=1, pos=1)  # the fixture's memory is still empty: its first row is stored
+
+
 GROUP = ("learner", "optimizer", "param_groups", 0)
 ADAM = ("learner", "optimizer", "state", 0)
 REPLAY = ("learner", "buffer", "data")
@@ -183,6 +190,11 @@ CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
     "a replay done of 0.5 beside a 1": (_done_half_beside_a_one, "field learner.buffer.data.dones must be an integer, "
                                         "got 0.5"),  # the smallest and largest dones were checked, not those between
     "two parameter groups": (lambda s: s["learner"]["optimizer"]["param_groups"].append({}), "one parameter group"),
+    # the probe's (2026-12-02): the first resumed with an infinite loss, the others with a log of negative counts
+    "a replay row whose next state allows no action": (_no_next_action, "next_mask all false"),
+    "a log window of -3 samples": (_set("window", "samples", value=-3), "field window.samples must be"),
+    "a log window loss of -1": (_set("window", "loss", value=[0.5, -1.0]), "field window.loss.1 must be"),
+    "a log window of another version": (lambda s: s["window"].update(episodes=2), "has a log window with"),
 }  # fmt: skip
 
 
@@ -209,6 +221,10 @@ def test_a_checkpoint_outside_its_limits_is_one_line_and_every_byte_is_kept(
     assert lines[0].startswith(f"train: error: checkpoint {out / 'checkpoint.pt'} "), lines[0]
     assert fragment in lines[0] and lines[0].endswith("; train again without --resume"), (fragment, lines[0])
     assert snapshot(tmp_path) == before
+
+
+def test_the_window_keys_a_checkpoint_must_hold_are_the_logs() -> None:
+    assert WINDOW_KEYS == tuple(f.name for f in dataclasses.fields(Window))
 
 
 def test_the_checkpoint_inside_its_limits_resumes(checkpoint_folder: Path, tmp_path: Path) -> None:

@@ -27,6 +27,9 @@ N_ACTIONS = 4
 LEARNER_KEYS = ("online", "target", "optimizer", "buffer", "numpy_rng", "torch_rng", "env_steps", "decisions",
                 "updates")  # fmt: skip
 """what a checkpoint's learner state holds (dqn.Learner.state_dict)"""
+WINDOW_KEYS = ("loss", "r_speed", "r_lane_change", "r_flow", "samples", "speed_sum", "vehicle_steps", "lane_changes",
+               "rejected")  # fmt: skip
+"""what a checkpoint's log window holds (tb_log.Window's fields)"""
 
 
 def _is_count(x: Any) -> bool:
@@ -107,6 +110,8 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
         isinstance(v, list) if k == "loss" else isinstance(v, numbers.Real) for k, v in window.items()
     ):
         return "has a log window that is not a mapping of numbers"
+    if set(window) != set(WINDOW_KEYS):
+        return f"has a log window with the entries {sorted(window)}, not {sorted(WINDOW_KEYS)}"
     learner = state["learner"]
     if not isinstance(learner, Mapping):
         return f"has learner state of type {type(learner).__name__}, not a mapping"
@@ -213,6 +218,9 @@ def _buffer_problem(buffer: Mapping[str, Any], dqn: Mapping[str, Any]) -> str | 
     actions = data.get("actions")
     if isinstance(actions, torch.Tensor) and len(actions) and not 0 <= int(actions.min()) <= int(actions.max()) < 4:
         return "has actions outside 0-3 in its replay memory"
+    mask = data.get("next_mask")
+    if isinstance(mask, torch.Tensor) and mask.dim() == 2 and not bool(mask[:size].any(dim=1).all()):
+        return "has a replay memory row whose next state allows no action (next_mask all false)"
     return None
 
 
@@ -238,6 +246,39 @@ def truncate_log(path: Path, step: int) -> int:
         text = "".join(kept)
         write_atomic(path, lambda tmp: tmp.write_text(text))
     return dropped
+
+
+def log_problem(path: Path, step: int) -> str | None:
+    """Why the rows of train_log.csv (at path) that a resume from `step` keeps cannot be trusted, or None: every cell
+    a finite number (the loss may be blank: no update in its window). A missing log is no problem (it is begun
+    again); the rows past `step` and a row cut short are truncate_log's to drop."""
+    try:
+        lines = path.read_text().splitlines(keepends=True)
+    except (FileNotFoundError, UnicodeDecodeError):
+        return None if not path.exists() else "is not a text file"
+    rows = list(csv.reader(lines))
+    header = rows[0] if rows else []
+    for line, row in zip(lines[1:], rows[1:], strict=True):
+        if not line.endswith("\n") or len(row) != len(header) or not row[0].isdigit() or int(row[0]) > step:
+            break
+        for name, cell in zip(header, row, strict=True):
+            try:
+                value = float(cell) if cell or name != "td_loss" else 0.0
+            except ValueError:
+                value = math.nan
+            if not math.isfinite(value):
+                return f"has {name} = {cell!r} in its row of step {row[0]}, not a finite number"
+    return None
+
+
+def resume_problem(out: Path, state: Mapping[str, Any]) -> str | None:
+    """Why the training folder `out` cannot resume from its checkpoint `state` (its keys checked by the caller), the
+    file named: the checkpoint (checkpoint_problem) or the log rows the resume keeps (log_problem); or None."""
+    if problem := checkpoint_problem(state):
+        return f"checkpoint {out / 'checkpoint.pt'} {problem}"
+    if problem := log_problem(out / "train_log.csv", int(state["step"])):
+        return f"training log {out / 'train_log.csv'} {problem}"
+    return None
 
 
 def prepare_resume(out: Path, step: int) -> None:

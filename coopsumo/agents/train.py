@@ -35,13 +35,13 @@ from coopsumo.agents.decisions import ActionHold, offered
 from coopsumo.agents.dqn import Learner
 from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
-from coopsumo.agents.file_checks import checkpoint_problem, ended_training, prepare_resume
+from coopsumo.agents.file_checks import ended_training, prepare_resume, resume_problem
 from coopsumo.agents.model_file import load_error_text, save_model
 from coopsumo.agents.nstep import Round, mature
 from coopsumo.agents.tb_log import LOG_FIELDS, Window, open_log
 from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import GroupTicket, LearnerProcessError, attach_updates
-from coopsumo.config import TrainConfig, results_view, to_dict, train_config_from_dict
+from coopsumo.config import TrainConfig, first_difference, to_dict, train_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line
 from coopsumo.files import write_atomic, write_json
 from coopsumo.provenance import versions
@@ -130,8 +130,8 @@ class Trainer:
         if (isinstance(dqn, dict) and "greedy_prob" in dqn) or "decisions" not in learner:
             raise UsageError(f"checkpoint {path} was written by a coopsumo before learner presets and cannot be "
                              "resumed exactly; train again without --resume")  # fmt: skip
-        if problem := checkpoint_problem(state):  # types and ranges (file_checks)
-            raise UsageError(f"checkpoint {path} {problem}; train again without --resume")
+        if problem := resume_problem(out, state):  # types and ranges, the log rows it keeps (file_checks)
+            raise UsageError(f"{problem}; train again without --resume")
         return state
 
     @staticmethod
@@ -385,11 +385,9 @@ def check_recorded_config(out: Path, cfg: TrainConfig) -> None:
     except (OSError, ValueError, KeyError, TypeError):
         raise UsageError(f"{path} is unreadable or not a training's configuration; train again without "
                          "--resume") from None
-    view = results_view(json.loads(json.dumps(to_dict(cfg))))
-    if results_view(recorded) != view:
-        differ = sorted(k for k in set(view) | set(recorded) if results_view(recorded.get(k)) != view.get(k))
-        raise UsageError(f"checkpoint {out / 'checkpoint.pt'} is another training's than {path} records (they differ "
-                         f"in {', '.join(differ)}): copied in?; train again without --resume")  # fmt: skip
+    if (where := first_difference(to_dict(cfg), recorded)) is not None:
+        raise UsageError(f"checkpoint {out / 'checkpoint.pt'} is another training's than {path} records (first at "
+                         f"{where}): copied in?; train again without --resume")  # fmt: skip
 
 
 def _begin(trainer: Trainer, cfg: TrainConfig, out: Path, resume: bool) -> None:

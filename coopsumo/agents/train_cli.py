@@ -35,6 +35,7 @@ from coopsumo.run_dirs import (
     check_run_dir,
     finish_run_dir,
     finished_run,
+    inside_study,
     lock_path,
     out_lock,
     release_lock,
@@ -78,6 +79,8 @@ def store_problem(out: Path) -> str | None:
     """Why `train` may not write `out`, or None: the model store is the studies' alone. `out` (its links resolved)
     lies in $COOPSUMO_MODELS or results/models, is or lies in a store model's folder (a study's `models/<name>` or
     `train/<key>` is a link to one), or lies in a folder holding store models (another study's store)."""
+    if problem := inside_study(out):  # a study's folders are the study's (run_dirs)
+        return problem
     real = out.resolve()
     env = os.environ.get(STORE_ENV)
     for store in [DEFAULT_STORE.resolve(), *([Path(env).resolve()] if env else [])]:

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
+from coopsumo.errors import UsageError
 from coopsumo.paths import STORE_ENV
 from coopsumo.record_schemas import STORE_CONFIG
 from coopsumo.validation import number_name
@@ -37,9 +38,34 @@ validation seed"""
 
 
 def store_for(root: Path) -> Path:
-    """The store a study with results folder root uses: $COOPSUMO_MODELS, else the folder `models` beside root."""
+    """The store a study with results folder root uses: $COOPSUMO_MODELS, else the folder `models` beside root.
+    UsageError when that path is not a store's to write (store_problem)."""
     env = os.environ.get(STORE_ENV)
-    return Path(env) if env else Path(root).resolve().parent / "models"
+    store = Path(env) if env else Path(root).resolve().parent / "models"
+    if problem := store_problem(store):
+        where = f"${STORE_ENV}" if env else f"beside {root}"
+        raise UsageError(f"the model store {store} ({where}) {problem}; move it away, pick another --out or set "
+                         f"${STORE_ENV} to a store")  # fmt: skip
+    return store
+
+
+def store_problem(store: Path) -> str | None:
+    """Why the folder `store` is not a model store a study may write, or None: it is missing (made when a model is
+    stored), or a folder whose visible entries are all store models (train_cli.STORE_NAME, folders); its dot-entries
+    are the store's locks and partial folders. A user's file or folder there is left alone."""
+    from coopsumo.agents.train_cli import STORE_NAME
+
+    if not os.path.lexists(store):
+        return None
+    if not store.is_dir():
+        return "exists and is not a folder"
+    try:
+        names = [p.name for p in store.iterdir() if not (STORE_NAME.fullmatch(p.name) and p.is_dir())]
+    except OSError as err:
+        return f"cannot be read ({err.strerror})"
+    foreign = sorted(name for name in names if not name.startswith("."))
+    more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+    return f"holds {foreign[0]}{more}, which is not a stored model" if foreign else None
 
 
 def identity(config: dict[str, Any]) -> dict[str, Any]:

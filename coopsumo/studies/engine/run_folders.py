@@ -132,10 +132,15 @@ def default_out(name: str, profile: str, committed: str) -> Path:
 
 
 def study_root(root: Path, kind: str, study: str | None = None, recorded: Recorded | None = None,
-               advice: str = "pick another --out") -> AbstractContextManager[Path]:  # fmt: skip
+               advice: str = "pick another --out", trains: bool = False) -> AbstractContextManager[Path]:  # fmt: skip
     """Claim the study root for the block (run_dirs.study_root: path checked, lock held, ownership checked, marked):
     with `study` (profile_study), a root that holds another study of `kind` is refused, with `advice`; `recorded`
-    reads which one a root holds whose marker does not say (recorded_profile)."""
+    reads which one a root holds whose marker does not say (recorded_profile). trains: the study stores models, so
+    its model store is checked first (model_store.store_for), before anything is written."""
+    if trains:
+        from coopsumo.studies.engine.model_store import store_for
+
+        store_for(root)
     return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"), study, recorded, advice)
 
 

@@ -9,7 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from coopsumo.config import results_view
+from coopsumo.config import first_difference, results_view
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -111,19 +111,3 @@ def model_folder_problem(folder: Path) -> str | None:
     if (where := first_difference(meta.get("config"), recorded)) is not None:
         return f"holds a model.pt made by another configuration than its config.json ({where}): swapped?"
     return None
-
-
-def first_difference(a: Any, b: Any, path: str = "config") -> str | None:
-    """Where two configurations (config.results_view of each) first differ, as 'config.sim.seed: 2 != 0'; None
-    when they are equal."""
-    a, b = results_view(json.loads(json.dumps(a))), results_view(json.loads(json.dumps(b)))
-
-    def walk(x: Any, y: Any, at: str) -> str | None:
-        if isinstance(x, dict) and isinstance(y, dict):
-            for key in sorted(set(x) | set(y)):
-                if (found := walk(x.get(key), y.get(key), f"{at}.{key}")) is not None:
-                    return found
-            return None
-        return None if x == y else f"{at}: {json.dumps(x)[:40]} != {json.dumps(y)[:40]}"
-
-    return walk(a, b, path)

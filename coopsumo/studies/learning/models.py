@@ -63,12 +63,12 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
 def model_problem(model: Path, config: dict[str, Any]) -> str | None:
     """Why `model` (ROOT/train/<key>/model.pt) is not the model of the training `config` (a TrainConfig dict, its
     record's), in words naming the file, or None: its folder is a link into the model store that leads elsewhere
-    (model_store.link_problem), or the model file records another training than that (trainings.first_difference:
+    (model_store.link_problem), or the model file records another training than that (config.first_difference:
     another learner's model copied in). A model file that cannot be read is left to the command that drives it,
     which says so in its own line."""
     from coopsumo.agents.model_file import ModelFileError, load_model
+    from coopsumo.config import first_difference
     from coopsumo.studies.engine.model_store import link_problem
-    from coopsumo.studies.engine.trainings import first_difference
 
     if (problem := link_problem(model.parent, config)) is not None:
         return f"{model.parent} {problem}"

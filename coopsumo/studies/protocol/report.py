@@ -177,8 +177,7 @@ def committed_folder(results: Path, name: str) -> Path:
 def committed_runs(folder: Path, variant: str, runs: pd.DataFrame, profile: Any) -> tuple[pd.DataFrame, str]:
     """`variant`'s alpha-0 model rows of the committed protocol study in `folder`, or an empty table and why they
     cannot be paired with this study's: missing, another profile, another learner than today's, other seeds."""
-    from coopsumo.config import to_dict
-    from coopsumo.studies.engine.trainings import first_difference
+    from coopsumo.config import first_difference, to_dict
     from coopsumo.studies.protocol.plan import variants
 
     empty = runs.iloc[0:0]

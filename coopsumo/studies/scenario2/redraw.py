@@ -15,13 +15,13 @@ from typing import Any, NamedTuple, get_type_hints
 import pandas as pd
 from pandas.api.types import is_numeric_dtype
 
+from coopsumo.config import first_difference
 from coopsumo.errors import ConfigError, UsageError
 from coopsumo.files import write_json
 from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
-from coopsumo.studies.engine.trainings import first_difference
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS
 from coopsumo.studies.scenario2.plan import Profile, cell_specs, condition_rows, learner_of
