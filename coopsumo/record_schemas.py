@@ -218,6 +218,8 @@ class Table:
     columns: tuple[Field, ...]
     case: str = ""
     cases: Mapping[str, tuple[Field, ...]] = dataclasses.field(default_factory=dict)
+    key: tuple[str, ...] = ()
+    """the columns that name a row: no two rows may share their values"""
 
     def problem(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]], complete: bool = True) -> str | None:
         """Why the table (its column names, its rows as mappings) breaks the schema ("row 3 column iqm must be ...",
@@ -230,13 +232,18 @@ class Table:
         cases = {case: {**rules, **_rules(fields, names)} for case, fields in self.cases.items()}
         lacking = {case: [f.name for f in fields if not (f.optional or f.name.startswith("_") or f.name in names)]
                    for case, fields in self.cases.items() if complete}  # fmt: skip
-        count = 0
+        count, seen = 0, dict[tuple[Any, ...], int]()
         for count, row in enumerate(rows, 1):
             if lacking.get(case := str(row.get(self.case))):
                 return f"row {count} ({self.case} {case}) has no column {lacking[case][0]}"
             for name, rule in cases.get(case, rules).items():
                 if name in row and (problem := rule.problem(_plain(row[name]))) is not None:
                     return f"row {count} column {name} {problem}"
+            named = tuple(_plain(row.get(k)) for k in self.key)
+            if self.key and named in seen:
+                where = ", ".join(f"{k} {_shown(v)}" for k, v in zip(self.key, named, strict=True))
+                return f"rows {seen[named]} and {count} are both the row of {where}"
+            seen[named] = count
         return None if count else "has no row"
 
     def check(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]], path: object) -> None:
@@ -438,6 +445,7 @@ PROTOCOL_STATS = Table(
     cases={"free": tuple(Field(name, SPEED) for name in ("iqm", "low", "high", "worst", "mean", "_value")),
            "accident": tuple(Field(name, Number(0.0, TTS_MAX_VEH_H, unit="veh-h"))
                              for name in ("iqm", "low", "high", "worst", "mean", "_value"))},
+    key=("scenario", "t_up", "variant"),
 )  # fmt: skip
 """a learner protocol study's stats.csv (protocol.report.condition_stats): per scenario, demand and learner, the IQM
 and its interval over models (free flow: mean speed, m/s; accident: total time spent, veh-h), each baseline's value
@@ -465,9 +473,15 @@ _COORDINATES = (
     Field("alpha", Number(ALPHA_MIN, ALPHA_MAX, blank_ok=True)),  # a MOBIL row: none
     Field("p", POLITENESS),  # a DQN row: none
 )
-SCENARIO2_EVALS = Table((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUATION))
+SCENARIO2_EVALS = Table((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUATION), key=("key", "eval_seed"))
 """scenario II's evals.csv (scenario2.measures.evals_table): one row per evaluation run of a successful cell"""
-SCENARIO2_RUNS = Table((*_COORDINATES, Field("status", Text())), case="status", cases={"ok": _EVALUATION})
+_RUN_COUNTS = ("steps", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end", "lane_changes",
+               "lane_changes_rejected", "train_lane_changes", "train_collisions", "train_updates")  # fmt: skip
+SCENARIO2_RUNS = Table((*_COORDINATES, Field("status", Text())), case="status", key=("key",), cases={"ok": (
+    *_EVALUATION,
+    *(Field(name, Integer(0, blank_ok=True), optional=True) for name in _RUN_COUNTS),  # a MOBIL row: no training
+    Field("train_mean_speed_mps", Number(0.0, SPEED_MAX_MPS, unit="m/s", blank_ok=True), optional=True),
+)})  # fmt: skip
 """scenario II's runs.csv (scenario2.measures.runs_table): one row per cell, its pooled evaluations when ok (a failed
 cell's numbers are blank)"""
 

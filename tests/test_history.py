@@ -204,6 +204,13 @@ def _stats_of_another_learner(folder: Path) -> None:
     table.to_csv(folder / "stats.csv", index=False)
 
 
+def _row_twice(folder: Path) -> None:
+    table = pd.read_csv(folder / "stats.csv")
+    first = table.iloc[[0]].copy()
+    first["iqm"] = first["iqm"] + 1.0  # the second copy says otherwise
+    pd.concat([table.iloc[[0]], first, table.iloc[1:]]).to_csv(folder / "stats.csv", index=False)
+
+
 SPOILED = {
     # the probe's (2026-12-01): tracebacks (h5-h9), and numbers copied into the table (h20, h21)
     "study.json not JSON": (_text("study.json", "{not json"), "study.json cannot be read as JSON (JSONDecodeError)"),
@@ -228,6 +235,8 @@ SPOILED = {
     "a demand of 0 s": (_stats({"t_up": 0.0}), "row 1 column t_up must be"),
     "lane changes 1e6": (_stats({"lane_changes_per_vehicle": 1e6}), "row 1 column lane_changes_per_vehicle"),
     "no greedy column": (_stats({"greedy_poi": None}), "stats.csv has no column greedy_poi"),
+    # issue 82 (2026-12-02): a row given twice was copied into the table
+    "a row given twice": (_row_twice, "stats.csv rows 1 and 2 are both the row of scenario 'free', t_up 2.0, variant"),
     # issue 82 (h19): a study was called 'no learner protocol study ... here'
     "no rows for its learner": (_stats_of_another_learner, "stats.csv has no free-flow rows for learner v"),
 }  # fmt: skip

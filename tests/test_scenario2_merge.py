@@ -116,6 +116,16 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     "evals.csv with a negative wall time": (
         lambda f: edit_table(f, "evals.csv", lambda t: t.assign(wall_seconds=-1.0)),
         "evals.csv row 1 column wall_seconds must be"),
+    # issue 82 (2026-12-02): a training's counts in runs.csv, and a row given twice
+    "runs.csv with -5 training updates": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(train_updates=-5)),
+        "runs.csv row 1 column train_updates must be an integer >= 0"),
+    "runs.csv with a cell's row twice": (
+        lambda f: edit_table(f, "runs.csv", lambda t: pd.concat([t.iloc[:1], t])),
+        "runs.csv holds 153 rows for the 152 cells of its profile (L4_T2_a1_s1 twice)"),
+    "evals.csv with an evaluation twice": (
+        lambda f: edit_table(f, "evals.csv", lambda t: pd.concat([t.iloc[:1], t])),
+        "evals.csv holds evaluation seeds [2001, 2001, 2002, 2003] of cell"),
     "evals.csv with lane changes of 1e4 a vehicle": (
         lambda f: edit_table(f, "evals.csv", lambda t: t.assign(lane_changes_per_vehicle=1e4)),
         "evals.csv row 1 column lane_changes_per_vehicle must be"),

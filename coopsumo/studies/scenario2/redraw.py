@@ -193,8 +193,9 @@ def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str,
             return f"{name} has {column.name} = {bad.iloc[0] if len(bad) else column.iloc[0]!r}, not a number: edited?"
     planned = {s["key"]: s for s in specs}
     if len(runs) != len(specs) or set(runs["key"]) != set(planned):
-        extra = sorted(set(map(str, runs["key"])) - set(planned)) or sorted(runs.loc[runs["key"].duplicated(), "key"])
-        which = (f"{extra[0]}, not one of its cells" if extra
+        extra = sorted(set(map(str, runs["key"])) - set(planned))
+        twice = sorted(map(str, runs.loc[runs["key"].duplicated(), "key"]))
+        which = (f"{extra[0]}, not one of its cells" if extra else f"{twice[0]} twice" if twice
                  else f"no row of cell {min(set(planned) - set(runs['key']))}")  # fmt: skip
         return f"runs.csv holds {len(runs)} rows for the {len(specs)} cells of its profile ({which})"
     rows = {r["key"]: r for r in runs.to_dict("records")}
