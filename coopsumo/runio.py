@@ -58,6 +58,15 @@ def start_parent_watch(parent_pid: int) -> None:
     threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
 
 
+def thread_lock_for_bars() -> None:
+    """In a worker process: tqdm's bars take a thread lock, not tqdm's default multiprocessing lock, whose semaphore
+    a worker stopped by its command leaves behind (the resource tracker's "leaked semaphore objects" warning after a
+    Ctrl-C). A worker's bars are its own: no other process writes them."""
+    from tqdm import tqdm
+
+    tqdm.set_lock(threading.RLock())
+
+
 class Stop(KeyboardInterrupt):
     """SIGINT or SIGTERM received while stop_on_signals holds (a KeyboardInterrupt, so every handler of Ctrl-C
     takes it); signum: which one."""

@@ -46,8 +46,10 @@ def _member(cfg: TrainConfig, out: Path, ticket: Any, resume: bool, result: Conn
     import torch
 
     from coopsumo.agents.train import train
+    from coopsumo.runio import thread_lock_for_bars
 
     torch.set_num_threads(1)  # as a study's training: its decisions on one thread
+    thread_lock_for_bars()
     try:
         summary = train(cfg, out, resume=resume, progress=False, learner_process=True, group=ticket)
         result.send(MemberResult(out, summary))

@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
-from coopsumo.runio import children_start_deaf, start_parent_watch
+from coopsumo.runio import children_start_deaf, start_parent_watch, thread_lock_for_bars
 from coopsumo.studies.engine.records import cell_path
 
 MAX_CRASHES = 2
@@ -53,6 +53,7 @@ def _init_worker(parent_pid: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     start_parent_watch(parent_pid)
+    thread_lock_for_bars()
 
 
 class LocalBackend:
