@@ -21,9 +21,9 @@ its writer's TrainConfig is checked by config.py when built), a run's summary (R
 intervals (DETECTOR_INTERVAL; SUMO writes the latter), a learner protocol study's study.json and stats.csv
 (PROTOCOL_STUDY, PROTOCOL_STATS), scenario II's sweep.json, runs.csv and evals.csv (SWEEP, SCENARIO2_RUNS,
 SCENARIO2_EVALS), a study's cell record (CELL_RECORD; its summary is RUN_SUMMARY's); scenario I's and the learning
-study's runs.csv and summary.csv are declared alike in the sibling module study_tables. Not yet: the other studies'
-plan files (scenario I's plan.json), the follow-ups' tables (regime_map's and accident_seeds' runs.csv), the studies'
-TOML data (field_rules' rules, read by catalogue.Entry).
+study's runs.csv and summary.csv, and the follow-ups' runs.csv (regime_map, accident_seeds), are declared alike in the
+sibling module study_tables. Elsewhere: scenario I's plan.json is read back through its typed Plan (scenario1.merge),
+the studies' TOML data through the flags' own rules (field_rules, read by catalogue.Entry).
 """
 
 from __future__ import annotations

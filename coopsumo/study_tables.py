@@ -134,3 +134,31 @@ LEARNING_SUMMARY = Table((
     Field("alpha", ALPHA),  # the alpha response's rows only
 ))  # fmt: skip
 """the learning study's summary.csv (learning.report.write_outputs): per part, variant (and alpha), over its models"""
+
+_FOLLOWUP_MEASURES = tuple(dataclasses.replace(f, optional=True) if f.name == "queue_lane_changes_per_vehicle" else f
+                           for f in SCENARIO1_MEASURES)  # fmt: skip
+"""scenario I's measures as the follow-ups record them (a table written before the queue's lane changes were measured
+lacks that column)"""
+REGIME_MAP_RUNS = Table((
+    Field("accident", Text(("default", "paper"))),
+    Field("accident_steps", Integer(1)),
+    Field("run_steps", Integer(1)),
+    Field("t_up_s", DEMAND),
+    Field("inflow_veh_h", THROUGHPUT),
+    Field("seed", Integer(0)),
+    *_FOLLOWUP_MEASURES,
+    Field("regime", Text(REGIMES)),
+    Field("horizon_after_start_s", Number(0.0, unit="s")),
+), key=("accident", "t_up_s", "seed"))  # fmt: skip
+"""the regime map's runs.csv (followups.regime_map.run_study): one row per accident length, demand and seed"""
+ACCIDENT_SEEDS_RUNS = Table((
+    Field("variant", Text()),
+    Field("alpha", ALPHA),  # a baseline's and an adaptive driver's: none
+    Field("t_up_s", DEMAND),
+    Field("seed", Integer(0)),
+    Field("adaptive_alpha_mean", ALPHA, optional=True),  # one alpha: none; a table before adaptive drivers: no column
+    *_FOLLOWUP_MEASURES,
+    Field("regime", Text(REGIMES)),
+    Field("horizon_after_start_s", Number(0.0, unit="s")),
+), key=("variant", "alpha", "t_up_s", "seed"))  # fmt: skip
+"""accident-seeds' runs.csv (followups.accident_seeds.run_study): one row per driver, demand and accident seed"""

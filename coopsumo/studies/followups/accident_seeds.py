@@ -36,6 +36,7 @@ from coopsumo.studies.learning.models import finished_trainings
 from coopsumo.studies.learning.plan import variant_list
 from coopsumo.studies.scenario1 import accident_runs
 from coopsumo.studies.scenario1.plan import Plan, accident_config
+from coopsumo.study_tables import ACCIDENT_SEEDS_RUNS
 from coopsumo.validation import (
     MAX_STEPS,
     alpha_list,
@@ -153,6 +154,7 @@ def run_study(found: list[dict[str, Any]], t_ups: tuple[float, ...], root: Path,
                      "collisions": summary["collisions"], "teleports": summary["teleports"],
                      **accident_runs.measures(root, spec, cfg)})  # fmt: skip
     table = pd.DataFrame(rows)
+    ACCIDENT_SEEDS_RUNS.check_frame(table, root / "runs.csv")  # inside its limits before it is written (study_tables)
     table.to_csv(root / "runs.csv", index=False)
     (root / "report.md").write_text(report(table, ACCIDENT_SEED_OFFSET, time.perf_counter() - start))
     print(f"{PROG}: done; report: {root / 'report.md'}")

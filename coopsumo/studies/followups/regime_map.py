@@ -28,6 +28,7 @@ from coopsumo.studies.engine.run_folders import study_root
 from coopsumo.studies.engine.runner import check_backend
 from coopsumo.studies.scenario1 import accident_runs
 from coopsumo.studies.scenario1.plan import Plan, accident_config
+from coopsumo.study_tables import REGIME_MAP_RUNS
 from coopsumo.validation import MAX_STEPS, integer, number_name, out_dir, seed_count, t_up_list
 
 DEMANDS = (4.0, 3.0, 2.5, 2.0, 1.5, 1.25, 1.0)
@@ -76,6 +77,7 @@ def run_study(by_length: dict[str, Plan], root: Path, workers: int = 2, backend:
                      "t_up_s": spec["t_up_s"], "inflow_veh_h": 3600 / spec["t_up_s"], "seed": spec["seed"],
                      **accident_runs.measures(root, spec, cfg)})  # fmt: skip
     table = pd.DataFrame(rows)
+    REGIME_MAP_RUNS.check_frame(table, root / "runs.csv")  # inside its limits before it is written (study_tables)
     table.to_csv(root / "runs.csv", index=False)
     (root / "report.md").write_text(report(by_length, table, time.perf_counter() - start))
     print(f"regime-map: done; report: {root / 'report.md'}")
