@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 import resource
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
@@ -90,6 +90,12 @@ def groups_cpu_s(folders: Iterable[Path]) -> float:
     trained in groups, each model once: what a study's cells' own CPU time leaves out."""
     shares = [group_cpu_s(f) for f in dict.fromkeys(Path(f).resolve() for f in folders)]
     return sum(s for s in shares if s is not None)
+
+
+def study_cpu_s(records: Iterable[Mapping[str, Any]], train_folders: Iterable[Path]) -> float:
+    """A study's core-seconds (its record's cell_cpu_seconds_sum): its cells' own CPU time (`cell_cpu_s` of each
+    record) and the share of every grouped training among `train_folders` (groups_cpu_s), to 0.1 s."""
+    return round(sum(float(r.get("cell_cpu_s") or 0.0) for r in records) + groups_cpu_s(train_folders), 1)
 
 
 def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP_SIZE, quiet: bool = False) -> int:

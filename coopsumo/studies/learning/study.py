@@ -31,7 +31,7 @@ from coopsumo.files import write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
-from coopsumo.studies.engine.groups import groups_cpu_s
+from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import default_out, profile_study, recorded_profile, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
@@ -156,10 +156,9 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
                 failed_cells=[r["key"] for r in records if r["status"] != "ok"],
                 cell_wall_seconds_sum=round(sum(r.get("cell_wall_s") or 0.0 for r in records), 1),
-                cell_cpu_seconds_sum=round(sum(r.get("cell_cpu_s") or 0.0 for r in records)  # and the groups' trainings
-                                           + groups_cpu_s(root / "train" / s.get("train_key", s["key"]) for s in specs
-                                                          if isinstance(s.get("config"), dict)
-                                                          and "train" in s["config"]), 1))  # fmt: skip
+                cell_cpu_seconds_sum=study_cpu_s(records, (root / "train" / s.get("train_key", s["key"]) for s in specs
+                                                           if isinstance(s.get("config"), dict)
+                                                           and "train" in s["config"])))  # fmt: skip
     write_outputs(root, profile, records, meta)
     write_json(root / "study.json", meta)
     return meta

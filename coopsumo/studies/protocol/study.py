@@ -32,7 +32,7 @@ from coopsumo.provenance import versions
 from coopsumo.record_schemas import PROTOCOL_STUDY
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
-from coopsumo.studies.engine.groups import groups_cpu_s
+from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import default_out, profile_study, recorded_profile, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
@@ -153,9 +153,8 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
                        progress=progress, desc="protocol cells", done_keys=sorted(done))  # fmt: skip
     meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
                 failed_cells=[r["key"] for r in records if r["status"] != "ok"],
-                cell_cpu_seconds_sum=round(sum(r.get("cell_cpu_s") or 0.0 for r in records)  # and the groups' trainings
-                                           + groups_cpu_s(root / "train" / s["train_key"] for s in specs
-                                                          if s["train_key"] is not None), 1))  # fmt: skip
+                cell_cpu_seconds_sum=study_cpu_s(records, (root / "train" / s["train_key"] for s in specs
+                                                           if s["train_key"] is not None)))  # fmt: skip
     PROTOCOL_STUDY.check(meta, root / "study.json")  # the schema `coopsumo history` reads it by, before any output
     protocol_report.write_outputs(root, profile, records, meta)
     write_json(root / "study.json", meta)

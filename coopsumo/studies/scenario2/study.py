@@ -58,7 +58,7 @@ from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.cells import run_todo
-from coopsumo.studies.engine.groups import group_cpu_s, groups_cpu_s
+from coopsumo.studies.engine.groups import group_cpu_s, study_cpu_s
 from coopsumo.studies.engine.model_store import check_link, link_problem, store_for, train_shared
 from coopsumo.studies.engine.records import (
     CellRecords,
@@ -299,9 +299,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
                 cells_failed=int((runs["status"] != "ok").sum()),
                 failed_cells=runs.loc[runs["status"] != "ok", "key"].tolist(),
                 cell_wall_seconds_sum=round(float(pd.to_numeric(runs["cell_wall_s"]).sum()), 1),
-                cell_cpu_seconds_sum=round(float(pd.to_numeric(runs["cell_cpu_s"]).sum())  # and the groups'
-                                           + groups_cpu_s(root / str(d) for d in runs["train_dir"].dropna()),
-                                           1))  # fmt: skip
+                cell_cpu_seconds_sum=study_cpu_s(records, (root / str(d) for d in runs["train_dir"].dropna())))
     if profile.lane_networks:
         from coopsumo.studies.scenario2.gate_report import write_lane_outputs
 
