@@ -12,18 +12,15 @@ every key ending with `_mps`) and a rule: a Number or an Integer (field_rules' b
 maybe one of a few) or a Kind (a mapping, a list, a bool). Schema.problem checks a JSON record, Table.problem a
 table's rows (Table.check_frame a pandas table before it is written), tensor_problem a checkpoint's or model's
 nested tensors (bounds and wholeness; the caller gives each tensor's min, max and first entry that is not whole, so
-that torch is not imported here). The
-limits are ones a real run never reaches (no committed record comes near them); the comment of each says why.
+that torch is not imported here). The limits are ones a real run never reaches; the comment of each says why.
 
-Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS; read
-back only: a checkpoint is the training's to save whatever it holds), a stored model's config.json (STORE_CONFIG;
-its writer's TrainConfig is checked by config.py when built), a run's summary (RUN_SUMMARY) and detectors.xml
-intervals (DETECTOR_INTERVAL; SUMO writes the latter), a learner protocol study's study.json and stats.csv
-(PROTOCOL_STUDY, PROTOCOL_STATS), scenario II's sweep.json, runs.csv and evals.csv (SWEEP, SCENARIO2_RUNS,
-SCENARIO2_EVALS), a study's cell record (CELL_RECORD; its summary is RUN_SUMMARY's); scenario I's and the learning
-study's runs.csv and summary.csv, and the follow-ups' runs.csv (regime_map, accident_seeds), are declared alike in the
-sibling module study_tables. Elsewhere: scenario I's plan.json is read back through its typed Plan (scenario1.merge),
-the studies' TOML data through the flags' own rules (field_rules, read by catalogue.Entry).
+Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS), a stored
+model's config.json (STORE_CONFIG), a run's summary (RUN_SUMMARY) and detectors.xml intervals (DETECTOR_INTERVAL), a
+learner protocol study's study.json and stats.csv (PROTOCOL_STUDY, PROTOCOL_STATS), scenario II's sweep.json, runs.csv
+and evals.csv (SWEEP, SCENARIO2_RUNS, SCENARIO2_EVALS), a study's cell record (CELL_RECORD); scenario I's, the
+learning study's and the follow-ups' tables are declared alike in the sibling module study_tables. Elsewhere:
+scenario I's plan.json is read through its typed Plan (scenario1.merge), the studies' TOML data through the flags'
+own rules (field_rules, read by catalogue.Entry).
 """
 
 from __future__ import annotations
@@ -218,8 +215,7 @@ class Table:
     columns: tuple[Field, ...]
     case: str = ""
     cases: Mapping[str, tuple[Field, ...]] = dataclasses.field(default_factory=dict)
-    key: tuple[str, ...] = ()
-    """the columns that name a row: no two rows may share their values"""
+    key: tuple[str, ...] = ()  # the columns that name a row: no two rows may share their values
 
     def problem(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]], complete: bool = True) -> str | None:
         """Why the table (its column names, its rows as mappings) breaks the schema ("row 3 column iqm must be ...",
