@@ -91,7 +91,7 @@ def test_a_writer_leaves_blanks_a_reader_refuses_them(tmp_path: Path) -> None:
            "p": math.nan, "eval_seed": 2001, "mean_speed_mps": 22.1, "lane_changes_per_vehicle": 1.6,
            "throughput_veh_per_h": 808.0, "mean_travel_time_s": 90.2, "collisions": 0, "teleports": 0,
            "loop_flow_veh_h_per_lane": 427.8, "loop_occupancy_pct": 2.2, "wall_seconds": 2.8}  # fmt: skip
-    frame = pd.DataFrame([row, {**row, "lane_changes_per_vehicle": None}])
+    frame = pd.DataFrame([row, {**row, "eval_seed": 2002, "lane_changes_per_vehicle": None}])
     rs.SCENARIO2_EVALS.check_frame(frame, tmp_path / "evals.csv")  # the blank is not a number outside its limits
     assert rs.SCENARIO2_EVALS.frame_problem(frame.iloc[:1]) is None
     problem = rs.SCENARIO2_EVALS.frame_problem(frame)
@@ -107,6 +107,8 @@ def test_a_writer_leaves_blanks_a_reader_refuses_them(tmp_path: Path) -> None:
     assert rs.SCENARIO2_RUNS.frame_problem(pd.DataFrame([failed, {**failed, "status": "ok"}])) == \
         "row 2 (status ok) has no column mean_speed_mps"  # an ok row needs its numbers (the columns of its case)
     assert rs.SCENARIO2_EVALS.frame_problem(pd.DataFrame()) is None  # a study whose cells all failed
+    assert rs.SCENARIO2_EVALS.frame_problem(pd.DataFrame([row, row])) == \
+        "rows 1 and 2 are both the row of key 'L2_T4_a0_s1', eval_seed 2001"  # one row per cell and evaluation seed
 
 
 # -- a training checkpoint ------------------------------------------------------------------------------------
