@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from coopsumo.dqn_config import ADDED_FIELDS, DQNConfig, dqn_config_from_dict, validation_runs
+from coopsumo.dqn_config import IMPLIED_FIELDS, DQNConfig, dqn_config_from_dict, validation_runs
 from coopsumo.errors import ConfigError
 from coopsumo.policy_spec import sumo_lc_params, sumo_models
 from coopsumo.validation import (
@@ -354,12 +354,12 @@ matches a stored run, cell or checkpoint to its configuration)"""
 
 
 def results_view(d: Any) -> Any:
-    """A configuration as to_dict or JSON gives it, without SPEED_ONLY_FIELDS at any depth and without ADDED_FIELDS
-    at their implied value: two runs whose views are equal give the same results (a run stored before such a
-    field existed matches too)."""
+    """A configuration as to_dict or JSON gives it, without SPEED_ONLY_FIELDS at any depth and without IMPLIED_FIELDS
+    (fields added, and fields retired) at their implied value: two runs whose views are equal give the same results
+    (a run stored before such a field existed, or while a retired one did, matches too)."""
     if isinstance(d, dict):
         return {k: results_view(v) for k, v in d.items()
-                if k not in SPEED_ONLY_FIELDS and not (k in ADDED_FIELDS and v == ADDED_FIELDS[k])}  # fmt: skip
+                if k not in SPEED_ONLY_FIELDS and not (k in IMPLIED_FIELDS and v == IMPLIED_FIELDS[k])}  # fmt: skip
     if isinstance(d, list):
         return [results_view(v) for v in d]
     return d

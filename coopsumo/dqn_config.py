@@ -6,6 +6,7 @@ reading of old configurations are generated from them."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -75,10 +76,6 @@ class DQNConfig:
     gamma: float = setting(0.9, "--gamma", limits=(0.0, 1.0, False, True),
         help="discount per decision round (paper: 0.9 per 0.1 s step)")
     """discount per decision round (paper: 0.9 per 0.1 s step)"""
-    n_step: int = setting(1, "--n-step", limits=(1, 20), before=1,
-        help="returns over this many decision rounds of one vehicle, bootstrapped with gamma^n (1: one round, the "
-             "paper's)")
-    """returns over n decision rounds of one vehicle, bootstrapped with gamma^n (agents/nstep; 1: the paper's)"""
     replay_size: int = setting(20_000, "--replay-size", limits=(1, MAX_REPLAY), help="replay memory (transitions)")
     """replay memory (transitions; paper: 2,000)"""
     batch_size: int = setting(64, "--batch-size", limits=(1, MAX_REPLAY), help="minibatch (transitions)")
@@ -167,11 +164,6 @@ class DQNConfig:
     """model selection: when > 0, each validation demand also gets a run of this many steps through an accident (held
     from 1/12 of the run for 5/6 of it), so that a snapshot that thrashes in a queue is not chosen; 0: free flow only
     (default 6,000: measured against free flow only in results/learner_protocol_accval)"""
-    validation_queue: bool = setting(False, "--validation-queue", before=False,
-        help="model selection: validate the snapshots with the queue rule (--queue-below) on, as the model will "
-             "drive")
-    """model selection: the snapshots are validated with the queue rule (queue_below_mps) on, as the model will
-    drive; False: without it, as training (not in the paper)"""
     validation_alphas: tuple[float, ...] = setting((), "--validation-alphas", before=(),
         help="model selection of a conditioned training: comma-separated alphas each validation run is driven at, "
              "the score their mean (empty: the training's alpha alone)")
@@ -201,13 +193,6 @@ class DQNConfig:
     episode_steps: int = setting(9000, "--episode-steps", limits=(1000, MAX_STEPS), before=9000,
         help="training demand: steps of one episode (a fresh world each)")
     """training demand: steps of one episode when train_t_ups or accident_share is set (a fresh world each)"""
-    weights_ema: float = setting(0.0, "--weights-ema", limits=(0.0, 1.0, False, True), before=0.0,
-        help="the weights that drive (snapshots, model.pt) are a moving average of the online weights with this "
-             "decay per gradient update (0: the online weights); training is unchanged")
-    """the weights that drive (validation snapshots, model.pt, model_last.pt) are an exponential moving average of
-    the online network's, updated after every gradient update with this decay: average = d * average + (1 - d) *
-    online (0: off, the online weights themselves, the paper's). Training itself is unchanged: the vehicles act
-    and learn with the online network, so the same seed trains the same online weights with or without it"""
     stacked_updates: bool = setting(True, "--stacked-updates", before=False,
         help="the gradient updates by the stacked learner (agents/stacked.py), in an update process that serves a "
              "group of trainings at once (a lone training is a group of one): cheaper per model; other last bits")
@@ -247,9 +232,6 @@ class DQNConfig:
                 raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {getattr(self, name)!r}")
         if problem := limits_problem(self, LEARNER_LIMITS):  # every number finite and bounded
             raise ConfigError(problem)
-        if self.stacked_updates and self.weights_ema > 0:
-            raise ConfigError("stacked_updates cannot keep a moving average of the weights (weights_ema): set one "
-                              "of them to its default")  # fmt: skip
         if self.batch_size > self.replay_size:
             raise ConfigError(f"batch_size {self.batch_size} must be at most replay_size {self.replay_size} "
                               "(a larger batch never fills, so nothing would be learned)")  # fmt: skip
@@ -281,6 +263,14 @@ ADDED_FIELDS: dict[str, Any] = {f.name: list(v) if isinstance(v := f.metadata["b
                                 for f in _FIELDS if f.metadata.get("before", NO_VALUE) is not NO_VALUE}  # fmt: skip
 """fields added after results were stored, with the value (as JSON holds it) a configuration without them means
 (config.results_view drops them at that value, so a stored run still matches the configuration it was made with)"""
+RETIRED_FIELDS: dict[str, Any] = {"n_step": 1, "validation_queue": False, "weights_ema": 0.0}
+"""learner settings tried and not adopted, retired (issue 80; their code runs at commit RETIRED_AT), with the one value
+a stored configuration may still hold: it means what it meant (dropped when read, and by config.results_view, so a
+stored model keeps its identity); any other value is refused in one line"""
+RETIRED_AT = "eaffea4"
+"""the last commit with the retired settings' code"""
+IMPLIED_FIELDS: dict[str, Any] = {**ADDED_FIELDS, **RETIRED_FIELDS}
+"""every field a stored configuration may hold or lack at its implied value (config.results_view drops it there)"""
 FLAG_TYPES: dict[str, Any] = {"bool": bool, "int": int, "float": float}
 """a field's annotation -> its flag's type (any other, a tuple: a str flag holding a comma-separated list)"""
 LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = tuple(
@@ -335,6 +325,10 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
         )
         d = {k: v for k, v in d.items() if k not in legacy}
         return dataclasses.replace(base, **d)
+    for name, only in RETIRED_FIELDS.items():  # retired: its one value means what it meant, another is refused
+        if name in d and json.dumps(d.pop(name)) != json.dumps(only):
+            raise ConfigError(f"learner setting {name} was retired (issue 80): only {json.dumps(only)} is read; "
+                              f"such a learner trains at commit {RETIRED_AT}")  # fmt: skip
     d.setdefault("dueling", False)  # written before the dueling head existed: the plain head
     d.setdefault("restart_below_mps", 0.0)  # written before the standing rule: 'none' offered at any speed
     for name, implied in ADDED_FIELDS.items():  # written before the field existed: what it meant then

@@ -256,4 +256,3 @@ def test_a_margin_variant_drives_its_twins_training() -> None:
     nr = replace(DQNConfig(), no_return_s=10.0)  # no change back: kept where validation drives with it, like the margin
     assert as_trained(nr, 90_000).no_return_s == 10.0 and as_trained(nr, 300).no_return_s == 0.0
     assert as_trained(replace(nr, queue_below_mps=5.0), 90_000).queue_below_mps == 0.0  # validation leaves it off
-    assert as_trained(replace(nr, queue_below_mps=5.0, validation_queue=True), 90_000).queue_below_mps == 5.0

@@ -178,7 +178,7 @@ def test_train_help_states_each_presets_learner_values_as_the_flags_take_them() 
     enable = {"--alpha-period": ["--alpha-conditioned"], "--alpha-relabel": ["--alpha-conditioned"],
               "--alpha-draw-max": ["--alpha-conditioned"], "--validation-alphas": ["--alpha-conditioned", *select],
               "--validation-seed": select, "--validation-t-up": select, "--validation-steps": select,
-              "--validation-queue": [*select, "--queue-below", "5"], "--episode-steps": ["--accident-share", "0.5"],
+              "--episode-steps": ["--accident-share", "0.5"],
               "--validation-screen": select, "--validation-finalists": [*select, "--validation-screen", "1"]}
     assert set(enable) == set(train_cli.FLAG_NEEDS)  # the flags that act only beside another, given it
     parser = train_cli.build_parser()

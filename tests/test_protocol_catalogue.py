@@ -41,7 +41,7 @@ VARIANT_ERRORS = [
     ('[x]\nparent = "nr10"\nstatus = "maybe"\nwhy = "w"', "x", "unknown status 'maybe' (one of default, current"),
     ('[x]\nparent = "nr10"\nstatus = "tried"', "x", "needs why"),
     (X + 'learner = { gamma = "high" }', "x", "learner.gamma must be float, got 'high'"),
-    (X + 'learner = { n_step = true }', "x", "learner.n_step must be int"),
+    (X + 'learner = { batch_size = true }', "x", "learner.batch_size must be int"),
     (X + 'learner = { train_t_ups = 2.0 }', "x", "learner.train_t_ups must be a list"),
     (X + 'learner = { gamma = 1.5 }', "x", "learner: gamma must be a finite number >= 0 and < 1, got 1.5"),
     (X + 'drive = { ensemble_snapshots = 2.5 }', "x", "drive.ensemble_snapshots must be int"),

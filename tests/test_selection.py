@@ -114,28 +114,25 @@ def test_accident_validation_adds_one_run_per_demand_through_an_accident() -> No
         DQNConfig(validation_accident_steps=599).validate()
 
 
-def test_validation_drives_the_queue_rule_only_when_asked(tmp_path: Path) -> None:
-    """DQNConfig.validation_queue: the request carries the learner's queue speed, so snapshots are judged as they
-    will drive; off (the default) or without a queue rule it carries none, and a training's identity is the same."""
-    from coopsumo.studies.engine.model_store import model_id, without_selection
+@pytest.mark.parametrize(("name", "kept", "other"), [("n_step", 1, 3), ("validation_queue", False, True),
+                                                     ("weights_ema", 0.0, 0.99)])  # fmt: skip
+def test_a_retired_setting_keeps_its_models_at_its_one_value_and_refuses_another(
+    name: str, kept: object, other: object
+) -> None:
+    """Issue 80: n-step returns, validation with the queue rule and the moving average of the weights were tried and
+    not adopted, and retired. A configuration stored while they existed holds them at their one value: it is read as
+    it was meant and keeps its model's identity (so no stored model is trained again); another value is refused in
+    one line naming the setting and the commit that trains it."""
+    from coopsumo.dqn_config import RETIRED_AT
+    from coopsumo.studies.engine.model_store import model_id
 
-    def request_of(dq: DQNConfig) -> dict[str, object]:
-        cfg = TrainConfig(sim=SimConfig(steps=90_000, seed=3, policy="dqn"), dqn=dq)
-        out = tmp_path / f"{dq.validation_queue}_{dq.queue_below_mps:g}"
-        selection.snapshot_dir(out, 15_000).mkdir(parents=True)
-        return dict(json.loads((selection.request(out, cfg, 15_000) / selection.REQUEST).read_text()))
-
-    queue5 = dataclasses.replace(DQNConfig(), queue_below_mps=5.0)
-    assert request_of(dataclasses.replace(queue5, validation_queue=True))["queue_below_mps"] == 5.0
-    assert "queue_below_mps" not in request_of(queue5)
-    assert "queue_below_mps" not in request_of(dataclasses.replace(DQNConfig(), validation_queue=True,
-                                                                   queue_below_mps=0.0))
-    as_driven = TrainConfig(dqn=dataclasses.replace(queue5, validation_queue=True))
-    trained = TrainConfig(dqn=queue5)
-    assert without_selection(to_dict(as_driven)) == without_selection(to_dict(trained))
-    assert model_id(to_dict(as_driven)) != model_id(to_dict(trained))  # its own folder, the same weights
-    old = {k: v for k, v in json.loads(json.dumps(to_dict(DQNConfig()))).items() if k != "validation_queue"}
-    assert dqn_config_from_dict(old).validation_queue is False
+    stored = json.loads(json.dumps(to_dict(TrainConfig())))
+    stored["dqn"][name] = kept
+    assert dqn_config_from_dict(stored["dqn"]) == DQNConfig()
+    assert model_id(stored) == model_id(to_dict(TrainConfig()))
+    stored["dqn"][name] = other
+    with pytest.raises(ConfigError, match=f"learner setting {name} was retired .*commit {RETIRED_AT}"):
+        dqn_config_from_dict(stored["dqn"])
 
 
 @pytest.mark.parametrize(

@@ -5,7 +5,6 @@ No SUMO."""
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import io
 from collections.abc import Iterator
@@ -13,7 +12,7 @@ from collections.abc import Iterator
 import pytest
 import torch
 
-from coopsumo.agents.dqn import QNetwork, learn, make_optimizer, optimizer_step, sync_target, update_average
+from coopsumo.agents.dqn import QNetwork, learn, make_optimizer, optimizer_step, sync_target
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS, ReplayBatch
 from coopsumo.agents.stacked import StackedBatch, StackedLearner, adam_step, stack_batches
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
@@ -54,8 +53,8 @@ def random_batch(gen: torch.Generator, cfg: DQNConfig, size: int = 64) -> Replay
 
 
 def member_equal(a: StackedLearner, i: int, b: StackedLearner, j: int) -> bool:
-    """Member i of a and member j of b hold the same bits: weights, target, Adam moments, moving average, steps."""
-    buffers = ["_weights", "_exp_avg", "_exp_avg_sq", "_average"]
+    """Member i of a and member j of b hold the same bits: weights, target, Adam moments, steps."""
+    buffers = ["_weights", "_exp_avg", "_exp_avg_sq"]
     same = [torch.equal(a.online[i], b.online[j]), torch.equal(a.target[i], b.target[j]), a.steps[i] == b.steps[j]]
     for name in buffers[1:]:
         x, y = getattr(a, name), getattr(b, name)
@@ -141,8 +140,8 @@ def test_a_member_trained_in_a_group_of_8_is_the_member_trained_alone() -> None:
 
 
 @pytest.mark.parametrize("cfg", [dataclasses.replace(DQN_PRESETS["paper"], grad_clip_norm=0.3),
-                                 dataclasses.replace(CONDITIONED, weights_ema=0.9, n_step=3)],
-                         ids=["paper-sgd-mse", "conditioned-ema"])  # fmt: skip
+                                 CONDITIONED],
+                         ids=["paper-sgd-mse", "conditioned"])  # fmt: skip
 def test_every_learner_setting_keeps_members_apart(cfg: DQNConfig) -> None:
     group, alone = train_alone_and_together(cfg, 3, 30, seed=2)
     assert all(member_equal(group, k, one, 0) for k, one in enumerate(alone))
@@ -219,7 +218,7 @@ def test_a_step_with_no_member_changes_nothing() -> None:
 def test_a_checkpointed_group_continues_exactly() -> None:
     """50 updates, the state through torch.save and torch.load(weights_only=True) into a fresh group, 50 more: the
     same bits as 100 straight, every member (their step counts differing: member 2 starts late)."""
-    cfg = dataclasses.replace(DEFAULT, weights_ema=0.99)
+    cfg = DEFAULT
     nets = networks(cfg, 3, seed=6)
     gen = torch.Generator().manual_seed(6)
     rounds = [[random_batch(gen, cfg) if i < 2 or r >= 7 else None for i in range(3)] for r in range(100)]
@@ -249,42 +248,32 @@ def test_a_checkpointed_group_continues_exactly() -> None:
 # -- Learner's update, formats and optimiser -------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("cfg", [DEFAULT, DQN_PRESETS["paper"], dataclasses.replace(CONDITIONED, weights_ema=0.9,
-                                                                                    n_step=3, grad_clip_norm=0.5)],
-                         ids=["default", "paper-sgd-mse", "conditioned-ema-clipped"])  # fmt: skip
+@pytest.mark.parametrize("cfg", [DEFAULT, DQN_PRESETS["paper"], dataclasses.replace(CONDITIONED, grad_clip_norm=0.5)],
+                         ids=["default", "paper-sgd-mse", "conditioned-clipped"])  # fmt: skip
 def test_a_group_of_one_learns_as_learner_does(cfg: DQNConfig) -> None:
-    """The same loss, targets, clipping and moving average as dqn.learn, not its bits: before each of 12 updates of
+    """The same loss, targets and clipping as dqn.learn, not its bits: before each of 12 updates of
     a Learner's network the group takes its state (set_member, exact), then both update on the same minibatch; the
     losses agree within 1e-6 relative, the clipped gradients within 1e-5 of their norm in 10 of the 12 updates and
     1e-2 in all (the products differ in their last bits, measured 1e-8 to 1e-7, and a last bit that moves a ReLU
     across 0 changes a unit's gradient: 1e-3 once in 180 updates; a wrong target, loss or clipping is off by 0.1 or
-    more), and the optimiser step and the moving average that follow are tested bit for bit (Adam below; the
-    average is dqn.update_average of the group's new weights). The weights are not compared: Adam's step on a
-    gradient near its eps (1e-8) turns a last-bit difference into up to a step, and a difference that flips a next
-    action's argmax grows, as for any change of the bits."""
-    online, target, average = networks(cfg, 3, seed=10)
+    more), and the optimiser step that follows is tested bit for bit (Adam below). The weights are not compared:
+    Adam's step on a gradient near its eps (1e-8) turns a last-bit difference into up to a step, and a difference
+    that flips a next action's argmax grows, as for any change of the bits."""
+    online, target = networks(cfg, 2, seed=10)
     sync_target(online, target)
-    sync_target(online, average)
     optimizer = make_optimizer(online, cfg)
     group = StackedLearner(cfg, [online.state_dict()])
     gen = torch.Generator().manual_seed(10)
     gaps = []  # |their gradient - ours| / |theirs|, after clipping
     for update in range(12):
         b = random_batch(gen, cfg)
-        group.set_member(0, online.state_dict(), target.state_dict(), optimizer.state_dict(), average.state_dict())
-        average_before = copy.deepcopy(average)
-        loss = learn(online, target, optimizer, b, cfg, average if cfg.weights_ema else None)
+        group.set_member(0, online.state_dict(), target.state_dict(), optimizer.state_dict())
+        loss = learn(online, target, optimizer, b, cfg)
         assert group.learn(stack_batches([b])[0]).item() == pytest.approx(loss, rel=1e-6)
         grads = group._member(group._grads, 0)
         theirs = {name: param.grad for name, param in online.named_parameters() if param.grad is not None}
         assert len(theirs) == len(grads)
         gaps.append(float(flat_norm({n: grads[n] - g for n, g in theirs.items()}) / flat_norm(theirs)))
-        if cfg.weights_ema:
-            new = networks(cfg, 1)[0]
-            new.load_state_dict(group.member_state(0)["online"])
-            update_average(average_before, new, cfg.weights_ema)
-            assert all(torch.equal(group.member_state(0)["average"][n], t)
-                       for n, t in average_before.state_dict().items())  # fmt: skip
         if update % 4 == 3:
             sync_target(online, target)
     assert max(gaps) < 1e-2 and sorted(gaps)[-3] < 1e-5, gaps

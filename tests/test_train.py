@@ -66,7 +66,7 @@ def test_short_training_loads_and_drives_safely(tmp_path: Path) -> None:
     assert driven["decision_interval_steps"] == summary["decision_interval_steps"] == 10
 
 
-@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned", "nstep"])
+@pytest.mark.parametrize("preset", ["default", "paper", "v2x", "conditioned"])
 def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
     """Trainings of 400 steps (updates from step 200; the conditioned alpha drawn twice), the paper's 700 (its target
     network synced at step 500)."""
@@ -74,10 +74,6 @@ def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
     steps = 700 if preset == "paper" else 400
     if preset == "conditioned":
         dqn = replace(dqn, alpha_conditioned=True, alpha_period_steps=200)
-    if preset == "nstep":  # 3-round returns: reproducible, and not the 1-round training of the same seed
-        dqn = replace(dqn, n_step=3)
-        one = TrainConfig(sim=SimConfig(steps=steps, seed=5, policy="dqn"), dqn=replace(dqn, n_step=1), eval_steps=0)
-        train(one, tmp_path / "one", progress=False)
     cfg = TrainConfig(sim=SimConfig(steps=steps, seed=5, policy="dqn"), dqn=dqn, eval_steps=0)
     train(cfg, tmp_path / "a", progress=False)
     train(cfg, tmp_path / "b", progress=False)
@@ -85,8 +81,6 @@ def test_same_seed_same_weights(tmp_path: Path, preset: str) -> None:
     other = TrainConfig(sim=SimConfig(steps=steps, seed=6, policy="dqn"), dqn=dqn, eval_steps=0)
     train(other, tmp_path / "c", progress=False)
     assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "c" / "model.pt"))
-    if preset == "nstep":
-        assert not _same(_weights(tmp_path / "a" / "model.pt"), _weights(tmp_path / "one" / "model.pt"))
 
 
 LOG_EVERY_250 = """
@@ -104,7 +98,7 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str)
     """Each state a checkpoint must keep, within 1,500 steps: `features` is the default learner (the v2x state,
     drawn demands and accidents, its updates in the second process, whose state the checkpoint asks for) with
     episodes of 1,200 steps (the cut after 1,000 lands inside one), the alpha-conditioned network's alpha schedule,
-    the followers' speed in the reward, 3-round returns (the rounds not yet joined) and model selection all at work
+    the followers' speed in the reward and model selection all at work
     in one training (any state a resume lost would change the weights). `paper` (its replay, SGD and target network
     synced every 500 steps) in 700 steps, logged every 250 (tests/test_faults.py's driver): the cut after step 250,
     once it updates, and its target synced at 500 after the resume."""
@@ -112,8 +106,7 @@ def test_interrupt_then_resume_equals_uninterrupted(tmp_path: Path, preset: str)
     learner = {"features": ["--observation", "v2x", "--alpha-conditioned", "--alpha-period", "700",
                             "--train-t-up", "1.5,1", "--accident-share", "0.5", "--episode-steps", "1200",
                             "--select-every", "1000", "--validation-steps", "300", "--validation-t-up", "1.5",
-                            "--validation-accident-steps", "600", "--followers-weight", "1", "--update-worker", "on",
-                            "--n-step", "3"]
+                            "--validation-accident-steps", "600", "--followers-weight", "1", "--update-worker", "on"]
                }.get(preset, ["--preset", preset])  # fmt: skip
     steps = "1500" if preset == "features" else "700"
     args = ["--steps", steps, "--eval-steps", "0", "--seed", "2", "--quiet", *learner]
@@ -166,9 +159,7 @@ def _files(folder: Path) -> dict[str, bytes]:
         (["--gamma", "nan"], "gamma"),
         (["--observation", "lidar"], "observation"),
         (["--change-margin", "-1"], "change-margin"),
-        (["--n-step", "0"], "n-step"),
-        (["--n-step", "21"], "n-step"),
-        (["--n-step", "2.5"], "n-step"),
+        (["--n-step", "3"], "unrecognized arguments: --n-step"),  # retired (issue 80)
     ],
 )
 def test_bad_input_one_line_exit_2(tmp_path: Path, args: list[str], fragment: str,

@@ -184,24 +184,10 @@ def sync_target(online: nn.Module, target: nn.Module) -> None:
     target.load_state_dict(online.state_dict())
 
 
-def update_average(average: nn.Module, online: nn.Module, decay: float) -> None:
-    """average <- decay * average + (1 - decay) * online, parameter by parameter, in place (buffers copied)."""
-    with torch.no_grad():
-        for a, o in zip(average.parameters(), online.parameters(), strict=True):
-            a.mul_(decay).add_(o, alpha=1.0 - decay)
-        for b, ob in zip(average.buffers(), online.buffers(), strict=True):
-            b.copy_(ob)
-
-
-def learn(online: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, batch: ReplayBatch, cfg: DQNConfig,
-          average: QNetwork | None) -> float:
-    """One gradient update of online with cfg's settings, then the moving average of its weights (average: None when
-    DQNConfig.weights_ema is off); returns the loss. An n-step transition (DQNConfig.n_step) bootstraps with gamma^n."""
-    gamma = cfg.gamma**cfg.n_step
-    loss = dqn_update(online, target, optimizer, batch, gamma, cfg.grad_clip_norm, cfg.double_dqn, cfg.loss)
-    if average is not None:
-        update_average(average, online, cfg.weights_ema)
-    return loss
+def learn(online: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer, batch: ReplayBatch,
+          cfg: DQNConfig) -> float:  # fmt: skip
+    """One gradient update of online with cfg's settings; returns the loss."""
+    return dqn_update(online, target, optimizer, batch, cfg.gamma, cfg.grad_clip_norm, cfg.double_dqn, cfg.loss)
 
 
 def make_optimizer(net: nn.Module, cfg: DQNConfig) -> torch.optim.Optimizer:
@@ -240,11 +226,6 @@ class Learner:
             self.online = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation, cfg.alpha_conditioned)
             self.target = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation, cfg.alpha_conditioned)
         sync_target(self.online, self.target)
-        # DQNConfig.weights_ema: the moving average of the online weights that drives (None: the online weights)
-        self._average: QNetwork | None = None
-        if cfg.weights_ema > 0:
-            self._average = QNetwork(cfg.speed_scale_mps, cfg.dueling, cfg.observation, cfg.alpha_conditioned)
-            sync_target(self.online, self._average)
         self.optimizer = make_optimizer(self.online, cfg)
         self.buffer = ReplayBuffer(cfg.replay_size, self.online.n_features, cfg.alpha_conditioned)
         self._alphas = conditioned_alphas(cfg)
@@ -265,20 +246,6 @@ class Learner:
     @online.setter
     def online(self, net: QNetwork) -> None:
         self._online = net
-
-    @property
-    def average(self) -> QNetwork | None:
-        """The moving average of the online weights (DQNConfig.weights_ema), every update applied; None when off."""
-        if self.worker is not None:
-            self.worker.wait()
-        return self._average
-
-    @property
-    def driving(self) -> QNetwork:
-        """The weights a snapshot or model file takes: the moving average when DQNConfig.weights_ema > 0, else the
-        online network."""
-        average = self.average
-        return average if average is not None else self.online
 
     def attach(self, worker: UpdateWorkerLike) -> None:
         """Run the updates in `worker` (agents/update_worker.py) from now on; detach() takes them back."""
@@ -385,7 +352,7 @@ class Learner:
                 if self.worker is not None:
                     self.worker.submit(batches)
                 else:
-                    losses = [learn(self._online, self.target, self.optimizer, b, cfg, self._average) for b in batches]
+                    losses = [learn(self._online, self.target, self.optimizer, b, cfg) for b in batches]
         if self.env_steps % cfg.target_sync_steps == 0:
             if self.worker is not None:
                 self.worker.sync()
@@ -410,8 +377,6 @@ class Learner:
             "decisions": self.decisions,
             "updates": self.updates,
         }
-        if self._average is not None:  # DQNConfig.weights_ema
-            state["average"] = copy.deepcopy(self._average.state_dict())
         return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -420,11 +385,6 @@ class Learner:
         if self.worker is not None:
             raise RuntimeError("load a learner's state before attaching a worker")
         self.online.load_state_dict(state["online"])
-        if self._average is not None:
-            if "average" not in state:
-                raise ValueError("the learner state has no moving average of the weights (weights_ema), which this "
-                                 "learner keeps")  # fmt: skip
-            self._average.load_state_dict(state["average"])
         self.target.load_state_dict(state["target"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.buffer.load_state_dict(state["buffer"])

@@ -115,14 +115,13 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
     learner = state["learner"]
     if not isinstance(learner, Mapping):
         return f"has learner state of type {type(learner).__name__}, not a mapping"
-    averaged = bool(config["dqn"].get("weights_ema"))  # DQNConfig.weights_ema > 0: the average is kept too
-    missing = [k for k in LEARNER_KEYS + (("average",) if averaged else ()) if k not in learner]
+    missing = [k for k in LEARNER_KEYS if k not in learner]
     if missing:
         return f"has learner state without {missing[0]}"
     bad = next((k for k in ("env_steps", "decisions", "updates") if not _is_count(learner[k])), None)
     if bad:
         return f"has learner {bad} = {learner[bad]!r}, not an integer >= 0"
-    for net in ("online", "target", "average"):  # average: only with DQNConfig.weights_ema > 0
+    for net in ("online", "target"):
         if net in learner and (problem := _weights_problem(learner[net], f"{net} weights")):
             return problem
     if not isinstance(learner["buffer"], Mapping) or not isinstance(learner["optimizer"], Mapping):

@@ -100,8 +100,6 @@ def request(out: Path, cfg: TrainConfig, step: int, screen: bool = False) -> Pat
         alphas = list(cfg.dqn.validation_alphas or (cfg.sim.reward.alpha,))
     data: dict[str, Any] = {"step": step, "runs": runs * len(alphas), "stage": SCREEN_STAGE if screen else "all",
                             "drive_alphas": [a for a in alphas for _ in runs]}  # fmt: skip
-    if cfg.dqn.validation_queue and cfg.dqn.queue_below_mps:
-        data["queue_below_mps"] = cfg.dqn.queue_below_mps
     _write_json(folder / REQUEST, data)
     return folder
 
@@ -224,7 +222,7 @@ def _write_json(path: Path, data: dict[str, Any]) -> None:
 
 SELECTION_FIELDS = ("validation_seed", "validation_t_ups", "validation_steps", "validation_accident_steps",
                     "validation_screen", "validation_finalists",
-                    "validation_queue", "validation_alphas", "change_margin", "queue_below_mps", "no_return_s")
+                    "validation_alphas", "change_margin", "queue_below_mps", "no_return_s")
 """learner settings that training never reads, only the judging of snapshots (the change margin, the queue rule and
 no change back also the driving): two trainings that differ in nothing else train the same weights"""
 
@@ -302,24 +300,22 @@ def diagnosis(rows: list[np.ndarray]) -> dict[str, float]:
     return out
 
 
-def snapshot_policy(path: str, queue_below_mps: float = 0.0) -> DQNPolicy:
-    """A snapshot as validation drives it: as saved, but with the queue rule (DQNConfig.queue_below_mps) at
-    queue_below_mps (m/s; 0: off, as training drives; the request says, see DQNConfig.validation_queue)."""
+def snapshot_policy(path: str) -> DQNPolicy:
+    """A snapshot as validation drives it: as saved, but with the queue rule (DQNConfig.queue_below_mps) off, as
+    training drives."""
     from coopsumo.agents.dqn_policy import DQNPolicy
 
     policy = DQNPolicy.from_file(path)
-    policy.queue_below_mps = queue_below_mps
+    policy.queue_below_mps = 0.0
     return policy
 
 
-def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path,
-                 queue_below_mps: float = 0.0) -> tuple[dict[str, Any], list[np.ndarray]]:  # fmt: skip
-    """One greedy run of the snapshot (queue rule at queue_below_mps, m/s): its measures and the recorded decisions
-    (diagnosis)."""
+def validate_run(cfg: SimConfig, drive_alpha: float | None, folder: Path) -> tuple[dict[str, Any], list[np.ndarray]]:
+    """One greedy run of the snapshot (snapshot_policy): its measures and the recorded decisions (diagnosis)."""
     from coopsumo.agents.decisions import ActionHold
     from coopsumo.sim.world import World
 
-    policy = snapshot_policy(cfg.policy[4:], queue_below_mps)
+    policy = snapshot_policy(cfg.policy[4:])
     if drive_alpha is not None:
         policy.drive_at(drive_alpha, cfg.road.lanes)
     policy.q_log = []
@@ -362,8 +358,7 @@ def validate(folder: Path, kept: Kept | None = None) -> dict[str, Any]:
         key = json.dumps([raw, alpha], sort_keys=True)
         if key not in reuse:
             with tempfile.TemporaryDirectory(dir=folder, prefix=f".run{i}.") as tmp:
-                made[key] = validate_run(sim_config_from_dict(raw), alpha, Path(tmp),
-                                         float(req.get("queue_below_mps", 0.0)))  # fmt: skip
+                made[key] = validate_run(sim_config_from_dict(raw), alpha, Path(tmp))
         run, log = reuse.get(key) or made[key]
         runs.append(run)
         rows += log
@@ -424,7 +419,7 @@ class Validator:
         self.queue = pending(out)
 
     def after_step(self, step: int, weights: Callable[[], Any]) -> None:
-        """Called after every training step; weights() gives the network that drives (Learner.driving; called only
+        """Called after every training step; weights() gives the network that drives (Learner.online; called only
         when a snapshot is due: with an update worker, it waits for the updates sent)."""
         if step % self.every == 0 or step == self.cfg.sim.steps:
             net = weights()

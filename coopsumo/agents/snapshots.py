@@ -1,8 +1,8 @@
 """Where a training that selects its model keeps its snapshots and their validations (agents/selection.py makes
 them; a dqn policy driving an ensemble of them reads them).
 
-OUT/snapshots/step<N>/model.pt is the weights that drive at training step N (the online network, or its moving
-average with DQNConfig.weights_ema), OUT/snapshots/step<N>/validation.json the
+OUT/snapshots/step<N>/model.pt is the weights that drive at training step N (the online network),
+OUT/snapshots/step<N>/validation.json the
 result of validating it (its "score" the mean reward per vehicle and step over the validation runs); with a
 selection in two stages, OUT/snapshots/step<N>/screen.json that of its screening runs, and validation.json only for
 the finalists.

@@ -123,7 +123,6 @@ class StackedLearner:
         self._exp_avg = torch.zeros(k, width) if cfg.optimizer == "adam" else None
         self._exp_avg_sq = torch.zeros(k, width) if cfg.optimizer == "adam" else None
         self._scratch = torch.zeros(2, k, width) if cfg.optimizer == "adam" else None
-        self._average = torch.zeros(k, width) if cfg.weights_ema > 0 else None
         self.steps = [0] * k  # the optimiser steps each member has taken
         self._online = self.layout.views(self._weights[:k])
         for name, param in self._online.items():  # leaves whose gradients accumulate into _grads' rows
@@ -153,7 +152,7 @@ class StackedLearner:
     def learn(self, batch: StackedBatch, active: torch.Tensor | None = None) -> torch.Tensor:
         """One gradient update of each member where active (bool (K,); None: all) on its own minibatch (row k of
         batch), as agents/dqn.learn updates a Learner's network; the other members' weights, optimiser state, step
-        counts and moving averages are left as they are, and no member's result depends on another's rows.
+        counts are left as they are, and no member's result depends on another's rows.
         Returns each member's loss before the step, (K,) (an inactive member's means nothing)."""
         rows = self._rows(active)
         losses = self._backward(batch)
@@ -162,11 +161,6 @@ class StackedLearner:
             if rows is not None and len(rows) == 0:
                 return losses
             self._optimizer_step(rows)
-            if self._average is not None:
-                decay = self.cfg.weights_ema
-                average, online = _take(self._average, rows), _take(self.online, rows)
-                average.mul_(decay).add_(online, alpha=1.0 - decay)
-                _put(self._average, rows, average)
         return losses
 
     def sync_target(self, members: torch.Tensor | None = None) -> None:
@@ -202,7 +196,7 @@ class StackedLearner:
     def _td_targets(self, batch: StackedBatch) -> torch.Tensor:
         """dqn.td_targets for every member, (K, B); double DQN: the online and target networks in one pass."""
         cfg, k = self.cfg, self.k
-        gamma = cfg.gamma**cfg.n_step
+        gamma = cfg.gamma
         with torch.no_grad():
             if cfg.double_dqn:
                 patches = conv_patches(batch.next_grids)
@@ -261,22 +255,16 @@ class StackedLearner:
 
     def member_state(self, k: int) -> dict[str, Any]:
         """Member k as a Learner keeps it: "online" and "target" QNetwork state dicts, "optimizer" the state dict of
-        dqn.make_optimizer's optimiser over QNetwork's parameters, and "average" (DQNConfig.weights_ema only)."""
-        state: dict[str, Any] = {"online": self._member(self.online, k), "target": self._member(self.target, k),
-                                 "optimizer": self._optimizer_state(k)}  # fmt: skip
-        if self._average is not None:
-            state["average"] = self._member(self._average, k)
-        return state
+        dqn.make_optimizer's optimiser over QNetwork's parameters."""
+        return {"online": self._member(self.online, k), "target": self._member(self.target, k),
+                "optimizer": self._optimizer_state(k)}
 
     def set_member(self, k: int, online: Mapping[str, torch.Tensor], target: Mapping[str, torch.Tensor] | None = None,
-                   optimizer: Mapping[str, Any] | None = None,
-                   average: Mapping[str, torch.Tensor] | None = None) -> None:  # fmt: skip
-        """Load member k from Learner's formats (member_state's); target and average None: the online weights;
-        optimizer None: a fresh one (no step taken)."""
+                   optimizer: Mapping[str, Any] | None = None) -> None:  # fmt: skip
+        """Load member k from Learner's formats (member_state's); target None: the online weights; optimizer None: a
+        fresh one (no step taken)."""
         self._set_row(self.online, k, online)
         self._set_row(self.target, k, online if target is None else target)
-        if self._average is not None:
-            self._set_row(self._average, k, online if average is None else average)
         self._load_optimizer(k, {"state": {}} if optimizer is None else optimizer)
 
     def _optimizer_state(self, k: int) -> dict[str, Any]:
@@ -313,7 +301,7 @@ class StackedLearner:
         """Everything a continued training needs (copies; torch.load(weights_only=True) reads it back)."""
         state: dict[str, Any] = {"width": self.layout.width, "weights": self._weights.clone(),
                                  "steps": torch.tensor(self.steps, dtype=torch.int64)}  # fmt: skip
-        for name in ("exp_avg", "exp_avg_sq", "average"):
+        for name in ("exp_avg", "exp_avg_sq"):
             if (buffer := getattr(self, f"_{name}")) is not None:
                 state[name] = buffer.clone()
         return state
@@ -325,7 +313,7 @@ class StackedLearner:
                              f"this learner's {tuple(self._weights.shape)}")  # fmt: skip
         with torch.no_grad():
             self._weights.copy_(state["weights"])
-            for name in ("exp_avg", "exp_avg_sq", "average"):
+            for name in ("exp_avg", "exp_avg_sq"):
                 if (buffer := getattr(self, f"_{name}")) is not None:
                     if name not in state:
                         raise ValueError(f"the state has no {name}, which this learner keeps")

@@ -37,7 +37,6 @@ from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
 from coopsumo.agents.file_checks import ended_training, prepare_resume, resume_problem
 from coopsumo.agents.model_file import load_error_text, save_model
-from coopsumo.agents.nstep import Round, mature
 from coopsumo.agents.tb_log import LOG_FIELDS, Window, open_log
 from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import GroupTicket, LearnerProcessError, attach_updates
@@ -225,22 +224,16 @@ class Trainer:
         if decide:
             feats = network_features(obs, dq.observation, dq.speed_scale_mps)
             mask = self._offered(obs)
-            # a resume replays the rounds too when n-step returns keep the last ones (Pending.rounds)
-            if pend.prev is not None and (recorded is None or dq.n_step > 1):
+            if pend.prev is not None and recorded is None:
                 arrived = np.concatenate(pend.arrived) if pend.arrived else np.zeros(0, np.int64)
                 prev_mask = self._offered(pend.prev)
-                *parts, nums = transitions(pend.prev, pend.prev_features, pend.prev_actions, pend.reward_sum, arrived,
-                                           obs, feats, dq.exit_transition, all_if_none(prev_mask, pend.prev),
-                                           all_if_none(mask, obs), pend.change_sum)  # fmt: skip
-                batch: tuple[np.ndarray, ...] | None = tuple(parts)
-                batch_alpha = pend.prev_alpha
-                if dq.n_step > 1:  # agents/nstep: store the round of n - 1 rounds ago, joined with the ones after it
-                    pend.rounds.append(Round(nums, tuple(parts), pend.prev_alpha))
-                    batch, batch_alpha = mature(pend.rounds, dq.n_step, dq.gamma) or (None, batch_alpha)
-                if recorded is None and batch is not None and len(batch[0]):
+                *batch, _ = transitions(pend.prev, pend.prev_features, pend.prev_actions, pend.reward_sum, arrived, obs,
+                                        feats, dq.exit_transition, all_if_none(prev_mask, pend.prev),
+                                        all_if_none(mask, obs), pend.change_sum)  # fmt: skip
+                if len(batch[0]):
                     keep = learner.rng.permutation(len(batch[0]))[: dq.store_per_decision]
                     grids, err, acts, rews, ngrids, nerr, dones, nmask, changes = (x[keep] for x in batch)
-                    alphas = np.full(len(keep), batch_alpha, np.float32) if dq.alpha_conditioned else None
+                    alphas = np.full(len(keep), pend.prev_alpha, np.float32) if dq.alpha_conditioned else None
                     learner.observe(grids, err, acts, rews, ngrids, nerr, dones, None if mask is None else nmask,
                                     alphas, changes if dq.alpha_conditioned else None)  # fmt: skip
             if recorded is None:
@@ -313,7 +306,7 @@ class Trainer:
             learner.step(decided)
             self.step += 1
             if self.validator is not None:
-                self.validator.after_step(self.step, lambda: learner.driving)
+                self.validator.after_step(self.step, lambda: learner.online)
             w = self.window
             w.add(out, world.table.speed, penalty)
             if self.step % cfg.log_every_steps == 0 or self.step == cfg.sim.steps:
@@ -417,11 +410,11 @@ def _write_models(trainer: Trainer, cfg: TrainConfig, out: Path, wall: float, en
     weights) and train_summary.json; returns that summary and the chosen snapshot's record (None: no selection)."""
     chosen = None
     if selection.selecting(cfg):  # model.pt: the best validated snapshot; the last weights beside it
-        save_model(out / selection.LAST_MODEL, trainer.learner.driving, model_meta(cfg))
+        save_model(out / selection.LAST_MODEL, trainer.learner.online, model_meta(cfg))
         chosen = selection.install_best(out)
         selection.write_table(out)
     if chosen is None:
-        save_model(out / "model.pt", trainer.learner.driving, model_meta(cfg))
+        save_model(out / "model.pt", trainer.learner.online, model_meta(cfg))
     train_summary = ended or dict(trainer.world_summary, wall_seconds=round(wall, 2),
                                   steps_per_second=round(cfg.sim.steps / wall, 1),
                                   updates=trainer.learner.updates, learner_process=learner_process)  # fmt: skip
@@ -484,7 +477,7 @@ def train(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = Tr
             trainer.checkpoint_path().unlink(missing_ok=True)
             mark_run_dir(out, "train")
         return train_summary
-    net = trainer.learner.driving if chosen is None else DQNPolicy.from_file(str(out / "model.pt")).net
+    net = trainer.learner.online if chosen is None else DQNPolicy.from_file(str(out / "model.pt")).net
     policy = _driving_policy(cfg, net)
     shutil.rmtree(out / "eval", ignore_errors=True)  # what an interrupted evaluation had written
     try:

@@ -176,8 +176,6 @@ FLAG_NEEDS: dict[str, tuple[str, Callable[[DQNConfig], bool]]] = {
     "--validation-seed": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
     "--validation-t-up": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
     "--validation-steps": ("--select-every N (N > 0)", lambda c: c.select_every_steps > 0),
-    "--validation-queue": ("--select-every N (N > 0) and --queue-below V (V > 0)",
-                           lambda c: c.select_every_steps > 0 and c.queue_below_mps > 0),
     "--episode-steps": ("--train-t-up or --accident-share", lambda c: bool(c.train_t_ups) or c.accident_share > 0),
 }
 """learner flags that act only beside another setting: given without it, they are refused (not silently ignored)"""

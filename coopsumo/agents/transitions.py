@@ -8,7 +8,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from coopsumo.agents.dqn import N_ACTIONS
-from coopsumo.agents.nstep import Round
 from coopsumo.sim.observation import Observation
 
 
@@ -79,8 +78,6 @@ class Pending:
     """the alpha of the last decision round (a conditioned training's draw)"""
     arrived: list[np.ndarray] = field(default_factory=list)
     """numbers of vehicles that left the road since the last decision round"""
-    rounds: list[Round] = field(default_factory=list)
-    """the last n - 1 intervals' transitions, not yet joined into n-step ones (DQNConfig.n_step > 1; agents/nstep)"""
 
     def _grow(self, nums: np.ndarray) -> None:
         if len(nums) and int(nums.max()) >= len(self.reward_sum):

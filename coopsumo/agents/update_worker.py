@@ -85,10 +85,9 @@ def _receive(conn: Connection) -> tuple[Any, ...]:
 
 
 def serve(conn: Connection, cfg: DQNConfig, online: QNetwork, target_state: dict[str, Any],
-          optimizer_state: dict[str, Any], slots: list[ReplayBatch], threads: int,
-          average: QNetwork | None = None) -> None:  # fmt: skip
-    """The worker's loop (the spawned process's target): online's parameters, the slots and the moving average of
-    the weights (DQNConfig.weights_ema; None: off) are the training process's, shared."""
+          optimizer_state: dict[str, Any], slots: list[ReplayBatch], threads: int) -> None:  # fmt: skip
+    """The worker's loop (the spawned process's target): online's parameters and the slots are the training
+    process's, shared."""
     # Ctrl-C and a group's SIGTERM are the training process's to handle: it asks for the state and checkpoints.
     # When it is gone, the pipe closes and this loop ends.
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -106,7 +105,7 @@ def serve(conn: Connection, cfg: DQNConfig, online: QNetwork, target_state: dict
                 return
             kind = message[0]
             if kind == "update":
-                losses = [learn(online, target, optimizer, b, cfg, average) for b in slots[: message[1]]]
+                losses = [learn(online, target, optimizer, b, cfg) for b in slots[: message[1]]]
                 _send(conn, ("done", float(np.mean(losses))))
             elif kind == "sync":
                 sync_target(online, target)
@@ -182,18 +181,15 @@ class _Handle:
 class UpdateWorker(_Handle):
     """The training process's handle on the update worker: submit rounds, wait for them, fetch the state."""
 
-    def __init__(self, cfg: DQNConfig, online: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer,
-                 average: QNetwork | None = None):  # fmt: skip
+    def __init__(self, cfg: DQNConfig, online: QNetwork, target: QNetwork, optimizer: torch.optim.Optimizer):
         online.share_memory()  # the worker updates these very tensors
-        if average is not None:
-            average.share_memory()
         self.slots = make_slots(cfg, online)
         ctx = torch.multiprocessing.get_context("spawn")
         self.conn, child = ctx.Pipe()
         self.process = ctx.Process(
             target=serve,
             args=(child, cfg, online, target.state_dict(), optimizer.state_dict(), self.slots,
-                  torch.get_num_threads(), average),  # fmt: skip
+                  torch.get_num_threads()),  # fmt: skip
             name=WORKER_NAME,
             daemon=True,
         )
@@ -440,4 +436,4 @@ def attach_updates(learner: Any, worker: bool, group: GroupTicket | None) -> Non
         member.join(learner)
         learner.attach(member)
     elif worker:
-        learner.attach(UpdateWorker(cfg, learner.online, learner.target, learner.optimizer, learner.average))
+        learner.attach(UpdateWorker(cfg, learner.online, learner.target, learner.optimizer))

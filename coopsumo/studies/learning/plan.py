@@ -199,7 +199,7 @@ def as_trained(dqn: DQNConfig, steps: int) -> DQNConfig:
     off), so that variants differing only there share one training. Where model selection drives with it, it stays:
     model.pt is the snapshot the variant's own validation chooses."""
     selects = 0 < dqn.select_every_steps < steps
-    read: dict[str, Any] = {"queue_below_mps": dqn.queue_below_mps if selects and dqn.validation_queue else 0.0,
+    read: dict[str, Any] = {"queue_below_mps": 0.0,
                             "change_margin": dqn.change_margin if selects else 0.0,
                             "no_return_s": dqn.no_return_s if selects else 0.0}  # fmt: skip
     return replace(dqn, **read)

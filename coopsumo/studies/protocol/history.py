@@ -21,7 +21,7 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import SPEED_ONLY_FIELDS, to_dict
-from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS
+from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS, RETIRED_FIELDS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_atomic
 from coopsumo.record_schemas import PROTOCOL_STATS, PROTOCOL_STUDY, RecordError
@@ -56,7 +56,8 @@ def added(folder: Path) -> tuple[str, str]:
 def differences(learner: dict[str, Any], drive: dict[str, Any], weights: str) -> str:
     """How a learner (its settings, how it drives, which weights) differs from today's default, field by field."""
     default = json.loads(json.dumps(to_dict(DQN_PRESETS["default"])))  # tuples as the records hold them: lists
-    learner = {**ADDED_FIELDS, **learner}  # a record made before a field existed means its implied value
+    learner = {k: v for k, v in {**ADDED_FIELDS, **learner}.items()  # a record made before a field existed means its
+               if not (k in RETIRED_FIELDS and v == RETIRED_FIELDS[k])}  # implied value; a retired one at its own too
     fields = [f"{k} {_short(v)}" for k, v in sorted(learner.items())
               if k not in ("preset", *SPEED_ONLY_FIELDS) and default.get(k) != v]  # fmt: skip
     fields += [f"drives with {k} {_short(v)}" for k, v in sorted(drive.items())]

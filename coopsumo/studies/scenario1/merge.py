@@ -18,6 +18,7 @@ from typing import Any
 
 import pandas as pd
 
+from coopsumo.config import results_view
 from coopsumo.dqn_config import dqn_config_from_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json_object, write_json
@@ -84,7 +85,7 @@ def check_parts(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]]) -> None:
                              and recorded["plan"].get(k) != first["plan"].get(k))  # fmt: skip
             raise UsageError(f"--merge: {folder}'s plan differs from {first_folder}'s in {', '.join(differs)}: the "
                              "parts of one study differ only in their training seeds")  # fmt: skip
-        if recorded["learners"] != first["learners"]:
+        if results_view(recorded["learners"]) != results_view(first["learners"]):  # a retired setting at its value
             raise UsageError(f"--merge: {folder} trained another learner than {first_folder} (plan.json's learners)")
         for seed in recorded["plan"]["train_seeds"]:
             if seed in seen:
