@@ -137,7 +137,8 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
         return f"has non-finite values (nan or inf) in its log window ({where})"
     if (where := non_finite(learner["optimizer"])) is not None:
         return f"has non-finite values (nan or inf) in its optimizer state ({where})"
-    return (_window_problem(window) or _counters_problem(step, learner, config["dqn"]) or _buffer_problem(learner["buffer"], config["dqn"])
+    return (_window_problem(window) or _counters_problem(step, learner, config["dqn"])
+            or _buffer_problem(learner["buffer"], config["dqn"])
             or _optimizer_problem(learner["optimizer"], learner["online"])
             or _moments_problem(learner["optimizer"], len(learner["online"]), int(learner["updates"]), config["dqn"])
             or tensor_problem(state, CHECKPOINT_TENSORS, deciding_entries))  # the limits of record_schemas
