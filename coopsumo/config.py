@@ -210,6 +210,8 @@ class SimConfig:
             raise ConfigError(problem)
         if not MIN_LANES <= self.road.lanes <= MAX_LANES:
             raise ConfigError(f"lanes must be between {MIN_LANES} and {MAX_LANES}, got {self.road.lanes}")
+        if problem := physics_problem(self):  # before anything divides by them
+            raise ConfigError(problem)
         limit = min_t_up_s(self.control.dt_s)
         if number_problem(self.demand.t_up_s, low=limit, high=MAX_T_UP_S):
             raise ConfigError(f"t-up must be a finite number >= {limit:g} s (one vehicle per simulation step) and "
@@ -233,6 +235,39 @@ class SimConfig:
         if int_problem(self.full_read_every_steps, 1, MAX_STEPS):
             raise ConfigError(f"full_read_every_steps must be an integer from 1 to {MAX_STEPS}, "
                               f"got {self.full_read_every_steps}")  # fmt: skip
+
+
+SIM_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
+    "road.lane_width_m": (2.0, 6.0, False, False), "road.loop_period_s": (1.0, 3600.0, False, False),
+    "demand.v_exp_mean_kmh": (0.0, 252.0, True, False), "demand.v_exp_std_kmh": (0.0, 100.0, False, False),
+    "demand.v_exp_min_kmh": (0.0, 252.0, True, False), "demand.v_exp_max_kmh": (0.0, 252.0, True, False),
+    "control.dt_s": (0.01, 1.0, False, False), "control.car_length_m": (1.0, 30.0, False, False),
+    "control.newell_c_per_s": (0.0, 10.0, True, False), "control.newell_d": (-10.0, 0.0, False, False),
+    "control.v_acc_mps": (0.0, 10.0, True, False), "control.a1": (0.0, 10.0, False, False),
+    "control.a2_s": (0.0, 10.0, False, False), "control.v_cc_mps": (0.0, 10.0, False, False),
+    "control.t_change_s": (0.1, 60.0, False, False), "control.lc_min_gap_m": (0.0, 100.0, False, False),
+    "control.lc_headway_s": (0.0, 10.0, False, False), "control.vehicle_width_m": (0.5, 6.0, False, False),
+    "accident.redraw_s": (0.0, 3600.0, True, False), "reward.v_min_mps": (0.0, 70.0, False, True),
+    "reward.v_max_mps": (0.0, 70.0, True, False), "reward.flow_window_s": (1.0, 3600.0, False, False),
+    "reward.capacity_veh_h_per_lane": (0.0, 3600.0, True, False),
+}  # fmt: skip
+"""(lowest, highest, lowest excluded, highest excluded) of a run's physical settings that have no flag of their own,
+far around the paper's values, so that a configuration read back (a checkpoint, a config.json, a model file) cannot
+divide by zero, draw with a negative spread or build a road SUMO refuses (issue 82)"""
+
+
+def physics_problem(sim: SimConfig) -> str | None:
+    """Why one of SIM_LIMITS' settings or an order between two is out of range, or None."""
+    for name, (low, high, low_open, high_open) in SIM_LIMITS.items():
+        part, field_name = name.split(".")
+        value = getattr(getattr(sim, part), field_name)
+        if problem := number_problem(value, low, high, low_open, high_open):
+            return f"{name} must be {problem}, got {number_name(value)}"
+    for below, above in (("demand.v_exp_min_kmh", "demand.v_exp_max_kmh"), ("reward.v_min_mps", "reward.v_max_mps")):
+        values = [getattr(getattr(sim, n.split(".")[0]), n.split(".")[1]) for n in (below, above)]
+        if values[0] >= values[1]:
+            return f"{below} must be below {above}, got {number_name(values[0])} and {number_name(values[1])}"
+    return None
 
 
 def road_problem(road: RoadConfig, accident: AccidentConfig) -> str | None:

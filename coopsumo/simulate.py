@@ -31,7 +31,7 @@ from coopsumo.config import (
 )
 from coopsumo.errors import ConfigError, UsageError
 from coopsumo.policy_spec import KEYS, PolicySpecError, parse_policy, policy_file
-from coopsumo.run_dirs import atomic_run_dir, check_apart, check_run_dir, inside_study
+from coopsumo.run_dirs import atomic_run_dir, check_apart, check_no_outside_link, check_run_dir, inside_study
 from coopsumo.runio import Parser, run_cli
 from coopsumo.sim import network, sumo_session
 from coopsumo.validation import (
@@ -249,6 +249,7 @@ def main(argv: list[str] | None = None) -> int:
         if problem := inside_study(args.out):  # a study's run folder is the study's (run_dirs)
             raise UsageError(problem)
         check_run_dir(args.out, "simulate")  # before anything is written (the screenshot's folder, the run)
+        check_no_outside_link(args.out)  # a link in its own folder out to a user's file, as train refuses
         outputs = outputs_from_args(args, cfg)
         gui = gui_from_args(args, cfg)
         try:

@@ -148,7 +148,7 @@ def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkey
     n = len(cell_specs(replace(PROFILES["tiny"], alphas=(8.0, 8.000001)), DQNConfig()))
     assert code == 1 and "Traceback" not in "\n".join(err)
     assert any("cell keep_seed0: record" in e and "summary is {}" in e for e in err)
-    assert err[-1].startswith(f"ablation: error: {n} of {n} cells failed (") and "_alpha8.000001_seed0" in err[-1]
+    assert err[-1].startswith(f"learning: error: {n} of {n} cells failed (") and "_alpha8.000001_seed0" in err[-1]
     report = (tmp_path / "report.md").read_text()
     assert "**No verdict**" in report and "Failed cells: " in report and "_alpha8_seed0" in report
     assert "monotonically" not in report and "mean speed minus" not in report

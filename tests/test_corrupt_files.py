@@ -112,6 +112,10 @@ MODEL_CASES: dict[str, tuple[Callable[[dict[str, Any]], None] | bytes, str]] = {
     "gamma 1.5": (_learner(gamma=1.5), "gamma"),
     "learner settings a list": (lambda p: p["meta"]["config"].update(dqn=[1]), "no learner settings"),
     "configuration a string": (lambda p: p["meta"].update(config="trained"), "no learner settings"),
+    # the probe's (2026-12-02): each was copied into a run's config.json as what the model was trained on
+    "trained on 7 lanes": (lambda p: p["meta"]["config"]["sim"]["road"].update(lanes=7), "sim.road.lanes = 7, outside"),
+    "trained at alpha -3": (lambda p: p["meta"]["config"]["sim"]["reward"].update(alpha=-3.0), "sim.reward.alpha"),
+    "trained with steps of 0 s": (lambda p: p["meta"]["config"]["sim"]["control"].update(dt_s=0.0), "sim.control.dt_s"),
 }  # fmt: skip
 
 
@@ -304,6 +308,33 @@ def test_the_unspoiled_checkpoint_resumes(checkpoint_folder: Path, tmp_path: Pat
     assert finished_run(out, "train") and not (out / "checkpoint.pt").exists()
     steps = [line.split(",")[0] for line in (out / "train_log.csv").read_text().splitlines()]
     assert steps == ["step", "10", "20", "30", "40"]  # rows 30 and 40 once, written again by the resume
+
+
+SIM_CASES = {  # the probe's (2026-12-02): tracebacks, a changed reward, or a replay that "diverged" unexplained
+    "dt_s": ("control", 0.0), "v_exp_std_kmh": ("demand", -15.0), "capacity_veh_h_per_lane": ("reward", 0.0),
+    "car_length_m": ("control", 0.0), "loop_period_s": ("road", 0.0), "flow_window_s": ("reward", 0.0),
+    "v_min_mps": ("reward", 40.0), "newell_c_per_s": ("control", -5.0), "lane_width_m": ("road", 1000.0),
+    "a2_s": ("control", -0.5), "v_exp_min_kmh": ("demand", 500.0),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("name", sorted(SIM_CASES))
+def test_a_checkpoint_whose_run_is_out_of_range_names_the_setting(
+    name: str, checkpoint_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A checkpoint's (and config.json's) physical settings have limits too (config.SIM_LIMITS): one line naming the
+    setting, exit 2, nothing written."""
+    part, value = SIM_CASES[name]
+    out = tmp_path / "run"
+    shutil.copytree(checkpoint_folder, out)
+    state = copy.deepcopy(torch.load(out / "checkpoint.pt", weights_only=True))
+    state["config"]["sim"][part][name] = value
+    torch.save(state, out / "checkpoint.pt")
+    (out / "config.json").write_text(json.dumps({"config": state["config"]}))
+    before = snapshot(tmp_path)
+    code = train.main(["--resume", "--quiet", "--out", str(out)])
+    one_line(code, capsys.readouterr().err, f"{part}.{name} must be")
+    assert snapshot(tmp_path) == before
 
 
 # -- the training log and temporary files on resume -------------------------------------------------------------

@@ -100,6 +100,20 @@ def test_train_refuses_a_study_folder(tmp_path: Path, capsys: pytest.CaptureFixt
     assert snapshot(tmp_path) == before
 
 
+def test_simulate_refuses_a_link_out_of_its_own_folder(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The probe's (2026-12-02): a listed file of simulate's own folder replaced by a link to a user's file was not
+    refused (train refuses it); the rerun replaced the link. Now one line, and the user's file is kept."""
+    out, mine = tmp_path / "s1", tmp_path / "user" / "notes.txt"
+    assert simulate.main([*SIM, "--out", str(out)]) == 0
+    mine.parent.mkdir()
+    mine.write_text("my notes\n")
+    (out / "summary.json").unlink()
+    (out / "summary.json").symlink_to(mine)
+    before = snapshot(tmp_path)
+    refused(capsys, simulate.main([*SIM, "--out", str(out)]), f"{out / 'summary.json'} is a link to {mine}")
+    assert snapshot(tmp_path) == before
+
+
 @pytest.mark.parametrize("command", ["simulate", "train"])
 def test_a_study_s_run_folder_is_the_study_s(tmp_path: Path, capsys: pytest.CaptureFixture[str], command: str) -> None:
     """The probe's (2026-12-02): simulate --out into a scenario I study's run folder replaced it (a simulate folder

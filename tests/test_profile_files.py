@@ -262,7 +262,7 @@ def test_a_learning_profile_is_checked_by_the_same_rules(tmp_path: Path, line: s
     path.write_text(with_field(tiny_learning(), line))
     out = tmp_path / "out"
     code, err = run_main(learning.main, ["--profile", str(path), "--out", str(out), "--quiet"], capsys)
-    assert code == 2 and len(err) == 1 and err[0].startswith(f"ablation: error: {path}: [profiles.mine] {words}"), err
+    assert code == 2 and len(err) == 1 and err[0].startswith(f"learning: error: {path}: [profiles.mine] {words}"), err
     assert not out.exists()
 
 

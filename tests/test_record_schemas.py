@@ -150,6 +150,25 @@ def _done_half_beside_a_one(state: dict[str, Any]) -> None:
     dones[:2] = torch.tensor([0.5, 1.0])
 
 
+def _adam_emptied(state: dict[str, Any]) -> None:
+    state["learner"]["optimizer"]["state"] = {}
+    state["learner"]["updates"] = 2  # two updates made, within the decision rounds of 20 steps
+
+
+def _adam_one_gone(state: dict[str, Any]) -> None:
+    del state["learner"]["optimizer"]["state"][4]
+    state["learner"]["updates"] = 2
+
+
+def _speeds_without_steps(state: dict[str, Any]) -> None:
+    state["window"].update(vehicle_steps=0, speed_sum=max(float(state["window"]["speed_sum"]), 100.0))
+
+
+def _int_bias(state: dict[str, Any]) -> None:
+    online = state["learner"]["online"]
+    online["out.bias"] = online["out.bias"].to(torch.int64)
+
+
 def _no_next_action(state: dict[str, Any]) -> None:
     mask = state["learner"]["buffer"]["data"]["next_mask"] = state["learner"]["buffer"]["data"]["next_mask"].clone()
     mask[0] = False
@@ -197,6 +216,18 @@ CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
     "a log window of -3 samples": (_set("window", "samples", value=-3), "field window.samples must be"),
     "a log window loss of -1": (_set("window", "loss", value=[0.5, -1.0]), "field window.loss.1 must be"),
     "a log window of another version": (lambda s: s["window"].update(episodes=2), "has a log window with"),
+    # the probe's (2026-12-02, second): each resumed with rc 0 (a traceback for the increment)
+    "numpy's increment -5": (lambda s: s["learner"]["numpy_rng"]["state"].update(inc=-5), "128-bit whole number"),
+    "numpy's has_uint32 7": (lambda s: s["learner"]["numpy_rng"].update(has_uint32=7), "buffered value"),
+    "Adam's state emptied after 2 updates": (_adam_emptied, "has no Adam state for parameter 0 after 2 gradient"),
+    "Adam's state of one parameter gone": (_adam_one_gone, "has no Adam state for parameter 4 after 2 gradient"),
+    "a log window's speeds summing to 1e300": (_set("window", "speed_sum", value=1e300), "whose speeds sum to 1e+300"),
+    "a log window's flow reward 1e300": (_set("window", "r_flow", value=1e300), "whose r_flow sums to 1e+300"),
+    "a log window of speeds over no vehicle step": (_speeds_without_steps, "m/s over 0 vehicle steps"),
+    "replay grids of 255": (_set(*REPLAY, "grids", value=255), "occupancy grids outside 0-1 in its replay memory"),
+    "replay next grids of 200": (_set(*REPLAY, "next_grids", value=200), "outside 0-1 in its replay memory (next_"),
+    "integer online weights": (_int_bias, "has online weights 'out.bias' a torch.int64 tensor, not a tensor of floats"),
+    "a negative action count": (_set("action_counts", value=-5), "records a negative number of actions at step 0"),
 }  # fmt: skip
 
 

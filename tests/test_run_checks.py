@@ -90,6 +90,20 @@ def _one_longer_trip(xml: str) -> str:
     return re.sub(r'duration="([\d.]+)"', lambda m: f'duration="{float(m.group(1)) + 30:.2f}"', xml, count=1)
 
 
+def _trajectories(**first: float) -> Callable[[Path], None]:
+    """trajectories.parquet with its first sample's columns set to `first`, its types kept."""
+
+    def spoil(out: Path) -> None:
+        import pandas as pd
+
+        table = pd.read_parquet(out / "trajectories.parquet")
+        for name, value in first.items():
+            table.loc[0, name] = value
+        table.astype(pd.read_parquet(out / "trajectories.parquet").dtypes).to_parquet(out / "trajectories.parquet")
+
+    return spoil
+
+
 def _newer_model(out: Path) -> None:
     later = (out / "summary.json").stat().st_mtime_ns + 10**9
     os.utime(out.parent / "model.pt", ns=(later, later))
@@ -146,6 +160,10 @@ CASES: dict[str, tuple[Callable[[Path], None], str]] = {
     "tripinfo.xml deleted": (lambda out: (out / "tripinfo.xml").unlink(), "has no tripinfo.xml"),
     "above a lane's capacity": (text("detectors.xml", lambda x: _interval_flow(x, 12, "4320.00")),
                                 "12 vehicles in 10 s on one lane, above a lane's capacity of 3,600 veh/h"),
+    # the probe's (2026-12-02): trajectories were read, never checked, and a scenario I rerun measured them
+    "a trajectory speed of 999 m/s": (_trajectories(speed_mps=999.0), "speed_mps = 999.0 (outside 0.0 to 70.0)"),
+    "a trajectory on lane 9 of 3": (_trajectories(lane=9), "lane = 9 (outside 0 to 2)"),
+    "a trajectory before time 0": (_trajectories(time_s=-5.0), "time_s = -5.0"),
 }  # fmt: skip
 
 

@@ -13,16 +13,35 @@ from coopsumo.agents.decisions import cooled_down, no_change_in_queue, no_return
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, QNetwork
 from coopsumo.agents.model_file import ModelFileError, load_model
 from coopsumo.agents.snapshots import by_score, results, snapshot_dir
-from coopsumo.config import ControlConfig
+from coopsumo.config import MAX_LANES, MIN_LANES, SIM_LIMITS, ControlConfig
 from coopsumo.dqn_config import PAPER_DQN, dqn_config_from_dict
 from coopsumo.errors import ConfigError, UsageError
+from coopsumo.field_rules import number_problem
 from coopsumo.files import file_sha256
 from coopsumo.policy_spec import ADAPTIVE, model_file, parse_policy, split_dqn_spec
 from coopsumo.sim.observation import Observation, network_features
 from coopsumo.sim.physics import LEFT, RIGHT
+from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MAX_T_UP_S
 
 DT_S = ControlConfig().dt_s
 """the step (s) a decision interval counts in"""
+
+
+TRAINED_ON_LIMITS = {("road", "lanes"): (MIN_LANES, MAX_LANES), ("demand", "t_up_s"): (1e-3, MAX_T_UP_S),
+                     ("reward", "alpha"): (ALPHA_MIN, ALPHA_MAX), ("control", "dt_s"): SIM_LIMITS["control.dt_s"][:2]}
+"""the recorded training configuration's settings a model's run copies into its config.json (model_trained_on)"""
+
+
+def trained_on_problem(config: Any) -> str | None:
+    """Why the training configuration a model file records holds a setting no training had, or None (an absent one
+    is fine: a model saved before it was recorded)."""
+    for (part, name), (low, high) in TRAINED_ON_LIMITS.items():
+        value = _field(config, "sim", part, name)
+        bad = value is not None and (isinstance(value, bool) or not isinstance(value, int | float)
+                                     or number_problem(float(value), low, high) is not None)  # fmt: skip
+        if bad:
+            return f"its training configuration has sim.{part}.{name} = {value!r}, outside {low:g} to {high:g}"
+    return None
 
 
 def _field(d: Any, *keys: str) -> Any:
@@ -212,6 +231,8 @@ class DQNPolicy:
             else:
                 raise ConfigError("its training configuration has no learner settings")
             dqn.validate()  # the learner settings' types and ranges (a decision interval of 0, a string)
+            if problem := trained_on_problem(config):  # what simulate records as trained on
+                raise ConfigError(problem)
             if dqn.dueling != net.dueling:
                 raise ConfigError(f"its learner settings say dueling={dqn.dueling}, its weights have "
                                   f"{'a dueling' if net.dueling else 'a plain'} head")  # fmt: skip

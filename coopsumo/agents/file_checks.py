@@ -20,7 +20,7 @@ from typing import Any
 import torch
 
 from coopsumo.files import read_json_object, write_atomic
-from coopsumo.record_schemas import CHECKPOINT_TENSORS, MODEL_TENSORS, tensor_problem
+from coopsumo.record_schemas import CHECKPOINT_TENSORS, MODEL_TENSORS, REWARD_MAX, SPEED_MAX_MPS, tensor_problem
 
 N_ACTIONS = 4
 """actions a recorded action may take: 0 left, 1 right, 2 speedup, 3 none (dqn.N_ACTIONS)"""
@@ -42,9 +42,10 @@ def _weights_problem(weights: Any, what: str) -> str | None:
     if not isinstance(weights, Mapping) or not weights:
         return f"has {what} of type {type(weights).__name__}, not a mapping of tensors"
     for name, tensor in weights.items():
-        if not isinstance(tensor, torch.Tensor):
-            return f"has {what} {name!r} of type {type(tensor).__name__}, not a tensor"
-        if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+        if not isinstance(tensor, torch.Tensor) or not tensor.is_floating_point():
+            kind = f"a {tensor.dtype} tensor" if isinstance(tensor, torch.Tensor) else type(tensor).__name__
+            return f"has {what} {name!r} {kind}, not a tensor of floats"
+        if not bool(torch.isfinite(tensor).all()):
             return f"has non-finite values (nan or inf) in {what} {name!r}"
     return None
 
@@ -100,8 +101,10 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
     counts, actions = state["action_counts"], state["actions"]
     if not (_int_tensor(counts) and _int_tensor(actions)):
         return "has recorded actions that are not integer tensors"
-    if len(counts) != step or bool((counts < 0).any()):
+    if len(counts) != step:
         return f"records actions for {len(counts)} steps, not its {step}"
+    if bool((counts < 0).any()):
+        return f"records a negative number of actions at step {int(torch.nonzero(counts < 0)[0])}"
     in_range = not len(actions) or 0 <= int(actions.min()) <= int(actions.max()) < N_ACTIONS
     if len(actions) != int(counts.sum()) or not in_range:
         return "has recorded actions that do not match their counts or lie outside 0-3"
@@ -128,13 +131,55 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
         return "has a replay memory or optimizer state that is not a mapping"
     if not isinstance(learner["torch_rng"], torch.Tensor) or not isinstance(learner["numpy_rng"], Mapping):
         return "has random-generator states of the wrong type"
+    if (problem := _rng_problem(learner["numpy_rng"])) is not None:
+        return problem
     if (where := non_finite(window)) is not None:
         return f"has non-finite values (nan or inf) in its log window ({where})"
     if (where := non_finite(learner["optimizer"])) is not None:
         return f"has non-finite values (nan or inf) in its optimizer state ({where})"
-    return (_counters_problem(step, learner, config["dqn"]) or _buffer_problem(learner["buffer"], config["dqn"])
+    return (_window_problem(window) or _counters_problem(step, learner, config["dqn"])
+            or _buffer_problem(learner["buffer"], config["dqn"])
             or _optimizer_problem(learner["optimizer"], learner["online"])
+            or _moments_problem(learner["optimizer"], len(learner["online"]), int(learner["updates"]), config["dqn"])
             or tensor_problem(state, CHECKPOINT_TENSORS, deciding_entries))  # the limits of record_schemas
+
+
+def _moments_problem(optimizer: Mapping[str, Any], n_params: int, updates: int, dqn: Mapping[str, Any]) -> str | None:
+    """Why Adam's saved state cannot be that of its updates, or None: after the first update every parameter has its
+    step and both moments (torch's Adam keeps them for every parameter that had a gradient, and every one has)."""
+    if dqn.get("optimizer") != "adam" or updates == 0:
+        return None
+    state = optimizer["state"]
+    missing = [i for i in range(n_params)
+               if not (isinstance(state.get(i), Mapping) and {"step", "exp_avg", "exp_avg_sq"} <= set(state[i]))]
+    if missing:
+        return f"has no Adam state for parameter {missing[0]} after {updates} gradient updates (of {n_params})"
+    return None
+
+
+def _window_problem(window: Mapping[str, Any]) -> str | None:
+    """Why the log window's sums cannot be its steps', or None: speeds of at most SPEED_MAX_MPS per vehicle step,
+    rewards of at most REWARD_MAX in magnitude per transition (the counts' own limits: record_schemas)."""
+    if float(window["speed_sum"]) > SPEED_MAX_MPS * float(window["vehicle_steps"]):
+        return (f"has a log window whose speeds sum to {window['speed_sum']:g} m/s over {window['vehicle_steps']} "
+                f"vehicle steps (at most {SPEED_MAX_MPS:g} m/s each)")  # fmt: skip
+    for name in ("r_speed", "r_lane_change", "r_flow"):
+        if abs(float(window[name])) > REWARD_MAX * max(float(window["samples"]), 1.0):
+            return f"has a log window whose {name} sums to {window[name]:g} over {window['samples']} transitions"
+    return None
+
+
+def _rng_problem(state: Any) -> str | None:
+    """Why numpy's saved PCG64 state cannot be numpy's, or None: its 128-bit state and increment and its buffered
+    32-bit half (has_uint32 0 or 1, uinteger below 2^32) in range."""
+    inner = state.get("state") if isinstance(state, Mapping) else None
+    if not isinstance(inner, Mapping) or not all(_is_count(inner.get(k)) and int(inner[k]) < 2**128
+                                                 for k in ("state", "inc")):  # fmt: skip
+        return "has a numpy random-generator state whose state or increment is not a 128-bit whole number"
+    if state.get("has_uint32") not in (0, 1) or not (_is_count(state.get("uinteger"))
+                                                     and int(state["uinteger"]) < 2**32):  # fmt: skip
+        return "has a numpy random-generator state whose buffered value (has_uint32, uinteger) is out of range"
+    return None
 
 
 def _optimizer_problem(optimizer: Mapping[str, Any], online: Mapping[str, Any]) -> str | None:
@@ -217,6 +262,10 @@ def _buffer_problem(buffer: Mapping[str, Any], dqn: Mapping[str, Any]) -> str | 
     actions = data.get("actions")
     if isinstance(actions, torch.Tensor) and len(actions) and not 0 <= int(actions.min()) <= int(actions.max()) < 4:
         return "has actions outside 0-3 in its replay memory"
+    for name in ("grids", "next_grids"):  # occupancy: 0 or 1 in every cell
+        grid = data.get(name)
+        if isinstance(grid, torch.Tensor) and grid.numel() and not 0 <= int(grid.min()) <= int(grid.max()) <= 1:
+            return f"has occupancy grids outside 0-1 in its replay memory ({name})"
     mask = data.get("next_mask")
     if isinstance(mask, torch.Tensor) and mask.dim() == 2 and not bool(mask[:size].any(dim=1).all()):
         return "has a replay memory row whose next state allows no action (next_mask all false)"

@@ -391,7 +391,7 @@ def _begin(trainer: Trainer, cfg: TrainConfig, out: Path, resume: bool) -> None:
         check_recorded_config(out, cfg)
         try:
             trainer.restore(Trainer.load_checkpoint(out))
-        except (RuntimeError, KeyError, ValueError, TypeError) as err:  # weights, buffer or RNG of another shape
+        except (RuntimeError, KeyError, ValueError, TypeError, OverflowError) as err:  # weights, buffer, RNG
             text = load_error_text(err)  # torch's state_dict errors: with the first key that did not fit
             raise UsageError(f"checkpoint {trainer.checkpoint_path()} does not fit its configuration: {text}") from None
     else:

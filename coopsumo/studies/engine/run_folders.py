@@ -10,8 +10,9 @@ from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
 
-from coopsumo.config import OutputConfig, results_view, to_dict
+from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
 from coopsumo.files import file_sha256
+from coopsumo.record_schemas import SPEED_MAX_MPS
 from coopsumo.run_dirs import Recorded
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.studies.engine.records import summary_problem
@@ -178,6 +179,29 @@ def _listed_but_gone(out: Path) -> str | None:
     return next((name for name in listed or () if not (out / name).exists()), None)
 
 
+TRAJECTORY_LIMITS = {"speed_mps": (0.0, SPEED_MAX_MPS), "pos_m": (0.0, ROAD_LENGTH_M[1]), "time_s": (0.0, None)}
+"""the trajectory columns' physical limits (a lane's: 0 to the road's lanes - 1, from the run's configuration)"""
+
+
+def trajectories_problem(path: Path, cfg: dict[str, Any]) -> str | None:
+    """Why a run's trajectories.parquet holds a sample no run makes, or None: a speed outside 0-70 m/s, a position
+    off the longest road, a time before 0, a lane off the run's road."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(path)
+    lanes = cfg.get("road", {}).get("lanes") if isinstance(cfg.get("road"), dict) else None
+    limits = {**TRAJECTORY_LIMITS, "lane": (0, lanes - 1 if isinstance(lanes, int) else None)}
+    for name, (low, high) in limits.items():
+        if name not in table.column_names or table.num_rows == 0:
+            continue
+        ends = pc.min_max(table[name])
+        for end in (ends["min"].as_py(), ends["max"].as_py()):
+            if end is None or end != end or (low is not None and end < low) or (high is not None and end > high):
+                return f"has a trajectory sample with {name} = {end} (outside {low} to {high}) in {path.name}"
+    return None
+
+
 def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], fcd_period_s: float) -> str | None:
     """Why a finished run folder of the SimConfig dict cfg (simulate's: config.json, summary.json, detectors.xml,
     maybe fcd.xml every fcd_period_s, tripinfo.xml, trajectories.parquet) cannot be reused as it is, or None: marked
@@ -209,4 +233,5 @@ def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], 
             pq.read_metadata(out / "trajectories.parquet")
         except Exception:  # pyarrow raises several types for a damaged file
             return "has an unreadable trajectories.parquet"
+        return trajectories_problem(out / "trajectories.parquet", cfg)
     return None

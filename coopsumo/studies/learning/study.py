@@ -131,7 +131,7 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     except OSError as err:
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile, default)
-    done_keys = reusable_keys(root, specs, "ablation", REQUIRED_SUMMARY)
+    done_keys = reusable_keys(root, specs, "learning", REQUIRED_SUMMARY)
     todo = [s for s in specs if s["key"] not in done_keys]
     # the slow paper trainings first, the single changes on top of the default last
     extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
@@ -248,9 +248,9 @@ def main(argv: list[str] | None = None) -> int:
             meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip
         print(f"ablation: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")
-        return failed_exit("ablation", meta["failed_cells"], meta["cells"], args.out)
+        return failed_exit("learning", meta["failed_cells"], meta["cells"], args.out)
 
-    return run_cli("ablation", body)
+    return run_cli("learning", body)
 
 
 if __name__ == "__main__":
