@@ -16,9 +16,9 @@ that torch is not imported here). The limits are ones a real run never reaches; 
 
 Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS), a stored
 model's config.json (STORE_CONFIG), a run's summary (RUN_SUMMARY) and detectors.xml intervals (DETECTOR_INTERVAL), a
-learner protocol study's study.json and stats.csv (PROTOCOL_STUDY, PROTOCOL_STATS), scenario II's sweep.json, runs.csv
-and evals.csv (SWEEP, SCENARIO2_RUNS, SCENARIO2_EVALS), a study's cell record (CELL_RECORD); scenario I's, the
-learning study's and the follow-ups' tables are declared alike in the sibling module study_tables. Elsewhere:
+learner protocol study's study.json and stats.csv (PROTOCOL_STUDY, PROTOCOL_STATS), a study's cell record
+(CELL_RECORD); scenario I's, scenario II's (sweep.json too), the learning study's and the follow-ups' tables are
+declared alike in the sibling module study_tables, a run's measures by the rules here (MEASURES). Elsewhere:
 scenario I's plan.json is read through its typed Plan (scenario1.merge), the studies' TOML data through the flags'
 own rules (field_rules, read by catalogue.Entry).
 """
@@ -317,18 +317,44 @@ WEIGHTS = Number(-WEIGHT_MAX, WEIGHT_MAX, low_open=True, high_open=True, unit="a
 SUMMARY_COUNTS = ("departed", "arrived", "collisions", "teleports", "lane_changes", "lane_changes_rejected",
                   "insertion_blocked", "insertion_pending_at_end", "steps")  # fmt: skip
 """a run summary's values that count something: whole numbers >= 0"""
+PER_VEHICLE = Number(0.0, 1000.0, unit="per vehicle")
+"""lane changes per vehicle: a few in a real run (a vehicle changes lane at most once in its 4 s manoeuvre)"""
+THROUGHPUT = Number(0.0, MAX_LANES * LANE_CAPACITY_VEH_H, unit="veh/h")
+"""a road's flow: at most config.MAX_LANES lanes at a lane's capacity"""
+SECONDS = Number(0.0, unit="s")
+MEASURES = {field.name: field for field in (
+    *(Field(name, Integer(0)) for name in SUMMARY_COUNTS),
+    Field("mean_speed_mps", SPEED),
+    Field("lane_changes_per_vehicle", PER_VEHICLE),
+    Field("throughput_veh_per_h", THROUGHPUT),
+    Field("mean_travel_time_s", Number(0.0, unit="s", blank_ok=True)),  # no vehicle arrived: none
+    Field("loop_flow_veh_h_per_lane", Number(0.0, LANE_CAPACITY_VEH_H, unit="veh/h per lane", blank_ok=True)),
+    Field("loop_occupancy_pct", Number(0.0, 100.0, unit="%", blank_ok=True)),  # a MOBIL cell's: not measured
+    Field("full_road_speed_mps", Number(0.0, SPEED_MAX_MPS, unit="m/s", blank_ok=True)),
+    Field("full_road_from_s", Number(0.0, unit="s", blank_ok=True)),
+    Field("wall_seconds", SECONDS),
+    Field("sim_seconds", SECONDS),
+    Field("steps_per_second", Number(0.0, unit="steps/s")),
+    Field("decision_interval_steps", Integer(1)),  # a policy decides at most once a step
+    Field("mean_vehicles_on_road", Number(0.0, unit="vehicles")),
+    Field("sumo_collisions", Number(0.0, unit="a count, or -1: not checked", also=(-1.0,))),
+    Field("updates", Integer(0)),  # a training's learner updates
+    Field("selected_step", Integer(0)),  # the training step of the snapshot model.pt holds
+)}  # fmt: skip
+"""a run's measures by their summary key, each one's limits declared once: a run's summary (RUN_SUMMARY) and the
+study tables that copy them (study_tables.SCENARIO2_RUNS, SCENARIO2_EVALS) are checked by the same rules"""
 RUN_SUMMARY = Schema((
-    *(Field(name, Integer(0), optional=True) for name in SUMMARY_COUNTS),
+    *(dataclasses.replace(field, optional=True) for field in MEASURES.values()),
     Field("*_mps", SPEED, optional=True),
-    Field("throughput_veh_per_h", Number(0.0, MAX_LANES * LANE_CAPACITY_VEH_H, unit="veh/h"), optional=True),
-    Field("*_per_vehicle", Number(0.0), optional=True),
+    Field("*_per_vehicle", PER_VEHICLE, optional=True),
     Field("*_veh_h", Number(0.0, unit="veh-h"), optional=True),
-    Field("*_time_s", Number(0.0, unit="s"), optional=True),
+    Field("*_time_s", SECONDS, optional=True),
     Field("*_share", SHARE, optional=True),
 ))  # fmt: skip
-"""a run's summary (simulate's summary.json, a cell record's summary and each of its evaluations), its finite numbers
-(records.implausible leaves out the non-finite ones, which record_problem judges where a study reads them, and the
-table_ diagnostics, whose -1 means "not measured"); a summary's keys are many and grow: the rules go by suffix"""
+"""a run's summary (simulate's summary.json, a cell record's summary and each of its evaluations, a training's
+train_summary), its finite numbers (records.implausible leaves out the non-finite ones, which record_problem judges
+where a study reads them, and the table_ diagnostics, whose -1 means "not measured"); a summary's keys are many and
+grow: besides MEASURES, the rules go by suffix"""
 
 CELL_STATUSES = ("ok", "failed", "interrupted")
 """a cell record's status (records.run_recorded): the runner writes no other"""
@@ -446,55 +472,3 @@ PROTOCOL_STATS = Table(
 """a learner protocol study's stats.csv (protocol.report.condition_stats): per scenario, demand and learner, the IQM
 and its interval over models (free flow: mean speed, m/s; accident: total time spent, veh-h), each baseline's value
 and probability of improvement"""
-
-_EVALUATION = (
-    Field("mean_speed_mps", SPEED),
-    Field("lane_changes_per_vehicle", Number(0.0, 1000.0)),
-    Field("throughput_veh_per_h", Number(0.0, MAX_LANES * LANE_CAPACITY_VEH_H, unit="veh/h")),
-    Field("mean_travel_time_s", Number(0.0, unit="s", blank_ok=True)),  # no vehicle arrived: none
-    Field("collisions", Integer(0)),
-    Field("teleports", Integer(0)),
-    Field("loop_flow_veh_h_per_lane", Number(0.0, LANE_CAPACITY_VEH_H, unit="veh/h per lane", blank_ok=True)),
-    Field("loop_occupancy_pct", Number(0.0, 100.0, unit="%", blank_ok=True)),  # a MOBIL cell's: not measured
-    Field("full_road_speed_mps", Number(0.0, SPEED_MAX_MPS, unit="m/s", blank_ok=True), optional=True),
-    Field("full_road_from_s", Number(0.0, unit="s", blank_ok=True), optional=True),
-    Field("wall_seconds", Number(0.0, unit="s"), optional=True),
-)
-_COORDINATES = (
-    Field("key", Text()),
-    Field("lanes", Integer(MIN_LANES, MAX_LANES)),
-    Field("t_up_s", Number(0.0, 3600.0, low_open=True, unit="s")),
-    Field("load", Number(0.0, low_open=True)),
-    Field("policy", Text()),  # dqn, mobil; per_alpha in the check profile
-    Field("alpha", Number(ALPHA_MIN, ALPHA_MAX, blank_ok=True)),  # a MOBIL row: none
-    Field("p", POLITENESS),  # a DQN row: none
-)
-SCENARIO2_EVALS = Table((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUATION), key=("key", "eval_seed"))
-"""scenario II's evals.csv (scenario2.measures.evals_table): one row per evaluation run of a successful cell"""
-_RUN_COUNTS = ("steps", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end", "lane_changes",
-               "lane_changes_rejected", "train_lane_changes", "train_collisions", "train_updates")  # fmt: skip
-SCENARIO2_RUNS = Table((*_COORDINATES, Field("status", Text())), case="status", key=("key",), cases={"ok": (
-    *_EVALUATION,
-    *(Field(name, Integer(0, blank_ok=True), optional=True) for name in _RUN_COUNTS),  # a MOBIL row: no training
-    Field("train_mean_speed_mps", Number(0.0, SPEED_MAX_MPS, unit="m/s", blank_ok=True), optional=True),
-)})  # fmt: skip
-"""scenario II's runs.csv (scenario2.measures.runs_table): one row per cell, its pooled evaluations when ok (a failed
-cell's numbers are blank)"""
-
-SWEEP_COUNTS = ("cells", "cells_ok", "cells_failed", "cells_run", "trainings", "workers", "bootstrap_replicates")
-"""sweep.json values that count something: whole numbers >= 0"""
-SWEEP_SECONDS = ("wall_seconds", "cell_wall_seconds_sum", "cell_cpu_seconds_sum")
-"""sweep.json times (s), which a merge adds up: finite numbers >= 0"""
-SWEEP = Schema((
-    Field("profile", MAPPING),
-    Field("learner", MAPPING),
-    Field("conditions", LIST),
-    *(Field(name, Integer(0)) for name in SWEEP_COUNTS),
-    *(Field(name, Number(0.0, unit="s")) for name in SWEEP_SECONDS),
-    Field("failed_cells", LIST),
-    Field("failed_cells.*", Text()),
-    Field("backend", Text()),
-    Field("versions", MAPPING),
-))  # fmt: skip
-"""a finished scenario II sweep's sweep.json (scenario2.study.run_sweep's meta), as a merge reads a part's; what must
-agree with its profile (its learner per lane count, its conditions, its cell count) is redraw._meta_problem's"""

@@ -1,4 +1,5 @@
-"""Scenario I's and the learning study's tables (runs.csv, summary.csv), declared as record_schemas declares the
+"""Scenario I's, scenario II's and the learning study's tables (runs.csv, summary.csv, evals.csv; scenario II's
+sweep.json too), declared as record_schemas declares the
 others (a sibling, so that neither module passes 500 lines): each column's type and physical or logical limits, checked
 before a study writes its tables (Table.check_frame) and where a table is read back (Table.read), so that a table
 outside them is refused in one line naming the file, the row and the column.
@@ -11,18 +12,27 @@ from __future__ import annotations
 
 import dataclasses
 
-from coopsumo.config import MAX_LANES
+from coopsumo.config import MAX_LANES, MIN_LANES
 from coopsumo.record_schemas import (
+    CELL_RECORD,
     CELL_STATUSES,
     LANE_CAPACITY_VEH_H,
+    LIST,
+    MAPPING,
+    MEASURES,
+    PER_VEHICLE,
+    POLITENESS,
     SEED,
+    SHARE,
     SPEED,
     SPEED_MAX_MPS,
     T_UP,
+    THROUGHPUT,
     TTS_MAX_VEH_H,
     Field,
     Integer,
     Number,
+    Schema,
     Table,
     Text,
 )
@@ -30,10 +40,6 @@ from coopsumo.report.bottleneck import REGIMES
 from coopsumo.validation import ALPHA_MAX, ALPHA_MIN
 
 COUNT = Integer(0)
-PER_VEHICLE = Number(0.0, 1000.0, unit="per vehicle")
-"""lane changes per vehicle: a few in a real run (a vehicle changes lane at most once in its 4 s manoeuvre)"""
-THROUGHPUT = Number(0.0, MAX_LANES * LANE_CAPACITY_VEH_H, unit="veh/h")
-"""a road's flow: at most config.MAX_LANES lanes at a lane's capacity"""
 TRAVEL_TIME = Number(0.0, unit="s", blank_ok=True)
 """a mean travel time: none when no vehicle arrived"""
 NEVER = Number(0.0, unit="s after the accident's start", blank_ok=True)
@@ -162,3 +168,72 @@ ACCIDENT_SEEDS_RUNS = Table((
     Field("horizon_after_start_s", Number(0.0, unit="s")),
 ), key=("variant", "alpha", "t_up_s", "seed"))  # fmt: skip
 """accident-seeds' runs.csv (followups.accident_seeds.run_study): one row per driver, demand and accident seed"""
+
+_EVALUATION = (
+    *(MEASURES[name] for name in ("mean_speed_mps", "lane_changes_per_vehicle", "throughput_veh_per_h",
+                                  "mean_travel_time_s", "collisions", "teleports", "loop_flow_veh_h_per_lane",
+                                  "loop_occupancy_pct")),
+    *(dataclasses.replace(MEASURES[name], optional=True) for name in ("full_road_speed_mps", "full_road_from_s",
+                                                                       "wall_seconds")),
+)  # fmt: skip
+"""an evaluation's measures (record_schemas.MEASURES' rules, a cell record's summary checked by the same)"""
+_COORDINATES = (
+    Field("key", Text()),
+    Field("lanes", Integer(MIN_LANES, MAX_LANES)),
+    Field("t_up_s", Number(0.0, 3600.0, low_open=True, unit="s")),
+    Field("load", Number(0.0, low_open=True)),
+    Field("policy", Text()),  # dqn, mobil; per_alpha in the check profile
+    Field("alpha", ALPHA),  # a MOBIL row: none
+    Field("p", POLITENESS),  # a DQN row: none
+)
+SCENARIO2_EVALS = Table((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUATION), key=("key", "eval_seed"))
+"""scenario II's evals.csv (scenario2.measures.evals_table): one row per evaluation run of a successful cell"""
+_RUN_MEASURES = tuple(dataclasses.replace(MEASURES[name], optional=True)
+                      for name in ("sim_seconds", "steps_per_second", "decision_interval_steps",
+                                   "mean_vehicles_on_road", "sumo_collisions"))  # fmt: skip
+
+
+def _trained(name: str) -> Field:
+    """runs.csv's column train_<name>: the training summary's measure, by its rule (blank: none trained)."""
+    rule = MEASURES[name].rule
+    assert isinstance(rule, Number | Integer)
+    return Field(f"train_{name}", dataclasses.replace(rule, blank_ok=True), optional=True)
+
+
+_TRAINED = tuple(_trained(name) for name in ("mean_speed_mps", "lane_changes", "collisions", "updates"))
+"""the training's measures runs.csv copies from a cell record's train_summary (a MOBIL row: none)"""
+_RUN_COUNTS = ("steps", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end", "lane_changes",
+               "lane_changes_rejected")  # fmt: skip
+SCENARIO2_RUNS = Table((*_COORDINATES, Field("status", Text())), case="status", key=("key",), cases={"ok": (
+    Field("_share", dataclasses.replace(SHARE, blank_ok=True)),  # held_share, ...; passing_taken_share: may be none
+    *_EVALUATION,
+    *(dataclasses.replace(MEASURES[name], optional=True) for name in _RUN_COUNTS),
+    *_RUN_MEASURES,
+    *_TRAINED,
+    Field("train_wall_seconds", Number(0.0, unit="s", blank_ok=True), optional=True),
+    *(field for field in CELL_RECORD.fields if field.name in ("cell_wall_s", "cell_cpu_s", "train_group_cpu_s",
+                                                              "resumed_from_step")),
+)})  # fmt: skip
+"""scenario II's runs.csv (scenario2.measures.runs_table): one row per cell, its pooled evaluations and its training's
+measures when ok (a failed cell's numbers are blank), each by the rule its cell record is checked by"""
+
+SWEEP_COUNTS = ("cells", "cells_ok", "cells_failed", "cells_run", "trainings", "workers", "bootstrap_replicates")
+"""sweep.json values that count something: whole numbers >= 0"""
+SWEEP_SECONDS = ("wall_seconds", "cell_wall_seconds_sum", "cell_cpu_seconds_sum")
+"""sweep.json times (s), which a merge adds up: finite numbers >= 0"""
+SWEEP = Schema((
+    Field("profile", MAPPING),
+    Field("learner", MAPPING),
+    Field("conditions", LIST),
+    *(Field(name, Integer(0)) for name in SWEEP_COUNTS),
+    *(Field(name, Number(0.0, unit="s")) for name in SWEEP_SECONDS),
+    Field("failed_cells", LIST),
+    Field("failed_cells.*", Text()),
+    Field("backend", Text()),
+    Field("versions", MAPPING),
+    Field("criterion", Text()),  # its profile's (redraw._meta_problem)
+    Field("nominal_capacity_veh_h_per_lane", Number(0.0, LANE_CAPACITY_VEH_H, low_open=True, unit="veh/h per lane")),
+))  # fmt: skip
+"""a finished scenario II sweep's sweep.json (scenario2.study.run_sweep's meta), as a merge reads a part's; what must
+agree with its profile (its learner per lane count, its conditions, its cell count, its criterion) and with itself
+(cells_ok and cells_failed adding up to cells) is redraw._meta_problem's"""

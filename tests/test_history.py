@@ -239,6 +239,15 @@ SPOILED = {
     "a row given twice": (_row_twice, "stats.csv rows 1 and 2 are both the row of scenario 'free', t_up 2.0, variant"),
     # issue 82 (h19): a study was called 'no learner protocol study ... here'
     "no rows for its learner": (_stats_of_another_learner, "stats.csv has no free-flow rows for learner v"),
+    # issue 82 (2026-12-02): a row of a learner study.json does not name was dropped; a learner's settings no learner
+    # takes were printed into the table
+    "a row of another learner": (lambda f: pd.concat([pd.read_csv(f / "stats.csv"), pd.read_csv(f / "stats.csv").iloc[
+                                     [0]].assign(variant="zzz")]).to_csv(f / "stats.csv", index=False),
+                                 "stats.csv has rows of learner zzz, which study.json does not name"),
+    "a learning rate of -1": (_learners({"v": {"learner": {**to_dict(DQN_PRESETS["default"]), "lr": -1.0}}}),
+                              "study.json learner v has settings no learner takes: lr must be a finite number > 0"),
+    "preset 5": (_learners({"v": {"learner": {**to_dict(DQN_PRESETS["default"]), "preset": 5}}}),
+                 "study.json learner v has settings no learner takes: preset must be a string, got 5"),
 }  # fmt: skip
 
 

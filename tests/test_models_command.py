@@ -172,3 +172,41 @@ def test_a_stored_model_that_lost_a_record_is_trained_again_in_a_group_with_a_li
     specs = [{"key": f"train_{i}", "kind": "train", "config": c} for i, c in enumerate(configs)]
     assert train_groups(specs, tmp_path / "models", quiet=True) == 2
     assert capsys.readouterr().err.strip().splitlines() == [line]
+
+
+SUMMARIES = {
+    "a speed of 999 m/s": ({"mean_speed_mps": 999.0}, "has train_summary.json mean_speed_mps must be a finite number "
+                           ">= 0 and <= 70 (m/s), got 999.0"),
+    "-5 updates": ({"updates": -5}, "has train_summary.json updates must be an integer >= 0, got -5"),
+    "selected step -5": ({"selected_step": -5}, "has train_summary.json selected_step must be an integer >= 0, got -5"),
+    "selected step above its steps": ({"selected_step": 10**6},
+                                      "has train_summary.json selected_step = 1000000, not a step from 0 to its 300"),
+    "selected step 'x'": ({"selected_step": "x"}, 'has train_summary.json selected_step = "x", not a step from 0'),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(SUMMARIES))
+def test_a_stored_model_whose_summary_no_run_gives_is_trained_again_and_listed_not_usable(
+        case: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82 (s2_store_ts, mo_ts_*): a stored model whose train_summary.json holds a value no run gives was reused
+    (scenario II then stopped at runs.csv on every rerun) and listed "ok"; now it is trained again with one line
+    naming the folder and the field, and listed not usable saying why. model.pt's loading is not judged here."""
+    from coopsumo.studies.engine import trainings
+
+    monkeypatch.setattr(trainings, "model_folder_problem", lambda folder: None)
+    config = to_dict(TrainConfig(sim=SimConfig(steps=300, seed=100, policy="dqn"), eval_steps=0))
+    store = tmp_path / "models"
+    summary = {"steps": 300, "mean_speed_mps": 20.0, "updates": 20, "selected_step": 300}
+    folder, _ = _stored_then_spoiled(config, store, "train_summary.json", json.dumps(summary))
+    assert trainings.finished_training(folder, config) == summary and capsys.readouterr().err == ""
+    edit, fragment = SUMMARIES[case]
+    (folder / "train_summary.json").write_text(json.dumps({**summary, **edit}))
+    assert trainings.finished_training(folder, config, quiet=True) is None and capsys.readouterr().err == ""
+    assert trainings.finished_training(folder, config) is None
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"coopsumo: {folder} {fragment}"), lines
+    assert lines[0].endswith("; training it again"), lines
+    assert model_store.main(["--store", str(store)]) == 0
+    row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith(folder.name))
+    assert f"not usable: {fragment}" in row, row

@@ -59,6 +59,18 @@ def _set_eval(i: int, key: str, value: Any) -> Callable[[dict[str, Any]], None]:
     return lambda record: record["eval_summaries"][i].update({key: value})
 
 
+def _both(key: str, value: Any) -> Callable[[dict[str, Any]], None]:
+    """Every evaluation's `key` set to value and the summary to what they pool to (the probe's tcell.py): a record
+    that agrees with itself, its values outside the limits runs.csv is checked by."""
+
+    def edit(record: dict[str, Any]) -> None:
+        for one in record["eval_summaries"]:
+            one[key] = value
+        record["summary"][key] = scenario2.pool_summaries(record["eval_summaries"])[key]
+
+    return edit
+
+
 RECORD_CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
     "summary speed 21.6 -> 30.0": (_set("mean_speed_mps", 30.0), "mean_speed_mps = 30, but its 3 evaluations pool"),
     "an evaluation's speed edited": (_set_eval(0, "mean_speed_mps", 30.0), "mean_speed_mps = 21.5333"),
@@ -71,6 +83,23 @@ RECORD_CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
                                  "evaluation 2 of 3 with mean_speed_mps must be a finite number >= 0"),
     "evaluations not a list": (lambda r: r.update(eval_summaries={"mean_speed_mps": 21.6}), "not a list"),
     "no evaluations": (lambda r: r.update(eval_summaries=[]), "not a list of summaries"),
+    # issue 82 (2026-12-02): values outside runs.csv's limits (record_schemas.MEASURES) were reused into runs.csv,
+    # or stopped the study at runs.csv on every rerun
+    "-5 steps a second": (_both("steps_per_second", -5.0),
+                          "has summary steps_per_second must be a finite number >= 0 (steps/s), got -5.0"),
+    "a decision every 0 steps": (_both("decision_interval_steps", 0.0),
+                                 "has summary decision_interval_steps must be an integer >= 1, got 0"),
+    "-3 vehicles on the road": (_both("mean_vehicles_on_road", -3.0),
+                                "has summary mean_vehicles_on_road must be a finite number >= 0 (vehicles), got -3.0"),
+    "an occupancy of 500 %": (_both("loop_occupancy_pct", 500.0),
+                              "has summary loop_occupancy_pct must be a finite number >= 0 and <= 100 (%), got 500.0"),
+    "a loop flow of 1e6 veh/h": (_both("loop_flow_veh_h_per_lane", 1e6),
+                                 "has summary loop_flow_veh_h_per_lane must be a finite number >= 0 and <= 3600"),
+    "a wall time of -1 s": (_both("wall_seconds", -1.0), "has summary wall_seconds must be a finite number >= 0 (s)"),
+    "an evaluation's wall time of -1 s": (_set_eval(1, "wall_seconds", -1.0),
+                                          "has evaluation 2 of 3 with wall_seconds must be a finite number >= 0 (s)"),
+    "-5 training updates": (lambda r: r["train_summary"].update(updates=-5),
+                            "has train_summary updates must be an integer >= 0, got -5"),
 }  # fmt: skip
 
 
@@ -93,6 +122,22 @@ def test_a_record_edited_against_its_evaluations_is_rerun_with_one_line(
     assert fragment in lines[0] and lines[0].endswith("; rerunning it"), lines
     # a cell just run whose record disagrees so counts as failed
     assert checked_record(record, scenario2.REQUIRED_SUMMARY)["status"] == "failed"
+
+
+def test_several_bad_records_are_each_named_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 82 (s2_dup_lines): a rerun with several bad records says one line for each, none twice."""
+    specs = [s for s in cell_specs(PROFILES["quick"]) if s.get("policy") != "mobil"][:4]
+    edits = [_both("loop_occupancy_pct", 500.0), lambda r: r.update(policy="mobil"), lambda r: r.update(lanes=7),
+             lambda r: r["train_summary"].update(updates=-5)]  # fmt: skip
+    cell_path(tmp_path, specs[0]["key"]).parent.mkdir()
+    for spec, edit in zip(specs, edits, strict=True):
+        record = _record(spec)
+        edit(record)
+        cell_path(tmp_path, spec["key"]).write_text(json.dumps(record))
+    assert reusable_keys(tmp_path, specs, "scenario2", scenario2.REQUIRED_SUMMARY) == set()
+    lines = capsys.readouterr().err.splitlines()
+    assert sorted(line.split(": record ")[0] for line in lines) == sorted(f"scenario2: cell {s['key']}" for s in specs)
+    assert all(line.endswith("; rerunning it") for line in lines), lines
 
 
 def test_an_intact_record_is_reused_untouched(dqn_spec: dict[str, Any], tmp_path: Path,
@@ -303,3 +348,19 @@ def test_a_training_record_outside_its_schema_is_skipped_with_one_line(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"accident-seeds: record {path} cannot be used (field {field} must be")
     assert err[0].endswith("; skipped"), err
+
+
+def test_a_table_refused_leaves_the_finished_sweep_whole(dqn_spec: dict[str, Any], tmp_path: Path) -> None:
+    """Issue 82 (s2A_train_updates_neg): a sweep stopped by its runs.csv check had rewritten its sweep.json without
+    its result fields first; now every table and sweep.json are checked before any output is written."""
+    from coopsumo.record_schemas import RecordError
+
+    before = {"sweep.json": '{"cells_ok": 8}', "runs.csv": "key\nL2\n", "evals.csv": "key\nL2\n"}
+    for name, text in before.items():
+        (tmp_path / name).write_text(text)
+    record = _record(dqn_spec)
+    record["summary"]["loop_occupancy_pct"] = 500.0
+    meta = scenario2._sweep_meta(PROFILES["quick"], 1, "local", None, 1, 0)
+    with pytest.raises(RecordError, match=r"runs.csv row 1 column loop_occupancy_pct must be"):
+        scenario2._finish(tmp_path, PROFILES["quick"], meta, [record], 1, 1.0)
+    assert {p.name: p.read_text() for p in tmp_path.iterdir()} == before

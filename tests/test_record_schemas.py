@@ -21,6 +21,7 @@ import torch
 from conftest import interrupted_at_step_20
 
 from coopsumo import record_schemas as rs
+from coopsumo import study_tables as st
 from coopsumo.agents import train_cli as train
 from coopsumo.agents.file_checks import WINDOW_KEYS, checkpoint_problem
 from coopsumo.agents.tb_log import Window
@@ -92,22 +93,22 @@ def test_a_writer_leaves_blanks_a_reader_refuses_them(tmp_path: Path) -> None:
            "throughput_veh_per_h": 808.0, "mean_travel_time_s": 90.2, "collisions": 0, "teleports": 0,
            "loop_flow_veh_h_per_lane": 427.8, "loop_occupancy_pct": 2.2, "wall_seconds": 2.8}  # fmt: skip
     frame = pd.DataFrame([row, {**row, "eval_seed": 2002, "lane_changes_per_vehicle": None}])
-    rs.SCENARIO2_EVALS.check_frame(frame, tmp_path / "evals.csv")  # the blank is not a number outside its limits
-    assert rs.SCENARIO2_EVALS.frame_problem(frame.iloc[:1]) is None
-    problem = rs.SCENARIO2_EVALS.frame_problem(frame)
+    st.SCENARIO2_EVALS.check_frame(frame, tmp_path / "evals.csv")  # the blank is not a number outside its limits
+    assert st.SCENARIO2_EVALS.frame_problem(frame.iloc[:1]) is None
+    problem = st.SCENARIO2_EVALS.frame_problem(frame)
     assert problem is not None and problem.startswith("row 2 column lane_changes_per_vehicle must be a finite"), problem
     for column, value in (("mean_speed_mps", 71.0), ("loop_flow_veh_h_per_lane", 3601.0), ("lanes", 7),
                           ("loop_occupancy_pct", 101.0), ("teleports", -1), ("alpha", 1001.0), ("p", 11.0),
                           ("throughput_veh_per_h", 6 * 3600.0 + 1), ("t_up_s", 0.0), ("eval_seed", 1.5)):
         with pytest.raises(rs.RecordError, match=rf"^{tmp_path}/evals.csv row 1 column {column} must be"):
-            rs.SCENARIO2_EVALS.check_frame(pd.DataFrame([{**row, column: value}]), tmp_path / "evals.csv")
+            st.SCENARIO2_EVALS.check_frame(pd.DataFrame([{**row, column: value}]), tmp_path / "evals.csv")
     assert not (tmp_path / "evals.csv").exists()
     failed = {k: row[k] for k in ("key", "lanes", "t_up_s", "load", "policy", "alpha", "p")} | {"status": "failed"}
-    assert rs.SCENARIO2_RUNS.frame_problem(pd.DataFrame([failed])) is None  # a failed cell's numbers: none
-    assert rs.SCENARIO2_RUNS.frame_problem(pd.DataFrame([failed, {**failed, "status": "ok"}])) == \
+    assert st.SCENARIO2_RUNS.frame_problem(pd.DataFrame([failed])) is None  # a failed cell's numbers: none
+    assert st.SCENARIO2_RUNS.frame_problem(pd.DataFrame([failed, {**failed, "status": "ok"}])) == \
         "row 2 (status ok) has no column mean_speed_mps"  # an ok row needs its numbers (the columns of its case)
-    assert rs.SCENARIO2_EVALS.frame_problem(pd.DataFrame()) is None  # a study whose cells all failed
-    assert rs.SCENARIO2_EVALS.frame_problem(pd.DataFrame([row, row])) == \
+    assert st.SCENARIO2_EVALS.frame_problem(pd.DataFrame()) is None  # a study whose cells all failed
+    assert st.SCENARIO2_EVALS.frame_problem(pd.DataFrame([row, row])) == \
         "rows 1 and 2 are both the row of key 'L2_T4_a0_s1', eval_seed 2001"  # one row per cell and evaluation seed
 
 

@@ -176,6 +176,35 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     "a classical run with another result than the other part's": (
         lambda f: edit_table(f, "runs.csv", lambda t: t.assign(mean_speed_mps=t["mean_speed_mps"].mask(
             t["key"] == "L4_T2_keep_s2001", 1.0))), "ran L4_T2_keep_s2001 with different results (runs.csv)"),
+    # issue 82 (2026-12-03): runs.csv's other measures inside their limits, its steps and training folder its plan's,
+    # sweep.json's criterion its profile's and its counts adding up
+    "runs.csv with -5 steps a second": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(steps_per_second=-5.0)),
+        "runs.csv row 1 column steps_per_second must be a finite number >= 0 (steps/s), got -5.0"),
+    "runs.csv with a decision every 0 steps": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(decision_interval_steps=0.0)),
+        "runs.csv row 1 column decision_interval_steps must be an integer >= 1"),
+    "runs.csv with -3 vehicles on the road": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(mean_vehicles_on_road=-3.0)),
+        "runs.csv row 1 column mean_vehicles_on_road must be"),
+    "runs.csv with 123 steps, not its evaluations' 27,000": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(steps=[123, *t["steps"][1:]])),
+        "runs.csv row L4_T2_a1_s1 has steps = 123, not the 27000 of its evaluations"),
+    "runs.csv with a model's training folder /etc": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(train_dir=["/etc", *t["train_dir"][1:]])),
+        "runs.csv row L4_T2_a1_s1 has train_dir = /etc, not its cell's train/L4_a1_s1"),
+    "sweep.json with the criterion bogus": (
+        lambda f: edit_json(f, lambda m: m.update(criterion="bogus")),
+        'sweep.json has criterion = "bogus", not its profile\'s full_road_speed_mps'),
+    "sweep.json with a nominal capacity of -1,800 veh/h": (
+        lambda f: edit_json(f, lambda m: m.update(nominal_capacity_veh_h_per_lane=-1800.0)),
+        "sweep.json field nominal_capacity_veh_h_per_lane must be a finite number > 0"),
+    "sweep.json with 5,000 cells ok of 152": (
+        lambda f: edit_json(f, lambda m: m.update(cells_ok=5000)),
+        "sweep.json has cells_ok = 5000 and cells_failed = 0, which do not add up to its cells = 152"),
+    "sweep.json with 100 cells ok and none failed of 152": (
+        lambda f: edit_json(f, lambda m: m.update(cells_ok=100, cells_failed=0)),
+        "sweep.json has cells_ok = 100 and cells_failed = 0, which do not add up to its cells = 152"),
 }  # fmt: skip
 """each case: how the part L4b is edited, and what the refusal says"""
 

@@ -278,9 +278,21 @@ def listing(store: Path) -> list[dict[str, Any]]:
             row["state"] = "ok"
             row["selected_step"] = summary.get("selected_step", "-")
         elif (folder / "model.pt").exists():
-            row["state"] = "not usable: trained again when a study asks for it"
+            row["state"] = f"not usable: {_summary_problem(folder, config) or 'trained again when a study asks for it'}"
         rows.append(row)
     return rows
+
+
+def _summary_problem(folder: Path, config: dict[str, Any]) -> str | None:
+    """Why a stored model's train_summary.json keeps it from use (trainings.train_summary_problem: a value no run
+    gives, a selected step outside its training), or None (another reason, or none readable)."""
+    from coopsumo.studies.engine.trainings import train_summary_problem
+
+    try:
+        summary = json.loads((folder / "train_summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return train_summary_problem(summary, config) if isinstance(summary, dict) else None
 
 
 STORE_FOLDER = "models"

@@ -182,22 +182,23 @@ MAX_SPEED_MPS = SPEED_MAX_MPS
 config.SPEED_LIMIT_MPS)"""
 
 
-def implausible(summary: dict[str, Any]) -> str | None:
+def implausible(summary: dict[str, Any], what: str = "summary") -> str | None:
     """Why a summary's values cannot come from a run, or None: a finite number outside record_schemas.RUN_SUMMARY's
     limits (counts negative or fractional, a speed outside 0..MAX_SPEED_MPS, a throughput above config.MAX_LANES
     lanes at a lane's capacity, a negative rate or time, a share outside 0-1), more arrivals than departures, lane
-    changes per vehicle that are not the lane changes over the departures."""
+    changes per vehicle that are not the lane changes over the departures. `what` names the summary in the reason
+    ("has train_summary.json mean_speed_mps must be ...")."""
     finite = {k: v for k, v in summary.items() if not k.startswith("table_")
               and not (isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v))}  # fmt: skip
     if (problem := RUN_SUMMARY.problem(finite)) is not None:  # record_problem judges the values a study reads
-        return f"has summary {problem.removeprefix('field ')}"
+        return f"has {what} {problem.removeprefix('field ')}"
     number = {k: float(v) for k, v in summary.items() if isinstance(v, int | float) and not isinstance(v, bool)}
     if number.get("arrived", 0.0) > number.get("departed", math.inf):
-        return f"has summary arrived = {number['arrived']:g} above departed = {number['departed']:g}"
+        return f"has {what} arrived = {number['arrived']:g} above departed = {number['departed']:g}"
     if {"lane_changes", "departed", "lane_changes_per_vehicle"} <= set(number) and number["departed"] > 0:
         ratio = number["lane_changes"] / number["departed"]
         if not math.isclose(ratio, number["lane_changes_per_vehicle"], rel_tol=1e-3, abs_tol=1e-3):
-            return (f"has summary lane_changes = {number['lane_changes']:g} for {number['departed']:g} vehicles, but "
+            return (f"has {what} lane_changes = {number['lane_changes']:g} for {number['departed']:g} vehicles, but "
                     f"lane_changes_per_vehicle = {number['lane_changes_per_vehicle']:g}: edited?")  # fmt: skip
     return None
 
@@ -251,8 +252,13 @@ def pooled_problem(record: dict[str, Any]) -> str | None:
 
 def cell_problem(record: Any, required: Sequence[str]) -> str | None:
     """Why a stored cell record cannot be trusted, or None: one of status ok whose summary record_problem accepts,
-    inside record_schemas.CELL_RECORD (its envelope: key, times, configuration, the coordinates the studies share)."""
-    return record_problem(record, required) or CELL_RECORD.problem(record)
+    inside record_schemas.CELL_RECORD (its envelope: key, times, configuration, the coordinates the studies share),
+    and a training's summary kept beside it plausible (implausible): a record just run is judged so too
+    (checked_record), so that no value a study's table refuses is counted as ok."""
+    if problem := record_problem(record, required) or CELL_RECORD.problem(record):
+        return problem
+    train = record.get("train_summary")  # what a study copies of its training (scenario II's runs.csv)
+    return implausible(train, "train_summary") if isinstance(train, dict) else None
 
 
 def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str, Any]:
@@ -268,14 +274,10 @@ word) and the model file's digest (model_changed: the model has changed since)""
 
 def spec_problem(record: dict[str, Any], spec: dict[str, Any]) -> str | None:
     """Why a record is not its cell's, or None: every field it copied from its cell's spec (blank_record: its
-    coordinates, its policy, its folders) must be the spec's; and a training's summary kept beside it must be
-    plausible (implausible)."""
+    coordinates, its policy, its folders) must be the spec's."""
     for key, value in spec.items():
         if key not in SPEC_CHECKED_ELSEWHERE and key in record and not isinstance(value, dict) and record[key] != value:
             return f"has {key} = {json.dumps(record[key])[:40]}, not its cell's {json.dumps(value)[:40]}"
-    train = record.get("train_summary")
-    if isinstance(train, dict) and (problem := implausible(train)):
-        return problem.replace("has summary", "has train_summary", 1)
     return None
 
 

@@ -46,7 +46,29 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
         if not quiet:
             print(f"coopsumo: {out / 'model.pt'} {problem}; training it again", file=sys.stderr)
         return None
-    return summary if results_view(stored) == results_view(json.loads(json.dumps(config))) else None
+    if results_view(stored) != results_view(json.loads(json.dumps(config))):
+        return None
+    if (problem := train_summary_problem(summary, config)) is not None:  # a study would copy its values
+        if not quiet:
+            print(f"coopsumo: {out} {problem}; training it again", file=sys.stderr)
+        return None
+    return summary
+
+
+def train_summary_problem(summary: dict[str, Any], config: dict[str, Any]) -> str | None:
+    """Why a finished training's train_summary.json cannot stand for its model, or None: values no run gives
+    (records.implausible, record_schemas.RUN_SUMMARY's limits: a speed of 999 m/s, negative updates) or a selected
+    step that is not one of the training's steps (0 to its configuration's sim.steps). The studies copy these values
+    into their tables (scenario II's runs.csv refuses them there): a model whose summary breaks them is trained again,
+    not reused into a study that then stops at its table on every rerun."""
+    from coopsumo.studies.engine.records import implausible
+
+    if (problem := implausible(summary, "train_summary.json")) is not None:
+        return problem
+    steps, step = config.get("sim", {}).get("steps"), summary.get("selected_step", 0)
+    if isinstance(steps, int) and (isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= steps):
+        return f"has train_summary.json selected_step = {json.dumps(step)[:20]}, not a step from 0 to its {steps}"
+    return None
 
 
 def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:

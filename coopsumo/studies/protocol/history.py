@@ -21,8 +21,8 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import SPEED_ONLY_FIELDS, to_dict
-from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS, RETIRED_FIELDS
-from coopsumo.errors import UsageError
+from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS, RETIRED_FIELDS, dqn_config_from_dict
+from coopsumo.errors import ConfigError, UsageError, first_line
 from coopsumo.files import write_atomic
 from coopsumo.record_schemas import PROTOCOL_STATS, PROTOCOL_STUDY, RecordError
 from coopsumo.runio import Parser, run_cli
@@ -102,6 +102,9 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
         raise RecordError(f"{path} cannot be read as JSON ({type(err).__name__}); restore it or move the study "
                           "away") from None  # fmt: skip
     PROTOCOL_STUDY.check(study, path)
+    for variant, entry in study["learners"].items():
+        if (problem := learner_problem(entry.get("learner", {}))) is not None:
+            raise RecordError(f"{path} learner {variant} {problem}; restore it or move the study away")
     path = folder / "stats.csv"
     try:
         stats = pd.read_csv(path)
@@ -114,7 +117,21 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
         if variant not in free:
             raise RecordError(f"{path} has no free-flow rows for learner {variant}, which study.json names; restore "
                               "it or move the study away")  # fmt: skip
+    if unknown := sorted(set(stats["variant"].astype(str)) - set(study["learners"])):
+        raise RecordError(f"{path} has rows of learner {unknown[0][:60]}, which study.json does not name; restore it "
+                          "or move the study away")  # fmt: skip
     return study, stats
+
+
+def learner_problem(learner: dict[str, Any]) -> str | None:
+    """Why a study.json learner's settings are not a learner's, or None: of the wrong type or outside their limits
+    (dqn_config: DQNConfig.validate, a field it does not know). A retired setting (dqn_config.RETIRED_FIELDS) is left
+    out: its study tried a value today's learner no longer takes, which the table shows."""
+    try:
+        dqn_config_from_dict({k: v for k, v in learner.items() if k not in RETIRED_FIELDS}).validate()
+    except (ConfigError, TypeError, ValueError) as err:  # a record from before presets: its own reading of them
+        return f"has settings no learner takes: {first_line(err)}"
+    return None
 
 
 def rows_of(folder: Path, results: Path) -> list[dict[str, str]]:

@@ -315,6 +315,12 @@ def read_profiles(path: Path) -> tuple[dict[str, Profile], dict[str, str], Any]:
     return profiles, helps, default
 
 
+def train_folder(spec: dict[str, Any]) -> str | None:
+    """A cell's training folder in its study, relative: train/<key> (a lane network's cell: train/<train_key>, the
+    training its conditions share); a classical run's none."""
+    return None if spec.get("policy") in CLASSICAL else f"train/{spec.get('train_key', spec['key'])}"
+
+
 def cell_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:
     return f"L{lanes}_T{number_name(t_up_s)}_a{number_name(alpha)}_s{seed}"
 

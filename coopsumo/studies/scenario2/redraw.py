@@ -18,14 +18,14 @@ from pandas.api.types import is_numeric_dtype
 from coopsumo.config import first_difference
 from coopsumo.errors import ConfigError, UsageError
 from coopsumo.files import write_json
-from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS
-from coopsumo.studies.scenario2.plan import Profile, cell_specs, condition_rows, learner_of
+from coopsumo.studies.scenario2.plan import Profile, cell_specs, condition_rows, learner_of, train_folder
 from coopsumo.studies.scenario2.report import write_outputs
+from coopsumo.study_tables import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.validation import split_list
 
 
@@ -172,6 +172,11 @@ def _meta_problem(meta: dict[str, Any], profile: Profile, cells: int) -> str | N
     for name, planned in (("cells", cells), ("trainings", profile.n_trainings())):
         if meta[name] != planned:
             return f"sweep.json has {name} = {meta[name]}, but its profile makes {planned}"
+    if meta["cells_ok"] + meta["cells_failed"] != meta["cells"]:
+        return (f"sweep.json has cells_ok = {meta['cells_ok']} and cells_failed = {meta['cells_failed']}, which do "
+                f"not add up to its cells = {meta['cells']}")  # fmt: skip
+    if meta["criterion"] != profile.criterion:
+        return f"sweep.json has criterion = {json.dumps(meta['criterion'])[:40]}, not its profile's {profile.criterion}"
     return None
 
 
@@ -200,8 +205,11 @@ def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str,
         return f"runs.csv holds {len(runs)} rows for the {len(specs)} cells of its profile ({which})"
     rows = {r["key"]: r for r in runs.to_dict("records")}
     for key, spec in planned.items():
-        if (field := _differs(rows[key], spec, (*KEY_COLUMNS[1:], "policy", "p"))) is not None:
-            return f"runs.csv row {key} has {field} = {rows[key][field]}, not its cell's {spec[field]}"
+        cell = {**spec, **_made(spec)}
+        if (field := _differs(rows[key], cell, (*KEY_COLUMNS[1:], "policy", "p", "train_dir"))) is not None:
+            return f"runs.csv row {key} has {field} = {rows[key][field]}, not its cell's {cell[field]}"
+        if rows[key]["status"] == "ok" and _differs(rows[key], cell, ("steps",)) is not None:
+            return f"runs.csv row {key} has steps = {rows[key]['steps']}, not the {cell['steps']} of its evaluations"
     failed = sorted(k for k, r in rows.items() if r["status"] != "ok")
     if failed != sorted(meta["failed_cells"]) or meta["cells_failed"] != len(failed):
         return (f"runs.csv has {len(failed)} cells not ok ({', '.join(failed[:2]) or 'none'}), but sweep.json "
@@ -223,6 +231,14 @@ def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str,
         if (problem := schema.frame_problem(table)) is not None:  # every number inside its limits (record_schemas)
             return f"{name} {problem}"
     return None
+
+
+def _made(spec: dict[str, Any]) -> dict[str, Any]:
+    """What a cell's runs.csv row holds by its plan: its training folder (a DQN cell's the relative link
+    train/<training>, plan.train_folder; a classical run's none) and its steps (its evaluations' together)."""
+    config = spec["config"]
+    runs = config["evals"] if "evals" in config else [config.get("run", config)]
+    return {"train_dir": train_folder(spec), "steps": sum(int(run["steps"]) for run in runs)}
 
 
 def _differs(row: dict[str, Any], cell: dict[str, Any], names: Sequence[str]) -> str | None:

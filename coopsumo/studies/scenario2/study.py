@@ -54,7 +54,6 @@ from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
-from coopsumo.record_schemas import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.cells import run_todo
@@ -90,9 +89,11 @@ from coopsumo.studies.scenario2.plan import (
     lane_train_config,
     learner_of,
     own_profiles,
+    train_folder,
 )
 from coopsumo.studies.scenario2.redraw import merge_command, recorded_sweep, sweep_study
 from coopsumo.studies.scenario2.report import condition_label, write_outputs
+from coopsumo.study_tables import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.validation import (
     MOBIL_P_LIST,
     alpha_list,
@@ -118,7 +119,7 @@ def _cell_folder(spec: dict[str, Any]) -> dict[str, Any]:
     train/<key>/ (train_dir) for a DQN's (train/<train_key>/ for a lane network's: the training it shares)."""
     if spec.get("policy") in CLASSICAL:
         return {"run_dir": f"{_classical_folder(spec)}/{spec['key']}"}
-    return {"train_dir": f"train/{spec.get('train_key', spec['key'])}"}
+    return {"train_dir": train_folder(spec)}
 
 
 def _classical_folder(spec: dict[str, Any]) -> str:
@@ -282,33 +283,42 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
     _order(todo, profile)
     meta = _sweep_meta(profile, len(specs), backend_name, address, workers, n_boot)
-    write_json(root / "sweep.json", meta)
+    if not (root / "sweep.json").exists():  # a finished sweep's stays whole until its successor is (_finish)
+        write_json(root / "sweep.json", meta)
     print(f"scenario2: profile {profile.name}: {len(specs)} cells, {len(done)} already done, {len(retry)} "
           f"failed before (retried), {len(todo)} to run on the {backend_name} backend", file=sys.stderr)  # fmt: skip
     roads = [RoadConfig(lanes=lanes) for lanes in sorted({s["lanes"] for s in todo})]  # built once, not in workers
     records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED_SUMMARY, roads=roads,
                        workers=workers, backend=backend_name, address=address, progress=progress,
                        desc="scenario2 cells", done_keys=sorted(done_keys))  # fmt: skip
+    _finish(root, profile, meta, records, len(todo), time.perf_counter() - start)
+    return meta
+
+
+def _finish(root: Path, profile: Profile, meta: dict[str, Any], records: list[dict[str, Any]], ran: int,
+            wall: float) -> None:  # fmt: skip
+    """Write the sweep's tables, figures, report and sweep.json from its cells' records, each checked against its
+    schema (the limits a merge reads them by) before any is written: a refusal leaves the outputs as they were, a
+    finished sweep's whole."""
     runs, evals = runs_table(records), evals_table(records)
-    SCENARIO2_RUNS.check_frame(runs, root / "runs.csv")  # the limits the merge reads them by (record_schemas)
-    SCENARIO2_EVALS.check_frame(evals, root / "evals.csv")
-    runs.to_csv(root / "runs.csv", index=False)
-    evals.to_csv(root / "evals.csv", index=False)
-    wall = time.perf_counter() - start
-    meta.update(wall_seconds=round(wall, 1), cells_run=len(todo), cells_ok=int((runs["status"] == "ok").sum()),
+    meta.update(wall_seconds=round(wall, 1), cells_run=ran, cells_ok=int((runs["status"] == "ok").sum()),
                 cells_failed=int((runs["status"] != "ok").sum()),
                 failed_cells=runs.loc[runs["status"] != "ok", "key"].tolist(),
                 cell_wall_seconds_sum=round(float(pd.to_numeric(runs["cell_wall_s"]).sum()), 1),
                 cell_cpu_seconds_sum=study_cpu_s(records, (root / str(d) for d in runs["train_dir"].dropna())))
+    SCENARIO2_RUNS.check_frame(runs, root / "runs.csv")  # the limits the merge reads them by (study_tables)
+    SCENARIO2_EVALS.check_frame(evals, root / "evals.csv")
+    SWEEP.check(meta, root / "sweep.json")
+    runs.to_csv(root / "runs.csv", index=False)
+    evals.to_csv(root / "evals.csv", index=False)
     if profile.lane_networks:
         from coopsumo.studies.scenario2.gate_report import write_lane_outputs
 
-        write_lane_outputs(root, runs, evals_table(records), profile, meta, n_boot)
+        write_lane_outputs(root, runs, evals, profile, meta, meta["bootstrap_replicates"])
     else:
-        write_outputs(root, runs, profile, meta, n_boot)
-    SWEEP.check(meta, root / "sweep.json")  # the schema a merge reads it by
+        write_outputs(root, runs, profile, meta, meta["bootstrap_replicates"])
+    SWEEP.check(meta, root / "sweep.json")  # the schema a merge reads it by, with what the report added
     write_json(root / "sweep.json", meta)
-    return meta
 
 
 def chosen_profile(text: str) -> Profile:
