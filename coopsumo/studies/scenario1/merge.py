@@ -95,8 +95,8 @@ def check_parts(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]]) -> None:
         if problem := rows_problem(recorded["plan"], runs):
             raise UsageError(f"--merge: {folder}/runs.csv {problem}")
         theirs = runs[runs["train_seed"].isna()].reset_index(drop=True)
-        if differs := baselines_differ(theirs, baselines):
-            raise UsageError(f"--merge: {folder}'s baseline runs differ from {first_folder}'s in {differs} (the same "
+        if column := baselines_differ(theirs, baselines):
+            raise UsageError(f"--merge: {folder}'s baseline runs differ from {first_folder}'s in {column} (the same "
                              "policies on the same seeds must give the same runs)")  # fmt: skip
 
 
