@@ -67,8 +67,12 @@ def write_claim_a(root: Path, rows: pd.DataFrame, a: str, b: str, exploratory: s
     models = int(s["comparisons"]["models"].max()) if len(s["comparisons"]) else 0
     decided = s["comparisons"][s["comparisons"]["verdict"] != "cannot decide"]
     found = "; ".join(f"{UNITS[str(r.measure)][0]} at T_up {r.t_up_s:g} s ({r.verdict})" for r in decided.itertuples())
+    planned = int(s["planned_models"]) if models >= claim_a.PILOT_MODELS else 0
+    interim = (f"**Interim: {models} of the plan's {planned} models per alpha.** The plan reads its verdict at "
+               f"{planned} models; what is decided below is where the study stands, not its answer (part 1's decided "
+               "comparisons did not survive 5 more models).\n\n") if 0 < models < planned else ""  # fmt: skip
     head = (f"# Claim (a): alpha 8 against alpha 0 ({a} against {b}), under the analysis plan of {PLAN_COMMIT}\n\n"
-            + (f"**Exploratory**: {exploratory}\n\n" if exploratory else "")
+            + (f"**Exploratory**: {exploratory}\n\n" if exploratory else "") + interim
             + f"{models} models per alpha. Decided under the plan (Holm over {len(s['comparisons'])} comparisons at a "
             f"family-wise {claim_a.FAMILY_ALPHA:g}, at least 3 models): "
             + (found or "nothing") + ".\n")  # fmt: skip

@@ -2,9 +2,9 @@
 each ran a few whole models (issue 78: a study longer than a session runs in parts, each part's records committed).
 A part is a finished scenario I study folder (its plan.json and runs.csv); the parts must share one plan and one
 learner but for their training seeds, which may not overlap, and their baseline runs (the same policies on the
-same seeds) must agree to the last digit. The merge writes runs.csv (the baselines once, every part's models),
-summary.csv, plan.json (the parts named), claim_a.md and fig_thrashing.png when the plan has alphas 0 and 8, and a
-short report.md; nothing is written when a part is refused."""
+same seeds) must agree to the last digit (the fitted wave speed to FIT_RTOL). The merge writes runs.csv (the
+baselines once, every part's models), summary.csv, plan.json (the parts named), claim_a.md and fig_thrashing.png
+when the plan has alphas 0 and 8, and a short report.md; nothing is written when a part is refused."""
 
 from __future__ import annotations
 
@@ -235,7 +235,8 @@ def report_text(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]], rows: pd
              f"{len(p['train_seeds'])} models per alpha", "",
              f"Alphas {', '.join(f'{a:g}' for a in p['alphas'])}; demands T_up "
              f"{', '.join(f'{t:g}' for t in p['t_ups'])} s; {len(p['seeds'])} evaluation seeds; the baselines once "
-             "(every part ran them on the same seeds, and they agree to the last digit).", "",
+             "(every part ran them on the same seeds, and they agree to the last digit, the fitted wave speed to a "
+             "relative 1e-9).", "",
              "| part | training seeds | its compute |", "|---|---|---|"]  # fmt: skip
     for folder, recorded, _ in parts:
         seeds = ", ".join(str(s) for s in recorded["plan"]["train_seeds"])
