@@ -366,6 +366,7 @@ class TrainConfig:
 
 def train_config_from_dict(d: dict[str, Any]) -> TrainConfig:
     """Inverse of to_dict for TrainConfig; a missing or unknown field is a ConfigError naming it."""
+    _no_unknown(d, TrainConfig, "training")
     try:
         return TrainConfig(
             sim=sim_config_from_dict(d["sim"]),
@@ -376,6 +377,13 @@ def train_config_from_dict(d: dict[str, Any]) -> TrainConfig:
         )
     except KeyError as err:
         raise ConfigError(f"training configuration has no {err.args[0]!r} (written by another coopsumo?)") from None
+
+
+def _no_unknown(d: Any, cls: type, what: str) -> None:
+    """ConfigError naming the first key of the dict d that is no field of the dataclass cls (another version's)."""
+    known = {f.name for f in dataclasses.fields(cls)}
+    if isinstance(d, dict) and (unknown := sorted(str(k) for k in d if k not in known)):
+        raise ConfigError(f"{what} configuration has an unknown field {unknown[0]!r} (written by another coopsumo?)")
 
 
 def to_dict(cfg: Any) -> dict[str, Any]:
@@ -418,6 +426,7 @@ def first_difference(a: Any, b: Any, path: str = "config") -> str | None:
 
 def sim_config_from_dict(d: dict[str, Any]) -> SimConfig:
     """Inverse of to_dict for SimConfig; a missing or unknown field is a ConfigError naming it."""
+    _no_unknown(d, SimConfig, "simulation")
     try:
         parts = {name: from_fields(cls, d[name], name) for name, cls in (
             ("road", RoadConfig), ("demand", DemandConfig), ("control", ControlConfig), ("accident", AccidentConfig),

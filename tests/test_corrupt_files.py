@@ -245,6 +245,8 @@ CHECKPOINT_CASES: dict[str, tuple[Callable[[dict[str, Any]], None] | bytes, str]
     "rng state a list": (_at("learner", "torch_rng", value=[1]), "random-generator"),
     "configuration a list": (_at("config", value=[1]), "no training configuration"),
     "learner settings a list": (_at("config", "dqn", value=[1]), "no training configuration"),
+    "a configuration field of another version": (lambda s: s["config"].update(zzz=1), "unknown field 'zzz'"),
+    "a run setting of another version": (lambda s: s["config"]["sim"].update(zzz=1), "unknown field 'zzz'"),
     "decision interval 0": (_at("config", "dqn", "decision_interval_steps", value=0), "decision_interval_steps"),
     "lr a string": (_at("config", "dqn", "lr", value="x"), "lr must be a finite number"),
     "lr 1e308": (_at("config", "dqn", "lr", value=1e308), "lr must be"),
