@@ -189,9 +189,9 @@ def trajectories_problem(path: Path, cfg: dict[str, Any]) -> str | None:
     import pyarrow.compute as pc
     import pyarrow.parquet as pq
 
-    table = pq.read_table(path)
     lanes = cfg.get("road", {}).get("lanes") if isinstance(cfg.get("road"), dict) else None
     limits = {**TRAJECTORY_LIMITS, "lane": (0, lanes - 1 if isinstance(lanes, int) else None)}
+    table = pq.read_table(path, columns=[n for n in pq.read_schema(path).names if n in limits])  # not vid
     for name, (low, high) in limits.items():
         if name not in table.column_names or table.num_rows == 0:
             continue
