@@ -11,9 +11,11 @@ scenario I worker printed one of its own when it came while the worker started.
 Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1, scenario2,
 learning, protocol, regime-map: their pools of workers) and simulate get all four moments; the others, and `python
 -m coopsumo`, one each, chosen while they still run: accident-seeds (refusing its folder) ends within a second or
-two, so 0.2 s, during its imports; models (a store of one real 40-step model, which its listing checks with torch,
-and one folder that is no model) takes about 2 s, so 0.2 and 1 s (a store without a model ended within 0.2 s on a
-fast machine); scenario2 --merge at 0.5 s (the committed parts are an earlier default learner's, which today's
+two, so 0.2 s, during its imports; models (a store of three real 40-step models, which its listing checks with
+torch, and one folder that is no model) at 0.2 s and half-way through its uninterrupted run on this machine, measured
+just before (MIDWAY: a fixed 1 s landed while a fast CI machine's Python already exited, 2026-12-02, where a Ctrl-C is
+ignored by design, runio.run_interruptible; a store without a model ended within 0.2 s on a fast machine); scenario2
+--merge at 0.5 s (the committed parts are an earlier default learner's, which today's
 merge refuses after about a second); history and bench at 2 s. A Ctrl-C later in a training is
 tests/test_interrupts.py's, in a study tests/test_faults_scenario1.py's. What comes before the command's first
 instruction is Python's own start (some 0.05 s of CPU), which no code of the command can guard; the console command
@@ -42,8 +44,10 @@ REPO = Path(__file__).resolve().parent.parent
 CONSOLE = Path(sys.executable).parent / "coopsumo"
 """the console command beside this interpreter ([project.scripts]), as a user runs it"""
 FOUR = (0.2, 0.5, 1.0, 2.0)
+MIDWAY = "midway"
+"""a moment: half the wall time the same command takes uninterrupted, measured in the test just before"""
 PARTS = "{repo}/results/scenario2_parts"
-CASES: dict[str, tuple[list[str], tuple[float, ...]]] = {
+CASES: dict[str, tuple[list[str], tuple[float | str, ...]]] = {
     "train": (["train", "--steps", "3000", "--eval-steps", "0", "--out", "{tmp}/run", "--quiet"], FOUR),
     "simulate": (["simulate", "--steps", "20000", "--out", "{tmp}/sim", "--quiet"], FOUR),
     "scenario1": (["scenario1", "--quick", "--out", "{tmp}/s1"], FOUR),
@@ -55,7 +59,7 @@ CASES: dict[str, tuple[list[str], tuple[float, ...]]] = {
                           (0.5,)),  # fmt: skip
     "accident-seeds": (["accident-seeds", "{tmp}/no_study", "--out", "{tmp}/accident", "--quiet"], (0.2,)),
     "history": (["history", "--results", "{repo}/results", "--out", "{tmp}/history.md"], (2.0,)),
-    "models": (["models", "--store", "{tmp}/store"], (0.2, 1.0)),
+    "models": (["models", "--store", "{tmp}/store"], (0.2, MIDWAY)),
     "bench": (["bench", "--quick"], (2.0,)),
     "python -m coopsumo train": (["train", "--steps", "3000", "--eval-steps", "0", "--out", "{tmp}/run", "--quiet"],
                                  (0.5,)),  # fmt: skip
@@ -74,25 +78,37 @@ def command(case: str, tmp: Path) -> list[str]:
 
 
 @pytest.fixture(scope="module")
-def stored_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One real model of a model store: a 40-step training (about a second), as a study stores it."""
+def stored_models(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    """Three real models of a model store: 40-step trainings (about a second each), as a study stores them."""
     from coopsumo.config import SimConfig, TrainConfig, to_dict
     from coopsumo.dqn_config import DQN_PRESETS
     from coopsumo.studies.engine.model_store import train_shared
 
-    cfg = TrainConfig(sim=SimConfig(steps=40, seed=3, policy="dqn"), dqn=DQN_PRESETS["paper"], eval_steps=0,
-                      log_every_steps=20)  # fmt: skip
     root = tmp_path_factory.mktemp("store")
-    train_shared(json.loads(json.dumps(to_dict(cfg))), root / "study" / "models" / "m", root / "models")
-    (model,) = [p for p in (root / "models").iterdir() if p.is_dir() and not p.name.startswith(".")]
-    return model
+    for seed in (3, 4, 5):
+        cfg = TrainConfig(sim=SimConfig(steps=40, seed=seed, policy="dqn"), dqn=DQN_PRESETS["paper"], eval_steps=0,
+                          log_every_steps=20)  # fmt: skip
+        train_shared(json.loads(json.dumps(to_dict(cfg))), root / "study" / "models" / f"m{seed}", root / "models")
+    models = sorted(p for p in (root / "models").iterdir() if p.is_dir() and not p.name.startswith("."))
+    assert len(models) == 3
+    return models
 
 
-def prepare(tmp: Path, model: Path) -> None:
-    """What the commands read: a model store with one real model and one folder that is no model (models checks
-    the one and lists both)."""
+def prepare(tmp: Path, models: list[Path]) -> None:
+    """What the commands read: a model store with real models and one folder that is no model (models checks
+    them and lists them all)."""
     (tmp / "store" / "not_a_model").mkdir(parents=True)
-    shutil.copytree(model, tmp / "store" / model.name)
+    for model in models:
+        shutil.copytree(model, tmp / "store" / model.name)
+
+
+def midway(case: str, tmp: Path, env: dict[str, str]) -> float:
+    """Half the wall time case's command takes uninterrupted here and now, in a folder of its own prepared as tmp."""
+    start = time.monotonic()
+    res = subprocess.run(command(case, tmp), cwd=tmp, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                         text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 0, res.stderr[-1500:]
+    return (time.monotonic() - start) / 2
 
 
 @pytest.fixture(scope="module")
@@ -140,9 +156,15 @@ def ctrl_c(proc: subprocess.Popen[str], at_s: float, start: float, started: floa
 @pytest.mark.parametrize(("case", "at_s"), [(case, at_s) for case, (_, moments) in CASES.items() for at_s in moments],
                          ids=lambda value: f"{value}s" if isinstance(value, float) else value)  # fmt: skip
 def test_a_ctrl_c_at_any_moment_is_one_line_and_exit_code_130(
-        case: str, at_s: float, tmp_path: Path, stored_model: Path, started_cpu: float) -> None:  # fmt: skip
-    prepare(tmp_path, stored_model)
+    case: str, at_s: float | str, tmp_path: Path, stored_models: list[Path], started_cpu: float
+) -> None:
+    prepare(tmp_path, stored_models)
     env = {**{k: v for k, v in os.environ.items() if k != "DISPLAY"}, "COOPSUMO_MODELS": str(tmp_path / "models")}
+    if at_s == MIDWAY:
+        (tmp_path / "measured").mkdir()
+        prepare(tmp_path / "measured", stored_models)
+        at_s = midway(case, tmp_path / "measured", {**env, "COOPSUMO_MODELS": str(tmp_path / "measured" / "models")})
+    assert isinstance(at_s, float)
     start = time.monotonic()
     proc = subprocess.Popen(command(case, tmp_path), cwd=tmp_path, env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
