@@ -15,8 +15,8 @@ two, so 0.2 s, during its imports; models (a store of three real 40-step models,
 torch, and one folder that is no model) at 0.2 s and half-way through its uninterrupted run on this machine, measured
 just before (MIDWAY: a fixed 1 s landed while a fast CI machine's Python already exited, 2026-12-02, where a Ctrl-C is
 ignored by design, runio.run_interruptible; a store without a model ended within 0.2 s on a fast machine); scenario2
---merge at 0.5 s (the committed parts are an earlier default learner's, which today's
-merge refuses after about a second); history and bench at 2 s. A Ctrl-C later in a training is
+--merge (the committed parts are an earlier default learner's, which today's merge refuses after about a second) and
+history (about 2 s) MIDWAY too; bench at 2 s (some 20 s in all). A Ctrl-C later in a training is
 tests/test_interrupts.py's, in a study tests/test_faults_scenario1.py's. What comes before the command's first
 instruction is Python's own start (some 0.05 s of CPU), which no code of the command can guard; the console command
 imports nothing there (test below). On a loaded machine that start can take longer than 0.2 s of wall time, so a
@@ -56,9 +56,9 @@ CASES: dict[str, tuple[list[str], tuple[float | str, ...]]] = {
     "protocol": (["protocol", "--profile", "tiny", "--out", "{tmp}/protocol", "--quiet"], (*FOUR, 6.0)),
     "regime-map": (["regime-map", "--t-up", "2", "--steps", "2000", "--out", "{tmp}/rm", "--quiet"], FOUR),
     "scenario2 --merge": (["scenario2", "--merge", f"{PARTS}/L2,{PARTS}/L3", "--out", "{tmp}/merged", "--quiet"],
-                          (0.5,)),  # fmt: skip
+                          (MIDWAY,)),  # fmt: skip
     "accident-seeds": (["accident-seeds", "{tmp}/no_study", "--out", "{tmp}/accident", "--quiet"], (0.2,)),
-    "history": (["history", "--results", "{repo}/results", "--out", "{tmp}/history.md"], (2.0,)),
+    "history": (["history", "--results", "{repo}/results", "--out", "{tmp}/history.md"], (MIDWAY,)),
     "models": (["models", "--store", "{tmp}/store"], (0.2, MIDWAY)),
     "bench": (["bench", "--quick"], (2.0,)),
     "python -m coopsumo train": (["train", "--steps", "3000", "--eval-steps", "0", "--out", "{tmp}/run", "--quiet"],
@@ -103,11 +103,12 @@ def prepare(tmp: Path, models: list[Path]) -> None:
 
 
 def midway(case: str, tmp: Path, env: dict[str, str]) -> float:
-    """Half the wall time case's command takes uninterrupted here and now, in a folder of its own prepared as tmp."""
+    """Half the wall time case's command takes uninterrupted here and now, in a folder of its own prepared as tmp (it
+    may end in its own error: scenario2 --merge refuses the committed parts of an earlier learner)."""
     start = time.monotonic()
     res = subprocess.run(command(case, tmp), cwd=tmp, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
                          text=True, timeout=120)  # fmt: skip
-    assert res.returncode == 0, res.stderr[-1500:]
+    assert res.returncode in (0, 1, 2) and "Traceback" not in res.stderr, res.stderr[-1500:]
     return (time.monotonic() - start) / 2
 
 
