@@ -63,7 +63,7 @@ protocol: $(STAMP)
 	$(BIN)/coopsumo protocol $(if $(PROFILE),--profile $(PROFILE))
 
 regime-map: $(STAMP)
-	$(BIN)/coopsumo regime-map $(if $(SEEDS),--seeds $(SEEDS))
+	$(BIN)/coopsumo scenario1 --regime-map $(if $(SEEDS),--seeds $(SEEDS))
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache

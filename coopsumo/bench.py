@@ -278,9 +278,9 @@ def bench_fcd_cost(steps: int, period_s: float, repeats: int) -> tuple[float, fl
     return float(np.median(extra)), min(extra), max(extra), size_mb / hours, vehicles
 
 
-CLUSTER_STUDY = ("regime-map", "--t-up", "2,1.5,1", "--seeds", "2")
+CLUSTER_STUDY = ("scenario1", "--regime-map", "--t-up", "2,1.5,1", "--seeds", "2")
 """the study of the cluster measurement: `keep` at 3 demands x 2 accident lengths x 2 seeds, 12 cells"""
-CLUSTER_QUICK = ("regime-map", "--t-up", "2", "--seeds", "1")
+CLUSTER_QUICK = ("scenario1", "--regime-map", "--t-up", "2", "--seeds", "1")
 """--quick: 2 cells"""
 
 
@@ -305,8 +305,8 @@ def bench_cluster(study_args: tuple[str, ...], steps: int, warm_up: bool = True)
     with tempfile.TemporaryDirectory() as tmp:
         # a first study pays for cold caches (imports, the network, SUMO's files): one short one, not timed
         if warm_up:
-            subprocess.run([sys.executable, "-m", "coopsumo", "regime-map", "--t-up", "2", "--seeds", "1", "--steps",
-                            "100", "--quiet", "--out", str(Path(tmp) / "warm-up")], capture_output=True, check=False)
+            warm = [*CLUSTER_QUICK, "--steps", "100", "--quiet", "--out", str(Path(tmp) / "warm-up")]
+            subprocess.run([sys.executable, "-m", "coopsumo", *warm], capture_output=True, check=False)
         for workers in (1, 2):
             times[f"local, {workers} worker{'s' if workers > 1 else ''}"] = study(
                 Path(tmp) / f"local{workers}", "--workers", str(workers))  # fmt: skip

@@ -23,7 +23,6 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "scenario2": (S + "scenario2.study", "the alpha sweep of section IV.B (Fig. 6)"),
     "learning": (S + "learning.study", "the learner ablation and the alpha response"),
     "protocol": (S + "protocol.study", "judge learners: 10 models each, free flow and accident, vs baselines"),
-    "regime-map": (S + "followups.regime_map", "where the accident's queue goes: keep at every demand, two lengths"),
     "accident-seeds": (S + "followups.accident_seeds", "a learning study's models through the accident, by seed"),
     "history": (S + "protocol.history", "print the learner search's table from the protocol studies' records"),
     "models": (S + "engine.model_store", "list the model store: every trained model and whether it is usable"),

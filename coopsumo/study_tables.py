@@ -156,7 +156,7 @@ REGIME_MAP_RUNS = Table((
     Field("regime", Text(REGIMES)),
     Field("horizon_after_start_s", Number(0.0, unit="s")),
 ), key=("accident", "t_up_s", "seed"))  # fmt: skip
-"""the regime map's runs.csv (followups.regime_map.run_study): one row per accident length, demand and seed"""
+"""the regime map's runs.csv (scenario1.regime_map.run_study): one row per accident length, demand and seed"""
 ACCIDENT_SEEDS_RUNS = Table((
     Field("variant", Text()),
     Field("alpha", ALPHA),  # a baseline's and an adaptive driver's: none

@@ -646,11 +646,12 @@ def test_environment_folders_are_checked_up_front(command: str, name: str, value
 
 OUT_COMMANDS: dict[str, list[str]] = {
     "train": TRAIN, "simulate": SIM, "scenario1": ["--quick"], "scenario2": ["--profile", "tiny"],
-    "learning": ["--profile", "tiny"], "protocol": ["--profile", "tiny"], "regime-map": ["--seeds", "1"],
+    "learning": ["--profile", "tiny"], "protocol": ["--profile", "tiny"],
+    "scenario1 --regime-map": ["--regime-map", "--seeds", "1"],
     "accident-seeds": ["study", "--variants", "margin"],
 }  # fmt: skip
-"""every command that writes an --out, with arguments that would run it (accident-seeds: a learning study in study/,
-relative to the test's folder)"""
+"""every command that writes an --out (and scenario I's regime map, a profile with an --out of its own), with
+arguments that would run it (accident-seeds: a learning study in study/, relative to the test's folder)"""
 NETS_CASES = [(command, where) for command in OUT_COMMANDS for where in ("{out}/nets", "{out}", "{link}/nets")]
 
 
@@ -685,7 +686,7 @@ def test_networks_inside_out_are_refused_up_front_by_every_command(command: str,
     nets = where.format(out=out, link=tmp_path / "link")
     monkeypatch.setenv("COOPSUMO_NETS_DIR", nets)
     before = _listing(tmp_path)
-    code = _command_main(command, [*OUT_COMMANDS[command], "--out", str(out)])
+    code = _command_main(command.split()[0], [*OUT_COMMANDS[command], "--out", str(out)])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1, err
     assert "error: --out" in err[0] and f"$COOPSUMO_NETS_DIR {nets}:" in err[0], err[0]

@@ -28,7 +28,7 @@ def parsers() -> dict[str, argparse.ArgumentParser]:
 
 
 def test_the_commands_are_the_issue_s_six_the_protocol_and_the_studies_beside_them() -> None:
-    assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "learning", "protocol", "regime-map",
+    assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "learning", "protocol",
                                   "accident-seeds", "history", "models", "bench"]  # fmt: skip
 
 
@@ -131,7 +131,7 @@ def test_makefile_targets_call_the_console_command() -> None:
     make = (ROOT / "Makefile").read_text()
     for target, command in (("demo", "simulate"), ("bench", "bench"), ("scenario1", "scenario1"),
                             ("scenario2", "scenario2"), ("learning", "learning"), ("protocol", "protocol"),
-                            ("regime-map", "regime-map")):  # fmt: skip
+                            ("regime-map", "scenario1 --regime-map")):  # fmt: skip
         recipe = re.search(rf"^{target}: .*\n\t(.*)$", make, flags=re.M)
         assert recipe is not None and recipe.group(1).startswith(f"$(BIN)/coopsumo {command}"), target
     assert "python -m coopsumo." not in make

@@ -17,7 +17,7 @@ import pytest
 
 pytestmark = pytest.mark.sumo
 REPO = Path(__file__).resolve().parent.parent
-STUDY = ["-m", "coopsumo", "regime-map", "--t-up", "2,1", "--seeds", "1", "--steps", "300", "--quiet"]
+STUDY = ["-m", "coopsumo", "scenario1", "--regime-map", "--t-up", "2,1", "--seeds", "1", "--steps", "300", "--quiet"]
 """`keep` at 2 demands x 2 accident lengths x 1 seed: 4 short cells, two a node (a Ray task starts a fresh worker
 process, so the node is removed while cells run on it or wait for it)"""
 

@@ -8,10 +8,10 @@ traceback from it or from any of its processes, and it must exit with 130, its p
 train` and the other commands printed a KeyboardInterrupt traceback when the Ctrl-C came during their imports, and a
 scenario I worker printed one of its own when it came while the worker started.
 
-Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1, scenario2,
-learning, protocol, regime-map: their pools of workers) and simulate get all four moments; the others, and `python
--m coopsumo`, one each, chosen while they still run: accident-seeds (refusing its folder) ends within a second or
-two, so 0.2 s, during its imports; models (a store of three real 40-step models, which its listing checks with
+Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1 and its
+--regime-map, scenario2, learning, protocol: their pools of workers) and simulate get all four moments; the others,
+and `python -m coopsumo`, one each, chosen while they still run: accident-seeds (refusing its folder) ends within a
+second or two, so 0.2 s, during its imports; models (a store of three real 40-step models, which its listing checks with
 torch, and one folder that is no model) at 0.2 s and half-way through its uninterrupted run on this machine, measured
 just before (MIDWAY: a fixed 1 s landed while a fast CI machine's Python already exited, 2026-12-02, where a Ctrl-C is
 ignored by design, runio.run_interruptible; a store without a model ended within 0.2 s on a fast machine); scenario2
@@ -54,7 +54,8 @@ CASES: dict[str, tuple[list[str], tuple[float | str, ...]]] = {
     "scenario2": (["scenario2", "--profile", "tiny", "--out", "{tmp}/s2", "--quiet"], FOUR),
     "learning": (["learning", "--profile", "tiny", "--out", "{tmp}/learning", "--quiet"], FOUR),
     "protocol": (["protocol", "--profile", "tiny", "--out", "{tmp}/protocol", "--quiet"], (*FOUR, 6.0)),
-    "regime-map": (["regime-map", "--t-up", "2", "--steps", "2000", "--out", "{tmp}/rm", "--quiet"], FOUR),
+    "scenario1 --regime-map": (["scenario1", "--regime-map", "--t-up", "2", "--steps", "2000", "--out", "{tmp}/rm",
+                                "--quiet"], FOUR),  # fmt: skip
     "scenario2 --merge": (["scenario2", "--merge", f"{PARTS}/L2,{PARTS}/L3", "--out", "{tmp}/merged", "--quiet"],
                           (MIDWAY,)),  # fmt: skip
     "accident-seeds": (["accident-seeds", "{tmp}/no_study", "--out", "{tmp}/accident", "--quiet"], (0.2,)),

@@ -21,7 +21,7 @@ from test_study_commands import learning_folder
 
 from coopsumo.studies.engine.records import cell_path, checked_record, model_fields, reusable_keys
 from coopsumo.studies.followups import accident_seeds
-from coopsumo.studies.scenario1 import study as scenario1
+from coopsumo.studies.scenario1 import accident_runs as scenario1_cells
 from coopsumo.studies.scenario1.plan import Plan
 from coopsumo.studies.scenario2 import study as scenario2
 from coopsumo.studies.scenario2.plan import PROFILES, cell_specs
@@ -247,8 +247,8 @@ def test_an_accident_seeds_run_of_a_changed_model_is_rerun_with_one_line(
     assert [s.get("model_sha256") for s in specs()] == [None] * 3 + [model_fields(model)["model_sha256"]]
     for spec in specs():  # each cell's record as the run left it (scenario I's run cell)
         cell_path(out, spec["key"]).parent.mkdir(parents=True, exist_ok=True)
-        record = {**scenario1.RECORDS.new(spec), "status": "ok", "summary": {"mean_speed_mps": 20.0, "collisions": 0,
-                                                                             "teleports": 0}}  # fmt: skip
+        summary = {"mean_speed_mps": 20.0, "collisions": 0, "teleports": 0}
+        record = {**scenario1_cells.RECORDS.new(spec), "status": "ok", "summary": summary}
         cell_path(out, spec["key"]).write_text(json.dumps(record))
     before = {p.name: p.read_bytes() for p in (out / "cells").iterdir()}
     required = accident_seeds.accident_runs.REQUIRED

@@ -331,11 +331,11 @@ def test_the_paper_preset_stands_beside_the_default(tmp_path: Path) -> None:
 
 
 def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
-    """`coopsumo regime-map` on shortened plans: a light demand keeps the queue on the road, a heavy one
+    """`coopsumo scenario1 --regime-map` on shortened plans: a light demand keeps the queue on the road, a heavy one
     (one vehicle every 0.2 s, beyond what 3 lanes can take in) fills the entrance and still waits at the end."""
     from dataclasses import replace
 
-    from coopsumo.studies.followups import regime_map
+    from coopsumo.studies.scenario1 import regime_map
 
     base = replace(scenario1.Plan.quick(), steps=1500, accident_start=300, accident_steps=900, seeds=(1,),
                    t_ups=(4.0, 0.2))  # fmt: skip
@@ -357,15 +357,20 @@ def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
     assert (tmp_path / "runs.csv").stat().st_mtime_ns >= stamp
 
 
-def test_regime_map_bad_demands_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """regime-map's main in this process (the one-line refusal of a command run as a process:
-    tests/test_bad_inputs.py)."""
-    from coopsumo.studies.followups import regime_map
-
+def test_regime_map_bad_input_one_line_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """scenario1 --regime-map in this process (the one-line refusal of a command run as a process:
+    tests/test_bad_inputs.py): bad demands, and the options of the learned study, which it does not take."""
     out = tmp_path / "out"
     for bad in ("0", "1,,2", "nan", "2,2", "-1"):
-        code, _, err = main_here(regime_map.main, ["--t-up", bad, "--out", str(out)], capsys)
+        code, _, err = main_here(scenario1.main, ["--regime-map", "--t-up", bad, "--out", str(out)], capsys)
         assert_refused_in_one_line(code, err, out, "--t-up")
+    for flag, value in (("--alphas", "8"), ("--train-seeds", "2"), ("--mobil-p", "0"), ("--preset", "paper"),
+                        ("--baseline", "keep"), ("--train-steps", "100"), ("--merge", "a,b")):  # fmt: skip
+        code, _, err = main_here(scenario1.main, ["--regime-map", flag, value, "--out", str(out)], capsys)
+        assert_refused_in_one_line(code, err, out, flag)
+    for other in ("--quick", "--full"):  # one profile at a time (argparse's exit code 2)
+        code, _, err = main_here(scenario1.main, ["--regime-map", other, "--out", str(out)], capsys)
+        assert_refused_in_one_line(code, err, out, "--regime-map")
 
 
 def _model_rows(policy: str, tts: dict[int, list[float]], t_up: float = 1.0) -> pd.DataFrame:

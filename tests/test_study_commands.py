@@ -1,6 +1,6 @@
-"""The commands that read or extend what the other studies made (regime-map, accident-seeds): --help, bad input (one
-line, exit 2, nothing written), tiny real runs on hand-made study folders (models with untrained weights, so each run
-takes seconds), a rerun that reuses every cell, and the old spellings under experiments/."""
+"""The runs that read or extend what the other studies made (scenario1 --regime-map, accident-seeds): --help, bad
+input (one line, exit 2, nothing written), tiny real runs on hand-made study folders (models with untrained weights,
+so each run takes seconds), a rerun that reuses every cell, and the old spellings under experiments/."""
 
 from __future__ import annotations
 
@@ -21,13 +21,15 @@ from coopsumo.dqn_config import DQNConfig
 from coopsumo.studies.learning import study as ablation
 
 ROOT = Path(__file__).resolve().parent.parent
-COMMANDS = ("regime-map", "accident-seeds")
+COMMANDS = {"regime-map": ("scenario1", ["--regime-map"]), "accident-seeds": ("accident-seeds", [])}
+"""name -> (its command, the options that choose it: the regime map is a profile of scenario I)"""
 
 
 def command_main(name: str, argv: list[str]) -> int:
-    module = importlib.import_module(cli.COMMANDS[name][0])
+    command, chosen = COMMANDS[name]
+    module = importlib.import_module(cli.COMMANDS[command][0])
     try:
-        return int(module.main(argv))
+        return int(module.main([*chosen, *argv]))
     except SystemExit as stop:
         return int(stop.code or 0)
 
@@ -77,7 +79,7 @@ def learning_folder(root: Path, variants: tuple[str, ...] = ("margin", "conditio
 def test_help_names_the_command(name: str, capsys: pytest.CaptureFixture[str]) -> None:
     assert command_main(name, ["--help"]) == 0
     out = capsys.readouterr().out
-    assert out.startswith(f"usage: coopsumo {name} ") and "(default" in out
+    assert out.startswith(f"usage: coopsumo {COMMANDS[name][0]} ") and "(default" in out
 
 
 # -- bad input ----------------------------------------------------------------------------------------------------
@@ -141,7 +143,7 @@ def cell_times(root: Path, pattern: str = "*.json") -> dict[str, int]:
 @pytest.mark.sumo
 def test_regime_map_runs_both_lengths_and_reuses_every_cell(tmp_path: Path) -> None:
     out = tmp_path / "rm"
-    res = coopsumo("regime-map", "--t-up", "4", "--steps", "600", "--out", str(out))
+    res = coopsumo("scenario1", "--regime-map", "--t-up", "4", "--steps", "600", "--out", str(out))
     assert res.returncode == 0, res.stderr[-2000:]
     runs = pd.read_csv(out / "runs.csv")
     assert list(runs["accident"]) == ["default", "paper"] and list(runs["run_steps"]) == [600, 2700]
@@ -150,9 +152,9 @@ def test_regime_map_runs_both_lengths_and_reuses_every_cell(tmp_path: Path) -> N
     assert sorted(cell_times(out)) == ["default_t4_seed1.json", "paper_t4_seed1.json"]
     assert (out / "runs/default/t4/keep_seed1/summary.json").exists()
     report = (out / "report.md").read_text()
-    assert "Made by `coopsumo regime-map`" in report and "steps 60-360 of a 600-step run" in report
+    assert "Made by `coopsumo scenario1 --regime-map`" in report and "steps 60-360 of a 600-step run" in report
     cells = cell_times(out)
-    again = coopsumo("regime-map", "--t-up", "4", "--steps", "600", "--out", str(out))
+    again = coopsumo("scenario1", "--regime-map", "--t-up", "4", "--steps", "600", "--out", str(out))
     assert again.returncode == 0, again.stderr[-2000:]
     assert cell_times(out) == cells and pd.read_csv(out / "runs.csv").equals(runs)
 

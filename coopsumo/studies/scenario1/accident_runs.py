@@ -1,6 +1,6 @@
-"""Policies through scenario I's accident, for the studies that only drive (regime_map, accident_seeds): the cell of
-one run (scenario I's cell function and record, so its run folder is one scenario I would write), running a list of
-them on the shared runner, and scenario I's measures of a finished run.
+"""Scenario I's cell (a training into the model store or one policy through the accident into its run folder, and the
+record either leaves), which the study (study.py) runs; for the runs that only drive (regime_map, the follow-up
+accident_seeds) a list of accident runs on the shared runner, and scenario I's measures of a finished run.
 """
 
 from __future__ import annotations
@@ -10,10 +10,43 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from coopsumo.config import RoadConfig, SimConfig, to_dict
+from coopsumo.config import OutputConfig, RoadConfig, SimConfig, to_dict
 from coopsumo.studies.engine.cells import failed_keys, run_cells
-from coopsumo.studies.scenario1 import study as scenario1
+from coopsumo.studies.engine.records import CellRecords
 from coopsumo.studies.scenario1.plan import Plan
+
+# -- scenario I's cell, run by the shared runner (coopsumo.studies.engine.runner), one per worker process ----------
+RECORDS = CellRecords(("key", "kind", "label", "seed", "t_up_s", "out", "after"))
+"""a cell's record: a training ("train") or an accident run ("run"), its folder under the study's root"""
+failed_record = RECORDS.failed
+
+
+def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
+    """Train one model ("train") or run one policy through the accident ("run") into ROOT/<out>; never raises."""
+    body = _train_cell if spec["kind"] == "train" else _run_cell
+    return RECORDS.run(spec, lambda record: body(spec, Path(root) / spec["out"], record))
+
+
+def _train_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
+    """Train the model in the model store (an interrupted training continues exactly); out links to it."""
+    import torch
+
+    from coopsumo.studies.engine.model_store import train_shared
+
+    torch.set_num_threads(1)
+    record["summary"] = train_shared(spec["config"], out, Path(spec["store"]))[0]
+
+
+def _run_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
+    """One accident run into its run folder, written atomically (a killed run leaves no half folder)."""
+    import torch
+
+    from coopsumo.studies.engine.run_folders import simulate_into
+
+    torch.set_num_threads(1)
+    record["summary"] = simulate_into(spec["config"], out, spec["out"], trajectory_every=spec["trajectory_every"],
+                                      outputs=OutputConfig(**spec["outputs"]), atomic=True)  # fmt: skip
+
 
 REQUIRED = ("mean_speed_mps", "collisions", "teleports")
 """summary values a stored run record must hold as finite numbers to be reused"""
@@ -38,7 +71,7 @@ def run_all(specs: Sequence[dict[str, Any]], root: Path, plans: Iterable[Plan], 
             backend: str = "local", address: str | None = None, progress: bool = True) -> list[str]:  # fmt: skip
     """Run the accident runs not finished in root on the shared runner; the keys of those that failed."""
     roads = [RoadConfig(lanes=p.lanes, loop_period_s=p.loop_period_s) for p in plans]
-    records = run_cells(specs, root, scenario1.run_cell, scenario1.failed_record, prog=prog, required=REQUIRED,
+    records = run_cells(specs, root, run_cell, failed_record, prog=prog, required=REQUIRED,
                         roads=roads, workers=workers, backend=backend, address=address, progress=progress,
                         desc="accident runs")  # fmt: skip
     return failed_keys(records)

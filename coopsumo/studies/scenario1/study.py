@@ -24,7 +24,7 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import ControlConfig, OutputConfig, RoadConfig, to_dict
+from coopsumo.config import ControlConfig, RoadConfig, to_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json_object, write_json
 from coopsumo.policy_spec import policy_file
@@ -32,9 +32,11 @@ from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
-from coopsumo.studies.engine.records import CellRecords, failed_exit
+from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import profile_study, recorded_profile, reusable_run, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
+from coopsumo.studies.scenario1 import regime_map
+from coopsumo.studies.scenario1.accident_runs import failed_record, run_cell
 from coopsumo.studies.scenario1.measures import aggregate, run_metrics
 from coopsumo.studies.scenario1.plan import (
     TRAIN_SEEDS,
@@ -67,38 +69,6 @@ from coopsumo.validation import (
     train_seed_list,
     workers,
 )
-
-# -- cells run by the shared runner (coopsumo.studies.engine.runner), one per worker process -----------------------
-RECORDS = CellRecords(("key", "kind", "label", "seed", "t_up_s", "out", "after"))
-"""a cell's record: a training ("train") or an accident run ("run"), its folder under the study's root"""
-failed_record = RECORDS.failed
-
-
-def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Train one model ("train") or run one policy through the accident ("run") into ROOT/<out>; never raises."""
-    body = _train_cell if spec["kind"] == "train" else _run_cell
-    return RECORDS.run(spec, lambda record: body(spec, Path(root) / spec["out"], record))
-
-
-def _train_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
-    """Train the model in the model store (an interrupted training continues exactly); out links to it."""
-    import torch
-
-    from coopsumo.studies.engine.model_store import train_shared
-
-    torch.set_num_threads(1)
-    record["summary"] = train_shared(spec["config"], out, Path(spec["store"]))[0]
-
-
-def _run_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
-    """One accident run into its run folder, written atomically (a killed run leaves no half folder)."""
-    import torch
-
-    from coopsumo.studies.engine.run_folders import simulate_into
-
-    torch.set_num_threads(1)
-    record["summary"] = simulate_into(spec["config"], out, spec["out"], trajectory_every=spec["trajectory_every"],
-                                      outputs=OutputConfig(**spec["outputs"]), atomic=True)  # fmt: skip
 
 
 def _alpha_list(text: str) -> tuple[float, ...]:
@@ -138,6 +108,11 @@ def build_parser() -> Parser:
     size.add_argument("--full", action="store_true",
                       help=f"the paper's accident ({full.steps:,} steps, {full.accident_steps:,} of them decaying), "
                            f"{len(full.t_ups)} demands, {len(full.seeds)} evaluation seeds")  # fmt: skip
+    size.add_argument("--regime-map", action="store_true",
+                      help="where the accident's queue goes: `keep` only, at the default study's and the paper's "
+                           "accident length, at T_up 4, 3, 2.5, 2, 1.5, 1.25 and 1 s (or --t-up), 1 evaluation seed "
+                           "(or --seeds), into results/regime_map (or --out); the reason for the default demands "
+                           "(until 2026-12-02 `coopsumo regime-map`)")  # fmt: skip
     p.add_argument("--seeds", type=seed_count, default=None,
                    help=f"number of evaluation seeds, 1..N (default: {by_profile(lambda plan: len(plan.seeds))})")
     p.add_argument("--train-seeds", default=None,
@@ -157,6 +132,7 @@ def build_parser() -> Parser:
                         "the default profile's report is committed)")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
     add_backend_flags(p)
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--train-steps", type=steps, default=None,
                    help=f"training steps of each model (default: {by_profile(lambda plan: f'{plan.train_steps:,}')})")
     p.add_argument("--steps", type=integer(10, MAX_STEPS), default=None,
@@ -236,6 +212,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def body() -> int:
+        if args.regime_map:
+            return regime_map.run_from_args(args)
         if args.merge is not None:
             return _merge(args)
         plan = plan_from_args(args)
@@ -250,13 +228,13 @@ def main(argv: list[str] | None = None) -> int:
         with study_root(args.out, "scenario1", profile_study(plan.profile), recorded_profile("plan.json", "plan",
                         "profile"), f"pick another --out (the {plan.profile} profile's default: {study_out(plan)})",
                         trains=True):
-            return run_study(plan, args.out, args.workers, args.backend, args.address)
+            return run_study(plan, args.out, args.workers, args.backend, args.address, progress=not args.quiet)
 
     return run_cli("scenario1", body)
 
 
-MERGE_ONLY = ("quick", "full", "seeds", "train_seeds", "t_ups", "mobil_ps", "train_steps", "steps", "alphas",
-              "baselines", "presets")
+MERGE_ONLY = ("quick", "full", "regime_map", "seeds", "train_seeds", "t_ups", "mobil_ps", "train_steps", "steps",
+              "alphas", "baselines", "presets")
 """the options a merge would ignore (each part's plan holds them): refused beside --merge"""
 
 
@@ -266,6 +244,7 @@ def _merge(args: Any) -> int:
     given = [name for name in MERGE_ONLY if getattr(args, name) not in (None, False)]
     if given:
         flag = "--" + given[0].replace("_", "-").replace("t-ups", "t-up").replace("mobil-ps", "mobil-p")
+        flag = flag.replace("--baselines", "--baseline").replace("--presets", "--preset")
         raise UsageError(f"--merge takes only --out (the parts' plans hold the rest), got {flag}")
     if args.out is None:
         raise UsageError("--merge needs --out, the merged study's folder")
@@ -339,7 +318,8 @@ def _run_cpu(plan: Plan, runs: list[Run], root: Path) -> dict[float, list[float]
     return run_cpu
 
 
-def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "local", address: str | None = None) -> int:
+def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "local", address: str | None = None,
+              progress: bool = True) -> int:  # fmt: skip
     start = time.perf_counter()
     try:
         root.mkdir(parents=True, exist_ok=True)
@@ -358,7 +338,7 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
         backend = make_backend(backend_name, workers, address, run_cell)
         try:
             with sigterm_interrupts():
-                counts = execute(specs, root.resolve(), backend, n_cells, n_cells - len(specs), progress=True,
+                counts = execute(specs, root.resolve(), backend, n_cells, n_cells - len(specs), progress=progress,
                                  failed_record=failed_record,
                                  desc=f"{n_train} trainings, {len(specs) - n_train} accident runs")  # fmt: skip
         finally:

@@ -1,5 +1,5 @@
-"""`coopsumo regime-map` (`make regime-map`): where the accident's queue goes, against demand; the reason for
-scenario I's default demands.
+"""`coopsumo scenario1 --regime-map` (`make regime-map`): where the accident's queue goes, against demand; the reason
+for scenario I's default demands (a profile of scenario I; until 2026-12-02 the command `coopsumo regime-map`).
 
 Runs `keep` (no lane changes: the reference that no policy choice blurs) through scenario I's accident at every demand
 of --t-up, for two accident lengths: the default study's (10,000 steps of decaying closure in a 20,000-step run) and
@@ -10,7 +10,6 @@ the shared runner (accident_runs: scenario I's cell and run folder), reused on a
 
 from __future__ import annotations
 
-import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -19,17 +18,16 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import ControlConfig, SimConfig, to_dict
+from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
-from coopsumo.runio import Parser, run_cli
-from coopsumo.studies.engine.cells import add_cell_flags
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import study_root
 from coopsumo.studies.engine.runner import check_backend
 from coopsumo.studies.scenario1 import accident_runs
 from coopsumo.studies.scenario1.plan import Plan, accident_config
 from coopsumo.study_tables import REGIME_MAP_RUNS
-from coopsumo.validation import MAX_STEPS, integer, number_name, out_dir, seed_count, t_up_list
+from coopsumo.validation import number_name, t_up_list
 
 DEMANDS = (4.0, 3.0, 2.5, 2.0, 1.5, 1.25, 1.0)
 """T_up (s): from a queue that stays on the road to one that still waits to enter when the accident ends"""
@@ -68,9 +66,9 @@ def run_study(by_length: dict[str, Plan], root: Path, workers: int = 2, backend:
     write_json(root / "plan.json", {"plans": {k: to_dict(v) for k, v in by_length.items()}, "versions": versions()})
     runs = cells(by_length)
     specs = [spec for _, _, spec in runs]
-    failed = accident_runs.run_all(specs, root, by_length.values(), "regime-map", workers, backend, address, progress)
+    failed = accident_runs.run_all(specs, root, by_length.values(), "scenario1", workers, backend, address, progress)
     if failed:
-        return failed_exit("regime-map", failed, len(specs), root)
+        return failed_exit("scenario1", failed, len(specs), root)
     rows = []
     for length, cfg, spec in runs:
         rows.append({"accident": length, "accident_steps": cfg.accident.duration_steps, "run_steps": cfg.steps,
@@ -80,7 +78,7 @@ def run_study(by_length: dict[str, Plan], root: Path, workers: int = 2, backend:
     REGIME_MAP_RUNS.check_frame(table, root / "runs.csv")  # inside its limits before it is written (study_tables)
     table.to_csv(root / "runs.csv", index=False)
     (root / "report.md").write_text(report(by_length, table, time.perf_counter() - start))
-    print(f"regime-map: done; report: {root / 'report.md'}")
+    print(f"scenario1 --regime-map: done; report: {root / 'report.md'}")
     return 0
 
 
@@ -95,7 +93,8 @@ def report(by_length: dict[str, Plan], table: pd.DataFrame, wall_s: float) -> st
         "# Scenario I: where the accident's queue goes, against demand",
         "",
         f"`{POLICY}` (no lane changes) through scenario I's accident (3 lanes, x = 1,300 m, stuck ratio decaying "
-        f"1 -> 0), at {len(by_length)} accident lengths: {windows}. Made by `coopsumo regime-map`; measures as in "
+        f"1 -> 0), at {len(by_length)} accident lengths: {windows}. Made by `coopsumo scenario1 --regime-map`; "
+        "measures as in "
         '`results/scenario1/report.md` (regime: "on the road" when at most one vehicle per lane ever waits to '
         "enter; queue reach: the farthest upstream end of the slow queue standing at the bottleneck).",
         "",
@@ -114,33 +113,21 @@ def report(by_length: dict[str, Plan], table: pd.DataFrame, wall_s: float) -> st
     return "\n".join(lines)
 
 
-def build_parser() -> Parser:
-    p = Parser(prog="coopsumo regime-map",
-               description="Where scenario I's accident queue goes, against demand: `keep` at every demand, at the "
-                           "default study's and the paper's accident length.")  # fmt: skip
-    p.add_argument("--t-up", dest="t_ups", default=",".join(map(number_name, DEMANDS)),
-                   help="demands T_up (s), comma-separated")  # fmt: skip
-    p.add_argument("--seeds", type=seed_count, default=1, help="evaluation seeds 1..N")
-    p.add_argument("--steps", type=integer(10, MAX_STEPS), default=None,
-                   help=f"steps of the default-length runs (default {Plan().steps:,}); the paper-length runs "
-                        f"({Plan.full().steps:,}) and both accident windows scale with it")  # fmt: skip
-    p.add_argument("--out", type=out_dir, default=Path("results/regime_map"), help="results folder")
-    add_cell_flags(p)
-    return p
+NOT_HERE = ("train_seeds", "mobil_ps", "train_steps", "alphas", "baselines", "presets", "merge")
+"""scenario I's options that the regime map (keep only, its own demands) does not take: refused beside it"""
+OUT = Path("results/regime_map")
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
-
-    def body() -> int:
-        t_ups = t_up_list("--t-up", args.t_ups, ControlConfig().dt_s)
-        check_backend(args.backend, args.address)
-        with study_root(args.out, "regime_map"):  # path, lock, ownership and marker of the results folder
-            return run_study(plans(args.seeds, t_ups, args.steps), args.out, args.workers, args.backend,
-                             args.address, progress=not args.quiet)  # fmt: skip
-
-    return run_cli("regime-map", body)
-
-
-if __name__ == "__main__":
-    sys.exit(main())
+def run_from_args(args: Any) -> int:
+    """`scenario1 --regime-map` with the command line's --t-up, --seeds, --steps, --out and cell flags: checked
+    (UsageError, nothing written), then run in its folder; the exit code."""
+    given = [name for name in NOT_HERE if getattr(args, name) is not None]
+    if given:
+        flag = "--" + {"mobil_ps": "mobil-p", "baselines": "baseline", "presets": "preset"}.get(given[0], given[0])
+        raise UsageError(f"--regime-map runs `{POLICY}` at its demands only: {flag.replace('_', '-')} does not apply")
+    t_ups = DEMANDS if args.t_ups is None else t_up_list("--t-up", args.t_ups, ControlConfig().dt_s)
+    check_backend(args.backend, args.address)
+    out = OUT if args.out is None else Path(args.out)
+    with study_root(out, "regime_map"):  # path, lock, ownership and marker of the results folder
+        return run_study(plans(args.seeds or 1, t_ups, args.steps), out, args.workers, args.backend, args.address,
+                         progress=not args.quiet)  # fmt: skip
