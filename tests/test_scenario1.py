@@ -496,7 +496,8 @@ def test_the_report_writes_the_difference_figure_and_names_it(tmp_path: Path, mo
 
 def test_the_paper_horizon_section_reads_every_model_and_draws_fig4_for_each_learner(study: Path) -> None:
     """The --full profile's section, on the quick study's real run folders: a recovery step (or never) for every
-    model of every learned policy, waves on Fig. 4's lane for every run, and Fig. 4 of a second learner preset."""
+    model of every learned policy, waves on Fig. 4's lane for every run, Fig. 4 of a second learner preset and of the
+    calmest and the most thrashing model."""
     from dataclasses import replace
 
     from coopsumo.studies.scenario1 import horizon as hz
@@ -522,3 +523,5 @@ def test_the_paper_horizon_section_reads_every_model_and_draws_fig4_for_each_lea
     waves = [line for line in text.splitlines() if line.count("|") == 5 and line.startswith("| 3 |")]
     assert len(waves) == len(POLICIES)
     assert (out / "fig4_trajectories_default.png").read_bytes().startswith(PNG)
+    assert (out / "fig4_calm_thrashing.png").read_bytes().startswith(PNG)  # the calmest and the most thrashing model
+    assert "Fig. 4 for the calmest and the most thrashing model at T_up = 1 s" in text and "beside `keep`" in text

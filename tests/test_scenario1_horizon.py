@@ -68,6 +68,18 @@ def test_the_recovery_table_gives_each_model_and_the_paper() -> None:
     assert "s1: 88,000, s2: never" in line["`keep`"] and "1 of 2" in line["`keep`"]
 
 
+def test_the_calm_and_the_thrashing_model_are_read_from_queue_lane_changes_at_their_demand() -> None:
+    rows = pd.DataFrame({"policy": ["dqn_alpha0"] * 4 + ["dqn_alpha8"] * 2 + ["keep"] * 2,
+                         "train_seed": [100, 100, 101, 101, 100, 100, None, None],
+                         "t_up_s": [1.0, 1.0, 1.0, 2.0, 1.0, 1.0, 1.0, 1.0],
+                         "queue_lane_changes_per_vehicle": [3.0, 5.0, 0.5, 9.0, 0.2, 0.4, 0.0, 0.0]})  # fmt: skip
+    rows["train_seed"] = rows["train_seed"].astype("Int64")
+    (calm, thrashing) = hz.calm_and_thrashing(rows, 1.0)  # means over each model's runs at T_up 1 s only
+    assert calm[:2] == ("dqn_alpha8", 100) and calm[2] == pytest.approx(0.3) and thrashing == ("dqn_alpha0", 100, 4.0)
+    assert hz.calm_and_thrashing(rows, 2.0) == [("dqn_alpha0", 101, 9.0)]  # one model: one entry
+    assert hz.calm_and_thrashing(rows, 3.0) == []
+
+
 def test_alpha_of_a_label() -> None:
     assert hz._alpha_of("dqn_alpha8") == 8.0 and hz._alpha_of("dqn_alpha_only_alpha0.25") == 0.25
     assert hz._alpha_of("keep") is None and hz._alpha_of("mobil_p0.5") is None

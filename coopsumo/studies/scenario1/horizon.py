@@ -134,9 +134,49 @@ def fig4(root: Path, name: str, plan: Plan, rows: pd.DataFrame, runs: Sequence[R
     return t_up, windows
 
 
+def calm_and_thrashing(rows: pd.DataFrame, t_up: float) -> list[tuple[str, int, float]]:
+    """The calmest and the most thrashing learned model at demand t_up, by queue lane changes per vehicle (mean over
+    its runs there): [(policy, training seed, that mean)], calmest first; one entry for one model, none without."""
+    learned = rows[(rows["t_up_s"] == t_up) & rows["train_seed"].notna()]
+    per = learned.groupby(["policy", "train_seed"])["queue_lane_changes_per_vehicle"].mean().sort_values(kind="stable")
+    picks = list(dict.fromkeys([per.index[0], per.index[-1]])) if len(per) else []
+    return [(str(policy), int(seed), float(per[(policy, seed)])) for policy, seed in picks]
+
+
+def fig4_calm_thrashing(root: Path, plan: Plan, rows: pd.DataFrame, runs: Sequence[Run], lane: int) -> str:
+    """Fig. 4 of the calmest and the most thrashing model (calm_and_thrashing) at the densest demand, beside `keep`,
+    first evaluation seed, into root/fig4_calm_thrashing.png; the report's paragraph ("" without learned models)."""
+    from coopsumo.report.plots import trajectory_windows_figure
+
+    t_up, first = min(plan.t_ups), plan.seeds[0]
+    picks = calm_and_thrashing(rows, t_up)
+    if not picks:
+        return ""
+    cfg = runs[0].cfg
+    acc, dt = cfg.accident, cfg.control.dt_s
+    names: dict[tuple[str, int | None], str] = {
+        (policy, seed): f"{policy} m{seed} ({kind}: {value:.2f} queue lane changes per vehicle)"
+        for (policy, seed, value), kind in zip(picks, ("calm", "thrashing"), strict=False)}  # fmt: skip
+    names[("keep", None)] = "keep"
+    shown = [r for r in runs if r.seed == first and r.t_up == t_up and (r.label, r.train_seed) in names]
+    mask = (rows["policy"] == "keep") & rows["train_seed"].isna()
+    for policy, seed, _ in picks:
+        mask |= (rows["policy"] == policy) & rows["train_seed"].eq(seed).fillna(False).astype(bool)
+    at = rows[mask]
+    windows = fig4_windows(at, t_up, [p for p, _, _ in picks] + ["keep"], first, acc.start_step * dt, plan.steps * dt)
+    trajs = {names[(r.label, r.train_seed)]: pd.read_parquet(r.out / "trajectories.parquet")
+             for r in sorted(shown, key=lambda r: list(names).index((r.label, r.train_seed)))}  # fmt: skip
+    trajectory_windows_figure(trajs, lane, windows, root / "fig4_calm_thrashing.png", acc.x_m, f"SUMO lane {lane}")
+    said = " and ".join(f"{names[(p, k)]}" for p, k, _ in picks)
+    return (f"\n\n![Fig. 4, calm and thrashing](fig4_calm_thrashing.png)\n\nFig. 4 for the calmest and the most "
+            f"thrashing model at T_up = {t_up:g} s, by queue lane changes per vehicle over their runs there: {said}; "
+            f"beside `keep`; lane {lane}, evaluation seed {first}; windows: the jam's onset and its dissolution.")
+
+
 def horizon_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: Sequence[Run], lane: int) -> str:
-    """The horizon section of a --full study, and Fig. 4 for every learner preset after the first (the first's is
-    fig4_trajectories.png): fig4_trajectories_<preset>.png, its alpha 0 and largest alpha, first model and seed."""
+    """The horizon section of a --full study, Fig. 4 for every learner preset after the first (the first's is
+    fig4_trajectories.png): fig4_trajectories_<preset>.png, its alpha 0 and largest alpha, first model and seed; and
+    Fig. 4 of the calmest and the most thrashing model (fig4_calm_thrashing)."""
     acc, dt = runs[0].cfg.accident, runs[0].cfg.control.dt_s
     waves = wave_rows([(r.label, r.t_up, r.train_seed, r.seed, r.out) for r in runs], lane, acc.x_m, plan.steps * dt)
     text = horizon_section(rows, plan.t_ups, acc.start_step, dt, waves, lane)
@@ -147,4 +187,4 @@ def horizon_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: Sequence[R
         text += (f"\n\n![Fig. 4, {preset}]({name})\n\nFig. 4 for the `{preset}` learner: lane {lane}, T_up = "
                  f"{t_up:g} s, the first model (training seed {plan.train_seeds[0]}) at alpha 0 and "
                  f"{max(plan.alphas):g}, evaluation seed {plan.seeds[0]}; windows as in the figure above.")  # fmt: skip
-    return text
+    return text + fig4_calm_thrashing(root, plan, rows, runs, lane)
