@@ -12,6 +12,7 @@ import copy
 import hashlib
 import json
 import math
+import pickle
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -55,16 +56,19 @@ def one_line(code: int, err: str, *fragments: str) -> str:
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
     assert all(f in lines[0] for f in fragments), (fragments, lines[0])
+    assert "weights_only" not in lines[0], lines[0]  # never torch's advice to load a file unsafely
     return lines[0]
 
 
 # -- model files ----------------------------------------------------------------------------------------------
 def _payload() -> dict[str, Any]:
     """What save_model writes for a default-learner model (dueling head)."""
-    net = QNetwork(30.0, dueling=True)
-    meta = {"config": to_dict(TrainConfig(sim=SimConfig(policy="dqn")))}
+    cfg = TrainConfig(sim=SimConfig(policy="dqn"))
+    net = QNetwork(cfg.dqn.speed_scale_mps, dueling=True)
+    meta = {"config": to_dict(cfg)}
     return {"state_dict": {k: v.clone() for k, v in net.state_dict().items()}, "grid_shape": [3, 3, 20],
-            "n_actions": 4, "speed_scale_mps": 30.0, "dueling": True, "observation": "paper", "meta": meta}  # fmt: skip
+            "n_actions": 4, "speed_scale_mps": net.speed_scale_mps, "dueling": True, "observation": "paper",
+            "meta": meta}  # fmt: skip
 
 
 def _learner(**fields: Any) -> Callable[[dict[str, Any]], None]:
@@ -116,6 +120,9 @@ MODEL_CASES: dict[str, tuple[Callable[[dict[str, Any]], None] | bytes, str]] = {
     "trained on 7 lanes": (lambda p: p["meta"]["config"]["sim"]["road"].update(lanes=7), "sim.road.lanes = 7, outside"),
     "trained at alpha -3": (lambda p: p["meta"]["config"]["sim"]["reward"].update(alpha=-3.0), "sim.reward.alpha"),
     "trained with steps of 0 s": (lambda p: p["meta"]["config"]["sim"]["control"].update(dt_s=0.0), "sim.control.dt_s"),
+    # the probe's (2026-12-02, third): the network's own speed scale drove (lane changes 6 -> 0) unchecked
+    "speed scale 1e9": (_set("speed_scale_mps", 1e9), "speed scale 1000000000.0, not a finite number > 0 and <= 1000"),
+    "a plain pickle": (pickle.dumps({"a": 1}, protocol=4), "not a file of tensors torch can read safely"),
 }  # fmt: skip
 
 
@@ -225,6 +232,9 @@ def _action_seven(state: dict[str, Any]) -> None:
 CHECKPOINT_CASES: dict[str, tuple[Callable[[dict[str, Any]], None] | bytes, str]] = {
     "empty file": (b"", "cannot read checkpoint"),
     "garbage": (b"\x00\x01 not a checkpoint", "cannot read checkpoint"),
+    # the probe's (2026-12-02, third): torch's advice to load these with weights_only=False, and its warning
+    "a plain pickle": (pickle.dumps({"a": 1}, protocol=4), "cannot read checkpoint"),
+    "JSON": (b'{"step": 20}', "cannot read checkpoint"),
     "a list": (lambda s: s.clear(), "not a coopsumo training checkpoint"),
     "no log window": (_drop("window"), "not a coopsumo training checkpoint"),
     "step a string": (_at("step", value="20"), "step '20'"),
@@ -376,6 +386,54 @@ def test_a_log_row_the_resume_would_keep_must_be_numbers(
     one_line(code, capsys.readouterr().err, f"training log {log} has mean_speed_mps = '{cell}' in its row of step 10",
              "train again without --resume")  # fmt: skip
     assert snapshot(tmp_path) == before
+
+
+def _log_cell(name: str, value: str) -> Callable[[list[str]], list[str]]:
+    """An edit of train_log.csv's lines: its first row's cell of column `name` set to value."""
+
+    def change(lines: list[str]) -> list[str]:
+        header, row = lines[0].strip().split(","), lines[1].rstrip("\n").split(",")
+        row[header.index(name)] = value
+        return [lines[0], ",".join(row) + "\n", *lines[2:]]
+
+    return change
+
+
+LOG_CASES: dict[str, tuple[Callable[[list[str]], list[str]], str]] = {
+    # the probe's (2026-12-02, third): each was kept by the resume, rc 0
+    "a row twice": (lambda lines: [*lines[:3], lines[1], *lines[3:]], "has the row of step 10 after that of step 20 ("),
+    "a speed of 999 m/s": (_log_cell("mean_speed_mps", "999"), "has mean_speed_mps = '999' in its row of step 10: it"),
+    "-100 vehicles": (_log_cell("vehicles", "-100"), "has vehicles = '-100' in its row of step 10: it must be"),
+    "2.5 lane changes": (_log_cell("lane_changes", "2.5"), "has lane_changes = '2.5' in its row of step 10"),
+    "two columns swapped": (lambda lines: [lines[0].replace("vehicles,lane_changes,", "lane_changes,vehicles,"),
+                                           *lines[1:]], "has the header 'step,"),
+    "a column missing": (lambda lines: [lines[0].replace(",alpha", ""), *lines[1:]], "not train's step,"),
+    "emptied": (lambda lines: [], "has the header 'none (an empty file)'"),
+    "a row that is not one between two": (lambda lines: [lines[0], "garbage,row\n", *lines[1:]],
+                                          "has a row that is not one of its rows after that of step 0: 'garbage,row'"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", sorted(LOG_CASES))
+def test_a_damaged_log_the_resume_would_keep_is_one_line_and_every_byte_is_kept(
+    case: str, checkpoint_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    change, fragment = LOG_CASES[case]
+    out = tmp_path / "run"
+    shutil.copytree(checkpoint_folder, out)
+    log = out / "train_log.csv"
+    log.write_text("".join(change(log.read_text().splitlines(keepends=True))))
+    before = snapshot(tmp_path)
+    code = train.main(["--resume", "--quiet", "--out", str(out)])
+    one_line(code, capsys.readouterr().err, f"training log {log} ", fragment, "train again without --resume")
+    assert snapshot(tmp_path) == before
+
+
+def test_the_log_rules_are_the_logs_columns() -> None:
+    from coopsumo.agents.file_checks import LOG_RULES
+    from coopsumo.agents.tb_log import LOG_FIELDS
+
+    assert set(LOG_RULES) == set(LOG_FIELDS)
 
 
 def test_resume_cuts_the_log_back_to_the_checkpoint(tmp_path: Path) -> None:

@@ -229,6 +229,19 @@ CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
     "replay next grids of 200": (_set(*REPLAY, "next_grids", value=200), "outside 0-1 in its replay memory (next_"),
     "integer online weights": (_int_bias, "has online weights 'out.bias' a torch.int64 tensor, not a tensor of floats"),
     "a negative action count": (_set("action_counts", value=-5), "records a negative number of actions at step 0"),
+    # the probe's (2026-12-02, third): a learning rate of another type ended the learner process (rc 1, a --resume
+    # that failed again); the other settings of the group were taken as they were
+    "a learning rate '0.001'": (_set(*GROUP, "lr", value="0.001"), "optimizer setting lr = '0.001', not 0.001"),
+    "a learning rate True": (_set(*GROUP, "lr", value=True), "optimizer setting lr = True"),
+    "a learning rate None": (_set(*GROUP, "lr", value=None), "optimizer setting lr = None"),
+    "a learning rate not the configuration's": (_set(*GROUP, "lr", value=0.5), "lr = 0.5, not 0.001"),
+    "Adam's eps '1e-8'": (_set(*GROUP, "eps", value="1e-8"), "optimizer setting eps = '1e-8'"),
+    "Adam's betas as text": (_set(*GROUP, "betas", value=("0.9", "0.999")), "optimizer setting betas"),
+    "amsgrad 'no'": (_set(*GROUP, "amsgrad", value="no"), "optimizer setting amsgrad = 'no', not False"),
+    "maximize True": (_set(*GROUP, "maximize", value=True), "optimizer setting maximize = True, not False"),
+    "foreach 'x'": (_set(*GROUP, "foreach", value="x"), "optimizer setting foreach = 'x', not None"),
+    "an optimizer setting torch does not have": (lambda s: s["learner"]["optimizer"]["param_groups"][0].update(
+        momentum2=0.5), "optimizer setting momentum2 = 0.5, not none"),
 }  # fmt: skip
 
 

@@ -11,6 +11,7 @@ summary of a training whose checkpoint holds its last step (it was interrupted d
 from __future__ import annotations
 
 import csv
+import dataclasses
 import math
 import numbers
 from collections.abc import Mapping
@@ -19,9 +20,26 @@ from typing import Any
 
 import torch
 
+from coopsumo.dqn_config import DQNConfig
 from coopsumo.files import read_json_object, write_atomic
-from coopsumo.record_schemas import CHECKPOINT_TENSORS, MODEL_TENSORS, REWARD_MAX, SPEED_MAX_MPS, tensor_problem
+from coopsumo.record_schemas import (
+    CHECKPOINT_TENSORS,
+    MODEL_TENSORS,
+    REWARD_MAX,
+    SECONDS,
+    SHARE,
+    SPEED,
+    SPEED_MAX_MPS,
+    Integer,
+    Number,
+    tensor_problem,
+)
+from coopsumo.validation import ALPHA_MIN
 
+_LIMITS = {f.name: f.metadata.get("limits") or (-math.inf, math.inf) for f in dataclasses.fields(DQNConfig)}
+"""each learner setting's (low, high, ...) limits"""
+SPEED_SCALE_MAX_MPS = float(_LIMITS["speed_scale_mps"][1])
+"""the largest speed scale a model file takes: the limit of the learner setting it comes from"""
 N_ACTIONS = 4
 """actions a recorded action may take: 0 left, 1 right, 2 speedup, 3 none (dqn.N_ACTIONS)"""
 LEARNER_KEYS = ("online", "target", "optimizer", "buffer", "numpy_rng", "torch_rng", "env_steps", "decisions",
@@ -52,8 +70,8 @@ def _weights_problem(weights: Any, what: str) -> str | None:
 
 def model_problem(payload: Mapping[str, Any]) -> str | None:
     """Why a model file's payload (keys checked by the caller) cannot be used, or None: grid shape a list of
-    positive integers, action count an integer, speed scale a finite positive number, dueling a bool, weights
-    finite tensors, meta a mapping."""
+    positive integers, action count an integer, speed scale a finite positive number within its setting's limits,
+    dueling a bool, weights finite tensors, meta a mapping."""
     shape = payload["grid_shape"]
     if not isinstance(shape, list | tuple) or not all(_is_count(n) and n > 0 for n in shape):
         return f"has grid shape {shape!r}, not a list of positive integers"
@@ -61,8 +79,8 @@ def model_problem(payload: Mapping[str, Any]) -> str | None:
         return f"has action count {payload['n_actions']!r}, not an integer"
     scale = payload["speed_scale_mps"]
     number = isinstance(scale, numbers.Real) and not isinstance(scale, bool)
-    if not (number and math.isfinite(scale) and float(scale) > 0):
-        return f"has speed scale {scale!r}, not a finite number > 0 (m/s)"
+    if not (number and math.isfinite(scale) and 0 < float(scale) <= SPEED_SCALE_MAX_MPS):
+        return f"has speed scale {scale!r}, not a finite number > 0 and <= {SPEED_SCALE_MAX_MPS:g} (m/s)"
     if not isinstance(payload.get("dueling", False), bool):
         return f"has dueling = {payload['dueling']!r}, not true or false"
     if not isinstance(payload["meta"], Mapping):
@@ -141,7 +159,8 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
             or _buffer_problem(learner["buffer"], config["dqn"])
             or _optimizer_problem(learner["optimizer"], learner["online"])
             or _moments_problem(learner["optimizer"], len(learner["online"]), int(learner["updates"]), config["dqn"])
-            or tensor_problem(state, CHECKPOINT_TENSORS, deciding_entries))  # the limits of record_schemas
+            or tensor_problem(state, CHECKPOINT_TENSORS, deciding_entries)  # the limits of record_schemas
+            or _group_problem(learner["optimizer"]["param_groups"][0], config["dqn"]))
 
 
 def _moments_problem(optimizer: Mapping[str, Any], n_params: int, updates: int, dqn: Mapping[str, Any]) -> str | None:
@@ -200,6 +219,42 @@ def _optimizer_problem(optimizer: Mapping[str, Any], online: Mapping[str, Any]) 
                 return (f"has optimizer state field {index}.{name} of another shape than its parameter "
                         f"{tuple(shapes[index])}")  # fmt: skip
     return None
+
+
+def _group_problem(group: Mapping[str, Any], dqn: Mapping[str, Any]) -> str | None:
+    """Why the optimizer's parameter group holds settings its training's optimizer does not have, or None: every
+    setting as dqn.make_optimizer gives it (the configuration's learning rate, torch's defaults for the rest), of the
+    same type; a configuration whose optimizer or rate is itself wrong is named by its own check."""
+    from types import SimpleNamespace
+
+    from coopsumo.agents.dqn import make_optimizer
+
+    lr, (low, high) = dqn.get("lr"), _LIMITS["lr"][:2]
+    if (dqn.get("optimizer") not in ("adam", "sgd") or not isinstance(lr, numbers.Real) or isinstance(lr, bool)
+            or not low < float(lr) <= high):  # fmt: skip
+        return None
+    settings: Any = SimpleNamespace(optimizer=dqn["optimizer"], lr=float(lr))  # what make_optimizer reads
+    made = make_optimizer(torch.nn.Linear(1, 1), settings)
+    expected = {k: v for k, v in made.state_dict()["param_groups"][0].items() if k != "params"}
+    for key in sorted(set(group) - {"params"} | set(expected)):
+        got = group.get(key, "(none)")
+        if key not in expected or not _same_setting(got, expected[key]):
+            want = "none" if key not in expected else repr(expected[key])
+            return f"has optimizer setting {key} = {got!r}, not {want} (its training's optimizer's)"
+    return None
+
+
+def _same_setting(got: Any, want: Any) -> bool:
+    """got is the optimizer setting want: equal and of its kind (a number for a number, True/False/None as they are,
+    a tuple entry by entry)."""
+    if isinstance(want, tuple | list):
+        return (isinstance(got, tuple | list) and len(got) == len(want)
+                and all(_same_setting(g, w) for g, w in zip(got, want, strict=True)))  # fmt: skip
+    if want is None or isinstance(want, bool):
+        return got is want
+    if isinstance(want, numbers.Real):
+        return isinstance(got, numbers.Real) and not isinstance(got, bool) and float(got) == float(want)
+    return type(got) is type(want) and bool(got == want)
 
 
 def non_finite(x: Any, at: str = "") -> str | None:
@@ -296,26 +351,56 @@ def truncate_log(path: Path, step: int) -> int:
     return dropped
 
 
+LOG_RULES: dict[str, Number | Integer] = {
+             "step": Integer(1), "sim_time_s": SECONDS, "td_loss": Number(0.0, blank_ok=True),
+             **{name: Number(-REWARD_MAX, REWARD_MAX) for name in ("r_speed", "r_lane_change", "r_flow", "reward")},
+             "epsilon": SHARE, "mean_speed_mps": SPEED, "wall_s": SECONDS, "alpha": Number(ALPHA_MIN),
+             **{name: Integer(0) for name in ("vehicles", "lane_changes", "lane_changes_rejected", "collisions",
+                                              "teleports")}}  # fmt: skip
+"""each train_log.csv column's limits (tb_log.LOG_FIELDS, tested to name the same: a window's means and counts)"""
+
+
+def _log_step(line: str, row: list[str], width: int) -> int | None:
+    """The step of a whole train_log.csv row, None for a row cut short or not one of its rows."""
+    return int(row[0]) if line.endswith("\n") and len(row) == width and row[0].isdigit() else None
+
+
 def log_problem(path: Path, step: int) -> str | None:
-    """Why the rows of train_log.csv (at path) that a resume from `step` keeps cannot be trusted, or None: every cell
-    a finite number (the loss may be blank: no update in its window). A missing log is no problem (it is begun
-    again); the rows past `step` and a row cut short are truncate_log's to drop."""
+    """Why the rows of train_log.csv (at path) that a resume from `step` keeps cannot be trusted, or None: its header
+    train's own; each row's cells inside LOG_RULES (the loss may be blank: no update in its window), the steps
+    rising, no row that is not one between them. A missing log is no problem (it is begun again); the rows past
+    `step` and a last row cut short are truncate_log's to drop."""
+    from coopsumo.agents.tb_log import LOG_FIELDS  # (the log's writer imports the world's types: not on every read)
+
     try:
         lines = path.read_text().splitlines(keepends=True)
     except (FileNotFoundError, UnicodeDecodeError):
         return None if not path.exists() else "is not a text file"
     rows = list(csv.reader(lines))
-    header = rows[0] if rows else []
-    for line, row in zip(lines[1:], rows[1:], strict=True):
-        if not line.endswith("\n") or len(row) != len(header) or not row[0].isdigit() or int(row[0]) > step:
+    if not rows or tuple(rows[0]) != LOG_FIELDS:
+        shown = ",".join(rows[0])[:60] if rows else "none (an empty file)"
+        return f"has the header {shown!r}, not train's {','.join(LOG_FIELDS)[:60]}..."
+    steps = [_log_step(line, row, len(LOG_FIELDS)) for line, row in zip(lines[1:], rows[1:], strict=True)]
+    last = 0
+    for at, (row, row_step) in enumerate(zip(rows[1:], steps, strict=True)):
+        if row_step is None:  # kept only as a last row cut short by a kill, or past the step (both dropped)
+            if any(s is not None and s <= step for s in steps[at + 1:]):
+                return f"has a row that is not one of its rows after that of step {last}: {','.join(row)[:40]!r}"
             break
-        for name, cell in zip(header, row, strict=True):
+        if row_step > step:
+            break
+        if row_step <= last:
+            return f"has the row of step {row_step} after that of step {last} (a row twice, or out of order)"
+        last = row_step
+        for name, cell in zip(LOG_FIELDS, row, strict=True):
             try:
-                value = float(cell) if cell or name != "td_loss" else 0.0
+                value = float(cell) if cell or name != "td_loss" else math.nan
             except ValueError:
                 value = math.nan
-            if not math.isfinite(value):
-                return f"has {name} = {cell!r} in its row of step {row[0]}, not a finite number"
+            if cell and not math.isfinite(value) or not cell and name != "td_loss":
+                return f"has {name} = {cell!r} in its row of step {row_step}, not a finite number"
+            if (problem := LOG_RULES[name].problem(value)) is not None:
+                return f"has {name} = {cell!r} in its row of step {row_step}: it {problem}"
     return None
 
 

@@ -7,6 +7,7 @@ import hashlib
 import os
 import re
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -96,7 +97,9 @@ def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:
         raise ModelFileError(f"model file {path} is {size / 2**20:,.0f} MB; a coopsumo model is a few MB "
                              "(not a model?)")  # fmt: skip
     try:
-        payload = torch.load(path, map_location="cpu", weights_only=True)
+        with warnings.catch_warnings():  # torch warns about a pickle of another protocol before it refuses it
+            warnings.simplefilter("ignore")
+            payload = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as exc:  # torch raises many types for a corrupt or unsafe file
         text = load_error_text(exc)
         if "weights_only" in text:  # torch's advice to load with weights_only=False is unsafe and wrong here

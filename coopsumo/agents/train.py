@@ -19,6 +19,7 @@ import shutil
 import signal
 import sys
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -119,9 +120,13 @@ class Trainer:
             raise UsageError(f"cannot read checkpoint {path}: it is not a regular file" if path.exists()
                              else f"nothing to resume: {path} does not exist{done}")  # fmt: skip
         try:
-            state: dict[str, Any] = torch.load(path, weights_only=True)
+            with warnings.catch_warnings():  # torch warns about a pickle of another protocol before it refuses it
+                warnings.simplefilter("ignore")
+                state: dict[str, Any] = torch.load(path, weights_only=True)
         except Exception as err:  # a damaged file (empty, cut short, not torch's): report it in one line
-            raise UsageError(f"cannot read checkpoint {path}: {first_line(err)}") from None
+            text = first_line(err)  # never torch's advice to load the file with weights_only=False, which is unsafe
+            text = "not a file of tensors torch can read safely" if "weights_only" in str(err).lower() else text
+            raise UsageError(f"cannot read checkpoint {path}: {text}") from None
         if not isinstance(state, dict) or any(k not in state for k in CHECKPOINT_KEYS):
             raise UsageError(f"{path} is not a coopsumo training checkpoint")
         learner = state["learner"] if isinstance(state["learner"], dict) else {}
