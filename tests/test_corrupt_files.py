@@ -429,6 +429,20 @@ def test_a_damaged_log_the_resume_would_keep_is_one_line_and_every_byte_is_kept(
     assert snapshot(tmp_path) == before
 
 
+def test_a_users_file_in_an_interrupted_training_is_not_taken_for_the_trainings(
+    checkpoint_folder: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The probe's (2026-12-02, third): notes.txt put into an interrupted training's folder was listed in its finished
+    marker as one of train's own files; now the resume refuses in one line naming it, and every byte is kept."""
+    out = tmp_path / "run"
+    shutil.copytree(checkpoint_folder, out)
+    (out / "notes.txt").write_text("my own notes\n")
+    before = snapshot(tmp_path)
+    code = train.main(["--resume", "--quiet", "--out", str(out)])
+    one_line(code, capsys.readouterr().err, f"--out {out} holds notes.txt, which no training writes")
+    assert snapshot(tmp_path) == before
+
+
 def test_the_log_rules_are_the_logs_columns() -> None:
     from coopsumo.agents.file_checks import LOG_RULES
     from coopsumo.agents.tb_log import LOG_FIELDS
