@@ -356,6 +356,13 @@ train_summary), its finite numbers (records.implausible leaves out the non-finit
 where a study reads them, and the table_ diagnostics, whose -1 means "not measured"); a summary's keys are many and
 grow: besides MEASURES, the rules go by suffix"""
 
+TRAIN_SUMMARY_KEYS = ("mean_speed_mps", "lane_changes", "collisions", "updates", "wall_seconds", "steps_per_second",
+                      "departed", "steps")  # fmt: skip
+"""what every training's summary holds as a number (train's train_summary.json, a cell record's train_summary): the
+values the studies copy into their tables (scenario II's and the learning study's runs.csv), the vehicles its
+last world sent and that world's steps; a summary without one of them, or with a text or null there, is not a
+training's (records.training_problem)"""
+
 CELL_STATUSES = ("ok", "failed", "interrupted")
 """a cell record's status (records.run_recorded): the runner writes no other"""
 SEED = Integer(0, 2**32 - 1, blank_ok=True)

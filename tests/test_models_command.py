@@ -174,6 +174,8 @@ def test_a_stored_model_that_lost_a_record_is_trained_again_in_a_group_with_a_li
     assert capsys.readouterr().err.strip().splitlines() == [line]
 
 
+DROP = object()
+"""an edit's value that deletes the key"""
 SUMMARIES = {
     "a speed of 999 m/s": ({"mean_speed_mps": 999.0}, "has train_summary.json mean_speed_mps must be a finite number "
                            ">= 0 and <= 70 (m/s), got 999.0"),
@@ -182,7 +184,18 @@ SUMMARIES = {
     "selected step above its steps": ({"selected_step": 10**6},
                                       "has train_summary.json selected_step = 1000000, not a step from 0 to its 300"),
     "selected step 'x'": ({"selected_step": "x"}, 'has train_summary.json selected_step = "x", not a step from 0'),
+    # the probe's F6 (st_ts_*, s2t_ts_*): a value the studies copy that is no number, or none, was reused into a blank
+    "speed 'fast'": ({"mean_speed_mps": "fast"}, 'has train_summary.json mean_speed_mps = "fast", not a number'),
+    "speed null": ({"mean_speed_mps": None}, "has train_summary.json mean_speed_mps = null, not a number"),
+    "departed '59'": ({"departed": "59"}, 'has train_summary.json departed = "59", not a number'),
+    "updates 'many'": ({"updates": "many"}, 'has train_summary.json updates = "many", not a number'),
+    "no mean_speed_mps": ({"mean_speed_mps": DROP}, "has train_summary.json without mean_speed_mps"),
+    "no updates": ({"updates": DROP}, "has train_summary.json without updates"),
+    "steps 123 of 300": ({"steps": 123}, "has train_summary.json steps = 123, not its last world's 300"),
 }  # fmt: skip
+TRAINED = {"steps": 300, "departed": 40, "mean_speed_mps": 20.0, "lane_changes": 12, "collisions": 0, "updates": 20,
+           "wall_seconds": 3.0, "steps_per_second": 100.0, "selected_step": 300}  # fmt: skip
+"""a finished training's train_summary.json (the values the studies read)"""
 
 
 @pytest.mark.parametrize("case", sorted(SUMMARIES))
@@ -197,11 +210,12 @@ def test_a_stored_model_whose_summary_no_run_gives_is_trained_again_and_listed_n
     monkeypatch.setattr(trainings, "model_folder_problem", lambda folder: None)
     config = to_dict(TrainConfig(sim=SimConfig(steps=300, seed=100, policy="dqn"), eval_steps=0))
     store = tmp_path / "models"
-    summary = {"steps": 300, "mean_speed_mps": 20.0, "updates": 20, "selected_step": 300}
-    folder, _ = _stored_then_spoiled(config, store, "train_summary.json", json.dumps(summary))
-    assert trainings.finished_training(folder, config) == summary and capsys.readouterr().err == ""
+    folder, _ = _stored_then_spoiled(config, store, "train_summary.json", json.dumps(TRAINED))
+    assert trainings.finished_training(folder, config) == TRAINED and capsys.readouterr().err == ""
+    assert model_store.main(["--store", str(store)]) == 0 and "not usable" not in capsys.readouterr().out
     edit, fragment = SUMMARIES[case]
-    (folder / "train_summary.json").write_text(json.dumps({**summary, **edit}))
+    edited = {k: v for k, v in {**TRAINED, **edit}.items() if v is not DROP}
+    (folder / "train_summary.json").write_text(json.dumps(edited))
     assert trainings.finished_training(folder, config, quiet=True) is None and capsys.readouterr().err == ""
     assert trainings.finished_training(folder, config) is None
     lines = capsys.readouterr().err.strip().splitlines()

@@ -48,7 +48,12 @@ def _record(spec: dict[str, Any]) -> dict[str, Any]:
     evals = [_evaluation(1, 21.6, 40, 12), _evaluation(11, 22.1, 42, 9), _evaluation(21, 20.9, 39, 15)]
     pooled = {k: v for k, v in scenario2.pool_summaries(evals).items() if k != "eval_seed"}
     return {**scenario2.RECORDS.new(spec), "status": "ok", "eval_summaries": evals, "summary": pooled,
-            "train_summary": {"wall_seconds": 3.0}}  # fmt: skip
+            "train_summary": dict(TRAINED)}  # fmt: skip
+
+
+TRAINED = {"steps": 300, "departed": 40, "mean_speed_mps": 20.0, "lane_changes": 12, "collisions": 0, "updates": 20,
+           "wall_seconds": 3.0, "steps_per_second": 100.0}  # fmt: skip
+"""a training's summary as a record keeps it (the values runs.csv copies among them)"""
 
 
 def _set(key: str, value: Any) -> Callable[[dict[str, Any]], None]:
@@ -100,6 +105,15 @@ RECORD_CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
                                           "has evaluation 2 of 3 with wall_seconds must be a finite number >= 0 (s)"),
     "-5 training updates": (lambda r: r["train_summary"].update(updates=-5),
                             "has train_summary updates must be an integer >= 0, got -5"),
+    # the probe's F7 (c_trainsum_*, l_trainsum_text): reused, runs.csv's train_* columns came out blank
+    "training updates 'many'": (lambda r: r["train_summary"].update(updates="many"),
+                                'has train_summary updates = "many", not a number'),
+    "training speed null": (lambda r: r["train_summary"].update(mean_speed_mps=None),
+                            "has train_summary mean_speed_mps = null, not a number"),
+    "training speed gone": (lambda r: r["train_summary"].pop("mean_speed_mps"),
+                            "has train_summary without mean_speed_mps"),
+    "train_summary null": (lambda r: r.update(train_summary=None), "has no train_summary, but its cell trains"),
+    "train_summary gone": (lambda r: r.pop("train_summary"), "has no train_summary, but its cell trains"),
 }  # fmt: skip
 
 
@@ -160,6 +174,28 @@ def test_an_intact_record_is_reused_untouched(dqn_spec: dict[str, Any], tmp_path
 # -- a scenario II record whose model link was moved ------------------------------------------------------------
 faked_train = test_scenario2.faked_train
 """train() and the evaluations faked (no SUMO), as scenario II's own record tests run them"""
+
+
+def test_a_record_naming_another_cells_training_is_rerun(tmp_path: Path, faked_train: list[str],
+                                                         capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The probe's F8 (c_traindir_other, ln_traindir_rerun): a record whose train_dir was edited to another cell's
+    training was reused and copied into runs.csv, which the part's own merge then refused on every rerun. The cell
+    is run again with one line naming train_dir, and runs.csv holds its own training once more."""
+    root = tmp_path / "sweep"
+    assert scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)["cells_ok"] == 8
+    path = cell_path(root, "L2_T2_a0_s1")
+    record = json.loads(path.read_text())
+    assert record["train_dir"] == "train/L2_T2_a0_s1"
+    path.write_text(json.dumps({**record, "train_dir": "train/L2_T2_a8_s1"}))
+    capsys.readouterr()
+    del faked_train[1:]
+    meta = scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)
+    err = [line for line in capsys.readouterr().err.splitlines() if "rerunning it" in line]
+    assert err == [f'scenario2: cell L2_T2_a0_s1: record {path} has train_dir = "train/L2_T2_a8_s1", not its '
+                   'cell\'s "train/L2_T2_a0_s1"; rerunning it'], err
+    assert meta["cells_ok"] == 8 and meta["cells_run"] == 1
+    runs = pd.read_csv(root / "runs.csv").set_index("key")
+    assert runs.loc["L2_T2_a0_s1", "train_dir"] == "train/L2_T2_a0_s1"
 
 
 def test_a_train_link_pointed_at_another_model_is_rerun(tmp_path: Path, faked_train: list[str],

@@ -694,7 +694,9 @@ def trained_key(cfg: Any) -> str:
 def write_fake_model(cfg: Any, out: Path) -> None:
     """What a faked training leaves: its summary, and in place of a model the speed its evaluations will give (from
     alpha and the training seed)."""
-    (out / "train_summary.json").write_text('{"mean_speed_mps": 20.0, "updates": 3}')
+    (out / "train_summary.json").write_text(json.dumps({
+        "steps": cfg.sim.steps, "departed": 40, "mean_speed_mps": 20.0, "lane_changes": 12, "collisions": 0,
+        "updates": 3, "wall_seconds": 3.0, "steps_per_second": 100.0}))  # fmt: skip
     (out / "fake_speed.txt").write_text(str(20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed))
 
 

@@ -120,6 +120,13 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     "runs.csv with -5 training updates": (
         lambda f: edit_table(f, "runs.csv", lambda t: t.assign(train_updates=-5)),
         "runs.csv row 1 column train_updates must be an integer >= 0"),
+    # the probe's F7 (ln_trainsum_del_merge): a trained cell's row with its training's measures blank was merged
+    "runs.csv with a trained row's training updates blank": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(train_updates=t["train_updates"].astype(float).mask(
+            t.index == 0))), "runs.csv row L4_T2_a1_s1 has train_updates blank, but its cell trains (train/"),
+    "runs.csv with a trained row's training speed blank": (
+        lambda f: edit_table(f, "runs.csv", lambda t: t.assign(train_mean_speed_mps=t["train_mean_speed_mps"].mask(
+            t.index == 0))), "runs.csv row L4_T2_a1_s1 has train_mean_speed_mps blank, but its cell trains"),
     "runs.csv with a cell's row twice": (
         lambda f: edit_table(f, "runs.csv", lambda t: pd.concat([t.iloc[:1], t])),
         "runs.csv holds 153 rows for the 152 cells of its profile (L4_T2_a1_s1 twice)"),

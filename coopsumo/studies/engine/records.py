@@ -17,7 +17,7 @@ from coopsumo.config import results_view
 from coopsumo.errors import UsageError
 from coopsumo.files import file_sha256, read_json_object, temporary_of
 from coopsumo.provenance import versions
-from coopsumo.record_schemas import CELL_RECORD, RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS
+from coopsumo.record_schemas import CELL_RECORD, RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS, TRAIN_SUMMARY_KEYS
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -203,6 +203,21 @@ def implausible(summary: dict[str, Any], what: str = "summary") -> str | None:
     return None
 
 
+def training_problem(summary: Any, what: str = "train_summary") -> str | None:
+    """Why a training's summary cannot stand for its training where a study copies its values, or None: a JSON object
+    holding each of record_schemas.TRAIN_SUMMARY_KEYS as a finite number, its values plausible (implausible). `what`
+    names it in the reason ("has train_summary.json updates = ..., not a number")."""
+    if not isinstance(summary, dict):
+        return f"has {what} {json.dumps(summary)[:40]}, not a JSON object"
+    for key in TRAIN_SUMMARY_KEYS:
+        if key not in summary:
+            return f"has {what} without {key}"
+        value = summary[key]
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            return f"has {what} {key} = {json.dumps(value)[:40]}, not a number"
+    return implausible(summary, what)
+
+
 def record_problem(record: Any, required: Sequence[str]) -> str | None:
     """Why a stored record cannot be trusted, or None: it must be a JSON object of status "ok" with a non-empty
     summary object whose `required` values (the ones the study reads) are finite numbers."""
@@ -253,12 +268,16 @@ def pooled_problem(record: dict[str, Any]) -> str | None:
 def cell_problem(record: Any, required: Sequence[str]) -> str | None:
     """Why a stored cell record cannot be trusted, or None: one of status ok whose summary record_problem accepts,
     inside record_schemas.CELL_RECORD (its envelope: key, times, configuration, the coordinates the studies share),
-    and a training's summary kept beside it plausible (implausible): a record just run is judged so too
-    (checked_record), so that no value a study's table refuses is counted as ok."""
+    and a training's summary kept beside it whole and plausible (training_problem), one there whenever the cell
+    trains (its configuration has a `train`): a record just run is judged so too (checked_record), so that no value
+    a study's table refuses, or leaves blank, is counted as ok."""
     if problem := record_problem(record, required) or CELL_RECORD.problem(record):
         return problem
     train = record.get("train_summary")  # what a study copies of its training (scenario II's runs.csv)
-    return implausible(train, "train_summary") if isinstance(train, dict) else None
+    if train is None:
+        trains = isinstance(record.get("config"), dict) and "train" in record["config"]
+        return "has no train_summary, but its cell trains" if trains else None
+    return training_problem(train)
 
 
 def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str, Any]:
@@ -272,18 +291,24 @@ SPEC_CHECKED_ELSEWHERE = ("config", "model_sha256")
 word) and the model file's digest (model_changed: the model has changed since)"""
 
 
-def spec_problem(record: dict[str, Any], spec: dict[str, Any]) -> str | None:
+def spec_problem(record: dict[str, Any], spec: dict[str, Any], made: dict[str, Any] | None = None) -> str | None:
     """Why a record is not its cell's, or None: every field it copied from its cell's spec (blank_record: its
-    coordinates, its policy, its folders) must be the spec's."""
+    coordinates, its policy, its folders) must be the spec's, and each of `made` (what the study writes into its
+    record by the cell, CellRecords.extra: scenario II's train_dir) must be there and be the same."""
     for key, value in spec.items():
         if key not in SPEC_CHECKED_ELSEWHERE and key in record and not isinstance(value, dict) and record[key] != value:
             return f"has {key} = {json.dumps(record[key])[:40]}, not its cell's {json.dumps(value)[:40]}"
+    for key, value in (made or {}).items():
+        if record.get(key) != value:
+            return f"has {key} = {json.dumps(record.get(key))[:40]}, not its cell's {json.dumps(value)[:40]}"
     return None
 
 
-def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> set[str]:
+def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str],
+                  made: Callable[[dict[str, Any]], dict[str, Any]] | None = None) -> set[str]:  # fmt: skip
     """The cells whose stored record can be reused: one cell_problem accepts, made with the cell's
-    configuration and, for a cell that drives a model file, with that file as it is now (model_changed). Every
+    configuration, holding what made(spec) gives (spec_problem: the cell's own training folder) and, for a cell
+    that drives a model file, with that file as it is now (model_changed). Every
     other cell is rerun; a record that is neither failed nor interrupted and yet not accepted (unreadable, the wrong
     shape, a bad summary, another cell's copied in) gets one line on stderr saying why. A record's temporary file
     left by a run killed (SIGKILL) while writing it is removed: it was never a record."""
@@ -310,7 +335,8 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
                 print(f"{prog}: cell {spec['key']}: record {path} is cell {str(record['key'])[:60]}'s (copied?); "
                       "rerunning it", file=sys.stderr)  # fmt: skip
             continue  # another configuration: another cell (a changed setting reruns it without a word)
-        if problem := problem or spec_problem(record, spec) or model_changed(record, spec, path):
+        own = made(spec) if made is not None else None
+        if problem := problem or spec_problem(record, spec, own) or model_changed(record, spec, path):
             print(f"{prog}: cell {spec['key']}: record {path} {problem}; rerunning it", file=sys.stderr)
         else:
             done.add(spec["key"])

@@ -56,19 +56,37 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
 
 
 def train_summary_problem(summary: dict[str, Any], config: dict[str, Any]) -> str | None:
-    """Why a finished training's train_summary.json cannot stand for its model, or None: values no run gives
-    (records.implausible, record_schemas.RUN_SUMMARY's limits: a speed of 999 m/s, negative updates) or a selected
-    step that is not one of the training's steps (0 to its configuration's sim.steps). The studies copy these values
-    into their tables (scenario II's runs.csv refuses them there): a model whose summary breaks them is trained again,
-    not reused into a study that then stops at its table on every rerun."""
-    from coopsumo.studies.engine.records import implausible
+    """Why a finished training's train_summary.json cannot stand for its model, or None: a value the studies copy
+    missing or not a number, or one no run gives (records.training_problem: record_schemas.TRAIN_SUMMARY_KEYS and
+    RUN_SUMMARY's limits, a speed of 999 m/s, negative updates), its last world's steps not its configuration's (the
+    last episode's when it trains in episodes), or a selected step that is not one of the training's steps (0 to its
+    configuration's sim.steps). The studies copy these values into their tables (scenario II's runs.csv refuses them
+    there): a model whose summary breaks them is trained again, not reused into a study that then stops at its table
+    on every rerun or copies a blank."""
+    from coopsumo.studies.engine.records import training_problem
 
-    if (problem := implausible(summary, "train_summary.json")) is not None:
+    if (problem := training_problem(summary, "train_summary.json")) is not None:
         return problem
     steps, step = config.get("sim", {}).get("steps"), summary.get("selected_step", 0)
+    if (last := _last_world_steps(config)) is not None and summary["steps"] != last:
+        return f"has train_summary.json steps = {json.dumps(summary['steps'])[:20]}, not its last world's {last}"
     if isinstance(steps, int) and (isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= steps):
         return f"has train_summary.json selected_step = {json.dumps(step)[:20]}, not a step from 0 to its {steps}"
     return None
+
+
+def _last_world_steps(config: dict[str, Any]) -> int | None:
+    """The steps of a training's last world by its configuration (sim.steps, or its last episode's:
+    episodes.episode_bounds), or None when the configuration cannot be read."""
+    from coopsumo.agents.episodes import episode_bounds
+    from coopsumo.config import train_config_from_dict
+
+    try:
+        cfg = train_config_from_dict(config)
+    except Exception:  # not a training's configuration: the caller compared it with the study's
+        return None
+    _, first, end = episode_bounds(cfg.sim.steps, cfg.dqn, cfg.sim.steps - 1)
+    return end - first
 
 
 def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:

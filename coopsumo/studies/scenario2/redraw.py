@@ -22,7 +22,7 @@ from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
-from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS
+from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS, TRAIN_COLUMNS
 from coopsumo.studies.scenario2.plan import Profile, cell_specs, condition_rows, learner_of, train_folder
 from coopsumo.studies.scenario2.report import write_outputs
 from coopsumo.study_tables import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
@@ -184,8 +184,9 @@ def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str,
                    evals: pd.DataFrame) -> str | None:  # fmt: skip
     """Why a part's runs.csv and evals.csv are not the tables of its profile's cells `specs`, as a phrase after
     "<part>'s", or None: a column missing; not one runs.csv row per cell, with the cell's coordinates; statuses other
-    than sweep.json's failed cells; not one evals.csv row per evaluation of each successful cell (a DQN model's
-    every evaluation seed, a classical run's one), with its cell's coordinates, and none of a failed cell."""
+    than sweep.json's failed cells; a trained cell's ok row without its training's measures (a blank train_*); not
+    one evals.csv row per evaluation of each successful cell (a DQN model's every evaluation seed, a classical
+    run's one), with its cell's coordinates, and none of a failed cell."""
     for name, table, columns in (("runs.csv", runs, (*RUN_COLUMNS, profile.criterion)), ("evals.csv", evals,
                                  (*EVAL_KEYS, *EVAL_COLUMNS))):  # fmt: skip
         if missing := [c for c in dict.fromkeys(columns) if c not in table.columns]:
@@ -210,6 +211,9 @@ def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str,
             return f"runs.csv row {key} has {field} = {rows[key][field]}, not its cell's {cell[field]}"
         if rows[key]["status"] == "ok" and _differs(rows[key], cell, ("steps",)) is not None:
             return f"runs.csv row {key} has steps = {rows[key]['steps']}, not the {cell['steps']} of its evaluations"
+        if rows[key]["status"] == "ok" and cell["train_dir"] and (blank := [c for c in TRAIN_COLUMNS
+                                                                             if _blank(rows[key].get(c))]):  # fmt: skip
+            return f"runs.csv row {key} has {blank[0]} blank, but its cell trains ({cell['train_dir']})"
     failed = sorted(k for k, r in rows.items() if r["status"] != "ok")
     if failed != sorted(meta["failed_cells"]) or meta["cells_failed"] != len(failed):
         return (f"runs.csv has {len(failed)} cells not ok ({', '.join(failed[:2]) or 'none'}), but sweep.json "

@@ -276,7 +276,8 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
         (root / "train").mkdir(exist_ok=True)
     except OSError as err:
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
-    done_keys = reusable_keys(root, specs, "scenario2", REQUIRED_SUMMARY)
+    done_keys = reusable_keys(root, specs, "scenario2", REQUIRED_SUMMARY,  # a record naming another's training: rerun
+                              made=lambda spec: {"train_dir": train_folder(spec)})  # fmt: skip
     done_keys -= repointed(root, [s for s in specs if s["key"] in done_keys])
     done = [s for s in specs if s["key"] in done_keys]
     todo = [s for s in specs if s["key"] not in done_keys]
