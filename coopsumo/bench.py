@@ -450,6 +450,10 @@ def build_parser() -> Parser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.cluster and (beside := next((f for f, on in (("--learner", args.learner), ("--model", args.model))
+                                         if on), None)):  # fmt: skip
+        parser.error(f"--cluster runs only the Ray scaling, which {beside} has no part in (the learner's lines): "
+                     "give one or the other")  # fmt: skip
     quick = args.quick
     steps = 600 if quick else 6000
     if problem := working_folder_problem():  # torch cannot be loaded from a deleted folder

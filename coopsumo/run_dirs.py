@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import fcntl
 import fnmatch
+import json
 import os
 import re
 import shutil
@@ -57,6 +58,30 @@ def listed_files(marker: Any) -> list[str] | None:
     return files if isinstance(files, list) and all(isinstance(f, str) for f in files) else None
 
 
+def _marker_fault(folder: Path) -> str | None:
+    """What is wrong with the marker file of `folder` that _marker could not take, or None when there is none."""
+    path = folder / RUN_MARKER
+    if not path.exists() and not path.is_symlink():
+        return None
+    try:
+        data = json.loads(path.read_text())
+    except OSError as err:
+        return f"that cannot be read ({err.strerror or type(err).__name__})"
+    except ValueError:
+        return "that is not readable JSON (damaged)"
+    return "that is not a JSON object" if not isinstance(data, dict) else "that names no command"
+
+
+def _own_files(marker: dict[str, Any], kind: str) -> list[str] | None:
+    """The entries `marker` says its command wrote: a finished command's list (listed_files), or, for a run
+    other than a training, the list of a marker that says its run did not finish (simulate never writes one:
+    a damaged marker, but its list still names the run's own files, and a study redoes such a run)."""
+    listed = listed_files(marker)
+    if listed is None and kind != "train" and "files" in marker:
+        listed = listed_files({**marker, "finished": True})
+    return listed
+
+
 def check_run_dir(out: Path, kind: str) -> None:
     """UsageError unless `out` is missing, empty, or a folder the command `kind` wrote and nobody added to.
 
@@ -73,6 +98,9 @@ def check_run_dir(out: Path, kind: str) -> None:
         return
     marker = _marker(out)
     if marker is None:
+        if fault := _marker_fault(out):
+            raise UsageError(f"output folder {out} has a {RUN_MARKER} {fault} and is left alone; remove it "
+                             "yourself or pick another --out")  # fmt: skip
         if (out / "config.json").exists():
             raise UsageError(f"output folder {out} has no {RUN_MARKER} (written before coopsumo marked its folders, "
                              "or not by coopsumo) and is left alone: remove it yourself or pick another --out")
@@ -80,11 +108,13 @@ def check_run_dir(out: Path, kind: str) -> None:
     if marker["kind"] != kind:
         raise UsageError(f"output folder {out} holds a coopsumo {marker['kind']} run, not a {kind} run, and is "
                          "left alone; pick another --out")  # fmt: skip
-    listed = listed_files(marker)
+    listed = _own_files(marker, kind)
     running = marker.get("finished") is False or marker.get("files") is None  # as a training marks it while it runs
     if listed is None and not (kind == "train" and running):  # only a training marks its folder before it ends
-        raise UsageError(f"output folder {out} has a {RUN_MARKER} that lists no files (damaged?) and is left "
-                         "alone; remove it yourself or pick another --out")  # fmt: skip
+        what = "says its run did not finish and lists no files" if marker.get("finished") is False else \
+            "lists no files"
+        raise UsageError(f"output folder {out} has a {RUN_MARKER} that {what} (damaged?) and is left alone; "
+                         "remove it yourself or pick another --out")  # fmt: skip
     if listed is not None:
         extra = sorted(set(_entries(out)) - set(listed))
         if extra:

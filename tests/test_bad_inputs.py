@@ -175,6 +175,9 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     # bench (no output folder)
     ("bench", ["--steps", "5"], ("--steps",)),
     ("bench", ["--quick", "--bogus"], ("--bogus",)),
+    # issue 82 (probe 3, F13): --learner beside --cluster was ignored (the 5-minute cluster benchmark ran, exit 0)
+    ("bench", ["--cluster", "--learner"], ("--cluster", "--learner", "give one or the other")),
+    ("bench", ["--quick", "--cluster", "--model", __file__], ("--cluster", "--model", "give one or the other")),
     # issue 35: list items and flag rules, declared once (validation.split_list, train.FLAG_NEEDS)
     ("scenario2", ["--profile", "tiny", "--alphas", "0,,2"], ("--alphas", "empty item", "0,,2")),
     ("scenario2", ["--profile", "tiny", "--alphas", "0,2,"], ("--alphas", "empty item")),

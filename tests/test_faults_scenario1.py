@@ -104,13 +104,25 @@ def test_scenario1_interrupted_and_spoiled_ends_as_the_uninterrupted_study(
     traj = runs_t2 / "mobil_p0_seed1" / "trajectories.parquet"
     traj.write_bytes(traj.read_bytes()[: traj.stat().st_size // 2])
     (cut / "models" / MODEL / "model.pt").write_bytes(b"")
+    marker = runs_t2 / "sumo_seed1" / RUN_MARKER  # its own run marked unfinished: redone (issue 82, F9: rc 1, looped)
+    marker.write_text(marker.read_text().replace('"finished": true', '"finished": false'))
     err = run(cut).stderr
     for fragment in ("keep_seed1 has summary.json", "greedy_seed1 has a missing or cut-short detectors.xml",
-                     "mobil_p0_seed1 has an unreadable trajectories.parquet", "model.pt cannot be used"):  # fmt: skip
+                     "mobil_p0_seed1 has an unreadable trajectories.parquet", "model.pt cannot be used",
+                     f"sumo_seed1 has a {RUN_MARKER} that does not mark a finished simulate run"):  # fmt: skip
         assert sum(fragment in line for line in err.splitlines()) == 1, (fragment, err[-3000:])
     for name in ("runs.csv", "summary.csv"):
         assert (cut / name).read_text() == (ref / name).read_text(), name
     assert leftovers(tmp_path) == []
+    # a marker with no list of the run's files: the folder is not the study's to replace; one line, rc 2, kept
+    marker.write_text('{"kind": "simulate", "finished": false}')
+    before = sorted((p.relative_to(cut).as_posix(), p.stat().st_mtime_ns) for p in (cut / "runs").rglob("*"))
+    res = subprocess.run([sys.executable, *STUDY, "--out", str(cut)], cwd=REPO, env=env(cut), capture_output=True,
+                         text=True, timeout=600, check=False)  # fmt: skip
+    lines = [line for line in res.stderr.splitlines() if "error" in line or "Traceback" in line]
+    assert res.returncode == 2 and len(lines) == 1, res.stderr[-2000:]
+    assert "sumo_seed1 has a .coopsumo-run.json that says its run did not finish and lists no files" in lines[0]
+    assert sorted((p.relative_to(cut).as_posix(), p.stat().st_mtime_ns) for p in (cut / "runs").rglob("*")) == before
 
     # the study's folder is its own: simulate refuses it, every byte kept
     assert '"scenario1"' in (cut / RUN_MARKER).read_text()

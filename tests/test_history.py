@@ -104,6 +104,16 @@ def test_no_study_is_one_line_and_exit_code_2(tmp_path: Path) -> None:
     assert res.returncode == 2 and f"--results {tmp_path / 'notes.md'}: not a folder" in res.stderr, res.stderr
 
 
+def test_an_empty_results_is_refused_not_read_as_the_working_folder(tmp_path: Path) -> None:
+    """Issue 82 (probe 3, F12): `--results ""` read the working folder, here one holding a study."""
+    _one_study(tmp_path)
+    before = _files(tmp_path)
+    res = _history("--results", "", "--out", str(tmp_path / "table.md"), cwd=tmp_path)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1 and "--results: is empty" in lines[0], res.stderr
+    assert res.stdout == "" and _files(tmp_path) == before
+
+
 def test_a_frozen_study_is_found_where_it_was_moved(tmp_path: Path) -> None:
     from coopsumo.studies.protocol.report import committed_folder
 
@@ -248,6 +258,20 @@ SPOILED = {
                               "study.json learner v has settings no learner takes: lr must be a finite number > 0"),
     "preset 5": (_learners({"v": {"learner": {**to_dict(DQN_PRESETS["default"]), "preset": 5}}}),
                  "study.json learner v has settings no learner takes: preset must be a string, got 5"),
+    # issue 82 (probe 3, F11): drive settings no policy takes were printed ("drives with margin -5"); a learner gone
+    # from study.json, its rows left in stats.csv, is named
+    "a drive setting no policy has": (_learners({"v": {"drive": {"margin": -5}}}),
+                                      "study.json learner v drives with margin, a setting no policy takes"),
+    "a change margin of -5": (_learners({"v": {"drive": {"change_margin": -5}}}), "study.json learner v drives with "
+                              "change_margin -5, which no policy takes: it must be a finite number >= 0 and <= 100"),
+    "a cooldown of 1e9 s": (_learners({"v": {"drive": {"change_cooldown_s": 1e9}}}),
+                            "drives with change_cooldown_s 1e+09, which no policy takes: it must be"),
+    "a cooldown as text": (_learners({"v": {"drive": {"change_cooldown_s": "10"}}}),
+                           "drives with change_cooldown_s '10', which no policy takes: it must be a finite number"),
+    "an ensemble of 2.5": (_learners({"v": {"drive": {"ensemble_snapshots": 2.5}}}),
+                           "drives with ensemble_snapshots 2.5, which no policy takes: it must be a whole number"),
+    "its learner gone from study.json": (_learners({}),
+                                         "stats.csv has rows of learner v, which study.json does not name"),
 }  # fmt: skip
 
 

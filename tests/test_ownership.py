@@ -162,6 +162,49 @@ def test_a_file_added_to_a_simulate_folder_keeps_it_from_being_replaced(
     assert snapshot(tmp_path) == before
 
 
+def test_a_run_marked_unfinished_that_lists_its_files_is_redone(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82 (probe 3, F9): a simulate folder whose marker says "finished": false was refused as a marker that
+    "lists no files", though it listed them, and scenario I failed on every rerun. Its listed files are its own: it
+    is run again; with a file added, or with no list, it is left alone, saying which."""
+    out = tmp_path / "run"
+    assert simulate.main([*SIM, "--out", str(out)]) == 0
+    marker = json.loads((out / RUN_MARKER).read_text())
+    (out / RUN_MARKER).write_text(json.dumps({**marker, "finished": False}))
+    assert simulate.main(["--steps", "30", "--quiet", "--out", str(out)]) == 0
+    assert json.loads((out / "summary.json").read_text())["steps"] == 30
+    assert json.loads((out / RUN_MARKER).read_text())["finished"] is True
+    (out / RUN_MARKER).write_text(json.dumps({**marker, "finished": False}))
+    (out / "notes.txt").write_text("my notes\n")
+    before = snapshot(tmp_path)
+    refused(capsys, simulate.main([*SIM, "--out", str(out)]), str(out), "notes.txt", "did not write")
+    (out / "notes.txt").unlink()
+    (out / RUN_MARKER).write_text(json.dumps({"kind": "simulate", "finished": False}))
+    before = snapshot(tmp_path)
+    refused(capsys, simulate.main([*SIM, "--out", str(out)]), str(out), "says its run did not finish and lists no "
+            "files")  # fmt: skip
+    assert snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize(("text", "fragment"), [("x", "is not readable JSON (damaged)"),
+                                                ("[1]", "is not a JSON object"), ('{"kind": 7}', "names no command")])
+def test_a_damaged_marker_is_named_as_damaged_not_missing(
+    text: str, fragment: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82 (probe 3, F10): a training folder whose marker was not JSON was said to have no marker at all."""
+    out = tmp_path / "train"
+    out.mkdir()
+    (out / "config.json").write_text("{}\n")
+    (out / "checkpoint.pt").write_bytes(b"weights")
+    (out / RUN_MARKER).write_text(text)
+    before = snapshot(tmp_path)
+    line = refused(capsys, train.main(["--resume", "--quiet", "--out", str(out)]), str(out), RUN_MARKER, fragment,
+                   "left alone")  # fmt: skip
+    assert "written before coopsumo marked" not in line
+    assert snapshot(tmp_path) == before
+
+
 def test_simulate_reruns_into_its_own_folder_and_into_an_empty_one(tmp_path: Path) -> None:
     out = tmp_path / "run"
     out.mkdir()  # an empty existing folder is fine

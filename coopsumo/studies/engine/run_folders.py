@@ -13,7 +13,7 @@ from typing import Any
 from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
 from coopsumo.files import file_sha256
 from coopsumo.record_schemas import SPEED_MAX_MPS
-from coopsumo.run_dirs import Recorded
+from coopsumo.run_dirs import Recorded, check_run_dir
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
@@ -42,10 +42,12 @@ def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: P
     """True when the run folder out holds a finished run of the SimConfig dict cfg with the SUMO output files
     `outputs` asks for and, for a model's run, was driven by the model file as it is now (model_driven), and its
     values and files can be trusted (run_folder_problem). A folder that holds a summary.json and is not reused
-    gets one line on stderr saying why."""
+    gets one line on stderr saying why; UsageError when it is not the study's to run again (run_dirs.check_run_dir:
+    a marker with no list of the run's files, a file added to it)."""
     if not (out / "summary.json").exists():
         return False
     if problem := reuse_problem(out, cfg, outputs, model):
+        check_run_dir(out.resolve(), "simulate")
         print(f"scenario1: run folder {out} {problem}; running it again", file=sys.stderr)
         return False
     return True

@@ -12,6 +12,7 @@ report. Nothing here runs a simulation; the table is rewritten whole from the fo
 from __future__ import annotations
 
 import json
+import math
 import os
 import subprocess
 import sys
@@ -103,7 +104,7 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
                           "away") from None  # fmt: skip
     PROTOCOL_STUDY.check(study, path)
     for variant, entry in study["learners"].items():
-        if (problem := learner_problem(entry.get("learner", {}))) is not None:
+        if (problem := learner_problem(entry.get("learner", {})) or drive_problem(entry.get("drive", {}))) is not None:
             raise RecordError(f"{path} learner {variant} {problem}; restore it or move the study away")
     path = folder / "stats.csv"
     try:
@@ -131,6 +132,29 @@ def learner_problem(learner: dict[str, Any]) -> str | None:
         dqn_config_from_dict({k: v for k, v in learner.items() if k not in RETIRED_FIELDS}).validate()
     except (ConfigError, TypeError, ValueError) as err:  # a record from before presets: its own reading of them
         return f"has settings no learner takes: {first_line(err)}"
+    return None
+
+
+def drive_problem(drive: dict[str, Any]) -> str | None:
+    """Why a study.json learner's drive settings are not a dqn policy's, or None: a key that is not one of
+    protocol.plan.DRIVES (a cell's config.drive), or a value that is not a number in the range the dqn policy string
+    takes for it (policy_spec.KEYS; an ensemble a whole number)."""
+    from coopsumo.policy_spec import KEYS
+    from coopsumo.studies.protocol.plan import DRIVES
+    from coopsumo.validation import number_problem
+
+    fields = {key: field for field, key, _ in DRIVES}
+    for key, value in drive.items():
+        if key not in fields:
+            return f"drives with {str(key)[:40]}, a setting no policy takes (known: {', '.join(fields)})"
+        low, high, low_open = KEYS["dqn"][fields[key]]
+        number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+        problem = number_problem(number, low, high, low_open)
+        if problem is None and key == "ensemble_snapshots" and not number.is_integer():
+            problem = "a whole number of snapshots"
+        if problem is not None:
+            shown = _short(value) if number == number else repr(value)[:40]
+            return f"drives with {key} {shown}, which no policy takes: it must be {problem}"
     return None
 
 
@@ -214,11 +238,20 @@ def check_writable(out: Path) -> None:
                          "a new file, or remove it yourself")  # fmt: skip
 
 
+def _results_path(text: str) -> Path:
+    """--results' value: a folder's path, not empty (Path("") is the working folder, which was read as results/)."""
+    import argparse
+
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: name the results folder")
+    return Path(text)
+
+
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo history", description="Print the learner search's table (committed as "
                                                      "results/history/README.md) from the learner protocol studies' "
                                                      "own records; --out FILE writes it instead.")  # fmt: skip
-    p.add_argument("--results", type=Path, default=Path("results"),
+    p.add_argument("--results", type=_results_path, default=Path("results"),
                    help="the results folder whose learner_protocol* studies and history/ are read")  # fmt: skip
     p.add_argument("--out", type=Path, default=None, metavar="FILE",
                    help="write the table to this file: a new file, or a table this command "

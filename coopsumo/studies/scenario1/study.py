@@ -30,6 +30,7 @@ from coopsumo.files import read_json_object, write_json
 from coopsumo.policy_spec import policy_file
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD
+from coopsumo.run_dirs import check_run_dir
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.engine.records import failed_exit
@@ -288,6 +289,7 @@ def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], dict[tuple[str
                 model = Path(read) if (read := policy_file(policy)) is not None else None  # a model or module
                 if after not in retrained and reusable_run(out, to_dict(cfg), plan.outputs(), model):
                     continue
+                check_run_dir(out.resolve(), "simulate")  # one it may not replace: refused now, not in its worker
                 specs.append({"key": runs[-1].key, "kind": "run",
                               "label": label, "seed": seed, "t_up_s": t_up, "out": folder, "after": after,
                               "config": to_dict(cfg), "trajectory_every": plan.trajectory_every,
