@@ -85,6 +85,11 @@ def test_moving_the_store_changes_no_cell_key_and_no_model_name(tmp_path: Path,
     assert str(tmp_path) not in json.dumps(model_store.identity(config))
 
 
+TRAINED = {"mean_speed_mps": 20.0, "lane_changes": 3, "collisions": 0, "updates": 10, "wall_seconds": 1.0,
+           "steps_per_second": 100.0, "departed": 50, "steps": 100}
+"""a training's summary as train writes it (record_schemas.TRAIN_SUMMARY_KEYS): a cell that trains keeps one"""
+
+
 def test_a_study_that_trains_names_its_store(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                              capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """run_todo (the protocol's, the learning study's, scenario II's) says where the study's models are, whatever
@@ -93,10 +98,10 @@ def test_a_study_that_trains_names_its_store(tmp_path: Path, monkeypatch: pytest
     root = tmp_path / "work" / "study"
     (root / "cells").mkdir(parents=True)
     (root / "cells" / "c.json").write_text(json.dumps({"key": "c", "status": "ok", "config": {"train": {}, "eval": {}},
-                                                       "summary": {"x": 1.0}}))  # fmt: skip
+                                                       "summary": {"x": 1.0}, "train_summary": TRAINED}))  # fmt: skip
     train = [{"key": "c", "config": {"train": {}, "eval": {}}}]
     records = cells.run_todo([], train, root, lambda s, r: {}, lambda s, e: {}, required=["x"])
-    assert records[0]["status"] == "ok"
+    assert records[0]["status"] == "ok", records[0].get("error")
     assert f"coopsumo: model store {tmp_path / 'work' / 'models'} (the study's models" in capsys.readouterr().err
     cells.run_todo([], [{"key": "c", "config": {"eval": {}}}], root, lambda s, r: {}, lambda s, e: {}, required=["x"])
     assert "model store" not in capsys.readouterr().err

@@ -16,6 +16,7 @@ import sumolib
 from conftest import assert_refused_in_one_line, env_with_display, main_here
 from PIL import Image
 
+from coopsumo import run_dirs
 from coopsumo.config import AccidentConfig, OutputConfig, SimConfig, to_dict
 from coopsumo.files import file_sha256
 from coopsumo.studies.engine import run_folders
@@ -276,6 +277,7 @@ def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
     rows = [f'<interval begin="{t}" end="{t + 60}" id="e1" nVehContrib="0" flow="0.00" occupancy="0.00" speed="-1.00"/>'
             for t in range(0, 900, 60)]  # SUMO's E1 attributes (its -1: no vehicle)
     (out / "detectors.xml").write_text("<detector>\n" + "\n".join(rows) + "\n</detector>\n")
+    run_dirs.mark_run_dir(out, "simulate")  # simulate's marker, listing its files: the study may run it again
     model = tmp_path / "model.pt"
     model.write_bytes(b"old")
     old = out.stat().st_mtime_ns - 10**9
