@@ -110,6 +110,9 @@ def test_claim_a_md_and_the_thrashing_figure_are_written(tmp_path: Path) -> None
     write_claim_a(tmp_path, runs_table(), A8, A0, exploratory="made up")
     text = (tmp_path / "claim_a.md").read_text()
     assert "**Exploratory**: made up" in text and "12 models per alpha" in text
+    assert "Interim" not in text  # an exploratory reading is not a part of the plan's study: nothing waits for more
+    write_claim_a(tmp_path, runs_table(), A8, A0)
+    text = (tmp_path / "claim_a.md").read_text()
     assert "**Interim: 12 of the plan's 20 models per alpha.**" in text  # the pilot plans 20: the verdict waits
     assert "total time spent at T_up 2 s (helps); total time spent at T_up 1 s (helps)" in text
     assert text.count("| **cannot decide** |") == 4 and "| 2 of 12 | 8 of 12 |" in text

@@ -68,9 +68,10 @@ def write_claim_a(root: Path, rows: pd.DataFrame, a: str, b: str, exploratory: s
     decided = s["comparisons"][s["comparisons"]["verdict"] != "cannot decide"]
     found = "; ".join(f"{UNITS[str(r.measure)][0]} at T_up {r.t_up_s:g} s ({r.verdict})" for r in decided.itertuples())
     planned = int(s["planned_models"]) if models >= claim_a.PILOT_MODELS else 0
+    early = 0 < models < planned and not exploratory  # an exploratory reading is never the plan's study in parts
     interim = (f"**Interim: {models} of the plan's {planned} models per alpha.** The plan reads its verdict at "
                f"{planned} models; what is decided below is where the study stands, not its answer (part 1's decided "
-               "comparisons did not survive 5 more models).\n\n") if 0 < models < planned else ""  # fmt: skip
+               "comparisons did not survive 5 more models).\n\n") if early else ""  # fmt: skip
     head = (f"# Claim (a): alpha 8 against alpha 0 ({a} against {b}), under the analysis plan of {PLAN_COMMIT}\n\n"
             + (f"**Exploratory**: {exploratory}\n\n" if exploratory else "") + interim
             + f"{models} models per alpha. Decided under the plan (Holm over {len(s['comparisons'])} comparisons at a "

@@ -164,7 +164,11 @@ def fig4_calm_thrashing(root: Path, plan: Plan, rows: pd.DataFrame, runs: Sequen
         mask |= (rows["policy"] == policy) & rows["train_seed"].eq(seed).fillna(False).astype(bool)
     at = rows[mask]
     windows = fig4_windows(at, t_up, [p for p, _, _ in picks] + ["keep"], first, acc.start_step * dt, plan.steps * dt)
-    trajs = {names[(r.label, r.train_seed)]: pd.read_parquet(r.out / "trajectories.parquet")
+    short: dict[tuple[str, int | None], str] = {  # the panels' titles: "alpha8 m116 (calm, 0.02 queue changes/veh)"
+        (policy, seed): f"{policy.rsplit('_', 1)[-1]} m{seed} ({kind}, {value:.2f} queue changes/veh)"
+        for (policy, seed, value), kind in zip(picks, ("calm", "thrashing"), strict=False)}  # fmt: skip
+    short[("keep", None)] = "keep"
+    trajs = {short[(r.label, r.train_seed)]: pd.read_parquet(r.out / "trajectories.parquet")
              for r in sorted(shown, key=lambda r: list(names).index((r.label, r.train_seed)))}  # fmt: skip
     trajectory_windows_figure(trajs, lane, windows, root / "fig4_calm_thrashing.png", acc.x_m, f"SUMO lane {lane}")
     said = " and ".join(f"{names[(p, k)]}" for p, k, _ in picks)
