@@ -77,12 +77,35 @@ class Stop(KeyboardInterrupt):
 
 
 _STOPS_RAISED: list[int] = []
-"""every signal _raise_stop turned into Stop in this process, in order (run_interruptible reads it)"""
+"""every signal _raise_stop turned into Stop, or held back while torch was imported, in this process, in order
+(run_interruptible reads it)"""
 
 
-def _raise_stop(signum: int, _frame: Any) -> None:
-    _STOPS_RAISED.append(signum)
+def _raise_stop(signum: int, frame: Any) -> None:
+    _STOPS_RAISED.append(signum)  # also when it waits: a command that ends before it comes again was interrupted
+    if _importing_torch(frame):  # raised there, torch's C++ ends the process (abort, its stack): the signal again soon
+        retry = threading.Timer(RETRY_S, os.kill, (os.getpid(), signum))
+        retry.daemon = True
+        retry.start()
+        return
     raise Stop(signum)
+
+
+RETRY_S = 0.1
+"""how soon a signal that came while torch was being imported is sent again (_raise_stop)"""
+
+
+def _importing_torch(frame: Any) -> bool:
+    """True when the main thread, at `frame`, is running a torch module's body (importing torch): some of it is C++
+    (pybind11) calling back into Python, where an exception cannot pass and ends the process with SIGABRT
+    ("terminate called after throwing an instance of 'pybind11::error_already_set'"), 1 Ctrl-C in 40 during the
+    import."""
+    while frame is not None:
+        code = frame.f_code
+        if code.co_name == "<module>" and f"{os.sep}torch{os.sep}" in code.co_filename:
+            return True
+        frame = frame.f_back
+    return False
 
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)

@@ -109,3 +109,19 @@ def test_a_groups_cost_record_outside_its_limits_is_left_out_in_one_line(
     assert (not err) if share is not None else (len(err) == 2 and "group_cost.json is damaged" in err[0])
     assert group_cpu_s(tmp_path) is None  # trained alone: no record, no line
     assert not capsys.readouterr().err
+
+
+def test_a_member_whose_group_has_gone_ends_without_a_word(tmp_path: Path) -> None:
+    """A Ctrl-C stops the group's process: a member that then tells its outcome finds the pipe broken and ends quietly
+    (it printed a BrokenPipeError traceback, 2026-12-03); with the group's end open the outcome arrives."""
+    import multiprocessing
+
+    from coopsumo.agents.group import MemberResult, tell
+
+    mine, theirs = multiprocessing.Pipe(duplex=False)
+    tell(theirs, MemberResult(tmp_path, {"steps": 1}))
+    assert mine.recv() == MemberResult(tmp_path, {"steps": 1}) and theirs.closed
+    mine, theirs = multiprocessing.Pipe(duplex=False)
+    mine.close()  # the group's process has gone
+    tell(theirs, MemberResult(tmp_path, None, "Stop: SIGINT"))
+    assert theirs.closed

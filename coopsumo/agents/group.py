@@ -51,10 +51,19 @@ def _member(cfg: TrainConfig, out: Path, ticket: Any, resume: bool, result: Conn
     torch.set_num_threads(1)  # as a study's training: its decisions on one thread
     thread_lock_for_bars()
     try:
-        summary = train(cfg, out, resume=resume, progress=False, learner_process=True, group=ticket)
-        result.send(MemberResult(out, summary))
+        outcome = MemberResult(out, train(cfg, out, resume=resume, progress=False, learner_process=True, group=ticket))
     except BaseException as err:  # its own failure, told in one line; the others go on
-        result.send(MemberResult(out, None, f"{type(err).__name__}: {first_line(err)}"))
+        outcome = MemberResult(out, None, f"{type(err).__name__}: {first_line(err)}")
+    tell(result, outcome)
+
+
+def tell(result: Connection, outcome: MemberResult) -> None:
+    """Send a member's outcome to the group's process and close the pipe; nothing when that process has gone (a
+    Ctrl-C stopped it, and the member's traceback of a broken pipe was the one more line, 2026-12-03)."""
+    try:
+        result.send(outcome)
+    except OSError:  # no one is left to tell
+        pass
     finally:
         result.close()
 
