@@ -164,8 +164,8 @@ def fig4_calm_thrashing(root: Path, plan: Plan, rows: pd.DataFrame, runs: Sequen
         mask |= (rows["policy"] == policy) & rows["train_seed"].eq(seed).fillna(False).astype(bool)
     at = rows[mask]
     windows = fig4_windows(at, t_up, [p for p, _, _ in picks] + ["keep"], first, acc.start_step * dt, plan.steps * dt)
-    short: dict[tuple[str, int | None], str] = {  # the panels' titles: "alpha8 m116 (calm, 0.02 queue changes/veh)"
-        (policy, seed): f"{policy.rsplit('_', 1)[-1]} m{seed} ({kind}, {value:.2f} queue changes/veh)"
+    short: dict[tuple[str, int | None], str] = {  # the panels' titles: "alpha8 m116 (calm: 0.02/veh)"
+        (policy, seed): f"{policy.rsplit('_', 1)[-1]} m{seed} ({kind}: {value:.2f}/veh)"
         for (policy, seed, value), kind in zip(picks, ("calm", "thrashing"), strict=False)}  # fmt: skip
     short[("keep", None)] = "keep"
     trajs = {short[(r.label, r.train_seed)]: pd.read_parquet(r.out / "trajectories.parquet")
@@ -174,7 +174,8 @@ def fig4_calm_thrashing(root: Path, plan: Plan, rows: pd.DataFrame, runs: Sequen
     said = " and ".join(f"{names[(p, k)]}" for p, k, _ in picks)
     return (f"\n\n![Fig. 4, calm and thrashing](fig4_calm_thrashing.png)\n\nFig. 4 for the calmest and the most "
             f"thrashing model at T_up = {t_up:g} s, by queue lane changes per vehicle over their runs there: {said}; "
-            f"beside `keep`; lane {lane}, evaluation seed {first}; windows: the jam's onset and its dissolution.")
+            f"beside `keep`; lane {lane}, evaluation seed {first}; windows: the jam's onset and its dissolution; each "
+            "panel's title gives the model's queue lane changes per vehicle (/veh).")
 
 
 def horizon_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: Sequence[Run], lane: int) -> str:
