@@ -108,8 +108,6 @@ class DQNConfig:
     store_per_decision: int = setting(16, "--store-per-decision", limits=(1, MAX_REPLAY),
         help="transitions stored per decision round (random subset)")
     """at most this many vehicles' transitions are stored per decision round (random subset)"""
-    exit_transition: str = setting("drop", choices=("drop", "terminal"))
-    """a vehicle's last transition when it leaves the road: 'drop' it, or store it as 'terminal'"""
     restart_below_mps: float = setting(1.0, "--restart-below", limits=(0.0, 100.0),
         help="'none' is not offered below this speed (m/s; 0: off)")
     """'none' is not offered to a vehicle slower than this (m/s): a standing vehicle that keeps its speed
@@ -263,7 +261,7 @@ ADDED_FIELDS: dict[str, Any] = {f.name: list(v) if isinstance(v := f.metadata["b
                                 for f in _FIELDS if f.metadata.get("before", NO_VALUE) is not NO_VALUE}  # fmt: skip
 """fields added after results were stored, with the value (as JSON holds it) a configuration without them means
 (config.results_view drops them at that value, so a stored run still matches the configuration it was made with)"""
-RETIRED_FIELDS: dict[str, Any] = {"n_step": 1, "validation_queue": False, "weights_ema": 0.0}
+RETIRED_FIELDS: dict[str, Any] = {"n_step": 1, "validation_queue": False, "weights_ema": 0.0, "exit_transition": "drop"}
 """learner settings tried and not adopted, retired (issue 80; their code runs at commit RETIRED_AT), with the one value
 a stored configuration may still hold: it means what it meant (dropped when read, and by config.results_view, so a
 stored model keeps its identity); any other value is refused in one line"""
@@ -313,6 +311,10 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
     A dict written before presets existed (it has greedy_prob) describes the paper-literal learner.
     """
     d = dict(d)
+    for name, only in RETIRED_FIELDS.items():  # retired: its one value means what it meant, another is refused
+        if name in d and json.dumps(d.pop(name)) != json.dumps(only):
+            raise ConfigError(f"learner setting {name} was retired (issue 80): only {json.dumps(only)} is read; "
+                              f"such a learner trains at commit {RETIRED_AT}")  # fmt: skip
     if "greedy_prob" in d:  # written by a version before presets: the paper setup with its own values
         legacy = {"greedy_prob", "learn_every_steps", "store_per_step"}
         eps = 1.0 - float(d["greedy_prob"])
@@ -325,10 +327,6 @@ def dqn_config_from_dict(d: dict[str, Any]) -> DQNConfig:
         )
         d = {k: v for k, v in d.items() if k not in legacy}
         return dataclasses.replace(base, **d)
-    for name, only in RETIRED_FIELDS.items():  # retired: its one value means what it meant, another is refused
-        if name in d and json.dumps(d.pop(name)) != json.dumps(only):
-            raise ConfigError(f"learner setting {name} was retired (issue 80): only {json.dumps(only)} is read; "
-                              f"such a learner trains at commit {RETIRED_AT}")  # fmt: skip
     d.setdefault("dueling", False)  # written before the dueling head existed: the plain head
     d.setdefault("restart_below_mps", 0.0)  # written before the standing rule: 'none' offered at any speed
     for name, implied in ADDED_FIELDS.items():  # written before the field existed: what it meant then

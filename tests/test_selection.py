@@ -115,12 +115,13 @@ def test_accident_validation_adds_one_run_per_demand_through_an_accident() -> No
 
 
 @pytest.mark.parametrize(("name", "kept", "other"), [("n_step", 1, 3), ("validation_queue", False, True),
-                                                     ("weights_ema", 0.0, 0.99)])  # fmt: skip
+                                                     ("weights_ema", 0.0, 0.99),
+                                                     ("exit_transition", "drop", "terminal")])  # fmt: skip
 def test_a_retired_setting_keeps_its_models_at_its_one_value_and_refuses_another(
     name: str, kept: object, other: object
 ) -> None:
-    """Issue 80: n-step returns, validation with the queue rule and the moving average of the weights were tried and
-    not adopted, and retired. A configuration stored while they existed holds them at their one value: it is read as
+    """Issue 80: n-step returns, validation with the queue rule, the moving average of the weights and a leaving
+    vehicle's last transition stored as terminal were tried and not adopted, and retired. A configuration stored while they existed holds them at their one value: it is read as
     it was meant and keeps its model's identity (so no stored model is trained again); another value is refused in
     one line naming the setting and the commit that trains it."""
     from coopsumo.dqn_config import RETIRED_AT

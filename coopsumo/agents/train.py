@@ -232,10 +232,7 @@ class Trainer:
             feats = network_features(obs, dq.observation, dq.speed_scale_mps)
             mask = self._offered(obs)
             if pend.prev is not None and recorded is None:
-                arrived = np.concatenate(pend.arrived) if pend.arrived else np.zeros(0, np.int64)
-                prev_mask = self._offered(pend.prev)
-                *batch, _ = transitions(pend.prev, pend.prev_features, pend.prev_actions, pend.reward_sum, arrived, obs,
-                                        feats, dq.exit_transition, all_if_none(prev_mask, pend.prev),
+                *batch, _ = transitions(pend.prev, pend.prev_features, pend.prev_actions, pend.reward_sum, obs, feats,
                                         all_if_none(mask, obs), pend.change_sum)  # fmt: skip
                 if len(batch[0]):
                     keep = learner.rng.permutation(len(batch[0]))[: dq.store_per_decision]
@@ -263,8 +260,6 @@ class Trainer:
         else:
             penalty = out.reward.lane_change
             pend.add_rewards(out.nums, learned, started)
-        if out.arrived.any():
-            pend.arrived.append(out.nums[out.arrived])
         if recorded is None:
             self.action_log.append(actions.astype(np.int8))
         return out, penalty

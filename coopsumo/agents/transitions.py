@@ -16,11 +16,8 @@ def transitions(
     prev_features: np.ndarray,
     actions: np.ndarray,
     reward_sum: np.ndarray,
-    arrived: np.ndarray,
     now: Observation,
     now_features: np.ndarray,
-    exit_transition: str,
-    prev_mask: np.ndarray,
     now_mask: np.ndarray,
     change_sum: np.ndarray,
 ) -> tuple[np.ndarray, ...]:
@@ -29,11 +26,10 @@ def transitions(
 
     prev: the last decision round's observation, its network features (observation.network_features) and its
     `actions`; now: this round's observation and features;
-    prev_mask, now_mask: the actions offered in them (decisions.offered; all True when nothing is withheld).
-    reward_sum, change_sum: rewards and lane changes started over the interval, indexed by vehicle number;
-    arrived: numbers of the
-    vehicles that left the road during it. Vehicles present in both rounds give ordinary transitions;
-    vehicles that left are dropped or stored as terminal (next state = last state, masked by done).
+    now_mask: the actions offered in it (decisions.offered; all True when nothing is withheld).
+    reward_sum, change_sum: rewards and lane changes started over the interval, indexed by vehicle number.
+    Vehicles present in both rounds give ordinary transitions (dones all 0); a vehicle that left the road in between
+    gives none (storing its last transition as terminal was tried and retired, issue 80: dqn_config.RETIRED_FIELDS).
     """
     _, i_prev, i_now = np.intersect1d(prev.nums, now.nums, assume_unique=True, return_indices=True)
     reward = reward_sum[prev.nums]
@@ -43,15 +39,6 @@ def transitions(
     a, r, c, nums = actions[i_prev], reward[i_prev], changes[i_prev], prev.nums[i_prev]
     nm = now_mask[i_now]
     done = np.zeros(len(i_prev), np.float32)
-    gone_rows = np.isin(prev.nums, arrived)
-    if exit_transition == "terminal" and gone_rows.any():
-        gone = np.flatnonzero(gone_rows)
-        g, e = np.concatenate([g, prev.grids[gone]]), np.concatenate([e, prev_features[gone]])
-        ng, ne = np.concatenate([ng, prev.grids[gone]]), np.concatenate([ne, prev_features[gone]])
-        a, r = np.concatenate([a, actions[gone]]), np.concatenate([r, reward[gone]])
-        c, nums = np.concatenate([c, changes[gone]]), np.concatenate([nums, prev.nums[gone]])
-        nm = np.concatenate([nm, prev_mask[gone]])
-        done = np.concatenate([done, np.ones(len(gone), np.float32)])
     return g, e, a, r.astype(np.float32), ng, ne, done, nm, c.astype(np.float32), nums
 
 
@@ -76,8 +63,6 @@ class Pending:
     """lane changes started since each vehicle's last decision, by vehicle number"""
     prev_alpha: float = 0.0
     """the alpha of the last decision round (a conditioned training's draw)"""
-    arrived: list[np.ndarray] = field(default_factory=list)
-    """numbers of vehicles that left the road since the last decision round"""
 
     def _grow(self, nums: np.ndarray) -> None:
         if len(nums) and int(nums.max()) >= len(self.reward_sum):
@@ -90,7 +75,7 @@ class Pending:
         self._grow(obs.nums)
         self.reward_sum[obs.nums] = 0.0
         self.change_sum[obs.nums] = 0.0
-        self.prev, self.prev_features, self.prev_actions, self.arrived = obs, features, actions, []
+        self.prev, self.prev_features, self.prev_actions = obs, features, actions
         self.prev_alpha = alpha
 
     def add_rewards(self, nums: np.ndarray, rewards: np.ndarray, changes: np.ndarray) -> None:
