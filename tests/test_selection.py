@@ -121,9 +121,10 @@ def test_a_retired_setting_keeps_its_models_at_its_one_value_and_refuses_another
     name: str, kept: object, other: object
 ) -> None:
     """Issue 80: n-step returns, validation with the queue rule, the moving average of the weights and a leaving
-    vehicle's last transition stored as terminal were tried and not adopted, and retired. A configuration stored while they existed holds them at their one value: it is read as
-    it was meant and keeps its model's identity (so no stored model is trained again); another value is refused in
-    one line naming the setting and the commit that trains it."""
+    vehicle's last transition stored as terminal were tried and not adopted, and retired. A configuration stored
+    while they existed holds them at their one value: it is read as it was meant and keeps its model's identity (so
+    no stored model is trained again); another value is refused in one line naming the setting and the commit that
+    trains it."""
     from coopsumo.dqn_config import RETIRED_AT
     from coopsumo.studies.engine.model_store import model_id
 
