@@ -3,7 +3,6 @@ the checks before a command writes into a folder, and folders made whole or not 
 
 from __future__ import annotations
 
-import fcntl
 import fnmatch
 import json
 import os
@@ -19,6 +18,7 @@ from typing import Any
 
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json_object, write_json
+from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
 
@@ -259,39 +259,6 @@ def lock_path(out: Path) -> Path:
     return out.parent / f".{out.name}.lock"
 
 
-def _same_file(fd: int, path: Path) -> bool:
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        return False
-    own = os.fstat(fd)
-    return (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino)
-
-
-def try_lock(path: Path) -> int | None:
-    """An open descriptor holding an exclusive flock on the lock file `path` (made if missing), or None when
-    another process holds it. A file removed or replaced between opening and locking is opened again."""
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            held = _same_file(fd, path)
-            os.close(fd)
-            if held:
-                return None
-            continue
-        if _same_file(fd, path):
-            return fd
-        os.close(fd)  # its holder removed it after we opened it: lock the file now at the path
-
-
-def release_lock(fd: int, path: Path) -> None:
-    """Remove the lock file (while still holding it) and release it."""
-    path.unlink(missing_ok=True)
-    os.close(fd)
-
-
 def _holder(path: Path) -> str:
     try:
         text = path.read_text().strip()
@@ -309,14 +276,15 @@ only while it removes that run's partial folder; a command writing a folder hold
 @contextmanager
 def out_lock(out: Path, kind: str) -> Iterator[None]:
     """Hold the lock of the output folder `out` for the block (fcntl.flock on lock_path(out), removed after);
-    UsageError in one line when another command holds it. Released by the kernel if the process is killed."""
+    UsageError in one line when another command holds it, or when a link or a file coopsumo did not write has the
+    lock file's name (ForeignLock: never written into or removed). Released by the kernel if the process is killed."""
     out = out.resolve()
     path = lock_path(out)
     deadline = time.monotonic() + LOCK_WAIT_S
     while True:
         try:
             out.parent.mkdir(parents=True, exist_ok=True)
-            fd = try_lock(path)
+            fd = try_lock(path, kind)
         except OSError as err:
             raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
         if fd is not None or time.monotonic() > deadline:
@@ -326,8 +294,6 @@ def out_lock(out: Path, kind: str) -> Iterator[None]:
         raise UsageError(f"another coopsumo command is writing {out}{_holder(path)}; wait for it to end or pick "
                          "another --out")  # fmt: skip
     try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{kind}, pid {os.getpid()}\n".encode())
         yield
     finally:
         release_lock(fd, path)
@@ -363,9 +329,9 @@ def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Pat
             continue
         path = lock_path(parent / name)
         try:
-            fd = try_lock(path)
-        except OSError:
-            continue
+            fd = try_lock(path, prog)
+        except (OSError, ForeignLock):
+            continue  # not a lock file coopsumo made: left alone
         if fd is None:
             continue  # its run is still going
         try:
