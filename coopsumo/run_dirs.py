@@ -248,6 +248,23 @@ PARTIAL = ".partial-"
 """infix of the temporary folder a run is built in beside its --out: '.<name>.partial-XXXXXXXX'"""
 
 
+PARTIAL_MARKER = ".coopsumo-partial"
+"""the file a partial folder is made with (removed before the folder becomes a run): clear_partials removes a
+folder named like a partial one only when it holds this file, so a user's folder of such a name is left alone"""
+
+
+def _new_partial(out: Path) -> Path:
+    """A new partial folder beside `out` ('.<name>.partial-XXXXXXXX', mkdtemp), marked as coopsumo's."""
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
+    (tmp / PARTIAL_MARKER).write_text(f"the partial folder of a coopsumo run into {out}\n")
+    return tmp
+
+
+def _is_partial(entry: Path) -> bool:
+    marker = entry / PARTIAL_MARKER
+    return entry.is_dir() and not entry.is_symlink() and marker.is_file() and not marker.is_symlink()
+
+
 _PARTIAL_NAME = re.compile(r"\.(.+)\.partial-[A-Za-z0-9_]{8}")
 
 
@@ -306,9 +323,10 @@ def _remove_partial(entry: Path, prog: str) -> None:
 
 def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Path]:
     """Remove the partial folders and lock files that killed runs left in `parent` (one line on stderr per
-    folder); those of runs still going (their lock is held) are left alone. mine: the name of the output
-    folder whose lock the caller holds (its partial folders are removed, its lock file kept). Returns the
-    folders removed."""
+    folder); those of runs still going (their lock is held) are left alone, and so are a folder without the
+    PARTIAL_MARKER and a lock file coopsumo did not write (lock_files.try_lock), whatever their names. mine: the
+    name of the output folder whose lock the caller holds (its partial folders are removed, its lock file kept).
+    Returns the folders removed."""
     removed: list[Path] = []
     try:
         entries = [p for p in parent.iterdir() if p.name.startswith(".")]
@@ -316,7 +334,7 @@ def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Pat
         return removed
     for entry in entries:
         found = _PARTIAL_NAME.fullmatch(entry.name)
-        is_partial = found is not None and entry.is_dir() and not entry.is_symlink()
+        is_partial = found is not None and _is_partial(entry)
         if not is_partial:
             found = _LOCK_NAME.fullmatch(entry.name) if entry.is_file() else None
         if found is None:
@@ -373,7 +391,7 @@ def start_run_dir(out: Path, kind: str = "simulate") -> Path:
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         clear_partials(out.parent, kind, mine=out.name)
-        return Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
+        return _new_partial(out)
     except OSError as err:
         raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
 
@@ -385,6 +403,7 @@ def finish_run_dir(tmp: Path, out: Path, kind: str = "simulate") -> None:
     added); else the new run is discarded and UsageError raised.
     """
     out = out.resolve()
+    (tmp / PARTIAL_MARKER).unlink(missing_ok=True)
     mark_run_dir(tmp, kind)
     if not out.exists():
         os.replace(tmp, out)
@@ -396,7 +415,7 @@ def finish_run_dir(tmp: Path, out: Path, kind: str = "simulate") -> None:
         raise
     # the old folder steps aside under a partial name (clear_partials removes it if a kill comes now), the new
     # one takes its place, then the old one goes: at every moment one whole result is on disk
-    aside = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
+    aside = _new_partial(out)
     os.replace(out, aside / out.name)
     os.replace(tmp, out)
     shutil.rmtree(aside, ignore_errors=True)

@@ -12,7 +12,7 @@ from coopsumo import lock_files, simulate
 from coopsumo.agents import train_cli as train
 from coopsumo.errors import UsageError
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
-from coopsumo.run_dirs import lock_path, out_lock
+from coopsumo.run_dirs import PARTIAL_MARKER, lock_path, out_lock
 
 SIM = ["--steps", "20", "--quiet"]
 
@@ -91,3 +91,25 @@ def test_try_lock_refuses_a_folder_and_a_dangling_link(tmp_path: Path) -> None:
     assert fd is not None
     release_lock(fd, tmp_path / ".c.lock")
     assert sorted(p.name for p in tmp_path.iterdir()) == [".a.lock", ".b.lock"]
+
+
+# -- F2: what a run clears beside its --out ---------------------------------------------------------------------------
+def test_a_run_removes_only_the_partial_folders_and_locks_coopsumo_made(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    (tmp_path / ".mydb.lock").write_text("db lock state\n")
+    (tmp_path / ".backup.partial-20261203").mkdir()
+    (tmp_path / ".backup.partial-20261203" / "chapter1.tex").write_text("thesis\n")
+    (tmp_path / ".old.lock").symlink_to(_user_file(tmp_path))
+    (tmp_path / ".cut.partial-abcd1234").mkdir()  # left by a killed run
+    (tmp_path / ".cut.partial-abcd1234" / PARTIAL_MARKER).write_text("the partial folder of a coopsumo run\n")
+    (tmp_path / ".gone.lock").write_text("coopsumo simulate, pid 99999999\n")
+    before = snapshot(tmp_path)
+    assert simulate.main([*SIM, "--out", str(tmp_path / "run")]) == 0
+    after = snapshot(tmp_path)
+    kept = {k: v for k, v in before.items() if not k.startswith((".cut.", ".gone."))}
+    assert {k: v for k, v in after.items() if k in before} == kept
+    assert sorted(set(after) - set(before)) == sorted(k for k in after if k == "run" or k.startswith("run/"))
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and ".cut.partial-abcd1234, the partial folder of an interrupted run" in lines[0], lines
+    assert not any(PARTIAL_MARKER in k for k in after if k.startswith("run"))  # the marker stays out of the run
