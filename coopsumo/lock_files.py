@@ -56,6 +56,24 @@ def _open(path: Path) -> tuple[int, bool] | None:
     return fd, False
 
 
+def not_a_lock(path: Path, empty_ok: bool = False) -> str | None:
+    """Why the entry `path`, named like a lock file, is not one coopsumo made (a link, not a regular file, text of
+    its own; empty_ok: an empty file is one), or None (its lock is taken as try_lock would take it)."""
+    if os.path.islink(path):
+        return f"is a link to {os.path.realpath(path)}"
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None  # gone, or unreadable: try_lock says so when the lock is needed
+    try:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            return "is not a regular file"
+        text = _text(fd)
+    finally:
+        os.close(fd)
+    return None if LOCK_TEXT.fullmatch(text) or (not text and empty_ok) else "holds text of its own"
+
+
 def same_file(fd: int, path: Path) -> bool:
     """True when `path` (no link followed) is the file open as `fd`."""
     try:

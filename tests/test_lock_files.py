@@ -113,3 +113,44 @@ def test_a_run_removes_only_the_partial_folders_and_locks_coopsumo_made(
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and ".cut.partial-abcd1234, the partial folder of an interrupted run" in lines[0], lines
     assert not any(PARTIAL_MARKER in k for k in after if k.startswith("run"))  # the marker stays out of the run
+
+
+# -- F3: the model store's locks -----------------------------------------------------------------------------------
+MODEL = "default_a0_seed100_0123456789ab"
+
+
+def test_a_link_or_a_file_of_ones_own_named_like_a_models_lock_makes_the_store_refused(tmp_path: Path) -> None:
+    from coopsumo.studies.engine.model_store import store_problem
+
+    store = tmp_path / "store"
+    (store / MODEL).mkdir(parents=True)
+    lock = store / f".{MODEL}.lock"
+    assert store_problem(store) is None
+    lock.write_text("")  # the store's locks were written empty before issue 82
+    assert store_problem(store) is None
+    lock.write_text("coopsumo store, pid 99999999\n")
+    assert store_problem(store) is None
+    lock.write_text("my notes\n")
+    assert "holds text of its own" in (store_problem(store) or "")
+    lock.unlink()
+    lock.symlink_to(_user_file(tmp_path))
+    assert "a link to" in (store_problem(store) or "")
+    assert (tmp_path / "user" / "important.txt").read_text() == "precious\n"
+
+
+def test_the_store_lock_never_writes_through_a_link_nor_removes_a_file_of_ones_own(tmp_path: Path) -> None:
+    from coopsumo.studies.engine.model_store import _locked
+
+    target = _user_file(tmp_path)
+    (tmp_path / ".a.lock").symlink_to(target)
+    (tmp_path / ".b.lock").write_text("my notes\n")
+    before = snapshot(tmp_path)
+    for name in (".a.lock", ".b.lock"):
+        with pytest.raises(UsageError, match="not a lock file coopsumo made"):
+            with _locked(tmp_path / name):
+                pass
+    assert snapshot(tmp_path) == before
+    (tmp_path / ".c.lock").write_text("")  # a stale lock of an earlier version: taken, and removed after
+    with _locked(tmp_path / ".c.lock"):
+        assert (tmp_path / ".c.lock").read_text().startswith("coopsumo store, pid ")
+    assert not (tmp_path / ".c.lock").exists()
