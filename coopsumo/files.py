@@ -6,6 +6,7 @@ import hashlib
 import json
 import math
 import os
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -22,16 +23,41 @@ def _clean(obj: Any) -> Any:
     return obj
 
 
-def temporary_of(path: Path) -> Path:
-    """The temporary file write_atomic writes `path` through: 'PATH.tmp' (left behind only by a SIGKILL)."""
-    return path.with_name(path.name + ".tmp")
+TEMPORARY = ".tmp"
+"""suffix of the temporary file write_atomic writes a file through: '.NAME.XXXXXXXX.tmp' beside it"""
+
+
+def temporaries_of(path: Path) -> list[Path]:
+    """The temporary files write_atomic left beside `path` (a SIGKILL while it wrote): '.NAME.XXXXXXXX.tmp'."""
+    try:
+        names = [p for p in path.parent.iterdir() if p.name.startswith(f".{path.name}.")]
+    except OSError:
+        return []
+    return [p for p in names if p.name.endswith(TEMPORARY) and len(p.name) == len(path.name) + 14 and p.is_file()
+            and not p.is_symlink()]  # fmt: skip
+
+
+def _umask() -> int:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("Umask:"):
+                return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    return 0o022
 
 
 def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
-    """write(tmp) into 'PATH.tmp', then rename it to `path`: a reader sees the old file or the whole new one.
-    On any failure (a full disk, a kill by signal) the temporary file is removed and the error passed on."""
-    tmp = temporary_of(path)
+    """write(tmp) into a temporary file beside `path` made new (mkstemp: a unique name, never an existing file or
+    a link), then rename it to `path`: a reader sees the old file or the whole new one. On any failure (a full
+    disk, a kill by signal) the temporary file is removed and the error passed on."""
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMPORARY)
+    tmp = Path(name)
     try:
+        try:
+            os.fchmod(fd, 0o666 & ~_umask())  # the mode a file written in place gets, not mkstemp's 0600
+        finally:
+            os.close(fd)
         write(tmp)
         os.replace(tmp, path)
     except BaseException:

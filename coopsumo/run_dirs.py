@@ -3,7 +3,6 @@ the checks before a command writes into a folder, and folders made whole or not 
 
 from __future__ import annotations
 
-import fcntl
 import fnmatch
 import json
 import os
@@ -19,6 +18,7 @@ from typing import Any
 
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json_object, write_json
+from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
 
@@ -248,6 +248,23 @@ PARTIAL = ".partial-"
 """infix of the temporary folder a run is built in beside its --out: '.<name>.partial-XXXXXXXX'"""
 
 
+PARTIAL_MARKER = ".coopsumo-partial"
+"""the file a partial folder is made with (removed before the folder becomes a run): clear_partials removes a
+folder named like a partial one only when it holds this file, so a user's folder of such a name is left alone"""
+
+
+def _new_partial(out: Path) -> Path:
+    """A new partial folder beside `out` ('.<name>.partial-XXXXXXXX', mkdtemp), marked as coopsumo's."""
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
+    (tmp / PARTIAL_MARKER).write_text(f"the partial folder of a coopsumo run into {out}\n")
+    return tmp
+
+
+def _is_partial(entry: Path) -> bool:
+    marker = entry / PARTIAL_MARKER
+    return entry.is_dir() and not entry.is_symlink() and marker.is_file() and not marker.is_symlink()
+
+
 _PARTIAL_NAME = re.compile(r"\.(.+)\.partial-[A-Za-z0-9_]{8}")
 
 
@@ -257,39 +274,6 @@ _LOCK_NAME = re.compile(r"\.(.+)\.lock")
 def lock_path(out: Path) -> Path:
     """The lock file of the output folder `out`: '.<name>.lock' beside it."""
     return out.parent / f".{out.name}.lock"
-
-
-def _same_file(fd: int, path: Path) -> bool:
-    try:
-        st = os.stat(path)
-    except FileNotFoundError:
-        return False
-    own = os.fstat(fd)
-    return (st.st_dev, st.st_ino) == (own.st_dev, own.st_ino)
-
-
-def try_lock(path: Path) -> int | None:
-    """An open descriptor holding an exclusive flock on the lock file `path` (made if missing), or None when
-    another process holds it. A file removed or replaced between opening and locking is opened again."""
-    while True:
-        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            held = _same_file(fd, path)
-            os.close(fd)
-            if held:
-                return None
-            continue
-        if _same_file(fd, path):
-            return fd
-        os.close(fd)  # its holder removed it after we opened it: lock the file now at the path
-
-
-def release_lock(fd: int, path: Path) -> None:
-    """Remove the lock file (while still holding it) and release it."""
-    path.unlink(missing_ok=True)
-    os.close(fd)
 
 
 def _holder(path: Path) -> str:
@@ -309,14 +293,15 @@ only while it removes that run's partial folder; a command writing a folder hold
 @contextmanager
 def out_lock(out: Path, kind: str) -> Iterator[None]:
     """Hold the lock of the output folder `out` for the block (fcntl.flock on lock_path(out), removed after);
-    UsageError in one line when another command holds it. Released by the kernel if the process is killed."""
+    UsageError in one line when another command holds it, or when a link or a file coopsumo did not write has the
+    lock file's name (ForeignLock: never written into or removed). Released by the kernel if the process is killed."""
     out = out.resolve()
     path = lock_path(out)
     deadline = time.monotonic() + LOCK_WAIT_S
     while True:
         try:
             out.parent.mkdir(parents=True, exist_ok=True)
-            fd = try_lock(path)
+            fd = try_lock(path, kind)
         except OSError as err:
             raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
         if fd is not None or time.monotonic() > deadline:
@@ -326,8 +311,6 @@ def out_lock(out: Path, kind: str) -> Iterator[None]:
         raise UsageError(f"another coopsumo command is writing {out}{_holder(path)}; wait for it to end or pick "
                          "another --out")  # fmt: skip
     try:
-        os.ftruncate(fd, 0)
-        os.write(fd, f"{kind}, pid {os.getpid()}\n".encode())
         yield
     finally:
         release_lock(fd, path)
@@ -340,9 +323,10 @@ def _remove_partial(entry: Path, prog: str) -> None:
 
 def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Path]:
     """Remove the partial folders and lock files that killed runs left in `parent` (one line on stderr per
-    folder); those of runs still going (their lock is held) are left alone. mine: the name of the output
-    folder whose lock the caller holds (its partial folders are removed, its lock file kept). Returns the
-    folders removed."""
+    folder); those of runs still going (their lock is held) are left alone, and so are a folder without the
+    PARTIAL_MARKER and a lock file coopsumo did not write (lock_files.try_lock), whatever their names. mine: the
+    name of the output folder whose lock the caller holds (its partial folders are removed, its lock file kept).
+    Returns the folders removed."""
     removed: list[Path] = []
     try:
         entries = [p for p in parent.iterdir() if p.name.startswith(".")]
@@ -350,7 +334,7 @@ def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Pat
         return removed
     for entry in entries:
         found = _PARTIAL_NAME.fullmatch(entry.name)
-        is_partial = found is not None and entry.is_dir() and not entry.is_symlink()
+        is_partial = found is not None and _is_partial(entry)
         if not is_partial:
             found = _LOCK_NAME.fullmatch(entry.name) if entry.is_file() else None
         if found is None:
@@ -363,9 +347,9 @@ def clear_partials(parent: Path, prog: str, mine: str | None = None) -> list[Pat
             continue
         path = lock_path(parent / name)
         try:
-            fd = try_lock(path)
-        except OSError:
-            continue
+            fd = try_lock(path, prog)
+        except (OSError, ForeignLock):
+            continue  # not a lock file coopsumo made: left alone
         if fd is None:
             continue  # its run is still going
         try:
@@ -407,7 +391,7 @@ def start_run_dir(out: Path, kind: str = "simulate") -> Path:
     try:
         out.parent.mkdir(parents=True, exist_ok=True)
         clear_partials(out.parent, kind, mine=out.name)
-        return Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
+        return _new_partial(out)
     except OSError as err:
         raise UsageError(f"cannot write output folder {out}: {err.strerror}") from None
 
@@ -419,6 +403,7 @@ def finish_run_dir(tmp: Path, out: Path, kind: str = "simulate") -> None:
     added); else the new run is discarded and UsageError raised.
     """
     out = out.resolve()
+    (tmp / PARTIAL_MARKER).unlink(missing_ok=True)
     mark_run_dir(tmp, kind)
     if not out.exists():
         os.replace(tmp, out)
@@ -430,7 +415,7 @@ def finish_run_dir(tmp: Path, out: Path, kind: str = "simulate") -> None:
         raise
     # the old folder steps aside under a partial name (clear_partials removes it if a kill comes now), the new
     # one takes its place, then the old one goes: at every moment one whole result is on disk
-    aside = Path(tempfile.mkdtemp(prefix=f".{out.name}{PARTIAL}", dir=out.parent))
+    aside = _new_partial(out)
     os.replace(out, aside / out.name)
     os.replace(tmp, out)
     shutil.rmtree(aside, ignore_errors=True)

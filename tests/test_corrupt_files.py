@@ -32,6 +32,7 @@ from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.run_dirs import (
+    PARTIAL_MARKER,
     RUN_MARKER,
     check_run_dir,
     check_study_root,
@@ -595,6 +596,7 @@ def test_clear_partials_removes_only_what_no_running_command_holds(
     for folder in (stale, running, mine):
         folder.mkdir()
         (folder / "summary.json").write_text("{}")
+        (folder / PARTIAL_MARKER).write_text("the partial folder of a coopsumo run\n")
     (tmp_path / ".d.lock").write_text("simulate, pid 1\n")  # left by a killed run
     (tmp_path / ".e.partial-notours").mkdir()  # not a name a run makes: left alone
     (tmp_path / "a").mkdir()

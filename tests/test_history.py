@@ -179,6 +179,25 @@ def test_out_refuses_a_file_it_did_not_write(tmp_path: Path) -> None:
     assert _files(tmp_path) == before and (tmp_path / "folder.md").is_dir()
 
 
+def test_out_never_writes_through_a_file_or_link_named_like_its_temporary(tmp_path: Path) -> None:
+    """Issue 82, F24: the table was written through 'FILE.tmp': a link of that name had its target overwritten, a
+    user's file of that name was renamed onto FILE."""
+    results = tmp_path / "results"
+    _one_study(results)
+    (tmp_path / "user").mkdir()
+    (tmp_path / "user" / "important.txt").write_text("precious\n")
+    (tmp_path / "table.md.tmp").symlink_to(tmp_path / "user" / "important.txt")
+    (tmp_path / "t2.md.tmp").write_text("my draft\n")
+    for name in ("table.md", "t2.md"):
+        res = _history("--results", str(results), "--out", str(tmp_path / name), cwd=tmp_path)
+        assert res.returncode == 0, res.stderr
+        assert (tmp_path / name).read_text() == history.table(results) and not (tmp_path / name).is_symlink()
+    assert (tmp_path / "user" / "important.txt").read_text() == "precious\n"
+    assert (tmp_path / "table.md.tmp").is_symlink() and (tmp_path / "t2.md.tmp").read_text() == "my draft\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["results", "t2.md", "t2.md.tmp", "table.md", "table.md.tmp",
+                                                          "user"]  # fmt: skip
+
+
 def _stats(change: dict) -> Callable[[Path], object]:
     """A change to the first row of a study's stats.csv (None: drop the column)."""
 

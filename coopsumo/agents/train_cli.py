@@ -317,9 +317,9 @@ def check_not_writing(out: Path) -> None:
     """UsageError, as out_lock gives it, when another command holds out's lock now (a training running there);
     checked before the folder's contents are judged, which a running training changes."""
     path = lock_path(out.resolve())
-    if not path.exists():  # a lock file lives only while it is held
+    if not os.path.lexists(path):  # a lock file lives only while it is held
         return
-    fd = try_lock(path)
+    fd = try_lock(path, "train")
     if fd is None:
         raise UsageError(f"another coopsumo command is writing {out.resolve()}; wait for it to end or pick another "
                          "--out")  # fmt: skip

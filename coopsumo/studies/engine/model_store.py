@@ -52,7 +52,8 @@ def store_for(root: Path) -> Path:
 def store_problem(store: Path) -> str | None:
     """Why the folder `store` is not a model store a study may write, or None: it is missing (made when a model is
     stored), or a folder whose visible entries are all store models (train_cli.STORE_NAME, folders); its dot-entries
-    are the store's locks and partial folders. A user's file or folder there is left alone."""
+    are the store's locks and partial folders, none a link (_lock_problem). A user's file or folder there is left
+    alone."""
     from coopsumo.agents.train_cli import STORE_NAME
 
     if not os.path.lexists(store):
@@ -65,7 +66,23 @@ def store_problem(store: Path) -> str | None:
         return f"cannot be read ({err.strerror})"
     foreign = sorted(name for name in names if not name.startswith("."))
     more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
-    return f"holds {foreign[0]}{more}, which is not a stored model" if foreign else None
+    if foreign:
+        return f"holds {foreign[0]}{more}, which is not a stored model"
+    return _lock_problem(store, sorted(name for name in names if name.startswith(".")))
+
+
+def _lock_problem(store: Path, names: list[str]) -> str | None:
+    """Why a dot-entry of the store is not the store's, or None: a link (the store makes none), or a file named
+    like a model's lock ('.MODEL.lock') that coopsumo did not write (lock_files.not_a_lock)."""
+    from coopsumo.lock_files import not_a_lock
+
+    for name in names:
+        path = store / name
+        if path.is_symlink():
+            return f"holds {name}, a link to {os.path.realpath(path)}, which the store does not make"
+        if name.endswith(".lock") and (why := not_a_lock(path, empty_ok=True)):
+            return f"holds {name}, which {why} and is not a lock file coopsumo made"
+    return None
 
 
 def identity(config: dict[str, Any]) -> dict[str, Any]:
@@ -174,24 +191,18 @@ def _reselect(src: Path, folder: Path, config: dict[str, Any]) -> dict[str, Any]
 
 @contextmanager
 def _locked(path: Path) -> Iterator[None]:
-    """An exclusive lock on the file `path`, removed when released: a waiter that locked a file already removed
-    opens the path again, so the lock file never outlives the holders."""
-    import fcntl
+    """An exclusive lock on the file `path` (waited for), removed when released: a waiter that locked a file already
+    removed opens the path again, so the lock file never outlives the holders. A link or a file coopsumo did not
+    write of that name is refused (lock_files.ForeignLock, a UsageError), never written into or removed; an empty
+    file is a lock of an earlier version (they were written empty)."""
+    from coopsumo.lock_files import release_lock, try_lock
 
-    while True:
-        handle = open(path, "w")  # noqa: SIM115 (closed below, after the unlink)
-        fcntl.flock(handle, fcntl.LOCK_EX)
-        try:
-            if os.fstat(handle.fileno()).st_ino == os.stat(path).st_ino:
-                break
-        except FileNotFoundError:
-            pass
-        handle.close()
+    fd = try_lock(path, "store", wait=True, empty_ok=True)
+    assert fd is not None  # waited for
     try:
         yield
     finally:
-        path.unlink(missing_ok=True)
-        handle.close()
+        release_lock(fd, path)
 
 
 def check_link(link: Path) -> None:

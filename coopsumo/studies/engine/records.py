@@ -15,7 +15,7 @@ from typing import Any
 
 from coopsumo.config import results_view
 from coopsumo.errors import UsageError
-from coopsumo.files import file_sha256, read_json_object, temporary_of
+from coopsumo.files import file_sha256, read_json_object, temporaries_of
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD, RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS, TRAIN_SUMMARY_KEYS
 
@@ -315,7 +315,8 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
     done = set()
     for spec in specs:
         path = cell_path(root, spec["key"])
-        temporary_of(path).unlink(missing_ok=True)
+        for tmp in temporaries_of(path):
+            tmp.unlink(missing_ok=True)
         if path.exists() and not path.is_file():  # a pipe or a folder: reading it would wait, or fail
             print(f"{prog}: cell {spec['key']}: record {path} is not a regular file; rerunning it", file=sys.stderr)
             continue
