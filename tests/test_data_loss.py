@@ -263,6 +263,34 @@ def test_a_real_folder_where_the_study_links_its_model_is_never_deleted_moved_or
         assert snapshot(tmp_path) == before  # nothing deleted, moved or trained; no .alpha0_m100.<pid>.link
 
 
+def test_a_store_entry_that_is_a_link_to_a_users_training_is_never_trained_into(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 82, fourth probe (F4): a model's folder in the store replaced by a link to a user's interrupted training
+    was trained into through the link, the user's checkpoint deleted. The store makes only folders: the store is
+    refused as a study's store (store_for, before anything is written), and stored_model and train_shared refuse the
+    link in one line naming it; the user's training is kept byte for byte."""
+    from coopsumo.errors import UsageError
+    from coopsumo.studies.engine.model_store import model_id, store_for, stored_model, train_shared
+
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    user, store = tmp_path / "user_ck", tmp_path / "models"
+    interrupted_at_start(user, OTHER)
+    store.mkdir()
+    entry = store / model_id(as_json(TINY))
+    entry.symlink_to(user, target_is_directory=True)
+    link = tmp_path / "study" / "train" / "L2_a0_s1"
+    before = snapshot(tmp_path)
+    with pytest.raises(UsageError, match=f"holds {entry.name}, a link"):
+        store_for(tmp_path / "study")
+    for step in (lambda: stored_model(as_json(TINY), store, link), lambda: train_shared(as_json(TINY), link, store)):
+        with pytest.raises(UsageError) as err:
+            step()
+        assert str(entry) in str(err.value) and "is a link" in str(err.value), err.value
+        assert len(str(err.value).splitlines()) == 1
+        assert snapshot(tmp_path) == before
+
+
 def test_scenario1_refuses_a_real_model_folder_before_any_cell(
     finished: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
