@@ -315,9 +315,28 @@ def test_a_study_refuses_a_run_folder_that_links_outside_it(tmp_path: Path,
     assert snapshot(tmp_path) == before
 
 
+def test_a_study_refuses_a_run_folder_that_links_to_another_of_its_runs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82, fourth probe (F6): scenario I's runs/t1/greedy_seed1 made a link to runs/t1/keep_seed1, inside the
+    study; the rerun replaced the keep run with the greedy one through it (runs.csv then gave keep greedy's measures).
+    A study makes no links but its model links: refused in one line naming the link, before anything is written."""
+    root = tmp_path / "study"
+    keep = root / "runs" / "t1" / "keep_seed1"
+    keep.mkdir(parents=True)
+    (keep / "config.json").write_text('{"policy": "keep"}\n')
+    (root / "plan.json").write_text(json.dumps({"plan": {"profile": "quick"}}))
+    (root / "runs" / "t1" / "greedy_seed1").symlink_to(keep, target_is_directory=True)
+    before = snapshot(tmp_path)
+    code = study_main("scenario1", ["--quick", "--out", str(root)])
+    refused(capsys, code, str(root / "runs" / "t1" / "greedy_seed1"), f"is a link to {keep}", "inside the study's")
+    assert snapshot(tmp_path) == before
+
+
 def test_only_the_model_links_of_a_study_may_lead_outside_it(tmp_path: Path) -> None:
     """models/<name> and train/<key> are the study's links into the model store, which may lie anywhere; any other
-    link out of the study (its cells/, an evaluation's folder) is refused, and one inside it is not."""
+    link out of the study (its cells/, an evaluation's folder) is refused, and since the fourth probe of issue 82
+    (F6) one inside it too (test_a_study_refuses_a_run_folder_that_links_to_another_of_its_runs)."""
     from coopsumo.run_dirs import check_study_root, study_link
 
     store = tmp_path / "store" / "model_a"
@@ -327,7 +346,6 @@ def test_only_the_model_links_of_a_study_may_lead_outside_it(tmp_path: Path) -> 
         (root / folder).mkdir(parents=True)
     (root / "models" / "alpha0_m100").symlink_to(store)
     (root / "train" / "L2_a0_s1").symlink_to(store)
-    (root / "evals" / "inside").symlink_to(root / "cells")
     assert study_link(root) is None
     check_study_root(root, "scenario2", ("sweep.json", "models", "train", "evals", "cells"))
     (root / "evals" / "L2_T2_a0_s1").symlink_to(tmp_path / "store")
