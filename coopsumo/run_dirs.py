@@ -151,14 +151,21 @@ Recorded = Callable[[Path], str | None]
 """recorded(root) -> the study a root written before its marker named it holds, read from its plan file, or None"""
 
 
+LEARNERS = " (learner preset"
+"""how a study's name goes on when it ran learner presets other than the default (run_folders.profile_study)"""
+
+
 def held_study(root: Path, recorded: Recorded | None = None) -> str | None:
     """Which study the study root `root` holds: its marker's "study", else (a root marked before markers named it,
-    or not marked) what recorded(root) reads from its plan file; None when neither says."""
+    or not marked) what recorded(root) reads from its plan file; None when neither says. A marker written before a
+    study's name said its learners (LEARNERS) names the study its plan file records when that is the marker's name
+    and learners: the study it was made with."""
     marker = _marker(root)
     named = marker.get("study") if marker is not None else None
+    found = recorded(root) if recorded is not None else None
     if isinstance(named, str):
-        return named
-    return recorded(root) if recorded is not None else None
+        return found if found is not None and found.startswith(named + LEARNERS) else named
+    return found
 
 
 def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None,
