@@ -151,14 +151,21 @@ Recorded = Callable[[Path], str | None]
 """recorded(root) -> the study a root written before its marker named it holds, read from its plan file, or None"""
 
 
+LEARNERS = " (learner preset"
+"""how a study's name goes on when it ran learner presets other than the default (run_folders.profile_study)"""
+
+
 def held_study(root: Path, recorded: Recorded | None = None) -> str | None:
     """Which study the study root `root` holds: its marker's "study", else (a root marked before markers named it,
-    or not marked) what recorded(root) reads from its plan file; None when neither says."""
+    or not marked) what recorded(root) reads from its plan file; None when neither says. A marker written before a
+    study's name said its learners (LEARNERS) names the study its plan file records when that is the marker's name
+    and learners: the study it was made with."""
     marker = _marker(root)
     named = marker.get("study") if marker is not None else None
+    found = recorded(root) if recorded is not None else None
     if isinstance(named, str):
-        return named
-    return recorded(root) if recorded is not None else None
+        return found if found is not None and found.startswith(named + LEARNERS) else named
+    return found
 
 
 def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None,
@@ -168,7 +175,7 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
     (fnmatch: 'fig*.png'; a study writes only these names and never replaces the root as a whole). study: which
     study of `kind` the command writes ("the quick profile's study"): a root that holds another (held_study, with
     `recorded` for a root whose marker does not name it) is refused too, with `advice`; the same study resumes.
-    Either way a link in it that leads outside it is refused (study_link)."""
+    Either way a link in it is refused (study_link), but the study's own links into the model store."""
     root = root.resolve()
     if not root.exists():
         return
@@ -188,9 +195,10 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
         raise UsageError(f"output folder {root} holds {held}, not {study}: a study writes into its own folder, and "
                          f"this one is left alone; {advice}")  # fmt: skip
     if found := study_link(root):
-        raise UsageError(f"{found[0]} is a link to {found[1]}, outside the study's folder {root}: a study writes only "
-                         "inside its own folder (through the link it would replace what is there); remove the link or "
-                         "pick another --out")  # fmt: skip
+        where = "inside" if found[1].is_relative_to(root) else "outside"
+        raise UsageError(f"{found[0]} is a link to {found[1]}, {where} the study's folder {root}: a study makes no "
+                         "links there but its model links (through this one it would replace what is there); remove "
+                         "the link or pick another --out")  # fmt: skip
 
 
 STORE_LINKS = ("models", "train")
@@ -199,10 +207,10 @@ link_problem and check_link judge them; the store may lie anywhere)"""
 
 
 def study_link(root: Path) -> tuple[Path, Path] | None:
-    """The first symbolic link in the study root `root` (none followed) that leads outside it, and where it leads,
-    or None; the entries of its STORE_LINKS folders, links into the model store, are not looked into. A study
-    writing into a run folder that is such a link (runs/t2/greedy_seed1 -> a user's folder) would write into, or
-    replace, the folder it leads to."""
+    """The first symbolic link in the study root `root` (none followed), and where it leads, or None; the entries of
+    its STORE_LINKS folders, links into the model store, are not looked into. A study makes no other link: writing
+    into a run folder that is one (runs/t2/greedy_seed1 -> a user's folder, or -> runs/t2/keep_seed1, another run of
+    the study) would write into, or replace, the folder it leads to."""
     root = root.resolve()
     for parent, folders, files in os.walk(root):
         here = Path(parent)
@@ -211,8 +219,8 @@ def study_link(root: Path) -> tuple[Path, Path] | None:
             continue
         for name in folders + files:
             path = here / name
-            if path.is_symlink() and not (target := path.resolve()).is_relative_to(root):
-                return path, target
+            if path.is_symlink():
+                return path, path.resolve()
     return None
 
 

@@ -82,10 +82,11 @@ def interrupted_in_evaluation(out: Path, finished: Path) -> None:
     Trainer(TINY, out, progress=False).save_checkpoint()
 
 
-def killed_retrain(out: Path, finished: Path) -> None:
-    """A finished training with, beside it, the killed new training an earlier coopsumo built there."""
+def killed_retrain(out: Path, finished: Path, cfg: TrainConfig = TINY) -> None:
+    """A finished training with, beside it, the killed new training of its configuration an earlier coopsumo built
+    there (`cfg`: another training put there by hand)."""
     shutil.copytree(finished, out)
-    interrupted_at_start(out.parent / f".{out.name}.retrain", OTHER)
+    interrupted_at_start(out.parent / f".{out.name}.retrain", cfg)
 
 
 FOLDERS: dict[str, tuple[Callable[[Path, Path], None], str]] = {
@@ -158,11 +159,36 @@ def test_resume_finishes_the_retrain_an_earlier_version_left_beside_a_finished_t
     killed_retrain(out, finished)
     assert train_cli.main(["--resume", "--quiet", "--out", str(out)]) == 0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"] and finished_run(out, "train")
-    assert json.loads((out / "config.json").read_text())["config"]["sim"]["seed"] == 4
-    whole = tmp_path / "whole"
-    train(OTHER, whole, progress=False)
-    resumed, first = load_model(out / "model.pt")[0].state_dict(), load_model(whole / "model.pt")[0].state_dict()
+    assert json.loads((out / "config.json").read_text())["config"]["sim"]["seed"] == 3
+    resumed, first = load_model(out / "model.pt")[0].state_dict(), load_model(finished / "model.pt")[0].state_dict()
     assert all(torch.equal(resumed[k], first[k]) for k in first)
+
+
+def linked_user_training(out: Path, finished: Path) -> None:
+    """A finished training with, beside it, a link named as its retrain leading to a user's interrupted training."""
+    shutil.copytree(finished, out)
+    interrupted_at_start(out.parent / "user_ck", OTHER)
+    (out.parent / f".{out.name}.retrain").symlink_to(out.parent / "user_ck", target_is_directory=True)
+
+
+NOT_RETRAINS = {"another training put there": (lambda out, src: killed_retrain(out, src, OTHER), "another training"),
+                "a link to a user's training": (linked_user_training, "is a link to")}
+
+
+@pytest.mark.parametrize("case", sorted(NOT_RETRAINS))
+def test_resume_never_continues_a_retrain_folder_it_did_not_make(
+    case: str, finished: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82, fourth probe (F23): `train --resume --out A` continued any `.A.retrain` holding a checkpoint (a link
+    to a user's training: trained through it) and then replaced the finished training A with it. Taken only when it
+    is a real folder recording A's configuration; else one line naming it, exit 2, A and it kept byte for byte."""
+    out = tmp_path / "A"
+    make, fragment = NOT_RETRAINS[case]
+    make(out, finished)
+    before = snapshot(tmp_path)
+    code = train_cli.main(["--resume", "--quiet", "--out", str(out)])
+    one_line(capsys, code, str(tmp_path / ".A.retrain"), fragment, "left alone")
+    assert snapshot(tmp_path) == before
 
 
 # -- 2. the model store is the studies' alone ------------------------------------------------------------------------
@@ -261,6 +287,34 @@ def test_a_real_folder_where_the_study_links_its_model_is_never_deleted_moved_or
         assert str(link) in str(err.value) and "the study did not make" in str(err.value)
         assert len(str(err.value).splitlines()) == 1
         assert snapshot(tmp_path) == before  # nothing deleted, moved or trained; no .alpha0_m100.<pid>.link
+
+
+def test_a_store_entry_that_is_a_link_to_a_users_training_is_never_trained_into(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Issue 82, fourth probe (F4): a model's folder in the store replaced by a link to a user's interrupted training
+    was trained into through the link, the user's checkpoint deleted. The store makes only folders: the store is
+    refused as a study's store (store_for, before anything is written), and stored_model and train_shared refuse the
+    link in one line naming it; the user's training is kept byte for byte."""
+    from coopsumo.errors import UsageError
+    from coopsumo.studies.engine.model_store import model_id, store_for, stored_model, train_shared
+
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    user, store = tmp_path / "user_ck", tmp_path / "models"
+    interrupted_at_start(user, OTHER)
+    store.mkdir()
+    entry = store / model_id(as_json(TINY))
+    entry.symlink_to(user, target_is_directory=True)
+    link = tmp_path / "study" / "train" / "L2_a0_s1"
+    before = snapshot(tmp_path)
+    with pytest.raises(UsageError, match=f"holds {entry.name}, a link"):
+        store_for(tmp_path / "study")
+    for step in (lambda: stored_model(as_json(TINY), store, link), lambda: train_shared(as_json(TINY), link, store)):
+        with pytest.raises(UsageError) as err:
+            step()
+        assert str(entry) in str(err.value) and "is a link" in str(err.value), err.value
+        assert len(str(err.value).splitlines()) == 1
+        assert snapshot(tmp_path) == before
 
 
 def test_scenario1_refuses_a_real_model_folder_before_any_cell(

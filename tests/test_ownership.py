@@ -276,6 +276,60 @@ def test_a_study_refuses_the_folder_of_another_profiles_study(name: str, marked:
     assert snapshot(tmp_path) == before
 
 
+PRESET_STUDIES = {
+    "scenario1": (["--quick"], "the quick profile's study", "plan.json",
+                  {"plan": {"profile": "quick", "presets": ["default"]}}),
+    "scenario2": (["--profile", "tiny"], "the tiny profile's sweep", "sweep.json",
+                  {"profile": {"name": "tiny", "preset": "default"}}),
+}  # fmt: skip
+"""each study with learner presets: its profile's arguments, the default learner's study name, its plan file"""
+
+
+@pytest.mark.parametrize("marked", [False, True], ids=["written before markers named a study", "marked"])
+@pytest.mark.parametrize("name", sorted(PRESET_STUDIES))
+def test_a_study_refuses_the_folder_of_another_learner_presets_study(name: str, marked: bool, tmp_path: Path,
+                                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 82, fourth probe (F7): `scenario2 --profile tiny --preset paper` into the default learner's tiny sweep
+    replaced its cells and tables (scenario I's --preset likewise): the learner presets are part of which study a
+    folder holds. Refused in one line naming both studies, before anything is written."""
+    from coopsumo.run_dirs import mark_run_dir
+
+    argv, study, plan_file, plan = PRESET_STUDIES[name]
+    root = tmp_path / "study"
+    (root / "cells").mkdir(parents=True)
+    (root / "report.md").write_text("# the default learner's report\n")
+    if marked:
+        mark_run_dir(root, name, finished=False, study=study)
+    else:
+        (root / plan_file).write_text(json.dumps(plan))
+    before = snapshot(tmp_path)
+    code = study_main(name, [*argv, "--preset", "paper", "--out", str(root)])
+    refused(capsys, code, str(root), f"holds {study}, not {study} (learner preset paper)")
+    assert snapshot(tmp_path) == before
+
+
+def test_a_folder_marked_before_the_preset_named_a_study_is_its_plans_learners(tmp_path: Path) -> None:
+    """A marker written before the learner presets were part of a study's name ("the tiny profile's sweep") names
+    the study its plan file records with those presets: the paper learner's sweep is taken for a paper rerun (and
+    its marker named again), and refused to the default learner."""
+    from coopsumo.run_dirs import check_study_root, held_study, mark_run_dir
+    from coopsumo.studies.engine.run_folders import STUDY_OUTPUTS, profile_study, recorded_profile
+    from coopsumo.studies.scenario2.redraw import recorded_sweep
+
+    root = tmp_path / "study"
+    (root / "cells").mkdir(parents=True)
+    mark_run_dir(root, "scenario2", finished=False, study="the tiny profile's sweep")
+    (root / "sweep.json").write_text(json.dumps({"profile": {"name": "tiny", "preset": "paper"}}))
+    paper = profile_study("tiny", "sweep", ("paper",))
+    assert held_study(root, recorded_sweep) == paper == "the tiny profile's sweep (learner preset paper)"
+    check_study_root(root, "scenario2", STUDY_OUTPUTS["scenario2"], paper, recorded_sweep)
+    with pytest.raises(UsageError, match=r"holds the tiny profile's sweep \(learner preset paper\), not the tiny"):
+        check_study_root(root, "scenario2", STUDY_OUTPUTS["scenario2"], "the tiny profile's sweep", recorded_sweep)
+    (root / "plan.json").write_text(json.dumps({"plan": {"profile": "full", "presets": ["default", "alpha_only"]}}))
+    recorded = recorded_profile("plan.json", "plan", "profile", presets=("plan", "presets"))
+    assert recorded(root) == "the full profile's study (learner presets default, alpha_only)"
+
+
 def test_a_study_root_resumes_its_own_study_and_keeps_its_name(tmp_path: Path) -> None:
     """A rerun of the same profile into its own folder is taken (its finished cells are reused), and names the study
     in the marker; a later claim of the folder that names no study keeps the name."""
@@ -315,9 +369,28 @@ def test_a_study_refuses_a_run_folder_that_links_outside_it(tmp_path: Path,
     assert snapshot(tmp_path) == before
 
 
+def test_a_study_refuses_a_run_folder_that_links_to_another_of_its_runs(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82, fourth probe (F6): scenario I's runs/t1/greedy_seed1 made a link to runs/t1/keep_seed1, inside the
+    study; the rerun replaced the keep run with the greedy one through it (runs.csv then gave keep greedy's measures).
+    A study makes no links but its model links: refused in one line naming the link, before anything is written."""
+    root = tmp_path / "study"
+    keep = root / "runs" / "t1" / "keep_seed1"
+    keep.mkdir(parents=True)
+    (keep / "config.json").write_text('{"policy": "keep"}\n')
+    (root / "plan.json").write_text(json.dumps({"plan": {"profile": "quick"}}))
+    (root / "runs" / "t1" / "greedy_seed1").symlink_to(keep, target_is_directory=True)
+    before = snapshot(tmp_path)
+    code = study_main("scenario1", ["--quick", "--out", str(root)])
+    refused(capsys, code, str(root / "runs" / "t1" / "greedy_seed1"), f"is a link to {keep}", "inside the study's")
+    assert snapshot(tmp_path) == before
+
+
 def test_only_the_model_links_of_a_study_may_lead_outside_it(tmp_path: Path) -> None:
     """models/<name> and train/<key> are the study's links into the model store, which may lie anywhere; any other
-    link out of the study (its cells/, an evaluation's folder) is refused, and one inside it is not."""
+    link out of the study (its cells/, an evaluation's folder) is refused, and since the fourth probe of issue 82
+    (F6) one inside it too (test_a_study_refuses_a_run_folder_that_links_to_another_of_its_runs)."""
     from coopsumo.run_dirs import check_study_root, study_link
 
     store = tmp_path / "store" / "model_a"
@@ -327,7 +400,6 @@ def test_only_the_model_links_of_a_study_may_lead_outside_it(tmp_path: Path) -> 
         (root / folder).mkdir(parents=True)
     (root / "models" / "alpha0_m100").symlink_to(store)
     (root / "train" / "L2_a0_s1").symlink_to(store)
-    (root / "evals" / "inside").symlink_to(root / "cells")
     assert study_link(root) is None
     check_study_root(root, "scenario2", ("sweep.json", "models", "train", "evals", "cells"))
     (root / "evals" / "L2_T2_a0_s1").symlink_to(tmp_path / "store")

@@ -201,3 +201,27 @@ def test_a_folder_in_place_of_the_network_file_is_one_line_naming_it(
     assert "Traceback" not in err and not out.exists()
     assert sorted(p.name for p in nets.glob("*.net.xml")) == [folder.name]  # no temporary file left
     assert (folder / "mine.txt").read_text() == "a user's file"
+
+
+@pytest.mark.sumo
+def test_a_link_in_the_networks_folder_is_replaced_never_written_through(tmp_path: Path) -> None:
+    """Issue 82, fourth probe (F4 of report F5): a link named like the road's .nod.xml (or .edg.xml) in the networks
+    folder, leading to a user's file, had the nodes written into that file. The network's input files are made new
+    and renamed over the name: the link is replaced, the user's file keeps its bytes, no temporary file is left."""
+    from coopsumo.config import RoadConfig
+    from coopsumo.sim.network import build_net, net_name, net_problem
+
+    road, nets, user = RoadConfig(lanes=2), tmp_path / "nets", tmp_path / "user"
+    nets.mkdir()
+    user.mkdir()
+    stem = net_name(road)
+    for suffix in ("nod", "edg"):
+        (user / f"{suffix}.xml").write_text("<my own file/>\n")
+        (nets / f"{stem}.{suffix}.xml").symlink_to(user / f"{suffix}.xml")
+    path = build_net(road, nets)
+    assert net_problem(path, road) is None
+    for suffix in ("nod", "edg"):
+        assert (user / f"{suffix}.xml").read_text() == "<my own file/>\n"
+        written, tag = nets / f"{stem}.{suffix}.xml", "<nodes>" if suffix == "nod" else "<edges>"
+        assert not written.is_symlink() and written.read_text().startswith(tag)
+    assert sorted(p.name for p in nets.iterdir()) == sorted(f"{stem}.{s}.xml" for s in ("nod", "edg", "net"))

@@ -4,6 +4,7 @@ folder it works in and the run) around agents/train.py's loop."""
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import re
 import shutil
@@ -25,6 +26,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
     TrainConfig,
+    first_difference,
 )
 from coopsumo.dqn_config import DQN_PRESETS, LEARNER_FLAGS, DQNConfig
 from coopsumo.errors import ConfigError, UsageError
@@ -103,9 +105,33 @@ def store_problem(out: Path) -> str | None:
 def training_folder(out: Path) -> Path:
     """The folder `train --resume --out OUT` continues: OUT, or the folder beside it (retrain_folder) in which a
     coopsumo before check_new_training built a new training over a finished one; that training replaces OUT when
-    it has finished."""
+    it has finished. UsageError when that folder is not such a training (retrain_problem): OUT and it are kept."""
     work = retrain_folder(out.resolve())
-    return work if (work / "checkpoint.pt").exists() else out
+    if not (work / "checkpoint.pt").exists():
+        return out
+    if problem := retrain_problem(out, work):
+        raise UsageError(f"{work} beside --out {out} {problem}, so it is not the new training of {out} an earlier "
+                         f"coopsumo left there; both are left alone: move it away (to continue it, rename it and give "
+                         "that name to --resume --out)")  # fmt: skip
+    return work
+
+
+def retrain_problem(out: Path, work: Path) -> str | None:
+    """Why the folder `work` beside `out` (retrain_folder) is not a new training of `out` that an earlier coopsumo
+    built there, or None: it is a link (the training it leads to is someone's own), or its config.json does not
+    record the training `out`'s config.json records (another training moved or copied there)."""
+    if work.is_symlink():
+        return f"is a link to {work.resolve()}"
+    configs = []
+    for folder in (out, work):
+        try:
+            configs.append(json.loads((folder / "config.json").read_text())["config"])
+        except (OSError, ValueError, KeyError, TypeError):
+            return f"has no readable config.json to compare with {out}'s" if folder == work else \
+                f"holds a training while {out} has no readable config.json"
+    if (where := first_difference(configs[1], configs[0])) is not None:
+        return f"holds another training than {out} (first at {where})"
+    return None
 
 
 def default_out(cfg: TrainConfig) -> Path:
@@ -343,6 +369,8 @@ def _check_given_out(args: Any) -> None:
         check_not_writing(args.out)  # a training running there is not an interrupted one
         if not args.resume:
             check_new_training(args.out)
+        else:
+            training_folder(args.out)  # a folder beside it that is not its new training refused before torch loads
     if args.resume and args.out is None:
         raise UsageError("--resume needs --out pointing at the interrupted run")
 

@@ -97,8 +97,8 @@ def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
             return net_path
         print(f"network {net_path} is damaged ({problem}): building it again", file=sys.stderr)
     nodes, edges = plain_xml(road)
-    (folder / f"{stem}.nod.xml").write_text(nodes)
-    (folder / f"{stem}.edg.xml").write_text(edges)
+    _write_own(folder / f"{stem}.nod.xml", nodes)
+    _write_own(folder / f"{stem}.edg.xml", edges)
     fd, tmp = tempfile.mkstemp(suffix=".net.xml", dir=folder)
     os.close(fd)
     cmd = [
@@ -119,6 +119,18 @@ def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
     finally:
         Path(tmp).unlink(missing_ok=True)  # gone after os.replace; left by a failure otherwise
     return net_path
+
+
+def _write_own(path: Path, text: str) -> None:
+    """Write `text` as the file `path` of the networks folder: a new file renamed over the name, so a link there (to a
+    user's file) is replaced, never written through; its temporary file is removed if that fails."""
+    fd, tmp = tempfile.mkstemp(suffix=".xml.tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w") as handle:
+            handle.write(text)
+        os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)  # gone after os.replace; left by a failure otherwise
 
 
 def net_problem(path: Path, road: RoadConfig) -> str | None:

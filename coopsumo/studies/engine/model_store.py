@@ -53,7 +53,8 @@ def store_problem(store: Path) -> str | None:
     """Why the folder `store` is not a model store a study may write, or None: it is missing (made when a model is
     stored), or a folder whose visible entries are all store models (train_cli.STORE_NAME, folders); its dot-entries
     are the store's locks and partial folders, none a link (_lock_problem). A user's file or folder there is left
-    alone."""
+    alone, and so is a link named like a model (is_dir follows it: a study would train into the folder it leads
+    to)."""
     from coopsumo.agents.train_cli import STORE_NAME
 
     if not os.path.lexists(store):
@@ -61,14 +62,17 @@ def store_problem(store: Path) -> str | None:
     if not store.is_dir():
         return "exists and is not a folder"
     try:
-        names = [p.name for p in store.iterdir() if not (STORE_NAME.fullmatch(p.name) and p.is_dir())]
+        entries = list(store.iterdir())
     except OSError as err:
         return f"cannot be read ({err.strerror})"
-    foreign = sorted(name for name in names if not name.startswith("."))
+    if links := sorted(p.name for p in entries if p.is_symlink() and STORE_NAME.fullmatch(p.name)):
+        return f"holds {links[0]}, a link (to a training of the user's?) where the store keeps only its own folders"
+    foreign = sorted(p.name for p in entries if not p.name.startswith(".")
+                     and not (STORE_NAME.fullmatch(p.name) and p.is_dir() and not p.is_symlink()))  # fmt: skip
     more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
     if foreign:
         return f"holds {foreign[0]}{more}, which is not a stored model"
-    return _lock_problem(store, sorted(name for name in names if name.startswith(".")))
+    return _lock_problem(store, sorted(p.name for p in entries if p.name.startswith(".")))
 
 
 def _lock_problem(store: Path, names: list[str]) -> str | None:
@@ -105,6 +109,7 @@ def stored_model(config: dict[str, Any], store: Path, link: Path | None = None) 
     from coopsumo.studies.engine.trainings import finished_training
 
     folder = store / model_id(config)
+    check_entry(folder)
     if link is not None:
         check_link(link)  # before anything is read: a real folder there is the user's
     if not folder.is_dir() or identity(config).get("eval_steps", 0) != 0:
@@ -131,6 +136,7 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
     folder = store / model_id(config)
     with _locked(store / f".{folder.name}.lock"):
         check_link(out)  # again under the lock
+        check_entry(folder)
         folder.mkdir(exist_ok=True)
         _link(out, folder)  # before training: its checkpoint shows through the study's folder
         if finished_training(folder, config, quiet=True) is None:
@@ -164,7 +170,8 @@ def reselectable(config: dict[str, Any], store: Path) -> Path | None:
     if not selecting(cfg) or cfg.eval_steps != 0:
         return None
     wanted, name = without_selection(config), model_id(config)
-    for folder in sorted(p for p in store.iterdir() if p.is_dir() and not p.name.startswith(".") and p.name != name):
+    for folder in sorted(p for p in store.iterdir() if p.is_dir() and not p.is_symlink() and not p.name.startswith(".")
+                         and p.name != name):  # fmt: skip
         try:
             other = json.loads((folder / "config.json").read_text())["config"]
         except (OSError, ValueError, KeyError, TypeError):
@@ -203,6 +210,14 @@ def _locked(path: Path) -> Iterator[None]:
         yield
     finally:
         release_lock(fd, path)
+
+
+def check_entry(folder: Path) -> None:
+    """UsageError naming `folder`, a model's folder in the store, when it is a link: the store makes only folders,
+    so a link there leads to someone's folder (a user's training), which is never trained into or replaced."""
+    if folder.is_symlink():
+        raise UsageError(f"{folder} is a link to {folder.resolve()} where the model store keeps its own folder of "
+                         "that model; it is left alone: remove the link and run again")  # fmt: skip
 
 
 def check_link(link: Path) -> None:

@@ -13,7 +13,7 @@ from typing import Any
 from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
 from coopsumo.files import file_sha256
 from coopsumo.record_schemas import SPEED_MAX_MPS
-from coopsumo.run_dirs import Recorded, check_run_dir
+from coopsumo.run_dirs import LEARNERS, Recorded, check_run_dir
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
@@ -147,24 +147,39 @@ def study_root(root: Path, kind: str, study: str | None = None, recorded: Record
     return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"), study, recorded, advice)
 
 
-def profile_study(profile: str, what: str = "study") -> str:
-    """Which study a profile's run writes, as a study root's marker names it: "the quick profile's study"."""
-    return f"the {profile} profile's {what}"
+def profile_study(profile: str, what: str = "study", presets: Sequence[str] = ("default",)) -> str:
+    """Which study a profile's run writes, as a study root's marker names it: "the quick profile's study", and with
+    learner presets other than the default "the quick profile's study (learner preset paper)": another study."""
+    learners = "" if tuple(presets) == ("default",) else f"{LEARNERS}{'s' * (len(presets) > 1)} {', '.join(presets)})"
+    return f"the {profile} profile's {what}{learners}"
 
 
-def recorded_profile(plan_file: str, *keys: str) -> Recorded:
+def _at(data: Any, keys: Sequence[str]) -> Any:
+    for key in keys:
+        data = data[key]
+    return data
+
+
+def recorded_profile(plan_file: str, *keys: str, presets: Sequence[str] = ()) -> Recorded:
     """recorded(root) -> profile_study of the profile name a study's plan file holds under `keys` (plan.json's
-    plan.profile), or None when there is none or it cannot be read: which study a root written before its marker
-    named it holds."""
+    plan.profile) and of the learner presets it holds under `presets` (none given or none there: the default), or
+    None when there is none or it cannot be read: which study a root written before its marker named it holds."""
 
     def recorded(root: Path) -> str | None:
         try:
-            value = json.loads((root / plan_file).read_text())
-            for key in keys:
-                value = value[key]
+            data = json.loads((root / plan_file).read_text())
+            value = _at(data, keys)
         except (OSError, ValueError, KeyError, TypeError):
             return None
-        return profile_study(value) if isinstance(value, str) else None
+        try:
+            learners = _at(data, presets) if presets else ["default"]
+        except (KeyError, TypeError):  # a plan written before its study had learner presets: the default's
+            learners = ["default"]
+        learners = [learners] if isinstance(learners, str) else learners
+        if not isinstance(value, str) or not isinstance(learners, list) or not learners \
+                or not all(isinstance(x, str) for x in learners):  # fmt: skip
+            return None
+        return profile_study(value, presets=learners)
 
     return recorded
 

@@ -226,9 +226,9 @@ def main(argv: list[str] | None = None) -> int:
         if (Path(args.out) / "merge.json").exists():
             raise UsageError(f"--out {args.out} holds a merge of scenario I parts (merge.json): pick another --out")
         # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
-        with study_root(args.out, "scenario1", profile_study(plan.profile), recorded_profile("plan.json", "plan",
-                        "profile"), f"pick another --out (the {plan.profile} profile's default: {study_out(plan)})",
-                        trains=True):
+        with study_root(args.out, "scenario1", profile_study(plan.profile, presets=plan.presets),
+                        recorded_profile("plan.json", "plan", "profile", presets=("plan", "presets")),
+                        f"pick another --out (the {plan.profile} profile's default: {study_out(plan)})", trains=True):
             return run_study(plan, args.out, args.workers, args.backend, args.address, progress=not args.quiet)
 
     return run_cli("scenario1", body)

@@ -352,7 +352,7 @@ MERGE_ALONE = ("profile", "steps", "eval_steps", "seeds", "eval_seeds", "lanes",
 
 def sweep_study(profile: Profile) -> str:
     """Which study a sweep of `profile` writes, as its folder's marker names it (run_dirs.check_study_root)."""
-    return profile_study(profile.name, "sweep")
+    return profile_study(profile.name, "sweep", (profile.preset,))
 
 
 def merged_study(profile: str, parts: Sequence[Path]) -> str:
@@ -369,11 +369,14 @@ def recorded_sweep(root: Path) -> str | None:
     try:
         meta = json.loads((root / "sweep.json").read_text())
         name, conditioned, parts = meta["profile"]["name"], meta["profile"].get("conditioned"), meta.get("parts")
+        preset = meta["profile"].get("preset", "default")
         if parts is not None:
             return merged_study(name, [Path(part["folder"]) for part in parts]) if isinstance(name, str) else None
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return None
-    return profile_study(name, "conditioned sweep" if conditioned else "sweep") if isinstance(name, str) else None
+    if not isinstance(name, str) or not isinstance(preset, str):
+        return None
+    return profile_study(name, "conditioned sweep" if conditioned else "sweep", (preset,))
 
 
 def merge_command(args: Any, given: set[str]) -> int:
