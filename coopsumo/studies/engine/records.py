@@ -15,7 +15,7 @@ from typing import Any
 
 from coopsumo.config import results_view
 from coopsumo.errors import UsageError
-from coopsumo.files import file_sha256, read_json_object, temporary_of
+from coopsumo.files import file_sha256, read_json, read_json_object, temporary_of
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD, RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS, TRAIN_SUMMARY_KEYS
 
@@ -320,7 +320,7 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
             print(f"{prog}: cell {spec['key']}: record {path} is not a regular file; rerunning it", file=sys.stderr)
             continue
         try:
-            record = json.loads(path.read_text())
+            record = read_json(path)
         except FileNotFoundError:
             continue
         except (OSError, ValueError) as err:
@@ -347,7 +347,7 @@ def summary_problem(path: Path, required: Sequence[str]) -> str | None:
     """Why the summary.json at `path` cannot be trusted, or None: a readable JSON object whose `required` values
     are finite numbers (as record_problem asks of a cell record's summary)."""
     try:
-        summary = json.loads(path.read_text())
+        summary = read_json(path)
     except (OSError, ValueError) as err:
         return f"has an unreadable summary.json ({type(err).__name__})"
     problem = record_problem({"status": "ok", "summary": summary}, required)

@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import first_difference, results_view
+from coopsumo.files import read_json
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -30,7 +31,7 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
     read: dict[str, Any] = {}
     for name in (RUN_MARKER, "config.json", "train_summary.json"):
         try:
-            read[name] = json.loads((out / name).read_text())
+            read[name] = read_json(out / name)
             if name == "config.json":
                 read[name] = read[name]["config"]
         except (OSError, ValueError, KeyError, TypeError) as err:
@@ -145,7 +146,7 @@ def model_folder_problem(folder: Path) -> str | None:
     except ModelFileError as err:
         return f"cannot be used: {err}"
     try:
-        recorded = json.loads((folder / "config.json").read_text())["config"]
+        recorded = read_json(folder / "config.json")["config"]
     except (OSError, ValueError, KeyError, TypeError):
         return None  # nothing to compare with (the caller checked config.json against the study's configuration)
     if (where := first_difference(meta.get("config"), recorded)) is not None:

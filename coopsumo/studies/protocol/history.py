@@ -24,7 +24,7 @@ import pandas as pd
 from coopsumo.config import SPEED_ONLY_FIELDS, to_dict
 from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS, RETIRED_FIELDS, dqn_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line
-from coopsumo.files import write_atomic
+from coopsumo.files import loads_json, write_atomic
 from coopsumo.record_schemas import PROTOCOL_STATS, PROTOCOL_STUDY, RecordError
 from coopsumo.runio import Parser, run_cli
 
@@ -98,7 +98,7 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
     study names); RecordError naming the file and the field otherwise."""
     path = folder / "study.json"
     try:
-        study = json.loads(path.read_text(encoding="utf-8"))
+        study = loads_json(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as err:
         raise RecordError(f"{path} cannot be read as JSON ({type(err).__name__}); restore it or move the study "
                           "away") from None  # fmt: skip

@@ -17,7 +17,7 @@ from pandas.api.types import is_numeric_dtype
 
 from coopsumo.config import first_difference
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.files import write_json
+from coopsumo.files import read_json, write_json
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
@@ -34,7 +34,7 @@ def rewrite_outputs(root: Path) -> dict[str, Any]:
     trained or run (a committed folder keeps no cells/, so rerunning its command would train every cell again);
     the bootstraps are seeded, so the numbers come out as they were; a lane-network profile's (full, check) from its
     evals.csv too (scenario2_gate_report). Returns sweep.json's new content."""
-    meta = json.loads((root / "sweep.json").read_text())
+    meta = read_json(root / "sweep.json")
     fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["profile"].items()}
     profile = Profile(**fields)
     runs, n_boot = pd.read_csv(root / "runs.csv"), int(meta["bootstrap_replicates"])
@@ -117,7 +117,7 @@ def _read_part(folder: Path) -> Part:
     """One part read and checked against itself before anything is written (_part_profile, _meta_problem,
     _table_problem)."""
     try:
-        meta = json.loads((folder / "sweep.json").read_text())
+        meta = read_json(folder / "sweep.json")
         runs, evals = pd.read_csv(folder / "runs.csv"), pd.read_csv(folder / "evals.csv")
     except (OSError, ValueError) as err:
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err.__class__.__name__}: "
@@ -367,7 +367,7 @@ def recorded_sweep(root: Path) -> str | None:
     relative one from the working folder (the merge was run from it); a conditioned sweep (the retired `--conditioned`,
     results/archive/scenario2_conditioned) is another study than any sweep run today."""
     try:
-        meta = json.loads((root / "sweep.json").read_text())
+        meta = read_json(root / "sweep.json")
         name, conditioned, parts = meta["profile"]["name"], meta["profile"].get("conditioned"), meta.get("parts")
         if parts is not None:
             return merged_study(name, [Path(part["folder"]) for part in parts]) if isinstance(name, str) else None
