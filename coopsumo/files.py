@@ -57,8 +57,8 @@ def write_json(path: Path, data: Any) -> None:
 MAX_JSON_DEPTH = 64  # no record of coopsumo nests deeper than a handful of levels
 
 
-def _depth_problem(data: Any) -> str | None:
-    """Why `data` (parsed JSON) nests too deeply to be a record, or None; walked without recursion."""
+def depth_problem(data: Any) -> str | None:
+    """Why `data` (parsed JSON or TOML) nests too deeply to be a record, or None; walked without recursion."""
     stack = [(data, 1)]
     while stack:
         value, depth = stack.pop()
@@ -76,7 +76,7 @@ def loads_json(text: str | bytes) -> Any:
         data = json.loads(text)
     except RecursionError:
         raise ValueError(f"not JSON: nested deeper than {MAX_JSON_DEPTH} levels") from None
-    if (problem := _depth_problem(data)) is not None:
+    if (problem := depth_problem(data)) is not None:
         raise ValueError(f"not JSON: {problem}")
     return data
 

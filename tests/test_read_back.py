@@ -76,3 +76,23 @@ def test_a_deeply_nested_study_record_is_named(tmp_path: Path) -> None:
     (tmp_path / "study.json").write_text(json.dumps({"a": 1})[:-1] + ', "b": ' + DEEP)
     with pytest.raises(RecordError, match="study.json cannot be read as JSON"):
         records(tmp_path)
+
+
+@pytest.mark.parametrize(("text", "words"), [
+    (b'[profiles.mine]\nhelp = "x\xff"\nlanes = [2]\n', "not TOML (not UTF-8: byte 0xff"),
+    (b"[profiles.mine]\nlanes = " + b"[" * 50_000 + b"]" * 50_000 + b"\n", "not TOML (nested deeper"),
+    (b"[profiles.mine]\nlanes = " + b"[" * 100 + b"]" * 100 + b"\n", "not TOML (nested deeper"),
+], ids=["not_utf8", "recursion", "nested"])  # fmt: skip
+@pytest.mark.parametrize("study", ["scenario2", "protocol", "learning"])
+def test_a_profile_file_not_utf8_or_nested_deeply_is_not_toml(
+        study: str, text: bytes, words: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """F9: `--profile a.toml` holding a byte that is not UTF-8, or arrays nested 50,000 deep, was a
+    UnicodeDecodeError or RecursionError traceback: one line naming the file, exit 2, nothing written."""
+    import importlib
+
+    main = importlib.import_module(f"coopsumo.studies.{study}.study").main
+    path = tmp_path / "a.toml"
+    path.write_bytes(text)
+    assert main(["--profile", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    assert one_line(capsys, f"{study}: error: {path}: {words}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.toml"]

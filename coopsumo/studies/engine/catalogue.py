@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Protocol, TypeVar, Union, get_args, get_origin
 
 from coopsumo.errors import ConfigError, UsageError
+from coopsumo.files import MAX_JSON_DEPTH, depth_problem
 from coopsumo.validation import names_problem
 
 DATA = Path(__file__).resolve().parents[2] / "experiments_data"
@@ -79,13 +80,22 @@ class Entry:
 
 
 def read_toml(path: Path) -> dict[str, Any]:
+    """The TOML file `path`; ConfigError in one line naming it when it cannot be read, is not UTF-8 or not TOML,
+    or nests deeper than any catalogue or profile does (tomllib's RecursionError, files.depth_problem)."""
     try:
         with path.open("rb") as f:
-            return tomllib.load(f)
+            data = tomllib.load(f)
     except OSError as err:
         raise ConfigError(f"{path}: cannot read it ({err.strerror})") from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: not TOML (not UTF-8: byte {err.object[err.start]:#04x} at {err.start})") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not TOML ({err})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not TOML (nested deeper than {MAX_JSON_DEPTH} levels)") from None
+    if (problem := depth_problem(data)) is not None:
+        raise ConfigError(f"{path}: not TOML ({problem})")
+    return data
 
 
 
