@@ -96,3 +96,58 @@ def test_a_profile_file_not_utf8_or_nested_deeply_is_not_toml(
     assert main(["--profile", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 2
     assert one_line(capsys, f"{study}: error: {path}: {words}")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.toml"]
+
+
+BIG = int("9" * 400)  # no float holds it: float(BIG) is an OverflowError
+CUT = "9" * 37 + "..."  # how a refusal shows it
+
+
+def test_a_number_too_large_for_a_float_is_out_of_limits_in_every_record_check() -> None:
+    """F10: a 400-digit integer was an OverflowError traceback wherever a check converted it with float() or asked
+    math.isfinite: record_schemas' rules, the summary checks of the studies, the learner's limits and types."""
+    from coopsumo.dqn_config import DQNConfig
+    from coopsumo.record_schemas import RUN_SUMMARY
+    from coopsumo.studies.engine.records import implausible, record_problem, training_problem
+    from coopsumo.validation import limits_problem, type_problem
+
+    speed, updates = RUN_SUMMARY.problem({"mean_speed_mps": BIG}), RUN_SUMMARY.problem({"updates": BIG})
+    assert speed == f"field mean_speed_mps must be a finite number >= 0 and <= 70 (m/s), got {CUT}"
+    assert updates == f"field updates must be an integer >= 0 (finite as a float), got {CUT}"
+    assert CUT in str(implausible({"departed": BIG, "arrived": 3}))
+    assert "departed" in str(record_problem({"status": "ok", "summary": {"departed": BIG}}, ["departed"]))
+    summary = {"mean_speed_mps": 1.0, "lane_changes": 0, "collisions": 0, "updates": BIG, "wall_seconds": 1.0,
+               "steps_per_second": 1.0, "departed": 1, "steps": 10}  # fmt: skip
+    assert "updates" in str(training_problem(summary))
+    learner = DQNConfig()
+    object.__setattr__(learner, "lr", BIG)
+    assert type_problem(learner) == f"lr must be a finite number, got {CUT}"
+    lr = limits_problem(learner, {"lr": (0.0, 1.0, True, False)})
+    assert lr == f"lr must be a finite number > 0 and <= 1, got {CUT}"
+    object.__setattr__(learner, "batch_size", BIG)
+    batch = limits_problem(learner, {"batch_size": (1, 10, False, False)})
+    assert batch == f"batch_size must be an integer from 1 to 10, got {CUT}"
+
+
+def test_a_table_or_drive_setting_too_large_for_a_float_is_named() -> None:
+    """F10: a merge part's runs.csv cell of 400 digits (pandas' to_numeric overflowed) and a protocol study's drive
+    setting of 400 digits (history) are refused in words."""
+    from coopsumo.studies.protocol.history import drive_problem
+    from coopsumo.studies.scenario2.redraw import _no_number
+
+    assert _no_number("9" * 400) and _no_number("x") and not _no_number("12.5")
+    assert "which no policy takes" in str(drive_problem({"change_margin": BIG}))
+
+
+@pytest.mark.parametrize("study", ["scenario2", "learning"])
+def test_a_profile_number_too_large_for_a_float_is_refused(study: str, tmp_path: Path,
+                                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """F10: `alphas = [999...]` in a profile of one's own: one line naming the file and the field, exit 2."""
+    import importlib
+
+    main = importlib.import_module(f"coopsumo.studies.{study}.study").main
+    path = tmp_path / "p.toml"
+    words = 'help = "x"\n' if study == "scenario2" else ""  # the learning study's profiles have no help
+    path.write_text(f"[profiles.mine]\n{words}alphas = [{BIG}]\n")
+    assert main(["--profile", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 2
+    one_line(capsys, f"{path}: [profiles.mine] alphas must be a finite number, got {CUT}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]

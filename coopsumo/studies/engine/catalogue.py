@@ -6,6 +6,7 @@ profile taken from a file of one's own (`--profile PATH.toml[:NAME]`, own_profil
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import tomllib
 import types
@@ -14,6 +15,7 @@ from pathlib import Path
 from typing import Any, Protocol, TypeVar, Union, get_args, get_origin
 
 from coopsumo.errors import ConfigError, UsageError
+from coopsumo.field_rules import as_float, shown
 from coopsumo.files import MAX_JSON_DEPTH, depth_problem
 from coopsumo.validation import names_problem
 
@@ -65,6 +67,8 @@ class Entry:
             items = [args[0]] * len(value) if any_length else list(args)
             return tuple(self._typed(key, v, a) for v, a in zip(value, items, strict=True))
         if hint is float and isinstance(value, int | float) and not isinstance(value, bool):
+            if isinstance(value, int) and math.isinf(as_float(value)):  # 400 digits: no float holds it
+                raise self.error(f"{key} must be a finite number, got {shown(value)}")
             return float(value)
         if isinstance(value, hint) and not (hint is int and isinstance(value, bool)):
             return value

@@ -17,6 +17,7 @@ from pandas.api.types import is_numeric_dtype
 
 from coopsumo.config import first_difference
 from coopsumo.errors import ConfigError, UsageError
+from coopsumo.field_rules import shown
 from coopsumo.files import read_json, write_json
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
@@ -195,8 +196,9 @@ def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str,
         numbers = [table[c] for c in columns if c not in ("key", "policy", "status")]
         if text := [c for c in numbers if len(c) and not is_numeric_dtype(c)]:  # (an empty table reads as text)
             column = text[0]
-            bad = column[pd.to_numeric(column, errors="coerce").isna() & column.notna()]
-            return f"{name} has {column.name} = {bad.iloc[0] if len(bad) else column.iloc[0]!r}, not a number: edited?"
+            bad = column[column.map(_no_number) & column.notna()]  # pandas' to_numeric: OverflowError at 400 digits
+            value = shown(bad.iloc[0] if len(bad) else column.iloc[0])
+            return f"{name} has {column.name} = {value}, not a number: edited?"
     planned = {s["key"]: s for s in specs}
     if len(runs) != len(specs) or set(runs["key"]) != set(planned):
         extra = sorted(set(map(str, runs["key"])) - set(planned))
@@ -255,6 +257,14 @@ def _differs(row: dict[str, Any], cell: dict[str, Any], names: Sequence[str]) ->
                                                       and float(a) == float(b))):  # fmt: skip
             return name
     return None
+
+
+def _no_number(value: Any) -> bool:
+    """True for a table's cell that is no finite number: a text, a number too large for a float (400 digits)."""
+    try:
+        return not math.isfinite(float(value))
+    except (TypeError, ValueError, OverflowError):
+        return True
 
 
 def _blank(value: Any) -> bool:
