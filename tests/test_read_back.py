@@ -151,3 +151,22 @@ def test_a_profile_number_too_large_for_a_float_is_refused(study: str, tmp_path:
     assert main(["--profile", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 2
     one_line(capsys, f"{path}: [profiles.mine] alphas must be a finite number, got {CUT}")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml"]
+
+
+@pytest.mark.parametrize("count", ["6.0", "6e0", " 6"])
+def test_a_loop_count_not_written_in_digits_is_not_trusted(count: str, tmp_path: Path) -> None:
+    """F11: nVehContrib="6.0" passed the checks (a whole float) and then read_detectors' int() was a ValueError
+    traceback; the run is redone with one line naming the field, as for a count of -30 or 0x18."""
+    from coopsumo.config import SimConfig, to_dict
+    from coopsumo.report.analysis import read_detectors
+    from coopsumo.studies.engine.run_checks import detectors_problem
+
+    path = tmp_path / "detectors.xml"
+    row = ('<interval begin="0.00" end="60.00" id="e1_x100_l0" nVehContrib="{}" flow="360.00" occupancy="5.00" '
+           'speed="20.00"/>\n')  # fmt: skip
+    path.write_text("<detector>\n" + row.format("6") + "</detector>\n")
+    cfg = to_dict(SimConfig(steps=600))
+    assert detectors_problem(path, cfg, 60.0) is None and read_detectors(path)["n_veh"].tolist() == [6]
+    path.write_text("<detector>\n" + row.format(count) + "</detector>\n")
+    problem = str(detectors_problem(path, cfg, 60.0))
+    assert f"field nVehContrib must be written as a whole number, got {count!r}" in problem, problem
