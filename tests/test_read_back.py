@@ -170,3 +170,30 @@ def test_a_loop_count_not_written_in_digits_is_not_trusted(count: str, tmp_path:
     path.write_text("<detector>\n" + row.format(count) + "</detector>\n")
     problem = str(detectors_problem(path, cfg, 60.0))
     assert f"field nVehContrib must be written as a whole number, got {count!r}" in problem, problem
+
+
+def test_a_stored_model_whose_seed_is_true_is_trained_again(tmp_path: Path,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """F20: `sim.seed: true` in a store model's config.json: `coopsumo models` called it not usable, yet a study
+    reused it (true == 1 passed the identity check). Both now ask record_schemas.STORE_CONFIG: trained again, one
+    line naming the field."""
+    from coopsumo.config import SimConfig, TrainConfig, to_dict
+    from coopsumo.run_dirs import mark_run_dir
+    from coopsumo.studies.engine import model_store
+    from coopsumo.studies.engine.trainings import finished_training
+
+    config = to_dict(TrainConfig(sim=SimConfig(steps=300, seed=1, policy="dqn"), eval_steps=0))
+    folder = tmp_path / model_store.model_id(config)
+    folder.mkdir()
+    edited = json.loads(json.dumps(config))
+    edited["sim"]["seed"] = True
+    (folder / "config.json").write_text(json.dumps({"config": edited}))
+    (folder / "train_summary.json").write_text(json.dumps({"steps": 300}))
+    (folder / "model.pt").write_bytes(b"weights")
+    mark_run_dir(folder, "train")
+    assert finished_training(folder, config, quiet=True) is None and capsys.readouterr().err == ""
+    assert finished_training(folder, config) is None
+    one_line(capsys, f"coopsumo: {folder} holds a model.pt but its config.json field config.sim.seed must be an "
+             "integer, got True; training it again")  # fmt: skip
+    assert model_store.listing(tmp_path)[0]["state"] == ("not usable: config.json field config.sim.seed must be an "
+                                                        "integer, got True")  # fmt: skip

@@ -11,6 +11,7 @@ from typing import Any
 
 from coopsumo.config import first_difference, results_view
 from coopsumo.files import read_json
+from coopsumo.record_schemas import STORE_CONFIG
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -32,14 +33,17 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
     for name in (RUN_MARKER, "config.json", "train_summary.json"):
         try:
             read[name] = read_json(out / name)
-            if name == "config.json":
-                read[name] = read[name]["config"]
-        except (OSError, ValueError, KeyError, TypeError) as err:
+        except (OSError, ValueError) as err:
             if not quiet and (out / "model.pt").is_file():  # a finished training's folder that lost or spoiled it
                 print(f"coopsumo: {out} holds a model.pt but its {name} is missing or unreadable "
                       f"({type(err).__name__}); training it again", file=sys.stderr)  # fmt: skip
             return None
-    marker, stored, summary = read[RUN_MARKER], read["config.json"], read["train_summary.json"]
+    if (problem := STORE_CONFIG.problem(read["config.json"])) is not None:  # as `coopsumo models` judges it
+        if not quiet and (out / "model.pt").is_file():  # a seed of true is none, though true == 1
+            print(f"coopsumo: {out} holds a model.pt but its config.json {problem}; training it again",
+                  file=sys.stderr)  # fmt: skip
+        return None
+    marker, stored, summary = read[RUN_MARKER], read["config.json"]["config"], read["train_summary.json"]
     listed = listed_files(marker) if isinstance(marker, dict) and marker.get("kind") == "train" else None
     if not (listed is not None and "model.pt" in listed and (out / "model.pt").is_file() and isinstance(summary, dict)):
         return None
