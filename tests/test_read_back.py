@@ -197,3 +197,20 @@ def test_a_stored_model_whose_seed_is_true_is_trained_again(tmp_path: Path,
              "integer, got True; training it again")  # fmt: skip
     assert model_store.listing(tmp_path)[0]["state"] == ("not usable: config.json field config.sim.seed must be an "
                                                         "integer, got True")  # fmt: skip
+
+
+@pytest.mark.parametrize("second", ["l", "l/", "link"])
+def test_accident_seeds_refuses_a_root_given_twice_before_anything_runs(
+        second: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """F21: `accident-seeds l l` ran every cell, wrote its folder and only then failed at runs.csv (each model's
+    rows twice), on every rerun. A ROOT given twice, as written or behind a link, is refused first."""
+    from coopsumo.studies.followups import accident_seeds
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "l").mkdir()
+    (tmp_path / "link").symlink_to("l")
+    before = snapshot(tmp_path)
+    assert accident_seeds.main(["l", second, "--variants", "interval", "--seeds", "1", "--out", "acc"]) == 2
+    one_line(capsys, f"accident-seeds: error: ROOT {Path(second)} is l given again")
+    assert snapshot(tmp_path) == before and not (tmp_path / "acc").exists()

@@ -191,6 +191,15 @@ def build_parser() -> Parser:
     return p
 
 
+def check_roots(roots: list[Path]) -> None:
+    """UsageError when a ROOT is given twice (as written or behind a link: `l l`, `l l/`): its every model would be
+    run twice, and runs.csv refused only after the runs (issue 82, probe 4, F21)."""
+    seen: dict[Path, Path] = {}
+    for root in roots:
+        if (first := seen.setdefault(root.resolve(), root)) is not root:
+            raise UsageError(f"ROOT {root} is {first} given again: give each learning-study folder once")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
@@ -199,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         variants = variant_list("--variants", args.variants)
         alphas = alpha_list("--alphas", args.alphas)
         check_backend(args.backend, args.address)
+        check_roots(args.roots)
         found = [m for root in args.roots for m in models(root, variants, alphas, args.seeds)]
         if not found:
             raise UsageError(f"no finished models of {','.join(variants)} at alpha {args.alphas} with a training "
