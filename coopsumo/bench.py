@@ -475,6 +475,13 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     torch.set_num_threads(1)
+    if args.model is not None:  # read as --policy dqn: reads it, before the trainings, which take minutes
+        from coopsumo.agents.model_file import ModelFileError, load_model
+
+        try:
+            load_model(args.model)
+        except ModelFileError as err:
+            parser.error(f"--model: {err}")
     print(f"coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread, {steps} steps a run)", flush=True)
     if not args.learner:
         world_lines(steps, quick)

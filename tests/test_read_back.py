@@ -214,3 +214,23 @@ def test_accident_seeds_refuses_a_root_given_twice_before_anything_runs(
     assert accident_seeds.main(["l", second, "--variants", "interval", "--seeds", "1", "--out", "acc"]) == 2
     one_line(capsys, f"accident-seeds: error: ROOT {Path(second)} is l given again")
     assert snapshot(tmp_path) == before and not (tmp_path / "acc").exists()
+
+
+def test_bench_refuses_a_model_file_of_random_bytes_before_its_runs(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """F22: `bench --model m.pt` took any existing file and ran its trainings (minutes) before reading it; now it is
+    read first, as `--policy dqn:` reads it: one line, exit 2, nothing run."""
+    from coopsumo import bench
+
+    def no_run(*_args: object, **_kwargs: object) -> None:
+        raise AssertionError("bench ran before refusing the model file")
+
+    monkeypatch.setattr(bench, "world_lines", no_run)
+    monkeypatch.setattr(bench, "learner_lines", no_run)
+    path = tmp_path / "m.pt"
+    path.write_bytes(bytes(range(256)) * 12)
+    with pytest.raises(SystemExit) as end:
+        bench.main(["--quick", "--model", str(path)])
+    assert end.value.code == 2
+    err = capsys.readouterr().err
+    assert f"coopsumo bench: error: --model: cannot read model file {path}" in err and "Traceback" not in err, err
