@@ -29,6 +29,7 @@ from coopsumo.agents.policies import make_policy
 from coopsumo.agents.rollout import run
 from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS
+from coopsumo.files import read_json
 from coopsumo.runio import Parser, children_start_deaf, working_folder_problem
 from coopsumo.sim import fast
 from coopsumo.sim.physics import occupancy
@@ -248,7 +249,6 @@ def bench_fcd_cost(steps: int, period_s: float, repeats: int) -> tuple[float, fl
     and highest value %, FCD MB per simulated hour, mean vehicles on the road). Each of `repeats` pairs
     runs `python -m coopsumo.simulate` with and without --fcd at the same time, in two processes (one per
     core on a quiet 2-core machine), so that load from other work hits both alike; who starts first alternates."""
-    import json
     import subprocess
 
     args = ["--scenario", "accident", "--accident-start", "100", "--accident-steps", "50000", "--steps", str(steps),
@@ -270,7 +270,7 @@ def bench_fcd_cost(steps: int, period_s: float, repeats: int) -> tuple[float, fl
                     if proc.poll() is None:
                         proc.kill()
                         proc.wait()
-            summary = {name: json.loads((Path(tmp) / name / "summary.json").read_text()) for name in procs}
+            summary = {name: read_json(Path(tmp) / name / "summary.json") for name in procs}
             extra.append(100 * (summary["fcd"]["wall_seconds"] / summary["plain"]["wall_seconds"] - 1))
             size_mb = (Path(tmp) / "fcd" / "fcd.xml").stat().st_size / 1e6
             vehicles = float(summary["plain"]["mean_vehicles_on_road"])
@@ -475,6 +475,13 @@ def main(argv: list[str] | None = None) -> int:
     import torch
 
     torch.set_num_threads(1)
+    if args.model is not None:  # read as --policy dqn: reads it, before the trainings, which take minutes
+        from coopsumo.agents.model_file import ModelFileError, load_model
+
+        try:
+            load_model(args.model)
+        except ModelFileError as err:
+            parser.error(f"--model: {err}")
     print(f"coopsumo bench (3 lanes, T_up 1.0 s, 1 torch thread, {steps} steps a run)", flush=True)
     if not args.learner:
         world_lines(steps, quick)

@@ -12,8 +12,27 @@ import argparse
 import dataclasses
 import math
 from collections.abc import Sequence
+from typing import Any
 
 from coopsumo.errors import UsageError
+
+
+def as_float(value: Any) -> float:
+    """float(value) of a number read back, where a whole number too large for a float (400 digits in a record or a
+    profile) is +-inf: outside every finite limit, so refused as such, never an OverflowError."""
+    try:
+        return float(value)
+    except OverflowError:
+        return math.inf if value > 0 else -math.inf
+
+
+def shown(value: Any, width: int = 40) -> str:
+    """repr(value) cut to `width` characters (a 400-digit number ends in '...')."""
+    try:
+        text = repr(value)
+    except ValueError:  # an integer beyond the digits Python converts to text
+        text = f"an integer of about {int(value.bit_length() * 0.30103)} digits"
+    return text if len(text) <= width else text[: width - 3] + "..."
 
 
 def int_range(low: int, high: int | None) -> str:
@@ -64,7 +83,7 @@ class IntRule:
 
     def problem(self, value: int) -> str | None:
         """None when value is inside the range, else "must be ..., got VALUE" (a data file's value)."""
-        return f"must be {self.words()}, got {value!r}" if int_problem(value, self.low, self.high) else None
+        return f"must be {self.words()}, got {shown(value)}" if int_problem(value, self.low, self.high) else None
 
 
 def integer(low: int, high: int | None = None, note: str = "") -> IntRule:
@@ -94,10 +113,10 @@ class NumberRule:
             raise argparse.ArgumentTypeError(f"must be {problem}{self.note}, got {text!r}")
         return value
 
-    def problem(self, value: float) -> str | None:
+    def problem(self, value: Any) -> str | None:
         """None when value is finite and inside the bounds, else "must be ..., got VALUE" (a data file's value)."""
-        problem = self._problem(float(value))
-        return f"must be {problem}{self.note}, got {value!r}" if problem else None
+        problem = self._problem(as_float(value))
+        return f"must be {problem}{self.note}, got {shown(value)}" if problem else None
 
 
 def number(low: float | None = None, high: float | None = None, low_open: bool = False, high_open: bool = False,
@@ -179,8 +198,8 @@ class ListRule:
 
     def problem(self, values: Sequence[float]) -> str | None:
         """Why a data file's list breaks the rule ("must be a list of ..., got [nan]"), or None."""
-        return self.values_problem([float(v) for v in values], [repr(v) for v in values], repr(list(values)),
-                                   "a list")  # fmt: skip
+        items = [shown(v) for v in values]  # a 400-digit number shortened, any other as repr gives it
+        return self.values_problem([as_float(v) for v in values], items, f"[{', '.join(items)}]", "a list")
 
 
 def number_list(flag: str, text: str, low: float | None = None, high: float | None = None,

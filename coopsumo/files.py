@@ -80,10 +80,42 @@ def write_json(path: Path, data: Any) -> None:
     write_atomic(path, lambda tmp: tmp.write_text(text))
 
 
+MAX_JSON_DEPTH = 64  # no record of coopsumo nests deeper than a handful of levels
+
+
+def depth_problem(data: Any) -> str | None:
+    """Why `data` (parsed JSON or TOML) nests too deeply to be a record, or None; walked without recursion."""
+    stack = [(data, 1)]
+    while stack:
+        value, depth = stack.pop()
+        if depth > MAX_JSON_DEPTH:
+            return f"nested deeper than {MAX_JSON_DEPTH} levels"
+        children = value.values() if isinstance(value, dict) else value if isinstance(value, list) else ()
+        stack.extend((child, depth + 1) for child in children if isinstance(child, dict | list))
+    return None
+
+
+def loads_json(text: str | bytes) -> Any:
+    """json.loads for a record read back: text nested too deeply (json's decoder raises RecursionError for it,
+    deeper code would later) is a ValueError, like any other text that is not JSON."""
+    try:
+        data = json.loads(text)
+    except RecursionError:
+        raise ValueError(f"not JSON: nested deeper than {MAX_JSON_DEPTH} levels") from None
+    if (problem := depth_problem(data)) is not None:
+        raise ValueError(f"not JSON: {problem}")
+    return data
+
+
+def read_json(path: Path) -> Any:
+    """The JSON in the file `path` (loads_json): OSError when it cannot be read, ValueError when it is not JSON."""
+    return loads_json(path.read_text())
+
+
 def read_json_object(path: Path) -> dict[str, Any] | None:
     """The JSON object in the file `path`; None when it is missing, unreadable, not JSON or not an object."""
     try:
-        data = json.loads(path.read_text())
+        data = read_json(path)
     except (OSError, ValueError):
         return None
     return data if isinstance(data, dict) else None

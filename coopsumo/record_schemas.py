@@ -33,7 +33,7 @@ from typing import Any
 
 from coopsumo.config import MAX_LANES, MIN_LANES, SPEED_LIMIT_MPS
 from coopsumo.errors import UsageError
-from coopsumo.field_rules import IntRule, NumberRule
+from coopsumo.field_rules import IntRule, NumberRule, as_float, shown
 from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MOBIL_LIMITS
 
 SPEED_MAX_MPS = SPEED_LIMIT_MPS[1]
@@ -80,7 +80,8 @@ class Number:
         if value in self.also:
             return None
         rule = NumberRule(self.low, self.high, self.low_open, self.high_open, unit)
-        return rule.problem(float(value))
+        number = as_float(value)  # a 400-digit integer: +-inf, shown as the record gives it
+        return rule.problem(value if isinstance(value, numbers.Integral) and math.isinf(number) else number)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -95,6 +96,11 @@ class Integer:
     def problem(self, value: Any) -> str | None:
         if self.blank_ok and _blank(value):
             return None
+        if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+            rule = IntRule(self.low, self.high)
+            if math.isinf(as_float(value)):  # 400 digits: out of limits, also where no upper one is set
+                return f"must be {rule.words()} (finite as a float), got {_shown(value)}"
+            return rule.problem(int(value))
         number = float(value) if isinstance(value, numbers.Real) and not isinstance(value, bool) else math.nan
         if not (math.isfinite(number) and number == int(number)):
             return f"must be an integer, got {_shown(value)}"
@@ -142,8 +148,7 @@ def _blank(value: Any) -> bool:
 
 
 def _shown(value: Any) -> str:
-    text = repr(value)
-    return text if len(text) <= 40 else text[:37] + "..."
+    return shown(value)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -300,7 +305,8 @@ def tensor_problem(state: Any, fields: Sequence[Field], entries: Callable[[Any],
             if value is _MISSING:
                 continue
             if isinstance(value, numbers.Real) and not isinstance(value, bool):
-                deciding: tuple[float, ...] | None = (float(value),)
+                whole = isinstance(value, numbers.Integral)  # an integer as it is: 400 digits hold no float
+                deciding: tuple[Any, ...] | None = (value if whole else float(value),)
             else:
                 deciding = entries(value)
             for end in deciding or ():

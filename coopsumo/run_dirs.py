@@ -4,7 +4,6 @@ the checks before a command writes into a folder, and folders made whole or not 
 from __future__ import annotations
 
 import fnmatch
-import json
 import os
 import re
 import shutil
@@ -17,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import UsageError
-from coopsumo.files import read_json_object, write_json
+from coopsumo.files import read_json, read_json_object, write_json
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
@@ -64,7 +63,7 @@ def _marker_fault(folder: Path) -> str | None:
     if not path.exists() and not path.is_symlink():
         return None
     try:
-        data = json.loads(path.read_text())
+        data = read_json(path)
     except OSError as err:
         return f"that cannot be read ({err.strerror or type(err).__name__})"
     except ValueError:

@@ -28,7 +28,7 @@ from coopsumo.errors import ConfigError, UsageError
 from coopsumo.field_rules import IntRule as IntRule
 from coopsumo.field_rules import ListRule as ListRule
 from coopsumo.field_rules import NumberRule as NumberRule
-from coopsumo.field_rules import int_problem, int_range, integer, number_problem, split_list
+from coopsumo.field_rules import as_float, int_problem, int_range, integer, number_problem, shown, split_list
 from coopsumo.field_rules import names_problem as names_problem
 from coopsumo.field_rules import number as number
 from coopsumo.field_rules import number_list as number_list
@@ -92,7 +92,7 @@ def _kind_fits(kind: str, value: Any) -> bool:
     if kind == "int":
         return isinstance(value, numbers.Integral)
     if kind == "float":
-        return isinstance(value, numbers.Real) and math.isfinite(value)
+        return isinstance(value, numbers.Real) and math.isfinite(as_float(value))  # 400 digits: not finite
     return isinstance(value, str)
 
 
@@ -108,7 +108,7 @@ def type_problem(obj: Any, prefix: str = "") -> str | None:
             continue
         kind = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
         if kind in _KINDS and not _kind_fits(kind, value):
-            return f"{prefix}{f.name} must be {_KINDS[kind]}, got {value!r}"
+            return f"{prefix}{f.name} must be {_KINDS[kind]}, got {shown(value)}"
     return None
 
 
@@ -128,14 +128,16 @@ def limits_problem(obj: Any, limits: Mapping[str, tuple[float, float, bool, bool
     for name, (low, high, low_open, high_open) in limits.items():
         value = getattr(obj, name)
         if isinstance(value, bool) or not isinstance(value, numbers.Real):
-            return f"{name} must be a number, got {value!r}"
+            return f"{name} must be a number, got {shown(value)}"
         if isinstance(low, int) and isinstance(high, int) and not (low_open or high_open):
-            whole = isinstance(value, numbers.Integral)
-            problem = int_problem(int(float(value)), low, high) if whole else int_range(low, high)
+            if isinstance(value, numbers.Integral):  # a Python int compared as it is: 400 digits too
+                problem = int_problem(value if isinstance(value, int) else int(float(value)), low, high)
+            else:
+                problem = int_range(low, high)
         else:
-            problem = number_problem(float(value), low, high, low_open, high_open)
+            problem = number_problem(as_float(value), low, high, low_open, high_open)  # 400 digits: outside
         if problem:
-            return f"{name} must be {problem}, got {value!r}"
+            return f"{name} must be {problem}, got {shown(value)}"
     return None
 
 

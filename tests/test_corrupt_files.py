@@ -247,6 +247,10 @@ CHECKPOINT_CASES: dict[str, tuple[Callable[[dict[str, Any]], None] | bytes, str]
     "actions cut short": (_tensor("actions", lambda t: t[:3]), "do not match their counts"),
     "window a list": (_at("window", value=[1]), "log window"),
     "window loss a string": (_at("window", "loss", value="x"), "log window"),
+    # issue 82, probe 4, F12: a text among the losses was a traceback after the resume began; a true was a number
+    "window loss a text entry": (_at("window", "loss", value=[0.5, "x"]), "window.loss.1 is 'x', not a number"),
+    "window r_speed true": (_at("window", "r_speed", value=True), "window.r_speed is True, not a number"),
+    "window r_flow of 400 digits": (_at("window", "r_flow", value=int("9" * 400)), "larger than a float holds"),
     "no online weights": (_drop("learner", "online"), "learner state without online"),
     "env steps negative": (_at("learner", "env_steps", value=-1), "env_steps"),
     "updates a string": (_at("learner", "updates", value="3"), "updates"),

@@ -21,6 +21,7 @@ from typing import Any
 import torch
 
 from coopsumo.dqn_config import DQNConfig
+from coopsumo.field_rules import as_float, shown
 from coopsumo.files import read_json_object, write_atomic
 from coopsumo.record_schemas import (
     CHECKPOINT_TENSORS,
@@ -127,10 +128,8 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
     if len(actions) != int(counts.sum()) or not in_range:
         return "has recorded actions that do not match their counts or lie outside 0-3"
     window = state["window"]
-    if not isinstance(window, Mapping) or not all(
-        isinstance(v, list) if k == "loss" else isinstance(v, numbers.Real) for k, v in window.items()
-    ):
-        return "has a log window that is not a mapping of numbers"
+    if (problem := _window_entries_problem(window)) is not None:
+        return problem
     if set(window) != set(WINDOW_KEYS):
         return f"has a log window with the entries {sorted(window)}, not {sorted(WINDOW_KEYS)}"
     learner = state["learner"]
@@ -173,6 +172,23 @@ def _moments_problem(optimizer: Mapping[str, Any], n_params: int, updates: int, 
                if not (isinstance(state.get(i), Mapping) and {"step", "exp_avg", "exp_avg_sq"} <= set(state[i]))]
     if missing:
         return f"has no Adam state for parameter {missing[0]} after {updates} gradient updates (of {n_params})"
+    return None
+
+
+def _window_entries_problem(window: Any) -> str | None:
+    """Why the log window is not a mapping of numbers, naming the entry (window.loss.0, window.r_speed), or None: its
+    losses a list of numbers, every other entry a number; a bool or a text is none, nor an integer no float holds
+    (its sums are added to floats and written to train_log.csv)."""
+    if not isinstance(window, Mapping):
+        return "has a log window that is not a mapping of numbers"
+    for key, value in window.items():
+        if key == "loss" and not isinstance(value, list):
+            return f"has a log window whose window.loss is {shown(value)}, not a list of numbers"
+        for where, number in ((f"loss.{i}", v) for i, v in enumerate(value)) if key == "loss" else ((key, value),):
+            if isinstance(number, bool) or not isinstance(number, numbers.Real):
+                return f"has a log window whose window.{where} is {shown(number)}, not a number"
+            if isinstance(number, numbers.Integral) and math.isinf(as_float(number)):
+                return f"has a log window whose window.{where} is {shown(number)}, larger than a float holds"
     return None
 
 

@@ -11,7 +11,6 @@ your own, docs/extending.md), the environment's observation and action spaces.
 from __future__ import annotations
 
 import importlib.util
-import json
 import os
 import zipfile
 from pathlib import Path
@@ -20,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from coopsumo.errors import UsageError
-from coopsumo.files import file_sha256
+from coopsumo.files import file_sha256, loads_json
 from coopsumo.policy_spec import parse_policy
 from coopsumo.sim.observation import N_CELLS, N_FRAMES, N_SIDES, Observation
 from coopsumo.sim.physics import ACTION_NAMES
@@ -41,7 +40,7 @@ def _data(path: str, text: str) -> dict[str, Any]:
         raise SB3ModelError(f"{text}: {path} is not a file (SB3's model.zip)")
     try:
         with zipfile.ZipFile(path) as archive:
-            data = json.loads(archive.read("data"))
+            data = loads_json(archive.read("data"))
     except (zipfile.BadZipFile, KeyError, ValueError, OSError) as err:
         raise SB3ModelError(f"{text}: {path} is not a Stable-Baselines3 model (a zip holding its data): "
                             f"{type(err).__name__}") from None  # fmt: skip

@@ -42,7 +42,7 @@ from coopsumo.agents.snapshots import (  # also selection.*
     snapshot_dir,
 )
 from coopsumo.config import AccidentConfig, SimConfig, TrainConfig, sim_config_from_dict, to_dict
-from coopsumo.files import read_json_object, write_atomic
+from coopsumo.files import read_json, read_json_object, write_atomic
 
 if TYPE_CHECKING:
     from coopsumo.agents.dqn_policy import DQNPolicy
@@ -269,7 +269,7 @@ def reselect(src: Path, out: Path, cfg: TrainConfig) -> dict[str, Any]:
     if chosen is None:
         raise RuntimeError(f"{src} has no snapshots to choose from")
     write_table(out)
-    summary = json.loads((src / "train_summary.json").read_text())
+    summary = read_json(src / "train_summary.json")
     summary.update(selected_step=chosen["step"], selected_score=chosen["score"], last_score=last_score(out),
                    reselected_from=src.name)  # fmt: skip
     write_json(out / "train_summary.json", summary)
@@ -348,7 +348,7 @@ def validate(folder: Path, kept: Kept | None = None) -> dict[str, Any]:
     import torch
 
     torch.set_num_threads(1)
-    req = json.loads((folder / REQUEST).read_text())
+    req = read_json(folder / REQUEST)
     screen = req.get("stage") == SCREEN_STAGE
     reuse = kept.pop(str(folder), {}) if kept is not None and not screen else {}
     made: dict[str, tuple[dict[str, Any], list[np.ndarray]]] = {}

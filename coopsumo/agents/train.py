@@ -14,7 +14,6 @@ the trainer charges the drawn alpha per lane change started.
 from __future__ import annotations
 
 import csv
-import json
 import shutil
 import signal
 import sys
@@ -43,7 +42,7 @@ from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import GroupTicket, LearnerProcessError, attach_updates
 from coopsumo.config import TrainConfig, first_difference, to_dict, train_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line
-from coopsumo.files import write_atomic, write_json
+from coopsumo.files import read_json, write_atomic, write_json
 from coopsumo.provenance import versions
 from coopsumo.run_dirs import check_no_outside_link, finished_run, mark_run_dir
 from coopsumo.runio import Stop, signals_deferred
@@ -373,7 +372,7 @@ def check_recorded_config(out: Path, cfg: TrainConfig) -> None:
     from another training is refused in one line); a missing config.json is written again."""
     path = out / "config.json"
     try:
-        recorded = json.loads(path.read_text())["config"]
+        recorded = read_json(path)["config"]
     except FileNotFoundError:
         write_json(path, model_meta(cfg))
         return

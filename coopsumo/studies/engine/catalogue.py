@@ -6,6 +6,7 @@ profile taken from a file of one's own (`--profile PATH.toml[:NAME]`, own_profil
 from __future__ import annotations
 
 import argparse
+import math
 import re
 import tomllib
 import types
@@ -14,6 +15,8 @@ from pathlib import Path
 from typing import Any, Protocol, TypeVar, Union, get_args, get_origin
 
 from coopsumo.errors import ConfigError, UsageError
+from coopsumo.field_rules import as_float, shown
+from coopsumo.files import MAX_JSON_DEPTH, depth_problem
 from coopsumo.validation import names_problem
 
 DATA = Path(__file__).resolve().parents[2] / "experiments_data"
@@ -64,6 +67,8 @@ class Entry:
             items = [args[0]] * len(value) if any_length else list(args)
             return tuple(self._typed(key, v, a) for v, a in zip(value, items, strict=True))
         if hint is float and isinstance(value, int | float) and not isinstance(value, bool):
+            if isinstance(value, int) and math.isinf(as_float(value)):  # 400 digits: no float holds it
+                raise self.error(f"{key} must be a finite number, got {shown(value)}")
             return float(value)
         if isinstance(value, hint) and not (hint is int and isinstance(value, bool)):
             return value
@@ -79,13 +84,22 @@ class Entry:
 
 
 def read_toml(path: Path) -> dict[str, Any]:
+    """The TOML file `path`; ConfigError in one line naming it when it cannot be read, is not UTF-8 or not TOML,
+    or nests deeper than any catalogue or profile does (tomllib's RecursionError, files.depth_problem)."""
     try:
         with path.open("rb") as f:
-            return tomllib.load(f)
+            data = tomllib.load(f)
     except OSError as err:
         raise ConfigError(f"{path}: cannot read it ({err.strerror})") from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: not TOML (not UTF-8: byte {err.object[err.start]:#04x} at {err.start})") from None
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not TOML ({err})") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: not TOML (nested deeper than {MAX_JSON_DEPTH} levels)") from None
+    if (problem := depth_problem(data)) is not None:
+        raise ConfigError(f"{path}: not TOML ({problem})")
+    return data
 
 
 

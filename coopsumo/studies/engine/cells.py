@@ -11,13 +11,13 @@ call run_todo.
 
 from __future__ import annotations
 
-import json
 import sys
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 from coopsumo.config import RoadConfig
+from coopsumo.files import read_json
 from coopsumo.runio import Parser
 from coopsumo.studies.engine.records import cell_path, checked_record, reusable_keys
 from coopsumo.studies.engine.runner import (
@@ -82,7 +82,7 @@ def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], ro
                         done_keys=done_keys)  # fmt: skip
         finally:
             runner.close()
-    return [checked_record(json.loads(cell_path(root, s["key"]).read_text()), required) for s in specs]
+    return [checked_record(read_json(cell_path(root, s["key"])), required) for s in specs]
 
 
 def say_store(root: Path) -> None:

@@ -16,7 +16,7 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
-from coopsumo.files import write_json
+from coopsumo.files import read_json, write_json
 from coopsumo.studies.engine.model_store import _locked, model_id, reselectable, stored_model
 
 GROUP_COST = "group_cost.json"
@@ -75,7 +75,7 @@ def group_cpu_s(folder: Path) -> float | None:
     if not path.is_file():
         return None
     try:
-        cost = json.loads(path.read_text())["cpu_s"]
+        cost = read_json(path)["cpu_s"]
     except (OSError, ValueError, KeyError, TypeError):
         cost = None
     if isinstance(cost, (int, float)) and not isinstance(cost, bool) and 0.0 <= cost <= MAX_GROUP_CPU_S:

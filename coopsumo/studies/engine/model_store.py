@@ -28,6 +28,7 @@ from typing import Any
 
 from coopsumo.config import results_view
 from coopsumo.errors import UsageError
+from coopsumo.files import read_json
 from coopsumo.paths import STORE_ENV
 from coopsumo.record_schemas import STORE_CONFIG
 from coopsumo.validation import number_name
@@ -173,7 +174,7 @@ def reselectable(config: dict[str, Any], store: Path) -> Path | None:
     for folder in sorted(p for p in store.iterdir() if p.is_dir() and not p.is_symlink() and not p.name.startswith(".")
                          and p.name != name):  # fmt: skip
         try:
-            other = json.loads((folder / "config.json").read_text())["config"]
+            other = read_json(folder / "config.json")["config"]
         except (OSError, ValueError, KeyError, TypeError):
             continue
         if without_selection(other) == wanted and model_id(other) == folder.name \
@@ -247,7 +248,7 @@ def link_problem(link: Path, config: dict[str, Any]) -> str | None:
     if target.name != (name := model_id(config)):
         return f"leads to {target}, not to {name}, the model of its training (pointed at another model?)"
     try:
-        recorded = json.loads((target / "config.json").read_text())["config"]
+        recorded = read_json(target / "config.json")["config"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
     if identity(recorded) != identity(config):
@@ -285,7 +286,7 @@ def listing(store: Path) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"model": folder.name, "preset": "-", "alpha": "-", "seed": "-", "steps": "-",
                                "state": "unfinished", "selected_step": "-"}  # fmt: skip
         try:
-            recorded = json.loads((folder / "config.json").read_text())
+            recorded = read_json(folder / "config.json")
         except (OSError, ValueError):
             row["state"] = "no readable config.json"
             rows.append(row)
@@ -315,7 +316,7 @@ def _summary_problem(folder: Path, config: dict[str, Any]) -> str | None:
     from coopsumo.studies.engine.trainings import train_summary_problem
 
     try:
-        summary = json.loads((folder / "train_summary.json").read_text())
+        summary = read_json(folder / "train_summary.json")
     except (OSError, ValueError):
         return None
     return train_summary_problem(summary, config) if isinstance(summary, dict) else None

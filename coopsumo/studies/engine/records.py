@@ -15,7 +15,8 @@ from typing import Any
 
 from coopsumo.config import results_view
 from coopsumo.errors import UsageError
-from coopsumo.files import file_sha256, read_json_object, temporaries_of
+from coopsumo.field_rules import as_float, shown
+from coopsumo.files import file_sha256, read_json, read_json_object, temporaries_of
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD, RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS, TRAIN_SUMMARY_KEYS
 
@@ -165,9 +166,9 @@ def pool_summaries(summaries: Sequence[dict[str, Any]]) -> dict[str, Any]:
         values = [s.get(key) for s in summaries]
         numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
         if numbers:
-            total = float(sum(values))  # type: ignore[arg-type]
+            total = as_float(sum(values))  # type: ignore[arg-type]
             if key in POOL_SUMMED:
-                out[key] = int(total) if all(isinstance(v, int) for v in values) else total
+                out[key] = sum(values) if all(isinstance(v, int) for v in values) else total  # type: ignore[arg-type]
             else:
                 out[key] = total / len(values)
         elif all(key in s for s in summaries):
@@ -188,11 +189,12 @@ def implausible(summary: dict[str, Any], what: str = "summary") -> str | None:
     lanes at a lane's capacity, a negative rate or time, a share outside 0-1), more arrivals than departures, lane
     changes per vehicle that are not the lane changes over the departures. `what` names the summary in the reason
     ("has train_summary.json mean_speed_mps must be ...")."""
-    finite = {k: v for k, v in summary.items() if not k.startswith("table_")
-              and not (isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v))}  # fmt: skip
+    finite = {k: v for k, v in summary.items() if not k.startswith("table_")  # an integer of 400 digits is kept:
+              and not (isinstance(v, bool) or not isinstance(v, int | float)  # RUN_SUMMARY's limits refuse it
+                       or (isinstance(v, float) and not math.isfinite(v)))}  # fmt: skip
     if (problem := RUN_SUMMARY.problem(finite)) is not None:  # record_problem judges the values a study reads
         return f"has {what} {problem.removeprefix('field ')}"
-    number = {k: float(v) for k, v in summary.items() if isinstance(v, int | float) and not isinstance(v, bool)}
+    number = {k: as_float(v) for k, v in summary.items() if isinstance(v, int | float) and not isinstance(v, bool)}
     if number.get("arrived", 0.0) > number.get("departed", math.inf):
         return f"has {what} arrived = {number['arrived']:g} above departed = {number['departed']:g}"
     if {"lane_changes", "departed", "lane_changes_per_vehicle"} <= set(number) and number["departed"] > 0:
@@ -213,7 +215,7 @@ def training_problem(summary: Any, what: str = "train_summary") -> str | None:
         if key not in summary:
             return f"has {what} without {key}"
         value = summary[key]
-        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(as_float(value)):
             return f"has {what} {key} = {json.dumps(value)[:40]}, not a number"
     return implausible(summary, what)
 
@@ -234,14 +236,20 @@ def record_problem(record: Any, required: Sequence[str]) -> str | None:
         value = summary.get(key)
         if isinstance(value, bool) or not isinstance(value, int | float):
             return f"has summary {key} = {json.dumps(value)[:40]}, not a number"
-        if not math.isfinite(value):
-            return f"has summary {key} = {value}, not a finite number"
+        if not math.isfinite(as_float(value)):  # an integer of 400 digits too
+            return f"has summary {key} = {shown(value)}, not a finite number"
     return implausible(summary) or pooled_problem(record)
+
+
+def _g(value: float) -> str:
+    """value as :g prints it; an integer too large for a float shortened (field_rules.shown)."""
+    return f"{value:g}" if math.isfinite(as_float(value)) else shown(value)
 
 
 def _same_number(a: Any, b: Any) -> bool:
     if isinstance(a, bool) or isinstance(b, bool) or not isinstance(a, int | float) or not isinstance(b, int | float):
         return False
+    a, b = as_float(a), as_float(b)  # an integer of 400 digits: inf, the same as no number a run gives
     return (math.isnan(a) and math.isnan(b)) or math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12)
 
 
@@ -260,7 +268,7 @@ def pooled_problem(record: dict[str, Any]) -> str | None:
     pooled, summary = pool_summaries(evals), record["summary"]
     for key, value in summary.items():
         if isinstance(value, int | float) and not isinstance(value, bool) and not _same_number(value, pooled.get(key)):
-            return (f"has summary {key} = {value:g}, but its {len(evals)} evaluations pool to "
+            return (f"has summary {key} = {_g(value)}, but its {len(evals)} evaluations pool to "
                     f"{json.dumps(pooled.get(key))[:20]}: edited?")  # fmt: skip
     return None
 
@@ -321,7 +329,7 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
             print(f"{prog}: cell {spec['key']}: record {path} is not a regular file; rerunning it", file=sys.stderr)
             continue
         try:
-            record = json.loads(path.read_text())
+            record = read_json(path)
         except FileNotFoundError:
             continue
         except (OSError, ValueError) as err:
@@ -348,7 +356,7 @@ def summary_problem(path: Path, required: Sequence[str]) -> str | None:
     """Why the summary.json at `path` cannot be trusted, or None: a readable JSON object whose `required` values
     are finite numbers (as record_problem asks of a cell record's summary)."""
     try:
-        summary = json.loads(path.read_text())
+        summary = read_json(path)
     except (OSError, ValueError) as err:
         return f"has an unreadable summary.json ({type(err).__name__})"
     problem = record_problem({"status": "ok", "summary": summary}, required)

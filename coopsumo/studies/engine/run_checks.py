@@ -115,6 +115,9 @@ def _interval_problem(match: re.Match[bytes], sim_seconds: float, dt: float, per
         return f"an interval lacking a number: {shown}"
     if problem := DETECTOR_INTERVAL.problem(numbers):
         return f"an interval {attrs['begin']}-{attrs['end']} s of {attrs.get('id', '?')[:40]}: {problem}"
+    if not re.fullmatch(r"[0-9]+", attrs["nVehContrib"]):  # SUMO writes a count in digits; the reader takes no other
+        return (f"an interval {attrs['begin']}-{attrs['end']} s of {attrs.get('id', '?')[:40]}: field nVehContrib "
+                f"must be written as a whole number, got {attrs['nVehContrib'][:40]!r}")  # fmt: skip
     if not (begin < end <= sim_seconds + dt / 2 and end - begin <= period + 1e-6):
         return (f"an interval {begin:g}-{end:g} s, not within the run's {sim_seconds:g} s and its {period:g} s loop "
                 "period")  # fmt: skip

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
-from coopsumo.files import file_sha256
+from coopsumo.files import file_sha256, read_json
 from coopsumo.record_schemas import SPEED_MAX_MPS
 from coopsumo.run_dirs import LEARNERS, Recorded, check_run_dir
 from coopsumo.run_dirs import study_root as claim_study_root
@@ -29,7 +29,7 @@ FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
 def same_config(path: Path, cfg: dict[str, Any]) -> bool:
     """True when path (a run or training folder's config.json) records this configuration (config.results_view)."""
     try:
-        return bool(results_view(json.loads(path.read_text())["config"]) == results_view(json.loads(json.dumps(cfg))))
+        return bool(results_view(read_json(path)["config"]) == results_view(json.loads(json.dumps(cfg))))
     except (OSError, ValueError, KeyError):
         return False
 
@@ -59,7 +59,7 @@ def reuse_problem(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: 
     if not same_config(out / "config.json", cfg):
         return "was run with another or an unreadable configuration (config.json)"
     try:
-        written = json.loads((out / "config.json").read_text())
+        written = read_json(out / "config.json")
         recorded = written.get("sumo_outputs")
     except (OSError, ValueError, AttributeError):
         return "has an unreadable config.json"
@@ -167,7 +167,7 @@ def recorded_profile(plan_file: str, *keys: str, presets: Sequence[str] = ()) ->
 
     def recorded(root: Path) -> str | None:
         try:
-            data = json.loads((root / plan_file).read_text())
+            data = read_json(root / plan_file)
             value = _at(data, keys)
         except (OSError, ValueError, KeyError, TypeError):
             return None
@@ -189,7 +189,7 @@ def _listed_but_gone(out: Path) -> str | None:
     from coopsumo.run_dirs import RUN_MARKER, listed_files
 
     try:
-        marker = json.loads((out / RUN_MARKER).read_text())
+        marker = read_json(out / RUN_MARKER)
     except (OSError, ValueError):
         return None
     listed = listed_files(marker) if isinstance(marker, dict) and marker.get("kind") == "simulate" else None
@@ -235,7 +235,7 @@ def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], 
         return f"has a {RUN_MARKER} that does not mark a finished simulate run"
     if problem := summary_problem(out / "summary.json", required):
         return problem
-    summary = json.loads((out / "summary.json").read_text())  # summary_problem read it: a JSON object
+    summary = read_json(out / "summary.json")  # summary_problem read it: a JSON object
     if problem := run_summary_problem(summary, cfg):
         return problem
     sim_seconds, dt = float(summary["sim_seconds"]), float(cfg["control"]["dt_s"])

@@ -10,6 +10,8 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import first_difference, results_view
+from coopsumo.files import read_json
+from coopsumo.record_schemas import STORE_CONFIG
 
 MAX_CRASHES = 2
 """a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
@@ -30,15 +32,18 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
     read: dict[str, Any] = {}
     for name in (RUN_MARKER, "config.json", "train_summary.json"):
         try:
-            read[name] = json.loads((out / name).read_text())
-            if name == "config.json":
-                read[name] = read[name]["config"]
-        except (OSError, ValueError, KeyError, TypeError) as err:
+            read[name] = read_json(out / name)
+        except (OSError, ValueError) as err:
             if not quiet and (out / "model.pt").is_file():  # a finished training's folder that lost or spoiled it
                 print(f"coopsumo: {out} holds a model.pt but its {name} is missing or unreadable "
                       f"({type(err).__name__}); training it again", file=sys.stderr)  # fmt: skip
             return None
-    marker, stored, summary = read[RUN_MARKER], read["config.json"], read["train_summary.json"]
+    if (problem := STORE_CONFIG.problem(read["config.json"])) is not None:  # as `coopsumo models` judges it
+        if not quiet and (out / "model.pt").is_file():  # a seed of true is none, though true == 1
+            print(f"coopsumo: {out} holds a model.pt but its config.json {problem}; training it again",
+                  file=sys.stderr)  # fmt: skip
+        return None
+    marker, stored, summary = read[RUN_MARKER], read["config.json"]["config"], read["train_summary.json"]
     listed = listed_files(marker) if isinstance(marker, dict) and marker.get("kind") == "train" else None
     if not (listed is not None and "model.pt" in listed and (out / "model.pt").is_file() and isinstance(summary, dict)):
         return None
@@ -145,7 +150,7 @@ def model_folder_problem(folder: Path) -> str | None:
     except ModelFileError as err:
         return f"cannot be used: {err}"
     try:
-        recorded = json.loads((folder / "config.json").read_text())["config"]
+        recorded = read_json(folder / "config.json")["config"]
     except (OSError, ValueError, KeyError, TypeError):
         return None  # nothing to compare with (the caller checked config.json against the study's configuration)
     if (where := first_difference(meta.get("config"), recorded)) is not None:

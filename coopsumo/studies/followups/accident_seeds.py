@@ -14,7 +14,6 @@ reused on a rerun. Writes OUT/runs.csv (scenario I's measures per run) and OUT/r
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from pathlib import Path
@@ -24,7 +23,7 @@ import pandas as pd
 
 from coopsumo.config import ControlConfig, SimConfig, to_dict
 from coopsumo.errors import UsageError
-from coopsumo.files import write_json
+from coopsumo.files import read_json, write_json
 from coopsumo.provenance import versions
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.runio import Parser, run_cli
@@ -146,7 +145,7 @@ def run_study(found: list[dict[str, Any]], t_ups: tuple[float, ...], root: Path,
         return failed_exit(PROG, failed, len(specs), root)
     rows = []
     for d, cfg, spec in runs:
-        summary = json.loads((root / spec["out"] / "summary.json").read_text())
+        summary = read_json(root / spec["out"] / "summary.json")
         rows.append({"variant": d["variant"], "alpha": d["alpha"], "t_up_s": spec["t_up_s"], "seed": spec["seed"],
                      "mean_speed_mps": summary["mean_speed_mps"],
                      "adaptive_alpha_mean": summary.get("adaptive_alpha_mean"),
@@ -192,6 +191,15 @@ def build_parser() -> Parser:
     return p
 
 
+def check_roots(roots: list[Path]) -> None:
+    """UsageError when a ROOT is given twice (as written or behind a link: `l l`, `l l/`): its every model would be
+    run twice, and runs.csv refused only after the runs (issue 82, probe 4, F21)."""
+    seen: dict[Path, Path] = {}
+    for root in roots:
+        if (first := seen.setdefault(root.resolve(), root)) is not root:
+            raise UsageError(f"ROOT {root} is {first} given again: give each learning-study folder once")
+
+
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
@@ -200,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
         variants = variant_list("--variants", args.variants)
         alphas = alpha_list("--alphas", args.alphas)
         check_backend(args.backend, args.address)
+        check_roots(args.roots)
         found = [m for root in args.roots for m in models(root, variants, alphas, args.seeds)]
         if not found:
             raise UsageError(f"no finished models of {','.join(variants)} at alpha {args.alphas} with a training "

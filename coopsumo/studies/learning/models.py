@@ -3,12 +3,12 @@ its models: accident_seeds."""
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import UsageError
+from coopsumo.files import read_json
 from coopsumo.record_schemas import CELL_RECORD
 from coopsumo.studies.learning.plan import learner_of, training_key
 
@@ -31,7 +31,7 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
     found = []
     for cell in sorted((root / "cells").glob("*.json")):
         try:
-            rec = json.loads(cell.read_text())
+            rec = read_json(cell)
             if not (isinstance(rec, dict) and rec.get("kind") == "train" and rec.get("status") == "ok"):
                 continue
             if (problem := CELL_RECORD.problem(rec)) is not None:  # its envelope and coordinates (record_schemas)

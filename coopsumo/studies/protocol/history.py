@@ -24,7 +24,8 @@ import pandas as pd
 from coopsumo.config import SPEED_ONLY_FIELDS, to_dict
 from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS, RETIRED_FIELDS, dqn_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line
-from coopsumo.files import write_atomic
+from coopsumo.field_rules import as_float
+from coopsumo.files import loads_json, write_atomic
 from coopsumo.record_schemas import PROTOCOL_STATS, PROTOCOL_STUDY, RecordError
 from coopsumo.runio import Parser, run_cli
 
@@ -98,7 +99,7 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
     study names); RecordError naming the file and the field otherwise."""
     path = folder / "study.json"
     try:
-        study = json.loads(path.read_text(encoding="utf-8"))
+        study = loads_json(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, ValueError) as err:
         raise RecordError(f"{path} cannot be read as JSON ({type(err).__name__}); restore it or move the study "
                           "away") from None  # fmt: skip
@@ -148,12 +149,12 @@ def drive_problem(drive: dict[str, Any]) -> str | None:
         if key not in fields:
             return f"drives with {str(key)[:40]}, a setting no policy takes (known: {', '.join(fields)})"
         low, high, low_open = KEYS["dqn"][fields[key]]
-        number = float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
+        number = as_float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
         problem = number_problem(number, low, high, low_open)
         if problem is None and key == "ensemble_snapshots" and not number.is_integer():
             problem = "a whole number of snapshots"
         if problem is not None:
-            shown = _short(value) if number == number else repr(value)[:40]
+            shown = _short(value)[:40] if number == number else repr(value)[:40]  # 400 digits: shortened too
             return f"drives with {key} {shown}, which no policy takes: it must be {problem}"
     return None
 

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.files import read_json
 from coopsumo.record_schemas import PROTOCOL_STATS
 from coopsumo.sim import passing
 from coopsumo.studies.engine import stats
@@ -183,7 +184,7 @@ def committed_runs(folder: Path, variant: str, runs: pd.DataFrame, profile: Any)
     empty = runs.iloc[0:0]
     if not (folder / "runs.csv").is_file() or not (folder / "study.json").is_file():
         return empty, f"no runs.csv and study.json in {folder.name}"
-    study = json.loads((folder / "study.json").read_text())
+    study = read_json(folder / "study.json")
     theirs, ours = study.get("profile", {}), json.loads(json.dumps(asdict(profile)))
     differ = [f for f in SAME_PROFILE if json.dumps(theirs.get(f)) != json.dumps(ours.get(f))]
     if differ:

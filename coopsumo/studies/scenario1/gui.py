@@ -15,7 +15,7 @@ import pandas as pd
 
 from coopsumo.config import SimConfig, to_dict
 from coopsumo.errors import UsageError
-from coopsumo.files import write_json
+from coopsumo.files import read_json, write_json
 from coopsumo.sim import view
 from coopsumo.studies.scenario1.measures import SLOW_MPS, jam_step
 
@@ -55,7 +55,7 @@ def gui_section(root: Path, run_dir: Path, label: str, cfg: SimConfig, environ: 
     gui_cfg = replace(cfg, steps=step)
     record = root / "gui_jam.json"
     try:
-        done = json.loads(record.read_text())
+        done = read_json(record)
     except (OSError, ValueError):
         done = {}
     if not (shot.exists() and done.get("config") == json.loads(json.dumps(to_dict(gui_cfg)))):

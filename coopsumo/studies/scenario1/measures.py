@@ -5,7 +5,6 @@ cooperative alpha, Fig. 4's demand and windows, the sumo-gui step). Pure functio
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -15,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.config import SimConfig
+from coopsumo.files import read_json
 from coopsumo.sim import view
 
 SLOW_MPS = 5.0
@@ -39,7 +39,7 @@ def run_metrics(run_dir: Path, cfg: SimConfig, sample_s: float) -> dict[str, Any
     from coopsumo.report import bottleneck as bn
     from coopsumo.report.analysis import read_detectors, recovery_time_s, section_speed_bins, stop_and_go_waves
 
-    summary = json.loads((run_dir / "summary.json").read_text())
+    summary = read_json(run_dir / "summary.json")
     traj = pd.read_parquet(run_dir / "trajectories.parquet")
     det = read_detectors(run_dir / "detectors.xml")
     acc, dt, lanes = cfg.accident, cfg.control.dt_s, cfg.road.lanes

@@ -14,6 +14,7 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import SimConfig, to_dict
+from coopsumo.files import read_json
 from coopsumo.provenance import versions
 from coopsumo.studies.engine.stats import models_needed
 from coopsumo.studies.scenario1.gui import gui_section
@@ -285,7 +286,7 @@ def default_study(root: Path, plan: Plan) -> Path | None:
         return None
     folder = root.parent / study_out(replace(plan, presets=("default",))).name
     try:
-        recorded = json.loads((folder / "plan.json").read_text())["plan"]
+        recorded = read_json(folder / "plan.json")["plan"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
     mine = json.loads(json.dumps(to_dict(replace(plan, presets=("default",)))))

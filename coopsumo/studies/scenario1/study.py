@@ -15,7 +15,6 @@ scenario1_report; this module runs the plan's cells on the shared runner and is 
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from dataclasses import replace
@@ -26,7 +25,7 @@ import pandas as pd
 
 from coopsumo.config import ControlConfig, RoadConfig, to_dict
 from coopsumo.errors import UsageError
-from coopsumo.files import read_json_object, write_json
+from coopsumo.files import read_json, read_json_object, write_json
 from coopsumo.policy_spec import policy_file
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD
@@ -346,7 +345,7 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
         finally:
             backend.close()
         if counts["failed"]:
-            failed = [s["key"] for s in specs if json.loads((root / "cells" / f"{s['key']}.json").read_text())
+            failed = [s["key"] for s in specs if read_json(root / "cells" / f"{s['key']}.json")
                       ["status"] != "ok"]  # fmt: skip
             return failed_exit("scenario1", failed, len(specs), root)
     rows = _runs_table(plan, runs)

@@ -3,10 +3,10 @@ were trained and what the study cost (scenario1_report puts them in report.md)."
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 
+from coopsumo.files import read_json
 from coopsumo.studies.engine.groups import group_cpu_s
 from coopsumo.studies.scenario1.measures import FIELD_DT_S, FIELD_DX_M, MIN_MODELS, N_BOOT, RECOVERY_MPS, SLOW_MPS
 from coopsumo.studies.scenario1.plan import Plan, Run
@@ -85,7 +85,7 @@ def _training_seconds(summary: Path) -> float:
     """A training's compute: its share of its group's CPU seconds (engine/groups.py), else its wall seconds (a lone
     training keeps about one core busy)."""
     share = group_cpu_s(summary.parent)
-    return share if share is not None else float(json.loads(summary.read_text()).get("wall_seconds", 0.0))
+    return share if share is not None else float(read_json(summary).get("wall_seconds", 0.0))
 
 
 def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int, runs: int,

@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.agents.conditioning import conditioned_alphas
+from coopsumo.files import read_json
 from coopsumo.studies.scenario2.gate import (
     LEVEL,
     NEAR_P_STAR_MPS,
@@ -444,7 +445,7 @@ def console_lines(root: Path) -> list[str]:
         lines.append(f"{condition_label(r['lanes'], r['t_up_s'])}: gate {verdict} (alpha-0 models - keep "
                      f"{_interval(r['alpha0_minus_keep_mps'], r['alpha0_minus_keep_low'], r['alpha0_minus_keep_high'])}"
                      " m/s)")  # fmt: skip
-    trends = json.loads((root / "sweep.json").read_text()).get("trends", {})
+    trends = read_json(root / "sweep.json").get("trends", {})
     boot = trends.get("bootstrap") or {}
     for name, what in (("b1", "inflow"), ("b2", "lanes")):
         if name in trends:

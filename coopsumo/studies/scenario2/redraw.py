@@ -17,7 +17,8 @@ from pandas.api.types import is_numeric_dtype
 
 from coopsumo.config import first_difference
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.files import write_json
+from coopsumo.field_rules import shown
+from coopsumo.files import read_json, write_json
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
@@ -34,7 +35,7 @@ def rewrite_outputs(root: Path) -> dict[str, Any]:
     trained or run (a committed folder keeps no cells/, so rerunning its command would train every cell again);
     the bootstraps are seeded, so the numbers come out as they were; a lane-network profile's (full, check) from its
     evals.csv too (scenario2_gate_report). Returns sweep.json's new content."""
-    meta = json.loads((root / "sweep.json").read_text())
+    meta = read_json(root / "sweep.json")
     fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["profile"].items()}
     profile = Profile(**fields)
     runs, n_boot = pd.read_csv(root / "runs.csv"), int(meta["bootstrap_replicates"])
@@ -117,7 +118,7 @@ def _read_part(folder: Path) -> Part:
     """One part read and checked against itself before anything is written (_part_profile, _meta_problem,
     _table_problem)."""
     try:
-        meta = json.loads((folder / "sweep.json").read_text())
+        meta = read_json(folder / "sweep.json")
         runs, evals = pd.read_csv(folder / "runs.csv"), pd.read_csv(folder / "evals.csv")
     except (OSError, ValueError) as err:
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err.__class__.__name__}: "
@@ -195,8 +196,9 @@ def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str,
         numbers = [table[c] for c in columns if c not in ("key", "policy", "status")]
         if text := [c for c in numbers if len(c) and not is_numeric_dtype(c)]:  # (an empty table reads as text)
             column = text[0]
-            bad = column[pd.to_numeric(column, errors="coerce").isna() & column.notna()]
-            return f"{name} has {column.name} = {bad.iloc[0] if len(bad) else column.iloc[0]!r}, not a number: edited?"
+            bad = column[column.map(_no_number) & column.notna()]  # pandas' to_numeric: OverflowError at 400 digits
+            value = shown(bad.iloc[0] if len(bad) else column.iloc[0])
+            return f"{name} has {column.name} = {value}, not a number: edited?"
     planned = {s["key"]: s for s in specs}
     if len(runs) != len(specs) or set(runs["key"]) != set(planned):
         extra = sorted(set(map(str, runs["key"])) - set(planned))
@@ -255,6 +257,14 @@ def _differs(row: dict[str, Any], cell: dict[str, Any], names: Sequence[str]) ->
                                                       and float(a) == float(b))):  # fmt: skip
             return name
     return None
+
+
+def _no_number(value: Any) -> bool:
+    """True for a table's cell that is no finite number: a text, a number too large for a float (400 digits)."""
+    try:
+        return not math.isfinite(float(value))
+    except (TypeError, ValueError, OverflowError):
+        return True
 
 
 def _blank(value: Any) -> bool:
@@ -367,7 +377,7 @@ def recorded_sweep(root: Path) -> str | None:
     relative one from the working folder (the merge was run from it); a conditioned sweep (the retired `--conditioned`,
     results/archive/scenario2_conditioned) is another study than any sweep run today."""
     try:
-        meta = json.loads((root / "sweep.json").read_text())
+        meta = read_json(root / "sweep.json")
         name, conditioned, parts = meta["profile"]["name"], meta["profile"].get("conditioned"), meta.get("parts")
         preset = meta["profile"].get("preset", "default")
         if parts is not None:

@@ -38,7 +38,6 @@ scenario2_report; this module runs the plan's cells on the shared runner and is 
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import sys
@@ -52,7 +51,7 @@ import pandas as pd
 from coopsumo.config import RoadConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
-from coopsumo.files import write_json
+from coopsumo.files import read_json, write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
@@ -181,7 +180,7 @@ def _evaluate(spec: dict[str, Any], train_dir: Path, evals_dir: Path, record: di
     record["summary"] = {k: v for k, v in pool_summaries(summaries).items() if k != "eval_seed"}
     if every and any(s.get(FULL_ROAD) is None for s in summaries):  # one evaluation without it: the model has none
         record["summary"].update({FULL_ROAD: None, "full_road_from_s": None})
-    record["train_summary"] = json.loads((train_dir / "train_summary.json").read_text())
+    record["train_summary"] = read_json(train_dir / "train_summary.json")
 
 
 def evaluate_model(config: dict[str, Any], out: Path, label: str, trajectory_every: int = 0) -> dict[str, Any]:
