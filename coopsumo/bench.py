@@ -29,7 +29,7 @@ from coopsumo.agents.policies import make_policy
 from coopsumo.agents.rollout import run
 from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS
-from coopsumo.runio import Parser, children_start_deaf, working_folder_problem
+from coopsumo.runio import Parser, Stop, children_start_deaf, stop_on_signals, training_stop, working_folder_problem
 from coopsumo.sim import fast
 from coopsumo.sim.physics import occupancy
 
@@ -448,6 +448,18 @@ def build_parser() -> Parser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """`coopsumo bench`; SIGINT and SIGTERM end it in one line and 128 + the signal wherever they land, a training's
+    own stop too (runio.training_stop; issue 82, probe 4, F14: it was a traceback, exit code 1)."""
+    with stop_on_signals():
+        try:
+            return _main(argv)
+        except Exception as err:
+            if (signum := training_stop(err)) is None:
+                raise
+            raise Stop(signum) from None
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.cluster and (beside := next((f for f, on in (("--learner", args.learner), ("--model", args.model))

@@ -127,6 +127,18 @@ def stop_on_signals() -> Iterator[None]:
             signal.signal(s, handler)
 
 
+def training_stop(err: Exception) -> int | None:
+    """The signal that stopped a training, when `err` says one did (agents.train.Interrupted, or the update worker
+    ended by a Ctrl-C to the whole group: LearnerProcessError); else None. Their modules are looked up, not imported
+    (torch)."""
+    train, worker = sys.modules.get("coopsumo.agents.train"), sys.modules.get("coopsumo.agents.update_worker")
+    if train is not None and isinstance(err, train.Interrupted):
+        return int(err.signum)
+    if worker is not None and isinstance(err, worker.LearnerProcessError) and err.signum in STOP_SIGNALS:
+        return int(err.signum)
+    return None
+
+
 def interrupted(prog: str, err: KeyboardInterrupt) -> int:
     """The one line of a command stopped by a signal (`prog: interrupted`); its exit code, 128 + the signal."""
     print(f"{prog}: interrupted", file=sys.stderr)

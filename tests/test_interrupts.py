@@ -141,3 +141,27 @@ def test_a_signal_as_the_loop_puts_its_handlers_in_leaves_none_behind(
         train(cfg, tmp_path / "run", progress=False)
     monkeypatch.undo()
     assert {s: signal.getsignal(s) for s in handlers} == handlers
+
+
+BENCH_STOPPED = """
+import os, signal, sys
+from coopsumo.agents.train import Trainer
+advance = Trainer._advance
+def _advance(self, *args, **kwargs):
+    if self.step == 50:  # a signal in the middle of bench's first training, its handler the training's own
+        os.kill(os.getpid(), {sig})
+    return advance(self, *args, **kwargs)
+Trainer._advance = _advance
+from coopsumo.cli import main
+sys.exit(main(["bench", "--quick", "--learner"]))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_during_a_bench_training_is_one_line(sig: int, tmp_path: Path) -> None:
+    """Issue 82, probe 4, F14: a Ctrl-C or SIGTERM while bench trains ended in agents.train.Interrupted's traceback,
+    exit code 1; it is `bench: interrupted` and 128 + the signal, as every other command says it."""
+    res = subprocess.run([sys.executable, "-c", BENCH_STOPPED.format(sig=int(sig))], cwd=tmp_path, text=True,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, timeout=300)  # fmt: skip
+    assert res.stderr.strip().splitlines() == ["bench: interrupted"], res.stderr[-1500:]
+    assert res.returncode == 128 + sig
