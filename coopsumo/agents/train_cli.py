@@ -42,7 +42,7 @@ from coopsumo.run_dirs import (
     retrain_folder,
     try_lock,
 )
-from coopsumo.runio import STOP_SIGNALS, Parser, run_cli, stop_on_signals
+from coopsumo.runio import STOP_SIGNALS, Parser, run_cli, stop_on_signals, stop_reported
 from coopsumo.validation import (
     MAX_STEPS,
     alpha,
@@ -296,7 +296,9 @@ def check_resume_flags(argv: list[str] | None, cfg: TrainConfig) -> None:
 
 def stopped(out: Path, target: Path, created: bool, signum: int) -> int:
     """The line and exit code of a training stopped by a signal outside its loop (its setup, model selection, its
-    evaluation): its checkpoint stands; before its first one, a folder this command made is removed again."""
+    evaluation): its checkpoint stands; before its first one, a folder this command made is removed again. A second
+    signal meanwhile is only counted (runio.stop_reported)."""
+    stop_reported()
     if (target / "checkpoint.pt").exists():
         print(f"train: interrupted; its checkpoint {target / 'checkpoint.pt'} stands: continue with --resume --out "
               f"{out}", file=sys.stderr)  # fmt: skip
@@ -398,6 +400,7 @@ def _train_in(args: Any, cfg: TrainConfig, out: Path, created: bool) -> int:
             if target != out:
                 finish_run_dir(target, out, "train")
         except Interrupted as stop:
+            stop_reported()  # a second signal while this line is printed and the lock released: counted (F15)
             print(f"train: interrupted at step {stop.step}; checkpoint saved in {target / 'checkpoint.pt'}; "
                   f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
             return 128 + stop.signum
