@@ -347,3 +347,21 @@ def test_scenario2_refuses_a_user_file_where_a_model_link_belongs(
     code = study_main("scenario2", ["--profile", "tiny", "--quiet", "--out", str(root)])
     refused(capsys, code, str(root / "train" / "L2_T4_a8_s2"), "is a file the study did not make")
     assert (root / "train" / "L2_T4_a8_s2").read_text() == "my notes\n" and not (root / "cells").exists()
+
+
+def test_simulate_refuses_the_model_store(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                          monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """Issue 82, probe 4, F16: `simulate --out` inside the model store (or a store model's folder) was written, and
+    every study then refused the store ("holds myrun, which is not a stored model"); train's --out was refused there.
+    One check for both (owners.owned_problem): one line, nothing written."""
+    store, env_store = tmp_path / "store", tmp_path / "env_store"
+    model = store / "default_a0_seed100_0123456789ab"
+    model.mkdir(parents=True)
+    mark_run_dir(model, "train")
+    env_store.mkdir()
+    monkeypatch.setenv("COOPSUMO_MODELS", str(env_store))
+    before = snapshot(tmp_path)
+    for out, says in ((store / "myrun", "a model store (it holds the studies' models)"),
+                      (model / "run", "a model of a model store"), (env_store / "myrun", "is in the model store")):
+        refused(capsys, simulate.main([*SIM, "--out", str(out)]), f"--out {out}", says, "pick another --out")
+    assert snapshot(tmp_path) == before

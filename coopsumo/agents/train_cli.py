@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import re
 import shutil
 import signal
 import sys
@@ -28,14 +27,14 @@ from coopsumo.config import (
 )
 from coopsumo.dqn_config import DQN_PRESETS, LEARNER_FLAGS, DQNConfig
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.paths import STORE_ENV
+from coopsumo.owners import STORE_NAME as STORE_NAME
+from coopsumo.owners import owned_problem
 from coopsumo.run_dirs import (
     check_no_outside_link,
     check_out_path,
     check_run_dir,
     finish_run_dir,
     finished_run,
-    inside_study,
     lock_path,
     out_lock,
     release_lock,
@@ -69,35 +68,10 @@ def check_new_training(out: Path) -> None:
                          "--out, or remove the folder yourself")  # fmt: skip
 
 
-DEFAULT_STORE = Path("results") / "models"
-"""the committed studies' model store"""
-STORE_NAME = re.compile(r".+_a[^_/]+_seed\d+_[0-9a-f]{12}")
-"""the name of a model's folder in the store (model_store.model_id: <preset>_a<alpha>_seed<seed>_<digest>)"""
-
-
 def store_problem(out: Path) -> str | None:
-    """Why `train` may not write `out`, or None: the model store is the studies' alone. `out` (its links resolved)
-    lies in $COOPSUMO_MODELS or results/models, is or lies in a store model's folder (a study's `models/<name>` or
-    `train/<key>` is a link to one), or lies in a folder holding store models (another study's store)."""
-    if problem := inside_study(out):  # a study's folders are the study's (run_dirs)
-        return problem
-    real = out.resolve()
-    env = os.environ.get(STORE_ENV)
-    for store in [DEFAULT_STORE.resolve(), *([Path(env).resolve()] if env else [])]:
-        if real.is_relative_to(store):
-            return f"--out {out} is in the model store {store}, which only the studies write; pick another --out"
-    for folder in (real, *real.parents):
-        if STORE_NAME.fullmatch(folder.name):
-            return (f"--out {out} leads into {folder}, a model of a model store (a study's model link?), which only "
-                    "the studies write; pick another --out")  # fmt: skip
-    try:
-        beside = [p.name for p in real.parent.iterdir()]
-    except OSError:
-        return None
-    if any(STORE_NAME.fullmatch(name) or STORE_NAME.fullmatch(name[1:].removesuffix(".lock")) for name in beside):
-        return (f"--out {out} is in {real.parent}, a model store (it holds the studies' models), which only the "
-                "studies write; pick another --out")  # fmt: skip
-    return None
+    """Why `train` may not write `out`, or None: it lies inside a study's folder, the model store (a store model's
+    folder, through a study's model link too) or another run's folder (owners.owned_problem)."""
+    return owned_problem(out, f"--out {out}")
 
 
 def training_folder(out: Path) -> Path:
