@@ -65,4 +65,7 @@ def owned_problem(path: Path, what: str, advice: str = "pick another --out", its
                 f"folder, which only that study writes; {advice}")  # fmt: skip
     if problem := _in_store(real, what, itself):
         return f"{problem}; {advice}"
+    if found := _marked(real, itself, study=False):
+        return (f"{what} {'is' if found[0] == real else 'lies inside'} {found[0]}, the folder of a coopsumo {found[1]} "
+                f"run, which only that command writes; {advice}")  # fmt: skip
     return None

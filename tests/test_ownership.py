@@ -365,3 +365,18 @@ def test_simulate_refuses_the_model_store(tmp_path: Path, capsys: pytest.Capture
                       (model / "run", "a model of a model store"), (env_store / "myrun", "is in the model store")):
         refused(capsys, simulate.main([*SIM, "--out", str(out)]), f"--out {out}", says, "pick another --out")
     assert snapshot(tmp_path) == before
+
+
+def test_a_run_never_goes_inside_another_run_s_folder(trained: Path, simulated: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 4, F19: `simulate --out` inside a finished training's folder and `train --out` inside a simulate
+    run's were written, and that folder was then no longer its command's (its rerun refused: "holds t, which coopsumo
+    simulate did not write"). Refused as one inside a study's folder is: one line, nothing written."""
+    before = snapshot(trained), snapshot(simulated)
+    out = trained / "eval2"
+    refused(capsys, simulate.main([*SIM, "--out", str(out)]),
+            f"--out {out} lies inside {trained.resolve()}, the folder of a coopsumo train run")  # fmt: skip
+    out = simulated / "t"
+    refused(capsys, train.main(["--steps", "20", "--eval-steps", "0", "--quiet", "--out", str(out)]),
+            f"--out {out} lies inside {simulated.resolve()}, the folder of a coopsumo simulate run")  # fmt: skip
+    assert (snapshot(trained), snapshot(simulated)) == before
