@@ -9,7 +9,7 @@ import os
 import re
 from pathlib import Path
 
-from coopsumo.paths import STORE_ENV
+from coopsumo.paths import NETS_ENV, STORE_ENV
 from coopsumo.run_dirs import RUN_KINDS, marker_kind
 
 DEFAULT_STORE = Path("results") / "models"
@@ -69,3 +69,17 @@ def owned_problem(path: Path, what: str, advice: str = "pick another --out", its
         return (f"{what} {'is' if found[0] == real else 'lies inside'} {found[0]}, the folder of a coopsumo {found[1]} "
                 f"run, which only that command writes; {advice}")  # fmt: skip
     return None
+
+
+def nets_problem(text: str) -> str | None:
+    """Why `text` cannot be the networks folder for being, or lying in, a folder a study, a run or the model store owns
+    (a phrase to follow --nets-dir or $COOPSUMO_NETS_DIR), or None: the networks SUMO builds there would be taken for
+    files their folder's command did not write (issue 82, probe 4, F18: every study then refused the store)."""
+    return owned_problem(Path(text), repr(text), "pick a networks folder elsewhere", itself=True)
+
+
+def nets_env_problem() -> str | None:
+    """nets_problem of $COOPSUMO_NETS_DIR, as a line naming it (runio.run_cli, beside paths.env_problem), or None."""
+    value = os.environ.get(NETS_ENV)
+    problem = nets_problem(value) if value else None
+    return f"${NETS_ENV} {problem}" if problem else None
