@@ -30,7 +30,7 @@ from coopsumo.agents.rollout import run
 from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.files import read_json
-from coopsumo.runio import Parser, children_start_deaf, working_folder_problem
+from coopsumo.runio import Parser, Stop, children_start_deaf, stop_on_signals, training_stop, working_folder_problem
 from coopsumo.sim import fast
 from coopsumo.sim.physics import occupancy
 
@@ -278,55 +278,6 @@ def bench_fcd_cost(steps: int, period_s: float, repeats: int) -> tuple[float, fl
     return float(np.median(extra)), min(extra), max(extra), size_mb / hours, vehicles
 
 
-CLUSTER_STUDY = ("scenario1", "--regime-map", "--t-up", "2,1.5,1", "--seeds", "2")
-"""the study of the cluster measurement: `keep` at 3 demands x 2 accident lengths x 2 seeds, 12 cells"""
-CLUSTER_QUICK = ("scenario1", "--regime-map", "--t-up", "2", "--seeds", "1")
-"""--quick: 2 cells"""
-
-
-def bench_cluster(study_args: tuple[str, ...], steps: int, warm_up: bool = True) -> dict[str, float]:
-    """Wall time (s) of a study's cells (each `steps` long) on the local backend with 1 and 2 workers and on
-    a Ray cluster of 1 and 2 nodes of one CPU each, started on this machine with Ray's cluster_utils (the study
-    connects with --backend ray --address as it would to a remote cluster). Every run must give the same runs.csv."""
-    import subprocess
-
-    from ray.cluster_utils import Cluster
-
-    def study(out: Path, *backend: str) -> float:
-        cmd = [sys.executable, "-m", "coopsumo", *study_args, "--steps", str(steps), "--quiet", "--out", str(out),
-               *backend]  # fmt: skip
-        start = time.perf_counter()
-        res = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        if res.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed: {res.stderr.strip().splitlines()[-1:]}")
-        return time.perf_counter() - start
-
-    times: dict[str, float] = {}
-    with tempfile.TemporaryDirectory() as tmp:
-        # a first study pays for cold caches (imports, the network, SUMO's files): one short one, not timed
-        if warm_up:
-            warm = [*CLUSTER_QUICK, "--steps", "100", "--quiet", "--out", str(Path(tmp) / "warm-up")]
-            subprocess.run([sys.executable, "-m", "coopsumo", *warm], capture_output=True, check=False)
-        for workers in (1, 2):
-            times[f"local, {workers} worker{'s' if workers > 1 else ''}"] = study(
-                Path(tmp) / f"local{workers}", "--workers", str(workers))  # fmt: skip
-        for nodes in (1, 2):
-            cluster = Cluster(initialize_head=True, connect=False,
-                              head_node_args={"num_cpus": 1, "include_dashboard": False})  # fmt: skip
-            try:
-                for _ in range(nodes - 1):
-                    cluster.add_node(num_cpus=1)
-                cluster.wait_for_nodes()
-                times[f"ray, {nodes} node{'s' if nodes > 1 else ''}"] = study(
-                    Path(tmp) / f"ray{nodes}", "--backend", "ray", "--address", cluster.address)  # fmt: skip
-            finally:
-                cluster.shutdown()
-        runs = {p.parent.name: p.read_text() for p in Path(tmp).glob("*/runs.csv") if p.parent.name != "warm-up"}
-        if len(set(runs.values())) != 1:
-            raise RuntimeError(f"the backends disagree: runs.csv differs between {sorted(runs)}")
-    return times
-
-
 def world_lines(steps: int, quick: bool) -> None:
     """The world's lines: simulation throughput per policy, and controlled keep against plain SUMO."""
     for policy in ("keep", "random", "greedy", "mobil", "sumo"):
@@ -448,6 +399,18 @@ def build_parser() -> Parser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """`coopsumo bench`; SIGINT and SIGTERM end it in one line and 128 + the signal wherever they land, a training's
+    own stop too (runio.training_stop; issue 82, probe 4, F14: it was a traceback, exit code 1)."""
+    with stop_on_signals():
+        try:
+            return _main(argv)
+        except Exception as err:
+            if (signum := training_stop(err)) is None:
+                raise
+            raise Stop(signum) from None
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.cluster and (beside := next((f for f, on in (("--learner", args.learner), ("--model", args.model))
@@ -463,14 +426,9 @@ def main(argv: list[str] | None = None) -> int:
             import ray  # noqa: F401
         except ImportError:
             parser.error("--cluster needs Ray: .venv/bin/pip install 'ray[default]'")
-        cell_steps, study = (100, CLUSTER_QUICK) if quick else (3000, CLUSTER_STUDY)
-        print(f"coopsumo bench --cluster: {' '.join(study)}, {cell_steps} steps a cell", flush=True)
-        times = bench_cluster(study, cell_steps, warm_up=not quick)
-        for name, wall in times.items():
-            print(f"  {name:16s}: {wall:6.1f} s", flush=True)
-        print(f"cluster scaling {times['ray, 1 node'] / times['ray, 2 nodes']:.2f}  (wall time on 1 node / on 2 nodes "
-              f"of one CPU each; local backend {times['local, 1 worker'] / times['local, 2 workers']:.2f} from 1 to "
-              "2 workers; the same runs.csv everywhere)", flush=True)  # fmt: skip
+        from coopsumo.bench_cluster import cluster_lines
+
+        cluster_lines(quick)
         return 0
     import torch
 

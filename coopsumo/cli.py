@@ -102,6 +102,7 @@ def _main(argv: Sequence[str]) -> int:
     from pathlib import Path
 
     from coopsumo.errors import UsageError
+    from coopsumo.owners import nets_problem
     from coopsumo.paths import NETS_ENV, nets_dir_problem
     from coopsumo.runio import working_folder_problem
 
@@ -114,8 +115,8 @@ def _main(argv: Sequence[str]) -> int:
         return 2
     if problem := working_folder_problem():  # before a command is imported: torch cannot be loaded from there
         parser.error(problem)
-    if args.nets_dir is not None and (problem := nets_dir_problem(args.nets_dir)):  # SUMO reads them there
-        parser.error(f"--nets-dir {problem}")
+    if args.nets_dir is not None and (problem := nets_dir_problem(args.nets_dir) or nets_problem(args.nets_dir)):
+        parser.error(f"--nets-dir {problem}")  # SUMO reads them there; not a folder a study, a run or the store owns
     if args.nets_dir is not None and (out := _out_of(rest)) is not None:
         nets, target = Path(args.nets_dir).expanduser().resolve(), Path(out).expanduser().resolve()
         if nets == target or nets.is_relative_to(target):

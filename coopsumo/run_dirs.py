@@ -126,16 +126,10 @@ RUN_KINDS = ("simulate", "train")
 """the kinds of marker a single command writes (run_dirs' users); every other kind marks a study's root"""
 
 
-def inside_study(out: Path) -> str | None:
-    """Why a single run (simulate, train) may not write `out`, or None: `out` (its links resolved) lies inside a
-    study's root, a folder whose marker names a study; the study's folders are the study's alone to write."""
-    real = out.resolve()
-    for folder in real.parents:
-        marker = _marker(folder)
-        if marker is not None and marker["kind"] not in RUN_KINDS:
-            return (f"--out {out} lies inside {folder}, a coopsumo {marker['kind']} study's folder, which only that "
-                    "study writes; pick another --out")  # fmt: skip
-    return None
+def marker_kind(folder: Path) -> str | None:
+    """The command or study whose marker claims `folder`, or None (no marker, or one that names none)."""
+    marker = _marker(folder)
+    return marker["kind"] if marker is not None else None
 
 
 def finished_run(folder: Path, kind: str) -> bool:

@@ -14,6 +14,7 @@ from contextlib import contextmanager
 from typing import Any, NoReturn
 
 from coopsumo.errors import USAGE_EXIT, USER_ERRNOS, UsageError, first_line, os_error_text
+from coopsumo.owners import nets_env_problem
 from coopsumo.paths import env_problem
 
 
@@ -81,8 +82,22 @@ _STOPS_RAISED: list[int] = []
 (run_interruptible reads it)"""
 
 
+_ENDING: list[bool] = [False]
+"""[True] once a stopped command has said so (stop_reported), until the next command starts"""
+
+
+def stop_reported() -> None:
+    """The command was stopped and has said so in its line: a SIGINT or SIGTERM that comes while it ends is counted,
+    not raised (issue 82, probe 4, F15: `timeout -s INT` sends its signal to the command and again to its process
+    group, and a second Ctrl-C does the same; raised as the command released its lock, it printed a second line).
+    Undone when a command starts (stop_on_signals, run_interruptible)."""
+    _ENDING[0] = True
+
+
 def _raise_stop(signum: int, frame: Any) -> None:
     _STOPS_RAISED.append(signum)  # also when it waits: a command that ends before it comes again was interrupted
+    if _ENDING[0]:
+        return
     if _importing_torch(frame):  # raised there, torch's C++ ends the process (abort, its stack): the signal again soon
         retry = threading.Timer(RETRY_S, os.kill, (os.getpid(), signum))
         retry.daemon = True
@@ -119,12 +134,25 @@ def stop_on_signals() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    _ENDING[0] = False
     old = {s: signal.signal(s, _raise_stop) for s in STOP_SIGNALS}
     try:
         yield
     finally:
         for s, handler in old.items():
             signal.signal(s, handler)
+
+
+def training_stop(err: Exception) -> int | None:
+    """The signal that stopped a training, when `err` says one did (agents.train.Interrupted, or the update worker
+    ended by a Ctrl-C to the whole group: LearnerProcessError); else None. Their modules are looked up, not imported
+    (torch)."""
+    train, worker = sys.modules.get("coopsumo.agents.train"), sys.modules.get("coopsumo.agents.update_worker")
+    if train is not None and isinstance(err, train.Interrupted):
+        return int(err.signum)
+    if worker is not None and isinstance(err, worker.LearnerProcessError) and err.signum in STOP_SIGNALS:
+        return int(err.signum)
+    return None
 
 
 def interrupted(prog: str, err: KeyboardInterrupt) -> int:
@@ -144,7 +172,7 @@ def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_pr
     that body() ran on and returned 0, still ends in that line and 130. Only in the main thread (elsewhere: body())."""
     if threading.current_thread() is not threading.main_thread():
         return body()
-    old, stops_before = signal.getsignal(signal.SIGINT), len(_STOPS_RAISED)
+    old, stops_before, _ENDING[0] = signal.getsignal(signal.SIGINT), len(_STOPS_RAISED), False
     try:
         signal.signal(signal.SIGINT, _raise_stop)
         code = body()
@@ -222,7 +250,7 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
     if problem := working_folder_problem():
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
-    if problem := env_problem():  # $COOPSUMO_NETS_DIR, $COOPSUMO_MODELS
+    if problem := env_problem() or nets_env_problem():  # $COOPSUMO_NETS_DIR, $COOPSUMO_MODELS
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
     try:

@@ -30,8 +30,9 @@ from coopsumo.config import (
     SimConfig,
 )
 from coopsumo.errors import ConfigError, UsageError
+from coopsumo.owners import owned_problem
 from coopsumo.policy_spec import KEYS, PolicySpecError, parse_policy, policy_file
-from coopsumo.run_dirs import atomic_run_dir, check_apart, check_no_outside_link, check_run_dir, inside_study
+from coopsumo.run_dirs import atomic_run_dir, check_apart, check_no_outside_link, check_run_dir
 from coopsumo.runio import Parser, run_cli
 from coopsumo.sim import network, sumo_session
 from coopsumo.validation import (
@@ -246,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
             raise UsageError(f"--policy: {err}") from None
         if (read := policy_file(cfg.policy)) is not None:  # a model or module file: never written over
             check_apart(args.out, Path(read))
-        if problem := inside_study(args.out):  # a study's run folder is the study's (run_dirs)
+        if problem := owned_problem(args.out, f"--out {args.out}"):  # a study's, the store's, a training's folder
             raise UsageError(problem)
         check_run_dir(args.out, "simulate")  # before anything is written (the screenshot's folder, the run)
         check_no_outside_link(args.out)  # a link in its own folder out to a user's file, as train refuses

@@ -207,3 +207,37 @@ def test_bench_with_a_full_temporary_folder_is_one_line(error: Exception, monkey
     assert cli.main(["bench", "--quick", "--learner"]) == 1
     err = capsys.readouterr().err
     assert len(err.strip().splitlines()) == 1 and err.startswith("bench: error: ") and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("kind", ["store", "in the store", "study", "training", "run"])
+def test_a_networks_folder_in_a_folder_coopsumo_owns_is_refused_by_flag_and_by_environment(
+    kind: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82, probe 4, F18: a networks folder that was a model store (every study then refused the store, "holds
+    highway_4lanes_...edg.xml"), a study's, a training's or a simulate run's folder was written into. Refused as an
+    --out there is (owners.owned_problem): one line naming the flag or the variable, exit 2, nothing written."""
+    from coopsumo.run_dirs import mark_run_dir
+
+    store = tmp_path / "store"
+    (store / "default_a0_seed100_0123456789ab").mkdir(parents=True)
+    for name, marked in (("study", "scenario2"), ("training", "train"), ("run", "simulate")):
+        (tmp_path / name).mkdir()
+        mark_run_dir(tmp_path / name, marked, finished=marked == "simulate")
+    value = str({"store": store, "in the store": store / "nets", "study": tmp_path / "study" / "nets",
+                 "training": tmp_path / "training", "run": tmp_path / "run" / "nets"}[kind])  # fmt: skip
+    out = tmp_path / "out"
+    before = sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*"))
+    monkeypatch.setenv(network.NETS_ENV, "")  # restored at teardown: cli.main sets it from --nets-dir
+    try:
+        code = cli.main(["--nets-dir", value, "simulate", "--steps", "5", "--quiet", "--out", str(out)])
+    except SystemExit as stop:
+        code = stop.code
+    flag = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    monkeypatch.setenv(network.NETS_ENV, value)
+    code_env = cli.main(["simulate", "--steps", "5", "--quiet", "--out", str(out)])
+    env = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert code == code_env == 2
+    assert len(flag) == 1 and f"--nets-dir {value!r}" in flag[0], flag
+    assert len(env) == 1 and f"$COOPSUMO_NETS_DIR {value!r}" in env[0], env
+    assert "pick a networks folder elsewhere" in env[0], env
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in tmp_path.rglob("*")) == before

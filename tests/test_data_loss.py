@@ -234,13 +234,14 @@ def test_train_never_writes_into_the_model_store(
 
 
 def test_the_store_names_train_knows_are_the_stores() -> None:
+    from coopsumo import owners
     from coopsumo.studies.engine import model_store
 
-    assert train_cli.STORE_ENV == model_store.STORE_ENV
+    assert owners.STORE_ENV == model_store.STORE_ENV  # the store the check behind train's --out knows (owners)
     cond = replace(TINY, dqn=replace(DQN_PRESETS["default"], alpha_conditioned=True))
     for cfg in (TINY, replace(TINY, sim=replace(TINY.sim, reward=replace(TINY.sim.reward, alpha=0.125))), cond):
-        assert train_cli.STORE_NAME.fullmatch(model_store.model_id(as_json(cfg)))
-    assert not train_cli.STORE_NAME.fullmatch("lanes3_alpha8_tup1.5_seed0")  # train's own default folder name
+        assert owners.STORE_NAME.fullmatch(model_store.model_id(as_json(cfg)))
+    assert not owners.STORE_NAME.fullmatch("lanes3_alpha8_tup1.5_seed0")  # train's own default folder name
 
 
 # -- 3. a study's models/<name> that is not its link ------------------------------------------------------------------

@@ -322,3 +322,32 @@ def test_out_refuses_a_pipe_without_waiting_on_it(tmp_path: Path) -> None:
     os.mkfifo(fifo)
     with pytest.raises(UsageError, match="is not a regular file"):
         history.check_writable(fifo)
+
+
+def test_out_refuses_a_file_in_a_folder_coopsumo_owns(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                     monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """Issue 82, probe 4, F17: `history --out` wrote its table into the model store (every study then refused the
+    store), an interrupted training's folder (it could no longer be resumed), a run's or a study's folder. A file
+    there is refused as a run's --out there is (owners.owned_problem): one line naming the folder, nothing written."""
+    from coopsumo.run_dirs import mark_run_dir
+
+    results = tmp_path / "results"
+    _one_study(results)
+    study = results / "learner_protocol_g0.95"
+    mark_run_dir(study, "protocol", finished=False, study="the tiny profile's study")
+    store, env_store = tmp_path / "models", tmp_path / "env_store"
+    (store / "default_a0_seed100_0123456789ab").mkdir(parents=True)
+    env_store.mkdir()
+    monkeypatch.setenv("COOPSUMO_MODELS", str(env_store))
+    for name, kind in (("ck", "train"), ("sim", "simulate")):
+        (tmp_path / name).mkdir()
+        mark_run_dir(tmp_path / name, kind, finished=kind == "simulate")
+    before = _files(tmp_path)
+    for out, says in ((store / "t.md", "a model store"), (env_store / "t.md", "is in the model store"),
+                      (tmp_path / "ck" / "t.md", "the folder of a coopsumo train run"),
+                      (tmp_path / "sim" / "t.md", "the folder of a coopsumo simulate run"),
+                      (study / "t.md", "a coopsumo protocol study's folder")):  # fmt: skip
+        assert history.main(["--results", str(results), "--out", str(out)]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and f"--out {out}" in err and says in err, err
+    assert _files(tmp_path) == before

@@ -141,3 +141,60 @@ def test_a_signal_as_the_loop_puts_its_handlers_in_leaves_none_behind(
         train(cfg, tmp_path / "run", progress=False)
     monkeypatch.undo()
     assert {s: signal.getsignal(s) for s in handlers} == handlers
+
+
+BENCH_STOPPED = """
+import os, signal, sys
+from coopsumo.agents.train import Trainer
+advance = Trainer._advance
+def _advance(self, *args, **kwargs):
+    if self.step == 50:  # a signal in the middle of bench's first training, its handler the training's own
+        os.kill(os.getpid(), {sig})
+    return advance(self, *args, **kwargs)
+Trainer._advance = _advance
+from coopsumo.cli import main
+sys.exit(main(["bench", "--quick", "--learner"]))
+"""
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_during_a_bench_training_is_one_line(sig: int, tmp_path: Path) -> None:
+    """Issue 82, probe 4, F14: a Ctrl-C or SIGTERM while bench trains ended in agents.train.Interrupted's traceback,
+    exit code 1; it is `bench: interrupted` and 128 + the signal, as every other command says it."""
+    res = subprocess.run([sys.executable, "-c", BENCH_STOPPED.format(sig=int(sig))], cwd=tmp_path, text=True,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, timeout=300)  # fmt: skip
+    assert res.stderr.strip().splitlines() == ["bench: interrupted"], res.stderr[-1500:]
+    assert res.returncode == 128 + sig
+
+
+TRAIN_SIGNALLED_TWICE = """
+import builtins, os, signal, sys, time
+from coopsumo.agents import train_cli
+from coopsumo.agents.train import Trainer
+run, advance = Trainer.run, Trainer._advance
+def first_stop(self, *args, **kwargs):
+    if {where!r} == "setup" or self.step == 50:
+        os.kill(os.getpid(), signal.SIGINT)
+    return (run if {where!r} == "setup" else advance)(self, *args, **kwargs)
+setattr(Trainer, "run" if {where!r} == "setup" else "_advance", first_stop)
+def said(*args, **kwargs):
+    builtins.print(*args, **kwargs)
+    if "interrupted" in str(args[0]):  # the second SIGINT, after the command's line: timeout's to the process group
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.2)
+train_cli.print = said
+from coopsumo.cli import main
+sys.exit(main(["train", "--steps", "600", "--eval-steps", "0", "--update-worker", "off", "--out", "run", "--quiet"]))
+"""
+
+
+@pytest.mark.parametrize("where", ["setup", "loop"])
+def test_a_second_signal_as_train_ends_adds_no_second_line(where: str, tmp_path: Path) -> None:
+    """Issue 82, probe 4, F15: `timeout -s INT` sends its signal to the command and again to its process group; the
+    second one, landing after `train` had said it was interrupted (as it released its folder's lock), printed a second
+    line, `train: interrupted`. A stop that comes while a stopped command ends is only counted."""
+    res = subprocess.run([sys.executable, "-c", TRAIN_SIGNALLED_TWICE.format(where=where)], cwd=tmp_path, text=True,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, timeout=300)  # fmt: skip
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("train: interrupted"), res.stderr[-1500:]
+    assert res.returncode == 130

@@ -419,3 +419,36 @@ def test_scenario2_refuses_a_user_file_where_a_model_link_belongs(
     code = study_main("scenario2", ["--profile", "tiny", "--quiet", "--out", str(root)])
     refused(capsys, code, str(root / "train" / "L2_T4_a8_s2"), "is a file the study did not make")
     assert (root / "train" / "L2_T4_a8_s2").read_text() == "my notes\n" and not (root / "cells").exists()
+
+
+def test_simulate_refuses_the_model_store(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                          monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """Issue 82, probe 4, F16: `simulate --out` inside the model store (or a store model's folder) was written, and
+    every study then refused the store ("holds myrun, which is not a stored model"); train's --out was refused there.
+    One check for both (owners.owned_problem): one line, nothing written."""
+    store, env_store = tmp_path / "store", tmp_path / "env_store"
+    model = store / "default_a0_seed100_0123456789ab"
+    model.mkdir(parents=True)
+    mark_run_dir(model, "train")
+    env_store.mkdir()
+    monkeypatch.setenv("COOPSUMO_MODELS", str(env_store))
+    before = snapshot(tmp_path)
+    for out, says in ((store / "myrun", "a model store (it holds the studies' models)"),
+                      (model / "run", "a model of a model store"), (env_store / "myrun", "is in the model store")):
+        refused(capsys, simulate.main([*SIM, "--out", str(out)]), f"--out {out}", says, "pick another --out")
+    assert snapshot(tmp_path) == before
+
+
+def test_a_run_never_goes_inside_another_run_s_folder(trained: Path, simulated: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 4, F19: `simulate --out` inside a finished training's folder and `train --out` inside a simulate
+    run's were written, and that folder was then no longer its command's (its rerun refused: "holds t, which coopsumo
+    simulate did not write"). Refused as one inside a study's folder is: one line, nothing written."""
+    before = snapshot(trained), snapshot(simulated)
+    out = trained / "eval2"
+    refused(capsys, simulate.main([*SIM, "--out", str(out)]),
+            f"--out {out} lies inside {trained.resolve()}, the folder of a coopsumo train run")  # fmt: skip
+    out = simulated / "t"
+    refused(capsys, train.main(["--steps", "20", "--eval-steps", "0", "--quiet", "--out", str(out)]),
+            f"--out {out} lies inside {simulated.resolve()}, the folder of a coopsumo simulate run")  # fmt: skip
+    assert (snapshot(trained), snapshot(simulated)) == before

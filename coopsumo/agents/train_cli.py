@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import shutil
 import signal
 import sys
@@ -30,21 +29,21 @@ from coopsumo.config import (
 )
 from coopsumo.dqn_config import DQN_PRESETS, LEARNER_FLAGS, DQNConfig
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.paths import STORE_ENV
+from coopsumo.owners import STORE_NAME as STORE_NAME
+from coopsumo.owners import owned_problem
 from coopsumo.run_dirs import (
     check_no_outside_link,
     check_out_path,
     check_run_dir,
     finish_run_dir,
     finished_run,
-    inside_study,
     lock_path,
     out_lock,
     release_lock,
     retrain_folder,
     try_lock,
 )
-from coopsumo.runio import STOP_SIGNALS, Parser, run_cli, stop_on_signals
+from coopsumo.runio import STOP_SIGNALS, Parser, run_cli, stop_on_signals, stop_reported
 from coopsumo.validation import (
     MAX_STEPS,
     alpha,
@@ -71,35 +70,10 @@ def check_new_training(out: Path) -> None:
                          "--out, or remove the folder yourself")  # fmt: skip
 
 
-DEFAULT_STORE = Path("results") / "models"
-"""the committed studies' model store"""
-STORE_NAME = re.compile(r".+_a[^_/]+_seed\d+_[0-9a-f]{12}")
-"""the name of a model's folder in the store (model_store.model_id: <preset>_a<alpha>_seed<seed>_<digest>)"""
-
-
 def store_problem(out: Path) -> str | None:
-    """Why `train` may not write `out`, or None: the model store is the studies' alone. `out` (its links resolved)
-    lies in $COOPSUMO_MODELS or results/models, is or lies in a store model's folder (a study's `models/<name>` or
-    `train/<key>` is a link to one), or lies in a folder holding store models (another study's store)."""
-    if problem := inside_study(out):  # a study's folders are the study's (run_dirs)
-        return problem
-    real = out.resolve()
-    env = os.environ.get(STORE_ENV)
-    for store in [DEFAULT_STORE.resolve(), *([Path(env).resolve()] if env else [])]:
-        if real.is_relative_to(store):
-            return f"--out {out} is in the model store {store}, which only the studies write; pick another --out"
-    for folder in (real, *real.parents):
-        if STORE_NAME.fullmatch(folder.name):
-            return (f"--out {out} leads into {folder}, a model of a model store (a study's model link?), which only "
-                    "the studies write; pick another --out")  # fmt: skip
-    try:
-        beside = [p.name for p in real.parent.iterdir()]
-    except OSError:
-        return None
-    if any(STORE_NAME.fullmatch(name) or STORE_NAME.fullmatch(name[1:].removesuffix(".lock")) for name in beside):
-        return (f"--out {out} is in {real.parent}, a model store (it holds the studies' models), which only the "
-                "studies write; pick another --out")  # fmt: skip
-    return None
+    """Why `train` may not write `out`, or None: it lies inside a study's folder, the model store (a store model's
+    folder, through a study's model link too) or another run's folder (owners.owned_problem)."""
+    return owned_problem(out, f"--out {out}")
 
 
 def training_folder(out: Path) -> Path:
@@ -322,7 +296,9 @@ def check_resume_flags(argv: list[str] | None, cfg: TrainConfig) -> None:
 
 def stopped(out: Path, target: Path, created: bool, signum: int) -> int:
     """The line and exit code of a training stopped by a signal outside its loop (its setup, model selection, its
-    evaluation): its checkpoint stands; before its first one, a folder this command made is removed again."""
+    evaluation): its checkpoint stands; before its first one, a folder this command made is removed again. A second
+    signal meanwhile is only counted (runio.stop_reported)."""
+    stop_reported()
     if (target / "checkpoint.pt").exists():
         print(f"train: interrupted; its checkpoint {target / 'checkpoint.pt'} stands: continue with --resume --out "
               f"{out}", file=sys.stderr)  # fmt: skip
@@ -426,6 +402,7 @@ def _train_in(args: Any, cfg: TrainConfig, out: Path, created: bool) -> int:
             if target != out:
                 finish_run_dir(target, out, "train")
         except Interrupted as stop:
+            stop_reported()  # a second signal while this line is printed and the lock released: counted (F15)
             print(f"train: interrupted at step {stop.step}; checkpoint saved in {target / 'checkpoint.pt'}; "
                   f"continue with --resume --out {out}", file=sys.stderr)  # fmt: skip
             return 128 + stop.signum

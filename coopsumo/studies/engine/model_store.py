@@ -52,11 +52,11 @@ def store_for(root: Path) -> Path:
 
 def store_problem(store: Path) -> str | None:
     """Why the folder `store` is not a model store a study may write, or None: it is missing (made when a model is
-    stored), or a folder whose visible entries are all store models (train_cli.STORE_NAME, folders); its dot-entries
+    stored), or a folder whose visible entries are all store models (owners.STORE_NAME, folders); its dot-entries
     are the store's locks and partial folders, none a link (_lock_problem). A user's file or folder there is left
     alone, and so is a link named like a model (is_dir follows it: a study would train into the folder it leads
     to)."""
-    from coopsumo.agents.train_cli import STORE_NAME
+    from coopsumo.owners import STORE_NAME
 
     if not os.path.lexists(store):
         return None
@@ -329,8 +329,8 @@ SEARCH_DEPTH = 3
 
 
 def is_store(folder: Path) -> bool:
-    """True when `folder` holds a stored model (a folder named as model_id names one, train_cli.STORE_NAME)."""
-    from coopsumo.agents.train_cli import STORE_NAME
+    """True when `folder` holds a stored model (a folder named as model_id names one, owners.STORE_NAME)."""
+    from coopsumo.owners import STORE_NAME
 
     try:
         return any(STORE_NAME.fullmatch(p.name) and p.is_dir() for p in folder.iterdir())

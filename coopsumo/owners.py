@@ -1,0 +1,85 @@
+"""Folders that are not a command's to write into: those a coopsumo marker claims (a study's root, a simulate run's or
+a training's folder) and the model store. One check (owned_problem) for every path a command writes beside its own
+folder's: a single run's --out (simulate, train), history's --out file, the networks folder (--nets-dir,
+$COOPSUMO_NETS_DIR)."""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+from coopsumo.paths import NETS_ENV, STORE_ENV
+from coopsumo.run_dirs import RUN_KINDS, marker_kind
+
+DEFAULT_STORE = Path("results") / "models"
+"""the committed studies' model store"""
+STORE_NAME = re.compile(r".+_a[^_/]+_seed\d+_[0-9a-f]{12}")
+"""the name of a model's folder in the store (model_store.model_id: <preset>_a<alpha>_seed<seed>_<digest>)"""
+
+
+def _marked(real: Path, itself: bool, study: bool) -> tuple[Path, str] | None:
+    """The nearest folder holding `real` (`real` too when itself) whose marker names a study (study) or a single
+    run (not study), and that kind; None."""
+    for folder in [real] * itself + list(real.parents):
+        kind = marker_kind(folder)
+        if kind is not None and (kind not in RUN_KINDS) == study:
+            return folder, kind
+    return None
+
+
+def _holds_models(folder: Path) -> bool:
+    """True when `folder` holds a store model's folder or lock (a model store)."""
+    try:
+        names = [p.name for p in folder.iterdir()]
+    except OSError:
+        return False
+    return any(STORE_NAME.fullmatch(name) or STORE_NAME.fullmatch(name[1:].removesuffix(".lock")) for name in names)
+
+
+def _in_store(real: Path, what: str, itself: bool) -> str | None:
+    """Why `real` may not be written for being in a model store (a phrase starting with `what`), or None: in
+    $COOPSUMO_MODELS or results/models, in (or named as) a store model's folder, in a folder holding store models."""
+    env = os.environ.get(STORE_ENV)
+    for store in [DEFAULT_STORE.resolve(), *([Path(env).resolve()] if env else [])]:
+        if real.is_relative_to(store):
+            return f"{what} is in the model store {store}, which only the studies write"
+    for folder in (real, *real.parents):
+        if STORE_NAME.fullmatch(folder.name):
+            return (f"{what} leads into {folder}, a model of a model store (a study's model link?), which only the "
+                    "studies write")  # fmt: skip
+    for folder in [real] * itself + [real.parent]:
+        if _holds_models(folder):
+            return f"{what} is in {folder}, a model store (it holds the studies' models), which only the studies write"
+    return None
+
+
+def owned_problem(path: Path, what: str, advice: str = "pick another --out", itself: bool = False) -> str | None:
+    """Why a command may not write `path` (what: the flag and value naming it, advice: what to do instead), or None:
+    `path`, its links resolved, lies inside a study's root, in the model store or in a single run's folder (a
+    simulate run's, a training's); itself: `path` is not the command's own folder, so it may not be one of these
+    either (the networks folder). The study's folder is named first (a run inside it is the study's)."""
+    real = path.expanduser().resolve()
+    if found := _marked(real, itself, study=True):
+        return (f"{what} {'is' if found[0] == real else 'lies inside'} {found[0]}, a coopsumo {found[1]} study's "
+                f"folder, which only that study writes; {advice}")  # fmt: skip
+    if problem := _in_store(real, what, itself):
+        return f"{problem}; {advice}"
+    if found := _marked(real, itself, study=False):
+        return (f"{what} {'is' if found[0] == real else 'lies inside'} {found[0]}, the folder of a coopsumo {found[1]} "
+                f"run, which only that command writes; {advice}")  # fmt: skip
+    return None
+
+
+def nets_problem(text: str) -> str | None:
+    """Why `text` cannot be the networks folder for being, or lying in, a folder a study, a run or the model store owns
+    (a phrase to follow --nets-dir or $COOPSUMO_NETS_DIR), or None: the networks SUMO builds there would be taken for
+    files their folder's command did not write (issue 82, probe 4, F18: every study then refused the store)."""
+    return owned_problem(Path(text), repr(text), "pick a networks folder elsewhere", itself=True)
+
+
+def nets_env_problem() -> str | None:
+    """nets_problem of $COOPSUMO_NETS_DIR, as a line naming it (runio.run_cli, beside paths.env_problem), or None."""
+    value = os.environ.get(NETS_ENV)
+    problem = nets_problem(value) if value else None
+    return f"${NETS_ENV} {problem}" if problem else None
