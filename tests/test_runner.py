@@ -224,7 +224,7 @@ def test_a_record_cut_by_a_kill_of_the_writer_is_removed_and_the_cell_rerun(tmp_
     """SIGKILL of a study's main process while it writes a record leaves that record's temporary file (no process
     can catch SIGKILL); the next run removes it and reruns the cell. Other files are left alone."""
     (tmp_path / "cells").mkdir()
-    cut = tmp_path / "cells" / "c2.json.tmp"
+    cut = tmp_path / "cells" / ".c2.json.k3x9q2ab.tmp"  # as files.write_atomic names it (mkstemp)
     cut.write_text(json.dumps(GOOD)[:20])
     cell_records.cell_path(tmp_path, "c1").write_text(json.dumps(GOOD))
     other = tmp_path / "cells" / "notes.tmp"

@@ -42,7 +42,7 @@ from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import GroupTicket, LearnerProcessError, attach_updates
 from coopsumo.config import TrainConfig, first_difference, to_dict, train_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line
-from coopsumo.files import read_json, write_atomic, write_json
+from coopsumo.files import read_json, temporaries_of, write_atomic, write_json
 from coopsumo.provenance import versions
 from coopsumo.run_dirs import check_no_outside_link, finished_run, mark_run_dir
 from coopsumo.runio import Stop, signals_deferred
@@ -109,7 +109,13 @@ class Trainer:
             "actions": torch.from_numpy(flat.astype(np.int8)),
             "window": {k: v for k, v in vars(self.window).items()},
         }
-        write_atomic(self.checkpoint_path(), lambda tmp: torch.save(state, tmp))  # no checkpoint.pt.tmp left behind
+        self.drop_checkpoint(keep=True)  # a SIGKILL's half-written temporaries of before
+        write_atomic(self.checkpoint_path(), lambda tmp: torch.save(state, tmp))
+
+    def drop_checkpoint(self, keep: bool = False) -> None:
+        """Remove checkpoint.pt (unless keep) and what a killed write of it left (files.temporaries_of)."""
+        for path in [*temporaries_of(self.checkpoint_path()), *([] if keep else [self.checkpoint_path()])]:
+            path.unlink(missing_ok=True)
 
     @staticmethod
     def load_checkpoint(out: Path) -> dict[str, Any]:
@@ -475,7 +481,7 @@ def train(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = Tr
     train_summary, chosen = _write_models(trainer, cfg, out, wall, ended, learner_process)
     if cfg.eval_steps == 0:
         with signals_deferred():  # a stop between the two would leave a training neither resumable nor finished
-            trainer.checkpoint_path().unlink(missing_ok=True)
+            trainer.drop_checkpoint()
             mark_run_dir(out, "train")
         return train_summary
     net = trainer.learner.online if chosen is None else DQNPolicy.from_file(str(out / "model.pt")).net
@@ -487,6 +493,6 @@ def train(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = Tr
         raise Interrupted(getattr(stop, "signum", signal.SIGINT), trainer.step) from None
     write_json(out / "summary.json", summary)
     with signals_deferred():
-        trainer.checkpoint_path().unlink(missing_ok=True)
+        trainer.drop_checkpoint()
         mark_run_dir(out, "train")
     return summary

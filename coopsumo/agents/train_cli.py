@@ -43,7 +43,7 @@ from coopsumo.run_dirs import (
     retrain_folder,
     try_lock,
 )
-from coopsumo.runio import STOP_SIGNALS, Parser, run_cli, stop_on_signals, stop_reported
+from coopsumo.runio import STOP_SIGNALS, Parser, run_cli, signals_deferred, stop_on_signals, stop_reported
 from coopsumo.validation import (
     MAX_STEPS,
     alpha,
@@ -354,9 +354,10 @@ def _check_given_out(args: Any) -> None:
 def _config(args: Any, argv: list[str] | None) -> TrainConfig:
     """The flags' configuration, or the interrupted training's with --resume."""
     new_cfg = None if args.resume else config_from_args(args)  # bad flags refused before torch loads (~2 s)
-    import torch
+    with signals_deferred():  # a Ctrl-C in torch's import is raised once it is done, before anything is written
+        import torch
 
-    from coopsumo.agents.train import Trainer
+        from coopsumo.agents.train import Trainer
 
     torch.set_num_threads(1)
     if new_cfg is not None:
