@@ -82,7 +82,8 @@ def test_a_deeply_nested_study_record_is_named(tmp_path: Path) -> None:
     (b'[profiles.mine]\nhelp = "x\xff"\nlanes = [2]\n', "not TOML (not UTF-8: byte 0xff"),
     (b"[profiles.mine]\nlanes = " + b"[" * 50_000 + b"]" * 50_000 + b"\n", "not TOML (nested deeper"),
     (b"[profiles.mine]\nlanes = " + b"[" * 100 + b"]" * 100 + b"\n", "not TOML (nested deeper"),
-], ids=["not_utf8", "recursion", "nested"])  # fmt: skip
+    (b"[profiles.mine]\nlanes = [" + b"9" * 5000 + b"]\n", "not TOML (Exceeds the limit"),  # fifth probe, G7
+], ids=["not_utf8", "recursion", "nested", "digits"])  # fmt: skip
 @pytest.mark.parametrize("study", ["scenario2", "protocol", "learning"])
 def test_a_profile_file_not_utf8_or_nested_deeply_is_not_toml(
         study: str, text: bytes, words: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip

@@ -97,6 +97,8 @@ def read_toml(path: Path) -> dict[str, Any]:
         raise ConfigError(f"{path}: not TOML ({err})") from None
     except RecursionError:
         raise ConfigError(f"{path}: not TOML (nested deeper than {MAX_JSON_DEPTH} levels)") from None
+    except ValueError as err:  # int() of more digits than Python converts (4,300), passed on by tomllib
+        raise ConfigError(f"{path}: not TOML ({str(err).splitlines()[0][:80]})") from None
     if (problem := depth_problem(data)) is not None:
         raise ConfigError(f"{path}: not TOML ({problem})")
     return data
