@@ -139,3 +139,16 @@ def test_the_paper_profile_of_scenario2_runs_on_two_nodes_as_locally(tmp_path: P
     pd.testing.assert_frame_equal(ray, local)
     assert (outs["ray"] / "gate.csv").read_text() == (outs["local"] / "gate.csv").read_text()
     assert (tmp_path / "b" / "models").is_dir() and any((tmp_path / "b" / "models").iterdir())
+
+
+def test_without_address_ray_starts_its_own_instance_beside_a_running_cluster(cluster: tuple[Any, Any]) -> None:
+    """Ray's `init()` without an address joins the last cluster started on the machine (here the module's, 2 CPUs);
+    `--backend ray` without `--address` starts its own with --workers CPUs instead (CI failed when another test's
+    cluster ran beside a local Ray study)."""
+    code = ("from coopsumo.studies.engine import runner\n"
+            "b = runner.make_backend('ray', 3, None, lambda spec, root: spec)\n"
+            "print('slots', b.slots)\n")  # fmt: skip
+    res = subprocess.run([sys.executable, "-c", code], cwd=REPO, env=_env(), capture_output=True, text=True,
+                         timeout=300, check=False)  # fmt: skip
+    assert res.returncode == 0, res.stderr[-2000:]
+    assert "slots 3" in res.stdout

@@ -136,8 +136,8 @@ class RayBackend:
         kwargs: dict[str, Any] = {"include_dashboard": False, "logging_level": logging.WARNING, "log_to_driver": False}
         if address is None:
             kwargs["num_cpus"] = workers
-        try:
-            ray.init(address=address, **kwargs)
+        try:  # without --address, a new local instance: never a cluster some other program left running here
+            ray.init(address=address or "local", **kwargs)
         except (ConnectionError, ValueError, RuntimeError) as err:
             detail = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
             where = f" at {address}" if address else ""
