@@ -13,6 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from coopsumo.report.markdown import md_table
+
 
 def alpha0_runs(runs: pd.DataFrame, variant: str) -> pd.DataFrame:
     """The finished alpha = 0 models of a variant, one row per training seed."""
@@ -79,7 +81,7 @@ def markdown(table: pd.DataFrame, baselines: list[str]) -> list[str]:
     head = ["variant", "seeds", "mean speed (m/s)", "worst seed: speed (lane changes / veh)",
             "lane changes / veh (mean, max)"]  # fmt: skip
     head += [f"vs `{b}`: gap mean, worst (seeds below)" for b in baselines]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines = []
     for _, r in table.iterrows():
         cells = [f"`{r['variant']}`", str(r["seeds"]), f"{r['speed_mean']:.2f} ± {r['speed_sd']:.2f}",
                  f"{r['worst_speed']:.2f} ({r['worst_lane_changes']:.2f}), seed {r['worst_seed']}",
@@ -87,8 +89,8 @@ def markdown(table: pd.DataFrame, baselines: list[str]) -> list[str]:
         for b in baselines:
             gap = r[f"{b}_gap_mean"]
             cells.append("-" if math.isnan(gap) else f"{gap:+.2f}, {r[f'{b}_gap_min']:+.2f} ({r[f'{b}_below']})")
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
+        lines.append(cells)
+    return md_table(head, lines).split("\n")
 
 
 def seed_matrix_markdown(per_seed: pd.DataFrame) -> list[str]:
@@ -96,13 +98,13 @@ def seed_matrix_markdown(per_seed: pd.DataFrame) -> list[str]:
     if per_seed.empty:
         return []
     seeds = sorted(per_seed["seed"].unique())
-    lines = ["| policy | " + " | ".join(f"seed {s}" for s in seeds) + " |", "|" + "---|" * (len(seeds) + 1)]
+    lines = []
     for variant, group in per_seed.groupby("variant", sort=False):
         by = group.set_index("seed")
         cells = [f"{by.loc[s, 'mean_speed_mps']:.2f} ({by.loc[s, 'lane_changes_per_vehicle']:.2f})"
                  if s in by.index else "-" for s in seeds]  # fmt: skip
-        lines.append(f"| `{variant}` | " + " | ".join(cells) + " |")
-    return lines
+        lines.append([f"`{variant}`", *cells])
+    return md_table(["policy", *(f"seed {s}" for s in seeds)], lines).split("\n")
 
 
 def training_seeds_figure(root: Path, runs: pd.DataFrame, variants: list[str], out_path: Path) -> Path:

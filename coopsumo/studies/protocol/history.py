@@ -28,6 +28,7 @@ from coopsumo.field_rules import as_float
 from coopsumo.files import loads_json, write_atomic
 from coopsumo.owners import owned_problem
 from coopsumo.record_schemas import PROTOCOL_STATS, PROTOCOL_STUDY, RecordError
+from coopsumo.report.markdown import md_table
 from coopsumo.runio import Parser, run_cli
 
 TITLE = "# The learner search, one row per learner judged"
@@ -215,10 +216,8 @@ def table(results: Path) -> str:
         "and evaluation seeds; P(> X): probability of improvement over X (min-max over demands, rliable); the "
         f"verdict counts the demands where the learner's P(> keep) has its whole 95% interval above {BETTER:g}.",
         "",
-        "| " + " | ".join(head) + " |",
-        "|" + "---|" * len(head),
+        md_table(head, [[row[k] for k in head] for row in rows]),
     ]
-    lines += ["| " + " | ".join(row[k] for k in head) + " |" for row in rows]
     return "\n".join(lines) + "\n"
 
 

@@ -12,6 +12,7 @@ from typing import Any
 
 import pandas as pd
 
+from coopsumo.report.markdown import md_table
 from coopsumo.studies.protocol.plan import BASELINES, QUEUE_MPS
 
 MEASURE = "queue_lane_changes_per_vehicle"
@@ -54,15 +55,15 @@ def thrashing_lines(models: pd.DataFrame, profile: Any) -> list[str]:
              f"{QUEUE_MPS:g} m/s per vehicle that departed (scenario I's measure, counted on the same trajectories "
              "as total time spent; a model's value is its mean over its evaluation seeds); the median and range over "
              f"the models, and how many thrash ({THRASHING:g} or more; issue 78 calls a model under {THRASHING:g} "
-             "calm). The baselines' values on the same seeds beside them.", "",
-             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]  # fmt: skip
+             "calm). The baselines' values on the same seeds beside them.", ""]  # fmt: skip
+    body = []
     for r in rows:
         spread = NA if not r["measured"] else f"{r['median']:.2f} [{r['low']:.2f}, {r['high']:.2f}]"
         count = NA if not r["measured"] else f"{r['thrashing']} of {r['measured']}"
         cells = [f"{r['t_up']:g}", f"`{r['variant']}`", str(r["models"]), spread, count]
         cells += [NA if math.isnan(r[b]) else f"{r[b]:.2f}" for b in BASELINES]
-        lines.append("| " + " | ".join(cells) + " |")
-    return lines
+        body.append(cells)
+    return lines + md_table(head, body).split("\n")
 
 
 def _first(values: pd.Series) -> float:

@@ -16,6 +16,7 @@ import pandas as pd
 from coopsumo.config import SimConfig, to_dict
 from coopsumo.files import read_json
 from coopsumo.provenance import versions
+from coopsumo.report.markdown import md_table
 from coopsumo.studies.engine.stats import models_needed
 from coopsumo.studies.scenario1.gui import gui_section
 from coopsumo.studies.scenario1.horizon import fig4, horizon_outputs
@@ -61,22 +62,21 @@ def _fmt(fmt: str, mean: float, std: float) -> str:
 
 def report_table(agg: pd.DataFrame) -> str:
     """One markdown table of one demand's aggregate: a row per policy."""
-    header = "| policy | " + " | ".join(label for _, label, _ in METRICS) + " |"
-    lines = [header, "|" + "---|" * (len(METRICS) + 1)]
+    rows = []
     for _, r in agg.iterrows():
         cells = [_fmt(fmt, r[f"{m}_mean"], r[f"{m}_std"])
                  + (f" ({int(r[f'{m}_n'])}/{int(r['seeds'])})" if m in COUNTED and 0 < r[f"{m}_n"] < r["seeds"] else "")
                  for m, _, fmt in METRICS]  # fmt: skip
-        lines.append(f"| {r['policy']} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+        rows.append([str(r["policy"]), *cells])
+    return md_table(["policy", *(label for _, label, _ in METRICS)], rows)
 
 
 def regime_table(rows: pd.DataFrame, regimes: Sequence[str]) -> str:
     """Per demand: where the queue went (runs per regime over every policy and seed), keep's queue reach and
     when the queue reached the entrance."""
-    lines = ["| T_up (s) | inflow (veh/h) | " + " | ".join(f"runs: {r}" for r in regimes)
-             + " | keep: queue reach (m) | keep: reached the entrance (s after start) |",
-             "|" + "---|" * (len(regimes) + 4)]  # fmt: skip
+    head = ["T_up (s)", "inflow (veh/h)", *(f"runs: {r}" for r in regimes), "keep: queue reach (m)",
+            "keep: reached the entrance (s after start)"]  # fmt: skip
+    lines = []
     for t_up, group in rows.groupby("t_up_s", sort=False):
         counts = [int((group["regime"] == r).sum()) for r in regimes]
         keep = group[group["policy"] == "keep"]
@@ -84,8 +84,8 @@ def regime_table(rows: pd.DataFrame, regimes: Sequence[str]) -> str:
         spilled = keep["spilled_s"].dropna()
         spill = f"{spilled.mean():.0f} ({len(spilled)}/{len(keep)} seeds)" if len(spilled) else "never"
         spill = spill if len(keep) else "-"
-        lines.append(f"| {t_up:g} | {3600 / t_up:.0f} | " + " | ".join(map(str, counts)) + f" | {reach} | {spill} |")
-    return "\n".join(lines)
+        lines.append([f"{t_up:g}", f"{3600 / t_up:.0f}", *map(str, counts), reach, spill])
+    return md_table(head, lines)
 
 
 def _direction(ci: tuple[float, float, float], lower_is_better: bool = True) -> str:
@@ -164,8 +164,7 @@ def verdict_word(c: dict[str, Any]) -> str:
 def verdict_table(rows: pd.DataFrame, t_ups: Sequence[float], pairs: Sequence[tuple[str, str]]) -> str:
     """Every comparison at every demand in one table: the difference in total time spent (a - b, veh-h) with its
     95% interval, the count of models (or seeds) with a lower time, and the verdict."""
-    lines = ["| comparison (a against b) | " + " | ".join(f"T_up {t:g} s" for t in t_ups) + " |",
-             "|" + "---|" * (len(t_ups) + 1)]  # fmt: skip
+    lines = []
     for a, b in pairs:
         cells = []
         for t in t_ups:
@@ -177,9 +176,9 @@ def verdict_table(rows: pd.DataFrame, t_ups: Sequence[float], pairs: Sequence[tu
             unit = counted(c["models"], "model") if c["models"] else counted(c["pairs"], "seed")
             cells.append(f"{mean:+.1f} [{lo:+.1f}, {hi:+.1f}], lower for {c['tts_fewer']} of {unit}: "
                          f"**{verdict_word(c)}**")  # fmt: skip
-        lines.append(f"| `{a}` against `{b}` | " + " | ".join(cells) + " |")
+        lines.append([f"`{a}` against `{b}`", *cells])
     return ("Total time spent, a minus b (veh-h), with the 95% two-level interval over models and evaluation "
-            "seeds:\n\n" + "\n".join(lines))
+            "seeds:\n\n" + md_table(["comparison (a against b)", *(f"T_up {t:g} s" for t in t_ups)], lines))
 
 
 def model_spread_table(rows: pd.DataFrame, t_up: float) -> str:
@@ -190,15 +189,14 @@ def model_spread_table(rows: pd.DataFrame, t_up: float) -> str:
         return ""
     learned = at[at["train_seed"].notna()]
     seeds = sorted(int(x) for x in learned["train_seed"].unique())
-    lines = ["| policy | " + " | ".join(f"model {k}" for k in seeds) + " | worst | spread (sd) |",
-             "|" + "---|" * (len(seeds) + 3)]  # fmt: skip
+    lines = []
     for policy, g in learned.groupby("policy", sort=False):
         per = g.groupby("train_seed")["tts_veh_h"].mean()
         cells = [f"{per[k]:.1f}" if k in per.index else "-" for k in seeds]
         spread = f"{per.std(ddof=1):.1f}" if len(per) > 1 else "-"
-        lines.append(f"| {policy} | " + " | ".join(cells) + f" | {per.max():.1f} | {spread} |")
+        lines.append([str(policy), *cells, f"{per.max():.1f}", spread])
     return ("Total time spent (veh-h) of each trained model, mean over its evaluation seeds (training seeds as "
-            "columns):\n\n" + "\n".join(lines))
+            "columns):\n\n" + md_table(["policy", *(f"model {k}" for k in seeds), "worst", "spread (sd)"], lines))
 
 
 def demand_section(rows: pd.DataFrame, agg: pd.DataFrame, t_up: float, pairs: Sequence[tuple[str, str]],
@@ -302,8 +300,7 @@ def side_by_side(rows: pd.DataFrame, plan: Plan, default_rows: pd.DataFrame, def
     baselines' runs, which both studies make on the same seeds, agree."""
     learners = [(pr, rows, f"`{pr}` (this study)") for pr in plan.presets]
     learners.append(("default", default_rows, f"`default` ({default_name})"))
-    lines = ["| demand | the paper | " + " | ".join(name for _, _, name in learners) + " |",
-             "|" + "---|" * (len(learners) + 2)]  # fmt: skip
+    lines = []
     for t in plan.t_ups:
         cells = []
         for preset, frame, _ in learners:
@@ -315,7 +312,7 @@ def side_by_side(rows: pd.DataFrame, plan: Plan, default_rows: pd.DataFrame, def
             need = "" if verdict_word(c) != "cannot decide" else f"; {_what_it_takes(c).split('; ')[-1]}"
             cells.append(f"{mean:+.1f} [{lo:+.1f}, {hi:+.1f}] veh-h, lower for {c['tts_fewer']} of "
                          f"{counted(c['models'], 'model')}: **{verdict_word(c)}**{need}")  # fmt: skip
-        lines.append(f"| T_up {t:g} s | alpha 8 helps | " + " | ".join(cells) + " |")
+        lines.append([f"T_up {t:g} s", "alpha 8 helps", *cells])
     keys = ["t_up_s", "policy", "seed"]
     base = rows[rows["train_seed"].isna()].set_index(keys)["tts_veh_h"]
     other = default_rows[default_rows["train_seed"].isna()].set_index(keys)["tts_veh_h"]
@@ -323,7 +320,7 @@ def side_by_side(rows: pd.DataFrame, plan: Plan, default_rows: pd.DataFrame, def
     same = int((base.loc[common].round(9) == other.loc[common].round(9)).sum())
     return (f"The paper's claim: {PAPER_CLAIM}. Total time spent, alpha 8 minus alpha 0 (veh-h), with the 95% "
             "two-level interval over models and evaluation seeds, for each learner on its own models:\n\n"
-            + "\n".join(lines)
+            + md_table(["demand", "the paper", *(name for _, _, name in learners)], lines)
             + f"\n\nThe baselines' runs of the two studies (the same demands and evaluation seeds): {same} of "
               f"{len(common)} give the same total time spent.")
 

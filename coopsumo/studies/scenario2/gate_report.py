@@ -16,6 +16,7 @@ import pandas as pd
 
 from coopsumo.agents.conditioning import conditioned_alphas
 from coopsumo.files import read_json
+from coopsumo.report.markdown import md_table, num
 from coopsumo.studies.scenario2.gate import (
     LEVEL,
     NEAR_P_STAR_MPS,
@@ -29,7 +30,7 @@ from coopsumo.studies.scenario2.gate import (
 from coopsumo.studies.scenario2.measures import alpha_star_table, mobil_p_star_table, policy_rows, withhold_incomplete
 from coopsumo.studies.scenario2.plan import CRITERION, FULL_ROAD, PROFILES, Profile, lane_learner
 from coopsumo.studies.scenario2.response_report import first_lines, response_section, sensitivity_text, write_response
-from coopsumo.studies.scenario2.text import ALPHA_STAR_FIGURE, condition_label, md_table, num, trend_verdict
+from coopsumo.studies.scenario2.text import ALPHA_STAR_FIGURE, condition_label, trend_verdict
 from coopsumo.validation import number_name
 
 MEASURES = {CRITERION: "mean speed over the whole run (the paper's criterion)",

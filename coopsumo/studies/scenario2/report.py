@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.report.markdown import md_table, num
 from coopsumo.studies.scenario2.measures import (
     PlaneFit,
     PlaneFitError,
@@ -27,8 +28,6 @@ from coopsumo.studies.scenario2.measures import (
 )
 from coopsumo.studies.scenario2.plan import PROFILES, Profile
 from coopsumo.studies.scenario2.text import ALPHA_STAR_FIGURE, condition_label, trend_verdict
-from coopsumo.studies.scenario2.text import md_table as _md_table
-from coopsumo.studies.scenario2.text import num as _num
 from coopsumo.validation import number_name
 
 
@@ -99,8 +98,8 @@ def side_by_side_text(side: pd.DataFrame, alpha_label: Any) -> str:
     header = ["lanes", "T_up (s)", "α*", "v(α*) (m/s)", "p*", "v(p*) (m/s)", "v(α*) − v(p*) (m/s)"]
     rows = [[str(r["lanes"]), f"{r['t_up_s']:g}",
              alpha_label(r["alpha_star"]) if math.isfinite(r["alpha_star"]) else "–",
-             _num(r["alpha_star_speed_mps"]), _num(r["p_star"], "{:g}"), _num(r["p_star_speed_mps"]),
-             _num(r["difference_mps"], "{:+.2f}")] for r in side.to_dict("records")]  # fmt: skip
+             num(r["alpha_star_speed_mps"]), num(r["p_star"], "{:g}"), num(r["p_star_speed_mps"]),
+             num(r["difference_mps"], "{:+.2f}")] for r in side.to_dict("records")]  # fmt: skip
     compared = side[np.isfinite(side["difference_mps"])]
     wins = int((compared["difference_mps"] > 0).sum())
     if compared.empty:
@@ -108,7 +107,7 @@ def side_by_side_text(side: pd.DataFrame, alpha_label: Any) -> str:
     else:
         sentence = (f"The best learned policy (alpha*) beats the best MOBIL politeness (p*) on {wins} of "
                     f"{len(compared)} conditions (higher mean speed over the same seeds).")  # fmt: skip
-    return f"{_md_table(header, rows)}\n\n{sentence}"
+    return f"{md_table(header, rows)}\n\n{sentence}"
 
 
 def _eval_text(profile: Profile) -> str:
@@ -176,13 +175,13 @@ def _alpha_star_rows(table: pd.DataFrame, alphas: list[float], alpha_label: Any)
               ] + [f"v(α={alpha_label(a)})" for a in alphas]  # fmt: skip
     rows = []
     for r in table.to_dict("records"):
-        rows.append([str(r["lanes"]), f"{r['t_up_s']:g}", f"{r['inflow_veh_h']:.0f}", _num(r["load"]),
+        rows.append([str(r["lanes"]), f"{r['t_up_s']:g}", f"{r['inflow_veh_h']:.0f}", num(r["load"]),
                      "–" if not math.isfinite(r["alpha_star"]) else alpha_label(r["alpha_star"]),
-                     _num(r["win_share"], "{:.0%}"), _num(r["boot_support"], "{:.0%}"),
-                     f"{_num(r['boot_alpha_p05'], '{:g}')}–{_num(r['boot_alpha_p95'], '{:g}')}",
+                     num(r["win_share"], "{:.0%}"), num(r["boot_support"], "{:.0%}"),
+                     f"{num(r['boot_alpha_p05'], '{:g}')}–{num(r['boot_alpha_p95'], '{:g}')}",
                      f"{_sep(r.get('separated_below'))} / {_sep(r.get('separated_above'))}",
-                     _num(r["spread_mps"]), _num(r["seed_se_mps"])]
-                    + [_num(r[f"speed_mps_alpha{number_name(a)}"]) for a in alphas])  # fmt: skip
+                     num(r["spread_mps"]), num(r["seed_se_mps"])]
+                    + [num(r[f"speed_mps_alpha{number_name(a)}"]) for a in alphas])  # fmt: skip
     return header, rows
 
 
@@ -191,7 +190,7 @@ def _plane_text(fit: PlaneFit | None, boot: dict[str, float], plane_note: str) -
     if fit is not None:
         return (f"Fitted plane over {fit.n} conditions (least squares on alpha*): "
                  f"**alpha\\* = {fit.b0:.3f} {fit.b1:+.3f} T_up {fit.b2:+.3f} lanes**, "
-                 f"R² = {_num(fit.r2, '{:.3f}')}"
+                 f"R² = {num(fit.r2, '{:.3f}')}"
                  + (" (undefined: alpha* is the same in every condition)" if not math.isfinite(fit.r2) else "")
                  + ".\n\n" + "\n\n".join(f"- {s}" for s in trend_statements(fit, boot)))  # fmt: skip
     return f"{plane_note} The paper's trends (b1 < 0, b2 < 0) cannot be checked with this grid."
@@ -261,9 +260,9 @@ def _tables_text(runs: pd.DataFrame, meta: dict[str, Any], profile: Profile) -> 
     """The failed cells, the grid of conditions and the safety line."""
     failed = runs[runs["status"] != "ok"]
     failed_text = ("None." if failed.empty else
-                   _md_table(["cell", "error"], [[r.key, str(r.error).replace("|", "\\|")]
+                   md_table(["cell", "error"], [[r.key, str(r.error).replace("|", "\\|")]
                                                  for r in failed.itertuples()]))  # fmt: skip
-    grid = _md_table(["lanes", "T_up (s)", "loads (share of lanes × 1,800 veh/h)"],
+    grid = md_table(["lanes", "T_up (s)", "loads (share of lanes × 1,800 veh/h)"],
                      [[str(n), ", ".join(f"{c['t_up_s']:g}" for c in meta["conditions"] if c["lanes"] == n),
                        ", ".join(f"{c['load']:g}" for c in meta["conditions"] if c["lanes"] == n)]
                       for n in profile.lanes])  # fmt: skip
@@ -295,7 +294,7 @@ def report_text(runs: pd.DataFrame, table: pd.DataFrame, fit: PlaneFit | None, b
     )  # fmt: skip
     return f"""{_head_text(profile, meta, alpha_label, _training_text(profile), mobil_intro)}## alpha* per condition
 
-{_md_table(header, rows)}
+{md_table(header, rows)}
 
 {noise}
 {mobil_section}

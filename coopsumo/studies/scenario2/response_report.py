@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.report.markdown import md_table, num
 from coopsumo.studies.scenario2.measures import PlaneFitError, fit_plane
 from coopsumo.studies.scenario2.plan import Profile
 from coopsumo.studies.scenario2.response import (
@@ -21,7 +22,6 @@ from coopsumo.studies.scenario2.response import (
     model_scores,
     trends,
 )
-from coopsumo.studies.scenario2.text import md_table, num
 
 RESPONSE_FIGURE = "fig6_response.png"
 TRENDS = {"lanes": ("per lane", "restraint costs more speed as lanes are added (c_lanes < 0: the paper's alpha* "
