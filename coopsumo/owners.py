@@ -1,7 +1,8 @@
 """Folders that are not a command's to write into: those a coopsumo marker claims (a study's root, a simulate run's or
 a training's folder) and the model store. One check (owned_problem) for every path a command writes beside its own
-folder's: a single run's --out (simulate, train), history's --out file, the networks folder (--nets-dir,
-$COOPSUMO_NETS_DIR)."""
+folder's: a single run's --out (simulate, train), a study's root (run_dirs.check_study_place: every study's --out),
+history's --out file, the networks folder (--nets-dir, $COOPSUMO_NETS_DIR); and one (claimed_problem) for the model
+store ($COOPSUMO_MODELS, or `models` beside a study's root), which no marker may claim."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import re
 from pathlib import Path
 
 from coopsumo.paths import NETS_ENV, STORE_ENV
-from coopsumo.run_dirs import RUN_KINDS, marker_kind
+from coopsumo.run_markers import RUN_KINDS, marker_kind
 
 DEFAULT_STORE = Path("results") / "models"
 """the committed studies' model store"""
@@ -54,6 +55,15 @@ def _in_store(real: Path, what: str, itself: bool) -> str | None:
     return None
 
 
+def _claim_line(real: Path, found: tuple[Path, str], what: str, advice: str) -> str:
+    """`what` is or lies inside found[0], claimed by the coopsumo command or study found[1], which alone writes it."""
+    where = "is" if found[0] == real else "lies inside"
+    if found[1] in RUN_KINDS:
+        return (f"{what} {where} {found[0]}, the folder of a coopsumo {found[1]} run, which only that command writes; "
+                f"{advice}")  # fmt: skip
+    return f"{what} {where} {found[0]}, a coopsumo {found[1]} study's folder, which only that study writes; {advice}"
+
+
 def owned_problem(path: Path, what: str, advice: str = "pick another --out", itself: bool = False) -> str | None:
     """Why a command may not write `path` (what: the flag and value naming it, advice: what to do instead), or None:
     `path`, its links resolved, lies inside a study's root, in the model store or in a single run's folder (a
@@ -61,14 +71,30 @@ def owned_problem(path: Path, what: str, advice: str = "pick another --out", its
     either (the networks folder). The study's folder is named first (a run inside it is the study's)."""
     real = path.expanduser().resolve()
     if found := _marked(real, itself, study=True):
-        return (f"{what} {'is' if found[0] == real else 'lies inside'} {found[0]}, a coopsumo {found[1]} study's "
-                f"folder, which only that study writes; {advice}")  # fmt: skip
+        return _claim_line(real, found, what, advice)
     if problem := _in_store(real, what, itself):
         return f"{problem}; {advice}"
     if found := _marked(real, itself, study=False):
-        return (f"{what} {'is' if found[0] == real else 'lies inside'} {found[0]}, the folder of a coopsumo {found[1]} "
-                f"run, which only that command writes; {advice}")  # fmt: skip
+        return _claim_line(real, found, what, advice)
     return None
+
+
+def claimed_problem(path: Path, what: str, advice: str) -> str | None:
+    """Why `path` may not be written for being, or lying inside, a folder a coopsumo marker claims (a study's root, a
+    simulate run's or a training's folder), or None; the study's folder named first. The check of the model store's
+    place (claimed_problem of the store: $COOPSUMO_MODELS, model_store.store_for): a study training into a folder a
+    run or another study owns would fill it with models, and its command would then refuse its own folder (issue 82,
+    probe 5, G3)."""
+    real = path.expanduser().resolve()
+    found = _marked(real, True, study=True) or _marked(real, True, study=False)
+    return _claim_line(real, found, what, advice) if found else None
+
+
+def store_env_problem() -> str | None:
+    """claimed_problem of $COOPSUMO_MODELS, as a line naming it (runio.run_cli, beside nets_env_problem), or None."""
+    value = os.environ.get(STORE_ENV)
+    problem = claimed_problem(Path(value), repr(value), "pick a model store elsewhere") if value else None
+    return f"${STORE_ENV} {problem}" if problem else None
 
 
 def nets_problem(text: str) -> str | None:

@@ -16,18 +16,12 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import UsageError
-from coopsumo.files import read_json, read_json_object, write_json
+from coopsumo.files import read_json, write_json
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
-
-RUN_MARKER = ".coopsumo-run.json"
-
-"""Written by a command into every folder it owns: {"kind": command, "version": coopsumo's, "finished": whether the
-command has ended, "files": the names of the folder's entries when it ended (no "files" while a training or a study
-runs)}. A dot-file, so listings stay as they were; named after the package, so no user's file is taken for it; a
-separate file, because config.json is a common name that proves nothing about who wrote a folder. A marker written
-before "finished" was (files null while its command ran) reads as it did (listed_files)."""
+from coopsumo.run_markers import RUN_MARKER
+from coopsumo.run_markers import read_marker as _marker
 
 
 def _entries(folder: Path) -> list[str]:
@@ -41,11 +35,6 @@ def mark_run_dir(folder: Path, kind: str, finished: bool = True, study: str | No
     write_json(folder / RUN_MARKER, {"kind": kind, "version": package_version("coopsumo"), "finished": finished,
                                      **({"files": _entries(folder)} if finished else {}),
                                      **({"study": study} if study is not None else {})})  # fmt: skip
-
-
-def _marker(folder: Path) -> dict[str, Any] | None:
-    data = read_json_object(folder / RUN_MARKER)
-    return data if data is not None and isinstance(data.get("kind"), str) else None
 
 
 def listed_files(marker: Any) -> list[str] | None:
@@ -122,16 +111,6 @@ def check_run_dir(out: Path, kind: str) -> None:
                              "is left alone; move it away or pick another --out")  # fmt: skip
 
 
-RUN_KINDS = ("simulate", "train")
-"""the kinds of marker a single command writes (run_dirs' users); every other kind marks a study's root"""
-
-
-def marker_kind(folder: Path) -> str | None:
-    """The command or study whose marker claims `folder`, or None (no marker, or one that names none)."""
-    marker = _marker(folder)
-    return marker["kind"] if marker is not None else None
-
-
 def finished_run(folder: Path, kind: str) -> bool:
     """True when `folder` is a finished output of the command `kind`: its marker names `kind` and lists its
     entries (written when the command ended), and every listed entry is there."""
@@ -161,14 +140,49 @@ def held_study(root: Path, recorded: Recorded | None = None) -> str | None:
     return found
 
 
+def check_study_place(root: Path, hosts: Sequence[Path] = ()) -> None:
+    """UsageError when the study root `root` lies inside a folder another command owns: another study's root, a
+    simulate run's or a training's folder, the model store (owners.owned_problem, as for a single run's --out; issue
+    82, probe 5, G1-G2: the study was written there, and that folder's command then refused its own folder). `root`
+    itself may be a study's: check_study_root judges whose. hosts: folders the root may lie directly in (accident-seeds'
+    default ROOT/accident, in the learning study it reads), whose own place is judged instead."""
+    from coopsumo.owners import owned_problem
+
+    real = root.resolve()
+    place = real.parent if real.parent in {host.resolve() for host in hosts} else real
+    if problem := owned_problem(place, f"--out {root}"):
+        raise UsageError(problem)
+
+
+def _untold_study(root: Path, plan: str, advice: str) -> str | None:
+    """Why the study root `root`, whose study held_study cannot tell, is not taken for the study that comes (a line),
+    or None when nothing claims it: no marker and no plan file `plan` (a fresh folder; a study interrupted before its
+    marker was written). A marker names its study from the first moment (study_root marks the root before anything
+    else is written), so one that names none, or a plan file that cannot be read or names no study of this kind, is
+    a study that cannot be told from another (issue 82, probe 5, G5: another learner preset's sweep replaced it)."""
+    marker, plan_file = root / RUN_MARKER, root / plan
+    if not os.path.lexists(marker) and not os.path.lexists(plan_file):
+        return None
+    said = (f"its {RUN_MARKER} names none" if _marker(root) is not None else f"its {RUN_MARKER} cannot be read") \
+        if os.path.lexists(marker) else f"it has no {RUN_MARKER}"  # fmt: skip
+    read = f"its {plan} cannot be read as one: damaged, cut short or edited" if os.path.lexists(plan_file) else \
+        f"it has no {plan}"  # fmt: skip
+    return (f"cannot tell which study output folder {root} holds ({said}, and {read}): it is left alone; remove it "
+            f"yourself or {advice}")  # fmt: skip
+
+
 def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None,
-                     recorded: Recorded | None = None, advice: str = "pick another --out") -> None:  # fmt: skip
-    """UsageError unless `root` is missing, empty, marked by the study `kind`, or (a root written before the
-    marker) holds the study's plan file own[0] or only entries whose names match the study's own patterns `own`
-    (fnmatch: 'fig*.png'; a study writes only these names and never replaces the root as a whole). study: which
-    study of `kind` the command writes ("the quick profile's study"): a root that holds another (held_study, with
-    `recorded` for a root whose marker does not name it) is refused too, with `advice`; the same study resumes.
-    Either way a link in it is refused (study_link), but the study's own links into the model store."""
+                     recorded: Recorded | None = None, advice: str = "pick another --out",
+                     hosts: Sequence[Path] = ()) -> None:  # fmt: skip
+    """UsageError unless `root` lies in no folder another command owns (check_study_place, with `hosts`) and is
+    missing, empty, marked by the study `kind`, or (a root written before the marker) holds the study's plan file
+    own[0] or only entries whose names match the study's own patterns `own` (fnmatch: 'fig*.png'; a study writes only
+    these names and never replaces the root as a whole). study: which study of `kind` the command writes ("the quick
+    profile's study"): a root that holds another (held_study, with `recorded` for a root whose marker does not name
+    it) is refused too, with `advice`, and so is a marked root, or one with a plan file, whose study cannot be told
+    (_untold_study); the same study resumes. Either way a link in it is refused (study_link), but the study's own
+    links into the model store."""
+    check_study_place(root, hosts)
     root = root.resolve()
     if not root.exists():
         return
@@ -184,9 +198,12 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
             more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
             raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, "
                              f"and has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
-    if study is not None and (held := held_study(root, recorded)) not in (None, study):
+    held = held_study(root, recorded) if study is not None else None
+    if held is not None and held != study:
         raise UsageError(f"output folder {root} holds {held}, not {study}: a study writes into its own folder, and "
                          f"this one is left alone; {advice}")  # fmt: skip
+    if study is not None and held is None and (untold := _untold_study(root, own[0], advice)):
+        raise UsageError(untold)
     if found := study_link(root):
         where = "inside" if found[1].is_relative_to(root) else "outside"
         raise UsageError(f"{found[0]} is a link to {found[1]}, {where} the study's folder {root}: a study makes no "
@@ -219,15 +236,17 @@ def study_link(root: Path) -> tuple[Path, Path] | None:
 
 @contextmanager
 def study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None, recorded: Recorded | None = None,
-               advice: str = "pick another --out") -> Iterator[Path]:  # fmt: skip
+               advice: str = "pick another --out", hosts: Sequence[Path] = ()) -> Iterator[Path]:  # fmt: skip
     """Claim the study root `root` for the block: its path checked (check_out_path), its lock held (out_lock),
-    ownership checked (check_study_root: of the study `study`, if given) and its marker written (unfinished: a study
-    adds to it run by run), naming `study` (without one: the study it named before, kept)."""
+    its place and ownership checked (check_study_root: of the study `study`, if given; `hosts`: check_study_place)
+    and its marker written (unfinished: a study adds to it run by run), naming `study` (without one: the study it
+    named before, kept). The marker is the first thing written into the root: a root interrupted after it names its
+    study."""
     check_out_path(root)
     root = root.resolve()
-    check_study_root(root, kind, own, study, recorded, advice)
+    check_study_root(root, kind, own, study, recorded, advice, hosts)
     with out_lock(root, kind):
-        check_study_root(root, kind, own, study, recorded, advice)  # again, under the lock
+        check_study_root(root, kind, own, study, recorded, advice, hosts)  # again, under the lock
         try:
             root.mkdir(exist_ok=True)
             mark_run_dir(root, kind, finished=False, study=study or held_study(root, recorded))

@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from typing import Any, NoReturn
 
 from coopsumo.errors import USAGE_EXIT, USER_ERRNOS, UsageError, first_line, os_error_text
-from coopsumo.owners import nets_env_problem
+from coopsumo.owners import nets_env_problem, store_env_problem
 from coopsumo.paths import env_problem
 
 
@@ -250,7 +250,7 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
     if problem := working_folder_problem():
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
-    if problem := env_problem() or nets_env_problem():  # $COOPSUMO_NETS_DIR, $COOPSUMO_MODELS
+    if problem := env_problem() or nets_env_problem() or store_env_problem():  # $COOPSUMO_NETS_DIR, $COOPSUMO_MODELS
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
     try:

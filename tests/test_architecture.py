@@ -18,8 +18,8 @@ PACKAGE_DIR = Path(coopsumo.__file__).parent
 # record_schemas, study_tables and the rest of SHARED are shared by all)
 SHARED = {"coopsumo", "coopsumo.config", "coopsumo.dqn_config", "coopsumo.paths", "coopsumo.policy_spec",
           "coopsumo.runio", "coopsumo.validation", "coopsumo.errors", "coopsumo.provenance", "coopsumo.files",
-          "coopsumo.run_dirs", "coopsumo.owners", "coopsumo.lock_files", "coopsumo.record_schemas",
-          "coopsumo.study_tables", "coopsumo.field_rules"}
+          "coopsumo.run_dirs", "coopsumo.run_markers", "coopsumo.owners", "coopsumo.lock_files",
+          "coopsumo.record_schemas", "coopsumo.study_tables", "coopsumo.field_rules"}
 GROUND = {"coopsumo.errors", "coopsumo.provenance", "coopsumo.files", "coopsumo.paths"}
 """the ground floor: errors, provenance, files and output paths, which import nothing else of coopsumo"""
 ALLOWED = {

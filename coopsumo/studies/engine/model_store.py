@@ -40,11 +40,18 @@ validation seed"""
 
 def store_for(root: Path) -> Path:
     """The store a study with results folder root uses: $COOPSUMO_MODELS, else the folder `models` beside root.
-    UsageError when that path is not a store's to write (store_problem)."""
+    UsageError when that path is not a store's to write: it is, or lies inside, a folder a coopsumo marker claims (a
+    training's, a simulate run's, a study's: owners.claimed_problem; issue 82, probe 5, G3), or it holds what a store
+    does not (store_problem)."""
+    from coopsumo.owners import claimed_problem
+
     env = os.environ.get(STORE_ENV)
     store = Path(env) if env else Path(root).resolve().parent / "models"
+    where = f"${STORE_ENV}" if env else f"beside {root}"
+    if problem := claimed_problem(store, f"the model store {store} ({where})", "pick another --out or set "
+                                  f"${STORE_ENV} to a store elsewhere"):  # fmt: skip
+        raise UsageError(problem)
     if problem := store_problem(store):
-        where = f"${STORE_ENV}" if env else f"beside {root}"
         raise UsageError(f"the model store {store} ({where}) {problem}; move it away, pick another --out or set "
                          f"${STORE_ENV} to a store")  # fmt: skip
     return store

@@ -13,7 +13,7 @@ from typing import Any
 from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
 from coopsumo.files import file_sha256, read_json
 from coopsumo.record_schemas import SPEED_MAX_MPS
-from coopsumo.run_dirs import LEARNERS, Recorded, check_run_dir
+from coopsumo.run_dirs import LEARNERS, Recorded, check_out_path, check_run_dir, check_study_place
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
@@ -139,10 +139,13 @@ def study_root(root: Path, kind: str, study: str | None = None, recorded: Record
     """Claim the study root for the block (run_dirs.study_root: path checked, lock held, ownership checked, marked):
     with `study` (profile_study), a root that holds another study of `kind` is refused, with `advice`; `recorded`
     reads which one a root holds whose marker does not say (recorded_profile). trains: the study stores models, so
-    its model store is checked first (model_store.store_for), before anything is written."""
+    its model store is checked first (model_store.store_for), before anything is written; the root's place before
+    that (run_dirs.check_study_place: not in another run's or study's folder, nor in the model store)."""
     if trains:
         from coopsumo.studies.engine.model_store import store_for
 
+        check_out_path(root)
+        check_study_place(root)
         store_for(root)
     return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"), study, recorded, advice)
 

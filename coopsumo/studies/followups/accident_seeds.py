@@ -230,7 +230,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.steps is not None:
             plan = accident_runs.scaled(plan, args.steps / plan.steps)
         out = args.out if args.out is not None else default_model_out(args.roots[0] / "accident")
-        with claim_study_root(out, "accident_seeds", (*OUTPUTS, "*.tmp")):  # path, lock, ownership and marker
+        # path, place (not in another's folder but directly in a ROOT: ROOT/accident), lock, ownership and marker
+        with claim_study_root(out, "accident_seeds", (*OUTPUTS, "*.tmp"), hosts=args.roots):
             return run_study(found, t_ups, out, plan, args.adaptive, args.workers, args.backend, args.address,
                              progress=not args.quiet)  # fmt: skip
 

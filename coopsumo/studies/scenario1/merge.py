@@ -23,6 +23,7 @@ from coopsumo.config import results_view
 from coopsumo.dqn_config import dqn_config_from_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json_object, write_json
+from coopsumo.owners import owned_problem
 from coopsumo.provenance import versions
 from coopsumo.studies.scenario1.measures import aggregate
 from coopsumo.studies.scenario1.plan import model_label
@@ -167,6 +168,8 @@ def _check_out(out: Path, folders: list[Path]) -> None:
     for folder in folders:
         if out.resolve() == folder.resolve() or folder.resolve() in out.resolve().parents:
             raise UsageError(f"--out {out} is inside the part {folder}: give a folder of its own")
+    if problem := owned_problem(out, f"--out {out}"):  # in another study's, a run's folder or the model store
+        raise UsageError(problem)
     if out.exists() and not out.is_dir():
         raise UsageError(f"--out {out} is a file, not a folder")
     if out.is_dir() and (out / MERGED).exists():

@@ -1,0 +1,33 @@
+"""The marker a coopsumo command writes into every folder it owns, read back: which command or study claims a folder.
+Apart from run_dirs (which writes markers and judges folders by them) so that owners, which run_dirs asks whether a
+study's root lies in a folder another command owns, reads markers without importing run_dirs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from coopsumo.files import read_json_object
+
+RUN_MARKER = ".coopsumo-run.json"
+
+"""Written by a command into every folder it owns: {"kind": command, "version": coopsumo's, "finished": whether the
+command has ended, "files": the names of the folder's entries when it ended (no "files" while a training or a study
+runs)}. A dot-file, so listings stay as they were; named after the package, so no user's file is taken for it; a
+separate file, because config.json is a common name that proves nothing about who wrote a folder. A marker written
+before "finished" was (files null while its command ran) reads as it did (run_dirs.listed_files)."""
+
+RUN_KINDS = ("simulate", "train")
+"""the kinds of marker a single command writes (run_dirs' users); every other kind marks a study's root"""
+
+
+def read_marker(folder: Path) -> dict[str, Any] | None:
+    """The marker of `folder` when it is a JSON object naming its command ("kind", a text), else None."""
+    data = read_json_object(folder / RUN_MARKER)
+    return data if data is not None and isinstance(data.get("kind"), str) else None
+
+
+def marker_kind(folder: Path) -> str | None:
+    """The command or study whose marker claims `folder`, or None (no marker, or one that names none)."""
+    marker = read_marker(folder)
+    return marker["kind"] if marker is not None else None
