@@ -28,8 +28,30 @@ USER_ERRNOS = frozenset({errno.ENAMETOOLONG, errno.ELOOP, errno.EROFS, errno.EAC
 """operating-system errors a path the user gave causes (exit code 2); the others (a full disk, an I/O error) 1"""
 
 
+class NotRegularFileError(OSError):
+    """A record that is not a regular file but a named pipe, a socket, a device or a folder (files.open_regular):
+    never read, since reading a pipe waits for a writer and a device may never end. strerror says what it is ("not a
+    regular file but a named pipe"), for a reader's own line; str() and os_error_text name the path first. A user's
+    error: exit code 2 (runio.run_cli)."""
+
+    def __init__(self, path: object, kind: str) -> None:
+        super().__init__(errno.EINVAL, f"not a regular file but {kind}", str(path))
+        self.kind = kind
+
+    def __str__(self) -> str:
+        return f"{self.filename} is not a regular file but {self.kind}"
+
+
+def why_unreadable(err: BaseException) -> str:
+    """Why a record could not be read, in a few words for a reader's line: what a record that is not a regular file
+    is ("not a regular file but a named pipe"), else the error's type (UnicodeDecodeError, ValueError)."""
+    return str(err.strerror) if isinstance(err, NotRegularFileError) else type(err).__name__
+
+
 def os_error_text(err: OSError) -> str:
     """An OSError in one line: what the system said and the path(s) it concerns."""
+    if isinstance(err, NotRegularFileError):
+        return str(err)
     text = err.strerror or first_line(err)
     paths = [str(p) for p in (err.filename, err.filename2) if p is not None]
     return f"{text}: {' -> '.join(paths)}" if paths else text

@@ -1,4 +1,5 @@
-"""Files written whole or not at all (a temporary file renamed into place), JSON out and in, file digests."""
+"""Files written whole or not at all (a temporary file renamed into place), records read back only from regular
+files (open_regular), JSON out and in, file digests."""
 
 from __future__ import annotations
 
@@ -6,10 +7,13 @@ import hashlib
 import json
 import math
 import os
+import stat
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
+
+from coopsumo.errors import NotRegularFileError
 
 
 def _clean(obj: Any) -> Any:
@@ -65,10 +69,71 @@ def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
         raise
 
 
+_KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"),
+          (stat.S_ISCHR, "a device"), (stat.S_ISBLK, "a device"))  # fmt: skip
+
+
+def kind_of(mode: int) -> str:
+    """What an entry of st_mode `mode` that is not a regular file is, in words ("a named pipe")."""
+    return next((words for test, words in _KINDS if test(mode)), "an entry of another kind")
+
+
+def not_regular(path: Path) -> str | None:
+    """What the entry at `path` (links followed) is when it is there and is not a regular file ("a named pipe",
+    kind_of), else None: a regular file, nothing there, or an entry that cannot be looked at (its reader says so)."""
+    try:
+        mode = os.stat(path).st_mode
+    except (OSError, ValueError):
+        return None
+    return None if stat.S_ISREG(mode) else kind_of(mode)
+
+
+def open_regular(path: Path) -> BinaryIO:
+    """The file `path` (links followed) opened to read its bytes when it is a regular file; NotRegularFileError,
+    before anything is read, for a named pipe, a socket, a device or a folder, the system's OSError for a missing or
+    unreadable one. Every record is read back through it (read_bytes, read_text, read_json, read_csv): a named pipe
+    where a record belongs hung the command reading it (issue 82, fifth probe, G4). Its kind is looked at before it
+    is opened (opening a device may do something) and again on the open file (fstat): opened without waiting
+    (O_NONBLOCK: opening a pipe to read waits for a writer), a pipe put there in between is refused too."""
+    if (kind := not_regular(path)) is not None:
+        raise NotRegularFileError(path, kind)
+    fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise NotRegularFileError(path, kind_of(mode))
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_bytes(path: Path) -> bytes:
+    """The bytes of the regular file `path` (open_regular)."""
+    with open_regular(path) as f:
+        return f.read()
+
+
+def read_text(path: Path, errors: str = "strict") -> str:
+    """The UTF-8 text of the regular file `path` (open_regular), its line ends as Path.read_text gives them ('\\n');
+    UnicodeDecodeError (a ValueError; its start: the byte's offset in the file) for bytes that are not UTF-8, unless
+    `errors` says otherwise."""
+    return read_bytes(path).decode("utf-8", errors).replace("\r\n", "\n").replace("\r", "\n")
+
+
+def read_csv(path: Path, **options: Any) -> Any:
+    """pandas.read_csv of the regular file `path` (open_regular: a named pipe is refused, not waited on)."""
+    import pandas as pd
+
+    with open_regular(path) as f:
+        return pd.read_csv(f, **options)
+
+
 def file_sha256(path: Path) -> str:
-    """sha256 of a file's bytes (a model file: which weights a run was driven by)."""
+    """sha256 of a file's bytes (a model file: which weights a run was driven by); a regular file's only."""
     h = hashlib.sha256()
-    with path.open("rb") as f:
+    with open_regular(path) as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()
@@ -108,8 +173,9 @@ def loads_json(text: str | bytes) -> Any:
 
 
 def read_json(path: Path) -> Any:
-    """The JSON in the file `path` (loads_json): OSError when it cannot be read, ValueError when it is not JSON."""
-    return loads_json(path.read_text())
+    """The JSON in the file `path` (loads_json): OSError when it cannot be read or is not a regular file
+    (open_regular: NotRegularFileError), ValueError when it is not JSON."""
+    return loads_json(read_text(path))
 
 
 def read_json_object(path: Path) -> dict[str, Any] | None:

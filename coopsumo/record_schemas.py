@@ -32,7 +32,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 from coopsumo.config import MAX_LANES, MIN_LANES, SPEED_LIMIT_MPS
-from coopsumo.errors import UsageError
+from coopsumo.errors import UsageError, why_unreadable
 from coopsumo.field_rules import IntRule, NumberRule, as_float, shown
 from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MOBIL_LIMITS
 
@@ -255,12 +255,12 @@ class Table:
     def read(self, path: Any) -> Any:
         """The table in the CSV file `path` as a pandas DataFrame, every row inside the schema; RecordError naming the
         file (and the row and column) when it cannot be read or breaks the schema."""
-        import pandas as pd
+        from coopsumo.files import read_csv
 
         try:
-            frame = pd.read_csv(path)
+            frame = read_csv(path)  # a regular file's: a named pipe is refused, not waited on
         except (OSError, UnicodeDecodeError, ValueError) as err:  # pandas' EmptyDataError and ParserError among them
-            raise RecordError(f"{path} cannot be read as a table ({type(err).__name__})") from None
+            raise RecordError(f"{path} cannot be read as a table ({why_unreadable(err)})") from None
         self.check([str(c) for c in frame.columns], frame.to_dict("records"), path)
         return frame
 

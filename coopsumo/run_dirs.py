@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import UsageError
-from coopsumo.files import read_json, write_json
+from coopsumo.files import read_json, read_text, write_json
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
@@ -298,8 +298,8 @@ def lock_path(out: Path) -> Path:
 
 def _holder(path: Path) -> str:
     try:
-        text = path.read_text().strip()
-    except OSError:
+        text = read_text(path).strip()
+    except (OSError, ValueError):
         return ""
     return f" ({text})" if text else ""
 

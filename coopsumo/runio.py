@@ -13,7 +13,7 @@ from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from typing import Any, NoReturn
 
-from coopsumo.errors import USAGE_EXIT, USER_ERRNOS, UsageError, first_line, os_error_text
+from coopsumo.errors import USAGE_EXIT, USER_ERRNOS, NotRegularFileError, UsageError, first_line, os_error_text
 from coopsumo.owners import nets_env_problem, store_env_problem
 from coopsumo.paths import env_problem
 
@@ -262,7 +262,7 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
         return interrupted(prog, err)
     except OSError as err:  # the system refused a file operation: one line naming the path and the problem
         print(f"{prog}: error: {os_error_text(err)}", file=sys.stderr)
-        return USAGE_EXIT if err.errno in USER_ERRNOS else 1
+        return USAGE_EXIT if err.errno in USER_ERRNOS or isinstance(err, NotRegularFileError) else 1
     except RuntimeError as err:  # Python 3.11's Path.resolve reports a loop of symbolic links so; torch a failed write
         if "PytorchStreamWriter" in str(err) or "inline_container" in str(err):
             print(f"{prog}: error: writing a model or checkpoint failed (is the disk full?): {first_line(err)}",

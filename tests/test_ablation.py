@@ -102,6 +102,18 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert again.returncode == 0, again.stderr[-2000:]
     assert json.loads((out / "study.json").read_text())["cells_run"] == 0
     assert pd.read_csv(out / "runs.csv").equals(runs)
+    # issue 82, fifth probe, G6: a training whose log holds a speed of 999 m/s was drawn; it is trained again, with
+    # one line naming the log and the field, and only the cells of that training run again
+    log = sorted((out / "train").iterdir())[0] / "train_log.csv"
+    lines = log.read_text().splitlines(keepends=True)
+    cells = lines[1].split(",")
+    cells[lines[0].strip().split(",").index("mean_speed_mps")] = "999"
+    log.write_text("".join([lines[0], ",".join(cells), *lines[2:]]))
+    fixed = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    assert fixed.returncode == 0 and "Traceback" not in fixed.stderr, fixed.stderr[-2000:]
+    assert f"learning: {log} has mean_speed_mps = '999' in its row of step " in fixed.stderr, fixed.stderr[-2000:]
+    assert "; training it again" in fixed.stderr and ",999," not in log.read_text()
+    assert 0 < json.loads((out / "study.json").read_text())["cells_run"] < study["cells"]
 
 
 @pytest.mark.parametrize(

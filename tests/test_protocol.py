@@ -72,6 +72,16 @@ def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path) -> None:
     assert f"![validation over training](fig_validation.png)\n\n{VALIDATION_CAPTION}\n" in report  # captioned
     again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
     assert again.returncode == 0 and "30 already done" in again.stderr
+    # issue 82, fifth probe, G8: a training whose validation.csv holds a score of 1e9 was copied into diagnosis.csv;
+    # it is trained again, with one line naming the file and the field, and only the cells of that training run again
+    val = sorted((out / "train").glob("*/validation.csv"))[0]
+    lines = val.read_text().splitlines(keepends=True)
+    val.write_text("".join([lines[0], lines[1].split(",", 2)[0] + ",1e9," + lines[1].split(",", 2)[2], *lines[2:]]))
+    fixed = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
+    assert fixed.returncode == 0 and "Traceback" not in fixed.stderr, fixed.stderr[-2000:]
+    assert f"protocol: {val} has score = '1e9' in its row of step " in fixed.stderr, fixed.stderr[-2000:]
+    assert "; training it again" in fixed.stderr and "30 already done" not in fixed.stderr
+    assert "1e+09" not in (out / "diagnosis.csv").read_text() and ",1e9," not in val.read_text()
 
 
 def test_every_committed_protocol_report_captions_its_validation_figure() -> None:

@@ -20,22 +20,18 @@ from typing import Any
 
 import torch
 
+from coopsumo.agents.training_logs import LOG_RULES as LOG_RULES
+from coopsumo.agents.training_logs import log_problem
 from coopsumo.dqn_config import DQNConfig
 from coopsumo.field_rules import as_float, shown
-from coopsumo.files import read_json_object, write_atomic
+from coopsumo.files import read_json_object, read_text, write_atomic
 from coopsumo.record_schemas import (
     CHECKPOINT_TENSORS,
     MODEL_TENSORS,
     REWARD_MAX,
-    SECONDS,
-    SHARE,
-    SPEED,
     SPEED_MAX_MPS,
-    Integer,
-    Number,
     tensor_problem,
 )
-from coopsumo.validation import ALPHA_MIN
 
 _LIMITS = {f.name: f.metadata.get("limits") or (-math.inf, math.inf) for f in dataclasses.fields(DQNConfig)}
 """each learner setting's (low, high, ...) limits"""
@@ -348,7 +344,7 @@ def truncate_log(path: Path, step: int) -> int:
     header and every row up to `step`. A run killed after its last checkpoint had logged rows past it; its resume
     logs them again. Returns how many rows were dropped (0 when the file is missing)."""
     try:
-        lines = path.read_text().splitlines(keepends=True)
+        lines = read_text(path).splitlines(keepends=True)
     except FileNotFoundError:
         return 0
     if not lines:
@@ -365,59 +361,6 @@ def truncate_log(path: Path, step: int) -> int:
         text = "".join(kept)
         write_atomic(path, lambda tmp: tmp.write_text(text))
     return dropped
-
-
-LOG_RULES: dict[str, Number | Integer] = {
-             "step": Integer(1), "sim_time_s": SECONDS, "td_loss": Number(0.0, blank_ok=True),
-             **{name: Number(-REWARD_MAX, REWARD_MAX) for name in ("r_speed", "r_lane_change", "r_flow", "reward")},
-             "epsilon": SHARE, "mean_speed_mps": SPEED, "wall_s": SECONDS, "alpha": Number(ALPHA_MIN),
-             **{name: Integer(0) for name in ("vehicles", "lane_changes", "lane_changes_rejected", "collisions",
-                                              "teleports")}}  # fmt: skip
-"""each train_log.csv column's limits (tb_log.LOG_FIELDS, tested to name the same: a window's means and counts)"""
-
-
-def _log_step(line: str, row: list[str], width: int) -> int | None:
-    """The step of a whole train_log.csv row, None for a row cut short or not one of its rows."""
-    return int(row[0]) if line.endswith("\n") and len(row) == width and row[0].isdigit() else None
-
-
-def log_problem(path: Path, step: int) -> str | None:
-    """Why the rows of train_log.csv (at path) that a resume from `step` keeps cannot be trusted, or None: its header
-    train's own; each row's cells inside LOG_RULES (the loss may be blank: no update in its window), the steps
-    rising, no row that is not one between them. A missing log is no problem (it is begun again); the rows past
-    `step` and a last row cut short are truncate_log's to drop."""
-    from coopsumo.agents.tb_log import LOG_FIELDS  # (the log's writer imports the world's types: not on every read)
-
-    try:
-        lines = path.read_text().splitlines(keepends=True)
-    except (FileNotFoundError, UnicodeDecodeError):
-        return None if not path.exists() else "is not a text file"
-    rows = list(csv.reader(lines))
-    if not rows or tuple(rows[0]) != LOG_FIELDS:
-        shown = ",".join(rows[0])[:60] if rows else "none (an empty file)"
-        return f"has the header {shown!r}, not train's {','.join(LOG_FIELDS)[:60]}..."
-    steps = [_log_step(line, row, len(LOG_FIELDS)) for line, row in zip(lines[1:], rows[1:], strict=True)]
-    last = 0
-    for at, (row, row_step) in enumerate(zip(rows[1:], steps, strict=True)):
-        if row_step is None:  # kept only as a last row cut short by a kill, or past the step (both dropped)
-            if any(s is not None and s <= step for s in steps[at + 1:]):
-                return f"has a row that is not one of its rows after that of step {last}: {','.join(row)[:40]!r}"
-            break
-        if row_step > step:
-            break
-        if row_step <= last:
-            return f"has the row of step {row_step} after that of step {last} (a row twice, or out of order)"
-        last = row_step
-        for name, cell in zip(LOG_FIELDS, row, strict=True):
-            try:
-                value = float(cell) if cell or name != "td_loss" else math.nan
-            except ValueError:
-                value = math.nan
-            if cell and not math.isfinite(value) or not cell and name != "td_loss":
-                return f"has {name} = {cell!r} in its row of step {row_step}, not a finite number"
-            if (problem := LOG_RULES[name].problem(value)) is not None:
-                return f"has {name} = {cell!r} in its row of step {row_step}: it {problem}"
-    return None
 
 
 def resume_problem(out: Path, state: Mapping[str, Any]) -> str | None:

@@ -4,7 +4,6 @@ folder it works in and the run) around agents/train.py's loop."""
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import shutil
 import signal
@@ -29,6 +28,7 @@ from coopsumo.config import (
 )
 from coopsumo.dqn_config import DQN_PRESETS, LEARNER_FLAGS, DQNConfig
 from coopsumo.errors import ConfigError, UsageError
+from coopsumo.files import read_json
 from coopsumo.owners import STORE_NAME as STORE_NAME
 from coopsumo.owners import owned_problem
 from coopsumo.run_dirs import (
@@ -99,7 +99,7 @@ def retrain_problem(out: Path, work: Path) -> str | None:
     configs = []
     for folder in (out, work):
         try:
-            configs.append(json.loads((folder / "config.json").read_text())["config"])
+            configs.append(read_json(folder / "config.json")["config"])
         except (OSError, ValueError, KeyError, TypeError):
             return f"has no readable config.json to compare with {out}'s" if folder == work else \
                 f"holds a training while {out} has no readable config.json"

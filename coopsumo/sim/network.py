@@ -18,6 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from coopsumo.config import RoadConfig
+from coopsumo.files import read_text
 from coopsumo.paths import NETS_ENV
 
 EDGE_ID = "road"
@@ -138,7 +139,7 @@ def net_problem(path: Path, road: RoadConfig) -> str | None:
     number of lanes, lanes of another length, speed limit or width), or None. A cheap look: the file is a few kB,
     written atomically by build_net."""
     try:
-        text = path.read_text(errors="replace")
+        text = read_text(path, errors="replace")  # a named pipe is refused, not waited on
     except OSError as err:
         return f"unreadable: {err.strerror}"
     if not text.rstrip().endswith("</net>"):

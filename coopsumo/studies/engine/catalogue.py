@@ -16,7 +16,7 @@ from typing import Any, Protocol, TypeVar, Union, get_args, get_origin
 
 from coopsumo.errors import ConfigError, UsageError
 from coopsumo.field_rules import as_float, shown
-from coopsumo.files import MAX_JSON_DEPTH, depth_problem
+from coopsumo.files import MAX_JSON_DEPTH, depth_problem, not_regular, open_regular
 from coopsumo.validation import names_problem
 
 DATA = Path(__file__).resolve().parents[2] / "experiments_data"
@@ -87,7 +87,7 @@ def read_toml(path: Path) -> dict[str, Any]:
     """The TOML file `path`; ConfigError in one line naming it when it cannot be read, is not UTF-8 or not TOML,
     or nests deeper than any catalogue or profile does (tomllib's RecursionError, files.depth_problem)."""
     try:
-        with path.open("rb") as f:
+        with open_regular(path) as f:  # a named pipe is refused, not waited on
             data = tomllib.load(f)
     except OSError as err:
         raise ConfigError(f"{path}: cannot read it ({err.strerror})") from None
@@ -145,6 +145,8 @@ def own_profile(text: str, read: Callable[[Path], tuple[Mapping[str, P], str | N
     where = profile_file(text)
     assert where is not None, text
     path, name = where
+    if (kind := not_regular(path)) not in (None, "a folder"):  # a named pipe was "no file" (issue 82, fifth probe)
+        raise UsageError(f"--profile {text}: {path} is not a regular file but {kind}")
     if not path.is_file():
         raise UsageError(f"--profile {text}: no file {path}" + (" (it is a folder)" if path.is_dir() else ""))
     profiles, default = read(path)

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
-from coopsumo.errors import UsageError
+from coopsumo.errors import UsageError, why_unreadable
 from coopsumo.files import read_json
 from coopsumo.paths import STORE_ENV
 from coopsumo.record_schemas import STORE_CONFIG
@@ -294,8 +294,8 @@ def listing(store: Path) -> list[dict[str, Any]]:
                                "state": "unfinished", "selected_step": "-"}  # fmt: skip
         try:
             recorded = read_json(folder / "config.json")
-        except (OSError, ValueError):
-            row["state"] = "no readable config.json"
+        except (OSError, ValueError) as err:
+            row["state"] = f"no readable config.json ({why_unreadable(err)})"
             rows.append(row)
             continue
         if (problem := STORE_CONFIG.problem(recorded)) is not None:  # what names the folder, inside its limits
@@ -318,15 +318,21 @@ def listing(store: Path) -> list[dict[str, Any]]:
 
 
 def _summary_problem(folder: Path, config: dict[str, Any]) -> str | None:
-    """Why a stored model's train_summary.json keeps it from use (trainings.train_summary_problem: a value no run
-    gives, a selected step outside its training), or None (another reason, or none readable)."""
-    from coopsumo.studies.engine.trainings import train_summary_problem
+    """Why a stored model's train_summary.json or one of its logs keeps it from use (trainings.train_summary_problem:
+    a value no run gives, a selected step outside its training; trainings.logs_problem: a train_log.csv or
+    validation.csv that cannot be read back), or None (another reason, or none readable)."""
+    from coopsumo.studies.engine.trainings import logs_problem, train_summary_problem
 
     try:
         summary = read_json(folder / "train_summary.json")
     except (OSError, ValueError):
         return None
-    return train_summary_problem(summary, config) if isinstance(summary, dict) else None
+    if not isinstance(summary, dict):
+        return None
+    if (problem := train_summary_problem(summary, config)) is not None:
+        return problem
+    found = logs_problem(folder, config, summary)
+    return f"{found[0]} {found[1]}" if found is not None else None
 
 
 STORE_FOLDER = "models"

@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
-from coopsumo.errors import UsageError
+from coopsumo.errors import UsageError, why_unreadable
 from coopsumo.field_rules import as_float, shown
 from coopsumo.files import file_sha256, read_json, read_json_object, temporaries_of
 from coopsumo.provenance import versions
@@ -333,7 +333,7 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
         except FileNotFoundError:
             continue
         except (OSError, ValueError) as err:
-            print(f"{prog}: cell {spec['key']}: record {path} is unreadable ({type(err).__name__}); rerunning it",
+            print(f"{prog}: cell {spec['key']}: record {path} is unreadable ({why_unreadable(err)}); rerunning it",
                   file=sys.stderr)  # fmt: skip
             continue
         if isinstance(record, dict) and record.get("status") in ("failed", "interrupted"):
@@ -358,7 +358,7 @@ def summary_problem(path: Path, required: Sequence[str]) -> str | None:
     try:
         summary = read_json(path)
     except (OSError, ValueError) as err:
-        return f"has an unreadable summary.json ({type(err).__name__})"
+        return f"has an unreadable summary.json ({why_unreadable(err)})"
     problem = record_problem({"status": "ok", "summary": summary}, required)
     if problem is None:
         return None

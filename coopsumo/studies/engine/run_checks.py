@@ -14,6 +14,8 @@ import re
 from pathlib import Path
 from typing import Any
 
+from coopsumo.errors import why_unreadable
+from coopsumo.files import open_regular, read_bytes
 from coopsumo.record_schemas import DETECTOR_INTERVAL, LANE_CAPACITY_VEH_H
 
 TAIL_BYTES = 1 << 16
@@ -86,9 +88,9 @@ def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> st
     counted per hour of the interval (nVehContrib * 3600 / (end - begin), as SUMO rounds it), the last interval
     ending with the run."""
     try:
-        text = path.read_bytes()
+        text = read_bytes(path)
     except OSError as err:
-        return f"has an unreadable detectors.xml ({type(err).__name__})"
+        return f"has an unreadable detectors.xml ({why_unreadable(err)})"
     if not text.rstrip().endswith(b"</detector>"):
         return "has a missing or cut-short detectors.xml"
     dt, period = float(cfg["control"]["dt_s"]), float(cfg["road"]["loop_period_s"])
@@ -132,7 +134,7 @@ def _interval_problem(match: re.Match[bytes], sim_seconds: float, dt: float, per
 
 def tail(path: Path, size: int = TAIL_BYTES) -> bytes:
     """The last `size` bytes of the file at path (OSError when it cannot be read)."""
-    with path.open("rb") as f:
+    with open_regular(path) as f:
         f.seek(max(0, f.seek(0, os.SEEK_END) - size))
         return f.read()
 
@@ -152,7 +154,7 @@ def fcd_problem(path: Path, sim_seconds: float, period_s: float, dt: float) -> s
             size *= 4
             end = tail(path, size)
     except OSError as err:
-        return f"has an unreadable fcd.xml ({type(err).__name__})"
+        return f"has an unreadable fcd.xml ({why_unreadable(err)})"
     if not found:
         return "has an fcd.xml without a timestep"
     try:
@@ -172,9 +174,9 @@ def tripinfo_problem(path: Path, summary: dict[str, Any]) -> str | None:
     """Why SUMO's tripinfo file cannot be trusted beside the run's summary, or None: it ends with </tripinfos>, holds
     one trip per vehicle that arrived, and their mean duration is the summary's mean travel time."""
     try:
-        text = path.read_bytes()
+        text = read_bytes(path)
     except OSError as err:
-        return f"has an unreadable tripinfo.xml ({type(err).__name__})"
+        return f"has an unreadable tripinfo.xml ({why_unreadable(err)})"
     if not text.rstrip().endswith(b"</tripinfos>"):
         return "has a cut-short tripinfo.xml (it does not end with </tripinfos>)"
     trips, arrived = text.count(b"<tripinfo "), summary.get("arrived")

@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
-from coopsumo.files import file_sha256, read_json
+from coopsumo.files import file_sha256, not_regular, read_json
 from coopsumo.record_schemas import SPEED_MAX_MPS
 from coopsumo.run_dirs import LEARNERS, Recorded, check_out_path, check_run_dir, check_study_place
 from coopsumo.run_dirs import study_root as claim_study_root
@@ -249,6 +249,8 @@ def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], 
     if (out / "tripinfo.xml").exists() and (problem := tripinfo_problem(out / "tripinfo.xml", summary)):
         return problem
     if (out / "trajectories.parquet").exists():
+        if (kind := not_regular(out / "trajectories.parquet")) is not None:  # pyarrow would wait on a named pipe
+            return f"has a trajectories.parquet that is not a regular file but {kind}"
         try:
             pq.read_metadata(out / "trajectories.parquet")
         except Exception:  # pyarrow raises several types for a damaged file

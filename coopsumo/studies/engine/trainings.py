@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 from coopsumo.config import first_difference, results_view
+from coopsumo.errors import why_unreadable
 from coopsumo.files import read_json
 from coopsumo.record_schemas import STORE_CONFIG
 
@@ -36,7 +37,7 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
         except (OSError, ValueError) as err:
             if not quiet and (out / "model.pt").is_file():  # a finished training's folder that lost or spoiled it
                 print(f"coopsumo: {out} holds a model.pt but its {name} is missing or unreadable "
-                      f"({type(err).__name__}); training it again", file=sys.stderr)  # fmt: skip
+                      f"({why_unreadable(err)}); training it again", file=sys.stderr)  # fmt: skip
             return None
     if (problem := STORE_CONFIG.problem(read["config.json"])) is not None:  # as `coopsumo models` judges it
         if not quiet and (out / "model.pt").is_file():  # a seed of true is none, though true == 1
@@ -57,7 +58,57 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
         if not quiet:
             print(f"coopsumo: {out} {problem}; training it again", file=sys.stderr)
         return None
+    if (found := logs_problem(out, config, summary)) is not None:  # a study draws them (learning, protocol)
+        if not quiet:
+            print(f"coopsumo: {out / found[0]} {found[1]}; training it again", file=sys.stderr)
+        return None
     return summary
+
+
+def logs_problem(out: Path, config: dict[str, Any], summary: Any) -> tuple[str, str] | None:
+    """(the log's file name, why) when a log of the finished training `config` in `out` cannot be read back as it
+    ran, else None: its train_log.csv whole and inside training_logs.LOG_RULES up to its configuration's last step
+    (training_logs.log_problem), its validation.csv (a training that selects its model) inside VALIDATION_RULES,
+    its best snapshot the one model.pt holds (`summary`: its train_summary.json). The learning study draws the one,
+    the protocol study draws and copies the other (issue 82, fifth probe, G6 and G8): a model whose logs break them is
+    trained again, as one whose train_summary.json does, not reused into a study that then stops at its figure or
+    draws 999 m/s. A log that is missing is none (finished_run faults a listed file that was deleted)."""
+    from coopsumo.agents.training_logs import log_problem, validation_problem
+
+    steps = config.get("sim", {}).get("steps") if isinstance(config.get("sim"), dict) else None
+    if not isinstance(steps, int) or isinstance(steps, bool):
+        return None  # not a training's configuration: the caller compared it with the study's
+    if (problem := log_problem(out / "train_log.csv", steps, whole=True)) is not None:
+        return "train_log.csv", problem
+    selected = summary.get("selected_step") if isinstance(summary, dict) else None
+    if (problem := validation_problem(out / "validation.csv", steps, selected)) is not None:
+        return "validation.csv", problem
+    return None
+
+
+def spoiled_logs(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[str]:
+    """The cells of `specs` (records otherwise reusable) whose training, ROOT/train/<training>, has a log that cannot
+    be read back (logs_problem): each is run again, which trains its model again (finished_training faults the same
+    log), with one line per training naming the log and its cells. A study that draws its trainings' logs (learning,
+    protocol) asks before its cells run: a reused cell's training was not looked at again."""
+    from coopsumo.files import read_json_object
+
+    cells: dict[Path, tuple[dict[str, Any], list[str]]] = {}
+    for spec in specs:
+        config = spec["config"].get("train") if isinstance(spec.get("config"), dict) else None
+        if isinstance(config, dict):
+            folder = root / "train" / str(spec.get("train_key") or spec["key"])
+            cells.setdefault(folder, (config, []))[1].append(spec["key"])
+    keys = set()
+    for folder, (config, names) in cells.items():
+        summary = read_json_object(folder / "train_summary.json")
+        if not folder.is_dir() or (found := logs_problem(folder, config, summary)) is None:
+            continue
+        shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+        print(f"{prog}: {folder / found[0]} {found[1]}; rerunning the {len(names)} cells of its training ({shown}), "
+              "which train it again", file=sys.stderr)  # fmt: skip
+        keys.update(names)
+    return keys
 
 
 def train_summary_problem(summary: dict[str, Any], config: dict[str, Any]) -> str | None:

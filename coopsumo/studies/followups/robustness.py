@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from coopsumo.agents.training_logs import log_table
 from coopsumo.report.markdown import md_table
 
 
@@ -120,10 +121,9 @@ def training_seeds_figure(root: Path, runs: pd.DataFrame, variants: list[str], o
     axes = np.atleast_2d(fig.subplots(max(len(shown), 1), 2, squeeze=False))
     for row, variant in zip(axes, shown, strict=False):
         for _, r in alpha0_runs(runs, variant).iterrows():
-            path = root / "train" / str(r["key"]) / "train_log.csv"
-            if not path.exists():
+            log = log_table(root / "train" / str(r["key"]) / "train_log.csv")  # checked: RecordError naming it
+            if log is None:
                 continue
-            log = pd.read_csv(path)
             label = f"seed {int(r['seed'])}: {r['mean_speed_mps']:.2f} m/s"
             row[0].plot(log["step"], log["mean_speed_mps"], lw=0.9, label=label)
             row[1].plot(log["step"], log["lane_changes"] / log["vehicles"].clip(lower=1), lw=0.9)

@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.agents.conditioning import CONDITIONED_FIELDS
+from coopsumo.agents.training_logs import log_table
 from coopsumo.dqn_config import DQNConfig
 from coopsumo.studies.followups import robustness
 from coopsumo.studies.learning.plan import (
@@ -84,10 +85,9 @@ def training_curves_figure(root: Path, runs: pd.DataFrame, out_path: Path) -> Pa
     for i, (variant, group) in enumerate(ok.groupby("variant", sort=False)):
         style = {"color": f"C{i % 10}", "linestyle": "-" if i < 10 else "--"}  # 10 colours: the rest dashed
         logs = []
-        for key in group["key"]:
-            path = root / "train" / key / "train_log.csv"
-            if path.exists():
-                logs.append(pd.read_csv(path).set_index("step"))
+        for key in group["key"]:  # each checked as a reused training's was (RecordError naming file and column)
+            if (log := log_table(root / "train" / key / "train_log.csv")) is not None:
+                logs.append(log.set_index("step"))
         if not logs:
             continue
         speed = pd.concat([lg["mean_speed_mps"] for lg in logs], axis=1).mean(axis=1)

@@ -123,6 +123,7 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.studies.engine.cells import run_todo
     from coopsumo.studies.engine.records import reusable_keys
+    from coopsumo.studies.engine.trainings import spoiled_logs
 
     start = time.perf_counter()
     root = root.resolve()
@@ -132,6 +133,7 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile, default)
     done_keys = reusable_keys(root, specs, "learning", REQUIRED_SUMMARY)
+    done_keys -= spoiled_logs(root, [s for s in specs if s["key"] in done_keys], "learning")  # its figures draw them
     todo = [s for s in specs if s["key"] not in done_keys]
     # the slow paper trainings first, the single changes on top of the default last
     extras = set(VARIANT_NAMES[CHAIN_LENGTH:])

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import pandas as pd
+from coopsumo.agents.training_logs import validation_table
 
 VALIDATION_CAPTION = ("One line per training at alpha 0 (a colour per training seed; with several learners, a line "
                       "style each): at each validation snapshot of its training, the validation runs' mean speed "
@@ -24,7 +24,8 @@ def validation_curves_figure(root: Path, keys: list[str], out_path: Path,
     colour per seed, a line style per learner (named by `names`, training key -> variant, when there are several)."""
     from coopsumo.report.plots import new_figure, save_figure
 
-    curves = [(k, pd.read_csv(p)) for k in keys if (p := root / "train" / k / "validation.csv").exists()]
+    tables = [(k, validation_table(root / "train" / k / "validation.csv")) for k in keys]  # checked: RecordError
+    curves = [(k, val) for k, val in tables if val is not None]
     if not curves:
         return None
     fig = new_figure(10.0, 3.6)

@@ -23,9 +23,9 @@ import pandas as pd
 
 from coopsumo.config import SPEED_ONLY_FIELDS, to_dict
 from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS, RETIRED_FIELDS, dqn_config_from_dict
-from coopsumo.errors import ConfigError, UsageError, first_line
+from coopsumo.errors import ConfigError, UsageError, first_line, why_unreadable
 from coopsumo.field_rules import as_float
-from coopsumo.files import loads_json, write_atomic
+from coopsumo.files import loads_json, read_csv, read_text, write_atomic
 from coopsumo.owners import owned_problem
 from coopsumo.record_schemas import PROTOCOL_STATS, PROTOCOL_STUDY, RecordError
 from coopsumo.report.markdown import md_table
@@ -101,9 +101,9 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
     study names); RecordError naming the file and the field otherwise."""
     path = folder / "study.json"
     try:
-        study = loads_json(path.read_text(encoding="utf-8"))
+        study = loads_json(read_text(path))
     except (OSError, UnicodeDecodeError, ValueError) as err:
-        raise RecordError(f"{path} cannot be read as JSON ({type(err).__name__}); restore it or move the study "
+        raise RecordError(f"{path} cannot be read as JSON ({why_unreadable(err)}); restore it or move the study "
                           "away") from None  # fmt: skip
     PROTOCOL_STUDY.check(study, path)
     for variant, entry in study["learners"].items():
@@ -111,9 +111,9 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
             raise RecordError(f"{path} learner {variant} {problem}; restore it or move the study away")
     path = folder / "stats.csv"
     try:
-        stats = pd.read_csv(path)
+        stats = read_csv(path)
     except (OSError, UnicodeDecodeError, ValueError) as err:  # pandas' EmptyDataError and ParserError among them
-        raise RecordError(f"{path} cannot be read as a table ({type(err).__name__}); restore it or move the study "
+        raise RecordError(f"{path} cannot be read as a table ({why_unreadable(err)}); restore it or move the study "
                           "away") from None  # fmt: skip
     PROTOCOL_STATS.check([str(c) for c in stats.columns], stats.to_dict("records"), path)
     free = set(stats.loc[stats["scenario"] == "free", "variant"].astype(str))

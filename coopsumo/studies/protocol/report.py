@@ -17,7 +17,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from coopsumo.files import read_json
+from coopsumo.agents.training_logs import validation_table
+from coopsumo.files import read_csv, read_json
 from coopsumo.record_schemas import PROTOCOL_STATS
 from coopsumo.sim import passing
 from coopsumo.studies.engine import stats
@@ -195,7 +196,7 @@ def committed_runs(folder: Path, variant: str, runs: pd.DataFrame, profile: Any)
     if first_difference(entry.get("learner"), to_dict(known.learner)) is not None or \
             entry.get("drive", {}) != known.drive() or entry.get("weights") != known.weights:
         return empty, f"its {variant} is not today's"
-    ref = pd.read_csv(folder / "runs.csv")
+    ref = read_csv(folder / "runs.csv")
     ref = ref[(ref["kind"] == "model") & (ref["variant"] == variant) & (ref["alpha"] == 0) & (ref["status"] == "ok")]
     for (scenario, t_up), cond in runs[runs["kind"] == "model"].groupby(["scenario", "t_up"]):
         there = ref[(ref["scenario"] == scenario) & (ref["t_up"] == t_up)]["eval_seed"]
@@ -238,12 +239,10 @@ def diagnosis_table(root: Path, runs: pd.DataFrame) -> pd.DataFrame:
     rows = []
     trainings = runs[(runs["kind"] == "model") & (runs["alpha"] == 0)].drop_duplicates("seed")
     for _, r in trainings.iterrows():
-        train_dir = root / "train" / str(r["train_key"])
-        path = train_dir / "validation.csv"
-        if not path.exists():
+        val = validation_table(root / "train" / str(r["train_key"]) / "validation.csv")  # RecordError naming it
+        if val is None:
             continue
-        val = pd.read_csv(path)
-        best = val[val["best"]].iloc[0]
+        best = val[val["best"]].iloc[0]  # validation_table: exactly one
         last = val.iloc[-1]
         row = {"seed": int(r["seed"]), "selected_step": int(best["step"]), "best_score": best["score"],
                "last_score": last["score"]}

@@ -124,6 +124,7 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.studies.engine.cells import run_todo
     from coopsumo.studies.engine.records import reusable_keys
+    from coopsumo.studies.engine.trainings import spoiled_logs
     from coopsumo.studies.protocol import report as protocol_report
 
     start = time.perf_counter()
@@ -134,6 +135,7 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile)
     done = reusable_keys(root, specs, "protocol", REQUIRED)
+    done -= spoiled_logs(root, [s for s in specs if s["key"] in done], "protocol")  # its diagnosis reads them
     todo = [s for s in specs if s["key"] not in done]
     # each training's first cell before any cell that would wait for it, free flow (short) before the accident
     first: dict[str, str] = {}

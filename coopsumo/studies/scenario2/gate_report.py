@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.agents.conditioning import conditioned_alphas
-from coopsumo.files import read_json
+from coopsumo.files import read_csv, read_json
 from coopsumo.report.markdown import md_table, num
 from coopsumo.studies.scenario2.gate import (
     LEVEL,
@@ -439,7 +439,7 @@ def console_lines(root: Path) -> list[str]:
     path = root / "gate.csv"
     if not path.exists():
         return []
-    gate = pd.read_csv(path)
+    gate = read_csv(path)
     lines = []
     for r in gate.to_dict("records"):
         verdict = "not judged" if pd.isna(r["passes"]) else "passes" if _true(r["passes"]) else "fails"

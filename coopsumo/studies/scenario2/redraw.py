@@ -16,9 +16,9 @@ import pandas as pd
 from pandas.api.types import is_numeric_dtype
 
 from coopsumo.config import first_difference
-from coopsumo.errors import ConfigError, UsageError
+from coopsumo.errors import ConfigError, NotRegularFileError, UsageError
 from coopsumo.field_rules import shown
-from coopsumo.files import read_json, write_json
+from coopsumo.files import read_csv, read_json, write_json
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
@@ -38,9 +38,9 @@ def rewrite_outputs(root: Path) -> dict[str, Any]:
     meta = read_json(root / "sweep.json")
     fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["profile"].items()}
     profile = Profile(**fields)
-    runs, n_boot = pd.read_csv(root / "runs.csv"), int(meta["bootstrap_replicates"])
+    runs, n_boot = read_csv(root / "runs.csv"), int(meta["bootstrap_replicates"])
     if profile.lane_networks:
-        write_lane_outputs(root, runs, pd.read_csv(root / "evals.csv"), profile, meta, n_boot)
+        write_lane_outputs(root, runs, read_csv(root / "evals.csv"), profile, meta, n_boot)
     else:
         write_outputs(root, runs, profile, meta, n_boot)
     write_json(root / "sweep.json", meta)
@@ -119,7 +119,9 @@ def _read_part(folder: Path) -> Part:
     _table_problem)."""
     try:
         meta = read_json(folder / "sweep.json")
-        runs, evals = pd.read_csv(folder / "runs.csv"), pd.read_csv(folder / "evals.csv")
+        runs, evals = read_csv(folder / "runs.csv"), read_csv(folder / "evals.csv")
+    except NotRegularFileError as err:  # a named pipe: refused, not waited on (issue 82, fifth probe, G4)
+        raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err})") from None
     except (OSError, ValueError) as err:
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err.__class__.__name__}: "
                          f"{getattr(err, 'strerror', None) or err})") from None  # fmt: skip

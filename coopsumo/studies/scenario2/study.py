@@ -51,7 +51,7 @@ import pandas as pd
 from coopsumo.config import RoadConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
-from coopsumo.files import read_json, write_json
+from coopsumo.files import read_csv, read_json, write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
@@ -463,7 +463,7 @@ def main(argv: list[str] | None = None) -> int:
             meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet,
                              args.bootstrap)  # fmt: skip
         if "dqn" in profile.policies:
-            table = pd.read_csv(args.out / "alpha_star.csv")
+            table = read_csv(args.out / "alpha_star.csv")
             for r in table.itertuples():
                 if r.cells_failed:
                     print(f"{condition_label(r.lanes, r.t_up_s)}: no alpha* ({r.cells_failed} cells failed)")
@@ -481,7 +481,7 @@ def main(argv: list[str] | None = None) -> int:
 
                 print("\n".join(console_lines(args.out)))
         if "mobil" in profile.policies:
-            for r in pd.read_csv(args.out / "mobil_p_star.csv").itertuples():
+            for r in read_csv(args.out / "mobil_p_star.csv").itertuples():
                 if r.cells_failed:
                     print(f"{condition_label(r.lanes, r.t_up_s)}: no MOBIL p* ({r.cells_failed} cells failed)")
                     continue
