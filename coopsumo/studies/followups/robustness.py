@@ -172,16 +172,16 @@ def conditioned_markdown(table: pd.DataFrame, variant: str, reference: str) -> l
     lines = [f"## One network for every alpha: `{variant}` against per-alpha `{reference}` models", "",
              f"`{variant}`: one model per training seed, driven at each alpha; `{reference}`: one model per alpha and "
              "seed. Differences are paired by training seed (the same evaluation demand). Target: the mean speed "
-             f"difference within the per-alpha models' seed sd at every alpha.", "",
-             "| alpha | seeds | speed conditioned / per-alpha (m/s) | difference: mean [worst, best] | per-alpha seed "
-             "sd | lane changes / veh conditioned / per-alpha | difference | per-alpha seed sd | within spread | "
-             "not behind by more |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
-    for r in table.to_dict("records"):
-        lines.append(f"| {r['alpha']:g} | {r['seeds']} | {r['speed_cond']:.2f} / {r['speed_ref']:.2f} | "
-                     f"{r['d_speed_mean']:+.2f} [{r['d_speed_min']:+.2f}, {r['d_speed_max']:+.2f}] | "
-                     f"{r['ref_speed_sd']:.2f} | {r['lc_cond']:.2f} / {r['lc_ref']:.2f} | {r['d_lc_mean']:+.2f} | "
-                     f"{r['ref_lc_sd']:.2f} | {'yes' if r['within_spread'] else 'no'} | "
-                     f"{'yes' if r['not_behind'] else 'no'} |")  # fmt: skip
+             f"difference within the per-alpha models' seed sd at every alpha.", ""]  # fmt: skip
+    head = ["alpha", "seeds", "speed conditioned / per-alpha (m/s)", "difference: mean [worst, best]",
+            "per-alpha seed sd", "lane changes / veh conditioned / per-alpha", "difference", "per-alpha seed sd",
+            "within spread", "not behind by more"]  # fmt: skip
+    rows = [[f"{r['alpha']:g}", str(r["seeds"]), f"{r['speed_cond']:.2f} / {r['speed_ref']:.2f}",
+             f"{r['d_speed_mean']:+.2f} [{r['d_speed_min']:+.2f}, {r['d_speed_max']:+.2f}]", f"{r['ref_speed_sd']:.2f}",
+             f"{r['lc_cond']:.2f} / {r['lc_ref']:.2f}", f"{r['d_lc_mean']:+.2f}", f"{r['ref_lc_sd']:.2f}",
+             "yes" if r["within_spread"] else "no", "yes" if r["not_behind"] else "no"]
+            for r in table.to_dict("records")]  # fmt: skip
+    lines += md_table(head, rows).split("\n")
     met, level = int(table["within_spread"].sum()), int(table["not_behind"].sum())
     lines += ["", f"Within the per-alpha seed spread at {met} of {len(table)} alphas; not behind by more than it at "
               f"{level} of {len(table)} (ahead by more at {level - met}); for one training per seed instead of "
@@ -229,12 +229,13 @@ def chain_markdown(steps: pd.DataFrame) -> list[str]:
     """The chain_steps table as markdown lines, with a sentence on what an interval over 3 models can say."""
     if steps.empty:
         return []
-    lines = ["| change | mean speed: after minus before (m/s), 90% interval over models | models faster | "
-             "largest loss of one model (m/s) | worst model after (m/s) |", "|---|---|---|---|---|"]  # fmt: skip
+    rows = []
     for _, r in steps.iterrows():
         interval = "" if math.isnan(r["diff_low"]) else f" [{r['diff_low']:+.2f}, {r['diff_high']:+.2f}]"
-        lines.append(f"| `{r['before']}` -> `{r['variant']}` | {r['diff_mean']:+.2f}{interval} | "
-                     f"{r['better']} of {r['models']} | {min(r['diff_min'], 0.0):+.2f} | {r['worst']:.2f} |")
+        rows.append([f"`{r['before']}` -> `{r['variant']}`", f"{r['diff_mean']:+.2f}{interval}",
+                     f"{r['better']} of {r['models']}", f"{min(r['diff_min'], 0.0):+.2f}", f"{r['worst']:.2f}"])
+    lines = md_table(["change", "mean speed: after minus before (m/s), 90% interval over models", "models faster",
+                      "largest loss of one model (m/s)", "worst model after (m/s)"], rows).split("\n")  # fmt: skip
     decided = steps[(steps["diff_low"] > 0) | (steps["diff_high"] < 0)]
     lines += ["", f"An interval that excludes 0 (a change that decidedly helped or hurt on these models): "
               f"{', '.join(f'`{v}`' for v in decided['variant']) or 'none'}. With {int(steps['models'].max())} "

@@ -13,6 +13,7 @@ import pandas as pd
 from coopsumo.agents.conditioning import CONDITIONED_FIELDS
 from coopsumo.agents.training_logs import log_table
 from coopsumo.dqn_config import DQNConfig
+from coopsumo.report.markdown import md_table
 from coopsumo.studies.followups import robustness
 from coopsumo.studies.learning.plan import (
     BASELINES,
@@ -137,10 +138,10 @@ def _fmt(mean: float, sd: float, fmt: str = "{:.2f}") -> str:
     return fmt.format(mean) + ("" if sd is None or math.isnan(sd) else " ± " + fmt.format(sd))
 
 
-def _table_rows(tab: pd.DataFrame, label: str) -> list[str]:
+def _table_rows(tab: pd.DataFrame, label: str) -> list[list[str]]:
     rows = []
     for _, r in tab.iterrows():
-        rows.append("| " + " | ".join([
+        rows.append([
             str(r[label]) if label != "alpha" else f"{r[label]:g}",
             _fmt(r["mean_speed_mps_mean"], r["mean_speed_mps_std"]),
             _fmt(r["lane_changes_per_vehicle_mean"], r["lane_changes_per_vehicle_std"], "{:.3f}"),
@@ -150,12 +151,13 @@ def _table_rows(tab: pd.DataFrame, label: str) -> list[str]:
             _fmt(r["throughput_veh_per_h_mean"], r["throughput_veh_per_h_std"], "{:.0f}"),
             _fmt(r["train_wall_s_mean"], r["train_wall_s_std"], "{:.0f}"),
             str(int(r["mean_speed_mps_count"])),
-        ]) + " |")  # fmt: skip
+        ])  # fmt: skip
     return rows
 
 
-HEADER = ("| {} | mean speed (m/s) | lane changes / veh | refused requests | teleports | collisions | "
-          "throughput (veh/h) | training wall (s) | seeds |\n|---|---|---|---|---|---|---|---|---|")  # fmt: skip
+COLUMNS = ["mean speed (m/s)", "lane changes / veh", "refused requests", "teleports", "collisions",
+           "throughput (veh/h)", "training wall (s)", "seeds"]  # fmt: skip
+"""the columns of the ablation's and the alpha response's tables, after the variant or alpha"""
 
 
 def _longer(profile: Profile) -> str:
@@ -189,12 +191,12 @@ def report_text(profile: Profile, runs: pd.DataFrame, abl: pd.DataFrame, alpha_t
     for name, text, _ in VARIANTS:
         if name in profile.variants:
             lines.append(f"- `{name}`: {text}")
-    lines += ["", HEADER.format("variant"), *_table_rows(abl, "variant"), *_table_rows(base, "variant"), ""]
+    lines += ["", md_table(["variant", *COLUMNS], _table_rows(abl, "variant") + _table_rows(base, "variant")), ""]
     failed = runs[runs["status"] != "ok"]
     lines += ["![training curves](fig_training_curves.png)", ""]
     lines += robustness_lines(runs, profile)
     for variant, tab in alpha_tab.groupby("variant", sort=False):
-        lines += [f"## Alpha response of `{variant}`", "", HEADER.format("alpha"), *_table_rows(tab, "alpha"), ""]
+        lines += [f"## Alpha response of `{variant}`", "", md_table(["alpha", *COLUMNS], _table_rows(tab, "alpha")), ""]
         if failed.empty:
             mono = is_monotone_decreasing(tab["lane_changes_per_vehicle_mean"].to_numpy(float),
                                           tab["lane_changes_per_vehicle_std"].to_numpy(float))  # fmt: skip

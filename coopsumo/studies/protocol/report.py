@@ -20,6 +20,7 @@ import pandas as pd
 from coopsumo.agents.training_logs import validation_table
 from coopsumo.files import read_csv, read_json
 from coopsumo.record_schemas import PROTOCOL_STATS
+from coopsumo.report.markdown import md_table
 from coopsumo.sim import passing
 from coopsumo.studies.engine import stats
 from coopsumo.studies.protocol.figures import TWO_STAGE_NOTE, VALIDATION_CAPTION, validation_curves_figure
@@ -159,15 +160,16 @@ def passing_lines(runs: pd.DataFrame, profile: Any) -> list[str]:
              f"let it enter now, whose leader is at least {passing.FASTER_MPS:g} m/s faster or absent), and the share "
              "of those open chances after which the vehicle started a lane change before the next sample. Means over "
              "models (alpha 0); a policy that passes well is seldom held back and takes its chances.", "",
-             "| T_up (s) | policy | runs | held back | lane open | taken |", "|---|---|---|---|---|---|"]  # fmt: skip
+             ]  # fmt: skip
+    rows = []
     for t_up, cond in ok.groupby("t_up", sort=False):
         for name in [*profile.variants, *BASELINES]:
-            rows = cond[cond["variant"] == name].dropna(subset=["held_share"])
-            if rows.empty:
+            taken = cond[cond["variant"] == name].dropna(subset=["held_share"])
+            if taken.empty:
                 continue
-            lines.append(f"| {t_up:g} | `{name}` | {len(rows)} | {rows['held_share'].mean():.3f} | "
-                         f"{rows['passing_open_share'].mean():.3f} | {rows['passing_taken_share'].mean():.2f} |")
-    return lines
+            rows.append([f"{t_up:g}", f"`{name}`", str(len(taken)), f"{taken['held_share'].mean():.3f}",
+                         f"{taken['passing_open_share'].mean():.3f}", f"{taken['passing_taken_share'].mean():.2f}"])
+    return lines + md_table(["T_up (s)", "policy", "runs", "held back", "lane open", "taken"], rows).split("\n")
 
 
 def committed_folder(results: Path, name: str) -> Path:
@@ -215,9 +217,8 @@ def committed_pair_lines(runs: pd.DataFrame, profile: Any, results: Path = COMMI
              "its study.json and runs.csv); mean over training seeds of the paired difference, 95% bootstrap "
              "interval over them, and how many did better (free flow: mean speed, m/s; accident: total time spent, "
              "veh-h).", "",
-             "| learner | minus | scenario | T_up (s) | difference [95% CI] | better | lane changes / veh, diff. |",
-             "|---|---|---|---|---|---|---|"]  # fmt: skip
-    notes = []
+             ]  # fmt: skip
+    notes, rows = [], []
     for mine, folder, theirs in profile.paired_with:
         where = committed_folder(results, folder)
         ref, problem = committed_runs(where, theirs, runs, profile)
@@ -228,10 +229,11 @@ def committed_pair_lines(runs: pd.DataFrame, profile: Any, results: Path = COMMI
         both = per_model(pd.concat([runs[runs["variant"] == mine], ref.assign(variant=label)], ignore_index=True))
         link = f"../{where.relative_to(results).as_posix()}/report.md"
         for r in paired_rows(both, mine, label):
-            lines.append(f"| `{mine}` | `{theirs}` ([{folder}]({link})) | {r['scenario']} | "
-                         f"{r['t_up']:g} | {_ci(r['diff'], r['low'], r['high'], '{:+.2f}')} | {r['better']} of "
-                         f"{r['models']} | {r['lane_changes']:+.2f} |")  # fmt: skip
-    return lines + ([""] + notes if notes else [])
+            rows.append([f"`{mine}`", f"`{theirs}` ([{folder}]({link}))", r["scenario"], f"{r['t_up']:g}",
+                         _ci(r["diff"], r["low"], r["high"], "{:+.2f}"), f"{r['better']} of {r['models']}",
+                         f"{r['lane_changes']:+.2f}"])  # fmt: skip
+    head = ["learner", "minus", "scenario", "T_up (s)", "difference [95% CI]", "better", "lane changes / veh, diff."]
+    return lines + md_table(head, rows).split("\n") + ([""] + notes if notes else [])
 
 
 def diagnosis_table(root: Path, runs: pd.DataFrame) -> pd.DataFrame:
@@ -334,7 +336,7 @@ def _scenario_tables(profile: Any, ok: pd.DataFrame, table: pd.DataFrame) -> lis
         lines += ["", f"## {title}: {words}, {better} is better", ""]
         head = ["T_up (s)", "learner", "models", "IQM [95% CI]", "worst model", "lane changes / veh"]
         head += [f"`{b}`" for b in BASELINES] + [f"P(> `{b}`) [95% CI], lost" for b in BASELINES]
-        lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        rows = []
         for _, r in sub.iterrows():
             cells = [f"{r['t_up']:g}", f"`{r['variant']}`", str(int(r["models"])), _ci(r["iqm"], r["low"], r["high"]),
                      f"{r['worst']:.2f}", f"{r['lane_changes_per_vehicle']:.2f}"]
@@ -342,7 +344,8 @@ def _scenario_tables(profile: Any, ok: pd.DataFrame, table: pd.DataFrame) -> lis
             for b in BASELINES:
                 poi = (r.get(f"{b}_poi", math.nan), r.get(f"{b}_poi_low", math.nan), r.get(f"{b}_poi_high", math.nan))
                 cells.append(f"{_ci(*poi)}, {int(r.get(f'{b}_losses', 0))}")
-            lines.append("| " + " | ".join(cells) + " |")
+            rows.append(cells)
+        lines += md_table(head, rows).split("\n")
         lines += ["", "Across the demands (probability of improvement averaged over demands, 95% CI):", ""]
         for variant in profile.variants:
             parts = [f"P(> `{b}`) = {_ci(*pooled_stats(ok, variant, b, scenario))}" for b in BASELINES]
@@ -356,11 +359,13 @@ def _alpha_lines(profile: Any, ok: pd.DataFrame) -> list[str]:
     alpha = ok[(ok["kind"] == "model") & (ok["scenario"] == "free") & (ok["variant"] == judged)]
     if (alpha["alpha"] > 0).any():
         lines += [f"## Does alpha do something? (free flow, `{judged}`, lane changes per vehicle)", "",
-                  "| T_up (s) | alpha 0 (models) | alpha 8 (models) |", "|---|---|---|"]
+                  ]
+        rows = []
         for t_up, grp in alpha.groupby("t_up", sort=False):
             a0 = grp[grp["alpha"] == 0]["lane_changes_per_vehicle"]
             a8 = grp[grp["alpha"] == 8]["lane_changes_per_vehicle"]
-            lines.append(f"| {t_up:g} | {a0.mean():.3f} ({len(a0)}) | {a8.mean():.3f} ({len(a8)}) |")
+            rows.append([f"{t_up:g}", f"{a0.mean():.3f} ({len(a0)})", f"{a8.mean():.3f} ({len(a8)})"])
+        lines += md_table(["T_up (s)", "alpha 0 (models)", "alpha 8 (models)"], rows).split("\n")
         lines.append("")
     return lines
 
@@ -373,18 +378,14 @@ def _diagnosis_lines(profile: Any, diag: pd.DataFrame) -> list[str]:
                   "Each training was validated every few thousand steps on held-out free-flow demand "
                   "(agents/selection.py); `best` is the snapshot model.pt holds, `last` the last weights. Shares are "
                   "of the greedy decisions; q gap: median Q(best change) - Q(best stay) where a change was offered; "
-                  "near ties: share of those decisions within 5% of each other.", "",
-                  "| seed | chosen step | speed best / last (m/s) | lane changes best / last | 'none' best / last | "
-                  "speed-up best / last | q gap best / last | near ties best / last |",
-                  "|---|---|---|---|---|---|---|---|"]  # fmt: skip
-        for _, d in diag.iterrows():
-            lines.append(f"| {int(d['seed'])} | {int(d['selected_step']):,} | {d['best_mean_speed_mps']:.2f} / "
-                         f"{d['last_mean_speed_mps']:.2f} | {d['best_lane_changes_per_vehicle']:.2f} / "
-                         f"{d['last_lane_changes_per_vehicle']:.2f} | {d['best_share_none']:.2f} / "
-                         f"{d['last_share_none']:.2f} | {d['best_share_speedup']:.2f} / "
-                         f"{d['last_share_speedup']:.2f} | "
-                         f"{d['best_q_gap_median']:.2f} / {d['last_q_gap_median']:.2f} | "
-                         f"{d['best_near_tie_share']:.2f} / {d['last_near_tie_share']:.2f} |")  # fmt: skip
+                  "near ties: share of those decisions within 5% of each other.", ""]  # fmt: skip
+        head = ["seed", "chosen step", "speed best / last (m/s)", "lane changes best / last", "'none' best / last",
+                "speed-up best / last", "q gap best / last", "near ties best / last"]  # fmt: skip
+        pairs = ["mean_speed_mps", "lane_changes_per_vehicle", "share_none", "share_speedup", "q_gap_median",
+                 "near_tie_share"]  # fmt: skip
+        rows = [[str(int(d["seed"])), f"{int(d['selected_step']):,}",
+                 *(f"{d[f'best_{k}']:.2f} / {d[f'last_{k}']:.2f}" for k in pairs)] for _, d in diag.iterrows()]
+        lines += md_table(head, rows).split("\n")
         lines += ["", "![validation over training](fig_validation.png)", "", VALIDATION_CAPTION, ""]
         if "screened" in diag and diag["screened"].eq(True).any():
             lines += [TWO_STAGE_NOTE, ""]
@@ -433,14 +434,12 @@ def paired_lines(runs: pd.DataFrame, profile: Any, meta: dict[str, Any]) -> list
             continue
         lines += ["", f"## {title}: each variant minus `{first}`, paired by {unit}", "",
                   f"Mean over {unit}s of the paired difference, 95% bootstrap interval over them, and how many did "
-                  f"better than `{first}` (free flow: mean speed, m/s; accident: total time spent, veh-h).", "",
-                  "| learner | scenario | T_up (s) | difference [95% CI] | better | lane changes / veh, difference |",
-                  "|---|---|---|---|---|---|"]  # fmt: skip
-        for variant in group:
-            for r in paired_rows(runs, variant, first):
-                lines.append(f"| `{variant}` | {r['scenario']} | {r['t_up']:g} | "
-                             f"{_ci(r['diff'], r['low'], r['high'], '{:+.2f}')} | {r['better']} of {r['models']} | "
-                             f"{r['lane_changes']:+.2f} |")  # fmt: skip
+                  f"better than `{first}` (free flow: mean speed, m/s; accident: total time spent, veh-h).", ""]
+        rows = [[f"`{variant}`", r["scenario"], f"{r['t_up']:g}", _ci(r["diff"], r["low"], r["high"], "{:+.2f}"),
+                 f"{r['better']} of {r['models']}", f"{r['lane_changes']:+.2f}"]
+                for variant in group for r in paired_rows(runs, variant, first)]  # fmt: skip
+        lines += md_table(["learner", "scenario", "T_up (s)", "difference [95% CI]", "better",
+                           "lane changes / veh, difference"], rows).split("\n")  # fmt: skip
     return lines
 
 

@@ -9,6 +9,7 @@ from typing import Any
 
 import pandas as pd
 
+from coopsumo.report.markdown import md_table
 from coopsumo.studies.scenario1 import claim_a
 
 PLAN_COMMIT = "40d5c82"
@@ -24,33 +25,29 @@ def _num(value: float, digits: int) -> str:
 def comparison_table(table: pd.DataFrame) -> str:
     """The family's rows: demand, measure, alpha 8 minus alpha 0 [95%], models lower, p, Holm's p, verdict, and the
     smallest effect its models detect with the plan's power."""
-    lines = ["| T_up (s) | measure | alpha 8 - alpha 0 [95%] | models lower | p | Holm p | verdict | detectable |",
-             "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    rows = []
     for r in table.itertuples():
         name, unit, dg = UNITS[str(r.measure)]
-        lines.append(f"| {r.t_up_s:g} | {name} ({unit}) | {_num(r.diff, dg)} [{_num(r.lo, dg)}, {_num(r.hi, dg)}] | "
-                     f"{r.lower} of {r.models} | {r.p:.3f} | {r.p_holm:.3f} | **{r.verdict}** | "
-                     f"{_num(getattr(r, 'detectable', math.nan), dg).lstrip('+')} |")  # fmt: skip
-    return "\n".join(lines)
+        rows.append([f"{r.t_up_s:g}", f"{name} ({unit})", f"{_num(r.diff, dg)} [{_num(r.lo, dg)}, {_num(r.hi, dg)}]",
+                     f"{r.lower} of {r.models}", f"{r.p:.3f}", f"{r.p_holm:.3f}", f"**{r.verdict}**",
+                     _num(getattr(r, "detectable", math.nan), dg).lstrip("+")])  # fmt: skip
+    return md_table(["T_up (s)", "measure", "alpha 8 - alpha 0 [95%]", "models lower", "p", "Holm p", "verdict",
+                     "detectable"], rows)  # fmt: skip
 
 
 def thrashing_table(table: pd.DataFrame) -> str:
-    lines = ["| T_up (s) | thrashing, alpha 8 | thrashing, alpha 0 | Fisher p | Holm p |", "|---|---|---|---|---|"]
-    for r in table.itertuples():
-        lines.append(f"| {r.t_up_s:g} | {r.thrash_a} of {r.models_a} | {r.thrash_b} of {r.models_b} | {r.p:.3f} | "
-                     f"{r.p_holm:.3f} |")  # fmt: skip
-    return "\n".join(lines)
+    rows = [[f"{r.t_up_s:g}", f"{r.thrash_a} of {r.models_a}", f"{r.thrash_b} of {r.models_b}", f"{r.p:.3f}",
+             f"{r.p_holm:.3f}"] for r in table.itertuples()]  # fmt: skip
+    return md_table(["T_up (s)", "thrashing, alpha 8", "thrashing, alpha 0", "Fisher p", "Holm p"], rows)
 
 
 def pilot_table(table: pd.DataFrame) -> str:
-    lines = ["| T_up (s) | measure | alpha 8 - alpha 0 | sd between models | models for 90% power |",
-             "|---|---|---|---|---|"]  # fmt: skip
+    rows = []
     for r in table.itertuples():
         name, unit, dg = UNITS[str(r.measure)]
         needed = "more than 40" if r.needed is None or pd.isna(r.needed) else f"{int(r.needed)}"
-        lines.append(f"| {r.t_up_s:g} | {name} ({unit}) | {_num(r.diff, dg)} | {_num(r.model_sd, dg).lstrip('+')} | "
-                     f"{needed} |")  # fmt: skip
-    return "\n".join(lines)
+        rows.append([f"{r.t_up_s:g}", f"{name} ({unit})", _num(r.diff, dg), _num(r.model_sd, dg).lstrip("+"), needed])
+    return md_table(["T_up (s)", "measure", "alpha 8 - alpha 0", "sd between models", "models for 90% power"], rows)
 
 
 def write_claim_a(root: Path, rows: pd.DataFrame, a: str, b: str, exploratory: str | None = None) -> dict[str, Any]:

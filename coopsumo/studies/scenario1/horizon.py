@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.report import bottleneck as bn
+from coopsumo.report.markdown import md_table
 from coopsumo.studies.scenario1.measures import (
     FIELD_DT_S,
     FIELD_DX_M,
@@ -52,8 +53,7 @@ def recovery_table(rows: pd.DataFrame, t_up: float, start_step: int, dt_s: float
     at = rows[rows["t_up_s"] == t_up].assign(
         step=lambda d: [recovery_step(v, start_step, dt_s) for v in d["recovery_time_s"]])
     at["step"] = at["step"].fillna(math.inf)
-    lines = ["| policy | recovery step of each model (median over its seeds) or run | models or runs recovered | "
-             "mean [min, max] of those | the paper |", "|---|---|---|---|---|"]  # fmt: skip
+    lines = []
     for policy, g in at.groupby("policy", sort=False):
         learned = g["train_seed"].notna().all()
         per = g.groupby("train_seed")["step"].agg(lambda v: float(np.median(v))) if learned else \
@@ -63,8 +63,9 @@ def recovery_table(rows: pd.DataFrame, t_up: float, start_step: int, dt_s: float
         spread = (f"{done.mean():,.0f} [{done.min():,.0f}, {done.max():,.0f}]" if len(done) else "-")
         alpha = _alpha_of(str(policy))
         paper = PAPER_RECOVERY_STEP.get(alpha, "-") if learned and alpha is not None else "-"
-        lines.append(f"| `{policy}` | {cells} | {len(done)} of {len(per)} | {spread} | {paper} |")
-    return "\n".join(lines)
+        lines.append([f"`{policy}`", cells, f"{len(done)} of {len(per)}", spread, paper])
+    return md_table(["policy", "recovery step of each model (median over its seeds) or run", "models or runs recovered",
+                     "mean [min, max] of those", "the paper"], lines)  # fmt: skip
 
 
 def _alpha_of(label: str) -> float | None:
@@ -78,11 +79,10 @@ def _alpha_of(label: str) -> float | None:
 
 def waves_table(wave_rows: pd.DataFrame) -> str:
     """Stop-and-go waves on Fig. 4's lane per policy and demand: mean over its runs [min, max]."""
-    lines = ["| T_up (s) | policy | runs | waves on the lane, mean [min, max] |", "|---|---|---|---|"]
-    for (t_up, policy), g in wave_rows.groupby(["t_up_s", "policy"], sort=False):
-        w = g["lane_waves"]
-        lines.append(f"| {t_up:g} | `{policy}` | {len(w)} | {w.mean():.1f} [{w.min():.0f}, {w.max():.0f}] |")
-    return "\n".join(lines)
+    rows = [[f"{t_up:g}", f"`{policy}`", str(len(g)),
+             f"{g['lane_waves'].mean():.1f} [{g['lane_waves'].min():.0f}, {g['lane_waves'].max():.0f}]"]
+            for (t_up, policy), g in wave_rows.groupby(["t_up_s", "policy"], sort=False)]  # fmt: skip
+    return md_table(["T_up (s)", "policy", "runs", "waves on the lane, mean [min, max]"], rows)
 
 
 def wave_rows(runs: Sequence[tuple[str, float, int | None, int, Path]], lane: int, x_to_m: float,

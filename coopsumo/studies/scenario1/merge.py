@@ -25,6 +25,7 @@ from coopsumo.errors import UsageError
 from coopsumo.files import read_json_object, write_json
 from coopsumo.owners import owned_problem
 from coopsumo.provenance import versions
+from coopsumo.report.markdown import md_table
 from coopsumo.studies.scenario1.measures import aggregate
 from coopsumo.studies.scenario1.plan import model_label
 from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
@@ -240,19 +241,17 @@ def report_text(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]], rows: pd
              f"{', '.join(f'{t:g}' for t in p['t_ups'])} s; {len(p['seeds'])} evaluation seeds; the baselines once "
              "(every part ran them on the same seeds, and they agree to the last digit, the fitted wave speed to a "
              "relative 1e-9).", "",
-             "| part | training seeds | its compute |", "|---|---|---|"]  # fmt: skip
-    for folder, recorded, _ in parts:
-        seeds = ", ".join(str(s) for s in recorded["plan"]["train_seeds"])
-        lines.append(f"| `{folder}` | {seeds} | {_timing(folder)} |")
+             md_table(["part", "training seeds", "its compute"],
+                      [[f"`{folder}`", ", ".join(str(s) for s in recorded["plan"]["train_seeds"]), _timing(folder)]
+                       for folder, recorded, _ in parts])]  # fmt: skip
     spent = [re.search(r"about \d+ min \((\d+) core-min\)", _timing(folder)) for folder, _, _ in parts]
     if all(spent):
         core_min = sum(int(m.group(1)) for m in spent if m)
         lines += ["", f"In all, from scratch: {core_min:,} core-min ({core_min / 60:.1f} core-hours), about "
                       f"{core_min / 120:.1f} h on 2 cores (each part's estimate from the runs it ran itself)."]
     table = rows.groupby(["t_up_s", "policy"], sort=False)["tts_veh_h"].agg(["mean", "std", "count"]).reset_index()
+    rows = [[f"{r.t_up_s:g}", str(r.policy), f"{r.mean:.1f}", "-" if not math.isfinite(r.std) else f"{r.std:.1f}",
+             str(r.count)] for r in table.itertuples()]  # fmt: skip
     lines += ["", "Total time spent (veh-h), mean over models and seeds:", "",
-              "| T_up (s) | policy | mean | sd | runs |", "|---|---|---|---|---|"]  # fmt: skip
-    for r in table.itertuples():
-        sd = "-" if not math.isfinite(r.std) else f"{r.std:.1f}"
-        lines.append(f"| {r.t_up_s:g} | {r.policy} | {r.mean:.1f} | {sd} | {r.count} |")
+              md_table(["T_up (s)", "policy", "mean", "sd", "runs"], rows)]
     return "\n".join(lines)

@@ -21,6 +21,7 @@ from coopsumo.config import ControlConfig, SimConfig, to_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
+from coopsumo.report.markdown import md_table
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import study_root
 from coopsumo.studies.engine.runner import check_backend
@@ -98,17 +99,18 @@ def report(by_length: dict[str, Plan], table: pd.DataFrame, wall_s: float) -> st
         '`results/scenario1/report.md` (regime: "on the road" when at most one vehicle per lane ever waits to '
         "enter; queue reach: the farthest upstream end of the slow queue standing at the bottleneck).",
         "",
-        "| accident | T_up (s) | inflow (veh/h) | seed | regime | queue reach (m) | reached the entrance (s after "
-        "start) | waiting at the end (veh) | system recovery (s after start) | total time spent (veh-h) | "
-        "discharge (veh/h) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
+    rows = []
     for _, r in table.iterrows():
         spilled = "never" if pd.isna(r["spilled_s"]) else f"{r['spilled_s']:.0f}"
         rec = "never" if pd.isna(r["system_recovery_s"]) else f"{r['system_recovery_s']:.0f}"
-        lines.append(f"| {r['accident']} | {r['t_up_s']:g} | {r['inflow_veh_h']:.0f} | {r['seed']} | {r['regime']} | "
-                     f"{r['queue_m']:.0f} | {spilled} | {r['waiting_at_end_veh']:.0f} | {rec} | "
-                     f"{r['tts_veh_h']:.1f} | {r['discharge_veh_h']:.0f} |")  # fmt: skip
+        rows.append([str(r["accident"]), f"{r['t_up_s']:g}", f"{r['inflow_veh_h']:.0f}", str(r["seed"]),
+                     str(r["regime"]), f"{r['queue_m']:.0f}", spilled, f"{r['waiting_at_end_veh']:.0f}", rec,
+                     f"{r['tts_veh_h']:.1f}", f"{r['discharge_veh_h']:.0f}"])  # fmt: skip
+    lines.append(md_table(["accident", "T_up (s)", "inflow (veh/h)", "seed", "regime", "queue reach (m)",
+                           "reached the entrance (s after start)", "waiting at the end (veh)",
+                           "system recovery (s after start)", "total time spent (veh-h)", "discharge (veh/h)"],
+                          rows))  # fmt: skip
     lines += ["", f"Wall time of this invocation: {wall_s / 60:.1f} min. Versions: {versions()}.", ""]
     return "\n".join(lines)
 
