@@ -27,6 +27,7 @@ from coopsumo.config import DemandConfig, SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import ConfigError
 from coopsumo.run_dirs import mark_run_dir
+from coopsumo.studies.engine import ray_probe
 
 SHIM_NAMES = {"ablation": "learning"}
 """the test tables' module names that are not command names"""
@@ -384,7 +385,7 @@ def test_ray_address_that_never_answers_fails_fast(silent_server: int, tmp_path:
                                                    capsys: pytest.CaptureFixture[str],
                                                    monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     pytest.importorskip("ray", reason="ray is not installed")
-    monkeypatch.setattr(validation, "RAY_PROBE_TIMEOUT_S", 1.0)
+    monkeypatch.setattr(ray_probe, "RAY_PROBE_TIMEOUT_S", 1.0)
     address = f"127.0.0.1:{silent_server}"
     code, err, took = _scenario2_ray(address, tmp_path / "out", capsys)
     _check(code, err, tmp_path / "out", ("--address", address, "no answer within 1 s"))
@@ -395,7 +396,7 @@ def test_ray_address_that_is_not_a_ray_cluster_fails_in_time(http2_server: int, 
                                                               capsys: pytest.CaptureFixture[str],
                                                               monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     pytest.importorskip("ray", reason="ray is not installed")
-    monkeypatch.setattr(validation, "RAY_PROBE_TIMEOUT_S", 4.0)
+    monkeypatch.setattr(ray_probe, "RAY_PROBE_TIMEOUT_S", 4.0)
     address = f"127.0.0.1:{http2_server}"
     code, err, took = _scenario2_ray(address, tmp_path / "out", capsys)
     _check(code, err, tmp_path / "out", ("--address", address))
@@ -403,7 +404,7 @@ def test_ray_address_that_is_not_a_ray_cluster_fails_in_time(http2_server: int, 
 
 
 def test_default_ray_probe_fits_in_30_seconds() -> None:
-    assert 5.0 + validation.RAY_PROBE_TIMEOUT_S < 30
+    assert 5.0 + ray_probe.RAY_PROBE_TIMEOUT_S < 30
 
 
 # -- model files and checkpoints of other versions, lane counts and presets ------------------------

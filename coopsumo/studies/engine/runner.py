@@ -226,8 +226,8 @@ def add_backend_flags(parser: Any) -> None:
 
 def check_backend(backend: str, address: str | None) -> None:
     """Usage errors before anything is written: --address without Ray, Ray not installed, a cluster that does
-    not answer (validation.check_ray_address: within 30 s)."""
-    from coopsumo.validation import check_ray_address
+    not answer (ray_probe.check_ray_address: within 30 s)."""
+    from coopsumo.studies.engine.ray_probe import check_ray_address
 
     if address is not None and backend != "ray":
         raise UsageError("--address is for --backend ray")
