@@ -3,15 +3,13 @@
     keep | random | greedy                          no parameters
     mobil[:p=P,threshold=T,b_safe=B,bias=R]          any subset, any order (MOBIL_LIMITS)
     sumo[:lcCooperative=X,lcSpeedGain=X,...]          SUMO's LC2013 factors (SUMO_LC_LIMITS)
-    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,cooldown=S][,noreturn=S][,restart=R][,queue=V][,ensemble=K]
+    dqn:PATH[,alpha=A|alpha=adaptive][,margin=M][,noreturn=S][,restart=R][,queue=V]
                                                      PATH: a model file, or a folder holding model.pt; M: the
                                                      change margin it drives with (Q units; default: the model's);
-                                                     S: seconds after a lane change before another (cooldown),
-                                                     or before the change back (noreturn) (default 0: none);
+                                                     S: seconds after a lane change before the change back
+                                                     (default 0: none);
                                                      R: 'none' withheld below R m/s (default: the model's);
-                                                     V: no lane change chosen below V m/s (default 0: none);
-                                                     K: drive the mean Q-value of the K best-validated snapshots
-                                                     of the model's training (default 1: the model alone)
+                                                     V: no lane change chosen below V m/s (default 0: none)
     py:MODULE:CLASS                                  a class of your own (agents/user_policy.py): MODULE a Python
                                                      file (a path ending in .py) or a module name (MODULE.py in the
                                                      current folder, else an importable module); CLASS a class in it
@@ -39,10 +37,8 @@ ADAPTIVE = "adaptive"
 """the value of a dqn policy's alpha that chooses alpha online from the loops (agents/adaptive.py)"""
 MARGIN_MAX = 100.0
 """the largest change margin a dqn policy string takes (Q units; a few is already large)"""
-COOLDOWN_MAX_S = 600.0
-"""the longest lane-change cooldown a dqn policy string takes (s)"""
-ENSEMBLE_MAX = 20
-"""the most snapshots a dqn policy string averages"""
+NORETURN_MAX_S = 600.0
+"""the longest time a dqn policy string withholds the change back (s)"""
 RESTART_MAX_MPS = 50.0
 """the largest 'none'-withholding speed a dqn policy string takes (m/s; above every expected speed: never 'none')"""
 PLAIN = ("keep", "random", "greedy")
@@ -51,15 +47,19 @@ KEYS: dict[str, dict[str, tuple[float, float, bool]]] = {
     "mobil": MOBIL_LIMITS,
     "sumo": SUMO_LC_LIMITS,
     "dqn": {"alpha": (ALPHA_MIN, ALPHA_MAX, False), "margin": (0.0, MARGIN_MAX, False),
-            "cooldown": (0.0, COOLDOWN_MAX_S, False), "noreturn": (0.0, COOLDOWN_MAX_S, False),
-            "restart": (0.0, RESTART_MAX_MPS, False),
-            "queue": (0.0, RESTART_MAX_MPS, False), "ensemble": (1.0, ENSEMBLE_MAX, False)},
+            "noreturn": (0.0, NORETURN_MAX_S, False), "restart": (0.0, RESTART_MAX_MPS, False),
+            "queue": (0.0, RESTART_MAX_MPS, False)},
 }
 """the parameters each policy takes: key -> (lowest, highest, lowest excluded)"""
+RETIRED_KEYS: dict[str, tuple[str, tuple[float, float, bool]]] = {
+    "cooldown": ("change_cooldown_s", (0.0, 600.0, False)), "ensemble": ("ensemble_snapshots", (1.0, 20.0, False))}
+"""dqn parameters tried and not adopted (issue 80; results/history keeps their rows, each made at the commit it
+names): the drive setting each was recorded as and the range it took. A policy string with one is refused in one
+line; a frozen study's record of one is read as it was (protocol.history)"""
 OWN = ("py", "sb3")
 """policies from the user's own files: a class of their own (py:MODULE:CLASS), a Stable-Baselines3 model (sb3:PATH)"""
 FORMS = ("keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], "
-         "dqn:PATH[,alpha=A|adaptive,margin=M,cooldown=S,noreturn=S,restart=R,queue=V,ensemble=K], py:MODULE:CLASS, "
+         "dqn:PATH[,alpha=A|adaptive,margin=M,noreturn=S,restart=R,queue=V], py:MODULE:CLASS, "
          "sb3:PATH")
 
 
@@ -70,22 +70,18 @@ class PolicySpecError(UsageError):
 @dataclass(frozen=True)
 class PolicySpec:
     """A parsed policy string: its name, its numeric parameters in the order given, and for dqn the model path,
-    alpha (a number, 'adaptive', or None when not given), the change margin (None: the model's own), the
-    lane-change cooldown in seconds (None: none), how long (s) the change back into the lane just left is not chosen
-    (None: no such rule), the speed (m/s) below which 'none' is withheld (None: the
-    model's own), the speed (m/s) below which no lane change is chosen (None: none) and how many best-validated
-    snapshots are averaged (None: the model alone)."""
+    alpha (a number, 'adaptive', or None when not given), the change margin (None: the model's own), how long (s)
+    the change back into the lane just left is not chosen (None: no such rule), the speed (m/s) below which 'none'
+    is withheld (None: the model's own) and the speed (m/s) below which no lane change is chosen (None: none)."""
 
     name: str
     params: tuple[tuple[str, float], ...] = ()
     model: str | None = None
     alpha: float | str | None = None
     margin: float | None = None
-    cooldown: float | None = None
     noreturn: float | None = None
     restart: float | None = None
     queue: float | None = None
-    ensemble: int | None = None
     module: str | None = None
     """py: the module's file or name"""
     class_name: str | None = None
@@ -123,8 +119,6 @@ def _value(text: str, name: str, key: str, value: str) -> float | str:
     if problem := number_problem(number, low, high, low_open):
         also = f" or {ADAPTIVE!r}" if (name, key) == ("dqn", "alpha") else ""
         raise _fail(text, f"{key} must be {problem}{also}, got {value!r}")
-    if (name, key) == ("dqn", "ensemble") and not number.is_integer():
-        raise _fail(text, f"ensemble must be a whole number of snapshots, got {value!r}")
     return number
 
 
@@ -160,6 +154,8 @@ def parse_policy(text: str) -> PolicySpec:
             if name == "dqn":
                 raise _fail(text, f"{item!r} is not KEY=VALUE; a model path cannot hold ',' (rename the folder)")
             raise _fail(text, f"{item!r} is not KEY=VALUE")
+        if name == "dqn" and key in RETIRED_KEYS:
+            raise _fail(text, f"{key} was retired (tried, not adopted: results/history); drive without it")
         if key not in KEYS[name]:
             raise _fail(text, f"unknown parameter {key!r} of {name}; expected one of {', '.join(KEYS[name])}")
         if key in seen:
@@ -172,9 +168,7 @@ def parse_policy(text: str) -> PolicySpec:
             return None if seen.get(key) is None else float(seen[key])
 
         return PolicySpec(name, model=model, alpha=seen.get("alpha"), margin=number("margin"),
-                          cooldown=number("cooldown"), noreturn=number("noreturn"), restart=number("restart"),
-                          queue=number("queue"),
-                          ensemble=None if seen.get("ensemble") is None else int(float(seen["ensemble"])))
+                          noreturn=number("noreturn"), restart=number("restart"), queue=number("queue"))
     return PolicySpec(name, params=tuple((k, float(v)) for k, v in seen.items()))
 
 

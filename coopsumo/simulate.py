@@ -61,8 +61,7 @@ def default_accident(steps: int) -> tuple[int, int]:
     return steps * 2 // 9, max(1, steps * 5 // 9)
 
 
-DQN_VALUES = {"alpha": "A|adaptive", "margin": "M", "cooldown": "S", "noreturn": "S", "restart": "R", "queue": "V",
-              "ensemble": "K"}
+DQN_VALUES = {"alpha": "A|adaptive", "margin": "M", "noreturn": "S", "restart": "R", "queue": "V"}
 """the placeholder --help shows for each parameter of a dqn policy (policy_spec.KEYS["dqn"])"""
 DQN_MODIFIERS = " ".join(f",{key}={DQN_VALUES.get(key, 'X')}" for key in KEYS["dqn"])
 

@@ -19,7 +19,7 @@ from coopsumo.agents.decisions import ActionHold, follow_up, is_decision_step, o
 from coopsumo.agents.dqn import Learner, ReplayBatch, epsilon_at, epsilon_greedy, td_targets
 from coopsumo.config import SimConfig, TrainConfig, results_view, to_dict
 from coopsumo.dqn_config import DQN_PRESETS, PAPER_DQN, DQNConfig, dqn_config_from_dict
-from coopsumo.errors import ConfigError, UsageError
+from coopsumo.errors import ConfigError
 from coopsumo.sim import physics
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, NONE, RIGHT, SPEEDUP
@@ -259,26 +259,6 @@ def test_a_lane_change_must_beat_staying_by_the_change_margin(observation_of: La
     assert learner.act(obs.grids, obs.speed_err, explore=True).tolist() == [LEFT]
 
 
-def test_a_cooldown_withholds_lane_changes_for_its_seconds_after_the_last(observation_of: Layout) -> None:
-    from coopsumo.agents.decisions import cooled_down
-    from coopsumo.agents.dqn_policy import DQNPolicy
-
-    mask = np.ones((3, 4), bool)
-    since = np.array([0.5, 3.0, np.inf])
-    expected = [[False, False], [True, True], [True, True]]
-    np.testing.assert_array_equal(cooled_down(mask, since, 3.0)[:, [LEFT, RIGHT]], expected)
-    assert cooled_down(mask, since, 0.0) is mask
-    changing = observation_of(lane=[1], pos=[300.0], speed=[20.0], v_exp=[25.0], other_lane=[2])  # a change under way
-    free = observation_of(lane=[1], pos=[300.0], speed=[20.0], v_exp=[25.0])
-    for cooldown, rounds_held in ((0.0, 0), (3.0, 2)):  # decisions 1 s apart: 1 and 2 s after < 3 s
-        policy = DQNPolicy(_net_preferring(LEFT, SPEEDUP), decision_interval=10, action_mask=True)  # type: ignore[arg-type]
-        policy.change_cooldown_s = cooldown
-        assert policy.act(changing).tolist() == [SPEEDUP]  # the controller's mask: no change during a change
-        chosen = [int(policy.act(free)[0]) for _ in range(4)]
-        assert chosen == [SPEEDUP] * rounds_held + [LEFT] * (4 - rounds_held), cooldown
-
-
-
 def test_no_return_withholds_only_the_change_back_for_its_seconds(observation_of: Layout) -> None:
     from coopsumo.agents.decisions import no_return
     from coopsumo.agents.dqn_policy import DQNPolicy
@@ -304,7 +284,7 @@ def test_no_return_withholds_only_the_change_back_for_its_seconds(observation_of
     # in the leftmost lane only the change back (right) is left: withheld 1 and 2 s after the change, not at 3 s
     assert drive(0.0, 1, 2) == [RIGHT] * 4
     assert drive(3.0, 1, 2) == [SPEEDUP, SPEEDUP, RIGHT, RIGHT]  # Q ties at 0: the first of speed-up and none
-    assert drive(3.0, 0, 1) == [LEFT] * 4  # onward is never withheld (a cooldown would hold it)
+    assert drive(3.0, 0, 1) == [LEFT] * 4  # onward is never withheld
 
 
 def test_no_return_is_a_learner_setting_a_model_file_carries(tmp_path: Path) -> None:
@@ -377,37 +357,6 @@ def test_a_saved_model_drives_with_its_own_queue_rule_and_a_spec_replaces_it(tmp
     stored = to_dict(queue5)
     del stored["queue_below_mps"]
     assert dqn_config_from_dict(stored).queue_below_mps == 0.0
-
-
-def test_an_ensemble_drives_the_mean_q_of_the_best_validated_snapshots(tmp_path: Path, observation_of: Layout) -> None:
-    """dqn:PATH,ensemble=K: model.pt (the best snapshot) and the next-best K - 1 by validation score vote by their
-    mean Q-value; too few snapshots, or a model that is not the best of them, is a one-line usage error."""
-    from coopsumo.agents import selection
-    from coopsumo.agents.dqn_policy import DQNPolicy
-    from coopsumo.agents.model_file import save_model
-
-    learner = dataclasses.replace(DQNConfig(), dueling=False, observation="paper", change_margin=0.0)
-    meta = {"config": to_dict(TrainConfig(dqn=learner))}
-    # Q(left, speed-up, none) of three snapshots: the best prefers left a little, the others speed-up much more
-    nets = {1: _net_preferring(LEFT, SPEEDUP), 2: _net_preferring(SPEEDUP, NONE), 3: _net_preferring(SPEEDUP, LEFT)}
-    scores = {1: 0.3, 2: 0.2, 3: 0.1}
-    for step, net in nets.items():
-        folder = selection.snapshot_dir(tmp_path, step)
-        folder.mkdir(parents=True)
-        save_model(folder / "model.pt", net, meta)  # type: ignore[arg-type]
-        (folder / selection.RESULT).write_text(json.dumps({"step": step, "score": scores[step]}))
-    save_model(tmp_path / "model.pt", nets[1], meta)  # type: ignore[arg-type]
-    fast = observation_of(lane=[1], pos=[300.0], speed=[20.0], v_exp=[25.0])
-    assert DQNPolicy.from_spec(f"dqn:{tmp_path}").act(fast).tolist() == [LEFT]
-    pair = DQNPolicy.from_spec(f"dqn:{tmp_path},ensemble=2")
-    assert pair.act(fast).tolist() == [SPEEDUP]  # (1 + 0.5) / 2 against (0.5 + 0) / 2
-    assert (pair.trained_on or {})["ensemble_steps"] == [1, 2]
-    assert len(set((pair.trained_on or {})["ensemble_sha256"])) == 2  # what drove, recorded in a run's config.json
-    with pytest.raises(UsageError, match="has 3 validated snapshots"):
-        DQNPolicy.from_spec(f"dqn:{tmp_path},ensemble=4")
-    save_model(tmp_path / "model.pt", nets[2], meta)  # type: ignore[arg-type]
-    with pytest.raises(UsageError, match="is not the best-validated snapshot"):
-        DQNPolicy.from_spec(f"dqn:{tmp_path},ensemble=2")
 
 
 @pytest.mark.parametrize("bad", ["-1", "nan", "abc"])

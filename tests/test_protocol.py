@@ -117,11 +117,11 @@ status = "tried"
 why = "driven with a change margin of 2"
 drive = { change_margin = 2 }
 
-[cd10]
+[nr5]
 parent = "nr10"
 status = "tried"
-why = "driven with a 10 s lane-change cooldown"
-drive = { change_cooldown_s = 10 }
+why = "driven with 5 s without the change back"
+drive = { no_return_s = 5 }
 
 [nr10_off]
 parent = "nr10"
@@ -130,9 +130,9 @@ why = "the same trainings without the change back when they drive"
 drive = { no_return_s = 0.0 }
 
 [lanes]
-parent = "cd10"
+parent = "nr5"
 status = "tried"
-why = "lanes only, and the cooldown of its parent"
+why = "lanes only, and the no-return window of its parent"
 drive = { restart_below_mps = 50.0, queue_below_mps = 5.0 }
 
 [other]
@@ -170,9 +170,9 @@ def test_a_drive_variant_drives_the_same_training_its_own_way(tmp_path: Path) ->
     assert parse_policy(driven_policy(m2, Path("/m"))).margin == 2.0
     drives = {s["variant"]: parse_policy(driven_policy(s, Path("/m"))) for s in specs.values()
               if s["key"].endswith("a0_seed104_free_t2")}  # fmt: skip
-    assert drives["cd10"].cooldown == 10.0 and drives["cd10"].margin is None
+    assert drives["nr5"].noreturn == 5.0 and drives["nr5"].margin is None
     assert drives["nr10_off"].noreturn == 0.0 and drives["nr10"].noreturn is None
-    assert (drives["lanes"].restart, drives["lanes"].queue, drives["lanes"].cooldown) == (50.0, 5.0, 10.0)
+    assert (drives["lanes"].restart, drives["lanes"].queue, drives["lanes"].noreturn) == (50.0, 5.0, 5.0)
     keys = {s["variant"]: s["train_key"] for s in specs.values() if s["seed"] == 105 and s["alpha"] == 0.0}
     assert len({k for v, k in keys.items() if v != "other"}) == 1 and keys["other"] != keys["nr10"]
     alpha8 = [s for s in specs.values() if s["alpha"] == 8.0]

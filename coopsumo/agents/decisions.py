@@ -60,17 +60,6 @@ def no_change_in_queue(mask: np.ndarray, speed_mps: np.ndarray, below_mps: float
     return out
 
 
-def cooled_down(mask: np.ndarray, since_change_s: np.ndarray, cooldown_s: float) -> np.ndarray:
-    """(n, 4) mask without left and right for vehicles whose last lane change was under way less than cooldown_s
-    seconds ago (since_change_s; inf when never): a learned vehicle cannot change back and forth at once."""
-    if cooldown_s <= 0:
-        return mask
-    out = mask.copy()
-    out[since_change_s < cooldown_s, LEFT] = False
-    out[since_change_s < cooldown_s, RIGHT] = False
-    return out
-
-
 def no_return(mask: np.ndarray, since_change_s: np.ndarray, last_change: np.ndarray, window_s: float) -> np.ndarray:
     """(n, 4) mask without the change back into the lane a vehicle's last lane change left (last_change LEFT or
     RIGHT; anything else: none), for window_s seconds after that change was last under way (since_change_s; inf when

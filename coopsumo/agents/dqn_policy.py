@@ -9,10 +9,9 @@ import numpy as np
 import torch
 
 from coopsumo.agents.adaptive import DEFAULT_RULE, AdaptiveRule, LoopInterval, choose_alpha
-from coopsumo.agents.decisions import cooled_down, no_change_in_queue, no_return, offered, with_change_margin
+from coopsumo.agents.decisions import no_change_in_queue, no_return, offered, with_change_margin
 from coopsumo.agents.dqn import GRID_SHAPE, N_ACTIONS, QNetwork
 from coopsumo.agents.model_file import ModelFileError, load_model
-from coopsumo.agents.snapshots import by_score, results, snapshot_dir
 from coopsumo.config import MAX_LANES, MIN_LANES, SIM_LIMITS, ControlConfig
 from coopsumo.dqn_config import PAPER_DQN, dqn_config_from_dict
 from coopsumo.errors import ConfigError, UsageError
@@ -98,8 +97,6 @@ class DQNPolicy:
         self.action_mask = action_mask
         self.restart_below_mps = restart_below_mps
         self.change_margin = change_margin
-        self.change_cooldown_s = 0.0
-        """seconds after a lane change during which no other is chosen (0: none; set by dqn:PATH,cooldown=S)"""
         self.no_return_s = no_return_s
         """seconds after a lane change during which the change back is not chosen (0: none; the model's
         DQNConfig.no_return_s, or dqn:PATH,noreturn=S)"""
@@ -121,14 +118,12 @@ class DQNPolicy:
         self._rounds = 0  # decision rounds driven
         self._busy_round = np.zeros(0, np.int64)  # the last round each vehicle was seen changing lanes (0: never)
         self._last_change = np.full(0, -1, np.int64)  # the direction (LEFT, RIGHT) of its last lane change (-1: none)
-        self.companions: list[QNetwork] = []
-        """more networks whose Q-values are averaged with net's (dqn:PATH,ensemble=K: the next-best snapshots)"""
         self.q_log: list[np.ndarray] | None = None
         """when a list: every fresh decision appends its rows [Q-values (4), offered (4), action] (diagnosis)"""
 
     @classmethod
     def from_spec(cls, spec: str, lanes: int = 3) -> DQNPolicy:
-        """The policy of 'dqn:PATH[,alpha=A|adaptive][,margin=M][,cooldown=S][,noreturn=S][,restart=R][,queue=V]' on
+        """The policy of 'dqn:PATH[,alpha=A|adaptive][,margin=M][,noreturn=S][,restart=R][,queue=V]' on
         a road of `lanes` lanes (policy_spec: the one grammar).
 
         alpha is for an alpha-conditioned model only, and such a model needs it: otherwise a usage error. margin
@@ -142,19 +137,12 @@ class DQNPolicy:
         if parsed.margin is not None:
             policy.change_margin = parsed.margin
             policy.trained_on = dict(policy.trained_on or {}, driven_change_margin=parsed.margin)
-        if parsed.cooldown is not None:
-            policy.change_cooldown_s = parsed.cooldown
-            policy.trained_on = dict(policy.trained_on or {}, driven_change_cooldown_s=parsed.cooldown)
         if parsed.noreturn is not None:
             policy.no_return_s = parsed.noreturn
             policy.trained_on = dict(policy.trained_on or {}, driven_no_return_s=parsed.noreturn)
         if parsed.queue is not None:
             policy.queue_below_mps = parsed.queue
             policy.trained_on = dict(policy.trained_on or {}, driven_queue_below_mps=parsed.queue)
-        if parsed.ensemble is not None and parsed.ensemble > 1:
-            steps, digests = policy.average_snapshots(path, parsed.ensemble)
-            policy.trained_on = dict(policy.trained_on or {}, driven_ensemble=parsed.ensemble, ensemble_steps=steps,
-                                     ensemble_sha256=digests)  # fmt: skip
         if parsed.restart is not None:
             policy.restart_below_mps = parsed.restart
             policy.trained_on = dict(policy.trained_on or {}, driven_restart_below_mps=parsed.restart)
@@ -169,36 +157,6 @@ class DQNPolicy:
             policy.drive_at(alpha, lanes)
             policy.trained_on = dict(policy.trained_on or {}, driven_alpha=alpha)
         return policy
-
-    def average_snapshots(self, path: str, k: int) -> tuple[list[int], list[str]]:
-        """Drive the mean Q-value of the k best-validated snapshots of the training that made the model at `path`
-        (its folder's snapshots/, best validation score first, ties to the earlier step): the model must be the
-        best of them, as model selection makes it. Returns their steps and file digests; UsageError naming what is
-        missing."""
-        folder = Path(model_file(path)).parent
-        found = by_score(results(folder))
-        if len(found) < k:
-            raise UsageError(f"ensemble={k}: the training in {folder} has {len(found)} validated snapshots; give "
-                             "the model.pt of a training that selects its model (--select-every), or a smaller K")
-        steps = [int(r["step"]) for r in found[:k]]
-        files = [snapshot_dir(folder, step) / "model.pt" for step in steps]
-        nets = []
-        for file in files:
-            try:
-                net, _ = load_model(file)
-            except ModelFileError as err:
-                raise UsageError(str(err)) from None
-            nets.append(net.eval())
-        mine, best = self.net.state_dict(), nets[0].state_dict()
-        if mine.keys() != best.keys() or not all(torch.equal(mine[key], best[key]) for key in mine):
-            raise UsageError(f"ensemble={k}: {model_file(path)} is not the best-validated snapshot of its training "
-                             f"(step {steps[0]}); drive the training's model.pt")  # fmt: skip
-        shape = [(n.observation, n.dueling, n.conditioned, n.speed_scale_mps) for n in nets]
-        if len(set(shape)) != 1:
-            raise UsageError(f"ensemble={k}: the snapshots in {folder} read different inputs")
-        self.companions = nets[1:]
-        self._action[:] = -1  # choices remembered from one network
-        return steps, [file_sha256(file) for file in files]
 
     def drive_at(self, alpha: float | str, lanes: int) -> None:
         """Drive a conditioned network at a fixed alpha, or at 'adaptive' by DEFAULT_RULE on a road of `lanes`."""
@@ -301,10 +259,9 @@ class DQNPolicy:
             # a change under way was started by the vehicle's last choice (no change is offered while one runs)
             started = obs.busy & ((self._action[nums] == LEFT) | (self._action[nums] == RIGHT))
             self._last_change[nums[started]] = self._action[nums[started]]
-        if self.change_cooldown_s > 0 or self.no_return_s > 0:
+        if self.no_return_s > 0:
             last = self._busy_round[nums]
             since_s = np.where(last > 0, (self._rounds - last) * self.decision_interval * DT_S, np.inf)
-            mask = cooled_down(mask, since_s, self.change_cooldown_s)
             mask = no_return(mask, since_s, self._last_change[nums], self.no_return_s)
         mask = no_change_in_queue(mask, obs.speed, self.queue_below_mps)
         # the features (speeds, gaps) differ for nearly every moving vehicle: the grids and masks are compared only
@@ -322,8 +279,6 @@ class DQNPolicy:
                 inputs.append(torch.full((int(fresh.sum()),), float(self.alpha)))
             with torch.no_grad():
                 q = self.net(*inputs)
-                if self.companions:
-                    q = torch.stack([q, *(net(*inputs) for net in self.companions)]).mean(dim=0)
             chosen = np.where(mask[fresh], with_change_margin(q.numpy(), self.change_margin), -np.inf)
             actions[fresh] = chosen.argmax(axis=1)
             if self.q_log is not None:

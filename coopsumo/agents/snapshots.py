@@ -1,5 +1,5 @@
 """Where a training that selects its model keeps its snapshots and their validations (agents/selection.py makes
-them; a dqn policy driving an ensemble of them reads them).
+them; model selection reads them back).
 
 OUT/snapshots/step<N>/model.pt is the weights that drive at training step N (the online network),
 OUT/snapshots/step<N>/validation.json the

@@ -140,17 +140,18 @@ def learner_problem(learner: dict[str, Any]) -> str | None:
 
 def drive_problem(drive: dict[str, Any]) -> str | None:
     """Why a study.json learner's drive settings are not a dqn policy's, or None: a key that is not one of
-    protocol.plan.DRIVES (a cell's config.drive), or a value that is not a number in the range the dqn policy string
-    takes for it (policy_spec.KEYS; an ensemble a whole number)."""
-    from coopsumo.policy_spec import KEYS
+    protocol.plan.DRIVES (a cell's config.drive) or a retired one (policy_spec.RETIRED_KEYS, read as it was), or a
+    value that is not a number in the range the dqn policy string takes or took for it (policy_spec.KEYS; an
+    ensemble a whole number)."""
+    from coopsumo.policy_spec import KEYS, RETIRED_KEYS
     from coopsumo.studies.protocol.plan import DRIVES
     from coopsumo.validation import number_problem
 
-    fields = {key: field for field, key, _ in DRIVES}
+    limits = {key: KEYS["dqn"][field] for field, key, _ in DRIVES} | dict(RETIRED_KEYS.values())
     for key, value in drive.items():
-        if key not in fields:
-            return f"drives with {str(key)[:40]}, a setting no policy takes (known: {', '.join(fields)})"
-        low, high, low_open = KEYS["dqn"][fields[key]]
+        if key not in limits:
+            return f"drives with {str(key)[:40]}, a setting no policy takes (known: {', '.join(limits)})"
+        low, high, low_open = limits[key]
         number = as_float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
         problem = number_problem(number, low, high, low_open)
         if problem is None and key == "ensemble_snapshots" and not number.is_integer():

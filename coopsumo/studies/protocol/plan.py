@@ -63,13 +63,12 @@ STATUSES = ("default", "current", "tried", "retired")
 WEIGHTS = ("model.pt", "model_last.pt")
 
 
-DRIVES = (("margin", "change_margin", "change margin"), ("cooldown", "change_cooldown_s", "lane-change cooldown (s)"),
-          ("noreturn", "no_return_s", "no change back within (s)"),
+DRIVES = (("margin", "change_margin", "change margin"), ("noreturn", "no_return_s", "no change back within (s)"),
           ("restart", "restart_below_mps", "'none' withheld below (m/s)"),
-          ("queue", "queue_below_mps", "no lane change below (m/s)"),
-          ("ensemble", "ensemble_snapshots", "best-validated snapshots averaged"))
+          ("queue", "queue_below_mps", "no lane change below (m/s)"))
 """how a variant may drive its trainings otherwise: its field (also the key of the dqn policy string), the key in a
-cell's config.drive (and in a variant's `drive` table in learners.toml), and the report's words"""
+cell's config.drive (and in a variant's `drive` table in learners.toml), and the report's words (the retired ones:
+policy_spec.RETIRED_KEYS)"""
 
 
 @dataclass(frozen=True)
@@ -83,16 +82,12 @@ class Variant:
     weights: str = "model.pt"
     margin: float | None = None
     """the change margin it drives with (Q units; None: the learner's own); the trainings are the same"""
-    cooldown: float | None = None
-    """the lane-change cooldown it drives with (s; None: none)"""
     noreturn: float | None = None
     """how long after a lane change it does not choose the change back (s; None: no such rule)"""
     restart: float | None = None
     """the speed below which it withholds 'none' (m/s; None: the learner's own)"""
     queue: float | None = None
     """the speed below which it chooses no lane change (m/s; None: none)"""
-    ensemble: int | None = None
-    """how many best-validated snapshots of its training it averages the Q-values of (None: model.pt alone)"""
 
     def drive(self) -> dict[str, float]:
         """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""

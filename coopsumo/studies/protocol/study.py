@@ -95,8 +95,8 @@ def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
 
 
 def driven_policy(spec: dict[str, Any], model_dir: Path) -> str:
-    """The policy string a model cell drives: its weights in model_dir, with the cell's change margin and lane-change
-    cooldown, 'none' and queue speeds if it has them (config.drive); an alpha-conditioned model at the cell's alpha."""
+    """The policy string a model cell drives: its weights in model_dir, with the cell's change margin, no-return
+    window, 'none' and queue speeds if it has them (config.drive); an alpha-conditioned model at the cell's alpha."""
     drive = spec["config"].get("drive", {})
     extra = "".join(f",{field}={drive[key]:g}" for field, key, _ in DRIVES if key in drive)
     if spec["config"]["train"]["dqn"].get("alpha_conditioned"):
