@@ -241,3 +241,9 @@ def names_problem(names: Sequence[str], known: Sequence[str], least: int = 1) ->
     if unknown := [x for x in names if x not in known]:
         return f"names unknown {', '.join(map(repr, unknown))}; expected some of {', '.join(known)}"
     return None
+
+
+def digits(text: str) -> bool:
+    """Whether `text` is a whole number written in ASCII digits only: str.isdigit() also takes '²' or '٣', which
+    int() refuses or reads, so a record's counter would pass the check and then end in a traceback (probe 6, H6)."""
+    return text.isascii() and text.isdigit()

@@ -231,3 +231,17 @@ def test_the_protocol_studys_diagnosis_and_figure_read_validation_checked(tmp_pa
                      lambda: validation_curves_figure(tmp_path, [key], tmp_path / "fig.png")):
             with pytest.raises(RecordError, match=f"^{path} {fragment}"):
                 read()
+
+
+@pytest.mark.parametrize("digit", ["²", "٣", "①"])
+def test_a_step_in_digits_other_than_ascii_is_a_row_that_is_not_one(digit: str, tmp_path: Path) -> None:
+    """The probe's H6: str.isdigit() takes '²', which int() refuses (a traceback), and '٣', which int() reads as 3:
+    a step in any digit but 0-9 is not one of the log's rows."""
+    log, val = tmp_path / "train_log.csv", tmp_path / "validation.csv"
+    log.write_text("".join(train_log()[:2] + [train_log()[2].replace("200,", f"{digit}00,", 1)] + train_log()[3:]),
+                   encoding="utf-8")  # fmt: skip
+    assert (log_problem(log, 300) or "").startswith(f"has a row that is not one of its rows after that of step 100: "
+                                                     f"'{digit}00,")  # fmt: skip
+    val.write_text("".join(VALIDATION[:2] + [f"{digit}" + VALIDATION[2][1:]] + VALIDATION[3:]), encoding="utf-8")
+    assert (validation_problem(val, 300, 300) or "").startswith("has a row that is not one of its rows after that of "
+                                                                "step 100")  # fmt: skip

@@ -23,7 +23,7 @@ import torch
 from coopsumo.agents.training_logs import LOG_RULES as LOG_RULES
 from coopsumo.agents.training_logs import log_problem
 from coopsumo.dqn_config import DQNConfig
-from coopsumo.field_rules import as_float, shown
+from coopsumo.field_rules import as_float, digits, shown
 from coopsumo.files import read_json_object, read_text, write_atomic
 from coopsumo.record_schemas import (
     CHECKPOINT_TENSORS,
@@ -353,7 +353,7 @@ def truncate_log(path: Path, step: int) -> int:
     kept = [lines[0]] if lines[0].endswith("\n") else []
     for line in lines[1:]:
         row = next(csv.reader([line]), [])
-        if not line.endswith("\n") or len(row) != width or not row[0].isdigit() or int(row[0]) > step:
+        if not line.endswith("\n") or len(row) != width or not digits(row[0]) or int(row[0]) > step:
             break
         kept.append(line)
     dropped = len(lines) - len(kept)

@@ -42,6 +42,7 @@ from coopsumo.agents.snapshots import (  # also selection.*
     snapshot_dir,
 )
 from coopsumo.config import AccidentConfig, SimConfig, TrainConfig, sim_config_from_dict, to_dict
+from coopsumo.field_rules import digits
 from coopsumo.files import read_json, read_json_object, write_atomic
 
 if TYPE_CHECKING:
@@ -166,7 +167,7 @@ def install_best(out: Path) -> dict[str, Any] | None:
 
 def snapshot_folders(out: Path) -> list[Path]:
     """A training's snapshot folders, by step."""
-    found = [d for d in (out / SNAPSHOTS).glob("step*") if d.name[4:].isdigit()]
+    found = [d for d in (out / SNAPSHOTS).glob("step*") if digits(d.name[4:])]
     return sorted(found, key=lambda d: int(d.name[4:]))
 
 
@@ -414,7 +415,7 @@ class Validator:
         self.proc: subprocess.Popen[bytes] | None = None
         (out / SNAPSHOTS).mkdir(exist_ok=True)
         for d in (out / SNAPSHOTS).glob("step*"):  # a resume re-trains the steps after its checkpoint
-            if not d.name[4:].isdigit() or int(d.name[4:]) > resumed_step:
+            if not digits(d.name[4:]) or int(d.name[4:]) > resumed_step:
                 shutil.rmtree(d, ignore_errors=True)
         self.queue = pending(out)
 

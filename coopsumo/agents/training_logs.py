@@ -15,6 +15,7 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from coopsumo.field_rules import digits
 from coopsumo.files import read_text
 from coopsumo.record_schemas import (
     PER_VEHICLE,
@@ -76,7 +77,7 @@ def read_log(path: Path) -> tuple[str | None, str | None]:
 
 def _log_step(line: str, row: list[str], width: int) -> int | None:
     """The step of a whole train_log.csv row, None for a row cut short or not one of its rows."""
-    return int(row[0]) if line.endswith("\n") and len(row) == width and row[0].isdigit() else None
+    return int(row[0]) if line.endswith("\n") and len(row) == width and digits(row[0]) else None
 
 
 def _cells_problem(names: Sequence[str], row: Sequence[str], rules: Mapping[str, Any], step: int) -> str | None:
@@ -158,7 +159,7 @@ def validation_text_problem(text: str, steps: int | None = None, selected: Any =
              **VALIDATION_RULES}  # fmt: skip
     best, last = [], -1
     for row in rows[1:]:
-        if len(row) != len(names) or not row[0].isdigit():
+        if len(row) != len(names) or not digits(row[0]):
             return f"has a row that is not one of its rows after that of step {last}: {','.join(row)[:40]!r}"
         step = int(row[0])
         if step <= last:

@@ -55,6 +55,7 @@ from coopsumo.envs.common import (
     step_info,
     vehicle_observation,
 )
+from coopsumo.field_rules import digits
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import SPEEDUP
 from coopsumo.sim.reward import RewardParts
@@ -69,7 +70,7 @@ def agent_name(num: int) -> str:
 
 
 def agent_num(name: str) -> int:
-    if not name.startswith(AGENT_PREFIX) or not name[len(AGENT_PREFIX) :].isdigit():
+    if not name.startswith(AGENT_PREFIX) or not digits(name[len(AGENT_PREFIX) :]):
         raise ValueError(f"not an agent name: {name!r}; expected {AGENT_PREFIX}<number>")
     return int(name[len(AGENT_PREFIX) :])
 
