@@ -52,6 +52,16 @@ def _is_count(x: Any) -> bool:
     return isinstance(x, numbers.Integral) and not isinstance(x, bool) and int(x) >= 0
 
 
+def odd_tensor(x: Any, where: str = "") -> str | None:
+    """Where the nested mappings and lists `x` hold a tensor that is not a plain one (dense, in this machine's
+    memory): a sparse or meta tensor passes torch's safe loader but no check can read its values (probe 6, H1)."""
+    if isinstance(x, torch.Tensor):
+        plain = x.layout == torch.strided and x.device.type == "cpu"
+        return None if plain else f"{where or 'a tensor'} ({x.layout}, {x.device.type})"
+    items = x.items() if isinstance(x, Mapping) else enumerate(x) if isinstance(x, list | tuple) else ()
+    return next((found for key, value in items if (found := odd_tensor(value, f"{where}.{key}".lstrip(".")))), None)
+
+
 def _weights_problem(weights: Any, what: str) -> str | None:
     """Why a state dict of weights is not one (a mapping of names to finite float tensors), or None."""
     if not isinstance(weights, Mapping) or not weights:
@@ -69,6 +79,8 @@ def model_problem(payload: Mapping[str, Any]) -> str | None:
     """Why a model file's payload (keys checked by the caller) cannot be used, or None: grid shape a list of
     positive integers, action count an integer, speed scale a finite positive number within its setting's limits,
     dueling a bool, weights finite tensors, meta a mapping."""
+    if (where := odd_tensor(payload)) is not None:
+        return f"holds a tensor that is not a dense one in memory: {where}"
     shape = payload["grid_shape"]
     if not isinstance(shape, list | tuple) or not all(_is_count(n) and n > 0 for n in shape):
         return f"has grid shape {shape!r}, not a list of positive integers"
@@ -107,6 +119,8 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
     a mapping with sim and dqn mappings; step a count; one recorded action count per step, the actions 0-3 and
     as many as counted; the log window a mapping of numbers; the learner's state complete, counts as counts,
     weights finite."""
+    if (where := odd_tensor(state)) is not None:
+        return f"holds a tensor that is not a dense one in memory: {where}"
     config = state["config"]
     if not isinstance(config, Mapping) or not all(isinstance(config.get(k), Mapping) for k in ("sim", "dqn")):
         return "has no training configuration (sim and dqn settings)"
