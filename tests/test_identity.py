@@ -100,7 +100,7 @@ def test_impossible_summaries_are_not_trusted(edit: dict, fragment: str) -> None
 def test_loop_flows_above_what_a_lane_carries_are_not_trusted(tmp_path: Path) -> None:
     path = tmp_path / "detectors.xml"
     cfg = to_dict(SimConfig(steps=600))
-    row = ('<interval begin="0.00" end="60.00" id="loop_0_0" nVehContrib="{}" flow="{}" occupancy="5.00" '
+    row = ('<interval begin="0.00" end="60.00" id="e1_x00200_l0" nVehContrib="{}" flow="{}" occupancy="5.00" '
            'speed="20.00"/>\n')
     path.write_text("<detector>\n" + row.format(30, "1800.00") + "</detector>\n")
     assert detectors_problem(path, cfg, 60.0) is None

@@ -155,6 +155,16 @@ CASES: dict[str, tuple[Callable[[Path], None], str]] = {
     "a negative count": (text("detectors.xml", lambda x: _interval_flow(x, -1, "-360.00")), "field nVehContrib"),
     "a count of 2.5": (text("detectors.xml", lambda x: _interval_flow(x, 2.5, "900.00")), "field nVehContrib"),
     "a speed not a number": (text("detectors.xml", lambda x: _attribute(x, "speed", "fast")), "lacking a number"),
+    # probe 6, H7: passed the checks, then the measures' reader failed with a traceback
+    "a bare interval": (text("detectors.xml", lambda x: x.replace("<interval ", "<interval/>\n    <interval ", 1)),
+                        "an interval of a loop whose id is not e1_x<pos>_l<lane>: <interval/>"),
+    "an attribute twice": (text("detectors.xml", lambda x: x.replace(' flow="', ' flow="1" flow="', 1)),
+                           "an interval giving an attribute twice"),
+    "a loop id of another form": (text("detectors.xml", lambda x: x.replace('id="e1_', 'id="zz', 1)),
+                                  "an interval of a loop whose id is not e1_x<pos>_l<lane>"),
+    "a comment that breaks the XML": (text("detectors.xml", lambda x: x.replace("</detector>",
+                                                                                "<!-- -- --></detector>")),
+                                      "has a detectors.xml the measures cannot read (detector output"),
     "detectors.xml deleted": (lambda out: (out / "detectors.xml").unlink(),
                               "has lost detectors.xml, which its .coopsumo-run.json lists"),  # was blamed on the marker
     "tripinfo.xml deleted": (lambda out: (out / "tripinfo.xml").unlink(), "has no tripinfo.xml"),

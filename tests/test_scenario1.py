@@ -274,8 +274,8 @@ def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
     summary = {**dict.fromkeys(run_folders.RUN_SUMMARY, 1.0), "throughput_veh_per_h": 0.0, "steps": cfg.steps,
                "sim_seconds": cfg.steps * cfg.control.dt_s}  # fmt: skip
     (out / "summary.json").write_text(json.dumps(summary))
-    rows = [f'<interval begin="{t}" end="{t + 60}" id="e1" nVehContrib="0" flow="0.00" occupancy="0.00" speed="-1.00"/>'
-            for t in range(0, 900, 60)]  # SUMO's E1 attributes (its -1: no vehicle)
+    rows = [f'<interval begin="{t}" end="{t + 60}" id="e1_x00200_l0" nVehContrib="0" flow="0.00" occupancy="0.00" '
+            'speed="-1.00"/>' for t in range(0, 900, 60)]  # SUMO's E1 attributes (its -1: no vehicle)
     (out / "detectors.xml").write_text("<detector>\n" + "\n".join(rows) + "\n</detector>\n")
     run_dirs.mark_run_dir(out, "simulate")  # simulate's marker, listing its files: the study may run it again
     model = tmp_path / "model.pt"

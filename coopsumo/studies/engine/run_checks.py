@@ -76,7 +76,7 @@ def run_summary_problem(summary: dict[str, Any], cfg: dict[str, Any]) -> str | N
     return None
 
 
-_INTERVAL = re.compile(rb"<interval\s([^>]*)>")
+_INTERVAL = re.compile(rb"<interval(?=[\s/>])([^>]*)>")
 _ATTRIBUTE = re.compile(rb'([\w:]+)="([^"]*)"')
 
 
@@ -103,13 +103,30 @@ def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> st
         return "has a detectors.xml without an interval"
     if abs(last_end - sim_seconds) > dt / 2:
         return f"has detectors.xml ending at {last_end:g} s, but the run lasted {sim_seconds:g} s"
+    return _unreadable_detectors(path)
+
+
+def _unreadable_detectors(path: Path) -> str | None:
+    """Why the measures' own reader (report.analysis.read_detectors, SUMO's parser) cannot read a detectors.xml the
+    checks above passed (not well-formed XML, e.g. an attribute twice), or None (probe 6, H7)."""
+    from coopsumo.report.analysis import read_detectors
+
+    try:
+        read_detectors(path)
+    except (ValueError, TypeError, KeyError) as err:
+        return f"has a detectors.xml the measures cannot read ({str(err).splitlines()[0][:160]})"
     return None
 
 
 def _interval_problem(match: re.Match[bytes], sim_seconds: float, dt: float, period: float) -> str | None:
     """Why one <interval> of detectors.xml cannot be trusted (words after "has detectors.xml with"), or None."""
-    attrs = {k.decode(errors="replace"): v.decode(errors="replace") for k, v in _ATTRIBUTE.findall(match.group(1))}
+    pairs = _ATTRIBUTE.findall(match.group(1))
+    attrs = {k.decode(errors="replace"): v.decode(errors="replace") for k, v in pairs}
     shown = match.group(0).decode(errors="replace")[:120]
+    if len(attrs) != len(pairs):
+        return f"an interval giving an attribute twice: {shown}"
+    if not re.fullmatch(r"e1_x[0-9]+_l[0-9]+", attrs.get("id", "")):
+        return f"an interval of a loop whose id is not e1_x<pos>_l<lane>: {shown}"
     try:
         begin, end, count, flow = (float(attrs[k]) for k in ("begin", "end", "nVehContrib", "flow"))
         numbers = {k: float(v) for k, v in attrs.items() if k != "id"}
