@@ -145,11 +145,15 @@ def check_study_place(root: Path, hosts: Sequence[Path] = ()) -> None:
     simulate run's or a training's folder, the model store (owners.owned_problem, as for a single run's --out; issue
     82, probe 5, G1-G2: the study was written there, and that folder's command then refused its own folder). `root`
     itself may be a study's: check_study_root judges whose. hosts: folders the root may lie directly in (accident-seeds'
-    default ROOT/accident, in the learning study it reads), whose own place is judged instead."""
+    default ROOT/accident, in the learning study it reads), whose own place is judged instead; only a learning study's
+    root is one (its marker's kind LEARNING_KIND; issue 82, probe 6, H2: a scenario II study given as a ROOT took
+    accident-seeds' study into its folder)."""
     from coopsumo.owners import owned_problem
+    from coopsumo.run_markers import LEARNING_KIND, marker_kind
 
     real = root.resolve()
-    place = real.parent if real.parent in {host.resolve() for host in hosts} else real
+    learning = {host.resolve() for host in hosts if marker_kind(host) == LEARNING_KIND}
+    place = real.parent if real.parent in learning else real
     if problem := owned_problem(place, f"--out {root}"):
         raise UsageError(problem)
 

@@ -19,6 +19,9 @@ before "finished" was (files null while its command ran) reads as it did (run_di
 
 RUN_KINDS = ("simulate", "train")
 """the kinds of marker a single command writes (run_dirs' users); every other kind marks a study's root"""
+LEARNING_KIND = "ablation"
+"""the kind of marker `coopsumo learning` writes on its study's root: the only study accident-seeds reads (its ROOTs),
+and the only one it may write directly into (run_dirs.check_study_place's hosts)"""
 
 
 def read_marker(folder: Path) -> dict[str, Any] | None:

@@ -150,6 +150,56 @@ def test_accident_seeds_may_go_directly_into_the_learning_study_it_reads(tmp_pat
             check_study_place(root, hosts=hosts)
 
 
+def test_accident_seeds_goes_directly_only_into_a_learning_study(tmp_path: Path) -> None:
+    """Probe 6, H2: a scenario II study given as a ROOT beside the learning study was a host too, so `accident-seeds
+    learned s2 --out s2/acc` wrote into the scenario II study's folder. Only a ROOT whose marker says it is a
+    learning study's (the kind `learning` writes) is a host; no marker, or another study's, is none."""
+    folders = owned_folders(tmp_path)
+    other, unmarked = folders["study"], tmp_path / "unmarked"
+    (unmarked / "cells").mkdir(parents=True)
+    for host in (other, folders["simulate"]):
+        with pytest.raises(UsageError, match=f"lies inside {host}, a coopsumo|lies inside {host}, the folder"):
+            check_study_place(host / "acc", hosts=[host])
+    check_study_place(unmarked / "acc", hosts=[unmarked])  # a folder no marker claims: nothing to lie inside
+
+
+NOT_LEARNING = {"scenario2": "a coopsumo scenario2 study's folder, not a learning study's",
+                "simulate": "the folder of a coopsumo simulate run, not a learning study's",
+                "unreadable marker": f"has a {RUN_MARKER} that names no command (damaged?)",
+                "sweep.json": "holds sweep.json, another study's plan file, not a learning study's study.json",
+                "plan.json": "holds plan.json, another study's plan file"}  # fmt: skip
+"""a ROOT accident-seeds is given that is not a learning study's folder, and what its refusal says"""
+
+
+@pytest.mark.parametrize("case", NOT_LEARNING)
+def test_accident_seeds_reads_only_a_learning_studys_folder(case: str, tmp_path: Path,
+                                                            monkeypatch: pytest.MonkeyPatch,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Probe 6, H2: any folder with cells/ was taken for a learning study. A ROOT whose marker names another study or
+    run, whose marker cannot be read, or (no marker) that holds another study's plan file is refused in one line
+    before anything is written, given alone or beside a learning study, with --out inside it or elsewhere."""
+    from test_study_commands import learning_folder
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("COOPSUMO_MODELS", str(tmp_path / "store"))
+    learning_folder(tmp_path / "learned", ("margin",))
+    root = tmp_path / "s2"
+    (root / "cells").mkdir(parents=True)
+    if case in ("scenario2", "simulate"):
+        mark_run_dir(root, case, finished=False, study=TINY_SWEEP if case == "scenario2" else None)
+    elif case == "unreadable marker":
+        (root / RUN_MARKER).write_text('{"kind": 3}')
+    else:
+        (root / case).write_text("{}")
+    before = listing(tmp_path)
+    for roots, out in ((["learned", str(root)], root / "acc"), ([str(root)], tmp_path / "acc"),
+                       ([str(root), "learned"], tmp_path / "learned" / "accident")):  # fmt: skip
+        argv = [*roots, "--variants", "margin", "--seeds", "1", "--steps", "600", "--quiet", "--out", str(out)]
+        one_line(capsys, run("accident-seeds", argv), f"{root} ", NOT_LEARNING[case], "give the --out of `coopsumo "
+                 "learning`")  # fmt: skip
+        assert listing(tmp_path) == before
+
+
 # -- G3: the model store in a folder a marker claims ------------------------------------------------------------------
 ENV_COMMANDS = {"simulate": ["--steps", "20", "--quiet"], "train": ["--steps", "20", "--eval-steps", "0", "--quiet"],
                 "scenario2": ["--profile", "tiny", "--quiet"], "learning": ["--profile", "tiny", "--quiet"],

@@ -21,7 +21,8 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from collections.abc import Iterator
+import sys
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
@@ -261,6 +262,29 @@ def link_problem(link: Path, config: dict[str, Any]) -> str | None:
     if identity(recorded) != identity(config):
         return f"leads to {target}, whose config.json records another training than its name (edited?)"
     return None
+
+
+def repointed_trainings(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[str]:
+    """The cells of `specs` (records otherwise reusable) whose training's link, ROOT/train/<training>, does not lead to
+    that training's model (link_problem: pointed at another training's store folder, at a file): each is run again,
+    which links its model back, with one line per training naming the link and its cells. Scenario II's repointed for
+    the studies that draw their trainings' logs (learning, protocol; issue 82, probe 6, H4: every cell was reused and
+    their figures and diagnosis.csv drew the other training's logs)."""
+    cells: dict[Path, tuple[dict[str, Any], list[str]]] = {}
+    for spec in specs:
+        config = spec["config"].get("train") if isinstance(spec.get("config"), dict) else None
+        if isinstance(config, dict):
+            link = root / "train" / str(spec.get("train_key") or spec["key"])
+            cells.setdefault(link, (config, []))[1].append(spec["key"])
+    keys = set()
+    for link, (config, names) in cells.items():
+        if (problem := link_problem(link, config)) is None:
+            continue
+        shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
+        print(f"{prog}: {link} {problem}; rerunning the {len(names)} cells of its training ({shown}), which link its "
+              "model back", file=sys.stderr)  # fmt: skip
+        keys.update(names)
+    return keys
 
 
 def _link(link: Path, folder: Path) -> None:

@@ -3,6 +3,7 @@ its models: accident_seeds."""
 
 from __future__ import annotations
 
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -23,8 +24,11 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
 
     A record that cannot be read, lies outside record_schemas.CELL_RECORD (naming the field) or names a variant this
     version does not know, is skipped with one line on stderr;
-    UsageError when root has no cells/ or the model of a finished training asked for is missing or is not that
-    training's (model_problem: a model swapped in from another learner is never driven as this one)."""
+    UsageError when root is not a learning study's folder (root_problem), has no cells/, or the model of a finished
+    training asked for is missing or is not that training's (model_problem: a model swapped in from another learner is
+    never driven as this one)."""
+    if (problem := root_problem(root)) is not None:
+        raise UsageError(problem)
     if not (root / "cells").is_dir():
         raise UsageError(f"{root} is not a learning-study folder (it has no cells/): give the --out of `coopsumo "
                          "learning`")  # fmt: skip
@@ -78,4 +82,30 @@ def model_problem(model: Path, config: dict[str, Any]) -> str | None:
         return None
     if (where := first_difference(meta.get("config"), config)) is not None:
         return f"{model} was made by another training than its record's ({where}; swapped in?)"
+    return None
+
+
+def root_problem(root: Path) -> str | None:
+    """Why the folder `root` is not taken for a learning study's (a line), or None: a marker that names another
+    command or study than `coopsumo learning` (run_markers.LEARNING_KIND: a scenario II or scenario I study, a
+    training), one that cannot be read, or, a folder written before markers, another study's plan file in it (a
+    scenario II sweep's sweep.json, a plan.json). Issue 82, probe 6, H2: a scenario II study taken for one was read
+    as a learning study, and the study that read it was written into its folder."""
+    from coopsumo.run_markers import LEARNING_KIND, RUN_MARKER, marker_kind
+    from coopsumo.studies.engine.run_folders import STUDY_OUTPUTS
+
+    advice = "give the --out of `coopsumo learning`"
+    if (kind := marker_kind(root)) is not None:
+        if kind == LEARNING_KIND:
+            return None
+        what = f"the folder of a coopsumo {kind} run" if kind in ("simulate", "train") else \
+            f"a coopsumo {kind} study's folder"  # fmt: skip
+        return f"{root} is {what}, not a learning study's: {advice}"
+    if os.path.lexists(root / RUN_MARKER):
+        return f"{root} has a {RUN_MARKER} that names no command (damaged?), so it is not told for a learning study; " \
+            f"{advice}"  # fmt: skip
+    own = STUDY_OUTPUTS[LEARNING_KIND][0]
+    for other in sorted({outputs[0] for outputs in STUDY_OUTPUTS.values()} - {own}):
+        if (root / other).exists():
+            return f"{root} holds {other}, another study's plan file, not a learning study's {own}: {advice}"
     return None

@@ -29,6 +29,7 @@ from coopsumo.dqn_config import DQNConfig
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import versions
+from coopsumo.run_markers import LEARNING_KIND
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.groups import study_cpu_s
@@ -122,6 +123,7 @@ def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> N
 def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.studies.engine.cells import run_todo
+    from coopsumo.studies.engine.model_store import repointed_trainings
     from coopsumo.studies.engine.records import reusable_keys
     from coopsumo.studies.engine.trainings import spoiled_logs
 
@@ -133,6 +135,7 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile, default)
     done_keys = reusable_keys(root, specs, "learning", REQUIRED_SUMMARY)
+    done_keys -= repointed_trainings(root, [s for s in specs if s["key"] in done_keys], "learning")  # linked elsewhere
     done_keys -= spoiled_logs(root, [s for s in specs if s["key"] in done_keys], "learning")  # its figures draw them
     todo = [s for s in specs if s["key"] not in done_keys]
     # the slow paper trainings first, the single changes on top of the default last
@@ -244,7 +247,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.out is None:
             args.out = default_model_out(default_out("learning", profile.name, "full"))
         # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
-        with study_root(args.out, "ablation", profile_study(profile.name), recorded_profile("study.json", "profile",
+        with study_root(args.out, LEARNING_KIND, profile_study(profile.name), recorded_profile("study.json", "profile",
                         "name"), f"pick another --out (the {profile.name} profile's default: "
                         f"{default_out('learning', profile.name, 'full')})", trains=True):  # fmt: skip
             meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,

@@ -123,6 +123,7 @@ def accident_measures(run_dir: Path, cfg: SimConfig, departed: int) -> dict[str,
 def run_study(profile: Profile, root: Path, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.studies.engine.cells import run_todo
+    from coopsumo.studies.engine.model_store import repointed_trainings
     from coopsumo.studies.engine.records import reusable_keys
     from coopsumo.studies.engine.trainings import spoiled_logs
     from coopsumo.studies.protocol import report as protocol_report
@@ -135,6 +136,7 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile)
     done = reusable_keys(root, specs, "protocol", REQUIRED)
+    done -= repointed_trainings(root, [s for s in specs if s["key"] in done], "protocol")  # linked elsewhere
     done -= spoiled_logs(root, [s for s in specs if s["key"] in done], "protocol")  # its diagnosis reads them
     todo = [s for s in specs if s["key"] not in done]
     # each training's first cell before any cell that would wait for it, free flow (short) before the accident
