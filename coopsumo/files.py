@@ -3,6 +3,7 @@ files (open_regular), JSON out and in, file digests."""
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import math
@@ -88,7 +89,13 @@ def not_regular(path: Path) -> str | None:
     return None if stat.S_ISREG(mode) else kind_of(mode)
 
 
-def open_regular(path: Path) -> BinaryIO:
+MAX_RECORD_BYTES = 1 << 30
+"""the largest record read whole (1 GiB; a study's largest table or SUMO output is tens of MB): a larger file is
+refused as unreadable (EFBIG), not read into memory until it fails (probe 6, H5: an 8 GB sparse file as a profile
+or a marker ended in a MemoryError traceback)"""
+
+
+def open_regular(path: Path, limit: int | None = MAX_RECORD_BYTES) -> BinaryIO:
     """The file `path` (links followed) opened to read its bytes when it is a regular file; NotRegularFileError,
     before anything is read, for a named pipe, a socket, a device or a folder, the system's OSError for a missing or
     unreadable one. Every record is read back through it (read_bytes, read_text, read_json, read_csv): a named pipe
@@ -102,6 +109,8 @@ def open_regular(path: Path) -> BinaryIO:
         mode = os.fstat(fd).st_mode
         if not stat.S_ISREG(mode):
             raise NotRegularFileError(path, kind_of(mode))
+        if limit is not None and (size := os.fstat(fd).st_size) > limit:
+            raise OSError(errno.EFBIG, f"{size / 2**30:,.1f} GiB, larger than any record ({limit / 2**30:g} GiB)")
         os.set_blocking(fd, True)
         return os.fdopen(fd, "rb")
     except BaseException:
@@ -133,7 +142,7 @@ def read_csv(path: Path, **options: Any) -> Any:
 def file_sha256(path: Path) -> str:
     """sha256 of a file's bytes (a model file: which weights a run was driven by); a regular file's only."""
     h = hashlib.sha256()
-    with open_regular(path) as f:
+    with open_regular(path, limit=None) as f:  # read in chunks
         for chunk in iter(lambda: f.read(1 << 20), b""):
             h.update(chunk)
     return h.hexdigest()

@@ -151,7 +151,7 @@ def _interval_problem(match: re.Match[bytes], sim_seconds: float, dt: float, per
 
 def tail(path: Path, size: int = TAIL_BYTES) -> bytes:
     """The last `size` bytes of the file at path (OSError when it cannot be read)."""
-    with open_regular(path) as f:
+    with open_regular(path, limit=None) as f:  # only its tail is read
         f.seek(max(0, f.seek(0, os.SEEK_END) - size))
         return f.read()
 
