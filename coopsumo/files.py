@@ -195,3 +195,9 @@ def read_json_object(path: Path) -> dict[str, Any] | None:
         return None
     return data if isinstance(data, dict) else None
 
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Write text atomically (write_atomic): a study's report is replaced whole, never written into whatever entry
+    holds its name (a named pipe there hung the study: probe 6, H3)."""
+    write_atomic(path, lambda tmp: tmp.write_text(text))

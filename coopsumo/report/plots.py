@@ -32,10 +32,13 @@ def new_figure(width_in: float, height_in: float) -> Figure:
 
 
 def save_figure(fig: Figure, out_path: str | Path) -> Path:
-    """Write fig as PNG to out_path (creating its folder) and return the path."""
+    """Write fig as PNG to out_path (creating its folder), whole (files.write_atomic: never into whatever entry holds
+    the name, a named pipe say), and return the path."""
+    from coopsumo.files import write_atomic
+
     path = Path(out_path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=DPI, format="png")
+    write_atomic(path, lambda tmp: fig.savefig(tmp, dpi=DPI, format="png"))
     return path
 
 

@@ -23,7 +23,7 @@ import pandas as pd
 
 from coopsumo.config import ControlConfig, SimConfig, to_dict
 from coopsumo.errors import UsageError
-from coopsumo.files import read_json, write_json
+from coopsumo.files import read_json, write_atomic, write_json, write_text_atomic
 from coopsumo.provenance import versions
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.runio import Parser, run_cli
@@ -154,8 +154,8 @@ def run_study(found: list[dict[str, Any]], t_ups: tuple[float, ...], root: Path,
                      **accident_runs.measures(root, spec, cfg)})  # fmt: skip
     table = pd.DataFrame(rows)
     ACCIDENT_SEEDS_RUNS.check_frame(table, root / "runs.csv")  # inside its limits before it is written (study_tables)
-    table.to_csv(root / "runs.csv", index=False)
-    (root / "report.md").write_text(report(table, ACCIDENT_SEED_OFFSET, time.perf_counter() - start))
+    write_atomic(root / "runs.csv", lambda tmp: table.to_csv(tmp, index=False))
+    write_text_atomic(root / "report.md", report(table, ACCIDENT_SEED_OFFSET, time.perf_counter() - start))
     print(f"{PROG}: done; report: {root / 'report.md'}")
     return 0
 

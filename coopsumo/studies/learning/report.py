@@ -13,6 +13,7 @@ import pandas as pd
 from coopsumo.agents.conditioning import CONDITIONED_FIELDS
 from coopsumo.agents.training_logs import log_table
 from coopsumo.dqn_config import DQNConfig
+from coopsumo.files import write_atomic, write_text_atomic
 from coopsumo.report.markdown import md_table
 from coopsumo.studies.followups import robustness
 from coopsumo.studies.learning.plan import (
@@ -307,12 +308,12 @@ def write_outputs(root: Path, profile: Profile, records: list[dict[str, Any]], m
     base = summarise(runs[runs["part"] == "baseline"], ["variant"])
     summary = pd.concat([abl.assign(part="ablation"), alpha_tab.assign(part="alpha"), base.assign(part="baseline")])
     LEARNING_SUMMARY.check_frame(summary, root / "summary.csv")  # both inside their limits before either is written
-    runs.to_csv(root / "runs.csv", index=False)
-    summary.to_csv(root / "summary.csv", index=False)
+    write_atomic(root / "runs.csv", lambda tmp: runs.to_csv(tmp, index=False))
+    write_atomic(root / "summary.csv", lambda tmp: summary.to_csv(tmp, index=False))
     training_curves_figure(root, runs, root / "fig_training_curves.png")
     robustness.training_seeds_figure(root, runs, list(profile.variants), root / "fig_training_seeds.png")
     if len(alpha_tab):
         alpha_response_figure(alpha_tab, base, root / "fig_alpha_response.png")
-    (root / "report.md").write_text(report_text(profile, runs, abl, alpha_tab, base, meta))
+    write_text_atomic(root / "report.md", report_text(profile, runs, abl, alpha_tab, base, meta))
 
 

@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.agents.training_logs import validation_table
-from coopsumo.files import read_csv, read_json
+from coopsumo.files import read_csv, read_json, write_atomic, write_text_atomic
 from coopsumo.record_schemas import PROTOCOL_STATS
 from coopsumo.report.markdown import md_table
 from coopsumo.sim import passing
@@ -266,21 +266,21 @@ def _ci(point: float, low: float, high: float, fmt: str = "{:.2f}") -> str:
 
 def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
     runs = runs_table(records)
-    runs.to_csv(root / "runs.csv", index=False, float_format="%.6g")
+    write_atomic(root / "runs.csv", lambda tmp: runs.to_csv(tmp, index=False, float_format="%.6g"))
     models = per_model(runs)  # every statistic below is over models, each its mean over its evaluation seeds
     table = condition_stats(models, list(profile.variants), list(BASELINES))
     PROTOCOL_STATS.check_frame(table, root / "stats.csv")  # inside record_schemas' limits (a failed baseline: blank)
-    table.to_csv(root / "stats.csv", index=False, float_format="%.6g")
+    write_atomic(root / "stats.csv", lambda tmp: table.to_csv(tmp, index=False, float_format="%.6g"))
     diag = diagnosis_table(root, models[models["variant"] == profile.judged_variant()])  # the judged trainings
     if len(diag):
-        diag.to_csv(root / "diagnosis.csv", index=False, float_format="%.6g")
+        write_atomic(root / "diagnosis.csv", lambda tmp: diag.to_csv(tmp, index=False, float_format="%.6g"))
     trained = runs[(runs["kind"] == "model") & (runs["alpha"] == 0)].dropna(subset=["train_key"])
     names = dict(zip(trained["train_key"][::-1], trained["variant"][::-1], strict=True))  # the first variant driving it
     folders: dict[Path, str] = {}  # one curve per training: cells copied from other studies name it by their keys
     for key in sorted(names):
         folders.setdefault((root / "train" / key).resolve(), key)
     validation_curves_figure(root, sorted(folders.values()), root / "fig_validation.png", names)
-    (root / "report.md").write_text(report_text(profile, runs, models, table, diag, meta))
+    write_text_atomic(root / "report.md", report_text(profile, runs, models, table, diag, meta))
 
 
 def _eval_seed_words(profile: Any) -> str:

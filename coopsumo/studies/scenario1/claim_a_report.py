@@ -9,6 +9,7 @@ from typing import Any
 
 import pandas as pd
 
+from coopsumo.files import write_text_atomic
 from coopsumo.report.markdown import md_table
 from coopsumo.studies.scenario1 import claim_a
 
@@ -89,5 +90,5 @@ def write_claim_a(root: Path, rows: pd.DataFrame, a: str, b: str, exploratory: s
         f"{len(s['comparisons'])}). The plan's number: **{s['planned_models']} models per alpha**.\n\n"
         + pilot_table(s["pilot"]),
     ])
-    (root / "claim_a.md").write_text(text + "\n")
+    write_text_atomic(root / "claim_a.md", text + "\n")
     return s

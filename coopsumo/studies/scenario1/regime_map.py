@@ -19,7 +19,7 @@ import pandas as pd
 
 from coopsumo.config import ControlConfig, SimConfig, to_dict
 from coopsumo.errors import UsageError
-from coopsumo.files import write_json
+from coopsumo.files import write_atomic, write_json, write_text_atomic
 from coopsumo.provenance import versions
 from coopsumo.report.markdown import md_table
 from coopsumo.studies.engine.records import failed_exit
@@ -77,8 +77,8 @@ def run_study(by_length: dict[str, Plan], root: Path, workers: int = 2, backend:
                      **accident_runs.measures(root, spec, cfg)})  # fmt: skip
     table = pd.DataFrame(rows)
     REGIME_MAP_RUNS.check_frame(table, root / "runs.csv")  # inside its limits before it is written (study_tables)
-    table.to_csv(root / "runs.csv", index=False)
-    (root / "report.md").write_text(report(by_length, table, time.perf_counter() - start))
+    write_atomic(root / "runs.csv", lambda tmp: table.to_csv(tmp, index=False))
+    write_text_atomic(root / "report.md", report(by_length, table, time.perf_counter() - start))
     print(f"scenario1 --regime-map: done; report: {root / 'report.md'}")
     return 0
 

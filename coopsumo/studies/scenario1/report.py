@@ -14,7 +14,7 @@ from typing import Any
 import pandas as pd
 
 from coopsumo.config import SimConfig, to_dict
-from coopsumo.files import read_json
+from coopsumo.files import read_json, write_atomic, write_text_atomic
 from coopsumo.provenance import versions
 from coopsumo.report.markdown import md_table
 from coopsumo.studies.engine.stats import models_needed
@@ -268,7 +268,7 @@ with `plot_trajectories.py`).
 
 Versions: {versions_text}.
 """
-    (root / "report.md").write_text(text)
+    write_text_atomic(root / "report.md", text)
 
 
 PAPER_CLAIM = ("alpha 8 helps: the waves disappear and the road recovers above 15 m/s about 54,000 steps after the "
@@ -422,7 +422,7 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
     from coopsumo.report.plots import demand_figure, difference_figure
 
     agg = aggregate(rows)
-    agg.to_csv(root / "summary.csv", index=False)
+    write_atomic(root / "summary.csv", lambda tmp: agg.to_csv(tmp, index=False))
     pairs, coop = comparison_pairs(plan, rows)
     first = plan.seeds[0]
     shown_runs = [r for r in runs if r.train_seed in (None, plan.train_seeds[0])]  # the figures show the first model

@@ -25,7 +25,7 @@ import pandas as pd
 
 from coopsumo.config import ControlConfig, RoadConfig, to_dict
 from coopsumo.errors import UsageError
-from coopsumo.files import read_json, read_json_object, write_json
+from coopsumo.files import read_json, read_json_object, write_atomic, write_json
 from coopsumo.policy_spec import policy_file
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD
@@ -351,7 +351,7 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
     rows = _runs_table(plan, runs)
     SCENARIO1_RUNS.check_frame(rows, root / "runs.csv")  # both tables inside their limits before either is written
     SCENARIO1_SUMMARY.check_frame(aggregate(rows), root / "summary.csv")
-    rows.to_csv(root / "runs.csv", index=False)
+    write_atomic(root / "runs.csv", lambda tmp: rows.to_csv(tmp, index=False))
     wall = time.perf_counter() - start
     timing = timing_text(plan, runs, [path for path, _ in models.values()], n_train, len(specs), wall,
                          _run_cpu(plan, runs, root))  # fmt: skip

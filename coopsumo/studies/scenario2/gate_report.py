@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.agents.conditioning import conditioned_alphas
-from coopsumo.files import read_csv, read_json
+from coopsumo.files import read_csv, read_json, write_atomic, write_text_atomic
 from coopsumo.report.markdown import md_table, num
 from coopsumo.studies.scenario2.gate import (
     LEVEL,
@@ -53,15 +53,15 @@ def write_lane_outputs(root: Path, runs: pd.DataFrame, evals: pd.DataFrame, prof
         table["alpha_star_whole_run"] = withhold_incomplete(whole, "alpha_star")["alpha_star"].to_numpy()
     if len(table):
         table = lane_change_columns(table, runs, profile.alphas)
-    table.to_csv(root / "alpha_star.csv", index=False)
+    write_atomic(root / "alpha_star.csv", lambda tmp: table.to_csv(tmp, index=False))
     p_table = pd.DataFrame()
     if "mobil" in profile.policies:
         p_table = mobil_p_star_table(policy_rows(runs, "mobil"), profile.mobil_ps, profile.eval_seeds, metric)
         p_table = withhold_incomplete(p_table, "p_star")
-        p_table.to_csv(root / "mobil_p_star.csv", index=False)
+        write_atomic(root / "mobil_p_star.csv", lambda tmp: p_table.to_csv(tmp, index=False))
     gate = gate_table(runs, evals, table, p_table, metric, reps=n_boot) if len(table) and len(evals) else \
         pd.DataFrame(columns=["lanes", "t_up_s", "passes"])  # fmt: skip
-    gate.to_csv(root / "gate.csv", index=False)
+    write_atomic(root / "gate.csv", lambda tmp: gate.to_csv(tmp, index=False))
     passing = passing_conditions(gate)
     judged = bool(len(gate)) and bool(gate["passes"].notna().any())
     kept = table[[(int(r.lanes), float(r.t_up_s)) in passing for r in table.itertuples()]] if len(table) else table
@@ -76,7 +76,7 @@ def write_lane_outputs(root: Path, runs: pd.DataFrame, evals: pd.DataFrame, prof
     check = pd.DataFrame()
     if profile.check_alphas:
         check = check_table(runs, profile.check_alphas, metric)
-        check.to_csv(root / "check.csv", index=False)
+        write_atomic(root / "check.csv", lambda tmp: check.to_csv(tmp, index=False))
     costs = step_costs(runs, evals, profile.train_steps, profile.eval_steps)
     meta["step_costs"] = costs
     meta["estimates"] = {name: core_hours(costs, other) for name, other in PROFILES.items()
@@ -95,8 +95,8 @@ def write_lane_outputs(root: Path, runs: pd.DataFrame, evals: pd.DataFrame, prof
         speeds.columns = list(profile.alphas)
         speed_heatmap_figure(speeds, table["alpha_star"].tolist(), root / "fig6_speed_heatmap.png")
         figures["heatmap"] = "fig6_speed_heatmap.png"
-    (root / "report.md").write_text(report_text(runs, table, gate, trends, check, profile, meta, figures,
-                                                alpha_label))  # fmt: skip
+    write_text_atomic(root / "report.md", report_text(runs, table, gate, trends, check, profile, meta, figures,
+                                                      alpha_label))  # fmt: skip
 
 
 def _keys(table: pd.DataFrame) -> list[tuple[int, float]]:

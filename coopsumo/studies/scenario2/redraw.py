@@ -18,7 +18,7 @@ from pandas.api.types import is_numeric_dtype
 from coopsumo.config import first_difference
 from coopsumo.errors import ConfigError, NotRegularFileError, UsageError
 from coopsumo.field_rules import shown
-from coopsumo.files import read_csv, read_json, write_json
+from coopsumo.files import read_csv, read_json, write_atomic, write_json
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
@@ -350,8 +350,8 @@ def merge_parts(parts: list[Part], out: Path) -> dict[str, Any]:
                         "workers": part.meta["workers"], "versions": part.meta["versions"]}
                        for part in parts]  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
-    runs.to_csv(out / "runs.csv", index=False)
-    evals.to_csv(out / "evals.csv", index=False)
+    write_atomic(out / "runs.csv", lambda tmp: runs.to_csv(tmp, index=False))
+    write_atomic(out / "evals.csv", lambda tmp: evals.to_csv(tmp, index=False))
     write_json(out / "sweep.json", merged)
     return rewrite_outputs(out)
 

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.files import write_atomic, write_text_atomic
 from coopsumo.report.markdown import md_table, num
 from coopsumo.studies.scenario2.measures import (
     PlaneFit,
@@ -59,12 +60,12 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
 
     table, boots = alpha_star_table(policy_rows(runs, "dqn"), profile.alphas, profile.seeds, n_boot=n_boot)
     table = withhold_incomplete(table, "alpha_star")
-    table.to_csv(root / "alpha_star.csv", index=False)
+    write_atomic(root / "alpha_star.csv", lambda tmp: table.to_csv(tmp, index=False))
     side = None
     if "mobil" in profile.policies:
         p_table = mobil_p_star_table(policy_rows(runs, "mobil"), profile.mobil_ps, profile.eval_seeds)
         p_table = withhold_incomplete(p_table, "p_star")
-        p_table.to_csv(root / "mobil_p_star.csv", index=False)
+        write_atomic(root / "mobil_p_star.csv", lambda tmp: p_table.to_csv(tmp, index=False))
         side = side_by_side_table(table, p_table)
     fit: PlaneFit | None = None
     boot: dict[str, float] = {}
@@ -89,8 +90,8 @@ def write_outputs(root: Path, runs: pd.DataFrame, profile: Profile, meta: dict[s
         meta["paper_cost_estimate"] = paper_cost_estimate(runs, profile.train_steps, PROFILES["paper"])
     meta["plane"] = asdict(fit) if fit else {"error": plane_note}
     meta["plane_bootstrap"] = boot
-    (root / "report.md").write_text(report_text(runs, table, fit, boot, plane_note, profile, meta, figures,
-                                                alpha_label, side))  # fmt: skip
+    write_text_atomic(root / "report.md", report_text(runs, table, fit, boot, plane_note, profile, meta, figures,
+                                                      alpha_label, side))  # fmt: skip
 
 
 def side_by_side_text(side: pd.DataFrame, alpha_label: Any) -> str:

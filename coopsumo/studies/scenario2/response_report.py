@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.files import write_atomic
 from coopsumo.report.markdown import md_table, num
 from coopsumo.studies.scenario2.measures import PlaneFitError, fit_plane
 from coopsumo.studies.scenario2.plan import Profile
@@ -45,7 +46,7 @@ def write_response(root: Path, evals: pd.DataFrame, kept: set[tuple[int, float]]
         meta["response"] = {"error": f"the response needs at least two of the alphas {list(RESPONSE_ALPHAS)}"}
         return meta["response"]
     responses = condition_responses(model_scores(evals, profile.criterion, alphas), n_boot)
-    responses.table.to_csv(root / "response.csv", index=False)
+    write_atomic(root / "response.csv", lambda tmp: responses.table.to_csv(tmp, index=False))
     found = trends(responses, kept)
     found["alphas"] = alphas
     found["plan"] = profile.response_plan or None

@@ -51,7 +51,7 @@ import pandas as pd
 from coopsumo.config import RoadConfig, to_dict
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
-from coopsumo.files import read_csv, read_json, write_json
+from coopsumo.files import read_csv, read_json, write_atomic, write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
@@ -309,8 +309,8 @@ def _finish(root: Path, profile: Profile, meta: dict[str, Any], records: list[di
     SCENARIO2_RUNS.check_frame(runs, root / "runs.csv")  # the limits the merge reads them by (study_tables)
     SCENARIO2_EVALS.check_frame(evals, root / "evals.csv")
     SWEEP.check(meta, root / "sweep.json")
-    runs.to_csv(root / "runs.csv", index=False)
-    evals.to_csv(root / "evals.csv", index=False)
+    write_atomic(root / "runs.csv", lambda tmp: runs.to_csv(tmp, index=False))
+    write_atomic(root / "evals.csv", lambda tmp: evals.to_csv(tmp, index=False))
     if profile.lane_networks:
         from coopsumo.studies.scenario2.gate_report import write_lane_outputs
 

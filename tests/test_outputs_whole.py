@@ -1,0 +1,42 @@
+"""Probe 6, H3: a study's tables, reports and figures are written whole (files.write_atomic), so whatever entry holds
+the name, a named pipe say, is replaced, never written into (which hung the study after its cells)."""
+
+from __future__ import annotations
+
+import os
+import signal
+from collections.abc import Iterator
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+from coopsumo.files import write_atomic, write_text_atomic
+
+
+@pytest.fixture(autouse=True)
+def no_hang() -> Iterator[None]:
+    """A write into a pipe would wait forever: fail in 30 s instead."""
+    def fail(*_: object) -> None:
+        raise TimeoutError("a write waited on a named pipe")
+
+    old = signal.signal(signal.SIGALRM, fail)
+    signal.alarm(30)
+    yield
+    signal.alarm(0)
+    signal.signal(signal.SIGALRM, old)
+
+
+def test_a_report_table_and_figure_replace_a_pipe_at_their_names(tmp_path: Path) -> None:
+    from coopsumo.report.plots import new_figure, save_figure
+
+    for name in ("report.md", "runs.csv", "fig.png"):
+        os.mkfifo(tmp_path / name)
+    write_text_atomic(tmp_path / "report.md", "# a report\n")
+    frame = pd.DataFrame({"a": [1, 2]})
+    write_atomic(tmp_path / "runs.csv", lambda tmp: frame.to_csv(tmp, index=False))
+    save_figure(new_figure(2, 2), tmp_path / "fig.png")
+    assert (tmp_path / "report.md").read_text() == "# a report\n"
+    assert (tmp_path / "runs.csv").read_text() == "a\n1\n2\n"
+    assert (tmp_path / "fig.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["fig.png", "report.md", "runs.csv"]  # no temporary left
