@@ -194,7 +194,6 @@ def reselectable(config: dict[str, Any], store: Path) -> Path | None:
 def _reselect(src: Path, folder: Path, config: dict[str, Any]) -> dict[str, Any]:
     """The model of `config` from the snapshots of `src` (selection.reselect), under its lock (a training of src
     cannot change it meanwhile)."""
-    import sys
 
     from coopsumo.agents.selection import reselect
     from coopsumo.config import train_config_from_dict
@@ -270,21 +269,12 @@ def repointed_trainings(root: Path, specs: Sequence[dict[str, Any]], prog: str) 
     which links its model back, with one line per training naming the link and its cells. Scenario II's repointed for
     the studies that draw their trainings' logs (learning, protocol; issue 82, probe 6, H4: every cell was reused and
     their figures and diagnosis.csv drew the other training's logs)."""
-    cells: dict[Path, tuple[dict[str, Any], list[str]]] = {}
-    for spec in specs:
-        config = spec["config"].get("train") if isinstance(spec.get("config"), dict) else None
-        if isinstance(config, dict):
-            link = root / "train" / str(spec.get("train_key") or spec["key"])
-            cells.setdefault(link, (config, []))[1].append(spec["key"])
-    keys = set()
-    for link, (config, names) in cells.items():
-        if (problem := link_problem(link, config)) is None:
-            continue
-        shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
-        print(f"{prog}: {link} {problem}; rerunning the {len(names)} cells of its training ({shown}), which link its "
-              "model back", file=sys.stderr)  # fmt: skip
-        keys.update(names)
-    return keys
+    from coopsumo.studies.engine.trainings import rerun_cells
+
+    def problem(link: Path, config: dict[str, Any]) -> tuple[Path, str] | None:
+        return None if (why := link_problem(link, config)) is None else (link, why)
+
+    return rerun_cells(root, specs, prog, problem, "which link its model back")
 
 
 def _link(link: Path, folder: Path) -> None:

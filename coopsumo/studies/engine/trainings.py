@@ -93,6 +93,19 @@ def spoiled_logs(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[
     protocol) asks before its cells run: a reused cell's training was not looked at again."""
     from coopsumo.files import read_json_object
 
+    def problem(folder: Path, config: dict[str, Any]) -> tuple[Path, str] | None:
+        found = logs_problem(folder, config, read_json_object(folder / "train_summary.json")) if folder.is_dir() \
+            else None  # fmt: skip
+        return None if found is None else (folder / found[0], found[1])
+
+    return rerun_cells(root, specs, prog, problem, "which train it again")
+
+
+def rerun_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str,
+                problem: Callable[[Path, dict[str, Any]], tuple[Path, str] | None], then: str) -> set[str]:  # fmt: skip
+    """The keys of the cells of `specs` whose training, ROOT/train/<training> with its training configuration,
+    `problem` faults ((what it names, why), or None), with one line per such training naming it, why, its cells
+    and what their rerun does (`then`)."""
     cells: dict[Path, tuple[dict[str, Any], list[str]]] = {}
     for spec in specs:
         config = spec["config"].get("train") if isinstance(spec.get("config"), dict) else None
@@ -101,12 +114,11 @@ def spoiled_logs(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[
             cells.setdefault(folder, (config, []))[1].append(spec["key"])
     keys = set()
     for folder, (config, names) in cells.items():
-        summary = read_json_object(folder / "train_summary.json")
-        if not folder.is_dir() or (found := logs_problem(folder, config, summary)) is None:
+        if (found := problem(folder, config)) is None:
             continue
         shown = ", ".join(names[:3]) + (f" and {len(names) - 3} more" if len(names) > 3 else "")
-        print(f"{prog}: {folder / found[0]} {found[1]}; rerunning the {len(names)} cells of its training ({shown}), "
-              "which train it again", file=sys.stderr)  # fmt: skip
+        print(f"{prog}: {found[0]} {found[1]}; rerunning the {len(names)} cells of its training ({shown}), {then}",
+              file=sys.stderr)  # fmt: skip
         keys.update(names)
     return keys
 
