@@ -362,9 +362,9 @@ def decision_and_output_lines(steps: int, quick: bool) -> None:
     for n in (50, 200):
         grid_us, act_us = bench_decision(n, repeats=20 if quick else 200)
         print(f"  {n:3d} vehicles: grid {grid_us:.2f} us/veh/step, DQN decision {act_us:.2f} us/veh/step", flush=True)
-    from coopsumo.studies.scenario1.plan import Plan
+    from coopsumo.studies.scenario1.plan import DEFAULT_PROFILE, PROFILES
 
-    period = Plan().fcd_period_s
+    period = PROFILES[DEFAULT_PROFILE].fcd_period_s
     extra, low, high, mb_per_h, veh = bench_fcd_cost(steps, period, repeats=1 if quick else 4)
     print(f"  --fcd every {period:g} s (scenario I), jammed keep run ({veh:.0f} vehicles): {extra:+.1f}% wall time "
           f"(median of runs side by side; {low:+.1f} to {high:+.1f}%; limit 10%), {mb_per_h:.0f} MB of fcd.xml "

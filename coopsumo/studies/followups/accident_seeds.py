@@ -34,7 +34,7 @@ from coopsumo.studies.followups.accident_seeds_report import report
 from coopsumo.studies.learning.models import finished_trainings
 from coopsumo.studies.learning.plan import variant_list
 from coopsumo.studies.scenario1 import accident_runs
-from coopsumo.studies.scenario1.plan import Plan, accident_config
+from coopsumo.studies.scenario1.plan import DEFAULT_PROFILE, PROFILES, Plan, accident_config
 from coopsumo.study_tables import ACCIDENT_SEEDS_RUNS
 from coopsumo.validation import (
     MAX_STEPS,
@@ -175,11 +175,11 @@ def build_parser() -> Parser:
     size.add_argument(
         "--quick",
         action="store_true",
-        help=f"scenario I's quick accident ({Plan.quick().steps:,} steps) instead of the default one",
+        help=f"scenario I's quick accident ({PROFILES['quick'].steps:,} steps) instead of the default one",
     )
     size.add_argument("--steps", type=integer(10, MAX_STEPS), default=None,
-                      help=f"steps of each accident run (default {Plan().steps:,}); the accident window scales with "
-                           "it")  # fmt: skip
+                      help=f"steps of each accident run (default {PROFILES[DEFAULT_PROFILE].steps:,}); the "
+                           "accident window scales with it")  # fmt: skip
     p.add_argument(
         "--adaptive",
         action="store_true",
@@ -226,7 +226,7 @@ def main(argv: list[str] | None = None) -> int:
         for m in found:
             if m["margin"]:
                 check_copyable(m["model"])
-        plan = Plan.quick() if args.quick else Plan()
+        plan = PROFILES["quick" if args.quick else DEFAULT_PROFILE]
         if args.steps is not None:
             plan = accident_runs.scaled(plan, args.steps / plan.steps)
         out = args.out if args.out is not None else default_model_out(args.roots[0] / "accident")

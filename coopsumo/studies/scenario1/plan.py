@@ -1,64 +1,80 @@
-"""Scenario I's plan: the study's sizes (Plan and its profiles), the configuration of every training and accident
-run, and the names of models, policies and run folders. No SUMO here; scenario1.py runs the plan.
+"""Scenario I's plan: the study's sizes (Plan, its profiles read from experiments_data/scenario1.toml), the
+configuration of every training and accident run, and the names of models, policies and run folders. No SUMO here;
+scenario1/study.py runs the plan.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple, get_type_hints
 
-from coopsumo.config import AccidentConfig, DemandConfig, OutputConfig, RewardConfig, RoadConfig, SimConfig, TrainConfig
+from coopsumo.config import (
+    MAX_LANES,
+    MIN_LANES,
+    AccidentConfig,
+    ControlConfig,
+    DemandConfig,
+    OutputConfig,
+    RewardConfig,
+    RoadConfig,
+    SimConfig,
+    TrainConfig,
+)
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
+from coopsumo.errors import ConfigError
 from coopsumo.policy_spec import model_file, parse_policy, split_dqn_spec
+from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_profiles
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.studies.engine.run_folders import default_out
-from coopsumo.validation import number_name
-
-ALPHAS = (0.0, 8.0)
-"""the paper's two; the default learner still changes lanes at alpha = 8 (0.14-0.23 per vehicle in free flow,
-results/learner_protocol_v2x_mix10), so it is not simply `keep` (the earlier learner's alpha = 8 was; alpha = 2
-was then added, and is one --alphas away)"""
-TRAIN_SEEDS = tuple(range(FIRST_TRAIN_SEED, FIRST_TRAIN_SEED + 5))
-"""training seeds of the default: 5 models per alpha, the learner protocol's first five (model store: shared)"""
-PRESETS = ("default",)
-BASELINES = ("keep", "greedy", "sumo")
-MOBIL_PS = (0.0, 0.5)
-"""MOBIL politeness values run beside the learned models: classical cooperation as the control (0.25 and 1 are
-one --mobil-p away; the default keeps the study within 90 minutes on 2 cores)"""
-DEMANDS = (2.0, 1.5, 1.0)
-"""T_up (s) of the default study: the queue stays on the road, reaches the entrance, still waits at the end"""
+from coopsumo.validation import (
+    ALPHA_LIST,
+    MAX_FCD_PERIOD_S,
+    MAX_STEPS,
+    MAX_T_UP_S,
+    MOBIL_P_LIST,
+    SEED_LIST,
+    accident_problem,
+    integer,
+    min_t_up_s,
+    number,
+    number_name,
+    steps,
+    t_up_note,
+    t_up_rule,
+)
 
 
 @dataclass(frozen=True)
 class Plan:
-    """Sizes of the study: the default profile; Plan.quick() and Plan.full() are the others."""
+    """Sizes of the study: one profile (PROFILES, read from scenario1.toml)."""
 
-    lanes: int = 3
-    t_ups: tuple[float, ...] = DEMANDS
+    lanes: int
+    t_ups: tuple[float, ...]
     """demands of the accident runs: upstream departure interval T_up (s)"""
-    train_t_up_s: float = DemandConfig.t_up_s
+    train_t_up_s: float
     """demand of the free-flow trainings (s); the models are trained once and meet every demand"""
-    train_steps: int = 90_000
-    steps: int = 20_000
-    accident_start: int = 2_000
-    accident_steps: int = 10_000
-    seeds: tuple[int, ...] = (1, 2, 3, 4, 5)
+    train_steps: int
+    steps: int
+    accident_start: int
+    accident_steps: int
+    seeds: tuple[int, ...]
     """evaluation seeds: every model and baseline meets each"""
-    train_seeds: tuple[int, ...] = TRAIN_SEEDS
+    train_seeds: tuple[int, ...]
     """one model per training seed, preset and alpha: the unit of replication"""
-    trajectory_every: int = 5
-    loop_period_s: float = 60.0
-    baselines: tuple[str, ...] = BASELINES
-    mobil_ps: tuple[float, ...] = MOBIL_PS
-    alphas: tuple[float, ...] = ALPHAS
-    presets: tuple[str, ...] = PRESETS
+    trajectory_every: int
+    loop_period_s: float
+    baselines: tuple[str, ...]
+    mobil_ps: tuple[float, ...]
+    alphas: tuple[float, ...]
+    presets: tuple[str, ...]
     """learner presets (config.DQN_PRESETS) whose models are trained and run, side by side"""
-    fcd_period_s: float = 5.0
+    fcd_period_s: float
     """period of SUMO's fcd.xml in every run folder (s)"""
-    tripinfo: bool = True
+    tripinfo: bool
     """write SUMO's tripinfo.xml in every run folder"""
-    profile: str = "default"
+    profile: str
+    """the profile's name: it names the results folder (study_out) and the study's records"""
 
     def outputs(self) -> OutputConfig:
         """SUMO's output files of every accident run."""
@@ -69,20 +85,6 @@ class Plan:
         first = tuple(b for b in self.baselines if b != "sumo")
         mobils = tuple(f"mobil:p={number_name(p)}" for p in self.mobil_ps)
         return first + mobils + tuple(b for b in self.baselines if b == "sumo")
-
-    @staticmethod
-    def quick() -> Plan:
-        """2 demands, 1 seed, small step counts. The accident starts at 100 s, once the first vehicles have
-        reached the bottleneck (1,300 m at about 23 m/s), so that even a shortened run holds a jam to show."""
-        return Plan(t_ups=(3.0, 1.0), train_steps=3000, steps=6000, accident_start=1000, accident_steps=3000,
-                    seeds=(1,), train_seeds=TRAIN_SEEDS[:2], loop_period_s=30.0, profile="quick")  # fmt: skip
-
-    @staticmethod
-    def full() -> Plan:
-        """The paper's accident: 90,000 steps, the stuck ratio decaying over 50,000 of them; 5 seeds."""
-        return Plan(steps=90_000, accident_start=AccidentConfig.start_step,
-                    accident_steps=AccidentConfig.duration_steps, t_ups=(3.0, 2.0, 1.5, 1.0), seeds=(1, 2, 3, 4, 5),
-                    profile="full")  # fmt: skip
 
 
 class Run(NamedTuple):
@@ -183,11 +185,92 @@ def study_out(plan: Plan) -> Path:
     the committed profile with another number of models per alpha (--train-seeds K) writes results/scenario1_<K>models,
     and with other learner presets results/scenario1_<presets>[_<K>models], so that a larger replication or another
     learner never replaces the committed report."""
-    k = len(plan.train_seeds)
-    if plan.presets != Plan().presets:  # another learner: never the default learner's folder, in any profile
-        profile = "" if plan.profile == Plan().profile else f"{plan.profile}_"
+    k, default = len(plan.train_seeds), PROFILES[DEFAULT_PROFILE]
+    if plan.presets != default.presets:  # another learner: never the default learner's folder, in any profile
+        profile = "" if plan.profile == DEFAULT_PROFILE else f"{plan.profile}_"
         return Path("results") / f"scenario1_{profile}{'_'.join(plan.presets)}" \
-            f"{f'_{k}models' if plan.profile == Plan().profile and k != len(TRAIN_SEEDS) else ''}"  # fmt: skip
-    if plan.profile == Plan().profile and k != len(Plan().train_seeds):
+            f"{f'_{k}models' if plan.profile == DEFAULT_PROFILE and k != len(default.train_seeds) else ''}"  # fmt: skip
+    if plan.profile == DEFAULT_PROFILE and k != len(default.train_seeds):
         return Path("results") / f"scenario1_{k}models"
-    return default_out("scenario1", plan.profile, Plan().profile)
+    return default_out("scenario1", plan.profile, DEFAULT_PROFILE)
+
+
+# -- the profiles, as data ---------------------------------------------------------------------------------------
+PROFILES_FILE = DATA / "scenario1.toml"
+"""the profiles as data: `[profiles.NAME]` tables, the `[shared.NAME]` tables they `use`, and the `default`"""
+PAPER_PROFILE = "full"
+"""the profile at the paper's horizon: its report adds the horizon section, and claim (a)'s reading is exploratory"""
+BASELINES = ("keep", "greedy", "sumo")
+"""the baselines a profile names beside MOBIL (--baseline adds policies of one's own)"""
+RUN_STEPS = integer(10, MAX_STEPS)
+"""steps of an accident run (--steps, a profile's steps)"""
+T_UP_LIST = t_up_rule(ControlConfig().dt_s)
+"""demands of the accident runs (--t-up, a profile's t_ups)"""
+FIELD_RULES: dict[str, Rule] = {
+    "lanes": integer(MIN_LANES, MAX_LANES), "t_ups": T_UP_LIST, "train_steps": steps, "steps": RUN_STEPS,
+    "train_t_up_s": number(min_t_up_s(ControlConfig().dt_s), MAX_T_UP_S, note=t_up_note(ControlConfig().dt_s)),
+    "seeds": SEED_LIST, "train_seeds": SEED_LIST, "trajectory_every": integer(1, MAX_STEPS), "mobil_ps": MOBIL_P_LIST,
+    "alphas": ALPHA_LIST, "fcd_period_s": number(0, MAX_FCD_PERIOD_S, low_open=True),
+}  # fmt: skip
+"""the rule of each field of a profile read from a file: its flag's (--t-up, --train-steps, --steps, --mobil-p,
+--alphas; seeds and train_seeds: lists of seeds, as --train-seeds S,S,...; lanes and fcd_period_s: simulate's), so
+that a file takes no value the flag refuses; the accident window and the rules between fields: plan_problem"""
+SETTABLE = tuple(f.name for f in fields(Plan) if f.name != "profile")
+"""the fields a profile's table or its shared table sets (the profile's name is its table's)"""
+
+
+def plan_problem(plan: Plan) -> str | None:
+    """Why a profile read from a file breaks a rule between its fields, in words starting with the field at fault, or
+    None: an accident window outside the run (validation.accident_problem), a training seed that is an evaluation
+    seed (as --train-seeds), alphas without 0 (the study's reference, which --alphas adds), or a training, accident
+    run or output the simulation refuses (checked on the profile, not found after its folder is made)."""
+    if problem := accident_problem(plan.accident_start, plan.accident_steps, plan.steps, "accident_start",
+                                   "accident_steps"):  # fmt: skip
+        return problem
+    if shared := sorted(set(plan.train_seeds) & set(plan.seeds)):
+        return (f"train_seeds: training seed {shared[0]} is also an evaluation seed (seeds); a model is judged only "
+                "on seeds it never trained on")  # fmt: skip
+    if 0.0 not in plan.alphas:
+        return f"alphas must hold 0, the study's reference, got [{', '.join(map(number_name, plan.alphas))}]"
+    try:
+        train_config(plan, plan.alphas[0], plan.presets[0], plan.train_seeds[0]).validate()
+        accident_config(plan, plan.baseline_policies()[0], plan.seeds[0], plan.t_ups[0]).validate()
+        plan.outputs().validate(ControlConfig().dt_s)
+    except ConfigError as err:
+        return f"makes a run the simulation refuses: {err}"
+    return None
+
+
+def _plan(at: Entry, name: str, settings: dict[str, Any]) -> Plan:
+    """One profile of a file from its settings, each typed and checked by its rule (FIELD_RULES, plan_problem)."""
+    hints, names = get_type_hints(Plan), {"baselines": BASELINES, "presets": tuple(learners())}
+    values: dict[str, Any] = {key: at.names(key, value, names[key], least=int(key == "presets")) if key in names
+                              else at.value(key, value, hints[key], FIELD_RULES.get(key))
+                              for key, value in settings.items()}  # fmt: skip
+    if missing := [key for key in SETTABLE if key not in values]:
+        raise at.error(f"needs {', '.join(missing)} (every field of a profile, its own or its shared table's)")
+    plan = Plan(**values, profile=name)
+    if problem := plan_problem(plan):
+        raise at.error(problem)
+    return plan
+
+
+def load_profiles(path: Path = PROFILES_FILE) -> tuple[dict[str, Plan], dict[str, str], str]:
+    """The profiles of a scenario1.toml, what --help says of each, and the default one; one ConfigError naming the
+    file and the entry for an unknown field, `use` or default, a missing field, a value of another type (an integer
+    where a float belongs is taken as that float, so that a model's identity does not change), or a value its flag
+    refuses (FIELD_RULES, plan_problem)."""
+    profiles, helps, default = read_profiles(path, SETTABLE, _plan)
+    return profiles, helps, default
+
+
+def own_profiles(path: Path) -> tuple[dict[str, Plan], str | None]:
+    """The profiles of a file of one's own (`--profile PATH.toml[:NAME]`, the packaged file's format; its `default`
+    optional), checked as the packaged ones are, and its default or None."""
+    profiles, _, default = read_profiles(path, SETTABLE, _plan, default_needed=False)
+    return profiles, default
+
+
+PROFILES, PROFILE_HELP, DEFAULT_PROFILE = load_profiles()
+"""the profiles (scenario1.toml), what --help says of each, and the one run when none is named (its report is
+committed: results/scenario1)"""

@@ -26,7 +26,7 @@ from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import study_root
 from coopsumo.studies.engine.runner import check_backend
 from coopsumo.studies.scenario1 import accident_runs
-from coopsumo.studies.scenario1.plan import Plan, accident_config
+from coopsumo.studies.scenario1.plan import DEFAULT_PROFILE, PAPER_PROFILE, PROFILES, Plan, accident_config
 from coopsumo.study_tables import REGIME_MAP_RUNS
 from coopsumo.validation import number_name, t_up_list
 
@@ -39,11 +39,12 @@ def plans(seeds: int, t_ups: tuple[float, ...], steps: int | None = None) -> dic
     """The two accident lengths, at the same demands and seeds; steps: the default length's run steps instead of
     20,000, every run and accident window (the paper's length too) scaled by the same factor."""
     seed_list = tuple(range(1, seeds + 1))
-    by_length = {"default": replace(Plan(), seeds=seed_list, t_ups=t_ups),
-                 "paper": replace(Plan.full(), seeds=seed_list, t_ups=t_ups)}  # fmt: skip
+    by_length = {"default": replace(PROFILES[DEFAULT_PROFILE], seeds=seed_list, t_ups=t_ups),
+                 "paper": replace(PROFILES[PAPER_PROFILE], seeds=seed_list, t_ups=t_ups)}  # fmt: skip
     if steps is None:
         return by_length
-    return {length: accident_runs.scaled(plan, steps / Plan().steps) for length, plan in by_length.items()}
+    factor = steps / PROFILES[DEFAULT_PROFILE].steps
+    return {length: accident_runs.scaled(plan, factor) for length, plan in by_length.items()}
 
 
 def cells(by_length: dict[str, Plan]) -> list[tuple[str, SimConfig, dict[str, Any]]]:

@@ -33,7 +33,7 @@ from coopsumo.studies.scenario1.measures import (
     demand_table,
     difference_table,
 )
-from coopsumo.studies.scenario1.plan import Plan, Run, label_for, model_label, study_out
+from coopsumo.studies.scenario1.plan import PAPER_PROFILE, Plan, Run, label_for, model_label, study_out
 from coopsumo.studies.scenario1.text import DEFINITIONS, deviations_text, training_text
 from coopsumo.study_tables import SCENARIO1_RUNS
 from coopsumo.validation import number_name
@@ -444,7 +444,7 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
     gui = next(r for r in shown_runs if r.label == gui_label and r.seed == first and r.t_up == gui_t)
     gui_text = gui_section(root, gui.out, str(gui.out.relative_to(root / "runs")), gui.cfg)
     sections = [demand_section(rows, agg, t, pairs, figures) for t in plan.t_ups]
-    if plan.profile == Plan.full().profile:  # the paper's horizon: recovery steps per model, waves on lane 1
+    if plan.profile == PAPER_PROFILE:  # the paper's horizon: recovery steps per model, waves on lane 1
         sections.append(horizon_outputs(root, plan, rows, runs, FIG4_LANE))
     write_report(root, _header(plan, runs[0].cfg), _claim(root, plan, rows, pairs, coop), sections,
                  regime_table(rows, REGIMES), _figures_text(plan, fig4_t, shown, windows), gui_text, timing,
@@ -452,7 +452,7 @@ def write_outputs(root: Path, plan: Plan, rows: pd.DataFrame, runs: list[Run], t
     if {0.0, 8.0} <= set(plan.alphas):  # claim (a) under its analysis plan: claim_a.md, fig_thrashing.png
         from coopsumo.studies.scenario1.claim_a_report import write_claim_a
 
-        horizon = plan.profile == Plan.full().profile
+        horizon = plan.profile == PAPER_PROFILE
         write_claim_a(root, rows, model_label(plan.presets[0], 8.0), model_label(plan.presets[0], 0.0),
                       HORIZON_NOT_PLANNED if horizon else None)  # fmt: skip
     print(closing_table(agg, plan.t_ups[-1]))

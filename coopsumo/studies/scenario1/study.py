@@ -31,6 +31,7 @@ from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD
 from coopsumo.run_dirs import check_run_dir
 from coopsumo.runio import Parser, run_cli
+from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import profile_study, recorded_profile, reusable_run, study_root
@@ -39,7 +40,11 @@ from coopsumo.studies.scenario1 import regime_map
 from coopsumo.studies.scenario1.accident_runs import failed_record, run_cell
 from coopsumo.studies.scenario1.measures import aggregate, run_metrics
 from coopsumo.studies.scenario1.plan import (
-    TRAIN_SEEDS,
+    DEFAULT_PROFILE,
+    PROFILE_HELP,
+    PROFILES,
+    RUN_STEPS,
+    T_UP_LIST,
     Plan,
     Run,
     accident_config,
@@ -47,25 +52,22 @@ from coopsumo.studies.scenario1.plan import (
     learners,
     model_label,
     model_name,
+    own_profiles,
     run_folder,
     study_out,
     train_config,
 )
-from coopsumo.studies.scenario1.report import counted, default_study, write_outputs
+from coopsumo.studies.scenario1.report import default_study, write_outputs
 from coopsumo.studies.scenario1.text import timing_text
 from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
 from coopsumo.validation import (
-    MAX_STEPS,
-    MOBIL_LIMITS,
+    MOBIL_P_LIST,
     alpha_list,
     default_model_out,
-    distinct_list,
-    integer,
     model_out_dir,
     name_list,
     seed_count,
     steps,
-    t_up_list,
     train_seed_list,
     workers,
 )
@@ -80,17 +82,13 @@ def _preset_list(text: str) -> tuple[str, ...]:
     return name_list("--preset", text, tuple(learners()))
 
 
-PROFILE_FLAGS = {"": Plan(), " --quick": Plan.quick(), " --full": Plan.full()}
-"""the profiles as the command line picks them, and their plans: --help states each default from these"""
-
-
 def by_profile(show: Any) -> str:
-    """An option's default as --help states it, from the plans: "5; 1 --quick; 5 --full", or one value when every
-    profile has the same."""
-    values = {flag: str(show(plan)) for flag, plan in PROFILE_FLAGS.items()}
+    """An option's default as --help states it, from the profiles: "the profile's: default 5; quick 1; full 5", or
+    one value when every profile has the same."""
+    values = {name: str(show(plan)) for name, plan in PROFILES.items()}
     if len(set(values.values())) == 1:
-        return values[""]
-    return "; ".join(f"{value}{flag}" for flag, value in values.items())
+        return next(iter(values.values()))
+    return "the profile's: " + "; ".join(f"{name} {value}" for name, value in values.items())
 
 
 def _numbers(values: tuple[float, ...]) -> str:
@@ -99,15 +97,13 @@ def _numbers(values: tuple[float, ...]) -> str:
 
 def build_parser() -> Parser:
     p = Parser(prog="coopsumo scenario1", description="Scenario I: the accident bottleneck study.")
-    quick, full = Plan.quick(), Plan.full()
-    size = p.add_mutually_exclusive_group()
-    size.add_argument("--quick", action="store_true",
-                      help=f"{len(quick.t_ups)} demands, {counted(len(quick.seeds), 'evaluation seed')}, "
-                           f"{counted(len(quick.train_seeds), 'model')} per alpha, small step counts: about 5 "
-                           "minutes from scratch (models trained into the model store too)")  # fmt: skip
-    size.add_argument("--full", action="store_true",
-                      help=f"the paper's accident ({full.steps:,} steps, {full.accident_steps:,} of them decaying), "
-                           f"{len(full.t_ups)} demands, {len(full.seeds)} evaluation seeds")  # fmt: skip
+    size = p.add_mutually_exclusive_group()  # one way to say the study's size
+    size.add_argument("--profile", type=profile_arg(tuple(PROFILES)), default=None,
+                      help=f"the study's sizes (default {DEFAULT_PROFILE}): "
+                           + "; ".join(f"{k} ({v})" for k, v in PROFILE_HELP.items())
+                           + f"; or a profile of your own in a file of scenario1.toml's format, {OWN_PROFILE}")
+    size.add_argument("--quick", action="store_true", help="the same as --profile quick")
+    size.add_argument("--full", action="store_true", help="the same as --profile full")
     size.add_argument("--regime-map", action="store_true",
                       help="where the accident's queue goes: `keep` only, at the default study's and the paper's "
                            "accident length, at T_up 4, 3, 2.5, 2, 1.5, 1.25 and 1 s (or --t-up), 1 evaluation seed "
@@ -125,7 +121,7 @@ def build_parser() -> Parser:
     p.add_argument("--mobil-p", dest="mobil_ps", default=None,
                    help="MOBIL politeness values, comma-separated "
                         f"(default: {by_profile(lambda plan: _numbers(plan.mobil_ps))})")  # fmt: skip
-    k = len(TRAIN_SEEDS)
+    k = len(PROFILES[DEFAULT_PROFILE].train_seeds)
     p.add_argument("--out", type=model_out_dir, default=None,
                    help=f"results folder (default: {by_profile(study_out)}; with --train-seeds K other than {k}: "
                         "results/scenario1_<K>models, with --preset: results/scenario1_<presets>[_<K>models]; only "
@@ -135,7 +131,7 @@ def build_parser() -> Parser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--train-steps", type=steps, default=None,
                    help=f"training steps of each model (default: {by_profile(lambda plan: f'{plan.train_steps:,}')})")
-    p.add_argument("--steps", type=integer(10, MAX_STEPS), default=None,
+    p.add_argument("--steps", type=RUN_STEPS, default=None,
                    help="steps of each accident run; the accident window scales with it "
                         f"(default: {by_profile(lambda plan: f'{plan.steps:,}')})")  # fmt: skip
     p.add_argument("--alphas", default=None,
@@ -155,9 +151,16 @@ def build_parser() -> Parser:
     return p
 
 
+def chosen_profile(args: Any) -> Plan:
+    """--profile's plan (or --quick's, --full's, else the default): a packaged one by name, or one of a file of one's
+    own (PATH.toml[:NAME]: the packaged file's format, every profile checked as the packaged ones are)."""
+    text = "quick" if args.quick else "full" if args.full else args.profile or DEFAULT_PROFILE
+    return PROFILES[text] if text in PROFILES else own_profile(text, own_profiles, PROFILES, "default")
+
+
 def plan_from_args(args: Any) -> Plan:
     """The plan of the chosen profile with the command line's overrides applied and checked (UsageError)."""
-    plan = Plan.quick() if args.quick else Plan.full() if args.full else Plan()
+    plan = chosen_profile(args)
     if args.seeds is not None:
         if args.seeds < 1:
             raise UsageError(f"seeds must be >= 1, got {args.seeds}")
@@ -166,9 +169,9 @@ def plan_from_args(args: Any) -> Plan:
         plan = replace(plan, train_seeds=train_seed_list("--train-seeds", args.train_seeds, FIRST_TRAIN_SEED,
                                                          plan.seeds))  # fmt: skip
     if args.t_ups is not None:
-        plan = replace(plan, t_ups=t_up_list("--t-up", args.t_ups, ControlConfig().dt_s))
+        plan = replace(plan, t_ups=T_UP_LIST.parse("--t-up", args.t_ups))
     if args.mobil_ps is not None:
-        plan = replace(plan, mobil_ps=distinct_list("--mobil-p", args.mobil_ps, low=0.0, high=MOBIL_LIMITS["p"][1]))
+        plan = replace(plan, mobil_ps=MOBIL_P_LIST.parse("--mobil-p", args.mobil_ps))
     if args.train_steps is not None:
         if args.train_steps < 1:
             raise UsageError(f"train-steps must be >= 1, got {args.train_steps}")
@@ -233,8 +236,8 @@ def main(argv: list[str] | None = None) -> int:
     return run_cli("scenario1", body)
 
 
-MERGE_ONLY = ("quick", "full", "regime_map", "seeds", "train_seeds", "t_ups", "mobil_ps", "train_steps", "steps",
-              "alphas", "baselines", "presets")
+MERGE_ONLY = ("profile", "quick", "full", "regime_map", "seeds", "train_seeds", "t_ups", "mobil_ps", "train_steps",
+              "steps", "alphas", "baselines", "presets")
 """the options a merge would ignore (each part's plan holds them): refused beside --merge"""
 
 

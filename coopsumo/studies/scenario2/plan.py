@@ -22,7 +22,7 @@ from coopsumo.config import (
 )
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError
-from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_toml
+from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_profiles
 from coopsumo.validation import (
     ALPHA_LIST,
     MAX_STEPS,
@@ -267,52 +267,35 @@ def load_profiles(path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], dict[
     file and the entry for an unknown field, `use` or default, or a value of another type (an integer where a float
     belongs is taken as that float, so that a model's identity does not change), or a value its flag refuses
     (FIELD_RULES, profile_problem)."""
-    profiles, helps, default = read_profiles(path)
-    if default not in profiles:
-        raise ConfigError(f"{path}: default must name one of its profiles ({', '.join(profiles)}), got {default!r}")
-    return profiles, helps, str(default)
+    profiles, helps, default = read_profiles(path, SETTABLE, _profile, own=("eval_seeds",))
+    return profiles, helps, default
 
 
 def own_profiles(path: Path) -> tuple[dict[str, Profile], str | None]:
     """The profiles of a file of one's own (`--profile PATH.toml[:NAME]`, the packaged file's format; its `default`
     optional), checked as the packaged ones are, and its default or None."""
-    profiles, _, default = read_profiles(path)
-    if default is not None and default not in profiles:
-        raise ConfigError(f"{path}: default must name one of its profiles ({', '.join(profiles)}), got {default!r}")
+    profiles, _, default = read_profiles(path, SETTABLE, _profile, default_needed=False, own=("eval_seeds",))
     return profiles, default
 
 
-def read_profiles(path: Path) -> tuple[dict[str, Profile], dict[str, str], Any]:
-    """load_profiles' reading and checks of every profile; the file's `default` as it gives it (or None)."""
-    data = dict(read_toml(path))
+SETTABLE = tuple(f.name for f in fields(Profile) if f.name not in ("name", "eval_seeds"))
+"""the fields a profile's table or its shared table sets (eval_seeds: a profile's own, a count N)"""
+
+
+def _profile(at: Entry, name: str, settings: dict[str, Any]) -> Profile:
+    """One profile of a file from its settings, each typed and checked by its rule (FIELD_RULES, profile_problem)."""
     hints = get_type_hints(Profile)
-    settable = tuple(k for k in hints if k not in ("name", "eval_seeds"))
-    shared, tables, default = data.pop("shared", {}), data.pop("profiles", None), data.pop("default", None)
-    for key, table in (("shared", shared), ("profiles", tables)):
-        if not isinstance(table, dict):
-            raise Entry(path, key).error(f"must be a table, got {table!r}")
-    if data:
-        raise ConfigError(f"{path}: unknown top-level keys {', '.join(map(repr, data))} (known: default, shared, "
-                          "profiles)")  # fmt: skip
-    profiles, helps = {}, {}
-    for name, entry in tables.items():
-        at = Entry(path, f"profiles.{name}")
-        entry = dict(at.table(entry, "the profile", ("help", "use", "eval_seeds", *settable)))
-        if (use := entry.pop("use", None)) is not None and use not in shared:
-            raise at.error(f"use must name a [shared.NAME] table ({', '.join(shared) or 'none'}), got {use!r}")
-        base = Entry(path, f"shared.{use}").table(shared[use], "the shared table", settable) if use else {}
-        helps[name] = at.value("help", entry.pop("help", ""), str)
-        values: dict[str, Any] = {key: at.names(key, value, POLICIES) if key == "policies" else
-                  at.value(key, value, hints[key], FIELD_RULES.get(key))
-                  for key, value in {**base, **entry}.items() if key != "eval_seeds"}  # fmt: skip
-        if "eval_seeds" in entry:
-            values["eval_seeds"] = eval_seeds(at.value("eval_seeds", entry["eval_seeds"], int, seed_count))
-        if missing := [f.name for f in fields(Profile)[1:] if f.default is MISSING and f.name not in values]:
-            raise at.error(f"needs {', '.join(missing)} (a profile's fields without a default)")
-        profiles[name] = Profile(name, **values)
-        if problem := profile_problem(profiles[name]):
-            raise at.error(problem)
-    return profiles, helps, default
+    values: dict[str, Any] = {key: at.names(key, value, POLICIES) if key == "policies" else
+                              at.value(key, value, hints[key], FIELD_RULES.get(key))
+                              for key, value in settings.items() if key != "eval_seeds"}  # fmt: skip
+    if "eval_seeds" in settings:
+        values["eval_seeds"] = eval_seeds(at.value("eval_seeds", settings["eval_seeds"], int, seed_count))
+    if missing := [f.name for f in fields(Profile)[1:] if f.default is MISSING and f.name not in values]:
+        raise at.error(f"needs {', '.join(missing)} (a profile's fields without a default)")
+    profile = Profile(name, **values)
+    if problem := profile_problem(profile):
+        raise at.error(problem)
+    return profile
 
 
 def train_folder(spec: dict[str, Any]) -> str | None:
