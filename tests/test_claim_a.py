@@ -124,13 +124,13 @@ def test_a_report_of_several_presets_says_how_each_was_trained() -> None:
     first preset's text); `alpha_only` trains with none."""
     from dataclasses import replace
 
-    from coopsumo.studies.scenario1.plan import Plan
+    from coopsumo.studies.scenario1.plan import PROFILES
     from coopsumo.studies.scenario1.text import training_text
 
-    both = training_text(replace(Plan.full(), presets=("default", "alpha_only")))
+    both = training_text(replace(PROFILES["full"], presets=("default", "alpha_only")))
     assert "`default`: episodes of 9,000 steps at T_up drawn from 2, 1.5, 1 s, 50% of them with an accident" in both
     assert "`alpha_only`: episodes of 9,000 steps at T_up drawn from 2, 1.5, 1 s, no accident" in both
-    assert training_text(replace(Plan(), presets=("alpha_only",))).endswith("1 s, no accident)")
+    assert training_text(replace(PROFILES["default"], presets=("alpha_only",))).endswith("1 s, no accident)")
 
 
 def test_scenario1_trains_the_learner_protocols_alpha_only_dense_as_the_protocol_did() -> None:
@@ -143,7 +143,7 @@ def test_scenario1_trains_the_learner_protocols_alpha_only_dense_as_the_protocol
     from coopsumo.studies.engine.model_store import model_id
     from coopsumo.studies.protocol.plan import load_profiles, variants
     from coopsumo.studies.protocol.plan import train_config as protocol_train
-    from coopsumo.studies.scenario1.plan import Plan, learners, train_config
+    from coopsumo.studies.scenario1.plan import PROFILES, learners, train_config
     from coopsumo.studies.scenario1.study import _preset_list
     from coopsumo.studies.scenario1.text import training_text
 
@@ -151,9 +151,9 @@ def test_scenario1_trains_the_learner_protocols_alpha_only_dense_as_the_protocol
     assert known["alpha_only_dense"] == variants()["alpha_only_dense"].learner
     assert "stks" not in known and "alpha_only" in known and "nr10" in known  # nr10: the default before
     profile = load_profiles(variants())[0]["alpha_only_dense"]
-    mine = train_config(Plan(), 0.0, "alpha_only_dense", 104)
+    mine = train_config(PROFILES["default"], 0.0, "alpha_only_dense", 104)
     theirs = protocol_train(profile, variants()["alpha_only_dense"].learner, 0.0, 104)
     assert model_id(to_dict(mine)) == model_id(to_dict(theirs))
     assert _preset_list("alpha_only_dense") == ("alpha_only_dense",)
-    text = training_text(replace(Plan(), presets=("alpha_only_dense",)))
+    text = training_text(replace(PROFILES["default"], presets=("alpha_only_dense",)))
     assert "2.67, 2, 1.5, 1.33, 1, 0.89, 0.67 s, no accident" in text

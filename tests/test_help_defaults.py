@@ -21,21 +21,17 @@ def option_help(parser: argparse.ArgumentParser, flag: str) -> str:
     return " ".join((action.help or "").split())
 
 
-def stated(text: str, profiles: tuple[str, ...], where: str) -> dict[str, str]:
-    """The default a help text states for each profile: "(default: A; B --quick; C --full)" (scenario1) or
-    "(default: the profile's: tiny A; quick B; paper C)" (scenario2): the profile's name after the value (where
-    "suffix") or before it ("prefix"); one value without a profile is every profile's.
-    Parts that name no profile after the first (e.g. "with --preset: ...") are left out."""
+def stated(text: str, profiles: tuple[str, ...]) -> dict[str, str]:
+    """The default a help text states for each profile: "(default: the profile's: tiny A; quick B; paper C)", the
+    profile's name before its value; one value without a profile is every profile's. Parts that name no profile after
+    the first (e.g. "with --preset: ...") are left out."""
     match = re.search(r"\(default: (.*)\)", text)
     assert match, text
     body = match.group(1).removeprefix("the profile's: ")
     out: dict[str, str] = {}
     for i, part in enumerate(body.split("; ")):
         for name in profiles:
-            if name and where == "suffix" and part.endswith(f" {name}"):
-                out[name] = part.removesuffix(f" {name}")
-                break
-            if name and where == "prefix" and part.startswith(f"{name} "):
+            if part.startswith(f"{name} "):
                 out[name] = part.removeprefix(f"{name} ")
                 break
         else:
@@ -52,8 +48,8 @@ def numbers(values: tuple[float, ...]) -> str:
 
 def test_scenario1_help_states_each_profiles_defaults() -> None:
     parser = scenario1.build_parser()
-    flags = ("", "--quick", "--full")
-    plans = {flag: scenario1.plan_from_args(parser.parse_args([flag] if flag else [])) for flag in flags}
+    names = tuple(scenario1.PROFILES)
+    plans = {name: scenario1.plan_from_args(parser.parse_args(["--profile", name])) for name in names}
     expected = {
         "--seeds": lambda plan: str(len(plan.seeds)),
         "--train-seeds": lambda plan: str(len(plan.train_seeds)),
@@ -68,13 +64,14 @@ def test_scenario1_help_states_each_profiles_defaults() -> None:
     wrong = []
     for option, show in expected.items():
         text = option_help(parser, option)
-        says = stated(text, flags, "suffix")
-        for flag, plan in plans.items():
-            if says[flag] != show(plan):
-                wrong.append(f"{option}{' ' + flag if flag else ''}: help says {says[flag]!r}, code {show(plan)!r}")
+        says = stated(text, names)
+        for name, plan in plans.items():
+            if says[name] != show(plan):
+                wrong.append(f"{option} ({name}): help says {says[name]!r}, code {show(plan)!r}")
     assert not wrong, "; ".join(wrong)
-    assert plans[""].seeds == (1, 2, 3, 4, 5)  # the issue's case, read from the code's plan
-    assert "(default: 5;" in option_help(parser, "--seeds")
+    assert plans["default"].seeds == (1, 2, 3, 4, 5)  # the issue's case, read from the code's plan
+    assert "(default: the profile's: default 5;" in option_help(parser, "--seeds")
+    assert scenario1.plan_from_args(parser.parse_args([])) == plans[scenario1.DEFAULT_PROFILE] == plans["default"]
 
 
 def test_scenario2_help_states_each_profiles_defaults() -> None:
@@ -93,7 +90,7 @@ def test_scenario2_help_states_each_profiles_defaults() -> None:
     }
     wrong = []
     for option, show in expected.items():
-        says = stated(option_help(parser, option), names, "prefix")
+        says = stated(option_help(parser, option), names)
         for name, profile in profiles.items():
             if says[name] != show(profile):
                 wrong.append(f"{option} ({name}): help says {says[name]!r}, code {show(profile)!r}")
@@ -103,7 +100,7 @@ def test_scenario2_help_states_each_profiles_defaults() -> None:
     default = default_out("scenario2", scenario2.DEFAULT_PROFILE, scenario2.DEFAULT_PROFILE)
     assert f"(default {default}, another profile results/scenario2_<profile>)" in option_help(parser, "--out")
     assert str(default) == "results/scenario2"
-    policies = stated(option_help(parser, "--policies"), names, "prefix")
+    policies = stated(option_help(parser, "--policies"), names)
     assert policies == {name: ",".join(profile.policies) for name, profile in profiles.items()}
 
 
@@ -127,7 +124,7 @@ def test_learning_help_states_each_profiles_values() -> None:
     for option, show in expected.items():
         text = option_help(parser, option)
         assert "(default: the profile's: full " in text, text
-        says = stated(text, names, "prefix")
+        says = stated(text, names)
         for name, profile in profiles.items():
             if says[name] != show(profile):
                 wrong.append(f"{option} ({name}): help says {says[name]!r}, code {show(profile)!r}")

@@ -74,13 +74,13 @@ def test_moving_the_store_changes_no_cell_key_and_no_model_name(tmp_path: Path,
     keys = []
     for store in ("a", "b"):
         monkeypatch.setenv(model_store.STORE_ENV, str(tmp_path / store))
-        specs = scenario1._cells(scenario1_plan.Plan.quick(), tmp_path / "study")[0]
+        specs = scenario1._cells(scenario1_plan.PROFILES["quick"], tmp_path / "study")[0]
         keys.append([s["key"] for s in specs])
         assert {s["store"] for s in specs if s["kind"] == "train"} == {str(tmp_path / store)}
     assert keys[0] == keys[1] and len(keys[0]) > 4
     specs = protocol_plan.cell_specs(protocol_plan.PROFILES["tiny"])
     assert "models" not in json.dumps([{k: v for k, v in s.items() if k != "config"} for s in specs])
-    config = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), 8.0, "default", 100))
+    config = to_dict(scenario1_plan.train_config(scenario1_plan.PROFILES["default"], 8.0, "default", 100))
     assert model_id(config) == model_id(json.loads(json.dumps(config)))  # no path in it: the same name anywhere
     assert str(tmp_path) not in json.dumps(model_store.identity(config))
 

@@ -222,10 +222,10 @@ def test_the_thrashing_measure_is_scenario_ones_on_the_same_run(tmp_path: Path) 
     from coopsumo.studies.engine.run_folders import simulate_into
     from coopsumo.studies.protocol.plan import PROFILES, QUEUE_MPS, TRAJECTORY_EVERY, eval_config
     from coopsumo.studies.protocol.study import accident_measures
+    from coopsumo.studies.scenario1 import plan as scenario1_plan
     from coopsumo.studies.scenario1.measures import SLOW_MPS, run_metrics
-    from coopsumo.studies.scenario1.plan import Plan
 
-    assert QUEUE_MPS == SLOW_MPS and TRAJECTORY_EVERY == Plan().trajectory_every
+    assert QUEUE_MPS == SLOW_MPS and TRAJECTORY_EVERY == scenario1_plan.PROFILES["default"].trajectory_every
     profile = replace(PROFILES["tiny"], accident_steps=2000, accident_start=100, accident_duration=1500)
     cfg = eval_config(profile, "accident", profile.t_ups.index(1.0), "greedy")
     out = tmp_path / "run"

@@ -22,7 +22,7 @@ from test_study_commands import learning_folder
 from coopsumo.studies.engine.records import cell_path, checked_record, model_fields, reusable_keys
 from coopsumo.studies.followups import accident_seeds
 from coopsumo.studies.scenario1 import accident_runs as scenario1_cells
-from coopsumo.studies.scenario1.plan import Plan
+from coopsumo.studies.scenario1 import plan as scenario1_plan
 from coopsumo.studies.scenario2 import study as scenario2
 from coopsumo.studies.scenario2.plan import PROFILES, cell_specs
 
@@ -273,7 +273,7 @@ def test_an_accident_seeds_run_of_a_changed_model_is_rerun_with_one_line(
     root = learning_folder(tmp_path / "learning", ("paper",))
     out = tmp_path / "acc"
     found = accident_seeds.models(root, ("paper",), (0.0,), 1)
-    plan = accident_seeds.accident_runs.scaled(Plan(), 0.03)
+    plan = accident_seeds.accident_runs.scaled(scenario1_plan.PROFILES["default"], 0.03)
 
     def specs() -> list[dict[str, Any]]:
         who = accident_seeds.drivers(found, False, out / "models")

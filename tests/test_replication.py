@@ -85,12 +85,12 @@ def test_scenario_one_takes_the_protocols_models_from_the_store() -> None:
     from coopsumo.studies.scenario1 import plan as scenario1_plan
 
     for alpha in (0.0, 8.0):
-        for seed in scenario1_plan.TRAIN_SEEDS:
-            s1 = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), alpha, "default", seed))
+        for seed in scenario1_plan.PROFILES["default"].train_seeds:
+            s1 = to_dict(scenario1_plan.train_config(scenario1_plan.PROFILES["default"], alpha, "default", seed))
             proto = to_dict(protocol_plan.train_config(protocol_plan.PROFILES["nr10"], DQNConfig(), alpha, seed))
             assert model_store.model_id(s1) == model_store.model_id(proto)
-    base = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), 0.0, "default", 100))
-    other = to_dict(scenario1_plan.train_config(scenario1_plan.Plan(), 0.0, "default", 101))
+    base = to_dict(scenario1_plan.train_config(scenario1_plan.PROFILES["default"], 0.0, "default", 100))
+    other = to_dict(scenario1_plan.train_config(scenario1_plan.PROFILES["default"], 0.0, "default", 101))
     assert model_store.model_id(base) != model_store.model_id(other)  # a changed setting is another model
 
 
@@ -138,19 +138,20 @@ def test_more_models_per_alpha_go_to_their_own_folder() -> None:
     the other profiles keep their folders whatever their model count."""
     from dataclasses import replace
 
-    from coopsumo.studies.scenario1.plan import Plan
+    from coopsumo.studies.scenario1.plan import PROFILES
     from coopsumo.studies.scenario1.study import study_out
 
-    assert study_out(Plan()) == Path("results/scenario1")
-    assert study_out(replace(Plan(), train_seeds=tuple(range(100, 110)))) == Path("results/scenario1_10models")
-    assert study_out(replace(Plan(), train_seeds=(100, 101, 102))) == Path("results/scenario1_3models")
-    assert study_out(replace(Plan.quick(), train_seeds=(100,))) == Path("results/scenario1_quick")
+    default = PROFILES["default"]
+    assert study_out(default) == Path("results/scenario1")
+    assert study_out(replace(default, train_seeds=tuple(range(100, 110)))) == Path("results/scenario1_10models")
+    assert study_out(replace(default, train_seeds=(100, 101, 102))) == Path("results/scenario1_3models")
+    assert study_out(replace(PROFILES["quick"], train_seeds=(100,))) == Path("results/scenario1_quick")
     # another learner never writes the default learner's folder, in any profile
-    alpha_only = replace(Plan(), presets=("alpha_only",), train_seeds=tuple(range(100, 110)))
+    alpha_only = replace(PROFILES["default"], presets=("alpha_only",), train_seeds=tuple(range(100, 110)))
     assert study_out(alpha_only) == Path("results/scenario1_alpha_only_10models")
-    assert study_out(replace(Plan(), presets=("alpha_only",))) == Path("results/scenario1_alpha_only")
-    assert study_out(replace(Plan.full(), presets=("alpha_only",))) == Path("results/scenario1_full_alpha_only")
-    assert study_out(replace(Plan.quick(), presets=("default", "paper"))) == Path(
+    assert study_out(replace(PROFILES["default"], presets=("alpha_only",))) == Path("results/scenario1_alpha_only")
+    assert study_out(replace(PROFILES["full"], presets=("alpha_only",))) == Path("results/scenario1_full_alpha_only")
+    assert study_out(replace(PROFILES["quick"], presets=("default", "paper"))) == Path(
         "results/scenario1_quick_default_paper")  # fmt: skip
 
 

@@ -184,6 +184,7 @@ def test_jam_step_is_the_first_time_the_view_is_nearly_full_of_slow_vehicles() -
 @pytest.mark.parametrize(
     "args",
     [["--seeds", "0"], ["--workers", "0"], ["--steps", "5"], ["--bogus"], ["--quick", "--full"],
+     ["--profile", "quick", "--full"], ["--profile", "huge"], ["--profile", "none.toml"],
      ["--t-up", ""], ["--t-up", "3,,1"], ["--t-up", "0"], ["--t-up", "-1"], ["--t-up", "nan"], ["--t-up", "3,3"],
      ["--t-up", "1,1.0"], ["--t-up", "0.01"], ["--t-up", "x"], ["--mobil-p", "-0.5"], ["--mobil-p", "0,0"],
      ["--mobil-p", "0,"], ["--mobil-p", "inf"]],
@@ -339,7 +340,7 @@ def test_regime_map_tells_the_regimes_apart(tmp_path: Path) -> None:
 
     from coopsumo.studies.scenario1 import regime_map
 
-    base = replace(scenario1.Plan.quick(), steps=1500, accident_start=300, accident_steps=900, seeds=(1,),
+    base = replace(scenario1.PROFILES["quick"], steps=1500, accident_start=300, accident_steps=900, seeds=(1,),
                    t_ups=(4.0, 0.2))  # fmt: skip
     plans = {"default": base, "paper": replace(base, accident_steps=1100)}
     assert regime_map.run_study(plans, tmp_path, 1) == 0
@@ -370,8 +371,8 @@ def test_regime_map_bad_input_one_line_exit_2(tmp_path: Path, capsys: pytest.Cap
                         ("--baseline", "keep"), ("--train-steps", "100"), ("--merge", "a,b")):  # fmt: skip
         code, _, err = main_here(scenario1.main, ["--regime-map", flag, value, "--out", str(out)], capsys)
         assert_refused_in_one_line(code, err, out, flag)
-    for other in ("--quick", "--full"):  # one profile at a time (argparse's exit code 2)
-        code, _, err = main_here(scenario1.main, ["--regime-map", other, "--out", str(out)], capsys)
+    for other in (["--quick"], ["--full"], ["--profile", "quick"]):  # one profile at a time (argparse's exit code 2)
+        code, _, err = main_here(scenario1.main, ["--regime-map", *other, "--out", str(out)], capsys)
         assert_refused_in_one_line(code, err, out, "--regime-map")
 
 
@@ -391,9 +392,9 @@ def test_claim_a_side_by_side_with_the_default_learners_study(tmp_path: Path) ->
     from dataclasses import replace
 
     from coopsumo.config import to_dict
-    from coopsumo.studies.scenario1.plan import Plan
+    from coopsumo.studies.scenario1.plan import PROFILES
 
-    plan = replace(Plan(), presets=("alpha_only",), t_ups=(1.0,), train_seeds=(100, 101, 102))
+    plan = replace(PROFILES["default"], presets=("alpha_only",), t_ups=(1.0,), train_seeds=(100, 101, 102))
     keep = _rows({"keep": {"tts_veh_h": [120.0, 121.0, 122.0]}})
     keep["train_seed"] = np.nan
     ours = pd.concat([keep, _model_rows("dqn_alpha_only_alpha8", {m: [90.0, 91.0, 92.0] for m in (100, 101, 102)}),
@@ -452,11 +453,11 @@ def test_the_report_writes_the_difference_figure_and_names_it(tmp_path: Path, mo
     report shows it beside fig_tts_demand.png, whose caption points to it, and says what it plots."""
     from dataclasses import replace
 
-    from coopsumo.studies.scenario1.plan import Plan, Run
+    from coopsumo.studies.scenario1.plan import PROFILES, Run
 
     monkeypatch.delenv("DISPLAY", raising=False)  # no sumo-gui screenshot
-    plan = replace(Plan(), t_ups=(2.0, 1.0), seeds=(1, 2, 3), train_seeds=(100, 101, 102), alphas=(0.0, 8.0),
-                   mobil_ps=(0.0, 0.5), steps=1200)  # fmt: skip
+    plan = replace(PROFILES["default"], t_ups=(2.0, 1.0), seeds=(1, 2, 3), train_seeds=(100, 101, 102),
+                   alphas=(0.0, 8.0), mobil_ps=(0.0, 0.5), steps=1200)  # fmt: skip
     cfg = SimConfig(accident=AccidentConfig(enabled=True, x_m=1300.0, start_step=200, duration_steps=600))
     t = np.arange(0.0, 600.0, 1.0)
     traj = pd.DataFrame([(x, v, v % 3, 20.0 * (x - 4.0 * v), 20.0) for v in range(100) for x in t
@@ -503,12 +504,12 @@ def test_the_paper_horizon_section_reads_every_model_and_draws_fig4_for_each_lea
     from dataclasses import replace
 
     from coopsumo.studies.scenario1 import horizon as hz
-    from coopsumo.studies.scenario1.plan import Plan, Run
+    from coopsumo.studies.scenario1.plan import PROFILES, Run
 
     rows = pd.read_csv(study / "runs.csv")
     rows["train_seed"] = rows["train_seed"].astype("Int64")
-    plan = replace(Plan.quick(), t_ups=(3.0, 1.0), seeds=(1, 2), train_seeds=MODELS, presets=("default", "default"),
-                   steps=1500)  # fmt: skip
+    plan = replace(PROFILES["quick"], t_ups=(3.0, 1.0), seeds=(1, 2), train_seeds=MODELS,
+                   presets=("default", "default"), steps=1500)  # fmt: skip
     from coopsumo.config import sim_config_from_dict
 
     record = json.loads((study / "runs" / "t3" / "keep_seed1" / "config.json").read_text())

@@ -99,7 +99,7 @@ def build_parser() -> Parser:
     p = Parser(prog="coopsumo scenario1", description="Scenario I: the accident bottleneck study.")
     size = p.add_mutually_exclusive_group()  # one way to say the study's size
     size.add_argument("--profile", type=profile_arg(tuple(PROFILES)), default=None,
-                      help=f"the study's sizes (default {DEFAULT_PROFILE}): "
+                      help="the study's sizes: "
                            + "; ".join(f"{k} ({v})" for k, v in PROFILE_HELP.items())
                            + f"; or a profile of your own in a file of scenario1.toml's format, {OWN_PROFILE}")
     size.add_argument("--quick", action="store_true", help="the same as --profile quick")
