@@ -49,7 +49,7 @@ nets: $(STAMP)
 	$(BIN)/python -c "from coopsumo.config import RoadConfig; from coopsumo.sim.network import build_net; [print(build_net(RoadConfig(lanes=n))) for n in range(2, 7)]"
 
 scenario1: $(STAMP)
-	$(BIN)/coopsumo scenario1 $(if $(QUICK),--quick) $(if $(FULL),--full) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(TRAIN_SEEDS),--train-seeds $(TRAIN_SEEDS)) $(if $(T_UP),--t-up $(T_UP)) $(if $(MOBIL_P),--mobil-p $(MOBIL_P)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
+	$(BIN)/coopsumo scenario1 $(if $(PROFILE),--profile $(PROFILE)) $(if $(QUICK),--quick) $(if $(FULL),--full) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(TRAIN_SEEDS),--train-seeds $(TRAIN_SEEDS)) $(if $(T_UP),--t-up $(T_UP)) $(if $(MOBIL_P),--mobil-p $(MOBIL_P)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
 
 # the full profile (issue 65: a network per lane count, baselines, the gate); PROFILE=check its check, quick the old sweep
 scenario2: $(STAMP)

@@ -1,7 +1,8 @@
 """The catalogue reader: the experiments' data files (coopsumo/experiments_data/*.toml, inside the package so that an
 installed wheel has them too) read and checked, every error one ConfigError line naming the file and the entry; a
-value checked by the very rule its flag is (validation.IntRule, NumberRule, ListRule, names_problem); and a study's
-profile taken from a file of one's own (`--profile PATH.toml[:NAME]`, own_profile)."""
+value checked by the very rule its flag is (validation.IntRule, NumberRule, ListRule, names_problem); a study's profile
+file (read_profiles: scenario1.toml, scenario2.toml); and a study's profile taken from a file of one's own
+(`--profile PATH.toml[:NAME]`, own_profile)."""
 
 from __future__ import annotations
 

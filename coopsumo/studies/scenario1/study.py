@@ -9,8 +9,9 @@
    detectors.xml, fcd.xml and tripinfo.xml), runs.csv, summary.csv, the figures and report.md; with a display,
    gui_jam.png: sumo-gui's view of the jam at the bottleneck, replayed through TraCI.
 
-The plan (sizes, configurations, names) is scenario1_plan, the measures scenario1_measures, the report
-scenario1_report; this module runs the plan's cells on the shared runner and is the command.
+The plan (sizes, configurations, names; the profiles: experiments_data/scenario1.toml) is scenario1_plan, the
+measures scenario1_measures, the report scenario1_report; this module runs the plan's cells on the shared runner and
+is the command.
 """
 
 from __future__ import annotations
