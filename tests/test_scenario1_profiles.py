@@ -13,6 +13,7 @@ from typing import Any
 import pytest
 
 from coopsumo.config import to_dict
+from coopsumo.errors import ConfigError
 from coopsumo.studies.scenario1 import plan as s1_plan
 from coopsumo.studies.scenario1 import regime_map
 from coopsumo.studies.scenario1 import study as s1
@@ -164,3 +165,23 @@ def test_a_profile_of_ones_own_may_not_take_a_packaged_name(tmp_path: Path,
 def test_an_unknown_profile_is_refused_naming_both_forms(capsys: pytest.CaptureFixture[str]) -> None:
     code, err = run_main(["--profile", "huge"], capsys)
     assert code == 2 and "choose from default, quick, full, or a profile file of your own" in err[-1], err
+
+
+def test_the_packaged_file_is_checked_by_the_same_rules(tmp_path: Path) -> None:
+    """The packaged scenario1.toml with a bad value: one ConfigError line naming the file, the profile and the field
+    (read when scenario1.plan is imported, so `coopsumo scenario1` stops before anything is written)."""
+    path = tmp_path / "scenario1.toml"
+    path.write_text(s1_plan.PROFILES_FILE.read_text().replace("steps = 6000", "steps = 5", 1))
+    with pytest.raises(ConfigError) as bad:
+        s1_plan.load_profiles(path)
+    assert str(bad.value) == f"{path}: [profiles.quick] steps must be an integer from 10 to 10000000, got 5"
+    path.write_text(s1_plan.PROFILES_FILE.read_text().replace('default = "default"', 'default = "huge"', 1))
+    with pytest.raises(ConfigError, match=r"default must name one of its profiles \(default, quick, full\)"):
+        s1_plan.load_profiles(path)
+
+
+def test_a_missing_field_is_named(tmp_path: Path) -> None:
+    path = own_file(tmp_path)
+    path.write_text(path.read_text().replace('use = "study"\n', ""))
+    with pytest.raises(ConfigError, match=r"\[profiles.mine\] needs lanes, train_t_up_s, train_steps, seeds"):
+        s1_plan.own_profiles(path)

@@ -260,8 +260,7 @@ def load_profiles(path: Path = PROFILES_FILE) -> tuple[dict[str, Plan], dict[str
     file and the entry for an unknown field, `use` or default, a missing field, a value of another type (an integer
     where a float belongs is taken as that float, so that a model's identity does not change), or a value its flag
     refuses (FIELD_RULES, plan_problem)."""
-    profiles, helps, default = read_profiles(path, SETTABLE, _plan)
-    return profiles, helps, default
+    return read_profiles(path, SETTABLE, _plan)
 
 
 def own_profiles(path: Path) -> tuple[dict[str, Plan], str | None]:

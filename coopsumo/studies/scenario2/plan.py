@@ -267,8 +267,7 @@ def load_profiles(path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], dict[
     file and the entry for an unknown field, `use` or default, or a value of another type (an integer where a float
     belongs is taken as that float, so that a model's identity does not change), or a value its flag refuses
     (FIELD_RULES, profile_problem)."""
-    profiles, helps, default = read_profiles(path, SETTABLE, _profile, own=("eval_seeds",))
-    return profiles, helps, default
+    return read_profiles(path, SETTABLE, _profile, own=("eval_seeds",))
 
 
 def own_profiles(path: Path) -> tuple[dict[str, Profile], str | None]:
