@@ -250,6 +250,74 @@ def test_a_ctrl_c_that_a_library_swallowed_still_ends_in_one_line_and_130(
     assert capsys.readouterr().err == "regime-map: interrupted\n"
 
 
+SWALLOWED = """
+import signal, sys, time
+from pathlib import Path
+from coopsumo.runio import run_interruptible
+
+def swallow_ctrl_c():  # a Ctrl-C that lands in a library's guarded import (numpy's ImportError, then `except`)
+    try:
+        signal.raise_signal(signal.SIGINT)
+    except KeyboardInterrupt:
+        pass
+
+def slow_cell(spec, root):
+    time.sleep(900)
+    return {"key": spec["key"], "config": spec["config"], "status": "ok"}
+
+def failed(spec, error):
+    return {"key": spec["key"], "config": spec["config"], "status": "failed", "error": error}
+
+def study():
+    from coopsumo.studies.engine import runner
+    swallow_ctrl_c()
+    backend = runner.make_backend("local", 1, None, slow_cell)
+    try:
+        runner.execute([{"key": "c1", "config": {}}], Path("study"), backend, 1, 0, progress=False,
+                       failed_record=failed)
+    finally:
+        backend.close()
+    return 0
+
+def train():
+    from coopsumo import cli
+    swallow_ctrl_c()
+    return cli._main(["train", "--steps", "500000", "--eval-steps", "0", "--out", "run", "--quiet"])
+
+if __name__ == "__main__":
+    sys.exit(run_interruptible({"study": study, "train": train}[sys.argv[1]], lambda: sys.argv[1]))
+"""
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("what", ["study", "train"])
+def test_a_ctrl_c_swallowed_in_the_imports_stops_a_study_or_training_before_its_work(what: str,
+                                                                                     tmp_path: Path) -> None:
+    """A Ctrl-C that a library swallowed during the imports was lost until the command's work ended: a study's cells
+    (once 90 s of scenario I, 2026-12-02), or a whole training. The study's runner and the training's loop raise it
+    again before they start: here a cell of 15 minutes and a training of 500,000 steps end at once (the timeout)."""
+    (tmp_path / "swallowed.py").write_text(SWALLOWED)
+    env = {**os.environ, "COOPSUMO_MODELS": str(tmp_path / "models"), "PYTHONPATH": str(REPO)}
+    res = subprocess.run([sys.executable, "swallowed.py", what], cwd=tmp_path, env=env, capture_output=True,
+                         text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 130, res.stderr[-2000:]
+    said = [line for line in res.stderr.splitlines() if "interrupted" in line]
+    assert len(said) == 1 and LINE.fullmatch(said[0]) and said[0].startswith(f"{what}: "), res.stderr[-2000:]
+    assert "Traceback" not in res.stderr
+    assert not (tmp_path / "study" / "cells" / "c1.json").exists()
+
+
+def test_a_ctrl_c_of_an_ended_command_is_not_raised_again_by_the_next(capsys: pytest.CaptureFixture[str]) -> None:
+    """A Stop counts against the command it came in: once that command has ended, code run by the next one, or by no
+    command (a test calling the study runner), does not raise it again."""
+    from coopsumo import runio
+
+    assert run_interruptible(_optional_import_that_swallows_ctrl_c, lambda: "models") == 130
+    assert runio.swallowed_stop() is None
+    assert run_interruptible(lambda: 0 if runio.swallowed_stop() is None else 1, lambda: "models") == 0
+    capsys.readouterr()
+
+
 def _frame_in(filename: str) -> object:
     """A frame of a module body read from `filename` (as Python runs one while it imports that module)."""
     scope: dict[str, object] = {"sys": sys}

@@ -45,7 +45,7 @@ from coopsumo.errors import ConfigError, UsageError, first_line
 from coopsumo.files import read_json, temporaries_of, write_atomic, write_json
 from coopsumo.provenance import versions
 from coopsumo.run_dirs import check_no_outside_link, finished_run, mark_run_dir
-from coopsumo.runio import Stop, signals_deferred
+from coopsumo.runio import Stop, raise_swallowed_stop, signals_deferred
 from coopsumo.sim.observation import Observation, network_features
 from coopsumo.sim.world import StepOutcome, World
 
@@ -178,6 +178,7 @@ class Trainer:
         """Train up to cfg.sim.steps; raises Interrupted after checkpointing on SIGINT/SIGTERM (runio.Stop before the
         first step: nothing new to save)."""
         cfg, learner, self._run_step = self.cfg, self.learner, self.step
+        raise_swallowed_stop()  # a Ctrl-C swallowed during the imports: stopped before the first step
         old = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
         try:  # the handlers go in inside the try, so that one raising at once (a stop before the first step) is undone
             for s in old:

@@ -33,7 +33,7 @@ from tqdm import tqdm
 
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
-from coopsumo.runio import children_start_deaf, start_parent_watch, thread_lock_for_bars
+from coopsumo.runio import children_start_deaf, raise_swallowed_stop, start_parent_watch, thread_lock_for_bars
 from coopsumo.studies.engine.records import cell_path
 
 MAX_CRASHES = 2
@@ -406,6 +406,7 @@ def execute(specs: Sequence[dict[str, Any]], root: Path, backend: LocalBackend |
     schedule = _Schedule(specs, root, backend, bar, failed_record, done_keys)
     try:
         while schedule.todo or schedule.solo or schedule.inflight:
+            raise_swallowed_stop()  # a Ctrl-C the code it landed in swallowed (during the imports) stops it here
             schedule.submit()
             bar.refresh()  # the elapsed time moves on while long cells run
             for handle, outcome in backend.wait(list(schedule.inflight), timeout=1.0):
