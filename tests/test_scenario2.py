@@ -637,6 +637,35 @@ def test_dead_worker_is_retried_then_recorded_failed(tmp_path: Path) -> None:
     assert "worker process died 2 times" in records["L2_T4_a8_s2"]["error"]
 
 
+def slow_cell(spec: dict[str, object], root: str) -> dict[str, object]:
+    """A cell that outlasts the test (run in a spawned worker)."""
+    time.sleep(60)
+    return fake_cell(spec, root)
+
+
+def test_an_abort_ends_the_pools_thread_before_it_returns(monkeypatch: pytest.MonkeyPatch) -> None:
+    """After abort() the pool's manager thread has ended and closed its wake-up pipe: an exit right after used to
+    race with it (Python's exit hook wrote into the pipe as the thread closed it: a traceback, EBADF, after
+    "scenario1: interrupted", 1 Ctrl-C in about 600). Here the thread is slow to close its pipe."""
+    import concurrent.futures.process as pool_module
+
+    close = pool_module._ThreadWakeup.close
+
+    def slow_close(self: Any) -> None:
+        time.sleep(1.0)
+        close(self)
+
+    monkeypatch.setattr(pool_module._ThreadWakeup, "close", slow_close)
+    specs = s2_plan.cell_specs(s2_plan.PROFILES["tiny"])
+    backend = runner.LocalBackend(2, cell_fn=slow_cell)
+    handles = [backend.submit(spec, Path("unused")) for spec in specs[:2]]
+    assert backend.wait(handles, timeout=0.5) == []  # both cells running
+    manager = backend._pool._executor_manager_thread  # type: ignore[attr-defined]
+    assert manager is not None and manager.is_alive()
+    backend.abort()
+    assert not manager.is_alive()
+
+
 def test_neighbour_separation_on_hand_made_speeds() -> None:
     rng = np.random.default_rng(0)
     speeds = np.array([[10.0, 10.5, 9.5],  # alpha 0

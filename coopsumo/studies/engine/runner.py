@@ -115,7 +115,13 @@ class LocalBackend:
         for p in procs:
             if p.is_alive():
                 p.kill()
+        # the pool's thread closes its wake-up pipe as it ends; at exit, Python writes to that pipe without the lock
+        # the thread closes it under, so an exit while the thread ended was a traceback (EBADF) after the one line.
+        # shutdown() forgets the thread: it is taken before
+        manager = getattr(self._pool, "_executor_manager_thread", None)
         self._pool.shutdown(wait=False, cancel_futures=True)
+        if manager is not None:
+            manager.join(timeout=10.0)
 
     def close(self) -> None:
         self._pool.shutdown(wait=True)
