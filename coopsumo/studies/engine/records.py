@@ -20,13 +20,6 @@ from coopsumo.files import file_sha256, read_json, read_json_object, temporaries
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD, RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS, TRAIN_SUMMARY_KEYS
 
-MAX_CRASHES = 2
-"""a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
-CellFn = Callable[[dict[str, Any], str], dict[str, Any]]
-"""cell_fn(spec, root) -> record, a module-level function (it is pickled to the workers)"""
-FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
-"""failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
-
 
 def blank_record(spec: dict[str, Any], fields: Sequence[str], **empty: Any) -> dict[str, Any]:
     """A cell's record before it runs: the spec's `fields`, its configuration, then `empty` (the study's own

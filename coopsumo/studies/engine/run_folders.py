@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
@@ -17,13 +17,6 @@ from coopsumo.run_dirs import LEARNERS, Recorded, check_out_path, check_run_dir,
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
-
-MAX_CRASHES = 2
-"""a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
-CellFn = Callable[[dict[str, Any], str], dict[str, Any]]
-"""cell_fn(spec, root) -> record, a module-level function (it is pickled to the workers)"""
-FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
-"""failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
 
 
 def same_config(path: Path, cfg: dict[str, Any]) -> bool:

@@ -14,13 +14,6 @@ from coopsumo.errors import why_unreadable
 from coopsumo.files import read_json
 from coopsumo.record_schemas import STORE_CONFIG
 
-MAX_CRASHES = 2
-"""a cell whose worker process died this many times (the last time running alone) is recorded as failed"""
-CellFn = Callable[[dict[str, Any], str], dict[str, Any]]
-"""cell_fn(spec, root) -> record, a module-level function (it is pickled to the workers)"""
-FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
-"""failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
-
 
 def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) -> dict[str, Any] | None:
     """The training summary of a training without evaluation that finished in out with exactly this config
