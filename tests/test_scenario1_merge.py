@@ -152,6 +152,27 @@ def test_a_part_that_does_not_belong_is_refused_in_one_line(edit: Callable[[Path
     assert not out.exists()
 
 
+@pytest.mark.parametrize("edit, words", [
+    (_plan(lambda r: r["plan"].update(lanes=9)), "p1/plan.json: [plan] lanes must be"),
+    (_plan(lambda r: r["plan"].update(steps="x")), "p1/plan.json: [plan] steps must be int, got 'x'"),
+    (_plan(lambda r: r["plan"].update(lanes=True)), "p1/plan.json: [plan] lanes must be int, got True"),
+    (_plan(lambda r: r["plan"].update(profile=5)), "p1/plan.json: [plan] profile must be a profile's name, got 5"),
+    (_plan(lambda r: r["plan"].update(baselines=["keep", "nonsense:x=1"])), "p1/plan.json: [plan] baselines:"),
+    (_plan(lambda r: r["plan"].update(colour="red")), "p1/plan.json: [plan] unknown field 'colour'"),
+], ids=["9 lanes", "steps a string", "lanes true", "profile a number", "a baseline no policy", "an unknown field"])
+def test_parts_whose_plan_breaks_the_plans_rules_are_refused(edit: Callable[[Path], Any], words: str,
+                                                             parts: list[Path], tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 7, I8: both parts' plan.json edited alike (so they agree with each other) was merged into a
+    9-lane study, steps "x"; each part's plan is checked by the rules a profile's fields get, naming file and field."""
+    for part in parts:
+        edit(part)
+    out = tmp_path / "merged"
+    code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(out))
+    assert code == 2 and len(err) == 1 and words in err[0], err
+    assert not out.exists()
+
+
 @pytest.mark.parametrize("extra, words", [
     (["--seeds", "3"], "--merge takes only --out"),
     (["--t-up", "2"], "got --t-up"),

@@ -21,13 +21,13 @@ import pandas as pd
 
 from coopsumo.config import results_view
 from coopsumo.dqn_config import dqn_config_from_dict
-from coopsumo.errors import UsageError
+from coopsumo.errors import ConfigError, UsageError
 from coopsumo.files import read_json_object, write_json
 from coopsumo.owners import owned_problem
 from coopsumo.provenance import versions
 from coopsumo.report.markdown import md_table
 from coopsumo.studies.scenario1.measures import aggregate
-from coopsumo.studies.scenario1.plan import model_label
+from coopsumo.studies.scenario1.plan import model_label, recorded_plan
 from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
 
 MERGED = "merge.json"
@@ -63,6 +63,10 @@ def _part(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
         if isinstance(value, (int, float)) and not isinstance(value, bool) and not (math.isfinite(value) and
                                                                                      value >= 0):  # fmt: skip
             raise UsageError(f"--merge: {folder}/plan.json: plan.{key} must be a finite number >= 0, got {value}")
+    try:  # by the rules a profile's fields get: no 9 lanes, no steps "x" (issue 82, probe 7, I8)
+        recorded_plan(folder / "plan.json", recorded["plan"])
+    except ConfigError as err:
+        raise UsageError(f"--merge: {err}") from None
     if not (folder / "runs.csv").is_file():
         raise UsageError(f"--merge: {folder} has no runs.csv: the part has not finished")
     try:

@@ -23,7 +23,7 @@ from coopsumo.config import (
 )
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError
-from coopsumo.policy_spec import model_file, parse_policy, split_dqn_spec
+from coopsumo.policy_spec import PolicySpecError, model_file, parse_policy, split_dqn_spec
 from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_profiles
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.studies.engine.run_folders import default_out
@@ -241,9 +241,12 @@ def plan_problem(plan: Plan) -> str | None:
     return None
 
 
-def _plan(at: Entry, name: str, settings: dict[str, Any]) -> Plan:
-    """One profile of a file from its settings, each typed and checked by its rule (FIELD_RULES, plan_problem)."""
+def _plan(at: Entry, name: str, settings: dict[str, Any], own_baselines: bool = False) -> Plan:
+    """One profile of a file from its settings, each typed and checked by its rule (FIELD_RULES, plan_problem);
+    own_baselines: the baselines may add policies of one's own (a study's plan.json records --baseline's)."""
     hints, names = get_type_hints(Plan), {"baselines": BASELINES, "presets": tuple(learners())}
+    if own_baselines:
+        names["baselines"] = (*BASELINES, *own_policies(at, settings.get("baselines")))
     values: dict[str, Any] = {key: at.names(key, value, names[key], least=int(key == "presets")) if key in names
                               else at.value(key, value, hints[key], FIELD_RULES.get(key))
                               for key, value in settings.items()}  # fmt: skip
@@ -253,6 +256,30 @@ def _plan(at: Entry, name: str, settings: dict[str, Any]) -> Plan:
     if problem := plan_problem(plan):
         raise at.error(problem)
     return plan
+
+
+def own_policies(at: Entry, value: Any) -> tuple[str, ...]:
+    """The policies of one's own in a recorded plan's baselines (as --baseline gives them, checked by their grammar:
+    policy_spec.parse_policy), the profile's BASELINES left out; ConfigError naming the first one it refuses."""
+    own = tuple(v for v in value if v not in BASELINES) if isinstance(value, list) else ()
+    for text in own:
+        try:
+            parse_policy(text)
+        except (PolicySpecError, TypeError) as err:
+            raise at.error(f"baselines: {err}") from None
+    return own
+
+
+def recorded_plan(path: Path, settings: Any) -> Plan:
+    """The plan a study recorded in its plan.json (`plan`; a merge's part, issue 82, probe 7, I8), checked by the
+    rules a profile's fields get (FIELD_RULES, plan_problem, the learner presets known), its baselines with
+    --baseline's policies: one ConfigError naming the file and the field ("PATH: [plan] lanes must be ...")."""
+    at = Entry(path, "plan")
+    at.table(settings, "plan", (*SETTABLE, "profile"))
+    name = settings.get("profile")
+    if not isinstance(name, str) or not name:
+        raise at.error(f"profile must be a profile's name, got {name!r}")
+    return _plan(at, name, {key: value for key, value in settings.items() if key != "profile"}, own_baselines=True)
 
 
 def load_profiles(path: Path = PROFILES_FILE) -> tuple[dict[str, Plan], dict[str, str], str]:
