@@ -219,3 +219,71 @@ def test_an_out_that_is_not_the_merges_own_is_refused(parts: list[Path], tmp_pat
     shutil.rmtree(parts[1])
     code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(tmp_path / "gone"))
     assert code == 2 and "holds no scenario I plan.json" in err[0]
+
+
+def test_a_merge_of_other_parts_from_another_working_folder_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82, probe 7, I3: `--merge p1,p2` from the folder A, then the same words from the folder B (other parts)
+    replaced A's merge, since merge.json held the strings given. The parts are recorded absolute and --out is claimed
+    as a study root: its marker names the merged study, a merge of other parts is refused, nothing written."""
+    out = tmp_path / "M"
+    for name in ("A", "B"):
+        (tmp_path / name).mkdir()
+        for part, seeds in HALVES.items():
+            make_part(tmp_path / name, part, seeds)
+    monkeypatch.chdir(tmp_path / "A")
+    assert merge(capsys, "--merge", "p1,p2", "--out", str(out))[0] == 0
+    assert json.loads((out / "merge.json").read_text())["parts"] == [str(tmp_path / "A" / p) for p in HALVES]
+    marker = json.loads((out / ".coopsumo-run.json").read_text())
+    assert marker["kind"] == "scenario1" and marker["study"] == \
+        "the default profile's study merged from parts (learner preset alpha_only)"
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    monkeypatch.chdir(tmp_path / "B")
+    code, err = merge(capsys, "--merge", "p1,p2", "--out", str(out))
+    assert code == 2 and len(err) == 1 and "holds a merge of other parts" in err[0], err
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    monkeypatch.chdir(tmp_path / "A")  # the same parts, however named, are the same merge
+    assert merge(capsys, "--merge", f"{tmp_path / 'A' / 'p2'},../A/p1", "--out", str(out))[0] == 0
+
+
+def test_a_folder_of_another_study_is_refused(parts: list[Path], tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 7, I3: a folder holding only names a merge writes (plan.json, runs.csv) but marked as another
+    study's, or unmarked with a study's plan.json, was written over."""
+    for marker in ({"kind": "scenario1", "finished": False, "study": "the quick profile's study"},
+                   {"kind": "protocol", "finished": False, "study": "the tiny profile's study"}, None):
+        other = tmp_path / "other"
+        shutil.rmtree(other, ignore_errors=True)
+        other.mkdir()
+        (other / "plan.json").write_text(json.dumps({"plan": {"profile": "quick", "presets": ["default"]}}))
+        (other / "runs.csv").write_text("a,b\n1,2\n")
+        if marker is not None:
+            (other / ".coopsumo-run.json").write_text(json.dumps(marker))
+        before = {p.name: p.read_bytes() for p in other.iterdir()}
+        code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(other))
+        assert code == 2 and len(err) == 1 and ("holds the quick profile's study" in err[0] or
+                                                "holds a coopsumo protocol run" in err[0]), err
+        assert {p.name: p.read_bytes() for p in other.iterdir()} == before
+
+
+def test_a_merge_written_before_markers_is_its_own(parts: list[Path], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """A merged folder without a marker whose merge.json names its parts relative to the working folder it was run
+    from (results/scenario1_alpha_only_dense_s/merged) is the same merge's: its README's command reruns into it."""
+    from coopsumo.run_dirs import check_study_root
+    from coopsumo.studies.scenario1.merge import OWN, merged_study, recorded_merge
+
+    out = tmp_path / "merged"
+    monkeypatch.chdir(tmp_path)
+    assert merge(capsys, "--merge", "p1,p2", "--out", "merged")[0] == 0
+    (out / ".coopsumo-run.json").unlink()
+    (out / "merge.json").write_text(json.dumps({"parts": ["p1", "p2"], "train_seeds": list(range(100, 110))}))
+    assert merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(out))[0] == 0
+    committed = REPO / "results" / "scenario1_alpha_only_dense_s" / "merged"
+    monkeypatch.chdir(REPO)
+    study = merged_study("default", ["alpha_only_dense_s"])
+    assert recorded_merge(committed) == study
+    check_study_root(committed, "scenario1", OWN, study, recorded_merge)  # taken: nothing raised, nothing written
+    named = json.loads((committed / "merge.json").read_text())["parts"]
+    assert {(REPO / p).resolve() for p in named} == {committed.parent / f"p{i}" for i in range(1, 13)}

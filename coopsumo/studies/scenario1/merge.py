@@ -13,6 +13,7 @@ import os
 import re
 import shutil
 import tempfile
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -22,10 +23,12 @@ import pandas as pd
 from coopsumo.config import results_view
 from coopsumo.dqn_config import dqn_config_from_dict
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.files import read_json_object, write_json
+from coopsumo.files import read_json, read_json_object, write_json
 from coopsumo.owners import owned_problem
 from coopsumo.provenance import versions
 from coopsumo.report.markdown import md_table
+from coopsumo.run_dirs import study_root
+from coopsumo.studies.engine.run_folders import profile_study, recorded_profile
 from coopsumo.studies.scenario1.measures import aggregate
 from coopsumo.studies.scenario1.plan import model_label, recorded_plan
 from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
@@ -34,6 +37,8 @@ MERGED = "merge.json"
 """the merged folder's record of its parts: a rerun of the same merge may write over it, nothing else may"""
 OWN_FILES = ("runs.csv", "summary.csv", "plan.json", "report.md", "claim_a.md", "fig_thrashing.png", MERGED)
 """what a merge writes into its folder"""
+OWN = (MERGED, *OWN_FILES[:-1])
+"""the same, its record first: the names of a merged folder's study (run_dirs.check_study_root)"""
 
 
 PLAN_LISTS: dict[str, Any] = {"presets": str, "alphas": (int, float), "train_seeds": int, "t_ups": (int, float),
@@ -180,7 +185,8 @@ def _check_out(out: Path, folders: list[Path]) -> None:
     if out.is_dir() and (out / MERGED).exists():
         recorded = read_json_object(out / MERGED)
         before = recorded.get("parts") if recorded is not None else None
-        if not isinstance(before, list) or not set(map(str, before)) <= {str(f) for f in folders}:
+        if not isinstance(before, list) or not all(isinstance(p, str) and p for p in before) or \
+                not {Path(p).resolve() for p in before} <= {f.resolve() for f in folders}:  # fmt: skip
             raise UsageError(f"--out {out} holds a merge of other parts ({MERGED}): pick another --out (a merge "
                              "may only grow by parts)")  # fmt: skip
     if out.is_dir():
@@ -190,8 +196,32 @@ def _check_out(out: Path, folders: list[Path]) -> None:
                              "of its own")  # fmt: skip
 
 
+def merged_study(profile: str, presets: Sequence[str]) -> str:
+    """Which study a merge of parts of the profile `profile` with the learner presets `presets` writes, as its
+    folder's marker names it (run_dirs.check_study_root): another than a study run ("the default profile's study")."""
+    return profile_study(profile, "study merged from parts", presets)
+
+
+def recorded_merge(root: Path) -> str | None:
+    """Which study the folder `root` holds by its plan.json (a merge written before its marker named the study:
+    results/scenario1_alpha_only_dense_s/merged), or None when it cannot be read: a merge's when merge.json is there,
+    else a study run's (run_folders.recorded_profile)."""
+    if not (root / MERGED).exists():
+        return recorded_profile("plan.json", "plan", "profile", presets=("plan", "presets"))(root)
+    try:
+        plan = read_json(root / "plan.json")["plan"]
+        profile, presets = plan["profile"], plan["presets"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not isinstance(profile, str) or not isinstance(presets, list) or not all(isinstance(p, str) for p in presets):
+        return None
+    return merged_study(profile, presets)
+
+
 def merge_parts(folders: list[Path], out: Path) -> int:
-    """Check the parts, then write the merged study into out (module docstring); 0."""
+    """Check the parts, then write the merged study into out (module docstring); 0. Out is claimed as a study root
+    (run_dirs.study_root: lock, ownership, a marker naming merged_study) before anything is written into it: a folder
+    of another study, or a merge of other parts, is refused (issue 82, probe 7, I3)."""
     if len(folders) < 2:
         raise UsageError("--merge needs at least two part folders, comma-separated")
     if len({f.resolve() for f in folders}) != len(folders):
@@ -200,19 +230,28 @@ def merge_parts(folders: list[Path], out: Path) -> int:
     parts = [(folder, *_part(folder)) for folder in folders]
     check_parts(parts)
     rows = merged_runs(parts)
-    first = parts[0][1]
-    seeds = sorted(s for _, recorded, _ in parts for s in recorded["plan"]["train_seeds"])
-    plan_dict = {**first["plan"], "train_seeds": seeds}
     SCENARIO1_RUNS.check_frame(rows, out / "runs.csv")
     summary = aggregate(rows)
     SCENARIO1_SUMMARY.check_frame(summary, out / "summary.csv")
-    out.parent.mkdir(parents=True, exist_ok=True)
+    plan = parts[0][1]["plan"]
+    with study_root(out, "scenario1", OWN, merged_study(plan["profile"], plan["presets"]), recorded_merge):
+        _check_out(out, folders)  # again, under the lock
+        return _write_merge(parts, out, rows, summary)
+
+
+def _write_merge(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]], out: Path, rows: pd.DataFrame,
+                 summary: pd.DataFrame) -> int:  # fmt: skip
+    """Write the merged study of the checked parts (its runs and summary checked) into its claimed folder out; 0."""
+    absolute = [str(folder.absolute()) for folder, _, _ in parts]  # from any working folder the same parts (I3)
+    first = parts[0][1]
+    seeds = sorted(s for _, recorded, _ in parts for s in recorded["plan"]["train_seeds"])
+    plan_dict = {**first["plan"], "train_seeds": seeds}
     stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-merge-", dir=out.parent))
     try:  # every file written beside out first, then moved in: an interrupted merge leaves out as it was
         rows.to_csv(stage / "runs.csv", index=False)
         summary.to_csv(stage / "summary.csv", index=False)
         write_json(stage / "plan.json", {"plan": plan_dict, "learners": first["learners"], "versions": versions(),
-                                         "parts": [str(f) for f in folders]})  # fmt: skip
+                                         "parts": absolute})  # fmt: skip
         presets, alphas = plan_dict["presets"], plan_dict["alphas"]
         claim = ""
         if 0.0 in alphas and 8.0 in alphas:
@@ -222,12 +261,9 @@ def merge_parts(folders: list[Path], out: Path) -> int:
             claim = (f"\n\nClaim (a) under its analysis plan: [claim_a.md](claim_a.md) ({found['planned_models']} "
                      "models per alpha planned from the first 10), `fig_thrashing.png`.")  # fmt: skip
         (stage / "report.md").write_text(report_text(parts, rows, plan_dict) + claim + "\n")
-        write_json(stage / MERGED, {"parts": [str(f) for f in folders], "train_seeds": seeds})
-        if not out.exists():
-            stage.rename(out)
-        else:  # a merge of these parts before: its files replaced, merge.json last
-            for name in sorted(p.name for p in stage.iterdir() if p.name != MERGED) + [MERGED]:
-                os.replace(stage / name, out / name)
+        write_json(stage / MERGED, {"parts": absolute, "train_seeds": seeds})
+        for name in sorted(p.name for p in stage.iterdir() if p.name != MERGED) + [MERGED]:  # merge.json last
+            os.replace(stage / name, out / name)
     finally:
         shutil.rmtree(stage, ignore_errors=True)
     print(f"scenario1: merged {len(parts)} parts ({len(seeds)} models per alpha) into {out}")
