@@ -237,3 +237,24 @@ SWEEP = Schema((
 """a finished scenario II sweep's sweep.json (scenario2.study.run_sweep's meta), as a merge reads a part's; what must
 agree with its profile (its learner per lane count, its conditions, its cell count, its criterion) and with itself
 (cells_ok and cells_failed adding up to cells) is redraw._meta_problem's"""
+
+_OPTIONAL_SHARE = dataclasses.replace(SHARE, blank_ok=True)
+PROTOCOL_RUNS = Table(
+    columns=(Field("key", Text()), Field("kind", Text(("model", "baseline"))), Field("variant", Text()),
+             Field("alpha", ALPHA), Field("seed", SEED), Field("scenario", Text(("free", "accident"))),
+             Field("t_up", DEMAND), Field("eval_seed", SEED), Field("weights", Text(blank_ok=True)),
+             Field("train_key", Text(blank_ok=True)), Field("status", Text(CELL_STATUSES))),
+    case="status",
+    cases={"ok": (Field("mean_speed_mps", SPEED), Field("tts_veh_h", dataclasses.replace(VEH_H, blank_ok=True)),
+                  Field("lane_changes_per_vehicle", PER_VEHICLE),
+                  Field("queue_lane_changes_per_vehicle", dataclasses.replace(PER_VEHICLE, blank_ok=True),
+                        optional=True),
+                  Field("collisions", COUNT), Field("teleports", COUNT),
+                  Field("selected_step", Integer(0, blank_ok=True), optional=True),
+                  *(Field(name, _OPTIONAL_SHARE, optional=True)
+                    for name in ("held_share", "passing_open_share", "passing_taken_share")))},
+    key=("key",),
+)  # fmt: skip
+"""a learner protocol study's runs.csv (protocol.report.runs_table): one row per cell, its measures when ok (free flow
+has no total time spent; a table of before the queue's lane changes, the selected step or the passing chances lacks
+those columns), as a study paired with it reads it (protocol.paired; issue 82, probe 7, I7)"""

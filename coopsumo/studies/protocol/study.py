@@ -36,6 +36,7 @@ from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import default_out, profile_study, recorded_profile, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
+from coopsumo.studies.protocol.paired import check_paired
 from coopsumo.studies.protocol.plan import (
     CURRENT,
     DRIVES,
@@ -204,6 +205,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.workers <= 0:
             raise UsageError(f"--workers must be positive, got {args.workers}")
         profile = chosen_profile(args.profile)
+        check_paired(profile)  # the studies it pairs with, before any cell runs (issue 82, probe 7, I7, I11)
         check_backend(args.backend, args.address)
         if args.out is None:
             args.out = default_model_out(default_folder(profile.name))
