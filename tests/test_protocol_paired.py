@@ -87,3 +87,47 @@ def test_the_committed_pairings_and_a_good_copy_are_taken(results: Path) -> None
     check_paired(Profile("x", variants=("nr10",), paired_with=(("nr10", "missing", "nr10"),)))  # the report's note
     for profile in PROFILES.values():
         check_paired(profile, REPO / "results")
+
+
+def test_a_failed_baseline_cell_is_listed_in_the_report(tmp_path: Path) -> None:
+    """Issue 82, probe 7, I10: a study with a failed baseline cell ended in `ValueError: cannot convert float NaN to
+    integer` after its cells, without report.md; its table now shows "-" where the baseline has no value, and the
+    failed cell is listed."""
+    import json
+    import math
+
+    from coopsumo.studies.protocol.plan import PROFILES
+
+    runs = pd.read_csv(REFERENCE / "runs.csv").reindex(columns=list(report.COLUMNS))
+    failed = runs.index[runs["key"] == "keep_free_t1.5"]
+    assert len(failed) == 1
+    runs.loc[failed, "status"] = "failed"
+    runs.loc[failed, list(report.COLUMNS[11:])] = math.nan
+    models = report.per_model(runs)
+    profile = PROFILES["nr10"]
+    table = report.condition_stats(models, list(profile.variants), list(report.BASELINES))
+    meta = json.loads((REFERENCE / "study.json").read_text())
+    text = report.report_text(profile, runs, models, table, pd.DataFrame(), meta)
+    assert "Failed cells (1): keep_free_t1.5" in text
+    row = next(ln for ln in text.splitlines() if ln.startswith("| 1.5 | `nr10` | 10 | 20.55"))
+    assert "| - |" in row and "| -, - |" in row and "nan" not in text
+
+
+def test_a_users_folder_at_a_baselines_run_place_is_refused_before_any_cell(tmp_path: Path,
+                                                                            capsys: pytest.CaptureFixture[str]
+                                                                            ) -> None:  # fmt: skip
+    """Issue 82, probe 7, I10: P/runs/keep_free_t1.5 holding a user's summary.json and notes.txt failed that cell in
+    its worker (then the report's traceback); it is refused before any cell runs, as scenario I refuses one."""
+    from coopsumo.studies.protocol.plan import PROFILES, cell_specs
+
+    out = tmp_path / "P"
+    key = next(s["key"] for s in cell_specs(PROFILES["tiny"]) if s["kind"] == "baseline")
+    place = out / "runs" / key
+    place.mkdir(parents=True)
+    (place / "summary.json").write_text('{"mine": 1}')
+    (place / "notes.txt").write_text("x")
+    code = protocol.main(["--profile", "tiny", "--workers", "1", "--quiet", "--out", str(out)])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if "error" in ln]
+    assert code == 2 and len(err) == 1 and str(place) in err[0] and "not a coopsumo run folder" in err[0], err
+    assert sorted(p.name for p in place.iterdir()) == ["notes.txt", "summary.json"]
+    assert not list((out / "cells").glob("*.json")) and not (out / "train").exists()

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 from typing import Any
@@ -25,6 +25,14 @@ def same_config(path: Path, cfg: dict[str, Any]) -> bool:
         return bool(results_view(read_json(path)["config"]) == results_view(json.loads(json.dumps(cfg))))
     except (OSError, ValueError, KeyError):
         return False
+
+
+def check_run_places(folders: Iterable[Path]) -> None:
+    """UsageError naming the first of a study's run folders still to run that the study may not replace (a user's
+    folder, another command's run: run_dirs.check_run_dir), before any cell runs rather than in its worker: the rule
+    scenario I and the protocol share (issue 82, probe 7, I10: the protocol refused it per cell)."""
+    for folder in folders:
+        check_run_dir(folder.resolve(), "simulate")
 
 
 RUN_SUMMARY = ("departed", "mean_speed_mps", "throughput_veh_per_h", "lane_changes", "collisions", "teleports")

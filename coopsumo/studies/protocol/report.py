@@ -115,7 +115,7 @@ def pooled_stats(runs: pd.DataFrame, variant: str, baseline: str, scenario: str)
     measure, _, sign = MEASURES[scenario]
     mine = ok[ok["variant"] == variant].pivot_table(index="seed", columns="t_up", values=measure).dropna()
     base = ok[ok["variant"] == baseline].pivot_table(index="eval_seed", columns="t_up", values=measure)
-    if mine.empty or base.empty:
+    if mine.empty or base.empty or not set(mine.columns) <= set(base.columns):  # a baseline's cell failed: none
         return math.nan, math.nan, math.nan
     base = base.max().to_frame().T[mine.columns]  # one evaluation seed per demand: one row
     return stats.improvement(sign * mine.to_numpy(float), sign * base.to_numpy(float))
@@ -340,10 +340,12 @@ def _scenario_tables(profile: Any, ok: pd.DataFrame, table: pd.DataFrame) -> lis
         for _, r in sub.iterrows():
             cells = [f"{r['t_up']:g}", f"`{r['variant']}`", str(int(r["models"])), _ci(r["iqm"], r["low"], r["high"]),
                      f"{r['worst']:.2f}", f"{r['lane_changes_per_vehicle']:.2f}"]
-            cells += [f"{r.get(f'{b}_value', math.nan):.2f}" for b in BASELINES]
+            values = [r.get(f"{b}_value", math.nan) for b in BASELINES]  # a failed baseline's: blank
+            cells += ["-" if pd.isna(v) else f"{v:.2f}" for v in values]
             for b in BASELINES:
                 poi = (r.get(f"{b}_poi", math.nan), r.get(f"{b}_poi_low", math.nan), r.get(f"{b}_poi_high", math.nan))
-                cells.append(f"{_ci(*poi)}, {int(r.get(f'{b}_losses', 0))}")
+                losses = r.get(f"{b}_losses", 0)  # blank where the baseline's cell failed (issue 82, probe 7, I10)
+                cells.append(f"{_ci(*poi)}, {'-' if pd.isna(losses) else int(losses)}")
             rows.append(cells)
         lines += md_table(head, rows).split("\n")
         lines += ["", "Across the demands (probability of improvement averaged over demands, 95% CI):", ""]

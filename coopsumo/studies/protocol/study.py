@@ -34,7 +34,13 @@ from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import failed_exit
-from coopsumo.studies.engine.run_folders import default_out, profile_study, recorded_profile, study_root
+from coopsumo.studies.engine.run_folders import (
+    check_run_places,
+    default_out,
+    profile_study,
+    recorded_profile,
+    study_root,
+)
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
 from coopsumo.studies.protocol.paired import check_paired
 from coopsumo.studies.protocol.plan import (
@@ -140,6 +146,7 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
     done -= repointed_trainings(root, [s for s in specs if s["key"] in done], "protocol")  # linked elsewhere
     done -= spoiled_logs(root, [s for s in specs if s["key"] in done], "protocol")  # its diagnosis reads them
     todo = [s for s in specs if s["key"] not in done]
+    check_run_places(root / "runs" / s["key"] for s in todo)  # a user's folder there: refused before any cell runs
     # each training's first cell before any cell that would wait for it, free flow (short) before the accident
     first: dict[str, str] = {}
     for s in todo:

@@ -30,12 +30,17 @@ from coopsumo.files import read_json, read_json_object, write_atomic, write_json
 from coopsumo.policy_spec import policy_file
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD
-from coopsumo.run_dirs import check_run_dir
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.engine.records import failed_exit
-from coopsumo.studies.engine.run_folders import profile_study, recorded_profile, reusable_run, study_root
+from coopsumo.studies.engine.run_folders import (
+    check_run_places,
+    profile_study,
+    recorded_profile,
+    reusable_run,
+    study_root,
+)
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
 from coopsumo.studies.scenario1 import regime_map
 from coopsumo.studies.scenario1.accident_runs import failed_record, run_cell
@@ -292,7 +297,7 @@ def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], dict[tuple[str
                 model = Path(read) if (read := policy_file(policy)) is not None else None  # a model or module
                 if after not in retrained and reusable_run(out, to_dict(cfg), plan.outputs(), model):
                     continue
-                check_run_dir(out.resolve(), "simulate")  # one it may not replace: refused now, not in its worker
+                check_run_places([out])  # one it may not replace: refused now, not in its worker
                 specs.append({"key": runs[-1].key, "kind": "run",
                               "label": label, "seed": seed, "t_up_s": t_up, "out": folder, "after": after,
                               "config": to_dict(cfg), "trajectory_every": plan.trajectory_every,
