@@ -44,12 +44,24 @@ def _utf8_locale() -> bool:
     return locale.nl_langinfo(locale.CODESET).replace("-", "").lower() == "utf8"
 
 
+def utf8_problem(text: str) -> str | None:
+    """Why `text` (a path or an argument) cannot be taken, or None: a byte that is not valid UTF-8 (Python holds it as
+    a lone surrogate, '\\udcff'), which SUMO cannot take as a file name and coopsumo cannot write into its own files
+    (issue 82, probe 7, I9: a traceback, a partial folder left behind)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return f"{text!r} has a byte that is not valid UTF-8, which SUMO and coopsumo's records cannot take; rename it"
+    return None
+
+
 def out_path_problem(path: Path) -> str | None:
     """Why SUMO or the file system cannot take `path` as an output folder (a phrase to follow the flag), or None.
 
     Refused: a relative path when the current folder was deleted; ':' (SUMO reads it as host:port) or ','
     (SUMO splits its file lists at commas) anywhere in the absolute path; non-ASCII characters under an
-    ASCII locale (LC_ALL=C: SUMO cannot open such names); a symbolic link loop; a file where a folder must be;
+    ASCII locale (LC_ALL=C: SUMO cannot open such names); a byte that is not valid UTF-8 (utf8_problem); a
+    symbolic link loop; a file where a folder must be;
     a name longer than NAME_MAX less NAME_ROOM, a path longer than PATH_MAX less PATH_ROOM.
     """
     try:
@@ -63,6 +75,8 @@ def out_path_problem(path: Path) -> str | None:
     except (RuntimeError, OSError):  # Python 3.11: RuntimeError for a loop; later versions: OSError ELOOP
         return f"{text!r} goes through a loop of symbolic links"
     for shown in dict.fromkeys((text, str(real))):
+        if problem := utf8_problem(shown):
+            return problem
         if ":" in shown:
             return (f"must be a folder path without ':' (SUMO reads an output file name with ':' as host:port), "
                     f"got {shown!r}")  # fmt: skip

@@ -15,7 +15,7 @@ from typing import Any, NoReturn
 
 from coopsumo.errors import USAGE_EXIT, USER_ERRNOS, NotRegularFileError, UsageError, first_line, os_error_text
 from coopsumo.owners import nets_env_problem, store_env_problem
-from coopsumo.paths import env_problem
+from coopsumo.paths import env_problem, utf8_problem
 
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
@@ -41,6 +41,15 @@ class Parser(argparse.ArgumentParser):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
         super().__init__(*args, **kwargs)
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:  # type: ignore[override]
+        """argparse's, every argument first checked for a byte that is not valid UTF-8 (paths.utf8_problem): one line
+        before the command starts, for every flag of every command (issue 82, probe 7, I9)."""
+        words = sys.argv[1:] if args is None else list(args)
+        for word in words:
+            if problem := utf8_problem(word):
+                self.error(problem)
+        return super().parse_known_args(words, namespace)
 
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: error: {message}", file=sys.stderr)
