@@ -211,6 +211,10 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("simulate", [*SIM, "--t-up", "3600.0000001"], ("--t-up", "<= 3600", "got 3600.0000001")),
     ("train", [*TRAIN, "--t-up", "3600.0000001"], ("--t-up", "got 3600.0000001")),
     ("simulate", [*SIM, "--fcd", "--fcd-period", "0.1500001"], ("--fcd-period", "got 0.1500001")),
+    # issue 82, probe 7, I16: a number too small for a float is not taken as 0 where 0 is allowed
+    ("train", [*TRAIN, "--w-speed", "1e-400"], ("--w-speed", "got '1e-400'", "taken as 0")),
+    ("train", [*TRAIN, "--epsilon-end", "1e-999"], ("--epsilon-end", "got '1e-999'", "taken as 0")),
+    ("simulate", [*SIM, "--gui-delay", "1e-400"], ("--gui-delay", "got '1e-400'", "taken as 0")),
 ]  # fmt: skip
 
 SUBPROCESS = (
