@@ -492,6 +492,22 @@ def test_a_model_that_is_not_a_regular_file_says_so(kind: str, fragment: str, tm
     assert ("not a regular file" in err) == (kind != "missing"), err
 
 
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_a_bench_model_that_is_not_a_regular_file_says_so(kind: str, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 7, I17c: `bench --model /dev/zero` (or a FIFO) said "no model file", as if nothing were there."""
+    from conftest import main_here
+
+    from coopsumo import bench
+
+    model = tmp_path / "model.pt" if kind == "fifo" else Path("/dev/zero")
+    if kind == "fifo":
+        os.mkfifo(model)
+    code, out, err = main_here(bench.main, ["--quick", "--model", str(model)], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and out == "", err
+    assert f"--model: {model} is not a regular file but a {'named pipe' if kind == 'fifo' else 'device'}" in err, err
+
+
 @pytest.mark.sumo
 def test_model_from_before_the_dueling_head_on_another_lane_count_is_driven_as_trained(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
