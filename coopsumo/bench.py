@@ -378,6 +378,10 @@ def model_path(text: str) -> Path:
     path = Path(text)
     if path.is_dir():
         path = path / "model.pt"
+    from coopsumo.files import not_regular
+
+    if kind := not_regular(path):  # /dev/zero, a named pipe: never read (issue 82, probe 7, I17c)
+        raise argparse.ArgumentTypeError(f"{path} is not a regular file but {kind}")
     if not path.is_file():
         raise argparse.ArgumentTypeError(f"no model file at {path}")
     return path.resolve()

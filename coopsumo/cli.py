@@ -80,20 +80,37 @@ def command_of(argv: Sequence[str]) -> str:
     return own[-1] if own and own[-1] in COMMANDS else "coopsumo"
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM before runio takes it over (main's first instructions): one line, exit code 143, as a Ctrl-C there."""
+
+    signum = 15
+
+
+def _terminated(signum: int, frame: object) -> None:
+    raise Terminated
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run `coopsumo [--nets-dir DIR] COMMAND [options]`; returns the command's exit code. A Ctrl-C at any moment,
-    from this first instruction on (the command's imports included), ends it in one line and exit code 130; run as
-    the process's command (argv None: the console command, `python -m coopsumo`), one while Python exits is ignored
-    (runio.run_interruptible)."""
+    """Run `coopsumo [--nets-dir DIR] COMMAND [options]`; returns the command's exit code. A Ctrl-C (SIGINT) or a
+    SIGTERM at any moment, from this first instruction on (the command's imports included), ends it in one line and
+    exit code 128 + the signal; run as the process's command (argv None: the console command, `python -m coopsumo`),
+    one while Python exits is ignored (runio.run_interruptible). Issue 82, probe 7, I15: a SIGTERM before runio took
+    it ended the process without a line."""
+    import _signal  # built in: no import, no time; SIGTERM raises Terminated until run_interruptible takes it
+
+    before = _signal.signal(_signal.SIGTERM, _terminated)
     try:  # Python's own KeyboardInterrupt until run_interruptible takes SIGINT (while runio is imported)
         from coopsumo.runio import run_interruptible
 
         return run_interruptible(lambda: _main(sys.argv[1:] if argv is None else argv),
                                  lambda: command_of(sys.argv[1:] if argv is None else argv),
                                  whole_process=argv is None)  # fmt: skip
-    except KeyboardInterrupt:
+    except KeyboardInterrupt as err:
         print(f"{command_of(sys.argv[1:] if argv is None else argv)}: interrupted", file=sys.stderr)
-        return 130
+        return 128 + getattr(err, "signum", 2)
+    finally:
+        if argv is not None:  # called in a process of its own (a test): its SIGTERM as it was
+            _signal.signal(_signal.SIGTERM, before)
 
 
 def _main(argv: Sequence[str]) -> int:

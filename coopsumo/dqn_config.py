@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from coopsumo.errors import ConfigError
+from coopsumo.field_rules import float_flag
 from coopsumo.validation import (
     ALPHA_MAX,
     ALPHA_MIN,
@@ -269,7 +270,7 @@ RETIRED_AT = "eaffea4"
 """the last commit with the retired settings' code"""
 IMPLIED_FIELDS: dict[str, Any] = {**ADDED_FIELDS, **RETIRED_FIELDS}
 """every field a stored configuration may hold or lack at its implied value (config.results_view drops it there)"""
-FLAG_TYPES: dict[str, Any] = {"bool": bool, "int": int, "float": float}
+FLAG_TYPES: dict[str, Any] = {"bool": bool, "int": int, "float": float_flag}
 """a field's annotation -> its flag's type (any other, a tuple: a str flag holding a comma-separated list)"""
 LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = tuple(
     (f.metadata["flag"], f.name, f.metadata["choices"] or FLAG_TYPES.get(str(f.type), str), f.metadata["help"])

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import decimal
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -111,12 +112,39 @@ class NumberRule:
             value = math.nan
         if problem := self._problem(value):
             raise argparse.ArgumentTypeError(f"must be {problem}{self.note}, got {text!r}")
+        if value == 0 and not _zero_text(text):
+            raise argparse.ArgumentTypeError(f"must be {self._problem(math.nan)}{self.note}, got {text!r}, {TOO_SMALL}")
         return value
 
     def problem(self, value: Any) -> str | None:
         """None when value is finite and inside the bounds, else "must be ..., got VALUE" (a data file's value)."""
         problem = self._problem(as_float(value))
         return f"must be {problem}{self.note}, got {shown(value)}" if problem else None
+
+
+TOO_SMALL = "which is too small for a float and would be taken as 0 (give 0, or a number from 1e-308)"
+"""why a float flag refuses a text float() reads as 0 that is not 0 (1e-400; issue 82, probe 7, I16: --w-speed 1e-400
+trained the speed term off)"""
+
+
+def float_flag(text: str) -> float:
+    """A `type=` for a float flag without bounds of its own (a learner flag, checked by its DQNConfig field's limits):
+    float(text), refused when text names a number too small for a float, which float() reads as 0 (_zero_text)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
+    if value == 0 and not _zero_text(text):
+        raise argparse.ArgumentTypeError(f"got {text!r}, {TOO_SMALL}")
+    return value
+
+
+def _zero_text(text: str) -> bool:
+    """True when `text`, which float() read as 0, says 0 itself ('0', '-0.0', '0e5'), not a number too small to hold."""
+    try:
+        return decimal.Decimal(text.strip()) == 0
+    except (decimal.InvalidOperation, ValueError):
+        return True  # a form Decimal does not read: left to float's reading
 
 
 def number(low: float | None = None, high: float | None = None, low_open: bool = False, high_open: bool = False,

@@ -44,12 +44,39 @@ def _utf8_locale() -> bool:
     return locale.nl_langinfo(locale.CODESET).replace("-", "").lower() == "utf8"
 
 
+def utf8_problem(text: str) -> str | None:
+    """Why `text` (a path or an argument) cannot be taken, or None: a byte that is not valid UTF-8 (Python holds it as
+    a lone surrogate, '\\udcff'), which SUMO cannot take as a file name and coopsumo cannot write into its own files
+    (issue 82, probe 7, I9: a traceback, a partial folder left behind)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return f"{text!r} has a byte that is not valid UTF-8, which SUMO and coopsumo's records cannot take; rename it"
+    return None
+
+
+def _dangling(absolute: Path) -> Path | None:
+    """`absolute` when it is itself a symbolic link leading nowhere, else None: the output folder would be made at the
+    link's target by some writers and refused as existing by others (issue 82, probe 7, I17d: `train --out lnk` said
+    "File exists" after 6 s). A link to a folder yet to be made above the output folder is fine: the path is written
+    resolved."""
+    return absolute if os.path.islink(absolute) and not _exists(absolute) else None
+
+
+def _target(link: Path) -> str:
+    try:
+        return os.readlink(link)
+    except OSError:
+        return "?"
+
+
 def out_path_problem(path: Path) -> str | None:
     """Why SUMO or the file system cannot take `path` as an output folder (a phrase to follow the flag), or None.
 
     Refused: a relative path when the current folder was deleted; ':' (SUMO reads it as host:port) or ','
     (SUMO splits its file lists at commas) anywhere in the absolute path; non-ASCII characters under an
-    ASCII locale (LC_ALL=C: SUMO cannot open such names); a symbolic link loop; a file where a folder must be;
+    ASCII locale (LC_ALL=C: SUMO cannot open such names); a byte that is not valid UTF-8 (utf8_problem); a
+    symbolic link loop; the path itself a link leading nowhere; a file where a folder must be;
     a name longer than NAME_MAX less NAME_ROOM, a path longer than PATH_MAX less PATH_ROOM.
     """
     try:
@@ -63,6 +90,8 @@ def out_path_problem(path: Path) -> str | None:
     except (RuntimeError, OSError):  # Python 3.11: RuntimeError for a loop; later versions: OSError ELOOP
         return f"{text!r} goes through a loop of symbolic links"
     for shown in dict.fromkeys((text, str(real))):
+        if problem := utf8_problem(shown):
+            return problem
         if ":" in shown:
             return (f"must be a folder path without ':' (SUMO reads an output file name with ':' as host:port), "
                     f"got {shown!r}")  # fmt: skip
@@ -71,6 +100,8 @@ def out_path_problem(path: Path) -> str | None:
         if not shown.isascii() and not _utf8_locale():
             return (f"{shown!r} has non-ASCII characters, which SUMO cannot open under this ASCII locale "
                     f"({locale.setlocale(locale.LC_CTYPE)}); set LC_ALL=C.UTF-8 or pick an ASCII path")  # fmt: skip
+    if link := _dangling(absolute):
+        return f"{str(link)!r} is a link that leads nowhere (to {_target(link)!r}); remove it or pick another path"
     name_max, path_max = _fs_limits(real)
     for part in real.parts[1:]:
         if len(os.fsencode(part)) > name_max - (NAME_ROOM if part == real.name else 0):

@@ -15,7 +15,7 @@ from typing import Any, NoReturn
 
 from coopsumo.errors import USAGE_EXIT, USER_ERRNOS, NotRegularFileError, UsageError, first_line, os_error_text
 from coopsumo.owners import nets_env_problem, store_env_problem
-from coopsumo.paths import env_problem
+from coopsumo.paths import env_problem, utf8_problem
 
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
@@ -41,6 +41,15 @@ class Parser(argparse.ArgumentParser):
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         kwargs.setdefault("formatter_class", DefaultsHelpFormatter)
         super().__init__(*args, **kwargs)
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:  # type: ignore[override]
+        """argparse's, every argument first checked for a byte that is not valid UTF-8 (paths.utf8_problem): one line
+        before the command starts, for every flag of every command (issue 82, probe 7, I9)."""
+        words = sys.argv[1:] if args is None else list(args)
+        for word in words:
+            if problem := utf8_problem(word):
+                self.error(problem)
+        return super().parse_known_args(words, namespace)
 
     def error(self, message: str) -> NoReturn:
         print(f"{self.prog}: error: {message}", file=sys.stderr)
@@ -185,21 +194,23 @@ def interrupted(prog: str, err: KeyboardInterrupt) -> int:
 
 
 def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_process: bool = False) -> int:
-    """body(), a console command's whole run: a Ctrl-C (SIGINT) from this call's first instruction on raises Stop
-    wherever it lands, the command's imports included (seconds for torch, libsumo, pandas, when Python's own
-    KeyboardInterrupt used to end in a traceback), and also when the process was started with SIGINT ignored. A
-    command that reports its own interruption (run_cli) returns its exit code; one that reaches here ends in one
-    line, `prog(): interrupted`, exit code 130. whole_process: body is the process's command, which exits next; a
-    Ctrl-C while Python exits then has nothing left to stop and is ignored (it used to kill the ending process
-    without a line, or print a traceback from an exit handler). A Ctrl-C that the code it landed in swallowed, so
-    that body() ran on and returned 0, still ends in that line and 130. Only in the main thread (elsewhere: body())."""
+    """body(), a console command's whole run: a Ctrl-C (SIGINT) or a SIGTERM from this call's first instruction on
+    raises Stop wherever it lands, the command's imports included (seconds for torch, libsumo, pandas, when Python's
+    own KeyboardInterrupt used to end in a traceback, and SIGTERM ended the process without a line: issue 82, probe 7,
+    I15), and also when the process was started with them ignored. A command that reports its own interruption
+    (run_cli) returns its exit code; one that reaches here ends in one line, `prog(): interrupted`, exit code 128 + the
+    signal. whole_process: body is the process's command, which exits next; a signal while Python exits then has
+    nothing left to stop and is ignored (it used to kill the ending process without a line, or print a traceback from
+    an exit handler). A Ctrl-C that the code it landed in swallowed, so that body() ran on and returned 0, still ends
+    in that line and 130. Only in the main thread (elsewhere: body())."""
     if threading.current_thread() is not threading.main_thread():
         return body()
-    old, stops_before, _ENDING[0] = signal.getsignal(signal.SIGINT), len(_STOPS_RAISED), False
+    old, stops_before, _ENDING[0] = {s: signal.getsignal(s) for s in STOP_SIGNALS}, len(_STOPS_RAISED), False
     outer = _COMMAND_STOPS[0]  # a command run by another (cli.main runs train.main) began with the outer one
     _COMMAND_STOPS[0] = stops_before if outer is None else outer
     try:
-        signal.signal(signal.SIGINT, _raise_stop)
+        for s in STOP_SIGNALS:
+            signal.signal(s, _raise_stop)
         code = body()
         if code == 0 and len(_STOPS_RAISED) > stops_before:
             # a Ctrl-C swallowed by the code it landed in (a library's `except ImportError` around an optional
@@ -216,7 +227,8 @@ def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_pr
         return interrupted(prog(), Stop(_STOPS_RAISED[-1]))
     finally:
         _COMMAND_STOPS[0] = outer
-        signal.signal(signal.SIGINT, signal.SIG_IGN if whole_process or old is None else old)
+        for s, handler in old.items():
+            signal.signal(s, signal.SIG_IGN if whole_process else signal.SIG_DFL if handler is None else handler)
 
 
 @contextmanager

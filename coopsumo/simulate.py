@@ -31,6 +31,7 @@ from coopsumo.config import (
 )
 from coopsumo.errors import ConfigError, UsageError
 from coopsumo.owners import owned_problem
+from coopsumo.paths import out_path_problem
 from coopsumo.policy_spec import KEYS, PolicySpecError, parse_policy, policy_file
 from coopsumo.run_dirs import atomic_run_dir, check_apart, check_no_outside_link, check_run_dir
 from coopsumo.runio import Parser, run_cli
@@ -106,7 +107,8 @@ def build_parser() -> Parser:
     p.add_argument("--tripinfo", action="store_true", help="also write SUMO's tripinfo.xml")
     p.add_argument("--gui", action="store_true", help="run in sumo-gui (needs a display), vehicles coloured")
     p.add_argument("--gui-screenshot", type=Path, default=None,
-                   help="PNG file for sumo-gui's screenshot (default: none)")  # fmt: skip
+                   help="PNG file for sumo-gui's screenshot, a new file (never written over), outside --out, the model "
+                        "store and any study's or run's folder (default: none)")  # fmt: skip
     p.add_argument("--gui-screenshot-step", type=integer(1), default=None, help="its step (default: the last)")
     p.add_argument("--gui-delay", type=number(0, MAX_GUI_DELAY_MS), default=0.0,
                    help="sumo-gui's pause between steps (ms, at most 10,000)")  # fmt: skip
@@ -171,6 +173,23 @@ def outputs_from_args(args: Any, cfg: SimConfig) -> OutputConfig:
     return outputs
 
 
+def screenshot_problem(shot: Path, out: Path) -> str | None:
+    """Why sumo-gui may not write its screenshot at `shot` (a line naming --gui-screenshot), or None: the checks an
+    output passes (a path SUMO can take, out_path_problem; no folder coopsumo owns, owners.owned_problem), and the
+    rule of its own: a new file (an existing one, or a link, may be a user's or a study's: never written over), not
+    inside --out `out` (the run replaces that folder whole). Issue 82, probe 7, I2."""
+    flag = f"--gui-screenshot {shot}"
+    if problem := out_path_problem(shot):
+        return f"--gui-screenshot {problem.replace('folder path', 'path')}"
+    if os.path.lexists(shot):
+        what = "is a link" if shot.is_symlink() else "exists"
+        return (f"{flag} {what}: the screenshot is written only as a new file, never over one (a user's or a "
+                "study's); name a new file")  # fmt: skip
+    if shot.resolve().is_relative_to(out.resolve()):
+        return f"{flag} lies inside --out {out}, which the run writes whole; name a file outside it"
+    return owned_problem(shot, flag, "name a screenshot file elsewhere")
+
+
 def gui_from_args(args: Any, cfg: SimConfig, environ: dict[str, str] | None = None) -> GuiConfig | None:
     """The sumo-gui view asked for, or None; UsageError without a display or for options without --gui."""
     env = os.environ if environ is None else environ
@@ -185,6 +204,8 @@ def gui_from_args(args: Any, cfg: SimConfig, environ: dict[str, str] | None = No
     shot = args.gui_screenshot
     if shot is not None and shot.suffix.lower() != ".png":
         raise UsageError(f"--gui-screenshot must be a .png file, got {str(shot)!r}")
+    if shot is not None and (problem := screenshot_problem(shot, args.out)):
+        raise UsageError(problem)
     if args.gui_screenshot_step is not None:
         check_int("--gui-screenshot-step", args.gui_screenshot_step, 1, cfg.steps, " (a step of the run)")
     gui = GuiConfig(

@@ -211,6 +211,10 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("simulate", [*SIM, "--t-up", "3600.0000001"], ("--t-up", "<= 3600", "got 3600.0000001")),
     ("train", [*TRAIN, "--t-up", "3600.0000001"], ("--t-up", "got 3600.0000001")),
     ("simulate", [*SIM, "--fcd", "--fcd-period", "0.1500001"], ("--fcd-period", "got 0.1500001")),
+    # issue 82, probe 7, I16: a number too small for a float is not taken as 0 where 0 is allowed
+    ("train", [*TRAIN, "--w-speed", "1e-400"], ("--w-speed", "got '1e-400'", "taken as 0")),
+    ("train", [*TRAIN, "--epsilon-end", "1e-999"], ("--epsilon-end", "got '1e-999'", "taken as 0")),
+    ("simulate", [*SIM, "--gui-delay", "1e-400"], ("--gui-delay", "got '1e-400'", "taken as 0")),
 ]  # fmt: skip
 
 SUBPROCESS = (
@@ -486,6 +490,22 @@ def test_a_model_that_is_not_a_regular_file_says_so(kind: str, fragment: str, tm
     code, err = _simulate([*SIM, "--policy", f"dqn:{named}", "--out", str(out)], capsys)
     _check(code, err, out, ("--policy", str(model), fragment))
     assert ("not a regular file" in err) == (kind != "missing"), err
+
+
+@pytest.mark.parametrize("kind", ["fifo", "device"])
+def test_a_bench_model_that_is_not_a_regular_file_says_so(kind: str, tmp_path: Path,
+                                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 7, I17c: `bench --model /dev/zero` (or a FIFO) said "no model file", as if nothing were there."""
+    from conftest import main_here
+
+    from coopsumo import bench
+
+    model = tmp_path / "model.pt" if kind == "fifo" else Path("/dev/zero")
+    if kind == "fifo":
+        os.mkfifo(model)
+    code, out, err = main_here(bench.main, ["--quick", "--model", str(model)], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and out == "", err
+    assert f"--model: {model} is not a regular file but a {'named pipe' if kind == 'fifo' else 'device'}" in err, err
 
 
 @pytest.mark.sumo

@@ -364,3 +364,25 @@ def test_a_ctrl_c_held_back_during_torchs_import_is_not_lost(monkeypatch: pytest
     assert run_interruptible(body, lambda: "models") == 130
     assert capsys.readouterr().err == "models: interrupted\n"
     assert again == [(runio.RETRY_S, (os.getpid(), signal.SIGINT))]
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize("at_s", (0.1, 0.2, 0.3))
+def test_a_sigterm_in_trains_first_moments_is_one_line_and_exit_code_143(at_s: float, tmp_path: Path,
+                                                                         started_cpu: float) -> None:  # fmt: skip
+    """Issue 82, probe 7, I15: SIGTERM to train's process (as `kill` and `timeout` send it) in its first 0.3 s, once
+    Python's own start is done, is one line and 128 + 15, as a Ctrl-C is (before, it ended the process without a
+    line: only SIGINT was taken from main's first instruction)."""
+    env = {**os.environ, "COOPSUMO_MODELS": str(tmp_path / "models"), "PYTHONPATH": str(REPO)}
+    start = time.monotonic()
+    proc = subprocess.Popen(command("train", tmp_path), cwd=tmp_path, stdout=subprocess.DEVNULL, env=env,
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)  # fmt: skip
+    time.sleep(max(0.0, start + at_s - time.monotonic()))
+    while cpu_of(proc.pid) < started_cpu and proc.poll() is None:
+        time.sleep(0.005)
+    assert proc.poll() is None, proc.communicate()[1][-1500:]
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=90)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert proc.returncode == 128 + signal.SIGTERM, (proc.returncode, err[-3000:])
+    assert len(lines) == 1 and LINE.fullmatch(lines[0]) and lines[0].startswith("train: "), err[-3000:]

@@ -310,7 +310,7 @@ def test_a_spoiled_record_is_one_line_and_nothing_is_written(
     code = history.main(["--results", str(tmp_path / "results"), "--out", str(out)])
     err = capsys.readouterr().err
     assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    assert err.startswith(f"coopsumo history: error: {folder}/") and fragment in err, (fragment, err)
+    assert err.startswith(f"history: error: {folder}/") and fragment in err, (fragment, err)
     assert not out.exists()
 
 
@@ -351,3 +351,18 @@ def test_out_refuses_a_file_in_a_folder_coopsumo_owns(tmp_path: Path, capsys: py
         err = capsys.readouterr().err
         assert len(err.strip().splitlines()) == 1 and f"--out {out}" in err and says in err, err
     assert _files(tmp_path) == before
+
+
+def test_an_interrupted_history_says_so_as_its_early_line_does(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                              capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 7, I17a: a Ctrl-C while the table is built is `history: interrupted`, the line a Ctrl-C during
+    the imports gives (cli.command_of), not `coopsumo history: interrupted`."""
+    from coopsumo.cli import command_of
+
+    def stopped(_results: Path) -> str:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(history, "table", stopped)
+    (tmp_path / "results").mkdir()
+    assert history.main(["--results", str(tmp_path / "results")]) == 130
+    assert capsys.readouterr().err == f"{command_of(['history'])}: interrupted\n" == "history: interrupted\n"

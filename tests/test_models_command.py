@@ -55,6 +55,21 @@ def test_a_named_store_that_is_no_folder_is_one_line_and_exit_2(
     assert len(err) == 1 and "--store" in err[0] and str(store) in err[0]
 
 
+@pytest.mark.parametrize("kind", ["/proc", "a study's folder"])
+def test_a_named_folder_that_is_no_model_store_is_one_line_and_exit_2(
+        kind: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 7, I17b: `models --store /proc` listed "124 models in /proc", and a scenario II study's folder
+    had cells/, evals/ listed as models. An empty folder is a store without models yet (above)."""
+    store = Path("/proc") if kind == "/proc" else tmp_path / "s2"
+    for name in ("cells", "evals", "train"):
+        if kind != "/proc":
+            (store / name).mkdir(parents=True)
+    assert model_store.main(["--store", str(store)]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip().splitlines()
+    assert len(err) == 1 and f"--store {store}: not a model store" in err[0] and captured.out == "", err
+
+
 def _spoil(*keys: str, value: object = None, drop: bool = False) -> Callable[[dict], None]:
     def change(record: dict) -> None:
         d = record

@@ -225,3 +225,20 @@ def test_a_link_in_the_networks_folder_is_replaced_never_written_through(tmp_pat
         written, tag = nets / f"{stem}.{suffix}.xml", "<nodes>" if suffix == "nod" else "<edges>"
         assert not written.is_symlink() and written.read_text().startswith(tag)
     assert sorted(p.name for p in nets.iterdir()) == sorted(f"{stem}.{s}.xml" for s in ("nod", "edg", "net"))
+
+
+@pytest.mark.parametrize("command", ["coopsumo.agents.train_cli", "coopsumo.simulate"])
+def test_a_link_that_leads_nowhere_is_refused_up_front(command: str, tmp_path: Path,
+                                                       capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 7, I17d: `train --out lnk`, lnk a link to a folder that is not there, said "cannot write output
+    folder lnk: File exists" after 6 s; it is refused as the flag is read, naming the link (a link to a folder yet to be
+    made above the --out is fine: test_out_path_problem_accepts_ordinary_paths)."""
+    from conftest import main_here
+
+    link = tmp_path / "lnk"
+    link.symlink_to(tmp_path / "nowhere" / "t")
+    code, stdout, err = main_here(importlib.import_module(command).main,
+                                  ["--quiet", "--steps", "300", "--out", str(link)], capsys)  # fmt: skip
+    assert code == 2 and len(err.strip().splitlines()) == 1 and stdout == "", err
+    assert f"--out: '{link}' is a link that leads nowhere" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lnk"] and link.is_symlink()

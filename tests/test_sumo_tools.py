@@ -139,6 +139,36 @@ def test_bad_gui_and_output_options_are_one_line_and_exit_2(tmp_path: Path, extr
     assert list(tmp_path.iterdir()) == []
 
 
+def _screenshot_places(root: Path) -> dict[str, Path]:
+    """Screenshot paths simulate may not write (issue 82, probe 7, I2): a user's file, a study's figure, a file in the
+    model store, a file inside this run's own --out; each with what must stay as it is."""
+    from coopsumo.run_dirs import mark_run_dir
+
+    user = root / "shot.png"
+    user.write_bytes(b"precious")
+    study = root / "s1"
+    study.mkdir()
+    mark_run_dir(study, "scenario1", finished=False, study="the quick profile's study")
+    (study / "fig4_trajectories.png").write_bytes(b"figure")
+    store = root / "models"
+    (store / "quick_a0_seed0_0123456789ab").mkdir(parents=True)
+    return {"exists": user, "study": study / "fig4_trajectories.png", "store": store / "shot.png",
+            "new file in a study": study / "new.png", "inside --out": root / "run" / "shot.png"}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", ["exists", "study", "store", "new file in a study", "inside --out"])
+def test_a_screenshot_is_refused_where_an_output_may_not_go(tmp_path: Path, case: str, monkeypatch: pytest.MonkeyPatch,
+                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    monkeypatch.setenv("DISPLAY", ":0")  # refused before the display is used: no sumo-gui starts
+    shot = _screenshot_places(tmp_path)[case]
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    proc = simulate_here(["--steps", "50", "--quiet", "--gui", "--gui-screenshot", str(shot), "--out",
+                          str(tmp_path / "run")], capsys)  # fmt: skip
+    assert_one_line_usage_error(proc, "--gui-screenshot")
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+    assert not (tmp_path / "run").exists() and (case in ("exists", "study") or not shot.exists())
+
+
 # -- FCD and tripinfo -------------------------------------------------------------------------------
 RUN_ARGS = ["--scenario", "accident", "--policy", "sumo", "--steps", "2000", "--accident-start", "300",
             "--accident-steps", "600", "--seed", "3", "--quiet", "--trajectories"]  # fmt: skip

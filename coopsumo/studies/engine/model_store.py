@@ -417,6 +417,11 @@ def _print_store(store: Path, rows: list[dict[str, Any]]) -> None:
     print(f"{len(rows)} models in {store}, {usable} usable")
 
 
+def _first_folder(folder: Path) -> Path | None:
+    """The first folder in `folder` that `listing` would list as a model (not hidden), or None."""
+    return next(iter(sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))), None)
+
+
 def _stores(given: Path | None) -> list[Path]:
     """The stores `coopsumo models` lists: --store; else $COOPSUMO_MODELS; else results/models and every store found
     below the current folder."""
@@ -427,6 +432,9 @@ def _stores(given: Path | None) -> list[Path]:
             raise UsageError(f"--store {given}: no such folder (a study makes it when it trains its first model)")
         if not given.is_dir():
             raise UsageError(f"--store {given}: not a folder")
+        if not is_store(given) and (first := _first_folder(given)) is not None:  # /proc, a study's folder (probe 7)
+            raise UsageError(f"--store {given}: not a model store: none of its folders ({first.name}, ...) is a "
+                             "stored model's (named <preset>_a<alpha>_seed<seed>_<digest>)")  # fmt: skip
         return [given]
     if os.environ.get(STORE_ENV):
         return [Path(os.environ[STORE_ENV])]

@@ -284,4 +284,4 @@ def main(argv: list[str] | None = None) -> int:
         print(f"history: {learners} learners judged, written to {args.out}")
         return 0
 
-    return run_cli("coopsumo history", body)
+    return run_cli("history", body)  # its lines as every command's: `history: ...` (probe 7, I17a)
