@@ -3,7 +3,9 @@ finished run folder can be reused (its configuration, its outputs, its values)."
 
 from __future__ import annotations
 
+import fnmatch
 import json
+import os
 import sys
 from collections.abc import Sequence
 from contextlib import AbstractContextManager, nullcontext
@@ -11,10 +13,11 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
-from coopsumo.files import file_sha256, not_regular, read_json
+from coopsumo.files import TEMPORARY, file_sha256, not_regular, read_json
 from coopsumo.record_schemas import SPEED_MAX_MPS
 from coopsumo.run_dirs import LEARNERS, Recorded, check_out_path, check_run_dir, check_study_place
 from coopsumo.run_dirs import study_root as claim_study_root
+from coopsumo.run_markers import RUN_MARKER
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
 
@@ -106,6 +109,33 @@ def simulate_into(
         summary = run(cfg, policy, run_dir, trajectories=trajectory_every > 0, progress=False, label=label,
                       trajectory_every=max(trajectory_every, 1), outputs=outputs)  # fmt: skip
     return {k: v for k, v in summary.items() if k != "policy"}
+
+
+RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xml", "routes.rou.xml", "plain.rou.xml",
+               "fcd.xml", "tripinfo.xml", "trajectories.parquet", f".*{TEMPORARY}")
+"""the entries a run writes into its folder (agents.rollout.run, SUMO; write_atomic's temporary files)"""
+
+
+def check_study_run(out: Path) -> None:
+    """UsageError (one line naming `out`) when a study may not write its run into `out`, before any run: scenario I's
+    rule (run_dirs.check_run_dir: missing, empty, or simulate's and nothing added), except that a folder with no
+    marker holding only the names a run writes (RUN_OUTPUTS) is the study's own, from a run written in place (scenario
+    II's evals/ and mobil/, the learning study's baselines/ and evals/; issue 82, probe 7, I1)."""
+    out = out.resolve()
+    if out.is_dir() and not os.path.lexists(out / RUN_MARKER) and not out.is_symlink() \
+            and all(p.is_file() and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS)
+                    for p in out.iterdir()):  # fmt: skip
+        return
+    check_run_dir(out, "simulate")
+
+
+def check_study_runs(folder: Path, nested: bool = False) -> None:
+    """check_study_run of `folder`, or (nested) of each entry of `folder`: a cell's evaluations, a run folder each."""
+    if nested and folder.is_dir() and not folder.is_symlink():
+        for entry in sorted(folder.iterdir()):
+            check_study_run(entry)
+    else:
+        check_study_run(folder)
 
 
 STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {

@@ -1,0 +1,98 @@
+"""Issue 82, probe 7: folders a study writes into that it did not make. A run folder of a study (scenario II's
+evals/ and mobil/, the learning study's baselines/ and evals/) holding a user's files is refused before any run as
+scenario I refuses one (I1). Every refusal: one line, exit code 2, the user's files as they were."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from coopsumo.errors import UsageError
+from coopsumo.studies.engine.run_folders import check_study_run, check_study_runs
+
+S2 = """[profiles.mini]
+help = "probe"
+lanes = [2]
+loads = [0.5]
+alphas = [0]
+seeds = [1]
+train_steps = 200
+eval_steps = 300
+mobil_ps = [0]
+policies = ["dqn", "mobil"]
+"""
+LEARN = """[profiles.mini]
+train_steps = 300
+eval_steps = 200
+seeds = [0]
+variants = ["paper"]
+alphas = [0.0]
+"""
+
+
+def run(command: str, argv: list[str]) -> int:
+    from test_study_places import run as run_command
+
+    return run_command(command, argv)
+
+
+def one_line(capsys: pytest.CaptureFixture[str], code: int, *fragments: str) -> str:
+    from test_study_places import one_line as check
+
+    return check(capsys, code, *fragments)
+
+
+def user_folder(folder: Path) -> None:
+    """A user's folder where a study's run belongs: a config.json of its own and notes."""
+    folder.mkdir(parents=True)
+    (folder / "config.json").write_text('{"mine": 1}\n')
+    (folder / "notes.txt").write_text("x\n")
+
+
+def test_a_run_folder_is_the_studys_only_when_it_holds_only_a_runs_names(tmp_path: Path) -> None:
+    """I1: the rule, one home (run_folders.check_study_run, scenario I's check_run_dir beneath): missing, empty or
+    holding only what a run writes in place is taken; a user's file beside them, a file in its place, refused."""
+    check_study_run(tmp_path / "none")
+    (tmp_path / "empty").mkdir()
+    check_study_run(tmp_path / "empty")
+    own = tmp_path / "own"
+    own.mkdir()
+    for name in ("config.json", "summary.json", "detectors.xml", ".summary.json.abc.tmp"):
+        (own / name).write_text("{}")
+    check_study_run(own)
+    user_folder(tmp_path / "user")
+    with pytest.raises(UsageError, match="user has no .coopsumo-run.json"):
+        check_study_run(tmp_path / "user")
+    (tmp_path / "evals" / "k").mkdir(parents=True)
+    (tmp_path / "evals" / "k" / "eval_s1").write_text("mine")
+    with pytest.raises(UsageError, match="eval_s1 exists and is not a folder"):
+        check_study_runs(tmp_path / "evals" / "k", nested=True)
+
+
+CASES = {
+    "scenario2 evals": ("scenario2", S2, "evals/L2_T2_a0_s1/eval_s2001", ["--bootstrap", "10"]),
+    "scenario2 mobil": ("scenario2", S2, "mobil/L2_T2_mobil_p0_s2001", ["--bootstrap", "10"]),
+    "learning baselines": ("learning", LEARN, "baselines/keep_seed0", []),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_studys_run_folder_holding_a_users_files_is_refused_before_any_run(case: str, tmp_path: Path,
+                                                                           monkeypatch: pytest.MonkeyPatch,
+                                                                           capsys: pytest.CaptureFixture[str]) -> None:
+    """I1: `scenario2 --out s` with s/evals/<key>/eval_s2001 (or s/mobil/<key>) holding a user's config.json and
+    notes.txt, `learning --out L` with L/baselines/keep_seed0 so: the run was written in, the user's config.json
+    replaced, exit 0. Refused now before any cell runs, naming the folder; the user's files kept."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    command, profile, place, extra = CASES[case]
+    (tmp_path / "p.toml").write_text(profile)
+    folder = tmp_path / "s" / place
+    user_folder(folder)
+    argv = ["--profile", f"{tmp_path / 'p.toml'}:mini", "--workers", "1", "--quiet", "--out", "s", *extra]
+    one_line(capsys, run(command, argv), f"output folder {folder.resolve()}", "left alone")
+    assert json.loads((folder / "config.json").read_text()) == {"mine": 1}
+    assert sorted(p.name for p in folder.iterdir()) == ["config.json", "notes.txt"]
+    assert not (tmp_path / "models").exists() or not any((tmp_path / "models").iterdir())  # no model trained
