@@ -96,3 +96,53 @@ def test_a_studys_run_folder_holding_a_users_files_is_refused_before_any_run(cas
     assert json.loads((folder / "config.json").read_text()) == {"mine": 1}
     assert sorted(p.name for p in folder.iterdir()) == ["config.json", "notes.txt"]
     assert not (tmp_path / "models").exists() or not any((tmp_path / "models").iterdir())  # no model trained
+
+
+# -- I4: learning and protocol both write study.json -------------------------------------------------------------------
+COMMITTED = {"protocol": "learner_protocol_u1", "ablation": "learning_conditioned"}
+"""a committed study of each command that writes study.json, without a marker (written before markers)"""
+
+
+def committed_root(root: Path, kind: str, name: str | None = None) -> str:
+    """root holding the committed study.json of the study `kind` (its profile renamed `name`): its profile's name."""
+    data = json.loads((Path(__file__).parents[1] / "results" / COMMITTED[kind] / "study.json").read_text())
+    if name is not None:
+        data["profile"]["name"] = name
+    root.mkdir(parents=True)
+    (root / "study.json").write_text(json.dumps(data))
+    return str(data["profile"]["name"])
+
+
+@pytest.mark.parametrize("kind", COMMITTED)
+def test_an_unmarked_study_json_names_its_command_too(kind: str, tmp_path: Path) -> None:
+    """I4: a root without a marker was told by its study.json's profile name alone, so a protocol study was taken
+    for a learning study of the same name and the other way round. The committed studies are still their own."""
+    from coopsumo.run_dirs import check_study_root
+    from coopsumo.studies.engine.run_folders import STUDY_OUTPUTS, profile_study, recorded_profile
+
+    for root_kind in COMMITTED:
+        name = committed_root(tmp_path / root_kind, root_kind)
+        recorded = recorded_profile("study.json", "profile", "name", kind=kind)
+        own = (*STUDY_OUTPUTS[kind], "*.tmp")
+        if root_kind == kind:
+            check_study_root(tmp_path / root_kind, kind, own, profile_study(name), recorded)
+            continue
+        with pytest.raises(UsageError, match=f"holds a coopsumo {root_kind} study \\(study.json says so\\), not the"):
+            check_study_root(tmp_path / root_kind, kind, own, profile_study(name), recorded)
+
+
+@pytest.mark.parametrize(("command", "other"), [("learning", "protocol"), ("protocol", "ablation")])
+def test_another_commands_unmarked_study_of_the_same_profile_is_refused(command: str, other: str, tmp_path: Path,
+                                                                      monkeypatch: pytest.MonkeyPatch,
+                                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    """I4: `learning --profile tiny --out P` over an unmarked protocol study P of profile tiny (the reverse too) took
+    it: study.json, runs.csv and report.md replaced. Refused in one line before anything is written."""
+    from test_study_places import listing
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    committed_root(tmp_path / "P", other, "tiny")
+    before = listing(tmp_path)
+    one_line(capsys, run(command, ["--profile", "tiny", "--quiet", "--workers", "1", "--out", "P"]),
+             f"holds a coopsumo {other} study")  # fmt: skip
+    assert listing(tmp_path) == before

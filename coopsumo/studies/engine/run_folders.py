@@ -186,10 +186,25 @@ def _at(data: Any, keys: Sequence[str]) -> Any:
     return data
 
 
-def recorded_profile(plan_file: str, *keys: str, presets: Sequence[str] = ()) -> Recorded:
+STUDY_SIGNS: dict[str, tuple[str, ...]] = {"ablation": ("default_learner",), "protocol": ("profile", "t_ups")}
+"""where each study that writes study.json (learning: kind ablation, protocol) holds a field the other's lacks: which
+command's study a root without a marker holds (issue 82, probe 7, I4: a profile name alone took a protocol study for
+a learning study of the same name, and the other way round)"""
+
+
+def _holds(data: Any, keys: Sequence[str]) -> bool:
+    try:
+        _at(data, keys)
+    except (KeyError, TypeError, IndexError):
+        return False
+    return True
+
+
+def recorded_profile(plan_file: str, *keys: str, presets: Sequence[str] = (), kind: str | None = None) -> Recorded:
     """recorded(root) -> profile_study of the profile name a study's plan file holds under `keys` (plan.json's
     plan.profile) and of the learner presets it holds under `presets` (none given or none there: the default), or
-    None when there is none or it cannot be read: which study a root written before its marker named it holds."""
+    None when there is none or it cannot be read: which study a root written before its marker named it holds. kind:
+    a study of STUDY_SIGNS, whose plan file must hold its sign: one holding another's is that command's study."""
 
     def recorded(root: Path) -> str | None:
         try:
@@ -197,6 +212,9 @@ def recorded_profile(plan_file: str, *keys: str, presets: Sequence[str] = ()) ->
             value = _at(data, keys)
         except (OSError, ValueError, KeyError, TypeError):
             return None
+        if kind is not None and not _holds(data, STUDY_SIGNS[kind]):
+            other = next((k for k, sign in STUDY_SIGNS.items() if _holds(data, sign)), None)
+            return f"a coopsumo {other} study ({plan_file} says so)" if other is not None else None
         try:
             learners = _at(data, presets) if presets else ["default"]
         except (KeyError, TypeError):  # a plan written before its study had learner presets: the default's

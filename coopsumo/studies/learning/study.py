@@ -257,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
             args.out = default_model_out(default_out("learning", profile.name, "full"))
         # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
         with study_root(args.out, LEARNING_KIND, profile_study(profile.name), recorded_profile("study.json", "profile",
-                        "name"), f"pick another --out (the {profile.name} profile's default: "
+                        "name", kind=LEARNING_KIND), f"pick another --out (the {profile.name} profile's default: "
                         f"{default_out('learning', profile.name, 'full')})", trains=True):  # fmt: skip
             meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip
