@@ -98,7 +98,7 @@ def test_a_studys_run_folder_holding_a_users_files_is_refused_before_any_run(cas
     assert not (tmp_path / "models").exists() or not any((tmp_path / "models").iterdir())  # no model trained
 
 
-# -- I4: learning and protocol both write study.json -------------------------------------------------------------------
+# -- I4: learning and protocol both write study.json ---------------------------------------------------------------
 COMMITTED = {"protocol": "learner_protocol_u1", "ablation": "learning_conditioned"}
 """a committed study of each command that writes study.json, without a marker (written before markers)"""
 
@@ -145,4 +145,30 @@ def test_another_commands_unmarked_study_of_the_same_profile_is_refused(command:
     before = listing(tmp_path)
     one_line(capsys, run(command, ["--profile", "tiny", "--quiet", "--workers", "1", "--out", "P"]),
              f"holds a coopsumo {other} study")  # fmt: skip
+    assert listing(tmp_path) == before
+
+
+# -- I5: an unmarked folder of the study's own names but no plan file --------------------------------------------
+I5_COMMANDS = {"scenario2": ["--profile", "tiny"], "scenario1": ["--quick"], "learning": ["--profile", "tiny"],
+               "protocol": ["--profile", "tiny"]}  # fmt: skip
+
+
+@pytest.mark.parametrize("command", I5_COMMANDS)
+def test_an_unmarked_folder_of_output_names_without_a_plan_file_is_refused(command: str, tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """I5 (decided): `scenario2 --out an` over a user's report.md and runs.csv (no marker, no plan file) replaced
+    them, exit 0. A first run marks its root before writing anything, so such a folder is never the study's: refused
+    in one line naming it, nothing written. Empty, or only a temporary file: taken (test_study_places)."""
+    from test_study_places import listing
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    (tmp_path / "an").mkdir()
+    (tmp_path / "an" / "report.md").write_text("notes\n")
+    (tmp_path / "an" / "runs.csv").write_text("a,b\n1,2\n")
+    before = listing(tmp_path)
+    one_line(capsys, run(command, [*I5_COMMANDS[command], "--quiet", "--workers", "1", "--out", "an"]),
+             f"output folder {tmp_path.resolve() / 'an'} holds report.md and 1 more", "which no coopsumo",
+             "no .coopsumo-run.json, no")  # fmt: skip
     assert listing(tmp_path) == before
