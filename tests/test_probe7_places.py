@@ -172,3 +172,44 @@ def test_an_unmarked_folder_of_output_names_without_a_plan_file_is_refused(comma
              f"output folder {tmp_path.resolve() / 'an'} holds report.md and 1 more", "which no coopsumo",
              "no .coopsumo-run.json, no")  # fmt: skip
     assert listing(tmp_path) == before
+
+
+# -- I6: a folder in the model store holding a user's files -----------------------------------------------------------
+def test_a_store_folder_holding_a_users_files_is_never_trained_into(tmp_path: Path,
+                                                                   monkeypatch: pytest.MonkeyPatch) -> None:
+    """I6: a folder in the store named like a model, without a marker, holding a user's config.json and notes.txt,
+    was trained into (config.json replaced); a stored model with a user's notes.txt (or sumo/mine.txt) added, its
+    marker deleted, was trained again and its new marker listed the user's files as the training's. Refused in one
+    line naming the folder and the file (model_store.check_entry); a store model with only a training's files (and
+    its group's group_cost.json) is taken as before."""
+    from test_data_loss import TINY, as_json, snapshot
+
+    from coopsumo.run_dirs import RUN_MARKER
+    from coopsumo.studies.engine.model_store import model_id, stored_model, train_shared
+
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    store = tmp_path / "models"
+    entry = store / model_id(as_json(TINY))
+    user_folder(entry)
+    before = snapshot(tmp_path)
+    link = tmp_path / "s" / "t"
+    steps = (lambda: stored_model(as_json(TINY), store), lambda: train_shared(as_json(TINY), link, store))
+    for step in steps:
+        with pytest.raises(UsageError) as err:
+            step()
+        assert f"{entry}, a model's folder in the model store, holds notes.txt" in str(err.value)
+        assert len(str(err.value).splitlines()) == 1 and snapshot(tmp_path) == before
+    (entry / "notes.txt").unlink()
+    (entry / "config.json").unlink()
+    train_shared(as_json(TINY), link, store)  # an empty folder of that name: the training's
+    (entry / "group_cost.json").write_text('{"group_size": 2, "cpu_s": 1.0}')
+    assert stored_model(as_json(TINY), store) == entry
+    for added in ("notes.txt", "sumo/mine.txt"):
+        (entry / added).write_text("mine\n")
+        (entry / RUN_MARKER).unlink(missing_ok=True)
+        before = snapshot(tmp_path)
+        for step in steps:
+            with pytest.raises(UsageError, match=f"holds {added}, which no training writes"):
+                step()
+            assert snapshot(tmp_path) == before
+        (entry / added).unlink()

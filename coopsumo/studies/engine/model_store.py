@@ -222,10 +222,43 @@ def _locked(path: Path) -> Iterator[None]:
 
 def check_entry(folder: Path) -> None:
     """UsageError naming `folder`, a model's folder in the store, when it is a link: the store makes only folders,
-    so a link there leads to someone's folder (a user's training), which is never trained into or replaced."""
+    so a link there leads to someone's folder (a user's training), which is never trained into or replaced; and when
+    it is not a training's to write (foreign_entry)."""
     if folder.is_symlink():
         raise UsageError(f"{folder} is a link to {folder.resolve()} where the model store keeps its own folder of "
                          "that model; it is left alone: remove the link and run again")  # fmt: skip
+    if (problem := foreign_entry(folder)) is not None:
+        raise UsageError(f"{folder}, a model's folder in the model store, {problem}, and is left alone (a training "
+                         "there would replace or list it as its own): move it away and run again")  # fmt: skip
+
+
+def foreign_entry(folder: Path) -> str | None:
+    """Why the store's model folder `folder` holds what no training writes (a phrase), or None: a file where the
+    folder belongs, a marker of another command, an entry that is not a training's (file_checks.TRAIN_ENTRIES, the
+    group's GROUP_COST, a temporary file), or one in its sumo/ or eval/ that is not a run's (run_folders.RUN_OUTPUTS;
+    issue 82, probe 7, I6: a user's folder of that name was trained into, and a retrain listed notes.txt as its own)."""
+    from fnmatch import fnmatchcase
+
+    from coopsumo.agents.file_checks import TRAIN_ENTRIES
+    from coopsumo.run_markers import marker_kind
+    from coopsumo.studies.engine.groups import GROUP_COST
+    from coopsumo.studies.engine.run_folders import RUN_OUTPUTS
+
+    if os.path.lexists(folder) and not folder.is_dir():
+        return "is a file"
+    if not folder.is_dir():
+        return None
+    if (kind := marker_kind(folder)) not in (None, "train"):
+        return f"is the folder of a coopsumo {kind} run"
+    own = {*TRAIN_ENTRIES, GROUP_COST}
+    for entry in sorted(folder.iterdir()):
+        if entry.name not in own and not entry.name.endswith(".tmp"):
+            return f"holds {entry.name}, which no training writes"
+        if entry.name in ("sumo", "eval") and entry.is_dir() and not entry.is_symlink():
+            for inner in sorted(entry.iterdir()):
+                if not any(fnmatchcase(inner.name, pat) for pat in RUN_OUTPUTS):
+                    return f"holds {entry.name}/{inner.name}, which no training writes"
+    return None
 
 
 def check_link(link: Path) -> None:
