@@ -213,3 +213,49 @@ def test_a_store_folder_holding_a_users_files_is_never_trained_into(tmp_path: Pa
                 step()
             assert snapshot(tmp_path) == before
         (entry / added).unlink()
+
+
+# -- I12: the study's own --out as its model store; I13: accident-seeds' default --out -------------------------------
+I12_COMMANDS = {"scenario1": ["--quick"], "scenario2": ["--profile", "tiny"], "learning": ["--profile", "tiny"],
+                "protocol": ["--profile", "tiny"]}  # fmt: skip
+
+
+@pytest.mark.parametrize("command", I12_COMMANDS)
+def test_a_store_that_is_or_lies_in_the_studys_own_out_is_refused_before_anything_is_written(
+        command: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    """I12: `--out models` (the store beside it is itself) and `COOPSUMO_MODELS=Y/st ... --out Y` were refused only
+    after the study's marker, plan file, cells/ and train/ were written, and the folder then claimed. Now before."""
+    from test_study_places import listing
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "Y").mkdir()
+    for env, out, says in ((None, "models", "is"), (str(tmp_path / "Y" / "st"), "Y", "lies inside")):
+        if env is None:
+            monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+        else:
+            monkeypatch.setenv("COOPSUMO_MODELS", env)
+        before = listing(tmp_path)
+        one_line(capsys, run(command, [*I12_COMMANDS[command], "--quiet", "--workers", "1", "--out", out]),
+                 f"the model store {env or tmp_path / 'models'}", f"{says} {out}, the study's own --out")  # fmt: skip
+        assert listing(tmp_path) == before
+
+
+def test_accident_seeds_default_out_uses_the_learning_studys_own_store(tmp_path: Path,
+                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
+    """I13: `accident-seeds ROOT` (its --out ROOT/accident) was always refused, after writing its marker and plan: the
+    store beside ROOT/accident, ROOT/models, lies inside the learning study ROOT. Its store is the learning study's
+    own, beside ROOT, and the default runs."""
+    from test_study_commands import learning_folder
+
+    from coopsumo.run_dirs import mark_run_dir
+    from coopsumo.studies.engine.model_store import store_for
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    learned = learning_folder(tmp_path / "learned", ("margin",))
+    mark_run_dir(learned, "ablation", finished=False, study="the tiny profile's study")
+    assert store_for(learned / "accident") == store_for(learned) == tmp_path.resolve() / "models"
+    argv = ["learned", "--variants", "margin", "--seeds", "1", "--t-up", "1.5", "--steps", "300", "--workers", "1",
+            "--quiet"]  # fmt: skip
+    assert run("accident-seeds", argv) == 0
+    assert (learned / "accident" / "runs.csv").is_file() and not (learned / "models").exists()

@@ -43,14 +43,22 @@ def store_for(root: Path) -> Path:
     """The store a study with results folder root uses: $COOPSUMO_MODELS, else the folder `models` beside root.
     UsageError when that path is not a store's to write: it is, or lies inside, a folder a coopsumo marker claims (a
     training's, a simulate run's, a study's: owners.claimed_problem; issue 82, probe 5, G3), or it holds what a store
-    does not (store_problem)."""
+    does not (store_problem); and when it is root or lies inside it, the study's own folder, checked before the study
+    writes anything (issue 82, probe 7, I12: `--out models` was refused only after its marker and plan were written).
+    A study directly in a learning study's root (accident-seeds' default ROOT/accident) uses that study's store,
+    beside ROOT (probe 7, I13: the store ROOT/models lay inside ROOT)."""
     from coopsumo.owners import claimed_problem
+    from coopsumo.run_markers import LEARNING_KIND, marker_kind
 
-    env = os.environ.get(STORE_ENV)
-    store = Path(env) if env else Path(root).resolve().parent / "models"
-    where = f"${STORE_ENV}" if env else f"beside {root}"
-    if problem := claimed_problem(store, f"the model store {store} ({where})", "pick another --out or set "
-                                  f"${STORE_ENV} to a store elsewhere"):  # fmt: skip
+    env, real = os.environ.get(STORE_ENV), Path(root).resolve()
+    home = real.parent if marker_kind(real.parent) == LEARNING_KIND else real
+    store = Path(env) if env else home.parent / "models"
+    where = f"${STORE_ENV}" if env else f"beside {root if home == real else home}"
+    advice = f"pick another --out or set ${STORE_ENV} to a store elsewhere"
+    if store.resolve() == real or store.resolve().is_relative_to(real):
+        raise UsageError(f"the model store {store} ({where}) {'is' if store.resolve() == real else 'lies inside'} "
+                         f"{root}, the study's own --out, which holds its results, not models; {advice}")  # fmt: skip
+    if problem := claimed_problem(store, f"the model store {store} ({where})", advice):
         raise UsageError(problem)
     if problem := store_problem(store):
         raise UsageError(f"the model store {store} ({where}) {problem}; move it away, pick another --out or set "
