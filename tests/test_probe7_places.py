@@ -71,6 +71,20 @@ def test_a_run_folder_is_the_studys_only_when_it_holds_only_a_runs_names(tmp_pat
         check_study_runs(tmp_path / "evals" / "k", nested=True)
 
 
+def mark_study(root: Path, command: str, profile: str) -> None:
+    """Mark `root` as the study `command --profile profile` marks its root when it starts."""
+    from coopsumo.run_dirs import mark_run_dir
+    from coopsumo.studies.engine.run_folders import profile_study
+
+    if command == "scenario2":
+        from coopsumo.studies.scenario2.redraw import sweep_study
+        from coopsumo.studies.scenario2.study import chosen_profile
+
+        mark_run_dir(root, "scenario2", finished=False, study=sweep_study(chosen_profile(profile)))
+    else:
+        mark_run_dir(root, "ablation", finished=False, study=profile_study("mini"))
+
+
 CASES = {
     "scenario2 evals": ("scenario2", S2, "evals/L2_T2_a0_s1/eval_s2001", ["--bootstrap", "10"]),
     "scenario2 mobil": ("scenario2", S2, "mobil/L2_T2_mobil_p0_s2001", ["--bootstrap", "10"]),
@@ -91,6 +105,7 @@ def test_a_studys_run_folder_holding_a_users_files_is_refused_before_any_run(cas
     (tmp_path / "p.toml").write_text(profile)
     folder = tmp_path / "s" / place
     user_folder(folder)
+    mark_study(tmp_path / "s", command, f"{tmp_path / 'p.toml'}:mini")  # the study's own root, interrupted (I5)
     argv = ["--profile", f"{tmp_path / 'p.toml'}:mini", "--workers", "1", "--quiet", "--out", "s", *extra]
     one_line(capsys, run(command, argv), f"output folder {folder.resolve()}", "left alone")
     assert json.loads((folder / "config.json").read_text()) == {"mine": 1}
@@ -259,3 +274,24 @@ def test_accident_seeds_default_out_uses_the_learning_studys_own_store(tmp_path:
             "--quiet"]  # fmt: skip
     assert run("accident-seeds", argv) == 0
     assert (learned / "accident" / "runs.csv").is_file() and not (learned / "models").exists()
+
+
+# -- I14: history --out into a study's folder written before markers -------------------------------------------------
+def test_history_out_refuses_an_unmarked_protocol_study_folder(tmp_path: Path,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:
+    """I14: `history --out P/table.md` with P a copy of a committed protocol study (no marker) wrote the table into
+    it, exit 0; a marked one was refused. Refused alike: one line naming the folder, nothing written."""
+    import shutil
+
+    from test_study_places import listing
+
+    from coopsumo.studies.protocol import history
+
+    checkout = Path(__file__).parents[1] / "results"
+    shutil.copytree(checkout / "learner_protocol_u1", tmp_path / "P")
+    out = tmp_path / "P" / "table.md"
+    before = listing(tmp_path)
+    one_line(capsys, history.main(["--results", str(checkout), "--out", str(out)]),
+             f"--out {out} lies inside {tmp_path / 'P'}, a coopsumo study's folder (its study.json")  # fmt: skip
+    assert listing(tmp_path) == before
+    history.check_writable(tmp_path / "elsewhere" / "table.md")  # a file beside it is fine
