@@ -34,6 +34,8 @@ from coopsumo.paths import STORE_ENV
 from coopsumo.record_schemas import STORE_CONFIG
 from coopsumo.validation import number_name
 
+GROUP_COST = "group_cost.json"
+"""written into each model trained in a group (engine/groups.py): {"group_size": K, "cpu_s": its CPU seconds over K}"""
 FIRST_TRAIN_SEED = 100
 """training seeds of the studies' models are 100, 101, ...: none of the evaluation seeds (1-5, 5000+) nor the
 validation seed"""
@@ -243,19 +245,16 @@ def check_entry(folder: Path) -> None:
 def foreign_entry(folder: Path) -> str | None:
     """Why the store's model folder `folder` holds what no training writes (a phrase), or None: a file where the
     folder belongs, a marker of another command, an entry that is not a training's (file_checks.TRAIN_ENTRIES, the
-    group's GROUP_COST, a temporary file), or one in its sumo/ or eval/ that is not a run's (run_folders.RUN_OUTPUTS;
+    group's GROUP_COST, a temporary file), or one in its sumo/ or eval/ that is not a run's (run_dirs.RUN_OUTPUTS;
     issue 82, probe 7, I6: a user's folder of that name was trained into, and a retrain listed notes.txt as its own)."""
     from fnmatch import fnmatchcase
 
     from coopsumo.agents.file_checks import TRAIN_ENTRIES
+    from coopsumo.run_dirs import RUN_OUTPUTS
     from coopsumo.run_markers import marker_kind
-    from coopsumo.studies.engine.groups import GROUP_COST
-    from coopsumo.studies.engine.run_folders import RUN_OUTPUTS
 
-    if os.path.lexists(folder) and not folder.is_dir():
-        return "is a file"
     if not folder.is_dir():
-        return None
+        return "is a file" if os.path.lexists(folder) else None
     if (kind := marker_kind(folder)) not in (None, "train"):
         return f"is the folder of a coopsumo {kind} run"
     own = {*TRAIN_ENTRIES, GROUP_COST}

@@ -13,9 +13,9 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
-from coopsumo.files import TEMPORARY, file_sha256, not_regular, read_json
+from coopsumo.files import file_sha256, not_regular, read_json
 from coopsumo.record_schemas import SPEED_MAX_MPS
-from coopsumo.run_dirs import LEARNERS, Recorded, check_out_path, check_run_dir, check_study_place
+from coopsumo.run_dirs import LEARNERS, RUN_OUTPUTS, Recorded, check_out_path, check_run_dir, check_study_place
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.run_markers import RUN_MARKER
 from coopsumo.studies.engine.records import summary_problem
@@ -111,9 +111,6 @@ def simulate_into(
     return {k: v for k, v in summary.items() if k != "policy"}
 
 
-RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xml", "routes.rou.xml", "plain.rou.xml",
-               "fcd.xml", "tripinfo.xml", "trajectories.parquet", f".*{TEMPORARY}")
-"""the entries a run writes into its folder (agents.rollout.run, SUMO; write_atomic's temporary files)"""
 
 
 def check_study_run(out: Path) -> None:
