@@ -109,3 +109,22 @@ def nets_env_problem() -> str | None:
     value = os.environ.get(NETS_ENV)
     problem = nets_problem(value) if value else None
     return f"${NETS_ENV} {problem}" if problem else None
+
+
+PLAN_FILES = ("plan.json", "sweep.json", "study.json")
+"""the plan files of the studies' roots (run_folders.STUDY_OUTPUTS' first names): with cells/, runs.csv or report.md
+beside (the committed studies keep no cells/), a study's root"""
+
+
+def unmarked_study_problem(path: Path, what: str, advice: str) -> str | None:
+    """Why `path` may not be written for lying inside a study's root written before markers (no marker: a plan file
+    beside its cells/, runs.csv or report.md, as the committed results/learner_protocol_* hold them), or None (issue
+    82, probe 7, I14: history's --out table was written into such a protocol study's folder; owned_problem sees only
+    marked folders)."""
+    real = path.expanduser().resolve()
+    for folder in real.parents:
+        plan = next((name for name in PLAN_FILES if (folder / name).is_file()), None)
+        if plan is not None and any(os.path.lexists(folder / name) for name in ("cells", "runs.csv", "report.md")):
+            return (f"{what} lies inside {folder}, a coopsumo study's folder (its {plan}, written before markers), "
+                    f"which only that study writes; {advice}")  # fmt: skip
+    return None

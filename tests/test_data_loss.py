@@ -327,6 +327,7 @@ def test_scenario1_refuses_a_real_model_folder_before_any_cell(
     root = tmp_path / "study"
     link = root / "models" / "alpha0_m100"
     user_copy(link, finished)
+    mark_run_dir(root, "scenario1", finished=False, study="the quick profile's study")  # its own (probe 7, I5)
     before = snapshot(link)
     code = scenario1.main(["--quick", "--train-steps", "40", "--steps", "450", "--seeds", "1", "--alphas", "0",
                            "--train-seeds", "1", "--out", str(root)])  # fmt: skip

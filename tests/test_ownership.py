@@ -232,8 +232,9 @@ def test_finish_keeps_a_folder_that_gained_a_file_during_the_run(tmp_path: Path)
 STUDIES = {
     "scenario1": (["--quick"], "quick", "plan.json", {"plan": {"profile": "default"}}, "default"),
     "scenario2": (["--profile", "tiny"], "tiny", "sweep.json", {"profile": {"name": "quick"}}, "quick"),
-    "protocol": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "nr10"}}, "nr10"),
-    "learning": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "conditioned"}}, "conditioned"),
+    "protocol": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "nr10", "t_ups": [1.5]}}, "nr10"),
+    "learning": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "conditioned"},
+                                                               "default_learner": {}}, "conditioned"),  # probe 7, I4
 }
 """each study command: how to run a profile and its name, and the plan file of another profile's study, whose
 profile it names"""
@@ -400,6 +401,7 @@ def test_only_the_model_links_of_a_study_may_lead_outside_it(tmp_path: Path) -> 
         (root / folder).mkdir(parents=True)
     (root / "models" / "alpha0_m100").symlink_to(store)
     (root / "train" / "L2_a0_s1").symlink_to(store)
+    mark_run_dir(root, "scenario2", finished=False)  # its own root (unmarked without sweep.json: a user's, probe 7 I5)
     assert study_link(root) is None
     check_study_root(root, "scenario2", ("sweep.json", "models", "train", "evals", "cells"))
     (root / "evals" / "L2_T2_a0_s1").symlink_to(tmp_path / "store")
@@ -416,6 +418,7 @@ def test_scenario2_refuses_a_user_file_where_a_model_link_belongs(
     root = tmp_path / "study"
     (root / "train").mkdir(parents=True)
     (root / "train" / "L2_T4_a8_s2").write_text("my notes\n")
+    mark_run_dir(root, "scenario2", finished=False, study="the tiny profile's sweep")  # its own, interrupted
     code = study_main("scenario2", ["--profile", "tiny", "--quiet", "--out", str(root)])
     refused(capsys, code, str(root / "train" / "L2_T4_a8_s2"), "is a file the study did not make")
     assert (root / "train" / "L2_T4_a8_s2").read_text() == "my notes\n" and not (root / "cells").exists()

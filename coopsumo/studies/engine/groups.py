@@ -17,11 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.files import read_json, write_json
-from coopsumo.studies.engine.model_store import _locked, model_id, reselectable, stored_model
-
-GROUP_COST = "group_cost.json"
-"""written into each model trained in a group: {"group_size": K, "cpu_s": the group's CPU seconds, children
-included, over K}, a model's share of its group (a study's cost per training reads it; not part of the model)"""
+from coopsumo.studies.engine.model_store import GROUP_COST, _locked, model_id, reselectable, stored_model
 
 GROUP_SIZE = 4
 """trainings per group: the stacked learner's cost per model-update falls to about 0.46 of today's at 4 and no

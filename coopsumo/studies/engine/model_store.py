@@ -34,6 +34,8 @@ from coopsumo.paths import STORE_ENV
 from coopsumo.record_schemas import STORE_CONFIG
 from coopsumo.validation import number_name
 
+GROUP_COST = "group_cost.json"
+"""written into each model trained in a group (engine/groups.py): {"group_size": K, "cpu_s": its CPU seconds over K}"""
 FIRST_TRAIN_SEED = 100
 """training seeds of the studies' models are 100, 101, ...: none of the evaluation seeds (1-5, 5000+) nor the
 validation seed"""
@@ -43,14 +45,22 @@ def store_for(root: Path) -> Path:
     """The store a study with results folder root uses: $COOPSUMO_MODELS, else the folder `models` beside root.
     UsageError when that path is not a store's to write: it is, or lies inside, a folder a coopsumo marker claims (a
     training's, a simulate run's, a study's: owners.claimed_problem; issue 82, probe 5, G3), or it holds what a store
-    does not (store_problem)."""
+    does not (store_problem); and when it is root or lies inside it, the study's own folder, checked before the study
+    writes anything (issue 82, probe 7, I12: `--out models` was refused only after its marker and plan were written).
+    A study directly in a learning study's root (accident-seeds' default ROOT/accident) uses that study's store,
+    beside ROOT (probe 7, I13: the store ROOT/models lay inside ROOT)."""
     from coopsumo.owners import claimed_problem
+    from coopsumo.run_markers import LEARNING_KIND, marker_kind
 
-    env = os.environ.get(STORE_ENV)
-    store = Path(env) if env else Path(root).resolve().parent / "models"
-    where = f"${STORE_ENV}" if env else f"beside {root}"
-    if problem := claimed_problem(store, f"the model store {store} ({where})", "pick another --out or set "
-                                  f"${STORE_ENV} to a store elsewhere"):  # fmt: skip
+    env, real = os.environ.get(STORE_ENV), Path(root).resolve()
+    home = real.parent if marker_kind(real.parent) == LEARNING_KIND else real
+    store = Path(env) if env else home.parent / "models"
+    where = f"${STORE_ENV}" if env else f"beside {root if home == real else home}"
+    advice = f"pick another --out or set ${STORE_ENV} to a store elsewhere"
+    if store.resolve() == real or store.resolve().is_relative_to(real):
+        raise UsageError(f"the model store {store} ({where}) {'is' if store.resolve() == real else 'lies inside'} "
+                         f"{root}, the study's own --out, which holds its results, not models; {advice}")  # fmt: skip
+    if problem := claimed_problem(store, f"the model store {store} ({where})", advice):
         raise UsageError(problem)
     if problem := store_problem(store):
         raise UsageError(f"the model store {store} ({where}) {problem}; move it away, pick another --out or set "
@@ -222,10 +232,40 @@ def _locked(path: Path) -> Iterator[None]:
 
 def check_entry(folder: Path) -> None:
     """UsageError naming `folder`, a model's folder in the store, when it is a link: the store makes only folders,
-    so a link there leads to someone's folder (a user's training), which is never trained into or replaced."""
+    so a link there leads to someone's folder (a user's training), which is never trained into or replaced; and when
+    it is not a training's to write (foreign_entry)."""
     if folder.is_symlink():
         raise UsageError(f"{folder} is a link to {folder.resolve()} where the model store keeps its own folder of "
                          "that model; it is left alone: remove the link and run again")  # fmt: skip
+    if (problem := foreign_entry(folder)) is not None:
+        raise UsageError(f"{folder}, a model's folder in the model store, {problem}, and is left alone (a training "
+                         "there would replace or list it as its own): move it away and run again")  # fmt: skip
+
+
+def foreign_entry(folder: Path) -> str | None:
+    """Why the store's model folder `folder` holds what no training writes (a phrase), or None: a file where the
+    folder belongs, a marker of another command, an entry that is not a training's (file_checks.TRAIN_ENTRIES, the
+    group's GROUP_COST, a temporary file), or one in its sumo/ or eval/ that is not a run's (run_dirs.RUN_OUTPUTS;
+    issue 82, probe 7, I6: a user's folder of that name was trained into, and a retrain listed notes.txt as its own)."""
+    from fnmatch import fnmatchcase
+
+    from coopsumo.agents.file_checks import TRAIN_ENTRIES
+    from coopsumo.run_dirs import RUN_OUTPUTS
+    from coopsumo.run_markers import marker_kind
+
+    if not folder.is_dir():
+        return "is a file" if os.path.lexists(folder) else None
+    if (kind := marker_kind(folder)) not in (None, "train"):
+        return f"is the folder of a coopsumo {kind} run"
+    own = {*TRAIN_ENTRIES, GROUP_COST}
+    for entry in sorted(folder.iterdir()):
+        if entry.name not in own and not entry.name.endswith(".tmp"):
+            return f"holds {entry.name}, which no training writes"
+        if entry.name in ("sumo", "eval") and entry.is_dir() and not entry.is_symlink():
+            for inner in sorted(entry.iterdir()):
+                if not any(fnmatchcase(inner.name, pat) for pat in RUN_OUTPUTS):
+                    return f"holds {entry.name}/{inner.name}, which no training writes"
+    return None
 
 
 def check_link(link: Path) -> None:

@@ -3,7 +3,9 @@ finished run folder can be reused (its configuration, its outputs, its values)."
 
 from __future__ import annotations
 
+import fnmatch
 import json
+import os
 import sys
 from collections.abc import Iterable, Sequence
 from contextlib import AbstractContextManager, nullcontext
@@ -13,8 +15,9 @@ from typing import Any
 from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
 from coopsumo.files import file_sha256, not_regular, read_json
 from coopsumo.record_schemas import SPEED_MAX_MPS
-from coopsumo.run_dirs import LEARNERS, Recorded, check_out_path, check_run_dir, check_study_place
+from coopsumo.run_dirs import LEARNERS, RUN_OUTPUTS, Recorded, check_out_path, check_run_dir, check_study_place
 from coopsumo.run_dirs import study_root as claim_study_root
+from coopsumo.run_markers import RUN_MARKER
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
 
@@ -116,6 +119,30 @@ def simulate_into(
     return {k: v for k, v in summary.items() if k != "policy"}
 
 
+
+
+def check_study_run(out: Path) -> None:
+    """UsageError (one line naming `out`) when a study may not write its run into `out`, before any run: scenario I's
+    rule (run_dirs.check_run_dir: missing, empty, or simulate's and nothing added), except that a folder with no
+    marker holding only the names a run writes (RUN_OUTPUTS) is the study's own, from a run written in place (scenario
+    II's evals/ and mobil/, the learning study's baselines/ and evals/; issue 82, probe 7, I1)."""
+    out = out.resolve()
+    if out.is_dir() and not os.path.lexists(out / RUN_MARKER) and not out.is_symlink() \
+            and all(p.is_file() and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS)
+                    for p in out.iterdir()):  # fmt: skip
+        return
+    check_run_dir(out, "simulate")
+
+
+def check_study_runs(folder: Path, nested: bool = False) -> None:
+    """check_study_run of `folder`, or (nested) of each entry of `folder`: a cell's evaluations, a run folder each."""
+    if nested and folder.is_dir() and not folder.is_symlink():
+        for entry in sorted(folder.iterdir()):
+            check_study_run(entry)
+    else:
+        check_study_run(folder)
+
+
 STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
     "scenario1": ("plan.json", "cells", "models", "runs", "runs.csv", "summary.csv", "report.md", "fig*.png",
                   "gui_jam.png", "gui_jam.json"),
@@ -164,10 +191,25 @@ def _at(data: Any, keys: Sequence[str]) -> Any:
     return data
 
 
-def recorded_profile(plan_file: str, *keys: str, presets: Sequence[str] = ()) -> Recorded:
+STUDY_SIGNS: dict[str, tuple[str, ...]] = {"ablation": ("default_learner",), "protocol": ("profile", "t_ups")}
+"""where each study that writes study.json (learning: kind ablation, protocol) holds a field the other's lacks: which
+command's study a root without a marker holds (issue 82, probe 7, I4: a profile name alone took a protocol study for
+a learning study of the same name, and the other way round)"""
+
+
+def _holds(data: Any, keys: Sequence[str]) -> bool:
+    try:
+        _at(data, keys)
+    except (KeyError, TypeError, IndexError):
+        return False
+    return True
+
+
+def recorded_profile(plan_file: str, *keys: str, presets: Sequence[str] = (), kind: str | None = None) -> Recorded:
     """recorded(root) -> profile_study of the profile name a study's plan file holds under `keys` (plan.json's
     plan.profile) and of the learner presets it holds under `presets` (none given or none there: the default), or
-    None when there is none or it cannot be read: which study a root written before its marker named it holds."""
+    None when there is none or it cannot be read: which study a root written before its marker named it holds. kind:
+    a study of STUDY_SIGNS, whose plan file must hold its sign: one holding another's is that command's study."""
 
     def recorded(root: Path) -> str | None:
         try:
@@ -175,6 +217,9 @@ def recorded_profile(plan_file: str, *keys: str, presets: Sequence[str] = ()) ->
             value = _at(data, keys)
         except (OSError, ValueError, KeyError, TypeError):
             return None
+        if kind is not None and not _holds(data, STUDY_SIGNS[kind]):
+            other = next((k for k, sign in STUDY_SIGNS.items() if _holds(data, sign)), None)
+            return f"a coopsumo {other} study ({plan_file} says so)" if other is not None else None
         try:
             learners = _at(data, presets) if presets else ["default"]
         except (KeyError, TypeError):  # a plan written before its study had learner presets: the default's

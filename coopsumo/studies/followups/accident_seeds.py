@@ -25,9 +25,11 @@ from coopsumo.config import ControlConfig, SimConfig, to_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json, write_atomic, write_json, write_text_atomic
 from coopsumo.provenance import versions
+from coopsumo.run_dirs import check_out_path, check_study_place
 from coopsumo.run_dirs import study_root as claim_study_root
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.cells import add_cell_flags
+from coopsumo.studies.engine.model_store import store_for
 from coopsumo.studies.engine.records import failed_exit, model_fields
 from coopsumo.studies.engine.runner import check_backend
 from coopsumo.studies.followups.accident_seeds_report import report
@@ -230,6 +232,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.steps is not None:
             plan = accident_runs.scaled(plan, args.steps / plan.steps)
         out = args.out if args.out is not None else default_model_out(args.roots[0] / "accident")
+        check_out_path(out)  # its path, its place (directly in a ROOT: ROOT/accident) and its model store (the
+        check_study_place(out, args.roots)  # learning study's) before anything is written (probe 7, I13)
+        store_for(out)
         # path, place (not in another's folder but directly in a ROOT: ROOT/accident), lock, ownership and marker
         with claim_study_root(out, "accident_seeds", (*OUTPUTS, "*.tmp"), hosts=args.roots):
             return run_study(found, t_ups, out, plan, args.adaptive, args.workers, args.backend, args.address,

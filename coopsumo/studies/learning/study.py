@@ -34,7 +34,13 @@ from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import failed_exit
-from coopsumo.studies.engine.run_folders import default_out, profile_study, recorded_profile, study_root
+from coopsumo.studies.engine.run_folders import (
+    check_study_runs,
+    default_out,
+    profile_study,
+    recorded_profile,
+    study_root,
+)
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
 from coopsumo.studies.learning.plan import (
     CHAIN_LENGTH,
@@ -138,6 +144,9 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     done_keys -= repointed_trainings(root, [s for s in specs if s["key"] in done_keys], "learning")  # linked elsewhere
     done_keys -= spoiled_logs(root, [s for s in specs if s["key"] in done_keys], "learning")  # its figures draw them
     todo = [s for s in specs if s["key"] not in done_keys]
+    for s in todo:  # a run folder holding a user's files: refused before any cell runs (issue 82, probe 7, I1)
+        train = s["kind"] == "train"
+        check_study_runs(root / ("evals" if train else "baselines") / s.get("train_key", s["key"]), nested=train)
     # the slow paper trainings first, the single changes on top of the default last
     extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
     todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
@@ -248,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
             args.out = default_model_out(default_out("learning", profile.name, "full"))
         # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
         with study_root(args.out, LEARNING_KIND, profile_study(profile.name), recorded_profile("study.json", "profile",
-                        "name"), f"pick another --out (the {profile.name} profile's default: "
+                        "name", kind=LEARNING_KIND), f"pick another --out (the {profile.name} profile's default: "
                         f"{default_out('learning', profile.name, 'full')})", trains=True):  # fmt: skip
             meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip

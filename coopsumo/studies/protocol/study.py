@@ -218,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
             args.out = default_model_out(default_folder(profile.name))
         # another profile's study refused, its own resumed (study.json names it in a root marked before markers did)
         with study_root(args.out, "protocol", profile_study(profile.name), recorded_profile("study.json", "profile",
-                        "name"), f"pick another --out (the {profile.name} profile's default: "
+                        "name", kind="protocol"), f"pick another --out (the {profile.name} profile's default: "
                         f"{default_folder(profile.name)})", trains=True):  # fmt: skip
             meta = run_study(profile, args.out, args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip

@@ -1,18 +1,17 @@
 """`coopsumo scenario2` (`make scenario2`): the alpha sweep of section IV.B (paper Fig. 6).
 
-The default profile `full` (and `paper`) trains one model per alpha, lane count and training seed on that lane
-count's demands and drives it at every condition of the lane count (`check` trains one alpha-conditioned network per
-lane count and seed beside per-alpha models, and drives it at every alpha); `keep`,
-`greedy` and MOBIL run on the same evaluation seeds, every speed is measured once the road is full, and the report
-(scenario2_gate_report) judges per condition whether the learner is fit to be asked (the gate) before alpha*'s
-trends are fitted. The profiles `quick` and `tiny` are the per-alpha sweep described below.
+The default profile `full` (and `paper`) trains one model per alpha, lane count and training seed on that lane count's
+demands and drives it at every condition of the lane count (`check` trains one alpha-conditioned network per lane count
+and seed beside per-alpha models, and drives it at every alpha); `keep`, `greedy` and MOBIL run on the same evaluation
+seeds, every speed is measured once the road is full, and the report (scenario2_gate_report) judges per condition
+whether the learner is fit to be asked (the gate) before alpha*'s trends are fitted. The profiles `quick` and `tiny` are
+the per-alpha sweep described below.
 
-For every condition (lane count, upstream departure interval T_up) and every lane-change
-penalty alpha, a model is trained in free flow per training seed (taken from the model store when
-it holds it) and evaluated greedily on the same condition on every evaluation seed, demands no
-training saw; a model's value is its mean over them. alpha* is the alpha with the best mean
-travelling speed over models; its uncertainty is given by per-model win shares and a bootstrap
-over models. A plane alpha* = b0 + b1 T_up + b2 lanes is fitted over the conditions.
+For every condition (lane count, upstream departure interval T_up) and every lane-change penalty alpha, a model is
+trained in free flow per training seed (taken from the model store when it holds it) and evaluated greedily on the same
+condition on every evaluation seed, demands no training saw; a model's value is its mean over them. alpha* is the alpha
+with the best mean travelling speed over models; its uncertainty is given by per-model win shares and a bootstrap over
+models. A plane alpha* = b0 + b1 T_up + b2 lanes is fitted over the conditions.
 
 With `--policies dqn,mobil`, MOBIL cells (lanes, T_up, politeness p, evaluation seed) are added: no
 training, one run of `mobil:p=P` on the same condition and step count as a DQN model's evaluation on
@@ -65,7 +64,7 @@ from coopsumo.studies.engine.records import (
     read_record,
     reusable_keys,
 )
-from coopsumo.studies.engine.run_folders import default_out, simulate_into, study_root
+from coopsumo.studies.engine.run_folders import check_study_runs, default_out, simulate_into, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
 from coopsumo.studies.scenario2.measures import KEY_COLUMNS, evals_table, runs_table
 from coopsumo.studies.scenario2.plan import (
@@ -280,6 +279,10 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     done_keys -= repointed(root, [s for s in specs if s["key"] in done_keys])
     done = [s for s in specs if s["key"] in done_keys]
     todo = [s for s in specs if s["key"] not in done_keys]
+    for s in todo:  # a run folder holding a user's files: refused before any cell runs (issue 82, probe 7, I1)
+        dqn = s.get("policy") not in CLASSICAL
+        check_study_runs(root / "evals" / s.get("evals_key", s.get("train_key", s["key"])) if dqn else
+                         root / _classical_folder(s) / s["key"], nested=dqn)  # fmt: skip
     retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
     _order(todo, profile)
     meta = _sweep_meta(profile, len(specs), backend_name, address, workers, n_boot)
