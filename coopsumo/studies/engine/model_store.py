@@ -1,21 +1,11 @@
-"""The model store: every trained model lives once, in a folder named by what made it, and every study that needs
-it takes it from there instead of training its own copy.
-
-A model's identity is its training configuration (config.results_view of the TrainConfig: the learner settings,
-alpha or conditioning, training seed, schedule, road and demand). Its folder in the store is
-`<preset>_a<alpha>_seed<seed>_<digest>`, the digest a hash of that identity, so a changed setting is another
-folder and trains a new model. A study links its own training folder (e.g. OUT/train/<key>) to the store's, so
-its reports read the model where they always did.
-
-The store is the folder `models` beside the study's results folder (results/models for the committed studies), or
-$COOPSUMO_MODELS. A stored model is used only when it is whole and is its identity's (trainings.finished_training:
-the run marker, config.json equal to the identity, a model.pt that loads and was made by that configuration); a
-hand-edited or truncated one is trained again in its folder, and nothing else in the store is touched. A killed
-training resumes from its checkpoint, as a study's own would. A model whose training differs from a stored one only
-in how its snapshots are judged (selection.SELECTION_FIELDS, e.g. validation through an accident) is not trained:
-the stored training's snapshots are validated again into its own folder (reselectable, selection.reselect).
+"""The model store: every trained model lives once, in a folder named by what made it (its identity: the results
+view of its TrainConfig), `<preset>_a<alpha>_seed<seed>_<digest>`; every study takes it from there, through a link
+in its own folder (e.g. OUT/train/<key>). The store is the folder `models` beside the study's results folder, or
+$COOPSUMO_MODELS. A stored model is used only when it is whole and its identity's (trainings.finished_training); a
+hand-edited or truncated one is trained again in its folder, a killed one resumes from its checkpoint, and nothing
+else in the store is touched. A model that differs from a stored one only in how its snapshots are judged
+(selection.SELECTION_FIELDS) is not trained: the stored snapshots are validated again (reselectable).
 """
-
 from __future__ import annotations
 
 import hashlib
