@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from coopsumo.studies.engine import stats
-from coopsumo.studies.scenario1.measures import paired_bootstrap
 
 
 def _model_dominated() -> np.ndarray:
@@ -18,7 +17,7 @@ def _model_dominated() -> np.ndarray:
 
 def test_the_two_level_interval_includes_zero_where_the_one_level_one_does_not() -> None:
     table = _model_dominated()
-    _, lo1, hi1 = paired_bootstrap(table.ravel())  # every run as if independent
+    lo1, hi1 = stats.interval(stats.resampled_means(table.ravel(), 4000, np.random.default_rng(0)), 0.025)  # one level
     mean, lo2, hi2 = stats.hierarchical_bootstrap(table, reps=4000)
     assert lo1 > 0  # the one-level interval claims a difference
     assert lo2 < 0 < hi2  # the models' spread says it cannot be decided
@@ -39,9 +38,36 @@ def test_one_row_is_the_bootstrap_over_seeds_and_nans_are_dropped() -> None:
     assert mean == 7.0 / 3
     assert 1.0 <= lo < mean < hi <= 4.0
     assert np.isnan(stats.hierarchical_bootstrap(np.full((2, 3), np.nan))[0])
+    assert stats.hierarchical_bootstrap(np.array([[1.5]])) == (1.5, 1.5, 1.5)
     # a model whose every value is missing is left out; the others weigh equally whatever their seed count
     mean, _, _ = stats.hierarchical_bootstrap(np.array([[1.0, 1.0, 1.0], [3.0, np.nan, np.nan], [np.nan] * 3]))
     assert mean == 2.0
+
+
+def test_a_resample_is_one_seeded_call_of_the_generator() -> None:
+    draw = stats.resample(np.random.default_rng(5), 4, 3)
+    assert draw.shape == (3, 4) and draw.min() >= 0 and draw.max() < 4
+    assert (draw == np.random.default_rng(5).integers(0, 4, size=(3, 4))).all()
+    per_task = stats.resample(np.random.default_rng(5), 4, 3, 2)  # each of 2 columns its own draw
+    assert (per_task == np.random.default_rng(5).integers(0, 4, size=(3, 4, 2))).all()
+
+
+def test_two_levels_draw_the_models_first_then_seeds_among_each_drawn_models_own() -> None:
+    counts = np.array([1, 3, 5])
+    models, seeds = stats.resample_two_levels(np.random.default_rng(9), counts, 5, 200)
+    assert (models == np.random.default_rng(9).integers(0, 3, size=(200, 3))).all()
+    assert seeds.shape == (200, 3, 5) and (seeds >= 0).all() and (seeds < counts[models][:, :, None]).all()
+    assert (seeds[models == 0] == 0).all() and (seeds[models == 2] == 4).any()
+
+
+def test_the_percentile_interval_of_resampled_means_covers_the_true_mean() -> None:
+    assert stats.interval(np.arange(101.0), 0.05) == (5.0, 95.0)
+    sample = np.random.default_rng(1).normal(3.0, 1.0, size=200)
+    means = stats.resampled_means(sample, 2000, np.random.default_rng(2))
+    low, high = stats.interval(means, 0.025)
+    assert low < 3.0 < high and high - low < 0.6
+    assert (stats.resampled_means(sample, 50, np.random.default_rng(2)) == means[:50]).all()
+    assert (stats.resampled_means(np.full(7, 2.5), 30, np.random.default_rng(0)) == 2.5).all()
 
 
 def test_models_needed_grows_with_the_spread() -> None:

@@ -46,13 +46,12 @@ MIN_PLANNED, MAX_MODELS = 20, 40
 def hierarchical_p(diff: np.ndarray) -> tuple[float, float, float, float]:
     """(mean, low, high, two-sided p) of a (models x seeds) table of paired differences: the two-level bootstrap's
     95% interval, and twice the smaller share of its replicates on either side of 0 (at most 1)."""
-    from coopsumo.studies.engine.stats import bootstrap_p, hierarchical_replicates
+    from coopsumo.studies.engine.stats import bootstrap_p, hierarchical_replicates, interval
 
     point, values = hierarchical_replicates(diff, reps=N_BOOT, seed=BOOT_SEED)
     if values.size == 0:
         return (math.nan,) * 4
-    low, high = np.percentile(values, [2.5, 97.5])
-    return point, float(low), float(high), bootstrap_p(values)
+    return point, *interval(values, 0.025), bootstrap_p(values)
 
 
 def holm_adjusted(p_values: pd.Series) -> pd.Series:
