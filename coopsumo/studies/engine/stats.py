@@ -44,11 +44,9 @@ def stratified_bootstrap(scores: tuple[np.ndarray, ...], func: Callable[..., flo
     import, and arch 8 breaks rliable's bootstrap); rliable's `metrics` give the point values."""
     rng = np.random.default_rng(seed)
     mats = [np.asarray(s, float) for s in scores]
-    drawn: list[list[np.ndarray]] = [[] for _ in mats]
-    for _ in range(reps):  # one draw per resample and matrix, in this order: the stream of every earlier version
-        for m, d in zip(mats, drawn, strict=True):
-            d.append(resample(rng, len(m), 1, *m.shape[1:]))  # per task (column) its own resample of the runs
-    idx = [np.concatenate(d) for d in drawn]  # per matrix: (reps, runs, tasks)
+    # one draw per resample and matrix, in this order (the stream of every earlier version); per task its own draw
+    draws = [[resample(rng, len(m), 1, *m.shape[1:]) for m in mats] for _ in range(reps)]
+    idx = [np.concatenate(d) for d in zip(*draws, strict=True)]  # per matrix: (reps, runs, tasks)
     if batch is not None:
         values = batch(*(np.take_along_axis(m[None], i, axis=1) for m, i in zip(mats, idx, strict=True)))
     else:
@@ -86,8 +84,6 @@ def hierarchical_bootstrap(diff: np.ndarray, reps: int = REPS, seed: int = SEED,
     """(mean, low, high) of a (models x evaluation seeds) table of paired differences: the percentile interval of
     hierarchical_replicates. (nan, nan, nan) without data."""
     point, values = hierarchical_replicates(diff, reps, seed)
-    if values.size == 0:
-        return float("nan"), float("nan"), float("nan")
     return point, *interval(values, (1 - confidence) / 2)
 
 
@@ -135,7 +131,10 @@ def resampled_means(values: np.ndarray, reps: int, rng: np.random.Generator) -> 
 
 
 def interval(replicates: np.ndarray, tail: float) -> tuple[float, float]:
-    """The percentile interval of bootstrap replicates: their `tail` and 1 - `tail` quantiles (0.025: 95%)."""
+    """The percentile interval of bootstrap replicates: their `tail` and 1 - `tail` quantiles (0.025: 95%); NaN
+    without a replicate."""
+    if np.size(replicates) == 0:
+        return float("nan"), float("nan")
     low, high = np.quantile(replicates, [tail, 1 - tail])
     return float(low), float(high)
 

@@ -93,10 +93,7 @@ def neighbour_separation(speeds: np.ndarray, best: int, n_boot: int, rng: np.ran
             continue
         diff = speeds[best] - speeds[nb]
         diff = diff[np.isfinite(diff)]
-        if len(diff) == 0:
-            out.append(None)
-            continue
-        out.append(interval(resampled_means(diff, max(n_boot, 1), rng), (1 - level) / 2)[0] > 0)
+        out.append(interval(resampled_means(diff, max(n_boot, 1), rng), (1 - level) / 2)[0] > 0 if len(diff) else None)
     return out[0], out[1]
 
 
@@ -124,8 +121,7 @@ def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, 
         boot = bootstrap_best(speeds, n_boot, rng) if n_boot > 0 else np.zeros(0, int)
         boot_alpha = np.where(boot >= 0, alpha_arr[np.clip(boot, 0, None)], np.nan)
         boots[(int(lanes), float(t_up))] = boot_alpha
-        drawn = boot_alpha[np.isfinite(boot_alpha)]
-        p05, p95 = interval(drawn, 0.05) if drawn.size else (np.nan, np.nan)
+        p05, p95 = interval(boot_alpha[np.isfinite(boot_alpha)], 0.05)
         finite_means = means[np.isfinite(means)]
         var_of_mean = np.array([np.var(r[np.isfinite(r)], ddof=1) / np.isfinite(r).sum()
                                 if np.isfinite(r).sum() > 1 else np.nan for r in speeds])  # fmt: skip
