@@ -1,8 +1,7 @@
 """Statistics over trained models (the unit of replication), with rliable (Agarwal et al., NeurIPS 2021).
 
 Pure functions on arrays: a score matrix has one row per trained model and one column per task (an evaluation
-condition); higher is better (negate a cost such as total time spent before calling). The one home of every study's
-bootstrap: its draws (resample, resample_two_levels, resampled_means) and its intervals (interval, bootstrap_p).
+condition); higher is better (negate a cost such as total time spent before calling); the bootstrap of every study.
 """
 
 from __future__ import annotations
@@ -101,18 +100,16 @@ def hierarchical_replicates(diff: np.ndarray, reps: int = REPS, seed: int = SEED
     if d.size == 0:
         return float("nan"), np.empty(0)
     counts = valid.sum(axis=1)
-    packed = np.zeros_like(d)  # each model's values first, in order; the rest unused
-    for i, row in enumerate(d):
-        packed[i, : counts[i]] = row[valid[i]]
-    point = float(np.mean([packed[i, : counts[i]].mean() for i in range(len(d))]))
+    values = [row[ok] for row, ok in zip(d, valid, strict=True)]  # each model's values, in order
+    packed = np.array([np.pad(v, (0, d.shape[1] - len(v))) for v in values])  # then unused zeros
+    point = float(np.mean([v.mean() for v in values]))
     models, seeds = resample_two_levels(np.random.default_rng(seed), counts, packed.shape[1], reps)
     drawn = packed[models[:, :, None], seeds]  # (reps, k, s): s draws among each drawn model's own values
     return point, drawn.mean(axis=2).mean(axis=1)
 
 
 def resample(rng: np.random.Generator, n: int, reps: int, *tasks: int) -> np.ndarray:
-    """Indices of `reps` resamples of n items drawn with replacement, in one call of rng.integers: (reps, n), or
-    (reps, n, *tasks) with each task (column) drawn on its own (stratified)."""
+    """`reps` resamples of range(n) with replacement, one rng.integers call: (reps, n), or by task (reps, n, *tasks)."""
     return rng.integers(0, n, size=(reps, n, *tasks))
 
 
@@ -131,8 +128,7 @@ def resampled_means(values: np.ndarray, reps: int, rng: np.random.Generator) -> 
 
 
 def interval(replicates: np.ndarray, tail: float) -> tuple[float, float]:
-    """The percentile interval of bootstrap replicates: their `tail` and 1 - `tail` quantiles (0.025: 95%); NaN
-    without a replicate."""
+    """The percentile interval of replicates: their `tail` and 1 - `tail` quantiles (0.025: 95%); NaN without any."""
     if np.size(replicates) == 0:
         return float("nan"), float("nan")
     low, high = np.quantile(replicates, [tail, 1 - tail])

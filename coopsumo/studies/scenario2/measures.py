@@ -71,8 +71,7 @@ def win_shares(speeds: np.ndarray) -> np.ndarray:
 
 def bootstrap_best(speeds: np.ndarray, n_boot: int, rng: np.random.Generator) -> np.ndarray:
     """Index of the best alpha in each of n_boot resamples of the seeds (with replacement, paired over alphas)."""
-    resampled = speeds[:, resample(rng, speeds.shape[1], n_boot)]  # alpha x boot x seed
-    means = _nanmean_rows(resampled)  # alpha x boot
+    means = _nanmean_rows(speeds[:, resample(rng, speeds.shape[1], n_boot)])  # alpha x boot (of alpha x boot x seed)
     finite = np.isfinite(means)
     best = np.argmax(np.where(finite, means, -np.inf), axis=0)
     return np.where(finite.any(axis=0), best, -1)
@@ -88,12 +87,10 @@ def neighbour_separation(speeds: np.ndarray, best: int, n_boot: int, rng: np.ran
     """
     out: list[bool | None] = []
     for nb in (best - 1, best + 1):
-        if best < 0 or not 0 <= nb < speeds.shape[0]:
-            out.append(None)
-            continue
-        diff = speeds[best] - speeds[nb]
+        diff = speeds[best] - speeds[nb] if best >= 0 and 0 <= nb < speeds.shape[0] else np.zeros(0)  # no neighbour
         diff = diff[np.isfinite(diff)]
-        out.append(interval(resampled_means(diff, max(n_boot, 1), rng), (1 - level) / 2)[0] > 0 if len(diff) else None)
+        means = resampled_means(diff, max(n_boot, 1), rng) if len(diff) else None  # no pair: no draw
+        out.append(None if means is None else interval(means, (1 - level) / 2)[0] > 0)
     return out[0], out[1]
 
 
