@@ -48,9 +48,7 @@ def hierarchical_p(diff: np.ndarray) -> tuple[float, float, float, float]:
     """(mean, low, high, two-sided p) of a (models x seeds) table of paired differences: the two-level bootstrap's
     95% interval, and twice the smaller share of its replicates on either side of 0 (at most 1)."""
     point, values = hierarchical_replicates(diff, reps=N_BOOT, seed=BOOT_SEED)
-    if values.size == 0:
-        return (math.nan,) * 4
-    return point, *interval(values, 0.025), bootstrap_p(values)
+    return point, *interval(values, 0.025), bootstrap_p(values) if values.size else math.nan  # NaN without data
 
 
 def holm_adjusted(p_values: pd.Series) -> pd.Series:
