@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from coopsumo.studies.engine import stats
-from coopsumo.studies.scenario1.measures import paired_bootstrap
 
 
 def _model_dominated() -> np.ndarray:
@@ -18,7 +17,7 @@ def _model_dominated() -> np.ndarray:
 
 def test_the_two_level_interval_includes_zero_where_the_one_level_one_does_not() -> None:
     table = _model_dominated()
-    _, lo1, hi1 = paired_bootstrap(table.ravel())  # every run as if independent
+    lo1, hi1 = stats.interval(stats.resampled_means(table.ravel(), 4000, np.random.default_rng(0)), 0.025)  # one level
     mean, lo2, hi2 = stats.hierarchical_bootstrap(table, reps=4000)
     assert lo1 > 0  # the one-level interval claims a difference
     assert lo2 < 0 < hi2  # the models' spread says it cannot be decided
@@ -39,9 +38,29 @@ def test_one_row_is_the_bootstrap_over_seeds_and_nans_are_dropped() -> None:
     assert mean == 7.0 / 3
     assert 1.0 <= lo < mean < hi <= 4.0
     assert np.isnan(stats.hierarchical_bootstrap(np.full((2, 3), np.nan))[0])
+    assert stats.hierarchical_bootstrap(np.array([[1.5]])) == (1.5, 1.5, 1.5)
     # a model whose every value is missing is left out; the others weigh equally whatever their seed count
     mean, _, _ = stats.hierarchical_bootstrap(np.array([[1.0, 1.0, 1.0], [3.0, np.nan, np.nan], [np.nan] * 3]))
     assert mean == 2.0
+
+
+def test_a_resample_is_one_seeded_call_and_two_levels_draw_the_models_first() -> None:
+    rng = np.random.default_rng
+    assert (stats.resample(rng(5), 4, 3, 2) == rng(5).integers(0, 4, size=(3, 4, 2))).all()  # one call, per column
+    counts = np.array([1, 3, 5])
+    models, seeds = stats.resample_two_levels(rng(9), counts, 5, 200)
+    assert (models == rng(9).integers(0, 3, size=(200, 3))).all()  # the models drawn first
+    assert seeds.shape == (200, 3, 5) and 0 == seeds.min() < seeds.max() == 4  # up to the 5-seed model's last
+    assert (seeds < counts[models][:, :, None]).all()  # each drawn model's seeds among its own
+
+
+def test_the_percentile_interval_of_resampled_means_covers_the_true_mean() -> None:
+    assert stats.interval(np.arange(101.0), 0.05) == (5.0, 95.0) and np.isnan(stats.interval(np.zeros(0), 0.05)).all()
+    sample = np.random.default_rng(1).normal(3.0, 1.0, size=200)
+    means = stats.resampled_means(sample, 2000, np.random.default_rng(2))
+    low, high = stats.interval(means, 0.025)
+    assert low < 3.0 < high and high - low < 0.6
+    assert (stats.resampled_means(sample, 50, np.random.default_rng(2)) == means[:50]).all()  # seeded: repeats
 
 
 def test_models_needed_grows_with_the_spread() -> None:

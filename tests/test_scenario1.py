@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import os
 import subprocess
 import sys
@@ -228,13 +227,6 @@ def test_cooperative_alpha_is_the_largest_that_still_changes_lanes() -> None:
     keep_like = _rows({"dqn_alpha0": {"lane_changes_per_vehicle": [2.0]},
                        "dqn_alpha8": {"lane_changes_per_vehicle": [0.0]}})  # fmt: skip
     assert measures.cooperative_alpha(keep_like, {0.0: "dqn_alpha0", 8.0: "dqn_alpha8"}) is None
-
-
-def test_paired_bootstrap_interval() -> None:
-    mean, lo, hi = measures.paired_bootstrap(np.array([-2.0, -1.0, -3.0, -2.0, np.nan]))
-    assert mean == pytest.approx(-2.0) and -3.0 <= lo < mean < hi <= -1.0
-    assert measures.paired_bootstrap(np.array([1.5])) == (1.5, 1.5, 1.5)
-    assert all(math.isnan(x) for x in measures.paired_bootstrap(np.array([np.nan])))
 
 
 def test_verdict_on_total_time_spent_with_recovery_counted_at_the_end_when_never() -> None:

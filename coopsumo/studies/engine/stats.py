@@ -1,7 +1,7 @@
 """Statistics over trained models (the unit of replication), with rliable (Agarwal et al., NeurIPS 2021).
 
 Pure functions on arrays: a score matrix has one row per trained model and one column per task (an evaluation
-condition); higher is better (negate a cost such as total time spent before calling).
+condition); higher is better (negate a cost such as total time spent before calling); the bootstrap of every study.
 """
 
 from __future__ import annotations
@@ -43,18 +43,15 @@ def stratified_bootstrap(scores: tuple[np.ndarray, ...], func: Callable[..., flo
     import, and arch 8 breaks rliable's bootstrap); rliable's `metrics` give the point values."""
     rng = np.random.default_rng(seed)
     mats = [np.asarray(s, float) for s in scores]
-    rows: list[list[np.ndarray]] = [[] for _ in mats]
-    for _ in range(reps):  # one draw per resample and matrix, in this order: the stream of every earlier version
-        for m, drawn in zip(mats, rows, strict=True):
-            drawn.append(rng.integers(0, m.shape[0], size=m.shape))  # per task (column) its own resample of the runs
+    # one draw per resample and matrix, in this order (the stream of every earlier version); per task its own draw
+    draws = [[resample(rng, len(m), 1, *m.shape[1:]) for m in mats] for _ in range(reps)]
+    idx = [np.concatenate(d) for d in zip(*draws, strict=True)]  # per matrix: (reps, runs, tasks)
     if batch is not None:
-        values = batch(*(np.take_along_axis(m[None], np.stack(r), axis=1) for m, r in zip(mats, rows, strict=True)))
+        values = batch(*(np.take_along_axis(m[None], i, axis=1) for m, i in zip(mats, idx, strict=True)))
     else:
-        values = np.array([func(*(np.take_along_axis(m, r[i], axis=0) for m, r in zip(mats, rows, strict=True)))
-                           for i in range(reps)])  # fmt: skip
-    tail = (1 - CONFIDENCE) / 2 * 100
-    low, high = np.percentile(values, [tail, 100 - tail])
-    return float(func(*mats)), float(low), float(high)
+        values = np.array([func(*(np.take_along_axis(m, i[r], axis=0) for m, i in zip(mats, idx, strict=True)))
+                           for r in range(reps)])  # fmt: skip
+    return float(func(*mats)), *interval(values, (1 - CONFIDENCE) / 2)
 
 
 def iqm_interval(scores: np.ndarray, reps: int = REPS) -> tuple[float, float, float]:
@@ -86,11 +83,7 @@ def hierarchical_bootstrap(diff: np.ndarray, reps: int = REPS, seed: int = SEED,
     """(mean, low, high) of a (models x evaluation seeds) table of paired differences: the percentile interval of
     hierarchical_replicates. (nan, nan, nan) without data."""
     point, values = hierarchical_replicates(diff, reps, seed)
-    if values.size == 0:
-        return float("nan"), float("nan"), float("nan")
-    tail = (1 - confidence) / 2 * 100
-    low, high = np.percentile(values, [tail, 100 - tail])
-    return point, float(low), float(high)
+    return point, *interval(values, (1 - confidence) / 2)
 
 
 def hierarchical_replicates(diff: np.ndarray, reps: int = REPS, seed: int = SEED) -> tuple[float, np.ndarray]:
@@ -107,16 +100,39 @@ def hierarchical_replicates(diff: np.ndarray, reps: int = REPS, seed: int = SEED
     if d.size == 0:
         return float("nan"), np.empty(0)
     counts = valid.sum(axis=1)
-    packed = np.zeros_like(d)  # each model's values first, in order; the rest unused
-    for i, row in enumerate(d):
-        packed[i, : counts[i]] = row[valid[i]]
-    point = float(np.mean([packed[i, : counts[i]].mean() for i in range(len(d))]))
-    rng = np.random.default_rng(seed)
-    k, s = packed.shape
-    models = rng.integers(0, k, size=(reps, k))
-    seeds = np.floor(rng.random((reps, k, s)) * counts[models][:, :, None]).astype(int)
+    values = [row[ok] for row, ok in zip(d, valid, strict=True)]  # each model's values, in order
+    packed = np.array([np.pad(v, (0, d.shape[1] - len(v))) for v in values])  # then unused zeros
+    point = float(np.mean([v.mean() for v in values]))
+    models, seeds = resample_two_levels(np.random.default_rng(seed), counts, packed.shape[1], reps)
     drawn = packed[models[:, :, None], seeds]  # (reps, k, s): s draws among each drawn model's own values
     return point, drawn.mean(axis=2).mean(axis=1)
+
+
+def resample(rng: np.random.Generator, n: int, reps: int, *tasks: int) -> np.ndarray:
+    """`reps` resamples of range(n) with replacement, one rng.integers call: (reps, n), or by task (reps, n, *tasks)."""
+    return rng.integers(0, n, size=(reps, n, *tasks))
+
+
+def resample_two_levels(rng: np.random.Generator, counts: np.ndarray, width: int,
+                        reps: int) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(models, seeds) of a two-level bootstrap: models (reps, k) draws the k models with replacement first; then
+    seeds (reps, k, width) draws `width` times among each drawn model's counts[model] seeds."""
+    models = resample(rng, len(counts), reps)
+    seeds = np.floor(rng.random((reps, len(counts), width)) * counts[models][:, :, None]).astype(int)
+    return models, seeds
+
+
+def resampled_means(values: np.ndarray, reps: int, rng: np.random.Generator) -> np.ndarray:
+    """The mean of each of `reps` resamples of the 1-D values (e.g. seed-paired differences): a one-level bootstrap."""
+    return values[resample(rng, len(values), reps)].mean(axis=1)
+
+
+def interval(replicates: np.ndarray, tail: float) -> tuple[float, float]:
+    """The percentile interval of replicates: their `tail` and 1 - `tail` quantiles (0.025: 95%); NaN without any."""
+    if np.size(replicates) == 0:
+        return float("nan"), float("nan")
+    low, high = np.quantile(replicates, [tail, 1 - tail])
+    return float(low), float(high)
 
 
 def bootstrap_p(replicates: np.ndarray) -> float:

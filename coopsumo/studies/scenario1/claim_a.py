@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from coopsumo.studies.engine.stats import bootstrap_p, hierarchical_replicates, interval
 from coopsumo.studies.protocol.thrashing import THRASHING
 from coopsumo.studies.scenario1.measures import BOOT_SEED, MIN_MODELS, N_BOOT, censored, model_table, paired_differences
 
@@ -46,13 +47,8 @@ MIN_PLANNED, MAX_MODELS = 20, 40
 def hierarchical_p(diff: np.ndarray) -> tuple[float, float, float, float]:
     """(mean, low, high, two-sided p) of a (models x seeds) table of paired differences: the two-level bootstrap's
     95% interval, and twice the smaller share of its replicates on either side of 0 (at most 1)."""
-    from coopsumo.studies.engine.stats import bootstrap_p, hierarchical_replicates
-
     point, values = hierarchical_replicates(diff, reps=N_BOOT, seed=BOOT_SEED)
-    if values.size == 0:
-        return (math.nan,) * 4
-    low, high = np.percentile(values, [2.5, 97.5])
-    return point, float(low), float(high), bootstrap_p(values)
+    return point, *interval(values, 0.025), bootstrap_p(values) if values.size else math.nan  # NaN without data
 
 
 def holm_adjusted(p_values: pd.Series) -> pd.Series:

@@ -16,6 +16,7 @@ import pandas as pd
 from coopsumo.config import SimConfig
 from coopsumo.files import read_json
 from coopsumo.sim import view
+from coopsumo.studies.engine.stats import hierarchical_bootstrap
 
 SLOW_MPS = 5.0
 RECOVERY_MPS = 15.0
@@ -120,14 +121,6 @@ def aggregate(rows: pd.DataFrame) -> pd.DataFrame:
     return out.reset_index()
 
 
-def paired_bootstrap(diff: np.ndarray, n_boot: int = N_BOOT, seed: int = BOOT_SEED) -> tuple[float, float, float]:
-    """Mean of seed-paired differences and its 95% percentile bootstrap interval over seeds (NaNs dropped): the
-    two-level bootstrap with one model. (nan, nan, nan) without a difference; the mean itself with one seed."""
-    from coopsumo.studies.engine.stats import hierarchical_bootstrap
-
-    return hierarchical_bootstrap(np.asarray(diff, dtype=float)[None, :], reps=n_boot, seed=seed)
-
-
 def censored(values: pd.Series, horizon: pd.Series) -> pd.Series:
     """A time that may never happen (NaN) replaced by the run's horizon: a lower bound of the true time."""
     return values.where(values.notna(), horizon)
@@ -168,8 +161,6 @@ def compare(rows: pd.DataFrame, t_up: float, a: str, b: str) -> dict[str, Any] |
     seeds (stats.hierarchical_bootstrap; over seeds alone when neither is a learned policy); None if either is
     missing. `models`: how many models stand behind the difference (0: none is learned); `tts_fewer`: for how
     many models (or seeds, without models) a spent less time; `tts_model_means`: the difference per model."""
-    from coopsumo.studies.engine.stats import hierarchical_bootstrap
-
     at = rows[rows["t_up_s"] == t_up]
     frames = {p: at[at["policy"] == p] for p in (a, b)}
     if any(f.empty for f in frames.values()):
@@ -239,8 +230,6 @@ def most_different_demand(rows: pd.DataFrame, a: str, b: str) -> float | None:
 def demand_table(rows: pd.DataFrame, value: str) -> pd.DataFrame:
     """Per policy and demand: the mean of value over models and seeds and its 95% two-level bootstrap interval
     (for demand_figure)."""
-    from coopsumo.studies.engine.stats import hierarchical_bootstrap
-
     out = []
     for (t_up, policy), g in rows.groupby(["t_up_s", "policy"], sort=False):
         table = model_table(g, value).to_numpy(dtype=float)

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 from numpy.typing import ArrayLike
 
+from coopsumo.studies.engine.stats import interval, resample, resampled_means
 from coopsumo.studies.scenario2.plan import CLASSICAL, CRITERION, Profile
 from coopsumo.validation import number_name
 
@@ -70,10 +71,7 @@ def win_shares(speeds: np.ndarray) -> np.ndarray:
 
 def bootstrap_best(speeds: np.ndarray, n_boot: int, rng: np.random.Generator) -> np.ndarray:
     """Index of the best alpha in each of n_boot resamples of the seeds (with replacement, paired over alphas)."""
-    n_seeds = speeds.shape[1]
-    idx = rng.integers(0, n_seeds, size=(n_boot, n_seeds))
-    resampled = speeds[:, idx]  # alpha x boot x seed
-    means = _nanmean_rows(resampled)  # alpha x boot
+    means = _nanmean_rows(speeds[:, resample(rng, speeds.shape[1], n_boot)])  # alpha x boot (of alpha x boot x seed)
     finite = np.isfinite(means)
     best = np.argmax(np.where(finite, means, -np.inf), axis=0)
     return np.where(finite.any(axis=0), best, -1)
@@ -89,16 +87,10 @@ def neighbour_separation(speeds: np.ndarray, best: int, n_boot: int, rng: np.ran
     """
     out: list[bool | None] = []
     for nb in (best - 1, best + 1):
-        if best < 0 or not 0 <= nb < speeds.shape[0]:
-            out.append(None)
-            continue
-        diff = speeds[best] - speeds[nb]
+        diff = speeds[best] - speeds[nb] if best >= 0 and 0 <= nb < speeds.shape[0] else np.zeros(0)  # no neighbour
         diff = diff[np.isfinite(diff)]
-        if len(diff) == 0:
-            out.append(None)
-            continue
-        means = diff[rng.integers(0, len(diff), size=(max(n_boot, 1), len(diff)))].mean(axis=1)
-        out.append(bool(np.quantile(means, (1 - level) / 2) > 0))
+        means = resampled_means(diff, max(n_boot, 1), rng) if len(diff) else None  # no pair: no draw
+        out.append(None if means is None else interval(means, (1 - level) / 2)[0] > 0)
     return out[0], out[1]
 
 
@@ -126,6 +118,7 @@ def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, 
         boot = bootstrap_best(speeds, n_boot, rng) if n_boot > 0 else np.zeros(0, int)
         boot_alpha = np.where(boot >= 0, alpha_arr[np.clip(boot, 0, None)], np.nan)
         boots[(int(lanes), float(t_up))] = boot_alpha
+        p05, p95 = interval(boot_alpha[np.isfinite(boot_alpha)], 0.05)
         finite_means = means[np.isfinite(means)]
         var_of_mean = np.array([np.var(r[np.isfinite(r)], ddof=1) / np.isfinite(r).sum()
                                 if np.isfinite(r).sum() > 1 else np.nan for r in speeds])  # fmt: skip
@@ -139,8 +132,7 @@ def alpha_star_table(runs: pd.DataFrame, alphas: Sequence[float] | None = None, 
             "alpha_star_speed_mps": float(means[best]) if best >= 0 else np.nan,
             "win_share": float(shares[best]) if best >= 0 else np.nan,
             "boot_support": float(np.mean(boot == best)) if best >= 0 and n_boot > 0 else np.nan,
-            "boot_alpha_p05": float(np.nanquantile(boot_alpha, 0.05)) if np.isfinite(boot_alpha).any() else np.nan,
-            "boot_alpha_p95": float(np.nanquantile(boot_alpha, 0.95)) if np.isfinite(boot_alpha).any() else np.nan,
+            "boot_alpha_p05": p05, "boot_alpha_p95": p95,
             "spread_mps": float(finite_means.max() - finite_means.min()) if finite_means.size else np.nan,
             "seed_se_mps": se,
             "separated_below": below,
@@ -274,13 +266,10 @@ def plane_bootstrap(table: pd.DataFrame, boots: dict[tuple[int, float], np.ndarr
     if not b1:
         return {}
     a1, a2 = np.array(b1), np.array(b2)
-    return {
-        "replicates": len(a1),
-        "b1_negative_share": float(np.mean(a1 < 0)),
-        "b2_negative_share": float(np.mean(a2 < 0)),
-        "b1_p05": float(np.quantile(a1, 0.05)), "b1_p95": float(np.quantile(a1, 0.95)),
-        "b2_p05": float(np.quantile(a2, 0.05)), "b2_p95": float(np.quantile(a2, 0.95)),
-    }  # fmt: skip
+    (b1_p05, b1_p95), (b2_p05, b2_p95) = interval(a1, 0.05), interval(a2, 0.05)
+    return {"replicates": len(a1), "b1_negative_share": float(np.mean(a1 < 0)),
+            "b2_negative_share": float(np.mean(a2 < 0)), "b1_p05": b1_p05, "b1_p95": b1_p95, "b2_p05": b2_p05,
+            "b2_p95": b2_p95}  # fmt: skip
 
 
 # -- the table of runs and what it costs ------------------------------------------------------------------

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from coopsumo.studies.engine.stats import bootstrap_p
+from coopsumo.studies.engine.stats import bootstrap_p, interval, resample
 
 RESPONSE_ALPHAS = (0.0, 0.25, 1.0, 2.0, 8.0)
 """the alphas the slope is fitted over: the paper's small values to 8; alpha 32 (where lane changes have all but
@@ -90,22 +90,20 @@ def condition_responses(scores: pd.DataFrame, reps: int, seed: int = BOOT_SEED) 
         x_parts, y_parts, boot_parts = [], [], []
         for a in alphas:
             block = wide.xs(a, level="alpha").to_numpy(float)  # models x loads
-            draw = rng.integers(0, len(block), size=(reps, len(block)))
             x_parts.append(np.full(len(block), response_x(a)))
             y_parts.append(block)
-            boot_parts.append(block[draw])  # reps x models x loads
+            boot_parts.append(block[resample(rng, len(block), reps)])  # reps x models x loads
         x = np.concatenate(x_parts)
         weights = (x - x.mean()) / ((x - x.mean()) ** 2).sum()
         y = np.concatenate(y_parts)  # models x loads
         boot = np.concatenate(boot_parts, axis=1)  # reps x models x loads
         point = weights @ y
         rep = np.einsum("m,rml->lr", weights, boot)  # loads x reps
-        tail = (1 - LEVEL) / 2
         models = min(len(b) for b in y_parts)
         for i, (t_up, load) in enumerate(conditions):
+            low, high = interval(rep[i], (1 - LEVEL) / 2)
             rows.append({"lanes": int(lanes), "t_up_s": t_up, "load": load, "models": models,
-                         "slope_mps": float(point[i]), "slope_low": float(np.quantile(rep[i], tail)),
-                         "slope_high": float(np.quantile(rep[i], 1 - tail))})  # fmt: skip
+                         "slope_mps": float(point[i]), "slope_low": low, "slope_high": high})  # fmt: skip
             replicates.append(rep[i])
     columns = ["lanes", "t_up_s", "load", "models", "slope_mps", "slope_low", "slope_high"]
     return Responses(pd.DataFrame(rows, columns=columns), np.array(replicates).reshape(len(rows), reps))
@@ -151,10 +149,9 @@ def trends(responses: Responses, kept: set[tuple[int, float]]) -> dict[str, Any]
     ss = float(((sub["slope_mps"] - sub["slope_mps"].mean()) ** 2).sum())
     out: dict[str, Any] = {"n": int(len(sub)), "c0": float(point[0]), "r2": 1 - float((resid**2).sum()) / ss if ss
                            else math.nan, "models": int(sub["models"].min())}  # fmt: skip
-    tail = (1 - LEVEL) / 2
     p_values = {}
     for i, name in ((1, "lanes"), (2, "load")):
-        low, high = (float(np.quantile(boot[i], q)) for q in (tail, 1 - tail))
+        low, high = interval(boot[i], (1 - LEVEL) / 2)
         p_values[name] = bootstrap_p(boot[i])
         out[name] = {"coef": float(point[i]), "low": low, "high": high, "p": p_values[name],
                      "paper_sign": PAPER_SIGNS[name]}  # fmt: skip
