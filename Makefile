@@ -51,7 +51,7 @@ nets: $(STAMP)
 scenario1: $(STAMP)
 	$(BIN)/coopsumo scenario1 $(if $(PROFILE),--profile $(PROFILE)) $(if $(QUICK),--quick) $(if $(FULL),--full) $(if $(SEEDS),--seeds $(SEEDS)) $(if $(TRAIN_SEEDS),--train-seeds $(TRAIN_SEEDS)) $(if $(T_UP),--t-up $(T_UP)) $(if $(MOBIL_P),--mobil-p $(MOBIL_P)) $(if $(PRESET),--preset $(PRESET)) $(if $(ALPHAS),--alphas $(ALPHAS))
 
-# the full profile (issue 65: a network per lane count, baselines, the gate); PROFILE=check its check, quick the old sweep
+# the full profile (issue 65: a model per alpha and lane count, baselines, the gate); PROFILE=check its check
 scenario2: $(STAMP)
 	$(BIN)/coopsumo scenario2 $(if $(PROFILE),--profile $(PROFILE))
 

@@ -231,7 +231,7 @@ def test_finish_keeps_a_folder_that_gained_a_file_during_the_run(tmp_path: Path)
 # -- issue 82: a study's folder belongs to one study ----------------------------------------------------------------
 STUDIES = {
     "scenario1": (["--quick"], "quick", "plan.json", {"plan": {"profile": "default"}}, "default"),
-    "scenario2": (["--profile", "tiny"], "tiny", "sweep.json", {"profile": {"name": "quick"}}, "quick"),
+    "scenario2": (["--profile", "tiny"], "tiny", "sweep.json", {"profile": {"name": "full"}}, "full"),
     "protocol": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "nr10", "t_ups": [1.5]}}, "nr10"),
     "learning": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "conditioned"},
                                                                "default_learner": {}}, "conditioned"),  # probe 7, I4
@@ -417,11 +417,11 @@ def test_scenario2_refuses_a_user_file_where_a_model_link_belongs(
     refused before any cell, as scenario I refuses a real folder under models/, one line naming it, the file kept."""
     root = tmp_path / "study"
     (root / "train").mkdir(parents=True)
-    (root / "train" / "L2_T4_a8_s2").write_text("my notes\n")
+    (root / "train" / "L2_a8_s2").write_text("my notes\n")
     mark_run_dir(root, "scenario2", finished=False, study="the tiny profile's sweep")  # its own, interrupted
     code = study_main("scenario2", ["--profile", "tiny", "--quiet", "--out", str(root)])
-    refused(capsys, code, str(root / "train" / "L2_T4_a8_s2"), "is a file the study did not make")
-    assert (root / "train" / "L2_T4_a8_s2").read_text() == "my notes\n" and not (root / "cells").exists()
+    refused(capsys, code, str(root / "train" / "L2_a8_s2"), "is a file the study did not make")
+    assert (root / "train" / "L2_a8_s2").read_text() == "my notes\n" and not (root / "cells").exists()
 
 
 def test_simulate_refuses_the_model_store(tmp_path: Path, capsys: pytest.CaptureFixture[str],

@@ -117,7 +117,7 @@ def test_the_file_and_the_flag_refuse_a_value_by_one_rule(tmp_path: Path, line: 
     ("loads = [50]", "loads: load 50 gives T_up 0.02 s on 2 lanes"),
     ("t_up_s = [2]", "loads must be [] beside t_up_s"),
     ("eval_loads = [0.3]", "eval_loads must be some of loads (0.25, 0.5), got 0.3"),
-    ("check_alphas = [0]", "check_alphas needs lane_networks = true"),
+    ("check_alphas = [0]", "check_alphas needs alpha_models = false (per-alpha models beside a conditioned network)"),
     ("seeds = [1, 2001]", "seeds: training seed 2001 is also an evaluation seed"),
     ("policies = [\"dqn\", \"dqn\"]", "policies names 'dqn' twice"),
     ("policies = [\"ppo\"]", "policies names unknown 'ppo'"),

@@ -35,12 +35,12 @@ def _evaluation(seed: int, speed: float, departed: int, changes: int) -> dict[st
             "mean_speed_mps": speed, "mean_travel_time_s": 48.5 + seed,
             "throughput_veh_per_h": (departed - 9) * 3600 / 70,
             "passing_taken_share": float("nan"), "loop_flow_veh_h_per_lane": 410.5, "loop_occupancy_pct": 2.25,
-            "policy": "dqn:train/L2_T4_a0_s1/model.pt", "scenario": "free", "eval_seed": seed}  # fmt: skip
+            "policy": "dqn:train/L2_a0_s1/model.pt", "scenario": "free", "eval_seed": seed}  # fmt: skip
 
 
 @pytest.fixture
 def dqn_spec() -> dict[str, Any]:
-    return next(s for s in cell_specs(PROFILES["quick"]) if s.get("policy") != "mobil")
+    return next(s for s in cell_specs(PROFILES["full"]) if s.get("policy") == "dqn")
 
 
 def _record(spec: dict[str, Any]) -> dict[str, Any]:
@@ -140,7 +140,7 @@ def test_a_record_edited_against_its_evaluations_is_rerun_with_one_line(
 
 def test_several_bad_records_are_each_named_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Issue 82 (s2_dup_lines): a rerun with several bad records says one line for each, none twice."""
-    specs = [s for s in cell_specs(PROFILES["quick"]) if s.get("policy") != "mobil"][:4]
+    specs = [s for s in cell_specs(PROFILES["full"]) if s.get("policy") == "dqn"][:4]
     edits = [_both("loop_occupancy_pct", 500.0), lambda r: r.update(policy="mobil"), lambda r: r.update(lanes=7),
              lambda r: r["train_summary"].update(updates=-5)]  # fmt: skip
     cell_path(tmp_path, specs[0]["key"]).parent.mkdir()
@@ -185,50 +185,53 @@ def test_a_record_naming_another_cells_training_is_rerun(tmp_path: Path, faked_t
     assert scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)["cells_ok"] == 8
     path = cell_path(root, "L2_T2_a0_s1")
     record = json.loads(path.read_text())
-    assert record["train_dir"] == "train/L2_T2_a0_s1"
-    path.write_text(json.dumps({**record, "train_dir": "train/L2_T2_a8_s1"}))
+    assert record["train_dir"] == "train/L2_a0_s1"
+    path.write_text(json.dumps({**record, "train_dir": "train/L2_a8_s1"}))
     capsys.readouterr()
     del faked_train[1:]
     meta = scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)
     err = [line for line in capsys.readouterr().err.splitlines() if "rerunning it" in line]
-    assert err == [f'scenario2: cell L2_T2_a0_s1: record {path} has train_dir = "train/L2_T2_a8_s1", not its '
-                   'cell\'s "train/L2_T2_a0_s1"; rerunning it'], err
-    assert meta["cells_ok"] == 8 and meta["cells_run"] == 1
+    assert err == [f'scenario2: cell L2_T2_a0_s1: record {path} has train_dir = "train/L2_a8_s1", not its '
+                   'cell\'s "train/L2_a0_s1"; rerunning it'], err
+    assert meta["cells_ok"] == 8 and meta["cells_run"] == 1 and faked_train[1:] == ["L2_T2_a0_s1"]
     runs = pd.read_csv(root / "runs.csv").set_index("key")
-    assert runs.loc["L2_T2_a0_s1", "train_dir"] == "train/L2_T2_a0_s1"
+    assert runs.loc["L2_T2_a0_s1", "train_dir"] == "train/L2_a0_s1"
 
 
 def test_a_train_link_pointed_at_another_model_is_rerun(tmp_path: Path, faked_train: list[str],
                                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    """Regression (issue 67): a condition's train/<key> link (into the model store) that a user pointed at another
-    model was kept, and the cell's record reused. The cell is run again with one line, and its link leads to its own
-    model once more; the folder the user pointed it at is left as it was, byte for byte."""
+    """Regression (issue 67): a model's train/<model> link (into the model store) that a user pointed at another
+    model was kept, and the records of its cells reused. Each cell of the model (one per condition) is run again with
+    one line, and the link leads to its own model once more; the folder the user pointed it at is left as it was,
+    byte for byte. Six models (tiny at three seeds), four of them pointed elsewhere."""
     root = tmp_path / "sweep"
-    assert scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)["cells_ok"] == 8
+    profile = replace(PROFILES["tiny"], seeds=(1, 2, 3))
+    assert scenario2.run_sweep(profile, root, progress=False, n_boot=20)["cells_ok"] == 12
     first = pd.read_csv(root / "alpha_star.csv")
     train = root / "train"
     own = {p.name: p.resolve() for p in train.iterdir()}
+    assert len(own) == 6
     mine = tmp_path / "mine"  # a training folder of the user's: another name than the store's
-    shutil.copytree(own["L2_T4_a0_s2"], mine)
-    edited = tmp_path / "copy" / own["L2_T4_a8_s2"].name  # the model's name, another training's config.json
-    shutil.copytree(own["L2_T4_a8_s2"], edited)
+    shutil.copytree(own["L2_a0_s2"], mine)
+    edited = tmp_path / "copy" / own["L2_a8_s2"].name  # the model's name, another training's config.json
+    shutil.copytree(own["L2_a8_s2"], edited)
     config = json.loads(cell_path(root, "L2_T2_a0_s1").read_text())["config"]["train"]
     (edited / "config.json").write_text(json.dumps({"config": config}))
-    pointed = {"L2_T2_a8_s1": own["L2_T2_a0_s1"], "L2_T4_a0_s2": mine, "L2_T4_a8_s2": edited,
-               "L2_T2_a0_s2": tmp_path / "gone"}  # fmt: skip
+    pointed = {"L2_a8_s1": own["L2_a0_s1"], "L2_a0_s2": mine, "L2_a8_s2": edited, "L2_a0_s3": tmp_path / "gone"}
     for key, target in pointed.items():
         (train / key).unlink()
         (train / key).symlink_to(target, target_is_directory=True)
     before = {p: p.read_bytes() for p in [*mine.rglob("*"), *edited.parent.rglob("*")] if p.is_file()}
     capsys.readouterr()
     del faked_train[1:]
-    meta = scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)
+    meta = scenario2.run_sweep(profile, root, progress=False, n_boot=20)
     err = capsys.readouterr().err.splitlines()
-    assert sorted(faked_train[1:]) == sorted(pointed)  # exactly the cells whose link was moved ran again
-    for key in pointed:
-        lines = [line for line in err if f"cell {key}: {train / key} leads to" in line]
+    cells = {f"L2_T{t}_{model.removeprefix('L2_')}": model for model in pointed for t in (2, 4)}
+    assert sorted(faked_train[1:]) == sorted(cells)  # exactly the cells of the models whose link was moved ran again
+    for key, model in cells.items():
+        lines = [line for line in err if f"cell {key}: {train / model} leads to" in line]
         assert len(lines) == 1 and lines[0].endswith("; rerunning it"), err
-    assert "4 already done" in "\n".join(err) and meta["cells_ok"] == 8 and meta["cells_run"] == 4
+    assert "4 already done" in "\n".join(err) and meta["cells_ok"] == 12 and meta["cells_run"] == 8
     assert {p.name: p.resolve() for p in train.iterdir()} == own
     assert {p: p.read_bytes() for p in before} == before
     pd.testing.assert_frame_equal(pd.read_csv(root / "alpha_star.csv"), first)
@@ -396,7 +399,7 @@ def test_a_table_refused_leaves_the_finished_sweep_whole(dqn_spec: dict[str, Any
         (tmp_path / name).write_text(text)
     record = _record(dqn_spec)
     record["summary"]["loop_occupancy_pct"] = 500.0
-    meta = scenario2._sweep_meta(PROFILES["quick"], 1, "local", None, 1, 0)
+    meta = scenario2._sweep_meta(PROFILES["full"], 1, "local", None, 1, 0)
     with pytest.raises(RecordError, match=r"runs.csv row 1 column loop_occupancy_pct must be"):
-        scenario2._finish(tmp_path, PROFILES["quick"], meta, [record], 1, 1.0)
+        scenario2._finish(tmp_path, PROFILES["full"], meta, [record], 1, 1.0)
     assert {p.name: p.read_text() for p in tmp_path.iterdir()} == before

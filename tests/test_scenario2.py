@@ -1,5 +1,6 @@
-"""Scenario II alpha sweep: alpha* selection, win shares, bootstrap and plane on hand-made tables;
-the command's bad input; the tiny sweep end to end on both backends; a sweep killed and resumed."""
+"""Scenario II alpha sweep: alpha* selection, win shares, bootstrap and plane on hand-made tables, and the report
+drawn and redrawn from them; the command's bad input; the tiny sweep end to end on both backends; a sweep killed and
+resumed."""
 
 from __future__ import annotations
 
@@ -20,19 +21,21 @@ import pytest
 from conftest import InlineBackend
 
 from coopsumo.config import PAPER_ALPHAS
+from coopsumo.errors import UsageError
 from coopsumo.studies.engine import cells as engine_cells
 from coopsumo.studies.engine import groups as engine_groups
 from coopsumo.studies.engine import records, runner, trainings
+from coopsumo.studies.scenario2 import gate_report
 from coopsumo.studies.scenario2 import measures as stats
 from coopsumo.studies.scenario2 import plan as s2_plan
-from coopsumo.studies.scenario2 import report as s2_report
 from coopsumo.studies.scenario2 import study as s2
 from coopsumo.studies.scenario2.redraw import rewrite_outputs
+from coopsumo.studies.scenario2.text import ALPHA_STAR_FIGURE
 
 REPO = Path(__file__).resolve().parent.parent
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-OUTPUTS = ("sweep.json", "runs.csv", "alpha_star.csv", s2_report.ALPHA_STAR_FIGURE, "fig6_speed_heatmap.png",
-           "report.md")
+OUTPUTS = ("sweep.json", "runs.csv", "evals.csv", "alpha_star.csv", "gate.csv", ALPHA_STAR_FIGURE,
+           "fig6_speed_heatmap.png", "report.md")
 COMPARED = [*stats.KEY_COLUMNS, "status", *stats.METRIC_COLUMNS]
 
 
@@ -49,6 +52,32 @@ def runs_from(speeds: dict[tuple[int, float], dict[float, list[float]]]) -> pd.D
                              "status": "failed" if failed else "ok", "error": "boom" if failed else None,
                              "mean_speed_mps": v, "collisions": 0, "teleports": 0})  # fmt: skip
     return pd.DataFrame(rows)
+
+
+def evals_of(runs: pd.DataFrame, eval_seeds: tuple[int, ...] = (2001,)) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """A hand-made runs table as a sweep writes it, with what the report reads beside the speed (policy, p, lane
+    changes, timings), and its evals.csv: each successful model's evaluation on each of eval_seeds at its speed, each
+    successful MOBIL, keep or greedy cell's one run (its seed the evaluation seed)."""
+    runs = runs.assign(policy=runs["policy"] if "policy" in runs else "dqn", p=runs["p"] if "p" in runs else np.nan,
+                       lane_changes_per_vehicle=0.5, cell_cpu_s=60.0, wall_seconds=6.0,
+                       resumed_from_step=pd.array([pd.NA] * len(runs), dtype="Int64"))  # fmt: skip
+    ok = runs[runs["status"] == "ok"]
+    columns = ["key", "lanes", "t_up_s", "load", "policy", "alpha", "p", "seed", "mean_speed_mps",
+               "lane_changes_per_vehicle", "collisions", "teleports", "wall_seconds"]  # fmt: skip
+    dqn, classical = ok[ok["policy"] == "dqn"], ok[ok["policy"] != "dqn"]
+    evals = [dqn[columns].assign(eval_seed=seed) for seed in eval_seeds]
+    evals.append(classical[columns].assign(eval_seed=classical["seed"], seed=np.nan))
+    return runs, pd.concat(evals, ignore_index=True)
+
+
+def sweep_meta(profile: s2_plan.Profile, runs: pd.DataFrame, n_boot: int) -> dict[str, Any]:
+    """What a sweep's sweep.json holds when its report is drawn."""
+    failed = runs.loc[runs["status"] != "ok", "key"].tolist()
+    return {"profile": asdict(profile), "conditions": s2_plan.condition_rows(profile), "cells": len(runs),
+            "cells_ok": len(runs) - len(failed), "cells_failed": len(failed), "failed_cells": failed,
+            "trainings": profile.n_trainings(), "backend": "local", "workers": 1, "wall_seconds": 1.0, "cells_run": 0,
+            "cell_wall_seconds_sum": 0.0, "cell_cpu_seconds_sum": 0.0, "bootstrap_replicates": n_boot,
+            "versions": {}}  # fmt: skip
 
 
 def mobil_runs_from(speeds: dict[tuple[int, float], dict[float, list[float]]]) -> pd.DataFrame:
@@ -150,56 +179,86 @@ def test_plane_bootstrap_and_trend_statements() -> None:
     boot = stats.plane_bootstrap(table, boots)
     assert boot["b1_negative_share"] == 1.0 and boot["b2_negative_share"] == 1.0
     assert boot["b1_p05"] == pytest.approx(fit.b1) and boot["replicates"] == 200
-    text = s2_report.trend_statements(fit, boot)
-    assert len(text) == 2 and all(s.startswith("**Holds**") for s in text)
-    opposite = s2_report.trend_statements(stats.PlaneFit(1.0, 2.0, 0.5, 0.3, 9), {})
-    assert all(s.startswith("**Does not hold**") and "b" in s for s in opposite)
+    text = trend_lines({**asdict(fit), "bootstrap": boot})
+    assert len(text) == 2 and all(s.startswith("- **Holds**") for s in text)
+    opposite = trend_lines({**asdict(stats.PlaneFit(1.0, 2.0, 0.5, 0.3, 9)), "bootstrap": {}})
+    assert all(s.startswith("- **Does not hold**") and "b" in s for s in opposite)
     # with models behind the fit, a verdict only when the 90% interval excludes 0
     wide = {"replicates": 1000, "b1_negative_share": 0.8, "b1_p05": -1.7, "b1_p95": 0.5,
             "b2_negative_share": 0.0, "b2_p05": 0.1, "b2_p95": 0.9}  # fmt: skip
-    undecided, reversed_ = s2_report.trend_statements(stats.PlaneFit(1.0, -0.6, 0.5, 0.3, 9), wide)
-    assert undecided.startswith("**Cannot decide**") and "more models" in undecided
-    assert reversed_.startswith("**Reversed**")
+    undecided, reversed_ = trend_lines({**asdict(stats.PlaneFit(1.0, -0.6, 0.5, 0.3, 9)), "bootstrap": wide,
+                                        "b1_models_to_decide": 12})  # fmt: skip
+    assert undecided.startswith("- **Cannot decide**") and "about 12 models per condition would decide" in undecided
+    assert reversed_.startswith("- **Reversed**")
+
+
+def trend_lines(trends: dict[str, Any]) -> list[str]:
+    """The report's lines on the paper's two trends (gate_report.trend_text), one per trend."""
+    return [line for line in gate_report.trend_text(trends, 9, 9, 3).splitlines() if line.startswith("- ")]
 
 
 def test_outputs_from_a_hand_made_table(tmp_path: Path) -> None:
-    """write_outputs (no SUMO): alpha_star.csv, both figures and a report with the plane and failed cells."""
+    """write_lane_outputs (no SUMO): alpha_star.csv, both figures and a report with the plane and failed cells; the
+    same redrawn from runs.csv, evals.csv and sweep.json alone."""
     speeds = {(lanes, t): {a: [18.0 + a / (lanes * t) - a * a / 400, 19.0 - a / 100] for a in (0.0, 2.0, 8.0, 32.0)}
               for lanes in (2, 3) for t in (0.7, 1.4)}  # fmt: skip
     speeds[(2, 0.7)][8.0] = [np.nan, 18.0]
-    runs = runs_from(speeds)
+    runs, evals = evals_of(runs_from(speeds))
     profile = s2_plan.Profile("hand", lanes=(2, 3), loads=(), alphas=(0.0, 2.0, 8.0, 32.0), seeds=(1, 2),
-                         train_steps=10, eval_steps=10, t_up_s=(0.7, 1.4))  # fmt: skip
-    meta = {"conditions": [{"lanes": n, "t_up_s": t, "load": ld} for n, t, ld in profile.conditions()],
-            "cells": len(runs), "cells_ok": 15, "cells_failed": 1, "backend": "local", "workers": 1,
-            "wall_seconds": 1.0, "cells_run": 0, "cell_wall_seconds_sum": 0.0, "cell_cpu_seconds_sum": 0.0,
-            "bootstrap_replicates": 100, "versions": {}}  # fmt: skip
-    s2_report.write_outputs(tmp_path, runs, profile, meta, n_boot=100)
-    for name in ("alpha_star.csv", s2_report.ALPHA_STAR_FIGURE, "fig6_speed_heatmap.png", "report.md"):
+                              train_steps=10, eval_steps=10, t_up_s=(0.7, 1.4), alpha_models=True)  # fmt: skip
+    meta = sweep_meta(profile, runs, 100)
+    gate_report.write_lane_outputs(tmp_path, runs, evals, profile, meta, n_boot=100)
+    for name in ("alpha_star.csv", "gate.csv", ALPHA_STAR_FIGURE, "fig6_speed_heatmap.png", "report.md"):
         assert (tmp_path / name).is_file(), name
-    assert (tmp_path / s2_report.ALPHA_STAR_FIGURE).read_bytes()[:8] == PNG_SIGNATURE
+    assert (tmp_path / ALPHA_STAR_FIGURE).read_bytes()[:8] == PNG_SIGNATURE
     table = pd.read_csv(tmp_path / "alpha_star.csv")
     assert len(table) == 4 and {"alpha_star", "win_share", "boot_support", "speed_mps_alpha32"} <= set(table)
     report = (tmp_path / "report.md").read_text()
     # the condition with a failed cell gets no alpha* (it would rest on one seed of alpha 8): 3 conditions remain
     assert np.isnan(table.set_index(["lanes", "t_up_s"]).loc[(2, 0.7), "alpha_star"])
-    assert "No alpha\\* (–) where a cell failed** (2 lanes, T_up 0.7 s)" in report
-    assert "Fitted plane over 3 conditions" in report and "R² =" in report
-    assert "L2_T0.7_a8_s1" in report and "boom" in report
+    assert "| 2 | 0.7 | – |" in report and "| 3 | 0.7 | 32 |" in report
+    assert "**alpha\\* = 32.000 +0.000 T_up +0.000 lanes**, R² = –" in report  # alpha* 32 in the 3 others
+    assert "| L2_T0.7_a8_s1 | boom |" in report
     assert meta["plane"]["n"] == 3
-    assert f"]({s2_report.ALPHA_STAR_FIGURE})" in report and not (tmp_path / "fig6_alpha_star.png").exists()
-    # the same outputs redrawn from runs.csv and sweep.json alone (a committed folder keeps no cells/)
-    runs.to_csv(tmp_path / "runs.csv", index=False)
-    meta.update(profile=asdict(profile))
-    (tmp_path / "sweep.json").write_text(json.dumps(meta))
+    assert f"]({ALPHA_STAR_FIGURE})" in report and not (tmp_path / "fig6_alpha_star.png").exists()
+    # the same outputs redrawn from runs.csv, evals.csv and sweep.json alone (a committed folder keeps no cells/)
     redrawn = tmp_path / "redrawn"
     redrawn.mkdir()
-    for name in ("runs.csv", "sweep.json"):
-        shutil.copy(tmp_path / name, redrawn / name)
+    runs.to_csv(redrawn / "runs.csv", index=False)
+    evals.to_csv(redrawn / "evals.csv", index=False)
+    (redrawn / "sweep.json").write_text(json.dumps(sweep_meta(profile, runs, 100)))
     rewrite_outputs(redrawn)
-    for name in ("alpha_star.csv", "report.md"):
+    for name in ("alpha_star.csv", "gate.csv", "report.md"):
         assert (redrawn / name).read_text() == (tmp_path / name).read_text(), name
-    assert (redrawn / s2_report.ALPHA_STAR_FIGURE).read_bytes()[:8] == PNG_SIGNATURE
+    assert (redrawn / ALPHA_STAR_FIGURE).read_bytes()[:8] == PNG_SIGNATURE
+
+
+@pytest.mark.parametrize("recorded", [{"lane_networks": False}, {"criterion": None}])
+def test_a_sweep_of_the_retired_per_alpha_design_is_not_redrawn(recorded: dict[str, Any], tmp_path: Path) -> None:
+    """A sweep.json of the per-alpha design (lane_networks = false, or from before the lane networks: neither it nor
+    a criterion, as results/archive's) is refused with the commit that redraws it, nothing written; one that records
+    lane_networks = true (the lane-network sweeps made before it was dropped) is today's design."""
+    archived = REPO / "results" / "archive" / "scenario2_quick"
+    meta = json.loads((archived / "sweep.json").read_text())
+    assert "lane_networks" not in meta["profile"] and "criterion" not in meta["profile"]
+    speeds = {(2, t): {a: [20.0 + a / 8, 21.0] for a in (0.0, 8.0)} for t in (2.0, 4.0)}
+    runs, evals = evals_of(runs_from(speeds))
+    profile = s2_plan.Profile("mine", lanes=(2,), loads=(), alphas=(0.0, 8.0), seeds=(1, 2), train_steps=10,
+                              eval_steps=10, t_up_s=(2.0, 4.0), alpha_models=True)  # fmt: skip
+    meta = sweep_meta(profile, runs, 10)
+    runs.to_csv(tmp_path / "runs.csv", index=False)
+    evals.to_csv(tmp_path / "evals.csv", index=False)
+    for name, profile_record in (("today", meta["profile"]), ("before", {**meta["profile"], "lane_networks": True})):
+        (tmp_path / "sweep.json").write_text(json.dumps({**meta, "profile": profile_record}))
+        rewrite_outputs(tmp_path)
+        assert (tmp_path / "report.md").is_file(), name
+        (tmp_path / "report.md").unlink()
+    retired = {k: v for k, v in {**meta["profile"], **recorded}.items() if v is not None}
+    (tmp_path / "sweep.json").write_text(json.dumps({**meta, "profile": retired}))
+    with pytest.raises(UsageError, match=f"per-alpha design, retired on 2026-12-03: redraw it at commit "
+                                         f"{s2_plan.RETIRED_PER_ALPHA}"):  # fmt: skip
+        rewrite_outputs(tmp_path)
+    assert not (tmp_path / "report.md").exists()
 
 
 def test_alpha_star_chart_has_one_panel_per_lane_count(tmp_path: Path) -> None:
@@ -231,8 +290,8 @@ def test_alpha_star_chart_has_one_panel_per_lane_count(tmp_path: Path) -> None:
         alpha_star_lanes_chart(table.iloc[:0], alphas)
 
 
-def test_mobil_p_star_and_side_by_side(tmp_path: Path) -> None:
-    """p* (best mean over seeds, ties to the smaller p) and the report's alpha*-beside-p* table (no SUMO)."""
+def test_mobil_p_star_beside_alpha_star(tmp_path: Path) -> None:
+    """p* (best mean over seeds, ties to the smaller p) and the report's alpha* beside p* (no SUMO)."""
     mobil = mobil_runs_from({
         (2, 1.0): {0.0: [20.0, 22.0], 0.5: [23.0, 21.0], 1.0: [19.0, 21.0]},
         (2, 2.0): {0.0: [19.0, 20.0], 0.25: [20.0, 21.0], 1.0: [21.0, 20.0], 2.0: [np.nan, 30.0]},
@@ -246,47 +305,47 @@ def test_mobil_p_star_and_side_by_side(tmp_path: Path) -> None:
     no_two = stats.mobil_p_star_table(mobil[mobil["p"] != 2.0]).set_index("t_up_s")
     assert no_two.loc[2.0, "p_star"] == 0.25 and no_two.loc[2.0, "speed_mps_p1"] == 20.5
     assert no_two.loc[2.0, "win_share"] == pytest.approx(0.5)  # seed 1: p 1 wins; seed 2: p 0.25 wins
-    # side by side: alpha* faster at T_up 1 s (23 > 22), slower at T_up 2 s (19 < 20.5)
-    dqn = runs_from({(2, 1.0): {0.0: [22.0, 24.0], 8.0: [20.0, 20.0]}, (2, 2.0): {0.0: [19.0, 19.0]}})
+    # through write_lane_outputs: mobil_p_star.csv, and the gate's alpha* beside p*: alpha* faster at T_up 1 s
+    # (23 > 22), slower at T_up 2 s (19 < 20.5)
+    dqn = runs_from({(2, 1.0): {0.0: [22.0, 24.0], 8.0: [20.0, 20.0]},
+                     (2, 2.0): {0.0: [19.0, 19.0], 8.0: [18.0, 18.0]}})  # fmt: skip
     dqn["policy"], dqn["p"] = "dqn", np.nan
-    alpha_table, _ = stats.alpha_star_table(dqn, n_boot=0)
-    side = stats.side_by_side_table(alpha_table, no_two.reset_index()).set_index("t_up_s")
-    assert side.loc[1.0, ["alpha_star", "p_star"]].tolist() == [0.0, 0.5]
-    assert side["difference_mps"].tolist() == pytest.approx([1.0, -1.5])
-    # the same through write_outputs: mobil_p_star.csv and the report's section
     profile = s2_plan.Profile("hand", lanes=(2,), loads=(), alphas=(0.0, 8.0), seeds=(1, 2), train_steps=10,
-                         eval_steps=10, t_up_s=(1.0, 2.0), policies=("dqn", "mobil"),
-                         mobil_ps=(0.0, 0.5, 1.0), eval_seeds=(1, 2))  # fmt: skip
+                              eval_steps=10, t_up_s=(1.0, 2.0), policies=("dqn", "mobil"), mobil_ps=(0.0, 0.5, 1.0),
+                              eval_seeds=(2001, 2002), alpha_models=True)  # fmt: skip
     assert profile.n_cells() == 2 * (2 * 2 + 3 * 2)  # conditions x (alphas x training seeds + ps x eval seeds)
-    meta = {"conditions": [{"lanes": n, "t_up_s": t, "load": ld} for n, t, ld in profile.conditions()],
-            "cells": 20, "cells_ok": 20, "cells_failed": 0, "backend": "local", "workers": 1, "wall_seconds": 1.0,
-            "cells_run": 0, "cell_wall_seconds_sum": 0.0, "cell_cpu_seconds_sum": 0.0, "bootstrap_replicates": 10,
-            "versions": {}}  # fmt: skip
-    runs = pd.concat([dqn, mobil[mobil["p"].isin([0.0, 0.5, 1.0])]])
-    s2_report.write_outputs(tmp_path, runs, profile, meta, n_boot=10)
+    mobil = mobil[mobil["p"].isin([0.0, 0.5, 1.0])].assign(seed=lambda m: m["seed"] + 2000)
+    runs, evals = evals_of(pd.concat([dqn, mobil], ignore_index=True), profile.eval_seeds)
+    gate_report.write_lane_outputs(tmp_path, runs, evals, profile, sweep_meta(profile, runs, 10), n_boot=10)
     written = pd.read_csv(tmp_path / "mobil_p_star.csv")
     assert written["p_star"].tolist() == [0.5, 1.0] and "speed_mps_p0.25" not in written
-    report = (tmp_path / "report.md").read_text()
-    assert "## alpha* beside the best MOBIL politeness" in report
-    assert "| 2 | 1 | 0 | 23.00 | 0.5 | 22.00 | +1.00 |" in report
-    assert "beats the best MOBIL politeness (p*) on 1 of 2 conditions" in report
     assert pd.read_csv(tmp_path / "alpha_star.csv")["alpha_star"].tolist() == [0.0, 0.0]
+    gate = pd.read_csv(tmp_path / "gate.csv")
+    assert gate[["alpha_star", "p_star"]].values.tolist() == [[0.0, 0.5], [0.0, 1.0]]
+    assert gate["alpha_star_minus_p_star_mps"].tolist() == pytest.approx([1.0, -1.5])
+    report = (tmp_path / "report.md").read_text()
+    assert "| α* | p* | v(α*) − v(p*) [90%] |" in report and "MOBIL at p = 0, 0.5, 1 run once" in report
 
 
 def test_grid_and_profiles() -> None:
     for lanes in range(2, 7):
         assert s2_plan.t_up_for(lanes, 1.0) == round(2.0 / lanes, 2)  # near capacity: lanes x 1,800 veh/h
-    quick = s2_plan.PROFILES["quick"]
-    assert quick.n_cells() == 3 * 4 * 7 * 3
-    assert {0.125, 0.25, 0.5} <= set(quick.alphas) and quick.preset == "default"
-    assert [t for n, t, _ in quick.conditions() if n == 3] == [2.67, 1.33, 0.89, 0.67]
+    full = s2_plan.PROFILES["full"]
+    assert full.n_cells() == 3 * 4 * (6 * 5 + (4 + 2) * 3)  # conditions x (alphas x seeds + classical x eval seeds)
+    assert {0.25, 1.0, 32.0} <= set(full.alphas) and full.preset == "default"
+    assert [t for n, t, _ in full.conditions() if n == 3] == [2.67, 1.33, 0.89, 0.67]
     paper = s2_plan.PROFILES["paper"]
     assert paper.alphas == PAPER_ALPHAS and len(paper.seeds) == 10 and paper.train_steps == 90_000
     assert paper.lanes == (2, 3, 4, 5, 6) and len(paper.conditions()) >= 20
+    # the tests' profile: one model per alpha and seed on both demands of its 2 lanes, 300 steps, DQN alone
     tiny = s2_plan.PROFILES["tiny"]
     assert len(tiny.conditions()) == 2 and len(tiny.alphas) == 2 and len(tiny.seeds) == 2
-    keys = [c["key"] for c in s2_plan.cell_specs(quick)]
-    assert len(set(keys)) == len(keys)
+    assert tiny.alpha_models and tiny.n_trainings() == 4 and tiny.n_cells() == 8 and tiny.policies == ("dqn",)
+    assert (tiny.train_steps, tiny.eval_steps, tiny.criterion) == (300, 300, s2_plan.CRITERION)
+    assert "quick" not in s2_plan.PROFILES  # the per-alpha sweep, retired (s2_plan.RETIRED_PER_ALPHA)
+    for profile in (full, tiny):
+        keys = [c["key"] for c in s2_plan.cell_specs(profile)]
+        assert len(set(keys)) == len(keys)
     fixed = s2_plan.Profile("f", lanes=(2, 4), loads=(), alphas=(0.0,), seeds=(1,), train_steps=1, eval_steps=1,
                        t_up_s=(1.0, 2.0))  # fmt: skip
     assert fixed.conditions() == [(2, 2.0, 0.5), (2, 1.0, 1.0), (4, 2.0, 0.25), (4, 1.0, 0.5)]
@@ -352,7 +411,7 @@ def run_sweep_cli(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
 def assert_outputs(out: Path) -> pd.DataFrame:
     for name in OUTPUTS:
         assert (out / name).is_file(), name
-    for name in (s2_report.ALPHA_STAR_FIGURE, "fig6_speed_heatmap.png"):
+    for name in (ALPHA_STAR_FIGURE, "fig6_speed_heatmap.png"):
         assert (out / name).read_bytes()[:8] == PNG_SIGNATURE
     runs = pd.read_csv(out / "runs.csv")
     assert len(runs) == s2_plan.PROFILES["tiny"].n_cells() == 8
@@ -360,7 +419,13 @@ def assert_outputs(out: Path) -> pd.DataFrame:
     assert set(stats.METRIC_COLUMNS) <= set(runs.columns) and "throughput_veh_per_h" in runs
     assert runs["mean_speed_mps"].between(1, 35).all() and (runs["collisions"] == 0).all()
     assert len(list((out / "cells").glob("*.json"))) == 8
-    assert all((out / "train" / k / "model.pt").is_file() for k in runs["key"])
+    # one model per alpha and training seed, trained on both demands of the 2 lanes, drives both conditions
+    assert sorted(p.name for p in (out / "train").iterdir()) == ["L2_a0_s1", "L2_a0_s2", "L2_a8_s1", "L2_a8_s2"]
+    assert all((out / "train" / k / "model.pt").is_file() for k in ("L2_a0_s1", "L2_a0_s2", "L2_a8_s1", "L2_a8_s2"))
+    assert runs.set_index("key").loc["L2_T4_a8_s2", "train_dir"] == "train/L2_a8_s2"
+    trained = json.loads((out / "train" / "L2_a8_s2" / "config.json").read_text())["config"]
+    assert trained["dqn"]["train_t_ups"] == [4.0, 2.0] and not trained["dqn"]["alpha_conditioned"]
+    assert trained["sim"]["reward"]["alpha"] == 8 and trained["sim"]["steps"] == 300
     # every model was driven on the evaluation seed, a demand its training (seed 1 or 2) never saw
     evals = pd.read_csv(out / "evals.csv")
     assert len(evals) == 8 and (evals["eval_seed"] == 2001).all() and set(evals["seed"]) == {1, 2}
@@ -370,7 +435,8 @@ def assert_outputs(out: Path) -> pd.DataFrame:
     table = pd.read_csv(out / "alpha_star.csv")
     assert len(table) == 2 and table["alpha_star"].isin([0.0, 8.0]).all()
     report = (out / "report.md").read_text()
-    assert "No plane fitted" in report and "Failed cells\n\nNone." in report and "tiny" in report
+    assert "No plane fitted" in report and "Failed cells\n\nNone." in report and "**tiny**" in report
+    assert "The gate could not be judged (no alpha-0 model or no `keep` run)" in report  # tiny runs no keep
     return runs
 
 
@@ -393,16 +459,16 @@ def test_tiny_sweep_local(local_sweep: Path) -> None:
 
 
 @pytest.mark.sumo
-def test_tiny_sweep_with_mobil(local_sweep: Path, tmp_path: Path) -> None:
-    """--policies dqn,mobil on the finished DQN cells: only the 4 MOBIL cells run (2 conditions x 2 p x 1 evaluation
-    seed); p* beside alpha* in the report."""
-    out = tmp_path / "mobil"
+def test_tiny_sweep_with_the_baselines(local_sweep: Path, tmp_path: Path) -> None:
+    """--policies dqn,mobil,keep,greedy on the finished DQN cells: only the 8 runs that need no training run (2
+    conditions x (2 p + keep + greedy) x 1 evaluation seed); the gate judged, p* beside alpha* in the report."""
+    out = tmp_path / "baselines"
     shutil.copytree(local_sweep / "cells", out / "cells")
-    result = run_sweep_cli(out, "--workers", "2", "--policies", "dqn,mobil")
-    assert "12 cells, 8 already done" in result.stderr and "4 to run" in result.stderr
+    result = run_sweep_cli(out, "--workers", "2", "--policies", "dqn,mobil,keep,greedy")
+    assert "16 cells, 8 already done" in result.stderr and "8 to run" in result.stderr
     runs = pd.read_csv(out / "runs.csv")
     assert (runs["status"] == "ok").all(), runs["error"].tolist()
-    assert runs["policy"].value_counts().to_dict() == {"dqn": 8, "mobil": 4}
+    assert runs["policy"].value_counts().to_dict() == {"dqn": 8, "mobil": 4, "keep": 2, "greedy": 2}
     dqn, mobil = runs[runs["policy"] == "dqn"], runs[runs["policy"] == "mobil"]
     assert dqn["p"].isna().all() and mobil["alpha"].isna().all() and set(mobil["p"]) == {0.0, 1.0}
     assert mobil["mean_speed_mps"].between(1, 35).all() and (mobil["collisions"] == 0).all()
@@ -416,13 +482,16 @@ def test_tiny_sweep_with_mobil(local_sweep: Path, tmp_path: Path) -> None:
         assert cell["config"][k] == dqn_eval[k], k
     assert cell["config"]["seed"] == 2001 and cell["config"]["policy"] == "mobil:p=1.0"
     assert (out / "mobil" / "L2_T4_mobil_p1_s2001" / "summary.json").is_file()
+    assert (out / "baselines" / "L2_T4_keep_s2001" / "summary.json").is_file()
     table = pd.read_csv(out / "mobil_p_star.csv")
     assert len(table) == 2 and table["p_star"].isin([0.0, 1.0]).all()
     assert {"win_share", "speed_mps_p0", "speed_mps_p1"} <= set(table)
+    gate = pd.read_csv(out / "gate.csv")
+    assert gate["passes"].notna().all() and gate["p_star"].isin([0.0, 1.0]).all()
+    assert np.isfinite(gate["alpha_star_minus_p_star_mps"]).all() and np.isfinite(gate["keep_mps"]).all()
     report = (out / "report.md").read_text()
-    assert "## alpha* beside the best MOBIL politeness" in report and "| v(α*) − v(p*) (m/s) |" in report
-    assert "beats the best MOBIL politeness (p*) on" in report and "of 2 conditions" in report
-    assert "MOBIL p* =" in result.stdout
+    assert "| α* | p* | v(α*) − v(p*) [90%] |" in report and "**The alpha-0 models beat `keep` in" in report
+    assert "MOBIL p* =" in result.stdout and ("gate passes" in result.stdout or "gate fails" in result.stdout)
 
 
 @pytest.mark.sumo
@@ -545,7 +614,7 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_s
     assert (out / "alpha_star.csv").read_text() == (lone_sweep / "alpha_star.csv").read_text()
     left = [p for p in tmp_path.rglob("*") if p.name.endswith((".tmp", ".lock")) or ".partial-" in p.name]
     assert left == [] and not list(out.rglob("checkpoint.pt"))
-    assert all(trainings.model_folder_problem(out / "train" / key) is None for key in runs["key"])
+    assert all(trainings.model_folder_problem(out / folder) is None for folder in runs["train_dir"])
 
 
 @pytest.mark.sumo
@@ -579,14 +648,17 @@ def test_a_sweep_interrupted_while_its_trainings_group_ends_as_the_uninterrupted
 
 
 def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """A cell that raises is written as failed with its error; the next run retries it (no SUMO: train is faked)."""
+    """A cell that raises is written as failed with its error; the next run retries it (no SUMO: train is faked).
+    The model whose training fails (alpha 8, seed 2) is its first condition's cell's; its other condition's cell,
+    which waits for it, fails saying so."""
     import coopsumo.agents.train as train_module
 
-    calls: list[str] = []
+    trained: list[str] = []
+    broken = [True]
 
     def fake_train(cfg, out, resume=False, progress=True, on_steps=None):  # type: ignore[no-untyped-def]
-        calls.append(trained_key(cfg))
-        if cfg.sim.reward.alpha == 8.0 and cfg.sim.seed == 2 and len(calls) <= 8:
+        trained.append(trained_key(cfg))
+        if cfg.sim.reward.alpha == 8.0 and cfg.sim.seed == 2 and broken[0]:
             raise RuntimeError("SUMO said no\nsecond line")
         write_fake_model(cfg, out)
         return {"policy": "dqn:somewhere"}
@@ -597,25 +669,29 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
     monkeypatch.setattr(train_module, "train", fake_train)
     monkeypatch.setattr(engine_groups, "train_groups", lambda *a, **k: 0)  # every training by the fake, alone
     monkeypatch.setattr(s2, "evaluate_model", fake_evaluation)
-    monkeypatch.setattr(engine_cells, "make_backend", lambda *_: InlineBackend(s2.run_cell))
+    ran = inline_cells(monkeypatch)
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     meta = s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
     assert meta["cells_failed"] == 2 and meta["cells_ok"] == 6
+    assert sorted(set(trained)) == ["L2_a0_s1", "L2_a0_s2", "L2_a8_s1", "L2_a8_s2"]
     runs = pd.read_csv(tmp_path / "runs.csv")
     failed = runs[runs["status"] == "failed"]
     assert sorted(failed["key"]) == ["L2_T2_a8_s2", "L2_T4_a8_s2"]
-    assert (failed["error"] == "RuntimeError: SUMO said no").all()
-    assert "L2_T2_a8_s2" in (tmp_path / "report.md").read_text()
-    calls.clear()
-    calls.extend(["x"] * 8)  # the fake now succeeds
+    assert failed.set_index("key")["error"].to_dict() == {"L2_T4_a8_s2": "RuntimeError: SUMO said no",
+                                                          "L2_T2_a8_s2": "needs cell L2_T4_a8_s2, which failed"}
+    assert "| L2_T4_a8_s2 | RuntimeError: SUMO said no |" in (tmp_path / "report.md").read_text()
+    ran.clear()
+    trained.clear()
+    broken[0] = False  # the fake now succeeds
     meta = s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
     assert meta["cells_failed"] == 0 and meta["cells_run"] == 2
-    assert sorted(calls[8:]) == ["L2_T2_a8_s2", "L2_T4_a8_s2"]
+    assert sorted(ran) == ["L2_T2_a8_s2", "L2_T4_a8_s2"] and set(trained) == {"L2_a8_s2"}
 
 
 def fake_cell(spec: dict[str, object], root: str) -> dict[str, object]:
-    """A cell without SUMO (run in a spawned worker): the key L2_T4_a8_s2 kills its worker process."""
-    if spec["key"] == "L2_T4_a8_s2":
+    """A cell without SUMO (run in a spawned worker): the key L2_T2_a8_s2 (a cell no other waits for) kills its
+    worker process."""
+    if spec["key"] == "L2_T2_a8_s2":
         os._exit(7)
     record = s2.failed_record(spec, "")
     record.update(status="ok", error=None, summary={"mean_speed_mps": 20.0 + float(spec["seed"])})  # type: ignore[arg-type]
@@ -633,8 +709,8 @@ def test_dead_worker_is_retried_then_recorded_failed(tmp_path: Path) -> None:
     assert counts == {"ok": 7, "failed": 1}
     records = {p.stem: json.loads(p.read_text()) for p in (tmp_path / "cells").glob("*.json")}
     assert len(records) == 8
-    assert records["L2_T4_a8_s2"]["status"] == "failed"
-    assert "worker process died 2 times" in records["L2_T4_a8_s2"]["error"]
+    assert records["L2_T2_a8_s2"]["status"] == "failed"
+    assert "worker process died 2 times" in records["L2_T2_a8_s2"]["error"]
 
 
 def slow_cell(spec: dict[str, object], root: str) -> dict[str, object]:
@@ -676,33 +752,6 @@ def test_neighbour_separation_on_hand_made_speeds() -> None:
     assert stats.neighbour_separation(speeds, 2, 500, rng)[1] is None
 
 
-def test_noise_floor_counts_distinct_conditions() -> None:
-    table = pd.DataFrame({"separated_below": [True, None, False], "separated_above": [True, True, False],
-                          "distinct": [True, True, False]})  # fmt: skip
-    text = s2_report.noise_floor_text(table)
-    assert "in 2 of 3 conditions, from at least one of them in 2" in text
-
-
-def test_paper_cost_is_extrapolated_from_the_cells() -> None:
-    # per training step 1 ms + 1 us per veh/h; per evaluation step 0.5 ms flat (exact, so the fit recovers it)
-    rows = []
-    for t_up in (1.0, 2.0, 4.0):
-        q = 3600 / t_up
-        rows.append({"status": "ok", "policy": "dqn", "t_up_s": t_up, "resumed_from_step": None, "steps": 1000,
-                     "train_wall_seconds": 2000 * (1e-3 + 1e-6 * q), "wall_seconds": 1000 * 5e-4})  # fmt: skip
-    paper = s2_plan.Profile("p", lanes=(2,), loads=(), t_up_s=(1.0,), alphas=(0.0, 1.0), seeds=(1, 2, 3),
-                       train_steps=10_000, eval_steps=100)  # fmt: skip
-    cost = stats.paper_cost_estimate(pd.DataFrame(rows), 2000, paper, cluster_cpus=6)
-    per_cell = 10_000 * (1e-3 + 1e-6 * 3600) + 100 * 5e-4
-    assert cost["cells"] == 6
-    assert cost["core_hours"] == pytest.approx(6 * per_cell / 3600)
-    assert cost["cluster_hours"] == pytest.approx(per_cell / 3600)
-    assert stats.paper_cost_estimate(pd.DataFrame(rows[:1]), 2000, paper) == {}
-    # each model is evaluated on every evaluation seed: two seeds, two evaluations per cell
-    two = stats.paper_cost_estimate(pd.DataFrame(rows), 2000, replace(paper, eval_seeds=(1, 2)), cluster_cpus=6)
-    assert two["evaluations"] == 12 and two["core_hours"] == pytest.approx(cost["core_hours"] + 6 * 100 * 5e-4 / 3600)
-
-
 @pytest.mark.sumo
 def test_tiny_sweep_with_the_paper_preset(tmp_path: Path) -> None:
     """--preset paper: every cell trains the paper-literal learner (recorded in its configuration)."""
@@ -716,8 +765,22 @@ def test_tiny_sweep_with_the_paper_preset(tmp_path: Path) -> None:
 
 # -- records that cannot be trusted, failures, close alphas (no SUMO: train is faked) ---------------------------
 def trained_key(cfg: Any) -> str:
-    """The scenario II cell key of a training (its store folder is named by its configuration, not by the cell)."""
-    return s2_plan.cell_key(cfg.sim.road.lanes, cfg.sim.demand.t_up_s, cfg.sim.reward.alpha, cfg.sim.seed)
+    """The model a training makes, as its study's train/ link names it (plan.lane_key: lane count, seed and alpha; its
+    store folder is named by its whole configuration)."""
+    return s2_plan.lane_key(cfg.sim.road.lanes, cfg.sim.seed, cfg.sim.reward.alpha)
+
+
+def inline_cells(monkeypatch: pytest.MonkeyPatch, ran: list[str] | None = None) -> list[str]:
+    """Cells run in this process, one at a time (conftest.InlineBackend); the key of each cell run is appended to
+    `ran` (None: a new list), which is returned."""
+    ran = [] if ran is None else ran
+
+    def cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
+        ran.append(spec["key"])
+        return s2.run_cell(spec, root)
+
+    monkeypatch.setattr(engine_cells, "make_backend", lambda *_: InlineBackend(cell))
+    return ran
 
 
 def write_fake_model(cfg: Any, out: Path) -> None:
@@ -739,29 +802,36 @@ def fake_evaluation(config: dict[str, Any], out: Path, label: str) -> dict[str, 
 
 @pytest.fixture
 def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
-    """train() faked in this process (cells run inline): it fails for every cell named in the returned list's
-    first item "fail:<keys>" (comma-separated; "fail:*": every cell), else returns a speed from alpha and seed."""
+    """train() and the evaluations faked in this process (cells run inline): the returned list's first item is
+    "fail:<keys>", comma-separated: a model named (plan.lane_key, "L2_a8_s2") fails its training, a cell named
+    ("L2_T2_a8_s2") its evaluation, "*" every training; the items after it are the keys of the cells run, in order.
+    A model's speed comes from its alpha and training seed."""
     import torch
 
     import coopsumo.agents.train as train_module
 
-    calls: list[str] = []
+    calls = ["fail:"]
+
+    def failing() -> list[str]:
+        return calls[0].removeprefix("fail:").split(",") if calls[0].startswith("fail:") else []
 
     def fake_train(cfg, out, resume=False, progress=True, on_steps=None):  # type: ignore[no-untyped-def]
-        calls.append(trained_key(cfg))
-        failing = calls[0].removeprefix("fail:").split(",") if calls[0].startswith("fail:") else []
-        if "*" in failing or trained_key(cfg) in failing:
+        if "*" in failing() or trained_key(cfg) in failing():
             raise RuntimeError("SUMO said no")
         write_fake_model(cfg, out)
         return {}
 
+    def evaluation(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
+        if label in failing():
+            raise RuntimeError("SUMO said no")
+        return fake_evaluation(config, out, label)
+
     monkeypatch.setattr(torch, "set_num_threads", lambda n: None)
     monkeypatch.setattr(train_module, "train", fake_train)
     monkeypatch.setattr(engine_groups, "train_groups", lambda *a, **k: 0)  # every training by the fake, alone
-    monkeypatch.setattr(s2, "evaluate_model", fake_evaluation)
-    monkeypatch.setattr(engine_cells, "make_backend", lambda *_: InlineBackend(s2.run_cell))
+    monkeypatch.setattr(s2, "evaluate_model", evaluation)
+    inline_cells(monkeypatch, calls)
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
-    calls.append("fail:")
     return calls
 
 
@@ -797,14 +867,16 @@ def test_a_failed_cell_withholds_its_alpha_star_and_an_all_failed_sweep_exits_1(
     table = pd.read_csv(tmp_path / "one" / "alpha_star.csv").set_index("t_up_s")
     assert np.isnan(table.loc[2.0, "alpha_star"]) and table.loc[4.0, "alpha_star"] == 8.0
     report = (tmp_path / "one" / "report.md").read_text()
-    assert "No alpha\\* (–) where a cell failed** (2 lanes, T_up 2 s)" in report and "| L2_T2_a8_s2 |" in report
+    assert "| 2 | 2 | – |" in report and "| 2 | 4 | 8 |" in report  # no alpha* at T_up 2 s, in the alpha* table
+    assert "| L2_T2_a8_s2 | RuntimeError: SUMO said no |" in report
     faked_train[:] = ["fail:*"]
     code, err = run_main(["--profile", "tiny", "--out", str(tmp_path / "all"), "--quiet", "--bootstrap", "20"], capsys)
     assert code == 1 and len([e for e in err if "error" in e]) == 1 and "Traceback" not in "\n".join(err)
     assert err[-1].startswith("scenario2: error: 8 of 8 cells failed (") and "L2_T2_a0_s1, " in err[-1]
     assert pd.read_csv(tmp_path / "all" / "alpha_star.csv")["alpha_star"].isna().all()
     report = (tmp_path / "all" / "report.md").read_text()
-    assert "No figure: no cell succeeded." in report and "Noise floor" not in report and "nan" not in report
+    assert "![alpha* per lane count]" not in report and not (tmp_path / "all" / ALPHA_STAR_FIGURE).exists()
+    assert "| 2 | – | – | – | ––– |" in report and "| 4 | – | – | – | ––– |" in report and "nan" not in report
 
 
 def test_close_alphas_are_two_cells_on_the_command_line(tmp_path: Path, faked_train: list[str],
@@ -840,7 +912,8 @@ def test_every_model_meets_every_evaluation_seed_and_none_was_trained_on(tmp_pat
     assert record["summary"]["lane_changes"] == 3  # a count: summed
     evals = pd.read_csv(tmp_path / "evals.csv")
     assert len(evals) == 24 and sorted(set(evals["eval_seed"])) == [2001, 2002, 2003]
-    assert "evaluation seeds 2001, 2002, 2003, which no training saw" in (tmp_path / "report.md").read_text()
+    assert "evaluation seeds 2001, 2002, 2003, which no training or selection saw" in (tmp_path / "report.md"
+                                                                                        ).read_text()  # fmt: skip
 
 
 def test_pooled_summaries_sum_counts_and_average_the_rest() -> None:

@@ -43,10 +43,13 @@ def _write(tmp_path: Path, text: str) -> Path:
 
 def test_the_packaged_profiles() -> None:
     assert plan.DEFAULT_PROFILE == "full"
-    assert set(plan.PROFILES) == {"tiny", "quick", "full", "check", "confirm", "paper"}
+    assert set(plan.PROFILES) == {"tiny", "full", "check", "confirm", "paper"}
     assert all(plan.PROFILE_HELP[name] for name in plan.PROFILES)
     full, check = plan.PROFILES["full"], plan.PROFILES["check"]
-    assert full.lane_networks and full.alpha_models and not check.alpha_models and check.lane_networks
+    # per lane count and seed: a model per alpha (every profile but check), or check's conditioned network beside
+    # per-alpha models at its check alphas
+    assert all(p.alpha_models and not p.check_alphas for name, p in plan.PROFILES.items() if name != "check")
+    assert not check.alpha_models and check.check_alphas == (0.0, 1.0, 8.0) and check.n_trainings() == 12
     assert full.eval_seeds == (2001, 2002, 2003) and plan.PROFILES["paper"].eval_seeds[-1] == 2005
     # every float of the grid is a float, so that a model's identity (its configuration's JSON) stays what it was
     assert json.dumps(asdict(full)["alphas"]) == "[0.0, 0.25, 1.0, 2.0, 8.0, 32.0]"
@@ -70,6 +73,8 @@ def test_a_profile_starts_from_the_shared_table_it_uses(tmp_path: Path) -> None:
         (("eval_steps = 200", "eval_steps = 200\nseed = 1"), "[shared.base] unknown field 'seed'"),
         (("[profiles.b]", "colour = 1\n[profiles.b]"), None),
         (('default = "a"', 'default = "a"\nwhat = 1'), "unknown top-level keys 'what'"),
+        # the per-alpha design's setting, retired on 2026-12-03 (every profile is of lane networks)
+        (("lanes = [2]", "lanes = [2]\nlane_networks = true"), "[profiles.a] unknown field 'lane_networks'"),
     ],
 )
 def test_a_bad_entry_is_one_line_naming_it(tmp_path: Path, change: tuple[str, str], words: str | None) -> None:

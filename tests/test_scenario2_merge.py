@@ -174,6 +174,14 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
         lambda f: edit_json(f, lambda m: m["profile"].update(lanes="x")), "[profile] lanes must be a list"),
     "sweep.json with an unknown profile field": (
         lambda f: edit_json(f, lambda m: m["profile"].update(lane=4)), "unknown field 'lane'"),
+    # issue 80: the per-alpha design, retired on 2026-12-03 (its sweeps record lane_networks false, or neither it nor
+    # a criterion: results/archive/scenario2_quick)
+    "a part of the per-alpha design": (
+        lambda f: edit_json(f, lambda m: m["profile"].update(lane_networks=False)),
+        "is not a finished sweep of a lane-network profile"),
+    "a part of the per-alpha design of before the lane networks": (
+        lambda f: edit_json(f, lambda m: [m["profile"].pop(k) for k in ("lane_networks", "criterion")]),
+        "is not a finished sweep of a lane-network profile"),
     "a part of another response plan": (
         lambda f: edit_json(f, lambda m: m["profile"].update(response_plan="b2bb97b")),
         'was run with another profile than'),
@@ -230,6 +238,20 @@ def test_a_part_that_disagrees_is_refused_in_one_line_before_anything_is_written
     assert code == 2 and len(err) == 1 and "Traceback" not in err[0], err
     assert words in err[0] and str(tmp_path) in err[0], err[0]
     assert snapshot(tmp_path) == before and not (tmp_path / "merged").exists()
+
+
+def test_a_part_made_after_lane_networks_was_dropped_merges_with_one_made_before(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The committed parts record lane_networks true, a sweep made today none (every sweep is of lane networks): the
+    two are parts of one profile, and their merge is the merge of the committed parts."""
+    parts = [copy_part("L4a", tmp_path), copy_part("L4b", tmp_path)]
+    assert all(json.loads((p / "sweep.json").read_text())["profile"]["lane_networks"] is True for p in parts)
+    assert merge(capsys, parts, tmp_path / "before")[0] == 0
+    edit_json(parts[1], lambda m: m["profile"].pop("lane_networks"))
+    code, err = merge(capsys, parts, tmp_path / "today")
+    assert code == 0, err
+    for name in ("report.md", "gate.csv", "alpha_star.csv"):
+        assert (tmp_path / "today" / name).read_text() == (tmp_path / "before" / name).read_text(), name
 
 
 def test_the_response_plan_names_the_field(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

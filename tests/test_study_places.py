@@ -129,10 +129,10 @@ def test_a_study_may_go_beside_the_store_and_resume_its_own_root(tmp_path: Path,
     check_study_root(folders["study"], "scenario2", OWN, TINY_SWEEP, recorded_sweep)
     with study_root(folders["study"], "scenario2", OWN, TINY_SWEEP, recorded_sweep) as root:
         (root / "train").mkdir()
-        (root / "train" / "L2_T2_a0_s1").symlink_to(folders["store"] / MODEL, target_is_directory=True)
+        (root / "train" / "L2_a0_s1").symlink_to(folders["store"] / MODEL, target_is_directory=True)
     check_study_root(folders["study"], "scenario2", OWN, TINY_SWEEP, recorded_sweep)
     with pytest.raises(UsageError, match="is in the model store"):  # through its model link, links resolved
-        check_study_place(folders["study"] / "train" / "L2_T2_a0_s1" / "mine")
+        check_study_place(folders["study"] / "train" / "L2_a0_s1" / "mine")
     with pytest.raises(UsageError, match="a coopsumo scenario2 study's folder"):
         check_study_place(folders["study"] / "cells" / "mine")
 

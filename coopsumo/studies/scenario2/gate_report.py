@@ -1,7 +1,7 @@
-"""The report of scenario II's lane-network profiles (full, check, paper): the gate per condition, alpha* with each
+"""The report of scenario II's sweeps (full, confirm, check, paper, tiny): the gate per condition, alpha* with each
 alpha's lane changes, the paper's two trends over the conditions that pass the gate, the check of one network per
 lane count against per-alpha models, and what the study cost; from the tables of runs and evaluations
-(scenario2_measures, scenario2_gate). The per-alpha profiles' report is scenario2_report.
+(scenario2_measures, scenario2_gate).
 """
 
 from __future__ import annotations
@@ -33,6 +33,8 @@ from coopsumo.studies.scenario2.response_report import first_lines, response_sec
 from coopsumo.studies.scenario2.text import ALPHA_STAR_FIGURE, condition_label, trend_verdict
 from coopsumo.validation import number_name
 
+UNESTIMATED = ("tiny",)
+"""profiles whose cost no report estimates: the tests' (a few hundred steps)"""
 MEASURES = {CRITERION: "mean speed over the whole run (the paper's criterion)",
             FULL_ROAD: "mean speed once the road is full"}  # fmt: skip
 
@@ -80,7 +82,7 @@ def write_lane_outputs(root: Path, runs: pd.DataFrame, evals: pd.DataFrame, prof
     costs = step_costs(runs, evals, profile.train_steps, profile.eval_steps)
     meta["step_costs"] = costs
     meta["estimates"] = {name: core_hours(costs, other) for name, other in PROFILES.items()
-                         if other.lane_networks and name != profile.name}  # fmt: skip
+                         if name not in (profile.name, *UNESTIMATED)}  # fmt: skip
     figures = {}
     solved = kept[np.isfinite(kept["alpha_star"].astype(float))] if len(kept) else kept
     if len(solved):
@@ -294,8 +296,7 @@ def design_text(profile: Profile, alpha_label: Any) -> str:
               f"the same T_ups (validation seeds from {dq.validation_seed:,}, {dq.validation_steps:,} steps each)")
     evaluated = (f"on evaluation seeds {', '.join(map(str, profile.eval_seeds))}, which no training or selection "
                  f"saw, {profile.eval_steps:,} steps each; a model's value is its mean over them.")
-    baselines = (f" `keep`, `greedy` and MOBIL at p = {', '.join(f'{p:g}' for p in profile.mobil_ps)} run once on "
-                 "each evaluation seed of every condition (p* is the best p).")
+    baselines = _baselines_text(profile)
     if profile.alpha_models:
         n_models = len(profile.lanes) * len(profile.seeds) * len(profile.alphas)
         return (
@@ -331,6 +332,31 @@ def design_text(profile: Profile, alpha_label: Any) -> str:
         "(results/learning_conditioned: within their seed spread at some alphas, not all); `coopsumo scenario2 "
         "--profile check` measures it at two conditions of this design (3 lanes, loads 0.5 and 1), and its report "
         "says at which (condition, alpha) the network's speed lies within the per-alpha models' spread.")
+
+
+def _baselines_text(profile: Profile) -> str:
+    """The sentence on the runs of the policies that need no training the profile makes (none: empty)."""
+    runs = [f"`{name}`" for name in ("keep", "greedy") if name in profile.policies]
+    if mobil := "mobil" in profile.policies:
+        runs.append(f"MOBIL at p = {', '.join(f'{p:g}' for p in profile.mobil_ps)}")
+    if not runs:
+        return ""
+    named = " and ".join([", ".join(runs[:-1]), runs[-1]] if len(runs) > 1 else runs)
+    return f" {named} run once on each evaluation seed of every condition{' (p* is the best p)' if mobil else ''}."
+
+
+def _measure_text(profile: Profile, warm: str) -> str:
+    """What every speed of the report is: the full-road speed (alpha* by the whole run given beside it), or the
+    whole run's."""
+    if profile.criterion != FULL_ROAD:
+        return (f"**Measure.** Every speed below is the {MEASURES[CRITERION]} (`{CRITERION}`), the road's fill-up "
+                "included.")  # fmt: skip
+    head = f"**Measure.** Every speed below is the {MEASURES[FULL_ROAD]} (`{FULL_ROAD}`)"
+    return f"""{head}: the mean over every vehicle sample (every
+{profile.trajectory_every_steps * 0.1:g} s of the run's trajectories) from the first sample at which the first
+vehicle inserted has left the road, i.e. distance over vehicle time once the road has filled, for learned and
+classical policies alike; the fill-up, the same free road for every policy, would dilute every difference.{warm}
+alpha* by the paper's whole-run mean is given beside it."""
 
 
 def _check_section(check: pd.DataFrame, profile: Profile, alpha_label: Any) -> str:
@@ -390,11 +416,7 @@ evaluation seeds {", ".join(map(str, profile.eval_seeds))}; {meta["cells"]} cell
 
 {design_text(profile, alpha_label)}
 
-**Measure.** Every speed below is the {measure} (`{profile.criterion}`): the mean over every vehicle sample (every
-{profile.trajectory_every_steps * 0.1:g} s of the run's trajectories) from the first sample at which the first
-vehicle inserted has left the road, i.e. distance over vehicle time once the road has filled, for learned and
-classical policies alike; the fill-up, the same free road for every policy, would dilute every difference.{warm}
-alpha* by the paper's whole-run mean is given beside it.
+{_measure_text(profile, warm)}
 
 ## The gate: where the learner is fit to be asked
 

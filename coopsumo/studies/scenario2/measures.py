@@ -1,15 +1,13 @@
 """Scenario II's measures, pure functions on tables of runs (no SUMO, no report text).
 
 The table of runs (one row per cell, from the cells' records), and on it:
-alpha* per condition (best mean speed over seeds, ties to the smaller alpha), its win share over seeds, a
-bootstrap over seeds, the separation of alpha* from its grid neighbours (the noise floor), the best MOBIL
-politeness p*, the least-squares plane alpha* = b0 + b1 T_up + b2 lanes with its bootstrap, and what the paper
-profile would cost, extrapolated from the cells' times.
+alpha* per condition (best mean speed over models, ties to the smaller alpha), its win share over models, a
+bootstrap over models, the separation of alpha* from its grid neighbours (the noise floor), the best MOBIL
+politeness p*, and the least-squares plane alpha* = b0 + b1 T_up + b2 lanes with its bootstrap.
 """
 
 from __future__ import annotations
 
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -19,7 +17,7 @@ import pandas as pd
 from numpy.typing import ArrayLike
 
 from coopsumo.studies.engine.stats import interval, resample, resampled_means
-from coopsumo.studies.scenario2.plan import CLASSICAL, CRITERION, Profile
+from coopsumo.studies.scenario2.plan import CLASSICAL, CRITERION
 from coopsumo.validation import number_name
 
 
@@ -186,23 +184,6 @@ def mobil_p_star_table(runs: pd.DataFrame, ps: Sequence[float] | None = None, se
     return pd.DataFrame(rows, columns=None if rows else empty)
 
 
-def side_by_side_table(alpha_table: pd.DataFrame, p_table: pd.DataFrame) -> pd.DataFrame:
-    """Per condition alpha* and p* with their mean speeds and difference_mps = v(alpha*) - v(p*)."""
-    alpha = {(int(r["lanes"]), float(r["t_up_s"])): r for r in alpha_table.to_dict("records")}
-    mobil = {(int(r["lanes"]), float(r["t_up_s"])): r for r in p_table.to_dict("records")}
-    rows = []
-    for lanes, t_up in sorted(set(alpha) | set(mobil)):
-        a, m = alpha.get((lanes, t_up), {}), mobil.get((lanes, t_up), {})
-        v_alpha = float(a.get("alpha_star_speed_mps", np.nan))
-        v_p = float(m.get("p_star_speed_mps", np.nan))
-        rows.append({"lanes": lanes, "t_up_s": t_up, "alpha_star": float(a.get("alpha_star", np.nan)),
-                     "alpha_star_speed_mps": v_alpha, "p_star": float(m.get("p_star", np.nan)),
-                     "p_star_speed_mps": v_p, "difference_mps": v_alpha - v_p})  # fmt: skip
-    columns = ["lanes", "t_up_s", "alpha_star", "alpha_star_speed_mps", "p_star", "p_star_speed_mps",
-               "difference_mps"]  # fmt: skip
-    return pd.DataFrame(rows, columns=columns)
-
-
 class PlaneFitError(ValueError):
     """The plane alpha* = b0 + b1 T_up + b2 lanes cannot be fitted to these conditions."""
 
@@ -272,7 +253,7 @@ def plane_bootstrap(table: pd.DataFrame, boots: dict[tuple[int, float], np.ndarr
             "b2_p95": b2_p95}  # fmt: skip
 
 
-# -- the table of runs and what it costs ------------------------------------------------------------------
+# -- the table of runs ------------------------------------------------------------------------------------------
 METRIC_COLUMNS = (
     "steps", "sim_seconds", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end",
     "collisions", "teleports", "lane_changes", "lane_changes_rejected", "lane_changes_per_vehicle",
@@ -360,47 +341,3 @@ def withhold_incomplete(table: pd.DataFrame, star: str) -> pd.DataFrame:
         elif col == "distinct":
             table.loc[bad, col] = False
     return table
-
-
-def paper_cost_estimate(runs: pd.DataFrame, train_steps: int, paper: Profile,
-                        cluster_cpus: int = 64) -> dict[str, float]:  # fmt: skip
-    """What the paper profile would cost, extrapolated from this sweep's DQN cells (labelled as such).
-
-    The wall seconds per training step (train_steps per cell) and per evaluation step of every successful
-    cell that was not resumed are fitted as a + b * inflow (veh/h) by least squares; each paper cell then
-    costs its train_steps at its inflow, and eval_steps on each of its evaluation seeds. Returns the fits, the sum in
-    core-hours, and the wall time on this machine's cores and on a Ray cluster of cluster_cpus CPUs (perfect
-    scaling assumed). Empty when fewer than 2 such cells exist.
-    """
-    needed = {"status", "t_up_s", "train_wall_seconds", "wall_seconds", "steps", "resumed_from_step"}
-    if not needed <= set(runs.columns):
-        return {}
-    dqn = policy_rows(runs, "dqn")
-    ok = dqn[(dqn["status"] == "ok") & dqn["resumed_from_step"].isna()].dropna(subset=["train_wall_seconds"])
-    if len(ok) < 2:
-        return {}
-    inflow = 3600.0 / ok["t_up_s"].to_numpy(float)
-    design = np.column_stack([np.ones_like(inflow), inflow])
-    train = ok["train_wall_seconds"].to_numpy(float) / train_steps
-    fit_train = np.linalg.lstsq(design, train, rcond=None)[0]
-    fit_eval = np.linalg.lstsq(design, ok["wall_seconds"].to_numpy(float) / ok["steps"].to_numpy(float), rcond=None)[0]
-    total = 0.0
-    trainings_per_condition = len(paper.alphas) * len(paper.seeds)
-    for _, t_up, _ in paper.conditions():
-        q = 3600.0 / t_up
-        training = paper.train_steps * (fit_train[0] + fit_train[1] * q)
-        evaluation = paper.eval_steps * (fit_eval[0] + fit_eval[1] * q)
-        total += training * trainings_per_condition + evaluation * len(paper.alphas) * len(paper.seeds) * len(
-            paper.eval_seeds)
-    cores = os.cpu_count() or 1
-    return {
-        "cells": float(len(paper.conditions()) * len(paper.alphas) * len(paper.seeds)),
-        "evaluations": float(len(paper.conditions()) * len(paper.alphas) * len(paper.seeds) * len(paper.eval_seeds)),
-        "trainings": float(len(paper.conditions()) * trainings_per_condition),
-        "train_s_per_step_a": float(fit_train[0]), "train_s_per_step_b_per_veh_h": float(fit_train[1]),
-        "eval_s_per_step_a": float(fit_eval[0]), "eval_s_per_step_b_per_veh_h": float(fit_eval[1]),
-        "core_hours": total / 3600.0, "machine_cores": float(cores), "machine_days": total / cores / 86400.0,
-        "cluster_cpus": float(cluster_cpus), "cluster_hours": total / cluster_cpus / 3600.0,
-        "max_measured_inflow_veh_h": float(inflow.max()),
-        "max_paper_inflow_veh_h": max(3600.0 / t for _, t, _ in paper.conditions()),
-    }  # fmt: skip

@@ -60,7 +60,11 @@ EVAL_SEED_BASE = 2000
 # -- the plan ----------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Profile:
-    """Grid and step counts of one sweep."""
+    """Grid and step counts of one sweep: per lane count and training seed, one model per alpha (alpha_models) or one
+    alpha-conditioned network (with per-alpha models beside it at check_alphas), trained on the lane count's demands
+    (its conditions' T_ups), chosen on held-out demand of them and evaluated at every condition of the lane count
+    (lane_train_config). The per-alpha design (a model per condition, alpha and seed: the profiles quick and the
+    old tiny, `lane_networks = false`) was retired on 2026-12-03 (RETIRED_PER_ALPHA)."""
 
     name: str
     lanes: tuple[int, ...]
@@ -68,15 +72,16 @@ class Profile:
     """inflow as a share of lanes x 1,800 veh/h; T_up = 3600 / (load x lanes x 1800) s, 2 decimals"""
     alphas: tuple[float, ...]
     seeds: tuple[int, ...]
-    """training seeds: one model per seed (per condition and alpha)"""
+    """training seeds: one model per seed (per lane count and alpha)"""
     train_steps: int
-    """training steps (0.1 s) per cell"""
+    """training steps (0.1 s) per model"""
     eval_steps: int
     """greedy evaluation steps per cell"""
     t_up_s: tuple[float, ...] = ()
     """if set, this fixed T_up list (s) replaces the load grid for every lane count"""
     policies: tuple[str, ...] = ("dqn",)
-    """"dqn" (train and evaluate per alpha) and/or "mobil" (evaluate MOBIL per politeness p, no training)"""
+    """"dqn" (train and evaluate per alpha), "mobil" (evaluate MOBIL per politeness p, no training), "keep",
+    "greedy" """
     mobil_ps: tuple[float, ...] = (0.0, 0.25, 0.5, 1.0)
     """MOBIL politeness grid, used when "mobil" is in policies"""
     preset: str = "default"
@@ -86,24 +91,21 @@ class Profile:
     (`scenario2 --conditioned`) was retired on 2026-12-02; run it at commit dd78f46"""
     eval_seeds: tuple[int, ...] = (EVAL_SEED_BASE + 1,)
     """evaluation seeds: every model (and MOBIL) is evaluated greedily on each of them; none is a training seed"""
-    lane_networks: bool = False
-    """one alpha-conditioned network per lane count and training seed, trained on that lane count's demands (its
-    conditions' T_ups) and chosen on held-out demand of them at validation_alphas; evaluated at every condition of
-    its lane count and every alpha (lane_train_config)"""
     alpha_draw_max: float = 32.0
-    """lane networks: the alphas drawn and relabelled to in training are PAPER_ALPHAS up to this one"""
+    """conditioned networks: the alphas drawn and relabelled to in training are PAPER_ALPHAS up to this one"""
     validation_alphas: tuple[float, ...] = (0.0, 1.0, 8.0)
-    """lane networks: model selection drives every validation run at each of these alphas (their mean scores)"""
+    """conditioned networks: model selection drives every validation run at each of these alphas (their mean
+    scores)"""
     alpha_models: bool = False
-    """lane networks: one model per alpha instead of one alpha-conditioned network (per lane count and training
-    seed, trained at that alpha alone on the lane count's demands and chosen at it): the design the check's
-    criterion leaves (results/scenario2_check: the conditioned network fell below the per-alpha models at alpha 8)"""
+    """one model per alpha instead of one alpha-conditioned network (per lane count and training seed, trained at
+    that alpha alone on the lane count's demands and chosen at it): the design the check's criterion leaves
+    (results/scenario2_check: the conditioned network fell below the per-alpha models at alpha 8)"""
     check_alphas: tuple[float, ...] = ()
-    """lane networks: per-alpha models beside them, the same learner trained at each of these alphas alone (same
-    demands, selection at that alpha), one per lane count and training seed, evaluated at every condition"""
+    """conditioned networks: per-alpha models beside them, the same learner trained at each of these alphas alone
+    (same demands, selection at that alpha), one per lane count and training seed, evaluated at every condition"""
     eval_loads: tuple[float, ...] = ()
-    """lane networks: if set, only the conditions of these loads are evaluated (the networks still train on every
-    load's T_up: they are the same networks as a profile without it); ignored with t_up_s"""
+    """if set, only the conditions of these loads are evaluated (the models still train on every load's T_up: they
+    are the same models as a profile without it); ignored with t_up_s"""
     trajectory_every_steps: int = 0
     """evaluation runs record trajectories every this many steps, from which FULL_ROAD is measured; 0: not"""
     criterion: str = CRITERION
@@ -139,17 +141,15 @@ class Profile:
         return len(self.conditions()) * per_condition
 
     def n_trainings(self) -> int:
-        """Models trained (or taken from the model store): per lane count and seed with lane networks (plus one per
-        check alpha), else per condition, alpha and seed."""
+        """Models trained (or taken from the model store): per lane count and seed, one per alpha (alpha_models)
+        or the network and one per check alpha."""
         if "dqn" not in self.policies:
             return 0
-        if self.lane_networks:
-            return len(self.lanes) * len(self.seeds) * self.trainings_per_lane_seed()
-        return len(self.conditions()) * len(self.seeds) * len(self.alphas)
+        return len(self.lanes) * len(self.seeds) * self.trainings_per_lane_seed()
 
     def trainings_per_lane_seed(self) -> int:
-        """Lane networks: the models of one lane count and training seed (one per alpha with alpha_models, else the
-        conditioned network and one per check alpha)."""
+        """The models of one lane count and training seed (one per alpha with alpha_models, else the conditioned
+        network and one per check alpha)."""
         return len(self.alphas) if self.alpha_models else 1 + len(self.check_alphas)
 
     def lane_t_ups(self, lanes: int) -> tuple[float, ...]:
@@ -170,6 +170,25 @@ def load_of(lanes: int, t_up_s: float) -> float:
 def eval_seeds(n: int) -> tuple[int, ...]:
     """The first n evaluation seeds."""
     return tuple(EVAL_SEED_BASE + i for i in range(1, n + 1))
+
+
+RETIRED_PER_ALPHA = "5947d4a"
+"""the commit to run and redraw the per-alpha design at (one training per condition, alpha and seed, its own report:
+the profiles quick and the old tiny, `lane_networks = false`), retired on 2026-12-03"""
+
+
+def per_alpha_sweep(recorded: dict[str, Any]) -> bool:
+    """Whether a sweep.json's profile is of the retired per-alpha design: it records `lane_networks` false, or
+    neither `lane_networks` nor `criterion` (made before the lane networks came, commit da5c5e0). The lane-network
+    sweeps made before 2026-12-03 record `lane_networks` true (recorded_fields drops it); later ones record no
+    `lane_networks` but a `criterion`."""
+    return recorded.get("lane_networks", "criterion" in recorded) is not True
+
+
+def recorded_fields(recorded: dict[str, Any]) -> dict[str, Any]:
+    """A lane-network sweep.json's profile as Profile's fields: without the `lane_networks` (true) that the sweeps
+    made before 2026-12-03 record."""
+    return {k: v for k, v in recorded.items() if k != "lane_networks"}
 
 
 PROFILES_FILE = DATA / "scenario2.toml"
@@ -197,9 +216,8 @@ def profile_problem(profile: Profile) -> str | None:
     the fields no flag sets), in words starting with the field at fault, or None: a load grid that gives a T_up
     outside its limits or two loads the same T_up; loads beside t_up_s (which replaces them); eval_loads not among
     the loads; a lane network with more than MAX_LANE_DEMANDS demands; check_alphas outside the alphas or without a
-    conditioned lane network; alpha_models without lane_networks; conditioned (retired); an unknown preset or
-    criterion; the full-road criterion without trajectories; a training seed that is an evaluation seed; and a run
-    of the profile the simulation refuses."""
+    conditioned lane network; conditioned (retired); an unknown preset or criterion; the full-road criterion without
+    trajectories; a training seed that is an evaluation seed; and a run of the profile the simulation refuses."""
     if profile.t_up_s and profile.loads:
         return f"loads must be [] beside t_up_s (the T_up list replaces the load grid), got {list(profile.loads)}"
     if not profile.t_up_s and not profile.loads:
@@ -216,15 +234,13 @@ def profile_problem(profile: Profile) -> str | None:
                     f"{t_ups[i]:g} s on {lanes} lanes (T_up has 2 decimals)")  # fmt: skip
     if outside := [x for x in profile.eval_loads if x not in profile.loads]:
         return f"eval_loads must be some of loads ({_numbers(profile.loads)}), got {number_name(outside[0])}"
-    if profile.lane_networks and (most := max(len(profile.lane_t_ups(n)) for n in profile.lanes)) > MAX_LANE_DEMANDS:
+    if (most := max(len(profile.lane_t_ups(n)) for n in profile.lanes)) > MAX_LANE_DEMANDS:
         return (f"{'t_up_s' if profile.t_up_s else 'loads'}: lane networks train each lane count's network on all its "
                 f"demands, at most {MAX_LANE_DEMANDS}; got {most}")  # fmt: skip
-    if profile.check_alphas and not (profile.lane_networks and not profile.alpha_models):
-        return "check_alphas needs lane_networks = true and alpha_models = false (per-alpha models beside a network)"
+    if profile.check_alphas and profile.alpha_models:
+        return "check_alphas needs alpha_models = false (per-alpha models beside a conditioned network)"
     if outside := [x for x in profile.check_alphas if x not in profile.alphas]:
         return f"check_alphas must be some of alphas ({_numbers(profile.alphas)}), got {number_name(outside[0])}"
-    if profile.alpha_models and not profile.lane_networks:
-        return "alpha_models needs lane_networks = true (one model per alpha and lane count)"
     if profile.conditioned:
         return ("conditioned must be false: the conditioned sweep (one network per condition and seed) was retired on "
                 "2026-12-02; run it at commit dd78f46")
@@ -252,7 +268,7 @@ def _runs_problem(profile: Profile) -> str | None:
         for lanes in profile.lanes:
             t_up = profile.lane_t_ups(lanes)[0]
             if "dqn" in profile.policies:
-                _model_training(profile, lanes, t_up, profile.alphas[0], profile.seeds[0])[0].validate()
+                _model_training(profile, lanes, profile.alphas[0], profile.seeds[0])[0].validate()
                 eval_configs(lanes, t_up, profile.alphas[0], profile)[0].validate()
             if policy := next((x for x in CLASSICAL if x in profile.policies), None):
                 name = f"mobil:p={profile.mobil_ps[0]}" if policy == "mobil" else policy
@@ -328,20 +344,6 @@ def per_alpha_key(lanes: int, t_up_s: float, alpha: float, seed: int) -> str:
     return f"L{lanes}_T{number_name(t_up_s)}_pa{number_name(alpha)}_s{seed}"
 
 
-def train_config(lanes: int, t_up_s: float, alpha: float, seed: int, profile: Profile) -> TrainConfig:
-    """Scenario II training (free flow at the condition's own inflow, as the paper trains, whatever the preset's
-    training demand), without an evaluation of its own: eval_configs are the model's evaluations."""
-    sim = SimConfig(
-        road=RoadConfig(lanes=lanes),
-        demand=DemandConfig(t_up_s=t_up_s),
-        reward=RewardConfig(alpha=alpha),
-        steps=profile.train_steps,
-        seed=seed,
-        policy="dqn",
-    )
-    return TrainConfig(sim=sim, dqn=at_condition(DQN_PRESETS[profile.preset]), eval_steps=0)
-
-
 def eval_configs(lanes: int, t_up_s: float, alpha: float, profile: Profile) -> list[SimConfig]:
     """The greedy evaluations of a model of the condition at `alpha` (policy "dqn": the cell names the model), one
     per evaluation seed: free flow, the condition's inflow, eval_steps each."""
@@ -351,8 +353,8 @@ def eval_configs(lanes: int, t_up_s: float, alpha: float, profile: Profile) -> l
 
 
 def at_condition(dqn: DQNConfig) -> DQNConfig:
-    """The learner trained on its condition alone: free flow at the run's own inflow (no drawn demands, no
-    accidents, none in the model selection either), so each condition's alpha* is learned where it is judged."""
+    """The learner in free flow: no drawn demands, no accidents, none in the model selection either (scenario II has
+    none); lane_learner gives it its lane count's demands."""
     return replace(dqn, train_t_ups=(), accident_share=0.0, validation_accident_steps=0)
 
 
@@ -378,12 +380,10 @@ def lane_train_config(lanes: int, seed: int, profile: Profile, alpha: float | No
 
 
 def learner_of(profile: Profile) -> dict[str, Any]:
-    """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json); with lane networks,
-    the network's of every lane count (a check's per-alpha models: the same, not conditioned)."""
-    if profile.lane_networks:
-        alpha = 0.0 if profile.alpha_models else None  # per-alpha models: alpha 0's learner (each its own alpha)
-        return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile, alpha)))) for n in profile.lanes}
-    return json.loads(json.dumps(to_dict(at_condition(DQN_PRESETS[profile.preset]))))
+    """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json): the network's of every
+    lane count (per-alpha models and a check's: the same, not conditioned)."""
+    alpha = 0.0 if profile.alpha_models else None  # per-alpha models: alpha 0's learner (each its own alpha)
+    return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile, alpha)))) for n in profile.lanes}
 
 
 def condition_rows(profile: Profile) -> list[dict[str, Any]]:
@@ -398,27 +398,25 @@ def classical_config(lanes: int, t_up_s: float, policy: str, seed: int, profile:
                      seed=seed, policy=policy)  # fmt: skip
 
 
-def _model_training(profile: Profile, lanes: int, t_up: float, alpha: float,
-                    seed: int) -> tuple[TrainConfig, dict[str, Any]]:  # fmt: skip
-    """A DQN cell's training and what its spec says of it: the lane network it shares (per alpha or told its alpha),
-    or a training of its own."""
-    if profile.lane_networks and profile.alpha_models:
+def _model_training(profile: Profile, lanes: int, alpha: float, seed: int) -> tuple[TrainConfig, dict[str, Any]]:
+    """A DQN cell's training and what its spec says of it: the model of its alpha, lane count and seed, or the lane
+    network it shares (told its alpha)."""
+    if profile.alpha_models:
         return lane_train_config(lanes, seed, profile, alpha), {"train_key": lane_key(lanes, seed, alpha),
                                                                  "conditioned": False}  # fmt: skip
-    if profile.lane_networks:
-        return lane_train_config(lanes, seed, profile), {"train_key": lane_key(lanes, seed), "conditioned": True}
-    return train_config(lanes, t_up, alpha, seed, profile), {}
+    return lane_train_config(lanes, seed, profile), {"train_key": lane_key(lanes, seed), "conditioned": True}
 
 
 def cell_specs(profile: Profile) -> list[dict[str, Any]]:
     """One JSON-ready spec per cell: key, coordinates and the full configuration as a dict.
 
-    A DQN cell is one model (condition, alpha, training seed): its configuration is {"train": TrainConfig, "evals":
-    [SimConfig per evaluation seed]}. With lane networks the training is shared by every condition and alpha of a
-    lane count and seed; the spec also names the training folder (train_key) and the cell's evaluation folder
-    (evals_key), whether the model is told its alpha (conditioned: False for a check's per-alpha model, policy
-    PER_ALPHA) and, for every cell of a training but its first, that first cell (after: the runner starts it once
-    the training is done, so that no worker waits on a training another one runs). A MOBIL, keep or greedy cell is
+    A DQN cell is one model at one condition (condition, alpha, training seed): its configuration is {"train":
+    TrainConfig, "evals": [SimConfig per evaluation seed]}. The training is shared by every condition of a lane
+    count (and with a conditioned network every alpha) and seed; the spec also names the training folder (train_key)
+    and the cell's evaluation folder (evals_key), whether the model is told its alpha (conditioned: a network is, a
+    per-alpha model, a check's of policy PER_ALPHA too, is not) and, for every cell of a training but its first, that
+    first cell (after: the runner starts it once the training is done, so that no worker waits on a training another
+    one runs). A MOBIL, keep or greedy cell is
     one run (condition, p, evaluation seed): its configuration a SimConfig, its seed the evaluation seed. With
     trajectory_every_steps, a DQN configuration also holds it and a run's is {"run": SimConfig,
     "trajectory_every_steps": K} (a record made without is not reused).
@@ -439,10 +437,9 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
         train.validate()
         for ev in evals:
             ev.validate()
-        if profile.lane_networks:
-            extra.update(evals_key=key)
-            if (first := first_of.setdefault(extra["train_key"], key)) != key:
-                extra["after"] = first
+        extra.update(evals_key=key)
+        if (first := first_of.setdefault(extra["train_key"], key)) != key:
+            extra["after"] = first
         config = {"train": to_dict(train), "evals": [to_dict(ev) for ev in evals], **traj}
         add(key, lanes, t_up, load, seed, policy, alpha, None, config, **extra)
 
@@ -450,9 +447,9 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
         if "dqn" in profile.policies:
             for alpha in profile.alphas:
                 for seed in profile.seeds:
-                    train, extra = _model_training(profile, lanes, t_up, alpha, seed)
+                    train, extra = _model_training(profile, lanes, alpha, seed)
                     add_model(cell_key(lanes, t_up, alpha, seed), lanes, t_up, load, alpha, seed, train, **extra)
-            for alpha in profile.check_alphas if profile.lane_networks and not profile.alpha_models else ():
+            for alpha in profile.check_alphas if not profile.alpha_models else ():
                 for seed in profile.seeds:
                     add_model(per_alpha_key(lanes, t_up, alpha, seed), lanes, t_up, load, alpha, seed,
                               lane_train_config(lanes, seed, profile, alpha), PER_ALPHA,

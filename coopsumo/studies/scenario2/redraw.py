@@ -1,6 +1,5 @@
 """Scenario II redrawn: a finished sweep's tables, figures and report.md from its own records, nothing trained or
-run; or one sweep merged from its parts, run one lane count at a time. Apart from both reports (scenario2_report for
-the per-alpha profiles, scenario2_gate_report for the lane-network ones) so that neither imports the other."""
+run; or one sweep merged from its parts, run one lane count at a time; both drawn by scenario2_gate_report."""
 
 from __future__ import annotations
 
@@ -24,25 +23,35 @@ from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS, TRAIN_COLUMNS
-from coopsumo.studies.scenario2.plan import Profile, cell_specs, condition_rows, learner_of, train_folder
-from coopsumo.studies.scenario2.report import write_outputs
+from coopsumo.studies.scenario2.plan import (
+    RETIRED_PER_ALPHA,
+    Profile,
+    cell_specs,
+    condition_rows,
+    learner_of,
+    per_alpha_sweep,
+    recorded_fields,
+    train_folder,
+)
 from coopsumo.study_tables import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.validation import split_list
 
 
 def rewrite_outputs(root: Path) -> dict[str, Any]:
-    """Redraw a finished sweep's tables, figures and report.md from its runs.csv and sweep.json alone, nothing
-    trained or run (a committed folder keeps no cells/, so rerunning its command would train every cell again);
-    the bootstraps are seeded, so the numbers come out as they were; a lane-network profile's (full, check) from its
-    evals.csv too (scenario2_gate_report). Returns sweep.json's new content."""
+    """Redraw a finished sweep's tables, figures and report.md from its runs.csv, evals.csv and sweep.json alone,
+    nothing trained or run (a committed folder keeps no cells/, so rerunning its command would train every cell
+    again); the bootstraps are seeded, so the numbers come out as they were (scenario2_gate_report). Returns
+    sweep.json's new content. A sweep of the retired per-alpha design (plan.per_alpha_sweep: results/archive's) is
+    refused, one UsageError naming the commit that redraws it."""
     meta = read_json(root / "sweep.json")
-    fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in meta["profile"].items()}
+    if per_alpha_sweep(meta["profile"]):
+        raise UsageError(f"{root} holds a sweep of scenario II's per-alpha design, retired on 2026-12-03: redraw it "
+                         f"at commit {RETIRED_PER_ALPHA}")  # fmt: skip
+    recorded = recorded_fields(meta["profile"])
+    fields: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in recorded.items()}
     profile = Profile(**fields)
     runs, n_boot = read_csv(root / "runs.csv"), int(meta["bootstrap_replicates"])
-    if profile.lane_networks:
-        write_lane_outputs(root, runs, read_csv(root / "evals.csv"), profile, meta, n_boot)
-    else:
-        write_outputs(root, runs, profile, meta, n_boot)
+    write_lane_outputs(root, runs, read_csv(root / "evals.csv"), profile, meta, n_boot)
     write_json(root / "sweep.json", meta)
     return meta
 
@@ -138,14 +147,16 @@ def _read_part(folder: Path) -> Part:
 
 def _part_profile(folder: Path, meta: Any) -> Profile:
     """The profile a part's sweep.json records, each field of Profile's type (catalogue.Entry: an integer where a
-    float belongs is taken as that float); UsageError unless it is an object of a lane-network profile."""
-    fields = meta.get("profile") if isinstance(meta, dict) else None
-    if not isinstance(fields, dict):
-        what = f"its profile is {json.dumps(fields)[:40]}" if isinstance(meta, dict) else "it is not a JSON object"
+    float belongs is taken as that float); UsageError unless it is an object of a finished sweep, not of the retired
+    per-alpha design (plan.per_alpha_sweep)."""
+    recorded = meta.get("profile") if isinstance(meta, dict) else None
+    if not isinstance(recorded, dict):
+        what = f"its profile is {json.dumps(recorded)[:40]}" if isinstance(meta, dict) else "it is not a JSON object"
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep (sweep.json: {what})")
-    if "wall_seconds" not in meta or not fields.get("lane_networks"):
+    if "wall_seconds" not in meta or per_alpha_sweep(recorded):
         raise UsageError(f"--merge: {folder} is not a finished sweep of a lane-network profile (full, check, "
                          "paper)")  # fmt: skip
+    fields = recorded_fields(recorded)
     hints = get_type_hints(Profile)
     at = Entry(folder / "sweep.json", "profile")
     required = [f.name for f in dataclass_fields(Profile) if f.default is MISSING]

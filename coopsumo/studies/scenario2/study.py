@@ -1,37 +1,31 @@
 """`coopsumo scenario2` (`make scenario2`): the alpha sweep of section IV.B (paper Fig. 6).
 
-The default profile `full` (and `paper`) trains one model per alpha, lane count and training seed on that lane count's
-demands and drives it at every condition of the lane count (`check` trains one alpha-conditioned network per lane count
-and seed beside per-alpha models, and drives it at every alpha); `keep`, `greedy` and MOBIL run on the same evaluation
-seeds, every speed is measured once the road is full, and the report (scenario2_gate_report) judges per condition
-whether the learner is fit to be asked (the gate) before alpha*'s trends are fitted. The profiles `quick` and `tiny` are
-the per-alpha sweep described below.
+The default profile `full` (and `paper`, and `tiny` for the tests) trains one model per alpha, lane count and
+training seed on that lane count's demands (taken from the model store when it holds it) and drives it greedily at
+every condition (lane count, upstream departure interval T_up) of the lane count, on every evaluation seed, demands no
+training saw; a model's value is its mean over them. `check` trains one alpha-conditioned network per lane count and
+seed beside per-alpha models, and drives it at every alpha. `keep`, `greedy` and MOBIL (per politeness p) run on the
+same evaluation seeds, every speed is measured once the road is full (`tiny`: over the whole run), and the report
+(scenario2_gate_report) judges per condition whether the learner is fit to be asked (the gate) before alpha*'s
+trends, a plane alpha* = b0 + b1 T_up + b2 lanes, are fitted over the conditions that pass it. The per-alpha design
+(a model per condition, alpha and seed; the profiles `quick` and the old `tiny`) was retired on 2026-12-03: run it at
+commit plan.RETIRED_PER_ALPHA.
 
-For every condition (lane count, upstream departure interval T_up) and every lane-change penalty alpha, a model is
-trained in free flow per training seed (taken from the model store when it holds it) and evaluated greedily on the same
-condition on every evaluation seed, demands no training saw; a model's value is its mean over them. alpha* is the alpha
-with the best mean travelling speed over models; its uncertainty is given by per-model win shares and a bootstrap over
-models. A plane alpha* = b0 + b1 T_up + b2 lanes is fitted over the conditions.
+Every model at one condition (lanes, T_up, alpha, seed), and every run of a policy that needs no training, is one
+"cell", run in its own worker process (libsumo allows one SUMO per process), on a local process pool or on Ray; the
+cells of one model wait for its training. Each finished cell is written atomically to
+OUT/cells/<key>.json the moment it ends; a rerun skips finished cells and retries failed ones; a training interrupted
+by SIGTERM/SIGINT is resumed from its checkpoint.
 
-With `--policies dqn,mobil`, MOBIL cells (lanes, T_up, politeness p, evaluation seed) are added: no
-training, one run of `mobil:p=P` on the same condition and step count as a DQN model's evaluation on
-that seed. p* is the p with the best mean speed over evaluation seeds; the report puts alpha* and p*
-side by side.
-
-Every (lanes, T_up, alpha, seed) is one "cell", run in its own worker process (libsumo allows
-one SUMO per process), on a local process pool or on Ray. Each finished cell is written
-atomically to OUT/cells/<key>.json the moment it ends; a rerun skips finished cells and
-retries failed ones; a training interrupted by SIGTERM/SIGINT is resumed from its checkpoint.
-
-Outputs in OUT (default results/scenario2): sweep.json, cells/, train/<key>/, evals/<key>/, runs.csv, evals.csv,
-alpha_star.csv, fig6_alpha_star_lanes.png, fig6_speed_heatmap.png, report.md; with MOBIL cells also
-mobil/<key>/ and mobil_p_star.csv.
+Outputs in OUT (default results/scenario2): sweep.json, cells/, train/<model>/, evals/<key>/, runs.csv, evals.csv,
+alpha_star.csv, gate.csv, fig6_alpha_star_lanes.png, fig6_speed_heatmap.png, report.md; with MOBIL cells also
+mobil/<key>/ and mobil_p_star.csv, with keep and greedy baselines/<key>/.
 
 On a Ray cluster (--address), every node needs this package (same versions) and OUT must be on a
 filesystem shared by all nodes: the workers write the training folders, the driver the cell records.
 
-The plan (profiles, cells, keys) is scenario2_plan, the measures scenario2_measures, the report
-scenario2_report; this module runs the plan's cells on the shared runner and is the command.
+The plan (profiles, cells, keys) is scenario2_plan, the measures scenario2_measures and scenario2_gate, the report
+scenario2_gate_report; this module runs the plan's cells on the shared runner and is the command.
 """
 
 from __future__ import annotations
@@ -66,6 +60,7 @@ from coopsumo.studies.engine.records import (
 )
 from coopsumo.studies.engine.run_folders import check_study_runs, default_out, simulate_into, study_root
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
+from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import KEY_COLUMNS, evals_table, runs_table
 from coopsumo.studies.scenario2.plan import (
     CLASSICAL,
@@ -90,7 +85,7 @@ from coopsumo.studies.scenario2.plan import (
     train_folder,
 )
 from coopsumo.studies.scenario2.redraw import merge_command, recorded_sweep, sweep_study
-from coopsumo.studies.scenario2.report import condition_label, write_outputs
+from coopsumo.studies.scenario2.text import condition_label
 from coopsumo.study_tables import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
 from coopsumo.validation import (
     MOBIL_P_LIST,
@@ -314,12 +309,7 @@ def _finish(root: Path, profile: Profile, meta: dict[str, Any], records: list[di
     SWEEP.check(meta, root / "sweep.json")
     write_atomic(root / "runs.csv", lambda tmp: runs.to_csv(tmp, index=False))
     write_atomic(root / "evals.csv", lambda tmp: evals.to_csv(tmp, index=False))
-    if profile.lane_networks:
-        from coopsumo.studies.scenario2.gate_report import write_lane_outputs
-
-        write_lane_outputs(root, runs, evals, profile, meta, meta["bootstrap_replicates"])
-    else:
-        write_outputs(root, runs, profile, meta, meta["bootstrap_replicates"])
+    write_lane_outputs(root, runs, evals, profile, meta, meta["bootstrap_replicates"])
     SWEEP.check(meta, root / "sweep.json")  # the schema a merge reads it by, with what the report added
     write_json(root / "sweep.json", meta)
 
@@ -357,7 +347,7 @@ def profile_from_args(args: Any) -> Profile:
     if args.t_up is not None:
         t_up = T_UP_LIST.parse("--t-up", args.t_up)
         profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
-        if profile.lane_networks and len(profile.t_up_s) > MAX_LANE_DEMANDS:
+        if len(profile.t_up_s) > MAX_LANE_DEMANDS:
             raise UsageError(f"--t-up: profile {profile.name} trains each lane count's network on all its T_ups, at "
                              f"most {MAX_LANE_DEMANDS}; got {len(profile.t_up_s)}")  # fmt: skip
     if args.preset is not None:
@@ -374,7 +364,7 @@ def profile_from_args(args: Any) -> Profile:
 
 
 def by_profile(show: Any) -> str:
-    """An option's default as --help states it, from the profiles: "the profile's: tiny 2; quick 3; paper 10", or one
+    """An option's default as --help states it, from the profiles: "the profile's: tiny 2; full 5; paper 10", or one
     value when every profile has the same."""
     values = {name: str(show(profile)) for name, profile in PROFILES.items()}
     if len(set(values.values())) == 1:
@@ -454,9 +444,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.bootstrap < 0:
             raise UsageError(f"bootstrap must be >= 0, got {args.bootstrap}")
         check_backend(args.backend, args.address)
-        if profile.lane_networks:  # a lane network's settings (e.g. at most 10 demands) checked before any folder
-            for lanes in profile.lanes:
-                lane_train_config(lanes, profile.seeds[0], profile).validate()
+        for lanes in profile.lanes:  # a lane network's settings (e.g. at most 10 demands) checked before any folder
+            lane_train_config(lanes, profile.seeds[0], profile).validate()
         default = default_out("scenario2", profile.name, DEFAULT_PROFILE)
         if args.out is None:
             args.out = default_model_out(default)
@@ -479,10 +468,7 @@ def main(argv: list[str] | None = None) -> int:
                       f"R2 = {plane['r2']:.3f}")  # fmt: skip
             else:
                 print(plane.get("error", ""))
-            if profile.lane_networks:
-                from coopsumo.studies.scenario2.gate_report import console_lines
-
-                print("\n".join(console_lines(args.out)))
+            print("\n".join(console_lines(args.out)))
         if "mobil" in profile.policies:
             for r in read_csv(args.out / "mobil_p_star.csv").itertuples():
                 if r.cells_failed:
