@@ -541,14 +541,13 @@ OWN = ("plan.json", "cells", "runs", "report.md", "fig*.png")
 
 
 def test_a_study_root_is_claimed_only_when_it_is_the_studys(tmp_path: Path) -> None:
-    legacy = tmp_path / "legacy"  # only the study's own names, but no marker and no plan file: a user's (probe 7, I5)
+    legacy = tmp_path / "legacy"  # written before markers: only the study's own names
     (legacy / "cells").mkdir(parents=True)
     (legacy / "report.md").write_text("# report\n")
     (legacy / "fig4.png").write_bytes(b"png")
-    with pytest.raises(UsageError, match="holds cells and 2 more, which no coopsumo scenario1 study wrote"):
-        check_study_root(legacy, "scenario1", OWN)
+    check_study_root(legacy, "scenario1", OWN)
     (legacy / "notes.txt").write_text("mine\n")
-    with pytest.raises(UsageError, match="no .coopsumo-run.json, no plan.json"):
+    with pytest.raises(UsageError, match="notes.txt"):
         check_study_root(legacy, "scenario1", OWN)
     (legacy / "plan.json").write_text("{}\n")  # its own plan file: a study root of an earlier version
     check_study_root(legacy, "scenario1", OWN)
