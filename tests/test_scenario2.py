@@ -784,19 +784,19 @@ def inline_cells(monkeypatch: pytest.MonkeyPatch, ran: list[str] | None = None) 
 
 
 def write_fake_model(cfg: Any, out: Path) -> None:
-    """What a faked training leaves: its summary, and in place of a model the speed its evaluations will give (from
-    alpha and the training seed)."""
+    """What a faked training leaves: its summary, holding in place of a model the speed its evaluations will give
+    (from alpha and the training seed); only files a training writes (the store refuses others: probe 7, I6)."""
     (out / "train_summary.json").write_text(json.dumps({
         "steps": cfg.sim.steps, "departed": 40, "mean_speed_mps": 20.0, "lane_changes": 12, "collisions": 0,
-        "updates": 3, "wall_seconds": 3.0, "steps_per_second": 100.0}))  # fmt: skip
-    (out / "fake_speed.txt").write_text(str(20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed))
+        "updates": 3, "wall_seconds": 3.0, "steps_per_second": 100.0,
+        "fake_speed": 20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed}))  # fmt: skip
 
 
 def fake_evaluation(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
     """scenario2.evaluate_model without SUMO: the faked model's speed, plus a thousandth per evaluation seed above
     the first (so that pooling shows), no collision."""
     model = Path(config["policy"].removeprefix("dqn:").split(",")[0])
-    speed = float((model.parent / "fake_speed.txt").read_text()) + (config["seed"] - 2001) / 1000
+    speed = json.loads((model.parent / "train_summary.json").read_text())["fake_speed"] + (config["seed"] - 2001) / 1000
     return {"mean_speed_mps": speed, "collisions": 0, "teleports": 0, "lane_changes": 1}
 
 
