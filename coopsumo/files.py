@@ -55,7 +55,8 @@ def _umask() -> int:
 def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
     """write(tmp) into a temporary file beside `path` made new (mkstemp: a unique name, never an existing file or
     a link), then rename it to `path`: a reader sees the old file or the whole new one. On any failure (a full
-    disk, a kill by signal) the temporary file is removed and the error passed on."""
+    disk, a kill by signal) the temporary file is removed and the error passed on; one a SIGKILL left beside
+    `path` goes once the new file is in place."""
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMPORARY)
     tmp = Path(name)
     try:
@@ -68,6 +69,8 @@ def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+    for left in temporaries_of(path):  # a killed earlier write's
+        left.unlink(missing_ok=True)
 
 
 _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"),

@@ -40,3 +40,12 @@ def test_a_report_table_and_figure_replace_a_pipe_at_their_names(tmp_path: Path)
     assert (tmp_path / "runs.csv").read_text() == "a\n1\n2\n"
     assert (tmp_path / "fig.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fig.png", "report.md", "runs.csv"]  # no temporary left
+
+
+def test_a_killed_writes_temporary_goes_with_the_next_write(tmp_path: Path) -> None:
+    """A SIGKILL during write_atomic leaves .NAME.XXXXXXXX.tmp beside the file (no handler runs): the next write of
+    the file removes it (a study killed while writing evals.csv left it after its rerun)."""
+    left = tmp_path / ".evals.csv.abcdefgh.tmp"
+    left.write_text("half")
+    write_atomic(tmp_path / "evals.csv", lambda tmp: tmp.write_text("whole"))
+    assert not left.exists() and (tmp_path / "evals.csv").read_text() == "whole"
