@@ -183,14 +183,15 @@ def _untold_study(root: Path, plan: str, advice: str) -> str | None:
 def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None,
                      recorded: Recorded | None = None, advice: str = "pick another --out",
                      hosts: Sequence[Path] = ()) -> None:  # fmt: skip
-    """UsageError unless `root` lies in no folder another command owns (check_study_place, with `hosts`) and is
-    missing, empty, marked by the study `kind`, or (a root written before the marker) holds the study's plan file
-    own[0] or only entries whose names match the study's own patterns `own` (fnmatch: 'fig*.png'; a study writes only
-    these names and never replaces the root as a whole). study: which study of `kind` the command writes ("the quick
-    profile's study"): a root that holds another (held_study, with `recorded` for a root whose marker does not name
-    it) is refused too, with `advice`, and so is a marked root, or one with a plan file, whose study cannot be told
-    (_untold_study); the same study resumes. Either way a link in it is refused (study_link), but the study's own
-    links into the model store."""
+    """UsageError unless `root` lies in no folder another command owns (check_study_place, with `hosts`) and is missing,
+    empty, marked by the study `kind`, or holds the study's plan file own[0] (a root written before markers). `own`: the
+    study's names, fnmatch patterns (a study writes only these and never replaces its root). An unmarked root without
+    the plan file is taken only when it holds nothing but temporary files: a first run marks its root before anything
+    else, so even files named like the study's (report.md, runs.csv) are a user's (issue 82, probe 7, I5). study: which
+    study of `kind` the command writes ("the quick profile's study"): a root that holds another (held_study, with
+    `recorded` for a root whose marker does not name it) is refused too, with `advice`, and so is a marked root, or one
+    with a plan file, whose study cannot be told (_untold_study); the same study resumes. Either way a link in it is
+    refused (study_link), but the study's own links into the model store."""
     check_study_place(root, hosts)
     root = root.resolve()
     if not root.exists():
@@ -201,18 +202,23 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
     if marker is not None and marker["kind"] != kind:
         raise UsageError(f"output folder {root} holds a coopsumo {marker['kind']} run, not a {kind} study, and "
                          "is left alone; pick another --out")  # fmt: skip
-    if marker is None and not (root / own[0]).is_file():  # not the study's plan file: a root it wrote before markers?
-        foreign = sorted(p.name for p in root.iterdir() if not any(fnmatch.fnmatchcase(p.name, pat) for pat in own))
-        if foreign:
-            more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
-            raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, "
-                             f"and has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
+    unclaimed = marker is None and not (root / own[0]).is_file()  # neither marked nor a root written before markers
+    names = sorted(p.name for p in root.iterdir() if not fnmatch.fnmatchcase(p.name, f"*{TEMPORARY}"))
+    if unclaimed and (foreign := [n for n in names if not any(fnmatch.fnmatchcase(n, pat) for pat in own)]):
+        more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
+        raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, "
+                         f"and has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
     held = held_study(root, recorded) if study is not None else None
     if held is not None and held != study:
         raise UsageError(f"output folder {root} holds {held}, not {study}: a study writes into its own folder, and "
                          f"this one is left alone; {advice}")  # fmt: skip
     if study is not None and held is None and (untold := _untold_study(root, own[0], advice)):
         raise UsageError(untold)
+    if unclaimed and names:  # a first run marks its root before anything else: a user's files (probe 7, I5)
+        more = f" and {len(names) - 1} more" if len(names) > 1 else ""
+        raise UsageError(f"output folder {root} holds {names[0]}{more}, named like a coopsumo {kind} study's files, "
+                         f"but neither a {RUN_MARKER} nor its {own[0]}: no study wrote it (a study marks its folder "
+                         "before anything else), so it is left alone; pick another --out")  # fmt: skip
     if found := study_link(root):
         where = "inside" if found[1].is_relative_to(root) else "outside"
         raise UsageError(f"{found[0]} is a link to {found[1]}, {where} the study's folder {root}: a study makes no "

@@ -153,6 +153,11 @@ def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkey
 
     monkeypatch.setattr(cells, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(failing_cell))
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
+    from coopsumo.run_dirs import mark_run_dir
+    from coopsumo.run_markers import LEARNING_KIND
+    from coopsumo.studies.engine.run_folders import profile_study
+
+    mark_run_dir(tmp_path, LEARNING_KIND, finished=False, study=profile_study("tiny"))  # the study's, interrupted
     (tmp_path / "cells").mkdir()
     (tmp_path / "cells" / "keep_seed0.json").write_text('{"status": "ok", "summary": {}}')  # never trusted
     code = ablation.main(["--profile", "tiny", "--alphas", "8,8.000001", "--out", str(tmp_path), "--quiet"])

@@ -541,13 +541,14 @@ OWN = ("plan.json", "cells", "runs", "report.md", "fig*.png")
 
 
 def test_a_study_root_is_claimed_only_when_it_is_the_studys(tmp_path: Path) -> None:
-    legacy = tmp_path / "legacy"  # written before markers: only the study's own names
+    legacy = tmp_path / "legacy"  # only the study's own names, but no marker and no plan file: a user's (probe 7, I5)
     (legacy / "cells").mkdir(parents=True)
     (legacy / "report.md").write_text("# report\n")
     (legacy / "fig4.png").write_bytes(b"png")
-    check_study_root(legacy, "scenario1", OWN)
+    with pytest.raises(UsageError, match="holds cells and 2 more, named like a coopsumo scenario1 study's"):
+        check_study_root(legacy, "scenario1", OWN)
     (legacy / "notes.txt").write_text("mine\n")
-    with pytest.raises(UsageError, match="notes.txt"):
+    with pytest.raises(UsageError, match="holds notes.txt, which coopsumo scenario1 does not write"):
         check_study_root(legacy, "scenario1", OWN)
     (legacy / "plan.json").write_text("{}\n")  # its own plan file: a study root of an earlier version
     check_study_root(legacy, "scenario1", OWN)

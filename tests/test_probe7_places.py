@@ -163,6 +163,32 @@ def test_another_commands_unmarked_study_of_the_same_profile_is_refused(command:
     assert listing(tmp_path) == before
 
 
+# -- I5: an unmarked folder of the study's own names but no plan file --------------------------------------------
+I5_COMMANDS = {"scenario2": ["--profile", "tiny"], "scenario1": ["--quick"], "learning": ["--profile", "tiny"],
+               "protocol": ["--profile", "tiny"]}  # fmt: skip
+
+
+@pytest.mark.parametrize("command", I5_COMMANDS)
+def test_an_unmarked_folder_of_output_names_without_a_plan_file_is_refused(command: str, tmp_path: Path,
+                                                                          monkeypatch: pytest.MonkeyPatch,
+                                                                          capsys: pytest.CaptureFixture[str]) -> None:
+    """I5 (decided): `scenario2 --out an` over a user's report.md and runs.csv (no marker, no plan file) replaced
+    them, exit 0. A first run marks its root before writing anything, so such a folder is never the study's: refused
+    in one line naming it, nothing written. Empty, or only a temporary file: taken (test_study_places)."""
+    from test_study_places import listing
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    (tmp_path / "an").mkdir()
+    (tmp_path / "an" / "report.md").write_text("notes\n")
+    (tmp_path / "an" / "runs.csv").write_text("a,b\n1,2\n")
+    before = listing(tmp_path)
+    one_line(capsys, run(command, [*I5_COMMANDS[command], "--quiet", "--workers", "1", "--out", "an"]),
+             f"output folder {tmp_path.resolve() / 'an'} holds report.md and 1 more", "named like a coopsumo",
+             "but neither a .coopsumo-run.json nor its")  # fmt: skip
+    assert listing(tmp_path) == before
+
+
 # -- I6: a folder in the model store holding a user's files -----------------------------------------------------------
 def test_a_store_folder_holding_a_users_files_is_never_trained_into(tmp_path: Path,
                                                                    monkeypatch: pytest.MonkeyPatch) -> None:

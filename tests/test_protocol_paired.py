@@ -124,6 +124,10 @@ def test_a_users_folder_at_a_baselines_run_place_is_refused_before_any_cell(tmp_
     key = next(s["key"] for s in cell_specs(PROFILES["tiny"]) if s["kind"] == "baseline")
     place = out / "runs" / key
     place.mkdir(parents=True)
+    from coopsumo.run_dirs import mark_run_dir
+    from coopsumo.studies.engine.run_folders import profile_study
+
+    mark_run_dir(out, "protocol", finished=False, study=profile_study("tiny"))  # the study's own folder, interrupted
     (place / "summary.json").write_text('{"mine": 1}')
     (place / "notes.txt").write_text("x")
     code = protocol.main(["--profile", "tiny", "--workers", "1", "--quiet", "--out", str(out)])

@@ -22,6 +22,7 @@ from conftest import InlineBackend
 
 from coopsumo.config import PAPER_ALPHAS
 from coopsumo.errors import UsageError
+from coopsumo.run_dirs import RUN_MARKER, mark_run_dir
 from coopsumo.studies.engine import cells as engine_cells
 from coopsumo.studies.engine import groups as engine_groups
 from coopsumo.studies.engine import records, runner, trainings
@@ -463,7 +464,8 @@ def test_tiny_sweep_with_the_baselines(local_sweep: Path, tmp_path: Path) -> Non
     """--policies dqn,mobil,keep,greedy on the finished DQN cells: only the 8 runs that need no training run (2
     conditions x (2 p + keep + greedy) x 1 evaluation seed); the gate judged, p* beside alpha* in the report."""
     out = tmp_path / "baselines"
-    shutil.copytree(local_sweep / "cells", out / "cells")
+    shutil.copytree(local_sweep / "cells", out / "cells")  # the sweep's cells in a folder its study marked
+    mark_run_dir(out, "scenario2", finished=False, study=json.loads((local_sweep / RUN_MARKER).read_text())["study"])
     result = run_sweep_cli(out, "--workers", "2", "--policies", "dqn,mobil,keep,greedy")
     assert "16 cells, 8 already done" in result.stderr and "8 to run" in result.stderr
     runs = pd.read_csv(out / "runs.csv")

@@ -284,13 +284,12 @@ def test_a_study_root_whose_study_cannot_be_told_is_taken_for_none(marker: str, 
     assert listing(tmp_path) == before
 
 
-@pytest.mark.parametrize(("marker", "plan"), [("named", "none"), ("named", "cut"), ("none", "none"), ("none", "ok"),
-                                              ("unnamed", "ok")])  # fmt: skip
+@pytest.mark.parametrize(("marker", "plan"), [("named", "none"), ("named", "cut"), ("none", "ok"), ("unnamed", "ok")])
 def test_a_study_root_that_can_be_told_or_is_fresh_is_taken(marker: str, plan: str, tmp_path: Path) -> None:
     """What G5's refusal leaves alone: a root whose marker names its study (a first run interrupted before its plan
     file: study_root marks the root before anything else), one whose plan file says (written before markers named
-    a study), and one that nothing claims (no marker, no plan file: a folder of the study's own names, an empty one,
-    one with only the temporary file of the marker's write, killed)."""
+    a study), and one that nothing claims (no marker, no plan file: an empty one, one with only the temporary file of
+    the marker's write, killed; a folder of the study's own names is not one since probe 7, I5)."""
     root = tmp_path / "s2"
     untold_root(root, marker, plan)
     check_study_root(root, "scenario2", OWN, TINY_SWEEP, recorded_sweep)
