@@ -26,7 +26,7 @@ from coopsumo.run_markers import read_marker as _marker
 RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xml", "routes.rou.xml", "plain.rou.xml",
                "fcd.xml", "tripinfo.xml", "trajectories.parquet", f".*{TEMPORARY}")
 """the entries a run writes into its folder (agents.rollout.run, SUMO; write_atomic's temporary files):
-a study's run folder without a marker holding only these is its own (studies/engine/run_folders.check_study_run)"""
+a study's run folder without a marker holding only these is its own (studies/engine/run_folders.check_run_places)"""
 
 
 def _entries(folder: Path) -> list[str]:

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from coopsumo.errors import UsageError
-from coopsumo.studies.engine.run_folders import check_study_run, check_study_runs
+from coopsumo.studies.engine.run_folders import check_run_places, run_places
 
 S2 = """[profiles.mini]
 help = "probe"
@@ -52,23 +52,25 @@ def user_folder(folder: Path) -> None:
 
 
 def test_a_run_folder_is_the_studys_only_when_it_holds_only_a_runs_names(tmp_path: Path) -> None:
-    """I1: the rule, one home (run_folders.check_study_run, scenario I's check_run_dir beneath): missing, empty or
+    """I1: the rule, one home (run_folders.check_run_places, scenario I's check_run_dir beneath): missing, empty or
     holding only what a run writes in place is taken; a user's file beside them, a file in its place, refused."""
-    check_study_run(tmp_path / "none")
+    check_run_places([tmp_path / "none"], in_place=True)
     (tmp_path / "empty").mkdir()
-    check_study_run(tmp_path / "empty")
+    check_run_places([tmp_path / "empty"], in_place=True)
     own = tmp_path / "own"
     own.mkdir()
     for name in ("config.json", "summary.json", "detectors.xml", ".summary.json.abc.tmp"):
         (own / name).write_text("{}")
-    check_study_run(own)
+    check_run_places([own], in_place=True)
+    with pytest.raises(UsageError, match="own has no .coopsumo-run.json"):  # scenario I's and the protocol's runs
+        check_run_places([own])  # are built aside and marked: an unmarked one is never theirs
     user_folder(tmp_path / "user")
     with pytest.raises(UsageError, match="user has no .coopsumo-run.json"):
-        check_study_run(tmp_path / "user")
+        check_run_places([tmp_path / "user"], in_place=True)
     (tmp_path / "evals" / "k").mkdir(parents=True)
     (tmp_path / "evals" / "k" / "eval_s1").write_text("mine")
     with pytest.raises(UsageError, match="eval_s1 exists and is not a folder"):
-        check_study_runs(tmp_path / "evals" / "k", nested=True)
+        check_run_places(run_places(tmp_path / "evals" / "k", nested=True), in_place=True)
 
 
 def mark_study(root: Path, command: str, profile: str) -> None:

@@ -52,16 +52,15 @@ def run_cells(specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn, fail
     done = reusable_keys(root, specs, prog, required)
     todo = [s for s in specs if s["key"] not in done]
     return run_todo(todo, specs, root, cell_fn, failed_record, required=required, roads=roads, workers=workers,
-                    backend=backend, address=address, progress=progress, desc=desc, done_keys=sorted(done))
+                    backend=backend, address=address, progress=progress, desc=desc)
 
 
 def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn,
              failed_record: FailedRecord, *, required: Sequence[str], roads: Iterable[RoadConfig] = (),
              workers: int = 2, backend: str = "local", address: str | None = None, progress: bool = True,
-             desc: str = "cells", done_keys: Sequence[str] = ()) -> list[dict[str, Any]]:  # fmt: skip
+             desc: str = "cells") -> list[dict[str, Any]]:  # fmt: skip
     """run_cells for a study that chose and ordered its cells to run itself (`todo`, in priority order, among all its
-    `specs`; done_keys: those finished ok before): the same steps, every cell's record returned in the order of
-    specs."""
+    `specs`; the others finished ok before): the same steps, every cell's record returned in the order of specs."""
     root = root.resolve()
     if any(isinstance(s.get("config"), dict) and "train" in s["config"] for s in specs):
         say_store(root)
@@ -78,7 +77,8 @@ def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], ro
         runner = make_backend(backend, workers, address, cell_fn)
         try:
             with sigterm_interrupts():
-                execute(todo, root, runner, len(specs), len(specs) - len(todo), progress, failed_record, desc=desc,
+                done_keys = sorted({s["key"] for s in specs} - {s["key"] for s in todo})
+                execute(todo, root, runner, len(specs), len(done_keys), progress, failed_record, desc=desc,
                         done_keys=done_keys)  # fmt: skip
         finally:
             runner.close()

@@ -30,12 +30,26 @@ def same_config(path: Path, cfg: dict[str, Any]) -> bool:
         return False
 
 
-def check_run_places(folders: Iterable[Path]) -> None:
+def check_run_places(folders: Iterable[Path], in_place: bool = False) -> None:
     """UsageError naming the first of a study's run folders still to run that the study may not replace (a user's
-    folder, another command's run: run_dirs.check_run_dir), before any cell runs rather than in its worker: the rule
-    scenario I and the protocol share (issue 82, probe 7, I10: the protocol refused it per cell)."""
+    folder, another command's run: run_dirs.check_run_dir: missing, empty, or simulate's and nothing added), before
+    any cell runs rather than in its worker (issue 82, probe 7, I10: the protocol refused it per cell). in_place: the
+    study writes its runs in place, unmarked (scenario II's evals/ and mobil/, the learning study's baselines/ and
+    evals/), so a folder with no marker holding only the names a run writes (RUN_OUTPUTS) is its own (probe 7, I1)."""
     for folder in folders:
-        check_run_dir(folder.resolve(), "simulate")
+        out = folder.resolve()
+        if not (in_place and _written_in_place(out)):
+            check_run_dir(out, "simulate")
+
+
+def _written_in_place(out: Path) -> bool:
+    return out.is_dir() and not os.path.lexists(out / RUN_MARKER) and not out.is_symlink() and all(
+        p.is_file() and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS) for p in out.iterdir())
+
+
+def run_places(folder: Path, nested: bool = False) -> list[Path]:
+    """`folder`, or (nested) each entry of it: a cell's evaluations, a run folder each (check_run_places)."""
+    return sorted(folder.iterdir()) if nested and folder.is_dir() and not folder.is_symlink() else [folder]
 
 
 RUN_SUMMARY = ("departed", "mean_speed_mps", "throughput_veh_per_h", "lane_changes", "collisions", "teleports")
@@ -119,28 +133,6 @@ def simulate_into(
     return {k: v for k, v in summary.items() if k != "policy"}
 
 
-
-
-def check_study_run(out: Path) -> None:
-    """UsageError (one line naming `out`) when a study may not write its run into `out`, before any run: scenario I's
-    rule (run_dirs.check_run_dir: missing, empty, or simulate's and nothing added), except that a folder with no
-    marker holding only the names a run writes (RUN_OUTPUTS) is the study's own, from a run written in place (scenario
-    II's evals/ and mobil/, the learning study's baselines/ and evals/; issue 82, probe 7, I1)."""
-    out = out.resolve()
-    if out.is_dir() and not os.path.lexists(out / RUN_MARKER) and not out.is_symlink() \
-            and all(p.is_file() and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS)
-                    for p in out.iterdir()):  # fmt: skip
-        return
-    check_run_dir(out, "simulate")
-
-
-def check_study_runs(folder: Path, nested: bool = False) -> None:
-    """check_study_run of `folder`, or (nested) of each entry of `folder`: a cell's evaluations, a run folder each."""
-    if nested and folder.is_dir() and not folder.is_symlink():
-        for entry in sorted(folder.iterdir()):
-            check_study_run(entry)
-    else:
-        check_study_run(folder)
 
 
 STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {

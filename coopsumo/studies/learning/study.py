@@ -35,10 +35,11 @@ from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import (
-    check_study_runs,
+    check_run_places,
     default_out,
     profile_study,
     recorded_profile,
+    run_places,
     study_root,
 )
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
@@ -129,24 +130,16 @@ def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> N
 def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.studies.engine.cells import run_todo
-    from coopsumo.studies.engine.model_store import repointed_trainings
-    from coopsumo.studies.engine.records import reusable_keys
-    from coopsumo.studies.engine.trainings import spoiled_logs
+    from coopsumo.studies.engine.trainings import todo_cells
 
     start = time.perf_counter()
     root = root.resolve()
-    try:
-        (root / "cells").mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile, default)
-    done_keys = reusable_keys(root, specs, "learning", REQUIRED_SUMMARY)
-    done_keys -= repointed_trainings(root, [s for s in specs if s["key"] in done_keys], "learning")  # linked elsewhere
-    done_keys -= spoiled_logs(root, [s for s in specs if s["key"] in done_keys], "learning")  # its figures draw them
-    todo = [s for s in specs if s["key"] not in done_keys]
+    todo = todo_cells(root, specs, "learning", REQUIRED_SUMMARY)
     for s in todo:  # a run folder holding a user's files: refused before any cell runs (issue 82, probe 7, I1)
         train = s["kind"] == "train"
-        check_study_runs(root / ("evals" if train else "baselines") / s.get("train_key", s["key"]), nested=train)
+        folder = root / ("evals" if train else "baselines") / s.get("train_key", s["key"])
+        check_run_places(run_places(folder, nested=train), in_place=True)
     # the slow paper trainings first, the single changes on top of the default last
     extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
     todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
@@ -166,7 +159,7 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
           f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
     records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED_SUMMARY,
                        roads=[RoadConfig(lanes=profile.lanes)], workers=workers, backend=backend_name, address=address,
-                       progress=progress, desc="learning cells", done_keys=sorted(done_keys))  # fmt: skip
+                       progress=progress, desc="learning cells")  # fmt: skip
     meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
                 failed_cells=[r["key"] for r in records if r["status"] != "ok"],
                 cell_wall_seconds_sum=round(sum(r.get("cell_wall_s") or 0.0 for r in records), 1),

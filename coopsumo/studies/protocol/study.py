@@ -130,22 +130,13 @@ def accident_measures(run_dir: Path, cfg: SimConfig, departed: int) -> dict[str,
 def run_study(profile: Profile, root: Path, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
     from coopsumo.studies.engine.cells import run_todo
-    from coopsumo.studies.engine.model_store import repointed_trainings
-    from coopsumo.studies.engine.records import reusable_keys
-    from coopsumo.studies.engine.trainings import spoiled_logs
+    from coopsumo.studies.engine.trainings import todo_cells
     from coopsumo.studies.protocol import report as protocol_report
 
     start = time.perf_counter()
     root = root.resolve()
-    try:
-        (root / "cells").mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     specs = cell_specs(profile)
-    done = reusable_keys(root, specs, "protocol", REQUIRED)
-    done -= repointed_trainings(root, [s for s in specs if s["key"] in done], "protocol")  # linked elsewhere
-    done -= spoiled_logs(root, [s for s in specs if s["key"] in done], "protocol")  # its diagnosis reads them
-    todo = [s for s in specs if s["key"] not in done]
+    todo = todo_cells(root, specs, "protocol", REQUIRED)
     check_run_places(root / "runs" / s["key"] for s in todo)  # a user's folder there: refused before any cell runs
     # each training's first cell before any cell that would wait for it, free flow (short) before the accident
     first: dict[str, str] = {}
@@ -162,7 +153,7 @@ def run_study(profile: Profile, root: Path, backend_name: str = "local", workers
           f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
     records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED,
                        roads=[RoadConfig(lanes=profile.lanes)], workers=workers, backend=backend_name, address=address,
-                       progress=progress, desc="protocol cells", done_keys=sorted(done))  # fmt: skip
+                       progress=progress, desc="protocol cells")  # fmt: skip
     meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
                 failed_cells=[r["key"] for r in records if r["status"] != "ok"],
                 cell_cpu_seconds_sum=study_cpu_s(records, (root / "train" / s["train_key"] for s in specs

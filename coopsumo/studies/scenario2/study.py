@@ -58,7 +58,13 @@ from coopsumo.studies.engine.records import (
     read_record,
     reusable_keys,
 )
-from coopsumo.studies.engine.run_folders import check_study_runs, default_out, simulate_into, study_root
+from coopsumo.studies.engine.run_folders import (
+    check_run_places,
+    default_out,
+    run_places,
+    simulate_into,
+    study_root,
+)
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import KEY_COLUMNS, evals_table, runs_table
@@ -276,8 +282,8 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     todo = [s for s in specs if s["key"] not in done_keys]
     for s in todo:  # a run folder holding a user's files: refused before any cell runs (issue 82, probe 7, I1)
         dqn = s.get("policy") not in CLASSICAL
-        check_study_runs(root / "evals" / s.get("evals_key", s.get("train_key", s["key"])) if dqn else
-                         root / _classical_folder(s) / s["key"], nested=dqn)  # fmt: skip
+        check_run_places(run_places(root / "evals" / s.get("evals_key", s.get("train_key", s["key"])) if dqn else
+                                    root / _classical_folder(s) / s["key"], nested=dqn), in_place=True)  # fmt: skip
     retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
     _order(todo, profile)
     meta = _sweep_meta(profile, len(specs), backend_name, address, workers, n_boot)
@@ -288,7 +294,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     roads = [RoadConfig(lanes=lanes) for lanes in sorted({s["lanes"] for s in todo})]  # built once, not in workers
     records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED_SUMMARY, roads=roads,
                        workers=workers, backend=backend_name, address=address, progress=progress,
-                       desc="scenario2 cells", done_keys=sorted(done_keys))  # fmt: skip
+                       desc="scenario2 cells")  # fmt: skip
     _finish(root, profile, meta, records, len(todo), time.perf_counter() - start)
     return meta
 
