@@ -497,6 +497,32 @@ def test_tiny_sweep_with_the_baselines(local_sweep: Path, tmp_path: Path) -> Non
 
 
 @pytest.mark.sumo
+def test_parts_of_a_profile_without_trajectories_merge(local_sweep: Path, tmp_path: Path) -> None:
+    """Issue 82, probe 8: two parts of the tiny profile (no trajectories: a sweep writes no full-road columns) were
+    refused by the merge, "t0's runs.csv has no full_road_speed_mps column ...: not as a sweep writes it". The
+    parts reuse the tiny sweep's cells; their merge is the sweep."""
+    study = json.loads((local_sweep / RUN_MARKER).read_text())["study"]
+    parts = []
+    for alpha in ("0", "8"):
+        out = tmp_path / f"a{alpha}"
+        (out / "cells").mkdir(parents=True)
+        for cell in (local_sweep / "cells").glob(f"*_a{alpha}_*.json"):
+            shutil.copy(cell, out / "cells")
+        mark_run_dir(out, "scenario2", finished=False, study=study)
+        result = run_sweep_cli(out, "--alphas", alpha)
+        assert "4 already done" in result.stderr and "0 to run" in result.stderr
+        assert "full_road_speed_mps" not in pd.read_csv(out / "runs.csv")
+        parts.append(str(out))
+    merged = subprocess.run([sys.executable, "-m", "coopsumo", "scenario2", "--merge", ",".join(parts), "--out",
+                             str(tmp_path / "m")], capture_output=True, text=True, cwd=REPO, timeout=600, check=False)
+    assert merged.returncode == 0, merged.stderr[-2000:]
+    runs = pd.read_csv(tmp_path / "m" / "runs.csv").sort_values("key", ignore_index=True)
+    local = pd.read_csv(local_sweep / "runs.csv").sort_values("key", ignore_index=True)
+    pd.testing.assert_frame_equal(runs[COMPARED], local[COMPARED], check_dtype=False)
+    assert (tmp_path / "m" / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
+
+
+@pytest.mark.sumo
 def test_tiny_sweep_ray_matches_local(local_sweep: Path, tmp_path: Path) -> None:
     pytest.importorskip("ray", reason="ray is not installed: the ray backend cannot be tested")
     out = tmp_path / "ray"

@@ -24,6 +24,7 @@ from coopsumo.studies.engine.run_folders import profile_study, study_root
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS, TRAIN_COLUMNS
 from coopsumo.studies.scenario2.plan import (
+    FULL_ROAD,
     RETIRED_PER_ALPHA,
     Profile,
     cell_specs,
@@ -135,6 +136,9 @@ def _read_part(folder: Path) -> Part:
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err.__class__.__name__}: "
                          f"{getattr(err, 'strerror', None) or err})") from None  # fmt: skip
     profile = _part_profile(folder, meta)
+    if not profile.trajectory_every_steps:  # no trajectories, no full-road speed: a sweep writes no such columns
+        runs, evals = (t.assign(**{c: float("nan") for c in (FULL_ROAD, "full_road_from_s") if c not in t})
+                       for t in (runs, evals))  # fmt: skip
     try:
         specs = cell_specs(profile)
     except (ValueError, ArithmeticError, LookupError) as err:  # ConfigError, a load of 0, an unknown preset
