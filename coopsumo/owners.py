@@ -49,7 +49,7 @@ def _in_store(real: Path, what: str, itself: bool) -> str | None:
         if STORE_NAME.fullmatch(folder.name):
             return (f"{what} leads into {folder}, a model of a model store (a study's model link?), which only the "
                     "studies write")  # fmt: skip
-    for folder in [real] * itself + [real.parent]:
+    for folder in [real] * itself + list(real.parents):  # any depth: models/sub/run, models/.x/run (probe 8)
         if _holds_models(folder):
             return f"{what} is in {folder}, a model store (it holds the studies' models), which only the studies write"
     return None
@@ -64,11 +64,14 @@ def _claim_line(real: Path, found: tuple[Path, str], what: str, advice: str) -> 
     return f"{what} {where} {found[0]}, a coopsumo {found[1]} study's folder, which only that study writes; {advice}"
 
 
-def owned_problem(path: Path, what: str, advice: str = "pick another --out", itself: bool = False) -> str | None:
+def owned_problem(path: Path, what: str, advice: str = "pick another --out", itself: bool = False,
+                  unmarked: bool = True) -> str | None:  # fmt: skip
     """Why a command may not write `path` (what: the flag and value naming it, advice: what to do instead), or None:
     `path`, its links resolved, lies inside a study's root, in the model store or in a single run's folder (a
-    simulate run's, a training's); itself: `path` is not the command's own folder, so it may not be one of these
-    either (the networks folder). The study's folder is named first (a run inside it is the study's)."""
+    simulate run's, a training's), or (unmarked) inside a study's root written before markers (unmarked_study_problem;
+    issue 82, probe 8: `simulate --out P/sim` inside a committed protocol study); itself: `path` is not the command's
+    own folder, so it may not be one of these either (the networks folder). The study's folder is named first (a run
+    inside it is the study's)."""
     real = path.expanduser().resolve()
     if found := _marked(real, itself, study=True):
         return _claim_line(real, found, what, advice)
@@ -76,7 +79,7 @@ def owned_problem(path: Path, what: str, advice: str = "pick another --out", its
         return f"{problem}; {advice}"
     if found := _marked(real, itself, study=False):
         return _claim_line(real, found, what, advice)
-    return None
+    return unmarked_study_problem(real, what, advice) if unmarked else None
 
 
 def claimed_problem(path: Path, what: str, advice: str) -> str | None:

@@ -159,7 +159,8 @@ def check_study_place(root: Path, hosts: Sequence[Path] = ()) -> None:
     real = root.resolve()
     learning = {host.resolve() for host in hosts if marker_kind(host) == LEARNING_KIND}
     place = real.parent if real.parent in learning else real
-    if problem := owned_problem(place, f"--out {root}"):
+    hosted = real.parent in {host.resolve() for host in hosts}  # a learning study written before markers: its command
+    if problem := owned_problem(place, f"--out {root}", unmarked=not hosted):  # checked that it is one
         raise UsageError(problem)
 
 

@@ -26,7 +26,7 @@ from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS, RETIRED_FIELDS, dqn_c
 from coopsumo.errors import ConfigError, UsageError, first_line, why_unreadable
 from coopsumo.field_rules import as_float
 from coopsumo.files import loads_json, read_csv, read_text, write_atomic
-from coopsumo.owners import owned_problem, unmarked_study_problem
+from coopsumo.owners import owned_problem
 from coopsumo.record_schemas import PROTOCOL_STATS, PROTOCOL_STUDY, RecordError
 from coopsumo.report.markdown import md_table
 from coopsumo.runio import Parser, run_cli
@@ -225,8 +225,7 @@ def table(results: Path) -> str:
 def check_writable(out: Path) -> None:
     """--out may name a new file or a table this command wrote (TITLE, then GENERATED), nothing else, and not in a
     folder a study, a run or the model store owns (owners.owned_problem; issue 82, probe 4, F17): UsageError."""
-    if problem := owned_problem(out, f"--out {out}", "name a file elsewhere") or \
-            unmarked_study_problem(out, f"--out {out}", "name a file elsewhere"):  # fmt: skip
+    if problem := owned_problem(out, f"--out {out}", "name a file elsewhere"):
         raise UsageError(problem)
     if not os.path.lexists(out):
         return
