@@ -11,7 +11,7 @@ import re
 from pathlib import Path
 
 from coopsumo.paths import NETS_ENV, STORE_ENV
-from coopsumo.run_markers import RUN_KINDS, marker_kind
+from coopsumo.run_markers import RUN_KINDS, RUN_MARKER, marker_kind
 
 DEFAULT_STORE = Path("results") / "models"
 """the committed studies' model store"""
@@ -19,11 +19,17 @@ STORE_NAME = re.compile(r".+_a[^_/]+_seed\d+_[0-9a-f]{12}")
 """the name of a model's folder in the store (model_store.model_id: <preset>_a<alpha>_seed<seed>_<digest>)"""
 
 
+DAMAGED = "damaged"
+"""the kind _marked gives a folder whose marker cannot be read: coopsumo's all the same (issue 82, probe 8, J2)"""
+
+
 def _marked(real: Path, itself: bool, study: bool) -> tuple[Path, str] | None:
     """The nearest folder holding `real` (`real` too when itself) whose marker names a study (study) or a single
-    run (not study), and that kind; None."""
+    run (not study), and that kind; a marker that cannot be read counts as a study's (DAMAGED); None."""
     for folder in [real] * itself + list(real.parents):
         kind = marker_kind(folder)
+        if kind is None and study and os.path.lexists(folder / RUN_MARKER):
+            return folder, DAMAGED
         if kind is not None and (kind not in RUN_KINDS) == study:
             return folder, kind
     return None
@@ -58,6 +64,9 @@ def _in_store(real: Path, what: str, itself: bool) -> str | None:
 def _claim_line(real: Path, found: tuple[Path, str], what: str, advice: str) -> str:
     """`what` is or lies inside found[0], claimed by the coopsumo command or study found[1], which alone writes it."""
     where = "is" if found[0] == real else "lies inside"
+    if found[1] == DAMAGED:
+        return (f"{what} {where} {found[0]}, whose {RUN_MARKER} cannot be read (a coopsumo run's or study's folder, "
+                f"damaged?), which no other command writes; {advice}")  # fmt: skip
     if found[1] in RUN_KINDS:
         return (f"{what} {where} {found[0]}, the folder of a coopsumo {found[1]} run, which only that command writes; "
                 f"{advice}")  # fmt: skip
@@ -90,7 +99,7 @@ def claimed_problem(path: Path, what: str, advice: str) -> str | None:
     probe 5, G3)."""
     real = path.expanduser().resolve()
     found = _marked(real, True, study=True) or _marked(real, True, study=False)
-    return _claim_line(real, found, what, advice) if found else None
+    return _claim_line(real, found, what, advice) if found else unmarked_study_problem(real, what, advice)
 
 
 def store_env_problem() -> str | None:

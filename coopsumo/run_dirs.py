@@ -185,8 +185,9 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
                      recorded: Recorded | None = None, advice: str = "pick another --out",
                      hosts: Sequence[Path] = ()) -> None:  # fmt: skip
     """UsageError unless `root` lies in no folder another command owns (check_study_place, with `hosts`) and is missing,
-    empty, marked by the study `kind`, or holds the study's plan file own[0] (a root written before markers). `own`: the
-    study's names, fnmatch patterns (a study writes only these and never replaces its root). An unmarked root without
+    empty, marked by the study `kind`, or holds the study's plan file own[0] and nothing but the study's names `own`
+    (a root written before markers; fnmatch patterns: a study writes only these and never replaces its root; issue 82,
+    probe 8, J3: a user's notes.txt and report.md beside a copied plan file were taken). An unmarked root without
     the plan file is taken only when it holds nothing but temporary files: a first run marks its root before anything
     else, so even files named like the study's (report.md, runs.csv) are a user's (issue 82, probe 7, I5). study: which
     study of `kind` the command writes ("the quick profile's study"): a root that holds another (held_study, with
@@ -205,7 +206,7 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
                          "is left alone; pick another --out")  # fmt: skip
     unclaimed = marker is None and not (root / own[0]).is_file()  # neither marked nor a root written before markers
     names = sorted(p.name for p in root.iterdir() if not fnmatch.fnmatchcase(p.name, f"*{TEMPORARY}"))
-    if unclaimed and (foreign := [n for n in names if not any(fnmatch.fnmatchcase(n, pat) for pat in own)]):
+    if marker is None and (foreign := [n for n in names if not any(fnmatch.fnmatchcase(n, pat) for pat in own)]):
         more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
         raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, "
                          f"and has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
@@ -219,7 +220,7 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
         more = f" and {len(names) - 1} more" if len(names) > 1 else ""
         raise UsageError(f"output folder {root} holds {names[0]}{more}, named like a coopsumo {kind} study's files, "
                          f"but neither a {RUN_MARKER} nor its {own[0]}: no study wrote it (a study marks its folder "
-                         "before anything else), so it is left alone; pick another --out")  # fmt: skip
+                         "before anything else), so it is left alone; move it away or pick another --out")  # fmt: skip
     if found := study_link(root):
         where = "inside" if found[1].is_relative_to(root) else "outside"
         raise UsageError(f"{found[0]} is a link to {found[1]}, {where} the study's folder {root}: a study makes no "

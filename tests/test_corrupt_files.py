@@ -550,7 +550,10 @@ def test_a_study_root_is_claimed_only_when_it_is_the_studys(tmp_path: Path) -> N
     (legacy / "notes.txt").write_text("mine\n")
     with pytest.raises(UsageError, match="holds notes.txt, which coopsumo scenario1 does not write"):
         check_study_root(legacy, "scenario1", OWN)
-    (legacy / "plan.json").write_text("{}\n")  # its own plan file: a study root of an earlier version
+    (legacy / "plan.json").write_text("{}\n")  # its own plan file: a study root of an earlier version, but for
+    with pytest.raises(UsageError, match="holds notes.txt"):  # a file no study writes (issue 82, probe 8, J3)
+        check_study_root(legacy, "scenario1", OWN)
+    (legacy / "notes.txt").unlink()
     check_study_root(legacy, "scenario1", OWN)
     other = tmp_path / "other"
     other.mkdir()

@@ -70,3 +70,44 @@ def test_a_gui_screenshot_is_not_written_in_an_unmarked_study(tmp_path: Path, mo
                             str(study / "fig_new.png")])  # fmt: skip
     one_line(capsys, code, "--gui-screenshot", "study's folder")
     assert listing(tmp_path) == before
+
+
+def test_an_unmarked_study_folder_holding_a_users_file_beside_its_plan_is_refused(tmp_path: Path) -> None:
+    """J3: a copied sweep.json beside a user's notes.txt and report.md was taken as a study written before markers,
+    and its report.md replaced. Such a folder is taken only when it holds nothing but the study's names (those of
+    every committed study, response.csv and claim_a.md too)."""
+    from coopsumo.errors import UsageError
+    from coopsumo.run_dirs import check_study_root
+    from coopsumo.studies.engine.run_folders import STUDY_OUTPUTS
+
+    root = tmp_path / "X"
+    root.mkdir()
+    for name in ("sweep.json", "runs.csv", "response.csv", "report.md"):
+        (root / name).write_text("x\n")
+    check_study_root(root, "scenario2", STUDY_OUTPUTS["scenario2"])  # the names a sweep writes: an earlier one's
+    (root / "notes.txt").write_text("mine\n")
+    before = listing(tmp_path)
+    with pytest.raises(UsageError, match="holds notes.txt, which coopsumo scenario2 does not write"):
+        check_study_root(root, "scenario2", STUDY_OUTPUTS["scenario2"])
+    assert listing(tmp_path) == before
+
+
+def test_a_run_inside_a_folder_with_a_damaged_marker_is_refused(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                capsys: pytest.CaptureFixture[str]) -> None:
+    """J2 (x18): `simulate --out s2/sim` inside a study whose .coopsumo-run.json was damaged was written."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s2").mkdir()
+    (tmp_path / "s2" / ".coopsumo-run.json").write_text("{broken")
+    before = listing(tmp_path)
+    one_line(capsys, run("simulate", ["--quiet", "--steps", "30", "--out", "s2/sim"]), "cannot be read")
+    assert listing(tmp_path) == before
+
+
+def test_a_model_store_inside_an_unmarked_study_is_refused(tmp_path: Path) -> None:
+    """J2 (x09): COOPSUMO_MODELS=U/store inside a committed study's folder (no marker) was filled with models."""
+    from coopsumo.owners import claimed_problem
+
+    study = unmarked_protocol(tmp_path / "U")
+    problem = claimed_problem(study / "store", "'U/store'", "pick a model store elsewhere")
+    assert problem is not None and f"lies inside {study}, a coopsumo study's folder" in problem
+    assert claimed_problem(tmp_path / "store", "'store'", "pick a model store elsewhere") is None

@@ -137,15 +137,18 @@ def simulate_into(
 
 STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
     "scenario1": ("plan.json", "cells", "models", "runs", "runs.csv", "summary.csv", "report.md", "fig*.png",
-                  "gui_jam.png", "gui_jam.json"),
+                  "gui_jam.png", "gui_jam.json", "claim_a.md"),
     "scenario2": ("sweep.json", "cells", "train", "evals", "mobil", "baselines", "runs.csv", "evals.csv",
-                  "alpha_star.csv", "mobil_p_star.csv", "gate.csv", "check.csv", "fig6_*.png", "report.md"),
-    "ablation": ("study.json", "cells", "train", "baselines", "runs.csv", "summary.csv", "fig_*.png", "report.md"),
+                  "alpha_star.csv", "mobil_p_star.csv", "gate.csv", "check.csv", "response.csv", "fig6_*.png",
+                  "report.md"),
+    "ablation": ("study.json", "cells", "train", "evals", "baselines", "runs.csv", "summary.csv", "fig_*.png",
+                 "report.md", "accident"),
     "regime_map": ("plan.json", "cells", "runs", "runs.csv", "report.md"),
     "protocol": ("study.json", "cells", "train", "runs", "runs.csv", "stats.csv", "diagnosis.csv", "fig_*.png",
                  "report.md"),
 }  # fmt: skip
-"""the names each study writes at the top of its root, its plan file first (run_dirs.check_study_root)"""
+"""the names each study writes at the top of its root, its plan file first (run_dirs.check_study_root); a learning
+study's `accident` is accident-seeds' default study in it"""
 
 
 def default_out(name: str, profile: str, committed: str) -> Path:
