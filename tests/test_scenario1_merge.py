@@ -120,10 +120,24 @@ def test_a_fit_that_differs_in_its_last_digits_on_another_machine_merges(
     assert merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(out))[0] == 0
 
 
+def test_parts_whose_learner_was_edited_alike_are_refused(parts: list[Path], tmp_path: Path,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 8, J8: both parts' plan.json edited alike (lr 0.01, or gamma and dueling) merged, and the merged
+    plan.json recorded a learner its models were not trained with: each part's learner is checked against the one
+    its name trains."""
+    for change in ({"lr": 0.01}, {"gamma": 0.5, "dueling": False}):
+        for part in parts:
+            _plan(lambda r, c=change: r["learners"]["alpha_only"].update(c))(part)
+        out = tmp_path / "merged"
+        code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(out))
+        assert code == 2 and len(err) == 1 and "records another learner alpha_only than the one it names" in err[0]
+        assert not out.exists()
+
+
 @pytest.mark.parametrize("edit, words", [
     (_plan(lambda r: r["plan"].update(train_seeds=[104, 105])), "training seed 104 is in"),
     (_plan(lambda r: r["plan"].update(t_ups=[2.0])), "plan differs from"),
-    (_plan(lambda r: r["learners"]["alpha_only"].update(lr=0.5)), "trained another learner"),
+    (_plan(lambda r: r["learners"]["alpha_only"].update(lr=0.5)), "records another learner alpha_only than the one"),
     (_baseline_edited, "baseline runs differ from"),
     (_baseline_shifted("wave_speed_kmh", 1e-6), "in wave_speed_kmh"),
     (_baseline_shifted("delay_veh_h", 1e-13), "in delay_veh_h"),

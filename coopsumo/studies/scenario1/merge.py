@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from coopsumo.config import results_view
+from coopsumo.config import first_difference, results_view, to_dict
 from coopsumo.dqn_config import dqn_config_from_dict
 from coopsumo.errors import ConfigError, UsageError
 from coopsumo.files import read_json, read_json_object, write_json
@@ -30,7 +30,7 @@ from coopsumo.report.markdown import md_table
 from coopsumo.run_dirs import study_root
 from coopsumo.studies.engine.run_folders import profile_study, recorded_profile
 from coopsumo.studies.scenario1.measures import aggregate
-from coopsumo.studies.scenario1.plan import model_label, recorded_plan
+from coopsumo.studies.scenario1.plan import learners, model_label, recorded_plan
 from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
 
 MERGED = "merge.json"
@@ -59,11 +59,15 @@ def _part(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
             what = {str: "names", int: "integers"}.get(kind, "numbers")
             raise UsageError(f"--merge: {folder}/plan.json: plan.{key} must be a non-empty list of {what}, got "
                              f"{str(values)[:40]}")  # fmt: skip
+    known = learners()
     for name, learner in recorded["learners"].items():
         try:
             dqn_config_from_dict(learner).validate()
         except (UsageError, TypeError, ValueError) as err:
             raise UsageError(f"--merge: {folder}/plan.json: learner {name}: {err}") from None
+        if name in known and (where := first_difference(learner, to_dict(known[name]), "learner")):
+            raise UsageError(f"--merge: {folder}/plan.json records another learner {name} than the one it names "
+                             f"trains ({where}): made by another version, or edited")  # fmt: skip
     for key, value in recorded["plan"].items():
         if isinstance(value, (int, float)) and not isinstance(value, bool) and not (math.isfinite(value) and
                                                                                      value >= 0):  # fmt: skip
