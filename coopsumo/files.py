@@ -4,13 +4,15 @@ files (open_regular), JSON out and in, file digests."""
 from __future__ import annotations
 
 import errno
+import fnmatch
 import hashlib
 import json
 import math
 import os
+import re
 import stat
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -42,6 +44,18 @@ def temporaries_of(path: Path) -> list[Path]:
             and not p.is_symlink()]  # fmt: skip
 
 
+def left_temporaries(folder: Path, own: Sequence[str]) -> list[Path]:
+    """The temporary files write_atomic left in `folder` (a SIGKILL while it wrote) of files whose names match one of
+    the fnmatch patterns `own`: '.NAME.XXXXXXXX.tmp' (temporaries_of)."""
+    try:
+        entries = list(folder.iterdir())
+    except OSError:
+        return []
+    pattern = re.compile(r"\.(.+)\.[A-Za-z0-9_]{8}" + re.escape(TEMPORARY))
+    return [p for p in entries if (m := pattern.fullmatch(p.name)) and p.is_file() and not p.is_symlink()
+            and any(fnmatch.fnmatchcase(m[1], pat) for pat in own)]  # fmt: skip
+
+
 def _umask() -> int:
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
@@ -55,8 +69,8 @@ def _umask() -> int:
 def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
     """write(tmp) into a temporary file beside `path` made new (mkstemp: a unique name, never an existing file or
     a link), then rename it to `path`: a reader sees the old file or the whole new one. On any failure (a full
-    disk, a kill by signal) the temporary file is removed and the error passed on; one a SIGKILL left beside
-    `path` goes once the new file is in place."""
+    disk, a kill by signal) the temporary file is removed and the error passed on. One a SIGKILL left stays: a file
+    of that name may be a user's (issue 82, probe 8, J23); a study clears its own root's (left_temporaries)."""
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMPORARY)
     tmp = Path(name)
     try:
@@ -69,8 +83,6 @@ def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-    for left in temporaries_of(path):  # a killed earlier write's
-        left.unlink(missing_ok=True)
 
 
 _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"),

@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import UsageError
-from coopsumo.files import TEMPORARY, read_json, read_text, write_json
+from coopsumo.files import TEMPORARY, left_temporaries, read_json, read_text, write_json
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
@@ -267,6 +267,8 @@ def study_root(root: Path, kind: str, own: Sequence[str], study: str | None = No
         try:
             root.mkdir(exist_ok=True)
             mark_run_dir(root, kind, finished=False, study=study or held_study(root, recorded))
+            for left in left_temporaries(root, own):  # of its own files, from a write a SIGKILL cut (probe 8, J23)
+                left.unlink(missing_ok=True)
         except OSError as err:
             raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
         yield root

@@ -42,10 +42,21 @@ def test_a_report_table_and_figure_replace_a_pipe_at_their_names(tmp_path: Path)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fig.png", "report.md", "runs.csv"]  # no temporary left
 
 
-def test_a_killed_writes_temporary_goes_with_the_next_write(tmp_path: Path) -> None:
-    """A SIGKILL during write_atomic leaves .NAME.XXXXXXXX.tmp beside the file (no handler runs): the next write of
-    the file removes it (a study killed while writing evals.csv left it after its rerun)."""
-    left = tmp_path / ".evals.csv.abcdefgh.tmp"
+def test_a_file_named_like_a_temporary_is_left_alone_but_a_studys_own_goes(tmp_path: Path) -> None:
+    """A SIGKILL during write_atomic leaves .NAME.XXXXXXXX.tmp beside the file (no handler runs). write_atomic leaves
+    such a name alone (issue 82, probe 8, J23: `history --out t.md` deleted a user's .t.md.20261203.tmp); a study
+    claiming its root removes those of its own files (a study killed while writing evals.csv left it after its
+    rerun), not those of others."""
+    from coopsumo.run_dirs import study_root
+
+    left, mine = tmp_path / ".evals.csv.abcdefgh.tmp", tmp_path / ".notes.txt.abcdefgh.tmp"
     left.write_text("half")
+    mine.write_text("mine")
     write_atomic(tmp_path / "evals.csv", lambda tmp: tmp.write_text("whole"))
-    assert not left.exists() and (tmp_path / "evals.csv").read_text() == "whole"
+    assert left.exists() and (tmp_path / "evals.csv").read_text() == "whole"
+    with study_root(tmp_path / "s2", "scenario2", ("sweep.json", "evals.csv", "*.tmp")) as root:
+        pass
+    (root / ".evals.csv.abcdefgh.tmp").write_text("half")
+    (root / ".notes.txt.abcdefgh.tmp").write_text("mine")
+    with study_root(root, "scenario2", ("sweep.json", "evals.csv", "*.tmp")):
+        assert sorted(p.name for p in root.iterdir() if p.name.endswith(".tmp")) == [".notes.txt.abcdefgh.tmp"]
