@@ -128,6 +128,8 @@ def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) 
     run_summary = next((study / "runs" / "t3").iterdir()) / "summary.json"
     run_before = run_summary.stat().st_mtime_ns
     shot_before = (study / "gui_jam.png").stat().st_mtime_ns if (study / "gui_jam.png").exists() else None
+    (study / "fig_backup.png").write_bytes(b"mine")  # a user's: kept (issue 82, probe 8, J24: every fig*.png went)
+    (study / "fig5_flow_density_t9.png").write_bytes(b"old")  # a demand this study no longer runs: goes
     cmd = [sys.executable, "-m", "coopsumo", "scenario1", *TINY, "--out", str(study)]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
                          env=env_with_display(display_or_none))  # fmt: skip
@@ -136,6 +138,8 @@ def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) 
     assert model.stat().st_mtime_ns == before and run_summary.stat().st_mtime_ns == run_before
     if shot_before is not None:  # the same sumo-gui screenshot is reused too
         assert (study / "gui_jam.png").stat().st_mtime_ns == shot_before
+    assert (study / "fig_backup.png").read_bytes() == b"mine" and not (study / "fig5_flow_density_t9.png").exists()
+    (study / "fig_backup.png").unlink()
 
 
 def test_report_shows_sumo_guis_screenshot_of_the_jam(study: Path, gui_display: str) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -338,6 +339,10 @@ def comparison_pairs(plan: Plan, rows: pd.DataFrame) -> tuple[list[tuple[str, st
     return pairs, coop
 
 
+DEMAND_FIGURE = re.compile(r"(fig5_flow_density|fig_recovery)_t[0-9.]+\.png")
+"""the names of the figures drawn per demand (a user's fig_backup.png beside them stays: issue 82, probe 8, J24)"""
+
+
 def _demand_figures(root: Path, plan: Plan, shown_runs: list[Run], learned: list[str]) -> dict[str, str]:
     """Fig. 5 (flow-density) and the recovery figure per demand, from the first model's first evaluation seed."""
     from coopsumo.report.analysis import flow_density, insertion_backlog, read_detectors, section_speed_bins
@@ -346,8 +351,8 @@ def _demand_figures(root: Path, plan: Plan, shown_runs: list[Run], learned: list
     acc, dt = shown_runs[0].cfg.accident, shown_runs[0].cfg.control.dt_s
     window = (acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt)
     figures: dict[str, str] = {}
-    for name in [p.name for p in root.glob("fig*.png")]:
-        (root / name).unlink()  # figures of an earlier study with other demands must not stay beside this one
+    for path in [p for p in root.iterdir() if DEMAND_FIGURE.fullmatch(p.name) and p.is_file()]:
+        path.unlink()  # figures of an earlier study with other demands must not stay beside this one; only these
     for t_up in plan.t_ups:
         firsts = [(r.label, r.out) for r in shown_runs if r.seed == plan.seeds[0] and r.t_up == t_up]
         fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, out in firsts}
