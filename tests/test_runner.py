@@ -398,3 +398,20 @@ def test_a_record_that_is_a_pipe_is_rerun_without_waiting_on_it(
     assert cell_records.reusable_keys(tmp_path, specs_of([1]), "study", ("v", "n")) == set()
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "is not a regular file; rerunning it" in err[0]
+
+
+def test_sigterm_during_a_studys_cells_ends_with_its_own_exit_code(capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 82, probe 8, J17: a SIGTERM while a study's workers ran became a plain KeyboardInterrupt, reported with
+    exit code 130 (SIGINT's); it keeps its signal: 143."""
+    import os
+    import signal
+    import time
+
+    from coopsumo.runio import interrupted
+    from coopsumo.studies.engine.runner import sigterm_interrupts
+
+    with pytest.raises(KeyboardInterrupt) as caught, sigterm_interrupts():
+        os.kill(os.getpid(), signal.SIGTERM)
+        time.sleep(5)  # the handler raises at once
+    assert interrupted("scenario2", caught.value) == 128 + signal.SIGTERM
+    assert capsys.readouterr().err == "scenario2: interrupted\n"

@@ -260,12 +260,15 @@ def make_backend(
 
 
 def _raise_interrupt(signum: int, _frame: FrameType | None) -> None:
-    raise KeyboardInterrupt(f"signal {signum}")
+    from coopsumo.runio import Stop
+
+    raise Stop(signum)  # a KeyboardInterrupt that keeps its signal: exit code 143 (issue 82, probe 8, J17: 130)
 
 
 @contextmanager
 def sigterm_interrupts() -> Iterator[None]:
-    """SIGTERM in the main process becomes KeyboardInterrupt, so the workers are stopped cleanly."""
+    """SIGTERM in the main process becomes KeyboardInterrupt (runio.Stop, which names it), so the workers are stopped
+    cleanly."""
     old = signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         yield
