@@ -31,6 +31,7 @@ from coopsumo.dqn_config import DQN_PRESETS, MIN_ACCIDENT_VALIDATION_STEPS, DQNC
 from coopsumo.errors import ConfigError
 from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_toml
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
+from coopsumo.studies.protocol.paired import folder_problem
 from coopsumo.validation import (
     MAX_SEEDS,
     SEED_LIST,
@@ -265,6 +266,8 @@ def read_profiles(known: dict[str, Variant], path: Path) -> tuple[dict[str, Prof
             raise at.error(f"judges {profile.judged!r}, which it does not run")
         if outside := [p[0] for p in profile.paired_with if p[0] not in profile.variants]:
             raise at.error(f"pairs {outside[0]!r}, which it does not run")
+        if problem := next(filter(None, (folder_problem(p[1]) for p in profile.paired_with)), None):
+            raise at.error(problem)  # here, naming the file (issue 82, probe 8, J19); check_paired checks it again
         if problem := profile_problem(profile, known):
             raise at.error(problem)
         profiles[name] = profile
