@@ -95,14 +95,20 @@ def test_a_studys_groups_land_in_the_model_store(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("text, share", [
-    ('{"group_size": 4, "cpu_s": 12.5}', 12.5), ('{"cpu_s": 1e300}', None), ('{"cpu_s": NaN}', None),
-    ('{"cpu_s": -50}', None), ('{"cpu_s": true}', None), ("[1]", None), ("{", None),
+    ('{"group_size": 4, "cpu_s": 12.5}', 12.5), ('{"group_size": 4, "cpu_s": 1e300}', None),
+    ('{"group_size": 4, "cpu_s": NaN}', None), ('{"group_size": 4, "cpu_s": -50}', None),
+    ('{"group_size": 4, "cpu_s": true}', None), ("[1]", None), ("{", None),
+    ('{"group_size": 4, "cpu_s": 600000}', None), ('{"group_size": "x", "cpu_s": 12.5}', None),
+    ('{"group_size": 0, "cpu_s": 12.5}', None), ('{"cpu_s": 12.5}', None),
 ])  # fmt: skip
 def test_a_groups_cost_record_outside_its_limits_is_left_out_in_one_line(
         text: str, share: float | None, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Also a share its group could not spend in its training's wall time (issue 82, probe 8, J11: 600,000 s of a
+    2 s training made a report's 166.67 core-hours) and a group size that is no count of models."""
     from coopsumo.studies.engine.groups import group_cpu_s, groups_cpu_s
 
     (tmp_path / "m").mkdir()
+    (tmp_path / "m" / "train_summary.json").write_text('{"wall_seconds": 2.2}')
     (tmp_path / "m" / "group_cost.json").write_text(text)
     assert group_cpu_s(tmp_path / "m") == share and groups_cpu_s([tmp_path / "m", tmp_path / "m"]) == (share or 0.0)
     err = capsys.readouterr().err.splitlines()

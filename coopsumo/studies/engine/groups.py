@@ -65,20 +65,43 @@ MAX_GROUP_CPU_S = 7 * 86_400.0
 
 def group_cpu_s(folder: Path) -> float | None:
     """A stored model's share of its group's CPU seconds (GROUP_COST), or None when it was trained alone or its
-    record is damaged (not a JSON object with a number from 0 to MAX_GROUP_CPU_S: one line naming the file, and the
-    cost is left out)."""
+    record is damaged (one line naming the file, and the cost is left out): not a JSON object with a group size of
+    at least 1 and a share from 0 to MAX_GROUP_CPU_S, or a share above what the group's processes could spend in its
+    training's wall time (train_summary.json's wall_seconds: K worlds and one update process, at most a core each,
+    make at most 2 x the wall time a member; issue 82, probe 8, J11: 600,000 s for a training of 2 s was counted)."""
     path = folder / GROUP_COST
     if not path.is_file():
         return None
     try:
-        cost = read_json(path)["cpu_s"]
+        record = read_json(path)
+        cost, size = record["cpu_s"], record["group_size"]
     except (OSError, ValueError, KeyError, TypeError):
-        cost = None
-    if isinstance(cost, (int, float)) and not isinstance(cost, bool) and 0.0 <= cost <= MAX_GROUP_CPU_S:
+        cost = size = None
+    number = isinstance(cost, (int, float)) and not isinstance(cost, bool)
+    why = None if number and 0.0 <= cost <= MAX_GROUP_CPU_S else f"cpu_s must be a number from 0 to " \
+        f"{MAX_GROUP_CPU_S:g} s"  # fmt: skip
+    if why is None and not (isinstance(size, int) and not isinstance(size, bool) and size >= 1):
+        why = f"group_size must be a whole number of models, got {size!r}"
+    wall = _wall_seconds(folder)
+    if why is None and wall is not None and cost > 2.0 * wall + WALL_SLACK_S:
+        why = f"cpu_s {cost:g} is more than its group could spend in its training's {wall:g} s"
+    if why is None:
         return float(cost)
-    print(f"coopsumo: {path.resolve()} is damaged (cpu_s must be a number from 0 to {MAX_GROUP_CPU_S:g} s): its "
-          "training's cost is left out", file=sys.stderr)  # fmt: skip
+    print(f"coopsumo: {path.resolve()} is damaged ({why}): its training's cost is left out", file=sys.stderr)
     return None
+
+
+WALL_SLACK_S = 60.0
+"""what a group member may spend beyond twice its training's wall time (its processes' start and end)"""
+
+
+def _wall_seconds(folder: Path) -> float | None:
+    """The training's wall time in its train_summary.json, or None when it cannot be read (its own check's)."""
+    try:
+        wall = read_json(folder / "train_summary.json").get("wall_seconds")
+    except (OSError, ValueError, AttributeError):
+        return None
+    return float(wall) if isinstance(wall, (int, float)) and not isinstance(wall, bool) and wall >= 0 else None
 
 
 def groups_cpu_s(folders: Iterable[Path]) -> float:
