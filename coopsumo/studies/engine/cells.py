@@ -55,6 +55,25 @@ def run_cells(specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn, fail
                     backend=backend, address=address, progress=progress, desc=desc)
 
 
+def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> list[dict[str, Any]]:
+    """The cells of `specs` the study root `root` has still to run, in their order: every cell but those whose record
+    is reusable (records.reusable_keys, with the summary fields `required`), whose training's link still leads to its
+    model (model_store.repointed_trainings) and whose training's logs read back (spoiled_logs: the studies that draw
+    them, learning and protocol); ROOT/cells is made first (UsageError naming `root` when it cannot be)."""
+    from coopsumo.errors import UsageError
+    from coopsumo.studies.engine.model_store import repointed_trainings
+    from coopsumo.studies.engine.trainings import spoiled_logs
+
+    try:
+        (root / "cells").mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
+    done = reusable_keys(root, specs, prog, required)
+    done -= repointed_trainings(root, [s for s in specs if s["key"] in done], prog)  # linked elsewhere
+    done -= spoiled_logs(root, [s for s in specs if s["key"] in done], prog)  # its figures and diagnosis draw them
+    return [s for s in specs if s["key"] not in done]
+
+
 def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn,
              failed_record: FailedRecord, *, required: Sequence[str], roads: Iterable[RoadConfig] = (),
              workers: int = 2, backend: str = "local", address: str | None = None, progress: bool = True,

@@ -129,8 +129,7 @@ def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> N
 # -- the study -------------------------------------------------------------------------------------
 def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
-    from coopsumo.studies.engine.cells import run_todo
-    from coopsumo.studies.engine.trainings import todo_cells
+    from coopsumo.studies.engine.cells import run_todo, todo_cells
 
     start = time.perf_counter()
     root = root.resolve()

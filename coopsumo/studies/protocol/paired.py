@@ -8,20 +8,12 @@ not paired (report.committed_runs), as beside an installed wheel."""
 
 from __future__ import annotations
 
-from pathlib import PurePath
 from typing import Any
 
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json
 from coopsumo.record_schemas import PROTOCOL_STUDY, RecordError
-
-
-def folder_problem(folder: str) -> str | None:
-    """Why a paired_with folder (a path relative to results/) does not name a folder under results/, or None."""
-    path = PurePath(folder)
-    if not folder or path.is_absolute() or ".." in path.parts:
-        return f"paired_with folder {folder!r} is not a folder under results/ (a relative path without '..')"
-    return None
+from coopsumo.studies.protocol.plan import folder_problem
 
 
 def check_paired(profile: Any, results: Any = None) -> None:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, fields, replace
 from itertools import product
-from pathlib import Path
+from pathlib import Path, PurePath
 from typing import Any, get_type_hints
 
 from coopsumo.agents.conditioning import world_alpha
@@ -31,7 +31,6 @@ from coopsumo.dqn_config import DQN_PRESETS, MIN_ACCIDENT_VALIDATION_STEPS, DQNC
 from coopsumo.errors import ConfigError
 from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_toml
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
-from coopsumo.studies.protocol.paired import folder_problem
 from coopsumo.validation import (
     MAX_SEEDS,
     SEED_LIST,
@@ -272,6 +271,14 @@ def read_profiles(known: dict[str, Variant], path: Path) -> tuple[dict[str, Prof
             raise at.error(problem)
         profiles[name] = profile
     return profiles, current
+
+
+def folder_problem(folder: str) -> str | None:
+    """Why a paired_with folder (a path relative to results/) does not name a folder under results/, or None."""
+    path = PurePath(folder)
+    if not folder or path.is_absolute() or ".." in path.parts:
+        return f"paired_with folder {folder!r} is not a folder under results/ (a relative path without '..')"
+    return None
 
 
 def variants() -> dict[str, Variant]:

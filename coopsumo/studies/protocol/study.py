@@ -129,8 +129,7 @@ def accident_measures(run_dir: Path, cfg: SimConfig, departed: int) -> dict[str,
 # -- the study -------------------------------------------------------------------------------------
 def run_study(profile: Profile, root: Path, backend_name: str = "local", workers: int = 2,
               address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
-    from coopsumo.studies.engine.cells import run_todo
-    from coopsumo.studies.engine.trainings import todo_cells
+    from coopsumo.studies.engine.cells import run_todo, todo_cells
     from coopsumo.studies.protocol import report as protocol_report
 
     start = time.perf_counter()
