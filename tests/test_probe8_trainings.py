@@ -75,7 +75,10 @@ def test_the_rule_takes_what_a_training_writes_and_names_the_first_entry_it_does
             (out / first).unlink()  # a folder where a training writes a file
         write(out, added)
         assert foreign_entry(out) == f"holds {first}, which no training writes", added
-        shutil.rmtree(out / first) if (out / first).is_dir() else (out / first).unlink()
+        if (out / first).is_dir():
+            shutil.rmtree(out / first)
+        else:
+            (out / first).unlink()
     (out / "snapshots/step100/model.pt").unlink()
     (out / "snapshots/step100/model.pt").symlink_to(tmp_path)
     assert foreign_entry(out) == f"holds snapshots/step100/model.pt, a link to {tmp_path.resolve()}, which no " \
