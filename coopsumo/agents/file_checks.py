@@ -387,19 +387,6 @@ def resume_problem(out: Path, state: Mapping[str, Any]) -> str | None:
     return None
 
 
-TRAIN_ENTRIES = frozenset({".coopsumo-run.json", "config.json", "checkpoint.pt", "train_log.csv", "model.pt",
-                           "model_last.pt", "train_summary.json", "summary.json", "validation.csv", "snapshots", "sumo",
-                           "eval", "tensorboard"})  # fmt: skip
-"""what a training writes into its folder (and the temporary '*.tmp' of a write a kill cut short)"""
-
-
-def foreign_entry(out: Path) -> str | None:
-    """The first entry of the training folder `out` that no training writes (a user's file put there), or None: a
-    resume would list it in the folder's marker as the training's own."""
-    return next((p.name for p in sorted(out.iterdir()) if p.name not in TRAIN_ENTRIES and not p.name.endswith(".tmp")),
-                None)  # fmt: skip
-
-
 def prepare_resume(out: Path, step: int) -> None:
     """Make the training folder `out` ready to continue from a checkpoint at `step`: train_log.csv rows past it
     dropped (truncate_log), and the temporary files of writes a kill cut short ('*.tmp') removed."""

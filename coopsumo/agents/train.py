@@ -35,9 +35,10 @@ from coopsumo.agents.decisions import ActionHold, offered
 from coopsumo.agents.dqn import Learner
 from coopsumo.agents.dqn_policy import DQNPolicy
 from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
-from coopsumo.agents.file_checks import ended_training, foreign_entry, prepare_resume, resume_problem
+from coopsumo.agents.file_checks import ended_training, prepare_resume, resume_problem
 from coopsumo.agents.model_file import load_error_text, save_model
 from coopsumo.agents.tb_log import LOG_FIELDS, Window, open_log
+from coopsumo.agents.training_files import foreign_entry
 from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import GroupTicket, LearnerProcessError, attach_updates
 from coopsumo.config import TrainConfig, first_difference, to_dict, train_config_from_dict
@@ -139,8 +140,8 @@ class Trainer:
         if (isinstance(dqn, dict) and "greedy_prob" in dqn) or "decisions" not in learner:
             raise UsageError(f"checkpoint {path} was written by a coopsumo before learner presets and cannot be "
                              "resumed exactly; train again without --resume")  # fmt: skip
-        if (name := foreign_entry(out)) is not None:  # the finished marker would list it as the training's own
-            raise UsageError(f"--out {out} holds {name}, which no training writes: move it out, then --resume")
+        if (problem := foreign_entry(out)) is not None:  # at any depth, a link too (training_files; probe 8, J4, J6)
+            raise UsageError(f"--out {out} {problem}: move it out, then --resume")
         if problem := resume_problem(out, state):  # types and ranges, the log rows it keeps (file_checks)
             raise UsageError(f"{problem}; train again without --resume")
         return state

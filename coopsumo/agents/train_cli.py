@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.agents.tb_log import TensorBoardFlag
+from coopsumo.agents.training_files import foreign_entry
 from coopsumo.config import (
     MAX_LANES,
     MIN_LANES,
@@ -62,12 +63,34 @@ from coopsumo.validation import (
 def check_new_training(out: Path) -> None:
     """A new training (no --resume) never overwrites a training it would have to start over on: UsageError when
     `out` holds an interrupted one (its checkpoint.pt, or that of a new training a coopsumo before this rule was
-    building beside a finished one, retrain_folder) or a finished one (its model.pt)."""
+    building beside a finished one, retrain_folder) or a finished one (its model.pt). A folder it starts over in (an
+    interrupted training's without a checkpoint) must hold only what a training writes, no link, and a config.json
+    of a training (training_files.foreign_entry, config_problem; issue 82, probe 8, J5: a user's config.json was
+    replaced and notes.txt listed in the finished marker as the training's own)."""
     if (out / "checkpoint.pt").exists() or (retrain_folder(out.resolve()) / "checkpoint.pt").exists():
         raise UsageError(f"--out {out}: there is an interrupted training here: --resume, or another --out")
     if (out / "model.pt").exists() or finished_run(out, "train"):
         raise UsageError(f"--out {out}: there is a finished training here, which a new one would replace: another "
                          "--out, or remove the folder yourself")  # fmt: skip
+    if out.is_dir() and (problem := foreign_entry(out) or config_problem(out)) is not None:
+        raise UsageError(f"--out {out} {problem}, and is left alone (a new training there would replace it, write "
+                         "through it or list it as its own): move it away or pick another --out")  # fmt: skip
+
+
+def config_problem(out: Path) -> str | None:
+    """Why the config.json of the training folder `out` is not one a training wrote (a phrase), or None: it records
+    no training's configuration (a user's {"mine": 1}, which a new training would replace). A training writes it whole
+    (files.write_atomic) before its first checkpoint; none there is fine."""
+    path = out / "config.json"
+    if not os.path.lexists(path):
+        return None
+    try:
+        recorded = read_json(path)
+    except (OSError, ValueError):
+        recorded = None
+    if isinstance(recorded, dict) and isinstance(recorded.get("config"), dict):
+        return None
+    return "holds config.json, which records no training's configuration"
 
 
 def store_problem(out: Path) -> str | None:

@@ -229,33 +229,24 @@ def check_entry(folder: Path) -> None:
                          "that model; it is left alone: remove the link and run again")  # fmt: skip
     if (problem := foreign_entry(folder)) is not None:
         raise UsageError(f"{folder}, a model's folder in the model store, {problem}, and is left alone (a training "
-                         "there would replace or list it as its own): move it away and run again")  # fmt: skip
+                         "there would replace it, write through it or list it as its own): move it away and run "
+                         "again")  # fmt: skip
 
 
 def foreign_entry(folder: Path) -> str | None:
     """Why the store's model folder `folder` holds what no training writes (a phrase), or None: a file where the
-    folder belongs, a marker of another command, an entry that is not a training's (file_checks.TRAIN_ENTRIES, the
-    group's GROUP_COST, a temporary file), or one in its sumo/ or eval/ that is not a run's (run_dirs.RUN_OUTPUTS;
-    issue 82, probe 7, I6: a user's folder of that name was trained into, and a retrain listed notes.txt as its own)."""
-    from fnmatch import fnmatchcase
-
-    from coopsumo.agents.file_checks import TRAIN_ENTRIES
-    from coopsumo.run_dirs import RUN_OUTPUTS
+    folder belongs, a marker of another command, or, at any depth, an entry that is not a training's or a link
+    (training_files.foreign_entry, with the group's GROUP_COST; issue 82, probe 7, I6: a user's folder of that name
+    was trained into, and a retrain listed notes.txt as its own; probe 8, J4, J6: a user's snapshots/step100/notes.txt
+    was deleted by a retrain, and a link sumo -> . had SUMO write into the folder itself)."""
+    from coopsumo.agents.training_files import foreign_entry as training_entry
     from coopsumo.run_markers import marker_kind
 
     if not folder.is_dir():
         return "is a file" if os.path.lexists(folder) else None
     if (kind := marker_kind(folder)) not in (None, "train"):
         return f"is the folder of a coopsumo {kind} run"
-    own = {*TRAIN_ENTRIES, GROUP_COST}
-    for entry in sorted(folder.iterdir()):
-        if entry.name not in own and not entry.name.endswith(".tmp"):
-            return f"holds {entry.name}, which no training writes"
-        if entry.name in ("sumo", "eval") and entry.is_dir() and not entry.is_symlink():
-            for inner in sorted(entry.iterdir()):
-                if not any(fnmatchcase(inner.name, pat) for pat in RUN_OUTPUTS):
-                    return f"holds {entry.name}/{inner.name}, which no training writes"
-    return None
+    return training_entry(folder, also=(GROUP_COST,))
 
 
 def check_link(link: Path) -> None:
