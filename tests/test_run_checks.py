@@ -86,6 +86,11 @@ def _drop_last_timesteps(xml: str) -> str:
     return xml[: xml.rindex("<timestep ")] + "</fcd-export>\n"
 
 
+def _one_interval_twice(xml: str) -> str:
+    line = next(ln for ln in xml.splitlines(keepends=True) if "<interval " in ln and 'begin="0.00"' in ln)
+    return xml.replace(line, line + line, 1)
+
+
 def _one_longer_trip(xml: str) -> str:
     return re.sub(r'duration="([\d.]+)"', lambda m: f'duration="{float(m.group(1)) + 30:.2f}"', xml, count=1)
 
@@ -174,6 +179,13 @@ CASES: dict[str, tuple[Callable[[Path], None], str]] = {
     "a trajectory speed of 999 m/s": (_trajectories(speed_mps=999.0), "speed_mps = 999.0 (outside 0.0 to 70.0)"),
     "a trajectory on lane 9 of 3": (_trajectories(lane=9), "lane = 9 (outside 0 to 2)"),
     "a trajectory before time 0": (_trajectories(time_s=-5.0), "time_s = -5.0"),
+    # probe 8 (issue 82, J15, J16): values each inside its limits, but no run's
+    "keep at 60 m/s on a 33.34 m/s road": (summary(mean_speed_mps=60.0), "mean_speed_mps = 60, above any vehicle's"),
+    "250 lane changes a vehicle in 40 s": (summary(lane_changes=lambda s: s["departed"] * 250,
+                                                   lane_changes_per_vehicle=250.0), "more than its"),
+    "a loop's interval twice": (text("detectors.xml", _one_interval_twice), "interval from 0 s twice"),
+    "a loop on lane 7 of 3": (text("detectors.xml", lambda x: re.sub(r'id="e1_x(\d+)_l\d+"', r'id="e1_x\1_l7"', x,
+                                                                     count=1)), "on a lane the road's 3 lanes"),
 }  # fmt: skip
 
 

@@ -73,6 +73,22 @@ def run_summary_problem(summary: dict[str, Any], cfg: dict[str, Any]) -> str | N
         return "has summary.json insertion_pending_at_end above insertion_blocked"
     if isinstance(summary.get("policy"), str) and summary["policy"] != cfg["policy"]:
         return f"has summary.json policy {summary['policy'][:60]}, but its configuration drives {cfg['policy'][:60]}"
+    return _motion_problem(num, cfg, departed, sim_s)
+
+
+def _motion_problem(num: dict[str, float], cfg: dict[str, Any], departed: float, sim_s: float) -> str | None:
+    """Why a summary's speeds or lane changes are more than the run's vehicles could do, or None: a mean speed above
+    the road's speed limit and the fastest desired speed (no vehicle drives faster), more lane changes than each
+    vehicle that departed could make one after another (a change takes control.t_change_s) (issue 82, probe 8, J15:
+    `keep` at 60 m/s on a 33.34 m/s road, 250 lane changes a vehicle in 20 s, were reused)."""
+    fastest = max(float(cfg["road"]["speed_limit_mps"]), float(cfg["demand"]["v_exp_max_kmh"]) / 3.6)
+    for key in ("mean_speed_mps", "full_road_speed_mps"):
+        if num.get(key, 0.0) > fastest + 0.01:
+            return f"has summary.json {key} = {num[key]:g}, above any vehicle's speed on its road ({fastest:g} m/s)"
+    most = departed * (sim_s / float(cfg["control"]["t_change_s"]) + 1.0)
+    if num.get("lane_changes", 0.0) > most:
+        return (f"has summary.json lane_changes = {num['lane_changes']:g}, more than its {departed:g} vehicles could "
+                f"make in {sim_s:g} s")  # fmt: skip
     return None
 
 
@@ -85,8 +101,8 @@ def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> st
     with </detector>), at least one interval, each inside the run and at most a loop period long, its numbers inside
     record_schemas.DETECTOR_INTERVAL (speeds 0-70 m/s, occupancy 0-100 %), its count at most a lane's capacity over
     the interval (a loop lies on one lane; one vehicle more for the interval's edges) and its flow the vehicles it
-    counted per hour of the interval (nVehContrib * 3600 / (end - begin), as SUMO rounds it), the last interval
-    ending with the run."""
+    counted per hour of the interval (nVehContrib * 3600 / (end - begin), as SUMO rounds it), each loop's interval
+    once and on a lane of the road, the last interval ending with the run."""
     try:
         text = read_bytes(path)
     except OSError as err:
@@ -94,11 +110,18 @@ def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> st
     if not text.rstrip().endswith(b"</detector>"):
         return "has a missing or cut-short detectors.xml"
     dt, period = float(cfg["control"]["dt_s"]), float(cfg["road"]["loop_period_s"])
-    last_end = -math.inf
+    last_end, seen, lanes = -math.inf, set(), int(cfg["road"]["lanes"])
     for match in _INTERVAL.finditer(text):
         if (problem := _interval_problem(match, sim_seconds, dt, period)) is not None:
             return f"has detectors.xml with {problem}"
-        last_end = max(last_end, float(dict(_ATTRIBUTE.findall(match.group(1)))[b"end"]))
+        attrs = dict(_ATTRIBUTE.findall(match.group(1)))
+        loop, begin = attrs[b"id"].decode(), float(attrs[b"begin"])
+        if int(loop.rsplit("_l", 1)[1]) >= lanes:  # (issue 82, probe 8, J16: both were reused and drawn)
+            return f"has detectors.xml with loop {loop} on a lane the road's {lanes} lanes do not have"
+        if (loop, begin) in seen:
+            return f"has detectors.xml with loop {loop}'s interval from {begin:g} s twice"
+        seen.add((loop, begin))
+        last_end = max(last_end, float(attrs[b"end"]))
     if last_end == -math.inf:
         return "has a detectors.xml without an interval"
     if abs(last_end - sim_seconds) > dt / 2:
