@@ -82,10 +82,10 @@ def learner_lr(folder: Path) -> None:
 
 
 EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
-    "runs.csv edited to 40 m/s, evals.csv untouched": (
-        lambda f: edit_table(f, "runs.csv", lambda t: speed(t, 40.0)), "but its 3 evaluations pool to"),
-    "evals.csv edited to 45 m/s, runs.csv untouched": (
-        lambda f: edit_table(f, "evals.csv", lambda t: speed(t, 45.0)), "but its 3 evaluations pool to"),
+    "runs.csv edited to 30 m/s, evals.csv untouched": (
+        lambda f: edit_table(f, "runs.csv", lambda t: speed(t, 30.0)), "but its 3 evaluations pool to"),
+    "evals.csv edited to 31 m/s, runs.csv untouched": (
+        lambda f: edit_table(f, "evals.csv", lambda t: speed(t, 31.0)), "but its 3 evaluations pool to"),
     "evals.csv speeds of 999 m/s": (
         lambda f: edit_table(f, "evals.csv", lambda t: speed(t, 999.0)),
         "column mean_speed_mps must be a finite number >= 0 and <= 70 (m/s), got 999.0"),
@@ -220,6 +220,13 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     "sweep.json with 100 cells ok and none failed of 152": (
         lambda f: edit_json(f, lambda m: m.update(cells_ok=100, cells_failed=0)),
         "sweep.json has cells_ok = 100 and cells_failed = 0, which do not add up to its cells = 152"),
+    # issue 82, probe 8, J15: values inside each column's limits that no run on the cell's road gives
+    "a model at 60 m/s on a 33.34 m/s road in both tables": (
+        lambda f: [edit_table(f, name, lambda t: speed(t, 60.0)) for name in ("runs.csv", "evals.csv")],
+        "has mean_speed_mps = 60.0 for L4_T2_a32_s1, above any vehicle's speed on its road (33.34 m/s)"),
+    "a full-road speed without its start": (
+        lambda f: edit_table(f, "evals.csv", lambda t: t.assign(full_road_from_s=[None, *t["full_road_from_s"][1:]])),
+        "evals.csv has full_road_speed_mps and full_road_from_s of"),
 }  # fmt: skip
 """each case: how the part L4b is edited, and what the refusal says"""
 

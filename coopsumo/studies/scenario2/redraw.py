@@ -144,7 +144,8 @@ def _read_part(folder: Path) -> Part:
     except (ValueError, ArithmeticError, LookupError) as err:  # ConfigError, a load of 0, an unknown preset
         raise UsageError(f"--merge: {folder}'s sweep.json holds a profile no sweep runs ({type(err).__name__}: "
                          f"{err})") from None  # fmt: skip
-    if problem := _meta_problem(meta, profile, len(specs)) or _table_problem(meta, profile, specs, runs, evals):
+    if problem := _meta_problem(meta, profile, len(specs)) or _table_problem(meta, profile, specs, runs, evals) \
+            or _speed_problem(specs, runs, evals):  # fmt: skip
         raise UsageError(f"--merge: {folder}'s {problem}")
     return Part(folder, meta, profile, runs, evals)
 
@@ -253,6 +254,25 @@ def _table_problem(meta: dict[str, Any], profile: Profile, specs: list[dict[str,
     for name, table, schema in (("runs.csv", runs, SCENARIO2_RUNS), ("evals.csv", evals, SCENARIO2_EVALS)):
         if (problem := schema.frame_problem(table)) is not None:  # every number inside its limits (record_schemas)
             return f"{name} {problem}"
+    return None
+
+
+def _speed_problem(specs: list[dict[str, Any]], runs: pd.DataFrame, evals: pd.DataFrame) -> str | None:
+    """Why a part's runs.csv or evals.csv gives a speed no vehicle drives on its cell's road (above the road's
+    speed limit and the fastest desired speed), or a full-road speed without the moment it is measured from, as a
+    phrase after "<part>'s", or None (issue 82, probe 8, J15: 60 m/s on a 33.34 m/s road, in both tables alike)."""
+    fastest = {}
+    for spec in specs:
+        cfg = spec["config"]["evals"][0] if "evals" in spec["config"] else spec["config"]["run"]
+        fastest[spec["key"]] = max(float(cfg["road"]["speed_limit_mps"]), float(cfg["demand"]["v_exp_max_kmh"]) / 3.6)
+    for name, table in (("runs.csv", runs), ("evals.csv", evals)):
+        for row in table.to_dict("records"):
+            for column in ("mean_speed_mps", FULL_ROAD):
+                if float(row.get(column, 0.0)) > fastest[row["key"]] + 0.01:  # NaN compares False
+                    return (f"{name} has {column} = {row[column]} for {row['key']}, above any vehicle's speed on its "
+                            f"road ({fastest[row['key']]:g} m/s)")  # fmt: skip
+            if pd.isna(row.get(FULL_ROAD)) != pd.isna(row.get("full_road_from_s")):
+                return f"{name} has {FULL_ROAD} and full_road_from_s of {row['key']} not both given: edited?"
     return None
 
 
