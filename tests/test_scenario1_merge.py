@@ -146,6 +146,9 @@ def test_parts_whose_learner_was_edited_alike_are_refused(parts: list[Path], tmp
     (_rows(lambda r: pd.concat([r, r.iloc[:1]])), "holds a run twice"),
     (_rows(lambda r: r.assign(train_seed=r["train_seed"].replace(109, 111))), "lacks 30 of its plan's runs"),
     (lambda f: (f / "runs.csv").unlink(), "has no runs.csv"),
+    (_rows(lambda r: r.assign(queue_m=[999_999.0, *r["queue_m"][1:]])), "row 1 has queue_m = 999999, longer than"),
+    (_rows(lambda r: r.assign(delay_veh_h=r["tts_veh_h"] + 0.9)), "row 1 has delay_veh_h above its tts_veh_h"),
+    (_rows(lambda r: r.assign(tts_veh_h=[5e5, *r["tts_veh_h"][1:]])), "row 1 has tts_veh_h = 500000, more than"),
     (_plan(lambda r: r["plan"].update(train_seeds="105")), "plan.train_seeds must be a non-empty list of integers"),
     (_plan(lambda r: r["plan"].update(t_ups=[2.0, None])), "plan.t_ups must be"),
     (_plan(lambda r: r["plan"].update(train_seeds=[105.5])), "plan.train_seeds must be a non-empty list of integers"),
@@ -154,7 +157,8 @@ def test_parts_whose_learner_was_edited_alike_are_refused(parts: list[Path], tmp
     (lambda f: (f / "plan.json").write_text("[]"), "holds no scenario I plan.json"),
 ], ids=["a seed twice", "another plan", "another learner", "a baseline edited", "a fitted baseline beyond the "
         "tolerance", "an exact column off in its last digits", "a run missing", "a run twice",
-        "a model not in its plan", "unfinished", "seeds a string", "a demand null", "a seed not whole",
+        "a model not in its plan", "unfinished", "a queue longer than the road (probe 8, J7)",
+        "a delay above the total time spent (J7)", "5e5 veh-h in a short run (J7)", "seeds a string", "a demand null", "a seed not whole",
         "steps negative", "a learner's lr NaN", "no plan"])
 def test_a_part_that_does_not_belong_is_refused_in_one_line(edit: Callable[[Path], Any], words: str,
                                                             parts: list[Path], tmp_path: Path,

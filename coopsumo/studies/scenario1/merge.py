@@ -82,7 +82,31 @@ def _part(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
         runs = SCENARIO1_RUNS.read(folder / "runs.csv")
     except ValueError as err:
         raise UsageError(f"--merge: {folder}/runs.csv: {err}") from None
+    if problem := values_problem(recorded["plan"], runs):
+        raise UsageError(f"--merge: {folder}/runs.csv {problem}")
     return recorded, runs
+
+
+def values_problem(plan: dict[str, Any], runs: pd.DataFrame) -> str | None:
+    """Why a part's runs.csv holds a row no run of its plan gives though each value is inside its column's limits
+    (study_tables.SCENARIO1_RUNS), as words after the file, or None: a queue longer than the road, a delay or a
+    waiting time above the total time spent, more total time spent than every vehicle its demand sends being on the
+    road the whole run (issue 82, probe 8, J7: a 999,999 m queue on a 2 km road, a delay above the total time spent,
+    5e5 veh-h in a 20 s run were merged; a wave onset share without a counted wave is a real run's)."""
+    from coopsumo.config import ControlConfig, RoadConfig
+
+    sim_s = float(plan["steps"]) * ControlConfig().dt_s
+    road_m = RoadConfig().length_m
+    for i, row in enumerate(runs.to_dict("records"), start=1):
+        most = (sim_s / float(row["t_up_s"]) + 1.0) * int(plan["lanes"]) * sim_s / 3600.0
+        checks = ((row["queue_m"] > road_m + 1.0, f"queue_m = {row['queue_m']:g}, longer than the {road_m:g} m road"),
+                  (row["delay_veh_h"] > row["tts_veh_h"] + 1e-9, "delay_veh_h above its tts_veh_h"),
+                  (row["waiting_veh_h"] > row["tts_veh_h"] + 1e-9, "waiting_veh_h above its tts_veh_h"),
+                  (row["tts_veh_h"] > most, f"tts_veh_h = {row['tts_veh_h']:g}, more than its demand's vehicles "
+                                            f"spend in a {sim_s:g} s run ({most:.3g})"))
+        if why := next((text for bad, text in checks if bad), None):  # NaN compares False: a blank value passes
+            return f"row {i} has {why}"
+    return None
 
 
 def _without_seeds(plan: dict[str, Any]) -> dict[str, Any]:
