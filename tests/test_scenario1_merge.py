@@ -158,8 +158,8 @@ def test_parts_whose_learner_was_edited_alike_are_refused(parts: list[Path], tmp
 ], ids=["a seed twice", "another plan", "another learner", "a baseline edited", "a fitted baseline beyond the "
         "tolerance", "an exact column off in its last digits", "a run missing", "a run twice",
         "a model not in its plan", "unfinished", "a queue longer than the road (probe 8, J7)",
-        "a delay above the total time spent (J7)", "5e5 veh-h in a short run (J7)", "seeds a string", "a demand null", "a seed not whole",
-        "steps negative", "a learner's lr NaN", "no plan"])
+        "a delay above the total time spent (J7)", "5e5 veh-h in a short run (J7)", "seeds a string", "a demand null",
+        "a seed not whole", "steps negative", "a learner's lr NaN", "no plan"])
 def test_a_part_that_does_not_belong_is_refused_in_one_line(edit: Callable[[Path], Any], words: str,
                                                             parts: list[Path], tmp_path: Path,
                                                             capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
