@@ -227,6 +227,18 @@ def _learners(value: object) -> Callable[[Path], object]:
     return spoil
 
 
+def _profile_and_stats(profile: dict, change: dict) -> Callable[[Path], object]:
+    """study.json's profile given `profile`'s fields, and the change to stats.csv's first row (_stats)."""
+
+    def spoil(folder: Path) -> None:
+        study = json.loads((folder / "study.json").read_text())
+        study["profile"].update(profile)
+        (folder / "study.json").write_text(json.dumps(study))
+        _stats(change)(folder)
+
+    return spoil
+
+
 def _stats_of_another_learner(folder: Path) -> None:
     table = pd.read_csv(folder / "stats.csv")
     table["variant"] = "w"
@@ -291,6 +303,15 @@ SPOILED = {
                            "drives with ensemble_snapshots 2.5, which no policy takes: it must be a whole number"),
     "its learner gone from study.json": (_learners({}),
                                          "stats.csv has rows of learner v, which study.json does not name"),
+    # issue 82, probe 8, J12: each value inside its limits, the row none its study made
+    "an IQM far outside its interval": (_stats({"iqm": 25.0, "low": 20.25, "high": 20.8, "worst": 20.0}),
+                                        "row 1 (free, v) has iqm 25 far outside its interval 20.25-20.8"),
+    "low above high": (_stats({"low": 21.0, "high": 19.0}), "row 1 (free, v) has low 21 above high 19"),
+    "a worst model better than the IQM": (_stats({"worst": 30.0}), "row 1 (free, v) has worst 30 better than its iqm"),
+    "50 models of 10 seeds": (_profile_and_stats({"seeds": list(range(10)), "t_ups": [2.0]}, {"models": 50}),
+                              "row 1 (free, v) has 50 models, more than its study's 20"),
+    "a demand the study did not run": (_profile_and_stats({"seeds": list(range(10)), "t_ups": [1.0]}, {}),
+                                       "row 1 (free, v) has t_up 2, a demand its study did not run"),
 }  # fmt: skip
 
 

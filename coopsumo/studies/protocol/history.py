@@ -124,7 +124,32 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
     if unknown := sorted(set(stats["variant"].astype(str)) - set(study["learners"])):
         raise RecordError(f"{path} has rows of learner {unknown[0][:60]}, which study.json does not name; restore it "
                           "or move the study away")  # fmt: skip
+    if problem := stats_problem(study["profile"], stats):
+        raise RecordError(f"{path} {problem}; restore it or move the study away")
     return study, stats
+
+
+def stats_problem(profile: dict[str, Any], stats: pd.DataFrame) -> str | None:
+    """Why stats.csv holds a row its study (its study.json's profile) cannot have made though each value lies inside
+    its column's limits, or None: a demand the study did not run, more models than its seeds and evaluation sets, an
+    interval whose low end is above its high end, an IQM farther outside its own interval than the interval is wide
+    (a bootstrap's interval holds its estimate, give or take), a worst model better than the IQM (issue 82, probe 8,
+    J12: an IQM of 25 m/s beside an interval of 20.25-20.80, 50 models of 10 seeds, a demand never run were
+    printed and counted in the verdict)."""
+    t_ups = {float(t) for t in profile.get("t_ups", [])}
+    most = len(profile.get("seeds", [])) * max(len(profile.get("eval_offsets") or [0]), 1)
+    for i, row in enumerate(stats.to_dict("records"), start=1):
+        low, high, iqm, width = row["low"], row["high"], row["iqm"], row["high"] - row["low"]
+        worse = row["worst"] > iqm if row["scenario"] == "free" else row["worst"] < iqm  # speed up, veh-h down
+        checks = ((t_ups and float(row["t_up"]) not in t_ups, f"t_up {row['t_up']:g}, a demand its study did not run"),
+                  (most and row["models"] > most, f"{row['models']} models, more than its study's {most}"),
+                  (low > high, f"low {low:g} above high {high:g}"),
+                  (not low - width - 1e-9 <= iqm <= high + width + 1e-9, f"iqm {iqm:g} far outside its interval "
+                                                                          f"{low:g}-{high:g}"),
+                  (worse, f"worst {row['worst']:g} better than its iqm {iqm:g}"))
+        if why := next((text for bad, text in checks if bad), None):
+            return f"row {i} ({row['scenario']}, {row['variant']}) has {why}"
+    return None
 
 
 def learner_problem(learner: dict[str, Any]) -> str | None:
