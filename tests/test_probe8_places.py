@@ -111,3 +111,28 @@ def test_a_model_store_inside_an_unmarked_study_is_refused(tmp_path: Path) -> No
     problem = claimed_problem(study / "store", "'U/store'", "pick a model store elsewhere")
     assert problem is not None and f"lies inside {study}, a coopsumo study's folder" in problem
     assert claimed_problem(tmp_path / "store", "'store'", "pick a model store elsewhere") is None
+
+
+def test_scenario1_refuses_a_spoiled_store_model_before_writing_anything(tmp_path: Path,
+                                                                         monkeypatch: pytest.MonkeyPatch,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    """J21: a store model whose sumo/ is a link to a user's folder was refused only after the study had written its
+    marker and plan.json into --out (and, before the training-folder rule, its cells failed on every rerun)."""
+    from coopsumo.config import to_dict
+    from coopsumo.studies.engine.model_store import model_id
+    from coopsumo.studies.scenario1.plan import train_config
+    from coopsumo.studies.scenario1.study import build_parser, plan_from_args
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
+    argv = ["--quick", "--alphas", "0", "--t-up", "2", "--mobil-p", "0", "--seeds", "1", "--train-seeds", "1",
+            "--workers", "1", "--steps", "200", "--train-steps", "200", "--quiet", "--out", "s1b"]  # fmt: skip
+    plan = plan_from_args(build_parser().parse_args(argv))
+    folder = tmp_path / "models" / model_id(to_dict(train_config(plan, 0.0, plan.presets[0], plan.train_seeds[0])))
+    folder.mkdir(parents=True)
+    (tmp_path / "user").mkdir()
+    (tmp_path / "user" / "detectors.xml").write_text("mine")
+    (folder / "sumo").symlink_to(tmp_path / "user")
+    before = listing(tmp_path)
+    one_line(capsys, run("scenario1", argv), f"{folder}, a model's folder in the model store", "a link to")
+    assert listing(tmp_path) == before and not (tmp_path / "s1b").exists()

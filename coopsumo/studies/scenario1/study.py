@@ -233,6 +233,7 @@ def main(argv: list[str] | None = None) -> int:
             args.out = default_model_out(study_out(plan))
         if (Path(args.out) / "merge.json").exists():
             raise UsageError(f"--out {args.out} holds a merge of scenario I parts (merge.json): pick another --out")
+        _check_store_models(plan, Path(args.out))  # before anything is written (issue 82, probe 8, J21)
         # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
         with study_root(args.out, "scenario1", profile_study(plan.profile, presets=plan.presets),
                         recorded_profile("plan.json", "plan", "profile", presets=("plan", "presets")),
@@ -240,6 +241,22 @@ def main(argv: list[str] | None = None) -> int:
             return run_study(plan, args.out, args.workers, args.backend, args.address, progress=not args.quiet)
 
     return run_cli("scenario1", body)
+
+
+def _check_store_models(plan: Plan, out: Path) -> None:
+    """UsageError naming the first of the plan's models whose folder in the model store (beside `out`, or
+    $COOPSUMO_MODELS) is not a training's to use or write (model_store.check_entry: a link, a user's file in it), before
+    the study writes anything; its place and the store's are checked by study_root(trains=True)."""
+    from coopsumo.run_dirs import check_out_path, check_study_place
+    from coopsumo.studies.engine.model_store import check_entry, model_id
+
+    check_out_path(out)
+    check_study_place(out)
+    store = store_for(out)
+    for preset in plan.presets:
+        for alpha in plan.alphas:
+            for train_seed in plan.train_seeds:
+                check_entry(store / model_id(to_dict(train_config(plan, alpha, preset, train_seed))))
 
 
 MERGE_ONLY = ("profile", "quick", "full", "regime_map", "seeds", "train_seeds", "t_ups", "mobil_ps", "train_steps",
