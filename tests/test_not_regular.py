@@ -108,9 +108,11 @@ def test_a_run_folder_whose_marker_is_a_pipe_is_refused(tmp_path: Path, capsys: 
     assert sorted(p.name for p in out.iterdir()) == [RUN_MARKER]
 
 
-def test_a_marker_that_is_a_pipe_claims_no_folder(tmp_path: Path) -> None:
+def test_a_marker_that_is_a_pipe_is_not_waited_on(tmp_path: Path) -> None:
     """The probe's r_marker_fifo_ancestor and r_s2_marker_fifo: the check of every ancestor's marker (owners) and a
-    study root's marker read it as they read an unreadable one: it claims nothing (a study root's is written anew)."""
+    study root's marker read it as they read an unreadable one, without waiting on it: a study root's claims no study
+    (it is written anew); an ancestor's claims its folder as a damaged marker does, so nothing is written below it
+    (issue 82, probe 8, J2: `simulate --out s2/sim` below a damaged marker was written)."""
     from coopsumo.owners import owned_problem
     from coopsumo.run_dirs import held_study
     from coopsumo.run_markers import marker_kind
@@ -118,7 +120,8 @@ def test_a_marker_that_is_a_pipe_claims_no_folder(tmp_path: Path) -> None:
     (tmp_path / "a").mkdir()
     _entry("pipe", tmp_path / "a" / RUN_MARKER)
     assert marker_kind(tmp_path / "a") is None and held_study(tmp_path / "a") is None
-    assert owned_problem(tmp_path / "a" / "b" / "sim", "--out a/b/sim") is None
+    problem = owned_problem(tmp_path / "a" / "b" / "sim", "--out a/b/sim")
+    assert problem is not None and f"lies inside {tmp_path / 'a'}, whose .coopsumo-run.json cannot be read" in problem
 
 
 def _store_model(store: Path) -> tuple[Path, dict[str, Any]]:
