@@ -221,8 +221,8 @@ def test_a_record_naming_another_cells_training_is_rerun(tmp_path: Path, faked_t
     assert runs.loc["L2_T2_a0_s1", "train_dir"] == "train/L2_a0_s1"
 
 
-def test_a_sweep_reruns_a_record_whose_training_summary_was_edited(tmp_path: Path, faked_train: list[str],
-                                                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+def test_a_sweep_reruns_a_record_whose_training_summary_was_edited(
+        tmp_path: Path, faked_train: list[str], capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """Issue 82, probe 8, J10 (c08): scenario II reused a record whose train_summary.mean_speed_mps was edited to 25.0
     and copied it into runs.csv beside its training's own value. The cell is run again with one line, and runs.csv
     holds its training's value once more."""
@@ -432,6 +432,28 @@ def test_a_training_record_outside_its_schema_is_skipped_with_one_line(
     assert finished_trainings(root, "accident-seeds") == []
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"accident-seeds: record {path} cannot be used (field {field} must be")
+    assert err[0].endswith("; skipped"), err
+
+
+@pytest.mark.parametrize(("field", "value", "fragment"), [
+    ("mean_speed_mps", 999.0, "has train_summary mean_speed_mps must be a finite number >= 0 and <= 70 (m/s), got 999"),
+    ("collisions", -5, "has train_summary collisions must be "),
+    ("updates", "many", 'has train_summary updates = "many", not a number')])  # fmt: skip
+def test_a_training_record_the_learning_study_would_rerun_is_skipped_with_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], field: str, value: Any, fragment: str) -> None:  # fmt: skip
+    """Issue 82, probe 8, J14: accident-seeds drove the model of a learning record whose train_summary held 999 m/s
+    (or -5 collisions), which the learning study itself reruns. Skipped by the study's own check (records.cell_problem),
+    with one line naming the file and the field."""
+    from coopsumo.studies.learning.models import finished_trainings
+
+    root = learning_folder(tmp_path / "learning", ("paper",))
+    assert len(finished_trainings(root, "accident-seeds")) == 1 and capsys.readouterr().err == ""
+    path = next((root / "cells").glob("*.json"))
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "train_summary": {**record["train_summary"], field: value}}))
+    assert finished_trainings(root, "accident-seeds") == []
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"accident-seeds: record {path} cannot be used ({fragment}"), err
     assert err[0].endswith("; skipped"), err
 
 
