@@ -62,17 +62,19 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
 def logs_problem(out: Path, config: dict[str, Any], summary: Any) -> tuple[str, str] | None:
     """(the log's file name, why) when a log of the finished training `config` in `out` cannot be read back as it
     ran, else None: its train_log.csv whole and inside training_logs.LOG_RULES up to its configuration's last step
-    (training_logs.log_problem), its validation.csv (a training that selects its model) inside VALIDATION_RULES,
-    its best snapshot the one model.pt holds (`summary`: its train_summary.json). The learning study draws the one,
-    the protocol study draws and copies the other (issue 82, fifth probe, G6 and G8): a model whose logs break them is
-    trained again, as one whose train_summary.json does, not reused into a study that then stops at its figure or
-    draws 999 m/s. A log that is missing is none (finished_run faults a listed file that was deleted)."""
-    from coopsumo.agents.training_logs import log_problem, validation_problem
+    (training_logs.log_problem) and agreeing with `summary`, its train_summary.json (log_summary_problem; issue 82,
+    probe 8, J20), its validation.csv (a training that selects its model) inside VALIDATION_RULES, its best snapshot
+    the one model.pt holds. The learning study draws the one, the protocol study draws and copies the other (issue
+    82, fifth probe, G6 and G8): a model whose logs break them is trained again, as one whose train_summary.json
+    does, not reused into a study that then stops at its figure or draws 999 m/s. A log that is missing is none
+    (finished_run faults a listed file that was deleted)."""
+    from coopsumo.agents.training_logs import log_problem, log_summary_problem, validation_problem
 
     steps = config.get("sim", {}).get("steps") if isinstance(config.get("sim"), dict) else None
     if not isinstance(steps, int) or isinstance(steps, bool):
         return None  # not a training's configuration: the caller compared it with the study's
-    if (problem := log_problem(out / "train_log.csv", steps, whole=True)) is not None:
+    log = out / "train_log.csv"
+    if (problem := log_problem(log, steps, whole=True) or log_summary_problem(log, summary, steps)) is not None:
         return "train_log.csv", problem
     selected = summary.get("selected_step") if isinstance(summary, dict) else None
     if (problem := validation_problem(out / "validation.csv", steps, selected)) is not None:
