@@ -205,10 +205,16 @@ def _window_entries_problem(window: Any) -> str | None:
 
 def _window_problem(window: Mapping[str, Any]) -> str | None:
     """Why the log window's sums cannot be its steps', or None: speeds of at most SPEED_MAX_MPS per vehicle step,
-    rewards of at most REWARD_MAX in magnitude per transition (the counts' own limits: record_schemas)."""
+    rewards of at most REWARD_MAX in magnitude per transition, lane changes started and refused at most one per
+    vehicle step or transition (issue 82, probe 8, J13: 50,000 lane changes in a window of 3,943 vehicle steps were
+    resumed into train_log.csv); the counts' own limits: record_schemas."""
     if float(window["speed_sum"]) > SPEED_MAX_MPS * float(window["vehicle_steps"]):
         return (f"has a log window whose speeds sum to {window['speed_sum']:g} m/s over {window['vehicle_steps']} "
                 f"vehicle steps (at most {SPEED_MAX_MPS:g} m/s each)")  # fmt: skip
+    for name in ("lane_changes", "rejected"):
+        if float(window[name]) > max(float(window["vehicle_steps"]), float(window["samples"])):
+            return (f"has a log window of {window[name]} {name.replace('_', ' ')} over {window['vehicle_steps']} "
+                    f"vehicle steps and {window['samples']} transitions (at most one each)")  # fmt: skip
     for name in ("r_speed", "r_lane_change", "r_flow"):
         if abs(float(window[name])) > REWARD_MAX * max(float(window["samples"]), 1.0):
             return f"has a log window whose {name} sums to {window[name]:g} over {window['samples']} transitions"
