@@ -459,8 +459,8 @@ def test_resume_cuts_the_log_back_to_the_checkpoint(tmp_path: Path) -> None:
     log = tmp_path / "train_log.csv"
     rows = ["step,td_loss,wall_s"] + [f"{s},0.5,{s / 100}" for s in (250, 500, 750, 1000)]
     log.write_text("\n".join(rows) + "\n1250,0.")  # killed in the middle of writing a row
-    (tmp_path / "checkpoint.pt.tmp").write_bytes(b"half")
-    (tmp_path / ".model.pt.x1y2.tmp").write_bytes(b"half")
+    (tmp_path / ".checkpoint.pt.x1y2z3w4.tmp").write_bytes(b"half")
+    (tmp_path / ".model.pt.x1y2z3w4.tmp").write_bytes(b"half")
     (tmp_path / "keep.txt").write_text("kept\n")
     prepare_resume(tmp_path, 500)
     assert log.read_text().splitlines() == rows[:3]

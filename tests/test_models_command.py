@@ -207,6 +207,14 @@ SUMMARIES = {
     "no mean_speed_mps": ({"mean_speed_mps": DROP}, "has train_summary.json without mean_speed_mps"),
     "no updates": ({"updates": DROP}, "has train_summary.json without updates"),
     "steps 123 of 300": ({"steps": 123}, "has train_summary.json steps = 123, not its last world's 300"),
+    # issue 82, probe 8, J9: counts and a wall time its own training cannot give were reused into runs.csv
+    "departed 99999": ({"departed": 99999}, "has train_summary.json departed = 99999, more than one vehicle per lane "
+                       "and step of its last world (300 steps on 3 lanes)"),
+    "lane_changes 99999": ({"lane_changes": 99999}, "has train_summary.json lane_changes = 99999, more than one per "
+                           "vehicle and step (40 vehicles, 300 steps)"),
+    "updates 1e9": ({"updates": 10**9}, "has train_summary.json updates = 1e+09, more than 2 per step of its 300"),
+    "wall 500000 s": ({"wall_seconds": 500000}, "has train_summary.json wall_seconds = 500000, but steps_per_second "
+                      "= 100 makes its 300 steps 3 s"),
 }  # fmt: skip
 TRAINED = {"steps": 300, "departed": 40, "mean_speed_mps": 20.0, "lane_changes": 12, "collisions": 0, "updates": 20,
            "wall_seconds": 3.0, "steps_per_second": 100.0, "selected_step": 300}  # fmt: skip

@@ -16,6 +16,7 @@ import pytest
 from test_data_loss import TINY, as_json, interrupted_at_start, one_line, snapshot
 
 from coopsumo.agents import train_cli
+from coopsumo.agents.file_checks import prepare_resume
 from coopsumo.agents.training_files import foreign_entry
 from coopsumo.errors import UsageError
 from coopsumo.run_dirs import RUN_MARKER
@@ -163,3 +164,39 @@ def restore(entry: Path, tmp_path: Path) -> None:
         (entry / "eval").rmdir()
     if (tmp_path / "train_summary.json").exists():
         (tmp_path / "train_summary.json").rename(entry / "train_summary.json")
+
+
+@pytest.mark.parametrize("name", ["notes.tmp", "experiment.tmp", ".hidden.tmp", "mywork.tmp/x"])
+def test_a_users_tmp_file_in_a_training_folder_is_refused_by_name_and_kept(
+        name: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """J22: `train --resume` deleted every '*.tmp' and '.*.tmp' in the folder, a user's notes.tmp too, taking it for
+    a temporary file of a write a kill cut short; a folder mywork.tmp/ ended it in "Is a directory". Only the
+    temporaries of the training's own files ('.NAME.XXXXXXXX.tmp') are its own: anything else is refused by name
+    before the resume, every byte kept."""
+    out = tmp_path / "t"
+    interrupted_at_start(out, TINY)
+    write(out, name, ".checkpoint.pt.k2j3h4g5.tmp")  # the second: a killed write of the checkpoint, the training's
+    before = snapshot(tmp_path)
+    first = name.split("/")[0]
+    one_line(capsys, train_cli.main(["--resume", "--quiet", "--out", str(out)]),
+             f"--out {out} holds {first}, which no training writes")
+    assert snapshot(tmp_path) == before
+
+
+def test_a_resume_removes_only_the_temporaries_of_the_trainings_own_files(tmp_path: Path) -> None:
+    """J22: prepare_resume removes what a kill left of a write of the training's files, nothing else named '.tmp';
+    the rule that judges the folder takes the same names (a store's group_cost.json's too, given as its own)."""
+    own = [".checkpoint.pt.k2j3h4g5.tmp", ".train_log.csv.abcdefgh.tmp", ".model.pt.a_b1c2d3.tmp"]
+    users = ["notes.tmp", ".hidden.tmp", "checkpoint.pt.tmp", ".model.pt.short.tmp", ".notes.txt.k2j3h4g5.tmp"]
+    write(tmp_path, *own, *users)
+    prepare_resume(tmp_path, 0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(users)
+    for name in users:
+        (tmp_path / name).unlink()
+    for name in users:  # each refused by name by the rule of what a training writes
+        write(tmp_path, name)
+        assert foreign_entry(tmp_path) == f"holds {name}, which no training writes"
+        (tmp_path / name).unlink()
+    write(tmp_path, *own, ".group_cost.json.k2j3h4g5.tmp")
+    assert foreign_entry(tmp_path, also=("group_cost.json",)) is None
+    assert foreign_entry(tmp_path) == "holds .group_cost.json.k2j3h4g5.tmp, which no training writes"

@@ -19,7 +19,7 @@ import pytest
 import test_scenario2
 from test_study_commands import learning_folder
 
-from coopsumo.studies.engine.records import cell_path, checked_record, model_fields, reusable_keys
+from coopsumo.studies.engine.records import cell_path, checked_record, copied_wrong, model_fields, reusable_keys
 from coopsumo.studies.followups import accident_seeds
 from coopsumo.studies.scenario1 import accident_runs as scenario1_cells
 from coopsumo.studies.scenario1 import plan as scenario1_plan
@@ -171,6 +171,29 @@ def test_an_intact_record_is_reused_untouched(dqn_spec: dict[str, Any], tmp_path
     assert checked_record(_record(dqn_spec), scenario2.REQUIRED_SUMMARY)["status"] == "ok"
 
 
+def test_a_records_training_summary_unlike_its_trainings_file_is_rerun_with_one_line(
+        dqn_spec: dict[str, Any], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 8, J10: a record whose copy of its training's summary was edited (25 m/s against its training's
+    train_summary.json's 15.33) was reused and copied into runs.csv. The record's copy must be its training's file,
+    field for field; a training file that cannot be read is judged where the training is, not here."""
+    path = cell_path(tmp_path, dqn_spec["key"])
+    path.parent.mkdir()
+    path.write_text(json.dumps(_record(dqn_spec)))
+    own = tmp_path / "train" / str(dqn_spec.get("train_key") or dqn_spec["key"]) / "train_summary.json"
+    assert copied_wrong(tmp_path, [dqn_spec], "scenario2") == set()  # no training file: judged where it is
+    own.parent.mkdir(parents=True)
+    own.write_text(json.dumps({**TRAINED, "mean_speed_mps": 20.000000000000004}))  # the same number, as JSON rounds
+    assert copied_wrong(tmp_path, [dqn_spec], "scenario2") == set()
+    assert capsys.readouterr().err == ""
+    for edited, fragment in (({**TRAINED, "mean_speed_mps": 15.33}, "mean_speed_mps = 20.0, but its training's"),
+                             ({**TRAINED, "selected_step": 300}, "selected_step = null, but its training's")):
+        own.write_text(json.dumps(edited))
+        assert copied_wrong(tmp_path, [dqn_spec], "scenario2") == {dqn_spec["key"]}
+        lines = capsys.readouterr().err.splitlines()
+        assert lines == [f"scenario2: cell {dqn_spec['key']}: record {path} has train_summary {fragment} {own} says "
+                         f"{json.dumps(edited[fragment.split()[0]])}; rerunning it"], lines
+
+
 # -- a scenario II record whose model link was moved ------------------------------------------------------------
 faked_train = test_scenario2.faked_train
 """train() and the evaluations faked (no SUMO), as scenario II's own record tests run them"""
@@ -196,6 +219,29 @@ def test_a_record_naming_another_cells_training_is_rerun(tmp_path: Path, faked_t
     assert meta["cells_ok"] == 8 and meta["cells_run"] == 1 and faked_train[1:] == ["L2_T2_a0_s1"]
     runs = pd.read_csv(root / "runs.csv").set_index("key")
     assert runs.loc["L2_T2_a0_s1", "train_dir"] == "train/L2_a0_s1"
+
+
+def test_a_sweep_reruns_a_record_whose_training_summary_was_edited(
+        tmp_path: Path, faked_train: list[str], capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 8, J10 (c08): scenario II reused a record whose train_summary.mean_speed_mps was edited to 25.0
+    and copied it into runs.csv beside its training's own value. The cell is run again with one line, and runs.csv
+    holds its training's value once more."""
+    root = tmp_path / "sweep"
+    assert scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)["cells_ok"] == 8
+    path = cell_path(root, "L2_T2_a0_s1")
+    record = json.loads(path.read_text())
+    own = json.loads((root / record["train_dir"] / "train_summary.json").read_text())
+    path.write_text(json.dumps({**record, "train_summary": {**record["train_summary"], "mean_speed_mps": 25.0}}))
+    capsys.readouterr()
+    del faked_train[1:]
+    meta = scenario2.run_sweep(PROFILES["tiny"], root, progress=False, n_boot=20)
+    err = [line for line in capsys.readouterr().err.splitlines() if "rerunning it" in line]
+    assert err == [f"scenario2: cell L2_T2_a0_s1: record {path} has train_summary mean_speed_mps = 25.0, but its "
+                   f"training's {root / record['train_dir'] / 'train_summary.json'} says "
+                   f"{json.dumps(own['mean_speed_mps'])}; rerunning it"], err
+    assert meta["cells_ok"] == 8 and meta["cells_run"] == 1 and faked_train[1:] == ["L2_T2_a0_s1"]
+    runs = pd.read_csv(root / "runs.csv").set_index("key")
+    assert runs.loc["L2_T2_a0_s1", "train_mean_speed_mps"] == own["mean_speed_mps"]
 
 
 def test_a_train_link_pointed_at_another_model_is_rerun(tmp_path: Path, faked_train: list[str],
@@ -386,6 +432,28 @@ def test_a_training_record_outside_its_schema_is_skipped_with_one_line(
     assert finished_trainings(root, "accident-seeds") == []
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith(f"accident-seeds: record {path} cannot be used (field {field} must be")
+    assert err[0].endswith("; skipped"), err
+
+
+@pytest.mark.parametrize(("field", "value", "fragment"), [
+    ("mean_speed_mps", 999.0, "has train_summary mean_speed_mps must be a finite number >= 0 and <= 70 (m/s), got 999"),
+    ("collisions", -5, "has train_summary collisions must be "),
+    ("updates", "many", 'has train_summary updates = "many", not a number')])  # fmt: skip
+def test_a_training_record_the_learning_study_would_rerun_is_skipped_with_one_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], field: str, value: Any, fragment: str) -> None:  # fmt: skip
+    """Issue 82, probe 8, J14: accident-seeds drove the model of a learning record whose train_summary held 999 m/s
+    (or -5 collisions), which the learning study itself reruns. Skipped by the study's own check (records.cell_problem),
+    with one line naming the file and the field."""
+    from coopsumo.studies.learning.models import finished_trainings
+
+    root = learning_folder(tmp_path / "learning", ("paper",))
+    assert len(finished_trainings(root, "accident-seeds")) == 1 and capsys.readouterr().err == ""
+    path = next((root / "cells").glob("*.json"))
+    record = json.loads(path.read_text())
+    path.write_text(json.dumps({**record, "train_summary": {**record["train_summary"], field: value}}))
+    assert finished_trainings(root, "accident-seeds") == []
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"accident-seeds: record {path} cannot be used ({fragment}"), err
     assert err[0].endswith("; skipped"), err
 
 

@@ -225,6 +225,11 @@ CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
     "a log window's speeds summing to 1e300": (_set("window", "speed_sum", value=1e300), "whose speeds sum to 1e+300"),
     "a log window's flow reward 1e300": (_set("window", "r_flow", value=1e300), "whose r_flow sums to 1e+300"),
     "a log window of speeds over no vehicle step": (_speeds_without_steps, "m/s over 0 vehicle steps"),
+    # issue 82, probe 8, J13: resumed into a log row of 50,187 lane changes for 118 vehicles in 1,000 steps
+    "a log window of more lane changes than vehicle steps": (_set("window", "lane_changes", value=50000),
+                                                             "has a log window of 50000 lane changes over 0 vehicle"),
+    "a log window of more refusals than vehicle steps": (_set("window", "rejected", value=40000),
+                                                         "has a log window of 40000 rejected over 0 vehicle steps"),
     "replay grids of 255": (_set(*REPLAY, "grids", value=255), "occupancy grids outside 0-1 in its replay memory"),
     "replay next grids of 200": (_set(*REPLAY, "next_grids", value=200), "outside 0-1 in its replay memory (next_"),
     "integer online weights": (_int_bias, "has online weights 'out.bias' a torch.int64 tensor, not a tensor of floats"),

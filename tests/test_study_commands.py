@@ -56,6 +56,11 @@ def save_untrained(folder: Path, train_config: dict[str, Any]) -> None:
                   "td_loss": ["", 0.5]}).to_csv(folder / "train_log.csv", index=False)  # fmt: skip
 
 
+TRAINED = {"steps": 300, "departed": 40, "mean_speed_mps": 20.0, "lane_changes": 12, "collisions": 0, "updates": 20,
+           "wall_seconds": 3.0, "steps_per_second": 100.0}  # fmt: skip
+"""a training's summary as its record keeps it (every study record of a training holds one)"""
+
+
 def learning_folder(root: Path, variants: tuple[str, ...] = ("margin", "conditioned")) -> Path:
     """A learning study's folder as `coopsumo learning` leaves it, for training seed 0 at alpha 0: study.json, each
     training's record in cells/ and its model in train/<train_key>/ (untrained weights)."""
@@ -67,7 +72,7 @@ def learning_folder(root: Path, variants: tuple[str, ...] = ("margin", "conditio
             continue
         record = {**ablation.new_record(spec), "status": "ok",
                   "summary": {"mean_speed_mps": 20.0, "lane_changes_per_vehicle": 0.5, "collisions": 0,
-                              "teleports": 0}}  # fmt: skip
+                              "teleports": 0}, "train_summary": dict(TRAINED)}  # fmt: skip
         (root / "cells").mkdir(parents=True, exist_ok=True)
         (root / "cells" / f"{spec['key']}.json").write_text(json.dumps(record))
         save_untrained(root / "train" / spec["train_key"], spec["config"]["train"])

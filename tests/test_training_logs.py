@@ -22,12 +22,13 @@ from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.record_schemas import RecordError
 
 ROW = {"sim_time_s": 10.0, "td_loss": 0.5, "r_speed": -0.16, "r_lane_change": 0, "r_flow": 0.035, "reward": -0.13,
-       "epsilon": 0.1, "mean_speed_mps": 18.06, "vehicles": 26, "lane_changes": 9, "lane_changes_rejected": 15,
+       "epsilon": 0.1, "mean_speed_mps": 20.0, "vehicles": 26, "lane_changes": 4, "lane_changes_rejected": 15,
        "collisions": 0, "teleports": 0, "wall_s": 0.75, "alpha": 0}  # fmt: skip
 
 
 def train_log(steps: tuple[int, ...] = (100, 200, 300)) -> list[str]:
-    """A finished training's train_log.csv as train writes it (csv's \\r\\n line ends), a row per logging window."""
+    """A finished training's train_log.csv as train writes it (csv's \\r\\n line ends), a row per logging window;
+    three rows are the training of test_models_command.TRAINED (its lane changes, speed and collisions)."""
     rows = [",".join(LOG_FIELDS)] + [",".join(str({**ROW, "step": s}[f]) for f in LOG_FIELDS) for s in steps]
     return [row + "\r\n" for row in rows]
 
@@ -135,9 +136,26 @@ def test_the_best_snapshot_is_the_one_model_pt_holds(tmp_path: Path) -> None:
 CONFIG = to_dict(TrainConfig(sim=SimConfig(steps=300, seed=100, policy="dqn"), eval_steps=0))
 
 
+def _speeds(value: str) -> Callable[[list[str]], list[str]]:
+    """An edit of train_log()'s lines: every row's mean speed set to value."""
+    return lambda lines: _cell(1, "mean_speed_mps", value)(_cell(2, "mean_speed_mps", value)(
+        _cell(3, "mean_speed_mps", value)(lines)))  # fmt: skip
+
+
 @pytest.mark.parametrize(("name", "lines", "change", "fragment"), [
     ("train_log.csv", train_log(), _cell(1, "mean_speed_mps", "999"), "has mean_speed_mps = '999' in its row of "
      "step 100: it must be a finite number >= 0 and <= 70 (m/s), got 999.0"),
+    # issue 82, probe 8, J20: rows inside their columns' rules that disagree with the training's own summary
+    ("train_log.csv", train_log(), _cell(3, "lane_changes", "5000"), "has lane_changes summing to 5008 over its rows "
+     "of steps 1-300 (its training's last world), but train_summary.json says 12"),
+    ("train_log.csv", train_log(), _speeds("69.9"), "has mean_speed_mps from 69.9 to 69.9 m/s in its rows, but "
+     "train_summary.json says 20 m/s for the same steps"),
+    ("train_log.csv", train_log(), _cell(3, "collisions", "3"), "has collisions = 3 in its row of step 300, but "
+     "train_summary.json says collisions = 0"),
+    ("train_log.csv", train_log(), _cell(3, "vehicles", "99"), "has vehicles = 99 in its row of step 300, but "
+     "train_summary.json says departed = 40"),
+    ("train_log.csv", train_log((100, 200)), lambda lines: lines, "ends with the row of step 200, not its "
+     "training's last step 300"),
     ("validation.csv", VALIDATION, _cell(2, "score", "1e9"), "has score = '1e9' in its row of step 200: it must be"),
     ("validation.csv", VALIDATION, lambda lines: [line.replace(",True,", ",False,") for line in lines],
      "has 0 rows marked best"),

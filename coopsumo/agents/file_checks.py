@@ -20,11 +20,12 @@ from typing import Any
 
 import torch
 
+from coopsumo.agents.training_files import TRAIN_FILES
 from coopsumo.agents.training_logs import LOG_RULES as LOG_RULES
 from coopsumo.agents.training_logs import log_problem
 from coopsumo.dqn_config import DQNConfig
 from coopsumo.field_rules import as_float, digits, shown
-from coopsumo.files import read_json_object, read_text, write_atomic
+from coopsumo.files import left_temporaries, read_json_object, read_text, write_atomic
 from coopsumo.record_schemas import (
     CHECKPOINT_TENSORS,
     MODEL_TENSORS,
@@ -204,10 +205,16 @@ def _window_entries_problem(window: Any) -> str | None:
 
 def _window_problem(window: Mapping[str, Any]) -> str | None:
     """Why the log window's sums cannot be its steps', or None: speeds of at most SPEED_MAX_MPS per vehicle step,
-    rewards of at most REWARD_MAX in magnitude per transition (the counts' own limits: record_schemas)."""
+    rewards of at most REWARD_MAX in magnitude per transition, lane changes started and refused at most one per
+    vehicle step or transition (issue 82, probe 8, J13: 50,000 lane changes in a window of 3,943 vehicle steps were
+    resumed into train_log.csv); the counts' own limits: record_schemas."""
     if float(window["speed_sum"]) > SPEED_MAX_MPS * float(window["vehicle_steps"]):
         return (f"has a log window whose speeds sum to {window['speed_sum']:g} m/s over {window['vehicle_steps']} "
                 f"vehicle steps (at most {SPEED_MAX_MPS:g} m/s each)")  # fmt: skip
+    for name in ("lane_changes", "rejected"):
+        if float(window[name]) > max(float(window["vehicle_steps"]), float(window["samples"])):
+            return (f"has a log window of {window[name]} {name.replace('_', ' ')} over {window['vehicle_steps']} "
+                    f"vehicle steps and {window['samples']} transitions (at most one each)")  # fmt: skip
     for name in ("r_speed", "r_lane_change", "r_flow"):
         if abs(float(window[name])) > REWARD_MAX * max(float(window["samples"]), 1.0):
             return f"has a log window whose {name} sums to {window[name]:g} over {window['samples']} transitions"
@@ -389,11 +396,10 @@ def resume_problem(out: Path, state: Mapping[str, Any]) -> str | None:
 
 def prepare_resume(out: Path, step: int) -> None:
     """Make the training folder `out` ready to continue from a checkpoint at `step`: train_log.csv rows past it
-    dropped (truncate_log), and the temporary files of writes a kill cut short ('*.tmp') removed."""
+    dropped (truncate_log), and the temporary files a kill left of writes of the training's own files removed
+    ('.NAME.XXXXXXXX.tmp', files.left_temporaries; issue 82, probe 8, J22: every '*.tmp', a user's too, was)."""
     truncate_log(out / "train_log.csv", step)
-    for tmp in out.glob("*.tmp"):
-        tmp.unlink(missing_ok=True)
-    for tmp in out.glob(".*.tmp"):
+    for tmp in left_temporaries(out, TRAIN_FILES):
         tmp.unlink(missing_ok=True)
 
 

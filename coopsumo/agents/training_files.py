@@ -14,6 +14,7 @@ import re
 from collections.abc import Sequence
 from pathlib import Path
 
+from coopsumo.files import TEMPORARY
 from coopsumo.run_dirs import RUN_OUTPUTS
 
 Tree = dict[str, "Tree | None"]
@@ -22,17 +23,30 @@ when it is a folder, None when it is a file"""
 
 RUN_FOLDER: Tree = {fnmatch.translate(pattern): None for pattern in RUN_OUTPUTS}
 """a run's folder (sumo/, eval/, a validation run's): the files a run writes (run_dirs.RUN_OUTPUTS)"""
-SNAPSHOT: Tree = {r"model\.pt|request\.json|validation\.json|screen\.json|\..*\.tmp": None, r"\.run\d+\..+": RUN_FOLDER}
+TRAIN_FILES = (".coopsumo-run.json", "config.json", "checkpoint.pt", "train_log.csv", "model.pt", "model_last.pt",
+               "train_summary.json", "summary.json", "validation.csv")
+"""the files a training writes at the top of its folder"""
+
+
+def files_rule(names: Sequence[str]) -> str:
+    """The rule (a regular expression) of the files `names` and of the temporary files a write of one of them leaves
+    when a kill cuts it short ('.NAME.XXXXXXXX.tmp', files.write_atomic; files.left_temporaries finds them): a
+    user's 'notes.tmp' is neither (issue 82, probe 8, J22: a resume deleted every '*.tmp' in the folder)."""
+    names_rule = "|".join(re.escape(name) for name in names)
+    return rf"(?:{names_rule})|\.(?:{names_rule})\.[A-Za-z0-9_]{{8}}{re.escape(TEMPORARY)}"
+
+
+SNAPSHOT: Tree = {files_rule(("model.pt", "request.json", "validation.json", "screen.json")): None,
+                  r"\.run\d+\..+": RUN_FOLDER}  # fmt: skip
 """a snapshot's folder (agents/snapshots.py): its weights, validation request and results, the temporary files of
 a write and the runs of a validation a kill cut short (selection.validate)"""
 TRAIN_TREE: Tree = {
-    r"\.coopsumo-run\.json|config\.json|checkpoint\.pt|train_log\.csv|model\.pt|model_last\.pt|train_summary\.json"
-    r"|summary\.json|validation\.csv|.*\.tmp": None,
+    files_rule(TRAIN_FILES): None,
     r"sumo|eval": RUN_FOLDER,
     r"tensorboard": {r"events\.out\.tfevents\..+": None},
     r"snapshots": {r"step[0-9]+": SNAPSHOT},
 }
-"""what a training writes into its folder (the temporary '*.tmp' of a write a kill cut short included)"""
+"""what a training writes into its folder (the temporary file of a write a kill cut short included)"""
 
 
 def foreign_entry(folder: Path, also: Sequence[str] = ()) -> str | None:
@@ -41,7 +55,7 @@ def foreign_entry(folder: Path, also: Sequence[str] = ()) -> str | None:
     or the reverse, too), or a link anywhere, and where it leads. also: more file names a training of the caller
     writes at the top (the model store's group_cost.json). A training started over or resumed there would delete it,
     write through it, or list it in its finished marker as its own."""
-    return _foreign(folder, {**TRAIN_TREE, **{re.escape(name): None for name in also}}, "")
+    return _foreign(folder, {**TRAIN_TREE, **({files_rule(also): None} if also else {})}, "")
 
 
 def _foreign(folder: Path, tree: Tree, prefix: str) -> str | None:

@@ -182,6 +182,47 @@ def validation_text_problem(text: str, steps: int | None = None, selected: Any =
     return None
 
 
+SPEED_TOLERANCE = 1e-3
+"""how far (relative) a training's mean speed may lie outside its log rows' means: the log rounds them to 6 digits"""
+
+
+def log_summary_problem(path: Path, summary: Any, steps: int) -> str | None:
+    """Why a finished training's train_log.csv at `path` (its rows inside LOG_RULES: log_problem) disagrees with its
+    train_summary.json `summary` (its last world's, of summary["steps"] of the training's `steps`), or None: its last
+    row the training's last step, holding that world's collisions and teleports and at most its departed vehicles on
+    the road; the lane changes (started, refused) of the rows whose window lies in that world at most the summary's,
+    the same when the training is one world, and then the summary's mean speed within its rows' means. A value the
+    summary lacks is not compared (train_summary_problem judges it). Issue 82, probe 8, J20: a one-row log of 69.9
+    m/s and 5000 lane changes beside a summary of 15.33 m/s and 54 was drawn into the learning study's figures."""
+    text, _ = read_log(path)
+    rows = list(csv.DictReader(io.StringIO(text))) if text is not None and isinstance(summary, dict) else []
+    if not rows:
+        return None
+    said = {k: float(v) for k, v in summary.items() if isinstance(v, int | float) and not isinstance(v, bool)}
+    last, world = rows[-1], int(said.get("steps", steps))
+    if int(last["step"]) != steps:
+        return f"ends with the row of step {last['step']}, not its training's last step {steps}"
+    for log_key, key in (("collisions", "collisions"), ("teleports", "teleports"), ("vehicles", "departed")):
+        if key in said and (float(last[log_key]) > said[key] if log_key == "vehicles" else
+                            float(last[log_key]) != said[key]):  # fmt: skip
+            return (f"has {log_key} = {last[log_key]} in its row of step {steps}, but train_summary.json says {key} "
+                    f"= {said[key]:g}")  # fmt: skip
+    starts = [0, *(int(row["step"]) for row in rows[:-1])]
+    inside = [row for row, start in zip(rows, starts, strict=True) if start >= steps - world]  # in its last world
+    for key in ("lane_changes", "lane_changes_rejected"):
+        total = sum(int(float(row[key])) for row in inside)
+        if key in said and (total > said[key] or (world == steps and total != said[key])):
+            return (f"has {key} summing to {total} over its rows of steps {steps - world + 1}-{steps} (its training's "
+                    f"last world), but train_summary.json says {said[key]:g}")  # fmt: skip
+    speeds = [float(row["mean_speed_mps"]) for row in rows]
+    mean = said.get("mean_speed_mps")
+    if world == steps and mean is not None and not (min(speeds) * (1 - SPEED_TOLERANCE) <= mean
+                                                    <= max(speeds) * (1 + SPEED_TOLERANCE)):  # fmt: skip
+        return (f"has mean_speed_mps from {min(speeds):g} to {max(speeds):g} m/s in its rows, but train_summary.json "
+                f"says {mean:g} m/s for the same steps")  # fmt: skip
+    return None
+
+
 def _table(path: Path, problem_of: Callable[[str], str | None]) -> Any:
     """The CSV log `path` as a pandas table once problem_of(its text) finds nothing; None when there is none;
     RecordError naming the file and the field otherwise."""

@@ -19,7 +19,7 @@ from typing import Any
 from coopsumo.config import RoadConfig
 from coopsumo.files import read_json
 from coopsumo.runio import Parser
-from coopsumo.studies.engine.records import cell_path, checked_record, reusable_keys
+from coopsumo.studies.engine.records import cell_path, checked_record, copied_wrong, reusable_keys
 from coopsumo.studies.engine.runner import (
     CellFn,
     FailedRecord,
@@ -58,8 +58,9 @@ def run_cells(specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn, fail
 def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> list[dict[str, Any]]:
     """The cells of `specs` the study root `root` has still to run, in their order: every cell but those whose record
     is reusable (records.reusable_keys, with the summary fields `required`), whose training's link still leads to its
-    model (model_store.repointed_trainings) and whose training's logs read back (spoiled_logs: the studies that draw
-    them, learning and protocol); ROOT/cells is made first (UsageError naming `root` when it cannot be)."""
+    model (model_store.repointed_trainings), whose copy of its training's summary is its training's file
+    (records.copied_wrong) and whose training's logs read back (spoiled_logs: the studies that draw them, learning
+    and protocol); ROOT/cells is made first (UsageError naming `root` when it cannot be)."""
     from coopsumo.errors import UsageError
     from coopsumo.studies.engine.model_store import repointed_trainings
     from coopsumo.studies.engine.trainings import spoiled_logs
@@ -70,6 +71,7 @@ def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required:
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     done = reusable_keys(root, specs, prog, required)
     done -= repointed_trainings(root, [s for s in specs if s["key"] in done], prog)  # linked elsewhere
+    done -= copied_wrong(root, [s for s in specs if s["key"] in done], prog)  # not its training's summary (J10)
     done -= spoiled_logs(root, [s for s in specs if s["key"] in done], prog)  # its figures and diagnosis draw them
     return [s for s in specs if s["key"] not in done]
 

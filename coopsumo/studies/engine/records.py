@@ -305,6 +305,39 @@ def spec_problem(record: dict[str, Any], spec: dict[str, Any], made: dict[str, A
     return None
 
 
+def copy_problem(record: dict[str, Any], spec: dict[str, Any], root: Path) -> str | None:
+    """Why the training summary a record of a cell that trains copied (train_summary) is not its training's own
+    ROOT/train/<train_key or key>/train_summary.json, or None: every field the same in both. A file that cannot be
+    read is judged where the cell's training is (trainings.finished_training). Issue 82, probe 8, J10: a record's
+    copy edited to 25 m/s against its training's 15.33 was reused and copied into runs.csv."""
+    copy, config = record.get("train_summary"), spec.get("config")
+    if not (isinstance(copy, dict) and isinstance(config, dict) and "train" in config):
+        return None
+    path = root / "train" / str(spec.get("train_key") or spec["key"]) / "train_summary.json"
+    if (own := read_json_object(path)) is None:
+        return None
+    for key in sorted(own.keys() | copy.keys()):
+        mine, its = copy.get(key), own.get(key)
+        if key not in own or key not in copy or not (mine == its or _same_number(mine, its)):
+            return (f"has train_summary {key} = {json.dumps(mine)[:40]}, but its training's {path} says "
+                    f"{json.dumps(its)[:40]}")  # fmt: skip
+    return None
+
+
+def copied_wrong(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[str]:
+    """The cells of `specs` (records otherwise reusable, their training's link leading to its model) whose record's
+    training summary is not its training's own (copy_problem): each is rerun, with one line naming the record, the
+    field and the file."""
+    keys = set()
+    for spec in specs:
+        path = cell_path(root, spec["key"])
+        record = read_json_object(path)
+        if record is not None and (problem := copy_problem(record, spec, root)) is not None:
+            print(f"{prog}: cell {spec['key']}: record {path} {problem}; rerunning it", file=sys.stderr)
+            keys.add(spec["key"])
+    return keys
+
+
 def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str],
                   made: Callable[[dict[str, Any]], dict[str, Any]] | None = None) -> set[str]:  # fmt: skip
     """The cells whose stored record can be reused: one cell_problem accepts, made with the cell's

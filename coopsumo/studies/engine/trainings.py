@@ -4,6 +4,7 @@ is whole and is the training's own."""
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -61,17 +62,19 @@ def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) ->
 def logs_problem(out: Path, config: dict[str, Any], summary: Any) -> tuple[str, str] | None:
     """(the log's file name, why) when a log of the finished training `config` in `out` cannot be read back as it
     ran, else None: its train_log.csv whole and inside training_logs.LOG_RULES up to its configuration's last step
-    (training_logs.log_problem), its validation.csv (a training that selects its model) inside VALIDATION_RULES,
-    its best snapshot the one model.pt holds (`summary`: its train_summary.json). The learning study draws the one,
-    the protocol study draws and copies the other (issue 82, fifth probe, G6 and G8): a model whose logs break them is
-    trained again, as one whose train_summary.json does, not reused into a study that then stops at its figure or
-    draws 999 m/s. A log that is missing is none (finished_run faults a listed file that was deleted)."""
-    from coopsumo.agents.training_logs import log_problem, validation_problem
+    (training_logs.log_problem) and agreeing with `summary`, its train_summary.json (log_summary_problem; issue 82,
+    probe 8, J20), its validation.csv (a training that selects its model) inside VALIDATION_RULES, its best snapshot
+    the one model.pt holds. The learning study draws the one, the protocol study draws and copies the other (issue
+    82, fifth probe, G6 and G8): a model whose logs break them is trained again, as one whose train_summary.json
+    does, not reused into a study that then stops at its figure or draws 999 m/s. A log that is missing is none
+    (finished_run faults a listed file that was deleted)."""
+    from coopsumo.agents.training_logs import log_problem, log_summary_problem, validation_problem
 
     steps = config.get("sim", {}).get("steps") if isinstance(config.get("sim"), dict) else None
     if not isinstance(steps, int) or isinstance(steps, bool):
         return None  # not a training's configuration: the caller compared it with the study's
-    if (problem := log_problem(out / "train_log.csv", steps, whole=True)) is not None:
+    log = out / "train_log.csv"
+    if (problem := log_problem(log, steps, whole=True) or log_summary_problem(log, summary, steps)) is not None:
         return "train_log.csv", problem
     selected = summary.get("selected_step") if isinstance(summary, dict) else None
     if (problem := validation_problem(out / "validation.csv", steps, selected)) is not None:
@@ -133,6 +136,38 @@ def train_summary_problem(summary: dict[str, Any], config: dict[str, Any]) -> st
         return f"has train_summary.json steps = {json.dumps(summary['steps'])[:20]}, not its last world's {last}"
     if isinstance(steps, int) and (isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= steps):
         return f"has train_summary.json selected_step = {json.dumps(step)[:20]}, not a step from 0 to its {steps}"
+    return counts_problem(summary, config)
+
+
+WALL_FACTOR = 2.0
+"""how far a training's wall_seconds may lie from its steps over its steps_per_second (both rounded) before the pair
+is no training's"""
+
+
+def counts_problem(summary: dict[str, Any], config: dict[str, Any]) -> str | None:
+    """Why a training's summary (its values finite numbers: records.training_problem) holds counts or a wall time its
+    own training cannot give, or None: more departures than one per lane and step of its last world, more lane
+    changes than one per departed vehicle and step, more gradient updates than updates_per_learn per training step,
+    a wall time more than WALL_FACTOR times off the training's steps over its steps_per_second (issue 82, probe 8,
+    J9: departed and lane_changes of 99999 and 1e9 updates for 200 steps on 2 lanes, or 500000 s beside 126.7
+    steps/s, were reused and copied into runs.csv)."""
+    sim, dqn = (part if isinstance(part := config.get(name), dict) else {} for name in ("sim", "dqn"))
+    road = sim["road"] if isinstance(sim.get("road"), dict) else {}
+    lanes, steps, per_round = road.get("lanes"), sim.get("steps"), dqn.get("updates_per_learn")
+    last, departed = summary["steps"], summary["departed"]
+    if isinstance(lanes, int) and departed > last * lanes:
+        return (f"has train_summary.json departed = {departed:g}, more than one vehicle per lane and step of its "
+                f"last world ({last} steps on {lanes} lanes)")  # fmt: skip
+    if summary["lane_changes"] > departed * last:
+        return (f"has train_summary.json lane_changes = {summary['lane_changes']:g}, more than one per vehicle and "
+                f"step ({departed:g} vehicles, {last} steps)")  # fmt: skip
+    if isinstance(steps, int) and isinstance(per_round, int) and summary["updates"] > steps * per_round:
+        return (f"has train_summary.json updates = {summary['updates']:g}, more than {per_round} per step of its "
+                f"{steps} steps")  # fmt: skip
+    wall, rate = summary["wall_seconds"], summary["steps_per_second"]
+    if isinstance(steps, int) and wall > 0.1 and not steps / WALL_FACTOR <= wall * rate <= steps * WALL_FACTOR:
+        return (f"has train_summary.json wall_seconds = {wall:g}, but steps_per_second = {rate:g} makes its {steps} "
+                f"steps {steps / rate if rate > 0 else math.inf:g} s")  # fmt: skip
     return None
 
 

@@ -10,8 +10,8 @@ from typing import Any
 
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json
-from coopsumo.record_schemas import CELL_RECORD
-from coopsumo.studies.learning.plan import learner_of, training_key
+from coopsumo.studies.engine.records import cell_problem
+from coopsumo.studies.learning.plan import REQUIRED_SUMMARY, learner_of, training_key
 
 
 def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None = None,
@@ -22,8 +22,10 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
     model (ROOT/train/<training_key>/model.pt, where the study trained it: a variant that differs only in its change
     margin drives its twin's training).
 
-    A record that cannot be read, lies outside record_schemas.CELL_RECORD (naming the field) or names a variant this
-    version does not know, is skipped with one line on stderr;
+    A record that cannot be read, that the study itself would rerun (records.cell_problem: outside
+    record_schemas.CELL_RECORD, a summary or train_summary no run gives, naming the field; issue 82, probe 8, J14: a
+    train_summary of 999 m/s was driven) or that names a variant this version does not know, is skipped with one line
+    on stderr;
     UsageError when root is not a learning study's folder (root_problem), has no cells/, or the model of a finished
     training asked for is missing or is not that training's (model_problem: a model swapped in from another learner is
     never driven as this one)."""
@@ -38,7 +40,7 @@ def finished_trainings(root: Path, prog: str, variants: tuple[str, ...] | None =
             rec = read_json(cell)
             if not (isinstance(rec, dict) and rec.get("kind") == "train" and rec.get("status") == "ok"):
                 continue
-            if (problem := CELL_RECORD.problem(rec)) is not None:  # its envelope and coordinates (record_schemas)
+            if (problem := cell_problem(rec, REQUIRED_SUMMARY)) is not None:  # as the study judges it (probe 8, J14)
                 raise UsageError(problem)
             variant, alpha, seed = str(rec["variant"]), float(rec["alpha"]), int(rec["seed"])
             learner, config = learner_of(variant), dict(rec["config"])

@@ -53,6 +53,7 @@ from coopsumo.studies.engine.groups import group_cpu_s, study_cpu_s
 from coopsumo.studies.engine.model_store import check_link, link_problem, store_for, train_shared
 from coopsumo.studies.engine.records import (
     CellRecords,
+    copied_wrong,
     failed_exit,
     pool_summaries,
     read_record,
@@ -278,6 +279,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     done_keys = reusable_keys(root, specs, "scenario2", REQUIRED_SUMMARY,  # a record naming another's training: rerun
                               made=lambda spec: {"train_dir": train_folder(spec)})  # fmt: skip
     done_keys -= repointed(root, [s for s in specs if s["key"] in done_keys])
+    done_keys -= copied_wrong(root, [s for s in specs if s["key"] in done_keys], "scenario2")  # probe 8, J10
     done = [s for s in specs if s["key"] in done_keys]
     todo = [s for s in specs if s["key"] not in done_keys]
     for s in todo:  # a run folder holding a user's files: refused before any cell runs (issue 82, probe 7, I1)
