@@ -35,9 +35,12 @@ def test_a_huge_profile_file_is_one_line(tmp_path: Path, capsys: pytest.CaptureF
     assert not (tmp_path / "out").exists()
 
 
-def test_a_huge_marker_above_out_claims_nothing(tmp_path: Path) -> None:
+def test_a_huge_marker_above_out_is_not_read_and_claims_its_folder(tmp_path: Path) -> None:
+    """Not read whole (larger than any record), it is a marker that cannot be read: its folder is claimed as a
+    damaged marker's, so nothing is written below it (issue 82, probe 8, J2)."""
     from coopsumo.owners import owned_problem
 
     (tmp_path / "a").mkdir()
     _huge(tmp_path / "a" / RUN_MARKER)
-    assert owned_problem(tmp_path / "a" / "b" / "sim", "--out a/b/sim") is None
+    problem = owned_problem(tmp_path / "a" / "b" / "sim", "--out a/b/sim")
+    assert problem is not None and "whose .coopsumo-run.json cannot be read" in problem
