@@ -312,6 +312,11 @@ SPOILED = {
                               "row 1 (free, v) has 50 models, more than its study's 20"),
     "a demand the study did not run": (_profile_and_stats({"seeds": list(range(10)), "t_ups": [1.0]}, {}),
                                        "row 1 (free, v) has t_up 2, a demand its study did not run"),
+    # probe 9: the profile's lists that check reads, of the wrong types, were tracebacks
+    "t_ups a text": (_profile_and_stats({"t_ups": "abc"}, {}), "whose profile.t_ups is abc, not a list of numbers"),
+    "seeds a number": (_profile_and_stats({"seeds": 10}, {}), "whose profile.seeds is 10, not a list of numbers"),
+    "t_ups nested": (_profile_and_stats({"t_ups": [[2.0]]}, {}), "profile.t_ups is [[2.0]], not a list of numbers"),
+    "t_ups null": (_profile_and_stats({"t_ups": None}, {}), "profile.t_ups is None, not a list of numbers"),
 }  # fmt: skip
 
 

@@ -124,7 +124,7 @@ def records(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
     if unknown := sorted(set(stats["variant"].astype(str)) - set(study["learners"])):
         raise RecordError(f"{path} has rows of learner {unknown[0][:60]}, which study.json does not name; restore it "
                           "or move the study away")  # fmt: skip
-    if problem := stats_problem(study["profile"], stats):
+    if problem := stats_problem(study.get("profile") or {}, stats):
         raise RecordError(f"{path} {problem}; restore it or move the study away")
     return study, stats
 
@@ -136,8 +136,13 @@ def stats_problem(profile: dict[str, Any], stats: pd.DataFrame) -> str | None:
     (a bootstrap's interval holds its estimate, give or take), a worst model better than the IQM (issue 82, probe 8,
     J12: an IQM of 25 m/s beside an interval of 20.25-20.80, 50 models of 10 seeds, a demand never run were
     printed and counted in the verdict)."""
-    t_ups = {float(t) for t in profile.get("t_ups", [])}
-    most = len(profile.get("seeds", [])) * max(len(profile.get("eval_offsets") or [0]), 1)
+    lists = {key: profile.get(key, []) for key in ("t_ups", "seeds", "eval_offsets")}
+    for key, value in lists.items():
+        if not isinstance(value, list) or not all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                                                  for v in value):  # fmt: skip
+            return f"beside a study.json whose profile.{key} is {str(value)[:40]}, not a list of numbers"
+    t_ups = {float(t) for t in lists["t_ups"]}
+    most = len(lists["seeds"]) * max(len(lists["eval_offsets"]), 1)
     for i, row in enumerate(stats.to_dict("records"), start=1):
         low, high, iqm, width = row["low"], row["high"], row["iqm"], row["high"] - row["low"]
         worse = row["worst"] > iqm if row["scenario"] == "free" else row["worst"] < iqm  # speed up, veh-h down
