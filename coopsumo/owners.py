@@ -44,6 +44,19 @@ def _holds_models(folder: Path) -> bool:
     return any(STORE_NAME.fullmatch(name) or STORE_NAME.fullmatch(name[1:].removesuffix(".lock")) for name in names)
 
 
+def _beside_a_study(folder: Path) -> bool:
+    """True when `folder` is named `models` and lies beside a study's root (its marker's kind a study's): that
+    study's model store, even when it holds no model yet or any more (issue 82, probe 9: a run written into an
+    emptied store made the study refuse its store)."""
+    if folder.name != "models":
+        return False
+    try:
+        siblings = [p for p in folder.parent.iterdir() if p.is_dir() and not p.is_symlink()]
+    except OSError:
+        return False
+    return any((kind := marker_kind(p)) is not None and kind not in RUN_KINDS for p in siblings)
+
+
 def _in_store(real: Path, what: str, itself: bool) -> str | None:
     """Why `real` may not be written for being in a model store (a phrase starting with `what`), or None: in
     $COOPSUMO_MODELS or results/models, in (or named as) a store model's folder, in a folder holding store models."""
@@ -56,7 +69,7 @@ def _in_store(real: Path, what: str, itself: bool) -> str | None:
             return (f"{what} leads into {folder}, a model of a model store (a study's model link?), which only the "
                     "studies write")  # fmt: skip
     for folder in [real] * itself + list(real.parents):  # any depth: models/sub/run, models/.x/run (probe 8)
-        if _holds_models(folder):
+        if _holds_models(folder) or _beside_a_study(folder):
             return f"{what} is in {folder}, a model store (it holds the studies' models), which only the studies write"
     return None
 

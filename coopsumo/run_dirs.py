@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import UsageError
-from coopsumo.files import TEMPORARY, left_temporaries, read_json, read_text, write_json
+from coopsumo.files import TEMPORARY, left_temporaries, read_json, read_text, temporaries_of, write_json
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
@@ -188,9 +188,10 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
     empty, marked by the study `kind`, or holds the study's plan file own[0] and nothing but the study's names `own`
     (a root written before markers; fnmatch patterns: a study writes only these and never replaces its root; issue 82,
     probe 8, J3: a user's notes.txt and report.md beside a copied plan file were taken). An unmarked root without
-    the plan file is taken only when it holds nothing but temporary files: a first run marks its root before anything
-    else, so even files named like the study's (report.md, runs.csv) are a user's (issue 82, probe 7, I5). study: which
-    study of `kind` the command writes ("the quick profile's study"): a root that holds another (held_study, with
+    the plan file is taken only when it holds nothing but the temporary file of its marker's write: a first run marks
+    its root before anything else, so even files named like the study's (report.md, runs.csv) or like their
+    temporaries are a user's (issue 82, probe 7, I5; probe 9: a user's .report.md.abcdefgh.tmp was deleted). study:
+    which study of `kind` the command writes ("the quick profile's study"): a root that holds another (held_study, with
     `recorded` for a root whose marker does not name it) is refused too, with `advice`, and so is a marked root, or one
     with a plan file, whose study cannot be told (_untold_study); the same study resumes. Either way a link in it is
     refused (study_link), but the study's own links into the model store."""
@@ -205,7 +206,8 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
         raise UsageError(f"output folder {root} holds a coopsumo {marker['kind']} run, not a {kind} study, and "
                          "is left alone; pick another --out")  # fmt: skip
     unclaimed = marker is None and not (root / own[0]).is_file()  # neither marked nor a root written before markers
-    names = sorted(p.name for p in root.iterdir() if not fnmatch.fnmatchcase(p.name, f"*{TEMPORARY}"))
+    marking = {p.name for p in temporaries_of(root / RUN_MARKER)}  # a first run's marker, cut by a SIGKILL
+    names = sorted(p.name for p in root.iterdir() if p.name not in marking)
     if marker is None and (foreign := [n for n in names if not any(fnmatch.fnmatchcase(n, pat) for pat in own)]):
         more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
         raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, "
@@ -266,9 +268,10 @@ def study_root(root: Path, kind: str, own: Sequence[str], study: str | None = No
         check_study_root(root, kind, own, study, recorded, advice, hosts)  # again, under the lock
         try:
             root.mkdir(exist_ok=True)
-            mark_run_dir(root, kind, finished=False, study=study or held_study(root, recorded))
-            for left in left_temporaries(root, own):  # of its own files, from a write a SIGKILL cut (probe 8, J23)
-                left.unlink(missing_ok=True)
+            ours = _marker(root) is not None  # marked before: its temporaries are the study's (an unmarked one's may
+            mark_run_dir(root, kind, finished=False, study=study or held_study(root, recorded))  # be a user's: probe 9)
+            for left in left_temporaries(root, (*own, RUN_MARKER)) if ours else ():  # of its own files, from a write
+                left.unlink(missing_ok=True)  # a SIGKILL cut (probe 8, J23)
         except OSError as err:
             raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
         yield root

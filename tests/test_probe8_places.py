@@ -136,3 +136,44 @@ def test_scenario1_refuses_a_spoiled_store_model_before_writing_anything(tmp_pat
     before = listing(tmp_path)
     one_line(capsys, run("scenario1", argv), f"{folder}, a model's folder in the model store", "a link to")
     assert listing(tmp_path) == before and not (tmp_path / "s1b").exists()
+
+
+@pytest.mark.parametrize("entry", ["file", "folder"])
+def test_a_users_file_named_like_a_temporary_in_an_unmarked_folder_is_kept(entry: str, tmp_path: Path) -> None:
+    """Probe 9: a folder holding only a user's .report.md.abcdefgh.tmp was taken as a study's fresh root (temporary
+    files were passed over) and the claim deleted it; a folder of that name was taken as an empty root. Only the
+    temporary of the marker's own write (a first run killed while marking) is passed over, and a claim removes
+    temporaries only in a root the study had marked before."""
+    from coopsumo.errors import UsageError
+    from coopsumo.run_dirs import study_root
+
+    root = tmp_path / "X"
+    root.mkdir()
+    user = root / ".report.md.abcdefgh.tmp"
+    if entry == "file":
+        user.write_text("my thesis")
+    else:
+        (user / "ch1.txt").parent.mkdir()
+        (user / "ch1.txt").write_text("chapter 1")
+    before = listing(tmp_path)
+    with pytest.raises(UsageError, match=r"holds \.report\.md\.abcdefgh\.tmp, named like"):
+        with study_root(root, "scenario2", ("sweep.json", "report.md", "*.tmp")):
+            pass
+    assert listing(tmp_path) == before
+    user.unlink() if entry == "file" else ((user / "ch1.txt").unlink(), user.rmdir())
+    (root / "..coopsumo-run.json.abcdefgh.tmp").write_text("{")  # a first run killed while it marked its root
+    with study_root(root, "scenario2", ("sweep.json", "report.md", "*.tmp")):
+        assert (root / ".coopsumo-run.json").is_file()
+
+
+def test_an_empty_model_store_beside_a_study_is_still_its_store(tmp_path: Path) -> None:
+    """Probe 9: the store `models` beside a marked study, emptied (a model folder removed), took a simulate run and
+    a history table; the study then refused its store."""
+    from coopsumo.run_dirs import mark_run_dir
+
+    (tmp_path / "s1").mkdir()
+    mark_run_dir(tmp_path / "s1", "scenario1", finished=False, study="the quick profile's study")
+    (tmp_path / "models").mkdir()
+    problem = owned_problem(tmp_path / "models" / "run", "--out models/run")
+    assert problem is not None and f"is in {tmp_path / 'models'}, a model store" in problem
+    assert owned_problem(tmp_path / "elsewhere" / "models" / "run", "--out elsewhere/models/run") is None
