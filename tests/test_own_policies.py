@@ -47,6 +47,16 @@ class Sevens:
         return np.full(len(obs), 7)
 
 
+class Broken:
+    def act(self, obs):
+        raise ValueError("my policy broke")
+
+
+class Endless:
+    def act(self, obs):
+        return self.act(obs)
+
+
 class Needy:
     def __init__(self, size):
         pass
@@ -113,7 +123,8 @@ def test_a_class_of_ones_own_is_a_policy(folder: Path) -> None:
 @pytest.mark.parametrize(("spec", "fragment"), [
     ("py:nowhere:X", "no module 'nowhere': neither nowhere.py in the current folder nor an importable module"),
     ("py:nowhere.py:X", "no file nowhere.py"),
-    ("py:mine:Missing", "mine.py defines no 'Missing' (it defines BadInterval, Drawing, Needy, NoAct, Right, Sevens)"),
+    ("py:mine:Missing", "mine.py defines no 'Missing' (it defines BadInterval, Broken, Drawing, Endless, Needy, NoAct, "
+                        "Right, Sevens)"),
     ("py:mine:NoAct", "class NoAct has no act(obs) method"),
     ("py:mine:NOT_A_CLASS", "NOT_A_CLASS in mine.py is not a class (it is int 3)"),
     ("py:mine:Needy", "Needy() failed: TypeError"),
@@ -191,7 +202,9 @@ def test_simulate_drives_a_class_of_ones_own_and_refuses_a_bad_one(
     assert config["model_trained_on"]["policy_file"] == str(folder / "mine.py")
     capsys.readouterr()
     for spec, fragment in (("py:mine:NoAct", "has no act(obs) method"), ("py:mine:Sevens", "gave the action 7"),
-                           ("py:nowhere:X", "no module 'nowhere'")):  # fmt: skip
+                           ("py:nowhere:X", "no module 'nowhere'"),
+                           ("py:mine:Broken", f"act(obs) raised ValueError: my policy broke ({folder / 'mine.py'}"),
+                           ("py:mine:Endless", "act(obs) raised RecursionError")):  # fmt: skip  (probe 9: tracebacks)
         assert simulate.main(["--policy", spec, "--steps", "50", "--quiet", "--out", "bad"]) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and fragment in err[0], err

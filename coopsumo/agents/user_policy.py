@@ -17,6 +17,7 @@ import importlib.util
 import inspect
 import os
 import sys
+import traceback
 from pathlib import Path
 from types import ModuleType
 from typing import Any
@@ -148,7 +149,20 @@ class UserPolicy:
         return cls(inner, text, module_file(spec.module))
 
     def act(self, obs: Observation) -> np.ndarray:
-        return checked_actions(self.inner.act(obs), len(obs), self.text)
+        try:
+            actions = self.inner.act(obs)
+        except Exception as err:  # the user's code: one line naming it and where it failed (issue 82, probe 9)
+            raise UserPolicyError(f"{self.text}: act(obs) raised {type(err).__name__}: {first_line(err)[:120]}"
+                                  f"{_where(err)}") from None  # fmt: skip
+        return checked_actions(actions, len(obs), self.text)
+
+
+def _where(err: BaseException) -> str:
+    """' (FILE:LINE)', the innermost frame of the exception's traceback outside coopsumo, or ''."""
+    frames = traceback.extract_tb(err.__traceback__)
+    own = os.path.dirname(os.path.abspath(__file__)).rsplit(os.sep, 1)[0]  # the coopsumo package
+    outside = [f for f in frames if not os.path.abspath(f.filename).startswith(own + os.sep)]
+    return f" ({outside[-1].filename}:{outside[-1].lineno})" if outside else ""
 
 
 def checked_actions(actions: Any, n: int, who: str) -> np.ndarray:
