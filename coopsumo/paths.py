@@ -73,12 +73,17 @@ def _target(link: Path) -> str:
 def out_path_problem(path: Path) -> str | None:
     """Why SUMO or the file system cannot take `path` as an output folder (a phrase to follow the flag), or None.
 
-    Refused: a relative path when the current folder was deleted; ':' (SUMO reads it as host:port) or ','
+    Refused: a relative path starting with '~' (SUMO would expand it to a home folder and write there; issue 82,
+    probe 9: `train --out '~/exp'` overwrote $HOME/exp's SUMO files); a relative path when the current folder was
+    deleted; ':' (SUMO reads it as host:port) or ','
     (SUMO splits its file lists at commas) anywhere in the absolute path; non-ASCII characters under an
     ASCII locale (LC_ALL=C: SUMO cannot open such names); a byte that is not valid UTF-8 (utf8_problem); a
     symbolic link loop; the path itself a link leading nowhere; a file where a folder must be;
     a name longer than NAME_MAX less NAME_ROOM, a path longer than PATH_MAX less PATH_ROOM.
     """
+    if not path.is_absolute() and path.parts and path.parts[0].startswith("~"):
+        return (f"{str(path)!r} starts with '~', which SUMO reads as a home folder while coopsumo does not (the "
+                "shell expands only an unquoted ~): give the folder as $HOME/... or an absolute path")  # fmt: skip
     try:
         absolute = path.absolute()
     except OSError:  # os.getcwd(): the current folder is gone
