@@ -8,6 +8,7 @@ root (J6). Every refusal: one line naming the folder and the entry, exit 2, ever
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -83,6 +84,12 @@ def test_the_rule_takes_what_a_training_writes_and_names_the_first_entry_it_does
     (out / "snapshots/step100/model.pt").unlink()
     (out / "snapshots/step100/model.pt").symlink_to(tmp_path)
     assert foreign_entry(out) == f"holds snapshots/step100/model.pt, a link to {tmp_path.resolve()}, which no " \
+        "training makes"  # fmt: skip
+    (out / "snapshots/step100/model.pt").unlink()
+    (tmp_path / "mine.csv").write_text("my data\n")
+    (out / "train_log.csv").unlink()
+    os.link(tmp_path / "mine.csv", out / "train_log.csv")  # probe 9: a resume appended to the user's file
+    assert foreign_entry(out) == "holds train_log.csv, a file with another name too (a hard link), which no " \
         "training makes"  # fmt: skip
 
 

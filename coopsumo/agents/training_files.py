@@ -52,9 +52,10 @@ TRAIN_TREE: Tree = {
 def foreign_entry(folder: Path, also: Sequence[str] = ()) -> str | None:
     """Why the training folder `folder` holds what no training writes (a phrase naming the entry by its path in the
     folder), or None: an entry at any depth that TRAIN_TREE does not name (a file where a training makes a folder,
-    or the reverse, too), or a link anywhere, and where it leads. also: more file names a training of the caller
-    writes at the top (the model store's group_cost.json). A training started over or resumed there would delete it,
-    write through it, or list it in its finished marker as its own."""
+    or the reverse, too), or a link anywhere, and where it leads, or a file with a second name (a hard link: issue 82,
+    probe 9, a resume appended to a user's file hard-linked as train_log.csv). also: more file names a training of
+    the caller writes at the top (the model store's group_cost.json). A training started over or resumed there would
+    delete it, write through it, or list it in its finished marker as its own."""
     return _foreign(folder, {**TRAIN_TREE, **({files_rule(also): None} if also else {})}, "")
 
 
@@ -71,6 +72,8 @@ def _foreign(folder: Path, tree: Tree, prefix: str) -> str | None:
         rules = [inner for pattern, inner in tree.items() if re.fullmatch(pattern, entry.name)]
         if not rules or (rules[0] is None) == entry.is_dir():
             return f"holds {name}, which no training writes"
+        if rules[0] is None and entry.lstat().st_nlink > 1:  # a hard link: written in place, the other name changes
+            return f"holds {name}, a file with another name too (a hard link), which no training makes"
         if rules[0] is not None and (found := _foreign(entry, rules[0], f"{name}/")) is not None:
             return found
     return None
