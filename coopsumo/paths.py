@@ -75,8 +75,8 @@ def out_path_problem(path: Path) -> str | None:
 
     Refused: a relative path starting with '~' (SUMO would expand it to a home folder and write there; issue 82,
     probe 9: `train --out '~/exp'` overwrote $HOME/exp's SUMO files); a relative path when the current folder was
-    deleted; ':' (SUMO reads it as host:port) or ','
-    (SUMO splits its file lists at commas) anywhere in the absolute path; non-ASCII characters under an
+    deleted; ':' (SUMO reads it as host:port), ',' (SUMO splits its file lists at commas) or '${' (SUMO substitutes
+    environment variables in its file names: probe 9) anywhere in the absolute path; non-ASCII characters under an
     ASCII locale (LC_ALL=C: SUMO cannot open such names); a byte that is not valid UTF-8 (utf8_problem); a
     symbolic link loop; the path itself a link leading nowhere; a file where a folder must be;
     a name longer than NAME_MAX less NAME_ROOM, a path longer than PATH_MAX less PATH_ROOM.
@@ -102,6 +102,9 @@ def out_path_problem(path: Path) -> str | None:
                     f"got {shown!r}")  # fmt: skip
         if "," in shown:
             return f"must be a folder path without ',' (SUMO splits its lists of files at commas), got {shown!r}"
+        if "${" in shown:  # issue 82, probe 9: 'd${XV}' made SUMO write into dzz, another training's folder
+            return (f"must be a folder path without '${{' (SUMO reads ${{NAME}} in a file name as an environment "
+                    f"variable), got {shown!r}")  # fmt: skip
         if not shown.isascii() and not _utf8_locale():
             return (f"{shown!r} has non-ASCII characters, which SUMO cannot open under this ASCII locale "
                     f"({locale.setlocale(locale.LC_CTYPE)}); set LC_ALL=C.UTF-8 or pick an ASCII path")  # fmt: skip

@@ -56,6 +56,7 @@ CASES: dict[str, tuple[Callable[[Path], Path], str]] = {
     "symlink loop": (_loop, "loop of symbolic links"),
     "under a file": (_under_a_file, "a_file is a file, not a folder"),
     "a leading ~ (SUMO's home folder; probe 9)": (lambda tmp: Path("~") / "t", "'~/t' starts with '~', which SUMO"),
+    "an environment variable (SUMO's; probe 9)": (lambda tmp: tmp / "d${XV}", "without '${' (SUMO reads ${NAME}"),
 }
 
 
@@ -81,7 +82,7 @@ def test_an_output_path_sumo_or_the_file_system_cannot_take_is_refused(
 
 
 def test_out_path_problem_accepts_ordinary_paths(tmp_path: Path) -> None:
-    for ok in ("run", "a b/run", "a;b", "é/run", "x" * (NAME_MAX - NAME_ROOM), "a~b/run", "~/run"):  # absolute
+    for ok in ("run", "a b/run", "a;b", "é/run", "x" * (NAME_MAX - NAME_ROOM), "a~b/run", "~/run", "a$b/run"):
         assert out_path_problem(tmp_path / ok) is None, ok
     (tmp_path / "link").symlink_to(tmp_path / "target")  # a link to a folder yet to be made is fine
     assert out_path_problem(tmp_path / "link" / "run") is None
