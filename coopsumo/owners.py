@@ -11,7 +11,7 @@ import re
 from pathlib import Path
 
 from coopsumo.paths import NETS_ENV, STORE_ENV
-from coopsumo.run_markers import RUN_KINDS, RUN_MARKER, marker_kind
+from coopsumo.run_markers import PARTIAL_MARKER, RUN_KINDS, RUN_MARKER, marker_kind
 
 DEFAULT_STORE = Path("results") / "models"
 """the committed studies' model store"""
@@ -42,6 +42,13 @@ def _holds_models(folder: Path) -> bool:
     except OSError:
         return False
     return any(STORE_NAME.fullmatch(name) or STORE_NAME.fullmatch(name[1:].removesuffix(".lock")) for name in names)
+
+
+def _in_partial(real: Path, itself: bool) -> Path | None:
+    """The nearest folder holding `real` (`real` too when itself) that is a run's partial folder (it holds the
+    PARTIAL_MARKER file: a run's next start in its parent removes it, with whatever was put in it; issue 82, probe 9:
+    a model store and a screenshot there were deleted), or None."""
+    return next((f for f in [real] * itself + list(real.parents) if (f / PARTIAL_MARKER).is_file()), None)
 
 
 def _beside_a_study(folder: Path) -> bool:
@@ -97,6 +104,8 @@ def owned_problem(path: Path, what: str, advice: str = "pick another --out", its
     real = path.expanduser().resolve()
     if found := _marked(real, itself, study=True):
         return _claim_line(real, found, what, advice)
+    if partial := _in_partial(real, itself):
+        return f"{what} lies inside {partial}, the folder a coopsumo run is built in (or was, when killed); {advice}"
     if problem := _in_store(real, what, itself):
         return f"{problem}; {advice}"
     if found := _marked(real, itself, study=False):
@@ -112,6 +121,8 @@ def claimed_problem(path: Path, what: str, advice: str) -> str | None:
     probe 5, G3)."""
     real = path.expanduser().resolve()
     found = _marked(real, True, study=True) or _marked(real, True, study=False)
+    if not found and (partial := _in_partial(real, True)):
+        return f"{what} lies inside {partial}, the folder a coopsumo run is built in (or was, when killed); {advice}"
     return _claim_line(real, found, what, advice) if found else unmarked_study_problem(real, what, advice)
 
 

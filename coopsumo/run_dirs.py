@@ -20,7 +20,7 @@ from coopsumo.files import TEMPORARY, left_temporaries, read_json, read_text, te
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
-from coopsumo.run_markers import RUN_MARKER
+from coopsumo.run_markers import PARTIAL_MARKER, RUN_MARKER
 from coopsumo.run_markers import read_marker as _marker
 
 RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xml", "routes.rou.xml", "plain.rou.xml",
@@ -290,9 +290,7 @@ PARTIAL = ".partial-"
 """infix of the temporary folder a run is built in beside its --out: '.<name>.partial-XXXXXXXX'"""
 
 
-PARTIAL_MARKER = ".coopsumo-partial"
-"""the file a partial folder is made with (removed before the folder becomes a run): clear_partials removes a
-folder named like a partial one only when it holds this file, so a user's folder of such a name is left alone"""
+
 
 
 def _new_partial(out: Path) -> Path:

@@ -17,6 +17,10 @@ runs)}. A dot-file, so listings stay as they were; named after the package, so n
 separate file, because config.json is a common name that proves nothing about who wrote a folder. A marker written
 before "finished" was (files null while its command ran) reads as it did (run_dirs.listed_files)."""
 
+PARTIAL_MARKER = ".coopsumo-partial"
+"""the file a partial folder is made with (removed before the folder becomes a run): clear_partials removes a
+folder named like a partial one only when it holds this file, so a user's folder of such a name is left alone"""
+
 RUN_KINDS = ("simulate", "train")
 """the kinds of marker a single command writes (run_dirs' users); every other kind marks a study's root"""
 LEARNING_KIND = "ablation"

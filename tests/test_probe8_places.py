@@ -177,3 +177,17 @@ def test_an_empty_model_store_beside_a_study_is_still_its_store(tmp_path: Path) 
     problem = owned_problem(tmp_path / "models" / "run", "--out models/run")
     assert problem is not None and f"is in {tmp_path / 'models'}, a model store" in problem
     assert owned_problem(tmp_path / "elsewhere" / "models" / "run", "--out elsewhere/models/run") is None
+
+
+def test_nothing_is_written_inside_a_runs_partial_folder(tmp_path: Path) -> None:
+    """Probe 9 (K11): a killed simulate's .o.partial-XXXXXXXX took a model store, a training and a table, and the
+    next simulate into its parent folder deleted them with it."""
+    from coopsumo.owners import claimed_problem
+    from coopsumo.run_markers import PARTIAL_MARKER
+
+    partial = tmp_path / ".o.partial-abcdefgh"
+    partial.mkdir()
+    (partial / PARTIAL_MARKER).write_text("the partial folder of a coopsumo run\n")
+    for problem in (owned_problem(partial / "t", "--out t"), claimed_problem(partial / "store", "'store'", "x")):
+        assert problem is not None and f"lies inside {partial}, the folder a coopsumo run is built in" in problem
+    assert owned_problem(tmp_path / ".o.partial-mine" / "t", "--out t") is None  # a user's folder of such a name
