@@ -11,7 +11,7 @@ import re
 from pathlib import Path
 
 from coopsumo.paths import NETS_ENV, STORE_ENV
-from coopsumo.run_markers import PARTIAL_MARKER, RUN_KINDS, RUN_MARKER, marker_kind
+from coopsumo.run_markers import PARTIAL_MARKER, PLANLESS_TITLES, RUN_KINDS, RUN_MARKER, marker_kind
 
 DEFAULT_STORE = Path("results") / "models"
 """the committed studies' model store"""
@@ -152,6 +152,19 @@ PLAN_FILES = ("plan.json", "sweep.json", "study.json")
 beside (the committed studies keep no cells/), a study's root"""
 
 
+def _planless_report(folder: Path) -> str | None:
+    """'report.md' when `folder`'s report.md begins as a study committed without a plan file does (PLANLESS_TITLES:
+    issue 82, probe 9, K8: a copy of results/regime_map took a simulate run), else None."""
+    if not (folder / "report.md").is_file():  # a regular file only: a pipe there is not waited on
+        return None
+    try:
+        with open(folder / "report.md", encoding="utf-8") as report:
+            first = report.readline(200).rstrip("\n")
+    except (OSError, UnicodeDecodeError):
+        return None
+    return "report.md" if first in PLANLESS_TITLES.values() else None
+
+
 def unmarked_study_problem(path: Path, what: str, advice: str) -> str | None:
     """Why `path` may not be written for lying inside a study's root written before markers (no marker: a plan file
     beside its cells/, runs.csv or report.md, as the committed results/learner_protocol_* hold them), or None (issue
@@ -159,7 +172,7 @@ def unmarked_study_problem(path: Path, what: str, advice: str) -> str | None:
     marked folders)."""
     real = path.expanduser().resolve()
     for folder in real.parents:
-        plan = next((name for name in PLAN_FILES if (folder / name).is_file()), None)
+        plan = next((name for name in PLAN_FILES if (folder / name).is_file()), None) or _planless_report(folder)
         if plan is not None and any(os.path.lexists(folder / name) for name in ("cells", "runs.csv", "report.md")):
             return (f"{what} lies inside {folder}, a coopsumo study's folder (its {plan}, written before markers), "
                     f"which only that study writes; {advice}")  # fmt: skip

@@ -20,7 +20,7 @@ from coopsumo.files import TEMPORARY, left_temporaries, read_json, read_text, te
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
-from coopsumo.run_markers import PARTIAL_MARKER, RUN_MARKER
+from coopsumo.run_markers import PARTIAL_MARKER, PLANLESS_TITLES, RUN_MARKER
 from coopsumo.run_markers import read_marker as _marker
 
 RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xml", "routes.rou.xml", "plain.rou.xml",
@@ -181,6 +181,15 @@ def _untold_study(root: Path, plan: str, advice: str) -> str | None:
             f"yourself or {advice}")  # fmt: skip
 
 
+def _committed_planless(root: Path, kind: str) -> bool:
+    if not (root / "report.md").is_file():
+        return False
+    try:
+        return read_text(root / "report.md").split("\n", 1)[0] == PLANLESS_TITLES.get(kind)
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False
+
+
 def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None,
                      recorded: Recorded | None = None, advice: str = "pick another --out",
                      hosts: Sequence[Path] = ()) -> None:  # fmt: skip
@@ -218,7 +227,7 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
                          f"this one is left alone; {advice}")  # fmt: skip
     if study is not None and held is None and (untold := _untold_study(root, own[0], advice)):
         raise UsageError(untold)
-    if unclaimed and names:  # a first run marks its root before anything else: a user's files (probe 7, I5)
+    if unclaimed and names and not _committed_planless(root, kind):  # a first run marks its root first (probe 7, I5)
         more = f" and {len(names) - 1} more" if len(names) > 1 else ""
         raise UsageError(f"output folder {root} holds {names[0]}{more}, named like a coopsumo {kind} study's files, "
                          f"but neither a {RUN_MARKER} nor its {own[0]}: no study wrote it (a study marks its folder "
@@ -286,11 +295,7 @@ def check_out_path(out: Path, flag: str = "--out") -> None:
 
 
 PARTIAL = ".partial-"
-
 """infix of the temporary folder a run is built in beside its --out: '.<name>.partial-XXXXXXXX'"""
-
-
-
 
 
 def _new_partial(out: Path) -> Path:

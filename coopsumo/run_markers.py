@@ -21,6 +21,12 @@ PARTIAL_MARKER = ".coopsumo-partial"
 """the file a partial folder is made with (removed before the folder becomes a run): clear_partials removes a
 folder named like a partial one only when it holds this file, so a user's folder of such a name is left alone"""
 
+PLANLESS_TITLES = {"regime_map": "# Scenario I: where the accident's queue goes, against demand",
+                   "accident_seeds": "# Every training seed's model through scenario I's accident"}
+"""the reports' first lines of the studies committed without a plan file (results/regime_map/, learning_conditioned/
+accident/): an unmarked root without it whose report.md begins so is that study's own (run_dirs.check_study_root,
+owners.unmarked_study_problem)"""
+
 RUN_KINDS = ("simulate", "train")
 """the kinds of marker a single command writes (run_dirs' users); every other kind marks a study's root"""
 LEARNING_KIND = "ablation"

@@ -7,6 +7,7 @@ import pandas as pd
 
 from coopsumo.provenance import versions
 from coopsumo.report.markdown import md_table
+from coopsumo.run_markers import PLANLESS_TITLES
 from coopsumo.studies.followups.robustness import paired_interval
 
 
@@ -14,7 +15,7 @@ def report(table: pd.DataFrame, seed_offset: int, wall_s: float) -> str:
     """report.md of runs.csv's table (one row per demand, policy and seed); seed_offset: a model trained on seed s
     met the accident on seed seed_offset + s."""
     lines = [
-        "# Every training seed's model through scenario I's accident",
+        PLANLESS_TITLES["accident_seeds"],
         "",
         "Made by `coopsumo accident-seeds`: scenario I's default accident (3 lanes, closure at 1,300 m "
         "decaying over steps 2,000-12,000 of 20,000). A model trained on seed s meets the accident on seed "

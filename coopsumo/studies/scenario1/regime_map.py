@@ -22,6 +22,7 @@ from coopsumo.errors import UsageError
 from coopsumo.files import write_atomic, write_json, write_text_atomic
 from coopsumo.provenance import versions
 from coopsumo.report.markdown import md_table
+from coopsumo.run_markers import PLANLESS_TITLES
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import study_root
 from coopsumo.studies.engine.runner import check_backend
@@ -92,7 +93,7 @@ def report(by_length: dict[str, Plan], table: pd.DataFrame, wall_s: float) -> st
         for length, p in by_length.items()
     )
     lines = [
-        "# Scenario I: where the accident's queue goes, against demand",
+        PLANLESS_TITLES["regime_map"],
         "",
         f"`{POLICY}` (no lane changes) through scenario I's accident (3 lanes, x = 1,300 m, stuck ratio decaying "
         f"1 -> 0), at {len(by_length)} accident lengths: {windows}. Made by `coopsumo scenario1 --regime-map`; "
