@@ -76,12 +76,18 @@ def run_summary_problem(summary: dict[str, Any], cfg: dict[str, Any]) -> str | N
     return _motion_problem(num, cfg, departed, sim_s)
 
 
+def fastest_mps(cfg: dict[str, Any]) -> float:
+    """The fastest any vehicle drives in a run of the SimConfig dict cfg: its road's speed limit or its fastest
+    desired speed, whichever is higher (m/s)."""
+    return max(float(cfg["road"]["speed_limit_mps"]), float(cfg["demand"]["v_exp_max_kmh"]) / 3.6)
+
+
 def _motion_problem(num: dict[str, float], cfg: dict[str, Any], departed: float, sim_s: float) -> str | None:
     """Why a summary's speeds or lane changes are more than the run's vehicles could do, or None: a mean speed above
     the road's speed limit and the fastest desired speed (no vehicle drives faster), more lane changes than each
     vehicle that departed could make one after another (a change takes control.t_change_s) (issue 82, probe 8, J15:
     `keep` at 60 m/s on a 33.34 m/s road, 250 lane changes a vehicle in 20 s, were reused)."""
-    fastest = max(float(cfg["road"]["speed_limit_mps"]), float(cfg["demand"]["v_exp_max_kmh"]) / 3.6)
+    fastest = fastest_mps(cfg)
     for key in ("mean_speed_mps", "full_road_speed_mps"):
         if num.get(key, 0.0) > fastest + 0.01:
             return f"has summary.json {key} = {num[key]:g}, above any vehicle's speed on its road ({fastest:g} m/s)"

@@ -20,6 +20,7 @@ from coopsumo.field_rules import shown
 from coopsumo.files import read_csv, read_json, write_atomic, write_json
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
+from coopsumo.studies.engine.run_checks import fastest_mps
 from coopsumo.studies.engine.run_folders import profile_study, study_root
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS, TRAIN_COLUMNS
@@ -264,7 +265,7 @@ def _speed_problem(specs: list[dict[str, Any]], runs: pd.DataFrame, evals: pd.Da
     fastest = {}
     for spec in specs:
         cfg = spec["config"]["evals"][0] if "evals" in spec["config"] else spec["config"]["run"]
-        fastest[spec["key"]] = max(float(cfg["road"]["speed_limit_mps"]), float(cfg["demand"]["v_exp_max_kmh"]) / 3.6)
+        fastest[spec["key"]] = fastest_mps(cfg)
     for name, table in (("runs.csv", runs), ("evals.csv", evals)):
         for row in table.to_dict("records"):
             for column in ("mean_speed_mps", FULL_ROAD):
