@@ -30,7 +30,15 @@ from coopsumo.agents.rollout import run
 from coopsumo.config import AccidentConfig, DemandConfig, RoadConfig, SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.files import read_json
-from coopsumo.runio import Parser, Stop, children_start_deaf, stop_on_signals, training_stop, working_folder_problem
+from coopsumo.runio import (
+    Parser,
+    Stop,
+    children_start_deaf,
+    environment_problem,
+    stop_on_signals,
+    training_stop,
+    working_folder_problem,
+)
 from coopsumo.sim import fast
 from coopsumo.sim.physics import occupancy
 
@@ -423,7 +431,7 @@ def _main(argv: list[str] | None) -> int:
                      "give one or the other")  # fmt: skip
     quick = args.quick
     steps = 600 if quick else 6000
-    if problem := working_folder_problem():  # torch cannot be loaded from a deleted folder
+    if problem := working_folder_problem() or environment_problem():  # torch cannot be loaded from a deleted folder
         parser.error(problem)
     if args.cluster:
         try:

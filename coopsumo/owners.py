@@ -133,6 +133,16 @@ def store_env_problem() -> str | None:
     return f"${STORE_ENV} {problem}" if problem else None
 
 
+def tmp_env_problem() -> str | None:
+    """owned_problem of $TMPDIR (itself included: a study's root, a run's folder, the model store), as a line naming
+    it (runio.run_cli), or None: bench's trainings and sumo-gui's screenshot run are made there, and one killed left
+    its folder in a model store, which every study then refused (issue 82, probe 9, K9)."""
+    value = os.environ.get("TMPDIR")
+    advice = "pick a temporary folder elsewhere"
+    problem = owned_problem(Path(value), repr(value), advice, itself=True) if value else None
+    return f"$TMPDIR {problem}" if problem else None
+
+
 def nets_problem(text: str) -> str | None:
     """Why `text` cannot be the networks folder for being, or lying in, a folder a study, a run or the model store owns
     (a phrase to follow --nets-dir or $COOPSUMO_NETS_DIR), or None: the networks SUMO builds there would be taken for

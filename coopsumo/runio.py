@@ -14,7 +14,7 @@ from contextlib import contextmanager
 from typing import Any, NoReturn
 
 from coopsumo.errors import USAGE_EXIT, USER_ERRNOS, NotRegularFileError, UsageError, first_line, os_error_text
-from coopsumo.owners import nets_env_problem, store_env_problem
+from coopsumo.owners import nets_env_problem, store_env_problem, tmp_env_problem
 from coopsumo.paths import env_problem, utf8_problem
 
 
@@ -282,13 +282,19 @@ def working_folder_problem() -> str | None:
     return None
 
 
+def environment_problem() -> str | None:
+    """Why a folder the environment names cannot be used (a line naming the variable), or None: $COOPSUMO_NETS_DIR,
+    $COOPSUMO_MODELS, $TMPDIR."""
+    return env_problem() or nets_env_problem() or store_env_problem() or tmp_env_problem()
+
+
 def run_cli(prog: str, body: Callable[[], int]) -> int:
     """Run a command's body; usage errors (config.ConfigError among them) become one line on stderr and exit code 2,
     and so does a working folder that was deleted (working_folder_problem)."""
     if problem := working_folder_problem():
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
-    if problem := env_problem() or nets_env_problem() or store_env_problem():  # $COOPSUMO_NETS_DIR, $COOPSUMO_MODELS
+    if problem := environment_problem():
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
     try:

@@ -215,3 +215,17 @@ def test_a_study_committed_without_its_plan_file_is_its_own_and_nothing_elses(co
     (copy / "report.md").write_text("# my own notes\n")
     with pytest.raises(UsageError, match="named like a coopsumo"):
         check_study_root(copy, kind, own)
+
+
+@pytest.mark.parametrize("command", [["bench", "--quick"], ["simulate", "--quiet", "--steps", "30", "--out", "o"]])
+def test_a_temporary_folder_in_a_model_store_is_refused_before_the_command_starts(
+        command: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Probe 9 (K9): with $TMPDIR in a model store, a killed `bench` left its training's folder there, and every
+    study then refused the store ("holds tmp4f7c0069, which is not a stored model")."""
+    store = store_beside(tmp_path)
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("TMPDIR", str(store))
+    before = listing(tmp_path)
+    one_line(capsys, run(command[0], command[1:]), f"$TMPDIR '{store}'", "pick a temporary folder elsewhere")
+    assert listing(tmp_path) == before

@@ -136,7 +136,7 @@ def test_a_store_model_holding_what_no_training_writes_at_any_depth_is_left_alon
     word, and trained again (the user's file deleted) once its train_summary.json was gone; a stored model with
     sumo -> . was trained again through the link. Refused in one line naming the folder and the entry, as a user's
     notes.txt beside its config.json is (probe 7, I6)."""
-    from coopsumo.studies.engine.model_store import model_id, stored_model, train_shared
+    from coopsumo.studies.engine.model_store import listing, model_id, stored_model, train_shared
 
     monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
     store, config = tmp_path / "models", as_json(TINY)
@@ -156,8 +156,11 @@ def test_a_store_model_holding_what_no_training_writes_at_any_depth_is_left_alon
                     step()
                 assert f"{entry}, a model's folder in the model store, {ADDED[case][1](entry)}" in str(err.value)
                 assert len(str(err.value).splitlines()) == 1 and snapshot(tmp_path) == before
+            state = {row["model"]: row["state"] for row in listing(store)}[entry.name]  # `coopsumo models` says so
+            assert state.startswith(f"not usable: {ADDED[case][1](entry)}") and state.endswith("(move it away)")
             restore(entry, tmp_path)
             assert stored_model(config, store) == entry  # whole again: used
+            assert {row["model"]: row["state"] for row in listing(store)}[entry.name] == "ok"
 
 
 def restore(entry: Path, tmp_path: Path) -> None:

@@ -253,3 +253,19 @@ def test_fcd_is_read_from_its_end(made: Path, tmp_path: Path, monkeypatch: pytes
                         real_tail(path, size))  # fmt: skip
     assert reusable_run(out, to_dict(CFG), OUTPUTS)
     assert read and max(read) < 1_000_000, read
+
+
+def test_a_run_written_in_place_again_leaves_a_hard_linked_copy_of_its_folder_as_it_was(tmp_path: Path) -> None:
+    """Issue 82, probe 9 (K7): scenario II's and the learning study's evaluations are written in place, and SUMO
+    opened an earlier run's detectors.xml and routes.rou.xml to write them again, so a hard-linked snapshot of the
+    study (`cp -al`, `rsync --link-dest`) changed with a rerun of its cell."""
+    from dataclasses import replace
+
+    out = tmp_path / "study" / "evals" / "cell" / "eval_s3"
+    simulate_into(to_dict(CFG), out, "run")
+    copy = tmp_path / "copy"
+    shutil.copytree(out, copy, copy_function=os.link)
+    assert (copy / "detectors.xml").stat().st_nlink == 2
+    before = snapshot(copy)
+    simulate_into(to_dict(replace(CFG, seed=4)), out, "run")
+    assert snapshot(copy) == before and snapshot(out)["detectors.xml"] != before["detectors.xml"]

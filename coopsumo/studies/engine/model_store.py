@@ -343,6 +343,8 @@ def listing(store: Path) -> list[dict[str, Any]]:
                    alpha="conditioned" if dqn.get("alpha_conditioned") else sim["reward"]["alpha"])  # fmt: skip
         if model_id(config) != folder.name:
             row["state"] = "config.json is not this folder's identity (edited?)"
+        elif (problem := foreign_entry(folder)) is not None:  # every study refuses it (check_entry)
+            row["state"] = f"not usable: {problem} (move it away)"
         elif (summary := finished_training(folder, config, quiet=True)) is not None:
             row["state"] = "ok"
             row["selected_step"] = summary.get("selected_step", "-")

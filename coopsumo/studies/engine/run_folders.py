@@ -47,6 +47,17 @@ def _written_in_place(out: Path) -> bool:
         p.is_file() and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS) for p in out.iterdir())
 
 
+def fresh_in_place(out: Path) -> None:
+    """Make the folder `out` for a run written in place, unlinking the files an earlier run left in it (the names
+    RUN_OUTPUTS lists; check_run_places refused anything else) so that the run writes new files rather than through
+    the old ones: SUMO and the trajectory writer open their outputs in place, which changed a hard-linked snapshot of
+    the folder (`cp -al`, `rsync --link-dest`; issue 82, probe 9, K7)."""
+    out.mkdir(parents=True, exist_ok=True)
+    for p in out.iterdir():
+        if p.is_file() and not p.is_symlink() and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS):
+            p.unlink()
+
+
 def run_places(folder: Path, nested: bool = False) -> list[Path]:
     """`folder`, or (nested) each entry of it: a cell's evaluations, a run folder each (check_run_places)."""
     return sorted(folder.iterdir()) if nested and folder.is_dir() and not folder.is_symlink() else [folder]
@@ -126,7 +137,7 @@ def simulate_into(
     cfg = sim_config_from_dict(config)
     policy = policy_for_run(cfg)
     if not atomic:
-        out.mkdir(parents=True, exist_ok=True)
+        fresh_in_place(out)
     with atomic_run_dir(out) if atomic else nullcontext(out) as run_dir:
         summary = run(cfg, policy, run_dir, trajectories=trajectory_every > 0, progress=False, label=label,
                       trajectory_every=max(trajectory_every, 1), outputs=outputs)  # fmt: skip

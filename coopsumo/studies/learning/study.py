@@ -92,6 +92,7 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
     from coopsumo.config import sim_config_from_dict
     from coopsumo.studies.engine.model_store import store_for, train_shared
     from coopsumo.studies.engine.records import pool_summaries
+    from coopsumo.studies.engine.run_folders import fresh_in_place
 
     key = spec.get("train_key", spec["key"])
     out = root / "train" / key
@@ -111,7 +112,7 @@ def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None
             name += f"_alpha{number_name(ev.reward.alpha)}"
         ev = replace(ev, policy=spec_text)
         eval_dir = root / "evals" / key / name  # beside the training: the stored model folder holds the training only
-        eval_dir.mkdir(parents=True, exist_ok=True)
+        fresh_in_place(eval_dir)
         policy.change_margin, policy.queue_below_mps, policy.no_return_s = margin, queue, no_return
         summary = run(ev, policy, eval_dir, progress=False)
         summaries.append({"eval_seed": ev.seed, **{k: v for k, v in summary.items() if k != "policy"}})
