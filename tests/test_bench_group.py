@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import re
 from dataclasses import replace
+from pathlib import Path
 
 import pytest
 
@@ -37,3 +38,23 @@ def test_the_group_line_measures_a_group_against_the_lone_training_given() -> No
     assert cost and abs(float(cost.group(1)) - float(per_model.group(1)) / 20.0) <= 0.01, second
     after = before_and_after(cfg)[1]  # figures measured on another learner than the one before: trained again
     assert "lone, as before issue 77, 20.0 CPU s" not in group_lines(after, 1, lone=(20.0, 9.0))[0]
+
+
+def test_experiments_group_processes_reads_every_process_of_a_group(tmp_path: Path) -> None:
+    """docs/performance.md's table of where a model's CPU goes (2026-12-03) is made by experiments/group_processes.py:
+    a group of 2 short trainings, each process's CPU from /proc, its members, update process and validations found;
+    a bad K is a usage line, exit 2."""
+    import json
+    import subprocess
+    import sys
+
+    script = Path(__file__).resolve().parents[1] / "experiments" / "group_processes.py"
+    done = subprocess.run([sys.executable, str(script), "2", "300"], capture_output=True, text=True, timeout=300,
+                          cwd=str(tmp_path))  # fmt: skip
+    assert done.returncode == 0, done.stderr
+    found = json.loads(done.stdout.strip().splitlines()[-1])
+    busy = [cpu for cpu in found["roles"]["member or update process"] if cpu > 0.2]
+    assert found["k"] == 2 and len(busy) == 3 and len(found["roles"]["validation"]) == 2, found
+    assert found["cpu_s_per_model"] * 2 >= sum(busy) + sum(found["roles"]["validation"]) > 0
+    bad = subprocess.run([sys.executable, str(script), "two"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and bad.stderr.startswith("usage: ") and not bad.stdout
