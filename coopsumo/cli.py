@@ -26,7 +26,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "accident-seeds": (S + "followups.accident_seeds", "a learning study's models through the accident, by seed"),
     "history": (S + "protocol.history", "print the learner search's table from the protocol studies' records"),
     "models": (S + "engine.model_store", "list the model store: every trained model and whether it is usable"),
-    "bench": ("coopsumo.bench", "speed figures (printed, not asserted)"),
+    "bench": ("coopsumo.bench.figures", "speed figures (printed, not asserted)"),
 }
 """command -> (module holding its parser and main(argv), one line of what it does)"""
 

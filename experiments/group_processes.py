@@ -63,8 +63,8 @@ def main(k: int, steps: int) -> None:
 
     from coopsumo.agents.group import train_group
     from coopsumo.agents.train import train
-    from coopsumo.bench import scaled_selection
-    from coopsumo.bench_group import before_and_after
+    from coopsumo.bench.figures import scaled_selection
+    from coopsumo.bench.group import before_and_after
 
     torch.set_num_threads(1)
     before, after = before_and_after(scaled_selection(steps))
@@ -73,8 +73,8 @@ def main(k: int, steps: int) -> None:
     def sample() -> None:
         while not stop.is_set():
             for pid in descendants(me):
-                if (stat := _stat(pid)) is not None:
-                    seen[pid] = stat
+                if (stat := _stat(pid)) is not None:  # an ended process (a zombie) has an empty command line
+                    seen[pid] = stat if stat[2].strip() or pid not in seen else (stat[0], stat[1], seen[pid][2])
             time.sleep(0.1)
 
     sampler = threading.Thread(target=sample, daemon=True)

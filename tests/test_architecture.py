@@ -28,6 +28,7 @@ ALLOWED = {
     "coopsumo.report": {"coopsumo.report"},
     "coopsumo.studies": {"coopsumo.studies", "coopsumo.agents", "coopsumo.sim", "coopsumo.report"},
     "coopsumo.envs": {"coopsumo.envs", "coopsumo.agents", "coopsumo.sim"},  # Gymnasium / PettingZoo interfaces
+    "coopsumo.bench": {"coopsumo.bench", "coopsumo.studies", "coopsumo.agents", "coopsumo.sim", "coopsumo.report"},
 }
 
 

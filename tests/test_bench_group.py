@@ -1,4 +1,4 @@
-"""bench's group line (coopsumo/bench_group.py, issue 77) on a short training: `make bench`'s full run prints it,
+"""bench's group line (coopsumo/bench/group.py, issue 77) on a short training: `make bench`'s full run prints it,
 `--quick` does not (tests/test_docs.py runs that), so it is run here at a size that takes seconds: a group of 2
 against a lone training's figures given as bench gives them (its selection share trains the same lone training)."""
 
@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from coopsumo.bench import scaled_selection
-from coopsumo.bench_group import before_and_after, group_lines
+from coopsumo.bench.figures import scaled_selection
+from coopsumo.bench.group import before_and_after, group_lines
 
 pytestmark = pytest.mark.sumo
 LINE = (r"  train \(default, 300 steps, selection scaled to it\): lone, as before issue 77, 20\.0 CPU s "

@@ -198,7 +198,7 @@ def test_bench_with_a_full_temporary_folder_is_one_line(error: Exception, monkey
     """Issue 82: `bench` with a 64 KB TMPDIR ended in two tracebacks (torch's writer failing, a full disk); its
     writes fail so here (measured on a 64 KB and a 4 KB tmpfs: these two errors), and the command says so in one
     line, exit code 1."""
-    from coopsumo import bench
+    from coopsumo.bench import figures as bench
 
     def full(*_args: object) -> None:
         raise error

@@ -49,7 +49,7 @@ def _run(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
 
 def test_the_cluster_bench_runs_one_study_on_every_backend_with_the_same_records() -> None:
     """`coopsumo bench --cluster` (docs/performance.md): the figures are printed; what is checked is that all four
-    backends ran and that bench_cluster found their runs.csv equal (it fails otherwise). It runs before the module's
+    backends ran and that bench.cluster found their runs.csv equal (it fails otherwise). It runs before the module's
     cluster is started: it starts its own."""
     pytest.importorskip("ray")
     res = subprocess.run([sys.executable, "-m", "coopsumo", "bench", "--cluster", "--quick"], cwd=REPO, env=_env(),

@@ -221,7 +221,7 @@ def test_bench_refuses_a_model_file_of_random_bytes_before_its_runs(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """F22: `bench --model m.pt` took any existing file and ran its trainings (minutes) before reading it; now it is
     read first, as `--policy dqn:` reads it: one line, exit 2, nothing run."""
-    from coopsumo import bench
+    from coopsumo.bench import figures as bench
 
     def no_run(*_args: object, **_kwargs: object) -> None:
         raise AssertionError("bench ran before refusing the model file")

@@ -359,7 +359,7 @@ def learner_lines(steps: int, quick: bool, model: Path | None) -> None:
     print(f"selection share {100 * (1 - without_s / with_s):.0f}%  (model selection's share of a default training's "
           f"wall time: 6 snapshots validated on runs scaled by {ratio_steps:,} / 90,000; target <= 30%; "
           f"{100 * selection_cpu / total_cpu:.0f}% of its CPU time)", flush=True)  # fmt: skip
-    from coopsumo.bench_group import group_lines
+    from coopsumo.bench.group import group_lines
 
     lone = (total_cpu, with_s)  # the group's lone training is the selection share's with selection
     print("\n".join(group_lines(scaled_selection(ratio_steps), 8, lone)), flush=True)
@@ -438,7 +438,7 @@ def _main(argv: list[str] | None) -> int:
             import ray  # noqa: F401
         except ImportError:
             parser.error("--cluster needs Ray: .venv/bin/pip install 'ray[default]'")
-        from coopsumo.bench_cluster import cluster_lines
+        from coopsumo.bench.cluster import cluster_lines
 
         cluster_lines(quick)
         return 0
@@ -460,6 +460,3 @@ def _main(argv: list[str] | None) -> int:
         decision_and_output_lines(steps, quick)
     return 0
 
-
-if __name__ == "__main__":
-    sys.exit(main())
