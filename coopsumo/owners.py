@@ -75,8 +75,9 @@ def _in_store(real: Path, what: str, itself: bool) -> str | None:
         if STORE_NAME.fullmatch(folder.name):
             return (f"{what} leads into {folder}, a model of a model store (a study's model link?), which only the "
                     "studies write")  # fmt: skip
-    for folder in [real] * itself + list(real.parents):  # any depth: models/sub/run, models/.x/run (probe 8)
-        if _holds_models(folder) or _beside_a_study(folder):
+    for folder in [real, *real.parents]:  # any depth: models/sub/run, models/.x/run (probe 8)
+        # an emptied store beside a study is one as an --out too (probe 10, L3: a run's marker made it refused)
+        if ((folder != real or itself) and _holds_models(folder)) or _beside_a_study(folder):
             return f"{what} is in {folder}, a model store (it holds the studies' models), which only the studies write"
     return None
 

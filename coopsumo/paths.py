@@ -190,9 +190,17 @@ def nets_in_out_problem(out: Path) -> str | None:
 
 def env_problem() -> str | None:
     """Why a folder the environment names cannot be used ('$NAME ...', a line to follow 'error: '), or None: every
-    variable the package reads a folder from, checked like --nets-dir (nets_dir_problem) before a command starts."""
+    variable the package reads a folder from, checked like --nets-dir (nets_dir_problem) before a command starts, and
+    $TMPDIR by the path rules SUMO needs (out_path_problem)."""
     for name, may_be_empty in ((NETS_ENV, False), (STORE_ENV, True)):
         value = os.environ.get(name)
-        if value is not None and not (may_be_empty and not value) and (problem := nets_dir_problem(value)):
-            return f"${name} {problem}"
+        if value is None or (may_be_empty and not value):
+            continue
+        # coopsumo takes the store's path as given, so a '~' there is SUMO's alone (issue 82, probe 10, L1: SUMO
+        # wrote into $HOME/m's model); the networks folder is expanded (nets_dir_problem)
+        if problem := (out_path_problem(Path(value)) if name == STORE_ENV else None) or nets_dir_problem(value):
+            return f"${name} {problem.replace('folder path', 'path')}"
+    # SUMO writes bench's and the screenshot's runs there (issue 82, probe 10, L5: ',', ':' and '${' were tracebacks)
+    if (value := os.environ.get("TMPDIR")) and (problem := out_path_problem(Path(value))):
+        return f"$TMPDIR {problem.replace('folder path', 'path')}"
     return None

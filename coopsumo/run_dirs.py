@@ -20,7 +20,7 @@ from coopsumo.files import TEMPORARY, left_temporaries, read_json, read_text, te
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
-from coopsumo.run_markers import PARTIAL_MARKER, PLANLESS_TITLES, RUN_MARKER
+from coopsumo.run_markers import PARTIAL_MARKER, PLANLESS_TITLES, RUN_MARKER, marker_text
 from coopsumo.run_markers import read_marker as _marker
 
 RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xml", "routes.rou.xml", "plain.rou.xml",
@@ -215,7 +215,7 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
         raise UsageError(f"output folder {root} holds a coopsumo {marker['kind']} run, not a {kind} study, and "
                          "is left alone; pick another --out")  # fmt: skip
     unclaimed = marker is None and not (root / own[0]).is_file()  # neither marked nor a root written before markers
-    marking = {p.name for p in temporaries_of(root / RUN_MARKER)}  # a first run's marker, cut by a SIGKILL
+    marking = {p.name for p in temporaries_of(root / RUN_MARKER) if marker_text(p)}  # a first marking, killed
     names = sorted(p.name for p in root.iterdir() if p.name not in marking)
     if marker is None and (foreign := [n for n in names if not any(fnmatch.fnmatchcase(n, pat) for pat in own)]):
         more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""

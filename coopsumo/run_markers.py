@@ -44,3 +44,13 @@ def marker_kind(folder: Path) -> str | None:
     """The command or study whose marker claims `folder`, or None (no marker, or one that names none)."""
     marker = read_marker(folder)
     return marker["kind"] if marker is not None else None
+
+
+def marker_text(path: Path) -> bool:
+    """True when the file `path`, named like a marker's temporary, may be what a marker's write left (nothing yet, or
+    the start of its JSON object), not a user's file of that name (issue 82, probe 10, L7: a user's notes there were
+    taken, then deleted)."""
+    try:
+        return path.stat().st_size < 65_536 and path.read_bytes().lstrip()[:1] in (b"", b"{")
+    except OSError:
+        return False

@@ -498,7 +498,7 @@ def test_a_bench_model_that_is_not_a_regular_file_says_so(kind: str, tmp_path: P
     """Issue 82, probe 7, I17c: `bench --model /dev/zero` (or a FIFO) said "no model file", as if nothing were there."""
     from conftest import main_here
 
-    from coopsumo import bench
+    from coopsumo.bench import figures as bench
 
     model = tmp_path / "model.pt" if kind == "fifo" else Path("/dev/zero")
     if kind == "fifo":
@@ -635,6 +635,9 @@ ENV_ROWS = [
     ("COOPSUMO_MODELS", "{tmp}/a,b", ("$COOPSUMO_MODELS", "without ','", "a,b")),
     ("COOPSUMO_MODELS", "{tmp}/a:b", ("$COOPSUMO_MODELS", "without ':'", "a:b")),
     ("COOPSUMO_MODELS", "{tmp}/read_only/store", ("$COOPSUMO_MODELS", "cannot be written")),
+    ("COOPSUMO_MODELS", "~/m", ("$COOPSUMO_MODELS", "'~/m' starts with '~'")),  # probe 10, L1: SUMO wrote in $HOME
+    ("TMPDIR", "{tmp}/t${{FOO}}", ("$TMPDIR", "without '${'")),  # probe 10, L5: SUMO tracebacks in bench
+    ("TMPDIR", "{tmp}/a,b", ("$TMPDIR", "without ','")),
 ]
 
 

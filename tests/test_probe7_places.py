@@ -59,7 +59,7 @@ def test_a_run_folder_is_the_studys_only_when_it_holds_only_a_runs_names(tmp_pat
     check_run_places([tmp_path / "empty"], in_place=True)
     own = tmp_path / "own"
     own.mkdir()
-    for name in ("config.json", "summary.json", "detectors.xml", ".summary.json.abc.tmp"):
+    for name in ("config.json", "summary.json", "detectors.xml", ".summary.json.abcd1234.tmp"):
         (own / name).write_text("{}")
     check_run_places([own], in_place=True)
     with pytest.raises(UsageError, match="own has no .coopsumo-run.json"):  # scenario I's and the protocol's runs

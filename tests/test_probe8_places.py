@@ -161,6 +161,13 @@ def test_a_users_file_named_like_a_temporary_in_an_unmarked_folder_is_kept(entry
             pass
     assert listing(tmp_path) == before
     user.unlink() if entry == "file" else ((user / "ch1.txt").unlink(), user.rmdir())
+    notes = root / "..coopsumo-run.json.thesis01.tmp"  # probe 10, L7: a user's file named as the marker's temporary
+    notes.write_text("MY NOTES\n")
+    with pytest.raises(UsageError, match=r"holds \.\.coopsumo-run\.json\.thesis01\.tmp"):
+        with study_root(root, "scenario2", ("sweep.json", "report.md", "*.tmp")):
+            pass
+    assert notes.read_text() == "MY NOTES\n"
+    notes.unlink()
     (root / "..coopsumo-run.json.abcdefgh.tmp").write_text("{")  # a first run killed while it marked its root
     with study_root(root, "scenario2", ("sweep.json", "report.md", "*.tmp")):
         assert (root / ".coopsumo-run.json").is_file()
@@ -177,6 +184,29 @@ def test_an_empty_model_store_beside_a_study_is_still_its_store(tmp_path: Path) 
     problem = owned_problem(tmp_path / "models" / "run", "--out models/run")
     assert problem is not None and f"is in {tmp_path / 'models'}, a model store" in problem
     assert owned_problem(tmp_path / "elsewhere" / "models" / "run", "--out elsewhere/models/run") is None
+    problem = owned_problem(tmp_path / "models", "--out models")  # probe 10, L3: the store itself as an --out
+    assert problem is not None and f"is in {tmp_path / 'models'}, a model store" in problem
+    assert owned_problem(tmp_path / "elsewhere" / "models", "--out elsewhere/models") is None
+
+
+@pytest.mark.parametrize("command", [["simulate", "--quiet", "--steps", "20"],
+                                     ["train", "--quiet", "--steps", "100", "--eval-steps", "0"],
+                                     ["scenario1", "--regime-map", "--seeds", "1", "--steps", "200"]])
+def test_an_emptied_model_store_beside_a_study_is_no_commands_out(
+        command: list[str], tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Probe 10 (L3, L6): `simulate --out models`, `train --out models`, the merges and the regime map wrote their
+    marker into the emptied store beside a study, which every study then refused; nothing is written now (a study's
+    root is checked by the same owners.owned_problem, through run_dirs.check_study_place)."""
+    from coopsumo.run_dirs import mark_run_dir
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "s1").mkdir()
+    mark_run_dir(tmp_path / "s1", "scenario1", finished=False, study="the quick profile's study")
+    (tmp_path / "models").mkdir()
+    before = listing(tmp_path)
+    one_line(capsys, run(command[0], [*command[1:], "--out", "models"]), "a model store")
+    assert listing(tmp_path) == before
 
 
 def test_nothing_is_written_inside_a_runs_partial_folder(tmp_path: Path) -> None:

@@ -269,3 +269,25 @@ def test_a_run_written_in_place_again_leaves_a_hard_linked_copy_of_its_folder_as
     before = snapshot(copy)
     simulate_into(to_dict(replace(CFG, seed=4)), out, "run")
     assert snapshot(copy) == before and snapshot(out)["detectors.xml"] != before["detectors.xml"]
+
+
+def test_a_users_file_in_a_run_folder_written_in_place_is_refused_or_kept(tmp_path: Path) -> None:
+    """Issue 82, probe 10 (L2): a user's `.notes.tmp` in a scenario II run folder was taken as a run's temporary and
+    deleted by the cell's rerun, and a user's fcd.xml in a run that writes none was deleted too. A temporary of a
+    run's own file ('.NAME.XXXXXXXX.tmp') is the run's; a user's dot-file is refused; an output name the run does not
+    write is kept."""
+    from coopsumo.errors import UsageError
+    from coopsumo.studies.engine.run_folders import check_run_places
+
+    out = tmp_path / "evals" / "cell" / "eval_s3"
+    simulate_into(to_dict(CFG), out, "run")
+    (out / ".detectors.xml.abcd1234.tmp").write_text("a killed write's\n")
+    check_run_places([out], in_place=True)  # the run's own temporary: taken
+    (out / ".notes.tmp").write_text("my notes\n")
+    with pytest.raises(UsageError, match="has no .coopsumo-run.json .* is left alone"):
+        check_run_places([out], in_place=True)
+    (out / ".notes.tmp").unlink()
+    (out / "fcd.xml").write_text("my fcd\n")
+    check_run_places([out], in_place=True)
+    simulate_into(to_dict(CFG), out, "run")  # writes no FCD
+    assert (out / "fcd.xml").read_text() == "my fcd\n"

@@ -7,6 +7,7 @@ exit code 2, nothing written."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -16,6 +17,7 @@ import pandas as pd
 import pytest
 from conftest import REPO, text_difference
 
+from coopsumo.paths import NAME_ROOM
 from coopsumo.studies.scenario1 import study as s1
 
 WHOLE = REPO / "results" / "scenario1_alpha_only_10models"
@@ -213,9 +215,11 @@ def test_an_out_that_is_not_the_merges_own_is_refused(parts: list[Path], tmp_pat
     code, err = merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(busy))
     assert code == 2 and "holds other files (notes.txt)" in err[0]
     assert sorted(p.name for p in busy.iterdir()) == ["notes.txt"]
+    longest = tmp_path / ("m" * (os.pathconf(tmp_path, "PC_NAME_MAX") - NAME_ROOM))  # probe 10, L6: its stage's
+    assert merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(longest))[0] == 0  # name was too long
     merged = tmp_path / "merged"
     assert merge(capsys, "--merge", ",".join(map(str, parts)), "--out", str(merged))[0] == 0
-    assert not [p for p in tmp_path.iterdir() if "partial-merge" in p.name]  # staged beside it, then moved in
+    assert not [p for p in tmp_path.iterdir() if ".merge-" in p.name]  # staged beside it, then moved in
     before = {p.name: p.read_bytes() for p in merged.iterdir()}
     third = make_part(tmp_path, "p3", [110])
     code, err = merge(capsys, "--merge", f"{parts[0]},{third}", "--out", str(merged))

@@ -91,10 +91,11 @@ def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], ro
         for road in dict.fromkeys(roads):
             build_net(road)
         if backend == "local":  # the stacked learner's trainings first, as groups (engine/groups.py)
-            from coopsumo.studies.engine.groups import train_groups
+            from coopsumo.studies.engine.groups import train_groups, training_configs
             from coopsumo.studies.engine.model_store import store_for
 
-            train_groups(todo, store_for(root), quiet=not progress)
+            if training_configs(todo):  # a study that trains none (the regime map) has no store to ask for
+                train_groups(todo, store_for(root), quiet=not progress)
         runner = make_backend(backend, workers, address, cell_fn)
         try:
             with sigterm_interrupts():

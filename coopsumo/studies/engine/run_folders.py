@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import ROAD_LENGTH_M, OutputConfig, results_view, to_dict
-from coopsumo.files import file_sha256, not_regular, read_json
+from coopsumo.files import TEMPORARY, file_sha256, left_temporaries, not_regular, read_json
 from coopsumo.record_schemas import SPEED_MAX_MPS
 from coopsumo.run_dirs import LEARNERS, RUN_OUTPUTS, Recorded, check_out_path, check_run_dir, check_study_place
 from coopsumo.run_dirs import study_root as claim_study_root
@@ -42,19 +42,32 @@ def check_run_places(folders: Iterable[Path], in_place: bool = False) -> None:
             check_run_dir(out, "simulate")
 
 
+RUN_FILES = tuple(pattern for pattern in RUN_OUTPUTS if not pattern.endswith(TEMPORARY))
+"""the files a run writes, their temporaries aside"""
+
+
 def _written_in_place(out: Path) -> bool:
-    return out.is_dir() and not os.path.lexists(out / RUN_MARKER) and not out.is_symlink() and all(
-        p.is_file() and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS) for p in out.iterdir())
+    """True when `out` is a folder without a marker holding only files a run writes, and the temporaries a killed
+    write left of them ('.NAME.XXXXXXXX.tmp': files.left_temporaries): a user's `.notes.tmp` is not one (issue 82,
+    probe 10, L2: it was deleted)."""
+    if not out.is_dir() or os.path.lexists(out / RUN_MARKER) or out.is_symlink():
+        return False
+    left = set(left_temporaries(out, RUN_FILES))
+    return all(p.is_file() and (p in left or any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_FILES))
+               for p in out.iterdir())  # fmt: skip
 
 
 def fresh_in_place(out: Path) -> None:
-    """Make the folder `out` for a run written in place, unlinking the files an earlier run left in it (the names
-    RUN_OUTPUTS lists; check_run_places refused anything else) so that the run writes new files rather than through
-    the old ones: SUMO and the trajectory writer open their outputs in place, which changed a hard-linked snapshot of
-    the folder (`cp -al`, `rsync --link-dest`; issue 82, probe 9, K7)."""
+    """Make the folder `out` for a run written in place, unlinking the files an earlier run left in it that have
+    another hard link (the names RUN_OUTPUTS lists; check_run_places refused anything else), so that the run writes
+    new files rather than through them: SUMO and the trajectory writer open their outputs in place, which changed a
+    hard-linked snapshot of the folder (`cp -al`, `rsync --link-dest`; issue 82, probe 9, K7). A file with no other
+    link is left to be written again, or kept when the run does not write it (probe 10, L2: a user's fcd.xml in a
+    run that writes none was deleted)."""
     out.mkdir(parents=True, exist_ok=True)
     for p in out.iterdir():
-        if p.is_file() and not p.is_symlink() and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS):
+        if (p.is_file() and not p.is_symlink() and p.stat().st_nlink > 1
+                and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS)):  # fmt: skip
             p.unlink()
 
 

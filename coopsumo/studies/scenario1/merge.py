@@ -274,7 +274,7 @@ def _write_merge(parts: list[tuple[Path, dict[str, Any], pd.DataFrame]], out: Pa
     first = parts[0][1]
     seeds = sorted(s for _, recorded, _ in parts for s in recorded["plan"]["train_seeds"])
     plan_dict = {**first["plan"], "train_seeds": seeds}
-    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-merge-", dir=out.parent))
+    stage = Path(tempfile.mkdtemp(prefix=f".{out.name}.merge-", dir=out.parent))
     try:  # every file written beside out first, then moved in: an interrupted merge leaves out as it was
         rows.to_csv(stage / "runs.csv", index=False)
         summary.to_csv(stage / "summary.csv", index=False)
