@@ -9,6 +9,7 @@ import json
 import sys
 import zipfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -239,3 +240,162 @@ def test_scenario1_takes_baselines_of_ones_own_beside_keep(folder: Path) -> None
                                         "sumo")  # fmt: skip
     assert study.label_for("py:mine:Right") == "py_Right" and study.label_for("sb3:a/b/model.zip") == "sb3_b"
     assert study.label_for("sb3:runs/highway.zip") == "sb3_highway"
+
+
+HOSTILE = '''
+class Mine(BaseException):
+    pass
+
+
+class Ragged:
+    def act(self, obs):
+        return [[1] * (i + 1) for i in range(len(obs))] if len(obs) > 1 else [1] * len(obs)
+
+
+class Unreadable:
+    def __array__(self, *args, **kwargs):
+        raise RuntimeError("no array here")
+
+
+class GivesUnreadable:
+    def act(self, obs):
+        return Unreadable()
+
+
+class Grids:
+    @property
+    def needs_grids(self):
+        raise KeyError("grids")
+
+    def act(self, obs):
+        return [1] * len(obs)
+
+
+class Label:
+    @property
+    def name(self):
+        raise KeyError("name")
+
+    def act(self, obs):
+        return [1] * len(obs)
+
+
+class Lookup:
+    def __getattr__(self, key):
+        raise RuntimeError("no " + key)
+
+    def act(self, obs):
+        return [1] * len(obs)
+
+
+class Shown(int):
+    def __repr__(self):
+        raise RuntimeError("no repr")
+
+
+class Interval:
+    decision_interval = Shown(0)
+
+    def act(self, obs):
+        return [1] * len(obs)
+
+
+class Closing:
+    def act(self, obs):
+        raise GeneratorExit("closed")
+
+
+class Own:
+    def act(self, obs):
+        raise Mine("mine")
+
+
+class Interrupted:
+    def act(self, obs):
+        raise KeyboardInterrupt
+
+
+class Exiting:
+    def act(self, obs):
+        raise SystemExit(5)
+
+
+class Deleting:
+    def __del__(self):
+        raise RuntimeError("del failed")
+
+    def act(self, obs):
+        return [1] * len(obs)
+'''
+
+
+@pytest.fixture
+def hostile(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A working folder holding hostile.py, classes whose attributes, decisions or act raise (probe 10, L4)."""
+    (tmp_path / "hostile.py").write_text(HOSTILE)
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+@pytest.mark.parametrize(("cls", "fragment"), [
+    ("Grids", "its needs_grids raised KeyError: 'grids' ("),
+    ("Label", "its name raised KeyError: 'name' ("),
+    ("Lookup", "its name raised RuntimeError: no name ("),
+    ("Interval", "its decision_interval raised RuntimeError: no repr ("),
+])  # fmt: skip
+def test_an_attribute_that_raises_is_refused_in_one_line(hostile: Path, cls: str, fragment: str) -> None:
+    with pytest.raises(UserPolicyError) as err:  # issue 82, probe 10, L4: tracebacks
+        make_policy(f"py:hostile:{cls}", np.random.default_rng(0))
+    assert fragment in str(err.value) and f"{hostile / 'hostile.py'}:" in str(err.value), str(err.value)
+    assert len(str(err.value).splitlines()) == 1
+
+
+def test_what_act_gives_or_raises_ends_in_one_line_but_an_interrupt(hostile: Path) -> None:
+    obs: Any = [0, 0, 0]  # act sees only len(obs)
+    for cls, fragment in (("Ragged", "act(obs) gave a list that is no array of 3 integers, one per vehicle (0 left, "
+                                     "1 right, 2 speed-up, 3 none): ValueError: setting an array element"),
+                          ("GivesUnreadable", "gave a Unreadable that is no array of 3 integers"),
+                          ("Closing", "act(obs) raised GeneratorExit: closed ("),
+                          ("Own", "act(obs) raised Mine: mine (")):  # fmt: skip
+        with pytest.raises(UserPolicyError) as err:
+            make_policy(f"py:hostile:{cls}", np.random.default_rng(0)).act(obs)
+        assert fragment in str(err.value) and len(str(err.value).splitlines()) == 1, str(err.value)
+    with pytest.raises(KeyboardInterrupt):  # Ctrl-C stops the run as a signal does
+        make_policy("py:hostile:Interrupted", np.random.default_rng(0)).act(obs)
+    with pytest.raises(SystemExit):
+        make_policy("py:hostile:Exiting", np.random.default_rng(0)).act(obs)
+
+
+def test_a_del_that_raises_is_said_in_one_line(hostile: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import gc
+
+    policy = make_policy("py:hostile:Deleting", np.random.default_rng(0))
+    del policy
+    gc.collect()
+    err = capsys.readouterr().err.strip().splitlines()
+    line = HOSTILE.splitlines().index('        raise RuntimeError("del failed")') + 1
+    where = f"{hostile / 'hostile.py'}:{line}"
+    assert err == [f"py:hostile:Deleting: its __del__ raised RuntimeError: del failed ({where})"]
+
+
+@pytest.mark.sumo
+def test_simulate_ends_a_hostile_policy_in_one_line(hostile: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from coopsumo import simulate
+
+    for cls, fragment in (("Ragged", "act(obs) gave a list that is no array of"),
+                          ("GivesUnreadable", "RuntimeError: no array here"), ("Grids", "its needs_grids raised"),
+                          ("Closing", "act(obs) raised GeneratorExit: closed"),
+                          ("Own", "act(obs) raised Mine: mine")):  # fmt: skip  (probe 10, L4: tracebacks)
+        assert simulate.main(["--policy", f"py:hostile:{cls}", "--steps", "60", "--quiet", "--out", "bad"]) == 2, cls
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and fragment in err[0] and "Traceback" not in err[0], err
+        assert sorted(p.name for p in hostile.iterdir()) == ["hostile.py"]  # nothing written
+
+
+def test_scenario1_refuses_a_baseline_whose_name_raises(hostile: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from coopsumo.studies.scenario1 import study
+
+    assert study.main(["--quick", "--baseline", "py:hostile:Label", "--out", "s1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--baseline py:hostile:Label: py:hostile:Label: its name raised KeyError" in err[0], err
+    assert sorted(p.name for p in hostile.iterdir()) == ["hostile.py"]

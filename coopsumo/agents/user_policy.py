@@ -18,9 +18,10 @@ import inspect
 import os
 import sys
 import traceback
+from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -33,6 +34,10 @@ from coopsumo.sim.physics import ACTION_NAMES
 MAX_DECISION_INTERVAL = 600
 """the longest decision interval a policy of one's own may ask for (steps; a minute), as the learner's"""
 ACTIONS_TEXT = "0 left, 1 right, 2 speed-up, 3 none"
+PASSED_ON = (KeyboardInterrupt, SystemExit)
+"""what the user's code may raise that is no failure of its own, passed on as Python would: a Ctrl-C or a signal
+(runio ends the run in one line as for any), an exit it asks for"""
+T = TypeVar("T")
 
 
 class UserPolicyError(UsageError):
@@ -56,9 +61,12 @@ def _from_file(path: str, text: str) -> ModuleType:
     writes, sys.dont_write_bytecode = sys.dont_write_bytecode, True  # reading it leaves no __pycache__ beside it
     try:
         spec.loader.exec_module(module)
-    except Exception as err:  # the user's code: any error, in one line
+    except PASSED_ON:
         del sys.modules[name]
-        raise UserPolicyError(f"{text}: running {path} failed: {type(err).__name__}: {first_line(err)}") from None
+        raise
+    except BaseException as err:  # the user's code: any error, in one line
+        del sys.modules[name]
+        raise UserPolicyError(f"{text}: running {path} failed: {_failure(err)}") from None
     finally:
         sys.dont_write_bytecode = writes
     return module
@@ -73,8 +81,10 @@ def _imported(module: str, text: str) -> ModuleType:
             raise UserPolicyError(f"{text}: no module {module!r}: neither {module.replace('.', '/')}.py in the current "
                                   "folder nor an importable module") from None  # fmt: skip
         raise UserPolicyError(f"{text}: importing {module} failed: {first_line(err)}") from None
-    except Exception as err:  # the user's code: any error, in one line
-        raise UserPolicyError(f"{text}: importing {module} failed: {type(err).__name__}: {first_line(err)}") from None
+    except PASSED_ON:
+        raise
+    except BaseException as err:  # the user's code: any error, in one line
+        raise UserPolicyError(f"{text}: importing {module} failed: {_failure(err)}") from None
 
 
 def load_class(module: str, class_name: str, text: str) -> type:
@@ -103,25 +113,32 @@ def _instance(cls: type, rng: np.random.Generator, text: str) -> Any:
         takes_rng = "rng" in inspect.signature(cls).parameters
     except (TypeError, ValueError):
         takes_rng = False
-    try:
-        return cls(rng=rng) if takes_rng else cls()
-    except Exception as err:  # the user's code: any error, in one line
-        raise UserPolicyError(f"{text}: {cls.__name__}() failed: {type(err).__name__}: {first_line(err)} (its "
-                              "constructor takes no argument, or only rng)") from None  # fmt: skip
+    return _users(lambda: cls(rng=rng) if takes_rng else cls(), f"{text}: {cls.__name__}() failed:",
+                  " (its constructor takes no argument, or only rng)")  # fmt: skip
 
 
 def _attribute(inner: Any, key: str, default: Any, text: str) -> Any:
-    """A policy attribute the class may set, checked (needs_grids a bool, decision_interval 1-600, name a string)."""
-    value = getattr(inner, key, default)
-    fine = {"needs_grids": isinstance(value, bool | np.bool_),
-            "decision_interval": isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
-            and 1 <= value <= MAX_DECISION_INTERVAL,
-            "name": isinstance(value, str) and value != ""}[key]  # fmt: skip
-    if not fine:
+    """A policy attribute the class may set, checked (needs_grids a bool, decision_interval 1-600, name a string).
+    Read, shown and made a plain bool, int or str by _users: a property, a __getattr__, a __repr__ or a subclass's
+    conversion that raises ends in one line (issue 82, probe 10, L4: tracebacks)."""
+    value, shown = _users(lambda: _plain(getattr(inner, key, default), type(default)), f"{text}: its {key} raised")
+    if value is None or value == "" or (key == "decision_interval" and not 1 <= value <= MAX_DECISION_INTERVAL):
         must = {"needs_grids": "True or False", "decision_interval": f"an integer from 1 to {MAX_DECISION_INTERVAL}",
                 "name": "a non-empty string"}[key]  # fmt: skip
-        raise UserPolicyError(f"{text}: its {key} must be {must}, got {value!r}")
-    return type(default)(value)
+        raise UserPolicyError(f"{text}: its {key} must be {must}, got {shown}")
+    return value
+
+
+def _plain(value: Any, kind: type) -> tuple[Any, str]:
+    """(value as a plain `kind`, bool, int or str, or None when it is none of that kind; its repr, cut short)."""
+    shown = repr(value)
+    shown = shown if len(shown) <= 60 else f"{shown[:57]}..."
+    if kind is bool:
+        return (bool(value) if isinstance(value, bool | np.bool_) else None), shown
+    if kind is int:
+        whole = isinstance(value, int | np.integer) and not isinstance(value, bool | np.bool_)
+        return (int(value) if whole else None), shown
+    return (str(value) if isinstance(value, str) else None), shown
 
 
 class UserPolicy:
@@ -131,6 +148,7 @@ class UserPolicy:
     def __init__(self, inner: Any, text: str, file: str | None) -> None:
         self.inner = inner
         self.text = text
+        _said_in_one_line(inner, text)
         self.name = _attribute(inner, "name", type(inner).__name__, text)
         self.needs_grids = _attribute(inner, "needs_grids", True, text)
         self.decision_interval = _attribute(inner, "decision_interval", 1, text)
@@ -149,12 +167,62 @@ class UserPolicy:
         return cls(inner, text, module_file(spec.module))
 
     def act(self, obs: Observation) -> np.ndarray:
-        try:
-            actions = self.inner.act(obs)
-        except Exception as err:  # the user's code: one line naming it and where it failed (issue 82, probe 9)
-            raise UserPolicyError(f"{self.text}: act(obs) raised {type(err).__name__}: {first_line(err)[:120]}"
-                                  f"{_where(err)}") from None  # fmt: skip
+        actions = _users(lambda: self.inner.act(obs), f"{self.text}: act(obs) raised")  # issue 82, probe 9 (K10)
         return checked_actions(actions, len(obs), self.text)
+
+
+def _users(call: Callable[[], T], says: str, after: str = "") -> T:
+    """call(), the user's code: whatever it raises (any BaseException but PASSED_ON: a GeneratorExit, a class of the
+    user's own) ends in one UserPolicyError, '`says` TYPE: its first line (FILE:LINE)`after`', the line of the user's
+    file where it was raised. Issue 82, probe 9 (K10): act(obs); probe 10 (L4): the attributes, what act gave."""
+    try:
+        return call()
+    except UserPolicyError:
+        raise
+    except PASSED_ON:
+        raise
+    except BaseException as err:
+        raise UserPolicyError(f"{says} {_failure(err)}{_where(err)}{after}") from None
+
+
+_DELS: dict[object, str] = {}
+"""the __del__ of each class of the user's made, by the policy text that made it (_said_in_one_line)"""
+_BEFORE: list[Callable[[Any], object]] = []
+"""the unraisable hook before _unraisable, which it hands every other unraisable error"""
+
+
+def _said_in_one_line(inner: Any, text: str) -> None:
+    """A __del__ of the user's class that raises (when the run drops it, or as Python exits) is said in one line on
+    stderr rather than Python's 'Exception ignored in ... Traceback'; the exit code is the run's (issue 82, probe 10,
+    L4). Read without running the user's code (getattr_static)."""
+    found = inspect.getattr_static(type(inner), "__del__", None)
+    if not inspect.isfunction(found):
+        return
+    _DELS[found] = text
+    if sys.unraisablehook is not _unraisable:
+        _BEFORE[:] = [sys.unraisablehook]
+        sys.unraisablehook = _unraisable
+
+
+def _unraisable(unraisable: Any) -> None:
+    """sys.unraisablehook once a class of the user's with a __del__ is made: its error in one line, others as before"""
+    said, err = _DELS.get(unraisable.object), unraisable.exc_value
+    if said is None or err is None or isinstance(err, PASSED_ON):
+        (_BEFORE[0] if _BEFORE else sys.__unraisablehook__)(unraisable)
+        return
+    print(f"{said}: its __del__ raised {_failure(err)}{_where(err)}", file=sys.stderr)
+
+
+def _failure(err: BaseException) -> str:
+    """'TYPE: the first line of its message' of an exception the user's code raised (a message that cannot be read
+    said so)."""
+    try:
+        line = first_line(err)[:120]
+    except PASSED_ON:
+        raise
+    except BaseException:
+        line = "(its message cannot be read)"
+    return f"{type(err).__name__}: {line}"
 
 
 def _where(err: BaseException) -> str:
@@ -166,8 +234,10 @@ def _where(err: BaseException) -> str:
 
 
 def checked_actions(actions: Any, n: int, who: str) -> np.ndarray:
-    """`actions` as an int64 array of n actions 0-3; UserPolicyError naming `who` and what it gave otherwise."""
-    arr = np.asarray(actions)
+    """`actions` as an int64 array of n actions 0-3; UserPolicyError naming `who` and what it gave otherwise (a ragged
+    list or an object whose __array__ raises: what numpy said, by _users; issue 82, probe 10, L4)."""
+    arr = _users(lambda: np.asarray(actions), f"{who}: act(obs) gave a {type(actions).__name__} that is no array of "
+                 f"{n} integers, one per vehicle ({ACTIONS_TEXT}):")  # fmt: skip
     if arr.shape != (n,) or not (np.issubdtype(arr.dtype, np.integer) or (n == 0 and arr.dtype == float)):
         raise UserPolicyError(f"{who}: act(obs) gave {arr.dtype} of shape {arr.shape}; it must give {n} integers, one "
                               f"per vehicle ({ACTIONS_TEXT})")  # fmt: skip
