@@ -94,9 +94,11 @@ def test_the_learning_study_drives_each_evaluation_with_its_cells_drive_settings
     from coopsumo.studies.learning.study import run_cell
 
     specs = learning_specs()
-    expected = {"paper_alpha0_seed0": ((0.0, 0.0, 0.0), None, "eval_seed{}"),
-                "margin2_alpha0_seed0": ((2.0, 5.0, 10.0), None, "eval_seed{}_margin2_queue5_noreturn10"),
-                "conditioned_alpha8_seed0": ((1.0, 5.0, 10.0), 8.0, "eval_seed{}_margin1_queue5_noreturn10_alpha8")}
+    expected = {
+        "paper_alpha0_seed0": ((0.0, 0.0, 0.0), None, "eval_seed{}"),
+        "margin2_alpha0_seed0": ((2.0, 5.0, 10.0), None, "eval_seed{}_margin2_queue5_noreturn10"),
+        "conditioned_alpha8_seed0": ((1.0, 5.0, 10.0), 8.0, "eval_seed{}_margin1_queue5_noreturn10_alpha8"),
+    }
     for key, (drive, alpha, folder) in expected.items():
         faked_runs.clear()
         record = run_cell(specs[key], str(tmp_path))
