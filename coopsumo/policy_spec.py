@@ -56,6 +56,13 @@ RETIRED_KEYS: dict[str, tuple[str, tuple[float, float, bool]]] = {
 """dqn parameters tried and not adopted (issue 80; results/history keeps their rows, each made at the commit it
 names): the drive setting each was recorded as and the range it took. A policy string with one is refused in one
 line; a frozen study's record of one is read as it was (protocol.history)"""
+DRIVES = (("margin", "change_margin", "change margin"), ("noreturn", "no_return_s", "no change back within (s)"),
+          ("restart", "restart_below_mps", "'none' withheld below (m/s)"),
+          ("queue", "queue_below_mps", "no lane change below (m/s)"))
+"""the drive settings a dqn policy string takes besides alpha, each as (its key in the string, the DQNConfig field it
+replaces: the key of a study cell's config.drive and of a protocol variant's `drive` table in learners.toml, the
+report's words); the string of a model with its drive settings: studies/engine/drive.dqn_policy. The retired ones:
+RETIRED_KEYS"""
 OWN = ("py", "sb3")
 """policies from the user's own files: a class of their own (py:MODULE:CLASS), a Stable-Baselines3 model (sb3:PATH)"""
 FORMS = ("keep, random, greedy, mobil[:p=P,...], sumo[:lcCooperative=X,...], "

@@ -23,15 +23,16 @@ def test_an_alpha_conditioned_variant_trains_once_and_drives_at_each_cells_alpha
     driven at its own alpha; the report is written."""
     from dataclasses import replace
 
+    from coopsumo.studies.engine.drive import cell_policy
     from coopsumo.studies.protocol.plan import PROFILES, cell_specs
-    from coopsumo.studies.protocol.study import driven_policy, run_study
+    from coopsumo.studies.protocol.study import run_study
 
     profile = replace(PROFILES["tiny"], name="tiny_c2x", variants=("c2x",), seeds=(PROFILES["tiny"].seeds[0],),
                       t_ups=(1.0,))  # fmt: skip
     specs = [s for s in cell_specs(profile) if s["kind"] == "model"]
     assert {s["alpha"] for s in specs} == {0.0, 8.0}
     assert len({str(s["config"]["train"]) for s in specs}) == 1  # one training for both alphas
-    assert {driven_policy(s, Path("/m")).rsplit(",", 1)[-1] for s in specs} == {"alpha=0", "alpha=8"}
+    assert {cell_policy(s, Path("/m/model.pt")).rsplit(",", 1)[-1] for s in specs} == {"alpha=0", "alpha=8"}
     assert PROFILES["c2x"].train_steps == PROFILES["nr10_180k"].train_steps == 180_000
     out = tmp_path / "proto"
     run_study(profile, out, workers=2, progress=False)
@@ -157,8 +158,8 @@ def test_a_drive_variant_drives_the_same_training_its_own_way(tmp_path: Path) ->
     from dataclasses import replace
 
     from coopsumo.policy_spec import parse_policy
+    from coopsumo.studies.engine.drive import cell_policy
     from coopsumo.studies.protocol.plan import PROFILES, cell_specs
-    from coopsumo.studies.protocol.study import driven_policy
 
     known = driven_catalogue(tmp_path)
     profile = replace(PROFILES["nr10"], name="drive", variants=tuple(known), judged="m2")
@@ -166,9 +167,9 @@ def test_a_drive_variant_drives_the_same_training_its_own_way(tmp_path: Path) ->
     own, m2 = specs["nr10_a0_seed100_accident_t1"], specs["m2_a0_seed100_accident_t1"]
     assert own["train_key"] == m2["train_key"] and own["config"]["train"] == m2["config"]["train"]
     assert "drive" not in own["config"] and m2["config"]["drive"] == {"change_margin": 2.0}  # a different record
-    assert parse_policy(driven_policy(own, Path("/m"))).margin is None  # the margin the model was saved with
-    assert parse_policy(driven_policy(m2, Path("/m"))).margin == 2.0
-    drives = {s["variant"]: parse_policy(driven_policy(s, Path("/m"))) for s in specs.values()
+    assert parse_policy(cell_policy(own, Path("/m/model.pt"))).margin is None  # the margin the model was saved with
+    assert parse_policy(cell_policy(m2, Path("/m/model.pt"))).margin == 2.0
+    drives = {s["variant"]: parse_policy(cell_policy(s, Path("/m/model.pt"))) for s in specs.values()
               if s["key"].endswith("a0_seed104_free_t2")}  # fmt: skip
     assert drives["nr5"].noreturn == 5.0 and drives["nr5"].margin is None
     assert drives["nr10_off"].noreturn == 0.0 and drives["nr10"].noreturn is None

@@ -19,7 +19,14 @@ import pytest
 import test_scenario2
 from test_study_commands import learning_folder
 
-from coopsumo.studies.engine.records import cell_path, checked_record, copied_wrong, model_fields, reusable_keys
+from coopsumo.studies.engine.records import (
+    cell_path,
+    checked_record,
+    copied_wrong,
+    model_fields,
+    pool_summaries,
+    reusable_keys,
+)
 from coopsumo.studies.followups import accident_seeds
 from coopsumo.studies.scenario1 import accident_runs as scenario1_cells
 from coopsumo.studies.scenario1 import plan as scenario1_plan
@@ -46,7 +53,7 @@ def dqn_spec() -> dict[str, Any]:
 def _record(spec: dict[str, Any]) -> dict[str, Any]:
     """The record of a finished scenario II DQN cell, as _evaluate fills it: three evaluations and their pool."""
     evals = [_evaluation(1, 21.6, 40, 12), _evaluation(11, 22.1, 42, 9), _evaluation(21, 20.9, 39, 15)]
-    pooled = {k: v for k, v in scenario2.pool_summaries(evals).items() if k != "eval_seed"}
+    pooled = {k: v for k, v in pool_summaries(evals).items() if k != "eval_seed"}
     return {**scenario2.RECORDS.new(spec), "status": "ok", "eval_summaries": evals, "summary": pooled,
             "train_summary": dict(TRAINED)}  # fmt: skip
 
@@ -71,7 +78,7 @@ def _both(key: str, value: Any) -> Callable[[dict[str, Any]], None]:
     def edit(record: dict[str, Any]) -> None:
         for one in record["eval_summaries"]:
             one[key] = value
-        record["summary"][key] = scenario2.pool_summaries(record["eval_summaries"])[key]
+        record["summary"][key] = pool_summaries(record["eval_summaries"])[key]
 
     return edit
 

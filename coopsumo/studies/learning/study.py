@@ -24,7 +24,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
-from coopsumo.config import RoadConfig, to_dict
+from coopsumo.config import RoadConfig, SimConfig, to_dict
 from coopsumo.dqn_config import DQNConfig
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
@@ -85,39 +85,36 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 
 def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Train into ROOT/train/<key>/ (resuming a matching checkpoint), then evaluate greedily on every evaluation
-    seed; the record's summary pools the evaluations (records.pool_summaries), eval_summaries keeps each."""
-    from coopsumo.agents.dqn_policy import DQNPolicy
-    from coopsumo.agents.rollout import run
+    """Train into ROOT/train/<key>/ (resuming a matching checkpoint), then drive the model greedily with the cell's
+    drive settings (its policy string: drive.cell_policy) on every evaluation seed into ROOT/evals/<key>/ (beside
+    the training: the stored model folder holds the training only); the record's summary pools the evaluations,
+    eval_summaries keeps each (drive.drive_pooled)."""
     from coopsumo.config import sim_config_from_dict
+    from coopsumo.studies.engine.drive import cell_policy, drive_pooled
     from coopsumo.studies.engine.model_store import store_for, train_shared
-    from coopsumo.studies.engine.records import pool_summaries
-    from coopsumo.studies.engine.run_folders import fresh_in_place
 
     key = spec.get("train_key", spec["key"])
     out = root / "train" / key
     record["train_summary"], _ = train_shared(spec["config"]["train"], out, store_for(root))  # cells share trainings
+    policy = cell_policy(spec, out / "model.pt")
+    evals = [sim_config_from_dict(raw) for raw in spec["config"]["evals"]]
+    drive_pooled(record, [(replace(ev, policy=policy), root / "evals" / key / eval_folder(spec, ev)) for ev in evals],
+                 spec["key"])  # fmt: skip
+
+
+def eval_folder(spec: dict[str, Any], ev: SimConfig) -> str:
+    """The run folder of a training cell's evaluation ev: eval_seed<seed>, then each drive setting it drives with
+    (config.drive) as _margin<M>, _queue<V>, _noreturn<S>, and for an alpha-conditioned model _alpha<A>."""
     drive = spec["config"].get("drive", {})
-    margin, queue, no_return = (float(drive.get(f, 0.0)) for f in ("change_margin", "queue_below_mps", "no_return_s"))
-    summaries = []
-    for raw in spec["config"]["evals"]:
-        ev = sim_config_from_dict(raw)
-        name = f"eval_seed{ev.seed}" + "".join(f"_{tag}{number_name(x)}" for tag, x in
-                                               (("margin", margin), ("queue", queue), ("noreturn", no_return)) if x)
-        spec_text = f"dqn:{out / 'model.pt'}"
-        policy = DQNPolicy.from_file(spec_text[4:])
-        if policy.net.conditioned:  # driven at the cell's alpha (its evaluation's)
-            policy.drive_at(ev.reward.alpha, ev.road.lanes)
-            spec_text += f",alpha={ev.reward.alpha:g}"
-            name += f"_alpha{number_name(ev.reward.alpha)}"
-        ev = replace(ev, policy=spec_text)
-        eval_dir = root / "evals" / key / name  # beside the training: the stored model folder holds the training only
-        fresh_in_place(eval_dir)
-        policy.change_margin, policy.queue_below_mps, policy.no_return_s = margin, queue, no_return
-        summary = run(ev, policy, eval_dir, progress=False)
-        summaries.append({"eval_seed": ev.seed, **{k: v for k, v in summary.items() if k != "policy"}})
-    record["eval_summaries"] = summaries
-    record["summary"] = {k: v for k, v in pool_summaries(summaries).items() if k != "eval_seed"}
+    name = f"eval_seed{ev.seed}" + "".join(f"_{tag}{number_name(float(drive[f]))}" for tag, f in DRIVE_TAGS
+                                           if drive.get(f))  # fmt: skip
+    if spec["config"]["train"]["dqn"].get("alpha_conditioned"):  # driven at the cell's alpha (its evaluation's)
+        name += f"_alpha{number_name(ev.reward.alpha)}"
+    return name
+
+
+DRIVE_TAGS = (("margin", "change_margin"), ("queue", "queue_below_mps"), ("noreturn", "no_return_s"))
+"""the drive settings an evaluation's folder names, in its name's order: (its tag, its key in config.drive)"""
 
 
 def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:

@@ -170,11 +170,10 @@ def learner_problem(learner: dict[str, Any]) -> str | None:
 
 def drive_problem(drive: dict[str, Any]) -> str | None:
     """Why a study.json learner's drive settings are not a dqn policy's, or None: a key that is not one of
-    protocol.plan.DRIVES (a cell's config.drive) or a retired one (policy_spec.RETIRED_KEYS, read as it was), or a
+    policy_spec.DRIVES (a cell's config.drive) or a retired one (policy_spec.RETIRED_KEYS, read as it was), or a
     value that is not a number in the range the dqn policy string takes or took for it (policy_spec.KEYS; an
     ensemble a whole number)."""
-    from coopsumo.policy_spec import KEYS, RETIRED_KEYS
-    from coopsumo.studies.protocol.plan import DRIVES
+    from coopsumo.policy_spec import DRIVES, KEYS, RETIRED_KEYS
     from coopsumo.validation import number_problem
 
     limits = {key: KEYS["dqn"][field] for field, key, _ in DRIVES} | dict(RETIRED_KEYS.values())

@@ -29,6 +29,7 @@ from coopsumo.config import (
 )
 from coopsumo.dqn_config import DQN_PRESETS, MIN_ACCIDENT_VALIDATION_STEPS, DQNConfig
 from coopsumo.errors import ConfigError
+from coopsumo.policy_spec import DRIVES
 from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_toml
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.validation import (
@@ -61,14 +62,6 @@ PROFILES_FILE = DATA / "protocol.toml"
 STATUSES = ("default", "current", "tried", "retired")
 """a variant's status (learners.toml says what each means)"""
 WEIGHTS = ("model.pt", "model_last.pt")
-
-
-DRIVES = (("margin", "change_margin", "change margin"), ("noreturn", "no_return_s", "no change back within (s)"),
-          ("restart", "restart_below_mps", "'none' withheld below (m/s)"),
-          ("queue", "queue_below_mps", "no lane change below (m/s)"))
-"""how a variant may drive its trainings otherwise: its field (also the key of the dqn policy string), the key in a
-cell's config.drive (and in a variant's `drive` table in learners.toml), and the report's words (the retired ones:
-policy_spec.RETIRED_KEYS)"""
 
 
 @dataclass(frozen=True)

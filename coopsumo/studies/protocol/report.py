@@ -19,12 +19,13 @@ import pandas as pd
 
 from coopsumo.agents.training_logs import validation_table
 from coopsumo.files import read_csv, read_json, write_atomic, write_text_atomic
+from coopsumo.policy_spec import DRIVES
 from coopsumo.record_schemas import PROTOCOL_STATS
 from coopsumo.report.markdown import md_table
 from coopsumo.sim import passing
 from coopsumo.studies.engine import stats
 from coopsumo.studies.protocol.figures import TWO_STAGE_NOTE, VALIDATION_CAPTION, validation_curves_figure
-from coopsumo.studies.protocol.plan import BASELINES, DRIVES, EVAL_SEED
+from coopsumo.studies.protocol.plan import BASELINES, EVAL_SEED
 from coopsumo.studies.protocol.thrashing import thrashing_lines
 
 MEASURES = {"free": ("mean_speed_mps", "mean speed (m/s)", 1.0),

@@ -45,7 +45,6 @@ from coopsumo.studies.engine.runner import add_backend_flags, check_backend
 from coopsumo.studies.protocol.paired import check_paired
 from coopsumo.studies.protocol.plan import (
     CURRENT,
-    DRIVES,
     PROFILES,
     QUEUE_MPS,
     REQUIRED,
@@ -83,14 +82,15 @@ def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
 
 def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
     from coopsumo.config import sim_config_from_dict
+    from coopsumo.studies.engine.drive import cell_policy
     from coopsumo.studies.engine.model_store import store_for, train_shared
     from coopsumo.studies.engine.run_folders import simulate_into
 
     ev = sim_config_from_dict(spec["config"]["eval"])
-    if spec["kind"] == "model":
+    if spec["kind"] == "model":  # its weights in the stored model's folder, with the variant's drive settings
         model_dir = root / "train" / spec["train_key"]
         record["train_summary"], _ = train_shared(spec["config"]["train"], model_dir, store_for(root))
-        ev = replace(ev, policy=driven_policy(spec, model_dir))
+        ev = replace(ev, policy=cell_policy(spec, (model_dir / spec["weights"]).resolve()))
     every = TRAJECTORY_EVERY if ev.accident.enabled else 0
     out = root / "runs" / spec["key"]
     summary = simulate_into(json.loads(json.dumps(to_dict(ev))), out, spec["key"], trajectory_every=every,
@@ -99,16 +99,6 @@ def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
         summary.update(accident_measures(out, ev, summary["departed"]))
         (out / "trajectories.parquet").unlink(missing_ok=True)  # measured; 10 MB a run is not kept
     record["summary"] = summary
-
-
-def driven_policy(spec: dict[str, Any], model_dir: Path) -> str:
-    """The policy string a model cell drives: its weights in model_dir, with the cell's change margin, no-return
-    window, 'none' and queue speeds if it has them (config.drive); an alpha-conditioned model at the cell's alpha."""
-    drive = spec["config"].get("drive", {})
-    extra = "".join(f",{field}={drive[key]:g}" for field, key, _ in DRIVES if key in drive)
-    if spec["config"]["train"]["dqn"].get("alpha_conditioned"):
-        extra += f",alpha={spec['alpha']:g}"
-    return f"dqn:{(model_dir / spec['weights']).resolve()}{extra}"
 
 
 def accident_measures(run_dir: Path, cfg: SimConfig, departed: int) -> dict[str, float]:

@@ -36,12 +36,13 @@ import os
 import sys
 import time
 from dataclasses import asdict, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import RoadConfig, to_dict
+from coopsumo.config import RoadConfig
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
 from coopsumo.files import read_csv, read_json, write_atomic, write_json
@@ -55,7 +56,6 @@ from coopsumo.studies.engine.records import (
     CellRecords,
     copied_wrong,
     failed_exit,
-    pool_summaries,
     read_record,
     reusable_keys,
 )
@@ -161,33 +161,31 @@ def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
 
 def _evaluate(spec: dict[str, Any], train_dir: Path, evals_dir: Path, record: dict[str, Any]) -> None:
     """Drive the model of train_dir greedily on each of the cell's evaluations (one per evaluation seed) into
-    evals_dir/eval_[a<alpha>_]s<seed>/; the record's summary pools them (records.pool_summaries), its
-    eval_summaries keeps each. An evaluation's summary also holds its mean loop flow and occupancy (SUMO's
-    detectors.xml); with trajectory_every_steps in the cell's configuration, its full-road speed too
-    (full_road_measures)."""
+    evals_dir/eval_[a<alpha>_]s<seed>/ with evaluate_model (drive.drive_pooled: the record's summary pools them, its
+    eval_summaries keeps each); with trajectory_every_steps in the cell's configuration, the full-road speed too."""
     from coopsumo.config import sim_config_from_dict
+    from coopsumo.studies.engine.drive import dqn_policy, drive_pooled
 
     conditioned = spec.get("conditioned", False)  # a lane network told its alpha
     every = spec["config"].get("trajectory_every_steps", 0)
-    summaries = []
+    runs = []
     for config in spec["config"]["evals"]:
         ev = sim_config_from_dict(config)
-        policy = f"dqn:{train_dir / 'model.pt'}" + (f",alpha={ev.reward.alpha:g}" if conditioned else "")
+        policy = dqn_policy(train_dir / "model.pt", alpha=ev.reward.alpha if conditioned else None)
         name = (f"eval_a{number_name(ev.reward.alpha)}_s{ev.seed}" if conditioned else f"eval_s{ev.seed}")
-        summary = evaluate_model(to_dict(replace(ev, policy=policy)), evals_dir / name, spec["key"],
-                                 **({"trajectory_every": every} if every else {}))  # fmt: skip
-        summaries.append({**summary, "eval_seed": ev.seed})
-    record["eval_summaries"] = summaries
-    record["summary"] = {k: v for k, v in pool_summaries(summaries).items() if k != "eval_seed"}
-    if every and any(s.get(FULL_ROAD) is None for s in summaries):  # one evaluation without it: the model has none
+        runs.append((replace(ev, policy=policy), evals_dir / name))
+    measure = partial(evaluate_model, trajectory_every=every) if every else evaluate_model  # tests fake it
+    drive_pooled(record, runs, spec["key"], measure)
+    if every and any(s.get(FULL_ROAD) is None for s in record["eval_summaries"]):  # one without it: the model has none
         record["summary"].update({FULL_ROAD: None, "full_road_from_s": None})
     record["train_summary"] = read_json(train_dir / "train_summary.json")
 
 
 def evaluate_model(config: dict[str, Any], out: Path, label: str, trajectory_every: int = 0) -> dict[str, Any]:
-    """One greedy evaluation (a SimConfig dict whose policy names the model) into out: its summary, with the run's
-    mean loop flow (veh/h per lane) and occupancy (%) from SUMO's detectors.xml; with trajectory_every, trajectories
-    sampled every that many steps and the full-road speed measured on them (full_road_measures)."""
+    """One greedy evaluation (a SimConfig dict whose policy names the model) into out, as _evaluate drives each
+    (drive.drive_pooled): its summary, with the run's mean loop flow (veh/h per lane) and occupancy (%) from SUMO's
+    detectors.xml; with trajectory_every, trajectories sampled every that many steps and the full-road speed measured
+    on them (full_road_measures)."""
     from coopsumo.report.analysis import read_detectors
 
     summary = simulate_into(config, out, label, trajectory_every=trajectory_every)
