@@ -109,6 +109,10 @@ def owned_problem(path: Path, what: str, advice: str = "pick another --out", its
         return f"{what} lies inside {partial}, the folder a coopsumo run is built in (or was, when killed); {advice}"
     if problem := _in_store(real, what, itself):
         return f"{problem}; {advice}"
+    given = Path(os.path.abspath(path.expanduser()))  # `models` beside a study may be a link to a store elsewhere
+    if store := next((f for f in (given, *given.parents) if f.is_symlink() and _beside_a_study(f)), None):
+        return (f"{what} is in {store}, a model store (it holds the studies' models), which only the studies write; "
+                f"{advice}")  # fmt: skip  (issue 82, probe 11, M1: an emptied store so linked took a run)
     if found := _marked(real, itself, study=False):
         return _claim_line(real, found, what, advice)
     return unmarked_study_problem(real, what, advice) if unmarked else None

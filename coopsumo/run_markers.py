@@ -48,9 +48,15 @@ def marker_kind(folder: Path) -> str | None:
 
 def marker_text(path: Path) -> bool:
     """True when the file `path`, named like a marker's temporary, may be what a marker's write left (nothing yet, or
-    the start of its JSON object), not a user's file of that name (issue 82, probe 10, L7: a user's notes there were
-    taken, then deleted)."""
+    the start of its JSON object as write_json writes it), not a user's file of that name (issue 82, probe 10, L7: a
+    user's notes there were taken, then deleted; probe 11, M2: a user's JSON file)."""
     try:
-        return path.stat().st_size < 65_536 and path.read_bytes().lstrip()[:1] in (b"", b"{")
+        text = path.read_bytes() if path.stat().st_size < 65_536 else b"x"
     except OSError:
         return False
+    starts = [b'{\n  "' + key + b'"' for key in MARKER_KEYS]  # files.write_json: indented, keys sorted
+    return any(start.startswith(text) or text.startswith(start) for start in starts)
+
+
+MARKER_KEYS = (b"files", b"finished", b"kind", b"study", b"version")
+"""the keys a marker's JSON object may begin with (run_dirs.mark_run_dir)"""

@@ -247,6 +247,12 @@ class Mine(BaseException):
     pass
 
 
+class Renumbering:
+    def act(self, obs):
+        obs.nums[:] = 10**9
+        return [3] * len(obs)
+
+
 class Ragged:
     def act(self, obs):
         return [[1] * (i + 1) for i in range(len(obs))] if len(obs) > 1 else [1] * len(obs)
@@ -385,7 +391,9 @@ def test_simulate_ends_a_hostile_policy_in_one_line(hostile: Path, capsys: pytes
     for cls, fragment in (("Ragged", "act(obs) gave a list that is no array of"),
                           ("GivesUnreadable", "RuntimeError: no array here"), ("Grids", "its needs_grids raised"),
                           ("Closing", "act(obs) raised GeneratorExit: closed"),
-                          ("Own", "act(obs) raised Mine: mine")):  # fmt: skip  (probe 10, L4: tracebacks)
+                          ("Own", "act(obs) raised Mine: mine"),
+                          ("Renumbering", "act(obs) raised ValueError: assignment destination is read-only")
+                          ):  # fmt: skip  (probe 10, L4: tracebacks; probe 11, M5: a hang)
         assert simulate.main(["--policy", f"py:hostile:{cls}", "--steps", "60", "--quiet", "--out", "bad"]) == 2, cls
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and fragment in err[0] and "Traceback" not in err[0], err

@@ -167,6 +167,10 @@ def test_a_users_file_named_like_a_temporary_in_an_unmarked_folder_is_kept(entry
         with study_root(root, "scenario2", ("sweep.json", "report.md", "*.tmp")):
             pass
     assert notes.read_text() == "MY NOTES\n"
+    notes.write_text('{"my": "data"}\n')  # probe 11, M2: a user's JSON file of that name
+    with pytest.raises(UsageError, match=r"holds \.\.coopsumo-run\.json\.thesis01\.tmp"):
+        with study_root(root, "scenario2", ("sweep.json", "report.md", "*.tmp")):
+            pass
     notes.unlink()
     (root / "..coopsumo-run.json.abcdefgh.tmp").write_text("{")  # a first run killed while it marked its root
     with study_root(root, "scenario2", ("sweep.json", "report.md", "*.tmp")):
@@ -259,3 +263,18 @@ def test_a_temporary_folder_in_a_model_store_is_refused_before_the_command_start
     before = listing(tmp_path)
     one_line(capsys, run(command[0], command[1:]), f"$TMPDIR '{store}'", "pick a temporary folder elsewhere")
     assert listing(tmp_path) == before
+
+
+def test_an_emptied_model_store_linked_beside_a_study_is_still_its_store(tmp_path: Path) -> None:
+    """Probe 11 (M1): a study's `models` a link to a store kept elsewhere, emptied: a run, a training, a table or
+    the networks were written into it (the check of probe 10, L3, read the resolved folder's name)."""
+    from coopsumo.run_dirs import mark_run_dir
+
+    (tmp_path / "w" / "s1").mkdir(parents=True)
+    mark_run_dir(tmp_path / "w" / "s1", "scenario1", finished=False, study="the quick profile's study")
+    (tmp_path / "kept" / "store").mkdir(parents=True)
+    (tmp_path / "w" / "models").symlink_to(tmp_path / "kept" / "store")
+    for where, itself in (("models", False), ("models/run", False), ("models/t.md", False), ("models/nets", True)):
+        problem = owned_problem(tmp_path / "w" / where, f"--out {where}", itself=itself)
+        assert problem is not None and "a model store" in problem, (where, problem)
+    assert owned_problem(tmp_path / "kept" / "other", "--out kept/other") is None

@@ -295,7 +295,7 @@ def test_a_study_root_that_can_be_told_or_is_fresh_is_taken(marker: str, plan: s
     check_study_root(root, "scenario2", OWN, TINY_SWEEP, recorded_sweep)
     for fresh in (tmp_path / "empty", tmp_path / "tmp_only"):
         fresh.mkdir()
-    (tmp_path / "tmp_only" / f".{RUN_MARKER}.a1b2c3d4.tmp").write_text('{"ki')  # the marker's write killed
+    (tmp_path / "tmp_only" / f".{RUN_MARKER}.a1b2c3d4.tmp").write_text('{\n  "fi')  # a killed marking
     for fresh in (tmp_path / "empty", tmp_path / "tmp_only", tmp_path / "missing"):
         check_study_root(fresh, "scenario2", OWN, TINY_SWEEP, recorded_sweep)
 

@@ -11,6 +11,7 @@ shows one.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import importlib
 import importlib.util
@@ -167,8 +168,23 @@ class UserPolicy:
         return cls(inner, text, module_file(spec.module))
 
     def act(self, obs: Observation) -> np.ndarray:
-        actions = _users(lambda: self.inner.act(obs), f"{self.text}: act(obs) raised")  # issue 82, probe 9 (K10)
+        seen = _read_only(obs)  # the run reads obs again after act (issue 82, probe 11, M5: nums set to 10**9 hung it)
+        actions = _users(lambda: self.inner.act(seen), f"{self.text}: act(obs) raised")  # issue 82, probe 9 (K10)
         return checked_actions(actions, len(obs), self.text)
+
+
+def _read_only(obs: Observation) -> Observation:
+    """A copy of obs whose arrays (its neighbours' too) the user's act cannot write: a ValueError there is its own."""
+    def frozen(value: Any) -> Any:
+        if isinstance(value, np.ndarray):
+            value = value.copy()
+            value.flags.writeable = False
+        elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+            value = dataclasses.replace(value, **{f.name: frozen(getattr(value, f.name))
+                                                  for f in dataclasses.fields(value)})  # fmt: skip
+        return value
+
+    return frozen(obs)  # type: ignore[no-any-return]
 
 
 def _users(call: Callable[[], T], says: str, after: str = "") -> T:
