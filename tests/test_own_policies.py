@@ -407,3 +407,69 @@ def test_scenario1_refuses_a_baseline_whose_name_raises(hostile: Path, capsys: p
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--baseline py:hostile:Label: py:hostile:Label: its name raised KeyError" in err[0], err
     assert sorted(p.name for p in hostile.iterdir()) == ["hostile.py"]
+
+
+ODD = '''
+def __getattr__(name):
+    raise RuntimeError("no " + name)
+
+
+class Meta(type):
+    def __getattr__(cls, name):
+        raise RuntimeError("meta " + name)
+
+
+class NoAct(metaclass=Meta):
+    pass
+
+
+class StrBoom:
+    def __str__(self):
+        raise RuntimeError("no str")
+
+
+Inst = StrBoom()
+
+
+class NameMeta(type):
+    @property
+    def __name__(cls):
+        raise RuntimeError("no name")
+
+
+class NameBoom(metaclass=NameMeta):
+    def __init__(self):
+        raise ValueError("no init")
+
+    def act(self, obs):
+        return [3] * len(obs)
+
+
+class TbErr(Exception):
+    __traceback__ = property(lambda self: 5)
+
+
+class TbPol:
+    def act(self, obs):
+        raise TbErr("odd traceback")
+'''
+"""a module whose reading (a module __getattr__, a metaclass's, an object's __str__, a __name__ that raises, an
+exception whose __traceback__ is no traceback) broke coopsumo's own messages (issue 82, probe 11, M3)"""
+
+
+@pytest.mark.sumo
+def test_simulate_reads_an_odd_policy_module_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                         capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    from coopsumo import simulate
+
+    (tmp_path / "odd.py").write_text(ODD)
+    monkeypatch.chdir(tmp_path)
+    for cls, fragment in (("Missing", "reading Missing raised RuntimeError: no Missing"),
+                          ("NoAct", "reading NoAct raised RuntimeError: meta act"),
+                          ("Inst", "reading Inst raised RuntimeError: no str"),
+                          ("NameBoom", "NameBoom() failed: ValueError: no init"),
+                          ("TbPol", "act(obs) raised TbErr: odd traceback")):  # fmt: skip
+        assert simulate.main(["--policy", f"py:odd:{cls}", "--steps", "30", "--quiet", "--out", "o"]) == 2, cls
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and fragment in err[0] and "Traceback" not in err[0], (cls, err)
+        assert sorted(p.name for p in tmp_path.iterdir() if p.name != "__pycache__") == ["odd.py"]

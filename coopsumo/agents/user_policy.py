@@ -94,6 +94,11 @@ def load_class(module: str, class_name: str, text: str) -> type:
     path = module_file(module)
     found = _from_file(path, text) if path is not None else _imported(module, text)
     where = path or module
+    # read inside _users: a module's __getattr__, a metaclass's or an object's __str__ may raise (probe 11, M3)
+    return _users(lambda: _checked_class(found, class_name, where, text), f"{text}: reading {class_name} raised")
+
+
+def _checked_class(found: ModuleType, class_name: str, where: Any, text: str) -> type:
     cls = getattr(found, class_name, None)
     if cls is None:
         classes = sorted(n for n, v in vars(found).items() if inspect.isclass(v) and v.__module__ == found.__name__)
@@ -112,9 +117,11 @@ def _instance(cls: type, rng: np.random.Generator, text: str) -> Any:
     """cls() or cls(rng=rng) when its constructor takes `rng`; its errors in one line."""
     try:
         takes_rng = "rng" in inspect.signature(cls).parameters
-    except (TypeError, ValueError):
+    except PASSED_ON:
+        raise
+    except BaseException:  # no signature, or the user's __signature__ raised (probe 11, M3)
         takes_rng = False
-    return _users(lambda: cls(rng=rng) if takes_rng else cls(), f"{text}: {cls.__name__}() failed:",
+    return _users(lambda: cls(rng=rng) if takes_rng else cls(), f"{text}: {_name(cls)}() failed:",
                   " (its constructor takes no argument, or only rng)")  # fmt: skip
 
 
@@ -238,12 +245,20 @@ def _failure(err: BaseException) -> str:
         raise
     except BaseException:
         line = "(its message cannot be read)"
-    return f"{type(err).__name__}: {line}"
+    return f"{_name(type(err))}: {line}"
+
+
+def _name(cls: type) -> str:
+    """The class's own name, past a metaclass whose __name__ raises (probe 11, M3)."""
+    return str(type.__dict__["__name__"].__get__(cls, type))
 
 
 def _where(err: BaseException) -> str:
     """' (FILE:LINE)', the innermost frame of the exception's traceback outside coopsumo, or ''."""
-    frames = traceback.extract_tb(err.__traceback__)
+    try:
+        frames = traceback.extract_tb(err.__traceback__)
+    except Exception:  # a __traceback__ the user's class made something else (probe 11, M3)
+        return ""
     own = os.path.dirname(os.path.abspath(__file__)).rsplit(os.sep, 1)[0]  # the coopsumo package
     outside = [f for f in frames if not os.path.abspath(f.filename).startswith(own + os.sep)]
     return f" ({outside[-1].filename}:{outside[-1].lineno})" if outside else ""
