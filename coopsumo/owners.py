@@ -64,9 +64,11 @@ def _beside_a_study(folder: Path) -> bool:
     return any((kind := marker_kind(p)) is not None and kind not in RUN_KINDS for p in siblings)
 
 
-def _in_store(real: Path, what: str, itself: bool) -> str | None:
+def _in_store(real: Path, what: str, itself: bool, given: Path | None = None) -> str | None:
     """Why `real` may not be written for being in a model store (a phrase starting with `what`), or None: in
-    $COOPSUMO_MODELS or results/models, in (or named as) a store model's folder, in a folder holding store models."""
+    $COOPSUMO_MODELS or results/models, in (or named as) a store model's folder, in a folder holding store models, in
+    the `models` beside a study; `given`, the path as given (links not resolved): that `models` may be a link to a
+    store kept elsewhere (issue 82, probe 11, M1: an emptied store so linked took a run)."""
     env = os.environ.get(STORE_ENV)
     for store in [DEFAULT_STORE.resolve(), *([Path(env).resolve()] if env else [])]:
         if real.is_relative_to(store):
@@ -75,9 +77,10 @@ def _in_store(real: Path, what: str, itself: bool) -> str | None:
         if STORE_NAME.fullmatch(folder.name):
             return (f"{what} leads into {folder}, a model of a model store (a study's model link?), which only the "
                     "studies write")  # fmt: skip
-    for folder in [real, *real.parents]:  # any depth: models/sub/run, models/.x/run (probe 8)
+    linked = [f for f in ([given, *given.parents] if given else []) if f.is_symlink()]
+    for folder in [real, *real.parents, *linked]:  # any depth: models/sub/run, models/.x/run (probe 8)
         # an emptied store beside a study is one as an --out too (probe 10, L3: a run's marker made it refused)
-        if ((folder != real or itself) and _holds_models(folder)) or _beside_a_study(folder):
+        if (folder not in linked and (folder != real or itself) and _holds_models(folder)) or _beside_a_study(folder):
             return f"{what} is in {folder}, a model store (it holds the studies' models), which only the studies write"
     return None
 
@@ -107,12 +110,8 @@ def owned_problem(path: Path, what: str, advice: str = "pick another --out", its
         return _claim_line(real, found, what, advice)
     if partial := _in_partial(real, itself):
         return f"{what} lies inside {partial}, the folder a coopsumo run is built in (or was, when killed); {advice}"
-    if problem := _in_store(real, what, itself):
+    if problem := _in_store(real, what, itself, Path(os.path.abspath(path.expanduser()))):
         return f"{problem}; {advice}"
-    given = Path(os.path.abspath(path.expanduser()))  # `models` beside a study may be a link to a store elsewhere
-    if store := next((f for f in (given, *given.parents) if f.is_symlink() and _beside_a_study(f)), None):
-        return (f"{what} is in {store}, a model store (it holds the studies' models), which only the studies write; "
-                f"{advice}")  # fmt: skip  (issue 82, probe 11, M1: an emptied store so linked took a run)
     if found := _marked(real, itself, study=False):
         return _claim_line(real, found, what, advice)
     return unmarked_study_problem(real, what, advice) if unmarked else None

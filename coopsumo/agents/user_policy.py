@@ -181,10 +181,11 @@ class UserPolicy:
 
 
 def _read_only(obs: Observation) -> Observation:
-    """A copy of obs whose arrays (its neighbours' too) the user's act cannot write: a ValueError there is its own."""
+    """obs with read-only views of its arrays (its neighbours' too; no data copied): a write by the user's act is a
+    ValueError of its own."""
     def frozen(value: Any) -> Any:
         if isinstance(value, np.ndarray):
-            value = value.copy()
+            value = value.view()
             value.flags.writeable = False
         elif dataclasses.is_dataclass(value) and not isinstance(value, type):
             value = dataclasses.replace(value, **{f.name: frozen(getattr(value, f.name))

@@ -178,13 +178,8 @@ def bench_selection_share(steps: int) -> tuple[float, float, float, float]:
     """(wall s of a default training with its model selection scaled to `steps` (scaled_selection), the same training
     without selection, the CPU s of the selection's processes, the CPU s of the whole training with them, this
     process's included): both with the updates in a second process. The share is 1 - without / with."""
-    import resource
-
     from coopsumo.agents.train import train
-
-    def children_cpu() -> float:
-        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-        return usage.ru_utime + usage.ru_stime
+    from coopsumo.studies.engine.groups import children_cpu_s as children_cpu
 
     with_cfg = scaled_selection(steps)
     without_cfg = replace(with_cfg, dqn=replace(with_cfg.dqn, select_every_steps=0))

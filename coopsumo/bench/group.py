@@ -6,25 +6,20 @@ validations)."""
 
 from __future__ import annotations
 
-import resource
 import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
 
 from coopsumo.config import TrainConfig
-
-
-def _children_cpu() -> float:
-    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
-    return usage.ru_utime + usage.ru_stime
+from coopsumo.studies.engine.groups import children_cpu_s
 
 
 def _cpu_of(work: object) -> tuple[float, float]:
     """(CPU s of this process and its children, wall s) while work() runs."""
-    cpu0, own0, start = _children_cpu(), time.process_time(), time.perf_counter()
+    cpu0, own0, start = children_cpu_s(), time.process_time(), time.perf_counter()
     work()  # type: ignore[operator]
-    return _children_cpu() - cpu0 + time.process_time() - own0, time.perf_counter() - start
+    return children_cpu_s() - cpu0 + time.process_time() - own0, time.perf_counter() - start
 
 
 def before_and_after(cfg: TrainConfig) -> tuple[TrainConfig, TrainConfig]:
