@@ -384,6 +384,77 @@ def test_a_del_that_raises_is_said_in_one_line(hostile: Path, capsys: pytest.Cap
     assert err == [f"py:hostile:Deleting: its __del__ raised RuntimeError: del failed ({where})"]
 
 
+LEFT_BEHIND = '''
+import atexit, threading, weakref
+
+
+def boom():
+    raise RuntimeError("boom")
+
+
+class AtExit:
+    def __init__(self):
+        atexit.register(boom)
+
+    def act(self, obs):
+        return [3] * len(obs)
+
+
+class Thread:
+    def act(self, obs):
+        t = threading.Thread(target=boom)
+        t.start()
+        t.join()
+        return [3] * len(obs)
+
+
+class Finalized:
+    def __init__(self):
+        weakref.finalize(self, boom)
+
+    def act(self, obs):
+        return [3] * len(obs)
+'''
+
+DRIVE = """
+import sys, threading, numpy as np
+from coopsumo.agents.policies import make_policy
+policy = make_policy(sys.argv[1], np.random.default_rng(0))
+for _ in range(3):
+    policy.act([0, 0])
+if sys.argv[2] == "other":  # an error outside the user's file keeps Python's own report
+    t = threading.Thread(target=lambda: 1 / 0)
+    t.start()
+    t.join()
+"""
+
+
+@pytest.mark.parametrize(("cls", "kind"), [
+    ("AtExit", "its atexit callback"),
+    ("Thread", "a thread it started"),
+    ("Finalized", "its weakref.finalize callback"),
+])  # fmt: skip
+def test_an_error_left_behind_by_the_users_code_is_said_once_in_one_line(tmp_path: Path, cls: str, kind: str) -> None:
+    import subprocess
+
+    (tmp_path / "behind.py").write_text(LEFT_BEHIND)  # issue 82, probe 11, M4: Python's tracebacks at exit, rc 0
+    done = subprocess.run([sys.executable, "-c", DRIVE, f"py:behind:{cls}", "own"], cwd=tmp_path, text=True,
+                          capture_output=True, check=False)  # fmt: skip
+    line = LEFT_BEHIND.splitlines().index('    raise RuntimeError("boom")') + 1
+    said = f"py:behind:{cls}: {kind} raised RuntimeError: boom ({tmp_path / 'behind.py'}:{line})"
+    assert (done.returncode, done.stderr.splitlines()) == (0, [said]), done.stderr
+
+
+def test_an_error_not_the_users_keeps_pythons_report(tmp_path: Path) -> None:
+    import subprocess
+
+    (tmp_path / "behind.py").write_text(LEFT_BEHIND)
+    done = subprocess.run([sys.executable, "-c", DRIVE, "py:behind:Thread", "other"], cwd=tmp_path, text=True,
+                          capture_output=True, check=False)  # fmt: skip
+    assert "ZeroDivisionError: division by zero" in done.stderr and "Traceback" in done.stderr
+    assert done.stderr.count("py:behind:Thread: a thread it started raised") == 1
+
+
 @pytest.mark.sumo
 def test_simulate_ends_a_hostile_policy_in_one_line(hostile: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from coopsumo import simulate

@@ -18,7 +18,9 @@ import importlib.util
 import inspect
 import os
 import sys
+import threading
 import traceback
+import weakref
 from collections.abc import Callable
 from pathlib import Path
 from types import ModuleType
@@ -209,32 +211,97 @@ def _users(call: Callable[[], T], says: str, after: str = "") -> T:
         raise UserPolicyError(f"{says} {_failure(err)}{_where(err)}{after}") from None
 
 
-_DELS: dict[object, str] = {}
-"""the __del__ of each class of the user's made, by the policy text that made it (_said_in_one_line)"""
-_BEFORE: list[Callable[[Any], object]] = []
-"""the unraisable hook before _unraisable, which it hands every other unraisable error"""
+_FILES: dict[str, str] = {}
+"""the real path of each policy file of the user's loaded, and the policy text that loaded it (_said_in_one_line)"""
+_BEFORE: dict[str, Callable[..., object]] = {}
+"""the hooks before coopsumo's (unraisable, thread, excepthook), which they hand every error not the user's"""
+_SAID: set[str] = set()
+"""the lines said already"""
 
 
 def _said_in_one_line(inner: Any, text: str) -> None:
-    """A __del__ of the user's class that raises (when the run drops it, or as Python exits) is said in one line on
-    stderr rather than Python's 'Exception ignored in ... Traceback'; the exit code is the run's (issue 82, probe 10,
-    L4). Read without running the user's code (getattr_static)."""
-    found = inspect.getattr_static(type(inner), "__del__", None)
-    if not inspect.isfunction(found):
+    """An error the user's code raises where no caller can catch it, once its class is made: a __del__ (when the run
+    drops it, or as Python exits), an atexit callback, a thread it started or a weakref.finalize callback, is said in
+    one line on stderr rather than Python's 'Exception ignored in ... Traceback'; the exit code is the run's (issue
+    82, probe 10, L4: __del__; probe 11, M4: the others). An error is the user's when its traceback passes through
+    the policy's file; any other goes to the hook before. Read without running the user's code."""
+    file = _class_file(type(inner))
+    if file is None:
         return
-    _DELS[found] = text
+    _FILES.setdefault(file, text)
     if sys.unraisablehook is not _unraisable:
-        _BEFORE[:] = [sys.unraisablehook]
-        sys.unraisablehook = _unraisable
+        _BEFORE["unraisable"], sys.unraisablehook = sys.unraisablehook, _unraisable
+    if threading.excepthook is not _thread_raised:
+        _BEFORE["thread"], threading.excepthook = threading.excepthook, _thread_raised
+    if sys.excepthook is not _uncaught:
+        _BEFORE["uncaught"], sys.excepthook = sys.excepthook, _uncaught
+
+
+def _class_file(cls: type) -> str | None:
+    """The real path of the file defining cls, read without running the user's code (no attribute of the class or
+    its module is looked up through a __getattr__ or a property), or None."""
+    try:
+        own: Any = vars(type)["__dict__"]  # the class's and the module's own dicts, past a metaclass's properties
+        module = sys.modules.get(own.__get__(cls)["__module__"])
+        names: Any = vars(ModuleType)["__dict__"]
+        file = names.__get__(module).get("__file__") if module is not None else None
+        return os.path.realpath(file) if isinstance(file, str) else None
+    except Exception:  # a class or module not as Python makes them: no file to name
+        return None
+
+
+def _said(err: BaseException | None, kind: str) -> bool:
+    """Print '`text`: `kind` raised TYPE: its first line (FILE:LINE)' (once a run) when err's traceback passes through
+    a policy file of the user's; False (nothing said) otherwise."""
+    if err is None or isinstance(err, PASSED_ON):
+        return False
+    try:
+        files = {os.path.realpath(f.filename) for f in traceback.extract_tb(err.__traceback__)}
+    except Exception:  # a __traceback__ the user's class made something else (probe 11, M3)
+        return False
+    text = next((_FILES[f] for f in files if f in _FILES), None)
+    if text is None:
+        return False
+    line = f"{text}: {kind} raised {_failure(err)}{_where(err)}"
+    if line not in _SAID:  # once: a thread started at every decision would say it at every step
+        _SAID.add(line)
+        print(line, file=sys.stderr)
+    return True
 
 
 def _unraisable(unraisable: Any) -> None:
-    """sys.unraisablehook once a class of the user's with a __del__ is made: its error in one line, others as before"""
-    said, err = _DELS.get(unraisable.object), unraisable.exc_value
-    if said is None or err is None or isinstance(err, PASSED_ON):
-        (_BEFORE[0] if _BEFORE else sys.__unraisablehook__)(unraisable)
-        return
-    print(f"{said}: its __del__ raised {_failure(err)}{_where(err)}", file=sys.stderr)
+    """sys.unraisablehook: a __del__, an atexit callback or a weakref.finalize of the user's in one line"""
+    found = unraisable.object
+    if inspect.isfunction(found) and found.__name__ == "__del__":
+        kind = "its __del__"
+    elif "atexit" in (unraisable.err_msg or ""):
+        kind = "its atexit callback"
+    elif isinstance(found, weakref.finalize):
+        kind = "its weakref.finalize callback"
+    else:
+        kind = "its code"
+    if not _said(unraisable.exc_value, kind):
+        _BEFORE["unraisable"](unraisable)
+
+
+def _thread_raised(args: Any) -> None:
+    """threading.excepthook: a thread the user's policy started, in one line"""
+    if not _said(args.exc_value, "a thread it started"):
+        _BEFORE["thread"](args)
+
+
+def _uncaught(kind: type[BaseException], err: BaseException, tb: Any) -> None:
+    """sys.excepthook, which a weakref.finalize callback's error reaches as Python exits: the user's in one line"""
+    if not _said(err, "its weakref.finalize callback" if _at_exit(tb) else "its code"):
+        _BEFORE["uncaught"](kind, err, tb)
+
+
+def _at_exit(tb: Any) -> bool:
+    """True when a traceback starts in weakref's exit function (a finalize callback run as Python exits)"""
+    try:
+        return traceback.extract_tb(tb)[0].name == "_exitfunc"
+    except Exception:
+        return False
 
 
 def _failure(err: BaseException) -> str:
