@@ -27,9 +27,9 @@ learner = { no_return_s = 0.0 }
 
 X = '[x]\nparent = "nr10"\nstatus = "tried"\nwhy = "w"\n'
 VARIANT_ERRORS = [
-    (X + 'colour = "red"', "x", "unknown field 'colour' in a variant"),
+    (X + 'colour = "red"', "x", "unknown field 'colour' in a learner"),
     (X + 'learner = { lrate = 0.1 }', "x", "unknown field 'lrate' in learner"),
-    (X + 'learner = { preset = "paper" }', "x", "unknown field 'preset' in learner"),
+    (X + 'learner = { preset = "fancy" }', "x", "learner: preset must be one of"),
     (X + 'drive = { margin = 2 }', "x", "unknown field 'margin' in drive"),
     ('[x]\nparent = "nr9"\nstatus = "tried"\nwhy = "w"', "x", "unknown parent 'nr9'"),
     ('[x]\npreset = "fancy"\nstatus = "tried"\nwhy = "w"', "x", "unknown preset 'fancy' (one of default, paper"),
@@ -47,8 +47,8 @@ VARIANT_ERRORS = [
     (X + 'drive = { queue_below_mps = "slow" }', "x", "drive.queue_below_mps must be float"),
     (X + 'drive = { ensemble_snapshots = 2 }', "x", "unknown field 'ensemble_snapshots' in drive"),
     (X + 'weights = "best.pt"', "x", "weights must be one of"),
-    ("x = 3", "x", "a variant must be a table, got 3"),
-    ('[x]\npreset = "default"\nstatus = "default"\nwhy = "w"', None, "exactly one variant has status 'default'"),
+    ("x = 3", "x", "a learner must be a table, got 3"),
+    ('[x]\npreset = "default"\nstatus = "default"\nwhy = "w"', None, "exactly one learner has status 'default'"),
 ]
 
 
@@ -67,7 +67,7 @@ def test_a_bad_variant_is_one_error_naming_the_file_and_the_entry(tmp_path: Path
 @pytest.mark.parametrize("text, fragment", [
     ('[nr10]\npreset = "default"\nstatus = "default"\nwhy = "w"\nlearner = { gamma = 0.5 }',
      "[nr10] has status 'default' but is not the default preset"),
-    ('[nr10]\npreset = "default"\nstatus = "current"\nwhy = "w"', "exactly one variant has status 'default'"),
+    ('[nr10]\npreset = "default"\nstatus = "current"\nwhy = "w"', "exactly one learner has status 'default'"),
     ("[nr10\n", "not TOML"),
 ])  # fmt: skip
 def test_the_catalogue_names_exactly_one_default_the_default_preset(tmp_path: Path, text: str, fragment: str) -> None:
@@ -142,7 +142,7 @@ def test_the_packaged_catalogue_holds_the_current_profiles_and_what_they_pair_wi
     assert protocol_plan.PROFILES["alpha_only_dense"].variants == ("alpha_only", "alpha_only_dense")
     assert known["c2x"].learner == replace(known["nr10"].learner, **CONDITIONED8V)  # made on nr10
     assert known["f05q_ts2k"].learner == replace(known["nr10"].learner, no_return_s=0.0)
-    assert known["margin"].learner == known["select"].learner and known["margin"].weights == "model_last.pt"
+    assert known["select_last"].learner == known["select"].learner and known["select_last"].weights == "model_last.pt"
 
 
 def test_a_refused_catalogue_ends_the_command_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,

@@ -1,8 +1,13 @@
 """The catalogue reader: the experiments' data files (coopsumo/experiments_data/*.toml, inside the package so that an
 installed wheel has them too) read and checked, every error one ConfigError line naming the file and the entry; a
 value checked by the very rule its flag is (validation.IntRule, NumberRule, ListRule, names_problem); a study's profile
-file (read_profiles: scenario1.toml, scenario2.toml); and a study's profile taken from a file of one's own
-(`--profile PATH.toml[:NAME]`, own_profile)."""
+file (read_profiles: scenario1.toml, scenario2.toml); a study's profile taken from a file of one's own
+(`--profile PATH.toml[:NAME]`, own_profile); and the learner catalogue, every learner a study may name (learners.toml,
+load_learners, read by the learner protocol, the learning study and scenario I's `--learner`).
+
+A learner is a training (its DQNConfig: a preset, or a parent learner, with the settings it changes) plus how its
+trainings drive: which weights (`model.pt`, the validated best; or `model_last.pt`) and the drive settings a cell's
+config.drive gives its policy string (policy_spec.DRIVES). The file says what each key means."""
 
 from __future__ import annotations
 
@@ -12,12 +17,15 @@ import re
 import tomllib
 import types
 from collections.abc import Callable, Collection, Mapping, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Protocol, TypeVar, Union, get_args, get_origin
+from typing import Any, Protocol, TypeVar, Union, get_args, get_origin, get_type_hints
 
+from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError, UsageError
 from coopsumo.field_rules import as_float, shown
 from coopsumo.files import MAX_JSON_DEPTH, depth_problem, not_regular, open_regular
+from coopsumo.policy_spec import DRIVES
 from coopsumo.validation import names_problem
 
 DATA = Path(__file__).resolve().parents[2] / "experiments_data"
@@ -197,3 +205,109 @@ def own_profile(text: str, read: Callable[[Path], tuple[Mapping[str, P], str | N
         raise UsageError(f"--profile {text}: {path}'s profile {name!r} takes the name of a packaged profile; name it "
                          "otherwise (the name chooses its results folder and its records)")  # fmt: skip
     return profiles[name]
+
+
+# -- the learner catalogue (learners.toml): every learner a study may name, one name one learner ------------------
+LEARNERS_FILE = DATA / "learners.toml"
+STATUSES = ("default", "current", "tried", "retired")
+"""a learner's status (learners.toml says what each means)"""
+WEIGHTS = ("model.pt", "model_last.pt")
+KEYS = ("parent", "preset", "status", "why", "learner", "drive", "weights", "steps_factor")
+
+
+@dataclass(frozen=True)
+class Learner:
+    """A learner as judged: the training (its learner settings) and the weights that drive."""
+
+    name: str
+    text: str
+    """what it is and why it is judged (learners.toml's `why`; the reports' words)"""
+    learner: DQNConfig
+    weights: str = "model.pt"
+    margin: float | None = None
+    """the change margin it drives with (Q units; None: the learner's own); the trainings are the same"""
+    noreturn: float | None = None
+    """how long after a lane change it does not choose the change back (s; None: no such rule)"""
+    restart: float | None = None
+    """the speed below which it withholds 'none' (m/s; None: the learner's own)"""
+    queue: float | None = None
+    """the speed below which it chooses no lane change (m/s; None: none)"""
+    steps_factor: int = 1
+    """the learning study trains it this many times its profile's steps"""
+
+    def drive(self) -> dict[str, float]:
+        """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""
+        return {key: getattr(self, field) for field, key, _ in DRIVES if getattr(self, field) is not None}
+
+
+def load_learners(path: Path = LEARNERS_FILE) -> dict[str, Learner]:
+    """Every learner of a learners.toml, in the file's order, each its parent with its own changes; one ConfigError
+    naming the file and the entry for an unknown field, parent or status, a cycle of parents, or a value the learner
+    refuses."""
+    data = read_toml(path)
+    for name, entry in data.items():
+        _check_entry(Entry(path, name), name, entry, data)
+    learner_hints = get_type_hints(DQNConfig)
+    drive_hints = {key: get_type_hints(Learner)[field] for field, key, _ in DRIVES}
+    built: dict[str, Learner] = {}
+
+    def build(name: str, below: tuple[str, ...]) -> Learner:
+        if name in below:
+            raise Entry(path, name).error(f"is its own ancestor: {' -> '.join((*below[below.index(name):], name))}")
+        if name not in built:
+            entry, at = data[name], Entry(path, name)
+            base = build(entry["parent"], (*below, name)) if "parent" in entry else \
+                Learner(entry["preset"], "", DQN_PRESETS[entry["preset"]])
+            changes = {k: at.value(f"learner.{k}", v, learner_hints[k]) for k, v in entry.get("learner", {}).items()}
+            drives = {field: at.value(f"drive.{key}", entry["drive"][key], drive_hints[key])
+                      for field, key, _ in DRIVES if key in entry.get("drive", {})}  # fmt: skip
+            try:
+                learner = replace(base.learner, **changes)
+                learner.validate()
+            except ConfigError as err:
+                raise at.error(f"learner: {err}") from None
+            built[name] = replace(base, name=name, text=entry["why"], learner=learner,
+                                  weights=entry.get("weights", base.weights), **drives,
+                                  steps_factor=_steps_factor(at, entry))  # fmt: skip
+        return built[name]
+
+    for name in data:
+        build(name, ())
+    defaults = [name for name, entry in data.items() if entry["status"] == "default"]
+    if len(defaults) != 1:
+        raise ConfigError(f"{path}: exactly one learner has status 'default' (today's default learner), got "
+                          f"{len(defaults)}: {', '.join(defaults) or 'none'}")  # fmt: skip
+    if built[defaults[0]].learner != DQN_PRESETS["default"] or built[defaults[0]].drive():
+        raise Entry(path, defaults[0]).error("has status 'default' but is not the default preset (DQNConfig())")
+    return {name: built[name] for name in data}
+
+
+def _check_entry(at: Entry, name: str, entry: Any, data: dict[str, Any]) -> None:
+    """One table of the file: its keys, its parent or preset, status, why and weights (its values: build)."""
+    at.table(entry, "a learner", KEYS)
+    if ("parent" in entry) == ("preset" in entry):
+        raise at.error("needs a parent (a learner here) or a preset (one of config.DQN_PRESETS), not both")
+    for key in ("parent" if "parent" in entry else "preset", "status", "why"):
+        if not isinstance(entry.get(key), str) or not entry[key]:
+            raise at.error(f"needs {key} (a string), got {entry.get(key)!r}")
+    if entry.get("parent", name) not in data:
+        raise at.error(f"unknown parent {entry['parent']!r} (a learner here: {', '.join(data)})")
+    if entry.get("preset", "default") not in DQN_PRESETS:
+        raise at.error(f"unknown preset {entry['preset']!r} (one of {', '.join(DQN_PRESETS)})")
+    if entry["status"] not in STATUSES:
+        raise at.error(f"unknown status {entry['status']!r} (one of {', '.join(STATUSES)})")
+    if entry.get("weights", WEIGHTS[0]) not in WEIGHTS:
+        raise at.error(f"weights must be one of {', '.join(WEIGHTS)}, got {entry['weights']!r}")
+    at.table(entry.get("learner", {}), "learner", tuple(get_type_hints(DQNConfig)))
+    at.table(entry.get("drive", {}), "drive", tuple(key for _, key, _ in DRIVES))
+
+
+def _steps_factor(at: Entry, entry: dict[str, Any]) -> int:
+    factor = int(at.value("steps_factor", entry.get("steps_factor", 1), int))
+    if factor < 1:
+        raise at.error(f"steps_factor must be at least 1, got {factor}")
+    return factor
+
+
+LEARNERS = load_learners()
+"""the packaged catalogue (learners.toml), in its order"""

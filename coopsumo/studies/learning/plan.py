@@ -20,9 +20,9 @@ from coopsumo.config import (
     TrainConfig,
     to_dict,
 )
-from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
+from coopsumo.dqn_config import DQNConfig
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_toml
+from coopsumo.studies.engine.catalogue import DATA, LEARNERS, Entry, Learner, Rule, read_toml
 from coopsumo.validation import (
     ALPHA_LIST,
     MAX_T_UP_S,
@@ -48,8 +48,7 @@ REQUIRED_SUMMARY = ("mean_speed_mps", "lane_changes_per_vehicle", "teleports", "
 
 
 LEARNING_FILE = DATA / "learning.toml"
-"""the study's variants and profiles, as data"""
-VARIANT_KEYS = ("parent", "preset", "chain", "why", "learner", "steps_factor")
+"""the study's learners (names in the catalogue, learners.toml) and profiles, as data"""
 
 
 @dataclass(frozen=True)
@@ -70,49 +69,28 @@ class Profile:
     t_up_s: float = 1.0
 
 
-def load_catalogue(path: Path = LEARNING_FILE) -> tuple[list[tuple[str, str, DQNConfig]], int, dict[str, int],
-                                                          dict[str, Profile]]:  # fmt: skip
-    """learning.toml's variants, in order, as (name, why, learner); how many form the chain; the variants trained
-    longer (steps_factor); and the profiles. One ConfigError naming the file and the entry for an unknown field,
-    parent or variant, a value of the wrong type, or a learner the learner refuses."""
+def load_catalogue(path: Path = LEARNING_FILE, learners: dict[str, Learner] | None = None) -> tuple[
+        list[tuple[str, str, DQNConfig]], int, dict[str, int], dict[str, Profile]]:  # fmt: skip
+    """learning.toml's learners (its `chain`, then its other `variants`; the catalogue's, `learners`), in order, as
+    (name, why, learner); how many form the chain; the learners trained longer (steps_factor); and the profiles.
+    One ConfigError naming the file and the entry for an unknown field or learner, a learner named twice or one that
+    drives otherwise than with model.pt and its own settings, or a profile a rule refuses."""
+    learners = LEARNERS if learners is None else learners
     data = read_toml(path)
-    Entry(path, "file").table(data, "the file", ("variants", "profiles"))
-    learner_hints = {k: v for k, v in get_type_hints(DQNConfig).items() if k != "preset"}
-    variants: list[tuple[str, str, DQNConfig]] = []
-    built: dict[str, DQNConfig] = {}
-    chain, factors = 0, {}
-    for name, entry in data.get("variants", {}).items():
-        at = Entry(path, f"variants.{name}")
-        at.table(entry, "a variant", VARIANT_KEYS)
-        if ("parent" in entry) == ("preset" in entry):
-            raise at.error("needs a parent (a variant above it) or a preset (one of config.DQN_PRESETS), not both")
-        if "parent" in entry and entry["parent"] not in built:
-            raise at.error(f"unknown parent {entry['parent']!r} (a variant above it: {', '.join(built) or 'none'})")
-        if "preset" in entry and entry["preset"] not in DQN_PRESETS:
-            raise at.error(f"unknown preset {entry['preset']!r} (one of {', '.join(DQN_PRESETS)})")
-        if not isinstance(entry.get("why"), str) or not entry["why"]:
-            raise at.error(f"needs why (a string), got {entry.get('why')!r}")
-        if at.value("chain", entry.get("chain", False), bool):
-            if chain != len(variants):
-                raise at.error("is in the chain after a variant that is not: the chain comes first, in order")
-            chain += 1
-        if (factor := at.value("steps_factor", entry.get("steps_factor", 1), int)) < 1:
-            raise at.error(f"steps_factor must be at least 1, got {factor}")
-        if factor != 1:
-            factors[name] = factor
-        changes = {k: at.value(f"learner.{k}", v, learner_hints[k])
-                   for k, v in at.table(entry.get("learner", {}), "learner", learner_hints).items()}  # fmt: skip
-        base = built[entry["parent"]] if "parent" in entry else DQN_PRESETS[entry["preset"]]
-        try:
-            if "parent" in entry:
-                changes["preset"] = "default"
-            learner = replace(base, **changes)
-            learner.validate()
-        except ConfigError as err:
-            raise at.error(f"learner: {err}") from None
-        built[name] = learner
-        variants.append((name, entry["why"], learner))
-    return variants, chain, factors, read_profiles(path, data.get("profiles", {}), built, factors)
+    at = Entry(path, "file")
+    at.table(data, "the file", ("chain", "variants", "profiles"))
+    chain = at.names("chain", data.get("chain", []), tuple(learners), least=0)
+    names = (*chain, *at.names("variants", data.get("variants", []), tuple(learners), least=0))
+    if twice := next((n for n in names if names.count(n) > 1), None):
+        raise at.error(f"learner {twice!r} is named twice (chain and variants name each learner once)")
+    for name in names:
+        if learners[name].weights != "model.pt" or learners[name].drive():
+            raise at.error(f"learner {name!r} drives otherwise than with model.pt and its own settings; the learning "
+                           "study drives a learner's model.pt as trained")  # fmt: skip
+    variants = [(n, learners[n].text, learners[n].learner) for n in names]
+    factors = {n: learners[n].steps_factor for n in names if learners[n].steps_factor != 1}
+    built = {n: learners[n].learner for n in names}
+    return variants, len(chain), factors, read_profiles(path, data.get("profiles", {}), built, factors)
 
 
 _DT_S = ControlConfig().dt_s

@@ -33,7 +33,7 @@ from coopsumo.run_markers import LEARNING_KIND
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.groups import study_cpu_s
-from coopsumo.studies.engine.records import failed_exit
+from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import (
     check_run_places,
     default_out,
@@ -58,30 +58,16 @@ from coopsumo.studies.learning.plan import (
 from coopsumo.studies.learning.report import write_outputs
 from coopsumo.validation import alpha_list, default_model_out, model_out_dir, number_name, seed_count, workers
 
-
 # -- one cell (in a worker process) ----------------------------------------------------------------
-def new_record(spec: dict[str, Any]) -> dict[str, Any]:
-    """A cell's record before it runs: coordinates and configuration, nothing measured yet."""
-    from coopsumo.studies.engine.records import blank_record
-
-    return blank_record(spec, ("key", "kind", "part", "variant", "alpha", "seed", "eval_seed", "policy"),
-                        train_summary=None)  # fmt: skip
-
-
-def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
-    """The record of a cell whose worker died or whose task could not run."""
-    from coopsumo.studies.engine.records import as_failed
-
-    return as_failed(new_record(spec), error)
+RECORDS = CellRecords(("key", "kind", "part", "variant", "alpha", "seed", "eval_seed", "policy"), ("train_summary",))
+"""a cell's record: its coordinates and configuration, then what it measured"""
+new_record, failed_record = RECORDS.new, RECORDS.failed
 
 
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
     """Run one cell and return its record (never raises on failure; see records.run_recorded)."""
-    from coopsumo.studies.engine.records import run_recorded
-
-    record = new_record(spec)
     cell = _run_train if spec["kind"] == "train" else _run_baseline
-    return run_recorded(record, lambda: cell(spec, Path(root), record))
+    return RECORDS.run(spec, lambda record: cell(spec, Path(root), record))
 
 
 def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:

@@ -27,10 +27,18 @@ from coopsumo.config import (
     TrainConfig,
     to_dict,
 )
-from coopsumo.dqn_config import DQN_PRESETS, MIN_ACCIDENT_VALIDATION_STEPS, DQNConfig
+from coopsumo.dqn_config import MIN_ACCIDENT_VALIDATION_STEPS, DQNConfig
 from coopsumo.errors import ConfigError
-from coopsumo.policy_spec import DRIVES
-from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_toml
+from coopsumo.studies.engine.catalogue import (
+    DATA,
+    LEARNERS,
+    LEARNERS_FILE,
+    Entry,
+    Learner,
+    Rule,
+    load_learners,
+    read_toml,
+)
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.validation import (
     MAX_SEEDS,
@@ -57,34 +65,9 @@ TRAJECTORY_EVERY = 5
 QUEUE_MPS = 5.0
 """a lane change made below this speed (m/s) is made in a queue (scenario I's SLOW_MPS): the thrashing measure"""
 REQUIRED = ("mean_speed_mps", "lane_changes_per_vehicle", "collisions", "teleports")
-LEARNERS_FILE = DATA / "learners.toml"
 PROFILES_FILE = DATA / "protocol.toml"
-STATUSES = ("default", "current", "tried", "retired")
-"""a variant's status (learners.toml says what each means)"""
-WEIGHTS = ("model.pt", "model_last.pt")
-
-
-@dataclass(frozen=True)
-class Variant:
-    """A learner as judged: the training (its learner settings) and the weights that drive."""
-
-    name: str
-    text: str
-    """what it is and why it is judged (learners.toml's `why`; the report's words)"""
-    learner: DQNConfig
-    weights: str = "model.pt"
-    margin: float | None = None
-    """the change margin it drives with (Q units; None: the learner's own); the trainings are the same"""
-    noreturn: float | None = None
-    """how long after a lane change it does not choose the change back (s; None: no such rule)"""
-    restart: float | None = None
-    """the speed below which it withholds 'none' (m/s; None: the learner's own)"""
-    queue: float | None = None
-    """the speed below which it chooses no lane change (m/s; None: none)"""
-
-    def drive(self) -> dict[str, float]:
-        """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""
-        return {key: getattr(self, field) for field, key, _ in DRIVES if getattr(self, field) is not None}
+Variant = Learner
+"""a variant the protocol judges: a learner of the catalogue (engine/learners.py)"""
 
 
 @dataclass(frozen=True)
@@ -118,7 +101,6 @@ class Profile:
 
 
 # -- the catalogue: learners.toml and protocol.toml -------------------------------------------------
-VARIANT_KEYS = ("parent", "preset", "status", "why", "learner", "drive", "weights")
 PROFILE_KEYS = ("why", *(f.name for f in fields(Profile) if f.name != "name"))
 FIELD_RULES: dict[str, Rule] = {
     "seeds": SEED_LIST, "train_steps": steps, "t_ups": t_up_rule(ControlConfig().dt_s), "free_steps": steps,
@@ -161,59 +143,8 @@ def profile_problem(profile: Profile, known: dict[str, Variant]) -> str | None:
 
 
 def load_variants(path: Path = LEARNERS_FILE) -> dict[str, Variant]:
-    """Every variant of a learners.toml, each its parent with its own changes; one ConfigError naming the file and
-    the entry for an unknown field, parent or status, a cycle of parents, or a value the learner refuses."""
-    data = read_toml(path)
-    learner_hints = {k: v for k, v in get_type_hints(DQNConfig).items() if k != "preset"}
-    drive_hints = {key: get_type_hints(Variant)[field] for field, key, _ in DRIVES}
-    for name, entry in data.items():
-        at = Entry(path, name)
-        at.table(entry, "a variant", VARIANT_KEYS)
-        if ("parent" in entry) == ("preset" in entry):
-            raise at.error("needs a parent (a variant here) or a preset (one of config.DQN_PRESETS), not both")
-        for key in ("parent" if "parent" in entry else "preset", "status", "why"):
-            if not isinstance(entry.get(key), str) or not entry[key]:
-                raise at.error(f"needs {key} (a string), got {entry.get(key)!r}")
-        if entry.get("parent", name) not in data:
-            raise at.error(f"unknown parent {entry['parent']!r} (a variant here: {', '.join(data)})")
-        if entry.get("preset", "default") not in DQN_PRESETS:
-            raise at.error(f"unknown preset {entry['preset']!r} (one of {', '.join(DQN_PRESETS)})")
-        if entry["status"] not in STATUSES:
-            raise at.error(f"unknown status {entry['status']!r} (one of {', '.join(STATUSES)})")
-        if entry.get("weights", WEIGHTS[0]) not in WEIGHTS:
-            raise at.error(f"weights must be one of {', '.join(WEIGHTS)}, got {entry['weights']!r}")
-        at.table(entry.get("learner", {}), "learner", learner_hints)
-        at.table(entry.get("drive", {}), "drive", drive_hints)
-    built: dict[str, Variant] = {}
-
-    def build(name: str, below: tuple[str, ...]) -> Variant:
-        if name in below:
-            raise Entry(path, name).error(f"is its own ancestor: {' -> '.join((*below[below.index(name):], name))}")
-        if name not in built:
-            entry, at = data[name], Entry(path, name)
-            base = build(entry["parent"], (*below, name)) if "parent" in entry else \
-                Variant(entry["preset"], "", DQN_PRESETS[entry["preset"]])
-            changes = {k: at.value(f"learner.{k}", v, learner_hints[k]) for k, v in entry.get("learner", {}).items()}
-            drives = {field: at.value(f"drive.{key}", entry["drive"][key], drive_hints[key])
-                      for field, key, _ in DRIVES if key in entry.get("drive", {})}  # fmt: skip
-            try:
-                learner = replace(base.learner, **changes)
-                learner.validate()
-            except ConfigError as err:
-                raise at.error(f"learner: {err}") from None
-            built[name] = replace(base, name=name, text=entry["why"], learner=learner,
-                                  weights=entry.get("weights", base.weights), **drives)  # fmt: skip
-        return built[name]
-
-    for name in data:
-        build(name, ())
-    defaults = [name for name, entry in data.items() if entry["status"] == "default"]
-    if len(defaults) != 1:
-        raise ConfigError(f"{path}: exactly one variant has status 'default' (today's default learner), got "
-                          f"{len(defaults)}: {', '.join(defaults) or 'none'}")  # fmt: skip
-    if built[defaults[0]].learner != DQN_PRESETS["default"] or built[defaults[0]].drive():
-        raise Entry(path, defaults[0]).error("has status 'default' but is not the default preset (DQNConfig())")
-    return built
+    """Every learner of a learners.toml (engine/catalogue.load_learners)."""
+    return load_learners(path)
 
 
 def load_profiles(known: dict[str, Variant], path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], str]:
@@ -361,7 +292,7 @@ def _learner_tag(dqn: DQNConfig) -> str:
     return f"{dqn.preset}_{digest}"
 
 
-_VARIANTS = load_variants()
+_VARIANTS = LEARNERS
 PROFILES, CURRENT = load_profiles(_VARIANTS)
 """the protocol's profiles (protocol.toml) and the one judging today's default learner (DQNConfig()): `coopsumo
 protocol` and `make protocol` run it when no profile is named (its committed report: results/learner_protocol_nr10)"""

@@ -33,7 +33,7 @@ from coopsumo.record_schemas import PROTOCOL_STUDY
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.groups import study_cpu_s
-from coopsumo.studies.engine.records import failed_exit
+from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import (
     check_run_places,
     default_out,
@@ -60,24 +60,14 @@ from coopsumo.validation import default_model_out, model_out_dir, workers
 FIELDS = ("key", "kind", "variant", "alpha", "seed", "scenario", "t_up", "eval_seed", "weights", "train_key")
 
 
-def new_record(spec: dict[str, Any]) -> dict[str, Any]:
-    from coopsumo.studies.engine.records import blank_record
-
-    return blank_record(spec, FIELDS, train_summary=None)
-
-
-def failed_record(spec: dict[str, Any], error: str) -> dict[str, Any]:
-    from coopsumo.studies.engine.records import as_failed
-
-    return as_failed(new_record(spec), error)
+RECORDS = CellRecords(FIELDS, ("train_summary",))
+"""a cell's record: its coordinates and configuration, then what it measured"""
+new_record, failed_record = RECORDS.new, RECORDS.failed
 
 
 def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
     """Train (or reuse) the model, then drive it; or run a baseline. Never raises (records.run_recorded)."""
-    from coopsumo.studies.engine.records import run_recorded
-
-    record = new_record(spec)
-    return run_recorded(record, lambda: _run(spec, Path(root), record))
+    return RECORDS.run(spec, lambda record: _run(spec, Path(root), record))
 
 
 def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:

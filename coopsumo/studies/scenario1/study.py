@@ -152,8 +152,10 @@ def build_parser() -> Parser:
                         "into --out: runs.csv, summary.csv, claim_a.md, report.md (studies/scenario1/merge.py; "
                         "default: none, run a study)")
     p.add_argument("--preset", "--presets", dest="presets", default=None,
-                   help=f"learner presets, comma-separated: {', '.join(learners())}, or several side by side, e.g. "
-                        f"default,alpha_only (default: {by_profile(lambda plan: ','.join(plan.presets))})")  # fmt: skip
+                   help="learners, comma-separated, several side by side: the presets default, paper, alpha_only, or "
+                        "a learner of the catalogue (coopsumo/experiments_data/learners.toml) that drives as saved, "
+                        "e.g. default,alpha_only_dense (default: "
+                        f"{by_profile(lambda plan: ','.join(plan.presets))})")  # fmt: skip
     return p
 
 
