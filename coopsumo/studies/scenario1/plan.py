@@ -141,13 +141,13 @@ def run_folder(label: str, seed: int, t_up: float, train_seed: int | None = None
 
 
 def learners() -> dict[str, DQNConfig]:
-    """The learners a study may train, by name: config.DQN_PRESETS, then the learner protocol's variants that drive
+    """The learners a study may train, by name: config.DQN_PRESETS, then the learner catalogue's learners that drive
     as they were saved (learners.toml: no drive settings, model.pt) and are not a preset under another name, such as
     `alpha_only_dense` (issue 78)."""
-    from coopsumo.studies.protocol.plan import variants
+    from coopsumo.studies.engine.catalogue import LEARNERS
 
     known = dict(DQN_PRESETS)
-    for name, variant in variants().items():
+    for name, variant in LEARNERS.items():
         if name not in known and not variant.drive() and variant.weights == "model.pt" and \
                 variant.learner not in DQN_PRESETS.values():
             known[name] = variant.learner
