@@ -194,7 +194,8 @@ def test_a_file_of_several_profiles_needs_the_name_of_one(tmp_path: Path, capsys
 
 
 def tiny_protocol(name: str = "mine") -> str:
-    return packaged_table(protocol_plan.PROFILES_FILE, "[tiny]").replace("[tiny]", f"[{name}]")
+    table = packaged_table(protocol_plan.PROFILES_FILE, "[profiles.tiny]")
+    return table.replace("[profiles.tiny]", f"[profiles.{name}]")
 
 
 @pytest.mark.parametrize(("line", "words"), [
@@ -215,9 +216,9 @@ def test_a_protocol_profile_is_checked_by_the_same_rules(tmp_path: Path, line: s
     path.write_text(with_field(tiny_protocol(), line))
     out = tmp_path / "out"
     code, err = run_main(protocol.main, ["--profile", str(path), "--out", str(out), "--quiet"], capsys)
-    assert code == 2 and len(err) == 1 and err[0].startswith(f"protocol: error: {path}: [mine] {words}"), err
+    assert code == 2 and len(err) == 1 and err[0].startswith(f"protocol: error: {path}: [profiles.mine] {words}"), err
     assert not out.exists()
-    with pytest.raises(ConfigError, match=re.escape(f"[mine] {words}")):  # the packaged loader: the same
+    with pytest.raises(ConfigError, match=re.escape(f"[profiles.mine] {words}")):  # the packaged loader: the same
         protocol_plan.load_profiles(protocol_plan.variants(), path.parent / "mine.toml")
 
 
@@ -281,9 +282,9 @@ def test_a_learning_profile_of_ones_own_runs_under_its_name(tmp_path: Path, monk
     code, err = run_main(learning.main, ["--profile", str(path), "--out", str(out), "--quiet"], capsys)
     assert code == 0, err
     assert ran == [replace(learning_plan.PROFILES["tiny"], name="mine")]
-    path.write_text("[variants.x]\nparent = \"paper\"\nwhy = \"w\"\n" + tiny_learning())
+    path.write_text('chain = ["paper"]\n' + tiny_learning())  # the study's learners are learning.toml's
     code, err = run_main(learning.main, ["--profile", str(path), "--out", str(tmp_path / "o2")], capsys)
-    assert code == 2 and len(err) == 1 and "unknown field 'variants'" in err[0], err
+    assert code == 2 and len(err) == 1 and "it has no chain or variants of its own" in err[0], err
 
 
 def test_the_documented_profile_file_runs_as_documented(tmp_path: Path, faked_train: list[str],  # noqa: F811

@@ -80,13 +80,13 @@ def test_the_catalogue_names_exactly_one_default_the_default_preset(tmp_path: Pa
         load_variants(tmp_path / "missing.toml")
 
 
-PROFILE = '[p]\nwhy = "w"\nvariants = ["nr10"]\n'
+PROFILE = '[profiles.p]\nhelp = "w"\nvariants = ["nr10"]\n'
 PROFILE_ERRORS = [
-    (PROFILE + "steps = 5", "p", "unknown field 'steps' in a profile"),
-    (PROFILE + "name = 'q'", "p", "unknown field 'name' in a profile"),
-    ('[p]\nwhy = "w"\nvariants = ["nope"]', "p", "unknown variant 'nope'"),
-    ('[p]\nwhy = "w"\nvariants = []', "p", "needs variants"),
-    ('[p]\nvariants = ["nr10"]', "p", "needs why"),
+    (PROFILE + "steps = 5", "p", "unknown field 'steps' in the profile"),
+    (PROFILE + "name = 'q'", "p", "unknown field 'name' in the profile"),
+    ('[profiles.p]\nhelp = "w"\nvariants = ["nope"]', "p", "unknown variant 'nope'"),
+    ('[profiles.p]\nhelp = "w"\nvariants = []', "p", "needs variants"),
+    ('[profiles.p]\nhelp = 3\nvariants = ["nr10"]', "p", "help must be str"),
     (PROFILE + 'judged = "f05q_ts2k"', "p", "judges 'f05q_ts2k', which it does not run"),
     (PROFILE + 'paired_with = [["nr10", "learner_protocol_x", "gone"]]', "p", "unknown variant 'gone'"),
     (PROFILE + 'paired_with = [["f05q_ts2k", "learner_protocol_x", "nr10"]]', "p",
@@ -103,22 +103,25 @@ def test_a_bad_profile_is_one_error_naming_the_file_and_the_entry(tmp_path: Path
                                                                    fragment: str) -> None:  # fmt: skip
     (tmp_path / "learners.toml").write_text(BASE)
     path = tmp_path / "protocol.toml"
-    path.write_text('current = "p"\n' + text + "\n")
+    path.write_text('default = "p"\n' + text + "\n")
     with pytest.raises(ConfigError) as err:
         load_profiles(load_variants(tmp_path / "learners.toml"), path)
-    assert str(err.value).startswith(f"{path}: [{entry}] ") and fragment in str(err.value), str(err.value)
+    assert str(err.value).startswith(f"{path}: [profiles.{entry}] ") and fragment in str(err.value), str(err.value)
 
 
-def test_the_current_profile_must_be_one_of_the_file(tmp_path: Path) -> None:
+def test_the_default_profile_must_be_one_of_the_file(tmp_path: Path) -> None:
     known = load_variants(protocol_plan.LEARNERS_FILE)
     path = tmp_path / "protocol.toml"
-    for head in ('current = "q"\n', ""):
+    for head in ('default = "q"\n', ""):
         path.write_text(head + PROFILE)
-        with pytest.raises(ConfigError, match=r"current must name one of its profiles \(p\), got "):
+        with pytest.raises(ConfigError, match=r"default must name one of its profiles \(p\), got "):
             load_profiles(known, path)
-    path.write_text('current = "p"\n' + PROFILE + "t_ups = [2, 1]\n")
-    profiles, current = load_profiles(known, path)
-    assert current == "p" and profiles["p"].t_ups == (2.0, 1.0)  # integers where floats belong become floats
+    path.write_text('default = "p"\n' + PROFILE + "t_ups = [2, 1]\n")
+    profiles, default = load_profiles(known, path)
+    assert default == "p" and profiles["p"].t_ups == (2.0, 1.0)  # integers where floats belong become floats
+    path.write_text('current = "p"\n' + PROFILE)  # the format before 2026-12-04: one line naming what it knows
+    with pytest.raises(ConfigError, match=r"unknown top-level keys 'current' \(known: default, shared, profiles\)"):
+        load_profiles(known, path)
 
 
 def test_the_packaged_catalogue_holds_the_current_profiles_and_what_they_pair_with() -> None:

@@ -115,22 +115,24 @@ def read_toml(path: Path) -> dict[str, Any]:
 
 # -- a study's profile file ------------------------------------------------------------------------------------------
 def read_profiles(path: Path, settable: tuple[str, ...], build: Callable[[Entry, str, dict[str, Any]], P],
-                  default_needed: bool = True, own: tuple[str, ...] = ()) -> tuple[dict[str, P], dict[str, str], Any]:
-    """A study's profile file (scenario1.toml, scenario2.toml, or a file of one's own in their format): its `default`
+                  default_needed: bool = True, own: tuple[str, ...] = (),
+                  others: tuple[str, ...] = ()) -> tuple[dict[str, P], dict[str, str], Any]:  # fmt: skip
+    """A study's profile file (scenario1.toml, scenario2.toml, protocol.toml, learning.toml, or a file of one's own in
+    their format; top-level keys `others` the study reads itself, e.g. learning.toml's chain): its `default`
     (the profile run when none is named; a file of one's own may leave it out: not `default_needed`), `[shared.NAME]`
     tables of settings, and `[profiles.NAME]` tables, each with `help` (what --help says of it), optionally `use`
     (the shared table it starts from) and settings out of `settable` (or `own`, which a shared table does not hold).
     `build(entry, name, settings)` types and checks one profile's settings (its shared table's, its own over them)
     and makes it. Returns the profiles, their help and the default as the file gives it (or None); one ConfigError
     naming the file and the entry for an unknown key, `use` or default."""
-    data = dict(read_toml(path))
+    data = {k: v for k, v in read_toml(path).items() if k not in others}
     shared, tables, default = data.pop("shared", {}), data.pop("profiles", None), data.pop("default", None)
     for key, table in (("shared", shared), ("profiles", tables)):
         if not isinstance(table, dict):
             raise Entry(path, key).error(f"must be a table, got {table!r}")
     if data:
-        raise ConfigError(f"{path}: unknown top-level keys {', '.join(map(repr, data))} (known: default, shared, "
-                          "profiles)")  # fmt: skip
+        raise ConfigError(f"{path}: unknown top-level keys {', '.join(map(repr, data))} (known: "
+                          f"{', '.join((*others, 'default', 'shared', 'profiles'))})")  # fmt: skip
     profiles, helps = {}, {}
     for name, entry in tables.items():
         at = Entry(path, f"profiles.{name}")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any, get_type_hints
 
@@ -22,7 +23,7 @@ from coopsumo.config import (
 )
 from coopsumo.dqn_config import DQNConfig
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.studies.engine.catalogue import DATA, LEARNERS, Entry, Learner, Rule, read_toml
+from coopsumo.studies.engine.catalogue import DATA, LEARNERS, Entry, Learner, Rule, read_profiles, read_toml
 from coopsumo.validation import (
     ALPHA_LIST,
     MAX_T_UP_S,
@@ -78,7 +79,7 @@ def load_catalogue(path: Path = LEARNING_FILE, learners: dict[str, Learner] | No
     learners = LEARNERS if learners is None else learners
     data = read_toml(path)
     at = Entry(path, "file")
-    at.table(data, "the file", ("chain", "variants", "profiles"))
+    at.table(data, "the file", ("chain", "variants", "profiles", "default"))
     chain = at.names("chain", data.get("chain", []), tuple(learners), least=0)
     names = (*chain, *at.names("variants", data.get("variants", []), tuple(learners), least=0))
     if twice := next((n for n in names if names.count(n) > 1), None):
@@ -90,7 +91,7 @@ def load_catalogue(path: Path = LEARNING_FILE, learners: dict[str, Learner] | No
     variants = [(n, learners[n].text, learners[n].learner) for n in names]
     factors = {n: learners[n].steps_factor for n in names if learners[n].steps_factor != 1}
     built = {n: learners[n].learner for n in names}
-    return variants, len(chain), factors, read_profiles(path, data.get("profiles", {}), built, factors)
+    return variants, len(chain), factors, read_learning_profiles(path, built, factors)[0]
 
 
 _DT_S = ControlConfig().dt_s
@@ -103,45 +104,56 @@ FIELD_RULES: dict[str, Rule] = {
 same quantity's flag elsewhere (--steps, --lanes, --t-up), so that a file takes no value a flag refuses"""
 
 
-def read_profiles(path: Path, tables: Any, built: dict[str, DQNConfig], factors: dict[str, int]) -> dict[str, Profile]:
-    """The `[profiles.NAME]` tables of `path`, naming the variants `built` (trained `factors` times longer), each
-    checked: its fields' types and rules (FIELD_RULES; variants and alpha_variants as --variants: known, none twice),
-    a training seed that is an evaluation seed, a training the learner or the simulation refuses."""
+def read_learning_profiles(path: Path, built: dict[str, DQNConfig], factors: dict[str, int],
+                           default_needed: bool = False) -> tuple[dict[str, Profile], Any]:  # fmt: skip
+    """The `[profiles.NAME]` tables of `path` (engine/catalogue.read_profiles; its chain and variants the study reads
+    itself), naming the variants `built` (trained `factors` times longer), each checked: its fields' types and rules
+    (FIELD_RULES; variants and alpha_variants as --variants: known, none twice), a training seed that is an
+    evaluation seed, a training the learner or the simulation refuses. The profiles and the file's default (or
+    None)."""
+    profiles, _, default = read_profiles(path, SETTABLE, partial(_profile, built=built, factors=factors),
+                                         default_needed=default_needed, others=("chain", "variants"))  # fmt: skip
+    return profiles, default
+
+
+SETTABLE = tuple(k for k in get_type_hints(Profile) if k != "name")
+"""what a profile of learning.toml may set (besides its `help`)"""
+
+
+def _profile(at: Entry, name: str, settings: dict[str, Any], built: dict[str, DQNConfig],
+             factors: dict[str, int]) -> Profile:  # fmt: skip
     hints = get_type_hints(Profile)
-    profiles = {}
-    for name, entry in Entry(path, "profiles").table(tables, "profiles", tables).items():
-        at = Entry(path, f"profiles.{name}")
-        at.table(entry, "a profile", tuple(k for k in hints if k != "name"))
-        try:
-            profile = Profile(name, **{k: at.value(k, v, hints[k], FIELD_RULES.get(k)) for k, v in entry.items()})
-        except TypeError as err:
-            raise at.error(f"is not a whole profile ({err})") from None
-        if unknown := [v for v in (*profile.variants, *profile.alpha_variants) if v not in built]:
-            raise at.error(f"unknown variant {unknown[0]!r}")
-        for key, least in (("variants", 1), ("alpha_variants", 0)):
-            if problem := names_problem(getattr(profile, key), tuple(built), least):
-                raise at.error(f"{key} {problem}")
-        evaluation = {EVAL_SEED_OFFSET + s for s in profile.seeds}
-        if shared := sorted(set((*profile.seeds, *profile.alpha_seeds)) & evaluation):
-            raise at.error(f"seeds: training seed {shared[0]} is also an evaluation seed ({EVAL_SEED_OFFSET} + each "
-                           "of seeds); a model is judged only on seeds it never trained on")  # fmt: skip
-        try:
-            for variant in dict.fromkeys((*profile.variants, *profile.alpha_variants)):
-                n_steps = profile.train_steps * factors.get(variant, 1)
-                train_config(profile, built[variant], 0.0, profile.seeds[0], n_steps).validate()
-            eval_config(profile, "keep", EVAL_SEED_OFFSET + profile.seeds[0]).validate()
-        except ConfigError as err:
-            raise at.error(f"makes a run the simulation refuses: {err}") from None
-        profiles[name] = profile
-    return profiles
+    try:
+        profile = Profile(name, **{k: at.value(k, v, hints[k], FIELD_RULES.get(k)) for k, v in settings.items()})
+    except TypeError as err:
+        raise at.error(f"is not a whole profile ({err})") from None
+    if unknown := [v for v in (*profile.variants, *profile.alpha_variants) if v not in built]:
+        raise at.error(f"unknown variant {unknown[0]!r}")
+    for key, least in (("variants", 1), ("alpha_variants", 0)):
+        if problem := names_problem(getattr(profile, key), tuple(built), least):
+            raise at.error(f"{key} {problem}")
+    evaluation = {EVAL_SEED_OFFSET + s for s in profile.seeds}
+    if shared := sorted(set((*profile.seeds, *profile.alpha_seeds)) & evaluation):
+        raise at.error(f"seeds: training seed {shared[0]} is also an evaluation seed ({EVAL_SEED_OFFSET} + each "
+                       "of seeds); a model is judged only on seeds it never trained on")  # fmt: skip
+    try:
+        for variant in dict.fromkeys((*profile.variants, *profile.alpha_variants)):
+            n_steps = profile.train_steps * factors.get(variant, 1)
+            train_config(profile, built[variant], 0.0, profile.seeds[0], n_steps).validate()
+        eval_config(profile, "keep", EVAL_SEED_OFFSET + profile.seeds[0]).validate()
+    except ConfigError as err:
+        raise at.error(f"makes a run the simulation refuses: {err}") from None
+    return profile
 
 
-def own_profiles(path: Path) -> tuple[dict[str, Profile], None]:
+def own_profiles(path: Path) -> tuple[dict[str, Profile], str | None]:
     """The profiles of a file of one's own (`--profile PATH.toml[:NAME]`: `[profiles.NAME]` tables as in
-    learning.toml, naming its variants), checked as the packaged ones are; no default (None)."""
-    data = read_toml(path)
-    Entry(path, "file").table(data, "a profile file of one's own (its variants are learning.toml's)", ("profiles",))
-    return read_profiles(path, data.get("profiles", {}), {n: c for n, _, c in VARIANTS}, STEPS_FACTOR), None
+    learning.toml, naming its variants; its `default` optional), checked as the packaged ones are, and its default
+    or None. A file of one's own has no chain or variants of its own: the study's are learning.toml's."""
+    if {"chain", "variants"} & set(read_toml(path)):
+        raise ConfigError(f"{path}: a profile file of one's own names learning.toml's learners; it has no chain or "
+                          "variants of its own (only [profiles.NAME] tables and a default)")  # fmt: skip
+    return read_learning_profiles(path, {n: c for n, _, c in VARIANTS}, STEPS_FACTOR)
 
 
 def learner_of(variant: str) -> DQNConfig:

@@ -202,7 +202,7 @@ def build_parser() -> Parser:
 def chosen_profile(text: str) -> Profile:
     """--profile's profile: a packaged one by name, or one of a file of one's own (PATH.toml[:NAME]: [profiles.NAME]
     tables as in learning.toml, naming its variants, every profile checked as the packaged ones are)."""
-    return PROFILES[text] if text in PROFILES else own_profile(text, own_profiles, PROFILES)
+    return PROFILES[text] if text in PROFILES else own_profile(text, own_profiles, PROFILES, "default")
 
 
 def profile_from_args(args: Any) -> Profile:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import json
 from dataclasses import dataclass, fields, replace
+from functools import partial
 from itertools import product
 from pathlib import Path, PurePath
 from typing import Any, get_type_hints
@@ -37,7 +38,7 @@ from coopsumo.studies.engine.catalogue import (
     Learner,
     Rule,
     load_learners,
-    read_toml,
+    read_profiles,
 )
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.validation import (
@@ -101,7 +102,8 @@ class Profile:
 
 
 # -- the catalogue: learners.toml and protocol.toml -------------------------------------------------
-PROFILE_KEYS = ("why", *(f.name for f in fields(Profile) if f.name != "name"))
+SETTABLE = tuple(f.name for f in fields(Profile) if f.name != "name")
+"""what a profile of protocol.toml may set (besides its `help`)"""
 FIELD_RULES: dict[str, Rule] = {
     "seeds": SEED_LIST, "train_steps": steps, "t_ups": t_up_rule(ControlConfig().dt_s), "free_steps": steps,
     "accident_steps": steps, "accident_start": integer(0), "accident_duration": integer(1),
@@ -148,53 +150,39 @@ def load_variants(path: Path = LEARNERS_FILE) -> dict[str, Variant]:
 
 
 def load_profiles(known: dict[str, Variant], path: Path = PROFILES_FILE) -> tuple[dict[str, Profile], str]:
-    """The profiles of a protocol.toml and its `current` one; one ConfigError naming the file and the entry for an
-    unknown field or variant, a judged variant or pair it does not run, a value of the wrong type, or a value a flag
-    of the same quantity refuses (FIELD_RULES, profile_problem)."""
-    profiles, current = read_profiles(known, path)
-    if current not in profiles:
-        raise ConfigError(f"{path}: current must name one of its profiles ({', '.join(profiles)}), got {current!r}")
-    return profiles, str(current)
+    """The profiles of a protocol.toml and its `default` one (engine/catalogue.read_profiles); one ConfigError naming
+    the file and the entry for an unknown field or variant, a judged variant or pair it does not run, a value of the
+    wrong type, or a value a flag of the same quantity refuses (FIELD_RULES, profile_problem)."""
+    profiles, _, default = read_profiles(path, SETTABLE, partial(_profile, known=known))
+    return profiles, str(default)
 
 
 def own_profiles(path: Path) -> tuple[dict[str, Profile], str | None]:
     """The profiles of a file of one's own (`--profile PATH.toml[:NAME]`, protocol.toml's format, naming
-    learners.toml's variants; its `current` optional), checked as the packaged ones are, and its current or None."""
-    profiles, current = read_profiles(variants(), path)
-    if current is not None and current not in profiles:
-        raise ConfigError(f"{path}: current must name one of its profiles ({', '.join(profiles)}), got {current!r}")
-    return profiles, current
+    learners.toml's variants; its `default` optional), checked as the packaged ones are, and its default or None."""
+    profiles, _, default = read_profiles(path, SETTABLE, partial(_profile, known=variants()), default_needed=False)
+    return profiles, default
 
 
-def read_profiles(known: dict[str, Variant], path: Path) -> tuple[dict[str, Profile], Any]:
-    """load_profiles' reading and checks of every profile; the file's `current` as it gives it (or None)."""
-    data = dict(read_toml(path))
-    current = data.pop("current", None)
+def _profile(at: Entry, name: str, settings: dict[str, Any], known: dict[str, Variant]) -> Profile:
+    """One profile of the file, its settings typed and checked."""
+    if not settings.get("variants"):
+        raise at.error("needs variants (a list of learners.toml's variants)")
     hints = get_type_hints(Profile)
-    profiles: dict[str, Profile] = {}
-    for name, entry in data.items():
-        at = Entry(path, name)
-        at.table(entry, "a profile", PROFILE_KEYS)
-        if not isinstance(entry.get("why"), str) or not entry["why"]:
-            raise at.error(f"needs why (a string), got {entry.get('why')!r}")
-        if not entry.get("variants"):
-            raise at.error("needs variants (a list of learners.toml's variants)")
-        settings = {key: at.value(key, value, hints[key], FIELD_RULES.get(key)) for key, value in entry.items()
-                    if key != "why"}  # fmt: skip
-        profile = Profile(name, **settings)
-        named = [*profile.variants, *(p[2] for p in profile.paired_with)]
-        if unknown := [v for v in named if v not in known]:
-            raise at.error(f"unknown variant {unknown[0]!r} (learners.toml has {', '.join(known)})")
-        if profile.judged_variant() not in profile.variants:
-            raise at.error(f"judges {profile.judged!r}, which it does not run")
-        if outside := [p[0] for p in profile.paired_with if p[0] not in profile.variants]:
-            raise at.error(f"pairs {outside[0]!r}, which it does not run")
-        if problem := next(filter(None, (folder_problem(p[1]) for p in profile.paired_with)), None):
-            raise at.error(problem)  # here, naming the file (issue 82, probe 8, J19); check_paired checks it again
-        if problem := profile_problem(profile, known):
-            raise at.error(problem)
-        profiles[name] = profile
-    return profiles, current
+    profile = Profile(name, **{key: at.value(key, value, hints[key], FIELD_RULES.get(key))
+                               for key, value in settings.items()})  # fmt: skip
+    named = [*profile.variants, *(p[2] for p in profile.paired_with)]
+    if unknown := [v for v in named if v not in known]:
+        raise at.error(f"unknown variant {unknown[0]!r} (learners.toml has {', '.join(known)})")
+    if profile.judged_variant() not in profile.variants:
+        raise at.error(f"judges {profile.judged!r}, which it does not run")
+    if outside := [p[0] for p in profile.paired_with if p[0] not in profile.variants]:
+        raise at.error(f"pairs {outside[0]!r}, which it does not run")
+    if problem := next(filter(None, (folder_problem(p[1]) for p in profile.paired_with)), None):
+        raise at.error(problem)  # here, naming the file (issue 82, probe 8, J19); check_paired checks it again
+    if problem := profile_problem(profile, known):
+        raise at.error(problem)
+    return profile
 
 
 def folder_problem(folder: str) -> str | None:

@@ -151,7 +151,7 @@ def default_folder(profile: str) -> Path:
 def chosen_profile(text: str) -> Profile:
     """--profile's profile: a packaged one by name, or one of a file of one's own (PATH.toml[:NAME]: protocol.toml's
     format, naming learners.toml's variants, every profile checked as the packaged ones are)."""
-    return PROFILES[text] if text in PROFILES else own_profile(text, own_profiles, PROFILES, "current")
+    return PROFILES[text] if text in PROFILES else own_profile(text, own_profiles, PROFILES, "default")
 
 
 def build_parser() -> Parser:
