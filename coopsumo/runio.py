@@ -195,14 +195,15 @@ def interrupted(prog: str, err: KeyboardInterrupt) -> int:
 
 def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_process: bool = False) -> int:
     """body(), a console command's whole run: a Ctrl-C (SIGINT) or a SIGTERM from this call's first instruction on
-    raises Stop wherever it lands, the command's imports included (seconds for torch, libsumo, pandas, when Python's
-    own KeyboardInterrupt used to end in a traceback, and SIGTERM ended the process without a line: issue 82, probe 7,
-    I15), and also when the process was started with them ignored. A command that reports its own interruption
-    (run_cli) returns its exit code; one that reaches here ends in one line, `prog(): interrupted`, exit code 128 + the
-    signal. whole_process: body is the process's command, which exits next; a signal while Python exits then has
-    nothing left to stop and is ignored (it used to kill the ending process without a line, or print a traceback from
-    an exit handler). A Ctrl-C that the code it landed in swallowed, so that body() ran on and returned 0, still ends
-    in that line and 130. Only in the main thread (elsewhere: body())."""
+    raises Stop wherever it lands, the command's imports included (seconds for torch, libsumo, pandas, when Python's own
+    KeyboardInterrupt used to end in a traceback, and SIGTERM ended the process without a line: issue 82, probe 7, I15),
+    and also when the process was started with them ignored. A command that reports its own interruption (run_cli)
+    returns its exit code; one that reaches here ends in one line, `prog(): interrupted`, exit code 128 + the signal.
+    whole_process: body is the process's command, which exits next; a signal while Python exits then has nothing left to
+    stop and waits (it used to kill the ending process without a line, or print a traceback from an exit handler): if
+    the process has not ended EXIT_GRACE_S later (a policy of one's own left a thread running or an atexit callback that
+    blocks: issue 82, probe 12, N6), it ends in one line (_exit_stop). A Ctrl-C that the code it landed in swallowed, so
+    that body() ran on and returned 0, still ends in that line and 130. Only in the main thread (elsewhere: body())."""
     if threading.current_thread() is not threading.main_thread():
         return body()
     old, stops_before, _ENDING[0] = {s: signal.getsignal(s) for s in STOP_SIGNALS}, len(_STOPS_RAISED), False
@@ -228,7 +229,34 @@ def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_pr
     finally:
         _COMMAND_STOPS[0] = outer
         for s, handler in old.items():
-            signal.signal(s, signal.SIG_IGN if whole_process else signal.SIG_DFL if handler is None else handler)
+            signal.signal(s, _exit_stop(prog) if whole_process else signal.SIG_DFL if handler is None else handler)
+
+
+EXIT_GRACE_S = 3
+"""how long a signal that comes while the process exits waits for the exit before it ends the process"""
+
+
+def _exit_stop(prog: Callable[[], str]) -> Callable[[int, Any], None]:
+    """The handler of SIGINT and SIGTERM once the command is done and Python exits: the first such signal starts a
+    clock (SIGALRM in EXIT_GRACE_S); an exit that ends before it is not cut short (a second Ctrl-C or `timeout`'s
+    signal to the process group while a stopped command ends: issue 82, probe 4, F15), one still running then ends in
+    one line, exit code 128 + the signal."""
+
+    def stopped(signum: int, frame: Any) -> None:
+        if signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, signal.SIG_IGN, None):
+            signal.signal(signal.SIGALRM, lambda _s, _f: _end_now(prog, signum))
+            signal.alarm(EXIT_GRACE_S)
+
+    return stopped
+
+
+def _end_now(prog: Callable[[], str], signum: int) -> None:
+    try:
+        print(f"{prog()}: stopped by {signal.Signals(signum).name} while it exited ({EXIT_GRACE_S} s later): its work "
+              "was done; something it ran (a thread or an atexit callback of a policy of one's own?) kept it from "
+              "ending", file=sys.stderr, flush=True)  # fmt: skip
+    finally:
+        os._exit(128 + signum)
 
 
 @contextmanager

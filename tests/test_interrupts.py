@@ -198,3 +198,45 @@ def test_a_second_signal_as_train_ends_adds_no_second_line(where: str, tmp_path:
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("train: interrupted"), res.stderr[-1500:]
     assert res.returncode == 130
+
+
+FOREVER = '''
+import threading, time
+
+
+class Forever:
+    needs_grids = False
+
+    def __init__(self):
+        threading.Thread(target=self.loop).start()  # not a daemon: Python waits for it as it exits
+
+    def loop(self):
+        while True:
+            time.sleep(0.05)
+
+    def act(self, obs):
+        return [3] * len(obs)
+'''
+
+
+@pytest.mark.sumo
+def test_a_signal_ends_a_command_that_cannot_exit_in_one_line(tmp_path: Path) -> None:
+    """Issue 82, probe 12, N6: a policy of one's own that leaves a thread running kept the command from exiting once
+    its work was done, and SIGINT and SIGTERM were ignored there (only SIGKILL ended it)."""
+    (tmp_path / "x.py").write_text(FOREVER)
+    argv = [sys.executable, "-m", "coopsumo", "simulate", "--quiet", "--steps", "30", "--policy", "py:x.py:Forever",
+            "--out", "o"]  # fmt: skip
+    proc = subprocess.Popen(argv, cwd=tmp_path, text=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + 120
+        while not finished_run(tmp_path / "o", "simulate"):  # its work done, it cannot exit
+            assert proc.poll() is None and time.monotonic() < deadline, proc.poll()
+            time.sleep(0.2)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("simulate: stopped by SIGTERM while it exited"), err
