@@ -5,6 +5,7 @@ resumed."""
 from __future__ import annotations
 
 import json
+import multiprocessing as mp
 import os
 import shutil
 import signal
@@ -768,6 +769,30 @@ def test_an_abort_ends_the_pools_thread_before_it_returns(monkeypatch: pytest.Mo
     assert manager is not None and manager.is_alive()
     backend.abort()
     assert not manager.is_alive()
+
+
+def lingering_cell(spec: dict[str, object], root: str) -> dict[str, object]:
+    """A cell that leaves a thread running, as a policy of one's own may (run in a spawned worker)."""
+    import threading
+
+    threading.Thread(target=time.sleep, args=(600,)).start()  # not a daemon: the worker's exit waits for it
+    return fake_cell(spec, root)
+
+
+def test_a_worker_that_cannot_exit_does_not_hold_the_study(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 82, probe 12, N6: close() waited without end for a worker whose cell left a thread running; now the
+    worker is stopped CLOSE_WAIT_S after the pool is shut."""
+    monkeypatch.setattr(runner, "CLOSE_WAIT_S", 2.0)
+    specs = s2_plan.cell_specs(s2_plan.PROFILES["tiny"])
+    backend = runner.LocalBackend(1, cell_fn=lingering_cell)
+    handles = [backend.submit(specs[0], Path("unused"))]
+    deadline = time.monotonic() + 120
+    while not backend.wait(handles, timeout=1.0):
+        assert time.monotonic() < deadline
+    workers = mp.active_children()
+    start = time.monotonic()
+    backend.close()
+    assert time.monotonic() - start < 30 and workers and not any(p.is_alive() for p in workers)
 
 
 def test_neighbour_separation_on_hand_made_speeds() -> None:

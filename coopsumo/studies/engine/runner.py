@@ -124,7 +124,22 @@ class LocalBackend:
             manager.join(timeout=10.0)
 
     def close(self) -> None:
-        self._pool.shutdown(wait=True)
+        """Let the workers end; one still alive CLOSE_WAIT_S later is stopped as abort stops it: a policy of one's own
+        that left a thread running in it kept it from exiting (Python's exit waits for the thread), and the study
+        waited for it without end, every cell done and no report written (issue 82, probe 12, N6)."""
+        procs = mp.active_children()
+        self._pool.shutdown(wait=False)
+        deadline = time.monotonic() + CLOSE_WAIT_S
+        for p in procs:
+            p.join(timeout=max(0.0, deadline - time.monotonic()))
+        if any(p.is_alive() for p in procs):
+            self.abort()
+        else:
+            self._pool.shutdown(wait=True)
+
+
+CLOSE_WAIT_S = 30.0
+"""how long a study waits for its workers to exit once its cells are done (LocalBackend.close)"""
 
 
 class RayBackend:
