@@ -18,6 +18,7 @@ from coopsumo.agents.policies import make_policy
 from coopsumo.agents.sb3_policy import SB3ModelError, check_model
 from coopsumo.agents.user_policy import UserPolicy, UserPolicyError, checked_actions
 from coopsumo.policy_spec import PolicySpecError, parse_policy, policy_file
+from coopsumo.run_dirs import finished_run
 
 POLICIES = '''
 import numpy as np
@@ -253,6 +254,30 @@ class Renumbering:
         return [3] * len(obs)
 
 
+class Unlocking:
+    def act(self, obs):
+        obs.nums.flags.writeable = True
+        obs.nums[:] = 10**9
+        return [3] * len(obs)
+
+
+class Resetting:
+    def act(self, obs):
+        obs.nums.setflags(write=True)
+        obs.nums[:] = -5
+        obs.grids.setflags(write=True)
+        obs.grids[:] = 255
+        return [3] * len(obs)
+
+
+class ThroughBase:
+    def act(self, obs):
+        if obs.nums.base is not None:
+            obs.nums.base.setflags(write=True)
+            obs.nums.base[...] = -5
+        return [3] * len(obs)
+
+
 class Ragged:
     def act(self, obs):
         return [[1] * (i + 1) for i in range(len(obs))] if len(obs) > 1 else [1] * len(obs)
@@ -469,6 +494,17 @@ def test_simulate_ends_a_hostile_policy_in_one_line(hostile: Path, capsys: pytes
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and fragment in err[0] and "Traceback" not in err[0], err
         assert sorted(p.name for p in hostile.iterdir()) == ["hostile.py"]  # nothing written
+
+
+@pytest.mark.sumo
+def test_an_act_that_unlocks_its_observation_writes_only_its_own_copy(hostile: Path) -> None:
+    """Issue 82, probe 12, N5: the read-only views were one flag (or their base) away from the run's arrays: a
+    traceback, or an 8 GB allocation that SIGTERM could not stop. Now the run drives on."""
+    from coopsumo import simulate
+
+    for cls in ("Unlocking", "Resetting", "ThroughBase"):
+        assert simulate.main(["--policy", f"py:hostile:{cls}", "--steps", "60", "--quiet", "--out", cls]) == 0, cls
+        assert finished_run(hostile / cls, "simulate"), cls
 
 
 def test_scenario1_refuses_a_baseline_whose_name_raises(hostile: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -177,17 +177,18 @@ class UserPolicy:
         return cls(inner, text, module_file(spec.module))
 
     def act(self, obs: Observation) -> np.ndarray:
-        seen = _read_only(obs)  # the run reads obs again after act (issue 82, probe 11, M5: nums set to 10**9 hung it)
+        seen = _read_only(obs)  # the run reads obs again after act (probe 11, M5: nums set to 10**9 hung it; 12, N5)
         actions = _users(lambda: self.inner.act(seen), f"{self.text}: act(obs) raised")  # issue 82, probe 9 (K10)
         return checked_actions(actions, len(obs), self.text)
 
 
 def _read_only(obs: Observation) -> Observation:
-    """obs with read-only views of its arrays (its neighbours' too; no data copied): a write by the user's act is a
-    ValueError of its own."""
+    """obs with read-only copies of its arrays (its neighbours' too): a write by the user's act is a ValueError of its
+    own, and an act that makes one writeable again (flags, setflags, its base, ctypes) writes into its own copy, which
+    the run never reads (issue 82, probe 12, N5: read-only views of the run's arrays were one flag away from them)."""
     def frozen(value: Any) -> Any:
         if isinstance(value, np.ndarray):
-            value = value.view()
+            value = value.copy()
             value.flags.writeable = False
         elif dataclasses.is_dataclass(value) and not isinstance(value, type):
             value = dataclasses.replace(value, **{f.name: frozen(getattr(value, f.name))
