@@ -6,6 +6,7 @@ examples (the SB3 model in simulate and beside keep in scenario I) run in tests/
 from __future__ import annotations
 
 import json
+import os
 import sys
 import zipfile
 from pathlib import Path
@@ -439,6 +440,38 @@ class Finalized:
 
     def act(self, obs):
         return [3] * len(obs)
+
+
+def interrupt():
+    raise KeyboardInterrupt
+
+
+class Starting:
+    def __init__(self):
+        t = threading.Thread(target=boom)
+        t.start()
+        t.join()
+
+    def act(self, obs):
+        return [3] * len(obs)
+
+
+class Interrupting:
+    def act(self, obs):
+        t = threading.Thread(target=interrupt)
+        t.start()
+        t.join()
+        return [3] * len(obs)
+
+
+class Helping:
+    def __init__(self):
+        import helper
+
+        atexit.register(helper.fail)
+
+    def act(self, obs):
+        return [3] * len(obs)
 '''
 
 DRIVE = """
@@ -454,20 +487,26 @@ if sys.argv[2] == "other":  # an error outside the user's file keeps Python's ow
 """
 
 
-@pytest.mark.parametrize(("cls", "kind"), [
-    ("AtExit", "its atexit callback"),
-    ("Thread", "a thread it started"),
-    ("Finalized", "its weakref.finalize callback"),
+@pytest.mark.parametrize(("cls", "said"), [
+    ("AtExit", "its atexit callback raised RuntimeError: boom (behind.py:6)"),
+    ("Thread", "a thread it started raised RuntimeError: boom (behind.py:6)"),
+    ("Finalized", "its weakref.finalize callback raised RuntimeError: boom (behind.py:6)"),
+    ("Starting", "a thread it started raised RuntimeError: boom (behind.py:6)"),  # probe 12, N7: before the hooks
+    ("Interrupting", "a thread it started raised KeyboardInterrupt: KeyboardInterrupt (behind.py:34)"),
+    ("Helping", "its atexit callback raised ValueError: helped (sub/helper.py:2)"),  # a module beside it
 ])  # fmt: skip
-def test_an_error_left_behind_by_the_users_code_is_said_once_in_one_line(tmp_path: Path, cls: str, kind: str) -> None:
+def test_an_error_left_behind_by_the_users_code_is_said_once_in_one_line(tmp_path: Path, cls: str, said: str) -> None:
     import subprocess
 
     (tmp_path / "behind.py").write_text(LEFT_BEHIND)  # issue 82, probe 11, M4: Python's tracebacks at exit, rc 0
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "helper.py").write_text('def fail():\n    raise ValueError("helped")\n')
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join((str(tmp_path / "sub"), *sys.path))}
     done = subprocess.run([sys.executable, "-c", DRIVE, f"py:behind:{cls}", "own"], cwd=tmp_path, text=True,
-                          capture_output=True, check=False)  # fmt: skip
-    line = LEFT_BEHIND.splitlines().index('    raise RuntimeError("boom")') + 1
-    said = f"py:behind:{cls}: {kind} raised RuntimeError: boom ({tmp_path / 'behind.py'}:{line})"
-    assert (done.returncode, done.stderr.splitlines()) == (0, [said]), done.stderr
+                          capture_output=True, check=False, env=env)  # fmt: skip
+    text, where = said.rsplit(" (", 1)
+    assert (done.returncode, done.stderr.splitlines()) == (0, [f"py:behind:{cls}: {text} ({tmp_path}/{where}"]), \
+        done.stderr
 
 
 def test_an_error_not_the_users_keeps_pythons_report(tmp_path: Path) -> None:
@@ -580,3 +619,32 @@ def test_simulate_reads_an_odd_policy_module_in_one_line(tmp_path: Path, monkeyp
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and fragment in err[0] and "Traceback" not in err[0], (cls, err)
         assert sorted(p.name for p in tmp_path.iterdir() if p.name != "__pycache__") == ["odd.py"]
+
+
+HASH_BOMB = '''
+class MyBase(BaseException):
+    pass
+
+
+class HashBomb(str):
+    def __hash__(self):
+        raise MyBase("hash bomb")
+
+
+class ModHash:
+    def act(self, obs):
+        return [3] * len(obs)
+
+
+ModHash.__module__ = HashBomb("zz")
+'''
+
+
+def test_a_class_whose_module_name_cannot_be_hashed_still_drives(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """Issue 82, probe 12, N8: reading the class's file (to say its errors in one line) looked its __module__ up in
+    sys.modules and caught only Exception: a 47-line traceback."""
+    (tmp_path / "hb.py").write_text(HASH_BOMB)
+    monkeypatch.chdir(tmp_path)
+    policy = make_policy("py:hb.py:ModHash", np.random.default_rng(0))
+    assert list(policy.act([0, 0])) == [3, 3]  # act sees only len(obs)

@@ -62,6 +62,7 @@ def _from_file(path: str, text: str) -> ModuleType:
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # dataclasses and pickling look a class's module up there
     writes, sys.dont_write_bytecode = sys.dont_write_bytecode, True  # reading it leaves no __pycache__ beside it
+    _said_in_one_line(real, text)  # a thread it starts as it is run (probe 12, N7)
     try:
         spec.loader.exec_module(module)
     except PASSED_ON:
@@ -158,7 +159,7 @@ class UserPolicy:
     def __init__(self, inner: Any, text: str, file: str | None) -> None:
         self.inner = inner
         self.text = text
-        _said_in_one_line(inner, text)
+        _said_in_one_line(_class_file(type(inner)), text)
         self.name = _attribute(inner, "name", type(inner).__name__, text)
         self.needs_grids = _attribute(inner, "needs_grids", True, text)
         self.decision_interval = _attribute(inner, "decision_interval", 1, text)
@@ -213,23 +214,25 @@ def _users(call: Callable[[], T], says: str, after: str = "") -> T:
 
 
 _FILES: dict[str, str] = {}
-"""the real path of each policy file of the user's loaded, and the policy text that loaded it (_said_in_one_line)"""
+"""the folder of each policy file of the user's loaded (its real path), and the policy text that loaded it
+(_said_in_one_line)"""
 _BEFORE: dict[str, Callable[..., object]] = {}
 """the hooks before coopsumo's (unraisable, thread, excepthook), which they hand every error not the user's"""
 _SAID: set[str] = set()
 """the lines said already"""
 
 
-def _said_in_one_line(inner: Any, text: str) -> None:
-    """An error the user's code raises where no caller can catch it, once its class is made: a __del__ (when the run
-    drops it, or as Python exits), an atexit callback, a thread it started or a weakref.finalize callback, is said in
-    one line on stderr rather than Python's 'Exception ignored in ... Traceback'; the exit code is the run's (issue
-    82, probe 10, L4: __del__; probe 11, M4: the others). An error is the user's when its traceback passes through
-    the policy's file; any other goes to the hook before. Read without running the user's code."""
-    file = _class_file(type(inner))
+def _said_in_one_line(file: str | None, text: str) -> None:
+    """An error the user's code raises where no caller can catch it, from the moment its file is run: a __del__ (when
+    the run drops it, or as Python exits), an atexit callback, a thread it started (at import, in its constructor,
+    in act) or a weakref.finalize callback, is said in one line on stderr rather than Python's 'Exception ignored in
+    ... Traceback'; the exit code is the run's (issue 82, probe 10, L4: __del__; probe 11, M4: the others; probe 12,
+    N7: before the class was made, a KeyboardInterrupt or SystemExit there, a helper module beside it). An error is
+    the user's when its traceback passes through a file in the policy file's folder or below it (not coopsumo's, not
+    Python's); any other goes to the hook before."""
     if file is None:
         return
-    _FILES.setdefault(file, text)
+    _FILES.setdefault(os.path.dirname(os.path.realpath(file)), text)
     if sys.unraisablehook is not _unraisable:
         _BEFORE["unraisable"], sys.unraisablehook = sys.unraisablehook, _unraisable
     if threading.excepthook is not _thread_raised:
@@ -247,20 +250,35 @@ def _class_file(cls: type) -> str | None:
         names: Any = vars(ModuleType)["__dict__"]
         file = names.__get__(module).get("__file__") if module is not None else None
         return os.path.realpath(file) if isinstance(file, str) else None
-    except Exception:  # a class or module not as Python makes them: no file to name
+    except PASSED_ON:
+        raise
+    except BaseException:  # a class or module not as Python makes them (a __module__ whose hash raises: probe 12, N8)
         return None
+
+
+def _users_file(path: str) -> str | None:
+    """The policy text whose file's folder holds `path` (a real path), unless it is coopsumo's or Python's, or None."""
+    own = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the coopsumo package
+    if path.startswith(own + os.sep) or any(path.startswith(os.path.realpath(p) + os.sep) for p in _PYTHONS):
+        return None
+    return next((text for folder, text in _FILES.items() if path.startswith(folder + os.sep)), None)
+
+
+_PYTHONS = {sys.prefix, sys.base_prefix, sys.exec_prefix}
+"""Python's own folders (its library, the environment's packages)"""
 
 
 def _said(err: BaseException | None, kind: str) -> bool:
     """Print '`text`: `kind` raised TYPE: its first line (FILE:LINE)' (once a run) when err's traceback passes through
     a policy file of the user's; False (nothing said) otherwise."""
-    if err is None or isinstance(err, PASSED_ON):
+    if err is None:
         return False
     try:
-        files = {os.path.realpath(f.filename) for f in traceback.extract_tb(err.__traceback__)}
+        files = [os.path.realpath(f.filename) for f in traceback.extract_tb(err.__traceback__)
+                 if not f.filename.startswith("<")]  # not code without a file (<string>, <frozen ...>)
     except Exception:  # a __traceback__ the user's class made something else (probe 11, M3)
         return False
-    text = next((_FILES[f] for f in files if f in _FILES), None)
+    text = next(filter(None, map(_users_file, files)), None)
     if text is None:
         return False
     line = f"{text}: {kind} raised {_failure(err)}{_where(err)}"
