@@ -35,13 +35,33 @@ def _marked(real: Path, itself: bool, study: bool) -> tuple[Path, str] | None:
     return None
 
 
+STORE_MARK = ".coopsumo-store"
+"""the file a model store holds from its first model on (mark_store): emptied of its models (`rm -rf store/*`), it is
+still a store, whatever path names it (issue 82, probe 12, N1: the target of a link `models -> elsewhere`)"""
+
+
+def mark_store(store: Path) -> None:
+    """Put STORE_MARK into the model store `store` (a folder) unless it is there."""
+    try:
+        fd = os.open(store / STORE_MARK, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+    except FileExistsError:
+        return
+    with os.fdopen(fd, "w") as f:
+        f.write("a coopsumo model store: the studies' models, which only the studies write (`coopsumo models`)\n")
+
+
 def _holds_models(folder: Path) -> bool:
-    """True when `folder` holds a store model's folder or lock (a model store)."""
+    """True when `folder` holds a store model's folder or lock, or the store's mark (a model store)."""
     try:
         names = [p.name for p in folder.iterdir()]
     except OSError:
         return False
-    return any(STORE_NAME.fullmatch(name) or STORE_NAME.fullmatch(name[1:].removesuffix(".lock")) for name in names)
+    return any(STORE_NAME.fullmatch(name) or STORE_NAME.fullmatch(name[1:].removesuffix(".lock")) or name == STORE_MARK
+               for name in names)  # fmt: skip
+
+
+def _marked_store(folder: Path) -> bool:
+    return (folder / STORE_MARK).is_file()
 
 
 def _in_partial(real: Path, itself: bool) -> Path | None:
@@ -80,7 +100,9 @@ def _in_store(real: Path, what: str, itself: bool, given: Path | None = None) ->
     linked = [f for f in ([given, *given.parents] if given else []) if f.is_symlink()]
     for folder in [real, *real.parents, *linked]:  # any depth: models/sub/run, models/.x/run (probe 8)
         # an emptied store beside a study is one as an --out too (probe 10, L3: a run's marker made it refused)
-        if (folder not in linked and (folder != real or itself) and _holds_models(folder)) or _beside_a_study(folder):
+        # the folder itself too once it is marked: an emptied store (probe 12, N1: its link's target as --out)
+        if (folder not in linked and (folder != real or itself or _marked_store(folder)) and _holds_models(folder)) \
+                or _beside_a_study(folder):
             return f"{what} is in {folder}, a model store (it holds the studies' models), which only the studies write"
     return None
 

@@ -202,6 +202,24 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return root / "study"
 
 
+def test_an_emptied_model_store_is_a_store_whatever_path_names_it(tmp_path: Path) -> None:
+    """Probe 12 (N1): `--out store` (the target of a study's link `models -> store`, the same folder) was taken once
+    the store was emptied (`rm -rf store/*`): its first model marks it, and the mark stays."""
+    from coopsumo.owners import STORE_MARK, owned_problem
+    from coopsumo.studies.engine.model_store import train_shared
+
+    store = tmp_path / "kept" / "store"
+    train_shared(as_json(TINY), tmp_path / "study" / "models" / "alpha0_m100", store)
+    assert (store / STORE_MARK).is_file()
+    for entry in store.iterdir():  # emptied as `rm -rf store/*` empties it: dot-entries stay
+        if not entry.name.startswith("."):
+            shutil.rmtree(entry)
+    for where, itself in (("kept/store", False), ("kept/store/run", False), ("kept/store/nets", True)):
+        problem = owned_problem(tmp_path / where, f"--out {where}", itself=itself)
+        assert problem is not None and "a model store" in problem, (where, problem)
+    assert owned_problem(tmp_path / "kept" / "other", "--out kept/other") is None
+
+
 STORE_OUTS: dict[str, tuple[str, bool, str]] = {
     "the study's model link": ("study/models/alpha0_m100", False, "a model of a model store"),
     "inside the study's model link": ("study/models/alpha0_m100/more", False, "a model of a model store"),

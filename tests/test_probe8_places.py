@@ -278,3 +278,4 @@ def test_an_emptied_model_store_linked_beside_a_study_is_still_its_store(tmp_pat
         problem = owned_problem(tmp_path / "w" / where, f"--out {where}", itself=itself)
         assert problem is not None and "a model store" in problem, (where, problem)
     assert owned_problem(tmp_path / "kept" / "other", "--out kept/other") is None
+

@@ -124,6 +124,7 @@ def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP
     training's (trainings.finished_training)."""
     from coopsumo.agents.group import train_group
     from coopsumo.config import train_config_from_dict
+    from coopsumo.owners import mark_store
     from coopsumo.studies.engine.trainings import finished_training, resumable_step
 
     groups = groups_to_train(specs, store, size)
@@ -137,6 +138,7 @@ def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP
         with ExitStack() as locks:
             for folder in sorted(folders):
                 locks.enter_context(_locked(store / f".{folder.name}.lock"))
+            mark_store(store)  # as it takes its first models (owners.STORE_MARK)
             for config, folder in zip(configs, folders, strict=True):
                 folder.mkdir(exist_ok=True)
                 finished_training(folder, config)  # a stored model that lost or spoiled a record: a line naming it

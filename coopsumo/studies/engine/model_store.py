@@ -138,6 +138,7 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
     stored one; a real folder there is never deleted, moved or trained into (check_link).
     Returns (train summary, step resumed from or None).
     """
+    from coopsumo.owners import mark_store
     from coopsumo.studies.engine.trainings import finished_training, train_resuming
 
     check_link(out)
@@ -146,6 +147,7 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
     with _locked(store / f".{folder.name}.lock"):
         check_link(out)  # again under the lock
         check_entry(folder)
+        mark_store(store)  # as it takes its first model (owners.STORE_MARK)
         folder.mkdir(exist_ok=True)
         _link(out, folder)  # before training: its checkpoint shows through the study's folder
         if finished_training(folder, config, quiet=True) is None:
