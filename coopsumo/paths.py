@@ -188,10 +188,25 @@ def nets_in_out_problem(out: Path) -> str | None:
             "builds would fill the output folder; pick a networks folder outside it")  # fmt: skip
 
 
+def policy_path_problem(path: Path, models: str = "the models trained here") -> str | None:
+    """Why a policy string (dqn:PATH, policy_spec.parse_policy) could not name a model under `path`, or None: a space
+    (any whitespace) in it as given, absolute or with its links resolved. ',' and ':' are out_path_problem's.
+    models: which models the policy string names, in the line."""
+    try:
+        shown = (str(path), str(path.absolute()), str(path.resolve()))
+    except (RuntimeError, OSError):
+        return None  # out_path_problem names a loop or a deleted current folder
+    bad = next((text for text in dict.fromkeys(shown) if any(ch.isspace() for ch in text)), None)
+    if bad is None:
+        return None
+    return (f"must be a folder path without spaces: a policy string (dqn:PATH) names {models} and cannot "
+            f"hold a space, got {bad!r}")  # fmt: skip
+
+
 def env_problem() -> str | None:
     """Why a folder the environment names cannot be used ('$NAME ...', a line to follow 'error: '), or None: every
     variable the package reads a folder from, checked like --nets-dir (nets_dir_problem) before a command starts, and
-    $TMPDIR by the path rules SUMO needs (out_path_problem)."""
+    $TMPDIR by the path rules SUMO needs (out_path_problem) and a policy string's (policy_path_problem)."""
     for name, may_be_empty in ((NETS_ENV, False), (STORE_ENV, True)):
         value = os.environ.get(name)
         if value is None or (may_be_empty and not value):
@@ -200,7 +215,10 @@ def env_problem() -> str | None:
         # wrote into $HOME/m's model); the networks folder is expanded (nets_dir_problem)
         if problem := (out_path_problem(Path(value)) if name == STORE_ENV else None) or nets_dir_problem(value):
             return f"${name} {problem.replace('folder path', 'path')}"
-    # SUMO writes bench's and the screenshot's runs there (issue 82, probe 10, L5: ',', ':' and '${' were tracebacks)
-    if (value := os.environ.get("TMPDIR")) and (problem := out_path_problem(Path(value))):
+    # SUMO writes bench's and the screenshot's runs there (issue 82, probe 10, L5: ',', ':' and '${' were tracebacks),
+    # and bench's policy strings name the models it trains there (probe 12, N10: a space failed after its trainings)
+    tmp = Path(value) if (value := os.environ.get("TMPDIR")) else None
+    models = "the models bench trains there"
+    if tmp is not None and (problem := out_path_problem(tmp) or policy_path_problem(tmp, models)):
         return f"$TMPDIR {problem.replace('folder path', 'path')}"
     return None

@@ -4,6 +4,7 @@ study's root lies in a folder another command owns, reads markers without import
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -47,16 +48,56 @@ def marker_kind(folder: Path) -> str | None:
 
 
 def marker_text(path: Path) -> bool:
-    """True when the file `path`, named like a marker's temporary, may be what a marker's write left (nothing yet, or
-    the start of its JSON object as write_json writes it), not a user's file of that name (issue 82, probe 10, L7: a
-    user's notes there were taken, then deleted; probe 11, M2: a user's JSON file)."""
+    """True when the file `path`, named like a marker's temporary, may be what a marker's write left: empty, or a
+    start of the very text write_json writes for a marker (indented, keys sorted, a marker's keys and values only),
+    not a user's file of that name (issue 82, probe 10, L7: a user's notes there were taken, then deleted; probe 11,
+    M2: a user's JSON file; probe 12, N2: a user's indented JSON file whose first key is a marker's)."""
     try:
-        text = path.read_bytes() if path.stat().st_size < 65_536 else b"x"
-    except OSError:
+        text = (path.read_bytes() if path.stat().st_size < 65_536 else b"\xff").decode("ascii")  # json.dumps: ASCII
+    except (OSError, UnicodeDecodeError):
         return False
-    starts = [b'{\n  "' + key + b'"' for key in MARKER_KEYS]  # files.write_json: indented, keys sorted
-    return any(start.startswith(text) or text.startswith(start) for start in starts)
+    *lines, last = text.split("\n")
+    states = {0}
+    for line in lines:
+        states = {after for state in states for rule, after in _MARKER_LINES.get(state, ()) if _whole(rule, line)}
+    return (last == "" and _END in states) or any(
+        _start(rule, last) for state in states for rule, _ in _MARKER_LINES.get(state, ()))
 
 
-MARKER_KEYS = (b"files", b"finished", b"kind", b"study", b"version")
-"""the keys a marker's JSON object may begin with (run_dirs.mark_run_dir)"""
+_JSON_TEXT = re.compile(r'"(?:[^"\\\x00-\x1f]|\\.)*"')
+_OPEN_TEXT = re.compile(r'"(?:[^"\\\x00-\x1f]|\\.)*\\?')
+_END = 9  # the closing brace written: only its newline may follow
+_MARKER_LINES: dict[int, tuple[tuple[tuple[str, str | None], int], ...]] = {
+    0: ((("{", None), 1),),
+    1: ((('  "files": [],', None), 4), (('  "files": [', None), 2), (('  "finished": false,', None), 5)),
+    2: ((("    ", ","), 2), (("    ", ""), 3)),
+    3: ((("  ],", None), 4),),
+    4: ((('  "finished": true,', None), 5),),
+    5: ((('  "kind": ', ","), 6),),
+    6: ((('  "study": ', ","), 7), (('  "version": ', ""), 8)),
+    7: ((('  "version": ', ""), 8),),
+    8: ((("}", None), _END),)}
+"""the lines of a marker as write_json writes it (mark_run_dir), state by state: (text before, None for a whole
+line, or the text after a JSON text), then the next state"""
+
+
+def _whole(rule: tuple[str, str | None], line: str) -> bool:
+    """True when `line` is a line `rule` stands for."""
+    head, tail = rule
+    if tail is None:
+        return line == head
+    middle = line[len(head):len(line) - len(tail)] if len(line) >= len(head) + len(tail) else ""
+    return line.startswith(head) and line.endswith(tail) and _JSON_TEXT.fullmatch(middle) is not None
+
+
+def _start(rule: tuple[str, str | None], text: str) -> bool:
+    """True when `text` is the start of a line `rule` stands for (a write killed within it)."""
+    head, tail = rule
+    if tail is None or len(text) <= len(head):
+        return head.startswith(text)
+    if not text.startswith(head):
+        return False
+    rest = text[len(head):]
+    if (closed := _JSON_TEXT.match(rest)) is None:
+        return _OPEN_TEXT.fullmatch(rest) is not None
+    return tail.startswith(rest[closed.end():])

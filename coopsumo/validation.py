@@ -30,7 +30,7 @@ from coopsumo.field_rules import number_list as number_list
 from coopsumo.field_rules import parse_number as parse_number
 from coopsumo.field_rules import same_twice as same_twice
 from coopsumo.field_rules import twice_at as twice_at
-from coopsumo.paths import out_path_problem
+from coopsumo.paths import out_path_problem, policy_path_problem
 
 SEED_MAX = 2**31 - 1
 """largest seed: SUMO's --seed is a C int"""
@@ -154,20 +154,6 @@ def out_dir(text: str) -> Path:
     if problem:
         raise argparse.ArgumentTypeError(problem)
     return path
-
-
-def policy_path_problem(path: Path) -> str | None:
-    """Why a policy string (dqn:PATH, policy_spec.parse_policy) could not name a model under `path`, or None: a space
-    (any whitespace) in it as given, absolute or with its links resolved. ',' and ':' are out_path_problem's."""
-    try:
-        shown = (str(path), str(path.absolute()), str(path.resolve()))
-    except (RuntimeError, OSError):
-        return None  # out_path_problem names a loop or a deleted current folder
-    bad = next((text for text in dict.fromkeys(shown) if any(ch.isspace() for ch in text)), None)
-    if bad is None:
-        return None
-    return (f"must be a folder path without spaces: a policy string (dqn:PATH) names the models trained here and "
-            f"cannot hold a space, got {bad!r}")  # fmt: skip
 
 
 def model_out_dir(text: str) -> Path:

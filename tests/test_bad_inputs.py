@@ -638,6 +638,8 @@ ENV_ROWS = [
     ("COOPSUMO_MODELS", "~/m", ("$COOPSUMO_MODELS", "'~/m' starts with '~'")),  # probe 10, L1: SUMO wrote in $HOME
     ("TMPDIR", "{tmp}/t${{FOO}}", ("$TMPDIR", "without '${'")),  # probe 10, L5: SUMO tracebacks in bench
     ("TMPDIR", "{tmp}/a,b", ("$TMPDIR", "without ','")),
+    ("TMPDIR", "{tmp}/sp ace", ("$TMPDIR", "without spaces", "/sp ace'")),  # probe 12, N10: bench failed
+    ("TMPDIR", "{tmp}/new\nline", ("$TMPDIR", "without spaces", "new\\nline")),  # after its trainings
 ]
 
 
@@ -669,6 +671,20 @@ def test_environment_folders_are_checked_up_front(command: str, name: str, value
     assert "error" in err[0] and all(f in err[0] for f in fragments), (fragments, err[0])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a_file", "read_only"]
     assert (tmp_path / "a_file").read_text() == "the user's\n"
+
+
+@pytest.mark.parametrize("folder", ["sp ace", "new\nline", "tab\there"])
+def test_bench_refuses_a_tmpdir_its_policy_strings_cannot_hold_up_front(folder: str, tmp_path: Path) -> None:
+    """Issue 82, probe 12, N10: with a space or a newline in $TMPDIR, `bench --quick` trained and ran for 26 s,
+    then failed on a policy string `dqn:$TMPDIR/.../model.pt` the user never wrote."""
+    (tmp_path / folder).mkdir()
+    res = subprocess.run([sys.executable, "-m", "coopsumo", "bench", "--quick"], cwd=REPO, capture_output=True,
+                         text=True, timeout=60, check=False, env={**os.environ, "TMPDIR": str(tmp_path / folder)})
+    err = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(err) == 1 and res.stdout == "", res.stderr
+    assert err[0].startswith("bench: error: $TMPDIR must be a path without spaces"), err[0]
+    assert f"got {str(tmp_path / folder)!r}" in err[0]
+    assert [p.name for p in tmp_path.iterdir()] == [folder] and not any((tmp_path / folder).iterdir())
 
 
 OUT_COMMANDS: dict[str, list[str]] = {

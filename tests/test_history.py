@@ -123,6 +123,22 @@ def test_a_frozen_study_is_found_where_it_was_moved(tmp_path: Path) -> None:
     assert committed_folder(tmp_path, "f") == tmp_path / "f"
 
 
+def test_a_study_folder_linked_from_elsewhere_is_linked_where_its_link_is(tmp_path: Path) -> None:
+    """Issue 82, probe 12, N9: a study folder in the results folder that is a link to a study outside it was a
+    traceback (its place taken from where the link leads); its row links it at the link's own name."""
+    _one_study(tmp_path / "outside", gamma=0.8)
+    results = tmp_path / "results"
+    _one_study(results)
+    (results / "learner_protocol_link").symlink_to(tmp_path / "outside" / "learner_protocol_g0.8")
+    (results / "history").mkdir()
+    (results / "history" / "learner_protocol_back").symlink_to(Path("../../outside/learner_protocol_g0.8"))
+    res = _history("--results", "results", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    links = {"learner_protocol_back": "learner_protocol_back", "learner_protocol_g0.95": "../learner_protocol_g0.95",
+             "learner_protocol_link": "../learner_protocol_link"}  # relative to results/history/
+    assert sorted(row["report"] for row in _columns(res.stdout)) == [f"[{k}]({v}/report.md)" for k, v in links.items()]
+
+
 def _one_study(results: Path, gamma: float = 0.95) -> None:
     learner = json.loads(json.dumps(to_dict(DQN_PRESETS["default"])))
     learner["gamma"] = gamma

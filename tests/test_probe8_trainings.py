@@ -193,15 +193,16 @@ def test_a_users_tmp_file_in_a_training_folder_is_refused_by_name_and_kept(
     assert snapshot(tmp_path) == before
 
 
-def test_a_resume_removes_only_the_temporaries_of_the_trainings_own_files(tmp_path: Path) -> None:
-    """J22: prepare_resume removes what a kill left of a write of the training's files, nothing else named '.tmp';
-    the rule that judges the folder takes the same names (a store's group_cost.json's too, given as its own)."""
+def test_a_resume_removes_no_file_named_like_a_temporary(tmp_path: Path) -> None:
+    """J22: prepare_resume removed every '*.tmp'; then what a kill left of a write of the training's files, a
+    user's file of such a name too (probe 12, N3): now none. The rule that judges the folder takes the names of
+    the training's own temporaries (a store's group_cost.json's too, given as its own) and refuses the others."""
     own = [".checkpoint.pt.k2j3h4g5.tmp", ".train_log.csv.abcdefgh.tmp", ".model.pt.a_b1c2d3.tmp"]
     users = ["notes.tmp", ".hidden.tmp", "checkpoint.pt.tmp", ".model.pt.short.tmp", ".notes.txt.k2j3h4g5.tmp"]
     write(tmp_path, *own, *users)
     prepare_resume(tmp_path, 0)
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(users)
-    for name in users:
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(own + users)
+    for name in own + users:
         (tmp_path / name).unlink()
     for name in users:  # each refused by name by the rule of what a training writes
         write(tmp_path, name)

@@ -129,7 +129,11 @@ def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) 
     run_before = run_summary.stat().st_mtime_ns
     shot_before = (study / "gui_jam.png").stat().st_mtime_ns if (study / "gui_jam.png").exists() else None
     (study / "fig_backup.png").write_bytes(b"mine")  # a user's: kept (issue 82, probe 8, J24: every fig*.png went)
-    (study / "fig5_flow_density_t9.png").write_bytes(b"old")  # a demand this study no longer runs: goes
+    (study / "fig5_flow_density_t9.png").write_bytes(b"old")  # a demand the last report showed, this one not: goes
+    (study / "report.md").write_text((study / "report.md").read_text() + "\n![old](fig5_flow_density_t9.png)\n")
+    users = ["fig_recovery_t7.png", "fig5_flow_density_t1.5.png"] + ([] if display_or_none else ["gui_jam.png"])
+    for name in users:  # a user's, at a demand never run, no report showed: kept (issue 82, probe 12, N4)
+        (study / name).write_bytes(b"mine")
     cmd = [sys.executable, "-m", "coopsumo", "scenario1", *TINY, "--out", str(study)]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
                          env=env_with_display(display_or_none))  # fmt: skip
@@ -139,7 +143,9 @@ def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) 
     if shot_before is not None:  # the same sumo-gui screenshot is reused too
         assert (study / "gui_jam.png").stat().st_mtime_ns == shot_before
     assert (study / "fig_backup.png").read_bytes() == b"mine" and not (study / "fig5_flow_density_t9.png").exists()
-    (study / "fig_backup.png").unlink()
+    for name in ["fig_backup.png", *users]:
+        assert (study / name).read_bytes() == b"mine", name
+        (study / name).unlink()
 
 
 def test_report_shows_sumo_guis_screenshot_of_the_jam(study: Path, gui_display: str) -> None:
@@ -157,11 +163,14 @@ def test_report_shows_sumo_guis_screenshot_of_the_jam(study: Path, gui_display: 
 
 
 def test_without_a_display_the_report_says_why_there_is_no_screenshot(tmp_path: Path) -> None:
-    (tmp_path / "gui_jam.png").write_bytes(PNG)  # from an earlier study: must not stay beside the new report
+    (tmp_path / "gui_jam.png").write_bytes(PNG)  # a user's, no report showed it: kept (issue 82, probe 12, N4)
     cfg = SimConfig(accident=AccidentConfig(enabled=True), policy="keep")
     text = scenario1_gui.gui_section(tmp_path, tmp_path / "no_such_run", "keep_seed1", cfg, environ={})
     assert text.startswith("No sumo-gui screenshot: no display") and "xvfb-run" in text
-    assert list(tmp_path.iterdir()) == []
+    assert (tmp_path / "gui_jam.png").read_bytes() == PNG
+    (tmp_path / "report.md").write_text("# Scenario I\n\n![sumo-gui](gui_jam.png)\n")  # an earlier study's: goes
+    scenario1_gui.gui_section(tmp_path, tmp_path / "no_such_run", "keep_seed1", cfg, environ={})
+    assert [p.name for p in tmp_path.iterdir()] == ["report.md"]
 
 
 def test_jam_step_is_the_first_time_the_view_is_nearly_full_of_slow_vehicles() -> None:

@@ -20,12 +20,11 @@ from typing import Any
 
 import torch
 
-from coopsumo.agents.training_files import TRAIN_FILES
 from coopsumo.agents.training_logs import LOG_RULES as LOG_RULES
 from coopsumo.agents.training_logs import log_problem
 from coopsumo.dqn_config import DQNConfig
 from coopsumo.field_rules import as_float, digits, shown
-from coopsumo.files import left_temporaries, read_json_object, read_text, write_atomic
+from coopsumo.files import read_json_object, read_text, write_atomic
 from coopsumo.record_schemas import (
     CHECKPOINT_TENSORS,
     MODEL_TENSORS,
@@ -396,11 +395,11 @@ def resume_problem(out: Path, state: Mapping[str, Any]) -> str | None:
 
 def prepare_resume(out: Path, step: int) -> None:
     """Make the training folder `out` ready to continue from a checkpoint at `step`: train_log.csv rows past it
-    dropped (truncate_log), and the temporary files a kill left of writes of the training's own files removed
-    ('.NAME.XXXXXXXX.tmp', files.left_temporaries; issue 82, probe 8, J22: every '*.tmp', a user's too, was)."""
+    dropped (truncate_log). Files named like the temporaries a kill left of writes of the training's own files
+    ('.NAME.XXXXXXXX.tmp') stay: they may be a user's (files.write_atomic, J23; issue 82, probe 8, J22: every
+    '*.tmp' was removed; probe 12, N3: '.checkpoint.pt.ABCDEFGH.tmp' still was), and the resume's own writes
+    take fresh names."""
     truncate_log(out / "train_log.csv", step)
-    for tmp in left_temporaries(out, TRAIN_FILES):
-        tmp.unlink(missing_ok=True)
 
 
 def ended_training(out: Path, step: int, steps: int) -> dict[str, Any] | None:

@@ -43,7 +43,7 @@ from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import GroupTicket, LearnerProcessError, attach_updates
 from coopsumo.config import TrainConfig, first_difference, to_dict, train_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line
-from coopsumo.files import read_json, temporaries_of, write_atomic, write_json
+from coopsumo.files import read_json, write_atomic, write_json
 from coopsumo.provenance import versions
 from coopsumo.run_dirs import check_no_outside_link, finished_run, mark_run_dir
 from coopsumo.runio import Stop, raise_swallowed_stop, signals_deferred
@@ -110,13 +110,12 @@ class Trainer:
             "actions": torch.from_numpy(flat.astype(np.int8)),
             "window": {k: v for k, v in vars(self.window).items()},
         }
-        self.drop_checkpoint(keep=True)  # a SIGKILL's half-written temporaries of before
         write_atomic(self.checkpoint_path(), lambda tmp: torch.save(state, tmp))
 
-    def drop_checkpoint(self, keep: bool = False) -> None:
-        """Remove checkpoint.pt (unless keep) and what a killed write of it left (files.temporaries_of)."""
-        for path in [*temporaries_of(self.checkpoint_path()), *([] if keep else [self.checkpoint_path()])]:
-            path.unlink(missing_ok=True)
+    def drop_checkpoint(self) -> None:
+        """Remove checkpoint.pt. A file named like a temporary a killed write of it left stays: it may be a user's
+        (issue 82, probe 8, J23; probe 12, N3: a user's .checkpoint.pt.ABCDEFGH.tmp was deleted)."""
+        self.checkpoint_path().unlink(missing_ok=True)
 
     @staticmethod
     def load_checkpoint(out: Path) -> dict[str, Any]:
@@ -165,7 +164,7 @@ class Trainer:
         flat = state["actions"].numpy().astype(np.int64)
         self.action_log = list(np.split(flat, np.cumsum(counts)[:-1])) if len(counts) else []
         self.window = Window(**state["window"])
-        prepare_resume(self.out, self.step)  # log rows past the checkpoint dropped, cut-short writes removed
+        prepare_resume(self.out, self.step)  # log rows past the checkpoint dropped
 
     # -- the loop ----------------------------------------------------------------------------
     def _on_signal(self, signum: int, _frame: FrameType | None) -> None:

@@ -224,8 +224,9 @@ def rows_of(folder: Path, results: Path) -> list[dict[str, str]]:
 
 
 def _link(folder: Path, results: Path) -> str:
-    """folder/report.md relative to results/history/, where the table lives."""
-    rel = folder.resolve().relative_to(results.resolve())
+    """folder/report.md relative to results/history/, where the table lives; folder as it sits in results
+    (study_folders), a link to a study elsewhere linked at its own name (issue 82, probe 12, N9: a traceback)."""
+    rel = folder.relative_to(results)
     return f"{rel.name}/report.md" if rel.parts[0] == "history" else f"../{rel.as_posix()}/report.md"
 
 

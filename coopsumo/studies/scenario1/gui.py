@@ -6,6 +6,8 @@ from __future__ import annotations
 
 import json
 import os
+import re
+from collections.abc import Iterable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -15,11 +17,25 @@ import pandas as pd
 
 from coopsumo.config import SimConfig, to_dict
 from coopsumo.errors import UsageError
-from coopsumo.files import read_json, write_json
+from coopsumo.files import read_json, read_text, write_json
 from coopsumo.sim import view
 from coopsumo.studies.scenario1.measures import SLOW_MPS, jam_step
 
 GUI_SHOT = "gui_jam.png"
+_SHOWN = re.compile(r"!\[[^\]\n]*\]\(([^)\s]+)\)")
+
+
+def drop_shown(root: Path, names: Iterable[str]) -> None:
+    """Remove the files `names` in the study root `root` that its report.md, the one an earlier run wrote, shows
+    (![...](NAME)): that run's figures, which the new report may not show. A file of such a name that it does not
+    show is a user's and stays (issue 82, probe 12, N4: fig5_flow_density_t3.png and gui_jam.png were deleted)."""
+    try:
+        shown = set(_SHOWN.findall(read_text(root / "report.md", errors="replace")))
+    except OSError:
+        return
+    for name in names:
+        if name in shown:
+            (root / name).unlink(missing_ok=True)
 
 
 def gui_run(cfg: SimConfig, shot: Path) -> dict[str, list[Any]]:
@@ -44,13 +60,13 @@ def gui_section(root: Path, run_dir: Path, label: str, cfg: SimConfig, environ: 
     env = os.environ if environ is None else environ
     shot = root / GUI_SHOT
     if not env.get("DISPLAY"):
-        shot.unlink(missing_ok=True)  # a picture from an earlier study would not match this one
+        drop_shown(root, [GUI_SHOT])  # a picture from an earlier study would not match this one
         return ("No sumo-gui screenshot: no display was available (DISPLAY is not set). Rerun the study under "
                 "`xvfb-run -a -s \"-screen 0 1600x900x24\"` to get one; finished runs are reused.")  # fmt: skip
     traj = pd.read_parquet(run_dir / "trajectories.parquet")
     step = jam_step(traj, cfg)
     if step is None:
-        shot.unlink(missing_ok=True)
+        drop_shown(root, [GUI_SHOT])
         return f"No sumo-gui screenshot: no vehicle of {label} was slower than {SLOW_MPS:g} m/s near the bottleneck."
     gui_cfg = replace(cfg, steps=step)
     record = root / "gui_jam.json"
@@ -59,7 +75,7 @@ def gui_section(root: Path, run_dir: Path, label: str, cfg: SimConfig, environ: 
     except (OSError, ValueError):
         done = {}
     if not (shot.exists() and done.get("config") == json.loads(json.dumps(to_dict(gui_cfg)))):
-        shot.unlink(missing_ok=True)
+        shot.unlink(missing_ok=True)  # made again here, at a name the study writes (rollout checks it was made)
         try:
             last = gui_run(gui_cfg, shot)
         except UsageError as err:  # DISPLAY is set but sumo-gui cannot open it: the study's results stand

@@ -19,7 +19,7 @@ from coopsumo.files import read_json, write_atomic, write_text_atomic
 from coopsumo.provenance import versions
 from coopsumo.report.markdown import md_table
 from coopsumo.studies.engine.stats import models_needed
-from coopsumo.studies.scenario1.gui import gui_section
+from coopsumo.studies.scenario1.gui import drop_shown, gui_section
 from coopsumo.studies.scenario1.horizon import fig4, horizon_outputs
 from coopsumo.studies.scenario1.measures import (
     COUNTED,
@@ -351,8 +351,8 @@ def _demand_figures(root: Path, plan: Plan, shown_runs: list[Run], learned: list
     acc, dt = shown_runs[0].cfg.accident, shown_runs[0].cfg.control.dt_s
     window = (acc.start_step * dt, (acc.start_step + acc.duration_steps) * dt)
     figures: dict[str, str] = {}
-    for path in [p for p in root.iterdir() if DEMAND_FIGURE.fullmatch(p.name) and p.is_file()]:
-        path.unlink()  # figures of an earlier study with other demands must not stay beside this one; only these
+    drop_shown(root, [p.name for p in root.iterdir() if DEMAND_FIGURE.fullmatch(p.name) and p.is_file()])  # of an
+    # earlier study with other demands: not beside this one; only these, and only those its report showed
     for t_up in plan.t_ups:
         firsts = [(r.label, r.out) for r in shown_runs if r.seed == plan.seeds[0] and r.t_up == t_up]
         fd = {lab: flow_density(read_detectors(out / "detectors.xml")) for lab, out in firsts}
