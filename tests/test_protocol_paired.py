@@ -67,7 +67,7 @@ def run(tmp_path: Path, capsys: pytest.CaptureFixture[str], folder: str) -> tupl
     (_twice, "ref", "ref/runs.csv rows 1 and "),
     (lambda f: (f / "study.json").write_text('{"broken'), "ref", "ref/study.json, which is not JSON"),
     (lambda f: (f / "study.json").write_text('{"learners": 3}'), "ref", "ref/study.json field learners must be"),
-    (lambda f: None, "../results/ref", "p.toml: [profiles.mini] paired_with folder '../results/ref' is not a folder under"),
+    (lambda f: None, "../results/ref", "p.toml: [profiles.mini] paired_with folder '../results/ref' is not a"),
     (lambda f: None, "", "p.toml: [profiles.mini] paired_with folder '' is not a folder under results/"),
 ], ids=["a speed of 999 m/s", "a cell's row twice", "study.json not JSON", "study.json off its schema",
         "a path out of results", "an empty path (probe 8, J19: the file was not named)"])
