@@ -228,8 +228,9 @@ def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_pr
         return interrupted(prog(), Stop(_STOPS_RAISED[-1]))
     finally:
         _COMMAND_STOPS[0] = outer
+        ending = _exit_stop(prog)  # one clock for both signals
         for s, handler in old.items():
-            signal.signal(s, _exit_stop(prog) if whole_process else signal.SIG_DFL if handler is None else handler)
+            signal.signal(s, ending if whole_process else signal.SIG_DFL if handler is None else handler)
 
 
 EXIT_GRACE_S = 3
@@ -242,8 +243,11 @@ def _exit_stop(prog: Callable[[], str]) -> Callable[[int, Any], None]:
     signal to the process group while a stopped command ends: issue 82, probe 4, F15), one still running then ends in
     one line, exit code 128 + the signal."""
 
+    armed: list[int] = []
+
     def stopped(signum: int, frame: Any) -> None:
-        if signal.getsignal(signal.SIGALRM) in (signal.SIG_DFL, signal.SIG_IGN, None):
+        if not armed:
+            armed.append(signum)
             signal.signal(signal.SIGALRM, lambda _s, _f: _end_now(prog, signum))
             signal.alarm(EXIT_GRACE_S)
 

@@ -258,14 +258,14 @@ def _class_file(cls: type) -> str | None:
 
 def _users_file(path: str) -> str | None:
     """The policy text whose file's folder holds `path` (a real path), unless it is coopsumo's or Python's, or None."""
-    own = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))  # the coopsumo package
-    if path.startswith(own + os.sep) or any(path.startswith(os.path.realpath(p) + os.sep) for p in _PYTHONS):
+    if path.startswith(_NOT_USERS):
         return None
     return next((text for folder, text in _FILES.items() if path.startswith(folder + os.sep)), None)
 
 
-_PYTHONS = {sys.prefix, sys.base_prefix, sys.exec_prefix}
-"""Python's own folders (its library, the environment's packages)"""
+_NOT_USERS = tuple(os.path.realpath(p) + os.sep for p in {
+    os.path.dirname(os.path.dirname(os.path.abspath(__file__))), sys.prefix, sys.base_prefix, sys.exec_prefix})
+"""coopsumo's package and Python's own folders (its library, the environment's packages), as real paths"""
 
 
 def _said(err: BaseException | None, kind: str) -> bool:

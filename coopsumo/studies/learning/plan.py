@@ -104,15 +104,15 @@ FIELD_RULES: dict[str, Rule] = {
 same quantity's flag elsewhere (--steps, --lanes, --t-up), so that a file takes no value a flag refuses"""
 
 
-def read_learning_profiles(path: Path, built: dict[str, DQNConfig], factors: dict[str, int],
-                           default_needed: bool = False) -> tuple[dict[str, Profile], Any]:  # fmt: skip
+def read_learning_profiles(path: Path, built: dict[str, DQNConfig],
+                           factors: dict[str, int]) -> tuple[dict[str, Profile], Any]:  # fmt: skip
     """The `[profiles.NAME]` tables of `path` (engine/catalogue.read_profiles; its chain and variants the study reads
     itself), naming the variants `built` (trained `factors` times longer), each checked: its fields' types and rules
     (FIELD_RULES; variants and alpha_variants as --variants: known, none twice), a training seed that is an
     evaluation seed, a training the learner or the simulation refuses. The profiles and the file's default (or
     None)."""
     profiles, _, default = read_profiles(path, SETTABLE, partial(_profile, built=built, factors=factors),
-                                         default_needed=default_needed, others=("chain", "variants"))  # fmt: skip
+                                         default_needed=False, others=("chain", "variants"))  # fmt: skip
     return profiles, default
 
 
