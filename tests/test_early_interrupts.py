@@ -318,6 +318,47 @@ def test_a_ctrl_c_of_an_ended_command_is_not_raised_again_by_the_next(capsys: py
     capsys.readouterr()
 
 
+def test_a_stop_raised_where_python_can_only_print_it_is_not_printed_and_still_stops(
+        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """A SIGTERM that lands in a weakref callback (importlib's module lock's, as 0.1 s into train did) printed
+    "Exception ignored in" and a traceback before train's one line: Python can only print what a callback raises.
+    Under stop_on_signals the Stop is not printed, and raised again where the command waits (swallowed_stop); any
+    other error of a callback is printed as before."""
+    import gc
+    import weakref
+
+    from coopsumo import runio
+
+    class Thing:
+        pass
+
+    def stop(_: object) -> None:
+        runio._raise_stop(signal.SIGTERM, None)
+
+    def fail(_: object) -> None:
+        raise ValueError("a callback's own error")
+
+    hook = sys.unraisablehook
+
+    def body() -> int:
+        for callback in (stop, fail):
+            thing = Thing()
+            ref = weakref.ref(thing, callback)
+            del thing
+            gc.collect()
+            assert ref() is None
+        runio.raise_swallowed_stop()
+        return 0
+
+    seen: list[BaseException | None] = []
+    sys.unraisablehook = lambda unraisable: seen.append(unraisable.exc_value)  # Python's own, as a command has it
+    try:
+        assert run_interruptible(body, lambda: "train") == 128 + signal.SIGTERM
+    finally:
+        sys.unraisablehook = hook
+    assert [type(e) for e in seen] == [ValueError] and capsys.readouterr().err == "train: interrupted\n"
+
+
 def _frame_in(filename: str) -> object:
     """A frame of a module body read from `filename` (as Python runs one while it imports that module)."""
     scope: dict[str, object] = {"sys": sys}
