@@ -689,8 +689,7 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
         trained.append(trained_key(cfg))
         if cfg.sim.reward.alpha == 8.0 and cfg.sim.seed == 2 and broken[0]:
             raise RuntimeError("SUMO said no\nsecond line")
-        write_fake_model(cfg, out)
-        return {"policy": "dqn:somewhere"}
+        return write_fake_model(cfg, out)
 
     import torch
 
@@ -836,13 +835,15 @@ def inline_cells(monkeypatch: pytest.MonkeyPatch, ran: list[str] | None = None) 
     return ran
 
 
-def write_fake_model(cfg: Any, out: Path) -> None:
+def write_fake_model(cfg: Any, out: Path) -> dict[str, Any]:
     """What a faked training leaves: its summary, holding in place of a model the speed its evaluations will give
-    (from alpha and the training seed); only files a training writes (the store refuses others: probe 7, I6)."""
-    (out / "train_summary.json").write_text(json.dumps({
-        "steps": cfg.sim.steps, "departed": 40, "mean_speed_mps": 20.0, "lane_changes": 12, "collisions": 0,
-        "updates": 3, "wall_seconds": 3.0, "steps_per_second": 100.0,
-        "fake_speed": 20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed}))  # fmt: skip
+    (from alpha and the training seed); only files a training writes (the store refuses others: probe 7, I6). Returns
+    the summary, as train() returns the summary it writes."""
+    summary = {"steps": cfg.sim.steps, "departed": 40, "mean_speed_mps": 20.0, "lane_changes": 12, "collisions": 0,
+               "updates": 3, "wall_seconds": 3.0, "steps_per_second": 100.0,
+               "fake_speed": 20.0 + cfg.sim.reward.alpha / 100 + cfg.sim.seed}  # fmt: skip
+    (out / "train_summary.json").write_text(json.dumps(summary))
+    return summary
 
 
 def fake_evaluation(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
@@ -871,8 +872,7 @@ def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     def fake_train(cfg, out, resume=False, progress=True, on_steps=None):  # type: ignore[no-untyped-def]
         if "*" in failing() or trained_key(cfg) in failing():
             raise RuntimeError("SUMO said no")
-        write_fake_model(cfg, out)
-        return {}
+        return write_fake_model(cfg, out)
 
     def evaluation(config: dict[str, Any], out: Path, label: str) -> dict[str, Any]:
         if label in failing():

@@ -151,14 +151,17 @@ def pool_summaries(summaries: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """One model's summary over its evaluations (one per evaluation seed): counts and times summed (POOL_SUMMED: e.g.
     collisions over all runs), lane changes per vehicle the pooled ratio (all lane changes over all departed vehicles,
     so the record stays self-consistent: implausible checks it), every other number averaged (mean speed),
-    anything else taken from the first; a key missing from one evaluation is left out."""
+    anything else taken from the first; a key missing from one evaluation is left out, a value one evaluation has
+    not measured (None: scenario II's full-road speed of a run too short for it) is None: the model has none."""
     if not summaries:
         return {}
     out: dict[str, Any] = {}
     for key, first in summaries[0].items():
         values = [s.get(key) for s in summaries]
         numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in values)
-        if numbers:
+        if any(v is None for v in values) and all(key in s for s in summaries):
+            out[key] = None
+        elif numbers:
             total = as_float(sum(values))  # type: ignore[arg-type]
             if key in POOL_SUMMED:
                 out[key] = sum(values) if all(isinstance(v, int) for v in values) else total  # type: ignore[arg-type]

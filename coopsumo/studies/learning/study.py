@@ -32,6 +32,7 @@ from coopsumo.provenance import versions
 from coopsumo.run_markers import LEARNING_KIND
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
+from coopsumo.studies.engine.drive import Cell, CellKind, Run
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import (
@@ -64,28 +65,26 @@ RECORDS = CellRecords(("key", "kind", "part", "variant", "alpha", "seed", "eval_
 new_record, failed_record = RECORDS.new, RECORDS.failed
 
 
-def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Run one cell and return its record (never raises on failure; see records.run_recorded)."""
-    cell = _run_train if spec["kind"] == "train" else _run_baseline
-    return RECORDS.run(spec, lambda record: cell(spec, Path(root), record))
-
-
-def _run_train(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Train into ROOT/train/<key>/ (resuming a matching checkpoint), then drive the model greedily with the cell's
-    drive settings (its policy string: drive.cell_policy) on every evaluation seed into ROOT/evals/<key>/ (beside
-    the training: the stored model folder holds the training only); the record's summary pools the evaluations,
-    eval_summaries keeps each (drive.drive_pooled)."""
+def work(spec: dict[str, Any]) -> Cell:
+    """What the cell of `spec` does (drive.perform runs it): a training cell trains into ROOT/train/<key>/ (the model
+    store's, resuming a matching checkpoint; cells share trainings), then drives the model greedily with the cell's
+    drive settings (its policy string: drive.cell_train) on every evaluation seed into ROOT/evals/<key>/ (beside the
+    training: the stored model folder holds the training only), the record's summary pooling them and eval_summaries
+    keeping each; a baseline cell is one run into ROOT/baselines/<key>/."""
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.engine.drive import cell_policy, drive_pooled
-    from coopsumo.studies.engine.model_store import store_for, train_shared
+    from coopsumo.studies.engine.drive import cell_train
 
+    if spec["kind"] != "train":
+        return Cell(runs=(Run(sim_config_from_dict(spec["config"]["eval"]), f"baselines/{spec['key']}"),),
+                    label=spec["key"])  # fmt: skip
     key = spec.get("train_key", spec["key"])
-    out = root / "train" / key
-    record["train_summary"], _ = train_shared(spec["config"]["train"], out, store_for(root))  # cells share trainings
-    policy = cell_policy(spec, out / "model.pt")
     evals = [sim_config_from_dict(raw) for raw in spec["config"]["evals"]]
-    drive_pooled(record, [(replace(ev, policy=policy), root / "evals" / key / eval_folder(spec, ev)) for ev in evals],
-                 spec["key"])  # fmt: skip
+    runs = tuple(Run(ev, f"evals/{key}/{eval_folder(spec, ev)}") for ev in evals)
+    return Cell(cell_train(spec, f"train/{key}"), runs, spec["key"], pooled=True)
+
+
+CELLS = CellKind(RECORDS, work)
+run_cell = CELLS.run_cell
 
 
 def eval_folder(spec: dict[str, Any], ev: SimConfig) -> str:
@@ -101,13 +100,6 @@ def eval_folder(spec: dict[str, Any], ev: SimConfig) -> str:
 
 DRIVE_TAGS = (("margin", "change_margin"), ("queue", "queue_below_mps"), ("noreturn", "no_return_s"))
 """the drive settings an evaluation's folder names, in its name's order: (its tag, its key in config.drive)"""
-
-
-def _run_baseline(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """One baseline evaluation into ROOT/baselines/<key>/."""
-    from coopsumo.studies.engine.run_folders import simulate_into
-
-    record["summary"] = simulate_into(spec["config"]["eval"], root / "baselines" / spec["key"], spec["key"])
 
 
 # -- the study -------------------------------------------------------------------------------------

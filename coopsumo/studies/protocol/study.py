@@ -18,10 +18,10 @@ learner): cells/, train/, runs/, runs.csv, report.md and figures.
 
 from __future__ import annotations
 
-import json
 import sys
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -32,6 +32,7 @@ from coopsumo.provenance import versions
 from coopsumo.record_schemas import PROTOCOL_STUDY
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
+from coopsumo.studies.engine.drive import Cell, CellKind, Run
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import (
@@ -65,30 +66,34 @@ RECORDS = CellRecords(FIELDS, ("train_summary",))
 new_record, failed_record = RECORDS.new, RECORDS.failed
 
 
-def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Train (or reuse) the model, then drive it; or run a baseline. Never raises (records.run_recorded)."""
-    return RECORDS.run(spec, lambda record: _run(spec, Path(root), record))
-
-
-def _run(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
+def work(spec: dict[str, Any]) -> Cell:
+    """What the cell of `spec` does (drive.perform runs it): a model cell takes (or trains) its model in the model
+    store, ROOT/train/<train_key>/ linking to it, and drives its weights with the variant's drive settings; a baseline
+    cell drives its policy; either one run into ROOT/runs/<key>/ (written atomically), through the accident measured
+    further (accident_run)."""
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.engine.drive import cell_policy
-    from coopsumo.studies.engine.model_store import store_for, train_shared
-    from coopsumo.studies.engine.run_folders import simulate_into
+    from coopsumo.studies.engine.drive import cell_train
 
     ev = sim_config_from_dict(spec["config"]["eval"])
-    if spec["kind"] == "model":  # its weights in the stored model's folder, with the variant's drive settings
-        model_dir = root / "train" / spec["train_key"]
-        record["train_summary"], _ = train_shared(spec["config"]["train"], model_dir, store_for(root))
-        ev = replace(ev, policy=cell_policy(spec, (model_dir / spec["weights"]).resolve()))
-    every = TRAJECTORY_EVERY if ev.accident.enabled else 0
-    out = root / "runs" / spec["key"]
-    summary = simulate_into(json.loads(json.dumps(to_dict(ev))), out, spec["key"], trajectory_every=every,
-                            atomic=True)  # fmt: skip
-    if ev.accident.enabled:
-        summary.update(accident_measures(out, ev, summary["departed"]))
-        (out / "trajectories.parquet").unlink(missing_ok=True)  # measured; 10 MB a run is not kept
-    record["summary"] = summary
+    train = cell_train(spec, f"train/{spec['train_key']}", spec["weights"]) if spec["kind"] == "model" else None
+    return Cell(train, (Run(ev, f"runs/{spec['key']}"),), spec["key"], partial(_run, accident=ev.accident.enabled))
+
+
+CELLS = CellKind(RECORDS, work)
+run_cell = CELLS.run_cell
+
+
+def _run(config: dict[str, Any], out: Path, label: str, accident: bool) -> dict[str, Any]:
+    """One run of a cell into out (atomically): its summary and, through the accident, its measures
+    (accident_measures: from its trajectories, which are then deleted: 10 MB a run is not kept)."""
+    from coopsumo.config import sim_config_from_dict
+    from coopsumo.studies.engine.run_folders import simulate_into
+
+    summary = simulate_into(config, out, label, trajectory_every=TRAJECTORY_EVERY if accident else 0, atomic=True)
+    if accident:
+        summary.update(accident_measures(out, sim_config_from_dict(config), summary["departed"]))
+        (out / "trajectories.parquet").unlink(missing_ok=True)
+    return summary
 
 
 def accident_measures(run_dir: Path, cfg: SimConfig, departed: int) -> dict[str, float]:

@@ -7,12 +7,15 @@ from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 from coopsumo.config import OutputConfig, RoadConfig, SimConfig, to_dict
 from coopsumo.studies.engine.cells import failed_keys, run_cells
+from coopsumo.studies.engine.drive import Cell, CellKind, Run, Train
 from coopsumo.studies.engine.records import CellRecords
+from coopsumo.studies.engine.run_folders import simulate_into
 from coopsumo.studies.scenario1.plan import Plan
 
 # -- scenario I's cell, run by the shared runner (coopsumo.studies.engine.runner), one per worker process ----------
@@ -21,31 +24,21 @@ RECORDS = CellRecords(("key", "kind", "label", "seed", "t_up_s", "out", "after")
 failed_record = RECORDS.failed
 
 
-def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Train one model ("train") or run one policy through the accident ("run") into ROOT/<out>; never raises."""
-    body = _train_cell if spec["kind"] == "train" else _run_cell
-    return RECORDS.run(spec, lambda record: body(spec, Path(root) / spec["out"], record))
+def work(spec: dict[str, Any]) -> Cell:
+    """What the cell of `spec` does (drive.perform runs it): a training ("train") in the model store `store`
+    (an interrupted training continues exactly), ROOT/<out> linking to it, or one policy through the accident ("run")
+    into ROOT/<out>, written atomically (a killed run leaves no half folder)."""
+    from coopsumo.config import sim_config_from_dict
+
+    if spec["kind"] == "train":
+        return Cell(Train(spec["config"], spec["out"], store=spec["store"]))
+    measure = partial(simulate_into, trajectory_every=spec["trajectory_every"], outputs=OutputConfig(**spec["outputs"]),
+                      atomic=True)  # fmt: skip
+    return Cell(runs=(Run(sim_config_from_dict(spec["config"]), spec["out"]),), label=spec["out"], measure=measure)
 
 
-def _train_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
-    """Train the model in the model store (an interrupted training continues exactly); out links to it."""
-    import torch
-
-    from coopsumo.studies.engine.model_store import train_shared
-
-    torch.set_num_threads(1)
-    record["summary"] = train_shared(spec["config"], out, Path(spec["store"]))[0]
-
-
-def _run_cell(spec: dict[str, Any], out: Path, record: dict[str, Any]) -> None:
-    """One accident run into its run folder, written atomically (a killed run leaves no half folder)."""
-    import torch
-
-    from coopsumo.studies.engine.run_folders import simulate_into
-
-    torch.set_num_threads(1)
-    record["summary"] = simulate_into(spec["config"], out, spec["out"], trajectory_every=spec["trajectory_every"],
-                                      outputs=OutputConfig(**spec["outputs"]), atomic=True)  # fmt: skip
+CELLS = CellKind(RECORDS, work)
+run_cell = CELLS.run_cell
 
 
 REQUIRED = ("mean_speed_mps", "collisions", "teleports")

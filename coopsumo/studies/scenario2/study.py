@@ -45,13 +45,14 @@ import pandas as pd
 from coopsumo.config import RoadConfig
 from coopsumo.dqn_config import DQN_PRESETS
 from coopsumo.errors import UsageError
-from coopsumo.files import read_csv, read_json, write_atomic, write_json
+from coopsumo.files import read_csv, write_atomic, write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
 from coopsumo.studies.engine.cells import run_todo
-from coopsumo.studies.engine.groups import group_cpu_s, study_cpu_s
-from coopsumo.studies.engine.model_store import check_link, link_problem, store_for, train_shared
+from coopsumo.studies.engine.drive import Cell, CellKind, Run, Train
+from coopsumo.studies.engine.groups import study_cpu_s
+from coopsumo.studies.engine.model_store import check_link, link_problem
 from coopsumo.studies.engine.records import (
     CellRecords,
     copied_wrong,
@@ -134,56 +135,41 @@ failed_record = RECORDS.failed
 
 
 # -- one cell (runs in a worker process) ------------------------------------------------------------
-def run_cell(spec: dict[str, Any], root: str) -> dict[str, Any]:
-    """Run one cell and return its record (never raises on failure).
+def work(spec: dict[str, Any]) -> Cell:
+    """What the cell of `spec` does (drive.perform runs it; never raises on failure: a record of status "ok", "failed"
+    with the error, or "interrupted" by SIGTERM/SIGINT, a training's checkpoint saved, to be run again).
 
-    A DQN cell takes (or trains) its model in ROOT/train/<key>/ (a matching checkpoint there is resumed
-    instead of starting afresh) and evaluates it in ROOT/evals/<key>/; a MOBIL cell runs one simulation into
-    ROOT/mobil/<key>/, a keep or greedy cell into ROOT/baselines/<key>/. status "ok" (with the evaluation summary),
-    "failed" (with the error) or "interrupted" (SIGTERM/SIGINT: a checkpoint was saved when training, the cell is
-    to be run again).
-    """
-    cell = _run_classical if spec.get("policy") in CLASSICAL else _run_dqn
-    return RECORDS.run(spec, lambda record: cell(spec, Path(root), record))
-
-
-def _run_dqn(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Take the cell's model from the model store (ROOT/train/<key>/ links to it, or for a lane network's cell
+    A DQN cell takes its model from the model store, ROOT/train/<key>/ linking to it (for a lane network's cell
     ROOT/train/<train_key>/, the training its conditions share; trained there when missing, a matching checkpoint
-    resumed), then evaluate it greedily on every evaluation seed; fills `record`. A stop by signal ->
-    KeyboardInterrupt."""
-    name = spec.get("train_key", spec["key"])
-    out = root / "train" / name
-    _, record["resumed_from_step"] = train_shared(spec["config"]["train"], out, store_for(root))
-    record["train_group_cpu_s"] = group_cpu_s(out)  # trained in a group before the cells: its share of the group
-    _evaluate(spec, out, root / "evals" / spec.get("evals_key", name), record)
-
-
-def _evaluate(spec: dict[str, Any], train_dir: Path, evals_dir: Path, record: dict[str, Any]) -> None:
-    """Drive the model of train_dir greedily on each of the cell's evaluations (one per evaluation seed) into
-    evals_dir/eval_[a<alpha>_]s<seed>/ with evaluate_model (drive.drive_pooled: the record's summary pools them, its
-    eval_summaries keeps each); with trajectory_every_steps in the cell's configuration, the full-road speed too."""
+    resumed), and drives it greedily on every evaluation seed into ROOT/evals/<key>/eval_[a<alpha>_]s<seed>/
+    (evaluate_model; a lane network told its alpha); a MOBIL cell runs one simulation into ROOT/mobil/<key>/, a keep or
+    greedy cell into ROOT/baselines/<key>/, its configuration the run's SimConfig, or {"run": SimConfig,
+    "trajectory_every_steps": K} when the full-road speed is measured.
+    """
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.engine.drive import dqn_policy, drive_pooled
 
-    conditioned = spec.get("conditioned", False)  # a lane network told its alpha
-    every = spec["config"].get("trajectory_every_steps", 0)
-    runs = []
-    for config in spec["config"]["evals"]:
-        ev = sim_config_from_dict(config)
-        policy = dqn_policy(train_dir / "model.pt", alpha=ev.reward.alpha if conditioned else None)
-        name = (f"eval_a{number_name(ev.reward.alpha)}_s{ev.seed}" if conditioned else f"eval_s{ev.seed}")
-        runs.append((replace(ev, policy=policy), evals_dir / name))
+    config, every = spec["config"], spec["config"].get("trajectory_every_steps", 0)
+    if spec.get("policy") in CLASSICAL:
+        run = Run(sim_config_from_dict(config.get("run", config)), f"{_classical_folder(spec)}/{spec['key']}")
+        return Cell(runs=(run,), label=spec["key"], measure=partial(_classical_run, trajectory_every=every))
+    name = spec.get("train_key", spec["key"])
+    evals = [sim_config_from_dict(raw) for raw in config["evals"]]
+    conditioned = spec.get("conditioned", False)  # a lane network told its alpha (every evaluation's is the cell's)
+    folder = f"evals/{spec.get('evals_key', name)}"
+    runs = tuple(Run(ev, f"{folder}/eval_a{number_name(ev.reward.alpha)}_s{ev.seed}" if conditioned
+                     else f"{folder}/eval_s{ev.seed}") for ev in evals)  # fmt: skip
     measure = partial(evaluate_model, trajectory_every=every) if every else evaluate_model  # tests fake it
-    drive_pooled(record, runs, spec["key"], measure)
-    if every and any(s.get(FULL_ROAD) is None for s in record["eval_summaries"]):  # one without it: the model has none
-        record["summary"].update({FULL_ROAD: None, "full_road_from_s": None})
-    record["train_summary"] = read_json(train_dir / "train_summary.json")
+    train = Train(config["train"], f"train/{name}", alpha=evals[0].reward.alpha if conditioned else None)
+    return Cell(train, runs, spec["key"], measure, pooled=True)
+
+
+CELLS = CellKind(RECORDS, work)
+run_cell = CELLS.run_cell
 
 
 def evaluate_model(config: dict[str, Any], out: Path, label: str, trajectory_every: int = 0) -> dict[str, Any]:
-    """One greedy evaluation (a SimConfig dict whose policy names the model) into out, as _evaluate drives each
-    (drive.drive_pooled): its summary, with the run's mean loop flow (veh/h per lane) and occupancy (%) from SUMO's
+    """One greedy evaluation (a SimConfig dict whose policy names the model) into out, as a DQN cell drives each
+    (work): its summary, with the run's mean loop flow (veh/h per lane) and occupancy (%) from SUMO's
     detectors.xml; with trajectory_every, trajectories sampled every that many steps and the full-road speed measured
     on them (full_road_measures)."""
     from coopsumo.report.analysis import read_detectors
@@ -209,15 +195,12 @@ def full_road_measures(out: Path) -> dict[str, float | None]:
     return {FULL_ROAD: round(speed, 6), "full_road_from_s": round(start, 3)}
 
 
-def _run_classical(spec: dict[str, Any], root: Path, record: dict[str, Any]) -> None:
-    """Run a MOBIL, keep or greedy cell (no training: one simulation) into ROOT/mobil/<key>/ or
-    ROOT/baselines/<key>/; fills `record`. Its configuration is the run's SimConfig, or {"run": SimConfig,
-    "trajectory_every_steps": K} when the full-road speed is measured."""
-    config, every = spec["config"].get("run", spec["config"]), spec["config"].get("trajectory_every_steps", 0)
-    out = root / _classical_folder(spec) / spec["key"]
-    record["summary"] = simulate_into(config, out, spec["key"], trajectory_every=every)
-    if every:
-        record["summary"].update(full_road_measures(out))
+def _classical_run(config: dict[str, Any], out: Path, label: str, trajectory_every: int = 0) -> dict[str, Any]:
+    """One run of a MOBIL, keep or greedy cell: its summary, with trajectory_every its full-road speed too."""
+    summary = simulate_into(config, out, label, trajectory_every=trajectory_every)
+    if trajectory_every:
+        summary.update(full_road_measures(out))
+    return summary
 
 
 def repointed(root: Path, specs: list[dict[str, Any]]) -> set[str]:
