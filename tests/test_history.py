@@ -195,6 +195,33 @@ def test_out_refuses_a_file_it_did_not_write(tmp_path: Path) -> None:
     assert _files(tmp_path) == before and (tmp_path / "folder.md").is_dir()
 
 
+def test_out_refuses_its_own_table_with_a_users_text_around_it(tmp_path: Path) -> None:
+    """Issue 82, probe 13, F12: a table it wrote with a user's notes appended below it was overwritten, exit 0 (only
+    its first 3 lines were checked); the whole file must be what it writes."""
+    results = tmp_path / "results"
+    _one_study(results)
+    mine = history.table(results)
+    lines = mine.splitlines()
+    others = {
+        "appended.md": mine + "MY NOTES: keep me\n",
+        "appended_no_newline.md": mine + "MY NOTES",
+        "blank_then_notes.md": mine + "\nMY NOTES\n",
+        "inserted_row.md": "\n".join([*lines[:6], "| my own row |", *lines[6:]]) + "\n",
+        "note_between.md": "\n".join([*lines[:4], "a note", *lines[4:]]) + "\n",
+        "no_rows.md": "\n".join(lines[:6]) + "\n",
+        "cut_last_newline.md": mine[:-1],
+    }
+    for name, text in others.items():
+        (tmp_path / name).write_text(text)
+    before = _files(tmp_path)
+    for name in others:
+        res = _history("--results", str(results), "--out", str(tmp_path / name), cwd=tmp_path)
+        assert res.returncode == 2 and res.stdout == "", (name, res.stderr)
+        assert len(res.stderr.strip().splitlines()) == 1 and "not a table coopsumo history wrote" in res.stderr
+    assert _files(tmp_path) == before
+    assert history.is_own_table(mine) and history.is_own_table(COMMITTED.read_text())
+
+
 def test_out_never_writes_through_a_file_or_link_named_like_its_temporary(tmp_path: Path) -> None:
     """Issue 82, F24: the table was written through 'FILE.tmp': a link of that name had its target overwritten, a
     user's file of that name was renamed onto FILE."""
