@@ -20,7 +20,7 @@ from coopsumo.files import TEMPORARY, left_temporaries, read_json, read_text, te
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
-from coopsumo.run_markers import PARTIAL_MARKER, PLANLESS_TITLES, RUN_MARKER, marker_text
+from coopsumo.run_markers import DIGEST, PARTIAL_MARKER, PLANLESS_TITLES, RUN_MARKER, marker_text, other_settings
 from coopsumo.run_markers import read_marker as _marker
 
 RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xml", "routes.rou.xml", "plain.rou.xml",
@@ -34,12 +34,14 @@ def _entries(folder: Path) -> list[str]:
     return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p != folder / RUN_MARKER)
 
 
-def mark_run_dir(folder: Path, kind: str, finished: bool = True, study: str | None = None) -> None:
-    """Claim `folder` for the command `kind`; finished: also list what it holds (nothing else may be replaced);
-    study: which study of `kind` a study root holds ("the quick profile's study", check_study_root)."""
+def mark_run_dir(folder: Path, kind: str, finished: bool = True, study: str | None = None,
+                 digest: str | None = None) -> None:  # fmt: skip
+    """Claim `folder` for the command `kind`; finished: also list what it holds (nothing else may be replaced); study:
+    which study of `kind` a study root holds ("the quick profile's study"), digest: its settings' (check_study_root)."""
     write_json(folder / RUN_MARKER, {"kind": kind, "version": package_version("coopsumo"), "finished": finished,
                                      **({"files": _entries(folder)} if finished else {}),
-                                     **({"study": study} if study is not None else {})})  # fmt: skip
+                                     **({"study": study} if study is not None else {}),
+                                     **({DIGEST: digest} if digest is not None else {})})  # fmt: skip
 
 
 def listed_files(marker: Any) -> list[str] | None:
@@ -192,7 +194,7 @@ def _committed_planless(root: Path, kind: str) -> bool:
 
 def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None,
                      recorded: Recorded | None = None, advice: str = "pick another --out",
-                     hosts: Sequence[Path] = ()) -> None:  # fmt: skip
+                     hosts: Sequence[Path] = (), digest: str | None = None) -> None:  # fmt: skip
     """UsageError unless `root` lies in no folder another command owns (check_study_place, with `hosts`) and is missing,
     empty, marked by the study `kind`, or holds the study's plan file own[0] and nothing but the study's names `own`
     (a root written before markers; fnmatch patterns: a study writes only these and never replaces its root; issue 82,
@@ -202,8 +204,9 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
     temporaries are a user's (issue 82, probe 7, I5; probe 9: a user's .report.md.abcdefgh.tmp was deleted). study:
     which study of `kind` the command writes ("the quick profile's study"): a root that holds another (held_study, with
     `recorded` for a root whose marker does not name it) is refused too, with `advice`, and so is a marked root, or one
-    with a plan file, whose study cannot be told (_untold_study); the same study resumes. Either way a link in it is
-    refused (study_link), but the study's own links into the model store."""
+    with a plan file, whose study cannot be told (_untold_study); the same study resumes, unless its marker records
+    other settings than `digest` (run_markers.other_settings). Either way a link in it is refused (study_link), but
+    the study's own links into the model store."""
     check_study_place(root, hosts)
     root = root.resolve()
     if not root.exists():
@@ -227,6 +230,8 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
                          f"this one is left alone; {advice}")  # fmt: skip
     if study is not None and held is None and (untold := _untold_study(root, own[0], advice)):
         raise UsageError(untold)
+    if study is not None and held == study and (other := other_settings(root, marker, study, digest, advice)):
+        raise UsageError(other)
     if unclaimed and names and not _committed_planless(root, kind):  # a first run marks its root first (probe 7, I5)
         more = f" and {len(names) - 1} more" if len(names) > 1 else ""
         raise UsageError(f"output folder {root} holds {names[0]}{more}, named like a coopsumo {kind} study's files, "
@@ -264,21 +269,23 @@ def study_link(root: Path) -> tuple[Path, Path] | None:
 
 @contextmanager
 def study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None, recorded: Recorded | None = None,
-               advice: str = "pick another --out", hosts: Sequence[Path] = ()) -> Iterator[Path]:  # fmt: skip
+               advice: str = "pick another --out", hosts: Sequence[Path] = (),
+               digest: str | None = None) -> Iterator[Path]:  # fmt: skip
     """Claim the study root `root` for the block: its path checked (check_out_path), its lock held (out_lock),
     its place and ownership checked (check_study_root: of the study `study`, if given; `hosts`: check_study_place)
     and its marker written (unfinished: a study adds to it run by run), naming `study` (without one: the study it
-    named before, kept). The marker is the first thing written into the root: a root interrupted after it names its
-    study."""
+    named before, kept) and `digest`, its profile's settings. The marker is the first thing written into the root: a
+    root interrupted after it names its study."""
     check_out_path(root)
     root = root.resolve()
-    check_study_root(root, kind, own, study, recorded, advice, hosts)
+    check_study_root(root, kind, own, study, recorded, advice, hosts, digest)
     with out_lock(root, kind):
-        check_study_root(root, kind, own, study, recorded, advice, hosts)  # again, under the lock
+        check_study_root(root, kind, own, study, recorded, advice, hosts, digest)  # again, under the lock
         try:
             root.mkdir(exist_ok=True)
             ours = _marker(root) is not None  # marked before: its temporaries are the study's (an unmarked one's may
-            mark_run_dir(root, kind, finished=False, study=study or held_study(root, recorded))  # be a user's: probe 9)
+            mark_run_dir(root, kind, finished=False, study=study or held_study(root, recorded),  # be a user's: probe 9)
+                         digest=digest)
             for left in left_temporaries(root, (*own, RUN_MARKER)) if ours else ():  # of its own files, from a write
                 left.unlink(missing_ok=True)  # a SIGKILL cut (probe 8, J23)
         except OSError as err:
@@ -311,8 +318,6 @@ def _is_partial(entry: Path) -> bool:
 
 
 _PARTIAL_NAME = re.compile(r"\.(.+)\.partial-[A-Za-z0-9_]{8}")
-
-
 _LOCK_NAME = re.compile(r"\.(.+)\.lock")
 
 
@@ -330,7 +335,6 @@ def _holder(path: Path) -> str:
 
 
 LOCK_WAIT_S = 1.0
-
 """how long a command waits for a held lock before it is refused (s): clear_partials holds another run's lock
 only while it removes that run's partial folder; a command writing a folder holds it for the whole run"""
 

@@ -74,7 +74,8 @@ _MARKER_LINES: dict[int, tuple[tuple[tuple[str, str | None], int], ...]] = {
     3: ((("  ],", None), 4),),
     4: ((('  "finished": true,', None), 5),),
     5: ((('  "kind": ', ","), 6),),
-    6: ((('  "study": ', ","), 7), (('  "version": ', ""), 8)),
+    6: ((('  "profile_digest": ', ","), 10), (('  "study": ', ","), 7), (('  "version": ', ""), 8)),
+    10: ((('  "study": ', ","), 7), (('  "version": ', ""), 8)),
     7: ((('  "version": ', ""), 8),),
     8: ((("}", None), _END),)}
 """the lines of a marker as write_json writes it (mark_run_dir), state by state: (text before, None for a whole
@@ -101,3 +102,22 @@ def _start(rule: tuple[str, str | None], text: str) -> bool:
     if (closed := _JSON_TEXT.match(rest)) is None:
         return _OPEN_TEXT.fullmatch(rest) is not None
     return tail.startswith(rest[closed.end():])
+
+
+DIGEST = "profile_digest"
+"""the key of a study root's marker that records what defines its study: a digest of its profile's settings
+(studies/engine/run_folders.profile_digest); a profile of the same name with other settings is another study"""
+
+
+def other_settings(root: Path, marker: dict[str, Any] | None, study: str, digest: str | None,
+                   advice: str) -> str | None:  # fmt: skip
+    """Why the study root `root`, which holds `study` by name, holds another study of that name (a line), or None: its
+    marker records a digest of its profile's settings (DIGEST) that is not `digest`. A profile's name alone did not
+    tell two studies apart: another file's profile of the same name replaced a finished study's tables and report
+    (issue 82, probe 13, F11). A marker without one (written before markers recorded it) is taken as the study's."""
+    recorded = marker.get(DIGEST) if marker is not None and digest is not None else None
+    if recorded is None or recorded == digest:
+        return None
+    return (f"output folder {root} holds {study} run with other settings (its {RUN_MARKER} records the profile's "
+            f"settings as {str(recorded)[:16]}, this profile's are {digest}: another file's profile of that name, or "
+            f"the profile edited): a study writes into its own folder, and this one is left alone; {advice}")

@@ -3,7 +3,9 @@ finished run folder can be reused (its configuration, its outputs, its values)."
 
 from __future__ import annotations
 
+import dataclasses
 import fnmatch
+import hashlib
 import json
 import os
 import sys
@@ -182,19 +184,32 @@ def default_out(name: str, profile: str, committed: str) -> Path:
 
 
 def study_root(root: Path, kind: str, study: str | None = None, recorded: Recorded | None = None,
-               advice: str = "pick another --out", trains: bool = False) -> AbstractContextManager[Path]:  # fmt: skip
+               advice: str = "pick another --out", trains: bool = False,
+               profile: Any = None) -> AbstractContextManager[Path]:  # fmt: skip
     """Claim the study root for the block (run_dirs.study_root: path checked, lock held, ownership checked, marked):
     with `study` (profile_study), a root that holds another study of `kind` is refused, with `advice`; `recorded`
-    reads which one a root holds whose marker does not say (recorded_profile). trains: the study stores models, so
-    its model store is checked first (model_store.store_for), before anything is written; the root's place before
-    that (run_dirs.check_study_place: not in another run's or study's folder, nor in the model store)."""
+    reads which one a root holds whose marker does not say (recorded_profile); `profile`, the profile as its file
+    gives it, defines the study too (profile_digest: a root marked with another's settings is refused). trains: the
+    study stores models, so its model store is checked first (model_store.store_for), before anything is written; the
+    root's place before that (run_dirs.check_study_place: not in another run's or study's folder, nor in the model
+    store)."""
     if trains:
         from coopsumo.studies.engine.model_store import store_for
 
         check_out_path(root)
         check_study_place(root)
         store_for(root)
-    return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"), study, recorded, advice)
+    digest = profile_digest(profile) if profile is not None else None
+    return claim_study_root(root, kind, (*STUDY_OUTPUTS[kind], "*.tmp"), study, recorded, advice, digest=digest)
+
+
+def profile_digest(profile: Any) -> str:
+    """What defines a profile's study beside its name: the first 16 hex digits of the SHA-256 of its settings (the
+    profile dataclass as its file gives them, before the command line's flags, which keep its study), as a study
+    root's marker records it (run_markers.DIGEST). Another file's profile of the same name, or the profile edited,
+    is another study (issue 82, probe 13, F11: its tables and report replaced a finished study's)."""
+    text = json.dumps(dataclasses.asdict(profile), sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
 def profile_study(profile: str, what: str = "study", presets: Sequence[str] = ("default",)) -> str:

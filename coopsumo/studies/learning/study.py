@@ -226,7 +226,8 @@ def main(argv: list[str] | None = None) -> int:
         # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
         with study_root(args.out, LEARNING_KIND, profile_study(profile.name), recorded_profile("study.json", "profile",
                         "name", kind=LEARNING_KIND), f"pick another --out (the {profile.name} profile's default: "
-                        f"{default_out('learning', profile.name, 'full')})", trains=True):  # fmt: skip
+                        f"{default_out('learning', profile.name, 'full')})", trains=True,
+                        profile=PROFILES["quick"] if args.quick else chosen_profile(args.profile)):  # fmt: skip
             meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip
         print(f"ablation: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")

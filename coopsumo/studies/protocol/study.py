@@ -194,7 +194,7 @@ def main(argv: list[str] | None = None) -> int:
         # another profile's study refused, its own resumed (study.json names it in a root marked before markers did)
         with study_root(args.out, "protocol", profile_study(profile.name), recorded_profile("study.json", "profile",
                         "name", kind="protocol"), f"pick another --out (the {profile.name} profile's default: "
-                        f"{default_folder(profile.name)})", trains=True):  # fmt: skip
+                        f"{default_folder(profile.name)})", trains=True, profile=profile):  # fmt: skip
             meta = run_study(profile, args.out, args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip
         print(f"protocol: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")

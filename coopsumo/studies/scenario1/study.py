@@ -239,7 +239,8 @@ def main(argv: list[str] | None = None) -> int:
         # path, lock, ownership (another profile's study refused; its own resumed) and marker of the results folder
         with study_root(args.out, "scenario1", profile_study(plan.profile, presets=plan.presets),
                         recorded_profile("plan.json", "plan", "profile", presets=("plan", "presets")),
-                        f"pick another --out (the {plan.profile} profile's default: {study_out(plan)})", trains=True):
+                        f"pick another --out (the {plan.profile} profile's default: {study_out(plan)})", trains=True,
+                        profile=chosen_profile(args)):
             return run_study(plan, args.out, args.workers, args.backend, args.address, progress=not args.quiet)
 
     return run_cli("scenario1", body)

@@ -440,7 +440,8 @@ def main(argv: list[str] | None = None) -> int:
             args.out = default_model_out(default)
         # path, lock, ownership (another profile's sweep or a merge refused; its own resumed) and marker of the folder
         with study_root(args.out, "scenario2", sweep_study(profile), recorded_sweep,
-                        f"pick another --out (the {profile.name} profile's default: {default})", trains=True):
+                        f"pick another --out (the {profile.name} profile's default: {default})", trains=True,
+                        profile=chosen_profile(args.profile)):
             meta = run_sweep(profile, args.out, args.backend, args.workers, args.address, not args.quiet,
                              args.bootstrap)  # fmt: skip
         if "dqn" in profile.policies:
