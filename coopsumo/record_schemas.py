@@ -50,6 +50,9 @@ REWARD_MAX = 1e6
 flow)"""
 MOMENT_MAX = 1e6
 """Adam's first moment's magnitude (an average of clipped gradients); its second moment lies in [0, MOMENT_MAX^2]"""
+LOSS_MAX = 1e12
+"""a TD loss (Huber or squared, averaged over a batch): a TD error of REWARD_MAX squared; real losses stay below 10
+(a window's and train_log.csv's; issue 82, probe 13, F4: 1e300 was resumed and logged)"""
 TTS_MAX_VEH_H = 1e6
 """total time spent through the accident: at most every departure (one per lane and 0.1 s step) for the whole run"""
 
@@ -414,10 +417,13 @@ CHECKPOINT_TENSORS = (
     *(Field(f"learner.buffer.data.{name}", Number(-REWARD_MAX, REWARD_MAX, True, True, "an observed feature"))
       for name in ("features", "next_features")),  # fmt: skip
     Field("learner.buffer.data.dones", Integer(0, 1)),
+    Field("learner.buffer.data.actions", Integer(0, 3)),  # whole numbers, as the memory stores them: a float action
+    *(Field(f"learner.buffer.data.{name}", Integer(0, 1)) for name in ("grids", "next_grids", "next_mask")),  # of 1.5
+    # was resumed as 1, a grid of 0.5 as 0 (issue 82, probe 13, F5)
     *(Field(f"window.{name}", Integer(0, 10**15)) for name in ("samples", "vehicle_steps", "lane_changes",
                                                                  "rejected")),  # fmt: skip
     Field("window.speed_sum", Number(0.0, unit="m/s summed over vehicle steps")),
-    Field("window.loss.*", Number(0.0, unit="a Huber or squared loss")),
+    Field("window.loss.*", Number(0.0, LOSS_MAX, unit="a Huber or squared loss")),
     Field("learner.optimizer.param_groups.*.lr", Number(0.0, 1.0, low_open=True, unit="a learning rate")),
     Field("learner.optimizer.param_groups.*.betas.*", Number(0.0, 1.0, high_open=True, unit="Adam's beta")),
     Field("learner.optimizer.param_groups.*.eps", Number(0.0, 1.0, low_open=True)),

@@ -27,6 +27,7 @@ from coopsumo.agents.file_checks import WINDOW_KEYS, checkpoint_problem
 from coopsumo.agents.tb_log import Window
 from coopsumo.config import SimConfig, TrainConfig
 from coopsumo.dqn_config import DQN_PRESETS
+from coopsumo.errors import UsageError
 from coopsumo.run_dirs import finished_run
 
 
@@ -176,6 +177,17 @@ def _no_next_action(state: dict[str, Any]) -> None:
     state["learner"]["buffer"].update(size=1, pos=1)  # the fixture's memory is still empty: its first row is stored
 
 
+def _as_floats(name: str, value: float) -> Callable[[dict[str, Any]], None]:
+    """The replay field `name` stored as float64, its first entries `value` (the memory stores whole numbers)."""
+
+    def change(state: dict[str, Any]) -> None:
+        data = state["learner"]["buffer"]["data"]
+        data[name] = data[name].double()
+        data[name].view(-1)[:5] = value
+
+    return change
+
+
 GROUP = ("learner", "optimizer", "param_groups", 0)
 ADAM = ("learner", "optimizer", "state", 0)
 REPLAY = ("learner", "buffer", "data")
@@ -247,6 +259,19 @@ CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
     "foreach 'x'": (_set(*GROUP, "foreach", value="x"), "optimizer setting foreach = 'x', not None"),
     "an optimizer setting torch does not have": (lambda s: s["learner"]["optimizer"]["param_groups"][0].update(
         momentum2=0.5), "optimizer setting momentum2 = 0.5, not none"),
+    # issue 82, probe 13: each inside its field's limits but impossible, resumed with rc 0 (F3: into a model of
+    # weights 8e11 every reader refuses; F4: into a train_log.csv row of loss 6e299; F5: the action 1.5 taken as 1)
+    "Adam's first moment 9e5 beside a second of 1e-4": (_set(*ADAM, "exp_avg", value=9e5),
+                                                         "field learner.optimizer.state.0.exp_avg is 900000 beside an "
+                                                         "exp_avg_sq of 0.0001: Adam's first moment is at most 7.28"),
+    "a log window loss of 1e300": (_set("window", "loss", value=[1e300]),
+                                   "field window.loss.0 must be a finite number >= 0 and <= 1e+12"),
+    "a log window of 1e14 vehicle steps": (lambda s: s["window"].update(vehicle_steps=10**14, samples=10**14),
+                                           "has a log window of 100000000000000 vehicle steps in 0 steps"),
+    "replay actions of 1.5 stored as floats": (_as_floats("actions", 1.5),
+                                               "field learner.buffer.data.actions must be an integer, got 1.5"),
+    "replay grids of 0.5 stored as floats": (_as_floats("grids", 0.5),
+                                             "field learner.buffer.data.grids must be an integer, got 0.5"),
 }  # fmt: skip
 
 
@@ -286,3 +311,19 @@ def test_the_checkpoint_inside_its_limits_resumes(checkpoint_folder: Path, tmp_p
     assert checkpoint_problem(torch.load(out / "checkpoint.pt", weights_only=True)) is None
     assert train.main(["--resume", "--quiet", "--out", str(out)]) == 0
     assert finished_run(out, "train") and (out / "model.pt").is_file()
+
+
+def test_a_model_outside_its_limits_is_never_written(tmp_path: Path) -> None:
+    """Issue 82, probe 13, F3: train wrote a model.pt of weights 8e11, marked its folder finished and exited 0; every
+    reader then refused it. save_model checks what load_model checks, and writes nothing outside it."""
+    from coopsumo.agents.dqn import QNetwork
+    from coopsumo.agents.model_file import load_model, save_model
+
+    net = QNetwork(30.0)
+    save_model(tmp_path / "model.pt", net, {"config": {}})
+    assert load_model(tmp_path / "model.pt")[0] is not None
+    with torch.no_grad():
+        next(iter(net.parameters())).fill_(-8.1e11)
+    with pytest.raises(UsageError, match=r"model2.pt is not written: its weights are no model's \(field state_dict\."):
+        save_model(tmp_path / "model2.pt", net, {"config": {}})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt"]

@@ -169,7 +169,9 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
             or _optimizer_problem(learner["optimizer"], learner["online"])
             or _moments_problem(learner["optimizer"], len(learner["online"]), int(learner["updates"]), config["dqn"])
             or tensor_problem(state, CHECKPOINT_TENSORS, deciding_entries)  # the limits of record_schemas
-            or _group_problem(learner["optimizer"]["param_groups"][0], config["dqn"]))
+            or _group_problem(learner["optimizer"]["param_groups"][0], config["dqn"])
+            or _moment_ratio_problem(learner["optimizer"], config["dqn"])
+            or _window_steps_problem(window, step, config))
 
 
 def _moments_problem(optimizer: Mapping[str, Any], n_params: int, updates: int, dqn: Mapping[str, Any]) -> str | None:
@@ -182,6 +184,55 @@ def _moments_problem(optimizer: Mapping[str, Any], n_params: int, updates: int, 
                if not (isinstance(state.get(i), Mapping) and {"step", "exp_avg", "exp_avg_sq"} <= set(state[i]))]
     if missing:
         return f"has no Adam state for parameter {missing[0]} after {updates} gradient updates (of {n_params})"
+    return None
+
+
+def _moment_ratio_problem(optimizer: Mapping[str, Any], dqn: Mapping[str, Any]) -> str | None:
+    """Why Adam's first moment cannot be an average of the gradients its second moment averages the squares of, or
+    None. Both are averages of the same gradients g (m = sum (1-b1) b1^k g_k, v = sum (1-b2) b2^k g_k^2), so by
+    Cauchy-Schwarz |m| <= (1-b1) / sqrt((1-b2) (1 - b1^2/b2)) sqrt(v), 7.27 sqrt(v) at torch's betas, whatever the
+    gradients; Adam's step, lr m / (sqrt(v) + eps), is then at most 7.27 lr. Each moment inside its own limits
+    (record_schemas.CHECKPOINT_TENSORS) is not enough: a first moment of 9e5 beside a real second moment was resumed
+    into a model of weights 8e11 that every reader refuses (issue 82, probe 13, F3)."""
+    betas = optimizer["param_groups"][0].get("betas")
+    if dqn.get("optimizer") != "adam" or not (isinstance(betas, tuple | list) and len(betas) == 2):
+        return None
+    b1, b2 = (float(b) for b in betas)  # numbers in range: _group_problem and the schema checked them
+    if not (0 <= b1 < 1 and 0 < b2 < 1 and b1 * b1 < b2):
+        return None
+    most = (1 - b1) / math.sqrt((1 - b2) * (1 - b1 * b1 / b2)) * 1.001  # and float32's rounding
+    for index, moments in optimizer["state"].items():
+        m, v = moments.get("exp_avg"), moments.get("exp_avg_sq")
+        if not (isinstance(m, torch.Tensor) and isinstance(v, torch.Tensor) and m.shape == v.shape):
+            continue
+        excess = m.double().abs() - most * v.double().clamp(min=0).sqrt() - 1e-12  # a gradient's underflow: 1e-12
+        if bool((excess > 0).any()):
+            at = int(torch.nonzero(excess.flatten() > 0)[0])
+            return (f"field learner.optimizer.state.{index}.exp_avg is {float(m.flatten()[at]):g} beside an "
+                    f"exp_avg_sq of {float(v.flatten()[at]):g}: Adam's first moment is at most {most:.2f} times the "
+                    "square root of its second (both average the same gradients)")  # fmt: skip
+    return None
+
+
+def _window_steps_problem(window: Mapping[str, Any], step: int, config: Mapping[str, Any]) -> str | None:
+    """Why the log window's counts and losses cannot be those of the steps it covers, or None. The window begins
+    again at every logged step (a multiple of log_every_steps), so it covers step % log_every_steps steps, each with
+    at most a jam's vehicles on the road (lanes x length / car length, twice that for margin): no more vehicle steps
+    or transitions than that (issue 82, probe 13, F4: 1e14 vehicle steps in a window of 593 steps were resumed into
+    train_log.csv; its losses' limit: record_schemas.LOSS_MAX)."""
+    try:
+        sim = config["sim"]
+        every, lanes = int(config["log_every_steps"]), int(sim["road"]["lanes"])
+        jam = 2 * lanes * float(sim["road"]["length_m"]) / float(sim["control"]["car_length_m"])
+    except (KeyError, TypeError, ValueError, ZeroDivisionError, OverflowError):
+        return None  # a configuration the configuration's own check names
+    if every <= 0 or not math.isfinite(jam):
+        return None
+    steps = step % every
+    for name in ("vehicle_steps", "samples"):
+        if float(window[name]) > jam * steps:
+            return (f"has a log window of {window[name]} {name.replace('_', ' ')} in {steps} steps (at most "
+                    f"{jam:.0f} vehicles a step on {lanes} lanes)")  # fmt: skip
     return None
 
 

@@ -17,6 +17,7 @@ from coopsumo.agents.dqn import QNetwork
 from coopsumo.agents.file_checks import model_problem
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS
 from coopsumo.dqn_config import OBSERVATIONS
+from coopsumo.errors import UsageError
 
 
 class ModelFileError(ValueError):
@@ -57,7 +58,9 @@ def weights_digest(state_dict: dict[str, torch.Tensor]) -> str:
 
 def save_model(path: str | os.PathLike[str], net: QNetwork, meta: dict[str, Any]) -> None:
     """Write net and meta (plain types only) to path atomically (temp file in the same folder, then rename), with
-    the digest of its weights (weights_digest: load_model refuses weights changed after they were written)."""
+    the digest of its weights (weights_digest: load_model refuses weights changed after they were written); weights
+    outside a model's limits are refused in one line, nothing written (issue 82, probe 13, F3: train wrote a model of
+    weights 8e11, marked its folder finished and exited 0, and every reader then refused it)."""
     path = Path(path)
     weights = {k: v.detach().clone() for k, v in net.state_dict().items()}
     payload = {
@@ -71,6 +74,9 @@ def save_model(path: str | os.PathLike[str], net: QNetwork, meta: dict[str, Any]
         "alpha_conditioned": net.conditioned,
         "meta": meta,
     }
+    if problem := model_problem(payload):  # what every reader checks (load_model): never a file no command reads
+        raise UsageError(f"{path} is not written: its weights are no model's ({problem}); the training diverged or was "
+                         "resumed from an edited checkpoint: train again without --resume")  # fmt: skip
     fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "wb") as f:

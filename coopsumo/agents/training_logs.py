@@ -18,6 +18,7 @@ from typing import Any
 from coopsumo.field_rules import digits
 from coopsumo.files import read_text
 from coopsumo.record_schemas import (
+    LOSS_MAX,
     PER_VEHICLE,
     REWARD_MAX,
     SECONDS,
@@ -31,7 +32,7 @@ from coopsumo.record_schemas import (
 from coopsumo.validation import ALPHA_MIN
 
 LOG_RULES: dict[str, Number | Integer] = {
-             "step": Integer(1), "sim_time_s": SECONDS, "td_loss": Number(0.0, blank_ok=True),
+             "step": Integer(1), "sim_time_s": SECONDS, "td_loss": Number(0.0, LOSS_MAX, blank_ok=True),
              **{name: Number(-REWARD_MAX, REWARD_MAX) for name in ("r_speed", "r_lane_change", "r_flow", "reward")},
              "epsilon": SHARE, "mean_speed_mps": SPEED, "wall_s": SECONDS, "alpha": Number(ALPHA_MIN),
              **{name: Integer(0) for name in ("vehicles", "lane_changes", "lane_changes_rejected", "collisions",
