@@ -229,9 +229,14 @@ def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_pr
     stop and waits (it used to kill the ending process without a line, or print a traceback from an exit handler): if
     the process has not ended EXIT_GRACE_S later (a policy of one's own left a thread running or an atexit callback that
     blocks: issue 82, probe 12, N6), it ends in one line (_exit_stop). A Ctrl-C that the code it landed in swallowed, so
-    that body() ran on and returned 0, still ends in that line and 130. Only in the main thread (elsewhere: body())."""
+    that body() ran on and returned 0, still ends in that line and 130. Only in the main thread (elsewhere: body()).
+    Past Python's exit callbacks the signals are blocked (_deaf_at_exit): the process ends with its command's code."""
     if threading.current_thread() is not threading.main_thread():
         return body()
+    if whole_process:
+        import atexit
+
+        atexit.register(_deaf_at_exit)  # the first registered runs last: after every exit callback of the command's
     old, stops_before, _ENDING[0] = {s: signal.getsignal(s) for s in STOP_SIGNALS}, len(_STOPS_RAISED), False
     outer = _COMMAND_STOPS[0]  # a command run by another (cli.main runs train.main) began with the outer one
     _COMMAND_STOPS[0] = stops_before if outer is None else outer
@@ -259,6 +264,17 @@ def run_interruptible(body: Callable[[], int], prog: Callable[[], str], whole_pr
         ending = _exit_stop(prog)  # one clock for both signals
         for s, handler in old.items():
             signal.signal(s, ending if whole_process else signal.SIG_DFL if handler is None else handler)
+
+
+def _deaf_at_exit() -> None:
+    """The last exit callback of a console command: SIGINT and SIGTERM blocked for the rest of Python's exit. Right
+    after its exit callbacks Python gives every signal back its default action (_PySignal_Fini), and a signal that
+    came while it then tore its modules down (seconds, with torch loaded) killed the process without a line, exit code
+    130, after the command had finished and printed everything (issue 82, probe 13, F22: `models`, `train`). Blocked,
+    it is never delivered and the exit code is the command's; the exit callbacks before it (a policy's that blocks:
+    _exit_stop) still take the signal; its clock, if one started, is stopped (their exit is done)."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    signal.alarm(0)
 
 
 EXIT_GRACE_S = 3

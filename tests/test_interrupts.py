@@ -240,3 +240,30 @@ def test_a_signal_ends_a_command_that_cannot_exit_in_one_line(tmp_path: Path) ->
     assert proc.returncode == 128 + signal.SIGTERM, err
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("simulate: stopped by SIGTERM while it exited"), err
+
+
+SIGNALLED_IN_TEARDOWN = """
+import os, signal, sys, time
+sys.path.insert(0, {root!r})
+from coopsumo.runio import run_interruptible
+
+
+class Late:
+    def __del__(self):  # run as Python tears its modules down, after it gave signals their default action
+        os.kill(os.getpid(), signal.{name})
+        time.sleep(0.2)
+
+
+late = Late()
+sys.exit(run_interruptible(lambda: print("4 models, 4 usable") or {code}, lambda: "models", whole_process=True))
+"""
+
+
+@pytest.mark.parametrize(("name", "code"), [("SIGINT", 0), ("SIGTERM", 0), ("SIGINT", 2)])
+def test_a_signal_as_python_tears_down_leaves_the_commands_exit_code(name: str, code: int, tmp_path: Path) -> None:
+    """Issue 82, probe 13, F22: a Ctrl-C in a console command's last moments (Python tearing its modules down, after
+    it gave SIGINT its default action back) ended `models` and `train`, finished and printed, with exit code 130 and
+    no line; it now leaves the command's own exit code (runio._deaf_at_exit)."""
+    script = SIGNALLED_IN_TEARDOWN.format(root=str(Path(__file__).resolve().parent.parent), name=name, code=code)
+    res = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert (res.returncode, res.stdout, res.stderr) == (code, "4 models, 4 usable\n", "")
