@@ -22,6 +22,12 @@ def first_line(err: BaseException) -> str:
     return text.splitlines()[0] if text else type(err).__name__
 
 
+def one_line(err: BaseException) -> str:
+    """An error's whole message on one line: its lines joined by a space (a library's text passed on, such as pandas'
+    ParserError, may end in a newline or hold several: a command's error is one line; issue 82, probe 13, F17)."""
+    return " ".join(line.strip() for line in str(err).strip().splitlines() if line.strip())
+
+
 USER_ERRNOS = frozenset({errno.ENAMETOOLONG, errno.ELOOP, errno.EROFS, errno.EACCES, errno.EPERM, errno.ENOTDIR,
                          errno.EISDIR, errno.EEXIST, errno.ENOENT})  # fmt: skip
 

@@ -14,7 +14,15 @@ from contextlib import contextmanager
 from functools import partial
 from typing import Any, NoReturn
 
-from coopsumo.errors import USAGE_EXIT, USER_ERRNOS, NotRegularFileError, UsageError, first_line, os_error_text
+from coopsumo.errors import (
+    USAGE_EXIT,
+    USER_ERRNOS,
+    NotRegularFileError,
+    UsageError,
+    first_line,
+    one_line,
+    os_error_text,
+)
 from coopsumo.owners import nets_env_problem, store_env_problem, tmp_env_problem
 from coopsumo.paths import env_problem, utf8_problem
 
@@ -376,7 +384,7 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
     try:
         return body()
     except UsageError as err:
-        print(f"{prog}: error: {err}", file=sys.stderr)
+        print(f"{prog}: error: {one_line(err)}", file=sys.stderr)  # one line, whatever a library's text it passes on
         return USAGE_EXIT
     except KeyboardInterrupt as err:
         return interrupted(prog, err)

@@ -15,7 +15,7 @@ import pandas as pd
 from pandas.api.types import is_numeric_dtype
 
 from coopsumo.config import first_difference
-from coopsumo.errors import ConfigError, NotRegularFileError, UsageError
+from coopsumo.errors import ConfigError, NotRegularFileError, UsageError, first_line
 from coopsumo.field_rules import shown
 from coopsumo.files import read_csv, read_json, write_atomic, write_json
 from coopsumo.studies.engine.catalogue import Entry
@@ -128,14 +128,18 @@ def _shared(profile: Profile) -> dict[str, Any]:
 def _read_part(folder: Path) -> Part:
     """One part read and checked against itself before anything is written (_part_profile, _meta_problem,
     _table_problem)."""
+    name = "sweep.json"
     try:
-        meta = read_json(folder / "sweep.json")
-        runs, evals = read_csv(folder / "runs.csv"), read_csv(folder / "evals.csv")
+        meta = read_json(folder / name)
+        name = "runs.csv"
+        runs = read_csv(folder / name)
+        name = "evals.csv"
+        evals = read_csv(folder / name)
     except NotRegularFileError as err:  # a named pipe: refused, not waited on (issue 82, fifth probe, G4)
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err})") from None
-    except (OSError, ValueError) as err:
-        raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err.__class__.__name__}: "
-                         f"{getattr(err, 'strerror', None) or err})") from None  # fmt: skip
+    except (OSError, ValueError) as err:  # the file named, pandas' message in one line (it ends in a newline: F17)
+        raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({name}: {err.__class__.__name__}: "
+                         f"{getattr(err, 'strerror', None) or first_line(err)})") from None  # fmt: skip
     profile = _part_profile(folder, meta)
     if not profile.trajectory_every_steps:  # no trajectories, no full-road speed: a sweep writes no such columns
         runs, evals = (t.assign(**{c: float("nan") for c in (FULL_ROAD, "full_road_from_s") if c not in t})
