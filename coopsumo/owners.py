@@ -11,7 +11,7 @@ import re
 from pathlib import Path
 
 from coopsumo.paths import NETS_ENV, STORE_ENV
-from coopsumo.run_markers import PARTIAL_MARKER, PLANLESS_TITLES, RUN_KINDS, RUN_MARKER, marker_kind
+from coopsumo.run_markers import PARTIAL_MARKER, PLANLESS_TITLES, RUN_KINDS, RUN_MARKER, kind_name, marker_kind
 
 DEFAULT_STORE = Path("results") / "models"
 """the committed studies' model store"""
@@ -116,7 +116,8 @@ def _claim_line(real: Path, found: tuple[Path, str], what: str, advice: str) -> 
     if found[1] in RUN_KINDS:
         return (f"{what} {where} {found[0]}, the folder of a coopsumo {found[1]} run, which only that command writes; "
                 f"{advice}")  # fmt: skip
-    return f"{what} {where} {found[0]}, a coopsumo {found[1]} study's folder, which only that study writes; {advice}"
+    return (f"{what} {where} {found[0]}, a coopsumo {kind_name(found[1])} study's folder, which only that study "
+            f"writes; {advice}")  # fmt: skip
 
 
 def owned_problem(path: Path, what: str, advice: str = "pick another --out", itself: bool = False,

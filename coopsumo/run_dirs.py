@@ -20,7 +20,16 @@ from coopsumo.files import TEMPORARY, left_temporaries, read_json, read_text, te
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
-from coopsumo.run_markers import DIGEST, PARTIAL_MARKER, PLANLESS_TITLES, RUN_MARKER, marker_text, other_settings
+from coopsumo.run_markers import (
+    DIGEST,
+    PARTIAL_MARKER,
+    RUN_MARKER,
+    a_kind,
+    committed_planless,
+    kind_name,
+    marker_text,
+    other_settings,
+)
 from coopsumo.run_markers import read_marker as _marker
 
 RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xml", "routes.rou.xml", "plain.rou.xml",
@@ -183,15 +192,6 @@ def _untold_study(root: Path, plan: str, advice: str) -> str | None:
             f"yourself or {advice}")  # fmt: skip
 
 
-def _committed_planless(root: Path, kind: str) -> bool:
-    if not (root / "report.md").is_file():
-        return False
-    try:
-        return read_text(root / "report.md").split("\n", 1)[0] == PLANLESS_TITLES.get(kind)
-    except (OSError, UnicodeDecodeError, ValueError):
-        return False
-
-
 def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None,
                      recorded: Recorded | None = None, advice: str = "pick another --out",
                      hosts: Sequence[Path] = (), digest: str | None = None) -> None:  # fmt: skip
@@ -215,15 +215,15 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
         raise UsageError(f"output folder {root} exists and is not a folder")
     marker = _marker(root)
     if marker is not None and marker["kind"] != kind:
-        raise UsageError(f"output folder {root} holds a coopsumo {marker['kind']} run, not a {kind} study, and "
-                         "is left alone; pick another --out")  # fmt: skip
+        raise UsageError(f"output folder {root} holds a coopsumo {kind_name(marker['kind'])} run, not "
+                         f"{a_kind(kind, 'study')}, and is left alone; pick another --out")  # fmt: skip
     unclaimed = marker is None and not (root / own[0]).is_file()  # neither marked nor a root written before markers
     marking = {p.name for p in temporaries_of(root / RUN_MARKER) if marker_text(p)}  # a first marking, killed
     names = sorted(p.name for p in root.iterdir() if p.name not in marking)
     if marker is None and (foreign := [n for n in names if not any(fnmatch.fnmatchcase(n, pat) for pat in own)]):
         more = f" and {len(foreign) - 1} more" if len(foreign) > 1 else ""
-        raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind} does not write, "
-                         f"and has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
+        raise UsageError(f"output folder {root} holds {foreign[0]}{more}, which coopsumo {kind_name(kind)} does not "
+                         f"write, and has no {RUN_MARKER}: it is left alone; pick another --out")  # fmt: skip
     held = held_study(root, recorded) if study is not None else None
     if held is not None and held != study:
         raise UsageError(f"output folder {root} holds {held}, not {study}: a study writes into its own folder, and "
@@ -232,11 +232,12 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
         raise UsageError(untold)
     if study is not None and held == study and (other := other_settings(root, marker, study, digest, advice)):
         raise UsageError(other)
-    if unclaimed and names and not _committed_planless(root, kind):  # a first run marks its root first (probe 7, I5)
+    if unclaimed and names and not committed_planless(root, kind):  # a first run marks its root first (probe 7, I5)
         more = f" and {len(names) - 1} more" if len(names) > 1 else ""
-        raise UsageError(f"output folder {root} holds {names[0]}{more}, named like a coopsumo {kind} study's files, "
-                         f"but neither a {RUN_MARKER} nor its {own[0]}: no study wrote it (a study marks its folder "
-                         "before anything else), so it is left alone; move it away or pick another --out")  # fmt: skip
+        raise UsageError(f"output folder {root} holds {names[0]}{more}, named like a coopsumo {kind_name(kind)} "
+                         f"study's files, but neither a {RUN_MARKER} nor its {own[0]}: no study wrote it (a study "
+                         "marks its folder before anything else), so it is left alone; move it away or pick another "
+                         "--out")  # fmt: skip
     if found := study_link(root):
         where = "inside" if found[1].is_relative_to(root) else "outside"
         raise UsageError(f"{found[0]} is a link to {found[1]}, {where} the study's folder {root}: a study makes no "

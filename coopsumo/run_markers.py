@@ -8,7 +8,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from coopsumo.files import read_json_object
+from coopsumo.files import read_json_object, read_text
 
 RUN_MARKER = ".coopsumo-run.json"
 
@@ -33,6 +33,18 @@ RUN_KINDS = ("simulate", "train")
 LEARNING_KIND = "ablation"
 """the kind of marker `coopsumo learning` writes on its study's root: the only study accident-seeds reads (its ROOTs),
 and the only one it may write directly into (run_dirs.check_study_place's hosts)"""
+
+
+def kind_name(kind: str) -> str:
+    """How a line names the command or study of a marker's kind: `learning` for LEARNING_KIND, kept as the marker
+    writes it (issue 82, probe 13, F20: "holds a coopsumo protocol run, not a ablation study")."""
+    return "learning" if kind == LEARNING_KIND else kind
+
+
+def a_kind(kind: str, what: str) -> str:
+    """`a NAME WHAT` (kind_name), its article fitting NAME ("an accident_seeds study")."""
+    name = kind_name(kind)
+    return f"{'an' if name[:1] in 'aeiou' else 'a'} {name} {what}"
 
 
 def read_marker(folder: Path) -> dict[str, Any] | None:
@@ -121,3 +133,14 @@ def other_settings(root: Path, marker: dict[str, Any] | None, study: str, digest
     return (f"output folder {root} holds {study} run with other settings (its {RUN_MARKER} records the profile's "
             f"settings as {str(recorded)[:16]}, this profile's are {digest}: another file's profile of that name, or "
             f"the profile edited): a study writes into its own folder, and this one is left alone; {advice}")
+
+
+def committed_planless(root: Path, kind: str) -> bool:
+    """Whether the unmarked study root `root` without a plan file is a committed study of `kind` written so: its
+    report.md begins with PLANLESS_TITLES[kind] (run_dirs.check_study_root)."""
+    if not (root / "report.md").is_file():
+        return False
+    try:
+        return read_text(root / "report.md").split("\n", 1)[0] == PLANLESS_TITLES.get(kind)
+    except (OSError, UnicodeDecodeError, ValueError):
+        return False

@@ -2,13 +2,17 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
+from test_profile_files import run_main, tiny_scenario2
+from test_scenario2 import faked_train  # noqa: F401  (the fixture: scenario II's cells without SUMO)
 
 from coopsumo.errors import UsageError
 from coopsumo.runio import run_cli
 from coopsumo.studies.scenario2 import redraw
+from coopsumo.studies.scenario2 import study as s2
 
 
 def test_a_merge_parts_unparsable_table_is_one_line_naming_it(tmp_path: Path) -> None:
@@ -35,3 +39,37 @@ def test_a_usage_error_of_several_lines_is_printed_on_one(capsys: pytest.Capture
     err = capsys.readouterr().err
     assert err == "scenario2: error: a table cannot be read (Error tokenizing data. C error: Expected 1 fields ) and " \
                   "more\n", err
+
+
+def test_a_learning_study_is_called_learning_with_its_article(tmp_path: Path) -> None:
+    """F20: the learning study's marker kind is "ablation", and lines called it so: "holds a coopsumo protocol run,
+    not a ablation study"; its own lines began "ablation:"."""
+    from coopsumo.run_dirs import check_study_root, mark_run_dir
+    from coopsumo.run_markers import LEARNING_KIND, a_kind, kind_name
+
+    assert (kind_name(LEARNING_KIND), a_kind("accident_seeds", "study")) == ("learning", "an accident_seeds study")
+    root = tmp_path / "p"
+    root.mkdir()
+    mark_run_dir(root, "protocol", finished=False, study="the tiny profile's study")
+    with pytest.raises(UsageError, match=f"^output folder {root} holds a coopsumo protocol run, not a learning study"):
+        check_study_root(root, LEARNING_KIND, ("study.json",))
+    mark_run_dir(root, LEARNING_KIND, finished=False, study="the tiny profile's study")
+    with pytest.raises(UsageError, match="holds a coopsumo learning run, not a protocol study"):
+        check_study_root(root, "protocol", ("study.json",))
+
+
+def test_a_merge_part_without_the_learners_cells_says_so(tmp_path: Path, faked_train: list[str],  # noqa: F811
+                                                        capsys: pytest.CaptureFixture[str]) -> None:
+    """F20: a finished sweep of policies ["mobil"] was refused as "runs.csv has no loop_flow_veh_h_per_lane column
+    and 1 more: not as a sweep writes it", though a sweep wrote it: a part needs the learner's cells."""
+    path = tmp_path / "mine.toml"
+    path.write_text(tiny_scenario2())
+    part = tmp_path / "part"
+    code, err = run_main(s2.main, ["--profile", str(path), "--out", str(part), "--quiet", "--bootstrap", "20"], capsys)
+    assert code == 0, err
+    meta = json.loads((part / "sweep.json").read_text())  # a sweep of MOBIL only (its cells need SUMO: its record;
+    # the faked cells lack the loop columns too, which the check before the tables must not reach)
+    meta["profile"]["policies"] = ["mobil"]
+    (part / "sweep.json").write_text(json.dumps(meta))
+    with pytest.raises(UsageError, match=f"^--merge: {part} is a sweep of mobil only .*: a merge joins the learner's"):
+        redraw._read_part(part)

@@ -135,6 +135,7 @@ def test_an_unmarked_study_json_names_its_command_too(kind: str, tmp_path: Path)
     """I4: a root without a marker was told by its study.json's profile name alone, so a protocol study was taken
     for a learning study of the same name and the other way round. The committed studies are still their own."""
     from coopsumo.run_dirs import check_study_root
+    from coopsumo.run_markers import kind_name
     from coopsumo.studies.engine.run_folders import STUDY_OUTPUTS, profile_study, recorded_profile
 
     for root_kind in COMMITTED:
@@ -144,7 +145,8 @@ def test_an_unmarked_study_json_names_its_command_too(kind: str, tmp_path: Path)
         if root_kind == kind:
             check_study_root(tmp_path / root_kind, kind, own, profile_study(name), recorded)
             continue
-        with pytest.raises(UsageError, match=f"holds a coopsumo {root_kind} study \\(study.json says so\\), not the"):
+        with pytest.raises(UsageError, match=f"holds a coopsumo {kind_name(root_kind)} study \\(study.json says so\\), "
+                           "not the"):  # fmt: skip
             check_study_root(tmp_path / root_kind, kind, own, profile_study(name), recorded)
 
 
@@ -156,12 +158,14 @@ def test_another_commands_unmarked_study_of_the_same_profile_is_refused(command:
     it: study.json, runs.csv and report.md replaced. Refused in one line before anything is written."""
     from test_study_places import listing
 
+    from coopsumo.run_markers import kind_name
+
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
     committed_root(tmp_path / "P", other, "tiny")
     before = listing(tmp_path)
     one_line(capsys, run(command, ["--profile", "tiny", "--quiet", "--workers", "1", "--out", "P"]),
-             f"holds a coopsumo {other} study")  # fmt: skip
+             f"holds a coopsumo {kind_name(other)} study")  # fmt: skip
     assert listing(tmp_path) == before
 
 

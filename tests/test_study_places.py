@@ -146,7 +146,7 @@ def test_accident_seeds_may_go_directly_into_the_learning_study_it_reads(tmp_pat
     check_study_place(learned / "accident", hosts=[learned])
     for root, hosts in ((learned / "accident", []), (learned / "cells" / "accident", [learned]),
                         (learned / "accident", [tmp_path / "other"])):  # fmt: skip
-        with pytest.raises(UsageError, match=f"lies inside {learned}, a coopsumo ablation study's folder"):
+        with pytest.raises(UsageError, match=f"lies inside {learned}, a coopsumo learning study's folder"):
             check_study_place(root, hosts=hosts)
 
 

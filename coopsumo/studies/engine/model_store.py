@@ -242,12 +242,12 @@ def foreign_entry(folder: Path) -> str | None:
     was trained into, and a retrain listed notes.txt as its own; probe 8, J4, J6: a user's snapshots/step100/notes.txt
     was deleted by a retrain, and a link sumo -> . had SUMO write into the folder itself)."""
     from coopsumo.agents.training_files import foreign_entry as training_entry
-    from coopsumo.run_markers import marker_kind
+    from coopsumo.run_markers import kind_name, marker_kind
 
     if not folder.is_dir():
         return "is a file" if os.path.lexists(folder) else None
     if (kind := marker_kind(folder)) not in (None, "train"):
-        return f"is the folder of a coopsumo {kind} run"
+        return f"is the folder of a coopsumo {kind_name(kind)} run"
     return training_entry(folder, also=(GROUP_COST,))
 
 

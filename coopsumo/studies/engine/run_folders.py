@@ -19,7 +19,7 @@ from coopsumo.files import TEMPORARY, file_sha256, left_temporaries, not_regular
 from coopsumo.record_schemas import SPEED_MAX_MPS
 from coopsumo.run_dirs import LEARNERS, RUN_OUTPUTS, Recorded, check_out_path, check_run_dir, check_study_place
 from coopsumo.run_dirs import study_root as claim_study_root
-from coopsumo.run_markers import RUN_MARKER
+from coopsumo.run_markers import RUN_MARKER, kind_name
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
 
@@ -253,7 +253,7 @@ def recorded_profile(plan_file: str, *keys: str, presets: Sequence[str] = (), ki
             return None
         if kind is not None and not _holds(data, STUDY_SIGNS[kind]):
             other = next((k for k, sign in STUDY_SIGNS.items() if _holds(data, sign)), None)
-            return f"a coopsumo {other} study ({plan_file} says so)" if other is not None else None
+            return f"a coopsumo {kind_name(other)} study ({plan_file} says so)" if other is not None else None
         try:
             learners = _at(data, presets) if presets else ["default"]
         except (KeyError, TypeError):  # a plan written before its study had learner presets: the default's

@@ -93,7 +93,7 @@ def root_problem(root: Path) -> str | None:
     training), one that cannot be read, or, a folder written before markers, another study's plan file in it (a
     scenario II sweep's sweep.json, a plan.json). Issue 82, probe 6, H2: a scenario II study taken for one was read
     as a learning study, and the study that read it was written into its folder."""
-    from coopsumo.run_markers import LEARNING_KIND, RUN_MARKER, marker_kind
+    from coopsumo.run_markers import LEARNING_KIND, RUN_MARKER, kind_name, marker_kind
     from coopsumo.studies.engine.run_folders import STUDY_OUTPUTS
 
     advice = "give the --out of `coopsumo learning`"
@@ -101,7 +101,7 @@ def root_problem(root: Path) -> str | None:
         if kind == LEARNING_KIND:
             return None
         what = f"the folder of a coopsumo {kind} run" if kind in ("simulate", "train") else \
-            f"a coopsumo {kind} study's folder"  # fmt: skip
+            f"a coopsumo {kind_name(kind)} study's folder"  # fmt: skip
         return f"{root} is {what}, not a learning study's: {advice}"
     if os.path.lexists(root / RUN_MARKER):
         return f"{root} has a {RUN_MARKER} that names no command (damaged?), so it is not told for a learning study; " \

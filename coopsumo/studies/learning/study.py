@@ -130,7 +130,7 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     meta: dict[str, Any] = {"profile": asdict(profile), "default_learner": to_dict(default), "cells": len(specs),
                             "default_variant": default_variant, "learners": learners,
                             "backend": backend_name, "workers": workers, "versions": versions()}  # fmt: skip
-    print(f"ablation: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
+    print(f"learning: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
           f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
     records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED_SUMMARY,
                        roads=[RoadConfig(lanes=profile.lanes)], workers=workers, backend=backend_name, address=address,
@@ -230,7 +230,7 @@ def main(argv: list[str] | None = None) -> int:
                         profile=PROFILES["quick"] if args.quick else chosen_profile(args.profile)):  # fmt: skip
             meta = run_study(profile, args.out, DQNConfig(), args.backend, args.workers, args.address,
                              progress=not args.quiet)  # fmt: skip
-        print(f"ablation: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")
+        print(f"learning: {meta['cells']} cells in {meta['wall_seconds']:.0f} s; report: {args.out / 'report.md'}")
         return failed_exit("learning", meta["failed_cells"], meta["cells"], args.out)
 
     return run_cli("learning", body)

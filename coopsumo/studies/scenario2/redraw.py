@@ -141,6 +141,10 @@ def _read_part(folder: Path) -> Part:
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({name}: {err.__class__.__name__}: "
                          f"{getattr(err, 'strerror', None) or first_line(err)})") from None  # fmt: skip
     profile = _part_profile(folder, meta)
+    if "dqn" not in profile.policies:  # its tables lack the learner's columns: say so, not "not as a sweep writes it"
+        raise UsageError(f"--merge: {folder} is a sweep of {', '.join(profile.policies)} only (its profile's "
+                         "policies): a merge joins the learner's (dqn) cells over lanes and alphas, and this part has "
+                         "none; merge sweeps whose policies include dqn")  # fmt: skip
     if not profile.trajectory_every_steps:  # no trajectories, no full-road speed: a sweep writes no such columns
         runs, evals = (t.assign(**{c: float("nan") for c in (FULL_ROAD, "full_road_from_s") if c not in t})
                        for t in (runs, evals))  # fmt: skip
