@@ -73,3 +73,21 @@ def test_a_merge_part_without_the_learners_cells_says_so(tmp_path: Path, faked_t
     (part / "sweep.json").write_text(json.dumps(meta))
     with pytest.raises(UsageError, match=f"^--merge: {part} is a sweep of mobil only .*: a merge joins the learner's"):
         redraw._read_part(part)
+
+
+@pytest.mark.parametrize(("text", "keys"), [('current = "mine"\n[mine]\nseeds = [1]\n', "'current', 'mine'"),
+                                            ("x = 1\n", "'x'")])
+def test_a_profile_file_without_profiles_names_its_keys_and_the_format(text: str, keys: str, tmp_path: Path) -> None:
+    """F19: a file of the format before 2026-12-04, or one holding only `x = 1`, was refused with "[profiles] must
+    be a table, got None", naming nothing; the docs promise a line naming the keys it knows."""
+    from coopsumo.errors import ConfigError
+    from coopsumo.studies.scenario2 import plan as s2_plan
+
+    path = tmp_path / "old.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as refused:
+        s2_plan.own_profiles(path)
+    line = str(refused.value)
+    assert line.startswith(f"{path}: unknown top-level keys {keys} (known: default, shared, profiles); no [profiles] "
+                           "table: a profile file holds each profile as a [profiles.NAME] table"), line
+    assert "\n" not in line and "None" not in line

@@ -127,12 +127,11 @@ def read_profiles(path: Path, settable: tuple[str, ...], build: Callable[[Entry,
     naming the file and the entry for an unknown key, `use` or default."""
     data = {k: v for k, v in read_toml(path).items() if k not in others}
     shared, tables, default = data.pop("shared", {}), data.pop("profiles", None), data.pop("default", None)
+    if data or tables is None:  # the keys it has named before a missing [profiles] (issue 82, probe 13, F19)
+        raise ConfigError(f"{path}: {_top_level_problem(list(data), tables is None, others)}")
     for key, table in (("shared", shared), ("profiles", tables)):
         if not isinstance(table, dict):
             raise Entry(path, key).error(f"must be a table, got {table!r}")
-    if data:
-        raise ConfigError(f"{path}: unknown top-level keys {', '.join(map(repr, data))} (known: "
-                          f"{', '.join((*others, 'default', 'shared', 'profiles'))})")  # fmt: skip
     profiles, helps = {}, {}
     for name, entry in tables.items():
         at = Entry(path, f"profiles.{name}")
@@ -145,6 +144,19 @@ def read_profiles(path: Path, settable: tuple[str, ...], build: Callable[[Entry,
     if (default_needed or default is not None) and (not isinstance(default, str) or default not in profiles):
         raise ConfigError(f"{path}: default must name one of its profiles ({', '.join(profiles)}), got {default!r}")
     return profiles, helps, default
+
+
+def _top_level_problem(unknown: list[str], no_profiles: bool, others: tuple[str, ...]) -> str:
+    """Why a profile file's top level is not one (after its path): the keys it has that no profile file holds, the
+    ones it may hold, and, without [profiles], the format it needs (an old-format file, `current = "mine"` and a
+    `[mine]` table, or a file holding `x = 1`, was "[profiles] must be a table, got None", naming nothing)."""
+    known = ", ".join((*others, "default", "shared", "profiles"))
+    text = f"unknown top-level keys {', '.join(map(repr, unknown))[:200]} (known: {known})" if unknown else ""
+    if no_profiles:
+        text += ("; " if text else "") + ("no [profiles] table: a profile file holds each profile as a "
+                                          "[profiles.NAME] table (with `default = NAME` naming the one run when none "
+                                          "is named; the format before 2026-12-04 had `current` and a [NAME] table)")
+    return text
 
 
 # -- a profile of one's own --------------------------------------------------------------------------
