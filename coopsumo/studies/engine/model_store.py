@@ -18,10 +18,9 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
-from coopsumo.errors import UsageError, why_unreadable
+from coopsumo.errors import UsageError
 from coopsumo.files import read_json
 from coopsumo.paths import STORE_ENV
-from coopsumo.record_schemas import STORE_CONFIG
 from coopsumo.validation import number_name
 
 GROUP_COST = "group_cost.json"
@@ -318,60 +317,12 @@ def _link(link: Path, folder: Path) -> None:
         raise
 
 
-# -- `coopsumo models`: what the store holds -----------------------------------------------------------------
+# -- `coopsumo models`: what the store holds (store_listing) --------------------------------------------------
 def listing(store: Path) -> list[dict[str, Any]]:
-    """One row per stored model folder: its name, preset, alpha, training seed, steps, whether it is whole and
-    its own (trainings.finished_training against its recorded configuration and name), and the step model.pt
-    was chosen at."""
-    from coopsumo.studies.engine.trainings import finished_training
+    """One row per stored model folder (store_listing.listing)."""
+    from coopsumo.studies.engine.store_listing import listing as rows
 
-    rows = []
-    for folder in sorted(p for p in store.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        row: dict[str, Any] = {"model": folder.name, "preset": "-", "alpha": "-", "seed": "-", "steps": "-",
-                               "state": "unfinished", "selected_step": "-"}  # fmt: skip
-        try:
-            recorded = read_json(folder / "config.json")
-        except (OSError, ValueError) as err:
-            row["state"] = f"no readable config.json ({why_unreadable(err)})"
-            rows.append(row)
-            continue
-        if (problem := STORE_CONFIG.problem(recorded)) is not None:  # what names the folder, inside its limits
-            row["state"] = f"not usable: config.json {problem}"
-            rows.append(row)
-            continue
-        config = recorded["config"]
-        sim, dqn = config["sim"], config["dqn"]
-        row.update(preset=dqn["preset"], seed=sim["seed"], steps=sim["steps"],
-                   alpha="conditioned" if dqn.get("alpha_conditioned") else sim["reward"]["alpha"])  # fmt: skip
-        if model_id(config) != folder.name:
-            row["state"] = "config.json is not this folder's identity (edited?)"
-        elif (problem := foreign_entry(folder)) is not None:  # every study refuses it (check_entry)
-            row["state"] = f"not usable: {problem} (move it away)"
-        elif (summary := finished_training(folder, config, quiet=True)) is not None:
-            row["state"] = "ok"
-            row["selected_step"] = summary.get("selected_step", "-")
-        elif (folder / "model.pt").exists():
-            row["state"] = f"not usable: {_summary_problem(folder, config) or 'trained again when a study asks for it'}"
-        rows.append(row)
-    return rows
-
-
-def _summary_problem(folder: Path, config: dict[str, Any]) -> str | None:
-    """Why a stored model's train_summary.json or one of its logs keeps it from use (trainings.train_summary_problem:
-    a value no run gives, a selected step outside its training; trainings.logs_problem: a train_log.csv or
-    validation.csv that cannot be read back), or None (another reason, or none readable)."""
-    from coopsumo.studies.engine.trainings import logs_problem, train_summary_problem
-
-    try:
-        summary = read_json(folder / "train_summary.json")
-    except (OSError, ValueError):
-        return None
-    if not isinstance(summary, dict):
-        return None
-    if (problem := train_summary_problem(summary, config)) is not None:
-        return problem
-    found = logs_problem(folder, config, summary)
-    return f"{found[0]} {found[1]}" if found is not None else None
+    return rows(store)
 
 
 STORE_FOLDER = "models"
@@ -432,16 +383,6 @@ def build_parser() -> Any:
     return p
 
 
-def _print_store(store: Path, rows: list[dict[str, Any]]) -> None:
-    keys = ("model", "preset", "alpha", "seed", "steps", "selected_step", "state")
-    widths = {k: max([len(k)] + [len(str(r[k])) for r in rows]) for k in keys}
-    print("  ".join(k.ljust(widths[k]) for k in keys))
-    for r in rows:
-        print("  ".join(str(r[k]).ljust(widths[k]) for k in keys))
-    usable = sum(r["state"] == "ok" for r in rows)
-    print(f"{len(rows)} models in {store}, {usable} usable")
-
-
 def _first_folder(folder: Path) -> Path | None:
     """The first folder in `folder` that `listing` would list as a model (not hidden), or None."""
     return next(iter(sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))), None)
@@ -469,6 +410,7 @@ def _stores(given: Path | None) -> list[Path]:
 def main(argv: list[str] | None = None) -> int:
     from coopsumo.errors import UsageError
     from coopsumo.runio import run_cli
+    from coopsumo.studies.engine.store_listing import print_store
 
     args = build_parser().parse_args(argv)
 
@@ -482,7 +424,7 @@ def main(argv: list[str] | None = None) -> int:
             if rows:
                 if listed:
                     print()
-                _print_store(store, rows)
+                print_store(store, rows)
                 listed += 1
         if not listed:
             print(f"no models yet in {stores[0]}: the studies (scenario1, scenario2, learning, protocol) train into "
