@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from coopsumo.errors import ConfigError
-from coopsumo.field_rules import float_flag
+from coopsumo.field_rules import float_flag, int_flag, integer, number
 from coopsumo.validation import (
     ALPHA_MAX,
     ALPHA_MIN,
@@ -270,11 +270,26 @@ RETIRED_AT = "eaffea4"
 """the last commit with the retired settings' code"""
 IMPLIED_FIELDS: dict[str, Any] = {**ADDED_FIELDS, **RETIRED_FIELDS}
 """every field a stored configuration may hold or lack at its implied value (config.results_view drops it there)"""
-FLAG_TYPES: dict[str, Any] = {"bool": bool, "int": int, "float": float_flag}
+FLAG_TYPES: dict[str, Any] = {"bool": bool, "int": int_flag, "float": float_flag}
 """a field's annotation -> its flag's type (any other, a tuple: a str flag holding a comma-separated list)"""
+
+
+def _flag_type(f: dataclasses.Field[Any]) -> Any:
+    """A learner flag's type: its choices; a number field with limits, the rule of its limits (field_rules.number,
+    integer), which reads the text as given: '0.99999999999999999999' is over gamma's limit, not 1.0 rounded onto it
+    (issue 82, probe 13, F16); else FLAG_TYPES' (an integer or float of ASCII digits, F15)."""
+    limits, kind = f.metadata.get("limits"), str(f.type)
+    if f.metadata["choices"] or not limits:
+        return f.metadata["choices"] or FLAG_TYPES.get(kind, str)
+    low, high, low_open, high_open = limits
+    if kind == "float":
+        return number(low, high, low_open, high_open)
+    whole = isinstance(low, int) and isinstance(high, int | None) and not (low_open or high_open)
+    return integer(low, high) if kind == "int" and whole else FLAG_TYPES.get(kind, str)
+
+
 LEARNER_FLAGS: tuple[tuple[str, str, Any, str], ...] = tuple(
-    (f.metadata["flag"], f.name, f.metadata["choices"] or FLAG_TYPES.get(str(f.type), str), f.metadata["help"])
-    for f in _FIELDS if f.metadata.get("flag"))  # fmt: skip
+    (f.metadata["flag"], f.name, _flag_type(f), f.metadata["help"]) for f in _FIELDS if f.metadata.get("flag"))
 """(flag, field, type or choices, help) of every learner flag of `coopsumo train`; a tuple setting is a str flag
 (a comma-separated list)"""
 

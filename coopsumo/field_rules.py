@@ -60,6 +60,41 @@ def number_problem(value: float, low: float | None = None, high: float | None = 
     return None if ok else _number_range(low, high, low_open, high_open)
 
 
+def ascii_text(text: str) -> str:
+    """`text`, a flag's number, when it is written in ASCII without '_'; ValueError otherwise. int() and float() read
+    '٣', '１００' and '1_0' as 3, 100 and 10, which the records refuse (digits): a flag takes what a record takes
+    (issue 82, probe 13, F15: `--lanes ٣` ran 3 lanes, `--seed 1_0` seed 10)."""
+    if not text.isascii() or "_" in text:
+        raise ValueError(f"not a number written in ASCII digits: {text!r}")
+    return text
+
+
+def int_flag(text: str) -> int:
+    """A `type=` for an integer flag without bounds of its own: int() of ASCII text (ascii_text)."""
+    try:
+        return int(ascii_text(text))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+
+
+def decimal_outside(text: str, low: float | None, high: float | None, low_open: bool = False,
+                    high_open: bool = False) -> bool:  # fmt: skip
+    """True when the number `text` names, read as a decimal, lies outside the bounds though the float it rounds to
+    may not: `--t-up 3600.00000000000001` is 3600.0 as a float, inside a limit of 3600 (issue 82, probe 13, F16). The
+    bounds are read as the shortest decimal of their float (0.1 as 0.1, not 0.1000000000000000055...)."""
+    try:
+        value = decimal.Decimal(text.strip())
+    except (decimal.InvalidOperation, ValueError):
+        return False
+    if not value.is_finite():
+        return False
+    below = low is not None and (value <= decimal.Decimal(repr(float(low))) if low_open
+                                 else value < decimal.Decimal(repr(float(low))))  # fmt: skip
+    above = high is not None and (value >= decimal.Decimal(repr(float(high))) if high_open
+                                  else value > decimal.Decimal(repr(float(high))))  # fmt: skip
+    return bool(below or above)
+
+
 class IntRule:
     """An integer field's rule, read by its flag (an argparse `type=`: the rule is called on the flag's text) and by
     a data file's loader (`problem` on the value read, catalogue.Entry.value), so that a profile in a file takes no
@@ -75,7 +110,7 @@ class IntRule:
 
     def __call__(self, text: str) -> int:
         try:
-            value = int(text)
+            value = int(ascii_text(text))
         except ValueError:
             value = None
         if value is None or int_problem(value, self.low, self.high):
@@ -107,9 +142,11 @@ class NumberRule:
 
     def __call__(self, text: str) -> float:
         try:
-            value = float(text)
+            value = float(ascii_text(text))
         except ValueError:
             value = math.nan
+        if decimal_outside(text, self.low, self.high, self.low_open, self.high_open):
+            value = math.nan  # over a limit by less than a float's precision: the range's words, the text as given
         if problem := self._problem(value):
             raise argparse.ArgumentTypeError(f"must be {problem}{self.note}, got {text!r}")
         if value == 0 and not _zero_text(text):
@@ -131,7 +168,7 @@ def float_flag(text: str) -> float:
     """A `type=` for a float flag without bounds of its own (a learner flag, checked by its DQNConfig field's limits):
     float(text), refused when text names a number too small for a float, which float() reads as 0 (_zero_text)."""
     try:
-        value = float(text)
+        value = float(ascii_text(text))
     except ValueError:
         raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
     if value == 0 and not _zero_text(text):
@@ -155,7 +192,7 @@ def number(low: float | None = None, high: float | None = None, low_open: bool =
 
 def parse_number(text: str) -> float:
     """'1/8' -> 0.125, '2.5' -> 2.5; ValueError otherwise (also for a zero denominator)."""
-    text = text.strip()
+    text = ascii_text(text.strip())
     if "/" in text:
         num, den = text.split("/", 1)
         try:
@@ -220,6 +257,8 @@ class ListRule:
             values = tuple(parse_number(x) for x in parts)
         except ValueError:
             values = (math.nan,)  # not a number: the range's words
+        if any(decimal_outside(x, self.low, self.high, self.low_open) for x in parts):
+            values = (math.nan,)  # over a limit by less than a float's precision (decimal_outside)
         if problem := self.values_problem(values, [repr(x) for x in parts], repr(text), "a comma-separated list"):
             raise UsageError(f"{flag} {problem}")
         return values

@@ -31,6 +31,7 @@ import os
 from dataclasses import dataclass
 
 from coopsumo.errors import UsageError
+from coopsumo.field_rules import ascii_text, decimal_outside
 from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MOBIL_LIMITS, SUMO_LC_LIMITS, number_problem
 
 ADAPTIVE = "adaptive"
@@ -120,9 +121,11 @@ def _value(text: str, name: str, key: str, value: str) -> float | str:
         return ADAPTIVE
     low, high, low_open = KEYS[name][key]
     try:
-        number = float(value)
+        number = float(ascii_text(value))  # '٠' and '1_0' as a flag refuses them (field_rules.ascii_text)
     except ValueError:
         number = math.nan
+    if decimal_outside(value, low, high, low_open):
+        number = math.nan  # over a limit by less than a float's precision
     if problem := number_problem(number, low, high, low_open):
         also = f" or {ADAPTIVE!r}" if (name, key) == ("dqn", "alpha") else ""
         raise _fail(text, f"{key} must be {problem}{also}, got {value!r}")

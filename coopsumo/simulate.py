@@ -48,6 +48,7 @@ from coopsumo.validation import (
     out_dir,
     seed,
     steps,
+    t_up_type,
 )
 
 SCENARIOS = ("free", "accident")
@@ -78,7 +79,8 @@ def build_parser() -> Parser:
     p = Parser(prog="coopsumo simulate", description="Run one SUMO highway simulation.")
     p.add_argument("--scenario", choices=SCENARIOS, default="free", help="free flow or the accident bottleneck")
     p.add_argument("--lanes", type=integer(MIN_LANES, MAX_LANES), default=3, help="number of lanes, 2-6")
-    p.add_argument("--t-up", type=number(), default=DemandConfig.t_up_s, help="upstream departure interval (s)")
+    p.add_argument("--t-up", type=t_up_type(ControlConfig().dt_s), default=DemandConfig.t_up_s,
+                   help="upstream departure interval (s)")  # fmt: skip
     p.add_argument("--policy", default="keep",
                    help="keep | random | greedy | mobil[:p=P,threshold=T,b_safe=B,bias=X] (MOBIL, p politeness) | "
                         "sumo[:lcCooperative=X,lcSpeedGain=Y,...] (SUMO's own Krauss and LC2013 models) | "

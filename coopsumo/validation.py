@@ -278,6 +278,12 @@ def t_up_note(dt_s: float) -> str:
     return f" s (one vehicle per {limit:g} s simulation step, {3600 / limit:,.0f} veh/h)"
 
 
+def t_up_type(dt_s: float) -> NumberRule:
+    """The `type=` of a --t-up flag: the limits check_t_up applies, read from the text as given, so that a value over
+    MAX_T_UP_S by less than a float's precision is refused too (issue 82, probe 13, F16: 3600.00000000000001 ran)."""
+    return number(min_t_up_s(dt_s), MAX_T_UP_S, note=t_up_note(dt_s))
+
+
 def check_t_up(flag: str, value: float, dt_s: float) -> float:
     """T_up (s) finite, at least one simulation step and at most MAX_T_UP_S."""
     return check_number(flag, value, low=min_t_up_s(dt_s), high=MAX_T_UP_S, note=t_up_note(dt_s))

@@ -57,6 +57,7 @@ from coopsumo.validation import (
     seed,
     steps,
     t_up_list,
+    t_up_type,
 )
 
 
@@ -234,7 +235,7 @@ def build_parser() -> Parser:
         p.add_argument(flag, type=number(0, REWARD_WEIGHT_MAX), default=None,
                        help=f"weight of the reward's {term} (0 to {REWARD_WEIGHT_MAX:,g}; default "
                             f"{getattr(RewardConfig, flag[2:].replace('-', '_')):g}, the paper's)")  # fmt: skip
-    p.add_argument("--t-up", type=number(), default=None,
+    p.add_argument("--t-up", type=t_up_type(ControlConfig().dt_s), default=None,
                    help=f"upstream departure interval (s) of the evaluation and, given, of the training (trained at "
                         f"it alone); default: {DemandConfig.t_up_s:g} s, training on the preset's demands")  # fmt: skip
     p.add_argument("--steps", type=steps, default=90_000, help="training steps of 0.1 s")
