@@ -23,7 +23,16 @@ from coopsumo.errors import ConfigError, UsageError
 from coopsumo.field_rules import IntRule as IntRule
 from coopsumo.field_rules import ListRule as ListRule
 from coopsumo.field_rules import NumberRule as NumberRule
-from coopsumo.field_rules import as_float, int_problem, int_range, integer, number_problem, shown, split_list
+from coopsumo.field_rules import (
+    as_float,
+    ascii_text,
+    int_problem,
+    int_range,
+    integer,
+    number_problem,
+    shown,
+    split_list,
+)
 from coopsumo.field_rules import names_problem as names_problem
 from coopsumo.field_rules import number as number
 from coopsumo.field_rules import number_list as number_list
@@ -228,7 +237,7 @@ def train_seed_list(flag: str, text: str, first: int, evaluation: Sequence[int] 
 
     def whole(item: str) -> int:
         try:
-            return int(item)
+            return int(ascii_text(item))  # '٣' or '1_0' as every flag refuses them
         except ValueError:
             raise UsageError(f"{flag}: {item!r} is not an integer; give a model count K or a comma-separated list of "
                              "training seeds") from None  # fmt: skip

@@ -22,7 +22,8 @@ CASES = [
     ("simulate", "--lanes", "٣"), ("simulate", "--seed", "٣"), ("simulate", "--steps", "１００"),
     ("simulate", "--t-up", "１.５"), ("simulate", "--seed", "1_0"), ("train", "--alpha", "２"),
     ("scenario2", "--alphas", "٠,٢"), ("scenario2", "--workers", "١"), ("train", "--replay-size", "٣"),
-    ("train", "--lr", "1_0e-3"), ("scenario1", "--mobil-p", "0,1_0"),
+    ("train", "--lr", "1_0e-3"), ("scenario1", "--mobil-p", "0,1_0"), ("scenario1", "--train-seeds", "1_0"),
+    ("scenario1", "--train-seeds", "١٠١"),
     # F16: over the limit by less than a float's precision
     ("simulate", "--t-up", "3600.00000000000001"), ("train", "--epsilon-start", "1.00000000000000001"),
     ("train", "--alpha", "1000.00000000000001"), ("train", "--lr", "1.00000000000000001"),
