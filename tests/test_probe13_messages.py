@@ -91,3 +91,33 @@ def test_a_profile_file_without_profiles_names_its_keys_and_the_format(text: str
     assert line.startswith(f"{path}: unknown top-level keys {keys} (known: default, shared, profiles); no [profiles] "
                            "table: a profile file holds each profile as a [profiles.NAME] table"), line
     assert "\n" not in line and "None" not in line
+
+
+@pytest.mark.parametrize("plan", ["x; rm -rf /", "B2BB97B", "b2bb9", "b2bb97bz", "1" * 41])
+def test_a_profiles_response_plan_must_be_a_commits_hash(plan: str, tmp_path: Path) -> None:
+    """F21: `response_plan = "x; rm -rf /"` was taken and recorded as the analysis plan's commit, which declares the
+    response reading confirmatory."""
+    from coopsumo.errors import ConfigError
+    from coopsumo.studies.scenario2 import plan as s2_plan
+
+    path = tmp_path / "mine.toml"
+    path.write_text(tiny_scenario2() + f"response_plan = {json.dumps(plan)}\n")
+    with pytest.raises(ConfigError, match=r"\[profiles.mine\] response_plan must be a commit's hash \(7 to 40 hex"):
+        s2_plan.own_profiles(path)
+    path.write_text(tiny_scenario2() + 'response_plan = "b2bb97b"\n')
+    assert s2_plan.own_profiles(path)[0]["mine"].response_plan == "b2bb97b"
+
+
+def test_a_merge_parts_response_plan_must_be_a_commits_hash(tmp_path: Path, faked_train: list[str],  # noqa: F811
+                                                            capsys: pytest.CaptureFixture[str]) -> None:
+    """F21 for a merge part: its sweep.json's profile.response_plan is checked as a profile file's is."""
+    path = tmp_path / "mine.toml"
+    path.write_text(tiny_scenario2())
+    part = tmp_path / "part"
+    code, err = run_main(s2.main, ["--profile", str(path), "--out", str(part), "--quiet", "--bootstrap", "20"], capsys)
+    assert code == 0, err
+    meta = json.loads((part / "sweep.json").read_text())
+    meta["profile"]["response_plan"] = "x; rm -rf /"
+    (part / "sweep.json").write_text(json.dumps(meta))
+    with pytest.raises(UsageError, match=r"^--merge: .*sweep.json: \[profile\] response_plan must be a commit's hash"):
+        redraw._read_part(part)

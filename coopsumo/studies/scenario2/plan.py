@@ -5,6 +5,7 @@ configuration of every cell and their keys. No SUMO here; scenario2.py runs the 
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import MISSING, dataclass, fields, replace
 from pathlib import Path
 from typing import Any, get_type_hints
@@ -22,6 +23,7 @@ from coopsumo.config import (
 )
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError
+from coopsumo.field_rules import shown
 from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_profiles
 from coopsumo.validation import (
     ALPHA_LIST,
@@ -201,11 +203,22 @@ LOAD_LIST = ListRule(0.0, low_open=True, least=0)
 """loads (a profile's loads and eval_loads): each T_up they give is checked too (profile_problem)"""
 T_UP_LIST = t_up_rule(ControlConfig().dt_s, least=0)
 """a fixed T_up list (--t-up, a profile's t_up_s; none: the load grid)"""
+class CommitRule:
+    """response_plan's rule: empty, or a commit's hash, 7 to 40 lowercase hex digits (any text was taken, and declared
+    the response reading confirmatory: `x; rm -rf /` was recorded as the plan's commit; issue 82, probe 13, F21)."""
+
+    def problem(self, value: Any) -> str | None:
+        if value == "" or (isinstance(value, str) and re.fullmatch(r"[0-9a-f]{7,40}", value)):
+            return None
+        return f"must be a commit's hash (7 to 40 hex digits: git rev-parse --short HEAD) or empty, got {shown(value)}"
+
+
+RESPONSE_PLAN = CommitRule()
 FIELD_RULES: dict[str, Rule] = {
     "lanes": LANE_LIST, "loads": LOAD_LIST, "alphas": ALPHA_LIST, "seeds": SEED_LIST, "train_steps": steps,
     "eval_steps": steps, "t_up_s": T_UP_LIST, "mobil_ps": MOBIL_P_LIST, "eval_seeds": seed_count,
     "alpha_draw_max": alpha, "validation_alphas": ALPHA_LIST, "check_alphas": replace(ALPHA_LIST, least=0),
-    "eval_loads": LOAD_LIST, "trajectory_every_steps": integer(0, MAX_STEPS),
+    "eval_loads": LOAD_LIST, "trajectory_every_steps": integer(0, MAX_STEPS), "response_plan": RESPONSE_PLAN,
 }  # fmt: skip
 """the rule of each field of a profile read from a file: its flag's (--lanes, --alphas, --t-up, --mobil-p, --steps,
 --eval-steps, --eval-seeds; seeds: --seeds N's 1 to 1,000 seeds), so that a file takes no value the flag refuses"""

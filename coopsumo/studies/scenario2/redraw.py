@@ -26,6 +26,7 @@ from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_out
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS, TRAIN_COLUMNS
 from coopsumo.studies.scenario2.plan import (
     FULL_ROAD,
+    RESPONSE_PLAN,
     RETIRED_PER_ALPHA,
     Profile,
     cell_specs,
@@ -178,7 +179,10 @@ def _part_profile(folder: Path, meta: Any) -> Profile:
         at.table(fields, "the profile", tuple(hints))
         if missing := [k for k in required if k not in fields]:
             raise at.error(f"has no {missing[0]}")
-        return Profile(**{k: at.value(k, v, hints[k]) for k, v in fields.items()})
+        profile = Profile(**{k: at.value(k, v, hints[k]) for k, v in fields.items()})
+        if problem := RESPONSE_PLAN.problem(profile.response_plan):  # its report calls the reading confirmatory
+            raise at.error(f"response_plan {problem}")
+        return profile
     except ConfigError as err:
         raise UsageError(f"--merge: {err}") from None
 
