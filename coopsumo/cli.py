@@ -25,7 +25,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "protocol": (S + "protocol.study", "judge learners: 10 models each, free flow and accident, vs baselines"),
     "accident-seeds": (S + "followups.accident_seeds", "a learning study's models through the accident, by seed"),
     "history": (S + "protocol.history", "print the learner search's table from the protocol studies' records"),
-    "models": (S + "engine.model_store", "list the model store: every trained model and whether it is usable"),
+    "models": (S + "engine.store_listing", "list the model store: every trained model and whether it is usable"),
     "bench": ("coopsumo.bench.figures", "speed figures (printed, not asserted)"),
 }
 """command -> (module holding its parser and main(argv), one line of what it does)"""

@@ -62,7 +62,7 @@ DRIVES = (("margin", "change_margin", "change margin"), ("noreturn", "no_return_
           ("queue", "queue_below_mps", "no lane change below (m/s)"))
 """the drive settings a dqn policy string takes besides alpha, each as (its key in the string, the DQNConfig field it
 replaces: the key of a study cell's config.drive and of a protocol variant's `drive` table in learners.toml, the
-report's words); the string of a model with its drive settings: studies/engine/drive.dqn_policy. The retired ones:
+report's words); the string of a model with its drive settings: studies/engine/cells.dqn_policy. The retired ones:
 RETIRED_KEYS"""
 OWN = ("py", "sb3")
 """policies from the user's own files: a class of their own (py:MODULE:CLASS), a Stable-Baselines3 model (sb3:PATH)"""

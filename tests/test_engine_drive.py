@@ -1,4 +1,4 @@
-"""studies/engine/drive.py: a model's dqn policy string with its drive settings, and the learning study driving its
+"""studies/engine/cells.py: a model's dqn policy string with its drive settings, and the learning study driving its
 evaluations through it (the drive settings reach the loaded policy). No SUMO run: the training and the run are
 faked, the model file and its policy are real."""
 
@@ -13,7 +13,7 @@ import pytest
 from coopsumo.config import SimConfig, to_dict
 from coopsumo.dqn_config import DQNConfig
 from coopsumo.policy_spec import DRIVES, parse_policy
-from coopsumo.studies.engine.drive import cell_policy, dqn_policy, drive_pooled
+from coopsumo.studies.engine.cells import cell_policy, dqn_policy, drive_pooled
 
 
 def test_the_policy_string_carries_every_drive_setting_and_alpha_exactly() -> None:

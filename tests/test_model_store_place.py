@@ -12,8 +12,9 @@ from pathlib import Path
 import pytest
 
 from coopsumo.config import to_dict
-from coopsumo.studies.engine import cells, model_store
-from coopsumo.studies.engine.model_store import found_stores, model_id, store_for
+from coopsumo.studies.engine import cells, model_store, store_listing
+from coopsumo.studies.engine.model_store import model_id, store_for
+from coopsumo.studies.engine.store_listing import found_stores
 
 MODEL = "default_a0_seed100_0123456789ab"
 """a folder name as model_id makes one"""
@@ -53,13 +54,13 @@ def test_models_without_flags_lists_every_store_found(tmp_path: Path, monkeypatc
     monkeypatch.chdir(tmp_path)
     _store(tmp_path / "work" / "models", MODEL, "default_a8_seed100_0123456789ab")
     _store(tmp_path / "results" / "models", "alpha_only_a0_seed101_0123456789ab")
-    assert model_store.main([]) == 0
+    assert store_listing.main([]) == 0
     out = capsys.readouterr().out
     assert "1 models in results/models, 0 usable" in out and "2 models in work/models, 0 usable" in out
     assert MODEL in out and "no readable config.json" in out  # each folder's state, as in one store
     assert out.index("results/models") < out.index("work/models")
     monkeypatch.setenv(model_store.STORE_ENV, str(tmp_path / "work" / "models"))
-    assert model_store.main([]) == 0
+    assert store_listing.main([]) == 0
     assert "results/models" not in capsys.readouterr().out  # $COOPSUMO_MODELS: the one store the studies use
 
 

@@ -12,14 +12,14 @@ import pytest
 
 from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.dqn_config import DQNConfig
-from coopsumo.studies.engine import model_store
+from coopsumo.studies.engine import model_store, store_listing
 
 
 def test_a_missing_default_store_has_no_models_yet(monkeypatch: pytest.MonkeyPatch, tmp_path: Path,
                                                    capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv(model_store.STORE_ENV, raising=False)
-    assert model_store.main([]) == 0
+    assert store_listing.main([]) == 0
     out = capsys.readouterr().out
     assert out.startswith("no models yet") and "results/models" in out
     assert not (tmp_path / "results").exists()  # listing makes nothing
@@ -28,10 +28,10 @@ def test_a_missing_default_store_has_no_models_yet(monkeypatch: pytest.MonkeyPat
 def test_a_missing_store_from_the_environment_or_an_empty_one_has_no_models_yet(
         monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     monkeypatch.setenv(model_store.STORE_ENV, str(tmp_path / "store"))
-    assert model_store.main([]) == 0
+    assert store_listing.main([]) == 0
     assert capsys.readouterr().out.startswith(f"no models yet in {tmp_path / 'store'}")
     (tmp_path / "store").mkdir()
-    assert model_store.main(["--store", str(tmp_path / "store")]) == 0
+    assert store_listing.main(["--store", str(tmp_path / "store")]) == 0
     assert capsys.readouterr().out.startswith("no models yet")
 
 
@@ -39,7 +39,7 @@ def test_a_missing_store_from_the_environment_or_an_empty_one_has_no_models_yet(
 def test_an_empty_store_is_one_line_and_exit_2(text: str, capsys: pytest.CaptureFixture[str]) -> None:
     """Issue 82 (ms07): `models --store ""` listed the working folder as a store."""
     with pytest.raises(SystemExit) as stop:
-        model_store.main(["--store", text])
+        store_listing.main(["--store", text])
     err = capsys.readouterr().err.strip().splitlines()
     assert stop.value.code == 2 and len(err) == 1 and "--store: is empty" in err[0], err
 
@@ -50,7 +50,7 @@ def test_a_named_store_that_is_no_folder_is_one_line_and_exit_2(
     store = tmp_path / "store"
     if kind == "file":
         store.write_text("x")
-    assert model_store.main(["--store", str(store)]) == 2
+    assert store_listing.main(["--store", str(store)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--store" in err[0] and str(store) in err[0]
 
@@ -64,7 +64,7 @@ def test_a_named_folder_that_is_no_model_store_is_one_line_and_exit_2(
     for name in ("cells", "evals", "train"):
         if kind != "/proc":
             (store / name).mkdir(parents=True)
-    assert model_store.main(["--store", str(store)]) == 2
+    assert store_listing.main(["--store", str(store)]) == 2
     captured = capsys.readouterr()
     err = captured.err.strip().splitlines()
     assert len(err) == 1 and f"--store {store}: not a model store" in err[0] and captured.out == "", err
@@ -117,13 +117,13 @@ def test_a_stored_config_outside_its_schema_is_listed_not_usable(
         folder = store / model_store.model_id(config)
         folder.mkdir(parents=True)
         (folder / "config.json").write_text(json.dumps({"config": config}))
-    assert model_store.main(["--store", str(store)]) == 0
+    assert store_listing.main(["--store", str(store)]) == 0
     assert "not usable" not in capsys.readouterr().out  # both unfinished (no model), neither refused
     first = sorted(store.iterdir())[0]
     record = json.loads((first / "config.json").read_text())
     spoil(record)
     (first / "config.json").write_text(json.dumps(record))
-    assert model_store.main(["--store", str(store)]) == 0
+    assert store_listing.main(["--store", str(store)]) == 0
     out, err = capsys.readouterr()
     assert err == "" and "2 models in" in out
     row = next(line for line in out.splitlines() if line.startswith(first.name))
@@ -235,7 +235,7 @@ def test_a_stored_model_whose_summary_no_run_gives_is_trained_again_and_listed_n
     store = tmp_path / "models"
     folder, _ = _stored_then_spoiled(config, store, "train_summary.json", json.dumps(TRAINED))
     assert trainings.finished_training(folder, config) == TRAINED and capsys.readouterr().err == ""
-    assert model_store.main(["--store", str(store)]) == 0 and "not usable" not in capsys.readouterr().out
+    assert store_listing.main(["--store", str(store)]) == 0 and "not usable" not in capsys.readouterr().out
     edit, fragment = SUMMARIES[case]
     edited = {k: v for k, v in {**TRAINED, **edit}.items() if v is not DROP}
     (folder / "train_summary.json").write_text(json.dumps(edited))
@@ -244,6 +244,6 @@ def test_a_stored_model_whose_summary_no_run_gives_is_trained_again_and_listed_n
     lines = capsys.readouterr().err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"coopsumo: {folder} {fragment}"), lines
     assert lines[0].endswith("; training it again"), lines
-    assert model_store.main(["--store", str(store)]) == 0
+    assert store_listing.main(["--store", str(store)]) == 0
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith(folder.name))
     assert f"not usable: {fragment}" in row, row

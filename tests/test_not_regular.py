@@ -142,13 +142,13 @@ def _store_model(store: Path) -> tuple[Path, dict[str, Any]]:
 def test_a_store_models_config_json_that_is_a_pipe_is_listed_and_trained_again(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """The probe's r_models_cfg_fifo: `coopsumo models` hung; a study's look at the model (finished_training) too."""
-    from coopsumo.studies.engine import model_store
+    from coopsumo.studies.engine import store_listing
     from coopsumo.studies.engine.trainings import finished_training
 
     folder, config = _store_model(tmp_path / "store")
     (folder / "config.json").unlink()
     _entry("pipe", folder / "config.json")
-    assert model_store.main(["--store", str(tmp_path / "store")]) == 0
+    assert store_listing.main(["--store", str(tmp_path / "store")]) == 0
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith(folder.name))
     assert "no readable config.json (not a regular file but a named pipe)" in row, row
     assert finished_training(folder, config) is None

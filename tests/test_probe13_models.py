@@ -11,13 +11,13 @@ from test_models_command import TRAINED, _stored_then_spoiled
 
 from coopsumo.config import SimConfig, TrainConfig, to_dict
 from coopsumo.run_markers import RUN_MARKER
-from coopsumo.studies.engine import model_store
+from coopsumo.studies.engine import store_listing
 
 CONFIG = to_dict(TrainConfig(sim=SimConfig(steps=300, seed=100, policy="dqn"), eval_steps=0))
 
 
 def _listed(store: Path, capsys: pytest.CaptureFixture[str]) -> list[str]:
-    assert model_store.main(["--store", str(store)]) == 0
+    assert store_listing.main(["--store", str(store)]) == 0
     return capsys.readouterr().out.strip().splitlines()
 
 

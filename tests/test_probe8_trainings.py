@@ -136,7 +136,8 @@ def test_a_store_model_holding_what_no_training_writes_at_any_depth_is_left_alon
     word, and trained again (the user's file deleted) once its train_summary.json was gone; a stored model with
     sumo -> . was trained again through the link. Refused in one line naming the folder and the entry, as a user's
     notes.txt beside its config.json is (probe 7, I6)."""
-    from coopsumo.studies.engine.model_store import listing, model_id, stored_model, train_shared
+    from coopsumo.studies.engine.model_store import model_id, stored_model, train_shared
+    from coopsumo.studies.engine.store_listing import listing
 
     monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
     store, config = tmp_path / "models", as_json(TINY)

@@ -23,7 +23,7 @@ def test_an_alpha_conditioned_variant_trains_once_and_drives_at_each_cells_alpha
     driven at its own alpha; the report is written."""
     from dataclasses import replace
 
-    from coopsumo.studies.engine.drive import cell_policy
+    from coopsumo.studies.engine.cells import cell_policy
     from coopsumo.studies.protocol.plan import PROFILES, cell_specs
     from coopsumo.studies.protocol.study import run_study
 
@@ -158,7 +158,7 @@ def test_a_drive_variant_drives_the_same_training_its_own_way(tmp_path: Path) ->
     from dataclasses import replace
 
     from coopsumo.policy_spec import parse_policy
-    from coopsumo.studies.engine.drive import cell_policy
+    from coopsumo.studies.engine.cells import cell_policy
     from coopsumo.studies.protocol.plan import PROFILES, cell_specs
 
     known = driven_catalogue(tmp_path)

@@ -180,7 +180,7 @@ def test_a_stored_model_whose_seed_is_true_is_trained_again(tmp_path: Path,
     line naming the field."""
     from coopsumo.config import SimConfig, TrainConfig, to_dict
     from coopsumo.run_dirs import mark_run_dir
-    from coopsumo.studies.engine import model_store
+    from coopsumo.studies.engine import model_store, store_listing
     from coopsumo.studies.engine.trainings import finished_training
 
     config = to_dict(TrainConfig(sim=SimConfig(steps=300, seed=1, policy="dqn"), eval_steps=0))
@@ -196,7 +196,7 @@ def test_a_stored_model_whose_seed_is_true_is_trained_again(tmp_path: Path,
     assert finished_training(folder, config) is None
     one_line(capsys, f"coopsumo: {folder} holds a model.pt but its config.json field config.sim.seed must be an "
              "integer, got True; training it again")  # fmt: skip
-    assert model_store.listing(tmp_path)[0]["state"] == ("not usable: config.json field config.sim.seed must be an "
+    assert store_listing.listing(tmp_path)[0]["state"] == ("not usable: config.json field config.sim.seed must be an "
                                                         "integer, got True")  # fmt: skip
 
 

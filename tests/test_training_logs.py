@@ -165,7 +165,7 @@ def test_a_stored_model_whose_log_breaks_its_rules_is_trained_again_and_listed_n
         monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """finished_training asks what the studies read of a log: one line naming the file and the field; quiet (the
     listing, the study's first look): none. model.pt's loading is not judged here."""
-    from coopsumo.studies.engine import model_store, trainings
+    from coopsumo.studies.engine import store_listing, trainings
 
     monkeypatch.setattr(trainings, "model_folder_problem", lambda folder: None)
     store = tmp_path / "models"
@@ -177,7 +177,7 @@ def test_a_stored_model_whose_log_breaks_its_rules_is_trained_again_and_listed_n
     assert trainings.finished_training(folder, CONFIG, quiet=True) is None and capsys.readouterr().err == ""
     assert trainings.finished_training(folder, CONFIG) is None
     assert capsys.readouterr().err.startswith(f"coopsumo: {folder / name} {fragment}")
-    assert model_store.main(["--store", str(store)]) == 0
+    assert store_listing.main(["--store", str(store)]) == 0
     row = next(line for line in capsys.readouterr().out.splitlines() if line.startswith(folder.name))
     assert f"not usable: {name} {fragment}"[:100] in row, row
 

@@ -1,15 +1,18 @@
-"""`coopsumo models`: what a model store holds, one row per stored model, whether a study would use it and, when it
+"""`coopsumo models` (the command; the store itself is model_store's): what a model store holds, one row per stored
+model, whether a study would use it and, when it
 would not, why: the file and the field (issue 82, probe 13, F18: "not usable: trained again when a study asks for
 it" named neither), and the store's own problem, which every study refuses it for (model_store.store_problem: a
 user's file in it was listed "4 usable")."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import why_unreadable
 from coopsumo.files import read_json
+from coopsumo.paths import STORE_ENV
 from coopsumo.record_schemas import STORE_CONFIG
 from coopsumo.studies.engine.model_store import foreign_entry, model_id, store_problem
 
@@ -124,3 +127,110 @@ def print_store(store: Path, rows: list[dict[str, Any]]) -> None:
     print(f"{len(rows)} models in {store}, {usable} usable")
 
 
+# -- the command ------------------------------------------------------------------------------------------
+STORE_FOLDER = "models"
+"""the name of a model store's folder (store_for: beside a study's results folder)"""
+SEARCH_DEPTH = 3
+"""`coopsumo models` without --store looks for stores this many folders down from the current one"""
+
+
+def is_store(folder: Path) -> bool:
+    """True when `folder` holds a stored model (a folder named as model_id names one, owners.STORE_NAME)."""
+    from coopsumo.owners import STORE_NAME
+
+    try:
+        return any(STORE_NAME.fullmatch(p.name) and p.is_dir() for p in folder.iterdir())
+    except OSError:
+        return False
+
+
+def found_stores(base: Path, depth: int = SEARCH_DEPTH) -> list[Path]:
+    """Every model store under `base`, relative to it: the folders named `models` at most `depth` folders down that
+    hold a stored model (hidden folders, the virtualenv's and stores' insides not searched), in name order."""
+    found, level = [], [base]
+    for _ in range(depth):
+        below = []
+        for folder in level:
+            try:
+                entries = sorted(p for p in folder.iterdir() if p.is_dir() and not p.is_symlink()
+                                 and not p.name.startswith(".") and p.name not in ("venv", "node_modules"))  # fmt: skip
+            except OSError:
+                continue
+            for entry in entries:
+                if entry.name == STORE_FOLDER and is_store(entry):
+                    found.append(entry.relative_to(base))
+                else:
+                    below.append(entry)
+        level = below
+    return sorted(found)
+
+
+def _store_path(text: str) -> Path:
+    """--store's value: a folder's path, not empty (Path("") is the working folder, which was listed as a store)."""
+    import argparse
+
+    if not text.strip():
+        raise argparse.ArgumentTypeError("is empty: name the store's folder")
+    return Path(text)
+
+
+def build_parser() -> Any:
+    from coopsumo.runio import Parser
+
+    p = Parser(prog="coopsumo models", description="List the model stores: every trained model, by the training "
+               "that made it, and whether a study would use it.")  # fmt: skip
+    p.add_argument("--store", type=_store_path, default=None,
+                   help=f"one store (default: ${STORE_ENV} if set, else results/models and every other store found "
+                        f"up to {SEARCH_DEPTH} folders below the current one: a study's is `models` beside its --out, "
+                        "which it names)")  # fmt: skip
+    return p
+
+
+def _first_folder(folder: Path) -> Path | None:
+    """The first folder in `folder` that `listing` would list as a model (not hidden), or None."""
+    return next(iter(sorted(p for p in folder.iterdir() if p.is_dir() and not p.name.startswith("."))), None)
+
+
+def _stores(given: Path | None) -> list[Path]:
+    """The stores `coopsumo models` lists: --store; else $COOPSUMO_MODELS; else results/models and every store found
+    below the current folder."""
+    from coopsumo.errors import UsageError
+
+    if given is not None:
+        if not given.exists():  # a folder named by hand: a typo is not an empty store
+            raise UsageError(f"--store {given}: no such folder (a study makes it when it trains its first model)")
+        if not given.is_dir():
+            raise UsageError(f"--store {given}: not a folder")
+        if not is_store(given) and (first := _first_folder(given)) is not None:  # /proc, a study's folder (probe 7)
+            raise UsageError(f"--store {given}: not a model store: none of its folders ({first.name}, ...) is a "
+                             "stored model's (named <preset>_a<alpha>_seed<seed>_<digest>)")  # fmt: skip
+        return [given]
+    if os.environ.get(STORE_ENV):
+        return [Path(os.environ[STORE_ENV])]
+    return list(dict.fromkeys([Path("results/models"), *found_stores(Path("."))]))
+
+
+def main(argv: list[str] | None = None) -> int:
+    from coopsumo.errors import UsageError
+    from coopsumo.runio import run_cli
+
+    args = build_parser().parse_args(argv)
+
+    def body() -> int:
+        stores = _stores(args.store)
+        listed = 0
+        for store in stores:
+            if store.exists() and not store.is_dir():
+                raise UsageError(f"--store {store}: not a folder")
+            rows = listing(store) if store.is_dir() else []
+            if rows:
+                if listed:
+                    print()
+                print_store(store, rows)
+                listed += 1
+        if not listed:
+            print(f"no models yet in {stores[0]}: the studies (scenario1, scenario2, learning, protocol) train into "
+                  "`models` beside their --out (or $COOPSUMO_MODELS) and say where")  # fmt: skip
+        return 0
+
+    return run_cli("models", body)

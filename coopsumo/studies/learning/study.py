@@ -32,7 +32,7 @@ from coopsumo.provenance import versions
 from coopsumo.run_markers import LEARNING_KIND
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
-from coopsumo.studies.engine.drive import Cell, CellKind, Run
+from coopsumo.studies.engine.cells import Cell, CellKind, Run
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import (
@@ -66,13 +66,13 @@ new_record, failed_record = RECORDS.new, RECORDS.failed
 
 
 def work(spec: dict[str, Any]) -> Cell:
-    """What the cell of `spec` does (drive.perform runs it): a training cell trains into ROOT/train/<key>/ (the model
+    """What the cell of `spec` does (cells.perform runs it): a training cell trains into ROOT/train/<key>/ (the model
     store's, resuming a matching checkpoint; cells share trainings), then drives the model greedily with the cell's
-    drive settings (its policy string: drive.cell_train) on every evaluation seed into ROOT/evals/<key>/ (beside the
+    drive settings (its policy string: cells.cell_train) on every evaluation seed into ROOT/evals/<key>/ (beside the
     training: the stored model folder holds the training only), the record's summary pooling them and eval_summaries
     keeping each; a baseline cell is one run into ROOT/baselines/<key>/."""
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.engine.drive import cell_train
+    from coopsumo.studies.engine.cells import cell_train
 
     if spec["kind"] != "train":
         return Cell(runs=(Run(sim_config_from_dict(spec["config"]["eval"]), f"baselines/{spec['key']}"),),

@@ -32,7 +32,7 @@ from coopsumo.provenance import versions
 from coopsumo.record_schemas import PROTOCOL_STUDY
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
-from coopsumo.studies.engine.drive import Cell, CellKind, Run
+from coopsumo.studies.engine.cells import Cell, CellKind, Run
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import (
@@ -67,12 +67,12 @@ new_record, failed_record = RECORDS.new, RECORDS.failed
 
 
 def work(spec: dict[str, Any]) -> Cell:
-    """What the cell of `spec` does (drive.perform runs it): a model cell takes (or trains) its model in the model
+    """What the cell of `spec` does (cells.perform runs it): a model cell takes (or trains) its model in the model
     store, ROOT/train/<train_key>/ linking to it, and drives its weights with the variant's drive settings; a baseline
     cell drives its policy; either one run into ROOT/runs/<key>/ (written atomically), through the accident measured
     further (accident_run)."""
     from coopsumo.config import sim_config_from_dict
-    from coopsumo.studies.engine.drive import cell_train
+    from coopsumo.studies.engine.cells import cell_train
 
     ev = sim_config_from_dict(spec["config"]["eval"])
     train = cell_train(spec, f"train/{spec['train_key']}", spec["weights"]) if spec["kind"] == "model" else None

@@ -12,8 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import OutputConfig, RoadConfig, SimConfig, to_dict
-from coopsumo.studies.engine.cells import failed_keys, run_cells
-from coopsumo.studies.engine.drive import Cell, CellKind, Run, Train
+from coopsumo.studies.engine.cells import Cell, CellKind, Run, Train, failed_keys, run_cells
 from coopsumo.studies.engine.records import CellRecords
 from coopsumo.studies.engine.run_folders import simulate_into
 from coopsumo.studies.scenario1.plan import Plan
@@ -25,7 +24,7 @@ failed_record = RECORDS.failed
 
 
 def work(spec: dict[str, Any]) -> Cell:
-    """What the cell of `spec` does (drive.perform runs it): a training ("train") in the model store `store`
+    """What the cell of `spec` does (cells.perform runs it): a training ("train") in the model store `store`
     (an interrupted training continues exactly), ROOT/<out> linking to it, or one policy through the accident ("run")
     into ROOT/<out>, written atomically (a killed run leaves no half folder)."""
     from coopsumo.config import sim_config_from_dict

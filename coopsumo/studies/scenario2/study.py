@@ -49,8 +49,7 @@ from coopsumo.files import read_csv, write_atomic, write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
-from coopsumo.studies.engine.cells import run_todo
-from coopsumo.studies.engine.drive import Cell, CellKind, Run, Train
+from coopsumo.studies.engine.cells import Cell, CellKind, Run, Train, run_todo
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.model_store import check_link, link_problem
 from coopsumo.studies.engine.records import (
@@ -136,7 +135,7 @@ failed_record = RECORDS.failed
 
 # -- one cell (runs in a worker process) ------------------------------------------------------------
 def work(spec: dict[str, Any]) -> Cell:
-    """What the cell of `spec` does (drive.perform runs it; never raises on failure: a record of status "ok", "failed"
+    """What the cell of `spec` does (cells.perform runs it; never raises on failure: a record of status "ok", "failed"
     with the error, or "interrupted" by SIGTERM/SIGINT, a training's checkpoint saved, to be run again).
 
     A DQN cell takes its model from the model store, ROOT/train/<key>/ linking to it (for a lane network's cell
