@@ -262,10 +262,7 @@ def _speed_problem(specs: list[dict[str, Any]], runs: pd.DataFrame, evals: pd.Da
     """Why a part's runs.csv or evals.csv gives a speed no vehicle drives on its cell's road (above the road's
     speed limit and the fastest desired speed), or a full-road speed without the moment it is measured from, as a
     phrase after "<part>'s", or None (issue 82, probe 8, J15: 60 m/s on a 33.34 m/s road, in both tables alike)."""
-    fastest = {}
-    for spec in specs:
-        cfg = spec["config"]["evals"][0] if "evals" in spec["config"] else spec["config"]["run"]
-        fastest[spec["key"]] = fastest_mps(cfg)
+    fastest = {spec["key"]: fastest_mps(_run_configs(spec)[0]) for spec in specs}
     for name, table in (("runs.csv", runs), ("evals.csv", evals)):
         for row in table.to_dict("records"):
             for column in ("mean_speed_mps", FULL_ROAD):
@@ -280,9 +277,16 @@ def _speed_problem(specs: list[dict[str, Any]], runs: pd.DataFrame, evals: pd.Da
 def _made(spec: dict[str, Any]) -> dict[str, Any]:
     """What a cell's runs.csv row holds by its plan: its training folder (a DQN cell's the relative link
     train/<training>, plan.train_folder; a classical run's none) and its steps (its evaluations' together)."""
+    return {"train_dir": train_folder(spec), "steps": sum(int(run["steps"]) for run in _run_configs(spec))}
+
+
+def _run_configs(spec: dict[str, Any]) -> list[dict[str, Any]]:
+    """The SimConfigs a cell drives, by the three shapes plan.cell_specs gives its configuration: a DQN cell's
+    {"evals": [...]}, a classical run's {"run": SimConfig, "trajectory_every_steps": K} or, without trajectories,
+    the SimConfig itself (issue 82, probe 13, F1: a keep or MOBIL cell of the tiny profile was read as the second,
+    a KeyError out of the merge)."""
     config = spec["config"]
-    runs = config["evals"] if "evals" in config else [config.get("run", config)]
-    return {"train_dir": train_folder(spec), "steps": sum(int(run["steps"]) for run in runs)}
+    return list(config["evals"]) if "evals" in config else [config.get("run", config)]
 
 
 def _differs(row: dict[str, Any], cell: dict[str, Any], names: Sequence[str]) -> str | None:
