@@ -883,6 +883,7 @@ def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     monkeypatch.setattr(train_module, "train", fake_train)
     monkeypatch.setattr(engine_groups, "train_groups", lambda *a, **k: 0)  # every training by the fake, alone
     monkeypatch.setattr(s2, "evaluate_model", evaluation)
+    monkeypatch.setattr(s2, "unusable_trainings", lambda *a: set())  # a faked training leaves no model.pt to judge
     inline_cells(monkeypatch, calls)
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     return calls
