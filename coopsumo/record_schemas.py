@@ -328,6 +328,9 @@ PER_VEHICLE = Number(0.0, 1000.0, unit="per vehicle")
 THROUGHPUT = Number(0.0, MAX_LANES * LANE_CAPACITY_VEH_H, unit="veh/h")
 """a road's flow: at most config.MAX_LANES lanes at a lane's capacity"""
 SECONDS = Number(0.0, unit="s")
+MAX_STEPS_PER_SECOND = 1e6
+"""a run's simulation steps per second: a step is at least a microsecond (SUMO's step and the controller's); the
+committed runs make at most about 7,500 (issue 82, probe 13, F6: a part's runs.csv with 1e9 was merged)"""
 MEASURES = {field.name: field for field in (
     *(Field(name, Integer(0)) for name in SUMMARY_COUNTS),
     Field("mean_speed_mps", SPEED),
@@ -340,7 +343,7 @@ MEASURES = {field.name: field for field in (
     Field("full_road_from_s", Number(0.0, unit="s", blank_ok=True)),
     Field("wall_seconds", SECONDS),
     Field("sim_seconds", SECONDS),
-    Field("steps_per_second", Number(0.0, unit="steps/s")),
+    Field("steps_per_second", Number(0.0, MAX_STEPS_PER_SECOND, unit="steps/s")),
     Field("decision_interval_steps", Integer(1)),  # a policy decides at most once a step
     Field("mean_vehicles_on_road", Number(0.0, unit="vehicles")),
     Field("sumo_collisions", Number(0.0, unit="a count, or -1: not checked", also=(-1.0,))),

@@ -169,7 +169,39 @@ def train_summary_problem(summary: dict[str, Any], config: dict[str, Any]) -> st
         return f"has train_summary.json steps = {json.dumps(summary['steps'])[:20]}, not its last world's {last}"
     if isinstance(steps, int) and (isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= steps):
         return f"has train_summary.json selected_step = {json.dumps(step)[:20]}, not a step from 0 to its {steps}"
-    return counts_problem(summary, config)
+    if (problem := counts_problem(summary, config)) is not None:
+        return problem
+    if (found := train_values_problem(summary, config)) is not None:
+        return f"has train_summary.json {found[0]} = {summary[found[0]]:g}, {found[1]}"
+    return None
+
+
+def train_values_problem(values: dict[str, Any], config: dict[str, Any]) -> tuple[str, str] | None:
+    """(the key, why) when one of the values a study copies from the summary of the training `config` (values'
+    mean_speed_mps, lane_changes, updates: any of them; NaN is none) is more than that training can give, or None: a
+    mean speed above its road's speed limit and fastest desired speed (run_checks.fastest_mps), more updates than
+    updates_per_learn per step, more lane changes than the vehicles its road holds at once (one a car length) could
+    make one after another (a change takes control.t_change_s) plus one for each vehicle that can depart (one per
+    lane and step). Issue 82, probe 13, F6: a part's runs.csv with a training speed of 60 m/s on a 33.34 m/s road,
+    1e9 updates or 1e8 lane changes was merged."""
+    from coopsumo.studies.engine.run_checks import fastest_mps
+
+    try:
+        sim, per_round = config["sim"], int(config["dqn"]["updates_per_learn"])
+        road, control, steps = sim["road"], sim["control"], int(sim["steps"])
+        lanes, fastest = int(road["lanes"]), fastest_mps(sim)
+        held = lanes * float(road["length_m"]) / float(control["car_length_m"])
+        changes = held * steps * float(control["dt_s"]) / float(control["t_change_s"]) + steps * lanes
+    except (KeyError, TypeError, ValueError, ZeroDivisionError):
+        return None  # not a training's configuration: the caller compared it with the study's
+    bounds = {"mean_speed_mps": (fastest + 0.01, f"above any vehicle's speed on its road ({fastest:g} m/s)"),
+              "updates": (steps * per_round, f"more than {per_round} per step of its {steps} steps"),
+              "lane_changes": (changes, f"more than the {held:g} vehicles its road holds could make in {steps} steps")}
+    for key, (most, why) in bounds.items():
+        value = values.get(key)
+        if isinstance(value, int | float) and not isinstance(value, bool) and float(value) > most:  # NaN: False
+            return key, why
+    return None
 
 
 WALL_FACTOR = 2.0

@@ -22,6 +22,7 @@ from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_checks import fastest_mps
 from coopsumo.studies.engine.run_folders import profile_study, study_root
+from coopsumo.studies.engine.trainings import train_values_problem
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS, TRAIN_COLUMNS
 from coopsumo.studies.scenario2.plan import (
@@ -146,7 +147,7 @@ def _read_part(folder: Path) -> Part:
         raise UsageError(f"--merge: {folder}'s sweep.json holds a profile no sweep runs ({type(err).__name__}: "
                          f"{err})") from None  # fmt: skip
     if problem := _meta_problem(meta, profile, len(specs)) or _table_problem(meta, profile, specs, runs, evals) \
-            or _speed_problem(specs, runs, evals):  # fmt: skip
+            or _speed_problem(specs, runs, evals) or _train_problem(specs, runs):  # fmt: skip
         raise UsageError(f"--merge: {folder}'s {problem}")
     return Part(folder, meta, profile, runs, evals)
 
@@ -271,6 +272,25 @@ def _speed_problem(specs: list[dict[str, Any]], runs: pd.DataFrame, evals: pd.Da
                             f"road ({fastest[row['key']]:g} m/s)")  # fmt: skip
             if pd.isna(row.get(FULL_ROAD)) != pd.isna(row.get("full_road_from_s")):
                 return f"{name} has {FULL_ROAD} and full_road_from_s of {row['key']} not both given: edited?"
+    return None
+
+
+def _train_problem(specs: list[dict[str, Any]], runs: pd.DataFrame) -> str | None:
+    """Why a successful row of a part's runs.csv holds what no run of its cell gives, as a phrase after "<part>'s",
+    or None: training columns its training cannot give (trainings.train_values_problem: a speed above the road's, more
+    updates or lane changes than its steps allow) or a DQN cell's decision interval not its learner's (issue 82,
+    probe 13, F6: each was merged; a rate of 1e9 steps/s is beyond record_schemas' steps_per_second)."""
+    trains = {s["key"]: s["config"]["train"] for s in specs if "train" in s["config"]}
+    for row in runs.to_dict("records"):
+        if row.get("status") != "ok" or (config := trains.get(row["key"])) is None:
+            continue
+        values = {name: row.get(column) for column, name in TRAIN_COLUMNS.items()}
+        if (found := train_values_problem(values, config)) is not None:
+            column = next(c for c, name in TRAIN_COLUMNS.items() if name == found[0])
+            return f"runs.csv row {row['key']} has {column} = {row[column]:g}, {found[1]}"
+        want, got = config["dqn"]["decision_interval_steps"], row.get("decision_interval_steps")
+        if not _no_number(got) and float(got) != want:
+            return f"runs.csv row {row['key']} has decision_interval_steps = {got:g}, not its learner's {want}"
     return None
 
 
