@@ -102,6 +102,15 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
         lambda f: edit_json(f, lambda m: m.update(failed_cells=[3])), "field failed_cells.0 must be a text, got 3"),
     "sweep.json with versions a list": (
         lambda f: edit_json(f, lambda m: m.update(versions=[])), "field versions must be a mapping"),
+    # issue 82, probe 13, F14: a part's versions, each a text, this coopsumo's
+    "sweep.json made by another coopsumo": (
+        lambda f: edit_json(f, lambda m: m["versions"].update(coopsumo="9.9")),
+        "field versions.coopsumo must be one of"),
+    "sweep.json with a version null": (
+        lambda f: edit_json(f, lambda m: m["versions"].update(torch=None)), "field versions.torch must be a text"),
+    "sweep.json without its source": (
+        lambda f: edit_json(f, lambda m: m["versions"].pop("coopsumo_source")),
+        "has no field versions.coopsumo_source"),
     # issue 82 item 1: every number of runs.csv and evals.csv inside record_schemas.SCENARIO2_RUNS, SCENARIO2_EVALS
     "evals.csv with a loop flow of 4,000 veh/h per lane": (
         lambda f: edit_table(f, "evals.csv", lambda t: t.assign(loop_flow_veh_h_per_lane=4000.0)),
