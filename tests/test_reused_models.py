@@ -60,3 +60,20 @@ def test_a_cell_whose_store_model_was_spoiled_is_rerun_and_its_model_trained_aga
     again = sweep(out).stderr  # the model trained again: every cell reused now
     assert "2 cells, 2 already done" in again and "rerunning" not in again, again
     assert json.loads((model / "train_summary.json").read_text())["steps"] == 200
+
+
+@pytest.mark.sumo
+def test_a_study_copied_with_its_links_links_its_own_store(tmp_path: Path) -> None:
+    """The probe's s2_rawcopy: `cp -a` of a finished study elsewhere kept its train/ links into the original study's
+    store, and the copy reused them silently, depending on a store not its own. Its cells run again, each training's
+    model made (or found) in the copy's own store, with a line naming the link."""
+    out = tmp_path / "a" / "s2"
+    sweep(out)
+    copy = tmp_path / "b" / "s2"
+    shutil.copytree(out, copy, symlinks=True)
+    err = sweep(copy).stderr
+    named = [line for line in err.splitlines() if "outside the study's model store" in line]
+    assert len(named) == 2 and "2 to run" in err, err  # one line per cell (scenario2's repointed)
+    assert all(str(copy / "train" / "L2_a0_s1") in line and line.endswith("rerunning it") for line in named), named
+    assert (copy / "train" / "L2_a0_s1").resolve().parent == tmp_path / "b" / "models"
+    assert (out / "train" / "L2_a0_s1").resolve().parent == tmp_path / "a" / "models"  # the original untouched
