@@ -331,6 +331,9 @@ PER_VEHICLE = Number(0.0, 1000.0, unit="per vehicle")
 THROUGHPUT = Number(0.0, MAX_LANES * LANE_CAPACITY_VEH_H, unit="veh/h")
 """a road's flow: at most config.MAX_LANES lanes at a lane's capacity"""
 SECONDS = Number(0.0, unit="s")
+MAX_STEPS_PER_SECOND = 1e6
+"""a run's simulation steps per second: a step is at least a microsecond (SUMO's step and the controller's); the
+committed runs make at most about 7,500 (issue 82, probe 13, F6: a part's runs.csv with 1e9 was merged)"""
 MEASURES = {field.name: field for field in (
     *(Field(name, Integer(0)) for name in SUMMARY_COUNTS),
     Field("mean_speed_mps", SPEED),
@@ -343,7 +346,7 @@ MEASURES = {field.name: field for field in (
     Field("full_road_from_s", Number(0.0, unit="s", blank_ok=True)),
     Field("wall_seconds", SECONDS),
     Field("sim_seconds", SECONDS),
-    Field("steps_per_second", Number(0.0, unit="steps/s")),
+    Field("steps_per_second", Number(0.0, MAX_STEPS_PER_SECOND, unit="steps/s")),
     Field("decision_interval_steps", Integer(1)),  # a policy decides at most once a step
     Field("mean_vehicles_on_road", Number(0.0, unit="vehicles")),
     Field("sumo_collisions", Number(0.0, unit="a count, or -1: not checked", also=(-1.0,))),
@@ -372,6 +375,9 @@ values the studies copy into their tables (scenario II's and the learning study'
 last world sent and that world's steps; a summary without one of them, or with a text or null there, is not a
 training's (records.training_problem)"""
 
+CELL_SECONDS_MAX = 7 * 86_400.0
+"""a cell's wall or CPU time (s), its training group's share too: at most a week (the longest cells, a full
+training's, take hours; issue 82, probe 13, F10: 1e300 s was reused and summed into sweep.json and report.md)"""
 CELL_STATUSES = ("ok", "failed", "interrupted")
 """a cell record's status (records.run_recorded): the runner writes no other"""
 SEED = Integer(0, 2**32 - 1, blank_ok=True)
@@ -387,8 +393,8 @@ CELL_RECORD = Schema((
     Field("config", MAPPING),
     Field("error", Text(blank_ok=True), optional=True),
     Field("traceback", Text(blank_ok=True), optional=True),
-    Field("cell_wall_s", Number(0.0, unit="s", blank_ok=True), optional=True),  # a cell that could not run: none
-    Field("cell_cpu_s", Number(0.0, unit="s", blank_ok=True), optional=True),
+    Field("cell_wall_s", Number(0.0, CELL_SECONDS_MAX, unit="s", blank_ok=True), optional=True),  # not run: none
+    Field("cell_cpu_s", Number(0.0, CELL_SECONDS_MAX, unit="s", blank_ok=True), optional=True),
     Field("versions", MAPPING, optional=True),
     Field("train_summary", MAPPING_OR_NULL, optional=True),
     # the coordinates the studies' cells share, where a study's cells have them
@@ -402,7 +408,7 @@ CELL_RECORD = Schema((
     Field("model_sha256", Text(), optional=True),
     Field("load", Number(0.0, 100.0, blank_ok=True), optional=True),  # scenario II: inflow per lane / 1,800 veh/h
     Field("resumed_from_step", Integer(0, blank_ok=True), optional=True),  # scenario II: none when trained now
-    Field("train_group_cpu_s", Number(0.0, 7 * 86_400.0, unit="s", blank_ok=True), optional=True),
+    Field("train_group_cpu_s", Number(0.0, CELL_SECONDS_MAX, unit="s", blank_ok=True), optional=True),
 ))  # fmt: skip
 """a study's cell record (records.CellRecords, records.blank_record and run_recorded; every study's cells/<key>.json)
 as records.reusable_keys reads it back to decide whether the cell is done: its envelope and the coordinates the

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 
 from coopsumo.config import MAX_LANES, MIN_LANES
+from coopsumo.provenance import package_version
 from coopsumo.record_schemas import (
     CELL_RECORD,
     CELL_STATUSES,
@@ -231,12 +232,16 @@ SWEEP = Schema((
     Field("failed_cells.*", Text()),
     Field("backend", Text()),
     Field("versions", MAPPING),
+    Field("versions.*", Text()),  # provenance.versions: each a text ("not installed", "unknown" too)
+    Field("versions.coopsumo", Text((package_version("coopsumo"),))),  # a sweep this coopsumo wrote, and can merge
+    Field("versions.coopsumo_source", Text()),
     Field("criterion", Text()),  # its profile's (redraw._meta_problem)
     Field("nominal_capacity_veh_h_per_lane", Number(0.0, LANE_CAPACITY_VEH_H, low_open=True, unit="veh/h per lane")),
 ))  # fmt: skip
-"""a finished scenario II sweep's sweep.json (scenario2.study.run_sweep's meta), as a merge reads a part's; what must
-agree with its profile (its learner per lane count, its conditions, its cell count, its criterion) and with itself
-(cells_ok and cells_failed adding up to cells) is redraw._meta_problem's"""
+"""a finished scenario II sweep's sweep.json (scenario2.study.run_sweep's meta), as a merge reads a part's (its
+versions those of this coopsumo, each a text: issue 82, probe 13, F14, coopsumo "9.9" and torch null were merged and
+reported as "(source ?)"); what must agree with its profile (its learner per lane count, its conditions, its cell
+count, its criterion) and with itself (cells_ok and cells_failed adding up to cells) is redraw._meta_problem's"""
 
 _OPTIONAL_SHARE = dataclasses.replace(SHARE, blank_ok=True)
 PROTOCOL_RUNS = Table(

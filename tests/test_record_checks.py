@@ -98,7 +98,7 @@ RECORD_CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
     # issue 82 (2026-12-02): values outside runs.csv's limits (record_schemas.MEASURES) were reused into runs.csv,
     # or stopped the study at runs.csv on every rerun
     "-5 steps a second": (_both("steps_per_second", -5.0),
-                          "has summary steps_per_second must be a finite number >= 0 (steps/s), got -5.0"),
+                          "has summary steps_per_second must be a finite number >= 0 and <= 1e+06 (steps/s), got -5.0"),
     "a decision every 0 steps": (_both("decision_interval_steps", 0.0),
                                  "has summary decision_interval_steps must be an integer >= 1, got 0"),
     "-3 vehicles on the road": (_both("mean_vehicles_on_road", -3.0),

@@ -76,6 +76,14 @@ def _attribute(xml: str, name: str, value: str) -> str:
     return re.sub(rf' {name}="[^"]*"', f' {name}="{value}"', xml, count=1)
 
 
+def _interval(xml: str, count: int, **values: str) -> str:
+    """The first loop interval counting `count` vehicles in its 10 s (its flow so), its other attributes `values`."""
+    xml = _interval_flow(xml, count, f"{count * 360:.2f}")
+    for name, value in values.items():
+        xml = _attribute(xml, name, value)
+    return xml
+
+
 def _drop_last_intervals(xml: str) -> str:
     """detectors.xml of a run 10 s shorter: its last period's intervals gone."""
     return "\n".join(line for line in xml.splitlines() if 'end="40.00"' not in line) + "\n"
@@ -186,6 +194,17 @@ CASES: dict[str, tuple[Callable[[Path], None], str]] = {
     "a loop's interval twice": (text("detectors.xml", _one_interval_twice), "interval from 0 s twice"),
     "a loop on lane 7 of 3": (text("detectors.xml", lambda x: re.sub(r'id="e1_x(\d+)_l\d+"', r'id="e1_x\1_l7"', x,
                                                                      count=1)), "on a lane the road's 3 lanes"),
+    # probe 13 (issue 82, F8): an interval's fields against each other and the road
+    "a loop speed beside no vehicle": (text("detectors.xml", lambda x: _interval(x, 0, speed="30.00")),
+                                       "speed 30 beside 0 vehicles counted"),
+    "no loop speed beside 3 vehicles": (text("detectors.xml", lambda x: _interval(x, 3, speed="-1.00")),
+                                        "speed -1 beside 3 vehicles counted"),
+    "a loop speed of 65 m/s on a 33.34 m/s road": (
+        text("detectors.xml", lambda x: _interval(x, 3, speed="65.00", harmonicMeanSpeed="20.00")),
+        "speed 65 m/s, above any vehicle's speed on its road (33.34 m/s)"),
+    "90 % occupancy with no vehicle": (
+        text("detectors.xml", lambda x: _interval(x, 0, speed="-1.00", harmonicMeanSpeed="-1.00", occupancy="90.00",
+                                                  nVehEntered="0")), "occupancy 90 % though no vehicle entered"),
 }  # fmt: skip
 
 
@@ -195,7 +214,7 @@ def test_a_count_at_a_lanes_capacity_is_trusted(made: Path, tmp_path: Path) -> N
 
     out = tmp_path / "run"
     shutil.copytree(made, out)
-    text("detectors.xml", lambda x: _interval_flow(x, 8, "2880.00"))(out)
+    text("detectors.xml", lambda x: _interval(x, 8, speed="20.00", harmonicMeanSpeed="20.00"))(out)
     assert detectors_problem(out / "detectors.xml", to_dict(CFG), 40.0) is None
 
 

@@ -186,6 +186,27 @@ OUTSIDE = {"key": "", "kind": 3, "status": "done", "config": "x", "error": 5, "t
 """a value outside each field's type or limits"""
 
 
+BEYOND = {"a wall time of 1e300 s": ({"cell_wall_s": 1e300}, "field cell_wall_s must be"),
+          "a CPU time of 1e300 s": ({"cell_cpu_s": 1e300}, "field cell_cpu_s must be"),
+          "an error beside ok": ({"error": "boom"}, 'has status ok beside error "boom"'),
+          "a traceback beside ok": ({"traceback": "Traceback ..."}, 'has status ok beside traceback "Traceback')}
+"""issue 82, probe 13, F10: each was reused; sweep.json summed the wall time into 1e300 s and runs.csv copied the
+error into an ok row"""
+
+
+@pytest.mark.parametrize("case", sorted(BEYOND))
+def test_a_record_no_run_writes_is_rerun_with_one_line(case: str, tmp_path: Path,
+                                                        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    (tmp_path / "cells").mkdir()
+    path = cell_records.cell_path(tmp_path, "c1")
+    edit, words = BEYOND[case]
+    path.write_text(json.dumps({**FULL, **edit}))
+    assert cell_records.reusable_keys(tmp_path, specs_of([1]), "study", ("v", "n")) == set()
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"study: cell c1: record {path} {words}"), err
+    assert cell_records.checked_record({**FULL, **edit}, ("v", "n"))["status"] == "failed"
+
+
 def test_the_cases_cover_every_field_of_a_cell_record() -> None:
     from coopsumo.record_schemas import CELL_RECORD
 

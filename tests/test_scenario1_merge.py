@@ -93,6 +93,11 @@ def _rows(change: Callable[[pd.DataFrame], pd.DataFrame]) -> Callable[[Path], An
     return edit
 
 
+def _first(column: str, value: float) -> Callable[[Path], Any]:
+    """The part's first row's `column` set to `value`, inside the column's limits but beyond what its run gives."""
+    return _rows(lambda r: r.assign(**{column: [value, *r[column][1:]]}))
+
+
 def _baseline_edited(folder: Path) -> None:
     runs = pd.read_csv(folder / "runs.csv")
     runs.loc[runs["policy"] == "keep", "tts_veh_h"] += 0.001
@@ -157,11 +162,18 @@ def test_parts_whose_learner_was_edited_alike_are_refused(parts: list[Path], tmp
     (_plan(lambda r: r["plan"].update(steps=-1)), "plan.steps must be a finite number >= 0, got -1"),
     (_plan(lambda r: r["learners"]["alpha_only"].update(lr=float("nan"))), "learner alpha_only: lr"),
     (lambda f: (f / "plan.json").write_text("[]"), "holds no scenario I plan.json"),
+    (_first("mean_speed_mps", 60.0), "row 1 has mean_speed_mps = 60, above any vehicle's speed on its road"),
+    (_first("lane_changes_per_vehicle", 600.0), "row 1 has lane_changes_per_vehicle = 600, more than one vehicle can"),
+    (_first("waiting_at_end_veh", 100_000), "row 1 has waiting_at_end_veh = 100000, more than its demand sends"),
+    (_first("horizon_after_start_s", 99_999.0), "row 1 has horizon_after_start_s = 99999, not its plan's 1800 s"),
+    (_first("waves", 1_000_000), "row 1 has waves = 1e+06, more than the"),
 ], ids=["a seed twice", "another plan", "another learner", "a baseline edited", "a fitted baseline beyond the "
         "tolerance", "an exact column off in its last digits", "a run missing", "a run twice",
         "a model not in its plan", "unfinished", "a queue longer than the road (probe 8, J7)",
         "a delay above the total time spent (J7)", "5e5 veh-h in a short run (J7)", "seeds a string", "a demand null",
-        "a seed not whole", "steps negative", "a learner's lr NaN", "no plan"])
+        "a seed not whole", "steps negative", "a learner's lr NaN", "no plan", "60 m/s (probe 13, F7)",
+        "600 lane changes a vehicle in 2000 s (F7)", "1e5 vehicles waiting (F7)", "a horizon beyond the run (F7)",
+        "1e6 waves (F7)"])
 def test_a_part_that_does_not_belong_is_refused_in_one_line(edit: Callable[[Path], Any], words: str,
                                                             parts: list[Path], tmp_path: Path,
                                                             capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip

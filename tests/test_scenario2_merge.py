@@ -72,6 +72,11 @@ def speed(table: pd.DataFrame, mps: float) -> pd.DataFrame:
     return table.assign(mean_speed_mps=table["mean_speed_mps"].mask(models_at_32(table), mps))
 
 
+def at_32(table: pd.DataFrame, column: str, value: float) -> pd.DataFrame:
+    """The alpha-32 models' `column` set to `value`, the other rows as they are."""
+    return table.assign(**{column: table[column].mask(models_at_32(table), value)})
+
+
 def another_learner(folder: Path) -> None:
     """The probe's mg21: a part recorded with another learner (lr 0.01, preset alpha_only)."""
     edit_json(folder, lambda m: m["learner"]["4_lanes"].update(lr=0.01, preset="alpha_only"))
@@ -97,6 +102,15 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
         lambda f: edit_json(f, lambda m: m.update(failed_cells=[3])), "field failed_cells.0 must be a text, got 3"),
     "sweep.json with versions a list": (
         lambda f: edit_json(f, lambda m: m.update(versions=[])), "field versions must be a mapping"),
+    # issue 82, probe 13, F14: a part's versions, each a text, this coopsumo's
+    "sweep.json made by another coopsumo": (
+        lambda f: edit_json(f, lambda m: m["versions"].update(coopsumo="9.9")),
+        "field versions.coopsumo must be one of"),
+    "sweep.json with a version null": (
+        lambda f: edit_json(f, lambda m: m["versions"].update(torch=None)), "field versions.torch must be a text"),
+    "sweep.json without its source": (
+        lambda f: edit_json(f, lambda m: m["versions"].pop("coopsumo_source")),
+        "has no field versions.coopsumo_source"),
     # issue 82 item 1: every number of runs.csv and evals.csv inside record_schemas.SCENARIO2_RUNS, SCENARIO2_EVALS
     "evals.csv with a loop flow of 4,000 veh/h per lane": (
         lambda f: edit_table(f, "evals.csv", lambda t: t.assign(loop_flow_veh_h_per_lane=4000.0)),
@@ -195,7 +209,7 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     # sweep.json's criterion its profile's and its counts adding up
     "runs.csv with -5 steps a second": (
         lambda f: edit_table(f, "runs.csv", lambda t: t.assign(steps_per_second=-5.0)),
-        "runs.csv row 1 column steps_per_second must be a finite number >= 0 (steps/s), got -5.0"),
+        "runs.csv row 1 column steps_per_second must be a finite number >= 0 and <= 1e+06 (steps/s), got -5.0"),
     "runs.csv with a decision every 0 steps": (
         lambda f: edit_table(f, "runs.csv", lambda t: t.assign(decision_interval_steps=0.0)),
         "runs.csv row 1 column decision_interval_steps must be an integer >= 1"),
@@ -227,6 +241,23 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     "a full-road speed without its start": (
         lambda f: edit_table(f, "evals.csv", lambda t: t.assign(full_road_from_s=[None, *t["full_road_from_s"][1:]])),
         "evals.csv has full_road_speed_mps and full_road_from_s of"),
+    # issue 82, probe 13, F6: a training's columns, the learner's decision interval and the rate, each within the
+    # columns' own limits but beyond what the cell's training or run gives
+    "a training speed of 60 m/s": (
+        lambda f: edit_table(f, "runs.csv", lambda t: at_32(t, "train_mean_speed_mps", 60.0)),
+        "has train_mean_speed_mps = 60, above any vehicle's speed on its road (33.34 m/s)"),
+    "1e9 training updates": (
+        lambda f: edit_table(f, "runs.csv", lambda t: at_32(t, "train_updates", 999999999)),
+        "has train_updates = 1e+09, more than"),
+    "1e8 training lane changes": (
+        lambda f: edit_table(f, "runs.csv", lambda t: at_32(t, "train_lane_changes", 99999999)),
+        "has train_lane_changes = 1e+08, more than the"),
+    "a decision interval not the learner's": (
+        lambda f: edit_table(f, "runs.csv", lambda t: at_32(t, "decision_interval_steps", 5)),
+        "has decision_interval_steps = 5, not its learner's"),
+    "1e9 steps a second": (
+        lambda f: edit_table(f, "runs.csv", lambda t: at_32(t, "steps_per_second", 1e9)),
+        "column steps_per_second must be a finite number >= 0 and <= 1e+06"),
 }  # fmt: skip
 """each case: how the part L4b is edited, and what the refusal says"""
 

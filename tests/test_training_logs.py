@@ -205,34 +205,38 @@ def test_a_reused_cells_training_whose_log_breaks_its_rules_is_run_again(
 
 
 def test_a_reused_cells_training_link_repointed_at_another_model_is_run_again(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     """Probe 6, H4: a study's train/<training> link pointed at another training's store folder (or at a file) was
     followed, every cell reused, and the learning study's figures and the protocol study's diagnosis drew the other
     training's logs. As scenario II does (model_store.link_problem), model_store.repointed_trainings, asked before
     trainings.spoiled_logs: the training's cells are run again, which links its model back, with one line naming the
-    link; a link to its own model, a baseline cell and a training without a link yet are left alone."""
+    link; a link to its own model, a baseline cell and a training without a link yet are left alone. The store is
+    the study's own, beside it (model_store.store_for: a link into another store is a copied study's, probe 13)."""
+    from coopsumo.paths import STORE_ENV
     from coopsumo.studies.engine.model_store import model_id, repointed_trainings
 
+    monkeypatch.delenv(STORE_ENV, raising=False)
     other = to_dict(TrainConfig(sim=SimConfig(steps=300, seed=101, policy="dqn"), eval_steps=0))
-    store, link = tmp_path / "store", tmp_path / "train" / "t0"
+    root = tmp_path / "study"
+    store, link = tmp_path / "models", root / "train" / "t0"
     for config in (CONFIG, other):
         (store / model_id(config)).mkdir(parents=True)
         (store / model_id(config) / "config.json").write_text(json.dumps({"config": config}))
         _write(store / model_id(config) / "train_log.csv", train_log())
     (tmp_path / "zero").write_bytes(b"")
-    link.parent.mkdir()
+    link.parent.mkdir(parents=True)
     specs = [{"key": "c1", "train_key": "t0", "config": {"train": CONFIG}},
              {"key": "c2", "train_key": "t0", "config": {"train": CONFIG}},
              {"key": "c3", "train_key": "t1", "config": {"train": CONFIG}},
              {"key": "b1", "train_key": None, "config": {"eval": {}}}]  # fmt: skip
     link.symlink_to(store / model_id(CONFIG), target_is_directory=True)
-    assert repointed_trainings(tmp_path, specs, "protocol") == set() and capsys.readouterr().err == ""
+    assert repointed_trainings(root, specs, "protocol") == set() and capsys.readouterr().err == ""
     for target, why in ((store / model_id(other), f"not to {model_id(CONFIG)}, the model of its training (pointed "
                                                    "at another model?)"),
                         (tmp_path / "zero", "which is not a folder (the stored model moved or removed?)")):  # fmt: skip
         link.unlink()
         link.symlink_to(target)
-        assert repointed_trainings(tmp_path, specs, "protocol") == {"c1", "c2"}
+        assert repointed_trainings(root, specs, "protocol") == {"c1", "c2"}
         assert capsys.readouterr().err == (f"protocol: {link} leads to {target}, {why}; rerunning the 2 cells of its "
                                            "training (c1, c2), which link its model back\n")  # fmt: skip
 

@@ -82,12 +82,13 @@ def run_cells(specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn, fail
 def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> list[dict[str, Any]]:
     """The cells of `specs` the study root `root` has still to run, in their order: every cell but those whose record
     is reusable (records.reusable_keys, with the summary fields `required`), whose training's link still leads to its
-    model (model_store.repointed_trainings), whose copy of its training's summary is its training's file
+    model (model_store.repointed_trainings) and that model is one a training would reuse
+    (trainings.unusable_trainings), whose copy of its training's summary is its training's file
     (records.copied_wrong) and whose training's logs read back (spoiled_logs: the studies that draw them, learning
     and protocol); ROOT/cells is made first (UsageError naming `root` when it cannot be)."""
     from coopsumo.errors import UsageError
     from coopsumo.studies.engine.model_store import repointed_trainings
-    from coopsumo.studies.engine.trainings import spoiled_logs
+    from coopsumo.studies.engine.trainings import spoiled_logs, unusable_trainings
 
     try:
         (root / "cells").mkdir(parents=True, exist_ok=True)
@@ -95,6 +96,7 @@ def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required:
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     done = reusable_keys(root, specs, prog, required)
     done -= repointed_trainings(root, [s for s in specs if s["key"] in done], prog)  # linked elsewhere
+    done -= unusable_trainings(root, [s for s in specs if s["key"] in done], prog)  # its model deleted, swapped
     done -= copied_wrong(root, [s for s in specs if s["key"] in done], prog)  # not its training's summary (J10)
     done -= spoiled_logs(root, [s for s in specs if s["key"] in done], prog)  # its figures and diagnosis draw them
     return [s for s in specs if s["key"] not in done]

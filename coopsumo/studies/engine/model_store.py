@@ -265,10 +265,11 @@ def check_link(link: Path) -> None:
 def link_problem(link: Path, config: dict[str, Any]) -> str | None:
     """Why the study's model link `link` (train/<key>, models/<name>) does not lead to the model of the training
     `config`, or None: it leads to no folder, to a folder not named for this training (model_id: another model, a
-    training folder of the user's) or to one whose config.json records another training (identity; a config.json
-    that is missing or unreadable is finished_training's to judge when the model is used). A study reusing a result
-    of that model runs it again, which makes the link lead to its model once more (_link). Not a link: None (a real
-    folder there is check_link's)."""
+    training folder of the user's), to one outside the study's store (store_for: a study folder copied with its links
+    into the other study's store, which the copy would then depend on) or to one whose config.json records another
+    training (identity; a config.json that is missing or unreadable is finished_training's to judge when the model is
+    used). A study reusing a result of that model runs it again, which makes the link lead to its model once more
+    (_link). Not a link: None (a real folder there is check_link's)."""
     if not link.is_symlink():
         return None
     target = link.resolve()
@@ -276,6 +277,8 @@ def link_problem(link: Path, config: dict[str, Any]) -> str | None:
         return f"leads to {target}, which is not a folder (the stored model moved or removed?)"
     if target.name != (name := model_id(config)):
         return f"leads to {target}, not to {name}, the model of its training (pointed at another model?)"
+    if target.parent != (store := store_for(link.parent.parent).resolve()):  # issue 82, probe 13, F9 (s2_rawcopy)
+        return f"leads to {target}, outside the study's model store {store} (a study copied with its links?)"
     try:
         recorded = read_json(target / "config.json")["config"]
     except (OSError, ValueError, KeyError, TypeError):

@@ -272,11 +272,15 @@ def pooled_problem(record: dict[str, Any]) -> str | None:
 def cell_problem(record: Any, required: Sequence[str]) -> str | None:
     """Why a stored cell record cannot be trusted, or None: one of status ok whose summary record_problem accepts,
     inside record_schemas.CELL_RECORD (its envelope: key, times, configuration, the coordinates the studies share),
+    with no error or traceback beside its ok,
     and a training's summary kept beside it whole and plausible (training_problem), one there whenever the cell
     trains (its configuration has a `train`): a record just run is judged so too (checked_record), so that no value
     a study's table refuses, or leaves blank, is counted as ok."""
     if problem := record_problem(record, required) or CELL_RECORD.problem(record):
         return problem
+    for key in ("error", "traceback"):  # run_recorded writes none beside ok (issue 82, probe 13, F10: "boom")
+        if record.get(key) not in (None, ""):
+            return f"has status ok beside {key} {json.dumps(record[key])[:40]}"
     train = record.get("train_summary")  # what a study copies of its training (scenario II's runs.csv)
     if train is None:
         trains = isinstance(record.get("config"), dict) and "train" in record["config"]

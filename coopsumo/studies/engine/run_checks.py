@@ -118,7 +118,7 @@ def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> st
     dt, period = float(cfg["control"]["dt_s"]), float(cfg["road"]["loop_period_s"])
     last_end, seen, lanes = -math.inf, set(), int(cfg["road"]["lanes"])
     for match in _INTERVAL.finditer(text):
-        if (problem := _interval_problem(match, sim_seconds, dt, period)) is not None:
+        if (problem := _interval_problem(match, sim_seconds, dt, period, fastest_mps(cfg))) is not None:
             return f"has detectors.xml with {problem}"
         attrs = dict(_ATTRIBUTE.findall(match.group(1)))
         loop, begin = attrs[b"id"].decode(), float(attrs[b"begin"])
@@ -147,8 +147,10 @@ def _unreadable_detectors(path: Path) -> str | None:
     return None
 
 
-def _interval_problem(match: re.Match[bytes], sim_seconds: float, dt: float, period: float) -> str | None:
-    """Why one <interval> of detectors.xml cannot be trusted (words after "has detectors.xml with"), or None."""
+def _interval_problem(match: re.Match[bytes], sim_seconds: float, dt: float, period: float,
+                      fastest: float) -> str | None:  # fmt: skip
+    """Why one <interval> of detectors.xml cannot be trusted (words after "has detectors.xml with"), or None; its
+    fields against each other and the road: _contradiction."""
     pairs = _ATTRIBUTE.findall(match.group(1))
     attrs = {k.decode(errors="replace"): v.decode(errors="replace") for k, v in pairs}
     shown = match.group(0).decode(errors="replace")[:120]
@@ -175,6 +177,30 @@ def _interval_problem(match: re.Match[bytes], sim_seconds: float, dt: float, per
     expected = count * 3600 / (end - begin)
     if abs(flow - expected) > 0.011:
         return f"flow {flow:g} veh/h from {count:g} vehicles in {end - begin:g} s (that is {expected:.2f} veh/h)"
+    if problem := _contradiction(numbers, fastest):
+        return f"an interval {attrs['begin']}-{attrs['end']} s of {attrs['id'][:40]}: {problem}"
+    return None
+
+
+def _contradiction(numbers: dict[str, float], fastest: float) -> str | None:
+    """Why an interval's fields contradict each other or the road, or None. SUMO's E1 loop averages its speeds over
+    the vehicles it counted (nVehContrib, those that left it), writing -1 exactly when it counted none; no vehicle
+    drives faster than the road's speed limit and the fastest desired speed (fastest, m/s); a loop that no vehicle
+    entered or left in the interval was either empty throughout or held one vehicle throughout, so its occupancy is
+    0 or 100 % (issue 82, probe 13, F8: a speed beside no vehicle, -1 beside 3 vehicles, 65 m/s on a 33.34 m/s road,
+    90 % occupancy with no vehicle were reused and drawn into fig5)."""
+    count = numbers["nVehContrib"]
+    for key in ("speed", "harmonicMeanSpeed"):
+        if key not in numbers:
+            continue
+        if (count == 0) != (numbers[key] == -1.0):
+            return f"{key} {numbers[key]:g} beside {count:g} vehicles counted (SUMO writes -1 exactly when none)"
+        if numbers[key] > fastest + 0.01:
+            return f"{key} {numbers[key]:g} m/s, above any vehicle's speed on its road ({fastest:g} m/s)"
+    occupancy = numbers["occupancy"]
+    if count == 0 and numbers.get("nVehEntered") == 0 and 0.01 < occupancy < 99.99:
+        return (f"occupancy {occupancy:g} % though no vehicle entered or left the loop (0 %, or 100 % for one on it "
+                "throughout)")  # fmt: skip
     return None
 
 

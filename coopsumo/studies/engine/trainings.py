@@ -8,7 +8,7 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from coopsumo.config import first_difference, results_view
 from coopsumo.errors import why_unreadable
@@ -16,47 +16,80 @@ from coopsumo.files import read_json
 from coopsumo.record_schemas import STORE_CONFIG
 
 
+class Fault(NamedTuple):
+    """Why a training folder holds no model a study may use (training_fault): the path it names, why (a phrase
+    after it), and whether finished_training says so (a folder with no model.pt, or another training's, is silent:
+    it is simply trained)."""
+
+    what: Path
+    why: str
+    said: bool
+
+
 def finished_training(out: Path, config: dict[str, Any], quiet: bool = False) -> dict[str, Any] | None:
     """The training summary of a training without evaluation that finished in out with exactly this config
     (its run marker lists its files, its config.json holds config, model.pt and train_summary.json exist);
     None otherwise (with one line on stderr, unless quiet, when the model itself is the problem or when a folder holding
-    a model.pt lost or spoiled its marker, config.json or train_summary.json). A cell killed after its training but
-    before its record was written reuses it."""
+    a model.pt lost or spoiled its marker, config.json or train_summary.json: training_fault). A cell killed after its
+    training but before its record was written reuses it."""
+    found = training_fault(out, config)
+    if isinstance(found, Fault):
+        if not quiet and found.said:
+            print(f"coopsumo: {found.what} {found.why}; training it again", file=sys.stderr)
+        return None
+    return found
+
+
+def training_fault(out: Path, config: dict[str, Any]) -> dict[str, Any] | Fault:
+    """finished_training's judgement of the folder `out` for the training `config`: its train_summary.json, or the
+    Fault that keeps its model from being used. Shared with the studies that reuse a cell of that model
+    (unusable_trainings), so that a cell is reused only beside the model a training would reuse (issue 82, probe 13,
+    F9: a model deleted, swapped or damaged in the store left every cell of a finished study reused)."""
     from coopsumo.run_dirs import RUN_MARKER, listed_files
 
     read: dict[str, Any] = {}
     for name in (RUN_MARKER, "config.json", "train_summary.json"):
         try:
             read[name] = read_json(out / name)
-        except (OSError, ValueError) as err:
-            if not quiet and (out / "model.pt").is_file():  # a finished training's folder that lost or spoiled it
-                print(f"coopsumo: {out} holds a model.pt but its {name} is missing or unreadable "
-                      f"({why_unreadable(err)}); training it again", file=sys.stderr)  # fmt: skip
-            return None
+        except (OSError, ValueError) as err:  # said for a finished training's folder that lost or spoiled it
+            return Fault(out, f"holds a model.pt but its {name} is missing or unreadable ({why_unreadable(err)})"
+                         if (out / "model.pt").is_file() else f"has no readable {name} ({why_unreadable(err)})",
+                         (out / "model.pt").is_file())  # fmt: skip
     if (problem := STORE_CONFIG.problem(read["config.json"])) is not None:  # as `coopsumo models` judges it
-        if not quiet and (out / "model.pt").is_file():  # a seed of true is none, though true == 1
-            print(f"coopsumo: {out} holds a model.pt but its config.json {problem}; training it again",
-                  file=sys.stderr)  # fmt: skip
-        return None
+        return Fault(out, f"holds a model.pt but its config.json {problem}", (out / "model.pt").is_file())
     marker, stored, summary = read[RUN_MARKER], read["config.json"]["config"], read["train_summary.json"]
     listed = listed_files(marker) if isinstance(marker, dict) and marker.get("kind") == "train" else None
-    if not (listed is not None and "model.pt" in listed and (out / "model.pt").is_file() and isinstance(summary, dict)):
-        return None
+    if not (listed is not None and "model.pt" in listed and (out / "model.pt").is_file()):
+        return Fault(out, "holds no finished training's model.pt (missing, or not listed by its run marker)", False)
+    if not isinstance(summary, dict):
+        return Fault(out, f"holds a model.pt but its train_summary.json is {type(summary).__name__}, not an object",
+                     True)  # fmt: skip
     if (problem := model_folder_problem(out)) is not None:  # a model that does not load or is not this training's
-        if not quiet:
-            print(f"coopsumo: {out / 'model.pt'} {problem}; training it again", file=sys.stderr)
-        return None
+        return Fault(out / "model.pt", problem, True)
     if results_view(stored) != results_view(json.loads(json.dumps(config))):
-        return None
+        return Fault(out, "holds the model of another training than the study's (its config.json differs)", False)
     if (problem := train_summary_problem(summary, config)) is not None:  # a study would copy its values
-        if not quiet:
-            print(f"coopsumo: {out} {problem}; training it again", file=sys.stderr)
-        return None
+        return Fault(out, problem, True)
     if (found := logs_problem(out, config, summary)) is not None:  # a study draws them (learning, protocol)
-        if not quiet:
-            print(f"coopsumo: {out / found[0]} {found[1]}; training it again", file=sys.stderr)
-        return None
+        return Fault(out / found[0], found[1], True)
     return summary
+
+
+def unusable_trainings(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[str]:
+    """The cells of `specs` (records otherwise reusable) whose training's link, ROOT/train/<training>, leads to a
+    folder whose model a training would not reuse (training_fault: model.pt deleted, another training's model.pt
+    swapped in, config.json, train_summary.json or the run marker damaged): each is run again, which trains (or
+    re-links) its model, with one line per training naming the file and why. Scenario I asks the same of the store
+    before its accident runs (model_store.stored_model). A training that has no link there (a study committed without
+    its models) is not judged; a link that leads elsewhere is model_store.repointed_trainings'."""
+
+    def problem(link: Path, config: dict[str, Any]) -> tuple[Path, str] | None:
+        if not link.is_symlink() or not link.is_dir():
+            return None
+        found = training_fault(link, config)
+        return (found.what, found.why) if isinstance(found, Fault) else None
+
+    return rerun_cells(root, specs, prog, problem, "which train it again")
 
 
 def logs_problem(out: Path, config: dict[str, Any], summary: Any) -> tuple[str, str] | None:
@@ -136,7 +169,39 @@ def train_summary_problem(summary: dict[str, Any], config: dict[str, Any]) -> st
         return f"has train_summary.json steps = {json.dumps(summary['steps'])[:20]}, not its last world's {last}"
     if isinstance(steps, int) and (isinstance(step, bool) or not isinstance(step, int) or not 0 <= step <= steps):
         return f"has train_summary.json selected_step = {json.dumps(step)[:20]}, not a step from 0 to its {steps}"
-    return counts_problem(summary, config)
+    if (problem := counts_problem(summary, config)) is not None:
+        return problem
+    if (found := train_values_problem(summary, config)) is not None:
+        return f"has train_summary.json {found[0]} = {summary[found[0]]:g}, {found[1]}"
+    return None
+
+
+def train_values_problem(values: dict[str, Any], config: dict[str, Any]) -> tuple[str, str] | None:
+    """(the key, why) when one of the values a study copies from the summary of the training `config` (values'
+    mean_speed_mps, lane_changes, updates: any of them; NaN is none) is more than that training can give, or None: a
+    mean speed above its road's speed limit and fastest desired speed (run_checks.fastest_mps), more updates than
+    updates_per_learn per step, more lane changes than the vehicles its road holds at once (one a car length) could
+    make one after another (a change takes control.t_change_s) plus one for each vehicle that can depart (one per
+    lane and step). Issue 82, probe 13, F6: a part's runs.csv with a training speed of 60 m/s on a 33.34 m/s road,
+    1e9 updates or 1e8 lane changes was merged."""
+    from coopsumo.studies.engine.run_checks import fastest_mps
+
+    try:
+        sim, per_round = config["sim"], int(config["dqn"]["updates_per_learn"])
+        road, control, steps = sim["road"], sim["control"], int(sim["steps"])
+        lanes, fastest = int(road["lanes"]), fastest_mps(sim)
+        held = lanes * float(road["length_m"]) / float(control["car_length_m"])
+        changes = held * steps * float(control["dt_s"]) / float(control["t_change_s"]) + steps * lanes
+    except (KeyError, TypeError, ValueError, ZeroDivisionError):
+        return None  # not a training's configuration: the caller compared it with the study's
+    bounds = {"mean_speed_mps": (fastest + 0.01, f"above any vehicle's speed on its road ({fastest:g} m/s)"),
+              "updates": (steps * per_round, f"more than {per_round} per step of its {steps} steps"),
+              "lane_changes": (changes, f"more than the {held:g} vehicles its road holds could make in {steps} steps")}
+    for key, (most, why) in bounds.items():
+        value = values.get(key)
+        if isinstance(value, int | float) and not isinstance(value, bool) and float(value) > most:  # NaN: False
+            return key, why
+    return None
 
 
 WALL_FACTOR = 2.0

@@ -30,7 +30,7 @@ from coopsumo.report.markdown import md_table
 from coopsumo.run_dirs import study_root
 from coopsumo.studies.engine.run_folders import profile_study, recorded_profile
 from coopsumo.studies.scenario1.measures import aggregate
-from coopsumo.studies.scenario1.plan import learners, model_label, recorded_plan
+from coopsumo.studies.scenario1.plan import Plan, learners, model_label, recorded_plan
 from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
 
 MERGED = "merge.json"
@@ -73,7 +73,7 @@ def _part(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
                                                                                      value >= 0):  # fmt: skip
             raise UsageError(f"--merge: {folder}/plan.json: plan.{key} must be a finite number >= 0, got {value}")
     try:  # by the rules a profile's fields get: no 9 lanes, no steps "x" (issue 82, probe 7, I8)
-        recorded_plan(folder / "plan.json", recorded["plan"])
+        plan = recorded_plan(folder / "plan.json", recorded["plan"])
     except ConfigError as err:
         raise UsageError(f"--merge: {err}") from None
     if not (folder / "runs.csv").is_file():
@@ -82,31 +82,107 @@ def _part(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
         runs = SCENARIO1_RUNS.read(folder / "runs.csv")
     except ValueError as err:
         raise UsageError(f"--merge: {folder}/runs.csv: {err}") from None
-    if problem := values_problem(recorded["plan"], runs):
+    if problem := values_problem(plan, runs) or derived_problem(folder, plan, runs):
         raise UsageError(f"--merge: {folder}/runs.csv {problem}")
     return recorded, runs
 
 
-def values_problem(plan: dict[str, Any], runs: pd.DataFrame) -> str | None:
+def values_problem(plan: Plan, runs: pd.DataFrame) -> str | None:
     """Why a part's runs.csv holds a row no run of its plan gives though each value is inside its column's limits
     (study_tables.SCENARIO1_RUNS), as words after the file, or None: a queue longer than the road, a delay or a
     waiting time above the total time spent, more total time spent than every vehicle its demand sends being on the
     road the whole run (issue 82, probe 8, J7: a 999,999 m queue on a 2 km road, a delay above the total time spent,
-    5e5 veh-h in a 20 s run were merged; a wave onset share without a counted wave is a real run's)."""
+    5e5 veh-h in a 20 s run were merged; a wave onset share without a counted wave is a real run's), or a value
+    _run_bounds refuses (probe 13, F7)."""
     from coopsumo.config import ControlConfig, RoadConfig
 
-    sim_s = float(plan["steps"]) * ControlConfig().dt_s
+    sim_s = plan.steps * ControlConfig().dt_s
     road_m = RoadConfig().length_m
     for i, row in enumerate(runs.to_dict("records"), start=1):
-        most = (sim_s / float(row["t_up_s"]) + 1.0) * int(plan["lanes"]) * sim_s / 3600.0
+        most = (sim_s / float(row["t_up_s"]) + 1.0) * plan.lanes * sim_s / 3600.0
         checks = ((row["queue_m"] > road_m + 1.0, f"queue_m = {row['queue_m']:g}, longer than the {road_m:g} m road"),
                   (row["delay_veh_h"] > row["tts_veh_h"] + 1e-9, "delay_veh_h above its tts_veh_h"),
                   (row["waiting_veh_h"] > row["tts_veh_h"] + 1e-9, "waiting_veh_h above its tts_veh_h"),
                   (row["tts_veh_h"] > most, f"tts_veh_h = {row['tts_veh_h']:g}, more than its demand's vehicles "
-                                            f"spend in a {sim_s:g} s run ({most:.3g})"))
+                                            f"spend in a {sim_s:g} s run ({most:.3g})"),
+                  *_run_bounds(plan, row))  # fmt: skip
         if why := next((text for bad, text in checks if bad), None):  # NaN compares False: a blank value passes
             return f"row {i} has {why}"
     return None
+
+
+def _run_bounds(plan: Plan, row: dict[str, Any]) -> list[tuple[bool, str]]:
+    """(whether the row breaks it, why) for each limit a run of `plan` sets on the row: a mean speed above the road's
+    speed limit and the fastest desired speed, more lane changes per vehicle than one after another in the run (a
+    change takes control.t_change_s), more vehicles waiting at the end than its demand sends, more waves or slow
+    regions than cells of the speed field they are found in (measures.FIELD_DT_S by FIELD_DX_M on each lane), a
+    horizon after the accident's start that is not its plan's (issue 82, probe 13, F7: 60 m/s, 500 lane changes per
+    vehicle, 1e5 vehicles waiting, 1e6 waves, a horizon of 99999 s in a 30 s run were merged)."""
+    from coopsumo.config import ControlConfig, DemandConfig, RoadConfig
+    from coopsumo.studies.scenario1.measures import FIELD_DT_S, FIELD_DX_M
+
+    control, road, lanes = ControlConfig(), RoadConfig(), plan.lanes
+    sim_s = plan.steps * control.dt_s
+    fastest = max(road.speed_limit_mps, DemandConfig().v_exp_max_kmh / 3.6)
+    turns = sim_s / control.t_change_s + 1.0
+    sends = (sim_s / float(row["t_up_s"]) + 1.0) * lanes
+    cells = lanes * math.ceil(sim_s / FIELD_DT_S) * math.ceil(road.length_m / FIELD_DX_M)
+    horizon = (plan.steps - plan.accident_start) * control.dt_s
+    bounds = [(row["mean_speed_mps"] > fastest + 0.01, f"mean_speed_mps = {row['mean_speed_mps']:g}, above any "
+                                                       f"vehicle's speed on its road ({fastest:g} m/s)"),
+              (row["waiting_at_end_veh"] > sends, f"waiting_at_end_veh = {row['waiting_at_end_veh']:g}, more than its "
+                                                  f"demand sends in a {sim_s:g} s run ({sends:.3g})"),
+              (not abs(row["horizon_after_start_s"] - horizon) <= 1e-6,
+               f"horizon_after_start_s = {row['horizon_after_start_s']:g}, not its plan's {horizon:g} s")]
+    bounds += [(row[c] > turns, f"{c} = {row[c]:g}, more than one vehicle can make one after another in a "
+                                f"{sim_s:g} s run ({turns:g})")
+               for c in ("lane_changes_per_vehicle", "queue_lane_changes_per_vehicle")]  # fmt: skip
+    bounds += [(row[c] > cells, f"{c} = {row[c]:g}, more than the {cells} cells of the speed field they are found in")
+               for c in ("waves", "slow_regions")]  # fmt: skip
+    return bounds
+
+
+RUN_FILES = ("summary.json", "trajectories.parquet", "detectors.xml")
+"""what scenario I's measures of one run are derived from (measures.run_metrics)"""
+
+
+def derived_problem(folder: Path, plan: Plan, runs: pd.DataFrame) -> str | None:
+    """Why a row of a part's runs.csv is not what its run folder, where the part still holds it
+    (runs/t<T_up>/<label>[_m<training seed>]_seed<k>), gives (measures.run_metrics, every column; FITTED ones to
+    FIT_RTOL), as words after the file, or None. A part committed without its run folders is judged by
+    values_problem alone; one holding only some of a run's RUN_FILES, or a file that is not a regular one, is refused
+    (issue 82, probe 13, F7: collisions 3 where the run had none, a total time spent of 0.01 veh-h where its run gives
+    0.069, were merged)."""
+    from coopsumo.config import ControlConfig
+    from coopsumo.studies.scenario1.measures import run_metrics
+    from coopsumo.studies.scenario1.plan import accident_config, run_folder
+
+    sample_s = plan.trajectory_every * ControlConfig().dt_s
+    for i, row in enumerate(runs.to_dict("records"), start=1):
+        model = None if pd.isna(row["train_seed"]) else int(row["train_seed"])
+        run = folder / run_folder(str(row["policy"]), int(row["seed"]), float(row["t_up_s"]), model)
+        there = [name for name in RUN_FILES if os.path.lexists(run / name)]
+        if not there:
+            continue
+        if missing := [name for name in RUN_FILES if not (run / name).is_file()]:
+            return f"row {i}: its run folder {run} holds no regular {missing[0]}"
+        try:
+            derived = run_metrics(run, accident_config(plan, "keep", int(row["seed"]), float(row["t_up_s"])), sample_s)
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            return f"row {i}: its run folder {run} cannot be read ({type(err).__name__})"
+        for column, value in derived.items():
+            if not _same_value(row.get(column), value, FIT_RTOL if column in FITTED else 1e-12):
+                return f"row {i} has {column} = {row.get(column)}, but its run folder {run} gives {value}: edited?"
+    return None
+
+
+def _same_value(a: Any, b: Any, rtol: float) -> bool:
+    """A runs.csv value and the one its run gives: both blank, the same text, or numbers equal to rtol."""
+    if pd.isna(a) and pd.isna(b):
+        return True
+    if isinstance(a, str) or isinstance(b, str) or pd.isna(a) or pd.isna(b):
+        return bool(a == b)
+    return math.isclose(float(a), float(b), rel_tol=rtol, abs_tol=1e-12)
 
 
 def _without_seeds(plan: dict[str, Any]) -> dict[str, Any]:

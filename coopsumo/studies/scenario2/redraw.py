@@ -22,6 +22,7 @@ from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
 from coopsumo.studies.engine.run_checks import fastest_mps
 from coopsumo.studies.engine.run_folders import profile_study, study_root
+from coopsumo.studies.engine.trainings import train_values_problem
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS, TRAIN_COLUMNS
 from coopsumo.studies.scenario2.plan import (
@@ -155,7 +156,7 @@ def _read_part(folder: Path) -> Part:
         raise UsageError(f"--merge: {folder}'s sweep.json holds a profile no sweep runs ({type(err).__name__}: "
                          f"{err})") from None  # fmt: skip
     if problem := _meta_problem(meta, profile, len(specs)) or _table_problem(meta, profile, specs, runs, evals) \
-            or _speed_problem(specs, runs, evals):  # fmt: skip
+            or _speed_problem(specs, runs, evals) or _train_problem(specs, runs):  # fmt: skip
         raise UsageError(f"--merge: {folder}'s {problem}")
     return Part(folder, meta, profile, runs, evals)
 
@@ -274,10 +275,7 @@ def _speed_problem(specs: list[dict[str, Any]], runs: pd.DataFrame, evals: pd.Da
     """Why a part's runs.csv or evals.csv gives a speed no vehicle drives on its cell's road (above the road's
     speed limit and the fastest desired speed), or a full-road speed without the moment it is measured from, as a
     phrase after "<part>'s", or None (issue 82, probe 8, J15: 60 m/s on a 33.34 m/s road, in both tables alike)."""
-    fastest = {}
-    for spec in specs:
-        cfg = spec["config"]["evals"][0] if "evals" in spec["config"] else spec["config"]["run"]
-        fastest[spec["key"]] = fastest_mps(cfg)
+    fastest = {spec["key"]: fastest_mps(_run_configs(spec)[0]) for spec in specs}
     for name, table in (("runs.csv", runs), ("evals.csv", evals)):
         for row in table.to_dict("records"):
             for column in ("mean_speed_mps", FULL_ROAD):
@@ -289,12 +287,38 @@ def _speed_problem(specs: list[dict[str, Any]], runs: pd.DataFrame, evals: pd.Da
     return None
 
 
+def _train_problem(specs: list[dict[str, Any]], runs: pd.DataFrame) -> str | None:
+    """Why a successful row of a part's runs.csv holds what no run of its cell gives, as a phrase after "<part>'s",
+    or None: training columns its training cannot give (trainings.train_values_problem: a speed above the road's, more
+    updates or lane changes than its steps allow) or a DQN cell's decision interval not its learner's (issue 82,
+    probe 13, F6: each was merged; a rate of 1e9 steps/s is beyond record_schemas' steps_per_second)."""
+    trains = {s["key"]: s["config"]["train"] for s in specs if "train" in s["config"]}
+    for row in runs.to_dict("records"):
+        if row.get("status") != "ok" or (config := trains.get(row["key"])) is None:
+            continue
+        values = {name: row.get(column) for column, name in TRAIN_COLUMNS.items()}
+        if (found := train_values_problem(values, config)) is not None:
+            column = next(c for c, name in TRAIN_COLUMNS.items() if name == found[0])
+            return f"runs.csv row {row['key']} has {column} = {row[column]:g}, {found[1]}"
+        want, got = config["dqn"]["decision_interval_steps"], row.get("decision_interval_steps")
+        if not _no_number(got) and float(got) != want:
+            return f"runs.csv row {row['key']} has decision_interval_steps = {got:g}, not its learner's {want}"
+    return None
+
+
 def _made(spec: dict[str, Any]) -> dict[str, Any]:
     """What a cell's runs.csv row holds by its plan: its training folder (a DQN cell's the relative link
     train/<training>, plan.train_folder; a classical run's none) and its steps (its evaluations' together)."""
+    return {"train_dir": train_folder(spec), "steps": sum(int(run["steps"]) for run in _run_configs(spec))}
+
+
+def _run_configs(spec: dict[str, Any]) -> list[dict[str, Any]]:
+    """The SimConfigs a cell drives, by the three shapes plan.cell_specs gives its configuration: a DQN cell's
+    {"evals": [...]}, a classical run's {"run": SimConfig, "trajectory_every_steps": K} or, without trajectories,
+    the SimConfig itself (issue 82, probe 13, F1: a keep or MOBIL cell of the tiny profile was read as the second,
+    a KeyError out of the merge)."""
     config = spec["config"]
-    runs = config["evals"] if "evals" in config else [config.get("run", config)]
-    return {"train_dir": train_folder(spec), "steps": sum(int(run["steps"]) for run in runs)}
+    return list(config["evals"]) if "evals" in config else [config.get("run", config)]
 
 
 def _differs(row: dict[str, Any], cell: dict[str, Any], names: Sequence[str]) -> str | None:

@@ -67,6 +67,7 @@ from coopsumo.studies.engine.run_folders import (
     study_root,
 )
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
+from coopsumo.studies.engine.trainings import unusable_trainings
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import KEY_COLUMNS, evals_table, runs_table
 from coopsumo.studies.scenario2.plan import (
@@ -259,6 +260,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     done_keys = reusable_keys(root, specs, "scenario2", REQUIRED_SUMMARY,  # a record naming another's training: rerun
                               made=lambda spec: {"train_dir": train_folder(spec)})  # fmt: skip
     done_keys -= repointed(root, [s for s in specs if s["key"] in done_keys])
+    done_keys -= unusable_trainings(root, [s for s in specs if s["key"] in done_keys], "scenario2")  # probe 13, F9
     done_keys -= copied_wrong(root, [s for s in specs if s["key"] in done_keys], "scenario2")  # probe 8, J10
     done = [s for s in specs if s["key"] in done_keys]
     todo = [s for s in specs if s["key"] not in done_keys]
