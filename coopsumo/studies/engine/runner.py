@@ -142,6 +142,11 @@ CLOSE_WAIT_S = 30.0
 """how long a study waits for its workers to exit once its cells are done (LocalBackend.close)"""
 
 
+def run_remote_cell(cell_fn: CellFn, spec: dict[str, Any], root: str) -> dict[str, Any]:
+    """A Ray task: cell_fn(spec, root) on a node (RayBackend)."""
+    return cell_fn(spec, root)
+
+
 class RayBackend:
     """Cells as Ray tasks (num_cpus=1; a worker process runs one cell after another, as the local pool's do) on a
     local instance or a cluster."""
@@ -164,7 +169,10 @@ class RayBackend:
             where = f" at {address}" if address else ""
             raise UsageError(f"cannot start or reach Ray{where}: {detail}") from None
         self.slots = max(1, int(ray.cluster_resources().get("CPU", workers)))
-        self._task = ray.remote(num_cpus=1, max_retries=1)(cell_fn)
+        # the cell function travels as an argument, stored once: a study's is a bound method (cells.CellKind.run_cell),
+        # which @ray.remote does not take as a task
+        self._task = ray.remote(num_cpus=1, max_retries=1)(run_remote_cell)
+        self._cell_fn = ray.put(cell_fn)
 
     def check_cluster(self, root: Path, timeout_s: float = 120.0) -> None:
         """Every alive node of the cluster runs this machine's versions (PINNED) and can write root, or UsageError
@@ -185,7 +193,7 @@ class RayBackend:
             raise UsageError(problem)
 
     def submit(self, spec: dict[str, Any], root: Path) -> Any:
-        return self._task.remote(spec, str(root))
+        return self._task.remote(self._cell_fn, spec, str(root))
 
     def wait(self, handles: Sequence[Any], timeout: float) -> list[tuple[Any, dict[str, Any] | BaseException]]:
         ready, _ = self._ray.wait(list(handles), num_returns=1, timeout=timeout)
