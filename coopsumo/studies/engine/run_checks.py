@@ -116,9 +116,9 @@ def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> st
     if not text.rstrip().endswith(b"</detector>"):
         return "has a missing or cut-short detectors.xml"
     dt, period = float(cfg["control"]["dt_s"]), float(cfg["road"]["loop_period_s"])
-    last_end, seen, lanes = -math.inf, set(), int(cfg["road"]["lanes"])
+    last_end, seen, lanes, fastest = -math.inf, set(), int(cfg["road"]["lanes"]), fastest_mps(cfg)
     for match in _INTERVAL.finditer(text):
-        if (problem := _interval_problem(match, sim_seconds, dt, period, fastest_mps(cfg))) is not None:
+        if (problem := _interval_problem(match, sim_seconds, dt, period, fastest)) is not None:
             return f"has detectors.xml with {problem}"
         attrs = dict(_ATTRIBUTE.findall(match.group(1)))
         loop, begin = attrs[b"id"].decode(), float(attrs[b"begin"])

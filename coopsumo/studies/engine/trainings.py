@@ -52,9 +52,9 @@ def training_fault(out: Path, config: dict[str, Any]) -> dict[str, Any] | Fault:
         try:
             read[name] = read_json(out / name)
         except (OSError, ValueError) as err:  # said for a finished training's folder that lost or spoiled it
-            return Fault(out, f"holds a model.pt but its {name} is missing or unreadable ({why_unreadable(err)})"
-                         if (out / "model.pt").is_file() else f"has no readable {name} ({why_unreadable(err)})",
-                         (out / "model.pt").is_file())  # fmt: skip
+            has_model, why = (out / "model.pt").is_file(), why_unreadable(err)
+            return Fault(out, f"holds a model.pt but its {name} is missing or unreadable ({why})" if has_model
+                         else f"has no readable {name} ({why})", has_model)  # fmt: skip
     if (problem := STORE_CONFIG.problem(read["config.json"])) is not None:  # as `coopsumo models` judges it
         return Fault(out, f"holds a model.pt but its config.json {problem}", (out / "model.pt").is_file())
     marker, stored, summary = read[RUN_MARKER], read["config.json"]["config"], read["train_summary.json"]

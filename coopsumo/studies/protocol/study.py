@@ -70,7 +70,7 @@ def work(spec: dict[str, Any]) -> Cell:
     """What the cell of `spec` does (cells.perform runs it): a model cell takes (or trains) its model in the model
     store, ROOT/train/<train_key>/ linking to it, and drives its weights with the variant's drive settings; a baseline
     cell drives its policy; either one run into ROOT/runs/<key>/ (written atomically), through the accident measured
-    further (accident_run)."""
+    further (_run)."""
     from coopsumo.config import sim_config_from_dict
     from coopsumo.studies.engine.cells import cell_train
 

@@ -203,6 +203,8 @@ LOAD_LIST = ListRule(0.0, low_open=True, least=0)
 """loads (a profile's loads and eval_loads): each T_up they give is checked too (profile_problem)"""
 T_UP_LIST = t_up_rule(ControlConfig().dt_s, least=0)
 """a fixed T_up list (--t-up, a profile's t_up_s; none: the load grid)"""
+
+
 class CommitRule:
     """response_plan's rule: empty, or a commit's hash, 7 to 40 lowercase hex digits (any text was taken, and declared
     the response reading confirmatory: `x; rm -rf /` was recorded as the plan's commit; issue 82, probe 13, F21)."""
@@ -214,6 +216,7 @@ class CommitRule:
 
 
 RESPONSE_PLAN = CommitRule()
+"""a profile's response_plan: the commit of the analysis plan its response reading follows, or empty"""
 FIELD_RULES: dict[str, Rule] = {
     "lanes": LANE_LIST, "loads": LOAD_LIST, "alphas": ALPHA_LIST, "seeds": SEED_LIST, "train_steps": steps,
     "eval_steps": steps, "t_up_s": T_UP_LIST, "mobil_ps": MOBIL_P_LIST, "eval_seeds": seed_count,
