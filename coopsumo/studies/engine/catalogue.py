@@ -221,6 +221,67 @@ def own_profile(text: str, read: Callable[[Path], tuple[Mapping[str, P], str | N
     return profiles[name]
 
 
+# -- a study's flags, from its plan's fields -------------------------------------------------------------------
+@dataclass(frozen=True)
+class PlanFlag:
+    """A command-line flag that sets fields of a study's plan, as train's flags set DQNConfig's: its names (the flag
+    and its aliases), what its value sets (`apply`: the parsed value and the plan so far -> the fields it gives,
+    checked, UsageError otherwise), what --help says of it, and how a profile's value shows as --help's default
+    (`shown`; None: `text` says the default itself). kind: argparse's type= (None: the text as given); dest: the
+    namespace's name (None: argparse's, from the first name); choices: argparse's."""
+
+    names: tuple[str, ...]
+    apply: Callable[[Any, Any], dict[str, Any]]
+    text: str
+    shown: Callable[[Any], Any] | None = None
+    kind: Callable[[str], Any] | None = None
+    dest: str | None = None
+    choices: Sequence[str] | None = None
+
+
+def by_profile(profiles: Mapping[str, Any], show: Callable[[Any], Any]) -> str:
+    """A flag's default as --help states it, from the packaged profiles: "the profile's: tiny 2; full 5; paper 10",
+    or one value when every profile gives the same."""
+    values = {name: str(show(profile)) for name, profile in profiles.items()}
+    if len(set(values.values())) == 1:
+        return next(iter(values.values()))
+    return "the profile's: " + "; ".join(f"{name} {value}" for name, value in values.items())
+
+
+def numbers(values: Sequence[float]) -> str:
+    """A list of numbers as a list flag takes it: 0,0.25,1."""
+    return ",".join(f"{x:g}" for x in values)
+
+
+def add_plan_flags(parser: Any, flags: Sequence[PlanFlag], profiles: Mapping[str, Any]) -> None:
+    """One option per PlanFlag, unset (None) unless given, its help ending in the profiles' defaults."""
+    for flag in flags:
+        text = flag.text if flag.shown is None else f"{flag.text} (default: {by_profile(profiles, flag.shown)})"
+        more = {"dest": flag.dest} if flag.dest else {}
+        parser.add_argument(*flag.names, type=flag.kind, choices=flag.choices, default=None, help=text, **more)
+
+
+def plan_from_flags(plan: P, args: Any, flags: Sequence[PlanFlag]) -> P:
+    """`plan` with every given flag's fields set, in the flags' order (a flag may read what an earlier one set)."""
+    for flag in flags:
+        dest = flag.dest or flag.names[0].removeprefix("--").replace("-", "_")
+        if (value := getattr(args, dest)) is not None:
+            plan = replace(plan, **flag.apply(value, plan))  # type: ignore[type-var]
+    return plan
+
+
+def at_least(field: str, name: str, least: int = 1, bound: str = "") -> Callable[[int, Any], dict[str, Any]]:
+    """A PlanFlag's apply for a count: `field` set to it; below `least` "NAME must be BOUND, got V" (BOUND: ">= least"
+    unless given)."""
+
+    def apply(value: int, _plan: Any) -> dict[str, Any]:
+        if value < least:
+            raise UsageError(f"{name} must be {bound or f'>= {least}'}, got {value}")
+        return {field: value}
+
+    return apply
+
+
 # -- the learner catalogue (learners.toml): every learner a study may name, one name one learner ------------------
 LEARNERS_FILE = DATA / "learners.toml"
 STATUSES = ("default", "current", "tried", "retired")

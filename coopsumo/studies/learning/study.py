@@ -19,8 +19,7 @@ from __future__ import annotations
 
 import sys
 import time
-from collections.abc import Callable
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +30,14 @@ from coopsumo.files import write_json
 from coopsumo.provenance import versions
 from coopsumo.run_markers import LEARNING_KIND
 from coopsumo.runio import Parser, run_cli
-from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
+from coopsumo.studies.engine.catalogue import (
+    OWN_PROFILE,
+    PlanFlag,
+    add_plan_flags,
+    own_profile,
+    plan_from_flags,
+    profile_arg,
+)
 from coopsumo.studies.engine.cells import Cell, CellKind, Run
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.records import CellRecords, failed_exit
@@ -146,19 +152,30 @@ def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: st
     return meta
 
 
-def by_profile(show: Callable[[Profile], str]) -> str:
-    """An option's default as --help states it, each packaged profile's in the form the flag takes: "the profile's:
-    full 0,0.25,1,2,8; quick 0,1; ...", or one value when every profile gives the same."""
-    values = {name: show(profile) for name, profile in PROFILES.items()}
-    if len(set(values.values())) == 1:
-        return next(iter(values.values()))
-    return "the profile's: " + "; ".join(f"{name} {value}" for name, value in values.items())
-
-
 def default_variant_name() -> str:
     """The variant whose learner is today's default (DQNConfig()): the one a profile without alpha_variants measures
     the alpha response of."""
     return next((n for n, _, c in VARIANTS if c == DQNConfig()), "default")
+
+
+def _seeds(n: int, _profile: Profile) -> dict[str, Any]:
+    if n <= 0:
+        raise UsageError(f"--seeds must be positive, got {n}")
+    return {"seeds": tuple(range(n))}
+
+
+PLAN_FLAGS = (
+    PlanFlag(("--variants",), lambda text, _: {"variants": variant_list("--variants", text)},
+             f"comma-separated subset of {','.join(VARIANT_NAMES)}", lambda f: ",".join(f.variants)),
+    PlanFlag(("--alphas",), lambda text, _: {"alphas": alpha_list("--alphas", text)},
+             "comma-separated alpha grid of the alpha response", lambda f: ",".join(f"{a:g}" for a in f.alphas)),
+    PlanFlag(("--alpha-variants",), lambda text, _: {"alpha_variants": variant_list("--alpha-variants", text)},
+             "comma-separated variants whose alpha response is measured",
+             lambda f: ",".join(f.alpha_variants) or f"the default learner, {default_variant_name()}"),
+    PlanFlag(("--seeds", "--train-seeds"), _seeds, "models per variant: training seeds 0..N-1, each evaluated on its "
+             "own held-out seed", lambda f: str(len(f.seeds)), seed_count, dest="seeds"),
+)
+"""the flags that set the profile's fields"""
 
 
 def build_parser() -> Parser:
@@ -170,19 +187,7 @@ def build_parser() -> Parser:
                            f"file of [profiles.NAME] tables as in learning.toml, naming its variants, "
                            f"{OWN_PROFILE}")  # fmt: skip
     size.add_argument("--quick", action="store_true", help="the same as --profile quick")
-    own = f"the default learner, {default_variant_name()}"
-    p.add_argument("--variants", default=None,
-                   help=f"comma-separated subset of {','.join(VARIANT_NAMES)} "
-                        f"(default: {by_profile(lambda f: ','.join(f.variants))})")  # fmt: skip
-    p.add_argument("--alphas", default=None,
-                   help=f"comma-separated alpha grid of the alpha response "
-                        f"(default: {by_profile(lambda f: ','.join(f'{a:g}' for a in f.alphas))})")  # fmt: skip
-    p.add_argument("--alpha-variants", default=None,
-                   help=f"comma-separated variants whose alpha response is measured "
-                        f"(default: {by_profile(lambda f: ','.join(f.alpha_variants) or own)})")  # fmt: skip
-    p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
-                   help=f"models per variant: training seeds 0..N-1, each evaluated on its own held-out seed "
-                        f"(default: {by_profile(lambda f: str(len(f.seeds)))})")  # fmt: skip
+    add_plan_flags(p, PLAN_FLAGS, PROFILES)
     p.add_argument("--workers", type=workers, default=2, help="parallel cells")
     add_backend_flags(p)
     p.add_argument("--out", type=model_out_dir, default=None,
@@ -198,18 +203,7 @@ def chosen_profile(text: str) -> Profile:
 
 
 def profile_from_args(args: Any) -> Profile:
-    profile = PROFILES["quick"] if args.quick else chosen_profile(args.profile)
-    if args.variants is not None:
-        profile = replace(profile, variants=variant_list("--variants", args.variants))
-    if args.alpha_variants is not None:
-        profile = replace(profile, alpha_variants=variant_list("--alpha-variants", args.alpha_variants))
-    if args.alphas is not None:
-        alphas = alpha_list("--alphas", args.alphas)
-        profile = replace(profile, alphas=alphas)
-    if args.seeds is not None:
-        if args.seeds <= 0:
-            raise UsageError(f"--seeds must be positive, got {args.seeds}")
-        profile = replace(profile, seeds=tuple(range(args.seeds)))
+    profile = plan_from_flags(PROFILES["quick"] if args.quick else chosen_profile(args.profile), args, PLAN_FLAGS)
     if args.workers <= 0:
         raise UsageError(f"--workers must be positive, got {args.workers}")
     return profile

@@ -31,7 +31,17 @@ from coopsumo.policy_spec import policy_file
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD
 from coopsumo.runio import Parser, run_cli
-from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
+from coopsumo.studies.engine.catalogue import (
+    OWN_PROFILE,
+    PlanFlag,
+    add_plan_flags,
+    at_least,
+    by_profile,
+    numbers,
+    own_profile,
+    plan_from_flags,
+    profile_arg,
+)
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.engine.records import failed_exit
 from coopsumo.studies.engine.run_folders import (
@@ -88,17 +98,44 @@ def _preset_list(text: str) -> tuple[str, ...]:
     return name_list("--preset", text, tuple(learners()))
 
 
-def by_profile(show: Any) -> str:
-    """An option's default as --help states it, from the profiles: "the profile's: default 5; quick 1; full 5", or
-    one value when every profile has the same."""
-    values = {name: str(show(plan)) for name, plan in PROFILES.items()}
-    if len(set(values.values())) == 1:
-        return next(iter(values.values()))
-    return "the profile's: " + "; ".join(f"{name} {value}" for name, value in values.items())
+def _seeds(n: int, _plan: Plan) -> dict[str, Any]:
+    if n < 1:
+        raise UsageError(f"seeds must be >= 1, got {n}")
+    return {"seeds": tuple(range(1, n + 1))}
 
 
-def _numbers(values: tuple[float, ...]) -> str:
-    return ",".join(f"{x:g}" for x in values)
+def _run_steps(n: int, plan: Plan) -> dict[str, Any]:
+    """--steps: the accident runs' length, the accident's window scaled with it."""
+    if n < 10:
+        raise UsageError(f"steps must be >= 10, got {n}")
+    scale = n / plan.steps
+    return {"steps": n, "accident_start": max(int(plan.accident_start * scale), 1),
+            "accident_steps": max(int(plan.accident_steps * scale), 1)}  # fmt: skip
+
+
+PLAN_FLAGS = (
+    PlanFlag(("--seeds",), _seeds, "number of evaluation seeds, 1..N", lambda plan: len(plan.seeds), seed_count),
+    PlanFlag(("--train-seeds",),
+             lambda text, plan: {"train_seeds": train_seed_list("--train-seeds", text, FIRST_TRAIN_SEED, plan.seeds)},
+             f"models per alpha: a count K (training seeds {FIRST_TRAIN_SEED}, {FIRST_TRAIN_SEED + 1}, ...) or a "
+             "comma-separated list of training seeds", lambda plan: len(plan.train_seeds)),  # fmt: skip
+    PlanFlag(("--t-up",), lambda text, _: {"t_ups": T_UP_LIST.parse("--t-up", text)},
+             "demands: T_up (s) of the accident runs, comma-separated, e.g. 3,1.5,1", lambda plan: numbers(plan.t_ups),
+             dest="t_ups"),  # fmt: skip
+    PlanFlag(("--mobil-p",), lambda text, _: {"mobil_ps": MOBIL_P_LIST.parse("--mobil-p", text)},
+             "MOBIL politeness values, comma-separated", lambda plan: numbers(plan.mobil_ps), dest="mobil_ps"),
+    PlanFlag(("--train-steps",), at_least("train_steps", "train-steps"), "training steps of each model",
+             lambda plan: f"{plan.train_steps:,}", steps),
+    PlanFlag(("--steps",), _run_steps, "steps of each accident run; the accident window scales with it",
+             lambda plan: f"{plan.steps:,}", RUN_STEPS),
+    PlanFlag(("--alphas",), lambda text, _: {"alphas": _alpha_list(text)},
+             "alphas to train and run, comma-separated, 0 always included", lambda plan: numbers(plan.alphas)),
+    PlanFlag(("--preset", "--presets"), lambda text, _: {"presets": _preset_list(text)},
+             "learners, comma-separated, several side by side: the presets default, paper, alpha_only, or a learner "
+             "of the catalogue (coopsumo/experiments_data/learners.toml) that drives as saved, e.g. "
+             "default,alpha_only_dense", lambda plan: ",".join(plan.presets), dest="presets"),  # fmt: skip
+)
+"""the flags that set the plan's fields, in the order they apply (--train-seeds reads --seeds')"""
 
 
 def build_parser() -> Parser:
@@ -115,34 +152,15 @@ def build_parser() -> Parser:
                            "accident length, at T_up 4, 3, 2.5, 2, 1.5, 1.25 and 1 s (or --t-up), 1 evaluation seed "
                            "(or --seeds), into results/regime_map (or --out); the reason for the default demands "
                            "(until 2026-12-02 `coopsumo regime-map`)")  # fmt: skip
-    p.add_argument("--seeds", type=seed_count, default=None,
-                   help=f"number of evaluation seeds, 1..N (default: {by_profile(lambda plan: len(plan.seeds))})")
-    p.add_argument("--train-seeds", default=None,
-                   help=f"models per alpha: a count K (training seeds {FIRST_TRAIN_SEED}, {FIRST_TRAIN_SEED + 1}, ...) "
-                        "or a comma-separated list of training seeds "
-                        f"(default: {by_profile(lambda plan: len(plan.train_seeds))})")  # fmt: skip
-    p.add_argument("--t-up", dest="t_ups", default=None,
-                   help="demands: T_up (s) of the accident runs, comma-separated, e.g. 3,1.5,1 "
-                        f"(default: {by_profile(lambda plan: _numbers(plan.t_ups))})")  # fmt: skip
-    p.add_argument("--mobil-p", dest="mobil_ps", default=None,
-                   help="MOBIL politeness values, comma-separated "
-                        f"(default: {by_profile(lambda plan: _numbers(plan.mobil_ps))})")  # fmt: skip
+    add_plan_flags(p, PLAN_FLAGS, PROFILES)
     k = len(PROFILES[DEFAULT_PROFILE].train_seeds)
     p.add_argument("--out", type=model_out_dir, default=None,
-                   help=f"results folder (default: {by_profile(study_out)}; with --train-seeds K other than {k}: "
-                        "results/scenario1_<K>models, with --preset: results/scenario1_<presets>[_<K>models]; only "
-                        "the default profile's report is committed)")  # fmt: skip
+                   help=f"results folder (default: {by_profile(PROFILES, study_out)}; with --train-seeds K other than "
+                        f"{k}: results/scenario1_<K>models, with --preset: results/scenario1_<presets>[_<K>models]; "
+                        "only the default profile's report is committed)")  # fmt: skip
     p.add_argument("--workers", type=workers, default=2, help="parallel processes (default 2)")
     add_backend_flags(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--train-steps", type=steps, default=None,
-                   help=f"training steps of each model (default: {by_profile(lambda plan: f'{plan.train_steps:,}')})")
-    p.add_argument("--steps", type=RUN_STEPS, default=None,
-                   help="steps of each accident run; the accident window scales with it "
-                        f"(default: {by_profile(lambda plan: f'{plan.steps:,}')})")  # fmt: skip
-    p.add_argument("--alphas", default=None,
-                   help="alphas to train and run, comma-separated, 0 always included "
-                        f"(default: {by_profile(lambda plan: _numbers(plan.alphas))})")  # fmt: skip
     p.add_argument("--baseline", dest="baselines", action="append", default=None, metavar="POLICY",
                    help="one more policy run beside keep, greedy, MOBIL and sumo, as simulate's --policy takes it (a "
                         "class of your own py:MODULE:CLASS, a Stable-Baselines3 model sb3:PATH, dqn:PATH, ...); "
@@ -151,11 +169,6 @@ def build_parser() -> Parser:
                    help="merge finished parts (scenario I study folders of one plan and learner, other training seeds) "
                         "into --out: runs.csv, summary.csv, claim_a.md, report.md (studies/scenario1/merge.py; "
                         "default: none, run a study)")
-    p.add_argument("--preset", "--presets", dest="presets", default=None,
-                   help="learners, comma-separated, several side by side: the presets default, paper, alpha_only, or "
-                        "a learner of the catalogue (coopsumo/experiments_data/learners.toml) that drives as saved, "
-                        "e.g. default,alpha_only_dense (default: "
-                        f"{by_profile(lambda plan: ','.join(plan.presets))})")  # fmt: skip
     return p
 
 
@@ -168,32 +181,7 @@ def chosen_profile(args: Any) -> Plan:
 
 def plan_from_args(args: Any) -> Plan:
     """The plan of the chosen profile with the command line's overrides applied and checked (UsageError)."""
-    plan = chosen_profile(args)
-    if args.seeds is not None:
-        if args.seeds < 1:
-            raise UsageError(f"seeds must be >= 1, got {args.seeds}")
-        plan = replace(plan, seeds=tuple(range(1, args.seeds + 1)))
-    if args.train_seeds is not None:
-        plan = replace(plan, train_seeds=train_seed_list("--train-seeds", args.train_seeds, FIRST_TRAIN_SEED,
-                                                         plan.seeds))  # fmt: skip
-    if args.t_ups is not None:
-        plan = replace(plan, t_ups=T_UP_LIST.parse("--t-up", args.t_ups))
-    if args.mobil_ps is not None:
-        plan = replace(plan, mobil_ps=MOBIL_P_LIST.parse("--mobil-p", args.mobil_ps))
-    if args.train_steps is not None:
-        if args.train_steps < 1:
-            raise UsageError(f"train-steps must be >= 1, got {args.train_steps}")
-        plan = replace(plan, train_steps=args.train_steps)
-    if args.steps is not None:
-        if args.steps < 10:
-            raise UsageError(f"steps must be >= 10, got {args.steps}")
-        scale = args.steps / plan.steps
-        plan = replace(plan, steps=args.steps, accident_start=max(int(plan.accident_start * scale), 1),
-                       accident_steps=max(int(plan.accident_steps * scale), 1))  # fmt: skip
-    if args.alphas is not None:
-        plan = replace(plan, alphas=_alpha_list(args.alphas))
-    if args.presets is not None:
-        plan = replace(plan, presets=_preset_list(args.presets))
+    plan = plan_from_flags(chosen_profile(args), args, PLAN_FLAGS)
     if getattr(args, "baselines", None):
         plan = replace(plan, baselines=(*plan.baselines, *extra_baselines(args.baselines, plan)))
     return plan

@@ -35,7 +35,7 @@ import math
 import os
 import sys
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -48,7 +48,16 @@ from coopsumo.errors import UsageError
 from coopsumo.files import read_csv, write_atomic, write_json
 from coopsumo.provenance import versions
 from coopsumo.runio import Parser, run_cli
-from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
+from coopsumo.studies.engine.catalogue import (
+    OWN_PROFILE,
+    PlanFlag,
+    add_plan_flags,
+    at_least,
+    numbers,
+    own_profile,
+    plan_from_flags,
+    profile_arg,
+)
 from coopsumo.studies.engine.cells import Cell, CellKind, Run, Train, run_todo
 from coopsumo.studies.engine.groups import study_cpu_s
 from coopsumo.studies.engine.model_store import check_link, link_problem
@@ -310,60 +319,65 @@ def chosen_profile(text: str) -> Profile:
     return PROFILES[text] if text in PROFILES else own_profile(text, own_profiles, PROFILES, "default")
 
 
+def _seeds(n: int, _profile: Profile) -> dict[str, Any]:
+    if n < 1:
+        raise UsageError(f"seeds must be >= 1, got {n}")
+    return {"seeds": tuple(range(1, n + 1))}
+
+
+def _alphas(text: str, profile: Profile) -> dict[str, Any]:
+    alphas = tuple(sorted(set(alpha_list("--alphas", text))))
+    # a check compares the networks with per-alpha models at the alphas of the grid it keeps
+    return {"alphas": alphas, "check_alphas": tuple(a for a in profile.check_alphas if a in alphas)}
+
+
+def _t_ups(text: str, profile: Profile) -> dict[str, Any]:
+    t_ups = tuple(sorted(set(T_UP_LIST.parse("--t-up", text))))
+    if len(t_ups) > MAX_LANE_DEMANDS:
+        raise UsageError(f"--t-up: profile {profile.name} trains each lane count's network on all its T_ups, at "
+                         f"most {MAX_LANE_DEMANDS}; got {len(t_ups)}")  # fmt: skip
+    return {"t_up_s": t_ups}
+
+
+def _policies(text: str, _profile: Profile) -> dict[str, Any]:
+    policies = set(name_list("--policies", text, POLICIES))
+    return {"policies": tuple(x for x in POLICIES if x in policies)}
+
+
+def _mobil_ps(text: str, profile: Profile) -> dict[str, Any]:
+    if "mobil" not in profile.policies:
+        raise UsageError("--mobil-p is for --policies with mobil")
+    return {"mobil_ps": tuple(sorted(set(MOBIL_P_LIST.parse("--mobil-p", text))))}
+
+
+PLAN_FLAGS = (
+    PlanFlag(("--steps",), at_least("train_steps", "steps", bound="positive"), "training steps per cell",
+             lambda f: f"{f.train_steps:,}", steps),
+    PlanFlag(("--eval-steps",), at_least("eval_steps", "eval-steps", bound="positive"), "evaluation steps per cell",
+             lambda f: f"{f.eval_steps:,}", steps),
+    PlanFlag(("--seeds", "--train-seeds"), _seeds, "models per condition and alpha: training seeds 1..N",
+             lambda f: len(f.seeds), seed_count),
+    PlanFlag(("--eval-seeds",), lambda n, _: {"eval_seeds": eval_seeds(n)},
+             f"evaluation seeds {EVAL_SEED_BASE + 1}..{EVAL_SEED_BASE}+N, which no training sees: every model, and "
+             "MOBIL, is evaluated greedily on each", lambda f: len(f.eval_seeds), seed_count),
+    PlanFlag(("--lanes",), lambda text, _: {"lanes": tuple(sorted({int(x) for x in LANE_LIST.parse("--lanes", text)}))},
+             "comma-separated lane counts", lambda f: numbers(f.lanes)),
+    PlanFlag(("--alphas",), _alphas, "comma-separated alphas, fractions allowed: 0,1/8,2", lambda f: numbers(f.alphas)),
+    PlanFlag(("--t-up",), _t_ups, "fixed comma-separated T_up list (s) for every lane count, instead of the "
+             "profile's load grid (default: the load grid)"),
+    PlanFlag(("--policies",), _policies, "comma-separated: dqn (the models), mobil (one MOBIL run per politeness p "
+             "and evaluation seed), keep, greedy (one run per evaluation seed; no training)",
+             lambda f: ",".join(f.policies)),
+    PlanFlag(("--mobil-p",), _mobil_ps, "comma-separated MOBIL politeness values", lambda f: numbers(f.mobil_ps)),
+    PlanFlag(("--preset",), lambda name, _: {"preset": name}, "learner preset of the DQN cells", lambda f: f.preset,
+             choices=sorted(DQN_PRESETS)),
+)
+"""the flags that set the profile's fields, in the order they apply (--mobil-p reads --policies')"""
+
+
 def profile_from_args(args: Any) -> Profile:
     """The chosen profile with the command line's overrides applied and checked."""
-    profile = chosen_profile(args.profile)
-    if args.steps is not None:
-        if args.steps <= 0:
-            raise UsageError(f"steps must be positive, got {args.steps}")
-        profile = replace(profile, train_steps=args.steps)
-    if args.eval_steps is not None:
-        if args.eval_steps <= 0:
-            raise UsageError(f"eval-steps must be positive, got {args.eval_steps}")
-        profile = replace(profile, eval_steps=args.eval_steps)
-    if args.seeds is not None:
-        if args.seeds < 1:
-            raise UsageError(f"seeds must be >= 1, got {args.seeds}")
-        profile = replace(profile, seeds=tuple(range(1, args.seeds + 1)))
-    if args.eval_seeds is not None:
-        profile = replace(profile, eval_seeds=eval_seeds(args.eval_seeds))
-    if args.lanes is not None:
-        lanes = LANE_LIST.parse("--lanes", args.lanes)
-        profile = replace(profile, lanes=tuple(sorted({int(x) for x in lanes})))
-    if args.alphas is not None:
-        alphas = tuple(sorted(set(alpha_list("--alphas", args.alphas))))
-        # a check compares the networks with per-alpha models at the alphas of the grid it keeps
-        profile = replace(profile, alphas=alphas, check_alphas=tuple(a for a in profile.check_alphas if a in alphas))
-    if args.t_up is not None:
-        t_up = T_UP_LIST.parse("--t-up", args.t_up)
-        profile = replace(profile, t_up_s=tuple(sorted(set(t_up))))
-        if len(profile.t_up_s) > MAX_LANE_DEMANDS:
-            raise UsageError(f"--t-up: profile {profile.name} trains each lane count's network on all its T_ups, at "
-                             f"most {MAX_LANE_DEMANDS}; got {len(profile.t_up_s)}")  # fmt: skip
-    if args.preset is not None:
-        profile = replace(profile, preset=args.preset)
-    if args.policies is not None:
-        policies = set(name_list("--policies", args.policies, POLICIES))
-        profile = replace(profile, policies=tuple(x for x in POLICIES if x in policies))
-    if args.mobil_p is not None:
-        if "mobil" not in profile.policies:
-            raise UsageError("--mobil-p is for --policies with mobil")
-        ps = MOBIL_P_LIST.parse("--mobil-p", args.mobil_p)
-        profile = replace(profile, mobil_ps=tuple(sorted(set(ps))))
-    return profile
-
-
-def by_profile(show: Any) -> str:
-    """An option's default as --help states it, from the profiles: "the profile's: tiny 2; full 5; paper 10", or one
-    value when every profile has the same."""
-    values = {name: str(show(profile)) for name, profile in PROFILES.items()}
-    if len(set(values.values())) == 1:
-        return next(iter(values.values()))
-    return "the profile's: " + "; ".join(f"{name} {value}" for name, value in values.items())
-
-
-def _numbers(values: tuple[float, ...]) -> str:
-    return ",".join(f"{x:g}" for x in values)
+    return plan_from_flags(chosen_profile(args.profile), args, PLAN_FLAGS)
 
 
 def build_parser() -> Parser:
@@ -378,31 +392,7 @@ def build_parser() -> Parser:
     add_backend_flags(p)
     p.add_argument("--workers", type=workers, default=os.cpu_count() or 1,
                    help="parallel cells (default: every core); with --address the cluster decides")  # fmt: skip
-    p.add_argument("--steps", type=steps, default=None,
-                   help=f"training steps per cell (default: {by_profile(lambda f: f'{f.train_steps:,}')})")
-    p.add_argument("--eval-steps", type=steps, default=None,
-                   help=f"evaluation steps per cell (default: {by_profile(lambda f: f'{f.eval_steps:,}')})")
-    p.add_argument("--seeds", "--train-seeds", dest="seeds", type=seed_count, default=None,
-                   help="models per condition and alpha: training seeds 1..N "
-                        f"(default: {by_profile(lambda f: len(f.seeds))})")  # fmt: skip
-    p.add_argument("--eval-seeds", type=seed_count, default=None,
-                   help=f"evaluation seeds {EVAL_SEED_BASE + 1}..{EVAL_SEED_BASE}+N, which no training sees: every "
-                        "model, and MOBIL, is evaluated greedily on each "
-                        f"(default: {by_profile(lambda f: len(f.eval_seeds))})")  # fmt: skip
-    p.add_argument("--lanes", default=None,
-                   help=f"comma-separated lane counts (default: {by_profile(lambda f: _numbers(f.lanes))})")
-    p.add_argument("--alphas", default=None,
-                   help="comma-separated alphas, fractions allowed: 0,1/8,2 "
-                        f"(default: {by_profile(lambda f: _numbers(f.alphas))})")  # fmt: skip
-    p.add_argument("--t-up", default=None, help="fixed comma-separated T_up list (s) for every lane count, "
-                   "instead of the profile's load grid (default: the load grid)")  # fmt: skip
-    p.add_argument("--policies", default=None, help="comma-separated: dqn (the models), mobil (one MOBIL run per "
-                   "politeness p and evaluation seed), keep, greedy (one run per evaluation seed; no training) "
-                   f"(default: {by_profile(lambda f: ','.join(f.policies))})")  # fmt: skip
-    p.add_argument("--mobil-p", default=None, help="comma-separated MOBIL politeness values "
-                   f"(default: {by_profile(lambda f: _numbers(f.mobil_ps))})")  # fmt: skip
-    p.add_argument("--preset", choices=sorted(DQN_PRESETS), default=None,
-                   help=f"learner preset of the DQN cells (default: {by_profile(lambda f: f.preset)})")  # fmt: skip
+    add_plan_flags(p, PLAN_FLAGS, PROFILES)
     p.add_argument("--bootstrap", type=integer(0, 100_000), default=1000,
                    help="bootstrap replicates over seeds (default 1000)")  # fmt: skip
     p.add_argument("--quiet", action="store_true", help="no progress bar")
