@@ -5,8 +5,8 @@ run_cells reuses every cell whose stored record can be trusted (records.reusable
 in this process (not in every worker), runs the other cells on local processes or Ray (runner.execute, one progress
 bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
 The studies that only drive or measure (regime_map, accident_seeds) call it instead of
-repeating those steps; the learning study, the protocol and scenario II, which choose and order their own cells,
-call run_todo.
+repeating those steps; the learning study and the protocol, which order their own cells, are a `Study` whose run
+does the steps of a study from its cells to its record; scenario II, which checks its links first, calls run_todo.
 
 What a cell does: its model trained into the model store (or
 taken from it) and driven on its runs, or runs of a policy that needs no training, or a training alone.
@@ -274,3 +274,48 @@ class CellKind:
 
     def failed_record(self, spec: dict[str, Any], error: str) -> dict[str, Any]:
         return self.records.failed(spec, error)
+
+
+@dataclass(frozen=True)
+class Study:
+    """What the engine needs of a study that chooses and orders its own cells (the protocol, the learning study) to run
+    them and count them into its record: its name (records, lines), its cells' kind, the summary values a reusable
+    record holds, the run folders of a cell to run (checked for a user's files before any cell runs; in_place: run
+    folders written unmarked), and the order of the cells to run (sorts them in place)."""
+
+    prog: str
+    cells: CellKind
+    required: Sequence[str]
+    places: Callable[[Path, dict[str, Any]], Iterable[Path]]
+    order: Callable[[list[dict[str, Any]]], None]
+    in_place: bool = False
+
+    def run(self, specs: Sequence[dict[str, Any]], root: Path, meta: dict[str, Any], profile: str,
+            finish: Callable[[list[dict[str, Any]], dict[str, Any]], None], *, roads: Iterable[RoadConfig] = (),
+            workers: int = 2, backend: str = "local", address: str | None = None,
+            progress: bool = True) -> dict[str, Any]:  # fmt: skip
+        """Run (or finish) the study of `specs` in root: the cells to run (todo_cells) checked and ordered, run, their
+        records counted into `meta` (cells run, wall time, failed cells, core-seconds with the grouped trainings'
+        shares), then `finish(records, meta)` writes the study's outputs and record; returns meta."""
+        from time import perf_counter
+
+        from coopsumo.studies.engine.groups import study_cpu_s
+        from coopsumo.studies.engine.run_folders import check_run_places
+
+        start = perf_counter()
+        root = root.resolve()
+        todo = todo_cells(root, specs, self.prog, self.required)
+        check_run_places((place for s in todo for place in self.places(root, s)), in_place=self.in_place)
+        self.order(todo)
+        print(f"{self.prog}: profile {profile}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
+              f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
+        records = run_todo(todo, specs, root, self.cells.run_cell, self.cells.records.failed, required=self.required,
+                           roads=roads, workers=workers, backend=backend, address=address, progress=progress,
+                           desc=f"{self.prog} cells")  # fmt: skip
+        trains = (root / "train" / (s.get("train_key") or s["key"]) for s in specs
+                  if isinstance(s.get("config"), dict) and "train" in s["config"])  # fmt: skip
+        meta.update(cells_run=len(todo), wall_seconds=round(perf_counter() - start, 1),
+                    failed_cells=[r["key"] for r in records if r["status"] != "ok"],
+                    cell_cpu_seconds_sum=study_cpu_s(records, trains))  # fmt: skip
+        finish(records, meta)
+        return meta

@@ -18,7 +18,7 @@ alpha_response.csv, fig_training_curves.png, fig_alpha_response.png, report.md.
 from __future__ import annotations
 
 import sys
-import time
+from collections.abc import Iterable
 from dataclasses import asdict
 from pathlib import Path
 from typing import Any
@@ -38,11 +38,9 @@ from coopsumo.studies.engine.catalogue import (
     plan_from_flags,
     profile_arg,
 )
-from coopsumo.studies.engine.cells import Cell, CellKind, Run
-from coopsumo.studies.engine.groups import study_cpu_s
+from coopsumo.studies.engine.cells import Cell, CellKind, Run, Study
 from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import (
-    check_run_places,
     default_out,
     profile_study,
     recorded_profile,
@@ -109,47 +107,47 @@ DRIVE_TAGS = (("margin", "change_margin"), ("queue", "queue_below_mps"), ("noret
 
 
 # -- the study -------------------------------------------------------------------------------------
-def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
-              address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
-    from coopsumo.studies.engine.cells import run_todo, todo_cells
+def _places(root: Path, s: dict[str, Any]) -> Iterable[Path]:
+    """A cell's run folders: a training cell's evaluations under ROOT/evals/<training>/, a baseline's ROOT/baselines/
+    <key>/ (a user's files there refused before any cell runs: issue 82, probe 7, I1)."""
+    train = s["kind"] == "train"
+    return run_places(root / ("evals" if train else "baselines") / s.get("train_key", s["key"]), nested=train)
 
-    start = time.perf_counter()
-    root = root.resolve()
-    specs = cell_specs(profile, default)
-    todo = todo_cells(root, specs, "learning", REQUIRED_SUMMARY)
-    for s in todo:  # a run folder holding a user's files: refused before any cell runs (issue 82, probe 7, I1)
-        train = s["kind"] == "train"
-        folder = root / ("evals" if train else "baselines") / s.get("train_key", s["key"])
-        check_run_places(run_places(folder, nested=train), in_place=True)
-    # the slow paper trainings first, the single changes on top of the default last
+
+def _order(todo: list[dict[str, Any]]) -> None:
+    """The slow paper trainings first, the single changes on top of the default last; a training shared by several
+    cells (margin variants, a conditioned model's alphas) started by one cell first: the others wait for it (a lock),
+    so every training comes before every cell that would wait."""
     extras = set(VARIANT_NAMES[CHAIN_LENGTH:])
     todo.sort(key=lambda s: (s["variant"] in extras and s["part"] == "ablation", s["kind"] != "train",
                              s["variant"] != "paper"))  # fmt: skip
-    # a training shared by several cells (margin variants, a conditioned model's alphas) is started by one cell
-    # first: the others wait for it (a lock), so every training comes before every cell that would wait
     first: dict[str, str] = {}
     for s in todo:
         first.setdefault(s.get("train_key", s["key"]), s["key"])
     todo.sort(key=lambda s: first[s.get("train_key", s["key"])] != s["key"])
+
+
+STUDY = Study("learning", CELLS, REQUIRED_SUMMARY, _places, _order, in_place=True)
+"""the learning study as the engine runs it"""
+
+
+def run_study(profile: Profile, root: Path, default: DQNConfig, backend_name: str = "local", workers: int = 2,
+              address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
+    root = root.resolve()
+    specs = cell_specs(profile, default)
     default_variant = next((n for n, _, c in VARIANTS if c == default), "default")
     learners = {v: to_dict(learner_of(v)) for v in dict.fromkeys((*profile.variants, *profile.alpha_variants))}
     meta: dict[str, Any] = {"profile": asdict(profile), "default_learner": to_dict(default), "cells": len(specs),
                             "default_variant": default_variant, "learners": learners,
                             "backend": backend_name, "workers": workers, "versions": versions()}  # fmt: skip
-    print(f"learning: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
-          f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
-    records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED_SUMMARY,
-                       roads=[RoadConfig(lanes=profile.lanes)], workers=workers, backend=backend_name, address=address,
-                       progress=progress, desc="learning cells")  # fmt: skip
-    meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
-                failed_cells=[r["key"] for r in records if r["status"] != "ok"],
-                cell_wall_seconds_sum=round(sum(r.get("cell_wall_s") or 0.0 for r in records), 1),
-                cell_cpu_seconds_sum=study_cpu_s(records, (root / "train" / s.get("train_key", s["key"]) for s in specs
-                                                           if isinstance(s.get("config"), dict)
-                                                           and "train" in s["config"])))  # fmt: skip
-    write_outputs(root, profile, records, meta)
-    write_json(root / "study.json", meta)
-    return meta
+
+    def finish(records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
+        meta["cell_wall_seconds_sum"] = round(sum(r.get("cell_wall_s") or 0.0 for r in records), 1)
+        write_outputs(root, profile, records, meta)
+        write_json(root / "study.json", meta)
+
+    return STUDY.run(specs, root, meta, profile.name, finish, roads=[RoadConfig(lanes=profile.lanes)], workers=workers,
+                     backend=backend_name, address=address, progress=progress)  # fmt: skip
 
 
 def default_variant_name() -> str:

@@ -19,7 +19,6 @@ learner): cells/, train/, runs/, runs.csv, report.md and figures.
 from __future__ import annotations
 
 import sys
-import time
 from dataclasses import asdict
 from functools import partial
 from pathlib import Path
@@ -32,11 +31,9 @@ from coopsumo.provenance import versions
 from coopsumo.record_schemas import PROTOCOL_STUDY
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import OWN_PROFILE, own_profile, profile_arg
-from coopsumo.studies.engine.cells import Cell, CellKind, Run
-from coopsumo.studies.engine.groups import study_cpu_s
+from coopsumo.studies.engine.cells import Cell, CellKind, Run, Study
 from coopsumo.studies.engine.records import CellRecords, failed_exit
 from coopsumo.studies.engine.run_folders import (
-    check_run_places,
     default_out,
     profile_study,
     recorded_profile,
@@ -112,40 +109,38 @@ def accident_measures(run_dir: Path, cfg: SimConfig, departed: int) -> dict[str,
 
 
 # -- the study -------------------------------------------------------------------------------------
-def run_study(profile: Profile, root: Path, backend_name: str = "local", workers: int = 2,
-              address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
-    from coopsumo.studies.engine.cells import run_todo, todo_cells
-    from coopsumo.studies.protocol import report as protocol_report
-
-    start = time.perf_counter()
-    root = root.resolve()
-    specs = cell_specs(profile)
-    todo = todo_cells(root, specs, "protocol", REQUIRED)
-    check_run_places(root / "runs" / s["key"] for s in todo)  # a user's folder there: refused before any cell runs
-    # each training's first cell before any cell that would wait for it, free flow (short) before the accident
+def _order(todo: list[dict[str, Any]]) -> None:
+    """Each training's first cell before any cell that would wait for it, free flow (short) before the accident."""
     first: dict[str, str] = {}
     for s in todo:
         if s["train_key"] is not None:
             first.setdefault(s["train_key"], s["key"])
     todo.sort(key=lambda s: (s["train_key"] is None or first[s["train_key"]] != s["key"], s["scenario"] != "free"))
-    meta: dict[str, Any] = {"profile": asdict(profile), "cells": len(specs), "backend": backend_name,
-                            "workers": workers, "versions": versions(),
+
+
+STUDY = Study("protocol", CELLS, REQUIRED, lambda root, s: (root / "runs" / s["key"],), _order)
+"""the protocol as the engine runs it: a cell's run folder ROOT/runs/<key>/ (a user's folder there refused before any
+cell runs)"""
+
+
+def run_study(profile: Profile, root: Path, backend_name: str = "local", workers: int = 2,
+              address: str | None = None, progress: bool = True) -> dict[str, Any]:  # fmt: skip
+    from coopsumo.studies.protocol import report as protocol_report
+
+    root = root.resolve()
+    meta: dict[str, Any] = {"profile": asdict(profile), "cells": len(specs := cell_specs(profile)),
+                            "backend": backend_name, "workers": workers, "versions": versions(),
                             "learners": {n: {"text": v.text, "weights": v.weights, "drive": v.drive(),
                                              "learner": to_dict(v.learner)}
                                          for n, v in variants().items() if n in profile.variants}}  # fmt: skip
-    print(f"protocol: profile {profile.name}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
-          f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
-    records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED,
-                       roads=[RoadConfig(lanes=profile.lanes)], workers=workers, backend=backend_name, address=address,
-                       progress=progress, desc="protocol cells")  # fmt: skip
-    meta.update(cells_run=len(todo), wall_seconds=round(time.perf_counter() - start, 1),
-                failed_cells=[r["key"] for r in records if r["status"] != "ok"],
-                cell_cpu_seconds_sum=study_cpu_s(records, (root / "train" / s["train_key"] for s in specs
-                                                           if s["train_key"] is not None)))  # fmt: skip
-    PROTOCOL_STUDY.check(meta, root / "study.json")  # the schema `coopsumo history` reads it by, before any output
-    protocol_report.write_outputs(root, profile, records, meta)
-    write_json(root / "study.json", meta)
-    return meta
+
+    def finish(records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
+        PROTOCOL_STUDY.check(meta, root / "study.json")  # the schema `coopsumo history` reads it by, before any output
+        protocol_report.write_outputs(root, profile, records, meta)
+        write_json(root / "study.json", meta)
+
+    return STUDY.run(specs, root, meta, profile.name, finish, roads=[RoadConfig(lanes=profile.lanes)], workers=workers,
+                     backend=backend_name, address=address, progress=progress)  # fmt: skip
 
 
 def default_folder(profile: str) -> Path:
