@@ -806,10 +806,10 @@ def test_neighbour_separation_on_hand_made_speeds() -> None:
 
 
 @pytest.mark.sumo
-def test_tiny_sweep_with_the_paper_preset(tmp_path: Path) -> None:
-    """--preset paper: every cell trains the paper-literal learner (recorded in its configuration)."""
-    out = tmp_path / "paper"
-    run_sweep_cli(out, "--workers", "2", "--preset", "paper")
+def test_tiny_sweep_with_the_paper_preset(lone_sweep: Path) -> None:
+    """--preset paper: every cell trains the paper-literal learner (recorded in its configuration). The sweep is
+    lone_sweep's (the same command line), which the interrupted sweep's test only reads."""
+    out = lone_sweep
     assert_outputs(out)
     for cell in (out / "cells").glob("*.json"):
         dqn = json.loads(cell.read_text())["config"]["train"]["dqn"]
