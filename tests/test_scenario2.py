@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import InlineBackend
+from conftest import InlineBackend, main_here
 
 from coopsumo.config import PAPER_ALPHAS
 from coopsumo.errors import UsageError
@@ -410,6 +410,14 @@ def run_sweep_cli(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
     return result
 
 
+def sweep_here(out: Path, capfd: pytest.CaptureFixture[str], *extra: str) -> tuple[str, str]:
+    """run_sweep_cli's sweep by scenario2's main in this process, for a rerun or a sweep on top of the module's
+    local_sweep, which ran as a process: its stdout and stderr (its workers' too)."""
+    code, out_text, err = main_here(s2.main, sweep_cmd(out, *extra)[4:], capfd)
+    assert code == 0, err[-2000:]
+    return out_text, err
+
+
 def assert_outputs(out: Path) -> pd.DataFrame:
     for name in OUTPUTS:
         assert (out / name).is_file(), name
@@ -450,25 +458,25 @@ def local_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.mark.sumo
-def test_tiny_sweep_local(local_sweep: Path) -> None:
+def test_tiny_sweep_local(local_sweep: Path, capfd: pytest.CaptureFixture[str]) -> None:
     runs = assert_outputs(local_sweep)
     assert runs["train_updates"].gt(0).all()
     # a rerun finds every cell done and recomputes nothing
     before = {p.name: p.stat().st_mtime_ns for p in (local_sweep / "cells").iterdir()}
-    result = run_sweep_cli(local_sweep, "--workers", "2")
-    assert "8 already done" in result.stderr and "0 to run" in result.stderr
+    _, err = sweep_here(local_sweep, capfd, "--workers", "2")
+    assert "8 already done" in err and "0 to run" in err
     assert before == {p.name: p.stat().st_mtime_ns for p in (local_sweep / "cells").iterdir()}
 
 
 @pytest.mark.sumo
-def test_tiny_sweep_with_the_baselines(local_sweep: Path, tmp_path: Path) -> None:
+def test_tiny_sweep_with_the_baselines(local_sweep: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """--policies dqn,mobil,keep,greedy on the finished DQN cells: only the 8 runs that need no training run (2
     conditions x (2 p + keep + greedy) x 1 evaluation seed); the gate judged, p* beside alpha* in the report."""
     out = tmp_path / "baselines"
     shutil.copytree(local_sweep / "cells", out / "cells")  # the sweep's cells in a folder its study marked
     mark_run_dir(out, "scenario2", finished=False, study=json.loads((local_sweep / RUN_MARKER).read_text())["study"])
-    result = run_sweep_cli(out, "--workers", "2", "--policies", "dqn,mobil,keep,greedy")
-    assert "16 cells, 8 already done" in result.stderr and "8 to run" in result.stderr
+    stdout, err = sweep_here(out, capfd, "--workers", "2", "--policies", "dqn,mobil,keep,greedy")
+    assert "16 cells, 8 already done" in err and "8 to run" in err
     runs = pd.read_csv(out / "runs.csv")
     assert (runs["status"] == "ok").all(), runs["error"].tolist()
     assert runs["policy"].value_counts().to_dict() == {"dqn": 8, "mobil": 4, "keep": 2, "greedy": 2}
@@ -494,14 +502,16 @@ def test_tiny_sweep_with_the_baselines(local_sweep: Path, tmp_path: Path) -> Non
     assert np.isfinite(gate["alpha_star_minus_p_star_mps"]).all() and np.isfinite(gate["keep_mps"]).all()
     report = (out / "report.md").read_text()
     assert "| α* | p* | v(α*) − v(p*) [90%] |" in report and "**The alpha-0 models beat `keep` in" in report
-    assert "MOBIL p* =" in result.stdout and ("gate passes" in result.stdout or "gate fails" in result.stdout)
+    assert "MOBIL p* =" in stdout and ("gate passes" in stdout or "gate fails" in stdout)
 
 
 @pytest.mark.sumo
-def test_parts_of_a_profile_without_trajectories_merge(local_sweep: Path, tmp_path: Path) -> None:
+def test_parts_of_a_profile_without_trajectories_merge(local_sweep: Path, tmp_path: Path,
+                                                      capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """Issue 82, probe 8: two parts of the tiny profile (no trajectories: a sweep writes no full-road columns) were
     refused by the merge, "t0's runs.csv has no full_road_speed_mps column ...: not as a sweep writes it". The
-    parts reuse the tiny sweep's cells; their merge is the sweep."""
+    parts reuse the tiny sweep's cells; their merge is the sweep. The parts and the merge run in this process (a
+    merge as a process: tests/test_early_interrupts.py)."""
     study = json.loads((local_sweep / RUN_MARKER).read_text())["study"]
     parts = []
     for alpha in ("0", "8"):
@@ -510,13 +520,12 @@ def test_parts_of_a_profile_without_trajectories_merge(local_sweep: Path, tmp_pa
         for cell in (local_sweep / "cells").glob(f"*_a{alpha}_*.json"):
             shutil.copy(cell, out / "cells")
         mark_run_dir(out, "scenario2", finished=False, study=study)
-        result = run_sweep_cli(out, "--alphas", alpha)
-        assert "4 already done" in result.stderr and "0 to run" in result.stderr
+        _, err = sweep_here(out, capfd, "--alphas", alpha)
+        assert "4 already done" in err and "0 to run" in err
         assert "full_road_speed_mps" not in pd.read_csv(out / "runs.csv")
         parts.append(str(out))
-    merged = subprocess.run([sys.executable, "-m", "coopsumo", "scenario2", "--merge", ",".join(parts), "--out",
-                             str(tmp_path / "m")], capture_output=True, text=True, cwd=REPO, timeout=600, check=False)
-    assert merged.returncode == 0, merged.stderr[-2000:]
+    code, _, err = main_here(s2.main, ["--merge", ",".join(parts), "--out", str(tmp_path / "m")], capfd)
+    assert code == 0, err[-2000:]
     runs = pd.read_csv(tmp_path / "m" / "runs.csv").sort_values("key", ignore_index=True)
     local = pd.read_csv(local_sweep / "runs.csv").sort_values("key", ignore_index=True)
     pd.testing.assert_frame_equal(runs[COMPARED], local[COMPARED], check_dtype=False)
