@@ -601,7 +601,8 @@ LONE = ("--preset", "paper")
 
 
 @pytest.mark.sumo
-def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_sweep: Path, tmp_path: Path) -> None:
+def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_sweep: Path, tmp_path: Path,
+                                                                          capfd: pytest.CaptureFixture[str]) -> None:
     """Issue 25: Ctrl-C (SIGINT to the process group) while cells run, SIGKILL of the main process alone (its workers
     notice and exit), SIGTERM to the process group, SIGKILL while the report is being written; the last rerun equals
     the uninterrupted sweep, and the cells done before it are neither recomputed nor rewritten. On a learner whose
@@ -644,8 +645,8 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_s
     # 5. the rerun reuses every cell, neither recomputed nor rewritten, and equals the uninterrupted sweep; nothing
     # partial is left anywhere
     cells = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
-    result = run_sweep_cli(out, "--workers", "2", *LONE)
-    assert "8 already done" in result.stderr and "0 to run" in result.stderr
+    _, err = sweep_here(out, capfd, "--workers", "2", *LONE)  # the interrupted sweeps ran as processes
+    assert "8 already done" in err and "0 to run" in err
     assert {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")} == cells
     runs = assert_outputs(out)
     pd.testing.assert_frame_equal(runs[COMPARED], pd.read_csv(lone_sweep / "runs.csv")[COMPARED])
@@ -656,8 +657,8 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_s
 
 
 @pytest.mark.sumo
-def test_a_sweep_interrupted_while_its_trainings_group_ends_as_the_uninterrupted_one(local_sweep: Path,
-                                                                                     tmp_path: Path) -> None:
+def test_a_sweep_interrupted_while_its_trainings_group_ends_as_the_uninterrupted_one(
+        local_sweep: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """The default learner's trainings run as groups before the cells (engine/groups.py): Ctrl-C while the first
     group trains exits 130 with no half-written record; SIGKILL of the main process alone in the rerun's trainings
     leaves no process behind; the last rerun equals the uninterrupted sweep and leaves no partial file."""
@@ -677,7 +678,7 @@ def test_a_sweep_interrupted_while_its_trainings_group_ends_as_the_uninterrupted
             proc.communicate(timeout=60)
         wait_group_gone(proc.pid)
         assert_records_trustworthy(out, main_killed=not whole_group)
-    run_sweep_cli(out, "--workers", "2")
+    sweep_here(out, capfd, "--workers", "2")  # the interrupted sweeps ran as processes
     runs = assert_outputs(out)
     pd.testing.assert_frame_equal(runs[COMPARED], pd.read_csv(local_sweep / "runs.csv")[COMPARED])
     assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
