@@ -265,7 +265,8 @@ def text_difference(committed: str, redrawn: str, rel: float = REL_TOLERANCE) ->
 def main_here(main: Callable[[list[str]], int], argv: list[str],
               capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:  # fmt: skip
     """A command's main(argv) in this process, for refusals made before any simulation (the one-line refusal of a
-    command run as a process: tests/test_bad_inputs.py): its exit code (argparse's SystemExit too), stdout, stderr."""
+    command run as a process: tests/test_bad_inputs.py), or a rerun of a study the test ran as a process (capfd then,
+    for its workers' output too): its exit code (argparse's SystemExit too), stdout, stderr."""
     capsys.readouterr()
     try:
         code = main(argv)

@@ -63,7 +63,11 @@ def test_monotone_check() -> None:
     assert not is_monotone_decreasing([3.0, 2.0, 2.9, 1.0], [0.2, 0.2, 0.2, 0.1])
 
 
-def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
+def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    """The tiny study as a process, as a user runs it; its reruns, which judge what it left, by learning's main in
+    this process (its workers' output captured too)."""
+    from coopsumo.studies.learning import study as learning
+
     out = tmp_path / "learning"
     cmd = [sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--workers", "2", "--out", str(out),
            "--quiet"]  # fmt: skip
@@ -98,8 +102,8 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     assert set(acc_runs["variant"]) == {"keep", "greedy", "mobil:p=0", "margin2"}
     assert (acc_runs["collisions"] == 0).all() and (acc_runs["teleports"] == 0).all()
     assert "`margin2` | 0 | 1 |" in (tmp_path / "acc" / "report.md").read_text()
-    again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
-    assert again.returncode == 0, again.stderr[-2000:]
+    code, _, err = main_here(learning.main, cmd[4:], capfd)
+    assert code == 0, err[-2000:]
     assert json.loads((out / "study.json").read_text())["cells_run"] == 0
     assert pd.read_csv(out / "runs.csv").equals(runs)
     # issue 82, fifth probe, G6: a training whose log holds a speed of 999 m/s was drawn; it is trained again, with
@@ -109,10 +113,10 @@ def test_tiny_study_runs_and_a_rerun_reuses_every_cell(tmp_path: Path) -> None:
     cells = lines[1].split(",")
     cells[lines[0].strip().split(",").index("mean_speed_mps")] = "999"
     log.write_text("".join([lines[0], ",".join(cells), *lines[2:]]))
-    fixed = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
-    assert fixed.returncode == 0 and "Traceback" not in fixed.stderr, fixed.stderr[-2000:]
-    assert f"learning: {log} has mean_speed_mps = '999' in its row of step " in fixed.stderr, fixed.stderr[-2000:]
-    assert "; training it again" in fixed.stderr and ",999," not in log.read_text()
+    code, _, err = main_here(learning.main, cmd[4:], capfd)
+    assert code == 0 and "Traceback" not in err, err[-2000:]
+    assert f"learning: {log} has mean_speed_mps = '999' in its row of step " in err, err[-2000:]
+    assert "; training it again" in err and ",999," not in log.read_text()
     assert 0 < json.loads((out / "study.json").read_text())["cells_run"] < study["cells"]
 
 

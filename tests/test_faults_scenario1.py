@@ -49,6 +49,22 @@ def run(out: Path) -> subprocess.CompletedProcess[str]:
     return res
 
 
+def run_here(out: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str],
+             code: int = 0) -> str:  # fmt: skip
+    """run's study by scenario I's main in this process, with run's environment (a rerun of a study whose earlier runs
+    were processes): its stderr, its workers' too; its exit code must be `code`."""
+    from coopsumo.studies.scenario1 import study as scenario1
+
+    with monkeypatch.context() as patch:
+        patch.delenv("DISPLAY", raising=False)
+        patch.setenv("COOPSUMO_MODELS", env(out)["COOPSUMO_MODELS"])
+        capfd.readouterr()
+        got = scenario1.main([*STUDY[3:], "--out", str(out)])
+        err = capfd.readouterr().err
+    assert got == code, err[-2000:]
+    return err
+
+
 def kill_group_when(ready: Callable[[], bool], proc: subprocess.Popen[str], sig: int) -> tuple[int, str]:
     """Send sig to the study's process group as soon as ready(); wait until every process of it is gone. Returns
     the study's exit code and the end of its stderr."""
@@ -74,8 +90,10 @@ def leftovers(root: Path) -> list[str]:
 
 
 def test_scenario1_interrupted_and_spoiled_ends_as_the_uninterrupted_study(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+    tmp_path: Path, capfd: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    """The uninterrupted study and the interrupted ones run as processes; the reruns that judge what they left run
+    scenario I's main in this process."""
     ref, cut = tmp_path / "ref", tmp_path / "cut"
     run(ref)
     runs_t2 = cut / "runs" / "t2"
@@ -92,7 +110,7 @@ def test_scenario1_interrupted_and_spoiled_ends_as_the_uninterrupted_study(
     assert kill_group_when(lambda: (cut / "runs.csv").exists(), start(cut), signal.SIGKILL)[0] == -signal.SIGKILL
     assert not (cut / "report.md").exists()
     # 4. the rerun finishes it: the same tables as the uninterrupted study, nothing partial left
-    run(cut)
+    run_here(cut, monkeypatch, capfd)
     for name in ("runs.csv", "summary.csv"):
         assert (cut / name).read_text() == (ref / name).read_text(), name
     assert leftovers(tmp_path) == [] and (cut / "report.md").is_file()
@@ -106,7 +124,7 @@ def test_scenario1_interrupted_and_spoiled_ends_as_the_uninterrupted_study(
     (cut / "models" / MODEL / "model.pt").write_bytes(b"")
     marker = runs_t2 / "sumo_seed1" / RUN_MARKER  # its own run marked unfinished: redone (issue 82, F9: rc 1, looped)
     marker.write_text(marker.read_text().replace('"finished": true', '"finished": false'))
-    err = run(cut).stderr
+    err = run_here(cut, monkeypatch, capfd)
     for fragment in ("keep_seed1 has summary.json", "greedy_seed1 has a missing or cut-short detectors.xml",
                      "mobil_p0_seed1 has an unreadable trajectories.parquet", "model.pt cannot be used",
                      f"sumo_seed1 has a {RUN_MARKER} that does not mark a finished simulate run"):  # fmt: skip
@@ -117,15 +135,14 @@ def test_scenario1_interrupted_and_spoiled_ends_as_the_uninterrupted_study(
     # a marker with no list of the run's files: the folder is not the study's to replace; one line, rc 2, kept
     marker.write_text('{"kind": "simulate", "finished": false}')
     before = sorted((p.relative_to(cut).as_posix(), p.stat().st_mtime_ns) for p in (cut / "runs").rglob("*"))
-    res = subprocess.run([sys.executable, *STUDY, "--out", str(cut)], cwd=REPO, env=env(cut), capture_output=True,
-                         text=True, timeout=600, check=False)  # fmt: skip
-    lines = [line for line in res.stderr.splitlines() if "error" in line or "Traceback" in line]
-    assert res.returncode == 2 and len(lines) == 1, res.stderr[-2000:]
+    err = run_here(cut, monkeypatch, capfd, code=2)  # a refusal as a process: tests/test_bad_inputs.py
+    lines = [line for line in err.splitlines() if "error" in line or "Traceback" in line]
+    assert len(lines) == 1, err[-2000:]
     assert "sumo_seed1 has a .coopsumo-run.json that says its run did not finish and lists no files" in lines[0]
     assert sorted((p.relative_to(cut).as_posix(), p.stat().st_mtime_ns) for p in (cut / "runs").rglob("*")) == before
 
     # the study's folder is its own: simulate refuses it, every byte kept
     assert '"scenario1"' in (cut / RUN_MARKER).read_text()
     assert simulate.main(["--steps", "20", "--quiet", "--out", str(cut)]) == 2
-    line = capsys.readouterr().err.strip().splitlines()
+    line = capfd.readouterr().err.strip().splitlines()
     assert len(line) == 1 and "scenario1 run, not a simulate run" in line[0]

@@ -10,7 +10,7 @@ from typing import Any
 
 import pandas as pd
 import pytest
-from conftest import committed_report_pages
+from conftest import committed_report_pages, main_here
 
 from coopsumo.studies.protocol.report import VALIDATION_CAPTION
 
@@ -43,7 +43,11 @@ def test_an_alpha_conditioned_variant_trains_once_and_drives_at_each_cells_alpha
 
 
 @pytest.mark.sumo
-def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path) -> None:
+def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
+    """The tiny study as a process, as a user runs it; its reruns, which judge what it left, by protocol's main in
+    this process (its workers' output captured too)."""
+    from coopsumo.studies.protocol import study as protocol
+
     out = tmp_path / "proto"
     cmd = [sys.executable, "-m", "coopsumo", "protocol", "--profile", "tiny", "--out", str(out), "--quiet"]
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
@@ -71,17 +75,17 @@ def test_tiny_protocol_runs_reports_and_reuses(tmp_path: Path) -> None:
     assert (free[free["variant"] == "keep"]["passing_taken_share"].fillna(0) == 0).all()
     assert (out / "fig_validation.png").exists() and (out / "diagnosis.csv").exists()
     assert f"![validation over training](fig_validation.png)\n\n{VALIDATION_CAPTION}\n" in report  # captioned
-    again = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
-    assert again.returncode == 0 and "30 already done" in again.stderr
+    code, _, err = main_here(protocol.main, cmd[4:], capfd)
+    assert code == 0 and "30 already done" in err, err[-2000:]
     # issue 82, fifth probe, G8: a training whose validation.csv holds a score of 1e9 was copied into diagnosis.csv;
     # it is trained again, with one line naming the file and the field, and only the cells of that training run again
     val = sorted((out / "train").glob("*/validation.csv"))[0]
     lines = val.read_text().splitlines(keepends=True)
     val.write_text("".join([lines[0], lines[1].split(",", 2)[0] + ",1e9," + lines[1].split(",", 2)[2], *lines[2:]]))
-    fixed = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False)
-    assert fixed.returncode == 0 and "Traceback" not in fixed.stderr, fixed.stderr[-2000:]
-    assert f"protocol: {val} has score = '1e9' in its row of step " in fixed.stderr, fixed.stderr[-2000:]
-    assert "; training it again" in fixed.stderr and "30 already done" not in fixed.stderr
+    code, _, err = main_here(protocol.main, cmd[4:], capfd)
+    assert code == 0 and "Traceback" not in err, err[-2000:]
+    assert f"protocol: {val} has score = '1e9' in its row of step " in err, err[-2000:]
+    assert "; training it again" in err and "30 already done" not in err
     assert "1e+09" not in (out / "diagnosis.csv").read_text() and ",1e9," not in val.read_text()
 
 

@@ -98,6 +98,21 @@ def _study(out: Path | None, *extra: str, cwd: Path = REPO) -> subprocess.Comple
                           capture_output=True, text=True, timeout=600, check=False)  # fmt: skip
 
 
+def _study_here(out: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str],
+                *extra: str) -> tuple[int, str]:  # fmt: skip
+    """_study's study by scenario I's main in this process, with _study's environment, for a study the test ran as a
+    process before (or a one-line refusal: as a process in tests/test_bad_inputs.py): its exit code and stderr (its
+    workers' too)."""
+    from coopsumo.studies.scenario1 import study as scenario1
+
+    with monkeypatch.context() as patch:
+        patch.delenv("DISPLAY", raising=False)
+        patch.delenv(model_store.STORE_ENV, raising=False)
+        capfd.readouterr()
+        code = scenario1.main([*SMALL[3:], *extra, "--out", str(out)])
+        return code, capfd.readouterr().err
+
+
 def test_scenario_one_takes_the_protocols_models_from_the_store() -> None:
     """The default scenario I trains exactly the learner protocol's models (same identity, so one stored model)."""
     from coopsumo.studies.protocol import plan as protocol_plan
@@ -114,7 +129,12 @@ def test_scenario_one_takes_the_protocols_models_from_the_store() -> None:
 
 
 @pytest.mark.sumo
-def test_a_second_study_takes_stored_models_and_a_tampered_one_is_retrained(tmp_path: Path) -> None:
+def test_a_second_study_takes_stored_models_and_a_tampered_one_is_retrained(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The first study runs as a process; the second, which judges what it left in the store, by scenario I's main in
+    this process, and so does the listing (`coopsumo models` as a process: tests/test_extending.py)."""
+    from coopsumo.studies.engine import store_listing
+
     first, second = tmp_path / "first", tmp_path / "second"
     res = _study(first, "--train-seeds", "2")
     assert res.returncode == 0, res.stderr[-2000:]
@@ -124,9 +144,9 @@ def test_a_second_study_takes_stored_models_and_a_tampered_one_is_retrained(tmp_
     assert [p.name.split("_")[2] for p in stored] == ["seed100", "seed101"]
     stamps = {p: (p / "model.pt").stat().st_mtime_ns for p in stored}
     # 1. another study asking for the same models trains nothing: its model folders link to the stored ones
-    res = _study(second, "--train-seeds", "2")
-    assert res.returncode == 0, res.stderr[-2000:]
-    assert "2 of 2 models from the model store" in res.stderr and "0 trainings" in res.stderr
+    code, err = _study_here(second, monkeypatch, capfd, "--train-seeds", "2")
+    assert code == 0, err[-2000:]
+    assert "2 of 2 models from the model store" in err and "0 trainings" in err
     assert {(second / "models" / f"alpha0_m{k}").resolve() for k in (100, 101)} == set(stored)
     assert {p: (p / "model.pt").stat().st_mtime_ns for p in stored} == stamps
     runs_first = (first / "runs.csv").read_text()
@@ -136,17 +156,18 @@ def test_a_second_study_takes_stored_models_and_a_tampered_one_is_retrained(tmp_
     record = json.loads(edited.read_text())
     record["config"]["dqn"]["lr"] = 0.5
     edited.write_text(json.dumps(record))
-    listing = subprocess.run([sys.executable, "-m", "coopsumo", "models", "--store", str(store)], cwd=REPO,
-                             capture_output=True, text=True, check=False)  # fmt: skip
-    assert listing.returncode == 0, listing.stderr
-    lines = listing.stdout.splitlines()
+    capfd.readouterr()
+    code = store_listing.main(["--store", str(store)])
+    listing = capfd.readouterr()
+    assert code == 0, listing.err
+    lines = listing.out.splitlines()
     assert lines[-1] == f"2 models in {store}, 1 usable"
     assert "not this folder's identity" in next(line for line in lines if line.startswith(stored[0].name))
     assert next(line for line in lines if line.startswith(stored[1].name)).rstrip().endswith(" ok")
-    res = _study(second, "--train-seeds", "2")
-    assert res.returncode == 0, res.stderr[-2000:]
-    lines = [line for line in res.stderr.splitlines() if "another configuration than its config.json" in line]
-    assert len(lines) == 1 and str(stored[0]) in lines[0], res.stderr[-2000:]
+    code, err = _study_here(second, monkeypatch, capfd, "--train-seeds", "2")
+    assert code == 0, err[-2000:]
+    lines = [line for line in err.splitlines() if "another configuration than its config.json" in line]
+    assert len(lines) == 1 and str(stored[0]) in lines[0], err[-2000:]
     assert (stored[1] / "model.pt").stat().st_mtime_ns == stamps[stored[1]]
     assert json.loads(edited.read_text())["config"]["dqn"]["lr"] == DQNConfig().lr  # retrained as its identity
     assert (second / "runs.csv").read_text() == runs_first.replace(str(first), str(second))  # the same model again
@@ -180,9 +201,11 @@ def _digests(folder: Path) -> dict[str, str]:
 
 
 @pytest.mark.sumo
-def test_a_quick_run_leaves_the_committed_report_byte_identical(tmp_path: Path) -> None:
+def test_a_quick_run_leaves_the_committed_report_byte_identical(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                                capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """`make scenario1 QUICK=1` (coopsumo scenario1 --quick) writes into results/scenario1_quick; asked to write
-    into the default profile's folder, it refuses with one line."""
+    into the default profile's folder, it refuses with one line (scenario I's main in this process: a refusal as a
+    process is tests/test_bad_inputs.py's)."""
     committed = tmp_path / "results" / "scenario1"
     shutil.copytree(REPO / "results" / "scenario1", committed, ignore=shutil.ignore_patterns("runs", "models",
                                                                                              "cells", ".*"))
@@ -192,7 +215,7 @@ def test_a_quick_run_leaves_the_committed_report_byte_identical(tmp_path: Path) 
     assert res.returncode == 0, res.stderr[-2000:]
     assert (tmp_path / "results" / "scenario1_quick" / "report.md").is_file()
     assert _digests(committed) == before
-    res = _study(committed, "--train-seeds", "1")
-    assert res.returncode == 2 and len(res.stderr.strip().splitlines()) == 1, res.stderr
-    assert "holds the default profile's study" in res.stderr and "results/scenario1_quick" in res.stderr
+    code, err = _study_here(committed, monkeypatch, capfd, "--train-seeds", "1")
+    assert code == 2 and len(err.strip().splitlines()) == 1, err
+    assert "holds the default profile's study" in err and "results/scenario1_quick" in err
     assert _digests(committed) == before

@@ -2,7 +2,11 @@
 deleted, swapped or damaged, so the study called itself complete while its train/ link led to no model, or to
 another; accident-seeds then refused the model and advised a rerun that did nothing. A cell is reused only beside
 the model a training would reuse (trainings.unusable_trainings, finished_training's own judgement), else it is run
-again, which trains its model again, with one line naming the file and why."""
+again, which trains its model again, with one line naming the file and why.
+
+Each test's first sweep runs as the command a user runs (a process); the reruns, which judge what that sweep left,
+run scenario2's main in this process, its workers' output captured as well (capfd), and the alpha-8 model swapped in
+is made by train's main here too (`coopsumo train` as a process: tests/test_train.py)."""
 
 from __future__ import annotations
 
@@ -27,12 +31,24 @@ def sweep(out: Path) -> subprocess.CompletedProcess[str]:
     return result
 
 
+def rerun(out: Path, capfd: pytest.CaptureFixture[str]) -> str:
+    """The same sweep by scenario2's main in this process: its stderr (its workers' too)."""
+    from coopsumo.studies.scenario2 import study as s2
+
+    capfd.readouterr()
+    code = s2.main([*SWEEP[1:], "--out", str(out)])
+    err = capfd.readouterr().err
+    assert code == 0, err[-2000:]
+    return err
+
+
 def swap_in_another_model(model: Path, tmp_path: Path) -> None:
     """model.pt replaced by an alpha-8 training's (what train writes of that training, made here first)."""
+    from coopsumo.agents import train_cli
+
     other = tmp_path / "other"
-    subprocess.run([sys.executable, "-m", "coopsumo", "train", "--quiet", "--steps", "200", "--eval-steps", "0",
-                    "--lanes", "2", "--alpha", "8", "--seed", "100", "--out", str(other)], cwd=REPO, check=True,
-                   capture_output=True, timeout=600)  # fmt: skip
+    assert train_cli.main(["--quiet", "--steps", "200", "--eval-steps", "0", "--lanes", "2", "--alpha", "8", "--seed",
+                           "100", "--out", str(other)]) == 0  # fmt: skip
     shutil.copy(other / "model.pt", model / "model.pt")
 
 
@@ -45,7 +61,8 @@ EDITS = {
 
 
 @pytest.mark.sumo
-def test_a_cell_whose_store_model_was_spoiled_is_rerun_and_its_model_trained_again(tmp_path: Path) -> None:
+def test_a_cell_whose_store_model_was_spoiled_is_rerun_and_its_model_trained_again(
+        tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """Each spoiling in turn on one finished study (one study, not one a case: the suite's time): its rerun runs both
     cells again with one line naming the training's link and why, and trains the model again; once all are done, a
     last rerun reuses every cell."""
@@ -56,17 +73,18 @@ def test_a_cell_whose_store_model_was_spoiled_is_rerun_and_its_model_trained_aga
     for case in sorted(EDITS):
         edit, words = EDITS[case]
         edit(model, tmp_path)
-        err = sweep(out).stderr
+        err = rerun(out, capfd)
         assert "2 cells, 0 already done" in err and "2 to run" in err, (case, err)
         named = [line for line in err.splitlines() if "rerunning the 2 cells of its training" in line]
         assert len(named) == 1 and words in named[0] and str(out / "train" / "L2_a0_s1") in named[0], (case, err)
         assert json.loads((model / "train_summary.json").read_text())["steps"] == 200, case  # trained again
-    again = sweep(out).stderr  # the model trained again: every cell reused now
+    again = rerun(out, capfd)  # the model trained again: every cell reused now
     assert "2 cells, 2 already done" in again and "rerunning" not in again, again
 
 
 @pytest.mark.sumo
-def test_a_study_copied_with_its_links_links_its_own_store(tmp_path: Path) -> None:
+def test_a_study_copied_with_its_links_links_its_own_store(tmp_path: Path,
+                                                          capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """The probe's s2_rawcopy: `cp -a` of a finished study elsewhere kept its train/ links into the original study's
     store, and the copy reused them silently, depending on a store not its own. Its cells run again, each training's
     model made (or found) in the copy's own store, with a line naming the link."""
@@ -74,7 +92,7 @@ def test_a_study_copied_with_its_links_links_its_own_store(tmp_path: Path) -> No
     sweep(out)
     copy = tmp_path / "b" / "s2"
     shutil.copytree(out, copy, symlinks=True)
-    err = sweep(copy).stderr
+    err = rerun(copy, capfd)
     named = [line for line in err.splitlines() if "outside the study's model store" in line]
     assert len(named) == 2 and "2 to run" in err, err  # one line per cell (scenario2's repointed)
     assert all(str(copy / "train" / "L2_a0_s1") in line and line.endswith("rerunning it") for line in named), named

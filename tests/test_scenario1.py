@@ -122,7 +122,10 @@ def test_report_numbers_equal_the_summaries_per_demand(study: Path) -> None:
     assert "Where the queue goes" in report and "| T_up (s) |" in report
 
 
-def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) -> None:
+def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None, monkeypatch: pytest.MonkeyPatch,
+                                      capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The study (a process: the module's fixture) rerun by scenario I's main in this process, with the fixture's
+    display: it reuses every model and run."""
     model = study / "models" / "alpha8_m100" / "model.pt"
     before = model.stat().st_mtime_ns
     run_summary = next((study / "runs" / "t3").iterdir()) / "summary.json"
@@ -134,11 +137,14 @@ def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None) 
     users = ["fig_recovery_t7.png", "fig5_flow_density_t1.5.png"] + ([] if display_or_none else ["gui_jam.png"])
     for name in users:  # a user's, at a demand never run, no report showed: kept (issue 82, probe 12, N4)
         (study / name).write_bytes(b"mine")
-    cmd = [sys.executable, "-m", "coopsumo", "scenario1", *TINY, "--out", str(study)]
-    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False,
-                         env=env_with_display(display_or_none))  # fmt: skip
-    assert res.returncode == 0, res.stderr[-2000:]
-    assert "4 of 4 models from the model store" in res.stderr and "sumo-gui screenshot" not in res.stderr
+    with monkeypatch.context() as patch:
+        if display_or_none is None:
+            patch.delenv("DISPLAY", raising=False)
+        else:
+            patch.setenv("DISPLAY", display_or_none)
+        code, _, err = main_here(scenario1.main, [*TINY, "--out", str(study)], capfd)
+    assert code == 0, err[-2000:]
+    assert "4 of 4 models from the model store" in err and "sumo-gui screenshot" not in err
     assert model.stat().st_mtime_ns == before and run_summary.stat().st_mtime_ns == run_before
     if shot_before is not None:  # the same sumo-gui screenshot is reused too
         assert (study / "gui_jam.png").stat().st_mtime_ns == shot_before

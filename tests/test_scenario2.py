@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
-from conftest import InlineBackend
+from conftest import InlineBackend, main_here
 
 from coopsumo.config import PAPER_ALPHAS
 from coopsumo.errors import UsageError
@@ -410,6 +410,14 @@ def run_sweep_cli(out: Path, *extra: str) -> subprocess.CompletedProcess[str]:
     return result
 
 
+def sweep_here(out: Path, capfd: pytest.CaptureFixture[str], *extra: str) -> tuple[str, str]:
+    """run_sweep_cli's sweep by scenario2's main in this process, for a rerun or a sweep on top of the module's
+    local_sweep, which ran as a process: its stdout and stderr (its workers' too)."""
+    code, out_text, err = main_here(s2.main, sweep_cmd(out, *extra)[4:], capfd)
+    assert code == 0, err[-2000:]
+    return out_text, err
+
+
 def assert_outputs(out: Path) -> pd.DataFrame:
     for name in OUTPUTS:
         assert (out / name).is_file(), name
@@ -450,25 +458,25 @@ def local_sweep(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.mark.sumo
-def test_tiny_sweep_local(local_sweep: Path) -> None:
+def test_tiny_sweep_local(local_sweep: Path, capfd: pytest.CaptureFixture[str]) -> None:
     runs = assert_outputs(local_sweep)
     assert runs["train_updates"].gt(0).all()
     # a rerun finds every cell done and recomputes nothing
     before = {p.name: p.stat().st_mtime_ns for p in (local_sweep / "cells").iterdir()}
-    result = run_sweep_cli(local_sweep, "--workers", "2")
-    assert "8 already done" in result.stderr and "0 to run" in result.stderr
+    _, err = sweep_here(local_sweep, capfd, "--workers", "2")
+    assert "8 already done" in err and "0 to run" in err
     assert before == {p.name: p.stat().st_mtime_ns for p in (local_sweep / "cells").iterdir()}
 
 
 @pytest.mark.sumo
-def test_tiny_sweep_with_the_baselines(local_sweep: Path, tmp_path: Path) -> None:
+def test_tiny_sweep_with_the_baselines(local_sweep: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """--policies dqn,mobil,keep,greedy on the finished DQN cells: only the 8 runs that need no training run (2
     conditions x (2 p + keep + greedy) x 1 evaluation seed); the gate judged, p* beside alpha* in the report."""
     out = tmp_path / "baselines"
     shutil.copytree(local_sweep / "cells", out / "cells")  # the sweep's cells in a folder its study marked
     mark_run_dir(out, "scenario2", finished=False, study=json.loads((local_sweep / RUN_MARKER).read_text())["study"])
-    result = run_sweep_cli(out, "--workers", "2", "--policies", "dqn,mobil,keep,greedy")
-    assert "16 cells, 8 already done" in result.stderr and "8 to run" in result.stderr
+    stdout, err = sweep_here(out, capfd, "--workers", "2", "--policies", "dqn,mobil,keep,greedy")
+    assert "16 cells, 8 already done" in err and "8 to run" in err
     runs = pd.read_csv(out / "runs.csv")
     assert (runs["status"] == "ok").all(), runs["error"].tolist()
     assert runs["policy"].value_counts().to_dict() == {"dqn": 8, "mobil": 4, "keep": 2, "greedy": 2}
@@ -494,14 +502,16 @@ def test_tiny_sweep_with_the_baselines(local_sweep: Path, tmp_path: Path) -> Non
     assert np.isfinite(gate["alpha_star_minus_p_star_mps"]).all() and np.isfinite(gate["keep_mps"]).all()
     report = (out / "report.md").read_text()
     assert "| α* | p* | v(α*) − v(p*) [90%] |" in report and "**The alpha-0 models beat `keep` in" in report
-    assert "MOBIL p* =" in result.stdout and ("gate passes" in result.stdout or "gate fails" in result.stdout)
+    assert "MOBIL p* =" in stdout and ("gate passes" in stdout or "gate fails" in stdout)
 
 
 @pytest.mark.sumo
-def test_parts_of_a_profile_without_trajectories_merge(local_sweep: Path, tmp_path: Path) -> None:
+def test_parts_of_a_profile_without_trajectories_merge(local_sweep: Path, tmp_path: Path,
+                                                      capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """Issue 82, probe 8: two parts of the tiny profile (no trajectories: a sweep writes no full-road columns) were
     refused by the merge, "t0's runs.csv has no full_road_speed_mps column ...: not as a sweep writes it". The
-    parts reuse the tiny sweep's cells; their merge is the sweep."""
+    parts reuse the tiny sweep's cells; their merge is the sweep. The parts and the merge run in this process (a
+    merge as a process: tests/test_early_interrupts.py)."""
     study = json.loads((local_sweep / RUN_MARKER).read_text())["study"]
     parts = []
     for alpha in ("0", "8"):
@@ -510,13 +520,12 @@ def test_parts_of_a_profile_without_trajectories_merge(local_sweep: Path, tmp_pa
         for cell in (local_sweep / "cells").glob(f"*_a{alpha}_*.json"):
             shutil.copy(cell, out / "cells")
         mark_run_dir(out, "scenario2", finished=False, study=study)
-        result = run_sweep_cli(out, "--alphas", alpha)
-        assert "4 already done" in result.stderr and "0 to run" in result.stderr
+        _, err = sweep_here(out, capfd, "--alphas", alpha)
+        assert "4 already done" in err and "0 to run" in err
         assert "full_road_speed_mps" not in pd.read_csv(out / "runs.csv")
         parts.append(str(out))
-    merged = subprocess.run([sys.executable, "-m", "coopsumo", "scenario2", "--merge", ",".join(parts), "--out",
-                             str(tmp_path / "m")], capture_output=True, text=True, cwd=REPO, timeout=600, check=False)
-    assert merged.returncode == 0, merged.stderr[-2000:]
+    code, _, err = main_here(s2.main, ["--merge", ",".join(parts), "--out", str(tmp_path / "m")], capfd)
+    assert code == 0, err[-2000:]
     runs = pd.read_csv(tmp_path / "m" / "runs.csv").sort_values("key", ignore_index=True)
     local = pd.read_csv(local_sweep / "runs.csv").sort_values("key", ignore_index=True)
     pd.testing.assert_frame_equal(runs[COMPARED], local[COMPARED], check_dtype=False)
@@ -592,7 +601,8 @@ LONE = ("--preset", "paper")
 
 
 @pytest.mark.sumo
-def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_sweep: Path, tmp_path: Path) -> None:
+def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_sweep: Path, tmp_path: Path,
+                                                                          capfd: pytest.CaptureFixture[str]) -> None:
     """Issue 25: Ctrl-C (SIGINT to the process group) while cells run, SIGKILL of the main process alone (its workers
     notice and exit), SIGTERM to the process group, SIGKILL while the report is being written; the last rerun equals
     the uninterrupted sweep, and the cells done before it are neither recomputed nor rewritten. On a learner whose
@@ -635,8 +645,8 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_s
     # 5. the rerun reuses every cell, neither recomputed nor rewritten, and equals the uninterrupted sweep; nothing
     # partial is left anywhere
     cells = {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")}
-    result = run_sweep_cli(out, "--workers", "2", *LONE)
-    assert "8 already done" in result.stderr and "0 to run" in result.stderr
+    _, err = sweep_here(out, capfd, "--workers", "2", *LONE)  # the interrupted sweeps ran as processes
+    assert "8 already done" in err and "0 to run" in err
     assert {p.name: (p.stat().st_mtime_ns, p.read_bytes()) for p in (out / "cells").glob("*.json")} == cells
     runs = assert_outputs(out)
     pd.testing.assert_frame_equal(runs[COMPARED], pd.read_csv(lone_sweep / "runs.csv")[COMPARED])
@@ -647,8 +657,8 @@ def test_a_sweep_interrupted_at_every_point_ends_as_the_uninterrupted_one(lone_s
 
 
 @pytest.mark.sumo
-def test_a_sweep_interrupted_while_its_trainings_group_ends_as_the_uninterrupted_one(local_sweep: Path,
-                                                                                     tmp_path: Path) -> None:
+def test_a_sweep_interrupted_while_its_trainings_group_ends_as_the_uninterrupted_one(
+        local_sweep: Path, tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """The default learner's trainings run as groups before the cells (engine/groups.py): Ctrl-C while the first
     group trains exits 130 with no half-written record; SIGKILL of the main process alone in the rerun's trainings
     leaves no process behind; the last rerun equals the uninterrupted sweep and leaves no partial file."""
@@ -668,7 +678,7 @@ def test_a_sweep_interrupted_while_its_trainings_group_ends_as_the_uninterrupted
             proc.communicate(timeout=60)
         wait_group_gone(proc.pid)
         assert_records_trustworthy(out, main_killed=not whole_group)
-    run_sweep_cli(out, "--workers", "2")
+    sweep_here(out, capfd, "--workers", "2")  # the interrupted sweeps ran as processes
     runs = assert_outputs(out)
     pd.testing.assert_frame_equal(runs[COMPARED], pd.read_csv(local_sweep / "runs.csv")[COMPARED])
     assert (out / "alpha_star.csv").read_text() == (local_sweep / "alpha_star.csv").read_text()
@@ -806,10 +816,10 @@ def test_neighbour_separation_on_hand_made_speeds() -> None:
 
 
 @pytest.mark.sumo
-def test_tiny_sweep_with_the_paper_preset(tmp_path: Path) -> None:
-    """--preset paper: every cell trains the paper-literal learner (recorded in its configuration)."""
-    out = tmp_path / "paper"
-    run_sweep_cli(out, "--workers", "2", "--preset", "paper")
+def test_tiny_sweep_with_the_paper_preset(lone_sweep: Path) -> None:
+    """--preset paper: every cell trains the paper-literal learner (recorded in its configuration). The sweep is
+    lone_sweep's (the same command line), which the interrupted sweep's test only reads."""
+    out = lone_sweep
     assert_outputs(out)
     for cell in (out / "cells").glob("*.json"):
         dqn = json.loads(cell.read_text())["config"]["train"]["dqn"]

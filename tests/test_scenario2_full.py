@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import main_here
 
 from coopsumo.studies.engine.model_store import model_id
 from coopsumo.studies.scenario2 import gate, gate_report, plan
@@ -317,10 +318,10 @@ speed is measured)"""
 
 
 @pytest.mark.sumo
-def test_the_check_profile_end_to_end(tmp_path: Path) -> None:
+def test_the_check_profile_end_to_end(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """The check profile at a tiny size: lane networks and per-alpha models trained into the model store, every
     cell evaluated with its full-road speed, keep, greedy and MOBIL on the same seeds, the gate, the check and the
-    report; a rerun runs nothing."""
+    report; a rerun runs nothing (scenario2's main in this process: the study itself ran as a process)."""
     out = tmp_path / "check"
     cmd = [sys.executable, "-m", "coopsumo", "scenario2", "--profile", "check", *TINY, "--out", str(out)]
     res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=900, check=False)
@@ -352,8 +353,8 @@ def test_the_check_profile_end_to_end(tmp_path: Path) -> None:
     assert "gate" in res.stdout and "scenario2: 22 ok, 0 failed" in res.stdout
     sweep = json.loads((out / "sweep.json").read_text())
     assert sweep["criterion"] == FULL_ROAD and sweep["trainings"] == 6 and "2_lanes" in sweep["learner"]
-    again = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300, check=False)
-    assert again.returncode == 0 and "22 already done" in again.stderr and "0 to run" in again.stderr
+    code, _, err = main_here(s2.main, cmd[4:], capfd)
+    assert code == 0 and "22 already done" in err and "0 to run" in err, err[-2000:]
     # a committed folder keeps no cells/: its tables and report are redrawn from runs.csv, evals.csv and sweep.json
     redrawn = tmp_path / "redrawn"
     redrawn.mkdir()
@@ -369,28 +370,33 @@ PART = ["--t-up", "4", "--alphas", "0,8", "--seeds", "1", "--eval-seeds", "1", "
 """one part of the full profile at a tiny size: one condition, a model per alpha of 300 steps, one evaluation seed"""
 
 
-def test_the_full_profile_in_parts_merged(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_the_full_profile_in_parts_merged(tmp_path: Path, capfd: pytest.CaptureFixture[str]) -> None:
     """The full profile (one model per alpha, lane count and seed) run in parts, one lane count or some of its alphas
     at a time, then --merge: the merged tables are the parts' together (the classical runs two parts of one lane
     count both made, once), its report covers both lane counts and says it ran in parts, and the gate row of a lane
-    count run in one part is the one that part drew alone. The parts run as commands; the merges, which run no
-    simulation, in this process (the command's one-line refusals as a process: tests/test_bad_inputs.py)."""
+    count run in one part is the one that part drew alone. The first part runs as a process, the two others by
+    scenario2's main in this process (capfd: their workers' output too); the merges, which run no simulation, in this
+    process (the command's one-line refusals as a process: tests/test_bad_inputs.py)."""
     parts = {"L2": (2, "0,8"), "L3a": (3, "0"), "L3b": (3, "8")}
     folders = {name: tmp_path / name for name in parts}
     for name, (n, alphas) in parts.items():
         out = folders[name]
         cmd = [sys.executable, "-m", "coopsumo", "scenario2", "--lanes", str(n), *PART, "--alphas", alphas, "--out",
                str(out)]  # fmt: skip
-        res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
-        assert res.returncode == 0, res.stderr[-3000:]
+        if name == "L2":
+            res = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=600, check=False)
+            assert res.returncode == 0, res.stderr[-3000:]
+        else:
+            code, _, err = main_here(s2.main, cmd[4:], capfd)
+            assert code == 0, err[-3000:]
         assert sorted(p.name for p in (out / "train").iterdir()) == [f"L{n}_a{a}_s1" for a in alphas.split(",")]
     cfg = json.loads((folders["L2"] / "train" / "L2_a8_s1" / "config.json").read_text())["config"]
     assert not cfg["dqn"]["alpha_conditioned"] and cfg["sim"]["reward"]["alpha"] == 8
     merged = tmp_path / "merged"
     argv = ["--merge", ",".join(map(str, folders.values())), "--out"]
-    capsys.readouterr()
+    capfd.readouterr()
     code = s2.main([*argv, str(merged)])
-    out, err = capsys.readouterr()
+    out, err = capfd.readouterr()
     assert code == 0, err[-3000:]
     assert "merged 3 parts (10 cells, lanes 2, 3)" in out
     runs = pd.read_csv(merged / "runs.csv")
@@ -443,9 +449,9 @@ def test_the_full_profile_in_parts_merged(tmp_path: Path, capsys: pytest.Capture
                             ([f"{folders['L2']},{copy}"], "repeats lanes 2 at alpha 0"),
                             ([str(tmp_path / "none")], "not a finished"),
                             ([str(folders["L2"]), "--lanes", "2"], "--lanes cannot go with it")):  # fmt: skip
-        capsys.readouterr()
+        capfd.readouterr()
         code = s2.main(["--merge", *bad_argv, "--out", str(tmp_path / "bad")])
-        err = capsys.readouterr().err
+        err = capfd.readouterr().err
         lines = err.strip().splitlines()
         assert code == 2 and len(lines) == 1 and words in lines[0], err
         assert not (tmp_path / "bad").exists()
