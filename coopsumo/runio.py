@@ -280,8 +280,13 @@ def _deaf_at_exit() -> None:
     came while it then tore its modules down (seconds, with torch loaded) killed the process without a line, exit code
     130, after the command had finished and printed everything (issue 82, probe 13, F22: `models`, `train`). Blocked,
     it is never delivered and the exit code is the command's; the exit callbacks before it (a policy's that blocks:
-    _exit_stop) still take the signal; its clock, if one started, is stopped (their exit is done)."""
+    _exit_stop) still take the signal; its clock, if one started, is stopped (their exit is done). Blocking holds in
+    this thread only: a library's worker threads (OpenMP, BLAS) would take the signal with its default action once
+    _PySignal_Fini restored it, so the signals are ignored too, process-wide, which _PySignal_Fini leaves as it is
+    (probe 14, F6: `models`, `history` and both merges killed after their last line)."""
     signal.pthread_sigmask(signal.SIG_BLOCK, STOP_SIGNALS)
+    for s in STOP_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
     signal.alarm(0)
 
 

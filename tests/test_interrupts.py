@@ -255,15 +255,22 @@ class Late:
 
 
 late = Late()
+if {worker}:  # a library's worker thread (OpenMP, BLAS) that does not block the signals: it may be the one to take it
+    import threading
+    threading.Thread(target=time.sleep, args=(600,), daemon=True).start()
 sys.exit(run_interruptible(lambda: print("4 models, 4 usable") or {code}, lambda: "models", whole_process=True))
 """
 
 
-@pytest.mark.parametrize(("name", "code"), [("SIGINT", 0), ("SIGTERM", 0), ("SIGINT", 2)])
-def test_a_signal_as_python_tears_down_leaves_the_commands_exit_code(name: str, code: int, tmp_path: Path) -> None:
+@pytest.mark.parametrize(("name", "code", "worker"), [("SIGINT", 0, False), ("SIGTERM", 0, False),
+                                                     ("SIGINT", 2, False), ("SIGINT", 0, True), ("SIGTERM", 0, True)])
+def test_a_signal_as_python_tears_down_leaves_the_commands_exit_code(name: str, code: int, worker: bool,
+                                                                     tmp_path: Path) -> None:  # fmt: skip
     """Issue 82, probe 13, F22: a Ctrl-C in a console command's last moments (Python tearing its modules down, after
     it gave SIGINT its default action back) ended `models` and `train`, finished and printed, with exit code 130 and
-    no line; it now leaves the command's own exit code (runio._deaf_at_exit)."""
-    script = SIGNALLED_IN_TEARDOWN.format(root=str(Path(__file__).resolve().parent.parent), name=name, code=code)
+    no line; it now leaves the command's own exit code (runio._deaf_at_exit). Probe 14, F6: also when another thread
+    that does not block the signal is there to take it (a library's worker thread)."""
+    script = SIGNALLED_IN_TEARDOWN.format(root=str(Path(__file__).resolve().parent.parent), name=name, code=code,
+                                          worker=worker)  # fmt: skip
     res = subprocess.run([sys.executable, "-c", script], cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert (res.returncode, res.stdout, res.stderr) == (code, "4 models, 4 usable\n", "")
