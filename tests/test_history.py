@@ -210,6 +210,11 @@ def test_out_refuses_its_own_table_with_a_users_text_around_it(tmp_path: Path) -
         "note_between.md": "\n".join([*lines[:4], "a note", *lines[4:]]) + "\n",
         "no_rows.md": "\n".join(lines[:6]) + "\n",
         "cut_last_newline.md": mine[:-1],
+        # probe 14, F5: the shape kept, the user's text inside it
+        "note_in_generated_line.md": mine.replace(lines[2], lines[2] + " MY NOTE: keep me"),
+        "note_in_a_row.md": mine.replace(lines[6], lines[6].replace("` |", "` (MY NOTE) |", 1)),
+        "row_added.md": mine.replace(lines[6], lines[6] + "\n| `mine` | MY NOTE | [r](x/report.md) |"),
+        "unsealed.md": mine[: mine.rfind(history.SEAL)],
     }
     for name, text in others.items():
         (tmp_path / name).write_text(text)
