@@ -141,6 +141,14 @@ class NumberRule:
         return number_problem(value, self.low, self.high, self.low_open, self.high_open)
 
     def __call__(self, text: str) -> float:
+        if problem := self._text_problem(text):
+            raise argparse.ArgumentTypeError(problem)
+        return float(text)
+
+    def _text_problem(self, text: str) -> str | None:
+        """Why the number `text` breaks the rule ("must be ..., got TEXT" as given), or None: read as its decimal
+        (decimal_outside: over a limit by less than a float's precision is outside), a nonzero text float() reads
+        as 0 refused (_zero_text)."""
         try:
             value = float(ascii_text(text))
         except ValueError:
@@ -148,13 +156,16 @@ class NumberRule:
         if decimal_outside(text, self.low, self.high, self.low_open, self.high_open):
             value = math.nan  # over a limit by less than a float's precision: the range's words, the text as given
         if problem := self._problem(value):
-            raise argparse.ArgumentTypeError(f"must be {problem}{self.note}, got {text!r}")
+            return f"must be {problem}{self.note}, got {text!r}"
         if value == 0 and not _zero_text(text):
-            raise argparse.ArgumentTypeError(f"must be {self._problem(math.nan)}{self.note}, got {text!r}, {TOO_SMALL}")
-        return value
+            return f"must be {self._problem(math.nan)}{self.note}, got {text!r}, {TOO_SMALL}"
+        return None
 
     def problem(self, value: Any) -> str | None:
-        """None when value is finite and inside the bounds, else "must be ..., got VALUE" (a data file's value)."""
+        """None when value is finite and inside the bounds, else "must be ..., got VALUE" (a data file's value; a
+        Written one, a TOML file's, judged by its text as the flag judges its text)."""
+        if isinstance(value, Written):
+            return self._text_problem(value.text)
         problem = self._problem(as_float(value))
         return f"must be {problem}{self.note}, got {shown(value)}" if problem else None
 
@@ -182,6 +193,23 @@ def _zero_text(text: str) -> bool:
         return decimal.Decimal(text.strip()) == 0
     except (decimal.InvalidOperation, ValueError):
         return True  # a form Decimal does not read: left to float's reading
+
+
+class Written(float):
+    """A float a data file gives, with the text it is written as (`text`; a TOML file's, catalogue.read_toml), so that
+    its rule judges what the file says, as a flag's rule judges the flag's text: 1000.00000000000000001 is over a limit
+    of 1000, though its float is 1000.0 (issue 82, probe 14, F8). Its repr is
+    the text: a refusal shows the value as given. float(value) is the plain float."""
+
+    text: str
+
+    def __new__(cls, text: str) -> Written:
+        value = super().__new__(cls, text)
+        value.text = text
+        return value
+
+    def __repr__(self) -> str:
+        return self.text
 
 
 def number(low: float | None = None, high: float | None = None, low_open: bool = False, high_open: bool = False,
@@ -266,7 +294,11 @@ class ListRule:
     def problem(self, values: Sequence[float]) -> str | None:
         """Why a data file's list breaks the rule ("must be a list of ..., got [nan]"), or None."""
         items = [shown(v) for v in values]  # a 400-digit number shortened, any other as repr gives it
-        return self.values_problem([as_float(v) for v in values], items, f"[{', '.join(items)}]", "a list")
+        floats = [as_float(v) for v in values]
+        written = [v.text for v in values if isinstance(v, Written)]  # a TOML file's, judged by its text as a flag's
+        if any(decimal_outside(x, self.low, self.high, self.low_open) for x in written):
+            floats = [math.nan]
+        return self.values_problem(floats, items, f"[{', '.join(items)}]", "a list")
 
 
 def number_list(flag: str, text: str, low: float | None = None, high: float | None = None,

@@ -23,7 +23,7 @@ from typing import Any, Protocol, TypeVar, Union, get_args, get_origin, get_type
 
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.field_rules import as_float, shown
+from coopsumo.field_rules import Written, as_float, shown
 from coopsumo.files import MAX_JSON_DEPTH, depth_problem, not_regular, open_regular
 from coopsumo.policy_spec import DRIVES
 from coopsumo.validation import names_problem
@@ -97,7 +97,7 @@ def read_toml(path: Path) -> dict[str, Any]:
     or nests deeper than any catalogue or profile does (tomllib's RecursionError, files.depth_problem)."""
     try:
         with open_regular(path) as f:  # a named pipe is refused, not waited on
-            data = tomllib.load(f)
+            data = tomllib.load(f, parse_float=Written)  # each float with its text: judged as written (Written)
     except OSError as err:
         raise ConfigError(f"{path}: cannot read it ({err.strerror})") from None
     except UnicodeDecodeError as err:
