@@ -141,6 +141,14 @@ class NumberRule:
         return number_problem(value, self.low, self.high, self.low_open, self.high_open)
 
     def __call__(self, text: str) -> float:
+        if problem := self._text_problem(text):
+            raise argparse.ArgumentTypeError(problem)
+        return float(text)
+
+    def _text_problem(self, text: str) -> str | None:
+        """Why the number `text` breaks the rule ("must be ..., got TEXT" as given), or None: read as its decimal
+        (decimal_outside: over a limit by less than a float's precision is outside), a nonzero text float() reads
+        as 0 refused (too_small)."""
         try:
             value = float(ascii_text(text))
         except ValueError:
@@ -148,13 +156,16 @@ class NumberRule:
         if decimal_outside(text, self.low, self.high, self.low_open, self.high_open):
             value = math.nan  # over a limit by less than a float's precision: the range's words, the text as given
         if problem := self._problem(value):
-            raise argparse.ArgumentTypeError(f"must be {problem}{self.note}, got {text!r}")
-        if value == 0 and not _zero_text(text):
-            raise argparse.ArgumentTypeError(f"must be {self._problem(math.nan)}{self.note}, got {text!r}, {TOO_SMALL}")
-        return value
+            return f"must be {problem}{self.note}, got {text!r}"
+        if too_small(text):
+            return f"must be {self._problem(math.nan)}{self.note}, got {text!r}, {TOO_SMALL}"
+        return None
 
     def problem(self, value: Any) -> str | None:
-        """None when value is finite and inside the bounds, else "must be ..., got VALUE" (a data file's value)."""
+        """None when value is finite and inside the bounds, else "must be ..., got VALUE" (a data file's value; a
+        Written one, a TOML file's, judged by its text as the flag judges its text)."""
+        if isinstance(value, Written):
+            return self._text_problem(value.text)
         problem = self._problem(as_float(value))
         return f"must be {problem}{self.note}, got {shown(value)}" if problem else None
 
@@ -171,17 +182,38 @@ def float_flag(text: str) -> float:
         value = float(ascii_text(text))
     except ValueError:
         raise argparse.ArgumentTypeError(f"invalid float value: {text!r}") from None
-    if value == 0 and not _zero_text(text):
+    if too_small(text):
         raise argparse.ArgumentTypeError(f"got {text!r}, {TOO_SMALL}")
     return value
 
 
-def _zero_text(text: str) -> bool:
-    """True when `text`, which float() read as 0, says 0 itself ('0', '-0.0', '0e5'), not a number too small to hold."""
+def too_small(text: str) -> bool:
+    """True when `text` names a number that is not 0 but that float() reads as 0 ('1e-400'), which no float holds:
+    the one rule of every number read from text, a flag's, a list flag's item, a policy parameter's or a data file's
+    (issue 82, probe 14, F7: `--alphas 1e-400,1` ran alpha 0). '0', '-0.0' and '0e5' say 0 themselves."""
     try:
-        return decimal.Decimal(text.strip()) == 0
+        if float(text) != 0:
+            return False
+        return decimal.Decimal(text.strip()) != 0
     except (decimal.InvalidOperation, ValueError):
-        return True  # a form Decimal does not read: left to float's reading
+        return False  # a form float or Decimal does not read: left to float's reading
+
+
+class Written(float):
+    """A float a data file gives, with the text it is written as (`text`; a TOML file's, catalogue.read_toml), so that
+    its rule judges what the file says, as a flag's rule judges the flag's text: 1000.00000000000000001 is over a limit
+    of 1000 and 1e-400 is not 0, though their floats are 1000.0 and 0.0 (issue 82, probe 14, F8 and F7). Its repr is
+    the text: a refusal shows the value as given. float(value) is the plain float."""
+
+    text: str
+
+    def __new__(cls, text: str) -> Written:
+        value = super().__new__(cls, text)
+        value.text = text
+        return value
+
+    def __repr__(self) -> str:
+        return self.text
 
 
 def number(low: float | None = None, high: float | None = None, low_open: bool = False, high_open: bool = False,
@@ -191,15 +223,29 @@ def number(low: float | None = None, high: float | None = None, low_open: bool =
 
 
 def parse_number(text: str) -> float:
-    """'1/8' -> 0.125, '2.5' -> 2.5; ValueError otherwise (also for a zero denominator)."""
+    """'1/8' -> 0.125, '2.5' -> 2.5; ValueError otherwise (also for a zero denominator), TooSmall for a number too
+    small for a float (too_small: '1e-400', '1e-400/1'), which float() would read as 0."""
     text = ascii_text(text.strip())
     if "/" in text:
         num, den = text.split("/", 1)
         try:
-            return float(num) / float(den)
+            value = float(num) / float(den)
         except ZeroDivisionError:
             raise ValueError(f"division by zero in {text!r}") from None
+        if value == 0 and (too_small(num) or float(num) != 0):  # 1e-400/1, 1e-200/1e200: no float holds them
+            raise TooSmall(text)
+        return value
+    if too_small(text):
+        raise TooSmall(text)
     return float(text)
+
+
+class TooSmall(ValueError):
+    """A number's text names a number too small for a float (too_small): parse_number's refusal, its text the item."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(text)
+        self.text = text
 
 
 def split_list(flag: str, text: str) -> list[str]:
@@ -253,20 +299,30 @@ class ListRule:
     def parse(self, flag: str, text: str) -> tuple[float, ...]:
         """A flag's comma-separated value (split_list, each item a number); UsageError naming the flag otherwise."""
         parts = split_list(flag, text)
+        small = ""
         try:
             values = tuple(parse_number(x) for x in parts)
+        except TooSmall as err:
+            values, small = (math.nan,), f": {err.text!r} is{TOO_SMALL.removeprefix('which is')}"
         except ValueError:
             values = (math.nan,)  # not a number: the range's words
         if any(decimal_outside(x, self.low, self.high, self.low_open) for x in parts):
             values = (math.nan,)  # over a limit by less than a float's precision (decimal_outside)
         if problem := self.values_problem(values, [repr(x) for x in parts], repr(text), "a comma-separated list"):
-            raise UsageError(f"{flag} {problem}")
+            raise UsageError(f"{flag} {problem}{small}")
         return values
 
     def problem(self, values: Sequence[float]) -> str | None:
         """Why a data file's list breaks the rule ("must be a list of ..., got [nan]"), or None."""
         items = [shown(v) for v in values]  # a 400-digit number shortened, any other as repr gives it
-        return self.values_problem([as_float(v) for v in values], items, f"[{', '.join(items)}]", "a list")
+        floats = [as_float(v) for v in values]
+        written = [v.text for v in values if isinstance(v, Written)]  # a TOML file's, judged by its text as a flag's
+        small = next((f": {x} is{TOO_SMALL.removeprefix('which is')}" for x in written if too_small(x)), "")
+        if small or any(decimal_outside(x, self.low, self.high, self.low_open) for x in written):
+            floats = [math.nan]
+        if problem := self.values_problem(floats, items, f"[{', '.join(items)}]", "a list"):
+            return problem + small
+        return None
 
 
 def number_list(flag: str, text: str, low: float | None = None, high: float | None = None,

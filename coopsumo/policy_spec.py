@@ -31,7 +31,7 @@ import os
 from dataclasses import dataclass
 
 from coopsumo.errors import UsageError
-from coopsumo.field_rules import ascii_text, decimal_outside
+from coopsumo.field_rules import TOO_SMALL, ascii_text, decimal_outside, too_small
 from coopsumo.validation import ALPHA_MAX, ALPHA_MIN, MOBIL_LIMITS, SUMO_LC_LIMITS, number_problem
 
 ADAPTIVE = "adaptive"
@@ -126,9 +126,10 @@ def _value(text: str, name: str, key: str, value: str) -> float | str:
         number = math.nan
     if decimal_outside(value, low, high, low_open):
         number = math.nan  # over a limit by less than a float's precision
-    if problem := number_problem(number, low, high, low_open):
+    small = too_small(value)  # 1e-400 is not 0 (issue 82, probe 14, F7: mobil:p=1e-400 drove with p = 0)
+    if problem := number_problem(math.nan if small else number, low, high, low_open):
         also = f" or {ADAPTIVE!r}" if (name, key) == ("dqn", "alpha") else ""
-        raise _fail(text, f"{key} must be {problem}{also}, got {value!r}")
+        raise _fail(text, f"{key} must be {problem}{also}, got {value!r}" + (f", {TOO_SMALL}" if small else ""))
     return number
 
 

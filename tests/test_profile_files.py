@@ -200,7 +200,7 @@ def tiny_protocol(name: str = "mine") -> str:
 
 @pytest.mark.parametrize(("line", "words"), [
     ("seeds = []", "seeds must be a list of integers from 0 to 2147483647"),
-    ("t_ups = [1.5, 1.50]", "t_ups gives the same value twice in [1.5, 1.5]"),
+    ("t_ups = [1.5, 1.50]", "t_ups gives the same value twice in [1.5, 1.50]: 1.5 and 1.50"),
     ("t_ups = [nan]", "t_ups must be a list of finite numbers >= 0.1 and <= 3600 s"),
     ("accident_start = 600", "accident_start must be an integer from 0 to 599 (a step of the 600-step run), got 600"),
     ("alpha_seeds = 3", "alpha_seeds must be at most the number of seeds (2)"),

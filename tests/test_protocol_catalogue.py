@@ -93,7 +93,7 @@ PROFILE_ERRORS = [
      "pairs 'f05q_ts2k', which it does not run"),
     (PROFILE + 'paired_with = [["nr10", "learner_protocol_x"]]', "p", "paired_with must be a list of 3"),
     (PROFILE + 'seeds = "100"', "p", "seeds must be a list, got '100'"),
-    (PROFILE + "train_steps = 9e4", "p", "train_steps must be int, got 90000.0"),
+    (PROFILE + "train_steps = 9e4", "p", "train_steps must be int, got 9e4"),
     (PROFILE + "t_ups = [2, true]", "p", "t_ups must be float, got True"),
 ]
 

@@ -40,11 +40,12 @@ VALIDATION = ["step,score,best,stage,screen_score,screen_mean_speed_mps,screen_l
               "mean_reward_t4\n",
               "100,0.316337,False,screen,0.316337,12.9972,0.292857,0.734398,12.9972,0.292857,0.00138117,0.00125269,"
               "0.262969,0.734398,0.187711,-2.78667,0.0691307,0.0140315,12.9972,0.292857,0.316337,,,\n",
-              "200,0.444124,False,all,0.444124,14.2626,0.0738255,0.0946649,14.2626,0.0738255,0.00047019,0.000219422,"
+              "200,0.302062,False,all,0.444124,14.2626,0.0738255,0.0946649,18.1813,1.22191,0.00047019,0.000219422,"
               "0.904645,0.0946649,0.137578,-1.69688,0.110959,0.00501253,14.2626,0.0738255,0.444124,22.1,2.37,0.16\n",
-              "300,0.493843,True,all,0.449483,14.3683,0.148649,0.0495412,17.6656,1.34954,0.00454396,0.00529673,"
+              "300,0.305742,True,all,0.449483,14.3683,0.148649,0.0495412,18.2492,1.25932,0.00454396,0.00529673,"
               "0.940395,0.0497646,0.249192,-3.61553,0.233866,0.0394903,14.3683,0.148649,0.449483,22.13,2.37,0.162\n"]
-"""a two-stage selection's validation.csv (as a committed store holds them): the snapshot of step 300 chosen"""
+"""a two-stage selection's validation.csv (as a committed store holds them): the snapshot of step 300 chosen; each
+row's score, speed and lane changes the mean of its runs' (issue 82, probe 14, F10)"""
 
 
 def _cell(row: int, name: str, value: str) -> Callable[[list[str]], list[str]]:
@@ -114,6 +115,18 @@ VALIDATION_CASES: dict[str, tuple[Callable[[list[str]], list[str]], str]] = {
                         "step 300: '400,0.3'"),
     "emptied": (lambda lines: [], "has no column step (its columns: none, an empty file)"),
     "no row": (lambda lines: lines[:1], "has no row"),
+    # a row that contradicts itself, each value inside its limits (issue 82, probe 14, F10)
+    "a speed not its runs' mean": (_cell(3, "mean_speed_mps", "30.0"), "has mean_speed_mps = 30.0 in its row of step "
+                                   "300, not the mean of its runs' mean_speed_mps_* (18.2492): edited?"),
+    "a score not its runs' mean": (_cell(3, "score", "0.9"), "has score = 0.9 in its row of step 300, not the mean of "
+                                   "its runs' mean_reward_* (0.305741)"),
+    "lane changes not its runs' mean": (_cell(1, "lane_changes_per_vehicle", "5.0"), "has lane_changes_per_vehicle = "
+                                        "5.0 in its row of step 100, not the mean of its runs'"),
+    "shares summing to 1.5": (_cell(3, "share_none", "0.5497646"), "has action shares (share_left, share_right, "
+                              "share_speedup, share_none) summing to 1.5 in its row of step 300, not 1"),
+    "lane changes, none chosen": (lambda lines: _cell(1, "share_left", "0")(_cell(1, "share_right", "0")(
+        _cell(1, "share_speedup", "0.265602")(lines))), "has lane_changes_per_vehicle = 0.292857 in its row of step "
+        "100 beside share_left and share_right 0: no lane change was ever chosen"),
 }  # fmt: skip
 
 
@@ -277,7 +290,7 @@ def test_the_protocol_studys_diagnosis_and_figure_read_validation_checked(tmp_pa
     runs = pd.DataFrame([{"kind": "model", "alpha": 0.0, "seed": 100, "train_key": key}])
     table = diagnosis_table(tmp_path, runs)
     assert table[["selected_step", "best_score", "last_score"]].to_dict("records") == [
-        {"selected_step": 300, "best_score": 0.493843, "last_score": 0.493843}]
+        {"selected_step": 300, "best_score": 0.305742, "last_score": 0.305742}]
     assert validation_curves_figure(tmp_path, [key], tmp_path / "fig.png") is not None
     for change, fragment in ((_cell(2, "score", "1e9"), "has score = '1e9'"), (VALIDATION_CASES["no best"][0],
                              "has 0 rows marked best"), (VALIDATION_CASES["best renamed"][0], "has no column best")):
@@ -300,3 +313,4 @@ def test_a_step_in_digits_other_than_ascii_is_a_row_that_is_not_one(digit: str, 
     val.write_text("".join(VALIDATION[:2] + [f"{digit}" + VALIDATION[2][1:]] + VALIDATION[3:]), encoding="utf-8")
     assert (validation_problem(val, 300, 300) or "").startswith("has a row that is not one of its rows after that of "
                                                                 "step 100")  # fmt: skip
+

@@ -168,7 +168,8 @@ def validation_text_problem(text: str, steps: int | None = None, selected: Any =
         if steps is not None and step > steps:
             return f"has a row of step {step}, past its training's {steps} steps"
         last = step
-        if (problem := _cells_problem(names, row, rules, step)) is not None:
+        cells = dict(zip(names, row, strict=True))
+        if (problem := _cells_problem(names, row, rules, step) or _row_problem(cells, step)) is not None:
             return problem
         if (mark := row[names.index("best")]) not in ("True", "False"):
             return f"has best = {mark[:20]!r} in its row of step {step}, not True or False"
@@ -180,6 +181,39 @@ def validation_text_problem(text: str, steps: int | None = None, selected: Any =
         return f"has {len(best)} rows marked best (steps {best[:3]}), not one: the snapshot model.pt holds"
     if isinstance(selected, int) and not isinstance(selected, bool) and best[0] != selected:
         return f"marks the snapshot of step {best[0]} best, but model.pt holds step {selected} (train_summary.json)"
+    return None
+
+
+ROUNDING = 1e-5
+"""how far (relative to the largest of them) a validation.csv row's mean may lie from its runs' mean: the table
+writes each to 6 significant digits (selection.write_table's %.6g)"""
+RUN_MEANS = (("score", "mean_reward_"), ("mean_speed_mps", "mean_speed_mps_"),
+             ("lane_changes_per_vehicle", "lane_changes_per_vehicle_"))
+"""a validation.csv row's measures that are its runs' means (selection.validate), and the prefix of its runs'"""
+SHARES = ("share_left", "share_right", "share_speedup", "share_none")
+"""the shares of the greedy decisions by action (selection.diagnosis): every decision is one of these"""
+
+
+def _row_problem(row: Mapping[str, str], step: int) -> str | None:
+    """Why a validation.csv row (its cells inside their rules) contradicts itself, or None: a score, mean speed or
+    lane changes per vehicle that is not the mean of the row's own runs' (selection.validate: the runs the row holds,
+    its blank ones not run), action shares that do not sum to 1, lane changes beside no lane change ever chosen (a
+    change starts only from a decision to change, each logged: selection.diagnosis). Issue 82, probe 14, F10: a
+    speed of 30 m/s beside runs of 23.8, 17.4 and 19.7, shares summing to 1.5, were copied into diagnosis.csv."""
+    def number(name: str) -> float:
+        return float(row[name]) if row.get(name) else math.nan
+
+    for name, prefix in RUN_MEANS:
+        runs = [number(n) for n in row if n.startswith(prefix) and row[n]]
+        if runs and not abs(number(name) - sum(runs) / len(runs)) <= ROUNDING * max(map(abs, [*runs, number(name)])):
+            return (f"has {name} = {row[name]} in its row of step {step}, not the mean of its runs' "
+                    f"{prefix}* ({sum(runs) / len(runs):.6g}): edited?")  # fmt: skip
+    shares = [number(n) for n in SHARES]
+    if all(math.isfinite(x) for x in shares) and not abs(sum(shares) - 1.0) <= len(SHARES) * ROUNDING:
+        return f"has action shares ({', '.join(SHARES)}) summing to {sum(shares):.6g} in its row of step {step}, not 1"
+    if number("lane_changes_per_vehicle") > 0 and number("share_left") == 0 and number("share_right") == 0:
+        return (f"has lane_changes_per_vehicle = {row['lane_changes_per_vehicle']} in its row of step {step} beside "
+                "share_left and share_right 0: no lane change was ever chosen")  # fmt: skip
     return None
 
 

@@ -23,7 +23,7 @@ from typing import Any, Protocol, TypeVar, Union, get_args, get_origin, get_type
 
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError, UsageError
-from coopsumo.field_rules import as_float, shown
+from coopsumo.field_rules import TOO_SMALL, Written, as_float, shown, too_small
 from coopsumo.files import MAX_JSON_DEPTH, depth_problem, not_regular, open_regular
 from coopsumo.policy_spec import DRIVES
 from coopsumo.validation import names_problem
@@ -53,7 +53,7 @@ class Entry:
         """`value` as the type `hint` names (bool, int, float, str, tuple[X, ...], tuple[X, Y, Z], X | None): an
         integer where a float belongs becomes one (a learner's identity is its JSON); anything else is an error. With
         `rule` (its flag's), a value the rule refuses is an error too, the value shown as the file gives it."""
-        typed = self._typed(key, value, hint)
+        typed = self._typed(key, value, hint, rule is None)  # with a rule, the rule's words for a value too small
         if rule is not None and (problem := rule.problem(value)):
             raise self.error(f"{key} {problem}")
         return typed
@@ -65,19 +65,22 @@ class Entry:
             raise self.error(f"{key} {problem}")
         return names
 
-    def _typed(self, key: str, value: Any, hint: Any) -> Any:
+    def _typed(self, key: str, value: Any, hint: Any, small: bool = True) -> Any:
+        """`value` as `hint` names it (value); small: a float too small for a float (1e-400) refused here."""
         origin, args = get_origin(hint), get_args(hint)
         if origin in (Union, types.UnionType):
-            return self._typed(key, value, next(a for a in args if a is not type(None)))
+            return self._typed(key, value, next(a for a in args if a is not type(None)), small)
         if origin is tuple:
             any_length = args[-1] is Ellipsis
             if not isinstance(value, list) or not (any_length or len(value) == len(args)):
                 raise self.error(f"{key} must be a list{'' if any_length else f' of {len(args)}'}, got {value!r}")
             items = [args[0]] * len(value) if any_length else list(args)
-            return tuple(self._typed(key, v, a) for v, a in zip(value, items, strict=True))
+            return tuple(self._typed(key, v, a, small) for v, a in zip(value, items, strict=True))
         if hint is float and isinstance(value, int | float) and not isinstance(value, bool):
             if isinstance(value, int) and math.isinf(as_float(value)):  # 400 digits: no float holds it
                 raise self.error(f"{key} must be a finite number, got {shown(value)}")
+            if small and isinstance(value, Written) and too_small(value.text):  # 1e-400 is not 0 (probe 14, F7)
+                raise self.error(f"{key} must be a finite number, got {value.text}, {TOO_SMALL}")
             return float(value)
         if isinstance(value, hint) and not (hint is int and isinstance(value, bool)):
             return value
@@ -97,7 +100,7 @@ def read_toml(path: Path) -> dict[str, Any]:
     or nests deeper than any catalogue or profile does (tomllib's RecursionError, files.depth_problem)."""
     try:
         with open_regular(path) as f:  # a named pipe is refused, not waited on
-            data = tomllib.load(f)
+            data = tomllib.load(f, parse_float=Written)  # each float with its text: judged as written (Written)
     except OSError as err:
         raise ConfigError(f"{path}: cannot read it ({err.strerror})") from None
     except UnicodeDecodeError as err:

@@ -117,7 +117,9 @@ def _run_bounds(plan: Plan, row: dict[str, Any]) -> list[tuple[bool, str]]:
     change takes control.t_change_s), more vehicles waiting at the end than its demand sends, more waves or slow
     regions than cells of the speed field they are found in (measures.FIELD_DT_S by FIELD_DX_M on each lane), a
     horizon after the accident's start that is not its plan's (issue 82, probe 13, F7: 60 m/s, 500 lane changes per
-    vehicle, 1e5 vehicles waiting, 1e6 waves, a horizon of 99999 s in a 30 s run were merged)."""
+    vehicle, 1e5 vehicles waiting, 1e6 waves, a horizon of 99999 s in a 30 s run were merged); a recovery or a spill
+    after the run's end, more lane changes in a queue than lane changes (probe 14, F3: a recovery of 500 s in a 25 s
+    horizon, queue lane changes 2 beside none, were merged)."""
     from coopsumo.config import ControlConfig, DemandConfig, RoadConfig
     from coopsumo.studies.scenario1.measures import FIELD_DT_S, FIELD_DX_M
 
@@ -139,6 +141,13 @@ def _run_bounds(plan: Plan, row: dict[str, Any]) -> list[tuple[bool, str]]:
                for c in ("lane_changes_per_vehicle", "queue_lane_changes_per_vehicle")]  # fmt: skip
     bounds += [(row[c] > cells, f"{c} = {row[c]:g}, more than the {cells} cells of the speed field they are found in")
                for c in ("waves", "slow_regions")]  # fmt: skip
+    bounds += [(row[c] > horizon + 1e-6, f"{c} = {row[c]:g}, after its run's end ({horizon:g} s after the accident's "
+                                         "start): no run measures it there")
+               for c in ("recovery_time_s", "system_recovery_s", "spilled_s")]  # fmt: skip
+    bounds += [(row["queue_lane_changes_per_vehicle"] > row["lane_changes_per_vehicle"] + 1e-9,
+                f"queue_lane_changes_per_vehicle = {row['queue_lane_changes_per_vehicle']:g} above its "
+                f"lane_changes_per_vehicle = {row['lane_changes_per_vehicle']:g}: the changes in a queue are some of "
+                "its lane changes")]  # fmt: skip
     return bounds
 
 
