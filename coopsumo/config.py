@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -254,6 +255,12 @@ SIM_LIMITS: dict[str, tuple[float, float, bool, bool]] = {
 """(lowest, highest, lowest excluded, highest excluded) of a run's physical settings that have no flag of their own,
 far around the paper's values, so that a configuration read back (a checkpoint, a config.json, a model file) cannot
 divide by zero, draw with a negative spread or build a road SUMO refuses (issue 82)"""
+
+
+def fastest_mps(sim: Mapping[str, Any]) -> float:
+    """The fastest any vehicle drives in a run of the SimConfig dict `sim`: its road's speed limit or its fastest
+    desired speed, whichever is higher (m/s); the bound of every speed a record of that run holds."""
+    return max(float(sim["road"]["speed_limit_mps"]), float(sim["demand"]["v_exp_max_kmh"]) / 3.6)
 
 
 def physics_problem(sim: SimConfig) -> str | None:

@@ -20,6 +20,7 @@ from typing import Any
 
 import torch
 
+from coopsumo.agents.checkpoint_bounds import bounds_problem
 from coopsumo.agents.training_logs import LOG_RULES as LOG_RULES
 from coopsumo.agents.training_logs import log_problem
 from coopsumo.dqn_config import DQNConfig
@@ -171,7 +172,7 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
             or tensor_problem(state, CHECKPOINT_TENSORS, deciding_entries)  # the limits of record_schemas
             or _group_problem(learner["optimizer"]["param_groups"][0], config["dqn"])
             or _moment_ratio_problem(learner["optimizer"], config["dqn"])
-            or _window_steps_problem(window, step, config))
+            or _window_steps_problem(window, step, config) or bounds_problem(state))
 
 
 def _moments_problem(optimizer: Mapping[str, Any], n_params: int, updates: int, dqn: Mapping[str, Any]) -> str | None:

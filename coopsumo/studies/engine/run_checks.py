@@ -14,6 +14,7 @@ import re
 from pathlib import Path
 from typing import Any
 
+from coopsumo.config import fastest_mps
 from coopsumo.errors import why_unreadable
 from coopsumo.files import open_regular, read_bytes
 from coopsumo.record_schemas import DETECTOR_INTERVAL, LANE_CAPACITY_VEH_H
@@ -74,12 +75,6 @@ def run_summary_problem(summary: dict[str, Any], cfg: dict[str, Any]) -> str | N
     if isinstance(summary.get("policy"), str) and summary["policy"] != cfg["policy"]:
         return f"has summary.json policy {summary['policy'][:60]}, but its configuration drives {cfg['policy'][:60]}"
     return _motion_problem(num, cfg, departed, sim_s)
-
-
-def fastest_mps(cfg: dict[str, Any]) -> float:
-    """The fastest any vehicle drives in a run of the SimConfig dict cfg: its road's speed limit or its fastest
-    desired speed, whichever is higher (m/s)."""
-    return max(float(cfg["road"]["speed_limit_mps"]), float(cfg["demand"]["v_exp_max_kmh"]) / 3.6)
 
 
 def _motion_problem(num: dict[str, float], cfg: dict[str, Any], departed: float, sim_s: float) -> str | None:

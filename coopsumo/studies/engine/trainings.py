@@ -179,12 +179,12 @@ def train_summary_problem(summary: dict[str, Any], config: dict[str, Any]) -> st
 def train_values_problem(values: dict[str, Any], config: dict[str, Any]) -> tuple[str, str] | None:
     """(the key, why) when one of the values a study copies from the summary of the training `config` (values'
     mean_speed_mps, lane_changes, updates: any of them; NaN is none) is more than that training can give, or None: a
-    mean speed above its road's speed limit and fastest desired speed (run_checks.fastest_mps), more updates than
+    mean speed above its road's speed limit and fastest desired speed (config.fastest_mps), more updates than
     updates_per_learn per step, more lane changes than the vehicles its road holds at once (one a car length) could
     make one after another (a change takes control.t_change_s) plus one for each vehicle that can depart (one per
     lane and step). Issue 82, probe 13, F6: a part's runs.csv with a training speed of 60 m/s on a 33.34 m/s road,
     1e9 updates or 1e8 lane changes was merged."""
-    from coopsumo.studies.engine.run_checks import fastest_mps
+    from coopsumo.config import fastest_mps
 
     try:
         sim, per_round = config["sim"], int(config["dqn"]["updates_per_learn"])

@@ -14,13 +14,12 @@ from typing import Any, NamedTuple, get_type_hints
 import pandas as pd
 from pandas.api.types import is_numeric_dtype
 
-from coopsumo.config import first_difference
+from coopsumo.config import fastest_mps, first_difference
 from coopsumo.errors import ConfigError, NotRegularFileError, UsageError, first_line
 from coopsumo.field_rules import shown
 from coopsumo.files import read_csv, read_json, write_atomic, write_json
 from coopsumo.studies.engine.catalogue import Entry
 from coopsumo.studies.engine.records import implausible, pooled_problem
-from coopsumo.studies.engine.run_checks import fastest_mps
 from coopsumo.studies.engine.run_folders import profile_study, study_root
 from coopsumo.studies.engine.trainings import train_values_problem
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
