@@ -121,11 +121,17 @@ def _motion_problem(num: dict[str, float], cfg: dict[str, Any], departed: float,
     for key in ("mean_speed_mps", "full_road_speed_mps"):
         if num.get(key, 0.0) > fastest + 0.01:
             return f"has summary.json {key} = {num[key]:g}, above any vehicle's speed on its road ({fastest:g} m/s)"
-    most = departed * (sim_s / float(cfg["control"]["t_change_s"]) + 1.0)
-    if num.get("lane_changes", 0.0) > most:
+    if num.get("lane_changes", 0.0) > most_lane_changes(departed, sim_s, cfg):
         return (f"has summary.json lane_changes = {num['lane_changes']:g}, more than its {departed:g} vehicles could "
                 f"make in {sim_s:g} s")  # fmt: skip
     return None
+
+
+def most_lane_changes(departed: float, sim_s: float, cfg: dict[str, Any]) -> float:
+    """The most lane changes `departed` vehicles can start in sim_s seconds of a run of the SimConfig dict cfg: a
+    vehicle starts one at most every control.t_change_s (a change under way blocks the next), one more as it enters.
+    A run's summary (_motion_problem) and a training's last world (trainings.counts_problem) are bound by it."""
+    return departed * (sim_s / float(cfg["control"]["t_change_s"]) + 1.0)
 
 
 _INTERVAL = re.compile(rb"<interval(?=[\s/>])([^>]*)>")
