@@ -210,8 +210,12 @@ SUMMARIES = {
     # issue 82, probe 8, J9: counts and a wall time its own training cannot give were reused into runs.csv
     "departed 99999": ({"departed": 99999}, "has train_summary.json departed = 99999, more than one vehicle per lane "
                        "and step of its last world (300 steps on 3 lanes)"),
-    "lane_changes 99999": ({"lane_changes": 99999}, "has train_summary.json lane_changes = 99999, more than one per "
-                           "vehicle and step (40 vehicles, 300 steps)"),
+    "lane_changes 99999": ({"lane_changes": 99999}, "has train_summary.json lane_changes = 99999, more than its 40 "
+                           "vehicles could make in its last world's 300 steps (a change takes 4 s: at most 340)"),
+    # issue 82, probe 14, F9: one lane change per vehicle and step (12,000 here) let 5,000 for 24 vehicles in 30 s
+    # through; a vehicle starts one at most every 4 s, and one as it enters: 40 x (30 s / 4 s + 1) = 340
+    "lane_changes 341 of 40 vehicles in 30 s": ({"lane_changes": 341}, "has train_summary.json lane_changes = 341, "
+                                                "more than its 40 vehicles could make"),
     "updates 1e9": ({"updates": 10**9}, "has train_summary.json updates = 1e+09, more than 2 per step of its 300"),
     "wall 500000 s": ({"wall_seconds": 500000}, "has train_summary.json wall_seconds = 500000, but steps_per_second "
                       "= 100 makes its 300 steps 3 s"),

@@ -35,13 +35,15 @@ from coopsumo.studies.scenario2.plan import PROFILES, cell_specs
 
 
 # -- a scenario II record against its own evaluations -------------------------------------------------------------
-def _evaluation(seed: int, speed: float, departed: int, changes: int) -> dict[str, Any]:
-    """One evaluation's summary as scenario II keeps it (simulate's summary with the loops' means and its seed)."""
-    return {"steps": 700, "sim_seconds": 70.0, "departed": departed, "arrived": departed - 9, "collisions": 0,
-            "teleports": 0, "lane_changes": changes, "lane_changes_per_vehicle": changes / departed,
-            "mean_speed_mps": speed, "mean_travel_time_s": 48.5 + seed,
-            "throughput_veh_per_h": (departed - 9) * 3600 / 70,
-            "passing_taken_share": float("nan"), "loop_flow_veh_h_per_lane": 410.5, "loop_occupancy_pct": 2.25,
+def _evaluation(seed: int, speed: float, departed: int, changes: int, run: dict[str, Any]) -> dict[str, Any]:
+    """One evaluation's summary as scenario II keeps it (simulate's summary with the loops' means and its seed), of a
+    run of the SimConfig dict `run` (its steps and seconds; a loop flow its departures give: records.runs_problem)."""
+    sim_s = run["steps"] * run["control"]["dt_s"]
+    return {"steps": run["steps"], "sim_seconds": sim_s, "departed": departed, "arrived": departed - 9,
+            "collisions": 0, "teleports": 0, "lane_changes": changes, "lane_changes_per_vehicle": changes / departed,
+            "mean_speed_mps": speed, "mean_travel_time_s": sim_s / 2 + seed / 100,
+            "throughput_veh_per_h": (departed - 9) * 3600 / sim_s,
+            "passing_taken_share": float("nan"), "loop_flow_veh_h_per_lane": 90.5, "loop_occupancy_pct": 2.25,
             "policy": "dqn:train/L2_a0_s1/model.pt", "scenario": "free", "eval_seed": seed}  # fmt: skip
 
 
@@ -52,7 +54,9 @@ def dqn_spec() -> dict[str, Any]:
 
 def _record(spec: dict[str, Any]) -> dict[str, Any]:
     """The record of a finished scenario II DQN cell, as _evaluate fills it: three evaluations and their pool."""
-    evals = [_evaluation(1, 21.6, 40, 12), _evaluation(11, 22.1, 42, 9), _evaluation(21, 20.9, 39, 15)]
+    runs = spec["config"]["evals"]
+    evals = [_evaluation(1, 21.6, 40, 12, runs[0]), _evaluation(11, 22.1, 42, 9, runs[1]),
+             _evaluation(21, 20.9, 39, 15, runs[2])]  # fmt: skip
     pooled = {k: v for k, v in pool_summaries(evals).items() if k != "eval_seed"}
     return {**scenario2.RECORDS.new(spec), "status": "ok", "eval_summaries": evals, "summary": pooled,
             "train_summary": dict(TRAINED)}  # fmt: skip
@@ -165,9 +169,10 @@ def test_an_intact_record_is_reused_untouched(dqn_spec: dict[str, Any], tmp_path
                                               capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     mobil = next(s for s in cell_specs(replace(PROFILES["tiny"], policies=("dqn", "mobil")))
                  if s.get("policy") == "mobil")  # fmt: skip
+    run = mobil["config"].get("run", mobil["config"])
     for spec, record in ((dqn_spec, _record(dqn_spec)),
                          (mobil, {**scenario2.RECORDS.new(mobil), "status": "ok",
-                                  "summary": _evaluation(1, 21.6, 40, 12)})):  # fmt: skip
+                                  "summary": _evaluation(1, 21.6, 40, 12, run)})):  # fmt: skip
         cell_path(tmp_path, spec["key"]).parent.mkdir(exist_ok=True)
         cell_path(tmp_path, spec["key"]).write_text(json.dumps(record))
     before = {p.name: p.read_bytes() for p in (tmp_path / "cells").iterdir()}

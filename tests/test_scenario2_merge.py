@@ -72,6 +72,11 @@ def speed(table: pd.DataFrame, mps: float) -> pd.DataFrame:
     return table.assign(mean_speed_mps=table["mean_speed_mps"].mask(models_at_32(table), mps))
 
 
+def at_cell(table: pd.DataFrame, column: str, value: float, key: str = "L4_T2_a32_s1") -> pd.DataFrame:
+    """The rows of the cell `key` (runs.csv's one, evals.csv's every evaluation) with `column` set to value."""
+    return table.assign(**{column: table[column].mask(table["key"] == key, value)})
+
+
 def at_32(table: pd.DataFrame, column: str, value: float) -> pd.DataFrame:
     """The alpha-32 models' `column` set to `value`, the other rows as they are."""
     return table.assign(**{column: table[column].mask(models_at_32(table), value)})
@@ -258,6 +263,26 @@ EDITS: dict[str, tuple[Callable[[Path], None], str]] = {
     "1e9 steps a second": (
         lambda f: edit_table(f, "runs.csv", lambda t: at_32(t, "steps_per_second", 1e9)),
         "column steps_per_second must be a finite number >= 0 and <= 1e+06"),
+    # issue 82, probe 14, F2: rows each in range, impossible together: one training with two sets of training
+    # columns; a loop flow, vehicles on the road or a throughput the row's departures and arrivals cannot give (in
+    # runs.csv and evals.csv alike, so that runs.csv is still what evals.csv pools to)
+    "one training's speed edited in one of its rows": (
+        lambda f: edit_table(f, "runs.csv", lambda t: at_cell(t, "train_mean_speed_mps", 15.0)),
+        "but row L4_T2_a32_s1 of the same training train/L4_a32_s1 has 15: edited?"),
+    "one training's updates edited in one of its rows": (
+        lambda f: edit_table(f, "runs.csv", lambda t: at_cell(t, "train_updates", 17000)),
+        "of the same training train/L4_a32_s1 has"),
+    "a loop flow of 3,500 veh/h per lane in both tables": (
+        lambda f: [edit_table(f, name, lambda t: at_cell(t, "loop_flow_veh_h_per_lane", 3500.0))
+                   for name in ("runs.csv", "evals.csv")],
+        "runs.csv row L4_T2_a32_s1 has loop_flow_veh_h_per_lane = 3500, but"),
+    "5,000 vehicles on the road": (
+        lambda f: edit_table(f, "runs.csv", lambda t: at_cell(t, "mean_vehicles_on_road", 5000.0)),
+        "runs.csv row L4_T2_a32_s1 has mean_vehicles_on_road = 5000, outside 0 to the"),
+    "a throughput of 5,000 veh/h in both tables": (
+        lambda f: [edit_table(f, name, lambda t: at_cell(t, "throughput_veh_per_h", 5000.0))
+                   for name in ("runs.csv", "evals.csv")],
+        "runs.csv row L4_T2_a32_s1 has throughput_veh_per_h = 5000, but"),
 }  # fmt: skip
 """each case: how the part L4b is edited, and what the refusal says"""
 

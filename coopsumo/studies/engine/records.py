@@ -234,7 +234,40 @@ def record_problem(record: Any, required: Sequence[str]) -> str | None:
             return f"has summary {key} = {json.dumps(value)[:40]}, not a number"
         if not math.isfinite(as_float(value)):  # an integer of 400 digits too
             return f"has summary {key} = {shown(value)}, not a finite number"
-    return implausible(summary) or pooled_problem(record)
+    return implausible(summary) or pooled_problem(record) or runs_problem(record)
+
+
+def runs_problem(record: dict[str, Any]) -> str | None:
+    """Why a record's runs (each evaluation's summary, or its one summary) contradict themselves or the SimConfig
+    each ran (its config's `evals`, or its config, a `run` in it), or None: run_checks.run_summary_problem, the rules
+    scenario I applies to a run folder's summary.json (a loop flow, vehicles on the road, a throughput or a travel
+    time its departures and arrivals cannot give: issue 82, probe 14, F1). A record whose configuration names no
+    runs so, or whose one summary is not a run's (no steps: a study's own measures), is not judged here."""
+    from coopsumo.studies.engine.run_checks import run_summary_problem
+
+    config, evals = record.get("config"), record.get("eval_summaries")
+    if not isinstance(config, dict):
+        return None
+    runs = config.get("evals") if "evals" in config else [config.get("run", config)]
+    if not isinstance(runs, list) or not runs or ("evals" in config) != isinstance(evals, list):
+        return None  # not a configuration a cell runs (results_view judges it), or no evaluations kept to judge
+    if not isinstance(evals, list) and "steps" not in record["summary"]:
+        return None  # a study's own measures of its run (scenario I's accident), not the run's summary
+    if isinstance(evals, list) and len(evals) != len(runs):
+        return f"has {len(evals)} evaluations, but its configuration runs {len(runs)}"
+    pairs = list(zip(evals, runs, strict=True)) if isinstance(evals, list) else [(record["summary"], runs[0])]
+    for i, (summary, run) in enumerate(pairs):
+        if not (isinstance(run, dict) and {"steps", "control", "road", "demand", "policy"} <= run.keys()):
+            return None  # not a run's configuration: no study's cell
+        try:
+            problem = run_summary_problem({k: v for k, v in summary.items() if k != "policy"}, run)  # the model's
+            # path, set as it ran: the record's policy is spec_problem's
+        except (KeyError, TypeError, ValueError):
+            return None  # a configuration spec_problem or results_view judges
+        if problem is not None:
+            where = f"evaluation {i + 1} of {len(pairs)} with" if isinstance(evals, list) else "summary"
+            return problem.replace("has summary.json", f"has {where}", 1)
+    return None
 
 
 def _g(value: float) -> str:
@@ -328,6 +361,27 @@ def copy_problem(record: dict[str, Any], spec: dict[str, Any], root: Path) -> st
         if key not in own or key not in copy or not (mine == its or _same_number(mine, its)):
             return (f"has train_summary {key} = {json.dumps(mine)[:40]}, but its training's {path} says "
                     f"{json.dumps(its)[:40]}")  # fmt: skip
+    return None
+
+
+def folder_problem(record: dict[str, Any], folders: Sequence[Path]) -> str | None:
+    """Why a record's runs (each evaluation's summary in eval_summaries, or its one summary) are not the summary.json
+    their run folders `folders` (in the cell's order of runs) hold, or None: every number of a folder's summary
+    the same in the record (the record adds the study's own measures to it). A folder without a readable
+    summary.json is not judged (a committed study keeps none)."""
+    evals = record.get("eval_summaries")
+    runs = evals if isinstance(evals, list) else [record.get("summary")]
+    if len(runs) != len(folders):
+        return None  # pooled_problem and runs_problem judge the evaluations a record keeps
+    for i, (run, folder) in enumerate(zip(runs, folders, strict=True)):
+        if not isinstance(run, dict) or (own := read_json_object(folder / "summary.json")) is None:
+            continue
+        for key, value in own.items():  # a measure the run has none of (null: a travel time without arrivals) too
+            number = isinstance(value, int | float) and not isinstance(value, bool)
+            if (number and not _same_number(run.get(key), value)) or (value is None and run.get(key) is not None):
+                where = f"evaluation {i + 1} of {len(runs)} with" if isinstance(evals, list) else "summary"
+                return (f"has {where} {key} = {json.dumps(run.get(key))[:20]}, but its run folder's "
+                        f"{folder / 'summary.json'} says {json.dumps(value)[:20]}")  # fmt: skip
     return None
 
 

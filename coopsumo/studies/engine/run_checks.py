@@ -34,8 +34,9 @@ def run_summary_problem(summary: dict[str, Any], cfg: dict[str, Any]) -> str | N
     """Why a run's summary.json disagrees with itself or with the configuration it ran (a SimConfig dict), or None:
     its steps the configuration's and its simulated seconds theirs; wall time finite and >= 0 and its steps per
     second steps / wall time; shares from 0 to 1; a mean travel time from 0 to the run's length (NaN only without
-    arrivals); throughput the arrivals per hour; the mean vehicle count from 0 to the departures; no more
-    departures than one per lane and step; vehicles still waiting at the end among the blocked ones."""
+    arrivals); throughput the arrivals per hour; the mean vehicle count from 0 to the departures; a mean loop flow
+    those departures can give (together_problem); no more departures than one per lane and step; vehicles still
+    waiting at the end among the blocked ones."""
     steps, dt = cfg["steps"], float(cfg["control"]["dt_s"])
     if summary.get("steps") != steps or isinstance(summary.get("steps"), bool):
         return f"has summary.json steps = {str(summary.get('steps'))[:20]}, but its configuration runs {steps} steps"
@@ -53,20 +54,9 @@ def run_summary_problem(summary: dict[str, Any], cfg: dict[str, Any]) -> str | N
     for key, value in num.items():
         if key.endswith("_share") and not (math.isnan(value) or 0 <= value <= 1):
             return f"has summary.json {key} = {value:g}, not a share from 0 to 1"
-    arrived, departed = num.get("arrived", 0.0), num.get("departed", 0.0)
-    travel = _number(summary.get("mean_travel_time_s"))
-    if arrived > 0 and not (travel is not None and 0 <= travel <= sim_s):
-        return f"has summary.json mean_travel_time_s = {travel}, not a time from 0 to the run's {sim_s:g} s"
-    if arrived == 0 and travel is not None and not (math.isnan(travel) or 0 <= travel <= sim_s):
-        return f"has summary.json mean_travel_time_s = {travel:g} without a vehicle that arrived"
-    throughput = num.get("throughput_veh_per_h")
-    if throughput is not None and sim_s > 0 and not math.isclose(throughput, arrived * 3600 / sim_s,
-                                                                 rel_tol=1e-6, abs_tol=1e-6):  # fmt: skip
-        return (f"has summary.json throughput_veh_per_h = {throughput:g}, but {arrived:g} vehicles arrived in "
-                f"{sim_s:g} s ({arrived * 3600 / sim_s:g} veh/h)")  # fmt: skip
-    on_road = num.get("mean_vehicles_on_road")
-    if on_road is not None and not 0 <= on_road <= departed:
-        return f"has summary.json mean_vehicles_on_road = {on_road:g}, outside 0 to the {departed:g} departed"
+    departed = num.get("departed", 0.0)
+    if problem := together_problem(num, _number(summary.get("mean_travel_time_s")), cfg):
+        return problem
     lanes = int(cfg["road"]["lanes"])
     if departed > steps * lanes:
         return f"has summary.json departed = {departed:g}, more than one vehicle per lane and step ({steps * lanes})"
@@ -75,6 +65,46 @@ def run_summary_problem(summary: dict[str, Any], cfg: dict[str, Any]) -> str | N
     if isinstance(summary.get("policy"), str) and summary["policy"] != cfg["policy"]:
         return f"has summary.json policy {summary['policy'][:60]}, but its configuration drives {cfg['policy'][:60]}"
     return _motion_problem(num, cfg, departed, sim_s)
+
+
+def together_problem(num: dict[str, float], travel: float | None, cfg: dict[str, Any], runs: int = 1) -> str | None:
+    """Why a summary's counts and rates cannot go together in `runs` runs of the SimConfig dict cfg (num: its numbers;
+    a pooled summary sums its runs' counts and seconds and averages the rest, records.pool_summaries), or None: a mean
+    travel time blank exactly without arrivals (a pooled one may be blank beside some) and at most a run's length;
+    throughput the arrivals per hour; at most the vehicles that departed on the road at once; a loop's mean flow per
+    lane at most what those departures, each counted once at a loop and once more for each lane change, give over the
+    road's lanes and the loop's intervals (of loop_period_s, the last cut at the run's end). The one home of these
+    rules: a run folder's summary.json (run_summary_problem), a scenario II cell record's evaluations
+    (records.runs_problem) and a merged part's runs.csv rows (issue 82, probe 14, F1, F2)."""
+    arrived, departed, sim_s = num.get("arrived", 0.0), num.get("departed", 0.0), num.get("sim_seconds", math.nan)
+    run_s = sim_s / runs
+    if arrived > 0 and not (travel is not None and 0 <= travel <= run_s) and not (travel is None and runs > 1):
+        return f"has summary.json mean_travel_time_s = {travel}, not a time from 0 to the run's {run_s:g} s"
+    if arrived == 0 and travel is not None and not math.isnan(travel):
+        return f"has summary.json mean_travel_time_s = {travel:g} without a vehicle that arrived"
+    throughput = num.get("throughput_veh_per_h")
+    if throughput is not None and sim_s > 0 and not math.isclose(throughput, arrived * 3600 / sim_s,
+                                                                 rel_tol=1e-6, abs_tol=1e-6):  # fmt: skip
+        return (f"has summary.json throughput_veh_per_h = {throughput:g}, but {arrived:g} vehicles arrived in "
+                f"{sim_s:g} s ({arrived * 3600 / sim_s:g} veh/h)")  # fmt: skip
+    on_road = num.get("mean_vehicles_on_road")
+    if on_road is not None and not 0 <= on_road <= departed / runs * (1 + 1e-9):  # its vehicle time summed in steps
+        return f"has summary.json mean_vehicles_on_road = {on_road:g}, outside 0 to the {departed / runs:g} departed"
+    flow = num.get("loop_flow_veh_h_per_lane")
+    if flow is not None and run_s > 0 and flow > (most := _most_loop_flow(num, cfg, run_s, runs)) + 0.01:
+        return (f"has summary.json loop_flow_veh_h_per_lane = {flow:g}, but {departed / runs:g} vehicles departed "
+                f"in {run_s:g} s on {cfg['road']['lanes']} lanes (at most {most:.2f} veh/h per lane)")  # fmt: skip
+    return None
+
+
+def _most_loop_flow(num: dict[str, float], cfg: dict[str, Any], run_s: float, runs: int) -> float:
+    """The highest mean loop flow (veh/h per lane, over every loop, lane and interval) a run of run_s seconds can
+    measure: its departures and lane changes counted in its shortest interval at every loop."""
+    period = float(cfg["road"]["loop_period_s"])
+    intervals = max(1, math.ceil(run_s / period - 1e-9))
+    shortest = min(period, run_s - (intervals - 1) * period)
+    counted = (num.get("departed", 0.0) + num.get("lane_changes", 0.0)) / runs
+    return counted * 3600 / (int(cfg["road"]["lanes"]) * intervals * shortest)
 
 
 def _motion_problem(num: dict[str, float], cfg: dict[str, Any], departed: float, sim_s: float) -> str | None:
@@ -86,11 +116,17 @@ def _motion_problem(num: dict[str, float], cfg: dict[str, Any], departed: float,
     for key in ("mean_speed_mps", "full_road_speed_mps"):
         if num.get(key, 0.0) > fastest + 0.01:
             return f"has summary.json {key} = {num[key]:g}, above any vehicle's speed on its road ({fastest:g} m/s)"
-    most = departed * (sim_s / float(cfg["control"]["t_change_s"]) + 1.0)
-    if num.get("lane_changes", 0.0) > most:
+    if num.get("lane_changes", 0.0) > most_lane_changes(departed, sim_s, cfg):
         return (f"has summary.json lane_changes = {num['lane_changes']:g}, more than its {departed:g} vehicles could "
                 f"make in {sim_s:g} s")  # fmt: skip
     return None
+
+
+def most_lane_changes(departed: float, sim_s: float, cfg: dict[str, Any]) -> float:
+    """The most lane changes `departed` vehicles can start in sim_s seconds of a run of the SimConfig dict cfg: a
+    vehicle starts one at most every control.t_change_s (a change under way blocks the next), one more as it enters.
+    A run's summary (_motion_problem) and a training's last world (trainings.counts_problem) are bound by it."""
+    return departed * (sim_s / float(cfg["control"]["t_change_s"]) + 1.0)
 
 
 _INTERVAL = re.compile(rb"<interval(?=[\s/>])([^>]*)>")

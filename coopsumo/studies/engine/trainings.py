@@ -212,7 +212,9 @@ is no training's"""
 def counts_problem(summary: dict[str, Any], config: dict[str, Any]) -> str | None:
     """Why a training's summary (its values finite numbers: records.training_problem) holds counts or a wall time its
     own training cannot give, or None: more departures than one per lane and step of its last world, more lane
-    changes than one per departed vehicle and step, more gradient updates than updates_per_learn per training step,
+    changes than its departed vehicles could start in that world one after another (a change takes
+    control.t_change_s: run_checks.most_lane_changes; issue 82, probe 14, F9: 5000 for 24 vehicles in 30 s were
+    reused), more gradient updates than updates_per_learn per training step,
     a wall time more than WALL_FACTOR times off the training's steps over its steps_per_second (issue 82, probe 8,
     J9: departed and lane_changes of 99999 and 1e9 updates for 200 steps on 2 lanes, or 500000 s beside 126.7
     steps/s, were reused and copied into runs.csv)."""
@@ -223,9 +225,11 @@ def counts_problem(summary: dict[str, Any], config: dict[str, Any]) -> str | Non
     if isinstance(lanes, int) and departed > last * lanes:
         return (f"has train_summary.json departed = {departed:g}, more than one vehicle per lane and step of its "
                 f"last world ({last} steps on {lanes} lanes)")  # fmt: skip
-    if summary["lane_changes"] > departed * last:
-        return (f"has train_summary.json lane_changes = {summary['lane_changes']:g}, more than one per vehicle and "
-                f"step ({departed:g} vehicles, {last} steps)")  # fmt: skip
+    if isinstance(control := sim.get("control"), dict) and summary["lane_changes"] > (most := _most_changes(
+            departed, last, control)):  # fmt: skip
+        return (f"has train_summary.json lane_changes = {summary['lane_changes']:g}, more than its {departed:g} "
+                f"vehicles could make in its last world's {last} steps (a change takes {control['t_change_s']:g} s: "
+                f"at most {most:g})")  # fmt: skip
     if isinstance(steps, int) and isinstance(per_round, int) and summary["updates"] > steps * per_round:
         return (f"has train_summary.json updates = {summary['updates']:g}, more than {per_round} per step of its "
                 f"{steps} steps")  # fmt: skip
@@ -234,6 +238,17 @@ def counts_problem(summary: dict[str, Any], config: dict[str, Any]) -> str | Non
         return (f"has train_summary.json wall_seconds = {wall:g}, but steps_per_second = {rate:g} makes its {steps} "
                 f"steps {steps / rate if rate > 0 else math.inf:g} s")  # fmt: skip
     return None
+
+
+def _most_changes(departed: float, steps: int, control: dict[str, Any]) -> float:
+    """run_checks.most_lane_changes of `departed` vehicles over `steps` steps of the control settings `control`
+    (inf when they cannot be read: the configuration is judged where it is compared with the study's)."""
+    from coopsumo.studies.engine.run_checks import most_lane_changes
+
+    try:
+        return most_lane_changes(departed, steps * float(control["dt_s"]), {"control": control})
+    except (KeyError, TypeError, ValueError, ZeroDivisionError):
+        return math.inf
 
 
 def _last_world_steps(config: dict[str, Any]) -> int | None:

@@ -24,6 +24,8 @@ from coopsumo.studies.engine.run_folders import profile_study, study_root
 from coopsumo.studies.engine.trainings import train_values_problem
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS, TRAIN_COLUMNS
+from coopsumo.studies.scenario2.part_rows import rows_problem
+from coopsumo.studies.scenario2.part_rows import run_configs as _run_configs
 from coopsumo.studies.scenario2.plan import (
     FULL_ROAD,
     RESPONSE_PLAN,
@@ -155,7 +157,7 @@ def _read_part(folder: Path) -> Part:
         raise UsageError(f"--merge: {folder}'s sweep.json holds a profile no sweep runs ({type(err).__name__}: "
                          f"{err})") from None  # fmt: skip
     if problem := _meta_problem(meta, profile, len(specs)) or _table_problem(meta, profile, specs, runs, evals) \
-            or _speed_problem(specs, runs, evals) or _train_problem(specs, runs):  # fmt: skip
+            or _speed_problem(specs, runs, evals) or _train_problem(specs, runs) or rows_problem(specs, runs):
         raise UsageError(f"--merge: {folder}'s {problem}")
     return Part(folder, meta, profile, runs, evals)
 
@@ -309,15 +311,6 @@ def _made(spec: dict[str, Any]) -> dict[str, Any]:
     """What a cell's runs.csv row holds by its plan: its training folder (a DQN cell's the relative link
     train/<training>, plan.train_folder; a classical run's none) and its steps (its evaluations' together)."""
     return {"train_dir": train_folder(spec), "steps": sum(int(run["steps"]) for run in _run_configs(spec))}
-
-
-def _run_configs(spec: dict[str, Any]) -> list[dict[str, Any]]:
-    """The SimConfigs a cell drives, by the three shapes plan.cell_specs gives its configuration: a DQN cell's
-    {"evals": [...]}, a classical run's {"run": SimConfig, "trajectory_every_steps": K} or, without trajectories,
-    the SimConfig itself (issue 82, probe 13, F1: a keep or MOBIL cell of the tiny profile was read as the second,
-    a KeyError out of the merge)."""
-    config = spec["config"]
-    return list(config["evals"]) if "evals" in config else [config.get("run", config)]
 
 
 def _differs(row: dict[str, Any], cell: dict[str, Any], names: Sequence[str]) -> str | None:

@@ -118,8 +118,9 @@ from coopsumo.validation import (
 )
 from coopsumo.validation import parse_number as parse_number  # '1/8' -> 0.125, kept in this module's interface
 
-REQUIRED_SUMMARY = (CRITERION, "collisions", "teleports")
-"""summary values a stored cell record must hold as finite numbers to be reused (records.record_problem)"""
+REQUIRED_SUMMARY = (CRITERION, "collisions", "teleports", "steps")
+"""summary values a stored cell record must hold as finite numbers to be reused (records.record_problem); its steps
+make it a run's summary, judged as one (records.runs_problem)"""
 RECORD_KEYS = (*KEY_COLUMNS, "policy", "p")
 """coordinates copied from a cell's spec into its record: policy "dqn" (p None) or "mobil" (alpha None)"""
 
@@ -271,6 +272,7 @@ def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers
     done_keys -= repointed(root, [s for s in specs if s["key"] in done_keys])
     done_keys -= unusable_trainings(root, [s for s in specs if s["key"] in done_keys], "scenario2")  # probe 13, F9
     done_keys -= copied_wrong(root, [s for s in specs if s["key"] in done_keys], "scenario2")  # probe 8, J10
+    done_keys -= CELLS.unlike_runs(root, [s for s in specs if s["key"] in done_keys], "scenario2")  # probe 14, F1
     done = [s for s in specs if s["key"] in done_keys]
     todo = [s for s in specs if s["key"] not in done_keys]
     for s in todo:  # a run folder holding a user's files: refused before any cell runs (issue 82, probe 7, I1)
