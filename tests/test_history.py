@@ -440,3 +440,13 @@ def test_an_interrupted_history_says_so_as_its_early_line_does(tmp_path: Path, m
     (tmp_path / "results").mkdir()
     assert history.main(["--results", str(tmp_path / "results")]) == 130
     assert capsys.readouterr().err == f"{command_of(['history'])}: interrupted\n" == "history: interrupted\n"
+
+
+def test_a_closed_stdout_is_no_traceback(tmp_path: Path) -> None:
+    """Issue 82, probe 15, T2: `coopsumo history >&-` (Python's sys.stdout is then None) ended in an AttributeError
+    traceback; it prints nothing and ends as `models >&-` does, exit 0, nothing on stderr."""
+    results = tmp_path / "results"
+    _one_study(results)
+    res = subprocess.run(["bash", "-c", f'exec "{sys.executable}" -m coopsumo history --results "{results}" >&-'],
+                         cwd=tmp_path, capture_output=True, text=True, check=False)  # fmt: skip
+    assert (res.returncode, res.stderr) == (0, ""), res.stderr

@@ -16,7 +16,6 @@ import json
 import math
 import os
 import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -339,7 +338,7 @@ def main(argv: list[str] | None = None) -> int:
             check_writable(args.out)  # before the table is built: a refusal leaves everything as it was
         text = table(args.results)
         if args.out is None:
-            sys.stdout.write(text)
+            print(text, end="")  # stdout closed (None): nothing to print, as print does (probe 15, T2)
             return 0
         args.out.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(args.out, lambda tmp: tmp.write_text(text))
