@@ -85,6 +85,23 @@ def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
         raise
 
 
+def write_new(path: Path, write: Callable[[Path], Any]) -> None:
+    """write(tmp) as write_atomic does, then link it at `path` only if no file is there (os.link refuses a name taken,
+    even one taken since a check: FileExistsError), never over one; the temporary file removed either way. For an
+    output that must be a new file (sumo-gui's screenshot: issue 82, probe 15, D1)."""
+    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMPORARY)
+    tmp = Path(name)
+    try:
+        try:
+            os.fchmod(fd, 0o666 & ~_umask())
+        finally:
+            os.close(fd)
+        write(tmp)
+        os.link(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"),
           (stat.S_ISCHR, "a device"), (stat.S_ISBLK, "a device"))  # fmt: skip
 

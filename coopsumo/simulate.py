@@ -189,6 +189,9 @@ def screenshot_problem(shot: Path, out: Path) -> str | None:
                 "study's); name a new file")  # fmt: skip
     if shot.resolve().is_relative_to(out.resolve()):
         return f"{flag} lies inside --out {out}, which the run writes whole; name a file outside it"
+    parent = next(p for p in shot.absolute().parents if p.exists())
+    if not os.access(parent, os.W_OK):  # a read-only file system too: found at the run's end (probe 15, T1)
+        return f"{flag}: the folder {parent} cannot be written; name a screenshot file elsewhere"
     return owned_problem(shot, flag, "name a screenshot file elsewhere")
 
 

@@ -8,6 +8,7 @@ import re
 import shlex
 import subprocess
 import sys
+import time
 from collections import Counter
 from pathlib import Path
 from typing import Any
@@ -20,6 +21,7 @@ from conftest import TIMING_KEYS, env_with_display, main_here
 from PIL import Image
 
 from coopsumo.sim import view
+from coopsumo.sim.world import GUI_SHOT
 
 pytestmark = pytest.mark.sumo
 ROOT = Path(__file__).resolve().parent.parent
@@ -108,6 +110,30 @@ def test_documented_gui_command_shows_the_run_and_saves_a_screenshot(tmp_path: P
     gui_traj = pd.read_parquet(out / "trajectories.parquet")
     assert gui_traj.equals(pd.read_parquet(tmp_path / "libsumo" / "trajectories.parquet"))
     assert json.loads((out / "config.json").read_text())["gui"]["screenshot"] == str(shot)
+    assert not (out / GUI_SHOT).exists()  # saved in the run's folder, then placed at the path asked for
+
+
+def test_a_file_made_at_the_screenshot_path_during_the_run_is_kept(tmp_path: Path, gui_display: str) -> None:
+    """Issue 82, probe 15, D1: the screenshot path was checked at the run's start and written at its end: a file made
+    there meanwhile (a user's, another run's screenshot) was replaced, exit 0. It is kept: one line, exit 2, no run."""
+    shot, out = tmp_path / "shot.png", tmp_path / "run"
+    args = [sys.executable, "-m", "coopsumo.simulate", "--steps", "200", "--gui-delay", "20", "--quiet", "--gui",
+            "--gui-screenshot", str(shot), "--gui-screenshot-step", "10", "--out", str(out)]  # fmt: skip
+    proc = subprocess.Popen(args, cwd=ROOT, env=env_with_display(gui_display), text=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE)  # fmt: skip
+    try:
+        deadline = time.monotonic() + 120
+        while not list(tmp_path.glob(".run.partial-*/config.json")):  # the run has started
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.05)
+        shot.write_bytes(b"MY NOTES")
+        stdout, stderr = proc.communicate(timeout=240)
+    finally:
+        proc.kill()
+    assert proc.returncode == 2 and stdout == "", stderr
+    lines = stderr.strip().splitlines()
+    assert len(lines) == 1 and "--gui-screenshot" in lines[0] and "made there while the run went" in lines[0], stderr
+    assert shot.read_bytes() == b"MY NOTES" and sorted(p.name for p in tmp_path.iterdir()) == ["shot.png"]
 
 
 def test_gui_without_a_display_is_one_line_and_exit_2(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
@@ -290,3 +316,18 @@ def test_documented_fig4_commands_make_their_run_and_draw_a_png(tmp_path: Path) 
     assert res.returncode == 0, res.stderr[-2000:]
     assert png.read_bytes().startswith(PNG) and png.stat().st_size > 20_000
     assert len(colours_of(png)) > 10
+
+
+def test_a_screenshot_folder_that_cannot_be_written_is_refused_before_the_run(tmp_path: Path,
+                                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 82, probe 15, T1: a screenshot into a read-only file system was found at the run's end, a traceback; the
+    folder's writability (os.access, which a read-only mount fails for root too) is checked with the path's rules."""
+    from coopsumo import simulate as simulate_command
+
+    folder = tmp_path / "ro"
+    folder.mkdir()
+    real = simulate_command.os.access
+    monkeypatch.setattr(simulate_command.os, "access", lambda p, mode: real(p, mode) and Path(p) != folder)
+    problem = simulate_command.screenshot_problem(folder / "new" / "s.png", tmp_path / "run")
+    assert problem is not None and f"the folder {folder} cannot be written" in problem
+    assert simulate_command.screenshot_problem(tmp_path / "s.png", tmp_path / "run") is None

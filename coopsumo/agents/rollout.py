@@ -5,6 +5,7 @@ Every command that simulates (simulate, train's evaluation, the studies) runs th
 
 from __future__ import annotations
 
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -18,9 +19,10 @@ from coopsumo.agents.adaptive import interval_measures
 from coopsumo.agents.decisions import ActionHold
 from coopsumo.agents.policies import Policy
 from coopsumo.config import GuiConfig, OutputConfig, SimConfig, to_dict
-from coopsumo.files import write_json
+from coopsumo.errors import UsageError
+from coopsumo.files import write_json, write_new
 from coopsumo.provenance import versions
-from coopsumo.sim.world import World
+from coopsumo.sim.world import GUI_SHOT, World
 
 ADAPTIVE_ALPHA_FILE = "adaptive_alpha.csv"
 """an adaptive policy's choices: per loop period, the road's loop measurements and the alpha chosen from them"""
@@ -94,8 +96,8 @@ def run(
     summary["policy"] = cfg.policy
     summary["decision_interval_steps"] = policy.decision_interval
     summary["scenario"] = cfg.scenario
-    if gui is not None and gui.screenshot and not Path(gui.screenshot).exists():
-        raise RuntimeError(f"sumo-gui did not write the screenshot {gui.screenshot}")
+    if gui is not None and gui.screenshot:
+        _place_screenshot(run_dir / GUI_SHOT, Path(gui.screenshot))
     alpha_log = getattr(policy, "alpha_log", None)
     if alpha_log:
         import pandas as pd
@@ -108,3 +110,18 @@ def run(
         pd.DataFrame(traj).to_parquet(run_dir / "trajectories.parquet", index=False)
     write_json(run_dir / "summary.json", summary)
     return summary
+
+
+def _place_screenshot(shot: Path, path: Path) -> None:
+    """sumo-gui's screenshot, saved in the run's folder, placed at `path` as a new file (files.write_new: a file made
+    there since the run's start, another run's or a user's, is never written over); one line otherwise."""
+    if not shot.is_file():
+        raise UsageError(f"--gui-screenshot {path}: sumo-gui did not write the screenshot (is the display there?)")
+    try:
+        write_new(path, lambda tmp: shutil.copyfile(shot, tmp))
+    except FileExistsError:
+        raise UsageError(f"--gui-screenshot {path}: a file was made there while the run went (another run's "
+                         "screenshot, or yours); it is left as it is and this run's screenshot is not written: name a "
+                         "new file") from None
+    finally:
+        shot.unlink(missing_ok=True)

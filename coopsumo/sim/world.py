@@ -31,6 +31,11 @@ from coopsumo.sim.reward import RewardParts, flow_term, reward_parts, speed_term
 from coopsumo.sim.sumo_session import StepEvents, SumoSession
 from coopsumo.sim.vehicle_table import VehicleTable
 
+GUI_SHOT = ".gui-screenshot.png"
+"""where sumo-gui saves its screenshot, in the run's own folder; the run then places it at the path asked for, as a
+new file only (agents/rollout.run; issue 82, probe 15, D1: written there directly, it replaced a file made there
+while the run went)"""
+
 
 @dataclass(frozen=True)
 class StepOutcome:
@@ -391,7 +396,7 @@ class World:
         """SUMO step, then bookkeeping: table, lane-change clocks, counts, new departures."""
         gui = self.gui
         if gui is not None and gui.screenshot and self.step_count + 1 == gui.screenshot_step:
-            self.session.screenshot(Path(gui.screenshot), gui.screenshot_px)
+            self.session.screenshot(self.run_dir / GUI_SHOT, gui.screenshot_px)  # placed by the run at its end
         events = self.session.step()
         self.step_count += 1
         dt = self.cfg.control.dt_s
