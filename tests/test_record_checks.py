@@ -1,8 +1,9 @@
 """Issue 67, read-back checks that look inside, for cell records: a scenario II (or ablation) record whose summary
 or one of its evaluations was edited is not what its evaluations pool to and is rerun; a cell of accident-seeds is
 tied to the model file it drives (its sha256) and is rerun, with one line, when the file was replaced or cut short
-since; a scenario II record whose train/ link was pointed at another model is rerun, the link put back.
-An intact record is reused and left as it was."""
+since, and its run folder is redone, with one line, when its files cannot be trusted; a scenario II record whose
+train/ link was pointed at another model is rerun, the link put back. An intact record is reused and left as it
+was."""
 
 from __future__ import annotations
 
@@ -375,6 +376,65 @@ def test_accident_seeds_refuses_a_cut_short_model_it_drives_through_a_copy(
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and f"cannot read model file {model}" in lines[0] and "leave its variant out" in lines[0]
     assert not out.exists()
+
+
+def _garbage(path: Path) -> None:
+    path.write_text("garbage")
+
+
+def _folder(path: Path) -> None:
+    path.unlink()
+    path.mkdir()
+
+
+SPOILED_RUNS: dict[str, tuple[str, Callable[[Path], None], str]] = {  # run folder: (its file, the edit, the line)
+    "t3_keep_seed0": ("detectors.xml", _garbage, "has a missing or cut-short detectors.xml"),
+    "t3_greedy_seed0": ("trajectories.parquet", _garbage, "has an unreadable trajectories.parquet"),
+    "t3_mobil_p0_seed0": ("trajectories.parquet", _folder, "has a trajectories.parquet that is not a regular file"),
+    "t3_paper_alpha0_train0_seed0": ("summary.json", _garbage, "has an unreadable summary.json (JSONDecodeError)"),
+}
+
+
+def test_an_accident_seeds_rerun_redoes_a_spoiled_run_folder_with_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 82, probe 15, T3: a rerun reused every cell on its record alone, then read its run folder's files, and
+    a garbage detectors.xml, trajectories.parquet or summary.json (or a folder in its place) ended every rerun in a
+    traceback; a folder removed was refused. Now each folder is judged as scenario I judges its own before reuse
+    (run_folders.reusable_run), and the run is redone with one line naming it."""
+    from coopsumo.config import OutputConfig
+    from coopsumo.studies.engine.run_folders import reuse_problem
+
+    root = learning_folder(tmp_path / "learning", ("paper",))
+    out = tmp_path / "acc"
+    args = [str(root), "--variants", "paper", "--seeds", "1", "--t-up", "3", "--steps", "300", "--workers", "1",
+            "--quiet", "--out", str(out)]  # fmt: skip
+    assert accident_seeds.main(args) == 0
+    runs = out / "runs" / "t3"
+    assert sorted(p.name for p in runs.iterdir()) == sorted(SPOILED_RUNS) and capsys.readouterr().err == ""
+    written = {name: json.loads((runs / name / "config.json").read_text()) for name in SPOILED_RUNS}
+
+    def whole(name: str) -> bool:  # scenario I would reuse it as it is
+        run = written[name]
+        return reuse_problem(runs / name, run["config"], OutputConfig(**run["sumo_outputs"])) is None
+
+    for name, (file, spoil, _) in SPOILED_RUNS.items():
+        spoil(runs / name / file)
+    assert accident_seeds.main(args) == 0
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if " run folder " in line]
+    assert "Traceback" not in err and len(lines) == len(SPOILED_RUNS), err
+    for name, (_, _, fragment) in SPOILED_RUNS.items():
+        line = next(line for line in lines if f" run folder {runs / name} " in line)
+        assert line.startswith(f"accident-seeds: run folder {runs / name} {fragment}"), lines
+        assert line.endswith("; running it again"), lines
+        assert whole(name) and (runs / name / "trajectories.parquet").is_file()
+    shutil.rmtree(runs / "t3_keep_seed0")  # a folder removed outright: run again (it was refused)
+    assert accident_seeds.main(args) == 0
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and f"accident-seeds: run folder {runs / 't3_keep_seed0'} has no summary.json" in err
+    assert whole("t3_keep_seed0")
+    assert len(pd.read_csv(out / "runs.csv")) == len(SPOILED_RUNS)
 
 
 def test_a_record_from_before_digests_is_judged_by_time(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

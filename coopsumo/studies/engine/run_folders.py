@@ -82,17 +82,18 @@ RUN_SUMMARY = ("departed", "mean_speed_mps", "throughput_veh_per_h", "lane_chang
 """summary.json values a stored accident run must hold as finite numbers to be reused (scenario I's measures)"""
 
 
-def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None) -> bool:
+def reusable_run(out: Path, cfg: dict[str, Any], outputs: OutputConfig, model: Path | None = None,
+                 prog: str = "scenario1") -> bool:
     """True when the run folder out holds a finished run of the SimConfig dict cfg with the SUMO output files
     `outputs` asks for and, for a model's run, was driven by the model file as it is now (model_driven), and its
     values and files can be trusted (run_folder_problem). A folder that holds a summary.json and is not reused
-    gets one line on stderr saying why; UsageError when it is not the study's to run again (run_dirs.check_run_dir:
-    a marker with no list of the run's files, a file added to it)."""
+    gets one line on stderr (of the command `prog`) saying why; UsageError when it is not the study's to run again
+    (run_dirs.check_run_dir: a marker with no list of the run's files, a file added to it)."""
     if not (out / "summary.json").exists():
         return False
     if problem := reuse_problem(out, cfg, outputs, model):
         check_run_dir(out.resolve(), "simulate")
-        print(f"scenario1: run folder {out} {problem}; running it again", file=sys.stderr)
+        print(f"{prog}: run folder {out} {problem}; running it again", file=sys.stderr)
         return False
     return True
 

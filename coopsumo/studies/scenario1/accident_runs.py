@@ -5,6 +5,7 @@ accident_seeds) a list of accident runs on the shared runner, and scenario I's m
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Iterable, Sequence
 from dataclasses import replace
 from functools import partial
@@ -12,9 +13,10 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import OutputConfig, RoadConfig, SimConfig, to_dict
-from coopsumo.studies.engine.cells import Cell, CellKind, Run, Train, failed_keys, run_cells
-from coopsumo.studies.engine.records import CellRecords
-from coopsumo.studies.engine.run_folders import simulate_into
+from coopsumo.run_dirs import check_run_dir
+from coopsumo.studies.engine.cells import Cell, CellKind, Run, Train, failed_keys, run_todo
+from coopsumo.studies.engine.records import CellRecords, reusable_keys
+from coopsumo.studies.engine.run_folders import reusable_run, simulate_into
 from coopsumo.studies.scenario1.plan import Plan
 
 # -- scenario I's cell, run by the shared runner (coopsumo.studies.engine.runner), one per worker process ----------
@@ -61,12 +63,32 @@ def run_spec(plan: Plan, cfg: SimConfig, key: str, folder: str, label: str, seed
 
 def run_all(specs: Sequence[dict[str, Any]], root: Path, plans: Iterable[Plan], prog: str, workers: int = 2,
             backend: str = "local", address: str | None = None, progress: bool = True) -> list[str]:  # fmt: skip
-    """Run the accident runs not finished in root on the shared runner; the keys of those that failed."""
+    """Run the accident runs not finished in root on the shared runner; the keys of those that failed. A run is
+    finished when its cell record is reusable (records.reusable_keys) and so is its run folder (folder_reusable)."""
     roads = [RoadConfig(lanes=p.lanes, loop_period_s=p.loop_period_s) for p in plans]
-    records = run_cells(specs, root, run_cell, failed_record, prog=prog, required=REQUIRED,
-                        roads=roads, workers=workers, backend=backend, address=address, progress=progress,
-                        desc="accident runs")  # fmt: skip
+    root = root.resolve()
+    done = reusable_keys(root, specs, prog, REQUIRED)
+    todo = [s for s in specs if s["key"] not in done or not folder_reusable(root, s, prog)]
+    records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED,
+                       roads=roads, workers=workers, backend=backend, address=address, progress=progress,
+                       desc="accident runs")  # fmt: skip
     return failed_keys(records)
+
+
+def folder_reusable(root: Path, spec: dict[str, Any], prog: str) -> bool:
+    """True when the run folder of the cell `spec`, whose record is reusable, can be reused too, judged as scenario I
+    judges its own before reuse (run_folders.reusable_run: its configuration, SUMO outputs, summary, detectors.xml,
+    fcd.xml, tripinfo.xml and trajectories.parquet; the model it drove is the record's to judge,
+    records.model_changed). Otherwise the run is redone, with one line naming the folder and why; a folder removed
+    (no summary.json) too. UsageError when the folder is not the study's to run again (run_dirs.check_run_dir).
+    Issue 82, probe 15, T3: a garbage detectors.xml, trajectories.parquet or summary.json ended every rerun in a
+    traceback, and a folder removed was refused."""
+    out = root / spec["out"]
+    if (out / "summary.json").exists():
+        return reusable_run(out, spec["config"], OutputConfig(**spec["outputs"]), prog=prog)
+    check_run_dir(out.resolve(), "simulate")
+    print(f"{prog}: run folder {out} has no summary.json (removed?); running it again", file=sys.stderr)
+    return False
 
 
 def measures(root: Path, spec: dict[str, Any], cfg: SimConfig) -> dict[str, Any]:
