@@ -1,12 +1,12 @@
 """A study's cells: what each does, typed, the one function that does it, and all of them through the shared runner
 (coopsumo.studies.engine.runner) in one call, with the options that choose where.
 
-run_cells reuses every cell whose stored record can be trusted (records.reusable_keys), builds the road networks once
-in this process (not in every worker), runs the other cells on local processes or Ray (runner.execute, one progress
+run_todo runs a study's cells still to run: it builds the road networks once in this process (not in every worker),
+trains the stacked learner's models as groups, runs the cells on local processes or Ray (runner.execute, one progress
 bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
-The studies that only drive or measure (regime_map, accident_seeds) call it instead of
-repeating those steps; the learning study and the protocol, which order their own cells, are a `Study` whose run
-does the steps of a study from its cells to its record; scenario II, which checks its links first, calls run_todo.
+The learning study and the protocol, which order their own cells, are a `Study` whose run does the steps of a study
+from its cells to its record; scenario II, which checks its links first, and scenario I's accident runs (the regime
+map, accident_seeds), which check their run folders, choose their cells and call run_todo.
 
 What a cell does: its model trained into the model store (or
 taken from it) and driven on its runs, or runs of a policy that needs no training, or a training alone.
@@ -61,23 +61,6 @@ def add_cell_flags(parser: Parser) -> None:
     parser.add_argument("--workers", type=workers_flag, default=2, help="parallel processes")
     add_backend_flags(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-
-
-def run_cells(specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn, failed_record: FailedRecord, *,
-              prog: str, required: Sequence[str], roads: Iterable[RoadConfig] = (), workers: int = 2,
-              backend: str = "local", address: str | None = None, progress: bool = True,
-              desc: str = "cells") -> list[dict[str, Any]]:  # fmt: skip
-    """Run the cells of `specs` not finished in root (their records in ROOT/cells/) and return every cell's record,
-    in the order of specs; a record whose status is not "ok" names a cell that failed.
-
-    required: the summary values a stored record must hold as finite numbers to be reused; roads: the networks the
-    cells drive on, built here before any worker starts.
-    """
-    root = root.resolve()
-    done = reusable_keys(root, specs, prog, required)
-    todo = [s for s in specs if s["key"] not in done]
-    return run_todo(todo, specs, root, cell_fn, failed_record, required=required, roads=roads, workers=workers,
-                    backend=backend, address=address, progress=progress, desc=desc)
 
 
 def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> list[dict[str, Any]]:
