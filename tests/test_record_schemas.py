@@ -123,8 +123,9 @@ def checkpoint_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     cfg = TrainConfig(sim=SimConfig(steps=40, seed=3, policy="dqn"), dqn=dqn, eval_steps=0, log_every_steps=10,
                       checkpoint_every_steps=20)  # fmt: skip
     state = torch.load(interrupted_at_step_20(cfg, out), weights_only=True)
+    step = torch.tensor(float(state["learner"]["updates"]))  # Adam counts the updates made (checkpoint_bounds)
     state["learner"]["optimizer"]["state"] = {
-        i: {"step": torch.tensor(3.0), "exp_avg": torch.full_like(w, 0.01), "exp_avg_sq": torch.full_like(w, 1e-4)}
+        i: {"step": step.clone(), "exp_avg": torch.full_like(w, 0.01), "exp_avg_sq": torch.full_like(w, 1e-4)}
         for i, w in enumerate(state["learner"]["online"].values())}  # fmt: skip
     torch.save(state, out / "checkpoint.pt")
     (out / "step20.pt").unlink()
