@@ -71,24 +71,19 @@ def write_atomic(path: Path, write: Callable[[Path], Any]) -> None:
     a link), then rename it to `path`: a reader sees the old file or the whole new one. On any failure (a full
     disk, a kill by signal) the temporary file is removed and the error passed on. One a SIGKILL left stays: a file
     of that name may be a user's (issue 82, probe 8, J23); a study clears its own root's (left_temporaries)."""
-    fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMPORARY)
-    tmp = Path(name)
-    try:
-        try:
-            os.fchmod(fd, 0o666 & ~_umask())  # the mode a file written in place gets, not mkstemp's 0600
-        finally:
-            os.close(fd)
-        write(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    _write_beside(path, write, os.replace)
 
 
 def write_new(path: Path, write: Callable[[Path], Any]) -> None:
     """write(tmp) as write_atomic does, then link it at `path` only if no file is there (os.link refuses a name taken,
     even one taken since a check: FileExistsError), never over one; the temporary file removed either way. For an
     output that must be a new file (sumo-gui's screenshot: issue 82, probe 15, D1)."""
+    _write_beside(path, write, os.link)
+
+
+def _write_beside(path: Path, write: Callable[[Path], Any], place: Callable[[Path, Path], None]) -> None:
+    """write(tmp) into a new temporary file beside `path` (mkstemp, the mode a file written in place gets, not its
+    0600), then place(tmp, path); the temporary file is gone afterwards, whatever happened."""
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMPORARY)
     tmp = Path(name)
     try:
@@ -97,9 +92,9 @@ def write_new(path: Path, write: Callable[[Path], Any]) -> None:
         finally:
             os.close(fd)
         write(tmp)
-        os.link(tmp, path)
+        place(tmp, path)
     finally:
-        tmp.unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)  # renamed away already, or left by a failure or a link
 
 
 _KINDS = ((stat.S_ISDIR, "a folder"), (stat.S_ISFIFO, "a named pipe"), (stat.S_ISSOCK, "a socket"),
