@@ -237,6 +237,14 @@ def record_problem(record: Any, required: Sequence[str]) -> str | None:
     return implausible(summary) or pooled_problem(record) or runs_problem(record)
 
 
+def cell_runs(config: dict[str, Any]) -> list[Any]:
+    """The SimConfig dicts a cell's configuration drives, by the three shapes a study's cell configuration takes: a
+    model cell's {"evals": [...]}, a run with trajectories {"run": SimConfig, "trajectory_every_steps": K}, or the
+    SimConfig itself (issue 82, probe 13, F1: a keep or MOBIL cell of scenario II's tiny profile was read as the
+    second, a KeyError out of the merge)."""
+    return list(config["evals"]) if "evals" in config else [config.get("run", config)]
+
+
 def runs_problem(record: dict[str, Any]) -> str | None:
     """Why a record's runs (each evaluation's summary, or its one summary) contradict themselves or the SimConfig
     each ran (its config's `evals`, or its config, a `run` in it), or None: run_checks.run_summary_problem, the rules
@@ -248,8 +256,10 @@ def runs_problem(record: dict[str, Any]) -> str | None:
     config, evals = record.get("config"), record.get("eval_summaries")
     if not isinstance(config, dict):
         return None
-    runs = config.get("evals") if "evals" in config else [config.get("run", config)]
-    if not isinstance(runs, list) or not runs or ("evals" in config) != isinstance(evals, list):
+    if "evals" in config and not isinstance(config["evals"], list):
+        return None  # not a configuration a cell runs (results_view judges it)
+    runs = cell_runs(config)
+    if not runs or ("evals" in config) != isinstance(evals, list):
         return None  # not a configuration a cell runs (results_view judges it), or no evaluations kept to judge
     if not isinstance(evals, list) and "steps" not in record["summary"]:
         return None  # a study's own measures of its run (scenario I's accident), not the run's summary

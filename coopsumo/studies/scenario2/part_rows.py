@@ -11,17 +11,9 @@ from typing import Any
 
 import pandas as pd
 
+from coopsumo.studies.engine.records import cell_runs
 from coopsumo.studies.engine.run_checks import together_problem
 from coopsumo.studies.scenario2.measures import TRAIN_COLUMNS
-
-
-def run_configs(spec: dict[str, Any]) -> list[dict[str, Any]]:
-    """The SimConfigs a cell drives, by the three shapes plan.cell_specs gives its configuration: a DQN cell's
-    {"evals": [...]}, a classical run's {"run": SimConfig, "trajectory_every_steps": K} or, without trajectories,
-    the SimConfig itself (issue 82, probe 13, F1: a keep or MOBIL cell of the tiny profile was read as the second,
-    a KeyError out of the merge)."""
-    config = spec["config"]
-    return list(config["evals"]) if "evals" in config else [config.get("run", config)]
 
 
 def _finite(value: Any) -> bool:
@@ -32,7 +24,7 @@ def rows_problem(specs: list[dict[str, Any]], runs: pd.DataFrame) -> str | None:
     """Why a successful row of a part's runs.csv cannot be its cell's runs pooled (records.pool_summaries: counts
     and seconds summed over its evaluations, the rest averaged; run_checks.together_problem on them), or why two
     rows of one training (train_dir) hold other training columns, as a phrase after "<part>'s", or None."""
-    planned = {s["key"]: run_configs(s) for s in specs}
+    planned = {s["key"]: cell_runs(s["config"]) for s in specs}
     trained: dict[str, dict[str, Any]] = {}
     for row in runs.to_dict("records"):
         if row.get("status") != "ok" or (configs := planned.get(row["key"])) is None:

@@ -19,13 +19,12 @@ from coopsumo.errors import ConfigError, NotRegularFileError, UsageError, first_
 from coopsumo.field_rules import shown
 from coopsumo.files import read_csv, read_json, write_atomic, write_json
 from coopsumo.studies.engine.catalogue import Entry
-from coopsumo.studies.engine.records import implausible, pooled_problem
+from coopsumo.studies.engine.records import cell_runs, implausible, pooled_problem
 from coopsumo.studies.engine.run_folders import profile_study, study_root
 from coopsumo.studies.engine.trainings import train_values_problem
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import EVAL_COLUMNS, EVAL_KEYS, KEY_COLUMNS, METRIC_COLUMNS, TRAIN_COLUMNS
 from coopsumo.studies.scenario2.part_rows import rows_problem
-from coopsumo.studies.scenario2.part_rows import run_configs as _run_configs
 from coopsumo.studies.scenario2.plan import (
     FULL_ROAD,
     RESPONSE_PLAN,
@@ -276,7 +275,7 @@ def _speed_problem(specs: list[dict[str, Any]], runs: pd.DataFrame, evals: pd.Da
     """Why a part's runs.csv or evals.csv gives a speed no vehicle drives on its cell's road (above the road's
     speed limit and the fastest desired speed), or a full-road speed without the moment it is measured from, as a
     phrase after "<part>'s", or None (issue 82, probe 8, J15: 60 m/s on a 33.34 m/s road, in both tables alike)."""
-    fastest = {spec["key"]: fastest_mps(_run_configs(spec)[0]) for spec in specs}
+    fastest = {spec["key"]: fastest_mps(cell_runs(spec["config"])[0]) for spec in specs}
     for name, table in (("runs.csv", runs), ("evals.csv", evals)):
         for row in table.to_dict("records"):
             for column in ("mean_speed_mps", FULL_ROAD):
@@ -310,7 +309,7 @@ def _train_problem(specs: list[dict[str, Any]], runs: pd.DataFrame) -> str | Non
 def _made(spec: dict[str, Any]) -> dict[str, Any]:
     """What a cell's runs.csv row holds by its plan: its training folder (a DQN cell's the relative link
     train/<training>, plan.train_folder; a classical run's none) and its steps (its evaluations' together)."""
-    return {"train_dir": train_folder(spec), "steps": sum(int(run["steps"]) for run in _run_configs(spec))}
+    return {"train_dir": train_folder(spec), "steps": sum(int(run["steps"]) for run in cell_runs(spec["config"]))}
 
 
 def _differs(row: dict[str, Any], cell: dict[str, Any], names: Sequence[str]) -> str | None:
