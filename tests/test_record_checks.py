@@ -287,9 +287,10 @@ def test_a_train_link_pointed_at_another_model_is_rerun(tmp_path: Path, faked_tr
     err = capsys.readouterr().err.splitlines()
     cells = {f"L2_T{t}_{model.removeprefix('L2_')}": model for model in pointed for t in (2, 4)}
     assert sorted(faked_train[1:]) == sorted(cells)  # exactly the cells of the models whose link was moved ran again
-    for key, model in cells.items():
-        lines = [line for line in err if f"cell {key}: {train / model} leads to" in line]
-        assert len(lines) == 1 and lines[0].endswith("; rerunning it"), err
+    for model in pointed:  # one line a model, naming its link and its cells
+        lines = [line for line in err if line.startswith(f"scenario2: {train / model} ")]
+        assert len(lines) == 1 and "rerunning the 2 cells of its training" in lines[0], err
+        assert all(key in lines[0] for key, named in cells.items() if named == model), lines
     assert "4 already done" in "\n".join(err) and meta["cells_ok"] == 12 and meta["cells_run"] == 8
     assert {p.name: p.resolve() for p in train.iterdir()} == own
     assert {p: p.read_bytes() for p in before} == before
@@ -541,5 +542,5 @@ def test_a_table_refused_leaves_the_finished_sweep_whole(dqn_spec: dict[str, Any
     record["summary"]["loop_occupancy_pct"] = 500.0
     meta = scenario2._sweep_meta(PROFILES["full"], 1, "local", None, 1, 0)
     with pytest.raises(RecordError, match=r"runs.csv row 1 column loop_occupancy_pct must be"):
-        scenario2._finish(tmp_path, PROFILES["full"], meta, [record], 1, 1.0)
+        scenario2._finish(tmp_path, PROFILES["full"], [record], meta)
     assert {p.name: p.read_text() for p in tmp_path.iterdir()} == before

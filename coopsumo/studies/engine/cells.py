@@ -41,6 +41,7 @@ from coopsumo.studies.engine.records import (
     copied_wrong,
     folder_problem,
     pool_summaries,
+    read_record,
     reusable_keys,
 )
 from coopsumo.studies.engine.run_folders import simulate_into
@@ -63,27 +64,50 @@ def add_cell_flags(parser: Parser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str]) -> list[dict[str, Any]]:
+Check = Callable[[Path, Sequence[dict[str, Any]], str], set[str]]
+"""a reuse check: (the study root, cells whose records are otherwise reusable, the command) -> the keys to rerun, each
+with one line saying why"""
+
+
+def drawn_logs(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[str]:
+    """trainings.spoiled_logs: the check of the studies that draw their trainings' logs (learning, protocol)."""
+    from coopsumo.studies.engine.trainings import spoiled_logs
+
+    return spoiled_logs(root, specs, prog)
+
+
+def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str],
+               checks: Sequence[Check] = (drawn_logs,),
+               made: Callable[[dict[str, Any]], dict[str, Any]] | None = None) -> list[dict[str, Any]]:  # fmt: skip
     """The cells of `specs` the study root `root` has still to run, in their order: every cell but those whose record
-    is reusable (records.reusable_keys, with the summary fields `required`), whose training's link still leads to its
-    model (model_store.repointed_trainings) and that model is one a training would reuse
-    (trainings.unusable_trainings), whose copy of its training's summary is its training's file
-    (records.copied_wrong) and whose training's logs read back (spoiled_logs: the studies that draw them, learning
-    and protocol); ROOT/cells is made first (UsageError naming `root` when it cannot be)."""
+    is reusable (records.reusable_keys, with the summary fields `required` and what `made` says a record holds),
+    whose training's link still leads to its model (model_store.repointed_trainings) and that model is one a training
+    would reuse (trainings.unusable_trainings), whose copy of its training's summary is its training's file
+    (records.copied_wrong) and that the study's own `checks` pass (default drawn_logs); ROOT/cells and ROOT/train are
+    made first (UsageError naming `root` when they cannot be)."""
     from coopsumo.errors import UsageError
     from coopsumo.studies.engine.model_store import repointed_trainings
-    from coopsumo.studies.engine.trainings import spoiled_logs, unusable_trainings
+    from coopsumo.studies.engine.trainings import unusable_trainings
 
     try:
         (root / "cells").mkdir(parents=True, exist_ok=True)
+        if any(_trains(s) for s in specs):
+            (root / "train").mkdir(exist_ok=True)
     except OSError as err:
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
-    done = reusable_keys(root, specs, prog, required)
-    done -= repointed_trainings(root, [s for s in specs if s["key"] in done], prog)  # linked elsewhere
-    done -= unusable_trainings(root, [s for s in specs if s["key"] in done], prog)  # its model deleted, swapped
-    done -= copied_wrong(root, [s for s in specs if s["key"] in done], prog)  # not its training's summary (J10)
-    done -= spoiled_logs(root, [s for s in specs if s["key"] in done], prog)  # its figures and diagnosis draw them
+    done = reusable_keys(root, specs, prog, required, made)
+    for check in (repointed_trainings, unusable_trainings, copied_wrong, *checks):  # linked elsewhere, deleted, ...
+        done -= check(root, [s for s in specs if s["key"] in done], prog)
     return [s for s in specs if s["key"] not in done]
+
+
+def _trains(spec: dict[str, Any]) -> bool:
+    return isinstance(spec.get("config"), dict) and "train" in spec["config"]
+
+
+def training_link(root: Path, spec: dict[str, Any]) -> Path:
+    """ROOT/train/<training>: where a cell that trains links its model (its train_key when cells share a training)."""
+    return root / "train" / (spec.get("train_key") or spec["key"])
 
 
 def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn,
@@ -93,7 +117,7 @@ def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], ro
     """run_cells for a study that chose and ordered its cells to run itself (`todo`, in priority order, among all its
     `specs`; the others finished ok before): the same steps, every cell's record returned in the order of specs."""
     root = root.resolve()
-    if any(isinstance(s.get("config"), dict) and "train" in s["config"] for s in specs):
+    if any(_trains(s) for s in specs):
         say_store(root)
     if todo:
         from coopsumo.sim.network import build_net
@@ -276,10 +300,11 @@ class CellKind:
 
 @dataclass(frozen=True)
 class Study:
-    """What the engine needs of a study that chooses and orders its own cells (the protocol, the learning study) to run
-    them and count them into its record: its name (records, lines), its cells' kind, the summary values a reusable
-    record holds, the run folders of a cell to run (checked for a user's files before any cell runs; in_place: run
-    folders written unmarked), and the order of the cells to run (sorts them in place)."""
+    """What the engine needs of a study to run its cells and count them into its record: its name (records, lines),
+    its cells' kind, the summary values a reusable record holds, the run folders of a cell to run (checked for a
+    user's files before any cell runs; in_place: run folders written unmarked), the order of the cells to run (sorts
+    them in place), the reuse checks beyond the engine's own (todo_cells) and what a reusable record holds beyond its
+    configuration (`made`, records.reusable_keys)."""
 
     prog: str
     cells: CellKind
@@ -287,33 +312,42 @@ class Study:
     places: Callable[[Path, dict[str, Any]], Iterable[Path]]
     order: Callable[[list[dict[str, Any]]], None]
     in_place: bool = False
+    checks: Sequence[Check] = (drawn_logs,)
+    made: Callable[[dict[str, Any]], dict[str, Any]] | None = None
 
     def run(self, specs: Sequence[dict[str, Any]], root: Path, meta: dict[str, Any], profile: str,
             finish: Callable[[list[dict[str, Any]], dict[str, Any]], None], *, roads: Iterable[RoadConfig] = (),
-            workers: int = 2, backend: str = "local", address: str | None = None,
-            progress: bool = True) -> dict[str, Any]:  # fmt: skip
-        """Run (or finish) the study of `specs` in root: the cells to run (todo_cells) checked and ordered, run, their
-        records counted into `meta` (cells run, wall time, failed cells, core-seconds with the grouped trainings'
-        shares), then `finish(records, meta)` writes the study's outputs and record; returns meta."""
+            workers: int = 2, backend: str = "local", address: str | None = None, progress: bool = True,
+            begin: Callable[[], None] | None = None) -> dict[str, Any]:  # fmt: skip
+        """Run (or finish) the study of `specs` in root: a model's link where a user's folder or file is refused
+        (model_store.check_link), the cells to run (todo_cells) checked and ordered, `begin()` called, the cells run,
+        their records counted into `meta` (cells run, wall time, failed cells, core-seconds with the grouped
+        trainings' shares), then `finish(records, meta)` writes the study's outputs and record; returns meta."""
         from time import perf_counter
 
         from coopsumo.studies.engine.groups import study_cpu_s
+        from coopsumo.studies.engine.model_store import check_link
         from coopsumo.studies.engine.run_folders import check_run_places
 
         start = perf_counter()
         root = root.resolve()
-        todo = todo_cells(root, specs, self.prog, self.required)
+        for spec in specs:  # a real folder or file where a model's link belongs is the user's: refused first
+            if _trains(spec):
+                check_link(training_link(root, spec))
+        todo = todo_cells(root, specs, self.prog, self.required, self.checks, self.made)
         check_run_places((place for s in todo for place in self.places(root, s)), in_place=self.in_place)
+        retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
         self.order(todo)
+        if begin is not None:
+            begin()
         print(f"{self.prog}: profile {profile}: {len(specs)} cells, {len(specs) - len(todo)} already done, "
-              f"{len(todo)} to run", file=sys.stderr)  # fmt: skip
+              f"{len(retry)} failed before (retried), {len(todo)} to run on the {backend} backend",
+              file=sys.stderr)  # fmt: skip
         records = run_todo(todo, specs, root, self.cells.run_cell, self.cells.records.failed, required=self.required,
                            roads=roads, workers=workers, backend=backend, address=address, progress=progress,
                            desc=f"{self.prog} cells")  # fmt: skip
-        trains = (root / "train" / (s.get("train_key") or s["key"]) for s in specs
-                  if isinstance(s.get("config"), dict) and "train" in s["config"])  # fmt: skip
         meta.update(cells_run=len(todo), wall_seconds=round(perf_counter() - start, 1),
                     failed_cells=[r["key"] for r in records if r["status"] != "ok"],
-                    cell_cpu_seconds_sum=study_cpu_s(records, trains))  # fmt: skip
+                    cell_cpu_seconds_sum=study_cpu_s(records, (training_link(root, s) for s in specs if _trains(s))))
         finish(records, meta)
         return meta

@@ -34,7 +34,6 @@ import argparse
 import math
 import os
 import sys
-import time
 from dataclasses import asdict
 from functools import partial
 from pathlib import Path
@@ -58,25 +57,18 @@ from coopsumo.studies.engine.catalogue import (
     plan_from_flags,
     profile_arg,
 )
-from coopsumo.studies.engine.cells import Cell, CellKind, Run, Train, run_todo
-from coopsumo.studies.engine.groups import study_cpu_s
-from coopsumo.studies.engine.model_store import check_link, link_problem
+from coopsumo.studies.engine.cells import Cell, CellKind, Run, Study, Train
 from coopsumo.studies.engine.records import (
     CellRecords,
-    copied_wrong,
     failed_exit,
-    read_record,
-    reusable_keys,
 )
 from coopsumo.studies.engine.run_folders import (
-    check_run_places,
     default_out,
     run_places,
     simulate_into,
     study_root,
 )
 from coopsumo.studies.engine.runner import add_backend_flags, check_backend
-from coopsumo.studies.engine.trainings import unusable_trainings
 from coopsumo.studies.scenario2.gate_report import console_lines, write_lane_outputs
 from coopsumo.studies.scenario2.measures import KEY_COLUMNS, evals_table, runs_table
 from coopsumo.studies.scenario2.plan import (
@@ -213,22 +205,7 @@ def _classical_run(config: dict[str, Any], out: Path, label: str, trajectory_eve
     return summary
 
 
-def repointed(root: Path, specs: list[dict[str, Any]]) -> set[str]:
-    """The DQN cells of `specs` (records otherwise reusable) whose train/ link no longer leads to their model
-    (model_store.link_problem: a user pointed it at another model): the record stands for a model the link does not
-    show, so the cell is run again (it links its model back), each with one line saying why."""
-    keys = set()
-    for spec in specs:
-        if spec.get("policy") in CLASSICAL:
-            continue
-        link = root / "train" / spec.get("train_key", spec["key"])
-        if problem := link_problem(link, spec["config"]["train"]):
-            print(f"scenario2: cell {spec['key']}: {link} {problem}; rerunning it", file=sys.stderr)
-            keys.add(spec["key"])
-    return keys
-
-
-def _order(todo: list[dict[str, Any]], profile: Profile) -> None:
+def _order(todo: list[dict[str, Any]]) -> None:
     """Sort the cells to run, in place: the busiest roads first and the short runs of MOBIL, keep and greedy last
     (a shorter tail); a lane network's cells that wait for its training ("after") behind those that start one."""
     todo.sort(key=lambda s: (s.get("policy") in CLASSICAL, "after" in s, -s["lanes"] * s["load"]))
@@ -253,58 +230,44 @@ def _sweep_meta(profile: Profile, cells: int, backend_name: str, address: str | 
     }
 
 
+def _places(root: Path, spec: dict[str, Any]) -> list[Path]:
+    """A cell's run folders (a user's files there refused before any cell runs; issue 82, probe 7, I1): a DQN
+    cell's evaluations under evals/<key>/, a MOBIL, keep or greedy cell's one run."""
+    if spec.get("policy") in CLASSICAL:
+        return [root / _classical_folder(spec) / spec["key"]]
+    return run_places(root / "evals" / spec.get("evals_key", spec.get("train_key", spec["key"])), nested=True)
+
+
+STUDY = Study("scenario2", CELLS, REQUIRED_SUMMARY, _places, _order, in_place=True, checks=(CELLS.unlike_runs,),
+              made=lambda spec: {"train_dir": train_folder(spec)})  # fmt: skip
+"""the sweep as the engine runs it: a record naming another cell's training rerun (made), and one whose runs are not
+its run folders' (CellKind.unlike_runs; probe 14, F1)"""
+
+
 def run_sweep(profile: Profile, root: Path, backend_name: str = "local", workers: int = 1,
               address: str | None = None, progress: bool = True, n_boot: int = 1000) -> dict[str, Any]:  # fmt: skip
     """Run (or finish) the sweep in `root` and write every output; returns the sweep.json content."""
-    start = time.perf_counter()
     root = root.resolve()
     specs = cell_specs(profile)
-    for spec in specs:  # a real folder or file where a model's link belongs is the user's: refused before any cell
-        if spec.get("policy") not in CLASSICAL:
-            check_link(root / "train" / spec.get("train_key", spec["key"]))
-    try:
-        (root / "cells").mkdir(parents=True, exist_ok=True)
-        (root / "train").mkdir(exist_ok=True)
-    except OSError as err:
-        raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
-    done_keys = reusable_keys(root, specs, "scenario2", REQUIRED_SUMMARY,  # a record naming another's training: rerun
-                              made=lambda spec: {"train_dir": train_folder(spec)})  # fmt: skip
-    done_keys -= repointed(root, [s for s in specs if s["key"] in done_keys])
-    done_keys -= unusable_trainings(root, [s for s in specs if s["key"] in done_keys], "scenario2")  # probe 13, F9
-    done_keys -= copied_wrong(root, [s for s in specs if s["key"] in done_keys], "scenario2")  # probe 8, J10
-    done_keys -= CELLS.unlike_runs(root, [s for s in specs if s["key"] in done_keys], "scenario2")  # probe 14, F1
-    done = [s for s in specs if s["key"] in done_keys]
-    todo = [s for s in specs if s["key"] not in done_keys]
-    for s in todo:  # a run folder holding a user's files: refused before any cell runs (issue 82, probe 7, I1)
-        dqn = s.get("policy") not in CLASSICAL
-        check_run_places(run_places(root / "evals" / s.get("evals_key", s.get("train_key", s["key"])) if dqn else
-                                    root / _classical_folder(s) / s["key"], nested=dqn), in_place=True)  # fmt: skip
-    retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
-    _order(todo, profile)
     meta = _sweep_meta(profile, len(specs), backend_name, address, workers, n_boot)
-    if not (root / "sweep.json").exists():  # a finished sweep's stays whole until its successor is (_finish)
-        write_json(root / "sweep.json", meta)
-    print(f"scenario2: profile {profile.name}: {len(specs)} cells, {len(done)} already done, {len(retry)} "
-          f"failed before (retried), {len(todo)} to run on the {backend_name} backend", file=sys.stderr)  # fmt: skip
-    roads = [RoadConfig(lanes=lanes) for lanes in sorted({s["lanes"] for s in todo})]  # built once, not in workers
-    records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED_SUMMARY, roads=roads,
-                       workers=workers, backend=backend_name, address=address, progress=progress,
-                       desc="scenario2 cells")  # fmt: skip
-    _finish(root, profile, meta, records, len(todo), time.perf_counter() - start)
-    return meta
+
+    def begin() -> None:  # a finished sweep's sweep.json stays whole until its successor is (_finish)
+        if not (root / "sweep.json").exists():
+            write_json(root / "sweep.json", meta)
+
+    roads = [RoadConfig(lanes=lanes) for lanes in profile.lanes]  # built once, not in workers
+    return STUDY.run(specs, root, meta, profile.name, partial(_finish, root, profile), roads=roads, workers=workers,
+                     backend=backend_name, address=address, progress=progress, begin=begin)  # fmt: skip
 
 
-def _finish(root: Path, profile: Profile, meta: dict[str, Any], records: list[dict[str, Any]], ran: int,
-            wall: float) -> None:  # fmt: skip
+def _finish(root: Path, profile: Profile, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
     """Write the sweep's tables, figures, report and sweep.json from its cells' records, each checked against its
     schema (the limits a merge reads them by) before any is written: a refusal leaves the outputs as they were, a
     finished sweep's whole."""
     runs, evals = runs_table(records), evals_table(records)
-    meta.update(wall_seconds=round(wall, 1), cells_run=ran, cells_ok=int((runs["status"] == "ok").sum()),
-                cells_failed=int((runs["status"] != "ok").sum()),
+    meta.update(cells_ok=int((runs["status"] == "ok").sum()), cells_failed=int((runs["status"] != "ok").sum()),
                 failed_cells=runs.loc[runs["status"] != "ok", "key"].tolist(),
-                cell_wall_seconds_sum=round(float(pd.to_numeric(runs["cell_wall_s"]).sum()), 1),
-                cell_cpu_seconds_sum=study_cpu_s(records, (root / str(d) for d in runs["train_dir"].dropna())))
+                cell_wall_seconds_sum=round(float(pd.to_numeric(runs["cell_wall_s"]).sum()), 1))
     SCENARIO2_RUNS.check_frame(runs, root / "runs.csv")  # the limits the merge reads them by (study_tables)
     SCENARIO2_EVALS.check_frame(evals, root / "evals.csv")
     SWEEP.check(meta, root / "sweep.json")
