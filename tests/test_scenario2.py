@@ -707,7 +707,7 @@ def test_failed_cell_is_recorded_and_retried(tmp_path: Path, monkeypatch: pytest
     monkeypatch.setattr(train_module, "train", fake_train)
     monkeypatch.setattr(engine_groups, "train_groups", lambda *a, **k: 0)  # every training by the fake, alone
     monkeypatch.setattr(s2, "evaluate_model", fake_evaluation)
-    monkeypatch.setattr(trainings, "unusable_trainings", lambda *a: set())  # a faked training leaves no model.pt to judge
+    monkeypatch.setattr(trainings, "unusable_trainings", lambda *a: set())  # a faked training: no model.pt to judge
     ran = inline_cells(monkeypatch)
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     meta = s2.run_sweep(s2_plan.PROFILES["tiny"], tmp_path, progress=False, n_boot=50)
@@ -897,7 +897,7 @@ def faked_train(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     monkeypatch.setattr(train_module, "train", fake_train)
     monkeypatch.setattr(engine_groups, "train_groups", lambda *a, **k: 0)  # every training by the fake, alone
     monkeypatch.setattr(s2, "evaluate_model", evaluation)
-    monkeypatch.setattr(trainings, "unusable_trainings", lambda *a: set())  # a faked training leaves no model.pt to judge
+    monkeypatch.setattr(trainings, "unusable_trainings", lambda *a: set())  # a faked training: no model.pt to judge
     inline_cells(monkeypatch, calls)
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     return calls

@@ -4,9 +4,9 @@
 run_todo runs a study's cells still to run: it builds the road networks once in this process (not in every worker),
 trains the stacked learner's models as groups, runs the cells on local processes or Ray (runner.execute, one progress
 bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
-The learning study and the protocol, which order their own cells, are a `Study` whose run does the steps of a study
-from its cells to its record; scenario II, which checks its links first, and scenario I's accident runs (the regime
-map, accident_seeds), which check their run folders, choose their cells and call run_todo.
+The learning study, the protocol and scenario II are each a `Study` whose run does the steps of a study from its
+cells to its record (their reuse checks and cell order the study's fields); scenario I's accident runs (the regime
+map, accident_seeds), which judge their run folders, choose their cells and call run_todo.
 
 What a cell does: its model trained into the model store (or
 taken from it) and driven on its runs, or runs of a policy that needs no training, or a training alone.
@@ -83,16 +83,14 @@ def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required:
     is reusable (records.reusable_keys, with the summary fields `required` and what `made` says a record holds),
     whose training's link still leads to its model (model_store.repointed_trainings) and that model is one a training
     would reuse (trainings.unusable_trainings), whose copy of its training's summary is its training's file
-    (records.copied_wrong) and that the study's own `checks` pass (default drawn_logs); ROOT/cells and ROOT/train are
-    made first (UsageError naming `root` when they cannot be)."""
+    (records.copied_wrong) and that the study's own `checks` pass (default drawn_logs); ROOT/cells is made first
+    (UsageError naming `root` when it cannot be)."""
     from coopsumo.errors import UsageError
     from coopsumo.studies.engine.model_store import repointed_trainings
     from coopsumo.studies.engine.trainings import unusable_trainings
 
     try:
         (root / "cells").mkdir(parents=True, exist_ok=True)
-        if any(_trains(s) for s in specs):
-            (root / "train").mkdir(exist_ok=True)
     except OSError as err:
         raise UsageError(f"cannot write output folder {root}: {err.strerror}") from None
     done = reusable_keys(root, specs, prog, required, made)
