@@ -57,7 +57,7 @@ def test_models_without_flags_lists_every_store_found(tmp_path: Path, monkeypatc
     assert store_listing.main([]) == 0
     out = capsys.readouterr().out
     assert "1 models in results/models, 0 usable" in out and "2 models in work/models, 0 usable" in out
-    assert MODEL in out and "no readable config.json" in out  # each folder's state, as in one store
+    assert MODEL in out and "unfinished: no config.json yet (being trained" in out  # each folder's state (probe 15)
     assert out.index("results/models") < out.index("work/models")
     monkeypatch.setenv(model_store.STORE_ENV, str(tmp_path / "work" / "models"))
     assert store_listing.main([]) == 0

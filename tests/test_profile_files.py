@@ -209,6 +209,8 @@ def tiny_protocol(name: str = "mine") -> str:
     ("seeds = [100, 5000]", "seeds: training seed 5000 is also an evaluation seed"),
     ("eval_offsets = [0, 0]", "eval_offsets gives the same value twice"),
     ("free_steps = 0", "free_steps must be an integer from 1 to 10000000, got 0"),
+    ("train_steps = 1", "train_steps: learner select_last drives model_last.pt, the last weights a training writes "
+                        "beside the model it selects, and a training of 1 step selects none"),  # probe 15: cells failed
 ])  # fmt: skip
 def test_a_protocol_profile_is_checked_by_the_same_rules(tmp_path: Path, line: str, words: str,
                                                          capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip

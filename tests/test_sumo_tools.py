@@ -331,3 +331,20 @@ def test_a_screenshot_folder_that_cannot_be_written_is_refused_before_the_run(tm
     problem = simulate_command.screenshot_problem(folder / "new" / "s.png", tmp_path / "run")
     assert problem is not None and f"the folder {folder} cannot be written" in problem
     assert simulate_command.screenshot_problem(tmp_path / "s.png", tmp_path / "run") is None
+
+
+def test_an_empty_screenshot_is_refused_and_nothing_placed(tmp_path: Path) -> None:
+    """Issue 82, probe 15: on a full disk sumo-gui left a screenshot of 0 bytes, placed at the path asked for with
+    exit 0. A screenshot that holds no PNG image is one line and nothing at that path; a PNG is placed."""
+    from coopsumo.agents.rollout import PNG_SIGNATURE, _place_screenshot
+    from coopsumo.errors import UsageError
+
+    shot, path = tmp_path / GUI_SHOT, tmp_path / "shot.png"
+    for content in (b"", b"GIF89a\x00\x00"):
+        shot.write_bytes(content)
+        with pytest.raises(UsageError, match=rf"holds no PNG image \({len(content)} bytes: is the disk full\?\)"):
+            _place_screenshot(shot, path)
+        assert not path.exists() and not shot.exists()
+    shot.write_bytes(PNG_SIGNATURE + b"rest")
+    _place_screenshot(shot, path)
+    assert path.read_bytes() == PNG_SIGNATURE + b"rest" and not shot.exists()

@@ -112,11 +112,22 @@ def run(
     return summary
 
 
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+"""the first bytes of every PNG file"""
+
+
 def _place_screenshot(shot: Path, path: Path) -> None:
     """sumo-gui's screenshot, saved in the run's folder, placed at `path` as a new file (files.write_new: a file made
     there since the run's start, another run's or a user's, is never written over); one line otherwise."""
     if not shot.is_file():
         raise UsageError(f"--gui-screenshot {path}: sumo-gui did not write the screenshot (is the display there?)")
+    with shot.open("rb") as f:
+        head = f.read(len(PNG_SIGNATURE))
+    if head != PNG_SIGNATURE:  # probe 15: a full disk left a file of 0 bytes, placed with exit 0
+        size = shot.stat().st_size
+        shot.unlink(missing_ok=True)
+        raise UsageError(f"--gui-screenshot {path}: sumo-gui's screenshot holds no PNG image ({size} bytes: is the "
+                         "disk full?); nothing is written there")  # fmt: skip
     try:
         write_new(path, lambda tmp: shutil.copyfile(shot, tmp))
     except FileExistsError:

@@ -33,6 +33,10 @@ def listing(store: Path) -> list[dict[str, Any]]:
             continue
         try:
             recorded = read_json(folder / "config.json")
+        except FileNotFoundError:  # probe 15: a training's first moments were listed as an unreadable file
+            row["state"] = "unfinished: no config.json yet (being trained, or stopped before it was written)"
+            rows.append(row)
+            continue
         except (OSError, ValueError) as err:
             row["state"] = f"no readable config.json ({why_unreadable(err)})"
             rows.append(row)

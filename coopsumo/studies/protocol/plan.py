@@ -16,6 +16,7 @@ from pathlib import Path, PurePath
 from typing import Any, get_type_hints
 
 from coopsumo.agents.conditioning import world_alpha
+from coopsumo.agents.selection import LAST_MODEL, selecting
 from coopsumo.config import (
     MAX_LANES,
     MIN_LANES,
@@ -136,7 +137,11 @@ def profile_problem(profile: Profile, known: dict[str, Variant]) -> str | None:
                 f"{EVAL_SEED + 100} + ... through the accident); a model is judged only on seeds it never trained on")
     try:
         for name in profile.variants:
-            train_config(profile, known[name].learner, 0.0, profile.seeds[0]).validate()
+            (cfg := train_config(profile, known[name].learner, 0.0, profile.seeds[0])).validate()
+            if known[name].weights == LAST_MODEL and not selecting(cfg):  # probe 15: its cells failed, every run
+                return (f"train_steps: learner {name} drives {LAST_MODEL}, the last weights a training writes beside "
+                        f"the model it selects, and a training of {profile.train_steps} step selects none (at least "
+                        "2 steps)")  # fmt: skip
         for scenario in ("free", "accident"):
             eval_config(profile, scenario, 0, "keep", offset=profile.eval_offsets[0]).validate()
     except ConfigError as err:
