@@ -81,6 +81,33 @@ def write_new(path: Path, write: Callable[[Path], Any]) -> None:
     _write_beside(path, write, os.link)
 
 
+Stamp = tuple[int, int, int, int]
+"""what tells one file from another or from itself changed: (device, inode, size, modification time in ns)"""
+
+
+def stamp(path: Path) -> Stamp:
+    """The Stamp of the file at `path` (links followed)."""
+    st = os.stat(path)
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
+
+
+def write_over(path: Path, write: Callable[[Path], Any], checked: Stamp) -> None:
+    """write(tmp) as write_atomic does, then rename it over `path` only while the file there is the one stamped
+    `checked` (stamp) when it was judged ours to replace: FileExistsError if it was changed, replaced or removed since
+    (a user's note added to it: issue 82, probe 16, D1); the temporary file removed either way."""
+
+    def place(tmp: Path, path: Path) -> None:
+        try:
+            now = stamp(path)
+        except FileNotFoundError:
+            now = None
+        if now != checked:
+            raise FileExistsError(f"{path} changed since it was checked")
+        os.replace(tmp, path)
+
+    _write_beside(path, write, place)
+
+
 def _write_beside(path: Path, write: Callable[[Path], Any], place: Callable[[Path, Path], None]) -> None:
     """write(tmp) into a new temporary file beside `path` (mkstemp, the mode a file written in place gets, not its
     0600), then place(tmp, path); the temporary file is gone afterwards, whatever happened."""

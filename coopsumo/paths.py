@@ -110,18 +110,27 @@ def out_path_problem(path: Path) -> str | None:
                     f"({locale.setlocale(locale.LC_CTYPE)}); set LC_ALL=C.UTF-8 or pick an ASCII path")  # fmt: skip
     if link := _dangling(absolute):
         return f"{str(link)!r} is a link that leads nowhere (to {_target(link)!r}); remove it or pick another path"
+    if problem := length_problem(real, "the run's partial folder"):
+        return problem
+    folder = nearest_existing(real)
+    if folder != real and not folder.is_dir():
+        return f"output folder {text!r} cannot be made: {folder} is a file, not a folder"
+    return None
+
+
+def length_problem(real: Path, beside: str) -> str | None:
+    """Why the file system cannot take the absolute path `real` with room for what is written beside its last name
+    (`beside`, in words) and inside it, or None: a name longer than NAME_MAX (its last less NAME_ROOM), the path
+    longer than PATH_MAX less PATH_ROOM."""
     name_max, path_max = _fs_limits(real)
     for part in real.parts[1:]:
         if len(os.fsencode(part)) > name_max - (NAME_ROOM if part == real.name else 0):
             limit = name_max - NAME_ROOM if part == real.name else name_max
             return (f"has a name of {len(os.fsencode(part))} bytes ({part[:20]}...); at most {limit} are allowed "
-                    f"here (the file system's {name_max}, less room for the run's partial folder)")  # fmt: skip
+                    f"here (the file system's {name_max}, less room for {beside})")  # fmt: skip
     if len(os.fsencode(str(real))) > path_max - PATH_ROOM:
         return (f"is {len(os.fsencode(str(real)))} bytes long; at most {path_max - PATH_ROOM} are allowed (the file "
                 f"system's {path_max}, less room for the files written inside)")  # fmt: skip
-    folder = nearest_existing(real)
-    if folder != real and not folder.is_dir():
-        return f"output folder {text!r} cannot be made: {folder} is a file, not a folder"
     return None
 
 

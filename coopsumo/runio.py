@@ -86,6 +86,63 @@ def thread_lock_for_bars() -> None:
     tqdm.set_lock(threading.RLock())
 
 
+class _Steady:
+    """A standard stream that a reader gone cannot stop: a write or flush into a pipe closed at its other end
+    (`2>&1 | head -c 1`) puts the null device onto the stream's file descriptor, so that this process and the
+    processes it starts afterwards write to nothing, and the command goes on (issue 82, probe 16, T3: the first
+    progress bar ended the run in a BrokenPipeError). Everything else is the stream's."""
+
+    def __init__(self, stream: Any, fd: int) -> None:
+        self._stream, self._fd = stream, fd
+
+    def write(self, text: str) -> int:
+        try:
+            return int(self._stream.write(text))
+        except BrokenPipeError:
+            self._to_null()
+            return len(text)
+
+    def flush(self) -> None:
+        try:
+            self._stream.flush()
+        except BrokenPipeError:
+            self._to_null()
+
+    def _to_null(self) -> None:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(null, self._fd)
+        finally:
+            os.close(null)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._stream, name)
+
+
+def steady_streams() -> None:
+    """sys.stdout and sys.stderr made safe for every line and progress bar: a stream closed when the process started
+    (`2>&-`: Python's None) gets the null device on its descriptor, which the processes it starts inherit (issue 82,
+    probe 16, T3: tqdm's first bar ended every run in an AttributeError); a character its encoding cannot take is
+    written as a backslash escape (probe 16, T2: a path with 'é' under PYTHONIOENCODING=ascii ended `models`, `history`
+    and both merges in a UnicodeEncodeError after their outputs were written); a pipe closed at its other end is
+    written to as nothing (_Steady)."""
+    import io
+
+    for fd, name in ((1, "stdout"), (2, "stderr")):
+        stream = getattr(sys, name)
+        if isinstance(stream, _Steady):
+            continue
+        if stream is None:
+            null = os.open(os.devnull, os.O_WRONLY)
+            if null != fd:
+                os.dup2(null, fd)
+                os.close(null)
+            stream = open(fd, "w", encoding="utf-8", closefd=False)  # noqa: SIM115 (the process's stream)
+        if isinstance(stream, io.TextIOWrapper):
+            stream.reconfigure(errors="backslashreplace")
+        setattr(sys, name, _Steady(stream, fd))
+
+
 class Stop(KeyboardInterrupt):
     """SIGINT or SIGTERM received while stop_on_signals holds (a KeyboardInterrupt, so every handler of Ctrl-C
     takes it); signum: which one."""
@@ -380,6 +437,7 @@ def environment_problem() -> str | None:
 def run_cli(prog: str, body: Callable[[], int]) -> int:
     """Run a command's body; usage errors (config.ConfigError among them) become one line on stderr and exit code 2,
     and so does a working folder that was deleted (working_folder_problem)."""
+    steady_streams()
     if problem := working_folder_problem():
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT

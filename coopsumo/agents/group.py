@@ -46,9 +46,10 @@ def _member(cfg: TrainConfig, out: Path, ticket: Any, resume: bool, result: Conn
     import torch
 
     from coopsumo.agents.train import train
-    from coopsumo.runio import thread_lock_for_bars
+    from coopsumo.runio import steady_streams, thread_lock_for_bars
 
     torch.set_num_threads(1)  # as a study's training: its decisions on one thread
+    steady_streams()  # a closed or broken stderr: its bars write to nothing (issue 82, probe 16, T3)
     thread_lock_for_bars()
     try:
         outcome = MemberResult(out, train(cfg, out, resume=resume, progress=False, learner_process=True, group=ticket))

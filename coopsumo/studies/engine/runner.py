@@ -33,7 +33,13 @@ from tqdm import tqdm
 
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
-from coopsumo.runio import children_start_deaf, raise_swallowed_stop, start_parent_watch, thread_lock_for_bars
+from coopsumo.runio import (
+    children_start_deaf,
+    raise_swallowed_stop,
+    start_parent_watch,
+    steady_streams,
+    thread_lock_for_bars,
+)
 from coopsumo.studies.engine.records import cell_path
 
 MAX_CRASHES = 2
@@ -53,6 +59,7 @@ def _init_worker(parent_pid: int) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
     start_parent_watch(parent_pid)
+    steady_streams()  # a closed or broken stderr: its bars write to nothing (issue 82, probe 16, T3)
     thread_lock_for_bars()
 
 

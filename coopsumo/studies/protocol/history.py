@@ -25,8 +25,9 @@ from coopsumo.config import SPEED_ONLY_FIELDS, to_dict
 from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS, RETIRED_FIELDS, dqn_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line, why_unreadable
 from coopsumo.field_rules import as_float
-from coopsumo.files import loads_json, read_csv, read_text, write_atomic
+from coopsumo.files import Stamp, loads_json, read_csv, read_text, stamp, write_new, write_over
 from coopsumo.owners import owned_problem
+from coopsumo.paths import length_problem
 from coopsumo.record_schemas import PROTOCOL_STATS, PROTOCOL_STUDY, RecordError
 from coopsumo.report.markdown import md_table
 from coopsumo.runio import Parser, run_cli
@@ -264,13 +265,18 @@ def _seal(text: str) -> str:
     return f"{SEAL}{hashlib.sha256(text.encode()).hexdigest()[:16]} -->\n"
 
 
-def check_writable(out: Path) -> None:
-    """--out may name a new file or a table this command wrote (wholly: is_own_table), nothing else, and not in a
-    folder a study, a run or the model store owns (owners.owned_problem; issue 82, probe 4, F17): UsageError."""
+def check_writable(out: Path) -> Stamp | None:
+    """--out may name a new file (None) or a table this command wrote (wholly: is_own_table; its files.stamp, which
+    write_table compares before it replaces it), nothing else: not a name the file system cannot take beside its
+    temporary file (paths.length_problem; probe 16, O1: refused only after the table was built, naming the temporary
+    file), nor in a folder a study, a run or the model store owns (owners.owned_problem; issue 82, probe 4, F17):
+    UsageError."""
     if problem := owned_problem(out, f"--out {out}", "name a file elsewhere"):
         raise UsageError(problem)
+    if problem := length_problem(out.absolute(), "its temporary file"):
+        raise UsageError(f"--out {out} {problem}")
     if not os.path.lexists(out):
-        return
+        return None
     if out.is_dir():
         raise UsageError(f"--out {out} is a folder; name the table's file")
     if not out.is_file():  # a pipe or a device: reading it would wait for a writer
@@ -282,6 +288,22 @@ def check_writable(out: Path) -> None:
     if not is_own_table(text):
         raise UsageError(f"--out {out} exists and is not a table coopsumo history wrote; it is left as it is: name "
                          "a new file, or remove it yourself")  # fmt: skip
+    return stamp(out)
+
+
+def write_table(out: Path, text: str, checked: Stamp | None) -> None:
+    """The table written at `out`: as a new file when check_writable found none (files.write_new), else over the
+    table it checked, only while that is the file it stamped (files.write_over). A file made or changed there while
+    the table was built (a user's note added: issue 82, probe 16, D1) is left as it is: UsageError."""
+    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        if checked is None:
+            write_new(out, lambda tmp: tmp.write_text(text))
+        else:
+            write_over(out, lambda tmp: tmp.write_text(text), checked)
+    except FileExistsError:
+        raise UsageError(f"--out {out} was {'made' if checked is None else 'changed'} while the table was built "
+                         "(yours?); it is left as it is and the table is not written: run again") from None
 
 
 def is_own_table(text: str) -> bool:
@@ -334,14 +356,12 @@ def main(argv: list[str] | None = None) -> int:
         if not args.results.is_dir():
             what = "not a folder" if args.results.exists() else "no such folder"
             raise UsageError(f"--results {args.results}: {what}")
-        if args.out is not None:
-            check_writable(args.out)  # before the table is built: a refusal leaves everything as it was
+        checked = check_writable(args.out) if args.out is not None else None  # a refusal: everything as it was
         text = table(args.results)
         if args.out is None:
             print(text, end="")  # stdout closed (None): nothing to print, as print does (probe 15, T2)
             return 0
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(args.out, lambda tmp: tmp.write_text(text))
+        write_table(args.out, text, checked)
         learners = sum(line.startswith("| `") for line in text.splitlines())
         print(f"history: {learners} learners judged, written to {args.out}")
         return 0
