@@ -57,8 +57,8 @@ def test_a_note_added_to_the_table_while_it_is_built_is_kept(tmp_path: Path, mon
     assert history.main(["--results", str(results), "--out", str(out)]) == 0
 
 
-def test_a_name_too_long_for_its_temporary_file_is_refused_first(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                                 capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+def test_a_name_too_long_for_its_temporary_file_is_refused_first(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """O1: a 243-byte name (the file system takes 255) was refused after the table was built, naming the temporary
     file; now before, naming --out and the limit."""
     (tmp_path / "results").mkdir()
