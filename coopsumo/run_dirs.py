@@ -26,10 +26,12 @@ from coopsumo.run_markers import (
     RUN_MARKER,
     a_kind,
     committed_planless,
+    finished_entries,
     kind_name,
     marker_text,
     other_settings,
 )
+from coopsumo.run_markers import entries as _entries
 from coopsumo.run_markers import read_marker as _marker
 
 RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xml", "routes.rou.xml", "plain.rou.xml",
@@ -38,17 +40,13 @@ RUN_OUTPUTS = ("config.json", "summary.json", "detectors.xml", "detectors.add.xm
 a study's run folder without a marker holding only these is its own (studies/engine/run_folders.check_run_places)"""
 
 
-def _entries(folder: Path) -> list[str]:
-    """Every file and folder under `folder` (relative, '/'-separated), the marker left out."""
-    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p != folder / RUN_MARKER)
-
-
 def mark_run_dir(folder: Path, kind: str, finished: bool = True, study: str | None = None,
                  digest: str | None = None) -> None:  # fmt: skip
-    """Claim `folder` for the command `kind`; finished: also list what it holds (nothing else may be replaced); study:
-    which study of `kind` a study root holds ("the quick profile's study"), digest: its settings' (check_study_root)."""
+    """Claim `folder` for the command `kind`; finished: also list what it holds (nothing else may be replaced) and, for
+    a run, each file's sha256 (run_markers.finished_entries); study: which study of `kind` a study root holds ("the
+    quick profile's study"), digest: its settings' (check_study_root)."""
     write_json(folder / RUN_MARKER, {"kind": kind, "version": package_version("coopsumo"), "finished": finished,
-                                     **({"files": _entries(folder)} if finished else {}),
+                                     **(finished_entries(folder, kind) if finished else {}),
                                      **({"study": study} if study is not None else {}),
                                      **({DIGEST: digest} if digest is not None else {})})  # fmt: skip
 

@@ -4,19 +4,23 @@ study's root lies in a folder another command owns, reads markers without import
 
 from __future__ import annotations
 
+import os
 import re
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from coopsumo.files import read_json_object, read_text
+from coopsumo.errors import NotRegularFileError
+from coopsumo.files import file_sha256, read_json_object, read_text
 
 RUN_MARKER = ".coopsumo-run.json"
 
 """Written by a command into every folder it owns: {"kind": command, "version": coopsumo's, "finished": whether the
 command has ended, "files": the names of the folder's entries when it ended (no "files" while a training or a study
-runs)}. A dot-file, so listings stay as they were; named after the package, so no user's file is taken for it; a
-separate file, because config.json is a common name that proves nothing about who wrote a folder. A marker written
-before "finished" was (files null while its command ran) reads as it did (run_dirs.listed_files)."""
+runs), for a run also SUMS: their sha256}. A dot-file, so listings stay as they were; named after the package, so no
+user's file is taken for it; a separate file, because config.json is a common name that proves nothing about who wrote
+a folder. A marker written before "finished" was (files null while its command ran) reads as it did
+(run_dirs.listed_files)."""
 
 PARTIAL_MARKER = ".coopsumo-partial"
 """the file a partial folder is made with (removed before the folder becomes a run): clear_partials removes a
@@ -30,6 +34,15 @@ owners.unmarked_study_problem)"""
 
 RUN_KINDS = ("simulate", "train")
 """the kinds of marker a single command writes (run_dirs' users); every other kind marks a study's root"""
+SUMS = "files_sha256"
+"""the key of a finished run's marker (a kind of SUMMED_KINDS) that records the sha256 of each regular file its folder
+held when the run finished: {name: digest}. A study reuses a run folder only while its files are the ones its run
+wrote (changed_file; issue 82, probe 16, TR1: another run's trajectories.parquet or detectors.xml copied in passed
+every check of the file on its own, and its measures went into runs.csv). A marker written before has none: its
+folder is judged as before."""
+SUMMED_KINDS = ("simulate",)
+"""the commands whose finished marker records SUMS: a single run's, whose folders studies reuse (a training's files
+are judged by its model's own digest, and a group's training adds its cost file after its marker)"""
 LEARNING_KIND = "ablation"
 """the kind of marker `coopsumo learning` writes on its study's root: the only study accident-seeds reads (its ROOTs),
 and the only one it may write directly into (run_dirs.check_study_place's hosts)"""
@@ -79,41 +92,43 @@ def marker_text(path: Path) -> bool:
 _JSON_TEXT = re.compile(r'"(?:[^"\\\x00-\x1f]|\\.)*"')
 _OPEN_TEXT = re.compile(r'"(?:[^"\\\x00-\x1f]|\\.)*\\?')
 _END = 9  # the closing brace written: only its newline may follow
-_MARKER_LINES: dict[int, tuple[tuple[tuple[str, str | None], int], ...]] = {
-    0: ((("{", None), 1),),
-    1: ((('  "files": [],', None), 4), (('  "files": [', None), 2), (('  "finished": false,', None), 5)),
-    2: ((("    ", ","), 2), (("    ", ""), 3)),
-    3: ((("  ],", None), 4),),
-    4: ((('  "finished": true,', None), 5),),
-    5: ((('  "kind": ', ","), 6),),
-    6: ((('  "profile_digest": ', ","), 10), (('  "study": ', ","), 7), (('  "version": ', ""), 8)),
-    10: ((('  "study": ', ","), 7), (('  "version": ', ""), 8)),
-    7: ((('  "version": ', ""), 8),),
-    8: ((("}", None), _END),)}
-"""the lines of a marker as write_json writes it (mark_run_dir), state by state: (text before, None for a whole
-line, or the text after a JSON text), then the next state"""
+_T = None  # a JSON text, in a rule
+_NAMED = ("    ", _T, ": ", _T)  # a line of SUMS: a file's name and its digest
+_MARKER_LINES: dict[int, tuple[tuple[tuple[str | None, ...], int], ...]] = {
+    0: ((("{",), 1),),
+    1: ((('  "files": [],',), 4), (('  "files": [',), 2), (('  "finished": false,',), 5)),
+    2: ((("    ", _T, ","), 2), (("    ", _T), 3)),
+    3: ((("  ],",), 4),),
+    4: ((('  "finished": true,',), 5), ((f'  "{SUMS}": {{}},',), 13), ((f'  "{SUMS}": {{',), 11)),
+    11: (((*_NAMED, ","), 11), (_NAMED, 12)),
+    12: ((("  },",), 13),),
+    13: ((('  "finished": true,',), 5),),
+    5: ((('  "kind": ', _T, ","), 6),),
+    6: ((('  "profile_digest": ', _T, ","), 10), (('  "study": ', _T, ","), 7), (('  "version": ', _T), 8)),
+    10: ((('  "study": ', _T, ","), 7), (('  "version": ', _T), 8)),
+    7: ((('  "version": ', _T), 8),),
+    8: ((("}",), _END),)}
+"""the lines of a marker as write_json writes it (mark_run_dir), state by state: each line's pieces (a text as it
+stands, _T for a JSON text), then the next state"""
 
 
-def _whole(rule: tuple[str, str | None], line: str) -> bool:
+def _whole(rule: tuple[str | None, ...], line: str) -> bool:
     """True when `line` is a line `rule` stands for."""
-    head, tail = rule
-    if tail is None:
-        return line == head
-    middle = line[len(head):len(line) - len(tail)] if len(line) >= len(head) + len(tail) else ""
-    return line.startswith(head) and line.endswith(tail) and _JSON_TEXT.fullmatch(middle) is not None
+    return re.fullmatch("".join(_JSON_TEXT.pattern if p is None else re.escape(p) for p in rule), line) is not None
 
 
-def _start(rule: tuple[str, str | None], text: str) -> bool:
+def _start(rule: tuple[str | None, ...], text: str) -> bool:
     """True when `text` is the start of a line `rule` stands for (a write killed within it)."""
-    head, tail = rule
-    if tail is None or len(text) <= len(head):
-        return head.startswith(text)
-    if not text.startswith(head):
-        return False
-    rest = text[len(head):]
-    if (closed := _JSON_TEXT.match(rest)) is None:
-        return _OPEN_TEXT.fullmatch(rest) is not None
-    return tail.startswith(rest[closed.end():])
+    for piece in rule:
+        if piece is None:
+            if (closed := _JSON_TEXT.match(text)) is None:
+                return _OPEN_TEXT.fullmatch(text) is not None
+            text = text[closed.end():]
+        elif len(text) <= len(piece) or not text.startswith(piece):
+            return piece.startswith(text)
+        else:
+            text = text[len(piece):]
+    return text == ""
 
 
 DIGEST = "profile_digest"
@@ -144,3 +159,49 @@ def committed_planless(root: Path, kind: str) -> bool:
         return read_text(root / "report.md").split("\n", 1)[0] == PLANLESS_TITLES.get(kind)
     except (OSError, UnicodeDecodeError, ValueError):
         return False
+
+
+def entries(folder: Path) -> list[str]:
+    """Every file and folder under `folder` (relative, '/'-separated), the marker left out."""
+    return sorted(p.relative_to(folder).as_posix() for p in folder.rglob("*") if p != folder / RUN_MARKER)
+
+
+def finished_entries(folder: Path, kind: str) -> dict[str, Any]:
+    """What the finished marker of the command `kind` records of its folder: its entries ("files") and, for a run
+    (SUMMED_KINDS), the sha256 of each of its files (SUMS), of the files as they are now: a run's partial folder is
+    marked just before it is renamed into place (run_dirs.finish_run_dir), so these are its final files."""
+    files = entries(folder)
+    return {"files": files, **({SUMS: file_sums(folder, files)} if kind in SUMMED_KINDS else {})}
+
+
+def file_sums(folder: Path, names: Sequence[str]) -> dict[str, str]:
+    """The sha256 of each regular file of `folder` among `names` (its entries), as a finished marker records them
+    (SUMS); folders and links are left out."""
+    return {name: file_sha256(folder / name) for name in names
+            if (folder / name).is_file() and not (folder / name).is_symlink()}  # fmt: skip
+
+
+def changed_file(folder: Path) -> str | None:
+    """Why a file of the finished run folder `folder` is not the one its run wrote (a line's end), or None: its
+    sha256 is not the one the marker records (SUMS), or it is no longer a regular file. Only the entries the marker
+    lists are looked at (a lost one is judged where the list is); a file that cannot be read is left to its reader's
+    check, and a marker without SUMS (written before markers recorded them) is not judged."""
+    marker = read_marker(folder) or {}
+    sums, listed = marker.get(SUMS), marker.get("files")
+    if sums is None:
+        return None
+    if not isinstance(sums, dict) or not all(isinstance(v, str) for v in sums.values()):
+        return f"has a {RUN_MARKER} whose {SUMS} is not a table of digests (damaged?)"
+    for name in sorted(set(sums) & {f for f in listed if isinstance(f, str)} if isinstance(listed, list) else ()):
+        path = folder / name
+        if not os.path.lexists(path):
+            continue  # lost: judged where the list is
+        try:
+            same = not path.is_symlink() and file_sha256(path) == sums[name]
+        except NotRegularFileError:
+            same = False
+        except OSError:
+            continue  # unreadable: its reader's check says so
+        if not same:
+            return f"has a {name} that is not the file its run wrote (changed or copied in since)"
+    return None

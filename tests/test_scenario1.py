@@ -308,6 +308,7 @@ def test_a_run_is_not_reused_after_its_model_changed(tmp_path: Path) -> None:
     (out / "summary.json").write_text(json.dumps(summary))
     (out / "config.json").write_text(json.dumps({"config": to_dict(cfg), "sumo_outputs": to_dict(outputs),
                                                  "model_trained_on": {"model_sha256": file_sha256(model)}}))
+    run_dirs.mark_run_dir(out, "simulate")  # as such a run marks its folder: its config.json the one it wrote
     other = tmp_path / "other.pt"
     other.write_bytes(b"another model, written long before the run")
     os.utime(other, ns=(old, old))

@@ -19,7 +19,7 @@ from coopsumo.files import TEMPORARY, file_sha256, left_temporaries, not_regular
 from coopsumo.record_schemas import SPEED_MAX_MPS
 from coopsumo.run_dirs import LEARNERS, RUN_OUTPUTS, Recorded, check_out_path, check_run_dir, check_study_place
 from coopsumo.run_dirs import study_root as claim_study_root
-from coopsumo.run_markers import RUN_MARKER, kind_name
+from coopsumo.run_markers import RUN_MARKER, changed_file, kind_name
 from coopsumo.studies.engine.records import summary_problem
 from coopsumo.studies.engine.run_checks import detectors_problem, fcd_problem, run_summary_problem, tripinfo_problem
 
@@ -336,5 +336,6 @@ def run_folder_problem(out: Path, required: Sequence[str], cfg: dict[str, Any], 
             pq.read_metadata(out / "trajectories.parquet")
         except Exception:  # pyarrow raises several types for a damaged file
             return "has an unreadable trajectories.parquet"
-        return trajectories_problem(out / "trajectories.parquet", cfg)
-    return None
+        if problem := trajectories_problem(out / "trajectories.parquet", cfg):
+            return problem
+    return changed_file(out)  # last: a file each check above takes, but another run's (issue 82, probe 16, TR1)

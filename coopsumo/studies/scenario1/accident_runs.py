@@ -78,11 +78,11 @@ def run_all(specs: Sequence[dict[str, Any]], root: Path, plans: Iterable[Plan], 
 def folder_reusable(root: Path, spec: dict[str, Any], prog: str) -> bool:
     """True when the run folder of the cell `spec`, whose record is reusable, can be reused too, judged as scenario I
     judges its own before reuse (run_folders.reusable_run: its configuration, SUMO outputs, summary, detectors.xml,
-    fcd.xml, tripinfo.xml and trajectories.parquet; the model it drove is the record's to judge,
-    records.model_changed). Otherwise the run is redone, with one line naming the folder and why; a folder removed
-    (no summary.json) too. UsageError when the folder is not the study's to run again (run_dirs.check_run_dir).
+    fcd.xml, tripinfo.xml and trajectories.parquet, each the file its run wrote; the model it drove is the record's
+    to judge, records.model_changed). Otherwise the run is redone, with one line naming the folder and why; a folder
+    removed (no summary.json) too. UsageError when the folder is not the study's to run again (run_dirs.check_run_dir).
     Issue 82, probe 15, T3: a garbage detectors.xml, trajectories.parquet or summary.json ended every rerun in a
-    traceback, and a folder removed was refused."""
+    traceback, and a folder removed was refused; probe 16, TR1: another run's file copied in was reused."""
     out = root / spec["out"]
     if (out / "summary.json").exists():
         return reusable_run(out, spec["config"], OutputConfig(**spec["outputs"]), prog=prog)
