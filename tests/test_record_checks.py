@@ -412,7 +412,10 @@ def test_an_accident_seeds_rerun_redoes_a_spoiled_run_folder_with_one_line(
             "--quiet", "--out", str(out)]  # fmt: skip
     assert accident_seeds.main(args) == 0
     runs = out / "runs" / "t3"
-    assert sorted(p.name for p in runs.iterdir()) == sorted(SPOILED_RUNS) and capsys.readouterr().err == ""
+    err = capsys.readouterr().err  # the study's one line of what it runs
+    assert sorted(p.name for p in runs.iterdir()) == sorted(SPOILED_RUNS) and err == (
+        f"accident-seeds: profile default: {len(SPOILED_RUNS)} cells, 0 already done, 0 failed before (retried), "
+        f"{len(SPOILED_RUNS)} to run on the local backend\n"), err
     written = {name: json.loads((runs / name / "config.json").read_text()) for name in SPOILED_RUNS}
 
     def whole(name: str) -> bool:  # scenario I would reuse it as it is

@@ -142,7 +142,7 @@ def run_study(found: list[dict[str, Any]], t_ups: tuple[float, ...], root: Path,
                                     "versions": versions()})  # fmt: skip
     runs = cells(drivers(found, adaptive, root / "models"), t_ups, sorted({m["seed"] for m in found}), plan)
     specs = [spec for _, _, spec in runs]
-    failed = accident_runs.run_all(specs, root, [plan], PROG, workers, backend, address, progress)
+    failed = accident_runs.run_all(specs, root, [plan], PROG, workers, backend, address, progress, plan.profile)
     if failed:
         return failed_exit(PROG, failed, len(specs), root)
     rows = []

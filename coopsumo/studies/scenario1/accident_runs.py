@@ -14,8 +14,8 @@ from typing import Any
 
 from coopsumo.config import OutputConfig, RoadConfig, SimConfig, to_dict
 from coopsumo.run_dirs import check_run_dir
-from coopsumo.studies.engine.cells import Cell, CellKind, Run, Train, failed_keys, run_todo
-from coopsumo.studies.engine.records import CellRecords, reusable_keys
+from coopsumo.studies.engine.cells import Cell, CellKind, Run, Study, Train
+from coopsumo.studies.engine.records import CellRecords
 from coopsumo.studies.engine.run_folders import reusable_run, simulate_into
 from coopsumo.studies.scenario1.plan import Plan
 
@@ -62,17 +62,22 @@ def run_spec(plan: Plan, cfg: SimConfig, key: str, folder: str, label: str, seed
 
 
 def run_all(specs: Sequence[dict[str, Any]], root: Path, plans: Iterable[Plan], prog: str, workers: int = 2,
-            backend: str = "local", address: str | None = None, progress: bool = True) -> list[str]:  # fmt: skip
-    """Run the accident runs not finished in root on the shared runner; the keys of those that failed. A run is
-    finished when its cell record is reusable (records.reusable_keys) and so is its run folder (folder_reusable)."""
+            backend: str = "local", address: str | None = None, progress: bool = True,
+            name: str = "") -> list[str]:  # fmt: skip
+    """Run the accident runs not finished in root on the shared runner (engine/cells.Study; `name` the plan's, in its
+    first line); the keys of those that failed. A run is finished when its cell record is reusable
+    (records.reusable_keys) and so is its run folder (folder_reusable)."""
     roads = [RoadConfig(lanes=p.lanes, loop_period_s=p.loop_period_s) for p in plans]
-    root = root.resolve()
-    done = reusable_keys(root, specs, prog, REQUIRED)
-    todo = [s for s in specs if s["key"] not in done or not folder_reusable(root, s, prog)]
-    records = run_todo(todo, specs, root, run_cell, failed_record, required=REQUIRED,
-                       roads=roads, workers=workers, backend=backend, address=address, progress=progress,
-                       desc="accident runs")  # fmt: skip
-    return failed_keys(records)
+    study = Study(prog, CELLS, REQUIRED, lambda root, s: (root / s["out"],), lambda todo: None,
+                  checks=(_unlike_folders,))  # fmt: skip
+    meta = study.run(specs, root, {}, name, lambda records, meta: None, roads=roads, workers=workers, backend=backend,
+                     address=address, progress=progress)  # fmt: skip
+    return list(meta["failed_cells"])
+
+
+def _unlike_folders(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[str]:
+    """The runs among `specs` (records reusable) whose run folder is not (folder_reusable)."""
+    return {s["key"] for s in specs if not folder_reusable(root, s, prog)}
 
 
 def folder_reusable(root: Path, spec: dict[str, Any], prog: str) -> bool:

@@ -69,7 +69,8 @@ def run_study(by_length: dict[str, Plan], root: Path, workers: int = 2, backend:
     write_json(root / "plan.json", {"plans": {k: to_dict(v) for k, v in by_length.items()}, "versions": versions()})
     runs = cells(by_length)
     specs = [spec for _, _, spec in runs]
-    failed = accident_runs.run_all(specs, root, by_length.values(), "scenario1", workers, backend, address, progress)
+    failed = accident_runs.run_all(specs, root, by_length.values(), "scenario1", workers, backend, address, progress,
+                                   "regime_map")
     if failed:
         return failed_exit("scenario1", failed, len(specs), root)
     rows = []
