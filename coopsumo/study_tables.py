@@ -11,6 +11,9 @@ measure may be), standard deviation (>= 0, blank for one run) and count (a whole
 from __future__ import annotations
 
 import dataclasses
+from collections import Counter
+from collections.abc import Iterable, Mapping, Sequence
+from typing import Any
 
 from coopsumo.config import MAX_LANES, MIN_LANES
 from coopsumo.provenance import package_version
@@ -187,7 +190,40 @@ _COORDINATES = (
     Field("alpha", ALPHA),  # a MOBIL row: none
     Field("p", POLITENESS),  # a DQN row: none
 )
-SCENARIO2_EVALS = Table((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUATION), key=("key", "eval_seed"))
+
+
+@dataclasses.dataclass(frozen=True)
+class ClosedTable(Table):
+    """A Table whose writer writes no other columns than its fields (a `_x` field: every column ending with it) and
+    `unchecked` (columns no rule judges: an error's text, a training's folder): read back, a column besides them, or
+    a header naming one twice, is a table edited or written by something else, refused in one line naming the column
+    (issue 82, probe 16, TR2: a part's `notes` column, and a second mean_speed_mps of 60 m/s that pandas renames
+    mean_speed_mps.1, were merged into scenario II's tables). A writer's frame (check_frame) is not judged so."""
+
+    unchecked: tuple[str, ...] = ()
+    foreign: str = "no sweep writes"
+    """the refusal's words for a column outside the declaration"""
+
+    def columns_problem(self, names: Sequence[str]) -> str | None:
+        """Why the header `names` (as written: a column named twice appears twice) is not one the writer writes."""
+        counts = Counter(names)
+        if twice := [name for name in names if counts[name] > 1]:
+            return f"names the column {twice[0]} twice"
+        fields = (*self.columns, *(f for fields in self.cases.values() for f in fields))
+        known = {f.name for f in fields} | set(self.unchecked)
+        ends = tuple(name for name in known if name.startswith("_"))
+        if foreign := [name for name in names if name not in known and not (ends and name.endswith(ends))]:
+            return f"has a column {self.foreign}: {foreign[0] if foreign[0].strip() else repr(foreign[0])}"
+        return None
+
+    def problem(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]], complete: bool = True) -> str | None:
+        if complete and (problem := self.columns_problem(names)) is not None:
+            return problem
+        return super().problem(names, rows, complete)
+
+
+SCENARIO2_EVALS = ClosedTable((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUATION), key=("key", "eval_seed"),
+                              unchecked=("seed",))  # the training seed: the cell's key names it
 """scenario II's evals.csv (scenario2.measures.evals_table): one row per evaluation run of a successful cell"""
 _RUN_MEASURES = tuple(dataclasses.replace(MEASURES[name], optional=True)
                       for name in ("sim_seconds", "steps_per_second", "decision_interval_steps",
@@ -203,9 +239,12 @@ def _trained(name: str) -> Field:
 
 _TRAINED = tuple(_trained(name) for name in ("mean_speed_mps", "lane_changes", "collisions", "updates"))
 """the training's measures runs.csv copies from a cell record's train_summary (a MOBIL row: none)"""
+RUN_DIAGNOSTICS = ("table_max_dev_pos_m", "table_max_dev_speed_mps", "table_mismatch_step")
+"""a run's summary's check of the advanced vehicle table against SUMO's (sim.world's _table_check; -1: not checked),
+which runs.csv copies and no rule judges (records.implausible leaves them out)"""
 _RUN_COUNTS = ("steps", "departed", "arrived", "insertion_blocked", "insertion_pending_at_end", "lane_changes",
                "lane_changes_rejected")  # fmt: skip
-SCENARIO2_RUNS = Table((*_COORDINATES, Field("status", Text())), case="status", key=("key",), cases={"ok": (
+SCENARIO2_RUNS = ClosedTable((*_COORDINATES, Field("status", Text())), case="status", key=("key",), cases={"ok": (
     Field("_share", dataclasses.replace(SHARE, blank_ok=True)),  # held_share, ...; passing_taken_share: may be none
     *_EVALUATION,
     *(dataclasses.replace(MEASURES[name], optional=True) for name in _RUN_COUNTS),
@@ -214,7 +253,7 @@ SCENARIO2_RUNS = Table((*_COORDINATES, Field("status", Text())), case="status", 
     Field("train_wall_seconds", Number(0.0, unit="s", blank_ok=True), optional=True),
     *(field for field in CELL_RECORD.fields if field.name in ("cell_wall_s", "cell_cpu_s", "train_group_cpu_s",
                                                               "resumed_from_step")),
-)})  # fmt: skip
+)}, unchecked=("seed", "error", "train_dir", *RUN_DIAGNOSTICS))  # fmt: skip
 """scenario II's runs.csv (scenario2.measures.runs_table): one row per cell, its pooled evaluations and its training's
 measures when ok (a failed cell's numbers are blank), each by the rule its cell record is checked by"""
 

@@ -241,7 +241,8 @@ CHECKPOINT_CASES: dict[str, tuple[Callable[[dict[str, Any]], None] | bytes, str]
     "step a string": (_at("step", value="20"), "step '20'"),
     "step negative": (_at("step", value=-1), "step -1"),
     "step a bool": (_at("step", value=True), "step True"),
-    "counts of floats": (_tensor("action_counts", lambda t: t.float()), "not integer tensors"),
+    "counts of floats": (_tensor("action_counts", lambda t: t.float()),
+                         "recorded action counts a torch.float32 tensor, not a tensor of integers"),  # probe 16, T1
     "counts cut short": (_tensor("action_counts", lambda t: t[:5]), "records actions for 5 steps, not its 20"),
     "an action 7": (_action_seven, "outside 0-3"),
     "actions cut short": (_tensor("actions", lambda t: t[:3]), "do not match their counts"),

@@ -269,10 +269,11 @@ CASES: dict[str, tuple[Callable[[dict[str, Any]], None], str]] = {
                                    "field window.loss.0 must be a finite number >= 0 and <= 1e+12"),
     "a log window of 1e14 vehicle steps": (lambda s: s["window"].update(vehicle_steps=10**14, samples=10**14),
                                            "has a log window of 100000000000000 vehicle steps in 0 steps"),
+    # (issue 82, probe 16, T1: a replay field is refused for its dtype first, before its values are read)
     "replay actions of 1.5 stored as floats": (_as_floats("actions", 1.5),
-                                               "field learner.buffer.data.actions must be an integer, got 1.5"),
+                                               "has replay actions a torch.float64 tensor, not a tensor of integers"),
     "replay grids of 0.5 stored as floats": (_as_floats("grids", 0.5),
-                                             "field learner.buffer.data.grids must be an integer, got 0.5"),
+                                             "has replay grids a torch.float64 tensor, not a tensor of integers"),
 }  # fmt: skip
 
 

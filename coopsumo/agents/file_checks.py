@@ -21,6 +21,7 @@ from typing import Any
 import torch
 
 from coopsumo.agents.checkpoint_bounds import bounds_problem
+from coopsumo.agents.checkpoint_kinds import kind_problem
 from coopsumo.agents.training_logs import LOG_RULES as LOG_RULES
 from coopsumo.agents.training_logs import log_problem
 from coopsumo.dqn_config import DQNConfig
@@ -122,6 +123,8 @@ def checkpoint_problem(state: Mapping[str, Any]) -> str | None:
     weights finite."""
     if (where := odd_tensor(state)) is not None:
         return f"holds a tensor that is not a dense one in memory: {where}"
+    if (problem := kind_problem(state)) is not None:  # every tensor's dtype and shape before any value (probe 16, T1)
+        return problem
     config = state["config"]
     if not isinstance(config, Mapping) or not all(isinstance(config.get(k), Mapping) for k in ("sim", "dqn")):
         return "has no training configuration (sim and dqn settings)"

@@ -134,14 +134,18 @@ def _read_part(folder: Path) -> Part:
     try:
         meta = read_json(folder / name)
         name = "runs.csv"
-        runs = read_csv(folder / name)
+        runs, runs_header = read_csv(folder / name), _header(folder / name)
         name = "evals.csv"
-        evals = read_csv(folder / name)
+        evals, evals_header = read_csv(folder / name), _header(folder / name)
     except NotRegularFileError as err:  # a named pipe: refused, not waited on (issue 82, fifth probe, G4)
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err})") from None
     except (OSError, ValueError) as err:  # the file named, pandas' message in one line (it ends in a newline: F17)
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({name}: {err.__class__.__name__}: "
                          f"{getattr(err, 'strerror', None) or first_line(err)})") from None  # fmt: skip
+    for name, header, schema in (("runs.csv", runs_header, SCENARIO2_RUNS), ("evals.csv", evals_header,
+                                                                             SCENARIO2_EVALS)):  # fmt: skip
+        if problem := schema.columns_problem(header):  # only the columns a sweep writes (probe 16, TR2)
+            raise UsageError(f"--merge: {folder / name} {problem}")
     profile = _part_profile(folder, meta)
     if "dqn" not in profile.policies:  # its tables lack the learner's columns: say so, not "not as a sweep writes it"
         raise UsageError(f"--merge: {folder} is a sweep of {', '.join(profile.policies)} only (its profile's "
@@ -159,6 +163,11 @@ def _read_part(folder: Path) -> Part:
             or _speed_problem(specs, runs, evals) or _train_problem(specs, runs) or rows_problem(specs, runs):
         raise UsageError(f"--merge: {folder}'s {problem}")
     return Part(folder, meta, profile, runs, evals)
+
+
+def _header(path: Path) -> list[str]:
+    """A CSV file's column names as written (pandas renames the second of two alike: x, x.1)."""
+    return [str(v) for v in read_csv(path, header=None, nrows=1, dtype=str, keep_default_na=False).iloc[0]]
 
 
 def _part_profile(folder: Path, meta: Any) -> Profile:
