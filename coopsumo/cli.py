@@ -121,7 +121,7 @@ def _main(argv: Sequence[str]) -> int:
     from coopsumo.errors import UsageError
     from coopsumo.owners import nets_problem
     from coopsumo.paths import NETS_ENV, nets_dir_problem
-    from coopsumo.runio import working_folder_problem
+    from coopsumo.runio import library_env_problem, working_folder_problem
 
     parser = build_parser()
     own, rest = split_argv(argv)
@@ -131,6 +131,8 @@ def _main(argv: Sequence[str]) -> int:
         print("coopsumo: error: name a command: " + ", ".join(COMMANDS), file=sys.stderr)
         return 2
     if problem := working_folder_problem():  # before a command is imported: torch cannot be loaded from there
+        parser.error(problem)
+    if problem := library_env_problem():  # before a command is imported: it may import matplotlib or tqdm
         parser.error(problem)
     if args.nets_dir is not None and (problem := nets_dir_problem(args.nets_dir) or nets_problem(args.nets_dir)):
         parser.error(f"--nets-dir {problem}")  # SUMO reads them there; not a folder a study, a run or the store owns
