@@ -183,19 +183,22 @@ def file_sums(folder: Path, names: Sequence[str]) -> dict[str, str]:
 
 def changed_file(folder: Path) -> str | None:
     """Why a file of the finished run folder `folder` is not the one its run wrote (a line's end), or None: its
-    sha256 is not the one the marker records (SUMS), or it is no longer a regular file. Only the entries the marker
-    lists are looked at (a lost one is judged where the list is); a file that cannot be read is left to its reader's
-    check, and a marker without SUMS (written before markers recorded them) is not judged."""
+    sha256 is not the one the marker records (SUMS), or it is no longer a regular file, or the marker records no digest
+    of a regular file it lists, or SUMS is empty or not a table (probe 17, TR1). Only the entries the marker lists are
+    looked at (a lost one is judged where the list is); a file that cannot be read is left to its reader's check, and
+    a marker without SUMS (written before markers recorded them) is not judged."""
     marker = read_marker(folder) or {}
-    sums, listed = marker.get(SUMS), marker.get("files")
-    if sums is None:
+    if SUMS not in marker:
         return None
-    if not isinstance(sums, dict) or not all(isinstance(v, str) for v in sums.values()):
+    sums, listed = marker.get(SUMS), marker.get("files")
+    if not isinstance(sums, dict) or not sums or not all(isinstance(v, str) for v in sums.values()):
         return f"has a {RUN_MARKER} whose {SUMS} is not a table of digests (damaged?)"
-    for name in sorted(set(sums) & {f for f in listed if isinstance(f, str)} if isinstance(listed, list) else ()):
+    for name in sorted({f for f in listed if isinstance(f, str)} if isinstance(listed, list) else ()):
         path = folder / name
-        if not os.path.lexists(path):
-            continue  # lost: judged where the list is
+        if not os.path.lexists(path) or (name not in sums and (path.is_symlink() or not path.is_file())):
+            continue  # lost: judged where the list is; a link or folder: the marker records no digest of it
+        if name not in sums:  # probe 17, TR1: a digest taken out of the marker let a file copied in be reused
+            return f"has a {name} its {RUN_MARKER} records no digest of (the marker edited?)"
         try:
             same = not path.is_symlink() and file_sha256(path) == sums[name]
         except NotRegularFileError:

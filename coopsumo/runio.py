@@ -53,7 +53,10 @@ class Parser(argparse.ArgumentParser):
 
     def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:  # type: ignore[override]
         """argparse's, every argument first checked for a byte that is not valid UTF-8 (paths.utf8_problem): one line
-        before the command starts, for every flag of every command (issue 82, probe 7, I9)."""
+        before the command starts, for every flag of every command (issue 82, probe 7, I9); the standard streams made
+        steady first (steady_streams: a usage error with stderr closed, or unencodable, was a traceback: probe 17,
+        T4)."""
+        steady_streams()
         words = sys.argv[1:] if args is None else list(args)
         for word in words:
             if problem := utf8_problem(word):
@@ -87,8 +90,9 @@ def thread_lock_for_bars() -> None:
 
 
 class _Steady:
-    """A standard stream that a reader gone cannot stop: a write or flush into a pipe closed at its other end
-    (`2>&1 | head -c 1`) puts the null device onto the stream's file descriptor, so that this process and the
+    """A standard stream that a reader gone cannot stop: a write or flush that fails (a pipe closed at its other end,
+    `2>&1 | head -c 1`; a full disk, `2>/dev/full`; a descriptor open for reading) puts the null device onto the
+    stream's file descriptor, so that this process and the
     processes it starts afterwards write to nothing, and the command goes on (issue 82, probe 16, T3: the first
     progress bar ended the run in a BrokenPipeError). Everything else is the stream's."""
 
@@ -98,14 +102,14 @@ class _Steady:
     def write(self, text: str) -> int:
         try:
             return int(self._stream.write(text))
-        except BrokenPipeError:
+        except OSError:  # a pipe closed, a full disk (ENOSPC), a descriptor open for reading (EBADF): probe 17, T1
             self._to_null()
             return len(text)
 
     def flush(self) -> None:
         try:
             self._stream.flush()
-        except BrokenPipeError:
+        except OSError:
             self._to_null()
 
     def _to_null(self) -> None:

@@ -90,6 +90,7 @@ def run(
         sumo_step_s = world.session.step_seconds
         traj = world.trajectories() if trajectories else None
     wall = time.perf_counter() - start
+    check_sumo_outputs(run_dir, outputs)
     summary["wall_seconds"] = round(wall, 3)
     summary["steps_per_second"] = round(cfg.steps / wall, 1)
     summary["sumo_step_share"] = round(sumo_step_s / wall, 3)
@@ -110,6 +111,31 @@ def run(
         pd.DataFrame(traj).to_parquet(run_dir / "trajectories.parquet", index=False)
     write_json(run_dir / "summary.json", summary)
     return summary
+
+
+SUMO_ROOTS = {"detectors.xml": b"</detector>", "fcd.xml": b"</fcd-export>", "tripinfo.xml": b"</tripinfos>"}
+"""each XML file SUMO writes into a run's folder and the closing tag it ends with once SUMO has closed it whole"""
+
+
+def check_sumo_outputs(run_dir: Path, outputs: OutputConfig) -> None:
+    """OSError (EFBIG) naming the first of the XML outputs SUMO wrote into run_dir (detectors.xml, and fcd.xml and
+    tripinfo.xml when `outputs` asks for them; a user's file of such a name is not the run's) that does not end with
+    its closing tag: SUMO's writer drops what the file system refuses without a word (a file-size limit, `ulimit -f`;
+    a full disk), and the run would be marked finished with a cut-short file (issue 82, probe 17, DL1)."""
+    import errno
+
+    written = {"detectors.xml": True, "fcd.xml": outputs.fcd_period_s > 0, "tripinfo.xml": outputs.tripinfo}
+    for name, closing in SUMO_ROOTS.items():
+        path = run_dir / name
+        if not written[name] or not path.is_file():
+            continue
+        with path.open("rb") as f:
+            f.seek(max(path.stat().st_size - 256, 0))
+            end = f.read()
+        if not end.rstrip().endswith(closing):
+            raise OSError(errno.EFBIG, f"SUMO's {name} ends cut short at {path.stat().st_size:,} bytes, before "
+                          f"{closing.decode()} (a file-size limit, ulimit -f, or a full disk?); the run is not kept",
+                          str(path))  # fmt: skip
 
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
