@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 from collections import Counter
 from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 from coopsumo.config import MAX_LANES, MIN_LANES
@@ -75,8 +76,38 @@ SCENARIO1_MEASURES = (
     Field("teleports", COUNT),
 )
 """scenario I's measures of one accident run (scenario1.measures.run_metrics), each summarised in summary.csv"""
+@dataclasses.dataclass(frozen=True)
+class ClosedTable(Table):
+    """A Table whose writer writes no other columns than its fields (a `_x` field: every column ending with it) and
+    `unchecked` (columns no rule judges: an error's text, a training's folder): read back, a column besides them, or
+    a header naming one twice, is a table edited or written by something else, refused in one line naming the column
+    (issue 82, probe 16, TR2: a part's `notes` column, and a second mean_speed_mps of 60 m/s that pandas renames
+    mean_speed_mps.1, were merged into scenario II's tables). A writer's frame (check_frame) is not judged so."""
+
+    unchecked: tuple[str, ...] = ()
+    foreign: str = "no sweep writes"
+    """the refusal's words for a column outside the declaration"""
+
+    def columns_problem(self, names: Sequence[str]) -> str | None:
+        """Why the header `names` (as written: a column named twice appears twice) is not one the writer writes."""
+        counts = Counter(names)
+        if twice := [name for name in names if counts[name] > 1]:
+            return f"names the column {twice[0]} twice"
+        fields = (*self.columns, *(f for fields in self.cases.values() for f in fields))
+        known = {f.name for f in fields} | set(self.unchecked)
+        ends = tuple(name for name in known if name.startswith("_"))
+        if foreign := [name for name in names if name not in known and not (ends and name.endswith(ends))]:
+            return f"has a column {self.foreign}: {foreign[0] if foreign[0].strip() else repr(foreign[0])}"
+        return None
+
+    def problem(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]], complete: bool = True) -> str | None:
+        if complete and (problem := self.columns_problem(names)) is not None:
+            return problem
+        return super().problem(names, rows, complete)
+
+
 DEMAND = dataclasses.replace(T_UP, blank_ok=False)
-SCENARIO1_RUNS = Table((
+SCENARIO1_RUNS = ClosedTable((
     Field("t_up_s", DEMAND),
     Field("policy", Text()),
     Field("train_seed", SEED),  # a baseline's: none
@@ -84,8 +115,9 @@ SCENARIO1_RUNS = Table((
     *SCENARIO1_MEASURES,
     Field("regime", Text(REGIMES)),
     Field("horizon_after_start_s", Number(0.0, unit="s")),
-))  # fmt: skip
-"""scenario I's runs.csv (scenario1.study._runs_table): one row per accident run"""
+), foreign="no scenario I study writes")  # fmt: skip
+"""scenario I's runs.csv (scenario1.study._runs_table): one row per accident run; a column besides these, or one named
+twice, refused on reading (a merge part's `notes` was merged: issue 82, probe 17, TR2)"""
 
 
 def _summarised(measures: tuple[Field, ...], count: str) -> tuple[Field, ...]:
@@ -192,36 +224,6 @@ _COORDINATES = (
 )
 
 
-@dataclasses.dataclass(frozen=True)
-class ClosedTable(Table):
-    """A Table whose writer writes no other columns than its fields (a `_x` field: every column ending with it) and
-    `unchecked` (columns no rule judges: an error's text, a training's folder): read back, a column besides them, or
-    a header naming one twice, is a table edited or written by something else, refused in one line naming the column
-    (issue 82, probe 16, TR2: a part's `notes` column, and a second mean_speed_mps of 60 m/s that pandas renames
-    mean_speed_mps.1, were merged into scenario II's tables). A writer's frame (check_frame) is not judged so."""
-
-    unchecked: tuple[str, ...] = ()
-    foreign: str = "no sweep writes"
-    """the refusal's words for a column outside the declaration"""
-
-    def columns_problem(self, names: Sequence[str]) -> str | None:
-        """Why the header `names` (as written: a column named twice appears twice) is not one the writer writes."""
-        counts = Counter(names)
-        if twice := [name for name in names if counts[name] > 1]:
-            return f"names the column {twice[0]} twice"
-        fields = (*self.columns, *(f for fields in self.cases.values() for f in fields))
-        known = {f.name for f in fields} | set(self.unchecked)
-        ends = tuple(name for name in known if name.startswith("_"))
-        if foreign := [name for name in names if name not in known and not (ends and name.endswith(ends))]:
-            return f"has a column {self.foreign}: {foreign[0] if foreign[0].strip() else repr(foreign[0])}"
-        return None
-
-    def problem(self, names: Sequence[str], rows: Iterable[Mapping[str, Any]], complete: bool = True) -> str | None:
-        if complete and (problem := self.columns_problem(names)) is not None:
-            return problem
-        return super().problem(names, rows, complete)
-
-
 SCENARIO2_EVALS = ClosedTable((*_COORDINATES, Field("eval_seed", Integer(0)), *_EVALUATION), key=("key", "eval_seed"),
                               unchecked=("seed",))  # the training seed: the cell's key names it
 """scenario II's evals.csv (scenario2.measures.evals_table): one row per evaluation run of a successful cell"""
@@ -302,3 +304,11 @@ PROTOCOL_RUNS = Table(
 """a learner protocol study's runs.csv (protocol.report.runs_table): one row per cell, its measures when ok (free flow
 has no total time spent; a table of before the queue's lane changes, the selected step or the passing chances lacks
 those columns), as a study paired with it reads it (protocol.paired; issue 82, probe 7, I7)"""
+
+
+def csv_header(path: Path) -> list[str]:
+    """A CSV file's column names as written (pandas renames the second of two alike: x, x.1), for
+    ClosedTable.columns_problem."""
+    from coopsumo.files import read_csv
+
+    return [str(v) for v in read_csv(path, header=None, nrows=1, dtype=str, keep_default_na=False).iloc[0]]

@@ -31,7 +31,7 @@ from coopsumo.run_dirs import study_root
 from coopsumo.studies.engine.run_folders import profile_study, recorded_profile
 from coopsumo.studies.scenario1.measures import aggregate
 from coopsumo.studies.scenario1.plan import Plan, learners, model_label, recorded_plan
-from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
+from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY, csv_header
 
 MERGED = "merge.json"
 """the merged folder's record of its parts: a rerun of the same merge may write over it, nothing else may"""
@@ -79,6 +79,8 @@ def _part(folder: Path) -> tuple[dict[str, Any], pd.DataFrame]:
     if not (folder / "runs.csv").is_file():
         raise UsageError(f"--merge: {folder} has no runs.csv: the part has not finished")
     try:
+        if problem := SCENARIO1_RUNS.columns_problem(csv_header(folder / "runs.csv")):  # as written (probe 17, TR2)
+            raise UsageError(f"--merge: {folder}/runs.csv {problem}")
         runs = SCENARIO1_RUNS.read(folder / "runs.csv")
     except ValueError as err:
         raise UsageError(f"--merge: {folder}/runs.csv: {err}") from None

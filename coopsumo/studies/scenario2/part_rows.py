@@ -23,10 +23,14 @@ def _finite(value: Any) -> bool:
 def rows_problem(specs: list[dict[str, Any]], runs: pd.DataFrame) -> str | None:
     """Why a successful row of a part's runs.csv cannot be its cell's runs pooled (records.pool_summaries: counts
     and seconds summed over its evaluations, the rest averaged; run_checks.together_problem on them), or why two
-    rows of one training (train_dir) hold other training columns, as a phrase after "<part>'s", or None."""
+    rows of one training (train_dir) hold other training columns, or why a row says ok beside an error (a cell record
+    saying both is rerun), as a phrase after "<part>'s", or None."""
     planned = {s["key"]: cell_runs(s["config"]) for s in specs}
     trained: dict[str, dict[str, Any]] = {}
     for row in runs.to_dict("records"):
+        error = row.get("error")
+        if row.get("status") == "ok" and isinstance(error, str) and error.strip():  # probe 17, TR3: merged, exit 0
+            return f"runs.csv row {row['key']} has status ok beside an error ({error.strip()[:40]!r}): edited?"
         if row.get("status") != "ok" or (configs := planned.get(row["key"])) is None:
             continue
         num = {k: float(v) for k, v in row.items() if _finite(v)}

@@ -37,7 +37,7 @@ from coopsumo.studies.scenario2.plan import (
     recorded_fields,
     train_folder,
 )
-from coopsumo.study_tables import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP
+from coopsumo.study_tables import SCENARIO2_EVALS, SCENARIO2_RUNS, SWEEP, csv_header
 from coopsumo.validation import split_list
 
 
@@ -134,9 +134,9 @@ def _read_part(folder: Path) -> Part:
     try:
         meta = read_json(folder / name)
         name = "runs.csv"
-        runs, runs_header = read_csv(folder / name), _header(folder / name)
+        runs, runs_header = read_csv(folder / name), csv_header(folder / name)
         name = "evals.csv"
-        evals, evals_header = read_csv(folder / name), _header(folder / name)
+        evals, evals_header = read_csv(folder / name), csv_header(folder / name)
     except NotRegularFileError as err:  # a named pipe: refused, not waited on (issue 82, fifth probe, G4)
         raise UsageError(f"--merge: {folder} is not a finished scenario2 sweep ({err})") from None
     except (OSError, ValueError) as err:  # the file named, pandas' message in one line (it ends in a newline: F17)
@@ -163,11 +163,6 @@ def _read_part(folder: Path) -> Part:
             or _speed_problem(specs, runs, evals) or _train_problem(specs, runs) or rows_problem(specs, runs):
         raise UsageError(f"--merge: {folder}'s {problem}")
     return Part(folder, meta, profile, runs, evals)
-
-
-def _header(path: Path) -> list[str]:
-    """A CSV file's column names as written (pandas renames the second of two alike: x, x.1)."""
-    return [str(v) for v in read_csv(path, header=None, nrows=1, dtype=str, keep_default_na=False).iloc[0]]
 
 
 def _part_profile(folder: Path, meta: Any) -> Profile:
