@@ -98,21 +98,25 @@ class _Steady:
 
     def __init__(self, stream: Any, fd: int) -> None:
         self._stream, self._fd = stream, fd
+        self.lost: OSError | None = None
+        """the failure of a write other than a closed pipe's (a full disk): what the stream was given is incomplete"""
 
     def write(self, text: str) -> int:
         try:
             return int(self._stream.write(text))
-        except OSError:  # a pipe closed, a full disk (ENOSPC), a descriptor open for reading (EBADF): probe 17, T1
-            self._to_null()
+        except OSError as err:  # a pipe closed, a full disk (ENOSPC), a descriptor open for reading (EBADF): probe 17
+            self._to_null(err)
             return len(text)
 
     def flush(self) -> None:
         try:
             self._stream.flush()
-        except OSError:
-            self._to_null()
+        except OSError as err:
+            self._to_null(err)
 
-    def _to_null(self) -> None:
+    def _to_null(self, err: OSError) -> None:
+        if not isinstance(err, BrokenPipeError) and self.lost is None:
+            self.lost = err
         null = os.open(os.devnull, os.O_WRONLY)
         try:
             os.dup2(null, self._fd)
@@ -438,6 +442,20 @@ def environment_problem() -> str | None:
     return env_problem() or nets_env_problem() or store_env_problem() or tmp_env_problem() or library_env_problem()
 
 
+def _stdout_kept(prog: str, code: int) -> int:
+    """The command's exit code `code`, or 1 with one line on stderr when what it printed could not all be written to
+    stdout (a file on a full disk: issue 82, probe 17, O1, "error: No space left on device" named nothing, or the
+    table was lost without a word once the stream was steady); a pipe closed by its reader is not such a loss."""
+    out = sys.stdout
+    if isinstance(out, _Steady):
+        out.flush()
+        if out.lost is not None:
+            print(f"{prog}: error: its output could not be written to stdout ({out.lost.strerror or out.lost}): what "
+                  "it printed is incomplete", file=sys.stderr)  # fmt: skip
+            return code or 1
+    return code
+
+
 def library_env_problem() -> str | None:
     """Why a variable that matplotlib or tqdm reads when imported stops its import (a line naming it), or None:
     $MPLBACKEND not a backend matplotlib knows (coopsumo draws its figures on matplotlib's Agg canvas and needs none;
@@ -478,7 +496,7 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
         print(f"{prog}: error: {problem}", file=sys.stderr)
         return USAGE_EXIT
     try:
-        return body()
+        return _stdout_kept(prog, body())
     except UsageError as err:
         print(f"{prog}: error: {one_line(err)}", file=sys.stderr)  # one line, whatever a library's text it passes on
         return USAGE_EXIT

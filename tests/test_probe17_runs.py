@@ -75,3 +75,15 @@ def test_a_marker_without_a_files_digest_is_a_changed_run(tmp_path: Path, sums: 
     del marker[SUMS]  # a marker written before digests: not judged
     (tmp_path / RUN_MARKER).write_text(json.dumps(marker))
     assert changed_file(tmp_path) is None
+
+
+def test_a_stdout_that_cannot_be_written_is_named(tmp_path: Path) -> None:
+    """O1: `>/dev/full` ended a finished command with "error: No space left on device", naming nothing; its output
+    lost is one line naming stdout, exit 1; a pipe its reader closed early (`| head -1`) is no loss, exit 0."""
+    full = _bash(f"$C history --results {ROOT / 'results'} >/dev/full", tmp_path)
+    lines = full.stderr.strip().splitlines()
+    assert full.returncode == 1 and len(lines) == 1, full.stderr
+    assert lines[0] == ("history: error: its output could not be written to stdout (No space left on device): what "
+                        "it printed is incomplete"), lines  # fmt: skip
+    head = _bash(f"$C history --results {ROOT / 'results'} | head -1; exit ${{PIPESTATUS[0]}}", tmp_path)
+    assert (head.returncode, head.stderr) == (0, "") and head.stdout.startswith("# "), head.stderr
