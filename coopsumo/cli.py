@@ -120,8 +120,8 @@ def _main(argv: Sequence[str]) -> int:
 
     from coopsumo.errors import UsageError
     from coopsumo.owners import nets_problem
-    from coopsumo.paths import NETS_ENV, nets_dir_problem
-    from coopsumo.runio import library_env_problem, working_folder_problem
+    from coopsumo.paths import NETS_ENV, library_env_problem, nets_dir_problem
+    from coopsumo.runio import working_folder_problem
 
     parser = build_parser()
     own, rest = split_argv(argv)

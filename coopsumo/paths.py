@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import locale
 import os
+import sys
 import tempfile
 from pathlib import Path
 
@@ -230,4 +231,34 @@ def env_problem() -> str | None:
     models = "the models bench trains there"
     if tmp is not None and (problem := out_path_problem(tmp) or policy_path_problem(tmp, models)):
         return f"$TMPDIR {problem.replace('folder path', 'path')}"
+    return None
+
+
+def library_env_problem() -> str | None:
+    """Why a variable that matplotlib or tqdm reads when imported stops its import (a line naming it), or None:
+    $MPLBACKEND not a backend matplotlib knows (coopsumo draws its figures on matplotlib's Agg canvas and needs none;
+    judged by matplotlib with the variable put aside while it is imported, then put back), a $TQDM_* value tqdm cannot
+    convert (its progress bars' settings). Issue 82, probe 17: `MPLBACKEND=bogus` or `TQDM_MININTERVAL=abc` ended
+    commands in a ValueError traceback. Judged only when such a variable is set and its library not yet imported."""
+    backend = os.environ.get("MPLBACKEND")
+    if backend and "matplotlib" not in sys.modules:
+        del os.environ["MPLBACKEND"]
+        try:
+            from matplotlib.rcsetup import validate_backend
+
+            validate_backend(backend)
+        except ValueError:
+            return (f"$MPLBACKEND {backend!r} is not a backend matplotlib knows (coopsumo draws its figures into files "
+                    "and needs none): unset it or name one, e.g. agg")  # fmt: skip
+        finally:
+            os.environ["MPLBACKEND"] = backend
+    names = sorted(name for name in os.environ if name.startswith("TQDM_"))
+    if names and "tqdm" not in sys.modules:
+        try:
+            import tqdm  # noqa: F401 (its import converts every $TQDM_* value)
+        except (ValueError, TypeError) as err:
+            shown = ", ".join(f"${name}={os.environ[name]!r}" for name in names)
+            why = str(err).splitlines()[0] if str(err) else type(err).__name__
+            return (f"{shown}: a value the progress bars' library (tqdm) cannot take ({why}); unset it or "
+                    "give one it takes")  # fmt: skip
     return None

@@ -24,7 +24,7 @@ from coopsumo.errors import (
     os_error_text,
 )
 from coopsumo.owners import nets_env_problem, store_env_problem, tmp_env_problem
-from coopsumo.paths import env_problem, utf8_problem
+from coopsumo.paths import env_problem, library_env_problem, utf8_problem
 
 
 class DefaultsHelpFormatter(argparse.HelpFormatter):
@@ -454,35 +454,6 @@ def _stdout_kept(prog: str, code: int) -> int:
                   "it printed is incomplete", file=sys.stderr)  # fmt: skip
             return code or 1
     return code
-
-
-def library_env_problem() -> str | None:
-    """Why a variable that matplotlib or tqdm reads when imported stops its import (a line naming it), or None:
-    $MPLBACKEND not a backend matplotlib knows (coopsumo draws its figures on matplotlib's Agg canvas and needs none;
-    judged by matplotlib with the variable put aside while it is imported, then put back), a $TQDM_* value tqdm cannot
-    convert (its progress bars' settings). Issue 82, probe 17: `MPLBACKEND=bogus` or `TQDM_MININTERVAL=abc` ended
-    commands in a ValueError traceback. Judged only when such a variable is set and its library not yet imported."""
-    backend = os.environ.get("MPLBACKEND")
-    if backend and "matplotlib" not in sys.modules:
-        del os.environ["MPLBACKEND"]
-        try:
-            from matplotlib.rcsetup import validate_backend
-
-            validate_backend(backend)
-        except ValueError:
-            return (f"$MPLBACKEND {backend!r} is not a backend matplotlib knows (coopsumo draws its figures into files "
-                    "and needs none): unset it or name one, e.g. agg")  # fmt: skip
-        finally:
-            os.environ["MPLBACKEND"] = backend
-    names = sorted(name for name in os.environ if name.startswith("TQDM_"))
-    if names and "tqdm" not in sys.modules:
-        try:
-            import tqdm  # noqa: F401 (its import converts every $TQDM_* value)
-        except (ValueError, TypeError) as err:
-            shown = ", ".join(f"${name}={os.environ[name]!r}" for name in names)
-            return (f"{shown}: a value the progress bars' library (tqdm) cannot take ({first_line(err)}); unset it or "
-                    "give one it takes")  # fmt: skip
-    return None
 
 
 def run_cli(prog: str, body: Callable[[], int]) -> int:
