@@ -87,18 +87,3 @@ def test_a_stdout_that_cannot_be_written_is_named(tmp_path: Path) -> None:
                         "it printed is incomplete"), lines  # fmt: skip
     head = _bash(f"$C history --results {ROOT / 'results'} | head -1; exit ${{PIPESTATUS[0]}}", tmp_path)
     assert (head.returncode, head.stderr) == (0, "") and head.stdout.startswith("# "), head.stderr
-
-
-def test_a_finished_training_removes_the_temporaries_a_kill_left(tmp_path: Path) -> None:
-    """A SIGKILL while an interrupted training wrote model.pt left '.model.pt.XXXXXXXX.tmp' in its stored model, which
-    its resume did not remove (test_scenario2's interrupted sweep, once on a clean clone); a user's own .tmp stays."""
-    from coopsumo.agents.training_files import finish_training_folder
-    from coopsumo.run_dirs import listed_files
-    from coopsumo.run_markers import read_marker
-
-    (tmp_path / "model.pt").write_bytes(b"weights")
-    (tmp_path / ".model.pt.jzued6cw.tmp").write_bytes(b"half")
-    (tmp_path / "notes.tmp").write_text("mine")
-    finish_training_folder(tmp_path)
-    assert sorted(p.name for p in tmp_path.iterdir()) == [RUN_MARKER, "model.pt", "notes.tmp"]
-    assert listed_files(read_marker(tmp_path)) == ["model.pt", "notes.tmp"]

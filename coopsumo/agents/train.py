@@ -38,7 +38,7 @@ from coopsumo.agents.episodes import episode_bounds, episode_config, episodic
 from coopsumo.agents.file_checks import ended_training, prepare_resume, resume_problem
 from coopsumo.agents.model_file import load_error_text, save_model
 from coopsumo.agents.tb_log import LOG_FIELDS, Window, open_log
-from coopsumo.agents.training_files import finish_training_folder, foreign_entry
+from coopsumo.agents.training_files import foreign_entry
 from coopsumo.agents.transitions import Pending, all_if_none, transitions
 from coopsumo.agents.update_worker import GroupTicket, LearnerProcessError, attach_updates
 from coopsumo.config import TrainConfig, first_difference, to_dict, train_config_from_dict
@@ -483,7 +483,7 @@ def train(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = Tr
     if cfg.eval_steps == 0:
         with signals_deferred():  # a stop between the two would leave a training neither resumable nor finished
             trainer.drop_checkpoint()
-            finish_training_folder(out)
+            mark_run_dir(out, "train")
         return train_summary
     net = trainer.learner.online if chosen is None else DQNPolicy.from_file(str(out / "model.pt")).net
     policy = _driving_policy(cfg, net)
@@ -495,6 +495,5 @@ def train(cfg: TrainConfig, out: Path, resume: bool = False, progress: bool = Tr
     write_json(out / "summary.json", summary)
     with signals_deferred():
         trainer.drop_checkpoint()
-        finish_training_folder(out)
+        mark_run_dir(out, "train")
     return summary
-

@@ -77,15 +77,3 @@ def _foreign(folder: Path, tree: Tree, prefix: str) -> str | None:
         if rules[0] is not None and (found := _foreign(entry, rules[0], f"{name}/")) is not None:
             return found
     return None
-
-
-def finish_training_folder(out: Path) -> None:
-    """Mark the training's folder finished, the temporary files a write of its own files cut short by an earlier kill
-    left first removed ('.model.pt.XXXXXXXX.tmp': files.left_temporaries; a SIGKILL while an interrupted training
-    wrote model.pt left one in a stored model, which its resume did not remove)."""
-    from coopsumo.files import left_temporaries
-    from coopsumo.run_dirs import mark_run_dir
-
-    for left in left_temporaries(out, TRAIN_FILES):
-        left.unlink(missing_ok=True)
-    mark_run_dir(out, "train")
