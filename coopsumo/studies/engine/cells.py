@@ -345,7 +345,7 @@ class Study:
                            roads=roads, workers=workers, backend=backend, address=address, progress=progress,
                            desc=f"{self.prog} cells")  # fmt: skip
         meta.update(cells_run=len(todo), wall_seconds=round(perf_counter() - start, 1),
-                    failed_cells=[r["key"] for r in records if r["status"] != "ok"],
+                    failed_cells=failed_keys(records),
                     cell_cpu_seconds_sum=study_cpu_s(records, (training_link(root, s) for s in specs if _trains(s))))
         finish(records, meta)
         return meta
