@@ -12,7 +12,9 @@ import os
 import re
 import stat
 import tempfile
-from collections.abc import Callable, Sequence
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -108,9 +110,42 @@ def write_over(path: Path, write: Callable[[Path], Any], checked: Stamp) -> None
     _write_beside(path, write, place)
 
 
+_WRITES = threading.Condition()
+_ACTIVE = [0]
+"""how many writes through a temporary file run in this process (their temporaries exist): exit_between_writes waits
+for none"""
+
+
+@contextmanager
+def _write_running() -> Iterator[None]:
+    with _WRITES:
+        _ACTIVE[0] += 1
+    try:
+        yield
+    finally:
+        with _WRITES:
+            _ACTIVE[0] -= 1
+            _WRITES.notify_all()
+
+
+def exit_between_writes(code: int) -> None:
+    """End the process now (os._exit), from a thread other than the writing one, but never while a write of this
+    module has a temporary file on disk: it waits for the running ones to end, and no new one starts. A study's worker
+    whose main process was gone ended with os._exit while it wrote a stored model's model.pt, which left
+    '.model.pt.XXXXXXXX.tmp' in the store (test_scenario2's interrupted sweep, once on a clean clone)."""
+    with _WRITES:
+        _WRITES.wait_for(lambda: _ACTIVE[0] == 0)
+        os._exit(code)
+
+
 def _write_beside(path: Path, write: Callable[[Path], Any], place: Callable[[Path, Path], None]) -> None:
     """write(tmp) into a new temporary file beside `path` (mkstemp, the mode a file written in place gets, not its
     0600), then place(tmp, path); the temporary file is gone afterwards, whatever happened."""
+    with _write_running():
+        _write_temporary(path, write, place)
+
+
+def _write_temporary(path: Path, write: Callable[[Path], Any], place: Callable[[Path, Path], None]) -> None:
     fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=TEMPORARY)
     tmp = Path(name)
     try:

@@ -23,6 +23,7 @@ from coopsumo.errors import (
     one_line,
     os_error_text,
 )
+from coopsumo.files import exit_between_writes
 from coopsumo.owners import nets_env_problem, store_env_problem, tmp_env_problem
 from coopsumo.paths import env_problem, library_env_problem, utf8_problem
 
@@ -72,7 +73,7 @@ def _watch_parent(parent_pid: int) -> None:
     while True:
         time.sleep(1.0)
         if os.getppid() != parent_pid:
-            os._exit(3)
+            exit_between_writes(3)  # not while a write's temporary file is on disk
 
 
 def start_parent_watch(parent_pid: int) -> None:

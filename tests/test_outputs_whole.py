@@ -60,3 +60,33 @@ def test_a_file_named_like_a_temporary_is_left_alone_but_a_studys_own_goes(tmp_p
     (root / ".notes.txt.abcdefgh.tmp").write_text("mine")
     with study_root(root, "scenario2", ("sweep.json", "evals.csv", "*.tmp")):
         assert sorted(p.name for p in root.iterdir() if p.name.endswith(".tmp")) == [".notes.txt.abcdefgh.tmp"]
+
+
+def test_a_workers_exit_waits_for_a_write_and_leaves_no_temporary(tmp_path: Path) -> None:
+    """A study's worker whose main process is gone ends with os._exit from its watching thread (runio): it ended while
+    the worker wrote a stored model's model.pt, which left '.model.pt.XXXXXXXX.tmp' in the store (test_scenario2's
+    interrupted sweep, once on a clean clone). files.exit_between_writes waits for the write: the file is whole and
+    no temporary is left; a write that would start after it is never begun."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(f"""
+        import threading, time
+        from pathlib import Path
+        from coopsumo.files import exit_between_writes, write_atomic
+        out = Path({str(tmp_path)!r})
+        def slow(tmp):
+            tmp.write_text("half")
+            time.sleep(1.0)  # the exit is asked for meanwhile
+            tmp.write_text("whole")
+        threading.Timer(0.3, exit_between_writes, args=(3,)).start()
+        write_atomic(out / "model.pt", slow)
+        time.sleep(0.2)  # the exit lands here, before the next write
+        write_atomic(out / "next.txt", lambda tmp: tmp.write_text("never"))
+        time.sleep(5)
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=False)
+    assert (done.returncode, done.stderr) == (3, "")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt"]
+    assert (tmp_path / "model.pt").read_text() == "whole"

@@ -6,7 +6,6 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-import tempfile
 import warnings
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ from coopsumo.agents.file_checks import model_problem
 from coopsumo.agents.replay import GRID_SHAPE, N_ACTIONS
 from coopsumo.dqn_config import OBSERVATIONS
 from coopsumo.errors import UsageError
+from coopsumo.files import write_atomic
 
 
 class ModelFileError(ValueError):
@@ -77,16 +77,13 @@ def save_model(path: str | os.PathLike[str], net: QNetwork, meta: dict[str, Any]
     if problem := model_problem(payload):  # what every reader checks (load_model): never a file no command reads
         raise UsageError(f"{path} is not written: its weights are no model's ({problem}); the training diverged or was "
                          "resumed from an edited checkpoint: train again without --resume")  # fmt: skip
-    fd, tmp_name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
+    def write(tmp: Path) -> None:
+        with open(tmp, "wb") as f:
             torch.save(payload, f)
             f.flush()
             os.fsync(f.fileno())
-        os.replace(tmp_name, path)
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
+
+    write_atomic(path, write)  # a worker's exit waits for it (files.exit_between_writes): no temporary file left
 
 
 def load_model(path: str | os.PathLike[str]) -> tuple[QNetwork, dict[str, Any]]:

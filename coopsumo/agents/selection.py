@@ -154,14 +154,7 @@ def install_best(out: Path) -> dict[str, Any] | None:
     chosen = best(results(out))
     if chosen is None:
         return None
-    fd, tmp = tempfile.mkstemp(dir=out, prefix=".model.pt.", suffix=".tmp")
-    os.close(fd)
-    try:
-        shutil.copyfile(snapshot_dir(out, chosen["step"]) / "model.pt", tmp)
-        os.replace(tmp, out / "model.pt")
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_atomic(out / "model.pt", lambda tmp: shutil.copyfile(snapshot_dir(out, chosen["step"]) / "model.pt", tmp))
     return chosen
 
 
