@@ -313,6 +313,11 @@ class OutputConfig:
             raise ConfigError(f"fcd period must be a multiple of the {dt_s:g} s step, got {number_name(period)}")
 
 
+SUMO_ROOTS = {"detectors.xml": b"</detector>", "fcd.xml": b"</fcd-export>", "tripinfo.xml": b"</tripinfos>"}
+"""each XML file SUMO writes into a run's folder and the closing tag it ends with once SUMO has closed it whole
+(agents/rollout.check_sumo_outputs on write, studies/engine/run_checks on read)"""
+
+
 @dataclass(frozen=True)
 class GuiConfig:
     """A run shown live in sumo-gui (through TraCI). Nothing here changes the simulation."""

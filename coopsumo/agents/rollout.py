@@ -18,7 +18,7 @@ from tqdm import tqdm
 from coopsumo.agents.adaptive import interval_measures
 from coopsumo.agents.decisions import ActionHold
 from coopsumo.agents.policies import Policy
-from coopsumo.config import GuiConfig, OutputConfig, SimConfig, to_dict
+from coopsumo.config import SUMO_ROOTS, GuiConfig, OutputConfig, SimConfig, to_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json, write_new
 from coopsumo.provenance import versions
@@ -111,10 +111,6 @@ def run(
         pd.DataFrame(traj).to_parquet(run_dir / "trajectories.parquet", index=False)
     write_json(run_dir / "summary.json", summary)
     return summary
-
-
-SUMO_ROOTS = {"detectors.xml": b"</detector>", "fcd.xml": b"</fcd-export>", "tripinfo.xml": b"</tripinfos>"}
-"""each XML file SUMO writes into a run's folder and the closing tag it ends with once SUMO has closed it whole"""
 
 
 def check_sumo_outputs(run_dir: Path, outputs: OutputConfig) -> None:

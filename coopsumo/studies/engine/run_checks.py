@@ -14,7 +14,7 @@ import re
 from pathlib import Path
 from typing import Any
 
-from coopsumo.config import fastest_mps
+from coopsumo.config import SUMO_ROOTS, fastest_mps
 from coopsumo.errors import why_unreadable
 from coopsumo.files import open_regular, read_bytes
 from coopsumo.record_schemas import DETECTOR_INTERVAL, LANE_CAPACITY_VEH_H
@@ -144,7 +144,7 @@ def detectors_problem(path: Path, cfg: dict[str, Any], sim_seconds: float) -> st
         text = read_bytes(path)
     except OSError as err:
         return f"has an unreadable detectors.xml ({why_unreadable(err)})"
-    if not text.rstrip().endswith(b"</detector>"):
+    if not text.rstrip().endswith(SUMO_ROOTS["detectors.xml"]):
         return "has a missing or cut-short detectors.xml"
     dt, period = float(cfg["control"]["dt_s"]), float(cfg["road"]["loop_period_s"])
     last_end, seen, lanes, fastest = -math.inf, set(), int(cfg["road"]["lanes"]), fastest_mps(cfg)
@@ -251,8 +251,8 @@ def fcd_problem(path: Path, sim_seconds: float, period_s: float, dt: float) -> s
     end only, until the last timestep is found."""
     try:
         size, end = TAIL_BYTES, tail(path)
-        if not end.rstrip().endswith(b"</fcd-export>"):
-            return "has a cut-short fcd.xml (it does not end with </fcd-export>)"
+        if not end.rstrip().endswith(closing := SUMO_ROOTS["fcd.xml"]):
+            return f"has a cut-short fcd.xml (it does not end with {closing.decode()})"
         while not (found := _TIMESTEP.findall(end)) and size < path.stat().st_size:
             size *= 4
             end = tail(path, size)
@@ -280,8 +280,8 @@ def tripinfo_problem(path: Path, summary: dict[str, Any]) -> str | None:
         text = read_bytes(path)
     except OSError as err:
         return f"has an unreadable tripinfo.xml ({why_unreadable(err)})"
-    if not text.rstrip().endswith(b"</tripinfos>"):
-        return "has a cut-short tripinfo.xml (it does not end with </tripinfos>)"
+    if not text.rstrip().endswith(closing := SUMO_ROOTS["tripinfo.xml"]):
+        return f"has a cut-short tripinfo.xml (it does not end with {closing.decode()})"
     trips, arrived = text.count(b"<tripinfo "), summary.get("arrived")
     if trips != arrived:
         return f"has tripinfo.xml with {trips} trips, but summary.json says {arrived} vehicles arrived"
