@@ -32,7 +32,10 @@ PLANLESS_TITLES = {"regime_map": "# Scenario I: where the accident's queue goes,
 accident/): an unmarked root without it whose report.md begins so is that study's own (run_dirs.check_study_root,
 owners.unmarked_study_problem)"""
 
-RUN_KINDS = ("simulate", "train")
+SB3_KIND = "sb3_dqn"
+"""the marker kind of experiments/sb3_dqn.py's folder (its model.zip): a simulate run's kind before, it was replaced by
+a simulate run and replaced one (issue 82, probe 18, DL1)"""
+RUN_KINDS = ("simulate", "train", SB3_KIND)
 """the kinds of marker a single command writes (run_dirs' users); every other kind marks a study's root"""
 SUMS = "files_sha256"
 """the key of a finished run's marker (a kind of SUMMED_KINDS) that records the sha256 of each regular file its folder

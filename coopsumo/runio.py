@@ -475,6 +475,10 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
     except KeyboardInterrupt as err:
         return interrupted(prog, err)
     except OSError as err:  # the system refused a file operation: one line naming the path and the problem
+        if err.filename is None and working_folder_problem():  # named nothing (issue 82, probe 18, O2)
+            print(f"{prog}: error: the current folder was deleted while the command ran ({os_error_text(err)}); "
+                  "change to an existing folder and run the command again", file=sys.stderr)  # fmt: skip
+            return 1
         print(f"{prog}: error: {os_error_text(err)}", file=sys.stderr)
         return USAGE_EXIT if err.errno in USER_ERRNOS or isinstance(err, NotRegularFileError) else 1
     except RuntimeError as err:  # Python 3.11's Path.resolve reports a loop of symbolic links so; torch a failed write

@@ -35,6 +35,7 @@ from coopsumo.errors import UsageError
 from coopsumo.files import write_json
 from coopsumo.provenance import package_version, versions
 from coopsumo.run_dirs import discard_run_dir, finish_run_dir, start_run_dir
+from coopsumo.run_markers import SB3_KIND
 from coopsumo.runio import Parser, run_cli
 from coopsumo.validation import (
     MAX_STEPS,
@@ -179,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
 
         if importlib.util.find_spec("stable_baselines3") is None:
             raise UsageError("stable-baselines3 is not installed; install it with: pip install .[sb3]")
-        tmp = start_run_dir(args.out) if args.out is not None else None
+        tmp = start_run_dir(args.out, SB3_KIND) if args.out is not None else None
         try:
             summary = train(args, tmp)
         except BaseException:
@@ -187,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
                 discard_run_dir(tmp)
             raise
         if tmp is not None:
-            finish_run_dir(tmp, args.out)
+            finish_run_dir(tmp, args.out, SB3_KIND)  # its own kind: simulate refuses the folder, and it a run's
         print(
             f"episodes={summary['episodes']} mean_episode_reward={summary['mean_episode_reward']:.4g} "
             f"mean_episode_length={summary['mean_episode_length']:.4g} wall_seconds={summary['wall_seconds']:.1f}"

@@ -249,6 +249,36 @@ def test_sb3_dqn_script(tmp_path: Path) -> None:
     assert int(fields["episodes"]) >= 2
     assert np.isfinite(float(fields["mean_episode_reward"]))
     assert (out / "model.zip").is_file() and (out / "summary.json").is_file() and (out / "config.json").is_file()
+    # issue 82, probe 18, DL1: its folder was marked a simulate run's, and `simulate --out` replaced it (model.zip
+    # lost), exit 0; and the script replaced a simulate run. Each refuses the other's folder now, in one line.
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    run = tmp_path / "run"
+    sim = subprocess.run([sys.executable, "-m", "coopsumo", "simulate", "--steps", "20", "--quiet", "--out", str(out)],
+                         capture_output=True, text=True, cwd=REPO, timeout=300, check=False)  # fmt: skip
+    assert sim.returncode == 2 and sim.stderr.count("\n") == 1 and "sb3_dqn run, not a simulate run" in sim.stderr
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+    sim = subprocess.run([sys.executable, "-m", "coopsumo", "simulate", "--steps", "20", "--quiet", "--out", str(run)],
+                         capture_output=True, text=True, cwd=REPO, timeout=300, check=False)  # fmt: skip
+    assert sim.returncode == 0, sim.stderr
+    before = {p.name: p.read_bytes() for p in run.iterdir()}
+    again = subprocess.run([sys.executable, "experiments/sb3_dqn.py", "--steps", "300", "--warmup", "20",
+                            "--max-steps", "100", "--out", str(run)],
+                           capture_output=True, text=True, cwd=REPO, timeout=300, check=False)  # fmt: skip
+    assert again.returncode == 2 and "simulate run, not a sb3_dqn run" in again.stderr, again.stderr
+    assert {p.name: p.read_bytes() for p in run.iterdir()} == before
+    # probe 18, TR1: a model of NaN weights drove every vehicle "left", exit 0 (a dqn: model is refused)
+    import stable_baselines3 as sb3
+    import torch
+
+    from coopsumo.agents.sb3_policy import SB3ModelError, SB3Policy
+
+    model = sb3.DQN.load(out / "model.zip", device="cpu")
+    with torch.no_grad():
+        next(iter(model.policy.parameters())).fill_(float("nan"))
+    model.save(tmp_path / "nan.zip")
+    with pytest.raises(SB3ModelError, match=r"nan\.zip has non-finite values \(nan or inf\) in weights 'q_net\."):
+        SB3Policy.from_spec(f"sb3:{tmp_path / 'nan.zip'}")
+    assert SB3Policy.from_spec(f"sb3:{out / 'model.zip'}").name.startswith("sb3:")
 
 
 def test_sb3_dqn_script_rejects_bad_input(tmp_path: Path) -> None:

@@ -394,8 +394,10 @@ def test_what_act_gives_or_raises_ends_in_one_line_but_an_interrupt(hostile: Pat
         assert fragment in str(err.value) and len(str(err.value).splitlines()) == 1, str(err.value)
     with pytest.raises(KeyboardInterrupt):  # Ctrl-C stops the run as a signal does
         make_policy("py:hostile:Interrupted", np.random.default_rng(0)).act(obs)
-    with pytest.raises(SystemExit):
+    with pytest.raises(UserPolicyError) as err:  # probe 18, O3: passed on, it ended simulate silently with exit 0
         make_policy("py:hostile:Exiting", np.random.default_rng(0)).act(obs)
+    assert str(err.value).startswith("py:hostile:Exiting: act(obs) raised SystemExit: 5 (") and \
+        len(str(err.value).splitlines()) == 1, str(err.value)  # fmt: skip
 
 
 def test_a_del_that_raises_is_said_in_one_line(hostile: Path, capsys: pytest.CaptureFixture[str]) -> None:

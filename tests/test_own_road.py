@@ -5,6 +5,7 @@ on such a road (its network, loops and speeds), and the weights reaching the tra
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from dataclasses import replace
@@ -124,3 +125,14 @@ def test_a_reward_weight_out_of_range_is_refused(value: str, tmp_path: Path) -> 
                          capture_output=True, text=True, check=False)  # fmt: skip
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "argument --w-flow: must be" in res.stderr
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_net_file_that_is_a_named_pipe_is_refused_not_waited_on(tmp_path: Path,
+                                                                   capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 82, probe 18, O1: sumolib waited for ever on `--net-file FIFO`; now one line, as every file flag."""
+    fifo = tmp_path / "net.xml"
+    os.mkfifo(fifo)
+    assert simulate.main(["--net-file", str(fifo), "--steps", "100", "--quiet", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"simulate: error: --net-file: {fifo} is not a regular file but a named pipe"], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["net.xml"]

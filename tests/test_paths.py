@@ -121,6 +121,27 @@ def test_a_deleted_working_folder_is_one_line(args: list[str], tmp_path: Path) -
     assert snapshot(tmp_path) == []
 
 
+def test_a_working_folder_deleted_while_a_command_runs_is_one_line_naming_it(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Issue 82, probe 18, O2: the working folder deleted while scenario2, scenario1 or train ran ended in "error: No
+    such file or directory", naming nothing, exit 2; now a line saying what happened, exit 1 (not a usage error)."""
+    from coopsumo.runio import run_cli
+
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+
+    def body() -> int:
+        here.rmdir()
+        Path("run").resolve()  # what a command does with a relative path: os.getcwd() fails, naming no file
+        return 0
+
+    assert run_cli("scenario2", body) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("scenario2: error: the current folder was deleted while the command "
+                                               "ran (") and "change to an existing folder" in err[0], err
+
+
 def _with_locale(lc_all: str) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("LC_") and k != "LANG"}
     return {**env, "LC_ALL": lc_all, "PYTHONPATH": os.pathsep.join(sys.path)}
@@ -151,7 +172,8 @@ def test_a_non_ascii_out_under_a_utf8_locale_runs(tmp_path: Path) -> None:
 
 @pytest.mark.sumo
 @pytest.mark.parametrize("damage", ["empty", "cut short", "garbage", "a lane removed", "another lane count",
-                                    "another length", "another speed limit"])
+                                    "another length", "another speed limit", "a lane forbids cars",
+                                    "no lane changes", "no seal"])
 def test_a_damaged_cached_network_is_built_again_once_with_a_line(
     damage: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -169,7 +191,13 @@ def test_a_damaged_cached_network_is_built_again_once_with_a_line(
                "a lane removed": good.replace('<lane id="road_2"', '<lane id="road_x"'),
                "another lane count": build_net(RoadConfig(lanes=2), tmp_path / "two").read_text(),
                "another length": good.replace('length="2000.00"', 'length="500.00"'),
-               "another speed limit": good.replace('speed="33.34"', 'speed="13.89"')}[damage]
+               "another speed limit": good.replace('speed="33.34"', 'speed="13.89"'),
+               # probe 18, TB1 and TR2: a traceback in SUMO, and other results without a line
+               "a lane forbids cars": good.replace('<lane id="road_1" index="1"',
+                                                   '<lane id="road_1" index="1" disallow="passenger"'),
+               "no lane changes": good.replace(' index="0"', ' index="0" changeLeft="bus" changeRight="bus"'),
+               "no seal": good[: good.rindex("<!-- coopsumo sha256 ")]}[damage]  # an older coopsumo's
+    assert spoiled != good
     path.write_text(spoiled)
     assert net_problem(path, road) is not None
     assert build_net(road, tmp_path) == path

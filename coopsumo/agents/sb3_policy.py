@@ -100,6 +100,9 @@ class SB3Policy:
             model = sb3.DQN.load(path, device="cpu")
         except Exception as err:  # SB3 and pickle raise many types for a file they cannot read
             raise SB3ModelError(f"{text}: Stable-Baselines3 cannot load {path}: {type(err).__name__}") from None
+        for name, tensor in model.policy.state_dict().items():  # NaN weights drove every vehicle "left" (probe 18, TR1)
+            if tensor.is_floating_point() and not bool(torch.isfinite(tensor).all()):
+                raise SB3ModelError(f"{text}: {path} has non-finite values (nan or inf) in weights {name!r}")
         space, actions = model.observation_space, model.action_space
         shapes = {k: list(v.shape) for k, v in getattr(space, "spaces", {}).items()}
         if shapes != {"grids": GRID_SHAPE, "speed_err": [N_FRAMES]} or getattr(actions, "n", None) != len(ACTION_NAMES):

@@ -37,9 +37,11 @@ from coopsumo.sim.physics import ACTION_NAMES
 MAX_DECISION_INTERVAL = 600
 """the longest decision interval a policy of one's own may ask for (steps; a minute), as the learner's"""
 ACTIONS_TEXT = "0 left, 1 right, 2 speed-up, 3 none"
-PASSED_ON = (KeyboardInterrupt, SystemExit)
+PASSED_ON = (KeyboardInterrupt,)
 """what the user's code may raise that is no failure of its own, passed on as Python would: a Ctrl-C or a signal
-(runio ends the run in one line as for any), an exit it asks for"""
+(runio ends the run in one line as for any). A SystemExit (`sys.exit()` in act or as its module is run) is a failure
+of the policy's, in one line: passed on, it ended the command with its code, silently, no run kept (issue 82, probe
+18, O3: exit 0)"""
 T = TypeVar("T")
 
 

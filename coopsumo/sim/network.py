@@ -114,8 +114,10 @@ def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
         result = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if result.returncode != 0:
             raise RuntimeError(f"netconvert failed: {result.stderr.strip()}")
-        if problem := net_problem(Path(tmp), road):
+        text = read_text(Path(tmp))
+        if problem := _content_problem(text, road):
             raise RuntimeError(f"netconvert wrote a network that is not this road's: {problem}")
+        Path(tmp).write_text(text + f"{SEAL_OPEN}{_digest(text)}{SEAL_CLOSE}\n")
         os.replace(tmp, net_path)
     finally:
         Path(tmp).unlink(missing_ok=True)  # gone after os.replace; left by a failure otherwise
@@ -134,14 +136,41 @@ def _write_own(path: Path, text: str) -> None:
         Path(tmp).unlink(missing_ok=True)  # gone after os.replace; left by a failure otherwise
 
 
+SEAL_OPEN, SEAL_CLOSE = "<!-- coopsumo sha256 ", " -->"
+"""the comment build_net ends a network it built with: the sha256 of its network (from `<net ` on; netconvert's
+header before it carries the time it ran), so that a cached network edited since is built again (issue 82, probe 18:
+lanes that forbid cars or lane changes were driven, a traceback or other results without a line)"""
+_SEAL = re.compile(rf"{re.escape(SEAL_OPEN)}([0-9a-f]{{64}}){re.escape(SEAL_CLOSE)}\s*\Z")
+
+
+def _digest(text: str) -> str:
+    import hashlib
+
+    start = text.find("<net ")
+    return hashlib.sha256(text[max(start, 0):].encode("utf-8", "surrogateescape")).hexdigest()
+
+
 def net_problem(path: Path, road: RoadConfig) -> str | None:
-    """Why the cached network file at `path` is not a whole network of `road` (empty, cut short, garbage, another
-    number of lanes, lanes of another length, speed limit or width), or None. A cheap look: the file is a few kB,
-    written atomically by build_net."""
+    """Why the cached network file at `path` is not the whole network of `road` that build_net built (empty, cut
+    short, garbage, another number of lanes, lanes of another length, speed limit or width; then anything edited since
+    it was built: its seal), or None. A cheap look: the file is a few kB, written atomically by build_net."""
     try:
         text = read_text(path, errors="replace")  # a named pipe is refused, not waited on
     except OSError as err:
         return f"unreadable: {err.strerror}"
+    seal = _SEAL.search(text)
+    content = text if seal is None else text[: seal.start()]
+    if problem := _content_problem(content, road):
+        return problem
+    if seal is None:
+        return "it carries no seal of coopsumo's build (built by an older coopsumo, or edited)"
+    if seal.group(1) != _digest(content):
+        return "it is not the network netconvert wrote for it (edited since it was built?)"
+    return None
+
+
+def _content_problem(text: str, road: RoadConfig) -> str | None:
+    """Why the network `text` is not a whole network of `road` (net_problem's look at its lanes), or None."""
     if not text.rstrip().endswith("</net>"):
         return "empty or cut short" if len(text.strip()) < 20 or "<net" in text else "not a SUMO network"
     lanes = re.findall(rf'<lane id="{EDGE_ID}_(\d+)"([^>]*)>', text)
@@ -206,6 +235,10 @@ def net_file_refusal(path: str) -> str:
 
     import sumolib
 
+    from coopsumo.files import not_regular
+
+    if kind := not_regular(Path(path)):  # sumolib would wait on a named pipe for ever (issue 82, probe 18, O1)
+        return f"{path} is not a regular file but {kind}"
     try:
         net = sumolib.net.readNet(path)
     except Exception as err:  # sumolib raises many types (a missing file, XML errors) for a file it cannot read
