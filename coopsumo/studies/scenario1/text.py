@@ -109,7 +109,9 @@ def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int
     return text
 
 
-def timing_text(plan: Plan, runs: list[Run], model_files: list[Path], n_train: int, n_specs: int, wall: float,
+def timing_text(plan: Plan, runs: list[Run], model_files: list[Path], n_train: int, runs_run: int, wall: float,
                 run_cpu: dict[float, list[float]]) -> str:  # fmt: skip
-    return timing_note(wall, len(model_files) - n_train, len(model_files), len(runs) - (n_specs - n_train), len(runs),
+    """timing_note of a study of `runs` and the models `model_files` that trained n_train of them and ran runs_run of
+    its runs."""
+    return timing_note(wall, len(model_files) - n_train, len(model_files), len(runs) - runs_run, len(runs),
                        [m.parent / "train_summary.json" for m in model_files], run_cpu)  # fmt: skip
