@@ -103,17 +103,13 @@ def _trains(spec: dict[str, Any]) -> bool:
     return isinstance(spec.get("config"), dict) and "train" in spec["config"]
 
 
-def training_link(root: Path, spec: dict[str, Any]) -> Path:
-    """ROOT/train/<training>: where a cell that trains links its model (its train_key when cells share a training)."""
-    return root / "train" / (spec.get("train_key") or spec["key"])
-
-
 def model_link(root: Path, spec: dict[str, Any]) -> Path | None:
-    """Where the cell of `spec` links the model it trains: a training cell's own folder ROOT/<out> (scenario I's, kind
-    "train"), a cell's that trains and drives, training_link; None for a cell that trains none."""
+    """Where the cell of `spec` links the model it trains: a training cell's ROOT/<out> (scenario I's, kind "train"),
+    a cell's that trains and drives ROOT/train/<training> (its train_key when cells share a training); None for a
+    cell that trains none."""
     if spec.get("kind") == "train":
         return root / spec["out"]
-    return training_link(root, spec) if _trains(spec) else None
+    return root / "train" / (spec.get("train_key") or spec["key"]) if _trains(spec) else None
 
 
 def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn,

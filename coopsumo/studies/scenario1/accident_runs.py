@@ -23,7 +23,6 @@ from coopsumo.studies.scenario1.plan import Plan
 # -- scenario I's cell, run by the shared runner (coopsumo.studies.engine.runner), one per worker process ----------
 RECORDS = CellRecords(("key", "kind", "label", "seed", "t_up_s", "out", "after"))
 """a cell's record: a training ("train") or an accident run ("run"), its folder under the study's root"""
-failed_record = RECORDS.failed
 
 
 def work(spec: dict[str, Any]) -> Cell:
@@ -40,11 +39,8 @@ def work(spec: dict[str, Any]) -> Cell:
 
 
 CELLS = CellKind(RECORDS, work)
-run_cell = CELLS.run_cell
-
-
 REQUIRED = ("mean_speed_mps", "collisions", "teleports")
-"""summary values a stored run record must hold as finite numbers to be reused"""
+"""summary values a stored record (a run's, a training's) must hold as finite numbers to be reused"""
 
 
 def scaled(plan: Plan, factor: float) -> Plan:

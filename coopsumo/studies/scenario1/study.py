@@ -10,8 +10,8 @@
    gui_jam.png: sumo-gui's view of the jam at the bottleneck, replayed through TraCI.
 
 The plan (sizes, configurations, names; the profiles: experiments_data/scenario1.toml) is scenario1_plan, the
-measures scenario1_measures, the report scenario1_report; this module runs the plan's cells on the shared runner and
-is the command.
+measures scenario1_measures, the report scenario1_report; this module runs the plan's cells on the shared study
+engine (engine/cells.Study: what is left to run, the trainings first, as groups) and is the command.
 """
 
 from __future__ import annotations
@@ -69,7 +69,7 @@ from coopsumo.studies.scenario1.plan import (
     train_config,
 )
 from coopsumo.studies.scenario1.report import default_study, write_outputs
-from coopsumo.studies.scenario1.text import timing_text
+from coopsumo.studies.scenario1.text import timing_note
 from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
 from coopsumo.validation import (
     MOBIL_P_LIST,
@@ -348,16 +348,6 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
     return 0
 
 
-def _run_cpu(plan: Plan, runs: list[Run], records: list[dict[str, Any]]) -> dict[float, list[float]]:
-    """Each demand's accident runs' CPU seconds, from their cell records."""
-    cpu = {r["key"]: r.get("cell_cpu_s") for r in records}
-    run_cpu: dict[float, list[float]] = {t: [] for t in plan.t_ups}
-    for r in runs:
-        if cpu.get(r.key) is not None:
-            run_cpu[r.t_up].append(float(cpu[r.key]))  # type: ignore[arg-type]
-    return run_cpu
-
-
 def _finish(plan: Plan, root: Path, runs: list[Run], trains: list[dict[str, Any]], trained: int, ran: dict[str, int],
             start: float, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
     """runs.csv, summary.csv, the figures and report.md of the study when none of its cells failed (both tables
@@ -369,8 +359,10 @@ def _finish(plan: Plan, root: Path, runs: list[Run], trains: list[dict[str, Any]
     SCENARIO1_RUNS.check_frame(rows, root / "runs.csv")
     SCENARIO1_SUMMARY.check_frame(aggregate(rows), root / "summary.csv")
     write_atomic(root / "runs.csv", lambda tmp: rows.to_csv(tmp, index=False))
-    timing = timing_text(plan, runs, [root / s["out"] / "model.pt" for s in trains], trained, ran["runs"],
-                         time.perf_counter() - start, _run_cpu(plan, runs, records))  # fmt: skip
+    cpu: dict[str, Any] = {r["key"]: r.get("cell_cpu_s") for r in records}  # each demand's accident runs' CPU seconds
+    run_cpu = {t: [float(cpu[r.key]) for r in runs if r.t_up == t and cpu[r.key] is not None] for t in plan.t_ups}
+    timing = timing_note(time.perf_counter() - start, len(trains) - trained, len(trains), len(runs) - ran["runs"],
+                         len(runs), [root / s["out"] / "train_summary.json" for s in trains], run_cpu)  # fmt: skip
     write_outputs(root, plan, rows, runs, timing)
 
 
