@@ -107,9 +107,9 @@ def model_link(root: Path, spec: dict[str, Any]) -> Path | None:
     """Where the cell of `spec` links the model it trains: a training cell's ROOT/<out> (scenario I's, kind "train"),
     a cell's that trains and drives ROOT/train/<training> (its train_key when cells share a training); None for a
     cell that trains none."""
-    if spec.get("kind") == "train":
-        return root / spec["out"]
-    return root / "train" / (spec.get("train_key") or spec["key"]) if _trains(spec) else None
+    if _trains(spec):
+        return root / "train" / (spec.get("train_key") or spec["key"])
+    return root / spec["out"] if spec.get("kind") == "train" else None
 
 
 def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn,
