@@ -131,10 +131,13 @@ def test_scenario1_on_ray_gives_the_same_summary_as_local(tmp_path: Path) -> Non
                "--backend", backend, "--out", str(out)]  # fmt: skip
         res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=False, env=env_with_display(None))
         assert res.returncode == 0, res.stderr[-2000:]
-        # the model and 5 policies (alpha 0, keep, greedy, MOBIL p = 0, sumo) x 1 demand x 1 seed; the second study
-        # takes the first one's model from the model store beside them (the same training) and trains nothing
+        # the model's training and 5 policies (alpha 0, keep, greedy, MOBIL p = 0, sumo) x 1 demand x 1 seed; the
+        # second study takes the first one's model from the model store beside them (the same training) and trains
+        # nothing: its training's cell only links the stored model
         trained = 1 if backend == "local" else 0
-        assert len(list((out / "cells").glob("*.json"))) == trained + 5
+        assert len(list((out / "cells").glob("*.json"))) == 1 + 5
+        assert f"{1 - trained} of 1 models from the model store" in res.stderr
+        assert f"; {trained} trainings to run" in res.stderr
         tables[backend] = pd.read_csv(out / "summary.csv")
     pd.testing.assert_frame_equal(tables["local"], tables["ray"])
 

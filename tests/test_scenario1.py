@@ -154,6 +154,35 @@ def test_rerun_reuses_models_and_runs(study: Path, display_or_none: str | None, 
         (study / name).unlink()
 
 
+def test_the_studys_trainings_run_as_groups(study: Path) -> None:
+    """Scenario I's trainings go through the study engine (engine/cells.Study), which trains the stacked learner's
+    models as groups first (engine/groups.train_groups): each of the study's 4 models records its share of its
+    group's CPU time beside it in the store."""
+    from coopsumo.studies.engine.groups import GROUP_COST, group_cpu_s
+
+    links = sorted((study / "models").iterdir())
+    assert len(links) == 4
+    for link in links:
+        assert (link / GROUP_COST).is_file() and json.loads((link / GROUP_COST).read_text())["group_size"] > 1
+        assert group_cpu_s(link) is not None, link.name
+
+
+def test_a_rerun_of_the_finished_study_runs_no_cell(study: Path, monkeypatch: pytest.MonkeyPatch,
+                                                    capfd: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """Every cell of the finished study (each model's training, each run) is reused: the engine's first line says 0
+    to run and no cell record is written again (its report, faked here, is the other rerun test's)."""
+    cells = {p.name: p.stat().st_mtime_ns for p in (study / "cells").iterdir()}
+    assert len(cells) == 4 + 2 * 2 * (4 + 5)  # 4 trainings; 2 demands x 2 seeds x (4 models + 5 baselines)
+    monkeypatch.setattr(scenario1, "write_outputs", lambda *args: None)
+    monkeypatch.delenv("DISPLAY", raising=False)
+    code, _, err = main_here(scenario1.main, [*TINY, "--out", str(study)], capfd)
+    assert code == 0, err[-2000:]
+    assert "scenario1: 4 of 4 models from the model store" in err and "; 0 trainings to run" in err
+    assert f"scenario1: profile quick: {len(cells)} cells, {len(cells)} already done, 0 failed before (retried), 0 " \
+        "to run on the local backend" in err.splitlines(), err[-2000:]  # fmt: skip
+    assert {p.name: p.stat().st_mtime_ns for p in (study / "cells").iterdir()} == cells
+
+
 def test_report_shows_sumo_guis_screenshot_of_the_jam(study: Path, gui_display: str) -> None:
     shot = study / "gui_jam.png"
     assert shot.read_bytes().startswith(PNG)

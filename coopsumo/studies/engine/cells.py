@@ -4,9 +4,9 @@
 run_todo runs a study's cells still to run: it builds the road networks once in this process (not in every worker),
 trains the stacked learner's models as groups, runs the cells on local processes or Ray (runner.execute, one progress
 bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
-The learning study, the protocol and scenario II are each a `Study` whose run does the steps of a study from its
-cells to its record (their reuse checks and cell order the study's fields); scenario I's accident runs (the regime
-map, accident_seeds), which judge their run folders, choose their cells and call run_todo.
+The learning study, the protocol, scenario II, scenario I (its trainings and accident runs) and scenario I's accident
+runs alone (the regime map, accident_seeds) are each a `Study` whose run does the steps of a study from its cells to
+its record (their reuse checks and cell order the study's fields).
 
 What a cell does: its model trained into the model store (or
 taken from it) and driven on its runs, or runs of a policy that needs no training, or a training alone.
@@ -103,9 +103,13 @@ def _trains(spec: dict[str, Any]) -> bool:
     return isinstance(spec.get("config"), dict) and "train" in spec["config"]
 
 
-def training_link(root: Path, spec: dict[str, Any]) -> Path:
-    """ROOT/train/<training>: where a cell that trains links its model (its train_key when cells share a training)."""
-    return root / "train" / (spec.get("train_key") or spec["key"])
+def model_link(root: Path, spec: dict[str, Any]) -> Path | None:
+    """Where the cell of `spec` links the model it trains: a training cell's ROOT/<out> (scenario I's, kind "train"),
+    a cell's that trains and drives ROOT/train/<training> (its train_key when cells share a training); None for a
+    cell that trains none."""
+    if _trains(spec):
+        return root / "train" / (spec.get("train_key") or spec["key"])
+    return root / spec["out"] if spec.get("kind") == "train" else None
 
 
 def run_todo(todo: Sequence[dict[str, Any]], specs: Sequence[dict[str, Any]], root: Path, cell_fn: CellFn,
@@ -329,9 +333,9 @@ class Study:
 
         start = perf_counter()
         root = root.resolve()
-        for spec in specs:  # a real folder or file where a model's link belongs is the user's: refused first
-            if _trains(spec):
-                check_link(training_link(root, spec))
+        links = [link for spec in specs if (link := model_link(root, spec)) is not None]
+        for link in links:  # a real folder or file where a model's link belongs is the user's: refused first
+            check_link(link)
         todo = todo_cells(root, specs, self.prog, self.required, self.checks, self.made)
         check_run_places((place for s in todo for place in self.places(root, s)), in_place=self.in_place)
         retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
@@ -346,6 +350,6 @@ class Study:
                            desc=f"{self.prog} cells")  # fmt: skip
         meta.update(cells_run=len(todo), wall_seconds=round(perf_counter() - start, 1),
                     failed_cells=failed_keys(records),
-                    cell_cpu_seconds_sum=study_cpu_s(records, (training_link(root, s) for s in specs if _trains(s))))
+                    cell_cpu_seconds_sum=study_cpu_s(records, links))
         finish(records, meta)
         return meta

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import OutputConfig, RoadConfig, SimConfig, to_dict
+from coopsumo.policy_spec import policy_file
 from coopsumo.run_dirs import check_run_dir
 from coopsumo.studies.engine.cells import Cell, CellKind, Run, Study, Train
 from coopsumo.studies.engine.records import CellRecords
@@ -22,7 +23,6 @@ from coopsumo.studies.scenario1.plan import Plan
 # -- scenario I's cell, run by the shared runner (coopsumo.studies.engine.runner), one per worker process ----------
 RECORDS = CellRecords(("key", "kind", "label", "seed", "t_up_s", "out", "after"))
 """a cell's record: a training ("train") or an accident run ("run"), its folder under the study's root"""
-failed_record = RECORDS.failed
 
 
 def work(spec: dict[str, Any]) -> Cell:
@@ -39,11 +39,8 @@ def work(spec: dict[str, Any]) -> Cell:
 
 
 CELLS = CellKind(RECORDS, work)
-run_cell = CELLS.run_cell
-
-
 REQUIRED = ("mean_speed_mps", "collisions", "teleports")
-"""summary values a stored run record must hold as finite numbers to be reused"""
+"""summary values a stored record (a run's, a training's) must hold as finite numbers to be reused"""
 
 
 def scaled(plan: Plan, factor: float) -> Plan:
@@ -68,11 +65,16 @@ def run_all(specs: Sequence[dict[str, Any]], root: Path, plans: Iterable[Plan], 
     first line); the keys of those that failed. A run is finished when its cell record is reusable
     (records.reusable_keys) and so is its run folder (folder_reusable)."""
     roads = [RoadConfig(lanes=p.lanes, loop_period_s=p.loop_period_s) for p in plans]
-    study = Study(prog, CELLS, REQUIRED, lambda root, s: (root / s["out"],), lambda todo: None,
-                  checks=(_unlike_folders,))  # fmt: skip
+    study = Study(prog, CELLS, REQUIRED, places, lambda todo: None, checks=(_unlike_folders,))
     meta = study.run(specs, root, {}, name, lambda records, meta: None, roads=roads, workers=workers, backend=backend,
                      address=address, progress=progress)  # fmt: skip
     return list(meta["failed_cells"])
+
+
+def places(root: Path, spec: dict[str, Any]) -> tuple[Path, ...]:
+    """A cell's run folder, checked for a user's files before any cell runs (cells.Study); a training has none (its
+    folder is a link into the model store)."""
+    return (root / spec["out"],) if spec["kind"] == "run" else ()
 
 
 def _unlike_folders(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[str]:
@@ -80,17 +82,20 @@ def _unlike_folders(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> s
     return {s["key"] for s in specs if not folder_reusable(root, s, prog)}
 
 
-def folder_reusable(root: Path, spec: dict[str, Any], prog: str) -> bool:
+def folder_reusable(root: Path, spec: dict[str, Any], prog: str, model: bool = False) -> bool:
     """True when the run folder of the cell `spec`, whose record is reusable, can be reused too, judged as scenario I
     judges its own before reuse (run_folders.reusable_run: its configuration, SUMO outputs, summary, detectors.xml,
     fcd.xml, tripinfo.xml and trajectories.parquet, each the file its run wrote; the model it drove is the record's
-    to judge, records.model_changed). Otherwise the run is redone, with one line naming the folder and why; a folder
+    to judge, records.model_changed, or with `model` the folder's: the file its policy names as it is now,
+    run_folders.model_driven). Otherwise the run is redone, with one line naming the folder and why; a folder
     removed (no summary.json) too. UsageError when the folder is not the study's to run again (run_dirs.check_run_dir).
     Issue 82, probe 15, T3: a garbage detectors.xml, trajectories.parquet or summary.json ended every rerun in a
     traceback, and a folder removed was refused; probe 16, TR1: another run's file copied in was reused."""
     out = root / spec["out"]
     if (out / "summary.json").exists():
-        return reusable_run(out, spec["config"], OutputConfig(**spec["outputs"]), prog=prog)
+        driven = policy_file(spec["config"]["policy"]) if model else None
+        return reusable_run(out, spec["config"], OutputConfig(**spec["outputs"]), None if driven is None
+                            else Path(driven), prog=prog)  # fmt: skip
     check_run_dir(out.resolve(), "simulate")
     print(f"{prog}: run folder {out} has no summary.json (removed?); running it again", file=sys.stderr)
     return False

@@ -10,15 +10,17 @@
    gui_jam.png: sumo-gui's view of the jam at the bottleneck, replayed through TraCI.
 
 The plan (sizes, configurations, names; the profiles: experiments_data/scenario1.toml) is scenario1_plan, the
-measures scenario1_measures, the report scenario1_report; this module runs the plan's cells on the shared runner and
-is the command.
+measures scenario1_measures, the report scenario1_report; this module runs the plan's cells on the shared study
+engine (engine/cells.Study: what is left to run, the trainings first, as groups) and is the command.
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -26,10 +28,8 @@ import pandas as pd
 
 from coopsumo.config import ControlConfig, RoadConfig, to_dict
 from coopsumo.errors import UsageError
-from coopsumo.files import read_json, read_json_object, write_atomic, write_json
-from coopsumo.policy_spec import policy_file
+from coopsumo.files import write_atomic, write_json
 from coopsumo.provenance import versions
-from coopsumo.record_schemas import CELL_RECORD
 from coopsumo.runio import Parser, run_cli
 from coopsumo.studies.engine.catalogue import (
     OWN_PROFILE,
@@ -42,18 +42,13 @@ from coopsumo.studies.engine.catalogue import (
     plan_from_flags,
     profile_arg,
 )
+from coopsumo.studies.engine.cells import Study
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, store_for, stored_model
 from coopsumo.studies.engine.records import failed_exit
-from coopsumo.studies.engine.run_folders import (
-    check_run_places,
-    profile_study,
-    recorded_profile,
-    reusable_run,
-    study_root,
-)
-from coopsumo.studies.engine.runner import add_backend_flags, check_backend, execute, make_backend, sigterm_interrupts
+from coopsumo.studies.engine.run_folders import profile_study, recorded_profile, study_root
+from coopsumo.studies.engine.runner import add_backend_flags, check_backend
 from coopsumo.studies.scenario1 import regime_map
-from coopsumo.studies.scenario1.accident_runs import failed_record, run_cell
+from coopsumo.studies.scenario1.accident_runs import CELLS, REQUIRED, folder_reusable, places
 from coopsumo.studies.scenario1.measures import aggregate, run_metrics
 from coopsumo.studies.scenario1.plan import (
     DEFAULT_PROFILE,
@@ -74,7 +69,7 @@ from coopsumo.studies.scenario1.plan import (
     train_config,
 )
 from coopsumo.studies.scenario1.report import default_study, write_outputs
-from coopsumo.studies.scenario1.text import timing_text
+from coopsumo.studies.scenario1.text import timing_note
 from coopsumo.study_tables import SCENARIO1_RUNS, SCENARIO1_SUMMARY
 from coopsumo.validation import (
     MOBIL_P_LIST,
@@ -269,30 +264,23 @@ def _merge(args: Any) -> int:
     return merge_parts(parts, Path(args.out))
 
 
-def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], dict[tuple[str, float, int], tuple[Path, str]],
-                                            list[Run], int]:  # fmt: skip
-    """The cells still to run: trainings first (the longest chains), each model's accident runs as soon as it exists,
-    then the baselines. Models come from the model store (shared with other studies); finished runs with the same
-    configuration are reused. Returns (specs, models, every run, trainings to run)."""
+def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], list[Run]]:
+    """Every cell of the study, in the order they start: each model's training into the model store (the longest
+    chains; its folder models/<name> a link to the stored model), each model's accident runs (which wait for it:
+    "after"), then the baselines'; and every run."""
     store = store_for(root)
     specs: list[dict[str, Any]] = []
-    models: dict[tuple[str, float, int], tuple[Path, str]] = {}  # (preset, alpha, train seed) -> (model.pt, key)
+    policies: list[tuple[str, str, str | None, int | None]] = []  # (policy, label, its training's key, model seed)
     for preset in plan.presets:
         for alpha in plan.alphas:
             for train_seed in plan.train_seeds:
-                tcfg = train_config(plan, alpha, preset, train_seed)
                 name = model_name(preset, alpha, train_seed)
-                models[preset, alpha, train_seed] = (root / "models" / name / "model.pt", f"train_{name}")
-                if stored_model(to_dict(tcfg), store, root / "models" / name) is not None:
-                    continue
                 specs.append({"key": f"train_{name}", "kind": "train", "label": model_label(preset, alpha),
-                              "seed": train_seed, "out": f"models/{name}", "config": to_dict(tcfg),
+                              "seed": train_seed, "out": f"models/{name}",
+                              "config": json.loads(json.dumps(to_dict(train_config(plan, alpha, preset, train_seed)))),
                               "store": str(store)})  # fmt: skip
-    n_train = len(specs)
-    print(f"scenario1: {len(models) - n_train} of {len(models)} models from the model store {store}", file=sys.stderr)
-    retrained = {spec["key"] for spec in specs}
-    policies: list[tuple[str, str, str | None, int | None]] = [
-        (f"dqn:{path}", model_label(preset, alpha), key, k) for (preset, alpha, k), (path, key) in models.items()]
+                policies.append((f"dqn:{root / 'models' / name / 'model.pt'}", model_label(preset, alpha),
+                                 f"train_{name}", train_seed))  # fmt: skip
     policies += [(b, label_for(b), None, None) for b in plan.baseline_policies()]
     runs: list[Run] = []
     for policy, label, after, model_seed in policies:
@@ -300,17 +288,20 @@ def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], dict[tuple[str
             for seed in plan.seeds:
                 cfg = accident_config(plan, policy, seed, t_up)
                 folder = run_folder(label, seed, t_up, model_seed)
-                out = root / folder
-                runs.append(Run(label, t_up, seed, out, cfg, model_seed))
-                model = Path(read) if (read := policy_file(policy)) is not None else None  # a model or module
-                if after not in retrained and reusable_run(out, to_dict(cfg), plan.outputs(), model):
-                    continue
-                check_run_places([out])  # one it may not replace: refused now, not in its worker
+                runs.append(Run(label, t_up, seed, root / folder, cfg, model_seed))
                 specs.append({"key": runs[-1].key, "kind": "run",
                               "label": label, "seed": seed, "t_up_s": t_up, "out": folder, "after": after,
                               "config": to_dict(cfg), "trajectory_every": plan.trajectory_every,
                               "outputs": to_dict(plan.outputs())})  # fmt: skip
-    return specs, models, runs, n_train
+    return specs, runs
+
+
+def _redone(retrained: set[str], root: Path, specs: list[dict[str, Any]], prog: str) -> set[str]:
+    """The cells among `specs` (records reusable) to run again all the same (a cells.Check): the trainings of
+    `retrained` (models the store does not hold whole), their models' runs, and every run whose folder is not
+    reusable (accident_runs.folder_reusable, with the model or module file its policy drives as it is now)."""
+    return {s["key"] for s in specs if s["key"] in retrained or s.get("after") in retrained
+            or (s["kind"] == "run" and not folder_reusable(root, s, prog, model=True))}  # fmt: skip
 
 
 def _runs_table(plan: Plan, runs: list[Run]) -> pd.DataFrame:
@@ -325,19 +316,10 @@ def _runs_table(plan: Plan, runs: list[Run]) -> pd.DataFrame:
                             ignore_index=True)  # fmt: skip
 
 
-def _run_cpu(plan: Plan, runs: list[Run], root: Path) -> dict[float, list[float]]:
-    """Each demand's accident runs' CPU seconds, from their cell records (none from a run reused from before cell
-    records, or whose record lies outside record_schemas.CELL_RECORD)."""
-    run_cpu: dict[float, list[float]] = {t: [] for t in plan.t_ups}
-    for r in runs:
-        record = read_json_object(root / "cells" / f"{r.key}.json")
-        if record is not None and CELL_RECORD.problem(record) is None and record.get("cell_cpu_s") is not None:
-            run_cpu[r.t_up].append(float(record["cell_cpu_s"]))
-    return run_cpu
-
-
 def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "local", address: str | None = None,
               progress: bool = True) -> int:  # fmt: skip
+    """Run (or finish) the study of `plan` in root on the shared study engine (engine/cells.Study: the cells still to
+    run, the trainings first and as groups on the local backend) and write its outputs; its exit code."""
     start = time.perf_counter()
     try:
         root.mkdir(parents=True, exist_ok=True)
@@ -347,34 +329,41 @@ def run_study(plan: Plan, root: Path, workers: int = 2, backend_name: str = "loc
         SCENARIO1_RUNS.read(beside / "runs.csv")
     settings = {preset: to_dict(learners()[preset]) for preset in plan.presets}  # the report's learner settings
     write_json(root / "plan.json", {"plan": to_dict(plan), "learners": settings, "versions": versions()})
-    specs, models, runs, n_train = _cells(plan, root)
-    n_cells = len(models) + len(runs)
-    if specs:
-        from coopsumo.sim.network import build_net
-
-        build_net(RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s))  # once here, not in the workers
-        backend = make_backend(backend_name, workers, address, run_cell)
-        try:
-            with sigterm_interrupts():
-                counts = execute(specs, root.resolve(), backend, n_cells, n_cells - len(specs), progress=progress,
-                                 failed_record=failed_record,
-                                 desc=f"{n_train} trainings, {len(specs) - n_train} accident runs")  # fmt: skip
-        finally:
-            backend.close()
-        if counts["failed"]:
-            failed = [s["key"] for s in specs if read_json(root / "cells" / f"{s['key']}.json")
-                      ["status"] != "ok"]  # fmt: skip
-            return failed_exit("scenario1", failed, len(specs), root)
-    rows = _runs_table(plan, runs)
-    SCENARIO1_RUNS.check_frame(rows, root / "runs.csv")  # both tables inside their limits before either is written
-    SCENARIO1_SUMMARY.check_frame(aggregate(rows), root / "summary.csv")
-    write_atomic(root / "runs.csv", lambda tmp: rows.to_csv(tmp, index=False))
-    wall = time.perf_counter() - start
-    timing = timing_text(plan, runs, [path for path, _ in models.values()], n_train, len(specs), wall,
-                         _run_cpu(plan, runs, root))  # fmt: skip
-    write_outputs(root, plan, rows, runs, timing)
+    specs, runs = _cells(plan, root)
+    trains = [s for s in specs if s["kind"] == "train"]  # a stored model is linked, never trained again
+    retrained = {s["key"] for s in trains if stored_model(s["config"], Path(s["store"]), root / s["out"]) is None}
+    print(f"scenario1: {len(trains) - len(retrained)} of {len(trains)} models from the model store "
+          f"{store_for(root)}; {len(retrained)} trainings to run", file=sys.stderr)  # fmt: skip
+    ran: dict[str, int] = {}  # how many accident runs the engine found still to run (its order's count)
+    study = Study("scenario1", CELLS, REQUIRED, places, lambda todo: ran.update(runs=sum(s["kind"] == "run"
+                                                                                      for s in todo)),
+                  checks=(partial(_redone, retrained),))  # fmt: skip
+    meta = study.run(specs, root, {}, plan.profile, partial(_finish, plan, root, runs, trains, len(retrained), ran,
+                                                            start), workers=workers, backend=backend_name,
+                     address=address, roads=[RoadConfig(lanes=plan.lanes, loop_period_s=plan.loop_period_s)],
+                     progress=progress)  # fmt: skip
+    if meta["failed_cells"]:
+        return failed_exit("scenario1", meta["failed_cells"], len(specs), root)
     print(f"scenario1: done in {(time.perf_counter() - start) / 60:.1f} min; report: {root / 'report.md'}")
     return 0
+
+
+def _finish(plan: Plan, root: Path, runs: list[Run], trains: list[dict[str, Any]], trained: int, ran: dict[str, int],
+            start: float, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
+    """runs.csv, summary.csv, the figures and report.md of the study when none of its cells failed (both tables
+    checked inside their limits before either is written); the report's timing counts the `trained` models and
+    ran["runs"] accident runs this invocation ran."""
+    if meta["failed_cells"]:
+        return
+    rows = _runs_table(plan, runs)
+    SCENARIO1_RUNS.check_frame(rows, root / "runs.csv")
+    SCENARIO1_SUMMARY.check_frame(aggregate(rows), root / "summary.csv")
+    write_atomic(root / "runs.csv", lambda tmp: rows.to_csv(tmp, index=False))
+    cpu: dict[str, Any] = {r["key"]: r.get("cell_cpu_s") for r in records}  # each demand's accident runs' CPU seconds
+    run_cpu = {t: [float(cpu[r.key]) for r in runs if r.t_up == t and cpu[r.key] is not None] for t in plan.t_ups}
+    timing = timing_note(time.perf_counter() - start, len(trains) - trained, len(trains), len(runs) - ran["runs"],
+                         len(runs), [root / s["out"] / "train_summary.json" for s in trains], run_cpu)  # fmt: skip
+    write_outputs(root, plan, rows, runs, timing)
 
 
 if __name__ == "__main__":

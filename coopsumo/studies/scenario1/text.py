@@ -9,7 +9,7 @@ from pathlib import Path
 from coopsumo.files import read_json
 from coopsumo.studies.engine.groups import group_cpu_s
 from coopsumo.studies.scenario1.measures import FIELD_DT_S, FIELD_DX_M, MIN_MODELS, N_BOOT, RECOVERY_MPS, SLOW_MPS
-from coopsumo.studies.scenario1.plan import Plan, Run
+from coopsumo.studies.scenario1.plan import Plan
 
 MODEL_DOC = "docs/model.md"
 """the one table of the project's deviations from the paper and its choices, in the source checkout"""
@@ -108,8 +108,3 @@ def timing_note(wall_s: float, models_reused: int, models: int, runs_reused: int
              "core-min), before the report's figures.")
     return text
 
-
-def timing_text(plan: Plan, runs: list[Run], model_files: list[Path], n_train: int, n_specs: int, wall: float,
-                run_cpu: dict[float, list[float]]) -> str:  # fmt: skip
-    return timing_note(wall, len(model_files) - n_train, len(model_files), len(runs) - (n_specs - n_train), len(runs),
-                       [m.parent / "train_summary.json" for m in model_files], run_cpu)  # fmt: skip
