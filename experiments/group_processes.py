@@ -58,7 +58,7 @@ def _role(me: int, parent: int, cmd: str) -> str:
     return "other (netconvert, git)"
 
 
-def main(k: int, steps: int) -> None:
+def main(k: int, steps: int) -> int:
     import torch
 
     from coopsumo.agents.group import train_group
@@ -98,10 +98,16 @@ def main(k: int, steps: int) -> None:
     print(json.dumps({"k": k, "steps": steps, "wall_s": round(wall, 1), "own_cpu_s": round(own, 1),
                       "roles": {r: sorted(v) for r, v in roles.items()},
                       "cpu_s_per_model": round(total / max(k, 1), 1)}))  # fmt: skip
+    return 0
 
 
 if __name__ == "__main__":  # the members are spawned: they import this file again
-    if len(sys.argv) not in (2, 3) or not all(a.isdigit() for a in sys.argv[1:]):
-        print("usage: experiments/group_processes.py K [STEPS]   (K = 0: a lone training)", file=sys.stderr)
+    words = sys.argv[1:]
+    if len(words) not in (1, 2) or not all(a.isascii() and a.isdigit() for a in words) or int(words[0]) > 16 \
+            or (len(words) == 2 and not 1 <= int(words[1]) <= 10_000_000):  # fmt: skip
+        print("usage: experiments/group_processes.py K [STEPS]   (K = 0: a lone training; K at most 16, STEPS from 1 "
+              "to 10,000,000)", file=sys.stderr)  # fmt: skip
         sys.exit(2)
-    main(int(sys.argv[1]), int(sys.argv[2]) if len(sys.argv) == 3 else 18_000)
+    from coopsumo.runio import run_cli
+
+    sys.exit(run_cli("group_processes", lambda: main(int(words[0]), int(words[1]) if len(words) == 2 else 18_000)))

@@ -12,21 +12,28 @@ the cores, as a study that keeps both busy. Used for issue 77's last target (doc
 from __future__ import annotations
 
 import argparse
-import csv
 import statistics
 import sys
 from collections import defaultdict
 from pathlib import Path
 
+from coopsumo.errors import UsageError
+from coopsumo.runio import run_cli
 from coopsumo.studies.scenario2.plan import PROFILES, cell_specs
 
 
 def read_rows(studies: list[Path]) -> list[dict[str, str]]:
-    """Every ok row of the studies' runs.csv."""
+    """Every ok row of the studies' runs.csv that measured its cell's CPU time, each table read through its schema
+    (study_tables.SCENARIO2_RUNS: RecordError naming the file, the row and the column; issue 82, probe 19, TB2: a
+    table without cell_cpu_s, or with blanks, was a traceback)."""
+    from coopsumo.study_tables import SCENARIO2_RUNS
+
     rows = []
     for study in studies:
-        with open(study / "runs.csv", newline="") as f:
-            rows += [r for r in csv.DictReader(f) if r["status"] == "ok"]
+        frame = SCENARIO2_RUNS.read(study / "runs.csv").astype(object)
+        frame = frame.where(frame.notna(), "")
+        rows += [{k: str(v) for k, v in r.items()} for r in frame.to_dict("records")
+                 if r["status"] == "ok" and r.get("cell_cpu_s", "") != ""]  # fmt: skip
     return rows
 
 
@@ -48,7 +55,7 @@ def estimate(profile_name: str, studies: list[Path], cores: int) -> dict[str, fl
     for spec in cell_specs(PROFILES[profile_name]):
         times = cell_cpu.get(_cell_class(spec["lanes"], spec["t_up_s"], spec["policy"], spec["p"]))
         if not times:
-            raise SystemExit(f"profile_cost: no cell of {spec['lanes']} lanes at T_up {spec['t_up_s']} s, "
+            raise UsageError(f"no cell of {spec['lanes']} lanes at T_up {spec['t_up_s']} s, "
                              f"policy {spec['policy']} in the studies read")  # fmt: skip
         evals += statistics.fmean(times)
         if spec.get("train_key") and spec["train_key"] not in seen:
@@ -67,10 +74,16 @@ def main(argv: list[str] | None = None) -> int:
     missing = [s for s in args.studies if not (s / "runs.csv").is_file()]
     if missing:
         p.error(f"no runs.csv in {missing[0]}")
-    e = estimate(args.profile, args.studies, args.cores)
-    print(f"{args.profile}: {e['trainings']:.0f} trainings {e['train_core_h']:.2f} core-h, evaluation cells "
-          f"{e['eval_core_h']:.2f} core-h; {e['wall_h']:.2f} h on {args.cores} cores")  # fmt: skip
-    return 0
+    if args.cores < 1:
+        p.error(f"--cores must be at least 1, got {args.cores}")
+
+    def body() -> int:
+        e = estimate(args.profile, args.studies, args.cores)
+        print(f"{args.profile}: {e['trainings']:.0f} trainings {e['train_core_h']:.2f} core-h, evaluation cells "
+              f"{e['eval_core_h']:.2f} core-h; {e['wall_h']:.2f} h on {args.cores} cores")  # fmt: skip
+        return 0
+
+    return run_cli("profile_cost", body)  # a table outside its schema: one line, exit 2
 
 
 if __name__ == "__main__":

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import sys
 from pathlib import Path
 from typing import Any
@@ -26,13 +25,22 @@ from typing import Any
 import numpy as np
 
 from coopsumo.agents.snapshots import SNAPSHOTS, by_score, result
+from coopsumo.errors import UsageError
+from coopsumo.files import read_json_object
+from coopsumo.runio import run_cli
 
 
 def full_trainings(store: Path, preset: str | None) -> list[tuple[str, dict[str, Any], list[dict[str, Any]]]]:
     """(name, learner settings, every snapshot's full validation) of each stored training validated whole."""
     found = []
+    if not store.is_dir():
+        raise UsageError(f"{store} is not a folder (a model store: results/models, or $COOPSUMO_MODELS)")
     for folder in sorted(p for p in store.iterdir() if (p / "config.json").is_file()):
-        dqn = json.loads((folder / "config.json").read_text())["config"]["dqn"]
+        config = read_json_object(folder / "config.json") or {}  # a folder no training wrote: passed over (probe 19)
+        dqn = config.get("config", {}).get("dqn") if isinstance(config.get("config"), dict) else None
+        if not isinstance(dqn, dict) or not isinstance(dqn.get("validation_t_ups"), list):
+            print(f"screening_reading: {folder} holds no training's config.json; passed over", file=sys.stderr)
+            continue
         if preset is not None and dqn.get("preset") != preset:
             continue
         snaps = sorted((folder / SNAPSHOTS).glob("step*"), key=lambda d: int(d.name[4:]))
@@ -82,6 +90,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("store", nargs="?", default="results/models", type=Path)
     parser.add_argument("--preset", default=None)
     args = parser.parse_args(argv)
+    return run_cli("screening_reading", lambda: _read(args))  # bad input: one line (issue 82, probe 19, TB2)
+
+
+def _read(args: argparse.Namespace) -> int:
     trainings = full_trainings(args.store, args.preset)
     if not trainings:
         print(f"screening_reading: no training of {args.store} validated every snapshot on every run",

@@ -58,7 +58,7 @@ def todays_update(cfg: DQNConfig, gen: torch.Generator) -> Callable[[int], None]
 
     def run(n: int) -> None:
         for i in range(n):
-            learn(online, target, optimizer, pool[i % POOL], cfg, None)
+            learn(online, target, optimizer, pool[i % POOL], cfg)
 
     return run
 
@@ -90,10 +90,15 @@ def main() -> None:
     parser.add_argument("--groups", default="1,2,4,8,16", help="group sizes K, comma-separated")
     parser.add_argument("--keep-malloc", action="store_true", help="do not call hold_freed_memory")
     args = parser.parse_args()
+    try:
+        ks = [int(k) for k in args.groups.split(",")]
+    except ValueError:
+        parser.error(f"--groups must be comma-separated group sizes, got {args.groups!r}")
+    if args.rounds < 1 or not ks or not all(1 <= k <= 64 for k in ks):
+        parser.error("--rounds must be at least 1 and every group size from 1 to 64")
     torch.set_num_threads(1)
     held = False if args.keep_malloc else hold_freed_memory()
     cfg = DQNConfig()
-    ks = [int(k) for k in args.groups.split(",")]
     gen = torch.Generator().manual_seed(0)
     today = todays_update(cfg, gen)
     groups = {k: stacked_update(cfg, k, gen) for k in ks}

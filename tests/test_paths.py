@@ -272,3 +272,20 @@ def test_a_link_that_leads_nowhere_is_refused_up_front(command: str, tmp_path: P
     assert code == 2 and len(err.strip().splitlines()) == 1 and stdout == "", err
     assert f"--out: '{link}' is a link that leads nowhere" in err, err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["lnk"] and link.is_symlink()
+
+
+@pytest.mark.sumo
+def test_a_network_netconvert_cannot_write_is_one_line(tmp_path: Path) -> None:
+    """Issue 82, probe 19, TB1: under a file-size limit (or a full networks folder) netconvert's network was cut short
+    or not written, and simulate, train and scenario1 ended in a RuntimeError traceback; now one line naming the
+    network, exit 1, no run folder."""
+    nets, out = tmp_path / "nets", tmp_path / "run"
+    env = {**os.environ, "COOPSUMO_NETS_DIR": str(nets), "PYTHONPATH": os.pathsep.join(sys.path)}
+    res = subprocess.run(["bash", "-c", f'ulimit -f 2; exec "{sys.executable}" -m coopsumo simulate --lanes 6 '
+                          f'--steps 20 --quiet --out "{out}"'], capture_output=True, text=True, env=env, timeout=300,
+                         check=False)  # fmt: skip
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 1 and len(lines) == 1 and "Traceback" not in res.stderr, res.stderr[-2000:]
+    assert lines[0].startswith("simulate: error: netconvert could not build the network (") and \
+        lines[0].endswith("highway_6lanes_2000m_w3.2_v33.34.net.xml"), lines  # fmt: skip
+    assert not out.exists() and not list(nets.glob("*.net.xml"))
