@@ -33,10 +33,11 @@ from coopsumo.config import ControlConfig, DemandConfig, RewardConfig, RoadConfi
 from coopsumo.dqn_config import PAPER_DQN
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
+from coopsumo.owners import owned_problem
 from coopsumo.provenance import package_version, versions
-from coopsumo.run_dirs import discard_run_dir, finish_run_dir, start_run_dir
+from coopsumo.run_dirs import atomic_run_dir
 from coopsumo.run_markers import SB3_KIND
-from coopsumo.runio import Parser, run_cli
+from coopsumo.runio import Parser, run_cli, run_interruptible
 from coopsumo.validation import (
     MAX_STEPS,
     MAX_T_UP_S,
@@ -180,22 +181,22 @@ def main(argv: list[str] | None = None) -> int:
 
         if importlib.util.find_spec("stable_baselines3") is None:
             raise UsageError("stable-baselines3 is not installed; install it with: pip install .[sb3]")
-        tmp = start_run_dir(args.out, SB3_KIND) if args.out is not None else None
-        try:
-            summary = train(args, tmp)
-        except BaseException:
-            if tmp is not None:
-                discard_run_dir(tmp)
-            raise
-        if tmp is not None:
-            finish_run_dir(tmp, args.out, SB3_KIND)  # its own kind: simulate refuses the folder, and it a run's
+        if args.out is None:
+            summary = train(args, None)
+        else:  # as simulate writes its folder (issue 82, probe 19: F1, O1)
+            if problem := owned_problem(args.out, f"--out {args.out}"):  # a study's, the store's, a run's folder
+                raise UsageError(problem)
+            with atomic_run_dir(args.out, SB3_KIND) as tmp:  # its lock held: no other command removes its run
+                summary = train(args, tmp)  # its own kind: simulate refuses the folder, and it a simulate run's
         print(
             f"episodes={summary['episodes']} mean_episode_reward={summary['mean_episode_reward']:.4g} "
             f"mean_episode_length={summary['mean_episode_length']:.4g} wall_seconds={summary['wall_seconds']:.1f}"
         )
         return 0
 
-    return run_cli("sb3_dqn", body)
+    # a Ctrl-C or SIGTERM anywhere is one line, the partial folder removed (issue 82, probe 19, O2: SIGTERM ended it
+    # without a line and left the folder)
+    return run_interruptible(lambda: run_cli("sb3_dqn", body), lambda: "sb3_dqn", whole_process=argv is None)
 
 
 if __name__ == "__main__":

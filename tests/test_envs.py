@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 import warnings
 from pathlib import Path
 from typing import Any
@@ -279,6 +280,40 @@ def test_sb3_dqn_script(tmp_path: Path) -> None:
     with pytest.raises(SB3ModelError, match=r"nan\.zip has non-finite values \(nan or inf\) in weights 'q_net\."):
         SB3Policy.from_spec(f"sb3:{tmp_path / 'nan.zip'}")
     assert SB3Policy.from_spec(f"sb3:{out / 'model.zip'}").name.startswith("sb3:")
+
+
+@pytest.mark.sumo
+def test_sb3_dqn_script_writes_its_folder_as_simulate_does(tmp_path: Path) -> None:
+    """Issue 82, probe 19: sb3_dqn.py took no lock (F1: it removed a running simulate's partial folder, and a simulate
+    removed its own), checked no owner (O1: it wrote inside a simulate run, a training, a study, a stored model) and
+    ended on SIGTERM without a line, its partial folder left (O2). Now it writes as simulate does."""
+    pytest.importorskip("stable_baselines3")
+    from coopsumo.run_dirs import out_lock
+
+    script = [sys.executable, "experiments/sb3_dqn.py", "--lanes", "2", "--warmup", "20"]
+    sim = subprocess.run([sys.executable, "-m", "coopsumo", "simulate", "--steps", "20", "--quiet", "--out",
+                          str(tmp_path / "run")], capture_output=True, text=True, cwd=REPO, timeout=300, check=False)
+    assert sim.returncode == 0, sim.stderr
+    inside = subprocess.run([*script, "--steps", "30", "--max-steps", "20", "--out", str(tmp_path / "run" / "sub")],
+                            capture_output=True, text=True, cwd=REPO, timeout=300, check=False)  # fmt: skip
+    assert inside.returncode == 2 and inside.stderr.count("\n") == 1, inside.stderr
+    assert "the folder of a coopsumo simulate run" in inside.stderr and not (tmp_path / "run" / "sub").exists()
+    busy = tmp_path / "busy"
+    with out_lock(busy, "simulate"):  # another command writes there
+        held = subprocess.run([*script, "--steps", "30", "--max-steps", "20", "--out", str(busy)],
+                              capture_output=True, text=True, cwd=REPO, timeout=300, check=False)  # fmt: skip
+    assert held.returncode == 2 and "another coopsumo command is writing" in held.stderr, held.stderr
+    proc = subprocess.Popen([*script, "--steps", "100000", "--max-steps", "200", "--out", str(tmp_path / "long")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=REPO)  # fmt: skip
+    end = time.monotonic() + 120
+    while not list(tmp_path.glob(".long.partial-*")):
+        assert proc.poll() is None and time.monotonic() < end, proc.communicate()
+        time.sleep(0.05)
+    time.sleep(1.0)
+    proc.terminate()
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 143 and err.strip().splitlines() == ["sb3_dqn: interrupted"], err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]  # no partial folder, no lock file left
 
 
 def test_sb3_dqn_script_rejects_bad_input(tmp_path: Path) -> None:
