@@ -650,3 +650,55 @@ def test_a_class_whose_module_name_cannot_be_hashed_still_drives(tmp_path: Path,
     monkeypatch.chdir(tmp_path)
     policy = make_policy("py:hb.py:ModHash", np.random.default_rng(0))
     assert list(policy.act([0, 0])) == [3, 3]  # act sees only len(obs)
+
+
+FORKING = '''
+import os
+import numpy as np
+
+class ForkInAct:
+    done = False
+
+    def act(self, obs):
+        if not ForkInAct.done:
+            ForkInAct.done = True
+            os.fork()
+        return np.full(len(obs), 3)
+
+class ForkInInit:
+    def __init__(self):
+        os.fork()
+
+    def act(self, obs):
+        return np.full(len(obs), 3)
+'''
+
+
+@pytest.mark.sumo
+@pytest.mark.parametrize(("cls", "where"), [("ForkInAct", "act(obs)"), ("ForkInInit", "its module or constructor")])
+def test_a_policy_that_forks_the_run_leaves_it_whole(cls: str, where: str, tmp_path: Path) -> None:
+    """Issue 82, probe 19, TR1: a py: policy that forked once had two copies of the run drive SUMO, both writing the
+    run's detectors.xml (every interval twice) and racing to finish its folder; the copy ends now, in one line, as it
+    returns into the run, and the run is the one a policy that never forked makes."""
+    import json
+    import subprocess
+    import sys
+
+    from coopsumo.studies.engine.run_checks import detectors_problem
+
+    (tmp_path / "forking.py").write_text(FORKING)
+    (tmp_path / "plain.py").write_text(FORKING.replace("os.fork()", "pass"))  # the same decisions, never forked
+    outs = {}
+    for name, policy in (("forked", f"py:forking.py:{cls}"), ("plain", f"py:plain.py:{cls}")):
+        done = subprocess.run([sys.executable, "-m", "coopsumo", "simulate", "--steps", "120", "--lanes", "2",
+                               "--quiet", "--policy", policy, "--out", name], cwd=tmp_path, capture_output=True,
+                              text=True, timeout=300, check=False)  # fmt: skip
+        assert done.returncode == 0, done.stderr
+        lines = done.stderr.strip().splitlines()
+        assert lines == ([] if name == "plain" else [line for line in lines if f"{where} forked process " in line])
+        assert len(lines) == (0 if name == "plain" else 1), lines
+        config = json.loads((tmp_path / name / "config.json").read_text())["config"]
+        assert detectors_problem(tmp_path / name / "detectors.xml", config, 12.0) is None
+        text = (tmp_path / name / "detectors.xml").read_text()
+        outs[name] = text[text.index("<interval"):]  # SUMO's header carries the time it ran
+    assert outs["forked"] == outs["plain"]

@@ -176,13 +176,33 @@ class UserPolicy:
         """The policy of 'py:MODULE:CLASS' (policy_spec), its class loaded, checked and made."""
         spec = parse_policy(text)
         assert spec.module is not None and spec.class_name is not None
+        pid = os.getpid()
         inner = _instance(load_class(spec.module, spec.class_name, text), rng, text)
-        return cls(inner, text, module_file(spec.module))
+        _end_if_forked(pid, text, "its module or constructor")
+        policy = cls(inner, text, module_file(spec.module))
+        policy.pid = pid
+        return policy
+
+    pid = 0
+    """the process the policy drives the run in (from_spec)"""
 
     def act(self, obs: Observation) -> np.ndarray:
         seen = _read_only(obs)  # the run reads obs again after act (probe 11, M5: nums set to 10**9 hung it; 12, N5)
         actions = _users(lambda: self.inner.act(seen), f"{self.text}: act(obs) raised")  # issue 82, probe 9 (K10)
+        _end_if_forked(self.pid, self.text, "act(obs)")
         return checked_actions(actions, len(obs), self.text)
+
+
+def _end_if_forked(pid: int, text: str, where: str) -> None:
+    """End this process at once (os._exit) when it is not `pid` but a copy the user's code forked and that returned
+    into the run: it would drive a second copy of the run's SUMO, which wrote every loop interval twice into the run's
+    detectors.xml (issue 82, probe 19, TR1). The run goes on in `pid`, untouched; a child that multiprocessing's fork
+    started never returns here."""
+    if pid and os.getpid() != pid:
+        print(f"{text}: {where} forked process {os.getpid()}, which would drive the run's SUMO a second time: it ends "
+              f"here, and the run goes on in process {pid} (a policy may start processes, not fork the run)",
+              file=sys.stderr, flush=True)  # fmt: skip
+        os._exit(2)
 
 
 def _read_only(obs: Observation) -> Observation:
