@@ -4,6 +4,8 @@ one line. The ground floor: imports nothing of coopsumo."""
 from __future__ import annotations
 
 import errno
+import os
+from pathlib import Path
 
 USAGE_EXIT = 2
 
@@ -62,3 +64,15 @@ def os_error_text(err: OSError) -> str:
     paths = [str(p) for p in (err.filename, err.filename2) if p is not None]
     return f"{text}: {' -> '.join(paths)}" if paths else text
 
+
+def gone_folder(err: OSError) -> str | None:
+    """The folder on the path of a file an OSError of ENOENT names that is not there (the nearest to the root), or
+    None: the file alone is missing, or the error is another."""
+    if err.errno != errno.ENOENT or not isinstance(err.filename, str) or not os.path.isabs(err.filename):
+        return None
+    missing = None
+    for folder in [*Path(err.filename).parents][:-1]:
+        if os.path.isdir(folder):
+            break
+        missing = folder
+    return None if missing is None else str(missing)

@@ -20,6 +20,7 @@ from coopsumo.errors import (
     NotRegularFileError,
     UsageError,
     first_line,
+    gone_folder,
     one_line,
     os_error_text,
 )
@@ -478,6 +479,10 @@ def run_cli(prog: str, body: Callable[[], int]) -> int:
         if err.filename is None and working_folder_problem():  # named nothing (issue 82, probe 18, O2)
             print(f"{prog}: error: the current folder was deleted while the command ran ({os_error_text(err)}); "
                   "change to an existing folder and run the command again", file=sys.stderr)  # fmt: skip
+            return 1
+        if (gone := gone_folder(err)) is not None:  # named only a temporary file in it (probe 19, O3)
+            print(f"{prog}: error: the folder {gone} is gone, moved or deleted while the command ran "
+                  f"({os_error_text(err)})", file=sys.stderr)  # fmt: skip
             return 1
         print(f"{prog}: error: {os_error_text(err)}", file=sys.stderr)
         return USAGE_EXIT if err.errno in USER_ERRNOS or isinstance(err, NotRegularFileError) else 1

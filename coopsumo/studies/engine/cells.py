@@ -23,7 +23,9 @@ run's summary with its evaluation seed and pools them (records.pool_summaries); 
 
 from __future__ import annotations
 
+import errno
 import json
+import os
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -337,6 +339,7 @@ class Study:
         for link in links:  # a real folder or file where a model's link belongs is the user's: refused first
             check_link(link)
         todo = todo_cells(root, specs, self.prog, self.required, self.checks, self.made)
+        folder = os.stat(root).st_ino  # the study's folder, made by todo_cells: the one its outputs go to
         check_run_places((place for s in todo for place in self.places(root, s)), in_place=self.in_place)
         retry = [s for s in todo if (read_record(root, s) or {}).get("status") == "failed"]
         self.order(todo)
@@ -351,5 +354,8 @@ class Study:
         meta.update(cells_run=len(todo), wall_seconds=round(perf_counter() - start, 1),
                     failed_cells=failed_keys(records),
                     cell_cpu_seconds_sum=study_cpu_s(records, links))
+        if not root.is_dir() or os.stat(root).st_ino != folder:  # issue 82, probe 19, O3: moved while the cells ran
+            raise OSError(errno.ESTALE, "the study's folder was moved or deleted while its cells ran (its cells are "
+                          "where it went): its tables and report are not written", str(root))  # fmt: skip
         finish(records, meta)
         return meta
