@@ -11,6 +11,7 @@ import math
 import os
 import re
 import stat
+import sys
 import tempfile
 import threading
 from collections.abc import Callable, Iterator, Sequence
@@ -136,6 +137,18 @@ def exit_between_writes(code: int) -> None:
     with _WRITES:
         _WRITES.wait_for(lambda: _ACTIVE[0] == 0)
         os._exit(code)
+
+
+def end_if_forked(pid: int, then: str) -> None:
+    """End this process at once (os._exit, one line on stderr ending with `then`) when it is not `pid` but a copy that
+    code the process ran forked (a policy of one's own) and that came back into the run: it would drive a second copy
+    of the run's SUMO and finish or discard the run's folder too, racing the run itself (issue 82, probes 19 and 20,
+    TR1: every loop interval twice in a run marked finished, a run folder gone after exit 0). A child that
+    multiprocessing's fork started never comes back into the run."""
+    if os.getpid() != pid:
+        print(f"coopsumo: process {os.getpid()}, a copy of process {pid} forked by code the run ran, ends here {then}",
+              file=sys.stderr, flush=True)  # fmt: skip
+        os._exit(2)
 
 
 def _write_beside(path: Path, write: Callable[[Path], Any], place: Callable[[Path, Path], None]) -> None:

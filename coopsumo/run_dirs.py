@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.errors import UsageError
-from coopsumo.files import TEMPORARY, left_temporaries, read_json, read_text, temporaries_of, write_json
+from coopsumo.files import TEMPORARY, end_if_forked, left_temporaries, read_json, read_text, temporaries_of, write_json
 from coopsumo.lock_files import ForeignLock, release_lock, try_lock
 from coopsumo.paths import nets_in_out_problem, out_path_problem, outside_link
 from coopsumo.provenance import package_version
@@ -486,12 +486,14 @@ def atomic_run_dir(out: Path, kind: str = "simulate") -> Iterator[Path]:
     (out_lock: a second command writing to the same folder is refused)."""
     check_out_path(out)
     check_run_dir(out.resolve(), kind)  # before the lock's parent folder is made
+    pid = os.getpid()  # a copy a policy forked neither finishes nor discards the run (issue 82, probe 20, TR1)
     with out_lock(out, kind):
         tmp = start_run_dir(out, kind)
         try:
             yield tmp
         except BaseException:
+            end_if_forked(pid, f"without touching {out}")
             discard_run_dir(tmp)
             raise
+        end_if_forked(pid, f"without touching {out}")
         finish_run_dir(tmp, out, kind)
-

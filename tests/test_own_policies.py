@@ -665,6 +665,21 @@ class ForkInAct:
             os.fork()
         return np.full(len(obs), 3)
 
+class Forking:
+    done = False
+
+    def __array__(self, dtype=None, copy=None):
+        if not Forking.done:
+            Forking.done = True
+            os.fork()
+        return np.full(self.n, 3)
+
+class ForkInArray:
+    def act(self, obs):
+        forking = Forking()
+        forking.n = len(obs)
+        return forking
+
 class ForkInInit:
     def __init__(self):
         os.fork()
@@ -675,7 +690,8 @@ class ForkInInit:
 
 
 @pytest.mark.sumo
-@pytest.mark.parametrize(("cls", "where"), [("ForkInAct", "act(obs)"), ("ForkInInit", "its module or constructor")])
+@pytest.mark.parametrize(("cls", "where"), [("ForkInAct", "act(obs)"), ("ForkInInit", "its module or constructor"),
+                                           ("ForkInArray", "what act(obs) gave")])  # probe 20, TR1: its __array__
 def test_a_policy_that_forks_the_run_leaves_it_whole(cls: str, where: str, tmp_path: Path) -> None:
     """Issue 82, probe 19, TR1: a py: policy that forked once had two copies of the run drive SUMO, both writing the
     run's detectors.xml (every interval twice) and racing to finish its folder; the copy ends now, in one line, as it
@@ -695,10 +711,35 @@ def test_a_policy_that_forks_the_run_leaves_it_whole(cls: str, where: str, tmp_p
                               text=True, timeout=300, check=False)  # fmt: skip
         assert done.returncode == 0, done.stderr
         lines = done.stderr.strip().splitlines()
-        assert lines == ([] if name == "plain" else [line for line in lines if f"{where} forked process " in line])
+        assert lines == ([] if name == "plain" else [line for line in lines if f"{where} forked it; " in line])
         assert len(lines) == (0 if name == "plain" else 1), lines
         config = json.loads((tmp_path / name / "config.json").read_text())["config"]
         assert detectors_problem(tmp_path / name / "detectors.xml", config, 12.0) is None
         text = (tmp_path / name / "detectors.xml").read_text()
         outs[name] = text[text.index("<interval"):]  # SUMO's header carries the time it ran
     assert outs["forked"] == outs["plain"]
+
+
+def test_a_copy_of_a_run_forked_by_its_code_neither_finishes_nor_discards_the_run(tmp_path: Path) -> None:
+    """Issue 82, probe 20, TR1: a copy a policy forked where no check caught it finished or discarded the run's folder
+    too (a run folder gone after exit 0); run_dirs.atomic_run_dir ends such a copy as it leaves the block."""
+    import subprocess
+    import sys
+
+    script = (
+        "import os, sys, time\n"
+        "from pathlib import Path\n"
+        "from coopsumo.run_dirs import atomic_run_dir\n"
+        "with atomic_run_dir(Path(sys.argv[1])) as tmp:\n"
+        "    (tmp / 'summary.json').write_text('{}')\n"
+        "    os.fork()\n"
+        "time.sleep(0.3)\n"
+        "print('finished')\n"
+    )  # fmt: skip
+    done = subprocess.run([sys.executable, "-c", script, str(tmp_path / "run")], capture_output=True, text=True,
+                          timeout=120, check=False)  # fmt: skip
+    assert done.returncode == 0 and done.stdout == "finished\n", done.stderr
+    line, = done.stderr.strip().splitlines()
+    assert "forked by code the run ran, ends here without touching" in line, line
+    assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [".coopsumo-run.json", "summary.json"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]

@@ -29,7 +29,7 @@ from typing import Any, TypeVar
 import numpy as np
 
 from coopsumo.errors import UsageError, first_line
-from coopsumo.files import file_sha256
+from coopsumo.files import end_if_forked, file_sha256
 from coopsumo.policy_spec import module_file, parse_policy
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import ACTION_NAMES
@@ -190,19 +190,16 @@ class UserPolicy:
         seen = _read_only(obs)  # the run reads obs again after act (probe 11, M5: nums set to 10**9 hung it; 12, N5)
         actions = _users(lambda: self.inner.act(seen), f"{self.text}: act(obs) raised")  # issue 82, probe 9 (K10)
         _end_if_forked(self.pid, self.text, "act(obs)")
-        return checked_actions(actions, len(obs), self.text)
+        try:
+            return checked_actions(actions, len(obs), self.text)  # runs what act gave's own code (its __array__)
+        finally:
+            _end_if_forked(self.pid, self.text, "what act(obs) gave")  # probe 20, TR1
 
 
 def _end_if_forked(pid: int, text: str, where: str) -> None:
-    """End this process at once (os._exit) when it is not `pid` but a copy the user's code forked and that returned
-    into the run: it would drive a second copy of the run's SUMO, which wrote every loop interval twice into the run's
-    detectors.xml (issue 82, probe 19, TR1). The run goes on in `pid`, untouched; a child that multiprocessing's fork
-    started never returns here."""
-    if pid and os.getpid() != pid:
-        print(f"{text}: {where} forked process {os.getpid()}, which would drive the run's SUMO a second time: it ends "
-              f"here, and the run goes on in process {pid} (a policy may start processes, not fork the run)",
-              file=sys.stderr, flush=True)  # fmt: skip
-        os._exit(2)
+    """files.end_if_forked, the line naming the policy and what of it forked (probe 19, TR1)."""
+    if pid:
+        end_if_forked(pid, f"(the policy {text}: {where} forked it; the run goes on in process {pid})")
 
 
 def _read_only(obs: Observation) -> Observation:

@@ -242,6 +242,8 @@ def net_file_refusal(path: str) -> str:
 
     if kind := not_regular(Path(path)):  # sumolib would wait on a named pipe for ever (issue 82, probe 18, O1)
         return f"{path} is not a regular file but {kind}"
+    if not Path(path).exists():  # sumolib calls it no network (probe 20, O2)
+        return f"no such file: {path}"
     try:
         net = sumolib.net.readNet(path)
     except Exception as err:  # sumolib raises many types (a missing file, XML errors) for a file it cannot read
