@@ -405,3 +405,28 @@ def test_parts_of_an_earlier_default_are_refused_under_todays(tmp_path: Path, ca
     code, err = merge(capsys, parts, tmp_path / "merged")
     assert code == 2 and len(err) == 1 and "records another learner than its profile full trains" in err[0], err
     assert not (tmp_path / "merged").exists()
+
+
+def test_a_merge_stopped_before_its_report_is_no_finished_part(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                                               monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
+    """Issue 82, probe 20, O3: SIGTERM while a merge drew its report left its tables and sweep.json, and a later merge
+    took the folder as a finished part (exit 0). A merge's sweep.json comes last now: one stopped before it holds
+    none, and is refused as a part in one line; the merge run again finishes it."""
+    from coopsumo.studies.scenario2 import redraw
+
+    parts = [copy_part("L4a", tmp_path), copy_part("L4b", tmp_path)]
+    out = tmp_path / "merged"
+    assert merge(capsys, parts, out)[0] == 0 and (out / "sweep.json").is_file()
+    drawn = redraw.write_lane_outputs
+
+    def stopped(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt  # as SIGTERM's Stop lands while the figures are drawn
+
+    monkeypatch.setattr(redraw, "write_lane_outputs", stopped)
+    assert merge(capsys, parts, out)[0] == 130
+    assert (out / "runs.csv").is_file() and not (out / "sweep.json").exists()
+    code, err = merge(capsys, [out], tmp_path / "again")
+    assert code == 2 and len(err) == 1 and f"{out} is not a finished scenario2 sweep (sweep.json: " in err[0], err
+    assert not (tmp_path / "again").exists()
+    monkeypatch.setattr(redraw, "write_lane_outputs", drawn)
+    assert merge(capsys, parts, out)[0] == 0 and (out / "sweep.json").is_file()

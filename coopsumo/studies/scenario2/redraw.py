@@ -47,7 +47,13 @@ def rewrite_outputs(root: Path) -> dict[str, Any]:
     again); the bootstraps are seeded, so the numbers come out as they were (scenario2_gate_report). Returns
     sweep.json's new content. A sweep of the retired per-alpha design (plan.per_alpha_sweep: results/archive's) is
     refused, one UsageError naming the commit that redraws it."""
-    meta = read_json(root / "sweep.json")
+    return _draw(root, read_json(root / "sweep.json"))
+
+
+def _draw(root: Path, meta: dict[str, Any]) -> dict[str, Any]:
+    """rewrite_outputs with the sweep's record `meta`, sweep.json written last: a merge removes its folder's first,
+    so that one cut short holds none and is no finished sweep (issue 82, probe 20, O3: a merge stopped by SIGTERM
+    left its tables and sweep.json without its report, and a later merge took it as a part)."""
     if per_alpha_sweep(meta["profile"]):
         raise UsageError(f"{root} holds a sweep of scenario II's per-alpha design, retired on 2026-12-03: redraw it "
                          f"at commit {RETIRED_PER_ALPHA}")  # fmt: skip
@@ -417,10 +423,10 @@ def merge_parts(parts: list[Part], out: Path) -> dict[str, Any]:
                         "workers": part.meta["workers"], "versions": part.meta["versions"]}
                        for part in parts]  # fmt: skip
     out.mkdir(parents=True, exist_ok=True)
+    (out / "sweep.json").unlink(missing_ok=True)  # an earlier merge's: written again last (_draw)
     write_atomic(out / "runs.csv", lambda tmp: runs.to_csv(tmp, index=False))
     write_atomic(out / "evals.csv", lambda tmp: evals.to_csv(tmp, index=False))
-    write_json(out / "sweep.json", merged)
-    return rewrite_outputs(out)
+    return _draw(out, json.loads(json.dumps(merged)))  # as read back from sweep.json (lists, not tuples)
 
 
 MERGE_ALONE = ("profile", "steps", "eval_steps", "seeds", "eval_seeds", "lanes", "alphas", "t_up", "policies",
