@@ -134,9 +134,11 @@ def test_a_study_folder_linked_from_elsewhere_is_linked_where_its_link_is(tmp_pa
     (results / "history" / "learner_protocol_back").symlink_to(Path("../../outside/learner_protocol_g0.8"))
     res = _history("--results", "results", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
-    links = {"learner_protocol_back": "learner_protocol_back", "learner_protocol_g0.95": "../learner_protocol_g0.95",
-             "learner_protocol_link": "../learner_protocol_link"}  # relative to results/history/
+    links = {"learner_protocol_back": "learner_protocol_back", "learner_protocol_g0.95": "../learner_protocol_g0.95"}
     assert sorted(row["report"] for row in _columns(res.stdout)) == [f"[{k}]({v}/report.md)" for k, v in links.items()]
+    # the second link to the same study is that study, listed once (probe 20, TR2)
+    assert res.stderr.strip().endswith("learner_protocol_link is the study of results/history/learner_protocol_back "
+                                       "(a link to it or a copy of it): listed once"), res.stderr  # fmt: skip
 
 
 def _one_study(results: Path, gamma: float = 0.95) -> None:
@@ -450,3 +452,20 @@ def test_a_closed_stdout_is_no_traceback(tmp_path: Path) -> None:
     res = subprocess.run(["bash", "-c", f'exec "{sys.executable}" -m coopsumo history --results "{results}" >&-'],
                          cwd=tmp_path, capture_output=True, text=True, check=False)  # fmt: skip
     assert (res.returncode, res.stderr) == (0, ""), res.stderr
+
+
+def test_a_study_linked_or_copied_is_listed_once(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Issue 82, probe 20, TR2: a link to a protocol study, or a copy of it, under --results was listed as a second
+    study ("4 learners judged" for 2), without a line; now once, the other named in one line."""
+    learner = json.loads(json.dumps(to_dict(DQN_PRESETS["default"])))
+    study = tmp_path / "history" / "learner_protocol_x"
+    _study(study, learner, {}, [_row("free", 2.0, 20.0, 18.0, 0.9)])
+    (tmp_path / "learner_protocol_link").symlink_to(study)
+    shutil.copytree(study, tmp_path / "learner_protocol_copy")
+    capsys.readouterr()
+    kept = history.study_folders(tmp_path)  # the first by name of the three: the copy
+    assert kept == [tmp_path / "learner_protocol_copy"]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 2 and all(line.endswith(f"is the study of {kept[0]} (a link to it or a copy of it): listed once")
+                                 for line in err), err  # fmt: skip
+    assert len(_columns(history.table(tmp_path))) == 1

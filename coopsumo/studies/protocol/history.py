@@ -50,7 +50,30 @@ def study_folders(results: Path) -> list[Path]:
     """Every learner protocol study under results/ and results/history/, oldest commit first where git knows."""
     found = [p for base in (results, results / "history") if base.is_dir() for p in sorted(base.iterdir())
              if p.is_dir() and all((p / name).is_file() for name in STATS)]  # fmt: skip
-    return sorted(found, key=lambda p: (added(p)[1] or "9999", p.name))
+    return _once(sorted(found, key=lambda p: (added(p)[1] or "9999", p.name)))
+
+
+def _once(folders: list[Path]) -> list[Path]:
+    """`folders` with each study once: a link to a study listed, or a copy of one (the same study.json and stats.csv),
+    is named in one line on stderr and left out (issue 82, probe 20, TR2: "4 learners judged" for 2)."""
+    import sys
+
+    seen: dict[tuple[str, ...], Path] = {}
+    kept = []
+    for folder in folders:
+        try:
+            key = (os.path.realpath(folder), *(hashlib.sha256((folder / n).read_bytes()).hexdigest() for n in STATS))
+        except OSError:  # unreadable: judged, and named, when it is read
+            kept.append(folder)
+            continue
+        first = next((f for k, f in seen.items() if k[0] == key[0] or k[1:] == key[1:]), None)
+        if first is not None:
+            print(f"history: {folder} is the study of {first} (a link to it or a copy of it): listed once",
+                  file=sys.stderr)  # fmt: skip
+            continue
+        seen[key] = folder
+        kept.append(folder)
+    return kept
 
 
 def added(folder: Path) -> tuple[str, str]:
