@@ -318,3 +318,17 @@ def made_by(readme: Path = REPO / "results" / "README.md") -> dict[str, tuple[st
     rows = text.split(MADE_BY, 1)[1].split("\n## ", 1)[0]
     found = re.findall(r"^\| `([\w/]+?)/?` \| `(\w+)` \| `?([0-9a-f]{7,40})`? \|", rows, flags=re.MULTILINE)
     return {folder: (variant, commit) for folder, variant, commit in found}
+
+
+SLOWEST_FIRST = ("test_early_interrupts.py", "test_scenario2.py", "test_scenario1.py", "test_cluster.py",
+                 "test_protocol.py", "test_train.py", "test_docs.py", "test_scenario2_full.py", "test_interrupts.py",
+                 "test_faults.py", "test_reused_models.py", "test_faults_scenario1.py", "test_ablation.py",
+                 "test_scenario2_merge.py", "test_runner.py", "test_replication.py", "test_conditioned.py")
+"""the files that take longest (make test's --durations), scheduled first: `make test` runs files on 2 processes
+(xdist's loadfile), in collection order, and a long file started last kept one process busy alone at the end (a
+scheduling hint only: each file's tests keep their order, and no test depends on another file's)"""
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    rank = {name: i for i, name in enumerate(SLOWEST_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable: the order within a file kept
