@@ -76,6 +76,8 @@ SCENARIO1_MEASURES = (
     Field("teleports", COUNT),
 )
 """scenario I's measures of one accident run (scenario1.measures.run_metrics), each summarised in summary.csv"""
+
+
 @dataclasses.dataclass(frozen=True)
 class ClosedTable(Table):
     """A Table whose writer writes no other columns than its fields (a `_x` field: every column ending with it) and

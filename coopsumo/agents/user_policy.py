@@ -158,9 +158,11 @@ class UserPolicy:
     """The user's policy object behind the policy interface: its attributes checked once, every decision checked
     (one integer 0-3 per vehicle)."""
 
-    def __init__(self, inner: Any, text: str, file: str | None) -> None:
+    def __init__(self, inner: Any, text: str, file: str | None, pid: int | None = None) -> None:
         self.inner = inner
         self.text = text
+        self.pid = os.getpid() if pid is None else pid
+        """the process the policy drives the run in (from_spec: the one that loaded its class)"""
         _said_in_one_line(_class_file(type(inner)), text)
         self.name = _attribute(inner, "name", type(inner).__name__, text)
         self.needs_grids = _attribute(inner, "needs_grids", True, text)
@@ -179,12 +181,7 @@ class UserPolicy:
         pid = os.getpid()
         inner = _instance(load_class(spec.module, spec.class_name, text), rng, text)
         _end_if_forked(pid, text, "its module or constructor")
-        policy = cls(inner, text, module_file(spec.module))
-        policy.pid = pid
-        return policy
-
-    pid = 0
-    """the process the policy drives the run in (from_spec)"""
+        return cls(inner, text, module_file(spec.module), pid)
 
     def act(self, obs: Observation) -> np.ndarray:
         seen = _read_only(obs)  # the run reads obs again after act (probe 11, M5: nums set to 10**9 hung it; 12, N5)
@@ -198,8 +195,7 @@ class UserPolicy:
 
 def _end_if_forked(pid: int, text: str, where: str) -> None:
     """files.end_if_forked, the line naming the policy and what of it forked (probe 19, TR1)."""
-    if pid:
-        end_if_forked(pid, f"(the policy {text}: {where} forked it; the run goes on in process {pid})")
+    end_if_forked(pid, f"(the policy {text}: {where} forked it; the run goes on in process {pid})")
 
 
 def _read_only(obs: Observation) -> Observation:

@@ -114,10 +114,10 @@ def build_net(road: RoadConfig, folder: Path | None = None) -> Path:
         result = subprocess.run(cmd, capture_output=True, text=True, check=False)
         text = read_text(Path(tmp), errors="replace") if result.returncode == 0 else ""
         if result.returncode != 0:
-            said: str | None = (result.stderr.strip().splitlines() or [f"exit code {result.returncode}"])[-1]
-        else:
-            said = None if (problem := _content_problem(text, road)) is None else f"its network is {problem}"
-        if said is not None:  # a full networks folder, a file-size limit (issue 82, probe 19, TB1: a traceback)
+            said = (result.stderr.strip().splitlines() or [f"exit code {result.returncode}"])[-1]
+        elif problem := _content_problem(text, road):
+            said = f"its network is {problem}"
+        if result.returncode != 0 or problem:  # a full networks folder, a file-size limit (probe 19, TB1: a traceback)
             raise OSError(errno.EIO, f"netconvert could not build the network ({said}; is the networks folder full, "
                           "or a file-size limit set?)", str(net_path))  # fmt: skip
         Path(tmp).write_text(text + f"{SEAL_OPEN}{_digest(text)}{SEAL_CLOSE}\n")

@@ -58,20 +58,21 @@ def _once(folders: list[Path]) -> list[Path]:
     is named in one line on stderr and left out (issue 82, probe 20, TR2: "4 learners judged" for 2)."""
     import sys
 
-    seen: dict[tuple[str, ...], Path] = {}
+    by_place: dict[str, Path] = {}
+    by_content: dict[tuple[str, ...], Path] = {}
     kept = []
     for folder in folders:
         try:
-            key = (os.path.realpath(folder), *(hashlib.sha256((folder / n).read_bytes()).hexdigest() for n in STATS))
+            content = tuple(hashlib.sha256((folder / n).read_bytes()).hexdigest() for n in STATS)
         except OSError:  # unreadable: judged, and named, when it is read
             kept.append(folder)
             continue
-        first = next((f for k, f in seen.items() if k[0] == key[0] or k[1:] == key[1:]), None)
-        if first is not None:
+        place = os.path.realpath(folder)
+        if (first := by_place.get(place) or by_content.get(content)) is not None:
             print(f"history: {folder} is the study of {first} (a link to it or a copy of it): listed once",
                   file=sys.stderr)  # fmt: skip
             continue
-        seen[key] = folder
+        by_place[place] = by_content[content] = folder
         kept.append(folder)
     return kept
 
