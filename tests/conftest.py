@@ -7,6 +7,7 @@ libsumo allows one SUMO per process: in-process SUMO tests open one World at a t
 
 from __future__ import annotations
 
+import fcntl
 import os
 import re
 import shutil
@@ -14,6 +15,7 @@ import signal
 import subprocess
 import sys
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -104,6 +106,34 @@ def sim_config(
         seed=seed,
         policy=policy,
     )
+
+
+@pytest.fixture(scope="session")
+def ray_lock(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The file every test process of one `make test` locks while it runs Ray (under xdist each process's temporary
+    folder is a child of one run folder)."""
+    base = tmp_path_factory.getbasetemp()
+    return (base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base) / "ray.lock"
+
+
+@contextmanager
+def one_ray_at_a_time(lock: Path) -> Iterator[None]:
+    """Ray instances started at once on one machine can draw the same port for two of their parts (Ray issue 18053,
+    about 1% of starts): a node then fails, and a study's process ended with exit code 1 and no line of its own (a CI
+    run's `bench --cluster` while another test process started Ray). The tests that start Ray run one at a time."""
+    with lock.open("a") as f:
+        fcntl.flock(f, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(f, fcntl.LOCK_UN)
+
+
+@pytest.fixture
+def ray_alone(ray_lock: Path) -> Iterator[None]:
+    """A test that starts Ray holds the lock the other test processes' Ray tests wait for."""
+    with one_ray_at_a_time(ray_lock):
+        yield
 
 
 @pytest.fixture(scope="session")

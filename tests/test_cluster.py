@@ -14,12 +14,20 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import one_ray_at_a_time
 
 pytestmark = pytest.mark.sumo
 REPO = Path(__file__).resolve().parent.parent
 STUDY = ["-m", "coopsumo", "scenario1", "--regime-map", "--t-up", "2,1", "--seeds", "1", "--steps", "300", "--quiet"]
 """`keep` at 2 demands x 2 accident lengths x 1 seed: 4 short cells, two a node (a Ray task starts a fresh worker
 process, so the node is removed while cells run on it or wait for it)"""
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _ray_alone(ray_lock: Path) -> Iterator[None]:
+    """The module's clusters start while no other test process runs Ray (conftest.one_ray_at_a_time)."""
+    with one_ray_at_a_time(ray_lock):
+        yield
 
 
 @pytest.fixture(scope="module")
@@ -152,3 +160,20 @@ def test_without_address_ray_starts_its_own_instance_beside_a_running_cluster(cl
                          timeout=300, check=False)  # fmt: skip
     assert res.returncode == 0, res.stderr[-2000:]
     assert "slots 3" in res.stdout
+
+
+def test_a_failed_study_of_the_cluster_bench_is_one_line_and_exit_code_1(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A study of `bench --cluster` that failed (a CI run: exit code 1, no line of its own) is named in one line with
+    its exit code, not a traceback."""
+    from coopsumo.bench import cluster as bench
+
+    def failing(*_args: Any, **_kw: Any) -> dict[str, float]:
+        raise bench.ClusterBenchError("`-m coopsumo scenario1 --backend ray` ended with exit code 1: no line")
+
+    monkeypatch.setattr(bench, "bench_cluster", failing)
+    assert bench.cluster_lines(quick=True) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("coopsumo bench: error: `-m coopsumo scenario1")
+    assert "exit code 1" in err

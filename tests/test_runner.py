@@ -101,7 +101,7 @@ def test_a_rerun_skips_finished_cells(tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.glob("ran_*")) == ["ran_c3"]
 
 
-def test_local_and_ray_give_the_same_records(tmp_path: Path) -> None:
+def test_local_and_ray_give_the_same_records(tmp_path: Path, ray_alone: None) -> None:
     cloudpickle = pytest.importorskip("ray.cloudpickle")
     cloudpickle.register_pickle_by_value(sys.modules[__name__])  # Ray's workers cannot import this test module
     specs = specs_of([1, 2, 3, 4], after={4: 2})
@@ -121,7 +121,7 @@ def test_local_and_ray_give_the_same_records(tmp_path: Path) -> None:
 
 
 @pytest.mark.sumo
-def test_scenario1_on_ray_gives_the_same_summary_as_local(tmp_path: Path) -> None:
+def test_scenario1_on_ray_gives_the_same_summary_as_local(tmp_path: Path, ray_alone: None) -> None:
     pytest.importorskip("ray")
     tables = {}
     for backend in ("local", "ray"):

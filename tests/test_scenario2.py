@@ -533,7 +533,7 @@ def test_parts_of_a_profile_without_trajectories_merge(local_sweep: Path, tmp_pa
 
 
 @pytest.mark.sumo
-def test_tiny_sweep_ray_matches_local(local_sweep: Path, tmp_path: Path) -> None:
+def test_tiny_sweep_ray_matches_local(local_sweep: Path, tmp_path: Path, ray_alone: None) -> None:
     pytest.importorskip("ray", reason="ray is not installed: the ray backend cannot be tested")
     out = tmp_path / "ray"
     run_sweep_cli(out, "--backend", "ray", "--workers", "2")

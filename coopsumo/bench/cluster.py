@@ -10,6 +10,10 @@ from pathlib import Path
 
 CLUSTER_STUDY = ("scenario1", "--regime-map", "--t-up", "2,1.5,1", "--seeds", "2")
 """the study of the cluster measurement: `keep` at 3 demands x 2 accident lengths x 2 seeds, 12 cells"""
+class ClusterBenchError(RuntimeError):
+    """A study of the cluster bench failed, or the backends' records disagree."""
+
+
 CLUSTER_QUICK = ("scenario1", "--regime-map", "--t-up", "2", "--seeds", "1")
 """--quick: 2 cells"""
 
@@ -27,8 +31,10 @@ def bench_cluster(study_args: tuple[str, ...], steps: int, warm_up: bool = True)
                *backend]  # fmt: skip
         start = time.perf_counter()
         res = subprocess.run(cmd, capture_output=True, text=True, check=False)
-        if res.returncode != 0:
-            raise RuntimeError(f"{' '.join(cmd)} failed: {res.stderr.strip().splitlines()[-1:]}")
+        if res.returncode != 0:  # its lines after the study's first one, or none (Ray ended it: Ray's logs say why)
+            said = " / ".join(res.stderr.strip().splitlines()[1:][-3:]) or "no line of its own (Ray's logs in " \
+                "/tmp/ray/session_latest/logs may say why)"
+            raise ClusterBenchError(f"`{' '.join(cmd[1:])}` ended with exit code {res.returncode}: {said}")
         return time.perf_counter() - start
 
     times: dict[str, float] = {}
@@ -53,17 +59,23 @@ def bench_cluster(study_args: tuple[str, ...], steps: int, warm_up: bool = True)
                 cluster.shutdown()
         runs = {p.parent.name: p.read_text() for p in Path(tmp).glob("*/runs.csv") if p.parent.name != "warm-up"}
         if len(set(runs.values())) != 1:
-            raise RuntimeError(f"the backends disagree: runs.csv differs between {sorted(runs)}")
+            raise ClusterBenchError(f"the backends disagree: runs.csv differs between {sorted(runs)}")
     return times
 
 
-def cluster_lines(quick: bool) -> None:
-    """bench --cluster's lines: the study, each backend's wall time, the scaling from one node to two."""
+def cluster_lines(quick: bool) -> int:
+    """bench --cluster's lines: the study, each backend's wall time, the scaling from one node to two; the exit code
+    (1 with one line when a study failed or the backends disagree)."""
     cell_steps, study = (100, CLUSTER_QUICK) if quick else (3000, CLUSTER_STUDY)
     print(f"coopsumo bench --cluster: {' '.join(study)}, {cell_steps} steps a cell", flush=True)
-    times = bench_cluster(study, cell_steps, warm_up=not quick)
+    try:
+        times = bench_cluster(study, cell_steps, warm_up=not quick)
+    except ClusterBenchError as err:
+        print(f"coopsumo bench: error: {err}", file=sys.stderr)
+        return 1
     for name, wall in times.items():
         print(f"  {name:16s}: {wall:6.1f} s", flush=True)
     print(f"cluster scaling {times['ray, 1 node'] / times['ray, 2 nodes']:.2f}  (wall time on 1 node / on 2 nodes "
           f"of one CPU each; local backend {times['local, 1 worker'] / times['local, 2 workers']:.2f} from 1 to "
           "2 workers; the same runs.csv everywhere)", flush=True)  # fmt: skip
+    return 0

@@ -435,8 +435,7 @@ def _main(argv: list[str] | None) -> int:
             parser.error("--cluster needs Ray: .venv/bin/pip install 'ray[default]'")
         from coopsumo.bench.cluster import cluster_lines
 
-        cluster_lines(quick)
-        return 0
+        return cluster_lines(quick)
     import torch
 
     torch.set_num_threads(1)
