@@ -295,7 +295,8 @@ def test_a_run_written_in_place_again_leaves_a_hard_linked_copy_of_its_folder_as
 def test_a_users_file_in_a_run_folder_written_in_place_is_refused_or_kept(tmp_path: Path) -> None:
     """Issue 82, probe 10 (L2): a user's `.notes.tmp` in a scenario II run folder was taken as a run's temporary and
     deleted by the cell's rerun, and a user's fcd.xml in a run that writes none was deleted too. A temporary of a
-    run's own file ('.NAME.XXXXXXXX.tmp') is the run's; a user's dot-file is refused; an output name the run does not
+    run's own file ('.NAME.XXXXXXXX.tmp') is the run's, removed by the rerun (a killed write's left in a finished
+    folder: test_scenario2's interrupted sweep, once); a user's dot-file is refused; an output name the run does not
     write is kept."""
     from coopsumo.errors import UsageError
     from coopsumo.studies.engine.run_folders import check_run_places
@@ -312,3 +313,4 @@ def test_a_users_file_in_a_run_folder_written_in_place_is_refused_or_kept(tmp_pa
     check_run_places([out], in_place=True)
     simulate_into(to_dict(CFG), out, "run")  # writes no FCD
     assert (out / "fcd.xml").read_text() == "my fcd\n"
+    assert not (out / ".detectors.xml.abcd1234.tmp").exists()  # the run's own, left by a killed write: removed

@@ -65,8 +65,11 @@ def fresh_in_place(out: Path) -> None:
     new files rather than through them: SUMO and the trajectory writer open their outputs in place, which changed a
     hard-linked snapshot of the folder (`cp -al`, `rsync --link-dest`; issue 82, probe 9, K7). A file with no other
     link is left to be written again, or kept when the run does not write it (probe 10, L2: a user's fcd.xml in a
-    run that writes none was deleted)."""
+    run that writes none was deleted). The temporaries a killed write left of the run's own files ('.NAME.XXXXXXXX.tmp':
+    check_run_places took them as the run's) are removed: a rerun of the cell left them in its finished folder."""
     out.mkdir(parents=True, exist_ok=True)
+    for left in left_temporaries(out, RUN_FILES):
+        left.unlink(missing_ok=True)
     for p in out.iterdir():
         if (p.is_file() and not p.is_symlink() and p.stat().st_nlink > 1
                 and any(fnmatch.fnmatchcase(p.name, pat) for pat in RUN_OUTPUTS)):  # fmt: skip
