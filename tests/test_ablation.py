@@ -152,10 +152,15 @@ def failing_cell(spec: dict[str, object], root: str) -> dict[str, object]:
 
 def test_an_all_failed_study_exits_1_and_gives_no_verdict(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                           capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    from coopsumo.studies.engine import cells
+    """Its cells are recorded failed at once (failing_cell), so no cell reads a model: the stacked learner's trainings,
+    which the engine runs as groups before the cells, are skipped too (as tests/test_scenario2.py's faked_train skips
+    them; the groups train for real in test_tiny_study_runs_and_a_rerun_reuses_every_cell). They trained a group of
+    real models in SUMO here that no assertion read (10 to 20 s)."""
+    from coopsumo.studies.engine import cells, groups
     from coopsumo.studies.learning import study as ablation
 
     monkeypatch.setattr(cells, "make_backend", lambda name, workers, address, cell_fn: InlineBackend(failing_cell))
+    monkeypatch.setattr(groups, "train_groups", lambda *a, **k: 0)
     monkeypatch.setattr("coopsumo.sim.network.build_net", lambda road: None)
     from coopsumo.run_dirs import mark_run_dir
     from coopsumo.run_markers import LEARNING_KIND

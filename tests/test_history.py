@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from conftest import main_here
 
 from coopsumo.config import to_dict
 from coopsumo.dqn_config import DQN_PRESETS
@@ -35,6 +36,16 @@ def _columns(text: str) -> list[dict[str, str]]:
 def _history(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "coopsumo", "history", *args], cwd=cwd, capture_output=True,
                           text=True, check=False)  # fmt: skip
+
+
+def _history_here(args: list[str], cwd: Path, monkeypatch: pytest.MonkeyPatch,
+                  capsys: pytest.CaptureFixture[str]) -> subprocess.CompletedProcess[str]:  # fmt: skip
+    """_history's command by history's main in this process, in cwd, for the refusals after a test's first, which runs
+    as a process (a process each: about half a second of the suite's time per refusal)."""
+    with monkeypatch.context() as patch:
+        patch.chdir(cwd)
+        code, out, err = main_here(history.main, args, capsys)
+    return subprocess.CompletedProcess(["history", *args], code, out, err)
 
 
 def test_committed_table_is_what_the_command_prints() -> None:
@@ -174,7 +185,9 @@ def test_out_writes_a_new_file_then_only_its_own_table(tmp_path: Path) -> None:
     assert out.read_text() == history.table(results) and len(_columns(out.read_text())) == 2
 
 
-def test_out_refuses_a_file_it_did_not_write(tmp_path: Path) -> None:
+def test_out_refuses_a_file_it_did_not_write(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                             capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
+    """The first refusal as a process, as a user meets it; the others by history's main in this process."""
     results = tmp_path / "results"
     _one_study(results)
     mine = history.table(results).splitlines()
@@ -189,17 +202,20 @@ def test_out_refuses_a_file_it_did_not_write(tmp_path: Path) -> None:
         (tmp_path / name).write_text(text, encoding="latin-1")
     (tmp_path / "folder.md").mkdir()
     before = _files(tmp_path)
-    for name in [*others, "folder.md"]:
-        res = _history("--results", str(results), "--out", str(tmp_path / name), cwd=tmp_path)
+    for i, name in enumerate([*others, "folder.md"]):
+        args = ["--results", str(results), "--out", str(tmp_path / name)]
+        res = _history(*args, cwd=tmp_path) if i == 0 else _history_here(args, tmp_path, monkeypatch, capsys)
         assert res.returncode == 2 and res.stdout == "", name
         assert len(res.stderr.strip().splitlines()) == 1 and f"--out {tmp_path / name}" in res.stderr, res.stderr
         assert "Traceback" not in res.stderr
     assert _files(tmp_path) == before and (tmp_path / "folder.md").is_dir()
 
 
-def test_out_refuses_its_own_table_with_a_users_text_around_it(tmp_path: Path) -> None:
+def test_out_refuses_its_own_table_with_a_users_text_around_it(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                               capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """Issue 82, probe 13, F12: a table it wrote with a user's notes appended below it was overwritten, exit 0 (only
-    its first 3 lines were checked); the whole file must be what it writes."""
+    its first 3 lines were checked); the whole file must be what it writes. The first refusal as a process, the others
+    by history's main in this process."""
     results = tmp_path / "results"
     _one_study(results)
     mine = history.table(results)
@@ -221,8 +237,9 @@ def test_out_refuses_its_own_table_with_a_users_text_around_it(tmp_path: Path) -
     for name, text in others.items():
         (tmp_path / name).write_text(text)
     before = _files(tmp_path)
-    for name in others:
-        res = _history("--results", str(results), "--out", str(tmp_path / name), cwd=tmp_path)
+    for i, name in enumerate(others):
+        args = ["--results", str(results), "--out", str(tmp_path / name)]
+        res = _history(*args, cwd=tmp_path) if i == 0 else _history_here(args, tmp_path, monkeypatch, capsys)
         assert res.returncode == 2 and res.stdout == "", (name, res.stderr)
         assert len(res.stderr.strip().splitlines()) == 1 and "not a table coopsumo history wrote" in res.stderr
     assert _files(tmp_path) == before
