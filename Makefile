@@ -30,9 +30,11 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 # one line per test file as it ends ([ 37%] tests/test_x.py: 42 passed in 95.2 s; tests/file_progress.py) instead
-# of dots: with -n 2 pytest names no file, and -v would print a line per test
+# of dots: with -n 2 pytest names no file, and -v would print a line per test. --no-loadscope-reorder: the files
+# are handed out in collection order, the slowest first (tests/conftest.py, SLOWEST_FIRST); xdist's default order,
+# the most tests first, had the slowest files end last, one process busy alone
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile --file-progress -o console_output_style=classic --durations=25
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile --no-loadscope-reorder --file-progress -o console_output_style=classic --durations=25
 
 lint: $(STAMP)
 	$(BIN)/ruff check coopsumo tests experiments

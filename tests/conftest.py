@@ -355,8 +355,9 @@ SLOWEST_FIRST = ("test_early_interrupts.py", "test_scenario2.py", "test_scenario
                  "test_faults.py", "test_reused_models.py", "test_faults_scenario1.py", "test_scenario2_merge.py",
                  "test_runner.py", "test_replication.py", "test_conditioned.py", "test_ablation.py")
 """the files that take longest (make test's --durations), scheduled first: `make test` runs files on 2 processes
-(xdist's loadfile), in collection order, and a long file started last kept one process busy alone at the end (a
-scheduling hint only: each file's tests keep their order, and no test depends on another file's)"""
+(xdist's loadfile, in collection order with --no-loadscope-reorder), and a long file started last kept one process
+busy alone at the end (a scheduling hint only: each file's tests keep their order, and no test depends on another
+file's)"""
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
