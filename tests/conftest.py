@@ -353,10 +353,10 @@ def made_by(readme: Path = REPO / "results" / "README.md") -> dict[str, tuple[st
 SLOWEST_FIRST = ("test_early_interrupts.py", "test_scenario2.py", "test_scenario1.py", "test_cluster.py",
                  "test_protocol.py", "test_train.py", "test_docs.py", "test_scenario2_full.py", "test_interrupts.py",
                  "test_faults.py", "test_reused_models.py", "test_faults_scenario1.py", "test_scenario2_merge.py",
-                 "test_runner.py", "test_replication.py", "test_conditioned.py", "test_ablation.py", "test_selection.py",
-                 "test_update_worker.py", "test_extending.py", "test_sumo_tools.py", "test_world_sumo.py",
-                 "test_bench_group.py", "test_mobil.py", "test_record_checks.py", "test_study_commands.py",
-                 "test_envs.py", "test_bad_inputs.py", "test_history.py", "test_group.py")
+                 "test_runner.py", "test_replication.py", "test_conditioned.py", "test_ablation.py",
+                 "test_selection.py", "test_update_worker.py", "test_extending.py", "test_sumo_tools.py",
+                 "test_world_sumo.py", "test_bench_group.py", "test_mobil.py", "test_record_checks.py",
+                 "test_study_commands.py", "test_envs.py", "test_bad_inputs.py", "test_history.py", "test_group.py")
 """the files that take longest (make test's --durations), scheduled first: `make test` runs files on 2 processes
 (xdist's loadfile, in collection order with --no-loadscope-reorder), and a long file started last kept one process
 busy alone at the end (a scheduling hint only: each file's tests keep their order, and no test depends on another
