@@ -10,12 +10,12 @@ from pathlib import Path
 
 CLUSTER_STUDY = ("scenario1", "--regime-map", "--t-up", "2,1.5,1", "--seeds", "2")
 """the study of the cluster measurement: `keep` at 3 demands x 2 accident lengths x 2 seeds, 12 cells"""
-class ClusterBenchError(RuntimeError):
-    """A study of the cluster bench failed, or the backends' records disagree."""
-
-
 CLUSTER_QUICK = ("scenario1", "--regime-map", "--t-up", "2", "--seeds", "1")
 """--quick: 2 cells"""
+
+
+class ClusterBenchError(RuntimeError):
+    """A study of the cluster bench failed, or the backends' records disagree."""
 
 
 def bench_cluster(study_args: tuple[str, ...], steps: int, warm_up: bool = True) -> dict[str, float]:
@@ -32,8 +32,8 @@ def bench_cluster(study_args: tuple[str, ...], steps: int, warm_up: bool = True)
         start = time.perf_counter()
         res = subprocess.run(cmd, capture_output=True, text=True, check=False)
         if res.returncode != 0:  # its lines after the study's first one, or none (Ray ended it: Ray's logs say why)
-            said = " / ".join(res.stderr.strip().splitlines()[1:][-3:]) or "no line of its own (Ray's logs in " \
-                "/tmp/ray/session_latest/logs may say why)"
+            said = (" / ".join(res.stderr.strip().splitlines()[1:][-3:])
+                    or "no line of its own (Ray's logs in /tmp/ray/session_latest/logs may say why)")
             raise ClusterBenchError(f"`{' '.join(cmd[1:])}` ended with exit code {res.returncode}: {said}")
         return time.perf_counter() - start
 

@@ -163,8 +163,6 @@ def simulate_into(
     return {k: v for k, v in summary.items() if k != "policy"}
 
 
-
-
 STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
     "scenario1": ("plan.json", "cells", "models", "runs", "runs.csv", "summary.csv", "report.md", "fig*.png",
                   "gui_jam.png", "gui_jam.json", "claim_a.md"),

@@ -16,6 +16,7 @@ import json
 import math
 import os
 import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -56,8 +57,6 @@ def study_folders(results: Path) -> list[Path]:
 def _once(folders: list[Path]) -> list[Path]:
     """`folders` with each study once: a link to a study listed, or a copy of one (the same study.json and stats.csv),
     is named in one line on stderr and left out (issue 82, probe 20, TR2: "4 learners judged" for 2)."""
-    import sys
-
     by_place: dict[str, Path] = {}
     by_content: dict[tuple[str, ...], Path] = {}
     kept = []
