@@ -10,6 +10,7 @@ import json
 import math
 import os
 import re
+import signal
 import stat
 import sys
 import tempfile
@@ -151,10 +152,35 @@ def end_if_forked(pid: int, then: str) -> None:
         os._exit(2)
 
 
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+"""the signals that stop a command (runio.Stop) or, left at their default, end a worker process at once"""
+
+
+@contextmanager
+def signals_deferred() -> Iterator[None]:
+    """For the block (a few file operations that must happen together), SIGINT and SIGTERM wait: one that comes
+    meanwhile is raised again right after it, to the handler that was in place. Only in the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    got: list[int] = []
+    old = {s: signal.signal(s, lambda signum, _frame: got.append(signum)) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in old.items():
+            signal.signal(s, handler)
+        if got:
+            signal.raise_signal(got[0])
+
+
 def _write_beside(path: Path, write: Callable[[Path], Any], place: Callable[[Path, Path], None]) -> None:
     """write(tmp) into a new temporary file beside `path` (mkstemp, the mode a file written in place gets, not its
-    0600), then place(tmp, path); the temporary file is gone afterwards, whatever happened."""
-    with _write_running():
+    0600), then place(tmp, path); the temporary file is gone afterwards, whatever happened. SIGINT and SIGTERM wait
+    for its end (signals_deferred): a training's process that a stop of its study's process group reached, with their
+    default action, while it wrote model.pt after its last step left '.model.pt.XXXXXXXX.tmp' in the model store
+    (test_scenario2's interrupted sweep, once on CI, 2026-12-05)."""
+    with _write_running(), signals_deferred():
         _write_temporary(path, write, place)
 
 

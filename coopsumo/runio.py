@@ -24,7 +24,7 @@ from coopsumo.errors import (
     one_line,
     os_error_text,
 )
-from coopsumo.files import exit_between_writes
+from coopsumo.files import STOP_SIGNALS, exit_between_writes, signals_deferred
 from coopsumo.owners import nets_env_problem, store_env_problem, tmp_env_problem
 from coopsumo.paths import env_problem, library_env_problem, utf8_problem
 
@@ -231,9 +231,6 @@ def _importing_torch(frame: Any) -> bool:
     return False
 
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
-
-
 @contextmanager
 def stop_on_signals() -> Iterator[None]:
     """For the block, SIGINT and SIGTERM raise Stop wherever the command is, its setup included: also when the
@@ -408,24 +405,6 @@ def children_start_deaf(signals: Collection[int] = (signal.SIGINT,)) -> Iterator
             yield
     finally:
         signal.pthread_sigmask(signal.SIG_SETMASK, old)
-
-
-@contextmanager
-def signals_deferred() -> Iterator[None]:
-    """For the block (a few file operations that must happen together), SIGINT and SIGTERM wait: one that comes
-    meanwhile is raised again right after it, to the handler that was in place. Only in the main thread."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    got: list[int] = []
-    old = {s: signal.signal(s, lambda signum, _frame: got.append(signum)) for s in STOP_SIGNALS}
-    try:
-        yield
-    finally:
-        for s, handler in old.items():
-            signal.signal(s, handler)
-        if got:
-            signal.raise_signal(got[0])
 
 
 def working_folder_problem() -> str | None:

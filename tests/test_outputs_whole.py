@@ -90,3 +90,35 @@ def test_a_workers_exit_waits_for_a_write_and_leaves_no_temporary(tmp_path: Path
     assert (done.returncode, done.stderr) == (3, "")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt"]
     assert (tmp_path / "model.pt").read_text() == "whole"
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_a_stop_while_a_file_is_written_ends_the_process_after_it_and_leaves_no_temporary(tmp_path: Path,
+                                                                                      signum: int) -> None:
+    """A study's training process (a group's member, a worker) has SIGTERM at its default action once its training
+    loop is done; a stop of the study's process group that came while it wrote model.pt killed it there and left
+    '.model.pt.XXXXXXXX.tmp' in the model store (test_scenario2's interrupted sweep, once on CI, 2026-12-05). The
+    signal now waits for the write: the process ends by it right after, the file whole, no temporary left, the next
+    write never begun. SIGINT, default-handled too, as a process started without a shell's Ctrl-C handler has it."""
+    import subprocess
+    import sys
+    import textwrap
+
+    script = textwrap.dedent(f"""
+        import os, signal, time
+        from pathlib import Path
+        from coopsumo.files import write_atomic
+        signal.signal({int(signum)}, signal.SIG_DFL)
+        out = Path({str(tmp_path)!r})
+        def stopped(tmp):
+            tmp.write_text("half")
+            os.kill(os.getpid(), {int(signum)})  # the stop lands while the temporary file is on disk
+            time.sleep(0.2)
+            tmp.write_text("whole")
+        write_atomic(out / "model.pt", stopped)
+        write_atomic(out / "next.txt", lambda tmp: tmp.write_text("never"))
+    """)
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60, check=False)
+    assert done.returncode == -signum
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model.pt"]
+    assert (tmp_path / "model.pt").read_text() == "whole"

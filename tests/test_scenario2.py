@@ -805,6 +805,38 @@ def test_a_worker_that_cannot_exit_does_not_hold_the_study(monkeypatch: pytest.M
     assert time.monotonic() - start < 30 and workers and not any(p.is_alive() for p in workers)
 
 
+def test_a_worker_the_pools_thread_reaps_is_not_seen_alive_after_close(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The race of the test above, made to happen (it failed once on CI, 2026-12-05): the pool's thread and close()
+    both wait for the lingering worker; the one that reaps it notes its exit code a moment later, and the other's wait
+    meanwhile finds no child (ECHILD: multiprocessing says "not ended yet"). When the pool's thread reaped it, the
+    worker looked alive after close() returned. Here the pool's thread reaps first and takes 0.5 s to note the exit code."""
+    import os
+    import threading
+
+    waitpid = os.waitpid
+
+    def slow_to_note(pid: int, options: int) -> tuple[int, int]:
+        if threading.current_thread() is threading.main_thread():
+            time.sleep(0.1)  # the pool's thread, already waiting, reaps the worker first
+            return waitpid(pid, options)
+        got = waitpid(pid, options)
+        if got[0] != 0:
+            time.sleep(0.5)
+        return got
+
+    monkeypatch.setattr(runner, "CLOSE_WAIT_S", 2.0)
+    specs = s2_plan.cell_specs(s2_plan.PROFILES["tiny"])
+    backend = runner.LocalBackend(1, cell_fn=lingering_cell)
+    handles = [backend.submit(specs[0], Path("unused"))]
+    deadline = time.monotonic() + 120
+    while not backend.wait(handles, timeout=1.0):
+        assert time.monotonic() < deadline
+    workers = mp.active_children()
+    monkeypatch.setattr(os, "waitpid", slow_to_note)
+    backend.close()
+    assert workers and not any(p.is_alive() for p in workers)
+
+
 def test_neighbour_separation_on_hand_made_speeds() -> None:
     rng = np.random.default_rng(0)
     speeds = np.array([[10.0, 10.5, 9.5],  # alpha 0

@@ -18,6 +18,7 @@ import multiprocessing as mp
 import os
 import signal
 import sys
+import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterator, Sequence
@@ -107,12 +108,14 @@ class LocalBackend:
                 self._renew()
         return results
 
-    def abort(self) -> None:
+    def abort(self, manager: threading.Thread | None = None) -> None:
         """Stop the workers: SIGTERM (a training saves its checkpoint), then SIGKILL after 15 s.
 
         The workers are this process's multiprocessing children (multiprocessing.active_children()), those still
-        starting included: one left starting would find this process's queues gone and end in a traceback.
+        starting included: one left starting would find this process's queues gone and end in a traceback. manager:
+        the pool's thread, when a shutdown forgot it already (close).
         """
+        manager = manager or getattr(self._pool, "_executor_manager_thread", None)
         procs = mp.active_children()
         for p in procs:
             p.terminate()
@@ -124,8 +127,9 @@ class LocalBackend:
                 p.kill()
         # the pool's thread closes its wake-up pipe as it ends; at exit, Python writes to that pipe without the lock
         # the thread closes it under, so an exit while the thread ended was a traceback (EBADF) after the one line.
-        # shutdown() forgets the thread: it is taken before
-        manager = getattr(self._pool, "_executor_manager_thread", None)
+        # shutdown() forgets the thread: it is taken before. The thread also joins the workers as it ends: a worker it
+        # reaped while this thread waited for it too looked alive here until the thread noted its exit code (close, a
+        # race: test_a_worker_that_cannot_exit_does_not_hold_the_study, once on CI, 2026-12-05)
         self._pool.shutdown(wait=False, cancel_futures=True)
         if manager is not None:
             manager.join(timeout=10.0)
@@ -135,12 +139,13 @@ class LocalBackend:
         that left a thread running in it kept it from exiting (Python's exit waits for the thread), and the study
         waited for it without end, every cell done and no report written (issue 82, probe 12, N6)."""
         procs = mp.active_children()
+        manager = getattr(self._pool, "_executor_manager_thread", None)
         self._pool.shutdown(wait=False)
         deadline = time.monotonic() + CLOSE_WAIT_S
         for p in procs:
             p.join(timeout=max(0.0, deadline - time.monotonic()))
         if any(p.is_alive() for p in procs):
-            self.abort()
+            self.abort(manager)
         else:
             self._pool.shutdown(wait=True)
 
