@@ -71,15 +71,35 @@ class Parser(argparse.ArgumentParser):
 
 
 def _watch_parent(parent_pid: int) -> None:
-    while True:
-        time.sleep(1.0)
-        if os.getppid() != parent_pid:
-            exit_between_writes(3)  # not while a write's temporary file is on disk
+    """Return when the process `parent_pid` has ended: a pidfd becomes readable then (Linux 5.3 on); without one,
+    looked for every second. Not by the worker's parent, which is multiprocessing's fork server for a study's
+    workers (it lives on while they do)."""
+    import select
+
+    try:
+        fd = os.pidfd_open(parent_pid)
+    except ProcessLookupError:
+        return
+    except (OSError, AttributeError):  # no pidfd here
+        while True:
+            time.sleep(1.0)
+            try:
+                os.kill(parent_pid, 0)
+            except ProcessLookupError:
+                return
+            except OSError:
+                pass
+    select.select([fd], [], [])
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    _watch_parent(parent_pid)
+    exit_between_writes(3)  # not while a write's temporary file is on disk
 
 
 def start_parent_watch(parent_pid: int) -> None:
     """In a pool worker: exit when the main process `parent_pid` is gone (no orphan keeps working)."""
-    threading.Thread(target=_watch_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
 
 
 def thread_lock_for_bars() -> None:
@@ -389,7 +409,7 @@ def children_start_deaf(signals: Collection[int] = (signal.SIGINT,)) -> Iterator
     """Child processes started in the block (multiprocessing's spawn, subprocess) begin with `signals` blocked, from
     their first instruction on (a signal mask survives fork and exec): a Ctrl-C to the whole process group while a
     child's interpreter starts cannot end it in a KeyboardInterrupt traceback of its own. The child takes them when
-    it is ready (a study's worker ignores SIGINT, then unblocks it: runner._init_worker) or never (it is stopped by
+    it is ready (a study's worker ignores SIGINT, then unblocks it: pool_workers.init_worker) or never (it is stopped by
     this process). Here SIGINT and SIGTERM wait for the block's end (signals_deferred), so that a start is never cut
     half-way (a child left reading what it was to be sent). multiprocessing's resource tracker unblocks SIGINT and
     SIGTERM when it starts, so it is started first. Only in the main thread (elsewhere the block runs as it is)."""

@@ -15,11 +15,11 @@ import coopsumo
 
 PACKAGE_DIR = Path(coopsumo.__file__).parent
 # what each layer may import from the others (the top-level modules config, dqn_config, paths, runio, validation,
-# record_schemas, study_tables and the rest of SHARED are shared by all)
+# record_schemas, study_tables, pool_workers and the rest of SHARED are shared by all)
 SHARED = {"coopsumo", "coopsumo.config", "coopsumo.dqn_config", "coopsumo.paths", "coopsumo.policy_spec",
           "coopsumo.runio", "coopsumo.validation", "coopsumo.errors", "coopsumo.provenance", "coopsumo.files",
           "coopsumo.run_dirs", "coopsumo.run_markers", "coopsumo.owners", "coopsumo.lock_files",
-          "coopsumo.record_schemas", "coopsumo.study_tables", "coopsumo.field_rules"}
+          "coopsumo.record_schemas", "coopsumo.study_tables", "coopsumo.field_rules", "coopsumo.pool_workers"}
 GROUND = {"coopsumo.errors", "coopsumo.provenance", "coopsumo.files", "coopsumo.paths"}
 """the ground floor: errors, provenance, files and output paths, which import nothing else of coopsumo"""
 ALLOWED = {

@@ -809,7 +809,8 @@ def test_a_worker_the_pools_thread_reaps_is_not_seen_alive_after_close(monkeypat
     """The race of the test above, made to happen (it failed once on CI, 2026-12-05): the pool's thread and close()
     both wait for the lingering worker; the one that reaps it notes its exit code a moment later, and the other's wait
     meanwhile finds no child (ECHILD: multiprocessing says "not ended yet"). When the pool's thread reaped it, the
-    worker looked alive after close() returned. Here the pool's thread reaps first and takes 0.5 s to note the exit code."""
+    worker looked alive after close() returned. Here the pool's thread reaps first, 0.5 s before it notes the exit code.
+    On a spawn context: its workers are the main process's children, reaped with waitpid (the fork server's are not)."""
     import os
     import threading
 
@@ -825,6 +826,7 @@ def test_a_worker_the_pools_thread_reaps_is_not_seen_alive_after_close(monkeypat
         return got
 
     monkeypatch.setattr(runner, "CLOSE_WAIT_S", 2.0)
+    monkeypatch.setattr(runner, "worker_context", lambda: mp.get_context("spawn"))
     specs = s2_plan.cell_specs(s2_plan.PROFILES["tiny"])
     backend = runner.LocalBackend(1, cell_fn=lingering_cell)
     handles = [backend.submit(specs[0], Path("unused"))]

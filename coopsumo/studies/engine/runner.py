@@ -34,12 +34,10 @@ from tqdm import tqdm
 
 from coopsumo.errors import UsageError
 from coopsumo.files import write_json
+from coopsumo.pool_workers import ParentStreams, init_worker, worker_context
 from coopsumo.runio import (
     children_start_deaf,
     raise_swallowed_stop,
-    start_parent_watch,
-    steady_streams,
-    thread_lock_for_bars,
 )
 from coopsumo.studies.engine.records import cell_path
 
@@ -51,34 +49,21 @@ FailedRecord = Callable[[dict[str, Any], str], dict[str, Any]]
 """failed_record(spec, error) -> the record of a cell that could not run (its worker died, its dependency failed)"""
 
 
-def _init_worker(parent_pid: int) -> None:
-    """Pool initializer: exit with the main process. Ctrl-C reaches the whole process group: a worker leaves it to
-    the main process, which stops the workers (abort: SIGTERM, on which a training saves its checkpoint), so a
-    worker never dies with a traceback of its own. It started with SIGINT blocked (LocalBackend.submit), so that one
-    sent while its interpreter and imports start waits until now: ignored here, then unblocked (a cell's training
-    takes Ctrl-C with its own handler)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
-    start_parent_watch(parent_pid)
-    steady_streams()  # a closed or broken stderr: its bars write to nothing (issue 82, probe 16, T3)
-    thread_lock_for_bars()
-
-
 class LocalBackend:
-    """A spawn-context process pool; one cell per worker at a time, at most `workers` in flight."""
+    """A process pool (worker_context); one cell per worker at a time, at most `workers` in flight."""
 
     name = "local"
 
     def __init__(self, workers: int, cell_fn: Callable[[dict[str, Any], str], dict[str, Any]]):
         self.slots = workers
         self._cell_fn = cell_fn
-        self._ctx = mp.get_context("spawn")
+        self._ctx = worker_context()
         self._generation = 0
         self._pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=self.slots, mp_context=self._ctx, initializer=_init_worker,
-                                   initargs=(os.getpid(),))  # fmt: skip
+        return ProcessPoolExecutor(max_workers=self.slots, mp_context=self._ctx, initializer=init_worker,
+                                   initargs=(os.getpid(), dict(os.environ), ParentStreams()))  # fmt: skip
 
     def _renew(self) -> None:
         """Replace a broken pool (a worker died) by a fresh one; its other futures fail as BrokenProcessPool."""
@@ -87,7 +72,7 @@ class LocalBackend:
         self._pool = self._new_pool()
 
     def submit(self, spec: dict[str, Any], root: Path) -> Any:
-        """Submit a cell; the pool starts its worker processes here, deaf to Ctrl-C until _init_worker."""
+        """Submit a cell; the pool starts its worker processes here, deaf to Ctrl-C until pool_workers.init_worker."""
         with children_start_deaf():
             try:
                 future = self._pool.submit(self._cell_fn, spec, str(root))
