@@ -106,7 +106,8 @@ def main(argv: Sequence[str] | None = None) -> int:
                                  lambda: command_of(sys.argv[1:] if argv is None else argv),
                                  whole_process=argv is None)  # fmt: skip
     except KeyboardInterrupt as err:
-        print(f"{command_of(sys.argv[1:] if argv is None else argv)}: interrupted", file=sys.stderr)
+        fresh = "\n" if getattr(sys.stderr, "mid_line", False) else ""  # runio.fresh_line, if runio was imported
+        print(f"{fresh}{command_of(sys.argv[1:] if argv is None else argv)}: interrupted", file=sys.stderr)
         return 128 + getattr(err, "signum", 2)
     finally:
         if argv is not None:  # called in a process of its own (a test): its SIGTERM as it was

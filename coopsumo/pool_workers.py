@@ -8,9 +8,12 @@ import multiprocessing as mp
 import os
 import signal
 import sys
+import threading
+import time
 from typing import Any
 
-from coopsumo.runio import STOP_SIGNALS, children_start_deaf, start_parent_watch, steady_streams, thread_lock_for_bars
+from coopsumo.files import exit_between_writes
+from coopsumo.runio import STOP_SIGNALS, children_start_deaf, steady_streams, thread_lock_for_bars
 
 PRELOADED = ("numpy", "torch", "pandas", "libsumo")
 """the modules a study's worker processes find imported: they are forked from multiprocessing's fork server, which
@@ -82,3 +85,35 @@ def init_worker(parent_pid: int, environ: dict[str, str], streams: Any) -> None:
     start_parent_watch(parent_pid)
     steady_streams()  # a closed or broken stderr: its bars write to nothing (issue 82, probe 16, T3)
     thread_lock_for_bars()
+
+
+def _watch_parent(parent_pid: int) -> None:
+    """Return when the process `parent_pid` has ended: a pidfd becomes readable then (Linux 5.3 on); without one,
+    looked for every second. Not by the worker's parent, which is multiprocessing's fork server for a study's
+    workers (it lives on while they do)."""
+    import select
+
+    try:
+        fd = os.pidfd_open(parent_pid)
+    except ProcessLookupError:
+        return
+    except (OSError, AttributeError):  # no pidfd here
+        while True:
+            time.sleep(1.0)
+            try:
+                os.kill(parent_pid, 0)
+            except ProcessLookupError:
+                return
+            except OSError:
+                pass
+    select.select([fd], [], [])
+
+
+def _exit_with_parent(parent_pid: int) -> None:
+    _watch_parent(parent_pid)
+    exit_between_writes(3)  # not while a write's temporary file is on disk
+
+
+def start_parent_watch(parent_pid: int) -> None:
+    """In a pool worker: exit when the main process `parent_pid` is gone (no orphan keeps working)."""
+    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()

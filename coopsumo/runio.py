@@ -8,7 +8,6 @@ import os
 import signal
 import sys
 import threading
-import time
 from collections.abc import Callable, Collection, Iterator
 from contextlib import contextmanager
 from functools import partial
@@ -24,7 +23,7 @@ from coopsumo.errors import (
     one_line,
     os_error_text,
 )
-from coopsumo.files import STOP_SIGNALS, exit_between_writes, signals_deferred
+from coopsumo.files import STOP_SIGNALS, signals_deferred
 from coopsumo.owners import nets_env_problem, store_env_problem, tmp_env_problem
 from coopsumo.paths import env_problem, library_env_problem, utf8_problem
 
@@ -70,38 +69,6 @@ class Parser(argparse.ArgumentParser):
         raise SystemExit(USAGE_EXIT)
 
 
-def _watch_parent(parent_pid: int) -> None:
-    """Return when the process `parent_pid` has ended: a pidfd becomes readable then (Linux 5.3 on); without one,
-    looked for every second. Not by the worker's parent, which is multiprocessing's fork server for a study's
-    workers (it lives on while they do)."""
-    import select
-
-    try:
-        fd = os.pidfd_open(parent_pid)
-    except ProcessLookupError:
-        return
-    except (OSError, AttributeError):  # no pidfd here
-        while True:
-            time.sleep(1.0)
-            try:
-                os.kill(parent_pid, 0)
-            except ProcessLookupError:
-                return
-            except OSError:
-                pass
-    select.select([fd], [], [])
-
-
-def _exit_with_parent(parent_pid: int) -> None:
-    _watch_parent(parent_pid)
-    exit_between_writes(3)  # not while a write's temporary file is on disk
-
-
-def start_parent_watch(parent_pid: int) -> None:
-    """In a pool worker: exit when the main process `parent_pid` is gone (no orphan keeps working)."""
-    threading.Thread(target=_exit_with_parent, args=(parent_pid,), daemon=True, name="watch-parent").start()
-
-
 def thread_lock_for_bars() -> None:
     """In a worker process: tqdm's bars take a thread lock, not tqdm's default multiprocessing lock, whose semaphore
     a worker stopped by its command leaves behind (the resource tracker's "leaked semaphore objects" warning after a
@@ -123,9 +90,19 @@ class _Steady:
         self.lost: OSError | None = None
         """the failure of a write other than a closed pipe's (a full disk): what the stream was given is incomplete"""
 
+    mid_line = False
+    """whether the last text written left a line unended: a stop that came between a print's text and its newline
+    (this class's write is Python, where a signal's handler runs) glued its one line to it (fresh_line)"""
+
     def write(self, text: str) -> int:
+        ended = text.endswith(("\n", "\r"))
+        if text and not ended:
+            self.mid_line = True  # before the write: a stop right after it finds the line unended
         try:
-            return int(self._stream.write(text))
+            written = int(self._stream.write(text))
+            if ended:
+                self.mid_line = False
+            return written
         except OSError as err:  # a pipe closed, a full disk (ENOSPC), a descriptor open for reading (EBADF): probe 17
             self._to_null(err)
             return len(text)
@@ -305,9 +282,15 @@ def training_stop(err: Exception) -> int | None:
     return None
 
 
+def fresh_line() -> str:
+    """A newline when what stderr was last given left a line unended (a stop landed mid-print: _Steady.mid_line),
+    else nothing: put before a command's one last line."""
+    return "\n" if getattr(sys.stderr, "mid_line", False) else ""
+
+
 def interrupted(prog: str, err: KeyboardInterrupt) -> int:
     """The one line of a command stopped by a signal (`prog: interrupted`); its exit code, 128 + the signal."""
-    print(f"{prog}: interrupted", file=sys.stderr)
+    print(f"{fresh_line()}{prog}: interrupted", file=sys.stderr)
     return 128 + getattr(err, "signum", signal.SIGINT)
 
 
@@ -397,9 +380,9 @@ def _exit_stop(prog: Callable[[], str]) -> Callable[[int, Any], None]:
 
 def _end_now(prog: Callable[[], str], signum: int) -> None:
     try:
-        print(f"{prog()}: stopped by {signal.Signals(signum).name} while it exited ({EXIT_GRACE_S} s later): its work "
-              "was done; something it ran (a thread or an atexit callback of a policy of one's own?) kept it from "
-              "ending", file=sys.stderr, flush=True)  # fmt: skip
+        print(f"{fresh_line()}{prog()}: stopped by {signal.Signals(signum).name} while it exited ({EXIT_GRACE_S} s "
+              "later): its work was done; something it ran (a thread or an atexit callback of a policy of one's own?) "
+              "kept it from ending", file=sys.stderr, flush=True)  # fmt: skip
     finally:
         os._exit(128 + signum)
 

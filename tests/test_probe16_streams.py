@@ -95,3 +95,26 @@ def test_a_run_with_its_stderr_closed_or_broken_finishes(tmp_path: Path, redirec
     res = _run(f"$C simulate --steps 300 --out run {redirect}; echo rc=${{PIPESTATUS[0]}} >&2", tmp_path)
     assert res.stderr.strip().splitlines()[-1] == "rc=0", res.stderr
     assert (tmp_path / "run" / "summary.json").is_file() and (tmp_path / "run" / "detectors.xml").is_file()
+
+
+def test_a_stop_between_a_prints_text_and_its_newline_leaves_the_one_line_on_its_own(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A Ctrl-C at 0.5 s into scenario II landed between the text of its header line and the newline (print writes
+    them apart, through _Steady's write, where the signal's handler runs): `...on the local backendscenario2:
+    interrupted` (CI, 2026-12-05). The one line now starts a line of its own; after a whole line or a bar's '\\r' it
+    adds no blank line."""
+    import io
+    import signal
+
+    from coopsumo import runio
+
+    buf = io.StringIO()
+    steady = runio._Steady(buf, 2)
+    monkeypatch.setattr(sys, "stderr", steady)
+    steady.write("scenario2: 8 to run on the local backend")  # the print's text; its newline never came
+    assert runio.interrupted("scenario2", runio.Stop(signal.SIGINT)) == 130
+    steady.write("cells: 1/8\r")
+    runio.interrupted("scenario1", runio.Stop(signal.SIGTERM))
+    assert buf.getvalue().splitlines() == ["scenario2: 8 to run on the local backend", "scenario2: interrupted",
+                                           "cells: 1/8", "scenario1: interrupted"]  # fmt: skip
