@@ -17,9 +17,9 @@ from coopsumo.runio import STOP_SIGNALS, children_start_deaf, steady_streams, th
 
 PRELOADED = ("numpy", "torch", "pandas", "libsumo")
 """the modules a study's worker processes find imported: they are forked from multiprocessing's fork server, which
-imported them once, rather than each started afresh to import them (about 2 CPU s each: a quarter of `make test`'s
-time went to the starts of its 250 worker processes). No module of coopsumo: some read the environment as they are
-imported, which the server took when it started."""
+imported them once, rather than each started afresh to import them (about 2 CPU s each; the suite's summed test time
+fell by 7%, docs/performance.md). No module of coopsumo: some read the environment as they are imported, and the
+server's is the one it started with."""
 
 
 def worker_context() -> Any:
@@ -89,8 +89,8 @@ def init_worker(parent_pid: int, environ: dict[str, str], streams: Any) -> None:
 
 def _watch_parent(parent_pid: int) -> None:
     """Return when the process `parent_pid` has ended: a pidfd becomes readable then (Linux 5.3 on); without one,
-    looked for every second. Not by the worker's parent, which is multiprocessing's fork server for a study's
-    workers (it lives on while they do)."""
+    looked for every second. Watched by its pid, not as the worker's parent: a study's worker is the fork server's
+    child, and the server lives on while its workers do."""
     import select
 
     try:

@@ -789,9 +789,9 @@ def lingering_cell(spec: dict[str, object], root: str) -> dict[str, object]:
     return fake_cell(spec, root)
 
 
-def test_a_worker_that_cannot_exit_does_not_hold_the_study(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Issue 82, probe 12, N6: close() waited without end for a worker whose cell left a thread running; now the
-    worker is stopped CLOSE_WAIT_S after the pool is shut."""
+def lingering_backend(monkeypatch: pytest.MonkeyPatch) -> tuple[runner.LocalBackend, list[Any]]:
+    """A local backend of one worker whose one cell (lingering_cell) is done, and its worker processes; close() waits
+    2 s for them."""
     monkeypatch.setattr(runner, "CLOSE_WAIT_S", 2.0)
     specs = s2_plan.cell_specs(s2_plan.PROFILES["tiny"])
     backend = runner.LocalBackend(1, cell_fn=lingering_cell)
@@ -799,7 +799,13 @@ def test_a_worker_that_cannot_exit_does_not_hold_the_study(monkeypatch: pytest.M
     deadline = time.monotonic() + 120
     while not backend.wait(handles, timeout=1.0):
         assert time.monotonic() < deadline
-    workers = mp.active_children()
+    return backend, mp.active_children()
+
+
+def test_a_worker_that_cannot_exit_does_not_hold_the_study(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Issue 82, probe 12, N6: close() waited without end for a worker whose cell left a thread running; now the
+    worker is stopped CLOSE_WAIT_S after the pool is shut."""
+    backend, workers = lingering_backend(monkeypatch)
     start = time.monotonic()
     backend.close()
     assert time.monotonic() - start < 30 and workers and not any(p.is_alive() for p in workers)
@@ -811,7 +817,6 @@ def test_a_worker_the_pools_thread_reaps_is_not_seen_alive_after_close(monkeypat
     meanwhile finds no child (ECHILD: multiprocessing says "not ended yet"). When the pool's thread reaped it, the
     worker looked alive after close() returned. Here the pool's thread reaps first, 0.5 s before it notes the exit code.
     On a spawn context: its workers are the main process's children, reaped with waitpid (the fork server's are not)."""
-    import os
     import threading
 
     waitpid = os.waitpid
@@ -825,15 +830,8 @@ def test_a_worker_the_pools_thread_reaps_is_not_seen_alive_after_close(monkeypat
             time.sleep(0.5)
         return got
 
-    monkeypatch.setattr(runner, "CLOSE_WAIT_S", 2.0)
     monkeypatch.setattr(runner, "worker_context", lambda: mp.get_context("spawn"))
-    specs = s2_plan.cell_specs(s2_plan.PROFILES["tiny"])
-    backend = runner.LocalBackend(1, cell_fn=lingering_cell)
-    handles = [backend.submit(specs[0], Path("unused"))]
-    deadline = time.monotonic() + 120
-    while not backend.wait(handles, timeout=1.0):
-        assert time.monotonic() < deadline
-    workers = mp.active_children()
+    backend, workers = lingering_backend(monkeypatch)
     monkeypatch.setattr(os, "waitpid", slow_to_note)
     backend.close()
     assert workers and not any(p.is_alive() for p in workers)
