@@ -25,13 +25,18 @@ server's is the one it started with."""
 def worker_context() -> Any:
     """multiprocessing's context of a study's workers: the fork server (PRELOADED), started here if it is not running,
     with SIGINT and SIGTERM blocked: the workers it forks inherit the mask and lift it when ready (init_worker), and a
-    stop of the process group never ends the server itself, which later workers need."""
+    stop of the process group never ends the server itself, which later workers need. Spawn when the server cannot
+    start: its socket is a file in the temporary folder, whose path a long TMPDIR makes longer than an AF_UNIX address
+    may be (108 bytes: a study ended in "AF_UNIX path too long", where spawned workers need no socket)."""
     from multiprocessing import forkserver
 
     ctx = mp.get_context("forkserver")
     ctx.set_forkserver_preload(list(PRELOADED))
-    with children_start_deaf(STOP_SIGNALS):  # the resource tracker first: it unblocks both as it starts
-        forkserver.ensure_running()
+    try:
+        with children_start_deaf(STOP_SIGNALS):  # the resource tracker first: it unblocks both as it starts
+            forkserver.ensure_running()
+    except OSError:
+        return mp.get_context("spawn")
     return ctx
 
 

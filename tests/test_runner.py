@@ -439,3 +439,24 @@ def test_sigterm_during_a_studys_cells_ends_with_its_own_exit_code(capsys: pytes
         time.sleep(5)  # the handler raises at once
     assert interrupted("scenario2", caught.value) == 128 + signal.SIGTERM
     assert capsys.readouterr().err == "scenario2: interrupted\n"
+
+
+def test_a_temporary_folder_too_long_for_the_fork_servers_socket_falls_back_to_spawned_workers(tmp_path: Path) -> None:
+    """The fork server listens on a socket file in the temporary folder; under a TMPDIR whose path leaves no room for
+    it in an AF_UNIX address (108 bytes) every study ended in "AF_UNIX path too long", exit 1 (2026-12-05, found
+    before it landed). Its workers are spawned then, as before the fork server, and run their cells; under a short
+    TMPDIR the same process forks them."""
+    script = ("import sys; from pathlib import Path; from coopsumo.studies.engine import runner\n"
+              "backend = runner.LocalBackend(1, cell_fn=dict.get)\n"  # dict.get(spec, root): a cell in one call
+              "handles = [backend.submit({'key': 'k'}, Path('unused'))]\n"
+              "done = []\n"
+              "while not done:\n"
+              "    done = backend.wait(handles, timeout=1.0)\n"
+              "backend.close()\n"
+              "print(backend._ctx.get_start_method(), done[0][1])\n")  # fmt: skip
+    (tmp_path / ("x" * 100)).mkdir()
+    for tmp, method in ((tmp_path / ("x" * 100), "spawn"), (Path("/tmp"), "forkserver")):
+        env = {**os.environ, "TMPDIR": str(tmp)}  # multiprocessing's own folder there is removed as the process ends
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, timeout=120,
+                              check=False)  # fmt: skip
+        assert (done.returncode, done.stdout) == (0, f"{method} None\n"), done.stderr[-2000:]
