@@ -18,7 +18,7 @@ from coopsumo.runio import STOP_SIGNALS, children_start_deaf, steady_streams, th
 PRELOADED = ("numpy", "torch", "pandas", "libsumo")
 """the modules a study's worker processes find imported: they are forked from multiprocessing's fork server, which
 imported them once, rather than each started afresh to import them (about 2 CPU s each; the suite's summed test time
-fell by 7%, docs/performance.md). No module of coopsumo: some read the environment as they are imported, and the
+fell by 5-10%, docs/performance.md). No module of coopsumo: some read the environment as they are imported, and the
 server's is the one it started with."""
 
 
