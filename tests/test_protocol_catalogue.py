@@ -95,6 +95,10 @@ PROFILE_ERRORS = [
     (PROFILE + 'seeds = "100"', "p", "seeds must be a list, got '100'"),
     (PROFILE + "train_steps = 9e4", "p", "train_steps must be int, got 9e4"),
     (PROFILE + "t_ups = [2, true]", "p", "t_ups must be float, got True"),
+    (PROFILE + "alphas = [0, 8]", "p", "alphas must be a list of finite numbers > 0"),
+    (PROFILE + "alphas = [1, 1.0]", "p", "alphas gives the same value twice"),
+    (PROFILE + 'alpha_variants = ["f05q_ts2k"]', "p", "alpha_variants names unknown 'f05q_ts2k'"),
+    (PROFILE + 'alpha_variants = ["nr10", "nr10"]', "p", "alpha_variants names 'nr10' twice"),
 ]
 
 

@@ -311,7 +311,7 @@ class Learner:
     queue: float | None = None
     """the speed below which it chooses no lane change (m/s; None: none)"""
     steps_factor: int = 1
-    """the learning study trains it this many times its profile's steps"""
+    """a study (learning, protocol) trains it this many times its profile's steps"""
 
     def drive(self) -> dict[str, float]:
         """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""

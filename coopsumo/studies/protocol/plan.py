@@ -43,6 +43,8 @@ from coopsumo.studies.engine.catalogue import (
 )
 from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
 from coopsumo.validation import (
+    ALPHA_MAX,
+    ALPHA_MIN,
     MAX_SEEDS,
     SEED_LIST,
     SEED_MAX,
@@ -84,7 +86,13 @@ class Profile:
     accident_start: int = 2000
     accident_duration: int = 10_000
     alpha_seeds: int = 3
-    """models at alpha 8 of the judged variant (free flow only): does alpha do something?"""
+    """models per alpha of `alphas` of each alpha variant (the first seeds', free flow only): does alpha do
+    something?"""
+    alphas: tuple[float, ...] = (8.0,)
+    """the alphas besides 0 of the alpha response (each above 0)"""
+    alpha_variants: tuple[str, ...] = ()
+    """the variants whose alpha response is measured (empty: the judged one); an alpha-conditioned one trains once a
+    seed and drives at each alpha"""
     lanes: int = 3
     eval_offsets: tuple[int, ...] = (0,)
     """each is added to every evaluation seed, one evaluation per offset (10: seeds 5010+i and 5110+i): every model
@@ -110,6 +118,7 @@ FIELD_RULES: dict[str, Rule] = {
     "accident_steps": steps, "accident_start": integer(0), "accident_duration": integer(1),
     "alpha_seeds": integer(0, MAX_SEEDS), "lanes": integer(MIN_LANES, MAX_LANES),
     "eval_offsets": ListRule(0, SEED_MAX, whole=True, most=MAX_SEEDS),
+    "alphas": ListRule(ALPHA_MIN, ALPHA_MAX, low_open=True),
 }  # fmt: skip
 """the rule of each field of a profile: the flags' rules of the same quantities elsewhere (the studies' --seeds,
 --steps, --t-up, --lanes; simulate's --accident-start and --accident-steps: profile_problem), so that a profile takes
@@ -122,6 +131,8 @@ def profile_problem(profile: Profile, known: dict[str, Variant]) -> str | None:
     evaluation seed outside SUMO's range or one that is a training seed; a run the simulation or a learner refuses."""
     if problem := names_problem(profile.variants, tuple(known)):
         return f"variants {problem}"
+    if problem := names_problem(profile.alpha_variants, profile.variants, least=0):
+        return f"alpha_variants {problem} (the variants it runs)"
     if problem := accident_problem(profile.accident_start, profile.accident_duration, profile.accident_steps,
                                    "accident_start", "accident_duration"):  # fmt: skip
         return problem
@@ -137,7 +148,7 @@ def profile_problem(profile: Profile, known: dict[str, Variant]) -> str | None:
                 f"{EVAL_SEED + 100} + ... through the accident); a model is judged only on seeds it never trained on")
     try:
         for name in profile.variants:
-            (cfg := train_config(profile, known[name].learner, 0.0, profile.seeds[0])).validate()
+            (cfg := train_config(profile, known[name], 0.0, profile.seeds[0])).validate()
             if known[name].weights == LAST_MODEL and not selecting(cfg):  # probe 15: its cells failed, every run
                 return (f"train_steps: learner {name} drives {LAST_MODEL}, the last weights a training writes beside "
                         f"the model it selects, and a training of {profile.train_steps} step selects none (at least "
@@ -203,12 +214,14 @@ def variants() -> dict[str, Variant]:
     return dict(_VARIANTS)
 
 
-def train_config(profile: Profile, dqn: DQNConfig, alpha: float, seed: int) -> TrainConfig:
-    """A model's training (a conditioned one's world at alpha 0: conditioning.world_alpha)."""
+def train_config(profile: Profile, variant: Variant, alpha: float, seed: int) -> TrainConfig:
+    """A model's training: the profile's steps times the variant's steps_factor (a conditioned one's world at alpha
+    0: conditioning.world_alpha)."""
+    dqn, n_steps = variant.learner, profile.train_steps * variant.steps_factor
     sim = SimConfig(road=RoadConfig(lanes=profile.lanes), reward=RewardConfig(alpha=world_alpha(dqn, alpha)),
-                    steps=profile.train_steps, seed=seed, policy="dqn")  # fmt: skip
-    if profile.train_steps < dqn.select_every_steps:  # a short profile validates twice
-        dqn = replace(dqn, select_every_steps=max(profile.train_steps // 2, 1), validation_steps=min(
+                    steps=n_steps, seed=seed, policy="dqn")  # fmt: skip
+    if n_steps < dqn.select_every_steps:  # a short profile validates twice
+        dqn = replace(dqn, select_every_steps=max(n_steps // 2, 1), validation_steps=min(
             dqn.validation_steps, profile.free_steps))  # fmt: skip
         if dqn.validation_accident_steps:
             dqn = replace(dqn, validation_accident_steps=max(MIN_ACCIDENT_VALIDATION_STEPS, min(
@@ -242,12 +255,15 @@ def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> lis
     for name in profile.variants:
         for seed in profile.seeds:
             models.append((known[name], 0.0, seed, ("free", "accident")))
-    judged = known[profile.judged_variant()]
-    for seed in profile.seeds[: profile.alpha_seeds]:
-        models.append((judged, 8.0, seed, ("free",)))
+    for name in profile.alpha_variants or (profile.judged_variant(),):
+        for alpha in profile.alphas:
+            for seed in profile.seeds[: profile.alpha_seeds]:
+                models.append((known[name], alpha, seed, ("free",)))
     for variant, alpha, seed, scenarios in models:
-        cfg = train_config(profile, variant.learner, alpha, seed)
+        cfg = train_config(profile, variant, alpha, seed)
         train_key = f"a{number_name(alpha)}_seed{seed}_{_learner_tag(variant.learner)}"
+        if variant.steps_factor != 1:  # another training than the same learner's at the profile's steps
+            train_key += f"_x{variant.steps_factor}"
         for scenario, (i, t_up), offset in product(scenarios, enumerate(profile.t_ups), profile.eval_offsets):
             ev = eval_config(profile, scenario, i, "dqn", alpha, offset)
             key = f"{variant.name}_a{number_name(alpha)}_seed{seed}_{scenario}_t{number_name(t_up)}"

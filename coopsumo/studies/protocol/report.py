@@ -24,6 +24,7 @@ from coopsumo.record_schemas import PROTOCOL_STATS
 from coopsumo.report.markdown import md_table
 from coopsumo.sim import passing
 from coopsumo.studies.engine import stats
+from coopsumo.studies.protocol.alpha_response import FIGURE, alpha_lines, response_figure
 from coopsumo.studies.protocol.figures import TWO_STAGE_NOTE, VALIDATION_CAPTION, validation_curves_figure
 from coopsumo.studies.protocol.plan import BASELINES, EVAL_SEED
 from coopsumo.studies.protocol.thrashing import thrashing_lines
@@ -281,6 +282,7 @@ def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta:
     for key in sorted(names):
         folders.setdefault((root / "train" / key).resolve(), key)
     validation_curves_figure(root, sorted(folders.values()), root / "fig_validation.png", names)
+    response_figure(profile, models, root / FIGURE)
     write_text_atomic(root / "report.md", report_text(profile, runs, models, table, diag, meta))
 
 
@@ -356,23 +358,6 @@ def _scenario_tables(profile: Any, ok: pd.DataFrame, table: pd.DataFrame) -> lis
     return lines
 
 
-def _alpha_lines(profile: Any, ok: pd.DataFrame) -> list[str]:
-    lines: list[str] = []
-    judged = profile.judged_variant()
-    alpha = ok[(ok["kind"] == "model") & (ok["scenario"] == "free") & (ok["variant"] == judged)]
-    if (alpha["alpha"] > 0).any():
-        lines += [f"## Does alpha do something? (free flow, `{judged}`, lane changes per vehicle)", "",
-                  ]
-        rows = []
-        for t_up, grp in alpha.groupby("t_up", sort=False):
-            a0 = grp[grp["alpha"] == 0]["lane_changes_per_vehicle"]
-            a8 = grp[grp["alpha"] == 8]["lane_changes_per_vehicle"]
-            rows.append([f"{t_up:g}", f"{a0.mean():.3f} ({len(a0)})", f"{a8.mean():.3f} ({len(a8)})"])
-        lines += md_table(["T_up (s)", "alpha 0 (models)", "alpha 8 (models)"], rows).split("\n")
-        lines.append("")
-    return lines
-
-
 def _diagnosis_lines(profile: Any, diag: pd.DataFrame) -> list[str]:
     lines: list[str] = []
     if len(diag):
@@ -404,7 +389,7 @@ def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.Da
     lines += paired_lines(ok, profile, meta)
     lines += committed_pair_lines(runs, profile)
     lines += ["", *target_lines(table, ok, profile), ""]
-    lines += _alpha_lines(profile, ok)
+    lines += alpha_lines(profile, ok)
     done = runs[runs["status"] == "ok"]
     safety = done[["collisions", "teleports"]].sum()
     lines += [f"Safety: {int(safety['collisions'])} collisions and {int(safety['teleports'])} teleports in all "

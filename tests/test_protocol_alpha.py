@@ -1,0 +1,83 @@
+"""The protocol's alpha response (Profile.alphas, alpha_seeds, alpha_variants; studies/protocol/alpha_response.py):
+each alpha variant's models at every alpha of the grid, an alpha-conditioned one trained once a seed, and the
+report's tables and figure read over models."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from coopsumo.studies.protocol.alpha_response import FIGURE, alpha_lines, response_figure, response_table
+from coopsumo.studies.protocol.plan import PROFILES, cell_specs, variants
+
+
+def test_the_conditioned_profile_drives_each_alpha_variant_at_every_alpha() -> None:
+    profile = PROFILES["conditioned"]
+    models = [s for s in cell_specs(profile) if s["kind"] == "model"]
+    above = [s for s in models if s["alpha"] > 0]
+    per = Counter((s["variant"], s["alpha"]) for s in above)
+    assert set(per) == {(v, a) for v in ("stks", "c2xs") for a in profile.alphas}
+    assert set(per.values()) == {profile.alpha_seeds * len(profile.t_ups)}  # free flow only, every demand
+    assert {s["scenario"] for s in above} == {"free"}
+    # every model is driven at its cell's alpha; the conditioned network's world stays at alpha 0
+    assert all(s["config"]["eval"]["reward"]["alpha"] == s["alpha"] for s in models)
+    trainings = {s["train_key"]: s["config"]["train"] for s in models}
+    c2xs = {k: t for k, t in trainings.items() if k.endswith("_x2")}
+    assert len({str(t) for t in c2xs.values()}) == len(profile.seeds)  # one network a seed for every alpha
+    assert {t["sim"]["steps"] for t in c2xs.values()} == {2 * profile.train_steps}  # its steps_factor
+    assert {t["sim"]["reward"]["alpha"] for t in c2xs.values()} == {0.0}
+    stks = [t for k, t in trainings.items() if k not in c2xs]
+    assert len({str(t) for t in stks}) == len(profile.seeds) + len(profile.alphas) * profile.alpha_seeds
+    assert {t["sim"]["steps"] for t in stks} == {profile.train_steps}
+    assert variants()["c2xs"].learner.alpha_conditioned and not variants()["stks"].learner.alpha_conditioned
+
+
+def test_a_profile_without_a_grid_measures_alpha_8_of_its_judged_variant() -> None:
+    """The committed profiles' alpha response, as before the grid: the judged variant at alpha 8 on alpha_seeds."""
+    profile = PROFILES["nr10"]
+    above = [s for s in cell_specs(profile) if s["kind"] == "model" and s["alpha"] > 0]
+    assert profile.alphas == (8.0,) and profile.alpha_variants == ()
+    assert {(s["variant"], s["alpha"]) for s in above} == {("nr10", 8.0)}
+    assert len({s["train_key"] for s in above}) == profile.alpha_seeds
+
+
+def _models(speeds: dict[tuple[str, float], list[float]]) -> pd.DataFrame:
+    rows = [{"kind": "model", "scenario": "free", "variant": v, "alpha": a, "seed": 100 + i, "t_up": 1.0,
+             "mean_speed_mps": x, "lane_changes_per_vehicle": 1.0 / (1.0 + a) + 0.01 * i}
+            for (v, a), xs in speeds.items() for i, x in enumerate(xs)]  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_the_response_reads_each_variant_over_models(tmp_path: Path) -> None:
+    profile = replace(PROFILES["conditioned"], alphas=(1.0, 8.0))
+    speeds = {(v, a): [20.0 - a * (0.1 if v == "stks" else 0.2) + d for d in (-0.3, 0.0, 0.1, 0.3)]
+              for v in ("stks", "c2xs") for a in (0.0, 1.0, 8.0)}  # fmt: skip
+    ok = _models(speeds)
+    table = response_table(ok[ok["variant"] == "c2xs"], (0.0, 1.0, 8.0))
+    assert list(table["models"]) == [4, 4, 4]
+    assert np.allclose(table["mean_speed_mps"], [20.05, 19.85, 18.45])  # IQM: the middle two models' mean
+    assert (table["mean_speed_mps_low"] <= table["mean_speed_mps"]).all()
+    assert (table["mean_speed_mps"] <= table["mean_speed_mps_high"]).all()
+    text = "\n".join(alpha_lines(profile, ok))
+    assert "How `stks` responds to alpha" in text and "How `c2xs` responds to alpha" in text
+    assert "| 1 | 8 | 4 | 18.45 [" in text  # c2xs at alpha 8
+    assert "| 1 | 8 | 4 | 19.25 [" in text  # stks at alpha 8
+    assert f"![alpha response]({FIGURE})" in text
+    assert response_figure(profile, ok, tmp_path / FIGURE) is not None
+    assert (tmp_path / FIGURE).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_one_alpha_besides_0_asks_only_whether_alpha_does_something(tmp_path: Path) -> None:
+    profile = PROFILES["nr10"]
+    ok = _models({("nr10", 0.0): [20.0, 21.0, 22.0], ("nr10", 8.0): [19.0, 20.0, 21.0]})
+    lines = alpha_lines(profile, ok)
+    assert lines[:4] == ["## Does alpha do something? (free flow, `nr10`, lane changes per vehicle)", "",
+                         "| T_up (s) | alpha 0 (models) | alpha 8 (models) |", "|---|---|---|"]  # fmt: skip
+    assert lines[4] == "| 1 | 1.010 (3) | 0.121 (3) |"
+    assert not any("responds" in line for line in lines)
+    assert response_figure(profile, ok, tmp_path / FIGURE) is None and not (tmp_path / FIGURE).exists()
+    assert alpha_lines(profile, ok[ok["alpha"] == 0]) == []  # no model above alpha 0: no section
