@@ -4,6 +4,7 @@ report's tables and figure read over models."""
 
 from __future__ import annotations
 
+import re
 from collections import Counter
 from dataclasses import replace
 from pathlib import Path
@@ -11,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from coopsumo.studies.protocol.alpha_response import FIGURE, alpha_lines, response_figure, response_table
+from coopsumo.studies.protocol.alpha_response import FIGURE, alpha_lines, pairs_lines, response_figure, response_table
 from coopsumo.studies.protocol.plan import PROFILES, cell_specs, variants
 
 
@@ -81,3 +82,40 @@ def test_one_alpha_besides_0_asks_only_whether_alpha_does_something(tmp_path: Pa
     assert not any("responds" in line for line in lines)
     assert response_figure(profile, ok, tmp_path / FIGURE) is None and not (tmp_path / FIGURE).exists()
     assert alpha_lines(profile, ok[ok["alpha"] == 0]) == []  # no model above alpha 0: no section
+
+
+def _paired(gap: dict[int, float], keep_mps: float = 19.0, changes: float = 1.0) -> pd.DataFrame:
+    """stks and c2xs models on seeds 100-104 at alphas 0, 1, 8, c2xs `gap[seed]` m/s faster; seed 104 without its
+    alpha 8 models (it is left out of the headline); `keep` beside them at keep_mps."""
+    speeds = [{"kind": "baseline", "scenario": "free", "variant": "keep", "alpha": 0.0, "seed": None, "t_up": 1.0,
+               "mean_speed_mps": keep_mps, "lane_changes_per_vehicle": 0.0}]  # fmt: skip
+    for seed, g in gap.items():
+        for alpha in (0.0, 1.0, 8.0):
+            if seed == 104 and alpha == 8.0:
+                continue
+            for variant, extra in (("stks", 0.0), ("c2xs", g)):
+                speeds.append({"kind": "model", "scenario": "free", "variant": variant, "alpha": alpha, "seed": seed,
+                               "t_up": 1.0, "mean_speed_mps": 20.0 - 0.1 * alpha + 0.05 * seed + extra,
+                               "lane_changes_per_vehicle": changes})  # fmt: skip
+    return pd.DataFrame(speeds)
+
+
+def test_the_second_alpha_variant_is_paired_with_the_first_by_seed() -> None:
+    profile = replace(PROFILES["conditioned"], alphas=(1.0, 8.0))
+    slower = "\n".join(pairs_lines(profile, _paired({100: -0.5, 101: -0.4, 102: -0.6, 103: -0.5, 104: 3.0})))
+    assert "## `c2xs` against `stks`, paired by training seed" in slower
+    found = re.search(r"mean over 4 seeds: (\S+) m/s \[95% CI (\S+), (\S+)\]: decided, `c2xs` slower\.", slower)
+    assert found, slower  # seed 104, without alpha 8, left out; the interval within the seeds' own range
+    mean, low, high = map(float, found.groups())
+    assert mean == -0.5 and -0.6 <= low < mean < high < -0.4
+    assert "| 1 | 8 | 4 | -0.50 [" in slower and "| 1 | 0 | 5 | +0.20 [" in slower  # the rows keep every seed
+    undecided = "\n".join(pairs_lines(profile, _paired({100: -0.5, 101: 0.5, 102: -0.3, 103: 0.5, 104: 0.0})))
+    assert "mean over 4 seeds: +0.05 m/s" in undecided and ": cannot decide (about " in undecided, undecided
+    assert pairs_lines(PROFILES["nr10"], _paired({100: 0.0})) == []  # one alpha variant: nothing to pair
+    # learners unfit for the question are not read for it
+    slow = "\n".join(pairs_lines(profile, _paired({100: -0.5, 101: -0.4}, keep_mps=40.0)))
+    unfit = "No verdict (a learner unfit to answer): "
+    assert unfit + "`stks` is slower than `keep` at every demand (alpha 0, free flow); `c2xs` is slower" in slow
+    assert "Headline" not in slow
+    calm = "\n".join(pairs_lines(profile, _paired({100: -0.5, 101: -0.4}, changes=0.0)))
+    assert unfit + "`stks` makes no lane change at alpha 0; `c2xs` makes no lane change" in calm

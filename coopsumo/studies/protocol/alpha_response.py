@@ -5,6 +5,14 @@ With one alpha besides 0 (the committed profiles' alpha 8) the question is wheth
 changes per vehicle at alpha 0 and 8. With a grid, how speed and lane changes respond to alpha: the interquartile
 mean of each over the models at each alpha, with its stratified bootstrap interval, and a figure
 (fig_alpha_response.png).
+
+With two alpha variants or more, each after the first is paired with the first by training seed (the analysis plan
+of the `conditioned` profile, fixed before it ran; docs/studies.md): the headline is, per seed that trained at every
+alpha, its model's free-flow speed minus the first variant's of the same seed, averaged over the grid's alphas (0
+included) and the demands; its mean over seeds with a 95% bootstrap interval over seeds (engine/stats,
+hierarchical_bootstrap with one evaluation a model). Decided when the interval excludes 0; otherwise the report gives
+about how many seeds would decide (stats.models_needed). The differences at each alpha and demand follow, uncorrected
+for their number: descriptive, not a verdict.
 """
 
 from __future__ import annotations
@@ -120,3 +128,66 @@ def response_figure(profile: Any, ok: pd.DataFrame, out_path: Path) -> Path | No
         ax.grid(alpha=0.3)
     axes[1].legend(fontsize=8)
     return save_figure(fig, out_path)
+
+
+def pairs_lines(profile: Any, ok: pd.DataFrame) -> list[str]:
+    """The report's pairing of each alpha variant after the first with the first, by training seed (the module's
+    docstring gives the plan)."""
+    names = responders(profile)
+    if len(names) < 2:
+        return []
+    alphas = grid(profile)
+    speeds = {v: _models(ok, v).pivot_table(index="seed", columns=["alpha", "t_up"], values="mean_speed_mps")
+              for v in names}  # fmt: skip
+    first = speeds[names[0]]
+    lines: list[str] = []
+    for other in names[1:]:
+        diff = (speeds[other] - first).reindex(columns=[c for c in first.columns if c[0] in alphas])
+        whole = diff.dropna(axis=0, how="any")  # the seeds that trained at every alpha, in both variants
+        lines += [f"## `{other}` against `{names[0]}`, paired by training seed (free flow, mean speed)", ""]
+        if whole.empty or whole.shape[1] < len(alphas):
+            lines += [f"No training seed has models of both at every alpha of {list(alphas)}: no verdict.", ""]
+            continue
+        if unfit := [f"`{v}` {why}" for v in (names[0], other) if (why := unfit_because(ok, v))]:
+            lines += [f"No verdict (a learner unfit to answer): {'; '.join(unfit)}.", ""]
+            continue
+        per_seed = whole.mean(axis=1).to_numpy(float)
+        point, low, high = stats.hierarchical_bootstrap(per_seed[:, None])
+        lines.append(f"Headline: `{other}` minus `{names[0]}` over alphas {', '.join(f'{a:g}' for a in alphas)} and "
+                     f"every demand, mean over {len(per_seed)} seeds: {point:+.2f} m/s [95% CI {low:+.2f}, "
+                     f"{high:+.2f}]: {_verdict(per_seed, low, high, other, names[0])}.")  # fmt: skip
+        rows = []
+        for (alpha, t_up), col in diff.items():
+            vals = col.dropna().to_numpy(float)
+            if len(vals):
+                mean, lo, hi = stats.hierarchical_bootstrap(vals[:, None])
+                rows.append([f"{t_up:g}", f"{alpha:g}", str(len(vals)), f"{mean:+.2f} [{lo:+.2f}, {hi:+.2f}]",
+                             f"{vals.min():+.2f}"])  # fmt: skip
+        head = ["T_up (s)", "alpha", "seeds", "difference (m/s), mean [95% CI]", "lowest seed"]
+        lines += ["", "At each alpha and demand (descriptive: not corrected for their number):", "",
+                  *md_table(head, rows).split("\n"), ""]  # fmt: skip
+    return lines
+
+
+def unfit_because(ok: pd.DataFrame, variant: str) -> str | None:
+    """Why `variant`'s alpha-0 models cannot answer a question about alpha, or None: in free flow their IQM speed
+    beats `keep`'s at no demand, or they make no lane change at all."""
+    models = _models(ok, variant)
+    models = models[models["alpha"] == 0]
+    keep = ok[(ok["kind"] == "baseline") & (ok["variant"] == "keep") & (ok["scenario"] == "free")]
+    if models.empty or keep.empty:
+        return "has no alpha-0 models or no `keep` runs beside them in free flow"
+    if not (models["lane_changes_per_vehicle"] > 0).any():
+        return "makes no lane change at alpha 0"
+    keep_speed = keep.groupby("t_up")["mean_speed_mps"].mean()
+    beats = [stats.iqm(grp["mean_speed_mps"].to_numpy(float)[:, None]) > keep_speed.get(t_up, np.inf)
+             for t_up, grp in models.groupby("t_up")]  # fmt: skip
+    return None if any(beats) else "is slower than `keep` at every demand (alpha 0, free flow)"
+
+
+def _verdict(per_seed: np.ndarray, low: float, high: float, other: str, first: str) -> str:
+    if low > 0 or high < 0:
+        return f"decided, `{other}` {'faster' if low > 0 else 'slower'}"
+    needed = stats.models_needed(per_seed)
+    more = f"about {needed} seeds would decide at this spread" if needed else "no number of seeds can be said"
+    return f"cannot decide ({more})"

@@ -24,7 +24,7 @@ from coopsumo.record_schemas import PROTOCOL_STATS
 from coopsumo.report.markdown import md_table
 from coopsumo.sim import passing
 from coopsumo.studies.engine import stats
-from coopsumo.studies.protocol.alpha_response import FIGURE, alpha_lines, response_figure
+from coopsumo.studies.protocol.alpha_response import FIGURE, alpha_lines, pairs_lines, response_figure
 from coopsumo.studies.protocol.figures import TWO_STAGE_NOTE, VALIDATION_CAPTION, validation_curves_figure
 from coopsumo.studies.protocol.plan import BASELINES, EVAL_SEED
 from coopsumo.studies.protocol.thrashing import thrashing_lines
@@ -389,7 +389,7 @@ def report_text(profile: Any, runs: pd.DataFrame, ok: pd.DataFrame, table: pd.Da
     lines += paired_lines(ok, profile, meta)
     lines += committed_pair_lines(runs, profile)
     lines += ["", *target_lines(table, ok, profile), ""]
-    lines += alpha_lines(profile, ok)
+    lines += alpha_lines(profile, ok) + pairs_lines(profile, ok)
     done = runs[runs["status"] == "ok"]
     safety = done[["collisions", "teleports"]].sum()
     lines += [f"Safety: {int(safety['collisions'])} collisions and {int(safety['teleports'])} teleports in all "
