@@ -57,8 +57,9 @@ scenario1: $(STAMP)
 scenario2: $(STAMP)
 	$(BIN)/coopsumo scenario2 $(if $(PROFILE),--profile $(PROFILE))
 
+# the learner ablation (the chain from the paper's learner to the default) as the protocol's learning profile
 learning: $(STAMP)
-	$(BIN)/coopsumo learning $(if $(QUICK),--quick) $(if $(PROFILE),--profile $(PROFILE) --out results/learning_$(PROFILE))
+	$(BIN)/coopsumo protocol --profile learning
 
 # without PROFILE the profile judging today's default learner (protocol_plan.CURRENT); each writes its own folder
 protocol: $(STAMP)

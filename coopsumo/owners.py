@@ -120,11 +120,10 @@ def _claim_line(real: Path, found: tuple[Path, str], what: str, advice: str) -> 
             f"writes; {advice}")  # fmt: skip
 
 
-def owned_problem(path: Path, what: str, advice: str = "pick another --out", itself: bool = False,
-                  unmarked: bool = True) -> str | None:  # fmt: skip
+def owned_problem(path: Path, what: str, advice: str = "pick another --out", itself: bool = False) -> str | None:
     """Why a command may not write `path` (what: the flag and value naming it, advice: what to do instead), or None:
     `path`, its links resolved, lies inside a study's root, in the model store or in a single run's folder (a
-    simulate run's, a training's), or (unmarked) inside a study's root written before markers (unmarked_study_problem;
+    simulate run's, a training's), or inside a study's root written before markers (unmarked_study_problem;
     issue 82, probe 8: `simulate --out P/sim` inside a committed protocol study); itself: `path` is not the command's
     own folder, so it may not be one of these either (the networks folder). The study's folder is named first (a run
     inside it is the study's)."""
@@ -137,7 +136,7 @@ def owned_problem(path: Path, what: str, advice: str = "pick another --out", its
         return f"{problem}; {advice}"
     if found := _marked(real, itself, study=False):
         return _claim_line(real, found, what, advice)
-    return unmarked_study_problem(real, what, advice) if unmarked else None
+    return unmarked_study_problem(real, what, advice)
 
 
 def claimed_problem(path: Path, what: str, advice: str) -> str | None:

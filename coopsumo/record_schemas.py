@@ -17,7 +17,7 @@ that torch is not imported here). The limits are ones a real run never reaches; 
 Record kinds covered: a training checkpoint and a model file's tensors (CHECKPOINT_TENSORS, MODEL_TENSORS), a stored
 model's config.json (STORE_CONFIG), a run's summary (RUN_SUMMARY) and detectors.xml intervals (DETECTOR_INTERVAL), a
 learner protocol study's study.json and stats.csv (PROTOCOL_STUDY, PROTOCOL_STATS), a study's cell record
-(CELL_RECORD); scenario I's, scenario II's (sweep.json too), the learning study's and the follow-ups' tables are
+(CELL_RECORD); scenario I's, scenario II's (sweep.json too) and the regime map's tables are
 declared alike in the sibling module study_tables, a run's measures by the rules here (MEASURES). Elsewhere:
 scenario I's plan.json is read through its typed Plan (scenario1.merge), the studies' TOML data through the flags'
 own rules (field_rules, read by catalogue.Entry).
@@ -371,7 +371,7 @@ grow: besides MEASURES, the rules go by suffix"""
 TRAIN_SUMMARY_KEYS = ("mean_speed_mps", "lane_changes", "collisions", "updates", "wall_seconds", "steps_per_second",
                       "departed", "steps")  # fmt: skip
 """what every training's summary holds as a number (train's train_summary.json, a cell record's train_summary): the
-values the studies copy into their tables (scenario II's and the learning study's runs.csv), the vehicles its
+values the studies copy into their tables (scenario II's runs.csv), the vehicles its
 last world sent and that world's steps; a summary without one of them, or with a text or null there, is not a
 training's (records.training_problem)"""
 

@@ -154,22 +154,14 @@ def held_study(root: Path, recorded: Recorded | None = None) -> str | None:
     return found
 
 
-def check_study_place(root: Path, hosts: Sequence[Path] = ()) -> None:
+def check_study_place(root: Path) -> None:
     """UsageError when the study root `root` lies inside a folder another command owns: another study's root, a
     simulate run's or a training's folder, the model store (owners.owned_problem, as for a single run's --out; issue
     82, probe 5, G1-G2: the study was written there, and that folder's command then refused its own folder). `root`
-    itself may be a study's: check_study_root judges whose. hosts: folders the root may lie directly in (accident-seeds'
-    default ROOT/accident, in the learning study it reads), whose own place is judged instead; only a learning study's
-    root is one (its marker's kind LEARNING_KIND; issue 82, probe 6, H2: a scenario II study given as a ROOT took
-    accident-seeds' study into its folder)."""
+    itself may be a study's: check_study_root judges whose."""
     from coopsumo.owners import owned_problem
-    from coopsumo.run_markers import LEARNING_KIND, marker_kind
 
-    real = root.resolve()
-    learning = {host.resolve() for host in hosts if marker_kind(host) == LEARNING_KIND}
-    place = real.parent if real.parent in learning else real
-    hosted = real.parent in {host.resolve() for host in hosts}  # a learning study written before markers: its command
-    if problem := owned_problem(place, f"--out {root}", unmarked=not hosted):  # checked that it is one
+    if problem := owned_problem(root.resolve(), f"--out {root}"):
         raise UsageError(problem)
 
 
@@ -192,8 +184,8 @@ def _untold_study(root: Path, plan: str, advice: str) -> str | None:
 
 def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None,
                      recorded: Recorded | None = None, advice: str = "pick another --out",
-                     hosts: Sequence[Path] = (), digest: str | None = None) -> None:  # fmt: skip
-    """UsageError unless `root` lies in no folder another command owns (check_study_place, with `hosts`) and is missing,
+                     digest: str | None = None) -> None:  # fmt: skip
+    """UsageError unless `root` lies in no folder another command owns (check_study_place) and is missing,
     empty, marked by the study `kind`, or holds the study's plan file own[0] and nothing but the study's names `own`
     (a root written before markers; fnmatch patterns: a study writes only these and never replaces its root; issue 82,
     probe 8, J3: a user's notes.txt and report.md beside a copied plan file were taken). An unmarked root without
@@ -205,7 +197,7 @@ def check_study_root(root: Path, kind: str, own: Sequence[str], study: str | Non
     with a plan file, whose study cannot be told (_untold_study); the same study resumes, unless its marker records
     other settings than `digest` (run_markers.other_settings). Either way a link in it is refused (study_link), but
     the study's own links into the model store."""
-    check_study_place(root, hosts)
+    check_study_place(root)
     root = root.resolve()
     if not root.exists():
         return
@@ -268,18 +260,17 @@ def study_link(root: Path) -> tuple[Path, Path] | None:
 
 @contextmanager
 def study_root(root: Path, kind: str, own: Sequence[str], study: str | None = None, recorded: Recorded | None = None,
-               advice: str = "pick another --out", hosts: Sequence[Path] = (),
-               digest: str | None = None) -> Iterator[Path]:  # fmt: skip
+               advice: str = "pick another --out", digest: str | None = None) -> Iterator[Path]:  # fmt: skip
     """Claim the study root `root` for the block: its path checked (check_out_path), its lock held (out_lock),
-    its place and ownership checked (check_study_root: of the study `study`, if given; `hosts`: check_study_place)
+    its place and ownership checked (check_study_root: of the study `study`, if given)
     and its marker written (unfinished: a study adds to it run by run), naming `study` (without one: the study it
     named before, kept) and `digest`, its profile's settings. The marker is the first thing written into the root: a
     root interrupted after it names its study."""
     check_out_path(root)
     root = root.resolve()
-    check_study_root(root, kind, own, study, recorded, advice, hosts, digest)
+    check_study_root(root, kind, own, study, recorded, advice, digest)
     with out_lock(root, kind):
-        check_study_root(root, kind, own, study, recorded, advice, hosts, digest)  # again, under the lock
+        check_study_root(root, kind, own, study, recorded, advice, digest)  # again, under the lock
         try:
             root.mkdir(exist_ok=True)
             ours = _marker(root) is not None  # marked before: its temporaries are the study's (an unmarked one's may

@@ -47,8 +47,8 @@ SUMMED_KINDS = ("simulate",)
 """the commands whose finished marker records SUMS: a single run's, whose folders studies reuse (a training's files
 are judged by its model's own digest, and a group's training adds its cost file after its marker)"""
 LEARNING_KIND = "ablation"
-"""the kind of marker `coopsumo learning` writes on its study's root: the only study accident-seeds reads (its ROOTs),
-and the only one it may write directly into (run_dirs.check_study_place's hosts)"""
+"""the kind of marker `coopsumo learning` wrote on its study's root (the command retired by issue 80: its ablation is
+the protocol's learning profile): such a folder is still named, as a learning study, and refused as another's"""
 
 
 def kind_name(kind: str) -> str:

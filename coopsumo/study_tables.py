@@ -1,4 +1,4 @@
-"""Scenario I's, scenario II's and the learning study's tables (runs.csv, summary.csv, evals.csv; scenario II's
+"""Scenario I's and scenario II's tables (runs.csv, summary.csv, evals.csv; scenario II's
 sweep.json too), declared as record_schemas declares the
 others (a sibling, so that neither module passes 500 lines): each column's type and physical or logical limits, checked
 before a study writes its tables (Table.check_frame) and where a table is read back (Table.read), so that a table
@@ -143,46 +143,12 @@ SCENARIO1_SUMMARY = Table((
 ))  # fmt: skip
 """scenario I's summary.csv (scenario1.measures.aggregate): per demand and policy, over its runs"""
 
-LEARNING_MEASURES = (
-    Field("mean_speed_mps", SPEED),
-    Field("lane_changes_per_vehicle", PER_VEHICLE),
-    Field("lane_changes_rejected", COUNT),
-    Field("teleports", COUNT),
-    Field("collisions", COUNT),
-    Field("throughput_veh_per_h", THROUGHPUT),
-    Field("mean_travel_time_s", TRAVEL_TIME),
-)
-"""the learning study's measures of a cell (learning.plan.METRICS): its evaluations pooled"""
-TRAIN_WALL = Field("train_wall_s", Number(0.0, unit="s", blank_ok=True))  # a baseline trains nothing
 ALPHA = Number(ALPHA_MIN, ALPHA_MAX, blank_ok=True)
-"""a learned cell's alpha; a baseline's: none"""
-PARTS = ("ablation", "alpha", "baseline")
-LEARNING_RUNS = Table(
-    columns=(Field("key", Text()), Field("kind", Text(("train", "baseline"))), Field("part", Text(PARTS)),
-             Field("variant", Text()), Field("alpha", ALPHA), Field("seed", Integer(0)), Field("eval_seed", SEED),
-             Field("status", Text(CELL_STATUSES)),
-             Field("train_mean_speed_mps", dataclasses.replace(SPEED, blank_ok=True)),
-             Field("train_lane_changes", Integer(0, blank_ok=True)), TRAIN_WALL,
-             Field("train_steps_per_s", Number(0.0, unit="steps/s", blank_ok=True)),
-             Field("train_updates", Integer(0, blank_ok=True)),
-             Field("cell_wall_s", Number(0.0, unit="s", blank_ok=True))),
-    case="status",
-    cases={"ok": LEARNING_MEASURES},
-)  # fmt: skip
-"""the learning study's runs.csv (learning.report.runs_table): one row per cell, its measures when ok (a failed cell's:
-blank)"""
-LEARNING_SUMMARY = Table((
-    Field("variant", Text(blank_ok=True)),  # archived studies' alpha rows: none
-    *_summarised((*LEARNING_MEASURES, TRAIN_WALL), "_count"),
-    Field("part", Text(PARTS)),
-    Field("alpha", ALPHA),  # the alpha response's rows only
-))  # fmt: skip
-"""the learning study's summary.csv (learning.report.write_outputs): per part, variant (and alpha), over its models"""
-
+"""a learned row's alpha; a baseline's: none"""
 _FOLLOWUP_MEASURES = tuple(dataclasses.replace(f, optional=True) if f.name == "queue_lane_changes_per_vehicle" else f
                            for f in SCENARIO1_MEASURES)  # fmt: skip
-"""scenario I's measures as the follow-ups record them (a table written before the queue's lane changes were measured
-lacks that column)"""
+"""scenario I's measures as the regime map records them (a table written before the queue's lane changes were
+measured lacks that column)"""
 REGIME_MAP_RUNS = Table((
     Field("accident", Text(("default", "paper"))),
     Field("accident_steps", Integer(1)),
@@ -195,17 +161,6 @@ REGIME_MAP_RUNS = Table((
     Field("horizon_after_start_s", Number(0.0, unit="s")),
 ), key=("accident", "t_up_s", "seed"))  # fmt: skip
 """the regime map's runs.csv (scenario1.regime_map.run_study): one row per accident length, demand and seed"""
-ACCIDENT_SEEDS_RUNS = Table((
-    Field("variant", Text()),
-    Field("alpha", ALPHA),  # a baseline's and an adaptive driver's: none
-    Field("t_up_s", DEMAND),
-    Field("seed", Integer(0)),
-    Field("adaptive_alpha_mean", ALPHA, optional=True),  # one alpha: none; a table before adaptive drivers: no column
-    *_FOLLOWUP_MEASURES,
-    Field("regime", Text(REGIMES)),
-    Field("horizon_after_start_s", Number(0.0, unit="s")),
-), key=("variant", "alpha", "t_up_s", "seed"))  # fmt: skip
-"""accident-seeds' runs.csv (followups.accident_seeds.run_study): one row per driver, demand and accident seed"""
 
 _EVALUATION = (
     *(MEASURES[name] for name in ("mean_speed_mps", "lane_changes_per_vehicle", "throughput_veh_per_h",

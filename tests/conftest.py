@@ -353,7 +353,7 @@ def made_by(readme: Path = REPO / "results" / "README.md") -> dict[str, tuple[st
 SLOWEST_FIRST = ("test_early_interrupts.py", "test_scenario2.py", "test_scenario1.py", "test_cluster.py",
                  "test_protocol.py", "test_train.py", "test_docs.py", "test_scenario2_full.py", "test_interrupts.py",
                  "test_faults.py", "test_reused_models.py", "test_faults_scenario1.py", "test_scenario2_merge.py",
-                 "test_runner.py", "test_replication.py", "test_conditioned.py", "test_ablation.py",
+                 "test_runner.py", "test_replication.py", "test_conditioned.py",
                  "test_selection.py", "test_update_worker.py", "test_extending.py", "test_sumo_tools.py",
                  "test_world_sumo.py", "test_bench_group.py", "test_mobil.py", "test_record_checks.py",
                  "test_study_commands.py", "test_envs.py", "test_bad_inputs.py", "test_history.py", "test_group.py")

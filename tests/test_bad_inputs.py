@@ -29,8 +29,8 @@ from coopsumo.errors import ConfigError
 from coopsumo.run_dirs import mark_run_dir
 from coopsumo.studies.engine import ray_probe
 
-SHIM_NAMES = {"ablation": "learning"}
-"""the test tables' module names that are not command names"""
+SHIM_NAMES: dict[str, str] = {}
+"""the test tables' module names that are not command names (none since the learning study, `ablation`, was retired)"""
 
 
 def command_main_of(name: str) -> Callable[..., int]:
@@ -163,16 +163,11 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("scenario2", ["--profile", "tiny", "--alphas", "0,2000"], ("--alphas", "1000")),
     ("scenario2", ["--profile", "tiny", "--address", "127.0.0.1:1"], ("--address",)),
     ("scenario2", ["--profile", "tiny", "--backend", "ray", "--address", "127.0.0.1:1"], ("--address", "127.0.0.1:1")),
-    # ablation
-    ("ablation", ["--profile", "tiny", "--alphas", "nan"], ("--alphas", "nan")),
-    ("ablation", ["--profile", "tiny", "--alphas", "1/0"], ("--alphas", "1/0")),
-    ("ablation", ["--profile", "tiny", "--alphas", ","], ("--alphas",)),
-    ("ablation", ["--profile", "tiny", "--alphas", "1e308"], ("--alphas", "1000")),
-    ("ablation", ["--profile", "tiny", "--variants", ","], ("--variants",)),
-    ("ablation", ["--profile", "tiny", "--seeds", "99999999999"], ("--seeds", "99999999999")),
-    ("ablation", ["--profile", "tiny", "--workers", "-3"], ("--workers", "-3")),
-    ("ablation", ["--profile", "tiny", "--address", "1.2.3.4:1"], ("--address",)),
-    ("ablation", ["--profile", "tiny", "--backend", "ray", "--address", "127.0.0.1:1"], ("--address", "127.0.0.1:1")),
+    # protocol (the learner ablation is its profile `learning` since issue 80)
+    ("protocol", ["--profile", "tiny", "--workers", "-3"], ("--workers", "-3")),
+    ("protocol", ["--profile", "tiny", "--address", "1.2.3.4:1"], ("--address",)),
+    ("protocol", ["--profile", "tiny", "--backend", "ray", "--address", "127.0.0.1:1"], ("--address", "127.0.0.1:1")),
+    ("protocol", ["--profile", "warp"], ("--profile", "warp")),
     # bench (no output folder)
     ("bench", ["--steps", "5"], ("--steps",)),
     ("bench", ["--quick", "--bogus"], ("--bogus",)),
@@ -185,9 +180,6 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("scenario2", ["--profile", "tiny", "--lanes", "3,3"], ("--lanes", "3 more than once")),
     ("scenario2", ["--profile", "tiny", "--policies", "dqn,,mobil"], ("--policies", "empty item")),
     ("scenario2", ["--profile", "tiny", "--policies", "dqn,fast"], ("--policies", "'fast'")),
-    ("ablation", ["--profile", "tiny", "--variants", "paper,,mask"], ("--variants", "empty item")),
-    ("ablation", ["--profile", "tiny", "--variants", "paper,paper"], ("--variants", "paper more than once")),
-    ("ablation", ["--profile", "tiny", "--quick"], ("--quick", "--profile")),
     ("scenario1", ["--quick", "--alphas", "0,2,2"], ("--alphas", "2 more than once")),
     ("scenario1", ["--quick", "--preset", "default,,paper"], ("--preset", "empty item")),
     ("train", [*TRAIN, "--alpha-relabel", "0.3"], ("--alpha-relabel", "--alpha-conditioned")),
@@ -205,7 +197,6 @@ ROWS: list[tuple[str, list[str], tuple[str, ...]]] = [
     ("scenario2", ["--profile", "tiny", "--lanes", "3,3.0"], ("--lanes", "'3' and '3.0'")),
     ("scenario2", ["--profile", "tiny", "--alphas", "8,8e0"], ("--alphas", "'8' and '8e0'")),
     ("scenario2", ["--profile", "tiny", "--policies", "mobil", "--mobil-p", "0,-0.0"], ("--mobil-p", "'-0.0'")),
-    ("ablation", ["--profile", "tiny", "--alphas", "2, 2.0"], ("--alphas", "'2' and '2.0'")),
     ("train", [*TRAIN, "--select-every", "100", "--validation-t-up", "2,2.00"], ("--validation-t-up", "'2.00'")),
     # issue 67: a value just outside its range is printed as given, not rounded onto the limit
     ("simulate", [*SIM, "--t-up", "3600.0000001"], ("--t-up", "<= 3600", "got '3600.0000001'")),
@@ -281,7 +272,7 @@ def test_bad_input_as_a_process(index: int, tmp_path: Path) -> None:
 
 def test_the_table_covers_every_command() -> None:
     per_command = {c: sum(r[0] == c for r in ROWS) for c in ("simulate", "train", "scenario1", "scenario2",
-                                                                 "ablation", "bench")}  # fmt: skip
+                                                                 "protocol", "bench")}  # fmt: skip
     assert len(ROWS) >= 40 and all(n >= 2 for n in per_command.values()), per_command
     assert len(SUBPROCESS_ROWS) == 6
 
@@ -587,7 +578,7 @@ def test_checkpoints_of_other_versions_and_runs_are_refused_or_resumed(
     _one_line(*_resume(default, capsys), "does not fit its configuration")
 
 
-@pytest.mark.parametrize("command", ["simulate", "train", "scenario1", "scenario2", "ablation"])
+@pytest.mark.parametrize("command", ["simulate", "train", "scenario1", "scenario2", "protocol"])
 def test_an_output_folder_with_a_colon_is_refused(command: str, tmp_path: Path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """Regression: SUMO reads an output file name holding ':' as host:port and failed with a libsumo traceback."""
@@ -601,10 +592,9 @@ def test_an_output_folder_with_a_colon_is_refused(command: str, tmp_path: Path,
     assert list(tmp_path.iterdir()) == []
 
 
-MODEL_COMMANDS = ["agents.train_cli", "studies.scenario1.study", "studies.scenario2.study", "studies.learning.study",
-                  "studies.protocol.study", "studies.followups.accident_seeds"]  # fmt: skip
+MODEL_COMMANDS = ["agents.train_cli", "studies.scenario1.study", "studies.scenario2.study", "studies.protocol.study"]
 """the commands whose --out holds models a policy string (dqn:PATH) names later: train, scenario1, scenario2,
-learning, protocol, accident-seeds"""
+protocol"""
 
 
 @pytest.mark.parametrize("module", MODEL_COMMANDS)
@@ -689,12 +679,10 @@ def test_bench_refuses_a_tmpdir_its_policy_strings_cannot_hold_up_front(folder: 
 
 OUT_COMMANDS: dict[str, list[str]] = {
     "train": TRAIN, "simulate": SIM, "scenario1": ["--quick"], "scenario2": ["--profile", "tiny"],
-    "learning": ["--profile", "tiny"], "protocol": ["--profile", "tiny"],
-    "scenario1 --regime-map": ["--regime-map", "--seeds", "1"],
-    "accident-seeds": ["study", "--variants", "margin"],
+    "protocol": ["--profile", "tiny"], "scenario1 --regime-map": ["--regime-map", "--seeds", "1"],
 }  # fmt: skip
 """every command that writes an --out (and scenario I's regime map, a profile with an --out of its own), with
-arguments that would run it (accident-seeds: a learning study in study/, relative to the test's folder)"""
+arguments that would run it"""
 NETS_CASES = [(command, where) for command in OUT_COMMANDS for where in ("{out}/nets", "{out}", "{link}/nets")]
 
 
@@ -720,10 +708,7 @@ def test_networks_inside_out_are_refused_up_front_by_every_command(command: str,
     """Regression (issue 67): $COOPSUMO_NETS_DIR inside a study's --out (as given, or through a link) was taken:
     the networks SUMO builds would be written among the study's own files. Every command that writes an --out
     refuses it as train does, in one line, exit code 2, nothing written."""
-    from test_study_commands import learning_folder
-
     monkeypatch.chdir(tmp_path)
-    learning_folder(tmp_path / "study", ("margin",))
     out = tmp_path / "out"
     (tmp_path / "link").symlink_to(out, target_is_directory=True)  # leads into --out, which does not exist yet
     nets = where.format(out=out, link=tmp_path / "link")
@@ -737,8 +722,7 @@ def test_networks_inside_out_are_refused_up_front_by_every_command(command: str,
     assert _listing(tmp_path) == before
 
 
-MODEL_COMMAND_ARGS = {name: OUT_COMMANDS[name] for name in ("train", "scenario1", "scenario2", "learning",
-                                                            "protocol", "accident-seeds")}  # fmt: skip
+MODEL_COMMAND_ARGS = {name: OUT_COMMANDS[name] for name in ("train", "scenario1", "scenario2", "protocol")}
 """the commands whose --out holds models a policy string names (MODEL_COMMANDS), run without --out"""
 
 
@@ -749,10 +733,8 @@ def test_a_default_out_no_policy_string_can_name_is_refused(command: str, tmp_pa
     """Regression (issue 67): a project cloned into a path with a space, the command run there without --out: its
     default results/... folder holds the space, so no policy string (dqn:PATH) could name the models trained there.
     Refused as a given --out with a space is, before anything is written."""
-    from test_study_commands import learning_folder
-
     project = tmp_path / "my project"
-    learning_folder(project / "study", ("margin",))
+    project.mkdir()
     monkeypatch.chdir(project)
     before = _listing(tmp_path)
     code = _command_main(command, MODEL_COMMAND_ARGS[command])

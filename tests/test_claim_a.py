@@ -152,7 +152,7 @@ def test_scenario1_trains_the_learner_protocols_alpha_only_dense_as_the_protocol
     assert "stks" not in known and "alpha_only" in known and "nr10" in known  # nr10: the default before
     profile = load_profiles(variants())[0]["alpha_only_dense"]
     mine = train_config(PROFILES["default"], 0.0, "alpha_only_dense", 104)
-    theirs = protocol_train(profile, variants()["alpha_only_dense"].learner, 0.0, 104)
+    theirs = protocol_train(profile, variants()["alpha_only_dense"], 0.0, 104)
     assert model_id(to_dict(mine)) == model_id(to_dict(theirs))
     assert _preset_list("alpha_only_dense") == ("alpha_only_dense",)
     text = training_text(replace(PROFILES["default"], presets=("alpha_only_dense",)))

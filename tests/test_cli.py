@@ -28,8 +28,8 @@ def parsers() -> dict[str, argparse.ArgumentParser]:
 
 
 def test_the_commands_are_the_issue_s_six_the_protocol_and_the_studies_beside_them() -> None:
-    assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "learning", "protocol",
-                                  "accident-seeds", "history", "models", "bench"]  # fmt: skip
+    assert list(cli.COMMANDS) == ["simulate", "train", "scenario1", "scenario2", "protocol", "history", "models",
+                                  "bench"]  # fmt: skip
 
 
 def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
@@ -123,14 +123,15 @@ SPELLINGS = [["-m", "coopsumo", "train"], ["-m", "coopsumo.train"], ["-m", "coop
 def test_python_m_spellings_show_the_same_help(spelling: list[str]) -> None:
     res = subprocess.run([sys.executable, *spelling, "--help"], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr[-1500:]
-    name = spelling[-1].split(".")[-1].replace("ablation", "learning")
+    name = spelling[-1].split(".")[-1]
     assert res.stdout.startswith(f"usage: coopsumo {name} ")
 
 
 def test_makefile_targets_call_the_console_command() -> None:
     make = (ROOT / "Makefile").read_text()
     for target, command in (("demo", "simulate"), ("bench", "bench"), ("scenario1", "scenario1"),
-                            ("scenario2", "scenario2"), ("learning", "learning"), ("protocol", "protocol"),
+                            ("scenario2", "scenario2"), ("learning", "protocol --profile learning"),
+                            ("protocol", "protocol"),
                             ("regime-map", "scenario1 --regime-map")):  # fmt: skip
         recipe = re.search(rf"^{target}: .*\n\t(.*)$", make, flags=re.M)
         assert recipe is not None and recipe.group(1).startswith(f"$(BIN)/coopsumo {command}"), target

@@ -1,5 +1,5 @@
 """One network for every alpha: the conditioned forward pass, replay with alpha and relabelling, the alpha schedule of
-training, driving at an alpha, the adaptive rule, bad input, and the tiny learning study's conditioned variant."""
+training, driving at an alpha, the adaptive rule and bad input (the protocol's conditioned variant: test_protocol)."""
 
 from __future__ import annotations
 
@@ -28,7 +28,6 @@ from coopsumo.errors import ConfigError, UsageError
 from coopsumo.policy_spec import ADAPTIVE, split_dqn_spec
 from coopsumo.sim.observation import Observation
 from coopsumo.sim.physics import LEFT, SPEEDUP
-from coopsumo.studies.learning.report import per_alpha_twin
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -123,13 +122,6 @@ def test_alpha_draw_max_keeps_the_draws_and_the_relabelling_within_the_paper_alp
     assert DQNConfig(alpha_draw_max=0.5).validate() is None
     with pytest.raises(ConfigError, match="alpha_draw_max"):
         DQNConfig(alpha_draw_max=-1.0).validate()
-
-
-def test_both_conditioned_variants_are_compared_with_the_per_alpha_default() -> None:
-    assert per_alpha_twin("conditioned", ("noreturn", "conditioned")) == "noreturn"
-    assert per_alpha_twin("conditioned8", ("noreturn", "conditioned8")) == "noreturn"  # alpha_draw_max is no difference
-    assert per_alpha_twin("conditioned8", ("queue", "conditioned8")) is None  # the twin must be in the study
-    assert per_alpha_twin("conditioned8v", ("noreturn", "conditioned8v")) == "noreturn"  # nor are validation alphas
 
 
 def test_a_conditioned_training_keeps_the_worlds_alpha_at_zero() -> None:
@@ -397,56 +389,3 @@ def test_alpha_conditioned_beside_alpha_is_refused(tmp_path: Path) -> None:
     assert res.returncode == 2
     assert len(res.stderr.strip().splitlines()) == 1 and "leave --alpha out" in res.stderr
     assert not out.exists()
-
-
-@pytest.mark.sumo
-def test_learning_study_drives_one_conditioned_model_per_seed_at_every_alpha(tmp_path: Path) -> None:
-    """The learning study's conditioned variant beside per-alpha models, then the accident at fixed and adaptive
-    alpha (coopsumo accident-seeds --adaptive)."""
-    out = tmp_path / "learning"
-    res = subprocess.run([sys.executable, "-m", "coopsumo", "learning", "--profile", "tiny", "--variants",
-                          "noreturn,conditioned", "--alpha-variants", "noreturn,conditioned", "--alphas", "0,8",
-                          "--out", str(out), "--quiet"],
-                         cwd=ROOT, capture_output=True, text=True, check=False)  # fmt: skip
-    assert res.returncode == 0, res.stderr[-2000:]
-    assert sorted(p.name for p in (out / "train").glob("conditioned*")) == ["conditioned_seed0", "conditioned_seed1"]
-    assert sorted(p.name for p in (out / "evals" / "conditioned_seed0").glob("eval_*")) == [
-        "eval_seed1000_margin1_queue5_noreturn10_alpha0", "eval_seed1000_margin1_queue5_noreturn10_alpha8",
-        "eval_seed1001_margin1_queue5_noreturn10_alpha0",
-        "eval_seed1001_margin1_queue5_noreturn10_alpha8"]  # every model, every seed
-    report = (out / "report.md").read_text()
-    assert "## One network for every alpha: `conditioned` against per-alpha `noreturn` models" in report
-    assert "| 8 | 2 |" in report
-    acc = subprocess.run([sys.executable, "-m", "coopsumo", "accident-seeds", str(out), "--variants", "conditioned",
-                          "--alphas", "0,8", "--adaptive", "--seeds", "1", "--steps", "1500", "--t-up", "3", "--out",
-                          str(tmp_path / "acc")], cwd=ROOT, capture_output=True, text=True)  # fmt: skip
-    assert acc.returncode == 0, acc.stderr[-2000:]
-    runs = pd.read_csv(tmp_path / "acc" / "runs.csv")
-    assert set(runs["variant"]) == {"keep", "greedy", "mobil:p=0", "conditioned", "conditioned_adaptive"}
-    assert (runs["collisions"] == 0).all() and (runs["teleports"] == 0).all()
-    assert list((tmp_path / "acc" / "runs").glob("t3/*adaptive*/adaptive_alpha.csv"))
-    acc_report = (tmp_path / "acc" / "report.md").read_text()
-    assert "## Adaptive alpha against every fixed alpha" in acc_report
-    assert "| 3 | `conditioned` | 0 | 1 |" in acc_report and "| 3 | `conditioned` | 8 | 1 |" in acc_report  # its models
-
-
-def test_the_conditioned_table_tells_behind_from_ahead() -> None:
-    """conditioned_table: per alpha the paired speed difference against the per-alpha models' seed sd; within spread
-    is two-sided, not behind one-sided, and the report's count line gives both."""
-    from coopsumo.studies.followups.robustness import conditioned_markdown, conditioned_table
-
-    rows = []
-    per_alpha = {0.0: (17.0, 17.2, 17.4), 1.0: (17.0, 17.1, 17.2), 8.0: (17.0, 17.1, 17.2)}  # sd 0.2, 0.1, 0.1
-    shift = {0.0: -0.1, 1.0: +0.5, 8.0: -0.5}  # within; ahead by more than the sd; behind by more
-    for alpha, speeds in per_alpha.items():
-        for seed, v in enumerate(speeds):
-            common = {"status": "ok", "alpha": alpha, "seed": seed, "lane_changes_per_vehicle": 1.0}
-            rows.append({**common, "key": f"t{alpha}{seed}", "variant": "target", "mean_speed_mps": v})
-            rows.append({**common, "key": f"c{alpha}{seed}", "variant": "cond", "mean_speed_mps": v + shift[alpha]})
-    table = conditioned_table(pd.DataFrame(rows), "cond", "target").set_index("alpha")
-    assert table["within_spread"].to_dict() == {0.0: True, 1.0: False, 8.0: False}
-    assert table["not_behind"].to_dict() == {0.0: True, 1.0: True, 8.0: False}
-    assert table.loc[1.0, "d_speed_mean"] == pytest.approx(0.5)
-    text = "\n".join(conditioned_markdown(table.reset_index(), "cond", "target"))
-    assert ("Within the per-alpha seed spread at 1 of 3 alphas; not behind by more than it at 2 of 3 (ahead by more "
-            "at 1)") in text

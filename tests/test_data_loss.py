@@ -431,7 +431,6 @@ STUDIES = {  # a study that trains, with a run small enough to start: refused be
     "scenario1": ("coopsumo.studies.scenario1.study", ["--quick", "--alphas", "0", "--train-seeds", "1"]),
     "scenario2": ("coopsumo.studies.scenario2.study", ["--profile", "tiny", "--quiet"]),
     "protocol": ("coopsumo.studies.protocol.study", ["--profile", "tiny", "--quiet"]),
-    "learning": ("coopsumo.studies.learning.study", ["--profile", "tiny", "--quiet"]),
 }
 
 

@@ -21,8 +21,8 @@ TEXT = {page: page.read_text() for page in PAGES}
 RUN_HERE = [page for page in PAGES if page.name != "extending.md"]
 """the pages whose commands and snippets run here (docs/extending.md's run in tests/test_extending.py, in a working
 folder holding its module)"""
-STUDIES = ("scenario1", "scenario2", "learning", "protocol", "history")
-"""run in tests/test_scenario1.py, test_scenario2.py, test_ablation.py and test_protocol.py with tiny profiles;
+STUDIES = ("scenario1", "scenario2", "protocol", "history")
+"""run in tests/test_scenario1.py, test_scenario2.py and test_protocol.py with tiny profiles;
 history (which prints the whole committed table) in tests/test_history.py"""
 
 

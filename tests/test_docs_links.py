@@ -13,7 +13,6 @@ from pathlib import Path
 import pytest
 
 from coopsumo.studies.engine.run_folders import default_out
-from coopsumo.studies.learning import plan as ablation_plan
 from coopsumo.studies.scenario2 import study as scenario2
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -53,12 +52,9 @@ def test_every_relative_link_points_at_a_tracked_file_or_folder() -> None:
 
 
 def study_outputs() -> set[str]:
-    """The folders under results/ the learning study and scenario II write without --out (a page may name them as
-    such even when a report once made there is archived): results/learning[_<profile>],
-    results/scenario2[_<profile>]."""
-    learning = {default_out("learning", name, "full").name for name in ablation_plan.PROFILES}
-    sweeps = {default_out("scenario2", name, scenario2.DEFAULT_PROFILE).name for name in scenario2.PROFILES}
-    return learning | sweeps
+    """The folders under results/ scenario II writes without --out (a page may name them as such even when a report
+    once made there is archived): results/scenario2[_<profile>]."""
+    return {default_out("scenario2", name, scenario2.DEFAULT_PROFILE).name for name in scenario2.PROFILES}
 
 
 def test_no_page_names_an_archived_results_folder_by_its_old_path() -> None:
@@ -66,7 +62,7 @@ def test_no_page_names_an_archived_results_folder_by_its_old_path() -> None:
     archived = {Path(f).name for f in folders if re.fullmatch(r"results/archive/[^/]+", f)}
     assert {"learning_restart", "learning_robust", "scenario2_conditioned"} <= archived
     outputs = study_outputs()
-    assert "learning" in outputs and "scenario2" in outputs
+    assert "scenario2" in outputs
     stale = []
     for page in PAGES:
         text = page.read_text()

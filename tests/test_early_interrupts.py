@@ -1,29 +1,28 @@
 """Issue 82, item 4: a Ctrl-C at any moment of a command, from its first instruction on, is one line and exit code 130,
 in the command and in every process it started. Each command is started as a terminal starts it (a process group of
 its own), with small valid arguments in a fresh folder, and gets SIGINT sent to its whole group, as a terminal's
-Ctrl-C does, 0.2, 0.5, 1 or 2 s after it started: while Python imports torch, libsumo and pandas, while it checks
-its arguments, while a study's workers or the training's update worker start, or once they work. Its stderr must
-then hold exactly one line saying it was interrupted (its progress bars and own lines beside it are fine), no
-traceback from it or from any of its processes, and it must exit with 130, its processes gone. Before, `coopsumo
-train` and the other commands printed a KeyboardInterrupt traceback when the Ctrl-C came during their imports, and a
-scenario I worker printed one of its own when it came while the worker started.
+Ctrl-C does, 0.2, 0.5, 1 or 2 s after it started: while Python imports torch, libsumo and pandas, while it checks its
+arguments, while a study's workers or the training's update worker start, or once they work. Its stderr must then
+hold exactly one line saying it was interrupted (its progress bars and own lines beside it are fine), no traceback
+from it or from any of its processes, and it must exit with 130, its processes gone. Before, `coopsumo train` and the
+other commands printed a KeyboardInterrupt traceback when the Ctrl-C came during their imports, and a scenario I
+worker printed one of its own when it came while the worker started.
 
 Time (about a minute on 2 cores): the commands that start processes (train: its update worker; scenario1 and its
---regime-map, scenario2, learning, protocol: their pools of workers) and simulate get all four moments; the others,
-and `python -m coopsumo`, one each, chosen while they still run: accident-seeds (refusing its folder) ends within a
-second or two, so 0.2 s, during its imports; models (a store of three real 40-step models, which its listing checks with
-torch, and one folder that is no model) at 0.2 s and half-way through its uninterrupted run on this machine, measured
-just before (MIDWAY: a fixed 1 s landed while a fast CI machine's Python already exited, 2026-12-02, where a Ctrl-C is
-ignored by design, runio.run_interruptible; a store without a model ended within 0.2 s on a fast machine; and when
-the run is faster than the measured one, as on a loaded machine, it is run again with its Ctrl-C at a half and a
-quarter of that moment, until one lands); scenario2
---merge (the committed parts are an earlier default learner's, which today's merge refuses after about a second) and
-history (about 2 s) MIDWAY too; bench at 2 s (some 20 s in all). A Ctrl-C later in a training is
-tests/test_interrupts.py's, in a study tests/test_faults_scenario1.py's. What comes before the command's first
-instruction is Python's own start (some 0.05 s of CPU), which no code of the command can guard; the console command
-imports nothing there (test below). On a loaded machine that start can take longer than 0.2 s of wall time, so a
-moment counts only once the command's process has also used the CPU time of that start (started_cpu): before, the
-Ctrl-C at 0.2 s landed in Python's site import while the whole suite ran beside it."""
+--regime-map, scenario2, protocol: their pools of workers) and simulate get all four moments; the others, and `python
+-m coopsumo`, one each, chosen while they still run: models (a store of three real 40-step models, which its listing
+checks with torch, and one folder that is no model) at 0.2 s and half-way through its uninterrupted run on this
+machine, measured just before (MIDWAY: a fixed 1 s landed while a fast CI machine's Python already exited,
+2026-12-02, where a Ctrl-C is ignored by design, runio.run_interruptible; a store without a model ended within 0.2 s
+on a fast machine; and when the run is faster than the measured one, as on a loaded machine, it is run again with its
+Ctrl-C at a half and a quarter of that moment, until one lands); scenario2 --merge (the committed parts are an
+earlier default learner's, which today's merge refuses after about a second) and history (about 2 s) MIDWAY too;
+bench at 2 s (some 20 s in all). A Ctrl-C later in a training is tests/test_interrupts.py's, in a study
+tests/test_faults_scenario1.py's. What comes before the command's first instruction is Python's own start (some 0.05
+s of CPU), which no code of the command can guard; the console command imports nothing there (test below). On a
+loaded machine that start can take longer than 0.2 s of wall time, so a moment counts only once the command's process
+has also used the CPU time of that start (started_cpu): before, the Ctrl-C at 0.2 s landed in Python's site import
+while the whole suite ran beside it."""
 
 from __future__ import annotations
 
@@ -54,13 +53,11 @@ CASES: dict[str, tuple[list[str], tuple[float | str, ...]]] = {
     "simulate": (["simulate", "--steps", "20000", "--out", "{tmp}/sim", "--quiet"], FOUR),
     "scenario1": (["scenario1", "--quick", "--out", "{tmp}/s1"], FOUR),
     "scenario2": (["scenario2", "--profile", "tiny", "--out", "{tmp}/s2", "--quiet"], FOUR),
-    "learning": (["learning", "--profile", "tiny", "--out", "{tmp}/learning", "--quiet"], FOUR),
     "protocol": (["protocol", "--profile", "tiny", "--out", "{tmp}/protocol", "--quiet"], (*FOUR, 6.0)),
     "scenario1 --regime-map": (["scenario1", "--regime-map", "--t-up", "2", "--steps", "2000", "--out", "{tmp}/rm",
                                 "--quiet"], FOUR),  # fmt: skip
     "scenario2 --merge": (["scenario2", "--merge", f"{PARTS}/L2,{PARTS}/L3", "--out", "{tmp}/merged", "--quiet"],
                           (MIDWAY,)),  # fmt: skip
-    "accident-seeds": (["accident-seeds", "{tmp}/no_study", "--out", "{tmp}/accident", "--quiet"], (0.2,)),
     "history": (["history", "--results", "{repo}/results", "--out", "{tmp}/history.md"], (MIDWAY,)),
     "models": (["models", "--store", "{tmp}/store"], (0.2, MIDWAY)),
     "bench": (["bench", "--quick"], (2.0,)),

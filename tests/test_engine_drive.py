@@ -1,5 +1,5 @@
-"""studies/engine/cells.py: a model's dqn policy string with its drive settings, and the learning study driving its
-evaluations through it (the drive settings reach the loaded policy). No SUMO run: the training and the run are
+"""studies/engine/cells.py: a model's dqn policy string with its drive settings, and the protocol driving its runs
+through it (the drive settings reach the loaded policy). No SUMO run: the training and the run are
 faked, the model file and its policy are real."""
 
 from __future__ import annotations
@@ -10,8 +10,7 @@ from typing import Any
 
 import pytest
 
-from coopsumo.config import SimConfig, to_dict
-from coopsumo.dqn_config import DQNConfig
+from coopsumo.config import SimConfig
 from coopsumo.policy_spec import DRIVES, parse_policy
 from coopsumo.studies.engine.cells import cell_policy, dqn_policy, drive_pooled
 
@@ -48,17 +47,24 @@ def test_drive_pooled_keeps_each_evaluation_and_pools_them(tmp_path: Path) -> No
     assert record["summary"] == {"departed": 20, "lane_changes": 4, "mean_speed_mps": 3.0, "collisions": 0}
 
 
-def learning_specs() -> dict[str, dict[str, Any]]:
-    from coopsumo.studies.learning.plan import PROFILES, cell_specs
+def protocol_specs() -> dict[str, dict[str, Any]]:
+    """The free-flow cells of the tiny protocol profile with three variants: paper (as saved), m2 (target's training
+    driven with a margin of 2, a queue rule below 5 m/s and no change back within 10 s) and conditioned8 (driven at
+    its cell's alpha), its alpha response at 8 on one seed."""
+    from coopsumo.studies.engine.catalogue import Learner
+    from coopsumo.studies.protocol.plan import PROFILES, cell_specs, variants
 
-    profile = replace(PROFILES["tiny"], variants=("paper", "margin2", "conditioned"), alpha_variants=("conditioned",),
-                      alphas=(0.0, 8.0), seeds=(0,))  # fmt: skip
-    return {s["key"]: s for s in cell_specs(profile, DQNConfig()) if s["kind"] == "train"}
+    known = variants()
+    known["m2"] = Learner("m2", "target driven otherwise", known["target"].learner, margin=2.0, queue=5.0,
+                          noreturn=10.0)
+    profile = replace(PROFILES["tiny"], variants=("paper", "m2", "conditioned8"), judged="conditioned8",
+                      seeds=(100,), alpha_seeds=1, t_ups=(1.0,))  # fmt: skip
+    return {s["key"]: s for s in cell_specs(profile, known) if s["kind"] == "model" and s["scenario"] == "free"}
 
 
 @pytest.fixture
 def faked_runs(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, Any, Path]]:
-    """The learning study's trainings faked (a real model file with the training's configuration, untrained) and
+    """The protocol's trainings faked (a real model file with the training's configuration, untrained) and
     its runs (rollout.run): each run's (policy string, the policy built from it, run folder) is listed."""
     import coopsumo.agents.rollout as rollout
     from coopsumo.agents.dqn import QNetwork
@@ -85,44 +91,26 @@ def faked_runs(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, Any, Path]]:
     return runs
 
 
-def test_the_learning_study_drives_each_evaluation_with_its_cells_drive_settings(
+def test_the_protocol_drives_each_run_with_its_variants_drive_settings(
     tmp_path: Path, faked_runs: list[tuple[str, Any, Path]]
 ) -> None:
-    """margin2 drives target's training with a margin of 2, a queue rule below 5 m/s and no change back within 10 s,
-    each set on the loaded policy (as the study set them before it drove through the policy string); paper drives
-    its model with none (0, as saved); the conditioned model at its cell's alpha with its variant's settings."""
-    from coopsumo.studies.learning.study import run_cell
+    """m2 drives target's training with its margin, queue rule and no-return time, each reaching the loaded policy;
+    paper drives its model as saved (its own settings); the conditioned model at its cell's alpha."""
+    from coopsumo.dqn_config import dqn_config_from_dict
+    from coopsumo.studies.protocol.study import run_cell
 
-    specs = learning_specs()
-    expected = {
-        "paper_alpha0_seed0": ((0.0, 0.0, 0.0), None, "eval_seed{}"),
-        "margin2_alpha0_seed0": ((2.0, 5.0, 10.0), None, "eval_seed{}_margin2_queue5_noreturn10"),
-        "conditioned_alpha8_seed0": ((1.0, 5.0, 10.0), 8.0, "eval_seed{}_margin1_queue5_noreturn10_alpha8"),
-    }
-    for key, (drive, alpha, folder) in expected.items():
+    specs = protocol_specs()
+    expected = {"paper_a0_seed100_free_t1": (None, None), "m2_a0_seed100_free_t1": ((2.0, 5.0, 10.0), None),
+                "conditioned8_a0_seed100_free_t1": (None, 0.0), "conditioned8_a8_seed100_free_t1": (None, 8.0)}
+    assert set(expected) == set(specs)
+    for key, (drive, alpha) in expected.items():
         faked_runs.clear()
         record = run_cell(specs[key], str(tmp_path))
         assert record["status"] == "ok", record.get("error")
-        seeds = [ev["seed"] for ev in specs[key]["config"]["evals"]]
-        assert [r[2] for r in faked_runs] == [tmp_path / "evals" / specs[key]["train_key"] / folder.format(s)
-                                              for s in seeds]  # fmt: skip
-        for text, policy, _ in faked_runs:
-            assert (policy.change_margin, policy.queue_below_mps, policy.no_return_s) == drive, key
-            assert policy.alpha == alpha and text.startswith(f"dqn:{tmp_path / 'train' / specs[key]['train_key']}")
-        assert [s["eval_seed"] for s in record["eval_summaries"]] == seeds
-        assert record["summary"]["mean_speed_mps"] == 20.0 and "eval_seed" not in record["summary"]
-
-
-def test_a_drive_setting_a_learning_cell_does_not_give_is_none_in_its_model() -> None:
-    """The learning study drives a setting its cell's config.drive does not give with the model's own value, which
-    is 0 (as_trained): what the study set on the loaded policy before it drove through the policy string."""
-    from coopsumo.studies.learning.plan import DRIVE_FIELDS, PROFILES, cell_specs
-
-    for profile in PROFILES.values():
-        for spec in cell_specs(profile, DQNConfig()):
-            if spec["kind"] != "train":
-                continue
-            drive, trained = spec["config"].get("drive", {}), spec["config"]["train"]["dqn"]
-            assert all(trained[f] == 0.0 for f in DRIVE_FIELDS if f not in drive), spec["key"]
-            assert set(drive) <= {key for _, key, _ in DRIVES}
-    assert to_dict(DQNConfig())["change_margin"] != 0.0  # the default learner's margin is not 0: the check matters
+        trained = dqn_config_from_dict(specs[key]["config"]["train"]["dqn"])
+        own = (trained.change_margin, trained.queue_below_mps, trained.no_return_s)
+        ((text, policy, folder),) = faked_runs
+        assert folder.parent == tmp_path / "runs" and folder.name.startswith(f".{key}.partial-")  # written atomically
+        assert (policy.change_margin, policy.queue_below_mps, policy.no_return_s) == (drive or own), key
+        assert policy.alpha == alpha and text.startswith(f"dqn:{tmp_path / 'train' / specs[key]['train_key']}")
+        assert record["summary"]["mean_speed_mps"] == 20.0

@@ -104,37 +104,6 @@ def test_scenario2_help_states_each_profiles_defaults() -> None:
     assert policies == {name: ",".join(profile.policies) for name, profile in profiles.items()}
 
 
-def test_learning_help_states_each_profiles_values() -> None:
-    """`learning --help` said "(default: the profile's)" without the values, and "the default learner" for
-    --alpha-variants where two profiles name theirs: each profile's values now, in the form the flag takes."""
-    from coopsumo.studies.learning import study as learning
-
-    parser = learning.build_parser()
-    names = tuple(learning.PROFILES)
-    profiles = {name: learning.profile_from_args(parser.parse_args(["--profile", name])) for name in names}
-    default = learning.default_variant_name()
-    assert learning.learner_of(default) == DQNConfig()
-    expected = {
-        "--variants": lambda f: ",".join(f.variants),
-        "--alphas": lambda f: numbers(f.alphas),
-        "--alpha-variants": lambda f: ",".join(f.alpha_variants) or f"the default learner, {default}",
-        "--seeds": lambda f: str(len(f.seeds)),
-    }
-    wrong = []
-    for option, show in expected.items():
-        text = option_help(parser, option)
-        assert "(default: the profile's: full " in text, text
-        says = stated(text, names)
-        for name, profile in profiles.items():
-            if says[name] != show(profile):
-                wrong.append(f"{option} ({name}): help says {says[name]!r}, code {show(profile)!r}")
-            back = parser.parse_args(["--profile", name, option, says[name]])  # the value, given to its flag
-            if option != "--alpha-variants" or profile.alpha_variants:
-                assert learning.profile_from_args(back) == profile, f"{option} {says[name]} ({name})"
-    assert not wrong, "; ".join(wrong)
-    assert any(f.alpha_variants for f in profiles.values()) and any(not f.alpha_variants for f in profiles.values())
-
-
 def test_protocol_without_a_profile_judges_todays_default_learner_and_says_so() -> None:
     parser = protocol.build_parser()
     current = parser.get_default("profile")

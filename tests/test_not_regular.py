@@ -169,7 +169,7 @@ def test_a_merge_part_whose_sweep_json_is_a_pipe_is_refused(tmp_path: Path) -> N
         _read_part(part)
 
 
-@pytest.mark.parametrize("study", ["scenario2", "protocol", "learning"])
+@pytest.mark.parametrize("study", ["scenario2", "protocol"])
 def test_a_profile_file_that_is_a_pipe_says_so(study: str, tmp_path: Path,
                                                capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """The probe's borderline r_profile_fifo: `--profile FIFO.toml` was refused as "no file"."""

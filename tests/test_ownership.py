@@ -233,23 +233,19 @@ STUDIES = {
     "scenario1": (["--quick"], "quick", "plan.json", {"plan": {"profile": "default"}}, "default"),
     "scenario2": (["--profile", "tiny"], "tiny", "sweep.json", {"profile": {"name": "full"}}, "full"),
     "protocol": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "nr10", "t_ups": [1.5]}}, "nr10"),
-    "learning": (["--profile", "tiny"], "tiny", "study.json", {"profile": {"name": "conditioned"},
-                                                               "default_learner": {}}, "conditioned"),  # probe 7, I4
 }
 """each study command: how to run a profile and its name, and the plan file of another profile's study, whose
 profile it names"""
-KINDS = {"scenario1": "scenario1", "scenario2": "scenario2", "protocol": "protocol", "learning": "ablation"}
+KINDS = {"scenario1": "scenario1", "scenario2": "scenario2", "protocol": "protocol"}
 """the kind each study command marks its folder with"""
 
 
 def study_main(name: str, argv: list[str]) -> int:
-    from coopsumo.studies.learning import study as learning
     from coopsumo.studies.protocol import study as protocol
     from coopsumo.studies.scenario1 import study as scenario1
     from coopsumo.studies.scenario2 import study as scenario2
 
-    mains = {"scenario1": scenario1.main, "scenario2": scenario2.main, "protocol": protocol.main,
-             "learning": learning.main}  # fmt: skip
+    mains = {"scenario1": scenario1.main, "scenario2": scenario2.main, "protocol": protocol.main}
     return mains[name](argv)
 
 

@@ -85,7 +85,7 @@ def test_the_wheel_installs_and_runs_outside_the_repository(tmp_path: Path) -> N
     modules = {p.relative_to(ROOT).as_posix() for p in (ROOT / "coopsumo").rglob("*.py")}
     assert modules <= names, sorted(modules - names)  # every subpackage: sim, agents, studies, report, envs
     data = {p.relative_to(ROOT).as_posix() for p in (ROOT / "coopsumo" / "experiments_data").glob("*.toml")}
-    assert len(data) == 5 and data <= names, sorted(data - names)  # learners, protocol, scenario1, scenario2, learning
+    assert len(data) == 4 and data <= names, sorted(data - names)  # learners, protocol, scenario1, scenario2
     assert not [n for n in names if n.endswith(".xml") or "sumo_nets" in n]  # no network inside the package
     entry = next(n for n in names if n.endswith("entry_points.txt"))
     assert "coopsumo = coopsumo.cli:main" in zipfile.ZipFile(wheel).read(entry).decode()

@@ -17,10 +17,10 @@ import pytest
 from coopsumo.paths import NAME_ROOM, PATH_ROOM, out_path_problem
 
 REPO = Path(__file__).resolve().parent.parent
-COMMANDS = ("simulate", "train", "scenario1", "scenario2", "ablation")
+COMMANDS = ("simulate", "train", "scenario1", "scenario2", "protocol")
 COMMAND_MODULES = {"simulate": "coopsumo.simulate", "train": "coopsumo.train",
                    "scenario1": "coopsumo.studies.scenario1.study", "scenario2": "coopsumo.studies.scenario2.study",
-                   "ablation": "coopsumo.studies.learning.study"}  # fmt: skip
+                   "protocol": "coopsumo.studies.protocol.study"}  # fmt: skip
 NAME_MAX = os.pathconf("/tmp", "PC_NAME_MAX")
 PATH_MAX = os.pathconf("/tmp", "PC_PATH_MAX")
 

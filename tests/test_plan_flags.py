@@ -1,5 +1,5 @@
 """engine/catalogue's plan flags (issue 80): a study's options come from a table of its plan's fields; the tables
-of scenario I, scenario II and the learning study each name a field of their plan, and apply in order."""
+of scenario I and scenario II each name a field of their plan, and apply in order."""
 
 from __future__ import annotations
 
@@ -10,7 +10,6 @@ import pytest
 
 from coopsumo.errors import UsageError
 from coopsumo.studies.engine.catalogue import PlanFlag, add_plan_flags, at_least, plan_from_flags
-from coopsumo.studies.learning import study as learning
 from coopsumo.studies.scenario1 import study as scenario1
 from coopsumo.studies.scenario2 import study as scenario2
 
@@ -48,8 +47,7 @@ def test_help_states_each_profiles_default_or_the_one_they_share() -> None:
 
 
 @pytest.mark.parametrize("study,plan", [(scenario1, scenario1.PROFILES["default"]),
-                                        (scenario2, scenario2.PROFILES["full"]),
-                                        (learning, learning.PROFILES["full"])])  # fmt: skip
+                                        (scenario2, scenario2.PROFILES["full"])])  # fmt: skip
 def test_every_studys_flag_sets_fields_of_its_plan(study: object, plan: object) -> None:
     names = {f.name for f in fields(plan)}  # type: ignore[arg-type]
     parser = study.build_parser()  # type: ignore[attr-defined]

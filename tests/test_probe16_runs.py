@@ -1,9 +1,9 @@
-"""Issue 82, probe 16, TR1: a rerun of scenario I or accident-seeds reused a run folder whose trajectories.parquet or
-detectors.xml had been copied in from another run of the same road. Each file was checked only on its own (readable,
-on the road, within a lane's capacity), so the other run's measures went into runs.csv and Fig. 5 with no line. A
-finished run's marker now records the sha256 of each file its run wrote (run_markers.SUMS), and a file that is not
-that one makes the run be done again, with one line naming the folder and the file. A marker written before (no
-digests) is judged as before: its folder is reused."""
+"""Issue 82, probe 16, TR1: a rerun of scenario I or accident-seeds (since retired) reused a run folder whose
+trajectories.parquet or detectors.xml had been copied in from another run of the same road. Each file was checked
+only on its own (readable, on the road, within a lane's capacity), so the other run's measures went into runs.csv and
+Fig. 5 with no line. A finished run's marker now records the sha256 of each file its run wrote (run_markers.SUMS),
+and a file that is not that one makes the run be done again, with one line naming the folder and the file. A marker
+written before (no digests) is judged as before: its folder is reused."""
 
 from __future__ import annotations
 
@@ -14,11 +14,9 @@ import shutil
 from pathlib import Path
 
 import pytest
-from test_study_commands import learning_folder
 
 from coopsumo.run_dirs import RUN_MARKER, mark_run_dir
 from coopsumo.run_markers import SUMS, changed_file, marker_text
-from coopsumo.studies.followups import accident_seeds
 
 CHANGED = "that is not the file its run wrote (changed or copied in since); running it again"
 """the end of the line a rerun gives a run folder holding a file its run did not write"""
@@ -86,40 +84,39 @@ def test_a_killed_marking_of_a_run_with_digests_is_still_a_markers_text(tmp_path
 
 
 @pytest.mark.sumo
-def test_an_accident_seeds_rerun_redoes_a_run_folder_holding_another_runs_file(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+def test_a_regime_map_rerun_redoes_a_run_folder_holding_another_runs_file(
+    tmp_path: Path, capfd: pytest.CaptureFixture[str]
 ) -> None:
-    """The probe's as_traj_swap and as_det_swap: greedy's trajectories.parquet copied over keep's, keep's detectors.xml
-    over MOBIL's. Each run is done again with one line naming its folder and the file, and runs.csv is the study's
-    own again; a rerun after that, and one of folders whose markers record no digests (written before), reuse every
-    run without a line."""
-    root = learning_folder(tmp_path / "learning", ("paper",))
-    out = tmp_path / "acc"
-    args = [str(root), "--variants", "paper", "--seeds", "1", "--t-up", "3", "--steps", "300", "--workers", "1",
-            "--quiet", "--out", str(out)]  # fmt: skip
-    assert accident_seeds.main(args) == 0
-    runs = out / "runs" / "t3"
+    """The probe's as_traj_swap (found in accident-seeds, whose accident runs were scenario I's, as the regime map's
+    are): the paper-length accident's trajectories.parquet copied over the default one's. The run is done again with
+    one line naming its folder and the file, and runs.csv is the study's own again; a rerun after that, and one of
+    folders whose markers record no digests (written before), reuse every run without a line."""
+    from coopsumo.studies.scenario1 import study as scenario1
+
+    out = tmp_path / "rm"
+    args = ["--regime-map", "--t-up", "4", "--seeds", "1", "--steps", "600", "--workers", "1", "--quiet", "--out",
+            str(out)]  # fmt: skip
+    assert scenario1.main(args) == 0
     own = (out / "runs.csv").read_text()
-    capsys.readouterr()
-    keep, greedy, mobil = runs / "t3_keep_seed0", runs / "t3_greedy_seed0", runs / "t3_mobil_p0_seed0"
-    shutil.copyfile(greedy / "trajectories.parquet", keep / "trajectories.parquet")
-    shutil.copyfile(keep / "detectors.xml", mobil / "detectors.xml")
-    assert accident_seeds.main(args) == 0
-    err = capsys.readouterr().err
-    assert sorted(_lines(err)) == [f"accident-seeds: run folder {keep} has a trajectories.parquet {CHANGED}",
-                                   f"accident-seeds: run folder {mobil} has a detectors.xml {CHANGED}"], err
+    default, paper = out / "runs" / "default" / "t4" / "keep_seed1", out / "runs" / "paper" / "t4" / "keep_seed1"
+    shutil.copyfile(paper / "trajectories.parquet", default / "trajectories.parquet")
+    capfd.readouterr()
+    assert scenario1.main(args) == 0
+    err = capfd.readouterr().err
+    assert _lines(err) == [f"scenario1: run folder {default} has a trajectories.parquet {CHANGED}"], err
     assert (out / "runs.csv").read_text() == own
-    assert accident_seeds.main(args) == 0  # untouched since (the redone runs' markers record their new files)
-    assert _lines(capsys.readouterr().err) == []
-    for folder in runs.iterdir():  # markers as they were written before digests: reused as before
+    assert scenario1.main(args) == 0  # untouched since (the redone run's marker records its new files)
+    assert _lines(capfd.readouterr().err) == []
+    folders = (default, paper)
+    for folder in folders:  # markers as they were written before digests: reused as before
         marker = _marker(folder)
         del marker[SUMS]
         (folder / RUN_MARKER).write_text(json.dumps(marker))
-    written = {folder.name: (folder / "summary.json").stat().st_mtime_ns for folder in runs.iterdir()}
-    assert accident_seeds.main(args) == 0
-    assert _lines(capsys.readouterr().err) == [] and (out / "runs.csv").read_text() == own
-    assert {folder.name: (folder / "summary.json").stat().st_mtime_ns for folder in runs.iterdir()} == written
-    assert all(SUMS not in _marker(folder) for folder in runs.iterdir())
+    written = [(folder / "summary.json").stat().st_mtime_ns for folder in folders]
+    assert scenario1.main(args) == 0
+    assert _lines(capfd.readouterr().err) == [] and (out / "runs.csv").read_text() == own
+    assert [(folder / "summary.json").stat().st_mtime_ns for folder in folders] == written
+    assert all(SUMS not in _marker(folder) for folder in folders)
 
 
 @pytest.mark.sumo

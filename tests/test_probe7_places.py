@@ -1,6 +1,6 @@
-"""Issue 82, probe 7: folders a study writes into that it did not make. A run folder of a study (scenario II's
-evals/ and mobil/, the learning study's baselines/ and evals/) holding a user's files is refused before any run as
-scenario I refuses one (I1). Every refusal: one line, exit code 2, the user's files as they were."""
+"""Issue 82, probe 7: folders a study writes into that it did not make. A run folder of a study (scenario II's evals/
+and mobil/; the learning study's baselines/ and evals/ until issue 80 retired it) holding a user's files is refused
+before any run as scenario I refuses one (I1). Every refusal: one line, exit code 2, the user's files as they were."""
 
 from __future__ import annotations
 
@@ -22,13 +22,6 @@ train_steps = 200
 eval_steps = 300
 mobil_ps = [0]
 policies = ["dqn", "mobil"]
-"""
-LEARN = """[profiles.mini]
-train_steps = 300
-eval_steps = 200
-seeds = [0]
-variants = ["paper"]
-alphas = [0.0]
 """
 
 
@@ -74,23 +67,18 @@ def test_a_run_folder_is_the_studys_only_when_it_holds_only_a_runs_names(tmp_pat
 
 
 def mark_study(root: Path, command: str, profile: str) -> None:
-    """Mark `root` as the study `command --profile profile` marks its root when it starts."""
+    """Mark `root` as the study `command --profile profile` (scenario II) marks its root when it starts."""
     from coopsumo.run_dirs import mark_run_dir
-    from coopsumo.studies.engine.run_folders import profile_study
+    from coopsumo.studies.scenario2.redraw import sweep_study
+    from coopsumo.studies.scenario2.study import chosen_profile
 
-    if command == "scenario2":
-        from coopsumo.studies.scenario2.redraw import sweep_study
-        from coopsumo.studies.scenario2.study import chosen_profile
-
-        mark_run_dir(root, "scenario2", finished=False, study=sweep_study(chosen_profile(profile)))
-    else:
-        mark_run_dir(root, "ablation", finished=False, study=profile_study("mini"))
+    assert command == "scenario2"
+    mark_run_dir(root, "scenario2", finished=False, study=sweep_study(chosen_profile(profile)))
 
 
 CASES = {
     "scenario2 evals": ("scenario2", S2, "evals/L2_T2_a0_s1/eval_s2001", ["--bootstrap", "10"]),
     "scenario2 mobil": ("scenario2", S2, "mobil/L2_T2_mobil_p0_s2001", ["--bootstrap", "10"]),
-    "learning baselines": ("learning", LEARN, "baselines/keep_seed0", []),
 }
 
 
@@ -99,8 +87,9 @@ def test_a_studys_run_folder_holding_a_users_files_is_refused_before_any_run(cas
                                                                            monkeypatch: pytest.MonkeyPatch,
                                                                            capsys: pytest.CaptureFixture[str]) -> None:
     """I1: `scenario2 --out s` with s/evals/<key>/eval_s2001 (or s/mobil/<key>) holding a user's config.json and
-    notes.txt, `learning --out L` with L/baselines/keep_seed0 so: the run was written in, the user's config.json
-    replaced, exit 0. Refused now before any cell runs, naming the folder; the user's files kept."""
+    notes.txt (and the since retired `learning --out L` with L/baselines/keep_seed0 so): the run was written in, the
+    user's config.json replaced, exit 0. Refused now before any cell runs, naming the folder; the user's files
+    kept."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
     command, profile, place, extra = CASES[case]
@@ -150,7 +139,7 @@ def test_an_unmarked_study_json_names_its_command_too(kind: str, tmp_path: Path)
             check_study_root(tmp_path / root_kind, kind, own, profile_study(name), recorded)
 
 
-@pytest.mark.parametrize(("command", "other"), [("learning", "protocol"), ("protocol", "ablation")])
+@pytest.mark.parametrize(("command", "other"), [("protocol", "ablation")])
 def test_another_commands_unmarked_study_of_the_same_profile_is_refused(command: str, other: str, tmp_path: Path,
                                                                       monkeypatch: pytest.MonkeyPatch,
                                                                       capsys: pytest.CaptureFixture[str]) -> None:
@@ -170,8 +159,7 @@ def test_another_commands_unmarked_study_of_the_same_profile_is_refused(command:
 
 
 # -- I5: an unmarked folder of the study's own names but no plan file --------------------------------------------
-I5_COMMANDS = {"scenario2": ["--profile", "tiny"], "scenario1": ["--quick"], "learning": ["--profile", "tiny"],
-               "protocol": ["--profile", "tiny"]}  # fmt: skip
+I5_COMMANDS = {"scenario2": ["--profile", "tiny"], "scenario1": ["--quick"], "protocol": ["--profile", "tiny"]}
 
 
 @pytest.mark.parametrize("command", I5_COMMANDS)
@@ -236,9 +224,8 @@ def test_a_store_folder_holding_a_users_files_is_never_trained_into(tmp_path: Pa
         (entry / added).unlink()
 
 
-# -- I12: the study's own --out as its model store; I13: accident-seeds' default --out -------------------------------
-I12_COMMANDS = {"scenario1": ["--quick"], "scenario2": ["--profile", "tiny"], "learning": ["--profile", "tiny"],
-                "protocol": ["--profile", "tiny"]}  # fmt: skip
+# -- I12: the study's own --out as its model store ------------------------------------------------------------------
+I12_COMMANDS = {"scenario1": ["--quick"], "scenario2": ["--profile", "tiny"], "protocol": ["--profile", "tiny"]}
 
 
 @pytest.mark.parametrize("command", I12_COMMANDS)
@@ -259,27 +246,6 @@ def test_a_store_that_is_or_lies_in_the_studys_own_out_is_refused_before_anythin
         one_line(capsys, run(command, [*I12_COMMANDS[command], "--quiet", "--workers", "1", "--out", out]),
                  f"the model store {env or tmp_path / 'models'}", f"{says} {out}, the study's own --out")  # fmt: skip
         assert listing(tmp_path) == before
-
-
-def test_accident_seeds_default_out_uses_the_learning_studys_own_store(tmp_path: Path,
-                                                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    """I13: `accident-seeds ROOT` (its --out ROOT/accident) was always refused, after writing its marker and plan: the
-    store beside ROOT/accident, ROOT/models, lies inside the learning study ROOT. Its store is the learning study's
-    own, beside ROOT, and the default runs."""
-    from test_study_commands import learning_folder
-
-    from coopsumo.run_dirs import mark_run_dir
-    from coopsumo.studies.engine.model_store import store_for
-
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
-    learned = learning_folder(tmp_path / "learned", ("margin",))
-    mark_run_dir(learned, "ablation", finished=False, study="the tiny profile's study")
-    assert store_for(learned / "accident") == store_for(learned) == tmp_path.resolve() / "models"
-    argv = ["learned", "--variants", "margin", "--seeds", "1", "--t-up", "1.5", "--steps", "300", "--workers", "1",
-            "--quiet"]  # fmt: skip
-    assert run("accident-seeds", argv) == 0
-    assert (learned / "accident" / "runs.csv").is_file() and not (learned / "models").exists()
 
 
 # -- I14: history --out into a study's folder written before markers -------------------------------------------------

@@ -44,7 +44,6 @@ def test_a_path_inside_an_unmarked_study_is_refused_and_beside_it_is_not(tmp_pat
     problem = owned_problem(study / "sim", "--out P/sim")
     assert problem is not None and f"lies inside {study}, a coopsumo study's folder (its study.json" in problem
     assert owned_problem(tmp_path / "sim", "--out sim") is None
-    assert owned_problem(study / "sim", "--out P/sim", unmarked=False) is None
 
 
 @pytest.mark.parametrize("case", ["store", "study"])
@@ -230,25 +229,25 @@ def test_nothing_is_written_inside_a_runs_partial_folder(tmp_path: Path) -> None
 @pytest.mark.parametrize("committed", ["regime_map", "learning_conditioned/accident"])
 def test_a_study_committed_without_its_plan_file_is_its_own_and_nothing_elses(committed: str, tmp_path: Path) -> None:
     """I5 refused the committed regime map's folder (runs.csv and report.md only: `make regime-map` on a fresh
-    clone); it is known by its report's first line, and a run inside a copy of it is refused (probe 9, K8). A
-    user's report.md beside a runs.csv is still refused."""
+    clone); it is known by its report's first line, and a run inside a copy of it is refused (probe 9, K8), as
+    inside the accident runs of the retired accident-seeds (issue 80). A user's report.md beside a runs.csv is still
+    refused."""
     import shutil
 
     from coopsumo.errors import UsageError
     from coopsumo.run_dirs import check_study_root
     from coopsumo.studies.engine.run_folders import STUDY_OUTPUTS
-    from coopsumo.studies.followups.accident_seeds import OUTPUTS
 
-    kind = "regime_map" if committed == "regime_map" else "accident_seeds"
-    own = (*(STUDY_OUTPUTS["regime_map"] if kind == "regime_map" else OUTPUTS), "*.tmp")
+    own = (*STUDY_OUTPUTS["regime_map"], "*.tmp")
     copy = tmp_path / "copy"
     shutil.copytree(Path(__file__).resolve().parents[1] / "results" / committed, copy)
-    check_study_root(copy, kind, own)
+    if committed == "regime_map":
+        check_study_root(copy, "regime_map", own)
     problem = owned_problem(copy / "sim", "--out copy/sim")
     assert problem is not None and "a coopsumo study's folder (its report.md" in problem
     (copy / "report.md").write_text("# my own notes\n")
     with pytest.raises(UsageError, match="named like a coopsumo"):
-        check_study_root(copy, kind, own)
+        check_study_root(copy, "regime_map", own)
 
 
 @pytest.mark.parametrize("command", [["bench", "--quick"], ["simulate", "--quiet", "--steps", "30", "--out", "o"]])

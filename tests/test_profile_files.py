@@ -17,8 +17,6 @@ import pytest
 from test_scenario2 import faked_train  # noqa: F401  (the fixture: scenario II's cells without SUMO)
 
 from coopsumo.errors import ConfigError
-from coopsumo.studies.learning import plan as learning_plan
-from coopsumo.studies.learning import study as learning
 from coopsumo.studies.protocol import plan as protocol_plan
 from coopsumo.studies.protocol import study as protocol
 from coopsumo.studies.scenario2 import plan as s2_plan
@@ -244,49 +242,6 @@ def test_a_protocol_profile_of_ones_own_runs_under_its_name(tmp_path: Path, monk
     assert profile.name == "mine" and root == out and out.is_dir()
     tiny = protocol_plan.PROFILES["tiny"]
     assert [s["key"] for s in protocol_plan.cell_specs(profile)] == [s["key"] for s in protocol_plan.cell_specs(tiny)]
-
-
-def tiny_learning(name: str = "mine") -> str:
-    table = packaged_table(learning_plan.LEARNING_FILE, "[profiles.tiny]")
-    return table.replace("[profiles.tiny]", f"[profiles.{name}]")
-
-
-@pytest.mark.parametrize(("line", "words"), [
-    ("seeds = []", "seeds must be a list of integers from 0 to 2147483647"),
-    ("alphas = [0, 0.0]", "alphas gives the same value twice"),
-    ("variants = [\"paper\", \"paper\"]", "variants names 'paper' twice"),
-    ("seeds = [0, 1000]", "seeds: training seed 1000 is also an evaluation seed"),
-    ("t_up_s = nan", "t_up_s must be a finite number >= 0.1 and <= 3600 s"),
-    ("eval_steps = 0", "eval_steps must be an integer from 1 to 10000000, got 0"),
-])  # fmt: skip
-def test_a_learning_profile_is_checked_by_the_same_rules(tmp_path: Path, line: str, words: str,
-                                                         capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    path = tmp_path / "mine.toml"
-    path.write_text(with_field(tiny_learning(), line))
-    out = tmp_path / "out"
-    code, err = run_main(learning.main, ["--profile", str(path), "--out", str(out), "--quiet"], capsys)
-    assert code == 2 and len(err) == 1 and err[0].startswith(f"learning: error: {path}: [profiles.mine] {words}"), err
-    assert not out.exists()
-
-
-def test_a_learning_profile_of_ones_own_runs_under_its_name(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    path = tmp_path / "mine.toml"
-    path.write_text(tiny_learning())
-    ran: list[Any] = []
-
-    def fake_study(profile: Any, root: Path, *args: Any, **kwargs: Any) -> dict[str, Any]:
-        ran.append(profile)
-        return {"cells": 0, "wall_seconds": 0.0, "failed_cells": []}
-
-    monkeypatch.setattr(learning, "run_study", fake_study)
-    out = tmp_path / "out"
-    code, err = run_main(learning.main, ["--profile", str(path), "--out", str(out), "--quiet"], capsys)
-    assert code == 0, err
-    assert ran == [replace(learning_plan.PROFILES["tiny"], name="mine")]
-    path.write_text('chain = ["paper"]\n' + tiny_learning())  # the study's learners are learning.toml's
-    code, err = run_main(learning.main, ["--profile", str(path), "--out", str(tmp_path / "o2")], capsys)
-    assert code == 2 and len(err) == 1 and "it has no chain or variants of its own" in err[0], err
 
 
 def test_the_documented_profile_file_runs_as_documented(tmp_path: Path, faked_train: list[str],  # noqa: F811

@@ -1,7 +1,7 @@
-"""Issue 82, probe 4 (F8-F12, F20-F22): records read back edited in ways that were a traceback or trusted (JSON
-nested deeply, a profile not UTF-8, numbers too large for a float, a detectors.xml count `6.0`, a checkpoint's log
-window, a store model's `sim.seed: true`), and arguments refused only after the runs (`accident-seeds ROOT ROOT`,
-`bench --model` of random bytes)."""
+"""Issue 82, probe 4 (F8-F12, F20-F22): records read back edited in ways that were a traceback or trusted (JSON nested
+deeply, a profile not UTF-8, numbers too large for a float, a detectors.xml count `6.0`, a checkpoint's log window, a
+store model's `sim.seed: true`), and arguments refused only after the runs (`accident-seeds ROOT ROOT`, since
+retired; `bench --model` of random bytes)."""
 
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ def test_a_deeply_nested_study_record_is_named(tmp_path: Path) -> None:
     (b"[profiles.mine]\nlanes = " + b"[" * 100 + b"]" * 100 + b"\n", "not TOML (nested deeper"),
     (b"[profiles.mine]\nlanes = [" + b"9" * 5000 + b"]\n", "not TOML (Exceeds the limit"),  # fifth probe, G7
 ], ids=["not_utf8", "recursion", "nested", "digits"])  # fmt: skip
-@pytest.mark.parametrize("study", ["scenario2", "protocol", "learning"])
+@pytest.mark.parametrize("study", ["scenario2", "protocol"])
 def test_a_profile_file_not_utf8_or_nested_deeply_is_not_toml(
         study: str, text: bytes, words: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """F9: `--profile a.toml` holding a byte that is not UTF-8, or arrays nested 50,000 deep, was a
@@ -139,7 +139,7 @@ def test_a_table_or_drive_setting_too_large_for_a_float_is_named() -> None:
     assert "which no policy takes" in str(drive_problem({"change_margin": BIG}))
 
 
-@pytest.mark.parametrize("study", ["scenario2", "learning"])
+@pytest.mark.parametrize("study", ["scenario2", "protocol"])
 def test_a_profile_number_too_large_for_a_float_is_refused(study: str, tmp_path: Path,
                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
     """F10: `alphas = [999...]` in a profile of one's own: one line naming the file and the field, exit 2."""
@@ -147,7 +147,7 @@ def test_a_profile_number_too_large_for_a_float_is_refused(study: str, tmp_path:
 
     main = importlib.import_module(f"coopsumo.studies.{study}.study").main
     path = tmp_path / "p.toml"
-    words = 'help = "x"\n' if study == "scenario2" else ""  # the learning study's profiles have no help
+    words = 'help = "x"\n' if study == "scenario2" else 'variants = ["nr10"]\n'  # a protocol profile names some
     path.write_text(f"[profiles.mine]\n{words}alphas = [{BIG}]\n")
     assert main(["--profile", str(path), "--out", str(tmp_path / "out"), "--quiet"]) == 2
     one_line(capsys, f"{path}: [profiles.mine] alphas must be a finite number, got {CUT}")
@@ -198,23 +198,6 @@ def test_a_stored_model_whose_seed_is_true_is_trained_again(tmp_path: Path,
              "integer, got True; training it again")  # fmt: skip
     assert store_listing.listing(tmp_path)[0]["state"] == ("not usable: config.json field config.sim.seed must be an "
                                                         "integer, got True")  # fmt: skip
-
-
-@pytest.mark.parametrize("second", ["l", "l/", "link"])
-def test_accident_seeds_refuses_a_root_given_twice_before_anything_runs(
-        second: str, tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-        capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    """F21: `accident-seeds l l` ran every cell, wrote its folder and only then failed at runs.csv (each model's
-    rows twice), on every rerun. A ROOT given twice, as written or behind a link, is refused first."""
-    from coopsumo.studies.followups import accident_seeds
-
-    monkeypatch.chdir(tmp_path)
-    (tmp_path / "l").mkdir()
-    (tmp_path / "link").symlink_to("l")
-    before = snapshot(tmp_path)
-    assert accident_seeds.main(["l", second, "--variants", "interval", "--seeds", "1", "--out", "acc"]) == 2
-    one_line(capsys, f"accident-seeds: error: ROOT {Path(second)} is l given again")
-    assert snapshot(tmp_path) == before and not (tmp_path / "acc").exists()
 
 
 def test_bench_refuses_a_model_file_of_random_bytes_before_its_runs(

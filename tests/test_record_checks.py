@@ -1,14 +1,12 @@
-"""Issue 67, read-back checks that look inside, for cell records: a scenario II (or ablation) record whose summary
-or one of its evaluations was edited is not what its evaluations pool to and is rerun; a cell of accident-seeds is
-tied to the model file it drives (its sha256) and is rerun, with one line, when the file was replaced or cut short
-since, and its run folder is redone, with one line, when its files cannot be trusted; a scenario II record whose
-train/ link was pointed at another model is rerun, the link put back. An intact record is reused and left as it
-was."""
+"""Issue 67, read-back checks that look inside, for cell records: a scenario II record whose summary or one of its
+evaluations was edited is not what its evaluations pool to and is rerun; a run folder of scenario I's accident runs
+(the regime map; the retired accident-seeds' too) is redone, with one line, when its files cannot be trusted; a
+scenario II record whose train/ link was pointed at another model is rerun, the link put back. An intact record is
+reused and left as it was."""
 
 from __future__ import annotations
 
 import json
-import os
 import shutil
 from collections.abc import Callable
 from dataclasses import replace
@@ -18,19 +16,14 @@ from typing import Any
 import pandas as pd
 import pytest
 import test_scenario2
-from test_study_commands import learning_folder
 
 from coopsumo.studies.engine.records import (
     cell_path,
     checked_record,
     copied_wrong,
-    model_fields,
     pool_summaries,
     reusable_keys,
 )
-from coopsumo.studies.followups import accident_seeds
-from coopsumo.studies.scenario1 import accident_runs as scenario1_cells
-from coopsumo.studies.scenario1 import plan as scenario1_plan
 from coopsumo.studies.scenario2 import study as scenario2
 from coopsumo.studies.scenario2.plan import PROFILES, cell_specs
 
@@ -297,88 +290,6 @@ def test_a_train_link_pointed_at_another_model_is_rerun(tmp_path: Path, faked_tr
     pd.testing.assert_frame_equal(pd.read_csv(root / "alpha_star.csv"), first)
 
 
-# -- a cell tied to the model file it drives ------------------------------------------------------------------------
-def _swap(model: Path) -> None:
-    """Another model of the same training in its place: other weights, the same configuration (it loads)."""
-    import torch
-
-    from coopsumo.agents.model_file import load_model, save_model
-
-    net, meta = load_model(model)
-    with torch.no_grad():
-        for weights in net.parameters():
-            weights.add_(0.01)
-    save_model(model, net, meta)
-
-
-def _cut(model: Path) -> None:
-    model.write_bytes(model.read_bytes()[: model.stat().st_size // 2])
-
-
-def _older_file(model: Path) -> None:
-    """Other bytes, written long before the record (a link moved to an older model keeps the path)."""
-    model.write_bytes(model.read_bytes() + b"\0")
-    os.utime(model, (1_000_000_000, 1_000_000_000))
-
-
-MODEL_CASES: dict[str, tuple[Callable[[Path], None], str]] = {
-    "swapped": (_swap, "has changed since (sha256)"),
-    "truncated": (_cut, "has changed since (sha256)"),
-    "replaced by an older file": (_older_file, "has changed since (sha256)"),
-}
-
-
-@pytest.mark.parametrize("case", MODEL_CASES)
-def test_an_accident_seeds_run_of_a_changed_model_is_rerun_with_one_line(
-    case: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """accident-seeds' cells carry their model's sha256; a record made with another is rerun, baselines are kept."""
-    root = learning_folder(tmp_path / "learning", ("paper",))
-    out = tmp_path / "acc"
-    found = accident_seeds.models(root, ("paper",), (0.0,), 1)
-    plan = accident_seeds.accident_runs.scaled(scenario1_plan.PROFILES["default"], 0.03)
-
-    def specs() -> list[dict[str, Any]]:
-        who = accident_seeds.drivers(found, False, out / "models")
-        return [spec for _, _, spec in accident_seeds.cells(who, (3.0,), [0], plan)]
-
-    model = found[0]["model"]
-    assert [s.get("model_sha256") for s in specs()] == [None] * 3 + [model_fields(model)["model_sha256"]]
-    for spec in specs():  # each cell's record as the run left it (scenario I's run cell)
-        cell_path(out, spec["key"]).parent.mkdir(parents=True, exist_ok=True)
-        summary = {"mean_speed_mps": 20.0, "collisions": 0, "teleports": 0}
-        record = {**scenario1_cells.RECORDS.new(spec), "status": "ok", "summary": summary}
-        cell_path(out, spec["key"]).write_text(json.dumps(record))
-    before = {p.name: p.read_bytes() for p in (out / "cells").iterdir()}
-    required = accident_seeds.accident_runs.REQUIRED
-    assert reusable_keys(out, specs(), "accident-seeds", required) == {s["key"] for s in specs()}
-    assert capsys.readouterr().err == ""
-    change, fragment = MODEL_CASES[case]
-    change(model)
-    now = specs()
-    assert reusable_keys(out, now, "accident-seeds", required) == {s["key"] for s in now[:3]}  # the baselines kept
-    lines = capsys.readouterr().err.splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"accident-seeds: cell {now[3]['key']}: record "), lines
-    assert fragment in lines[0] and str(model) in lines[0] and lines[0].endswith("; rerunning it"), lines
-    assert {p.name: p.read_bytes() for p in (out / "cells").iterdir()} == before  # judging writes nothing
-
-
-def test_accident_seeds_refuses_a_cut_short_model_it_drives_through_a_copy(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """A margin variant drives a copy of its model that carries the margin, written from the model each time: a model
-    cut short is refused in one line before anything is written (it was a traceback)."""
-    root = learning_folder(tmp_path / "learning")
-    model = accident_seeds.models(root, ("margin",), (0.0,), 1)[0]["model"]
-    _cut(model)
-    out = tmp_path / "acc"
-    args = [str(root), "--variants", "margin", "--seeds", "1", "--t-up", "3", "--steps", "600", "--out", str(out)]
-    assert accident_seeds.main(args) == 2
-    lines = capsys.readouterr().err.splitlines()
-    assert len(lines) == 1 and f"cannot read model file {model}" in lines[0] and "leave its variant out" in lines[0]
-    assert not out.exists()
-
-
 def _garbage(path: Path) -> None:
     path.write_text("garbage")
 
@@ -389,33 +300,29 @@ def _folder(path: Path) -> None:
 
 
 SPOILED_RUNS: dict[str, tuple[str, Callable[[Path], None], str]] = {  # run folder: (its file, the edit, the line)
-    "t3_keep_seed0": ("detectors.xml", _garbage, "has a missing or cut-short detectors.xml"),
-    "t3_greedy_seed0": ("trajectories.parquet", _garbage, "has an unreadable trajectories.parquet"),
-    "t3_mobil_p0_seed0": ("trajectories.parquet", _folder, "has a trajectories.parquet that is not a regular file"),
-    "t3_paper_alpha0_train0_seed0": ("summary.json", _garbage, "has an unreadable summary.json (JSONDecodeError)"),
+    "default/t4/keep_seed1": ("detectors.xml", _garbage, "has a missing or cut-short detectors.xml"),
+    "paper/t4/keep_seed1": ("trajectories.parquet", _folder, "has a trajectories.parquet that is not a regular file"),
 }
 
 
-def test_an_accident_seeds_rerun_redoes_a_spoiled_run_folder_with_one_line(
+def test_a_regime_map_rerun_redoes_a_spoiled_run_folder_with_one_line(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    """Issue 82, probe 15, T3: a rerun reused every cell on its record alone, then read its run folder's files, and
-    a garbage detectors.xml, trajectories.parquet or summary.json (or a folder in its place) ended every rerun in a
-    traceback; a folder removed was refused. Now each folder is judged as scenario I judges its own before reuse
+    """Issue 82, probe 15, T3 (found in accident-seeds, whose accident runs were the regime map's kind): a rerun
+    reused every cell on its record alone, then read its run folder's files, and a garbage detectors.xml,
+    trajectories.parquet or summary.json (or a folder in its place) ended every rerun in a traceback; a folder
+    removed was refused. Now each folder is judged as scenario I judges its own before reuse
     (run_folders.reusable_run), and the run is redone with one line naming it."""
     from coopsumo.config import OutputConfig
     from coopsumo.studies.engine.run_folders import reuse_problem
+    from coopsumo.studies.scenario1 import study as scenario1
 
-    root = learning_folder(tmp_path / "learning", ("paper",))
-    out = tmp_path / "acc"
-    args = [str(root), "--variants", "paper", "--seeds", "1", "--t-up", "3", "--steps", "300", "--workers", "1",
-            "--quiet", "--out", str(out)]  # fmt: skip
-    assert accident_seeds.main(args) == 0
-    runs = out / "runs" / "t3"
-    err = capsys.readouterr().err  # the study's one line of what it runs
-    assert sorted(p.name for p in runs.iterdir()) == sorted(SPOILED_RUNS) and err == (
-        f"accident-seeds: profile default: {len(SPOILED_RUNS)} cells, 0 already done, 0 failed before (retried), "
-        f"{len(SPOILED_RUNS)} to run on the local backend\n"), err
+    out = tmp_path / "rm"
+    args = ["--regime-map", "--t-up", "4", "--seeds", "1", "--steps", "600", "--workers", "1", "--quiet", "--out",
+            str(out)]  # fmt: skip
+    assert scenario1.main(args) == 0
+    runs = out / "runs"
+    capsys.readouterr()
     written = {name: json.loads((runs / name / "config.json").read_text()) for name in SPOILED_RUNS}
 
     def whole(name: str) -> bool:  # scenario I would reuse it as it is
@@ -424,113 +331,22 @@ def test_an_accident_seeds_rerun_redoes_a_spoiled_run_folder_with_one_line(
 
     for name, (file, spoil, _) in SPOILED_RUNS.items():
         spoil(runs / name / file)
-    assert accident_seeds.main(args) == 0
+    assert scenario1.main(args) == 0
     err = capsys.readouterr().err
     lines = [line for line in err.splitlines() if " run folder " in line]
     assert "Traceback" not in err and len(lines) == len(SPOILED_RUNS), err
     for name, (_, _, fragment) in SPOILED_RUNS.items():
         line = next(line for line in lines if f" run folder {runs / name} " in line)
-        assert line.startswith(f"accident-seeds: run folder {runs / name} {fragment}"), lines
+        assert line.startswith(f"scenario1: run folder {runs / name} {fragment}"), lines
         assert line.endswith("; running it again"), lines
         assert whole(name) and (runs / name / "trajectories.parquet").is_file()
-    shutil.rmtree(runs / "t3_keep_seed0")  # a folder removed outright: run again (it was refused)
-    assert accident_seeds.main(args) == 0
+    shutil.rmtree(runs / "default/t4/keep_seed1")  # a folder removed outright: run again (it was refused)
+    assert scenario1.main(args) == 0
     err = capsys.readouterr().err
-    assert "Traceback" not in err and f"accident-seeds: run folder {runs / 't3_keep_seed0'} has no summary.json" in err
-    assert whole("t3_keep_seed0")
+    gone = runs / "default/t4/keep_seed1"
+    assert "Traceback" not in err and f"scenario1: run folder {gone} has no summary.json" in err
+    assert whole("default/t4/keep_seed1")
     assert len(pd.read_csv(out / "runs.csv")) == len(SPOILED_RUNS)
-
-
-def test_a_record_from_before_digests_is_judged_by_time(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    model = tmp_path / "model.pt"
-    model.write_bytes(b"weights")
-    spec = {"key": "c1", "config": {"x": 1}, **model_fields(model)}
-    path = cell_path(tmp_path, "c1")
-    path.parent.mkdir()
-    path.write_text(json.dumps({"key": "c1", "config": {"x": 1}, "status": "ok", "summary": {"v": 1.0}}))
-    os.utime(model, (1_000_000_000, 1_000_000_000))  # the model written before the record: reused
-    assert reusable_keys(tmp_path, [spec], "study", ("v",)) == {"c1"}
-    os.utime(model, (path.stat().st_mtime + 10, path.stat().st_mtime + 10))  # written after it: rerun
-    assert reusable_keys(tmp_path, [spec], "study", ("v",)) == set()
-    assert f"record {path} is older than its model {model}; rerunning it" in capsys.readouterr().err
-    # the same bytes written again after the record (copied back, restored) with the digest recorded: reused
-    path.write_text(json.dumps({"key": "c1", "config": {"x": 1}, "status": "ok", "summary": {"v": 1.0},
-                                **model_fields(model)}))  # fmt: skip
-    os.utime(model, (path.stat().st_mtime + 10, path.stat().st_mtime + 10))
-    assert reusable_keys(tmp_path, [spec], "study", ("v",)) == {"c1"}
-    assert capsys.readouterr().err == ""
-
-
-def _copied_in(model: Path, other: Path) -> None:
-    """Another learner's model file copied over this one (the probe's: default alpha 1 over the paper model)."""
-    shutil.copyfile(other, model)
-
-
-def _linked_to(model: Path, other: Path) -> None:
-    """The study's train/<key> made a link to another training's folder."""
-    shutil.rmtree(model.parent)
-    model.parent.symlink_to(other.parent, target_is_directory=True)
-
-
-@pytest.mark.parametrize("change", [_copied_in, _linked_to])
-def test_a_model_of_another_training_is_never_driven_as_this_one(
-    change: Callable[[Path, Path], None], tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    """Issue 82: accident-seeds drove a model swapped in from another learner as the study's; now refused in one
-    line naming the file, exit code 2, nothing written."""
-    root = learning_folder(tmp_path / "learning")
-    margin, conditioned = (accident_seeds.models(root, (v,), (0.0,), 1)[0]["model"] for v in ("margin", "conditioned"))
-    change(margin, conditioned)
-    out = tmp_path / "acc"
-    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
-    code = accident_seeds.main([str(root), "--variants", "margin", "--seeds", "1", "--t-up", "3", "--steps", "600",
-                                "--out", str(out), "--quiet"])  # fmt: skip
-    err = capsys.readouterr().err
-    assert code == 2 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
-    assert str(margin.parent) in err and ("made by another training" in err or "not to " in err), err
-    assert f"not the model record {root / 'cells'}" in err, err
-    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before and not out.exists()
-
-
-# -- a learning study's training records, as accident-seeds reads them ---------------------------------------------
-@pytest.mark.parametrize(("field", "value"), [("alpha", -1.0), ("seed", 2.5), ("cell_wall_s", -3.0), ("key", 7),
-                                              ("config", None)])  # fmt: skip
-def test_a_training_record_outside_its_schema_is_skipped_with_one_line(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str], field: str, value: Any) -> None:  # fmt: skip
-    """Issue 82: accident-seeds drives a learning study's finished trainings (learning.models.finished_trainings);
-    a training's record outside record_schemas.CELL_RECORD is not driven, with one line naming the file and field."""
-    from coopsumo.studies.learning.models import finished_trainings
-
-    root = learning_folder(tmp_path / "learning", ("paper",))
-    assert len(finished_trainings(root, "accident-seeds")) == 1 and capsys.readouterr().err == ""
-    path = next((root / "cells").glob("*.json"))
-    path.write_text(json.dumps({**json.loads(path.read_text()), "cell_wall_s": 5.0, field: value}))
-    assert finished_trainings(root, "accident-seeds") == []
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith(f"accident-seeds: record {path} cannot be used (field {field} must be")
-    assert err[0].endswith("; skipped"), err
-
-
-@pytest.mark.parametrize(("field", "value", "fragment"), [
-    ("mean_speed_mps", 999.0, "has train_summary mean_speed_mps must be a finite number >= 0 and <= 70 (m/s), got 999"),
-    ("collisions", -5, "has train_summary collisions must be "),
-    ("updates", "many", 'has train_summary updates = "many", not a number')])  # fmt: skip
-def test_a_training_record_the_learning_study_would_rerun_is_skipped_with_one_line(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str], field: str, value: Any, fragment: str) -> None:  # fmt: skip
-    """Issue 82, probe 8, J14: accident-seeds drove the model of a learning record whose train_summary held 999 m/s
-    (or -5 collisions), which the learning study itself reruns. Skipped by the study's own check (records.cell_problem),
-    with one line naming the file and the field."""
-    from coopsumo.studies.learning.models import finished_trainings
-
-    root = learning_folder(tmp_path / "learning", ("paper",))
-    assert len(finished_trainings(root, "accident-seeds")) == 1 and capsys.readouterr().err == ""
-    path = next((root / "cells").glob("*.json"))
-    record = json.loads(path.read_text())
-    path.write_text(json.dumps({**record, "train_summary": {**record["train_summary"], field: value}}))
-    assert finished_trainings(root, "accident-seeds") == []
-    err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith(f"accident-seeds: record {path} cannot be used ({fragment}"), err
-    assert err[0].endswith("; skipped"), err
 
 
 def test_a_table_refused_leaves_the_finished_sweep_whole(dqn_spec: dict[str, Any], tmp_path: Path) -> None:

@@ -121,7 +121,8 @@ def test_scenario_one_takes_the_protocols_models_from_the_store() -> None:
     for alpha in (0.0, 8.0):
         for seed in scenario1_plan.PROFILES["default"].train_seeds:
             s1 = to_dict(scenario1_plan.train_config(scenario1_plan.PROFILES["default"], alpha, "default", seed))
-            proto = to_dict(protocol_plan.train_config(protocol_plan.PROFILES["nr10"], DQNConfig(), alpha, seed))
+            stks = protocol_plan.variants()["stks"]  # the default learner
+            proto = to_dict(protocol_plan.train_config(protocol_plan.PROFILES["nr10"], stks, alpha, seed))
             assert model_store.model_id(s1) == model_store.model_id(proto)
     base = to_dict(scenario1_plan.train_config(scenario1_plan.PROFILES["default"], 0.0, "default", 100))
     other = to_dict(scenario1_plan.train_config(scenario1_plan.PROFILES["default"], 0.0, "default", 101))

@@ -297,8 +297,7 @@ def test_number_names_are_exact_and_keep_the_short_form() -> None:
 def test_close_alphas_give_distinct_cells_in_every_study() -> None:
     from dataclasses import replace
 
-    from coopsumo.dqn_config import DQNConfig
-    from coopsumo.studies.learning import plan as ablation
+    from coopsumo.studies.protocol import plan as protocol
     from coopsumo.studies.scenario1 import study as scenario1
     from coopsumo.studies.scenario2 import study as scenario2
 
@@ -306,10 +305,10 @@ def test_close_alphas_give_distinct_cells_in_every_study() -> None:
     keys = [s["key"] for s in scenario2.cell_specs(profile)]
     assert len(keys) == len(set(keys)) == profile.n_cells()
     assert "L2_T2_a8_s1" in keys and "L2_T2.000001_a8.000001_s1" in keys
-    abl = replace(ablation.PROFILES["tiny"], alphas=(8.0, 8.000001))
-    specs = ablation.cell_specs(abl, DQNConfig())
-    alpha_keys = [s["key"] for s in specs if s["part"] == "alpha"]
-    assert len(alpha_keys) == 2 * len(abl.seeds) == len(set(alpha_keys))
+    judged = replace(protocol.PROFILES["tiny"], alphas=(8.0, 8.000001))
+    above = [s for s in protocol.cell_specs(judged) if s["alpha"] > 0]
+    assert len(above) == 2 * judged.alpha_seeds * len(judged.t_ups) == len({s["key"] for s in above})
+    assert len({s["train_key"] for s in above}) == 2 * judged.alpha_seeds
     assert scenario1.model_name("default", 8.0, 100) == "alpha8_m100" != scenario1.model_name("default", 8.000001, 100)
     assert scenario1.run_folder("keep", 1, 8.0) != scenario1.run_folder("keep", 1, 8.000001)
 

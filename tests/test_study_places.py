@@ -77,12 +77,9 @@ STUDY_COMMANDS: dict[str, tuple[str, list[str]]] = {
     "scenario1 --merge": ("scenario1", ["--merge", "parts/a,parts/b"]),
     "scenario2": ("scenario2", ["--profile", "tiny"]),
     "scenario2 --merge": ("scenario2", ["--merge", "parts/L4a,parts/L4b"]),
-    "learning": ("learning", ["--profile", "tiny"]),
     "protocol": ("protocol", ["--profile", "tiny"]),
-    "accident-seeds": ("accident-seeds", ["learned", "--variants", "margin"]),
 }  # fmt: skip
-"""every study command with arguments that would run it from the test's folder (the merges: of parts in parts/,
-accident-seeds: of the learning study in learned/)"""
+"""every study command with arguments that would run it from the test's folder (the merges: of parts in parts/)"""
 CASES = [(command, place) for command in STUDY_COMMANDS for place in PLACES]
 
 
@@ -92,12 +89,12 @@ def test_a_study_never_goes_inside_the_store_a_run_or_another_study(command: str
                                                                     capsys: pytest.CaptureFixture[str]) -> None:
     """G1: `scenario2 --out STORE/s2x` wrote its marker, plan and cells into the model store before the store check
     refused it, and every study then refused the store; G2: `scenario2 --out ck/s2` (an interrupted training's
-    folder), `--out sim/s2`, `learning --out s2/evals/l` were run, and that folder's own command then refused it.
+    folder), `--out sim/s2`, `learning --out s2/evals/l` (a study since retired) were run, and that folder's own
+    command then refused it.
     Every study command refuses such an --out as `simulate` and `train` do, in one line, before anything is
     written (no lock file, no marker, no model store)."""
     from conftest import made_by
     from test_scenario2_merge import copy_part
-    from test_study_commands import learning_folder
 
     from coopsumo.dqn_config import DQN_PRESETS
     from coopsumo.studies.protocol.plan import variants
@@ -105,7 +102,6 @@ def test_a_study_never_goes_inside_the_store_a_run_or_another_study(command: str
     if "scenario2" in made_by():  # the committed parts' learner, as test_scenario2_merge merges them
         monkeypatch.setitem(DQN_PRESETS, "default", variants()[made_by()["scenario2"][0]].learner)
     monkeypatch.chdir(tmp_path)
-    learning_folder(tmp_path / "learned", ("margin",))
     for name in ("L4a", "L4b"):
         copy_part(name, tmp_path / "parts")
     folders = owned_folders(tmp_path)
@@ -137,72 +133,9 @@ def test_a_study_may_go_beside_the_store_and_resume_its_own_root(tmp_path: Path,
         check_study_place(folders["study"] / "cells" / "mine")
 
 
-def test_accident_seeds_may_go_directly_into_the_learning_study_it_reads(tmp_path: Path) -> None:
-    """accident-seeds' default --out is ROOT/accident, inside the learning study it reads (docs/studies.md): its
-    hosts. Deeper in that study, in another study or with no hosts it is refused as any study's root."""
-    learned = tmp_path / "learned"
-    (learned / "cells").mkdir(parents=True)
-    mark_run_dir(learned, "ablation", finished=False, study="the tiny profile's study")
-    check_study_place(learned / "accident", hosts=[learned])
-    for root, hosts in ((learned / "accident", []), (learned / "cells" / "accident", [learned]),
-                        (learned / "accident", [tmp_path / "other"])):  # fmt: skip
-        with pytest.raises(UsageError, match=f"lies inside {learned}, a coopsumo learning study's folder"):
-            check_study_place(root, hosts=hosts)
-
-
-def test_accident_seeds_goes_directly_only_into_a_learning_study(tmp_path: Path) -> None:
-    """Probe 6, H2: a scenario II study given as a ROOT beside the learning study was a host too, so `accident-seeds
-    learned s2 --out s2/acc` wrote into the scenario II study's folder. Only a ROOT whose marker says it is a
-    learning study's (the kind `learning` writes) is a host; no marker, or another study's, is none."""
-    folders = owned_folders(tmp_path)
-    other, unmarked = folders["study"], tmp_path / "unmarked"
-    (unmarked / "cells").mkdir(parents=True)
-    for host in (other, folders["simulate"]):
-        with pytest.raises(UsageError, match=f"lies inside {host}, a coopsumo|lies inside {host}, the folder"):
-            check_study_place(host / "acc", hosts=[host])
-    check_study_place(unmarked / "acc", hosts=[unmarked])  # a folder no marker claims: nothing to lie inside
-
-
-NOT_LEARNING = {"scenario2": "a coopsumo scenario2 study's folder, not a learning study's",
-                "simulate": "the folder of a coopsumo simulate run, not a learning study's",
-                "unreadable marker": f"has a {RUN_MARKER} that names no command (damaged?)",
-                "sweep.json": "holds sweep.json, another study's plan file, not a learning study's study.json",
-                "plan.json": "holds plan.json, another study's plan file"}  # fmt: skip
-"""a ROOT accident-seeds is given that is not a learning study's folder, and what its refusal says"""
-
-
-@pytest.mark.parametrize("case", NOT_LEARNING)
-def test_accident_seeds_reads_only_a_learning_studys_folder(case: str, tmp_path: Path,
-                                                            monkeypatch: pytest.MonkeyPatch,
-                                                            capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    """Probe 6, H2: any folder with cells/ was taken for a learning study. A ROOT whose marker names another study or
-    run, whose marker cannot be read, or (no marker) that holds another study's plan file is refused in one line
-    before anything is written, given alone or beside a learning study, with --out inside it or elsewhere."""
-    from test_study_commands import learning_folder
-
-    monkeypatch.chdir(tmp_path)
-    monkeypatch.setenv("COOPSUMO_MODELS", str(tmp_path / "store"))
-    learning_folder(tmp_path / "learned", ("margin",))
-    root = tmp_path / "s2"
-    (root / "cells").mkdir(parents=True)
-    if case in ("scenario2", "simulate"):
-        mark_run_dir(root, case, finished=False, study=TINY_SWEEP if case == "scenario2" else None)
-    elif case == "unreadable marker":
-        (root / RUN_MARKER).write_text('{"kind": 3}')
-    else:
-        (root / case).write_text("{}")
-    before = listing(tmp_path)
-    for roots, out in ((["learned", str(root)], root / "acc"), ([str(root)], tmp_path / "acc"),
-                       ([str(root), "learned"], tmp_path / "learned" / "accident")):  # fmt: skip
-        argv = [*roots, "--variants", "margin", "--seeds", "1", "--steps", "600", "--quiet", "--out", str(out)]
-        one_line(capsys, run("accident-seeds", argv), f"{root} ", NOT_LEARNING[case], "give the --out of `coopsumo "
-                 "learning`")  # fmt: skip
-        assert listing(tmp_path) == before
-
-
 # -- G3: the model store in a folder a marker claims ------------------------------------------------------------------
 ENV_COMMANDS = {"simulate": ["--steps", "20", "--quiet"], "train": ["--steps", "20", "--eval-steps", "0", "--quiet"],
-                "scenario2": ["--profile", "tiny", "--quiet"], "learning": ["--profile", "tiny", "--quiet"],
+                "scenario2": ["--profile", "tiny", "--quiet"], "protocol": ["--profile", "tiny", "--quiet"],
                 "models": []}  # fmt: skip
 """commands that start after the environment's folders are checked (runio.run_cli), with arguments that would run"""
 STORE_CASES = [(command, place) for command in ENV_COMMANDS for place in ("training", "simulate", "study")]
@@ -301,8 +234,8 @@ def test_a_study_root_that_can_be_told_or_is_fresh_is_taken(marker: str, plan: s
 
 
 def test_a_root_without_a_study_name_stays_open_to_commands_that_name_none(tmp_path: Path) -> None:
-    """The studies that do not name theirs (accident-seeds, the regime map: their markers never hold one) are not
-    refused for it."""
+    """The studies that do not name theirs (the regime map, the retired accident-seeds: their markers never hold one)
+    are not refused for it."""
     root = tmp_path / "acc"
     root.mkdir()
     mark_run_dir(root, "accident_seeds", finished=False)

@@ -1,7 +1,8 @@
-"""Issue 82 item 1: scenario I's and the learning study's tables (runs.csv, summary.csv) against study_tables'
-schemas: every committed table passes; a value outside each column's limits is refused in one line naming the file,
-the row and the column, by the writer's check (before anything is written) and by a reader (Table.read); scenario I
-refuses a default learner's study beside it whose runs.csv breaks its schema before it runs a cell."""
+"""Issue 82 item 1: scenario I's and the regime map's tables (runs.csv, summary.csv) against study_tables' schemas (the
+retired learning study's and accident-seeds' committed tables are frozen with it, issue 80): every committed table
+passes; a value outside each column's limits is refused in one line naming the file, the row and the column, by the
+writer's check (before anything is written) and by a reader (Table.read); scenario I refuses a default learner's
+study beside it whose runs.csv breaks its schema before it runs a cell."""
 
 from __future__ import annotations
 
@@ -20,31 +21,27 @@ from coopsumo import study_tables as st
 from coopsumo.record_schemas import Field, Integer, Number, RecordError, Table, Text
 
 ROOT = Path(__file__).resolve().parent.parent
-SCHEMAS = {("scenario1", "runs.csv"): st.SCENARIO1_RUNS, ("scenario1", "summary.csv"): st.SCENARIO1_SUMMARY,
-           ("learning", "runs.csv"): st.LEARNING_RUNS, ("learning", "summary.csv"): st.LEARNING_SUMMARY}  # fmt: skip
+SCHEMAS = {("scenario1", "runs.csv"): st.SCENARIO1_RUNS, ("scenario1", "summary.csv"): st.SCENARIO1_SUMMARY}
 """(study, table) -> its schema; a committed folder results/[archive/]<study>*/ holds the study's tables"""
 
 
 def committed_tables() -> list[tuple[Path, Table]]:
-    """Every committed scenario I and learning study table (the archive's too) with its schema."""
+    """Every committed scenario I and regime map table (the archive's too) with its schema."""
     files = subprocess.run(["git", "ls-files", "results"], cwd=ROOT, capture_output=True, text=True, check=True)
     found = []
     for name in files.stdout.split():
         path = Path(name)
-        study = next((s for s in ("scenario1", "learning") if path.parent.name.startswith(s)), None)
+        study = "scenario1" if path.parent.name.startswith("scenario1") else None
         if study is not None and (study, path.name) in SCHEMAS:
             found.append((ROOT / path, SCHEMAS[study, path.name]))
-        elif path.name == "runs.csv" and path.parent.name in ("regime_map", "accident"):  # the follow-ups' tables
-            found.append((ROOT / path, st.REGIME_MAP_RUNS if path.parent.name == "regime_map" else
-                          st.ACCIDENT_SEEDS_RUNS))  # fmt: skip
+        elif path.name == "runs.csv" and path.parent.name == "regime_map":
+            found.append((ROOT / path, st.REGIME_MAP_RUNS))
     return found
 
 
 def test_the_committed_tables_are_found() -> None:
     names = {str(path.relative_to(ROOT)) for path, _ in committed_tables()}
-    assert {"results/scenario1/runs.csv", "results/scenario1/summary.csv", "results/learning_conditioned/runs.csv",
-            "results/learning_conditioned/summary.csv", "results/regime_map/runs.csv",
-            "results/learning_conditioned/accident/runs.csv"} <= names  # fmt: skip
+    assert {"results/scenario1/runs.csv", "results/scenario1/summary.csv", "results/regime_map/runs.csv"} <= names
 
 
 @pytest.mark.parametrize(("path", "schema"), committed_tables(), ids=lambda x: str(x)[len(str(ROOT)) + 1 :]
@@ -65,9 +62,7 @@ def _outside(rule: Any) -> Any:
 
 
 BASES = (("scenario1/runs.csv", st.SCENARIO1_RUNS), ("scenario1/summary.csv", st.SCENARIO1_SUMMARY),
-         ("learning_conditioned/runs.csv", st.LEARNING_RUNS),
-         ("learning_conditioned/summary.csv", st.LEARNING_SUMMARY), ("regime_map/runs.csv", st.REGIME_MAP_RUNS),
-         ("learning_conditioned/accident/runs.csv", st.ACCIDENT_SEEDS_RUNS))  # fmt: skip
+         ("regime_map/runs.csv", st.REGIME_MAP_RUNS))
 """the committed table each case starts from (its first rows, of status ok where a table has a status)"""
 CASES = [(base, schema, field) for base, schema in BASES
          for field in (*schema.columns, *schema.cases.get("ok", ())) if _outside(field.rule) is not None
@@ -106,21 +101,6 @@ def test_a_word_a_missing_column_and_an_empty_table_are_refused(tmp_path: Path) 
     (tmp_path / "runs.csv").write_text("")
     with pytest.raises(RecordError, match=r"runs.csv cannot be read as a table \(EmptyDataError\)$"):
         st.SCENARIO1_RUNS.read(tmp_path / "runs.csv")
-
-
-def test_the_learning_study_writes_neither_table_outside_its_limits(tmp_path: Path) -> None:
-    """learning.report.write_outputs checks runs.csv and summary.csv before it writes either."""
-    from coopsumo.studies.learning.plan import PROFILES
-    from coopsumo.studies.learning.report import write_outputs
-
-    summary = {"mean_speed_mps": 80.0, "lane_changes_per_vehicle": 1.0, "lane_changes_rejected": 3, "teleports": 0,
-               "collisions": 0, "throughput_veh_per_h": 3000.0, "mean_travel_time_s": 110.0}  # fmt: skip
-    record = {"key": "keep_seed0", "kind": "baseline", "part": "baseline", "variant": "keep", "alpha": None,
-              "seed": 0, "eval_seed": 1000, "status": "ok", "summary": summary, "cell_wall_s": 5.0}  # fmt: skip
-    with pytest.raises(RecordError, match=rf"^{tmp_path / 'runs.csv'} row 1 column mean_speed_mps must be a finite "
-                                          r"number >= 0 and <= 70 \(m/s\), got 80"):  # fmt: skip
-        write_outputs(tmp_path, PROFILES["tiny"], [record], {})
-    assert list(tmp_path.iterdir()) == []
 
 
 def test_scenario1_refuses_a_bad_default_study_beside_it_before_it_runs(

@@ -1,7 +1,7 @@
-"""Issue 82, fifth probe, G6 and G8: the learning study drew each training's train_log.csv and the protocol study read
-each training's validation.csv unchecked (a byte that is not UTF-8, a renamed column or no best snapshot: a traceback;
-a speed of 999 m/s drawn, a score of 1e9 copied into diagnosis.csv). Both logs are now checked by their columns'
-rules (agents/training_logs.py): a stored model whose log breaks them is not a finished training
+"""Issue 82, fifth probe, G6 and G8: the learning study (retired since) drew each training's train_log.csv and the
+protocol study read each training's validation.csv unchecked (a byte that is not UTF-8, a renamed column or no best
+snapshot: a traceback; a speed of 999 m/s drawn, a score of 1e9 copied into diagnosis.csv). Both logs are now checked
+by their columns' rules (agents/training_logs.py): a stored model whose log breaks them is not a finished training
 (trainings.finished_training: trained again with one line naming the file and the field; `coopsumo models` lists it
 not usable), a study's reused cell of such a training is run again (trainings.spoiled_logs), and the figures read
 them through the same check (a RecordError naming the file and the field, never a traceback)."""
@@ -197,7 +197,7 @@ def test_a_stored_model_whose_log_breaks_its_rules_is_trained_again_and_listed_n
 
 def test_a_reused_cells_training_whose_log_breaks_its_rules_is_run_again(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:  # fmt: skip
-    """trainings.spoiled_logs, asked by the learning and protocol studies of their reusable cells: every cell of the
+    """trainings.spoiled_logs, asked by the protocol study of its reusable cells: every cell of the
     training (they share it) with one line naming the log, the field and the cells; a baseline cell is not looked at,
     a training without a folder yet neither."""
     from coopsumo.studies.engine.trainings import spoiled_logs
@@ -209,10 +209,10 @@ def test_a_reused_cells_training_whose_log_breaks_its_rules_is_run_again(
              {"key": "c2", "train_key": "t0", "config": {"train": CONFIG}},
              {"key": "c3", "train_key": "t1", "config": {"train": CONFIG}},
              {"key": "b1", "train_key": None, "config": {"eval": {}}}]  # fmt: skip
-    assert spoiled_logs(tmp_path, specs, "learning") == set() and capsys.readouterr().err == ""
+    assert spoiled_logs(tmp_path, specs, "protocol") == set() and capsys.readouterr().err == ""
     _write(folder / "train_log.csv", _cell(2, "mean_speed_mps", "999")(train_log()))
-    assert spoiled_logs(tmp_path, specs, "learning") == {"c1", "c2"}
-    assert capsys.readouterr().err == (f"learning: {folder / 'train_log.csv'} has mean_speed_mps = '999' in its row of "
+    assert spoiled_logs(tmp_path, specs, "protocol") == {"c1", "c2"}
+    assert capsys.readouterr().err == (f"protocol: {folder / 'train_log.csv'} has mean_speed_mps = '999' in its row of "
                                        "step 200: it must be a finite number >= 0 and <= 70 (m/s), got 999.0; "
                                        "rerunning the 2 cells of its training (c1, c2), which train it again\n")
 
@@ -220,11 +220,12 @@ def test_a_reused_cells_training_whose_log_breaks_its_rules_is_run_again(
 def test_a_reused_cells_training_link_repointed_at_another_model_is_run_again(
         tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch) -> None:  # fmt: skip
     """Probe 6, H4: a study's train/<training> link pointed at another training's store folder (or at a file) was
-    followed, every cell reused, and the learning study's figures and the protocol study's diagnosis drew the other
-    training's logs. As scenario II does (model_store.link_problem), model_store.repointed_trainings, asked before
-    trainings.spoiled_logs: the training's cells are run again, which links its model back, with one line naming the
-    link; a link to its own model, a baseline cell and a training without a link yet are left alone. The store is
-    the study's own, beside it (model_store.store_for: a link into another store is a copied study's, probe 13)."""
+    followed, every cell reused, and the (since retired) learning study's figures and the protocol study's diagnosis
+    drew the other training's logs. As scenario II does (model_store.link_problem), model_store.repointed_trainings,
+    asked before trainings.spoiled_logs: the training's cells are run again, which links its model back, with one
+    line naming the link; a link to its own model, a baseline cell and a training without a link yet are left alone.
+    The store is the study's own, beside it (model_store.store_for: a link into another store is a copied study's,
+    probe 13)."""
     from coopsumo.paths import STORE_ENV
     from coopsumo.studies.engine.model_store import model_id, repointed_trainings
 
@@ -252,29 +253,6 @@ def test_a_reused_cells_training_link_repointed_at_another_model_is_run_again(
         assert repointed_trainings(root, specs, "protocol") == {"c1", "c2"}
         assert capsys.readouterr().err == (f"protocol: {link} leads to {target}, {why}; rerunning the 2 cells of its "
                                            "training (c1, c2), which link its model back\n")  # fmt: skip
-
-
-def test_the_learning_studys_figures_read_the_logs_checked(tmp_path: Path) -> None:
-    """The probe's G6 where no training is redone (a log changed while the study ran): a RecordError naming the file
-    and the field, never a KeyError or UnicodeDecodeError traceback, nor 999 m/s drawn."""
-    from coopsumo.studies.followups.robustness import training_seeds_figure
-    from coopsumo.studies.learning.report import training_curves_figure
-
-    log = tmp_path / "train" / "k0" / "train_log.csv"
-    log.parent.mkdir(parents=True)
-    _write(log, train_log())
-    runs = pd.DataFrame([{"key": "k0", "status": "ok", "part": "ablation", "kind": "train", "variant": "default",
-                          "alpha": 0.0, "seed": 0, "mean_speed_mps": 20.0, "lane_changes_per_vehicle": 0.5}])
-    training_curves_figure(tmp_path, runs, tmp_path / "curves.png")
-    training_seeds_figure(tmp_path, runs, ["default"], tmp_path / "seeds.png")
-    for lines, fragment in ((_cell(1, "mean_speed_mps", "999")(train_log()), "has mean_speed_mps = '999'"),
-                            ([train_log()[0].replace("step,", "stp,"), *train_log()[1:]], "has the header 'stp,"),
-                            ([*train_log(), "\xff\xfe,1\n"], "is not a text file")):  # fmt: skip
-        _write(log, lines)
-        for draw in (lambda: training_curves_figure(tmp_path, runs, tmp_path / "curves.png"),
-                     lambda: training_seeds_figure(tmp_path, runs, ["default"], tmp_path / "seeds.png")):
-            with pytest.raises(RecordError, match=f"^{log} {fragment}"):
-                draw()
 
 
 def test_the_protocol_studys_diagnosis_and_figure_read_validation_checked(tmp_path: Path) -> None:

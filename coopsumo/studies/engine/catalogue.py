@@ -3,7 +3,7 @@ installed wheel has them too) read and checked, every error one ConfigError line
 value checked by the very rule its flag is (validation.IntRule, NumberRule, ListRule, names_problem); a study's profile
 file (read_profiles: scenario1.toml, scenario2.toml); a study's profile taken from a file of one's own
 (`--profile PATH.toml[:NAME]`, own_profile); and the learner catalogue, every learner a study may name (learners.toml,
-load_learners, read by the learner protocol, the learning study and scenario I's `--learner`).
+load_learners, read by the learner protocol and scenario I's `--learner`).
 
 A learner is a training (its DQNConfig: a preset, or a parent learner, with the settings it changes) plus how its
 trainings drive: which weights (`model.pt`, the validated best; or `model_last.pt`) and the drive settings a cell's
@@ -118,20 +118,20 @@ def read_toml(path: Path) -> dict[str, Any]:
 
 # -- a study's profile file ------------------------------------------------------------------------------------------
 def read_profiles(path: Path, settable: tuple[str, ...], build: Callable[[Entry, str, dict[str, Any]], P],
-                  default_needed: bool = True, own: tuple[str, ...] = (),
-                  others: tuple[str, ...] = ()) -> tuple[dict[str, P], dict[str, str], Any]:  # fmt: skip
-    """A study's profile file (scenario1.toml, scenario2.toml, protocol.toml, learning.toml, or a file of one's own in
-    their format; top-level keys `others` the study reads itself, e.g. learning.toml's chain): its `default`
+                  default_needed: bool = True,
+                  own: tuple[str, ...] = ()) -> tuple[dict[str, P], dict[str, str], Any]:  # fmt: skip
+    """A study's profile file (scenario1.toml, scenario2.toml, protocol.toml, or a file of one's own in their
+    format): its `default`
     (the profile run when none is named; a file of one's own may leave it out: not `default_needed`), `[shared.NAME]`
     tables of settings, and `[profiles.NAME]` tables, each with `help` (what --help says of it), optionally `use`
     (the shared table it starts from) and settings out of `settable` (or `own`, which a shared table does not hold).
     `build(entry, name, settings)` types and checks one profile's settings (its shared table's, its own over them)
     and makes it. Returns the profiles, their help and the default as the file gives it (or None); one ConfigError
     naming the file and the entry for an unknown key, `use` or default."""
-    data = {k: v for k, v in read_toml(path).items() if k not in others}
+    data = dict(read_toml(path))
     shared, tables, default = data.pop("shared", {}), data.pop("profiles", None), data.pop("default", None)
     if data or tables is None:  # the keys it has named before a missing [profiles] (issue 82, probe 13, F19)
-        raise ConfigError(f"{path}: {_top_level_problem(list(data), tables is None, others)}")
+        raise ConfigError(f"{path}: {_top_level_problem(list(data), tables is None)}")
     for key, table in (("shared", shared), ("profiles", tables)):
         if not isinstance(table, dict):
             raise Entry(path, key).error(f"must be a table, got {table!r}")
@@ -149,11 +149,11 @@ def read_profiles(path: Path, settable: tuple[str, ...], build: Callable[[Entry,
     return profiles, helps, default
 
 
-def _top_level_problem(unknown: list[str], no_profiles: bool, others: tuple[str, ...]) -> str:
+def _top_level_problem(unknown: list[str], no_profiles: bool) -> str:
     """Why a profile file's top level is not one (after its path): the keys it has that no profile file holds, the
     ones it may hold, and, without [profiles], the format it needs (an old-format file, `current = "mine"` and a
     `[mine]` table, or a file holding `x = 1`, was "[profiles] must be a table, got None", naming nothing)."""
-    known = ", ".join((*others, "default", "shared", "profiles"))
+    known = "default, shared, profiles"
     text = f"unknown top-level keys {', '.join(map(repr, unknown))[:200]} (known: {known})" if unknown else ""
     if no_profiles:
         text += ("; " if text else "") + ("no [profiles] table: a profile file holds each profile as a "
@@ -311,7 +311,7 @@ class Learner:
     queue: float | None = None
     """the speed below which it chooses no lane change (m/s; None: none)"""
     steps_factor: int = 1
-    """a study (learning, protocol) trains it this many times its profile's steps"""
+    """the protocol trains it this many times its profile's steps"""
 
     def drive(self) -> dict[str, float]:
         """How it drives its trainings otherwise (a cell's config.drive; empty: as saved)."""

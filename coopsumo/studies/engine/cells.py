@@ -4,8 +4,8 @@
 run_todo runs a study's cells still to run: it builds the road networks once in this process (not in every worker),
 trains the stacked learner's models as groups, runs the cells on local processes or Ray (runner.execute, one progress
 bar, SIGTERM stops the workers) and returns every cell's record as the study may count it (records.checked_record).
-The learning study, the protocol, scenario II, scenario I (its trainings and accident runs) and scenario I's accident
-runs alone (the regime map, accident_seeds) are each a `Study` whose run does the steps of a study from its cells to
+The protocol, scenario II, scenario I (its trainings and accident runs) and scenario I's accident runs alone (the
+regime map) are each a `Study` whose run does the steps of a study from its cells to
 its record (their reuse checks and cell order the study's fields).
 
 What a cell does: its model trained into the model store (or
@@ -72,7 +72,7 @@ with one line saying why"""
 
 
 def drawn_logs(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[str]:
-    """trainings.spoiled_logs: the check of the studies that draw their trainings' logs (learning, protocol)."""
+    """trainings.spoiled_logs: the check of the study that draws its trainings' logs (the protocol)."""
     from coopsumo.studies.engine.trainings import spoiled_logs
 
     return spoiled_logs(root, specs, prog)

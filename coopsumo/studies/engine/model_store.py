@@ -35,16 +35,12 @@ def store_for(root: Path) -> Path:
     UsageError when that path is not a store's to write: it is, or lies inside, a folder a coopsumo marker claims (a
     training's, a simulate run's, a study's: owners.claimed_problem; issue 82, probe 5, G3), or it holds what a store
     does not (store_problem); and when it is root or lies inside it, the study's own folder, checked before the study
-    writes anything (issue 82, probe 7, I12: `--out models` was refused only after its marker and plan were written).
-    A study directly in a learning study's root (accident-seeds' default ROOT/accident) uses that study's store,
-    beside ROOT (probe 7, I13: the store ROOT/models lay inside ROOT)."""
+    writes anything (issue 82, probe 7, I12: `--out models` was refused only after its marker and plan were written)."""
     from coopsumo.owners import claimed_problem
-    from coopsumo.run_markers import LEARNING_KIND, marker_kind
 
     env, real = os.environ.get(STORE_ENV), Path(root).resolve()
-    home = real.parent if marker_kind(real.parent) == LEARNING_KIND else real
-    store = Path(env) if env else home.parent / "models"
-    where = f"${STORE_ENV}" if env else f"beside {root if home == real else home}"
+    store = Path(env) if env else real.parent / "models"
+    where = f"${STORE_ENV}" if env else f"beside {root}"
     advice = f"pick another --out or set ${STORE_ENV} to a store elsewhere"
     if store.resolve() == real or store.resolve().is_relative_to(real):
         raise UsageError(f"the model store {store} ({where}) {'is' if store.resolve() == real else 'lies inside'} "
@@ -292,7 +288,7 @@ def repointed_trainings(root: Path, specs: Sequence[dict[str, Any]], prog: str) 
     """The cells of `specs` (records otherwise reusable) whose training's link, ROOT/train/<training>, does not lead to
     that training's model (link_problem: pointed at another training's store folder, at a file): each is run again,
     which links its model back, with one line per training naming the link and its cells. Scenario II's repointed for
-    the studies that draw their trainings' logs (learning, protocol; issue 82, probe 6, H4: every cell was reused and
+    the study that draws its trainings' logs (the protocol; issue 82, probe 6, H4: every cell was reused and
     their figures and diagnosis.csv drew the other training's logs)."""
     from coopsumo.studies.engine.trainings import rerun_cells
 

@@ -14,9 +14,9 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import results_view
-from coopsumo.errors import UsageError, why_unreadable
+from coopsumo.errors import why_unreadable
 from coopsumo.field_rules import as_float, shown
-from coopsumo.files import file_sha256, read_json, read_json_object, temporaries_of
+from coopsumo.files import read_json, read_json_object, temporaries_of
 from coopsumo.provenance import versions
 from coopsumo.record_schemas import CELL_RECORD, RUN_SUMMARY, SPEED_MAX_MPS, SUMMARY_COUNTS, TRAIN_SUMMARY_KEYS
 
@@ -25,39 +25,9 @@ def blank_record(spec: dict[str, Any], fields: Sequence[str], **empty: Any) -> d
     """A cell's record before it runs: the spec's `fields`, its configuration, then `empty` (the study's own
     result fields) and no error or summary yet."""
     record = {k: spec.get(k) for k in fields}
-    record.update({k: spec[k] for k in MODEL_FIELDS if k in spec})  # the model file it stands for (model_changed)
     record.update(config=spec["config"], **empty)
     record.update(error=None, traceback=None, summary=None)
     return record
-
-
-MODEL_FIELDS = ("model", "model_sha256")
-"""a cell that drives a model file the study does not make names it in its spec and record: its path and sha256"""
-
-
-def model_fields(path: Path) -> dict[str, str]:
-    """The spec fields that tie a cell to the model file at path as it is now (UsageError when it cannot be read)."""
-    try:
-        return {"model": str(path), "model_sha256": file_sha256(path)}
-    except OSError as err:
-        raise UsageError(f"cannot read the model {path}: {err.strerror or type(err).__name__}") from None
-
-
-def model_changed(record: dict[str, Any], spec: dict[str, Any], path: Path) -> str | None:
-    """Why the stored record at path no longer stands for the model file its cell drives (the spec's model_fields),
-    or None: it was made with another sha256 of the file or, a record from before digests, before the file was last
-    written. A spec without a model: None."""
-    digest = spec.get("model_sha256")
-    if digest is None or record.get("model_sha256") == digest:
-        return None
-    if record.get("model_sha256") is None:
-        try:
-            if path.stat().st_mtime >= Path(spec["model"]).stat().st_mtime:
-                return None
-        except OSError:
-            pass
-        return f"is older than its model {spec['model']}"
-    return f"was made with another model: {spec['model']} has changed since (sha256)"
 
 
 def as_failed(record: dict[str, Any], error: str) -> dict[str, Any]:
@@ -337,9 +307,9 @@ def checked_record(record: dict[str, Any], required: Sequence[str]) -> dict[str,
     return {**record, "status": "failed", "error": f"record {problem}"} if problem else record
 
 
-SPEC_CHECKED_ELSEWHERE = ("config", "model_sha256")
+SPEC_CHECKED_ELSEWHERE = ("config",)
 """spec fields reusable_keys judges on their own: the configuration (another one is another cell, rerun without a
-word) and the model file's digest (model_changed: the model has changed since)"""
+word)"""
 
 
 def spec_problem(record: dict[str, Any], spec: dict[str, Any], made: dict[str, Any] | None = None) -> str | None:
@@ -412,9 +382,8 @@ def copied_wrong(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[
 def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, required: Sequence[str],
                   made: Callable[[dict[str, Any]], dict[str, Any]] | None = None) -> set[str]:  # fmt: skip
     """The cells whose stored record can be reused: one cell_problem accepts, made with the cell's
-    configuration, holding what made(spec) gives (spec_problem: the cell's own training folder) and, for a cell
-    that drives a model file, with that file as it is now (model_changed). Every
-    other cell is rerun; a record that is neither failed nor interrupted and yet not accepted (unreadable, the wrong
+    configuration, holding what made(spec) gives (spec_problem: the cell's own training folder). Every other cell
+    is rerun; a record that is neither failed nor interrupted and yet not accepted (unreadable, the wrong
     shape, a bad summary, another cell's copied in) gets one line on stderr saying why. A record's temporary file
     left by a run killed (SIGKILL) while writing it is removed: it was never a record."""
     done = set()
@@ -442,7 +411,7 @@ def reusable_keys(root: Path, specs: Sequence[dict[str, Any]], prog: str, requir
                       "rerunning it", file=sys.stderr)  # fmt: skip
             continue  # another configuration: another cell (a changed setting reruns it without a word)
         own = made(spec) if made is not None else None
-        if problem := problem or spec_problem(record, spec, own) or model_changed(record, spec, path):
+        if problem := problem or spec_problem(record, spec, own):
             print(f"{prog}: cell {spec['key']}: record {path} {problem}; rerunning it", file=sys.stderr)
         else:
             done.add(spec["key"])

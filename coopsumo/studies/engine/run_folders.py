@@ -36,8 +36,8 @@ def check_run_places(folders: Iterable[Path], in_place: bool = False) -> None:
     """UsageError naming the first of a study's run folders still to run that the study may not replace (a user's
     folder, another command's run: run_dirs.check_run_dir: missing, empty, or simulate's and nothing added), before
     any cell runs rather than in its worker (issue 82, probe 7, I10: the protocol refused it per cell). in_place: the
-    study writes its runs in place, unmarked (scenario II's evals/ and mobil/, the learning study's baselines/ and
-    evals/), so a folder with no marker holding only the names a run writes (RUN_OUTPUTS) is its own (probe 7, I1)."""
+    study writes its runs in place, unmarked (scenario II's evals/ and mobil/), so a folder with no marker holding
+    only the names a run writes (RUN_OUTPUTS) is its own (probe 7, I1)."""
     for folder in folders:
         out = folder.resolve()
         if not (in_place and _written_in_place(out)):
@@ -175,8 +175,9 @@ STUDY_OUTPUTS: dict[str, tuple[str, ...]] = {
     "protocol": ("study.json", "cells", "train", "runs", "runs.csv", "stats.csv", "diagnosis.csv", "fig_*.png",
                  "report.md"),
 }  # fmt: skip
-"""the names each study writes at the top of its root, its plan file first (run_dirs.check_study_root); a learning
-study's `accident` is accident-seeds' default study in it"""
+"""the names each study writes at the top of its root, its plan file first (run_dirs.check_study_root); `ablation`,
+the retired learning study's (its `accident`: the retired accident-seeds' default study in it), so that such a root
+is still told from a user's folder"""
 
 
 def default_out(name: str, profile: str, committed: str) -> Path:

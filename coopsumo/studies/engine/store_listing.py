@@ -233,7 +233,7 @@ def main(argv: list[str] | None = None) -> int:
                 print_store(store, rows)
                 listed += 1
         if not listed:
-            print(f"no models yet in {stores[0]}: the studies (scenario1, scenario2, learning, protocol) train into "
+            print(f"no models yet in {stores[0]}: the studies (scenario1, scenario2, protocol) train into "
                   "`models` beside their --out (or $COOPSUMO_MODELS) and say where")  # fmt: skip
         return 0
 

@@ -70,7 +70,7 @@ def training_fault(out: Path, config: dict[str, Any]) -> dict[str, Any] | Fault:
         return Fault(out, "holds the model of another training than the study's (its config.json differs)", False)
     if (problem := train_summary_problem(summary, config)) is not None:  # a study would copy its values
         return Fault(out, problem, True)
-    if (found := logs_problem(out, config, summary)) is not None:  # a study draws them (learning, protocol)
+    if (found := logs_problem(out, config, summary)) is not None:  # a study draws them (the protocol)
         return Fault(out / found[0], found[1], True)
     return summary
 
@@ -97,7 +97,7 @@ def logs_problem(out: Path, config: dict[str, Any], summary: Any) -> tuple[str, 
     ran, else None: its train_log.csv whole and inside training_logs.LOG_RULES up to its configuration's last step
     (training_logs.log_problem) and agreeing with `summary`, its train_summary.json (log_summary_problem; issue 82,
     probe 8, J20), its validation.csv (a training that selects its model) inside VALIDATION_RULES, its best snapshot
-    the one model.pt holds. The learning study draws the one, the protocol study draws and copies the other (issue
+    the one model.pt holds. The protocol study draws the one and copies the other (issue
     82, fifth probe, G6 and G8): a model whose logs break them is trained again, as one whose train_summary.json
     does, not reused into a study that then stops at its figure or draws 999 m/s. A log that is missing is none
     (finished_run faults a listed file that was deleted)."""
@@ -118,7 +118,7 @@ def logs_problem(out: Path, config: dict[str, Any], summary: Any) -> tuple[str, 
 def spoiled_logs(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> set[str]:
     """The cells of `specs` (records otherwise reusable) whose training, ROOT/train/<training>, has a log that cannot
     be read back (logs_problem): each is run again, which trains its model again (finished_training faults the same
-    log), with one line per training naming the log and its cells. A study that draws its trainings' logs (learning,
+    log), with one line per training naming the log and its cells. A study that draws its trainings' logs (the
     protocol) asks before its cells run: a reused cell's training was not looked at again."""
     from coopsumo.files import read_json_object
 

@@ -83,14 +83,14 @@ def _unlike_folders(root: Path, specs: Sequence[dict[str, Any]], prog: str) -> s
 
 
 def folder_reusable(root: Path, spec: dict[str, Any], prog: str, model: bool = False) -> bool:
-    """True when the run folder of the cell `spec`, whose record is reusable, can be reused too, judged as scenario I
-    judges its own before reuse (run_folders.reusable_run: its configuration, SUMO outputs, summary, detectors.xml,
-    fcd.xml, tripinfo.xml and trajectories.parquet, each the file its run wrote; the model it drove is the record's
-    to judge, records.model_changed, or with `model` the folder's: the file its policy names as it is now,
-    run_folders.model_driven). Otherwise the run is redone, with one line naming the folder and why; a folder
-    removed (no summary.json) too. UsageError when the folder is not the study's to run again (run_dirs.check_run_dir).
-    Issue 82, probe 15, T3: a garbage detectors.xml, trajectories.parquet or summary.json ended every rerun in a
-    traceback, and a folder removed was refused; probe 16, TR1: another run's file copied in was reused."""
+    """True when the run folder of the cell `spec`, whose record is reusable, can be reused too, judged as scenario
+    I judges its own before reuse (run_folders.reusable_run: its configuration, SUMO outputs, summary,
+    detectors.xml, fcd.xml, tripinfo.xml and trajectories.parquet, each the file its run wrote; with `model`, the
+    model it drove too: the file its policy names as it is now, run_folders.model_driven). Otherwise the run is
+    redone, with one line naming the folder and why; a folder removed (no summary.json) too. UsageError when the
+    folder is not the study's to run again (run_dirs.check_run_dir). Issue 82, probe 15, T3: a garbage
+    detectors.xml, trajectories.parquet or summary.json ended every rerun in a traceback, and a folder removed was
+    refused; probe 16, TR1: another run's file copied in was reused."""
     out = root / spec["out"]
     if (out / "summary.json").exists():
         driven = policy_file(spec["config"]["policy"]) if model else None
