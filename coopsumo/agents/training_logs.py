@@ -1,7 +1,7 @@
 """A training's logs read back: train_log.csv (a row per logging window, tb_log.LOG_FIELDS) and validation.csv (a row
 per validated snapshot, selection.write_table), each checked by its columns' rules (record_schemas' Number, Integer,
 Text) before a resume keeps a log's rows (file_checks.resume_problem), before a study reuses a finished training
-(studies/engine/trainings.logs_problem) and where a study draws them (log_table, validation_table). Issue 82, fifth
+(studies/engine/trainings.logs_problem) and where a study draws them (validation_table). Issue 82, fifth
 probe, G6 and G8: a byte that is not UTF-8, a renamed column or no best snapshot was a traceback in the learning and
 protocol studies' figures, a speed of 999 m/s was drawn and a score of 1e9 copied into diagnosis.csv. Without torch:
 a study's own process reads them."""
@@ -269,12 +269,6 @@ def _table(path: Path, problem_of: Callable[[str], str | None]) -> Any:
     if problem is not None:
         raise RecordError(f"{path} {problem}")
     return None if text is None else pd.read_csv(io.StringIO(text))
-
-
-def log_table(path: Path, steps: int | None = None) -> Any:
-    """A finished training's train_log.csv (log_problem, whole: up to its `steps`, when known) as a pandas table;
-    None when there is none; RecordError naming the file and the field when it breaks its rules."""
-    return _table(path, lambda text: log_text_problem(text, steps if steps is not None else 2**63, whole=True))
 
 
 def validation_table(path: Path, steps: int | None = None, selected: Any = None) -> Any:

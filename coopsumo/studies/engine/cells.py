@@ -35,7 +35,6 @@ from typing import Any
 from coopsumo.config import RoadConfig, SimConfig, to_dict
 from coopsumo.files import read_json, read_json_object
 from coopsumo.policy_spec import DRIVES
-from coopsumo.runio import Parser
 from coopsumo.studies.engine.records import (
     CellRecords,
     cell_path,
@@ -50,21 +49,11 @@ from coopsumo.studies.engine.run_folders import simulate_into
 from coopsumo.studies.engine.runner import (
     CellFn,
     FailedRecord,
-    add_backend_flags,
     execute,
     make_backend,
     sigterm_interrupts,
 )
 from coopsumo.validation import number_name
-from coopsumo.validation import workers as workers_flag
-
-
-def add_cell_flags(parser: Parser) -> None:
-    """--workers, --backend, --address and --quiet, as every study has them."""
-    parser.add_argument("--workers", type=workers_flag, default=2, help="parallel processes")
-    add_backend_flags(parser)
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
-
 
 Check = Callable[[Path, Sequence[dict[str, Any]], str], set[str]]
 """a reuse check: (the study root, cells whose records are otherwise reusable, the command) -> the keys to rerun, each
