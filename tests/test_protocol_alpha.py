@@ -119,3 +119,16 @@ def test_the_second_alpha_variant_is_paired_with_the_first_by_seed() -> None:
     assert "Headline" not in slow
     calm = "\n".join(pairs_lines(profile, _paired({100: -0.5, 101: -0.4}, changes=0.0)))
     assert unfit + "`stks` makes no lane change at alpha 0; `c2xs` makes no lane change" in calm
+
+
+def test_the_header_names_a_learner_trained_longer() -> None:
+    """c2xs trains twice the profile's steps (its steps_factor): the report's first line says so; a profile without
+    such a learner reads as before."""
+    from coopsumo.studies.protocol.report import _header_lines
+
+    learners = {n: {"text": v.text, "weights": v.weights} for n, v in variants().items()}
+    meta = {"cells": 1, "cells_run": 1, "wall_seconds": 1.0, "workers": 2, "cell_cpu_seconds_sum": 3600.0,
+            "learners": learners}
+    assert "each learner trained 90,000 steps, `c2xs` 180,000 (in free flow" in _header_lines(PROFILES["conditioned"],
+                                                                                              meta)[2]
+    assert "each learner trained 90,000 steps (in free flow" in _header_lines(PROFILES["nr10"], meta)[2]

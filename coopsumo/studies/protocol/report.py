@@ -297,11 +297,22 @@ def _eval_seed_words(profile: Any) -> str:
     return words
 
 
+def _longer(profile: Any) -> str:
+    """The learners a profile trains longer than its train_steps (learners.toml's steps_factor), in words: ", `c2xs`
+    360,000" or ""."""
+    from coopsumo.studies.protocol.plan import variants
+
+    known = variants()
+    factors = [(v, known[v].steps_factor) for v in profile.variants if v in known and known[v].steps_factor != 1]
+    return "".join(f", `{v}` {profile.train_steps * f:,}" for v, f in factors)
+
+
 def _header_lines(profile: Any, meta: dict[str, Any]) -> list[str]:
     lines = [
         "# The learner protocol: every training seed against the hand-made rules",
         "",
-        f"Profile `{profile.name}`: {profile.lanes} lanes; each learner trained {profile.train_steps:,} steps (in "
+        f"Profile `{profile.name}`: {profile.lanes} lanes; each learner trained {profile.train_steps:,} steps"
+        f"{_longer(profile)} (in "
         f"free flow at T_up 1 s unless its line below says otherwise) on training seeds {list(profile.seeds)}; "
         "every model driven greedily in free flow "
         f"({profile.free_steps:,} steps) and through scenario I's accident ({profile.accident_steps:,} steps, closure "
