@@ -59,6 +59,7 @@ scenario2: $(STAMP)
 
 # the learner ablation (the chain from the paper's learner to the default) as the protocol's learning profile
 learning: $(STAMP)
+	$(if $(QUICK)$(PROFILE),$(error make learning takes no QUICK or PROFILE since the learning study became the protocol's learning profile (issue 80): try make protocol PROFILE=tiny))
 	$(BIN)/coopsumo protocol --profile learning
 
 # without PROFILE the profile judging today's default learner (protocol_plan.CURRENT); each writes its own folder

@@ -133,9 +133,13 @@ def test_makefile_targets_call_the_console_command() -> None:
                             ("scenario2", "scenario2"), ("learning", "protocol --profile learning"),
                             ("protocol", "protocol"),
                             ("regime-map", "scenario1 --regime-map")):  # fmt: skip
-        recipe = re.search(rf"^{target}: .*\n\t(.*)$", make, flags=re.M)
+        recipe = re.search(rf"^{target}: .*\n(?:\t\$\(if .*\n)?\t(.*)$", make, flags=re.M)  # after a guard
         assert recipe is not None and recipe.group(1).startswith(f"$(BIN)/coopsumo {command}"), target
     assert "python -m coopsumo." not in make
+    # the learning study's QUICK and PROFILE are refused, not ignored (the whole ablation would run instead)
+    for given in ("QUICK=1", "PROFILE=conditioned"):
+        res = subprocess.run(["make", "-n", "learning", given], cwd=ROOT, capture_output=True, text=True, check=False)
+        assert res.returncode == 2 and "make learning takes no QUICK or PROFILE" in res.stderr, res.stderr
     assert 'pip install --quiet torch==2.13.0' in make and "tensorboard" in make
 
 
