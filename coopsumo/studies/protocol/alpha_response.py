@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from coopsumo.report.markdown import md_table
+from coopsumo.report.markdown import interval, md_table
 from coopsumo.studies.engine import stats
 
 FIGURE = "fig_alpha_response.png"
@@ -35,12 +35,12 @@ CAPTION = ("Free flow, each alpha variant's models at each alpha: the interquart
 
 def responders(profile: Any) -> tuple[str, ...]:
     """The variants whose alpha response the profile measures: its alpha_variants, or the judged one."""
-    return tuple(getattr(profile, "alpha_variants", ()) or (profile.judged_variant(),))
+    return tuple(profile.alpha_variants) or (profile.judged_variant(),)
 
 
 def grid(profile: Any) -> tuple[float, ...]:
-    """Alpha 0 and the profile's alphas (a profile recorded before `alphas`: alpha 8)."""
-    return (0.0, *getattr(profile, "alphas", (8.0,)))
+    """Alpha 0 and the profile's alphas."""
+    return (0.0, *profile.alphas)
 
 
 def _models(ok: pd.DataFrame, variant: str) -> pd.DataFrame:
@@ -88,9 +88,7 @@ def response_table(models: pd.DataFrame, alphas: tuple[float, ...]) -> pd.DataFr
 
 
 def _ci(row: pd.Series, measure: str) -> str:
-    if np.isnan(row[measure]):
-        return "-"
-    return f"{row[measure]:.2f} [{row[f'{measure}_low']:.2f}, {row[f'{measure}_high']:.2f}]"
+    return interval(row[measure], row[f"{measure}_low"], row[f"{measure}_high"])
 
 
 def _response_lines(variant: str, table: pd.DataFrame) -> list[str]:
@@ -142,10 +140,10 @@ def pairs_lines(profile: Any, ok: pd.DataFrame) -> list[str]:
     first = speeds[names[0]]
     lines: list[str] = []
     for other in names[1:]:
-        diff = (speeds[other] - first).reindex(columns=[c for c in first.columns if c[0] in alphas])
+        diff = speeds[other] - first
         whole = diff.dropna(axis=0, how="any")  # the seeds that trained at every alpha, in both variants
         lines += [f"## `{other}` against `{names[0]}`, paired by training seed (free flow, mean speed)", ""]
-        if whole.empty or whole.shape[1] < len(alphas):
+        if whole.empty or {alpha for alpha, _ in whole.columns} != set(alphas):
             lines += [f"No training seed has models of both at every alpha of {list(alphas)}: no verdict.", ""]
             continue
         if unfit := [f"`{v}` {why}" for v in (names[0], other) if (why := unfit_because(ok, v))]:
@@ -161,7 +159,7 @@ def pairs_lines(profile: Any, ok: pd.DataFrame) -> list[str]:
             vals = col.dropna().to_numpy(float)
             if len(vals):
                 mean, lo, hi = stats.hierarchical_bootstrap(vals[:, None])
-                rows.append([f"{t_up:g}", f"{alpha:g}", str(len(vals)), f"{mean:+.2f} [{lo:+.2f}, {hi:+.2f}]",
+                rows.append([f"{t_up:g}", f"{alpha:g}", str(len(vals)), interval(mean, lo, hi, "{:+.2f}"),
                              f"{vals.min():+.2f}"])  # fmt: skip
         head = ["T_up (s)", "alpha", "seeds", "difference (m/s), mean [95% CI]", "lowest seed"]
         lines += ["", "At each alpha and demand (descriptive: not corrected for their number):", "",

@@ -21,7 +21,7 @@ from coopsumo.agents.training_logs import validation_table
 from coopsumo.files import read_csv, read_json, write_atomic, write_text_atomic
 from coopsumo.policy_spec import DRIVES
 from coopsumo.record_schemas import PROTOCOL_STATS
-from coopsumo.report.markdown import md_table
+from coopsumo.report.markdown import interval, md_table
 from coopsumo.sim import passing
 from coopsumo.studies.engine import stats
 from coopsumo.studies.protocol.alpha_response import FIGURE, alpha_lines, pairs_lines, response_figure
@@ -232,7 +232,7 @@ def committed_pair_lines(runs: pd.DataFrame, profile: Any, results: Path = COMMI
         link = f"../{where.relative_to(results).as_posix()}/report.md"
         for r in paired_rows(both, mine, label):
             rows.append([f"`{mine}`", f"`{theirs}` ([{folder}]({link}))", r["scenario"], f"{r['t_up']:g}",
-                         _ci(r["diff"], r["low"], r["high"], "{:+.2f}"), f"{r['better']} of {r['models']}",
+                         interval(r["diff"], r["low"], r["high"], "{:+.2f}"), f"{r['better']} of {r['models']}",
                          f"{r['lane_changes']:+.2f}"])  # fmt: skip
     head = ["learner", "minus", "scenario", "T_up (s)", "difference [95% CI]", "better", "lane changes / veh, diff."]
     return lines + md_table(head, rows).split("\n") + ([""] + notes if notes else [])
@@ -258,12 +258,6 @@ def diagnosis_table(root: Path, runs: pd.DataFrame) -> pd.DataFrame:
                 row[f"{tag}_{col}"] = src.get(col, math.nan)
         rows.append(row)
     return pd.DataFrame(rows)
-
-
-def _ci(point: float, low: float, high: float, fmt: str = "{:.2f}") -> str:
-    if math.isnan(point):
-        return "-"
-    return f"{fmt.format(point)} [{fmt.format(low)}, {fmt.format(high)}]"
 
 
 def write_outputs(root: Path, profile: Any, records: list[dict[str, Any]], meta: dict[str, Any]) -> None:
@@ -352,19 +346,20 @@ def _scenario_tables(profile: Any, ok: pd.DataFrame, table: pd.DataFrame) -> lis
         head += [f"`{b}`" for b in BASELINES] + [f"P(> `{b}`) [95% CI], lost" for b in BASELINES]
         rows = []
         for _, r in sub.iterrows():
-            cells = [f"{r['t_up']:g}", f"`{r['variant']}`", str(int(r["models"])), _ci(r["iqm"], r["low"], r["high"]),
-                     f"{r['worst']:.2f}", f"{r['lane_changes_per_vehicle']:.2f}"]
+            cells = [f"{r['t_up']:g}", f"`{r['variant']}`", str(int(r["models"])),
+                     interval(r["iqm"], r["low"], r["high"]), f"{r['worst']:.2f}",
+                     f"{r['lane_changes_per_vehicle']:.2f}"]  # fmt: skip
             values = [r.get(f"{b}_value", math.nan) for b in BASELINES]  # a failed baseline's: blank
             cells += ["-" if pd.isna(v) else f"{v:.2f}" for v in values]
             for b in BASELINES:
                 poi = (r.get(f"{b}_poi", math.nan), r.get(f"{b}_poi_low", math.nan), r.get(f"{b}_poi_high", math.nan))
                 losses = r.get(f"{b}_losses", 0)  # blank where the baseline's cell failed (issue 82, probe 7, I10)
-                cells.append(f"{_ci(*poi)}, {'-' if pd.isna(losses) else int(losses)}")
+                cells.append(f"{interval(*poi)}, {'-' if pd.isna(losses) else int(losses)}")
             rows.append(cells)
         lines += md_table(head, rows).split("\n")
         lines += ["", "Across the demands (probability of improvement averaged over demands, 95% CI):", ""]
         for variant in profile.variants:
-            parts = [f"P(> `{b}`) = {_ci(*pooled_stats(ok, variant, b, scenario))}" for b in BASELINES]
+            parts = [f"P(> `{b}`) = {interval(*pooled_stats(ok, variant, b, scenario))}" for b in BASELINES]
             lines.append(f"- `{variant}`: " + "; ".join(parts))
     return lines
 
@@ -434,7 +429,7 @@ def paired_lines(runs: pd.DataFrame, profile: Any, meta: dict[str, Any]) -> list
         lines += ["", f"## {title}: each variant minus `{first}`, paired by {unit}", "",
                   f"Mean over {unit}s of the paired difference, 95% bootstrap interval over them, and how many did "
                   f"better than `{first}` (free flow: mean speed, m/s; accident: total time spent, veh-h).", ""]
-        rows = [[f"`{variant}`", r["scenario"], f"{r['t_up']:g}", _ci(r["diff"], r["low"], r["high"], "{:+.2f}"),
+        rows = [[f"`{variant}`", r["scenario"], f"{r['t_up']:g}", interval(r["diff"], r["low"], r["high"], "{:+.2f}"),
                  f"{r['better']} of {r['models']}", f"{r['lane_changes']:+.2f}"]
                 for variant in group for r in paired_rows(runs, variant, first)]  # fmt: skip
         lines += md_table(["learner", "scenario", "T_up (s)", "difference [95% CI]", "better",
