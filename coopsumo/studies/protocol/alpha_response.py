@@ -123,8 +123,10 @@ def response_figure(profile: Any, ok: pd.DataFrame, out_path: Path) -> Path | No
         ax.set_xticks(range(len(alphas)), [f"{a:g}" for a in alphas])
         ax.set_xlabel("alpha")
         ax.set_ylabel(words)
+        ax.ticklabel_format(axis="y", useOffset=False)  # m/s as read, not as an offset from 20.75
         ax.grid(alpha=0.3)
     axes[1].legend(fontsize=8)
+    fig.tight_layout()
     return save_figure(fig, out_path)
 
 
