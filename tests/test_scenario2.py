@@ -147,6 +147,12 @@ def test_failed_cells_are_left_out() -> None:
     assert row["win_share"] == 0.5  # seed 1: alpha 0 wins; seed 2: only alpha 32 ran
 
 
+def test_the_gate_target_is_five_in_six_of_the_conditions() -> None:
+    from coopsumo.studies.scenario2.gate_report import gate_target
+
+    assert [gate_target(n) for n in (2, 4, 12, 20)] == [2, 4, 10, 17]
+
+
 def test_fit_plane_recovers_known_coefficients() -> None:
     t = np.array([0.5, 1.0, 2.0, 0.5, 1.0, 2.0, 0.7])
     n = np.array([2, 2, 2, 4, 4, 4, 6])
