@@ -28,9 +28,9 @@ folder named like a partial one only when it holds this file, so a user's folder
 
 PLANLESS_TITLES = {"regime_map": "# Scenario I: where the accident's queue goes, against demand",
                    "accident_seeds": "# Every training seed's model through scenario I's accident"}
-"""the reports' first lines of the studies committed without a plan file (results/regime_map/, learning_conditioned/
-accident/): an unmarked root without it whose report.md begins so is that study's own (run_dirs.check_study_root,
-owners.unmarked_study_problem)"""
+"""the reports' first lines of the studies committed without a plan file (results/regime_map/,
+archive/learning_conditioned_nr10/accident/): an unmarked root without it whose report.md begins so is that study's
+own (run_dirs.check_study_root, owners.unmarked_study_problem)"""
 
 SB3_KIND = "sb3_dqn"
 """the marker kind of experiments/sb3_dqn.py's folder (its model.zip): a simulate run's kind before, it was replaced by

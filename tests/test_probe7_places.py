@@ -105,7 +105,7 @@ def test_a_studys_run_folder_holding_a_users_files_is_refused_before_any_run(cas
 
 
 # -- I4: learning and protocol both write study.json ---------------------------------------------------------------
-COMMITTED = {"protocol": "learner_protocol_u1", "ablation": "learning_conditioned"}
+COMMITTED = {"protocol": "learner_protocol_u1", "ablation": "archive/learning_conditioned_nr10"}
 """a committed study of each command that writes study.json, without a marker (written before markers)"""
 
 

@@ -226,7 +226,7 @@ def test_nothing_is_written_inside_a_runs_partial_folder(tmp_path: Path) -> None
     assert owned_problem(tmp_path / ".o.partial-mine" / "t", "--out t") is None  # a user's folder of such a name
 
 
-@pytest.mark.parametrize("committed", ["regime_map", "learning_conditioned/accident"])
+@pytest.mark.parametrize("committed", ["regime_map", "archive/learning_conditioned_nr10/accident"])
 def test_a_study_committed_without_its_plan_file_is_its_own_and_nothing_elses(committed: str, tmp_path: Path) -> None:
     """I5 refused the committed regime map's folder (runs.csv and report.md only: `make regime-map` on a fresh
     clone); it is known by its report's first line, and a run inside a copy of it is refused (probe 9, K8), as

@@ -336,9 +336,9 @@ def design_text(profile: Profile, alpha_label: Any) -> str:
         f"would be {len(profile.conditions()) * len(profile.alphas) * len(profile.seeds)} trainings; one per lane "
         f"count and seed is {len(profile.lanes) * len(profile.seeds)}, which keeps the study within hours on two "
         "cores. The learning study measured one conditioned network against per-alpha models at one condition "
-        "(results/learning_conditioned: within their seed spread at some alphas, not all); `coopsumo scenario2 "
-        "--profile check` measures it at two conditions of this design (3 lanes, loads 0.5 and 1), and its report "
-        "says at which (condition, alpha) the network's speed lies within the per-alpha models' spread.")
+        "(results/archive/learning_conditioned_nr10: within their seed spread at some alphas, not all); `coopsumo "
+        "scenario2 --profile check` measures it at two conditions of this design (3 lanes, loads 0.5 and 1), and its "
+        "report says at which (condition, alpha) the network's speed lies within the per-alpha models' spread.")
 
 
 def _baselines_text(profile: Profile) -> str:
