@@ -403,6 +403,12 @@ def to_dict(cfg: Any) -> dict[str, Any]:
     return dataclasses.asdict(cfg)
 
 
+def as_data(cfg: Any) -> dict[str, Any]:
+    """A config dataclass as its JSON file holds it (to_dict with tuples as lists): how records, cells and the model
+    store compare and name configurations."""
+    return json.loads(json.dumps(dataclasses.asdict(cfg)))
+
+
 SPEED_ONLY_FIELDS = frozenset({"full_read_every_steps"})
 """configuration fields that change how fast a run goes, never what it gives (recorded, ignored when a study
 matches a stored run, cell or checkpoint to its configuration)"""

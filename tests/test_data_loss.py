@@ -135,18 +135,18 @@ def test_an_unfinished_training_with_nothing_to_lose_is_started_again(tmp_path: 
 def test_the_studies_still_train_again_over_their_own_folders(finished: Path, tmp_path: Path) -> None:
     """The refusal is the command's: train() itself, which the model store calls to train a damaged model again in
     its folder, still starts over there, and resumes an interrupted one."""
-    from coopsumo.studies.engine.trainings import train_resuming
+    from coopsumo.studies.engine.model_store import train_resuming
 
     damaged = tmp_path / "damaged"
     shutil.copytree(finished, damaged)
     (damaged / "model.pt").write_bytes(b"cut short")
-    summary, resumed = train_resuming(as_json(TINY), damaged)
+    summary, resumed = train_resuming(TINY, damaged)
     assert resumed is None and summary["steps"] == 40 and finished_run(damaged, "train")
     again, first = load_model(damaged / "model.pt")[0].state_dict(), load_model(finished / "model.pt")[0].state_dict()
     assert all(torch.equal(again[k], first[k]) for k in first)  # the same seed's weights
     stopped = tmp_path / "stopped"
     interrupted_at_start(stopped)
-    _, resumed = train_resuming(as_json(TINY), stopped)
+    _, resumed = train_resuming(TINY, stopped)
     assert resumed == 0 and finished_run(stopped, "train")
 
 
@@ -198,7 +198,7 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from coopsumo.studies.engine.model_store import train_shared
 
     root = tmp_path_factory.mktemp("shared")
-    train_shared(as_json(TINY), root / "study" / "models" / "alpha0_m100", root / "models")
+    train_shared(TINY, root / "study" / "models" / "alpha0_m100", root / "models")
     return root / "study"
 
 
@@ -209,7 +209,7 @@ def test_an_emptied_model_store_is_a_store_whatever_path_names_it(tmp_path: Path
     from coopsumo.studies.engine.model_store import train_shared
 
     store = tmp_path / "kept" / "store"
-    train_shared(as_json(TINY), tmp_path / "study" / "models" / "alpha0_m100", store)
+    train_shared(TINY, tmp_path / "study" / "models" / "alpha0_m100", store)
     assert (store / STORE_MARK).is_file()
     for entry in store.iterdir():  # emptied as `rm -rf store/*` empties it: dot-entries stay
         if not entry.name.startswith("."):
@@ -300,7 +300,7 @@ def test_a_real_folder_where_the_study_links_its_model_is_never_deleted_moved_or
     link = tmp_path / "study" / "models" / "alpha0_m100"
     STUDY_FOLDERS[what](link, finished)
     before = snapshot(tmp_path)
-    for step in (lambda: stored_model(as_json(TINY), store, link), lambda: train_shared(as_json(TINY), link, store)):
+    for step in (lambda: stored_model(as_json(TINY), store, link), lambda: train_shared(TINY, link, store)):
         with pytest.raises(UsageError) as err:
             step()
         assert str(link) in str(err.value) and "the study did not make" in str(err.value)
@@ -328,7 +328,7 @@ def test_a_store_entry_that_is_a_link_to_a_users_training_is_never_trained_into(
     before = snapshot(tmp_path)
     with pytest.raises(UsageError, match=f"holds {entry.name}, a link"):
         store_for(tmp_path / "study")
-    for step in (lambda: stored_model(as_json(TINY), store, link), lambda: train_shared(as_json(TINY), link, store)):
+    for step in (lambda: stored_model(as_json(TINY), store, link), lambda: train_shared(TINY, link, store)):
         with pytest.raises(UsageError) as err:
             step()
         assert str(entry) in str(err.value) and "is a link" in str(err.value), err.value

@@ -26,7 +26,6 @@ while the whole suite ran beside it."""
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -80,7 +79,7 @@ def command(case: str, tmp: Path) -> list[str]:
 @pytest.fixture(scope="module")
 def stored_models(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     """Three real models of a model store: 40-step trainings (about a second each), as a study stores them."""
-    from coopsumo.config import SimConfig, TrainConfig, to_dict
+    from coopsumo.config import SimConfig, TrainConfig
     from coopsumo.dqn_config import DQN_PRESETS
     from coopsumo.studies.engine.model_store import train_shared
 
@@ -88,7 +87,7 @@ def stored_models(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     for seed in (3, 4, 5):
         cfg = TrainConfig(sim=SimConfig(steps=40, seed=seed, policy="dqn"), dqn=DQN_PRESETS["paper"], eval_steps=0,
                           log_every_steps=20)  # fmt: skip
-        train_shared(json.loads(json.dumps(to_dict(cfg))), root / "study" / "models" / f"m{seed}", root / "models")
+        train_shared(cfg, root / "study" / "models" / f"m{seed}", root / "models")
     models = sorted(p for p in (root / "models").iterdir() if p.is_dir() and not p.name.startswith("."))
     assert len(models) == 3
     return models

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from coopsumo.config import SimConfig
+from coopsumo.config import SimConfig, TrainConfig, as_data
 from coopsumo.policy_spec import DRIVES, parse_policy
 from coopsumo.studies.engine.cells import cell_policy, dqn_policy, drive_pooled
 
@@ -28,10 +28,9 @@ def test_the_policy_string_carries_every_drive_setting_and_alpha_exactly() -> No
 
 
 def test_a_cell_drives_at_its_alpha_only_when_its_training_is_conditioned() -> None:
-    spec: dict[str, Any] = {"alpha": 8.0, "config": {"train": {"dqn": {"alpha_conditioned": False}},
-                                                     "drive": {"change_margin": 2.0}}}  # fmt: skip
+    spec: dict[str, Any] = {"alpha": 8.0, "training": TrainConfig(), "config": {"drive": {"change_margin": 2.0}}}
     assert cell_policy(spec, Path("/m/model.pt")) == "dqn:/m/model.pt,margin=2"
-    spec["config"]["train"]["dqn"]["alpha_conditioned"] = True
+    spec["training"] = replace(spec["training"], dqn=replace(spec["training"].dqn, alpha_conditioned=True))
     assert cell_policy(spec, Path("/m/model.pt")) == "dqn:/m/model.pt,margin=2,alpha=8"
 
 
@@ -69,15 +68,14 @@ def faked_runs(monkeypatch: pytest.MonkeyPatch) -> list[tuple[str, Any, Path]]:
     import coopsumo.agents.rollout as rollout
     from coopsumo.agents.dqn import QNetwork
     from coopsumo.agents.model_file import save_model
-    from coopsumo.dqn_config import dqn_config_from_dict
     from coopsumo.studies.engine import model_store
 
-    def fake_train(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[str, Any], None]:
-        dqn = dqn_config_from_dict(config["dqn"])
+    def fake_train(cfg: TrainConfig, out: Path, store: Path) -> tuple[dict[str, Any], None]:
+        dqn = cfg.dqn
         net = QNetwork(30.0, dueling=dqn.dueling, observation=dqn.observation, conditioned=dqn.alpha_conditioned)
         out.mkdir(parents=True, exist_ok=True)
-        save_model(out / "model.pt", net, {"config": config})
-        return {"steps": config["sim"]["steps"]}, None
+        save_model(out / "model.pt", net, {"config": as_data(cfg)})
+        return {"steps": cfg.sim.steps}, None
 
     runs: list[tuple[str, Any, Path]] = []
 

@@ -67,7 +67,7 @@ def test_a_studys_stacked_trainings_are_grouped_by_learner(tmp_path: Path) -> No
 
     def spec(cfg: TrainConfig, nested: bool) -> dict[str, object]:
         return {"key": f"k{cfg.sim.seed}", "config": {"train": to_dict(cfg)} if nested else to_dict(cfg),
-                "kind": "eval" if nested else "train"}  # fmt: skip
+                "kind": "eval" if nested else "train", "training": cfg}  # fmt: skip
 
     slow = stacked(20)
     slow = dataclasses.replace(slow, dqn=dataclasses.replace(slow.dqn, lr=1e-4))
@@ -75,7 +75,7 @@ def test_a_studys_stacked_trainings_are_grouped_by_learner(tmp_path: Path) -> No
     specs = [spec(stacked(s), s % 2 == 0) for s in range(1, 7)] + [spec(stacked(3), True), spec(slow, False),
                                                                    spec(plain, False)]  # fmt: skip
     groups = groups_to_train(specs, tmp_path / "store", size=4)
-    assert [[g["sim"]["seed"] for g in group] for group in groups] == [[1, 2, 3, 4], [5, 6]]  # seed 3 once; the
+    assert [[g.sim.seed for g in group] for group in groups] == [[1, 2, 3, 4], [5, 6]]  # seed 3 once; the
     # lone learner (lr 1e-4) and the plain one are no group: their cells train them as ever
 
 
@@ -84,8 +84,10 @@ def test_a_studys_groups_land_in_the_model_store(tmp_path: Path) -> None:
     from coopsumo.studies.engine.groups import train_groups
     from coopsumo.studies.engine.model_store import model_id, stored_model
 
-    configs = [to_dict(stacked(s, steps=300)) for s in (1, 2)]
-    specs = [{"key": f"train_{i}", "kind": "train", "config": c} for i, c in enumerate(configs)]
+    trainings = [stacked(s, steps=300) for s in (1, 2)]
+    configs = [to_dict(t) for t in trainings]
+    specs = [{"key": f"train_{i}", "kind": "train", "config": c, "training": t}
+             for i, (c, t) in enumerate(zip(configs, trainings, strict=True))]
     store = tmp_path / "models"
     assert train_groups(specs, store, quiet=True) == 2
     assert all(stored_model(c, store) == store / model_id(c) for c in configs)

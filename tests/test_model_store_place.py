@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from coopsumo.config import to_dict
+from coopsumo.config import TrainConfig, to_dict
 from coopsumo.studies.engine import cells, model_store, store_listing
 from coopsumo.studies.engine.model_store import model_id, store_for
 from coopsumo.studies.engine.store_listing import found_stores
@@ -80,7 +80,7 @@ def test_moving_the_store_changes_no_cell_key_and_no_model_name(tmp_path: Path,
         assert {s["store"] for s in specs if s["kind"] == "train"} == {str(tmp_path / store)}
     assert keys[0] == keys[1] and len(keys[0]) > 4
     specs = protocol_plan.cell_specs(protocol_plan.PROFILES["tiny"])
-    assert "models" not in json.dumps([{k: v for k, v in s.items() if k != "config"} for s in specs])
+    assert "models" not in json.dumps([{k: v for k, v in s.items() if k != "config"} for s in specs], default=to_dict)
     config = to_dict(scenario1_plan.train_config(scenario1_plan.PROFILES["default"], 8.0, "default", 100))
     assert model_id(config) == model_id(json.loads(json.dumps(config)))  # no path in it: the same name anywhere
     assert str(tmp_path) not in json.dumps(model_store.identity(config))
@@ -100,7 +100,7 @@ def test_a_study_that_trains_names_its_store(tmp_path: Path, monkeypatch: pytest
     (root / "cells").mkdir(parents=True)
     (root / "cells" / "c.json").write_text(json.dumps({"key": "c", "status": "ok", "config": {"train": {}, "eval": {}},
                                                        "summary": {"x": 1.0}, "train_summary": TRAINED}))  # fmt: skip
-    train = [{"key": "c", "config": {"train": {}, "eval": {}}}]
+    train = [{"key": "c", "training": TrainConfig(), "config": {"train": {}, "eval": {}}}]
     records = cells.run_todo([], train, root, lambda s, r: {}, lambda s, e: {}, required=["x"])
     assert records[0]["status"] == "ok", records[0].get("error")
     assert f"coopsumo: model store {tmp_path / 'work' / 'models'} (the study's models" in capsys.readouterr().err

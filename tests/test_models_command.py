@@ -180,11 +180,13 @@ def test_a_stored_model_that_lost_a_record_is_trained_again_in_a_group_with_a_li
     from coopsumo.agents import group
     from coopsumo.studies.engine.groups import train_groups
 
-    configs = [to_dict(TrainConfig(sim=SimConfig(steps=300, seed=seed, policy="dqn"), eval_steps=0,
-                                   dqn=DQNConfig(stacked_updates=True))) for seed in (100, 101)]  # fmt: skip
+    trainings = [TrainConfig(sim=SimConfig(steps=300, seed=seed, policy="dqn"), eval_steps=0,
+                             dqn=DQNConfig(stacked_updates=True)) for seed in (100, 101)]  # fmt: skip
+    configs = [to_dict(t) for t in trainings]
     folder, line = _stored_then_spoiled(configs[0], tmp_path / "models", lost, spoil)
     monkeypatch.setattr(group, "train_group", lambda cfgs, outs, resumes: [group.MemberResult(out, {}) for out in outs])
-    specs = [{"key": f"train_{i}", "kind": "train", "config": c} for i, c in enumerate(configs)]
+    specs = [{"key": f"train_{i}", "kind": "train", "config": c, "training": t}
+             for i, (c, t) in enumerate(zip(configs, trainings, strict=True))]
     assert train_groups(specs, tmp_path / "models", quiet=True) == 2
     assert capsys.readouterr().err.strip().splitlines() == [line]
 

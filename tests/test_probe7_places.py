@@ -202,7 +202,7 @@ def test_a_store_folder_holding_a_users_files_is_never_trained_into(tmp_path: Pa
     user_folder(entry)
     before = snapshot(tmp_path)
     link = tmp_path / "s" / "t"
-    steps = (lambda: stored_model(as_json(TINY), store), lambda: train_shared(as_json(TINY), link, store))
+    steps = (lambda: stored_model(as_json(TINY), store), lambda: train_shared(TINY, link, store))
     for step in steps:
         with pytest.raises(UsageError) as err:
             step()
@@ -210,7 +210,7 @@ def test_a_store_folder_holding_a_users_files_is_never_trained_into(tmp_path: Pa
         assert len(str(err.value).splitlines()) == 1 and snapshot(tmp_path) == before
     (entry / "notes.txt").unlink()
     (entry / "config.json").unlink()
-    train_shared(as_json(TINY), link, store)  # an empty folder of that name: the training's
+    train_shared(TINY, link, store)  # an empty folder of that name: the training's
     (entry / "group_cost.json").write_text('{"group_size": 2, "cpu_s": 1.0}')
     assert stored_model(as_json(TINY), store) == entry
     for added in ("notes.txt", "sumo/mine.txt"):

@@ -142,10 +142,10 @@ def test_a_store_model_holding_what_no_training_writes_at_any_depth_is_left_alon
     monkeypatch.delenv("COOPSUMO_MODELS", raising=False)
     store, config = tmp_path / "models", as_json(TINY)
     entry, study_link = store / model_id(config), tmp_path / "s" / "t"
-    train_shared(config, study_link, store)
+    train_shared(TINY, study_link, store)
     assert stored_model(config, store) == entry
     shutil.copytree(entry / "sumo", tmp_path / "sumo")  # to put back after a case that makes sumo a link
-    steps = (lambda: stored_model(config, store), lambda: train_shared(config, study_link, store))
+    steps = (lambda: stored_model(config, store), lambda: train_shared(TINY, study_link, store))
     for case in sorted(ADDED):
         for summary_gone in (False, True):
             ADDED[case][0](entry)

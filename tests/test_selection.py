@@ -309,7 +309,7 @@ def test_a_training_that_differs_only_in_validation_is_reselected_not_trained(tm
     """In SUMO: the store holds a training validated in free flow; asking for the same training validated through an
     accident too trains nothing (its snapshots are validated again into their own folder), leaves the stored one
     as it was, and the new folder is a whole model of its own configuration that a third ask takes as it is."""
-    from coopsumo.studies.engine import model_store, trainings
+    from coopsumo.studies.engine import model_store
     from coopsumo.studies.engine.trainings import finished_training
 
     dq = dataclasses.replace(DQNConfig(), select_every_steps=200, validation_steps=100, validation_t_ups=(1.5,),
@@ -317,15 +317,15 @@ def test_a_training_that_differs_only_in_validation_is_reselected_not_trained(tm
     free = TrainConfig(sim=SimConfig(steps=400, seed=3, policy="dqn"), eval_steps=0, dqn=dq)
     both = dataclasses.replace(free, dqn=dataclasses.replace(dq, validation_accident_steps=600))
     store = tmp_path / "models"
-    model_store.train_shared(to_dict(free), tmp_path / "a", store)
+    model_store.train_shared(free, tmp_path / "a", store)
     src = store / model_store.model_id(to_dict(free))
     before = {p.name: p.read_bytes() for p in (src / "snapshots").rglob("*") if p.is_file()}
 
     def no_training(*_: object) -> None:
         raise AssertionError("trained")
 
-    monkeypatch.setattr(trainings, "train_resuming", no_training)  # imported by train_shared when it is called
-    summary, resumed = model_store.train_shared(to_dict(both), tmp_path / "b", store)
+    monkeypatch.setattr(model_store, "train_resuming", no_training)
+    summary, resumed = model_store.train_shared(both, tmp_path / "b", store)
     dst = store / model_store.model_id(to_dict(both))
     assert dst != src and resumed is None and summary["reselected_from"] == src.name
     assert {p.name: p.read_bytes() for p in (src / "snapshots").rglob("*") if p.is_file()} == before
@@ -342,5 +342,5 @@ def test_a_training_that_differs_only_in_validation_is_reselected_not_trained(tm
     assert all(torch.equal(chosen[k], snap[k]) for k in chosen)
     monkeypatch.undo()  # train_resuming returns a whole stored training as it is
     stamp = (dst / "model.pt").stat().st_mtime_ns
-    assert model_store.train_shared(to_dict(both), tmp_path / "c", store)[0] == summary
+    assert model_store.train_shared(both, tmp_path / "c", store)[0] == summary
     assert (dst / "model.pt").stat().st_mtime_ns == stamp  # neither trained nor judged again

@@ -39,7 +39,7 @@ def bench_group(cfg: TrainConfig, k: int, lone: tuple[float, float] | None = Non
     from coopsumo.agents.group import train_group
     from coopsumo.agents.train import train
 
-    torch.set_num_threads(1)  # as a study's training cell (engine/trainings.train_resuming) and a group's member
+    torch.set_num_threads(1)  # as a study's training cell (engine/model_store.train_resuming) and a group's member
 
     before, after = before_and_after(cfg)
     cfgs = [replace(after, sim=replace(after.sim, seed=after.sim.seed + i)) for i in range(k)]

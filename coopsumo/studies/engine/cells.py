@@ -11,20 +11,20 @@ its record (their reuse checks and cell order the study's fields).
 What a cell does: its model trained into the model store (or
 taken from it) and driven on its runs, or runs of a policy that needs no training, or a training alone.
 
-A study maps each of its cells' specs (JSON-ready dicts: their key, coordinates and configuration, which its record
-keeps) to a frozen `Cell` in the worker (its `work`); `CellKind.run_cell` runs it (`perform`) into the cell's record:
-`Train` names the training (its configuration as data: the model store takes its digest at its edge), the folder of
-the study that links to it and the drive settings the model is driven with (its policy string: dqn_policy, which
-agents/dqn_policy.DQNPolicy.from_spec reads onto the loaded policy); each `Run` is one simulation (a typed SimConfig)
-into its run folder, measured by the cell's `measure` (default: the run's own summary, run_folders.simulate_into;
-scenario II adds its loop flow and full-road speed, the protocol its accident's measures). A pooled cell keeps each
-run's summary with its evaluation seed and pools them (records.pool_summaries); any other keeps its one run's.
+A study maps each of its cells' specs (dicts: their key, coordinates and configuration as data, which its record keeps;
+a cell that trains also its TrainConfig as the plan typed it, `training`) to a frozen `Cell` in the worker (its `work`);
+`CellKind.run_cell` runs it (`perform`) into the cell's record: `Train` names the training (typed, as the plan made it:
+the model store takes its digest at its edge), the folder of the study that links to it and the drive settings the model
+is driven with (its policy string: dqn_policy, which agents/dqn_policy.DQNPolicy.from_spec reads onto the loaded
+policy); each `Run` is one simulation (a typed SimConfig) into its run folder, measured by the cell's `measure`
+(default: the run's own summary, run_folders.simulate_into; scenario II adds its loop flow and full-road speed, the
+protocol its accident's measures). A pooled cell keeps each run's summary with its evaluation seed and pools them
+(records.pool_summaries); any other keeps its one run's.
 """
 
 from __future__ import annotations
 
 import errno
-import json
 import os
 import sys
 from collections.abc import Callable, Iterable, Mapping, Sequence
@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from coopsumo.config import RoadConfig, SimConfig, to_dict
+from coopsumo.config import RoadConfig, SimConfig, TrainConfig, as_data, to_dict
 from coopsumo.files import read_json, read_json_object
 from coopsumo.policy_spec import DRIVES
 from coopsumo.studies.engine.records import (
@@ -91,7 +91,8 @@ def todo_cells(root: Path, specs: Sequence[dict[str, Any]], prog: str, required:
 
 
 def _trains(spec: dict[str, Any]) -> bool:
-    return isinstance(spec.get("config"), dict) and "train" in spec["config"]
+    """Whether the cell of `spec` trains (or takes) a model and drives it (its typed training: spec["training"])."""
+    return spec.get("training") is not None and spec.get("kind") != "train"
 
 
 def model_link(root: Path, spec: dict[str, Any]) -> Path | None:
@@ -166,19 +167,19 @@ def dqn_policy(model: Path | str, drive: Mapping[str, float] | None = None, alph
 
 def cell_policy(spec: dict[str, Any], model: Path) -> str:
     """The policy string a study cell drives its trained model (the file `model`) with: the cell's drive settings
-    (config.drive) and, when its training is alpha-conditioned (config.train.dqn.alpha_conditioned), the cell's
+    (config.drive) and, when its training is alpha-conditioned (its dqn.alpha_conditioned), the cell's
     alpha (dqn_policy; cell_train)."""
     train = cell_train(spec, "")
     return dqn_policy(model, train.drive, train.alpha)
 
 
 def cell_train(spec: dict[str, Any], folder: str, weights: str = "model.pt") -> Train:
-    """The model of a study cell that trains (its config.train), linked at ROOT/<folder>, driven from its file
-    `weights` with the cell's drive settings (config.drive) and, when it is alpha-conditioned, at the cell's alpha."""
-    config = spec["config"]
-    conditioned = bool(config["train"]["dqn"].get("alpha_conditioned"))
-    return Train(config["train"], folder, weights=weights, drive=config.get("drive"),
-                 alpha=float(spec["alpha"]) if conditioned else None)  # fmt: skip
+    """The model of a study cell that trains (its typed training, spec["training"], whose data is its config.train),
+    linked at ROOT/<folder>, driven from its file `weights` with the cell's drive settings (config.drive) and, when it
+    is alpha-conditioned, at the cell's alpha."""
+    training: TrainConfig = spec["training"]
+    alpha = float(spec["alpha"]) if training.dqn.alpha_conditioned else None
+    return Train(training, folder, weights=weights, drive=spec["config"].get("drive"), alpha=alpha)
 
 
 def drive_pooled(record: dict[str, Any], evaluations: Iterable[tuple[SimConfig, Path]], label: str,
@@ -194,12 +195,13 @@ def drive_pooled(record: dict[str, Any], evaluations: Iterable[tuple[SimConfig, 
 # -- a cell, typed, and the one function that runs it --------------------------------------------------------------
 @dataclass(frozen=True)
 class Train:
-    """A cell's model: the training `config` (a TrainConfig as data) taken from the model store `store` (None: the
-    study's own, model_store.store_for), trained there when it is not whole; ROOT/<folder> links to it. The cell drives
+    """A cell's model: the training `config` taken from the model store `store` (None: the study's own,
+    model_store.store_for), trained there when it is not whole (the store names it by its data, to_dict, at its
+    edge); ROOT/<folder> links to it. The cell drives
     its file `weights` with the drive settings `drive` (a cell's config.drive, keyed as policy_spec.DRIVES) and, for an
     alpha-conditioned model, at `alpha` (dqn_policy)."""
 
-    config: dict[str, Any]
+    config: TrainConfig
     folder: str
     store: str | None = None
     weights: str = "model.pt"
@@ -257,7 +259,7 @@ def perform(cell: Cell, root: Path, record: dict[str, Any]) -> None:
         drive_pooled(record, runs, cell.label, cell.measure)
     else:
         (config, out), = runs
-        record["summary"] = cell.measure(json.loads(json.dumps(to_dict(config))), out, cell.label)
+        record["summary"] = cell.measure(as_data(config), out, cell.label)
 
 
 @dataclass(frozen=True)

@@ -16,39 +16,42 @@ from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
+from coopsumo.config import TrainConfig, as_data
 from coopsumo.files import read_json, write_json
-from coopsumo.studies.engine.model_store import GROUP_COST, _locked, model_id, reselectable, stored_model
+from coopsumo.studies.engine.model_store import (
+    GROUP_COST,
+    _locked,
+    model_id,
+    reselectable,
+    resumable_step,
+    stored_model,
+)
 
 GROUP_SIZE = 4
 """trainings per group: the stacked learner's cost per model-update falls to about 0.46 of today's at 4 and no
 further beyond (docs/performance.md, "The stacked learner"), while every member is a process of its own"""
 
 
-def training_configs(specs: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    """The training configurations (TrainConfig dicts) the cells of `specs` ask the model store for, each once: a
-    cell's config["train"], or a training cell's config (scenario I's train cells, kind "train")."""
-    found: dict[str, dict[str, Any]] = {}
+def training_configs(specs: Sequence[dict[str, Any]]) -> list[TrainConfig]:
+    """The trainings the cells of `specs` ask the model store for (each cell's typed `training`), each once."""
+    found: dict[str, TrainConfig] = {}
     for spec in specs:
-        config = spec.get("config")
-        if not isinstance(config, dict):
-            continue
-        train = config.get("train") if isinstance(config.get("train"), dict) else \
-            config if spec.get("kind") == "train" else None  # fmt: skip
-        if isinstance(train, dict) and isinstance(train.get("dqn"), dict):
-            found.setdefault(model_id(train), train)
+        if (training := spec.get("training")) is not None:
+            found.setdefault(model_id(as_data(training)), training)
     return list(found.values())
 
 
-def groups_to_train(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP_SIZE) -> list[list[dict[str, Any]]]:
+def groups_to_train(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP_SIZE) -> list[list[TrainConfig]]:
     """The stacked trainings of specs not whole in the store (and not a stored training's snapshots judged again),
     grouped by learner settings into groups of up to `size`, in the cells' order; a lone one is no group."""
-    by_learner: dict[str, list[dict[str, Any]]] = {}
-    for config in training_configs(specs):
-        if not config["dqn"].get("stacked_updates") or config.get("eval_steps", 0) != 0:
+    by_learner: dict[str, list[TrainConfig]] = {}
+    for cfg in training_configs(specs):
+        if not cfg.dqn.stacked_updates or cfg.eval_steps != 0:
             continue
+        config = as_data(cfg)
         if stored_model(config, store) is not None or (store.is_dir() and reselectable(config, store) is not None):
             continue
-        by_learner.setdefault(json.dumps(config["dqn"], sort_keys=True), []).append(config)
+        by_learner.setdefault(json.dumps(config["dqn"], sort_keys=True), []).append(cfg)
     groups = [configs[i: i + size] for configs in by_learner.values() for i in range(0, len(configs), size)]
     return [g for g in groups if len(g) > 1]
 
@@ -123,15 +126,15 @@ def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP
     stored model trained again because it lost or spoiled a record is named in one line, quiet or not, as a lone
     training's (trainings.finished_training)."""
     from coopsumo.agents.group import train_group
-    from coopsumo.config import train_config_from_dict
     from coopsumo.owners import mark_store
-    from coopsumo.studies.engine.trainings import finished_training, resumable_step
+    from coopsumo.studies.engine.trainings import finished_training
 
     groups = groups_to_train(specs, store, size)
     trained = 0
     for n, configs in enumerate(groups, start=1):
         store.mkdir(parents=True, exist_ok=True)
-        folders = [store / model_id(c) for c in configs]
+        data = [as_data(c) for c in configs]  # the store's names and checks
+        folders = [store / model_id(c) for c in data]
         if not quiet:
             print(f"coopsumo: training group {n} of {len(groups)} ({len(configs)} models of the stacked learner, one "
                   f"update process) in the model store {store.resolve()}", file=sys.stderr)  # fmt: skip
@@ -139,14 +142,14 @@ def train_groups(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP
             for folder in sorted(folders):
                 locks.enter_context(_locked(store / f".{folder.name}.lock"))
             mark_store(store)  # as it takes its first models (owners.STORE_MARK)
-            for config, folder in zip(configs, folders, strict=True):
+            for config, folder in zip(data, folders, strict=True):
                 folder.mkdir(exist_ok=True)
                 finished_training(folder, config)  # a stored model that lost or spoiled a record: a line naming it
-            resumes = [resumable_step(c, f) is not None for c, f in zip(configs, folders, strict=True)]
+            resumes = [resumable_step(c, f) is not None for c, f in zip(data, folders, strict=True)]
             before = children_cpu_s()
-            results = train_group([train_config_from_dict(c) for c in configs], folders, resumes)
+            results = train_group(configs, folders, resumes)
             share = (children_cpu_s() - before) / len(configs)
-        for config, result, folder in zip(configs, results, folders, strict=True):
+        for config, result, folder in zip(data, results, folders, strict=True):
             if result.error is None:
                 trained += 1
                 write_json(folder / GROUP_COST, {"group_size": len(configs), "cpu_s": round(share, 2)})

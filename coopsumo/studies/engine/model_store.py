@@ -2,8 +2,9 @@
 view of its TrainConfig), `<preset>_a<alpha>_seed<seed>_<digest>`; every study takes it from there, through a link
 in its own folder (e.g. OUT/train/<key>). The store is the folder `models` beside the study's results folder, or
 $COOPSUMO_MODELS. A stored model is used only when it is whole and its identity's (trainings.finished_training); a
-hand-edited or truncated one is trained again in its folder, a killed one resumes from its checkpoint, and nothing
-else in the store is touched. A model that differs from a stored one only in how its snapshots are judged
+hand-edited or truncated one is trained again in its folder, a killed one resumes exactly from its checkpoint
+(train_resuming: the learner gets the study's typed TrainConfig as it is, the store names it by its data), and
+nothing else in the store is touched. A model that differs from a stored one only in how its snapshots are judged
 (selection.SELECTION_FIELDS) is not trained: the stored snapshots are validated again (reselectable).
 """
 from __future__ import annotations
@@ -17,7 +18,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from coopsumo.config import results_view
+from coopsumo.config import TrainConfig, as_data, results_view
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json
 from coopsumo.paths import STORE_ENV
@@ -125,8 +126,9 @@ def stored_model(config: dict[str, Any], store: Path, link: Path | None = None) 
     return folder
 
 
-def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[str, Any], int | None]:
-    """The model of the training `config` from `store`, trained (or resumed) there first if it is not whole.
+def train_shared(cfg: TrainConfig, out: Path, store: Path) -> tuple[dict[str, Any], int | None]:
+    """The model of the training `cfg` from `store`, trained (or resumed) there first if it is not whole. The store
+    names and judges it by its data (to_dict, here at the store's edge); the learner gets `cfg` as it is.
 
     Under a lock per model, so that cells and studies asking at once (the margin variants, a conditioned model's
     alphas, scenario I and the protocol) train it once. out, the study's own training folder, becomes a link to the
@@ -134,10 +136,11 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
     Returns (train summary, step resumed from or None).
     """
     from coopsumo.owners import mark_store
-    from coopsumo.studies.engine.trainings import finished_training, train_resuming
+    from coopsumo.studies.engine.trainings import finished_training
 
     check_link(out)
     store.mkdir(parents=True, exist_ok=True)
+    config = as_data(cfg)
     folder = store / model_id(config)
     with _locked(store / f".{folder.name}.lock"):
         check_link(out)  # again under the lock
@@ -147,12 +150,52 @@ def train_shared(config: dict[str, Any], out: Path, store: Path) -> tuple[dict[s
         _link(out, folder)  # before training: its checkpoint shows through the study's folder
         if finished_training(folder, config, quiet=True) is None:
             if (src := reselectable(config, store)) is not None:
-                return _reselect(src, folder, config), None
+                return _reselect(src, folder, cfg), None
             import sys
 
             print(f"coopsumo: training {folder.name} in the model store {store.resolve()} (`coopsumo models` lists "
                   "it)", file=sys.stderr)  # written outside the study's folder: said where
-        return train_resuming(config, folder)
+        return train_resuming(cfg, folder)
+
+
+def train_resuming(cfg: TrainConfig, out: Path) -> tuple[dict[str, Any], int | None]:
+    """Train `cfg` into out, resuming a checkpoint there made with exactly this configuration (judged by its data).
+
+    Returns train()'s summary and the step resumed from (None: started afresh). A stop by signal
+    becomes KeyboardInterrupt.
+    """
+    import torch
+
+    from coopsumo.agents.train import Interrupted, train
+    from coopsumo.studies.engine.trainings import finished_training
+
+    torch.set_num_threads(1)
+    config = as_data(cfg)
+    out.mkdir(parents=True, exist_ok=True)
+    if cfg.eval_steps == 0 and (stored := finished_training(out, config)) is not None:
+        return stored, cfg.sim.steps
+    resumed_from = resumable_step(config, out)
+    try:
+        summary = train(cfg, out, resume=resumed_from is not None, progress=False)
+    except Interrupted as err:
+        raise KeyboardInterrupt(str(err)) from err
+    return summary, resumed_from
+
+
+def resumable_step(config: dict[str, Any], out: Path) -> int | None:
+    """The step of a checkpoint in out made with exactly the training `config`, or None (none, damaged, another's):
+    then the training starts afresh."""
+    from coopsumo.agents.train import Trainer
+
+    if not (out / "checkpoint.pt").exists():
+        return None
+    try:
+        state = Trainer.load_checkpoint(out)
+        if results_view(json.loads(json.dumps(state["config"]))) == results_view(config):
+            return int(state["step"])
+    except Exception:  # a damaged checkpoint: start afresh
+        return None
+    return None
 
 
 def without_selection(config: dict[str, Any]) -> dict[str, Any]:
@@ -188,17 +231,15 @@ def reselectable(config: dict[str, Any], store: Path) -> Path | None:
     return None
 
 
-def _reselect(src: Path, folder: Path, config: dict[str, Any]) -> dict[str, Any]:
-    """The model of `config` from the snapshots of `src` (selection.reselect), under its lock (a training of src
+def _reselect(src: Path, folder: Path, cfg: TrainConfig) -> dict[str, Any]:
+    """The model of `cfg` from the snapshots of `src` (selection.reselect), under its lock (a training of src
     cannot change it meanwhile)."""
-
     from coopsumo.agents.selection import reselect
-    from coopsumo.config import train_config_from_dict
 
     print(f"coopsumo: {folder.name}: the snapshots of {src.name} judged again (they differ only in model selection; "
           "nothing is trained)", file=sys.stderr)  # fmt: skip
     with _locked(src.parent / f".{src.name}.lock"):
-        return reselect(src, folder, train_config_from_dict(config))
+        return reselect(src, folder, cfg)
 
 
 @contextmanager

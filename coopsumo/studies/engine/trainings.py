@@ -1,5 +1,5 @@
-"""The trainings a study runs: resumed exactly, shared between cells under a lock, reused only when the model
-is whole and is the training's own."""
+"""Whether a training folder holds a model a study may reuse: whole, the training's own, its records and logs as it
+wrote them (the model store trains and resumes: model_store.train_shared)."""
 
 from __future__ import annotations
 
@@ -263,46 +263,6 @@ def _last_world_steps(config: dict[str, Any]) -> int | None:
         return None
     _, first, end = episode_bounds(cfg.sim.steps, cfg.dqn, cfg.sim.steps - 1)
     return end - first
-
-
-def train_resuming(config: dict[str, Any], out: Path) -> tuple[dict[str, Any], int | None]:
-    """Train the TrainConfig dict `config` into out, resuming a checkpoint there made with exactly this config.
-
-    Returns train()'s summary and the step resumed from (None: started afresh). A stop by signal
-    becomes KeyboardInterrupt.
-    """
-    import torch
-
-    from coopsumo.agents.train import Interrupted, train
-    from coopsumo.config import train_config_from_dict
-
-    torch.set_num_threads(1)
-    cfg = train_config_from_dict(config)
-    out.mkdir(parents=True, exist_ok=True)
-    if cfg.eval_steps == 0 and (stored := finished_training(out, config)) is not None:
-        return stored, cfg.sim.steps
-    resumed_from = resumable_step(config, out)
-    try:
-        summary = train(cfg, out, resume=resumed_from is not None, progress=False)
-    except Interrupted as err:
-        raise KeyboardInterrupt(str(err)) from err
-    return summary, resumed_from
-
-
-def resumable_step(config: dict[str, Any], out: Path) -> int | None:
-    """The step of a checkpoint in out made with exactly the training `config`, or None (none, damaged, another's):
-    then the training starts afresh."""
-    from coopsumo.agents.train import Trainer
-
-    if not (out / "checkpoint.pt").exists():
-        return None
-    try:
-        state = Trainer.load_checkpoint(out)
-        if results_view(json.loads(json.dumps(state["config"]))) == results_view(config):
-            return int(state["step"])
-    except Exception:  # a damaged checkpoint: start afresh
-        return None
-    return None
 
 
 def model_folder_problem(folder: Path) -> str | None:

@@ -12,7 +12,6 @@ report. Nothing here runs a simulation; the table is rewritten whole from the fo
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 import os
 import subprocess
@@ -22,7 +21,7 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import SPEED_ONLY_FIELDS, to_dict
+from coopsumo.config import SPEED_ONLY_FIELDS, as_data
 from coopsumo.dqn_config import ADDED_FIELDS, DQN_PRESETS, RETIRED_FIELDS, dqn_config_from_dict
 from coopsumo.errors import ConfigError, UsageError, first_line, why_unreadable
 from coopsumo.field_rules import as_float
@@ -88,7 +87,7 @@ def added(folder: Path) -> tuple[str, str]:
 
 def differences(learner: dict[str, Any], drive: dict[str, Any], weights: str) -> str:
     """How a learner (its settings, how it drives, which weights) differs from today's default, field by field."""
-    default = json.loads(json.dumps(to_dict(DQN_PRESETS["default"])))  # tuples as the records hold them: lists
+    default = as_data(DQN_PRESETS["default"])  # tuples as the records hold them: lists
     learner = {k: v for k, v in {**ADDED_FIELDS, **learner}.items()  # a record made before a field existed means its
                if not (k in RETIRED_FIELDS and v == RETIRED_FIELDS[k])}  # implied value; a retired one at its own too
     fields = [f"{k} {_short(v)}" for k, v in sorted(learner.items())

@@ -273,7 +273,7 @@ def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> lis
                 config["drive"] = variant.drive()
             specs.append({"key": key, "kind": "model", "variant": variant.name, "alpha": alpha, "seed": seed,
                           "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
-                          "train_key": train_key,
+                          "train_key": train_key, "training": cfg,
                           "config": json.loads(json.dumps(config))})  # fmt: skip
     for policy in BASELINES:
         for scenario, (i, t_up), offset in product(("free", "accident"), enumerate(profile.t_ups),

@@ -32,7 +32,7 @@ def work(spec: dict[str, Any]) -> Cell:
     from coopsumo.config import sim_config_from_dict
 
     if spec["kind"] == "train":
-        return Cell(Train(spec["config"], spec["out"], store=spec["store"]))
+        return Cell(Train(spec["training"], spec["out"], store=spec["store"]))
     measure = partial(simulate_into, trajectory_every=spec["trajectory_every"], outputs=OutputConfig(**spec["outputs"]),
                       atomic=True)  # fmt: skip
     return Cell(runs=(Run(sim_config_from_dict(spec["config"]), spec["out"]),), label=spec["out"], measure=measure)

@@ -4,7 +4,6 @@ step its view is nearly full of slow vehicles, and the report's text about it (o
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from collections.abc import Iterable
@@ -15,7 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from coopsumo.config import SimConfig, to_dict
+from coopsumo.config import SimConfig, as_data, to_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import read_json, read_text, write_json
 from coopsumo.sim import view
@@ -74,7 +73,7 @@ def gui_section(root: Path, run_dir: Path, label: str, cfg: SimConfig, environ: 
         done = read_json(record)
     except (OSError, ValueError):
         done = {}
-    if not (shot.exists() and done.get("config") == json.loads(json.dumps(to_dict(gui_cfg)))):
+    if not (shot.exists() and done.get("config") == as_data(gui_cfg)):
         shot.unlink(missing_ok=True)  # made again here, at a name the study writes (rollout checks it was made)
         try:
             last = gui_run(gui_cfg, shot)

@@ -14,7 +14,7 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import SimConfig, to_dict
+from coopsumo.config import SimConfig, as_data
 from coopsumo.files import read_json, write_atomic, write_text_atomic
 from coopsumo.provenance import versions
 from coopsumo.report.markdown import md_table
@@ -288,7 +288,7 @@ def default_study(root: Path, plan: Plan) -> Path | None:
         recorded = read_json(folder / "plan.json")["plan"]
     except (OSError, ValueError, KeyError, TypeError):
         return None
-    mine = json.loads(json.dumps(to_dict(replace(plan, presets=("default",)))))
+    mine = as_data(replace(plan, presets=("default",)))
     if not (folder / "runs.csv").is_file() or recorded != mine:
         return None
     return folder

@@ -16,7 +16,6 @@ engine (engine/cells.Study: what is left to run, the trainings first, as groups)
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from dataclasses import replace
@@ -26,7 +25,7 @@ from typing import Any
 
 import pandas as pd
 
-from coopsumo.config import ControlConfig, RoadConfig, to_dict
+from coopsumo.config import ControlConfig, RoadConfig, as_data, to_dict
 from coopsumo.errors import UsageError
 from coopsumo.files import write_atomic, write_json
 from coopsumo.provenance import versions
@@ -274,11 +273,10 @@ def _cells(plan: Plan, root: Path) -> tuple[list[dict[str, Any]], list[Run]]:
     for preset in plan.presets:
         for alpha in plan.alphas:
             for train_seed in plan.train_seeds:
-                name = model_name(preset, alpha, train_seed)
+                name, training = model_name(preset, alpha, train_seed), train_config(plan, alpha, preset, train_seed)
                 specs.append({"key": f"train_{name}", "kind": "train", "label": model_label(preset, alpha),
-                              "seed": train_seed, "out": f"models/{name}",
-                              "config": json.loads(json.dumps(to_dict(train_config(plan, alpha, preset, train_seed)))),
-                              "store": str(store)})  # fmt: skip
+                              "seed": train_seed, "out": f"models/{name}", "training": training,
+                              "config": as_data(training), "store": str(store)})  # fmt: skip
                 policies.append((f"dqn:{root / 'models' / name / 'model.pt'}", model_label(preset, alpha),
                                  f"train_{name}", train_seed))  # fmt: skip
     policies += [(b, label_for(b), None, None) for b in plan.baseline_policies()]

@@ -19,6 +19,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
     TrainConfig,
+    as_data,
     to_dict,
 )
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
@@ -399,7 +400,7 @@ def learner_of(profile: Profile) -> dict[str, Any]:
     """The learner settings every DQN cell of the sweep trains with (recorded in sweep.json): the network's of every
     lane count (per-alpha models and a check's: the same, not conditioned)."""
     alpha = 0.0 if profile.alpha_models else None  # per-alpha models: alpha 0's learner (each its own alpha)
-    return {f"{n}_lanes": json.loads(json.dumps(to_dict(lane_learner(n, profile, alpha)))) for n in profile.lanes}
+    return {f"{n}_lanes": as_data(lane_learner(n, profile, alpha)) for n in profile.lanes}
 
 
 def condition_rows(profile: Profile) -> list[dict[str, Any]]:
@@ -453,7 +454,7 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
         train.validate()
         for ev in evals:
             ev.validate()
-        extra.update(evals_key=key)
+        extra.update(evals_key=key, training=train)
         if (first := first_of.setdefault(extra["train_key"], key)) != key:
             extra["after"] = first
         config = {"train": to_dict(train), "evals": [to_dict(ev) for ev in evals], **traj}

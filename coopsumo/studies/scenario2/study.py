@@ -161,7 +161,7 @@ def work(spec: dict[str, Any]) -> Cell:
     runs = tuple(Run(ev, f"{folder}/eval_a{number_name(ev.reward.alpha)}_s{ev.seed}" if conditioned
                      else f"{folder}/eval_s{ev.seed}") for ev in evals)  # fmt: skip
     measure = partial(evaluate_model, trajectory_every=every) if every else evaluate_model  # tests fake it
-    train = Train(config["train"], f"train/{name}", alpha=evals[0].reward.alpha if conditioned else None)
+    train = Train(spec["training"], f"train/{name}", alpha=evals[0].reward.alpha if conditioned else None)
     return Cell(train, runs, spec["key"], measure, pooled=True)
 
 
