@@ -49,7 +49,7 @@ def groups_to_train(specs: Sequence[dict[str, Any]], store: Path, size: int = GR
         if not cfg.dqn.stacked_updates or cfg.eval_steps != 0:
             continue
         config = as_data(cfg)
-        if stored_model(config, store) is not None or (store.is_dir() and reselectable(config, store) is not None):
+        if stored_model(config, store) is not None or (store.is_dir() and reselectable(cfg, store) is not None):
             continue
         by_learner.setdefault(json.dumps(config["dqn"], sort_keys=True), []).append(cfg)
     groups = [configs[i: i + size] for configs in by_learner.values() for i in range(0, len(configs), size)]

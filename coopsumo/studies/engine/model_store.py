@@ -149,7 +149,7 @@ def train_shared(cfg: TrainConfig, out: Path, store: Path) -> tuple[dict[str, An
         folder.mkdir(exist_ok=True)
         _link(out, folder)  # before training: its checkpoint shows through the study's folder
         if finished_training(folder, config, quiet=True) is None:
-            if (src := reselectable(config, store)) is not None:
+            if (src := reselectable(cfg, store)) is not None:
                 return _reselect(src, folder, cfg), None
             import sys
 
@@ -207,17 +207,16 @@ def without_selection(config: dict[str, Any]) -> dict[str, Any]:
     return ident
 
 
-def reselectable(config: dict[str, Any], store: Path) -> Path | None:
-    """A whole stored training that differs from the training `config` only in how snapshots are judged, or None:
-    then `config`'s model is that training's snapshots validated again, and nothing is trained. Only for a training
+def reselectable(cfg: TrainConfig, store: Path) -> Path | None:
+    """A whole stored training that differs from the training `cfg` only in how snapshots are judged, or None:
+    then `cfg`'s model is that training's snapshots validated again, and nothing is trained. Only for a training
     that selects its model (agents/selection.selecting) and has no evaluation of its own."""
     from coopsumo.agents.selection import selecting
-    from coopsumo.config import train_config_from_dict
     from coopsumo.studies.engine.trainings import finished_training
 
-    cfg = train_config_from_dict(config)
     if not selecting(cfg) or cfg.eval_steps != 0:
         return None
+    config = as_data(cfg)
     wanted, name = without_selection(config), model_id(config)
     for folder in sorted(p for p in store.iterdir() if p.is_dir() and not p.is_symlink() and not p.name.startswith(".")
                          and p.name != name):  # fmt: skip
