@@ -155,6 +155,26 @@ def driven_catalogue(tmp_path: Path) -> dict[str, Any]:
     return load_variants(tmp_path / "learners.toml")
 
 
+def test_a_trainings_other_cells_wait_for_its_first() -> None:
+    """A model shared by many cells (the drive variants', a conditioned network's alphas, the demands) is trained
+    by its first cell; every other cell of it names that cell (after: the runner gives a free worker another cell
+    meanwhile, not one that would wait on the training's lock; the conditioned profile's one lone training held both
+    workers)."""
+    from coopsumo.studies.engine.model_store import model_id
+    from coopsumo.studies.protocol.plan import PROFILES, cell_specs
+
+    specs = cell_specs(PROFILES["conditioned"])
+    firsts: dict[str, str] = {}
+    for spec in specs:
+        if spec["train_key"] is None:
+            assert "after" not in spec
+        elif (first := firsts.setdefault(model_id(spec["config"]["train"]), spec["key"])) == spec["key"]:
+            assert "after" not in spec, spec["key"]
+        else:
+            assert spec["after"] == first, spec["key"]
+    assert len(firsts) == 30 and sum("after" in s for s in specs) == sum(s["kind"] == "model" for s in specs) - 30
+
+
 def test_a_drive_variant_drives_the_same_training_its_own_way(tmp_path: Path) -> None:
     """A variant with a `drive` table shares its parent's trainings (the same train_key and training config) and
     records how it drives in its cells (another record); a child inherits its parent's drive; the judged variant's

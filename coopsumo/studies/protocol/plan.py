@@ -41,7 +41,7 @@ from coopsumo.studies.engine.catalogue import (
     load_learners,
     read_profiles,
 )
-from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED
+from coopsumo.studies.engine.model_store import FIRST_TRAIN_SEED, model_id
 from coopsumo.validation import (
     ALPHA_MAX,
     ALPHA_MIN,
@@ -248,7 +248,9 @@ def eval_config(profile: Profile, scenario: str, i: int, policy: str, alpha: flo
 
 def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> list[dict[str, Any]]:
     """Every cell: one per (variant, alpha, training seed, scenario, demand, evaluation seed set) and per (baseline,
-    scenario, demand, evaluation seed set); the variants are learners.toml's unless `known` gives others."""
+    scenario, demand, evaluation seed set); the variants are learners.toml's unless `known` gives others. Every cell
+    of a model but its first (its training: a conditioned network's alphas are one) names that first cell (after: the
+    runner starts it once the first is done, so that no worker waits on the lock of a training another one runs)."""
     known = variants() if known is None else known
     specs: list[dict[str, Any]] = []
     models: list[tuple[Variant, float, int, tuple[str, ...]]] = []
@@ -259,6 +261,7 @@ def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> lis
         for alpha in profile.alphas:
             for seed in profile.seeds[: profile.alpha_seeds]:
                 models.append((known[name], alpha, seed, ("free",)))
+    first_of: dict[str, str] = {}  # a model's first cell (by its store name): the others wait for it (after)
     for variant, alpha, seed, scenarios in models:
         cfg = train_config(profile, variant, alpha, seed)
         train_key = f"a{number_name(alpha)}_seed{seed}_{_learner_tag(variant.learner)}"
@@ -275,6 +278,8 @@ def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> lis
                           "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
                           "train_key": train_key, "training": cfg,
                           "config": json.loads(json.dumps(config))})  # fmt: skip
+            if (first := first_of.setdefault(model_id(specs[-1]["config"]["train"]), key)) != key:
+                specs[-1]["after"] = first
     for policy in BASELINES:
         for scenario, (i, t_up), offset in product(("free", "accident"), enumerate(profile.t_ups),
                                                    profile.eval_offsets):  # fmt: skip

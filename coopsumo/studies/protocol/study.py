@@ -110,12 +110,8 @@ def accident_measures(run_dir: Path, cfg: SimConfig, departed: int) -> dict[str,
 
 # -- the study -------------------------------------------------------------------------------------
 def _order(todo: list[dict[str, Any]]) -> None:
-    """Each training's first cell before any cell that would wait for it, free flow (short) before the accident."""
-    first: dict[str, str] = {}
-    for s in todo:
-        if s["train_key"] is not None:
-            first.setdefault(s["train_key"], s["key"])
-    todo.sort(key=lambda s: (s["train_key"] is None or first[s["train_key"]] != s["key"], s["scenario"] != "free"))
+    """Each model's first cell (the one that trains it) before the others, free flow (short) before the accident."""
+    todo.sort(key=lambda s: (s["train_key"] is None or "after" in s, s["scenario"] != "free"))
 
 
 STUDY = Study("protocol", CELLS, REQUIRED, lambda root, s: (root / "runs" / s["key"],), _order)
