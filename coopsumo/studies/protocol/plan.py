@@ -27,6 +27,7 @@ from coopsumo.config import (
     RoadConfig,
     SimConfig,
     TrainConfig,
+    as_data,
     to_dict,
 )
 from coopsumo.dqn_config import MIN_ACCIDENT_VALIDATION_STEPS, DQNConfig
@@ -271,14 +272,14 @@ def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> lis
             ev = eval_config(profile, scenario, i, "dqn", alpha, offset)
             key = f"{variant.name}_a{number_name(alpha)}_seed{seed}_{scenario}_t{number_name(t_up)}"
             key += _set_suffix(profile, offset)
-            config: dict[str, Any] = {"train": to_dict(cfg), "eval": to_dict(ev)}
+            config: dict[str, Any] = {"train": as_data(cfg), "eval": as_data(ev)}
             if variant.drive():  # part of the cell's identity: a record driven otherwise is rerun
                 config["drive"] = variant.drive()
             specs.append({"key": key, "kind": "model", "variant": variant.name, "alpha": alpha, "seed": seed,
                           "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
                           "train_key": train_key, "training": cfg,
-                          "config": json.loads(json.dumps(config))})  # fmt: skip
-            if (first := first_of.setdefault(model_id(specs[-1]["config"]["train"]), key)) != key:
+                          "config": config})  # fmt: skip
+            if (first := first_of.setdefault(model_id(config["train"]), key)) != key:
                 specs[-1]["after"] = first
     for policy in BASELINES:
         for scenario, (i, t_up), offset in product(("free", "accident"), enumerate(profile.t_ups),
@@ -288,7 +289,7 @@ def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> lis
             specs.append({"key": key + _set_suffix(profile, offset),
                           "kind": "baseline", "variant": policy, "alpha": 0.0, "seed": None, "scenario": scenario,
                           "t_up": t_up, "eval_seed": ev.seed, "weights": None, "train_key": None,
-                          "config": json.loads(json.dumps({"eval": to_dict(ev)}))})  # fmt: skip
+                          "config": {"eval": as_data(ev)}})  # fmt: skip
     return specs
 
 

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from coopsumo.agents.training_logs import validation_table
+from coopsumo.config import as_data
 from coopsumo.files import read_csv, read_json, write_atomic, write_text_atomic
 from coopsumo.policy_spec import DRIVES
 from coopsumo.record_schemas import PROTOCOL_STATS
@@ -190,7 +190,7 @@ def committed_runs(folder: Path, variant: str, runs: pd.DataFrame, profile: Any)
     if not (folder / "runs.csv").is_file() or not (folder / "study.json").is_file():
         return empty, f"no runs.csv and study.json in {folder.name}"
     study = read_json(folder / "study.json")
-    theirs, ours = study.get("profile", {}), json.loads(json.dumps(asdict(profile)))
+    theirs, ours = study.get("profile", {}), as_data(profile)
     differ = [f for f in SAME_PROFILE if json.dumps(theirs.get(f)) != json.dumps(ours.get(f))]
     if differ:
         return empty, f"its profile differs in {', '.join(differ)}"

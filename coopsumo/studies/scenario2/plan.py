@@ -4,7 +4,6 @@ configuration of every cell and their keys. No SUMO here; scenario2.py runs the 
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import MISSING, dataclass, fields, replace
 from pathlib import Path
@@ -20,7 +19,6 @@ from coopsumo.config import (
     SimConfig,
     TrainConfig,
     as_data,
-    to_dict,
 )
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError
@@ -446,7 +444,7 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
             p: float | None, cfg: TrainConfig | SimConfig | dict[str, Any], **extra: Any) -> None:  # fmt: skip
         specs.append({"key": key, "lanes": lanes, "t_up_s": t_up, "load": load, "alpha": alpha, "seed": seed,
                       "policy": policy, "p": p, **extra,
-                      "config": json.loads(json.dumps(cfg if isinstance(cfg, dict) else to_dict(cfg)))})  # fmt: skip
+                      "config": cfg if isinstance(cfg, dict) else as_data(cfg)})  # fmt: skip
 
     def add_model(key: str, lanes: int, t_up: float, load: float, alpha: float, seed: int, train: TrainConfig,
                   policy: str = "dqn", **extra: Any) -> None:  # fmt: skip
@@ -457,7 +455,7 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
         extra.update(evals_key=key, training=train)
         if (first := first_of.setdefault(extra["train_key"], key)) != key:
             extra["after"] = first
-        config = {"train": to_dict(train), "evals": [to_dict(ev) for ev in evals], **traj}
+        config = {"train": as_data(train), "evals": [as_data(ev) for ev in evals], **traj}
         add(key, lanes, t_up, load, seed, policy, alpha, None, config, **extra)
 
     for lanes, t_up, load in profile.conditions():
@@ -477,7 +475,7 @@ def cell_specs(profile: Profile) -> list[dict[str, Any]]:
                     cfg = classical_config(lanes, t_up, f"mobil:p={p}" if policy == "mobil" else policy, seed, profile)
                     cfg.validate()
                     add(classical_key(lanes, t_up, policy, p, seed), lanes, t_up, load, seed, policy, None, p,
-                        {"run": to_dict(cfg), **traj} if traj else cfg)  # fmt: skip
+                        {"run": as_data(cfg), **traj} if traj else cfg)  # fmt: skip
     return specs
 
 
