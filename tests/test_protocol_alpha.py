@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from coopsumo.studies.protocol.alpha_response import FIGURE, alpha_lines, pairs_lines, response_figure, response_table
 from coopsumo.studies.protocol.plan import PROFILES, cell_specs, variants
@@ -132,3 +133,33 @@ def test_the_header_names_a_learner_trained_longer() -> None:
     assert "each learner trained 90,000 steps, `c2xs` 180,000 (in free flow" in _header_lines(PROFILES["conditioned"],
                                                                                               meta)[2]
     assert "each learner trained 90,000 steps (in free flow" in _header_lines(PROFILES["nr10"], meta)[2]
+
+
+def test_a_profile_with_an_analysis_plan_quotes_its_commit(tmp_path: Path) -> None:
+    """The conditioned profile's report quotes the commit of the plan fixed before its models were driven (the
+    research rule: the report quotes the plan's commit), a commit of this repository; a profile without a plan says
+    nothing of one; a profile file's plan must be a commit's hash, refused in one line naming the field."""
+    import json
+    import subprocess
+
+    from coopsumo.errors import ConfigError
+    from coopsumo.studies.protocol.plan import own_profiles
+    from coopsumo.studies.protocol.report import plan_line
+
+    root = Path(__file__).resolve().parents[1]
+    conditioned = PROFILES["conditioned"]
+    assert conditioned.plan and not PROFILES["nr10"].plan and plan_line(PROFILES["nr10"]) == []
+    (line,) = plan_line(conditioned)
+    assert f"commit `{conditioned.plan}`" in line
+    assert line in (root / "results" / "learner_protocol_conditioned" / "report.md").read_text().splitlines()
+    if (root / ".git").exists():
+        found = subprocess.run(["git", "cat-file", "-e", f"{conditioned.plan}^{{commit}}"], cwd=root, check=False)
+        assert found.returncode == 0, f"{conditioned.plan} is not a commit of this repository"
+    path = tmp_path / "mine.toml"
+    for plan, ok in (("x; rm -rf /", False), ("C68A4EE", False), ("c68a4", False), ("c68a4ee", True)):
+        path.write_text(f'[profiles.mine]\nvariants = ["stks"]\nplan = {json.dumps(plan)}\n')
+        if ok:
+            assert own_profiles(path)[0]["mine"].plan == plan
+        else:
+            with pytest.raises(ConfigError, match=r"\[profiles.mine\] plan must be a commit's hash \(7 to 40 hex"):
+                own_profiles(path)

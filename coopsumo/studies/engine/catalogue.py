@@ -40,6 +40,17 @@ class Rule(Protocol):
     def problem(self, value: Any) -> str | None: ...
 
 
+class CommitRule:
+    """The rule of a profile's analysis-plan commit (scenario II's response_plan, the protocol's plan): empty, or a
+    commit's hash, 7 to 40 lowercase hex digits (any text was taken, and declared the response reading confirmatory:
+    `x; rm -rf /` was recorded as the plan's commit; issue 82, probe 13, F21)."""
+
+    def problem(self, value: Any) -> str | None:
+        if value == "" or (isinstance(value, str) and re.fullmatch(r"[0-9a-f]{7,40}", value)):
+            return None
+        return f"must be a commit's hash (7 to 40 hex digits: git rev-parse --short HEAD) or empty, got {shown(value)}"
+
+
 class Entry:
     """Errors about one entry of one file: `<file>: [<entry>] <what is wrong>`."""
 

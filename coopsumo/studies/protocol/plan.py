@@ -36,6 +36,7 @@ from coopsumo.studies.engine.catalogue import (
     DATA,
     LEARNERS,
     LEARNERS_FILE,
+    CommitRule,
     Entry,
     Learner,
     Rule,
@@ -106,6 +107,9 @@ class Profile:
     the report pairs the two by training seed when that study ran the same seeds, demands and step counts with
     today's learner of that variant (protocol_report.committed_pair_lines), so that trainings made once need not be
     made again"""
+    plan: str = ""
+    """the commit of the analysis plan fixed before the profile's models ran (docs/studies.md), which the report
+    quotes; empty: none (the report's reading is the protocol's own tables)"""
 
     def judged_variant(self) -> str:
         return self.judged or self.variants[0]
@@ -119,7 +123,7 @@ FIELD_RULES: dict[str, Rule] = {
     "accident_steps": steps, "accident_start": integer(0), "accident_duration": integer(1),
     "alpha_seeds": integer(0, MAX_SEEDS), "lanes": integer(MIN_LANES, MAX_LANES),
     "eval_offsets": ListRule(0, SEED_MAX, whole=True, most=MAX_SEEDS),
-    "alphas": ListRule(ALPHA_MIN, ALPHA_MAX, low_open=True),
+    "alphas": ListRule(ALPHA_MIN, ALPHA_MAX, low_open=True), "plan": CommitRule(),
 }  # fmt: skip
 """the rule of each field of a profile: the flags' rules of the same quantities elsewhere (the studies' --seeds,
 --steps, --t-up, --lanes; simulate's --accident-start and --accident-steps: profile_problem), so that a profile takes

@@ -301,6 +301,14 @@ def _longer(profile: Any) -> str:
     return "".join(f", `{v}` {profile.train_steps * f:,}" for v, f in factors)
 
 
+def plan_line(profile: Any) -> list[str]:
+    """The header's line on the profile's analysis plan (Profile.plan), or none when the profile names no commit."""
+    if not profile.plan:
+        return []
+    return [f"Read under the analysis plan fixed before these models were driven, in commit `{profile.plan}` "
+            "(docs/studies.md, the profile's own section)."]
+
+
 def _header_lines(profile: Any, meta: dict[str, Any]) -> list[str]:
     lines = [
         "# The learner protocol: every training seed against the hand-made rules",
@@ -316,6 +324,7 @@ def _header_lines(profile: Any, meta: dict[str, Any]) -> list[str]:
         "The trained model is the unit: each interval is a 95% stratified bootstrap over models (rliable's "
         "procedure), IQM is the interquartile mean over models, P(>b) the probability that a model beats "
         "baseline b (rliable's probability of improvement), 'lost' how many models did worse than b.",
+        *plan_line(profile),
         f"{meta['cells']} cells, {meta['cells_run']} run by the last command ({meta['wall_seconds']:.0f} s wall, "
         f"{meta['workers']} worker{'s' if meta['workers'] != 1 else ''}); "
         f"{meta.get('cell_cpu_seconds_sum', 0) / 3600:.1f} CPU hours in all.",

@@ -4,7 +4,6 @@ configuration of every cell and their keys. No SUMO here; scenario2.py runs the 
 
 from __future__ import annotations
 
-import re
 from dataclasses import MISSING, dataclass, fields, replace
 from pathlib import Path
 from typing import Any, get_type_hints
@@ -22,8 +21,7 @@ from coopsumo.config import (
 )
 from coopsumo.dqn_config import DQN_PRESETS, DQNConfig
 from coopsumo.errors import ConfigError
-from coopsumo.field_rules import shown
-from coopsumo.studies.engine.catalogue import DATA, Entry, Rule, read_profiles
+from coopsumo.studies.engine.catalogue import DATA, CommitRule, Entry, Rule, read_profiles
 from coopsumo.validation import (
     ALPHA_LIST,
     MAX_STEPS,
@@ -202,16 +200,6 @@ LOAD_LIST = ListRule(0.0, low_open=True, least=0)
 """loads (a profile's loads and eval_loads): each T_up they give is checked too (profile_problem)"""
 T_UP_LIST = t_up_rule(ControlConfig().dt_s, least=0)
 """a fixed T_up list (--t-up, a profile's t_up_s; none: the load grid)"""
-
-
-class CommitRule:
-    """response_plan's rule: empty, or a commit's hash, 7 to 40 lowercase hex digits (any text was taken, and declared
-    the response reading confirmatory: `x; rm -rf /` was recorded as the plan's commit; issue 82, probe 13, F21)."""
-
-    def problem(self, value: Any) -> str | None:
-        if value == "" or (isinstance(value, str) and re.fullmatch(r"[0-9a-f]{7,40}", value)):
-            return None
-        return f"must be a commit's hash (7 to 40 hex digits: git rev-parse --short HEAD) or empty, got {shown(value)}"
 
 
 RESPONSE_PLAN = CommitRule()
