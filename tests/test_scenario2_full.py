@@ -18,6 +18,7 @@ import pandas as pd
 import pytest
 from conftest import main_here
 
+from coopsumo.config import as_data
 from coopsumo.studies.engine.model_store import model_id
 from coopsumo.studies.scenario2 import gate, gate_report, plan
 from coopsumo.studies.scenario2 import study as s2
@@ -270,13 +271,13 @@ def test_a_stored_model_of_another_identity_is_another_folder() -> None:
     per-alpha models are the full profile's of those alphas (trained once), and a network whose alpha draw,
     selection alphas, demands, steps or preset differ is another folder, trained anew, never the stored one."""
     full, check = plan.PROFILES["full"], plan.PROFILES["check"]
-    ident = model_id(json.loads(json.dumps(plan.to_dict(plan.lane_train_config(3, 1, full)))))
-    assert ident == model_id(json.loads(json.dumps(plan.to_dict(plan.lane_train_config(3, 1, check)))))
+    ident = model_id(as_data(plan.lane_train_config(3, 1, full)))
+    assert ident == model_id(as_data(plan.lane_train_config(3, 1, check)))
     others = [replace(full, alpha_draw_max=48.0), replace(full, validation_alphas=(0.0, 8.0)),
               replace(full, loads=(0.5, 1.0)), replace(full, train_steps=80_000), replace(full, preset="alpha_only")]
-    names = {model_id(json.loads(json.dumps(plan.to_dict(plan.lane_train_config(3, 1, p))))) for p in others}
+    names = {model_id(as_data(plan.lane_train_config(3, 1, p))) for p in others}
     assert ident not in names and len(names) == len(others)
-    per_alpha = model_id(json.loads(json.dumps(plan.to_dict(plan.lane_train_config(3, 1, check, 1.0)))))
+    per_alpha = model_id(as_data(plan.lane_train_config(3, 1, check, 1.0)))
     assert per_alpha.startswith("default_a1_seed1_") and ident.startswith("default_ac_seed1_")
     full_specs = {s["key"]: s for s in plan.cell_specs(full)}
     assert model_id(full_specs["L3_T0.67_a1_s1"]["config"]["train"]) == per_alpha
