@@ -196,10 +196,9 @@ def drive_pooled(record: dict[str, Any], evaluations: Iterable[tuple[SimConfig, 
 @dataclass(frozen=True)
 class Train:
     """A cell's model: the training `config` taken from the model store `store` (None: the study's own,
-    model_store.store_for), trained there when it is not whole (the store names it by its data, to_dict, at its
-    edge); ROOT/<folder> links to it. The cell drives
-    its file `weights` with the drive settings `drive` (a cell's config.drive, keyed as policy_spec.DRIVES) and, for an
-    alpha-conditioned model, at `alpha` (dqn_policy)."""
+    model_store.store_for), trained there when it is not whole (the store names it by its data, config.as_data, at
+    its edge); ROOT/<folder> links to it. The cell drives its file `weights` with the drive settings `drive` (a cell's
+    config.drive, keyed as policy_spec.DRIVES) and, for an alpha-conditioned model, at `alpha` (dqn_policy)."""
 
     config: TrainConfig
     folder: str

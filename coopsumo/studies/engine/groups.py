@@ -8,7 +8,6 @@ which trains it alone and records the failure as its own. Local backend only: on
 
 from __future__ import annotations
 
-import json
 import resource
 import sys
 from collections.abc import Iterable, Mapping, Sequence
@@ -17,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from coopsumo.config import TrainConfig, as_data
+from coopsumo.dqn_config import DQNConfig
 from coopsumo.files import read_json, write_json
 from coopsumo.studies.engine.model_store import (
     GROUP_COST,
@@ -44,14 +44,13 @@ def training_configs(specs: Sequence[dict[str, Any]]) -> list[TrainConfig]:
 def groups_to_train(specs: Sequence[dict[str, Any]], store: Path, size: int = GROUP_SIZE) -> list[list[TrainConfig]]:
     """The stacked trainings of specs not whole in the store (and not a stored training's snapshots judged again),
     grouped by learner settings into groups of up to `size`, in the cells' order; a lone one is no group."""
-    by_learner: dict[str, list[TrainConfig]] = {}
+    by_learner: dict[DQNConfig, list[TrainConfig]] = {}  # one learner a group (agents/group.group_problem)
     for cfg in training_configs(specs):
         if not cfg.dqn.stacked_updates or cfg.eval_steps != 0:
             continue
-        config = as_data(cfg)
-        if stored_model(config, store) is not None or (store.is_dir() and reselectable(cfg, store) is not None):
+        if stored_model(as_data(cfg), store) is not None or (store.is_dir() and reselectable(cfg, store) is not None):
             continue
-        by_learner.setdefault(json.dumps(config["dqn"], sort_keys=True), []).append(cfg)
+        by_learner.setdefault(cfg.dqn, []).append(cfg)
     groups = [configs[i: i + size] for configs in by_learner.values() for i in range(0, len(configs), size)]
     return [g for g in groups if len(g) > 1]
 

@@ -128,7 +128,7 @@ def stored_model(config: dict[str, Any], store: Path, link: Path | None = None) 
 
 def train_shared(cfg: TrainConfig, out: Path, store: Path) -> tuple[dict[str, Any], int | None]:
     """The model of the training `cfg` from `store`, trained (or resumed) there first if it is not whole. The store
-    names and judges it by its data (to_dict, here at the store's edge); the learner gets `cfg` as it is.
+    names and judges it by its data (config.as_data, here at the store's edge); the learner gets `cfg` as it is.
 
     Under a lock per model, so that cells and studies asking at once (the margin variants, a conditioned model's
     alphas, scenario I and the protocol) train it once. out, the study's own training folder, becomes a link to the

@@ -269,6 +269,7 @@ def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> lis
     first_of: dict[str, str] = {}  # a model's first cell (by its store name): the others wait for it (after)
     for variant, alpha, seed, scenarios in models:
         cfg = train_config(profile, variant, alpha, seed)
+        stored_as = model_id(as_data(cfg))  # the model's store name: cells of one model share it
         train_key = f"a{number_name(alpha)}_seed{seed}_{_learner_tag(variant.learner)}"
         if variant.steps_factor != 1:  # another training than the same learner's at the profile's steps
             train_key += f"_x{variant.steps_factor}"
@@ -283,7 +284,7 @@ def cell_specs(profile: Profile, known: dict[str, Variant] | None = None) -> lis
                           "scenario": scenario, "t_up": t_up, "eval_seed": ev.seed, "weights": variant.weights,
                           "train_key": train_key, "training": cfg,
                           "config": config})  # fmt: skip
-            if (first := first_of.setdefault(model_id(config["train"]), key)) != key:
+            if (first := first_of.setdefault(stored_as, key)) != key:
                 specs[-1]["after"] = first
     for policy in BASELINES:
         for scenario, (i, t_up), offset in product(("free", "accident"), enumerate(profile.t_ups),
